@@ -1,0 +1,1 @@
+"""Gymnasium environments on feat2map maps (installed as feat2map.envs)."""

@@ -1,0 +1,82 @@
+"""Cubic Bézier curves (paper eqs. 1-2): control points, evaluation, arc-length sampling."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+Point = tuple[float, float]
+_DENSE = 64  # samples used to tabulate arc length
+
+
+@dataclass(frozen=True)
+class Bezier:
+    """A cubic Bézier curve given by its four control points P0..P3."""
+
+    p0: Point
+    p1: Point
+    p2: Point
+    p3: Point
+
+    @classmethod
+    def from_poses(cls, start: Point, start_heading: float, end: Point, end_heading: float) -> "Bezier":
+        """Paper eq. 2: P1/P2 pushed along the end headings by d0 = d1 = half the chord."""
+        d = 0.5 * math.hypot(end[0] - start[0], end[1] - start[1])
+        return cls(
+            (float(start[0]), float(start[1])),
+            (start[0] + d * math.cos(start_heading), start[1] + d * math.sin(start_heading)),
+            (end[0] - d * math.cos(end_heading), end[1] - d * math.sin(end_heading)),
+            (float(end[0]), float(end[1])),
+        )
+
+    @property
+    def control(self) -> np.ndarray:
+        return np.array([self.p0, self.p1, self.p2, self.p3], dtype=float)
+
+    def point(self, t: np.ndarray | float) -> np.ndarray:
+        """B(t) for scalar or array t in [0, 1]; shape (..., 2)."""
+        t = np.asarray(t, dtype=float)[..., None]
+        u = 1.0 - t
+        c = self.control
+        return u**3 * c[0] + 3 * u**2 * t * c[1] + 3 * u * t**2 * c[2] + t**3 * c[3]
+
+    def derivative(self, t: np.ndarray | float) -> np.ndarray:
+        t = np.asarray(t, dtype=float)[..., None]
+        u = 1.0 - t
+        c = self.control
+        return 3 * u**2 * (c[1] - c[0]) + 6 * u * t * (c[2] - c[1]) + 3 * t**2 * (c[3] - c[2])
+
+    def heading(self, t: np.ndarray | float) -> np.ndarray:
+        d = self.derivative(t)
+        return np.arctan2(d[..., 1], d[..., 0])
+
+    def _arc_table(self) -> tuple[np.ndarray, np.ndarray]:
+        t = np.linspace(0.0, 1.0, _DENSE + 1)
+        pts = self.point(t)
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+        return t, s
+
+    @property
+    def length(self) -> float:
+        return float(self._arc_table()[1][-1])
+
+    def sample(self, spacing: float) -> np.ndarray:
+        """Points at (nearly) equal arc-length spacing, end points exact; shape (k, 2), k >= 2."""
+        t, s = self._arc_table()
+        k = max(2, int(math.ceil(s[-1] / spacing)) + 1)
+        ts = np.interp(np.linspace(0.0, s[-1], k), s, t)
+        ts[0], ts[-1] = 0.0, 1.0
+        return self.point(ts)
+
+
+def polyline_length(points: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(np.asarray(points, dtype=float), axis=0).T).sum())
+
+
+def unit(angle: float) -> np.ndarray:
+    return np.array([math.cos(angle), math.sin(angle)])
+
+
+def left_normal(angle: float) -> np.ndarray:
+    return np.array([-math.sin(angle), math.cos(angle)])

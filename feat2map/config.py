@@ -1,0 +1,71 @@
+"""Every tunable constant of feat2map, named once.
+
+`GenerationConfig` is the one value object the generator takes; the module-level
+constants are its defaults and are shared by readers, writers and the envs.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+GRID_GAP_M = 100.0  # paper: P_{x+1,y} is 100 m east of P_{x,y}
+LANE_WIDTH_M = 3.5  # paper: default lane width of the input maps
+CROSSWALK_WIDTH_M = 4.5  # paper: slightly longer than a sedan
+STUB_LENGTH_M = 25.0  # dead-end roads: the map's entries and exits; short of half a grid gap
+MIN_SOCKET_SEPARATION_DEG = 20.0
+MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
+JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
+SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
+JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
+STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| below this is "straight"
+UTURN_THRESHOLD_DEG = 150.0
+SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
+ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
+MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles
+SIGNAL_POLE_OFFSET_M = 1.0  # pole beyond the road edge
+MAP_FORMAT_VERSION = 1
+UTM_ZONE = 10
+UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
+
+
+@dataclass(frozen=True)
+class GenerationConfig:
+    """Knobs of map construction; every field has the paper's default."""
+
+    grid_gap: float = GRID_GAP_M
+    lane_width: float = LANE_WIDTH_M
+    crosswalk_width: float = CROSSWALK_WIDTH_M
+    stub_length: float = STUB_LENGTH_M
+    min_socket_separation_deg: float = MIN_SOCKET_SEPARATION_DEG
+    min_junction_radius: float = MIN_JUNCTION_RADIUS_M
+    junction_margin: float = JUNCTION_MARGIN_M
+    speed_limit: float = SPEED_LIMIT_MPS
+    junction_speed_limit: float = JUNCTION_SPEED_LIMIT_MPS
+    sample_spacing: float = SAMPLE_SPACING_M
+    samples_per_combination: int = 1
+    uturns: bool = False
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool):
+                continue
+            if not isinstance(value, (int, float)) or value <= 0:
+                raise ValueError(f"config field '{f.name}' must be a positive number, got {value!r}")
+        if self.samples_per_combination != int(self.samples_per_combination):
+            raise ValueError("config field 'samples_per_combination' must be an integer >= 1")
+        if self.grid_gap < 4 * self.min_junction_radius:
+            raise ValueError(
+                f"config field 'grid_gap' ({self.grid_gap}) must be at least 4x min_junction_radius"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "GenerationConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown config field(s): {', '.join(sorted(unknown))}")
+        return replace(cls(), **data)

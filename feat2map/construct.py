@@ -1,0 +1,305 @@
+"""Build the HD map geometry of placed junctions: sockets, roads, lanes, controls, crosswalks.
+
+Every road and lane is one cubic Bézier (paper eqs. 1-2): lane end points are the road's
+end points shifted along the normal of the end headings. Lanes of a road are centred on its
+reference line, so an arm's socket (the reference end point) is the mean of its lane ends.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from shapely.geometry import MultiPoint, Polygon
+from shapely.geometry.polygon import orient
+
+from .bezier import Bezier, left_normal, unit
+from .config import GenerationConfig
+from .features import JunctionFeature
+from .layout import Placement
+from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
+
+
+@dataclass(frozen=True)
+class SocketGeometry:
+    point: tuple[float, float]
+    angle: float  # absolute outward direction, radians
+    half_width: float
+
+
+def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
+    """Centre-to-socket distance: far enough that neighbouring legs' pavements do not overlap,
+    plus room for a crosswalk and stop line between the overlap zone and the socket."""
+    n = feature.n_roads
+    halves = [(s.lanes_in + s.lanes_out) * cfg.lane_width / 2 for s in feature.sockets]
+    need = cfg.min_junction_radius
+    for i in range(n):
+        j = (i + 1) % n
+        delta = math.radians((feature.rotation[j] - feature.rotation[i]) % 360.0)
+        if delta < math.pi - 1e-6:
+            s = math.sin(delta)
+            need = max(need, (halves[j] + halves[i] * math.cos(delta)) / s,
+                       (halves[i] + halves[j] * math.cos(delta)) / s)
+    return need + cfg.crosswalk_width + 2 * cfg.junction_margin
+
+
+def socket_geometry(feature: JunctionFeature, center: np.ndarray, rotation_deg: float,
+                    cfg: GenerationConfig) -> list[SocketGeometry]:
+    r = junction_radius(feature, cfg)
+    out = []
+    for s in feature.sockets:
+        a = math.radians(s.angle + rotation_deg)
+        p = center + r * unit(a)
+        out.append(SocketGeometry((float(p[0]), float(p[1])), a, (s.lanes_in + s.lanes_out) * cfg.lane_width / 2))
+    return out
+
+
+class _Builder:
+    """Accumulates map elements; lane ids are `<road>_<k>`."""
+
+    def __init__(self, cfg: GenerationConfig) -> None:
+        self.cfg = cfg
+        self.lanes: dict[str, dict] = {}
+        self.roads: dict[str, Road] = {}
+        self.beziers: dict[str, Bezier] = {}
+
+    def lane_curves(self, start, h0, end, h1, offset: float) -> tuple[Bezier, np.ndarray, np.ndarray, np.ndarray]:
+        """Centre and (left, right) boundaries of a lane `offset` metres left of start->end."""
+        w = self.cfg.lane_width / 2
+
+        def curve(o: float) -> Bezier:
+            return Bezier.from_poses(tuple(np.asarray(start) + o * left_normal(h0)), h0,
+                                     tuple(np.asarray(end) + o * left_normal(h1)), h1)
+
+        centre = curve(offset)
+        pts = centre.sample(self.cfg.sample_spacing)
+        k = len(pts)
+        left = _resample(curve(offset + w), k)
+        right = _resample(curve(offset - w), k)
+        return centre, pts, left, right
+
+    def add_lane(self, lane_id: str, road_id: str, centre: Bezier, pts, left, right, *, speed: float,
+                 junction_id: str | None = None, turn: str = "none", ltype: str = "solid_white",
+                 rtype: str = "solid_white") -> None:
+        self.beziers[lane_id] = centre
+        self.lanes[lane_id] = dict(
+            id=lane_id, road_id=road_id, centerline=as_polyline(pts), left_boundary=as_polyline(left),
+            right_boundary=as_polyline(right), width=self.cfg.lane_width, speed_limit=speed,
+            predecessors=[], successors=[], left_neighbors=[], right_neighbors=[], left_reverse_neighbors=[],
+            turn=turn, junction_id=junction_id, left_boundary_type=ltype, right_boundary_type=rtype, bezier=centre,
+        )
+
+    def add_road(self, road_id: str, kind: str, start, h0: float, end, h1: float, n_right: int, n_left: int,
+                 start_junction: str | None, end_junction: str | None) -> Road:
+        """A road with `n_right` lanes along start->end and `n_left` against it, centred on the reference."""
+        w = self.cfg.lane_width
+        divider = (n_right - n_left) * w / 2  # left of the reference by this much
+        right_ids, left_ids = [], []
+        for i in range(n_right):
+            lid = f"{road_id}_{len(right_ids)}"
+            off = divider - (i + 0.5) * w
+            centre, pts, left, right = self.lane_curves(start, h0, end, h1, off)
+            ltype = ("solid_yellow" if n_left else "solid_white") if i == 0 else "dotted_white"
+            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype)
+            right_ids.append(lid)
+        for i in range(n_left):
+            lid = f"{road_id}_{n_right + i}"
+            off = divider + (i + 0.5) * w
+            # driving against the reference: from end to start, so "left" is the reference's right
+            centre, pts, left, right = self.lane_curves(end, h1 + math.pi, start, h0 + math.pi, -off)
+            ltype = ("solid_yellow" if n_right else "solid_white") if i == 0 else "dotted_white"
+            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype)
+            left_ids.append(lid)
+        for ids in (right_ids, left_ids):
+            for a, b in zip(ids, ids[1:]):  # a is nearer the divider: left of b
+                self.lanes[a]["right_neighbors"].append(b)
+                self.lanes[b]["left_neighbors"].append(a)
+        if right_ids and left_ids:
+            self.lanes[right_ids[0]]["left_reverse_neighbors"].append(left_ids[0])
+            self.lanes[left_ids[0]]["left_reverse_neighbors"].append(right_ids[0])
+        road = Road(road_id, kind, tuple(right_ids), tuple(left_ids), Bezier.from_poses(start, h0, end, h1),
+                    divider, None, start_junction, end_junction)
+        self.roads[road_id] = road
+        return road
+
+    def link(self, a: str, b: str) -> None:
+        self.lanes[a]["successors"].append(b)
+        self.lanes[b]["predecessors"].append(a)
+
+
+def _resample(curve: Bezier, k: int) -> np.ndarray:
+    """A boundary with the same number of samples as its lane's centreline."""
+    pts = curve.sample(curve.length / max(k - 1, 1) * 0.999999)
+    if len(pts) != k:
+        t, s = curve._arc_table()
+        pts = curve.point(np.interp(np.linspace(0, s[-1], k), s, t))
+    return pts
+
+
+def classify_turn(entry_heading: float, exit_heading: float) -> str:
+    """left / straight ("none") / right from the heading change, in the paper's sense."""
+    from .config import STRAIGHT_TOLERANCE_DEG
+
+    d = math.degrees((exit_heading - entry_heading + math.pi) % (2 * math.pi) - math.pi)
+    if abs(d) <= STRAIGHT_TOLERANCE_DEG:
+        return "none"
+    return "left" if d > 0 else "right"
+
+
+def lane_pairs(p: int, exits: Sequence[tuple[int, int, str]]) -> list[tuple[int, int, int]]:
+    """Lane-level connections at one approach: (in lane, exit index, out lane), lanes right to left.
+
+    Exits are sorted from the sharpest right to the sharpest left and split over the incoming
+    lanes in that order, like lane-use arrows: lane i serves the exits whose share of the
+    [0, 1] interval overlaps lane i's share. Within one exit the serving lanes take the exit's
+    lanes right-aligned (left-aligned for left turns and U-turns). Neither rule lets two
+    connections of one approach cross, and every incoming lane and every exit gets one.
+    """
+    n_exits = len(exits)
+    out = []
+    for e, (_, q, turn) in enumerate(exits):
+        lanes = [i for i in range(p) if i * n_exits < (e + 1) * p and e * p < (i + 1) * n_exits]
+        c = len(lanes)
+        for k, i in enumerate(lanes):
+            j = max(0, q - c + k) if turn in ("left", "uturn") else min(k, q - 1)
+            out.append((i, e, j))
+    return out
+
+
+def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None = None) -> HDMap:
+    """Instantiate every placed junction, its roads, lanes, controls and crosswalks."""
+    b = _Builder(cfg)
+    sockets: list[list[SocketGeometry]] = []
+    for p in placements:
+        center = np.array(p.cell, dtype=float) * cfg.grid_gap
+        sockets.append(socket_geometry(p.feature, center, p.rotation_deg, cfg))
+
+    # roads: incoming / outgoing lanes per (junction, socket), each listed right to left
+    incoming: dict[tuple[int, int], list[str]] = {}
+    outgoing: dict[tuple[int, int], list[str]] = {}
+    socket_road: dict[tuple[int, int], str] = {}
+    n_roads = 0
+    for j, p in enumerate(placements):
+        for s, link in enumerate(p.links):
+            if link is not None and (link.junction, link.socket) < (j, s):
+                continue
+            sock = p.feature.sockets[s]
+            g = sockets[j][s]
+            rid = f"R{n_roads}"
+            n_roads += 1
+            if link is None:
+                end = tuple(np.asarray(g.point) + cfg.stub_length * unit(g.angle))
+                road = b.add_road(rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out, sock.lanes_in, f"J{j}", None)
+            else:
+                o = sockets[link.junction][link.socket]
+                road = b.add_road(rid, "connection", g.point, g.angle, o.point, o.angle + math.pi,
+                                  sock.lanes_out, sock.lanes_in, f"J{j}", f"J{link.junction}")
+                incoming[(link.junction, link.socket)] = list(reversed(road.right_lanes))
+                outgoing[(link.junction, link.socket)] = list(reversed(road.left_lanes))
+                socket_road[(link.junction, link.socket)] = rid
+            incoming[(j, s)] = list(reversed(road.left_lanes))
+            outgoing[(j, s)] = list(reversed(road.right_lanes))
+            socket_road[(j, s)] = rid
+
+    junctions: dict[str, Junction] = {}
+    signals: dict[str, Signal] = {}
+    stops: dict[str, StopSign] = {}
+    crosswalks: dict[str, Crosswalk] = {}
+    for j, p in enumerate(placements):
+        jid = f"J{j}"
+        f = p.feature
+        center = np.array(p.cell, dtype=float) * cfg.grid_gap
+        poly = _junction_polygon(center, sockets[j])
+        n_conn = 0
+        for a in range(f.n_roads):
+            ins = incoming[(j, a)]
+            if not ins:
+                continue
+            entry_heading = sockets[j][a].angle + math.pi
+            exits = []
+            for c in range(f.n_roads):
+                if not outgoing[(j, c)] or (c == a and not cfg.uturns):
+                    continue
+                turn = "uturn" if c == a else classify_turn(entry_heading, sockets[j][c].angle)
+                delta = (sockets[j][c].angle - entry_heading + math.pi) % (2 * math.pi) - math.pi
+                exits.append((c, len(outgoing[(j, c)]), turn, delta if c != a else math.pi))
+            exits.sort(key=lambda e: e[3])
+            for i, e, k in lane_pairs(len(ins), [x[:3] for x in exits]):
+                c, _, turn, _ = exits[e]
+                src, dst = ins[i], outgoing[(j, c)][k]
+                rid = f"{jid}_c{n_conn}"
+                n_conn += 1
+                s_pt, d_pt = b.lanes[src]["centerline"][-1], b.lanes[dst]["centerline"][0]
+                h0 = float(b.beziers[src].heading(1.0))
+                h1 = float(b.beziers[dst].heading(0.0))
+                centre, pts, left, right = b.lane_curves(s_pt, h0, d_pt, h1, 0.0)
+                lid = f"{rid}_0"
+                b.add_lane(lid, rid, centre, pts, left, right, speed=cfg.junction_speed_limit, junction_id=jid,
+                           turn=turn, ltype="virtual", rtype="virtual")
+                b.roads[rid] = Road(rid, "junction", (lid,), (), centre, 0.0, jid, jid, jid)
+                b.link(src, lid)
+                b.link(lid, dst)
+        for a in range(f.n_roads):
+            ins = incoming[(j, a)]
+            if not ins or f.control == "bare":
+                continue
+            line, pos, heading = _stop_line(b, ins, cfg)
+            if f.control == "signal":
+                sid = f"{jid}_signal{a}"
+                signals[sid] = Signal(sid, jid, line, pos, heading, tuple(ins))
+            else:
+                sid = f"{jid}_stop{a}"
+                stops[sid] = StopSign(sid, jid, line, pos, heading, tuple(ins))
+        if f.crosswalk:
+            for a, g in enumerate(sockets[j]):
+                cid = f"{jid}_cw{a}"
+                crosswalks[cid] = Crosswalk(cid, jid, _crosswalk_polygon(g, poly, cfg))
+        junctions[jid] = Junction(jid, as_polyline(poly.exterior.coords[:-1]), f, p.cell,
+                                  tuple(socket_road[(j, s)] for s in range(f.n_roads)))
+
+    lanes = {}
+    for lid, d in b.lanes.items():
+        for key in ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors"):
+            d[key] = tuple(d[key])
+        lanes[lid] = Lane(**d)
+    roads = dict(sorted(b.roads.items(), key=lambda kv: (kv[1].kind == "junction", kv[0])))
+    return HDMap(lanes, roads, junctions, signals, stops, crosswalks, meta=dict(meta or {}))
+
+
+def _junction_polygon(center: np.ndarray, socks: Sequence[SocketGeometry]) -> Polygon:
+    """Centrally symmetric hull of the legs' pavement corners: its centroid is the junction centre."""
+    pts = []
+    for g in socks:
+        p = np.asarray(g.point)
+        for side in (-1.0, 1.0):
+            q = p + side * g.half_width * left_normal(g.angle)
+            pts.append(q)
+            pts.append(2 * center - q)
+    hull = MultiPoint([tuple(q) for q in pts]).convex_hull
+    return orient(hull, 1.0)
+
+
+def _stop_line(b: _Builder, ins: list[str], cfg: GenerationConfig):
+    """Stop line across the incoming lanes at their ends (the socket), pole on the right."""
+    w = cfg.lane_width / 2
+    right_lane, left_lane = b.lanes[ins[0]], b.lanes[ins[-1]]
+    h = float(b.beziers[ins[0]].heading(1.0))
+    n_right = -left_normal(h)
+    p_right = np.asarray(right_lane["centerline"][-1]) + w * n_right
+    p_left = np.asarray(left_lane["centerline"][-1]) - w * n_right
+    pos = p_right + cfg.junction_margin * n_right
+    return as_polyline([p_right, p_left]), (float(pos[0]), float(pos[1])), (h + math.pi) % (2 * math.pi)
+
+
+def _crosswalk_polygon(g: SocketGeometry, junction: Polygon, cfg: GenerationConfig):
+    """A strip across the whole leg just inside the socket, clipped to the junction area."""
+    d = unit(g.angle)
+    nrm = left_normal(g.angle)
+    p = np.asarray(g.point)
+    near = p - (cfg.junction_margin + cfg.crosswalk_width) * d
+    far = p - cfg.junction_margin * d
+    hw = g.half_width + cfg.junction_margin
+    strip = Polygon([tuple(near - hw * nrm), tuple(far - hw * nrm), tuple(far + hw * nrm), tuple(near + hw * nrm)])
+    clipped = strip.intersection(junction)
+    return as_polyline(clipped.exterior.coords[:-1])

@@ -1,0 +1,350 @@
+"""The junction feature model of the paper (Sec. III-B/C): values, validation, normalization.
+
+A junction is `[road count n, rotation, control, crosswalk]`; the rotation is the list of
+road-socket angles (degrees, counter-clockwise from East) in the normalized frame: sockets
+start right after the largest gap between neighbouring sockets, and the whole junction is
+rotated by the angle that best aligns its sockets with East/North/West/South (eqs. 3-8).
+Angles are unwrapped: alpha_1 in [-45, 45), strictly increasing, alpha_n < alpha_1 + 360.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping, Sequence
+
+from .config import MIN_SOCKET_SEPARATION_DEG
+from .errors import FeatureError
+
+CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
+ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
+QUARTER = 90.0
+
+
+@dataclass(frozen=True)
+class Socket:
+    """One road socket: its angle and the lanes that enter (`lanes_in`) and leave (`lanes_out`)."""
+
+    angle: float
+    lanes_in: int = 1
+    lanes_out: int = 1
+
+    @property
+    def road_type(self) -> str:
+        if self.lanes_in and self.lanes_out:
+            return "in-out"
+        return "in" if self.lanes_in else "out"
+
+
+def socket_lanes(road_type: str, lanes: int = 1) -> tuple[int, int]:
+    """(lanes_in, lanes_out) for a road type and a lane count per direction."""
+    if road_type not in ROAD_TYPES:
+        raise FeatureError(f"unknown road type {road_type!r}, expected one of {ROAD_TYPES}")
+    return (lanes if road_type != "out" else 0, lanes if road_type != "in" else 0)
+
+
+@dataclass(frozen=True)
+class JunctionFeature:
+    """A junction feature F_J = [n, rotation, control, crosswalk] plus per-socket lanes."""
+
+    sockets: tuple[Socket, ...]
+    control: str = "bare"
+    crosswalk: bool = False
+    min_separation_deg: float = field(default=MIN_SOCKET_SEPARATION_DEG, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sockets", tuple(self.sockets))
+        n = len(self.sockets)
+        if n < 3:
+            raise FeatureError(f"a junction needs at least 3 roads, got {n}")
+        if self.control not in CONTROLS:
+            raise FeatureError(f"unknown control {self.control!r}, expected one of {CONTROLS}")
+        if not isinstance(self.crosswalk, bool):
+            raise FeatureError(f"crosswalk must be true or false, got {self.crosswalk!r}")
+        angles = self.rotation
+        if any(not math.isfinite(a) for a in angles):
+            raise FeatureError(f"socket angles must be finite, got {list(angles)}")
+        for i in range(n - 1):
+            if angles[i + 1] <= angles[i]:
+                raise FeatureError(f"socket angles must be strictly increasing (counter-clockwise), got {list(angles)}")
+        if angles[-1] - angles[0] >= 360.0:
+            raise FeatureError(f"socket angles must span less than 360 degrees, got {list(angles)}")
+        gaps = [angles[i + 1] - angles[i] for i in range(n - 1)] + [angles[0] + 360.0 - angles[-1]]
+        if min(gaps) < self.min_separation_deg - 1e-9:
+            raise FeatureError(
+                f"sockets {min(gaps):.2f} degrees apart, closer than the minimum separation "
+                f"{self.min_separation_deg} degrees: {list(angles)}"
+            )
+        for i, s in enumerate(self.sockets):
+            if s.lanes_in < 0 or s.lanes_out < 0 or s.lanes_in + s.lanes_out == 0:
+                raise FeatureError(f"socket {i} must have at least one lane, got in={s.lanes_in} out={s.lanes_out}")
+        if not any(s.lanes_in for s in self.sockets) or not any(s.lanes_out for s in self.sockets):
+            raise FeatureError("a junction needs at least one incoming and one outgoing road")
+
+    @classmethod
+    def make(
+        cls,
+        angles: Sequence[float],
+        control: str = "bare",
+        crosswalk: bool = False,
+        road_types: Sequence[str] | None = None,
+        lanes: Sequence[int] | int = 1,
+        min_separation_deg: float = MIN_SOCKET_SEPARATION_DEG,
+    ) -> "JunctionFeature":
+        """Build a feature from plain angles, road types and lanes per direction."""
+        n = len(angles)
+        types = list(road_types) if road_types is not None else ["in-out"] * n
+        counts = [lanes] * n if isinstance(lanes, int) else list(lanes)
+        if len(types) != n or len(counts) != n:
+            raise FeatureError(f"{n} angles but {len(types)} road types and {len(counts)} lane counts")
+        sockets = tuple(Socket(float(a), *socket_lanes(t, int(c))) for a, t, c in zip(angles, types, counts))
+        return cls(sockets, control, bool(crosswalk), min_separation_deg)
+
+    @property
+    def n_roads(self) -> int:
+        return len(self.sockets)
+
+    @property
+    def rotation(self) -> tuple[float, ...]:
+        return tuple(s.angle for s in self.sockets)
+
+    @property
+    def road_types(self) -> tuple[str, ...]:
+        return tuple(s.road_type for s in self.sockets)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "n_roads": self.n_roads,
+            "rotation": list(self.rotation),
+            "control": self.control,
+            "crosswalk": self.crosswalk,
+            "lanes_in": [s.lanes_in for s in self.sockets],
+            "lanes_out": [s.lanes_out for s in self.sockets],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "junction feature") -> "JunctionFeature":
+        try:
+            angles = [float(a) for a in data["rotation"]]
+            n = len(angles)
+            if "n_roads" in data and int(data["n_roads"]) != n:
+                raise FeatureError(f"n_roads is {data['n_roads']} but rotation has {n} angles")
+            lanes_in = list(data.get("lanes_in", [1] * n))
+            lanes_out = list(data.get("lanes_out", [1] * n))
+            if len(lanes_in) != n or len(lanes_out) != n:
+                raise FeatureError("lanes_in and lanes_out need one entry per socket")
+            sockets = tuple(Socket(a, int(i), int(o)) for a, i, o in zip(angles, lanes_in, lanes_out))
+            return cls(sockets, str(data.get("control", "bare")), bool(data.get("crosswalk", False)))
+        except FeatureError as exc:
+            raise FeatureError(exc.message, where) from None
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FeatureError(f"malformed feature ({exc!r})", where) from None
+
+
+@dataclass(frozen=True)
+class Normalization:
+    """Result of rotation normalization: angles in the normalized frame, socket order, rotation."""
+
+    angles: tuple[float, ...]
+    order: tuple[int, ...]  # order[i] = index of the input socket that became socket i
+    rotation_deg: float  # added to input angles (mod 360) to get `angles`
+
+
+def _wrap_quarter(x: float) -> float:
+    """Signed distance of an angle to its nearest cardinal direction, in [-45, 45)."""
+    return (x + 45.0) % QUARTER - 45.0
+
+
+def alignment_cost(alpha: float, offsets: Sequence[float]) -> float:
+    """The paper's objective: sum of squared deviations of each socket from its nearest cardinal."""
+    return sum(_wrap_quarter(alpha + c) ** 2 for c in offsets)
+
+
+def best_alignment(offsets: Sequence[float]) -> float:
+    """Exact minimiser in [-45, 45) of `alignment_cost` (a periodic piecewise quadratic).
+
+    Between consecutive breakpoints (where a socket switches nearest cardinal) the cost is
+    one quadratic whose minimum is the mean of the per-socket targets; the global minimum is
+    the best clamped piece minimum. Ties go to the smallest |alpha|.
+    """
+    breaks = sorted({_wrap_quarter(45.0 - c) for c in offsets} | {-45.0, 45.0})
+    best: tuple[float, float, float] | None = None
+    for lo, hi in zip(breaks[:-1], breaks[1:]):
+        if hi - lo <= 0:
+            continue
+        mid = 0.5 * (lo + hi)
+        targets = [QUARTER * round((mid + c) / QUARTER) - c for c in offsets]
+        alpha = min(max(sum(targets) / len(targets), lo), hi)
+        if alpha >= 45.0:
+            alpha -= QUARTER
+        cost = alignment_cost(alpha, offsets)
+        key = (round(cost, 9), abs(alpha), alpha)
+        if best is None or key < best:
+            best = key
+    assert best is not None
+    return best[2]
+
+
+def normalize_rotation(angles: Sequence[float]) -> Normalization:
+    """Rotation normalization (paper eqs. 3-8) of absolute socket angles in degrees.
+
+    Sockets are ordered counter-clockwise starting right after the largest gap (so the
+    largest gap closes the cycle, as in the paper's Table II), then rotated by the exact
+    optimal alpha. Among equally large gaps the start with the lowest cost wins.
+    """
+    n = len(angles)
+    if n == 0:
+        raise FeatureError("no sockets to normalize")
+    order = sorted(range(n), key=lambda i: angles[i] % 360.0)
+    sorted_angles = [angles[i] % 360.0 for i in order]
+    gaps = [(sorted_angles[(i + 1) % n] - sorted_angles[i]) % 360.0 for i in range(n)]
+    if n == 1:
+        gaps = [360.0]
+    largest = max(gaps)
+    candidates = []
+    for i, g in enumerate(gaps):
+        if g < largest - 1e-9:
+            continue
+        start = (i + 1) % n
+        offsets = [(sorted_angles[(start + k) % n] - sorted_angles[start]) % 360.0 for k in range(n)]
+        alpha = best_alignment(offsets)
+        candidates.append((round(alignment_cost(alpha, offsets), 9), abs(alpha), start, alpha, offsets))
+    _, _, start, alpha, offsets = min(candidates, key=lambda c: c[:3])
+    return Normalization(
+        angles=tuple(alpha + c for c in offsets),
+        order=tuple(order[(start + k) % n] for k in range(n)),
+        rotation_deg=(alpha - sorted_angles[start]) % 360.0,
+    )
+
+
+Range = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class FeatureSpace:
+    """The paper's map feature: discrete value sets and per-n socket angle ranges."""
+
+    road_counts: tuple[int, ...]
+    controls: tuple[str, ...]
+    crosswalks: tuple[bool, ...]
+    rotation_ranges: Mapping[int, tuple[Range, ...]]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "road_counts", tuple(sorted(set(int(n) for n in self.road_counts))))
+        object.__setattr__(self, "controls", tuple(c for c in CONTROLS if c in set(self.controls)))
+        object.__setattr__(self, "crosswalks", tuple(sorted(set(bool(c) for c in self.crosswalks), reverse=True)))
+        ranges = {int(n): tuple((float(lo), float(hi)) for lo, hi in r) for n, r in self.rotation_ranges.items()}
+        object.__setattr__(self, "rotation_ranges", dict(sorted(ranges.items())))
+        self.validate()
+
+    def validate(self) -> None:
+        if not self.road_counts or not self.controls or not self.crosswalks:
+            raise FeatureError("road_counts, controls and crosswalks must each be non-empty")
+        if min(self.road_counts) < 3:
+            raise FeatureError(f"road counts must be >= 3, got {list(self.road_counts)}")
+        for n in self.road_counts:
+            ranges = self.rotation_ranges.get(n)
+            if ranges is None:
+                raise FeatureError(f"no rotation ranges for n={n}", "rotation_ranges")
+            if len(ranges) != n:
+                raise FeatureError(f"n={n} needs {n} angle ranges, got {len(ranges)}", f"rotation_ranges.{n}")
+            for i, (lo, hi) in enumerate(ranges):
+                if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+                    raise FeatureError(f"range [{lo}, {hi}] is empty or not finite", f"rotation_ranges.{n}[{i}]")
+            for i in range(n - 1):
+                if ranges[i + 1][1] <= ranges[i][0]:
+                    raise FeatureError(
+                        f"socket {i + 1} range lies entirely before socket {i}: angles must increase counter-clockwise",
+                        f"rotation_ranges.{n}[{i + 1}]",
+                    )
+            if ranges[-1][0] - ranges[0][1] >= 360.0:
+                raise FeatureError("socket ranges span 360 degrees or more", f"rotation_ranges.{n}")
+
+    @classmethod
+    def from_features(cls, features: Iterable[JunctionFeature]) -> "FeatureSpace":
+        """Merge junction features into one map feature (union of values, per-n min/max angle)."""
+        feats = list(features)
+        if not feats:
+            raise FeatureError("no junction features to merge")
+        ranges: dict[int, list[list[float]]] = {}
+        for f in feats:
+            r = ranges.setdefault(f.n_roads, [[a, a] for a in f.rotation])
+            for i, a in enumerate(f.rotation):
+                r[i][0] = min(r[i][0], a)
+                r[i][1] = max(r[i][1], a)
+        return cls(
+            road_counts=tuple(ranges),
+            controls=tuple({f.control for f in feats}),
+            crosswalks=tuple({f.crosswalk for f in feats}),
+            rotation_ranges={n: tuple((lo, hi) for lo, hi in r) for n, r in ranges.items()},
+        )
+
+    def merge(self, other: "FeatureSpace") -> "FeatureSpace":
+        """Union of two map features (ranges widened per socket)."""
+        ranges = dict(self.rotation_ranges)
+        for n, r in other.rotation_ranges.items():
+            mine = ranges.get(n)
+            ranges[n] = r if mine is None else tuple((min(a[0], b[0]), max(a[1], b[1])) for a, b in zip(mine, r))
+        return FeatureSpace(
+            self.road_counts + other.road_counts,
+            self.controls + other.controls,
+            self.crosswalks + other.crosswalks,
+            ranges,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "road_counts": list(self.road_counts),
+            "controls": list(self.controls),
+            "crosswalks": list(self.crosswalks),
+            "rotation_ranges": {str(n): [list(r) for r in rs] for n, rs in self.rotation_ranges.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "feature space") -> "FeatureSpace":
+        if not isinstance(data, Mapping):
+            raise FeatureError("expected a JSON object", where)
+        missing = {"road_counts", "controls", "crosswalks", "rotation_ranges"} - set(data)
+        if missing:
+            raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
+        unknown = [c for c in data["controls"] if c not in CONTROLS]
+        if unknown:
+            raise FeatureError(f"unknown control(s) {unknown}, expected {list(CONTROLS)}", f"{where}: controls")
+        if any(not isinstance(c, bool) for c in data["crosswalks"]):
+            raise FeatureError("crosswalks must be a list of true/false", f"{where}: crosswalks")
+        try:
+            ranges = {int(n): tuple((float(r[0]), float(r[1])) for r in rs) for n, rs in data["rotation_ranges"].items()}
+            return cls(tuple(int(n) for n in data["road_counts"]), tuple(data["controls"]),
+                       tuple(data["crosswalks"]), ranges)
+        except FeatureError as exc:
+            raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
+        except (TypeError, ValueError, IndexError, AttributeError) as exc:
+            raise FeatureError(f"malformed field ({exc})", where) from None
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str, where: str = "feature space") -> "FeatureSpace":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise FeatureError(f"not valid JSON ({exc})", where) from None
+        return cls.from_dict(data, where)
+
+
+# The San Francisco feature space of the paper's Table I, in this module's convention.
+# Table I prints some bounds wrapped into (-180, 180] and some not; each bound is put back
+# on the counter-clockwise, unwrapped scale (alpha_1 in [-45, 45), increasing):
+#   n=3 socket 3: "-143.45, 200.92" -> [143.45, 200.92] (a T-junction's third leg follows its second);
+#   n=4 socket 2: "-75.63, 93.10"   -> [75.63, 93.10];  socket 3: "-176.85, 191.76" -> [176.85, 191.76];
+#   n=4 socket 4: "-109.24, -87.91" -> [250.76, 272.09] (the same directions, +360).
+PAPER_SF_FEATURE_SPACE = FeatureSpace(
+    road_counts=(3, 4),
+    controls=("signal", "stop"),
+    crosswalks=(True, False),
+    rotation_ranges={
+        3: ((-22.62, 9.81), (61.40, 126.22), (143.45, 200.92)),
+        4: ((-5.26, 13.61), (75.63, 93.10), (176.85, 191.76), (250.76, 272.09)),
+    },
+)

@@ -1,0 +1,165 @@
+"""Greedy grid placement of junction features (Algorithm 1, lines 12-23).
+
+Each feature goes to the empty grid point of highest match score. The score is the paper's:
+k = the most roads the junction can connect, after a quarter-turn rotation, to its E/N/W/S
+neighbours (a leg facing an empty point counts, it can connect later); -inf when n > k.
+Draws are broken by (1) the number of roads connected now, which keeps maps compact,
+then (2) a seeded random choice. Two rules keep the network connected: after the first
+junction a placement must connect at least one road, and it must leave an open socket
+while features remain. A quarter-turn keeps the normalized rotation feature unchanged
+(the alignment cost has period 90 degrees), so a placed junction still realizes its feature.
+
+Junctions with more than four legs (and legs that face a neighbour without a matching
+socket) cannot reach a grid neighbour: such legs end in stub roads, like the legs left open
+when placement ends. Stubs are the map's entries and exits.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .errors import LayoutError
+from .features import JunctionFeature, Socket
+
+Cell = tuple[int, int]
+DIRECTIONS: tuple[Cell, ...] = ((1, 0), (0, 1), (-1, 0), (0, -1))  # E, N, W, S
+
+
+@dataclass(frozen=True)
+class Link:
+    """Socket `socket` of junction `junction` (indices into the placement list)."""
+
+    junction: int
+    socket: int
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A junction feature placed at a grid cell, turned by `quarter_turns` x 90 degrees CCW."""
+
+    feature: JunctionFeature
+    cell: Cell
+    quarter_turns: int
+    links: tuple[Link | None, ...]  # per socket: the socket it is connected to, or None (stub)
+
+    @property
+    def rotation_deg(self) -> float:
+        return 90.0 * self.quarter_turns
+
+
+def cardinal_assignment(feature: JunctionFeature) -> tuple[int | None, ...]:
+    """Per socket the cardinal direction (0=E..3=S) it serves, injective, least squared deviation."""
+    n = feature.n_roads
+    angles = feature.rotation
+    best: tuple[float, tuple[int | None, ...]] | None = None
+    slots = min(n, 4)
+    for chosen in itertools.combinations(range(n), slots):
+        for dirs in itertools.permutations(range(4), slots):
+            cost = 0.0
+            for s, d in zip(chosen, dirs):
+                dev = (angles[s] - 90.0 * d + 180.0) % 360.0 - 180.0
+                cost += dev * dev
+            if best is None or cost < best[0] - 1e-9:
+                assign: list[int | None] = [None] * n
+                for s, d in zip(chosen, dirs):
+                    assign[s] = d
+                best = (cost, tuple(assign))
+    assert best is not None
+    return best[1]
+
+
+def _compatible(a: Socket, b: Socket) -> bool:
+    return a.lanes_out == b.lanes_in and a.lanes_in == b.lanes_out
+
+
+def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
+          fixed_cells: Sequence[Cell | None] | None = None) -> list[Placement]:
+    """Place every feature on the grid; returns placements in the order of `features`.
+
+    `fixed_cells` optionally pins features to cells (custom specs); pinned ones are placed first.
+    Only empty points faced by an open socket can connect, so only those are scored: the
+    paper's other empty points all score below them, and the run stays near-linear.
+    """
+    if not features:
+        raise LayoutError("no junction features to place")
+    fixed = list(fixed_cells) if fixed_cells is not None else [None] * len(features)
+    assigns = [cardinal_assignment(f) for f in features]
+    cells: dict[Cell, int] = {}
+    turns: dict[int, int] = {}
+    links: dict[int, list[Link | None]] = {}
+    facing: dict[Cell, list[tuple[int, int]]] = {}  # empty cell -> open sockets (junction, socket) facing it
+    n_open = 0
+    order = [i for i in range(len(features)) if fixed[i] is not None]
+    order += sorted((i for i in range(len(features)) if fixed[i] is None), key=lambda i: -features[i].n_roads)
+
+    for step, j in enumerate(order):
+        f = features[j]
+        remaining = len(order) - step - 1
+        if fixed[j] is not None:
+            if fixed[j] in cells:
+                raise LayoutError(f"grid cell {fixed[j]} is pinned twice", f"junction {j}")
+            candidates = [fixed[j]]
+        else:
+            candidates = sorted(facing) if cells else [(0, 0)]
+        best_key = None
+        best: list[tuple[Cell, int, list[Link | None]]] = []
+        for cell in candidates:
+            here = facing.get(cell, [])
+            for k in range(4):
+                connect: list[Link | None] = [None] * f.n_roads
+                n_connect = n_free = 0
+                for s, d0 in enumerate(assigns[j]):
+                    if d0 is None:
+                        continue
+                    d = (d0 + k) % 4
+                    nb = (cell[0] + DIRECTIONS[d][0], cell[1] + DIRECTIONS[d][1])
+                    other = cells.get(nb)
+                    if other is None:
+                        n_free += 1
+                        continue
+                    for o, t in here:
+                        if o == other and links[o][t] is None and connect.count(Link(o, t)) == 0 \
+                                and _compatible(f.sockets[s], features[o].sockets[t]):
+                            connect[s] = Link(o, t)
+                            n_connect += 1
+                            break
+                if cells and n_connect == 0 and fixed[j] is None:
+                    continue
+                k_paper = n_connect + n_free
+                open_after = n_open - len(here) + n_free
+                key = (
+                    f.n_roads <= k_paper,  # paper: score -inf when n > k
+                    k_paper if f.n_roads <= k_paper else 0,
+                    remaining == 0 or open_after > 0,
+                    n_connect,
+                )
+                if best_key is None or key > best_key:
+                    best_key, best = key, [(cell, k, connect)]
+                elif key == best_key:
+                    best.append((cell, k, connect))
+        if not best:
+            raise LayoutError(
+                "no grid point connects this junction to the network (no matching open socket)",
+                f"junction {j} ({f.n_roads} legs, {f.control})",
+            )
+        cell, k, connect = best[int(rng.integers(len(best)))]
+        cells[cell] = j
+        turns[j] = k
+        links[j] = list(connect)
+        for s, ln in enumerate(connect):
+            if ln is not None:
+                links[ln.junction][ln.socket] = Link(j, s)
+        n_open -= len(facing.pop(cell, []))
+        for s, d0 in enumerate(assigns[j]):
+            if d0 is None:
+                continue
+            d = (d0 + k) % 4
+            nb = (cell[0] + DIRECTIONS[d][0], cell[1] + DIRECTIONS[d][1])
+            if nb not in cells:
+                facing.setdefault(nb, []).append((j, s))
+                n_open += 1
+    where = {j: c for c, j in cells.items()}
+    return [Placement(features[j], where[j], turns[j], tuple(links[j])) for j in range(len(features))]

@@ -1,0 +1,182 @@
+"""The HD map model: the one value every reader produces and every writer consumes.
+
+Coordinates are metres in a local frame (x east, y north); `HDMap.origin` is the absolute
+(UTM) position of the local origin. Polylines are tuples of (x, y) points.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any, Mapping
+
+import numpy as np
+
+from .bezier import Bezier, Point
+from .features import JunctionFeature
+
+Polyline = tuple[Point, ...]
+TURNS = ("none", "left", "right", "uturn")
+BOUNDARY_TYPES = ("solid_white", "dotted_white", "solid_yellow", "dotted_yellow", "curb", "virtual")
+
+
+def as_polyline(points: Any) -> Polyline:
+    return tuple((float(x), float(y)) for x, y in np.asarray(points, dtype=float).tolist())
+
+
+@dataclass(frozen=True)
+class Lane:
+    """A lane: centreline in driving direction, boundaries, links and attributes."""
+
+    id: str
+    road_id: str
+    centerline: Polyline
+    left_boundary: Polyline
+    right_boundary: Polyline
+    width: float
+    speed_limit: float
+    predecessors: tuple[str, ...] = ()
+    successors: tuple[str, ...] = ()
+    left_neighbors: tuple[str, ...] = ()  # same direction
+    right_neighbors: tuple[str, ...] = ()
+    left_reverse_neighbors: tuple[str, ...] = ()  # opposite direction, across the left boundary
+    turn: str = "none"
+    junction_id: str | None = None
+    left_boundary_type: str = "solid_white"
+    right_boundary_type: str = "solid_white"
+    bezier: Bezier | None = None  # exact geometry when the lane is one cubic Bézier
+
+    @cached_property
+    def points(self) -> np.ndarray:
+        return np.asarray(self.centerline, dtype=float)
+
+    @cached_property
+    def length(self) -> float:
+        return float(np.hypot(*np.diff(self.points, axis=0).T).sum())
+
+    @property
+    def start(self) -> Point:
+        return self.centerline[0]
+
+    @property
+    def end(self) -> Point:
+        return self.centerline[-1]
+
+    def heading_at_start(self) -> float:
+        (x0, y0), (x1, y1) = self.centerline[0], self.centerline[1]
+        return math.atan2(y1 - y0, x1 - x0)
+
+    def heading_at_end(self) -> float:
+        (x0, y0), (x1, y1) = self.centerline[-2], self.centerline[-1]
+        return math.atan2(y1 - y0, x1 - x0)
+
+
+@dataclass(frozen=True)
+class Road:
+    """A road: its lanes, reference line and the junctions at its ends.
+
+    `right_lanes` drive along the reference line, `left_lanes` against it, both listed from
+    the centre divider outwards; `lane_offset` is the divider's lateral offset (left positive).
+    `kind` is "connection" (junction to junction), "stub" (open end), "junction" (inside a
+    junction, one lane) or "chain" (hand-written road).
+    """
+
+    id: str
+    kind: str
+    right_lanes: tuple[str, ...] = ()
+    left_lanes: tuple[str, ...] = ()
+    reference: Bezier | None = None
+    lane_offset: float = 0.0
+    junction_id: str | None = None
+    start_junction: str | None = None
+    end_junction: str | None = None
+
+    @property
+    def lane_ids(self) -> tuple[str, ...]:
+        return self.right_lanes + self.left_lanes
+
+
+@dataclass(frozen=True)
+class Junction:
+    """A junction area; `feature` is what it was built from (None for maps read from files)."""
+
+    id: str
+    polygon: Polyline
+    feature: JunctionFeature | None = None
+    cell: tuple[int, int] | None = None
+    socket_roads: tuple[str, ...] = ()  # per socket of `feature`: the road attached there
+
+    @cached_property
+    def center(self) -> Point:
+        from shapely.geometry import Polygon
+
+        c = Polygon(self.polygon).centroid
+        return (c.x, c.y)
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A traffic light: stop line across the incoming lanes, pole position and facing heading."""
+
+    id: str
+    junction_id: str | None
+    stop_line: Polyline
+    position: Point
+    heading: float  # direction the light faces (towards the traffic it controls), radians
+    lane_ids: tuple[str, ...] = ()  # incoming lanes it governs
+
+
+@dataclass(frozen=True)
+class StopSign:
+    """A stop sign on the right of its road, facing the traffic; the stop line it guards."""
+
+    id: str
+    junction_id: str | None
+    stop_line: Polyline
+    position: Point
+    heading: float
+    lane_ids: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Crosswalk:
+    id: str
+    junction_id: str | None
+    polygon: Polyline
+
+
+@dataclass(frozen=True)
+class HDMap:
+    """A whole HD map. Element dicts are keyed by id and kept in insertion order."""
+
+    lanes: Mapping[str, Lane]
+    roads: Mapping[str, Road]
+    junctions: Mapping[str, Junction]
+    signals: Mapping[str, Signal] = field(default_factory=dict)
+    stop_signs: Mapping[str, StopSign] = field(default_factory=dict)
+    crosswalks: Mapping[str, Crosswalk] = field(default_factory=dict)
+    origin: Point = (0.0, 0.0)
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+    def junction_lanes(self, junction_id: str) -> list[Lane]:
+        return [ln for ln in self.lanes.values() if ln.junction_id == junction_id]
+
+    @cached_property
+    def lanes_by_junction(self) -> dict[str | None, list[Lane]]:
+        out: dict[str | None, list[Lane]] = {}
+        for ln in self.lanes.values():
+            out.setdefault(ln.junction_id, []).append(ln)
+        return out
+
+    @property
+    def entry_lanes(self) -> list[Lane]:
+        """Lanes with no predecessor: where traffic enters the map."""
+        return [ln for ln in self.lanes.values() if not ln.predecessors]
+
+    @property
+    def exit_lanes(self) -> list[Lane]:
+        return [ln for ln in self.lanes.values() if not ln.successors]
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        pts = np.concatenate([ln.points for ln in self.lanes.values()])
+        return float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()), float(pts[:, 1].max())

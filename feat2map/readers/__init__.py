@@ -1,0 +1,1 @@
+"""Readers of third-party HD map formats into the feat2map model."""

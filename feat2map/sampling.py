@@ -1,0 +1,45 @@
+"""Combinatorial sampling of junction features (Algorithm 1, lines 1-11)."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from .config import MAX_ORDER_RETRIES, GenerationConfig
+from .errors import FeatureError
+from .features import FeatureSpace, JunctionFeature
+
+
+def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Generator,
+                    min_separation_deg: float) -> tuple[float, ...]:
+    """Angles drawn uniformly and independently in their per-socket ranges.
+
+    Counter-clockwise order and the minimum separation are kept by rejection: a draw whose
+    angles are not increasing by at least `min_separation_deg` (cyclically) is drawn again,
+    which leaves the accepted angles uniform on the feasible part of the box. Ranges that
+    never yield a feasible draw raise a FeatureError.
+    """
+    lo = np.array([r[0] for r in ranges])
+    hi = np.array([r[1] for r in ranges])
+    for _ in range(MAX_ORDER_RETRIES):
+        a = rng.uniform(lo, hi)
+        gaps = np.diff(np.append(a, a[0] + 360.0))
+        if gaps.min() >= min_separation_deg:
+            return tuple(float(x) for x in a)
+    raise FeatureError(
+        f"no ordered socket angles {min_separation_deg} degrees apart found in "
+        f"{MAX_ORDER_RETRIES} draws from {[list(r) for r in ranges]}",
+        f"rotation_ranges.{len(ranges)}",
+    )
+
+
+def sample_features(space: FeatureSpace, rng: np.random.Generator,
+                    config: GenerationConfig = GenerationConfig()) -> list[JunctionFeature]:
+    """One feature per (n, control, crosswalk) combination, `samples_per_combination` times."""
+    out: list[JunctionFeature] = []
+    for n, control, crosswalk in itertools.product(space.road_counts, space.controls, space.crosswalks):
+        for _ in range(int(config.samples_per_combination)):
+            angles = sample_rotation(space.rotation_ranges[n], rng, config.min_socket_separation_deg)
+            out.append(JunctionFeature.make(angles, control, crosswalk,
+                                            min_separation_deg=config.min_socket_separation_deg))
+    return out

@@ -1,0 +1,1 @@
+"""Writers of the feat2map model into HD map formats and pictures."""

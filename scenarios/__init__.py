@@ -1,0 +1,1 @@
+"""Scenario suites, rollouts, planners and diversity metrics (installed as feat2map.scenarios)."""
