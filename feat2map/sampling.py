@@ -7,7 +7,7 @@ import numpy as np
 
 from .config import MAX_ORDER_RETRIES, GenerationConfig
 from .errors import FeatureError
-from .features import FeatureSpace, JunctionFeature
+from .features import FeatureSpace, JunctionFeature, normalize_rotation
 
 
 def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Generator,
@@ -16,7 +16,8 @@ def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Gene
 
     Counter-clockwise order and the minimum separation are kept by rejection: a draw whose
     angles are not increasing by at least `min_separation_deg` (cyclically) is drawn again,
-    which leaves the accepted angles uniform on the feasible part of the box. Ranges that
+    which leaves the accepted angles uniform on the feasible part of the box. The drawn set
+    is then rotation-normalized, so the junction realizes exactly the feature it records. Ranges that
     never yield a feasible draw raise a FeatureError.
     """
     lo = np.array([r[0] for r in ranges])
@@ -39,7 +40,9 @@ def sample_features(space: FeatureSpace, rng: np.random.Generator,
     out: list[JunctionFeature] = []
     for n, control, crosswalk in itertools.product(space.road_counts, space.controls, space.crosswalks):
         for _ in range(int(config.samples_per_combination)):
-            angles = sample_rotation(space.rotation_ranges[n], rng, config.min_socket_separation_deg)
+            drawn = sample_rotation(space.rotation_ranges[n], rng, config.min_socket_separation_deg)
+            # a drawn angle set is a junction shape; its feature is that shape normalized
+            angles = normalize_rotation(drawn).angles
             out.append(JunctionFeature.make(angles, control, crosswalk,
                                             min_separation_deg=config.min_socket_separation_deg))
     return out
