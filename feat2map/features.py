@@ -112,6 +112,13 @@ class JunctionFeature:
     def road_types(self) -> tuple[str, ...]:
         return tuple(s.road_type for s in self.sockets)
 
+    def normalized(self) -> "JunctionFeature":
+        """The same junction in the normalized frame (sockets re-ordered and rotated)."""
+        norm = normalize_rotation(self.rotation)
+        sockets = tuple(Socket(a, self.sockets[i].lanes_in, self.sockets[i].lanes_out)
+                        for a, i in zip(norm.angles, norm.order))
+        return JunctionFeature(sockets, self.control, self.crosswalk, self.min_separation_deg)
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "n_roads": self.n_roads,
@@ -178,7 +185,7 @@ def best_alignment(offsets: Sequence[float]) -> float:
         if alpha >= 45.0:
             alpha -= QUARTER
         cost = alignment_cost(alpha, offsets)
-        key = (round(cost, 9), abs(alpha), alpha)
+        key = (round(cost, 6), round(abs(alpha), 6), round(alpha, 6))
         if best is None or key < best:
             best = key
     assert best is not None
@@ -208,7 +215,7 @@ def normalize_rotation(angles: Sequence[float]) -> Normalization:
         start = (i + 1) % n
         offsets = [(sorted_angles[(start + k) % n] - sorted_angles[start]) % 360.0 for k in range(n)]
         alpha = best_alignment(offsets)
-        candidates.append((round(alignment_cost(alpha, offsets), 9), abs(alpha), start, alpha, offsets))
+        candidates.append((round(alignment_cost(alpha, offsets), 6), round(abs(alpha), 6), start, alpha, offsets))
     _, _, start, alpha, offsets = min(candidates, key=lambda c: c[:3])
     return Normalization(
         angles=tuple(alpha + c for c in offsets),

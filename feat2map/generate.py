@@ -17,9 +17,10 @@ from .sampling import sample_features
 def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
                            config: GenerationConfig = GenerationConfig(),
                            cells: Sequence[Cell | None] | None = None, meta: dict | None = None) -> HDMap:
-    """Lay out and build a map realizing exactly `features` (one junction each)."""
+    """Lay out and build a map with one junction per feature; each junction realizes the
+    normalized form of its feature (the same shape, rotated and re-indexed)."""
     rng = np.random.default_rng([int(seed), 1])
-    placements = place(features, rng, cells)
+    placements = place([f.normalized() for f in features], rng, cells)
     info = {"generator": f"feat2map {__version__}", "seed": int(seed), "config": config.to_dict()}
     info.update(meta or {})
     return build_map(placements, config, info)

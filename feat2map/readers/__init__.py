@@ -1,1 +1,27 @@
-"""Readers of third-party HD map formats into the feat2map model."""
+"""Readers of HD map files into the feat2map model, chosen by content and extension."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import MapFormatError
+from ..model import HDMap
+
+
+def read_map(path: str | Path) -> HDMap:
+    """Read a native map (.json), an OpenDRIVE file (.xodr) or an Apollo map (.bin/.txt)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MapFormatError("no such map file", str(path))
+    with path.open("rb") as fh:
+        head = fh.read(512).lstrip()
+    if path.suffix == ".json" or head.startswith(b"{"):
+        from ..mapio import load
+
+        return load(path)
+    if path.suffix == ".xodr" or head.startswith(b"<"):
+        from .opendrive import read_opendrive
+
+        return read_opendrive(path)
+    from .apollo import read_apollo_map
+
+    return read_apollo_map(path)

@@ -1,0 +1,190 @@
+"""The `feat2map` command line: generate, extract, export, validate, rollout, coverage."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from tqdm import tqdm
+
+from . import atomic, mapio
+from .config import GenerationConfig
+from .errors import Feat2MapError
+from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with exit code 2 and a one-line message on bad arguments."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _config(args: argparse.Namespace) -> GenerationConfig:
+    overrides = {k: getattr(args, k) for k in ("grid_gap", "lane_width", "crosswalk_width",
+                                                 "samples_per_combination") if getattr(args, k) is not None}
+    try:
+        return GenerationConfig.from_dict(overrides)
+    except ValueError as exc:
+        raise Feat2MapError(str(exc), "command line") from None
+
+
+def _extract_maps(paths: Sequence[str]):
+    from .extract import extract_junctions
+    from .readers import read_map
+
+    junctions = []
+    for p in tqdm(paths, desc="reading maps", unit="map", disable=len(paths) < 2):
+        junctions += extract_junctions(read_map(p), map_name=str(p))
+    if not junctions:
+        raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
+    return junctions
+
+
+def cmd_generate(args: argparse.Namespace) -> int:
+    from .generate import generate
+    from .render import render_map
+
+    cfg = _config(args)
+    stages = tqdm(total=4, desc="generate", unit="stage", disable=True if args.quiet else None)
+    if args.spec:
+        from .spec import generate_from_spec
+
+        stages.set_postfix_str("spec")
+        m = generate_from_spec(args.spec, seed=args.seed, config=cfg)
+        space = None
+    else:
+        if args.features:
+            path = Path(args.features)
+            try:
+                text = path.read_text(encoding="utf-8")
+            except OSError as exc:
+                raise Feat2MapError(f"cannot read ({exc.strerror})", str(path)) from None
+            space = FeatureSpace.from_json(text, str(path))
+        elif args.from_maps:
+            from .extract import map_feature
+
+            space = map_feature(_extract_maps(args.from_maps))
+        else:
+            space = PAPER_SF_FEATURE_SPACE
+        stages.set_postfix_str("layout")
+        m = generate(space, seed=args.seed, config=cfg)
+    stages.update(2)
+    with atomic.staged_dir(args.out) as tmp:
+        mapio.save(m, tmp / "map.json")
+        if space is not None:
+            atomic.write_text(tmp / "features.json", space.to_json())
+        stages.set_postfix_str("picture")
+        if not args.no_picture:
+            render_map(m, tmp / "map.png", title=f"feat2map seed {args.seed}: {len(m.junctions)} junctions")
+        stages.update(1)
+        if args.apollo:
+            from .writers.apollo import export_apollo
+
+            export_apollo(m, tmp / "apollo")
+        if args.opendrive:
+            from .writers.opendrive import write_opendrive
+
+            write_opendrive(m, tmp / "map.xodr")
+        stages.update(1)
+    stages.close()
+    print(f"wrote {args.out}: {len(m.junctions)} junctions, {len(m.roads)} roads, {len(m.lanes)} lanes, "
+          f"{len(m.signals)} signals, {len(m.stop_signs)} stop signs, {len(m.crosswalks)} crosswalks")
+    return 0
+
+
+def cmd_extract(args: argparse.Namespace) -> int:
+    from .extract import map_feature
+
+    junctions = _extract_maps(args.maps)
+    space = map_feature(junctions)
+    if args.out:
+        atomic.write_text(args.out, space.to_json())
+    if args.picture:
+        from .readers import read_map
+        from .render import render_map
+
+        first = read_map(args.maps[0])
+        ctrl = {j.id: j.feature.control for j in junctions if j.map_name == str(args.maps[0])}
+        render_map(first, args.picture, title=str(args.maps[0]), controls=ctrl)
+    if args.json:
+        doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
+               "feature_space": space.to_dict()}
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(f"{'map':<40} {'junction':<14} {'n':>2} {'control':<7} {'xwalk':<5} rotation (deg)")
+    for j in junctions:
+        rot = ", ".join(f"{a:7.2f}" for a in j.feature.rotation)
+        print(f"{j.map_name[-40:]:<40} {j.id[:14]:<14} {j.feature.n_roads:>2} {j.feature.control:<7} "
+              f"{str(j.feature.crosswalk):<5} [{rot}]")
+    print(f"\n{len(junctions)} junctions; map feature:\n{space.to_json()}", end="")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="feat2map", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    g = sub.add_parser("generate", help="generate a map from a feature space, input maps or a spec")
+    src = g.add_mutually_exclusive_group()
+    src.add_argument("--features", help="feature-space JSON (default: the paper's San Francisco Table I)")
+    src.add_argument("--from-maps", nargs="+", metavar="MAP", help="extract the feature space from these maps")
+    src.add_argument("--spec", help="hand-written junction spec (YAML/JSON)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--out", required=True, help="output directory")
+    g.add_argument("--samples-per-combination", type=int)
+    g.add_argument("--grid-gap", type=float)
+    g.add_argument("--lane-width", type=float)
+    g.add_argument("--crosswalk-width", type=float)
+    g.add_argument("--apollo", action="store_true", help="also export an Apollo map folder to OUT/apollo")
+    g.add_argument("--opendrive", action="store_true", help="also export OUT/map.xodr")
+    g.add_argument("--no-picture", action="store_true")
+    g.add_argument("--quiet", action="store_true")
+    g.set_defaults(func=cmd_generate)
+
+    e = sub.add_parser("extract", help="extract junction features and the map feature from maps")
+    e.add_argument("maps", nargs="+", help="Apollo .bin/.txt, OpenDRIVE .xodr or feat2map .json maps")
+    e.add_argument("--out", help="write the feature-space JSON here")
+    e.add_argument("--json", action="store_true", help="print one JSON document")
+    e.add_argument("--picture", help="bird's-eye PNG/SVG of the first map, junctions coloured by control")
+    e.set_defaults(func=cmd_extract)
+
+    ex = sub.add_parser("export", help="export a feat2map map to another format")
+    exsub = ex.add_subparsers(dest="format", required=True, parser_class=_Parser)
+    for module, adder in (("writers.apollo", "add_export_apollo_command"),
+                          ("writers.opendrive", "add_export_opendrive_command")):
+        _wire(module, adder, exsub)
+    for module, adder in (("apollo_validate", "add_validate_command"),
+                          ("scenarios.cli", "add_suite_command"),
+                          ("scenarios.cli", "add_rollout_command"),
+                          ("scenarios.cli", "add_coverage_command")):
+        _wire(module, adder, sub)
+    return p
+
+
+def _wire(module: str, adder: str, sub) -> None:
+    import importlib
+
+    try:  # TEMP during parallel development
+        mod = importlib.import_module(f"feat2map.{module}")
+        getattr(mod, adder)(sub)
+    except (ImportError, AttributeError):
+        pass
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except Feat2MapError as exc:
+        print(f"feat2map: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""Geometric and topological invariants every generated map must satisfy.
+
+Each check returns a list of problems (strings naming the element); empty means it holds.
+Used by the tests and available to users as a sanity check of their own maps.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from shapely import STRtree
+from shapely.geometry import Polygon
+from shapely.ops import unary_union
+
+from .config import ENDPOINT_TOLERANCE_M
+from .model import HDMap
+
+AREA_EPS_M2 = 0.05
+
+
+def _road_polygons(m: HDMap) -> dict[str, Polygon]:
+    out = {}
+    for r in m.roads.values():
+        if r.kind == "junction":
+            continue
+        parts = [Polygon(ln.left_boundary + tuple(reversed(ln.right_boundary))).buffer(0)
+                 for ln in (m.lanes[i] for i in r.lane_ids)]
+        out[r.id] = unary_union(parts)
+    return out
+
+
+def overlapping_roads(m: HDMap) -> list[str]:
+    """No two roads (outside junction areas) share area; no two junction areas overlap."""
+    problems = []
+    junctions = {jid: Polygon(j.polygon) for jid, j in m.junctions.items()}
+    jl = list(junctions)
+    jtree = STRtree([junctions[j] for j in jl])
+    for a, jid in enumerate(jl):
+        for b in jtree.query(junctions[jid], predicate="intersects"):
+            if b > a and junctions[jid].intersection(junctions[jl[b]]).area > AREA_EPS_M2:
+                problems.append(f"junctions {jid} and {jl[b]} overlap")
+    all_junctions = unary_union(list(junctions.values())).buffer(0.01)
+    roads = {rid: poly.difference(all_junctions) for rid, poly in _road_polygons(m).items()}
+    ids = list(roads)
+    tree = STRtree([roads[r] for r in ids])
+    for a, rid in enumerate(ids):
+        for b in tree.query(roads[rid], predicate="intersects"):
+            if b > a and roads[rid].intersection(roads[ids[b]]).area > AREA_EPS_M2:
+                problems.append(f"roads {rid} and {ids[b]} overlap outside junctions")
+    return problems
+
+
+def broken_lanes(m: HDMap) -> list[str]:
+    """Every lane has >= 2 points and meets its successors within 1 cm, links symmetric."""
+    problems = []
+    for ln in m.lanes.values():
+        if len(ln.centerline) < 2:
+            problems.append(f"lane {ln.id} has fewer than 2 points")
+            continue
+        for s in ln.successors:
+            succ = m.lanes[s]
+            if math.dist(ln.end, succ.start) > ENDPOINT_TOLERANCE_M:
+                problems.append(f"lane {ln.id} ends {math.dist(ln.end, succ.start):.3f} m from successor {s}")
+            if ln.id not in succ.predecessors:
+                problems.append(f"lane {ln.id} -> {s} is not mirrored in {s}.predecessors")
+        for p in ln.predecessors:
+            if ln.id not in m.lanes[p].successors:
+                problems.append(f"lane {p} -> {ln.id} is not mirrored in {p}.successors")
+    return problems
+
+
+def _reach(m: HDMap, start: str, forward: bool = True) -> set[str]:
+    seen = {start}
+    todo = deque([start])
+    while todo:
+        lane = m.lanes[todo.popleft()]
+        for nxt in (lane.successors if forward else lane.predecessors):
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+def connectivity(m: HDMap) -> list[str]:
+    """Entries reach every exit (other than their own stub's); every lane lies on an
+    entry-to-exit route; a map without entries is strongly connected.
+
+    With two-way roads and no U-turns, "every lane from every entry" is impossible on a
+    tree-shaped layout (a lane heading back towards an entry needs a U-turn to be reached
+    from it), so the route-level property above is what full junction connectivity gives.
+    """
+    problems = []
+    entries = [ln.id for ln in m.entry_lanes]
+    exits = [ln.id for ln in m.exit_lanes]
+    if not entries and not exits:
+        first = next(iter(m.lanes))
+        fwd, bwd = _reach(m, first), _reach(m, first, forward=False)
+        if len(fwd) != len(m.lanes) or len(bwd) != len(m.lanes):
+            problems.append("map without entries is not strongly connected")
+        return problems
+    from_entries: set[str] = set()
+    for e in entries:
+        r = _reach(m, e)
+        from_entries |= r
+        road = m.lanes[e].road_id
+        for x in exits:
+            if x not in r and m.lanes[x].road_id != road:
+                problems.append(f"exit lane {x} is not reachable from entry lane {e}")
+    to_exits: set[str] = set()
+    for x in exits:
+        to_exits |= _reach(m, x, forward=False)
+    for lid in m.lanes:
+        if lid not in from_entries:
+            problems.append(f"lane {lid} is unreachable from every entry")
+        if lid not in to_exits:
+            problems.append(f"lane {lid} reaches no exit")
+    return problems
+
+
+def unrealized_features(m: HDMap, angle_tol_deg: float = 0.01) -> list[str]:
+    """Re-measure every junction's feature from the geometry and compare with the recorded one."""
+    from .extract import extract_junctions
+
+    problems = []
+    measured = {e.id: e.feature for e in extract_junctions(m)}
+    for jid, j in m.junctions.items():
+        want, got = j.feature, measured.get(jid)
+        if want is None:
+            continue
+        if got is None:
+            problems.append(f"junction {jid}: no feature could be measured")
+            continue
+        if (got.n_roads, got.control, got.crosswalk) != (want.n_roads, want.control, want.crosswalk):
+            problems.append(f"junction {jid}: measured n/control/crosswalk {(got.n_roads, got.control, got.crosswalk)}"
+                            f" != {(want.n_roads, want.control, want.crosswalk)}")
+            continue
+        dev = max(abs(a - b) for a, b in zip(got.rotation, want.rotation))
+        if dev > angle_tol_deg:
+            problems.append(f"junction {jid}: socket angles off by {dev:.4f} deg")
+        if [(s.lanes_in, s.lanes_out) for s in got.sockets] != [(s.lanes_in, s.lanes_out) for s in want.sockets]:
+            problems.append(f"junction {jid}: lanes per socket differ")
+    return problems
+
+
+def check_map(m: HDMap) -> list[str]:
+    """All invariants at once."""
+    return overlapping_roads(m) + broken_lanes(m) + connectivity(m) + unrealized_features(m)

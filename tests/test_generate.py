@@ -1,0 +1,138 @@
+"""Generation: invariants over random feature spaces and seeds, determinism, layout rules."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import feat2map
+from feat2map import mapio
+from feat2map.config import GenerationConfig
+from feat2map.errors import FeatureError
+from feat2map.features import FeatureSpace, JunctionFeature
+from feat2map.invariants import broken_lanes, check_map, connectivity, overlapping_roads, unrealized_features
+from feat2map.sampling import sample_features
+
+
+@st.composite
+def feature_spaces(draw):
+    counts = draw(st.sets(st.sampled_from([3, 4, 5]), min_size=1, max_size=3))
+    controls = draw(st.sets(st.sampled_from(["bare", "signal", "stop"]), min_size=1))
+    crosswalks = draw(st.sets(st.booleans(), min_size=1))
+    ranges = {}
+    for n in counts:
+        step = 360.0 / n
+        socket = []
+        for i in range(n):
+            centre = i * step + draw(st.floats(-10, 10))
+            spread = draw(st.floats(0, 12))
+            socket.append((centre - spread, centre + spread))
+        ranges[n] = tuple(socket)
+    return FeatureSpace(tuple(counts), tuple(controls), tuple(crosswalks), ranges)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(feature_spaces(), st.integers(0, 2**31 - 1), st.integers(1, 2))
+def test_generated_maps_satisfy_every_invariant(space, seed, k):
+    m = feat2map.generate(space, seed=seed, config=GenerationConfig(samples_per_combination=k))
+    assert check_map(m) == []
+    # every requested feature combination is present, k times
+    want = sorted(itertools.product(space.road_counts, space.controls, space.crosswalks)) * k
+    got = sorted((j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in m.junctions.values())
+    assert got == sorted(want)
+    # every socket has a road, and every road end at a junction sits on a socket of it
+    for j in m.junctions.values():
+        assert len(j.socket_roads) == j.feature.n_roads
+        for rid in j.socket_roads:
+            assert j.id in (m.roads[rid].start_junction, m.roads[rid].end_junction)
+
+
+def test_paper_default_map_has_the_papers_shape(sf_default_map):
+    m = sf_default_map
+    assert len(m.junctions) == 8
+    counts = sorted((j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in m.junctions.values())
+    assert counts == sorted(itertools.product((3, 4), ("signal", "stop"), (True, False)))
+    assert len(m.signals) == sum(j.feature.n_roads for j in m.junctions.values() if j.feature.control == "signal")
+    for s in m.signals.values():  # a signal faces the traffic on its incoming lanes
+        lane = m.lanes[s.lane_ids[0]]
+        assert abs(np.cos(s.heading - float(lane.bezier.heading(1.0))) + 1) < 1e-9
+    for s in m.stop_signs.values():  # a stop sign stands on the right of its road
+        lane = m.lanes[s.lane_ids[-1]]
+        h = lane.heading_at_end()
+        rel = np.subtract(s.position, lane.end)
+        assert rel[0] * np.sin(h) - rel[1] * np.cos(h) > 0  # right of the driving direction
+    from shapely.geometry import Polygon
+    for c in m.crosswalks.values():  # crosswalks inside their junction, crossing junction lanes only
+        poly = Polygon(c.polygon)
+        assert Polygon(m.junctions[c.junction_id].polygon).buffer(1e-6).contains(poly)
+        from shapely.geometry import LineString
+        crossed = [ln for ln in m.lanes.values() if LineString(ln.centerline).intersects(poly)]
+        assert crossed and all(ln.junction_id == c.junction_id for ln in crossed)
+
+
+def test_same_seed_same_bytes_and_seeds_differ():
+    a = mapio.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=7))
+    b = mapio.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=7))
+    c = mapio.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=8))
+    assert a == b
+    assert a != c
+
+
+def test_native_file_round_trip(tmp_path, sf_default_map):
+    mapio.save(sf_default_map, tmp_path / "m.json")
+    assert mapio.load(tmp_path / "m.json") == sf_default_map
+
+
+def test_junction_lanes_are_fully_connected_without_uturns(sf_default_map):
+    m = sf_default_map
+    for j in m.junctions.values():
+        pairs = {(m.lanes[ln.predecessors[0]].road_id, m.lanes[ln.successors[0]].road_id)
+                 for ln in m.lanes_by_junction[j.id]}
+        n = j.feature.n_roads
+        assert len(pairs) == n * (n - 1)
+        assert all(a != b for a, b in pairs)
+        turns = {ln.turn for ln in m.lanes_by_junction[j.id]}
+        assert turns <= {"left", "right", "none"} and "uturn" not in turns
+
+
+def test_uturns_can_be_switched_on():
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1, config=GenerationConfig(uturns=True))
+    assert any(ln.turn == "uturn" for ln in m.lanes.values())
+    assert broken_lanes(m) == [] and connectivity(m) == []
+
+
+@pytest.mark.parametrize("n", [5, 6, 8])
+def test_junctions_with_more_than_four_legs_are_placed(n):
+    angles = [i * 360.0 / n for i in range(n)]
+    feats = [JunctionFeature.make(angles, "signal", True), JunctionFeature.make([0, 90, 180, 270], "stop"),
+             JunctionFeature.make([0, 90, 180], "bare")]
+    m = feat2map.generate_from_features(feats, seed=3)
+    assert check_map(m) == []
+    big = next(j for j in m.junctions.values() if j.feature.n_roads == n)
+    kinds = sorted(m.roads[r].kind for r in big.socket_roads)
+    assert kinds.count("stub") >= n - 4  # legs beyond the four grid directions end in stubs
+
+
+def test_configurable_dimensions_are_used():
+    cfg = GenerationConfig(grid_gap=150.0, lane_width=3.0, crosswalk_width=3.0)
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=2, config=cfg)
+    centres = np.array([j.center for j in m.junctions.values()])
+    assert np.allclose(centres / 150.0, np.round(centres / 150.0), atol=1e-9)
+    assert {ln.width for ln in m.lanes.values()} == {3.0}
+    assert overlapping_roads(m) == [] and unrealized_features(m) == []
+
+
+def test_impossible_rotation_ranges_fail_clearly():
+    space = FeatureSpace((3,), ("bare",), (False,), {3: ((0, 0), (5, 5), (10, 10))})
+    with pytest.raises(FeatureError, match="no ordered socket angles"):
+        sample_features(space, np.random.default_rng(0))
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="lane_width"):
+        GenerationConfig(lane_width=-1)
+    with pytest.raises(ValueError, match="unknown config field"):
+        GenerationConfig.from_dict({"lane_wdith": 3})
