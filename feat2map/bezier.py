@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 Point = tuple[float, float]
 _DENSE = 64  # samples used to tabulate arc length
+_T_DENSE = np.linspace(0.0, 1.0, _DENSE + 1)
 
 
 @dataclass(frozen=True)
@@ -30,44 +32,53 @@ class Bezier:
             (float(end[0]), float(end[1])),
         )
 
-    @property
+    @cached_property
     def control(self) -> np.ndarray:
         return np.array([self.p0, self.p1, self.p2, self.p3], dtype=float)
+
+    @cached_property
+    def _power(self) -> np.ndarray:
+        """Power-basis coefficients a0..a3 with B(t) = a0 + a1 t + a2 t^2 + a3 t^3."""
+        c = self.control
+        return np.array([c[0], 3 * (c[1] - c[0]), 3 * (c[2] - 2 * c[1] + c[0]), c[3] - 3 * c[2] + 3 * c[1] - c[0]])
 
     def point(self, t: np.ndarray | float) -> np.ndarray:
         """B(t) for scalar or array t in [0, 1]; shape (..., 2)."""
         t = np.asarray(t, dtype=float)[..., None]
-        u = 1.0 - t
-        c = self.control
-        return u**3 * c[0] + 3 * u**2 * t * c[1] + 3 * u * t**2 * c[2] + t**3 * c[3]
+        a = self._power
+        return a[0] + t * (a[1] + t * (a[2] + t * a[3]))
 
     def derivative(self, t: np.ndarray | float) -> np.ndarray:
         t = np.asarray(t, dtype=float)[..., None]
-        u = 1.0 - t
-        c = self.control
-        return 3 * u**2 * (c[1] - c[0]) + 6 * u * t * (c[2] - c[1]) + 3 * t**2 * (c[3] - c[2])
+        a = self._power
+        return a[1] + t * (2 * a[2] + t * 3 * a[3])
 
     def heading(self, t: np.ndarray | float) -> np.ndarray:
         d = self.derivative(t)
         return np.arctan2(d[..., 1], d[..., 0])
 
-    def _arc_table(self) -> tuple[np.ndarray, np.ndarray]:
-        t = np.linspace(0.0, 1.0, _DENSE + 1)
-        pts = self.point(t)
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
-        return t, s
+    @cached_property
+    def _arc(self) -> tuple[np.ndarray, np.ndarray]:
+        pts = self.point(_T_DENSE)
+        d = np.diff(pts, axis=0)
+        s = np.concatenate([[0.0], np.cumsum(np.sqrt((d * d).sum(axis=1)))])
+        return _T_DENSE, s
 
     @property
     def length(self) -> float:
-        return float(self._arc_table()[1][-1])
+        return float(self._arc[1][-1])
 
-    def sample(self, spacing: float) -> np.ndarray:
-        """Points at (nearly) equal arc-length spacing, end points exact; shape (k, 2), k >= 2."""
-        t, s = self._arc_table()
+    def sample_params(self, spacing: float) -> np.ndarray:
+        """Parameters t of points at (nearly) equal arc-length spacing, t=0 and t=1 included."""
+        t, s = self._arc
         k = max(2, int(math.ceil(s[-1] / spacing)) + 1)
         ts = np.interp(np.linspace(0.0, s[-1], k), s, t)
         ts[0], ts[-1] = 0.0, 1.0
-        return self.point(ts)
+        return ts
+
+    def sample(self, spacing: float) -> np.ndarray:
+        """Points at (nearly) equal arc-length spacing, end points exact; shape (k, 2), k >= 2."""
+        return self.point(self.sample_params(spacing))
 
 
 def polyline_length(points: np.ndarray) -> float:

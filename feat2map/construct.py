@@ -73,11 +73,8 @@ class _Builder:
                                      tuple(np.asarray(end) + o * left_normal(h1)), h1)
 
         centre = curve(offset)
-        pts = centre.sample(self.cfg.sample_spacing)
-        k = len(pts)
-        left = _resample(curve(offset + w), k)
-        right = _resample(curve(offset - w), k)
-        return centre, pts, left, right
+        ts = centre.sample_params(self.cfg.sample_spacing)  # boundaries share the centre's parameters
+        return centre, centre.point(ts), curve(offset + w).point(ts), curve(offset - w).point(ts)
 
     def add_lane(self, lane_id: str, road_id: str, centre: Bezier, pts, left, right, *, speed: float,
                  junction_id: str | None = None, turn: str = "none", ltype: str = "solid_white",
@@ -126,15 +123,6 @@ class _Builder:
     def link(self, a: str, b: str) -> None:
         self.lanes[a]["successors"].append(b)
         self.lanes[b]["predecessors"].append(a)
-
-
-def _resample(curve: Bezier, k: int) -> np.ndarray:
-    """A boundary with the same number of samples as its lane's centreline."""
-    pts = curve.sample(curve.length / max(k - 1, 1) * 0.999999)
-    if len(pts) != k:
-        t, s = curve._arc_table()
-        pts = curve.point(np.interp(np.linspace(0, s[-1], k), s, t))
-    return pts
 
 
 def classify_turn(entry_heading: float, exit_heading: float) -> str:

@@ -21,7 +21,7 @@ BOUNDARY_TYPES = ("solid_white", "dotted_white", "solid_yellow", "dotted_yellow"
 
 
 def as_polyline(points: Any) -> Polyline:
-    return tuple((float(x), float(y)) for x, y in np.asarray(points, dtype=float).tolist())
+    return tuple(map(tuple, np.asarray(points, dtype=float).tolist()))
 
 
 @dataclass(frozen=True)
