@@ -45,7 +45,7 @@ def _extract_maps(paths: Sequence[str]):
 
 def cmd_generate(args: argparse.Namespace) -> int:
     from .generate import generate
-    from .render import render_map
+    from .render import render_junctions, render_map
 
     cfg = _config(args)
     stages = tqdm(total=4, desc="generate", unit="stage", disable=True if args.quiet else None)
@@ -79,6 +79,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
         stages.set_postfix_str("picture")
         if not args.no_picture:
             render_map(m, tmp / "map.png", title=f"feat2map seed {args.seed}: {len(m.junctions)} junctions")
+            if len(m.junctions) <= 64:
+                render_junctions(m, tmp / "junctions.png")
         stages.update(1)
         if args.apollo:
             from .writers.apollo import export_apollo

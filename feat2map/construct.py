@@ -29,10 +29,10 @@ class SocketGeometry:
 
 
 def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
-    """Centre-to-socket distance: far enough that neighbouring legs' pavements do not overlap,
-    plus room for a crosswalk and stop line between the overlap zone and the socket."""
+    """Centre-to-socket distance: far enough that neighbouring legs' pavements (plus a margin,
+    the crosswalks' overhang) do not overlap, plus room for a crosswalk and stop line."""
     n = feature.n_roads
-    halves = [(s.lanes_in + s.lanes_out) * cfg.lane_width / 2 for s in feature.sockets]
+    halves = [(s.lanes_in + s.lanes_out) * cfg.lane_width / 2 + cfg.junction_margin for s in feature.sockets]
     need = cfg.min_junction_radius
     for i in range(n):
         j = (i + 1) % n

@@ -50,6 +50,16 @@ def overlapping_roads(m: HDMap) -> list[str]:
     return problems
 
 
+def overlapping_crosswalks(m: HDMap) -> list[str]:
+    """No two crosswalks share area."""
+    polys = {c.id: Polygon(c.polygon) for c in m.crosswalks.values()}
+    ids = list(polys)
+    tree = STRtree([polys[i] for i in ids])
+    return [f"crosswalks {a} and {ids[b]} overlap" for k, a in enumerate(ids)
+            for b in tree.query(polys[a], predicate="intersects")
+            if b > k and polys[a].intersection(polys[ids[b]]).area > AREA_EPS_M2]
+
+
 def broken_lanes(m: HDMap) -> list[str]:
     """Every lane has >= 2 points and meets its successors within 1 cm, links symmetric."""
     problems = []
@@ -144,4 +154,4 @@ def unrealized_features(m: HDMap, angle_tol_deg: float = 0.01) -> list[str]:
 
 def check_map(m: HDMap) -> list[str]:
     """All invariants at once."""
-    return overlapping_roads(m) + broken_lanes(m) + connectivity(m) + unrealized_features(m)
+    return overlapping_roads(m) + overlapping_crosswalks(m) + broken_lanes(m) + connectivity(m) + unrealized_features(m)

@@ -78,3 +78,33 @@ def render_map(m: HDMap, path: str | Path, *, title: str | None = None, size_in:
     finally:
         plt.close(fig)
     atomic.write_bytes(path, buf.getvalue())
+
+
+def render_junctions(m: HDMap, path: str | Path, *, margin: float = 12.0, cols: int = 4, dpi: int = 130) -> None:
+    """A gallery with one close-up per junction (paper Fig. 5), titled with its feature."""
+    ids = [jid for jid, j in m.junctions.items() if len(j.polygon) >= 3]
+    rows = max(1, -(-len(ids) // cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 3.4 * rows), squeeze=False)
+    try:
+        for ax in axes.flat:
+            ax.set_axis_off()
+        for ax, jid in zip(axes.flat, ids):
+            j = m.junctions[jid]
+            ax.set_axis_on()
+            draw_map(m, ax, labels=False)
+            xs, ys = zip(*j.polygon)
+            ax.set_xlim(min(xs) - margin, max(xs) + margin)
+            ax.set_ylim(min(ys) - margin, max(ys) + margin)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_xlabel("")
+            ax.set_ylabel("")
+            f = j.feature
+            title = jid if f is None else f"{jid}: n={f.n_roads}, {f.control}{', crosswalk' if f.crosswalk else ''}"
+            ax.set_title(title, fontsize=8)
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format=Path(path).suffix.lstrip(".").lower() or "png", dpi=dpi)
+    finally:
+        plt.close(fig)
+    atomic.write_bytes(path, buf.getvalue())
