@@ -12,3 +12,7 @@ __all__ = [
     "GenerationConfig", "FeatureSpace", "JunctionFeature", "Socket", "HDMap", "PAPER_SF_FEATURE_SPACE",
     "generate", "generate_from_features", "normalize_rotation", "__version__",
 ]
+
+from .envs.registration import register_envs as _register_envs  # noqa: E402
+
+_register_envs()

@@ -13,6 +13,7 @@ LANE_WIDTH_M = 3.5  # paper: default lane width of the input maps
 CROSSWALK_WIDTH_M = 4.5  # paper: slightly longer than a sedan
 STUB_LENGTH_M = 25.0  # dead-end roads: the map's entries and exits; short of half a grid gap
 MIN_SOCKET_SEPARATION_DEG = 20.0
+MIN_STUB_LENGTH_M = 10.0  # a junction must leave at least this much road before the half-way line
 MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps

@@ -15,8 +15,9 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from .bezier import Bezier, left_normal, unit
-from .config import GenerationConfig
+from .config import MIN_STUB_LENGTH_M, GenerationConfig
 from .features import JunctionFeature
+from .errors import LayoutError
 from .layout import Placement
 from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
 
@@ -98,7 +99,8 @@ class _Builder:
             off = divider - (i + 0.5) * w
             centre, pts, left, right = self.lane_curves(start, h0, end, h1, off)
             ltype = ("solid_yellow" if n_left else "solid_white") if i == 0 else "dotted_white"
-            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype)
+            rtype = "dotted_white" if i < n_right - 1 else "solid_white"
+            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype, rtype=rtype)
             right_ids.append(lid)
         for i in range(n_left):
             lid = f"{road_id}_{n_right + i}"
@@ -106,7 +108,8 @@ class _Builder:
             # driving against the reference: from end to start, so "left" is the reference's right
             centre, pts, left, right = self.lane_curves(end, h1 + math.pi, start, h0 + math.pi, -off)
             ltype = ("solid_yellow" if n_right else "solid_white") if i == 0 else "dotted_white"
-            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype)
+            rtype = "dotted_white" if i < n_left - 1 else "solid_white"
+            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype, rtype=rtype)
             left_ids.append(lid)
         for ids in (right_ids, left_ids):
             for a, b in zip(ids, ids[1:]):  # a is nearer the divider: left of b
@@ -140,18 +143,20 @@ def lane_pairs(p: int, exits: Sequence[tuple[int, int, str]]) -> list[tuple[int,
 
     Exits are sorted from the sharpest right to the sharpest left and split over the incoming
     lanes in that order, like lane-use arrows: lane i serves the exits whose share of the
-    [0, 1] interval overlaps lane i's share. Within one exit the serving lanes take the exit's
-    lanes right-aligned (left-aligned for left turns and U-turns). Neither rule lets two
-    connections of one approach cross, and every incoming lane and every exit gets one.
+    [0, 1] interval overlaps lane i's share. Within one exit, its c serving lanes and its q
+    lanes are joined by a monotone map (out lane j from serving lane floor(j c / q) when
+    q >= c, serving lane k to out lane floor(k q / c) otherwise). Monotone maps never cross,
+    and every incoming lane and every lane of every exit gets at least one connection.
     """
     n_exits = len(exits)
     out = []
-    for e, (_, q, turn) in enumerate(exits):
+    for e, (_, q, _) in enumerate(exits):
         lanes = [i for i in range(p) if i * n_exits < (e + 1) * p and e * p < (i + 1) * n_exits]
         c = len(lanes)
-        for k, i in enumerate(lanes):
-            j = max(0, q - c + k) if turn in ("left", "uturn") else min(k, q - 1)
-            out.append((i, e, j))
+        if q >= c:
+            out += [(lanes[j * c // q], e, j) for j in range(q)]
+        else:
+            out += [(i, e, k * q // c) for k, i in enumerate(lanes)]
     return out
 
 
@@ -159,7 +164,16 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
     """Instantiate every placed junction, its roads, lanes, controls and crosswalks."""
     b = _Builder(cfg)
     sockets: list[list[SocketGeometry]] = []
-    for p in placements:
+    centers = [tuple(np.array(p.cell, dtype=float) * cfg.grid_gap) for p in placements]
+    for j, p in enumerate(placements):
+        r = junction_radius(p.feature, cfg)
+        room = cfg.grid_gap / 2 - MIN_STUB_LENGTH_M - cfg.junction_margin
+        if r > room:
+            need = 2 * (r + MIN_STUB_LENGTH_M + cfg.junction_margin)
+            raise LayoutError(
+                f"legs {list(p.feature.rotation)} are too close for their lanes: the junction needs a "
+                f"{r:.1f} m radius, a {cfg.grid_gap:g} m grid leaves {room:.1f} m (use grid_gap >= {need:.0f})",
+                f"junction J{j}")
         center = np.array(p.cell, dtype=float) * cfg.grid_gap
         sockets.append(socket_geometry(p.feature, center, p.rotation_deg, cfg))
 
@@ -177,7 +191,9 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
             rid = f"R{n_roads}"
             n_roads += 1
             if link is None:
-                end = tuple(np.asarray(g.point) + cfg.stub_length * unit(g.angle))
+                # stubs end short of the half-way line, so facing stubs never meet
+                length = min(cfg.stub_length, cfg.grid_gap / 2 - cfg.junction_margin - math.dist(g.point, centers[j]))
+                end = tuple(np.asarray(g.point) + length * unit(g.angle))
                 road = b.add_road(rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out, sock.lanes_in, f"J{j}", None)
             else:
                 o = sockets[link.junction][link.socket]

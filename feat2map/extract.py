@@ -20,7 +20,7 @@ from shapely.geometry import Polygon
 from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
 from .model import HDMap, Lane
 
-ARM_CLUSTER_DEG = 20.0  # lane headings of one arm differ by less than this
+ARM_CLUSTER_DEG = 12.0  # lane headings of one arm differ by less than this; generated arms are >= 20 apart
 MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than generated ones
 
 
@@ -69,11 +69,21 @@ def _circular_clusters(angles: np.ndarray, tol_deg: float) -> np.ndarray:
     return out
 
 
-def _arms(lanes: Sequence[Lane], center: np.ndarray) -> list[Arm]:
+def _arms(m: HDMap, lanes: Sequence[Lane], center: np.ndarray) -> list[Arm]:
+    """Arms from the end points of the junction's lanes; headings from the road lanes that
+    feed and leave them where there are any (junction lanes turn sharply)."""
+    def entry_heading(ln: Lane) -> float:
+        preds = [m.lanes[p] for p in ln.predecessors if m.lanes[p].junction_id is None]
+        return (preds[0].heading_at_end() if preds else ln.heading_at_start()) + math.pi
+
+    def exit_heading(ln: Lane) -> float:
+        succs = [m.lanes[s] for s in ln.successors if m.lanes[s].junction_id is None]
+        return succs[0].heading_at_start() if succs else ln.heading_at_end()
+
     ends: dict[tuple[float, float], tuple[tuple[float, float], float, str]] = {}
     for ln in lanes:  # entry points (outward = against travel) and exit points, each once
-        ends.setdefault((round(ln.start[0], 3), round(ln.start[1], 3)), (ln.start, ln.heading_at_start() + math.pi, "in"))
-        ends.setdefault((round(ln.end[0], 3), round(ln.end[1], 3)), (ln.end, ln.heading_at_end(), "out"))
+        ends.setdefault((round(ln.start[0], 3), round(ln.start[1], 3)), (ln.start, entry_heading(ln), "in"))
+        ends.setdefault((round(ln.end[0], 3), round(ln.end[1], 3)), (ln.end, exit_heading(ln), "out"))
     pts = np.array([v[0] for v in ends.values()])
     kinds = [v[2] for v in ends.values()]
     heads = np.degrees(np.array([v[1] for v in ends.values()])) % 360.0
@@ -110,7 +120,7 @@ def extract_junctions(m: HDMap, map_name: str = "map") -> list[ExtractedJunction
             continue
         poly = Polygon(j.polygon)
         c = np.array(j.center)
-        arms = _arms(lanes, c)
+        arms = _arms(m, lanes, c)
         if len(arms) < 3:
             continue
         norm = normalize_rotation([a.angle_deg for a in arms])

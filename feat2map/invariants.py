@@ -79,12 +79,20 @@ def broken_lanes(m: HDMap) -> list[str]:
     return problems
 
 
+def lane_changes(lane) -> tuple[str, ...]:
+    """Same-direction neighbours reachable by a lane change (across a dotted boundary)."""
+    left = lane.left_neighbors if lane.left_boundary_type.startswith("dotted") else ()
+    right = lane.right_neighbors if lane.right_boundary_type.startswith("dotted") else ()
+    return left + right
+
+
 def _reach(m: HDMap, start: str, forward: bool = True) -> set[str]:
+    """Lanes reachable from `start` by following links and lane changes (or backwards)."""
     seen = {start}
     todo = deque([start])
     while todo:
         lane = m.lanes[todo.popleft()]
-        for nxt in (lane.successors if forward else lane.predecessors):
+        for nxt in (lane.successors if forward else lane.predecessors) + lane_changes(lane):
             if nxt not in seen:
                 seen.add(nxt)
                 todo.append(nxt)

@@ -63,10 +63,15 @@ class Lane:
         return self.centerline[-1]
 
     def heading_at_start(self) -> float:
+        """Exact tangent direction for Bézier lanes, first segment's direction otherwise."""
+        if self.bezier is not None:
+            return float(self.bezier.heading(0.0))
         (x0, y0), (x1, y1) = self.centerline[0], self.centerline[1]
         return math.atan2(y1 - y0, x1 - x0)
 
     def heading_at_end(self) -> float:
+        if self.bezier is not None:
+            return float(self.bezier.heading(1.0))
         (x0, y0), (x1, y1) = self.centerline[-2], self.centerline[-1]
         return math.atan2(y1 - y0, x1 - x0)
 

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 import feat2map
 from feat2map import mapio
 from feat2map.config import GenerationConfig
-from feat2map.errors import FeatureError
+from feat2map.errors import FeatureError, LayoutError
 from feat2map.features import FeatureSpace, JunctionFeature
 from feat2map.invariants import broken_lanes, check_map, connectivity, overlapping_roads, unrealized_features
 from feat2map.sampling import sample_features
@@ -136,3 +136,17 @@ def test_config_rejects_bad_values():
         GenerationConfig(lane_width=-1)
     with pytest.raises(ValueError, match="unknown config field"):
         GenerationConfig.from_dict({"lane_wdith": 3})
+
+
+@pytest.mark.parametrize("angles, lanes, gap", [([0, 20, 180], 1, 100.0), ([0, 20, 40, 200], 2, 200.0),
+                                               ([-30, 90, 150, 210, 300], [1, 2, 3, 1, 2], 100.0)])
+def test_tight_and_multilane_junctions_keep_every_invariant(angles, lanes, gap):
+    feats = [JunctionFeature.make(angles, "signal", True, lanes=lanes), JunctionFeature.make(angles, "stop", True, lanes=lanes)]
+    m = feat2map.generate_from_features(feats, seed=0, config=GenerationConfig(grid_gap=gap))
+    assert check_map(m) == []
+
+
+def test_legs_too_close_for_their_lanes_fail_with_the_junction_named():
+    feats = [JunctionFeature.make([0, 20, 40, 200], "signal", True, lanes=2)]
+    with pytest.raises(LayoutError, match=r"junction J0.*too close for their lanes.*grid_gap >= \d+"):
+        feat2map.generate_from_features(feats, seed=0)
