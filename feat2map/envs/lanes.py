@@ -1,0 +1,123 @@
+"""A polyline lane on highway-env's `AbstractLane`: exact, vectorised projection.
+
+highway-env's `PolyLane` precomputes widths in O(L^2) and `PolyLaneFixedWidth` projects with a
+Python loop; this lane projects a point on all segments at once with numpy. The polyline *is*
+the lane geometry (maps sample their Bézier lanes every couple of metres), so coordinates are
+exact for it: `position(*local_coordinates(p)) == p` for points beside the lane, and the first
+and last segments extend beyond the ends so longitudinal coordinates run below 0 and past
+`length` as highway-env expects.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+
+import numpy as np
+from highway_env.road.lane import AbstractLane, LineType
+
+
+class PolylineLane(AbstractLane):
+    """A lane whose centreline is a polyline (highway-env frame: y down), constant width."""
+
+    def __init__(self, points: np.ndarray, width: float = 3.5, line_types=(LineType.NONE, LineType.NONE),
+                 forbidden: bool = False, speed_limit: float = 20.0, priority: int = 0,
+                 lane_id: str = "") -> None:
+        pts = np.asarray(points, dtype=float)
+        keep = np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-9])
+        pts = pts[keep]
+        if len(pts) < 2:
+            raise ValueError(f"lane {lane_id!r} needs at least two distinct points")
+        self.points = pts
+        self.a = pts[:-1]
+        d = np.diff(pts, axis=0)
+        self.seg_len = np.hypot(d[:, 0], d[:, 1])
+        self.u = d / self.seg_len[:, None]
+        self.cum = np.concatenate([[0.0], np.cumsum(self.seg_len)])
+        self.length = float(self.cum[-1])
+        self.seg_heading = np.arctan2(self.u[:, 1], self.u[:, 0])
+        # vertex headings (mean of adjacent segments) for a continuous heading_at
+        hv = np.empty(len(pts))
+        hv[0], hv[-1] = self.seg_heading[0], self.seg_heading[-1]
+        if len(pts) > 2:
+            s = self.u[:-1] + self.u[1:]
+            hv[1:-1] = np.arctan2(s[:, 1], s[:, 0])
+        self.vertex_heading = np.unwrap(hv)
+        self.width = float(width)
+        self.line_types = list(line_types)
+        self.forbidden = forbidden
+        self.speed_limit = speed_limit
+        self.priority = priority
+        self.lane_id = lane_id
+        self.bbox = (*pts.min(axis=0), *pts.max(axis=0))
+        self._n = len(self.seg_len)
+        self._ax, self._ay = self.a[:, 0].copy(), self.a[:, 1].copy()
+        self._ux, self._uy = self.u[:, 0].copy(), self.u[:, 1].copy()
+        self._uxl, self._uyl = self._ux.tolist(), self._uy.tolist()
+        self._cuml = self.cum.tolist()
+        self._axl, self._ayl = self._ax.tolist(), self._ay.tolist()
+        self._lo = np.zeros(self._n)
+        self._hi = self.seg_len.copy()
+        self._lo[0] = -np.inf  # the first segment extends backwards, the last one forwards
+        self._hi[-1] = np.inf
+        self._vh = self.vertex_heading.tolist()
+
+    def _segment(self, s: float) -> int:
+        i = bisect.bisect_right(self._cuml, float(s)) - 1
+        return min(max(i, 0), self._n - 1)
+
+    def position(self, longitudinal: float, lateral: float) -> np.ndarray:
+        i = self._segment(longitudinal)
+        ux, uy = self._uxl[i], self._uyl[i]
+        ds = longitudinal - self._cuml[i]
+        return np.array([self._axl[i] + ds * ux - lateral * uy, self._ayl[i] + ds * uy + lateral * ux])
+
+    def local_coordinates(self, position: np.ndarray) -> tuple[float, float]:
+        x, y = float(position[0]), float(position[1])
+        rx = x - self._ax
+        ry = y - self._ay
+        t = rx * self._ux + ry * self._uy
+        tc = np.minimum(np.maximum(t, self._lo), self._hi)
+        dx = rx - tc * self._ux
+        dy = ry - tc * self._uy
+        i = int((dx * dx + dy * dy).argmin())
+        lat = self._uxl[i] * float(ry[i]) - self._uyl[i] * float(rx[i])
+        return self._cuml[i] + float(tc[i]), lat
+
+    def heading_at(self, longitudinal: float) -> float:
+        s = min(max(float(longitudinal), 0.0), self.length)
+        i = bisect.bisect_right(self._cuml, s) - 1
+        if i >= self._n:
+            return self._vh[-1]
+        f = (s - self._cuml[i]) / self._cuml_len(i)
+        return self._vh[i] + f * (self._vh[i + 1] - self._vh[i])
+
+    def _cuml_len(self, i: int) -> float:
+        return self._cuml[i + 1] - self._cuml[i]
+
+    def width_at(self, longitudinal: float) -> float:
+        return self.width
+
+    def on_lane(self, position, longitudinal=None, lateral=None, margin=0) -> bool:
+        if longitudinal is None or lateral is None:
+            longitudinal, lateral = self.local_coordinates(position)
+        return abs(lateral) <= self.width / 2 + margin and -self.VEHICLE_LENGTH <= longitudinal < self.length + self.VEHICLE_LENGTH
+
+    @classmethod
+    def from_config(cls, config: dict) -> "PolylineLane":
+        return cls(np.asarray(config["points"]), config.get("width", 3.5), config.get("line_types", (0, 0)),
+                   config.get("forbidden", False), config.get("speed_limit", 20.0), config.get("priority", 0),
+                   config.get("lane_id", ""))
+
+    def to_config(self) -> dict:
+        return {"class_path": f"{__name__}.PolylineLane", "config": {
+            "points": self.points.tolist(), "width": self.width, "line_types": list(self.line_types),
+            "forbidden": self.forbidden, "speed_limit": self.speed_limit, "priority": self.priority,
+            "lane_id": self.lane_id}}
+
+    def __repr__(self) -> str:
+        return f"PolylineLane({self.lane_id!r}, length={self.length:.1f})"
+
+
+def heading_delta(a: float, b: float) -> float:
+    """Signed smallest angle from a to b."""
+    return (b - a + math.pi) % (2 * math.pi) - math.pi

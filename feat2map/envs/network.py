@@ -1,0 +1,298 @@
+"""HDMap -> highway-env road network, with a grid-hash lane index, lane-graph routing and the
+tables traffic control needs (stop lines, junction conflicts, crosswalk crossings).
+
+highway-env's frame has y pointing down: every point is flipped (x, y) -> (x, -y) here, so
+right-hand traffic renders as right-hand traffic. Lane groups (the same-direction lanes of one
+road) are one highway-env edge, lane 0 nearest the divider, so LANE_LEFT/LANE_RIGHT work;
+graph nodes are lane-end classes joined through lane successors.
+"""
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from highway_env.road.lane import LineType
+from highway_env.road.road import LaneIndex, RoadNetwork
+from shapely import STRtree
+from shapely.geometry import LineString, Point, Polygon
+
+from ..errors import Feat2MapError
+from ..model import HDMap
+from .lanes import PolylineLane
+
+GRID_CELL_M = 8.0
+CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
+_LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
+         "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
+         "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
+_PRIORITY = {"none": 2, "right": 2, "left": 1, "uturn": 0}
+
+
+def flip(points) -> np.ndarray:
+    """Map frame (y north) -> highway-env frame (y down)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2).copy()
+    p[:, 1] *= -1.0
+    return p
+
+
+@dataclass(frozen=True)
+class StopLine:
+    """A controlled stop line on one lane: `s` along the lane (metres), kind signal/stop."""
+
+    kind: str
+    control_id: str
+    junction_id: str | None
+    s: float
+
+
+@dataclass
+class MapNetwork(RoadNetwork):
+    """A `RoadNetwork` built from an HDMap, with O(1) lane lookups and lane-level routing."""
+
+    hdmap: HDMap | None = None
+    lane_ids: list[str] = field(default_factory=list)  # integer lane number -> map lane id
+    index_of: dict[str, LaneIndex] = field(default_factory=dict)  # map lane id -> highway-env index
+    id_of: dict[LaneIndex, str] = field(default_factory=dict)
+    lane_of: dict[str, PolylineLane] = field(default_factory=dict)
+    stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
+    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones
+    crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
+    crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.graph = {}
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def from_map(cls, m: HDMap) -> "MapNetwork":
+        if not m.lanes:
+            raise Feat2MapError("the map has no lanes", "map")
+        net = cls(hdmap=m)
+        parent: dict[str, str] = {}
+
+        def find(x: str) -> str:
+            while parent.setdefault(x, x) != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        def union(a: str, b: str) -> None:
+            ra, rb = find(a), find(b)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+
+        groups: list[list[str]] = []
+        grouped: set[str] = set()
+        for road in m.roads.values():
+            for g in (road.right_lanes, road.left_lanes):
+                g = [lid for lid in g if lid in m.lanes]
+                if g:
+                    groups.append(g)
+                    grouped.update(g)
+        groups += [[lid] for lid in m.lanes if lid not in grouped]
+        for lane in m.lanes.values():
+            for succ in lane.successors:
+                if succ in m.lanes:
+                    union(f"{lane.id}:e", f"{succ}:s")
+        for g in groups:
+            for lid in g[1:]:
+                union(f"{g[0]}:s", f"{lid}:s")
+                union(f"{g[0]}:e", f"{lid}:e")
+        names: dict[str, str] = {}
+
+        def node(x: str) -> str:
+            r = find(x)
+            return names.setdefault(r, f"n{len(names)}")
+
+        for g in groups:
+            a, b = node(f"{g[0]}:s"), node(f"{g[0]}:e")
+            for lid in g:
+                ln = m.lanes[lid]
+                lane = PolylineLane(
+                    flip(ln.centerline), ln.width,
+                    (_LINE.get(ln.left_boundary_type, LineType.NONE), _LINE.get(ln.right_boundary_type, LineType.NONE)),
+                    speed_limit=ln.speed_limit, priority=_PRIORITY.get(ln.turn, 1) if ln.junction_id else 3, lane_id=lid)
+                lanes = net.graph.setdefault(a, {}).setdefault(b, [])
+                idx = (a, b, len(lanes))
+                lanes.append(lane)
+                net.index_of[lid] = idx
+                net.id_of[idx] = lid
+                net.lane_of[lid] = lane
+                net.lane_ids.append(lid)
+        net._build_index()
+        net._build_controls()
+        return net
+
+    def _build_index(self) -> None:
+        """Grid hash of lane segments: each cell keeps flat arrays of the segments near it."""
+        cells: dict[tuple[int, int], list[tuple[int, int]]] = {}
+        self._lanes = [self.lane_of[lid] for lid in self.lane_ids]
+        self._indices = [self.index_of[lid] for lid in self.lane_ids]
+        c = GRID_CELL_M
+        for k, lane in enumerate(self._lanes):
+            pad = lane.width / 2 + 1.0
+            for i in range(len(lane.seg_len)):
+                p, q = lane.points[i], lane.points[i + 1]
+                x0, x1 = math.floor((min(p[0], q[0]) - pad) / c), math.floor((max(p[0], q[0]) + pad) / c)
+                y0, y1 = math.floor((min(p[1], q[1]) - pad) / c), math.floor((max(p[1], q[1]) + pad) / c)
+                for gx in range(x0, x1 + 1):
+                    for gy in range(y0, y1 + 1):
+                        cells.setdefault((gx, gy), []).append((k, i))
+        self._cells = {}
+        for key, segs in cells.items():
+            ks = np.array([s[0] for s in segs])
+            iss = np.array([s[1] for s in segs])
+            a = np.array([self._lanes[k].a[i] for k, i in segs])
+            u = np.array([self._lanes[k].u[i] for k, i in segs])
+            ln = np.array([self._lanes[k].seg_len[i] for k, i in segs])
+            cum = np.array([self._lanes[k].cum[i] for k, i in segs])
+            h = np.array([self._lanes[k].seg_heading[i] for k, i in segs])
+            self._cells[key] = (ks, a, u, ln, cum, h, iss)
+        allpts = np.concatenate([ln.points for ln in self._lanes])
+        self.extent = (*allpts.min(axis=0), *allpts.max(axis=0))
+
+    def locate(self, position: np.ndarray, heading: float | None = None,
+               hint: LaneIndex | None = None) -> tuple[LaneIndex, float, float]:
+        """(lane index, s, lateral) of the lane nearest a position, preferring `hint` when on it."""
+        x, y = float(position[0]), float(position[1])
+        if hint is not None:
+            lane = self.get_lane(hint)
+            s, r = lane.local_coordinates(position)
+            if abs(r) <= lane.width / 2 and -0.5 <= s <= lane.length + 0.5 and (
+                    heading is None or abs(_wrap(lane.heading_at(s) - heading)) < math.pi / 3):
+                return hint, s, r
+        key = (math.floor(x / GRID_CELL_M), math.floor(y / GRID_CELL_M))
+        cell = self._cells.get(key)
+        if cell is None:
+            return self._far_locate(position, heading)
+        ks, a, u, ln, cum, h, _ = cell
+        rx, ry = x - a[:, 0], y - a[:, 1]
+        t = np.clip(rx * u[:, 0] + ry * u[:, 1], 0.0, ln)
+        dx, dy = rx - t * u[:, 0], ry - t * u[:, 1]
+        cost = np.sqrt(dx * dx + dy * dy)
+        if heading is not None:
+            cost = cost + np.abs((h - heading + np.pi) % (2 * np.pi) - np.pi)
+        j = int(np.argmin(cost))
+        k = int(ks[j])
+        lat = u[j, 0] * ry[j] - u[j, 1] * rx[j]
+        return self._indices[k], float(cum[j] + t[j]), float(lat)
+
+    def _far_locate(self, position, heading):
+        best = None
+        for k, lane in enumerate(self._lanes):
+            x0, y0, x1, y1 = lane.bbox
+            d = max(x0 - position[0], 0, position[0] - x1) + max(y0 - position[1], 0, position[1] - y1)
+            if best is None or d < best[0]:
+                best = (d, k)
+        lane = self._lanes[best[1]]
+        s, r = lane.local_coordinates(position)
+        return self._indices[best[1]], s, r
+
+    def get_closest_lane_index(self, position: np.ndarray, heading: float | None = None) -> LaneIndex:
+        return self.locate(position, heading)[0]
+
+    def get_lane(self, index: LaneIndex) -> PolylineLane:
+        _from, _to, _id = index
+        if _id is None:
+            _id = 0
+        return self.graph[_from][_to][_id]
+
+    # ---- controls and conflicts -----------------------------------------------------------
+    def _build_controls(self) -> None:
+        m = self.hdmap
+        for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
+            for c in table.values():
+                line = LineString(c.stop_line) if len(c.stop_line) >= 2 else None
+                for lid in c.lane_ids:
+                    ln = m.lanes.get(lid)
+                    if ln is None:
+                        continue
+                    cl = LineString(ln.centerline)
+                    s = ln.length
+                    if line is not None and line.intersects(cl):
+                        inter = line.intersection(cl)
+                        s = cl.project(inter.representative_point())
+                    self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(min(s, self.lane_of[lid].length)))
+        # junction conflicts: different entry lanes whose paths cross, merge or pass too close
+        jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
+        lines = [LineString(ln.centerline) for ln in jl]
+        conf: dict[str, set[str]] = {ln.id: set() for ln in jl}
+        if lines:
+            tree = STRtree(lines)
+            left, right = tree.query(lines, predicate="dwithin", distance=CONFLICT_DISTANCE_M)
+            for i, j in zip(left.tolist(), right.tolist()):
+                if i >= j:
+                    continue
+                a, b = jl[i], jl[j]
+                if a.junction_id != b.junction_id or set(a.predecessors) & set(b.predecessors):
+                    continue
+                conf[a.id].add(b.id)
+                conf[b.id].add(a.id)
+        self.conflicts = {k: frozenset(v) for k, v in conf.items()}
+        # crosswalk crossings
+        cws = list(m.crosswalks.values())
+        if cws:
+            polys = [Polygon(c.polygon) for c in cws]
+            tree = STRtree(polys)
+            for ln in jl:
+                cl = LineString(ln.centerline)
+                for ci in tree.query(cl, predicate="intersects").tolist():
+                    inter = cl.intersection(polys[ci])
+                    if inter.is_empty:
+                        continue
+                    ss = [cl.project(Point(p)) for g in getattr(inter, "geoms", [inter]) for p in g.coords]
+                    self.crossings.setdefault(ln.id, []).append((cws[ci].id, min(ss), max(ss)))
+            for c, poly in zip(cws, polys):
+                rect = poly.minimum_rotated_rectangle
+                pts = np.asarray(rect.exterior.coords[:4])
+                e = [np.hypot(*(pts[(i + 1) % 4] - pts[i])) for i in range(4)]
+                i = int(np.argmin(e[:2]))  # short side i and its opposite i+2
+                a = (pts[i] + pts[(i + 1) % 4]) / 2
+                b = (pts[(i + 2) % 4] + pts[(i + 3) % 4]) / 2
+                self.crosswalk_axes[c.id] = (flip(a)[0], flip(b)[0], float(e[i]))
+
+    # ---- routing ------------------------------------------------------------------------
+    def lane_route(self, start: str, goal: str) -> list[str]:
+        """Length-weighted Dijkstra over lane successors; [] when `goal` is unreachable."""
+        m = self.hdmap
+        if start == goal:
+            return [start]
+        dist = {start: 0.0}
+        prev: dict[str, str] = {}
+        heap = [(0.0, start)]
+        while heap:
+            d, lid = heapq.heappop(heap)
+            if lid == goal:
+                path = [goal]
+                while path[-1] != start:
+                    path.append(prev[path[-1]])
+                return path[::-1]
+            if d > dist.get(lid, math.inf):
+                continue
+            for nxt in m.lanes[lid].successors:
+                if nxt not in m.lanes:
+                    continue
+                nd = d + m.lanes[nxt].length
+                if nd < dist.get(nxt, math.inf):
+                    dist[nxt] = nd
+                    prev[nxt] = lid
+                    heapq.heappush(heap, (nd, nxt))
+        return []
+
+    def shortest_path(self, start: str, goal: str) -> list[str]:
+        """Node path over the lane graph (Dijkstra, never highway-env's path enumeration)."""
+        starts = [lid for lid, idx in self.index_of.items() if idx[0] == start]
+        goals = {lid for lid, idx in self.index_of.items() if idx[1] == goal}
+        best: list[str] = []
+        for s in starts[:4]:
+            for g in goals:
+                r = self.lane_route(s, g)
+                if r and (not best or len(r) < len(best)):
+                    best = r
+        return [self.index_of[best[0]][0]] + [self.index_of[l][1] for l in best] if best else []
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -1,0 +1,16 @@
+"""Gymnasium registration of the feat2map environments (string entry points, no import cost)."""
+from __future__ import annotations
+
+import gymnasium
+
+ENV_IDS = {
+    "feat2map/JunctionGrid-v0": "feat2map.envs.junction_env:JunctionGridEnv",
+    "feat2map/MapFile-v0": "feat2map.envs.junction_env:MapFileEnv",
+}
+
+
+def register_envs() -> None:
+    """Register every id once (safe to call repeatedly)."""
+    for env_id, entry in ENV_IDS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=entry)

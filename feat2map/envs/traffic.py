@@ -1,0 +1,509 @@
+"""Traffic control and traffic: signal phase plans, stop-sign queues, junction reservations from
+precomputed conflict tables, crosswalk pedestrians, route-following IDM vehicles, and a `Road`
+whose neighbour search and collision checks stay local (lane buckets and a grid hash).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import RoadObject
+
+from .network import MapNetwork
+
+SIGNAL_STATES = ("green", "amber", "red")
+STOPPED_SPEED_MPS = 0.3
+STOP_ZONE_M = 6.0  # a stop counts when made within this distance of the stop line
+COMMIT_DISTANCE_M = 10.0
+LOOKAHEAD_M = 60.0
+PEDESTRIAN_CORRIDOR_M = 3.0  # beyond the lane half-width, an approaching pedestrian makes vehicles yield
+PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
+COLLISION_CELL_M = 10.0
+PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
+# IDM parameters of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
+IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_TIME_GAP_S = 3.0, 4.0, 4.0, 2.5, 1.2
+
+
+@dataclass(frozen=True)
+class PhasePlan:
+    """Fixed-time plan of one signalized junction: each approach green in turn, then amber, all-red."""
+
+    order: tuple[str, ...]  # signal ids, one per approach
+    green: float
+    amber: float
+    all_red: float
+    offset: float
+
+    @property
+    def cycle(self) -> float:
+        return len(self.order) * (self.green + self.amber + self.all_red)
+
+    def state(self, signal_id: str, t: float) -> str:
+        k = self.order.index(signal_id)
+        slot = self.green + self.amber + self.all_red
+        local = (t + self.offset) % self.cycle - k * slot
+        if 0 <= local < self.green:
+            return "green"
+        if self.green <= local < self.green + self.amber:
+            return "amber"
+        return "red"
+
+    def time_to_change(self, signal_id: str, t: float) -> float:
+        k = self.order.index(signal_id)
+        slot = self.green + self.amber + self.all_red
+        local = ((t + self.offset) % self.cycle - k * slot) % self.cycle
+        for edge in (self.green, self.green + self.amber, self.cycle):
+            if local < edge:
+                return edge - local
+        return 0.0
+
+
+class Pedestrian(RoadObject):
+    """A person walking straight across a crosswalk at constant speed."""
+
+    LENGTH = 0.8
+    WIDTH = 0.8
+
+    def __init__(self, road, start: np.ndarray, end: np.ndarray, speed: float, crosswalk_id: str) -> None:
+        d = end - start
+        super().__init__(road, start.copy(), float(math.atan2(d[1], d[0])), speed)
+        self.end = end
+        self.crosswalk_id = crosswalk_id
+        self.remaining = float(np.hypot(*d))
+        self.collidable = True
+        self.solid = False
+        self.check_collisions = False
+
+    def step(self, dt: float) -> None:
+        move = min(self.speed * dt, self.remaining)
+        self.position = self.position + move * self.direction
+        self.remaining -= move
+
+    @property
+    def done(self) -> bool:
+        return self.remaining <= 1e-6
+
+
+class RouteFollower:
+    """Mixin: follow an explicit list of map lane ids; re-plan by Dijkstra after a lane change."""
+
+    lane_route: list[str]
+    route_pos: int
+
+    def init_route(self, lane_route: list[str]) -> None:
+        self.lane_route = list(lane_route)
+        self.route_pos = 0
+        self.lane_s = 0.0
+        self.lane_lat = 0.0
+        self.reserved: str | None = None
+        net: MapNetwork = self.road.network
+        self.target_lane_index = net.index_of[self.lane_route[0]]
+        self.route = None
+
+    @property
+    def net(self) -> MapNetwork:
+        return self.road.network
+
+    def current_lane_id(self) -> str:
+        return self.lane_route[self.route_pos]
+
+    def follow_road(self) -> None:
+        net = self.net
+        lane = net.get_lane(self.target_lane_index)
+        s, _ = lane.local_coordinates(self.position)
+        if s <= lane.length - 1.0:
+            return
+        tid = net.id_of[self.target_lane_index]
+        if tid != self.lane_route[self.route_pos]:  # changed lane: re-plan from here
+            path = net.lane_route(tid, self.lane_route[-1])
+            if not path:
+                return
+            self.lane_route = self.lane_route[:self.route_pos] + path
+        if self.route_pos + 1 < len(self.lane_route):
+            self.route_pos += 1
+            self.target_lane_index = net.index_of[self.lane_route[self.route_pos]]
+
+    def on_state_update(self) -> None:
+        if self.road:
+            hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
+            self.lane_index, self.lane_s, self.lane_lat = self.road.network.locate(self.position, self.heading, hint)
+            self.lane = self.road.network.get_lane(self.lane_index)
+            if self.road.record_history:
+                self.history.appendleft(self.create_from(self))
+
+    def route_distance_done(self) -> float:
+        """Metres driven along the route: lanes behind plus the position on the current one."""
+        net = self.net
+        done = sum(net.lane_of[l].length for l in self.lane_route[:self.route_pos])
+        lane = net.lane_of[self.lane_route[self.route_pos]]
+        s, _ = lane.local_coordinates(self.position)
+        return done + min(max(s, 0.0), lane.length)
+
+    def route_length(self) -> float:
+        return sum(self.net.lane_of[l].length for l in self.lane_route)
+
+    def upcoming(self, horizon: float = LOOKAHEAD_M):
+        """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""
+        net = self.net
+        lane = net.lane_of[self.lane_route[self.route_pos]]
+        s, _ = lane.local_coordinates(self.position)
+        out = [(self.route_pos, self.lane_route[self.route_pos], -s, s)]
+        d = lane.length - s
+        for k in range(self.route_pos + 1, len(self.lane_route)):
+            if d > horizon:
+                break
+            lid = self.lane_route[k]
+            out.append((k, lid, d, None))
+            d += net.lane_of[lid].length
+        return out
+
+    def leader_gaps(self) -> list[tuple[float, float]]:
+        """(bumper gap, speed) of every road user on the lanes ahead along the route."""
+        net = self.net
+        gaps = []
+        for k, lid, d, s_own in self.upcoming():
+            lane = net.lane_of[lid]
+            for o in self.road.control.buckets.get(lid, ()):
+                if o is self:
+                    continue
+                so, _ = lane.local_coordinates(o.position)
+                if s_own is not None and so <= s_own:
+                    continue
+                gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
+        return gaps
+
+    def next_junction_lane(self) -> tuple[str | None, str | None, float]:
+        """(incoming lane, junction lane, distance to the stop line) of the next junction entry."""
+        m = self.net.hdmap
+        for k, lid, d, _ in self.upcoming(1e9):
+            if k > self.route_pos and m.lanes[lid].junction_id is not None and \
+                    m.lanes[self.lane_route[k - 1]].junction_id is None:
+                return self.lane_route[k - 1], lid, d
+        return None, None, math.inf
+
+
+class TrafficControl:
+    """Signals, stop-sign queues, junction reservations and crosswalk pedestrians of one episode."""
+
+    def __init__(self, net: MapNetwork, rng: np.random.Generator, cfg: dict) -> None:
+        self.net = net
+        self.t = 0.0
+        self.cfg = cfg
+        self.rng = rng
+        m = net.hdmap
+        self.plans: dict[str, PhasePlan] = {}
+        by_j: dict[str | None, list[str]] = {}
+        for sid, sig in m.signals.items():
+            by_j.setdefault(sig.junction_id, []).append(sid)
+        g, a, r = cfg["signal_green"], cfg["signal_amber"], cfg["signal_all_red"]
+        for jid, sids in by_j.items():
+            order = tuple(sorted(sids))
+            offset = float(rng.uniform(0, len(order) * (g + a + r)))
+            plan = PhasePlan(order, g, a, r, offset)
+            for sid in order:
+                self.plans[sid] = plan
+        self.stop_queue: dict[str | None, list] = {}
+        self.reservations: dict[str, object] = {}
+        self.pedestrians: dict[str, list[Pedestrian]] = {}
+        self.active_crosswalks: list[str] = []
+        self.buckets: dict[str, list] = {}
+
+    # ---- signals ----------------------------------------------------------------------
+    def signal_state(self, signal_id: str) -> str:
+        plan = self.plans.get(signal_id)
+        return plan.state(signal_id, self.t) if plan else "green"
+
+    def signal_states(self, junction_id: str | None = None) -> dict[str, str]:
+        return {sid: self.signal_state(sid) for sid, sig in self.net.hdmap.signals.items()
+                if junction_id is None or sig.junction_id == junction_id}
+
+    # ---- occupancy ----------------------------------------------------------------------
+    def occupied(self, lane_id: str, by_other_than=None) -> bool:
+        holder = self.reservations.get(lane_id)
+        if holder is not None and holder is not by_other_than:
+            return True
+        return any(v is not by_other_than for v in self.buckets.get(lane_id, ()))
+
+    def junction_clear(self, junction_lane: str, vehicle=None) -> bool:
+        return not any(self.occupied(c, vehicle) for c in self.net.conflicts.get(junction_lane, ()))
+
+    def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
+        """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane."""
+        jid = self.net.hdmap.lanes[junction_lane].junction_id
+        queue = self.stop_queue.get(jid, [])
+        if vehicle not in queue:
+            return False
+        conflicts = self.net.conflicts.get(junction_lane, frozenset())
+        for other in queue[:queue.index(vehicle)]:
+            _, lane, _ = other.next_junction_lane() if hasattr(other, "next_junction_lane") else (None, None, 0)
+            if lane is None or lane in conflicts:
+                return False
+        return True
+
+    def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
+                  ignore: frozenset = frozenset()) -> bool:
+        """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now."""
+        if self.reservations.get(j_lane) is vehicle:
+            return True
+        sl = self.net.stop_lines.get(in_lane)
+        if sl is not None and sl.kind == "signal" and "signal" not in ignore:
+            state = self.signal_state(sl.control_id)
+            if state == "red":
+                return False
+            if state == "amber" and d_line > vehicle.speed ** 2 / (2 * 3.0) + 1.0:
+                return False
+        elif sl is not None and sl.kind == "stop" and "stop" not in ignore:
+            if not self.stop_queue_allows(vehicle, j_lane):
+                return False
+        if "conflict" not in ignore and not self.junction_clear(j_lane, vehicle):
+            return False
+        if commit and d_line < max(COMMIT_DISTANCE_M, 1.5 * vehicle.speed) and j_lane not in self.reservations:
+            self.reservations[j_lane] = vehicle
+            vehicle.reserved = j_lane
+        return True
+
+    def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
+        """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""
+        net = self.net
+        lane = net.lane_of[lane_id]
+        best = None
+        for cw, s0, s1 in net.crossings.get(lane_id, ()):
+            if s0 < s_from - 0.5:
+                continue
+            for p in self.pedestrians.get(cw, ()):
+                sp, rp = lane.local_coordinates(p.position)
+                if not s0 - 2.0 <= sp <= s1 + 2.0:
+                    continue
+                h = lane.heading_at(sp)
+                towards = rp * (p.direction[0] * -math.sin(h) + p.direction[1] * math.cos(h)) < 0
+                if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M or (
+                        towards and abs(rp) < lane.width / 2 + PEDESTRIAN_CORRIDOR_M):
+                    stop_at = s0 - 1.0
+                    best = stop_at if best is None else min(best, stop_at)
+        return best
+
+    def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset()) -> float:
+        """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go)."""
+        m = self.net.hdmap
+        for k, lid, d, s_own in vehicle.upcoming():
+            lane_model = m.lanes[lid]
+            if s_own is not None:  # the current lane: pedestrians ahead of us on it
+                ped = None if "pedestrian" in ignore else self.pedestrian_blocking(lid, s_own)
+                if ped is not None:
+                    return ped - s_own
+                continue
+            if lane_model.junction_id is not None and m.lanes[vehicle.lane_route[k - 1]].junction_id is None:
+                if not self.may_enter(vehicle, vehicle.lane_route[k - 1], lid, d, commit, ignore):
+                    return d - 1.0
+            ped = None if "pedestrian" in ignore else self.pedestrian_blocking(lid, 0.0)
+            if ped is not None:
+                return d + ped
+            if lane_model.junction_id is None and k > vehicle.route_pos + 1:
+                break
+        return math.inf
+
+    # ---- per-step bookkeeping -------------------------------------------------------------
+    def update(self, road: "MapRoad", dt: float) -> None:
+        self.t += dt
+        m = self.net.hdmap
+        buckets: dict[str, list] = {}
+        for v in road.vehicles:
+            lid = self.net.id_of.get(v.lane_index)
+            if lid is not None:
+                buckets.setdefault(lid, []).append(v)
+        self.buckets = buckets
+        # release reservations of vehicles that left their junction lane (or the road)
+        alive = set(map(id, road.vehicles))
+        for lid, v in list(self.reservations.items()):
+            on = lid in (self.net.id_of.get(v.lane_index), getattr(v, "lane_route", [None])[getattr(v, "route_pos", 0)])
+            passed = hasattr(v, "lane_route") and lid in v.lane_route[:v.route_pos]
+            if id(v) not in alive or (passed and not on):
+                del self.reservations[lid]
+                if getattr(v, "reserved", None) == lid:
+                    v.reserved = None
+        # stop-sign queues: join after stopping at the line, leave on entering the junction
+        def waiting(v) -> bool:
+            lid = self.net.id_of.get(v.lane_index)
+            return id(v) in alive and lid in m.lanes and m.lanes[lid].junction_id is None
+
+        for jid, queue in list(self.stop_queue.items()):
+            self.stop_queue[jid] = [v for v in queue if waiting(v)]
+        for v in road.vehicles:
+            lid = self.net.id_of.get(v.lane_index)
+            sl = self.net.stop_lines.get(lid) if lid else None
+            if sl is None or sl.kind != "stop" or v.speed > STOPPED_SPEED_MPS:
+                continue
+            if 0 <= sl.s - getattr(v, "lane_s", 0.0) <= STOP_ZONE_M:
+                q = self.stop_queue.setdefault(sl.junction_id, [])
+                if v not in q:
+                    q.append(v)
+                    v.stopped_at = sl.control_id
+        # pedestrians
+        rate = self.cfg["pedestrian_rate"] / 60.0
+        for cw in self.active_crosswalks:
+            peds = [p for p in self.pedestrians.get(cw, ()) if not p.done]
+            if rate > 0 and self.rng.uniform() < rate * dt and len(peds) < self.cfg["pedestrians_per_crosswalk"]:
+                a, b, width = self.net.crosswalk_axes[cw]
+                if self.rng.uniform() < 0.5:
+                    a, b = b, a
+                d = (b - a) / max(np.hypot(*(b - a)), 1e-9)
+                off = np.array([-d[1], d[0]]) * self.rng.uniform(-0.3, 0.3) * width
+                if any(np.hypot(*(v.position - a - off)) < PEDESTRIAN_CLEARANCE_M for v in road.vehicles):
+                    self.pedestrians[cw] = peds
+                    continue
+                speed = float(self.cfg["pedestrian_speed"] * self.rng.uniform(0.85, 1.15))
+                p = Pedestrian(road, a + off, b + off, speed, cw)
+                peds.append(p)
+            self.pedestrians[cw] = peds
+        road.objects = [o for o in road.objects if not isinstance(o, Pedestrian)] + \
+            [p for cw in self.active_crosswalks for p in self.pedestrians.get(cw, ())]
+
+
+class MapRoad(Road):
+    """A `Road` on a `MapNetwork` with traffic control; local neighbour and collision checks."""
+
+    def __init__(self, network: MapNetwork, control: TrafficControl, np_random, record_history=False) -> None:
+        super().__init__(network, [], [], np_random, record_history)
+        self.control = control
+
+    def act(self) -> None:
+        for v in self.vehicles:
+            v.act()
+
+    def step(self, dt: float) -> None:
+        for v in self.vehicles:
+            v.step(dt)
+        for o in self.objects:
+            if isinstance(o, Pedestrian):
+                o.step(dt)
+        self.control.update(self, dt)
+        self._collisions(dt)
+
+    def _collisions(self, dt: float) -> None:
+        cells: dict[tuple[int, int], list] = {}
+        for o in self.vehicles + self.objects:
+            key = (int(o.position[0] // COLLISION_CELL_M), int(o.position[1] // COLLISION_CELL_M))
+            cells.setdefault(key, []).append(o)
+        seen = set()
+        for (cx, cy), objs in cells.items():
+            near = [o for dx in (-1, 0, 1) for dy in (-1, 0, 1) for o in cells.get((cx + dx, cy + dy), ())]
+            for a in objs:
+                if not isinstance(a, Vehicle):
+                    continue
+                for b in near:
+                    if b is a or (id(b), id(a)) in seen:
+                        continue
+                    seen.add((id(a), id(b)))
+                    a.handle_collisions(b, dt)
+
+    def neighbour_vehicles(self, vehicle, lane_index=None):
+        lane_index = lane_index or vehicle.lane_index
+        if not lane_index:
+            return None, None
+        net: MapNetwork = self.network
+        lid = net.id_of.get(lane_index)
+        lane = net.get_lane(lane_index)
+        s = lane.local_coordinates(vehicle.position)[0]
+        front = rear = None
+        sf = sr = None
+        cands = [(lid, 0.0)]
+        if lid in net.hdmap.lanes:
+            cands += [(x, lane.length) for x in net.hdmap.lanes[lid].successors]
+            cands += [(x, -net.lane_of[x].length) for x in net.hdmap.lanes[lid].predecessors if x in net.lane_of]
+        for cl, off in cands:
+            for v in self.control.buckets.get(cl, ()):
+                if v is vehicle:
+                    continue
+                sv = net.lane_of[cl].local_coordinates(v.position)[0] + off
+                if sv >= s and (sf is None or sv < sf):
+                    sf, front = sv, v
+                if sv < s and (sr is None or sv > sr):
+                    sr, rear = sv, v
+        return front, rear
+
+
+class TrafficVehicle(RouteFollower, IDMVehicle):
+    """An IDM vehicle on its own lane route; stops for signals, stop signs, pedestrians and
+    conflicting junction traffic (reservations), following leaders along its route."""
+
+    def __init__(self, road, position, heading=0, speed=0, target_lane_index=None, target_speed=None,
+                 route=None, enable_lane_change=False, timer=None):
+        super().__init__(road, position, heading, speed, target_lane_index, target_speed, route,
+                         enable_lane_change, timer)
+
+    def act(self, action=None) -> None:
+        if self.crashed:
+            return
+        self.follow_road()
+        steering = float(np.clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE,
+                                 self.MAX_STEERING_ANGLE))
+        Vehicle.act(self, {"steering": steering, "acceleration": self.idm_acceleration()})
+
+    def idm_acceleration(self) -> float:
+        stop = self.road.control.stop_distance(self)
+        return idm(self, self.leader_gaps(), stop)
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        if self.speed < 0:
+            self.speed = 0.0
+
+    @property
+    def finished(self) -> bool:
+        if self.route_pos < len(self.lane_route) - 1:
+            return False
+        lane = self.net.lane_of[self.lane_route[-1]]
+        return lane.local_coordinates(self.position)[0] >= lane.length - 2.0
+
+
+class EgoMDPVehicle(RouteFollower, MDPVehicle):
+    """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        if self.speed < 0 and self.target_speed >= 0:
+            self.speed = 0.0
+
+
+class EgoVehicle(RouteFollower, ControlledVehicle):
+    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
+    lateral control, steering follows the route (a lane-keeping assist)."""
+
+    auto_steer = True
+
+    def act(self, action=None) -> None:
+        if isinstance(action, dict):
+            action = dict(action)
+            self.follow_road()
+            if self.auto_steer:
+                action["steering"] = float(np.clip(self.steering_control(self.target_lane_index),
+                                                   -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+            Vehicle.act(self, action)
+
+    def step(self, dt: float) -> None:
+        Vehicle.step(self, dt)
+        if self.speed < 0 and self.action.get("acceleration", 0) <= 0:
+            self.speed = 0.0
+
+
+def idm(vehicle, gaps: list[tuple[float, float]], stop_distance: float = math.inf,
+        stop_margin: float = 0.5) -> float:
+    """IDM acceleration towards the lane speed limit, behind leaders and before a stop point
+    (`stop_distance` from the vehicle centre; the front bumper halts `stop_margin` short of it)."""
+    net = vehicle.net
+    v = max(vehicle.speed, 0.0)
+    v0 = max(net.lane_of[vehicle.lane_route[vehicle.route_pos]].speed_limit, 1.0)
+    a_max, b = IDM_ACC, IDM_BRAKE
+    acc = a_max * (1 - (v / v0) ** IDM_DELTA)
+    items = [(g, vl, IDM_GAP_M) for g, vl in gaps]
+    if stop_distance < math.inf:
+        items.append((stop_distance - vehicle.LENGTH / 2 - stop_margin, 0.0, 0.3))
+    for gap, vl, s0 in items:
+        s_star = s0 + v * IDM_TIME_GAP_S + v * (v - vl) / (2 * math.sqrt(a_max * b))
+        acc = min(acc, a_max * (1 - (v / v0) ** IDM_DELTA - (max(s_star, 0.0) / max(gap, 0.05)) ** 2))
+    return float(np.clip(acc, -8.0, 6.0))
