@@ -103,6 +103,7 @@ class MapEnv(AbstractEnv):
             "goal_distance": 15.0,  # [m] into the last lane of the route
             "traffic_vehicles": 8, "traffic_respawn": True, "traffic_initial_speed": 5.0,
             "signal_green": 12.0, "signal_amber": 3.0, "signal_all_red": 2.0,  # [s]
+            "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
             "pedestrian_rate": 3.0,  # per crosswalk per minute
             "pedestrian_speed": 1.4, "pedestrians_per_crosswalk": 3,
             "observe_traffic_control": False,
@@ -228,7 +229,7 @@ class MapEnv(AbstractEnv):
                 self._automatic_rendering()
         self.enable_auto_render = False
         if self.config["traffic_respawn"]:
-            keep = [v for v in self.road.vehicles if not (isinstance(v, TrafficVehicle) and v.finished)]
+            keep = [v for v in self.road.vehicles if not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
             self.road.vehicles = keep
             for _ in range(removed):

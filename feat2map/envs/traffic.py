@@ -31,9 +31,11 @@ IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_TIME_GAP_S = 3.0, 4.0, 4.0, 2.5, 1
 
 @dataclass(frozen=True)
 class PhasePlan:
-    """Fixed-time plan of one signalized junction: each approach green in turn, then amber, all-red."""
+    """Fixed-time plan of one signalized junction: each phase (a group of approaches) green in
+    turn, then amber, then all-red. Paired phases give opposite approaches green together, with
+    left turns unprotected (they yield through the conflict table); single phases protect all."""
 
-    order: tuple[str, ...]  # signal ids, one per approach
+    phases: tuple[tuple[str, ...], ...]  # signal ids per phase
     green: float
     amber: float
     all_red: float
@@ -41,12 +43,14 @@ class PhasePlan:
 
     @property
     def cycle(self) -> float:
-        return len(self.order) * (self.green + self.amber + self.all_red)
+        return len(self.phases) * (self.green + self.amber + self.all_red)
+
+    def phase_of(self, signal_id: str) -> int:
+        return next(i for i, p in enumerate(self.phases) if signal_id in p)
 
     def state(self, signal_id: str, t: float) -> str:
-        k = self.order.index(signal_id)
         slot = self.green + self.amber + self.all_red
-        local = (t + self.offset) % self.cycle - k * slot
+        local = (t + self.offset) % self.cycle - self.phase_of(signal_id) * slot
         if 0 <= local < self.green:
             return "green"
         if self.green <= local < self.green + self.amber:
@@ -54,13 +58,33 @@ class PhasePlan:
         return "red"
 
     def time_to_change(self, signal_id: str, t: float) -> float:
-        k = self.order.index(signal_id)
         slot = self.green + self.amber + self.all_red
-        local = ((t + self.offset) % self.cycle - k * slot) % self.cycle
+        local = ((t + self.offset) % self.cycle - self.phase_of(signal_id) * slot) % self.cycle
         for edge in (self.green, self.green + self.amber, self.cycle):
             if local < edge:
                 return edge - local
         return 0.0
+
+
+def group_phases(signals, paired: bool) -> tuple[tuple[str, ...], ...]:
+    """Phases of one junction's signals: opposite approaches (facing within 30 degrees of
+    opposite directions) share a phase when `paired`."""
+    sigs = sorted(signals, key=lambda g: g.id)
+    if not paired:
+        return tuple((g.id,) for g in sigs)
+    phases, used = [], set()
+    for g in sigs:
+        if g.id in used:
+            continue
+        group = [g.id]
+        used.add(g.id)
+        for h in sigs:
+            d = abs((h.heading - g.heading) % (2 * math.pi) - math.pi)
+            if h.id not in used and d < math.radians(30) and len(group) < 2:
+                group.append(h.id)
+                used.add(h.id)
+        phases.append(tuple(group))
+    return tuple(phases)
 
 
 class Pedestrian(RoadObject):
@@ -163,16 +187,29 @@ class RouteFollower:
         return out
 
     def leader_gaps(self) -> list[tuple[float, float]]:
-        """(bumper gap, speed) of every road user on the lanes ahead along the route."""
+        """(bumper gap, speed) of every road user in the path ahead along the route: on the route's
+        lanes, and on junction lanes that diverge from or cross them where they are in the way."""
         net = self.net
+        m = net.hdmap
+        buckets = self.road.control.buckets
         gaps = []
         for k, lid, d, s_own in self.upcoming():
             lane = net.lane_of[lid]
-            for o in self.road.control.buckets.get(lid, ()):
+            others = list(buckets.get(lid, ()))
+            ln = m.lanes[lid]
+            if ln.junction_id is not None:
+                near = set(net.conflicts.get(lid, ()))
+                for p in ln.predecessors:
+                    near.update(x for x in m.lanes[p].successors if x != lid)
+                for x in near:
+                    others += [o for o in buckets.get(x, ()) if o not in others]
+            for o in others:
                 if o is self:
                     continue
-                so, _ = lane.local_coordinates(o.position)
+                so, ro = lane.local_coordinates(o.position)
                 if s_own is not None and so <= s_own:
+                    continue
+                if abs(ro) > lane.width / 2 + 1.0 or so < -self.LENGTH or so > lane.length + self.LENGTH:
                     continue
                 gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
         return gaps
@@ -197,16 +234,16 @@ class TrafficControl:
         self.rng = rng
         m = net.hdmap
         self.plans: dict[str, PhasePlan] = {}
-        by_j: dict[str | None, list[str]] = {}
-        for sid, sig in m.signals.items():
-            by_j.setdefault(sig.junction_id, []).append(sid)
+        by_j: dict[str | None, list] = {}
+        for sig in m.signals.values():
+            by_j.setdefault(sig.junction_id, []).append(sig)
         g, a, r = cfg["signal_green"], cfg["signal_amber"], cfg["signal_all_red"]
-        for jid, sids in by_j.items():
-            order = tuple(sorted(sids))
-            offset = float(rng.uniform(0, len(order) * (g + a + r)))
-            plan = PhasePlan(order, g, a, r, offset)
-            for sid in order:
-                self.plans[sid] = plan
+        for jid in sorted(by_j, key=str):
+            phases = group_phases(by_j[jid], cfg["signal_phases"] == "paired")
+            plan = PhasePlan(phases, g, a, r, float(rng.uniform(0, len(phases) * (g + a + r))))
+            for phase in phases:
+                for sid in phase:
+                    self.plans[sid] = plan
         self.stop_queue: dict[str | None, list] = {}
         self.reservations: dict[str, object] = {}
         self.pedestrians: dict[str, list[Pedestrian]] = {}
@@ -353,7 +390,8 @@ class TrafficControl:
                     a, b = b, a
                 d = (b - a) / max(np.hypot(*(b - a)), 1e-9)
                 off = np.array([-d[1], d[0]]) * self.rng.uniform(-0.3, 0.3) * width
-                if any(np.hypot(*(v.position - a - off)) < PEDESTRIAN_CLEARANCE_M for v in road.vehicles):
+                if any(np.hypot(*(v.position - a - off)) < PEDESTRIAN_CLEARANCE_M + 2.0 * max(v.speed, 0.0)
+                       for v in road.vehicles):
                     self.pedestrians[cw] = peds
                     continue
                 speed = float(self.cfg["pedestrian_speed"] * self.rng.uniform(0.85, 1.15))
