@@ -513,6 +513,14 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
     lateral control, steering follows the route (a lane-keeping assist)."""
 
     auto_steer = True
+    target_speeds = np.array([0.0, 4.5, 9.0])  # for highway-env's TimeToCollision observation
+
+    def index_to_speed(self, index: int) -> float:
+        return float(self.target_speeds[index])
+
+    @property
+    def speed_index(self) -> int:
+        return int(np.argmin(np.abs(self.target_speeds - self.speed)))
 
     def act(self, action=None) -> None:
         if isinstance(action, dict):
