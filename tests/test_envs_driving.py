@@ -165,9 +165,8 @@ def test_render_junction_frame(tmp_path):
     m = feat2map.generate_from_features(feats, seed=0)
     a, b = m.junctions["J0"], m.junctions["J1"]
     assert abs(a.cell[0] - b.cell[0]) + abs(a.cell[1] - b.cell[1]) == 1  # neighbours
-    road = next(r for r in m.roads.values() if {r.start_junction, r.end_junction} == {"J0", "J1"})
     env = gym.make("feat2map/JunctionGrid-v0", render_mode="rgb_array", config={
-        "features": [f.to_dict() for f in feats], "route": [("J0", road.id, road.id)] if False else None,
+        "features": [f.to_dict() for f in feats], "centering_position": [0.3, 0.5],
         "screen_width": 900, "screen_height": 520, "scaling": 3.6, "pedestrian_rate": 60.0,
         "traffic_vehicles": 8, **DRIVE})
     env.reset(seed=2)

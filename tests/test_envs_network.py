@@ -1,0 +1,127 @@
+"""HDMap -> highway-env network: exact polyline lanes, the y flip, the grid index against a
+brute-force scan, lane-graph routing, conflict tables and stop lines."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import feat2map
+from feat2map.envs.lanes import PolylineLane
+from feat2map.envs.network import MapNetwork
+
+J = feat2map.JunctionFeature.make
+FEATS = [J([0, 90, 180, 270], "signal", True), J([0, 90, 180, 270], "stop", False), J([0, 90, 180], "bare", True)]
+
+
+@pytest.fixture(scope="module")
+def net() -> MapNetwork:
+    return MapNetwork.from_map(feat2map.generate_from_features(FEATS, seed=0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(pts=st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=2, max_size=6, unique=True),
+       u=st.floats(0.0, 1.0), lat=st.floats(-1.0, 1.0))
+def test_polyline_lane_round_trip(pts, u, lat):
+    """Every segment's own frame round-trips: local_coordinates(position(s, r)) == (s, r) when the
+    point's nearest segment is the one it was placed on (always true for r = 0)."""
+    pts = np.array(pts)
+    if np.min(np.hypot(*np.diff(pts, axis=0).T)) < 1e-3:
+        return
+    lane = PolylineLane(pts, 3.5)
+    s = u * lane.length
+    p = lane.position(s, 0.0)
+    s2, r2 = lane.local_coordinates(p)
+    assert r2 == pytest.approx(0.0, abs=1e-6)
+    np.testing.assert_allclose(lane.position(s2, r2), p, atol=1e-6)
+    # a straight lane is exact for any lateral offset and beyond its ends
+    straight = PolylineLane(np.array([[0.0, 0.0], [10.0, 0.0], [25.0, 0.0]]), 3.5)
+    for s in (-3.0, u * 25, 28.0):
+        s2, r2 = straight.local_coordinates(straight.position(s, lat))
+        assert (s2, r2) == pytest.approx((s, lat), abs=1e-9)
+
+
+def test_lanes_match_the_map_with_y_flipped(net):
+    m = net.hdmap
+    for lid, ln in list(m.lanes.items())[:40]:
+        lane = net.lane_of[lid]
+        assert lane.length == pytest.approx(ln.length, rel=1e-9)
+        x, y = ln.centerline[0]
+        np.testing.assert_allclose(lane.position(0.0, 0.0), [x, -y], atol=1e-9)
+        # right-hand traffic: the lane's right (positive lateral in highway-env) is the map's right boundary
+        rx, ry = ln.right_boundary[0]
+        s, r = lane.local_coordinates(np.array([rx, -ry]))
+        assert r == pytest.approx(ln.width / 2, abs=0.01)  # boundaries are offset Béziers
+
+
+def test_grid_index_agrees_with_brute_force(net):
+    rng = np.random.default_rng(0)
+    lanes = [net.lane_of[l] for l in net.lane_ids]
+    for _ in range(300):
+        lane = lanes[rng.integers(len(lanes))]
+        p = lane.position(rng.uniform(0, lane.length), rng.uniform(-1.5, 1.5))
+        idx, s, r = net.locate(p)
+
+        def dist(ln):
+            t, q = ln.local_coordinates(p)
+            return abs(q) + max(t - ln.length, 0) + max(-t, 0)
+
+        best = min(dist(ln) for ln in lanes)
+        assert dist(net.get_lane(idx)) == pytest.approx(best, abs=1e-6)
+
+
+def test_lookups_do_not_grow_with_the_map():
+    small = MapNetwork.from_map(feat2map.generate_from_features(FEATS, seed=0))
+    big = MapNetwork.from_map(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, 0,
+                                                feat2map.GenerationConfig(samples_per_combination=12)))
+    assert len(big.lane_ids) > 20 * len(small.lane_ids) / 3
+
+    def per_lookup(n: MapNetwork) -> float:
+        lane = n.lane_of[n.lane_ids[len(n.lane_ids) // 2]]
+        p = lane.position(lane.length / 2, 0.4)
+        t = time.perf_counter()
+        for _ in range(500):
+            n.locate(p, 0.0)
+        return (time.perf_counter() - t) / 500
+
+    per_lookup(small)
+    assert per_lookup(big) < 3 * per_lookup(small) + 20e-6
+
+
+def test_routing_is_dijkstra_over_lanes(net):
+    m = net.hdmap
+    start = next(l for l in m.lanes.values() if l.junction_id is None and l.successors)
+    assert net.lane_route(start.id, start.id) == [start.id]
+    entry = next(l for l in m.lanes.values() if not l.successors and l.junction_id is None)
+    t = time.perf_counter()
+    assert net.lane_route(entry.id, start.id) == []  # dead end: unreachable, and fast
+    assert time.perf_counter() - t < 0.5
+    reachable = [l for l in m.lanes if net.lane_route(start.id, l)]
+    assert len(reachable) > 5
+    for goal in reachable[:20]:
+        path = net.lane_route(start.id, goal)
+        assert path[0] == start.id and path[-1] == goal
+        assert all(b in m.lanes[a].successors for a, b in zip(path, path[1:]))
+    assert net.shortest_path("no-such-node", "n0") == []
+
+
+def test_conflicts_and_stop_lines(net):
+    m = net.hdmap
+    for jl, others in net.conflicts.items():
+        for o in others:
+            assert jl in net.conflicts[o]  # symmetric
+            assert m.lanes[o].junction_id == m.lanes[jl].junction_id
+            assert not set(m.lanes[o].predecessors) & set(m.lanes[jl].predecessors)
+    # at a 4-way junction a straight movement conflicts with the crossing straights
+    j0 = [l for l in m.lanes_by_junction["J0"] if l.turn == "none"]
+    assert any(net.conflicts[a.id] & {b.id for b in j0} for a in j0)
+    kinds = {sl.kind for sl in net.stop_lines.values()}
+    assert kinds == {"signal", "stop"}
+    for lid, sl in net.stop_lines.items():
+        assert sl.s == pytest.approx(net.lane_of[lid].length, abs=0.1)  # generated stop lines end the lane
+    assert net.crossings and all(s0 <= s1 for v in net.crossings.values() for _, s0, s1 in v)
+    assert math.isfinite(sum(len(a) for a in net.crosswalk_axes.values()))
