@@ -188,3 +188,49 @@ def test_render_junction_frame(tmp_path):
 
     atomic.write_bytes(DOCS / "env_frame.png", out.read_bytes())
     assert (DOCS / "env_frame.png").stat().st_size > 1000
+
+
+def test_traffic_changes_lane_by_mobil_behind_a_slow_leader():
+    feats = [J(FOUR, "bare", False, lanes=2), J(FOUR, "bare", False, lanes=2)]
+    env = gym.make("feat2map/JunctionGrid-v0", config={
+        "features": [f.to_dict() for f in feats], "traffic_vehicles": 0, **DRIVE})
+    env.reset(seed=0)
+    u = env.unwrapped
+    m, net = u.net.hdmap, u.net
+    road = next(r for r in m.roads.values() if r.kind == "connection" and len(r.right_lanes) == 2)
+    lane_id, other = road.right_lanes
+    lane = net.lane_of[lane_id]
+
+    def length(path):
+        return sum(net.lane_of[x].length for x in path)
+
+    def reach(a, g):
+        ln = m.lanes[g]
+        return [net.lane_route(a, x) for x in (g,) + ln.left_neighbors + ln.right_neighbors if net.lane_route(a, x)]
+
+    goal = next(g for g in m.lanes if m.lanes[g].junction_id is None and m.lanes[g].road_id != road.id
+                and net.lane_route(lane_id, g) and reach(other, g)
+                and min(length(p) for p in reach(other, g)) <= length(net.lane_route(lane_id, g)) + 3.0)
+
+    def spawn(s, speed, lid=lane_id):
+        ln = net.lane_of[lid]
+        v = TrafficVehicle(u.road, ln.position(s, 0.0), ln.heading_at(s), speed)
+        v.init_route(min(reach(lid, goal), key=length))
+        u.road.vehicles.append(v)
+        return v
+
+    leader, follower = spawn(35.0, 0.0), spawn(10.0, 8.0)
+    u.control.update(u.road, 0.0)
+    assert lane.length > 60
+    before = list(follower.lane_route)
+    assert follower.mobil_change()
+    assert follower.lane_route[0] == other and net.id_of[follower.target_lane_index] == other
+    assert m.lanes[follower.lane_route[-1]].road_id == m.lanes[goal].road_id
+    assert all(b in m.lanes[a].successors for a, b in zip(follower.lane_route, follower.lane_route[1:]))
+    # an unsafe gap on the target lane (a fast car right behind) forbids the change
+    u.road.vehicles.remove(follower)
+    follower2 = spawn(10.0, 8.0)
+    spawn(4.0, 12.0, other)
+    u.control.update(u.road, 0.0)
+    assert not follower2.mobil_change() and follower2.lane_route[0] == lane_id
+    assert before[0] == lane_id

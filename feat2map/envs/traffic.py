@@ -474,10 +474,18 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         super().__init__(road, position, heading, speed, target_lane_index, target_speed, route,
                          enable_lane_change, timer)
 
+    MOBIL_PERIOD_S = 1.0
+    MOBIL_GAIN = 0.3  # [m/s2] own acceleration gain that makes a lane change worth it
+    MOBIL_SAFE_BRAKE = 3.0  # [m/s2] the new follower must not need to brake harder
+    MOBIL_POLITENESS = 0.3
+
     def act(self, action=None) -> None:
         if self.crashed:
             return
         self.follow_road()
+        if self.timer - getattr(self, "_mobil_t", -1e9) >= self.MOBIL_PERIOD_S:
+            self._mobil_t = self.timer
+            self.mobil_change()
         steering = float(np.clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE,
                                  self.MAX_STEERING_ANGLE))
         Vehicle.act(self, {"steering": steering, "acceleration": self.idm_acceleration()})
@@ -485,6 +493,61 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
     def idm_acceleration(self) -> float:
         stop = self.road.control.stop_distance(self)
         return idm(self, self.leader_gaps(), stop)
+
+    def mobil_change(self) -> bool:
+        """MOBIL on multi-lane roads: move to a same-direction neighbour lane when it raises the
+        acceleration (with politeness) and the new follower stays safe; the route is re-planned
+        from that lane by Dijkstra and the change is taken only if it costs no detour."""
+        net, m = self.net, self.net.hdmap
+        lid = self.lane_route[self.route_pos]
+        if lid != net.id_of.get(self.target_lane_index):
+            return False
+        ln = m.lanes[lid]
+        lane = net.lane_of[lid]
+        s, _ = lane.local_coordinates(self.position)
+        if ln.junction_id is not None or lane.length - s < 30.0 or self.speed < 1.0:
+            return False
+        remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
+        a_cur = idm(self, self.leader_gaps())
+        buckets = self.road.control.buckets
+        for n in ln.left_neighbors + ln.right_neighbors:
+            if n not in m.lanes:
+                continue
+            goal = m.lanes[self.lane_route[-1]]
+            paths = [net.lane_route(n, g) for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
+                     if g in m.lanes]  # any lane of the destination road will do
+            paths = [p for p in paths if p and sum(net.lane_of[l].length for l in p) <= remaining + 5.0]
+            if not paths:
+                continue
+            path = min(paths, key=len)
+            nl = net.lane_of[n]
+            sn, _ = nl.local_coordinates(self.position)
+            ahead, behind = [], None
+            for o in buckets.get(n, ()):
+                so, _ = nl.local_coordinates(o.position)
+                if so >= sn:
+                    ahead.append((so - sn - self.LENGTH, float(o.speed)))
+                elif behind is None or so > behind[0]:
+                    behind = (so, o)
+            if any(g < 2.0 for g, _ in ahead):
+                continue
+            a_new = idm(self, ahead)
+            follower_cost = 0.0
+            if behind is not None:
+                so, f = behind
+                gap = sn - so - self.LENGTH
+                if gap < 2.0 or not isinstance(f, RouteFollower):
+                    continue
+                a_f = idm(f, [(gap, self.speed)])
+                if a_f < -self.MOBIL_SAFE_BRAKE:
+                    continue
+                follower_cost = max(0.0, idm(f, []) - a_f)
+            if a_new - a_cur - self.MOBIL_POLITENESS * follower_cost > self.MOBIL_GAIN:
+                self.lane_route = self.lane_route[:self.route_pos] + path
+                self.target_lane_index = net.index_of[n]
+                self.lane_changes = getattr(self, "lane_changes", 0) + 1
+                return True
+        return False
 
     def step(self, dt: float) -> None:
         super().step(dt)
