@@ -234,3 +234,31 @@ def test_traffic_changes_lane_by_mobil_behind_a_slow_leader():
     u.control.update(u.road, 0.0)
     assert not follower2.mobil_change() and follower2.lane_route[0] == lane_id
     assert before[0] == lane_id
+
+
+def test_left_turn_yields_to_oncoming_straight_traffic():
+    feats = [J(FOUR, "bare", False)]
+    env = gym.make("feat2map/JunctionGrid-v0", config={
+        "features": [f.to_dict() for f in feats], "traffic_vehicles": 0, **DRIVE})
+    env.reset(seed=0)
+    u = env.unwrapped
+    m, net = u.net.hdmap, u.net
+    left = next(ln for ln in m.lanes_by_junction["J0"] if ln.turn == "left")
+    oncoming = next(ln for ln in m.lanes_by_junction["J0"] if ln.turn == "none" and ln.id in net.conflicts[left.id]
+                    and net.lane_of[ln.id].priority > net.lane_of[left.id].priority)
+    u.road.vehicles = [u.vehicle]
+
+    def spawn(in_lane, j_lane, d, speed):
+        ln = net.lane_of[in_lane]
+        v = TrafficVehicle(u.road, ln.position(ln.length - d, 0.0), ln.heading_at(ln.length - d), speed)
+        v.init_route([in_lane, j_lane])
+        u.road.vehicles.append(v)
+        return v
+
+    turner = spawn(left.predecessors[0], left.id, 3.0, 0.0)
+    u.control.update(u.road, 0.0)
+    assert u.control.junction_clear(left.id, turner)
+    straight = spawn(oncoming.predecessors[0], oncoming.id, 15.0, 8.0)
+    u.control.update(u.road, 0.0)
+    assert not u.control.junction_clear(left.id, turner)  # priority traffic 2 s away
+    assert u.control.junction_clear(oncoming.id, straight)  # the straight one does not wait

@@ -24,6 +24,7 @@ LOOKAHEAD_M = 60.0
 PEDESTRIAN_CORRIDOR_M = 3.0  # beyond the lane half-width, an approaching pedestrian makes vehicles yield
 PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
 COLLISION_CELL_M = 10.0
+PRIORITY_HORIZON_S = 3.0  # left turns wait for priority traffic this close in time
 PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
 # IDM parameters of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
 IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_TIME_GAP_S = 3.0, 4.0, 4.0, 2.5, 1.2
@@ -267,7 +268,29 @@ class TrafficControl:
         return any(v is not by_other_than for v in self.buckets.get(lane_id, ()))
 
     def junction_clear(self, junction_lane: str, vehicle=None) -> bool:
-        return not any(self.occupied(c, vehicle) for c in self.net.conflicts.get(junction_lane, ()))
+        """No conflicting junction lane is occupied or reserved, and no vehicle with priority
+        (straight/right over left turns) is about to enter one from an approach allowed to go."""
+        net = self.net
+        mine = net.lane_of[junction_lane].priority
+        for c in net.conflicts.get(junction_lane, ()):
+            if self.occupied(c, vehicle):
+                return False
+            if net.lane_of[c].priority <= mine:
+                continue
+            for p in net.hdmap.lanes[c].predecessors:
+                sl = net.stop_lines.get(p)
+                if sl is not None and (sl.kind == "stop" or self.signal_state(sl.control_id) == "red"):
+                    continue
+                lane = net.lane_of.get(p)
+                for v in self.buckets.get(p, ()):
+                    if v is vehicle or not isinstance(v, RouteFollower):
+                        continue
+                    k = v.route_pos + 1
+                    if k < len(v.lane_route) and v.lane_route[k] == c:
+                        d = lane.length - lane.local_coordinates(v.position)[0]
+                        if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + 3.0:
+                            return False
+        return True
 
     def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
         """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane."""
