@@ -153,6 +153,20 @@ class RouteFollower:
             self.route_pos += 1
             self.target_lane_index = net.index_of[self.lane_route[self.route_pos]]
 
+    def steering_control(self, target_lane_index) -> float:
+        """highway-env's lane-following controller (lateral P -> heading P -> steering), in scalar
+        math: numpy's clip on scalars dominated the step time."""
+        lane = self.road.network.get_lane(target_lane_index)
+        s, r = lane.local_coordinates(self.position)
+        future_heading = lane.heading_at(s + self.speed * self.TAU_PURSUIT)
+        v = self.speed if abs(self.speed) > 1e-2 else 1e-2
+        heading_cmd = math.asin(min(max(-self.KP_LATERAL * r / v, -1.0), 1.0))
+        heading_ref = future_heading + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
+        rate = self.KP_HEADING * ((heading_ref - self.heading + math.pi) % (2 * math.pi) - math.pi)
+        slip = math.asin(min(max(self.LENGTH / 2 / v * rate, -1.0), 1.0))
+        steer = math.atan(2 * math.tan(slip))
+        return min(max(steer, -self.MAX_STEERING_ANGLE), self.MAX_STEERING_ANGLE)
+
     def on_state_update(self) -> None:
         if self.road:
             hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
@@ -238,6 +252,7 @@ class TrafficControl:
         by_j: dict[str | None, list] = {}
         for sig in m.signals.values():
             by_j.setdefault(sig.junction_id, []).append(sig)
+        self.signals_by_junction = {j: sorted(x.id for x in sigs) for j, sigs in by_j.items()}
         g, a, r = cfg["signal_green"], cfg["signal_amber"], cfg["signal_all_red"]
         for jid in sorted(by_j, key=str):
             phases = group_phases(by_j[jid], cfg["signal_phases"] == "paired")
@@ -257,8 +272,10 @@ class TrafficControl:
         return plan.state(signal_id, self.t) if plan else "green"
 
     def signal_states(self, junction_id: str | None = None) -> dict[str, str]:
-        return {sid: self.signal_state(sid) for sid, sig in self.net.hdmap.signals.items()
-                if junction_id is None or sig.junction_id == junction_id}
+        """States of one junction's signals (all signals when `junction_id` is None)."""
+        if junction_id is None:
+            return {sid: self.signal_state(sid) for sid in self.net.hdmap.signals}
+        return {sid: self.signal_state(sid) for sid in self.signals_by_junction.get(junction_id, ())}
 
     # ---- occupancy ----------------------------------------------------------------------
     def occupied(self, lane_id: str, by_other_than=None) -> bool:
@@ -509,8 +526,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         if self.timer - getattr(self, "_mobil_t", -1e9) >= self.MOBIL_PERIOD_S:
             self._mobil_t = self.timer
             self.mobil_change()
-        steering = float(np.clip(self.steering_control(self.target_lane_index), -self.MAX_STEERING_ANGLE,
-                                 self.MAX_STEERING_ANGLE))
+        steering = self.steering_control(self.target_lane_index)
         Vehicle.act(self, {"steering": steering, "acceleration": self.idm_acceleration()})
 
     def idm_acceleration(self) -> float:
@@ -613,8 +629,7 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
             action = dict(action)
             self.follow_road()
             if self.auto_steer:
-                action["steering"] = float(np.clip(self.steering_control(self.target_lane_index),
-                                                   -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+                action["steering"] = self.steering_control(self.target_lane_index)
             Vehicle.act(self, action)
 
     def step(self, dt: float) -> None:
@@ -638,4 +653,4 @@ def idm(vehicle, gaps: list[tuple[float, float]], stop_distance: float = math.in
     for gap, vl, s0 in items:
         s_star = s0 + v * IDM_TIME_GAP_S + v * (v - vl) / (2 * math.sqrt(a_max * b))
         acc = min(acc, a_max * (1 - (v / v0) ** IDM_DELTA - (max(s_star, 0.0) / max(gap, 0.05)) ** 2))
-    return float(np.clip(acc, -8.0, 6.0))
+    return min(max(float(acc), -8.0), 6.0)
