@@ -150,3 +150,12 @@ def test_render_rgb_array_and_unreachable_route_error():
     assert frame.shape == (600, 600, 3) and frame.std() > 10  # not a blank frame
     with pytest.raises(feat2map.errors.Feat2MapError, match="route"):
         make({"route": [("J0", "R0", "R0_nonexistent")]})
+
+
+def test_make_vec_async_with_spawned_workers():
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vectorization_mode="async",
+                        vector_kwargs={"context": "spawn"}, config={**BASE, "traffic_vehicles": 2})
+    obs, _ = envs.reset(seed=0)
+    obs, rew, *_ = envs.step(envs.action_space.sample())
+    assert obs.shape[0] == 2 and np.all(np.isfinite(rew))
+    envs.close()

@@ -125,3 +125,13 @@ def test_conflicts_and_stop_lines(net):
         assert sl.s == pytest.approx(net.lane_of[lid].length, abs=0.1)  # generated stop lines end the lane
     assert net.crossings and all(s0 <= s1 for v in net.crossings.values() for _, s0, s1 in v)
     assert math.isfinite(sum(len(a) for a in net.crosswalk_axes.values()))
+
+
+def test_network_round_trips_through_highway_env_config(net):
+    from highway_env.road.road import RoadNetwork
+
+    back = RoadNetwork.from_config(net.to_config())
+    for a, b in zip(net.lanes_list(), back.lanes_list()):
+        assert type(b) is PolylineLane and b.line_types == a.line_types
+        np.testing.assert_allclose(b.position(3.0, 0.7), a.position(3.0, 0.7))
+        assert b.local_coordinates(np.array([1.0, -2.0])) == pytest.approx(a.local_coordinates(np.array([1.0, -2.0])))
