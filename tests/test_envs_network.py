@@ -83,12 +83,14 @@ def test_lookups_do_not_grow_with_the_map():
     def per_lookup(n: MapNetwork) -> float:
         lane = n.lane_of[n.lane_ids[len(n.lane_ids) // 2]]
         p = lane.position(lane.length / 2, 0.4)
-        t = time.perf_counter()
-        for _ in range(500):
-            n.locate(p, 0.0)
-        return (time.perf_counter() - t) / 500
+        best = math.inf
+        for _ in range(5):  # best of 5: robust to other processes on the machine
+            t = time.perf_counter()
+            for _ in range(200):
+                n.locate(p, 0.0)
+            best = min(best, (time.perf_counter() - t) / 200)
+        return best
 
-    per_lookup(small)
     assert per_lookup(big) < 3 * per_lookup(small) + 20e-6
 
 
