@@ -186,9 +186,9 @@ class MapEnv(AbstractEnv):
     def _traffic_spawn_lanes(self, route: list[str], junctions: set[str]) -> list[str]:
         m = self.net.hdmap
         lanes = [l for l in route if m.lanes[l].junction_id is None]
-        for jid in sorted(junctions):
+        for jid in sorted(junctions):  # approaches and exits of the junctions on the route
             for jl in m.lanes_by_junction.get(jid, []):
-                lanes += [p for p in jl.predecessors if p in m.lanes]
+                lanes += [x for x in jl.predecessors + jl.successors if x in m.lanes]
         return sorted(set(lanes))
 
     def _spawn_traffic(self, min_ego_distance: float = 25.0) -> TrafficVehicle | None:
@@ -253,7 +253,7 @@ class MapEnv(AbstractEnv):
         self._ego_lane = lid
         # pedestrians: the ego on a crosswalk with a person next to its path
         for cw, s0, s1 in net.crossings.get(lid, ()):
-            if s0 - 1.0 <= ego.lane_s <= s1 + 1.0 and (lid, cw) not in self._ped_flags:
+            if s0 - 1.0 <= ego.lane_s <= s1 + 1.0 and ego.speed > 0.5 and (lid, cw) not in self._ped_flags:
                 lane = net.lane_of[lid]
                 for p in self.control.pedestrians.get(cw, ()):
                     sp, rp = lane.local_coordinates(p.position)

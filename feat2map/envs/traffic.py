@@ -21,7 +21,7 @@ STOPPED_SPEED_MPS = 0.3
 STOP_ZONE_M = 6.0  # a stop counts when made within this distance of the stop line
 COMMIT_DISTANCE_M = 10.0
 LOOKAHEAD_M = 60.0
-PEDESTRIAN_CORRIDOR_M = 3.0  # beyond the lane half-width, an approaching pedestrian makes vehicles yield
+PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield
 PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
 COLLISION_CELL_M = 10.0
 PRIORITY_HORIZON_S = 3.0  # left turns wait for priority traffic this close in time
@@ -430,7 +430,7 @@ class TrafficControl:
                     a, b = b, a
                 d = (b - a) / max(np.hypot(*(b - a)), 1e-9)
                 off = np.array([-d[1], d[0]]) * self.rng.uniform(-0.3, 0.3) * width
-                if any(np.hypot(*(v.position - a - off)) < PEDESTRIAN_CLEARANCE_M + 2.0 * max(v.speed, 0.0)
+                if any(np.hypot(*(v.position - a - off)) < PEDESTRIAN_CLEARANCE_M + 3.0 * max(v.speed, 0.0)
                        for v in road.vehicles):
                     self.pedestrians[cw] = peds
                     continue
