@@ -515,21 +515,65 @@ class _Builder:
         return {j: find(j) for j in ids}
 
     # ---- build ----------------------------------------------------------------------------
+    def _chains(self, succ: dict[str, list[str]], pred: dict[str, list[str]]) -> list[list[tuple[str, int, int]]]:
+        """Lane pieces of consecutive sections of one road joined one-to-one, in driving order."""
+        keys = {self.lane_id(k): k for k in self.geoms}
+
+        def nxt(lid: str) -> str | None:
+            s = succ.get(lid, [])
+            if len(s) == 1 and keys[s[0]][0] == keys[lid][0] and pred.get(s[0]) == [lid]:
+                return s[0]
+            return None
+        has_prev = {n for lid in keys if (n := nxt(lid)) is not None}
+        chains, seen = [], set()
+        for lid in keys:
+            if lid in has_prev or lid in seen:
+                continue
+            chain = [lid]
+            while (n := nxt(chain[-1])) is not None and n not in seen and n not in chain:
+                chain.append(n)
+            seen.update(chain)
+            chains.append([keys[c] for c in chain])
+        for lid in keys:  # closed loops of pieces (ring roads): keep them as single pieces
+            if lid not in seen:
+                chains.append([keys[lid]])
+        return chains
+
     def build(self) -> HDMap:
-        succ, pred = self._links()
+        piece_succ, piece_pred = self._links()
         groups = self._junction_groups()
+        chains = self._chains(piece_succ, piece_pred)
+        chain_of = {self.lane_id(k): self.lane_id(c[0]) for c in chains for k in c}
+        self.chain_of = chain_of
         lanes: dict[str, Lane] = {}
         road_lanes: dict[str, tuple[list[str], list[str]]] = {}
-        for key, g in self.geoms.items():
-            lid = self.lane_id(key)
-            jid = groups.get(self.roads[key[0]].junction) if self.roads[key[0]].junction else None
-            lanes[lid] = Lane(lid, key[0], as_polyline(g.centre), as_polyline(g.left), as_polyline(g.right),
-                              g.width, g.speed, tuple(pred.get(lid, ())), tuple(succ.get(lid, ())),
-                              junction_id=jid, left_boundary_type="virtual" if jid else "solid_white",
-                              right_boundary_type="virtual" if jid else "solid_white")
-            rl = road_lanes.setdefault(key[0], ([], []))
-            (rl[0] if key[2] < 0 else rl[1]).append(lid)
-        self._neighbours(lanes)
+        for chain in chains:
+            lid = self.lane_id(chain[0])
+            road_id = chain[0][0]
+            parts = [self.geoms[k] for k in chain]
+
+            def joined(attr: str) -> np.ndarray:
+                arrs = [getattr(g, attr) for g in parts]
+                return np.vstack([arrs[0]] + [a[1:] for a in arrs[1:]])
+            centre = joined("centre")
+            seg = np.hypot(*np.diff(centre, axis=0).T)
+            keep = np.concatenate([[True], seg > 1e-6])  # drop repeated points of empty sections
+            if keep.sum() < 2:
+                keep[-1] = True
+            lens = [max(float(np.hypot(*np.diff(g.centre, axis=0).T).sum()), 1e-9) for g in parts]
+            width = float(np.average([g.width for g in parts], weights=lens))
+            jid = groups.get(self.roads[road_id].junction) if self.roads[road_id].junction else None
+            first, last = self.lane_id(chain[0]), self.lane_id(chain[-1])
+            lanes[lid] = Lane(
+                lid, road_id, as_polyline(centre[keep]), as_polyline(joined("left")[keep]),
+                as_polyline(joined("right")[keep]), width, parts[0].speed,
+                tuple(dict.fromkeys(chain_of[x] for x in piece_pred.get(first, ()))),
+                tuple(dict.fromkeys(chain_of[x] for x in piece_succ.get(last, ()))),
+                junction_id=jid, left_boundary_type="virtual" if jid else "solid_white",
+                right_boundary_type="virtual" if jid else "solid_white")
+            rl = road_lanes.setdefault(road_id, ([], []))
+            (rl[0] if chain[0][2] < 0 else rl[1]).append(lid)
+        self._neighbours(lanes, chain_of)
         roads: dict[str, Road] = {}
         for rid, road in self.roads.items():
             right, left = road_lanes.get(rid, ([], []))
@@ -562,23 +606,21 @@ class _Builder:
                 "junction_elements": {m: sorted(v, key=_id_key) for m, v in members.items()}}
         return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=self.origin, meta=meta)
 
-    def _neighbours(self, lanes: dict[str, Lane]) -> None:
+    def _neighbours(self, lanes: dict[str, Lane], chain_of: dict[str, str]) -> None:
         """Same-direction neighbours (ids differ by one on one side) and the reverse neighbour."""
+        found: dict[str, dict[str, list[str]]] = {}
         for key in self.geoms:
             road, k, lid = key
-            lid_s = self.lane_id(key)
             side = -1 if lid < 0 else 1
-            outer, inner = (road, k, lid + side), (road, k, lid - side)
-            rev = (road, k, -side)
-            upd = {}
-            if outer in self.geoms:
-                upd["right_neighbors"] = (self.lane_id(outer),)
-            if inner in self.geoms and inner[2] != 0:
-                upd["left_neighbors"] = (self.lane_id(inner),)
-            if abs(lid) == 1 and rev in self.geoms:
-                upd["left_reverse_neighbors"] = (self.lane_id(rev),)
-            if upd:
-                lanes[lid_s] = _replace(lanes[lid_s], **upd)
+            me = chain_of[self.lane_id(key)]
+            for attr, other in (("right_neighbors", (road, k, lid + side)), ("left_neighbors", (road, k, lid - side)),
+                                ("left_reverse_neighbors", (road, k, -side) if abs(lid) == 1 else None)):
+                if other is not None and other[2] != 0 and other in self.geoms:
+                    lst = found.setdefault(me, {}).setdefault(attr, [])
+                    if chain_of[self.lane_id(other)] not in lst and chain_of[self.lane_id(other)] != me:
+                        lst.append(chain_of[self.lane_id(other)])
+        for lid, upd in found.items():
+            lanes[lid] = _replace(lanes[lid], **{k: tuple(v) for k, v in upd.items()})
 
     def _pose(self, road: _OdrRoad, s: float, t: float) -> tuple[tuple[float, float], float]:
         s = min(max(s, 0.0), road.length)
@@ -651,7 +693,7 @@ class _Builder:
                 continue
             for end in sorted(("low", "high"), key=lambda e: abs(s - (0.0 if e == "low" else r.length))):
                 sec = self._sec_at(r, end)
-                cands = [self.lane_id((r.id, sec, lid)) for lid in r.sections[sec].lanes
+                cands = [self.chain_of[self.lane_id((r.id, sec, lid))] for lid in r.sections[sec].lanes
                          if (r.id, sec, lid) in self.geoms and self._exit_end((r.id, sec, lid)) == end]
                 cands = [c for c in cands if any(lanes[x].junction_id for x in lanes[c].successors)]
                 valid = set(self._valid_lanes(r, el, lanes, sec))
@@ -676,7 +718,7 @@ class _Builder:
                 keep |= {i for i in range(a, b + 1)}
             if keep - {0}:
                 ids = [k for k in ids if k[2] in keep]
-        return [self.lane_id(k) for k in ids]
+        return list(dict.fromkeys(self.chain_of[self.lane_id(k)] for k in ids))
 
     @staticmethod
     def _stop_line(governed: list[str], lanes: dict[str, Lane], pos) -> tuple:
