@@ -591,7 +591,11 @@ class _Builder:
         for odr, merged in groups.items():
             members.setdefault(merged, []).append(odr)
         for merged in sorted(members, key=_id_key):
-            pts = [p for ln in lanes.values() if ln.junction_id == merged for p in ln.left_boundary + ln.right_boundary]
+            pts = np.array([p for ln in lanes.values() if ln.junction_id == merged
+                            for p in ln.left_boundary + ln.right_boundary])
+            centre = self._centre(merged, groups)
+            if centre is not None:  # centrally symmetric about the arms' meeting point
+                pts = np.vstack([pts, 2 * centre - pts])
             hull = MultiPoint(pts).convex_hull
             if hull.geom_type != "Polygon":
                 warnings.warn(f"{self.ctx.path}: junction {merged}: degenerate area, skipped", stacklevel=2)
@@ -605,6 +609,29 @@ class _Builder:
         meta = {"source": self.ctx.path, "format": "opendrive",
                 "junction_elements": {m: sorted(v, key=_id_key) for m, v in members.items()}}
         return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=self.origin, meta=meta)
+
+    def _centre(self, merged: str, groups: dict[str, str]) -> np.ndarray | None:
+        """Least-squares meeting point of the arms: the lines along the reference lines of the
+        roads linked to the junction, at their junction ends. None if the arms are (nearly)
+        parallel. For feat2map's own maps this is exactly the junction centre."""
+        A, rhs = np.zeros((2, 2)), np.zeros(2)
+        count = 0
+        for road in self.roads.values():
+            if road.junction is not None:
+                continue
+            ends = [e for kind, e in (("predecessor", 0.0), ("successor", road.length))
+                    if road.links.get(kind, ("", "", ""))[0] == "junction"
+                    and groups.get(road.links[kind][1]) == merged]
+            if len(ends) != 1:  # roads joining two pieces of one intersection are not arms
+                continue
+            x, y, h = road.ref.eval([ends[0]])
+            n = np.array([-math.sin(h[0]), math.cos(h[0])])
+            A += np.outer(n, n)
+            rhs += n * (n @ np.array([x[0], y[0]]))
+            count += 1
+        if count < 2 or np.linalg.cond(A) > 1e6:
+            return None
+        return np.linalg.solve(A, rhs)
 
     def _neighbours(self, lanes: dict[str, Lane], chain_of: dict[str, str]) -> None:
         """Same-direction neighbours (ids differ by one on one side) and the reverse neighbour."""

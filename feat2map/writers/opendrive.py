@@ -1,0 +1,453 @@
+"""Write an HDMap as OpenDRIVE 1.6 (.xodr), readable by 1.4 tools as well.
+
+Every road's reference line is its cubic Bézier written as ONE `paramPoly3` with
+pRange="normalized" and the Bézier's exact power-basis coefficients (no sampling); a road
+without a Bézier falls back to a polyline of `line` geometries along its innermost lane
+edge. Lanes: right lanes (negative ids) drive along the reference, left lanes against it;
+the divider's lateral offset is the `laneOffset`. Each junction lane is its own connecting
+road, listed in its `<junction>` with a connection and lane link. Signals and stop signs
+sit at the end of the incoming lanes they govern, with one `<controller>` per traffic light;
+crosswalks are `object type="crosswalk"` with local outlines. The geoReference is the UTM
+zone of feat2map.config written as a transverse Mercator whose false origin puts the
+file's (local) coordinates at the map's absolute UTM position.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from .. import atomic
+from ..bezier import Bezier
+from ..config import UTM_ORIGIN, UTM_ZONE
+from ..errors import Feat2MapError, MapFormatError
+from ..model import HDMap, Lane, Road
+
+REV_MAJOR, REV_MINOR = 1, 6
+TRAFFIC_LIGHT_TYPE = "1000001"  # OpenDRIVE country code "OpenDRIVE": 3-light traffic signal
+STOP_SIGN_TYPE = "206"
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
+_ROAD_MARKS = {"solid_white": ("solid", "white"), "dotted_white": ("broken", "white"),
+               "solid_yellow": ("solid", "yellow"), "dotted_yellow": ("broken", "yellow"),
+               "curb": ("curb", "standard"), "virtual": ("none", "standard")}
+
+
+def bezier_length(b: Bezier, pieces: int = 16) -> float:
+    """Arc length by Gauss-Legendre quadrature (16 nodes on each of `pieces` sub-intervals)."""
+    edges = np.linspace(0.0, 1.0, pieces + 1)
+    mid, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * np.diff(edges)
+    t = (mid[:, None] + half[:, None] * _GL_X[None, :]).ravel()
+    d = b.derivative(t)
+    speed = np.hypot(d[:, 0], d[:, 1]).reshape(pieces, -1)
+    return float((speed * _GL_W[None, :]).sum(axis=1) @ half)
+
+
+def param_poly3(b: Bezier) -> tuple[float, float, float, dict[str, float]]:
+    """(x, y, hdg, coefficients) of the paramPoly3 (normalized p) equal to the Bézier B(p).
+
+    With power coefficients a0..a3 (B = a0 + a1 p + a2 p^2 + a3 p^3) and the start heading h,
+    the local curve is R(-h) (B(p) - a0): aU = aV = bV = 0 and the rest rotated exactly.
+    """
+    a = b._power
+    d = a[1] if np.hypot(*a[1]) > 1e-12 else a[2] if np.hypot(*a[2]) > 1e-12 else a[3]
+    h = math.atan2(d[1], d[0])
+    c, s = math.cos(h), math.sin(h)
+    coef = {}
+    for k, name in enumerate("abcd"):
+        u, v = (0.0, 0.0) if k == 0 else (c * a[k][0] + s * a[k][1], -s * a[k][0] + c * a[k][1])
+        coef[f"{name}U"], coef[f"{name}V"] = u, v
+    coef["bV"] = 0.0 if abs(coef["bV"]) < 1e-9 * max(1.0, abs(coef["bU"])) else coef["bV"]
+    return float(a[0][0]), float(a[0][1]), h, coef
+
+
+def _f(x: float) -> str:
+    return repr(float(x)) if math.isfinite(x) else "0.0"
+
+
+class _Ref:
+    """A road's reference line in the file: geometry elements, length, and sampled points."""
+
+    def __init__(self, road: Road, m: HDMap) -> None:
+        self.geoms: list[tuple[float, float, float, float, str, dict[str, float]]] = []
+        if road.reference is not None:
+            x, y, h, coef = param_poly3(road.reference)
+            self.length = bezier_length(road.reference)
+            self.geoms.append((0.0, x, y, h, "paramPoly3", coef))
+            t = np.linspace(0.0, 1.0, 257)
+            self.pts = road.reference.point(t)
+            dense = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(self.pts, axis=0).T))])
+            self.s = dense * (self.length / dense[-1]) if dense[-1] > 0 else dense
+            self.heads = road.reference.heading(t)
+            self.divider = _divider_offset(road, m)
+        else:
+            self._from_lanes(road, m)
+
+    def _from_lanes(self, road: Road, m: HDMap) -> None:
+        """Fallback: the divider (inner edge of the innermost lane) as a polyline of lines."""
+        if road.right_lanes:
+            pts = np.asarray(m.lanes[road.right_lanes[0]].left_boundary, dtype=float)
+        elif road.left_lanes:
+            pts = np.asarray(m.lanes[road.left_lanes[0]].left_boundary, dtype=float)[::-1]
+        else:
+            raise MapFormatError("road without lanes", f"road {road.id}")
+        seg = np.diff(pts, axis=0)
+        ln = np.hypot(seg[:, 0], seg[:, 1])
+        keep = np.concatenate([[True], ln > 1e-6])
+        pts = pts[keep]
+        seg = np.diff(pts, axis=0)
+        ln = np.hypot(seg[:, 0], seg[:, 1])
+        if len(ln) == 0:
+            raise MapFormatError("road geometry has no length", f"road {road.id}")
+        heads = np.arctan2(seg[:, 1], seg[:, 0])
+        s = np.concatenate([[0.0], np.cumsum(ln)])
+        for i in range(len(ln)):
+            self.geoms.append((float(s[i]), float(pts[i, 0]), float(pts[i, 1]), float(heads[i]), "line", {}))
+        self.length = float(s[-1])
+        self.pts, self.s = pts, s
+        self.heads = np.append(heads, heads[-1])
+        self.divider = 0.0
+
+    def project(self, p) -> tuple[float, float]:
+        """(s, t) of a point: nearest sampled reference point, lateral offset along its normal."""
+        d = np.hypot(self.pts[:, 0] - p[0], self.pts[:, 1] - p[1])
+        i = int(np.argmin(d))
+        h = self.heads[i]
+        t = -(p[0] - self.pts[i, 0]) * math.sin(h) + (p[1] - self.pts[i, 1]) * math.cos(h)
+        return float(self.s[i]), float(t)
+
+    def heading_at(self, s: float) -> float:
+        return float(np.interp(s, self.s, np.unwrap(self.heads)))
+
+
+def _divider_offset(road: Road, m: HDMap) -> float:
+    """Lateral offset (left positive) of the divider from the reference, from the lane positions."""
+    b = road.reference
+    assert b is not None
+    if road.right_lanes:  # innermost right lane starts at the reference start
+        ln = m.lanes[road.right_lanes[0]]
+        p, h, sign = np.asarray(ln.start), float(b.heading(0.0)), 1.0
+        q = b.p0
+    elif road.left_lanes:  # innermost left lane ends at the reference start
+        ln = m.lanes[road.left_lanes[0]]
+        p, h, sign = np.asarray(ln.end), float(b.heading(0.0)), -1.0
+        q = b.p0
+    else:
+        return 0.0
+    lateral = -(p[0] - q[0]) * math.sin(h) + (p[1] - q[1]) * math.cos(h)
+    return float(lateral + sign * ln.width / 2)
+
+
+class _Writer:
+    def __init__(self, m: HDMap) -> None:
+        from lxml import etree
+
+        self.E = etree
+        self.m = m
+        self.road_ids = {rid: str(i + 1) for i, rid in enumerate(m.roads)}
+        self.junction_ids = {jid: str(i + 1) for i, jid in enumerate(m.junctions)}
+        self.refs = {rid: _Ref(r, m) for rid, r in m.roads.items()}
+        self.odr_lane: dict[str, tuple[str, int]] = {}  # model lane -> (model road, OpenDRIVE lane id)
+        for rid, r in m.roads.items():
+            for i, lid in enumerate(r.right_lanes):
+                self.odr_lane[lid] = (rid, -(i + 1))
+            for i, lid in enumerate(r.left_lanes):
+                self.odr_lane[lid] = (rid, i + 1)
+        missing = [lid for lid in m.lanes if lid not in self.odr_lane]
+        if missing:
+            raise MapFormatError(f"lane {missing[0]!r} belongs to no road's lane list", "map")
+
+    # -- helpers ------------------------------------------------------------------------------
+    def sub(self, parent, tag: str, **attrs):
+        el = self.E.SubElement(parent, tag)
+        for k, v in attrs.items():
+            el.set(k, v if isinstance(v, str) else _f(v))
+        return el
+
+    def _lane_end(self, lane_id: str, at: str) -> str:
+        """'start' or 'end' of its road's reference where lane `lane_id` starts (at='start')/ends."""
+        rid, odr = self.odr_lane[lane_id]
+        along = odr < 0
+        return ("start" if along else "end") if at == "start" else ("end" if along else "start")
+
+    def _road_link(self, road: Road, end: str):
+        """(elementType, id, contactPoint) linked at the reference's `end` ('start'/'end')."""
+        touching: list[tuple[str, str]] = []  # (other lane, which of its ends touches here)
+        for lid in road.right_lanes:
+            ln = self.m.lanes[lid]
+            touching += [(x, "end") for x in ln.predecessors] if end == "start" else [(x, "start") for x in ln.successors]
+        for lid in road.left_lanes:
+            ln = self.m.lanes[lid]
+            touching += [(x, "start") for x in ln.successors] if end == "start" else [(x, "end") for x in ln.predecessors]
+        if road.junction_id is None:
+            jids = [self.m.lanes[x].junction_id for x, _ in touching if self.m.lanes[x].junction_id]
+            fallback = road.start_junction if end == "start" else road.end_junction
+            if jids or (fallback and fallback in self.junction_ids and not touching):
+                return ("junction", self.junction_ids[jids[0] if jids else fallback], None)
+        if not touching:
+            return None
+        other, at = touching[0]
+        return ("road", self.road_ids[self.m.lanes[other].road_id], self._lane_end(other, at))
+
+    # -- document -----------------------------------------------------------------------------
+    def build(self):
+        m, E = self.m, self.E
+        root = E.Element("OpenDRIVE")
+        x0, y0, x1, y1 = m.bounds() if m.lanes else (0.0, 0.0, 0.0, 0.0)
+        header = self.sub(root, "header", revMajor=str(REV_MAJOR), revMinor=str(REV_MINOR), name="feat2map",
+                          version="1.00", date=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S"),
+                          north=y1, south=y0, east=x1, west=x0, vendor="feat2map")
+        geo = self.sub(header, "geoReference")
+        geo.text = E.CDATA(geo_reference(m))
+        signal_roads = self._place_signals()
+        objects = self._place_crosswalks()
+        for rid, road in m.roads.items():
+            self._road(root, rid, road, signal_roads.get(rid, []), objects.get(rid, []))
+        self._controllers(root)
+        for jid in m.junctions:
+            self._junction(root, jid)
+        return root
+
+    def _road(self, root, rid: str, road: Road, signals: list, objects: list) -> None:
+        ref = self.refs[rid]
+        jid = road.junction_id
+        el = self.sub(root, "road", name=rid, length=ref.length, id=self.road_ids[rid],
+                      junction=self.junction_ids[jid] if jid in self.junction_ids else "-1", rule="RHT")
+        link = self.sub(el, "link")
+        for kind, end in (("predecessor", "start"), ("successor", "end")):
+            lk = self._road_link(road, end)
+            if lk is not None:
+                attrs = {"elementType": lk[0], "elementId": lk[1]}
+                if lk[2]:
+                    attrs["contactPoint"] = lk[2]
+                self.sub(link, kind, **attrs)
+        lanes = [self.m.lanes[x] for x in road.lane_ids]
+        speed = max((ln.speed_limit for ln in lanes), default=0.0)
+        typ = self.sub(el, "type", s=0.0, type="town")
+        if speed > 0:
+            self.sub(typ, "speed", max=speed, unit="m/s")
+        pv = self.sub(el, "planView")
+        for i, (s, x, y, h, kind, coef) in enumerate(ref.geoms):
+            length = (ref.geoms[i + 1][0] if i + 1 < len(ref.geoms) else ref.length) - s
+            g = self.sub(pv, "geometry", s=s, x=x, y=y, hdg=h, length=length)
+            if kind == "paramPoly3":
+                self.sub(g, "paramPoly3", **{k: coef[k] for k in ("aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV")},
+                         pRange="normalized")
+            else:
+                self.sub(g, "line")
+        self.sub(el, "elevationProfile")
+        self.sub(el, "lateralProfile")
+        lanes_el = self.sub(el, "lanes")
+        self.sub(lanes_el, "laneOffset", s=0.0, a=ref.divider, b=0.0, c=0.0, d=0.0)
+        sec = self.sub(lanes_el, "laneSection", s=0.0)
+        if road.left_lanes:
+            left = self.sub(sec, "left")
+            for lid in reversed(road.left_lanes):
+                self._lane(left, lid)
+        center = self.sub(sec, "center")
+        c = self.sub(center, "lane", id="0", type="none", level="false")
+        inner = lanes[0] if lanes else None
+        mark = "solid_yellow" if road.right_lanes and road.left_lanes else (
+            inner.left_boundary_type if inner else "solid_white")
+        self._mark(c, mark)
+        if road.right_lanes:
+            right = self.sub(sec, "right")
+            for lid in road.right_lanes:
+                self._lane(right, lid)
+        objs = self.sub(el, "objects")
+        for obj in objects:
+            objs.append(obj)
+        sigs = self.sub(el, "signals")
+        for s in signals:
+            sigs.append(s)
+
+    def _mark(self, lane_el, boundary: str) -> None:
+        typ, colour = _ROAD_MARKS.get(boundary, ("solid", "standard"))
+        self.sub(lane_el, "roadMark", sOffset=0.0, type=typ, weight="standard", color=colour, width=0.15,
+                 laneChange="none" if typ == "solid" else "both")
+
+    def _lane(self, parent, lid: str) -> None:
+        ln = self.m.lanes[lid]
+        odr = self.odr_lane[lid][1]
+        el = self.sub(parent, "lane", id=str(odr), type="driving", level="false")
+        link = self.sub(el, "link")
+        # lane links name lanes of the linked road, so they exist only across road-road links
+        # and inside junctions (connecting roads); an incoming road links to the junction itself
+        road = self.m.roads[ln.road_id]
+        for kind, lanes in (("predecessor", ln.predecessors), ("successor", ln.successors)):
+            # in the reference direction: for a left lane the driving predecessor is the successor
+            ref_kind = kind if odr < 0 else ("successor" if kind == "predecessor" else "predecessor")
+            end = "start" if ref_kind == "predecessor" else "end"
+            lk = self._road_link(road, end)
+            if lk is None or lk[0] != "road":
+                continue
+            for other in lanes:
+                if self.road_ids[self.odr_lane[other][0]] == lk[1]:
+                    self.sub(link, ref_kind, id=str(self.odr_lane[other][1]))
+                    break
+        self.sub(el, "width", sOffset=0.0, a=ln.width, b=0.0, c=0.0, d=0.0)
+        self._mark(el, ln.right_boundary_type)
+        if ln.speed_limit > 0:
+            self.sub(el, "speed", sOffset=0.0, max=ln.speed_limit, unit="m/s")
+
+    def _junction(self, root, jid: str) -> None:
+        el = self.sub(root, "junction", id=self.junction_ids[jid], name=jid)
+        n = 0
+        for rid, road in self.m.roads.items():
+            if road.junction_id != jid or not road.lane_ids:
+                continue
+            along = bool(road.right_lanes)
+            first = self.m.lanes[road.lane_ids[0]]
+            feeders = [p for p in first.predecessors if self.m.lanes[p].junction_id != jid]
+            if not feeders:
+                continue
+            incoming = self.m.lanes[feeders[0]].road_id
+            conn = self.sub(el, "connection", id=str(n), incomingRoad=self.road_ids[incoming],
+                            connectingRoad=self.road_ids[rid], contactPoint="start" if along else "end")
+            n += 1
+            for lid in road.lane_ids:
+                for p in self.m.lanes[lid].predecessors:
+                    if self.m.lanes[p].road_id == incoming:
+                        self.sub(conn, "laneLink", **{"from": str(self.odr_lane[p][1]), "to": str(self.odr_lane[lid][1])})
+                        break
+        for k, (cid, _) in enumerate(self.controllers.get(jid, [])):
+            self.sub(el, "controller", id=cid, type="0", sequence=str(k))
+
+    # -- signals, controllers, objects ----------------------------------------------------------
+    def _signal_place(self, lane_ids, position):
+        """(model road, s, t, orientation, validity lanes) of a sign governing `lane_ids`."""
+        lanes = [lid for lid in lane_ids if lid in self.odr_lane and self.m.lanes[lid].junction_id is None]
+        if lanes:
+            rid = self.odr_lane[lanes[0]][0]
+            ids = [self.odr_lane[x][1] for x in lanes if self.odr_lane[x][0] == rid]
+            along = ids[0] < 0
+            ref = self.refs[rid]
+            s = ref.length if along else 0.0
+            _, t = ref.project(position)
+            h = ref.heading_at(s)
+            p = ref.pts[-1] if along else ref.pts[0]
+            t = -(position[0] - p[0]) * math.sin(h) + (position[1] - p[1]) * math.cos(h)
+            return rid, s, t, "+" if along else "-", (min(ids), max(ids))
+        best = None
+        for rid, road in self.m.roads.items():
+            if road.junction_id is not None:
+                continue
+            s, t = self.refs[rid].project(position)
+            if best is None or abs(t) < abs(best[2]):
+                best = (rid, s, t, "+", None)
+        return best
+
+    def _place_signals(self) -> dict[str, list]:
+        out: dict[str, list] = {}
+        self.controllers: dict[str, list[tuple[str, str]]] = {}
+        next_id = 1
+        for kind, items in (("signal", self.m.signals), ("stop", self.m.stop_signs)):
+            for s in items.values():
+                place = self._signal_place(s.lane_ids, s.position)
+                if place is None:
+                    continue
+                rid, sv, tv, orient, valid = place
+                sid = str(next_id)
+                next_id += 1
+                el = self.E.Element("signal")
+                attrs = dict(s=sv, t=tv, id=sid, name=s.id, dynamic="yes" if kind == "signal" else "no",
+                             orientation=orient, zOffset=0.0 if kind == "signal" else 2.0, country="OpenDRIVE",
+                             type=TRAFFIC_LIGHT_TYPE if kind == "signal" else STOP_SIGN_TYPE, subtype="-1",
+                             hOffset=0.0, pitch=0.0, roll=0.0, height=1.0 if kind == "signal" else 0.75,
+                             width=0.5 if kind == "signal" else 0.75)
+                for k, v in attrs.items():
+                    el.set(k, v if isinstance(v, str) else _f(v))
+                if valid is not None:
+                    self.sub(el, "validity", fromLane=str(valid[0]), toLane=str(valid[1]))
+                out.setdefault(rid, []).append(el)
+                if kind == "signal" and s.junction_id in self.junction_ids:
+                    self.controllers.setdefault(s.junction_id, []).append((f"{1000 + next_id}", sid))
+        return out
+
+    def _controllers(self, root) -> None:
+        for jid, ctrls in self.controllers.items():
+            for cid, sid in ctrls:
+                c = self.sub(root, "controller", id=cid, name=f"{jid}_ctrl{sid}", sequence="0")
+                self.sub(c, "control", signalId=sid, type="0")
+
+    def _place_crosswalks(self) -> dict[str, list]:
+        from shapely.geometry import Polygon
+
+        out: dict[str, list] = {}
+        for k, cw in enumerate(self.m.crosswalks.values()):
+            if len(cw.polygon) < 3:
+                continue
+            c = Polygon(cw.polygon).centroid
+            best = None
+            for rid, road in self.m.roads.items():
+                if road.junction_id is not None:
+                    continue
+                s, t = self.refs[rid].project((c.x, c.y))
+                d = math.hypot(*(np.asarray((c.x, c.y)) - self.refs[rid].pts[np.argmin(np.abs(self.refs[rid].s - s))]))
+                if best is None or d < best[0]:
+                    best = (d, rid, s, t)
+            if best is None:
+                continue
+            _, rid, s, t = best
+            ref = self.refs[rid]
+            h = ref.heading_at(s)
+            i = int(np.argmin(np.abs(ref.s - s)))
+            ox = ref.pts[i, 0] - t * math.sin(h)
+            oy = ref.pts[i, 1] + t * math.cos(h)
+            local = [((x - ox) * math.cos(h) + (y - oy) * math.sin(h), -(x - ox) * math.sin(h) + (y - oy) * math.cos(h))
+                     for x, y in cw.polygon]
+            us, vs = [p[0] for p in local], [p[1] for p in local]
+            obj = self.E.Element("object")
+            attrs = dict(id=str(k + 1), name=cw.id, type="crosswalk", s=s, t=t, zOffset=0.0, orientation="none",
+                         hdg=0.0, pitch=0.0, roll=0.0, height=0.0, length=max(us) - min(us), width=max(vs) - min(vs))
+            for key, v in attrs.items():
+                obj.set(key, v if isinstance(v, str) else _f(v))
+            outlines = self.sub(obj, "outlines")
+            ol = self.sub(outlines, "outline", id="0", fillType="paint", outer="true", closed="true", laneType="driving")
+            for j, (u, v) in enumerate(local):
+                self.sub(ol, "cornerLocal", u=u, v=v, z=0.0, height=0.0, id=str(j))
+            out.setdefault(rid, []).append(obj)
+        return out
+
+
+def geo_reference(m: HDMap) -> str:
+    """UTM zone `UTM_ZONE` with a shifted false origin: file coordinates are local metres."""
+    ox, oy = m.origin if any(m.origin) else UTM_ORIGIN
+    lon0 = -183 + 6 * UTM_ZONE
+    return (f"+proj=tmerc +lat_0=0 +lon_0={lon0} +k=0.9996 +x_0={_f(500000.0 - ox)} +y_0={_f(-oy)} "
+            "+datum=WGS84 +units=m +no_defs")
+
+
+def to_opendrive(m: HDMap) -> bytes:
+    """The OpenDRIVE 1.6 document of `m`, as UTF-8 bytes."""
+    from lxml import etree
+
+    root = _Writer(m).build()
+    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+
+
+def write_opendrive(m: HDMap, path: str | Path) -> None:
+    """Write `m` to `path` atomically."""
+    atomic.write_bytes(path, to_opendrive(m))
+
+
+def _cmd_export_opendrive(args: argparse.Namespace) -> int:
+    from ..readers import read_map
+
+    m = read_map(args.map)
+    if not m.lanes:
+        raise Feat2MapError("map has no lanes", str(args.map))
+    write_opendrive(m, args.out)
+    print(f"wrote {args.out}: {len(m.roads)} roads, {len(m.junctions)} junctions, "
+          f"{len(m.signals)} traffic lights, {len(m.stop_signs)} stop signs, {len(m.crosswalks)} crosswalks")
+    return 0
+
+
+def add_export_opendrive_command(subparsers) -> None:
+    """Register `feat2map export opendrive MAP --out FILE.xodr`."""
+    p = subparsers.add_parser("opendrive", help="export a map as OpenDRIVE 1.6 (.xodr)")
+    p.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
+    p.add_argument("--out", required=True, help="output .xodr file")
+    p.set_defaults(func=_cmd_export_opendrive)
