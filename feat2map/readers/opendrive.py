@@ -44,7 +44,7 @@ SIGNAL_CODES: dict[str, str] = {
 CONTROL_OF_KIND = {"signal": "signal", "stop": "stop", "yield": "stop"}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
-JUNCTION_TOUCH_M = 1.0  # junction elements whose connecting lanes are this close are one intersection
+JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
 SIGNAL_SEARCH_M = 40.0  # a signal governs incoming lanes ending within this distance
 _MPH = 0.44704
 
