@@ -1,0 +1,491 @@
+"""OpenDRIVE: reader geometry, export structure, round trips, netconvert, real maps, bad input."""
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import sys
+import warnings
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from lxml import etree
+
+from feat2map.bezier import Bezier
+from feat2map.errors import MapFormatError
+from feat2map.extract import extract_junctions
+from feat2map.readers.opendrive import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
+from feat2map.writers.opendrive import bezier_length, param_poly3, to_opendrive, write_opendrive
+
+from conftest import shared_map
+
+# ---------------------------------------------------------------------------------------------
+# plan-view geometry
+
+
+def _ref(kind: str, length: float, **params) -> _RefLine:
+    return _RefLine([_Geometry(0.0, 1.0, 2.0, 0.3, length, kind, params)])
+
+
+def test_line_and_arc_closed_form():
+    x, y, h = _ref("line", 10.0).eval([0.0, 10.0])
+    assert (x[1], y[1]) == pytest.approx((1 + 10 * math.cos(0.3), 2 + 10 * math.sin(0.3)))
+    k, L = 0.05, 20.0
+    x, y, h = _ref("arc", L, curvature=k).eval(np.linspace(0, L, 11))
+    cx, cy = 1 - math.sin(0.3) / k, 2 + math.cos(0.3) / k  # centre of the circle on the left
+    assert np.hypot(x - cx, y - cy) == pytest.approx(np.full(11, 1 / k), abs=1e-9)
+    assert h[-1] == pytest.approx(0.3 + k * L)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-0.2, 0.2), st.floats(1.0, 80.0))
+def test_spiral_with_constant_curvature_is_an_arc(k, length):
+    s = np.linspace(0, length, 7)
+    a = np.array(_ref("arc", length, curvature=k).eval(s))
+    b = np.array(_ref("spiral", length, curvStart=k, curvEnd=k).eval(s))
+    assert b == pytest.approx(a, abs=1e-3)
+
+
+def test_spiral_matches_fresnel_integrals():
+    special = pytest.importorskip("scipy.special")
+    c, L = 0.004, 60.0  # curvature 0 -> c L along the spiral
+    ref = _RefLine([_Geometry(0.0, 0.0, 0.0, 0.0, L, "spiral", {"curvStart": 0.0, "curvEnd": c * L})])
+    s = np.array([15.0, 30.0, 60.0])
+    x, y, h = ref.eval(s)
+    S, C = special.fresnel(s * math.sqrt(c / math.pi))
+    scale = math.sqrt(math.pi / c)
+    assert x == pytest.approx(scale * C, abs=1e-4)
+    assert y == pytest.approx(scale * S, abs=1e-4)
+    assert h == pytest.approx(0.5 * c * s * s)
+
+
+def test_poly3_and_param_poly3_agree_on_the_same_curve():
+    L_u = 30.0  # v = 0.01 u^2 as poly3 and as paramPoly3 with arcLength... measured by its length
+    u = np.linspace(0, L_u, 20001)
+    arc = float(np.hypot(np.diff(u), np.diff(0.01 * u * u)).sum())
+    a = _ref("poly3", arc, a=0.0, b=0.0, c=0.01, d=0.0)
+    b = _ref("paramPoly3", arc, aU=0.0, bU=L_u, cU=0.0, dU=0.0, aV=0.0, bV=0.0, cV=0.01 * L_u ** 2, dV=0.0,
+             normalized=1.0)
+    s = np.linspace(0, arc, 9)
+    assert np.array(a.eval(s)) == pytest.approx(np.array(b.eval(s)), abs=2e-3)
+    x, y, _ = a.eval([arc])
+    end = np.array([L_u, 0.01 * L_u ** 2])
+    rot = np.array([[math.cos(0.3), -math.sin(0.3)], [math.sin(0.3), math.cos(0.3)]])
+    assert (x[0], y[0]) == pytest.approx(tuple(np.array([1.0, 2.0]) + rot @ end), abs=2e-3)
+
+
+_coord = st.floats(-200, 200, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(_coord, _coord), min_size=4, max_size=4))
+def test_param_poly3_is_exactly_the_bezier(pts):
+    b = Bezier(*pts)
+    if np.hypot(*(np.asarray(pts[3]) - pts[0])) < 1.0 or bezier_length(b) < 1.0:
+        return
+    x, y, h, c = param_poly3(b)
+    p = np.linspace(0, 1, 13)
+    u = c["aU"] + p * (c["bU"] + p * (c["cU"] + p * c["dU"]))
+    v = c["aV"] + p * (c["bV"] + p * (c["cV"] + p * c["dV"]))
+    got = np.column_stack([x + u * math.cos(h) - v * math.sin(h), y + u * math.sin(h) + v * math.cos(h)])
+    assert got == pytest.approx(b.point(p), abs=1e-7)
+
+
+def test_bezier_length_is_accurate():
+    b = Bezier((0, 0), (10, 30), (40, -20), (50, 5))
+    pts = b.point(np.linspace(0, 1, 200001))
+    assert bezier_length(b) == pytest.approx(float(np.hypot(*np.diff(pts, axis=0).T).sum()), abs=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# export: structure of the standard
+
+
+def structure_problems(root) -> list[str]:
+    """Check an OpenDRIVE 1.6 document against the structure the standard requires."""
+    bad: list[str] = []
+
+    def need(el, *attrs):
+        for a in attrs:
+            if el.get(a) is None:
+                bad.append(f"<{el.tag}> line {el.sourceline}: missing {a}")
+
+    def order(el, tags):
+        seen = [c.tag for c in el if isinstance(c.tag, str)]
+        idx = [tags.index(t) for t in seen if t in tags]
+        if idx != sorted(idx):
+            bad.append(f"<{el.tag}> line {el.sourceline}: children out of order {seen}")
+        for t in seen:
+            if t not in tags:
+                bad.append(f"<{el.tag}> line {el.sourceline}: unexpected child <{t}>")
+
+    if root.tag != "OpenDRIVE":
+        return ["root is not <OpenDRIVE>"]
+    order(root, ["header", "road", "controller", "junction", "junctionGroup", "station"])
+    header = root.find("header")
+    if header is None or root.index(header) != 0:
+        bad.append("header missing or not first")
+    else:
+        need(header, "revMajor", "revMinor")
+    roads = {r.get("id"): r for r in root.findall("road")}
+    junctions = {j.get("id"): j for j in root.findall("junction")}
+    signals = {}
+    for r in root.findall("road"):
+        need(r, "id", "length", "junction")
+        order(r, ["link", "type", "planView", "elevationProfile", "lateralProfile", "lanes", "objects", "signals",
+                  "surface", "railroad"])
+        for kind in ("predecessor", "successor"):
+            for lk in r.findall(f"link/{kind}"):
+                need(lk, "elementType", "elementId")
+                table = roads if lk.get("elementType") == "road" else junctions
+                if lk.get("elementId") not in table:
+                    bad.append(f"road {r.get('id')}: {kind} {lk.get('elementId')} does not exist")
+                if lk.get("elementType") == "road" and lk.get("contactPoint") not in ("start", "end"):
+                    bad.append(f"road {r.get('id')}: road link without contactPoint")
+        geoms = r.findall("planView/geometry")
+        if not geoms:
+            bad.append(f"road {r.get('id')}: no geometry")
+        total = 0.0
+        for g in geoms:
+            need(g, "s", "x", "y", "hdg", "length")
+            total += float(g.get("length", 0))
+            kinds = [c.tag for c in g]
+            if len(kinds) != 1 or kinds[0] not in ("line", "arc", "spiral", "poly3", "paramPoly3"):
+                bad.append(f"road {r.get('id')}: geometry children {kinds}")
+            for pp in g.findall("paramPoly3"):
+                need(pp, "aU", "bU", "cU", "dU", "aV", "bV", "cV", "dV", "pRange")
+        if abs(total - float(r.get("length", -1))) > 1e-6:
+            bad.append(f"road {r.get('id')}: length {r.get('length')} != sum of geometries {total}")
+        if r.get("junction") != "-1" and r.get("junction") not in junctions:
+            bad.append(f"road {r.get('id')}: junction {r.get('junction')} does not exist")
+        secs = r.findall("lanes/laneSection")
+        if not secs:
+            bad.append(f"road {r.get('id')}: no laneSection")
+        for sec in secs:
+            need(sec, "s")
+            order(sec, ["left", "center", "right"])
+            centre = sec.findall("center/lane")
+            if len(centre) != 1 or centre[0].get("id") != "0":
+                bad.append(f"road {r.get('id')}: center lane must be exactly lane 0")
+            for side, sign in (("left", 1), ("right", -1)):
+                ids = sorted(abs(int(ln.get("id"))) for ln in sec.findall(f"{side}/lane"))
+                if ids != list(range(1, len(ids) + 1)):
+                    bad.append(f"road {r.get('id')}: {side} lane ids {ids} not consecutive")
+                for ln in sec.findall(f"{side}/lane"):
+                    need(ln, "id", "type")
+                    if int(ln.get("id")) * sign <= 0:
+                        bad.append(f"road {r.get('id')}: lane {ln.get('id')} on the wrong side")
+                    order(ln, ["link", "width", "border", "roadMark", "material", "speed", "access", "height", "rule"])
+                    if not ln.findall("width") and not ln.findall("border"):
+                        bad.append(f"road {r.get('id')}: lane {ln.get('id')} has no width")
+                    for w in ln.findall("width"):
+                        need(w, "sOffset", "a", "b", "c", "d")
+        for s in r.findall("signals/signal"):
+            need(s, "s", "t", "id", "orientation", "zOffset", "dynamic", "type", "subtype")
+            if s.get("orientation") not in ("+", "-", "none"):
+                bad.append(f"signal {s.get('id')}: orientation {s.get('orientation')}")
+            if s.get("id") in signals:
+                bad.append(f"signal {s.get('id')}: duplicate id")
+            signals[s.get("id")] = s
+        for o in r.findall("objects/object"):
+            need(o, "id", "s", "t", "zOffset")
+            for c in o.findall("outlines/outline/cornerLocal"):
+                need(c, "u", "v", "z")
+    for c in root.findall("controller"):
+        need(c, "id")
+        for ctl in c.findall("control"):
+            need(ctl, "signalId")
+            if ctl.get("signalId") not in signals:
+                bad.append(f"controller {c.get('id')}: unknown signal {ctl.get('signalId')}")
+    controllers = {c.get("id") for c in root.findall("controller")}
+    for j in root.findall("junction"):
+        need(j, "id")
+        order(j, ["connection", "priority", "controller", "surface"])
+        for c in j.findall("connection"):
+            need(c, "id", "incomingRoad", "connectingRoad", "contactPoint")
+            con = roads.get(c.get("connectingRoad"))
+            if c.get("incomingRoad") not in roads or con is None:
+                bad.append(f"junction {j.get('id')}: connection {c.get('id')} names a missing road")
+            elif con.get("junction") != j.get("id"):
+                bad.append(f"junction {j.get('id')}: connecting road {con.get('id')} is not in this junction")
+            if not c.findall("laneLink"):
+                bad.append(f"junction {j.get('id')}: connection {c.get('id')} has no laneLink")
+            for ll in c.findall("laneLink"):
+                need(ll, "from", "to")
+        for c in j.findall("controller"):
+            if c.get("id") not in controllers:
+                bad.append(f"junction {j.get('id')}: unknown controller {c.get('id')}")
+    return bad
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, sf_default_map):
+    path = tmp_path_factory.mktemp("xodr") / "m1.xodr"
+    write_opendrive(sf_default_map, path)
+    return path
+
+
+def test_export_has_the_structure_the_standard_requires(exported, sf_default_map):
+    root = etree.parse(str(exported)).getroot()
+    assert structure_problems(root) == []
+    m = sf_default_map
+    header = root.find("header")
+    assert (header.get("revMajor"), header.get("revMinor")) == ("1", "6")
+    assert "+proj=tmerc" in header.find("geoReference").text
+    assert len(root.findall("road")) == len(m.roads)
+    assert len(root.findall("junction")) == len(m.junctions)
+    assert len(root.findall("junction/connection/laneLink")) == sum(
+        1 for ln in m.lanes.values() if ln.junction_id is not None)
+    assert len(root.findall("road/signals/signal[@type='1000001']")) == len(m.signals)
+    assert len(root.findall("road/signals/signal[@type='206']")) == len(m.stop_signs)
+    assert len(root.findall("road/objects/object[@type='crosswalk']")) == len(m.crosswalks)
+    assert len(root.findall("controller")) == len(m.signals)
+    signalized = {s.junction_id for s in m.signals.values()}
+    assert {j.get("name") for j in root.findall("junction") if j.findall("controller")} == signalized
+    for r in root.findall("road"):  # one exact paramPoly3 per road
+        geoms = r.findall("planView/geometry")
+        assert len(geoms) == 1 and geoms[0].find("paramPoly3").get("pRange") == "normalized"
+
+
+def test_structure_check_catches_broken_documents(exported):
+    root = etree.parse(str(exported)).getroot()
+    root.find("road/planView/geometry").attrib.pop("hdg")
+    conn = root.find("junction/connection")
+    conn.set("connectingRoad", "99999")
+    root.find("road").set("length", "1.0")
+    problems = structure_problems(root)
+    assert any("missing hdg" in p for p in problems)
+    assert any("missing road" in p for p in problems)
+    assert any("sum of geometries" in p for p in problems)
+
+
+def test_paramPoly3_in_file_reproduces_the_model_bezier(exported, sf_default_map):
+    root = etree.parse(str(exported)).getroot()
+    for r in root.findall("road"):
+        road = sf_default_map.roads[r.get("name")]
+        g = r.find("planView/geometry")
+        c = {k: float(v) for k, v in g.find("paramPoly3").attrib.items() if k != "pRange"}
+        x, y, h = (float(g.get(k)) for k in ("x", "y", "hdg"))
+        p = np.linspace(0, 1, 7)
+        u = c["aU"] + p * (c["bU"] + p * (c["cU"] + p * c["dU"]))
+        v = c["aV"] + p * (c["bV"] + p * (c["cV"] + p * c["dV"]))
+        got = np.column_stack([x + u * math.cos(h) - v * math.sin(h), y + u * math.sin(h) + v * math.cos(h)])
+        assert got == pytest.approx(road.reference.point(p), abs=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------
+# round trip through our reader
+
+
+def _features(m):
+    return sorted(((j.feature.n_roads, j.feature.control, j.feature.crosswalk, j.feature.rotation,
+                    tuple((s.lanes_in, s.lanes_out) for s in j.feature.sockets)) for j in extract_junctions(m)),
+                  key=lambda f: (f[0], f[1], f[2], f[3]))
+
+
+def _assert_same_features(a, b, tol_deg=0.5):
+    fa, fb = _features(a), _features(b)
+    assert len(fa) == len(fb)
+    for x, y in zip(fa, fb):
+        assert x[:3] == y[:3]
+        assert x[3] == pytest.approx(y[3], abs=tol_deg)
+        assert x[4] == y[4]
+
+
+def test_round_trip_gives_the_same_junction_features(exported, sf_default_map):
+    m = sf_default_map
+    back = read_opendrive(exported)
+    assert len(back.junctions) == len(m.junctions)
+    assert (len(back.lanes), len(back.signals), len(back.stop_signs), len(back.crosswalks)) == (
+        len(m.lanes), len(m.signals), len(m.stop_signs), len(m.crosswalks))
+    assert back.origin == pytest.approx((587000.0, 4141000.0))
+    _assert_same_features(m, back)
+    for ln in back.lanes.values():  # lanes meet their successors
+        for s in ln.successors:
+            assert math.dist(ln.end, back.lanes[s].start) < 0.05
+
+
+@settings(max_examples=4, deadline=None)
+@given(st.integers(0, 10_000))
+def test_round_trip_for_any_seed(tmp_path_factory, seed):
+    import feat2map
+
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=seed)
+    path = tmp_path_factory.mktemp("seed") / "m.xodr"
+    write_opendrive(m, path)
+    _assert_same_features(m, read_opendrive(path))
+
+
+def test_split_junction_elements_are_merged(exported, sf_default_map, tmp_path):
+    """CARLA-style: one intersection written as two <junction> elements reads as one junction."""
+    root = etree.parse(str(exported)).getroot()
+    j = root.find("junction")
+    conns = j.findall("connection")
+    twin = etree.SubElement(root, "junction", id="9999", name="split")
+    moved = set()
+    for c in conns[: len(conns) // 2]:
+        j.remove(c)
+        twin.append(c)
+        moved.add(c.get("connectingRoad"))
+    for r in root.findall("road"):
+        if r.get("id") in moved:
+            r.set("junction", "9999")
+    path = tmp_path / "split.xodr"
+    path.write_bytes(etree.tostring(root))
+    back = read_opendrive(path)
+    assert len(back.junctions) == len(sf_default_map.junctions)
+    assert sorted(back.meta["junction_elements"][j.get("id")]) == sorted([j.get("id"), "9999"])
+    _assert_same_features(sf_default_map, back)
+
+
+def test_cli_export_opendrive(tmp_path, capsys):
+    from feat2map.cli import main
+
+    out = tmp_path / "m"
+    assert main(["generate", "--seed", "2", "--out", str(out), "--quiet", "--no-picture"]) == 0
+    assert main(["export", "opendrive", str(out / "map.json"), "--out", str(tmp_path / "x.xodr")]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert structure_problems(etree.parse(str(tmp_path / "x.xodr")).getroot()) == []
+    assert main(["export", "opendrive", str(tmp_path / "nope.json"), "--out", str(tmp_path / "y.xodr")]) == 2
+    assert not (tmp_path / "y.xodr").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# independent reader: SUMO netconvert
+
+
+def _netconvert() -> str | None:
+    exe = Path(sys.executable).parent / "netconvert"
+    if exe.exists():
+        return str(exe)
+    try:
+        import sumo  # eclipse-sumo wheel
+
+        cand = Path(sumo.SUMO_HOME) / "bin" / "netconvert"
+        if cand.exists():
+            return str(cand)
+    except ImportError:
+        pass
+    return shutil.which("netconvert")
+
+
+def test_netconvert_reads_our_export(exported, sf_default_map, tmp_path):
+    exe = _netconvert()
+    if exe is None:
+        pytest.skip("netconvert not found: pip install eclipse-sumo")
+    net = tmp_path / "m1.net.xml"
+    res = subprocess.run([exe, "--opendrive-files", str(exported), "--no-turnarounds", "-o", str(net)],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    root = etree.parse(str(net)).getroot()
+    m = sf_default_map
+    names = {j.get("id"): j.get("name") for j in etree.parse(str(exported)).getroot().findall("junction")}
+    nodes = {n.get("id"): n for n in root.findall("junction") if n.get("type") != "internal"}
+    assert set(names) <= set(nodes)  # every OpenDRIVE junction is a SUMO node
+    connections = [c for c in root.findall("connection") if not c.get("from").startswith(":")]
+    at_junctions = [c for c in connections if c.get("via")]
+    assert len(at_junctions) == sum(1 for ln in m.lanes.values() if ln.junction_id is not None)
+    signalized = {s.junction_id for s in m.signals.values()}
+    assert len(root.findall("tlLogic")) == len(signalized)
+    assert {names[n] for n, node in nodes.items() if node.get("type") == "traffic_light"} == signalized
+
+
+# ---------------------------------------------------------------------------------------------
+# real maps
+
+
+@pytest.mark.real_maps
+def test_carla_town01_has_twelve_signalized_three_way_junctions():
+    js = extract_junctions(read_opendrive(shared_map("opendrive/carla_town01/Town01.xodr")))
+    assert len(js) == 12
+    assert Counter(j.feature.n_roads for j in js) == {3: 12}
+    assert {j.feature.control for j in js} == {"signal"}
+
+
+@pytest.mark.real_maps
+def test_carla_town05_has_21_intersections():
+    js = extract_junctions(read_opendrive(shared_map("opendrive/carla_town05/Town05.xodr")))
+    assert Counter(j.feature.n_roads for j in js) == {3: 8, 4: 13}
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("rel,control,crosswalk", [
+    ("opendrive/commonroad_four_way_crossing/four_way_crossing.xodr", "signal", True),
+    ("opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr", "signal", False),
+])
+def test_other_dialects_signals_and_crosswalks(rel, control, crosswalk):
+    js = extract_junctions(read_opendrive(shared_map(rel)))
+    assert [(j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in js] == [(4, control, crosswalk)]
+
+
+@pytest.mark.real_maps
+def test_svl_cubetown_controls():
+    js = extract_junctions(read_opendrive(shared_map("opendrive/svl_cubetown/cubetown.xodr")))
+    assert sorted((j.feature.n_roads, j.feature.control) for j in js) == [(3, "signal"), (3, "stop")]
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("xodr,apollo", [
+    ("opendrive/svl_borregas_ave/borregasave.xodr", "apollo/borregas_ave/base_map.bin"),
+    ("opendrive/svl_cubetown/cubetown.xodr", "apollo/cube_town/base_map.bin"),
+])
+def test_same_map_in_apollo_and_opendrive_agrees(xodr, apollo):
+    apollo_reader = pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader not available yet")
+    a = extract_junctions(apollo_reader.read_apollo_map(shared_map(apollo)))
+    b = extract_junctions(read_opendrive(shared_map(xodr)))
+    assert sorted((j.feature.n_roads, j.feature.control) for j in a) == sorted(
+        (j.feature.n_roads, j.feature.control) for j in b)
+
+
+# ---------------------------------------------------------------------------------------------
+# bad input
+
+
+def test_signal_code_table_covers_the_dialects_in_the_wild():
+    assert SIGNAL_CODES["1000001"] == "signal" and SIGNAL_CODES["1000011"] == "signal"
+    assert SIGNAL_CODES["206"] == "stop" and SIGNAL_CODES["205"] == "yield"
+    assert "274" not in SIGNAL_CODES  # speed limits are not junction controls
+
+
+def test_malformed_xml_names_the_file(tmp_path):
+    p = tmp_path / "broken.xodr"
+    p.write_text("<OpenDRIVE><header revMajor='1'><road></OpenDRIVE>")
+    with pytest.raises(MapFormatError, match="broken.xodr.*malformed XML"):
+        read_opendrive(p)
+    q = tmp_path / "other.xodr"
+    q.write_text("<osm version='0.6'/>")
+    with pytest.raises(MapFormatError, match="not <OpenDRIVE>"):
+        read_opendrive(q)
+    r = tmp_path / "empty.xodr"
+    r.write_text("<OpenDRIVE><header revMajor='1' revMinor='4'/></OpenDRIVE>")
+    with pytest.raises(MapFormatError, match="no readable <road>"):
+        read_opendrive(r)
+
+
+def test_one_bad_road_is_skipped_with_a_warning_naming_it(exported, tmp_path):
+    root = etree.parse(str(exported)).getroot()
+    road = root.find("road")
+    road.find("planView/geometry").set("x", "not-a-number")
+    p = tmp_path / "bad_road.xodr"
+    p.write_bytes(etree.tostring(root))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = read_opendrive(p)
+    messages = [str(w.message) for w in caught]
+    assert any(f"road {road.get('id')} <geometry>" in msg and "'x' is not a number" in msg for msg in messages)
+    assert all("bad_road.xodr" in msg for msg in messages)  # every warning names the file
+    assert road.get("id") not in m.roads and len(m.roads) == len(root.findall("road")) - 1
+
+
+def test_cli_reports_broken_xodr_with_exit_code_2(tmp_path, capsys):
+    from feat2map.cli import main
+
+    p = tmp_path / "broken.xodr"
+    p.write_text("<OpenDRIVE><road id='1'")
+    assert main(["extract", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "broken.xodr" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
