@@ -489,3 +489,15 @@ def test_cli_reports_broken_xodr_with_exit_code_2(tmp_path, capsys):
     assert main(["extract", str(p)]) == 2
     err = capsys.readouterr().err
     assert "broken.xodr" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("rel", ["opendrive/carla_town01/Town01.xodr",
+                                 "opendrive/commonroad_four_way_crossing/four_way_crossing.xodr"])
+def test_maps_read_from_files_re_export_with_the_same_features(rel, tmp_path):
+    """Roads without a Bézier are written lane by lane as polylines; features survive."""
+    m = read_opendrive(shared_map(rel))
+    out = tmp_path / "again.xodr"
+    write_opendrive(m, out)
+    assert structure_problems(etree.parse(str(out)).getroot()) == []
+    _assert_same_features(m, read_opendrive(out))

@@ -45,6 +45,7 @@ CONTROL_OF_KIND = {"signal": "signal", "stop": "stop", "yield": "stop"}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
+END_TANGENT_M = 0.05  # extra sample this close to each lane end, so polyline end headings are exact
 SIGNAL_SEARCH_M = 40.0  # a signal governs incoming lanes ending within this distance
 _MPH = 0.44704
 
@@ -302,6 +303,8 @@ def _section_lanes(road: _OdrRoad, k: int) -> list[_LaneGeom]:
     sec = road.sections[k]
     n = max(2, int(math.ceil((sec.s1 - sec.s0) / SAMPLE_SPACING_M)) + 1)
     s = np.linspace(sec.s0, sec.s1, n)
+    if sec.s1 - sec.s0 > 4 * END_TANGENT_M:  # short end segments: end headings are the true tangents
+        s = np.concatenate([[s[0], s[0] + END_TANGENT_M], s[1:-1], [s[-1] - END_TANGENT_M, s[-1]]])
     x, y, h = road.ref.eval(s)
     nx, ny = -np.sin(h), np.cos(h)
     off = _poly(road.lane_offset, s)
@@ -593,7 +596,7 @@ class _Builder:
         for merged in sorted(members, key=_id_key):
             pts = np.array([p for ln in lanes.values() if ln.junction_id == merged
                             for p in ln.left_boundary + ln.right_boundary])
-            centre = self._centre(merged, groups)
+            centre = self._centre(merged, lanes)
             if centre is not None:  # centrally symmetric about the arms' meeting point
                 pts = np.vstack([pts, 2 * centre - pts])
             hull = MultiPoint(pts).convex_hull
@@ -610,26 +613,27 @@ class _Builder:
                 "junction_elements": {m: sorted(v, key=_id_key) for m, v in members.items()}}
         return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=self.origin, meta=meta)
 
-    def _centre(self, merged: str, groups: dict[str, str]) -> np.ndarray | None:
-        """Least-squares meeting point of the arms: the lines along the reference lines of the
-        roads linked to the junction, at their junction ends. None if the arms are (nearly)
-        parallel. For feat2map's own maps this is exactly the junction centre."""
+    @staticmethod
+    def _centre(merged: str, lanes: dict[str, Lane]) -> np.ndarray | None:
+        """Least-squares meeting point of the lines along the lanes that enter and leave the
+        junction, at their junction ends; None if they are (nearly) parallel. For feat2map's
+        own maps (lanes centred on straight-in sockets) this is exactly the junction centre."""
         A, rhs = np.zeros((2, 2)), np.zeros(2)
-        count = 0
-        for road in self.roads.values():
-            if road.junction is not None:
+        ends: dict[str, tuple[tuple[float, float], float]] = {}
+        for ln in lanes.values():
+            if ln.junction_id != merged:
                 continue
-            ends = [e for kind, e in (("predecessor", 0.0), ("successor", road.length))
-                    if road.links.get(kind, ("", "", ""))[0] == "junction"
-                    and groups.get(road.links[kind][1]) == merged]
-            if len(ends) != 1:  # roads joining two pieces of one intersection are not arms
-                continue
-            x, y, h = road.ref.eval([ends[0]])
-            n = np.array([-math.sin(h[0]), math.cos(h[0])])
+            for p in ln.predecessors:
+                if lanes[p].junction_id is None:
+                    ends[p] = (lanes[p].end, lanes[p].heading_at_end())
+            for q in ln.successors:
+                if lanes[q].junction_id is None:
+                    ends[q] = (lanes[q].start, lanes[q].heading_at_start())
+        for (x, y), h in ends.values():
+            n = np.array([-math.sin(h), math.cos(h)])
             A += np.outer(n, n)
-            rhs += n * (n @ np.array([x[0], y[0]]))
-            count += 1
-        if count < 2 or np.linalg.cond(A) > 1e6:
+            rhs += n * (n @ np.array([x, y]))
+        if len(ends) < 2 or np.linalg.cond(A) > 1e6:
             return None
         return np.linalg.solve(A, rhs)
 

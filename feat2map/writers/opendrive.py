@@ -86,29 +86,29 @@ class _Ref:
             self._from_lanes(road, m)
 
     def _from_lanes(self, road: Road, m: HDMap) -> None:
-        """Fallback: the divider (inner edge of the innermost lane) as a polyline of lines."""
-        if road.right_lanes:
-            pts = np.asarray(m.lanes[road.right_lanes[0]].left_boundary, dtype=float)
-        elif road.left_lanes:
-            pts = np.asarray(m.lanes[road.left_lanes[0]].left_boundary, dtype=float)[::-1]
-        else:
-            raise MapFormatError("road without lanes", f"road {road.id}")
+        """Fallback for a one-lane road without a Bézier: its centreline as a polyline of
+        lines, with the divider half a lane to the left (lane -1 along, lane 1 against)."""
+        if len(road.lane_ids) != 1:
+            raise MapFormatError("a road without a reference curve must have exactly one lane", f"road {road.id}")
+        ln = m.lanes[road.lane_ids[0]]
+        pts = np.asarray(ln.centerline, dtype=float)
+        if road.left_lanes:
+            pts = pts[::-1]
         seg = np.diff(pts, axis=0)
-        ln = np.hypot(seg[:, 0], seg[:, 1])
-        keep = np.concatenate([[True], ln > 1e-6])
+        keep = np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])
         pts = pts[keep]
         seg = np.diff(pts, axis=0)
-        ln = np.hypot(seg[:, 0], seg[:, 1])
-        if len(ln) == 0:
-            raise MapFormatError("road geometry has no length", f"road {road.id}")
+        ln_len = np.hypot(seg[:, 0], seg[:, 1])
+        if len(ln_len) == 0:
+            raise MapFormatError("lane geometry has no length", f"lane {ln.id}")
         heads = np.arctan2(seg[:, 1], seg[:, 0])
-        s = np.concatenate([[0.0], np.cumsum(ln)])
-        for i in range(len(ln)):
+        s = np.concatenate([[0.0], np.cumsum(ln_len)])
+        for i in range(len(ln_len)):
             self.geoms.append((float(s[i]), float(pts[i, 0]), float(pts[i, 1]), float(heads[i]), "line", {}))
         self.length = float(s[-1])
         self.pts, self.s = pts, s
         self.heads = np.append(heads, heads[-1])
-        self.divider = 0.0
+        self.divider = ln.width / 2 if road.right_lanes else -ln.width / 2
 
     def project(self, p) -> tuple[float, float]:
         """(s, t) of a point: nearest sampled reference point, lateral offset along its normal."""
@@ -146,11 +146,12 @@ class _Writer:
 
         self.E = etree
         self.m = m
-        self.road_ids = {rid: str(i + 1) for i, rid in enumerate(m.roads)}
+        self.roads = export_roads(m)
+        self.road_ids = {rid: str(i + 1) for i, rid in enumerate(self.roads)}
         self.junction_ids = {jid: str(i + 1) for i, jid in enumerate(m.junctions)}
-        self.refs = {rid: _Ref(r, m) for rid, r in m.roads.items()}
-        self.odr_lane: dict[str, tuple[str, int]] = {}  # model lane -> (model road, OpenDRIVE lane id)
-        for rid, r in m.roads.items():
+        self.refs = {rid: _Ref(r, m) for rid, r in self.roads.items()}
+        self.odr_lane: dict[str, tuple[str, int]] = {}  # model lane -> (exported road, OpenDRIVE lane id)
+        for rid, r in self.roads.items():
             for i, lid in enumerate(r.right_lanes):
                 self.odr_lane[lid] = (rid, -(i + 1))
             for i, lid in enumerate(r.left_lanes):
@@ -189,7 +190,7 @@ class _Writer:
         if not touching:
             return None
         other, at = touching[0]
-        return ("road", self.road_ids[self.m.lanes[other].road_id], self._lane_end(other, at))
+        return ("road", self.road_ids[self.odr_lane[other][0]], self._lane_end(other, at))
 
     # -- document -----------------------------------------------------------------------------
     def build(self):
@@ -203,7 +204,7 @@ class _Writer:
         geo.text = E.CDATA(geo_reference(m))
         signal_roads = self._place_signals()
         objects = self._place_crosswalks()
-        for rid, road in m.roads.items():
+        for rid, road in self.roads.items():
             self._road(root, rid, road, signal_roads.get(rid, []), objects.get(rid, []))
         self._controllers(root)
         for jid in m.junctions:
@@ -275,7 +276,7 @@ class _Writer:
         link = self.sub(el, "link")
         # lane links name lanes of the linked road, so they exist only across road-road links
         # and inside junctions (connecting roads); an incoming road links to the junction itself
-        road = self.m.roads[ln.road_id]
+        road = self.roads[self.odr_lane[lid][0]]
         for kind, lanes in (("predecessor", ln.predecessors), ("successor", ln.successors)):
             # in the reference direction: for a left lane the driving predecessor is the successor
             ref_kind = kind if odr < 0 else ("successor" if kind == "predecessor" else "predecessor")
@@ -295,7 +296,7 @@ class _Writer:
     def _junction(self, root, jid: str) -> None:
         el = self.sub(root, "junction", id=self.junction_ids[jid], name=jid)
         n = 0
-        for rid, road in self.m.roads.items():
+        for rid, road in self.roads.items():
             if road.junction_id != jid or not road.lane_ids:
                 continue
             along = bool(road.right_lanes)
@@ -303,13 +304,13 @@ class _Writer:
             feeders = [p for p in first.predecessors if self.m.lanes[p].junction_id != jid]
             if not feeders:
                 continue
-            incoming = self.m.lanes[feeders[0]].road_id
+            incoming = self.odr_lane[feeders[0]][0]
             conn = self.sub(el, "connection", id=str(n), incomingRoad=self.road_ids[incoming],
                             connectingRoad=self.road_ids[rid], contactPoint="start" if along else "end")
             n += 1
             for lid in road.lane_ids:
                 for p in self.m.lanes[lid].predecessors:
-                    if self.m.lanes[p].road_id == incoming:
+                    if self.odr_lane[p][0] == incoming:
                         self.sub(conn, "laneLink", **{"from": str(self.odr_lane[p][1]), "to": str(self.odr_lane[lid][1])})
                         break
         for k, (cid, _) in enumerate(self.controllers.get(jid, [])):
@@ -331,7 +332,7 @@ class _Writer:
             t = -(position[0] - p[0]) * math.sin(h) + (position[1] - p[1]) * math.cos(h)
             return rid, s, t, "+" if along else "-", (min(ids), max(ids))
         best = None
-        for rid, road in self.m.roads.items():
+        for rid, road in self.roads.items():
             if road.junction_id is not None:
                 continue
             s, t = self.refs[rid].project(position)
@@ -381,7 +382,7 @@ class _Writer:
                 continue
             c = Polygon(cw.polygon).centroid
             best = None
-            for rid, road in self.m.roads.items():
+            for rid, road in self.roads.items():
                 if road.junction_id is not None:
                     continue
                 s, t = self.refs[rid].project((c.x, c.y))
@@ -410,6 +411,26 @@ class _Writer:
                 self.sub(ol, "cornerLocal", u=u, v=v, z=0.0, height=0.0, id=str(j))
             out.setdefault(rid, []).append(obj)
         return out
+
+
+def export_roads(m: HDMap) -> dict[str, Road]:
+    """The roads as written: roads with a Bézier reference as they are; every lane of a road
+    without one (maps read from other formats) becomes its own one-lane road, so its
+    geometry survives exactly. Roads without lanes are dropped."""
+    from dataclasses import replace
+
+    out: dict[str, Road] = {}
+    for rid, road in m.roads.items():
+        if not road.lane_ids:
+            continue
+        if road.reference is not None:
+            out[rid] = road
+            continue
+        for lid in road.lane_ids:
+            along = lid in road.right_lanes
+            out[f"{rid}/{lid}" if len(road.lane_ids) > 1 else rid] = replace(
+                road, right_lanes=(lid,) if along else (), left_lanes=() if along else (lid,))
+    return out
 
 
 def geo_reference(m: HDMap) -> str:
