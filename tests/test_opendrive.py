@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from lxml import etree
 
 from feat2map.bezier import Bezier
-from feat2map.errors import MapFormatError
+from feat2map.errors import Feat2MapError, MapFormatError
 from feat2map.extract import extract_junctions
 from feat2map.readers.opendrive import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.writers.opendrive import bezier_length, param_poly3, to_opendrive, write_opendrive
@@ -512,3 +512,40 @@ def test_maps_read_from_files_re_export_with_the_same_features(rel, tmp_path):
     write_opendrive(m, out)
     assert structure_problems(etree.parse(str(out)).getroot()) == []
     _assert_same_features(m, read_opendrive(out))
+
+
+_FUZZ_ATTRS = ["s", "x", "y", "hdg", "length", "id", "a", "b", "sOffset", "curvature", "elementId", "incomingRoad",
+               "connectingRoad", "from", "to", "junction", "type", "contactPoint", "aU", "bV", "t"]
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.data())
+def test_corrupted_documents_read_or_fail_cleanly(tmp_path_factory, data):
+    """Random damage (deleted elements, bad or missing attributes): an HDMap or a MapFormatError
+    naming the file, never another exception."""
+    import feat2map
+
+    root = etree.fromstring(to_opendrive(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=5)))
+    elements = [e for e in root.iter() if isinstance(e.tag, str) and e is not root]
+    for _ in range(data.draw(st.integers(1, 8))):
+        el = elements[data.draw(st.integers(0, len(elements) - 1))]
+        action = data.draw(st.sampled_from(["drop", "garble", "remove_attr"]))
+        if action == "drop" and el.getparent() is not None:
+            el.getparent().remove(el)
+        elif action == "garble":
+            el.set(data.draw(st.sampled_from(_FUZZ_ATTRS)), data.draw(st.sampled_from(["", "nan", "x", "-1", "1e400"])))
+        elif el.attrib:
+            el.attrib.pop(data.draw(st.sampled_from(sorted(el.attrib))))
+    path = tmp_path_factory.mktemp("fuzz") / "damaged.xodr"
+    path.write_bytes(etree.tostring(root))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            m = read_opendrive(path)
+        except MapFormatError as exc:
+            assert "damaged.xodr" in str(exc)
+            return
+    try:  # the model it returns is usable; degenerate junctions may be refused, cleanly
+        extract_junctions(m)
+    except Feat2MapError:
+        pass
