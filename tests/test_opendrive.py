@@ -315,6 +315,8 @@ def test_round_trip_gives_the_same_junction_features(exported, sf_default_map):
         len(m.lanes), len(m.signals), len(m.stop_signs), len(m.crosswalks))
     assert back.origin == pytest.approx((587000.0, 4141000.0))
     _assert_same_features(m, back)
+    turns = Counter(ln.turn for ln in back.lanes.values() if ln.junction_id)
+    assert turns == Counter(ln.turn for ln in m.lanes.values() if ln.junction_id)
     for ln in back.lanes.values():  # lanes meet their successors
         for s in ln.successors:
             assert math.dist(ln.end, back.lanes[s].start) < 0.05

@@ -45,6 +45,7 @@ CONTROL_OF_KIND = {"signal": "signal", "stop": "stop", "yield": "stop"}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
+UTURN_CHANGE_DEG = 170.0  # heading change of a junction lane that makes it a U-turn (sharp lefts reach 150)
 END_TANGENT_M = 0.05  # extra sample this close to each lane end, so polyline end headings are exact
 SIGNAL_SEARCH_M = 40.0  # a signal governs incoming lanes ending within this distance
 _MPH = 0.44704
@@ -577,6 +578,9 @@ class _Builder:
             rl = road_lanes.setdefault(road_id, ([], []))
             (rl[0] if chain[0][2] < 0 else rl[1]).append(lid)
         self._neighbours(lanes, chain_of)
+        for lid, ln in lanes.items():
+            if ln.junction_id is not None:
+                lanes[lid] = _replace(ln, turn=_turn(ln))
         roads: dict[str, Road] = {}
         for rid, road in self.roads.items():
             right, left = road_lanes.get(rid, ([], []))
@@ -802,6 +806,17 @@ class _Builder:
         return [(px + u * c - v * sn, py + u * sn + v * c)
                 for u, v in ((-length / 2, -width / 2), (length / 2, -width / 2), (length / 2, width / 2),
                              (-length / 2, width / 2))] if length > 0 and width > 0 else []
+
+
+def _turn(ln: Lane) -> str:
+    """left / right / uturn / none from the heading change along a junction lane."""
+    from ..construct import classify_turn
+
+    h0, h1 = ln.heading_at_start(), ln.heading_at_end()
+    change = math.degrees((h1 - h0 + math.pi) % (2 * math.pi) - math.pi)
+    if abs(change) >= UTURN_CHANGE_DEG:
+        return "uturn"
+    return classify_turn(h0, h1)
 
 
 def _id_key(j: str) -> tuple[int, float, str]:
