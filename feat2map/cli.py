@@ -1,4 +1,4 @@
-"""The `feat2map` command line: generate, extract, export, validate, rollout, coverage."""
+"""The `feat2map` command line: generate, extract, export."""
 from __future__ import annotations
 
 import argparse
@@ -49,28 +49,21 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     stages = tqdm(total=4, desc="generate", unit="stage", disable=True if args.quiet else None)
-    if args.spec:
-        from .spec import generate_from_spec
+    if args.features:
+        path = Path(args.features)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise Feat2MapError(f"cannot read ({exc.strerror})", str(path)) from None
+        space = FeatureSpace.from_json(text, str(path))
+    elif args.from_maps:
+        from .extract import map_feature
 
-        stages.set_postfix_str("spec")
-        m = generate_from_spec(args.spec, seed=args.seed, config=cfg)
-        space = None
+        space = map_feature(_extract_maps(args.from_maps))
     else:
-        if args.features:
-            path = Path(args.features)
-            try:
-                text = path.read_text(encoding="utf-8")
-            except OSError as exc:
-                raise Feat2MapError(f"cannot read ({exc.strerror})", str(path)) from None
-            space = FeatureSpace.from_json(text, str(path))
-        elif args.from_maps:
-            from .extract import map_feature
-
-            space = map_feature(_extract_maps(args.from_maps))
-        else:
-            space = PAPER_SF_FEATURE_SPACE
-        stages.set_postfix_str("layout")
-        m = generate(space, seed=args.seed, config=cfg)
+        space = PAPER_SF_FEATURE_SPACE
+    stages.set_postfix_str("layout")
+    m = generate(space, seed=args.seed, config=cfg)
     stages.update(2)
     with atomic.staged_dir(args.out) as tmp:
         mapio.save(m, tmp / "map.json")
@@ -82,10 +75,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
             if len(m.junctions) <= 64:
                 render_junctions(m, tmp / "junctions.png")
         stages.update(1)
-        if args.apollo:
-            from .writers.apollo import export_apollo
-
-            export_apollo(m, tmp / "apollo")
         if args.opendrive:
             from .writers.opendrive import write_opendrive
 
@@ -133,14 +122,12 @@ def build_parser() -> argparse.ArgumentParser:
     src = g.add_mutually_exclusive_group()
     src.add_argument("--features", help="feature-space JSON (default: the paper's San Francisco Table I)")
     src.add_argument("--from-maps", nargs="+", metavar="MAP", help="extract the feature space from these maps")
-    src.add_argument("--spec", help="hand-written junction spec (YAML/JSON)")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--out", required=True, help="output directory")
     g.add_argument("--samples-per-combination", type=int)
     g.add_argument("--grid-gap", type=float)
     g.add_argument("--lane-width", type=float)
     g.add_argument("--crosswalk-width", type=float)
-    g.add_argument("--apollo", action="store_true", help="also export an Apollo map folder to OUT/apollo")
     g.add_argument("--opendrive", action="store_true", help="also export OUT/map.xodr")
     g.add_argument("--no-picture", action="store_true")
     g.add_argument("--quiet", action="store_true")
@@ -155,25 +142,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     ex = sub.add_parser("export", help="export a feat2map map to another format")
     exsub = ex.add_subparsers(dest="format", required=True, parser_class=_Parser)
-    for module, adder in (("writers.apollo", "add_export_apollo_command"),
-                          ("writers.opendrive", "add_export_opendrive_command")):
-        _wire(module, adder, exsub)
-    for module, adder in (("apollo_validate", "add_validate_command"),
-                          ("scenarios.cli", "add_suite_command"),
-                          ("scenarios.cli", "add_rollout_command"),
-                          ("scenarios.cli", "add_coverage_command")):
-        _wire(module, adder, sub)
+    from .writers.opendrive import add_export_opendrive_command
+
+    add_export_opendrive_command(exsub)
     return p
-
-
-def _wire(module: str, adder: str, sub) -> None:
-    import importlib
-
-    try:  # TEMP during parallel development
-        mod = importlib.import_module(f"feat2map.{module}")
-        getattr(mod, adder)(sub)
-    except (ImportError, AttributeError):
-        pass
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,7 +8,7 @@ from ..model import HDMap
 
 
 def read_map(path: str | Path) -> HDMap:
-    """Read a native map (.json), an OpenDRIVE file (.xodr) or an Apollo map (.bin/.txt)."""
+    """Read a native map (.json) or an OpenDRIVE file (.xodr)."""
     path = Path(path)
     if not path.is_file():
         raise MapFormatError("no such map file", str(path))
@@ -22,6 +22,5 @@ def read_map(path: str | Path) -> HDMap:
         from .opendrive import read_opendrive
 
         return read_opendrive(path)
-    from .apollo import read_apollo_map
-
-    return read_apollo_map(path)
+    raise MapFormatError("unsupported map format: expected a feat2map .json or an OpenDRIVE .xodr "
+                         "(the Apollo reader is not built yet)", str(path))
