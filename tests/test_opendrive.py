@@ -448,7 +448,7 @@ def test_svl_cubetown_controls():
 ])
 def test_same_map_in_apollo_and_opendrive_agrees(xodr, apollo):
     apollo_reader = pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader not available yet")
-    a = extract_junctions(apollo_reader.read_apollo_map(shared_map(apollo)))
+    a = extract_junctions(apollo_reader.read_apollo(shared_map(apollo)))
     b = extract_junctions(read_opendrive(shared_map(xodr)))
     assert sorted((j.feature.n_roads, j.feature.control) for j in a) == sorted(
         (j.feature.n_roads, j.feature.control) for j in b)
