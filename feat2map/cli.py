@@ -145,6 +145,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .writers.opendrive import add_export_opendrive_command
 
     add_export_opendrive_command(exsub)
+
+    from .cli_scenarios import add_scenario_commands
+
+    add_scenario_commands(sub)
     return p
 
 

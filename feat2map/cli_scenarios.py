@@ -1,0 +1,127 @@
+"""The scenario commands of the `feat2map` CLI: `suite` (a route-coverage suite for a map),
+`rollout` (run a suite headless, write summary/JUnit/report; exit 1 on failures by policy) and
+`coverage` (compare suites' results side by side). Hooked into `feat2map.cli` by
+`add_scenario_commands`.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from . import atomic
+from .errors import Feat2MapError
+
+
+def cmd_suite(args: argparse.Namespace) -> int:
+    from .readers import read_map
+    from .scenarios.routes import build_suite, manoeuvres, route_coverage
+    from .scenarios.scenario import save_suite
+
+    path = Path(args.map)
+    if not path.is_file():
+        raise Feat2MapError("map file not found", str(path))
+    if args.max_junctions < 1:
+        raise Feat2MapError("--max-junctions must be at least 1", "command line")
+    kw = {"seed": args.seed, "traffic_vehicles": args.traffic, "pedestrian_rate": args.pedestrian_rate,
+          "max_junctions": args.max_junctions, "duration": args.duration, "name": args.name}
+    suite = build_suite(path, **kw)
+    save_suite(suite, args.out)
+    m = read_map(path)
+    cov = route_coverage(m, [s.route for s in suite.scenarios])
+    print(f"wrote {args.out}: {len(suite.scenarios)} scenarios covering {100 * cov:.1f}% of "
+          f"{len(manoeuvres(m))} manoeuvres of {len(m.junctions)} junctions")
+    return 0
+
+
+def cmd_rollout(args: argparse.Namespace) -> int:
+    from .scenarios.report import write_report
+    from .scenarios.rollout import PlannerFactory, run_suite
+    from .scenarios.scenario import load_suite
+
+    if args.workers < 1:
+        raise Feat2MapError("--workers must be at least 1", "command line")
+    suite = load_suite(args.suite)
+    factory = PlannerFactory(args.planner)
+    factory()  # fail early, in this process, on a planner that cannot be imported or built
+    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet,
+                       coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on)
+    write_report(result, args.out, fail_on=args.fail_on)
+    counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)
+    failing = result.failures(args.fail_on)
+    print(f"{result.name}: {len(result.outcomes)} scenarios ({counts}) in {result.wall_s:.1f} s; "
+          f"{len(failing)} failing under --fail-on {args.fail_on}; report {Path(args.out) / 'report.md'}")
+    for o in failing:
+        print(f"  FAIL {o.name}: {o.outcome}: {o.message}")
+    return result.exit_code(args.fail_on)
+
+
+def cmd_coverage(args: argparse.Namespace) -> int:
+    from .scenarios.metrics import compare, plot_accumulated
+    from .scenarios.report import load_result
+
+    if args.names and len(args.names) != len(args.results):
+        raise Feat2MapError(f"--names gives {len(args.names)} names for {len(args.results)} result dirs",
+                            "command line")
+    names = args.names or _dir_names(args.results)
+    results = {n: load_result(d) for n, d in zip(names, args.results)}
+    table = compare(results)
+    with atomic.staged_dir(args.out) as tmp:
+        plot_accumulated(table, tmp / "coverage.png", title="accumulated coverage by junction")
+        md = ["# Coverage comparison", "", table.to_markdown(), "![accumulated coverage](coverage.png)", ""]
+        for name, c in zip(table.names, table.coverages):
+            md += [f"## {name}", "", "| junction index | junction | accumulated lines | accumulated transitions |",
+                   "|---:|---|---:|---:|"]
+            acc_l = c.accumulated_lines if c.lines else ("-",) * len(c.junctions)
+            for i, (j, l, t) in enumerate(zip(c.junctions, acc_l, c.accumulated_transitions)):
+                md.append(f"| {i + 1} | {j} | {l} | {t} |")
+            md.append("")
+        atomic.write_text(tmp / "coverage.md", "\n".join(md))
+        atomic.write_text(tmp / "coverage.json", json.dumps(table.to_dict(), indent=1) + "\n")
+    print(table.to_markdown(), end="")
+    print(f"wrote {Path(args.out) / 'coverage.md'} and {Path(args.out) / 'coverage.png'}")
+    return 0
+
+
+def _dir_names(dirs: list[str]) -> list[str]:
+    names = [Path(d).resolve().name or str(d) for d in dirs]
+    if len(set(names)) < len(names):
+        names = [str(d) for d in dirs]
+    return names
+
+
+def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
+    """Add `suite`, `rollout` and `coverage` to the `feat2map` subcommands."""
+    from .scenarios.rollout import BACKENDS, FAIL_POLICIES
+
+    s = sub.add_parser("suite", help="build a route-coverage scenario suite for a map")
+    s.add_argument("map", help="map file (feat2map .json, OpenDRIVE .xodr, Apollo)")
+    s.add_argument("--out", required=True, help="suite file to write (.yaml or .json)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the first scenario (then +1 each)")
+    s.add_argument("--traffic", type=int, default=0, help="traffic vehicles per scenario")
+    s.add_argument("--pedestrian-rate", type=float, default=0.0, help="pedestrians per crosswalk per minute")
+    s.add_argument("--max-junctions", type=int, default=4, help="longest route (junctions)")
+    s.add_argument("--duration", type=float, help="scenario duration [s] (default: from the route length)")
+    s.add_argument("--name", help="suite name (default: the map file's stem)")
+    s.set_defaults(func=cmd_suite)
+
+    r = sub.add_parser("rollout", help="run a scenario suite headless and write a report")
+    r.add_argument("suite", help="suite file (.yaml or .json)")
+    r.add_argument("--planner", default="baseline",
+                   help="'baseline' or module:attr (a Policy class/instance, a callable (obs, info) -> action, an SB3 model)")
+    r.add_argument("--workers", type=int, default=1)
+    r.add_argument("--backend", choices=BACKENDS, default="process")
+    r.add_argument("--out", required=True, help="report directory")
+    r.add_argument("--fail-on", choices=tuple(FAIL_POLICIES), default="any",
+                   help="outcomes that fail the run (exit 1): any non-completed; collision (+ off road, errors); "
+                        "violation (+ collision, off road, errors); none")
+    r.add_argument("--no-coverage", action="store_true", help="skip measuring the planner's line coverage")
+    r.add_argument("--no-gif", action="store_true", help="do not re-run failures to record GIFs")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=cmd_rollout)
+
+    c = sub.add_parser("coverage", help="compare suites' rollout results side by side")
+    c.add_argument("results", nargs="+", metavar="RESULT_DIR", help="rollout output directories")
+    c.add_argument("--out", required=True, help="directory for coverage.md, coverage.png, coverage.json")
+    c.add_argument("--names", nargs="+", help="a name per result dir (default: the directory names)")
+    c.set_defaults(func=cmd_coverage)

@@ -1,0 +1,180 @@
+"""Rollout reports: OUT/summary.json (the SuiteResult, loads back with `load_result`),
+OUT/junit.xml (one testcase per scenario, for CI systems), OUT/report.md (tables, plots, one
+GIF per failure under OUT/failures/), OUT/outcomes.png and OUT/coverage.png. The directory is
+staged and moved into place whole.
+"""
+from __future__ import annotations
+
+import json
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+from feat2map import atomic
+from feat2map.errors import Feat2MapError
+
+from .metrics import compare, junctions_to_reach, plot_accumulated, suite_coverage
+from .rollout import FAIL_POLICIES, OUTCOMES, Outcome, SuiteResult
+
+SUMMARY = "summary.json"
+JUNIT = "junit.xml"
+REPORT = "report.md"
+OUTCOME_COLOURS = {"completed": "#4caf50", "collision": "#d32f2f", "off_road": "#ff9800",
+                   "timeout": "#9e9e9e", "violation": "#7b1fa2", "error": "#000000"}
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "scenario"
+
+
+def junit_xml(result: SuiteResult, fail_on: str = "any") -> bytes:
+    """JUnit XML: one testcase per scenario; outcomes failing under `fail_on` are <failure>s
+    (planner/env exceptions are <error>s), the others pass with their outcome in system-out."""
+    failing = FAIL_POLICIES[fail_on]
+    fails = sum(o.outcome in failing and o.outcome != "error" for o in result.outcomes)
+    errors = sum(o.outcome in failing and o.outcome == "error" for o in result.outcomes)
+    root = ET.Element("testsuites", name="feat2map rollout", tests=str(len(result.outcomes)),
+                      failures=str(fails), errors=str(errors), time=f"{result.wall_s:.3f}")
+    suite = ET.SubElement(root, "testsuite", name=result.name, tests=str(len(result.outcomes)),
+                          failures=str(fails), errors=str(errors), skipped="0", time=f"{result.wall_s:.3f}")
+    props = ET.SubElement(suite, "properties")
+    for k, v in (("planner", result.planner), ("fail_on", fail_on), ("workers", result.workers),
+                 ("backend", result.backend)):
+        ET.SubElement(props, "property", name=k, value=str(v))
+    for o in result.outcomes:
+        case = ET.SubElement(suite, "testcase", classname=f"{result.name}", name=o.name, time=f"{o.wall_s:.3f}")
+        if o.outcome in failing:
+            tag = "error" if o.outcome == "error" else "failure"
+            el = ET.SubElement(case, tag, message=f"{o.outcome}: {o.message}", type=o.outcome)
+            el.text = _details(o)
+        out = ET.SubElement(case, "system-out")
+        out.text = f"outcome: {o.outcome}\n" + _details(o)
+    ET.indent(root)
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def _details(o: Outcome) -> str:
+    v = ", ".join(f"{k}={n}" for k, n in o.violations.items())
+    return (f"map: {o.map}\nseed: {o.seed}\nsimulated: {o.sim_s:.1f} s in {o.steps} steps\n"
+            f"route progress: {100 * o.route_progress:.0f}%\nviolations: {v or 'none'}\n"
+            f"junctions: {' -> '.join(o.junctions) or '-'}\nstage path: {' -> '.join(o.stage_path) or '-'}\n")
+
+
+def _plot_outcomes(result: SuiteResult, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    counts = result.counts()
+    kinds = [k for k in OUTCOMES if counts[k] or k in ("completed",)]
+    fig, (ax_c, ax_s) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [1, 2.2]})
+    ax_c.bar(kinds, [counts[k] for k in kinds], color=[OUTCOME_COLOURS[k] for k in kinds])
+    ax_c.set(title=f"{result.name}: outcomes", ylabel="scenarios")
+    ax_c.tick_params(axis="x", labelrotation=30)
+    xs = range(len(result.outcomes))
+    ax_s.bar(xs, [o.sim_s for o in result.outcomes], color=[OUTCOME_COLOURS[o.outcome] for o in result.outcomes])
+    ax_s.set(title="simulated duration per scenario (colour = outcome)", xlabel="scenario index", ylabel="s")
+    ax_s.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _cell(s: Any) -> str:
+    return str(s).replace("|", "\\|").replace("\n", " ")
+
+
+def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, str] | None = None) -> str:
+    """The Markdown report: summary, per-scenario table, failures with GIFs, coverage tables."""
+    gifs = gifs or {}
+    counts = result.counts()
+    failing = result.failures(fail_on)
+    cov = suite_coverage(result)
+    verdict = "FAILED" if failing else "passed"
+    lines = [f"# Rollout report: {result.name}", "",
+             f"Planner `{result.planner}`, {len(result.outcomes)} scenarios, failure policy `--fail-on {fail_on}`: "
+             f"**{verdict}** ({len(failing)} failing). Wall time {result.wall_s:.1f} s on {result.workers} "
+             f"worker(s), backend {result.backend}.", "",
+             "| " + " | ".join(OUTCOMES) + " |", "|" + "---:|" * len(OUTCOMES),
+             "| " + " | ".join(str(counts[k]) for k in OUTCOMES) + " |", "", "![outcomes](outcomes.png)", "",
+             "## Scenarios", "",
+             "| scenario | outcome | simulated s | steps | route | violations | junctions | stage path |",
+             "|---|---|---:|---:|---:|---|---|---|"]
+    for o in result.outcomes:
+        v = ", ".join(f"{k} {n}" for k, n in o.violations.items() if n) or "-"
+        mark = f"**{o.outcome}**" if o.fails(fail_on) else o.outcome
+        lines.append(f"| {_cell(o.name)} | {mark} | {o.sim_s:.1f} | {o.steps} | {100 * o.route_progress:.0f}% | "
+                     f"{_cell(v)} | {_cell(' '.join(o.junctions) or '-')} | {_cell(' → '.join(o.stage_path) or '-')} |")
+    if failing:
+        lines += ["", "## Failures", ""]
+        for o in failing:
+            lines += [f"### {o.name}: {o.outcome}", "", o.message, "", "```", _details(o).rstrip(), "```", ""]
+            if o.name in gifs:
+                lines += [f"![{o.name}]({gifs[o.name]})", ""]
+    lines += ["", "## Behaviour coverage", "",
+              f"{len(cov.all_pairs)} (scenario, stage path) pairs and {len(cov.all_transitions)} stage transitions "
+              f"over {len(cov.junctions)} junctions; {len({p for _, p in cov.paths})} distinct whole-route stage paths.",
+              "", "| junction | pairs | transitions | accumulated transitions | planner scenarios: stage paths |",
+              "|---|---:|---:|---:|---|"]
+    acc_t = cov.accumulated_transitions
+    for i, j in enumerate(cov.junctions):
+        p = sorted(cov.pairs.get(j, ()))
+        text = "; ".join(f"{sc}: {' → '.join(st)}" for sc, st in p) or "-"
+        lines.append(f"| {_cell(j)} | {len(p)} | {len(cov.transitions.get(j, ()))} | {acc_t[i]} | {_cell(text)} |")
+    if cov.all_transitions:
+        lines += ["", "Transitions seen: " + ", ".join(f"`{a} → {b}`" for a, b in sorted(cov.all_transitions)) + "."]
+    if result.coverage:
+        acc = cov.accumulated_lines
+        new = cov.new_lines()
+        lines += ["", "## Planner line coverage", "",
+                  f"{len(cov.all_lines)} lines of the planner covered; {junctions_to_reach(acc)} of "
+                  f"{len(cov.junctions)} junctions reach 95% of them.", "",
+                  "| junction index | junction | lines at junction | new lines | accumulated |", "|---:|---|---:|---:|---:|"]
+        for i, j in enumerate(cov.junctions):
+            lines.append(f"| {i + 1} | {_cell(j)} | {len(cov.lines.get(j, ()))} | {new[i]} | {acc[i]} |")
+    lines += ["", "![coverage](coverage.png)", ""]
+    return "\n".join(lines)
+
+
+def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> Path:
+    """Write summary, JUnit XML, Markdown report, plots and failure GIFs into `out` atomically."""
+    out = Path(out)
+    with atomic.staged_dir(out) as tmp:
+        gifs: dict[str, str] = {}
+        used: set[str] = set()
+        for o in result.outcomes:
+            if o.gif and o.fails(fail_on if fail_on != "none" else "any"):
+                name = _safe(o.name)
+                while name in used:
+                    name += "_"
+                used.add(name)
+                rel = f"failures/{name}.gif"
+                atomic.write_bytes(tmp / rel, o.gif)
+                gifs[o.name] = rel
+        doc = result.to_dict()
+        doc["fail_on"] = fail_on
+        doc["failed"] = [o.name for o in result.failures(fail_on)]
+        doc["gifs"] = gifs
+        atomic.write_text(tmp / SUMMARY, json.dumps(doc, indent=1) + "\n")
+        atomic.write_bytes(tmp / JUNIT, junit_xml(result, fail_on))
+        _plot_outcomes(result, tmp / "outcomes.png")
+        plot_accumulated(compare({result.name: result}), tmp / "coverage.png", title=result.name)
+        atomic.write_text(tmp / REPORT, report_markdown(result, fail_on, gifs))
+    return out
+
+
+def load_result(path: str | Path) -> SuiteResult:
+    """A SuiteResult from a rollout output directory (or its summary.json)."""
+    p = Path(path)
+    f = p / SUMMARY if p.is_dir() else p
+    try:
+        doc = json.loads(f.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise Feat2MapError("no rollout summary here (run `feat2map rollout ... --out DIR` first)", str(f)) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise Feat2MapError(f"cannot read rollout summary ({exc.__class__.__name__}: {exc})", str(f)) from None
+    if not isinstance(doc, dict):
+        raise Feat2MapError("rollout summary must be a JSON object", str(f))
+    return SuiteResult.from_dict(doc, str(f))

@@ -1,0 +1,504 @@
+"""Headless rollouts of scenarios with a planner under test: one `Outcome` per scenario, a
+`SuiteResult` per suite, run in-process, over spawned processes, or on Ray.
+
+Determinism: every scenario builds its own env from its own seed and a fresh planner, so the
+results (everything but wall-clock times and GIF bytes) do not depend on the worker count or
+the backend. Failures are re-run with `render_mode="rgb_array"` to record a GIF, so only
+failing scenarios pay for rendering.
+"""
+from __future__ import annotations
+
+import copy
+import importlib
+import io
+import inspect
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+from feat2map.errors import Feat2MapError
+
+OUTCOMES = ("completed", "collision", "off_road", "timeout", "violation", "error")  # error: planner/env raised
+FAIL_POLICIES = {  # --fail-on: which outcomes make the run fail
+    "any": frozenset({"collision", "off_road", "timeout", "violation", "error"}),
+    "collision": frozenset({"collision", "off_road", "error"}),
+    "violation": frozenset({"collision", "off_road", "violation", "error"}),
+    "none": frozenset(),
+}
+BACKENDS = ("process", "ray")
+ROAD_CONTEXT = "(road)"  # code-coverage context before the first junction is known
+GIF_MAX_FRAMES = 160  # failure GIFs are subsampled to at most this many frames
+GIF_WIDTH_PX = 360  # and scaled down to this width
+GIF_SPEEDUP = 2.0  # playback speed relative to simulated time
+MAX_STEPS_SAFETY = 100_000  # guards against an env that never ends
+
+
+# ---- planner specs ----------------------------------------------------------------------------
+class PlannerFactory:
+    """A picklable zero-argument factory of fresh planners from a spec: "baseline",
+    "module:attr" (a Policy class, a Policy instance, a callable `(obs, info) -> action` or an
+    SB3 model), or the object itself."""
+
+    def __init__(self, spec: Any = "baseline") -> None:
+        self.spec = spec
+
+    @property
+    def name(self) -> str:
+        if isinstance(self.spec, str):
+            return self.spec
+        return getattr(self.spec, "__qualname__", type(self.spec).__qualname__)
+
+    def _resolve(self) -> Any:
+        spec = self.spec
+        if spec is None or spec == "baseline":
+            from .planner import BaselinePlanner
+
+            return BaselinePlanner
+        if not isinstance(spec, str):
+            return spec
+        mod_name, sep, attr = spec.partition(":")
+        if not sep or not mod_name or not attr:
+            raise Feat2MapError("planner must be 'baseline' or 'module:attr'", f"planner {spec!r}")
+        try:
+            obj: Any = importlib.import_module(mod_name)
+        except ImportError as exc:
+            raise Feat2MapError(f"cannot import module ({exc})", f"planner {spec!r}") from None
+        for part in attr.split("."):
+            if not hasattr(obj, part):
+                raise Feat2MapError(f"module has no attribute {part!r}", f"planner {spec!r}")
+            obj = getattr(obj, part)
+        return obj
+
+    def __call__(self) -> Any:
+        obj = self._resolve()
+        if isinstance(obj, type):
+            policy = obj()
+        elif hasattr(obj, "act") and hasattr(obj, "reset"):
+            policy = copy.deepcopy(obj)
+        else:
+            policy = obj
+        if not (hasattr(policy, "act") and hasattr(policy, "reset")):
+            from .planner import as_policy
+
+            policy = as_policy(policy)
+        return policy
+
+
+def as_factory(planner: Any) -> Callable[[], Any]:
+    """A zero-argument planner factory from a spec, a PlannerFactory, or a factory callable."""
+    if isinstance(planner, PlannerFactory):
+        return planner
+    return PlannerFactory(planner)
+
+
+# ---- outcome ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Outcome:
+    """What happened in one scenario. Equality ignores wall-clock time and GIF bytes."""
+
+    name: str
+    outcome: str  # one of OUTCOMES
+    violations: Mapping[str, int]
+    sim_s: float
+    steps: int
+    stage_path: tuple[str, ...]
+    transitions: tuple[tuple[str, str], ...]
+    junctions: tuple[str, ...]  # junctions the ego drove into, in order
+    route_progress: float
+    events: tuple[tuple[int, float, str | None, str, str], ...] = ()  # (step, time, junction, scenario, stage)
+    junction_lines: Mapping[str, tuple[str, ...]] = field(default_factory=dict)  # junction -> "module:line"
+    message: str = ""
+    seed: int | None = None
+    map: str = ""
+    wall_s: float = field(default=0.0, compare=False)
+    gif: bytes | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def passed(self) -> bool:
+        return self.outcome == "completed"
+
+    def fails(self, fail_on: str = "any") -> bool:
+        return self.outcome in FAIL_POLICIES[fail_on]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.pop("gif")
+        d["stage_path"] = list(self.stage_path)
+        d["transitions"] = [list(t) for t in self.transitions]
+        d["junctions"] = list(self.junctions)
+        d["events"] = [list(e) for e in self.events]
+        d["violations"] = dict(self.violations)
+        d["junction_lines"] = {j: list(v) for j, v in self.junction_lines.items()}
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], where: str = "outcome") -> "Outcome":
+        try:
+            return cls(
+                name=str(d["name"]), outcome=str(d["outcome"]), violations=dict(d["violations"]),
+                sim_s=float(d["sim_s"]), steps=int(d["steps"]), stage_path=tuple(d["stage_path"]),
+                transitions=tuple((str(a), str(b)) for a, b in d["transitions"]),
+                junctions=tuple(d["junctions"]), route_progress=float(d["route_progress"]),
+                events=tuple((int(s), float(t), j, str(sc), str(st)) for s, t, j, sc, st in d.get("events", ())),
+                junction_lines={str(j): tuple(v) for j, v in d.get("junction_lines", {}).items()},
+                message=str(d.get("message", "")), seed=d.get("seed"), map=str(d.get("map", "")),
+                wall_s=float(d.get("wall_s", 0.0)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise Feat2MapError(f"malformed outcome ({exc!r})", where) from None
+
+
+@dataclass(frozen=True)
+class SuiteResult:
+    """All outcomes of a suite, in suite order."""
+
+    name: str
+    planner: str
+    outcomes: tuple[Outcome, ...]
+    coverage: bool = False
+    workers: int = field(default=1, compare=False)
+    backend: str = field(default="process", compare=False)
+    wall_s: float = field(default=0.0, compare=False)
+
+    def failures(self, fail_on: str = "any") -> list[Outcome]:
+        return [o for o in self.outcomes if o.fails(fail_on)]
+
+    def exit_code(self, fail_on: str = "any") -> int:
+        """0 when no outcome fails under the policy, else 1."""
+        return 1 if self.failures(fail_on) else 0
+
+    def counts(self) -> dict[str, int]:
+        return {k: sum(o.outcome == k for o in self.outcomes) for k in OUTCOMES}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "planner": self.planner, "coverage": self.coverage,
+                "workers": self.workers, "backend": self.backend, "wall_s": self.wall_s,
+                "counts": self.counts(), "outcomes": [o.to_dict() for o in self.outcomes]}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], where: str = "summary") -> "SuiteResult":
+        try:
+            outcomes = tuple(Outcome.from_dict(o, f"{where}: outcome {i}") for i, o in enumerate(d["outcomes"]))
+            return cls(name=str(d["name"]), planner=str(d["planner"]), outcomes=outcomes,
+                       coverage=bool(d.get("coverage", False)), workers=int(d.get("workers", 1)),
+                       backend=str(d.get("backend", "process")), wall_s=float(d.get("wall_s", 0.0)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise Feat2MapError(f"malformed suite result ({exc!r})", where) from None
+
+
+# ---- one scenario -------------------------------------------------------------------------------
+def classify(info: Mapping[str, Any]) -> str:
+    """Outcome of a finished episode from its last info (collision > off road > violation >
+    completed > timeout)."""
+    if info.get("collision"):
+        return "collision"
+    if info.get("off_road"):
+        return "off_road"
+    if sum(dict(info.get("violations") or {}).values()) > 0:
+        return "violation"
+    if info.get("route_completed"):
+        return "completed"
+    return "timeout"
+
+
+def _message(kind: str, info: Mapping[str, Any], first_violation: tuple[str, float, Any] | None = None) -> str:
+    where = f"at t={float(info.get('time', 0.0)):.1f} s, route {100 * float(info.get('route_progress', 0.0)):.0f}%"
+    if kind == "violation":
+        v = ", ".join(f"{k} x{n}" for k, n in sorted(dict(info["violations"]).items()) if n)
+        first = "" if first_violation is None else \
+            f"; first: {first_violation[0]} at t={first_violation[1]:.1f} s at junction {first_violation[2]}"
+        return f"traffic rule violation: {v}{first} (episode ended {where})"
+    if kind == "collision":
+        return f"collision near junction {info.get('junction')} ({where})"
+    if kind == "off_road":
+        return f"left the road on lane {info.get('lane_id')} ({where})"
+    if kind == "timeout":
+        return f"route not completed within the duration ({where})"
+    return ""
+
+
+def _env_config(policy: Any) -> dict[str, Any]:
+    config: dict[str, Any] = dict(getattr(policy, "env_config", None) or {})
+    action = getattr(policy, "action_config", None)
+    if action:
+        config["action"] = dict(action)
+    return config
+
+
+def _events(policy: Any) -> tuple[tuple[int, float, str | None, str, str], ...]:
+    out = []
+    for e in getattr(policy, "events", None) or ():
+        out.append((int(e.step), round(float(e.time), 6), None if e.junction is None else str(e.junction),
+                    str(e.scenario), str(e.stage)))
+    return tuple(out)
+
+
+def stage_path_of(events: Sequence[tuple]) -> tuple[str, ...]:
+    """"Scenario.Stage" names in order, consecutive repeats merged."""
+    path: list[str] = []
+    for e in events:
+        name = f"{e[3]}.{e[4]}"
+        if not path or path[-1] != name:
+            path.append(name)
+    return tuple(path)
+
+
+def _module_files(policy: Any, extra: Iterable[str] = ()) -> dict[str, str]:
+    """{source file: module name} of the planner's own module(s) measured for line coverage."""
+    names = [type(policy).__module__, *getattr(policy, "coverage_modules", ()), *extra]
+    files: dict[str, str] = {}
+    for name in dict.fromkeys(names):
+        mod = sys.modules.get(name) or importlib.import_module(name)
+        try:
+            src = inspect.getsourcefile(mod)
+        except TypeError:
+            src = None
+        if src:
+            files[os.path.realpath(src)] = name
+    return files
+
+
+class _LineCoverage:
+    """coverage.py measurement of the planner's modules, with one dynamic context per junction."""
+
+    def __init__(self, files: Mapping[str, str]) -> None:
+        import coverage
+
+        self.files = dict(files)
+        self.cov = coverage.Coverage(data_file=None, config_file=False, branch=False,
+                                     include=list(self.files))
+        self.cov.set_option("run:disable_warnings", ["no-data-collected", "module-not-measured",
+                                                     "already-imported", "couldnt-parse"])
+        self.context: str | None = None
+
+    def start(self) -> None:
+        self.cov.start()
+
+    def switch(self, context: str) -> None:
+        if context != self.context:
+            self.context = context
+            self.cov.switch_context(context)
+
+    def stop(self) -> dict[str, tuple[str, ...]]:
+        self.cov.stop()
+        data = self.cov.get_data()
+        by_ctx: dict[str, set[str]] = {}
+        for fname in data.measured_files():
+            mod = self.files.get(os.path.realpath(fname))
+            if mod is None:
+                continue
+            for line, contexts in data.contexts_by_lineno(fname).items():
+                for ctx in contexts:
+                    if ctx:
+                        by_ctx.setdefault(ctx, set()).add(f"{mod}:{line}")
+        return {c: tuple(sorted(v, key=_line_key)) for c, v in sorted(by_ctx.items())}
+
+
+def _line_key(s: str) -> tuple[str, int]:
+    mod, _, line = s.rpartition(":")
+    return mod, int(line)
+
+
+def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
+           coverage_modules: Sequence[str] = ()) -> tuple[Outcome, list]:
+    """Run one episode; returns its outcome and (when rendering) its frames."""
+    from .scenario import make_env
+
+    t0 = time.perf_counter()
+    policy = factory()
+    env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
+    frames: list = []
+    cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage else None
+    try:
+        seed = getattr(scenario, "seed", None)
+        obs, info = env.reset(seed=None if seed is None else int(seed))
+        net = env.unwrapped.net
+        visited: list[str] = []
+        first_violation: tuple[str, float, Any] | None = None
+        steps = 0
+        if render:
+            frames.append(env.render())
+        if cov:
+            cov.start()
+        try:
+            policy.reset(env)
+            while steps < MAX_STEPS_SAFETY:
+                if cov:
+                    cov.switch(info.get("junction") or cov.context or ROAD_CONTEXT)
+                action = policy.act(obs, info)
+                obs, _, terminated, truncated, info = env.step(action)
+                steps += 1
+                lane = info.get("lane_id")
+                jid = net.hdmap.lanes[lane].junction_id if lane in net.hdmap.lanes else None
+                if jid is not None and (not visited or visited[-1] != jid):
+                    visited.append(jid)
+                if first_violation is None and info.get("new_violations"):
+                    first_violation = (str(info["new_violations"][0]), float(info.get("time", 0.0)),
+                                       jid or (visited[-1] if visited else info.get("junction")))
+                if render:
+                    frames.append(env.render())
+                if terminated or truncated:
+                    break
+        finally:
+            lines = cov.stop() if cov else {}
+    finally:
+        env.close()
+    kind = classify(info)
+    events = _events(policy)
+    path = tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
+    ev_path = stage_path_of(events)
+    outcome = Outcome(
+        name=str(getattr(scenario, "name", "scenario")), outcome=kind,
+        violations={k: int(v) for k, v in sorted(dict(info.get("violations") or {}).items())},
+        sim_s=round(float(info.get("time", 0.0)), 6), steps=steps, stage_path=path,
+        transitions=tuple(zip(ev_path, ev_path[1:])), junctions=tuple(visited),
+        route_progress=round(float(info.get("route_progress", 0.0)), 6), events=events,
+        junction_lines=lines, message=_message(kind, info, first_violation), seed=getattr(scenario, "seed", None),
+        map=str(getattr(scenario, "map", "")), wall_s=time.perf_counter() - t0)
+    return outcome, frames
+
+
+def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
+    """An animated GIF of rgb frames, subsampled and scaled down to stay small."""
+    from PIL import Image
+
+    if not frames:
+        return b""
+    stride = max(1, -(-len(frames) // GIF_MAX_FRAMES))
+    picked = list(frames[::stride])
+    if picked[-1] is not frames[-1]:
+        picked.append(frames[-1])
+    images = []
+    for f in picked:
+        im = Image.fromarray(f)
+        h = max(1, round(im.height * GIF_WIDTH_PX / im.width))
+        images.append(im.resize((GIF_WIDTH_PX, h)).convert("P", palette=Image.ADAPTIVE, colors=128))
+    buf = io.BytesIO()
+    duration = max(20, int(1000 * step_s * stride / GIF_SPEEDUP))
+    images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0)
+    return buf.getvalue()
+
+
+def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_failure_gif: bool = True,
+                 coverage: bool = False, fail_on: str = "any", coverage_modules: Sequence[str] = ()) -> Outcome:
+    """Drive one scenario headless with a fresh planner; on a failure (under `fail_on`) re-run it
+    with rendering and attach a GIF. `coverage` measures the planner's lines per junction."""
+    factory = as_factory(planner_factory)
+    outcome, _ = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules)
+    if record_failure_gif and outcome.fails(fail_on if fail_on != "none" else "any"):
+        replay, frames = _drive(scenario, factory, render=True)
+        policy_hz = _policy_frequency(scenario, replay)
+        outcome = _with(outcome, gif=gif_bytes(frames, 1.0 / policy_hz))
+    return outcome
+
+
+def _policy_frequency(scenario: Any, replay: Outcome) -> float:
+    if replay.steps and replay.sim_s > 0:
+        return replay.steps / replay.sim_s
+    return 1.0
+
+
+def _with(o: Outcome, **changes: Any) -> Outcome:
+    from dataclasses import replace
+
+    return replace(o, **changes)
+
+
+# ---- suites -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Task:
+    index: int
+    scenario: Any
+    factory: Any
+    record_failure_gif: bool
+    coverage: bool
+    fail_on: str
+    coverage_modules: tuple[str, ...]
+
+
+def _run_task(task: _Task) -> tuple[int, Outcome]:
+    import feat2map  # noqa: F401  (registers the env ids in spawned workers)
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    try:
+        out = run_scenario(task.scenario, task.factory, record_failure_gif=task.record_failure_gif,
+                           coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules)
+    except Feat2MapError:
+        raise
+    except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
+        name = str(getattr(task.scenario, "name", f"scenario {task.index}"))
+        out = Outcome(name=name, outcome="error", violations={}, sim_s=0.0, steps=0,
+                      stage_path=(), transitions=(), junctions=(), route_progress=0.0,
+                      message=f"planner or env raised {type(exc).__name__}: {exc}",
+                      seed=getattr(task.scenario, "seed", None), map=str(getattr(task.scenario, "map", "")))
+    return task.index, out
+
+
+def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backend: str = "process",
+              progress: bool = True, coverage: bool = False, record_failure_gif: bool = True,
+              fail_on: str = "any", coverage_modules: Sequence[str] = ()) -> SuiteResult:
+    """Run every scenario of `suite` (a Suite or a sequence of scenarios) and collect the outcomes
+    in suite order. `workers` > 1 uses spawned processes ("process") or Ray ("ray")."""
+    from tqdm import tqdm
+
+    if backend not in BACKENDS:
+        raise Feat2MapError(f"unknown backend (choose {', '.join(BACKENDS)})", f"backend {backend!r}")
+    if fail_on not in FAIL_POLICIES:
+        raise Feat2MapError(f"unknown failure policy (choose {', '.join(FAIL_POLICIES)})", f"fail-on {fail_on!r}")
+    if workers < 1:
+        raise Feat2MapError("must be at least 1", f"workers {workers}")
+    scenarios = list(getattr(suite, "scenarios", suite))
+    factory = as_factory(planner)
+    tasks = [_Task(i, s, factory, record_failure_gif, coverage, fail_on, tuple(coverage_modules))
+             for i, s in enumerate(scenarios)]
+    results: dict[int, Outcome] = {}
+    bar = tqdm(total=len(tasks), desc=f"rollout {getattr(suite, 'name', '')}".strip(), unit="scenario",
+               disable=not progress)
+    t0 = time.perf_counter()
+
+    def done(index: int, out: Outcome) -> None:
+        results[index] = out
+        bar.update(1)
+        bar.set_postfix(failed=sum(o.fails(fail_on) for o in results.values()))
+
+    try:
+        if backend == "ray":
+            _run_ray(tasks, workers, done)
+        elif workers == 1 or len(tasks) <= 1:
+            for t in tasks:
+                done(*_run_task(t))
+        else:
+            with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=get_context("spawn")) as pool:
+                futures = [pool.submit(_run_task, t) for t in tasks]
+                for fut in as_completed(futures):
+                    done(*fut.result())
+    finally:
+        bar.close()
+    return SuiteResult(name=str(getattr(suite, "name", "suite")), planner=getattr(factory, "name", str(planner)),
+                       outcomes=tuple(results[i] for i in range(len(tasks))), coverage=coverage,
+                       workers=workers, backend=backend, wall_s=time.perf_counter() - t0)
+
+
+def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome], None]) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise Feat2MapError("Ray is not installed (pip install 'feat2map[ray]')", "backend 'ray'") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {"SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}})
+    try:
+        remote = ray.remote(num_cpus=1)(_run_task)
+        pending = [remote.remote(t) for t in tasks]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for ref in ready:
+                done(*ray.get(ref))
+    finally:
+        if started:
+            ray.shutdown()
