@@ -22,6 +22,25 @@ from .layout import Placement
 from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
 
 
+Pose = tuple[tuple[float, float], float]  # (point, heading in radians)
+
+
+@dataclass(frozen=True)
+class RoadChain:
+    """Hand-written roads connected end to end (paper Sec. IV-RQ4): piece k runs from pose k
+    to pose k+1, each one cubic Bézier; `closed` links the last piece back to the first."""
+
+    id: str
+    poses: tuple[Pose, ...]  # start pose, then each piece's end pose
+    lanes_forward: int = 1  # lanes along the chain
+    lanes_backward: int = 1  # lanes against it
+    closed: bool = False
+
+    @property
+    def n_pieces(self) -> int:
+        return len(self.poses) - 1
+
+
 @dataclass(frozen=True)
 class SocketGeometry:
     point: tuple[float, float]
@@ -160,9 +179,33 @@ def lane_pairs(p: int, exits: Sequence[tuple[int, int, str]]) -> list[tuple[int,
     return out
 
 
-def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None = None) -> HDMap:
-    """Instantiate every placed junction, its roads, lanes, controls and crosswalks."""
+def chain_road_id(chain: RoadChain, k: int) -> str:
+    return f"{chain.id}_{k}"
+
+
+def _build_chain(b: _Builder, chain: RoadChain) -> None:
+    """One road per piece; forward lanes link piece k -> k+1, backward lanes k+1 -> k (lane i
+    to lane i: the lane count is constant along a chain); a closed chain also links last/first."""
+    roads = []
+    for k in range(chain.n_pieces):
+        (p0, h0), (p1, h1) = chain.poses[k], chain.poses[k + 1]
+        roads.append(b.add_road(chain_road_id(chain, k), "chain", p0, h0, p1, h1,
+                                chain.lanes_forward, chain.lanes_backward, None, None))
+    pairs = list(zip(roads, roads[1:])) + ([(roads[-1], roads[0])] if chain.closed else [])
+    for a, c in pairs:
+        for x, y in zip(a.right_lanes, c.right_lanes):
+            b.link(x, y)
+        for x, y in zip(c.left_lanes, a.left_lanes):
+            b.link(x, y)
+
+
+def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None = None,
+              chains: Sequence[RoadChain] = ()) -> HDMap:
+    """Instantiate every placed junction, its roads, lanes, controls and crosswalks, and the
+    hand-written road chains (which keep their absolute coordinates)."""
     b = _Builder(cfg)
+    for chain in chains:
+        _build_chain(b, chain)
     sockets: list[list[SocketGeometry]] = []
     centers = [tuple(np.array(p.cell, dtype=float) * cfg.grid_gap) for p in placements]
     for j, p in enumerate(placements):

@@ -7,8 +7,8 @@ import numpy as np
 
 from . import __version__
 from .config import GenerationConfig
-from .construct import build_map
-from .features import FeatureSpace, JunctionFeature
+from .construct import RoadChain, build_map
+from .features import FeatureSpace, JunctionFeature, normalize_rotation
 from .layout import Cell, place
 from .model import HDMap
 from .sampling import sample_features
@@ -16,14 +16,24 @@ from .sampling import sample_features
 
 def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
                            config: GenerationConfig = GenerationConfig(),
-                           cells: Sequence[Cell | None] | None = None, meta: dict | None = None) -> HDMap:
+                           cells: Sequence[Cell | None] | None = None, meta: dict | None = None,
+                           chains: Sequence[RoadChain] = (), names: Sequence[str] | None = None,
+                           keep_orientation: Sequence[bool] | None = None) -> HDMap:
     """Lay out and build a map with one junction per feature; each junction realizes the
-    normalized form of its feature (the same shape, rotated and re-indexed)."""
+    normalized form of its feature (the same shape, rotated and re-indexed). `chains` are
+    hand-written roads added as they are (a map may consist of chains only); `names` label
+    the features in layout errors; `keep_orientation` (per feature) prefers, among equally good
+    placements, the quarter turn that shows the junction closest to its given angles."""
     rng = np.random.default_rng([int(seed), 1])
-    placements = place([f.normalized() for f in features], rng, cells)
+    prefer = None
+    if keep_orientation is not None:
+        prefer = [round(-normalize_rotation(f.rotation).rotation_deg / 90.0) % 4 if keep else None
+                  for f, keep in zip(features, keep_orientation)]
+    placements = place([f.normalized() for f in features], rng, cells, names, prefer) \
+        if features or not chains else []
     info = {"generator": f"feat2map {__version__}", "seed": int(seed), "config": config.to_dict()}
     info.update(meta or {})
-    return build_map(placements, config, info)
+    return build_map(placements, config, info, chains)
 
 
 def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = GenerationConfig()) -> HDMap:

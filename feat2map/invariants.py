@@ -13,9 +13,11 @@ from shapely.geometry import Polygon
 from shapely.ops import unary_union
 
 from .config import ENDPOINT_TOLERANCE_M
+from .features import JunctionFeature
 from .model import HDMap
 
 AREA_EPS_M2 = 0.05
+QUARTER_DEG = 90.0
 
 
 def _road_polygons(m: HDMap) -> dict[str, Polygon]:
@@ -99,35 +101,84 @@ def _reach(m: HDMap, start: str, forward: bool = True) -> set[str]:
     return seen
 
 
+def two_way(m: HDMap, lane_ids) -> bool:
+    """Every road (outside junctions) carrying these lanes has lanes in both directions."""
+    roads = {m.lanes[i].road_id for i in lane_ids}
+    return all(m.roads[r].kind == "junction" or (m.roads[r].right_lanes and m.roads[r].left_lanes) for r in roads)
+
+
+def _components(m: HDMap) -> list[list[str]]:
+    """Weakly connected groups of lanes (successor links and lane changes, either way)."""
+    parent = {lid: lid for lid in m.lanes}
+
+    def find(x: str) -> str:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for ln in m.lanes.values():
+        for o in ln.successors + lane_changes(ln):
+            parent[find(o)] = find(ln.id)
+    groups: dict[str, list[str]] = {}
+    for lid in m.lanes:
+        groups.setdefault(find(lid), []).append(lid)
+    return list(groups.values())
+
+
 def connectivity(m: HDMap) -> list[str]:
-    """Entries reach every exit (other than their own stub's); every lane lies on an
-    entry-to-exit route; a map without entries is strongly connected.
+    """Routes exist: every lane lies on an entry-to-exit route; when all roads are two-way,
+    entries also reach every exit (other than their own stub's); a part without entries
+    (a closed road chain) is strongly connected.
 
     With two-way roads and no U-turns, "every lane from every entry" is impossible on a
     tree-shaped layout (a lane heading back towards an entry needs a U-turn to be reached
     from it), so the route-level property above is what full junction connectivity gives.
+    One-way roads legitimately keep some exits from some entries (a one-way street leads away
+    from them), so for them only the per-lane route property holds. Hand-written road chains
+    that touch no junction are separate networks: each is checked on its own, while all
+    junction lanes and the roads linked to them form one network.
     """
+    if not m.lanes:
+        return []
+    junction_part: list[str] = []
+    parts: list[list[str]] = []
+    for comp in _components(m):
+        if any(m.lanes[i].junction_id is not None for i in comp):
+            junction_part += comp
+        else:
+            parts.append(comp)
+    if junction_part:
+        parts.insert(0, junction_part)
     problems = []
-    entries = [ln.id for ln in m.entry_lanes]
-    exits = [ln.id for ln in m.exit_lanes]
+    for part in parts:
+        problems += _part_connectivity(m, part)
+    return problems
+
+
+def _part_connectivity(m: HDMap, part: list[str]) -> list[str]:
+    problems = []
+    entries = [i for i in part if not m.lanes[i].predecessors]
+    exits = [i for i in part if not m.lanes[i].successors]
     if not entries and not exits:
-        first = next(iter(m.lanes))
+        first = part[0]
         fwd, bwd = _reach(m, first), _reach(m, first, forward=False)
-        if len(fwd) != len(m.lanes) or len(bwd) != len(m.lanes):
-            problems.append("map without entries is not strongly connected")
+        if len(fwd) != len(part) or len(bwd) != len(part):
+            problems.append(f"network of lane {first} without entries is not strongly connected")
         return problems
+    strict = two_way(m, part)
     from_entries: set[str] = set()
     for e in entries:
         r = _reach(m, e)
         from_entries |= r
         road = m.lanes[e].road_id
-        for x in exits:
+        for x in exits if strict else ():
             if x not in r and m.lanes[x].road_id != road:
                 problems.append(f"exit lane {x} is not reachable from entry lane {e}")
     to_exits: set[str] = set()
     for x in exits:
         to_exits |= _reach(m, x, forward=False)
-    for lid in m.lanes:
+    for lid in part:
         if lid not in from_entries:
             problems.append(f"lane {lid} is unreachable from every entry")
         if lid not in to_exits:
@@ -152,12 +203,36 @@ def unrealized_features(m: HDMap, angle_tol_deg: float = 0.01) -> list[str]:
             problems.append(f"junction {jid}: measured n/control/crosswalk {(got.n_roads, got.control, got.crosswalk)}"
                             f" != {(want.n_roads, want.control, want.crosswalk)}")
             continue
-        dev = max(abs(a - b) for a, b in zip(got.rotation, want.rotation))
-        if dev > angle_tol_deg:
-            problems.append(f"junction {jid}: socket angles off by {dev:.4f} deg")
-        if [(s.lanes_in, s.lanes_out) for s in got.sockets] != [(s.lanes_in, s.lanes_out) for s in want.sockets]:
-            problems.append(f"junction {jid}: lanes per socket differ")
+        problems += [f"junction {jid}: {p}" for p in feature_mismatch(got, want, angle_tol_deg)]
     return problems
+
+
+def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg: float = 0.01) -> list[str]:
+    """Why two junction features differ ([] when they are the same feature).
+
+    Normalization breaks ties between equally good socket orders (equal largest gaps) by
+    position, so a junction turned by quarter turns may list the same sockets from another
+    start: the features match when some cyclic shift of `got` has `want`'s lanes and its
+    angles up to one common quarter-turn offset."""
+    if (got.n_roads, got.control, got.crosswalk) != (want.n_roads, want.control, want.crosswalk):
+        return [f"measured n/control/crosswalk {(got.n_roads, got.control, got.crosswalk)}"
+                f" != {(want.n_roads, want.control, want.crosswalk)}"]
+    n = want.n_roads
+    best_dev, lanes_ok = math.inf, False
+    for k in range(n):
+        sock = [got.sockets[(i + k) % n] for i in range(n)]
+        offsets = [(g.angle - w.angle) % 360.0 for g, w in zip(sock, want.sockets)]
+        base = QUARTER_DEG * round(offsets[0] / QUARTER_DEG)
+        dev = max(abs((o - base + 180.0) % 360.0 - 180.0) for o in offsets)
+        same_lanes = [(g.lanes_in, g.lanes_out) for g in sock] == [(w.lanes_in, w.lanes_out) for w in want.sockets]
+        if (k == 0 or dev <= angle_tol_deg) and (same_lanes, -dev) > (lanes_ok, -best_dev):
+            best_dev, lanes_ok = dev, same_lanes
+    out = []
+    if best_dev > angle_tol_deg:
+        out.append(f"socket angles off by {best_dev:.4f} deg")
+    if not lanes_ok:
+        out.append("lanes per socket differ")
+    return out
 
 
 def check_map(m: HDMap) -> list[str]:

@@ -71,21 +71,36 @@ def cardinal_assignment(feature: JunctionFeature) -> tuple[int | None, ...]:
     return best[1]
 
 
-def _compatible(a: Socket, b: Socket) -> bool:
+def compatible(a: Socket, b: Socket) -> bool:
+    """Facing sockets can share a road: what leaves one enters the other, lane for lane
+    (`out` k faces `in` k, `in-out` (a, b) faces `in-out` (b, a))."""
     return a.lanes_out == b.lanes_in and a.lanes_in == b.lanes_out
 
 
+def describe_socket(s: Socket) -> str:
+    return f"{s.road_type} ({s.lanes_in} in, {s.lanes_out} out)"
+
+
 def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
-          fixed_cells: Sequence[Cell | None] | None = None) -> list[Placement]:
+          fixed_cells: Sequence[Cell | None] | None = None,
+          names: Sequence[str] | None = None,
+          prefer_turns: Sequence[int | None] | None = None) -> list[Placement]:
     """Place every feature on the grid; returns placements in the order of `features`.
 
     `fixed_cells` optionally pins features to cells (custom specs); pinned ones are placed first.
+    Sockets facing each other across a grid gap must be `compatible` (one-way roads must keep
+    their direction, lane counts must agree): a placement that would face incompatible sockets
+    is not taken, and a pinned junction without a compatible quarter turn is an error.
+    `names` label the features in error messages (default "junction <index>"); among equally
+    good placements, `prefer_turns` (per feature, or None) picks that quarter turn (custom
+    specs use it to keep a junction as it was written) before the seeded random choice.
     Only empty points faced by an open socket can connect, so only those are scored: the
     paper's other empty points all score below them, and the run stays near-linear.
     """
     if not features:
         raise LayoutError("no junction features to place")
     fixed = list(fixed_cells) if fixed_cells is not None else [None] * len(features)
+    label = list(names) if names is not None else [f"junction {j}" for j in range(len(features))]
     assigns = [cardinal_assignment(f) for f in features]
     cells: dict[Cell, int] = {}
     turns: dict[int, int] = {}
@@ -100,17 +115,19 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
         remaining = len(order) - step - 1
         if fixed[j] is not None:
             if fixed[j] in cells:
-                raise LayoutError(f"grid cell {fixed[j]} is pinned twice", f"junction {j}")
+                raise LayoutError(f"grid cell {tuple(fixed[j])} is pinned twice", label[j])
             candidates = [fixed[j]]
         else:
             candidates = sorted(facing) if cells else [(0, 0)]
         best_key = None
         best: list[tuple[Cell, int, list[Link | None]]] = []
+        clash = ""
         for cell in candidates:
             here = facing.get(cell, [])
             for k in range(4):
                 connect: list[Link | None] = [None] * f.n_roads
                 n_connect = n_free = 0
+                bad = ""
                 for s, d0 in enumerate(assigns[j]):
                     if d0 is None:
                         continue
@@ -121,11 +138,17 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
                         n_free += 1
                         continue
                     for o, t in here:
-                        if o == other and links[o][t] is None and connect.count(Link(o, t)) == 0 \
-                                and _compatible(f.sockets[s], features[o].sockets[t]):
+                        if o == other and links[o][t] is None and connect.count(Link(o, t)) == 0:
+                            if not compatible(f.sockets[s], features[o].sockets[t]):
+                                bad = (f"socket {s} {describe_socket(f.sockets[s])} would face {label[o]} socket {t} "
+                                       f"{describe_socket(features[o].sockets[t])}")
+                                break
                             connect[s] = Link(o, t)
                             n_connect += 1
                             break
+                if bad:
+                    clash = clash or bad
+                    continue
                 if cells and n_connect == 0 and fixed[j] is None:
                     continue
                 k_paper = n_connect + n_free
@@ -140,11 +163,19 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
                     best_key, best = key, [(cell, k, connect)]
                 elif key == best_key:
                     best.append((cell, k, connect))
+        if not best and fixed[j] is not None:
+            raise LayoutError(
+                f"no quarter turn at cell {tuple(fixed[j])} makes the sockets facing its neighbours "
+                f"direction-compatible ({clash}; an out socket must face an in socket with as many lanes)",
+                label[j])
         if not best:
             raise LayoutError(
                 "no grid point connects this junction to the network (no matching open socket)",
-                f"junction {j} ({f.n_roads} legs, {f.control})",
+                f"{label[j]} ({f.n_roads} legs, {f.control})",
             )
+        want = prefer_turns[j] if prefer_turns is not None else None
+        if want is not None and any(k == want for _, k, _ in best):
+            best = [c for c in best if c[1] == want]
         cell, k, connect = best[int(rng.integers(len(best)))]
         cells[cell] = j
         turns[j] = k

@@ -1,0 +1,427 @@
+"""Hand-written map specs (paper Sec. IV-RQ4): explicit junctions and road chains.
+
+A spec file (YAML or JSON, schema `feat2map/schemas/spec.schema.json`, guide `docs/specs.md`)
+lists junction features with per-socket road types and lane counts and, optionally, a grid
+cell each, plus chains of roads given pose by pose. `load_spec` validates it (the schema,
+then what a schema cannot say: socket separation, room for the lanes, chains that cross
+themselves or bend tighter than their lanes) and `build_spec` turns it into an `HDMap`,
+optionally on top of features sampled from a feature space (mixed use). Every error names
+the file and the element path, e.g. `mega.yaml: junctions[0].sockets[2].lanes_in: must be >= 0`.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import yaml
+from shapely.geometry import LineString, Polygon
+from shapely.ops import unary_union
+
+from .bezier import Bezier
+from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig
+from .construct import RoadChain, chain_road_id, junction_radius
+from .errors import FeatureError, LayoutError
+from .features import FeatureSpace, JunctionFeature, Socket, socket_lanes
+from .invariants import AREA_EPS_M2, connectivity
+from .layout import Cell
+from .model import HDMap
+
+SPEC_VERSION = 1
+HEADING_TOLERANCE_DEG = 0.01  # a chain is closed when its last pose equals its start within this
+
+
+class SpecError(FeatureError):
+    """A spec that is malformed or cannot be built; `where` is `file: element.path`."""
+
+
+@dataclass(frozen=True)
+class JunctionSpec:
+    """One hand-written junction: its feature (sockets in counter-clockwise order) and cell."""
+
+    feature: JunctionFeature
+    cell: Cell | None = None
+    name: str | None = None
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """A parsed, validated spec; `source` names its file in later error messages."""
+
+    junctions: tuple[JunctionSpec, ...] = ()
+    chains: tuple[RoadChain, ...] = ()
+    config: Mapping[str, Any] | None = None
+    source: str = "spec"
+
+    def generation_config(self, overrides: Mapping[str, Any] | None = None) -> GenerationConfig:
+        """The spec's config with `overrides` (e.g. command-line options) on top."""
+        data = {**(self.config or {}), **(overrides or {})}
+        try:
+            return GenerationConfig.from_dict(data)
+        except ValueError as exc:
+            raise SpecError(str(exc), f"{self.source}: config") from None
+
+    def features(self) -> list[JunctionFeature]:
+        return [j.feature for j in self.junctions]
+
+
+@lru_cache(maxsize=1)
+def spec_schema() -> dict:
+    """The published JSON schema of spec files."""
+    text = resources.files("feat2map").joinpath("schemas/spec.schema.json").read_text(encoding="utf-8")
+    return json.loads(text)
+
+
+# ---------------------------------------------------------------------------------------- parsing
+
+
+def load_spec(path: str | Path) -> MapSpec:
+    """Read and validate a YAML (.yaml/.yml) or JSON spec file."""
+    path = Path(path)
+    name = path.name
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise SpecError(f"cannot read ({exc.strerror})", str(path)) from None
+    except UnicodeDecodeError:
+        raise SpecError("not UTF-8 text", str(path)) from None
+    try:
+        if path.suffix.lower() == ".json":
+            doc = json.loads(text)
+        else:
+            doc = yaml.safe_load(text)
+    except json.JSONDecodeError as exc:
+        raise SpecError(f"not valid JSON (line {exc.lineno}: {exc.msg})", name) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f"line {mark.line + 1}: " if mark is not None else ""
+        raise SpecError(f"not valid YAML ({at}{getattr(exc, 'problem', None) or exc})", name) from None
+    return parse_spec(doc, name)
+
+
+def _path(items: Sequence[Any]) -> str:
+    out = ""
+    for p in items:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out
+
+
+def _where(source: str, items: Sequence[Any]) -> str:
+    return f"{source}: {_path(items)}" if items else source
+
+
+_TYPE_NAMES = {"object": "an object (mapping)", "array": "a list", "number": "a number", "integer": "an integer",
+               "string": "a string", "boolean": "true or false"}
+
+
+def _schema_message(err) -> tuple[list[Any], str]:
+    """A short message for one jsonschema error, and the element path it is about."""
+    path = list(err.absolute_path)
+    v, val, inst = err.validator, err.validator_value, err.instance
+    if v == "minimum":
+        return path, f"must be >= {val}, got {inst!r}"
+    if v == "maximum":
+        return path, f"must be <= {val}, got {inst!r}"
+    if v == "exclusiveMinimum":
+        return path, f"must be > {val}, got {inst!r}"
+    if v == "type":
+        want = [val] if isinstance(val, str) else list(val)
+        return path, f"must be {' or '.join(_TYPE_NAMES.get(t, t) for t in want)}, got {inst!r}"
+    if v == "enum":
+        return path, f"must be one of {', '.join(map(str, val))}, got {inst!r}"
+    if v == "const":
+        return path, f"must be {val!r}, got {inst!r}"
+    if v == "required":
+        missing = [k for k in val if k not in inst]
+        return path, f"missing required field {missing[0]!r}"
+    if v == "additionalProperties":
+        known = set(err.schema.get("properties", {}))
+        extra = sorted(k for k in inst if k not in known)
+        return path + extra[:1], f"unknown field (expected one of {', '.join(sorted(known))})"
+    if v == "minItems":
+        return path, f"needs at least {val} entries, got {len(inst)}"
+    if v == "maxItems":
+        return path, f"takes at most {val} entries, got {len(inst)}"
+    return path, err.message
+
+
+def _validate_schema(doc: Any, source: str) -> None:
+    from jsonschema import Draft202012Validator
+
+    if doc is None:
+        raise SpecError("empty spec", source)
+    validator = Draft202012Validator(spec_schema())
+    errors = list(validator.iter_errors(doc))
+    if not errors:
+        return
+
+    def key(e) -> tuple:
+        return tuple((0, p, "") if isinstance(p, int) else (1, 0, str(p)) for p in e.absolute_path)
+
+    path, message = _schema_message(min(errors, key=key))
+    raise SpecError(message, _where(source, path))
+
+
+def _socket(raw: Any, where: str) -> Socket:
+    if not isinstance(raw, Mapping):
+        return Socket(float(raw), 1, 1)
+    explicit = "lanes_in" in raw or "lanes_out" in raw
+    if explicit and ("type" in raw or "lanes" in raw):
+        raise SpecError("give either type/lanes or lanes_in/lanes_out, not both", where)
+    if explicit:
+        lanes_in, lanes_out = int(raw.get("lanes_in", 0)), int(raw.get("lanes_out", 0))
+        if lanes_in + lanes_out == 0:
+            raise SpecError("a socket needs at least one lane (lanes_in + lanes_out > 0)", where)
+    else:
+        lanes_in, lanes_out = socket_lanes(raw.get("type", "in-out"), int(raw.get("lanes", 1)))
+    return Socket(float(raw["angle"]), lanes_in, lanes_out)
+
+
+def _junction(raw: Mapping[str, Any], where: str, min_sep: float) -> JunctionSpec:
+    """Sockets are sorted counter-clockwise (their listed order needs no unwrapping);
+    duplicates and legs closer than the minimum separation are errors naming the socket."""
+    socks = [(i, _socket(s, f"{where}.sockets[{i}]")) for i, s in enumerate(raw["sockets"])]
+    socks.sort(key=lambda t: t[1].angle % 360.0)
+    n = len(socks)
+    for k in range(n):
+        (i, a), (j, b) = socks[k], socks[(k + 1) % n]
+        gap = (b.angle - a.angle) % 360.0
+        if gap < 1e-9:
+            raise SpecError(f"same direction ({b.angle:g} deg) as sockets[{i}]", f"{where}.sockets[{j}]")
+        if gap < min_sep - 1e-9:
+            raise SpecError(f"{gap:g} deg from sockets[{i}], closer than the minimum separation {min_sep:g} deg "
+                            "(config.min_socket_separation_deg)", f"{where}.sockets[{j}]")
+    if not any(s.lanes_in for _, s in socks) or not any(s.lanes_out for _, s in socks):
+        raise SpecError("needs a socket where traffic enters (in / in-out) and one where it leaves (out / in-out)",
+                        where)
+    first = socks[0][1].angle % 360.0
+    first = first - 360.0 if first >= 180.0 else first
+    angles = [first + (s.angle - socks[0][1].angle) % 360.0 for _, s in socks]
+    sockets = tuple(Socket(a, s.lanes_in, s.lanes_out) for a, (_, s) in zip(angles, socks))
+    try:
+        feature = JunctionFeature(sockets, raw.get("control", "bare"), bool(raw.get("crosswalk", False)), min_sep)
+    except FeatureError as exc:
+        raise SpecError(exc.message, where) from None
+    cell = tuple(int(c) for c in raw["cell"]) if "cell" in raw else None
+    return JunctionSpec(feature, cell, raw.get("name"))  # type: ignore[arg-type]
+
+
+def _chain(raw: Mapping[str, Any], index: int, where: str) -> RoadChain:
+    start = raw["start"]
+    poses = [((float(start["point"][0]), float(start["point"][1])), math.radians(float(start["heading"])))]
+    for k, r in enumerate(raw["roads"]):
+        p = (float(r["end"][0]), float(r["end"][1]))
+        if math.dist(p, poses[-1][0]) < 1.0:
+            raise SpecError("road shorter than 1 m: its end is (almost) the previous road's end", f"{where}.roads[{k}]")
+        poses.append((p, math.radians(float(r["heading"]))))
+    fwd, bwd = int(raw.get("lanes_forward", 1)), int(raw.get("lanes_backward", 1))
+    if fwd + bwd == 0:
+        raise SpecError("a chain needs at least one lane (lanes_forward + lanes_backward > 0)", where)
+    last = len(poses) - 2
+    closes = math.dist(poses[-1][0], poses[0][0]) <= ENDPOINT_TOLERANCE_M
+    if closes:
+        dh = math.degrees((poses[-1][1] - poses[0][1] + math.pi) % (2 * math.pi) - math.pi)
+        if abs(dh) > HEADING_TOLERANCE_DEG:
+            raise SpecError(f"ends at the chain's start but heading {math.degrees(poses[-1][1]):g} deg, not the start "
+                            f"heading {math.degrees(poses[0][1]):g} deg: a closed chain must join smoothly",
+                            f"{where}.roads[{last}]")
+        if len(poses) < 3:
+            raise SpecError("a closed chain needs at least 2 roads", where)
+        poses[-1] = poses[0]
+    return RoadChain(f"C{index}", tuple(poses), fwd, bwd, closes)
+
+
+def parse_spec(doc: Any, source: str = "spec") -> MapSpec:
+    """Validate a spec document (already loaded from YAML/JSON) and build its values."""
+    _validate_schema(doc, source)
+    if not doc.get("junctions") and not doc.get("chains"):
+        raise SpecError("a spec needs at least one junction or chain", source)
+    config = dict(doc.get("config", {}))
+    spec = MapSpec((), (), config, source)
+    cfg = spec.generation_config()
+    junctions = tuple(_junction(j, _where(source, ["junctions", i]), cfg.min_socket_separation_deg)
+                      for i, j in enumerate(doc.get("junctions", [])))
+    seen: dict[Cell, int] = {}
+    for i, j in enumerate(junctions):
+        if j.cell is not None:
+            if j.cell in seen:
+                raise SpecError(f"cell {list(j.cell)} is already taken by junctions[{seen[j.cell]}]",
+                                _where(source, ["junctions", i, "cell"]))
+            seen[j.cell] = i
+    chains = tuple(_chain(c, i, _where(source, ["chains", i])) for i, c in enumerate(doc.get("chains", [])))
+    spec = replace(spec, junctions=junctions, chains=chains)
+    check_buildable(spec, cfg)
+    return spec
+
+
+# ------------------------------------------------------------------------------------- geometry
+
+
+def _second_derivative(b: Bezier, t: np.ndarray) -> np.ndarray:
+    c = b.control
+    t = t[:, None]
+    return 6.0 * ((1 - t) * (c[2] - 2 * c[1] + c[0]) + t * (c[3] - 2 * c[2] + c[1]))
+
+
+def min_turn_radius(b: Bezier, samples: int = 129) -> float:
+    """Smallest radius of curvature along a Bézier (inf for a straight line)."""
+    t = np.linspace(0.0, 1.0, samples)
+    d1, d2 = b.derivative(t), _second_derivative(b, t)
+    cross = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    speed = np.hypot(d1[:, 0], d1[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(cross > 1e-12, speed ** 3 / np.maximum(cross, 1e-300), np.inf)
+    return float(np.min(r))
+
+
+def chain_piece_polygons(chain: RoadChain, cfg: GenerationConfig) -> list[Polygon]:
+    """The pavement of every piece: its reference line widened to the lanes on each side."""
+    w = cfg.lane_width
+    polys = []
+    for k in range(chain.n_pieces):
+        (p0, h0), (p1, h1) = chain.poses[k], chain.poses[k + 1]
+        ref = Bezier.from_poses(p0, h0, p1, h1)
+        pts = ref.sample(cfg.sample_spacing)
+        heads = ref.heading(ref.sample_params(cfg.sample_spacing))
+        nrm = np.stack([-np.sin(heads), np.cos(heads)], axis=1)
+        # the reference is centred between the outer edges (lanes split by the divider offset)
+        half = (chain.lanes_forward + chain.lanes_backward) * w / 2
+        left, right = pts + half * nrm, pts - half * nrm
+        polys.append(Polygon(np.concatenate([left, right[::-1]])).buffer(0))
+    return polys
+
+
+def _check_chain(chain: RoadChain, where: str, cfg: GenerationConfig) -> None:
+    """Pieces must bend no tighter than their lanes are wide and must not cross each other."""
+    half = (chain.lanes_forward + chain.lanes_backward) * cfg.lane_width / 2
+    refs = []
+    for k in range(chain.n_pieces):
+        (p0, h0), (p1, h1) = chain.poses[k], chain.poses[k + 1]
+        ref = Bezier.from_poses(p0, h0, p1, h1)
+        line = LineString(ref.sample(cfg.sample_spacing / 2))
+        if not line.is_simple:
+            raise SpecError("the road crosses itself (its end heading turns it back over its own course)",
+                            f"{where}.roads[{k}]")
+        r = min_turn_radius(ref)
+        if r < half + cfg.lane_width / 2:
+            raise SpecError(f"bends with a {r:.1f} m radius, too tight for lanes reaching {half:.1f} m from its "
+                            f"centre line (needs >= {half + cfg.lane_width / 2:.1f} m)", f"{where}.roads[{k}]")
+        refs.append(line)
+    polys = chain_piece_polygons(chain, cfg)
+    n = chain.n_pieces
+    for a in range(n):
+        for b in range(a + 1, n):
+            adjacent = b == a + 1 or (chain.closed and a == 0 and b == n - 1)
+            if adjacent:
+                if n == 2 and chain.closed:
+                    continue  # two pieces meeting at both ends: checked through their references
+                hit = polys[a].intersection(polys[b]).area > AREA_EPS_M2 * 20
+            else:
+                hit = refs[a].distance(refs[b]) < 2 * half or polys[a].intersection(polys[b]).area > AREA_EPS_M2
+            if hit:
+                raise SpecError(f"crosses or overlaps roads[{a}] of the same chain", f"{where}.roads[{b}]")
+    if n == 2 and chain.closed and refs[0].intersection(refs[1]).geom_type not in ("MultiPoint", "Point"):
+        raise SpecError("the two roads of this closed chain overlap", f"{where}.roads[1]")
+
+
+def check_buildable(spec: MapSpec, cfg: GenerationConfig) -> None:
+    """What the schema cannot check before building: room for every junction's lanes inside
+    half a grid gap, and chains that neither fold nor cross themselves or each other."""
+    room = cfg.grid_gap / 2 - MIN_STUB_LENGTH_M - cfg.junction_margin
+    for i, j in enumerate(spec.junctions):
+        r = junction_radius(j.feature, cfg)
+        if r > room:
+            need = 2 * (r + MIN_STUB_LENGTH_M + cfg.junction_margin)
+            raise SpecError(f"legs too close to fit their lanes: the junction needs a {r:.1f} m radius, a "
+                            f"{cfg.grid_gap:g} m grid leaves {room:.1f} m (raise config.grid_gap to >= {need:.0f}, "
+                            "spread the sockets or drop lanes)", _where(spec.source, ["junctions", i]))
+    polys = []
+    for i, c in enumerate(spec.chains):
+        _check_chain(c, _where(spec.source, ["chains", i]), cfg)
+        polys.append(unary_union(chain_piece_polygons(c, cfg)))
+    for a in range(len(polys)):
+        for b in range(a + 1, len(polys)):
+            if polys[a].intersection(polys[b]).area > AREA_EPS_M2:
+                raise SpecError(f"overlaps chains[{a}]", _where(spec.source, ["chains", b]))
+
+
+# ------------------------------------------------------------------------------------- building
+
+
+def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = None,
+               space: FeatureSpace | None = None) -> HDMap:
+    """The map of a spec: its junctions (listed first, ids J0.. in spec order) plus, when
+    `space` is given, one sampled junction per feature combination of it (Algorithm 1),
+    laid out together on the grid, and its chains. Raises `SpecError` naming the element
+    when the layout or the resulting network is impossible."""
+    from .generate import generate_from_features
+    from .sampling import sample_features
+
+    cfg = config if config is not None else spec.generation_config()
+    if config is not None:
+        check_buildable(spec, cfg)
+    features = spec.features()
+    cells: list[Cell | None] = [j.cell for j in spec.junctions]
+    names = [_where(spec.source, ["junctions", i]) for i in range(len(spec.junctions))]
+    meta: dict[str, Any] = {"spec": spec.source}
+    if space is not None:
+        sampled = sample_features(space, np.random.default_rng([int(seed), 0]), cfg)
+        features += sampled
+        cells += [None] * len(sampled)
+        names += [f"sampled junction {k} (J{len(spec.junctions) + k})" for k in range(len(sampled))]
+        meta["feature_space"] = space.to_dict()
+    try:
+        keep = [True] * len(spec.junctions) + [False] * (len(features) - len(spec.junctions))
+        m = generate_from_features(features, seed, cfg, cells, meta, spec.chains, names, keep)
+    except LayoutError as exc:
+        raise SpecError(exc.message, exc.where if exc.where else spec.source) from None
+    _check_network(m, spec, names, cfg)
+    return m
+
+
+def _element(m: HDMap, lane_id: str, spec: MapSpec, names: Sequence[str]) -> str:
+    """The spec element a lane belongs to: its chain road, or the junction it drives into."""
+    lane = m.lanes[lane_id]
+    road = m.roads[lane.road_id]
+    if road.kind == "chain":
+        for i, c in enumerate(spec.chains):
+            for k in range(c.n_pieces):
+                if chain_road_id(c, k) == road.id:
+                    return _where(spec.source, ["chains", i, "roads", k])
+    jid = lane.junction_id or (road.end_junction if lane_id in road.right_lanes else road.start_junction) \
+        or road.start_junction or road.end_junction
+    if jid is not None and jid.startswith("J") and jid[1:].isdigit() and int(jid[1:]) < len(names):
+        return names[int(jid[1:])]
+    return spec.source
+
+
+def _check_network(m: HDMap, spec: MapSpec, names: Sequence[str], cfg: GenerationConfig) -> None:
+    """Routes must exist: one-way roads must not trap traffic (a dead end) nor leave lanes
+    no entry can reach; chains must not overlap the junction grid."""
+    problems = connectivity(m)
+    if problems:
+        lane = next((w for w in problems[0].split() if w in m.lanes), None)
+        where = _element(m, lane, spec, names) if lane else spec.source
+        what = f" (road {m.lanes[lane].road_id})" if lane else ""
+        raise SpecError(f"one-way roads make routes impossible: {problems[0]}{what}; "
+                        "check the in/out road types around it", where)
+    if not spec.chains or not m.junctions:
+        return
+    from shapely import STRtree
+
+    chain_roads = {chain_road_id(c, k) for c in spec.chains for k in range(c.n_pieces)}
+    others = [(f"junction {j.id}", Polygon(j.polygon)) for j in m.junctions.values()]
+    others += [(f"road {ln.road_id}", Polygon(ln.left_boundary + tuple(reversed(ln.right_boundary))).buffer(0))
+               for ln in m.lanes.values() if ln.junction_id is None and ln.road_id not in chain_roads]
+    tree = STRtree([p for _, p in others])
+    for i, c in enumerate(spec.chains):
+        for k, poly in enumerate(chain_piece_polygons(c, cfg)):
+            for idx in tree.query(poly, predicate="intersects"):
+                if poly.intersection(others[idx][1]).area > AREA_EPS_M2:
+                    raise SpecError(f"overlaps {others[idx][0]} of the junction grid (move the chain)",
+                                    _where(spec.source, ["chains", i, "roads", k]))
