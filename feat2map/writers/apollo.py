@@ -1,0 +1,480 @@
+"""Apollo 7-9 export: base_map, sim_map and routing_map from the map model.
+
+`to_apollo` turns an `HDMap` into an `apollo.hdmap.Map` message (absolute UTM coordinates,
+every lane CITY_DRIVING with curves, lengths, widths, links, boundary types; roads with one
+section; junctions, signals, stop signs, crosswalks; overlaps listed on both sides).
+`to_sim_map` downsamples it as Apollo's `sim_map_generator` does, and `write_apollo` writes
+the six files Apollo loads from `modules/map/data/<name>/`, all or nothing.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import shapely
+from shapely import STRtree
+from shapely.geometry import LineString, Polygon
+
+from .. import __version__, atomic
+from .. import apollo_schema as aps
+from ..config import (APOLLO_SAMPLE_WINDOW_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APOLLO_STOP_LINE_OVERLAP_M,
+                      SIM_MAP_ANGLE_THRESHOLD_RAD, SIM_MAP_DOWNSAMPLE_DISTANCE_M,
+                      SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M, UTM_ORIGIN, UTM_ZONE)
+from ..errors import Feat2MapError
+from ..model import HDMap, Lane, Polyline
+
+FILES = ("base_map", "sim_map", "routing_map")
+BOUNDARY_TYPE = {
+    "solid_white": aps.LaneBoundaryType.SOLID_WHITE, "dotted_white": aps.LaneBoundaryType.DOTTED_WHITE,
+    "solid_yellow": aps.LaneBoundaryType.SOLID_YELLOW, "dotted_yellow": aps.LaneBoundaryType.DOTTED_YELLOW,
+    "curb": aps.LaneBoundaryType.CURB, "virtual": aps.LaneBoundaryType.UNKNOWN,
+}
+TURN = {"none": aps.Lane.NO_TURN, "left": aps.Lane.LEFT_TURN, "right": aps.Lane.RIGHT_TURN,
+        "uturn": aps.Lane.U_TURN}
+
+
+def utm_projection(zone: int) -> str:
+    """The header projection string Apollo expects (PROJ.4, WGS84 UTM, northern hemisphere)."""
+    return f"+proj=utm +zone={zone} +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+
+
+# --- geometry on the model (local metres) --------------------------------------------------
+
+def arc_lengths(points: np.ndarray) -> np.ndarray:
+    """Cumulative length along a polyline, starting at 0."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+
+
+def distance_samples(centerline: Polyline, edge: Polyline, window: float = APOLLO_SAMPLE_WINDOW_M
+                     ) -> list[tuple[float, float]]:
+    """(s, local distance from the centreline point at s to `edge`) at every centreline vertex.
+
+    Only the part of `edge` within `window` metres of the same relative position counts, so a
+    curve that bends back near itself (a hairpin) does not pinch the measured width.
+    """
+    pts = np.asarray(centerline, dtype=float)
+    e = np.asarray(edge, dtype=float)
+    s = arc_lengths(pts)
+    se = arc_lengths(e)
+    a, b = e[:-1], e[1:]
+    ab = b - a
+    ap = pts[:, None, :] - a[None, :, :]
+    t = np.clip(np.einsum("nmk,mk->nm", ap, ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-18), 0.0, 1.0)
+    d = np.hypot(*(ap - t[..., None] * ab[None]).transpose(2, 0, 1))
+    here = s / max(s[-1], 1e-12) * se[-1]  # the same relative position on the edge
+    near = (se[None, 1:] >= here[:, None] - window) & (se[None, :-1] <= here[:, None] + window)
+    d = np.where(near, d, np.inf).min(axis=1)
+    return list(zip(s.tolist(), d.tolist()))
+
+
+def stop_line_range(centerline: Polyline, stop_line: Polyline, half: float = APOLLO_STOP_LINE_OVERLAP_M
+                    ) -> tuple[float, float]:
+    """s range on a lane around where the stop line meets its centreline, clamped to the lane."""
+    line = LineString(centerline)
+    a = shapely.get_coordinates(shapely.shortest_line(line, LineString(stop_line)))[0]
+    s = line.project(shapely.Point(a))
+    return max(0.0, s - half), min(line.length, s + half)
+
+
+def polygon_range(centerline: Polyline, polygon: Polyline) -> tuple[float, float] | None:
+    """s range of the centreline covered by `polygon`, or None when they do not meet."""
+    line = LineString(centerline)
+    inter = line.intersection(Polygon(polygon))
+    if inter.is_empty or inter.length <= 0.0:
+        return None
+    ss = [line.project(shapely.Point(c)) for c in shapely.get_coordinates(inter)]
+    return min(ss), max(ss)
+
+
+def road_edges(m: HDMap, lane: Lane) -> tuple[Polyline, Polyline]:
+    """(left, right) edge of the carriageway around `lane`, each in the lane's direction.
+
+    Left: across same-direction left neighbours, then the reverse lanes beyond the divider to
+    the outermost one's right boundary; right: the outermost right neighbour's right boundary.
+    """
+    def walk(lid: str, attr: str) -> Lane:
+        seen = {lid}
+        cur = m.lanes[lid]
+        while (nxt := [n for n in getattr(cur, attr) if n in m.lanes and n not in seen]):
+            seen.add(nxt[0])
+            cur = m.lanes[nxt[0]]
+        return cur
+
+    right = walk(lane.id, "right_neighbors").right_boundary
+    leftmost = walk(lane.id, "left_neighbors")
+    reverse = [n for n in leftmost.left_reverse_neighbors if n in m.lanes]
+    if reverse:
+        left = tuple(reversed(walk(reverse[0], "right_neighbors").right_boundary))
+    else:
+        left = leftmost.left_boundary
+    return left, right
+
+
+# --- Apollo messages ----------------------------------------------------------------------
+
+class _Ids:
+    """Apollo ids unique across every element kind: model ids where free, else kind-prefixed."""
+
+    def __init__(self) -> None:
+        self.used: set[str] = set()
+        self.of: dict[tuple[str, str], str] = {}
+
+    def claim(self, kind: str, model_id: str | None, wanted: str) -> str:
+        out = wanted
+        if out in self.used or not out:
+            out = f"{kind}_{wanted}"
+            k = 1
+            while out in self.used:
+                out = f"{kind}_{wanted}_{k}"
+                k += 1
+        self.used.add(out)
+        if model_id is not None:
+            self.of[(kind, model_id)] = out
+        return out
+
+
+class _Frame:
+    """Local model metres -> absolute UTM metres."""
+
+    def __init__(self, origin: tuple[float, float]) -> None:
+        self.ox, self.oy = float(origin[0]), float(origin[1])
+
+    def fill_points(self, field: Any, points: Iterable[Sequence[float]], z: float | None = None) -> None:
+        for p in points:
+            q = field.add()
+            q.x = p[0] + self.ox
+            q.y = p[1] + self.oy
+            if z is not None:
+                q.z = z
+
+    def fill_curve(self, curve: Any, points: Polyline) -> float:
+        """One line segment with s, start position, heading and length; returns the length."""
+        pts = np.asarray(points, dtype=float)
+        length = float(arc_lengths(pts)[-1])
+        seg = curve.segment.add()
+        self.fill_points(seg.line_segment.point, pts)
+        seg.s = 0.0
+        seg.start_position.x = pts[0, 0] + self.ox
+        seg.start_position.y = pts[0, 1] + self.oy
+        seg.heading = math.atan2(pts[1, 1] - pts[0, 1], pts[1, 0] - pts[0, 0])
+        seg.length = length
+        return length
+
+
+def _add_stop_line(msg: Any, frame: _Frame, line: Polyline) -> None:
+    """`stop_line` is repeated in Apollo's schema; tolerate a singular field too."""
+    field = msg.stop_line
+    curve = field.add() if hasattr(field, "add") else field
+    frame.fill_curve(curve, line)
+
+
+def _signal_boundary(position: tuple[float, float], heading: float) -> list[tuple[float, float, float]]:
+    """The light head's face: a vertical rectangle at the pole, facing `heading`."""
+    w, h = APOLLO_SIGNAL_HEAD_SIZE_M
+    nx, ny = -math.sin(heading) * w / 2, math.cos(heading) * w / 2
+    x, y = position
+    z0, z1 = APOLLO_SIGNAL_HEIGHT_M - h / 2, APOLLO_SIGNAL_HEIGHT_M + h / 2
+    return [(x - nx, y - ny, z1), (x + nx, y + ny, z1), (x + nx, y + ny, z0), (x - nx, y - ny, z0)]
+
+
+def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | None = None) -> Any:
+    """The Apollo `Map` of `m`. `origin` is the UTM position of the model's (0, 0); by default
+    `m.origin` when set, else `config.UTM_ORIGIN`."""
+    if not isinstance(zone, int) or isinstance(zone, bool) or not 1 <= zone <= 60:
+        raise Feat2MapError(f"UTM zone must be an integer 1..60, got {zone!r}", "apollo export")
+    if origin is None:
+        origin = tuple(m.origin) if any(m.origin) else UTM_ORIGIN
+    if len(origin) != 2 or not all(math.isfinite(float(v)) for v in origin):
+        raise Feat2MapError(f"origin must be two finite numbers, got {origin!r}", "apollo export")
+    for ln in m.lanes.values():
+        for name in ("centerline", "left_boundary", "right_boundary"):
+            pts = getattr(ln, name)
+            if len(pts) < 2 or arc_lengths(np.asarray(pts, dtype=float))[-1] <= 0.0:
+                raise Feat2MapError(f"{name} needs 2 or more distinct points", f"lane {ln.id}")
+    frame = _Frame(origin)
+    ids = _Ids()
+    out = aps.Map()
+    _header(out.header, m, zone)
+
+    for ln in m.lanes.values():
+        ids.claim("lane", ln.id, ln.id)
+    for r in m.roads.values():
+        ids.claim("road", r.id, r.id)
+    for j in m.junctions.values():
+        ids.claim("junction", j.id, j.id)
+    for s in m.signals.values():
+        ids.claim("signal", s.id, s.id)
+    for s in m.stop_signs.values():
+        ids.claim("stop_sign", s.id, s.id)
+    for c in m.crosswalks.values():
+        ids.claim("crosswalk", c.id, c.id)
+    lid = {k: ids.of[("lane", k)] for k in m.lanes}
+
+    lanes: dict[str, Any] = {}
+    for ln in m.lanes.values():
+        lanes[ln.id] = _lane(out.lane.add(), m, ln, frame, lid, ids)
+    for r in m.roads.values():
+        road = out.road.add()
+        road.id.id = ids.of[("road", r.id)]
+        road.type = aps.Road.CITY_ROAD
+        jid = r.junction_id or next((m.lanes[x].junction_id for x in r.lane_ids if x in m.lanes
+                                     and m.lanes[x].junction_id), None)
+        if jid in m.junctions:
+            road.junction_id.id = ids.of[("junction", jid)]
+        sec = road.section.add()
+        sec.id.id = ids.claim("section", None, f"{road.id.id}_section")
+        for x in r.lane_ids:
+            if x in m.lanes:
+                sec.lane_id.add(id=lid[x])
+        _section_boundary(sec, m, r, frame)
+    junctions: dict[str, Any] = {}
+    for j in m.junctions.values():
+        msg = junctions[j.id] = out.junction.add()
+        msg.id.id = ids.of[("junction", j.id)]
+        frame.fill_points(msg.polygon.point, j.polygon)
+
+    overlaps = _Overlaps(out, ids)
+    for s in m.signals.values():
+        msg = out.signal.add()
+        msg.id.id = ids.of[("signal", s.id)]
+        msg.type = aps.Signal.MIX_3_VERTICAL
+        for x, y, z in _signal_boundary(s.position, s.heading):
+            p = msg.boundary.point.add()
+            p.x, p.y, p.z = x + frame.ox, y + frame.oy, z
+        _, h = APOLLO_SIGNAL_HEAD_SIZE_M
+        for k, dz in enumerate((h / 3, 0.0, -h / 3)):  # red, yellow, green from the top
+            sub = msg.subsignal.add()
+            sub.id.id = str(k)
+            sub.type = aps.Subsignal.CIRCLE
+            sub.location.x, sub.location.y = s.position[0] + frame.ox, s.position[1] + frame.oy
+            sub.location.z = APOLLO_SIGNAL_HEIGHT_M + dz
+        _add_stop_line(msg, frame, s.stop_line)
+        for x in s.lane_ids:
+            if x in m.lanes:
+                rng = stop_line_range(m.lanes[x].centerline, s.stop_line)
+                overlaps.add(lanes[x], "lane_overlap_info", rng, msg, "signal_overlap_info")
+        if s.junction_id in junctions:
+            overlaps.add(junctions[s.junction_id], "junction_overlap_info", None, msg, "signal_overlap_info")
+    for s in m.stop_signs.values():
+        msg = out.stop_sign.add()
+        msg.id.id = ids.of[("stop_sign", s.id)]
+        msg.type = aps.StopSign.ALL_WAY
+        _add_stop_line(msg, frame, s.stop_line)
+        for x in s.lane_ids:
+            if x in m.lanes:
+                rng = stop_line_range(m.lanes[x].centerline, s.stop_line)
+                overlaps.add(lanes[x], "lane_overlap_info", rng, msg, "stop_sign_overlap_info")
+        if s.junction_id in junctions:
+            overlaps.add(junctions[s.junction_id], "junction_overlap_info", None, msg, "stop_sign_overlap_info")
+    for ln in m.lanes.values():
+        if ln.junction_id in junctions:
+            overlaps.add(lanes[ln.id], "lane_overlap_info", (0.0, lanes[ln.id].length),
+                         junctions[ln.junction_id], "junction_overlap_info")
+    if m.crosswalks:
+        lane_list = list(m.lanes.values())
+        tree = STRtree([LineString(ln.centerline) for ln in lane_list])
+        for c in m.crosswalks.values():
+            msg = out.crosswalk.add()
+            msg.id.id = ids.of[("crosswalk", c.id)]
+            frame.fill_points(msg.polygon.point, c.polygon)
+            for k in sorted(tree.query(Polygon(c.polygon), predicate="intersects")):
+                ln = lane_list[k]
+                rng = polygon_range(ln.centerline, c.polygon)
+                if rng is not None:
+                    overlaps.add(lanes[ln.id], "lane_overlap_info", rng, msg, "crosswalk_overlap_info")
+    return out
+
+
+def _header(h: Any, m: HDMap, zone: int) -> None:
+    h.version = f"feat2map {__version__}".encode()
+    h.date = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime()).encode()
+    h.projection.proj = utm_projection(zone)
+    h.district = b"feat2map"
+    h.vendor = b"feat2map"
+    h.rev_major = b"1"
+    h.rev_minor = b"0"
+
+
+def _lane(msg: Any, m: HDMap, ln: Lane, frame: _Frame, lid: dict[str, str], ids: _Ids) -> Any:
+    msg.id.id = lid[ln.id]
+    msg.type = aps.Lane.CITY_DRIVING
+    msg.direction = aps.Lane.FORWARD
+    msg.turn = TURN.get(ln.turn, aps.Lane.NO_TURN)
+    msg.speed_limit = float(ln.speed_limit)
+    msg.length = frame.fill_curve(msg.central_curve, ln.centerline)
+    for side, pts, kind in (("left", ln.left_boundary, ln.left_boundary_type),
+                            ("right", ln.right_boundary, ln.right_boundary_type)):
+        b = getattr(msg, f"{side}_boundary")
+        b.length = frame.fill_curve(b.curve, pts)
+        b.virtual = kind == "virtual"
+        bt = b.boundary_type.add()
+        bt.s = 0.0
+        bt.types.append(BOUNDARY_TYPE.get(kind, aps.LaneBoundaryType.UNKNOWN))
+    for field, refs in (("predecessor_id", ln.predecessors), ("successor_id", ln.successors),
+                        ("left_neighbor_forward_lane_id", ln.left_neighbors),
+                        ("right_neighbor_forward_lane_id", ln.right_neighbors),
+                        ("left_neighbor_reverse_lane_id", ln.left_reverse_neighbors)):
+        for x in refs:
+            if x in lid:
+                getattr(msg, field).add(id=lid[x])
+    if ln.junction_id in m.junctions:
+        msg.junction_id.id = ids.of[("junction", ln.junction_id)]
+    for field, edge in (("left_sample", ln.left_boundary), ("right_sample", ln.right_boundary)):
+        _samples(getattr(msg, field), ln.centerline, edge, msg.length)
+    left, right = road_edges(m, ln)
+    _samples(msg.left_road_sample, ln.centerline, left, msg.length)
+    _samples(msg.right_road_sample, ln.centerline, right, msg.length)
+    return msg
+
+
+def _samples(field: Any, centerline: Polyline, edge: Polyline, length: float) -> None:
+    for s, w in distance_samples(centerline, edge):
+        field.add(s=min(s, length), width=w)
+
+
+def _section_boundary(sec: Any, m: HDMap, r: Any, frame: _Frame) -> None:
+    """Outer polygon of a section: its left and right edges along the road's first lane."""
+    first = next((m.lanes[x] for x in r.lane_ids if x in m.lanes), None)
+    if first is None:
+        return
+    left, right = road_edges(m, first)
+    for kind, pts in ((aps.BoundaryEdge.LEFT_BOUNDARY, left), (aps.BoundaryEdge.RIGHT_BOUNDARY, right)):
+        edge = sec.boundary.outer_polygon.edge.add()
+        edge.type = kind
+        frame.fill_curve(edge.curve, pts)
+
+
+class _Overlaps:
+    """Overlap messages with two objects, each object listing the overlap's id."""
+
+    def __init__(self, out: Any, ids: _Ids) -> None:
+        self.out, self.ids = out, ids
+
+    def add(self, a: Any, a_info: str, a_range: tuple[float, float] | None, b: Any, b_info: str) -> None:
+        ov = self.out.overlap.add()
+        ov.id.id = self.ids.claim("overlap", None, f"overlap_{b.id.id}_{a.id.id}")
+        for obj, info, rng in ((a, a_info, a_range), (b, b_info, None)):
+            o = ov.object.add()
+            o.id.id = obj.id.id
+            getattr(o, info).SetInParent()
+            if rng is not None:
+                getattr(o, info).start_s, getattr(o, info).end_s = float(rng[0]), float(rng[1])
+            obj.overlap_id.add(id=ov.id.id)
+
+
+# --- sim_map (Apollo's modules/map/tools/sim_map_generator) ------------------------------------
+
+def downsample_by_angle(points: np.ndarray, threshold: float = SIM_MAP_ANGLE_THRESHOLD_RAD) -> list[int]:
+    """Indices kept when the direction change accumulated since the last kept point exceeds
+    `threshold` (Apollo's DownsampleByAngle: segment `start` against each later segment)."""
+    n = len(points)
+    if n == 0:
+        return []
+    out = [0]
+    if n > 1:
+        seg = np.diff(points, axis=0)
+        start, end, acc = 0, 1, 0.0
+        while end < n - 1:
+            a, b = seg[start], seg[end]
+            denom = math.hypot(*a) * math.hypot(*b)
+            cosv = float(a @ b) / denom if denom > 0 else float("nan")
+            angle = math.acos(cosv) if -1.0 <= cosv <= 1.0 else 0.0
+            acc += abs(angle)
+            if acc > threshold:
+                out.append(end)
+                start, acc = end, 0.0
+            end += 1
+        out.append(end)
+    return out
+
+
+def downsample_by_distance(points: np.ndarray, distance: float = SIM_MAP_DOWNSAMPLE_DISTANCE_M,
+                           steep_distance: float = SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M) -> list[int]:
+    """Indices kept every `distance` metres (`steep_distance` when the curve turns by 90 degrees
+    or more end to end); first and last always; 4 points or fewer are kept whole."""
+    n = len(points)
+    if n <= 4:
+        return list(range(n))
+    v0, v1 = points[1] - points[0], points[-1] - points[-2]
+    step = steep_distance if float(v0 @ v1) <= 0 else distance
+    out, acc = [0], 0.0
+    for pos in range(1, n - 1):
+        acc += math.dist(points[pos - 1], points[pos])
+        if acc > step:
+            out.append(pos)
+            acc = 0.0
+    out.append(n - 1)
+    return out
+
+
+def _downsample_curve(curve: Any) -> None:
+    if not curve.segment:
+        return
+    pts_field = curve.segment[0].line_segment.point
+    pts = [(p.x, p.y, p.z) for p in pts_field]
+    xy = np.asarray([(p[0], p[1]) for p in pts], dtype=float).reshape(-1, 2)
+    by_angle = downsample_by_angle(xy)
+    first = [pts[i] for i in by_angle]
+    keep = downsample_by_distance(xy[by_angle])
+    del pts_field[:]
+    for i in keep:
+        x, y, z = first[i]
+        p = pts_field.add()
+        p.x, p.y = x, y
+        if z:
+            p.z = z
+
+
+def to_sim_map(base: Any) -> Any:
+    """Apollo's sim_map: lane width and road samples cleared, segment 0 of each lane's three
+    curves downsampled by angle (1 degree) then distance (5 m, 1 m on steep turns)."""
+    sim = aps.Map()
+    sim.CopyFrom(base)
+    for lane in sim.lane:
+        for field in ("left_sample", "right_sample", "left_road_sample", "right_road_sample"):
+            lane.ClearField(field)
+        _downsample_curve(lane.central_curve)
+        _downsample_curve(lane.left_boundary.curve)
+        _downsample_curve(lane.right_boundary.curve)
+    return sim
+
+
+# --- files --------------------------------------------------------------------------------
+
+def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
+                 origin: tuple[float, float] | None = None) -> None:
+    """Write base_map, sim_map and routing_map (.txt and .bin each) into `out_dir`, all or nothing."""
+    from ..apollo_routing import build_routing_graph
+
+    base = to_apollo(m, zone=zone, origin=origin)
+    messages = {"base_map": base, "sim_map": to_sim_map(base), "routing_map": build_routing_graph(base)}
+    with atomic.staged_dir(out_dir) as tmp:
+        for name, msg in messages.items():
+            atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
+            atomic.write_text(tmp / f"{name}.txt", aps.to_text(msg))
+
+
+def add_export_apollo_command(subparsers: Any) -> None:
+    """Register `feat2map export apollo MAP --out DIR [--zone N --origin X Y]`."""
+    p = subparsers.add_parser("apollo", help="export a map for Apollo 7-9 (base_map, sim_map, routing_map)")
+    p.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
+    p.add_argument("--out", required=True, help="output directory (copy it to Apollo's modules/map/data/<name>/)")
+    p.add_argument("--zone", type=int, default=UTM_ZONE, help=f"UTM zone of the header projection ({UTM_ZONE})")
+    p.add_argument("--origin", type=float, nargs=2, metavar=("X", "Y"),
+                   help="UTM easting/northing of the map's (0, 0) (default: the map's origin, else "
+                        f"{UTM_ORIGIN[0]:.0f} {UTM_ORIGIN[1]:.0f})")
+    p.set_defaults(func=_cmd_export_apollo)
+
+
+def _cmd_export_apollo(args: argparse.Namespace) -> int:
+    from ..readers import read_map
+
+    m = read_map(args.map)
+    write_apollo(m, args.out, zone=args.zone, origin=tuple(args.origin) if args.origin else None)
+    print(f"wrote {args.out}: {', '.join(f'{n}.txt/.bin' for n in FILES)} "
+          f"({len(m.lanes)} lanes, {len(m.junctions)} junctions)")
+    return 0
