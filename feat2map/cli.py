@@ -79,6 +79,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
             from .writers.opendrive import write_opendrive
 
             write_opendrive(m, tmp / "map.xodr")
+        if not args.no_apollo:  # OUT/apollo/ is what a user copies to Apollo's modules/map/data/<name>/
+            from .writers.apollo import write_apollo
+
+            write_apollo(m, Path(args.out) / "apollo")
         stages.update(1)
     stages.close()
     print(f"wrote {args.out}: {len(m.junctions)} junctions, {len(m.roads)} roads, {len(m.lanes)} lanes, "
@@ -114,6 +118,16 @@ def cmd_extract(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_validate(args: argparse.Namespace) -> int:
+    from .apollo_validate import validate_apollo
+
+    problems = validate_apollo(args.path)
+    for p in problems:
+        print(p)
+    print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}")
+    return 1 if problems else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="feat2map", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -129,6 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--lane-width", type=float)
     g.add_argument("--crosswalk-width", type=float)
     g.add_argument("--opendrive", action="store_true", help="also export OUT/map.xodr")
+    g.add_argument("--no-apollo", action="store_true", help="skip the Apollo export (OUT/apollo/)")
     g.add_argument("--no-picture", action="store_true")
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(func=cmd_generate)
@@ -145,6 +160,13 @@ def build_parser() -> argparse.ArgumentParser:
     from .writers.opendrive import add_export_opendrive_command
 
     add_export_opendrive_command(exsub)
+    from .writers.apollo import add_export_apollo_command
+
+    add_export_apollo_command(exsub)
+
+    v = sub.add_parser("validate", help="check an Apollo map folder (or one map file) for what Apollo needs")
+    v.add_argument("path", help="folder with base_map, sim_map, routing_map (.bin/.txt), or one map file")
+    v.set_defaults(func=cmd_validate)
 
     from .cli_scenarios import add_scenario_commands
 
