@@ -1,0 +1,163 @@
+"""Every benchmark table in one command, saved as docs/benchmarks.md.
+
+Runs, one after another (never in parallel: the tables are wall-clock ratios measured on a
+shared machine):
+  1. generation time vs junction count        (benchmarks/bench_generate.py)
+  2. extraction time for each real map          (benchmarks/bench_extract.py, when present)
+  3. env steps/s vs highway-env intersection-v1 (benchmarks/bench_env.py)
+  4. rollout throughput: scenarios per minute per core with the baseline planner, plain and
+     with line coverage measured (this file; baseline = the plain run in the same process)
+
+Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/run_all.py [--only NAME ...] [--no-save]
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+DOC = ROOT / "docs" / "benchmarks.md"
+ROLLOUT_SCENARIOS = 12  # scenarios per throughput run: enough for a stable rate, ~1 min per run
+
+
+@dataclass(frozen=True)
+class Table:
+    """One benchmark's printed table (or the reason it was not run)."""
+
+    name: str
+    title: str
+    command: str
+    text: str
+    seconds: float
+    ok: bool
+
+
+def run_script(name: str, title: str, script: str, *args: str) -> Table:
+    """Run a benchmark script in a fresh interpreter and capture its table."""
+    path = HERE / script
+    cmd = f".venv/bin/python benchmarks/{script} {' '.join(args)}".strip()
+    if not path.is_file():
+        return Table(name, title, cmd, f"(not run: {script} is not in benchmarks/ yet)", 0.0, False)
+    env = {**os.environ, "SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}
+    t = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(path), *args], cwd=ROOT, env=env, capture_output=True, text=True)
+    text = proc.stdout.rstrip()
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-1:] or ["(no message)"]
+        text = f"{text}\n(failed with exit code {proc.returncode}: {tail[0]})".strip()
+    return Table(name, title, cmd, text, time.perf_counter() - t, proc.returncode == 0)
+
+
+def _rollout_suite(workdir: Path, n: int):
+    """A suite of `n` route-coverage scenarios on the paper's M1 (SF feature space, seed 1)."""
+    import feat2map
+    from feat2map import mapio
+    from feat2map.scenarios.routes import build_suite
+
+    path = workdir / "m1.json"
+    mapio.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1), path)
+    suite = build_suite(path)
+    scenarios = list(getattr(suite, "scenarios", suite))
+    return scenarios[:n], len(scenarios)
+
+
+def rollout_throughput(n: int = ROLLOUT_SCENARIOS) -> Table:
+    """Scenarios per minute on one core (workers=1), without and with line coverage."""
+    title = "Rollout throughput (baseline planner, M1, one core)"
+    cmd = ".venv/bin/python benchmarks/run_all.py --only rollout"
+    try:
+        from feat2map.scenarios.rollout import run_suite
+        from feat2map.scenarios import routes  # noqa: F401
+    except ImportError as exc:
+        return Table("rollout", title, cmd, f"(not run: scenario machinery missing: {exc})", 0.0, False)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        scenarios, total = _rollout_suite(Path(tmp), n)
+        rows = []
+        for label, cov in (("plain", False), ("line coverage", True)):
+            t = time.perf_counter()
+            res = run_suite(scenarios, "baseline", workers=1, progress=False, coverage=cov, record_failure_gif=False)
+            wall = time.perf_counter() - t
+            sim = sum(o.sim_s for o in res.outcomes)
+            done = sum(o.outcome == "completed" for o in res.outcomes)
+            rows.append((label, len(scenarios), done, sim, wall))
+    base = rows[0][1] / rows[0][4]
+    lines = [f"suite: first {len(scenarios)} of {total} route-coverage scenarios of M1 (seed 1)",
+             f"{'mode':<14} {'scenarios':>9} {'completed':>9} {'sim s':>8} {'wall s':>7} "
+             f"{'scen/min/core':>13} {'sim x real':>10} {'vs plain':>8}"]
+    for label, k, done, sim, wall in rows:
+        rate = k / wall
+        lines.append(f"{label:<14} {k:>9d} {done:>9d} {sim:>8.1f} {wall:>7.1f} {60 * rate:>13.1f} "
+                     f"{sim / wall:>10.1f} {rate / base:>8.2f}")
+    return Table("rollout", title, cmd, "\n".join(lines), time.perf_counter() - t0, True)
+
+
+BENCHMARKS: dict[str, Callable[[], Table]] = {
+    "generate": lambda: run_script("generate", "Generation time vs junction count", "bench_generate.py"),
+    "extract": lambda: run_script("extract", "Extraction time for each real map", "bench_extract.py"),
+    "env": lambda: run_script("env", "Env steps/s vs highway-env intersection-v1", "bench_env.py"),
+    "rollout": rollout_throughput,
+}
+
+
+def machine() -> str:
+    """One line describing where the numbers were measured."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (f"{cpu}, {os.cpu_count()} cores visible (shared with other jobs), Python {platform.python_version()}, "
+            f"{platform.system()} {platform.release()}")
+
+
+def markdown(tables: list[Table], when: str) -> str:
+    """docs/benchmarks.md: every table as a code block with the command that made it."""
+    out = ["# Benchmarks", "",
+           f"Latest run: {when}, `.venv/bin/python benchmarks/run_all.py`.", f"Machine: {machine()}.", "",
+           "Speed is reported as ratios against a baseline measured in the same process (timings on a "
+           "shared 2-core machine move by 10-30% between runs; the ratios are what to compare).", ""]
+    for t in tables:
+        out += [f"## {t.title}", "", f"`{t.command}` ({t.seconds:.0f} s)", "", "```", t.text, "```", ""]
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="+", choices=sorted(BENCHMARKS), help="run only these benchmarks")
+    ap.add_argument("--no-save", action="store_true",
+                    help=f"do not write {DOC.relative_to(ROOT)} (never written by an --only run)")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    names = args.only or list(BENCHMARKS)
+    tables = []
+    for name in names:
+        print(f"== {name} ...", file=sys.stderr, flush=True)
+        t = BENCHMARKS[name]()
+        tables.append(t)
+        print(f"\n## {t.title}\n{t.text}\n", flush=True)
+    if not args.no_save and not args.only:
+        from feat2map import atomic
+
+        when = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        atomic.write_text(DOC, markdown(tables, when))
+        print(f"wrote {DOC.relative_to(ROOT)}", file=sys.stderr)
+    return 0 if all(t.ok for t in tables) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

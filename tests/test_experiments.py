@@ -1,0 +1,120 @@
+"""examples/experiments.py: the RQ1 and RQ4 code paths on tiny inputs, bad input, real maps."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+import feat2map
+from feat2map import mapio
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def exp():
+    spec = importlib.util.spec_from_file_location("experiments", ROOT / "examples" / "experiments.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["experiments"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def tiny_input(tmp_path_factory) -> Path:
+    """A four-junction map standing in for San Francisco: 3- and 4-leg signal and stop
+    junctions, all with crosswalks, with rotations that differ so the ranges are intervals."""
+    J = feat2map.JunctionFeature.make
+    m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", True), J([0, 90, 180], "stop", True),
+                                     J([10, 100, 175, 265], "stop", True), J([-20, 70, 200], "signal", True)], seed=0)
+    path = tmp_path_factory.mktemp("input") / "tiny.json"
+    mapio.save(m, path)
+    return path
+
+
+def _is_png(p: Path) -> bool:
+    return p.is_file() and p.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_rq1_extracts_generates_and_draws(exp, tiny_input, tmp_path):
+    s = exp.Settings(out=tmp_path / "out", docs=tmp_path / "docs", inputs={"san_francisco": tiny_input},
+                     seeds=(1, 2, 3), progress=False)
+    r = exp.rq1(s)
+    space = r["feature_space"]
+    assert sorted(space["road_counts"]) == [3, 4]
+    assert sorted(space["controls"]) == ["signal", "stop"]
+    sf = r["stats"]["San Francisco"]
+    assert (sf["junctions"], sf["signal"], sf["stop"], sf["bare"], sf["crosswalk_junctions"]) == (4, 2, 2, 0, 4)
+    # one junction per combination of {3, 4} x {signal, stop} x {crosswalk}: 4 per map
+    maps = {k: mapio.load(p) for k, p in r["maps"].items()}
+    assert list(maps) == ["M1", "M2", "M3"]
+    for name, m in maps.items():
+        feats = sorted((j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in m.junctions.values())
+        assert feats == [(3, "signal", True), (3, "stop", True), (4, "signal", True), (4, "stop", True)], name
+        assert r["stats"][name]["junctions"] == 4
+    rot = [tuple(j.feature.rotation) for m in maps.values() for j in m.junctions.values()]
+    assert len(set(rot)) > 4, "three seeds should sample different rotations"
+    for pic in ("rq1_sf.png", "rq1_maps.png", "rq1_m1.png", "rq1_m1_junctions.png"):
+        assert _is_png(tmp_path / "out" / "rq1" / pic), pic
+        assert _is_png(tmp_path / "docs" / pic), pic
+        assert (tmp_path / "docs" / pic).stat().st_size < exp.MAX_DOC_PICTURE_BYTES
+    table = (tmp_path / "docs" / "rq1.md").read_text()
+    assert "| M1 | 1 | 4 (8) |" in table
+    saved = json.loads((tmp_path / "out" / "rq1" / "rq1.json").read_text())
+    assert saved["stats"]["M2"]["junctions"] == 4
+
+
+def test_rq4_builds_draws_and_drives_custom_maps(exp, tmp_path):
+    pytest.importorskip("feat2map.spec", reason="custom specs (issue 6) not landed")
+    pytest.importorskip("feat2map.scenarios.planner", reason="baseline planner (issue 8) not landed")
+    s = exp.Settings(out=tmp_path / "out", docs=tmp_path / "docs", max_scenarios=1, progress=False)
+    r = exp.rq4(s)
+    mega = r["maps"]["mega junction"]["junction_features"]
+    assert any(f["n"] == 5 and f["control"] == "signal" and f["crosswalk"] for f in mega)
+    one_way = r["maps"]["one-way roads"]["junction_features"]
+    assert any({"in", "out"} <= set(f["road_types"]) for f in one_way)
+    assert _is_png(tmp_path / "docs" / "rq4_custom.png")
+    runs = r["measured"]["maps"]
+    assert [x["map"] for x in runs] == list(exp.CUSTOM_SPECS)
+    for x in runs:
+        if x["map"] == "road circle":  # no junction, so no junction manoeuvre to route through
+            assert x["junctions"] == 0 and x["routes"] == 0 and "no junction" in x["subset"]
+        else:
+            assert x["driven"] == 1 and x["routes"] >= 1 and x["lines"] > 0, x["map"]
+            assert x["stage_paths"], x["map"]
+
+
+def test_missing_real_maps_exit_2_naming_them(exp, tmp_path, capsys):
+    code = exp.main(["--rq", "3", "--maps", str(tmp_path / "nowhere"), "--out", str(tmp_path / "out"), "--no-docs"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and "san_francisco/base_map.bin" in err and "gomentum" in err and "shalun" in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("argv", [["--rq", "7"], ["--rq", "x"], ["--budget", "-1"], ["--input", "nowhere=a.bin"]])
+def test_bad_arguments_exit_2(exp, argv, tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        code = exp.main(argv + ["--out", str(tmp_path / "o"), "--no-docs", "--maps", str(tmp_path)])
+        raise SystemExit(code)
+    assert e.value.code == 2
+    assert "error" in capsys.readouterr().err
+
+
+@pytest.mark.real_maps
+def test_rq1_on_real_san_francisco(exp, tmp_path):
+    sf = SHARED_MAPS / "apollo" / "san_francisco" / "base_map.bin"
+    if not sf.is_file():
+        pytest.skip(f"real maps absent: {sf}")
+    pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader (issue 3) not landed")
+    r = exp.rq1(exp.Settings(out=tmp_path / "out", docs=None, maps=SHARED_MAPS, progress=False))
+    st = r["stats"]["San Francisco"]
+    assert st["junctions"] == 91 and st["lanes"] == 1524  # the paper's counts
+    assert st["stop"] == 3 and st["bare"] == 0
+    assert sorted(r["feature_space"]["controls"]) == ["signal", "stop"]
+    assert all(r["stats"][k]["junctions"] == 8 for k in ("M1", "M2", "M3"))  # paper: 8 junctions each
