@@ -104,6 +104,8 @@ class MapEnv(AbstractEnv):
             "traffic_vehicles": 8, "traffic_respawn": True, "traffic_initial_speed": 5.0,
             "signal_green": 12.0, "signal_amber": 3.0, "signal_all_red": 2.0,  # [s]
             "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
+            "right_turn_on_red": False,  # a right turn past a red signal after a full stop is legal
+            "signal_offsets": {},  # {junction or signal id: phase plan offset [s]}; others drawn from np_random
             "pedestrian_rate": 3.0,  # per crosswalk per minute
             "pedestrian_speed": 1.4, "pedestrians_per_crosswalk": 3,
             "observe_traffic_control": False,
@@ -240,12 +242,13 @@ class MapEnv(AbstractEnv):
         lid = net.id_of.get(ego.lane_index)
         prev = self._ego_lane
         sl = net.stop_lines.get(lid)
-        if sl is not None and sl.kind == "stop" and ego.speed <= STOPPED_SPEED_MPS \
-                and 0 <= sl.s - ego.lane_s <= STOP_ZONE_M:
+        if sl is not None and (sl.kind == "stop" or self.config["right_turn_on_red"]) \
+                and ego.speed <= STOPPED_SPEED_MPS and 0 <= sl.s - ego.lane_s <= STOP_ZONE_M:
             self._stopped.add(lid)
         if lid != prev and prev is not None and lid in m.lanes and m.lanes[lid].junction_id is not None:
             psl = net.stop_lines.get(prev)
-            if psl is not None and psl.kind == "signal" and self.control.signal_state(psl.control_id) == "red":
+            if psl is not None and psl.kind == "signal" and self.control.signal_state(psl.control_id) == "red" \
+                    and not (self.config["right_turn_on_red"] and prev in self._stopped and self._turn_after(prev) == "right"):
                 self._violate("red_light")
             if psl is not None and psl.kind == "stop" and prev not in self._stopped:
                 self._violate("stop_sign")
@@ -264,6 +267,12 @@ class MapEnv(AbstractEnv):
         lane = net.get_lane(ego.lane_index)
         self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + 1.5 or \
             ego.lane_s > lane.length + 3.0 and not m.lanes[lid].successors
+
+    def _turn_after(self, lane_id: str) -> str | None:
+        """The turn of the ego's route lane after `lane_id` (None when not on the route)."""
+        route = self.vehicle.lane_route
+        k = route.index(lane_id) + 1 if lane_id in route else len(route)
+        return self.net.hdmap.lanes[route[k]].turn if k < len(route) else None
 
     def _violate(self, kind: str) -> None:
         self.violations[kind] += 1

@@ -67,25 +67,51 @@ class PhasePlan:
         return 0.0
 
 
-def group_phases(signals, paired: bool) -> tuple[tuple[str, ...], ...]:
-    """Phases of one junction's signals: opposite approaches (facing within 30 degrees of
-    opposite directions) share a phase when `paired`."""
+def group_phases(signals, paired: bool, travel: dict[str, float] | None = None) -> tuple[tuple[str, ...], ...]:
+    """Phases of one junction's signals. Signals of one approach (traffic travelling within 30
+    degrees of the same direction: real maps have a head per lane) always share a phase; when
+    `paired`, opposite approaches share one too. `travel` gives each signal's direction of travel
+    (from the lanes it governs); without it, the direction is opposite the way the signal faces."""
     sigs = sorted(signals, key=lambda g: g.id)
-    if not paired:
-        return tuple((g.id,) for g in sigs)
-    phases, used = [], set()
+    travel = travel or {}
+    heading = {g.id: travel.get(g.id, g.heading + math.pi) for g in sigs}
+
+    def apart(a: float, b: float) -> float:  # angle between two directions, 0..pi
+        return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+
+    approaches: list[list[str]] = []
     for g in sigs:
-        if g.id in used:
+        same = next((a for a in approaches if apart(heading[a[0]], heading[g.id]) < math.radians(30)), None)
+        if same is None:
+            approaches.append([g.id])
+        else:
+            same.append(g.id)
+    if not paired:
+        return tuple(tuple(a) for a in approaches)
+    phases, used = [], set()
+    for i, a in enumerate(approaches):
+        if i in used:
             continue
-        group = [g.id]
-        used.add(g.id)
-        for h in sigs:
-            d = abs((h.heading - g.heading) % (2 * math.pi) - math.pi)
-            if h.id not in used and d < math.radians(30) and len(group) < 2:
-                group.append(h.id)
-                used.add(h.id)
+        used.add(i)
+        group = list(a)
+        for j, b in enumerate(approaches):
+            if j not in used and apart(heading[a[0]], heading[b[0]]) > math.radians(150):
+                group += b
+                used.add(j)
+                break
         phases.append(tuple(group))
     return tuple(phases)
+
+
+def travel_headings(hdmap, signals) -> dict[str, float]:
+    """Direction of travel (map frame) at the end of the first lane each signal governs."""
+    out = {}
+    for g in signals:
+        lane = next((hdmap.lanes[l] for l in g.lane_ids if l in hdmap.lanes), None)
+        if lane is not None and len(lane.centerline) >= 2:
+            (x0, y0), (x1, y1) = lane.centerline[-2][:2], lane.centerline[-1][:2]
+            out[g.id] = math.atan2(y1 - y0, x1 - x0)
+    return out
 
 
 class Pedestrian(RoadObject):
@@ -255,8 +281,13 @@ class TrafficControl:
         self.signals_by_junction = {j: sorted(x.id for x in sigs) for j, sigs in by_j.items()}
         g, a, r = cfg["signal_green"], cfg["signal_amber"], cfg["signal_all_red"]
         for jid in sorted(by_j, key=str):
-            phases = group_phases(by_j[jid], cfg["signal_phases"] == "paired")
-            plan = PhasePlan(phases, g, a, r, float(rng.uniform(0, len(phases) * (g + a + r))))
+            phases = group_phases(by_j[jid], cfg["signal_phases"] == "paired", travel_headings(m, by_j[jid]))
+            offset = float(rng.uniform(0, len(phases) * (g + a + r)))
+            fixed = cfg.get("signal_offsets") or {}  # by junction id, or by any of its signal ids
+            key = next((k for k in [jid, *sorted(x.id for x in by_j[jid])] if k is not None and str(k) in fixed), None)
+            if key is not None:
+                offset = float(fixed[str(key)])
+            plan = PhasePlan(phases, g, a, r, offset)
             for phase in phases:
                 for sid in phase:
                     self.plans[sid] = plan

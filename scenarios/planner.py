@@ -1,0 +1,339 @@
+"""The baseline planner under test: a state machine of scenarios and stages like Apollo's
+planning, driving a MapEnv's ego through the env's action interface, and the `Policy`
+protocol any planner (a callable, an SB3 model) plugs into.
+
+Scenarios and their stages (the paper's Section V abbreviations):
+
+| scenario | selected when | stages |
+|---|---|---|
+| LANE_FOLLOW | no junction within SELECT_DISTANCE_M | LF |
+| STOP_SIGN_UNPROTECTED | next stop line is a stop sign | S_PS pre-stop -> S_S stop -> S_C creep -> S_I intersection cruise |
+| TRAFFIC_LIGHT_PROTECTED | signal; straight, right on green, or a protected left | T_A approach -> T_C intersection cruise |
+| TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN | signal; left/U-turn whose conflicts share our phase | L_A approach -> (L_C creep ->) L_I intersection cruise |
+| TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN | signal red at selection; right turn (right on red) | R_S stop -> R_C creep -> R_I intersection cruise |
+| BARE_INTERSECTION_UNPROTECTED | junction without signal or stop sign | B_A approach -> B_I intersection cruise |
+
+Every scenario ends back in LF when the ego leaves the junction. Longitudinal control is IDM
+towards the lane speed limit, behind leaders (`leader_gaps`) and before the stop point the
+rules impose (`rule_stop_distance`: signals, stop-sign arrival order, pedestrians,
+conflicting junction traffic); stages add full stops, creeping and speed caps. Steering
+follows the route (the env's lane keeping under a longitudinal-only ContinuousAction).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar, Iterable, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..envs.driver import DRIVER_ACTION_CONFIG
+from ..envs.traffic import PRIORITY_HORIZON_S, STOP_ZONE_M, STOPPED_SPEED_MPS, idm
+
+SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
+CREEP_TRIGGER_M = 12.0  # an unprotected left creeps when held by traffic this close to the line
+CREEP_SPEED_MPS = 2.0
+CREEP_GAIN = 1.5  # [1/s] speed error -> acceleration while creeping or capping speed
+STOP_DURATION_S = 1.0  # full stop held at stop signs and before a right turn on red
+BARE_APPROACH_M = 20.0  # bare junctions are approached at the junction speed limit from here
+HOLD_BRAKE_MPS2 = -3.0
+RULES = ("signal", "stop", "pedestrian", "conflict")
+
+LANE_FOLLOW = "LANE_FOLLOW"
+STOP_SIGN = "STOP_SIGN_UNPROTECTED"
+TL_PROTECTED = "TRAFFIC_LIGHT_PROTECTED"
+TL_LEFT = "TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN"
+TL_RIGHT = "TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN"
+BARE = "BARE_INTERSECTION_UNPROTECTED"
+SCENARIO_STAGES: dict[str, tuple[str, ...]] = {
+    LANE_FOLLOW: ("LF",),
+    STOP_SIGN: ("S_PS", "S_S", "S_C", "S_I"),
+    TL_PROTECTED: ("T_A", "T_C"),
+    TL_LEFT: ("L_A", "L_C", "L_I"),
+    TL_RIGHT: ("R_S", "R_C", "R_I"),
+    BARE: ("B_A", "B_I"),
+}
+CRUISE_STAGE = {STOP_SIGN: "S_I", TL_PROTECTED: "T_C", TL_LEFT: "L_I", TL_RIGHT: "R_I", BARE: "B_I"}
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """Anything that drives an env: reset once per episode, then one action per step."""
+
+    def reset(self, env: Any) -> None: ...
+
+    def act(self, obs: Any, info: dict) -> Any: ...
+
+
+@dataclass(frozen=True)
+class StageEvent:
+    """A scenario selection or stage transition of the planner at env step `step`."""
+
+    step: int
+    time: float
+    junction: str | None
+    scenario: str
+    stage: str
+
+
+class BaselinePlanner:
+    """Apollo-like rule-based planner (see module docstring); implements `Policy`.
+
+    `ignore` breaks chosen rules on purpose ("signal", "stop", "pedestrian", "conflict"),
+    e.g. `BaselinePlanner(ignore={"signal"})` runs red lights: the deliberately broken planner.
+    """
+
+    action_config: ClassVar[dict] = dict(DRIVER_ACTION_CONFIG)
+
+    def __init__(self, ignore: Iterable[str] = ()) -> None:
+        self.ignore = frozenset(ignore)
+        unknown = self.ignore - set(RULES)
+        if unknown:
+            raise ValueError(f"unknown rule(s) to ignore: {sorted(unknown)}; expected a subset of {RULES}")
+        self.env: Any = None
+        self.events: list[StageEvent] = []
+        self.scenario = LANE_FOLLOW
+        self.stage = "LF"
+
+    # ---- Policy --------------------------------------------------------------------------
+    def reset(self, env: Any) -> None:
+        self.env = env.unwrapped
+        self.events = []
+        self.scenario, self.stage = LANE_FOLLOW, "LF"
+        self.junction: str | None = None
+        self.j_lane: str | None = None
+        self.in_lane: str | None = None
+        self.stage_since = 0.0
+        self._steps = 0
+        self._log()
+
+    def act(self, obs: Any, info: dict) -> np.ndarray:
+        if self.env is None:
+            raise RuntimeError("BaselinePlanner.act before reset(env)")
+        self._update_stage()
+        a = self._acceleration()
+        self._steps += 1
+        lo, hi = self.env.action_type.acceleration_range
+        a = float(np.clip(a, lo, hi))
+        return np.array([2 * (a - lo) / (hi - lo) - 1], dtype=np.float32)
+
+    def stage_path(self) -> tuple[str, ...]:
+        """Stages in the order visited, e.g. ("LF", "S_PS", "S_S", "S_C", "S_I", "LF")."""
+        return tuple(e.stage for e in self.events)
+
+    def scenario_path(self) -> tuple[str, ...]:
+        """Scenarios in the order selected (consecutive repeats merged)."""
+        out: list[str] = []
+        for e in self.events:
+            if not out or out[-1] != e.scenario:
+                out.append(e.scenario)
+        return tuple(out)
+
+    # ---- state machine -------------------------------------------------------------------
+    def _log(self) -> None:
+        env = self.env
+        self.events.append(StageEvent(self._steps, float(env.time), self.junction, self.scenario, self.stage))
+
+    def _go(self, stage: str, scenario: str | None = None) -> None:
+        self.scenario = scenario or self.scenario
+        self.stage = stage
+        self.stage_since = float(self.env.time)
+        if scenario == LANE_FOLLOW:
+            self.junction = self.j_lane = self.in_lane = None
+        self._log()
+
+    def _update_stage(self) -> None:
+        for _ in range(4):  # a few transitions may chain within one decision
+            before = self.stage
+            self._transition()
+            if self.stage == before:
+                return
+
+    def _transition(self) -> None:
+        env = self.env
+        ego, m = env.vehicle, env.net.hdmap
+        here = env.net.id_of.get(ego.lane_index)
+        in_junction = here in m.lanes and m.lanes[here].junction_id is not None
+        if self.stage == "LF":
+            in_lane, j_lane, d = ego.next_junction_lane()
+            if j_lane is not None and not in_junction and d <= SELECT_DISTANCE_M:
+                self._select(in_lane, j_lane)
+            return
+        passed = self.j_lane in ego.lane_route[:ego.route_pos]
+        if self.stage == CRUISE_STAGE.get(self.scenario):
+            if passed and not in_junction:
+                self._go("LF", LANE_FOLLOW)
+            return
+        if (in_junction and m.lanes[here].junction_id == self.junction) or passed or \
+                ego.lane_route[ego.route_pos] == self.j_lane:
+            self._go(CRUISE_STAGE[self.scenario])
+            return
+        d = self._line_distance()
+        t_stage = float(env.time) - self.stage_since
+        stopped = ego.speed <= STOPPED_SPEED_MPS
+        if self.stage == "S_PS" and stopped and self._in_stop_zone():
+            self._go("S_S")
+        elif self.stage == "S_S" and t_stage >= STOP_DURATION_S and self._line_free():
+            self._go("S_C")
+        elif self.stage == "L_A" and d <= CREEP_TRIGGER_M and self._held_by_traffic():
+            self._go("L_C")
+        elif self.stage == "R_S" and ((stopped and self._in_stop_zone() and t_stage >= STOP_DURATION_S)
+                                      or self._signal_state() != "red"):
+            self._go("R_C")
+
+    def _select(self, in_lane: str, j_lane: str) -> None:
+        env = self.env
+        m, net = env.net.hdmap, env.net
+        self.in_lane, self.j_lane = in_lane, j_lane
+        self.junction = m.lanes[j_lane].junction_id
+        sl = net.stop_lines.get(in_lane)
+        turn = m.lanes[j_lane].turn
+        if sl is None:
+            self._go("B_A", BARE)
+        elif sl.kind == "stop":
+            self._go("S_PS", STOP_SIGN)
+        elif turn in ("left", "uturn") and self._unprotected(in_lane, j_lane):
+            self._go("L_A", TL_LEFT)
+        elif turn == "right" and self._signal_state() == "red" and self._right_on_red():
+            self._go("R_S", TL_RIGHT)
+        else:
+            self._go("T_A", TL_PROTECTED)
+
+    # ---- perception helpers -----------------------------------------------------------------
+    def _line_distance(self) -> float:
+        """Metres from the ego centre to the start of the selected junction lane."""
+        ego = self.env.vehicle
+        for k, lid, d, _ in ego.upcoming(1e9):
+            if lid == self.j_lane:
+                return d
+        return 0.0
+
+    def _in_stop_zone(self) -> bool:
+        env = self.env
+        ego = env.vehicle
+        sl = env.net.stop_lines.get(self.in_lane)
+        if sl is None or env.net.id_of.get(ego.lane_index) != self.in_lane:
+            return False
+        return 0.0 <= sl.s - ego.lane_s <= STOP_ZONE_M
+
+    def _signal_state(self) -> str | None:
+        sl = self.env.net.stop_lines.get(self.in_lane)
+        return self.env.control.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+
+    def _right_on_red(self) -> bool:
+        return bool(self.env.config.get("right_turn_on_red", False))
+
+    def _unprotected(self, in_lane: str, j_lane: str) -> bool:
+        """A turn is unprotected when a conflicting movement can have green with ours."""
+        env = self.env
+        net, control = env.net, env.control
+        sl = net.stop_lines[in_lane]
+        plan = control.plans.get(sl.control_id)
+        if plan is None:
+            return True
+        phase = plan.phases[plan.phase_of(sl.control_id)]
+        for c in net.conflicts.get(j_lane, ()):
+            for p in net.hdmap.lanes[c].predecessors:
+                other = net.stop_lines.get(p)
+                if other is None or other.kind != "signal" or other.control_id in phase:
+                    return True
+        return False
+
+    def _rule_ignore(self) -> frozenset[str]:
+        if self.stage == "R_C" and self._right_on_red():
+            return self.ignore | {"signal"}
+        return self.ignore
+
+    def _line_free(self) -> bool:
+        """The rules let the ego past the stop line now (probe, without reserving)."""
+        stop = self.env.rule_stop_distance(self._rule_ignore(), commit=False)
+        return stop > self._line_distance() + 0.5
+
+    def _held_by_traffic(self) -> bool:
+        """Conflicting traffic, not the signal or a pedestrian, holds the ego at the line."""
+        env = self.env
+        stop = env.rule_stop_distance(self.ignore, commit=False)
+        if stop == math.inf:
+            return False
+        return env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > stop + 0.5
+
+    def _cross_traffic_near(self) -> bool:
+        """Vehicles about to enter a lane conflicting with ours (whatever their priority): a
+        right turn on red yields to every approach that has green."""
+        env = self.env
+        net, control = env.net, env.control
+        for c in net.conflicts.get(self.j_lane, ()):
+            if control.occupied(c, env.vehicle):
+                return True
+            for p in net.hdmap.lanes[c].predecessors:
+                lane = net.lane_of.get(p)
+                for v in control.buckets.get(p, ()):
+                    if v is env.vehicle or not hasattr(v, "lane_route"):
+                        continue
+                    k = v.route_pos + 1
+                    if k < len(v.lane_route) and v.lane_route[k] == c:
+                        dist = lane.length - lane.local_coordinates(v.position)[0]
+                        if dist < PRIORITY_HORIZON_S * max(v.speed, 0.0) + 5.0:
+                            return True
+        return False
+
+    # ---- control ---------------------------------------------------------------------------
+    def _acceleration(self) -> float:
+        env = self.env
+        ego = env.vehicle
+        stage = self.stage
+        if stage == "R_C" and self._right_on_red() and self._signal_state() == "red" and self._cross_traffic_near():
+            stop = self._line_distance() - 1.0
+        else:
+            stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
+        a = idm(ego, env.leader_gaps(), stop)
+        v = max(ego.speed, 0.0)
+        if stage in ("S_S", "R_S") and (stage == "S_S" or self._in_stop_zone()):
+            return min(a, HOLD_BRAKE_MPS2) if v > 0 else min(a, 0.0)
+        if stage in ("S_C", "L_C", "R_C"):
+            return min(a, CREEP_GAIN * (CREEP_SPEED_MPS - v))
+        if stage == "B_A" and self._line_distance() <= BARE_APPROACH_M:
+            v_j = env.net.lane_of[self.j_lane].speed_limit
+            return min(a, CREEP_GAIN * (v_j - v))
+        return a
+
+
+class CallablePolicy:
+    """A Policy from a plain function obs -> action."""
+
+    def __init__(self, fn: Callable[[Any], Any]) -> None:
+        self.fn = fn
+
+    def reset(self, env: Any) -> None:
+        return None
+
+    def act(self, obs: Any, info: dict) -> Any:
+        return self.fn(obs)
+
+
+class ModelPolicy:
+    """A Policy from a Stable-Baselines3-style model: `model.predict(obs, deterministic=True)`."""
+
+    def __init__(self, model: Any, deterministic: bool = True) -> None:
+        self.model = model
+        self.deterministic = deterministic
+
+    def reset(self, env: Any) -> None:
+        return None
+
+    def act(self, obs: Any, info: dict) -> Any:
+        action, _ = self.model.predict(obs, deterministic=self.deterministic)
+        return action
+
+
+def as_policy(obj: Any) -> Policy:
+    """A Policy from a Policy (returned as is), an SB3-style model (`.predict`), or a callable
+    obs -> action; anything else is a TypeError."""
+    if hasattr(obj, "act") and hasattr(obj, "reset"):
+        return obj
+    if hasattr(obj, "predict"):
+        return ModelPolicy(obj)
+    if callable(obj):
+        return CallablePolicy(obj)
+    raise TypeError(f"cannot use {type(obj).__name__} as a policy: expected a Policy, a model with "
+                    f".predict, or a callable obs -> action")

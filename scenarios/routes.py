@@ -1,0 +1,167 @@
+"""Route coverage: every (junction, entry road, exit road) manoeuvre a map allows, few routes
+that together drive each of them at least once, and suites of those routes.
+
+A route is a tuple of manoeuvres in driving order, the format of `Scenario.route` and of the
+env's `route` config: it starts on a lane of the first entry road and ends on a lane of the
+last exit road, and consecutive manoeuvres are joined by road lanes only (no junction between
+them that the route does not name).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from ..model import HDMap, Lane
+from .scenario import Manoeuvre, Scenario, Suite
+
+DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
+SECONDS_PER_JUNCTION = 25.0  # scenario duration budget per junction on the route
+BASE_DURATION_S = 20.0
+
+Route = tuple[Manoeuvre, ...]
+
+
+def manoeuvres(m: HDMap) -> list[Manoeuvre]:
+    """Every (junction id, entry road id, exit road id) some junction lane of `m` drives, in
+    junction order, then entry and exit road order."""
+    out: dict[Manoeuvre, None] = {}
+    for jid in m.junctions:
+        found = set()
+        for ln in m.lanes_by_junction.get(jid, []):
+            found.update(_lane_manoeuvres(m, ln))
+        for mv in sorted(found):
+            out[mv] = None
+    return list(out)
+
+
+def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:
+    entries = {m.lanes[p].road_id for p in ln.predecessors if p in m.lanes and m.lanes[p].junction_id is None}
+    exits = {m.lanes[s].road_id for s in ln.successors if s in m.lanes and m.lanes[s].junction_id is None}
+    return {(str(ln.junction_id), e, x) for e in entries for x in exits}
+
+
+def pick_lane(m: HDMap, mv: Manoeuvre) -> Lane | None:
+    """The junction lane the env drives for a manoeuvre (as `envs.map_env.manoeuvres_to_lanes`:
+    the smallest id among the junction's lanes from the entry road to the exit road)."""
+    jid, entry, exit_ = mv
+    cands = [ln for ln in m.lanes_by_junction.get(jid, [])
+             if any(m.lanes[p].road_id == entry for p in ln.predecessors if p in m.lanes)
+             and any(m.lanes[s].road_id == exit_ for s in ln.successors if s in m.lanes)]
+    return min(cands, key=lambda ln: ln.id) if cands else None
+
+
+def successor_graph(m: HDMap, moves: Sequence[Manoeuvre] | None = None) -> dict[Manoeuvre, list[Manoeuvre]]:
+    """Manoeuvre -> manoeuvres that can follow it directly: from the env's lane for the first,
+    road lanes only (successor links, no junction lane) lead to a predecessor of the env's lane
+    for the second."""
+    moves = list(moves if moves is not None else manoeuvres(m))
+    picks = {mv: pick_lane(m, mv) for mv in moves}
+    by_pred: dict[str, list[Manoeuvre]] = {}
+    for mv, ln in picks.items():
+        if ln is None:
+            continue
+        for p in ln.predecessors:
+            if p in m.lanes and m.lanes[p].road_id == mv[1]:
+                by_pred.setdefault(p, []).append(mv)
+    graph: dict[Manoeuvre, list[Manoeuvre]] = {}
+    for mv, ln in picks.items():
+        nxt: dict[Manoeuvre, None] = {}
+        if ln is not None:
+            stack = [s for s in ln.successors if s in m.lanes and m.lanes[s].junction_id is None]
+            seen = set(stack)
+            while stack:
+                lid = stack.pop()
+                for follower in by_pred.get(lid, ()):
+                    if follower[0] != mv[0]:
+                        nxt[follower] = None
+                for s in m.lanes[lid].successors:
+                    if s in m.lanes and m.lanes[s].junction_id is None and s not in seen:
+                        seen.add(s)
+                        stack.append(s)
+        graph[mv] = sorted(nxt)
+    return graph
+
+
+def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
+                    moves: Iterable[Manoeuvre] | None = None) -> list[Route]:
+    """Few routes that together cover every manoeuvre of `m` (or of `moves`) at least once.
+
+    How: greedy set cover over the manoeuvre graph (`successor_graph`, built from the lane
+    graph). While a manoeuvre is uncovered, take the first uncovered one (map order) as the
+    anchor, search exhaustively backwards and forwards from it for the chains of at most
+    `max_junctions` manoeuvres in total (never visiting a junction twice) that add the most
+    uncovered manoeuvres (ties: fewer junctions, then map order), and add that route. Each
+    route is the locally best extension of its anchor, so the result is a small cover but not
+    a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped.
+    """
+    if max_junctions < 1:
+        raise ValueError("max_junctions must be at least 1")
+    all_moves = manoeuvres(m)
+    targets = [mv for mv in (list(moves) if moves is not None else all_moves) if pick_lane(m, mv) is not None]
+    graph = successor_graph(m, all_moves)
+    preds: dict[Manoeuvre, list[Manoeuvre]] = {mv: [] for mv in graph}
+    for mv, nxts in graph.items():
+        for n in nxts:
+            preds[n].append(mv)
+    order = {mv: i for i, mv in enumerate(all_moves)}
+    uncovered = set(targets)
+    routes: list[Route] = []
+    for anchor in targets:
+        if anchor not in uncovered:
+            continue
+        best: tuple = ()
+        best_key = None
+        for back in _chains(preds, anchor, max_junctions - 1, {anchor[0]}):
+            used = {anchor[0], *(mv[0] for mv in back)}
+            for fwd in _chains(graph, anchor, max_junctions - 1 - len(back), used):
+                route = tuple(reversed(back)) + (anchor,) + fwd
+                gain = len(set(route) & uncovered)
+                key = (-gain, len(route), [order[mv] for mv in route])
+                if best_key is None or key < best_key:
+                    best, best_key = route, key
+        routes.append(best)
+        uncovered -= set(best)
+    return routes
+
+
+def _chains(graph: dict[Manoeuvre, list[Manoeuvre]], start: Manoeuvre, depth: int,
+            used: set[str]) -> list[tuple[Manoeuvre, ...]]:
+    """Every chain of up to `depth` manoeuvres following `start` in `graph` (start excluded),
+    through junctions not in `used`; the empty chain first."""
+    out: list[tuple[Manoeuvre, ...]] = [()]
+    if depth <= 0:
+        return out
+    for nxt in graph.get(start, ()):
+        if nxt[0] in used:
+            continue
+        for tail in _chains(graph, nxt, depth - 1, used | {nxt[0]}):
+            out.append((nxt,) + tail)
+    return out
+
+
+def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:
+    """Fraction of the manoeuvres of `m` that the routes drive (1.0 for a map without any)."""
+    all_moves = set(manoeuvres(m))
+    if not all_moves:
+        return 1.0
+    driven = {tuple(str(x) for x in mv) for r in routes for mv in r}
+    return len(all_moves & driven) / len(all_moves)
+
+
+def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 0, pedestrian_rate: float = 0.0,
+                max_junctions: int = DEFAULT_ROUTE_JUNCTIONS, duration: float | None = None,
+                name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
+    """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
+    `seed`, `seed + 1`, ...; duration per route from its junction count unless given."""
+    from ..readers import read_map
+
+    path = Path(map_path)
+    m = read_map(path)
+    routes = coverage_routes(m, max_junctions)
+    stem = name or path.stem
+    scenarios = tuple(
+        Scenario(name=f"{stem}-r{i:03d}", map=str(path.resolve()), route=r, traffic_vehicles=traffic_vehicles,
+                 pedestrian_rate=pedestrian_rate, signal_offsets=dict(signal_offsets or {}), seed=seed + i,
+                 duration=duration if duration is not None else BASE_DURATION_S + SECONDS_PER_JUNCTION * len(r))
+        for i, r in enumerate(routes))
+    return Suite(stem, scenarios, path.resolve().parent)

@@ -1,0 +1,236 @@
+"""Scenarios and suites: a map, an ego route of junction manoeuvres, traffic, pedestrians,
+signal offsets, a seed and a duration; suites are YAML or JSON files validated against
+`feat2map/schemas/scenario.schema.json` (format: scenarios/README.md).
+
+Relative map paths in a suite file are resolved against the file's folder when it is loaded
+(`Scenario.map` then holds an absolute path) and written relative to the target folder when a
+suite is saved, so suite files and their maps move together.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, fields
+from functools import lru_cache
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import yaml
+
+from ..atomic import write_text
+from ..errors import Feat2MapError
+
+SCHEMA_RESOURCE = ("feat2map", "schemas/scenario.schema.json")  # package data
+SUITE_FORMAT_VERSION = 1
+ENV_ID = "feat2map/MapFile-v0"
+POLICY_FREQUENCY_HZ = 5  # planner decisions per simulated second in scenario envs
+
+Manoeuvre = tuple[str, str, str]
+
+
+class ScenarioError(Feat2MapError, ValueError):
+    """An invalid scenario or suite file: `where` names the file and element."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One drive: the ego follows `route` (junction, entry road, exit road) on `map`."""
+
+    name: str
+    map: str  # map file path (native .json or OpenDRIVE .xodr)
+    route: tuple[Manoeuvre, ...]  # in driving order
+    traffic_vehicles: int = 0
+    pedestrian_rate: float = 0.0  # per crosswalk per minute
+    signal_offsets: Mapping[str, float] = field(default_factory=dict)  # signal/junction id -> seconds
+    seed: int = 0
+    duration: float = 60.0  # [s] truncation
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "route", tuple(tuple(str(x) for x in item) for item in self.route))
+        object.__setattr__(self, "signal_offsets",
+                           MappingProxyType({str(k): float(v) for k, v in dict(self.signal_offsets).items()}))
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.map, self.route, self.traffic_vehicles, self.pedestrian_rate,
+                     tuple(sorted(self.signal_offsets.items())), self.seed, self.duration))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Scenario) and self.to_dict() == other.to_dict()
+
+    def to_dict(self) -> dict:
+        """Plain JSON/YAML-ready dict (the file format of one scenario)."""
+        return {"name": self.name, "map": self.map, "route": [list(r) for r in self.route],
+                "traffic_vehicles": int(self.traffic_vehicles), "pedestrian_rate": float(self.pedestrian_rate),
+                "signal_offsets": dict(self.signal_offsets), "seed": int(self.seed), "duration": float(self.duration)}
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "scenario") -> "Scenario":
+        """Validate one scenario dict against the schema and build it; errors name `where`."""
+        _validate(d, _schema()["$defs"]["scenario"], where)
+        for key in ("map", "route"):
+            if key not in d:
+                raise ScenarioError(f"missing required field '{key}'", where)
+        return cls(name=d["name"], map=str(d["map"]), route=tuple(tuple(r) for r in d["route"]),
+                   traffic_vehicles=int(d.get("traffic_vehicles", 0)),
+                   pedestrian_rate=float(d.get("pedestrian_rate", 0.0)),
+                   signal_offsets=dict(d.get("signal_offsets", {})), seed=int(d.get("seed", 0)),
+                   duration=float(d.get("duration", 60.0)))
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A named list of scenarios; `base_dir` is the folder relative map paths refer to."""
+
+    name: str
+    scenarios: tuple[Scenario, ...]
+    base_dir: Path | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "scenarios", tuple(self.scenarios))
+
+    def to_dict(self, relative_to: Path | None = None) -> dict:
+        """The suite file's content; map paths relative to `relative_to` when given."""
+        out = []
+        for sc in self.scenarios:
+            d = sc.to_dict()
+            path = self.map_path(sc)
+            if relative_to is not None:
+                d["map"] = Path(os.path.relpath(path, relative_to)).as_posix()
+            out.append(d)
+        return {"version": SUITE_FORMAT_VERSION, "name": self.name, "scenarios": out}
+
+    def map_path(self, scenario: Scenario) -> Path:
+        """Absolute path of a scenario's map (relative paths resolve against `base_dir`)."""
+        p = Path(scenario.map)
+        return p if p.is_absolute() else (self.base_dir or Path.cwd()) / p
+
+
+@lru_cache(maxsize=1)
+def _schema() -> dict:
+    from importlib.resources import files
+
+    pkg, name = SCHEMA_RESOURCE
+    return json.loads(files(pkg).joinpath(name).read_text(encoding="utf-8"))
+
+
+def _element(path) -> str:
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _validate(data: Any, schema: dict, where: str) -> None:
+    """Raise ScenarioError naming `where` and the first offending element (schema order)."""
+    import jsonschema
+
+    full = dict(_schema())
+    validator = jsonschema.Draft202012Validator({**schema, "$defs": full["$defs"]})
+    errors = sorted(validator.iter_errors(data), key=lambda e: (list(map(str, e.absolute_path)), e.message))
+    if errors:
+        err = errors[0]
+        elem = _element(err.absolute_path)
+        raise ScenarioError(err.message, f"{where}.{elem}" if elem else where)
+
+
+def suite_from_dict(data: Any, where: str = "suite", base_dir: Path | None = None) -> Suite:
+    """Validate a whole suite document (schema + defaults + unique names) and build it."""
+    if not isinstance(data, dict):
+        raise ScenarioError("a suite must be a mapping with 'name' and 'scenarios'", where)
+    _validate(data, _schema(), where)
+    defaults = dict(data.get("defaults", {}))
+    scenarios, names = [], set()
+    for i, raw in enumerate(data["scenarios"]):
+        elem = f"{where}: scenarios[{i}]"
+        sc = Scenario.from_dict({**defaults, **raw}, elem)
+        if sc.name in names:
+            raise ScenarioError(f"duplicate scenario name {sc.name!r}", f"{elem}.name")
+        names.add(sc.name)
+        if base_dir is not None and not Path(sc.map).is_absolute():
+            sc = _replace_map(sc, str((base_dir / sc.map).resolve()))
+        scenarios.append(sc)
+    return Suite(str(data["name"]), tuple(scenarios), base_dir)
+
+
+def _replace_map(sc: Scenario, path: str) -> Scenario:
+    values = {f.name: getattr(sc, f.name) for f in fields(sc)}
+    values["map"] = path
+    return Scenario(**values)
+
+
+def load_suite(path: str | Path, check_maps: bool = True) -> Suite:
+    """Read a suite file (YAML or JSON), validate it against the schema and resolve map paths
+    against its folder; with `check_maps`, every referenced map file must exist."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"cannot read suite file ({exc.__class__.__name__}: {exc})", str(path)) from None
+    try:
+        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        msg = str(exc).replace("\n", " ")
+        raise ScenarioError(f"not valid {'JSON' if path.suffix == '.json' else 'YAML'} ({msg})", str(path)) from None
+    suite = suite_from_dict(data, str(path), path.resolve().parent)
+    if check_maps:
+        for i, sc in enumerate(suite.scenarios):
+            if not Path(sc.map).is_file():
+                raise ScenarioError(f"map file not found: {sc.map}", f"{path}: scenarios[{i}].map")
+    return suite
+
+
+def save_suite(suite: Suite, path: str | Path) -> None:
+    """Write `suite` atomically as YAML (or JSON for a .json path), map paths relative to it."""
+    path = Path(path)
+    data = suite.to_dict(relative_to=path.resolve().parent)
+    _validate(data, _schema(), str(path))
+    if path.suffix == ".json":
+        text = json.dumps(data, indent=2) + "\n"
+    else:
+        text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
+    write_text(path, text)
+
+
+def env_config(scenario: Scenario, config: Mapping | None = None) -> dict:
+    """MapFile-v0 config of a scenario: its map, route, traffic, pedestrians, signal offsets and
+    duration, with the baseline planner's action config (override anything with `config`)."""
+    from .planner import BaselinePlanner
+
+    cfg: dict[str, Any] = {
+        "route": [list(r) for r in scenario.route],
+        "traffic_vehicles": int(scenario.traffic_vehicles),
+        "pedestrian_rate": float(scenario.pedestrian_rate),
+        "signal_offsets": dict(scenario.signal_offsets),
+        "duration": float(scenario.duration),
+        "action": dict(BaselinePlanner.action_config),
+        "policy_frequency": POLICY_FREQUENCY_HZ,
+        "right_turn_on_red": True,  # the planner's TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN scenario
+    }
+    path = Path(scenario.map)
+    if path.suffix == ".json":
+        cfg["map_file"] = str(path)
+    else:
+        cfg["map"] = _read_map_cached(str(path.resolve()), path.stat().st_mtime_ns if path.is_file() else 0)
+    cfg.update(dict(config or {}))
+    return cfg
+
+
+@lru_cache(maxsize=8)
+def _read_map_cached(path: str, mtime: int):
+    from ..readers import read_map
+
+    return read_map(path)
+
+
+def make_env(scenario: Scenario, *, render_mode: str | None = None, config: dict | None = None):
+    """A `feat2map/MapFile-v0` env set up for `scenario`; reset it with `seed=scenario.seed`.
+    Bad routes raise Feat2MapError naming the scenario and route element at reset."""
+    import gymnasium as gym
+
+    import feat2map  # noqa: F401  (registers the env ids)
+
+    if not math.isfinite(scenario.duration) or scenario.duration <= 0:
+        raise ScenarioError(f"duration must be positive, got {scenario.duration}", f"{scenario.name}.duration")
+    return gym.make(ENV_ID, render_mode=render_mode, config=env_config(scenario, config))

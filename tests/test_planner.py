@@ -1,0 +1,188 @@
+"""The baseline planner: completes routes through signalized, stop-controlled and bare
+junctions (with and without crosswalks, with traffic and pedestrians) without violations,
+logs Apollo-like stage paths, is deterministic per seed; the broken variants get violations;
+any callable or SB3-style model plugs in as a Policy."""
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+
+import numpy as np
+import pytest
+
+import feat2map
+from feat2map import mapio
+from feat2map.scenarios.planner import (SCENARIO_STAGES, BaselinePlanner, CallablePolicy, ModelPolicy, Policy,
+                                        StageEvent, as_policy)
+from feat2map.scenarios.scenario import Scenario, make_env
+
+J = feat2map.JunctionFeature.make
+FOUR = [0, 90, 180, 270]
+NO_VIOLATIONS = {"red_light": 0, "stop_sign": 0, "pedestrian_yield": 0}
+
+
+def one_junction_map(tmp_path_factory, control: str, crosswalk: bool, angles=FOUR):
+    m = feat2map.generate_from_features([J(angles, control, crosswalk)], seed=0)
+    path = tmp_path_factory.mktemp("maps") / f"{control}-{int(crosswalk)}-{len(angles)}.json"
+    mapio.save(m, path)
+    return m, path
+
+
+def manoeuvre(m, jid: str, turn: str):
+    ln = min((ln for ln in m.lanes_by_junction[jid] if ln.turn == turn), key=lambda ln: ln.id)
+    return (jid, m.lanes[ln.predecessors[0]].road_id, m.lanes[ln.successors[0]].road_id)
+
+
+def signal_offset(map_path, mv, state: str) -> float:
+    """Offset of the junction's phase plan that shows `state` ("green"/"red") to the route's
+    first signal for at least the first 12 s."""
+    env = make_env(Scenario("probe", str(map_path), (mv,)))
+    env.reset(seed=0)
+    u = env.unwrapped
+    sid = u.net.stop_lines[u.route_lanes[0]].control_id
+    plan = u.control.plans[sid]
+    slot = plan.green + plan.amber + plan.all_red
+    start = plan.phase_of(sid) * slot  # local time where our green starts
+    offset = (-start if state == "green" else -(start + plan.green + plan.amber)) % plan.cycle
+    assert all(replace(plan, offset=offset).state(sid, t) == state for t in np.arange(0, 12, 0.5))
+    return offset
+
+
+def drive(scenario: Scenario, policy=None):
+    env = make_env(scenario)
+    obs, info = env.reset(seed=scenario.seed)
+    policy = policy or BaselinePlanner()
+    policy.reset(env)
+    while True:
+        obs, _, term, trunc, info = env.step(policy.act(obs, info))
+        if term or trunc:
+            env.close()
+            return info, policy
+
+
+# (control, crosswalk, turn, signal state on arrival, seed, expected stage path)
+CASES = [
+    ("stop", True, "left", None, 0, ("LF", "S_PS", "S_S", "S_C", "S_I", "LF")),
+    ("stop", False, "none", None, 1, ("LF", "S_PS", "S_S", "S_C", "S_I", "LF")),
+    ("signal", True, "none", "green", 0, ("LF", "T_A", "T_C", "LF")),
+    ("signal", False, "none", "red", 0, ("LF", "T_A", "T_C", "LF")),  # waits in T_A
+    ("signal", True, "left", "green", 0, ("LF", "L_A", "L_I", "LF")),
+    ("signal", True, "right", "red", 0, ("LF", "R_S", "R_C", "R_I", "LF")),  # right on red
+    ("signal", False, "right", "green", 0, ("LF", "T_A", "T_C", "LF")),  # right on green: protected
+    ("bare", True, "left", None, 0, ("LF", "B_A", "B_I", "LF")),
+    ("bare", False, "right", None, 0, ("LF", "B_A", "B_I", "LF")),
+]
+
+
+@pytest.mark.parametrize("control,crosswalk,turn,state,seed,path", CASES)
+def test_planner_completes_each_junction_type_with_its_stage_path(tmp_path_factory, control, crosswalk, turn,
+                                                                 state, seed, path):
+    m, map_path = one_junction_map(tmp_path_factory, control, crosswalk)
+    mv = manoeuvre(m, "J0", turn)
+    offsets = {} if state is None else {"J0": signal_offset(map_path, mv, state)}
+    sc = Scenario("t", str(map_path), (mv,), traffic_vehicles=4, pedestrian_rate=6.0 if crosswalk else 0.0,
+                  signal_offsets=offsets, seed=seed, duration=60.0)
+    info, planner = drive(sc)
+    assert info["route_completed"] and not info["collision"] and not info["off_road"], (info, planner.stage_path())
+    assert info["violations"] == NO_VIOLATIONS
+    assert planner.stage_path() == path
+    ev = planner.events
+    assert all(isinstance(e, StageEvent) for e in ev)
+    assert [e.step for e in ev] == sorted(e.step for e in ev) and [e.time for e in ev] == sorted(e.time for e in ev)
+    assert all(e.stage in SCENARIO_STAGES[e.scenario] for e in ev)
+    assert all(e.junction == "J0" for e in ev[1:-1]) and ev[0].junction is None and ev[-1].junction is None
+
+
+def test_unprotected_left_creeps_behind_oncoming_traffic(tmp_path_factory):
+    """Seeds where oncoming traffic holds the left turn at the line take L_A -> L_C -> L_I."""
+    m, map_path = one_junction_map(tmp_path_factory, "signal", True)
+    paths = set()
+    for seed in range(3):
+        sc = Scenario("l", str(map_path), (manoeuvre(m, "J0", "left"),), traffic_vehicles=6,
+                      pedestrian_rate=6.0, seed=seed, duration=60.0)
+        info, planner = drive(sc)
+        assert info["route_completed"] and info["violations"] == NO_VIOLATIONS and not info["collision"]
+        paths.add(planner.stage_path())
+    assert ("LF", "L_A", "L_C", "L_I", "LF") in paths
+
+
+def test_multi_junction_route_through_every_control(tmp_path_factory):
+    feats = [J(FOUR, "signal", True), J(FOUR, "stop", False), J([0, 90, 180], "bare", True)]
+    m = feat2map.generate_from_features(feats, seed=0)
+    path = tmp_path_factory.mktemp("maps") / "three.json"
+    mapio.save(m, path)
+    from feat2map.scenarios.routes import coverage_routes
+
+    route = max(coverage_routes(m), key=len)
+    assert len(route) == 3
+    sc = Scenario("multi", str(path), route, traffic_vehicles=6, pedestrian_rate=4.0, seed=0, duration=120.0)
+    info, planner = drive(sc)
+    assert info["route_completed"] and info["violations"] == NO_VIOLATIONS and not info["collision"]
+    scenarios = [s for s in planner.scenario_path() if s != "LANE_FOLLOW"]
+    controls = {"STOP_SIGN_UNPROTECTED": "stop", "BARE_INTERSECTION_UNPROTECTED": "bare"}
+    expected = [m.junctions[j].feature.control for j, _, _ in route]
+    assert [controls.get(s, "signal") for s in scenarios] == expected
+    assert planner.stage_path().count("LF") == len(route) + 1
+
+
+def test_same_seed_same_stage_path_and_trace(tmp_path_factory):
+    m, map_path = one_junction_map(tmp_path_factory, "stop", True)
+    sc = Scenario("d", str(map_path), (manoeuvre(m, "J0", "left"),), traffic_vehicles=6, pedestrian_rate=6.0,
+                  seed=5, duration=40.0)
+    (a, pa), (b, pb) = drive(sc), drive(sc)
+    assert pa.events == pb.events and a["time"] == b["time"]
+
+
+def test_running_red_lights_is_caught(tmp_path_factory):
+    m, map_path = one_junction_map(tmp_path_factory, "signal", False)
+    mv = manoeuvre(m, "J0", "none")
+    sc = Scenario("red", str(map_path), (mv,), signal_offsets={"J0": signal_offset(map_path, mv, "red")}, duration=30.0)
+    info, planner = drive(sc, BaselinePlanner(ignore={"signal"}))
+    assert info["violations"]["red_light"] == 1
+    assert planner.stage_path() == ("LF", "T_A", "T_C", "LF")
+
+
+def test_rolling_stop_signs_and_ignoring_pedestrians_are_caught(tmp_path_factory):
+    m, map_path = one_junction_map(tmp_path_factory, "stop", True)
+    sc = Scenario("roll", str(map_path), (manoeuvre(m, "J0", "none"),), duration=30.0)
+    info, planner = drive(sc, BaselinePlanner(ignore={"stop"}))
+    assert info["violations"]["stop_sign"] == 1
+    assert planner.stage_path() == ("LF", "S_PS", "S_I", "LF")  # never stopped
+    hits = 0
+    for seed in range(4):
+        sc = Scenario("ped", str(map_path), (manoeuvre(m, "J0", "none"),), pedestrian_rate=60.0, seed=seed,
+                      duration=30.0)
+        info, _ = drive(sc, BaselinePlanner(ignore={"pedestrian"}))
+        hits += info["violations"]["pedestrian_yield"]
+    assert hits > 0
+
+
+def test_bad_ignore_names_are_rejected():
+    with pytest.raises(ValueError, match="unknown rule"):
+        BaselinePlanner(ignore={"speed"})
+    with pytest.raises(RuntimeError, match="before reset"):
+        BaselinePlanner().act(None, {})
+
+
+def test_any_policy_plugs_in(tmp_path_factory):
+    m, map_path = one_junction_map(tmp_path_factory, "bare", False)
+    sc = Scenario("p", str(map_path), (manoeuvre(m, "J0", "none"),), duration=8.0)
+    full_throttle = as_policy(lambda obs: np.array([0.5], dtype=np.float32))
+    assert isinstance(full_throttle, CallablePolicy) and isinstance(full_throttle, Policy)
+    info, _ = drive(sc, full_throttle)
+    assert info["route_progress"] > 0.3
+
+    class Model:  # Stable-Baselines3's predict signature
+        def predict(self, obs, deterministic=False):
+            return np.array([0.6], dtype=np.float32), None
+
+    policy = as_policy(Model())
+    assert isinstance(policy, ModelPolicy)
+    info, _ = drive(sc, policy)
+    assert info["route_progress"] > 0.3
+    planner = BaselinePlanner()
+    assert as_policy(planner) is planner
+    with pytest.raises(TypeError, match="cannot use int as a policy"):
+        as_policy(3)
