@@ -22,9 +22,13 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+def _overrides(args: argparse.Namespace) -> dict:
+    return {k: getattr(args, k) for k in ("grid_gap", "lane_width", "crosswalk_width",
+                                          "samples_per_combination") if getattr(args, k) is not None}
+
+
 def _config(args: argparse.Namespace) -> GenerationConfig:
-    overrides = {k: getattr(args, k) for k in ("grid_gap", "lane_width", "crosswalk_width",
-                                                 "samples_per_combination") if getattr(args, k) is not None}
+    overrides = _overrides(args)
     try:
         return GenerationConfig.from_dict(overrides)
     except ValueError as exc:
@@ -60,10 +64,20 @@ def cmd_generate(args: argparse.Namespace) -> int:
         from .extract import map_feature
 
         space = map_feature(_extract_maps(args.from_maps))
-    else:
+    elif not args.spec:
         space = PAPER_SF_FEATURE_SPACE
+    else:
+        space = None
     stages.set_postfix_str("layout")
-    m = generate(space, seed=args.seed, config=cfg)
+    if args.spec:  # hand-written junctions and chains, on top of `space` when one was given
+        from .spec import build_spec, load_spec
+
+        spec = load_spec(args.spec)
+        m = build_spec(spec, seed=args.seed, config=spec.generation_config(_overrides(args)), space=space)
+        feats = [j.feature for j in m.junctions.values() if j.feature is not None]
+        space = FeatureSpace.from_features(feats) if feats else None
+    else:
+        m = generate(space, seed=args.seed, config=cfg)
     stages.update(2)
     with atomic.staged_dir(args.out) as tmp:
         mapio.save(m, tmp / "map.json")
@@ -136,6 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     src = g.add_mutually_exclusive_group()
     src.add_argument("--features", help="feature-space JSON (default: the paper's San Francisco Table I)")
     src.add_argument("--from-maps", nargs="+", metavar="MAP", help="extract the feature space from these maps")
+    g.add_argument("--spec", metavar="FILE", help="hand-written junctions/road chains (YAML or JSON, see "
+                   "docs/specs.md); with --features/--from-maps they are added to the sampled junctions")
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--out", required=True, help="output directory")
     g.add_argument("--samples-per-combination", type=int)

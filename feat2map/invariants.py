@@ -81,6 +81,25 @@ def broken_lanes(m: HDMap) -> list[str]:
     return problems
 
 
+def dead_ends(m: HDMap) -> list[str]:
+    """No road lane stops at a junction without a way through it (or starts at one without a
+    way in): one-way roads can leave an approach with no exit but its own socket, and such a
+    lane would otherwise pass for one of the map's exits. Needs the roads' end junctions."""
+    problems = []
+    for r in m.roads.values():
+        if r.kind == "junction":
+            continue
+        for ids, (frm, to) in ((r.right_lanes, (r.start_junction, r.end_junction)),
+                               (r.left_lanes, (r.end_junction, r.start_junction))):
+            for lid in ids:
+                ln = m.lanes[lid]
+                if to is not None and not ln.successors:
+                    problems.append(f"lane {lid} is a dead end at junction {to}: no junction lane leads on")
+                if frm is not None and not ln.predecessors:
+                    problems.append(f"lane {lid} leaves junction {frm} but no junction lane leads into it")
+    return problems
+
+
 def lane_changes(lane) -> tuple[str, ...]:
     """Same-direction neighbours reachable by a lane change (across a dotted boundary)."""
     left = lane.left_neighbors if lane.left_boundary_type.startswith("dotted") else ()
@@ -237,4 +256,5 @@ def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg:
 
 def check_map(m: HDMap) -> list[str]:
     """All invariants at once."""
-    return overlapping_roads(m) + overlapping_crosswalks(m) + broken_lanes(m) + connectivity(m) + unrealized_features(m)
+    return (overlapping_roads(m) + overlapping_crosswalks(m) + broken_lanes(m) + dead_ends(m) + connectivity(m)
+            + unrealized_features(m))

@@ -28,7 +28,7 @@ from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig
 from .construct import RoadChain, chain_road_id, junction_radius
 from .errors import FeatureError, LayoutError
 from .features import FeatureSpace, JunctionFeature, Socket, socket_lanes
-from .invariants import AREA_EPS_M2, connectivity
+from .invariants import AREA_EPS_M2, connectivity, dead_ends
 from .layout import Cell
 from .model import HDMap
 
@@ -83,7 +83,7 @@ def spec_schema() -> dict:
 def load_spec(path: str | Path) -> MapSpec:
     """Read and validate a YAML (.yaml/.yml) or JSON spec file."""
     path = Path(path)
-    name = path.name
+    name = str(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
@@ -304,7 +304,9 @@ def _check_chain(chain: RoadChain, where: str, cfg: GenerationConfig) -> None:
         (p0, h0), (p1, h1) = chain.poses[k], chain.poses[k + 1]
         ref = Bezier.from_poses(p0, h0, p1, h1)
         line = LineString(ref.sample(cfg.sample_spacing / 2))
-        if not line.is_simple:
+        d1 = ref.derivative(np.linspace(0.0, 1.0, 257))
+        cusp = bool(np.any((d1[1:] * d1[:-1]).sum(axis=1) <= 0.0))  # the tangent flips: it backs up on itself
+        if cusp or not line.is_simple:
             raise SpecError("the road crosses itself (its end heading turns it back over its own course)",
                             f"{where}.roads[{k}]")
         r = min_turn_radius(ref)
@@ -403,7 +405,7 @@ def _element(m: HDMap, lane_id: str, spec: MapSpec, names: Sequence[str]) -> str
 def _check_network(m: HDMap, spec: MapSpec, names: Sequence[str], cfg: GenerationConfig) -> None:
     """Routes must exist: one-way roads must not trap traffic (a dead end) nor leave lanes
     no entry can reach; chains must not overlap the junction grid."""
-    problems = connectivity(m)
+    problems = dead_ends(m) + connectivity(m)
     if problems:
         lane = next((w for w in problems[0].split() if w in m.lanes), None)
         where = _element(m, lane, spec, names) if lane else spec.source
