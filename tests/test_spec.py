@@ -54,6 +54,15 @@ def test_every_example_builds_and_passes_the_invariants(example_maps, name):
             assert m.junctions[f"J{i}"].cell == j.cell
 
 
+@pytest.mark.parametrize("name", [p.stem for p in SPECS])
+def test_every_example_passes_the_apollo_validator(example_maps, tmp_path, name):
+    from feat2map.apollo_validate import validate_apollo
+    from feat2map.writers.apollo import write_apollo
+
+    write_apollo(example_maps[name][1], tmp_path / "apollo")
+    assert [str(p) for p in validate_apollo(tmp_path / "apollo")] == []
+
+
 def test_mega_junction_is_the_papers(example_maps):
     spec, m = example_maps["mega_junction"]
     f = spec.junctions[0].feature
@@ -86,7 +95,11 @@ def test_road_circle_is_closed_and_strongly_connected(example_maps):
     spec, m = example_maps["road_circle"]
     chain = spec.chains[0]
     assert chain.closed and not m.junctions
-    assert not m.entry_lanes and not m.exit_lanes  # no entries: each direction is a loop
+    assert (chain.lanes_forward, chain.lanes_backward) == (2, 0)
+    assert not m.entry_lanes and not m.exit_lanes  # no entries: a loop, lane changes across the dotted line
+    for r in m.roads.values():
+        a, b = (m.lanes[i] for i in r.right_lanes)
+        assert a.right_boundary_type == b.left_boundary_type == "dotted_white"
     for ln in m.lanes.values():
         assert len(ln.successors) == 1 and len(ln.predecessors) == 1
     centre = np.array([0.0, 0.0])
@@ -265,7 +278,7 @@ def test_spec_junctions_on_top_of_a_feature_space():
 def test_cli_generate_from_spec_writes_the_sampled_pipelines_outputs(tmp_path, capsys):
     out = tmp_path / "mega"
     assert main(["generate", "--spec", str(EXAMPLES / "mega_junction.yaml"), "--out", str(out), "--quiet"]) == 0
-    assert {"map.json", "features.json", "map.png", "junctions.png"} <= {p.name for p in out.iterdir()}
+    assert {"map.json", "features.json", "map.png", "junctions.png", "apollo"} <= {p.name for p in out.iterdir()}
     m = mapio.load(out / "map.json")
     assert check_map(m) == [] and len(m.junctions) == 1
     space = FeatureSpace.from_json((out / "features.json").read_text())
