@@ -140,8 +140,8 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
                     for o, t in here:
                         if o == other and links[o][t] is None and connect.count(Link(o, t)) == 0:
                             if not compatible(f.sockets[s], features[o].sockets[t]):
-                                bad = (f"socket {s} {describe_socket(f.sockets[s])} would face {label[o]} socket {t} "
-                                       f"{describe_socket(features[o].sockets[t])}")
+                                bad = (f"its {describe_socket(f.sockets[s])} leg would face the "
+                                       f"{describe_socket(features[o].sockets[t])} leg of {label[o]}")
                                 break
                             connect[s] = Link(o, t)
                             n_connect += 1

@@ -369,7 +369,7 @@ def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = N
         check_buildable(spec, cfg)
     features = spec.features()
     cells: list[Cell | None] = [j.cell for j in spec.junctions]
-    names = [_where(spec.source, ["junctions", i]) for i in range(len(spec.junctions))]
+    names = [_path(["junctions", i]) for i in range(len(spec.junctions))]
     meta: dict[str, Any] = {"spec": spec.source}
     if space is not None:
         sampled = sample_features(space, np.random.default_rng([int(seed), 0]), cfg)
@@ -381,7 +381,7 @@ def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = N
         keep = [True] * len(spec.junctions) + [False] * (len(features) - len(spec.junctions))
         m = generate_from_features(features, seed, cfg, cells, meta, spec.chains, names, keep)
     except LayoutError as exc:
-        raise SpecError(exc.message, exc.where if exc.where else spec.source) from None
+        raise SpecError(exc.message, f"{spec.source}: {exc.where}" if exc.where else spec.source) from None
     _check_network(m, spec, names, cfg)
     return m
 
@@ -398,7 +398,7 @@ def _element(m: HDMap, lane_id: str, spec: MapSpec, names: Sequence[str]) -> str
     jid = lane.junction_id or (road.end_junction if lane_id in road.right_lanes else road.start_junction) \
         or road.start_junction or road.end_junction
     if jid is not None and jid.startswith("J") and jid[1:].isdigit() and int(jid[1:]) < len(names):
-        return names[int(jid[1:])]
+        return f"{spec.source}: {names[int(jid[1:])]}"
     return spec.source
 
 
