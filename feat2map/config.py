@@ -44,6 +44,7 @@ SIGNAL_POLE_OFFSET_M = 1.0  # pole beyond the road edge
 MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
+APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,16 @@ import numpy as np
 from shapely import STRtree
 from shapely.geometry import Polygon
 
+from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
 from .model import HDMap, Lane
 
-ARM_CLUSTER_DEG = 12.0  # lane headings of one arm differ by less than this; generated arms are >= 20 apart
+ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this
+ARM_PROBE_M = 20.0  # an arm's direction: towards the point this far out along its road
+ARM_MAX_WIDTH_M = 30.0  # lanes of one arm lie within this across the arm (medians included)
+ARM_MAX_DEPTH_M = 15.0  # ... and within this along it
+ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
+ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to one arm
 MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than generated ones
 
 
@@ -49,93 +55,231 @@ class ExtractedJunction:
                 "lanes_out": [s.lanes_out for s in self.feature.sockets]}
 
 
-def _circular_clusters(angles: np.ndarray, tol_deg: float) -> np.ndarray:
-    """Cluster labels for angles (degrees) split at gaps wider than `tol_deg`, on the circle."""
-    order = np.argsort(angles)
-    a = angles[order]
-    gaps = np.diff(np.append(a, a[0] + 360.0))
-    labels = np.zeros(len(a), dtype=int)
-    if len(a) == 1 or gaps.max() <= tol_deg:
-        return labels[np.argsort(order)]
-    start = int(np.argmax(gaps)) + 1  # begin after the widest gap so no cluster wraps
-    lab = 0
-    for k in range(len(a)):
-        i = (start + k) % len(a)
-        if k > 0 and gaps[(i - 1) % len(a)] > tol_deg:
-            lab += 1
-        labels[i] = lab
-    out = np.empty_like(labels)
-    out[order] = labels
-    return out
+@dataclass(frozen=True)
+class _ArmEnds:
+    point: np.ndarray  # mean of the arm's lane end points
+    direction: np.ndarray  # unit vector out of the junction: mean road tangent at the mouth
+    far_direction: np.ndarray  # unit vector towards the road ARM_PROBE_M out
+    lanes_in: int
+    lanes_out: int
 
 
-def _arms(m: HDMap, lanes: Sequence[Lane], center: np.ndarray) -> list[Arm]:
-    """Arms from the end points of the junction's lanes; headings from the road lanes that
-    feed and leave them where there are any (junction lanes turn sharply)."""
-    def entry_heading(ln: Lane) -> float:
-        preds = [m.lanes[p] for p in ln.predecessors if m.lanes[p].junction_id is None]
-        return (preds[0].heading_at_end() if preds else ln.heading_at_start()) + math.pi
+class _UnionFind:
+    def __init__(self, n: int) -> None:
+        self.parent = list(range(n))
 
-    def exit_heading(ln: Lane) -> float:
-        succs = [m.lanes[s] for s in ln.successors if m.lanes[s].junction_id is None]
-        return succs[0].heading_at_start() if succs else ln.heading_at_end()
+    def find(self, i: int) -> int:
+        while self.parent[i] != i:
+            self.parent[i] = self.parent[self.parent[i]]
+            i = self.parent[i]
+        return i
 
-    ends: dict[tuple[float, float], tuple[tuple[float, float], float, str]] = {}
-    for ln in lanes:  # entry points (outward = against travel) and exit points, each once
-        ends.setdefault((round(ln.start[0], 3), round(ln.start[1], 3)), (ln.start, entry_heading(ln), "in"))
-        ends.setdefault((round(ln.end[0], 3), round(ln.end[1], 3)), (ln.end, exit_heading(ln), "out"))
+    def union(self, i: int, k: int) -> None:
+        self.parent[self.find(i)] = self.find(k)
+
+
+def _probe(m: HDMap, ln: Lane, outward_from_start: bool, jid: str | None) -> np.ndarray:
+    """A point ARM_PROBE_M out along the road attached to a junction lane end (through
+    short road pieces, stopping at other junctions), or the lane's own tangent if none."""
+    if outward_from_start:
+        start = np.asarray(ln.start)
+        nxt = [m.lanes[p] for p in ln.predecessors if m.lanes[p].junction_id != jid]
+    else:
+        start = np.asarray(ln.end)
+        nxt = [m.lanes[s] for s in ln.successors if m.lanes[s].junction_id != jid]
+    if not nxt or nxt[0].junction_id is not None:  # no road, or straight into another junction
+        if nxt:
+            h = nxt[0].heading_at_end() + math.pi if outward_from_start else nxt[0].heading_at_start()
+        else:
+            h = ln.heading_at_start() + math.pi if outward_from_start else ln.heading_at_end()
+        return start + ARM_PROBE_M * np.array([math.cos(h), math.sin(h)])
+    left = ARM_PROBE_M
+    cur = nxt[0]
+    pts: list[np.ndarray] = []
+    for _ in range(50):  # bounded walk through short pieces
+        seg = cur.points[::-1] if outward_from_start else cur.points
+        d = np.hypot(*np.diff(seg, axis=0).T)
+        cum = np.concatenate([[0.0], np.cumsum(d)])
+        if cum[-1] >= left:
+            k = int(np.searchsorted(cum, left))
+            t = (left - cum[k - 1]) / max(d[k - 1], 1e-12)
+            return seg[k - 1] + t * (seg[k] - seg[k - 1])
+        left -= cum[-1]
+        pts.append(seg[-1])
+        links = cur.predecessors if outward_from_start else cur.successors
+        more = [m.lanes[x] for x in links if m.lanes[x].junction_id is None]
+        if not more:
+            break
+        cur = more[0]
+    end = pts[-1] if pts else start
+    if np.hypot(*(end - start)) < 1e-6:
+        h = ln.heading_at_start() + math.pi if outward_from_start else ln.heading_at_end()
+        return start + ARM_PROBE_M * np.array([math.cos(h), math.sin(h)])
+    return end
+
+
+def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
+    """Arms from the junction's boundary lane ends (entries and exits, each point once).
+
+    Each end gets two outward directions: towards a point ARM_PROBE_M out along its road
+    (robust to lanes that bend at the junction mouth) and the road's tangent at the end
+    (robust to short curved road pieces). Two ends belong to one arm when either direction
+    differs by less than ARM_CLUSTER_DEG and they lie side by side (less than ARM_MAX_WIDTH_M apart across the arm and
+    ARM_MAX_DEPTH_M along it), so one-way pairs and roads split into pieces count once.
+    """
+    ends: dict[tuple[float, float], tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
+    for ln in lanes:
+        if not any(m.lanes[p].junction_id == jid for p in ln.predecessors):
+            key = (round(ln.start[0], 2), round(ln.start[1], 2))
+            if key not in ends:
+                outside = [m.lanes[p] for p in ln.predecessors]
+                tangent = (outside[0].heading_at_end() if outside else ln.heading_at_start()) + math.pi
+                ends[key] = (np.asarray(ln.start, dtype=float), _probe(m, ln, True, jid), tangent, "in",
+                             outside[0].id if outside else None)
+        if not any(m.lanes[s].junction_id == jid for s in ln.successors):
+            key = (round(ln.end[0], 2), round(ln.end[1], 2))
+            if key not in ends:
+                outside = [m.lanes[s] for s in ln.successors]
+                tangent = outside[0].heading_at_start() if outside else ln.heading_at_end()
+                ends[key] = (np.asarray(ln.end, dtype=float), _probe(m, ln, False, jid), tangent, "out",
+                             outside[0].id if outside else None)
+    if not ends:
+        return []
+    ext = [v[4] for v in ends.values()]
+    linked: list[set[str | None]] = []
+    for lid in ext:
+        ln = m.lanes.get(lid) if lid else None
+        linked.append(set(ln.left_neighbors + ln.right_neighbors + ln.left_reverse_neighbors) if ln else set())
     pts = np.array([v[0] for v in ends.values()])
-    kinds = [v[2] for v in ends.values()]
-    heads = np.degrees(np.array([v[1] for v in ends.values()])) % 360.0
-    labels = _circular_clusters(heads, ARM_CLUSTER_DEG)
+    dirs = np.array([v[1] - v[0] for v in ends.values()])
+    dirs /= np.maximum(np.hypot(*dirs.T), 1e-12)[:, None]
+    tangents = np.array([(math.cos(v[2]), math.sin(v[2])) for v in ends.values()])
+    kinds = [v[3] for v in ends.values()]
+    cos_tol = math.cos(math.radians(ARM_CLUSTER_DEG))
+    uf = _UnionFind(len(pts))
+    for i in range(len(pts)):
+        for k in range(i + 1, len(pts)):
+            d = pts[k] - pts[i]
+            if ext[k] in linked[i]:  # neighbour lanes of one road
+                uf.union(i, k)
+                continue
+            if tangents[i] @ tangents[k] >= cos_tol and float(np.hypot(*d)) <= ARM_NEAR_M:
+                uf.union(i, k)  # adjacent ends, same local direction (short curved pieces)
+                continue
+            if dirs[i] @ dirs[k] >= cos_tol:
+                mean = (dirs[i] + dirs[k]) / np.hypot(*(dirs[i] + dirs[k]))
+                across = abs(mean[0] * d[1] - mean[1] * d[0])
+                if across <= ARM_MAX_WIDTH_M and abs(mean @ d) <= ARM_MAX_DEPTH_M:
+                    uf.union(i, k)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(pts)):
+        groups.setdefault(uf.find(i), []).append(i)
     arms = []
-    for lab in np.unique(labels):
-        idx = np.flatnonzero(labels == lab)
-        p = pts[idx].mean(axis=0)
-        ang = math.degrees(math.atan2(p[1] - center[1], p[0] - center[0]))
-        arms.append(Arm(ang, (float(p[0]), float(p[1])), sum(kinds[i] == "in" for i in idx),
-                        sum(kinds[i] == "out" for i in idx)))
+    for idx in groups.values():
+        t, f = tangents[idx].sum(axis=0), dirs[idx].sum(axis=0)
+        arms.append(_ArmEnds(pts[idx].mean(axis=0), t / max(float(np.hypot(*t)), 1e-12),
+                             f / max(float(np.hypot(*f)), 1e-12),
+                             sum(kinds[i] == "in" for i in idx), sum(kinds[i] == "out" for i in idx)))
     return arms
 
 
-def extract_junctions(m: HDMap, map_name: str = "map") -> list[ExtractedJunction]:
-    """The junction feature of every junction that has lanes and at least 3 arms."""
+def _meeting_point(lines: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float] | None:
+    """Least-squares meeting point of lines (point, unit direction) and the largest distance
+    of a line from it; None when the lines are (nearly) parallel."""
+    a, rhs = np.zeros((2, 2)), np.zeros(2)
+    normals = [np.array([-u[1], u[0]]) for _, u in lines]
+    for (p, _), n in zip(lines, normals):
+        a += np.outer(n, n)
+        rhs += n * (n @ p)
+    if len(lines) < 2 or np.linalg.cond(a) > 1e4:
+        return None
+    c = np.linalg.solve(a, rhs)
+    return c, max(abs(float(n @ (c - p))) for (p, _), n in zip(lines, normals))
+
+
+def arms_centre(arms: Sequence[_ArmEnds], polygon: Polygon) -> np.ndarray:
+    """Where the arms' centre lines meet, or the polygon's centroid when they are (nearly)
+    parallel or meet far outside the junction area.
+
+    When the road tangents at the junction mouths meet in one point (generated maps: roads
+    leave along their sockets) that point is exact; otherwise (real roads bend at the mouth)
+    the least-squares point of the tangent lines and the lines towards the roads ARM_PROBE_M
+    out is used."""
+    centroid = np.array(polygon.centroid.coords[0])
+    near = _meeting_point([(a.point, a.direction) for a in arms])
+    if near is not None and near[1] <= ARM_CENTRE_EXACT_M:
+        c = near[0]
+    else:
+        both = _meeting_point([(a.point, u) for a in arms for u in (a.direction, a.far_direction)])
+        if both is None:
+            return centroid
+        c = both[0]
+    reach = max(float(np.hypot(*(arm.point - centroid))) for arm in arms)
+    return c if float(np.hypot(*(c - centroid))) <= 0.5 * reach else centroid
+
+
+def _junction_controls(m: HDMap) -> dict[str, set[str]]:
+    """Junction id -> control kinds: a signal or stop sign counts for the junction it names
+    and for the junction its incoming lanes (lanes outside it) lead into."""
+    out: dict[str, set[str]] = {}
+    for kind, items in (("signal", m.signals), ("stop", m.stop_signs)):
+        for s in items.values():
+            if s.junction_id:
+                out.setdefault(s.junction_id, set()).add(kind)
+            for lid in s.lane_ids:
+                ln = m.lanes.get(lid)
+                if ln is None:
+                    continue
+                for nxt in ln.successors:
+                    jid = m.lanes[nxt].junction_id
+                    if jid and jid != ln.junction_id:
+                        out.setdefault(jid, set()).add(kind)
+    return out
+
+
+def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms") -> list[ExtractedJunction]:
+    """The junction feature of every junction that has lanes and at least 3 arms.
+
+    `centre` is where sockets start: "arms" (default) the meeting point of the arms' centre
+    lines, which does not depend on how a map draws its junction polygon (Apollo T-junction
+    polygons lean towards the stem), or "polygon", the paper's polygon centroid. Junctions
+    that cannot give a valid feature are skipped with a warning.
+    """
+    if centre not in ("arms", "polygon"):
+        raise ValueError(f"centre must be 'arms' or 'polygon', got {centre!r}")
     by_junction = m.lanes_by_junction
     xw_polys = [Polygon(c.polygon) for c in m.crosswalks.values() if len(c.polygon) >= 3]
     xw_tree = STRtree(xw_polys) if xw_polys else None
     xw_junctions = {c.junction_id for c in m.crosswalks.values() if c.junction_id}
-    controls: dict[str, set[str]] = {}
-    lane_controls: dict[str, set[str]] = {}
-    for kind, items in (("signal", m.signals), ("stop", m.stop_signs)):
-        for s in items.values():
-            if s.junction_id:
-                controls.setdefault(s.junction_id, set()).add(kind)
-            for lid in s.lane_ids:
-                lane_controls.setdefault(lid, set()).add(kind)
+    controls = _junction_controls(m)
     out = []
     for jid, j in m.junctions.items():
         lanes = by_junction.get(jid, [])
-        if not lanes or len(j.polygon) < 3:
-            warnings.warn(f"junction {jid}: no lanes or no polygon, skipped", stacklevel=2)
+        poly = Polygon(j.polygon) if len(j.polygon) >= 3 else None
+        if poly is not None and not poly.is_valid:  # real maps draw self-touching outlines
+            poly = poly.buffer(0)
+        if not lanes or poly is None or poly.is_empty or poly.area <= 0:
+            warnings.warn(f"{map_name}: junction {jid}: no lanes or no valid polygon, skipped", stacklevel=2)
             continue
-        poly = Polygon(j.polygon)
-        c = np.array(j.center)
-        arms = _arms(m, lanes, c)
-        if len(arms) < 3:
+        ends = _arms(m, jid, lanes)
+        if len(ends) < 3:
             continue
-        norm = normalize_rotation([a.angle_deg for a in arms])
-        arms = [arms[i] for i in norm.order]
-        kinds = set(controls.get(jid, set()))
-        for ln in lanes:
-            kinds |= lane_controls.get(ln.id, set())
-            for p in ln.predecessors:
-                kinds |= lane_controls.get(p, set())
+        c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
+        arms = [Arm(math.degrees(math.atan2(a.point[1] - c[1], a.point[0] - c[0])),
+                    (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
+        kinds = controls.get(jid, set())
         control = "signal" if "signal" in kinds else "stop" if "stop" in kinds else "bare"
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
-        feature = JunctionFeature(
-            tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms)),
-            control, crosswalk, MIN_EXTRACTED_SEPARATION_DEG)
+        try:
+            norm = normalize_rotation([a.angle_deg for a in arms])
+            arms = [arms[i] for i in norm.order]
+            feature = JunctionFeature(
+                tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms)),
+                control, crosswalk, MIN_EXTRACTED_SEPARATION_DEG)
+        except FeatureError as exc:
+            warnings.warn(f"{map_name}: junction {jid}: {exc.message}, skipped", stacklevel=2)
+            continue
         out.append(ExtractedJunction(map_name, jid, feature, (float(c[0]), float(c[1])), tuple(arms)))
     return out
 

@@ -1,0 +1,358 @@
+"""Apollo HD map reader (`base_map` / `sim_map`, binary or text) into the feat2map model.
+
+Apollo stores relations in two places: lane links (predecessor/successor/neighbour ids) and
+overlaps (pairs of objects: signal-lane, junction-lane, crosswalk-lane ...). Real maps rely
+on the second: lanes carry no `junction_id` (membership comes from `road.junction_id` and
+junction-lane overlaps), signals and stop signs overlap the *incoming* lanes, and many
+crosswalks have no id and no overlaps (they are linked to junctions geometrically).
+Coordinates are UTM metres; a whole-metre origin is subtracted and kept in `HDMap.origin`.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+from shapely import STRtree
+from shapely.geometry import MultiPoint, Polygon
+from shapely.geometry.polygon import orient
+
+from .. import apollo_schema as aps
+from ..config import APOLLO_CROSSWALK_LINK_M
+from ..errors import MapFormatError
+from ..model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
+
+_TURNS = {aps.Lane.NO_TURN: "none", aps.Lane.LEFT_TURN: "left", aps.Lane.RIGHT_TURN: "right",
+          aps.Lane.U_TURN: "uturn"}
+_BOUNDARY = {
+    aps.LaneBoundaryType.DOTTED_WHITE: "dotted_white",
+    aps.LaneBoundaryType.SOLID_WHITE: "solid_white",
+    aps.LaneBoundaryType.DOTTED_YELLOW: "dotted_yellow",
+    aps.LaneBoundaryType.SOLID_YELLOW: "solid_yellow",
+    aps.LaneBoundaryType.DOUBLE_YELLOW: "solid_yellow",
+    aps.LaneBoundaryType.CURB: "curb",
+    aps.LaneBoundaryType.UNKNOWN: "virtual",
+}
+
+
+def _curve_points(curve: Any) -> np.ndarray:
+    """All (x, y) points of an Apollo Curve, segments joined, repeated joints dropped."""
+    pts: list[tuple[float, float]] = []
+    for seg in curve.segment:
+        for p in seg.line_segment.point:
+            xy = (p.x, p.y)
+            if not pts or xy != pts[-1]:
+                pts.append(xy)
+    return np.array(pts, dtype=float).reshape(-1, 2)
+
+
+def _polygon_points(poly: Any) -> np.ndarray:
+    return np.array([(p.x, p.y) for p in poly.point], dtype=float).reshape(-1, 2)
+
+
+def _boundary_type(boundary: Any) -> str:
+    if boundary.virtual:
+        return "virtual"
+    for bt in boundary.boundary_type:
+        for t in bt.types:
+            return _BOUNDARY.get(t, "virtual")
+    return "virtual"
+
+
+def _sample_width(lane: Any) -> float | None:
+    """Mean lane width from Apollo's left/right width samples (None when absent)."""
+    if not lane.left_sample or not lane.right_sample:
+        return None
+    left = np.mean([s.width for s in lane.left_sample])
+    right = np.mean([s.width for s in lane.right_sample])
+    return float(left + right)
+
+
+def _boundary_width(centre: np.ndarray, left: np.ndarray, right: np.ndarray) -> float:
+    """Mean distance between boundaries, measured at the boundary points nearest the centreline."""
+    if len(left) == 0 or len(right) == 0:
+        return 0.0
+    mid = centre[len(centre) // 2]
+    dl = np.hypot(*(left - mid).T).min()
+    dr = np.hypot(*(right - mid).T).min()
+    return float(dl + dr)
+
+
+class _Reader:
+    """One conversion: protobuf `Map` -> HDMap, with `where` naming the file in errors."""
+
+    def __init__(self, pb: Any, where: str) -> None:
+        self.pb = pb
+        self.where = where
+
+    def err(self, what: str, message: str) -> MapFormatError:
+        return MapFormatError(message, f"{self.where}: {what}")
+
+    def warn(self, what: str, message: str) -> None:
+        warnings.warn(f"{self.where}: {what}: {message}", stacklevel=3)
+
+    # -- overlaps ----------------------------------------------------------------------------
+    def _overlap_pairs(self, known: dict[str, set[str]]) -> dict[tuple[str, str], list[tuple[str, str, Any]]]:
+        """(kind_a, kind_b) -> [(id_a, id_b, info_a)] for every two-object overlap, kinds
+        sorted; ids are checked against the elements the map defines."""
+        pairs: dict[tuple[str, str], list[tuple[str, str, Any]]] = {}
+        for ov in self.pb.overlap:
+            objs = []
+            for obj in ov.object:
+                kind = obj.WhichOneof("overlap_info")
+                if kind is None:
+                    raise self.err(f"overlap {ov.id.id!r}", f"object {obj.id.id!r} has no overlap info")
+                kind = kind.removesuffix("_overlap_info")
+                if kind in known and obj.id.id not in known[kind]:
+                    raise self.err(f"overlap {ov.id.id!r}", f"refers to unknown {kind} {obj.id.id!r}")
+                objs.append((kind, obj.id.id, obj))
+            objs.sort(key=lambda o: o[0])
+            for i in range(len(objs)):
+                for k in range(i + 1, len(objs)):
+                    a, b = objs[i], objs[k]
+                    pairs.setdefault((a[0], b[0]), []).append((a[1], b[1], a[2]))
+        return pairs
+
+    # -- main --------------------------------------------------------------------------------
+    def read(self) -> HDMap:
+        pb = self.pb
+        if not pb.lane:
+            raise self.err("map", "no lanes")
+        raw: dict[str, dict[str, np.ndarray]] = {}
+        for i, ln in enumerate(pb.lane):
+            lid = ln.id.id
+            if not lid:
+                raise self.err(f"lane #{i}", "lane without id")
+            if lid in raw:
+                raise self.err(f"lane {lid!r}", "duplicate lane id")
+            centre = _curve_points(ln.central_curve)
+            if len(centre) < 2:
+                raise self.err(f"lane {lid!r}", "central_curve has fewer than 2 points")
+            if not np.isfinite(centre).all():
+                raise self.err(f"lane {lid!r}", "central_curve has non-finite coordinates")
+            raw[lid] = {"c": centre, "l": _curve_points(ln.left_boundary.curve),
+                        "r": _curve_points(ln.right_boundary.curve)}
+        allpts = np.vstack([r["c"] for r in raw.values()])
+        origin = (float(np.floor(allpts[:, 0].min())), float(np.floor(allpts[:, 1].min())))
+        o = np.array(origin)
+
+        # roads and junction membership
+        lane_road: dict[str, str] = {}
+        road_junction: dict[str, str | None] = {}
+        road_lane_ids: dict[str, list[str]] = {}
+        junction_ids = {j.id.id for j in pb.junction}
+        for r in pb.road:
+            rid = r.id.id
+            jid = r.junction_id.id or None
+            if jid is not None and jid not in junction_ids:
+                raise self.err(f"road {rid!r}", f"junction_id {jid!r} is not a junction of this map")
+            road_junction[rid] = jid
+            ids = road_lane_ids.setdefault(rid, [])
+            for sec in r.section:
+                for lid in sec.lane_id:
+                    if lid.id not in raw:
+                        raise self.err(f"road {rid!r}", f"section lists unknown lane {lid.id!r}")
+                    lane_road.setdefault(lid.id, rid)
+                    ids.append(lid.id)
+        known = {"lane": set(raw), "junction": junction_ids, "signal": {s.id.id for s in pb.signal},
+                 "stop_sign": {s.id.id for s in pb.stop_sign}}
+        pairs = self._overlap_pairs(known)
+        lane_junction: dict[str, str] = {}
+        for jid, lid, _ in pairs.get(("junction", "lane"), []):
+            lane_junction.setdefault(lid, jid)
+        for lid, rid in lane_road.items():
+            if road_junction.get(rid):
+                lane_junction[lid] = road_junction[rid]  # type: ignore[assignment]
+        for ln in pb.lane:
+            if ln.junction_id.id:
+                if ln.junction_id.id not in junction_ids:
+                    raise self.err(f"lane {ln.id.id!r}", f"junction_id {ln.junction_id.id!r} is unknown")
+                lane_junction[ln.id.id] = ln.junction_id.id
+
+        # junctions (polygon from the map, or the hull of its lanes)
+        junctions: dict[str, Junction] = {}
+        for j in pb.junction:
+            jid = j.id.id
+            pts = _polygon_points(j.polygon) - o
+            poly = Polygon(pts) if len(pts) >= 3 else None
+            if poly is None or not poly.is_valid or poly.area <= 0:
+                member = [raw[lid][k] - o for lid, jj in lane_junction.items() if jj == jid for k in ("l", "r", "c")]
+                hull = MultiPoint(np.vstack(member)).convex_hull if member else None
+                if hull is None or hull.geom_type != "Polygon":
+                    self.warn(f"junction {jid!r}", "no usable polygon and no lanes, skipped")
+                    continue
+                if poly is None or poly.area <= 0:
+                    self.warn(f"junction {jid!r}", "no polygon, using the hull of its lanes")
+                    pts = np.array(orient(hull, 1.0).exterior.coords[:-1])
+            junctions[jid] = Junction(jid, as_polyline(pts))
+        lane_junction = {lid: jid for lid, jid in lane_junction.items() if jid in junctions}
+
+        # lanes
+        lanes: dict[str, Lane] = {}
+        for ln in pb.lane:
+            lid = ln.id.id
+            links: dict[str, tuple[str, ...]] = {}
+            for attr, field in (("predecessors", "predecessor_id"), ("successors", "successor_id"),
+                                ("left_neighbors", "left_neighbor_forward_lane_id"),
+                                ("right_neighbors", "right_neighbor_forward_lane_id"),
+                                ("left_reverse_neighbors", "left_neighbor_reverse_lane_id")):
+                ids = tuple(dict.fromkeys(x.id for x in getattr(ln, field)))
+                bad = [x for x in ids if x not in raw]
+                if bad:
+                    raise self.err(f"lane {lid!r}", f"{field} refers to unknown lane {bad[0]!r}")
+                links[attr] = ids
+            r = raw[lid]
+            centre, left, right = r["c"] - o, r["l"] - o, r["r"] - o
+            width = _sample_width(ln) or _boundary_width(centre, left, right)
+            lanes[lid] = Lane(
+                lid, lane_road.get(lid, lid), as_polyline(centre),
+                as_polyline(left if len(left) >= 2 else centre), as_polyline(right if len(right) >= 2 else centre),
+                width, float(ln.speed_limit), turn=_TURNS.get(ln.turn, "none"),
+                junction_id=lane_junction.get(lid),
+                left_boundary_type=_boundary_type(ln.left_boundary),
+                right_boundary_type=_boundary_type(ln.right_boundary), **links)
+
+        roads = self._roads(lanes, road_lane_ids, road_junction)
+        signals = self._controls(pairs, lanes, "signal", o)
+        stops = self._controls(pairs, lanes, "stop_sign", o)
+        crosswalks = self._crosswalks(pairs, lanes, junctions, o)
+        header = pb.header
+        meta = {"source": self.where, "format": "apollo",
+                "projection": header.projection.proj,
+                "version": header.version.decode("utf-8", "replace"),
+                "vendor": header.vendor.decode("utf-8", "replace"),
+                "district": header.district.decode("utf-8", "replace")}
+        return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=origin, meta=meta)
+
+    def _roads(self, lanes: dict[str, Lane], road_lane_ids: dict[str, list[str]],
+               road_junction: dict[str, str | None]) -> dict[str, Road]:
+        """Roads with lanes split by direction: `right_lanes` along the first lane, `left_lanes`
+        against it; end junctions from the lanes' links."""
+        roads: dict[str, Road] = {}
+        for rid, ids in road_lane_ids.items():
+            ids = list(dict.fromkeys(ids))
+            if not ids:
+                continue
+            ref = lanes[ids[0]]
+            d0 = np.subtract(ref.end, ref.start)
+            right = [x for x in ids if np.dot(np.subtract(lanes[x].end, lanes[x].start), d0) >= 0]
+            left = [x for x in ids if x not in right]
+            jid = road_junction.get(rid)
+            start_j = next((lanes[p].junction_id for x in right for p in lanes[x].predecessors
+                            if lanes[p].junction_id), None)
+            end_j = next((lanes[s].junction_id for x in right for s in lanes[x].successors
+                          if lanes[s].junction_id), None)
+            kind = "junction" if jid else "chain"
+            roads[rid] = Road(rid, kind, tuple(right), tuple(left), None, 0.0, jid,
+                              jid or start_j, jid or end_j)
+        for lid, ln in lanes.items():  # lanes outside any road get a road of their own
+            if ln.road_id not in roads:
+                roads[ln.road_id] = Road(ln.road_id, "junction" if ln.junction_id else "chain", (lid,),
+                                         junction_id=ln.junction_id)
+        return roads
+
+    def _controls(self, pairs, lanes: dict[str, Lane], kind: str, o: np.ndarray) -> dict:
+        """Signals or stop signs with the incoming lanes they overlap and their junction."""
+        governed: dict[str, list[str]] = {}
+        for lid, sid, _ in pairs.get(("lane", kind), []):
+            governed.setdefault(sid, []).append(lid)
+        junction_of: dict[str, str] = {}
+        for jid, sid, _ in pairs.get(("junction", kind), []):
+            junction_of.setdefault(sid, jid)
+        items = self.pb.signal if kind == "signal" else self.pb.stop_sign
+        out: dict = {}
+        for el in items:
+            sid = el.id.id
+            curves = list(el.stop_line) if kind == "signal" else [el.stop_line]
+            line = next((p for p in (_curve_points(c) for c in curves) if len(p) >= 2), None)
+            lane_ids = tuple(dict.fromkeys(x for x in governed.get(sid, []) if x in lanes))
+            jid = junction_of.get(sid)
+            if jid is None:  # the junction the governed lanes lead into
+                jid = next((lanes[s].junction_id for x in lane_ids for s in lanes[x].successors
+                            if lanes[s].junction_id), None)
+            if line is None:
+                if not lane_ids:
+                    self.warn(f"{kind} {sid!r}", "no stop line and no lanes, skipped")
+                    continue
+                ends = np.array([lanes[x].end for x in lane_ids])
+                line_local = np.vstack([ends.min(axis=0), ends.max(axis=0)])
+            else:
+                line_local = line - o
+            pos = self._position(el, kind, o, line_local)
+            heading = self._facing(lane_ids, lanes, line_local)
+            cls = Signal if kind == "signal" else StopSign
+            out[sid] = cls(sid, jid, as_polyline(line_local), pos, heading, lane_ids)
+        return out
+
+    @staticmethod
+    def _position(el: Any, kind: str, o: np.ndarray, line: np.ndarray) -> tuple[float, float]:
+        if kind == "signal" and len(el.boundary.point) >= 1:
+            pts = _polygon_points(el.boundary) - o
+            if np.isfinite(pts).all():
+                return (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
+        if kind == "stop_sign" and el.HasField("location") and math.isfinite(el.location.x) \
+                and math.isfinite(el.location.y):
+            return (el.location.x - float(o[0]), el.location.y - float(o[1]))
+        m = line.mean(axis=0)
+        return (float(m[0]), float(m[1]))
+
+    @staticmethod
+    def _facing(lane_ids: Iterable[str], lanes: dict[str, Lane], line: np.ndarray) -> float:
+        """The direction the control faces: against the traffic on its lanes at the stop line."""
+        mid = line.mean(axis=0)
+        for lid in lane_ids:
+            pts = lanes[lid].points
+            k = int(np.argmin(np.hypot(*(pts - mid).T)))
+            a, b = pts[max(k - 1, 0)], pts[min(k + 1, len(pts) - 1)]
+            return math.atan2(a[1] - b[1], a[0] - b[0])
+        d = line[-1] - line[0]
+        return math.atan2(-d[0], d[1])
+
+    def _crosswalks(self, pairs, lanes: dict[str, Lane], junctions: dict[str, Junction],
+                    o: np.ndarray) -> dict[str, Crosswalk]:
+        """Crosswalks linked to a junction through the junction lanes they overlap, else
+        geometrically (the nearest junction polygon within APOLLO_CROSSWALK_LINK_M); empty ids
+        get a stable made-up one."""
+        lanes_of: dict[str, list[str]] = {}
+        for cid, lid, _ in pairs.get(("crosswalk", "lane"), []):
+            lanes_of.setdefault(cid, []).append(lid)
+        jids = list(junctions)
+        polys = [Polygon(junctions[j].polygon) for j in jids]
+        tree = STRtree(polys) if polys else None
+        out: dict[str, Crosswalk] = {}
+        for i, c in enumerate(self.pb.crosswalk):
+            cid = c.id.id or f"crosswalk_unnamed_{i}"
+            if cid in out:
+                cid = f"{cid}_{i}"
+            pts = _polygon_points(c.polygon) - o
+            if len(pts) < 3:
+                self.warn(f"crosswalk {cid!r}", "polygon has fewer than 3 points, skipped")
+                continue
+            # a junction lane it overlaps; road lanes at a junction mouth do not tell which end
+            jid = next((lanes[lid].junction_id for lid in (lanes_of.get(c.id.id, []) if c.id.id else [])
+                        if lid in lanes and lanes[lid].junction_id), None)
+            if jid is None and tree is not None:
+                poly = Polygon(pts).buffer(0)
+                near = tree.query(poly, predicate="dwithin", distance=APOLLO_CROSSWALK_LINK_M)
+                if len(near):
+                    jid = jids[int(min(near, key=lambda k: polys[k].distance(poly)))]
+            out[cid] = Crosswalk(cid, jid, as_polyline(pts))
+        return out
+
+
+def read_apollo(path: str | Path) -> HDMap:
+    """Read an Apollo HD map file (binary or text protobuf, Apollo 5-9) into an HDMap."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MapFormatError(f"cannot read ({exc.strerror})", str(path)) from None
+    pb = aps.parse_map(data, str(path))
+    return _Reader(pb, str(path)).read()
+
+
+def read_apollo_bytes(data: bytes, where: str = "<bytes>") -> HDMap:
+    """Like `read_apollo`, from the file's content."""
+    return _Reader(aps.parse_map(data, where), where).read()
