@@ -41,8 +41,8 @@ MAX_STEPS_SAFETY = 100_000  # guards against an env that never ends
 # ---- planner specs ----------------------------------------------------------------------------
 class PlannerFactory:
     """A picklable zero-argument factory of fresh planners from a spec: "baseline",
-    "module:attr" (a Policy class, a Policy instance, a callable `(obs, info) -> action` or an
-    SB3 model), or the object itself."""
+    "module:attr" (a Policy class, a Policy instance, a callable `obs -> action` or an SB3
+    model), or the object itself."""
 
     def __init__(self, spec: Any = "baseline") -> None:
         self.spec = spec
@@ -85,7 +85,10 @@ class PlannerFactory:
         if not (hasattr(policy, "act") and hasattr(policy, "reset")):
             from .planner import as_policy
 
-            policy = as_policy(policy)
+            try:
+                policy = as_policy(policy)
+            except TypeError as exc:
+                raise Feat2MapError(str(exc), f"planner {self.name!r}") from None
         return policy
 
 
@@ -424,17 +427,22 @@ def _run_task(task: _Task) -> tuple[int, Outcome]:
     import feat2map  # noqa: F401  (registers the env ids in spawned workers)
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    scenario = task.scenario
+    if isinstance(scenario, dict):  # scenarios travel as their dicts (plain data, always picklable)
+        from .scenario import Scenario
+
+        scenario = Scenario.from_dict(scenario, f"scenario {scenario.get('name', task.index)!r}")
     try:
-        out = run_scenario(task.scenario, task.factory, record_failure_gif=task.record_failure_gif,
+        out = run_scenario(scenario, task.factory, record_failure_gif=task.record_failure_gif,
                            coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules)
     except Feat2MapError:
         raise
     except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
-        name = str(getattr(task.scenario, "name", f"scenario {task.index}"))
+        name = str(getattr(scenario, "name", f"scenario {task.index}"))
         out = Outcome(name=name, outcome="error", violations={}, sim_s=0.0, steps=0,
                       stage_path=(), transitions=(), junctions=(), route_progress=0.0,
                       message=f"planner or env raised {type(exc).__name__}: {exc}",
-                      seed=getattr(task.scenario, "seed", None), map=str(getattr(task.scenario, "map", "")))
+                      seed=getattr(scenario, "seed", None), map=str(getattr(scenario, "map", "")))
     return task.index, out
 
 
@@ -453,7 +461,7 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         raise Feat2MapError("must be at least 1", f"workers {workers}")
     scenarios = list(getattr(suite, "scenarios", suite))
     factory = as_factory(planner)
-    tasks = [_Task(i, s, factory, record_failure_gif, coverage, fail_on, tuple(coverage_modules))
+    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on, tuple(coverage_modules))
              for i, s in enumerate(scenarios)]
     results: dict[int, Outcome] = {}
     bar = tqdm(total=len(tasks), desc=f"rollout {getattr(suite, 'name', '')}".strip(), unit="scenario",

@@ -1,0 +1,195 @@
+"""Rollouts end to end, headless: a route-coverage suite of a small generated map runs through
+the CLI (summary, JUnit XML, report); results do not depend on the worker count or backend; a
+deliberately broken planner (runs red lights) fails the run with a readable report and a GIF;
+bad input is one line and exit code 2."""
+from __future__ import annotations
+
+import json
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import pytest
+
+import feat2map
+from feat2map import cli, mapio
+from feat2map.scenarios.planner import BaselinePlanner
+from feat2map.scenarios.report import load_result
+from feat2map.scenarios.rollout import (FAIL_POLICIES, Outcome, PlannerFactory, SuiteResult, classify,
+                                        run_scenario, run_suite)
+from feat2map.scenarios.scenario import Suite, load_suite, save_suite
+
+J = feat2map.JunctionFeature.make
+KEEP = ("t-r000", "t-r002", "t-r005")  # right turn, straight, unprotected left at a signal
+
+
+class RedLightRunner(BaselinePlanner):
+    """The deliberately broken planner: the baseline that ignores signals."""
+
+    def __init__(self) -> None:
+        super().__init__(ignore={"signal"})
+
+
+class Crashing(BaselinePlanner):
+    """A planner that raises mid-episode."""
+
+    def act(self, obs, info):
+        if self._steps >= 3:
+            raise RuntimeError("planner bug")
+        return super().act(obs, info)
+
+
+@pytest.fixture(scope="module")
+def suite_file(tmp_path_factory) -> Path:
+    """A T junction with a signal and crosswalks; the CLI's route-coverage suite, cut to 3."""
+    d = tmp_path_factory.mktemp("rollout")
+    m = feat2map.generate_from_features([J([0, 90, 180], "signal", True)], seed=0)
+    mapio.save(m, d / "t.json")
+    assert cli.main(["suite", str(d / "t.json"), "--out", str(d / "full.yaml"), "--traffic", "2",
+                     "--pedestrian-rate", "2"]) == 0
+    full = load_suite(d / "full.yaml")
+    assert len(full.scenarios) == 6  # every manoeuvre of a T junction, one route each
+    save_suite(Suite("t", tuple(s for s in full.scenarios if s.name in KEEP), full.base_dir), d / "suite.yaml")
+    return d / "suite.yaml"
+
+
+@pytest.fixture(scope="module")
+def cli_run(suite_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out") / "report"
+    code = cli.main(["rollout", str(suite_file), "--out", str(out), "--quiet"])
+    return code, out
+
+
+def test_suite_runs_end_to_end_through_the_cli(cli_run, capsys):
+    code, out = cli_run
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert [o["name"] for o in summary["outcomes"]] == list(KEEP)
+    assert all(o["outcome"] == "completed" for o in summary["outcomes"]), summary["failed"]
+    assert summary["counts"]["completed"] == 3 and summary["failed"] == []
+    for o in summary["outcomes"]:
+        assert o["stage_path"][0] == "LF" and o["stage_path"][-1] == "LF" and len(o["stage_path"]) >= 3
+        assert o["junctions"] == ["J0"] and o["route_progress"] == pytest.approx(1.0, abs=0.05)
+        assert o["junction_lines"]["J0"], "line coverage is on by default"
+    root = ET.parse(out / "junit.xml").getroot()
+    cases = root.findall("./testsuite/testcase")
+    assert [c.get("name") for c in cases] == list(KEEP)
+    assert root.get("tests") == "3" and root.get("failures") == "0"
+    assert not root.findall(".//failure")
+    report = (out / "report.md").read_text()
+    assert "**passed**" in report and "## Behaviour coverage" in report and "## Planner line coverage" in report
+    for png in ("outcomes.png", "coverage.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (out / "failures").exists()
+
+
+def test_results_are_independent_of_worker_count(suite_file, cli_run):
+    """workers=1 (the CLI run above) and workers=2 over spawned processes give equal outcomes."""
+    suite = load_suite(suite_file)
+    two = run_suite(suite, "baseline", workers=2, coverage=True, progress=False)
+    one = load_result(cli_run[1])
+    assert one == two
+    assert [o.outcome for o in two.outcomes] == ["completed"] * 3
+    assert two.outcomes[0].wall_s > 0
+
+
+def test_ray_backend_gives_the_local_results(suite_file, cli_run):
+    pytest.importorskip("ray", reason="ray not installed (pip install 'feat2map[ray]')")
+    suite = load_suite(suite_file)
+    remote = run_suite(suite.scenarios[:2], "baseline", workers=2, backend="ray", coverage=True, progress=False)
+    local = load_result(cli_run[1])  # the in-process CLI run of the same scenarios
+    assert remote.outcomes == local.outcomes[:2] and remote.backend == "ray"
+
+
+def test_broken_planner_fails_with_readable_report_and_gif(suite_file, tmp_path, capsys):
+    suite = load_suite(suite_file)
+    one = tmp_path / "one.yaml"
+    save_suite(Suite("red", suite.scenarios[:1], suite.base_dir), one)
+    out = tmp_path / "red"
+    code = cli.main(["rollout", str(one), "--planner", f"{__name__}:RedLightRunner", "--out", str(out),
+                     "--quiet", "--no-coverage"])
+    assert code == 1
+    printed = capsys.readouterr().out
+    assert "FAIL t-r000: violation: traffic rule violation: red_light x1" in printed
+    root = ET.parse(out / "junit.xml").getroot()
+    fail = root.find("./testsuite/testcase/failure")
+    assert fail is not None and fail.get("type") == "violation" and "red_light" in fail.get("message")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["failed"] == ["t-r000"] and summary["outcomes"][0]["violations"]["red_light"] >= 1
+    gif = out / summary["gifs"]["t-r000"]
+    from PIL import Image
+
+    with Image.open(gif) as im:
+        assert im.format == "GIF" and im.n_frames > 10 and im.size[0] > 100
+    report = (out / "report.md").read_text()
+    assert "**FAILED**" in report and "## Failures" in report and "failures/t-r000.gif" in report
+    # the failure policy decides the exit code
+    out2 = tmp_path / "red2"
+    assert cli.main(["rollout", str(one), "--planner", f"{__name__}:RedLightRunner", "--out", str(out2),
+                     "--quiet", "--no-coverage", "--no-gif", "--fail-on", "collision"]) == 0
+    assert not (out2 / "failures").exists()
+    assert ET.parse(out2 / "junit.xml").getroot().get("failures") == "0"
+
+
+def test_a_raising_planner_is_an_error_outcome(suite_file):
+    sc = load_suite(suite_file).scenarios[0]
+    res = run_suite([sc], Crashing, progress=False, record_failure_gif=False)
+    o = res.outcomes[0]
+    assert o.outcome == "error" and "RuntimeError: planner bug" in o.message
+    assert res.exit_code("collision") == 1 and res.exit_code("none") == 0
+
+
+def test_classification_and_policies():
+    base = {"collision": False, "off_road": False, "violations": {"red_light": 0}, "route_completed": True}
+    assert classify(base) == "completed"
+    assert classify({**base, "route_completed": False}) == "timeout"
+    assert classify({**base, "violations": {"red_light": 1}}) == "violation"
+    assert classify({**base, "off_road": True, "violations": {"red_light": 1}}) == "off_road"
+    assert classify({**base, "collision": True, "off_road": True}) == "collision"
+    assert FAIL_POLICIES["none"] == frozenset()
+    o = Outcome("a", "timeout", {}, 1.0, 5, (), (), (), 0.5)
+    assert o.fails("any") and not o.fails("violation") and not o.fails("collision")
+    r = SuiteResult("s", "baseline", (o,))
+    assert SuiteResult.from_dict(json.loads(json.dumps(r.to_dict()))) == r
+
+
+def test_planner_specs(suite_file):
+    assert isinstance(PlannerFactory("baseline")(), BaselinePlanner)
+    assert isinstance(PlannerFactory(f"{__name__}:RedLightRunner")(), RedLightRunner)
+    # a plain callable obs -> action drives through as_policy
+    sc = load_suite(suite_file).scenarios[1]
+    out = run_scenario(sc, PlannerFactory(_full_throttle), record_failure_gif=False)
+    assert out.steps > 0 and out.stage_path == ()
+
+
+def _full_throttle(obs):
+    import numpy as np
+
+    return np.array([0.2], dtype=np.float32)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["rollout", "missing.yaml", "--out", "o"], "missing.yaml"),
+    (["rollout", "SUITE", "--out", "o", "--planner", "no_such_module_x:P"], "no_such_module_x"),
+    (["rollout", "SUITE", "--out", "o", "--planner", "feat2map:nothing"], "nothing"),
+    (["rollout", "SUITE", "--out", "o", "--planner", "nocolon"], "module:attr"),
+    (["rollout", "SUITE", "--out", "o", "--workers", "0"], "--workers"),
+    (["rollout", "SUITE", "--out", "o", "--backend", "slurm"], "slurm"),
+    (["coverage", "NORESULT", "--out", "o"], "no rollout summary"),
+    (["suite", "missing.json", "--out", "s.yaml"], "missing.json"),
+])
+def test_bad_input_is_one_line_and_exit_2(args, needle, suite_file, tmp_path, capsys):
+    args = [str(suite_file) if a == "SUITE" else str(tmp_path / a) if a in ("o", "NORESULT", "missing.yaml",
+                                                                                 "missing.json", "s.yaml") else a
+            for a in args]
+    try:
+        code = cli.main(args)
+    except SystemExit as exc:  # argparse errors
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "s.yaml").exists()
+
