@@ -21,7 +21,7 @@ from shapely.geometry import LineString, Polygon
 
 from .. import __version__, atomic
 from .. import apollo_schema as aps
-from ..config import (APOLLO_SAMPLE_WINDOW_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APOLLO_STOP_LINE_OVERLAP_M,
+from ..config import (APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APOLLO_STOP_LINE_OVERLAP_M,
                       SIM_MAP_ANGLE_THRESHOLD_RAD, SIM_MAP_DOWNSAMPLE_DISTANCE_M,
                       SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M, UTM_ORIGIN, UTM_ZONE)
 from ..errors import Feat2MapError
@@ -88,6 +88,23 @@ def polygon_range(centerline: Polyline, polygon: Polyline) -> tuple[float, float
         return None
     ss = [line.project(shapely.Point(c)) for c in shapely.get_coordinates(inter)]
     return min(ss), max(ss)
+
+
+def exact_end_centerline(ln: Lane, step: float = APOLLO_END_TANGENT_M) -> Polyline:
+    """The centreline with a point `step` metres inside each end taken from the lane's exact
+    Bézier, so the first and last chords follow the true end tangents (Apollo, and any reader,
+    takes a lane's end headings from them); unchanged for lanes without a Bézier."""
+    pts = ln.centerline
+    bz = ln.bezier
+    if bz is None or len(pts) < 2 or bz.length <= 4 * step:
+        return pts
+    if math.dist(pts[0], bz.p0) > 1e-6 or math.dist(pts[-1], bz.p3) > 1e-6:
+        return pts
+    eps = step / bz.length
+    if math.dist(pts[0], pts[1]) <= 2 * step or math.dist(pts[-2], pts[-1]) <= 2 * step:
+        return pts
+    a, b = (tuple(map(float, p)) for p in bz.point(np.array([eps, 1.0 - eps])))
+    return (pts[0], a) + tuple(pts[1:-1]) + (b, pts[-1])
 
 
 def road_edges(m: HDMap, lane: Lane) -> tuple[Polyline, Polyline]:
@@ -305,7 +322,8 @@ def _lane(msg: Any, m: HDMap, ln: Lane, frame: _Frame, lid: dict[str, str], ids:
     msg.direction = aps.Lane.FORWARD
     msg.turn = TURN.get(ln.turn, aps.Lane.NO_TURN)
     msg.speed_limit = float(ln.speed_limit)
-    msg.length = frame.fill_curve(msg.central_curve, ln.centerline)
+    centre = exact_end_centerline(ln)
+    msg.length = frame.fill_curve(msg.central_curve, centre)
     for side, pts, kind in (("left", ln.left_boundary, ln.left_boundary_type),
                             ("right", ln.right_boundary, ln.right_boundary_type)):
         b = getattr(msg, f"{side}_boundary")
@@ -324,10 +342,10 @@ def _lane(msg: Any, m: HDMap, ln: Lane, frame: _Frame, lid: dict[str, str], ids:
     if ln.junction_id in m.junctions:
         msg.junction_id.id = ids.of[("junction", ln.junction_id)]
     for field, edge in (("left_sample", ln.left_boundary), ("right_sample", ln.right_boundary)):
-        _samples(getattr(msg, field), ln.centerline, edge, msg.length)
+        _samples(getattr(msg, field), centre, edge, msg.length)
     left, right = road_edges(m, ln)
-    _samples(msg.left_road_sample, ln.centerline, left, msg.length)
-    _samples(msg.right_road_sample, ln.centerline, right, msg.length)
+    _samples(msg.left_road_sample, centre, left, msg.length)
+    _samples(msg.right_road_sample, centre, right, msg.length)
     return msg
 
 

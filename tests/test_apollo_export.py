@@ -1,0 +1,641 @@
+"""Apollo export: generated maps export, validate clean, read back with the same features;
+sim_map and routing_map follow Apollo's tools; every validator check can fail; CLI codes."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import feat2map
+from feat2map import apollo_schema as aps
+from feat2map import mapio
+from feat2map.apollo_routing import build_routing_graph, node_cost
+from feat2map.apollo_validate import Problem, validate_apollo, validate_map
+from feat2map.cli import main
+from feat2map.config import (APOLLO_MIN_HALF_WIDTH_M, ROUTING_BASE_SPEED_MPS, ROUTING_CHANGE_PENALTY,
+                             ROUTING_LEFT_TURN_PENALTY, ROUTING_RIGHT_TURN_PENALTY, UTM_ORIGIN)
+from feat2map.errors import Feat2MapError, MapFormatError
+from feat2map.features import FeatureSpace, JunctionFeature
+from feat2map.writers import apollo as wa
+
+APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
+FILES = ("base_map", "sim_map", "routing_map")
+
+
+def _features() -> list[JunctionFeature]:
+    return [JunctionFeature.make([0, 120, 240], "signal", True, lanes=[2, 2, 1]),
+            JunctionFeature.make([0, 90, 180, 270], "stop", True),
+            JunctionFeature.make([10, 80, 170, 260, 300], "bare", False)]
+
+
+@pytest.fixture(scope="module")
+def small_map() -> feat2map.HDMap:
+    """Three junctions: signalled T with 2-lane legs and crosswalks, all-way stop, bare 5-leg."""
+    return feat2map.generate_from_features(_features(), seed=3)
+
+
+@pytest.fixture(scope="module")
+def exported(small_map, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("apollo") / "small"
+    wa.write_apollo(small_map, out)
+    return out
+
+
+def _load(path: Path, name: str):
+    data = (path / f"{name}.bin").read_bytes()
+    return (aps.parse_graph if name == "routing_map" else aps.parse_map)(data, name)
+
+
+def _pinched_lanes(m: feat2map.HDMap) -> set[str]:
+    """Lanes the generator itself builds narrower than Apollo's minimum half width (strong S
+    bends on connection roads); the validator must flag exactly these."""
+    return {ln.id for ln in m.lanes.values()
+            if min(w for side in (ln.left_boundary, ln.right_boundary)
+                   for _, w in wa.distance_samples(ln.centerline, side)) < APOLLO_MIN_HALF_WIDTH_M}
+
+
+def _assert_clean(m: feat2map.HDMap, problems: list[Problem]) -> None:
+    pinched = _pinched_lanes(m)
+    unexpected = [p for p in problems if not (p.element.removeprefix("lane ") in pinched and "_sample width" in p.message)]
+    assert unexpected == []
+    assert {p.element.removeprefix("lane ") for p in problems} == pinched
+
+
+# --- export is complete and validates clean --------------------------------------------------
+
+def test_export_writes_six_files_that_validate_clean(small_map, exported):
+    assert sorted(p.name for p in exported.iterdir()) == sorted(f"{n}.{e}" for n in FILES for e in ("bin", "txt"))
+    assert _pinched_lanes(small_map) == set()
+    assert validate_apollo(exported) == []
+
+
+def test_txt_and_bin_hold_the_same_message(exported):
+    for name in FILES:
+        parse = aps.parse_graph if name == "routing_map" else aps.parse_map
+        txt = parse((exported / f"{name}.txt").read_bytes(), name)
+        assert txt == parse((exported / f"{name}.bin").read_bytes(), name)
+        assert (exported / f"{name}.txt").read_bytes().lstrip().startswith(b"header {" if name != "routing_map"
+                                                                           else b"hdmap_version")
+
+
+def test_base_map_mirrors_the_model(small_map, exported):
+    base = _load(exported, "base_map")
+    ox, oy = UTM_ORIGIN
+    assert base.header.projection.proj.startswith("+proj=utm +zone=10 ")
+    lanes = {ln.id.id: ln for ln in base.lane}
+    assert set(lanes) == set(small_map.lanes)
+    for ln in small_map.lanes.values():
+        a = lanes[ln.id]
+        assert a.type == aps.Lane.CITY_DRIVING and a.HasField("type") and a.direction == aps.Lane.FORWARD
+        pts = a.central_curve.segment[0].line_segment.point
+        assert (pts[0].x - ox, pts[0].y - oy) == pytest.approx(ln.start, abs=1e-6)
+        assert (pts[-1].x - ox, pts[-1].y - oy) == pytest.approx(ln.end, abs=1e-6)
+        assert a.length == pytest.approx(ln.length, rel=1e-3) and a.speed_limit == pytest.approx(ln.speed_limit)
+        assert a.turn == wa.TURN[ln.turn]
+        assert [x.id for x in a.successor_id] == list(ln.successors)
+        assert [x.id for x in a.left_neighbor_forward_lane_id] == list(ln.left_neighbors)
+        # half widths: half the 3.5 m lane at the ends (exact offsets); bends vary a little inside
+        for samples in (a.left_sample, a.right_sample):
+            w = [x.width for x in samples]
+            assert (w[0], w[-1]) == pytest.approx((ln.width / 2, ln.width / 2), abs=0.05)  # chords
+            assert min(w) >= APOLLO_MIN_HALF_WIDTH_M and max(w) < ln.width / 2 + 0.25
+        assert a.left_sample[0].s == 0 and a.left_sample[-1].s == pytest.approx(a.length)
+        # boundaries between same-direction neighbours are dotted, and both sides agree
+        if ln.left_neighbors:
+            assert list(a.left_boundary.boundary_type[0].types) == [aps.LaneBoundaryType.DOTTED_WHITE]
+        if ln.junction_id:
+            assert a.junction_id.id == ln.junction_id and a.left_boundary.virtual
+    roads = {r.id.id: r for r in base.road}
+    for r in small_map.roads.values():
+        assert [x.id for x in roads[r.id].section[0].lane_id] == list(r.lane_ids)
+        assert roads[r.id].junction_id.id == (r.junction_id or "")
+    ids = [e.id.id for kind in ("lane", "road", "junction", "signal", "stop_sign", "crosswalk", "overlap")
+           for e in getattr(base, kind)]
+    assert len(ids) == len(set(ids))
+
+
+def _overlap_partners(base, kind: str) -> dict[str, dict[str, tuple[float, float]]]:
+    """element id of `kind` -> {lane id: (start_s, end_s)} over its overlaps."""
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for ov in base.overlap:
+        objs = {o.WhichOneof("overlap_info"): o for o in ov.object}
+        if f"{kind}_overlap_info" in objs and "lane_overlap_info" in objs:
+            lane = objs["lane_overlap_info"]
+            out.setdefault(objs[f"{kind}_overlap_info"].id.id, {})[lane.id.id] = (
+                lane.lane_overlap_info.start_s, lane.lane_overlap_info.end_s)
+    return out
+
+
+def test_overlaps_sit_where_the_model_says(small_map, exported):
+    base = _load(exported, "base_map")
+    length = {ln.id.id: ln.length for ln in base.lane}
+    signals = _overlap_partners(base, "signal")
+    for s in small_map.signals.values():  # incoming lanes, at the stop line (their end)
+        assert set(signals[s.id]) == set(s.lane_ids)
+        for lid, (a, b) in signals[s.id].items():
+            assert a < b and b == pytest.approx(length[lid])
+    stops = _overlap_partners(base, "stop_sign")
+    assert {k: set(v) for k, v in stops.items()} == {s.id: set(s.lane_ids) for s in small_map.stop_signs.values()}
+    junctions = _overlap_partners(base, "junction")
+    for jid in small_map.junctions:
+        want = {ln.id: (0.0, pytest.approx(length[ln.id])) for ln in small_map.junction_lanes(jid)}
+        assert junctions[jid] == want
+    crosswalks = _overlap_partners(base, "crosswalk")
+    assert set(crosswalks) == set(small_map.crosswalks)
+    for cid, lanes in crosswalks.items():  # every lane through the strip, over a strip-wide range
+        assert lanes and all(small_map.lanes[lid].junction_id == small_map.crosswalks[cid].junction_id
+                             for lid in lanes)
+        assert all(2.0 < b - a < 12.0 for a, b in lanes.values())
+
+
+def test_signals_have_boundary_subsignals_and_one_stop_line(exported):
+    base = _load(exported, "base_map")
+    assert base.signal and base.stop_sign
+    for s in base.signal:
+        assert len(s.boundary.point) == 4 and len({(p.x, p.y, p.z) for p in s.boundary.point}) == 4
+        assert [x.type for x in s.subsignal] == [aps.Subsignal.CIRCLE] * 3
+        assert len(s.stop_line) == 1 and len(s.stop_line[0].segment[0].line_segment.point) >= 2
+    for s in base.stop_sign:
+        lines = list(s.stop_line) if hasattr(s.stop_line, "add") else [s.stop_line]
+        assert s.type == aps.StopSign.ALL_WAY and len(lines) == 1
+        assert len(lines[0].segment[0].line_segment.point) >= 2
+
+
+def test_zone_and_origin_are_configurable(small_map, tmp_path):
+    m = wa.to_apollo(small_map, zone=33, origin=(400000.0, 5000000.0))
+    assert "+zone=33 " in m.header.projection.proj
+    p = m.lane[0].central_curve.segment[0].line_segment.point[0]
+    first = next(iter(small_map.lanes.values())).start
+    assert (p.x, p.y) == pytest.approx((400000.0 + first[0], 5000000.0 + first[1]))
+    for bad in ({"zone": 0}, {"zone": 61}, {"origin": (float("nan"), 0.0)}):
+        with pytest.raises(Feat2MapError):
+            wa.to_apollo(small_map, **bad)
+
+
+def test_round_trip_through_the_apollo_reader_keeps_features(small_map, exported):
+    reader = pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader (issue 3) not present")
+    from feat2map.extract import extract_junctions
+
+    back = reader.read_apollo(exported / "base_map.bin")
+    want = {e.id: e for e in extract_junctions(small_map)}
+    got = {e.id: e for e in extract_junctions(back)}
+    assert set(got) == set(want)
+    for jid, x in want.items():
+        y = got[jid]
+        f, g = x.feature, y.feature
+        assert (g.n_roads, g.control, g.crosswalk) == (f.n_roads, f.control, f.crosswalk)
+        ax, ay = [a.angle_deg for a in x.arms], [a.angle_deg for a in y.arms]
+        for a in ax:  # every socket has a partner within 0.5 degrees
+            assert min(abs((a - b + 180) % 360 - 180) for b in ay) < 0.5
+        if not _largest_gap_tied(ax, 0.5):  # else normalization may start at either tied gap
+            assert g.rotation == pytest.approx(f.rotation, abs=0.5)
+
+
+def _largest_gap_tied(angles: list[float], tol_deg: float) -> bool:
+    a = sorted(x % 360.0 for x in angles)
+    gaps = sorted(((a[(i + 1) % len(a)] - a[i]) % 360.0 for i in range(len(a))), reverse=True)
+    return gaps[0] - gaps[1] < tol_deg
+
+
+@st.composite
+def _spaces(draw):
+    counts = draw(st.sets(st.sampled_from([3, 4, 5]), min_size=1, max_size=2))
+    controls = draw(st.sets(st.sampled_from(["bare", "signal", "stop"]), min_size=1, max_size=2))
+    crosswalks = draw(st.sets(st.booleans(), min_size=1))
+    ranges = {n: tuple((i * 360 / n - 8, i * 360 / n + 8) for i in range(n)) for n in counts}
+    return FeatureSpace(tuple(counts), tuple(controls), tuple(crosswalks), ranges)
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(_spaces(), st.integers(0, 2**31 - 1))
+def test_every_generated_map_exports_clean(space, seed):
+    m = feat2map.generate(space, seed=seed)
+    base = wa.to_apollo(m)
+    _assert_clean(m, validate_map(base))
+    # the graph routes every lane; sim_map keeps every element
+    graph = build_routing_graph(base)
+    assert {n.lane_id for n in graph.node} == set(m.lanes)
+    sim = wa.to_sim_map(base)
+    assert [ln.id.id for ln in sim.lane] == [ln.id.id for ln in base.lane]
+
+
+def test_pinched_generator_lanes_are_flagged():
+    """Seed 1 of the paper's space has an S-bend connection whose lanes narrow to ~1 m (a
+    generator defect): the validator reports their width samples and nothing else."""
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1)
+    problems = validate_map(wa.to_apollo(m))
+    assert _pinched_lanes(m) and problems
+    _assert_clean(m, problems)
+
+
+# --- sim_map ---------------------------------------------------------------------------------
+
+def test_sim_map_downsamples_like_apollo(exported):
+    base, sim = _load(exported, "base_map"), _load(exported, "sim_map")
+    assert sim.junction == base.junction and sim.overlap == base.overlap and sim.signal == base.signal
+    fewer = 0
+    for a, b in zip(base.lane, sim.lane):
+        assert not (b.left_sample or b.right_sample or b.left_road_sample or b.right_road_sample)
+        for get in (lambda x: x.central_curve, lambda x: x.left_boundary.curve, lambda x: x.right_boundary.curve):
+            pa = [(p.x, p.y) for p in get(a).segment[0].line_segment.point]
+            pb = [(p.x, p.y) for p in get(b).segment[0].line_segment.point]
+            assert pb[0] == pa[0] and pb[-1] == pa[-1] and set(pb) <= set(pa) and len(pb) >= 2
+            fewer += len(pb) < len(pa)
+    assert fewer > 0
+
+
+def test_downsampling_rules():
+    straight = np.column_stack([np.linspace(0, 50, 26), np.zeros(26)])
+    assert wa.downsample_by_angle(straight) == [0, 25]  # no heading change: only the ends
+    assert wa.downsample_by_distance(straight[:4]) == [0, 1, 2, 3]  # 4 points or fewer: all kept
+    # every 5 m on a gentle path; every 1 m once the path turns by 90 degrees or more
+    idx = wa.downsample_by_distance(straight)
+    assert idx[0] == 0 and idx[-1] == 25 and all(b - a == 3 for a, b in zip(idx[:-2], idx[1:-1]))
+    t = np.linspace(0, math.pi, 60)
+    arc = np.column_stack([10 * np.cos(t), 10 * np.sin(t)])  # a U: steep turn, spacing 0.53 m
+    idx = wa.downsample_by_distance(arc)
+    assert all(b - a == 2 for a, b in zip(idx[:-2], idx[1:-1]))
+    # 0.18 degrees per point: the turn accumulated against the last kept segment (0.18 + 0.36 +
+    # 0.54) exceeds 1 degree at the third point after it
+    t = np.linspace(0, math.pi, 1001)
+    keep = wa.downsample_by_angle(np.column_stack([10 * np.cos(t), 10 * np.sin(t)]))
+    assert keep[0] == 0 and keep[-1] == 1000 and all(b - a == 3 for a, b in zip(keep[:-2], keep[1:-1]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.floats(-100, 100), st.floats(-100, 100)), min_size=2, max_size=40))
+def test_downsampling_keeps_ends_in_order(points):
+    pts = np.asarray(points, dtype=float)
+    for idx in (wa.downsample_by_angle(pts), wa.downsample_by_distance(pts)):
+        assert idx[0] == 0 and idx[-1] == len(pts) - 1 and idx == sorted(set(idx))
+
+
+# --- routing_map -----------------------------------------------------------------------------
+
+def test_routing_graph_as_topo_creator_builds_it(small_map, exported):
+    base, graph = _load(exported, "base_map"), _load(exported, "routing_map")
+    assert graph == build_routing_graph(base)
+    lanes = {ln.id.id: ln for ln in base.lane}
+    nodes = {n.lane_id: n for n in graph.node}
+    assert set(nodes) == set(small_map.lanes)
+    for lid, n in nodes.items():
+        ln = small_map.lanes[lid]
+        penalty = {"left": ROUTING_LEFT_TURN_PENALTY, "right": ROUTING_RIGHT_TURN_PENALTY}.get(ln.turn, 0.0)
+        length = lanes[lid].length
+        assert length == pytest.approx(ln.length, rel=1e-3)
+        assert n.cost == pytest.approx(length * math.sqrt(ROUTING_BASE_SPEED_MPS / ln.speed_limit) + penalty)
+        assert n.cost == pytest.approx(node_cost(lanes[lid]))
+        assert n.road_id == ln.road_id and n.length == pytest.approx(length)
+        assert n.is_virtual == bool(ln.junction_id)
+        assert bool(n.left_out) == ln.left_boundary_type.startswith("dotted")
+    edges = {(e.from_lane_id, e.to_lane_id): e for e in graph.edge}
+    forward = {(a.id, b) for a in small_map.lanes.values() for b in a.successors}
+    changes = {(a.id, b) for a in small_map.lanes.values() for b in a.left_neighbors + a.right_neighbors}
+    assert changes, "the 2-lane junction has lane changes"
+    assert set(edges) == forward | changes
+    for key in forward:
+        assert edges[key].direction_type == aps.Edge.FORWARD and edges[key].cost == 0
+    for a, b in changes:
+        e = edges[(a, b)]
+        assert e.direction_type == (aps.Edge.LEFT if b in small_map.lanes[a].left_neighbors else aps.Edge.RIGHT)
+        length = lanes[a].length
+        want = ROUTING_CHANGE_PENALTY * (1.0 if length >= 50 else (length / 50) ** -1.5)
+        assert e.cost == pytest.approx(want, rel=1e-6)
+
+
+def test_solid_boundaries_and_non_city_lanes_route_nothing(exported):
+    base = _load(exported, "base_map")
+    for ln in base.lane:
+        for b in (ln.left_boundary, ln.right_boundary):
+            b.boundary_type[0].types[0] = aps.LaneBoundaryType.SOLID_WHITE
+    assert all(e.direction_type == aps.Edge.FORWARD for e in build_routing_graph(base).edge)
+    base.lane[0].type = aps.Lane.SIDEWALK
+    g = build_routing_graph(base)
+    assert base.lane[0].id.id not in {n.lane_id for n in g.node}
+    assert base.lane[0].id.id not in {e.to_lane_id for e in g.edge} | {e.from_lane_id for e in g.edge}
+
+
+# --- every check can fail ----------------------------------------------------------------------
+
+def _lane(m, pred=lambda ln: True):
+    return next(ln for ln in m.lane if pred(ln))
+
+
+def _junction_lane(m):
+    return _lane(m, lambda ln: ln.HasField("junction_id"))
+
+
+def _drop_successor(m):
+    ln = _lane(m, lambda x: x.successor_id)
+    del ln.successor_id[0]
+
+
+def _drop_neighbor(m):
+    del _lane(m, lambda x: x.left_neighbor_forward_lane_id).left_neighbor_forward_lane_id[0]
+
+
+def _drop_overlap_side(m):
+    del _lane(m, lambda x: x.overlap_id).overlap_id[0]
+
+
+def _empty_types(m):
+    del m.lane[0].left_boundary.boundary_type[0].types[:]
+
+
+def _no_boundary_type(m):
+    del m.lane[0].right_boundary.boundary_type[:]
+
+
+def _no_type(m):
+    m.lane[0].ClearField("type")
+
+
+def _kmh(m):
+    m.lane[0].speed_limit = 48.3 * 3.6
+
+
+def _no_turn(m):
+    m.lane[0].ClearField("turn")
+
+
+def _no_direction(m):
+    m.lane[0].ClearField("direction")
+
+
+def _no_length(m):
+    m.lane[0].ClearField("length")
+
+
+def _wrong_segment_length(m):
+    m.lane[0].central_curve.segment[0].length += 3.0
+
+
+def _one_point(m):
+    del m.lane[0].left_boundary.curve.segment[0].line_segment.point[1:]
+
+
+def _no_samples(m):
+    m.lane[0].ClearField("right_sample")
+
+
+def _no_road_samples(m):
+    m.lane[0].ClearField("left_road_sample")
+
+
+def _narrow(m):
+    m.lane[0].left_sample[0].width = 0.4
+
+
+def _two_sections(m):
+    m.road[0].section.add().lane_id.add(id=m.road[0].section[0].lane_id[0].id)
+
+
+def _no_section(m):
+    del m.road[0].section[0].lane_id[0]
+
+
+def _road_junction(m):
+    jid = _junction_lane(m).junction_id.id
+    next(r for r in m.road if r.junction_id.id == jid).ClearField("junction_id")
+
+
+def _junction_polygon(m):
+    del m.junction[0].polygon.point[2:]
+
+
+def _crosswalk_polygon(m):
+    del m.crosswalk[0].polygon.point[2:]
+
+
+def _signal_boundary(m):
+    del m.signal[0].boundary.point[3:]
+
+
+def _subsignal(m):
+    m.signal[0].subsignal[0].ClearField("location")
+
+
+def _signal_stop_line(m):
+    del m.signal[0].stop_line[:]
+
+
+def _stop_sign_line(m):
+    s = m.stop_sign[0]
+    s.ClearField("stop_line")
+
+
+def _one_object(m):
+    del m.overlap[0].object[1:]
+
+
+def _bad_s(m):
+    ov = next(o for o in m.overlap if o.object[0].WhichOneof("overlap_info") == "lane_overlap_info")
+    ov.object[0].lane_overlap_info.start_s = ov.object[0].lane_overlap_info.end_s + 1.0
+
+
+def _signal_far(m):
+    sid = m.signal[0].id.id
+    ov = next(o for o in m.overlap if o.object[1].id.id == sid and o.object[0].WhichOneof("overlap_info") == "lane_overlap_info")
+    ov.object[0].lane_overlap_info.start_s = 0.0
+    ov.object[0].lane_overlap_info.end_s = 1.0
+
+
+def _junction_partial(m):
+    ov = next(o for o in m.overlap if o.object[1].WhichOneof("overlap_info") == "junction_overlap_info"
+              and o.object[0].WhichOneof("overlap_info") == "lane_overlap_info")
+    ov.object[0].lane_overlap_info.end_s /= 2
+
+
+def _crosswalk_without_overlap(m):
+    cid = m.crosswalk[0].id.id
+    drop = {o.id.id for o in m.overlap if any(x.id.id == cid for x in o.object)}
+    keep = [o for o in m.overlap if o.id.id not in drop]
+    del m.overlap[:]
+    m.overlap.extend(keep)
+    for ln in m.lane:
+        ids = [x for x in ln.overlap_id if x.id not in drop]
+        del ln.overlap_id[:]
+        ln.overlap_id.extend(ids)
+    del m.crosswalk[0].overlap_id[:]
+
+
+def _duplicate_id(m):
+    m.junction[0].id.id = m.lane[0].id.id
+
+
+def _unknown_successor(m):
+    m.lane[0].successor_id.add(id="no_such_lane")
+
+
+def _moved_end(m):
+    ln = _lane(m, lambda x: x.successor_id)
+    ln.central_curve.segment[0].line_segment.point[-1].x += 1.0
+
+
+def _local_coordinates(m):
+    for ln in m.lane:
+        for p in ln.central_curve.segment[0].line_segment.point:
+            p.x -= UTM_ORIGIN[0]
+
+
+def _projection(m):
+    m.header.projection.proj = "+proj=tmerc +lat_0=0"
+
+
+def _cut_connection(m):
+    """No lane of road R0 leads anywhere: its exits are unreachable and lanes reach no exit."""
+    for ln in m.lane:
+        for field in ("successor_id", "predecessor_id"):
+            keep = [x for x in getattr(ln, field) if not (x.id.startswith("J0_") or ln.id.id.startswith("J0_"))]
+            del getattr(ln, field)[:]
+            getattr(ln, field).extend(keep)
+
+
+BREAKAGES = [
+    (_drop_successor, "does not list it back in successor_id"),
+    (_drop_neighbor, "does not list it back in left_neighbor_forward_lane_id"),
+    (_drop_overlap_side, "does not list it in overlap_id"),
+    (_empty_types, "empty types"),
+    (_no_boundary_type, "no boundary_type"),
+    (_no_type, "type not set"),
+    (_kmh, "speed_limit must be set in m/s"),
+    (_no_turn, "turn not set"),
+    (_no_direction, "direction not set"),
+    (_no_length, "length not set"),
+    (_wrong_segment_length, "central_curve segment 0 length"),
+    (_one_point, ">= 2 distinct points"),
+    (_no_samples, "no right_sample"),
+    (_no_road_samples, "no left_road_sample"),
+    (_narrow, "left_sample width 0.400 m is below"),
+    (_two_sections, "listed in 2 road sections"),
+    (_no_section, "listed in 0 road sections"),
+    (_road_junction, "but has no junction_id"),
+    (_junction_polygon, "polygon needs >= 3 distinct points"),
+    (_crosswalk_polygon, "polygon needs >= 3 distinct points"),
+    (_signal_boundary, "boundary has 3 points"),
+    (_subsignal, "needs id, type and location"),
+    (_signal_stop_line, "has no stop_line"),
+    (_stop_sign_line, "stop_line"),
+    (_one_object, "has 1 objects"),
+    (_bad_s, "is not within"),
+    (_signal_far, "from the stop line"),
+    (_junction_partial, "not the whole lane"),
+    (_crosswalk_without_overlap, "without an overlap"),
+    (_duplicate_id, "id is also used by a lane"),
+    (_unknown_successor, "successor_id no_such_lane does not exist"),
+    (_moved_end, "does not meet it"),
+    (_local_coordinates, "not absolute UTM"),
+    (_projection, "projection must be"),
+    (_cut_connection, "not reachable from"),
+]
+
+
+@pytest.mark.parametrize("breakage, message", BREAKAGES, ids=[b.__name__.strip("_") for b, _ in BREAKAGES])
+def test_each_check_catches_its_breakage(exported, breakage, message):
+    m = _load(exported, "base_map")
+    breakage(m)
+    problems = validate_map(m)
+    assert any(message in p.message for p in problems), problems[:5]
+    assert all(p.element for p in problems)
+
+
+def test_folder_level_checks(exported, tmp_path):
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for f in exported.iterdir():
+        (broken / f.name).write_bytes(f.read_bytes())
+    sim = _load(exported, "sim_map")
+    sim.lane[0].central_curve.segment[0].line_segment.point[0].x += 1.0
+    (broken / "sim_map.txt").write_text(aps.to_text(sim))  # .txt differs from .bin
+    graph = _load(exported, "routing_map")
+    del graph.edge[0]
+    graph.node[0].cost += 1.0
+    (broken / "routing_map.bin").write_bytes(graph.SerializeToString())
+    (broken / "routing_map.txt").write_text(aps.to_text(graph))
+    text = {str(p) for p in validate_apollo(broken)}
+    assert any("sim_map.txt and sim_map.bin hold different messages" in t for t in text)
+    assert any(t.startswith("routing_map edge") and t.endswith("missing") for t in text)
+    assert any(t.startswith(f"routing_map node {graph.node[0].lane_id}") for t in text)
+    (broken / "sim_map.txt").unlink()
+    (broken / "sim_map.bin").unlink()
+    assert any("missing sim_map" in str(p) for p in validate_apollo(broken))
+
+
+def test_bad_input_is_one_clear_error(tmp_path):
+    with pytest.raises(MapFormatError, match="no such map folder"):
+        validate_apollo(tmp_path / "nope")
+    with pytest.raises(MapFormatError, match="no base_map"):
+        validate_apollo(tmp_path)
+    (tmp_path / "base_map.bin").write_bytes(b"\x08\x96\x01\xff\xff\xff")
+    with pytest.raises(MapFormatError) as err:
+        validate_apollo(tmp_path)
+    assert "base_map.bin" in str(err.value)
+
+
+@pytest.mark.parametrize("name", ["borregas_ave", "cube_town", "autonomous_stuff", "shalun", "gomentum",
+                                  "san_francisco"])
+def test_validator_runs_on_real_apollo_maps(name):
+    folder = APOLLO_MAPS / name
+    if not folder.exists():
+        pytest.skip(f"third-party map {folder} not present (../shared/maps is absent)")
+    problems = validate_apollo(folder)
+    # these folders ship no routing_map: that alone is a problem
+    assert any("missing routing_map" in str(p) for p in problems)
+    assert all(isinstance(p, Problem) and p.element and p.message for p in problems)
+
+
+# --- files and CLI ---------------------------------------------------------------------------
+
+def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "base_map.bin").write_bytes(b"old")
+
+    def boom(_):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(wa, "to_sim_map", boom)
+    with pytest.raises(RuntimeError):
+        wa.write_apollo(small_map, out)
+    assert [p.name for p in out.iterdir()] == ["base_map.bin"] and (out / "base_map.bin").read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no staging left behind
+
+
+def test_cli_export_validate_and_exit_codes(small_map, tmp_path, capsys):
+    src = tmp_path / "map.json"
+    mapio.save(small_map, src)
+    out = tmp_path / "ap"
+    assert main(["export", "apollo", str(src), "--out", str(out), "--zone", "11", "--origin", "500000", "4000000"]) == 0
+    assert "+zone=11 " in (out / "base_map.txt").read_text()
+    assert main(["validate", str(out)]) == 0
+    assert "0 problems" in capsys.readouterr().out
+    base = _load(out, "base_map")
+    base.lane[0].ClearField("type")
+    (out / "base_map.bin").write_bytes(base.SerializeToString())
+    (out / "base_map.txt").write_text(aps.to_text(base))
+    assert main(["validate", str(out)]) == 1
+    printed = capsys.readouterr().out
+    assert f"lane {base.lane[0].id.id}: type not set" in printed
+    assert main(["validate", str(tmp_path / "missing")]) == 2
+    assert main(["export", "apollo", str(src), "--out", str(tmp_path / "z"), "--zone", "0"]) == 2
+    assert main(["export", "apollo", str(tmp_path / "none.json"), "--out", str(tmp_path / "z")]) == 2
+    with pytest.raises(SystemExit) as exc:  # argparse: usage error, exit code 2
+        main(["export", "apollo", str(src), "--out", str(tmp_path / "z"), "--origin", "1"])
+    assert exc.value.code == 2
+    assert not (tmp_path / "z").exists()
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "zone" in err
+
+
+def test_generate_writes_apollo_unless_told_not_to(tmp_path):
+    assert main(["generate", "--seed", "2", "--out", str(tmp_path / "a"), "--quiet", "--no-picture"]) == 0
+    m = mapio.load(tmp_path / "a" / "map.json")
+    _assert_clean(m, validate_apollo(tmp_path / "a" / "apollo"))
+    assert main(["generate", "--seed", "2", "--out", str(tmp_path / "a"), "--quiet", "--no-picture"]) == 0
+    assert main(["generate", "--seed", "2", "--out", str(tmp_path / "b"), "--quiet", "--no-picture",
+                 "--no-apollo"]) == 0
+    assert not (tmp_path / "b" / "apollo").exists()
