@@ -7,7 +7,8 @@
   generation      dict of GenerationConfig fields (e.g. {"samples_per_combination": 2})
   new_map_each_reset   draw a fresh map seed from the env's np_random at every reset
 `feat2map/MapFile-v0` config:
-  map_file        path of a native map JSON (feat2map.mapio.load), or
+  map_file        path of any map file feat2map reads (feat2map.readers.read_map: native JSON,
+                  OpenDRIVE .xodr, and Apollo once its reader lands), or
   map             an HDMap object
 """
 from __future__ import annotations
@@ -51,7 +52,7 @@ class JunctionGridEnv(MapEnv):
 
 
 class MapFileEnv(MapEnv):
-    """Any map: a native map JSON file (`map_file`) or an HDMap object (`map`)."""
+    """Any map: a file read by `feat2map.readers.read_map` (`map_file`) or an HDMap (`map`)."""
 
     @classmethod
     def default_config(cls) -> dict:
@@ -60,15 +61,15 @@ class MapFileEnv(MapEnv):
         return config
 
     def _network(self) -> MapNetwork:
-        from .. import mapio
+        from ..readers import read_map
 
         if self.config.get("map") is not None:
             m = self.config["map"]
             return cached_network(("object", id(m)), lambda: m)
         path = self.config.get("map_file")
         if not path:
-            raise Feat2MapError("MapFile-v0 needs config 'map_file' (a map JSON) or 'map' (an HDMap)", "config")
+            raise Feat2MapError("MapFile-v0 needs config 'map_file' (a map file) or 'map' (an HDMap)", "config")
         p = Path(path)
         if not p.is_file():
             raise Feat2MapError("map file not found", str(p))
-        return cached_network(("file", str(p.resolve()), p.stat().st_mtime_ns), lambda: mapio.load(p))
+        return cached_network(("file", str(p.resolve()), p.stat().st_mtime_ns), lambda: read_map(p))

@@ -15,7 +15,9 @@ from gymnasium.utils.env_checker import check_env
 
 import feat2map
 from feat2map import mapio
-from feat2map.envs.driver import DRIVER_ACTION_CONFIG
+from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
+
+from conftest import shared_map
 
 J = feat2map.JunctionFeature.make
 SMALL = [J([0, 90, 180, 270], "signal", True).to_dict(), J([0, 90, 180], "stop", False).to_dict()]
@@ -50,6 +52,59 @@ def test_check_env_map_file(tmp_path):
         assert info["junction"] == "J0" and info["control_ahead"] == "stop"
 
 
+def _drive(env, seed):
+    """Drive the scripted driver to the end; (final info, controls seen ahead on the way)."""
+    env.reset(seed=seed)
+    driver = ScriptedDriver(env)
+    seen = set()
+    while True:
+        _, _, term, trunc, info = env.step(driver.act())
+        seen.add(info["control_ahead"])
+        if term or trunc:
+            return info, seen
+
+
+def test_map_file_reads_opendrive(tmp_path):
+    """MapFile-v0 goes through feat2map.readers.read_map: an .xodr drives like the native map."""
+    from feat2map.writers.opendrive import write_opendrive
+
+    m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", True), J([0, 90, 180], "stop", False)], seed=1)
+    write_opendrive(m, tmp_path / "map.xodr")
+    env = gym.make("feat2map/MapFile-v0", config={"map_file": str(tmp_path / "map.xodr"), "traffic_vehicles": 3,
+                                                   "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5})
+    check_env(env.unwrapped, skip_render_check=True)
+    assert len(env.unwrapped.net.hdmap.junctions) == 2 and env.unwrapped.net.hdmap.signals
+    info, seen = _drive(env, seed=0)
+    assert info["route_completed"] and sum(info["violations"].values()) == 0 and not info["collision"], info
+    assert seen & {"signal", "stop"}
+
+
+@pytest.mark.real_maps
+def test_map_file_real_opendrive_signalized_crossing():
+    """A third-party OpenDRIVE crossing with a signal head per lane: heads of one approach share a
+    phase (else the cycle is 12 phases long and nobody gets through), the driver completes routes."""
+    path = shared_map("opendrive/commonroad_four_way_crossing/four_way_crossing.xodr")
+    env = gym.make("feat2map/MapFile-v0", config={"map_file": str(path), "traffic_vehicles": 3,
+                                                   "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5,
+                                                   "duration": 60})
+    check_env(env.unwrapped, skip_render_check=True)
+    u = env.unwrapped
+    plans = {id(p): p for p in u.control.plans.values()}
+    assert len(u.net.hdmap.signals) == 12 and [len(p.phases) for p in plans.values()] == [2]
+    for seed in range(2):
+        info, seen = _drive(env, seed)
+        assert info["route_completed"] and sum(info["violations"].values()) == 0 and not info["collision"], info
+        assert "signal" in seen
+
+
+def test_map_file_unknown_format_is_a_clear_error(tmp_path):
+    bad = tmp_path / "map.txt"
+    bad.write_text("not a map")
+    with pytest.raises(feat2map.errors.MapFormatError) as err:  # one line naming the file
+        gym.make("feat2map/MapFile-v0", config={"map_file": str(bad)})
+    assert str(bad) in str(err.value) and "\n" not in str(err.value)
+
+
 def test_map_file_missing_is_a_clear_error():
     with pytest.raises(feat2map.errors.Feat2MapError, match="map_file"):
         gym.make("feat2map/MapFile-v0")
@@ -64,7 +119,7 @@ def test_default_config_is_the_paper_sf_space_and_merges():
     assert len(u.net.hdmap.junctions) == 8  # one junction per SF feature combination
 
 
-@pytest.mark.parametrize("obs", [
+OBSERVATIONS = [
     {"type": "Kinematics"},
     {"type": "OccupancyGrid", "features": ["presence", "vx", "vy"], "grid_size": [[-20, 20], [-20, 20]],
      "grid_step": [5, 5]},
@@ -72,21 +127,38 @@ def test_default_config_is_the_paper_sf_space_and_merges():
     {"type": "LidarObservation", "cells": 16},
     {"type": "GrayscaleObservation", "observation_shape": (64, 32), "stack_size": 2,
      "weights": [0.2989, 0.5870, 0.1140], "scaling": 1.5},
-])
-@pytest.mark.parametrize("action", [
-    {"type": "DiscreteMetaAction"},
-    {"type": "ContinuousAction"},
-    {"type": "DiscreteAction"},
-])
-def test_observation_and_action_types(obs, action):
-    env = make({"observation": obs, "action": action})
+]
+ACTIONS = [{"type": "DiscreteMetaAction"}, {"type": "ContinuousAction"}, {"type": "DiscreteAction"}]
+
+
+@pytest.fixture(scope="module")
+def map_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("map") / "map.json"
+    mapio.save(feat2map.generate_from_features([feat2map.JunctionFeature.from_dict(f) for f in SMALL], seed=0), path)
+    return str(path)
+
+
+@pytest.mark.parametrize("env_id", ["feat2map/JunctionGrid-v0", "feat2map/MapFile-v0"])
+@pytest.mark.parametrize("traffic_control", [False, True])
+@pytest.mark.parametrize("action", ACTIONS, ids=lambda a: a["type"])
+@pytest.mark.parametrize("obs", OBSERVATIONS, ids=lambda o: o["type"])
+def test_check_env_every_observation_action_and_id(obs, action, traffic_control, env_id, map_file):
+    """Gymnasium's checker (spaces, seeding determinism, step API) for every shipped combination."""
+    config = {"observation": obs, "action": action, "observe_traffic_control": traffic_control}
+    if env_id.endswith("MapFile-v0"):
+        config["map_file"] = map_file
+    env = make(config, env_id)
+    check_env(env.unwrapped, skip_render_check=True)
     o, _ = env.reset(seed=0)
     assert env.observation_space.contains(o)
+    if traffic_control:
+        assert set(o) == {"observation", "traffic_control"} and o["traffic_control"].shape == (6,)
     for _ in range(2):
         o, r, term, trunc, info = env.step(env.action_space.sample())
         assert env.observation_space.contains(o) and np.isfinite(r)
         if term or trunc:
             break
+    env.close()
 
 
 def _trajectory(seed):
