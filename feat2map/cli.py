@@ -35,13 +35,13 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
         raise Feat2MapError(str(exc), "command line") from None
 
 
-def _extract_maps(paths: Sequence[str]):
+def _extract_maps(paths: Sequence[str], skipped: list | None = None):
     from .extract import extract_junctions
     from .readers import read_map
 
     junctions = []
     for p in tqdm(paths, desc="reading maps", unit="map", disable=len(paths) < 2):
-        junctions += extract_junctions(read_map(p), map_name=str(p))
+        junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     return junctions
@@ -107,7 +107,8 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_extract(args: argparse.Namespace) -> int:
     from .extract import map_feature
 
-    junctions = _extract_maps(args.maps)
+    skipped: list = []
+    junctions = _extract_maps(args.maps, skipped)
     space = map_feature(junctions)
     if args.out:
         atomic.write_text(args.out, space.to_json())
@@ -117,10 +118,11 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
         first = read_map(args.maps[0])
         ctrl = {j.id: j.feature.control for j in junctions if j.map_name == str(args.maps[0])}
+        ctrl.update({s.id: s.control for s in skipped if s.map_name == str(args.maps[0])})
         render_map(first, args.picture, title=str(args.maps[0]), controls=ctrl)
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
-               "feature_space": space.to_dict()}
+               "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped]}
         print(json.dumps(doc, indent=2))
         return 0
     print(f"{'map':<40} {'junction':<14} {'n':>2} {'control':<7} {'xwalk':<5} rotation (deg)")
@@ -128,7 +130,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
         rot = ", ".join(f"{a:7.2f}" for a in j.feature.rotation)
         print(f"{j.map_name[-40:]:<40} {j.id[:14]:<14} {j.feature.n_roads:>2} {j.feature.control:<7} "
               f"{str(j.feature.crosswalk):<5} [{rot}]")
-    print(f"\n{len(junctions)} junctions; map feature:\n{space.to_json()}", end="")
+    for s in skipped:
+        print(f"{s.map_name[-40:]:<40} {s.id[:14]:<14} {s.n_arms:>2} {s.control:<7} {str(s.crosswalk):<5} "
+              f"skipped: {s.reason}")
+    print(f"\n{len(junctions)} junctions ({len(skipped)} skipped); map feature:\n{space.to_json()}", end="")
     return 0
 
 

@@ -1,10 +1,12 @@
 """Junction feature extraction from any HD map model (paper Sec. III-C).
 
-Arms are found by clustering the outward headings of the lanes that enter and leave the
-junction area (not by road ids, which real maps cut into pieces); an arm's socket runs from
-the junction polygon's centroid to the mean of its lane end points. Control is `signal` if a
-signal governs a lane entering the junction, else `stop` if a stop sign does, else `bare`;
-a crosswalk counts when it lies in or touches the junction area.
+Arms: the junction's boundary lane ends (entries and exits) are grouped into arms by lane
+neighbour links and by direction and position (not by road ids, which real maps cut into
+pieces). A socket runs from the junction centre (where the arms' centre lines meet; the
+paper's polygon centroid on request) to the mean of its arm's lane end points. Control is
+`signal` if a signal names the junction or governs a lane entering it, else `stop` if a stop
+sign does, else `bare`; a crosswalk counts when it lies in or touches the junction area or
+is linked to the junction by the reader.
 """
 from __future__ import annotations
 
@@ -53,6 +55,22 @@ class ExtractedJunction:
                 "rotation": [round(a, 4) for a in self.feature.rotation], "control": self.feature.control,
                 "crosswalk": self.feature.crosswalk, "lanes_in": [s.lanes_in for s in self.feature.sockets],
                 "lanes_out": [s.lanes_out for s in self.feature.sockets]}
+
+
+@dataclass(frozen=True)
+class SkippedJunction:
+    """A junction element that gives no feature, and why (still counted in map statistics)."""
+
+    map_name: str
+    id: str
+    n_arms: int
+    control: str
+    crosswalk: bool
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {"map": self.map_name, "id": self.id, "n_arms": self.n_arms, "control": self.control,
+                "crosswalk": self.crosswalk, "reason": self.reason}
 
 
 @dataclass(frozen=True)
@@ -237,13 +255,17 @@ def _junction_controls(m: HDMap) -> dict[str, set[str]]:
     return out
 
 
-def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms") -> list[ExtractedJunction]:
+def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie_tol_deg: float = 0.0,
+                      skipped: list[SkippedJunction] | None = None) -> list[ExtractedJunction]:
     """The junction feature of every junction that has lanes and at least 3 arms.
 
     `centre` is where sockets start: "arms" (default) the meeting point of the arms' centre
     lines, which does not depend on how a map draws its junction polygon (Apollo T-junction
-    polygons lean towards the stem), or "polygon", the paper's polygon centroid. Junctions
-    that cannot give a valid feature are skipped with a warning.
+    polygons lean towards the stem), or "polygon", the paper's polygon centroid.
+    `tie_tol_deg` is passed to `normalize_rotation` (0: the paper's exact largest gap).
+    Junction elements with fewer than 3 arms (road bends, lane merges) are not junctions in
+    the paper's sense; junctions that cannot give a valid feature are skipped with a warning.
+    Both are appended to `skipped` when a list is given.
     """
     if centre not in ("arms", "polygon"):
         raise ValueError(f"centre must be 'arms' or 'polygon', got {centre!r}")
@@ -258,27 +280,37 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms") -> 
         poly = Polygon(j.polygon) if len(j.polygon) >= 3 else None
         if poly is not None and not poly.is_valid:  # real maps draw self-touching outlines
             poly = poly.buffer(0)
+        kinds = controls.get(jid, set())
+        control = "signal" if "signal" in kinds else "stop" if "stop" in kinds else "bare"
+
+        def skip(n_arms: int, reason: str, warn: bool = True) -> None:
+            if warn:
+                warnings.warn(f"{map_name}: junction {jid}: {reason}, skipped", stacklevel=3)
+            if skipped is not None:
+                has_xw = jid in xw_junctions or (poly is not None and xw_tree is not None and len(
+                    xw_tree.query(poly, predicate="intersects")) > 0)
+                skipped.append(SkippedJunction(map_name, jid, n_arms, control, has_xw, reason))
+
         if not lanes or poly is None or poly.is_empty or poly.area <= 0:
-            warnings.warn(f"{map_name}: junction {jid}: no lanes or no valid polygon, skipped", stacklevel=2)
+            skip(0, "no lanes or no valid polygon")
             continue
         ends = _arms(m, jid, lanes)
         if len(ends) < 3:
+            skip(len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
             continue
         c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
         arms = [Arm(math.degrees(math.atan2(a.point[1] - c[1], a.point[0] - c[0])),
                     (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
-        kinds = controls.get(jid, set())
-        control = "signal" if "signal" in kinds else "stop" if "stop" in kinds else "bare"
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
         try:
-            norm = normalize_rotation([a.angle_deg for a in arms])
+            norm = normalize_rotation([a.angle_deg for a in arms], tie_tol_deg)
             arms = [arms[i] for i in norm.order]
             feature = JunctionFeature(
                 tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms)),
                 control, crosswalk, MIN_EXTRACTED_SEPARATION_DEG)
         except FeatureError as exc:
-            warnings.warn(f"{map_name}: junction {jid}: {exc.message}, skipped", stacklevel=2)
+            skip(len(arms), exc.message)
             continue
         out.append(ExtractedJunction(map_name, jid, feature, (float(c[0]), float(c[1])), tuple(arms)))
     return out

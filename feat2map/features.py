@@ -192,12 +192,14 @@ def best_alignment(offsets: Sequence[float]) -> float:
     return best[2]
 
 
-def normalize_rotation(angles: Sequence[float]) -> Normalization:
+def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Normalization:
     """Rotation normalization (paper eqs. 3-8) of absolute socket angles in degrees.
 
     Sockets are ordered counter-clockwise starting right after the largest gap (so the
     largest gap closes the cycle, as in the paper's Table II), then rotated by the exact
-    optimal alpha. Among equally large gaps the start with the lowest cost wins.
+    optimal alpha. Among equally large gaps the start with the lowest cost wins; gaps within
+    `tie_tol_deg` of the largest count as equal (measured maps: a 4-way junction's gaps
+    differ by noise, and the start should not flip with it).
     """
     n = len(angles)
     if n == 0:
@@ -210,7 +212,7 @@ def normalize_rotation(angles: Sequence[float]) -> Normalization:
     largest = max(gaps)
     candidates = []
     for i, g in enumerate(gaps):
-        if g < largest - 1e-9:
+        if g < largest - max(tie_tol_deg, 1e-9):
             continue
         start = (i + 1) % n
         offsets = [(sorted_angles[(start + k) % n] - sorted_angles[start]) % 360.0 for k in range(n)]

@@ -56,6 +56,16 @@ def draw_map(m: HDMap, ax, *, labels: bool = True, controls: dict[str, str] | No
             if len(j.polygon) >= 3:
                 ax.annotate(jid, j.center, ha="center", va="center", fontsize=6, zorder=7,
                             bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.7))
+    if controls is not None:  # extraction pictures: say what the junction colours mean
+        from matplotlib.patches import Patch
+
+        marked = [(j.center, CONTROL_COLOURS.get(ctrl.get(jid, ""), "#9e9e9e")) for jid, j in m.junctions.items()
+                  if len(j.polygon) >= 3]
+        if marked:  # a dot per junction, visible at whole-map scale
+            ax.scatter([c[0] for c, _ in marked], [c[1] for c, _ in marked], s=60, c=[k for _, k in marked],
+                       alpha=0.6, edgecolors="k", linewidths=0.3, zorder=6)
+        ax.legend(handles=[Patch(facecolor=c, alpha=0.5, label=k) for k, c in CONTROL_COLOURS.items()],
+                  loc="upper right", fontsize=7, title="junction control", title_fontsize=7)
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.set_xlabel("x [m]")
