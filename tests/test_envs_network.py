@@ -137,3 +137,30 @@ def test_network_round_trips_through_highway_env_config(net):
         assert type(b) is PolylineLane and b.line_types == a.line_types
         np.testing.assert_allclose(b.position(3.0, 0.7), a.position(3.0, 0.7))
         assert b.local_coordinates(np.array([1.0, -2.0])) == pytest.approx(a.local_coordinates(np.array([1.0, -2.0])))
+
+
+def test_signal_heads_of_one_approach_share_a_phase(net):
+    """Real maps carry a signal head per lane (and their facing is often unreliable): phases are
+    grouped by the direction of travel of the governed lanes, opposite approaches paired."""
+    from dataclasses import replace
+
+    from feat2map.envs.traffic import group_phases, travel_headings
+
+    m = net.hdmap
+    sigs = [s for s in m.signals.values() if s.junction_id == "J0"]
+    assert len(sigs) == 4
+    heads = [replace(s, id=f"{s.id}_{k}", heading=0.0) for s in sigs for k in range(3)]  # 3 heads, bad facing
+    travel = travel_headings(m, heads)
+    paired = group_phases(heads, True, travel)
+    single = group_phases(heads, False, travel)
+    assert len(paired) == 2 and len(single) == 4
+    for phase in single:  # one approach: the three heads of one original signal
+        assert len({h.rsplit("_", 1)[0] for h in phase}) == 1 and len(phase) == 3
+    for phase in paired:  # two opposite approaches
+        roads = {m.lanes[next(s for s in sigs if h.startswith(s.id)).lane_ids[0]].road_id for h in phase}
+        assert len(phase) == 6 and len(roads) == 2
+        a, b = {round(math.degrees(travel[h])) % 360 for h in phase}
+        assert abs((a - b) % 360 - 180) < 30  # opposite directions of travel
+    assert sorted(h for p in paired for h in p) == sorted(h.id for h in heads)
+    # without travel directions the (identical) facings put every head in one approach
+    assert group_phases(heads, False) == (tuple(sorted(h.id for h in heads)),)
