@@ -312,6 +312,8 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     from .scenario import make_env
 
     t0 = time.perf_counter()
+    if render:
+        os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     policy = factory()
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
     frames: list = []
@@ -327,6 +329,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
             frames.append(env.render())
         if cov:
             cov.start()
+            cov.switch(info.get("junction") or ROAD_CONTEXT)
         try:
             policy.reset(env)
             while steps < MAX_STEPS_SAFETY:
