@@ -115,19 +115,60 @@ def read_input(settings: Settings, name: str) -> HDMap:
         return read_apollo(path)
 
 
-def drivable_path(settings: Settings, name: str, m: HDMap, folder: Path) -> Path:
-    """The file the scenarios load: the real map itself when `read_map` reads it, else a native
-    copy of the same model (the Apollo reader was not wired into read_map when this was written)."""
+def with_incoming_controls(m: HDMap) -> tuple[HDMap, int]:
+    """The map with every signal's and stop sign's `lane_ids` on the incoming road lanes they
+    govern (the model's convention, which the env's stop lines and the planner rely on).
+
+    Apollo overlaps tie signals to the junction lanes behind the stop line; read as they are,
+    the env keys those signals on junction lanes and the baseline planner, looking the stop
+    line up on the incoming lane, drives every SF junction as bare. Returns (map, number of
+    controls re-pointed); a map already following the convention comes back unchanged."""
+    from dataclasses import replace
+
+    changed = 0
+
+    def incoming(ids: Sequence[str]) -> tuple[str, ...]:
+        nonlocal changed
+        out: dict[str, None] = {}
+        moved = False
+        for lid in ids:
+            ln = m.lanes.get(lid)
+            if ln is not None and ln.junction_id is not None:
+                moved = True
+                for p in ln.predecessors:
+                    if p in m.lanes and m.lanes[p].junction_id is None:
+                        out[p] = None
+            else:
+                out[lid] = None
+        changed += moved
+        return tuple(out)
+
+    signals = {k: replace(v, lane_ids=incoming(v.lane_ids)) for k, v in m.signals.items()}
+    stops = {k: replace(v, lane_ids=incoming(v.lane_ids)) for k, v in m.stop_signs.items()}
+    if not changed:
+        return m, 0
+    return replace(m, signals=signals, stop_signs=stops), changed
+
+
+def drivable_path(settings: Settings, name: str, m: HDMap, folder: Path) -> tuple[Path, str]:
+    """The file the scenarios load and a note: the real map itself when `read_map` reads it and
+    its controls follow the model's convention, else a native copy of the model as read, with
+    controls re-pointed to incoming lanes (`with_incoming_controls`)."""
     from feat2map.readers import read_map
 
     path = settings.input(name)
+    fixed, n = with_incoming_controls(m)
     try:
         read_map(path)
-        return path.resolve()
+        readable = True
     except Feat2MapError:
-        native = folder / f"{name}.json"
-        mapio.save(m, native)
-        return native
+        readable = False
+    if readable and n == 0:
+        return path.resolve(), ""
+    native = folder / f"{name}.json"
+    mapio.save(fixed, native)
+    note = f"{n} signals/stop signs re-pointed from junction lanes to incoming lanes" if n else ""
+    return native, note
 
 
 # ---- pictures --------------------------------------------------------------------------------------
@@ -530,12 +571,37 @@ def save_run(run: MapRun, folder: Path) -> None:
                {**run.result.to_dict(), "routes": run.routes, "subset": run.subset, "map_path": run.map_path})
 
 
-def measure(settings: Settings, rq: int, maps: Sequence[tuple[str, Path, Sequence[str] | None]]) -> dict[str, Any]:
-    """Drive every map, save suites, tables and Figs. 6-7 for one research question."""
+def load_run(path: Path) -> MapRun | None:
+    """A map's run saved by `save_run` (to reuse RQ2's drives in RQ3), or None if absent."""
+    if not path.is_file():
+        return None
+    from feat2map.scenarios.rollout import SuiteResult
+
+    d = json.loads(path.read_text())
+    res = SuiteResult.from_dict(d, str(path))
+    m = mapio.load(d["map_path"]) if d["map_path"].endswith(".json") else read_map_file(Path(d["map_path"]))
+    from feat2map.scenarios.routes import manoeuvres
+
+    return MapRun(res.name, d["map_path"], len(m.junctions), int(d["routes"]), len(manoeuvres(m)), res, d["subset"])
+
+
+def read_map_file(path: Path) -> HDMap:
+    from feat2map.readers import read_map
+
+    return read_map(path)
+
+
+def measure(settings: Settings, rq: int, maps: Sequence[tuple[str, Path, Sequence[str] | None] | MapRun]
+            ) -> dict[str, Any]:
+    """Drive every map (or take an earlier run), save suites, tables and Figs. 6-7 for one RQ."""
     folder = settings.out / f"rq{rq}"
     folder.mkdir(parents=True, exist_ok=True)
     runs = []
-    for name, path, subset in maps:
+    for item in maps:
+        if isinstance(item, MapRun):
+            runs.append(item)
+            continue
+        name, path, subset = item
         run = drive_map(settings, name, path, subset)
         save_run(run, folder)
         runs.append(run)
@@ -568,12 +634,20 @@ def rq2(settings: Settings) -> dict[str, Any]:
     folder = settings.out / "rq2"
     folder.mkdir(parents=True, exist_ok=True)
     sf = read_input(settings, "san_francisco")
-    sf_path = drivable_path(settings, "san_francisco", sf, folder)
+    sf_path, note = drivable_path(settings, "san_francisco", sf, folder)
     subset = None
     if settings.sf_junctions is not None:
         subset = [jid for jid in sf.junctions][:settings.sf_junctions]
     maps = [("SF", sf_path, subset)] + [(k, p, None) for k, p in gen.items()]
-    return measure(settings, 2, maps)
+    result = measure(settings, 2, maps)
+    result["sf_driven_as"] = {"file": str(sf_path), "note": note}
+    write_json(folder / "rq2.json", result)
+    if note:
+        md = folder / "rq2.md"
+        atomic.write_text(md, md.read_text() + f"\nSF was driven from the Apollo file as read, with {note} "
+                          "(the model's convention; see `with_incoming_controls`).\n")
+        copy_to_docs(settings, [md])
+    return result
 
 
 def rq3(settings: Settings) -> dict[str, Any]:
@@ -600,16 +674,22 @@ def rq3(settings: Settings) -> dict[str, Any]:
     render_junctions(m4, folder / "rq3_m4_junctions.png", dpi=70)
     pics.append(folder / "rq3_m4_junctions.png")
     copy_to_docs(settings, pics)
-    m1 = _generated_or_load(settings)["M1"]
-    measured = measure(settings, 3, [("M1", m1, None), ("M4", gen.paths["M4"], None)])
+    earlier = [load_run(settings.out / "rq2" / f"{k}_suite.json") for k in ("SF", "M1", "M2", "M3")]
+    earlier = [r for r in earlier if r is not None]
+    if not any(r.name == "M1" for r in earlier):  # RQ2 not run: drive M1 as the reference
+        earlier = [("M1", _generated_or_load(settings)["M1"], None)]
+    measured = measure(settings, 3, earlier + [("M4", gen.paths["M4"], None)])
     m4_sum = measured["maps"][-1]
-    m1_sum = measured["maps"][0]
+    before = [x for x in measured["maps"][:-1]]
+    seen_paths = set().union(*(x["stage_paths"] for x in before))
+    seen_trans = set().union(*(x["transitions"] for x in before))
     bare = [jid for jid, j in m4.junctions.items() if j.feature is not None and j.feature.control == "bare"]
     result = {"inputs": {k: str(settings.input(k)) for k in spaces}, "input_stats": stats,
               "input_spaces": spaces, "feature_space": space.to_dict(), "m4_stats": map_stats(m4),
               "bare_junctions": bare, "measured": measured,
-              "paths_only_in_m4": sorted(set(m4_sum["stage_paths"]) - set(m1_sum["stage_paths"])),
-              "transitions_only_in_m4": sorted(set(m4_sum["transitions"]) - set(m1_sum["transitions"]))}
+              "compared_with": [x["map"] for x in before],
+              "paths_only_in_m4": sorted(set(m4_sum["stage_paths"]) - seen_paths),
+              "transitions_only_in_m4": sorted(set(m4_sum["transitions"]) - seen_trans)}
     write_json(folder / "rq3_summary.json", result)
     text = (md_table(("input", "junctions", "signal / stop / bare", "crosswalk junctions", "F_ctrl"),
                      [(k, v["junctions"], f"{v['signal']} / {v['stop']} / {v['bare']}", v["crosswalk_junctions"],
@@ -618,7 +698,8 @@ def rq3(settings: Settings) -> dict[str, Any]:
                               [(space.to_dict().get("road_counts"), space.to_dict().get("controls"),
                                 space.to_dict().get("crosswalks"), _ranges(space.to_dict()),
                                 f"{len(m4.junctions)} ({PAPER['m4_junctions']})")])
-            + f"\nStage paths only in M4 (not in M1): {', '.join(result['paths_only_in_m4']) or 'none'}\n")
+            + f"\nStage paths only in M4 (not in {', '.join(result['compared_with'])}): "
+              f"{', '.join(f'`{p}`' for p in result['paths_only_in_m4']) or 'none'}\n")
     atomic.write_text(folder / "rq3_inputs.md", text)
     copy_to_docs(settings, [folder / "rq3_inputs.md"])
     return result
