@@ -3,8 +3,9 @@
 Apollo stores relations in two places: lane links (predecessor/successor/neighbour ids) and
 overlaps (pairs of objects: signal-lane, junction-lane, crosswalk-lane ...). Real maps rely
 on the second: lanes carry no `junction_id` (membership comes from `road.junction_id` and
-junction-lane overlaps), signals and stop signs overlap the *incoming* lanes, and many
-crosswalks have no id and no overlaps (they are linked to junctions geometrically).
+junction-lane overlaps), signals and stop signs overlap the incoming lanes or the junction's
+own lanes (and usually the junction), and many crosswalks have no id and no overlaps (they
+are linked to junctions geometrically).
 Coordinates are UTM metres; a whole-metre origin is subtracted and kept in `HDMap.origin`.
 """
 from __future__ import annotations
@@ -269,9 +270,10 @@ class _Reader:
             line = next((p for p in (_curve_points(c) for c in curves) if len(p) >= 2), None)
             lane_ids = tuple(dict.fromkeys(x for x in governed.get(sid, []) if x in lanes))
             jid = junction_of.get(sid)
-            if jid is None:  # the junction the governed lanes lead into
-                jid = next((lanes[s].junction_id for x in lane_ids for s in lanes[x].successors
-                            if lanes[s].junction_id), None)
+            if jid is None:  # the junction of the governed lanes, or the one they lead into
+                jid = next((lanes[x].junction_id for x in lane_ids if lanes[x].junction_id), None) or next(
+                    (lanes[s].junction_id for x in lane_ids for s in lanes[x].successors if lanes[s].junction_id),
+                    None)
             if line is None:
                 if not lane_ids:
                     self.warn(f"{kind} {sid!r}", "no stop line and no lanes, skipped")

@@ -1,0 +1,305 @@
+"""Apollo reader: a hand-built T-junction map (binary and text), real maps, bad input, CLI."""
+from __future__ import annotations
+
+import math
+import random
+import warnings
+
+import numpy as np
+import pytest
+
+from conftest import shared_map
+from feat2map import apollo_schema as aps
+from feat2map.cli import main
+from feat2map.errors import MapFormatError
+from feat2map.extract import extract_junctions
+from feat2map.readers import read_map
+from feat2map.readers.apollo import read_apollo, read_apollo_bytes
+
+X0, Y0 = 553000.25, 4182000.75  # UTM-like offsets, as in the SVL maps
+W = 3.5  # lane width
+
+
+def _curve(curve, pts) -> None:
+    seg = curve.segment.add()
+    for x, y in pts:
+        p = seg.line_segment.point.add()
+        p.x, p.y = X0 + x, Y0 + y
+    seg.start_position.x, seg.start_position.y = X0 + pts[0][0], Y0 + pts[0][1]
+
+
+def _lane(m, lid: str, pts, *, turn=aps.Lane.NO_TURN, preds=(), succs=()) -> None:
+    ln = m.lane.add()
+    ln.id.id = lid
+    pts = np.asarray(pts, dtype=float)
+    _curve(ln.central_curve, pts)
+    d = np.diff(pts, axis=0)
+    normal = np.array([-d[0][1], d[0][0]]) / np.hypot(*d[0])
+    _curve(ln.left_boundary.curve, pts + normal * W / 2)
+    _curve(ln.right_boundary.curve, pts - normal * W / 2)
+    ln.left_boundary.boundary_type.add(s=0.0, types=[aps.LaneBoundaryType.DOUBLE_YELLOW])
+    ln.right_boundary.boundary_type.add(s=0.0, types=[aps.LaneBoundaryType.CURB])
+    ln.length = float(np.hypot(*d.T).sum())
+    ln.speed_limit = 11.2
+    ln.type = aps.Lane.CITY_DRIVING
+    ln.turn = turn
+    ln.direction = aps.Lane.FORWARD
+    for s in np.linspace(0, ln.length, 3):
+        ln.left_sample.add(s=s, width=W / 2)
+        ln.right_sample.add(s=s, width=W / 2)
+    for p in preds:
+        ln.predecessor_id.add().id = p
+    for s in succs:
+        ln.successor_id.add().id = s
+
+
+def _overlap(m, oid: str, a: tuple[str, str], b: tuple[str, str]) -> None:
+    ov = m.overlap.add()
+    ov.id.id = oid
+    for kind, ident in (a, b):
+        obj = ov.object.add()
+        obj.id.id = ident
+        info = getattr(obj, f"{kind}_overlap_info")
+        info.SetInParent()
+        if kind == "lane":
+            info.start_s, info.end_s = 0.0, 1.0
+
+
+def t_junction_map() -> aps.Map:
+    """A T-junction at the origin: arms East, West, South (stem); 40 m roads, one lane each
+    way; a signal on the three incoming lanes; one named crosswalk on a junction lane and one
+    unnamed crosswalk without overlaps; roads inside the junction carry junction_id."""
+    m = aps.Map()
+    m.header.version = b"1.500000"
+    m.header.vendor = b"test"
+    m.header.projection.proj = "+proj=utm +zone=10 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+    r, h = 10.0, W / 2  # junction half-size, lane offset
+    arms = {"e": (1.0, 0.0), "w": (-1.0, 0.0), "s": (0.0, -1.0)}
+    for a, (dx, dy) in arms.items():
+        nx, ny = -dy, dx  # left of the outward direction = right of the inward one
+        # right-hand traffic: the incoming lane lies left of the outward direction
+        start = (dx * (r + 40) + nx * h, dy * (r + 40) + ny * h)
+        end = (dx * r + nx * h, dy * r + ny * h)
+        _lane(m, f"in_{a}", [start, ((start[0] + end[0]) / 2, (start[1] + end[1]) / 2), end],
+              succs=[f"j_{a}_{b}" for b in arms if b != a])
+        o_start = (dx * r - nx * h, dy * r - ny * h)
+        o_end = (dx * (r + 40) - nx * h, dy * (r + 40) - ny * h)
+        _lane(m, f"out_{a}", [o_start, ((o_start[0] + o_end[0]) / 2, (o_start[1] + o_end[1]) / 2), o_end],
+              preds=[f"j_{b}_{a}" for b in arms if b != a])
+        road = m.road.add()
+        road.id.id = f"road_{a}"
+        sec = road.section.add()
+        sec.lane_id.add().id = f"in_{a}"
+        sec.lane_id.add().id = f"out_{a}"
+    for a, (dx, dy) in arms.items():
+        for b, (ex, ey) in arms.items():
+            if a == b:
+                continue
+            s = (dx * r - dy * h, dy * r + dx * h)  # end of in_a
+            e = (ex * r + ey * h, ey * r - ex * h)  # start of out_b
+            cross = dx * ey - dy * ex  # > 0: the exit lies to the right of the entry direction
+            turn = aps.Lane.NO_TURN if abs(cross) < 0.5 else (aps.Lane.RIGHT_TURN if cross > 0 else aps.Lane.LEFT_TURN)
+            _lane(m, f"j_{a}_{b}", [s, ((s[0] + e[0]) / 2 * 0.5, (s[1] + e[1]) / 2 * 0.5), e], turn=turn,
+                  preds=[f"in_{a}"], succs=[f"out_{b}"])
+            road = m.road.add()
+            road.id.id = f"jroad_{a}_{b}"
+            road.junction_id.id = "J_0"
+            road.section.add().lane_id.add().id = f"j_{a}_{b}"
+            _overlap(m, f"ov_j_{a}_{b}", ("junction", "J_0"), ("lane", f"j_{a}_{b}"))
+    j = m.junction.add()
+    j.id.id = "J_0"
+    for x, y in [(-r, -r), (r, -r), (r, r), (-r, r)]:
+        p = j.polygon.point.add()
+        p.x, p.y = X0 + x, Y0 + y
+    sig = m.signal.add()
+    sig.id.id = "signal_0"
+    sig.type = aps.Signal.MIX_3_VERTICAL
+    for x, y in [(12, 6), (12.5, 6), (12.5, 7), (12, 7)]:
+        p = sig.boundary.point.add()
+        p.x, p.y = X0 + x, Y0 + y
+    _curve(sig.stop_line.add(), [(r, 0.0), (r, W)])
+    for a in arms:
+        _overlap(m, f"ov_sig_{a}", ("lane", f"in_{a}"), ("signal", "signal_0"))
+    _overlap(m, "ov_sig_j", ("junction", "J_0"), ("signal", "signal_0"))
+    for cid, (x0, x1) in (("CW_1", (-r, -r + 3)), ("", (r - 3, r))):
+        cw = m.crosswalk.add()
+        cw.id.id = cid
+        for x, y in [(x0, -r), (x1, -r), (x1, r), (x0, r)]:
+            p = cw.polygon.point.add()
+            p.x, p.y = X0 + x, Y0 + y
+    _overlap(m, "ov_cw", ("crosswalk", "CW_1"), ("lane", "j_w_e"))
+    return m
+
+
+@pytest.fixture(scope="module")
+def t_map():
+    return read_apollo_bytes(t_junction_map().SerializeToString(), "t.bin")
+
+
+def test_reads_lanes_roads_and_origin(t_map):
+    m = t_map
+    assert m.origin == (math.floor(X0 - 50.0), math.floor(Y0 - 50.0))
+    assert len(m.lanes) == 12 and len(m.junctions) == 1
+    ln = m.lanes["in_e"]
+    assert ln.start == pytest.approx((X0 + 50.0 - m.origin[0], Y0 + W / 2 - m.origin[1]))
+    assert ln.width == pytest.approx(W) and ln.speed_limit == pytest.approx(11.2)
+    assert ln.successors == ("j_e_w", "j_e_s") and ln.junction_id is None
+    assert (ln.left_boundary_type, ln.right_boundary_type) == ("solid_yellow", "curb")
+    # membership through road.junction_id and junction-lane overlaps
+    assert {x.id for x in m.junction_lanes("J_0")} == {f"j_{a}_{b}" for a in "ews" for b in "ews" if a != b}
+    assert m.lanes["j_e_w"].turn == "none" and m.lanes["j_e_s"].turn == "left" and m.lanes["j_w_s"].turn == "right"
+    assert m.roads["road_e"].right_lanes == ("in_e",) and m.roads["road_e"].left_lanes == ("out_e",)
+    assert m.roads["jroad_e_w"].junction_id == "J_0" and m.roads["jroad_e_w"].kind == "junction"
+    assert m.meta["format"] == "apollo" and m.meta["projection"].startswith("+proj=utm")
+
+
+def test_signals_and_crosswalks(t_map):
+    sig = t_map.signals["signal_0"]
+    assert set(sig.lane_ids) == {"in_e", "in_w", "in_s"} and sig.junction_id == "J_0"
+    assert sig.position == pytest.approx((12.25 + X0 - t_map.origin[0], 6.5 + Y0 - t_map.origin[1]))
+    # the light faces the traffic of its first lane (in_e drives west, so it faces east)
+    assert math.cos(sig.heading) == pytest.approx(1.0, abs=1e-6)
+    cws = t_map.crosswalks
+    assert set(cws) == {"CW_1", "crosswalk_unnamed_1"}
+    assert cws["CW_1"].junction_id == "J_0"  # through its junction lane
+    assert cws["crosswalk_unnamed_1"].junction_id == "J_0"  # geometrically
+
+
+def test_extraction_of_the_t_junction(t_map):
+    (j,) = extract_junctions(t_map)
+    f = j.feature
+    assert (f.n_roads, f.control, f.crosswalk) == (3, "signal", True)
+    assert f.rotation == pytest.approx((0.0, 90.0, 180.0), abs=1e-6)  # stem South: largest gap closes
+    assert [(s.lanes_in, s.lanes_out) for s in f.sockets] == [(1, 1)] * 3
+
+
+def test_text_and_binary_give_the_same_map(tmp_path, t_map):
+    pb = t_junction_map()
+    (tmp_path / "base_map.txt").write_text(aps.to_text(pb))
+    (tmp_path / "no_suffix").write_bytes(pb.SerializeToString())
+    (tmp_path / "one_line.txt").write_text(aps.to_text(pb).replace("\n", " "))
+    for name in ("base_map.txt", "no_suffix", "one_line.txt"):
+        m = read_map(tmp_path / name)  # detected by content
+        assert m.lanes == t_map.lanes and m.junctions == t_map.junctions and m.signals == t_map.signals
+
+
+def test_map_round_trips_through_the_native_file(tmp_path, t_map):
+    from feat2map import mapio
+
+    mapio.save(t_map, tmp_path / "m.json")
+    back = mapio.load(tmp_path / "m.json")
+    assert back.lanes == t_map.lanes and back.crosswalks == t_map.crosswalks and back.origin == t_map.origin
+
+
+def _broken(mutate) -> bytes:
+    pb = t_junction_map()
+    mutate(pb)
+    return pb.SerializeToString()
+
+
+def _set_successor(pb):
+    pb.lane[0].successor_id.add().id = "lane_nowhere"
+
+
+def _bad_overlap(pb):
+    pb.overlap[0].object[1].id.id = "lane_nowhere"
+
+
+def _bad_road(pb):
+    pb.road[0].section[0].lane_id.add().id = "lane_nowhere"
+
+
+def _bad_road_junction(pb):
+    pb.road[0].junction_id.id = "J_nowhere"
+
+
+def _short_lane(pb):
+    del pb.lane[2].central_curve.segment[0].line_segment.point[1:]
+
+
+def _duplicate_lane(pb):
+    pb.lane[1].id.id = pb.lane[0].id.id
+
+
+@pytest.mark.parametrize("mutate, element", [
+    (_set_successor, "lane 'in_e'"),
+    (_bad_overlap, "overlap 'ov_j_e_w'"),
+    (_bad_road, "road 'road_e'"),
+    (_bad_road_junction, "road 'road_e'"),
+    (_short_lane, "lane 'in_w'"),
+    (_duplicate_lane, "lane 'in_e'"),
+])
+def test_dangling_ids_and_broken_elements_name_file_and_element(mutate, element):
+    with pytest.raises(MapFormatError) as info:
+        read_apollo_bytes(_broken(mutate), "broken.bin")
+    assert info.value.where == f"broken.bin: {element}"
+
+
+def test_corrupt_truncated_random_and_broken_text(tmp_path):
+    good = t_junction_map().SerializeToString()
+    rng = random.Random(3)
+    files = {
+        "truncated.bin": good[: len(good) // 2],
+        "random.bin": bytes(rng.randrange(256) for _ in range(4096)),
+        "broken.txt": aps.to_text(t_junction_map())[:-40].encode(),
+        "zero.bin": b"\x00" * 64,
+    }
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(MapFormatError) as info:
+            read_map(tmp_path / name)
+        assert str(tmp_path / name) in str(info.value)
+
+
+def test_junction_without_polygon_uses_its_lanes():
+    pb = t_junction_map()
+    pb.junction[0].ClearField("polygon")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = read_apollo_bytes(pb.SerializeToString(), "nopoly.bin")
+    assert any("J_0" in str(w.message) and "hull" in str(w.message) for w in caught)
+    assert len(m.junctions["J_0"].polygon) >= 3
+    assert extract_junctions(m)[0].feature.n_roads == 3
+
+
+def test_cli_extract_bad_apollo_file_exits_2_with_one_line(tmp_path, capsys):
+    bad = tmp_path / "base_map.bin"
+    bad.write_bytes(t_junction_map().SerializeToString()[:-25])
+    assert main(["extract", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(bad) in err and "Traceback" not in err
+
+
+@pytest.mark.real_maps
+def test_san_francisco_is_read_whole():
+    m = read_apollo(shared_map("apollo/san_francisco/base_map.bin"))
+    assert (len(m.lanes), len(m.junctions), len(m.signals), len(m.stop_signs), len(m.crosswalks)) == (
+        1524, 91, 201, 9, 43)
+    assert 500_000 < m.origin[0] < 600_000 and 4_100_000 < m.origin[1] < 4_200_000
+    lo = np.min([ln.points.min(axis=0) for ln in m.lanes.values()], axis=0)
+    assert (lo >= 0).all() and (lo < 1).all()  # the origin is the whole-metre lower-left corner
+    in_junction = [ln for ln in m.lanes.values() if ln.junction_id]
+    assert 0 < len(in_junction) < len(m.lanes)
+    assert all(s.lane_ids and s.junction_id for s in m.signals.values())
+    # SF signals overlap their junction's lanes or the incoming lanes leading into it
+    for s in m.signals.values():
+        for lid in s.lane_ids:
+            ln = m.lanes[lid]
+            assert ln.junction_id == s.junction_id or (
+                ln.junction_id is None and any(m.lanes[x].junction_id == s.junction_id for x in ln.successors))
+    # 23 crosswalks have no id: all got unique ids and a junction
+    assert sum(c.startswith("crosswalk_unnamed_") for c in m.crosswalks) == 23
+    assert all(c.junction_id for c in m.crosswalks.values())
+    for ln in m.lanes.values():
+        for s in ln.successors:
+            assert math.dist(ln.end, m.lanes[s].start) < 1.0
+
+
+@pytest.mark.real_maps
+def test_sim_map_text_matches_base_map():
+    base = read_apollo(shared_map("apollo/cube_town/base_map.bin"))
+    sim = read_apollo(shared_map("apollo/cube_town/sim_map.txt"))
+    assert set(sim.lanes) == set(base.lanes) and set(sim.junctions) == set(base.junctions)
+    assert {k: v.lane_ids for k, v in sim.signals.items()} == {k: v.lane_ids for k, v in base.signals.items()}
+    assert [(j.feature.n_roads, j.feature.control) for j in extract_junctions(sim)] == [
+        (j.feature.n_roads, j.feature.control) for j in extract_junctions(base)]
