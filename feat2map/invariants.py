@@ -17,7 +17,6 @@ from .features import JunctionFeature
 from .model import HDMap
 
 AREA_EPS_M2 = 0.05
-QUARTER_DEG = 90.0
 
 
 def _road_polygons(m: HDMap) -> dict[str, Polygon]:
@@ -226,32 +225,33 @@ def unrealized_features(m: HDMap, angle_tol_deg: float = 0.01) -> list[str]:
     return problems
 
 
+def _circ(a: float, b: float) -> float:
+    """Absolute angular difference in degrees, in [0, 180]."""
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
 def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg: float = 0.01) -> list[str]:
     """Why two junction features differ ([] when they are the same feature).
 
     Normalization breaks ties between equally good socket orders (equal largest gaps) by
-    position, so a junction turned by quarter turns may list the same sockets from another
-    start: the features match when some cyclic shift of `got` has `want`'s lanes and its
-    angles up to one common quarter-turn offset."""
+    position, so the same junction, turned by one of its symmetries (a quarter turn, a third of
+    a turn, ...), may list its sockets from another start. The features match when they have
+    the same socket directions and some cyclic re-listing of `got`, turned by one common angle,
+    has `want`'s lanes socket by socket."""
     if (got.n_roads, got.control, got.crosswalk) != (want.n_roads, want.control, want.crosswalk):
         return [f"measured n/control/crosswalk {(got.n_roads, got.control, got.crosswalk)}"
                 f" != {(want.n_roads, want.control, want.crosswalk)}"]
     n = want.n_roads
-    best_dev, lanes_ok = math.inf, False
+    off = max(min(_circ(w, g) for g in got.rotation) for w in want.rotation)
+    out = [f"socket angles off by {off:.4f} deg"] if off > angle_tol_deg else []
+    want_lanes = [(w.lanes_in, w.lanes_out) for w in want.sockets]
     for k in range(n):
         sock = [got.sockets[(i + k) % n] for i in range(n)]
-        offsets = [(g.angle - w.angle) % 360.0 for g, w in zip(sock, want.sockets)]
-        base = QUARTER_DEG * round(offsets[0] / QUARTER_DEG)
-        dev = max(abs((o - base + 180.0) % 360.0 - 180.0) for o in offsets)
-        same_lanes = [(g.lanes_in, g.lanes_out) for g in sock] == [(w.lanes_in, w.lanes_out) for w in want.sockets]
-        if (k == 0 or dev <= angle_tol_deg) and (same_lanes, -dev) > (lanes_ok, -best_dev):
-            best_dev, lanes_ok = dev, same_lanes
-    out = []
-    if best_dev > angle_tol_deg:
-        out.append(f"socket angles off by {best_dev:.4f} deg")
-    if not lanes_ok:
-        out.append("lanes per socket differ")
-    return out
+        turn = sock[0].angle - want.sockets[0].angle
+        if max(_circ(g.angle - turn, w.angle) for g, w in zip(sock, want.sockets)) <= max(angle_tol_deg, off) \
+                and [(g.lanes_in, g.lanes_out) for g in sock] == want_lanes:
+            return out
+    return out + ["lanes per socket differ"]
 
 
 def check_map(m: HDMap) -> list[str]:

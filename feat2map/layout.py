@@ -193,4 +193,22 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
                 facing.setdefault(nb, []).append((j, s))
                 n_open += 1
     where = {j: c for c, j in cells.items()}
+    _check_connected(order, links, where, label)
     return [Placement(features[j], where[j], turns[j], tuple(links[j])) for j in range(len(features))]
+
+
+def _check_connected(order: Sequence[int], links: dict[int, list[Link | None]], where: dict[int, Cell],
+                     label: Sequence[str]) -> None:
+    """The junctions form one road network (only pinned cells can split it)."""
+    seen = {order[0]}
+    todo = [order[0]]
+    while todo:
+        for ln in links[todo.pop()]:
+            if ln is not None and ln.junction not in seen:
+                seen.add(ln.junction)
+                todo.append(ln.junction)
+    for j in order:
+        if j not in seen:
+            raise LayoutError(
+                f"pinned to cell {tuple(where[j])}, where no road connects it to {label[order[0]]}: "
+                "pin it next to a junction with a facing compatible leg, or drop the cell", label[j])

@@ -28,7 +28,7 @@ from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig
 from .construct import RoadChain, chain_road_id, junction_radius
 from .errors import FeatureError, LayoutError
 from .features import FeatureSpace, JunctionFeature, Socket, socket_lanes
-from .invariants import AREA_EPS_M2, connectivity, dead_ends
+from .invariants import AREA_EPS_M2, connectivity, dead_ends, two_way
 from .layout import Cell
 from .model import HDMap
 
@@ -410,8 +410,8 @@ def _check_network(m: HDMap, spec: MapSpec, names: Sequence[str], cfg: Generatio
         lane = next((w for w in problems[0].split() if w in m.lanes), None)
         where = _element(m, lane, spec, names) if lane else spec.source
         what = f" (road {m.lanes[lane].road_id})" if lane else ""
-        raise SpecError(f"one-way roads make routes impossible: {problems[0]}{what}; "
-                        "check the in/out road types around it", where)
+        hint = "" if two_way(m, m.lanes) else "; check the in/out road types around it"
+        raise SpecError(f"routes impossible: {problems[0]}{what}{hint}", where)
     if not spec.chains or not m.junctions:
         return
     from shapely import STRtree

@@ -175,11 +175,13 @@ INVALID = [
     ("cell taken", {"junctions": [{"sockets": FOUR_WAY, "cell": [0, 0]}, {"sockets": FOUR_WAY, "cell": [0, 0]}]},
      "junctions[1].cell: cell [0, 0] is already taken by junctions[0]"),
     ("one-way dead end", J({"angle": 0}, {"angle": 120, "type": "in"}, {"angle": 240, "type": "in"}),
-     "junctions[0]: one-way roads make routes impossible"),
+     "junctions[0]: routes impossible: lane R0_1 is a dead end at junction J0"),
     ("one-way trap", {"junctions": [
         {"cell": [0, 0], "sockets": [0, {"angle": 90, "type": "in"}, {"angle": 180, "type": "in"}]},
         {"cell": [1, 0], "sockets": [{"angle": 0, "type": "in"}, {"angle": 90, "type": "in"}, 180]}]},
-     "one-way roads make routes impossible"),
+     "routes impossible: lane R0_0 is a dead end at junction J1"),
+    ("pinned apart", {"junctions": [{"cell": [0, 0], "sockets": FOUR_WAY}, {"cell": [3, 0], "sockets": FOUR_WAY}]},
+     "junctions[1]: pinned to cell (3, 0), where no road connects it to junctions[0]"),
     ("facing out and out", {"junctions": [
         {"cell": [0, 0], "sockets": [{"angle": 0, "type": "out"}, {"angle": 90, "type": "out"},
                                      {"angle": 180, "type": "in"}, {"angle": 270, "type": "in"}]},
@@ -234,7 +236,7 @@ def junction_specs(draw):
     n = draw(st.integers(3, 6))
     base = draw(st.floats(-180, 180))
     step = 360.0 / n
-    angles = [base + i * step + draw(st.floats(-step / 2 + 15, step / 2 - 15)) for i in range(n)]
+    angles = [base + i * step + draw(st.floats(-step / 2 + 20, step / 2 - 20)) for i in range(n)]  # legs >= 40 deg apart
     types = draw(st.lists(st.sampled_from(["in", "out", "in-out"]), min_size=n, max_size=n))
     lanes = draw(st.lists(st.integers(1, 2), min_size=n, max_size=n))
     # routes exist: every entering socket has another socket to leave by, and vice versa
@@ -262,6 +264,40 @@ def test_random_valid_junction_specs_build_and_round_trip(junction):
     # lane counts flow through: per road, the lanes in each direction are the socket's
     total = sum(s.lanes_in + s.lanes_out for s in f.sockets)
     assert sum(len(m.roads[r].lane_ids) for r in m.junctions["J0"].socket_roads) == total
+
+
+@st.composite
+def network_specs(draw):
+    """2-4 junctions with random road types and lane counts, some pinned to random cells."""
+    junctions = []
+    cells = draw(st.lists(st.tuples(st.integers(0, 2), st.integers(0, 1)), min_size=4, max_size=4, unique=True))
+    for i in range(draw(st.integers(2, 4))):
+        n = draw(st.sampled_from([3, 4]))
+        sockets = []
+        for a in range(n):
+            s = {"angle": a * 360 // n}
+            if draw(st.booleans()):
+                s["lanes_in"], s["lanes_out"] = draw(st.sampled_from([(1, 1), (2, 2), (1, 0), (0, 1), (2, 1), (0, 2)]))
+            sockets.append(s)
+        j = {"control": draw(st.sampled_from(["bare", "signal", "stop"])), "sockets": sockets}
+        if draw(st.booleans()):
+            j["cell"] = list(cells[i])
+        junctions.append(j)
+    return {"junctions": junctions}
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(network_specs(), st.integers(0, 3))
+def test_random_networks_build_valid_maps_or_fail_naming_an_element(doc, seed):
+    try:
+        m = build_spec(parse_spec(doc, "net.yaml"), seed=seed)
+    except SpecError as exc:
+        assert str(exc).startswith("net.yaml: ") and "\n" not in str(exc)
+        return
+    assert check_map(m) == []
+    for i, j in enumerate(doc["junctions"]):
+        if "cell" in j:
+            assert m.junctions[f"J{i}"].cell == tuple(j["cell"])
 
 
 def test_spec_junctions_on_top_of_a_feature_space():
