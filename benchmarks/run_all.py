@@ -3,7 +3,9 @@
 Runs, one after another (never in parallel: the tables are wall-clock ratios measured on a
 shared machine):
   1. generation time vs junction count        (benchmarks/bench_generate.py)
-  2. extraction time for each real map          (benchmarks/bench_extract.py, when present)
+  2. extraction time for each real map          (benchmarks/bench_extract.py, when present;
+                                                 else read + extract timed here)
+     Apollo export and validation vs map size    (benchmarks/bench_apollo.py)
   3. env steps/s vs highway-env intersection-v1 (benchmarks/bench_env.py)
   4. rollout throughput: scenarios per minute per core with the baseline planner, plain and
      with line coverage measured (this file; baseline = the plain run in the same process)
@@ -102,9 +104,60 @@ def rollout_throughput(n: int = ROLLOUT_SCENARIOS) -> Table:
     return Table("rollout", title, cmd, "\n".join(lines), time.perf_counter() - t0, True)
 
 
+SHARED_MAPS = ROOT.parent / "shared" / "maps"
+
+
+def extraction_inline() -> Table:
+    """Read + extract time of every real map, used while benchmarks/bench_extract.py is absent;
+    baseline: generating the paper's M1 in the same process."""
+    import warnings
+
+    import feat2map
+    from feat2map.errors import Feat2MapError
+    from feat2map.extract import extract_junctions
+    from feat2map.readers import read_map
+
+    title = "Extraction time for each real map"
+    cmd = ".venv/bin/python benchmarks/run_all.py --only extract"
+    if not SHARED_MAPS.is_dir():
+        return Table("extract", title, cmd, f"(not run: {SHARED_MAPS} is absent)", 0.0, False)
+    t0 = time.perf_counter()
+    t = time.perf_counter()
+    feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1)
+    base = time.perf_counter() - t
+    files = sorted(p for p in SHARED_MAPS.rglob("*") if p.suffix in (".bin", ".xodr")
+                   or (p.suffix == ".txt" and "apollo" in p.parts))
+    lines = [f"baseline: generating M1 (8 junctions) took {base:.3f} s",
+             f"{'map':<62} {'bytes':>9} {'junctions':>9} {'extracted':>9} {'read s':>7} {'extract s':>9} {'x M1 gen':>8}"]
+    for p in files:
+        rel = str(p.relative_to(SHARED_MAPS))
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                t = time.perf_counter()
+                m = read_map(p)
+                read_s = time.perf_counter() - t
+                t = time.perf_counter()
+                js = extract_junctions(m, rel)
+                ext_s = time.perf_counter() - t
+        except Feat2MapError as exc:
+            lines.append(f"{rel:<62} (not read: {exc.message[:60]})")
+            continue
+        lines.append(f"{rel:<62} {p.stat().st_size:>9,d} {len(m.junctions):>9d} {len(js):>9d} {read_s:>7.3f} "
+                     f"{ext_s:>9.3f} {(read_s + ext_s) / base:>8.2f}")
+    return Table("extract", title, cmd, "\n".join(lines), time.perf_counter() - t0, True)
+
+
+def extraction() -> Table:
+    if (HERE / "bench_extract.py").is_file():
+        return run_script("extract", "Extraction time for each real map", "bench_extract.py")
+    return extraction_inline()
+
+
 BENCHMARKS: dict[str, Callable[[], Table]] = {
     "generate": lambda: run_script("generate", "Generation time vs junction count", "bench_generate.py"),
-    "extract": lambda: run_script("extract", "Extraction time for each real map", "bench_extract.py"),
+    "extract": extraction,
+    "apollo": lambda: run_script("apollo", "Apollo export and validation time vs map size", "bench_apollo.py"),
     "env": lambda: run_script("env", "Env steps/s vs highway-env intersection-v1", "bench_env.py"),
     "rollout": rollout_throughput,
 }
