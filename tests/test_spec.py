@@ -344,16 +344,22 @@ def test_cli_bad_specs_exit_2_and_write_nothing(tmp_path, capsys, args, message)
     assert [p.name for p in tmp_path.iterdir() if p.name not in {"bad.yaml"}] == []
 
 
-def test_mega_junction_drives_in_the_env(example_maps):
+@pytest.mark.parametrize("name", ["mega_junction", "multi_lane"])
+def test_spec_maps_drive_in_the_env(example_maps, name):
+    """The mega junction (a left turn through the signal) and the multi-lane/one-way pair
+    (a sampled route through both junctions) are driven to the goal without violations."""
     import gymnasium as gym
 
     from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 
-    _, m = example_maps["mega_junction"]
-    lane = next(ln for ln in m.junction_lanes("J0") if ln.turn == "left")
-    route = [("J0", m.lanes[lane.predecessors[0]].road_id, m.lanes[lane.successors[0]].road_id)]
-    env = gym.make("feat2map/MapFile-v0", config={"map": m, "route": route, "action": DRIVER_ACTION_CONFIG,
-                                                    "policy_frequency": 5, "duration": 60, "traffic_vehicles": 3})
+    _, m = example_maps[name]
+    route = None
+    if name == "mega_junction":
+        lane = next(ln for ln in m.junction_lanes("J0") if ln.turn == "left")
+        route = [("J0", m.lanes[lane.predecessors[0]].road_id, m.lanes[lane.successors[0]].road_id)]
+    env = gym.make("feat2map/MapFile-v0", config={"map": m, "route": route, "route_junctions": 2,
+                                                    "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5,
+                                                    "duration": 60, "traffic_vehicles": 3})
     env.reset(seed=0)
     driver = ScriptedDriver(env)
     for _ in range(400):
