@@ -174,21 +174,22 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     tangents = np.array([(math.cos(v[2]), math.sin(v[2])) for v in ends.values()])
     kinds = [v[3] for v in ends.values()]
     cos_tol = math.cos(math.radians(ARM_CLUSTER_DEG))
+    # all pairs at once: offsets, distances, and along/across components in the mean direction
+    d = pts[None, :, :] - pts[:, None, :]
+    dist = np.hypot(d[..., 0], d[..., 1])
+    mean = dirs[:, None, :] + dirs[None, :, :]
+    mean /= np.maximum(np.hypot(mean[..., 0], mean[..., 1]), 1e-12)[..., None]
+    across = np.abs(mean[..., 0] * d[..., 1] - mean[..., 1] * d[..., 0])
+    along = np.abs((mean * d).sum(axis=-1))
+    same = ((tangents @ tangents.T >= cos_tol) & (dist <= ARM_NEAR_M)) | (  # adjacent, same local direction
+        (dirs @ dirs.T >= cos_tol) & (across <= ARM_MAX_WIDTH_M) & (along <= ARM_MAX_DEPTH_M))
     uf = _UnionFind(len(pts))
-    for i in range(len(pts)):
+    for i, k in zip(*np.nonzero(np.triu(same, 1))):
+        uf.union(int(i), int(k))
+    for i in range(len(pts)):  # neighbour lanes of one road
         for k in range(i + 1, len(pts)):
-            d = pts[k] - pts[i]
-            if ext[k] in linked[i]:  # neighbour lanes of one road
+            if ext[k] in linked[i]:
                 uf.union(i, k)
-                continue
-            if tangents[i] @ tangents[k] >= cos_tol and float(np.hypot(*d)) <= ARM_NEAR_M:
-                uf.union(i, k)  # adjacent ends, same local direction (short curved pieces)
-                continue
-            if dirs[i] @ dirs[k] >= cos_tol:
-                mean = (dirs[i] + dirs[k]) / np.hypot(*(dirs[i] + dirs[k]))
-                across = abs(mean[0] * d[1] - mean[1] * d[0])
-                if across <= ARM_MAX_WIDTH_M and abs(mean @ d) <= ARM_MAX_DEPTH_M:
-                    uf.union(i, k)
     groups: dict[int, list[int]] = {}
     for i in range(len(pts)):
         groups.setdefault(uf.find(i), []).append(i)

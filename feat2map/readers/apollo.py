@@ -66,8 +66,8 @@ def _sample_width(lane: Any) -> float | None:
     """Mean lane width from Apollo's left/right width samples (None when absent)."""
     if not lane.left_sample or not lane.right_sample:
         return None
-    left = np.mean([s.width for s in lane.left_sample])
-    right = np.mean([s.width for s in lane.right_sample])
+    left = sum(s.width for s in lane.left_sample) / len(lane.left_sample)
+    right = sum(s.width for s in lane.right_sample) / len(lane.right_sample)
     return float(left + right)
 
 
@@ -177,16 +177,15 @@ class _Reader:
         for j in pb.junction:
             jid = j.id.id
             pts = _polygon_points(j.polygon) - o
-            poly = Polygon(pts) if len(pts) >= 3 else None
-            if poly is None or not poly.is_valid or poly.area <= 0:
+            # real maps draw self-touching outlines: kept as drawn, only an empty area is replaced
+            if len(pts) < 3 or Polygon(pts).buffer(0).area <= 0:
                 member = [raw[lid][k] - o for lid, jj in lane_junction.items() if jj == jid for k in ("l", "r", "c")]
                 hull = MultiPoint(np.vstack(member)).convex_hull if member else None
                 if hull is None or hull.geom_type != "Polygon":
                     self.warn(f"junction {jid!r}", "no usable polygon and no lanes, skipped")
                     continue
-                if poly is None or poly.area <= 0:
-                    self.warn(f"junction {jid!r}", "no polygon, using the hull of its lanes")
-                    pts = np.array(orient(hull, 1.0).exterior.coords[:-1])
+                self.warn(f"junction {jid!r}", "no polygon, using the hull of its lanes")
+                pts = np.array(orient(hull, 1.0).exterior.coords[:-1])
             junctions[jid] = Junction(jid, as_polyline(pts))
         lane_junction = {lid: jid for lid, jid in lane_junction.items() if jid in junctions}
 
