@@ -463,6 +463,13 @@ def to_sim_map(base: Any) -> Any:
 
 # --- files --------------------------------------------------------------------------------
 
+def text_of(msg: Any) -> str:
+    """Protobuf text format of `msg` from protobuf's C encoder (about twice as fast as
+    `text_format`; doubles in round-trip precision, enums by name), newline-terminated."""
+    text = str(msg)
+    return text if text.endswith("\n") or not text else text + "\n"
+
+
 def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
                  origin: tuple[float, float] | None = None) -> None:
     """Write base_map, sim_map and routing_map (.txt and .bin each) into `out_dir`, all or nothing."""
@@ -473,7 +480,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
     with atomic.staged_dir(out_dir) as tmp:
         for name, msg in messages.items():
             atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
-            atomic.write_text(tmp / f"{name}.txt", aps.to_text(msg))
+            atomic.write_text(tmp / f"{name}.txt", text_of(msg))
 
 
 def add_export_apollo_command(subparsers: Any) -> None:
