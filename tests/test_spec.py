@@ -21,7 +21,7 @@ from feat2map.cli import main
 from feat2map.config import GenerationConfig, MIN_STUB_LENGTH_M
 from feat2map.construct import junction_radius
 from feat2map.extract import extract_junctions
-from feat2map.features import FeatureSpace, JunctionFeature
+from feat2map.features import FeatureSpace
 from feat2map.invariants import check_map, feature_mismatch
 from feat2map.spec import SpecError, build_spec, load_spec, parse_spec, spec_schema
 
