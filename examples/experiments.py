@@ -84,6 +84,7 @@ class Settings:
     max_scenarios: int | None = None  # cap per map's suite (None: every route)
     max_junctions: int = 4  # junctions per route in the coverage suites
     workers: int = 1
+    reuse: bool = False  # take maps' suites saved by an earlier run instead of driving again
     traffic: int = 0  # traffic vehicles per scenario (the paper's sim-control runs have none)
     progress: bool = True
 
@@ -213,7 +214,7 @@ def picture_input(m: HDMap, junctions: Sequence[ExtractedJunction], title: str, 
     control_legend(ax)
     ax.set_title(title)
     fig.tight_layout()
-    return _save(fig, path)
+    return _save(fig, path, dpi=90)  # keeps the 1,500-lane picture under MAX_DOC_PICTURE_BYTES
 
 
 def picture_maps(panels: Sequence[tuple[str, HDMap, Mapping[str, str] | None]], path: Path) -> Path:
@@ -241,7 +242,8 @@ def map_stats(m: HDMap, junctions: Sequence[ExtractedJunction] | None = None) ->
             "crosswalk_junctions": sum(j.feature.crosswalk for j in junctions),
             "legs": {str(n): sum(j.feature.n_roads == n for j in junctions)
                      for n in sorted({j.feature.n_roads for j in junctions})},
-            "roads": len(m.roads), "lanes": len(m.lanes), "road_lanes": road_lanes,
+            "roads": len(m.roads), "roads_outside_junctions": sum(r.junction_id is None for r in m.roads.values()),
+            "lanes": len(m.lanes), "road_lanes": road_lanes,
             "junction_lanes": len(m.lanes) - road_lanes, "signals": len(m.signals),
             "stop_signs": len(m.stop_signs), "crosswalks": len(m.crosswalks)}
 
@@ -355,7 +357,8 @@ def rq1_markdown(r: Mapping[str, Any]) -> str:
             ("signal / stop / bare", f"{sf['signal']} / {sf['stop']} / {sf['bare']}",
              f"{PAPER['sf_signal']} / {PAPER['sf_stop']} / 0"),
             ("junctions with crosswalks", sf["crosswalk_junctions"], PAPER["sf_crosswalk_junctions"]),
-            ("roads", sf["roads"], PAPER["sf_roads"]),
+            ("roads outside junctions (all road elements)", f"{sf['roads_outside_junctions']} ({sf['roads']})",
+             PAPER["sf_roads"]),
             ("lanes (junction / road)", f"{sf['lanes']} ({sf['junction_lanes']} / {sf['road_lanes']})", "1524 (868 / 656)")]
     out = ["### San Francisco (input)\n", md_table(("", "ours", "paper"), rows),
            "\n### Extracted feature space (paper Table I)\n",
@@ -549,6 +552,65 @@ def plot_stages(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
     return _save(fig, path, dpi=100)
 
 
+def _stage_machine() -> tuple[dict[str, tuple[str, ...]], set[tuple[str, str]]]:
+    """The baseline planner's scenarios, their stages, and the stage transitions it can make."""
+    from feat2map.scenarios import planner as pl
+
+    stages = dict(pl.SCENARIO_STAGES)
+    edges: set[tuple[str, str]] = set()
+    lf = f"{pl.LANE_FOLLOW}.LF"
+    for scen, st in stages.items():
+        if scen == pl.LANE_FOLLOW:
+            continue
+        names = [f"{scen}.{x}" for x in st]
+        edges.add((lf, names[0]))
+        edges.update(zip(names, names[1:]))
+        cruise = f"{scen}.{pl.CRUISE_STAGE[scen]}"
+        edges.update((n, cruise) for n in names[:-1] if n != cruise)  # any stage may skip to cruising
+        edges.add((cruise, lf))
+    return stages, edges
+
+
+def plot_stage_graph(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
+    """Fig. 7: the planner's scenarios and stages as a graph per map, covered transitions and
+    stages in orange, the rest grey (LF drawn at both ends)."""
+    stages, edges = _stage_machine()
+    rows = [sc for sc in stages if len(stages[sc]) > 1 or sc != next(iter(stages))]
+    lf_name = next(f"{sc}.{st[0]}" for sc, st in stages.items() if st == ("LF",))
+    rows = [sc for sc in stages if f"{sc}.{stages[sc][0]}" != lf_name]
+    width = max(len(stages[sc]) for sc in rows) + 1
+    fig, axes = plt.subplots(1, len(summaries), figsize=(3.3 * len(summaries), 0.55 * len(rows) + 1.0), squeeze=False)
+    for ax, s in zip(axes.flat, summaries):
+        covered = {tuple(t.split(" -> ")) for t in s["transitions"]}
+        seen = {x for t in covered for x in t}
+        pos = {}
+        for r, sc in enumerate(rows):
+            for k, st in enumerate(stages[sc]):
+                pos[f"{sc}.{st}"] = (k + 1, -r)
+        mid = -(len(rows) - 1) / 2
+        pos_in, pos_out = (0, mid), (width, mid)
+        for a, b in sorted(edges | covered):
+            pa = pos_in if a == lf_name else pos.get(a)
+            pb = pos_out if b == lf_name else pos.get(b)
+            if pa is None or pb is None:
+                continue
+            on = (a, b) in covered
+            ax.annotate("", xy=pb, xytext=pa, zorder=1, arrowprops=dict(
+                arrowstyle="-|>", lw=1.3 if on else 0.6, color=NEW_LINES_COLOUR if on else "#bdbdbd",
+                shrinkA=7, shrinkB=7, connectionstyle="arc3,rad=0.15" if pb[0] - pa[0] > 1 and pa[1] == pb[1] else None))
+        for name, (x, y) in list(pos.items()) + [(lf_name, pos_in), (lf_name, pos_out)]:
+            on = name in seen
+            ax.text(x, y, stage_label(name), ha="center", va="center", fontsize=6.5, zorder=3,
+                    bbox=dict(boxstyle="round,pad=0.25", fc=NEW_LINES_COLOUR if on else "#eeeeee",
+                              ec="#616161" if on else "#bdbdbd", lw=0.5), color="white" if on else "#9e9e9e")
+        ax.set_xlim(-0.6, width + 0.6)
+        ax.set_ylim(-len(rows) + 0.4, 0.6)
+        ax.set_axis_off()
+        ax.set_title(f"{s['map']}: {len(covered)} transitions", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, path, dpi=100)
+
+
 def coverage_markdown(summaries: Sequence[Mapping[str, Any]], lane_follow: str) -> str:
     """The RQ2/RQ3 table: junctions, routes, lines covered, stage paths covered per map."""
     rows = []
@@ -602,12 +664,17 @@ def measure(settings: Settings, rq: int, maps: Sequence[tuple[str, Path, Sequenc
             runs.append(item)
             continue
         name, path, subset = item
+        saved = load_run(folder / f"{name.replace(' ', '_')}_suite.json") if settings.reuse else None
+        if saved is not None:
+            runs.append(saved)
+            continue
         run = drive_map(settings, name, path, subset)
         save_run(run, folder)
         runs.append(run)
     lf = lane_follow_name(runs)
     summaries = [run_summary(r, lf) for r in runs]
-    pics = [plot_lines(summaries, folder / f"rq{rq}_lines.png"), plot_stages(summaries, folder / f"rq{rq}_stages.png")]
+    pics = [plot_lines(summaries, folder / f"rq{rq}_lines.png"), plot_stages(summaries, folder / f"rq{rq}_stages.png"),
+            plot_stage_graph(summaries, folder / f"rq{rq}_stage_graph.png")]
     table = coverage_markdown(summaries, lf)
     atomic.write_text(folder / f"rq{rq}.md", table)
     result = {"lane_follow": lf, "maps": summaries, "settings": {
@@ -798,6 +865,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-scenarios", type=int, help="at most this many routes per map")
     ap.add_argument("--route-junctions", type=int, default=4, help="junctions per coverage route")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--reuse", action="store_true",
+                    help="rebuild tables and figures from suites saved in OUT by an earlier run (no driving)")
     ap.add_argument("--quiet", action="store_true")
     return ap
 
@@ -818,7 +887,7 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return Settings(out=args.out, docs=None if args.no_docs else args.docs, maps=args.maps, inputs=inputs,
                     seeds=tuple(args.seeds), sf_junctions=args.sf_junctions, budget_s=args.budget,
                     max_scenarios=args.max_scenarios, max_junctions=args.route_junctions, workers=args.workers,
-                    progress=not args.quiet)
+                    reuse=args.reuse, progress=not args.quiet)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
