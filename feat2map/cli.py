@@ -86,7 +86,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         stages.set_postfix_str("picture")
         if not args.no_picture:
             render_map(m, tmp / "map.png", title=f"feat2map seed {args.seed}: {len(m.junctions)} junctions")
-            if len(m.junctions) <= 64:
+            if 0 < len(m.junctions) <= 64:
                 render_junctions(m, tmp / "junctions.png")
         stages.update(1)
         if args.opendrive:
