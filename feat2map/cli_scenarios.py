@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 from pathlib import Path
 
 from . import atomic
@@ -42,6 +44,8 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise Feat2MapError("--workers must be at least 1", "command line")
     suite = load_suite(args.suite)
+    if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory
+        sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
     factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
     result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet,

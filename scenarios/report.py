@@ -145,7 +145,7 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
         gifs: dict[str, str] = {}
         used: set[str] = set()
         for o in result.outcomes:
-            if o.gif and o.fails(fail_on if fail_on != "none" else "any"):
+            if o.gif and o.fails(fail_on):
                 name = _safe(o.name)
                 while name in used:
                     name += "_"

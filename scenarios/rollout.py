@@ -16,7 +16,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
@@ -391,27 +391,15 @@ def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
 
 def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_failure_gif: bool = True,
                  coverage: bool = False, fail_on: str = "any", coverage_modules: Sequence[str] = ()) -> Outcome:
-    """Drive one scenario headless with a fresh planner; on a failure (under `fail_on`) re-run it
+    """Drive one scenario headless with a fresh planner; on a failure under `fail_on` re-run it
     with rendering and attach a GIF. `coverage` measures the planner's lines per junction."""
     factory = as_factory(planner_factory)
     outcome, _ = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules)
-    if record_failure_gif and outcome.fails(fail_on if fail_on != "none" else "any"):
+    if record_failure_gif and outcome.fails(fail_on):
         replay, frames = _drive(scenario, factory, render=True)
-        policy_hz = _policy_frequency(scenario, replay)
-        outcome = _with(outcome, gif=gif_bytes(frames, 1.0 / policy_hz))
+        step_s = replay.sim_s / replay.steps if replay.steps and replay.sim_s > 0 else 1.0
+        outcome = replace(outcome, gif=gif_bytes(frames, step_s))
     return outcome
-
-
-def _policy_frequency(scenario: Any, replay: Outcome) -> float:
-    if replay.steps and replay.sim_s > 0:
-        return replay.steps / replay.sim_s
-    return 1.0
-
-
-def _with(o: Outcome, **changes: Any) -> Outcome:
-    from dataclasses import replace
-
-    return replace(o, **changes)
 
 
 # ---- suites -------------------------------------------------------------------------------------
@@ -509,7 +497,13 @@ def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome]
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
             for ref in ready:
-                done(*ray.get(ref))
+                try:
+                    done(*ray.get(ref))
+                except ray.exceptions.RayTaskError as exc:  # bad input in a worker: its one-line error
+                    cause = getattr(exc, "cause", None)
+                    if isinstance(cause, Feat2MapError):
+                        raise Feat2MapError(cause.message, cause.where) from None
+                    raise
     finally:
         if started:
             ray.shutdown()
