@@ -328,6 +328,21 @@ def test_cli_generate_from_spec_writes_the_sampled_pipelines_outputs(tmp_path, c
     assert sorted(j.feature.n_roads for j in m2.junctions.values()) == [3, 5]
 
 
+@pytest.mark.real_maps
+def test_cli_spec_on_top_of_a_real_maps_features(tmp_path):
+    from conftest import shared_map
+
+    real = shared_map("apollo/borregas_ave/base_map.bin")
+    out = tmp_path / "mixed"
+    assert main(["generate", "--from-maps", str(real), "--spec", str(EXAMPLES / "one_way_t.yaml"), "--out", str(out),
+                 "--quiet", "--no-picture", "--no-apollo"]) == 0
+    m = mapio.load(out / "map.json")
+    assert check_map(m) == []
+    want = load_spec(EXAMPLES / "one_way_t.yaml").junctions[0].feature.normalized()
+    assert feature_mismatch(m.junctions["J0"].feature, want) == []  # the spec junction comes first
+    assert len(m.junctions) > 1 and "feature_space" in m.meta
+
+
 @pytest.mark.parametrize("args,message", [
     (["--spec", "{dir}/bad.yaml"], "bad.yaml: junctions[0].sockets[1]: same direction"),
     (["--spec", "{dir}/nope.yaml"], "nope.yaml: cannot read"),
