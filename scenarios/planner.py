@@ -28,7 +28,8 @@ from typing import Any, Callable, ClassVar, Iterable, Protocol, runtime_checkabl
 import numpy as np
 
 from ..envs.driver import DRIVER_ACTION_CONFIG
-from ..envs.traffic import PRIORITY_HORIZON_S, STOP_ZONE_M, STOPPED_SPEED_MPS, idm
+from ..envs.network import CONFLICT_DISTANCE_M
+from ..envs.traffic import IDM_ACC, PRIORITY_HORIZON_S, STOP_ZONE_M, STOPPED_SPEED_MPS, idm
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
 CREEP_TRIGGER_M = 12.0  # an unprotected left creeps when held by traffic this close to the line
@@ -37,6 +38,8 @@ CREEP_GAIN = 1.5  # [1/s] speed error -> acceleration while creeping or capping 
 STOP_DURATION_S = 1.0  # full stop held at stop signs and before a right turn on red
 BARE_APPROACH_M = 20.0  # bare junctions are approached at the junction speed limit from here
 HOLD_BRAKE_MPS2 = -3.0
+GAP_ACCEL_MPS2 = 1.5  # the ego's assumed acceleration when judging whether it clears a conflict in time
+GAP_MARGIN_S = 2.0  # a creeping turn goes when every conflicting vehicle arrives this much after it clears
 RULES = ("signal", "stop", "pedestrian", "conflict")
 
 LANE_FOLLOW = "LANE_FOLLOW"
@@ -104,6 +107,8 @@ class BaselinePlanner:
         self.j_lane: str | None = None
         self.in_lane: str | None = None
         self.stage_since = 0.0
+        self.go = False  # a creep stage decided to go (sticky until the stage changes)
+        self._zones: dict[tuple[str, str], tuple[float, float, float, float]] = {}
         self._steps = 0
         self._log()
 
@@ -138,6 +143,7 @@ class BaselinePlanner:
         self.scenario = scenario or self.scenario
         self.stage = stage
         self.stage_since = float(self.env.time)
+        self.go = False
         if scenario == LANE_FOLLOW:
             self.junction = self.j_lane = self.in_lane = None
         self._log()
@@ -277,6 +283,62 @@ class BaselinePlanner:
                             return True
         return False
 
+    def _zone(self, mine: str, other: str) -> tuple[float, float, float, float]:
+        """(start, end) along `mine` and along `other` of where the two junction lanes come
+        within CONFLICT_DISTANCE_M of each other (cached per pair)."""
+        key = (mine, other)
+        if key not in self._zones:
+            a, b = self.env.net.lane_of[mine], self.env.net.lane_of[other]
+            d = np.hypot(*(a.points[:, None, :] - b.points[None, :, :]).transpose(2, 0, 1))
+            close = d < CONFLICT_DISTANCE_M
+            if not close.any():
+                i = np.unravel_index(np.argmin(d), d.shape)
+                close = np.zeros_like(close)
+                close[i] = True
+            ia, ib = np.nonzero(close.any(axis=1))[0], np.nonzero(close.any(axis=0))[0]
+            self._zones[key] = (float(a.cum[ia[0]]), float(a.cum[ia[-1]]), float(b.cum[ib[0]]), float(b.cum[ib[-1]]))
+        return self._zones[key]
+
+    def _gap_ok(self) -> bool:
+        """Gap acceptance for a creeping turn, per conflict zone of our junction lane: every
+        vehicle heading through it either leaves it GAP_MARGIN_S before we can arrive (at its
+        current speed) or arrives GAP_MARGIN_S after we have left (accelerating)."""
+        env = self.env
+        ego, net, control, m = env.vehicle, env.net, env.control, env.net.hdmap
+        v_me = max(ego.speed, 0.0)
+        here = net.id_of.get(ego.lane_index)
+        before = self._line_distance() if here != self.j_lane else -ego.lane_s
+        half = ego.LENGTH / 2
+        for c in net.conflicts.get(self.j_lane, ()):
+            m0, m1, c0, c1 = self._zone(self.j_lane, c)
+            t_me_in = _travel_time(before + m0 - 2 * half, v_me, IDM_ACC)
+            t_me_out = _travel_time(before + m1 + 2 * half, v_me, GAP_ACCEL_MPS2)
+            lane_c = net.lane_of[c]
+            through: list[tuple[float, Any]] = []  # (distance of the vehicle centre to the zone start, vehicle)
+            for v in control.buckets.get(c, ()):
+                if v is not ego:
+                    through.append((c0 - lane_c.local_coordinates(v.position)[0], v))
+            for p in m.lanes[c].predecessors:
+                sl = net.stop_lines.get(p)
+                if sl is not None and (sl.kind == "stop" or control.signal_state(sl.control_id) == "red"):
+                    continue
+                lane_p = net.lane_of.get(p)
+                for v in control.buckets.get(p, ()):
+                    k = getattr(v, "route_pos", -2) + 1
+                    if v is ego or not hasattr(v, "lane_route") or k >= len(v.lane_route) or v.lane_route[k] != c:
+                        continue
+                    through.append((lane_p.length - lane_p.local_coordinates(v.position)[0] + c0, v))
+            for d_in, v in through:
+                d_out = d_in + (c1 - c0) + v.LENGTH
+                if d_out <= 0:
+                    continue  # already through
+                sp = max(float(getattr(v, "speed", 0.0)), 0.0)
+                t_in = _travel_time(d_in - v.LENGTH / 2, sp, IDM_ACC)
+                t_out = d_out / sp if sp > 0.1 else math.inf
+                if not (t_in >= t_me_out + GAP_MARGIN_S or t_out + GAP_MARGIN_S <= t_me_in):
+                    return False
+        return True
+
     # ---- control ---------------------------------------------------------------------------
     def _acceleration(self) -> float:
         env = self.env
@@ -284,6 +346,14 @@ class BaselinePlanner:
         stage = self.stage
         if stage == "R_C" and self._right_on_red() and self._signal_state() == "red" and self._cross_traffic_near():
             stop = self._line_distance() - 1.0
+        elif stage == "L_C" and "conflict" not in self.ignore:
+            # creep to the line; go when the gap acceptance finds a gap (the env's conflict rule
+            # also waits for vehicles already past the conflict), reserving the junction lane
+            free = env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > self._line_distance() + 0.5
+            self.go = free and (self.go or self._gap_ok())
+            stop = env.rule_stop_distance(self.ignore | {"conflict"} if self.go else self.ignore, commit=True)
+            if self.go:
+                return idm(ego, env.leader_gaps(), stop)
         else:
             stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
         a = idm(ego, env.leader_gaps(), stop)
@@ -296,6 +366,13 @@ class BaselinePlanner:
             v_j = env.net.lane_of[self.j_lane].speed_limit
             return min(a, CREEP_GAIN * (v_j - v))
         return a
+
+
+def _travel_time(distance: float, speed: float, accel: float) -> float:
+    """Seconds to cover `distance` from `speed` at constant acceleration `accel` (0 if behind)."""
+    if distance <= 0:
+        return 0.0
+    return (-speed + math.sqrt(speed * speed + 2 * accel * distance)) / accel
 
 
 class CallablePolicy:

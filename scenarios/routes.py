@@ -15,7 +15,7 @@ from ..model import HDMap, Lane
 from .scenario import Manoeuvre, Scenario, Suite
 
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
-SECONDS_PER_JUNCTION = 25.0  # scenario duration budget per junction on the route
+SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
 BASE_DURATION_S = 20.0
 
 Route = tuple[Manoeuvre, ...]
