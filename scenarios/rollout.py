@@ -426,8 +426,9 @@ def _run_task(task: _Task) -> tuple[int, Outcome]:
     try:
         out = run_scenario(scenario, task.factory, record_failure_gif=task.record_failure_gif,
                            coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules)
-    except Feat2MapError:
-        raise
+    except Feat2MapError as exc:  # bad input: name the scenario too
+        name = f"scenario {getattr(scenario, 'name', task.index)}"
+        raise Feat2MapError(exc.message, f"{name}: {exc.where}" if exc.where else name) from None
     except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
         name = str(getattr(scenario, "name", f"scenario {task.index}"))
         out = Outcome(name=name, outcome="error", violations={}, sim_s=0.0, steps=0,
@@ -489,7 +490,9 @@ def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome]
         raise Feat2MapError("Ray is not installed (pip install 'feat2map[ray]')", "backend 'ray'") from None
     started = not ray.is_initialized()
     if started:
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
+        import logging
+
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
                  runtime_env={"env_vars": {"SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}})
     try:
         remote = ray.remote(num_cpus=1)(_run_task)

@@ -193,3 +193,14 @@ def test_bad_input_is_one_line_and_exit_2(args, needle, suite_file, tmp_path, ca
     assert code == 2 and needle in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not (tmp_path / "o").exists() and not (tmp_path / "s.yaml").exists()
 
+
+
+def test_a_bad_route_names_the_scenario(suite_file, tmp_path, capsys):
+    text = suite_file.read_text()
+    assert "[J0, R0, R1]" in text
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("[J0, R0, R1]", "[J9, R0, R1]").replace("map: t.json", f"map: {suite_file.parent / 't.json'}"))
+    assert cli.main(["rollout", str(bad), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "scenario t-r000" in err and "J9" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
