@@ -13,13 +13,12 @@ import time
 from pathlib import Path
 
 import feat2map
-from feat2map import apollo_schema as aps
 from feat2map import atomic
 from feat2map.apollo_routing import build_routing_graph
 from feat2map.apollo_validate import validate_apollo
 from feat2map.config import GenerationConfig
 from feat2map.features import FeatureSpace
-from feat2map.writers.apollo import to_apollo, to_sim_map
+from feat2map.writers.apollo import text_of, to_apollo, to_sim_map
 
 # every (n, control, crosswalk) combination of 3- and 4-leg junctions: 12 junctions per sample
 SPACE = FeatureSpace((3, 4), ("bare", "signal", "stop"), (True, False), feat2map.PAPER_SF_FEATURE_SPACE.rotation_ranges)
@@ -41,7 +40,7 @@ def run(k: int, folder: Path) -> dict[str, float]:
         with atomic.staged_dir(folder) as tmp:
             for name, msg in (("base_map", base), ("sim_map", sim), ("routing_map", graph)):
                 atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
-                atomic.write_text(tmp / f"{name}.txt", aps.to_text(msg))
+                atomic.write_text(tmp / f"{name}.txt", text_of(msg))
 
     _, t_write = _timed(write)
     problems, t_val = _timed(validate_apollo, folder)

@@ -165,6 +165,14 @@ def test_signals_have_boundary_subsignals_and_one_stop_line(exported):
         assert len(lines[0].segment[0].line_segment.point) >= 2
 
 
+@pytest.mark.xfail(reason="apollo_schema's StopSign numbers fields 2-6 its own way; Apollo's "
+                          "map_stop_sign.proto has repeated stop_line = 2, overlap_id = 3, type = 4 (docs/apollo.md)")
+def test_stop_sign_field_numbers_are_apollos():
+    fields = aps.StopSign.DESCRIPTOR.fields_by_name
+    assert (fields["overlap_id"].number, fields["type"].number) == (3, 4)
+    assert hasattr(aps.StopSign().stop_line, "add")  # repeated
+
+
 def test_zone_and_origin_are_configurable(small_map, tmp_path):
     m = wa.to_apollo(small_map, zone=33, origin=(400000.0, 5000000.0))
     assert "+zone=33 " in m.header.projection.proj
