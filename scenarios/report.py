@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from .rollout import FAIL_POLICIES, OUTCOMES, Outcome, SuiteResult
 SUMMARY = "summary.json"
 JUNIT = "junit.xml"
 REPORT = "report.md"
+FAILURES = "failures"
 OUTCOME_COLOURS = {"completed": "#4caf50", "collision": "#d32f2f", "off_road": "#ff9800",
                    "timeout": "#9e9e9e", "violation": "#7b1fa2", "error": "#000000"}
 
@@ -150,7 +152,7 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
                 while name in used:
                     name += "_"
                 used.add(name)
-                rel = f"failures/{name}.gif"
+                rel = f"{FAILURES}/{name}.gif"
                 atomic.write_bytes(tmp / rel, o.gif)
                 gifs[o.name] = rel
         doc = result.to_dict()
@@ -162,6 +164,7 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
         _plot_outcomes(result, tmp / "outcomes.png")
         plot_accumulated(compare({result.name: result}), tmp / "coverage.png", title=result.name)
         atomic.write_text(tmp / REPORT, report_markdown(result, fail_on, gifs))
+        shutil.rmtree(out / FAILURES, ignore_errors=True)  # GIFs of an earlier run into the same dir
     return out
 
 

@@ -126,12 +126,12 @@ def test_broken_planner_fails_with_readable_report_and_gif(suite_file, tmp_path,
         assert im.format == "GIF" and im.n_frames > 10 and im.size[0] > 100
     report = (out / "report.md").read_text()
     assert "**FAILED**" in report and "## Failures" in report and "failures/t-r000.gif" in report
-    # the failure policy decides the exit code
-    out2 = tmp_path / "red2"
-    assert cli.main(["rollout", str(one), "--planner", f"{__name__}:RedLightRunner", "--out", str(out2),
-                     "--quiet", "--no-coverage", "--no-gif", "--fail-on", "collision"]) == 0
-    assert not (out2 / "failures").exists()
-    assert ET.parse(out2 / "junit.xml").getroot().get("failures") == "0"
+    # the failure policy decides the exit code; a re-run into the same dir drops the old GIFs
+    assert cli.main(["rollout", str(one), "--planner", f"{__name__}:RedLightRunner", "--out", str(out),
+                     "--quiet", "--no-coverage", "--fail-on", "collision"]) == 0
+    assert not (out / "failures").exists()
+    assert ET.parse(out / "junit.xml").getroot().get("failures") == "0"
+    assert json.loads((out / "summary.json").read_text())["outcomes"][0]["outcome"] == "violation"
 
 
 def test_a_raising_planner_is_an_error_outcome(suite_file):
