@@ -23,13 +23,15 @@ Transition = tuple[str, str]  # ("Scenario.Stage", "Scenario.Stage")
 # ---- behaviour ----------------------------------------------------------------------------------
 def outcome_behaviour(o: Outcome) -> dict[str, tuple[frozenset[Pair], frozenset[Transition]]]:
     """Per junction of one outcome: the (scenario, stage path) pairs and the stage transitions
-    the planner made there (a transition belongs to the junction of the stage it enters)."""
+    the planner made there (a transition belongs to the junction of the stage it enters, or,
+    entering a road stage, to the junction of the stage it leaves)."""
     pairs: dict[str, set[Pair]] = {}
     trans: dict[str, set[Transition]] = {}
     run_j: str | None = None
     run_sc: str | None = None
     run: list[str] = []
     prev: str | None = None
+    prev_j: str | None = None
 
     def flush() -> None:
         if run_sc is not None:
@@ -44,9 +46,9 @@ def outcome_behaviour(o: Outcome) -> dict[str, tuple[frozenset[Pair], frozenset[
         if not run or run[-1] != stage:
             run.append(stage)
         if prev is not None and prev != name:
-            trans.setdefault(j, set()).add((prev, name))
+            trans.setdefault(junction or prev_j or ROAD_CONTEXT, set()).add((prev, name))
         pairs.setdefault(j, set())
-        prev = name
+        prev, prev_j = name, junction
     flush()
     keys = set(pairs) | set(trans)
     return {j: (frozenset(pairs.get(j, ())), frozenset(trans.get(j, ()))) for j in keys}

@@ -88,6 +88,16 @@ def _cell(s: Any) -> str:
     return str(s).replace("|", "\\|").replace("\n", " ")
 
 
+def _short_stage_names(transitions) -> dict[str, str]:
+    """"Scenario.Stage" -> "Stage" where no other scenario has a stage of that name."""
+    names = {n for t in transitions for n in t}
+    owners: dict[str, set[str]] = {}
+    for n in names:
+        sc, _, st = n.rpartition(".")
+        owners.setdefault(st, set()).add(sc)
+    return {n: (n.rpartition(".")[2] if len(owners[n.rpartition(".")[2]]) == 1 else n) for n in names}
+
+
 def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, str] | None = None) -> str:
     """The Markdown report: summary, per-scenario table, failures with GIFs, coverage tables."""
     gifs = gifs or {}
@@ -126,7 +136,9 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
         text = "; ".join(f"{sc}: {' → '.join(st)}" for sc, st in p) or "-"
         lines.append(f"| {_cell(j)} | {len(p)} | {len(cov.transitions.get(j, ()))} | {acc_t[i]} | {_cell(text)} |")
     if cov.all_transitions:
-        lines += ["", "Transitions seen: " + ", ".join(f"`{a} → {b}`" for a, b in sorted(cov.all_transitions)) + "."]
+        short = _short_stage_names(cov.all_transitions)
+        lines += ["", "Transitions seen: " + ", ".join(f"`{short[a]} → {short[b]}`"
+                                                      for a, b in sorted(cov.all_transitions)) + "."]
     if result.coverage:
         acc = cov.accumulated_lines
         new = cov.new_lines()

@@ -40,10 +40,10 @@ def test_behaviour_per_junction_from_stage_events():
     b = outcome_behaviour(outcome("a", ev))
     assert b["J0"][0] == {("STOP_SIGN", ("S_PS", "S_S", "S_I"))}
     assert b["J0"][1] == {("LANE_FOLLOW.LF", "STOP_SIGN.S_PS"), ("STOP_SIGN.S_PS", "STOP_SIGN.S_S"),
-                          ("STOP_SIGN.S_S", "STOP_SIGN.S_I")}
+                          ("STOP_SIGN.S_S", "STOP_SIGN.S_I"), ("STOP_SIGN.S_I", "LANE_FOLLOW.LF")}
     assert b["J1"][0] == {("BARE", ("B_A", "B_I"))}
-    assert b[ROAD_CONTEXT][0] == {("LANE_FOLLOW", ("LF",))}
-    assert ("STOP_SIGN.S_I", "LANE_FOLLOW.LF") in b[ROAD_CONTEXT][1]
+    assert b[ROAD_CONTEXT] == ({("LANE_FOLLOW", ("LF",))}, frozenset())
+    assert ("STOP_SIGN.S_I", "LANE_FOLLOW.LF") in b["J0"][1] and ("BARE.B_I", "LANE_FOLLOW.LF") in b["J1"][1]
 
 
 def test_accumulated_coverage_in_junction_order():
