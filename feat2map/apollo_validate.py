@@ -84,15 +84,16 @@ def _pair(folder: Path, name: str, parse: Any) -> tuple[Any | None, list[Problem
     return msg, []
 
 
-def validate_apollo(path: str | Path) -> list[Problem]:
-    """Every problem of the Apollo map folder (or single map file) at `path`.
+def validate_apollo(path: str | Path, progress: bool = False) -> list[Problem]:
+    """Every problem of the Apollo map folder (or single map file) at `path`; `progress`
+    shows a tqdm bar over the checks.
 
     Raises MapFormatError for a missing path, a folder without base_map, or files that are
     not Apollo maps (corrupt, truncated).
     """
     path = Path(path)
     if path.is_file():
-        return validate_map(aps.parse_map(_read(path), str(path)))
+        return validate_map(aps.parse_map(_read(path), str(path)), progress=progress)
     if not path.is_dir():
         raise MapFormatError("no such map folder or file", str(path))
     base, problems = _pair(path, "base_map", aps.parse_map)
@@ -101,7 +102,7 @@ def validate_apollo(path: str | Path) -> list[Problem]:
     sim, p_sim = _pair(path, "sim_map", aps.parse_map)
     graph, p_graph = _pair(path, "routing_map", aps.parse_graph)
     problems += p_sim + p_graph
-    problems += validate_map(base, graph)
+    problems += validate_map(base, graph, progress=progress)
     if sim is None:
         problems.append(Problem("file sim_map", "missing sim_map.bin/.txt (Dreamview shows no map without it)"))
     else:
@@ -151,14 +152,21 @@ class _Index:
 
 # --- the base map ---------------------------------------------------------------------------
 
-def validate_map(m: Any, graph: Any | None = None) -> list[Problem]:
+def validate_map(m: Any, graph: Any | None = None, progress: bool = False) -> list[Problem]:
     """Every problem of one Apollo `Map` (reachability over `graph`, else the graph Apollo
     would build from `m`)."""
+    from tqdm import tqdm
+
     idx = _Index(m)
-    problems = _header(m) + _ids(m)
-    problems += _lanes(m, idx) + _roads(m, idx) + _areas(m) + _controls(m, idx) + _overlaps(m, idx)
-    problems += _crosswalk_cover(m, idx)
-    problems += reachability(m, graph if graph is not None else build_routing_graph(m))
+    checks = [("header", lambda: _header(m) + _ids(m)), ("lanes", lambda: _lanes(m, idx)),
+              ("roads", lambda: _roads(m, idx) + _areas(m)), ("signals", lambda: _controls(m, idx)),
+              ("overlaps", lambda: _overlaps(m, idx) + _crosswalk_cover(m, idx)),
+              ("reachability", lambda: reachability(m, graph if graph is not None else build_routing_graph(m)))]
+    problems: list[Problem] = []
+    with tqdm(checks, desc="validate", unit="check", disable=not progress) as bar:
+        for name, check in bar:
+            bar.set_postfix_str(name)
+            problems += check()
     return problems
 
 

@@ -140,7 +140,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
 def cmd_validate(args: argparse.Namespace) -> int:
     from .apollo_validate import validate_apollo
 
-    problems = validate_apollo(args.path)
+    problems = validate_apollo(args.path, progress=True)
     for p in problems:
         print(p)
     print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}")

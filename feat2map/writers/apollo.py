@@ -471,16 +471,29 @@ def text_of(msg: Any) -> str:
 
 
 def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
-                 origin: tuple[float, float] | None = None) -> None:
-    """Write base_map, sim_map and routing_map (.txt and .bin each) into `out_dir`, all or nothing."""
+                 origin: tuple[float, float] | None = None, progress: bool = False) -> None:
+    """Write base_map, sim_map and routing_map (.txt and .bin each) into `out_dir`, all or
+    nothing; `progress` shows a tqdm bar over the stages (big maps take a while)."""
+    from tqdm import tqdm
+
     from ..apollo_routing import build_routing_graph
 
-    base = to_apollo(m, zone=zone, origin=origin)
-    messages = {"base_map": base, "sim_map": to_sim_map(base), "routing_map": build_routing_graph(base)}
-    with atomic.staged_dir(out_dir) as tmp:
-        for name, msg in messages.items():
-            atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
-            atomic.write_text(tmp / f"{name}.txt", text_of(msg))
+    with tqdm(total=6, desc="apollo export", unit="step", disable=not progress) as bar:
+        bar.set_postfix_str("base_map")
+        base = to_apollo(m, zone=zone, origin=origin)
+        bar.update()
+        bar.set_postfix_str("sim_map")
+        messages = {"base_map": base, "sim_map": to_sim_map(base)}
+        bar.update()
+        bar.set_postfix_str("routing_map")
+        messages["routing_map"] = build_routing_graph(base)
+        bar.update()
+        with atomic.staged_dir(out_dir) as tmp:
+            for name, msg in messages.items():
+                bar.set_postfix_str(f"{name}.bin/.txt")
+                atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
+                atomic.write_text(tmp / f"{name}.txt", text_of(msg))
+                bar.update()
 
 
 def add_export_apollo_command(subparsers: Any) -> None:
@@ -499,7 +512,7 @@ def _cmd_export_apollo(args: argparse.Namespace) -> int:
     from ..readers import read_map
 
     m = read_map(args.map)
-    write_apollo(m, args.out, zone=args.zone, origin=tuple(args.origin) if args.origin else None)
+    write_apollo(m, args.out, zone=args.zone, origin=tuple(args.origin) if args.origin else None, progress=True)
     print(f"wrote {args.out}: {', '.join(f'{n}.txt/.bin' for n in FILES)} "
           f"({len(m.lanes)} lanes, {len(m.junctions)} junctions)")
     return 0
