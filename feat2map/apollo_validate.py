@@ -581,6 +581,7 @@ def reachability(m: Any, graph: Any) -> list[Problem]:
             fwd[e.from_lane_id].append(e.to_lane_id)
             bwd[e.to_lane_id].append(e.from_lane_id)
     lanes = {ln.id.id: ln for ln in m.lane}
+    nodes = [n for n in nodes if n in lanes]  # a routing_map may name lanes the map lacks
     road_of = {x.id: r.id.id for r in m.road for s in r.section for x in s.lane_id}
     entries = [n for n in nodes if not lanes[n].predecessor_id]
     exits = [n for n in nodes if not lanes[n].successor_id]

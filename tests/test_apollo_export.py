@@ -570,6 +570,33 @@ def test_each_check_catches_its_breakage(exported, breakage, message):
     assert all(p.element for p in problems)
 
 
+def _fields(msg, out: list, depth: int = 0) -> list:
+    """Every (message, field name) pair below `msg` (points excluded: too many)."""
+    for fd, value in msg.ListFields():
+        out.append((msg, fd.name))
+        if fd.message_type is None or fd.message_type.name == "PointENU" or depth > 6:
+            continue
+        for sub in (value if hasattr(value, "add") else [value]):
+            _fields(sub, out, depth + 1)
+    return out
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.integers(0, 10**9), min_size=1, max_size=8))
+def test_validator_survives_any_cleared_fields(exported, picks):
+    """Clearing any fields anywhere gives a list of problems, never an exception."""
+    m = _load(exported, "base_map")
+    graph = _load(exported, "routing_map")
+    for k in picks:
+        pairs = _fields(m, [])
+        if not pairs:
+            break
+        msg, name = pairs[k % len(pairs)]
+        msg.ClearField(name)
+    problems = validate_map(m, graph)
+    assert all(isinstance(p, Problem) for p in problems)
+
+
 def test_folder_level_checks(exported, tmp_path):
     broken = tmp_path / "broken"
     broken.mkdir()
