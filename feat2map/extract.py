@@ -137,7 +137,7 @@ def _probe(m: HDMap, ln: Lane, outward_from_start: bool, jid: str | None) -> np.
 
 
 def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
-    """Arms from the junction's boundary lane ends (entries and exits, each point once).
+    """Arms from the junction's boundary lane ends (entries and exits, each road lane once).
 
     Each end gets two outward directions: towards a point ARM_PROBE_M out along its road
     (robust to lanes that bend at the junction mouth) and the road's tangent at the end
@@ -145,21 +145,24 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     differs by less than ARM_CLUSTER_DEG and they lie side by side (less than ARM_MAX_WIDTH_M apart across the arm and
     ARM_MAX_DEPTH_M along it), so one-way pairs and roads split into pieces count once.
     """
-    ends: dict[tuple[float, float], tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
+    # one end per lane outside (its incoming or outgoing road lane), else per point
+    ends: dict[tuple, tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
     for ln in lanes:
         if not any(m.lanes[p].junction_id == jid for p in ln.predecessors):
-            key = (round(ln.start[0], 2), round(ln.start[1], 2))
+            outside = [m.lanes[p] for p in ln.predecessors]
+            key = ("in", outside[0].id) if outside else (round(ln.start[0], 2), round(ln.start[1], 2))
             if key not in ends:
-                outside = [m.lanes[p] for p in ln.predecessors]
                 tangent = (outside[0].heading_at_end() if outside else ln.heading_at_start()) + math.pi
-                ends[key] = (np.asarray(ln.start, dtype=float), _probe(m, ln, True, jid), tangent, "in",
+                mouth = outside[0].end if outside else ln.start
+                ends[key] = (np.asarray(mouth, dtype=float), _probe(m, ln, True, jid), tangent, "in",
                              outside[0].id if outside else None)
         if not any(m.lanes[s].junction_id == jid for s in ln.successors):
-            key = (round(ln.end[0], 2), round(ln.end[1], 2))
+            outside = [m.lanes[s] for s in ln.successors]
+            key = ("out", outside[0].id) if outside else (round(ln.end[0], 2), round(ln.end[1], 2))
             if key not in ends:
-                outside = [m.lanes[s] for s in ln.successors]
                 tangent = outside[0].heading_at_start() if outside else ln.heading_at_end()
-                ends[key] = (np.asarray(ln.end, dtype=float), _probe(m, ln, False, jid), tangent, "out",
+                mouth = outside[0].start if outside else ln.end
+                ends[key] = (np.asarray(mouth, dtype=float), _probe(m, ln, False, jid), tangent, "out",
                              outside[0].id if outside else None)
     if not ends:
         return []
@@ -300,7 +303,7 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
             skip(len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
             continue
         c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
-        arms = [Arm(math.degrees(math.atan2(a.point[1] - c[1], a.point[0] - c[0])),
+        arms = [Arm(round(math.degrees(math.atan2(a.point[1] - c[1], a.point[0] - c[0])), 9),  # float noise off
                     (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
