@@ -46,6 +46,14 @@ MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
+# junction extraction from real maps (feat2map/extract.py, docs/extraction.md)
+ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this
+ARM_PROBE_M = 20.0  # an arm's direction: towards the point this far out along its road
+ARM_MAX_WIDTH_M = 30.0  # lanes of one arm lie within this across the arm (medians included)
+ARM_MAX_DEPTH_M = 15.0  # ... and within this along it
+ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to one arm
+ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
+MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than generated ones
 
 
 @dataclass(frozen=True)

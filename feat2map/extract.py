@@ -1,9 +1,9 @@
 """Junction feature extraction from any HD map model (paper Sec. III-C).
 
-Arms: the junction's boundary lane ends (entries and exits) are grouped into arms by lane
-neighbour links and by direction and position (not by road ids, which real maps cut into
-pieces). A socket runs from the junction centre (where the arms' centre lines meet; the
-paper's polygon centroid on request) to the mean of its arm's lane end points. Control is
+Arms: the junction's mouths (one per road lane feeding or leaving it) are grouped into arms
+by lane neighbour links and by direction and position (not by road ids, which real maps cut
+into pieces). A socket runs from the junction centre (where the arms' centre lines meet; the
+paper's polygon centroid on request) to the mean of its arm's mouth points. Control is
 `signal` if a signal names the junction or governs a lane entering it, else `stop` if a stop
 sign does, else `bare`; a crosswalk counts when it lies in or touches the junction area or
 is linked to the junction by the reader.
@@ -19,17 +19,11 @@ import numpy as np
 from shapely import STRtree
 from shapely.geometry import Polygon
 
+from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
+                     ARM_PROBE_M, MIN_EXTRACTED_SEPARATION_DEG)
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
 from .model import HDMap, Lane
-
-ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this
-ARM_PROBE_M = 20.0  # an arm's direction: towards the point this far out along its road
-ARM_MAX_WIDTH_M = 30.0  # lanes of one arm lie within this across the arm (medians included)
-ARM_MAX_DEPTH_M = 15.0  # ... and within this along it
-ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
-ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to one arm
-MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than generated ones
 
 
 @dataclass(frozen=True)
