@@ -158,15 +158,17 @@ class Comparison:
     names: tuple[str, ...]
     coverages: tuple[Coverage, ...]
     rows: tuple[tuple, ...]  # one per suite, COMPARE_COLUMNS
+    warnings: tuple[str, ...] = ()
 
     def to_markdown(self) -> str:
         head = "| " + " | ".join(COMPARE_COLUMNS) + " |"
         sep = "|" + "|".join("---" if i < 2 else "---:" for i in range(len(COMPARE_COLUMNS))) + "|"
         body = ["| " + " | ".join(str(c) for c in r) + " |" for r in self.rows]
-        return "\n".join([head, sep, *body]) + "\n"
+        notes = [""] + [f"Warning: {w}" for w in self.warnings] if self.warnings else []
+        return "\n".join([head, sep, *body, *notes]) + "\n"
 
     def to_dict(self) -> dict:
-        return {"columns": list(COMPARE_COLUMNS), "rows": [list(r) for r in self.rows]}
+        return {"columns": list(COMPARE_COLUMNS), "rows": [list(r) for r in self.rows], "warnings": list(self.warnings)}
 
 
 def compare(results: Mapping[str, SuiteResult] | Sequence[SuiteResult]) -> Comparison:
@@ -189,7 +191,12 @@ def compare(results: Mapping[str, SuiteResult] | Sequence[SuiteResult]) -> Compa
                      sum(v for k, v in counts.items() if k != "completed"), len(c.junctions),
                      len({p for _, p in c.paths}), len(c.all_pairs), len(c.all_transitions), lines, reach,
                      len(c.all_transitions - others_t), len(c.all_lines - others_l) if r.coverage else "-"))
-    return Comparison(names=names, coverages=covs, rows=tuple(rows))
+    digests = {r.planner_digest for r in res if r.coverage}
+    warnings = []
+    if len(digests) > 1:
+        warnings.append("the suites measured different planner sources (planner_digest differs): "
+                        "their line counts are not comparable")
+    return Comparison(names=names, coverages=covs, rows=tuple(rows), warnings=tuple(warnings))
 
 
 def _unique_names(names: Sequence[str]) -> tuple[str, ...]:

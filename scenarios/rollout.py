@@ -9,6 +9,7 @@ failing scenarios pay for rendering.
 from __future__ import annotations
 
 import copy
+import hashlib
 import importlib
 import io
 import inspect
@@ -163,6 +164,7 @@ class SuiteResult:
     planner: str
     outcomes: tuple[Outcome, ...]
     coverage: bool = False
+    planner_digest: str = ""  # sha256 of the measured planner sources: line numbers compare only within one
     workers: int = field(default=1, compare=False)
     backend: str = field(default="process", compare=False)
     wall_s: float = field(default=0.0, compare=False)
@@ -179,6 +181,7 @@ class SuiteResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "planner": self.planner, "coverage": self.coverage,
+                "planner_digest": self.planner_digest,
                 "workers": self.workers, "backend": self.backend, "wall_s": self.wall_s,
                 "counts": self.counts(), "outcomes": [o.to_dict() for o in self.outcomes]}
 
@@ -187,7 +190,8 @@ class SuiteResult:
         try:
             outcomes = tuple(Outcome.from_dict(o, f"{where}: outcome {i}") for i, o in enumerate(d["outcomes"]))
             return cls(name=str(d["name"]), planner=str(d["planner"]), outcomes=outcomes,
-                       coverage=bool(d.get("coverage", False)), workers=int(d.get("workers", 1)),
+                       coverage=bool(d.get("coverage", False)), planner_digest=str(d.get("planner_digest", "")),
+                       workers=int(d.get("workers", 1)),
                        backend=str(d.get("backend", "process")), wall_s=float(d.get("wall_s", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise Feat2MapError(f"malformed suite result ({exc!r})", where) from None
@@ -263,6 +267,14 @@ def _module_files(policy: Any, extra: Iterable[str] = ()) -> dict[str, str]:
         if src:
             files[os.path.realpath(src)] = name
     return files
+
+
+def planner_digest(policy: Any, extra: Iterable[str] = ()) -> str:
+    """sha256 (hex, 16 digits) of the planner's measured source files, in module order."""
+    h = hashlib.sha256()
+    for path, mod in sorted(_module_files(policy, extra).items(), key=lambda kv: kv[1]):
+        h.update(mod.encode() + b"\0" + Path(path).read_bytes() + b"\0")
+    return h.hexdigest()[:16]
 
 
 class _LineCoverage:
@@ -480,6 +492,7 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         bar.close()
     return SuiteResult(name=str(getattr(suite, "name", "suite")), planner=getattr(factory, "name", str(planner)),
                        outcomes=tuple(results[i] for i in range(len(tasks))), coverage=coverage,
+                       planner_digest=planner_digest(factory(), coverage_modules) if coverage else "",
                        workers=workers, backend=backend, wall_s=time.perf_counter() - t0)
 
 

@@ -133,3 +133,12 @@ def test_coverage_command_compares_result_dirs(runs, tmp_path, capsys):
     assert cli.main(["coverage", str(d / "stop"), str(d / "bare"), "--out", str(tmp_path / "x"),
                      "--names", "one"]) == 2
     assert not (tmp_path / "x").exists()
+
+
+def test_compare_warns_when_planner_sources_differ(runs):
+    assert runs["stop"].planner_digest and runs["stop"].planner_digest == runs["bare"].planner_digest
+    assert compare([runs["stop"], runs["bare"]]).warnings == ()
+    a = outcome("a", lines={"J0": ("m:1",)})
+    t = compare([SuiteResult("x", "p", (a,), coverage=True, planner_digest="aa"),
+                 SuiteResult("x", "p", (a,), coverage=True, planner_digest="bb")])
+    assert t.names == ("x", "x (2)") and len(t.warnings) == 1 and "Warning: " in t.to_markdown()
