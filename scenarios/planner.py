@@ -108,6 +108,7 @@ class BaselinePlanner:
         self.in_lane: str | None = None
         self.stage_since = 0.0
         self.go = False  # a creep stage decided to go (sticky until the stage changes)
+        self.full_stop = False  # stopped at the selected junction's line (right on red needs it)
         self._zones: dict[tuple[str, str], tuple[float, float, float, float]] = {}
         self._steps = 0
         self._log()
@@ -144,6 +145,8 @@ class BaselinePlanner:
         self.stage = stage
         self.stage_since = float(self.env.time)
         self.go = False
+        if scenario is not None:
+            self.full_stop = False
         if scenario == LANE_FOLLOW:
             self.junction = self.j_lane = self.in_lane = None
         self._log()
@@ -177,14 +180,17 @@ class BaselinePlanner:
         d = self._line_distance()
         t_stage = float(env.time) - self.stage_since
         stopped = ego.speed <= STOPPED_SPEED_MPS
+        if stopped and self._in_stop_zone():
+            self.full_stop = True
         if self.stage == "S_PS" and stopped and self._in_stop_zone():
             self._go("S_S")
         elif self.stage == "S_S" and t_stage >= STOP_DURATION_S and self._line_free():
             self._go("S_C")
         elif self.stage == "L_A" and d <= CREEP_TRIGGER_M and self._held_by_traffic():
             self._go("L_C")
-        elif self.stage == "R_S" and ((stopped and self._in_stop_zone() and t_stage >= STOP_DURATION_S)
-                                      or self._signal_state() != "red"):
+        elif self.stage == "R_S" and self._signal_state() == "green" and not self.full_stop:
+            self._go("T_A", TL_PROTECTED)  # green before the stop: an ordinary protected turn
+        elif self.stage == "R_S" and self.full_stop and (t_stage >= STOP_DURATION_S or self._signal_state() == "green"):
             self._go("R_C")
 
     def _select(self, in_lane: str, j_lane: str) -> None:
@@ -246,7 +252,7 @@ class BaselinePlanner:
         return False
 
     def _rule_ignore(self) -> frozenset[str]:
-        if self.stage == "R_C" and self._right_on_red():
+        if self.stage == "R_C" and self._right_on_red() and self.full_stop:
             return self.ignore | {"signal"}
         return self.ignore
 
@@ -344,7 +350,8 @@ class BaselinePlanner:
         env = self.env
         ego = env.vehicle
         stage = self.stage
-        if stage == "R_C" and self._right_on_red() and self._signal_state() == "red" and self._cross_traffic_near():
+        if stage == "R_C" and self._right_on_red() and self._signal_state() == "red" and \
+                (not self.full_stop or self._cross_traffic_near()):
             stop = self._line_distance() - 1.0
         elif stage == "L_C" and "conflict" not in self.ignore:
             # creep to the line; go when the gap acceptance finds a gap (the env's conflict rule
@@ -360,7 +367,7 @@ class BaselinePlanner:
         v = max(ego.speed, 0.0)
         if stage in ("S_S", "R_S") and (stage == "S_S" or self._in_stop_zone()):
             return min(a, HOLD_BRAKE_MPS2) if v > 0 else min(a, 0.0)
-        if stage in ("S_C", "L_C", "R_C"):
+        if stage in ("S_C", "L_C", "R_C") and self._line_distance() <= CREEP_TRIGGER_M:
             return min(a, CREEP_GAIN * (CREEP_SPEED_MPS - v))
         if stage == "B_A" and self._line_distance() <= BARE_APPROACH_M:
             v_j = env.net.lane_of[self.j_lane].speed_limit

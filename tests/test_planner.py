@@ -37,7 +37,7 @@ def manoeuvre(m, jid: str, turn: str):
 
 def signal_offset(map_path, mv, state: str) -> float:
     """Offset of the junction's phase plan that shows `state` ("green"/"red") to the route's
-    first signal for at least the first 12 s."""
+    first signal for at least the first 12 s ("turns green": red, green from t = 2 s)."""
     env = make_env(Scenario("probe", str(map_path), (mv,)))
     env.reset(seed=0)
     u = env.unwrapped
@@ -45,7 +45,11 @@ def signal_offset(map_path, mv, state: str) -> float:
     plan = u.control.plans[sid]
     slot = plan.green + plan.amber + plan.all_red
     start = plan.phase_of(sid) * slot  # local time where our green starts
-    offset = (-start if state == "green" else -(start + plan.green + plan.amber)) % plan.cycle
+    if state == "turns green":  # red for the first 2 s, then green
+        offset = (start - 2.0) % plan.cycle
+        assert replace(plan, offset=offset).state(sid, 1.9) == "red"
+        return offset
+    offset = (start if state == "green" else start + plan.green + plan.amber) % plan.cycle
     assert all(replace(plan, offset=offset).state(sid, t) == state for t in np.arange(0, 12, 0.5))
     return offset
 
@@ -71,6 +75,7 @@ CASES = [
     ("signal", True, "left", "green", 0, ("LF", "L_A", "L_I", "LF")),
     ("signal", True, "right", "red", 0, ("LF", "R_S", "R_C", "R_I", "LF")),  # right on red
     ("signal", False, "right", "green", 0, ("LF", "T_A", "T_C", "LF")),  # right on green: protected
+    ("signal", False, "right", "turns green", 0, ("LF", "R_S", "T_A", "T_C", "LF")),  # green before the stop
     ("bare", True, "left", None, 0, ("LF", "B_A", "B_I", "LF")),
     ("bare", False, "right", None, 0, ("LF", "B_A", "B_I", "LF")),
 ]
@@ -142,6 +147,13 @@ def test_running_red_lights_is_caught(tmp_path_factory):
     info, planner = drive(sc, BaselinePlanner(ignore={"signal"}))
     assert info["violations"]["red_light"] == 1
     assert planner.stage_path() == ("LF", "T_A", "T_C", "LF")
+    # right on red is legal only after a full stop at the line
+    mv = manoeuvre(m, "J0", "right")
+    sc = Scenario("rr", str(map_path), (mv,), signal_offsets={"J0": signal_offset(map_path, mv, "red")}, duration=30.0)
+    info, planner = drive(sc, BaselinePlanner(ignore={"signal"}))
+    assert info["violations"]["red_light"] == 1 and "R_C" not in planner.stage_path()
+    info, planner = drive(sc)
+    assert info["violations"]["red_light"] == 0 and info["route_completed"] and "R_C" in planner.stage_path()
 
 
 def test_rolling_stop_signs_and_ignoring_pedestrians_are_caught(tmp_path_factory):
