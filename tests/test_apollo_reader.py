@@ -7,12 +7,15 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import shared_map
 from feat2map import apollo_schema as aps
 from feat2map.cli import main
 from feat2map.errors import MapFormatError
 from feat2map.extract import extract_junctions
+from feat2map.features import normalize_rotation
 from feat2map.readers import read_map
 from feat2map.readers.apollo import read_apollo, read_apollo_bytes
 
@@ -65,16 +68,18 @@ def _overlap(m, oid: str, a: tuple[str, str], b: tuple[str, str]) -> None:
             info.start_s, info.end_s = 0.0, 1.0
 
 
-def t_junction_map() -> aps.Map:
-    """A T-junction at the origin: arms East, West, South (stem); 40 m roads, one lane each
-    way; a signal on the three incoming lanes; one named crosswalk on a junction lane and one
-    unnamed crosswalk without overlaps; roads inside the junction carry junction_id."""
+def t_junction_map(arm_angles: dict[str, float] | None = None) -> aps.Map:
+    """A junction at the origin, by default a T: arms East, West, South (stem); 40 m roads,
+    one lane each way; a signal on the incoming lanes; one named crosswalk on a junction lane
+    and one unnamed crosswalk without overlaps; roads inside the junction carry junction_id.
+    `arm_angles` (name -> degrees) builds any other junction on a round polygon."""
     m = aps.Map()
     m.header.version = b"1.500000"
     m.header.vendor = b"test"
     m.header.projection.proj = "+proj=utm +zone=10 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
     r, h = 10.0, W / 2  # junction half-size, lane offset
-    arms = {"e": (1.0, 0.0), "w": (-1.0, 0.0), "s": (0.0, -1.0)}
+    angles = arm_angles or {"e": 0.0, "w": 180.0, "s": 270.0}
+    arms = {k: (round(math.cos(math.radians(a)), 12), round(math.sin(math.radians(a)), 12)) for k, a in angles.items()}
     for a, (dx, dy) in arms.items():
         nx, ny = -dy, dx  # left of the outward direction = right of the inward one
         # right-hand traffic: the incoming lane lies left of the outward direction
@@ -108,7 +113,9 @@ def t_junction_map() -> aps.Map:
             _overlap(m, f"ov_j_{a}_{b}", ("junction", "J_0"), ("lane", f"j_{a}_{b}"))
     j = m.junction.add()
     j.id.id = "J_0"
-    for x, y in [(-r, -r), (r, -r), (r, r), (-r, r)]:
+    outline = [(-r, -r), (r, -r), (r, r), (-r, r)] if arm_angles is None else [
+        (1.2 * r * math.cos(k * math.pi / 8), 1.2 * r * math.sin(k * math.pi / 8)) for k in range(16)]
+    for x, y in outline:
         p = j.polygon.point.add()
         p.x, p.y = X0 + x, Y0 + y
     sig = m.signal.add()
@@ -127,7 +134,8 @@ def t_junction_map() -> aps.Map:
         for x, y in [(x0, -r), (x1, -r), (x1, r), (x0, r)]:
             p = cw.polygon.point.add()
             p.x, p.y = X0 + x, Y0 + y
-    _overlap(m, "ov_cw", ("crosswalk", "CW_1"), ("lane", "j_w_e"))
+    if arm_angles is None:
+        _overlap(m, "ov_cw", ("crosswalk", "CW_1"), ("lane", "j_w_e"))
     return m
 
 
@@ -171,6 +179,17 @@ def test_extraction_of_the_t_junction(t_map):
     assert (f.n_roads, f.control, f.crosswalk) == (3, "signal", True)
     assert f.rotation == pytest.approx((0.0, 90.0, 180.0), abs=1e-6)  # stem South: largest gap closes
     assert [(s.lanes_in, s.lanes_out) for s in f.sockets] == [(1, 1)] * 3
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.lists(st.floats(0, 360, exclude_max=True, allow_nan=False), min_size=3, max_size=6).filter(
+    lambda a: min(np.diff(np.sort(np.append(a, min(a) + 360)))) > 35.0))
+def test_extraction_recovers_any_junction(angles):
+    pb = t_junction_map({f"a{i}": a for i, a in enumerate(angles)})
+    (j,) = extract_junctions(read_apollo_bytes(pb.SerializeToString(), "any.bin"))
+    assert j.feature.rotation == pytest.approx(normalize_rotation(angles).angles, abs=1e-6)
+    assert (j.feature.n_roads, j.feature.control, j.feature.crosswalk) == (len(angles), "signal", True)
+    assert all((s.lanes_in, s.lanes_out) == (1, 1) for s in j.feature.sockets)
 
 
 def test_text_and_binary_give_the_same_map(tmp_path, t_map):
