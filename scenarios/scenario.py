@@ -14,7 +14,6 @@ import os
 from dataclasses import dataclass, field, fields
 from functools import lru_cache
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any, Mapping
 
 import yaml
@@ -34,6 +33,22 @@ class ScenarioError(Feat2MapError, ValueError):
     """An invalid scenario or suite file: `where` names the file and element."""
 
 
+class FrozenDict(dict):
+    """A read-only, hashable, picklable dict (frozen dataclasses' mapping fields)."""
+
+    def _readonly(self, *args: Any, **kwargs: Any) -> None:
+        raise TypeError("FrozenDict is read-only")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _readonly  # type: ignore[assignment]
+    __ior__ = _readonly  # type: ignore[assignment]
+
+    def __hash__(self) -> int:  # type: ignore[override]
+        return hash(tuple(sorted(self.items())))
+
+    def __reduce__(self):
+        return (FrozenDict, (dict(self),))
+
+
 @dataclass(frozen=True)
 class Scenario:
     """One drive: the ego follows `route` (junction, entry road, exit road) on `map`."""
@@ -50,7 +65,7 @@ class Scenario:
     def __post_init__(self) -> None:
         object.__setattr__(self, "route", tuple(tuple(str(x) for x in item) for item in self.route))
         object.__setattr__(self, "signal_offsets",
-                           MappingProxyType({str(k): float(v) for k, v in dict(self.signal_offsets).items()}))
+                           FrozenDict({str(k): float(v) for k, v in dict(self.signal_offsets).items()}))
 
     def __hash__(self) -> int:
         return hash((self.name, self.map, self.route, self.traffic_vehicles, self.pedestrian_rate,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -70,6 +71,9 @@ def test_scenario_dict_round_trip():
     assert Scenario.from_dict(sc.to_dict(), "x") == sc
     assert Scenario.from_dict(json.loads(json.dumps(sc.to_dict())), "x") == sc
     assert hash(sc) == hash(Scenario.from_dict(sc.to_dict(), "x"))
+    assert pickle.loads(pickle.dumps(sc)) == sc  # travels to worker processes
+    with pytest.raises(TypeError, match="read-only"):
+        sc.signal_offsets["J1"] = 0.0  # type: ignore[index]
 
 
 @pytest.mark.parametrize("mutate,element", [
@@ -174,6 +178,21 @@ def test_coverage_is_deterministic_and_partial_coverage_is_measured(m1):
         coverage_routes(m1, max_junctions=0)
 
 
+ANGLES = {3: [0, 100, 220], 4: [0, 90, 180, 270], 5: [0, 72, 144, 216, 288]}
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([3, 4, 5]), st.sampled_from(["signal", "stop", "bare"]), st.booleans()),
+                min_size=1, max_size=4), st.integers(0, 50), st.integers(1, 4))
+def test_coverage_routes_cover_any_generated_map(feats, seed, max_junctions):
+    m = feat2map.generate_from_features([J(ANGLES[n], c, cw) for n, c, cw in feats], seed=seed)
+    routes = coverage_routes(m, max_junctions)
+    assert route_coverage(m, routes) == 1.0
+    assert all(1 <= len(r) <= max_junctions for r in routes)
+    graph = successor_graph(m)
+    assert all(b in graph[a] for r in routes for a, b in zip(r, r[1:]))
+
+
 def test_coverage_of_a_mega_junction_with_uturns():
     m = feat2map.generate_from_features([J([0, 72, 144, 216, 288], "bare", True)], seed=0,
                                         config=feat2map.GenerationConfig(uturns=True))
@@ -219,3 +238,24 @@ def test_make_env_applies_the_scenario(map_file, m1):
     with pytest.raises(feat2map.errors.Feat2MapError, match="no lane of junction J0") as err:
         make_env(bad).reset(seed=0)
     assert err.value.where == "route[0]"
+
+
+# ---- the CI suite -------------------------------------------------------------------------
+def test_ci_suite_is_valid_current_and_touches_every_junction_type(tmp_path):
+    from feat2map.scenarios import make_ci_suite
+
+    suite = load_suite(REPO / "scenarios" / "ci_suite.yaml")
+    m = mapio.load(REPO / "scenarios" / "ci_map.json")
+    assert make_ci_suite.main(["--out-dir", str(tmp_path)]) == 0  # the script regenerates the same files
+    assert (tmp_path / "ci_map.json").read_bytes() == (REPO / "scenarios" / "ci_map.json").read_bytes()
+    assert (tmp_path / "ci_suite.yaml").read_text() == (REPO / "scenarios" / "ci_suite.yaml").read_text()
+    types = {(j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in m.junctions.values()}
+    assert {c for _, c, _ in types} == {"signal", "stop", "bare"} and len(types) == len(m.junctions) == 6
+    routes = [sc.route for sc in suite.scenarios]
+    assert {mv[0] for r in routes for mv in r} == set(m.junctions)
+    keys = set().union(*(make_ci_suite.behaviour_keys(m, r) for r in routes))
+    turns = {(c, t) for kind, *rest in keys if kind == "turn" for c, t in [rest]}
+    assert turns == {(c, t) for c in ("signal", "stop", "bare") for t in ("left", "straight", "right")}
+    net = MapNetwork.from_map(m)
+    for r in routes:
+        manoeuvres_to_lanes(net, r)
