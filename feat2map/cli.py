@@ -39,9 +39,15 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None):
     from .extract import extract_junctions
     from .readers import read_map
 
+    import warnings
+
     junctions = []
-    for p in tqdm(paths, desc="reading maps", unit="map", disable=len(paths) < 2):
-        junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
+    with warnings.catch_warnings(record=True) as caught:  # one line each, not Python's format
+        warnings.simplefilter("always")
+        for p in tqdm(paths, desc="reading maps", unit="map", disable=len(paths) < 2):
+            junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
+    for w in caught:
+        print(f"feat2map: warning: {w.message}", file=sys.stderr)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     return junctions

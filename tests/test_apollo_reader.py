@@ -1,6 +1,7 @@
 """Apollo reader: a hand-built T-junction map (binary and text), real maps, bad input, CLI."""
 from __future__ import annotations
 
+import json
 import math
 import random
 import warnings
@@ -322,3 +323,14 @@ def test_sim_map_text_matches_base_map():
     assert {k: v.lane_ids for k, v in sim.signals.items()} == {k: v.lane_ids for k, v in base.signals.items()}
     assert [(j.feature.n_roads, j.feature.control) for j in extract_junctions(sim)] == [
         (j.feature.n_roads, j.feature.control) for j in extract_junctions(base)]
+
+
+def test_cli_reports_a_bad_element_as_one_warning_line(tmp_path, capsys):
+    pb = t_junction_map()
+    pb.junction.add().id.id = "J_empty"  # no polygon, no lanes: skipped, the map still works
+    path = tmp_path / "base_map.bin"
+    path.write_bytes(pb.SerializeToString())
+    assert main(["extract", str(path), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == f"feat2map: warning: {path}: junction 'J_empty': no usable polygon and no lanes, skipped\n"
+    assert len(json.loads(captured.out)["junctions"]) == 1
