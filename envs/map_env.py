@@ -96,8 +96,10 @@ class MapEnv(AbstractEnv):
                        "target_speeds": [0.0, 4.5, 9.0]},
             "simulation_frequency": 15, "policy_frequency": 1,
             "duration": 60.0,  # [s] truncation
-            "route": None,  # [(junction id, entry road, exit road), ...] or None to sample
-            "route_junctions": 2,  # junctions on a sampled route
+            "route": None,  # [(junction id, entry road, exit road), ...], {"lanes": [...]},
+            # {"from_lane": a, "to_lane": b}, or None to sample
+            "route_junctions": 2,  # junctions on a sampled route (0: a lane walk of route_length)
+            "route_length": 200.0,  # [m] driven on a sampled lane walk (maps without junctions)
             "ego_start_distance": 30.0,  # [m] before the first stop line
             "ego_initial_speed": 4.5,
             "goal_distance": 15.0,  # [m] into the last lane of the route
@@ -160,8 +162,14 @@ class MapEnv(AbstractEnv):
 
     def _ego_route(self) -> list[str]:
         spec = self.config["route"]
+        if isinstance(spec, Mapping):
+            return lane_route_from_config(self.net, spec)
         if spec:
             return manoeuvres_to_lanes(self.net, spec)
+        if int(self.config["route_junctions"]) <= 0 or not self.net.hdmap.junctions:
+            c = self.config
+            return sample_lane_walk(self.net, self.np_random, float(c["route_length"]),
+                                    float(c["ego_start_distance"]), float(c["goal_distance"]))
         for _ in range(100):
             r = sample_route(self.net, self.np_random, int(self.config["route_junctions"]))
             if r:
@@ -270,8 +278,9 @@ class MapEnv(AbstractEnv):
 
     def _turn_after(self, lane_id: str) -> str | None:
         """The turn of the ego's route lane after `lane_id` (None when not on the route)."""
-        route = self.vehicle.lane_route
-        k = route.index(lane_id) + 1 if lane_id in route else len(route)
+        route, pos = self.vehicle.lane_route, self.vehicle.route_pos
+        # the latest occurrence at or before the ego (routes round a ring repeat lanes)
+        k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
         return self.net.hdmap.lanes[route[k]].turn if k < len(route) else None
 
     def _violate(self, kind: str) -> None:
@@ -407,6 +416,75 @@ def manoeuvres_to_lanes(net: MapNetwork, spec: Sequence[Sequence[str]]) -> list[
         lanes += best[1:] + [ln.id]
     lanes.append(next(s for s in picks[-1].successors if m.lanes[s].road_id == str(spec[-1][2])))
     return lanes
+
+
+def lane_route_from_config(net: MapNetwork, spec: Mapping[str, Any]) -> list[str]:
+    """Explicit lane-level route: {"lanes": [ids]} (each lane a successor of the one before), or
+    {"from_lane": a, "to_lane": b} (shortest by Dijkstra; a == b goes once round a loop, e.g. a
+    lap of a ring road). Errors name the config element."""
+    m = net.hdmap
+    keys = set(spec)
+    if keys == {"lanes"}:
+        raw = spec["lanes"]
+        if isinstance(raw, (str, bytes)) or not isinstance(raw, Sequence) or len(raw) < 2:
+            raise Feat2MapError("needs a list of at least 2 lane ids (the ego starts on the first and "
+                                "finishes in the last)", "route.lanes")
+        lanes = [str(x) for x in raw]
+        for i, lid in enumerate(lanes):
+            if lid not in m.lanes:
+                raise Feat2MapError(f"unknown lane {lid!r}", f"route.lanes[{i}]")
+            if i and lid not in m.lanes[lanes[i - 1]].successors:
+                succ = ", ".join(m.lanes[lanes[i - 1]].successors) or "none"
+                raise Feat2MapError(f"lane {lid} does not follow lane {lanes[i - 1]} (its successors: {succ})",
+                                    f"route.lanes[{i}]")
+        return lanes
+    if keys == {"from_lane", "to_lane"}:
+        a, b = str(spec["from_lane"]), str(spec["to_lane"])
+        for key, lid in (("from_lane", a), ("to_lane", b)):
+            if lid not in m.lanes:
+                raise Feat2MapError(f"unknown lane {lid!r}", f"route.{key}")
+        if a != b:
+            path = net.lane_route(a, b)
+        else:  # round a loop back to the start lane: the shortest cycle through it
+            loops = [[a] + p for p in (net.lane_route(s, a) for s in m.lanes[a].successors if s in m.lanes) if p]
+            path = min(loops, key=lambda p: sum(net.lane_of[x].length for x in p), default=[])
+        if not path:
+            raise Feat2MapError(f"lane {b} cannot be reached from lane {a} along lane successors", "route.to_lane")
+        return path
+    raise Feat2MapError(f"expected {{'lanes': [...]}} or {{'from_lane': ..., 'to_lane': ...}}, got keys "
+                        f"{sorted(map(str, keys))}", "route")
+
+
+def sample_lane_walk(net: MapNetwork, rng: np.random.Generator, length: float, start_distance: float = math.inf,
+                     goal_distance: float = 0.0, tries: int = 100, max_lanes: int = 10_000) -> list[str]:
+    """A random walk along lane successors from a road lane, long enough that an ego starting
+    `start_distance` before the end of its first lane and finishing `goal_distance` into its
+    last (as MapEnv places them) drives >= `length` metres; a closed ring simply loops. Maps
+    without junctions are driven on such routes. When no walk is that long (dead ends), the
+    longest walk found."""
+    m = net.hdmap
+    starts = sorted(ln.id for ln in m.lanes.values()
+                    if ln.junction_id is None and any(s in m.lanes for s in ln.successors))
+    if not starts:
+        raise Feat2MapError("no road lane with a successor to start a route on", "map")
+    best: list[str] = []
+    best_len = -math.inf
+    for _ in range(tries):
+        path = [starts[int(rng.integers(len(starts)))]]
+        ahead = min(start_distance, net.lane_of[path[0]].length)  # ego start -> end of the last lane but one
+        while len(path) < max_lanes:
+            succ = [s for s in m.lanes[path[-1]].successors if s in m.lanes]
+            if not succ:
+                break
+            path.append(succ[int(rng.integers(len(succ)))])
+            last = net.lane_of[path[-1]].length
+            driven = ahead + min(goal_distance, last - 1.0)
+            if driven >= length:
+                return path
+            if driven > best_len:
+                best, best_len = list(path), driven
+            ahead += last
+    return best
 
 
 def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions: int) -> list[str]:
