@@ -334,3 +334,16 @@ def test_cli_reports_a_bad_element_as_one_warning_line(tmp_path, capsys):
     captured = capsys.readouterr()
     assert captured.err == f"feat2map: warning: {path}: junction 'J_empty': no usable polygon and no lanes, skipped\n"
     assert len(json.loads(captured.out)["junctions"]) == 1
+
+
+def test_sidewalk_lanes_are_left_out_of_the_driving_network(t_map):
+    pb = t_junction_map()
+    _lane(pb, "walk", [(-10.0, -14.0), (10.0, -14.0)], preds=["in_e"])
+    pb.lane[-1].type = aps.Lane.SIDEWALK
+    pb.lane[0].successor_id.add().id = "walk"
+    pb.road[0].section[0].lane_id.add().id = "walk"
+    m = read_apollo_bytes(pb.SerializeToString(), "walk.bin")
+    assert "walk" not in m.lanes and m.meta["non_driving_lanes"] == 1
+    assert m.lanes["in_e"].successors == t_map.lanes["in_e"].successors
+    assert m.roads["road_e"] == t_map.roads["road_e"]
+    assert [j.feature for j in extract_junctions(m)] == [j.feature for j in extract_junctions(t_map)]

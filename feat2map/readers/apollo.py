@@ -27,6 +27,8 @@ from ..model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as
 
 _TURNS = {aps.Lane.NO_TURN: "none", aps.Lane.LEFT_TURN: "left", aps.Lane.RIGHT_TURN: "right",
           aps.Lane.U_TURN: "uturn"}
+# lanes that are not for cars: read and checked, but not part of the driving network
+_NON_DRIVING = {aps.Lane.BIKING, aps.Lane.SIDEWALK, aps.Lane.PARKING, aps.Lane.SHOULDER}
 _BOUNDARY = {
     aps.LaneBoundaryType.DOTTED_WHITE: "dotted_white",
     aps.LaneBoundaryType.SOLID_WHITE: "solid_white",
@@ -189,10 +191,13 @@ class _Reader:
             junctions[jid] = Junction(jid, as_polyline(pts))
         lane_junction = {lid: jid for lid, jid in lane_junction.items() if jid in junctions}
 
-        # lanes
+        # lanes (links to non-driving lanes are dropped with them)
+        driving = {ln.id.id for ln in pb.lane if not (ln.HasField("type") and ln.type in _NON_DRIVING)}
         lanes: dict[str, Lane] = {}
         for ln in pb.lane:
             lid = ln.id.id
+            if lid not in driving:
+                continue
             links: dict[str, tuple[str, ...]] = {}
             for attr, field in (("predecessors", "predecessor_id"), ("successors", "successor_id"),
                                 ("left_neighbors", "left_neighbor_forward_lane_id"),
@@ -202,7 +207,7 @@ class _Reader:
                 bad = [x for x in ids if x not in raw]
                 if bad:
                     raise self.err(f"lane {lid!r}", f"{field} refers to unknown lane {bad[0]!r}")
-                links[attr] = ids
+                links[attr] = tuple(x for x in ids if x in driving)
             r = raw[lid]
             centre, left, right = r["c"] - o, r["l"] - o, r["r"] - o
             width = _sample_width(ln) or _boundary_width(centre, left, right)
@@ -223,7 +228,8 @@ class _Reader:
                 "projection": header.projection.proj,
                 "version": header.version.decode("utf-8", "replace"),
                 "vendor": header.vendor.decode("utf-8", "replace"),
-                "district": header.district.decode("utf-8", "replace")}
+                "district": header.district.decode("utf-8", "replace"),
+                "non_driving_lanes": len(raw) - len(driving)}
         return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=origin, meta=meta)
 
     def _roads(self, lanes: dict[str, Lane], road_lane_ids: dict[str, list[str]],
@@ -232,7 +238,7 @@ class _Reader:
         against it; end junctions from the lanes' links."""
         roads: dict[str, Road] = {}
         for rid, ids in road_lane_ids.items():
-            ids = list(dict.fromkeys(ids))
+            ids = [x for x in dict.fromkeys(ids) if x in lanes]
             if not ids:
                 continue
             ref = lanes[ids[0]]
