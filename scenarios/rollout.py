@@ -42,8 +42,9 @@ MAX_STEPS_SAFETY = 100_000  # guards against an env that never ends
 # ---- planner specs ----------------------------------------------------------------------------
 class PlannerFactory:
     """A picklable zero-argument factory of fresh planners from a spec: "baseline",
-    "module:attr" (a Policy class, a Policy instance, a callable `obs -> action` or an SB3
-    model), or the object itself."""
+    "module:attr" or the object itself: a Policy class or a zero-argument factory (called per
+    scenario), a Policy instance (deep-copied per scenario), a callable `obs -> action` or an
+    SB3 model (wrapped by `as_policy`)."""
 
     def __init__(self, spec: Any = "baseline") -> None:
         self.spec = spec
@@ -77,8 +78,8 @@ class PlannerFactory:
 
     def __call__(self) -> Any:
         obj = self._resolve()
-        if isinstance(obj, type):
-            policy = obj()
+        if isinstance(obj, type) or (not hasattr(obj, "predict") and _zero_arg_callable(obj)):
+            policy = obj()  # a class or factory: a fresh planner per scenario
         elif hasattr(obj, "act") and hasattr(obj, "reset"):
             policy = copy.deepcopy(obj)
         else:
@@ -91,6 +92,17 @@ class PlannerFactory:
             except TypeError as exc:
                 raise Feat2MapError(str(exc), f"planner {self.name!r}") from None
         return policy
+
+
+def _zero_arg_callable(obj: Any) -> bool:
+    """A factory (callable without required arguments), as opposed to a policy `obs -> action`."""
+    if not callable(obj) or (hasattr(obj, "act") and hasattr(obj, "reset")):
+        return False
+    try:
+        params = inspect.signature(obj).parameters.values()
+    except (TypeError, ValueError):
+        return False
+    return all(p.default is not p.empty or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD) for p in params)
 
 
 def as_factory(planner: Any) -> Callable[[], Any]:

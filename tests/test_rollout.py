@@ -4,6 +4,7 @@ deliberately broken planner (runs red lights) fails the run with a readable repo
 bad input is one line and exit code 2."""
 from __future__ import annotations
 
+import functools
 import json
 import os
 import xml.etree.ElementTree as ET
@@ -159,6 +160,9 @@ def test_classification_and_policies():
 def test_planner_specs(suite_file):
     assert isinstance(PlannerFactory("baseline")(), BaselinePlanner)
     assert isinstance(PlannerFactory(f"{__name__}:RedLightRunner")(), RedLightRunner)
+    made = PlannerFactory(functools.partial(BaselinePlanner, ignore={"signal"}))()  # a factory
+    assert isinstance(made, BaselinePlanner) and made.ignore == {"signal"}
+    assert type(PlannerFactory(lambda obs: obs)()).__name__ == "CallablePolicy"  # a policy obs -> action
     # a plain callable obs -> action drives through as_policy
     sc = load_suite(suite_file).scenarios[1]
     out = run_scenario(sc, PlannerFactory(_full_throttle), record_failure_gif=False)
