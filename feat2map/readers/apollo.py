@@ -220,8 +220,8 @@ class _Reader:
                 right_boundary_type=_boundary_type(ln.right_boundary), **links)
 
         roads = self._roads(lanes, road_lane_ids, road_junction)
-        signals = self._controls(pairs, lanes, "signal", o)
-        stops = self._controls(pairs, lanes, "stop_sign", o)
+        signals = self._controls(pairs, lanes, junctions, "signal", o)
+        stops = self._controls(pairs, lanes, junctions, "stop_sign", o)
         crosswalks = self._crosswalks(pairs, lanes, junctions, o)
         header = pb.header
         meta = {"source": self.where, "format": "apollo",
@@ -259,14 +259,16 @@ class _Reader:
                                          junction_id=ln.junction_id)
         return roads
 
-    def _controls(self, pairs, lanes: dict[str, Lane], kind: str, o: np.ndarray) -> dict:
+    def _controls(self, pairs, lanes: dict[str, Lane], junctions: dict[str, Junction], kind: str,
+                  o: np.ndarray) -> dict:
         """Signals or stop signs with the incoming lanes they overlap and their junction."""
         governed: dict[str, list[str]] = {}
         for lid, sid, _ in pairs.get(("lane", kind), []):
             governed.setdefault(sid, []).append(lid)
         junction_of: dict[str, str] = {}
         for jid, sid, _ in pairs.get(("junction", kind), []):
-            junction_of.setdefault(sid, jid)
+            if jid in junctions:  # not one skipped for lack of a polygon
+                junction_of.setdefault(sid, jid)
         items = self.pb.signal if kind == "signal" else self.pb.stop_sign
         out: dict = {}
         for el in items:
