@@ -55,6 +55,7 @@ TASK_CONFIG = {
     "reward_progress": 1.0, "reward_arrived": 1.0, "reward_collision": -3.0, "reward_red_light": -2.0,
     "reward_stop_sign": -2.0, "reward_pedestrian_yield": -2.0, "reward_off_road": -1.0,
 }
+CLOSENESS_RANGE_M = 30.0
 EVAL_SEED = 10_000  # first seed of the fixed evaluation set (training uses seeds below it)
 
 Policy = Callable[[object, gym.Env], object]  # (observation, env) -> action
@@ -73,8 +74,25 @@ def env_config(features: Sequence[feat2map.JunctionFeature], map_seed: int = 0, 
             "map_seed": map_seed, **overrides}
 
 
+class StopLineCloseness(gym.ObservationWrapper):
+    """Appends how close the next stop line is, 1 at the line .. 0 from CLOSENESS_RANGE_M on: the
+    env's distance/100 feature spans 0..0.06 in the 6 m where a stop counts, too fine to learn fast."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        spaces = dict(env.observation_space.spaces)
+        spaces["traffic_control"] = gym.spaces.Box(0.0, 1.0, (spaces["traffic_control"].shape[0] + 1,), np.float32)
+        self.observation_space = gym.spaces.Dict(spaces)
+
+    def observation(self, obs: dict) -> dict:
+        tc = obs["traffic_control"]
+        close = np.clip(1.0 - tc[4] * 100.0 / CLOSENESS_RANGE_M, 0.0, 1.0)
+        return {**obs, "traffic_control": np.append(tc, close).astype(np.float32)}
+
+
 def make_env(config: dict) -> gym.Env:
-    return gym.make("feat2map/JunctionGrid-v0", config=config)
+    env = gym.make("feat2map/JunctionGrid-v0", config=config)
+    return StopLineCloseness(env) if config.get("observe_traffic_control") else env
 
 
 @dataclass(frozen=True)
@@ -247,9 +265,28 @@ def build_model(config: dict, n_envs: int, seed: int, n_steps: int, batch_size: 
 
     torch.set_num_threads(1)
     venv = make_vec_env(lambda: make_env(config), n_envs=n_envs, seed=seed)
-    return PPO("MultiInputPolicy", venv, n_steps=n_steps, batch_size=batch_size, n_epochs=8, gamma=0.95,
+    return PPO("MultiInputPolicy", venv, n_steps=n_steps, batch_size=batch_size, n_epochs=8, gamma=0.99,
                learning_rate=5e-4, ent_coef=0.01, policy_kwargs={"net_arch": [64, 64]}, seed=seed, verbose=0,
                device="cpu")
+
+
+def progress_bar(total: int, enabled: bool):
+    """An SB3 callback showing training steps with tqdm."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm import tqdm
+
+    class _Bar(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.bar = tqdm(total=total, desc="training", unit="step", disable=not enabled)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return _Bar()
 
 
 @dataclass(frozen=True)
@@ -257,13 +294,13 @@ class RunConfig:
     """Sizes of one training + evaluation run (the smoke test uses tiny ones)."""
 
     features: tuple = tuple(junction_features())
-    timesteps: int = 30_000
+    timesteps: int = 40_000
     n_envs: int = 4
     n_steps: int = 256
     batch_size: int = 128
     eval_episodes: int = 40
     per_manoeuvre: int = 2
-    case_seeds: tuple[int, ...] = (EVAL_SEED + 500, EVAL_SEED + 501)
+    case_seeds: tuple[int, ...] = (EVAL_SEED + 500,)
     seed: int = 0
     progress: bool = True
 
@@ -279,7 +316,7 @@ def run(out: Path, rc: RunConfig = RunConfig()) -> dict:
     seeds = range(EVAL_SEED, EVAL_SEED + rc.eval_episodes)
     before = evaluate(eval_env, model_policy(untrained), seeds)
     t = time.perf_counter()
-    model.learn(total_timesteps=rc.timesteps, progress_bar=False)
+    model.learn(total_timesteps=rc.timesteps, callback=progress_bar(rc.timesteps, rc.progress))
     train_s = time.perf_counter() - t
     after = evaluate(eval_env, model_policy(model), seeds)
     out.mkdir(parents=True, exist_ok=True)

@@ -28,11 +28,8 @@ def make(config=None, env_id="feat2map/JunctionGrid-v0", **kw):
     return gym.make(env_id, config={**BASE, **(config or {})}, **kw)
 
 
-@pytest.mark.parametrize("config", [
-    {},
-    {"observe_traffic_control": True},
-    {"action": DRIVER_ACTION_CONFIG},
-    {"action": {"type": "ContinuousAction"}},
+@pytest.mark.parametrize("config", [  # besides the observation x action matrix below
+    {"action": DRIVER_ACTION_CONFIG, "observe_traffic_control": True},
     {"new_map_each_reset": True, "features": None},  # the paper's SF feature space, fresh maps
 ])
 def test_check_env_junction_grid(config):
