@@ -168,11 +168,9 @@ _HDMAP_MESSAGES: dict[str, list[str]] = {
     ],
     "StopSign": [
         "optional Id id = 1",
-        "optional Curve stop_line = 2",
-        "optional apollo.common.PointENU location = 3",
-        "repeated Id overlap_id = 4",
-        "optional Id signal_id = 5",
-        "optional StopType type = 6",
+        "repeated Curve stop_line = 2",
+        "repeated Id overlap_id = 3",
+        "optional StopType type = 4",
     ],
     "YieldSign": ["optional Id id = 1", "repeated Curve stop_line = 2", "repeated Id overlap_id = 3"],
     # overlaps

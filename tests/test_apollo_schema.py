@@ -30,7 +30,8 @@ def _number(cls, field: str) -> int:
         (aps.LaneBoundaryType, "types", 2), (aps.CurveSegment, "line_segment", 1),
         (aps.CurveSegment, "start_position", 7), (aps.CurveSegment, "length", 9),
         (aps.Road, "junction_id", 3), (aps.Junction, "type", 4), (aps.Signal, "stop_line", 6),
-        (aps.Signal, "sign_info", 7), (aps.StopSign, "type", 6), (aps.LaneOverlapInfo, "region_overlap_id", 4),
+        (aps.Signal, "sign_info", 7), (aps.StopSign, "stop_line", 2), (aps.StopSign, "overlap_id", 3),
+        (aps.StopSign, "type", 4), (aps.LaneOverlapInfo, "region_overlap_id", 4),
         (aps.ObjectOverlapInfo, "junction_overlap_info", 7), (aps.ObjectOverlapInfo, "rsu_overlap_info", 13),
         (aps.Overlap, "region_overlap", 3), (aps.Node, "road_id", 8), (aps.Edge, "direction_type", 4),
         (aps.Graph, "edge", 4),
@@ -55,6 +56,9 @@ def test_enums_defaults_and_packages() -> None:
     assert "barrier_gate" not in aps.Map.DESCRIPTOR.fields_by_name
     assert "SHARED" not in aps.Lane.LaneType.keys()
     assert aps.ObjectOverlapInfo.DESCRIPTOR.oneofs_by_name["overlap_info"].fields
+    stop = aps.StopSign.DESCRIPTOR.fields_by_name
+    assert stop["stop_line"].is_repeated and set(stop) == {
+        "id", "stop_line", "overlap_id", "type"}
 
 
 def _small_map(n_points: int, speed: float, name: str) -> aps.Map:
@@ -141,5 +145,8 @@ def test_parses_every_real_apollo_map(path: Path | None) -> None:
     # Every overlap links two objects, each with a kind.
     assert all(len(o.object) >= 2 and all(x.WhichOneof("overlap_info") for x in o.object) for o in m.overlap)
     assert all(seg.line_segment.point for ln in m.lane for seg in ln.central_curve.segment)
+    # stop signs list their overlaps under Apollo's field number (3): every listed id exists
+    overlaps = {o.id.id for o in m.overlap}
+    assert all(s.overlap_id and {x.id for x in s.overlap_id} <= overlaps and s.stop_line for s in m.stop_sign)
     # Round trip through the binary encoding is lossless.
     assert aps.Map.FromString(m.SerializeToString()) == m

@@ -273,8 +273,7 @@ class _Reader:
         out: dict = {}
         for el in items:
             sid = el.id.id
-            curves = list(el.stop_line) if kind == "signal" else [el.stop_line]
-            line = next((p for p in (_curve_points(c) for c in curves) if len(p) >= 2), None)
+            line = next((p for p in (_curve_points(c) for c in el.stop_line) if len(p) >= 2), None)
             lane_ids = tuple(dict.fromkeys(x for x in governed.get(sid, []) if x in lanes))
             jid = junction_of.get(sid)
             if jid is None:  # the junction of the governed lanes, or the one they lead into
@@ -301,9 +300,6 @@ class _Reader:
             pts = _polygon_points(el.boundary) - o
             if np.isfinite(pts).all():
                 return (float(pts[:, 0].mean()), float(pts[:, 1].mean()))
-        if kind == "stop_sign" and el.HasField("location") and math.isfinite(el.location.x) \
-                and math.isfinite(el.location.y):
-            return (el.location.x - float(o[0]), el.location.y - float(o[1]))
         m = line.mean(axis=0)
         return (float(m[0]), float(m[1]))
 
