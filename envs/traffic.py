@@ -171,13 +171,28 @@ class RouteFollower:
             return
         tid = net.id_of[self.target_lane_index]
         if tid != self.lane_route[self.route_pos]:  # changed lane: re-plan from here
-            path = net.lane_route(tid, self.lane_route[-1])
+            path = self.parallel_route(tid) or net.lane_route(tid, self.lane_route[-1])
             if not path:
                 return
             self.lane_route = self.lane_route[:self.route_pos] + path
         if self.route_pos + 1 < len(self.lane_route):
             self.route_pos += 1
             self.target_lane_index = net.index_of[self.lane_route[self.route_pos]]
+
+    def parallel_route(self, start: str) -> list[str]:
+        """The rest of the route moved beside itself after a lane change onto `start`: each next
+        lane the successor of the previous one on the same road edge ([] where they part, e.g.
+        at a junction). Keeps loops round a ring road whose lanes never merge."""
+        net = self.net
+        m = net.hdmap
+        path = [start]
+        for lid in self.lane_route[self.route_pos + 1:]:
+            edge = net.index_of[lid][:2]
+            nxt = next((x for x in m.lanes[path[-1]].successors if x in net.index_of and net.index_of[x][:2] == edge), None)
+            if nxt is None:
+                return []
+            path.append(nxt)
+        return path
 
     def steering_control(self, target_lane_index) -> float:
         """highway-env's lane-following controller (lateral P -> heading P -> steering), in scalar

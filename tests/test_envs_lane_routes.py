@@ -4,6 +4,7 @@ examples/road_circle.yaml) are driven on sampled lane walks, and any map on expl
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -183,3 +184,52 @@ def test_lane_walk_on_an_open_chain_is_the_longest_possible():
 @pytest.fixture(scope="module")
 def ring_net(ring):
     return MapNetwork.from_map(ring)
+
+
+@pytest.mark.parametrize("allowed", [True, False])
+def test_right_turn_on_red_after_a_stop_on_a_lane_route(grid, allowed):
+    """On a lane route, a right turn past a red signal after a full stop is legal only with
+    `right_turn_on_red` (the turn after the stop line is looked up on the ego's lane route)."""
+    jl = sorted((ln for ln in grid.junction_lanes("J0") if ln.turn == "right"), key=lambda ln: ln.id)[0]
+    route = [jl.predecessors[0], jl.id, jl.successors[0]]
+    env = gym.make("feat2map/MapFile-v0", config={
+        "map": grid, "route": {"lanes": route}, **DRIVE, "traffic_vehicles": 0, "pedestrian_rate": 0.0,
+        "signal_green": 200.0, "right_turn_on_red": allowed})
+    env.reset(seed=0)
+    u = env.unwrapped
+    sid = u.net.stop_lines[route[0]].control_id
+    plan = u.control.plans[sid]  # fix the offset so that this approach stays red for a minute
+    offset = next(o for o in range(int(plan.cycle)) if all(
+        replace(plan, offset=float(o)).state(sid, t) == "red" for t in range(60)))
+    u.configure({"signal_offsets": {"J0": float(offset)}})
+    env.reset(seed=0)
+    lawful, rogue = ScriptedDriver(env), ScriptedDriver(env, ignore={"signal"})
+    stopped = False
+    for _ in range(300):
+        driver = rogue if stopped else lawful
+        _, _, term, trunc, info = env.step(driver.act())
+        stopped = stopped or (u.vehicle.speed < 0.1 and info["distance_to_stop_line"] < 8.0)
+        if term or trunc:
+            break
+    assert stopped and info["route_completed"] and info["signal_state"] is None
+    assert u.control.signal_state(sid) == "red"
+    assert info["violations"]["red_light"] == (0 if allowed else 1)
+    env.close()
+
+
+def test_lane_change_on_the_ring_keeps_the_lap(ring):
+    """With lateral actions, a lane change onto the other ring lane (whose lanes never merge back)
+    moves the rest of the lap beside itself instead of losing the route: the lap still completes."""
+    env = gym.make("feat2map/MapFile-v0", config={
+        "map": ring, "route": {"from_lane": "C0_0_0", "to_lane": "C0_0_0"}, "traffic_vehicles": 0,
+        "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": True}, "duration": 80})
+    env.reset(seed=0)
+    u = env.unwrapped
+    act = {name: k for k, name in u.action_type.actions.items()}
+    for i in range(80):
+        _, _, term, trunc, info = env.step(act["LANE_RIGHT"] if i == 3 else act["FASTER"] if i < 3 else act["IDLE"])
+        if term or trunc:
+            break
+    assert info["route_completed"] and not info["off_road"]
+    assert u.route_lanes[:1] == ["C0_0_0"] and u.route_lanes[-1] == "C0_0_1" and len(u.route_lanes) == 13
+    env.close()
