@@ -158,3 +158,12 @@ def test_generate_from_real_maps(tmp_path):
     assert space["road_counts"] == [3] and set(space["controls"]) == {"signal", "stop"}
     lo, hi = space["rotation_ranges"]["3"][1]
     assert math.isclose(lo, 90.0, abs_tol=3.0) and math.isclose(hi, 90.0, abs_tol=3.0)
+
+
+def test_cli_extract_table_for_an_apollo_text_map(capsys):
+    path = str(shared_map("apollo/cube_town/sim_map.txt"))
+    assert main(["extract", path]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith(path[-40:])]
+    assert len(rows) == 2 and {r.split()[3] for r in rows} == {"signal", "stop"}
+    assert "2 junctions (0 skipped); map feature:" in out
