@@ -250,6 +250,33 @@ def test_every_generated_map_exports_clean(space, seed):
     assert [ln.id.id for ln in sim.lane] == [ln.id.id for ln in base.lane]
 
 
+def test_uturn_maps_export_clean_and_tight_uturns_do_not_route():
+    """The inner boundary of a U-turn between adjacent lanes collapses to its pivot in the
+    model; the export rebuilds it from the centreline. Apollo's topo_creator drops U-turns
+    tighter than the vehicle's turn radius (5.05 m), so do we."""
+    from feat2map.config import GenerationConfig
+
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=4, config=GenerationConfig(uturns=True))
+    uturns = {ln.id for ln in m.lanes.values() if ln.turn == "uturn"}
+    assert uturns and any(len(set(m.lanes[u].left_boundary)) < 2 for u in uturns)
+    base = wa.to_apollo(m)
+    _assert_clean(m, validate_map(base))
+    nodes = {n.lane_id for n in build_routing_graph(base).node}
+    assert nodes == set(m.lanes) - uturns
+
+
+@pytest.mark.parametrize("example", ["road_circle.yaml", "one_way_t.yaml", "multi_lane.yaml"])
+def test_spec_maps_export_clean(example):
+    """Hand-written maps (issue 6's specs): a closed one-way 2-lane ring, one-way legs,
+    multi-lane legs."""
+    from feat2map.spec import build_spec, load_spec
+
+    spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / example)
+    m = build_spec(spec, seed=0, config=spec.generation_config({}))
+    base = wa.to_apollo(m)
+    _assert_clean(m, validate_map(base))
+
+
 def test_pinched_generator_lanes_are_flagged():
     """Seed 1 of the paper's space has an S-bend connection whose lanes narrow to ~1 m (a
     generator defect): the validator reports their width samples and nothing else."""

@@ -9,6 +9,7 @@ the six files Apollo loads from `modules/map/data/<name>/`, all or nothing.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -25,7 +26,7 @@ from ..config import (APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_SIGNA
                       SIM_MAP_ANGLE_THRESHOLD_RAD, SIM_MAP_DOWNSAMPLE_DISTANCE_M,
                       SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M, UTM_ORIGIN, UTM_ZONE)
 from ..errors import Feat2MapError
-from ..model import HDMap, Lane, Polyline
+from ..model import HDMap, Lane, Polyline, as_polyline
 
 FILES = ("base_map", "sim_map", "routing_map")
 BOUNDARY_TYPE = {
@@ -105,6 +106,41 @@ def exact_end_centerline(ln: Lane, step: float = APOLLO_END_TANGENT_M) -> Polyli
         return pts
     a, b = (tuple(map(float, p)) for p in bz.point(np.array([eps, 1.0 - eps])))
     return (pts[0], a) + tuple(pts[1:-1]) + (b, pts[-1])
+
+
+def offset_polyline(points: Polyline, d: float) -> Polyline:
+    """`points` shifted `d` metres to the left along vertex normals (central differences)."""
+    p = np.asarray(points, dtype=float)
+    t = np.gradient(p, axis=0)
+    t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-12)[:, None]
+    return as_polyline(p + d * np.column_stack([-t[:, 1], t[:, 0]]))
+
+
+def _usable(points: Polyline) -> bool:
+    """At least two points more than 1 mm apart (the validator counts 0.1 mm as distinct)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    return len(p) >= 2 and bool((np.abs(p - p[0]).max(axis=1) > 1e-3).any())
+
+
+def usable_boundaries(m: HDMap) -> HDMap:
+    """`m` with every degenerate lane boundary (fewer than 2 distinct points: the inner side of
+    a tight U-turn collapses to its pivot) replaced by the centreline offset by half the lane
+    width. Raises Feat2MapError naming the lane when a centreline or repair is degenerate."""
+    fixed = {}
+    for ln in m.lanes.values():
+        if not _usable(ln.centerline):
+            raise Feat2MapError("centerline needs 2 or more distinct points", f"lane {ln.id}")
+        sides = {}
+        for name, sign in (("left_boundary", 1.0), ("right_boundary", -1.0)):
+            if not _usable(getattr(ln, name)):
+                sides[name] = offset_polyline(ln.centerline, sign * ln.width / 2)
+                if not _usable(sides[name]):
+                    raise Feat2MapError(f"{name} needs 2 or more distinct points", f"lane {ln.id}")
+        if sides:
+            fixed[ln.id] = dataclasses.replace(ln, **sides)
+    if not fixed:
+        return m
+    return dataclasses.replace(m, lanes={k: fixed.get(k, ln) for k, ln in m.lanes.items()})
 
 
 def road_edges(m: HDMap, lane: Lane) -> tuple[Polyline, Polyline]:
@@ -207,11 +243,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         origin = tuple(m.origin) if any(m.origin) else UTM_ORIGIN
     if len(origin) != 2 or not all(math.isfinite(float(v)) for v in origin):
         raise Feat2MapError(f"origin must be two finite numbers, got {origin!r}", "apollo export")
-    for ln in m.lanes.values():
-        for name in ("centerline", "left_boundary", "right_boundary"):
-            pts = getattr(ln, name)
-            if len(pts) < 2 or arc_lengths(np.asarray(pts, dtype=float))[-1] <= 0.0:
-                raise Feat2MapError(f"{name} needs 2 or more distinct points", f"lane {ln.id}")
+    m = usable_boundaries(m)
     frame = _Frame(origin)
     ids = _Ids()
     out = aps.Map()
