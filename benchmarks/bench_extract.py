@@ -41,7 +41,7 @@ def decode(path: Path) -> object:
 
 
 def main(argv: list[str]) -> None:
-    paths = [Path(a) for a in argv] or sorted(
+    paths = [Path(a).resolve() for a in argv] or sorted(
         p for p in SHARED.rglob("*") if p.suffix in (".bin", ".txt", ".xodr"))
     if not paths:
         sys.exit(f"no maps given and none under {SHARED}")
