@@ -69,7 +69,7 @@ class SkippedJunction:
 
 @dataclass(frozen=True)
 class _ArmEnds:
-    point: np.ndarray  # mean of the arm's lane end points
+    point: np.ndarray  # mean of the arm's mouth points
     direction: np.ndarray  # unit vector out of the junction: mean road tangent at the mouth
     far_direction: np.ndarray  # unit vector towards the road ARM_PROBE_M out
     lanes_in: int
@@ -131,13 +131,14 @@ def _probe(m: HDMap, ln: Lane, outward_from_start: bool, jid: str | None) -> np.
 
 
 def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
-    """Arms from the junction's boundary lane ends (entries and exits, each road lane once).
+    """Arms from the junction's mouths: one per road lane that feeds or leaves it.
 
-    Each end gets two outward directions: towards a point ARM_PROBE_M out along its road
-    (robust to lanes that bend at the junction mouth) and the road's tangent at the end
-    (robust to short curved road pieces). Two ends belong to one arm when either direction
-    differs by less than ARM_CLUSTER_DEG and they lie side by side (less than ARM_MAX_WIDTH_M apart across the arm and
-    ARM_MAX_DEPTH_M along it), so one-way pairs and roads split into pieces count once.
+    Each mouth gets two outward directions: towards a point ARM_PROBE_M out along its road
+    (robust to lanes that bend at the mouth) and the road's tangent at the mouth (robust to
+    short curved road pieces). Two mouths are one arm when their road lanes are neighbours,
+    or their tangents agree within ARM_CLUSTER_DEG and they are within ARM_NEAR_M, or their
+    far directions agree within ARM_CLUSTER_DEG and they lie side by side (ARM_MAX_WIDTH_M
+    across, ARM_MAX_DEPTH_M along the arm): divided roads and one-way pairs count once.
     """
     # one end per lane outside (its incoming or outgoing road lane), else per point
     ends: dict[tuple, tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
