@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pygame
 from highway_env.envs.common.graphics import EnvViewer
-from highway_env.road.graphics import LaneGraphics, RoadGraphics
 from highway_env.vehicle.graphics import VehicleGraphics
 
 from .network import GRID_CELL_M, flip
@@ -19,6 +18,10 @@ WHITE = (240, 240, 240)
 SIGNAL_RGB = {"green": (30, 220, 60), "amber": (255, 190, 0), "red": (230, 30, 30)}
 ROUTE_RGB = (60, 140, 255)
 PED_RGB = (255, 120, 0)
+MARKING_RGB = {"solid_white": WHITE, "curb": WHITE, "dotted_white": WHITE,
+               "solid_yellow": (240, 200, 40), "dotted_yellow": (240, 200, 40)}
+MARKING_WIDTH_M = 0.3
+DASH_M, DASH_PERIOD_M = 3.0, 6.0  # dotted boundaries: 3 m dashes every 6 m
 
 
 class MapViewer(EnvViewer):
@@ -51,8 +54,10 @@ class MapViewer(EnvViewer):
         for jid in junctions:
             pygame.draw.polygon(surf, ASPHALT, [surf.vec2pix(p) for p in flip(m.junctions[jid].polygon)])
         for lid in visible:  # markings of road lanes
-            if m.lanes[lid].junction_id is None:
-                LaneGraphics.display(net.lane_of[lid], surf)
+            ln = m.lanes[lid]
+            if ln.junction_id is None:
+                self._marking(surf, flip(ln.left_boundary), ln.left_boundary_type)
+                self._marking(surf, flip(ln.right_boundary), ln.right_boundary_type)
         for c in m.crosswalks.values():
             if c.junction_id in junctions:
                 self._crosswalk(surf, net, c.id)
@@ -92,6 +97,22 @@ class MapViewer(EnvViewer):
             if env.config["real_time_rendering"]:
                 self.clock.tick(env.config["simulation_frequency"])
             pygame.display.flip()
+
+    @staticmethod
+    def _marking(surf, points: np.ndarray, kind: str) -> None:
+        """A lane boundary along its polyline (highway-env's solid line is one chord, which cuts
+        across curved lanes such as a ring road's): solid, or dashes for dotted; none if virtual."""
+        if len(points) < 2 or kind not in MARKING_RGB:
+            return
+        rgb, width = MARKING_RGB[kind], max(1, surf.pix(MARKING_WIDTH_M))
+        if not kind.startswith("dotted"):
+            pygame.draw.lines(surf, rgb, False, [surf.vec2pix(p) for p in points], width)
+            return
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+        for s0 in np.arange(0.0, cum[-1], DASH_PERIOD_M):
+            s = np.linspace(s0, min(s0 + DASH_M, cum[-1]), 3)
+            dash = np.column_stack([np.interp(s, cum, points[:, 0]), np.interp(s, cum, points[:, 1])])
+            pygame.draw.lines(surf, rgb, False, [surf.vec2pix(p) for p in dash], width)
 
     @staticmethod
     def _crosswalk(surf, net, cw_id: str) -> None:

@@ -86,8 +86,9 @@ def test_ring_sampled_lap_is_driven(ring):
     env.close()
 
 
-def test_ring_lap_from_lane_to_itself_and_render(ring, tmp_path):
-    """from_lane == to_lane goes once round the loop; the frame shows the route."""
+def test_ring_lap_from_lane_to_itself_and_render(ring):
+    """from_lane == to_lane goes once round the loop; the frame shows the route and lane markings
+    that follow the ring."""
     env = gym.make("feat2map/MapFile-v0", render_mode="rgb_array",
                    config={"map": ring, "route": {"from_lane": "C0_3_1", "to_lane": "C0_3_1"},
                            "traffic_vehicles": 2, "scaling": 2.0})
@@ -99,6 +100,15 @@ def test_ring_lap_from_lane_to_itself_and_render(ring, tmp_path):
     assert frame.shape == (600, 600, 3)
     route_px = np.all(frame == np.array([60, 140, 255], dtype=np.uint8), axis=-1)  # render.ROUTE_RGB
     assert route_px.sum() > 100, "the ego route is drawn"
+    # lane markings follow the curve: none inside the ring's inner edge (straight chords would cut in)
+    surf = env.unwrapped.viewer.sim_surface
+    cx, cy = surf.pos2pix(0.0, 0.0)
+    inner = min(np.hypot(*np.asarray(b).T).min() for ln in ring.lanes.values()
+                for b in (ln.left_boundary, ln.right_boundary))
+    white = np.all(frame >= 235, axis=-1)
+    ys, xs = np.nonzero(white)
+    r_px = np.hypot(xs - cx, ys - cy)
+    assert white.sum() > 200 and (r_px < (inner - 0.5) * surf.scaling).sum() == 0
     env.close()
 
 
