@@ -37,6 +37,21 @@ def flip(points) -> np.ndarray:
     return p
 
 
+def _incoming(m: HDMap, lane_ids) -> list[str]:
+    """The road lanes a control governs: junction lanes named by a control (Apollo's overlaps put
+    stop lines on the junction lanes' starts) stand for their road predecessors."""
+    out: list[str] = []
+    for lid in lane_ids:
+        ln = m.lanes.get(lid)
+        if ln is None:
+            continue
+        preds = [p for p in ln.predecessors if p in m.lanes and m.lanes[p].junction_id is None]
+        for x in (preds if ln.junction_id is not None and preds else [lid]):
+            if x not in out:
+                out.append(x)
+    return out
+
+
 @dataclass(frozen=True)
 class StopLine:
     """A controlled stop line on one lane: `s` along the lane (metres), kind signal/stop."""
@@ -205,10 +220,8 @@ class MapNetwork(RoadNetwork):
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
             for c in table.values():
                 line = LineString(c.stop_line) if len(c.stop_line) >= 2 else None
-                for lid in c.lane_ids:
-                    ln = m.lanes.get(lid)
-                    if ln is None:
-                        continue
+                for lid in _incoming(m, c.lane_ids):
+                    ln = m.lanes[lid]
                     cl = LineString(ln.centerline)
                     s = ln.length
                     if line is not None and line.intersects(cl):

@@ -94,6 +94,24 @@ def test_map_file_real_opendrive_signalized_crossing():
         assert "signal" in seen
 
 
+@pytest.mark.real_maps
+def test_map_file_real_apollo_map_with_signals_and_stop_signs():
+    """An Apollo base_map.bin (stop lines on junction lanes, as Apollo's overlaps put them) drives
+    without violations, and the driver meets both signals and stop signs on its routes."""
+    pytest.importorskip("feat2map.readers.apollo", reason="the Apollo reader is not installed")
+    path = shared_map("apollo/cube_town/base_map.bin")
+    env = gym.make("feat2map/MapFile-v0", config={"map_file": str(path), "traffic_vehicles": 3,
+                                                   "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5,
+                                                   "duration": 60})
+    check_env(env.unwrapped, skip_render_check=True)
+    seen_all = set()
+    for seed in range(2):
+        info, seen = _drive(env, seed)
+        seen_all |= seen
+        assert info["route_completed"] and sum(info["violations"].values()) == 0 and not info["collision"], info
+    assert {"signal", "stop"} <= seen_all
+
+
 def test_map_file_unknown_format_is_a_clear_error(tmp_path):
     bad = tmp_path / "map.txt"
     bad.write_text("not a map")

@@ -164,3 +164,20 @@ def test_signal_heads_of_one_approach_share_a_phase(net):
     assert sorted(h for p in paired for h in p) == sorted(h.id for h in heads)
     # without travel directions the (identical) facings put every head in one approach
     assert group_phases(heads, False) == (tuple(sorted(h.id for h in heads)),)
+
+
+def test_controls_named_on_junction_lanes_stop_on_the_road_lane(net):
+    """Apollo maps put stop lines on the junction lanes' starts: the network moves them to the
+    road lanes entering the junction, where vehicles stop."""
+    from dataclasses import replace
+
+    m = net.hdmap
+    sign = next(s for s in m.stop_signs.values())
+    junction_lanes = tuple(sorted({j for l in sign.lane_ids for j in m.lanes[l].successors}))
+    assert junction_lanes and all(m.lanes[j].junction_id is not None for j in junction_lanes)
+    moved = replace(m, stop_signs={**m.stop_signs, sign.id: replace(sign, lane_ids=junction_lanes)})
+    net2 = MapNetwork.from_map(moved)
+    for lid in sign.lane_ids:
+        assert net2.stop_lines[lid].kind == "stop" and net2.stop_lines[lid].control_id == sign.id
+        assert net2.stop_lines[lid].s == pytest.approx(net.stop_lines[lid].s, abs=0.5)
+    assert not set(junction_lanes) & set(net2.stop_lines)
