@@ -1,7 +1,8 @@
 """Gymnasium environments on feat2map maps, following highway-env's conventions.
 
-`MapEnv` drives an ego along a route of junction manoeuvres through a map with signals,
-stop signs, crosswalk pedestrians and IDM traffic. Subclasses only say where the map comes
+`MapEnv` drives an ego along a route of junction manoeuvres (or an explicit lane route, or a
+sampled lane walk on maps without junctions such as a closed ring road) through a map with
+signals, stop signs, crosswalk pedestrians and IDM traffic. Subclasses only say where the map comes
 from: `JunctionGridEnv` (generated from a feature space) and `MapFileEnv` (a file or an HDMap).
 
 info keys (every step and reset):
@@ -196,6 +197,10 @@ class MapEnv(AbstractEnv):
     def _traffic_spawn_lanes(self, route: list[str], junctions: set[str]) -> list[str]:
         m = self.net.hdmap
         lanes = [l for l in route if m.lanes[l].junction_id is None]
+        if not junctions:  # e.g. round a ring road: the same-direction lanes beside the route too
+            edge = self.net.index_of
+            lanes += [n for l in set(lanes) for n in m.lanes[l].left_neighbors + m.lanes[l].right_neighbors
+                      if n in edge and edge[n][:2] == edge[l][:2]]
         for jid in sorted(junctions):  # approaches and exits of the junctions on the route
             for jl in m.lanes_by_junction.get(jid, []):
                 lanes += [x for x in jl.predecessors + jl.successors if x in m.lanes]

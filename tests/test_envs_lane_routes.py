@@ -83,6 +83,7 @@ def test_ring_sampled_lap_is_driven(ring):
     assert info["junction_feature"] is None and info["signal_states"] == {} and info["distance_to_stop_line"] == np.inf
     assert info["violations"] == {"red_light": 0, "stop_sign": 0, "pedestrian_yield": 0}
     assert len(env.unwrapped.road.vehicles) > 1, "traffic is spawned on the ring"
+    assert set(env.unwrapped._spawn_lanes) == set(ring.lanes), "in both ring lanes, beside the route too"
     env.close()
 
 
