@@ -100,6 +100,9 @@ class BaselinePlanner:
 
     # ---- Policy --------------------------------------------------------------------------
     def reset(self, env: Any) -> None:
+        if not hasattr(env.unwrapped.action_type, "acceleration_range"):
+            raise TypeError(f"BaselinePlanner drives a ContinuousAction ego (BaselinePlanner.action_config), "
+                            f"the env has {type(env.unwrapped.action_type).__name__}")
         self.env = env.unwrapped
         self.events = []
         self.scenario, self.stage = LANE_FOLLOW, "LF"
