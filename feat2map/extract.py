@@ -139,6 +139,9 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     or their tangents agree within ARM_CLUSTER_DEG and they are within ARM_NEAR_M, or their
     far directions agree within ARM_CLUSTER_DEG and they lie side by side (ARM_MAX_WIDTH_M
     across, ARM_MAX_DEPTH_M along the arm): divided roads and one-way pairs count once.
+    Two mouths that a junction lane joins (other than a U-turn) are never one arm: merges
+    go strongest evidence first (neighbour links, then nearest pairs) and skip any merge
+    that would put such a pair into one arm, so legs a few degrees apart stay apart.
     """
     # one end per lane outside (its incoming or outgoing road lane), else per point
     ends: dict[tuple, tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
@@ -181,16 +184,19 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     along = np.abs((mean * d).sum(axis=-1))
     same = ((tangents @ tangents.T >= cos_tol) & (dist <= ARM_NEAR_M)) | (  # adjacent, same local direction
         (dirs @ dirs.T >= cos_tol) & (across <= ARM_MAX_WIDTH_M) & (along <= ARM_MAX_DEPTH_M))
+    index = {key: i for i, key in enumerate(ends)}
+    apart = _joined_mouths(m, jid, lanes, index)
+    pairs = [(0.0, i, k) for i in range(len(pts)) for k in range(i + 1, len(pts)) if ext[k] in linked[i]]
+    pairs += sorted((float(dist[i, k]), int(i), int(k)) for i, k in zip(*np.nonzero(np.triu(same, 1))))
+    members = {i: {i} for i in range(len(pts))}
     uf = _UnionFind(len(pts))
-    for i, k in zip(*np.nonzero(np.triu(same, 1))):
-        uf.union(int(i), int(k))
-    for i in range(len(pts)):  # neighbour lanes of one road
-        for k in range(i + 1, len(pts)):
-            if ext[k] in linked[i]:
-                uf.union(i, k)
-    groups: dict[int, list[int]] = {}
-    for i in range(len(pts)):
-        groups.setdefault(uf.find(i), []).append(i)
+    for _, i, k in pairs:
+        a, b = uf.find(i), uf.find(k)
+        if a == b or any((x, y) in apart for x in members[a] for y in members[b]):
+            continue
+        uf.union(a, b)
+        members[b] |= members.pop(a)
+    groups = {root: sorted(idx) for root, idx in members.items()}
     arms = []
     for idx in groups.values():
         t, f = tangents[idx].sum(axis=0), dirs[idx].sum(axis=0)
@@ -198,6 +204,22 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
                              f / max(float(np.hypot(*f)), 1e-12),
                              sum(kinds[i] == "in" for i in idx), sum(kinds[i] == "out" for i in idx)))
     return arms
+
+
+def _joined_mouths(m: HDMap, jid: str, lanes: Sequence[Lane], index: dict[tuple, int]) -> set[tuple[int, int]]:
+    """Pairs of mouth indices (both orders) that one junction lane joins, U-turns (labelled, or
+    into the lane's own reverse neighbour) excepted: geometry cannot tell a U-turn from a
+    turn between legs a few degrees apart."""
+    apart: set[tuple[int, int]] = set()
+    for ln in lanes:
+        ins = [p for p in ln.predecessors if m.lanes[p].junction_id != jid]
+        outs = [s for s in ln.successors if m.lanes[s].junction_id != jid]
+        if not ins or not outs or ln.turn == "uturn" or outs[0] in m.lanes[ins[0]].left_reverse_neighbors:
+            continue
+        i, k = index.get(("in", ins[0])), index.get(("out", outs[0]))
+        if i is not None and k is not None and i != k:
+            apart |= {(i, k), (k, i)}
+    return apart
 
 
 def _meeting_point(lines: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float] | None:
