@@ -353,7 +353,7 @@ def _areas(m: Any) -> list[Problem]:
 
 
 def _stop_lines(e: Any) -> list[Any]:
-    return list(e.stop_line) if hasattr(e.stop_line, "add") else ([e.stop_line] if e.HasField("stop_line") else [])
+    return list(e.stop_line)
 
 
 def _controls(m: Any, idx: _Index) -> list[Problem]:

@@ -160,17 +160,26 @@ def test_signals_have_boundary_subsignals_and_one_stop_line(exported):
         assert [x.type for x in s.subsignal] == [aps.Subsignal.CIRCLE] * 3
         assert len(s.stop_line) == 1 and len(s.stop_line[0].segment[0].line_segment.point) >= 2
     for s in base.stop_sign:
-        lines = list(s.stop_line) if hasattr(s.stop_line, "add") else [s.stop_line]
-        assert s.type == aps.StopSign.ALL_WAY and len(lines) == 1
-        assert len(lines[0].segment[0].line_segment.point) >= 2
+        assert s.type == aps.StopSign.ALL_WAY and len(s.stop_line) == 1
+        assert len(s.stop_line[0].segment[0].line_segment.point) >= 2
 
 
-@pytest.mark.xfail(reason="apollo_schema's StopSign numbers fields 2-6 its own way; Apollo's "
-                          "map_stop_sign.proto has repeated stop_line = 2, overlap_id = 3, type = 4 (docs/apollo.md)")
-def test_stop_sign_field_numbers_are_apollos():
-    fields = aps.StopSign.DESCRIPTOR.fields_by_name
-    assert (fields["overlap_id"].number, fields["type"].number) == (3, 4)
-    assert hasattr(aps.StopSign().stop_line, "add")  # repeated
+def test_stop_signs_in_the_binary_use_apollos_field_numbers(exported):
+    """Apollo reads base_map.bin by field number: a stop sign's stop_line is field 2
+    (repeated), overlap_id 3, type 4 (map_stop_sign.proto, Apollo 7-9)."""
+    from google.protobuf.internal.decoder import _DecodeVarint
+
+    data = _load(exported, "base_map").stop_sign[0].SerializeToString()
+    numbers, pos = [], 0
+    while pos < len(data):
+        key, pos = _DecodeVarint(data, pos)
+        numbers.append(key >> 3)
+        if key & 7 == 2:
+            size, pos = _DecodeVarint(data, pos)
+            pos += size
+        else:
+            _, pos = _DecodeVarint(data, pos)
+    assert numbers[0] == 1 and numbers[1] == 2 and set(numbers[2:-1]) == {3} and numbers[-1] == 4
 
 
 def test_zone_and_origin_are_configurable(small_map, tmp_path):
@@ -573,7 +582,7 @@ BREAKAGES = [
     (_signal_boundary, "boundary has 3 points"),
     (_subsignal, "needs id, type and location"),
     (_signal_stop_line, "has no stop_line"),
-    (_stop_sign_line, "stop_line"),
+    (_stop_sign_line, "has no stop_line"),
     (_one_object, "has 1 objects"),
     (_bad_s, "is not within"),
     (_signal_far, "from the stop line"),

@@ -219,10 +219,8 @@ class _Frame:
 
 
 def _add_stop_line(msg: Any, frame: _Frame, line: Polyline) -> None:
-    """`stop_line` is repeated in Apollo's schema; tolerate a singular field too."""
-    field = msg.stop_line
-    curve = field.add() if hasattr(field, "add") else field
-    frame.fill_curve(curve, line)
+    """One stop line (Apollo's `stop_line` is a repeated Curve on signals and stop signs)."""
+    frame.fill_curve(msg.stop_line.add(), line)
 
 
 def _signal_boundary(position: tuple[float, float], heading: float) -> list[tuple[float, float, float]]:
