@@ -38,6 +38,9 @@ CREEP_GAIN = 1.5  # [1/s] speed error -> acceleration while creeping or capping 
 STOP_DURATION_S = 1.0  # full stop held at stop signs and before a right turn on red
 BARE_APPROACH_M = 20.0  # bare junctions are approached at the junction speed limit from here
 HOLD_BRAKE_MPS2 = -3.0
+LATERAL_ACCEL_MPS2 = 2.5  # curves are driven at v <= sqrt(LATERAL_ACCEL_MPS2 * radius)
+CURVE_WINDOW_M = 4.0  # curvature is measured over this arc length
+CURVE_LOOKAHEAD_M = 50.0
 GAP_ACCEL_MPS2 = 1.5  # the ego's assumed acceleration when judging whether it clears a conflict in time
 GAP_MARGIN_S = 2.0  # a creeping turn goes when every conflicting vehicle arrives this much after it clears
 RULES = ("signal", "stop", "pedestrian", "conflict")
@@ -113,6 +116,7 @@ class BaselinePlanner:
         self.go = False  # a creep stage decided to go (sticky until the stage changes)
         self.full_stop = False  # stopped at the selected junction's line (right on red needs it)
         self._zones: dict[tuple[str, str], tuple[float, float, float, float]] = {}
+        self._curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._steps = 0
         self._log()
 
@@ -318,10 +322,11 @@ class BaselinePlanner:
         here = net.id_of.get(ego.lane_index)
         before = self._line_distance() if here != self.j_lane else -ego.lane_s
         half = ego.LENGTH / 2
+        v_turn = max(float(self._curve_speeds(self.j_lane)[1].min()), 1.0)  # the turn's comfortable speed
         for c in net.conflicts.get(self.j_lane, ()):
             m0, m1, c0, c1 = self._zone(self.j_lane, c)
             t_me_in = _travel_time(before + m0 - 2 * half, v_me, IDM_ACC)
-            t_me_out = _travel_time(before + m1 + 2 * half, v_me, GAP_ACCEL_MPS2)
+            t_me_out = _travel_time(before + m1 + 2 * half, v_me, GAP_ACCEL_MPS2, v_turn)
             lane_c = net.lane_of[c]
             through: list[tuple[float, Any]] = []  # (distance of the vehicle centre to the zone start, vehicle)
             for v in control.buckets.get(c, ()):
@@ -348,8 +353,41 @@ class BaselinePlanner:
                     return False
         return True
 
+    def _curve_speeds(self, lane_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """(s, comfortable speed) at the vertices of a lane: sqrt(a_lat / curvature), with the
+        curvature measured as the heading change over CURVE_WINDOW_M (cached per lane)."""
+        if lane_id not in self._curves:
+            lane = self.env.net.lane_of[lane_id]
+            s, h = lane.cum, lane.vertex_heading
+            j = np.searchsorted(s, s + CURVE_WINDOW_M / 2).clip(0, len(s) - 1)
+            i = np.searchsorted(s, s - CURVE_WINDOW_M / 2).clip(0, len(s) - 1)
+            ds = np.maximum(s[j] - s[i], 1e-6)
+            kappa = np.abs(h[j] - h[i]) / ds
+            kappa[s[j] - s[i] < 1e-3] = 0.0
+            speed = np.sqrt(LATERAL_ACCEL_MPS2 / np.maximum(kappa, 1e-6))
+            self._curves[lane_id] = (s, speed)
+        return self._curves[lane_id]
+
+    def _curve_acceleration(self) -> float:
+        """Deceleration that brings the ego to each upcoming curve at its comfortable speed
+        (inf when no curve ahead is slower than the ego)."""
+        ego = self.env.vehicle
+        v = max(ego.speed, 0.0)
+        a = math.inf
+        for _, lid, d, s_own in ego.upcoming(CURVE_LOOKAHEAD_M):
+            s, speed = self._curve_speeds(lid)
+            x = s - s_own if s_own is not None else s + d
+            ahead = (x >= -1.0) & (x <= CURVE_LOOKAHEAD_M) & (speed < v)
+            if ahead.any():
+                need = (v * v - speed[ahead] ** 2) / (2 * np.maximum(x[ahead], 1.0))
+                a = min(a, -float(need.max()))
+        return a
+
     # ---- control ---------------------------------------------------------------------------
     def _acceleration(self) -> float:
+        return min(self._rule_acceleration(), self._curve_acceleration())
+
+    def _rule_acceleration(self) -> float:
         env = self.env
         ego = env.vehicle
         stage = self.stage
@@ -378,11 +416,15 @@ class BaselinePlanner:
         return a
 
 
-def _travel_time(distance: float, speed: float, accel: float) -> float:
-    """Seconds to cover `distance` from `speed` at constant acceleration `accel` (0 if behind)."""
+def _travel_time(distance: float, speed: float, accel: float, v_max: float = math.inf) -> float:
+    """Seconds to cover `distance` from `speed`, accelerating at `accel` up to `v_max` (0 if behind)."""
     if distance <= 0:
         return 0.0
-    return (-speed + math.sqrt(speed * speed + 2 * accel * distance)) / accel
+    speed = min(speed, v_max)
+    d_acc = (v_max * v_max - speed * speed) / (2 * accel) if v_max < math.inf else math.inf
+    if distance <= d_acc:
+        return (-speed + math.sqrt(speed * speed + 2 * accel * distance)) / accel
+    return (v_max - speed) / accel + (distance - d_acc) / v_max
 
 
 class CallablePolicy:
