@@ -182,6 +182,18 @@ def test_stop_signs_in_the_binary_use_apollos_field_numbers(exported):
     assert numbers[0] == 1 and numbers[1] == 2 and set(numbers[2:-1]) == {3} and numbers[-1] == 4
 
 
+def test_stop_sign_type_counts_the_stopped_approaches(small_map):
+    import dataclasses
+
+    assert set(wa.stop_sign_types(small_map).values()) == {aps.StopSign.ALL_WAY}
+    jid = next(j for j, x in small_map.junctions.items() if x.feature.control == "stop")
+    signs = [s for s in small_map.stop_signs.values() if s.junction_id == jid]
+    assert len(signs) == 4
+    fewer = dataclasses.replace(small_map, stop_signs={s.id: s for s in signs[:3]})
+    assert wa.stop_sign_types(fewer) == {jid: aps.StopSign.THREE_WAY}
+    assert {s.type for s in wa.to_apollo(fewer).stop_sign} == {aps.StopSign.THREE_WAY}
+
+
 def test_zone_and_origin_are_configurable(small_map, tmp_path):
     m = wa.to_apollo(small_map, zone=33, origin=(400000.0, 5000000.0))
     assert "+zone=33 " in m.header.projection.proj

@@ -143,6 +143,23 @@ def usable_boundaries(m: HDMap) -> HDMap:
     return dataclasses.replace(m, lanes={k: fixed.get(k, ln) for k, ln in m.lanes.items()})
 
 
+def stop_sign_types(m: HDMap) -> dict[str | None, int]:
+    """Apollo's StopType per junction: ALL_WAY when stop signs govern every lane entering it,
+    else ONE_WAY .. FOUR_WAY by the number of its stop signs."""
+    governed: dict[str | None, set[str]] = {}
+    count: dict[str | None, int] = {}
+    for s in m.stop_signs.values():
+        governed.setdefault(s.junction_id, set()).update(s.lane_ids)
+        count[s.junction_id] = count.get(s.junction_id, 0) + 1
+    ways = (aps.StopSign.ONE_WAY, aps.StopSign.TWO_WAY, aps.StopSign.THREE_WAY, aps.StopSign.FOUR_WAY)
+    out = {}
+    for jid, lanes in governed.items():
+        entering = {p for ln in m.lanes_by_junction.get(jid, []) for p in ln.predecessors
+                    if p in m.lanes and m.lanes[p].junction_id != jid} if jid is not None else set()
+        out[jid] = aps.StopSign.ALL_WAY if entering and entering <= lanes else ways[min(count[jid], 4) - 1]
+    return out
+
+
 def road_edges(m: HDMap, lane: Lane) -> tuple[Polyline, Polyline]:
     """(left, right) edge of the carriageway around `lane`, each in the lane's direction.
 
@@ -261,9 +278,10 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         ids.claim("crosswalk", c.id, c.id)
     lid = {k: ids.of[("lane", k)] for k in m.lanes}
 
+    centres = {ln.id: exact_end_centerline(ln) for ln in m.lanes.values()}  # as exported
     lanes: dict[str, Any] = {}
     for ln in m.lanes.values():
-        lanes[ln.id] = _lane(out.lane.add(), m, ln, frame, lid, ids)
+        lanes[ln.id] = _lane(out.lane.add(), m, ln, centres[ln.id], frame, lid, ids)
     for r in m.roads.values():
         road = out.road.add()
         road.id.id = ids.of[("road", r.id)]
@@ -302,18 +320,19 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         _add_stop_line(msg, frame, s.stop_line)
         for x in s.lane_ids:
             if x in m.lanes:
-                rng = stop_line_range(m.lanes[x].centerline, s.stop_line)
+                rng = stop_line_range(centres[x], s.stop_line)
                 overlaps.add(lanes[x], "lane_overlap_info", rng, msg, "signal_overlap_info")
         if s.junction_id in junctions:
             overlaps.add(junctions[s.junction_id], "junction_overlap_info", None, msg, "signal_overlap_info")
+    stop_types = stop_sign_types(m)
     for s in m.stop_signs.values():
         msg = out.stop_sign.add()
         msg.id.id = ids.of[("stop_sign", s.id)]
-        msg.type = aps.StopSign.ALL_WAY
+        msg.type = stop_types.get(s.junction_id, aps.StopSign.UNKNOWN)
         _add_stop_line(msg, frame, s.stop_line)
         for x in s.lane_ids:
             if x in m.lanes:
-                rng = stop_line_range(m.lanes[x].centerline, s.stop_line)
+                rng = stop_line_range(centres[x], s.stop_line)
                 overlaps.add(lanes[x], "lane_overlap_info", rng, msg, "stop_sign_overlap_info")
         if s.junction_id in junctions:
             overlaps.add(junctions[s.junction_id], "junction_overlap_info", None, msg, "stop_sign_overlap_info")
@@ -323,14 +342,14 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
                          junctions[ln.junction_id], "junction_overlap_info")
     if m.crosswalks:
         lane_list = list(m.lanes.values())
-        tree = STRtree([LineString(ln.centerline) for ln in lane_list])
+        tree = STRtree([LineString(centres[ln.id]) for ln in lane_list])
         for c in m.crosswalks.values():
             msg = out.crosswalk.add()
             msg.id.id = ids.of[("crosswalk", c.id)]
             frame.fill_points(msg.polygon.point, c.polygon)
             for k in sorted(tree.query(Polygon(c.polygon), predicate="intersects")):
                 ln = lane_list[k]
-                rng = polygon_range(ln.centerline, c.polygon)
+                rng = polygon_range(centres[ln.id], c.polygon)
                 if rng is not None:
                     overlaps.add(lanes[ln.id], "lane_overlap_info", rng, msg, "crosswalk_overlap_info")
     return out
@@ -346,13 +365,12 @@ def _header(h: Any, m: HDMap, zone: int) -> None:
     h.rev_minor = b"0"
 
 
-def _lane(msg: Any, m: HDMap, ln: Lane, frame: _Frame, lid: dict[str, str], ids: _Ids) -> Any:
+def _lane(msg: Any, m: HDMap, ln: Lane, centre: Polyline, frame: _Frame, lid: dict[str, str], ids: _Ids) -> Any:
     msg.id.id = lid[ln.id]
     msg.type = aps.Lane.CITY_DRIVING
     msg.direction = aps.Lane.FORWARD
     msg.turn = TURN.get(ln.turn, aps.Lane.NO_TURN)
     msg.speed_limit = float(ln.speed_limit)
-    centre = exact_end_centerline(ln)
     msg.length = frame.fill_curve(msg.central_curve, centre)
     for side, pts, kind in (("left", ln.left_boundary, ln.left_boundary_type),
                             ("right", ln.right_boundary, ln.right_boundary_type)):
