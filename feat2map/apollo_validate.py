@@ -84,6 +84,18 @@ def _pair(folder: Path, name: str, parse: Any) -> tuple[Any | None, list[Problem
     return msg, []
 
 
+def load_base_map(path: str | Path) -> Any:
+    """The base map of a map folder (base_map.bin, else .txt), or the map in a single file."""
+    path = Path(path)
+    if path.is_file():
+        return aps.parse_map(_read(path), str(path))
+    for name in ("base_map.bin", "base_map.txt"):
+        if (path / name).is_file():
+            return aps.parse_map(_read(path / name), str(path / name))
+    raise MapFormatError("no base_map.bin or base_map.txt in this folder" if path.is_dir()
+                         else "no such map folder or file", str(path))
+
+
 def validate_apollo(path: str | Path, progress: bool = False) -> list[Problem]:
     """Every problem of the Apollo map folder (or single map file) at `path`; `progress`
     shows a tqdm bar over the checks.

@@ -149,6 +149,11 @@ def cmd_validate(args: argparse.Namespace) -> int:
     problems = validate_apollo(args.path, progress=True)
     for p in problems:
         print(p)
+    if args.picture:
+        from .apollo_picture import render_apollo
+        from .apollo_validate import load_base_map
+
+        render_apollo(load_base_map(args.path), args.picture, problems, title=f"{args.path}: {len(problems)} problems")
     print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}")
     return 1 if problems else 0
 
@@ -193,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("validate", help="check an Apollo map folder (or one map file) for what Apollo needs")
     v.add_argument("path", help="folder with base_map, sim_map, routing_map (.bin/.txt), or one map file")
+    v.add_argument("--picture", help="PNG/SVG of the base map with the problems ringed in red")
     v.set_defaults(func=cmd_validate)
 
     from .cli_scenarios import add_scenario_commands

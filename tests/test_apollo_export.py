@@ -733,6 +733,26 @@ def test_cli_export_validate_and_exit_codes(small_map, tmp_path, capsys):
     assert "Traceback" not in err and "zone" in err
 
 
+def test_validate_picture_rings_the_problems(exported, tmp_path, capsys):
+    from feat2map.apollo_picture import problem_locations
+
+    base = _load(exported, "base_map")
+    lane = base.lane[0]
+    lane.ClearField("turn")
+    c = lane.central_curve.segment[0].line_segment.point
+    mid = c[len(c) // 2]
+    problems = validate_map(base)
+    spots = problem_locations(base, problems + [Problem("file x", "no geometry")])
+    assert spots == [(mid.x, mid.y)] * len(problems)
+    broken = tmp_path / "b"
+    broken.mkdir()
+    (broken / "base_map.bin").write_bytes(base.SerializeToString())
+    for kind in ("png", "svg"):
+        assert main(["validate", str(broken), "--picture", str(tmp_path / f"p.{kind}")]) == 1
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert b"<svg" in (tmp_path / "p.svg").read_bytes()[:400]
+
+
 def test_generate_writes_apollo_unless_told_not_to(tmp_path):
     assert main(["generate", "--seed", "2", "--out", str(tmp_path / "a"), "--quiet", "--no-picture"]) == 0
     m = mapio.load(tmp_path / "a" / "map.json")

@@ -1,0 +1,140 @@
+"""A bird's-eye picture (PNG/SVG) of an Apollo map as Apollo will read it, with the validator's
+problems marked where they are: lane boundaries by type (dashed = dotted, grey = virtual),
+junction polygons, crosswalks, signal and stop-sign stop lines, the signal/stop/crosswalk
+overlap ranges on lanes, and a red ring at every element with a problem.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import apollo_schema as aps
+from .apollo_validate import Problem
+
+_STYLE = {aps.LaneBoundaryType.DOTTED_YELLOW: ("#d4a000", "--"), aps.LaneBoundaryType.DOTTED_WHITE: ("0.35", "--"),
+          aps.LaneBoundaryType.SOLID_YELLOW: ("#d4a000", "-"), aps.LaneBoundaryType.SOLID_WHITE: ("0.35", "-"),
+          aps.LaneBoundaryType.DOUBLE_YELLOW: ("#d4a000", "-"), aps.LaneBoundaryType.CURB: ("k", "-")}
+_OVERLAP_COLOUR = {"signal_overlap_info": "red", "stop_sign_overlap_info": "orange",
+                   "crosswalk_overlap_info": "magenta"}
+
+
+def _xy(points: Any) -> np.ndarray:
+    return np.asarray([(p.x, p.y) for p in points], dtype=float).reshape(-1, 2)
+
+
+def _curve(curve: Any) -> np.ndarray:
+    return np.concatenate([_xy(s.line_segment.point) for s in curve.segment] or [np.zeros((0, 2))])
+
+
+def problem_locations(m: Any, problems: Sequence[Problem]) -> list[tuple[float, float]]:
+    """A point for every problem whose element has geometry (files and the header have none)."""
+    where: dict[str, np.ndarray] = {}
+    for ln in m.lane:
+        c = _curve(ln.central_curve)
+        if len(c):
+            where[f"lane {ln.id.id}"] = c[len(c) // 2]
+    for kind in ("junction", "crosswalk"):
+        for e in getattr(m, kind):
+            p = _xy(e.polygon.point)
+            if len(p):
+                where[f"{kind} {e.id.id}"] = p.mean(axis=0)
+    for kind in ("signal", "stop_sign"):
+        for e in getattr(m, kind):
+            pts = [_curve(c) for c in e.stop_line]
+            pts = [p for p in pts if len(p)]
+            if pts:
+                where[f"{kind} {e.id.id}"] = pts[0].mean(axis=0)
+            elif kind == "signal" and e.boundary.point:
+                where[f"{kind} {e.id.id}"] = _xy(e.boundary.point).mean(axis=0)
+    for r in m.road:
+        for sec in r.section:
+            for lid in sec.lane_id:
+                if f"lane {lid.id}" in where:
+                    where.setdefault(f"road {r.id.id}", where[f"lane {lid.id}"])
+    for ov in m.overlap:
+        for o in ov.object:
+            kind = (o.WhichOneof("overlap_info") or "").removesuffix("_overlap_info")
+            if f"{kind} {o.id.id}" in where:
+                where.setdefault(f"overlap {ov.id.id}", where[f"{kind} {o.id.id}"])
+    out = []
+    for p in problems:
+        key = p.element.removeprefix("sim_map ")
+        if key in where:
+            out.append(tuple(map(float, where[key])))
+    return out
+
+
+def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), title: str | None = None) -> None:
+    """Draw Apollo map `m` to `path` (format from the suffix), problems ringed in red."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Polygon as Patch
+
+    from . import atomic
+
+    fig, ax = plt.subplots(figsize=(10, 10))
+    segs: dict[tuple[str, str], list[np.ndarray]] = {}
+    centres = []
+    lanes = {}
+    for ln in m.lane:
+        lanes[ln.id.id] = c = _curve(ln.central_curve)
+        if len(c) > 1:
+            centres.append(c)
+        for b in (ln.left_boundary, ln.right_boundary):
+            p = _curve(b.curve)
+            if len(p) < 2:
+                continue
+            t = b.boundary_type[0].types[0] if b.boundary_type and b.boundary_type[0].types else None
+            style = ("0.8", ":") if b.virtual or t is None else _STYLE.get(t, ("0.6", ":"))
+            segs.setdefault(style, []).append(p)
+    ax.add_collection(LineCollection(centres, colors="#9fd3e6", linewidths=0.4))
+    for (colour, ls), lines in segs.items():
+        ax.add_collection(LineCollection(lines, colors=colour, linestyles=ls, linewidths=0.6))
+    for j in m.junction:
+        if len(j.polygon.point) >= 3:
+            ax.add_patch(Patch(_xy(j.polygon.point), closed=True, fc="none", ec="tab:blue", lw=0.6, ls="-."))
+    for cw in m.crosswalk:
+        if len(cw.polygon.point) >= 3:
+            ax.add_patch(Patch(_xy(cw.polygon.point), closed=True, fc="none", ec="magenta", hatch="///", lw=0.5))
+    for kind, colour in (("signal", "red"), ("stop_sign", "orange")):
+        lines = [p for e in getattr(m, kind) for c in e.stop_line if len(p := _curve(c)) > 1]
+        ax.add_collection(LineCollection(lines, colors=colour, linewidths=2.0))
+    ranges: dict[str, list[np.ndarray]] = {}
+    for ov in m.overlap:
+        objs = {o.WhichOneof("overlap_info"): o for o in ov.object}
+        lane = objs.get("lane_overlap_info")
+        other = next((k for k in objs if k in _OVERLAP_COLOUR), None)
+        if lane is None or other is None or len(lanes.get(lane.id.id, ())) < 2:
+            continue
+        c = lanes[lane.id.id]
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(c, axis=0).T))])
+        a, b = lane.lane_overlap_info.start_s, lane.lane_overlap_info.end_s
+        grid = np.linspace(a, max(a, b), 8)
+        ranges.setdefault(other, []).append(np.column_stack([np.interp(grid, s, c[:, 0]), np.interp(grid, s, c[:, 1])]))
+    for kind, lines in ranges.items():
+        ax.add_collection(LineCollection(lines, colors=_OVERLAP_COLOUR[kind], linewidths=3.5, alpha=0.45))
+    spots = problem_locations(m, problems)
+    if spots:
+        xs, ys = zip(*spots)
+        ax.scatter(xs, ys, s=160, facecolors="none", edgecolors="red", linewidths=1.5, zorder=5)
+    ax.autoscale()
+    ax.set_aspect("equal")
+    ax.set_xlabel("UTM easting [m]")
+    ax.set_ylabel("UTM northing [m]")
+    ax.ticklabel_format(useOffset=True, style="plain")
+    placed = len(spots)
+    ax.set_title(title or f"{len(m.lane)} lanes, {len(m.junction)} junctions; {len(problems)} problems "
+                          f"({placed} ringed)", fontsize=9)
+    fig.tight_layout()
+    import io
+
+    buf = io.BytesIO()
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    fig.savefig(buf, format=fmt, dpi=110)
+    plt.close(fig)
+    atomic.write_bytes(path, buf.getvalue())
