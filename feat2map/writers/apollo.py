@@ -442,14 +442,14 @@ def downsample_by_angle(points: np.ndarray, threshold: float = SIM_MAP_ANGLE_THR
         return []
     out = [0]
     if n > 1:
-        seg = np.diff(points, axis=0)
+        d = np.diff(np.asarray(points, dtype=float).reshape(-1, 2), axis=0)
+        dx, dy = d[:, 0].tolist(), d[:, 1].tolist()  # plain floats: this loop is the hot path
+        norm = [math.hypot(x, y) for x, y in zip(dx, dy)]
         start, end, acc = 0, 1, 0.0
         while end < n - 1:
-            a, b = seg[start], seg[end]
-            denom = math.hypot(*a) * math.hypot(*b)
-            cosv = float(a @ b) / denom if denom > 0 else float("nan")
-            angle = math.acos(cosv) if -1.0 <= cosv <= 1.0 else 0.0
-            acc += abs(angle)
+            denom = norm[start] * norm[end]
+            cosv = (dx[start] * dx[end] + dy[start] * dy[end]) / denom if denom > 0 else math.nan
+            acc += math.acos(cosv) if -1.0 <= cosv <= 1.0 else 0.0  # acos out of range: NaN -> 0
             if acc > threshold:
                 out.append(end)
                 start, acc = end, 0.0
@@ -465,11 +465,13 @@ def downsample_by_distance(points: np.ndarray, distance: float = SIM_MAP_DOWNSAM
     n = len(points)
     if n <= 4:
         return list(range(n))
-    v0, v1 = points[1] - points[0], points[-1] - points[-2]
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    v0, v1 = p[1] - p[0], p[-1] - p[-2]
     step = steep_distance if float(v0 @ v1) <= 0 else distance
+    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
     out, acc = [0], 0.0
     for pos in range(1, n - 1):
-        acc += math.dist(points[pos - 1], points[pos])
+        acc += seg[pos - 1]
         if acc > step:
             out.append(pos)
             acc = 0.0
