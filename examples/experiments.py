@@ -266,7 +266,24 @@ def copy_to_docs(settings: Settings, files: Sequence[Path]) -> list[Path]:
     return out
 
 
+def code_version() -> str:
+    """The commit the results were made with, and whether the working tree differed from it."""
+    import subprocess
+
+    try:
+        head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.splitlines()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + (f" + uncommitted changes in {len(dirty)} tracked files" if dirty else "")
+
+
 def write_json(path: Path, doc: Any) -> Path:
+    """Write a results document; top-level results (rq*.json) record the code version."""
+    if isinstance(doc, dict) and path.name.startswith("rq"):
+        doc = {**doc, "code": code_version(), "written": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     atomic.write_text(path, json.dumps(doc, indent=2, sort_keys=False, default=str) + "\n")
     return path
 
@@ -421,16 +438,21 @@ def drive_map(settings: Settings, name: str, map_path: Path, junction_subset: Se
     todo = scenarios if settings.max_scenarios is None else scenarios[:settings.max_scenarios]
     outcomes = []
     t0 = time.perf_counter()
-    chunk = max(1, settings.workers)
-    bar = tqdm(total=len(todo), desc=f"drive {name}", unit="scenario", disable=not settings.progress)
-    for i in range(0, len(todo), chunk):
-        if settings.budget_s is not None and time.perf_counter() - t0 > settings.budget_s:
-            break
-        res = rollout.run_suite(todo[i:i + chunk], "baseline", workers=settings.workers, progress=False,
-                                coverage=True, record_failure_gif=False)
-        outcomes.extend(res.outcomes)
-        bar.update(len(res.outcomes))
-    bar.close()
+    if settings.budget_s is None:  # one pool for the whole suite
+        if todo:
+            outcomes = list(rollout.run_suite(todo, "baseline", workers=settings.workers, progress=settings.progress,
+                                              coverage=True, record_failure_gif=False).outcomes)
+    else:  # chunks of `workers` scenarios until the budget is spent
+        chunk = max(1, settings.workers)
+        bar = tqdm(total=len(todo), desc=f"drive {name}", unit="scenario", disable=not settings.progress)
+        for i in range(0, len(todo), chunk):
+            if time.perf_counter() - t0 > settings.budget_s:
+                break
+            res = rollout.run_suite(todo[i:i + chunk], "baseline", workers=settings.workers, progress=False,
+                                    coverage=True, record_failure_gif=False)
+            outcomes.extend(res.outcomes)
+            bar.update(len(res.outcomes))
+        bar.close()
     if len(outcomes) < len(scenarios):
         why = (f"budget of {settings.budget_s:.0f} s" if settings.budget_s is not None
                and len(outcomes) < len(todo) else f"--max-scenarios {settings.max_scenarios}")
@@ -545,10 +567,11 @@ def plot_stages(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
     ax.set_xlim(-0.6, len(summaries) - 0.4)
     ax.set_ylim(len(rows) - 0.5, -0.5)
     ax.set_xticks(range(len(summaries)), [s["map"] for s in summaries], fontsize=8)
-    ax.set_yticks(range(len(rows)), [f"{item}" for _, item in rows], fontsize=7)
+    ax.set_yticks(range(len(rows)), [item if kind == "path" else " -> ".join(stage_label(x) for x in item.split(" -> "))
+                                     for kind, item in rows], fontsize=7)
     if paths and trans:
         ax.axhline(len(paths) - 0.5, color="k", lw=0.8)
-    ax.set_title("stage paths (count = junctions) and transitions covered", fontsize=9)
+    ax.set_title("stage paths (junctions) / transitions", fontsize=9)
     ax.tick_params(length=0)
     for sp in ax.spines.values():
         sp.set_visible(False)
