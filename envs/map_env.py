@@ -155,6 +155,7 @@ class MapEnv(AbstractEnv):
         self.new_violations: list[str] = []
         self._ego_lane = self.net.id_of.get(self.vehicle.lane_index)
         self._stopped: set[str] = set()
+        self._crossed: set[str] = set()
         self._ped_flags: set[str] = set()
         self._progress = self.vehicle.route_distance_done()
         last = self.net.lane_of[route[-1]]
@@ -258,14 +259,19 @@ class MapEnv(AbstractEnv):
         if sl is not None and (sl.kind == "stop" or self.config["right_turn_on_red"]) \
                 and ego.speed <= STOPPED_SPEED_MPS and 0 <= sl.s - ego.lane_s <= STOP_ZONE_M:
             self._stopped.add(lid)
-        if lid != prev and prev is not None and lid in m.lanes and m.lanes[lid].junction_id is not None:
+        if lid in m.lanes and m.lanes[lid].junction_id is None:  # stops and line crossings count until
+            self._stopped &= {lid}                                 # the ego is on another road lane
+            self._crossed &= {lid}
+        if lid != prev and prev is not None and lid in m.lanes and m.lanes[lid].junction_id is not None \
+                and prev not in self._crossed:  # flickering across the line is one crossing
+            if m.lanes.get(prev) is not None and m.lanes[prev].junction_id is None:
+                self._crossed.add(prev)
             psl = net.stop_lines.get(prev)
             if psl is not None and psl.kind == "signal" and self.control.signal_state(psl.control_id) == "red" \
                     and not (self.config["right_turn_on_red"] and prev in self._stopped and self._turn_after(prev) == "right"):
                 self._violate("red_light")
             if psl is not None and psl.kind == "stop" and prev not in self._stopped:
                 self._violate("stop_sign")
-            self._stopped.discard(prev)
         self._ego_lane = lid
         # pedestrians: the ego on a crosswalk with a person next to its path
         for cw, s0, s1 in net.crossings.get(lid, ()):

@@ -40,6 +40,7 @@ BARE_APPROACH_M = 20.0  # bare junctions are approached at the junction speed li
 HOLD_BRAKE_MPS2 = -3.0
 LATERAL_ACCEL_MPS2 = 2.5  # curves are driven at v <= sqrt(LATERAL_ACCEL_MPS2 * radius)
 CURVE_WINDOW_M = 4.0  # curvature is measured over this arc length
+CURVE_MIN_SPEED_MPS = 3.0  # no curve is taken slower (a 4 m radius at LATERAL_ACCEL_MPS2)
 CURVE_LOOKAHEAD_M = 50.0
 GAP_ACCEL_MPS2 = 1.5  # the ego's assumed acceleration when judging whether it clears a conflict in time
 GAP_MARGIN_S = 2.0  # a creeping turn goes when every conflicting vehicle arrives this much after it clears
@@ -354,18 +355,21 @@ class BaselinePlanner:
         return True
 
     def _curve_speeds(self, lane_id: str) -> tuple[np.ndarray, np.ndarray]:
-        """(s, comfortable speed) at the vertices of a lane: sqrt(a_lat / curvature), with the
-        curvature measured as the heading change over CURVE_WINDOW_M (cached per lane)."""
+        """(s, comfortable speed) at the vertices of a lane: sqrt(a_lat / curvature), never below
+        CURVE_MIN_SPEED_MPS. Curvature is the turn between the chords over the CURVE_WINDOW_M
+        around each vertex (kept inside the lane), so polyline kinks and zig-zags of read maps
+        do not read as sharp curves (cached per lane)."""
         if lane_id not in self._curves:
             lane = self.env.net.lane_of[lane_id]
-            s, h = lane.cum, lane.vertex_heading
-            j = np.searchsorted(s, s + CURVE_WINDOW_M / 2).clip(0, len(s) - 1)
-            i = np.searchsorted(s, s - CURVE_WINDOW_M / 2).clip(0, len(s) - 1)
-            ds = np.maximum(s[j] - s[i], 1e-6)
-            kappa = np.abs(h[j] - h[i]) / ds
-            kappa[s[j] - s[i] < 1e-3] = 0.0
-            speed = np.sqrt(LATERAL_ACCEL_MPS2 / np.maximum(kappa, 1e-6))
-            self._curves[lane_id] = (s, speed)
+            s = lane.cum
+            w = min(CURVE_WINDOW_M, float(s[-1]))
+            mid = np.clip(s, w / 2, s[-1] - w / 2)
+            a, b, c = (np.array([lane.position(float(x), 0.0) for x in xs]) for xs in (mid - w / 2, mid, mid + w / 2))
+            h1 = np.arctan2(*(b - a).T[::-1])
+            h2 = np.arctan2(*(c - b).T[::-1])
+            turn = np.abs((h2 - h1 + np.pi) % (2 * np.pi) - np.pi)
+            speed = np.sqrt(LATERAL_ACCEL_MPS2 * (w / 2) / np.maximum(turn, 1e-6))
+            self._curves[lane_id] = (s, np.maximum(speed, CURVE_MIN_SPEED_MPS))
         return self._curves[lane_id]
 
     def _curve_acceleration(self) -> float:

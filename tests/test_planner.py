@@ -226,3 +226,27 @@ def test_coverage_suite_of_a_real_opendrive_map_drives_clean():
         assert info["route_completed"] and info["violations"] == NO_VIOLATIONS and not info["collision"], sc.name
         paths.add(planner.stage_path())
     assert any("T_A" in p or "L_A" in p or "R_S" in p for p in paths)  # its signals were met
+
+
+@pytest.mark.parametrize("stop_first", [True, False])
+def test_flickering_across_a_stop_line_is_one_crossing(tmp_path_factory, stop_first):
+    """The env locates the ego on the incoming lane or the junction lane near the line; moving
+    back and forth across it must neither forget the stop nor count the violation twice."""
+    m, map_path = one_junction_map(tmp_path_factory, "stop", False)
+    env = make_env(Scenario("f", str(map_path), (manoeuvre(m, "J0", "none"),)))
+    env.reset(seed=0)
+    u = env.unwrapped
+    ego, net = u.vehicle, u.net
+    in_lane, j_lane = u.route_lanes[0], u.route_lanes[1]
+    a, b = net.lane_of[in_lane], net.lane_of[j_lane]
+
+    def put(lane, s, speed):
+        ego.position, ego.heading, ego.speed = lane.position(s, 0.0), lane.heading_at(s), speed
+        ego.on_state_update()
+        u._check_ego()
+
+    put(a, net.stop_lines[in_lane].s - 2.0, 0.0 if stop_first else 3.0)
+    for lane, s in [(b, 2.0), (a, a.length - 1.0), (b, 2.5), (a, a.length - 0.5), (b, 3.0)]:
+        put(lane, s, 2.0)
+        assert net.id_of[ego.lane_index] == (j_lane if lane is b else in_lane)
+    assert u.violations["stop_sign"] == (0 if stop_first else 1)
