@@ -3,7 +3,8 @@
 The map holds one junction per feature combination (road count n x control x crosswalk). The
 agent chooses target speeds (DiscreteMetaAction, longitudinal only: steering follows the route)
 from Kinematics plus the traffic-control vector (signal colour, stop sign, distance to the stop
-line, pedestrian ahead). Printed: success rate and mean return of the untrained and the trained
+line, pedestrian ahead) with two features added by `StopLineFeatures` (stop-line closeness,
+full stop made). Printed: success rate and mean return of the untrained and the trained
 policy on a fixed evaluation set. Written to OUT: `success.csv`, `success.md` and `success.png`
 (success per (n, control, crosswalk, manoeuvre) for the trained and untrained policy and, as a
 reference, the rule-following ScriptedDriver), and `ppo_model.zip`.
@@ -33,6 +34,7 @@ import numpy as np  # noqa: E402
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
+from feat2map.envs.traffic import STOP_ZONE_M, STOPPED_SPEED_MPS  # noqa: E402
 
 ROAD_ANGLES = {3: (0, 90, 180), 4: (0, 90, 180, 270)}
 CONTROLS = ("signal", "stop", "bare")
@@ -74,25 +76,37 @@ def env_config(features: Sequence[feat2map.JunctionFeature], map_seed: int = 0, 
             "map_seed": map_seed, **overrides}
 
 
-class StopLineCloseness(gym.ObservationWrapper):
-    """Appends how close the next stop line is, 1 at the line .. 0 from CLOSENESS_RANGE_M on: the
-    env's distance/100 feature spans 0..0.06 in the 6 m where a stop counts, too fine to learn fast."""
+class StopLineFeatures(gym.ObservationWrapper):
+    """Appends two features to the traffic-control vector: how close the next stop line is (1 at
+    the line .. 0 from CLOSENESS_RANGE_M on; the env's distance/100 spans only 0..0.06 in the 6 m
+    where a stop counts), and whether the ego has already made its full stop at the stop sign
+    ahead (without it, "stopped at the line" looks the same before and after the stop is made)."""
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
         spaces = dict(env.observation_space.spaces)
-        spaces["traffic_control"] = gym.spaces.Box(0.0, 1.0, (spaces["traffic_control"].shape[0] + 1,), np.float32)
+        spaces["traffic_control"] = gym.spaces.Box(0.0, 1.0, (spaces["traffic_control"].shape[0] + 2,), np.float32)
         self.observation_space = gym.spaces.Dict(spaces)
+        self._stopped = False
+
+    def reset(self, **kwargs):
+        self._stopped = False
+        return super().reset(**kwargs)
 
     def observation(self, obs: dict) -> dict:
         tc = obs["traffic_control"]
-        close = np.clip(1.0 - tc[4] * 100.0 / CLOSENESS_RANGE_M, 0.0, 1.0)
-        return {**obs, "traffic_control": np.append(tc, close).astype(np.float32)}
+        distance = float(tc[4]) * 100.0
+        if tc[3] < 0.5:  # no stop sign ahead: forget the last stop
+            self._stopped = False
+        elif distance <= STOP_ZONE_M and self.env.unwrapped.vehicle.speed <= STOPPED_SPEED_MPS:
+            self._stopped = True
+        close = np.clip(1.0 - distance / CLOSENESS_RANGE_M, 0.0, 1.0)
+        return {**obs, "traffic_control": np.append(tc, [close, float(self._stopped)]).astype(np.float32)}
 
 
 def make_env(config: dict) -> gym.Env:
     env = gym.make("feat2map/JunctionGrid-v0", config=config)
-    return StopLineCloseness(env) if config.get("observe_traffic_control") else env
+    return StopLineFeatures(env) if config.get("observe_traffic_control") else env
 
 
 @dataclass(frozen=True)
@@ -294,7 +308,7 @@ class RunConfig:
     """Sizes of one training + evaluation run (the smoke test uses tiny ones)."""
 
     features: tuple = tuple(junction_features())
-    timesteps: int = 40_000
+    timesteps: int = 60_000
     n_envs: int = 4
     n_steps: int = 256
     batch_size: int = 128

@@ -85,3 +85,24 @@ def test_model_policy_drives_the_eval_env(tp, tiny):
     obs, _ = env.reset(seed=0)
     a = tp.model_policy(model)(obs, env)
     assert env.action_space.contains(np.asarray(a).item())
+
+
+def test_stop_line_features_remember_the_full_stop(tp):
+    """The example's extra features: closeness rises towards the line; the stop flag turns on once
+    the ego stood still in the stop zone (the env's own rule: then no stop_sign violation)."""
+    feats = tp.junction_features(ns=(4,), controls=("stop",), crosswalks=(False,))
+    env = tp.make_env(tp.env_config(feats, traffic_vehicles=0, pedestrian_rate=0.0))
+    obs, _ = env.reset(seed=0)
+    assert obs["traffic_control"].shape == (8,) and env.observation_space.contains(obs)
+    closeness, flags = [], []
+    while True:
+        tc = obs["traffic_control"]
+        closeness.append(float(tc[6]))
+        flags.append(bool(tc[7]))
+        action = 2 if tc[7] else (0 if tc[6] > 0.85 else 1)  # FASTER after the stop, SLOWER near the line
+        obs, _, term, trunc, info = env.step(action)
+        if term or trunc:
+            break
+    first = flags.index(True)
+    assert first > 0 and closeness[first] > 0.8 and closeness[first - 1] > closeness[0]
+    assert info["route_completed"] and info["violations"]["stop_sign"] == 0, info
