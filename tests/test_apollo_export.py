@@ -729,6 +729,9 @@ def test_cli_export_validate_and_exit_codes(small_map, tmp_path, capsys):
         main(["export", "apollo", str(src), "--out", str(tmp_path / "z"), "--origin", "1"])
     assert exc.value.code == 2
     assert not (tmp_path / "z").exists()
+    (tmp_path / "file").write_text("x")  # --out names a file: one line, exit 2
+    assert main(["export", "apollo", str(src), "--out", str(tmp_path / "file")]) == 2
+    assert (tmp_path / "file").read_text() == "x"
     err = capsys.readouterr().err
     assert "Traceback" not in err and "zone" in err
 

@@ -538,12 +538,15 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
         bar.set_postfix_str("routing_map")
         messages["routing_map"] = build_routing_graph(base)
         bar.update()
-        with atomic.staged_dir(out_dir) as tmp:
-            for name, msg in messages.items():
-                bar.set_postfix_str(f"{name}.bin/.txt")
-                atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
-                atomic.write_text(tmp / f"{name}.txt", text_of(msg))
-                bar.update()
+        try:
+            with atomic.staged_dir(out_dir) as tmp:
+                for name, msg in messages.items():
+                    bar.set_postfix_str(f"{name}.bin/.txt")
+                    atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
+                    atomic.write_text(tmp / f"{name}.txt", text_of(msg))
+                    bar.update()
+        except OSError as exc:
+            raise Feat2MapError(f"cannot write the Apollo map ({exc.strerror or exc})", str(out_dir)) from None
 
 
 def add_export_apollo_command(subparsers: Any) -> None:
