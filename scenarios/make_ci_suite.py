@@ -6,7 +6,7 @@ alternating so every (road count, crosswalk) pair occurs. The suite: from the ma
 routes, the few that together touch every junction and every (control, turn) pair, with traffic
 and pedestrians. Deterministic: running it again rewrites identical files.
 
-    .venv/bin/python scenarios/make_ci_suite.py [--out-dir scenarios]
+    .venv/bin/python scenarios/make_ci_suite.py [--out-dir scenarios] [--picture]
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from feat2map import PAPER_SF_FEATURE_SPACE, mapio
 from feat2map.generate import generate_from_features
 from feat2map.model import HDMap
 from feat2map.sampling import sample_features
-from feat2map.scenarios.routes import SECONDS_PER_JUNCTION, BASE_DURATION_S, Route, coverage_routes
+from feat2map.scenarios.routes import BASE_DURATION_S, SECONDS_PER_JUNCTION, Route, coverage_routes, render_routes
 from feat2map.scenarios.scenario import Scenario, Suite, save_suite
 
 MAP_SEED = 1
@@ -80,11 +80,15 @@ def ci_suite(map_path: Path) -> Suite:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out-dir", type=Path, default=Path(__file__).resolve().parent)
+    ap.add_argument("--picture", action="store_true", help="also draw the routes (ci_suite.png)")
     args = ap.parse_args(argv)
     map_path = args.out_dir / "ci_map.json"
     mapio.save(ci_map(), map_path)
     suite = ci_suite(map_path)
     save_suite(suite, args.out_dir / "ci_suite.yaml")
+    if args.picture:
+        render_routes(mapio.load(map_path), [sc.route for sc in suite.scenarios], args.out_dir / "ci_suite.png",
+                      names=[sc.name for sc in suite.scenarios])
     print(f"{map_path}: {len(mapio.load(map_path).junctions)} junctions; "
           f"{args.out_dir / 'ci_suite.yaml'}: {len(suite.scenarios)} scenarios")
     return 0

@@ -165,3 +165,46 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                  duration=duration if duration is not None else BASE_DURATION_S + SECONDS_PER_JUNCTION * len(r))
         for i, r in enumerate(routes))
     return Suite(stem, scenarios, path.resolve().parent)
+
+
+def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names: Sequence[str] | None = None,
+                  cols: int = 4, dpi: int = 110) -> None:
+    """A picture (PNG or SVG) with one panel per route: the map, the route's lanes highlighted
+    (as the env drives them) and its manoeuvres listed; written atomically."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    from .. import atomic
+    from ..envs.map_env import manoeuvres_to_lanes
+    from ..envs.network import MapNetwork
+    from ..render import draw_map
+
+    net = MapNetwork.from_map(m)
+    n = max(len(routes), 1)
+    cols = min(cols, n)
+    rows = -(-n // cols)
+    x0, y0, x1, y1 = m.bounds()
+    aspect = min(max((x1 - x0) / max(y1 - y0, 1.0), 0.4), 2.5)  # panel shape follows the map's
+    fig, axes = plt.subplots(rows, cols, figsize=(4.4 * aspect * cols + 0.4, 4.8 * rows), squeeze=False)
+    try:
+        for ax in axes.flat:
+            ax.set_axis_off()
+        for i, (ax, route) in enumerate(zip(axes.flat, routes)):
+            ax.set_axis_on()
+            lanes = manoeuvres_to_lanes(net, route)
+            draw_map(m, ax, labels=True, highlight_lanes=lanes)
+            start = m.lanes[lanes[0]].centerline[0]
+            ax.plot(*start, marker="o", ms=6, color="#ff6f00", mec="k", zorder=8)
+            title = names[i] if names else f"route {i}"
+            ax.set_title(f"{title}\n" + " → ".join(f"{j}:{e}>{x}" for j, e, x in route), fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_xlabel("")
+            ax.set_ylabel("")
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format=Path(path).suffix.lstrip(".").lower() or "png", dpi=dpi)
+    finally:
+        plt.close(fig)
+    atomic.write_bytes(path, buf.getvalue())

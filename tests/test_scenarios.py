@@ -19,7 +19,7 @@ import feat2map
 from feat2map import mapio
 from feat2map.envs.map_env import manoeuvres_to_lanes
 from feat2map.envs.network import MapNetwork
-from feat2map.scenarios.routes import (build_suite, coverage_routes, manoeuvres, route_coverage,
+from feat2map.scenarios.routes import (build_suite, coverage_routes, manoeuvres, render_routes, route_coverage,
                                        successor_graph)
 from feat2map.scenarios.scenario import (Scenario, ScenarioError, Suite, load_suite, make_env, save_suite,
                                          suite_from_dict)
@@ -259,3 +259,12 @@ def test_ci_suite_is_valid_current_and_touches_every_junction_type(tmp_path):
     net = MapNetwork.from_map(m)
     for r in routes:
         manoeuvres_to_lanes(net, r)
+
+
+def test_render_routes_png_and_svg(tmp_path, m1):
+    routes = coverage_routes(m1)[:3]
+    render_routes(m1, routes, tmp_path / "r.png", names=["a", "b", "c"])
+    render_routes(m1, routes[:1], tmp_path / "r.svg")
+    assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    svg = (tmp_path / "r.svg").read_text()
+    assert svg.lstrip().startswith("<?xml") and " → ".join(f"{j}:{e}>{x}" for j, e, x in routes[0]).replace(">", "&gt;") in svg
