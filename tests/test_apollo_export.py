@@ -690,6 +690,23 @@ def test_validator_runs_on_real_apollo_maps(name):
     assert all(isinstance(p, Problem) and p.element and p.message for p in problems)
 
 
+@pytest.mark.parametrize("name", ["cube_town", "shalun", "autonomous_stuff"])
+def test_real_maps_re_exported_validate_clean(name):
+    """Read a real Apollo map into the model and export it again: what the validator found in
+    the original (lengths, overlaps, crosswalk links) is rebuilt consistently."""
+    path = APOLLO_MAPS / name / "base_map.bin"
+    if not path.exists():
+        pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
+    from feat2map.readers.apollo import read_apollo
+
+    m = read_apollo(path)
+    base = wa.to_apollo(m)
+    assert validate_map(base) == []
+    first = base.lane[0].central_curve.segment[0].line_segment.point[0]
+    src = next(iter(m.lanes.values())).start
+    assert (first.x, first.y) == pytest.approx((src[0] + m.origin[0], src[1] + m.origin[1]))
+
+
 # --- files and CLI ---------------------------------------------------------------------------
 
 def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch):
