@@ -18,7 +18,8 @@ from feat2map.apollo_routing import build_routing_graph
 from feat2map.apollo_validate import validate_apollo
 from feat2map.config import GenerationConfig
 from feat2map.features import FeatureSpace
-from feat2map.writers.apollo import text_of, to_apollo, to_sim_map
+from feat2map.apollo_sim_map import to_sim_map
+from feat2map.writers.apollo import text_of, to_apollo
 
 # every (n, control, crosswalk) combination of 3- and 4-leg junctions: 12 junctions per sample
 SPACE = FeatureSpace((3, 4), ("bare", "signal", "stop"), (True, False), feat2map.PAPER_SF_FEATURE_SPACE.rotation_ranges)

@@ -20,6 +20,8 @@ from feat2map.config import (APOLLO_MIN_HALF_WIDTH_M, ROUTING_BASE_SPEED_MPS, RO
                              ROUTING_LEFT_TURN_PENALTY, ROUTING_RIGHT_TURN_PENALTY, UTM_ORIGIN)
 from feat2map.errors import Feat2MapError, MapFormatError
 from feat2map.features import FeatureSpace, JunctionFeature
+from feat2map import apollo_geometry as geo
+from feat2map import apollo_sim_map as simmap
 from feat2map.writers import apollo as wa
 
 APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
@@ -55,7 +57,7 @@ def _pinched_lanes(m: feat2map.HDMap) -> set[str]:
     bends on connection roads); the validator must flag exactly these."""
     return {ln.id for ln in m.lanes.values()
             if min(w for side in (ln.left_boundary, ln.right_boundary)
-                   for _, w in wa.distance_samples(ln.centerline, side)) < APOLLO_MIN_HALF_WIDTH_M}
+                   for _, w in geo.distance_samples(ln.centerline, side)) < APOLLO_MIN_HALF_WIDTH_M}
 
 
 def _assert_clean(m: feat2map.HDMap, problems: list[Problem]) -> None:
@@ -267,7 +269,7 @@ def test_every_generated_map_exports_clean(space, seed):
     # the graph routes every lane; sim_map keeps every element
     graph = build_routing_graph(base)
     assert {n.lane_id for n in graph.node} == set(m.lanes)
-    sim = wa.to_sim_map(base)
+    sim = simmap.to_sim_map(base)
     assert [ln.id.id for ln in sim.lane] == [ln.id.id for ln in base.lane]
 
 
@@ -325,19 +327,19 @@ def test_sim_map_downsamples_like_apollo(exported):
 
 def test_downsampling_rules():
     straight = np.column_stack([np.linspace(0, 50, 26), np.zeros(26)])
-    assert wa.downsample_by_angle(straight) == [0, 25]  # no heading change: only the ends
-    assert wa.downsample_by_distance(straight[:4]) == [0, 1, 2, 3]  # 4 points or fewer: all kept
+    assert simmap.downsample_by_angle(straight) == [0, 25]  # no heading change: only the ends
+    assert simmap.downsample_by_distance(straight[:4]) == [0, 1, 2, 3]  # 4 points or fewer: all kept
     # every 5 m on a gentle path; every 1 m once the path turns by 90 degrees or more
-    idx = wa.downsample_by_distance(straight)
+    idx = simmap.downsample_by_distance(straight)
     assert idx[0] == 0 and idx[-1] == 25 and all(b - a == 3 for a, b in zip(idx[:-2], idx[1:-1]))
     t = np.linspace(0, math.pi, 60)
     arc = np.column_stack([10 * np.cos(t), 10 * np.sin(t)])  # a U: steep turn, spacing 0.53 m
-    idx = wa.downsample_by_distance(arc)
+    idx = simmap.downsample_by_distance(arc)
     assert all(b - a == 2 for a, b in zip(idx[:-2], idx[1:-1]))
     # 0.18 degrees per point: the turn accumulated against the last kept segment (0.18 + 0.36 +
     # 0.54) exceeds 1 degree at the third point after it
     t = np.linspace(0, math.pi, 1001)
-    keep = wa.downsample_by_angle(np.column_stack([10 * np.cos(t), 10 * np.sin(t)]))
+    keep = simmap.downsample_by_angle(np.column_stack([10 * np.cos(t), 10 * np.sin(t)]))
     assert keep[0] == 0 and keep[-1] == 1000 and all(b - a == 3 for a, b in zip(keep[:-2], keep[1:-1]))
 
 
@@ -345,7 +347,7 @@ def test_downsampling_rules():
 @given(st.lists(st.tuples(st.floats(-100, 100), st.floats(-100, 100)), min_size=2, max_size=40))
 def test_downsampling_keeps_ends_in_order(points):
     pts = np.asarray(points, dtype=float)
-    for idx in (wa.downsample_by_angle(pts), wa.downsample_by_distance(pts)):
+    for idx in (simmap.downsample_by_angle(pts), simmap.downsample_by_distance(pts)):
         assert idx[0] == 0 and idx[-1] == len(pts) - 1 and idx == sorted(set(idx))
 
 

@@ -3,30 +3,30 @@
 `to_apollo` turns an `HDMap` into an `apollo.hdmap.Map` message (absolute UTM coordinates,
 every lane CITY_DRIVING with curves, lengths, widths, links, boundary types; roads with one
 section; junctions, signals, stop signs, crosswalks; overlaps listed on both sides).
-`to_sim_map` downsamples it as Apollo's `sim_map_generator` does, and `write_apollo` writes
+`apollo_sim_map.to_sim_map` downsamples it as Apollo's `sim_map_generator` does,
+`apollo_routing` builds the routing graph, and `write_apollo` writes
 the six files Apollo loads from `modules/map/data/<name>/`, all or nothing.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
-import shapely
 from shapely import STRtree
 from shapely.geometry import LineString, Polygon
 
 from .. import __version__, atomic
 from .. import apollo_schema as aps
-from ..config import (APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APOLLO_STOP_LINE_OVERLAP_M,
-                      SIM_MAP_ANGLE_THRESHOLD_RAD, SIM_MAP_DOWNSAMPLE_DISTANCE_M,
-                      SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M, UTM_ORIGIN, UTM_ZONE)
+from ..apollo_geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
+                               stop_line_range, usable_boundaries)
+from ..apollo_sim_map import to_sim_map
+from ..config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ..errors import Feat2MapError
-from ..model import HDMap, Lane, Polyline, as_polyline
+from ..model import HDMap, Lane, Polyline
 
 FILES = ("base_map", "sim_map", "routing_map")
 BOUNDARY_TYPE = {
@@ -41,106 +41,6 @@ TURN = {"none": aps.Lane.NO_TURN, "left": aps.Lane.LEFT_TURN, "right": aps.Lane.
 def utm_projection(zone: int) -> str:
     """The header projection string Apollo expects (PROJ.4, WGS84 UTM, northern hemisphere)."""
     return f"+proj=utm +zone={zone} +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
-
-
-# --- geometry on the model (local metres) --------------------------------------------------
-
-def arc_lengths(points: np.ndarray) -> np.ndarray:
-    """Cumulative length along a polyline, starting at 0."""
-    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
-
-
-def distance_samples(centerline: Polyline, edge: Polyline, window: float = APOLLO_SAMPLE_WINDOW_M
-                     ) -> list[tuple[float, float]]:
-    """(s, local distance from the centreline point at s to `edge`) at every centreline vertex.
-
-    Only the part of `edge` within `window` metres of the same relative position counts, so a
-    curve that bends back near itself (a hairpin) does not pinch the measured width.
-    """
-    pts = np.asarray(centerline, dtype=float)
-    e = np.asarray(edge, dtype=float)
-    s = arc_lengths(pts)
-    se = arc_lengths(e)
-    a, b = e[:-1], e[1:]
-    ab = b - a
-    ap = pts[:, None, :] - a[None, :, :]
-    t = np.clip(np.einsum("nmk,mk->nm", ap, ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-18), 0.0, 1.0)
-    d = np.hypot(*(ap - t[..., None] * ab[None]).transpose(2, 0, 1))
-    here = s / max(s[-1], 1e-12) * se[-1]  # the same relative position on the edge
-    near = (se[None, 1:] >= here[:, None] - window) & (se[None, :-1] <= here[:, None] + window)
-    d = np.where(near, d, np.inf).min(axis=1)
-    return list(zip(s.tolist(), d.tolist()))
-
-
-def stop_line_range(centerline: Polyline, stop_line: Polyline, half: float = APOLLO_STOP_LINE_OVERLAP_M
-                    ) -> tuple[float, float]:
-    """s range on a lane around where the stop line meets its centreline, clamped to the lane."""
-    line = LineString(centerline)
-    a = shapely.get_coordinates(shapely.shortest_line(line, LineString(stop_line)))[0]
-    s = line.project(shapely.Point(a))
-    return max(0.0, s - half), min(line.length, s + half)
-
-
-def polygon_range(centerline: Polyline, polygon: Polyline) -> tuple[float, float] | None:
-    """s range of the centreline covered by `polygon`, or None when they do not meet."""
-    line = LineString(centerline)
-    inter = line.intersection(Polygon(polygon))
-    if inter.is_empty or inter.length <= 0.0:
-        return None
-    ss = [line.project(shapely.Point(c)) for c in shapely.get_coordinates(inter)]
-    return min(ss), max(ss)
-
-
-def exact_end_centerline(ln: Lane, step: float = APOLLO_END_TANGENT_M) -> Polyline:
-    """The centreline with a point `step` metres inside each end taken from the lane's exact
-    Bézier, so the first and last chords follow the true end tangents (Apollo, and any reader,
-    takes a lane's end headings from them); unchanged for lanes without a Bézier."""
-    pts = ln.centerline
-    bz = ln.bezier
-    if bz is None or len(pts) < 2 or bz.length <= 4 * step:
-        return pts
-    if math.dist(pts[0], bz.p0) > 1e-6 or math.dist(pts[-1], bz.p3) > 1e-6:
-        return pts
-    eps = step / bz.length
-    if math.dist(pts[0], pts[1]) <= 2 * step or math.dist(pts[-2], pts[-1]) <= 2 * step:
-        return pts
-    a, b = (tuple(map(float, p)) for p in bz.point(np.array([eps, 1.0 - eps])))
-    return (pts[0], a) + tuple(pts[1:-1]) + (b, pts[-1])
-
-
-def offset_polyline(points: Polyline, d: float) -> Polyline:
-    """`points` shifted `d` metres to the left along vertex normals (central differences)."""
-    p = np.asarray(points, dtype=float)
-    t = np.gradient(p, axis=0)
-    t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-12)[:, None]
-    return as_polyline(p + d * np.column_stack([-t[:, 1], t[:, 0]]))
-
-
-def _usable(points: Polyline) -> bool:
-    """At least two points more than 1 mm apart (the validator counts 0.1 mm as distinct)."""
-    p = np.asarray(points, dtype=float).reshape(-1, 2)
-    return len(p) >= 2 and bool((np.abs(p - p[0]).max(axis=1) > 1e-3).any())
-
-
-def usable_boundaries(m: HDMap) -> HDMap:
-    """`m` with every degenerate lane boundary (fewer than 2 distinct points: the inner side of
-    a tight U-turn collapses to its pivot) replaced by the centreline offset by half the lane
-    width. Raises Feat2MapError naming the lane when a centreline or repair is degenerate."""
-    fixed = {}
-    for ln in m.lanes.values():
-        if not _usable(ln.centerline):
-            raise Feat2MapError("centerline needs 2 or more distinct points", f"lane {ln.id}")
-        sides = {}
-        for name, sign in (("left_boundary", 1.0), ("right_boundary", -1.0)):
-            if not _usable(getattr(ln, name)):
-                sides[name] = offset_polyline(ln.centerline, sign * ln.width / 2)
-                if not _usable(sides[name]):
-                    raise Feat2MapError(f"{name} needs 2 or more distinct points", f"lane {ln.id}")
-        if sides:
-            fixed[ln.id] = dataclasses.replace(ln, **sides)
-    if not fixed:
-        return m
-    return dataclasses.replace(m, lanes={k: fixed.get(k, ln) for k, ln in m.lanes.items()})
 
 
 def stop_sign_types(m: HDMap) -> dict[str | None, int]:
@@ -158,30 +58,6 @@ def stop_sign_types(m: HDMap) -> dict[str | None, int]:
                     if p in m.lanes and m.lanes[p].junction_id != jid} if jid is not None else set()
         out[jid] = aps.StopSign.ALL_WAY if entering and entering <= lanes else ways[min(count[jid], 4) - 1]
     return out
-
-
-def road_edges(m: HDMap, lane: Lane) -> tuple[Polyline, Polyline]:
-    """(left, right) edge of the carriageway around `lane`, each in the lane's direction.
-
-    Left: across same-direction left neighbours, then the reverse lanes beyond the divider to
-    the outermost one's right boundary; right: the outermost right neighbour's right boundary.
-    """
-    def walk(lid: str, attr: str) -> Lane:
-        seen = {lid}
-        cur = m.lanes[lid]
-        while (nxt := [n for n in getattr(cur, attr) if n in m.lanes and n not in seen]):
-            seen.add(nxt[0])
-            cur = m.lanes[nxt[0]]
-        return cur
-
-    right = walk(lane.id, "right_neighbors").right_boundary
-    leftmost = walk(lane.id, "left_neighbors")
-    reverse = [n for n in leftmost.left_reverse_neighbors if n in m.lanes]
-    if reverse:
-        left = tuple(reversed(walk(reverse[0], "right_neighbors").right_boundary))
-    else:
-        left = leftmost.left_boundary
-    return left, right
 
 
 # --- Apollo messages ----------------------------------------------------------------------
@@ -430,85 +306,6 @@ class _Overlaps:
             if rng is not None:
                 getattr(o, info).start_s, getattr(o, info).end_s = float(rng[0]), float(rng[1])
             obj.overlap_id.add(id=ov.id.id)
-
-
-# --- sim_map (Apollo's modules/map/tools/sim_map_generator) ------------------------------------
-
-def downsample_by_angle(points: np.ndarray, threshold: float = SIM_MAP_ANGLE_THRESHOLD_RAD) -> list[int]:
-    """Indices kept when the direction change accumulated since the last kept point exceeds
-    `threshold` (Apollo's DownsampleByAngle: segment `start` against each later segment)."""
-    n = len(points)
-    if n == 0:
-        return []
-    out = [0]
-    if n > 1:
-        d = np.diff(np.asarray(points, dtype=float).reshape(-1, 2), axis=0)
-        dx, dy = d[:, 0].tolist(), d[:, 1].tolist()  # plain floats: this loop is the hot path
-        norm = [math.hypot(x, y) for x, y in zip(dx, dy)]
-        start, end, acc = 0, 1, 0.0
-        while end < n - 1:
-            denom = norm[start] * norm[end]
-            cosv = (dx[start] * dx[end] + dy[start] * dy[end]) / denom if denom > 0 else math.nan
-            acc += math.acos(cosv) if -1.0 <= cosv <= 1.0 else 0.0  # acos out of range: NaN -> 0
-            if acc > threshold:
-                out.append(end)
-                start, acc = end, 0.0
-            end += 1
-        out.append(end)
-    return out
-
-
-def downsample_by_distance(points: np.ndarray, distance: float = SIM_MAP_DOWNSAMPLE_DISTANCE_M,
-                           steep_distance: float = SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M) -> list[int]:
-    """Indices kept every `distance` metres (`steep_distance` when the curve turns by 90 degrees
-    or more end to end); first and last always; 4 points or fewer are kept whole."""
-    n = len(points)
-    if n <= 4:
-        return list(range(n))
-    p = np.asarray(points, dtype=float).reshape(-1, 2)
-    v0, v1 = p[1] - p[0], p[-1] - p[-2]
-    step = steep_distance if float(v0 @ v1) <= 0 else distance
-    seg = np.hypot(*np.diff(p, axis=0).T).tolist()
-    out, acc = [0], 0.0
-    for pos in range(1, n - 1):
-        acc += seg[pos - 1]
-        if acc > step:
-            out.append(pos)
-            acc = 0.0
-    out.append(n - 1)
-    return out
-
-
-def _downsample_curve(curve: Any) -> None:
-    if not curve.segment:
-        return
-    pts_field = curve.segment[0].line_segment.point
-    pts = [(p.x, p.y, p.z) for p in pts_field]
-    xy = np.asarray([(p[0], p[1]) for p in pts], dtype=float).reshape(-1, 2)
-    by_angle = downsample_by_angle(xy)
-    first = [pts[i] for i in by_angle]
-    keep = downsample_by_distance(xy[by_angle])
-    del pts_field[:]
-    for i in keep:
-        x, y, z = first[i]
-        p = pts_field.add()
-        p.x, p.y = x, y
-        if z:
-            p.z = z
-
-
-def to_sim_map(base: Any) -> Any:
-    """Apollo's sim_map: lane width and road samples cleared, segment 0 of each lane's three
-    curves downsampled by angle (1 degree) then distance (5 m, 1 m on steep turns)."""
-    sim = aps.Map()
-    sim.CopyFrom(base)
-    for lane in sim.lane:
-        for field in ("left_sample", "right_sample", "left_road_sample", "right_road_sample"):
-            lane.ClearField(field)
-        _downsample_curve(lane.central_curve)
-        _downsample_curve(lane.left_boundary.curve)
-        _downsample_curve(lane.right_boundary.curve)
-    return sim
 
 
 # --- files --------------------------------------------------------------------------------

@@ -1,0 +1,137 @@
+"""Geometry the Apollo export needs, computed on the map model (local metres): arc lengths,
+half-width and road-edge samples, stop-line and crosswalk s ranges on centrelines, exact end
+tangents, repaired degenerate boundaries, and a lane's carriageway edges."""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from .config import APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_STOP_LINE_OVERLAP_M
+from .errors import Feat2MapError
+from .model import HDMap, Lane, Polyline, as_polyline
+
+
+def arc_lengths(points: np.ndarray) -> np.ndarray:
+    """Cumulative length along a polyline, starting at 0."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+
+
+def distance_samples(centerline: Polyline, edge: Polyline, window: float = APOLLO_SAMPLE_WINDOW_M
+                     ) -> list[tuple[float, float]]:
+    """(s, local distance from the centreline point at s to `edge`) at every centreline vertex.
+
+    Only the part of `edge` within `window` metres of the same relative position counts, so a
+    curve that bends back near itself (a hairpin) does not pinch the measured width.
+    """
+    pts = np.asarray(centerline, dtype=float)
+    e = np.asarray(edge, dtype=float)
+    s = arc_lengths(pts)
+    se = arc_lengths(e)
+    a, b = e[:-1], e[1:]
+    ab = b - a
+    ap = pts[:, None, :] - a[None, :, :]
+    t = np.clip(np.einsum("nmk,mk->nm", ap, ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-18), 0.0, 1.0)
+    d = np.hypot(*(ap - t[..., None] * ab[None]).transpose(2, 0, 1))
+    here = s / max(s[-1], 1e-12) * se[-1]  # the same relative position on the edge
+    near = (se[None, 1:] >= here[:, None] - window) & (se[None, :-1] <= here[:, None] + window)
+    d = np.where(near, d, np.inf).min(axis=1)
+    return list(zip(s.tolist(), d.tolist()))
+
+
+def stop_line_range(centerline: Polyline, stop_line: Polyline, half: float = APOLLO_STOP_LINE_OVERLAP_M
+                    ) -> tuple[float, float]:
+    """s range on a lane around where the stop line meets its centreline, clamped to the lane."""
+    line = LineString(centerline)
+    a = shapely.get_coordinates(shapely.shortest_line(line, LineString(stop_line)))[0]
+    s = line.project(shapely.Point(a))
+    return max(0.0, s - half), min(line.length, s + half)
+
+
+def polygon_range(centerline: Polyline, polygon: Polyline) -> tuple[float, float] | None:
+    """s range of the centreline covered by `polygon`, or None when they do not meet."""
+    line = LineString(centerline)
+    inter = line.intersection(Polygon(polygon))
+    if inter.is_empty or inter.length <= 0.0:
+        return None
+    ss = [line.project(shapely.Point(c)) for c in shapely.get_coordinates(inter)]
+    return min(ss), max(ss)
+
+
+def exact_end_centerline(ln: Lane, step: float = APOLLO_END_TANGENT_M) -> Polyline:
+    """The centreline with a point `step` metres inside each end taken from the lane's exact
+    Bézier, so the first and last chords follow the true end tangents (Apollo, and any reader,
+    takes a lane's end headings from them); unchanged for lanes without a Bézier."""
+    pts = ln.centerline
+    bz = ln.bezier
+    if bz is None or len(pts) < 2 or bz.length <= 4 * step:
+        return pts
+    if math.dist(pts[0], bz.p0) > 1e-6 or math.dist(pts[-1], bz.p3) > 1e-6:
+        return pts
+    eps = step / bz.length
+    if math.dist(pts[0], pts[1]) <= 2 * step or math.dist(pts[-2], pts[-1]) <= 2 * step:
+        return pts
+    a, b = (tuple(map(float, p)) for p in bz.point(np.array([eps, 1.0 - eps])))
+    return (pts[0], a) + tuple(pts[1:-1]) + (b, pts[-1])
+
+
+def offset_polyline(points: Polyline, d: float) -> Polyline:
+    """`points` shifted `d` metres to the left along vertex normals (central differences)."""
+    p = np.asarray(points, dtype=float)
+    t = np.gradient(p, axis=0)
+    t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-12)[:, None]
+    return as_polyline(p + d * np.column_stack([-t[:, 1], t[:, 0]]))
+
+
+def _usable(points: Polyline) -> bool:
+    """At least two points more than 1 mm apart (the validator counts 0.1 mm as distinct)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    return len(p) >= 2 and bool((np.abs(p - p[0]).max(axis=1) > 1e-3).any())
+
+
+def usable_boundaries(m: HDMap) -> HDMap:
+    """`m` with every degenerate lane boundary (fewer than 2 distinct points: the inner side of
+    a tight U-turn collapses to its pivot) replaced by the centreline offset by half the lane
+    width. Raises Feat2MapError naming the lane when a centreline or repair is degenerate."""
+    fixed = {}
+    for ln in m.lanes.values():
+        if not _usable(ln.centerline):
+            raise Feat2MapError("centerline needs 2 or more distinct points", f"lane {ln.id}")
+        sides = {}
+        for name, sign in (("left_boundary", 1.0), ("right_boundary", -1.0)):
+            if not _usable(getattr(ln, name)):
+                sides[name] = offset_polyline(ln.centerline, sign * ln.width / 2)
+                if not _usable(sides[name]):
+                    raise Feat2MapError(f"{name} needs 2 or more distinct points", f"lane {ln.id}")
+        if sides:
+            fixed[ln.id] = dataclasses.replace(ln, **sides)
+    if not fixed:
+        return m
+    return dataclasses.replace(m, lanes={k: fixed.get(k, ln) for k, ln in m.lanes.items()})
+
+
+def road_edges(m: HDMap, lane: Lane) -> tuple[Polyline, Polyline]:
+    """(left, right) edge of the carriageway around `lane`, each in the lane's direction.
+
+    Left: across same-direction left neighbours, then the reverse lanes beyond the divider to
+    the outermost one's right boundary; right: the outermost right neighbour's right boundary.
+    """
+    def walk(lid: str, attr: str) -> Lane:
+        seen = {lid}
+        cur = m.lanes[lid]
+        while (nxt := [n for n in getattr(cur, attr) if n in m.lanes and n not in seen]):
+            seen.add(nxt[0])
+            cur = m.lanes[nxt[0]]
+        return cur
+
+    right = walk(lane.id, "right_neighbors").right_boundary
+    leftmost = walk(lane.id, "left_neighbors")
+    reverse = [n for n in leftmost.left_reverse_neighbors if n in m.lanes]
+    if reverse:
+        left = tuple(reversed(walk(reverse[0], "right_neighbors").right_boundary))
+    else:
+        left = leftmost.left_boundary
+    return left, right
