@@ -57,6 +57,12 @@ class Bezier:
         d = self.derivative(t)
         return np.arctan2(d[..., 1], d[..., 0])
 
+    def offset_point(self, t: np.ndarray | float, offset: float) -> np.ndarray:
+        """The true offset curve: B(t) moved `offset` metres along its left unit normal."""
+        d = self.derivative(t)
+        n = np.stack([-d[..., 1], d[..., 0]], axis=-1)
+        return self.point(t) + offset * n / np.maximum(np.hypot(n[..., 0], n[..., 1]), 1e-12)[..., None]
+
     @cached_property
     def _arc(self) -> tuple[np.ndarray, np.ndarray]:
         pts = self.point(_T_DENSE)

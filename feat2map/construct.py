@@ -85,16 +85,20 @@ class _Builder:
         self.beziers: dict[str, Bezier] = {}
 
     def lane_curves(self, start, h0, end, h1, offset: float) -> tuple[Bezier, np.ndarray, np.ndarray, np.ndarray]:
-        """Centre and (left, right) boundaries of a lane `offset` metres left of start->end."""
+        """A lane `offset` metres left of the reference Bézier start->end: its end-pose Bézier
+        and its centre and (left, right) boundary polylines.
+
+        The polylines are true offsets of the reference, so lanes keep their width on any bend
+        (Béziers between offset end poses pinch on S-bends); the returned Bézier shares the
+        centreline's end points and end tangents, which is what links and features use."""
         w = self.cfg.lane_width / 2
-
-        def curve(o: float) -> Bezier:
-            return Bezier.from_poses(tuple(np.asarray(start) + o * left_normal(h0)), h0,
-                                     tuple(np.asarray(end) + o * left_normal(h1)), h1)
-
-        centre = curve(offset)
-        ts = centre.sample_params(self.cfg.sample_spacing)  # boundaries share the centre's parameters
-        return centre, centre.point(ts), curve(offset + w).point(ts), curve(offset - w).point(ts)
+        reference = Bezier.from_poses(start, h0, end, h1)
+        centre = reference if offset == 0.0 else Bezier.from_poses(
+            tuple(np.asarray(start) + offset * left_normal(h0)), h0, tuple(np.asarray(end) + offset * left_normal(h1)), h1)
+        ts = reference.sample_params(self.cfg.sample_spacing)  # centre and boundaries share parameters
+        pts = reference.offset_point(ts, offset)
+        pts[0], pts[-1] = centre.p0, centre.p3  # exactly the end poses the links were built on
+        return centre, pts, reference.offset_point(ts, offset + w), reference.offset_point(ts, offset - w)
 
     def add_lane(self, lane_id: str, road_id: str, centre: Bezier, pts, left, right, *, speed: float,
                  junction_id: str | None = None, turn: str = "none", ltype: str = "solid_white",

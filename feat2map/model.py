@@ -44,7 +44,9 @@ class Lane:
     junction_id: str | None = None
     left_boundary_type: str = "solid_white"
     right_boundary_type: str = "solid_white"
-    bezier: Bezier | None = None  # exact geometry when the lane is one cubic Bézier
+    # the lane as one cubic Bézier between its end poses: its exact geometry for junction lanes;
+    # generated road lanes are true offsets of their road's Bézier with the same end poses
+    bezier: Bezier | None = None
 
     @cached_property
     def points(self) -> np.ndarray:
