@@ -21,7 +21,7 @@ from feat2map import PAPER_SF_FEATURE_SPACE, mapio
 from feat2map.generate import generate_from_features
 from feat2map.model import HDMap
 from feat2map.sampling import sample_features
-from feat2map.scenarios.routes import BASE_DURATION_S, SECONDS_PER_JUNCTION, Route, coverage_routes, render_routes
+from feat2map.scenarios.routes import Route, coverage_routes, render_routes, route_duration
 from feat2map.scenarios.scenario import Scenario, Suite, save_suite
 
 MAP_SEED = 1
@@ -72,7 +72,7 @@ def ci_suite(map_path: Path) -> Suite:
     scenarios = tuple(
         Scenario(name=f"ci-{i:02d}-" + "-".join(mv[0] for mv in r), map=str(map_path), route=r,
                  traffic_vehicles=TRAFFIC_VEHICLES, pedestrian_rate=PEDESTRIAN_RATE, seed=i,
-                 duration=BASE_DURATION_S + SECONDS_PER_JUNCTION * len(r))
+                 duration=route_duration(m, r))
         for i, r in enumerate(ci_routes(m)))
     return Suite("ci", scenarios, map_path.parent)
 

@@ -17,6 +17,8 @@ from .scenario import Manoeuvre, Scenario, Suite
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
 BASE_DURATION_S = 20.0
+ROUTE_SPEED_MPS = 8.0  # plus the route's length at this speed
+START_AND_GOAL_M = 45.0  # the env starts the ego <= 30 m before the first junction and ends 15 m after the last
 
 Route = tuple[Manoeuvre, ...]
 
@@ -139,6 +141,43 @@ def _chains(graph: dict[Manoeuvre, list[Manoeuvre]], start: Manoeuvre, depth: in
     return out
 
 
+def route_length(m: HDMap, route: Sequence[Manoeuvre]) -> float:
+    """Metres the ego drives on `route` (from the env's start to its goal): the env's junction
+    lanes, the road lanes joining them, and the start and goal stretches."""
+    picks = [pick_lane(m, tuple(str(x) for x in mv)) for mv in route]
+    if any(p is None for p in picks):
+        raise ValueError(f"route {list(route)} has a manoeuvre the map does not allow")
+    total = START_AND_GOAL_M + sum(p.length for p in picks)
+    for a, b in zip(picks, picks[1:]):
+        total += _road_gap(m, a, b)
+    return total
+
+
+def _road_gap(m: HDMap, a: Lane, b: Lane) -> float:
+    """Length of the shortest chain of road lanes from junction lane `a` to junction lane `b`."""
+    import heapq
+
+    heap = [(m.lanes[s].length, s) for s in a.successors if s in m.lanes and m.lanes[s].junction_id is None]
+    heapq.heapify(heap)
+    seen: set[str] = set()
+    while heap:
+        d, lid = heapq.heappop(heap)
+        if lid in b.predecessors:
+            return d
+        if lid in seen:
+            continue
+        seen.add(lid)
+        for s in m.lanes[lid].successors:
+            if s in m.lanes and m.lanes[s].junction_id is None and s not in seen:
+                heapq.heappush(heap, (d + m.lanes[s].length, s))
+    return 0.0
+
+
+def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
+    """A scenario duration [s] that leaves time for every junction and for the distance."""
+    return round(BASE_DURATION_S + SECONDS_PER_JUNCTION * len(route) + route_length(m, route) / ROUTE_SPEED_MPS, 1)
+
+
 def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:
     """Fraction of the manoeuvres of `m` that the routes drive (1.0 for a map without any)."""
     all_moves = set(manoeuvres(m))
@@ -152,7 +191,7 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                 max_junctions: int = DEFAULT_ROUTE_JUNCTIONS, duration: float | None = None,
                 name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
     """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
-    `seed`, `seed + 1`, ...; duration per route from its junction count unless given."""
+    `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given."""
     from ..readers import read_map
 
     path = Path(map_path)
@@ -162,7 +201,7 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
     scenarios = tuple(
         Scenario(name=f"{stem}-r{i:03d}", map=str(path.resolve()), route=r, traffic_vehicles=traffic_vehicles,
                  pedestrian_rate=pedestrian_rate, signal_offsets=dict(signal_offsets or {}), seed=seed + i,
-                 duration=duration if duration is not None else BASE_DURATION_S + SECONDS_PER_JUNCTION * len(r))
+                 duration=duration if duration is not None else route_duration(m, r))
         for i, r in enumerate(routes))
     return Suite(stem, scenarios, path.resolve().parent)
 

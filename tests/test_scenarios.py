@@ -19,8 +19,8 @@ import feat2map
 from feat2map import mapio
 from feat2map.envs.map_env import manoeuvres_to_lanes
 from feat2map.envs.network import MapNetwork
-from feat2map.scenarios.routes import (build_suite, coverage_routes, manoeuvres, render_routes, route_coverage,
-                                       successor_graph)
+from feat2map.scenarios.routes import (START_AND_GOAL_M, build_suite, coverage_routes, manoeuvres, render_routes,
+                                       route_coverage, route_duration, route_length, successor_graph)
 from feat2map.scenarios.scenario import (Scenario, ScenarioError, Suite, load_suite, make_env, save_suite,
                                          suite_from_dict)
 
@@ -165,6 +165,9 @@ def test_coverage_routes_cover_every_manoeuvre_and_are_drivable(seed):
         assert m.lanes[lanes[0]].junction_id is None and m.lanes[lanes[-1]].junction_id is None  # road to road
         crossed = [m.lanes[l].junction_id for l in lanes if m.lanes[l].junction_id is not None]
         assert crossed == [mv[0] for mv in r]  # ... and crosses exactly the named junctions
+        inner = sum(m.lanes[l].length for l in lanes[1:-1])
+        assert route_length(m, r) == pytest.approx(inner + START_AND_GOAL_M)  # the env's lanes
+        assert route_duration(m, r) > inner / 10.0
 
 
 def test_coverage_is_deterministic_and_partial_coverage_is_measured(m1):
@@ -241,14 +244,28 @@ def test_make_env_applies_the_scenario(map_file, m1):
 
 
 # ---- the CI suite -------------------------------------------------------------------------
+def same_numbers(a, b, tol: float = 1e-6) -> bool:
+    """Equal JSON documents up to float rounding (generator arithmetic may change last digits)."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(same_numbers(a[k], b[k], tol) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(same_numbers(x, y, tol) for x, y in zip(a, b))
+    if isinstance(a, float) or isinstance(b, float):
+        return isinstance(a, (int, float)) and isinstance(b, (int, float)) and abs(a - b) <= tol
+    return a == b
+
+
 def test_ci_suite_is_valid_current_and_touches_every_junction_type(tmp_path):
     from feat2map.scenarios import make_ci_suite
 
     suite = load_suite(REPO / "scenarios" / "ci_suite.yaml")
     m = mapio.load(REPO / "scenarios" / "ci_map.json")
     assert make_ci_suite.main(["--out-dir", str(tmp_path)]) == 0  # the script regenerates the same files
-    assert (tmp_path / "ci_map.json").read_bytes() == (REPO / "scenarios" / "ci_map.json").read_bytes()
-    assert (tmp_path / "ci_suite.yaml").read_text() == (REPO / "scenarios" / "ci_suite.yaml").read_text()
+    stale = "stale: regenerate with .venv/bin/python scenarios/make_ci_suite.py --picture"
+    assert same_numbers(json.loads((tmp_path / "ci_map.json").read_text()),
+                        json.loads((REPO / "scenarios" / "ci_map.json").read_text())), f"ci_map.json {stale}"
+    assert (tmp_path / "ci_suite.yaml").read_text() == (REPO / "scenarios" / "ci_suite.yaml").read_text(), \
+        f"ci_suite.yaml {stale}"
     types = {(j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in m.junctions.values()}
     assert {c for _, c, _ in types} == {"signal", "stop", "bare"} and len(types) == len(m.junctions) == 6
     routes = [sc.route for sc in suite.scenarios]
