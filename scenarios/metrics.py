@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
-from .rollout import OUTCOMES, ROAD_CONTEXT, Outcome, SuiteResult
+from .rollout import MIXED_DIGEST, ROAD_CONTEXT, Outcome, SuiteResult
 
 FULL_COVERAGE_SHARE = 0.95  # "junctions to reach 95% of the suite's lines/transitions"
 
@@ -192,8 +192,9 @@ def compare(results: Mapping[str, SuiteResult] | Sequence[SuiteResult]) -> Compa
                      len({p for _, p in c.paths}), len(c.all_pairs), len(c.all_transitions), lines, reach,
                      len(c.all_transitions - others_t), len(c.all_lines - others_l) if r.coverage else "-"))
     digests = {r.planner_digest for r in res if r.coverage}
-    warnings = []
-    if len(digests) > 1:
+    warnings = [f"{n}: the planner's sources changed during the run: its line counts mix versions"
+                for n, r in zip(names, res) if r.coverage and r.planner_digest == MIXED_DIGEST]
+    if len(digests - {MIXED_DIGEST}) > 1:
         warnings.append("the suites measured different planner sources (planner_digest differs): "
                         "their line counts are not comparable")
     return Comparison(names=names, coverages=covs, rows=tuple(rows), warnings=tuple(warnings))
@@ -241,7 +242,3 @@ def plot_accumulated(comparison: Comparison, path: str | Path, title: str = "") 
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
-
-def outcome_counts(result: SuiteResult) -> dict[str, int]:
-    """Scenarios per outcome kind (all kinds, zeros included)."""
-    return {k: result.counts().get(k, 0) for k in OUTCOMES}

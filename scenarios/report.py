@@ -16,7 +16,7 @@ from feat2map import atomic
 from feat2map.errors import Feat2MapError
 
 from .metrics import compare, junctions_to_reach, plot_accumulated, suite_coverage
-from .rollout import FAIL_POLICIES, OUTCOMES, Outcome, SuiteResult
+from .rollout import FAIL_POLICIES, MIXED_DIGEST, OUTCOMES, Outcome, SuiteResult
 
 SUMMARY = "summary.json"
 JUNIT = "junit.xml"
@@ -141,6 +141,8 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
                                                       for a, b in sorted(cov.all_transitions)) + "."]
     if result.coverage:
         acc = cov.accumulated_lines
+        if result.planner_digest == MIXED_DIGEST:
+            lines += ["", "Warning: the planner's sources changed during the run; line numbers mix versions."]
         new = cov.new_lines()
         lines += ["", "## Planner line coverage", "",
                   f"{len(cov.all_lines)} lines of the planner covered; {junctions_to_reach(acc)} of "

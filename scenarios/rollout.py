@@ -1,13 +1,14 @@
 """Headless rollouts of scenarios with a planner under test: one `Outcome` per scenario, a
 `SuiteResult` per suite, run in-process, over spawned processes, or on Ray.
 
-Determinism: every scenario builds its own env from its own seed and a fresh planner, so the
-results (everything but wall-clock times and GIF bytes) do not depend on the worker count or
-the backend. Failures are re-run with `render_mode="rgb_array"` to record a GIF, so only
+Determinism: every scenario builds its own env from its own seed and a fresh planner, and
+every worker runs with PYTHONHASHSEED=HASH_SEED, so the results (everything but wall-clock
+times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run with `render_mode="rgb_array"` to record a GIF, so only
 failing scenarios pay for rendering.
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import importlib
@@ -20,7 +21,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 from feat2map.errors import Feat2MapError
 
@@ -32,11 +33,15 @@ FAIL_POLICIES = {  # --fail-on: which outcomes make the run fail
     "none": frozenset(),
 }
 BACKENDS = ("process", "ray")
-ROAD_CONTEXT = "(road)"  # code-coverage context before the first junction is known
+ROAD_CONTEXT = "(road)"
+MIXED_DIGEST = "mixed"  # SuiteResult.planner_digest when the planner's sources changed mid-run  # code-coverage context before the first junction is known
 GIF_MAX_FRAMES = 160  # failure GIFs are subsampled to at most this many frames
 GIF_WIDTH_PX = 360  # and scaled down to this width
 GIF_SPEEDUP = 2.0  # playback speed relative to simulated time
 MAX_STEPS_SAFETY = 100_000  # guards against an env that never ends
+HASH_SEED = "0"  # PYTHONHASHSEED of every worker: set iteration orders (and so which planner lines
+# run) must not differ between processes; a suite therefore runs in spawned workers (even one)
+# unless this process was started with the same PYTHONHASHSEED
 
 
 # ---- planner specs ----------------------------------------------------------------------------
@@ -131,6 +136,7 @@ class Outcome:
     message: str = ""
     seed: int | None = None
     map: str = ""
+    planner_digest: str = ""  # of the planner sources this scenario measured (coverage on)
     wall_s: float = field(default=0.0, compare=False)
     gif: bytes | None = field(default=None, compare=False, repr=False)
 
@@ -163,7 +169,7 @@ class Outcome:
                 events=tuple((int(s), float(t), j, str(sc), str(st)) for s, t, j, sc, st in d.get("events", ())),
                 junction_lines={str(j): tuple(v) for j, v in d.get("junction_lines", {}).items()},
                 message=str(d.get("message", "")), seed=d.get("seed"), map=str(d.get("map", "")),
-                wall_s=float(d.get("wall_s", 0.0)))
+                planner_digest=str(d.get("planner_digest", "")), wall_s=float(d.get("wall_s", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise Feat2MapError(f"malformed outcome ({exc!r})", where) from None
 
@@ -176,7 +182,7 @@ class SuiteResult:
     planner: str
     outcomes: tuple[Outcome, ...]
     coverage: bool = False
-    planner_digest: str = ""  # sha256 of the measured planner sources: line numbers compare only within one
+    planner_digest: str = ""  # of the measured planner sources (MIXED_DIGEST if scenarios differ)
     workers: int = field(default=1, compare=False)
     backend: str = field(default="process", compare=False)
     wall_s: float = field(default=0.0, compare=False)
@@ -281,12 +287,19 @@ def _module_files(policy: Any, extra: Iterable[str] = ()) -> dict[str, str]:
     return files
 
 
-def planner_digest(policy: Any, extra: Iterable[str] = ()) -> str:
-    """sha256 (hex, 16 digits) of the planner's measured source files, in module order."""
+def _digest(files: Mapping[str, str]) -> str:
+    """sha256 (hex, 16 digits) of the planner's measured source files {path: module}."""
     h = hashlib.sha256()
-    for path, mod in sorted(_module_files(policy, extra).items(), key=lambda kv: kv[1]):
+    for path, mod in sorted(files.items(), key=lambda kv: kv[1]):
         h.update(mod.encode() + b"\0" + Path(path).read_bytes() + b"\0")
     return h.hexdigest()[:16]
+
+
+def suite_digest(outcomes: Iterable[Outcome]) -> str:
+    """The planner digest all measured scenarios share, or MIXED_DIGEST when the planner's
+    sources changed during the run (its line numbers then do not compare)."""
+    digests = {o.planner_digest for o in outcomes if o.planner_digest}
+    return digests.pop() if len(digests) == 1 else (MIXED_DIGEST if digests else "")
 
 
 class _LineCoverage:
@@ -296,6 +309,7 @@ class _LineCoverage:
         import coverage
 
         self.files = dict(files)
+        self.digest = _digest(self.files)
         self.cov = coverage.Coverage(data_file=None, config_file=False, branch=False,
                                      include=list(self.files))
         self.cov.set_option("run:disable_warnings", ["no-data-collected", "module-not-measured",
@@ -379,6 +393,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         env.close()
     kind = classify(info)
     events = _events(policy)
+    digest = cov.digest if cov else ""
     path = tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
     ev_path = stage_path_of(events)
     outcome = Outcome(
@@ -388,7 +403,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         transitions=tuple(zip(ev_path, ev_path[1:])), junctions=tuple(visited),
         route_progress=round(float(info.get("route_progress", 0.0)), 6), events=events,
         junction_lines=lines, message=_message(kind, info, first_violation), seed=getattr(scenario, "seed", None),
-        map=str(getattr(scenario, "map", "")), wall_s=time.perf_counter() - t0)
+        map=str(getattr(scenario, "map", "")), planner_digest=digest, wall_s=time.perf_counter() - t0)
     return outcome, frames
 
 
@@ -492,20 +507,36 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     try:
         if backend == "ray":
             _run_ray(tasks, workers, done)
-        elif workers == 1 or len(tasks) <= 1:
-            for t in tasks:
+        elif workers == 1 and os.environ.get("PYTHONHASHSEED") == HASH_SEED:
+            for t in tasks:  # this process already hashes like the workers would
                 done(*_run_task(t))
-        else:
-            with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=get_context("spawn")) as pool:
+        elif tasks:
+            with _env_var("PYTHONHASHSEED", HASH_SEED), \
+                    ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=get_context("spawn")) as pool:
                 futures = [pool.submit(_run_task, t) for t in tasks]
                 for fut in as_completed(futures):
                     done(*fut.result())
     finally:
         bar.close()
+    outcomes = tuple(results[i] for i in range(len(tasks)))
     return SuiteResult(name=str(getattr(suite, "name", "suite")), planner=getattr(factory, "name", str(planner)),
-                       outcomes=tuple(results[i] for i in range(len(tasks))), coverage=coverage,
-                       planner_digest=planner_digest(factory(), coverage_modules) if coverage else "",
+                       outcomes=outcomes, coverage=coverage,
+                       planner_digest=suite_digest(outcomes) if coverage else "",
                        workers=workers, backend=backend, wall_s=time.perf_counter() - t0)
+
+
+@contextlib.contextmanager
+def _env_var(name: str, value: str) -> Iterator[None]:
+    """Set an environment variable while spawning workers (they inherit it), then restore it."""
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = old
 
 
 def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome], None]) -> None:
@@ -520,7 +551,7 @@ def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome]
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
                  runtime_env={"env_vars": {"SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}})
     try:
-        remote = ray.remote(num_cpus=1)(_run_task)
+        remote = ray.remote(num_cpus=1, runtime_env={"env_vars": {"PYTHONHASHSEED": HASH_SEED}})(_run_task)
         pending = [remote.remote(t) for t in tasks]
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)

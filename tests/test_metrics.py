@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -20,7 +21,7 @@ from feat2map.scenarios import planner as planner_module
 from feat2map.scenarios.metrics import (Comparison, compare, junctions_to_reach, outcome_behaviour,
                                         suite_coverage)
 from feat2map.scenarios.report import write_report
-from feat2map.scenarios.rollout import ROAD_CONTEXT, Outcome, SuiteResult, run_suite
+from feat2map.scenarios.rollout import MIXED_DIGEST, ROAD_CONTEXT, Outcome, SuiteResult, run_suite, suite_digest
 from feat2map.scenarios.routes import build_suite
 from feat2map.scenarios.scenario import Suite
 
@@ -142,3 +143,8 @@ def test_compare_warns_when_planner_sources_differ(runs):
     t = compare([SuiteResult("x", "p", (a,), coverage=True, planner_digest="aa"),
                  SuiteResult("x", "p", (a,), coverage=True, planner_digest="bb")])
     assert t.names == ("x", "x (2)") and len(t.warnings) == 1 and "Warning: " in t.to_markdown()
+    # a planner edited mid-run: scenarios measured different sources
+    mixed = (replace(a, planner_digest="aa"), replace(a, name="b", planner_digest="bb"))
+    assert suite_digest(mixed) == MIXED_DIGEST and suite_digest(mixed[:1]) == "aa"
+    t = compare({"m": SuiteResult("m", "p", mixed, coverage=True, planner_digest=MIXED_DIGEST)})
+    assert t.warnings and "changed during the run" in t.warnings[0]
