@@ -10,7 +10,7 @@ Scenarios and their stages (the paper's Section V abbreviations):
 | STOP_SIGN_UNPROTECTED | next stop line is a stop sign | S_PS pre-stop -> S_S stop -> S_C creep -> S_I intersection cruise |
 | TRAFFIC_LIGHT_PROTECTED | signal; straight, right on green, or a protected left | T_A approach -> T_C intersection cruise |
 | TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN | signal; left/U-turn whose conflicts share our phase | L_A approach -> (L_C creep ->) L_I intersection cruise |
-| TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN | signal red at selection; right turn (right on red) | R_S stop -> R_C creep -> R_I intersection cruise |
+| TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN | signal red at selection; right turn (right on red) | R_S stop -> R_C creep -> R_I intersection cruise (R_S -> R_I when the light turns green first) |
 | BARE_INTERSECTION_UNPROTECTED | junction without signal or stop sign | B_A approach -> B_I intersection cruise |
 
 Every scenario ends back in LF when the ego leaves the junction. Longitudinal control is IDM
@@ -196,10 +196,8 @@ class BaselinePlanner:
             self._go("S_C")
         elif self.stage == "L_A" and d <= CREEP_TRIGGER_M and self._held_by_traffic():
             self._go("L_C")
-        elif self.stage == "R_S" and self._signal_state() == "green" and not self.full_stop:
-            self._go("T_A", TL_PROTECTED)  # green before the stop: an ordinary protected turn
-        elif self.stage == "R_S" and self.full_stop and (t_stage >= STOP_DURATION_S or self._signal_state() == "green"):
-            self._go("R_C")
+        elif self.stage == "R_S" and self.full_stop and t_stage >= STOP_DURATION_S and self._signal_state() != "green":
+            self._go("R_C")  # (a light turning green in R_S lets the ego on: R_S -> R_I, as in Apollo)
 
     def _select(self, in_lane: str, j_lane: str) -> None:
         env = self.env
@@ -410,7 +408,7 @@ class BaselinePlanner:
             stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
         a = idm(ego, env.leader_gaps(), stop)
         v = max(ego.speed, 0.0)
-        if stage in ("S_S", "R_S") and (stage == "S_S" or self._in_stop_zone()):
+        if stage == "S_S" or (stage == "R_S" and self._in_stop_zone() and self._signal_state() != "green"):
             return min(a, HOLD_BRAKE_MPS2) if v > 0 else min(a, 0.0)
         if stage in ("S_C", "L_C", "R_C") and self._line_distance() <= CREEP_TRIGGER_M:
             return min(a, CREEP_GAIN * (CREEP_SPEED_MPS - v))

@@ -77,7 +77,7 @@ CASES = [
     ("signal", True, "left", "green", 0, ("LF", "L_A", "L_I", "LF")),
     ("signal", True, "right", "red", 0, ("LF", "R_S", "R_C", "R_I", "LF")),  # right on red
     ("signal", False, "right", "green", 0, ("LF", "T_A", "T_C", "LF")),  # right on green: protected
-    ("signal", False, "right", "turns green", 0, ("LF", "R_S", "T_A", "T_C", "LF")),  # green before the stop
+    ("signal", False, "right", "turns green", 0, ("LF", "R_S", "R_I", "LF")),  # green before the stop
     ("bare", True, "left", None, 0, ("LF", "B_A", "B_I", "LF")),
     ("bare", False, "right", None, 0, ("LF", "B_A", "B_I", "LF")),
 ]
