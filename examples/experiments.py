@@ -169,7 +169,8 @@ def drivable_path(settings: Settings, name: str, m: HDMap, folder: Path) -> tupl
     if readable and n == 0:
         return path.resolve(), ""
     native = folder / f"{name}.json"
-    mapio.save(fixed, native)
+    if not (settings.reuse and native.is_file()):  # --reuse: keep the copy the saved suites drove
+        mapio.save(fixed, native)
     note = f"{n} signals/stop signs re-pointed from junction lanes to incoming lanes" if n else ""
     return native, note
 
@@ -328,10 +329,17 @@ def rq1(settings: Settings) -> dict[str, Any]:
     if not junctions:
         raise ExperimentError("no junctions with 3 or more arms found", str(settings.input("san_francisco")))
     space = map_feature(junctions)
-    atomic.write_text(folder / "sf_features.json", space.to_json())
+    names_seeds = [(f"M{i + 1}", s) for i, s in enumerate(settings.seeds)]
+    saved = [folder / "sf_features.json"] + [folder / f"{k}.json" for k, _ in names_seeds]
+    if settings.reuse and all(p.is_file() for p in saved):  # redraw the maps the saved suites drove
+        space = FeatureSpace.from_json(saved[0].read_text(), str(saved[0]))
+        gen = Generated(space, {k: mapio.load(folder / f"{k}.json") for k, _ in names_seeds},
+                        {k: folder / f"{k}.json" for k, _ in names_seeds})
+    else:
+        atomic.write_text(folder / "sf_features.json", space.to_json())
+        gen = generate_maps(space, names_seeds, folder)
     numbers = junction_numbers(junctions, sf)
     write_json(folder / "sf_junctions.json", [{"number": numbers.get(j.id), **j.to_dict()} for j in junctions])
-    gen = generate_maps(space, [(f"M{i + 1}", s) for i, s in enumerate(settings.seeds)], folder)
     pics = [picture_input(sf, junctions, f"San Francisco: {len(sf.junctions)} junctions", folder / "rq1_sf.png")]
     controls = {j.id: j.feature.control for j in junctions}
     pics.append(picture_maps([("San Francisco", sf, controls)] +
@@ -470,20 +478,19 @@ def stage_label(name: str) -> str:
 
 
 def junction_paths(outcome: Any) -> list[tuple[str, tuple[str, ...]]]:
-    """Per junction the ego drove through: its stage path from road (LF) back to road, as the
-    paper counts them (a junction where the planner never leaves lane following gives the
-    `LF`-only path)."""
-    from feat2map.scenarios.metrics import outcome_behaviour
-
-    beh = outcome_behaviour(outcome)
-    out = []
-    for j in outcome.junctions:
-        pairs = beh.get(j, (frozenset(), frozenset()))[0]
-        for scen, stages in sorted(pairs):
-            out.append((j, tuple(f"{scen}.{s}" for s in stages)))
-        if not pairs:
-            out.append((j, ()))
-    return out
+    """Per junction the ego drove through: the planner's stages there in order, across
+    scenarios (a right turn on red may continue as a protected crossing when the light turns
+    green), as the paper counts paths from road (LF) back to road. A junction where the
+    planner never leaves lane following gives the `LF`-only path (empty tuple here)."""
+    per: dict[str, list[str]] = {}
+    for _, _, junction, scenario, stage in outcome.events:
+        if junction is None:
+            continue
+        name = f"{scenario}.{stage}"
+        seq = per.setdefault(str(junction), [])
+        if not seq or seq[-1] != name:
+            seq.append(name)
+    return [(j, tuple(per.get(j, ()))) for j in dict.fromkeys(outcome.junctions)]
 
 
 def path_label(path: Sequence[str], lane_follow: str) -> str:
@@ -757,7 +764,10 @@ def rq3(settings: Settings) -> dict[str, Any]:
         stats[name] = map_stats(m, js)
     space = map_feature(junctions)
     atomic.write_text(folder / "m4_features.json", space.to_json())
-    gen = generate_maps(space, [("M4", settings.m4_seed)], folder)
+    if settings.reuse and (folder / "M4.json").is_file():  # the map the saved suite drove
+        gen = Generated(space, {"M4": mapio.load(folder / "M4.json")}, {"M4": folder / "M4.json"})
+    else:
+        gen = generate_maps(space, [("M4", settings.m4_seed)], folder)
     m4 = gen.maps["M4"]
     fig, ax = plt.subplots(figsize=(6.5, 6.5))
     draw_map(m4, ax)
@@ -842,9 +852,12 @@ def rq4(settings: Settings) -> dict[str, Any]:
     folder.mkdir(parents=True, exist_ok=True)
     built = build_custom(settings)
     paths = {}
-    for name, (m, _) in built.items():
+    for name, (m, rel) in built.items():
         paths[name] = folder / f"{name.replace(' ', '_')}.json"
-        mapio.save(m, paths[name])
+        if settings.reuse and paths[name].is_file():  # the map the saved suite drove
+            built[name] = (mapio.load(paths[name]), rel)
+        else:
+            mapio.save(m, paths[name])
     pic = picture_maps([(name, m, None) for name, (m, _) in built.items()], folder / "rq4_custom.png")
     copy_to_docs(settings, [pic])
     slack = max(settings.duration_slack_s, CUSTOM_DURATION_SLACK_S)
