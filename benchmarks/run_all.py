@@ -177,12 +177,14 @@ def machine() -> str:
             f"{platform.system()} {platform.release()}")
 
 
-def markdown(tables: list[Table], when: str) -> str:
+def markdown(tables: list[Table], when: str, load: float | None = None) -> str:
     """docs/benchmarks.md: every table as a code block with the command that made it."""
+    busy = f" Load average when the run started: {load:.1f}." if load is not None else ""
     out = ["# Benchmarks", "",
-           f"Latest run: {when}, `.venv/bin/python benchmarks/run_all.py`.", f"Machine: {machine()}.", "",
-           "Speed is reported as ratios against a baseline measured in the same process (timings on a "
-           "shared 2-core machine move by 10-30% between runs; the ratios are what to compare).", ""]
+           f"Latest run: {when}, `.venv/bin/python benchmarks/run_all.py`.", f"Machine: {machine()}.{busy}", "",
+           "Speed is reported as ratios against a baseline measured in the same process: on a shared "
+           "2-core machine absolute timings move by up to 2x between runs with the other jobs' load; "
+           "the ratios are what to compare.", ""]
     for t in tables:
         out += [f"## {t.title}", "", f"`{t.command}` ({t.seconds:.0f} s)", "", "```", t.text, "```", ""]
     return "\n".join(out)
@@ -197,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     os.environ.setdefault("MPLBACKEND", "Agg")
     names = args.only or list(BENCHMARKS)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     tables = []
     for name in names:
         print(f"== {name} ...", file=sys.stderr, flush=True)
@@ -207,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         from feat2map import atomic
 
         when = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        atomic.write_text(DOC, markdown(tables, when))
+        atomic.write_text(DOC, markdown(tables, when, load))
         print(f"wrote {DOC.relative_to(ROOT)}", file=sys.stderr)
     return 0 if all(t.ok for t in tables) else 1
 
