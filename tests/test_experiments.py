@@ -118,3 +118,35 @@ def test_rq1_on_real_san_francisco(exp, tmp_path):
     assert st["stop"] == 3 and st["bare"] == 0
     assert sorted(r["feature_space"]["controls"]) == ["signal", "stop"]
     assert all(r["stats"][k]["junctions"] == 8 for k in ("M1", "M2", "M3"))  # paper: 8 junctions each
+
+
+def test_controls_repointed_from_junction_lanes_to_incoming_lanes(exp, tiny_input):
+    from dataclasses import replace
+
+    m = mapio.load(tiny_input)
+    same, n = exp.with_incoming_controls(m)
+    assert n == 0 and same is m  # generated maps already name incoming lanes
+    # an Apollo-style map: signals name the junction lanes behind their stop lines
+    sig = next(iter(m.signals.values()))
+    jlanes = tuple(ln.id for ln in m.lanes.values() if ln.junction_id == sig.junction_id
+                   and set(ln.predecessors) & set(sig.lane_ids))
+    apollo_like = replace(m, signals={**m.signals, sig.id: replace(sig, lane_ids=jlanes)})
+    fixed, n = exp.with_incoming_controls(apollo_like)
+    assert n == 1
+    assert set(fixed.signals[sig.id].lane_ids) == set(sig.lane_ids)
+    assert all(m.lanes[i].junction_id is None for i in fixed.signals[sig.id].lane_ids)
+
+
+def test_junction_paths_follow_stages_across_scenarios(exp):
+    from feat2map.scenarios.rollout import Outcome
+
+    ev = [(0, 0.0, None, "LANE_FOLLOW", "LF"), (1, 0.2, "J1", "TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN", "R_S"),
+          (5, 1.0, "J1", "TRAFFIC_LIGHT_PROTECTED", "T_A"), (9, 1.8, "J1", "TRAFFIC_LIGHT_PROTECTED", "T_C"),
+          (12, 2.4, None, "LANE_FOLLOW", "LF")]
+    o = Outcome(name="s", outcome="completed", violations={}, sim_s=3.0, steps=15, stage_path=(), transitions=(),
+                junctions=("J1", "J2"), route_progress=1.0, events=tuple(ev))
+    paths = exp.junction_paths(o)
+    assert [j for j, _ in paths] == ["J1", "J2"]
+    lf = "LANE_FOLLOW.LF"
+    assert exp.path_label(paths[0][1], lf) == "LF -> R_S -> T_A -> T_C -> LF"
+    assert exp.path_label(paths[1][1], lf) == "LF"  # a junction the planner drove in lane following
