@@ -6,6 +6,8 @@ shared machine):
   2. extraction time for each real map          (benchmarks/bench_extract.py, when present;
                                                  else read + extract timed here)
      Apollo export and validation vs map size    (benchmarks/bench_apollo.py)
+     route coverage and planner overhead         (benchmarks/bench_scenarios.py)
+     and any other benchmarks/bench_*.py
   3. env steps/s vs highway-env intersection-v1 (benchmarks/bench_env.py)
   4. rollout throughput: scenarios per minute per core with the baseline planner, plain and
      with line coverage measured (this file; baseline = the plain run in the same process)
@@ -159,8 +161,15 @@ BENCHMARKS: dict[str, Callable[[], Table]] = {
     "extract": extraction,
     "apollo": lambda: run_script("apollo", "Apollo export and validation time vs map size", "bench_apollo.py"),
     "env": lambda: run_script("env", "Env steps/s vs highway-env intersection-v1", "bench_env.py"),
+    "scenarios": lambda: run_script("scenarios", "Route coverage vs map size; baseline planner vs scripted driver",
+                                    "bench_scenarios.py"),
     "rollout": rollout_throughput,
 }
+KNOWN_SCRIPTS = {"bench_generate.py", "bench_extract.py", "bench_apollo.py", "bench_env.py", "bench_scenarios.py"}
+for _extra in sorted(HERE.glob("bench_*.py")):  # benchmarks added later still get a table
+    if _extra.name not in KNOWN_SCRIPTS:
+        _key = _extra.stem.removeprefix("bench_")
+        BENCHMARKS[_key] = (lambda k=_key, n=_extra.name: run_script(k, f"{n} (no title registered)", n))
 
 
 def machine() -> str:
