@@ -15,8 +15,10 @@ import importlib
 import io
 import inspect
 import os
+import pickle
 import sys
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
@@ -494,6 +496,10 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     factory = as_factory(planner)
     tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on, tuple(coverage_modules))
              for i, s in enumerate(scenarios)]
+    picklable = _picklable(factory)
+    if not picklable and (workers > 1 or backend == "ray"):
+        raise Feat2MapError("cannot be pickled for worker processes: use a module-level class or function, "
+                            "or functools.partial of one", f"planner {getattr(factory, 'name', planner)!r}")
     results: dict[int, Outcome] = {}
     bar = tqdm(total=len(tasks), desc=f"rollout {getattr(suite, 'name', '')}".strip(), unit="scenario",
                disable=not progress)
@@ -507,7 +513,10 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     try:
         if backend == "ray":
             _run_ray(tasks, workers, done)
-        elif workers == 1 and os.environ.get("PYTHONHASHSEED") == HASH_SEED:
+        elif workers == 1 and (os.environ.get("PYTHONHASHSEED") == HASH_SEED or not picklable):
+            if not picklable:
+                warnings.warn("the planner cannot be pickled: running in this process, whose string hashing "
+                              "may change which planner lines run (results stay the same)", stacklevel=2)
             for t in tasks:  # this process already hashes like the workers would
                 done(*_run_task(t))
         elif tasks:
@@ -523,6 +532,14 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
                        outcomes=outcomes, coverage=coverage,
                        planner_digest=suite_digest(outcomes) if coverage else "",
                        workers=workers, backend=backend, wall_s=time.perf_counter() - t0)
+
+
+def _picklable(obj: Any) -> bool:
+    try:
+        pickle.dumps(obj)
+    except Exception:  # pickle raises many types (PicklingError, AttributeError, TypeError)
+        return False
+    return True
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import pytest
 
 import feat2map
+import feat2map.errors
 from feat2map import cli, mapio
 from feat2map.scenarios.planner import BaselinePlanner
 from feat2map.scenarios.report import load_result
@@ -141,6 +142,15 @@ def test_a_raising_planner_is_an_error_outcome(suite_file):
     o = res.outcomes[0]
     assert o.outcome == "error" and "RuntimeError: planner bug" in o.message
     assert res.exit_code("collision") == 1 and res.exit_code("none") == 0
+
+
+def test_unpicklable_planners_run_in_process_or_fail_clearly(suite_file):
+    sc = load_suite(suite_file).scenarios[0]
+    with pytest.warns(UserWarning, match="cannot be pickled"):
+        res = run_suite([sc], lambda: Crashing(), progress=False, record_failure_gif=False)
+    assert res.outcomes[0].outcome == "error"
+    with pytest.raises(feat2map.errors.Feat2MapError, match="cannot be pickled"):
+        run_suite([sc, sc], lambda: Crashing(), workers=2, progress=False)
 
 
 def test_classification_and_policies():
