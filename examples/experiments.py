@@ -20,7 +20,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -53,7 +53,6 @@ REAL_MAPS = {  # name -> path under the maps folder (see ../shared/maps/SOURCES.
 NEEDS = {1: ("san_francisco",), 2: ("san_francisco",), 3: ("san_francisco", "gomentum", "shalun"), 4: ()}
 SEEDS = (1, 2, 3)  # M1-M3
 M4_SEED = 4
-CUSTOM_DURATION_SLACK_S = 60.0  # RQ4: a 5-leg signal junction's red lasts longer than the suites' 25 s/junction
 CUSTOM_SPECS = {"mega junction": "examples/mega_junction.yaml", "road circle": "examples/road_circle.yaml",
                 "one-way roads": "examples/one_way_t.yaml"}
 PAPER = {  # the paper's numbers (Sec. V), shown next to ours
@@ -116,63 +115,6 @@ def read_input(settings: Settings, name: str) -> HDMap:
         except ImportError:
             raise ExperimentError(f"cannot read the Apollo map: {exc.message}", str(path)) from None
         return read_apollo(path)
-
-
-def with_incoming_controls(m: HDMap) -> tuple[HDMap, int]:
-    """The map with every signal's and stop sign's `lane_ids` on the incoming road lanes they
-    govern (the model's convention, which the env's stop lines and the planner rely on).
-
-    Apollo overlaps tie signals to the junction lanes behind the stop line; read as they are,
-    the env keys those signals on junction lanes and the baseline planner, looking the stop
-    line up on the incoming lane, drives every SF junction as bare. Returns (map, number of
-    controls re-pointed); a map already following the convention comes back unchanged."""
-    from dataclasses import replace
-
-    changed = 0
-
-    def incoming(ids: Sequence[str]) -> tuple[str, ...]:
-        nonlocal changed
-        out: dict[str, None] = {}
-        moved = False
-        for lid in ids:
-            ln = m.lanes.get(lid)
-            if ln is not None and ln.junction_id is not None:
-                moved = True
-                for p in ln.predecessors:
-                    if p in m.lanes and m.lanes[p].junction_id is None:
-                        out[p] = None
-            else:
-                out[lid] = None
-        changed += moved
-        return tuple(out)
-
-    signals = {k: replace(v, lane_ids=incoming(v.lane_ids)) for k, v in m.signals.items()}
-    stops = {k: replace(v, lane_ids=incoming(v.lane_ids)) for k, v in m.stop_signs.items()}
-    if not changed:
-        return m, 0
-    return replace(m, signals=signals, stop_signs=stops), changed
-
-
-def drivable_path(settings: Settings, name: str, m: HDMap, folder: Path) -> tuple[Path, str]:
-    """The file the scenarios load and a note: the real map itself when `read_map` reads it and
-    its controls follow the model's convention, else a native copy of the model as read, with
-    controls re-pointed to incoming lanes (`with_incoming_controls`)."""
-    from feat2map.readers import read_map
-
-    path = settings.input(name)
-    fixed, n = with_incoming_controls(m)
-    try:
-        read_map(path)
-        readable = True
-    except Feat2MapError:
-        readable = False
-    if readable and n == 0:
-        return path.resolve(), ""
-    native = folder / f"{name}.json"
-    if not (settings.reuse and native.is_file()):  # --reuse: keep the copy the saved suites drove
-        mapio.save(fixed, native)
-    note = f"{n} signals/stop signs re-pointed from junction lanes to incoming lanes" if n else ""
-    return native, note
 
 
 # ---- pictures --------------------------------------------------------------------------------------
@@ -432,7 +374,7 @@ def drive_map(settings: Settings, name: str, map_path: Path, junction_subset: Se
 
     m = read_map(map_path)
     moves = routes.manoeuvres(m)
-    notes = [] if m.junctions else ["no junction: the env's routes are junction manoeuvres, nothing to drive"]
+    notes = [] if m.junctions else ["no junction manoeuvres: driven as laps (drive_lap)"]
     if junction_subset is not None:
         keep = set(junction_subset)
         moves = [mv for mv in moves if mv[0] in keep]
@@ -440,8 +382,7 @@ def drive_map(settings: Settings, name: str, map_path: Path, junction_subset: Se
     rts = routes.coverage_routes(m, settings.max_junctions, moves)
     scenarios = [Scenario(name=f"{name}-r{i:03d}", map=str(map_path.resolve()), route=r,
                           traffic_vehicles=settings.traffic, seed=i,
-                          duration=routes.BASE_DURATION_S + routes.SECONDS_PER_JUNCTION * len(r)
-                          + settings.duration_slack_s)
+                          duration=routes.route_duration(m, r) + settings.duration_slack_s)
                  for i, r in enumerate(rts)]
     todo = scenarios if settings.max_scenarios is None else scenarios[:settings.max_scenarios]
     outcomes = []
@@ -468,6 +409,31 @@ def drive_map(settings: Settings, name: str, map_path: Path, junction_subset: Se
     result = rollout.SuiteResult(name=name, planner="baseline", outcomes=tuple(outcomes), coverage=True,
                                  workers=settings.workers, wall_s=time.perf_counter() - t0)
     return MapRun(name, str(map_path), len(m.junctions), len(scenarios), len(moves), result, "; ".join(notes))
+
+
+def drive_lap(map_path: Path, seed: int = 0, traffic: int = 4) -> dict[str, Any]:
+    """One lap of a map without junctions (the road circle) with the baseline planner: a lane
+    route from the first lane round to itself."""
+    import gymnasium as gym
+
+    from feat2map.scenarios.planner import BaselinePlanner
+
+    m = mapio.load(map_path)
+    start = next(iter(m.lanes))
+    env = gym.make("feat2map/MapFile-v0", config={
+        "map_file": str(map_path), "route": {"from_lane": start, "to_lane": start}, "traffic_vehicles": traffic,
+        "action": BaselinePlanner.action_config, "policy_frequency": 5, "duration": 120})
+    planner = BaselinePlanner()
+    obs, info = env.reset(seed=seed)
+    planner.reset(env)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(planner.act(obs, info))
+        done = terminated or truncated
+    env.close()
+    return {"completed": bool(info["route_completed"]), "collision": bool(info["collision"]),
+            "off_road": bool(info["off_road"]), "sim_s": round(float(info["time"]), 1),
+            "violations": dict(info["violations"]), "stage_path": list(planner.stage_path())}
 
 
 def stage_label(name: str) -> str:
@@ -735,19 +701,13 @@ def rq2(settings: Settings) -> dict[str, Any]:
     folder = settings.out / "rq2"
     folder.mkdir(parents=True, exist_ok=True)
     sf = read_input(settings, "san_francisco")
-    sf_path, note = drivable_path(settings, "san_francisco", sf, folder)
+    sf_path = settings.input("san_francisco").resolve()  # driven from the Apollo file itself
     subset = None
     if settings.sf_junctions is not None:
         subset = [jid for jid in sf.junctions][:settings.sf_junctions]
     maps = [("SF", sf_path, subset)] + [(k, p, None) for k, p in gen.items()]
     result = measure(settings, 2, maps)
-    result["sf_driven_as"] = {"file": str(sf_path), "note": note}
     write_json(folder / "rq2.json", result)
-    if note:
-        md = folder / "rq2.md"
-        atomic.write_text(md, md.read_text() + f"\nSF was driven from the Apollo file as read, with {note} "
-                          "(the model's convention; see `with_incoming_controls`).\n")
-        copy_to_docs(settings, [md])
     return result
 
 
@@ -860,9 +820,7 @@ def rq4(settings: Settings) -> dict[str, Any]:
             mapio.save(m, paths[name])
     pic = picture_maps([(name, m, None) for name, (m, _) in built.items()], folder / "rq4_custom.png")
     copy_to_docs(settings, [pic])
-    slack = max(settings.duration_slack_s, CUSTOM_DURATION_SLACK_S)
-    measured = measure(replace(settings, duration_slack_s=slack), 4, [(name, p, None) for name, p in paths.items()])
-    measured["duration_slack_s"] = slack
+    measured = measure(settings, 4, [(name, p, None) for name, p in paths.items()])
     details = {}
     for name, (m, rel) in built.items():
         feats = [j.feature for j in m.junctions.values() if j.feature is not None]
@@ -870,6 +828,15 @@ def rq4(settings: Settings) -> dict[str, Any]:
                          "junction_features": [{"n": f.n_roads, "rotation": [round(a, 1) for a in f.rotation],
                                                 "control": f.control, "crosswalk": f.crosswalk,
                                                 "road_types": list(f.road_types)} for f in feats]}
+        if not m.junctions:
+            details[name]["lap"] = drive_lap(paths[name])
+    laps = [f"- {name}: one lap with the baseline planner: " + ", ".join(f"{k} {v}" for k, v in d["lap"].items())
+            for name, d in details.items() if "lap" in d]
+    if laps:
+        md = folder / "rq4.md"
+        atomic.write_text(md, md.read_text() + "\nMaps without junctions, driven as laps (lane routes):\n\n"
+                          + "\n".join(laps) + "\n")
+        copy_to_docs(settings, [md])
     result = {"maps": details, "measured": measured}
     write_json(folder / "rq4_summary.json", result)
     return result

@@ -17,6 +17,7 @@ from .scenario import Manoeuvre, Scenario, Suite
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
 BASE_DURATION_S = 20.0
+SIGNAL_CROSSING_S = 10.0  # after a whole signal cycle: time to cross the junction
 ROUTE_SPEED_MPS = 8.0  # plus the route's length at this speed
 START_AND_GOAL_M = 45.0  # the env starts the ego <= 30 m before the first junction and ends 15 m after the last
 
@@ -173,9 +174,26 @@ def _road_gap(m: HDMap, a: Lane, b: Lane) -> float:
     return 0.0
 
 
+def signal_cycle(m: HDMap, junction_id: str) -> float:
+    """The env's default signal cycle [s] at a junction (0 without signals): the longest red
+    an approach can meet, plus its own green."""
+    from ..envs.map_env import MapEnv
+    from ..envs.traffic import group_phases, travel_headings
+
+    signals = [s for s in m.signals.values() if s.junction_id == junction_id]
+    if not signals:
+        return 0.0
+    cfg = MapEnv.default_config()
+    phases = group_phases(signals, cfg["signal_phases"] == "paired", travel_headings(m, signals))
+    return len(phases) * (cfg["signal_green"] + cfg["signal_amber"] + cfg["signal_all_red"])
+
+
 def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
-    """A scenario duration [s] that leaves time for every junction and for the distance."""
-    return round(BASE_DURATION_S + SECONDS_PER_JUNCTION * len(route) + route_length(m, route) / ROUTE_SPEED_MPS, 1)
+    """A scenario duration [s] that leaves time for every junction (at least a whole signal
+    cycle plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget) and for
+    the distance."""
+    per_junction = sum(max(SECONDS_PER_JUNCTION, signal_cycle(m, jid) + SIGNAL_CROSSING_S) for jid, _, _ in route)
+    return round(BASE_DURATION_S + per_junction + route_length(m, route) / ROUTE_SPEED_MPS, 1)
 
 
 def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:
