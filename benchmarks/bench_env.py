@@ -13,7 +13,6 @@ import highway_env  # noqa: F401  (registers intersection-v1)
 import numpy as np
 
 import feat2map
-from feat2map.config import GenerationConfig
 
 FREQS = {"simulation_frequency": 15, "policy_frequency": 1}
 VEHICLES = 10  # intersection-v1's initial_vehicle_count
@@ -64,7 +63,7 @@ def main(argv=None) -> int:
         build = time.perf_counter() - t
         junctions = len(env.unwrapped.net.hdmap.junctions)
         sps, nv = measure(env, args.steps)
-        rows.append((f"feat2map JunctionGrid-v0", junctions, build, sps, nv))
+        rows.append(("feat2map JunctionGrid-v0", junctions, build, sps, nv))
     base4 = rows[1][3]
     print(f"{'env':28s} {'junctions':>9s} {'build s':>8s} {'steps/s':>8s} {'vehicles':>8s} {'vs ref':>7s} {'vs 4-j':>7s}")
     for name, j, build, sps, nv in rows:

@@ -30,9 +30,8 @@ from highway_env.envs.common.action import DiscreteMetaAction
 from highway_env.envs.common.observation import ObservationType
 
 from ..errors import Feat2MapError
-from ..model import HDMap
 from .network import MapNetwork
-from .traffic import (PEDESTRIAN_IN_PATH_M, STOP_ZONE_M, STOPPED_SPEED_MPS, EgoMDPVehicle, EgoVehicle, MapRoad, Pedestrian,
+from .traffic import (PEDESTRIAN_IN_PATH_M, STOP_ZONE_M, STOPPED_SPEED_MPS, EgoMDPVehicle, EgoVehicle, MapRoad,
                       TrafficControl, TrafficVehicle)
 
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")

@@ -19,7 +19,7 @@ from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
 from ..errors import Feat2MapError
-from ..model import HDMap
+from ..model import HDMap, incoming_lanes
 from .lanes import PolylineLane
 
 GRID_CELL_M = 8.0
@@ -35,21 +35,6 @@ def flip(points) -> np.ndarray:
     p = np.asarray(points, dtype=float).reshape(-1, 2).copy()
     p[:, 1] *= -1.0
     return p
-
-
-def _incoming(m: HDMap, lane_ids) -> list[str]:
-    """The road lanes a control governs: junction lanes named by a control (Apollo's overlaps put
-    stop lines on the junction lanes' starts) stand for their road predecessors."""
-    out: list[str] = []
-    for lid in lane_ids:
-        ln = m.lanes.get(lid)
-        if ln is None:
-            continue
-        preds = [p for p in ln.predecessors if p in m.lanes and m.lanes[p].junction_id is None]
-        for x in (preds if ln.junction_id is not None and preds else [lid]):
-            if x not in out:
-                out.append(x)
-    return out
 
 
 @dataclass(frozen=True)
@@ -220,7 +205,7 @@ class MapNetwork(RoadNetwork):
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
             for c in table.values():
                 line = LineString(c.stop_line) if len(c.stop_line) >= 2 else None
-                for lid in _incoming(m, c.lane_ids):
+                for lid in incoming_lanes(m.lanes, c.lane_ids):
                     ln = m.lanes[lid]
                     cl = LineString(ln.centerline)
                     s = ln.length

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
@@ -76,6 +76,20 @@ class Lane:
             return float(self.bezier.heading(1.0))
         (x0, y0), (x1, y1) = self.centerline[-2], self.centerline[-1]
         return math.atan2(y1 - y0, x1 - x0)
+
+
+def incoming_lanes(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> tuple[str, ...]:
+    """The road lanes a control governs, in the model's convention (`Signal.lane_ids`): a
+    junction lane named instead (Apollo's overlaps tie controls to the junction lanes behind
+    the stop line) stands for its predecessors outside the junction; unknown ids are dropped."""
+    out: dict[str, None] = {}
+    for lid in lane_ids:
+        ln = lanes.get(lid)
+        if ln is None:
+            continue
+        preds = [p for p in ln.predecessors if p in lanes and lanes[p].junction_id is None]
+        out.update((x, None) for x in (preds if ln.junction_id is not None and preds else [lid]))
+    return tuple(out)
 
 
 @dataclass(frozen=True)

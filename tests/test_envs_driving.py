@@ -219,7 +219,8 @@ def test_traffic_changes_lane_by_mobil_behind_a_slow_leader():
         u.road.vehicles.append(v)
         return v
 
-    leader, follower = spawn(35.0, 0.0), spawn(10.0, 8.0)
+    spawn(35.0, 0.0)  # the leader
+    follower = spawn(10.0, 8.0)
     u.control.update(u.road, 0.0)
     assert lane.length > 60
     before = list(follower.lane_route)

@@ -3,7 +3,6 @@ brute-force scan, lane-graph routing, conflict tables and stop lines."""
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -100,9 +99,7 @@ def test_routing_is_dijkstra_over_lanes(net):
     start = next(l for l in m.lanes.values() if l.junction_id is None and l.successors)
     assert net.lane_route(start.id, start.id) == [start.id]
     entry = next(l for l in m.lanes.values() if not l.successors and l.junction_id is None)
-    t = time.perf_counter()
-    assert net.lane_route(entry.id, start.id) == []  # dead end: unreachable, and fast
-    assert time.perf_counter() - t < 0.5
+    assert net.lane_route(entry.id, start.id) == []  # dead end: unreachable (highway-env's enumeration hangs here)
     reachable = [l for l in m.lanes if net.lane_route(start.id, l)]
     assert len(reachable) > 5
     for goal in reachable[:20]:

@@ -23,7 +23,7 @@ from shapely.geometry.polygon import orient
 from .. import apollo_schema as aps
 from ..config import APOLLO_CROSSWALK_LINK_M
 from ..errors import MapFormatError
-from ..model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
+from ..model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, incoming_lanes
 
 _TURNS = {aps.Lane.NO_TURN: "none", aps.Lane.LEFT_TURN: "left", aps.Lane.RIGHT_TURN: "right",
           aps.Lane.U_TURN: "uturn"}
@@ -83,21 +83,6 @@ def _boundary_width(centre: np.ndarray, left: np.ndarray, right: np.ndarray) -> 
     return float(dl + dr)
 
 
-
-def _incoming(lane_ids: Iterable[str], lanes: dict[str, Lane]) -> tuple[str, ...]:
-    """The road lanes a control governs, in the model's convention: overlaps on junction lanes
-    (San Francisco ties signals to the junction lanes behind the stop line) are moved to those
-    lanes' predecessors outside the junction, which is where traffic stops."""
-    out: dict[str, None] = {}
-    for lid in lane_ids:
-        ln = lanes.get(lid)
-        if ln is None:
-            continue
-        if ln.junction_id is None:
-            out[lid] = None
-        else:
-            out.update((p, None) for p in ln.predecessors if lanes[p].junction_id is None)
-    return tuple(out)
 
 class _Reader:
     """One conversion: protobuf `Map` -> HDMap, with `where` naming the file in errors."""
@@ -290,7 +275,7 @@ class _Reader:
         for el in items:
             sid = el.id.id
             line = next((p for p in (_curve_points(c) for c in el.stop_line) if len(p) >= 2), None)
-            lane_ids = _incoming(governed.get(sid, []), lanes)
+            lane_ids = incoming_lanes(lanes, governed.get(sid, []))
             jid = junction_of.get(sid)
             if jid is None:  # the junction the governed lanes lead into
                 jid = next((lanes[s].junction_id for x in lane_ids for s in lanes[x].successors if lanes[s].junction_id),

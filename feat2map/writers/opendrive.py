@@ -24,7 +24,7 @@ from .. import atomic
 from ..bezier import Bezier
 from ..config import UTM_ORIGIN, UTM_ZONE
 from ..errors import Feat2MapError, MapFormatError
-from ..model import HDMap, Lane, Road
+from ..model import HDMap, Road
 
 REV_MAJOR, REV_MINOR = 1, 6
 TRAFFIC_LIGHT_TYPE = "1000001"  # OpenDRIVE country code "OpenDRIVE": 3-light traffic signal
