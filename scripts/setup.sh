@@ -7,4 +7,4 @@ PY=${PYTHON:-python3}
 .venv/bin/python -m pip install -q --upgrade pip
 # CPU torch first, pinned, so resolving the rl extra never pulls a multi-GB CUDA build
 .venv/bin/python -m pip install -q torch==2.13.0
-.venv/bin/python -m pip install -q -e '.[dev,rl]'
+.venv/bin/python -m pip install -q -e '.[dev,rl,ray]'
