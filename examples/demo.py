@@ -1,7 +1,8 @@
-"""The main job: generate the paper's M1 map, export it, and drive it headless.
+"""One drive through the Python API: a map file in `feat2map/MapFile-v0`, the baseline planner
+on a sampled route, headless. Writes OUT/drive.png (the last rendered frame) and prints the
+outcome and the planner's stage path.
 
-Writes OUT/map.json, OUT/map.png, OUT/junctions.png, OUT/map.xodr and OUT/drive.png (the last
-rendered frame), and prints the drive's outcome.
+    .venv/bin/python examples/demo.py --map out/demo/m1/map.json --out out/demo
 """
 from __future__ import annotations
 
@@ -17,43 +18,35 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
-from feat2map import mapio  # noqa: E402
-from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
-from feat2map.render import render_junctions, render_map  # noqa: E402
-from feat2map.writers.opendrive import write_opendrive  # noqa: E402
+import feat2map  # noqa: E402,F401  (registers the feat2map/ environment ids)
+from feat2map.scenarios.planner import BaselinePlanner  # noqa: E402
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--map", required=True, help="a map file (.json, .xodr or Apollo .bin/.txt)")
     ap.add_argument("--out", default="out/demo")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=args.seed)
-    mapio.save(m, out / "map.json")
-    render_map(m, out / "map.png", title=f"M1 (seed {args.seed})")
-    render_junctions(m, out / "junctions.png")
-    write_opendrive(m, out / "map.xodr")
-    print(f"generated {len(m.junctions)} junctions, {len(m.lanes)} lanes -> {out}")
-
-    env = gym.make("feat2map/MapFile-v0", render_mode="rgb_array",
-                   config={"map_file": str(out / "map.json"), "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "duration": 90})
-    env.reset(seed=args.seed)
-    driver = ScriptedDriver(env)
-    info: dict = {}
-    done = False
-    steps = 0
+    env = gym.make("feat2map/MapFile-v0", render_mode="rgb_array", config={
+        "map_file": args.map, "action": BaselinePlanner.action_config, "policy_frequency": 5,
+        "route_junctions": 3, "traffic_vehicles": 6, "pedestrian_rate": 6.0, "duration": 120})
+    planner = BaselinePlanner()
+    obs, info = env.reset(seed=args.seed)
+    planner.reset(env)
+    done, steps = False, 0
     while not done:
-        _, _, terminated, truncated, info = env.step(driver.act())
+        obs, _, terminated, truncated, info = env.step(planner.act(obs, info))
         done = terminated or truncated
         steps += 1
     plt.imsave(out / "drive.png", env.render())
     env.close()
-    print(f"drove {steps} steps: completed={info.get('route_completed')} collision={info.get('collision')} "
-          f"progress={info.get('route_progress'):.2f} violations={info.get('violations')}")
+    print(f"drove {steps} steps: completed={info['route_completed']} collision={info['collision']} "
+          f"progress={info['route_progress']:.2f} violations={info['violations']}")
+    print("stage path:", " -> ".join(planner.stage_path()), f"; frame: {out / 'drive.png'}")
 
 
 if __name__ == "__main__":

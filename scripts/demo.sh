@@ -1,8 +1,16 @@
 #!/usr/bin/env bash
 # The main job on a fresh machine: install, generate the paper's M1 map, export it to Apollo
-# and OpenDRIVE, and drive it headless with the baseline planner. Outputs land in out/demo/.
+# (validated) and OpenDRIVE, build its route-coverage suite and drive every route headless with
+# the baseline planner, then one drive through the Python API with a rendered frame.
+# Outputs land in out/demo/ (open out/demo/rollout/report.md and the PNGs).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export SDL_VIDEODRIVER=offscreen MPLBACKEND=Agg
-.venv/bin/python examples/demo.py --out out/demo "$@"
+f2m=.venv/bin/feat2map
+out=out/demo
+$f2m generate --seed 1 --opendrive --out $out/m1            # map.json, features.json, map.png, junctions.png, map.xodr, apollo/
+$f2m validate $out/m1/apollo                               # Apollo's rules: 0 problems
+$f2m suite $out/m1/map.json --traffic 6 --pedestrian-rate 4 --name m1 --out $out/m1/suite.yaml   # every (junction, entry, exit) manoeuvre, few routes
+$f2m rollout $out/m1/suite.yaml --workers 2 --fail-on none --out $out/rollout   # report.md, junit.xml, summary.json, GIFs of failures (CI uses --fail-on any)
+.venv/bin/python examples/demo.py --map $out/m1/map.json --out $out
