@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from highway_env.road.lane import LineType
 from highway_env.road.road import LaneIndex, RoadNetwork
+import shapely
 from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
@@ -24,6 +25,9 @@ from .lanes import PolylineLane
 
 GRID_CELL_M = 8.0
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
+VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
+TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
+FOOTPRINT_STEP_M = 1.0  # footprints along a junction lane are placed this far apart
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
@@ -200,6 +204,24 @@ class MapNetwork(RoadNetwork):
         return self.graph[_from][_to][_id]
 
     # ---- controls and conflicts -----------------------------------------------------------
+    def _footprint(self, lane_id: str):
+        """Area swept by a vehicle (highway-env's rectangle, widened by TRACKING_MARGIN_M a side
+        but kept inside its lane) driving the lane, in the map frame of the lane's centreline."""
+        ln = self.hdmap.lanes[lane_id]
+        pts = np.asarray([p[:2] for p in ln.centerline], dtype=float)
+        seg = np.diff(pts, axis=0)
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+        s = np.linspace(0.0, cum[-1], max(2, int(math.ceil(cum[-1] / FOOTPRINT_STEP_M)) + 1))
+        k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+        t = ((s - cum[k]) / np.maximum(cum[k + 1] - cum[k], 1e-9))[:, None]
+        centre = pts[k] + t * seg[k]
+        u = seg[k] / np.maximum(np.hypot(seg[k, 0], seg[k, 1]), 1e-9)[:, None]
+        n = np.stack([-u[:, 1], u[:, 0]], axis=1)
+        hl = VEHICLE_LENGTH_M / 2
+        hw = min(VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M, max(ln.width / 2 - 0.1, VEHICLE_WIDTH_M / 2))
+        corners = np.stack([centre + a * hl * u + b * hw * n for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
+        return shapely.union_all(shapely.polygons(corners))
+
     def _build_controls(self) -> None:
         m = self.hdmap
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
@@ -218,14 +240,24 @@ class MapNetwork(RoadNetwork):
         lines = [LineString(ln.centerline) for ln in jl]
         conf: dict[str, set[str]] = {ln.id: set() for ln in jl}
         if lines:
+            # candidates: centrelines within reach of two vehicle footprints; they conflict when the
+            # paths pass closer than a car width, or when the footprints of vehicles driving them
+            # overlap (sharp turns side by side: the bodies swing beyond their paths)
+            reach = 2 * math.hypot(VEHICLE_LENGTH_M / 2, VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M)
             tree = STRtree(lines)
-            left, right = tree.query(lines, predicate="dwithin", distance=CONFLICT_DISTANCE_M)
+            left, right = tree.query(lines, predicate="dwithin", distance=reach)
+            swept: dict[str, object] = {}
             for i, j in zip(left.tolist(), right.tolist()):
                 if i >= j:
                     continue
                 a, b = jl[i], jl[j]
                 if a.junction_id != b.junction_id or set(a.predecessors) & set(b.predecessors):
                     continue
+                if lines[i].distance(lines[j]) >= CONFLICT_DISTANCE_M:
+                    fa = swept.setdefault(a.id, self._footprint(a.id))
+                    fb = swept.setdefault(b.id, self._footprint(b.id))
+                    if not fa.intersects(fb):
+                        continue
                 conf[a.id].add(b.id)
                 conf[b.id].add(a.id)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}

@@ -39,7 +39,7 @@ from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.extract import ExtractedJunction, extract_junctions, map_feature  # noqa: E402
 from feat2map.features import FeatureSpace  # noqa: E402
 from feat2map.model import HDMap  # noqa: E402
-from feat2map.render import CONTROL_COLOURS, draw_map, render_junctions  # noqa: E402
+from feat2map.render import CONTROL_COLOURS, draw_map, render_junctions, save_figure  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_MAPS = ROOT.parent / "shared" / "maps"
@@ -118,16 +118,6 @@ def read_input(settings: Settings, name: str) -> HDMap:
 
 
 # ---- pictures --------------------------------------------------------------------------------------
-def _save(fig, path: Path, dpi: int = 110) -> Path:
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format=path.suffix.lstrip(".") or "png", dpi=dpi)
-    plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
-    return path
-
-
 def junction_numbers(junctions: Sequence[ExtractedJunction], m: HDMap) -> dict[str, int]:
     """Junction id -> number 0..N-1 in map order (the order the picture and tables use)."""
     ids = [jid for jid in m.junctions if len(m.junctions[jid].polygon) >= 3]
@@ -159,7 +149,7 @@ def picture_input(m: HDMap, junctions: Sequence[ExtractedJunction], title: str, 
     control_legend(ax)
     ax.set_title(title)
     fig.tight_layout()
-    return _save(fig, path, dpi=90)  # keeps the 1,500-lane picture under MAX_DOC_PICTURE_BYTES
+    return save_figure(fig, path, dpi=90)  # keeps the 1,500-lane picture under MAX_DOC_PICTURE_BYTES
 
 
 def picture_maps(panels: Sequence[tuple[str, HDMap, Mapping[str, str] | None]], path: Path) -> Path:
@@ -173,7 +163,7 @@ def picture_maps(panels: Sequence[tuple[str, HDMap, Mapping[str, str] | None]], 
         ax.tick_params(labelsize=6)
     control_legend(axes.flat[0])
     fig.tight_layout()
-    return _save(fig, path, dpi=100)
+    return save_figure(fig, path, dpi=100)
 
 
 def map_stats(m: HDMap, junctions: Sequence[ExtractedJunction] | None = None) -> dict[str, Any]:
@@ -292,7 +282,7 @@ def rq1(settings: Settings) -> dict[str, Any]:
         draw_map(m, ax)
         ax.set_title(f"{name}: {len(m.junctions)} junctions")
         fig.tight_layout()
-        pics.append(_save(fig, folder / f"rq1_{name.lower()}.png"))
+        pics.append(save_figure(fig, folder / f"rq1_{name.lower()}.png"))
     first = next(iter(gen.maps))
     render_junctions(gen.maps[first], folder / f"rq1_{first.lower()}_junctions.png", dpi=80)
     pics.append(folder / f"rq1_{first.lower()}_junctions.png")
@@ -518,7 +508,7 @@ def plot_lines(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
     axes.flat[-1].set_xlabel("junction (order first driven)")
     fig.suptitle("Accumulated baseline-planner line coverage per junction", fontsize=10)
     fig.tight_layout()
-    return _save(fig, path, dpi=100)
+    return save_figure(fig, path, dpi=100)
 
 
 def plot_stages(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
@@ -549,7 +539,7 @@ def plot_stages(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path:
     for sp in ax.spines.values():
         sp.set_visible(False)
     fig.tight_layout()
-    return _save(fig, path, dpi=100)
+    return save_figure(fig, path, dpi=100)
 
 
 def _stage_machine() -> tuple[dict[str, tuple[str, ...]], set[tuple[str, str]]]:
@@ -608,7 +598,7 @@ def plot_stage_graph(summaries: Sequence[Mapping[str, Any]], path: Path) -> Path
         ax.set_axis_off()
         ax.set_title(f"{s['map']}: {len(covered)} transitions", fontsize=9)
     fig.tight_layout()
-    return _save(fig, path, dpi=100)
+    return save_figure(fig, path, dpi=100)
 
 
 def coverage_markdown(summaries: Sequence[Mapping[str, Any]], lane_follow: str) -> str:
@@ -734,7 +724,7 @@ def rq3(settings: Settings) -> dict[str, Any]:
     control_legend(ax)
     ax.set_title(f"M4 (SF + GoMentum + Shalun, seed {settings.m4_seed}): {len(m4.junctions)} junctions")
     fig.tight_layout()
-    pics = [_save(fig, folder / "rq3_m4.png")]
+    pics = [save_figure(fig, folder / "rq3_m4.png")]
     render_junctions(m4, folder / "rq3_m4_junctions.png", dpi=70)
     pics.append(folder / "rq3_m4_junctions.png")
     copy_to_docs(settings, pics)

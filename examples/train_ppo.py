@@ -33,6 +33,7 @@ import numpy as np  # noqa: E402
 
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
+from feat2map.render import save_figure  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.traffic import STOP_ZONE_M, STOPPED_SPEED_MPS  # noqa: E402
 
@@ -265,10 +266,7 @@ def plot(rows: Sequence[dict], names: Sequence[str], fixed: dict[str, dict], pat
     ax.set_title("fixed evaluation set", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
+    save_figure(fig, path)
 
 
 def build_model(config: dict, n_envs: int, seed: int, n_steps: int, batch_size: int):

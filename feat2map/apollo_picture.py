@@ -75,7 +75,7 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Polygon as Patch
 
-    from . import atomic
+    from .render import save_figure
 
     fig, ax = plt.subplots(figsize=(10, 10))
     segs: dict[tuple[str, str], list[np.ndarray]] = {}
@@ -131,10 +131,4 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
     ax.set_title(title or f"{len(m.lane)} lanes, {len(m.junction)} junctions; {len(problems)} problems "
                           f"({placed} ringed)", fontsize=9)
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fmt = Path(path).suffix.lstrip(".").lower() or "png"
-    fig.savefig(buf, format=fmt, dpi=110)
-    plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
+    save_figure(fig, path)

@@ -17,6 +17,18 @@ from .model import HDMap  # noqa: E402
 CONTROL_COLOURS = {"signal": "#2e7d32", "stop": "#c62828", "bare": "#1565c0"}
 
 
+def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Write a matplotlib figure atomically (format from the suffix, PNG by default) and close it."""
+    path = Path(path)
+    try:
+        buf = io.BytesIO()
+        fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
+    finally:
+        plt.close(fig)
+    atomic.write_bytes(path, buf.getvalue())
+    return path
+
+
 def draw_map(m: HDMap, ax, *, labels: bool = True, controls: dict[str, str] | None = None,
              highlight_lanes: Iterable[str] = ()) -> None:
     """Draw `m` on a matplotlib axis: pavement, junctions, lanes, controls, crosswalks, ids.
@@ -82,12 +94,10 @@ def render_map(m: HDMap, path: str | Path, *, title: str | None = None, size_in:
         if title:
             ax.set_title(title)
         fig.tight_layout()
-        buf = io.BytesIO()
-        fmt = path.suffix.lstrip(".").lower() or "png"
-        fig.savefig(buf, format=fmt, dpi=dpi)
-    finally:
+    except BaseException:
         plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
+        raise
+    save_figure(fig, path, dpi)
 
 
 def render_junctions(m: HDMap, path: str | Path, *, margin: float = 12.0, cols: int = 4, dpi: int = 130) -> None:
@@ -113,8 +123,7 @@ def render_junctions(m: HDMap, path: str | Path, *, margin: float = 12.0, cols: 
             title = jid if f is None else f"{jid}: n={f.n_roads}, {f.control}{', crosswalk' if f.crosswalk else ''}"
             ax.set_title(title, fontsize=8)
         fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format=Path(path).suffix.lstrip(".").lower() or "png", dpi=dpi)
-    finally:
+    except BaseException:
         plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
+        raise
+    save_figure(fig, path, dpi)

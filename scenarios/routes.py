@@ -228,14 +228,11 @@ def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names:
                   cols: int = 4, dpi: int = 110) -> None:
     """A picture (PNG or SVG) with one panel per route: the map, the route's lanes highlighted
     (as the env drives them) and its manoeuvres listed; written atomically."""
-    import io
-
     import matplotlib.pyplot as plt
 
-    from .. import atomic
     from ..envs.map_env import manoeuvres_to_lanes
     from ..envs.network import MapNetwork
-    from ..render import draw_map
+    from ..render import draw_map, save_figure
 
     net = MapNetwork.from_map(m)
     n = max(len(routes), 1)
@@ -260,8 +257,7 @@ def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names:
             ax.set_xlabel("")
             ax.set_ylabel("")
         fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format=Path(path).suffix.lstrip(".").lower() or "png", dpi=dpi)
-    finally:
+    except BaseException:
         plt.close(fig)
-    atomic.write_bytes(path, buf.getvalue())
+        raise
+    save_figure(fig, path, dpi)
