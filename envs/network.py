@@ -27,7 +27,7 @@ GRID_CELL_M = 8.0
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
 VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
 TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
-FOOTPRINT_STEP_M = 1.0  # footprints along a junction lane are placed this far apart
+FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
@@ -204,9 +204,10 @@ class MapNetwork(RoadNetwork):
         return self.graph[_from][_to][_id]
 
     # ---- controls and conflicts -----------------------------------------------------------
-    def _footprint(self, lane_id: str):
-        """Area swept by a vehicle (highway-env's rectangle, widened by TRACKING_MARGIN_M a side
-        but kept inside its lane) driving the lane, in the map frame of the lane's centreline."""
+    def _footprints(self, lane_id: str) -> np.ndarray:
+        """Corners (n, 4, 2) of a vehicle's rectangle (highway-env's, widened by TRACKING_MARGIN_M
+        a side but kept inside its lane) every FOOTPRINT_STEP_M along a lane, in the map frame:
+        together the area a vehicle driving the lane sweeps."""
         ln = self.hdmap.lanes[lane_id]
         pts = np.asarray([p[:2] for p in ln.centerline], dtype=float)
         seg = np.diff(pts, axis=0)
@@ -219,8 +220,7 @@ class MapNetwork(RoadNetwork):
         n = np.stack([-u[:, 1], u[:, 0]], axis=1)
         hl = VEHICLE_LENGTH_M / 2
         hw = min(VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M, max(ln.width / 2 - 0.1, VEHICLE_WIDTH_M / 2))
-        corners = np.stack([centre + a * hl * u + b * hw * n for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
-        return shapely.union_all(shapely.polygons(corners))
+        return np.stack([centre + a * hl * u + b * hw * n for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
 
     def _build_controls(self) -> None:
         m = self.hdmap
@@ -240,24 +240,22 @@ class MapNetwork(RoadNetwork):
         lines = [LineString(ln.centerline) for ln in jl]
         conf: dict[str, set[str]] = {ln.id: set() for ln in jl}
         if lines:
-            # candidates: centrelines within reach of two vehicle footprints; they conflict when the
-            # paths pass closer than a car width, or when the footprints of vehicles driving them
-            # overlap (sharp turns side by side: the bodies swing beyond their paths)
-            reach = 2 * math.hypot(VEHICLE_LENGTH_M / 2, VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M)
+            # two junction lanes conflict when their paths pass closer than a car width, or when the
+            # footprints of vehicles driving them overlap (sharp turns side by side: the bodies
+            # swing beyond their paths)
             tree = STRtree(lines)
-            left, right = tree.query(lines, predicate="dwithin", distance=reach)
-            swept: dict[str, object] = {}
-            for i, j in zip(left.tolist(), right.tolist()):
+            left, right = tree.query(lines, predicate="dwithin", distance=CONFLICT_DISTANCE_M)
+            rects = [self._footprints(ln.id) for ln in jl]
+            owner = np.repeat(np.arange(len(jl)), [len(r) for r in rects])
+            boxes = shapely.polygons(np.concatenate(rects))
+            bi, bj = STRtree(boxes).query(boxes, predicate="intersects")
+            pairs = set(zip(left.tolist(), right.tolist())) | set(zip(owner[bi].tolist(), owner[bj].tolist()))
+            for i, j in sorted(pairs):
                 if i >= j:
                     continue
                 a, b = jl[i], jl[j]
                 if a.junction_id != b.junction_id or set(a.predecessors) & set(b.predecessors):
                     continue
-                if lines[i].distance(lines[j]) >= CONFLICT_DISTANCE_M:
-                    fa = swept.setdefault(a.id, self._footprint(a.id))
-                    fb = swept.setdefault(b.id, self._footprint(b.id))
-                    if not fa.intersects(fb):
-                        continue
                 conf[a.id].add(b.id)
                 conf[b.id].add(a.id)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}
