@@ -370,15 +370,20 @@ class TrafficControl:
 
     def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
                   ignore: frozenset = frozenset()) -> bool:
-        """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now."""
+        """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now. A
+        reservation skips the other checks but not a red signal: a vehicle held at the line (e.g. by
+        pedestrians) until red gives its reservation up and waits for the next green."""
+        sl = self.net.stop_lines.get(in_lane)
+        if sl is not None and sl.kind == "signal" and "signal" not in ignore and \
+                self.signal_state(sl.control_id) == "red":
+            if self.reservations.get(j_lane) is vehicle and commit:
+                del self.reservations[j_lane]
+                vehicle.reserved = None
+            return False
         if self.reservations.get(j_lane) is vehicle:
             return True
-        sl = self.net.stop_lines.get(in_lane)
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
-            state = self.signal_state(sl.control_id)
-            if state == "red":
-                return False
-            if state == "amber" and d_line > vehicle.speed ** 2 / (2 * 3.0) + 1.0:
+            if self.signal_state(sl.control_id) == "amber" and d_line > vehicle.speed ** 2 / (2 * 3.0) + 1.0:
                 return False
         elif sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):

@@ -92,3 +92,35 @@ def test_m1_r003_right_turn_on_red_no_collision(m1, tmp_path):
         env.close()
     assert RIGHT in lanes and lanes[-1] != RIGHT  # the ego drove through the right turn at J0
     assert "R_I" in planner.stage_path()  # ... as an unprotected right turn
+
+
+def test_reservation_does_not_outlast_red(m1, tmp_path):
+    """M1, route suite seed 500 with 12 traffic vehicles, scenario r019: the ego's creeping left
+    turn at J4 reserved its junction lane on green, was then held at the line by pedestrians on
+    the crosswalk through amber into red, and entered on red when they had crossed: the
+    reservation made `may_enter` skip the signal. Now red holds a reserving vehicle too and the
+    reservation is given up."""
+    path = tmp_path / "m1.json"
+    mapio.save(m1, path)
+    sc = Scenario(name="m1h500-r019", map=str(path), route=(("J4", "R13", "R12"), ("J5", "R12", "R10")),
+                  traffic_vehicles=12, pedestrian_rate=4.0, seed=519, duration=40.0)
+    env = make_env(sc)
+    try:
+        obs, info = env.reset(seed=sc.seed)
+        planner = BaselinePlanner()
+        planner.reset(env)
+        u = env.unwrapped
+        held_at_red = longest = 0  # steps the ego has waited at J4's line with the light red
+        for _ in range(10_000):
+            obs, _, terminated, truncated, info = env.step(planner.act(obs, info))
+            assert not info["new_violations"], f"{info['new_violations']} at t={info['time']:.1f} s"
+            at_red = info["signal_state"] == "red" and info["distance_to_stop_line"] < 5.0 and info["junction"] == "J4"
+            held_at_red = held_at_red + 1 if at_red else 0
+            longest = max(longest, held_at_red)
+            if held_at_red > 1:  # the planner has decided once since the light turned red
+                assert u.vehicle.reserved is None  # nothing reserved while waiting at red
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert longest >= 5  # the situation happened: the ego waited at J4's line through a red
