@@ -371,21 +371,21 @@ class TrafficControl:
     def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
                   ignore: frozenset = frozenset()) -> bool:
         """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now. A
-        reservation skips the other checks but not a red signal: a vehicle held at the line (e.g. by
-        pedestrians) until red gives its reservation up and waits for the next green."""
+        reservation skips the other checks but not the signal: a vehicle held at the line (e.g. by
+        pedestrians) into amber stays there if it can stop, and on red gives its reservation up."""
         sl = self.net.stop_lines.get(in_lane)
-        if sl is not None and sl.kind == "signal" and "signal" not in ignore and \
-                self.signal_state(sl.control_id) == "red":
-            if self.reservations.get(j_lane) is vehicle and commit:
-                del self.reservations[j_lane]
-                vehicle.reserved = None
-            return False
+        if sl is not None and sl.kind == "signal" and "signal" not in ignore:
+            state = self.signal_state(sl.control_id)
+            if state == "red":
+                if self.reservations.get(j_lane) is vehicle and commit:
+                    del self.reservations[j_lane]
+                    vehicle.reserved = None
+                return False
+            if state == "amber" and d_line > vehicle.speed ** 2 / (2 * 3.0) + 1.0:
+                return False
         if self.reservations.get(j_lane) is vehicle:
             return True
-        if sl is not None and sl.kind == "signal" and "signal" not in ignore:
-            if self.signal_state(sl.control_id) == "amber" and d_line > vehicle.speed ** 2 / (2 * 3.0) + 1.0:
-                return False
-        elif sl is not None and sl.kind == "stop" and "stop" not in ignore:
+        if sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):
                 return False
         if "conflict" not in ignore and not self.junction_clear(j_lane, vehicle):

@@ -94,16 +94,20 @@ def test_m1_r003_right_turn_on_red_no_collision(m1, tmp_path):
     assert "R_I" in planner.stage_path()  # ... as an unprotected right turn
 
 
-def test_reservation_does_not_outlast_red(m1, tmp_path):
-    """M1, route suite seed 500 with 12 traffic vehicles, scenario r019: the ego's creeping left
-    turn at J4 reserved its junction lane on green, was then held at the line by pedestrians on
-    the crosswalk through amber into red, and entered on red when they had crossed: the
-    reservation made `may_enter` skip the signal. Now red holds a reserving vehicle too and the
-    reservation is given up."""
+@pytest.mark.parametrize("name, route, pedestrian_rate, seed, duration", [
+    ("m1h500-r019", (("J4", "R13", "R12"), ("J5", "R12", "R10")), 4.0, 519, 40.0),
+    ("m1h600-r014", (("J4", "R11", "R14"), ("J7", "R14", "R17")), 6.0, 614, 102.0),
+])
+def test_reservation_does_not_outlast_the_signal(m1, tmp_path, name, route, pedestrian_rate, seed, duration):
+    """M1 route suites with 12 traffic vehicles (`--seed 500`, r019; `--seed 600
+    --pedestrian-rate 6`, r014): the ego's creeping left turn at J4 reserved its junction lane on
+    green, was held at the line by pedestrians on the crosswalk into amber, and when they had
+    crossed drove on into red: the reservation made `may_enter` skip the signal. Now a reserving
+    vehicle that can stop at amber stays, and on red gives the reservation up."""
     path = tmp_path / "m1.json"
     mapio.save(m1, path)
-    sc = Scenario(name="m1h500-r019", map=str(path), route=(("J4", "R13", "R12"), ("J5", "R12", "R10")),
-                  traffic_vehicles=12, pedestrian_rate=4.0, seed=519, duration=40.0)
+    sc = Scenario(name=name, map=str(path), route=route, traffic_vehicles=12, pedestrian_rate=pedestrian_rate,
+                  seed=seed, duration=duration)
     env = make_env(sc)
     try:
         obs, info = env.reset(seed=sc.seed)
