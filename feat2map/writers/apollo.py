@@ -179,6 +179,16 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         frame.fill_points(msg.polygon.point, j.polygon)
 
     overlaps = _Overlaps(out, ids)
+
+    def control_overlaps(msg: Any, c: Any, info: str) -> None:
+        """Stop line, and overlaps with the incoming lanes at the line and with the junction."""
+        _add_stop_line(msg, frame, c.stop_line)
+        for x in c.lane_ids:
+            if x in m.lanes:
+                overlaps.add(lanes[x], "lane_overlap_info", stop_line_range(centres[x], c.stop_line), msg, info)
+        if c.junction_id in junctions:
+            overlaps.add(junctions[c.junction_id], "junction_overlap_info", None, msg, info)
+
     for s in m.signals.values():
         msg = out.signal.add()
         msg.id.id = ids.of[("signal", s.id)]
@@ -193,25 +203,13 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
             sub.type = aps.Subsignal.CIRCLE
             sub.location.x, sub.location.y = s.position[0] + frame.ox, s.position[1] + frame.oy
             sub.location.z = APOLLO_SIGNAL_HEIGHT_M + dz
-        _add_stop_line(msg, frame, s.stop_line)
-        for x in s.lane_ids:
-            if x in m.lanes:
-                rng = stop_line_range(centres[x], s.stop_line)
-                overlaps.add(lanes[x], "lane_overlap_info", rng, msg, "signal_overlap_info")
-        if s.junction_id in junctions:
-            overlaps.add(junctions[s.junction_id], "junction_overlap_info", None, msg, "signal_overlap_info")
+        control_overlaps(msg, s, "signal_overlap_info")
     stop_types = stop_sign_types(m)
     for s in m.stop_signs.values():
         msg = out.stop_sign.add()
         msg.id.id = ids.of[("stop_sign", s.id)]
         msg.type = stop_types.get(s.junction_id, aps.StopSign.UNKNOWN)
-        _add_stop_line(msg, frame, s.stop_line)
-        for x in s.lane_ids:
-            if x in m.lanes:
-                rng = stop_line_range(centres[x], s.stop_line)
-                overlaps.add(lanes[x], "lane_overlap_info", rng, msg, "stop_sign_overlap_info")
-        if s.junction_id in junctions:
-            overlaps.add(junctions[s.junction_id], "junction_overlap_info", None, msg, "stop_sign_overlap_info")
+        control_overlaps(msg, s, "stop_sign_overlap_info")
     for ln in m.lanes.values():
         if ln.junction_id in junctions:
             overlaps.add(lanes[ln.id], "lane_overlap_info", (0.0, lanes[ln.id].length),
