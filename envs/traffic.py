@@ -344,16 +344,23 @@ class TrafficControl:
                 sl = net.stop_lines.get(p)
                 if sl is not None and (sl.kind == "stop" or self.signal_state(sl.control_id) == "red"):
                     continue
-                lane = net.lane_of.get(p)
-                for v in self.buckets.get(p, ()):
-                    if v is vehicle or not isinstance(v, RouteFollower):
-                        continue
-                    k = v.route_pos + 1
-                    if k < len(v.lane_route) and v.lane_route[k] == c:
-                        d = lane.length - lane.local_coordinates(v.position)[0]
-                        if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + 3.0:
-                            return False
+                if self.about_to_enter(p, c, vehicle, margin=3.0):
+                    return False
         return True
+
+    def about_to_enter(self, approach: str, lane_id: str, exclude=None, margin: float = 3.0) -> bool:
+        """A route follower on lane `approach` (other than `exclude`) drives into `lane_id` next
+        and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
+        lane = self.net.lane_of.get(approach)
+        for v in self.buckets.get(approach, ()):
+            if v is exclude or not isinstance(v, RouteFollower):
+                continue
+            k = v.route_pos + 1
+            if k < len(v.lane_route) and v.lane_route[k] == lane_id:
+                d = lane.length - lane.local_coordinates(v.position)[0]
+                if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + margin:
+                    return True
+        return False
 
     def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
         """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane."""

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.network import CONFLICT_DISTANCE_M
-from ..envs.traffic import IDM_ACC, PRIORITY_HORIZON_S, STOP_ZONE_M, STOPPED_SPEED_MPS, idm
+from ..envs.traffic import IDM_ACC, STOP_ZONE_M, STOPPED_SPEED_MPS, idm
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
 CREEP_TRIGGER_M = 12.0  # an unprotected left creeps when held by traffic this close to the line
@@ -283,16 +283,8 @@ class BaselinePlanner:
         for c in net.conflicts.get(self.j_lane, ()):
             if control.occupied(c, env.vehicle):
                 return True
-            for p in net.hdmap.lanes[c].predecessors:
-                lane = net.lane_of.get(p)
-                for v in control.buckets.get(p, ()):
-                    if v is env.vehicle or not hasattr(v, "lane_route"):
-                        continue
-                    k = v.route_pos + 1
-                    if k < len(v.lane_route) and v.lane_route[k] == c:
-                        dist = lane.length - lane.local_coordinates(v.position)[0]
-                        if dist < PRIORITY_HORIZON_S * max(v.speed, 0.0) + 5.0:
-                            return True
+            if any(control.about_to_enter(p, c, env.vehicle, margin=5.0) for p in net.hdmap.lanes[c].predecessors):
+                return True
         return False
 
     def _zone(self, mine: str, other: str) -> tuple[float, float, float, float]:
