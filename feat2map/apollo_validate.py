@@ -446,12 +446,7 @@ def _overlaps(m: Any, idx: _Index) -> list[Problem]:
                 if ov is not None and e.id.id not in {x.id.id for x in ov.object}:
                     out.append(Problem(f"{kind} {e.id.id}", f"lists overlap {o.id} which does not include it"))
     # junction lanes overlap their junction over the whole lane
-    cover: dict[tuple[str, str], tuple[float, float]] = {}
-    for ov in m.overlap:
-        kinds = {o.WhichOneof("overlap_info"): o for o in ov.object}
-        if "lane_overlap_info" in kinds and "junction_overlap_info" in kinds:
-            li = kinds["lane_overlap_info"].lane_overlap_info
-            cover[(kinds["lane_overlap_info"].id.id, kinds["junction_overlap_info"].id.id)] = (li.start_s, li.end_s)
+    cover = {(lane, j): rng for j, lane, rng in _lane_ranges(m, "junction_overlap_info")}
     for ln in m.lane:
         if not ln.HasField("junction_id"):
             continue
@@ -464,6 +459,18 @@ def _overlaps(m: Any, idx: _Index) -> list[Problem]:
     return out
 
 
+def _lane_ranges(m: Any, info: str) -> list[tuple[str, str, tuple[float, float]]]:
+    """(other object id, lane id, lane s range) of every overlap between a lane and an object
+    whose overlap info is `info` (e.g. "junction_overlap_info")."""
+    out = []
+    for ov in m.overlap:
+        kinds = {o.WhichOneof("overlap_info"): o for o in ov.object}
+        if "lane_overlap_info" in kinds and info in kinds:
+            li = kinds["lane_overlap_info"].lane_overlap_info
+            out.append((kinds[info].id.id, kinds["lane_overlap_info"].id.id, (li.start_s, li.end_s)))
+    return out
+
+
 def _crosswalk_cover(m: Any, idx: _Index) -> list[Problem]:
     """Each crosswalk overlaps exactly the lanes whose centreline it covers, over that s range."""
     out: list[Problem] = []
@@ -472,12 +479,7 @@ def _crosswalk_cover(m: Any, idx: _Index) -> list[Problem]:
     lanes = [ln for ln in m.lane if _distinct(_curve_points(ln.central_curve)) >= 2]
     lines = [LineString(_curve_points(ln.central_curve)) for ln in lanes]
     tree = STRtree(lines)
-    ranges: dict[tuple[str, str], tuple[float, float]] = {}
-    for ov in m.overlap:
-        kinds = {o.WhichOneof("overlap_info"): o for o in ov.object}
-        if "lane_overlap_info" in kinds and "crosswalk_overlap_info" in kinds:
-            li = kinds["lane_overlap_info"].lane_overlap_info
-            ranges[(kinds["crosswalk_overlap_info"].id.id, kinds["lane_overlap_info"].id.id)] = (li.start_s, li.end_s)
+    ranges = {(cw, lane): rng for cw, lane, rng in _lane_ranges(m, "crosswalk_overlap_info")}
     for cw in m.crosswalk:
         pts = _xy(cw.polygon.point)
         if _distinct(pts) < 3:

@@ -140,18 +140,10 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     out = aps.Map()
     _header(out.header, m, zone)
 
-    for ln in m.lanes.values():
-        ids.claim("lane", ln.id, ln.id)
-    for r in m.roads.values():
-        ids.claim("road", r.id, r.id)
-    for j in m.junctions.values():
-        ids.claim("junction", j.id, j.id)
-    for s in m.signals.values():
-        ids.claim("signal", s.id, s.id)
-    for s in m.stop_signs.values():
-        ids.claim("stop_sign", s.id, s.id)
-    for c in m.crosswalks.values():
-        ids.claim("crosswalk", c.id, c.id)
+    for kind, table in (("lane", m.lanes), ("road", m.roads), ("junction", m.junctions), ("signal", m.signals),
+                        ("stop_sign", m.stop_signs), ("crosswalk", m.crosswalks)):
+        for key in table:
+            ids.claim(kind, key, key)
     lid = {k: ids.of[("lane", k)] for k in m.lanes}
 
     centres = {ln.id: exact_end_centerline(ln) for ln in m.lanes.values()}  # as exported
