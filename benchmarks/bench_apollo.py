@@ -14,12 +14,12 @@ from pathlib import Path
 
 import feat2map
 from feat2map import atomic
-from feat2map.apollo_routing import build_routing_graph
-from feat2map.apollo_validate import validate_apollo
+from feat2map.formats.apollo.routing import build_routing_graph
+from feat2map.formats.apollo.validate import validate_apollo
 from feat2map.config import GenerationConfig
 from feat2map.features import FeatureSpace
-from feat2map.apollo_sim_map import to_sim_map
-from feat2map.writers.apollo import text_of, to_apollo
+from feat2map.formats.apollo.sim_map import to_sim_map
+from feat2map.formats.apollo import text_of, to_apollo
 
 # every (n, control, crosswalk) combination of 3- and 4-leg junctions: 12 junctions per sample
 SPACE = FeatureSpace((3, 4), ("bare", "signal", "stop"), (True, False), feat2map.PAPER_SF_FEATURE_SPACE.rotation_ranges)

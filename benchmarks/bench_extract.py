@@ -16,7 +16,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Callable
 
-from feat2map import apollo_schema
+from feat2map.formats.apollo import schema as apollo_schema
 from feat2map.extract import extract_junctions
 from feat2map.readers import read_map
 

@@ -65,11 +65,11 @@ def run_script(name: str, title: str, script: str, *args: str) -> Table:
 def _rollout_suite(workdir: Path, n: int):
     """A suite of `n` route-coverage scenarios on the paper's M1 (SF feature space, seed 1)."""
     import feat2map
-    from feat2map import mapio
+    from feat2map.formats import native
     from feat2map.scenarios.routes import build_suite
 
     path = workdir / "m1.json"
-    mapio.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1), path)
+    native.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1), path)
     suite = build_suite(path)
     scenarios = list(getattr(suite, "scenarios", suite))
     return scenarios[:n], len(scenarios)

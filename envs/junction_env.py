@@ -7,7 +7,7 @@
   generation      dict of GenerationConfig fields (e.g. {"samples_per_combination": 2})
   new_map_each_reset   draw a fresh map seed from the env's np_random at every reset
 `feat2map/MapFile-v0` config:
-  map_file        path of any map file feat2map reads (feat2map.readers.read_map: native JSON,
+  map_file        path of any map file feat2map reads (feat2map.formats.read_map: native JSON,
                   OpenDRIVE .xodr, and Apollo once its reader lands), or
   map             an HDMap object
 """
@@ -52,7 +52,7 @@ class JunctionGridEnv(MapEnv):
 
 
 class MapFileEnv(MapEnv):
-    """Any map: a file read by `feat2map.readers.read_map` (`map_file`) or an HDMap (`map`)."""
+    """Any map: a file read by `feat2map.formats.read_map` (`map_file`) or an HDMap (`map`)."""
 
     @classmethod
     def default_config(cls) -> dict:
@@ -61,7 +61,7 @@ class MapFileEnv(MapEnv):
         return config
 
     def _network(self) -> MapNetwork:
-        from ..readers import read_map
+        from ..formats import read_map
 
         if self.config.get("map") is not None:
             m = self.config["map"]

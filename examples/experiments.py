@@ -34,7 +34,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 import feat2map  # noqa: E402
-from feat2map import atomic, mapio  # noqa: E402
+from feat2map import atomic  # noqa: E402
+from feat2map.formats import native  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.extract import ExtractedJunction, extract_junctions, map_feature  # noqa: E402
 from feat2map.features import FeatureSpace  # noqa: E402
@@ -111,7 +112,7 @@ def read_input(settings: Settings, name: str) -> HDMap:
         if path.suffix not in (".bin", ".txt"):
             raise
         try:
-            from feat2map.readers.apollo import read_apollo
+            from feat2map.formats.apollo import read_apollo
         except ImportError:
             raise ExperimentError(f"cannot read the Apollo map: {exc.message}", str(path)) from None
         return read_apollo(path)
@@ -244,7 +245,7 @@ def generate_maps(space: FeatureSpace, names_seeds: Sequence[tuple[str, int]], f
         m = feat2map.generate(space, seed=seed)
         maps[name] = m
         paths[name] = folder / f"{name}.json"
-        mapio.save(m, paths[name])
+        native.save(m, paths[name])
     return Generated(space, maps, paths)
 
 
@@ -265,7 +266,7 @@ def rq1(settings: Settings) -> dict[str, Any]:
     saved = [folder / "sf_features.json"] + [folder / f"{k}.json" for k, _ in names_seeds]
     if settings.reuse and all(p.is_file() for p in saved):  # redraw the maps the saved suites drove
         space = FeatureSpace.from_json(saved[0].read_text(), str(saved[0]))
-        gen = Generated(space, {k: mapio.load(folder / f"{k}.json") for k, _ in names_seeds},
+        gen = Generated(space, {k: native.load(folder / f"{k}.json") for k, _ in names_seeds},
                         {k: folder / f"{k}.json" for k, _ in names_seeds})
     else:
         atomic.write_text(folder / "sf_features.json", space.to_json())
@@ -408,7 +409,7 @@ def drive_lap(map_path: Path, seed: int = 0, traffic: int = 4) -> dict[str, Any]
 
     from feat2map.scenarios.planner import BaselinePlanner
 
-    m = mapio.load(map_path)
+    m = native.load(map_path)
     start = next(iter(m.lanes))
     env = gym.make("feat2map/MapFile-v0", config={
         "map_file": str(map_path), "route": {"from_lane": start, "to_lane": start}, "traffic_vehicles": traffic,
@@ -631,7 +632,7 @@ def load_run(path: Path) -> MapRun | None:
 
     d = json.loads(path.read_text())
     res = SuiteResult.from_dict(d, str(path))
-    m = mapio.load(d["map_path"]) if d["map_path"].endswith(".json") else read_map_file(Path(d["map_path"]))
+    m = native.load(d["map_path"]) if d["map_path"].endswith(".json") else read_map_file(Path(d["map_path"]))
     from feat2map.scenarios.routes import manoeuvres
 
     return MapRun(res.name, d["map_path"], len(m.junctions), int(d["routes"]), len(manoeuvres(m)), res, d["subset"])
@@ -715,7 +716,7 @@ def rq3(settings: Settings) -> dict[str, Any]:
     space = map_feature(junctions)
     atomic.write_text(folder / "m4_features.json", space.to_json())
     if settings.reuse and (folder / "M4.json").is_file():  # the map the saved suite drove
-        gen = Generated(space, {"M4": mapio.load(folder / "M4.json")}, {"M4": folder / "M4.json"})
+        gen = Generated(space, {"M4": native.load(folder / "M4.json")}, {"M4": folder / "M4.json"})
     else:
         gen = generate_maps(space, [("M4", settings.m4_seed)], folder)
     m4 = gen.maps["M4"]
@@ -805,9 +806,9 @@ def rq4(settings: Settings) -> dict[str, Any]:
     for name, (m, rel) in built.items():
         paths[name] = folder / f"{name.replace(' ', '_')}.json"
         if settings.reuse and paths[name].is_file():  # the map the saved suite drove
-            built[name] = (mapio.load(paths[name]), rel)
+            built[name] = (native.load(paths[name]), rel)
         else:
-            mapio.save(m, paths[name])
+            native.save(m, paths[name])
     pic = picture_maps([(name, m, None) for name, (m, _) in built.items()], folder / "rq4_custom.png")
     copy_to_docs(settings, [pic])
     measured = measure(settings, 4, [(name, p, None) for name, p in paths.items()])

@@ -49,6 +49,9 @@ def staged_dir(out: str | Path) -> Iterator[Path]:
         os.chmod(tmp, 0o777 & ~_umask())
         out.mkdir(parents=True, exist_ok=True)
         for item in sorted(tmp.iterdir()):
-            os.replace(item, out / item.name)
+            dest = out / item.name
+            if item.is_dir() and dest.is_dir():  # a folder output replaces the old folder whole
+                shutil.rmtree(dest)
+            os.replace(item, dest)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

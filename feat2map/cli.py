@@ -9,7 +9,8 @@ from typing import Sequence
 
 from tqdm import tqdm
 
-from . import atomic, mapio
+from . import atomic
+from .formats import FORMATS, detect, native, read_map, write_map
 from .config import GenerationConfig
 from .errors import Feat2MapError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
@@ -37,7 +38,6 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None):
     from .extract import extract_junctions
-    from .readers import read_map
 
     import warnings
 
@@ -86,7 +86,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         m = generate(space, seed=args.seed, config=cfg)
     stages.update(2)
     with atomic.staged_dir(args.out) as tmp:
-        mapio.save(m, tmp / "map.json")
+        native.save(m, tmp / "map.json")
         if space is not None:
             atomic.write_text(tmp / "features.json", space.to_json())
         stages.set_postfix_str("picture")
@@ -96,13 +96,9 @@ def cmd_generate(args: argparse.Namespace) -> int:
                 render_junctions(m, tmp / "junctions.png")
         stages.update(1)
         if args.opendrive:
-            from .writers.opendrive import write_opendrive
-
-            write_opendrive(m, tmp / "map.xodr")
+            write_map(m, tmp / "map.xodr", "opendrive")
         if not args.no_apollo:  # OUT/apollo/ is what a user copies to Apollo's modules/map/data/<name>/
-            from .writers.apollo import write_apollo
-
-            write_apollo(m, Path(args.out) / "apollo")
+            write_map(m, tmp / "apollo", "apollo")
         stages.update(1)
     stages.close()
     print(f"wrote {args.out}: {len(m.junctions)} junctions, {len(m.roads)} roads, {len(m.lanes)} lanes, "
@@ -119,7 +115,6 @@ def cmd_extract(args: argparse.Namespace) -> int:
     if args.out:
         atomic.write_text(args.out, space.to_json())
     if args.picture:
-        from .readers import read_map
         from .render import render_map
 
         first = read_map(args.maps[0])
@@ -144,18 +139,35 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from .apollo_validate import validate_apollo
-
-    problems = validate_apollo(args.path, progress=True)
+    fmt = FORMATS[args.format] if args.format else detect(args.path, "validate")
+    if fmt.validate is None:
+        raise Feat2MapError(f"format {fmt.name} has no validator", "--format")
+    problems = fmt.face("validate")(args.path, progress=True)
     for p in problems:
         print(p)
     if args.picture:
-        from .apollo_picture import render_apollo
-        from .apollo_validate import load_base_map
-
-        render_apollo(load_base_map(args.path), args.picture, problems, title=f"{args.path}: {len(problems)} problems")
+        if fmt.picture is None:
+            raise Feat2MapError(f"format {fmt.name} draws no problem picture", "--picture")
+        fmt.face("picture")(args.path, args.picture, problems, title=f"{args.path}: {len(problems)} problems")
     print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}")
     return 1 if problems else 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    fmt = FORMATS[args.format]
+    m = read_map(args.map)
+    if not m.lanes:
+        raise Feat2MapError("map has no lanes", str(args.map))
+    options = {o.kwarg: getattr(args, o.kwarg) for o in fmt.options if getattr(args, o.kwarg) is not None}
+    if "origin" in options:
+        options["origin"] = tuple(options["origin"])
+    try:
+        write_map(m, args.out, fmt.name, **options)
+    except OSError as exc:
+        raise Feat2MapError(f"cannot write ({exc.strerror or exc})", str(args.out)) from None
+    print(f"wrote {args.out} ({fmt.title}): {len(m.roads)} roads, {len(m.lanes)} lanes, {len(m.junctions)} junctions, "
+          f"{len(m.signals)} signals, {len(m.stop_signs)} stop signs, {len(m.crosswalks)} crosswalks")
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -189,16 +201,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     ex = sub.add_parser("export", help="export a feat2map map to another format")
     exsub = ex.add_subparsers(dest="format", required=True, parser_class=_Parser)
-    from .writers.opendrive import add_export_opendrive_command
+    for fmt in FORMATS.values():
+        if fmt.write is None:
+            continue
+        f = exsub.add_parser(fmt.name, help=f"export as {fmt.title}")
+        f.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
+        f.add_argument("--out", required=True, help="output folder" if fmt.output == "dir"
+                       else f"output file ({fmt.suffixes[0]})")
+        for o in fmt.options:
+            f.add_argument(o.flag, dest=o.kwarg, **o.argparse)
+        f.set_defaults(func=cmd_export)
 
-    add_export_opendrive_command(exsub)
-    from .writers.apollo import add_export_apollo_command
-
-    add_export_apollo_command(exsub)
-
-    v = sub.add_parser("validate", help="check an Apollo map folder (or one map file) for what Apollo needs")
-    v.add_argument("path", help="folder with base_map, sim_map, routing_map (.bin/.txt), or one map file")
-    v.add_argument("--picture", help="PNG/SVG of the base map with the problems ringed in red")
+    v = sub.add_parser("validate", help="check a map with its format's rules (Apollo: what Apollo needs to load and route)")
+    v.add_argument("path", help="an Apollo map folder (base_map, sim_map, routing_map as .bin/.txt) or one map file")
+    v.add_argument("--format", choices=sorted(n for n, f in FORMATS.items() if f.validate),
+                   help="the map's format (default: from the path)")
+    v.add_argument("--picture", help="PNG/SVG of the map with the problems ringed in red")
     v.set_defaults(func=cmd_validate)
 
     from .cli_scenarios import add_scenario_commands

@@ -16,7 +16,7 @@ from .errors import Feat2MapError
 
 
 def cmd_suite(args: argparse.Namespace) -> int:
-    from .readers import read_map
+    from .formats import read_map
     from .scenarios.routes import build_suite, manoeuvres, route_coverage
     from .scenarios.scenario import save_suite
 

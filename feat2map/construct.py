@@ -19,7 +19,7 @@ from .config import MIN_STUB_LENGTH_M, GenerationConfig
 from .features import JunctionFeature
 from .errors import LayoutError
 from .layout import Placement
-from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
+from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, classify_turn
 
 
 Pose = tuple[tuple[float, float], float]  # (point, heading in radians)
@@ -149,16 +149,6 @@ class _Builder:
     def link(self, a: str, b: str) -> None:
         self.lanes[a]["successors"].append(b)
         self.lanes[b]["predecessors"].append(a)
-
-
-def classify_turn(entry_heading: float, exit_heading: float) -> str:
-    """left / straight ("none") / right from the heading change, in the paper's sense."""
-    from .config import STRAIGHT_TOLERANCE_DEG
-
-    d = math.degrees((exit_heading - entry_heading + math.pi) % (2 * math.pi) - math.pi)
-    if abs(d) <= STRAIGHT_TOLERANCE_DEG:
-        return "none"
-    return "left" if d > 0 else "right"
 
 
 def lane_pairs(p: int, exits: Sequence[tuple[int, int, str]]) -> list[tuple[int, int, int]]:

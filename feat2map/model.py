@@ -13,6 +13,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from .bezier import Bezier, Point
+from .config import STRAIGHT_TOLERANCE_DEG
 from .features import JunctionFeature
 
 Polyline = tuple[Point, ...]
@@ -76,6 +77,14 @@ class Lane:
             return float(self.bezier.heading(1.0))
         (x0, y0), (x1, y1) = self.centerline[-2], self.centerline[-1]
         return math.atan2(y1 - y0, x1 - x0)
+
+
+def classify_turn(entry_heading: float, exit_heading: float) -> str:
+    """left / straight ("none") / right from the heading change, in the paper's sense."""
+    d = math.degrees((exit_heading - entry_heading + math.pi) % (2 * math.pi) - math.pi)
+    if abs(d) <= STRAIGHT_TOLERANCE_DEG:
+        return "none"
+    return "left" if d > 0 else "right"
 
 
 def incoming_lanes(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> tuple[str, ...]:

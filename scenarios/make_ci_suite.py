@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from feat2map import PAPER_SF_FEATURE_SPACE, mapio
+from feat2map import PAPER_SF_FEATURE_SPACE
+from feat2map.formats import native
 from feat2map.generate import generate_from_features
 from feat2map.model import HDMap
 from feat2map.sampling import sample_features
@@ -68,7 +69,7 @@ def ci_routes(m: HDMap) -> list[Route]:
 
 
 def ci_suite(map_path: Path) -> Suite:
-    m = mapio.load(map_path)
+    m = native.load(map_path)
     scenarios = tuple(
         Scenario(name=f"ci-{i:02d}-" + "-".join(mv[0] for mv in r), map=str(map_path), route=r,
                  traffic_vehicles=TRAFFIC_VEHICLES, pedestrian_rate=PEDESTRIAN_RATE, seed=i,
@@ -83,13 +84,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--picture", action="store_true", help="also draw the routes (ci_suite.png)")
     args = ap.parse_args(argv)
     map_path = args.out_dir / "ci_map.json"
-    mapio.save(ci_map(), map_path)
+    native.save(ci_map(), map_path)
     suite = ci_suite(map_path)
     save_suite(suite, args.out_dir / "ci_suite.yaml")
     if args.picture:
-        render_routes(mapio.load(map_path), [sc.route for sc in suite.scenarios], args.out_dir / "ci_suite.png",
+        render_routes(native.load(map_path), [sc.route for sc in suite.scenarios], args.out_dir / "ci_suite.png",
                       names=[sc.name for sc in suite.scenarios])
-    print(f"{map_path}: {len(mapio.load(map_path).junctions)} junctions; "
+    print(f"{map_path}: {len(native.load(map_path).junctions)} junctions; "
           f"{args.out_dir / 'ci_suite.yaml'}: {len(suite.scenarios)} scenarios")
     return 0
 

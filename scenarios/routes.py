@@ -210,7 +210,7 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                 name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
     """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
     `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given."""
-    from ..readers import read_map
+    from ..formats import read_map
 
     path = Path(map_path)
     m = read_map(path)

@@ -234,7 +234,7 @@ def env_config(scenario: Scenario, config: Mapping | None = None) -> dict:
 
 @lru_cache(maxsize=8)
 def _read_map_cached(path: str, mtime: int):
-    from ..readers import read_map
+    from ..formats import read_map
 
     return read_map(path)
 

@@ -24,7 +24,7 @@ from lxml import etree  # noqa: E402
 import feat2map  # noqa: E402
 from feat2map import atomic  # noqa: E402
 from feat2map.render import CONTROL_COLOURS, draw_map  # noqa: E402
-from feat2map.writers.opendrive import write_opendrive  # noqa: E402
+from feat2map.formats.opendrive.writer import write_opendrive  # noqa: E402
 
 
 def find_netconvert() -> str:

@@ -11,18 +11,18 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import feat2map
-from feat2map import apollo_schema as aps
-from feat2map import mapio
-from feat2map.apollo_routing import build_routing_graph, node_cost
-from feat2map.apollo_validate import Problem, validate_apollo, validate_map
+from feat2map.formats.apollo import schema as aps
+from feat2map.formats import native
+from feat2map.formats.apollo.routing import build_routing_graph, node_cost
+from feat2map.formats.apollo.validate import Problem, validate_apollo, validate_map
 from feat2map.cli import main
 from feat2map.config import (APOLLO_MIN_HALF_WIDTH_M, ROUTING_BASE_SPEED_MPS, ROUTING_CHANGE_PENALTY,
                              ROUTING_LEFT_TURN_PENALTY, ROUTING_RIGHT_TURN_PENALTY, UTM_ORIGIN)
 from feat2map.errors import Feat2MapError, MapFormatError
 from feat2map.features import FeatureSpace, JunctionFeature
-from feat2map import apollo_geometry as geo
-from feat2map import apollo_sim_map as simmap
-from feat2map.writers import apollo as wa
+from feat2map.formats.apollo import geometry as geo
+from feat2map.formats.apollo import sim_map as simmap
+from feat2map.formats.apollo import writer as wa
 
 APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
 FILES = ("base_map", "sim_map", "routing_map")
@@ -225,7 +225,7 @@ def _assert_same_features(m: feat2map.HDMap, back: feat2map.HDMap) -> None:
 
 
 def test_round_trip_through_the_apollo_reader_keeps_features(small_map, exported):
-    reader = pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader (issue 3) not present")
+    reader = pytest.importorskip("feat2map.formats.apollo", reason="Apollo reader (issue 3) not present")
     for name in ("base_map.bin", "base_map.txt"):
         _assert_same_features(small_map, reader.read_apollo(exported / name))
     # sim_map drops the points that carry the exact end tangents: structure survives
@@ -258,7 +258,7 @@ def test_every_generated_map_exports_clean(space, seed):
     base = wa.to_apollo(m)
     _assert_clean(m, validate_map(base))
     try:
-        from feat2map.readers.apollo import read_apollo_bytes
+        from feat2map.formats.apollo import read_apollo_bytes
     except ImportError:  # the Apollo reader is issue 3's
         pass
     else:
@@ -700,7 +700,7 @@ def test_real_maps_re_exported_validate_clean(name):
     path = APOLLO_MAPS / name / "base_map.bin"
     if not path.exists():
         pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
-    from feat2map.readers.apollo import read_apollo
+    from feat2map.formats.apollo import read_apollo
 
     m = read_apollo(path)
     base = wa.to_apollo(m)
@@ -729,7 +729,7 @@ def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch)
 
 def test_cli_export_validate_and_exit_codes(small_map, tmp_path, capsys):
     src = tmp_path / "map.json"
-    mapio.save(small_map, src)
+    native.save(small_map, src)
     out = tmp_path / "ap"
     assert main(["export", "apollo", str(src), "--out", str(out), "--zone", "11", "--origin", "500000", "4000000"]) == 0
     assert "+zone=11 " in (out / "base_map.txt").read_text()
@@ -757,7 +757,7 @@ def test_cli_export_validate_and_exit_codes(small_map, tmp_path, capsys):
 
 
 def test_validate_picture_rings_the_problems(exported, tmp_path, capsys):
-    from feat2map.apollo_picture import problem_locations
+    from feat2map.formats.apollo.picture import problem_locations
 
     base = _load(exported, "base_map")
     lane = base.lane[0]
@@ -778,7 +778,7 @@ def test_validate_picture_rings_the_problems(exported, tmp_path, capsys):
 
 def test_generate_writes_apollo_unless_told_not_to(tmp_path):
     assert main(["generate", "--seed", "2", "--out", str(tmp_path / "a"), "--quiet", "--no-picture"]) == 0
-    m = mapio.load(tmp_path / "a" / "map.json")
+    m = native.load(tmp_path / "a" / "map.json")
     _assert_clean(m, validate_apollo(tmp_path / "a" / "apollo"))
     assert main(["generate", "--seed", "2", "--out", str(tmp_path / "a"), "--quiet", "--no-picture"]) == 0
     assert main(["generate", "--seed", "2", "--out", str(tmp_path / "b"), "--quiet", "--no-picture",

@@ -12,13 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import shared_map
-from feat2map import apollo_schema as aps
+from feat2map.formats.apollo import schema as aps
 from feat2map.cli import main
 from feat2map.errors import MapFormatError
 from feat2map.extract import extract_junctions
 from feat2map.features import normalize_rotation
 from feat2map.readers import read_map
-from feat2map.readers.apollo import read_apollo, read_apollo_bytes
+from feat2map.formats.apollo import read_apollo, read_apollo_bytes
 
 X0, Y0 = 553000.25, 4182000.75  # UTM-like offsets, as in the SVL maps
 W = 3.5  # lane width
@@ -204,10 +204,10 @@ def test_text_and_binary_give_the_same_map(tmp_path, t_map):
 
 
 def test_map_round_trips_through_the_native_file(tmp_path, t_map):
-    from feat2map import mapio
+    from feat2map.formats import native
 
-    mapio.save(t_map, tmp_path / "m.json")
-    back = mapio.load(tmp_path / "m.json")
+    native.save(t_map, tmp_path / "m.json")
+    back = native.load(tmp_path / "m.json")
     assert back.lanes == t_map.lanes and back.crosswalks == t_map.crosswalks and back.origin == t_map.origin
 
 

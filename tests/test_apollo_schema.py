@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from feat2map import apollo_schema as aps
+from feat2map.formats.apollo import schema as aps
 from feat2map.errors import MapFormatError
 
 APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"

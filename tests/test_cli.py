@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.cli import main
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 
@@ -16,7 +16,7 @@ def test_generate_default_writes_map_features_and_picture(tmp_path, capsys):
     out = tmp_path / "m1"
     assert main(["generate", "--seed", "1", "--out", str(out), "--quiet"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["apollo", "features.json", "junctions.png", "map.json", "map.png"]
-    m = mapio.load(out / "map.json")
+    m = native.load(out / "map.json")
     assert len(m.junctions) == 8
     assert FeatureSpace.from_json((out / "features.json").read_text()) == PAPER_SF_FEATURE_SPACE
     assert (out / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -29,7 +29,7 @@ def test_extract_round_trips_generated_features(tmp_path, capsys):
     capsys.readouterr()
     assert main(["extract", str(out / "map.json"), "--json", "--out", str(tmp_path / "f.json")]) == 0
     doc = json.loads(capsys.readouterr().out)
-    m = mapio.load(out / "map.json")
+    m = native.load(out / "map.json")
     assert len(doc["junctions"]) == len(m.junctions)
     for j in doc["junctions"]:
         want = m.junctions[j["id"]].feature
@@ -42,7 +42,7 @@ def test_generate_from_maps_uses_their_feature_space(tmp_path):
     main(["generate", "--seed", "3", "--out", str(tmp_path / "a"), "--quiet", "--no-picture"])
     assert main(["generate", "--from-maps", str(tmp_path / "a" / "map.json"), "--seed", "4",
                  "--out", str(tmp_path / "b"), "--quiet", "--no-picture"]) == 0
-    assert len(mapio.load(tmp_path / "b" / "map.json").junctions) == 8
+    assert len(native.load(tmp_path / "b" / "map.json").junctions) == 8
 
 
 @pytest.mark.parametrize("content, message", [
@@ -73,7 +73,7 @@ def test_corrupt_map_files_name_the_file(tmp_path, capsys, content):
 
 def test_truncated_map_file(tmp_path, capsys, sf_default_map):
     path = tmp_path / "t.json"
-    text = mapio.dumps(sf_default_map)
+    text = native.dumps(sf_default_map)
     path.write_text(text[: len(text) // 2])
     assert main(["extract", str(path)]) == 2
     assert "truncated or corrupt" in capsys.readouterr().err

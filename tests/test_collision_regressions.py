@@ -19,7 +19,7 @@ import pytest
 from shapely.geometry import LineString
 
 import feat2map
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.envs.network import CONFLICT_DISTANCE_M, MapNetwork
 from feat2map.scenarios.planner import BaselinePlanner
 from feat2map.scenarios.scenario import Scenario, make_env
@@ -72,7 +72,7 @@ def test_m1_r003_right_turn_on_red_no_collision(m1, tmp_path):
     """Scenario m1-r003 (seed 3, 6 traffic vehicles, 4 pedestrians/min) driven by the baseline
     planner through J0's right turn: it collided at t=51.6 s; now the ego clears J0 safely."""
     path = tmp_path / "m1.json"
-    mapio.save(m1, path)
+    native.save(m1, path)
     sc = Scenario(name="m1-r003", map=str(path),
                   route=(("J1", "R4", "R1"), ("J0", "R1", "R2"), ("J6", "R2", "R7"), ("J2", "R7", "R5")),
                   traffic_vehicles=6, pedestrian_rate=4.0, seed=3, duration=60.0)
@@ -105,7 +105,7 @@ def test_reservation_does_not_outlast_the_signal(m1, tmp_path, name, route, pede
     crossed drove on into red: the reservation made `may_enter` skip the signal. Now a reserving
     vehicle that can stop at amber stays, and on red gives the reservation up."""
     path = tmp_path / "m1.json"
-    mapio.save(m1, path)
+    native.save(m1, path)
     sc = Scenario(name=name, map=str(path), route=route, traffic_vehicles=12, pedestrian_rate=pedestrian_rate,
                   seed=seed, duration=duration)
     env = make_env(sc)

@@ -14,7 +14,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import feat2map
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 
 from conftest import shared_map
@@ -41,7 +41,7 @@ def test_check_env_junction_grid(config):
 def test_check_env_map_file(tmp_path):
     m = feat2map.generate_from_features([J([0, 90, 180, 270], "stop", True)], seed=1)
     path = tmp_path / "map.json"
-    mapio.save(m, path)
+    native.save(m, path)
     for cfg in ({"map_file": str(path)}, {"map": m}):
         env = gym.make("feat2map/MapFile-v0", config={**cfg, "traffic_vehicles": 3})
         check_env(env.unwrapped, skip_render_check=True)
@@ -63,7 +63,7 @@ def _drive(env, seed):
 
 def test_map_file_reads_opendrive(tmp_path):
     """MapFile-v0 goes through feat2map.readers.read_map: an .xodr drives like the native map."""
-    from feat2map.writers.opendrive import write_opendrive
+    from feat2map.formats.opendrive.writer import write_opendrive
 
     m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", True), J([0, 90, 180], "stop", False)], seed=1)
     write_opendrive(m, tmp_path / "map.xodr")
@@ -98,7 +98,7 @@ def test_map_file_real_opendrive_signalized_crossing():
 def test_map_file_real_apollo_map_with_signals_and_stop_signs():
     """An Apollo base_map.bin (stop lines on junction lanes, as Apollo's overlaps put them) drives
     without violations, and the driver meets both signals and stop signs on its routes."""
-    pytest.importorskip("feat2map.readers.apollo", reason="the Apollo reader is not installed")
+    pytest.importorskip("feat2map.formats.apollo", reason="the Apollo reader is not installed")
     path = shared_map("apollo/cube_town/base_map.bin")
     env = gym.make("feat2map/MapFile-v0", config={"map_file": str(path), "traffic_vehicles": 3,
                                                    "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5,
@@ -149,7 +149,7 @@ ACTIONS = [{"type": "DiscreteMetaAction"}, {"type": "ContinuousAction"}, {"type"
 @pytest.fixture(scope="module")
 def map_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("map") / "map.json"
-    mapio.save(feat2map.generate_from_features([feat2map.JunctionFeature.from_dict(f) for f in SMALL], seed=0), path)
+    native.save(feat2map.generate_from_features([feat2map.JunctionFeature.from_dict(f) for f in SMALL], seed=0), path)
     return str(path)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 import feat2map
-from feat2map import mapio
+from feat2map.formats import native
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
@@ -33,7 +33,7 @@ def tiny_input(tmp_path_factory) -> Path:
     m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", True), J([0, 90, 180], "stop", True),
                                      J([10, 100, 175, 265], "stop", True), J([-20, 70, 200], "signal", True)], seed=0)
     path = tmp_path_factory.mktemp("input") / "tiny.json"
-    mapio.save(m, path)
+    native.save(m, path)
     return path
 
 
@@ -51,7 +51,7 @@ def test_rq1_extracts_generates_and_draws(exp, tiny_input, tmp_path):
     sf = r["stats"]["San Francisco"]
     assert (sf["junctions"], sf["signal"], sf["stop"], sf["bare"], sf["crosswalk_junctions"]) == (4, 2, 2, 0, 4)
     # one junction per combination of {3, 4} x {signal, stop} x {crosswalk}: 4 per map
-    maps = {k: mapio.load(p) for k, p in r["maps"].items()}
+    maps = {k: native.load(p) for k, p in r["maps"].items()}
     assert list(maps) == ["M1", "M2", "M3"]
     for name, m in maps.items():
         feats = sorted((j.feature.n_roads, j.feature.control, j.feature.crosswalk) for j in m.junctions.values())
@@ -113,7 +113,7 @@ def test_rq1_on_real_san_francisco(exp, tmp_path):
     sf = SHARED_MAPS / "apollo" / "san_francisco" / "base_map.bin"
     if not sf.is_file():
         pytest.skip(f"real maps absent: {sf}")
-    pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader (issue 3) not landed")
+    pytest.importorskip("feat2map.formats.apollo", reason="Apollo reader (issue 3) not landed")
     r = exp.rq1(exp.Settings(out=tmp_path / "out", docs=None, maps=SHARED_MAPS, progress=False))
     st = r["stats"]["San Francisco"]
     assert st["junctions"] == 91 and st["lanes"] == 1524  # the paper's counts

@@ -9,7 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import feat2map
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.config import GenerationConfig
 from feat2map.errors import FeatureError, LayoutError
 from feat2map.features import FeatureSpace, JunctionFeature
@@ -74,16 +74,16 @@ def test_paper_default_map_has_the_papers_shape(sf_default_map):
 
 
 def test_same_seed_same_bytes_and_seeds_differ():
-    a = mapio.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=7))
-    b = mapio.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=7))
-    c = mapio.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=8))
+    a = native.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=7))
+    b = native.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=7))
+    c = native.dumps(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=8))
     assert a == b
     assert a != c
 
 
 def test_native_file_round_trip(tmp_path, sf_default_map):
-    mapio.save(sf_default_map, tmp_path / "m.json")
-    assert mapio.load(tmp_path / "m.json") == sf_default_map
+    native.save(sf_default_map, tmp_path / "m.json")
+    assert native.load(tmp_path / "m.json") == sf_default_map
 
 
 def test_junction_lanes_are_fully_connected_without_uturns(sf_default_map):

@@ -16,7 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import feat2map
-from feat2map import cli, mapio
+from feat2map import cli
+from feat2map.formats import native
 from feat2map.scenarios import planner as planner_module
 from feat2map.scenarios.metrics import (Comparison, compare, junctions_to_reach, outcome_behaviour,
                                         suite_coverage)
@@ -80,7 +81,7 @@ def runs(tmp_path_factory):
     d = tmp_path_factory.mktemp("metrics")
     out = {}
     for key, feat in (("stop", J([0, 90, 180, 270], "stop", True)), ("bare", J([0, 90, 180], "bare", False))):
-        mapio.save(feat2map.generate_from_features([feat], seed=0), d / f"{key}.json")
+        native.save(feat2map.generate_from_features([feat], seed=0), d / f"{key}.json")
         full = build_suite(d / f"{key}.json", seed=3, traffic_vehicles=2)
         suite = Suite(key, full.scenarios[:2], full.base_dir)
         out[key] = run_suite(suite, "baseline", coverage=True, progress=False)

@@ -18,8 +18,8 @@ from lxml import etree
 from feat2map.bezier import Bezier
 from feat2map.errors import Feat2MapError, MapFormatError
 from feat2map.extract import extract_junctions
-from feat2map.readers.opendrive import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
-from feat2map.writers.opendrive import bezier_length, param_poly3, to_opendrive, write_opendrive
+from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
+from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
 from conftest import shared_map
 
@@ -447,7 +447,7 @@ def test_svl_cubetown_controls():
     ("opendrive/svl_cubetown/cubetown.xodr", "apollo/cube_town/base_map.bin"),
 ])
 def test_same_map_in_apollo_and_opendrive_agrees(xodr, apollo):
-    apollo_reader = pytest.importorskip("feat2map.readers.apollo", reason="Apollo reader not available yet")
+    apollo_reader = pytest.importorskip("feat2map.formats.apollo", reason="Apollo reader not available yet")
     a = extract_junctions(apollo_reader.read_apollo(shared_map(apollo)))
     b = extract_junctions(read_opendrive(shared_map(xodr)))
     assert sorted((j.feature.n_roads, j.feature.control) for j in a) == sorted(

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.scenarios.planner import (SCENARIO_STAGES, BaselinePlanner, CallablePolicy, ModelPolicy, Policy,
                                         StageEvent, as_policy)
 from feat2map.scenarios.scenario import Scenario, make_env
@@ -28,7 +28,7 @@ SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 def one_junction_map(tmp_path_factory, control: str, crosswalk: bool, angles=FOUR):
     m = feat2map.generate_from_features([J(angles, control, crosswalk)], seed=0)
     path = tmp_path_factory.mktemp("maps") / f"{control}-{int(crosswalk)}-{len(angles)}.json"
-    mapio.save(m, path)
+    native.save(m, path)
     return m, path
 
 
@@ -119,7 +119,7 @@ def test_multi_junction_route_through_every_control(tmp_path_factory):
     feats = [J(FOUR, "signal", True), J(FOUR, "stop", False), J([0, 90, 180], "bare", True)]
     m = feat2map.generate_from_features(feats, seed=0)
     path = tmp_path_factory.mktemp("maps") / "three.json"
-    mapio.save(m, path)
+    native.save(m, path)
     from feat2map.scenarios.routes import coverage_routes
 
     route = max(coverage_routes(m), key=len)

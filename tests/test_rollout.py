@@ -17,7 +17,8 @@ import pytest
 
 import feat2map
 import feat2map.errors
-from feat2map import cli, mapio
+from feat2map import cli
+from feat2map.formats import native
 from feat2map.scenarios.planner import BaselinePlanner
 from feat2map.scenarios.report import load_result
 from feat2map.scenarios.rollout import (FAIL_POLICIES, Outcome, PlannerFactory, SuiteResult, classify,
@@ -49,7 +50,7 @@ def suite_file(tmp_path_factory) -> Path:
     """A T junction with a signal and crosswalks; the CLI's route-coverage suite, cut to 3."""
     d = tmp_path_factory.mktemp("rollout")
     m = feat2map.generate_from_features([J([0, 90, 180], "signal", True)], seed=0)
-    mapio.save(m, d / "t.json")
+    native.save(m, d / "t.json")
     assert cli.main(["suite", str(d / "t.json"), "--out", str(d / "full.yaml"), "--traffic", "2",
                      "--pedestrian-rate", "2"]) == 0
     full = load_suite(d / "full.yaml")

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import feat2map
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.envs.map_env import manoeuvres_to_lanes
 from feat2map.envs.network import MapNetwork
 from feat2map.scenarios.routes import (START_AND_GOAL_M, build_suite, coverage_routes, manoeuvres, render_routes,
@@ -37,7 +37,7 @@ def m1():
 @pytest.fixture()
 def map_file(tmp_path, m1):
     p = tmp_path / "maps" / "m1.json"
-    mapio.save(m1, p)
+    native.save(m1, p)
     return p
 
 
@@ -259,7 +259,7 @@ def test_ci_suite_is_valid_current_and_touches_every_junction_type(tmp_path):
     from feat2map.scenarios import make_ci_suite
 
     suite = load_suite(REPO / "scenarios" / "ci_suite.yaml")
-    m = mapio.load(REPO / "scenarios" / "ci_map.json")
+    m = native.load(REPO / "scenarios" / "ci_map.json")
     assert make_ci_suite.main(["--out-dir", str(tmp_path)]) == 0  # the script regenerates the same files
     stale = "stale: regenerate with .venv/bin/python scenarios/make_ci_suite.py --picture"
     assert same_numbers(json.loads((tmp_path / "ci_map.json").read_text()),

@@ -16,7 +16,7 @@ import yaml
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from feat2map import mapio
+from feat2map.formats import native
 from feat2map.cli import main
 from feat2map.config import GenerationConfig, MIN_STUB_LENGTH_M
 from feat2map.construct import junction_radius
@@ -56,8 +56,8 @@ def test_every_example_builds_and_passes_the_invariants(example_maps, name):
 
 @pytest.mark.parametrize("name", [p.stem for p in SPECS])
 def test_every_example_passes_the_apollo_validator(example_maps, tmp_path, name):
-    from feat2map.apollo_validate import validate_apollo
-    from feat2map.writers.apollo import write_apollo
+    from feat2map.formats.apollo.validate import validate_apollo
+    from feat2map.formats.apollo import write_apollo
 
     write_apollo(example_maps[name][1], tmp_path / "apollo")
     assert [str(p) for p in validate_apollo(tmp_path / "apollo")] == []
@@ -315,7 +315,7 @@ def test_cli_generate_from_spec_writes_the_sampled_pipelines_outputs(tmp_path, c
     out = tmp_path / "mega"
     assert main(["generate", "--spec", str(EXAMPLES / "mega_junction.yaml"), "--out", str(out), "--quiet"]) == 0
     assert {"map.json", "features.json", "map.png", "junctions.png", "apollo"} <= {p.name for p in out.iterdir()}
-    m = mapio.load(out / "map.json")
+    m = native.load(out / "map.json")
     assert check_map(m) == [] and len(m.junctions) == 1
     space = FeatureSpace.from_json((out / "features.json").read_text())
     assert space.road_counts == (5,) and space.controls == ("signal",)
@@ -323,7 +323,7 @@ def test_cli_generate_from_spec_writes_the_sampled_pipelines_outputs(tmp_path, c
     mixed = tmp_path / "mixed"
     assert main(["generate", "--from-maps", str(out / "map.json"), "--spec", str(EXAMPLES / "one_way_t.yaml"),
                  "--out", str(mixed), "--quiet", "--no-picture"]) == 0
-    m2 = mapio.load(mixed / "map.json")
+    m2 = native.load(mixed / "map.json")
     assert check_map(m2) == []
     assert sorted(j.feature.n_roads for j in m2.junctions.values()) == [3, 5]
 
@@ -336,7 +336,7 @@ def test_cli_spec_on_top_of_a_real_maps_features(tmp_path):
     out = tmp_path / "mixed"
     assert main(["generate", "--from-maps", str(real), "--spec", str(EXAMPLES / "one_way_t.yaml"), "--out", str(out),
                  "--quiet", "--no-picture", "--no-apollo"]) == 0
-    m = mapio.load(out / "map.json")
+    m = native.load(out / "map.json")
     assert check_map(m) == []
     want = load_spec(EXAMPLES / "one_way_t.yaml").junctions[0].feature.normalized()
     assert feature_mismatch(m.junctions["J0"].feature, want) == []  # the spec junction comes first

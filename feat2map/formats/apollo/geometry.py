@@ -10,9 +10,9 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
-from .config import APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_STOP_LINE_OVERLAP_M
-from .errors import Feat2MapError
-from .model import HDMap, Lane, Polyline, as_polyline
+from ...config import APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_STOP_LINE_OVERLAP_M
+from ...errors import Feat2MapError
+from ...model import HDMap, Lane, Polyline, as_polyline
 
 
 def arc_lengths(points: np.ndarray) -> np.ndarray:

@@ -20,10 +20,10 @@ from shapely import STRtree
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from .. import apollo_schema as aps
-from ..config import APOLLO_CROSSWALK_LINK_M
-from ..errors import MapFormatError
-from ..model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, incoming_lanes
+from . import schema as aps
+from ...config import APOLLO_CROSSWALK_LINK_M
+from ...errors import MapFormatError
+from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, incoming_lanes
 
 _TURNS = {aps.Lane.NO_TURN: "none", aps.Lane.LEFT_TURN: "left", aps.Lane.RIGHT_TURN: "right",
           aps.Lane.U_TURN: "uturn"}
@@ -347,9 +347,23 @@ class _Reader:
         return out
 
 
-def read_apollo(path: str | Path) -> HDMap:
-    """Read an Apollo HD map file (binary or text protobuf, Apollo 5-9) into an HDMap."""
+def base_map_file(path: str | Path) -> Path:
+    """`path` itself for a file; for a map folder its base_map.bin, else base_map.txt."""
     path = Path(path)
+    if path.is_dir():
+        for name in ("base_map.bin", "base_map.txt"):
+            if (path / name).is_file():
+                return path / name
+        raise MapFormatError("no base_map.bin or base_map.txt in this folder", str(path))
+    if not path.exists():
+        raise MapFormatError("no such map folder or file", str(path))
+    return path
+
+
+def read_apollo(path: str | Path) -> HDMap:
+    """Read an Apollo HD map (binary or text protobuf, Apollo 5-9): a file, or a map folder's
+    base_map, into an HDMap."""
+    path = base_map_file(path)
     try:
         data = path.read_bytes()
     except OSError as exc:

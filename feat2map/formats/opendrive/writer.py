@@ -13,18 +13,17 @@ file's (local) coordinates at the map's absolute UTM position.
 """
 from __future__ import annotations
 
-import argparse
 import math
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from .. import atomic
-from ..bezier import Bezier
-from ..config import UTM_ORIGIN, UTM_ZONE
-from ..errors import Feat2MapError, MapFormatError
-from ..model import HDMap, Road
+from ... import atomic
+from ...bezier import Bezier
+from ...config import UTM_ORIGIN, UTM_ZONE
+from ...errors import Feat2MapError, MapFormatError
+from ...model import HDMap, Road
 
 REV_MAJOR, REV_MINOR = 1, 6
 TRAFFIC_LIGHT_TYPE = "1000001"  # OpenDRIVE country code "OpenDRIVE": 3-light traffic signal
@@ -452,23 +451,3 @@ def to_opendrive(m: HDMap) -> bytes:
 def write_opendrive(m: HDMap, path: str | Path) -> None:
     """Write `m` to `path` atomically."""
     atomic.write_bytes(path, to_opendrive(m))
-
-
-def _cmd_export_opendrive(args: argparse.Namespace) -> int:
-    from ..readers import read_map
-
-    m = read_map(args.map)
-    if not m.lanes:
-        raise Feat2MapError("map has no lanes", str(args.map))
-    write_opendrive(m, args.out)
-    print(f"wrote {args.out}: {len(m.roads)} roads, {len(m.junctions)} junctions, "
-          f"{len(m.signals)} traffic lights, {len(m.stop_signs)} stop signs, {len(m.crosswalks)} crosswalks")
-    return 0
-
-
-def add_export_opendrive_command(subparsers) -> None:
-    """Register `feat2map export opendrive MAP --out FILE.xodr`."""
-    p = subparsers.add_parser("opendrive", help="export a map as OpenDRIVE 1.6 (.xodr)")
-    p.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
-    p.add_argument("--out", required=True, help="output .xodr file")
-    p.set_defaults(func=_cmd_export_opendrive)

@@ -6,12 +6,12 @@ import json
 from pathlib import Path
 from typing import Any
 
-from . import atomic
-from .bezier import Bezier
-from .config import MAP_FORMAT_VERSION
-from .errors import MapFormatError
-from .features import JunctionFeature
-from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign
+from ... import atomic
+from ...bezier import Bezier
+from ...config import MAP_FORMAT_VERSION
+from ...errors import MapFormatError
+from ...features import JunctionFeature
+from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign
 
 FORMAT_NAME = "feat2map-map"
 _KINDS: dict[str, type] = {

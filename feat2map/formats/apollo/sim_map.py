@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from . import apollo_schema as aps
-from .config import (SIM_MAP_ANGLE_THRESHOLD_RAD, SIM_MAP_DOWNSAMPLE_DISTANCE_M,
+from . import schema as aps
+from ...config import (SIM_MAP_ANGLE_THRESHOLD_RAD, SIM_MAP_DOWNSAMPLE_DISTANCE_M,
                      SIM_MAP_STEEP_TURN_DOWNSAMPLE_DISTANCE_M)
 
 

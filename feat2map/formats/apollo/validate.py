@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 import re
 from collections import Counter, deque
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -22,10 +21,12 @@ import shapely
 from shapely import STRtree
 from shapely.geometry import LineString, Polygon
 
-from . import apollo_schema as aps
-from .apollo_routing import build_routing_graph
-from .config import APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
-from .errors import MapFormatError
+from . import schema as aps
+from ..base import Problem
+from .reader import base_map_file
+from .routing import build_routing_graph
+from ...config import APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
+from ...errors import MapFormatError
 
 LENGTH_TOL_M = 0.05  # recorded lengths vs. the polyline's; endpoints of linked lanes
 LINK_TOL_M = 0.1  # successor starts where its predecessor ends
@@ -44,17 +45,6 @@ _INFO_KIND = {"lane_overlap_info": "lane", "signal_overlap_info": "signal", "sto
               "pnc_junction_overlap_info": "pnc_junction", "rsu_overlap_info": "rsu"}
 _KINDS = ("lane", "road", "junction", "signal", "stop_sign", "crosswalk", "overlap", "yield", "clear_area",
           "speed_bump", "parking_space", "pnc_junction", "rsu")
-
-
-@dataclass(frozen=True)
-class Problem:
-    """One thing wrong with a map: the element (kind and id, or file) and what is wrong."""
-
-    element: str
-    message: str
-
-    def __str__(self) -> str:
-        return f"{self.element}: {self.message}"
 
 
 # --- loading --------------------------------------------------------------------------------
@@ -86,14 +76,8 @@ def _pair(folder: Path, name: str, parse: Any) -> tuple[Any | None, list[Problem
 
 def load_base_map(path: str | Path) -> Any:
     """The base map of a map folder (base_map.bin, else .txt), or the map in a single file."""
-    path = Path(path)
-    if path.is_file():
-        return aps.parse_map(_read(path), str(path))
-    for name in ("base_map.bin", "base_map.txt"):
-        if (path / name).is_file():
-            return aps.parse_map(_read(path / name), str(path / name))
-    raise MapFormatError("no base_map.bin or base_map.txt in this folder" if path.is_dir()
-                         else "no such map folder or file", str(path))
+    path = base_map_file(path)
+    return aps.parse_map(_read(path), str(path))
 
 
 def validate_apollo(path: str | Path, progress: bool = False) -> list[Problem]:

@@ -12,8 +12,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from . import apollo_schema as aps
-from .config import (APOLLO_MIN_TURN_RADIUS_M, ROUTING_BASE_CHANGING_LENGTH_M, ROUTING_BASE_SPEED_MPS,
+from . import schema as aps
+from ...config import (APOLLO_MIN_TURN_RADIUS_M, ROUTING_BASE_CHANGING_LENGTH_M, ROUTING_BASE_SPEED_MPS,
                      ROUTING_CHANGE_PENALTY, ROUTING_LEFT_TURN_PENALTY, ROUTING_MIN_LENGTH_FOR_LANE_CHANGE_M,
                      ROUTING_RIGHT_TURN_PENALTY, ROUTING_UTURN_PENALTY)
 

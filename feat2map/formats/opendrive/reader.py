@@ -23,9 +23,9 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ..config import SAMPLE_SPACING_M, SPEED_LIMIT_MPS
-from ..errors import MapFormatError
-from ..model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
+from ...config import SAMPLE_SPACING_M, SPEED_LIMIT_MPS
+from ...errors import MapFormatError
+from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, classify_turn
 
 # OpenDRIVE signal type -> feat2map control kind. CARLA/VectorZero, SVL and esmini use the
 # OpenDRIVE 1.5 country "OpenDRIVE" codes (1000001 light, 1000002 pedestrian light); RoadRunner
@@ -810,8 +810,6 @@ class _Builder:
 
 def _turn(ln: Lane) -> str:
     """left / right / uturn / none from the heading change along a junction lane."""
-    from ..construct import classify_turn
-
     h0, h1 = ln.heading_at_start(), ln.heading_at_end()
     change = math.degrees((h1 - h0 + math.pi) % (2 * math.pi) - math.pi)
     if abs(change) >= UTURN_CHANGE_DEG:

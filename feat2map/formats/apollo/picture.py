@@ -10,8 +10,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from . import apollo_schema as aps
-from .apollo_validate import Problem
+from . import schema as aps
+from ..base import Problem
 
 _STYLE = {aps.LaneBoundaryType.DOTTED_YELLOW: ("#d4a000", "--"), aps.LaneBoundaryType.DOTTED_WHITE: ("0.35", "--"),
           aps.LaneBoundaryType.SOLID_YELLOW: ("#d4a000", "-"), aps.LaneBoundaryType.SOLID_WHITE: ("0.35", "-"),
@@ -75,7 +75,7 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
     from matplotlib.collections import LineCollection
     from matplotlib.patches import Polygon as Patch
 
-    from .render import save_figure
+    from ...render import save_figure
 
     fig, ax = plt.subplots(figsize=(10, 10))
     segs: dict[tuple[str, str], list[np.ndarray]] = {}
@@ -132,3 +132,11 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
                           f"({placed} ringed)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def render_problems(path: str | Path, out: str | Path, problems: Sequence[Problem] = (),
+                    title: str | None = None) -> None:
+    """The base map of the Apollo folder or file at `path` drawn to `out`, problems ringed."""
+    from .validate import load_base_map
+
+    render_apollo(load_base_map(path), out, problems, title)

@@ -3,13 +3,12 @@
 `to_apollo` turns an `HDMap` into an `apollo.hdmap.Map` message (absolute UTM coordinates,
 every lane CITY_DRIVING with curves, lengths, widths, links, boundary types; roads with one
 section; junctions, signals, stop signs, crosswalks; overlaps listed on both sides).
-`apollo_sim_map.to_sim_map` downsamples it as Apollo's `sim_map_generator` does,
-`apollo_routing` builds the routing graph, and `write_apollo` writes
+`sim_map.to_sim_map` downsamples it as Apollo's `sim_map_generator` does,
+`routing` builds the routing graph, and `write_apollo` writes
 the six files Apollo loads from `modules/map/data/<name>/`, all or nothing.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import time
 from pathlib import Path
@@ -19,14 +18,14 @@ import numpy as np
 from shapely import STRtree
 from shapely.geometry import LineString, Polygon
 
-from .. import __version__, atomic
-from .. import apollo_schema as aps
-from ..apollo_geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
+from ... import __version__, atomic
+from . import schema as aps
+from .geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
                                stop_line_range, usable_boundaries)
-from ..apollo_sim_map import to_sim_map
-from ..config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
-from ..errors import Feat2MapError
-from ..model import HDMap, Lane, Polyline
+from .sim_map import to_sim_map
+from ...config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
+from ...errors import Feat2MapError
+from ...model import HDMap, Lane, Polyline
 
 FILES = ("base_map", "sim_map", "routing_map")
 BOUNDARY_TYPE = {
@@ -313,7 +312,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
     nothing; `progress` shows a tqdm bar over the stages (big maps take a while)."""
     from tqdm import tqdm
 
-    from ..apollo_routing import build_routing_graph
+    from .routing import build_routing_graph
 
     with tqdm(total=6, desc="apollo export", unit="step", disable=not progress) as bar:
         bar.set_postfix_str("base_map")
@@ -334,25 +333,3 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
                     bar.update()
         except OSError as exc:
             raise Feat2MapError(f"cannot write the Apollo map ({exc.strerror or exc})", str(out_dir)) from None
-
-
-def add_export_apollo_command(subparsers: Any) -> None:
-    """Register `feat2map export apollo MAP --out DIR [--zone N --origin X Y]`."""
-    p = subparsers.add_parser("apollo", help="export a map for Apollo 7-9 (base_map, sim_map, routing_map)")
-    p.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
-    p.add_argument("--out", required=True, help="output directory (copy it to Apollo's modules/map/data/<name>/)")
-    p.add_argument("--zone", type=int, default=UTM_ZONE, help=f"UTM zone of the header projection ({UTM_ZONE})")
-    p.add_argument("--origin", type=float, nargs=2, metavar=("X", "Y"),
-                   help="UTM easting/northing of the map's (0, 0) (default: the map's origin, else "
-                        f"{UTM_ORIGIN[0]:.0f} {UTM_ORIGIN[1]:.0f})")
-    p.set_defaults(func=_cmd_export_apollo)
-
-
-def _cmd_export_apollo(args: argparse.Namespace) -> int:
-    from ..readers import read_map
-
-    m = read_map(args.map)
-    write_apollo(m, args.out, zone=args.zone, origin=tuple(args.origin) if args.origin else None, progress=True)
-    print(f"wrote {args.out}: {', '.join(f'{n}.txt/.bin' for n in FILES)} "
-          f"({len(m.lanes)} lanes, {len(m.junctions)} junctions)")
-    return 0

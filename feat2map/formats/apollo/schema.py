@@ -19,7 +19,7 @@ from typing import Any
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, text_format
 from google.protobuf.message import DecodeError, Message
 
-from .errors import MapFormatError
+from ...errors import MapFormatError
 
 _SCALARS = {
     "double": descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
@@ -317,7 +317,7 @@ def _file(name: str, package: str, deps: list[str], messages: dict[str, list[str
                 field.type_name = "." + type_name
             else:
                 if type_name not in messages:
-                    raise AssertionError(f"apollo_schema: unknown type {type_name} in {msg_name}")
+                    raise AssertionError(f"apollo schema: unknown type {type_name} in {msg_name}")
                 field.type = descriptor_pb2.FieldDescriptorProto.TYPE_MESSAGE
                 field.type_name = f".{package}.{type_name}"
             if default:

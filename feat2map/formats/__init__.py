@@ -1,0 +1,76 @@
+"""Map formats, one package each, behind one table (`FORMATS`): `read_map`, the CLI's
+`extract`, `export` and `validate` dispatch on it, so a new format is one folder and one line here.
+
+| format | read | write | validate |
+|---|---|---|---|
+| native (feat2map JSON) | yes | yes | structure on read |
+| apollo (base/sim/routing map) | yes | yes | Apollo's rules |
+| opendrive (.xodr) | yes | yes | |
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from ..errors import MapFormatError
+from ..model import HDMap
+from .base import ExportOption, MapFormat, Problem
+
+_PROTO_TEXT = re.compile(rb"\s*(#[^\n]*\n\s*)*[A-Za-z_]\w*\s*[{:]")  # protobuf text: `header {`
+_CONTROL = bytes(b for b in range(32) if b not in (9, 10, 11, 12, 13))  # never in text files
+
+
+def _is_protobuf(head: bytes) -> bool:
+    return any(b in head for b in _CONTROL) or _PROTO_TEXT.match(head) is not None
+
+
+_P = "feat2map.formats"
+FORMATS: dict[str, MapFormat] = {f.name: f for f in (
+    MapFormat("apollo", "Apollo HD map: base_map, sim_map, routing_map (.bin + .txt)", (".bin", ".pb", ".txt"),
+              output="dir", read=f"{_P}.apollo:read_apollo", write=f"{_P}.apollo:write_apollo",
+              validate=f"{_P}.apollo:validate_apollo", picture=f"{_P}.apollo:render_problems",
+              sniff=_is_protobuf, options=(
+                  ExportOption("--zone", "zone", {"type": int, "metavar": "N",
+                                                  "help": "UTM zone of the header projection (default 10)"}),
+                  ExportOption("--origin", "origin", {"type": float, "nargs": 2, "metavar": ("X", "Y"),
+                                                      "help": "UTM easting/northing of the map's (0, 0) (default: "
+                                                              "the map's origin, else 587000 4141000)"}))),
+    MapFormat("native", "feat2map map (.json)", (".json",), read=f"{_P}.native:load", write=f"{_P}.native:save",
+              sniff=lambda head: head.lstrip().startswith(b"{")),
+    MapFormat("opendrive", "ASAM OpenDRIVE (.xodr)", (".xodr",), read=f"{_P}.opendrive:read_opendrive",
+              write=f"{_P}.opendrive:write_opendrive", sniff=lambda head: head.lstrip().startswith(b"<")),
+)}
+
+
+def detect(path: str | Path, face: str = "read") -> MapFormat:
+    """The format of `path` that has `face`: a folder is a directory format (Apollo), a file is
+    chosen by its suffix, else by its first bytes."""
+    path = Path(path)
+    cands = [f for f in FORMATS.values() if getattr(f, face) is not None]
+    if path.is_dir():
+        found = [f for f in cands if f.output == "dir"]
+    else:
+        if not path.is_file():
+            raise MapFormatError("no such map file", str(path))
+        found = [f for f in cands if path.suffix.lower() in f.suffixes]
+        if not found:
+            with path.open("rb") as fh:
+                head = fh.read(512)
+            found = [f for f in cands if f.sniff is not None and f.sniff(head)]
+    if not found:
+        known = ", ".join(f"{f.name} ({' '.join(f.suffixes) or 'folder'})" for f in cands)
+        raise MapFormatError(f"unsupported map format for {face}: expected one of {known}", str(path))
+    return found[0]
+
+
+def read_map(path: str | Path) -> HDMap:
+    """Read any map file feat2map knows (see FORMATS), chosen by suffix, else by content."""
+    return detect(path, "read").face("read")(Path(path))
+
+
+def write_map(m: HDMap, path: str | Path, format: str, **options) -> None:
+    """Write `m` to `path` (a file, or a folder for directory formats) in `format`, atomically."""
+    return FORMATS[format].face("write")(m, path, **options)
+
+
+__all__ = ["FORMATS", "ExportOption", "MapFormat", "Problem", "detect", "read_map", "write_map"]

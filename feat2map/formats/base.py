@@ -1,0 +1,52 @@
+"""What every map format offers: a record of its faces (read, write, validate), and the
+`Problem` a validator reports. Faces are named as "module:function" and imported on first
+use, so the table costs nothing until a format is used."""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a map: the element (kind and id, or file) and what is wrong."""
+
+    element: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.element}: {self.message}"
+
+
+@dataclass(frozen=True)
+class ExportOption:
+    """A writer keyword exposed as `feat2map export FORMAT --flag`: argparse keywords for it."""
+
+    flag: str
+    kwarg: str
+    argparse: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MapFormat:
+    """One map format and its faces; `output` is "file" (with `suffixes[0]`) or "dir"."""
+
+    name: str
+    title: str
+    suffixes: tuple[str, ...] = ()
+    output: str = "file"
+    read: str | None = None  # "module:function": (path) -> HDMap
+    write: str | None = None  # (HDMap, path, **options) -> None, atomic
+    validate: str | None = None  # (path, progress=False) -> list[Problem]
+    picture: str | None = None  # (path, out, problems, title) -> None: the map with its problems marked
+    sniff: Callable[[bytes], bool] | None = None  # does a file starting with these bytes hold this format?
+    options: tuple[ExportOption, ...] = ()
+
+    def face(self, name: str) -> Callable[..., Any]:
+        """The function behind face `name` (read, write, validate, picture), imported now."""
+        ref = getattr(self, name)
+        if ref is None:
+            raise LookupError(f"format {self.name} has no {name}")
+        module, func = ref.split(":")
+        return getattr(importlib.import_module(module), func)

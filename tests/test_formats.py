@@ -1,0 +1,57 @@
+"""The format table: read_map, export and validate dispatch on it; every format round-trips."""
+from __future__ import annotations
+
+import pytest
+
+from feat2map.cli import main
+from feat2map.errors import MapFormatError
+from feat2map.formats import FORMATS, detect, native, read_map, write_map
+
+
+@pytest.fixture(scope="module")
+def small_map():
+    import feat2map
+
+    return feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "signal", True)], seed=0)
+
+
+def test_every_format_has_a_package_with_its_faces():
+    for fmt in FORMATS.values():
+        for face in ("read", "write", "validate", "picture"):
+            if getattr(fmt, face) is not None:
+                assert callable(fmt.face(face)), (fmt.name, face)
+        assert fmt.output in ("file", "dir")
+
+
+@pytest.mark.parametrize("name", [n for n, f in FORMATS.items() if f.read and f.write])
+def test_write_then_read_gives_the_same_junctions(tmp_path, small_map, name):
+    fmt = FORMATS[name]
+    out = tmp_path / ("out" if fmt.output == "dir" else f"m{fmt.suffixes[0]}")
+    write_map(small_map, out, name)
+    back = read_map(out)
+    assert detect(out).name == name
+    assert len(back.junctions) == len(small_map.junctions)
+    assert len(back.signals) > 0 and len(back.crosswalks) > 0
+
+
+def test_content_decides_when_the_suffix_does_not(tmp_path, small_map):
+    native.save(small_map, tmp_path / "m.json")
+    (tmp_path / "m.map").write_bytes((tmp_path / "m.json").read_bytes())
+    assert detect(tmp_path / "m.map").name == "native"
+    (tmp_path / "x.dat").write_bytes(b"nothing we know")
+    with pytest.raises(MapFormatError, match="unsupported map format"):
+        read_map(tmp_path / "x.dat")
+
+
+def test_export_help_lists_every_writable_format(capsys):
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    out = capsys.readouterr().out
+    assert all(n in out for n, f in FORMATS.items() if f.write)
+
+
+def test_validate_without_a_validator_is_a_short_error(tmp_path, small_map, capsys):
+    native.save(small_map, tmp_path / "m.json")
+    assert main(["validate", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err
+    assert "m.json" in err and len(err) < 300 and err.count("\n") == 1
