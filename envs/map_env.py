@@ -29,6 +29,7 @@ from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction
 from highway_env.envs.common.observation import ObservationType
 
+from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
 from ..errors import Feat2MapError
 from .network import MapNetwork
 from .traffic import (PEDESTRIAN_IN_PATH_M, STOP_ZONE_M, STOPPED_SPEED_MPS, EgoMDPVehicle, EgoVehicle, MapRoad,
@@ -104,7 +105,7 @@ class MapEnv(AbstractEnv):
             "ego_initial_speed": 4.5,
             "goal_distance": 15.0,  # [m] into the last lane of the route
             "traffic_vehicles": 8, "traffic_respawn": True, "traffic_initial_speed": 5.0,
-            "signal_green": 12.0, "signal_amber": 3.0, "signal_all_red": 2.0,  # [s]
+            "signal_green": SIGNAL_GREEN_S, "signal_amber": SIGNAL_AMBER_S, "signal_all_red": SIGNAL_ALL_RED_S,  # [s]
             "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
             "right_turn_on_red": False,  # a right turn past a red signal after a full stop is legal
             "signal_offsets": {},  # {junction or signal id: phase plan offset [s]}; others drawn from np_random

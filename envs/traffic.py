@@ -14,6 +14,7 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
+from ..phases import group_phases, travel_headings  # noqa: F401 (the env's phase grouping, kept importable here)
 from .network import MapNetwork
 
 SIGNAL_STATES = ("green", "amber", "red")
@@ -65,53 +66,6 @@ class PhasePlan:
             if local < edge:
                 return edge - local
         return 0.0
-
-
-def group_phases(signals, paired: bool, travel: dict[str, float] | None = None) -> tuple[tuple[str, ...], ...]:
-    """Phases of one junction's signals. Signals of one approach (traffic travelling within 30
-    degrees of the same direction: real maps have a head per lane) always share a phase; when
-    `paired`, opposite approaches share one too. `travel` gives each signal's direction of travel
-    (from the lanes it governs); without it, the direction is opposite the way the signal faces."""
-    sigs = sorted(signals, key=lambda g: g.id)
-    travel = travel or {}
-    heading = {g.id: travel.get(g.id, g.heading + math.pi) for g in sigs}
-
-    def apart(a: float, b: float) -> float:  # angle between two directions, 0..pi
-        return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
-
-    approaches: list[list[str]] = []
-    for g in sigs:
-        same = next((a for a in approaches if apart(heading[a[0]], heading[g.id]) < math.radians(30)), None)
-        if same is None:
-            approaches.append([g.id])
-        else:
-            same.append(g.id)
-    if not paired:
-        return tuple(tuple(a) for a in approaches)
-    phases, used = [], set()
-    for i, a in enumerate(approaches):
-        if i in used:
-            continue
-        used.add(i)
-        group = list(a)
-        for j, b in enumerate(approaches):
-            if j not in used and apart(heading[a[0]], heading[b[0]]) > math.radians(150):
-                group += b
-                used.add(j)
-                break
-        phases.append(tuple(group))
-    return tuple(phases)
-
-
-def travel_headings(hdmap, signals) -> dict[str, float]:
-    """Direction of travel (map frame) at the end of the first lane each signal governs."""
-    out = {}
-    for g in signals:
-        lane = next((hdmap.lanes[l] for l in g.lane_ids if l in hdmap.lanes), None)
-        if lane is not None and len(lane.centerline) >= 2:
-            (x0, y0), (x1, y1) = lane.centerline[-2][:2], lane.centerline[-1][:2]
-            out[g.id] = math.atan2(y1 - y0, x1 - x0)
-    return out
 
 
 class Pedestrian(RoadObject):

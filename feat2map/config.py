@@ -42,6 +42,10 @@ ROUTING_CHANGE_PENALTY = 500.0
 ROUTING_BASE_CHANGING_LENGTH_M = 50.0
 ROUTING_MIN_LENGTH_FOR_LANE_CHANGE_M = 1.0
 SIGNAL_POLE_OFFSET_M = 1.0  # pole beyond the road edge
+# fixed-time signal plans (feat2map/phases.py: the env's defaults, the CommonRoad export's cycles)
+SIGNAL_GREEN_S, SIGNAL_AMBER_S, SIGNAL_ALL_RED_S = 12.0, 3.0, 2.0
+SIGNAL_SAME_APPROACH_DEG = 30.0  # signals whose traffic travels within this of one direction: one approach
+SIGNAL_OPPOSITE_DEG = 150.0  # approaches further apart than this are opposite (paired phases)
 MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10

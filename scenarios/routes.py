@@ -178,7 +178,7 @@ def signal_cycle(m: HDMap, junction_id: str) -> float:
     """The env's default signal cycle [s] at a junction (0 without signals): the longest red
     an approach can meet, plus its own green."""
     from ..envs.map_env import MapEnv
-    from ..envs.traffic import group_phases, travel_headings
+    from ..phases import group_phases, travel_headings
 
     signals = [s for s in m.signals.values() if s.junction_id == junction_id]
     if not signals:
