@@ -1,4 +1,7 @@
-"""The `feat2map` command line: generate, extract, export."""
+"""feat2map: concise, junction-diverse HD maps for testing driving planners (the Feat2Map
+paper). Generate maps from the paper's feature space, real maps or hand-written specs; extract
+junction features from maps; export and validate maps; build route-coverage scenario suites,
+drive them headless and compare their coverage."""
 from __future__ import annotations
 
 import argparse
@@ -9,18 +12,45 @@ from typing import Sequence
 
 from tqdm import tqdm
 
-from . import atomic
-from .formats import FORMATS, detect, native, read_map, write_map
-from .config import GenerationConfig
+from . import __version__, atomic
+from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, GenerationConfig
 from .errors import Feat2MapError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
+from .formats import FORMATS, detect, native, read_map, write_map
+from .messages import counted, one_line
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with exit code 2 and a one-line message on bad arguments."""
+    """argparse with exit code 2 and a one-line message on bad arguments; help shows defaults."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", _HelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Descriptions filled paragraph by paragraph; every option's help ends with its default, where
+    it has one (flags that are off and options whose help says what happens without them are left alone)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "\n\n".join(super(_HelpFormatter, self)._fill_text(par, width, indent) for par in text.split("\n\n"))
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (action.option_strings and not any(action.default is x for x in (None, False, argparse.SUPPRESS))
+                and "default" not in text):
+            text += " (default: %(default)s)"
+        return text
+
+
+def _summary(m) -> str:
+    """`8 junctions, 92 roads, ...`: what a map holds."""
+    return ", ".join(counted(n, noun) for n, noun in (
+        (len(m.junctions), "junction"), (len(m.roads), "road"), (len(m.lanes), "lane"), (len(m.signals), "signal"),
+        (len(m.stop_signs), "stop sign"), (len(m.crosswalks), "crosswalk")))
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -36,7 +66,7 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
         raise Feat2MapError(str(exc), "command line") from None
 
 
-def _extract_maps(paths: Sequence[str], skipped: list | None = None):
+def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False):
     from .extract import extract_junctions
 
     import warnings
@@ -44,10 +74,10 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None):
     junctions = []
     with warnings.catch_warnings(record=True) as caught:  # one line each, not Python's format
         warnings.simplefilter("always")
-        for p in tqdm(paths, desc="reading maps", unit="map", disable=len(paths) < 2):
+        for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2):
             junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
     for w in caught:
-        print(f"feat2map: warning: {w.message}", file=sys.stderr)
+        print(f"feat2map: warning: {one_line(w.message)}", file=sys.stderr)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     return junctions
@@ -69,7 +99,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     elif args.from_maps:
         from .extract import map_feature
 
-        space = map_feature(_extract_maps(args.from_maps))
+        space = map_feature(_extract_maps(args.from_maps, quiet=args.quiet))
     elif not args.spec:
         space = PAPER_SF_FEATURE_SPACE
     else:
@@ -91,18 +121,17 @@ def cmd_generate(args: argparse.Namespace) -> int:
             atomic.write_text(tmp / "features.json", space.to_json())
         stages.set_postfix_str("picture")
         if not args.no_picture:
-            render_map(m, tmp / "map.png", title=f"feat2map seed {args.seed}: {len(m.junctions)} junctions")
+            render_map(m, tmp / "map.png", title=f"feat2map seed {args.seed}: {counted(len(m.junctions), 'junction')}")
             if 0 < len(m.junctions) <= 64:
                 render_junctions(m, tmp / "junctions.png")
         stages.update(1)
         if args.opendrive:
             write_map(m, tmp / "map.xodr", "opendrive")
-        if not args.no_apollo:  # OUT/apollo/ is what a user copies to Apollo's modules/map/data/<name>/
+        if not args.no_apollo:  # DIR/apollo/ is what a user copies to Apollo's modules/map/data/<name>/
             write_map(m, tmp / "apollo", "apollo")
         stages.update(1)
     stages.close()
-    print(f"wrote {args.out}: {len(m.junctions)} junctions, {len(m.roads)} roads, {len(m.lanes)} lanes, "
-          f"{len(m.signals)} signals, {len(m.stop_signs)} stop signs, {len(m.crosswalks)} crosswalks")
+    print(f"wrote {args.out}: {_summary(m)}")
     return 0
 
 
@@ -110,7 +139,7 @@ def cmd_extract(args: argparse.Namespace) -> int:
     from .extract import map_feature
 
     skipped: list = []
-    junctions = _extract_maps(args.maps, skipped)
+    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet)
     space = map_feature(junctions)
     if args.out:
         atomic.write_text(args.out, space.to_json())
@@ -126,30 +155,38 @@ def cmd_extract(args: argparse.Namespace) -> int:
                "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped]}
         print(json.dumps(doc, indent=2))
         return 0
-    print(f"{'map':<40} {'junction':<14} {'n':>2} {'control':<7} {'xwalk':<5} rotation (deg)")
-    for j in junctions:
-        rot = ", ".join(f"{a:7.2f}" for a in j.feature.rotation)
-        print(f"{j.map_name[-40:]:<40} {j.id[:14]:<14} {j.feature.n_roads:>2} {j.feature.control:<7} "
-              f"{str(j.feature.crosswalk):<5} [{rot}]")
-    for s in skipped:
-        print(f"{s.map_name[-40:]:<40} {s.id[:14]:<14} {s.n_arms:>2} {s.control:<7} {str(s.crosswalk):<5} "
-              f"skipped: {s.reason}")
-    print(f"\n{len(junctions)} junctions ({len(skipped)} skipped); map feature:\n{space.to_json()}", end="")
+    _print_junction_table(args.maps, junctions, skipped)
+    print(f"\n{counted(len(junctions), 'junction')} ({len(skipped)} skipped); map feature:\n{space.to_json()}", end="")
     return 0
+
+
+def _print_junction_table(maps: Sequence[str], junctions: list, skipped: list) -> None:
+    """One table per map, headed by the map's full path; ids in full (columns fit the widest)."""
+    for path in map(str, maps):
+        rows = [(j.id, j.feature.n_roads, j.feature.control, j.feature.crosswalk,
+                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]")
+                for j in junctions if j.map_name == path]
+        rows += [(s.id, s.n_arms, s.control, s.crosswalk, f"skipped: {s.reason}")
+                 for s in skipped if s.map_name == path]
+        print(f"{path}: {counted(len(rows), 'junction')}")
+        width = max([len("junction")] + [len(r[0]) for r in rows])
+        print(f"  {'junction':<{width}}  {'n':>2}  {'control':<7}  {'crosswalk':<9}  rotation (deg)")
+        for jid, n, control, crosswalk, rest in rows:
+            print(f"  {jid:<{width}}  {n:>2}  {control:<7}  {'yes' if crosswalk else 'no':<9}  {rest}")
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
     fmt = FORMATS[args.format] if args.format else detect(args.path, "validate")
     if fmt.validate is None:
         raise Feat2MapError(f"format {fmt.name} has no validator", "--format")
-    problems = fmt.face("validate")(args.path, progress=True)
+    problems = fmt.face("validate")(args.path, progress=not args.quiet)
     for p in problems:
-        print(p)
+        print(one_line(p))
     if args.picture:
         if fmt.picture is None:
             raise Feat2MapError(f"format {fmt.name} draws no problem picture", "--picture")
-        fmt.face("picture")(args.path, args.picture, problems, title=f"{args.path}: {len(problems)} problems")
-    print(f"{args.path}: {len(problems)} problem{'s' if len(problems) != 1 else ''}")
+        fmt.face("picture")(args.path, args.picture, problems, title=f"{args.path}: {counted(len(problems), 'problem')}")
+    print(f"{args.path}: {counted(len(problems), 'problem')}")
     return 1 if problems else 0
 
 
@@ -165,58 +202,82 @@ def cmd_export(args: argparse.Namespace) -> int:
         write_map(m, args.out, fmt.name, **options)
     except OSError as exc:
         raise Feat2MapError(f"cannot write ({exc.strerror or exc})", str(args.out)) from None
-    print(f"wrote {args.out} ({fmt.title}): {len(m.roads)} roads, {len(m.lanes)} lanes, {len(m.junctions)} junctions, "
-          f"{len(m.signals)} signals, {len(m.stop_signs)} stop signs, {len(m.crosswalks)} crosswalks")
+    print(f"wrote {args.out} ({fmt.title}): {_summary(m)}")
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="feat2map", description=__doc__)
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+GENERATE_HELP = """Generate a map: sample one junction per feature combination (the paper's Algorithm 1)
+from a feature space, lay the junctions out on a grid, join them with Bezier roads, and write
+DIR/map.json, DIR/features.json (the map feature), DIR/map.png, DIR/junctions.png and
+DIR/apollo/ (and DIR/map.xodr with --opendrive). The feature space is the paper's San
+Francisco Table I unless --features or --from-maps gives another; --spec adds hand-written
+junctions and road chains. The same seed and options give the same bytes."""
 
-    g = sub.add_parser("generate", help="generate a map from a feature space, input maps or a spec")
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="feat2map", description=__doc__ + "\n\nRun `feat2map COMMAND --help` for a command's options.")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser, title="commands", metavar="COMMAND")
+
+    g = sub.add_parser("generate", help="generate a map from a feature space, input maps or a spec",
+                       description=GENERATE_HELP)
     src = g.add_mutually_exclusive_group()
-    src.add_argument("--features", help="feature-space JSON (default: the paper's San Francisco Table I)")
-    src.add_argument("--from-maps", nargs="+", metavar="MAP", help="extract the feature space from these maps")
+    src.add_argument("--features", metavar="FILE",
+                     help="feature-space JSON, as `extract --out` writes (default: the paper's San Francisco Table I)")
+    src.add_argument("--from-maps", nargs="+", metavar="MAP",
+                     help="extract the feature space from these maps (Apollo .bin/.txt, OpenDRIVE .xodr, feat2map .json)")
     g.add_argument("--spec", metavar="FILE", help="hand-written junctions/road chains (YAML or JSON, see "
                    "docs/specs.md); with --features/--from-maps they are added to the sampled junctions")
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--out", required=True, help="output directory")
-    g.add_argument("--samples-per-combination", type=int)
-    g.add_argument("--grid-gap", type=float)
-    g.add_argument("--lane-width", type=float)
-    g.add_argument("--crosswalk-width", type=float)
-    g.add_argument("--opendrive", action="store_true", help="also export OUT/map.xodr")
-    g.add_argument("--no-apollo", action="store_true", help="skip the Apollo export (OUT/apollo/)")
-    g.add_argument("--no-picture", action="store_true")
-    g.add_argument("--quiet", action="store_true")
+    g.add_argument("--seed", type=int, default=0, metavar="N", help="random seed: the same seed and options give the same map")
+    g.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced file by file, atomically)")
+    g.add_argument("--samples-per-combination", type=int, metavar="N",
+                   help="junctions sampled per feature combination (default: 1, or the spec's)")
+    g.add_argument("--grid-gap", type=float, metavar="M",
+                   help=f"distance between neighbouring grid points in metres (default: {GRID_GAP_M:g}, or the spec's)")
+    g.add_argument("--lane-width", type=float, metavar="M",
+                   help=f"lane width in metres (default: {LANE_WIDTH_M:g}, or the spec's)")
+    g.add_argument("--crosswalk-width", type=float, metavar="M",
+                   help=f"crosswalk width in metres (default: {CROSSWALK_WIDTH_M:g}, or the spec's)")
+    g.add_argument("--opendrive", action="store_true", help="also export DIR/map.xodr")
+    g.add_argument("--no-apollo", action="store_true", help="skip the Apollo export (DIR/apollo/)")
+    g.add_argument("--no-picture", action="store_true", help="skip DIR/map.png and DIR/junctions.png")
+    g.add_argument("--quiet", action="store_true", help="no progress bars")
     g.set_defaults(func=cmd_generate)
 
-    e = sub.add_parser("extract", help="extract junction features and the map feature from maps")
-    e.add_argument("maps", nargs="+", help="Apollo .bin/.txt, OpenDRIVE .xodr or feat2map .json maps")
-    e.add_argument("--out", help="write the feature-space JSON here")
-    e.add_argument("--json", action="store_true", help="print one JSON document")
-    e.add_argument("--picture", help="bird's-eye PNG/SVG of the first map, junctions coloured by control")
+    e = sub.add_parser("extract", help="extract junction features and the map feature from maps",
+                       description="Measure every junction's feature [road count, rotation, control, crosswalk] "
+                                   "in maps and merge them into one map feature (a feature space for "
+                                   "`generate --features`). Prints a table per map, or JSON with --json.")
+    e.add_argument("maps", nargs="+", metavar="MAP", help="Apollo .bin/.txt, OpenDRIVE .xodr or feat2map .json maps")
+    e.add_argument("--out", metavar="FILE", help="write the feature-space JSON here")
+    e.add_argument("--json", action="store_true", help="print one JSON document instead of the tables")
+    e.add_argument("--picture", metavar="FILE", help="bird's-eye PNG/SVG of the first map, junctions coloured by control")
+    e.add_argument("--quiet", action="store_true", help="no progress bar")
     e.set_defaults(func=cmd_extract)
 
-    ex = sub.add_parser("export", help="export a feat2map map to another format")
-    exsub = ex.add_subparsers(dest="format", required=True, parser_class=_Parser)
+    ex = sub.add_parser("export", help="export a map to another format",
+                        description="Write a map (any map feat2map reads) in another format; run "
+                                    "`feat2map export FORMAT --help` for a format's options.")
+    exsub = ex.add_subparsers(dest="format", required=True, parser_class=_Parser, title="formats", metavar="FORMAT")
     for fmt in FORMATS.values():
         if fmt.write is None:
             continue
-        f = exsub.add_parser(fmt.name, help=f"export as {fmt.title}")
+        f = exsub.add_parser(fmt.name, help=f"export as {fmt.title}", description=f"Export a map as {fmt.title}.")
         f.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
-        f.add_argument("--out", required=True, help="output folder" if fmt.output == "dir"
-                       else f"output file ({fmt.suffixes[0]})")
+        f.add_argument("--out", required=True, metavar="DIR" if fmt.output == "dir" else "FILE",
+                       help="output folder" if fmt.output == "dir" else f"output file ({fmt.suffixes[0]})")
         for o in fmt.options:
             f.add_argument(o.flag, dest=o.kwarg, **o.argparse)
         f.set_defaults(func=cmd_export)
 
-    v = sub.add_parser("validate", help="check a map with its format's rules (Apollo: what Apollo needs to load and route)")
+    v = sub.add_parser("validate", help="check a map with its format's rules (Apollo: what Apollo needs to load and route)",
+                       description="Check a map with its format's rules and print one line per problem; exit 1 "
+                                   "if there is any.")
     v.add_argument("path", help="an Apollo map folder (base_map, sim_map, routing_map as .bin/.txt) or one map file")
     v.add_argument("--format", choices=sorted(n for n, f in FORMATS.items() if f.validate),
                    help="the map's format (default: from the path)")
-    v.add_argument("--picture", help="PNG/SVG of the map with the problems ringed in red")
+    v.add_argument("--picture", metavar="FILE", help="PNG/SVG of the map with the problems ringed in red")
+    v.add_argument("--quiet", action="store_true", help="no progress bar")
     v.set_defaults(func=cmd_validate)
 
     from .cli_scenarios import add_scenario_commands
@@ -231,7 +292,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except Feat2MapError as exc:
-        print(f"feat2map: error: {exc}", file=sys.stderr)
+        print(f"feat2map: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from . import atomic
 from .errors import Feat2MapError
+from .messages import counted, one_line
 
 
 def cmd_suite(args: argparse.Namespace) -> int:
@@ -31,8 +32,8 @@ def cmd_suite(args: argparse.Namespace) -> int:
     save_suite(suite, args.out)
     m = read_map(path)
     cov = route_coverage(m, [s.route for s in suite.scenarios])
-    print(f"wrote {args.out}: {len(suite.scenarios)} scenarios covering {100 * cov:.1f}% of "
-          f"{len(manoeuvres(m))} manoeuvres of {len(m.junctions)} junctions")
+    print(f"wrote {args.out}: {counted(len(suite.scenarios), 'scenario')} covering {100 * cov:.1f}% of "
+          f"{counted(len(manoeuvres(m)), 'manoeuvre')} of {counted(len(m.junctions), 'junction')}")
     return 0
 
 
@@ -53,10 +54,10 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)
     failing = result.failures(args.fail_on)
-    print(f"{result.name}: {len(result.outcomes)} scenarios ({counts}) in {result.wall_s:.1f} s; "
+    print(f"{result.name}: {counted(len(result.outcomes), 'scenario')} ({counts}) in {result.wall_s:.1f} s; "
           f"{len(failing)} failing under --fail-on {args.fail_on}; report {Path(args.out) / 'report.md'}")
     for o in failing:
-        print(f"  FAIL {o.name}: {o.outcome}: {o.message}")
+        print(f"  FAIL {one_line(f'{o.name}: {o.outcome}: {o.message}')}")
     return result.exit_code(args.fail_on)
 
 
@@ -98,24 +99,30 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     """Add `suite`, `rollout` and `coverage` to the `feat2map` subcommands."""
     from .scenarios.rollout import BACKENDS, FAIL_POLICIES
 
-    s = sub.add_parser("suite", help="build a route-coverage scenario suite for a map")
+    s = sub.add_parser("suite", help="build a route-coverage scenario suite for a map",
+                       description="Write a scenario suite whose routes drive every (junction, entry, exit) "
+                                   "manoeuvre of a map at least once, with few routes (format: scenarios/README.md).")
     s.add_argument("map", help="map file (feat2map .json, OpenDRIVE .xodr, Apollo)")
-    s.add_argument("--out", required=True, help="suite file to write (.yaml or .json)")
-    s.add_argument("--seed", type=int, default=0, help="seed of the first scenario (then +1 each)")
-    s.add_argument("--traffic", type=int, default=0, help="traffic vehicles per scenario")
-    s.add_argument("--pedestrian-rate", type=float, default=0.0, help="pedestrians per crosswalk per minute")
-    s.add_argument("--max-junctions", type=int, default=4, help="longest route (junctions)")
-    s.add_argument("--duration", type=float, help="scenario duration [s] (default: from the route length)")
-    s.add_argument("--name", help="suite name (default: the map file's stem)")
+    s.add_argument("--out", required=True, metavar="FILE", help="suite file to write (.yaml or .json)")
+    s.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the first scenario (then +1 each)")
+    s.add_argument("--traffic", type=int, default=0, metavar="N", help="traffic vehicles per scenario")
+    s.add_argument("--pedestrian-rate", type=float, default=0.0, metavar="RATE", help="pedestrians per crosswalk per minute")
+    s.add_argument("--max-junctions", type=int, default=4, metavar="N", help="longest route (junctions)")
+    s.add_argument("--duration", type=float, metavar="S", help="scenario duration [s] (default: from the route length)")
+    s.add_argument("--name", help="suite name, the prefix of its scenarios' names (default: the map file's stem)")
     s.set_defaults(func=cmd_suite)
 
-    r = sub.add_parser("rollout", help="run a scenario suite headless and write a report")
+    r = sub.add_parser("rollout", help="run a scenario suite headless and write a report",
+                       description="Drive every scenario of a suite headless with a planner and write DIR/report.md, "
+                                   "summary.json, junit.xml, plots and a GIF per failure; "
+                                   "exit 1 when a scenario fails under --fail-on.")
     r.add_argument("suite", help="suite file (.yaml or .json)")
-    r.add_argument("--planner", default="baseline",
+    r.add_argument("--planner", default="baseline", metavar="PLANNER",
                    help="'baseline' or module:attr (a Policy class/instance, a callable (obs, info) -> action, an SB3 model)")
-    r.add_argument("--workers", type=int, default=1)
-    r.add_argument("--backend", choices=BACKENDS, default="process")
-    r.add_argument("--out", required=True, help="report directory")
+    r.add_argument("--workers", type=int, default=1, metavar="N", help="scenarios driven in parallel")
+    r.add_argument("--backend", choices=BACKENDS, default="process",
+                   help="where the workers run: local processes, or a Ray cluster (needs the ray extra)")
+    r.add_argument("--out", required=True, metavar="DIR", help="report directory")
     r.add_argument("--fail-on", choices=tuple(FAIL_POLICIES), default="any",
                    help="outcomes that fail the run (exit 1): any non-completed; collision (+ off road, errors); "
                         "violation (+ collision, off road, errors); none")
@@ -124,8 +131,11 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_rollout)
 
-    c = sub.add_parser("coverage", help="compare suites' rollout results side by side")
+    c = sub.add_parser("coverage", help="compare suites' rollout results side by side",
+                       description="Put rollout results side by side: behaviour coverage (the planner's stage "
+                                   "paths and transitions) and planner line coverage, per junction and "
+                                   "accumulated in the order the suites reach the junctions.")
     c.add_argument("results", nargs="+", metavar="RESULT_DIR", help="rollout output directories")
-    c.add_argument("--out", required=True, help="directory for coverage.md, coverage.png, coverage.json")
-    c.add_argument("--names", nargs="+", help="a name per result dir (default: the directory names)")
+    c.add_argument("--out", required=True, metavar="DIR", help="directory for coverage.md, coverage.png, coverage.json")
+    c.add_argument("--names", nargs="+", metavar="NAME", help="a name per result dir (default: the directory names)")
     c.set_defaults(func=cmd_coverage)

@@ -5,7 +5,7 @@
 # Outputs land in out/demo/ (open out/demo/rollout/report.md and the PNGs).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
+bash scripts/setup.sh   # only the main job's dependencies (no test, rl or ray extras)
 export SDL_VIDEODRIVER=offscreen MPLBACKEND=Agg
 f2m=.venv/bin/feat2map
 out=out/demo

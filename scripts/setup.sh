@@ -1,10 +1,16 @@
 #!/usr/bin/env bash
-# Create .venv and install feat2map with its test and tool dependencies (idempotent).
+# Create .venv and install feat2map (idempotent). With no argument: only what the main job needs
+# (generate, export, validate, suites, rollouts, the demo). With a comma-separated list of extras
+# (pyproject.toml): also those, e.g. `bash scripts/setup.sh dev` for the tests,
+# `bash scripts/setup.sh dev,rl,ray` for everything (CI).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
+extras=${1:-}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-# CPU torch first, pinned, so resolving the rl extra never pulls a multi-GB CUDA build
-.venv/bin/python -m pip install -q torch==2.13.0
-.venv/bin/python -m pip install -q -e '.[dev,rl,ray]'
+if [[ ",$extras," == *",rl,"* ]]; then
+  # CPU torch first, pinned, so resolving the rl extra never pulls a multi-GB CUDA build
+  .venv/bin/python -m pip install -q torch==2.13.0
+fi
+.venv/bin/python -m pip install -q -e ".${extras:+[$extras]}"

@@ -86,3 +86,115 @@ def test_bad_arguments_exit_2():
     r = subprocess.run([sys.executable, "-m", "feat2map.cli", "generate", "--out", "/tmp/never", "--lane-width", "-2"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "lane_width" in r.stderr and "Traceback" not in r.stderr
+
+
+# --- help, version, progress, messages (issue 16) ------------------------------------------------
+
+def _subparsers(parser):
+    """(name, parser) of every command and sub-command, depth first."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield name, sub
+                yield from ((f"{name} {n}", s) for n, s in _subparsers(sub))
+
+
+def test_every_option_of_every_command_has_help_and_shows_its_default():
+    from feat2map.cli import build_parser
+
+    parser = build_parser()
+    commands = dict(_subparsers(parser))
+    assert {"generate", "extract", "export", "validate", "suite", "rollout", "coverage"} <= set(commands)
+    top = parser.format_help()
+    for name in commands:
+        if " " not in name:
+            assert f"    {name} " in top, f"top-level help does not list {name}"
+    for name, sub in commands.items():
+        assert sub.description, f"`feat2map {name}` has no description"
+        text = " ".join(sub.format_help().split())
+        for action in sub._actions:
+            if not action.option_strings or action.dest == "help":
+                continue
+            assert action.help and action.help.strip(), f"`feat2map {name} {action.option_strings[0]}` has no help"
+            if not any(action.default is x for x in (None, False)):
+                assert "default" in " ".join(action.help.split()) or f"(default: {action.default})" in text, \
+                    f"`feat2map {name} {action.option_strings[0]}` does not show its default {action.default!r}"
+
+
+def test_version(capsys):
+    import feat2map
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"feat2map {feat2map.__version__}"
+
+
+def test_quiet_silences_every_progress_bar(tmp_path, capsys):
+    main(["generate", "--seed", "3", "--out", str(tmp_path / "a"), "--quiet", "--no-picture", "--no-apollo"])
+    maps = [str(tmp_path / "a" / "map.json")] * 2
+    capsys.readouterr()
+    assert main(["generate", "--from-maps", *maps, "--out", str(tmp_path / "b"), "--no-picture"]) == 0
+    assert "reading maps" in capsys.readouterr().err  # the bar the next run must not show
+    for args in (["generate", "--from-maps", *maps, "--out", str(tmp_path / "c")], ["extract", *maps],
+                 ["validate", str(tmp_path / "b" / "apollo")]):
+        assert main([*args, "--quiet"]) == 0
+        assert capsys.readouterr().err == "", args
+
+
+def test_counts_are_singular_for_one(tmp_path, capsys):
+    from pathlib import Path
+
+    spec = Path(__file__).resolve().parents[1] / "examples" / "one_way_t.yaml"
+    assert main(["generate", "--spec", str(spec), "--out", str(tmp_path / "t"), "--quiet", "--no-picture"]) == 0
+    assert main(["suite", str(tmp_path / "t" / "map.json"), "--out", str(tmp_path / "s.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "1 junction," in out and "of 1 junction\n" in out and "junctions" not in out
+
+
+def test_extract_table_shows_full_paths_and_ids(tmp_path, capsys):
+    deep = tmp_path / ("a-rather-long-folder-name-" * 3) / "m"
+    main(["generate", "--seed", "3", "--out", str(deep), "--quiet", "--no-picture", "--no-apollo"])
+    capsys.readouterr()
+    assert main(["extract", str(deep / "map.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"{deep / 'map.json'}: 8 junctions" in out
+    assert all(f"  J{k} " in out for k in range(8))
+
+
+def test_error_lines_stay_short_and_name_the_file(tmp_path, capsys, sf_default_map):
+    """Errors about big inputs quote them at most in part: one line, at most MAX_LINE_CHARS."""
+    from feat2map.messages import MAX_LINE_CHARS
+
+    big_map = tmp_path / "map.json"
+    big_map.write_text(native.dumps(sf_default_map))
+    suite = tmp_path / "suite.json"
+    suite.write_text(json.dumps({"version": 1, "name": "s", "scenarios": "x" * 50_000}))  # quoted in the error
+    feats = tmp_path / "features.json"
+    feats.write_text(json.dumps({"road_counts": [3], "controls": ["x" * 50_000], "crosswalks": [True],
+                                 "rotation_ranges": {}}))
+    cases = [(["validate", str(big_map)], big_map), (["rollout", str(suite), "--out", str(tmp_path / "r")], suite),
+             (["generate", "--features", str(feats), "--out", str(tmp_path / "g")], feats),
+             (["export", "apollo", str(suite), "--out", str(tmp_path / "e")], suite)]
+    for args, path in cases:
+        code = main(args)
+        err = capsys.readouterr().err
+        assert code == 2, (args, err[:300])
+        lines = err.splitlines()
+        assert len(lines) == 1 and len(lines[0]) <= MAX_LINE_CHARS + len("feat2map: error: "), (args, len(err))
+        assert path.name in lines[0], lines[0]
+    r = subprocess.run([sys.executable, "-m", "feat2map.cli", "generate", "--seed", "9" * 100_000, "--out", "x"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1 and len(r.stderr) < 400
+
+
+def test_one_line_cuts_the_middle():
+    from feat2map.messages import counted, one_line
+
+    s = one_line("f.json: element: " + "x" * 10_000 + "\n expected a number", limit=120)
+    assert len(s) <= 120 and s.startswith("f.json: element: ") and s.endswith("expected a number")
+    assert "characters cut" in s and "\n" not in s
+    assert one_line("short\n  text") == "short text"
+    assert (counted(1, "junction"), counted(2, "stop sign"), counted(0, "junction")) == \
+        ("1 junction", "2 stop signs", "0 junctions")

@@ -4,8 +4,25 @@ use, so the table costs nothing until a format is used."""
 from __future__ import annotations
 
 import importlib
+import os
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Any, Callable
+
+from ..errors import Feat2MapError
+
+
+def header_date() -> str | None:
+    """The date a writer stamps into a file header (ISO 8601, UTC), or None to leave it out.
+    Never the wall clock, so the same map always gives the same bytes: the date is
+    SOURCE_DATE_EPOCH (seconds since 1970, the reproducible-builds convention) when it is set."""
+    raw = os.environ.get("SOURCE_DATE_EPOCH")
+    if raw is None or not raw.strip():
+        return None
+    try:
+        return datetime.fromtimestamp(int(raw), timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    except (ValueError, OverflowError, OSError):
+        raise Feat2MapError("must be whole seconds since 1970-01-01 UTC", f"SOURCE_DATE_EPOCH={raw[:40]!r}") from None
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,6 @@ the six files Apollo loads from `modules/map/data/<name>/`, all or nothing.
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
@@ -23,6 +22,7 @@ from . import schema as aps
 from .geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
                                stop_line_range, usable_boundaries)
 from .sim_map import to_sim_map
+from ..base import header_date
 from ...config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline
@@ -222,7 +222,9 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
 
 def _header(h: Any, m: HDMap, zone: int) -> None:
     h.version = f"feat2map {__version__}".encode()
-    h.date = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime()).encode()
+    date = header_date()
+    if date is not None:
+        h.date = date.encode()
     h.projection.proj = utm_projection(zone)
     h.district = b"feat2map"
     h.vendor = b"feat2map"

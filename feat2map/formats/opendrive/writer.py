@@ -14,7 +14,6 @@ file's (local) coordinates at the map's absolute UTM position.
 from __future__ import annotations
 
 import math
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from ...bezier import Bezier
 from ...config import UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
 from ...model import HDMap, Road
+from ..base import header_date
 
 REV_MAJOR, REV_MINOR = 1, 6
 TRAFFIC_LIGHT_TYPE = "1000001"  # OpenDRIVE country code "OpenDRIVE": 3-light traffic signal
@@ -196,8 +196,9 @@ class _Writer:
         m, E = self.m, self.E
         root = E.Element("OpenDRIVE")
         x0, y0, x1, y1 = m.bounds() if m.lanes else (0.0, 0.0, 0.0, 0.0)
+        date = header_date()  # optional in OpenDRIVE; never the wall clock (same map, same bytes)
         header = self.sub(root, "header", revMajor=str(REV_MAJOR), revMinor=str(REV_MINOR), name="feat2map",
-                          version="1.00", date=datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S"),
+                          version="1.00", **({"date": date} if date else {}),
                           north=y1, south=y0, east=x1, west=x0, vendor="feat2map")
         geo = self.sub(header, "geoReference")
         geo.text = E.CDATA(geo_reference(m))
