@@ -127,6 +127,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
         stages.update(1)
         if args.opendrive:
             write_map(m, tmp / "map.xodr", "opendrive")
+        if args.lanelet2:  # DIR/lanelet2/ is an Autoware map folder (lanelet2_map.osm, map_projector_info.yaml)
+            write_map(m, tmp / "lanelet2" / "lanelet2_map.osm", "lanelet2")
+        if args.commonroad:
+            write_map(m, tmp / "commonroad.xml", "commonroad")
         if not args.no_apollo:  # DIR/apollo/ is what a user copies to Apollo's modules/map/data/<name>/
             write_map(m, tmp / "apollo", "apollo")
         stages.update(1)
@@ -209,9 +213,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 GENERATE_HELP = """Generate a map: sample one junction per feature combination (the paper's Algorithm 1)
 from a feature space, lay the junctions out on a grid, join them with Bezier roads, and write
 DIR/map.json, DIR/features.json (the map feature), DIR/map.png, DIR/junctions.png and
-DIR/apollo/ (and DIR/map.xodr with --opendrive). The feature space is the paper's San
-Francisco Table I unless --features or --from-maps gives another; --spec adds hand-written
-junctions and road chains. The same seed and options give the same bytes."""
+DIR/apollo/ (and DIR/map.xodr, DIR/lanelet2/, DIR/commonroad.xml with --opendrive, --lanelet2,
+--commonroad). The feature space is the paper's San Francisco Table I unless --features or
+--from-maps gives another; --spec adds hand-written junctions and road chains. The same seed and
+options give the same bytes."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -239,6 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--crosswalk-width", type=float, metavar="M",
                    help=f"crosswalk width in metres (default: {CROSSWALK_WIDTH_M:g}, or the spec's)")
     g.add_argument("--opendrive", action="store_true", help="also export DIR/map.xodr")
+    g.add_argument("--lanelet2", action="store_true", help="also export DIR/lanelet2/: the Lanelet2 map and "
+                   "map_projector_info.yaml (an Autoware map folder)")
+    g.add_argument("--commonroad", action="store_true", help="also export DIR/commonroad.xml (CommonRoad scenario)")
     g.add_argument("--no-apollo", action="store_true", help="skip the Apollo export (DIR/apollo/)")
     g.add_argument("--no-picture", action="store_true", help="skip DIR/map.png and DIR/junctions.png")
     g.add_argument("--quiet", action="store_true", help="no progress bars")

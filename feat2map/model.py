@@ -174,6 +174,23 @@ class Crosswalk:
     junction_id: str | None
     polygon: Polyline
 
+    def sides(self) -> tuple[Polyline, Polyline] | None:
+        """The long sides of the polygon's minimum rectangle, pointing one way, the right one
+        on the right of the left one: where pedestrians walk between (None if degenerate)."""
+        from shapely.geometry import Polygon
+
+        if len(self.polygon) < 3:
+            return None
+        c = np.asarray(Polygon(self.polygon).minimum_rotated_rectangle.exterior.coords[:4], dtype=float)
+        if len(c) < 4:
+            return None
+        if np.hypot(*(c[1] - c[0])) < np.hypot(*(c[2] - c[1])):
+            c = np.roll(c, -1, axis=0)
+        a, b, cc, d = c  # a->b and d->c are the long sides
+        if (b - a)[0] * (d - a)[1] - (b - a)[1] * (d - a)[0] > 0:  # d->c must lie on the right of a->b
+            a, b, cc, d = d, cc, b, a
+        return as_polyline([a, b]), as_polyline([d, cc])
+
 
 @dataclass(frozen=True)
 class HDMap:
@@ -197,6 +214,17 @@ class HDMap:
         for ln in self.lanes.values():
             out.setdefault(ln.junction_id, []).append(ln)
         return out
+
+    def approaches(self, junction_id: str) -> dict[str, list[str]]:
+        """Entry road -> its lanes that lead into the junction (road lanes preceding one of the
+        junction's lanes), in the order the junction's lanes name them."""
+        out: dict[str, dict[str, None]] = {}
+        for ln in self.lanes_by_junction.get(junction_id, []):
+            for p in ln.predecessors:
+                pl = self.lanes.get(p)
+                if pl is not None and pl.junction_id is None:
+                    out.setdefault(pl.road_id, {})[p] = None
+        return {road: list(lanes) for road, lanes in out.items()}
 
     @property
     def entry_lanes(self) -> list[Lane]:

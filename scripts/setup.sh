@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Create .venv and install feat2map (idempotent). With no argument: only what the main job needs
 # (generate, export, validate, suites, rollouts, the demo). With a comma-separated list of extras
-# (pyproject.toml): also those, e.g. `bash scripts/setup.sh dev` for the tests,
+# (pyproject.toml): also those, e.g. `bash scripts/setup.sh dev` for the tests (and CommonRoad export),
+# `bash scripts/setup.sh commonroad` for the CommonRoad export,
 # `bash scripts/setup.sh dev,rl,ray` for everything (CI).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,3 +15,7 @@ if [[ ",$extras," == *",rl,"* ]]; then
   .venv/bin/python -m pip install -q torch==2.13.0
 fi
 .venv/bin/python -m pip install -q -e ".${extras:+[$extras]}"
+if [[ ",$extras," == *",commonroad,"* || ",$extras," == *",dev,"* ]]; then
+  # commonroad-io pins protobuf==3.20 (Apollo needs newer); feat2map uses only its XML modules
+  .venv/bin/python -m pip install -q --no-deps 'commonroad-io>=2026.1,<2027'
+fi

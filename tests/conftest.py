@@ -26,3 +26,32 @@ def sf_default_map():
     import feat2map
 
     return feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1)
+
+
+# maps whose exports other ecosystems' tools check (Lanelet2, CommonRoad): M1, the example specs
+# (one-way roads, a 5-leg junction, multi-lane roads), bare junctions, and a map generated from
+# the features of a real map (CARLA Town01, skipped when ../shared/maps is absent)
+ECOSYSTEM_MAPS = ("m1", "one_way_t", "mega_junction", "multi_lane", "bare", "town01")
+BARE_SPEC = {"version": 1, "junctions": [
+    {"name": "bare cross", "cell": [0, 0], "control": "bare", "crosswalk": True,
+     "sockets": [{"angle": 0, "lanes": 2}, {"angle": 90}, {"angle": 180, "lanes": 2}, {"angle": 270}]},
+    {"name": "bare T", "cell": [1, 0], "control": "bare", "sockets": [0, 90, {"angle": 180, "lanes": 2}]}]}
+
+
+@pytest.fixture(scope="session", params=ECOSYSTEM_MAPS)
+def ecosystem_map(request, sf_default_map):
+    """(name, HDMap) for each of ECOSYSTEM_MAPS."""
+    import feat2map
+    from feat2map.extract import extract_junctions, map_feature
+    from feat2map.formats import read_map
+    from feat2map.spec import build_spec, load_spec, parse_spec
+
+    name = request.param
+    if name == "m1":
+        return name, sf_default_map
+    if name == "bare":
+        return name, build_spec(parse_spec(BARE_SPEC))
+    if name == "town01":
+        junctions = extract_junctions(read_map(shared_map("opendrive/carla_town01/Town01.xodr")))
+        return name, feat2map.generate(map_feature(junctions), seed=0)
+    return name, build_spec(load_spec(REPO / "examples" / f"{name}.yaml"))

@@ -55,3 +55,32 @@ def test_validate_without_a_validator_is_a_short_error(tmp_path, small_map, caps
     assert main(["validate", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
     assert "m.json" in err and len(err) < 300 and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("name, needs", [("lanelet2", None), ("commonroad", "commonroad.scenario.lanelet")])
+def test_exports_are_deterministic_and_atomic(tmp_path, small_map, name, needs):
+    """Same map, same bytes (in another process too, with other hash seeds); a failed export
+    leaves the earlier file as it was and no temporary file."""
+    import os
+    import subprocess
+    import sys
+
+    from feat2map.errors import Feat2MapError
+
+    if needs:
+        pytest.importorskip(needs, reason=f"{name} export needs a package that is not installed")
+    suffix = FORMATS[name].suffixes[0]
+    native.save(small_map, tmp_path / "m.json")
+    write_map(small_map, tmp_path / "a" / f"m{suffix}", name)
+    first = (tmp_path / "a" / f"m{suffix}").read_bytes()
+    write_map(small_map, tmp_path / "a" / f"m{suffix}", name)
+    assert (tmp_path / "a" / f"m{suffix}").read_bytes() == first
+    env = dict(os.environ, PYTHONHASHSEED="7")
+    subprocess.run([sys.executable, "-m", "feat2map.cli", "export", name, str(tmp_path / "m.json"), "--out",
+                    str(tmp_path / "b" / f"m{suffix}")], check=True, env=env, capture_output=True)
+    assert (tmp_path / "b" / f"m{suffix}").read_bytes() == first
+    before = sorted(p.name for p in (tmp_path / "a").iterdir())
+    with pytest.raises(Feat2MapError, match="UTM zone"):
+        write_map(small_map, tmp_path / "a" / f"m{suffix}", name, zone=0)
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == before
+    assert (tmp_path / "a" / f"m{suffix}").read_bytes() == first

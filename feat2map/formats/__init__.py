@@ -6,6 +6,8 @@
 | native (feat2map JSON) | yes | yes | structure on read |
 | apollo (base/sim/routing map) | yes | yes | Apollo's rules |
 | opendrive (.xodr) | yes | yes | |
+| lanelet2 (.osm, Autoware) | | yes | the lanelet2 wheel: loader, routing graph, manoeuvres |
+| commonroad (.xml) | | yes | commonroad-io: schema, reader, intersections, manoeuvres |
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from pathlib import Path
 from ..errors import MapFormatError
 from ..model import HDMap
 from .base import ExportOption, MapFormat, Problem
+from .geo import GEO_OPTIONS
 
 _PROTO_TEXT = re.compile(rb"\s*(#[^\n]*\n\s*)*[A-Za-z_]\w*\s*[{:]")  # protobuf text: `header {`
 _CONTROL = bytes(b for b in range(32) if b not in (9, 10, 11, 12, 13))  # never in text files
@@ -29,12 +32,13 @@ FORMATS: dict[str, MapFormat] = {f.name: f for f in (
     MapFormat("apollo", "Apollo HD map: base_map, sim_map, routing_map (.bin + .txt)", (".bin", ".pb", ".txt"),
               output="dir", read=f"{_P}.apollo:read_apollo", write=f"{_P}.apollo:write_apollo",
               validate=f"{_P}.apollo:validate_apollo", picture=f"{_P}.apollo:render_problems",
-              sniff=_is_protobuf, options=(
-                  ExportOption("--zone", "zone", {"type": int, "metavar": "N",
-                                                  "help": "UTM zone of the header projection (default 10)"}),
-                  ExportOption("--origin", "origin", {"type": float, "nargs": 2, "metavar": ("X", "Y"),
-                                                      "help": "UTM easting/northing of the map's (0, 0) (default: "
-                                                              "the map's origin, else 587000 4141000)"}))),
+              sniff=_is_protobuf, options=GEO_OPTIONS),
+    MapFormat("commonroad", "CommonRoad scenario (.xml, 2020a)", (".xml",), write=f"{_P}.commonroad:write_commonroad",
+              validate=f"{_P}.commonroad:validate_commonroad", options=GEO_OPTIONS,
+              sniff=lambda head: b"<commonRoad" in head),
+    MapFormat("lanelet2", "Lanelet2 for Autoware (.osm, map_projector_info.yaml beside it)", (".osm",),
+              write=f"{_P}.lanelet2:write_lanelet2", validate=f"{_P}.lanelet2:validate_lanelet2", options=GEO_OPTIONS,
+              sniff=lambda head: b"<osm" in head),
     MapFormat("native", "feat2map map (.json)", (".json",), read=f"{_P}.native:load", write=f"{_P}.native:save",
               sniff=lambda head: head.lstrip().startswith(b"{")),
     MapFormat("opendrive", "ASAM OpenDRIVE (.xodr)", (".xodr",), read=f"{_P}.opendrive:read_opendrive",

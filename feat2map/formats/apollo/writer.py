@@ -23,6 +23,7 @@ from .geometry import (arc_lengths, distance_samples, exact_end_centerline, poly
                                stop_line_range, usable_boundaries)
 from .sim_map import to_sim_map
 from ..base import header_date
+from ..geo import utm_projection
 from ...config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline
@@ -35,11 +36,6 @@ BOUNDARY_TYPE = {
 }
 TURN = {"none": aps.Lane.NO_TURN, "left": aps.Lane.LEFT_TURN, "right": aps.Lane.RIGHT_TURN,
         "uturn": aps.Lane.U_TURN}
-
-
-def utm_projection(zone: int) -> str:
-    """The header projection string Apollo expects (PROJ.4, WGS84 UTM, northern hemisphere)."""
-    return f"+proj=utm +zone={zone} +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
 
 
 def stop_sign_types(m: HDMap) -> dict[str | None, int]:

@@ -1,0 +1,257 @@
+"""Check a CommonRoad scenario with commonroad-io: its schema, its reader, and what a planner
+needs from the lanelet network (each failure is a `Problem`):
+- the file is valid against CommonRoad's XSD (shipped with commonroad-io, checked with its
+  `XMLFileWriter.check_validity_of_commonroad_file`; the schema's messages name the lines);
+- commonroad-io reads it (`XMLFileReader`);
+- lanelets: predecessor/successor links go both ways and meet end to start (5 cm), adjacency is
+  mutual (same direction: left/right, opposite: left/left);
+- every intersection manoeuvre is reachable: from an incoming lanelet, through each junction
+  lanelet of its right/straight/left sets (which turn as named), to a lanelet past the
+  intersection, searching commonroad-io's successor lists;
+- traffic lights: a cycle with positive durations, used by a lanelet; lights of one
+  intersection whose greens overlap govern the same or opposite approaches;
+- stop signs: used by lanelets whose stop line refers to them;
+- each planning problem starts on a lanelet from which its goal lanelets are reachable.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import numpy as np
+
+from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG
+from ...errors import Feat2MapError
+from ...model import classify_turn
+from ..base import Problem
+from .writer import commonroad_io, quiet_commonroad
+
+LINK_TOLERANCE_M = 0.05
+_TURN_SETS = {"outgoing_right": ("right",), "outgoing_straight": ("none",), "outgoing_left": ("left", "uturn")}
+
+
+@dataclass
+class CommonRoadReport:
+    """What commonroad-io read: element counts, the manoeuvres (intersection, incoming,
+    junction lanelet) that are reachable, the scenario, and the problems."""
+
+    counts: Counter = field(default_factory=Counter)
+    routes: set[tuple[int, int, int]] = field(default_factory=set)
+    problems: list[Problem] = field(default_factory=list)
+    scenario: object | None = None
+
+
+def check_commonroad(path: str | Path) -> CommonRoadReport:
+    """Read `path` with commonroad-io and check it (see the module docstring)."""
+    commonroad_io()
+    from commonroad.common.reader.file_reader_xml import XMLFileReader
+    from commonroad.common.writer.file_writer_xml import XMLFileWriter
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise Feat2MapError(f"cannot read ({exc.strerror})", str(path)) from None
+    report = CommonRoadReport()
+    if not XMLFileWriter.check_validity_of_commonroad_file(data):
+        report.problems += _schema_errors(data, path)
+    try:
+        with quiet_commonroad():
+            scenario, problems = XMLFileReader(str(path)).open()
+    except Exception as exc:  # commonroad-io raises many kinds on bad files
+        report.problems.append(Problem(str(path), f"commonroad-io cannot read it: {type(exc).__name__}: {exc}"))
+        return report
+    report.scenario = scenario
+    net = scenario.lanelet_network
+    report.counts = Counter(lanelets=len(net.lanelets), intersections=len(net.intersections),
+                            incomings=sum(len(i.incomings) for i in net.intersections),
+                            traffic_lights=len(net.traffic_lights), traffic_signs=len(net.traffic_signs),
+                            crosswalks=sum(1 for ll in net.lanelets if "crosswalk" in {t.value for t in ll.lanelet_type}))
+    _links(net, report)
+    _intersections(net, report)
+    _controls(net, report)
+    _planning(net, problems, report)
+    return report
+
+
+def validate_commonroad(path: str | Path, progress: bool = False) -> list[Problem]:
+    """The problems `check_commonroad` finds (the validate face of the format table)."""
+    return check_commonroad(path).problems
+
+
+def _schema_errors(data: bytes, path: Path) -> list[Problem]:
+    import commonroad
+    from lxml import etree
+
+    xsd = Path(commonroad.__file__).parent / "common" / "xml_definition_files" / "XML_commonRoad_XSD.xsd"
+    schema = etree.XMLSchema(etree.parse(str(xsd)))
+    try:
+        schema.validate(etree.fromstring(data))
+    except etree.XMLSyntaxError as exc:
+        return [Problem(str(path), f"not XML: {exc}")]
+    errors = [Problem(f"{path}:{e.line}", f"CommonRoad schema: {e.message}") for e in schema.error_log]
+    return errors or [Problem(str(path), "CommonRoad schema: invalid")]
+
+
+def _lanelet_ids(ids: Iterable[int]) -> list[int]:
+    return sorted(int(i) for i in ids)
+
+
+def _links(net, report: CommonRoadReport) -> None:
+    lls = lanelet_index(net)
+    for ll in net.lanelets:
+        where = f"lanelet {ll.lanelet_id}"
+        for s in ll.successor:
+            other = lls.get(s)
+            if other is None or ll.lanelet_id not in other.predecessor:
+                report.problems.append(Problem(where, f"successor {s} does not name it as predecessor"))
+                continue
+            gap = max(np.hypot(*(ll.left_vertices[-1] - other.left_vertices[0])),
+                      np.hypot(*(ll.right_vertices[-1] - other.right_vertices[0])))
+            if gap > LINK_TOLERANCE_M:
+                report.problems.append(Problem(where, f"successor {s} starts {gap:.3f} m from its end"))
+        for p in ll.predecessor:
+            if p not in lls or ll.lanelet_id not in lls[p].successor:
+                report.problems.append(Problem(where, f"predecessor {p} does not name it as successor"))
+        for side, adj, same in (("left", ll.adj_left, ll.adj_left_same_direction),
+                                ("right", ll.adj_right, ll.adj_right_same_direction)):
+            if adj is None:
+                continue
+            other = lls.get(adj)
+            back = None if other is None else (
+                (other.adj_right if side == "left" else other.adj_left) if same else
+                (other.adj_left if side == "left" else other.adj_right))
+            if back != ll.lanelet_id:
+                report.problems.append(Problem(where, f"adjacent {side} {adj} is not adjacent back"))
+
+
+def lanelet_index(net) -> dict[int, object]:
+    """Lanelet id -> commonroad-io Lanelet of a LaneletNetwork."""
+    return {ll.lanelet_id: ll for ll in net.lanelets}
+
+
+def reachable(lls: Mapping[int, object], starts: Iterable[int], goals: Iterable[int],
+              allowed: Iterable[int] | None = None) -> bool:
+    """Can a vehicle drive from a lanelet in `starts` to one in `goals` along successors and
+    same-direction lane changes (commonroad-io's lists), within `allowed` lanelets (all when None)?"""
+    goals = set(goals)
+    allowed = set(allowed) if allowed is not None else set(lls)
+    queue = deque(s for s in starts if s in lls and s in allowed)
+    seen = set(queue)
+    while queue:
+        cur = queue.popleft()
+        if cur in goals:
+            return True
+        ll = lls[cur]
+        nxt = list(ll.successor)
+        nxt += [a for a, same in ((ll.adj_left, ll.adj_left_same_direction), (ll.adj_right, ll.adj_right_same_direction))
+                if a is not None and same]
+        for n in nxt:
+            if n in lls and n in allowed and n not in seen:
+                seen.add(n)
+                queue.append(n)
+    return False
+
+
+def _heading(vertices: np.ndarray, at: str) -> float:
+    a, b = (vertices[0], vertices[1]) if at == "start" else (vertices[-2], vertices[-1])
+    return math.atan2(b[1] - a[1], b[0] - a[0])
+
+
+def _intersections(net, report: CommonRoadReport) -> None:
+    lls = lanelet_index(net)
+    inside = {x for i in net.intersections for inc in i.incomings
+              for key in _TURN_SETS for x in getattr(inc, key) or ()}
+    for inter in net.intersections:
+        for inc in inter.incomings:
+            where = f"intersection {inter.intersection_id} incoming {inc.incoming_id}"
+            feeders = set(inc.incoming_lanelets or ())
+            missing = feeders - set(lls)
+            if missing or not feeders:
+                report.problems.append(Problem(where, f"incoming lanelets {sorted(missing) or 'none'} not in the network"))
+                continue
+            for key, turns in _TURN_SETS.items():
+                for jl in _lanelet_ids(getattr(inc, key) or ()):
+                    ll = lls.get(jl)
+                    if ll is None:
+                        report.problems.append(Problem(where, f"{key} lanelet {jl} not in the network"))
+                        continue
+                    turn = classify_turn(_heading(ll.center_vertices, "start"), _heading(ll.center_vertices, "end"))
+                    if turn not in turns and not (key == "outgoing_left" and abs(_turn_deg(ll)) > 150):
+                        report.problems.append(Problem(f"lanelet {jl}", f"listed as {key} of {where} but turns {turn}"))
+                    exits = {s for s in ll.successor if s not in inside}
+                    if not exits or not reachable(lls, feeders, {jl}, feeders | {jl}):
+                        report.problems.append(Problem(f"lanelet {jl}", f"manoeuvre of {where} is not reachable "
+                                                                        "from its incoming lanelets to a lanelet past it"))
+                    else:
+                        report.routes.add((inter.intersection_id, inc.incoming_id, jl))
+
+
+def _turn_deg(ll) -> float:
+    d = _heading(ll.center_vertices, "end") - _heading(ll.center_vertices, "start")
+    return math.degrees((d + math.pi) % (2 * math.pi) - math.pi)
+
+
+def _green_steps(light) -> set[int]:
+    """The time steps (within one cycle) at which a light is green."""
+    out, t = set(), 0
+    for el in light.traffic_light_cycle.cycle_elements:
+        if el.state.value == "green":
+            out.update(range(t, t + int(el.duration)))
+        t += int(el.duration)
+    return out
+
+
+def _controls(net, report: CommonRoadReport) -> None:
+    users_light: dict[int, set[int]] = {}
+    users_sign: dict[int, set[int]] = {}
+    heading_of: dict[int, list[float]] = {}
+    for ll in net.lanelets:
+        for t in ll.traffic_lights:
+            users_light.setdefault(t, set()).add(ll.lanelet_id)
+            heading_of.setdefault(t, []).append(_heading(ll.center_vertices, "end"))
+        for s in ll.traffic_signs:
+            users_sign.setdefault(s, set()).add(ll.lanelet_id)
+            refs = ll.stop_line.traffic_sign_ref if ll.stop_line is not None else None
+            if not refs or s not in refs:
+                report.problems.append(Problem(f"lanelet {ll.lanelet_id}", f"traffic sign {s} without a stop line referring to it"))
+    for light in net.traffic_lights:
+        where = f"traffic light {light.traffic_light_id}"
+        cycle = light.traffic_light_cycle
+        if cycle is None or not cycle.cycle_elements or any(int(e.duration) <= 0 for e in cycle.cycle_elements):
+            report.problems.append(Problem(where, "no cycle, or a cycle element without duration"))
+        if not users_light.get(light.traffic_light_id):
+            report.problems.append(Problem(where, "no lanelet refers to it"))
+    for sign in net.traffic_signs:
+        if not users_sign.get(sign.traffic_sign_id):
+            report.problems.append(Problem(f"traffic sign {sign.traffic_sign_id}", "no lanelet refers to it"))
+    # lights green at once must govern the same or opposite approaches
+    by_inter: dict[int, list] = {}
+    light_of_lanelet = {ll.lanelet_id: set(ll.traffic_lights) for ll in net.lanelets}
+    for inter in net.intersections:
+        ids = {t for inc in inter.incomings for x in inc.incoming_lanelets or () for t in light_of_lanelet.get(x, ())}
+        by_inter[inter.intersection_id] = [light for light in net.traffic_lights if light.traffic_light_id in ids]
+    for iid, lights in by_inter.items():
+        for i, a in enumerate(lights):
+            for b in lights[i + 1:]:
+                if a.traffic_light_cycle is None or b.traffic_light_cycle is None:
+                    continue
+                if _green_steps(a) & _green_steps(b):
+                    ha, hb = heading_of.get(a.traffic_light_id, [0.0])[0], heading_of.get(b.traffic_light_id, [0.0])[0]
+                    apart = math.degrees(abs((ha - hb + math.pi) % (2 * math.pi) - math.pi))
+                    if SIGNAL_SAME_APPROACH_DEG <= apart <= SIGNAL_OPPOSITE_DEG:
+                        report.problems.append(Problem(f"intersection {iid}", f"traffic lights {a.traffic_light_id} and "
+                                                       f"{b.traffic_light_id} are green together on crossing approaches"))
+
+
+def _planning(net, problems, report: CommonRoadReport) -> None:
+    for pp in problems.planning_problem_dict.values():
+        where = f"planning problem {pp.planning_problem_id}"
+        start = net.find_lanelet_by_position([np.asarray(pp.initial_state.position, dtype=float)])[0]
+        goals = {x for ids in (pp.goal.lanelets_of_goal_position or {}).values() for x in ids}
+        if not start or not goals or not reachable(lanelet_index(net), start, goals):
+            report.problems.append(Problem(where, f"its goal lanelets {sorted(goals)} are not reachable from "
+                                                  f"its start (on lanelets {sorted(start)})"))

@@ -1,0 +1,278 @@
+"""Write an HDMap as a CommonRoad scenario (XML, format 2020a) with commonroad-io's own writer.
+
+The lanelet network: one lanelet per lane (left, centre and right vertices resampled to one
+count; junction lanes typed `intersection`), adjacency from the model's neighbours (opposite
+lanes as `opposite`), one crosswalk lanelet per crosswalk for pedestrians. Controls: a stop
+line on every lane a signal or stop sign governs; stop signs as traffic signs (Zamunda/German
+206, the catalogue CommonRoad's schema holds, in a ZAM scenario: CommonRoad's country code for
+synthetic maps); traffic lights with the fixed-time cycle of `feat2map.phases` (the env's
+default plan at offset 0: paired phases, green/amber/all-red from config). Intersections: per
+junction, one incoming per entry road, its junction lanelets split into right, straight and
+left (U-turns count as left).
+
+The location is the map's (0, 0) in WGS84, and its geoReference a transverse Mercator whose
+false origin makes the file's coordinates the map's local metres. commonroad-io stamps the
+file with today's date; the writer sets SOURCE_DATE_EPOCH's date instead, else a fixed one
+(the schema requires a date), so the same map gives the same bytes. commonroad-io is imported from its XML modules only: its protobuf modules need
+protobuf 3.20, which the Apollo format cannot use.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ... import __version__, atomic
+from ...config import COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S, UTM_ZONE
+from ...errors import Feat2MapError
+from ...model import HDMap, Lane, Polyline, incoming_lanes
+from ...phases import junction_phases, timeline
+from ..base import header_date
+from ..geo import utm_origin, utm_to_latlon
+
+COUNTRY = "ZAM"
+MAP_NAME = "Feat2map"
+_MARKS = {"solid_white": "SOLID", "dotted_white": "DASHED", "solid_yellow": "SOLID", "dotted_yellow": "DASHED",
+          "curb": "CURB", "virtual": "NO_MARKING"}
+_STATES = {"green": "GREEN", "amber": "YELLOW", "red": "RED"}
+_TURNS = {"right": "outgoing_right", "none": "outgoing_straight", "left": "outgoing_left", "uturn": "outgoing_left"}
+
+
+def commonroad_io():
+    """commonroad-io's scenario modules, or a clear error without the package."""
+    try:
+        from commonroad.common.writer import file_writer_xml  # noqa: F401
+        import commonroad.scenario.intersection  # noqa: F401
+    except ImportError:
+        raise Feat2MapError("CommonRoad export needs commonroad-io (pip install --no-deps commonroad-io "
+                            "commonroad-vehicle-models iso3166 omegaconf rtree; see scripts/setup.sh)",
+                            "commonroad") from None
+    import commonroad
+
+    return commonroad
+
+
+@contextlib.contextmanager
+def quiet_commonroad() -> Iterator[None]:
+    """commonroad-io logs a format note per intersection incoming; keep the CLI quiet."""
+    log = logging.getLogger("commonroad")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+def resample(line: Polyline, n: int) -> np.ndarray:
+    """`n` points along a polyline, equally spaced by arc length, ends exact."""
+    pts = np.asarray(line, dtype=float)[:, :2]
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    if s[-1] <= 0:
+        return np.repeat(pts[:1], n, axis=0)
+    t = np.linspace(0.0, s[-1], n)
+    out = np.column_stack([np.interp(t, s, pts[:, 0]), np.interp(t, s, pts[:, 1])])
+    out[0], out[-1] = pts[0], pts[-1]
+    return out
+
+
+def lanelet_ids(m: HDMap) -> dict[str, int]:
+    """The CommonRoad lanelet id of each lane written (lanes with two-point boundaries): 1, 2, ...
+    in map order."""
+    lanes = [lid for lid, ln in m.lanes.items() if len(ln.left_boundary) >= 2 and len(ln.right_boundary) >= 2]
+    return {lid: i + 1 for i, lid in enumerate(lanes)}
+
+
+class _Ids:
+    """CommonRoad ids: positive integers, one space for every element, given in map order."""
+
+    def __init__(self) -> None:
+        self.next = 1
+        self.of: dict[tuple[str, str], int] = {}
+
+    def __call__(self, kind: str, key: str) -> int:
+        if (kind, key) not in self.of:
+            self.of[(kind, key)] = self.next
+            self.next += 1
+        return self.of[(kind, key)]
+
+
+def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | None = None):
+    """The commonroad-io Scenario of `m` (its lanelet network; no obstacles) and its planning
+    problem set."""
+    commonroad_io()
+    from commonroad.common.common_lanelet import LaneletType, LineMarking, RoadUser, StopLine
+    from commonroad.common.common_scenario import GeoTransformation, Location, ScenarioID
+    from commonroad.scenario.intersection import IncomingGroup, Intersection
+    from commonroad.scenario.lanelet import Lanelet, LaneletNetwork
+    from commonroad.scenario.scenario import Scenario
+    from commonroad.scenario.traffic_light import (TrafficLight, TrafficLightCycle, TrafficLightCycleElement,
+                                                   TrafficLightState)
+    from commonroad.scenario.traffic_sign import TrafficSign, TrafficSignElement, TrafficSignIDZamunda
+
+    o = utm_origin(m, zone, origin, "commonroad export")
+    lat, lon = utm_to_latlon(zone, [o[0]], [o[1]])
+    location = Location(geo_name_id=-999, gps_latitude=float(lat[0]), gps_longitude=float(lon[0]),
+                        geo_transformation=GeoTransformation(geo_reference=local_tmerc(zone, o), x_translation=0.0,
+                                                             y_translation=0.0, z_rotation=0.0, scaling=1.0))
+    net = LaneletNetwork(location=location)
+    ids = _Ids()
+    for lid in lanelet_ids(m):
+        ids("lane", lid)
+    lanes = {lid: m.lanes[lid] for lid in lanelet_ids(m)}
+    signals = {s.id: [x for x in incoming_lanes(m.lanes, s.lane_ids) if x in lanes] for s in m.signals.values()}
+    signs = {s.id: [x for x in incoming_lanes(m.lanes, s.lane_ids) if x in lanes] for s in m.stop_signs.values()}
+    controls: dict[str, tuple[set[int], set[int]]] = {}  # lane -> (sign ids, light ids) at its end
+    for sid, governed in signs.items():
+        for lid in governed:
+            controls.setdefault(lid, (set(), set()))[0].add(ids("sign", sid))
+    for sid, governed in signals.items():
+        for lid in governed:
+            controls.setdefault(lid, (set(), set()))[1].add(ids("light", sid))
+
+    def ref(lane_ids) -> int | None:
+        return next((ids("lane", x) for x in lane_ids if x in lanes), None)
+
+    for lid, ln in lanes.items():
+        n = max(len(ln.left_boundary), len(ln.right_boundary), len(ln.centerline), 2)
+        left, right = resample(ln.left_boundary, n), resample(ln.right_boundary, n)
+        adj_left, same_left = ref(ln.left_neighbors), True
+        if adj_left is None:
+            adj_left, same_left = ref(ln.left_reverse_neighbors), False
+        adj_right = ref(ln.right_neighbors)
+        stop = None
+        if lid in controls:
+            sign_ids, light_ids = controls[lid]
+            stop = StopLine(right[-1].copy(), left[-1].copy(), LineMarking.SOLID, sign_ids, light_ids)
+        net.add_lanelet(Lanelet(
+            left, resample(ln.centerline, n), right, ids("lane", lid),
+            predecessor=[ids("lane", x) for x in ln.predecessors if x in lanes],
+            successor=[ids("lane", x) for x in ln.successors if x in lanes],
+            adjacent_left=adj_left, adjacent_left_same_direction=same_left if adj_left is not None else None,
+            adjacent_right=adj_right, adjacent_right_same_direction=True if adj_right is not None else None,
+            line_marking_left_vertices=LineMarking[_MARKS.get(ln.left_boundary_type, "UNKNOWN")],
+            line_marking_right_vertices=LineMarking[_MARKS.get(ln.right_boundary_type, "UNKNOWN")],
+            stop_line=stop, lanelet_type={LaneletType.INTERSECTION if ln.junction_id else LaneletType.URBAN},
+            user_one_way={RoadUser.VEHICLE}), rtree=False)
+    for cw in m.crosswalks.values():
+        sides = cw.sides()
+        if sides is not None:
+            left, right = (np.asarray(x) for x in sides)
+            net.add_lanelet(Lanelet(left, (left + right) / 2, right, ids("crosswalk", cw.id),
+                                    lanelet_type={LaneletType.CROSSWALK}, user_bidirectional={RoadUser.PEDESTRIAN}),
+                            rtree=False)
+    for s in m.stop_signs.values():
+        if signs[s.id]:
+            sign = TrafficSign(ids("sign", s.id), [TrafficSignElement(TrafficSignIDZamunda.STOP, [])],
+                               {ids("lane", x) for x in signs[s.id]}, np.asarray(s.position[:2], dtype=float),
+                               virtual=False)
+            net.add_traffic_sign(sign, {ids("lane", x) for x in signs[s.id]})
+    steps = round(1.0 / COMMONROAD_DT_S)
+    for jid, phases in junction_phases(m).items():
+        for k, phase in enumerate(phases):
+            cycle = [TrafficLightCycleElement(TrafficLightState[_STATES[state]], int(round(d * steps)))
+                     for state, d in timeline(k, len(phases))]
+            for sid in phase:
+                if signals.get(sid):
+                    light = TrafficLight(ids("light", sid), np.asarray(m.signals[sid].position[:2], dtype=float),
+                                         TrafficLightCycle(cycle, time_offset=0, active=True), active=True)
+                    net.add_traffic_light(light, {ids("lane", x) for x in signals[sid]})
+    for jid in m.junctions:
+        incomings = _incomings(m, jid, lanes)
+        groups = []
+        for road, (feeders, turns) in incomings.items():
+            groups.append(IncomingGroup(ids("incoming", f"{jid}/{road}"), {ids("lane", x) for x in feeders},
+                                        **{key: {ids("lane", x) for x in lids} for key, lids in turns.items()}))
+        if groups:
+            net.add_intersection(Intersection(ids("intersection", jid), groups))
+    scenario = Scenario(COMMONROAD_DT_S, ScenarioID(country_id=COUNTRY, map_name=MAP_NAME, map_id=1))
+    scenario.add_objects(net)
+    return scenario, _planning_problems(m, lanes, ids, net)
+
+
+def _planning_problems(m: HDMap, lanes, ids: _Ids, net):
+    """The one planning problem CommonRoad's schema asks for: start half-way along the first
+    map entry lane, at rest, and reach any map exit lane it leads to within
+    `COMMONROAD_HORIZON_S`."""
+    from commonroad.common.util import Interval
+    from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
+    from commonroad.planning.goal import GoalRegion
+    from commonroad.planning.planning_problem import PlanningProblem, PlanningProblemSet
+    from commonroad.scenario.state import CustomState, InitialState
+
+    for ln in m.entry_lanes:
+        if ln.id not in lanes:
+            continue
+        seen, stack, exits = {ln.id}, [ln.id], []
+        while stack:
+            cur = m.lanes[stack.pop()]
+            if not cur.successors:
+                exits.append(cur.id)
+            for s in cur.successors:
+                if s in lanes and s not in seen:
+                    seen.add(s)
+                    stack.append(s)
+        exits = [x for x in lanes if x in exits and x != ln.id]
+        if not exits:
+            continue
+        k = (len(ln.centerline) - 1) // 2  # a centreline point half-way along, inside the lanelet
+        (x0, y0), (x1, y1) = ln.centerline[k][:2], ln.centerline[k + 1][:2]
+        start = InitialState(position=np.array([x0, y0], dtype=float), orientation=math.atan2(y1 - y0, x1 - x0),
+                             velocity=0.0, acceleration=0.0, yaw_rate=0.0, slip_angle=0.0, time_step=0)
+        horizon = int(round(COMMONROAD_HORIZON_S / COMMONROAD_DT_S))
+        goal_ids = [ids("lane", x) for x in exits]
+        area = OccupancyGroup(occupancies=tuple(net.find_lanelet_by_id(x).polygon for x in goal_ids))
+        goal = GoalRegion([CustomState(time_step=Interval(0, horizon), position=area)], {0: goal_ids})
+        return PlanningProblemSet([PlanningProblem(ids("planning", ln.id), start, goal)])
+    raise Feat2MapError("no entry lane leads to an exit lane: CommonRoad needs a planning problem", "commonroad export")
+
+
+def _incomings(m: HDMap, jid: str, lanes) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
+    """Entry road -> (its lanes into junction `jid`, junction lanes from them by CommonRoad turn)."""
+    out: dict[str, tuple[list[str], dict[str, list[str]]]] = {}
+    for road, feeders in m.approaches(jid).items():
+        feeders = [x for x in feeders if x in lanes]
+        turns: dict[str, list[str]] = {}
+        for ln in m.lanes_by_junction[jid]:
+            if ln.id in lanes and any(p in feeders for p in ln.predecessors):
+                turns.setdefault(_TURNS.get(ln.turn, "outgoing_straight"), []).append(ln.id)
+        if feeders:
+            out[road] = (feeders, turns)
+    return out
+
+
+def local_tmerc(zone: int, origin: tuple[float, float]) -> str:
+    """UTM `zone` as a transverse Mercator whose false origin puts `origin` at (0, 0)."""
+    lon0 = -183 + 6 * zone
+    return (f"+proj=tmerc +lat_0=0 +lon_0={lon0} +k=0.9996 +x_0={500000.0 - origin[0]!r} "
+            f"+y_0={-origin[1]!r} +datum=WGS84 +units=m +no_defs")
+
+
+def to_commonroad(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | None = None) -> bytes:
+    """The CommonRoad XML of `m`, written by commonroad-io's XMLFileWriter, with a fixed date."""
+    scenario, problems = to_scenario(m, zone=zone, origin=origin)
+    from commonroad.common.writer.file_writer_interface import OverwriteExistingFile
+    from commonroad.common.writer.file_writer_xml import XMLFileWriter
+    from lxml import etree
+
+    writer = XMLFileWriter(scenario, problems, author="feat2map", affiliation="feat2map",
+                           source=f"feat2map {__version__}", tags=set())
+    with tempfile.TemporaryDirectory(prefix="feat2map-cr-") as tmp, quiet_commonroad():
+        out = Path(tmp) / "scenario.xml"
+        writer.write_to_file(str(out), OverwriteExistingFile.ALWAYS)
+        root = etree.parse(str(out)).getroot()
+    root.set("date", (header_date() or COMMONROAD_DATE)[:10])
+    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+
+
+def write_commonroad(m: HDMap, path: str | Path, *, zone: int = UTM_ZONE,
+                     origin: tuple[float, float] | None = None) -> None:
+    """Write `m` to `path` (.xml) atomically."""
+    atomic.write_bytes(path, to_commonroad(m, zone=zone, origin=origin))
+
+
