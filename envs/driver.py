@@ -9,7 +9,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .traffic import idm
+from .rules import idm
 
 DRIVER_ACTION_CONFIG = {"type": "ContinuousAction", "longitudinal": True, "lateral": False,
                         "acceleration_range": [-8.0, 4.0]}

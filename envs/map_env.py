@@ -5,38 +5,53 @@ sampled lane walk on maps without junctions such as a closed ring road) through 
 signals, stop signs, crosswalk pedestrians and IDM traffic. Subclasses only say where the map comes
 from: `JunctionGridEnv` (generated from a feature space) and `MapFileEnv` (a file or an HDMap).
 
-info keys (every step and reset):
-  junction            id of the junction the ego is in, else the next one on its route (or None)
-  junction_feature    that junction's feature as a dict (n_roads, rotation, control, crosswalk, ...)
-  manoeuvre           the ego's turn there: "left" | "straight" | "right" | "uturn" (or None)
-  control_ahead       "signal" | "stop" | "bare" for the next stop line on the route (None past the last)
+info keys (every step and reset; a new dict each time, each key of one type and shape in every
+step and env, so that vector envs stack them: "", -1, inf or empty stand for "none"; never NaN,
+which Gymnasium's determinism checks cannot compare):
+  junction            id of the junction the ego is in, else the next one on its route ("")
+  junction_feature    that junction's feature: {"n_roads" (-1 without one), "control", "crosswalk",
+                      "rotation" (MAX_LEGS socket angles, inf padded), "lanes_in", "lanes_out" (-1 padded)}
+  manoeuvre           the ego's turn there: "left" | "straight" | "right" | "uturn" ("")
+  control_ahead       "signal" | "stop" | "bare" for the next stop line on the route ("" past the last)
   signal_id / signal_state / signal_time_to_change   the signal governing the ego's next stop line
-  distance_to_stop_line   metres from the ego centre to the next junction entry (inf if none)
+                      ("" / "" / inf without one)
+  distance_to_stop_line   metres along the route from the ego centre to the next stop line (the
+                      junction entry where bare; inf if none)
   violations          counts {"red_light", "stop_sign", "pedestrian_yield"} so far this episode
   new_violations      violations committed during this step, e.g. ["red_light"]
-  collision, off_road, route_progress (0..1), route_completed, lane_id, time
+  collision, off_road, route_progress (0..1), route_completed, lane_id, time, speed, crashed
+  action              the action taken, as an array of the action space's dtype
+  rewards             the reward terms of this step (zeros after reset)
   signal_states       {signal id: state} of the next junction's signals
 """
 from __future__ import annotations
 
 import math
+import numbers
 from collections import OrderedDict
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
 from highway_env.envs.common.abstract import AbstractEnv
-from highway_env.envs.common.action import DiscreteMetaAction
-from highway_env.envs.common.observation import ObservationType
+from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
 from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
 from ..errors import Feat2MapError
+from .config import merge_config, validate_config
+from .control import TrafficControl
 from .network import MapNetwork
-from .traffic import (PEDESTRIAN_IN_PATH_M, STOP_ZONE_M, STOPPED_SPEED_MPS, EgoMDPVehicle, EgoVehicle, MapRoad,
-                      TrafficControl, TrafficVehicle)
+from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
+from .road import MapRoad
+from .rules import SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
+from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
-VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
-_TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
+MAX_LEGS = 8  # info["junction_feature"] arrays have this many socket slots (inf / -1 beyond a junction's legs)
+TRAFFIC_SPAWN_TRIES = 10
+TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
+TRAFFIC_LANE_END_M = 8.0  # ... and not within this of its lane's end
+EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M = 25.0, 40.0  # ... and this far from the ego (at reset, on respawn)
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
 _CACHE_SIZE = 8
 
@@ -53,35 +68,14 @@ def cached_network(key: Any, build) -> MapNetwork:
     return net
 
 
-def merge_config(base: dict, delta: Mapping | None) -> dict:
-    """Merge `delta` into the defaults; observation/action dicts merge when their type is kept."""
-    for key, val in (delta or {}).items():
-        cur = base.get(key)
-        if key in ("observation", "action") and isinstance(val, Mapping) and isinstance(cur, Mapping):
-            base[key] = {**cur, **val} if val.get("type", cur.get("type")) == cur.get("type") else dict(val)
-        else:
-            base[key] = val
-    return base
-
-
-class TrafficControlObservation(ObservationType):
-    """Wraps any highway-env observation into {"observation", "traffic_control"}; the latter is
-    [green, amber, red, stop sign, distance to stop line / 100 (clipped), pedestrian ahead]."""
-
-    def __init__(self, env: "MapEnv", inner: ObservationType) -> None:
-        super().__init__(env)
-        self.inner = inner
-
-    def space(self) -> spaces.Space:
-        return spaces.Dict({"observation": self.inner.space(),
-                            "traffic_control": spaces.Box(0.0, 1.0, (6,), dtype=np.float32)})
-
-    def observe(self):
-        return {"observation": self.inner.observe(), "traffic_control": self.env.traffic_control_vector()}
-
-
 class MapEnv(AbstractEnv):
     """Drive a route of junction manoeuvres on a feat2map map (see module docstring for info)."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+        self.metadata = dict(type(self).metadata)  # highway-env writes render_fps into it: one per env
+        super().__init__(config, render_mode)
 
     @classmethod
     def default_config(cls) -> dict:
@@ -101,7 +95,7 @@ class MapEnv(AbstractEnv):
             # {"from_lane": a, "to_lane": b}, or None to sample
             "route_junctions": 2,  # junctions on a sampled route (0: a lane walk of route_length)
             "route_length": 200.0,  # [m] driven on a sampled lane walk (maps without junctions)
-            "ego_start_distance": 30.0,  # [m] before the first stop line
+            "ego_start_distance": 30.0,  # [m] before the end of the first lane (the first stop line)
             "ego_initial_speed": 4.5,
             "goal_distance": 15.0,  # [m] into the last lane of the route
             "traffic_vehicles": 8, "traffic_respawn": True, "traffic_initial_speed": 5.0,
@@ -122,7 +116,11 @@ class MapEnv(AbstractEnv):
         return config
 
     def configure(self, config: dict) -> None:
-        merge_config(self.config, config)
+        """Merge `config` into the current config; unknown keys and bad values are errors."""
+        merged = merge_config(dict(self.config), config)
+        validate_config(merged)
+        self.config.clear()
+        self.config.update(merged)
         if self.config["offscreen_rendering"] is None:
             self.config["offscreen_rendering"] = self.render_mode != "human"
 
@@ -131,10 +129,17 @@ class MapEnv(AbstractEnv):
         raise NotImplementedError
 
     def define_spaces(self) -> None:
-        super().define_spaces()
-        if self.config.get("observe_traffic_control"):
+        self.observation_type = make_observation(self, self.config["observation"])
+        self.action_type = action_factory(self, self.config["action"])
+        if self.config["observe_traffic_control"]:
             self.observation_type = TrafficControlObservation(self, self.observation_type)
-            self.observation_space = self.observation_type.space()
+        self.observation_space = self.observation_type.space()
+        self.action_space = self.action_type.space()
+
+    @property
+    def rules(self) -> TrafficControl:
+        """The traffic rules of this episode (`rules.TrafficRules`), for planners."""
+        return self.control
 
     # ---- episode -------------------------------------------------------------------------
     def _reset(self) -> None:
@@ -142,8 +147,9 @@ class MapEnv(AbstractEnv):
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
         self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
-        route = self._ego_route()
-        self._make_ego(route)
+        route, extend = self._ego_route()
+        self._make_ego(route, extend)
+        route = self.vehicle.lane_route
         route_junctions = {self.net.hdmap.lanes[l].junction_id for l in route} - {None}
         self.control.active_crosswalks = [c.id for c in self.net.hdmap.crosswalks.values()
                                           if c.junction_id in route_junctions]
@@ -151,38 +157,46 @@ class MapEnv(AbstractEnv):
         for _ in range(int(self.config["traffic_vehicles"])):
             self._spawn_traffic()
         self.control.update(self.road, 0.0)
-        self.violations = {k: 0 for k in VIOLATIONS}
-        self.new_violations: list[str] = []
-        self._ego_lane = self.net.id_of.get(self.vehicle.lane_index)
-        self._stopped: set[str] = set()
-        self._crossed: set[str] = set()
-        self._ped_flags: set[str] = set()
+        self.judge = EgoJudge(self.control, self.vehicle)
+        self.violations = self.judge.violations
         self._progress = self.vehicle.route_distance_done()
         last = self.net.lane_of[route[-1]]
         self._route_len = self.vehicle.route_length() - last.length + self._goal_s(last)
-        self.off_road = False
+        self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
 
-    def _ego_route(self) -> list[str]:
+    def _ego_route(self) -> tuple[list[str], bool]:
+        """The ego's lane route, and whether it may be extended over neighbouring road lanes (a
+        route of junction manoeuvres, not a lane route given or walked lane by lane)."""
         spec = self.config["route"]
         if isinstance(spec, Mapping):
-            return lane_route_from_config(self.net, spec)
+            return lane_route_from_config(self.net, spec), False
         if spec:
-            return manoeuvres_to_lanes(self.net, spec)
+            return manoeuvres_to_lanes(self.net, spec), True
         if int(self.config["route_junctions"]) <= 0 or not self.net.hdmap.junctions:
             c = self.config
             return sample_lane_walk(self.net, self.np_random, float(c["route_length"]),
-                                    float(c["ego_start_distance"]), float(c["goal_distance"]))
+                                    float(c["ego_start_distance"]), float(c["goal_distance"])), False
         for _ in range(100):
             r = sample_route(self.net, self.np_random, int(self.config["route_junctions"]))
             if r:
-                return r
+                return r, True
         raise Feat2MapError("no route through a junction could be sampled", "map")
 
-    def _make_ego(self, route: list[str]) -> None:
+    def _make_ego(self, route: list[str], extend: bool) -> None:
+        """The ego `ego_start_distance` before the end of its first lane (walking back over road
+        lanes before a short first lane), at least its braking distance before the first stop
+        line (slower where the road before the line is too short)."""
+        c = self.config
+        if extend:
+            route = extend_route(self.net, route, float(c["ego_start_distance"]), float(c["goal_distance"]))
+        start = float(c["ego_start_distance"])
+        s0 = max(0.0, route_start_s(self.net, route, start) if extend else self.net.lane_of[route[0]].length - start)
         lane = self.net.lane_of[route[0]]
-        s0 = max(0.0, lane.length - float(self.config["ego_start_distance"]))
+        speed = float(c["ego_initial_speed"])
+        d_line = first_line_distance(self.net, route, s0)
+        if d_line < braking_distance(speed, EgoVehicle.LENGTH):
+            speed = fitting_speed(d_line, EgoVehicle.LENGTH)
         pos, heading = lane.position(s0, 0.0), lane.heading_at(s0)
-        speed = float(self.config["ego_initial_speed"])
         if isinstance(self.action_type, DiscreteMetaAction):
             ego = EgoMDPVehicle(self.road, pos, heading, speed, target_speeds=self.action_type.target_speeds)
             ego.init_route(route)
@@ -205,23 +219,28 @@ class MapEnv(AbstractEnv):
         for jid in sorted(junctions):  # approaches and exits of the junctions on the route
             for jl in m.lanes_by_junction.get(jid, []):
                 lanes += [x for x in jl.predecessors + jl.successors if x in m.lanes]
-        return sorted(set(lanes))
+        return sorted({l for l in lanes if m.lanes[l].junction_id is None})  # no route starts in a junction
 
-    def _spawn_traffic(self, min_ego_distance: float = 25.0) -> TrafficVehicle | None:
+    def _spawn_traffic(self, min_ego_distance: float = EGO_CLEARANCE_M) -> TrafficVehicle | None:
+        """A traffic vehicle on a random spawn lane and random walk, clear of other vehicles and at
+        least its braking distance before the first stop line of its route (None if no place)."""
         if not self._spawn_lanes:
             return None
         rng = self.np_random
-        for _ in range(10):
+        speed = float(self.config["traffic_initial_speed"])
+        for _ in range(TRAFFIC_SPAWN_TRIES):
             lid = self._spawn_lanes[int(rng.integers(len(self._spawn_lanes)))]
             lane = self.net.lane_of[lid]
-            s = float(rng.uniform(0.0, max(lane.length - 8.0, 0.1)))
+            s = float(rng.uniform(0.0, max(lane.length - TRAFFIC_LANE_END_M, 0.1)))
             pos = lane.position(s, 0.0)
             if np.hypot(*(pos - self.vehicle.position)) < min_ego_distance:
                 continue
-            if any(np.hypot(*(pos - v.position)) < 12.0 for v in self.road.vehicles):
+            if any(np.hypot(*(pos - v.position)) < TRAFFIC_SPAWN_GAP_M for v in self.road.vehicles):
                 continue
             route = random_walk(self.net, rng, lid, 3)
-            v = TrafficVehicle(self.road, pos, lane.heading_at(s), float(self.config["traffic_initial_speed"]))
+            if first_line_distance(self.net, route, s) < braking_distance(speed, TrafficVehicle.LENGTH):
+                continue
+            v = TrafficVehicle(self.road, pos, lane.heading_at(s), speed)
             v.init_route(route)
             v.target_speed = lane.speed_limit
             self.road.vehicles.append(v)
@@ -229,8 +248,12 @@ class MapEnv(AbstractEnv):
         return None
 
     # ---- stepping ------------------------------------------------------------------------
+    def step(self, action):
+        check_action(self.action_space, action)
+        return super().step(action)
+
     def _simulate(self, action=None) -> None:
-        self.new_violations = []
+        self.judge.new = []
         frames = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
         dt = 1 / self.config["simulation_frequency"]
         for frame in range(frames):
@@ -240,7 +263,7 @@ class MapEnv(AbstractEnv):
             self.road.act()
             self.road.step(dt)
             self.steps += 1
-            self._check_ego()
+            self.judge.check()
             if frame < frames - 1:
                 self._automatic_rendering()
         self.enable_auto_render = False
@@ -249,54 +272,19 @@ class MapEnv(AbstractEnv):
             removed = len(self.road.vehicles) - len(keep)
             self.road.vehicles = keep
             for _ in range(removed):
-                self._spawn_traffic(min_ego_distance=40.0)
+                self._spawn_traffic(min_ego_distance=EGO_RESPAWN_CLEARANCE_M)
 
     def _check_ego(self) -> None:
-        ego, net, m = self.vehicle, self.net, self.net.hdmap
-        lid = net.id_of.get(ego.lane_index)
-        prev = self._ego_lane
-        sl = net.stop_lines.get(lid)
-        if sl is not None and (sl.kind == "stop" or self.config["right_turn_on_red"]) \
-                and ego.speed <= STOPPED_SPEED_MPS and 0 <= sl.s - ego.lane_s <= STOP_ZONE_M:
-            self._stopped.add(lid)
-        if lid in m.lanes and m.lanes[lid].junction_id is None:  # stops and line crossings count until
-            self._stopped &= {lid}                                 # the ego is on another road lane
-            self._crossed &= {lid}
-        if lid != prev and prev is not None and lid in m.lanes and m.lanes[lid].junction_id is not None \
-                and prev not in self._crossed:  # flickering across the line is one crossing
-            if m.lanes.get(prev) is not None and m.lanes[prev].junction_id is None:
-                self._crossed.add(prev)
-            psl = net.stop_lines.get(prev)
-            if psl is not None and psl.kind == "signal" and self.control.signal_state(psl.control_id) == "red" \
-                    and not (self.config["right_turn_on_red"] and prev in self._stopped and self._turn_after(prev) == "right"):
-                self._violate("red_light")
-            if psl is not None and psl.kind == "stop" and prev not in self._stopped:
-                self._violate("stop_sign")
-        self._ego_lane = lid
-        # pedestrians: the ego on a crosswalk with a person next to its path
-        for cw, s0, s1 in net.crossings.get(lid, ()):
-            if s0 - 1.0 <= ego.lane_s <= s1 + 1.0 and ego.speed > 0.5 and (lid, cw) not in self._ped_flags:
-                lane = net.lane_of[lid]
-                for p in self.control.pedestrians.get(cw, ()):
-                    sp, rp = lane.local_coordinates(p.position)
-                    if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M and abs(sp - ego.lane_s) < ego.LENGTH:
-                        self._ped_flags.add((lid, cw))
-                        self._violate("pedestrian_yield")
-                        break
-        lane = net.get_lane(ego.lane_index)
-        self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + 1.5 or \
-            ego.lane_s > lane.length + 3.0 and not m.lanes[lid].successors
+        """Judge the ego after a frame (`rules.EgoJudge`)."""
+        self.judge.check()
 
-    def _turn_after(self, lane_id: str) -> str | None:
-        """The turn of the ego's route lane after `lane_id` (None when not on the route)."""
-        route, pos = self.vehicle.lane_route, self.vehicle.route_pos
-        # the latest occurrence at or before the ego (routes round a ring repeat lanes)
-        k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
-        return self.net.hdmap.lanes[route[k]].turn if k < len(route) else None
+    @property
+    def new_violations(self) -> list[str]:
+        return self.judge.new
 
-    def _violate(self, kind: str) -> None:
-        self.violations[kind] += 1
-        self.new_violations.append(kind)
+    @property
+    def off_road(self) -> bool:
+        return self.judge.off_road
 
     # ---- task ----------------------------------------------------------------------------
     def route_completed(self) -> bool:
@@ -310,20 +298,23 @@ class MapEnv(AbstractEnv):
     def _goal_s(self, lane) -> float:
         return min(float(self.config["goal_distance"]), lane.length - 1.0)
 
+    @staticmethod
+    def _reward_terms() -> tuple[str, ...]:
+        return ("progress", "arrived", "collision", "off_road", *VIOLATIONS)
+
     def _rewards(self, action) -> dict[str, float]:
         done = self.vehicle.route_distance_done()
         delta = (done - self._progress) / max(self._route_len, 1e-6)
         self._progress = done
+        new = self.judge.new
         return {"progress": float(delta), "arrived": float(self.route_completed()),
                 "collision": float(self.vehicle.crashed), "off_road": float(self.off_road),
-                **{v: float(self.new_violations.count(v)) for v in VIOLATIONS}}
+                **{v: float(new.count(v)) for v in VIOLATIONS}}
 
     def _reward(self, action) -> float:
         r = self._last_rewards = self._rewards(action)
         c = self.config
-        return float(c["reward_progress"] * r["progress"] + c["reward_arrived"] * r["arrived"]
-                     + c["reward_collision"] * r["collision"] + c["reward_off_road"] * r["off_road"]
-                     + sum(c[f"reward_{v}"] * r[v] for v in VIOLATIONS))
+        return float(sum(c[f"reward_{k}"] * r[k] for k in self._reward_terms()))
 
     def _is_terminated(self) -> bool:
         return bool(self.vehicle.crashed or self.route_completed()
@@ -333,28 +324,29 @@ class MapEnv(AbstractEnv):
         return bool(self.time >= self.config["duration"])
 
     def _info(self, obs, action=None) -> dict:
-        ego, net, m = self.vehicle, self.net, self.net.hdmap
+        """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
+        instead), so that vector envs can stack them (see the module docstring)."""
+        ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
         jid, turn = self.junction_ahead()
-        in_lane, j_lane, d = ego.next_junction_lane()
-        sl = net.stop_lines.get(in_lane) if in_lane else None
-        control = None if in_lane is None else (sl.kind if sl else "bare")
-        sig_state = self.control.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
-        plan = self.control.plans.get(sl.control_id) if sl is not None else None
+        sl, in_lane, j_lane, d = rules.line_ahead(ego)
+        control = "" if in_lane is None else (sl.kind if sl else "bare")
+        sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
+        plan = rules.plans.get(sl.control_id) if sl is not None else None
         feature = m.junctions[jid].feature if jid in m.junctions else None
         return {
-            "speed": float(ego.speed), "crashed": bool(ego.crashed), "action": action,
-            "junction": jid, "junction_feature": feature.to_dict() if feature else None,
-            "manoeuvre": turn, "control_ahead": control,
-            "signal_id": sl.control_id if sig_state else None, "signal_state": sig_state,
-            "signal_time_to_change": float(plan.time_to_change(sl.control_id, self.control.t)) if plan else None,
-            "signal_states": self.control.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
+            "speed": float(ego.speed), "crashed": bool(ego.crashed), "action": action_array(self.action_space, action),
+            "junction": jid or "", "junction_feature": feature_info(feature),
+            "manoeuvre": turn or "", "control_ahead": control,
+            "signal_id": sl.control_id if sig_state else "", "signal_state": sig_state,
+            "signal_time_to_change": float(plan.time_to_change(sl.control_id, rules.t)) if plan else math.inf,
+            "signal_states": rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
             "distance_to_stop_line": float(d),
-            "violations": dict(self.violations), "new_violations": list(self.new_violations),
+            "violations": dict(self.violations), "new_violations": list(self.judge.new),
             "collision": bool(ego.crashed), "off_road": bool(self.off_road),
             "route_progress": float(min(ego.route_distance_done() / max(self._route_len, 1e-6), 1.0)),
             "route_completed": bool(self.route_completed()),
-            "lane_id": net.id_of.get(ego.lane_index), "time": float(self.time),
-            "rewards": dict(getattr(self, "_last_rewards", {})),
+            "lane_id": net.id_of.get(ego.lane_index) or "", "time": float(self.time),
+            "rewards": dict(self._last_rewards),
         }
 
     # ---- scripted-driver API -----------------------------------------------------------------
@@ -369,7 +361,7 @@ class MapEnv(AbstractEnv):
         for lid in ego.lane_route[ego.route_pos:]:
             ln = m.lanes[lid]
             if ln.junction_id is not None:
-                return ln.junction_id, _TURN_NAMES.get(ln.turn, ln.turn)
+                return ln.junction_id, TURN_NAMES.get(ln.turn, ln.turn)
         return None, None
 
     def rule_stop_distance(self, ignore: Sequence[str] = (), commit: bool = True) -> float:
@@ -382,14 +374,14 @@ class MapEnv(AbstractEnv):
         return self.vehicle.leader_gaps()
 
     def traffic_control_vector(self) -> np.ndarray:
-        ego = self.vehicle
-        in_lane, _, d = ego.next_junction_lane()
-        sl = self.net.stop_lines.get(in_lane) if in_lane else None
-        state = self.control.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
-        ped = self.control.stop_distance(ego, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
+        """observation.TRAFFIC_CONTROL_FEATURES of the ego's next stop line."""
+        ego, rules = self.vehicle, self.control
+        sl, _, _, d = rules.line_ahead(ego)
+        state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+        ped = rules.stop_distance(ego, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
         return np.array([state == "green", state == "amber", state == "red",
-                         sl is not None and sl.kind == "stop", min(d, 100.0) / 100.0, ped < math.inf],
-                        dtype=np.float32)
+                         sl is not None and sl.kind == "stop", min(d, STOP_LINE_RANGE_M) / STOP_LINE_RANGE_M,
+                         ped < math.inf], dtype=np.float32)
 
     # ---- rendering ---------------------------------------------------------------------------
     def render(self):
@@ -400,6 +392,114 @@ class MapEnv(AbstractEnv):
         if self.viewer is None:
             self.viewer = MapViewer(self)
         return super().render()
+
+
+def check_action(space: spaces.Space, action: Any) -> None:
+    """An action of the right kind, shape and value for `space`, else a Feat2MapError naming it."""
+    if isinstance(space, spaces.Discrete):
+        value = action.item() if isinstance(action, np.ndarray) and action.shape in ((), (1,)) else action
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, np.integer)):
+            raise Feat2MapError(f"must be an integer in [0, {space.n}), got {type(action).__name__} {action!r:.40}",
+                                "action")
+        if not 0 <= int(value) - int(space.start) < space.n:
+            raise Feat2MapError(f"must be in [{space.start}, {space.start + space.n}), got {value}", "action")
+        return
+    if isinstance(space, spaces.Box):
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise Feat2MapError(f"must be an array of shape {space.shape}, got {type(action).__name__}", "action") from None
+        if action is None or a.shape != space.shape:
+            raise Feat2MapError(f"must be an array of shape {space.shape}, got {type(action).__name__} of shape "
+                                f"{getattr(a, 'shape', None)}", "action")
+        if not np.all(np.isfinite(a)):
+            raise Feat2MapError(f"must be finite, got {a.tolist()}", "action")
+
+
+def action_array(space: spaces.Space, action: Any) -> np.ndarray:
+    """A copy of the action in the action space's dtype (a 0-d array for discrete actions)."""
+    return np.array(action, dtype=space.dtype if space.dtype is not None else None, copy=True)
+
+
+def feature_info(feature) -> dict[str, Any]:
+    """A junction feature as a dict of fixed keys, types and shapes (n_roads -1 without one)."""
+    rot = np.full(MAX_LEGS, np.inf)
+    lanes_in = np.full(MAX_LEGS, -1, dtype=np.int64)
+    lanes_out = np.full(MAX_LEGS, -1, dtype=np.int64)
+    if feature is None:
+        return {"n_roads": -1, "control": "", "crosswalk": False, "rotation": rot, "lanes_in": lanes_in,
+                "lanes_out": lanes_out}
+    d = feature.to_dict()
+    for arr, key in ((rot, "rotation"), (lanes_in, "lanes_in"), (lanes_out, "lanes_out")):
+        vals = list(d.get(key) or [])[:MAX_LEGS]
+        arr[:len(vals)] = vals
+    return {"n_roads": int(d["n_roads"]), "control": str(d["control"]), "crosswalk": bool(d["crosswalk"]),
+            "rotation": rot, "lanes_in": lanes_in, "lanes_out": lanes_out}
+
+
+def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_distance: float) -> list[str]:
+    """A manoeuvre route extended over road lanes (never into a junction) where its ends are
+    short: predecessors before the first lane until `start_distance` fits before the first
+    lane's end, successors after the last until the goal `goal_distance` into it fits."""
+    m = net.hdmap
+    route = list(route)
+    room = net.lane_of[route[0]].length
+    while room < start_distance:
+        prev = road_neighbour(m, route[0], m.lanes[route[0]].predecessors, set(route))
+        if prev is None:
+            break
+        route.insert(0, prev)
+        room += net.lane_of[prev].length
+    while net.lane_of[route[-1]].length < goal_distance + 1.0:
+        nxt = road_neighbour(m, route[-1], m.lanes[route[-1]].successors, set(route))
+        if nxt is None:
+            break
+        route.append(nxt)
+    return route
+
+
+def road_neighbour(m, lane_id: str, candidates: Sequence[str], exclude: set[str]) -> str | None:
+    """The road lane (not in a junction, not in `exclude`) among `candidates` to extend a route
+    with: one of the same road first, then the longest, ties by id."""
+    road = m.lanes[lane_id].road_id
+    cands = [c for c in candidates if c in m.lanes and m.lanes[c].junction_id is None and c not in exclude]
+    if not cands:
+        return None
+    return min(cands, key=lambda c: (m.lanes[c].road_id != road, -m.lanes[c].length, c))
+
+
+def route_start_s(net: MapNetwork, route: list[str], start_distance: float) -> float:
+    """s on the route's first lane of the point `start_distance` before the end of the first
+    lane that is not an extension (the approach): with lanes prepended, it walks back over them."""
+    m = net.hdmap
+    first_junction = next((k for k, l in enumerate(route) if m.lanes[l].junction_id is not None), len(route))
+    k = max(first_junction - 1, 0)
+    remaining = start_distance
+    while k > 0 and remaining > net.lane_of[route[k]].length:
+        remaining -= net.lane_of[route[k]].length
+        k -= 1
+    if k > 0:  # the start falls on a later lane: drop the lanes before it
+        del route[:k]
+    return net.lane_of[route[0]].length - remaining
+
+
+def first_line_distance(net: MapNetwork, route: Sequence[str], s0: float) -> float:
+    """Distance along `route` from s0 on its first lane to the first junction entry's stop line
+    (the entry itself when bare; inf without a junction)."""
+    m = net.hdmap
+    d = -s0
+    for k, lid in enumerate(route):
+        if k and m.lanes[lid].junction_id is not None and m.lanes[route[k - 1]].junction_id is None:
+            sl = net.stop_lines.get(route[k - 1])
+            return d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0)
+        d += net.lane_of[lid].length
+    return math.inf
+
+
+def fitting_speed(distance: float, length: float) -> float:
+    """The highest speed whose braking distance fits in `distance` (0 when none does)."""
+    room = distance - length / 2 - SPAWN_MARGIN_M
+    return math.sqrt(2 * SPAWN_BRAKE_MPS2 * room) if room > 0 else 0.0
 
 
 def manoeuvres_to_lanes(net: MapNetwork, spec: Sequence[Sequence[str]]) -> list[str]:

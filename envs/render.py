@@ -10,7 +10,7 @@ from highway_env.envs.common.graphics import EnvViewer
 from highway_env.vehicle.graphics import VehicleGraphics
 
 from .network import GRID_CELL_M, flip
-from .traffic import Pedestrian
+from .vehicles import Pedestrian
 
 ASPHALT = (80, 80, 85)
 GROUND = (120, 150, 110)

@@ -18,6 +18,11 @@ towards the lane speed limit, behind leaders (`leader_gaps`) and before the stop
 rules impose (`rule_stop_distance`: signals, stop-sign arrival order, pedestrians,
 conflicting junction traffic); stages add full stops, creeping and speed caps. Steering
 follows the route (the env's lane keeping under a longitudinal-only ContinuousAction).
+
+Every traffic rule the planner applies comes from the env's rules module (`env.unwrapped.rules`,
+feat2map.envs.rules): which control governs the next stop line and its state, whether a turn is
+protected, where the rules make the ego stop, who is heading into a conflicting lane, and what
+counts as a full stop (distances to stop lines are measured along the route).
 """
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ import numpy as np
 
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.network import CONFLICT_DISTANCE_M
-from ..envs.traffic import IDM_ACC, STOP_ZONE_M, STOPPED_SPEED_MPS, idm
+from ..envs.rules import IDM_ACC, RULES, STOPPED_SPEED_MPS, idm, in_stop_zone
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
 CREEP_TRIGGER_M = 12.0  # an unprotected left creeps when held by traffic this close to the line
@@ -44,7 +49,7 @@ CURVE_MIN_SPEED_MPS = 3.0  # no curve is taken slower (a 4 m radius at LATERAL_A
 CURVE_LOOKAHEAD_M = 50.0
 GAP_ACCEL_MPS2 = 1.5  # the ego's assumed acceleration when judging whether it clears a conflict in time
 GAP_MARGIN_S = 2.0  # a creeping turn goes when every conflicting vehicle arrives this much after it clears
-RULES = ("signal", "stop", "pedestrian", "conflict")
+CROSS_TRAFFIC_MARGIN_M = 5.0  # a right turn on red waits for vehicles this far (plus 3 s) from a conflict
 
 LANE_FOLLOW = "LANE_FOLLOW"
 STOP_SIGN = "STOP_SIGN_UNPROTECTED"
@@ -172,7 +177,7 @@ class BaselinePlanner:
         here = env.net.id_of.get(ego.lane_index)
         in_junction = here in m.lanes and m.lanes[here].junction_id is not None
         if self.stage == "LF":
-            in_lane, j_lane, d = ego.next_junction_lane()
+            _, in_lane, j_lane, d = env.rules.line_ahead(ego)
             if j_lane is not None and not in_junction and d <= SELECT_DISTANCE_M:
                 self._select(in_lane, j_lane)
             return
@@ -201,16 +206,16 @@ class BaselinePlanner:
 
     def _select(self, in_lane: str, j_lane: str) -> None:
         env = self.env
-        m, net = env.net.hdmap, env.net
+        m = env.net.hdmap
         self.in_lane, self.j_lane = in_lane, j_lane
         self.junction = m.lanes[j_lane].junction_id
-        sl = net.stop_lines.get(in_lane)
+        sl = env.rules.control_at(in_lane)
         turn = m.lanes[j_lane].turn
         if sl is None:
             self._go("B_A", BARE)
         elif sl.kind == "stop":
             self._go("S_PS", STOP_SIGN)
-        elif turn in ("left", "uturn") and self._unprotected(in_lane, j_lane):
+        elif turn in ("left", "uturn") and not env.rules.protected(in_lane, j_lane):
             self._go("L_A", TL_LEFT)
         elif turn == "right" and self._signal_state() == "red" and self._right_on_red():
             self._go("R_S", TL_RIGHT)
@@ -219,43 +224,19 @@ class BaselinePlanner:
 
     # ---- perception helpers -----------------------------------------------------------------
     def _line_distance(self) -> float:
-        """Metres from the ego centre to the start of the selected junction lane."""
-        ego = self.env.vehicle
-        for k, lid, d, _ in ego.upcoming(1e9):
-            if lid == self.j_lane:
-                return d
-        return 0.0
+        """Metres along the route from the ego centre to the selected junction's stop line
+        (its entry where bare)."""
+        env = self.env
+        return env.rules.line_distance(env.vehicle, self.j_lane)
 
     def _in_stop_zone(self) -> bool:
-        env = self.env
-        ego = env.vehicle
-        sl = env.net.stop_lines.get(self.in_lane)
-        if sl is None or env.net.id_of.get(ego.lane_index) != self.in_lane:
-            return False
-        return 0.0 <= sl.s - ego.lane_s <= STOP_ZONE_M
+        return self.env.rules.control_at(self.in_lane) is not None and in_stop_zone(self._line_distance())
 
     def _signal_state(self) -> str | None:
-        sl = self.env.net.stop_lines.get(self.in_lane)
-        return self.env.control.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+        return self.env.rules.signal_at(self.in_lane)
 
     def _right_on_red(self) -> bool:
-        return bool(self.env.config.get("right_turn_on_red", False))
-
-    def _unprotected(self, in_lane: str, j_lane: str) -> bool:
-        """A turn is unprotected when a conflicting movement can have green with ours."""
-        env = self.env
-        net, control = env.net, env.control
-        sl = net.stop_lines[in_lane]
-        plan = control.plans.get(sl.control_id)
-        if plan is None:
-            return True
-        phase = plan.phases[plan.phase_of(sl.control_id)]
-        for c in net.conflicts.get(j_lane, ()):
-            for p in net.hdmap.lanes[c].predecessors:
-                other = net.stop_lines.get(p)
-                if other is None or other.kind != "signal" or other.control_id in phase:
-                    return True
-        return False
+        return self.env.rules.right_turn_on_red()
 
     def _rule_ignore(self) -> frozenset[str]:
         if self.stage == "R_C" and self._right_on_red() and self.full_stop:
@@ -279,13 +260,7 @@ class BaselinePlanner:
         """Vehicles about to enter a lane conflicting with ours (whatever their priority): a
         right turn on red yields to every approach that has green."""
         env = self.env
-        net, control = env.net, env.control
-        for c in net.conflicts.get(self.j_lane, ()):
-            if control.occupied(c, env.vehicle):
-                return True
-            if any(control.about_to_enter(p, c, env.vehicle, margin=5.0) for p in net.hdmap.lanes[c].predecessors):
-                return True
-        return False
+        return env.rules.cross_traffic_near(env.vehicle, self.j_lane, CROSS_TRAFFIC_MARGIN_M)
 
     def _zone(self, mine: str, other: str) -> tuple[float, float, float, float]:
         """(start, end) along `mine` and along `other` of where the two junction lanes come
@@ -308,7 +283,7 @@ class BaselinePlanner:
         vehicle heading through it either leaves it GAP_MARGIN_S before we can arrive (at its
         current speed) or arrives GAP_MARGIN_S after we have left (accelerating)."""
         env = self.env
-        ego, net, control, m = env.vehicle, env.net, env.control, env.net.hdmap
+        ego, net = env.vehicle, env.net
         v_me = max(ego.speed, 0.0)
         here = net.id_of.get(ego.lane_index)
         before = self._line_distance() if here != self.j_lane else -ego.lane_s
@@ -318,21 +293,8 @@ class BaselinePlanner:
             m0, m1, c0, c1 = self._zone(self.j_lane, c)
             t_me_in = _travel_time(before + m0 - 2 * half, v_me, IDM_ACC)
             t_me_out = _travel_time(before + m1 + 2 * half, v_me, GAP_ACCEL_MPS2, v_turn)
-            lane_c = net.lane_of[c]
-            through: list[tuple[float, Any]] = []  # (distance of the vehicle centre to the zone start, vehicle)
-            for v in control.buckets.get(c, ()):
-                if v is not ego:
-                    through.append((c0 - lane_c.local_coordinates(v.position)[0], v))
-            for p in m.lanes[c].predecessors:
-                sl = net.stop_lines.get(p)
-                if sl is not None and (sl.kind == "stop" or control.signal_state(sl.control_id) == "red"):
-                    continue
-                lane_p = net.lane_of.get(p)
-                for v in control.buckets.get(p, ()):
-                    k = getattr(v, "route_pos", -2) + 1
-                    if v is ego or not hasattr(v, "lane_route") or k >= len(v.lane_route) or v.lane_route[k] != c:
-                        continue
-                    through.append((lane_p.length - lane_p.local_coordinates(v.position)[0] + c0, v))
+            # (distance of the vehicle centre to the zone start, vehicle)
+            through = [(d + c0, v) for d, v in env.rules.traffic_towards(c, exclude=ego)]
             for d_in, v in through:
                 d_out = d_in + (c1 - c0) + v.LENGTH
                 if d_out <= 0:

@@ -79,8 +79,9 @@ def test_ring_sampled_lap_is_driven(ring):
     assert info["route_completed"] and info["route_progress"] == pytest.approx(1.0)
     assert not info["collision"] and not info["off_road"]
     assert progress == pytest.approx(1.0, abs=0.02)
-    assert info["junction"] is None and info["manoeuvre"] is None and info["control_ahead"] is None
-    assert info["junction_feature"] is None and info["signal_states"] == {} and info["distance_to_stop_line"] == np.inf
+    assert info["junction"] == "" and info["manoeuvre"] == "" and info["control_ahead"] == ""  # "" for none
+    assert info["junction_feature"]["n_roads"] == -1 and info["signal_states"] == {}
+    assert info["distance_to_stop_line"] == np.inf
     assert info["violations"] == {"red_light": 0, "stop_sign": 0, "pedestrian_yield": 0}
     assert len(env.unwrapped.road.vehicles) > 1, "traffic is spawned on the ring"
     assert set(env.unwrapped._spawn_lanes) == set(ring.lanes), "in both ring lanes, beside the route too"
@@ -96,7 +97,7 @@ def test_ring_lap_from_lane_to_itself_and_render(ring):
     _, info = env.reset(seed=1)
     lanes = env.unwrapped.route_lanes
     assert lanes == [f"C0_{(3 + k) % 12}_1" for k in range(13)]
-    assert info["lane_id"] == "C0_3_1" and info["junction"] is None
+    assert info["lane_id"] == "C0_3_1" and info["junction"] == ""
     frame = env.render()
     assert frame.shape == (600, 600, 3)
     route_px = np.all(frame == np.array([60, 140, 255], dtype=np.uint8), axis=-1)  # render.ROUTE_RGB
@@ -222,7 +223,7 @@ def test_right_turn_on_red_after_a_stop_on_a_lane_route(grid, allowed):
         stopped = stopped or (u.vehicle.speed < 0.1 and info["distance_to_stop_line"] < 8.0)
         if term or trunc:
             break
-    assert stopped and info["route_completed"] and info["signal_state"] is None
+    assert stopped and info["route_completed"] and info["signal_state"] == ""
     assert u.control.signal_state(sid) == "red"
     assert info["violations"]["red_light"] == (0 if allowed else 1)
     env.close()

@@ -1,0 +1,432 @@
+"""Every traffic rule of the environments, in one place: the env's traffic, its judge of the ego
+and the baseline planner (scenarios/planner.py) all ask this module.
+
+- constants of the rules (what counts as a stop, how far ahead vehicles look, when a vehicle
+  commits to a junction, how pedestrians are yielded to) and the IDM car-following law;
+- `TrafficRules`: the questions traffic and planners ask of the traffic control state (the
+  signal's state, where the rules make a vehicle stop, whether it may enter a junction lane,
+  whether a turn is protected, who is heading into a conflicting lane). `control.TrafficControl`
+  holds that state (signal plans, reservations, stop-sign queues, pedestrians) and inherits
+  these questions; `env.unwrapped.rules` is that object;
+- `EgoJudge`: the ego's violations (red light, stop sign, pedestrian yield) and leaving the road.
+
+Stop lines are measured along the route: `stop_line_ahead` gives the distance from a vehicle's
+centre to the next stop line across lane boundaries, so a short last lane before the line (real
+maps have 0.01-2.4 m lanes there) changes neither where a vehicle stops nor whether its stop
+counts.
+
+Vehicles are any objects with the route-follower interface (`vehicles.RouteFollower`):
+`lane_route`, `route_pos`, `speed`, `LENGTH`, `reserved`, `upcoming()`, `s_on(lane)`; both
+traffic cores provide it (objects directly, the arrays core through lightweight views).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, Iterable, Sequence
+
+if TYPE_CHECKING:
+    from .network import MapNetwork, StopLine
+
+SIGNAL_STATES = ("green", "amber", "red")
+RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
+STOPPED_SPEED_MPS = 0.3
+STOP_ZONE_M = 6.0  # a stop counts when made with the vehicle centre within this distance of the stop line
+STOP_POINT_M = 1.0  # vehicles held by a rule stop this far before the line (centre target, see idm)
+COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane this close to the line
+COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
+AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)
+LOOKAHEAD_M = 60.0
+PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield
+PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
+PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
+PRIORITY_HORIZON_S = 3.0  # left turns wait for priority traffic this close in time
+PRIORITY_MARGIN_M = 3.0
+SPAWN_BRAKE_MPS2 = 3.0  # vehicles start at least their braking distance at this rate before the first stop line
+SPAWN_MARGIN_M = 1.0
+OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
+OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
+# IDM parameters of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
+IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_TIME_GAP_S = 3.0, 4.0, 4.0, 2.5, 1.2
+IDM_STOP_GAP_M = 0.3  # jam distance to a stop point (vs IDM_GAP_M to a leader)
+IDM_STOP_MARGIN_M = 0.5  # the front bumper halts this short of a stop point
+IDM_MIN_GAP_M = 0.05
+IDM_RANGE_MPS2 = (-8.0, 6.0)
+VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
+TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
+
+
+def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = math.inf,
+        stop_margin: float = IDM_STOP_MARGIN_M) -> float:
+    """IDM acceleration towards the lane speed limit, behind leaders ((bumper gap, speed) pairs)
+    and before a stop point (`stop_distance` from the vehicle centre; the front bumper halts
+    `stop_margin` short of it)."""
+    net = vehicle.net
+    v = max(vehicle.speed, 0.0)
+    v0 = max(net.lane_of[vehicle.lane_route[vehicle.route_pos]].speed_limit, 1.0)
+    a_max = IDM_ACC
+    free = 1 - (v / v0) ** IDM_DELTA
+    acc = a_max * free
+    items = [(g, vl, IDM_GAP_M) for g, vl in gaps]
+    if stop_distance < math.inf:
+        items.append((stop_distance - vehicle.LENGTH / 2 - stop_margin, 0.0, IDM_STOP_GAP_M))
+    root = 2 * math.sqrt(a_max * IDM_BRAKE)
+    for gap, vl, s0 in items:
+        s_star = s0 + v * IDM_TIME_GAP_S + v * (v - vl) / root
+        acc = min(acc, a_max * (free - (max(s_star, 0.0) / max(gap, IDM_MIN_GAP_M)) ** 2))
+    return min(max(float(acc), IDM_RANGE_MPS2[0]), IDM_RANGE_MPS2[1])
+
+
+def stops_at_amber(distance: float, speed: float) -> bool:
+    """At amber a vehicle stays when it can stop before the line (else it goes through)."""
+    return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
+
+
+def in_stop_zone(distance_to_line: float) -> bool:
+    """Where a stop at a line counts (centre before the line, within STOP_ZONE_M)."""
+    return 0.0 <= distance_to_line <= STOP_ZONE_M
+
+
+def commits(distance: float, speed: float) -> bool:
+    """A vehicle allowed into a junction reserves its lane this close to the line."""
+    return distance < max(COMMIT_DISTANCE_M, COMMIT_TIME_S * speed)
+
+
+def braking_distance(speed: float, length: float) -> float:
+    """Distance from a vehicle's centre it needs to stop comfortably before a line."""
+    return speed ** 2 / (2 * SPAWN_BRAKE_MPS2) + length / 2 + SPAWN_MARGIN_M
+
+
+def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],
+                    route: Sequence[str]) -> tuple["StopLine | None", str | None, str | None, float]:
+    """(stop line or None, incoming lane, junction lane, distance along the route from the
+    vehicle centre to the line) of the next junction entry in `upcoming` (a route follower's
+    `upcoming()`); a bare entry's line is the junction lane's start. (None, None, None, inf)
+    when no junction entry is ahead."""
+    m = net.hdmap
+    lanes = m.lanes
+    for k, lid, d, s_own in upcoming:
+        if s_own is None and lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
+            in_lane = route[k - 1]
+            sl = net.stop_lines.get(in_lane)
+            if sl is not None:
+                d -= net.lane_of[in_lane].length - sl.s
+            return sl, in_lane, lid, d
+    return None, None, None, math.inf
+
+
+class TrafficRules:
+    """The rules' questions, answered from the traffic control state of `control.TrafficControl`
+    (which inherits them): signals (`plans`, `t`), junction reservations, stop-sign queues,
+    crosswalk pedestrians and the vehicles on each lane (`buckets`)."""
+
+    net: "MapNetwork"
+    t: float
+    cfg: dict
+    plans: dict
+    reservations: dict
+    stop_queue: dict
+    pedestrians: dict
+    buckets: dict
+
+    # ---- signals ----------------------------------------------------------------------
+    def signal_state(self, signal_id: str) -> str:
+        plan = self.plans.get(signal_id)
+        return plan.state(signal_id, self.t) if plan else "green"
+
+    def signal_states(self, junction_id: str | None = None) -> dict[str, str]:
+        """States of one junction's signals (all signals when `junction_id` is None)."""
+        ids = self.net.hdmap.signals if junction_id is None else self.signals_by_junction.get(junction_id, ())
+        return {sid: self.signal_state(sid) for sid in ids}
+
+    def control_at(self, in_lane: str | None) -> "StopLine | None":
+        """The stop line (signal or stop sign) on an incoming lane, None at a bare entry."""
+        return self.net.stop_lines.get(in_lane) if in_lane else None
+
+    def signal_at(self, in_lane: str | None) -> str | None:
+        """The state of the signal governing an incoming lane (None without a signal)."""
+        sl = self.control_at(in_lane)
+        return self.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+
+    def protected(self, in_lane: str, junction_lane: str) -> bool:
+        """A signalized movement is protected when no conflicting movement can have green with it
+        (paired phases leave left turns unprotected; single phases protect every movement)."""
+        net = self.net
+        sl = net.stop_lines.get(in_lane)
+        plan = self.plans.get(sl.control_id) if sl is not None else None
+        if plan is None:
+            return False
+        phase = plan.phases[plan.phase_of(sl.control_id)]
+        for c in net.conflicts.get(junction_lane, ()):
+            for p in net.hdmap.lanes[c].predecessors:
+                other = net.stop_lines.get(p)
+                if other is None or other.kind != "signal" or other.control_id in phase:
+                    return False
+        return True
+
+    def right_turn_on_red(self) -> bool:
+        return bool(self.cfg.get("right_turn_on_red", False))
+
+    # ---- where a vehicle is --------------------------------------------------------------
+    def line_ahead(self, vehicle) -> tuple["StopLine | None", str | None, str | None, float]:
+        """`stop_line_ahead` of a route follower."""
+        return stop_line_ahead(self.net, vehicle.upcoming(math.inf), vehicle.lane_route)
+
+    def line_distance(self, vehicle, junction_lane: str) -> float:
+        """Distance along the vehicle's route from its centre to the stop line before
+        `junction_lane` (the lane's start at a bare entry); 0 once that lane is behind."""
+        net = self.net
+        route = vehicle.lane_route
+        for k, lid, d, s_own in vehicle.upcoming(math.inf):
+            if lid == junction_lane:
+                if s_own is not None:
+                    return -s_own
+                sl = net.stop_lines.get(route[k - 1])
+                return d - (net.lane_of[route[k - 1]].length - sl.s) if sl is not None else d
+        return 0.0
+
+    # ---- occupancy ----------------------------------------------------------------------
+    def occupied(self, lane_id: str, by_other_than=None) -> bool:
+        holder = self.reservations.get(lane_id)
+        if holder is not None and holder is not by_other_than:
+            return True
+        return any(v is not by_other_than for v in self.buckets.get(lane_id, ()))
+
+    def junction_clear(self, junction_lane: str, vehicle=None) -> bool:
+        """No conflicting junction lane is occupied or reserved, and no vehicle with priority
+        (straight/right over left turns) is about to enter one from an approach allowed to go."""
+        net = self.net
+        mine = net.lane_of[junction_lane].priority
+        for c in net.conflicts.get(junction_lane, ()):
+            if self.occupied(c, vehicle):
+                return False
+            if net.lane_of[c].priority <= mine:
+                continue
+            for p in net.hdmap.lanes[c].predecessors:
+                if self._held(p):
+                    continue
+                if self.about_to_enter(p, c, vehicle, margin=PRIORITY_MARGIN_M):
+                    return False
+        return True
+
+    def _held(self, approach: str) -> bool:
+        """Traffic on an approach waits at its line: a stop sign or a red signal."""
+        sl = self.net.stop_lines.get(approach)
+        return sl is not None and (sl.kind == "stop" or self.signal_state(sl.control_id) == "red")
+
+    def about_to_enter(self, approach: str, lane_id: str, exclude=None, margin: float = PRIORITY_MARGIN_M) -> bool:
+        """A route follower on lane `approach` (other than `exclude`) drives into `lane_id` next
+        and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
+        lane = self.net.lane_of.get(approach)
+        for v in self.buckets.get(approach, ()):
+            if v is exclude or not hasattr(v, "lane_route"):
+                continue
+            k = v.route_pos + 1
+            if k < len(v.lane_route) and v.lane_route[k] == lane_id:
+                d = lane.length - v.s_on(approach)
+                if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + margin:
+                    return True
+        return False
+
+    def cross_traffic_near(self, vehicle, junction_lane: str, margin: float) -> bool:
+        """A conflicting lane is occupied or reserved, or a vehicle (whatever its priority) is
+        about to enter one: a right turn on red yields to every approach that has green."""
+        net = self.net
+        for c in net.conflicts.get(junction_lane, ()):
+            if self.occupied(c, vehicle):
+                return True
+            if any(self.about_to_enter(p, c, vehicle, margin=margin) for p in net.hdmap.lanes[c].predecessors):
+                return True
+        return False
+
+    def traffic_towards(self, lane_id: str, exclude=None) -> list[tuple[float, Any]]:
+        """(distance from the vehicle centre to the start of `lane_id`, vehicle) of every road
+        user on the lane (negative distances) or heading into it next from an approach allowed
+        to go (stop signs and red signals hold theirs)."""
+        net = self.net
+        out = [(-v.s_on(lane_id), v) for v in self.buckets.get(lane_id, ()) if v is not exclude]
+        for p in net.hdmap.lanes[lane_id].predecessors:
+            if self._held(p):
+                continue
+            lane_p = net.lane_of.get(p)
+            for v in self.buckets.get(p, ()):
+                k = getattr(v, "route_pos", -2) + 1
+                if v is exclude or not hasattr(v, "lane_route") or k >= len(v.lane_route) or v.lane_route[k] != lane_id:
+                    continue
+                out.append((lane_p.length - v.s_on(p), v))
+        return out
+
+    def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
+        """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane."""
+        jid = self.net.hdmap.lanes[junction_lane].junction_id
+        queue = self.stop_queue.get(jid, [])
+        if vehicle not in queue:
+            return False
+        conflicts = self.net.conflicts.get(junction_lane, frozenset())
+        for other in queue[:queue.index(vehicle)]:
+            _, lane, _ = other.next_junction_lane() if hasattr(other, "next_junction_lane") else (None, None, 0)
+            if lane is None or lane in conflicts:
+                return False
+        return True
+
+    def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
+                  ignore: frozenset = frozenset()) -> bool:
+        """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now. A
+        reservation skips the other checks but not the signal: a vehicle held at the line (e.g. by
+        pedestrians) into amber stays there if it can stop, and on red gives its reservation up."""
+        sl = self.net.stop_lines.get(in_lane)
+        if sl is not None and sl.kind == "signal" and "signal" not in ignore:
+            state = self.signal_state(sl.control_id)
+            if state == "red":
+                if self.reservations.get(j_lane) is vehicle and commit:
+                    del self.reservations[j_lane]
+                    vehicle.reserved = None
+                return False
+            if state == "amber" and stops_at_amber(d_line, vehicle.speed):
+                return False
+        if self.reservations.get(j_lane) is vehicle:
+            return True
+        if sl is not None and sl.kind == "stop" and "stop" not in ignore:
+            if not self.stop_queue_allows(vehicle, j_lane):
+                return False
+        if "conflict" not in ignore and not self.junction_clear(j_lane, vehicle):
+            return False
+        if commit and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
+            self.reservations[j_lane] = vehicle
+            vehicle.reserved = j_lane
+        return True
+
+    def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
+        """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""
+        net = self.net
+        lane = net.lane_of[lane_id]
+        best = None
+        for cw, s0, s1 in net.crossings.get(lane_id, ()):
+            if s0 < s_from - 0.5:
+                continue
+            for p in self.pedestrians.get(cw, ()):
+                sp, rp = lane.local_coordinates(p.position)
+                if not s0 - 2.0 <= sp <= s1 + 2.0:
+                    continue
+                h = lane.heading_at(sp)
+                towards = rp * (p.direction[0] * -math.sin(h) + p.direction[1] * math.cos(h)) < 0
+                if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M or (
+                        towards and abs(rp) < lane.width / 2 + PEDESTRIAN_CORRIDOR_M):
+                    stop_at = s0 - 1.0
+                    best = stop_at if best is None else min(best, stop_at)
+        return best
+
+    def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset()) -> float:
+        """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
+        STOP_POINT_M before a stop line it may not pass (measured along the route), or before a
+        pedestrian's crosswalk."""
+        net = self.net
+        m = net.hdmap
+        for k, lid, d, s_own in vehicle.upcoming():
+            lane_model = m.lanes[lid]
+            if s_own is not None:  # the current lane: pedestrians ahead of us on it
+                ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, s_own)
+                if ped is not None:
+                    return ped - s_own
+                continue
+            if lane_model.junction_id is not None and m.lanes[vehicle.lane_route[k - 1]].junction_id is None:
+                in_lane = vehicle.lane_route[k - 1]
+                sl = net.stop_lines.get(in_lane)
+                d_line = d - (net.lane_of[in_lane].length - sl.s) if sl is not None else d
+                if not self.may_enter(vehicle, in_lane, lid, d_line, commit, ignore):
+                    return d_line - STOP_POINT_M
+            ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)
+            if ped is not None:
+                return d + ped
+            if lane_model.junction_id is None and k > vehicle.route_pos + 1:
+                break
+        return math.inf
+
+
+class EgoJudge:
+    """The ego's violations and leaving the road, judged after every simulation frame.
+
+    red_light: the ego crossed a signal's stop line into the junction while red (amber is
+    allowed; with `right_turn_on_red`, a right turn after a full stop is too); stop_sign: it
+    entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
+    route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
+
+    def __init__(self, rules: TrafficRules, ego) -> None:
+        self.rules = rules
+        self.ego = ego
+        self.violations = {k: 0 for k in VIOLATIONS}
+        self.new: list[str] = []
+        self.off_road = False
+        self._lane = rules.net.id_of.get(ego.lane_index)
+        self._stopped: set[str] = set()  # incoming lanes whose line the ego has stopped at
+        self._crossed: set[str] = set()
+        self._ped_flags: set[tuple[str, str]] = set()
+
+    def check(self) -> None:
+        rules, ego = self.rules, self.ego
+        net, m = rules.net, rules.net.hdmap
+        lid = net.id_of.get(ego.lane_index)
+        prev = self._lane
+        on_road = lid in m.lanes and m.lanes[lid].junction_id is None
+        rtor = rules.right_turn_on_red()
+        if on_road:
+            if ego.speed <= STOPPED_SPEED_MPS:
+                sl = net.stop_lines.get(lid)
+                if sl is not None and in_stop_zone(sl.s - ego.lane_s):
+                    if sl.kind == "stop" or rtor:
+                        self._stopped.add(lid)
+                else:  # stopped on a lane before a short last lane: the line along the route
+                    sl, in_lane, _, d = rules.line_ahead(ego)
+                    if sl is not None and (sl.kind == "stop" or rtor) and in_stop_zone(d):
+                        self._stopped.add(in_lane)
+            # stops and line crossings count until the ego is on another road lane (a stop made
+            # before a short last lane counts until the ego passes that lane's line)
+            if self._stopped - {lid}:
+                self._stopped &= {lid, rules.line_ahead(ego)[1]}
+            self._crossed &= {lid}
+        if lid != prev and prev is not None and lid in m.lanes and m.lanes[lid].junction_id is not None:
+            entry = self._entry_lane(prev, lid)
+            if entry not in self._crossed:  # flickering across the line is one crossing
+                if m.lanes.get(entry) is not None and m.lanes[entry].junction_id is None:
+                    self._crossed.add(entry)
+                psl = net.stop_lines.get(entry)
+                if psl is not None and psl.kind == "signal" and rules.signal_state(psl.control_id) == "red" \
+                        and not (rtor and entry in self._stopped and self._turn_after(entry) == "right"):
+                    self._violate("red_light")
+                if psl is not None and psl.kind == "stop" and entry not in self._stopped:
+                    self._violate("stop_sign")
+        self._lane = lid
+        # pedestrians: the ego on a crosswalk with a person next to its path
+        for cw, s0, s1 in net.crossings.get(lid, ()):
+            if s0 - 1.0 <= ego.lane_s <= s1 + 1.0 and ego.speed > 0.5 and (lid, cw) not in self._ped_flags:
+                lane = net.lane_of[lid]
+                for p in rules.pedestrians.get(cw, ()):
+                    sp, rp = lane.local_coordinates(p.position)
+                    if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M and abs(sp - ego.lane_s) < ego.LENGTH:
+                        self._ped_flags.add((lid, cw))
+                        self._violate("pedestrian_yield")
+                        break
+        lane = net.get_lane(ego.lane_index)
+        self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
+            ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors
+
+    def _entry_lane(self, prev: str, junction_lane: str) -> str:
+        """The road lane the ego entered `junction_lane` from: its route lane before it (a lane
+        short enough to be driven over within a frame is never located), else `prev`."""
+        route, pos = self.ego.lane_route, self.ego.route_pos
+        m = self.rules.net.hdmap
+        for k in range(min(pos + 1, len(route) - 1), 0, -1):
+            if route[k] == junction_lane:
+                before = route[k - 1]
+                return before if m.lanes[before].junction_id is None else prev
+        return prev
+
+    def _turn_after(self, lane_id: str) -> str | None:
+        """The turn of the ego's route lane after `lane_id` (None when not on the route)."""
+        route, pos = self.ego.lane_route, self.ego.route_pos
+        # the latest occurrence at or before the ego (routes round a ring repeat lanes)
+        k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
+        return self.rules.net.hdmap.lanes[route[k]].turn if k < len(route) else None
+
+    def _violate(self, kind: str) -> None:
+        self.violations[kind] += 1
+        self.new.append(kind)

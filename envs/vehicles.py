@@ -1,0 +1,317 @@
+"""Road users: crosswalk pedestrians, and vehicles that follow explicit lane routes (highway-env
+vehicles: traffic driven by IDM and MOBIL, the ego driven by the agent's actions)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
+from highway_env.vehicle.kinematics import Vehicle
+from highway_env.vehicle.objects import RoadObject
+
+from .network import MapNetwork
+from .rules import LOOKAHEAD_M, idm
+
+
+class Pedestrian(RoadObject):
+    """A person walking straight across a crosswalk at constant speed."""
+
+    LENGTH = 0.8
+    WIDTH = 0.8
+
+    def __init__(self, road, start: np.ndarray, end: np.ndarray, speed: float, crosswalk_id: str) -> None:
+        d = end - start
+        super().__init__(road, start.copy(), float(math.atan2(d[1], d[0])), speed)
+        self.end = end
+        self.crosswalk_id = crosswalk_id
+        self.remaining = float(np.hypot(*d))
+        self.collidable = True
+        self.solid = False
+        self.check_collisions = False
+
+    def step(self, dt: float) -> None:
+        move = min(self.speed * dt, self.remaining)
+        self.position = self.position + move * self.direction
+        self.remaining -= move
+
+    @property
+    def done(self) -> bool:
+        return self.remaining <= 1e-6
+
+
+class RouteFollower:
+    """Mixin: follow an explicit list of map lane ids; re-plan by Dijkstra after a lane change."""
+
+    lane_route: list[str]
+    route_pos: int
+
+    def init_route(self, lane_route: list[str]) -> None:
+        self.lane_route = list(lane_route)
+        self.route_pos = 0
+        self.lane_s = 0.0
+        self.lane_lat = 0.0
+        self.reserved: str | None = None
+        net: MapNetwork = self.road.network
+        self.target_lane_index = net.index_of[self.lane_route[0]]
+        self.route = None
+
+    @property
+    def net(self) -> MapNetwork:
+        return self.road.network
+
+    def current_lane_id(self) -> str:
+        return self.lane_route[self.route_pos]
+
+    def s_on(self, lane_id: str) -> float:
+        """Longitudinal position of the vehicle centre along lane `lane_id`."""
+        return self.net.lane_of[lane_id].local_coordinates(self.position)[0]
+
+    def follow_road(self) -> None:
+        net = self.net
+        lane = net.get_lane(self.target_lane_index)
+        s, _ = lane.local_coordinates(self.position)
+        if s <= lane.length - 1.0:
+            return
+        tid = net.id_of[self.target_lane_index]
+        if tid != self.lane_route[self.route_pos]:  # changed lane: re-plan from here
+            path = self.parallel_route(tid) or net.lane_route(tid, self.lane_route[-1])
+            if not path:
+                return
+            self.lane_route = self.lane_route[:self.route_pos] + path
+        if self.route_pos + 1 < len(self.lane_route):
+            self.route_pos += 1
+            self.target_lane_index = net.index_of[self.lane_route[self.route_pos]]
+
+    def parallel_route(self, start: str) -> list[str]:
+        """The rest of the route moved beside itself after a lane change onto `start`: each next
+        lane the successor of the previous one on the same road edge ([] where they part, e.g.
+        at a junction). Keeps loops round a ring road whose lanes never merge."""
+        net = self.net
+        m = net.hdmap
+        path = [start]
+        for lid in self.lane_route[self.route_pos + 1:]:
+            edge = net.index_of[lid][:2]
+            nxt = next((x for x in m.lanes[path[-1]].successors if x in net.index_of and net.index_of[x][:2] == edge), None)
+            if nxt is None:
+                return []
+            path.append(nxt)
+        return path
+
+    def steering_control(self, target_lane_index) -> float:
+        """highway-env's lane-following controller (lateral P -> heading P -> steering), in scalar
+        math: numpy's clip on scalars dominated the step time."""
+        lane = self.road.network.get_lane(target_lane_index)
+        s, r = lane.local_coordinates(self.position)
+        future_heading = lane.heading_at(s + self.speed * self.TAU_PURSUIT)
+        v = self.speed if abs(self.speed) > 1e-2 else 1e-2
+        heading_cmd = math.asin(min(max(-self.KP_LATERAL * r / v, -1.0), 1.0))
+        heading_ref = future_heading + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
+        rate = self.KP_HEADING * ((heading_ref - self.heading + math.pi) % (2 * math.pi) - math.pi)
+        slip = math.asin(min(max(self.LENGTH / 2 / v * rate, -1.0), 1.0))
+        steer = math.atan(2 * math.tan(slip))
+        return min(max(steer, -self.MAX_STEERING_ANGLE), self.MAX_STEERING_ANGLE)
+
+    def on_state_update(self) -> None:
+        if self.road:
+            hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
+            self.lane_index, self.lane_s, self.lane_lat = self.road.network.locate(self.position, self.heading, hint)
+            self.lane = self.road.network.get_lane(self.lane_index)
+            if self.road.record_history:
+                self.history.appendleft(self.create_from(self))
+
+    def route_distance_done(self) -> float:
+        """Metres driven along the route: lanes behind plus the position on the current one."""
+        net = self.net
+        done = sum(net.lane_of[l].length for l in self.lane_route[:self.route_pos])
+        lane = net.lane_of[self.lane_route[self.route_pos]]
+        s, _ = lane.local_coordinates(self.position)
+        return done + min(max(s, 0.0), lane.length)
+
+    def route_length(self) -> float:
+        return sum(self.net.lane_of[l].length for l in self.lane_route)
+
+    def upcoming(self, horizon: float = LOOKAHEAD_M):
+        """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""
+        net = self.net
+        lane = net.lane_of[self.lane_route[self.route_pos]]
+        s, _ = lane.local_coordinates(self.position)
+        out = [(self.route_pos, self.lane_route[self.route_pos], -s, s)]
+        d = lane.length - s
+        for k in range(self.route_pos + 1, len(self.lane_route)):
+            if d > horizon:
+                break
+            lid = self.lane_route[k]
+            out.append((k, lid, d, None))
+            d += net.lane_of[lid].length
+        return out
+
+    def leader_gaps(self) -> list[tuple[float, float]]:
+        """(bumper gap, speed) of every road user in the path ahead along the route: on the route's
+        lanes, and on junction lanes that diverge from or cross them where they are in the way."""
+        net = self.net
+        m = net.hdmap
+        buckets = self.road.control.buckets
+        gaps = []
+        for k, lid, d, s_own in self.upcoming():
+            lane = net.lane_of[lid]
+            others = list(buckets.get(lid, ()))
+            ln = m.lanes[lid]
+            if ln.junction_id is not None:
+                near = set(net.conflicts.get(lid, ()))
+                for p in ln.predecessors:
+                    near.update(x for x in m.lanes[p].successors if x != lid)
+                for x in near:
+                    others += [o for o in buckets.get(x, ()) if o not in others]
+            for o in others:
+                if o is self:
+                    continue
+                so, ro = lane.local_coordinates(o.position)
+                if s_own is not None and so <= s_own:
+                    continue
+                if abs(ro) > lane.width / 2 + 1.0 or so < -self.LENGTH or so > lane.length + self.LENGTH:
+                    continue
+                gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
+        return gaps
+
+    def next_junction_lane(self) -> tuple[str | None, str | None, float]:
+        """(incoming lane, junction lane, distance to the stop line) of the next junction entry."""
+        m = self.net.hdmap
+        for k, lid, d, _ in self.upcoming(1e9):
+            if k > self.route_pos and m.lanes[lid].junction_id is not None and \
+                    m.lanes[self.lane_route[k - 1]].junction_id is None:
+                return self.lane_route[k - 1], lid, d
+        return None, None, math.inf
+
+
+class TrafficVehicle(RouteFollower, IDMVehicle):
+    """An IDM vehicle on its own lane route; stops for signals, stop signs, pedestrians and
+    conflicting junction traffic (reservations), following leaders along its route."""
+
+    def __init__(self, road, position, heading=0, speed=0, target_lane_index=None, target_speed=None,
+                 route=None, enable_lane_change=False, timer=None):
+        super().__init__(road, position, heading, speed, target_lane_index, target_speed, route,
+                         enable_lane_change, timer)
+
+    MOBIL_PERIOD_S = 1.0
+    MOBIL_GAIN = 0.3  # [m/s2] own acceleration gain that makes a lane change worth it
+    MOBIL_SAFE_BRAKE = 3.0  # [m/s2] the new follower must not need to brake harder
+    MOBIL_POLITENESS = 0.3
+
+    def act(self, action=None) -> None:
+        if self.crashed:
+            return
+        self.follow_road()
+        if self.timer - getattr(self, "_mobil_t", -1e9) >= self.MOBIL_PERIOD_S:
+            self._mobil_t = self.timer
+            self.mobil_change()
+        steering = self.steering_control(self.target_lane_index)
+        Vehicle.act(self, {"steering": steering, "acceleration": self.idm_acceleration()})
+
+    def idm_acceleration(self) -> float:
+        stop = self.road.control.stop_distance(self)
+        return idm(self, self.leader_gaps(), stop)
+
+    def mobil_change(self) -> bool:
+        """MOBIL on multi-lane roads: move to a same-direction neighbour lane when it raises the
+        acceleration (with politeness) and the new follower stays safe; the route is re-planned
+        from that lane by Dijkstra and the change is taken only if it costs no detour."""
+        net, m = self.net, self.net.hdmap
+        lid = self.lane_route[self.route_pos]
+        if lid != net.id_of.get(self.target_lane_index):
+            return False
+        ln = m.lanes[lid]
+        lane = net.lane_of[lid]
+        s, _ = lane.local_coordinates(self.position)
+        if ln.junction_id is not None or lane.length - s < 30.0 or self.speed < 1.0:
+            return False
+        remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
+        a_cur = idm(self, self.leader_gaps())
+        buckets = self.road.control.buckets
+        for n in ln.left_neighbors + ln.right_neighbors:
+            if n not in m.lanes:
+                continue
+            goal = m.lanes[self.lane_route[-1]]
+            paths = [net.lane_route(n, g) for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
+                     if g in m.lanes]  # any lane of the destination road will do
+            paths = [p for p in paths if p and sum(net.lane_of[l].length for l in p) <= remaining + 5.0]
+            if not paths:
+                continue
+            path = min(paths, key=len)
+            nl = net.lane_of[n]
+            sn, _ = nl.local_coordinates(self.position)
+            ahead, behind = [], None
+            for o in buckets.get(n, ()):
+                so, _ = nl.local_coordinates(o.position)
+                if so >= sn:
+                    ahead.append((so - sn - self.LENGTH, float(o.speed)))
+                elif behind is None or so > behind[0]:
+                    behind = (so, o)
+            if any(g < 2.0 for g, _ in ahead):
+                continue
+            a_new = idm(self, ahead)
+            follower_cost = 0.0
+            if behind is not None:
+                so, f = behind
+                gap = sn - so - self.LENGTH
+                if gap < 2.0 or not isinstance(f, RouteFollower):
+                    continue
+                a_f = idm(f, [(gap, self.speed)])
+                if a_f < -self.MOBIL_SAFE_BRAKE:
+                    continue
+                follower_cost = max(0.0, idm(f, []) - a_f)
+            if a_new - a_cur - self.MOBIL_POLITENESS * follower_cost > self.MOBIL_GAIN:
+                self.lane_route = self.lane_route[:self.route_pos] + path
+                self.target_lane_index = net.index_of[n]
+                self.lane_changes = getattr(self, "lane_changes", 0) + 1
+                return True
+        return False
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        if self.speed < 0:
+            self.speed = 0.0
+
+    @property
+    def finished(self) -> bool:
+        if self.route_pos < len(self.lane_route) - 1:
+            return False
+        lane = self.net.lane_of[self.lane_route[-1]]
+        return lane.local_coordinates(self.position)[0] >= lane.length - 2.0
+
+
+class EgoMDPVehicle(RouteFollower, MDPVehicle):
+    """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        if self.speed < 0 and self.target_speed >= 0:
+            self.speed = 0.0
+
+
+class EgoVehicle(RouteFollower, ControlledVehicle):
+    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
+    lateral control, steering follows the route (a lane-keeping assist)."""
+
+    auto_steer = True
+    target_speeds = np.array([0.0, 4.5, 9.0])  # for highway-env's TimeToCollision observation
+
+    def index_to_speed(self, index: int) -> float:
+        return float(self.target_speeds[index])
+
+    @property
+    def speed_index(self) -> int:
+        return int(np.argmin(np.abs(self.target_speeds - self.speed)))
+
+    def act(self, action=None) -> None:
+        if isinstance(action, dict):
+            action = dict(action)
+            self.follow_road()
+            if self.auto_steer:
+                action["steering"] = self.steering_control(self.target_lane_index)
+            Vehicle.act(self, action)
+
+    def step(self, dt: float) -> None:
+        Vehicle.step(self, dt)
+        if self.speed < 0 and self.action.get("acceleration", 0) <= 0:
+            self.speed = 0.0
