@@ -196,10 +196,17 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     fmt = FORMATS[args.format]
+    options = {o.kwarg: getattr(args, o.kwarg) for o in fmt.options if getattr(args, o.kwarg) is not None}
+    if fmt.input == "suite":
+        from .scenarios.scenario import load_suite
+
+        suite = load_suite(args.map)
+        written = fmt.face("write")(suite, args.out, **options)
+        print(f"wrote {args.out} ({fmt.title}): {len(written)} scenarios")
+        return 0
     m = read_map(args.map)
     if not m.lanes:
         raise Feat2MapError("map has no lanes", str(args.map))
-    options = {o.kwarg: getattr(args, o.kwarg) for o in fmt.options if getattr(args, o.kwarg) is not None}
     if "origin" in options:
         options["origin"] = tuple(options["origin"])
     try:
@@ -270,8 +277,12 @@ def build_parser() -> argparse.ArgumentParser:
     for fmt in FORMATS.values():
         if fmt.write is None:
             continue
-        f = exsub.add_parser(fmt.name, help=f"export as {fmt.title}", description=f"Export a map as {fmt.title}.")
-        f.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
+        what = "a scenario suite" if fmt.input == "suite" else "a map"
+        f = exsub.add_parser(fmt.name, help=f"export as {fmt.title}", description=f"Export {what} as {fmt.title}.")
+        if fmt.input == "suite":
+            f.add_argument("map", metavar="SUITE", help="scenario suite (.yaml or .json, see `feat2map suite`)")
+        else:
+            f.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
         f.add_argument("--out", required=True, metavar="DIR" if fmt.output == "dir" else "FILE",
                        help="output folder" if fmt.output == "dir" else f"output file ({fmt.suffixes[0]})")
         for o in fmt.options:

@@ -55,6 +55,7 @@ LANELET2_MERGE_M = 0.05  # Lanelet2 export: points closer are one node (lanelet2
 MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
+OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
 # junction extraction from real maps (feat2map/extract.py, docs/extraction.md)
 ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this

@@ -19,3 +19,10 @@ if [[ ",$extras," == *",commonroad,"* || ",$extras," == *",dev,"* ]]; then
   # commonroad-io pins protobuf==3.20 (Apollo needs newer); feat2map uses only its XML modules
   .venv/bin/python -m pip install -q --no-deps 'commonroad-io>=2026.1,<2027'
 fi
+if [[ ",$extras," == *",dev,"* ]]; then
+  # ASAM's checkers (the OpenDRIVE/OpenSCENARIO exports' tests, `feat2map validate` of .xodr/.xosc)
+  # pin numpy<2 and lxml<6: they get their own environment, their commands linked into .venv/bin
+  [ -x .venv-qc/bin/python ] || "$PY" -m venv .venv-qc
+  .venv-qc/bin/python -m pip install -q asam-qc-opendrive==1.0.0 asam-qc-openscenarioxml==1.0.0
+  for b in qc_opendrive qc_openscenario; do ln -sf "$PWD/.venv-qc/bin/$b" ".venv/bin/$b"; done
+fi

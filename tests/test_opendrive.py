@@ -234,7 +234,7 @@ def test_export_has_the_structure_the_standard_requires(exported, sf_default_map
     assert structure_problems(root) == []
     m = sf_default_map
     header = root.find("header")
-    assert (header.get("revMajor"), header.get("revMinor")) == ("1", "6")
+    assert (header.get("revMajor"), header.get("revMinor")) == ("1", "8")
     assert "+proj=tmerc" in header.find("geoReference").text
     assert len(root.findall("road")) == len(m.roads)
     assert len(root.findall("junction")) == len(m.junctions)

@@ -42,11 +42,17 @@ def outputs(root: Path) -> list[Path]:
     run(["generate", "--seed", "5", "--opendrive", "--out", str(m), "--quiet"])
     made = [m]
     for name in WRITABLE:
+        if FORMATS[name].input == "suite":
+            continue
         out = root / "export" / (name if FORMATS[name].output == "dir" else f"map{FORMATS[name].suffixes[0]}")
         run(["export", name, str(m / "map.json"), "--out", str(out)])
         made.append(out)
     run(["suite", str(m / "map.json"), "--traffic", "3", "--pedestrian-rate", "2", "--out", str(root / "suite.yaml")])
     made.append(root / "suite.yaml")
+    for name in WRITABLE:  # formats of suites (OpenSCENARIO)
+        if FORMATS[name].input == "suite":
+            run(["export", name, str(root / "suite.yaml"), "--out", str(root / "export" / name)])
+            made.append(root / "export" / name)
     run(["generate", "--spec", str(REPO / "examples" / "one_way_t.yaml"), "--out", str(root / "t"), "--quiet"])
     made.append(root / "t")
     return made

@@ -5,7 +5,8 @@
 |---|---|---|---|
 | native (feat2map JSON) | yes | yes | structure on read |
 | apollo (base/sim/routing map) | yes | yes | Apollo's rules |
-| opendrive (.xodr) | yes | yes | |
+| opendrive (.xodr) | yes | yes (1.8; 1.7, 1.6, 1.4) | asam-qc-opendrive |
+| openscenario (.xosc) | | a scenario suite | asam-qc-openscenarioxml |
 | lanelet2 (.osm, Autoware) | | yes | the lanelet2 wheel: loader, routing graph, manoeuvres |
 | commonroad (.xml) | | yes | commonroad-io: schema, reader, intersections, manoeuvres |
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from ..config import OPENDRIVE_VERSIONS
 from ..errors import MapFormatError
 from ..model import HDMap
 from .base import ExportOption, MapFormat, Problem
@@ -41,8 +43,14 @@ FORMATS: dict[str, MapFormat] = {f.name: f for f in (
               sniff=lambda head: b"<osm" in head),
     MapFormat("native", "feat2map map (.json)", (".json",), read=f"{_P}.native:load", write=f"{_P}.native:save",
               sniff=lambda head: head.lstrip().startswith(b"{")),
-    MapFormat("opendrive", "ASAM OpenDRIVE (.xodr)", (".xodr",), read=f"{_P}.opendrive:read_opendrive",
-              write=f"{_P}.opendrive:write_opendrive", sniff=lambda head: head.lstrip().startswith(b"<")),
+    MapFormat("opendrive", "ASAM OpenDRIVE 1.8 (.xodr)", (".xodr",), read=f"{_P}.opendrive:read_opendrive",
+              write=f"{_P}.opendrive:write_opendrive", validate=f"{_P}.opendrive:validate_opendrive",
+              sniff=lambda head: head.lstrip().startswith(b"<"), options=(
+                  ExportOption("--odr-version", "version", {"choices": OPENDRIVE_VERSIONS,
+                                                            "help": f"OpenDRIVE revision (default {OPENDRIVE_VERSIONS[0]})"}),)),
+    MapFormat("openscenario", "ASAM OpenSCENARIO XML 1.3: a suite as one .xosc per scenario + its maps' .xodr",
+              (".xosc",), output="dir", input="suite", write=f"{_P}.openscenario:write_openscenario",
+              validate=f"{_P}.openscenario:validate_openscenario"),
 )}
 
 

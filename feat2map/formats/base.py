@@ -53,8 +53,9 @@ class MapFormat:
     title: str
     suffixes: tuple[str, ...] = ()
     output: str = "file"
+    input: str = "map"  # what `write` takes: "map" (an HDMap) or "suite" (a scenario suite)
     read: str | None = None  # "module:function": (path) -> HDMap
-    write: str | None = None  # (HDMap, path, **options) -> None, atomic
+    write: str | None = None  # (HDMap or Suite, path, **options) -> None, atomic
     validate: str | None = None  # (path, progress=False) -> list[Problem]
     picture: str | None = None  # (path, out, problems, title) -> None: the map with its problems marked
     sniff: Callable[[bytes], bool] | None = None  # does a file starting with these bytes hold this format?

@@ -1,0 +1,126 @@
+"""OpenDRIVE export judged by ASAM's own checker (asam-qc-opendrive, with the official schemas):
+no issue from any check on generated maps, spec maps and a map generated from a real map's
+features; every check runs (each revision skips only the rule that does not apply to it);
+older revisions stay schema-valid and read back; the checker is `feat2map validate`'s face."""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import pytest
+from lxml import etree
+
+import feat2map
+from feat2map.cli import main
+from feat2map.config import OPENDRIVE_VERSIONS
+from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
+from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
+
+from conftest import REPO, shared_map
+from test_opendrive import _assert_same_features
+
+pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
+                                reason="qc_opendrive not installed (scripts/setup.sh installs asam-qc-opendrive)")
+
+ALL_CHECKS = 23  # checkers of asam-qc-opendrive 1.0.0
+# each rule that applies to only some revisions: the revision that skips it
+NOT_FOR = {"1.8": "check_asam_xodr_junctions_connection_one_connection_element",  # rule for <= 1.7
+           "1.7": "check_asam_xodr_junctions_connection_one_link_to_incoming"}  # rule from 1.8 on
+SPECS = ("mega_junction", "one_way_t", "multi_lane", "road_circle")
+
+
+@lru_cache(maxsize=None)
+def _map(name: str):
+    if name.startswith("seed"):
+        return feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=int(name[4:]))
+    from feat2map.spec import build_spec, load_spec
+
+    spec = load_spec(REPO / "examples" / f"{name}.yaml")
+    return build_spec(spec, seed=0, config=spec.generation_config({}))
+
+
+def _check(m, tmp_path, version: str = OPENDRIVE_VERSIONS[0]):
+    path = tmp_path / f"map-{version}.xodr"
+    write_opendrive(m, path, version)
+    results = run_bundle(path, OPENDRIVE)
+    assert len(results) == ALL_CHECKS
+    issues = [str(p) for r in results for p in r.issues]
+    assert issues == []
+    not_run = {r.checker_id: r.summary for r in results if r.status != "completed"}
+    assert set(not_run) <= {NOT_FOR.get(version)}, not_run
+    assert all(r.skipped_for_version for r in results if r.status == "skipped")
+    return {r.checker_id for r in results if r.status == "completed"}
+
+
+@pytest.mark.parametrize("name", ("seed11",) + SPECS)
+def test_generated_and_spec_maps_pass_every_check(name, tmp_path):
+    _check(_map(name), tmp_path)
+
+
+def test_every_check_runs_on_some_revision(tmp_path):
+    """1.8 and 1.7 skip one rule each, the other's: together every check ran and passed."""
+    ran = _check(_map("seed5"), tmp_path, "1.8") | _check(_map("seed5"), tmp_path, "1.7")
+    assert len(ran) == ALL_CHECKS
+
+
+@pytest.mark.parametrize("version", OPENDRIVE_VERSIONS[2:])
+def test_older_revisions_are_valid_and_read_back(version, tmp_path):
+    m = _map("seed5")
+    path = tmp_path / f"m{version}.xodr"
+    write_opendrive(m, path, version)
+    assert validate_opendrive(path) == []
+    assert etree.parse(str(path)).getroot().find("header").get("revMinor") == version.split(".")[1]
+    back = read_opendrive(path)
+    assert len(back.crosswalks) == len(m.crosswalks) and len(back.signals) == len(m.signals)
+    _assert_same_features(m, back)
+
+
+def test_same_map_same_bytes():
+    a, b = to_opendrive(_map("seed5")), to_opendrive(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=5))
+    assert a == b
+
+
+@pytest.mark.real_maps
+def test_map_from_real_features_passes_every_check(tmp_path):
+    from feat2map.extract import extract_junctions, map_feature
+
+    space = map_feature(extract_junctions(read_opendrive(shared_map("opendrive/carla_town01/Town01.xodr"))))
+    m = feat2map.generate(space, seed=3, config=feat2map.GenerationConfig(samples_per_combination=4))
+    assert len(m.junctions) >= 4
+    _check(m, tmp_path)
+
+
+def test_cli_validate_runs_the_checker_and_reports_its_issues(tmp_path, capsys):
+    """A crosswalk painted in a 1.6 file (no such fillType before 1.8) is a schema issue, with
+    the file row; the clean file validates with exit 0."""
+    good = tmp_path / "good.xodr"
+    write_opendrive(_map("mega_junction"), good, "1.6")
+    assert main(["validate", str(good)]) == 0
+    assert "good.xodr: 0 problems" in capsys.readouterr().out
+    root = etree.parse(str(good)).getroot()
+    outlines = root.findall(".//object/outlines/outline")
+    assert outlines
+    for ol in outlines:
+        ol.set("fillType", "paint")
+    bad = tmp_path / "bad.xodr"
+    bad.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+    assert main(["validate", str(bad)]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert len([ln for ln in out if "xml_valid_schema" in ln and "'paint'" in ln]) == len(outlines)
+    assert out[-1] == f"{bad}: {len(outlines)} problems"
+    assert all(ln.startswith("bad.xodr:") for ln in out[:-1])
+
+
+def test_checker_problems_name_the_element(tmp_path):
+    """A paramPoly3 whose declared length is not its arc length: a geometry issue located by
+    XPath."""
+    root = etree.fromstring(to_opendrive(_map("one_way_t")))
+    road = root.find("road")
+    geometry = road.find("planView/geometry")
+    for el, key in ((road, "length"), (geometry, "length")):
+        el.set(key, repr(1.5 * float(el.get(key))))
+    path = tmp_path / "stretched.xodr"
+    path.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+    problems = validate_opendrive(path)
+    assert problems and all(p.element.startswith("stretched.xodr") for p in problems)
+    assert any("parampoly3_length_match" in p.message and p.element.endswith("/OpenDRIVE/road[1]/planView/geometry")
+               for p in problems)
