@@ -51,6 +51,7 @@ STOP_SIGN_HEIGHT_M = 2.0
 COMMONROAD_DT_S = 0.1  # CommonRoad export: time step of the scenario (light cycles count in steps)
 COMMONROAD_HORIZON_S = 120.0  # CommonRoad export: its planning problem's goal time
 COMMONROAD_DATE = "2020-01-01"  # the date a CommonRoad file needs, when SOURCE_DATE_EPOCH is not set
+LANE_END_SNAP_M = 2.0  # Lanelet2/CommonRoad export: ends of linked lanes (per side) this close become one point
 LANELET2_MERGE_M = 0.05  # Lanelet2 export: points closer are one node (lanelet2_validation warns below this)
 MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10

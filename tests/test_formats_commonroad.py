@@ -76,7 +76,7 @@ def test_light_cycles_are_the_envs_phase_plan(sf_default_map, tmp_path):
     """Each light's cycle is the env's default fixed-time plan (offset 0), step by step."""
     from feat2map.config import COMMONROAD_DT_S
     from feat2map.envs.map_env import MapEnv
-    from feat2map.envs.traffic import PhasePlan
+    from feat2map.envs.control import PhasePlan
     from feat2map.phases import junction_phases
 
     m = sf_default_map

@@ -6,8 +6,10 @@ needs from the lanelet network (each failure is a `Problem`):
 - lanelets: predecessor/successor links go both ways and meet end to start (5 cm), adjacency is
   mutual (same direction: left/right, opposite: left/left);
 - every intersection manoeuvre is reachable: from an incoming lanelet, through each junction
-  lanelet of its right/straight/left sets (which turn as named), to a lanelet past the
-  intersection, searching commonroad-io's successor lists;
+  lanelet of its right/straight/left sets, to a lanelet past the intersection, searching
+  commonroad-io's successor lists; a junction lanelet that crosses the intersection alone turns
+  the way its set says (right: clockwise, left: anticlockwise or a U-turn, straight: within twice
+  the straight tolerance);
 - traffic lights: a cycle with positive durations, used by a lanelet; lights of one
   intersection whose greens overlap govern the same or opposite approaches;
 - stop signs: used by lanelets whose stop line refers to them;
@@ -23,14 +25,15 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG
+from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG, STRAIGHT_TOLERANCE_DEG, UTURN_THRESHOLD_DEG
 from ...errors import Feat2MapError
-from ...model import classify_turn
 from ..base import Problem
 from .writer import commonroad_io, quiet_commonroad
 
 LINK_TOLERANCE_M = 0.05
-_TURN_SETS = {"outgoing_right": ("right",), "outgoing_straight": ("none",), "outgoing_left": ("left", "uturn")}
+# heading change [deg, left positive] each turn set allows (U-turns are listed as left)
+_TURN_SETS = {"outgoing_right": lambda d: d < 0, "outgoing_straight": lambda d: abs(d) <= 2 * STRAIGHT_TOLERANCE_DEG,
+              "outgoing_left": lambda d: d > 0 or abs(d) > UTURN_THRESHOLD_DEG}
 
 
 @dataclass
@@ -179,10 +182,10 @@ def _intersections(net, report: CommonRoadReport) -> None:
                     if ll is None:
                         report.problems.append(Problem(where, f"{key} lanelet {jl} not in the network"))
                         continue
-                    turn = classify_turn(_heading(ll.center_vertices, "start"), _heading(ll.center_vertices, "end"))
-                    if turn not in turns and not (key == "outgoing_left" and abs(_turn_deg(ll)) > 150):
-                        report.problems.append(Problem(f"lanelet {jl}", f"listed as {key} of {where} but turns {turn}"))
                     exits = {s for s in ll.successor if s not in inside}
+                    if exits == set(ll.successor) and not _TURN_SETS[key](_turn_deg(ll)):  # one lanelet across
+                        report.problems.append(Problem(f"lanelet {jl}", f"listed as {key} of {where} but turns "
+                                                                        f"{_turn_deg(ll):+.0f} deg"))
                     if not exits or not reachable(lls, feeders, {jl}, feeders | {jl}):
                         report.problems.append(Problem(f"lanelet {jl}", f"manoeuvre of {where} is not reachable "
                                                                         "from its incoming lanelets to a lanelet past it"))

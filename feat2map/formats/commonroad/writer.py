@@ -34,6 +34,7 @@ from ...model import HDMap, Lane, Polyline, incoming_lanes
 from ...phases import junction_phases, timeline
 from ..base import header_date
 from ..geo import utm_origin, utm_to_latlon
+from ..lane_ends import lane_ends
 
 COUNTRY = "ZAM"
 MAP_NAME = "Feat2map"
@@ -138,9 +139,13 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
     def ref(lane_ids) -> int | None:
         return next((ids("lane", x) for x in lane_ids if x in lanes), None)
 
+    ends = lane_ends(m, lanes)
     for lid, ln in lanes.items():
         n = max(len(ln.left_boundary), len(ln.right_boundary), len(ln.centerline), 2)
-        left, right = resample(ln.left_boundary, n), resample(ln.right_boundary, n)
+        left, right, centre = resample(ln.left_boundary, n), resample(ln.right_boundary, n), resample(ln.centerline, n)
+        for k, at in ((0, "start"), (-1, "end")):  # linked lanelets meet exactly
+            left[k], right[k] = ends[(lid, "left", at)], ends[(lid, "right", at)]
+            centre[k] = (left[k] + right[k]) / 2
         adj_left, same_left = ref(ln.left_neighbors), True
         if adj_left is None:
             adj_left, same_left = ref(ln.left_reverse_neighbors), False
@@ -150,7 +155,7 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
             sign_ids, light_ids = controls[lid]
             stop = StopLine(right[-1].copy(), left[-1].copy(), LineMarking.SOLID, sign_ids, light_ids)
         net.add_lanelet(Lanelet(
-            left, resample(ln.centerline, n), right, ids("lane", lid),
+            left, centre, right, ids("lane", lid),
             predecessor=[ids("lane", x) for x in ln.predecessors if x in lanes],
             successor=[ids("lane", x) for x in ln.successors if x in lanes],
             adjacent_left=adj_left, adjacent_left_same_direction=same_left if adj_left is not None else None,
@@ -196,40 +201,51 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
 
 
 def _planning_problems(m: HDMap, lanes, ids: _Ids, net):
-    """The one planning problem CommonRoad's schema asks for: start half-way along the first
-    map entry lane, at rest, and reach any map exit lane it leads to within
-    `COMMONROAD_HORIZON_S`."""
+    """The one planning problem CommonRoad's schema asks for: from the first map entry lane to
+    any map exit lane it leads to; in a closed network (no entries or exits), from the first lane
+    to the lanes furthest from it (in links)."""
+    for ln in m.entry_lanes:
+        if ln.id not in lanes:
+            continue
+        seen, stack, exits = {ln.id}, [ln.id], set()
+        while stack:
+            cur = m.lanes[stack.pop()]
+            if not cur.successors:
+                exits.add(cur.id)
+            for s in cur.successors:
+                if s in lanes and s not in seen:
+                    seen.add(s)
+                    stack.append(s)
+        exits.discard(ln.id)
+        if exits:
+            return _problem(m, ln.id, [x for x in lanes if x in exits], ids, net)
+    first = next(iter(lanes))
+    level, seen, furthest = [first], {first}, [first]
+    while level:
+        furthest = level
+        level = list(dict.fromkeys(s for x in level for s in m.lanes[x].successors if s in lanes and s not in seen))
+        seen.update(level)
+    return _problem(m, first, furthest, ids, net)
+
+
+def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net):
+    """Start half-way along `start_lane`, at rest; reach a goal lane within `COMMONROAD_HORIZON_S`."""
     from commonroad.common.util import Interval
     from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
     from commonroad.planning.goal import GoalRegion
     from commonroad.planning.planning_problem import PlanningProblem, PlanningProblemSet
     from commonroad.scenario.state import CustomState, InitialState
 
-    for ln in m.entry_lanes:
-        if ln.id not in lanes:
-            continue
-        seen, stack, exits = {ln.id}, [ln.id], []
-        while stack:
-            cur = m.lanes[stack.pop()]
-            if not cur.successors:
-                exits.append(cur.id)
-            for s in cur.successors:
-                if s in lanes and s not in seen:
-                    seen.add(s)
-                    stack.append(s)
-        exits = [x for x in lanes if x in exits and x != ln.id]
-        if not exits:
-            continue
-        k = (len(ln.centerline) - 1) // 2  # a centreline point half-way along, inside the lanelet
-        (x0, y0), (x1, y1) = ln.centerline[k][:2], ln.centerline[k + 1][:2]
-        start = InitialState(position=np.array([x0, y0], dtype=float), orientation=math.atan2(y1 - y0, x1 - x0),
-                             velocity=0.0, acceleration=0.0, yaw_rate=0.0, slip_angle=0.0, time_step=0)
-        horizon = int(round(COMMONROAD_HORIZON_S / COMMONROAD_DT_S))
-        goal_ids = [ids("lane", x) for x in exits]
-        area = OccupancyGroup(occupancies=tuple(net.find_lanelet_by_id(x).polygon for x in goal_ids))
-        goal = GoalRegion([CustomState(time_step=Interval(0, horizon), position=area)], {0: goal_ids})
-        return PlanningProblemSet([PlanningProblem(ids("planning", ln.id), start, goal)])
-    raise Feat2MapError("no entry lane leads to an exit lane: CommonRoad needs a planning problem", "commonroad export")
+    ln = m.lanes[start_lane]
+    k = (len(ln.centerline) - 1) // 2  # a centreline point half-way along, inside the lanelet
+    (x0, y0), (x1, y1) = ln.centerline[k][:2], ln.centerline[k + 1][:2]
+    start = InitialState(position=np.array([x0, y0], dtype=float), orientation=math.atan2(y1 - y0, x1 - x0),
+                         velocity=0.0, acceleration=0.0, yaw_rate=0.0, slip_angle=0.0, time_step=0)
+    horizon = int(round(COMMONROAD_HORIZON_S / COMMONROAD_DT_S))
+    goal_ids = [ids("lane", x) for x in goal_lanes]
+    area = OccupancyGroup(occupancies=tuple(net.find_lanelet_by_id(x).polygon for x in goal_ids))
+    goal = GoalRegion([CustomState(time_step=Interval(0, horizon), position=area)], {0: goal_ids})
+    return PlanningProblemSet([PlanningProblem(ids("planning", start_lane), start, goal)])
 
 
 def _incomings(m: HDMap, jid: str, lanes) -> dict[str, tuple[list[str], dict[str, list[str]]]]:

@@ -125,7 +125,7 @@ def _points(lmap, report: Lanelet2Report) -> None:
     for p in lmap.pointLayer:
         near = lmap.pointLayer.nearest(BasicPoint2d(p.x, p.y), 2)
         other = next((q for q in near if q.id != p.id), None)
-        if other is not None and math.hypot(p.x - other.x, p.y - other.y) < MIN_POINT_DISTANCE_M:
+        if other is not None and math.dist((p.x, p.y, p.z), (other.x, other.y, other.z)) < MIN_POINT_DISTANCE_M:
             report.problems.append(Problem(f"point {p.id}", f"closer than {MIN_POINT_DISTANCE_M} m to point {other.id}"))
         if "local_x" in p.attributes and "local_y" in p.attributes:
             d = math.hypot(p.x - float(p.attributes["local_x"]), p.y - float(p.attributes["local_y"]))

@@ -33,6 +33,7 @@ from ...config import (APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, LANELE
                        STOP_SIGN_SIZE_M, UTM_ZONE)
 from ...model import Crosswalk, HDMap, Lane, incoming_lanes
 from ..geo import utm_origin, utm_to_latlon
+from ..lane_ends import lane_ends
 
 PROJECTOR_INFO = "map_projector_info.yaml"  # Autoware reads it from the map folder
 TAG = "feat2map:"  # our own tags: lane, road, junction, from/to (a junction lane's entry/exit roads), crosswalk
@@ -47,42 +48,61 @@ _LINES = {"solid_white": {"type": "line_thin", "subtype": "solid", "color": "whi
 
 
 class _Osm:
-    """Nodes, ways and relations under one id counter; ground nodes closer than
-    `LANELET2_MERGE_M` are one node (lane ends meet, stop lines end on lane bounds)."""
+    """Nodes, ways and relations under one id counter. Lane ends are nodes by exact position
+    (`lane_ends` places linked ends at one); other points closer than `LANELET2_MERGE_M` to an
+    existing node at their height are that node (stop lines end on lane bounds)."""
 
     def __init__(self) -> None:
         self.next_id = 1
         self.nodes: dict[int, tuple[float, float, float]] = {}
         self.ways: dict[int, tuple[list[int], dict[str, str]]] = {}
         self.relations: dict[int, tuple[list[tuple[str, int, str]], dict[str, str]]] = {}
-        self._grid: dict[tuple[int, int], list[int]] = {}
+        self._grid: dict[tuple[int, int, float], list[int]] = {}  # (cell x, cell y, height) -> nodes
+        self._ends: dict[tuple[float, float], int] = {}
 
     def _id(self) -> int:
         self.next_id += 1
         return self.next_id - 1
 
-    def node(self, x: float, y: float, z: float = 0.0) -> int:
-        cell = (math.floor(x / LANELET2_MERGE_M), math.floor(y / LANELET2_MERGE_M))
-        if z == 0.0:
-            best = None
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    for nid in self._grid.get((cell[0] + dx, cell[1] + dy), ()):
-                        d = math.hypot(self.nodes[nid][0] - x, self.nodes[nid][1] - y)
-                        if d < LANELET2_MERGE_M and (best is None or d < best[0]):
-                            best = (d, nid)
-            if best is not None:
-                return best[1]
+    def _new(self, x: float, y: float, z: float) -> int:
         nid = self._id()
         self.nodes[nid] = (float(x), float(y), float(z))
-        if z == 0.0:
-            self._grid.setdefault(cell, []).append(nid)
+        cell = (math.floor(x / LANELET2_MERGE_M), math.floor(y / LANELET2_MERGE_M), z)
+        self._grid.setdefault(cell, []).append(nid)
         return nid
 
-    def way(self, points: Iterable[Sequence[float]], tags: dict[str, str], z: float = 0.0) -> int:
+    def node(self, x: float, y: float, z: float = 0.0) -> int:
+        """The node at height z within `LANELET2_MERGE_M` of (x, y) (the nearest), else a new node."""
+        cx, cy = math.floor(x / LANELET2_MERGE_M), math.floor(y / LANELET2_MERGE_M)
+        near = [(math.hypot(self.nodes[n][0] - x, self.nodes[n][1] - y), n)
+                for dx in (-1, 0, 1) for dy in (-1, 0, 1) for n in self._grid.get((cx + dx, cy + dy, z), ())]
+        best = min(near, default=None)
+        if best is not None and best[0] < LANELET2_MERGE_M:
+            return best[1]
+        return self._new(x, y, z)
+
+    def end_node(self, x: float, y: float) -> int:
+        """The node of a lane end at exactly (x, y)."""
+        key = (float(x), float(y))
+        if key not in self._ends:
+            self._ends[key] = self._new(x, y, 0.0)
+        return self._ends[key]
+
+    def way(self, points: Sequence[Sequence[float]], tags: dict[str, str], z: float = 0.0,
+            lane_ends: bool = False) -> int:
+        """A linestring through `points`; with `lane_ends`, its first and last point are lane
+        ends and a point within twice `LANELET2_MERGE_M` of the one before or of the end is
+        dropped (end tangent samples, joints of lanes read from other formats)."""
+        pts = [(float(p[0]), float(p[1])) for p in points]
+        if lane_ends and len(pts) > 2:  # keep points twice the limit apart: clear of it after the lat/lon round trip
+            kept = [pts[0]]
+            for p in pts[1:-1]:
+                if math.dist(p, kept[-1]) >= 2 * LANELET2_MERGE_M and math.dist(p, pts[-1]) >= 2 * LANELET2_MERGE_M:
+                    kept.append(p)
+            pts = kept + [pts[-1]]
         ids: list[int] = []
-        for p in points:
-            nid = self.node(p[0], p[1], z)
+        for k, (x, y) in enumerate(pts):
+            nid = self.end_node(x, y) if lane_ends and k in (0, len(pts) - 1) else self.node(x, y, z)
             if not ids or ids[-1] != nid:
                 ids.append(nid)
         wid = self._id()
@@ -105,12 +125,12 @@ class _Writer:
         self.osm = _Osm()
         self.bound: dict[tuple[str, str], int] = {}  # (lane id, "left"/"right") -> way
         self.lanelet: dict[str, int] = {}  # lane id -> lanelet relation
+        self.ends = lane_ends(m)  # where linked lanes meet: one node each
 
     # -- lanelets ----------------------------------------------------------------------------
     def build(self) -> None:
-        for ln in self.m.lanes.values():
-            if len(ln.left_boundary) >= 2 and len(ln.right_boundary) >= 2:
-                self._lane(ln)
+        for lid in dict.fromkeys(lid for lid, _, _ in self.ends):  # lanes with two-point bounds, map order
+            self._lane(self.m.lanes[lid])
         for cw in self.m.crosswalks.values():
             self._crosswalk(cw)
         for s in self.m.signals.values():
@@ -136,7 +156,8 @@ class _Writer:
     def _boundary(self, ln: Lane, side: str) -> int:
         """The way of a lane's boundary: its neighbour's across that boundary when the two lie on
         one line (same-direction neighbours share left/right, opposite lanes their left bounds)."""
-        pts = ln.left_boundary if side == "left" else ln.right_boundary
+        pts = [self.ends[(ln.id, side, "start")], *(ln.left_boundary if side == "left" else ln.right_boundary)[1:-1],
+               self.ends[(ln.id, side, "end")]]
         if side == "left":
             partners = [(n, "right") for n in ln.left_neighbors] + [(n, "left") for n in ln.left_reverse_neighbors]
         else:
@@ -147,7 +168,7 @@ class _Writer:
                 self.bound[(ln.id, side)] = wid
                 return wid
         kind = ln.left_boundary_type if side == "left" else ln.right_boundary_type
-        wid = self.osm.way(pts, _LINES.get(kind, _LINES["solid_white"]))
+        wid = self.osm.way(pts, _LINES.get(kind, _LINES["solid_white"]), lane_ends=True)
         self.bound[(ln.id, side)] = wid
         return wid
 
@@ -265,17 +286,17 @@ class _Writer:
 
     def _lane_end_line(self, lane_id: str, tags: dict[str, str]) -> int:
         """A line across the end of a lane: from its right to its left boundary's last node."""
-        ln = self.m.lanes[lane_id]
-        return self.osm.way([ln.right_boundary[-1], ln.left_boundary[-1]], tags)
+        return self.osm.way([self.ends[(lane_id, "right", "end")], self.ends[(lane_id, "left", "end")]], tags,
+                            lane_ends=True)
 
     def _entry_line(self, lane_ids: Sequence[str]) -> int:
         """A virtual line across the ends of an approach's lanes (where its traffic enters the junction)."""
         lanes = [self.m.lanes[lid] for lid in lane_ids]
         h = lanes[0].heading_at_end()
         left = np.array([-math.sin(h), math.cos(h)])
-        ends = [np.asarray(p[:2], dtype=float) for ln in lanes for p in (ln.left_boundary[-1], ln.right_boundary[-1])]
+        ends = [np.asarray(self.ends[(ln.id, side, "end")]) for ln in lanes for side in ("left", "right")]
         side = [float(e @ left) for e in ends]
-        return self.osm.way([ends[int(np.argmin(side))], ends[int(np.argmax(side))]], {"type": "virtual"})
+        return self.osm.way([ends[int(np.argmin(side))], ends[int(np.argmax(side))]], {"type": "virtual"}, lane_ends=True)
 
 
 def _same_ends(osm: _Osm, wid: int, pts) -> bool:
