@@ -113,8 +113,8 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=cmd_suite)
 
     r = sub.add_parser("rollout", help="run a scenario suite headless and write a report",
-                       description="Drive every scenario of a suite headless with a planner and write DIR/report.md, "
-                                   "summary.json, junit.xml, plots and a GIF per failure; "
+                       description="Drive every scenario of a suite headless with a planner and write DIR/report.md and "
+                                   "report.html (one self-contained page), summary.json, junit.xml, plots and a GIF per failure; "
                                    "exit 1 when a scenario fails under --fail-on.")
     r.add_argument("suite", help="suite file (.yaml or .json)")
     r.add_argument("--planner", default="baseline", metavar="PLANNER",

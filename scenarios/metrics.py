@@ -15,6 +15,7 @@ from typing import Iterable, Mapping, Sequence
 from .rollout import MIXED_DIGEST, ROAD_CONTEXT, Outcome, SuiteResult
 
 FULL_COVERAGE_SHARE = 0.95  # "junctions to reach 95% of the suite's lines/transitions"
+LABELLED_POINTS_MAX = 40  # coverage plots name each junction up to this many per suite
 
 Pair = tuple[str, tuple[str, ...]]  # (planner scenario, its stage path)
 Transition = tuple[str, str]  # ("Scenario.Stage", "Scenario.Stage")
@@ -210,30 +211,45 @@ def _unique_names(names: Sequence[str]) -> tuple[str, ...]:
 
 def plot_accumulated(comparison: Comparison, path: str | Path, title: str = "") -> None:
     """Accumulated lines covered (left, as the paper's Fig. 6a) and stage transitions (right)
-    against junction index, one curve per suite; PNG or SVG by the file name."""
+    against the junctions in the order each suite reaches them, one curve per suite; the x axis
+    names the junctions (one suite), or each point carries its junction's id (several suites).
+    PNG or SVG by the file name."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    fig, (ax_l, ax_t) = plt.subplots(1, 2, figsize=(11, 4.2))
-    any_lines = False
-    for name, c in zip(comparison.names, comparison.coverages):
-        x = list(range(1, len(c.junctions) + 1))
-        if c.lines:
-            any_lines = True
-            ax_l.step(x, c.accumulated_lines, where="post", marker="o", ms=3, label=name)
-        ax_t.step(x, c.accumulated_transitions, where="post", marker="o", ms=3, label=name)
-    ax_l.set(xlabel="junction index", ylabel="accumulated planner lines covered",
-             title="line coverage" if any_lines else "line coverage (not measured)")
-    ax_t.set(xlabel="junction index", ylabel="accumulated stage transitions", title="behaviour coverage")
     from matplotlib.ticker import MaxNLocator
 
+    fig, (ax_l, ax_t) = plt.subplots(1, 2, figsize=(12, 4.6))
+    any_lines = False
+    single = len(comparison.coverages) == 1
+    for k, (name, c) in enumerate(zip(comparison.names, comparison.coverages)):
+        x = list(range(1, len(c.junctions) + 1))
+        curves = [(ax_t, c.accumulated_transitions)]
+        if c.lines:
+            any_lines = True
+            curves.append((ax_l, c.accumulated_lines))
+        for ax, y in curves:
+            (line,) = ax.step(x, y, where="post", marker="o", ms=3, label=name)
+            if not single and len(x) <= LABELLED_POINTS_MAX:
+                for xi, yi, j in zip(x, y, c.junctions):
+                    ax.annotate(j, (xi, yi), textcoords="offset points", xytext=(2, 4 + 8 * k), fontsize=6,
+                                color=line.get_color())
+    xlabel = ("junction, in the order the suite first reaches it" if single
+              else "junction index (each suite's order; ids at the points)")
+    ax_l.set(xlabel=xlabel, ylabel="accumulated planner lines covered",
+             title="line coverage" if any_lines else "line coverage (not measured)")
+    ax_t.set(xlabel=xlabel, ylabel="accumulated stage transitions", title="behaviour coverage")
     for ax in (ax_l, ax_t):
         ax.grid(alpha=0.3)
-        ax.set_ylim(bottom=0)
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_ylim(0, max(1.0, ax.get_ylim()[1]) * 1.08)  # room for the ids above the curves
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+        if single and len(comparison.coverages[0].junctions) <= LABELLED_POINTS_MAX:
+            js = comparison.coverages[0].junctions
+            ax.set_xticks(range(1, len(js) + 1), [f"{i}\n{j}" for i, j in enumerate(js, 1)],
+                          fontsize=7 if len(js) <= 20 else 5, rotation=0 if len(js) <= 20 else 90)
+        else:
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
     if title:
@@ -241,4 +257,3 @@ def plot_accumulated(comparison: Comparison, path: str | Path, title: str = "") 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-

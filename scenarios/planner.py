@@ -65,6 +65,15 @@ SCENARIO_STAGES: dict[str, tuple[str, ...]] = {
     TL_RIGHT: ("R_S", "R_C", "R_I"),
     BARE: ("B_A", "B_I"),
 }
+STAGE_NAMES: dict[str, str] = {  # what each stage code means (reports explain the codes they show)
+    "LF": "lane follow", "S_PS": "stop sign: pre-stop", "S_S": "stop sign: stop", "S_C": "stop sign: creep",
+    "S_I": "stop sign: intersection cruise", "T_A": "signal, protected: approach",
+    "T_C": "signal, protected: intersection cruise", "L_A": "signal, unprotected left: approach",
+    "L_C": "signal, unprotected left: creep", "L_I": "signal, unprotected left: intersection cruise",
+    "R_S": "signal, right turn on red: stop", "R_C": "signal, right turn on red: creep",
+    "R_I": "signal, right turn: intersection cruise", "B_A": "bare junction: approach",
+    "B_I": "bare junction: intersection cruise",
+}
 CRUISE_STAGE = {STOP_SIGN: "S_I", TL_PROTECTED: "T_C", TL_LEFT: "L_I", TL_RIGHT: "R_I", BARE: "B_I"}
 
 

@@ -1,6 +1,7 @@
 """Rollout reports: OUT/summary.json (the SuiteResult, loads back with `load_result`),
 OUT/junit.xml (one testcase per scenario, for CI systems), OUT/report.md (tables, plots, one
-GIF per failure under OUT/failures/), OUT/outcomes.png and OUT/coverage.png. The directory is
+GIF per failure under OUT/failures/, the stage codes explained), OUT/report.html (the same as one
+self-contained page, pictures inline), OUT/outcomes.png and OUT/coverage.png. The directory is
 staged and moved into place whole.
 """
 from __future__ import annotations
@@ -14,13 +15,15 @@ from typing import Any
 
 from feat2map import atomic
 from feat2map.errors import Feat2MapError
+from feat2map.messages import counted
 
-from .metrics import compare, junctions_to_reach, plot_accumulated, suite_coverage
-from .rollout import FAIL_POLICIES, MIXED_DIGEST, OUTCOMES, Outcome, SuiteResult
+from .metrics import FULL_COVERAGE_SHARE, compare, junctions_to_reach, plot_accumulated, suite_coverage
+from .rollout import FAIL_POLICIES, MIXED_DIGEST, OUTCOMES, ROAD_CONTEXT, Outcome, SuiteResult
 
 SUMMARY = "summary.json"
 JUNIT = "junit.xml"
 REPORT = "report.md"
+REPORT_HTML = "report.html"  # the same, one self-contained page (pictures inline)
 FAILURES = "failures"
 OUTCOME_COLOURS = {"completed": "#4caf50", "collision": "#d32f2f", "off_road": "#ff9800",
                    "timeout": "#9e9e9e", "violation": "#7b1fa2", "error": "#000000"}
@@ -104,6 +107,11 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
     counts = result.counts()
     failing = result.failures(fail_on)
     cov = suite_coverage(result)
+    road = ROAD_CONTEXT in cov.pairs or ROAD_CONTEXT in cov.transitions  # a first row: driving between junctions
+    rows = ((ROAD_CONTEXT,) if road else ()) + cov.junctions
+    cov_acc_pairs = ((len(cov.pairs.get(ROAD_CONTEXT, ())),) if road else ()) + cov.accumulated_pairs
+    cov_acc_trans = ((len(cov.transitions.get(ROAD_CONTEXT, ())),) if road else ()) + cov.accumulated_transitions
+    sum_pairs = sum(len(cov.pairs.get(j, ())) for j in rows)
     verdict = "FAILED" if failing else "passed"
     lines = [f"# Rollout report: {result.name}", "",
              f"Planner `{result.planner}`, {len(result.outcomes)} scenarios, failure policy `--fail-on {fail_on}`: "
@@ -111,7 +119,7 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
              f"worker(s), backend {result.backend}.", "",
              "| " + " | ".join(OUTCOMES) + " |", "|" + "---:|" * len(OUTCOMES),
              "| " + " | ".join(str(counts[k]) for k in OUTCOMES) + " |", "", "![outcomes](outcomes.png)", "",
-             "## Scenarios", "",
+             "## Scenarios", "", "Stage codes (`LF`, `T_A`, ...) are explained under *Stage codes* at the end.", "",
              "| scenario | outcome | simulated s | steps | route | violations | junctions | stage path |",
              "|---|---|---:|---:|---:|---|---|---|"]
     for o in result.outcomes:
@@ -126,15 +134,21 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
             if o.name in gifs:
                 lines += [f"![{o.name}]({gifs[o.name]})", ""]
     lines += ["", "## Behaviour coverage", "",
-              f"{len(cov.all_pairs)} (scenario, stage path) pairs and {len(cov.all_transitions)} stage transitions "
-              f"over {len(cov.junctions)} junctions; {len({p for _, p in cov.paths})} distinct whole-route stage paths.",
-              "", "| junction | pairs | transitions | accumulated transitions | planner scenarios: stage paths |",
-              "|---|---:|---:|---:|---|"]
-    acc_t = cov.accumulated_transitions
-    for i, j in enumerate(cov.junctions):
+              f"The planner made {counted(len(cov.all_pairs), 'distinct (planner scenario, stage path) pair')} and "
+              f"{counted(len(cov.all_transitions), 'distinct stage transition')}; the suite drove "
+              f"{counted(len({p for _, p in cov.paths}), 'distinct whole-route stage path')} through "
+              f"{counted(len(cov.junctions), 'junction')}. Per row: the pairs and transitions seen there (a pair "
+              f"seen at several junctions counts at each, so the column sums to {sum_pairs}), and the distinct "
+              f"ones accumulated over the rows so far, in the order the suite first reaches the junctions; the "
+              f"last row's accumulated counts are the totals.", "",
+              "| junction | pairs | accumulated pairs | transitions | accumulated transitions | "
+              "planner scenarios: stage paths |", "|---|---:|---:|---:|---:|---|"]
+    for j, acc_p, acc_t in zip(rows, cov_acc_pairs, cov_acc_trans):
         p = sorted(cov.pairs.get(j, ()))
         text = "; ".join(f"{sc}: {' → '.join(st)}" for sc, st in p) or "-"
-        lines.append(f"| {_cell(j)} | {len(p)} | {len(cov.transitions.get(j, ()))} | {acc_t[i]} | {_cell(text)} |")
+        name = "roads between junctions" if j == ROAD_CONTEXT else j
+        lines.append(f"| {_cell(name)} | {len(p)} | {acc_p} | {len(cov.transitions.get(j, ()))} | {acc_t} | "
+                     f"{_cell(text)} |")
     if cov.all_transitions:
         short = _short_stage_names(cov.all_transitions)
         lines += ["", "Transitions seen: " + ", ".join(f"`{short[a]} → {short[b]}`"
@@ -144,14 +158,64 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
         if result.planner_digest == MIXED_DIGEST:
             lines += ["", "Warning: the planner's sources changed during the run; line numbers mix versions."]
         new = cov.new_lines()
+        k = junctions_to_reach(acc)
+        share = int(FULL_COVERAGE_SHARE * 100)
+        reach = (f"The first {counted(k, 'junction')} the suite reaches ({', '.join(cov.junctions[:k])}) "
+                 f"already cover {share}% of them ({acc[k - 1]} of {acc[-1]} lines)." if k else "")
         lines += ["", "## Planner line coverage", "",
-                  f"{len(cov.all_lines)} lines of the planner covered; {junctions_to_reach(acc)} of "
-                  f"{len(cov.junctions)} junctions reach 95% of them.", "",
+                  f"{counted(len(cov.all_lines), 'line')} of the planner covered over "
+                  f"{counted(len(cov.junctions), 'junction')}. {reach}", "",
                   "| junction index | junction | lines at junction | new lines | accumulated |", "|---:|---|---:|---:|---:|"]
         for i, j in enumerate(cov.junctions):
             lines.append(f"| {i + 1} | {_cell(j)} | {len(cov.lines.get(j, ()))} | {new[i]} | {acc[i]} |")
     lines += ["", "![coverage](coverage.png)", ""]
+    lines += _stage_legend(result)
     return "\n".join(lines)
+
+
+def _stage_legend(result: SuiteResult) -> list[str]:
+    """A table of the stage codes the report shows, with their meaning where the planner is ours."""
+    from .planner import SCENARIO_STAGES, STAGE_NAMES
+
+    seen = {st for o in result.outcomes for st in o.stage_path}
+    seen |= {n.rpartition(".")[2] for o in result.outcomes for t in o.transitions for n in t}
+    if not seen:
+        return []
+    order = [st for stages in SCENARIO_STAGES.values() for st in stages]
+    codes = sorted(seen, key=lambda st: (order.index(st) if st in order else len(order), st))
+    return ["## Stage codes", "",
+            "Stages of the planner's scenarios (after Apollo's planning; scenarios/README.md explains when "
+            "each is selected):", "", "| code | stage |", "|---|---|",
+            *(f"| `{_cell(c)}` | {_cell(STAGE_NAMES.get(c, 'defined by the planner under test'))} |" for c in codes), ""]
+
+
+def report_html(markdown_text: str, folder: Path, title: str) -> str:
+    """The Markdown report as one self-contained HTML page: pictures (PNG, GIF) from `folder`
+    inlined as base64 data, so the page can be mailed or attached to a CI run on its own."""
+    import base64
+    import html
+    import mimetypes
+
+    import markdown
+
+    body = markdown.markdown(markdown_text, extensions=["tables", "fenced_code"], output_format="html")
+
+    def inline(m: re.Match) -> str:
+        path = folder / html.unescape(m.group(2))
+        if not path.is_file():
+            return m.group(0)
+        kind = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
+        return f'{m.group(1)}data:{kind};base64,{base64.b64encode(path.read_bytes()).decode()}"'
+
+    body = re.sub(r'(<img[^>]*\ssrc=")([^":]+)"', inline, body)
+    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'
+            f"<style>{_CSS}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n")
+
+
+_CSS = ("body{font-family:system-ui,sans-serif;max-width:75em;margin:2em auto;padding:0 1em;line-height:1.4}"
+        "table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #ccc;padding:.2em .5em;"
+        "vertical-align:top}th{background:#f3f3f3}img{max-width:100%}code,pre{background:#f6f6f6}"
+        "pre{padding:.5em;overflow-x:auto}")
 
 
 def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> Path:
@@ -177,7 +241,9 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
         atomic.write_bytes(tmp / JUNIT, junit_xml(result, fail_on))
         _plot_outcomes(result, tmp / "outcomes.png")
         plot_accumulated(compare({result.name: result}), tmp / "coverage.png", title=result.name)
-        atomic.write_text(tmp / REPORT, report_markdown(result, fail_on, gifs))
+        text = report_markdown(result, fail_on, gifs)
+        atomic.write_text(tmp / REPORT, text)
+        atomic.write_text(tmp / REPORT_HTML, report_html(text, tmp, f"Rollout report: {result.name}"))
         shutil.rmtree(out / FAILURES, ignore_errors=True)  # GIFs of an earlier run into the same dir
     return out
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -87,6 +88,34 @@ def test_suite_runs_end_to_end_through_the_cli(cli_run, capsys):
     for png in ("outcomes.png", "coverage.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (out / "failures").exists()
+
+
+def test_report_explains_its_codes_and_its_counts_add_up(cli_run):
+    """Every stage code shown is explained; the header's distinct counts are the last accumulated
+    ones of the behaviour table; the 95% sentence names the junctions."""
+    from feat2map.scenarios.planner import STAGE_NAMES
+
+    report = (cli_run[1] / "report.md").read_text()
+    behaviour = report.split("## Behaviour coverage")[1].split("\n## ")[0]
+    legend = report.split("## Stage codes")[1]
+    shown = set(re.findall(r"\b([A-Z]{1,2}(?:_[A-Z]{1,2})?)\b(?= →|$| \|)", report, flags=re.M)) & set(STAGE_NAMES)
+    assert "LF" in shown and len(shown) >= 3
+    for code in shown:
+        assert f"| `{code}` | {STAGE_NAMES[code]} |" in legend
+    n_pairs = int(re.search(r"made (\d+) distinct \(planner scenario, stage path\) pair", behaviour).group(1))
+    n_trans = int(re.search(r"(\d+) distinct stage transition", behaviour).group(1))
+    rows = [r.split("|")[1:-1] for r in behaviour.splitlines() if r.startswith("| ") and not r.startswith("| junction")]
+    assert rows[0][0].strip() == "roads between junctions" and rows[-1][0].strip() == "J0"
+    assert (int(rows[-1][2]), int(rows[-1][4])) == (n_pairs, n_trans)
+    assert f"sums to {sum(int(r[1]) for r in rows)})" in behaviour
+    assert re.search(r"The first 1 junction the suite reaches \(J0\) already cover 95% of them", report)
+
+
+def test_report_html_is_self_contained(cli_run):
+    page = (cli_run[1] / "report.html").read_text()
+    assert page.startswith("<!DOCTYPE html>") and "<table>" in page and "Stage codes" in page
+    srcs = re.findall(r'<img[^>]*src="([^"]+)"', page)
+    assert len(srcs) == 2 and all(s.startswith("data:image/png;base64,") for s in srcs)
 
 
 def test_results_are_independent_of_worker_count(suite_file, cli_run):
