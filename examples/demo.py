@@ -1,6 +1,7 @@
 """One drive through the Python API: a map file in `feat2map/MapFile-v0`, the baseline planner
-on a sampled route, headless. Writes OUT/drive.png (the last rendered frame) and prints the
-outcome and the planner's stage path.
+on a sampled route, headless. Writes OUT/drive.png: the route on the map with the ego's
+trajectory coloured by simulated time, and the env's own frame in each junction of the route
+(titled with the time and the planner's stage); prints the outcome and the stage path.
 
     .venv/bin/python examples/demo.py --map out/demo/m1/map.json --out out/demo
 """
@@ -17,36 +18,104 @@ import matplotlib  # noqa: E402
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
 
 import feat2map  # noqa: E402,F401  (registers the feat2map/ environment ids)
-from feat2map.scenarios.planner import BaselinePlanner  # noqa: E402
+from feat2map.formats import read_map  # noqa: E402
+from feat2map.render import draw_map, legend_handles, save_figure  # noqa: E402
+from feat2map.scenarios.planner import STAGE_NAMES, BaselinePlanner  # noqa: E402
+
+FRAME_AFTER_ENTRY_S = 1.0  # a junction's frame is taken this long after the ego enters it
+FRAME_SCALING = 8.0  # env frame pixels per metre (600 px: 75 m around the ego)
+MARGIN_M = 20.0  # around the route in the map panel
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--map", required=True, help="a map file (.json, .xodr or Apollo .bin/.txt)")
-    ap.add_argument("--out", default="out/demo")
-    ap.add_argument("--seed", type=int, default=1)
-    args = ap.parse_args()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-
+def drive(map_file: str, seed: int):
+    """Drive one sampled route; returns (trajectory [(t, x, y)], frames [(junction, t, stage, image)],
+    route lane ids, last info, steps, stage path)."""
     env = gym.make("feat2map/MapFile-v0", render_mode="rgb_array", config={
-        "map_file": args.map, "action": BaselinePlanner.action_config, "policy_frequency": 5,
-        "route_junctions": 3, "traffic_vehicles": 6, "pedestrian_rate": 6.0, "duration": 120})
+        "map_file": map_file, "action": BaselinePlanner.action_config, "policy_frequency": 5,
+        "route_junctions": 3, "traffic_vehicles": 6, "pedestrian_rate": 6.0, "duration": 120,
+        "scaling": FRAME_SCALING})
     planner = BaselinePlanner()
-    obs, info = env.reset(seed=args.seed)
+    obs, info = env.reset(seed=seed)
     planner.reset(env)
+    m = read_map(map_file)
+    route = list(env.unwrapped.route_lanes)
+    track, frames, entered = [], [], {}
     done, steps = False, 0
     while not done:
         obs, _, terminated, truncated, info = env.step(planner.act(obs, info))
         done = terminated or truncated
         steps += 1
-    plt.imsave(out / "drive.png", env.render())
+        t = info["time"]
+        x, y = map(float, env.unwrapped.vehicle.position)
+        track.append((t, x, -y))  # highway-env's y points down; the map's up
+        lane = m.lanes.get(info.get("lane_id") or "")
+        jid = lane.junction_id if lane is not None else None
+        if jid is not None and jid not in {f[0] for f in frames}:
+            entered.setdefault(jid, t)
+            if t - entered[jid] >= FRAME_AFTER_ENTRY_S:
+                frames.append((jid, t, planner.stage, env.render()))
     env.close()
+    return m, track, frames, route, info, steps, planner.stage_path()
+
+
+def draw(m, track, frames, route, info, steps, stages, path: Path) -> None:
+    """The map panel (route, trajectory) above one env frame per junction."""
+    cols = max(2, len(frames))
+    fig = plt.figure(figsize=(4.0 * cols + 1.0, 11.0), layout="constrained")
+    top, bottom = fig.subfigures(2, 1, height_ratios=[1.5, 1])
+    ax = top.subplots()
+    draw_map(m, ax, highlight_lanes=route)
+    pts = np.array([(x, y) for _, x, y in track])
+    ts = np.array([t for t, _, _ in track])
+    seg = LineCollection(np.stack([pts[:-1], pts[1:]], axis=1), array=ts[1:], cmap="viridis", linewidths=2.5,
+                         zorder=8)
+    ax.add_collection(seg)
+    ax.plot(*pts[0], marker="o", ms=8, color="#ffffff", mec="k", zorder=9)
+    ax.plot(*pts[-1], marker="s", ms=8, color="#ffffff", mec="k", zorder=9)
+    route_pts = np.concatenate([np.asarray(m.lanes[i].centerline) for i in route])
+    lo, hi = route_pts.min(axis=0) - MARGIN_M, route_pts.max(axis=0) + MARGIN_M
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    top.colorbar(seg, ax=ax, label="simulated time [s]", location="bottom", shrink=0.5, aspect=40)
+    handles = legend_handles(m, highlight=True) + [
+        Line2D([], [], color="#21918c", lw=2.5, label="ego trajectory (colour: time)"),
+        Line2D([], [], ls="none", marker="o", ms=7, color="#ffffff", mec="k", label="start"),
+        Line2D([], [], ls="none", marker="s", ms=7, color="#ffffff", mec="k", label="end")]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.03, 1.0), borderaxespad=0, fontsize=8)
+    junctions = list(dict.fromkeys(m.lanes[i].junction_id for i in route if m.lanes[i].junction_id))
+    ax.set_title(f"route through {' → '.join(junctions)} on the map (bird's-eye)", fontsize=10)
+    for k, (jid, t, stage, img) in enumerate(frames):
+        a = bottom.add_subplot(1, cols, k + 1)
+        a.imshow(img)
+        a.set_axis_off()
+        a.set_title(f"env frame in {jid} at t = {t:.1f} s (ego at the centre)\n"
+                    f"planner stage {stage}: {STAGE_NAMES.get(stage, stage)}",
+                    fontsize=9)
+    outcome = ("completed" if info["route_completed"] else "not completed") + (
+        ", collision" if info["collision"] else "") + (", off road" if info["off_road"] else "")
+    v = ", ".join(f"{k} {n}" for k, n in info["violations"].items() if n) or "no violation"
+    fig.suptitle(f"feat2map/MapFile-v0, baseline planner: {outcome} after {info['time']:.1f} s simulated "
+                 f"({steps} steps), {v}\nstage path: {' → '.join(stages)}", fontsize=11)
+    save_figure(fig, path, dpi=100)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--map", required=True, help="a map file (.json, .xodr or Apollo .bin/.txt)")
+    ap.add_argument("--out", default="out/demo", help="folder for drive.png (default: out/demo)")
+    ap.add_argument("--seed", type=int, default=1, help="episode seed: route, traffic, pedestrians (default: 1)")
+    args = ap.parse_args()
+    out = Path(args.out)
+    m, track, frames, route, info, steps, stages = drive(args.map, args.seed)
+    draw(m, track, frames, route, info, steps, stages, out / "drive.png")
     print(f"drove {steps} steps: completed={info['route_completed']} collision={info['collision']} "
           f"progress={info['route_progress']:.2f} violations={info['violations']}")
-    print("stage path:", " -> ".join(planner.stage_path()), f"; frame: {out / 'drive.png'}")
+    print("stage path:", " -> ".join(stages), f"; picture: {out / 'drive.png'}")
 
 
 if __name__ == "__main__":

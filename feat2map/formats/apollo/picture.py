@@ -77,7 +77,7 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
 
     from ...render import save_figure
 
-    fig, ax = plt.subplots(figsize=(10, 10))
+    fig, ax = plt.subplots(figsize=(12.5, 10), layout="constrained")
     segs: dict[tuple[str, str], list[np.ndarray]] = {}
     centres = []
     lanes = {}
@@ -122,6 +122,7 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
     if spots:
         xs, ys = zip(*spots)
         ax.scatter(xs, ys, s=160, facecolors="none", edgecolors="red", linewidths=1.5, zorder=5)
+    ax.legend(handles=_legend(problems), loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0, fontsize=8)
     ax.autoscale()
     ax.set_aspect("equal")
     ax.set_xlabel("UTM easting [m]")
@@ -130,8 +131,27 @@ def render_apollo(m: Any, path: str | Path, problems: Sequence[Problem] = (), ti
     placed = len(spots)
     ax.set_title(title or f"{len(m.lane)} lanes, {len(m.junction)} junctions; {len(problems)} problems "
                           f"({placed} ringed)", fontsize=9)
-    fig.tight_layout()
     save_figure(fig, path)
+
+
+def _legend(problems: Sequence[Problem]) -> list:
+    """What render_apollo's colours and line styles mean."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    out = [Line2D([], [], color="#9fd3e6", lw=1, label="lane centre line"),
+           Line2D([], [], color="0.35", lw=1, label="lane boundary: solid white (dashed: dotted)"),
+           Line2D([], [], color="#d4a000", lw=1, label="lane boundary: yellow (dashed: dotted)"),
+           Line2D([], [], color="0.8", ls=":", lw=1, label="virtual boundary (inside junctions)"),
+           Patch(fc="none", ec="tab:blue", ls="-.", label="junction polygon"),
+           Patch(fc="none", ec="magenta", hatch="///", label="crosswalk"),
+           Line2D([], [], color="red", lw=2, label="signal stop line"),
+           Line2D([], [], color="orange", lw=2, label="stop-sign stop line")]
+    out += [Line2D([], [], color=c, lw=3.5, alpha=0.45, label=f"lane overlap with a {k.split('_overlap')[0].replace('_', ' ')}")
+            for k, c in _OVERLAP_COLOUR.items()]
+    if problems:
+        out.append(Line2D([], [], ls="none", marker="o", ms=11, mfc="none", mec="red", mew=1.5, label="problem"))
+    return out
 
 
 def render_problems(path: str | Path, out: str | Path, problems: Sequence[Problem] = (),
