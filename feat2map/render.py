@@ -106,7 +106,7 @@ def _one_way_arrows(m: HDMap, ax) -> None:
     if not lanes:
         return
     x0, y0, x1, y1 = m.bounds()
-    size = min(max(max(x1 - x0, y1 - y0) / 60.0, 3.0), 25.0)
+    size = min(max(max(x1 - x0, y1 - y0) / 80.0, 3.0), 15.0)
     xs, ys, us, vs = [], [], [], []
     for ln in lanes:
         pts = np.asarray(ln.centerline, dtype=float)
@@ -120,8 +120,8 @@ def _one_way_arrows(m: HDMap, ax) -> None:
             d = (pts[i + 1] - pts[i]) / max(seg[i], 1e-9)
             p = pts[i] + d * (at - s[i]) - d * size / 2
             xs.append(p[0]), ys.append(p[1]), us.append(d[0] * size), vs.append(d[1] * size)
-    ax.quiver(xs, ys, us, vs, angles="xy", scale_units="xy", scale=1, color=ONE_WAY_COLOUR, width=0.004,
-              headwidth=4, headlength=4, headaxislength=3.5, zorder=5)
+    ax.quiver(xs, ys, us, vs, angles="xy", scale_units="xy", scale=1, color=ONE_WAY_COLOUR, width=0.003,
+              headwidth=3.5, headlength=3.5, headaxislength=3, zorder=5)
 
 
 def legend_handles(m: HDMap, *, labels: bool = True, controls: dict[str, str] | None = None,

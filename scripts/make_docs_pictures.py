@@ -1,0 +1,225 @@
+"""Regenerate every picture and generated table in docs/ from the current code, so the docs
+cannot drift from what the code draws. One job per picture (or group); each writes its files
+atomically and prints them.
+
+    .venv/bin/python scripts/make_docs_pictures.py              # the fast pictures (about a minute)
+    .venv/bin/python scripts/make_docs_pictures.py --slow       # also the slow ones (see --list): the
+        # M1 vs M1x3 rollout comparison (~10 min), docs/benchmarks.md (~10 min) and docs/experiments/ (hours)
+    .venv/bin/python scripts/make_docs_pictures.py --only m1 drive
+
+Jobs that read the real maps skip (saying so) when ../shared/maps is absent; the netconvert
+picture needs the dev extra's eclipse-sumo.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import feat2map  # noqa: E402
+from feat2map import atomic  # noqa: E402
+from feat2map.cli import main as cli  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = REPO / "docs"
+SHARED_MAPS = REPO.parent / "shared" / "maps"
+SPECS = {"spec_mega.png": "mega_junction", "spec_one_way.png": "one_way_t", "spec_circle.png": "road_circle",
+         "spec_multi_lane.png": "multi_lane"}
+
+
+@dataclass(frozen=True)
+class Job:
+    name: str
+    makes: str  # what it writes, for --list
+    run: Callable[[Path], list[Path]]  # (scratch folder) -> docs files written
+    slow: bool = False
+    needs_shared: bool = False
+
+
+def run_cli(*args: str, ok: tuple[int, ...] = (0,)) -> None:
+    with contextlib.redirect_stdout(io.StringIO()):  # this script prints what it wrote
+        code = cli(list(args))
+    if code not in ok:
+        raise SystemExit(f"feat2map {' '.join(args)}: exit {code}")
+
+
+def run_python(*args: str) -> None:
+    subprocess.run([sys.executable, *args], cwd=REPO, check=True)
+
+
+def copy(src: Path, name: str) -> Path:
+    atomic.write_bytes(DOCS / name, src.read_bytes())
+    return DOCS / name
+
+
+def m1(tmp: Path) -> list[Path]:
+    run_cli("generate", "--seed", "1", "--no-apollo", "--quiet", "--out", str(tmp / "m1"))
+    return [copy(tmp / "m1" / "map.png", "m1.png"), copy(tmp / "m1" / "junctions.png", "m1_junctions.png")]
+
+
+def drive(tmp: Path) -> list[Path]:
+    run_cli("generate", "--seed", "1", "--no-apollo", "--no-picture", "--quiet", "--out", str(tmp / "m1"))
+    run_python("examples/demo.py", "--map", str(tmp / "m1" / "map.json"), "--out", str(tmp))
+    return [copy(tmp / "drive.png", "drive.png")]
+
+
+def specs(tmp: Path) -> list[Path]:
+    out = []
+    for picture, spec in SPECS.items():
+        run_cli("generate", "--spec", str(REPO / "examples" / f"{spec}.yaml"), "--no-apollo", "--quiet",
+                "--out", str(tmp / spec))
+        out.append(copy(tmp / spec / "map.png", picture))
+    return out
+
+
+def apollo_export(tmp: Path) -> list[Path]:
+    """The Apollo export of a 3-junction map (the fixture of tests/test_apollo_export.py)."""
+    from feat2map.formats.apollo import render_problems, write_apollo
+
+    J = feat2map.JunctionFeature.make
+    m = feat2map.generate_from_features([J([0, 120, 240], "signal", True, lanes=[2, 2, 1]),
+                                         J([0, 90, 180, 270], "stop", True),
+                                         J([10, 80, 170, 260, 300], "bare", False)], seed=3)
+    write_apollo(m, tmp / "apollo")
+    render_problems(tmp / "apollo", DOCS / "apollo_export.png",
+                    title="Apollo export of a 3-junction map (signalled T with 2-lane legs, all-way stop, bare 5-leg)")
+    return [DOCS / "apollo_export.png"]
+
+
+def env_frame(tmp: Path) -> list[Path]:
+    """One frame of feat2map/JunctionGrid-v0: a signal and a stop junction, traffic, pedestrians."""
+    import gymnasium as gym
+    import matplotlib.pyplot as plt
+
+    from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
+
+    J = feat2map.JunctionFeature.make
+    feats = [J([0, 90, 180, 270], "signal", True), J([0, 90, 180, 270], "stop", True)]
+    env = gym.make("feat2map/JunctionGrid-v0", render_mode="rgb_array", config={
+        "features": [f.to_dict() for f in feats], "centering_position": [0.3, 0.5], "screen_width": 900,
+        "screen_height": 520, "scaling": 3.6, "pedestrian_rate": 60.0, "traffic_vehicles": 8,
+        "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "duration": 80})
+    env.reset(seed=2)
+    driver = ScriptedDriver(env)
+    for _ in range(15):
+        env.step(driver.act())
+    plt.imsave(tmp / "env_frame.png", env.render())
+    env.close()
+    return [copy(tmp / "env_frame.png", "env_frame.png")]
+
+
+def extract_gomentum(tmp: Path) -> list[Path]:
+    run_cli("extract", str(SHARED_MAPS / "apollo" / "gomentum" / "base_map.bin"), "--quiet", "--picture",
+            str(tmp / "g.png"))
+    return [copy(tmp / "g.png", "extract_gomentum.png")]
+
+
+def validate_shalun(tmp: Path) -> list[Path]:
+    run_cli("validate", str(SHARED_MAPS / "apollo" / "shalun"), "--quiet", "--picture", str(tmp / "s.png"), ok=(0, 1))
+    return [copy(tmp / "s.png", "apollo_validate_shalun.png")]
+
+
+def netconvert(tmp: Path) -> list[Path]:
+    run_python("scripts/opendrive_netconvert.py", "--out", str(DOCS / "opendrive_netconvert.png"))
+    return [DOCS / "opendrive_netconvert.png"]
+
+
+def rollout_coverage(tmp: Path) -> list[Path]:
+    """M1 against M1x3 (three junctions per feature combination): docs/rollout_coverage.png and the
+    table between the markers in docs/rollouts.md."""
+    from feat2map.scenarios.metrics import compare, junctions_to_reach, plot_accumulated, suite_coverage
+    from feat2map.scenarios.report import load_result
+
+    results, walls = {}, {}
+    for name, extra in (("M1", []), ("M1x3", ["--samples-per-combination", "3"])):
+        d = tmp / name
+        run_cli("generate", "--seed", "1", *extra, "--no-apollo", "--no-picture", "--quiet", "--out", str(d))
+        run_cli("suite", str(d / "map.json"), "--traffic", "2", "--name", name, "--out", str(d / "suite.yaml"))
+        t0 = time.perf_counter()
+        run_cli("rollout", str(d / "suite.yaml"), "--workers", "2", "--fail-on", "none", "--no-gif", "--quiet",
+                "--out", str(d / "r"))
+        walls[name] = time.perf_counter() - t0
+        results[name] = load_result(d / "r")
+    plot_accumulated(compare(results), tmp / "c.png", title="M1 vs M1x3: accumulated coverage by junction")
+    rows = ["| map | scenarios | junctions | distinct stage paths | (scenario, stage path) pairs | transitions | "
+            "planner lines | junctions to 95% of lines | wall time (2 workers) |", "|---|" + "---:|" * 8]
+    for name, r in results.items():
+        c = suite_coverage(r)
+        rows.append(f"| {name} | {len(r.outcomes)} | {len(c.junctions)} | {len({p for _, p in c.paths})} | "
+                    f"{len(c.all_pairs)} | {len(c.all_transitions)} | {len(c.all_lines)} | "
+                    f"{junctions_to_reach(c.accumulated_lines)} | {walls[name]:.0f} s |")
+    replace_marked(DOCS / "rollouts.md", "rollout_coverage", "\n".join(rows))
+    return [copy(tmp / "c.png", "rollout_coverage.png"), DOCS / "rollouts.md"]
+
+
+def replace_marked(path: Path, name: str, body: str) -> None:
+    """Replace the text between `<!-- make_docs_pictures: NAME -->` and `<!-- end NAME -->`."""
+    text = path.read_text(encoding="utf-8")
+    pat = re.compile(rf"(<!-- make_docs_pictures: {name} -->\n).*?(\n<!-- end {name} -->)", re.S)
+    if not pat.search(text):
+        raise SystemExit(f"{path}: no markers for {name}")
+    atomic.write_text(path, pat.sub(lambda m: m.group(1) + body + m.group(2), text))
+
+
+def benchmarks(tmp: Path) -> list[Path]:
+    run_python("benchmarks/run_all.py")
+    return [DOCS / "benchmarks.md"]
+
+
+def experiments(tmp: Path) -> list[Path]:
+    run_python("examples/experiments.py", "--rq", "all", "--workers", "2", "--quiet")
+    return sorted((DOCS / "experiments").iterdir())
+
+
+JOBS = [
+    Job("m1", "docs/m1.png, docs/m1_junctions.png (README)", m1),
+    Job("drive", "docs/drive.png", drive),
+    Job("specs", ", ".join(f"docs/{p}" for p in SPECS), specs),
+    Job("apollo_export", "docs/apollo_export.png", apollo_export),
+    Job("env_frame", "docs/env_frame.png", env_frame),
+    Job("extract_gomentum", "docs/extract_gomentum.png", extract_gomentum, needs_shared=True),
+    Job("validate_shalun", "docs/apollo_validate_shalun.png", validate_shalun, needs_shared=True),
+    Job("netconvert", "docs/opendrive_netconvert.png (needs eclipse-sumo)", netconvert),
+    Job("rollout_coverage", "docs/rollout_coverage.png and its table in docs/rollouts.md", rollout_coverage, slow=True),
+    Job("benchmarks", "docs/benchmarks.md (benchmarks/run_all.py)", benchmarks, slow=True),
+    Job("experiments", "docs/experiments/ (examples/experiments.py --rq all)", experiments, slow=True,
+        needs_shared=True),
+]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--slow", action="store_true", help="also run the slow jobs")
+    ap.add_argument("--only", nargs="+", choices=[j.name for j in JOBS], metavar="JOB", help="run only these jobs")
+    ap.add_argument("--list", action="store_true", help="list the jobs and what they write, then stop")
+    args = ap.parse_args()
+    if args.list:
+        for j in JOBS:
+            print(f"{j.name:<18} {'slow ' if j.slow else ''}{'needs ../shared ' if j.needs_shared else ''}-> {j.makes}")
+        return
+    for job in JOBS:
+        if (args.only and job.name not in args.only) or (job.slow and not args.slow and not args.only):
+            continue
+        if job.needs_shared and not SHARED_MAPS.is_dir():
+            print(f"{job.name}: skipped ({SHARED_MAPS} is absent)")
+            continue
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory() as tmp:
+            written = job.run(Path(tmp))
+        print(f"{job.name} ({time.perf_counter() - t0:.0f} s): " + ", ".join(str(p.relative_to(REPO)) for p in written))
+
+
+if __name__ == "__main__":
+    main()
