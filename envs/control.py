@@ -96,9 +96,9 @@ class TrafficControl(TrafficRules):
         net = self.net
         m = net.hdmap
         vehicles = road.vehicles
+        lanes, speeds = road.occupancy()
         buckets: dict[str, list] = {}
-        for v in vehicles:
-            lid = net.id_of.get(v.lane_index)
+        for v, lid in zip(vehicles, lanes):
             if lid is not None:
                 buckets.setdefault(lid, []).append(v)
         self.buckets = buckets
@@ -113,16 +113,17 @@ class TrafficControl(TrafficRules):
                     v.reserved = None
 
         # stop-sign queues: join after stopping at the line, leave on entering the junction
+        lane_of = {id(v): lid for v, lid in zip(vehicles, lanes)}
+
         def waiting(v) -> bool:
-            lid = net.id_of.get(v.lane_index)
-            return id(v) in alive and lid in m.lanes and m.lanes[lid].junction_id is None
+            lid = lane_of.get(id(v))
+            return lid in m.lanes and m.lanes[lid].junction_id is None
 
         for jid, queue in list(self.stop_queue.items()):
             self.stop_queue[jid] = [v for v in queue if waiting(v)]
-        for v in vehicles:
-            if v.speed > STOPPED_SPEED_MPS:
+        for v, lid, speed in zip(vehicles, lanes, speeds):
+            if speed > STOPPED_SPEED_MPS:
                 continue
-            lid = net.id_of.get(v.lane_index)
             sl = net.stop_lines.get(lid) if lid else None
             if sl is None or not in_stop_zone(sl.s - getattr(v, "lane_s", 0.0)):
                 if not hasattr(v, "lane_route") or lid not in m.lanes or m.lanes[lid].junction_id is not None:

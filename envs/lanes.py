@@ -52,14 +52,22 @@ class PolylineLane(AbstractLane):
         self._n = len(self.seg_len)
         self._ax, self._ay = self.a[:, 0].copy(), self.a[:, 1].copy()
         self._ux, self._uy = self.u[:, 0].copy(), self.u[:, 1].copy()
-        self._uxl, self._uyl = self._ux.tolist(), self._uy.tolist()
-        self._cuml = self.cum.tolist()
-        self._axl, self._ayl = self._ax.tolist(), self._ay.tolist()
         self._lo = np.zeros(self._n)
         self._hi = self.seg_len.copy()
         self._lo[0] = -np.inf  # the first segment extends backwards, the last one forwards
         self._hi[-1] = np.inf
-        self._vh = self.vertex_heading.tolist()
+
+    _LISTS = {"_uxl": "_ux", "_uyl": "_uy", "_cuml": "cum", "_axl": "_ax", "_ayl": "_ay", "_vh": "vertex_heading"}
+
+    def __getattr__(self, name: str):
+        """Python-list copies of the arrays for scalar lookups, made on first use: a big map's
+        lanes mostly never see one, and the lists cost more memory than the arrays."""
+        source = PolylineLane._LISTS.get(name)
+        if source is None:
+            raise AttributeError(name)
+        value = getattr(self, source).tolist()
+        setattr(self, name, value)
+        return value
 
     def _segment(self, s: float) -> int:
         i = bisect.bisect_right(self._cuml, float(s)) - 1

@@ -41,9 +41,9 @@ from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
 from ..errors import Feat2MapError
 from .config import merge_config, validate_config
 from .control import TrafficControl
-from .network import MapNetwork
+from .network import MapNetwork, release_memory
 from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
-from .road import MapRoad
+from .road import ArrayRoad, MapRoad
 from .rules import SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
@@ -61,6 +61,7 @@ def cached_network(key: Any, build) -> MapNetwork:
     net = _NETWORK_CACHE.get(key)
     if net is None:
         net = MapNetwork.from_map(build())
+        release_memory()
         _NETWORK_CACHE[key] = net
         while len(_NETWORK_CACHE) > _CACHE_SIZE:
             _NETWORK_CACHE.popitem(last=False)
@@ -90,6 +91,7 @@ class MapEnv(AbstractEnv):
             "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
                        "target_speeds": [0.0, 4.5, 9.0]},
             "simulation_frequency": 15, "policy_frequency": 1,
+            "traffic_core": "arrays",  # "arrays": all traffic in arrays (core.py); "objects": one object each
             "duration": 60.0,  # [s] truncation
             "route": None,  # [(junction id, entry road, exit road), ...], {"lanes": [...]},
             # {"from_lane": a, "to_lane": b}, or None to sample
@@ -146,7 +148,8 @@ class MapEnv(AbstractEnv):
         self.net = self._network()
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
-        self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        road = ArrayRoad if self.config["traffic_core"] == "arrays" else MapRoad
+        self.road = road(self.net, self.control, rng, record_history=self.config["show_trajectories"])
         route, extend = self._ego_route()
         self._make_ego(route, extend)
         route = self.vehicle.lane_route
@@ -206,6 +209,7 @@ class MapEnv(AbstractEnv):
             ego = EgoVehicle(self.road, pos, heading, speed)
             ego.auto_steer = not getattr(self.action_type, "lateral", True)
             ego.init_route(route)
+        ego.cache_projections = self.config["traffic_core"] == "arrays"
         self.road.vehicles.append(ego)
         self.controlled_vehicles = [ego]
 
@@ -240,11 +244,7 @@ class MapEnv(AbstractEnv):
             route = random_walk(self.net, rng, lid, 3)
             if first_line_distance(self.net, route, s) < braking_distance(speed, TrafficVehicle.LENGTH):
                 continue
-            v = TrafficVehicle(self.road, pos, lane.heading_at(s), speed)
-            v.init_route(route)
-            v.target_speed = lane.speed_limit
-            self.road.vehicles.append(v)
-            return v
+            return self.road.spawn(lid, s, speed, route)
         return None
 
     # ---- stepping ------------------------------------------------------------------------
@@ -292,8 +292,7 @@ class MapEnv(AbstractEnv):
         if ego.route_pos < len(ego.lane_route) - 1:
             return False
         lane = self.net.lane_of[ego.lane_route[-1]]
-        s, _ = lane.local_coordinates(ego.position)
-        return s >= self._goal_s(lane)
+        return ego.s_on(ego.lane_route[-1]) >= self._goal_s(lane)
 
     def _goal_s(self, lane) -> float:
         return min(float(self.config["goal_distance"]), lane.length - 1.0)

@@ -8,6 +8,8 @@ graph nodes are lane-end classes joined through lane successors.
 """
 from __future__ import annotations
 
+import ctypes
+import gc
 import heapq
 import math
 from dataclasses import dataclass, field
@@ -130,30 +132,34 @@ class MapNetwork(RoadNetwork):
         return net
 
     def _build_index(self) -> None:
-        """Grid hash of lane segments: each cell keeps flat arrays of the segments near it."""
-        cells: dict[tuple[int, int], list[tuple[int, int]]] = {}
+        """Grid hash of lane segments: every segment's arrays once, each cell a view of the
+        segment ids (and their lanes) near it, so the index stays small on big maps."""
         self._lanes = [self.lane_of[lid] for lid in self.lane_ids]
         self._indices = [self.index_of[lid] for lid in self.lane_ids]
         c = GRID_CELL_M
-        for k, lane in enumerate(self._lanes):
-            pad = lane.width / 2 + 1.0
-            for i in range(len(lane.seg_len)):
-                p, q = lane.points[i], lane.points[i + 1]
-                x0, x1 = math.floor((min(p[0], q[0]) - pad) / c), math.floor((max(p[0], q[0]) + pad) / c)
-                y0, y1 = math.floor((min(p[1], q[1]) - pad) / c), math.floor((max(p[1], q[1]) + pad) / c)
-                for gx in range(x0, x1 + 1):
-                    for gy in range(y0, y1 + 1):
-                        cells.setdefault((gx, gy), []).append((k, i))
-        self._cells = {}
-        for key, segs in cells.items():
-            ks = np.array([s[0] for s in segs])
-            iss = np.array([s[1] for s in segs])
-            a = np.array([self._lanes[k].a[i] for k, i in segs])
-            u = np.array([self._lanes[k].u[i] for k, i in segs])
-            ln = np.array([self._lanes[k].seg_len[i] for k, i in segs])
-            cum = np.array([self._lanes[k].cum[i] for k, i in segs])
-            h = np.array([self._lanes[k].seg_heading[i] for k, i in segs])
-            self._cells[key] = (ks, a, u, ln, cum, h, iss)
+        lane_k = np.concatenate([np.full(len(ln.seg_len), k, dtype=np.int32) for k, ln in enumerate(self._lanes)])
+        self._seg_a = np.concatenate([ln.a for ln in self._lanes])
+        self._seg_u = np.concatenate([ln.u for ln in self._lanes])
+        self._seg_len = np.concatenate([ln.seg_len for ln in self._lanes])
+        self._seg_cum = np.concatenate([ln.cum[:-1] for ln in self._lanes])
+        self._seg_h = np.concatenate([ln.seg_heading for ln in self._lanes])
+        pad = np.concatenate([np.full(len(ln.seg_len), ln.width / 2 + 1.0) for ln in self._lanes])
+        b = self._seg_a + self._seg_u * self._seg_len[:, None]
+        lo = np.floor((np.minimum(self._seg_a, b) - pad[:, None]) / c).astype(np.int64)
+        hi = np.floor((np.maximum(self._seg_a, b) + pad[:, None]) / c).astype(np.int64)
+        span = (hi - lo + 1)
+        count = span[:, 0] * span[:, 1]
+        seg = np.repeat(np.arange(len(lane_k), dtype=np.int32), count)
+        local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+        gx = lo[seg, 0] + local // span[seg, 1]
+        gy = lo[seg, 1] + local % span[seg, 1]
+        order = np.lexsort((seg, gy, gx))
+        gx, gy, seg = gx[order], gy[order], seg[order]
+        self._cell_seg = seg
+        self._cell_lane = lane_k[seg]
+        starts = np.concatenate([[0], np.nonzero((np.diff(gx) != 0) | (np.diff(gy) != 0))[0] + 1, [len(seg)]])
+        self._cells = {(int(gx[i]), int(gy[i])): (self._cell_lane[i:j], self._cell_seg[i:j])
+                       for i, j in zip(starts[:-1], starts[1:])}
         allpts = np.concatenate([ln.points for ln in self._lanes])
         self.extent = (*allpts.min(axis=0), *allpts.max(axis=0))
 
@@ -171,7 +177,8 @@ class MapNetwork(RoadNetwork):
         cell = self._cells.get(key)
         if cell is None:
             return self._far_locate(position, heading)
-        ks, a, u, ln, cum, h, _ = cell
+        ks, segs = cell
+        a, u, ln, cum, h = self._seg_a[segs], self._seg_u[segs], self._seg_len[segs], self._seg_cum[segs], self._seg_h[segs]
         rx, ry = x - a[:, 0], y - a[:, 1]
         t = np.clip(rx * u[:, 0] + ry * u[:, 1], 0.0, ln)
         dx, dy = rx - t * u[:, 0], ry - t * u[:, 1]
@@ -320,6 +327,16 @@ class MapNetwork(RoadNetwork):
                 if r and (not best or len(r) < len(best)):
                     best = r
         return [self.index_of[best[0]][0]] + [self.index_of[l][1] for l in best] if best else []
+
+
+def release_memory() -> None:
+    """Hand memory freed after a big build (a map, a network) back to the OS, where the C library
+    allows it: the build's temporaries would otherwise stay in every env worker's resident set."""
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
 
 
 def _wrap(a: float) -> float:

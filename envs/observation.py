@@ -1,5 +1,7 @@
-"""Observations: highway-env's types with finite bounds where the values are bounded, and the
-traffic-control vector ({"observation", "traffic_control"} when `observe_traffic_control`)."""
+"""Observations: highway-env's types with finite bounds where the values are bounded, a fast
+path for the Kinematics observation on the arrays core (same values as highway-env's, without
+pandas or per-vehicle projections), and the traffic-control vector ({"observation",
+"traffic_control"} when `observe_traffic_control`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,6 +12,9 @@ from highway_env.envs.common.observation import (KinematicObservation, Observati
 ANY_FLOAT32 = float(np.finfo(np.float32).max)  # the bound of a feature that has none: any float32 value
 UNIT_FEATURES = ("cos_h", "sin_h", "cos_d", "sin_d")
 DEFAULT_RANGED = ("x", "y", "vx", "vy")  # features highway-env normalizes when features_range is not given
+FAST_FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d",
+                           "long_off", "lat_off", "ang_off"})
+RELATIVE = ("x", "y", "vx", "vy")
 TRAFFIC_CONTROL_FEATURES = ("green", "amber", "red", "stop_sign", "stop_line_distance", "pedestrian_ahead")
 STOP_LINE_RANGE_M = 100.0  # the distance feature is metres / this, clipped to 1
 
@@ -29,6 +34,109 @@ class Kinematics(KinematicObservation):
             elif f in UNIT_FEATURES or f in ranged:
                 lo[:, i], hi[:, i] = -1.0, 1.0
         return spaces.Box(lo, hi, dtype=np.float32)
+
+
+    def observe(self) -> np.ndarray:
+        """highway-env's values; on the arrays core computed from its rows (see `fast`)."""
+        core = getattr(self.env.road, "core", None) if self.env.road else None
+        if core is None or not self.fast_supported():
+            return super().observe()
+        return self.fast(core)
+
+    def fast_supported(self) -> bool:
+        """Options the fast path reproduces; others (and the first normalized observation without
+        a features_range, which highway-env derives from the lanes) go to highway-env's code."""
+        return (set(self.features) <= FAST_FEATURES and self.vehicles_count >= 2
+                and self.order in ("sorted", "shuffled") and (self.features_range or not self.normalize)
+                and self.observer_vehicle is self.env.vehicle)
+
+    def fast(self, core) -> np.ndarray:
+        """`KinematicObservation.observe` from the core's rows: the observer's row (absolute),
+        then the nearest road users within PERCEPTION_DISTANCE by distance along the observer's
+        lane (behind it only with see_behind; pedestrians from 2 lengths behind), relative to
+        it, normalized and clipped, zero rows to fill."""
+        ego = self.observer_vehicle
+        vehicles = self.env.road.vehicles
+        rows = [i for i, o in enumerate(core.objs) if o is not ego]
+        if len(core.objs) != len(vehicles) or len(rows) != len(core.objs) - 1 or \
+                any(core.kind[i] != 1 for i in rows):
+            return super().observe()  # user code changed the road since the last frame, or foreign vehicles
+        obstacles = self.env.road.objects if self.include_obstacles else []
+        ex, ey = float(ego.position[0]), float(ego.position[1])
+        idx = np.array(rows, dtype=np.int64)
+        x = np.concatenate([[ex], core.x[idx], [o.position[0] for o in obstacles]])
+        y = np.concatenate([[ey], core.y[idx], [o.position[1] for o in obstacles]])
+        n_v = len(rows)
+        dx, dy = x[1:] - ex, y[1:] - ey
+        near = np.sqrt(dx * dx + dy * dy) < self.env.PERCEPTION_DISTANCE
+        along = project_s(ego.lane, x, y)
+        dist = along[1:] - along[0]
+        behind_ok = -2 * ego.LENGTH < dist
+        keep = near & (behind_ok if not self.see_behind else True)
+        keep[n_v:] &= behind_ok[n_v:]
+        cand = np.nonzero(keep)[0]
+        if self.order == "sorted":
+            cand = cand[np.argsort(np.abs(dist[cand]), kind="stable")]
+        cand = cand[:self.vehicles_count - 1]
+        table = self._rows(core, ego, idx, obstacles, cand, n_v)
+        if self.normalize:
+            for feature, (a, b) in self.features_range.items():
+                if feature in table:
+                    col = -1 + (table[feature] - a) * (1 - (-1)) / (b - a)
+                    table[feature] = np.clip(col, -1, 1) if self.clip else col
+        obs = np.zeros((self.vehicles_count, len(self.features)))
+        for j, f in enumerate(self.features):
+            obs[:1 + len(cand), j] = table[f]
+        if self.order == "shuffled":
+            self.env.np_random.shuffle(obs[1:])
+        return obs.astype(self.space().dtype)
+
+    def _rows(self, core, ego, idx, obstacles, cand, n_v) -> dict[str, np.ndarray]:
+        """Feature columns of the observer's row and the chosen road users' rows, as
+        `Vehicle.to_dict` / `RoadObject.to_dict` give them (objects have no heading or lane
+        offsets: NaN, as pandas fills them)."""
+        n = 1 + len(cand)
+        is_v = np.concatenate([[True], cand < n_v])
+        vr = idx[cand[cand < n_v]]  # core rows of the chosen vehicles, in order
+        vrows = np.nonzero(is_v)[0][1:]
+        h, sp, px, py = np.full(n, np.nan), np.zeros(n), np.empty(n), np.empty(n)
+        h[0], sp[0] = ego.heading, ego.speed
+        px[0], py[0] = ego.position[0], ego.position[1]
+        h[vrows], sp[vrows], px[vrows], py[vrows] = core.heading[vr], core.speed[vr], core.x[vr], core.y[vr]
+        cos_h, sin_h = np.cos(h), np.sin(h)
+        vx, vy = sp * cos_h, sp * sin_h
+        orows = np.nonzero(~is_v)[0]
+        if len(orows):
+            objs = [obstacles[k - n_v] for k in cand[cand >= n_v]]
+            oh = np.array([o.heading for o in objs], dtype=float)
+            cos_h[orows], sin_h[orows] = np.cos(oh), np.sin(oh)
+            px[orows] = [o.position[0] for o in objs]
+            py[orows] = [o.position[1] for o in objs]
+            vx[orows] = vy[orows] = 0.0
+        col = {"presence": np.ones(n), "x": px, "y": py, "vx": vx, "vy": vy, "heading": h, "cos_h": cos_h,
+               "sin_h": sin_h, "cos_d": np.zeros(n), "sin_d": np.zeros(n)}
+        if not self.absolute:
+            for name in RELATIVE:
+                col[name][1:] -= col[name][0]
+        if {"long_off", "lat_off", "ang_off"} & set(self.features):
+            off = np.array([m.lane_offset for m in [ego] + [core.objs[r] for r in vr]])
+            for j, name in enumerate(("long_off", "lat_off", "ang_off")):
+                col[name] = np.full(n, np.nan)
+                col[name][is_v] = off[:, j]
+        return {f: col[f] for f in self.features}
+
+
+def project_s(lane, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """`lane.local_coordinates(p)[0]` of many points at once (a `PolylineLane`), with the same
+    arithmetic, so the values are identical."""
+    rx = x[:, None] - lane._ax[None, :]
+    ry = y[:, None] - lane._ay[None, :]
+    t = rx * lane._ux + ry * lane._uy
+    tc = np.minimum(np.maximum(t, lane._lo), lane._hi)
+    dx = rx - tc * lane._ux
+    dy = ry - tc * lane._uy
+    i = (dx * dx + dy * dy).argmin(axis=1)
+    return lane.cum[i] + tc[np.arange(len(x)), i]
 
 
 class OccupancyGrid(OccupancyGridObservation):

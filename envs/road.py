@@ -1,13 +1,16 @@
-"""The road of an episode: highway-env's `Road` on a `MapNetwork`, with traffic control, lane
-buckets for neighbour search and grid-hash collision checks (no all-pairs scans)."""
+"""The road of an episode: highway-env's `Road` on a `MapNetwork`, with traffic control. Two
+cores move its traffic: `MapRoad` steps one highway-env object per vehicle (lane buckets for
+neighbour search, grid-hash collision checks); `ArrayRoad` advances all traffic together in
+arrays (core.py), its vehicles views of their rows."""
 from __future__ import annotations
 
 from highway_env.road.road import Road
 from highway_env.vehicle.kinematics import Vehicle
 
 from .control import TrafficControl
+from .core import TrafficCore
 from .network import MapNetwork
-from .vehicles import Pedestrian
+from .vehicles import Pedestrian, TrafficVehicle
 
 COLLISION_CELL_M = 10.0
 
@@ -18,6 +21,20 @@ class MapRoad(Road):
     def __init__(self, network: MapNetwork, control: TrafficControl, np_random, record_history=False) -> None:
         super().__init__(network, [], [], np_random, record_history)
         self.control = control
+
+    def spawn(self, lane_id: str, s: float, speed: float, route: list[str]) -> TrafficVehicle:
+        """A traffic vehicle at s on `lane_id` (the start of `route`), added to the road."""
+        lane = self.network.lane_of[lane_id]
+        v = TrafficVehicle(self, lane.position(s, 0.0), lane.heading_at(s), speed)
+        v.init_route(route)
+        v.target_speed = lane.speed_limit
+        self.vehicles.append(v)
+        return v
+
+    def occupancy(self) -> tuple[list[str | None], list[float]]:
+        """Map lane id (None off the map's lanes) and speed of every vehicle, in road order."""
+        id_of = self.network.id_of
+        return [id_of.get(v.lane_index) for v in self.vehicles], [v.speed for v in self.vehicles]
 
     def act(self) -> None:
         for v in self.vehicles:
@@ -73,3 +90,45 @@ class MapRoad(Road):
                 if sv < s and (sr is None or sv > sr):
                     sr, rear = sv, v
         return front, rear
+
+
+class ArrayRoad(MapRoad):
+    """A `MapRoad` whose traffic the batched core (core.py) advances; `vehicles` holds the ego,
+    views of the traffic rows and anything user code adds (taken in at the next frame)."""
+
+    def __init__(self, network: MapNetwork, control: TrafficControl, np_random, record_history=False) -> None:
+        super().__init__(network, control, np_random, record_history)
+        self.core = TrafficCore(self)
+
+    def sync(self) -> None:
+        self.core.sync()
+
+    def spawn(self, lane_id: str, s: float, speed: float, route: list[str]) -> TrafficVehicle:
+        return self.core.add_traffic(lane_id, s, speed, route)
+
+    def occupancy(self) -> tuple[list[str | None], list[float]]:
+        self.core.sync()
+        return self.core.occupancy()
+
+    def act(self) -> None:
+        core = self.core
+        core.sync()
+        for v in core.externals():
+            v.act()
+        core.accelerations()
+
+    def step(self, dt: float) -> None:
+        core = self.core
+        for v in core.externals():
+            v.step(dt)
+        core.integrate(dt)
+        core.read_externals()
+        for o in self.objects:
+            if isinstance(o, Pedestrian):
+                o.step(dt)
+        self.control.update(self, dt)
+        core.collisions(dt)
+        if self.record_history:
+            for v in core.views():
+                v.history.appendleft(TrafficVehicle.create_from(v))
+

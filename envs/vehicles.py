@@ -45,6 +45,9 @@ class RouteFollower:
 
     lane_route: list[str]
     route_pos: int
+    cache_projections = False
+    _projected_at: tuple[float, float] | None = None
+    _projections: dict = {}
 
     def init_route(self, lane_route: list[str]) -> None:
         self.lane_route = list(lane_route)
@@ -63,17 +66,35 @@ class RouteFollower:
     def current_lane_id(self) -> str:
         return self.lane_route[self.route_pos]
 
+    def projection(self, lane_id: str) -> tuple[float, float]:
+        """(s, lateral) of the vehicle centre on lane `lane_id`. With `cache_projections` (the
+        ego on the arrays core) each lane is projected once per position."""
+        lane = self.net.lane_of[lane_id]
+        if not self.cache_projections:
+            return lane.local_coordinates(self.position)
+        p = self.position
+        at = (float(p[0]), float(p[1]))
+        if at != self._projected_at:
+            self._projected_at, self._projections = at, {}
+        out = self._projections.get(lane_id)
+        if out is None:
+            out = self._projections[lane_id] = lane.local_coordinates(p)
+        return out
+
+    def route_s(self) -> float:
+        """Longitudinal position of the vehicle centre along its current route lane."""
+        return self.projection(self.lane_route[self.route_pos])[0]
+
     def s_on(self, lane_id: str) -> float:
         """Longitudinal position of the vehicle centre along lane `lane_id`."""
-        return self.net.lane_of[lane_id].local_coordinates(self.position)[0]
+        return self.projection(lane_id)[0]
 
     def follow_road(self) -> None:
         net = self.net
-        lane = net.get_lane(self.target_lane_index)
-        s, _ = lane.local_coordinates(self.position)
-        if s <= lane.length - 1.0:
-            return
         tid = net.id_of[self.target_lane_index]
+        s, _ = self.projection(tid)
+        if s <= net.lane_of[tid].length - 1.0:
+            return
         if tid != self.lane_route[self.route_pos]:  # changed lane: re-plan from here
             path = self.parallel_route(tid) or net.lane_route(tid, self.lane_route[-1])
             if not path:
@@ -101,8 +122,9 @@ class RouteFollower:
     def steering_control(self, target_lane_index) -> float:
         """highway-env's lane-following controller (lateral P -> heading P -> steering), in scalar
         math: numpy's clip on scalars dominated the step time."""
-        lane = self.road.network.get_lane(target_lane_index)
-        s, r = lane.local_coordinates(self.position)
+        net = self.road.network
+        lane = net.get_lane(target_lane_index)
+        s, r = self.projection(net.id_of[target_lane_index])
         future_heading = lane.heading_at(s + self.speed * self.TAU_PURSUIT)
         v = self.speed if abs(self.speed) > 1e-2 else 1e-2
         heading_cmd = math.asin(min(max(-self.KP_LATERAL * r / v, -1.0), 1.0))
@@ -114,9 +136,14 @@ class RouteFollower:
 
     def on_state_update(self) -> None:
         if self.road:
+            net = self.road.network
             hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
-            self.lane_index, self.lane_s, self.lane_lat = self.road.network.locate(self.position, self.heading, hint)
-            self.lane = self.road.network.get_lane(self.lane_index)
+            self.lane_index, self.lane_s, self.lane_lat = net.locate(self.position, self.heading, hint)
+            self.lane = net.get_lane(self.lane_index)
+            if self.cache_projections and self.lane_index == hint:  # locate projected on the hint lane
+                p = self.position
+                self._projected_at = (float(p[0]), float(p[1]))
+                self._projections = {net.id_of[hint]: (self.lane_s, self.lane_lat)}
             if self.road.record_history:
                 self.history.appendleft(self.create_from(self))
 
@@ -125,25 +152,24 @@ class RouteFollower:
         net = self.net
         done = sum(net.lane_of[l].length for l in self.lane_route[:self.route_pos])
         lane = net.lane_of[self.lane_route[self.route_pos]]
-        s, _ = lane.local_coordinates(self.position)
-        return done + min(max(s, 0.0), lane.length)
+        return done + min(max(self.route_s(), 0.0), lane.length)
 
     def route_length(self) -> float:
         return sum(self.net.lane_of[l].length for l in self.lane_route)
 
     def upcoming(self, horizon: float = LOOKAHEAD_M):
         """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""
-        net = self.net
-        lane = net.lane_of[self.lane_route[self.route_pos]]
-        s, _ = lane.local_coordinates(self.position)
-        out = [(self.route_pos, self.lane_route[self.route_pos], -s, s)]
-        d = lane.length - s
-        for k in range(self.route_pos + 1, len(self.lane_route)):
+        lane_of = self.net.lane_of
+        route, pos = self.lane_route, self.route_pos
+        s = self.route_s()
+        out = [(pos, route[pos], -s, s)]
+        d = lane_of[route[pos]].length - s
+        for k in range(pos + 1, len(route)):
             if d > horizon:
                 break
-            lid = self.lane_route[k]
+            lid = route[k]
             out.append((k, lid, d, None))
-            d += net.lane_of[lid].length
+            d += lane_of[lid].length
         return out
 
     def leader_gaps(self) -> list[tuple[float, float]]:

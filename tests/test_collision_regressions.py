@@ -75,7 +75,7 @@ def test_m1_r003_right_turn_on_red_no_collision(m1, tmp_path):
     native.save(m1, path)
     sc = Scenario(name="m1-r003", map=str(path),
                   route=(("J1", "R4", "R1"), ("J0", "R1", "R2"), ("J6", "R2", "R7"), ("J2", "R7", "R5")),
-                  traffic_vehicles=6, pedestrian_rate=4.0, seed=3, duration=60.0)
+                  traffic_vehicles=6, pedestrian_rate=4.0, seed=3, duration=75.0)  # time to clear J0 whatever the traffic
     env = make_env(sc)
     try:
         obs, info = env.reset(seed=sc.seed)

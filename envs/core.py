@@ -1,0 +1,709 @@
+"""The batched traffic core (`"traffic_core": "arrays"`, the default): all traffic advanced
+together in NumPy arrays, highway-env objects only as views for whoever reads them.
+
+Design
+------
+State. One row per road user, in `road.vehicles` order: `lane` (an int, the index into
+`MapNetwork.lane_ids`), `s` (arc length along it), `lat` (lateral offset: 0 on the lane centre,
+non-zero only while a MOBIL lane change settles), `speed`, `acc`, `timer`, `crashed`, and the
+derived `x`, `y`, `heading`. Traffic rows are "driven" (the core moves them); the ego and any
+other highway-env vehicle user code adds are "external" rows: they act and step themselves and
+their state is read back into their row every frame. A traffic row's route is a list of lane
+ints and a position in it; `W`/`C` (rows x K) hold its next K route lanes and the distance from
+the start of its current lane to the start of each, rebuilt for a row only when its route
+position changes.
+
+Geometry. `LaneTable` (built once per network, cached on it) concatenates every lane's polyline:
+a position is a `searchsorted` on the global cumulative arc length and one multiply-add, a
+heading an interpolation of vertex headings, for all rows at once; traffic is never projected.
+
+A frame (`ArrayRoad.act` + `ArrayRoad.step`):
+1. sync: `road.vehicles` is compared by identity with the rows; vehicles user code appended are
+   taken in (a `TrafficVehicle` becomes a driven row), removed ones let go.
+2. external rows act (the ego takes the agent's action).
+3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
+   of every row's lane against every row's window (on the same lane the leader's s is its row's
+   s), plus rows on junction lanes that conflict with or diverge from a window lane (their s and
+   offset on the window lane from a table sampled once per lane pair); IDM per (follower, leader)
+   pair and the minimum per follower. The rules (`rules.TrafficRules.stop_distance`: signals,
+   stop signs, reservations, pedestrians) are asked only for rows with a junction entry or a
+   crosswalk with people on it within LOOKAHEAD_M in their window, in row order, so that
+   reservations are claimed in road order as in the object core. MOBIL runs every second for
+   rows on lanes with same-direction neighbours (the object core's code, on the view).
+4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
+   external rows step themselves.
+5. positions of driven rows from the lane table; pedestrians walk; `TrafficControl.update` does
+   the rules' bookkeeping; collisions: a vectorized centre-distance broad phase, then
+   highway-env's own `handle_collisions` for the few close pairs (crash flags, impacts, hits).
+
+Objects. Every driven row has a view, `ArrayVehicle` (a `TrafficVehicle` whose state attributes
+are properties reading its row, positions computed on read), so that highway-env's observation
+types, the renderer, the rules and user code see ordinary vehicles; nothing is copied per frame.
+
+Intended differences from the object core (`"traffic_core": "objects"`):
+- traffic follows its lane centre exactly (no steering controller, no corner cutting), speed is
+  along the lane, and a lane change is a lateral offset on the new lane that decays with
+  LANE_CHANGE_TAU_S instead of a steered manoeuvre;
+- a traffic vehicle is on its route lane until its centre passes the lane's end (the object
+  core moves the route on 1 m before the end, and locates the vehicle by projection);
+- a crashed traffic vehicle brakes to a stop in place (no impact displacement).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .network import MapNetwork
+from .rules import (IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M,
+                    IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M)
+from .vehicles import RouteFollower, TrafficVehicle
+
+if TYPE_CHECKING:
+    from .road import ArrayRoad
+
+LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time constant
+PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
+LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way
+EXTERNAL, DRIVEN = 0, 1
+
+
+class LaneTable:
+    """Every lane of a network as flat arrays: lengths, widths, speed limits, junction flags, and
+    the concatenated polylines (global cumulative arc length `G`, segment starts and unit
+    directions, vertex headings), so that positions of many (lane, s) pairs are one lookup."""
+
+    def __init__(self, net: MapNetwork) -> None:
+        m = net.hdmap
+        lanes = [net.lane_of[lid] for lid in net.lane_ids]
+        self.net = net
+        self.index = {lid: k for k, lid in enumerate(net.lane_ids)}
+        self.length = np.array([ln.length for ln in lanes])
+        self.width = np.array([ln.width for ln in lanes])
+        self.speed_limit = np.maximum(np.array([ln.speed_limit for ln in lanes], dtype=float), 1.0)
+        self.junction = np.array([m.lanes[lid].junction_id is not None for lid in net.lane_ids])
+        self.crossing = np.array([lid in net.crossings for lid in net.lane_ids])
+        self.neighbours = np.array([bool(m.lanes[lid].left_neighbors or m.lanes[lid].right_neighbors)
+                                    for lid in net.lane_ids])
+        npts = np.array([len(ln.points) for ln in lanes])
+        self.first = np.concatenate([[0], np.cumsum(npts)[:-1]])  # index of each lane's first point
+        self.last_seg = self.first + npts - 2  # index of each lane's last segment start
+        offset = np.concatenate([[0.0], np.cumsum(self.length + 1.0)[:-1]])
+        self.offset = offset
+        self.G = np.concatenate([o + ln.cum for o, ln in zip(offset, lanes)])
+        pts = np.concatenate([ln.points for ln in lanes])
+        u = np.zeros_like(pts)
+        for f, ln in zip(self.first, lanes):
+            u[f:f + len(ln.u)] = ln.u
+        self.ax, self.ay = pts[:, 0].copy(), pts[:, 1].copy()
+        self.ux, self.uy = u[:, 0].copy(), u[:, 1].copy()
+        self.vh = np.concatenate([ln.vertex_heading for ln in lanes])
+        self.near: dict[int, frozenset[int]] = {}  # junction lane -> conflicting or diverging lanes
+        for lid in net.lane_ids:
+            ln = m.lanes[lid]
+            if ln.junction_id is None:
+                continue
+            near = set(net.conflicts.get(lid, ()))
+            for p in ln.predecessors:
+                if p in m.lanes:
+                    near.update(x for x in m.lanes[p].successors if x != lid and x in self.index)
+            self.near[self.index[lid]] = frozenset(self.index[x] for x in near if x in self.index)
+        self.crosswalk_lanes: dict[str, list[int]] = {}  # crosswalk -> the lanes crossing it
+        for lid, crossings in net.crossings.items():
+            for cw, _, _ in crossings:
+                self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
+        self._pairs: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    @classmethod
+    def of(cls, net: MapNetwork) -> "LaneTable":
+        table = getattr(net, "_lane_table", None)
+        if table is None:
+            table = net._lane_table = cls(net)
+        return table
+
+    def segments(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+        key = self.offset[lane] + s
+        i = np.searchsorted(self.G, key, side="right") - 1
+        return np.minimum(np.maximum(i, self.first[lane]), self.last_seg[lane])
+
+    def place(self, lane: np.ndarray, s: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x, y, lane heading) of points at (lane, s, lat); beyond a lane's ends the first and
+        last segments extend, as `PolylineLane.position` does."""
+        i = self.segments(lane, s)
+        ds = self.offset[lane] + s - self.G[i]
+        ux, uy = self.ux[i], self.uy[i]
+        x = self.ax[i] + ds * ux - lat * uy
+        y = self.ay[i] + ds * uy + lat * ux
+        sc = np.minimum(np.maximum(s, 0.0), self.length[lane])
+        j = self.segments(lane, sc)
+        seg = self.G[j + 1] - self.G[j]
+        f = (self.offset[lane] + sc - self.G[j]) / np.maximum(seg, 1e-12)
+        heading = self.vh[j] + f * (self.vh[j + 1] - self.vh[j])
+        return x, y, heading
+
+    def pair(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s along lane b, s along lane a, lateral offset from lane a) of points of lane b's
+        centre every PAIR_SAMPLE_M: where a road user on b is, seen from a (cached)."""
+        key = (a, b)
+        table = self._pairs.get(key)
+        if table is None:
+            la, lb = self.net.lane_of[self.net.lane_ids[a]], self.net.lane_of[self.net.lane_ids[b]]
+            sb = np.linspace(0.0, lb.length, max(2, int(math.ceil(lb.length / PAIR_SAMPLE_M)) + 1))
+            proj = np.array([la.local_coordinates(lb.position(x, 0.0)) for x in sb])
+            table = self._pairs[key] = (sb, proj[:, 0].copy(), proj[:, 1].copy())
+        return table
+
+
+class ArrayVehicle(TrafficVehicle):
+    """A traffic vehicle of the arrays core: a `TrafficVehicle` whose state (position, heading,
+    speed, lane, route...) is read from and written to its row of the core. Created by the core
+    (or by taking in a `TrafficVehicle` user code added to `road.vehicles`)."""
+
+    _core: "TrafficCore"
+    _row: int
+
+    # ---- state -------------------------------------------------------------------------------
+    @property
+    def position(self) -> np.ndarray:
+        c, i = self._core, self._row
+        return np.array([c.x[i], c.y[i]])
+
+    @position.setter
+    def position(self, value) -> None:
+        self._core.relocate(self._row, np.asarray(value, dtype=float))
+
+    @property
+    def heading(self) -> float:
+        return float(self._core.heading[self._row])
+
+    @heading.setter
+    def heading(self, value) -> None:  # the heading follows the lane
+        pass
+
+    @property
+    def speed(self) -> float:
+        return float(self._core.speed[self._row])
+
+    @speed.setter
+    def speed(self, value) -> None:
+        self._core.speed[self._row] = float(value)
+
+    @property
+    def crashed(self) -> bool:
+        return bool(self._core.crashed[self._row])
+
+    @crashed.setter
+    def crashed(self, value) -> None:
+        self._core.crashed[self._row] = bool(value)
+
+    @property
+    def timer(self) -> float:
+        return float(self._core.timer[self._row])
+
+    @timer.setter
+    def timer(self, value) -> None:
+        self._core.timer[self._row] = float(value)
+
+    @property
+    def action(self) -> dict:
+        return {"steering": 0.0, "acceleration": float(self._core.acc[self._row])}
+
+    @action.setter
+    def action(self, value) -> None:
+        pass
+
+    @property
+    def lane_index(self):
+        c = self._core
+        return c.net._indices[c.lane[self._row]]
+
+    @lane_index.setter
+    def lane_index(self, value) -> None:
+        pass
+
+    @property
+    def lane(self):
+        c = self._core
+        return c.net._lanes[c.lane[self._row]]
+
+    @lane.setter
+    def lane(self, value) -> None:
+        pass
+
+    @property
+    def lane_s(self) -> float:
+        return float(self._core.s[self._row])
+
+    @lane_s.setter
+    def lane_s(self, value) -> None:
+        pass
+
+    @property
+    def lane_lat(self) -> float:
+        return float(self._core.lat[self._row])
+
+    @lane_lat.setter
+    def lane_lat(self, value) -> None:
+        pass
+
+    @property
+    def lane_route(self) -> list[str]:
+        c = self._core
+        ids = c.net.lane_ids
+        return [ids[k] for k in c.routes[self._row]]
+
+    @lane_route.setter
+    def lane_route(self, value) -> None:
+        c = self._core
+        c.routes[self._row] = [c.table.index[x] for x in value]
+        c.dirty.add(self._row)
+
+    @property
+    def route_pos(self) -> int:
+        return int(self._core.route_pos[self._row])
+
+    @route_pos.setter
+    def route_pos(self, value) -> None:
+        self._core.route_pos[self._row] = int(value)
+        self._core.dirty.add(self._row)
+
+    @property
+    def target_lane_index(self):
+        c, i = self._core, self._row
+        return c.net._indices[c.routes[i][c.route_pos[i]]]
+
+    @target_lane_index.setter
+    def target_lane_index(self, value) -> None:
+        """A lane change (MOBIL): the row moves onto the target lane where it is, with the
+        lateral offset that then settles."""
+        c = self._core
+        c.change_lane(self._row, c.table.index[c.net.id_of[value]])
+
+    @property
+    def reserved(self) -> str | None:
+        return self._core.reserved[self._row]
+
+    @reserved.setter
+    def reserved(self, value) -> None:
+        self._core.reserved[self._row] = value
+
+    # ---- route queries from the row (no projection) ------------------------------------------
+    def route_s(self) -> float:
+        return float(self._core.s[self._row])
+
+    def s_on(self, lane_id: str) -> float:
+        c, i = self._core, self._row
+        if c.net.lane_ids[c.lane[i]] == lane_id:
+            return float(c.s[i])
+        return super().s_on(lane_id)
+
+    @property
+    def finished(self) -> bool:
+        c, i = self._core, self._row
+        route = c.routes[i]
+        return c.route_pos[i] >= len(route) - 1 and c.s[i] >= c.table.length[route[-1]] - 2.0
+
+    def act(self, action=None) -> None:  # the core drives it
+        pass
+
+    def step(self, dt: float) -> None:
+        pass
+
+    def on_state_update(self) -> None:
+        pass
+
+    def detach(self) -> None:
+        """Turn back into a plain TrafficVehicle holding its last state (removed from the road)."""
+        state = {k: getattr(self, k) for k in ("position", "heading", "speed", "crashed", "timer", "lane_index",
+                                               "lane", "lane_s", "lane_lat", "lane_route", "route_pos",
+                                               "target_lane_index", "reserved")}
+        self.__class__ = TrafficVehicle
+        self.__dict__.update(state)
+        self.action = {"steering": 0.0, "acceleration": 0.0}
+
+
+class TrafficCore:
+    """The rows of one episode's road users and the batched frame (see the module docstring)."""
+
+    def __init__(self, road: "ArrayRoad") -> None:
+        self.road = road
+        self.net: MapNetwork = road.network
+        self.table = LaneTable.of(self.net)
+        self.objs: list[Any] = []
+        self.kind = np.zeros(0, dtype=np.int8)
+        self.lane = np.zeros(0, dtype=np.int64)
+        self.s = np.zeros(0)
+        self.lat = np.zeros(0)
+        self.speed = np.zeros(0)
+        self.acc = np.zeros(0)
+        self.timer = np.zeros(0)
+        self.mobil_t = np.zeros(0)
+        self.crashed = np.zeros(0, dtype=bool)
+        self.x = np.zeros(0)
+        self.y = np.zeros(0)
+        self.heading = np.zeros(0)
+        self.length = np.zeros(0)
+        self.width = np.zeros(0)
+        self.route_pos = np.zeros(0, dtype=np.int64)
+        self.routes: list[list[int]] = []
+        self.reserved: list[str | None] = []
+        self.dirty: set[int] = set()
+        self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
+        self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
+
+    # ---- rows --------------------------------------------------------------------------------
+    _ARRAYS = ("kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
+               "length", "width", "route_pos")
+
+    def add_traffic(self, lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
+        """A new driven row (and its view) at s on `lane_id`, its route starting there."""
+        lane = self.table.index[lane_id]
+        x, y, h = self.table.place(np.array([lane]), np.array([s]), np.zeros(1))
+        v = ArrayVehicle.__new__(ArrayVehicle)
+        self._init_view(v)
+        row = dict(kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
+                   timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, mobil_t=-1e9,
+                   crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0)
+        self._append(v, row, [self.table.index[x] for x in route], None)
+        self.road.vehicles.append(v)
+        return v
+
+    def _init_view(self, v: ArrayVehicle) -> None:
+        """The plain attributes highway-env reads from a vehicle (what __init__ would set)."""
+        v.road = self.road
+        v.collidable, v.solid, v.check_collisions = True, True, True
+        v.diagonal = math.hypot(v.LENGTH, v.WIDTH)
+        v.hit = False
+        v.impact = None
+        v.log = []
+        v.history = deque(maxlen=v.HISTORY_SIZE)
+        v.prediction_type = "constant_steering"
+        v.target_speed = None
+        v.route = None
+        v.enable_lane_change = False
+        v.lane_changes = 0
+
+    def _append(self, obj, row: dict, route: list[int], reserved) -> None:
+        i = len(self.objs)
+        self.objs.append(obj)
+        for name in self._ARRAYS:
+            setattr(self, name, np.append(getattr(self, name), row[name]).astype(getattr(self, name).dtype))
+        self.routes.append(route)
+        self.reserved.append(reserved)
+        self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
+        self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
+        if isinstance(obj, ArrayVehicle):
+            obj._core, obj._row = self, i
+        self.dirty.add(i)
+
+    def sync(self) -> None:
+        """Bring the rows in line with `road.vehicles` (by identity): take in vehicles user code
+        appended, let go of removed ones (their views keep their last state), follow reordering."""
+        objs = self.road.vehicles
+        if len(objs) == len(self.objs) and all(a is b for a, b in zip(objs, self.objs)):
+            return
+        present = {id(o) for o in objs}
+        for o in self.objs:
+            if id(o) not in present and isinstance(o, ArrayVehicle):
+                o.detach()
+        where = {id(o): i for i, o in enumerate(self.objs)}
+        self._select([where[id(o)] for o in objs if id(o) in where])
+        for o in objs:
+            if id(o) not in where:
+                self._take_in(o)
+        row = {id(o): i for i, o in enumerate(self.objs)}
+        order = [row[id(o)] for o in objs]
+        if order != list(range(len(order))):
+            self._select(order)
+        self.dirty = set(range(len(self.objs)))
+
+    def _select(self, rows: list[int]) -> None:
+        """Keep these rows, in this order."""
+        idx = np.array(rows, dtype=np.int64)
+        for name in self._ARRAYS:
+            setattr(self, name, getattr(self, name)[idx])
+        self.W, self.C = self.W[idx], self.C[idx]
+        self.routes = [self.routes[k] for k in rows]
+        self.reserved = [self.reserved[k] for k in rows]
+        self.objs = [self.objs[k] for k in rows]
+        for i, o in enumerate(self.objs):
+            if isinstance(o, ArrayVehicle):
+                o._row = i
+
+    def _take_in(self, obj) -> None:
+        """A road user user code added: a TrafficVehicle on a lane route becomes a driven row
+        (its object a view), anything else an external row."""
+        if isinstance(obj, TrafficVehicle) and not isinstance(obj, ArrayVehicle) and getattr(obj, "lane_route", None):
+            route = [self.table.index[x] for x in obj.lane_route]
+            pos = int(obj.route_pos)
+            lane = route[pos]
+            s, lat = self.net.lane_of[obj.lane_route[pos]].local_coordinates(obj.position)
+            row = dict(kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0, timer=float(obj.timer),
+                       mobil_t=float(getattr(obj, "_mobil_t", -1e9)), crashed=bool(obj.crashed), x=obj.position[0],
+                       y=obj.position[1], heading=obj.heading, length=obj.LENGTH, width=obj.WIDTH, route_pos=pos)
+            reserved = getattr(obj, "reserved", None)
+            for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
+                         "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
+                obj.__dict__.pop(name, None)
+            obj.__class__ = ArrayVehicle
+            self._append(obj, row, route, reserved)
+            self._place_rows(np.array([len(self.objs) - 1]))
+        else:
+            row = dict(kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
+                       crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0)
+            self._append(obj, row, [], None)
+            self._read_external(len(self.objs) - 1)
+
+    def _read_external(self, i: int) -> None:
+        o = self.objs[i]
+        self.x[i], self.y[i] = o.position[0], o.position[1]
+        self.heading[i] = o.heading
+        self.speed[i] = o.speed
+        self.crashed[i] = o.crashed
+        lid = self.net.id_of.get(getattr(o, "lane_index", None))
+        if lid is not None:
+            self.lane[i] = self.table.index[lid]
+            self.s[i] = getattr(o, "lane_s", 0.0)
+            self.lat[i] = getattr(o, "lane_lat", 0.0)
+        else:
+            self.lane[i] = -1
+
+    def relocate(self, i: int, position: np.ndarray) -> None:
+        """User code moved a driven row: locate it on its route (or the nearest lane)."""
+        index, s, lat = self.net.locate(position, float(self.heading[i]), self.net._indices[self.lane[i]])
+        lane = self.table.index[self.net.id_of[index]]
+        route = self.routes[i]
+        if lane in route[self.route_pos[i]:]:
+            self.route_pos[i] = route.index(lane, int(self.route_pos[i]))
+        elif lane != route[self.route_pos[i]]:
+            self.routes[i] = [lane]
+            self.route_pos[i] = 0
+        self.lane[i], self.s[i], self.lat[i] = lane, s, lat
+        self.dirty.add(i)
+        self._place_rows(np.array([i]))
+
+    def change_lane(self, i: int, lane: int) -> None:
+        if lane == self.lane[i]:
+            return
+        s, lat = self.net._lanes[lane].local_coordinates(np.array([self.x[i], self.y[i]]))
+        self.lane[i], self.s[i], self.lat[i] = lane, s, lat
+        route = self.routes[i]
+        if lane in route:
+            self.route_pos[i] = route.index(lane)
+        self.dirty.add(i)
+
+    # ---- windows -----------------------------------------------------------------------------
+    def _refresh_windows(self) -> None:
+        """Rebuild the window rows whose route position or route changed."""
+        if not self.dirty:
+            return
+        length = self.table.length
+        rows = {}
+        need = self.W.shape[1]
+        for i in self.dirty:
+            if i >= len(self.objs) or self.kind[i] != DRIVEN:
+                continue
+            route, pos = self.routes[i], int(self.route_pos[i])
+            lanes, cum = [route[pos]], [0.0]
+            limit = LOOKAHEAD_M + length[route[pos]]
+            d = length[route[pos]]
+            for k in range(pos + 1, len(route)):
+                if d > limit:
+                    break
+                lanes.append(route[k])
+                cum.append(d)
+                d += length[route[k]]
+            rows[i] = (lanes, cum)
+            need = max(need, len(lanes))
+        if need > self.W.shape[1]:
+            pad = need - self.W.shape[1]
+            self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])
+            self.C = np.hstack([self.C, np.zeros((len(self.C), pad))])
+        for i, (lanes, cum) in rows.items():
+            self.W[i] = -1
+            self.W[i, :len(lanes)] = lanes
+            self.C[i, :len(cum)] = cum
+        self.dirty.clear()
+
+    # ---- a frame -----------------------------------------------------------------------------
+    def accelerations(self) -> None:
+        """Acceleration of every driven row (see the module docstring, step 3)."""
+        driven = self.kind == DRIVEN
+        if not driven.any():
+            return
+        self._mobil(driven)
+        self._refresh_windows()
+        t = self.table
+        v = np.maximum(self.speed, 0.0)
+        v0 = t.speed_limit[self.lane]
+        free = 1.0 - (v / v0) ** IDM_DELTA
+        acc = IDM_ACC * free
+        fi, gap, vl = self._leaders(driven)
+        if len(fi):
+            vf = v[fi]
+            s_star = IDM_GAP_M + vf * IDM_TIME_GAP_S + vf * (vf - vl) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
+            a_pair = IDM_ACC * (free[fi] - (np.maximum(s_star, 0.0) / np.maximum(gap, IDM_MIN_GAP_M)) ** 2)
+            np.minimum.at(acc, fi, a_pair)
+        for i in self._rule_rows(driven):
+            stop = self.road.control.stop_distance(self.objs[i])
+            if stop < math.inf:
+                gap_i = stop - self.length[i] / 2 - IDM_STOP_MARGIN_M
+                s_star = IDM_STOP_GAP_M + v[i] * IDM_TIME_GAP_S + v[i] * v[i] / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
+                acc[i] = min(acc[i], IDM_ACC * (free[i] - (max(s_star, 0.0) / max(gap_i, IDM_MIN_GAP_M)) ** 2))
+        acc = np.clip(acc, *IDM_RANGE_MPS2)
+        acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
+        self.acc = np.where(driven, acc, self.acc)
+
+    def _leaders(self, driven: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(follower row, bumper gap, leader speed) of every road user in a driven row's way
+        along its window (the object core's `RouteFollower.leader_gaps`)."""
+        t = self.table
+        W, C = self.W, self.C
+        n, K = W.shape
+        valid = (W >= 0) & driven[:, None] & ((C - self.s[:, None]) <= LOOKAHEAD_M)
+        lane_w = np.where(valid, W, -2)
+        # same lane: every row on a window lane
+        match = lane_w[:, :, None] == self.lane[None, None, :]
+        match &= ~np.eye(n, dtype=bool)[:, None, :]
+        fi, k, lj = np.nonzero(match)
+        so = self.s[lj]
+        ro = self.lat[lj]
+        wl = W[fi, k]
+        # rows on junction lanes conflicting with or diverging from a window junction lane
+        jlane = self.lane >= 0
+        jlane[jlane] = t.junction[self.lane[jlane]]
+        if jlane.any():
+            occupied: dict[int, list[int]] = {}
+            for j in np.nonzero(jlane)[0].tolist():
+                occupied.setdefault(int(self.lane[j]), []).append(j)
+            lanes_occ = set(occupied)
+            wj = valid & t.junction[np.maximum(W, 0)]
+            extra = []
+            for f2, k2 in zip(*np.nonzero(wj)):
+                a = int(W[f2, k2])
+                for b in t.near.get(a, frozenset()) & lanes_occ:
+                    for j in occupied[b]:
+                        if j == f2:
+                            continue
+                        if self.kind[j] == DRIVEN:
+                            sb, sa, ra = t.pair(a, b)
+                            so2 = float(np.interp(self.s[j], sb, sa))
+                            ro2 = float(np.interp(self.s[j], sb, ra))
+                        else:
+                            so2, ro2 = self.net._lanes[a].local_coordinates(self.objs[j].position)
+                        extra.append((f2, k2, j, so2, ro2))
+            if extra:
+                e = np.array(extra, dtype=float)
+                fi = np.concatenate([fi, e[:, 0].astype(np.int64)])
+                k = np.concatenate([k, e[:, 1].astype(np.int64)])
+                lj = np.concatenate([lj, e[:, 2].astype(np.int64)])
+                so = np.concatenate([so, e[:, 3]])
+                ro = np.concatenate([ro, e[:, 4]])
+                wl = W[fi, k]
+        if not len(fi):
+            return fi, np.zeros(0), np.zeros(0)
+        s_own = self.s[fi]
+        L = self.length[fi]
+        ok = (np.abs(ro) <= t.width[wl] / 2 + LEADER_LATERAL_M) & (so >= -L) & (so <= t.length[wl] + L)
+        ok &= (k > 0) | (so > s_own)
+        gap = C[fi, k] - s_own + so - L
+        return fi[ok], gap[ok], self.speed[lj[ok]]
+
+    def _rule_rows(self, driven: np.ndarray) -> list[int]:
+        """Driven rows whose window holds a junction entry or a lane with a crosswalk that has
+        people on it within LOOKAHEAD_M: the only ones the rules can stop (in row order)."""
+        t = self.table
+        W, C = self.W, self.C
+        valid = (W >= 0) & ((C - self.s[:, None]) <= LOOKAHEAD_M)
+        jw = np.where(valid, t.junction[np.maximum(W, 0)], False)
+        entry = np.zeros_like(jw)
+        entry[:, 1:] = jw[:, 1:] & ~jw[:, :-1] & valid[:, :-1]
+        flag = entry.any(axis=1)
+        busy = [k for cw, people in self.road.control.pedestrians.items() if people
+                for k in t.crosswalk_lanes.get(cw, ())]
+        if busy:
+            flag |= (np.isin(W, busy) & valid).any(axis=1)
+        return np.nonzero(flag & driven & ~self.crashed)[0].tolist()
+
+    def _mobil(self, driven: np.ndarray) -> None:
+        due = driven & (self.timer - self.mobil_t >= TrafficVehicle.MOBIL_PERIOD_S) & ~self.crashed
+        if not due.any():
+            return
+        self.mobil_t = np.where(due, self.timer, self.mobil_t)
+        t = self.table
+        cand = due & t.neighbours[self.lane] & ~t.junction[self.lane] & (self.speed >= 1.0) & \
+            (t.length[self.lane] - self.s >= 30.0)
+        for i in np.nonzero(cand)[0].tolist():
+            self.objs[i].mobil_change()
+
+    def integrate(self, dt: float) -> None:
+        """Advance driven rows by dt along their routes (step 4)."""
+        driven = self.kind == DRIVEN
+        if not driven.any():
+            return
+        s = self.s + self.speed * dt
+        speed = np.maximum(self.speed + self.acc * dt, 0.0)
+        self.s = np.where(driven, s, self.s)
+        self.speed = np.where(driven, speed, self.speed)
+        self.timer = np.where(driven, self.timer + dt, self.timer)
+        self.lat = np.where(driven, self.lat * math.exp(-dt / LANE_CHANGE_TAU_S), self.lat)
+        length = self.table.length
+        over = driven & (self.s > length[self.lane])
+        for i in np.nonzero(over)[0].tolist():
+            route = self.routes[i]
+            pos = int(self.route_pos[i])
+            while pos + 1 < len(route) and self.s[i] > length[route[pos]]:
+                self.s[i] -= length[route[pos]]
+                pos += 1
+            self.route_pos[i] = pos
+            self.lane[i] = route[pos]
+            self.dirty.add(i)
+        self._place_rows(np.nonzero(driven)[0])
+
+    def _place_rows(self, rows: np.ndarray) -> None:
+        if not len(rows):
+            return
+        lane, s, lat = self.lane[rows], self.s[rows], self.lat[rows]
+        x, y, h = self.table.place(lane, s, lat)
+        settle = self.lat[rows] * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
+        h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * (np.abs(lat) > 1e-3)
+        self.x[rows], self.y[rows], self.heading[rows] = x, y, h
+
+    def externals(self) -> list[Any]:
+        return [o for o, k in zip(self.objs, self.kind) if k == EXTERNAL]
+
+    def views(self) -> list[ArrayVehicle]:
+        return [o for o, k in zip(self.objs, self.kind) if k == DRIVEN]
+
+    def occupancy(self) -> tuple[list[str | None], list[float]]:
+        ids = self.net.lane_ids
+        return [ids[k] if k >= 0 else None for k in self.lane.tolist()], self.speed.tolist()
+
+    def read_externals(self) -> None:
+        for i in np.nonzero(self.kind == EXTERNAL)[0].tolist():
+            self._read_external(i)
+
+    def collisions(self, dt: float) -> None:
+        """Crash flags and hits: a vectorized centre-distance broad phase over vehicles and
+        pedestrians, highway-env's `handle_collisions` (polygons) for the close pairs."""
+        objects = self.road.objects
+        n = len(self.objs)
+        if objects:
+            ox = np.array([o.position[0] for o in objects])
+            oy = np.array([o.position[1] for o in objects])
+            od = np.array([o.diagonal for o in objects])
+            x, y = np.concatenate([self.x, ox]), np.concatenate([self.y, oy])
+            diag = np.concatenate([np.hypot(self.length, self.width), od])
+        else:
+            x, y, diag = self.x, self.y, np.hypot(self.length, self.width)
+        reach = (diag[:, None] + diag[None, :]) / 2 + np.abs(np.concatenate([self.speed, np.zeros(len(objects))]))[:, None] * dt
+        close = (np.abs(x[:, None] - x[None, :]) <= reach) & (np.abs(y[:, None] - y[None, :]) <= reach)
+        close = np.triu(close, 1)
+        close[n:, :] = False  # pedestrian-pedestrian pairs never collide
+        if not close.any():
+            return
+        everyone = self.objs + list(objects)
+        for a, b in zip(*np.nonzero(close)):
+            everyone[a].handle_collisions(everyone[b], dt)
