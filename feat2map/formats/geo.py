@@ -44,5 +44,14 @@ def utm_to_latlon(zone: int, easting, northing) -> tuple[np.ndarray, np.ndarray]
 
 
 def utm_projection(zone: int) -> str:
-    """The PROJ string of northern UTM `zone` on WGS84 (as Apollo's header and CommonRoad's geoReference write it)."""
+    """The PROJ string of northern UTM `zone` on WGS84 (as Apollo's header writes it)."""
     return f"+proj=utm +zone={zone} +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+
+
+def local_tmerc(zone: int, origin: tuple[float, float]) -> str:
+    """UTM `zone` as a transverse Mercator whose false origin puts `origin` (easting, northing)
+    at (0, 0): the PROJ string under which a file's coordinates are the map's local metres
+    (OpenDRIVE's geoReference, CommonRoad's geoTransformation)."""
+    lon0 = -183 + 6 * zone
+    return (f"+proj=tmerc +lat_0=0 +lon_0={lon0} +k=0.9996 +x_0={500000.0 - origin[0]!r} "
+            f"+y_0={-origin[1]!r} +datum=WGS84 +units=m +no_defs")

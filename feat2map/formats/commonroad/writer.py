@@ -33,7 +33,7 @@ from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, incoming_lanes
 from ...phases import junction_phases, timeline
 from ..base import header_date
-from ..geo import utm_origin, utm_to_latlon
+from ..geo import local_tmerc, utm_origin, utm_to_latlon
 from ..lane_ends import lane_ends
 
 COUNTRY = "ZAM"
@@ -260,13 +260,6 @@ def _incomings(m: HDMap, jid: str, lanes) -> dict[str, tuple[list[str], dict[str
         if feeders:
             out[road] = (feeders, turns)
     return out
-
-
-def local_tmerc(zone: int, origin: tuple[float, float]) -> str:
-    """UTM `zone` as a transverse Mercator whose false origin puts `origin` at (0, 0)."""
-    lon0 = -183 + 6 * zone
-    return (f"+proj=tmerc +lat_0=0 +lon_0={lon0} +k=0.9996 +x_0={500000.0 - origin[0]!r} "
-            f"+y_0={-origin[1]!r} +datum=WGS84 +units=m +no_defs")
 
 
 def to_commonroad(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | None = None) -> bytes:

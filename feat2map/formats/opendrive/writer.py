@@ -28,10 +28,11 @@ import numpy as np
 
 from ... import atomic
 from ...bezier import Bezier
-from ...config import OPENDRIVE_VERSIONS, UTM_ORIGIN, UTM_ZONE
+from ...config import OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
 from ...model import HDMap, Road
 from ..base import header_date
+from ..geo import local_tmerc, utm_origin
 
 VERSIONS = OPENDRIVE_VERSIONS
 STRAIGHT_RUN_TOL_RAD = 1e-6  # polyline segments turning less than this form one line geometry
@@ -490,10 +491,7 @@ def export_roads(m: HDMap) -> dict[str, Road]:
 
 def geo_reference(m: HDMap) -> str:
     """UTM zone `UTM_ZONE` with a shifted false origin: file coordinates are local metres."""
-    ox, oy = m.origin if any(m.origin) else UTM_ORIGIN
-    lon0 = -183 + 6 * UTM_ZONE
-    return (f"+proj=tmerc +lat_0=0 +lon_0={lon0} +k=0.9996 +x_0={_f(500000.0 - ox)} +y_0={_f(-oy)} "
-            "+datum=WGS84 +units=m +no_defs")
+    return local_tmerc(UTM_ZONE, utm_origin(m, UTM_ZONE, None, "opendrive export"))
 
 
 def to_opendrive(m: HDMap, version: str = VERSIONS[0]) -> bytes:
