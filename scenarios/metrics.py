@@ -223,6 +223,7 @@ def plot_accumulated(comparison: Comparison, path: str | Path, title: str = "") 
     fig, (ax_l, ax_t) = plt.subplots(1, 2, figsize=(12, 4.6))
     any_lines = False
     single = len(comparison.coverages) == 1
+    longest = max([len(c.junctions) for c in comparison.coverages] + [1])
     for k, (name, c) in enumerate(zip(comparison.names, comparison.coverages)):
         x = list(range(1, len(c.junctions) + 1))
         curves = [(ax_t, c.accumulated_transitions)]
@@ -248,8 +249,11 @@ def plot_accumulated(comparison: Comparison, path: str | Path, title: str = "") 
             js = comparison.coverages[0].junctions
             ax.set_xticks(range(1, len(js) + 1), [f"{i}\n{j}" for i, j in enumerate(js, 1)],
                           fontsize=7 if len(js) <= 20 else 5, rotation=0 if len(js) <= 20 else 90)
+        elif longest <= LABELLED_POINTS_MAX:
+            ax.set_xticks(range(1, longest + 1))
         else:
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlim(0.5, longest + 0.5)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
     if title:

@@ -80,7 +80,11 @@ def _plot_outcomes(result: SuiteResult, path: Path) -> None:
     ax_c.tick_params(axis="x", labelrotation=30)
     xs = range(len(result.outcomes))
     ax_s.bar(xs, [o.sim_s for o in result.outcomes], color=[OUTCOME_COLOURS[o.outcome] for o in result.outcomes])
-    ax_s.set(title="simulated duration per scenario (colour = outcome)", xlabel="scenario index", ylabel="s")
+    ax_s.set(title="simulated duration per scenario (colour = outcome)", xlabel="scenario", ylabel="s")
+    if len(result.outcomes) <= 60:  # name the scenarios, else index them
+        ax_s.set_xticks(list(xs), [o.name for o in result.outcomes], rotation=90, fontsize=7)
+    else:
+        ax_s.set_xlabel("scenario index (suite order)")
     ax_s.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
