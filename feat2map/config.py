@@ -58,6 +58,8 @@ UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
+APOLLO_JUNCTION_COVER_M = 0.5  # a junction-lane overlap within this of both lane ends makes a junction lane
+# (only where roads name no junction: maps draw junction polygons over approach lanes too)
 # junction extraction from real maps (feat2map/extract.py, docs/extraction.md)
 ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this
 ARM_PROBE_M = 20.0  # an arm's direction: towards the point this far out along its road

@@ -4,8 +4,8 @@ Arms: the junction's mouths (one per road lane feeding or leaving it) are groupe
 by lane neighbour links and by direction and position (not by road ids, which real maps cut
 into pieces). A socket runs from the junction centre (where the arms' centre lines meet; the
 paper's polygon centroid on request) to the mean of its arm's mouth points. Control is
-`signal` if a signal names the junction or governs a lane entering it, else `stop` if a stop
-sign does, else `bare`; a crosswalk counts when it lies in or touches the junction area or
+`signal` if a signal names the junction (or, naming none, governs a lane entering it), else
+`stop` if a stop sign does, else `bare` (yield signs leave a junction bare); a crosswalk counts when it lies in or touches the junction area or
 is linked to the junction by the reader.
 """
 from __future__ import annotations
@@ -258,18 +258,18 @@ def arms_centre(arms: Sequence[_ArmEnds], polygon: Polygon) -> np.ndarray:
 
 
 def _junction_controls(m: HDMap) -> dict[str, set[str]]:
-    """Junction id -> control kinds: a signal or stop sign counts for the junction it names
-    and for the junction its incoming lanes (lanes outside it) lead into."""
+    """Junction id -> control kinds: a signal or stop sign counts for the junction it names;
+    one that names none, for the junctions its lanes lead into (the readers name a control's
+    junction from the same two sources, so neither leaks into a neighbour)."""
     out: dict[str, set[str]] = {}
     for kind, items in (("signal", m.signals), ("stop", m.stop_signs)):
         for s in items.values():
             if s.junction_id:
                 out.setdefault(s.junction_id, set()).add(kind)
+                continue
             for lid in s.lane_ids:
                 ln = m.lanes.get(lid)
-                if ln is None:
-                    continue
-                for nxt in ln.successors:
+                for nxt in (ln.successors if ln is not None else ()):
                     jid = m.lanes[nxt].junction_id
                     if jid and jid != ln.junction_id:
                         out.setdefault(jid, set()).add(kind)

@@ -6,7 +6,7 @@ Coordinates are metres in a local frame (x east, y north); `HDMap.origin` is the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, Iterable, Mapping
 
@@ -169,6 +169,34 @@ class StopSign:
 
 
 @dataclass(frozen=True)
+class YieldSign:
+    """A yield (give-way) sign and the stop line it guards. Not a stop sign: traffic on its
+    lanes gives way without stopping, so the junction stays `bare` in its feature (bare with
+    priority: the signed approaches are the minor ones; see docs/extraction.md)."""
+
+    id: str
+    junction_id: str | None
+    stop_line: Polyline
+    position: Point
+    heading: float
+    lane_ids: tuple[str, ...] = ()
+
+
+def signal_precedence(lanes: Mapping[str, Lane], signals: Mapping[str, Signal], signs: Mapping[str, Any]) -> dict:
+    """`signs` (stop or yield signs) without the lanes a signal governs: a signal governs where
+    both exist (a sign under a light is for when the light is dark). A sign left with no lane
+    is dropped; one that governed no lane to begin with is kept as it is."""
+    lit = {x for g in signals.values() for x in incoming_lanes(lanes, g.lane_ids)}
+    out = {}
+    for k, s in signs.items():
+        mine = incoming_lanes(lanes, s.lane_ids)
+        keep = tuple(x for x in mine if x not in lit)
+        if keep or not mine:
+            out[k] = s if keep == mine else replace(s, lane_ids=keep)
+    return out
+
+
+@dataclass(frozen=True)
 class Crosswalk:
     id: str
     junction_id: str | None
@@ -204,6 +232,7 @@ class HDMap:
     crosswalks: Mapping[str, Crosswalk] = field(default_factory=dict)
     origin: Point = (0.0, 0.0)
     meta: Mapping[str, Any] = field(default_factory=dict)
+    yield_signs: Mapping[str, YieldSign] = field(default_factory=dict)
 
     def junction_lanes(self, junction_id: str) -> list[Lane]:
         return [ln for ln in self.lanes.values() if ln.junction_id == junction_id]

@@ -347,3 +347,124 @@ def test_sidewalk_lanes_are_left_out_of_the_driving_network(t_map):
     assert m.lanes["in_e"].successors == t_map.lanes["in_e"].successors
     assert m.roads["road_e"] == t_map.roads["road_e"]
     assert [j.feature for j in extract_junctions(m)] == [j.feature for j in extract_junctions(t_map)]
+
+
+# ---- Baidu-style maps: junction polygons drawn over the approach lanes ---------------------------
+def _baidu_style(pb: aps.Map, grow: float, road_junctions: bool = True) -> aps.Map:
+    """An Apollo map redrawn the way Baidu's maps are: every junction polygon grown by `grow`
+    metres over its approach lanes, a junction-lane overlap (with its s range) for every lane
+    the grown polygon meets, no lane-level junction_id, and (unless `road_junctions`) no
+    junction_id on the roads either."""
+    from shapely.geometry import LineString, Polygon
+    from feat2map.formats.apollo.geometry import polygon_range
+
+    out = aps.Map()
+    out.CopyFrom(pb)
+    for ln in out.lane:
+        ln.ClearField("junction_id")
+    if not road_junctions:
+        for r in out.road:
+            r.ClearField("junction_id")
+    centres = {ln.id.id: [(p.x, p.y) for seg in ln.central_curve.segment for p in seg.line_segment.point]
+               for ln in out.lane}
+    lanes = {ln.id.id: ln for ln in out.lane}
+    had = {(ov.object[0].id.id, ov.object[1].id.id) for ov in out.overlap}
+    for j in out.junction:
+        grown = Polygon([(p.x, p.y) for p in j.polygon.point]).buffer(grow, join_style="mitre")
+        del j.polygon.point[:]
+        for x, y in list(grown.exterior.coords)[:-1]:
+            j.polygon.point.add(x=x, y=y)
+        for lid, pts in centres.items():
+            if (lid, j.id.id) in had or not LineString(pts).intersects(grown):
+                continue
+            rng = polygon_range(tuple(pts), tuple(grown.exterior.coords))
+            if rng is None:
+                continue
+            ov = out.overlap.add()
+            ov.id.id = f"baidu_{j.id.id}_{lid}"
+            a, b = ov.object.add(), ov.object.add()
+            a.id.id, b.id.id = lid, j.id.id
+            a.lane_overlap_info.start_s, a.lane_overlap_info.end_s = rng
+            b.junction_overlap_info.SetInParent()
+            lanes[lid].overlap_id.add().id = ov.id.id
+            j.overlap_id.add().id = ov.id.id
+    return out
+
+
+@pytest.fixture(scope="module")
+def baidu_source():
+    """A generated map with every control next to each other (64 m grid), exported to Apollo."""
+    import feat2map
+    from feat2map.config import GenerationConfig
+    from feat2map.features import JunctionFeature as JF
+    from feat2map.formats.apollo.writer import to_apollo
+
+    feats = [JF.make([0, 90, 180, 270], "signal", True), JF.make([0, 90, 180], "stop", False),
+             JF.make([0, 90, 180, 270], "bare", False), JF.make([0, 90, 180], "bare", True),
+             JF.make([0, 90, 180], "signal", False)]
+    m = feat2map.generate_from_features(feats, seed=2, config=GenerationConfig(grid_gap=64.0))
+    return to_apollo(m)
+
+
+def _summary(m):
+    """Per junction: (n, control, crosswalk, rotation) of its extracted feature."""
+    return {j.id: (j.feature.n_roads, j.feature.control, j.feature.crosswalk, j.feature.rotation)
+            for j in extract_junctions(m)}
+
+
+def test_baidu_style_junction_polygons_over_approach_lanes_keep_road_lanes_out(baidu_source):
+    clean = read_apollo_bytes(baidu_source.SerializeToString(), "clean.bin")
+    pb = _baidu_style(baidu_source, grow=25.0)
+    # the fixture does what Baidu's maps do: most road lanes overlap some junction polygon,
+    # some lie wholly inside one
+    road_lanes = {ln.id for ln in clean.lanes.values() if ln.junction_id is None}
+    overlapped = {o.object[0].id.id for o in pb.overlap if o.id.id.startswith("baidu_")}
+    assert len(overlapped & road_lanes) > 0.8 * len(road_lanes)
+    m = read_apollo_bytes(pb.SerializeToString(), "baidu.bin")
+    assert {k: ln.junction_id for k, ln in m.lanes.items()} == {k: ln.junction_id for k, ln in clean.lanes.items()}
+    assert {k: (s.junction_id, s.lane_ids) for k, s in m.signals.items()} == {
+        k: (s.junction_id, s.lane_ids) for k, s in clean.signals.items()}
+    assert {k: (s.junction_id, s.lane_ids) for k, s in m.stop_signs.items()} == {
+        k: (s.junction_id, s.lane_ids) for k, s in clean.stop_signs.items()}
+    got, want = _summary(m), _summary(clean)
+    assert {k: v[:3] for k, v in got.items()} == {k: v[:3] for k, v in want.items()}
+    assert sorted(v[:2] for v in got.values()) == [(3, "bare"), (3, "signal"), (3, "stop"), (4, "bare"), (4, "signal")]
+    for k in want:
+        assert got[k][3] == pytest.approx(want[k][3], abs=1e-6)
+
+
+def test_maps_whose_roads_name_no_junction_fall_back_to_whole_lane_overlaps(baidu_source):
+    clean = read_apollo_bytes(baidu_source.SerializeToString(), "clean.bin")
+    # grown less than the shortest road: overlaps reach into approach lanes but cover none whole
+    pb = _baidu_style(baidu_source, grow=6.0, road_junctions=False)
+    m = read_apollo_bytes(pb.SerializeToString(), "noroads.bin")
+    assert {k: ln.junction_id for k, ln in m.lanes.items()} == {k: ln.junction_id for k, ln in clean.lanes.items()}
+    assert {k: v[:3] for k, v in _summary(m).items()} == {k: v[:3] for k, v in _summary(clean).items()}
+
+
+def test_yield_signs_are_read_as_yield_signs_and_lights_govern_signs_under_them():
+    """A yield sign and a stop sign under every light, and yield signs instead of the stop
+    junction's stop signs: the lights govern their lanes alone, the yield junction is bare,
+    and yield signs round-trip through the Apollo export and the native file."""
+    import dataclasses
+
+    import feat2map
+    from feat2map.features import JunctionFeature as JF
+    from feat2map.formats import native
+    from feat2map.formats.apollo.writer import to_apollo
+    from feat2map.model import StopSign, YieldSign
+
+    m = feat2map.generate_from_features([JF.make([0, 90, 180, 270], "signal", False),
+                                         JF.make([0, 90, 180], "stop", False)], seed=1)
+    fields = lambda s: dict(junction_id=s.junction_id, stop_line=s.stop_line, position=s.position,  # noqa: E731
+                            heading=s.heading, lane_ids=s.lane_ids)
+    yields = {f"y_{k}": YieldSign(f"y_{k}", **fields(s)) for k, s in {**m.signals, **m.stop_signs}.items()}
+    stops = {f"s_{k}": StopSign(f"s_{k}", **fields(s)) for k, s in m.signals.items()}
+    signed = dataclasses.replace(m, stop_signs=stops, yield_signs=yields)
+    back = read_apollo_bytes(to_apollo(signed).SerializeToString(), "signs.bin")
+    assert set(back.signals) == set(m.signals) and not back.stop_signs
+    assert set(back.yield_signs) == {f"y_{k}" for k in m.stop_signs}
+    assert {k: s.lane_ids for k, s in back.yield_signs.items()} == {
+        f"y_{k}": s.lane_ids for k, s in m.stop_signs.items()}
+    assert sorted((j.feature.n_roads, j.feature.control) for j in extract_junctions(back)) == [(3, "bare"), (4, "signal")]
+    assert native.from_dict(native.to_dict(back)) == back

@@ -355,6 +355,40 @@ def test_split_junction_elements_are_merged(exported, sf_default_map, tmp_path):
     _assert_same_features(sf_default_map, back)
 
 
+def test_yield_signs_are_not_stop_signs_and_lights_govern_signs_under_them(tmp_path):
+    """Every light gets a yield sign and a stop sign on its pole (as CARLA draws them for when
+    the light is dark), and the stop junction's stop signs become yield signs: the lights
+    govern their lanes alone, and a junction with yield signs only is bare."""
+    import feat2map
+    from feat2map.envs.network import MapNetwork
+    from feat2map.features import JunctionFeature as JF
+
+    m = feat2map.generate_from_features([JF.make([0, 90, 180, 270], "signal", False),
+                                         JF.make([0, 90, 180], "stop", False)], seed=1)
+    path = tmp_path / "signs.xodr"
+    write_opendrive(m, path)
+    root = etree.parse(str(path)).getroot()
+    signals = root.findall("road/signals/signal")
+    for k, el in enumerate(signals):
+        if el.get("type") == "1000001":
+            for code in ("205", "206"):
+                twin = etree.fromstring(etree.tostring(el))
+                twin.set("id", f"{code}{k}")
+                twin.set("type", code)
+                el.getparent().append(twin)
+        elif el.get("type") == "206":
+            el.set("type", "205")
+    path.write_bytes(etree.tostring(root))
+    back = read_opendrive(path)
+    lit = {x for s in back.signals.values() for x in s.lane_ids}
+    assert len(back.signals) == len(m.signals) and not back.stop_signs
+    assert len(back.yield_signs) == len(m.stop_signs)
+    assert {x for s in back.yield_signs.values() for x in s.lane_ids}.isdisjoint(lit)
+    assert sorted((j.feature.n_roads, j.feature.control) for j in extract_junctions(back)) == [(3, "bare"), (4, "signal")]
+    kinds = {lid: sl.kind for lid, sl in MapNetwork.from_map(back).stop_lines.items()}
+    assert set(kinds) == lit and set(kinds.values()) == {"signal"}
+
+
 def test_cli_export_opendrive(tmp_path, capsys):
     from feat2map.cli import main
 

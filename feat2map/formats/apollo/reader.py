@@ -2,10 +2,11 @@
 
 Apollo stores relations in two places: lane links (predecessor/successor/neighbour ids) and
 overlaps (pairs of objects: signal-lane, junction-lane, crosswalk-lane ...). Real maps rely
-on the second: lanes carry no `junction_id` (membership comes from `road.junction_id` and
-junction-lane overlaps), signals and stop signs overlap the incoming lanes or the junction's
-own lanes (and usually the junction), and many crosswalks have no id and no overlaps (they
-are linked to junctions geometrically).
+on the second: lanes carry no `junction_id` (membership comes from `road.junction_id`; junction-
+lane overlaps also name approach lanes in Baidu-style maps, so they count only where roads say
+nothing), signals, stop signs and yield signs overlap the incoming lanes or the junction's own
+lanes (and usually the junction), and many crosswalks have no id and no overlaps (they are
+linked to junctions geometrically). A signal governs where a sign shares its lanes.
 Coordinates are UTM metres; a whole-metre origin is subtracted and kept in `HDMap.origin`.
 """
 from __future__ import annotations
@@ -21,10 +22,14 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from . import schema as aps
-from ...config import APOLLO_CROSSWALK_LINK_M
+from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M
 from ...errors import MapFormatError
-from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, incoming_lanes
+from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
+                      incoming_lanes, signal_precedence)
 
+# overlap kind -> (the Map field listing the elements, the model class)
+_CONTROL_FIELDS = {"signal": ("signal", Signal), "stop_sign": ("stop_sign", StopSign),
+                   "yield_sign": ("yield", YieldSign)}
 _TURNS = {aps.Lane.NO_TURN: "none", aps.Lane.LEFT_TURN: "left", aps.Lane.RIGHT_TURN: "right",
           aps.Lane.U_TURN: "uturn"}
 # lanes that are not for cars: read and checked, but not part of the driving network
@@ -99,8 +104,8 @@ class _Reader:
 
     # -- overlaps ----------------------------------------------------------------------------
     def _overlap_pairs(self, known: dict[str, set[str]]) -> dict[tuple[str, str], list[tuple[str, str, Any]]]:
-        """(kind_a, kind_b) -> [(id_a, id_b, info_a)] for every two-object overlap, kinds
-        sorted; ids are checked against the elements the map defines."""
+        """(kind_a, kind_b) -> [(id_a, id_b, (object_a, object_b))] for every two-object overlap,
+        kinds sorted; ids are checked against the elements the map defines."""
         pairs: dict[tuple[str, str], list[tuple[str, str, Any]]] = {}
         for ov in self.pb.overlap:
             objs = []
@@ -116,8 +121,36 @@ class _Reader:
             for i in range(len(objs)):
                 for k in range(i + 1, len(objs)):
                     a, b = objs[i], objs[k]
-                    pairs.setdefault((a[0], b[0]), []).append((a[1], b[1], a[2]))
+                    pairs.setdefault((a[0], b[0]), []).append((a[1], b[1], (a[2], b[2])))
         return pairs
+
+    def _membership(self, pairs, raw: dict[str, dict[str, np.ndarray]], lane_road: dict[str, str],
+                    road_junction: dict[str, str | None], junction_ids: set[str]) -> dict[str, str]:
+        """Lane id -> junction id for the lanes inside a junction.
+
+        A lane's own `junction_id` says it; else its road's `junction_id` (a road without one is
+        an ordinary road: Baidu-style maps draw junction polygons over the approach lanes, and
+        their junction-lane overlaps name those road lanes too). Only lanes of maps whose roads
+        name no junction at all, or lanes outside every road, fall back to junction-lane
+        overlaps, and then only to an overlap that covers the whole lane."""
+        roads_tell = any(road_junction.values())
+        out: dict[str, str] = {}
+        for jid, lid, (_, info) in pairs.get(("junction", "lane"), []):
+            if roads_tell and lid in lane_road:
+                continue
+            li = info.lane_overlap_info
+            length = float(np.hypot(*np.diff(raw[lid]["c"], axis=0).T).sum())
+            if li.start_s <= APOLLO_JUNCTION_COVER_M and li.end_s >= length - APOLLO_JUNCTION_COVER_M:
+                out.setdefault(lid, jid)
+        for lid, rid in lane_road.items():
+            if road_junction.get(rid):
+                out[lid] = road_junction[rid]  # type: ignore[assignment]
+        for ln in self.pb.lane:
+            if ln.junction_id.id:
+                if ln.junction_id.id not in junction_ids:
+                    raise self.err(f"lane {ln.id.id!r}", f"junction_id {ln.junction_id.id!r} is unknown")
+                out[ln.id.id] = ln.junction_id.id
+        return out
 
     # -- main --------------------------------------------------------------------------------
     def read(self) -> HDMap:
@@ -161,19 +194,9 @@ class _Reader:
                     lane_road.setdefault(lid.id, rid)
                     ids.append(lid.id)
         known = {"lane": set(raw), "junction": junction_ids, "signal": {s.id.id for s in pb.signal},
-                 "stop_sign": {s.id.id for s in pb.stop_sign}}
+                 "stop_sign": {s.id.id for s in pb.stop_sign}, "yield_sign": {s.id.id for s in getattr(pb, "yield")}}
         pairs = self._overlap_pairs(known)
-        lane_junction: dict[str, str] = {}
-        for jid, lid, _ in pairs.get(("junction", "lane"), []):
-            lane_junction.setdefault(lid, jid)
-        for lid, rid in lane_road.items():
-            if road_junction.get(rid):
-                lane_junction[lid] = road_junction[rid]  # type: ignore[assignment]
-        for ln in pb.lane:
-            if ln.junction_id.id:
-                if ln.junction_id.id not in junction_ids:
-                    raise self.err(f"lane {ln.id.id!r}", f"junction_id {ln.junction_id.id!r} is unknown")
-                lane_junction[ln.id.id] = ln.junction_id.id
+        lane_junction = self._membership(pairs, raw, lane_road, road_junction, junction_ids)
 
         # junctions (polygon from the map, or the hull of its lanes)
         junctions: dict[str, Junction] = {}
@@ -222,7 +245,8 @@ class _Reader:
 
         roads = self._roads(lanes, road_lane_ids, road_junction)
         signals = self._controls(pairs, lanes, junctions, "signal", o)
-        stops = self._controls(pairs, lanes, junctions, "stop_sign", o)
+        stops = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "stop_sign", o))
+        yields = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "yield_sign", o))
         crosswalks = self._crosswalks(pairs, lanes, junctions, o)
         header = pb.header
         meta = {"source": self.where, "format": "apollo",
@@ -231,7 +255,8 @@ class _Reader:
                 "vendor": header.vendor.decode("utf-8", "replace"),
                 "district": header.district.decode("utf-8", "replace"),
                 "non_driving_lanes": len(raw) - len(driving)}
-        return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=origin, meta=meta)
+        return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=origin, meta=meta,
+                     yield_signs=yields)
 
     def _roads(self, lanes: dict[str, Lane], road_lane_ids: dict[str, list[str]],
                road_junction: dict[str, str | None]) -> dict[str, Road]:
@@ -262,24 +287,27 @@ class _Reader:
 
     def _controls(self, pairs, lanes: dict[str, Lane], junctions: dict[str, Junction], kind: str,
                   o: np.ndarray) -> dict:
-        """Signals or stop signs with the incoming lanes they overlap and their junction."""
+        """Signals, stop signs or yield signs with the incoming lanes they overlap and their junction."""
         governed: dict[str, list[str]] = {}
         for lid, sid, _ in pairs.get(("lane", kind), []):
             governed.setdefault(sid, []).append(lid)
-        junction_of: dict[str, str] = {}
+        named: dict[str, list[str]] = {}
         for jid, sid, _ in pairs.get(("junction", kind), []):
             if jid in junctions:  # not one skipped for lack of a polygon
-                junction_of.setdefault(sid, jid)
-        items = self.pb.signal if kind == "signal" else self.pb.stop_sign
+                named.setdefault(sid, []).append(jid)
+        items = getattr(self.pb, _CONTROL_FIELDS[kind][0])
         out: dict = {}
         for el in items:
             sid = el.id.id
             line = next((p for p in (_curve_points(c) for c in el.stop_line) if len(p) >= 2), None)
             lane_ids = incoming_lanes(lanes, governed.get(sid, []))
-            jid = junction_of.get(sid)
-            if jid is None:  # the junction the governed lanes lead into
-                jid = next((lanes[s].junction_id for x in lane_ids for s in lanes[x].successors if lanes[s].junction_id),
-                           None)
+            # its junction: the one its lanes lie in or lead into (junction overlaps of Baidu-style maps may
+            # name a neighbour whose polygon reaches the stop line), preferring one it overlaps
+            ahead = [j for x in governed.get(sid, []) if x in lanes for j in (
+                [lanes[x].junction_id] if lanes[x].junction_id else [lanes[s].junction_id for s in lanes[x].successors])
+                if j]
+            jid = next((j for j in ahead if j in named.get(sid, ())), None) or next(
+                iter(ahead + named.get(sid, [])), None)
             if line is None:
                 if not lane_ids:
                     self.warn(f"{kind} {sid!r}", "no stop line and no lanes, skipped")
@@ -290,7 +318,7 @@ class _Reader:
                 line_local = line - o
             pos = self._position(el, kind, o, line_local)
             heading = self._facing(lane_ids, lanes, line_local)
-            cls = Signal if kind == "signal" else StopSign
+            cls = _CONTROL_FIELDS[kind][1]
             out[sid] = cls(sid, jid, as_polyline(line_local), pos, heading, lane_ids)
         return out
 

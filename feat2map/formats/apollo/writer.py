@@ -2,7 +2,7 @@
 
 `to_apollo` turns an `HDMap` into an `apollo.hdmap.Map` message (absolute UTM coordinates,
 every lane CITY_DRIVING with curves, lengths, widths, links, boundary types; roads with one
-section; junctions, signals, stop signs, crosswalks; overlaps listed on both sides).
+section; junctions, signals, stop signs, yield signs, crosswalks; overlaps listed on both sides).
 `sim_map.to_sim_map` downsamples it as Apollo's `sim_map_generator` does,
 `routing` builds the routing graph, and `write_apollo` writes
 the six files Apollo loads from `modules/map/data/<name>/`, all or nothing.
@@ -136,7 +136,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     _header(out.header, m, zone)
 
     for kind, table in (("lane", m.lanes), ("road", m.roads), ("junction", m.junctions), ("signal", m.signals),
-                        ("stop_sign", m.stop_signs), ("crosswalk", m.crosswalks)):
+                        ("stop_sign", m.stop_signs), ("yield_sign", m.yield_signs), ("crosswalk", m.crosswalks)):
         for key in table:
             ids.claim(kind, key, key)
     lid = {k: ids.of[("lane", k)] for k in m.lanes}
@@ -197,6 +197,10 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         msg.id.id = ids.of[("stop_sign", s.id)]
         msg.type = stop_types.get(s.junction_id, aps.StopSign.UNKNOWN)
         control_overlaps(msg, s, "stop_sign_overlap_info")
+    for s in m.yield_signs.values():
+        msg = getattr(out, "yield").add()
+        msg.id.id = ids.of[("yield_sign", s.id)]
+        control_overlaps(msg, s, "yield_sign_overlap_info")
     for ln in m.lanes.values():
         if ln.junction_id in junctions:
             overlaps.add(lanes[ln.id], "lane_overlap_info", (0.0, lanes[ln.id].length),

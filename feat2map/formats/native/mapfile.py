@@ -11,12 +11,12 @@ from ...bezier import Bezier
 from ...config import MAP_FORMAT_VERSION
 from ...errors import MapFormatError
 from ...features import JunctionFeature
-from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign
+from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign
 
 FORMAT_NAME = "feat2map-map"
 _KINDS: dict[str, type] = {
     "lanes": Lane, "roads": Road, "junctions": Junction,
-    "signals": Signal, "stop_signs": StopSign, "crosswalks": Crosswalk,
+    "signals": Signal, "stop_signs": StopSign, "crosswalks": Crosswalk, "yield_signs": YieldSign,
 }
 
 
@@ -107,12 +107,12 @@ def check_references(m: HDMap, where: str = "map") -> None:
         for ref in r.lane_ids:
             if ref not in m.lanes:
                 raise MapFormatError(f"unknown lane id {ref!r}", f"{where}: road {r.id}")
-    for kind in ("signals", "stop_signs"):
+    for kind in ("signals", "stop_signs", "yield_signs"):
         for s in getattr(m, kind).values():
             for ref in s.lane_ids:
                 if ref not in m.lanes:
                     raise MapFormatError(f"unknown lane id {ref!r}", f"{where}: {kind[:-1]} {s.id}")
-    for kind in ("signals", "stop_signs", "crosswalks"):
+    for kind in ("signals", "stop_signs", "yield_signs", "crosswalks"):
         for s in getattr(m, kind).values():
             if s.junction_id is not None and s.junction_id not in m.junctions:
                 raise MapFormatError(f"unknown junction id {s.junction_id!r}", f"{where}: {kind[:-1]} {s.id}")

@@ -25,7 +25,8 @@ from shapely.geometry.polygon import orient
 
 from ...config import SAMPLE_SPACING_M, SPEED_LIMIT_MPS
 from ...errors import MapFormatError
-from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, classify_turn
+from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
+                      signal_precedence)
 
 # OpenDRIVE signal type -> feat2map control kind. CARLA/VectorZero, SVL and esmini use the
 # OpenDRIVE 1.5 country "OpenDRIVE" codes (1000001 light, 1000002 pedestrian light); RoadRunner
@@ -40,8 +41,8 @@ SIGNAL_CODES: dict[str, str] = {
     "206": "stop", "R1-1": "stop",
     "205": "yield", "R1-2": "yield",
 }
-# Yield signs regulate right of way like stop signs; the feature model knows signal/stop/bare.
-CONTROL_OF_KIND = {"signal": "signal", "stop": "stop", "yield": "stop"}
+# A yield sign is not a stop sign: it becomes a `YieldSign` (its junction stays bare).
+_CONTROL_CLASS = {"signal": Signal, "stop": StopSign, "yield": YieldSign}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
@@ -611,11 +612,12 @@ class _Builder:
         for lid, ln in list(lanes.items()):  # drop links into skipped junctions' lanes
             if ln.junction_id is not None and ln.junction_id not in junctions:
                 lanes[lid] = _replace(ln, junction_id=None)
-        signals, stops = self._signals(lanes, groups, junctions)
+        signals, stops, yields = self._signals(lanes, groups, junctions)
         crosswalks = self._crosswalks(junctions)
         meta = {"source": self.ctx.path, "format": "opendrive",
                 "junction_elements": {m: sorted(v, key=_id_key) for m, v in members.items()}}
-        return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=self.origin, meta=meta)
+        return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=self.origin, meta=meta,
+                     yield_signs=yields)
 
     @staticmethod
     def _centre(merged: str, lanes: dict[str, Lane]) -> np.ndarray | None:
@@ -663,7 +665,8 @@ class _Builder:
         return (float(x[0] - t * math.sin(h[0])), float(y[0] + t * math.cos(h[0]))), float(h[0])
 
     def _signals(self, lanes: dict[str, Lane], groups: dict[str, str], junctions: dict[str, Junction]):
-        """Signals and stop signs, each attached to the incoming lanes it governs."""
+        """Signals, stop signs and yield signs, each attached to the incoming lanes it governs; a
+        signal governs where a sign shares its lanes (`signal_precedence`)."""
         refs: dict[str, list[tuple[str, object]]] = {}
         for r in self.roads.values():
             sig_el = r.el.find("signals")
@@ -673,8 +676,7 @@ class _Builder:
         incoming_ends = [ln for ln in lanes.values() if ln.junction_id is None
                          and any(lanes[s].junction_id for s in ln.successors)]
         ends = np.array([ln.end for ln in incoming_ends]) if incoming_ends else np.zeros((0, 2))
-        signals: dict[str, Signal] = {}
-        stops: dict[str, StopSign] = {}
+        made: dict[str, dict] = {kind: {} for kind in _CONTROL_CLASS}
         for r in self.roads.values():
             sig_el = r.el.find("signals")
             for s_el in (sig_el.findall("signal") if sig_el is not None else []):
@@ -698,12 +700,11 @@ class _Builder:
                 jids = {lanes[s].junction_id for g in governed for s in lanes[g].successors if lanes[s].junction_id}
                 jid = sorted(jids, key=_id_key)[0] if jids else None
                 line = self._stop_line(governed, lanes, pos)
-                ident = sid if sid not in signals and sid not in stops else f"{r.id}_{sid}"
-                if CONTROL_OF_KIND[kind] == "signal":
-                    signals[ident] = Signal(ident, jid, line, pos, heading, tuple(governed))
-                else:
-                    stops[ident] = StopSign(ident, jid, line, pos, heading, tuple(governed))
-        return signals, stops
+                ident = sid if all(sid not in v for v in made.values()) else f"{r.id}_{sid}"
+                made[kind][ident] = _CONTROL_CLASS[kind](ident, jid, line, pos, heading, tuple(governed))
+        signals = made["signal"]
+        return (signals, signal_precedence(lanes, signals, made["stop"]),
+                signal_precedence(lanes, signals, made["yield"]))
 
     def _governed(self, road: _OdrRoad, s_el, refs: list, lanes: dict[str, Lane]) -> list[str]:
         """Incoming lanes a signal governs: via references on junction roads, else the lanes of
