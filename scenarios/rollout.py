@@ -493,6 +493,8 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     if workers < 1:
         raise Feat2MapError("must be at least 1", f"workers {workers}")
     scenarios = list(getattr(suite, "scenarios", suite))
+    if not scenarios:  # nothing driven is not a pass
+        raise Feat2MapError("has no scenarios: nothing to run", f"suite {getattr(suite, 'name', '')!r}")
     factory = as_factory(planner)
     tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on, tuple(coverage_modules))
              for i, s in enumerate(scenarios)]

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Iterable, Sequence
 
+from ..errors import Feat2MapError
 from ..model import HDMap, Lane
 from .scenario import Manoeuvre, Scenario, Suite
 
@@ -209,12 +210,15 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                 max_junctions: int = DEFAULT_ROUTE_JUNCTIONS, duration: float | None = None,
                 name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
     """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
-    `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given."""
+    `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given.
+    A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why."""
     from ..formats import read_map
 
     path = Path(map_path)
     m = read_map(path)
     routes = coverage_routes(m, max_junctions)
+    if not routes:  # never an empty suite that "passes"
+        raise Feat2MapError(_no_routes_reason(m), str(path))
     stem = name or path.stem
     scenarios = tuple(
         Scenario(name=f"{stem}-r{i:03d}", map=str(path.resolve()), route=r, traffic_vehicles=traffic_vehicles,
@@ -222,6 +226,16 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                  duration=duration if duration is not None else route_duration(m, r))
         for i, r in enumerate(routes))
     return Suite(stem, scenarios, path.resolve().parent)
+
+
+def _no_routes_reason(m: HDMap) -> str:
+    """Why a map gives no route-coverage route, in one line."""
+    if not m.junctions:
+        return "no junctions: a route-coverage suite drives junction manoeuvres"
+    if not manoeuvres(m):
+        return (f"no manoeuvres: none of its {len(m.junctions)} junctions has a junction lane from a road lane "
+                "to a road lane")
+    return f"none of its {len(manoeuvres(m))} manoeuvres can be driven (no junction lane the env drives)"
 
 
 def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names: Sequence[str] | None = None,

@@ -239,6 +239,39 @@ def test_bad_input_is_one_line_and_exit_2(args, needle, suite_file, tmp_path, ca
 
 
 
+def _no_suite_maps(d: Path) -> dict[str, Path]:
+    """Maps a route-coverage suite cannot drive: every lane read as a junction lane (what a
+    reader taking Baidu-style junction polygons as membership made), and no junction at all."""
+    import dataclasses
+
+    m = feat2map.generate_from_features([J([0, 90, 180], "stop", False)], seed=0)
+    jid = next(iter(m.junctions))
+    all_junction = dataclasses.replace(m, lanes={k: dataclasses.replace(ln, junction_id=jid)
+                                                 for k, ln in m.lanes.items()})
+    no_junction = dataclasses.replace(m, junctions={}, signals={}, stop_signs={}, crosswalks={},
+                                      lanes={k: dataclasses.replace(ln, junction_id=None) for k, ln in m.lanes.items()})
+    out = {"no manoeuvres": d / "nomoves.json", "no junctions": d / "nojunctions.json"}
+    native.save(all_junction, out["no manoeuvres"])
+    native.save(no_junction, out["no junctions"])
+    return out
+
+
+def test_maps_without_manoeuvres_and_empty_suites_are_errors_not_green_runs(tmp_path, capsys):
+    for reason, path in _no_suite_maps(tmp_path).items():
+        assert cli.main(["suite", str(path), "--out", str(tmp_path / "s.yaml")]) == 2
+        err = capsys.readouterr().err
+        assert f"{path}: {reason}" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+        assert not (tmp_path / "s.yaml").exists()
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("version: 1\nname: empty\nscenarios: []\n")
+    assert cli.main(["rollout", str(empty), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert str(empty) in err and "scenarios" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(feat2map.errors.Feat2MapError, match="no scenarios"):
+        run_suite(Suite("empty", ()), progress=False)
+
+
 def test_a_bad_route_names_the_scenario(suite_file, tmp_path, capsys):
     text = suite_file.read_text()
     assert "[J0, R0, R1]" in text

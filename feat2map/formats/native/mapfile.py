@@ -18,6 +18,7 @@ _KINDS: dict[str, type] = {
     "lanes": Lane, "roads": Road, "junctions": Junction,
     "signals": Signal, "stop_signs": StopSign, "crosswalks": Crosswalk, "yield_signs": YieldSign,
 }
+_OPTIONAL = frozenset({"yield_signs"})  # written only when the map has some
 
 
 def _encode(value: Any) -> Any:
@@ -38,6 +39,8 @@ def to_dict(m: HDMap) -> dict[str, Any]:
     out: dict[str, Any] = {"format": FORMAT_NAME, "version": MAP_FORMAT_VERSION, "origin": list(m.origin),
                            "meta": dict(m.meta)}
     for kind in _KINDS:
+        if kind in _OPTIONAL and not getattr(m, kind):
+            continue  # files of maps without them stay as they were
         out[kind] = [_element_dict(e) for e in getattr(m, kind).values()]
     return out
 
