@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from . import __version__, atomic
 from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, GenerationConfig
-from .errors import Feat2MapError
+from .errors import Feat2MapError, FeatureError, LayoutError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 from .formats import FORMATS, detect, native, read_map, write_map
 from .messages import counted, one_line
@@ -66,8 +66,12 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
         raise Feat2MapError(str(exc), "command line") from None
 
 
-def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False):
+def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
+                  buildable: GenerationConfig | None = None):
+    """Junction features of the maps; with `buildable`, only those generation can build with
+    that config (the others are skipped with a warning naming map, junction and why)."""
     from .extract import extract_junctions
+    from .generate import check_buildable
 
     import warnings
 
@@ -80,7 +84,20 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
         print(f"feat2map: warning: {one_line(w.message)}", file=sys.stderr)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
-    return junctions
+    if buildable is None:
+        return junctions
+    kept = []
+    for j in junctions:
+        try:
+            check_buildable(j.feature, buildable)
+        except (FeatureError, LayoutError) as exc:
+            print(f"feat2map: warning: {one_line(f'{j.map_name}: junction {j.id}: cannot be generated ({exc.message})')}"
+                  ", skipped", file=sys.stderr)
+            continue
+        kept.append(j)
+    if not kept:
+        raise Feat2MapError(f"none of the {len(junctions)} junctions found can be generated", ", ".join(paths))
+    return kept
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
@@ -99,7 +116,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     elif args.from_maps:
         from .extract import map_feature
 
-        space = map_feature(_extract_maps(args.from_maps, quiet=args.quiet))
+        space = map_feature(_extract_maps(args.from_maps, quiet=args.quiet, buildable=cfg))
     elif not args.spec:
         space = PAPER_SF_FEATURE_SPACE
     else:

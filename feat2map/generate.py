@@ -36,6 +36,15 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     return build_map(placements, config, info, chains)
 
 
+def check_buildable(feature: JunctionFeature, config: GenerationConfig = GenerationConfig()) -> None:
+    """Raise the FeatureError or LayoutError generation would raise on `feature`: its legs must
+    keep the generation's minimum separation (extraction accepts closer legs) and the junction
+    must be built on its own (it fits the grid gap). Extraction and generation agree through
+    this: a junction extraction accepts either passes here or is reported as skipped."""
+    JunctionFeature(feature.sockets, feature.control, feature.crosswalk, config.min_socket_separation_deg)
+    generate_from_features([feature], 0, config)
+
+
 def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = GenerationConfig()) -> HDMap:
     """Algorithm 1: one junction per feature combination (x samples_per_combination), seeded."""
     rng = np.random.default_rng([int(seed), 0])

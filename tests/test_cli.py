@@ -45,6 +45,45 @@ def test_generate_from_maps_uses_their_feature_space(tmp_path):
     assert len(native.load(tmp_path / "b" / "map.json").junctions) == 8
 
 
+def test_generate_from_maps_skips_junctions_it_cannot_build(tmp_path, capsys):
+    """A map with a junction whose legs are 8 degrees apart and one with a junction too big for
+    a 100 m grid (both built on a wide grid with a small leg separation), next to an ordinary
+    map: the two junctions are skipped with a warning naming map and junction, the map is
+    generated from the rest; maps of unbuildable junctions only are an error."""
+    import dataclasses
+
+    import feat2map
+    from feat2map.config import GenerationConfig
+
+    J = feat2map.JunctionFeature.make
+    wide = GenerationConfig(grid_gap=260.0, min_socket_separation_deg=5.0)
+    maps = {"close": ([J([0, 8, 120, 240], "bare", False, min_separation_deg=5.0)], wide),
+            "big": ([J([0, 30, 120, 240], "signal", False, lanes=4)], wide),
+            "good": ([J([0, 90, 180, 270], "stop", True), J([0, 90, 180], "signal", False)], GenerationConfig())}
+    paths = {}
+    for name, (feats, cfg) in maps.items():
+        paths[name] = str(tmp_path / f"{name}.json")
+        m = feat2map.generate_from_features(feats, seed=1, config=cfg)  # saved as a map read from a file:
+        m = dataclasses.replace(m, junctions={k: dataclasses.replace(j, feature=None)  # no recorded feature
+                                              for k, j in m.junctions.items()})
+        native.save(m, paths[name])
+    assert main(["generate", "--from-maps", *paths.values(), "--out", str(tmp_path / "g"),
+                 "--quiet", "--no-picture", "--no-apollo"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("feat2map:")]
+    assert len(err) == 2
+    assert err[0].startswith(f"feat2map: warning: {paths['close']}: junction J0: cannot be generated (sockets 8.00 "
+                             "degrees apart, closer than the minimum separation 20.0 degrees")
+    assert err[1].startswith(f"feat2map: warning: {paths['big']}: junction J0: cannot be generated (legs ")
+    assert "grid_gap" in err[1] and all(line.endswith("skipped") for line in err)
+    space = json.loads((tmp_path / "g" / "features.json").read_text())
+    assert space["road_counts"] == [3, 4] and space["controls"] == ["signal", "stop"]
+    assert main(["generate", "--from-maps", paths["close"], paths["big"], "--out", str(tmp_path / "h"),
+                 "--quiet", "--no-picture"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"feat2map: error: {paths['close']}, {paths['big']}: none of the 2 junctions found can be generated"
+    assert not (tmp_path / "h").exists()
+
+
 @pytest.mark.parametrize("content, message", [
     ('{"road_counts": [3]}', "missing field"),
     ("{not json", "not valid JSON"),
