@@ -693,6 +693,33 @@ def test_validator_runs_on_real_apollo_maps(name):
     assert all(isinstance(p, Problem) and p.element and p.message for p in problems)
 
 
+def test_a_sim_map_is_validated_by_sim_map_rules(exported, capsys):
+    """Our sim_map alone validates clean by sim_map rules (no samples, thinned curves keep the
+    base lengths), where base-map rules would flag every lane."""
+    for ext in ("bin", "txt"):
+        assert validate_apollo(exported / f"sim_map.{ext}") == []
+    sim = _load(exported, "sim_map")
+    as_base = validate_map(sim)
+    assert len({p.element for p in as_base if "sample" in p.message}) == len(sim.lane)
+    assert main(["validate", str(exported / "sim_map.txt")]) == 0
+    assert capsys.readouterr().out.strip().endswith("sim_map.txt: 0 problems")
+
+
+@pytest.mark.parametrize("name", ["cube_town", "shalun", "gomentum"])
+def test_real_sim_maps_report_nothing_their_base_map_does_not(name):
+    """Apollo's own sim_maps: what sim_map_generator does by design (thousands of missing
+    samples and shortened curves under base-map rules) is not a problem; what remains are the
+    base map's own problems (SVL boundary lengths)."""
+    path = APOLLO_MAPS / name / "sim_map.txt"
+    if not path.exists():
+        pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
+    sim = validate_apollo(path)
+    base = validate_apollo(APOLLO_MAPS / name / "base_map.bin")
+    assert {(p.element, p.message.split(" length")[0]) for p in sim} <= {
+        (p.element, p.message.split(" length")[0]) for p in base}
+    assert len(validate_apollo(path, sim=False)) > 10 * max(len(sim), 1)
+
+
 @pytest.mark.parametrize("name", ["cube_town", "shalun", "autonomous_stuff"])
 def test_real_maps_re_exported_validate_clean(name):
     """Read a real Apollo map into the model and export it again: what the validator found in

@@ -6,7 +6,8 @@ lengths, speed, turn, direction, samples, boundary types), symmetric links and n
 road sections, junction/crosswalk polygons, signals and stop signs, overlaps (both sides,
 s ranges, at the stop line, whole junction lanes, crosswalks over centrelines), ids unique
 across kinds, references, the UTM header, sim_map/routing_map consistency with the base map,
-`.txt` == `.bin`, and reachability over the routing graph when every road is two-way.
+`.txt` == `.bin`, and reachability over the routing graph when every road is two-way. A
+file named sim_map is checked by sim_map rules (`validate_map`).
 """
 from __future__ import annotations
 
@@ -80,16 +81,23 @@ def load_base_map(path: str | Path) -> Any:
     return aps.parse_map(_read(path), str(path))
 
 
-def validate_apollo(path: str | Path, progress: bool = False) -> list[Problem]:
+def is_sim_map_file(path: str | Path) -> bool:
+    """Apollo's name for the sim_map_generator output: sim_map.bin / sim_map.txt."""
+    return Path(path).stem == "sim_map"
+
+
+def validate_apollo(path: str | Path, progress: bool = False, sim: bool | None = None) -> list[Problem]:
     """Every problem of the Apollo map folder (or single map file) at `path`; `progress`
-    shows a tqdm bar over the checks.
+    shows a tqdm bar over the checks. A single file is checked by sim_map rules when `sim`
+    says so, by default when it is named sim_map (`validate_map`).
 
     Raises MapFormatError for a missing path, a folder without base_map, or files that are
     not Apollo maps (corrupt, truncated).
     """
     path = Path(path)
     if path.is_file():
-        return validate_map(aps.parse_map(_read(path), str(path)), progress=progress)
+        sim = is_sim_map_file(path) if sim is None else sim
+        return validate_map(aps.parse_map(_read(path), str(path)), progress=progress, sim=sim)
     if not path.is_dir():
         raise MapFormatError("no such map folder or file", str(path))
     base, problems = _pair(path, "base_map", aps.parse_map)
@@ -148,15 +156,21 @@ class _Index:
 
 # --- the base map ---------------------------------------------------------------------------
 
-def validate_map(m: Any, graph: Any | None = None, progress: bool = False) -> list[Problem]:
+def validate_map(m: Any, graph: Any | None = None, progress: bool = False, sim: bool = False) -> list[Problem]:
     """Every problem of one Apollo `Map` (reachability over `graph`, else the graph Apollo
-    would build from `m`)."""
+    would build from `m`).
+
+    `sim`: check it by sim_map rules. Apollo's sim_map_generator clears every width and road
+    sample and thins the curves' points but keeps the base map's segment lengths and overlap s
+    ranges, so a sim_map needs no samples, a segment length may exceed its thinned polyline's
+    (never fall short of it: thinning only shortens), and crosswalk overlaps are not measured
+    against the thinned centrelines. Everything else is checked as for a base map."""
     from tqdm import tqdm
 
     idx = _Index(m)
-    checks = [("header", lambda: _header(m) + _ids(m)), ("lanes", lambda: _lanes(m, idx)),
+    checks = [("header", lambda: _header(m) + _ids(m)), ("lanes", lambda: _lanes(m, idx, sim)),
               ("roads", lambda: _roads(m, idx) + _areas(m)), ("signals", lambda: _controls(m, idx)),
-              ("overlaps", lambda: _overlaps(m, idx) + _crosswalk_cover(m, idx)),
+              ("overlaps", lambda: _overlaps(m, idx) + ([] if sim else _crosswalk_cover(m, idx))),
               ("reachability", lambda: reachability(m, graph if graph is not None else build_routing_graph(m)))]
     problems: list[Problem] = []
     with tqdm(checks, desc="validate", unit="check", disable=not progress) as bar:
@@ -196,7 +210,7 @@ def _ids(m: Any) -> list[Problem]:
     return out
 
 
-def _check_curve(name: str, curve: Any, where: str) -> list[Problem]:
+def _check_curve(name: str, curve: Any, where: str, sim: bool = False) -> list[Problem]:
     out = []
     if not curve.segment:
         return [Problem(where, f"{name} has no segment")]
@@ -207,7 +221,8 @@ def _check_curve(name: str, curve: Any, where: str) -> list[Problem]:
             continue
         if not seg.HasField("length"):
             out.append(Problem(where, f"{name} segment {k} has no length"))
-        elif abs(seg.length - _polyline_length(pts)) > LENGTH_TOL_M + 1e-3 * seg.length:
+        elif (_polyline_length(pts) - seg.length if sim else abs(seg.length - _polyline_length(pts))) > \
+                LENGTH_TOL_M + 1e-3 * seg.length:
             out.append(Problem(where, f"{name} segment {k} length {seg.length:.3f} != its polyline's "
                                       f"{_polyline_length(pts):.3f}"))
     return out
@@ -227,7 +242,7 @@ def _check_samples(name: str, samples: Any, length: float, where: str, min_width
     return out
 
 
-def _lanes(m: Any, idx: _Index) -> list[Problem]:
+def _lanes(m: Any, idx: _Index, sim: bool = False) -> list[Problem]:
     out: list[Problem] = []
     in_sections = Counter(lid.id for road in m.road for sec in road.section for lid in sec.lane_id)
     lanes = idx.lanes
@@ -237,13 +252,13 @@ def _lanes(m: Any, idx: _Index) -> list[Problem]:
             out.append(Problem(w, "type not set (the default NONE drops the lane from routing)"))
         elif ln.type != aps.Lane.CITY_DRIVING:
             out.append(Problem(w, f"type {aps.Lane.LaneType.Name(ln.type)} is not CITY_DRIVING (no routing)"))
-        out += _check_curve("central_curve", ln.central_curve, w)
+        out += _check_curve("central_curve", ln.central_curve, w, sim)
         for side in ("left_boundary", "right_boundary"):
             b = getattr(ln, side)
             if not ln.HasField(side):
                 out.append(Problem(w, f"no {side}"))
                 continue
-            out += _check_curve(f"{side} curve", b.curve, w)
+            out += _check_curve(f"{side} curve", b.curve, w, sim)
             if not b.HasField("length") or b.length <= 0:
                 out.append(Problem(w, f"{side} length not set"))
             if not b.boundary_type:
@@ -264,10 +279,10 @@ def _lanes(m: Any, idx: _Index) -> list[Problem]:
         if not ln.HasField("direction"):
             out.append(Problem(w, "direction not set"))
         length = ln.length if ln.HasField("length") else centre_len
-        for name in ("left_sample", "right_sample"):
-            out += _check_samples(name, getattr(ln, name), length, w, APOLLO_MIN_HALF_WIDTH_M)
-        for name in ("left_road_sample", "right_road_sample"):
-            out += _check_samples(name, getattr(ln, name), length, w, 0.0)
+        for name, low in (("left_sample", APOLLO_MIN_HALF_WIDTH_M), ("right_sample", APOLLO_MIN_HALF_WIDTH_M),
+                          ("left_road_sample", 0.0), ("right_road_sample", 0.0)):
+            if not (sim and not getattr(ln, name)):  # sim_map_generator clears them
+                out += _check_samples(name, getattr(ln, name), length, w, low)
         if in_sections[ln.id.id] != 1:
             out.append(Problem(w, f"listed in {in_sections[ln.id.id]} road sections (must be exactly 1)"))
         out += _links(ln, lanes, w)
