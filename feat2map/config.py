@@ -68,6 +68,7 @@ ARM_MAX_DEPTH_M = 15.0  # ... and within this along it
 ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to one arm
 ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
 MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than generated ones
+MIN_ARM_LENGTH_M = 0.5  # a road shorter than this between two ends of one junction is part of it, not an arm
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_M
                      ARM_PROBE_M, MIN_EXTRACTED_SEPARATION_DEG)
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
-from .model import HDMap, Lane
+from .model import HDMap, Lane, interior_lane
 
 
 @dataclass(frozen=True)
@@ -146,6 +146,8 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     # one end per lane outside (its incoming or outgoing road lane), else per point
     ends: dict[tuple, tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
     for ln in lanes:
+        if any(interior_lane(m.lanes, m.lanes[x]) for x in ln.predecessors + ln.successors):
+            continue  # a path through a piece of the junction (a centimetre road): no mouth
         if not any(m.lanes[p].junction_id == jid for p in ln.predecessors):
             outside = [m.lanes[p] for p in ln.predecessors]
             key = ("in", outside[0].id) if outside else (round(ln.start[0], 2), round(ln.start[1], 2))

@@ -13,7 +13,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from .bezier import Bezier, Point
-from .config import STRAIGHT_TOLERANCE_DEG
+from .config import MIN_ARM_LENGTH_M, STRAIGHT_TOLERANCE_DEG
 from .features import JunctionFeature
 
 Polyline = tuple[Point, ...]
@@ -99,6 +99,16 @@ def incoming_lanes(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> tuple[
         preds = [p for p in ln.predecessors if p in lanes and lanes[p].junction_id is None]
         out.update((x, None) for x in (preds if ln.junction_id is not None and preds else [lid]))
     return tuple(out)
+
+
+def interior_lane(lanes: Mapping[str, Lane], ln: Lane) -> bool:
+    """A road lane shorter than MIN_ARM_LENGTH_M whose predecessors and successors all lie in
+    one junction: a piece of that junction (a junction split into elements joined by a
+    centimetre road), neither an arm nor where a route starts or ends."""
+    if ln.junction_id is not None or ln.length >= MIN_ARM_LENGTH_M or not ln.predecessors or not ln.successors:
+        return False
+    ends = {lanes[x].junction_id for x in ln.predecessors + ln.successors if x in lanes}
+    return len(ends) == 1 and None not in ends
 
 
 @dataclass(frozen=True)

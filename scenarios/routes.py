@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from ..errors import Feat2MapError
-from ..model import HDMap, Lane
+from ..model import HDMap, Lane, interior_lane
 from .scenario import Manoeuvre, Scenario, Suite
 
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
@@ -39,9 +39,13 @@ def manoeuvres(m: HDMap) -> list[Manoeuvre]:
 
 
 def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:
-    entries = {m.lanes[p].road_id for p in ln.predecessors if p in m.lanes and m.lanes[p].junction_id is None}
-    exits = {m.lanes[s].road_id for s in ln.successors if s in m.lanes and m.lanes[s].junction_id is None}
-    return {(str(ln.junction_id), e, x) for e in entries for x in exits}
+    """The (junction, entry road, exit road) a junction lane drives: from a road lane to a road
+    lane, neither of them a piece of a junction (`interior_lane`: no route starts or ends inside
+    one)."""
+    def roads(ids: Sequence[str]) -> set[str]:
+        return {m.lanes[x].road_id for x in ids if x in m.lanes and m.lanes[x].junction_id is None
+                and not interior_lane(m.lanes, m.lanes[x])}
+    return {(str(ln.junction_id), e, x) for e in roads(ln.predecessors) for x in roads(ln.successors)}
 
 
 def pick_lane(m: HDMap, mv: Manoeuvre) -> Lane | None:

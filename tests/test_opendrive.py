@@ -389,6 +389,92 @@ def test_yield_signs_are_not_stop_signs_and_lights_govern_signs_under_them(tmp_p
     assert set(kinds) == lit and set(kinds.values()) == {"signal"}
 
 
+def _split_with_a_centimetre_road(src: Path, dst: Path, gap: float = 0.013) -> None:
+    """CARLA-style: cut one straight connecting road of the exported junction in three, the
+    first part in the junction, a `gap`-long ordinary road, the last part in a second junction
+    element (the elements touch, so the reader merges them)."""
+    import copy
+
+    root = etree.parse(str(src)).getroot()
+    jx = root.find("junction")
+    con = next(r for r in root.findall("road") if r.get("junction") == jx.get("id")
+               and all(abs(float(r.find("planView/geometry/paramPoly3").get(k))) < 1e-9 for k in ("cV", "dV")))
+    g = con.find("planView/geometry")
+    x, y, h, length = (float(g.get(k)) for k in ("x", "y", "hdg", "length"))
+    ids = ("901", "902", "903")
+    parts = [(0.0, length / 2 - gap / 2), (length / 2 - gap / 2, gap), (length / 2 + gap / 2, length / 2 - gap / 2)]
+    parent, at = con.getparent(), con.getparent().index(con)
+    parent.remove(con)
+    for k, (s0, piece) in enumerate(parts):
+        r = copy.deepcopy(con)
+        r.attrib.update({"id": ids[k], "length": repr(piece), "junction": (jx.get("id"), "-1", "999")[k]})
+        geo = r.find("planView/geometry")
+        geo.remove(geo[0])
+        etree.SubElement(geo, "line")
+        geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(piece)})
+        lane_link = r.find("lanes/laneSection/right/lane/link")
+        if k > 0:
+            r.find("link/predecessor").attrib.update({"elementId": ids[k - 1], "contactPoint": "end"})
+            lane_link.find("predecessor").set("id", "-1")
+        if k < 2:
+            r.find("link/successor").attrib.update({"elementId": ids[k + 1], "contactPoint": "start"})
+            lane_link.find("successor").set("id", "-1")
+        parent.insert(at + k, r)
+    next(c for c in jx.findall("connection") if c.get("connectingRoad") == con.get("id")).set("connectingRoad", "901")
+    jy = etree.Element("junction", id="999", name="split")
+    c = etree.SubElement(jy, "connection", id="0", incomingRoad="902", connectingRoad="903", contactPoint="start")
+    etree.SubElement(c, "laneLink", attrib={"from": "-1", "to": "-1"})
+    jx.addnext(jy)
+    dst.write_bytes(etree.tostring(root))
+
+
+def test_a_centimetre_road_inside_a_merged_junction_is_no_arm_and_no_route_end(tmp_path):
+    """A T junction written as two elements joined by a 1.3 cm road (as CARLA does): still a
+    T (n=3, not 4), the road's lane is part of the one junction lane of its manoeuvre, and
+    no manoeuvre starts or ends on it."""
+    import feat2map
+    from feat2map.features import JunctionFeature as JF
+    from feat2map.scenarios.routes import coverage_routes, manoeuvres
+
+    m = feat2map.generate_from_features([JF.make([0, 90, 180], "signal", False)], seed=0)
+    write_opendrive(m, tmp_path / "t.xodr")
+    _split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
+    whole, split = read_opendrive(tmp_path / "t.xodr"), read_opendrive(tmp_path / "split.xodr")
+    assert split.meta["junction_elements"] == {"1": ["1", "999"]}
+    assert not {"902", "903"} & set(split.roads)
+    (joined,) = [ln for ln in split.lanes.values() if "902_0_-1" in ln.id]
+    assert joined.junction_id == "1" and joined.length == pytest.approx(39.0, abs=0.1)
+    assert manoeuvres(split) == manoeuvres(whole) and len(manoeuvres(split)) == 6
+    assert [(j.feature.n_roads, j.feature.control) for j in extract_junctions(split)] == [(3, "signal")]
+    assert extract_junctions(split)[0].feature.rotation == pytest.approx(extract_junctions(whole)[0].feature.rotation)
+    assert {e for r in coverage_routes(split) for _, e, x in r for e in (e, x)} == {"1", "2", "3"}
+    assert sorted(len(s.lane_ids) for s in split.signals.values()) == sorted(len(s.lane_ids) for s in whole.signals.values())
+
+
+def test_a_centimetre_road_is_no_arm_in_any_map():
+    """The same piece in a map from any reader (a road lane of 1 cm with both ends in one
+    junction): extraction and route coverage leave it out."""
+    import dataclasses
+
+    import feat2map
+    from feat2map.features import JunctionFeature as JF
+    from feat2map.model import Lane, Road
+    from feat2map.scenarios.routes import manoeuvres
+
+    m = feat2map.generate_from_features([JF.make([0, 90, 180], "bare", False)], seed=0)
+    a = next(ln for ln in m.lanes.values() if ln.junction_id and ln.turn == "none")
+    end = np.array(a.end)
+    d = np.array(a.centerline[-1]) - np.array(a.centerline[-2])
+    d /= np.hypot(*d)
+    piece = Lane("piece", "piece_road", ((float(end[0]), float(end[1])), tuple(map(float, end + 0.01 * d))),
+                 a.left_boundary[-2:], a.right_boundary[-2:], a.width, a.speed_limit, predecessors=(a.id,),
+                 successors=(a.id,))  # leads back into the junction
+    lanes = {**m.lanes, "piece": piece, a.id: dataclasses.replace(a, successors=a.successors + ("piece",))}
+    bent = dataclasses.replace(m, lanes=lanes, roads={**m.roads, "piece_road": Road("piece_road", "chain", ("piece",))})
+    assert manoeuvres(bent) == manoeuvres(m)
+    assert [j.feature for j in extract_junctions(bent)] == [j.feature for j in extract_junctions(m)]
+
+
 def test_cli_export_opendrive(tmp_path, capsys):
     from feat2map.cli import main
 

@@ -23,7 +23,7 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...config import SAMPLE_SPACING_M, SPEED_LIMIT_MPS
+from ...config import MIN_ARM_LENGTH_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS
 from ...errors import MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
@@ -519,6 +519,22 @@ class _Builder:
                     parent[max(a, b, key=_id_key)] = min(a, b, key=_id_key)
         return {j: find(j) for j in ids}
 
+    def _interior_roads(self, groups: dict[str, str]) -> dict[str, str]:
+        """Ordinary roads shorter than MIN_ARM_LENGTH_M with both ends in one merged junction,
+        road id -> that junction: pieces of the intersection, not arms (CARLA joins the
+        elements of one intersection with centimetre roads)."""
+        out = {}
+        for r in self.roads.values():
+            if r.junction is not None or r.length >= MIN_ARM_LENGTH_M or len(r.links) != 2:
+                continue
+            ends = set()
+            for etype, eid, _ in r.links.values():
+                j = eid if etype == "junction" else self.roads[eid].junction if eid in self.roads else None
+                ends.add(groups.get(j) if j is not None else None)
+            if len(ends) == 1 and None not in ends:
+                out[r.id] = ends.pop()
+        return out
+
     # ---- build ----------------------------------------------------------------------------
     def _chains(self, succ: dict[str, list[str]], pred: dict[str, list[str]]) -> list[list[tuple[str, int, int]]]:
         """Lane pieces of consecutive sections of one road joined one-to-one, in driving order."""
@@ -547,6 +563,7 @@ class _Builder:
     def build(self) -> HDMap:
         piece_succ, piece_pred = self._links()
         groups = self._junction_groups()
+        interior = self._interior_roads(groups)
         chains = self._chains(piece_succ, piece_pred)
         chain_of = {self.lane_id(k): self.lane_id(c[0]) for c in chains for k in c}
         self.chain_of = chain_of
@@ -567,7 +584,7 @@ class _Builder:
                 keep[-1] = True
             lens = [max(float(np.hypot(*np.diff(g.centre, axis=0).T).sum()), 1e-9) for g in parts]
             width = float(np.average([g.width for g in parts], weights=lens))
-            jid = groups.get(self.roads[road_id].junction) if self.roads[road_id].junction else None
+            jid = groups.get(self.roads[road_id].junction) if self.roads[road_id].junction else interior.get(road_id)
             first, last = self.lane_id(chain[0]), self.lane_id(chain[-1])
             lanes[lid] = Lane(
                 lid, road_id, as_polyline(centre[keep]), as_polyline(joined("left")[keep]),
@@ -579,13 +596,16 @@ class _Builder:
             rl = road_lanes.setdefault(road_id, ([], []))
             (rl[0] if chain[0][2] < 0 else rl[1]).append(lid)
         self._neighbours(lanes, chain_of)
+        _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
         for lid, ln in lanes.items():
             if ln.junction_id is not None:
                 lanes[lid] = _replace(ln, turn=_turn(ln))
         roads: dict[str, Road] = {}
         for rid, road in self.roads.items():
             right, left = road_lanes.get(rid, ([], []))
-            jid = groups.get(road.junction) if road.junction else None
+            if rid in road_lanes and not any(road_lanes[rid]):
+                continue  # all its lanes were joined into junction lanes of other roads
+            jid = groups.get(road.junction) if road.junction else interior.get(rid)
             ends = {}
             for kind in ("predecessor", "successor"):
                 link = road.links.get(kind)
@@ -807,6 +827,51 @@ class _Builder:
         return [(px + u * c - v * sn, py + u * sn + v * c)
                 for u, v in ((-length / 2, -width / 2), (length / 2, -width / 2), (length / 2, width / 2),
                              (-length / 2, width / 2))] if length > 0 and width > 0 else []
+
+
+def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str], list[str]]],
+                  inner: set[str]) -> None:
+    """Replace every path junction lane -> interior lane -> junction lane by one junction lane
+    (id `a+inner+b`, on a's road): a manoeuvre drives one junction lane from road to road. Only
+    where the path is unambiguous (a leads into the interior lane alone, b comes from it alone);
+    in place on `lanes` and the roads' lane lists."""
+    for mid in sorted(inner):
+        ln = lanes.get(mid)
+        if ln is None or not ln.predecessors or not ln.successors:
+            continue
+        ins = [lanes[p] for p in ln.predecessors]
+        outs = [lanes[x] for x in ln.successors]
+        if any(a.successors != (mid,) or a.junction_id != ln.junction_id for a in ins) or any(
+                b.predecessors != (mid,) or b.junction_id != ln.junction_id for b in outs):
+            continue
+        for a in ins:
+            for b in outs:
+                parts = (a, ln, b)
+                new = f"{a.id}+{mid}+{b.id}"
+                cat = lambda attr: as_polyline(np.vstack(  # noqa: E731
+                    [getattr(parts[0], attr)] + [getattr(x, attr)[1:] for x in parts[1:]]))
+                lens = [max(x.length, 1e-9) for x in parts]
+                lanes[new] = Lane(new, a.road_id, cat("centerline"), cat("left_boundary"), cat("right_boundary"),
+                                  float(np.average([x.width for x in parts], weights=lens)), a.speed_limit,
+                                  a.predecessors, b.successors, junction_id=a.junction_id,
+                                  left_boundary_type=a.left_boundary_type, right_boundary_type=a.right_boundary_type)
+                for p in a.predecessors:
+                    lanes[p] = _replace(lanes[p], successors=lanes[p].successors + (new,))
+                for q in b.successors:
+                    lanes[q] = _replace(lanes[q], predecessors=lanes[q].predecessors + (new,))
+                group = road_lanes.setdefault(a.road_id, ([], []))
+                (group[0] if a.id in group[0] else group[1]).append(new)
+        gone = {mid} | {x.id for x in ins + outs}
+        for k in gone:
+            del lanes[k]
+        for k, ln2 in list(lanes.items()):
+            links = {f: tuple(x for x in getattr(ln2, f) if x not in gone) for f in
+                     ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")}
+            if any(links[f] != getattr(ln2, f) for f in links):
+                lanes[k] = _replace(ln2, **links)
+        for group in road_lanes.values():
+            for side in group:
+                side[:] = [x for x in side if x not in gone]
 
 
 def _turn(ln: Lane) -> str:
