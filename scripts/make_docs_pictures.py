@@ -152,13 +152,15 @@ def rollout_coverage(tmp: Path) -> list[Path]:
                 "--out", str(d / "r"))
         walls[name] = time.perf_counter() - t0
         results[name] = load_result(d / "r")
-    plot_accumulated(compare(results), tmp / "c.png", title="M1 vs M1x3: accumulated coverage by junction")
+    table = compare(results)
+    plot_accumulated(table, tmp / "c.png", title="M1 vs M1x3: accumulated coverage by junction")
     rows = ["| map | scenarios | junctions | distinct stage paths | (scenario, stage path) pairs | transitions | "
-            "planner lines | junctions to 95% of lines | wall time (2 workers) |", "|---|" + "---:|" * 8]
-    for name, r in results.items():
+            "planner lines | lines only this map covers | junctions to 95% of lines | wall time (2 workers) |",
+            "|---|" + "---:|" * 9]
+    for (name, r), row in zip(results.items(), table.rows):
         c = suite_coverage(r)
         rows.append(f"| {name} | {len(r.outcomes)} | {len(c.junctions)} | {len({p for _, p in c.paths})} | "
-                    f"{len(c.all_pairs)} | {len(c.all_transitions)} | {len(c.all_lines)} | "
+                    f"{len(c.all_pairs)} | {len(c.all_transitions)} | {len(c.all_lines)} | {row[-1]} | "
                     f"{junctions_to_reach(c.accumulated_lines)} | {walls[name]:.0f} s |")
     replace_marked(DOCS / "rollouts.md", "rollout_coverage", "\n".join(rows))
     return [copy(tmp / "c.png", "rollout_coverage.png"), DOCS / "rollouts.md"]
