@@ -19,7 +19,8 @@ from feat2map.formats.apollo.validate import validate_apollo
 from feat2map.config import GenerationConfig
 from feat2map.features import FeatureSpace
 from feat2map.formats.apollo.sim_map import to_sim_map
-from feat2map.formats.apollo import text_of, to_apollo
+from feat2map.formats import FORMATS
+from feat2map.formats.apollo.writer import text_of, to_apollo
 
 # every (n, control, crosswalk) combination of 3- and 4-leg junctions: 12 junctions per sample
 SPACE = FeatureSpace((3, 4), ("bare", "signal", "stop"), (True, False), feat2map.PAPER_SF_FEATURE_SPACE.rotation_ranges)
@@ -38,7 +39,7 @@ def run(k: int, folder: Path) -> dict[str, float]:
     graph, t_route = _timed(build_routing_graph, base)
 
     def write() -> None:
-        with atomic.staged_dir(folder) as tmp:
+        with atomic.staged_dir(folder, FORMATS["apollo"].markers) as tmp:
             for name, msg in (("base_map", base), ("sim_map", sim), ("routing_map", graph)):
                 atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
                 atomic.write_text(tmp / f"{name}.txt", text_of(msg))

@@ -98,7 +98,9 @@ class Settings:
 def missing_inputs(settings: Settings, rqs: Sequence[int]) -> list[str]:
     """The real map files the chosen research questions need that are not there."""
     names = dict.fromkeys(n for rq in rqs for n in NEEDS[rq])
-    return [str(settings.input(n)) for n in names if not settings.input(n).is_file()]
+    paths = [settings.input(n) for n in names if not settings.input(n).is_file()]
+    # relative to --maps where they lie under it: the error line names all of them within its cap
+    return [str(p.relative_to(settings.maps)) if p.is_relative_to(settings.maps) else str(p) for p in paths]
 
 
 def read_input(settings: Settings, name: str) -> HDMap:

@@ -5,18 +5,19 @@ drive them headless and compare their coverage."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import sys
-from pathlib import Path
 from typing import Sequence
 
 from tqdm import tqdm
 
 from . import __version__, atomic
-from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, GenerationConfig
-from .errors import Feat2MapError, FeatureError, LayoutError
+from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, GenerationConfig, Limits, raised_limits
+from .errors import WHERE_MAX_CHARS, Feat2MapError, FeatureError, LayoutError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
-from .formats import FORMATS, detect, native, read_map, write_map
+from .formats import FORMATS, check_target, detect, native, read_map, write_map
 from .messages import counted, one_line
 
 
@@ -51,6 +52,33 @@ def _summary(m) -> str:
     return ", ".join(counted(n, noun) for n, noun in (
         (len(m.junctions), "junction"), (len(m.roads), "road"), (len(m.lanes), "lane"), (len(m.signals), "signal"),
         (len(m.stop_signs), "stop sign"), (len(m.crosswalks), "crosswalk")))
+
+
+GENERATE_MARKERS = ("map.json",)  # a folder holding one is an earlier `generate` output, replaced whole
+MAX_SEED = 2**63 - 1
+
+
+def seed_arg(text: str) -> int:
+    """argparse type of --seed: an integer 0 <= seed < 2**63."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text[:40]!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be between 0 and {MAX_SEED}, got {text[:40]}")
+    return value
+
+
+def _limit_arg(text: str) -> tuple[str, float]:
+    """argparse type of --limit NAME=VALUE."""
+    name, sep, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not sep or not name or not math.isfinite(number) or number <= 0:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE with a positive number, got {text[:60]!r}")
+    return name.strip(), number
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -104,15 +132,14 @@ def cmd_generate(args: argparse.Namespace) -> int:
     from .generate import generate
     from .render import render_junctions, render_map
 
+    out = atomic.check_dir_target(args.out, GENERATE_MARKERS)
+    if args.opendrive:
+        check_target(out / "map.xodr", "opendrive")
     cfg = _config(args)
+    cfg.check_limits()
     stages = tqdm(total=4, desc="generate", unit="stage", disable=True if args.quiet else None)
     if args.features:
-        path = Path(args.features)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise Feat2MapError(f"cannot read ({exc.strerror})", str(path)) from None
-        space = FeatureSpace.from_json(text, str(path))
+        space = FeatureSpace.load(args.features)
     elif args.from_maps:
         from .extract import map_feature
 
@@ -132,7 +159,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
     else:
         m = generate(space, seed=args.seed, config=cfg)
     stages.update(2)
-    with atomic.staged_dir(args.out) as tmp:
+    with atomic.staged_dir(out, GENERATE_MARKERS) as tmp:
         native.save(m, tmp / "map.json")
         if space is not None:
             atomic.write_text(tmp / "features.json", space.to_json())
@@ -159,18 +186,24 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_extract(args: argparse.Namespace) -> int:
     from .extract import map_feature
 
+    if args.out:
+        atomic.check_file_target(args.out)
+    if args.picture:
+        from .render import check_picture_path
+
+        check_picture_path(args.picture)
     skipped: list = []
     junctions = _extract_maps(args.maps, skipped, quiet=args.quiet)
     space = map_feature(junctions)
-    if args.out:
-        atomic.write_text(args.out, space.to_json())
-    if args.picture:
+    if args.picture:  # first: it is the step that can fail; nothing is written if it does
         from .render import render_map
 
         first = read_map(args.maps[0])
         ctrl = {j.id: j.feature.control for j in junctions if j.map_name == str(args.maps[0])}
         ctrl.update({s.id: s.control for s in skipped if s.map_name == str(args.maps[0])})
         render_map(first, args.picture, title=str(args.maps[0]), controls=ctrl)
+    if args.out:
+        atomic.write_text(args.out, space.to_json())
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
                "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped]}
@@ -200,6 +233,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     fmt = FORMATS[args.format] if args.format else detect(args.path, "validate")
     if fmt.validate is None:
         raise Feat2MapError(f"format {fmt.name} has no validator", "--format")
+    if args.picture:
+        from .render import check_picture_path
+
+        check_picture_path(args.picture)
     problems = fmt.face("validate")(args.path, progress=not args.quiet)
     for p in problems:
         print(one_line(p))
@@ -213,6 +250,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     fmt = FORMATS[args.format]
+    check_target(args.out, fmt.name)
     options = {o.kwarg: getattr(args, o.kwarg) for o in fmt.options if getattr(args, o.kwarg) is not None}
     if fmt.input == "suite":
         from .scenarios.scenario import load_suite
@@ -246,6 +284,10 @@ options give the same bytes."""
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="feat2map", description=__doc__ + "\n\nRun `feat2map COMMAND --help` for a command's options.")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    lim = Limits()
+    p.add_argument(LIMIT_FLAG, action="append", type=_limit_arg, metavar="NAME=VALUE", default=[],
+                   help="raise a size limit for this run (repeatable); limits and defaults: " + ", ".join(
+                       f"{f.name}={getattr(lim, f.name):g}" for f in dataclasses.fields(lim)))
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser, title="commands", metavar="COMMAND")
 
     g = sub.add_parser("generate", help="generate a map from a feature space, input maps or a spec",
@@ -257,8 +299,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="extract the feature space from these maps (Apollo .bin/.txt, OpenDRIVE .xodr, feat2map .json)")
     g.add_argument("--spec", metavar="FILE", help="hand-written junctions/road chains (YAML or JSON, see "
                    "docs/specs.md); with --features/--from-maps they are added to the sampled junctions")
-    g.add_argument("--seed", type=int, default=0, metavar="N", help="random seed: the same seed and options give the same map")
-    g.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced file by file, atomically)")
+    g.add_argument("--seed", type=seed_arg, default=0, metavar="N",
+                   help="random seed, 0 to 2**63-1: the same seed and options give the same map")
+    g.add_argument("--out", required=True, metavar="DIR", help="output folder, built whole and swapped in; an existing "
+                   "folder is replaced as a whole if it is an earlier generate output (holds map.json), else refused")
     g.add_argument("--samples-per-combination", type=int, metavar="N",
                    help="junctions sampled per feature combination (default: 1, or the spec's)")
     g.add_argument("--grid-gap", type=float, metavar="M",
@@ -301,7 +345,9 @@ def build_parser() -> argparse.ArgumentParser:
         else:
             f.add_argument("map", help="feat2map .json map (or any map feat2map reads)")
         f.add_argument("--out", required=True, metavar="DIR" if fmt.output == "dir" else "FILE",
-                       help="output folder" if fmt.output == "dir" else f"output file ({fmt.suffixes[0]})")
+                       help=f"output folder, built whole and swapped in; an existing folder is replaced as a whole "
+                       f"if it is an earlier export (holds {' or '.join(fmt.markers) or 'its files'}), else refused"
+                       if fmt.output == "dir" else f"output file ({fmt.suffixes[0]})")
         for o in fmt.options:
             f.add_argument(o.flag, dest=o.kwarg, **o.argparse)
         f.set_defaults(func=cmd_export)
@@ -326,9 +372,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with raised_limits(**dict(args.limit)):
+            return int(args.func(args) or 0)
     except Feat2MapError as exc:
         print(f"feat2map: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the machine's, not the input's: a full disk, a permission, a folder given as a file
+        where = one_line(exc.filename, WHERE_MAX_CHARS) if exc.filename else "output"
+        print(f"feat2map: error: {where}: {exc.strerror or type(exc).__name__}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -15,6 +15,8 @@ from . import atomic
 from .errors import Feat2MapError
 from .messages import counted, one_line
 
+COVERAGE_MARKERS = ("coverage.json",)  # a folder holding one is an earlier `coverage` output, replaced whole
+
 
 def cmd_suite(args: argparse.Namespace) -> int:
     from .formats import read_map
@@ -24,6 +26,7 @@ def cmd_suite(args: argparse.Namespace) -> int:
     path = Path(args.map)
     if not path.is_file():
         raise Feat2MapError("map file not found", str(path))
+    atomic.check_file_target(args.out)
     if args.max_junctions < 1:
         raise Feat2MapError("--max-junctions must be at least 1", "command line")
     kw = {"seed": args.seed, "traffic_vehicles": args.traffic, "pedestrian_rate": args.pedestrian_rate,
@@ -38,12 +41,13 @@ def cmd_suite(args: argparse.Namespace) -> int:
 
 
 def cmd_rollout(args: argparse.Namespace) -> int:
-    from .scenarios.report import write_report
+    from .scenarios.report import SUMMARY, write_report
     from .scenarios.rollout import PlannerFactory, run_suite
     from .scenarios.scenario import load_suite
 
     if args.workers < 1:
         raise Feat2MapError("--workers must be at least 1", "command line")
+    atomic.check_dir_target(args.out, (SUMMARY,))  # before the run, not after it
     suite = load_suite(args.suite)
     if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory
         sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
@@ -58,6 +62,8 @@ def cmd_rollout(args: argparse.Namespace) -> int:
           f"{len(failing)} failing under --fail-on {args.fail_on}; report {Path(args.out) / 'report.md'}")
     for o in failing:
         print(f"  FAIL {one_line(f'{o.name}: {o.outcome}: {o.message}')}")
+    if result.stopped:
+        print(f"  STOPPED after {len(result.outcomes)} of {result.scenarios} scenarios: {one_line(result.stopped)}")
     return result.exit_code(args.fail_on)
 
 
@@ -68,10 +74,11 @@ def cmd_coverage(args: argparse.Namespace) -> int:
     if args.names and len(args.names) != len(args.results):
         raise Feat2MapError(f"--names gives {len(args.names)} names for {len(args.results)} result dirs",
                             "command line")
+    out = atomic.check_dir_target(args.out, COVERAGE_MARKERS)
     names = args.names or _dir_names(args.results)
     results = {n: load_result(d) for n, d in zip(names, args.results)}
     table = compare(results)
-    with atomic.staged_dir(args.out) as tmp:
+    with atomic.staged_dir(out, COVERAGE_MARKERS) as tmp:
         plot_accumulated(table, tmp / "coverage.png", title="accumulated coverage by junction")
         md = ["# Coverage comparison", "", table.to_markdown(), "![accumulated coverage](coverage.png)", ""]
         for name, c in zip(table.names, table.coverages):
@@ -118,11 +125,15 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
                                    "exit 1 when a scenario fails under --fail-on.")
     r.add_argument("suite", help="suite file (.yaml or .json)")
     r.add_argument("--planner", default="baseline", metavar="PLANNER",
-                   help="'baseline' or module:attr (a Policy class/instance, a callable (obs, info) -> action, an SB3 model)")
+                   help="'baseline' or module:attr (a Policy class/instance, a callable obs -> action or "
+                        "(obs, info) -> action, told apart by its signature, an SB3 model); a planner raising "
+                        "SystemExit/KeyboardInterrupt ends the run with the report of the scenarios so far")
     r.add_argument("--workers", type=int, default=1, metavar="N", help="scenarios driven in parallel")
     r.add_argument("--backend", choices=BACKENDS, default="process",
                    help="where the workers run: local processes, or a Ray cluster (needs the ray extra)")
-    r.add_argument("--out", required=True, metavar="DIR", help="report directory")
+    r.add_argument("--out", required=True, metavar="DIR", help="report folder, built whole and swapped in; an "
+                   "existing folder is replaced as a whole if it is an earlier report (holds summary.json), else "
+                   "refused (checked before the run)")
     r.add_argument("--fail-on", choices=tuple(FAIL_POLICIES), default="any",
                    help="outcomes that fail the run (exit 1): any non-completed; collision (+ off road, errors); "
                         "violation (+ collision, off road, errors); none")

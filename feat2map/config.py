@@ -5,14 +5,19 @@ constants are its defaults and are shared by readers, writers and the envs.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import math
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any
+from typing import Any, Iterator
 
 GRID_GAP_M = 100.0  # paper: P_{x+1,y} is 100 m east of P_{x,y}
 LANE_WIDTH_M = 3.5  # paper: default lane width of the input maps
 CROSSWALK_WIDTH_M = 4.5  # paper: slightly longer than a sedan
 STUB_LENGTH_M = 25.0  # dead-end roads: the map's entries and exits; short of half a grid gap
-MIN_SOCKET_SEPARATION_DEG = 20.0
+MIN_LEG_SEPARATION_DEG = 20.0  # the one leg rule: legs closer than this are one leg to extraction, an error to specs and features
+MIN_SOCKET_SEPARATION_DEG = MIN_LEG_SEPARATION_DEG  # generation's default (configurable, never below the rule)
+MAX_LEGS = 8  # legs per junction in features, specs and feature spaces (README: 3-8)
 MIN_STUB_LENGTH_M = 10.0  # a junction must leave at least this much road before the half-way line
 MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
@@ -71,9 +76,21 @@ MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than g
 MIN_ARM_LENGTH_M = 0.5  # a road shorter than this between two ends of one junction is part of it, not an arm
 
 
+# (low, high) of every GenerationConfig number, inclusive; None: no bound besides the limits below.
+# grid_gap and stub_length are also capped by Limits.max_road_length_m, samples_per_combination by
+# Limits.max_junctions (both checked where they are used, so raised limits take effect).
+CONFIG_RANGES: dict[str, tuple[float, float | None]] = {
+    "grid_gap": (20.0, None), "lane_width": (1.0, 10.0), "crosswalk_width": (0.5, 20.0),
+    "stub_length": (1.0, None), "min_socket_separation_deg": (MIN_LEG_SEPARATION_DEG, 120.0),
+    "min_junction_radius": (1.0, 1000.0), "junction_margin": (0.01, 50.0), "speed_limit": (0.1, 100.0),
+    "junction_speed_limit": (0.1, 100.0), "sample_spacing": (0.1, 100.0), "samples_per_combination": (1, None),
+}
+
+
 @dataclass(frozen=True)
 class GenerationConfig:
-    """Knobs of map construction; every field has the paper's default."""
+    """Knobs of map construction; every field has the paper's default. Values are checked on
+    construction (finite, in CONFIG_RANGES, right type): a ConfigError names the field."""
 
     grid_gap: float = GRID_GAP_M
     lane_width: float = LANE_WIDTH_M
@@ -89,26 +106,110 @@ class GenerationConfig:
     uturns: bool = False
 
     def __post_init__(self) -> None:
+        from .errors import ConfigError
+
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, bool):
+            if f.name == "uturns":
+                if not isinstance(value, bool):
+                    raise ConfigError(f"config field 'uturns' must be true or false, got {_short(value)}")
                 continue
-            if not isinstance(value, (int, float)) or value <= 0:
-                raise ValueError(f"config field '{f.name}' must be a positive number, got {value!r}")
-        if self.samples_per_combination != int(self.samples_per_combination):
-            raise ValueError("config field 'samples_per_combination' must be an integer >= 1")
+            integer = f.name == "samples_per_combination"
+            if isinstance(value, bool) or not isinstance(value, int if integer else (int, float)) \
+                    or not math.isfinite(value):
+                kind = "an integer" if integer else "a finite number"
+                raise ConfigError(f"config field '{f.name}' must be {kind}, got {_short(value)}")
+            lo, hi = CONFIG_RANGES[f.name]
+            if value < lo or (hi is not None and value > hi):
+                span = f"between {lo:g} and {hi:g}" if hi is not None else f"at least {lo:g}"
+                raise ConfigError(f"config field '{f.name}' must be {span}, got {_short(value)}")
         if self.grid_gap < 4 * self.min_junction_radius:
-            raise ValueError(
+            raise ConfigError(
                 f"config field 'grid_gap' ({self.grid_gap}) must be at least 4x min_junction_radius"
             )
+
+    def check_limits(self) -> None:
+        """The fields bounded by the current `Limits` (raise them with `raised_limits`)."""
+        lim = limits()
+        for name in ("grid_gap", "stub_length"):
+            lim.check("max_road_length_m", getattr(self, name), f"config field '{name}'")
+        lim.check("max_junctions", self.samples_per_combination, "config field 'samples_per_combination'")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "GenerationConfig":
+        from .errors import ConfigError
+
+        if not isinstance(data, dict):
+            raise ConfigError(f"a config must be a mapping of fields, got {_short(data)}")
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
-            raise ValueError(f"unknown config field(s): {', '.join(sorted(unknown))}")
+            raise ConfigError(f"unknown config field(s): {', '.join(sorted(map(str, unknown)))[:200]}")
         return replace(cls(), **data)
+
+
+def _short(value: Any, cap: int = 40) -> str:
+    """`repr(value)`, cut to `cap` characters: errors never quote more than a short snippet."""
+    text = repr(value)
+    return text if len(text) <= cap else text[: cap - 3] + "..."
+
+
+# ---------------------------------------------------------------------------------- size limits
+
+LIMIT_FLAG = "--limit"  # the CLI option that raises a limit: feat2map --limit max_junctions=20000 generate ...
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Size caps that keep a hostile or careless input from running for hours or exhausting
+    memory; each is checked before the work it bounds and its error says how to raise it
+    (`feat2map --limit NAME=VALUE ...`, or `raised_limits(NAME=VALUE)` in Python)."""
+
+    max_junctions: int = 5000  # junctions one generate/spec run builds (1,000 take about 10 s)
+    max_road_length_m: float = 20_000.0  # one road (OpenDRIVE road, spec chain piece, grid gap)
+    max_lanes: int = 500_000  # lanes in one map read from a file
+    max_points: int = 20_000_000  # polyline points in one map read from a file
+    max_coordinate_m: float = 1e8  # |x|, |y| of any point (UTM northings are below 1e7)
+    max_lane_width_m: float = 100.0  # one lane's width anywhere along it
+    max_file_bytes: int = 2 << 30  # one input file (map, spec, suite, feature space)
+    max_document_bytes: int = 64 << 20  # one JSON/YAML spec, suite or feature-space document
+    max_nesting: int = 100  # nesting depth of JSON/YAML documents
+    max_yaml_nodes: int = 2_000_000  # YAML nodes after expanding aliases (an alias bomb is billions)
+
+    def check(self, name: str, value: float, what: str) -> None:
+        """Raise a LimitError when `value` exceeds limit `name`."""
+        cap = getattr(self, name)
+        if value > cap:
+            from .errors import LimitError
+
+            raise LimitError(f"{what} is {value:g}, above the limit {name}={cap:g} "
+                             f"(raise it with {LIMIT_FLAG} {name}=N)")
+
+
+_LIMITS: contextvars.ContextVar[Limits] = contextvars.ContextVar("feat2map_limits", default=Limits())
+
+
+def limits() -> Limits:
+    """The size caps in force (defaults unless raised by `raised_limits` or `--limit`)."""
+    return _LIMITS.get()
+
+
+@contextlib.contextmanager
+def raised_limits(**values: float) -> Iterator[Limits]:
+    """Run a block with some limits changed: `with raised_limits(max_junctions=20000): ...`."""
+    from .errors import ConfigError
+
+    known = {f.name: f.type for f in fields(Limits)}
+    for name, value in values.items():
+        if name not in known:
+            raise ConfigError(f"unknown limit {name!r} (limits: {', '.join(known)})")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise ConfigError(f"limit {name} must be a positive finite number, got {_short(value)}")
+    token = _LIMITS.set(replace(limits(), **{k: (int(v) if known[k] == "int" else float(v)) for k, v in values.items()}))
+    try:
+        yield limits()
+    finally:
+        _LIMITS.reset(token)

@@ -1,14 +1,33 @@
-"""Exceptions that carry the file and element they are about, for one-line CLI errors."""
+"""Exceptions that carry the file and element they are about, for one-line CLI errors.
+
+Every message is one line of at most ERROR_MAX_CHARS characters: control characters are
+escaped and long parts cut, so an error never dumps a file's content (`snippet` is the way to
+quote a short piece of the offending element)."""
 from __future__ import annotations
+
+from typing import Any
+
+from .messages import MAX_LINE_CHARS, one_line
+
+ERROR_MAX_CHARS = MAX_LINE_CHARS  # one error line, file and element included
+WHERE_MAX_CHARS = 200
+SNIPPET_MAX_CHARS = 40
+
+
+def snippet(value: Any, cap: int = SNIPPET_MAX_CHARS) -> str:
+    """A short, escaped quotation of an offending value for an error message."""
+    text = one_line(repr(value), 10**9)
+    return text if len(text) <= cap else text[: cap - 3] + "..."
 
 
 class Feat2MapError(Exception):
     """Base error: `where` names the file and/or element, `message` says what is wrong."""
 
     def __init__(self, message: str, where: str | None = None) -> None:
-        self.message = message
-        self.where = where
-        super().__init__(f"{where}: {message}" if where else message)
+        self.where = one_line(where, WHERE_MAX_CHARS) if where else where
+        room = ERROR_MAX_CHARS - (len(self.where) + 2 if self.where else 0)
+        self.message = one_line(message, max(room, 100))
+        super().__init__(f"{self.where}: {self.message}" if self.where else self.message)
 
 
 class FeatureError(Feat2MapError, ValueError):
@@ -21,3 +40,11 @@ class MapFormatError(Feat2MapError, ValueError):
 
 class LayoutError(Feat2MapError):
     """A feature set that cannot be placed or built as a valid map."""
+
+
+class ConfigError(Feat2MapError, ValueError):
+    """A configuration or command-line value that is not finite, out of range or of the wrong type."""
+
+
+class LimitError(Feat2MapError, ValueError):
+    """A request above a size limit (`feat2map.config.Limits`); the message says how to raise it."""

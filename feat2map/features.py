@@ -11,10 +11,11 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from .config import MIN_SOCKET_SEPARATION_DEG
-from .errors import FeatureError
+from .config import MAX_LEGS, MIN_SOCKET_SEPARATION_DEG
+from .errors import FeatureError, snippet
 
 CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
 ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
@@ -55,14 +56,14 @@ class JunctionFeature:
     def __post_init__(self) -> None:
         object.__setattr__(self, "sockets", tuple(self.sockets))
         n = len(self.sockets)
-        if n < 3:
-            raise FeatureError(f"a junction needs at least 3 roads, got {n}")
+        if not 3 <= n <= MAX_LEGS:
+            raise FeatureError(f"a junction needs at least 3 roads and at most {MAX_LEGS}, got {n}")
         if self.control not in CONTROLS:
             raise FeatureError(f"unknown control {self.control!r}, expected one of {CONTROLS}")
         if not isinstance(self.crosswalk, bool):
             raise FeatureError(f"crosswalk must be true or false, got {self.crosswalk!r}")
         angles = self.rotation
-        if any(not math.isfinite(a) for a in angles):
+        if any(isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) for a in angles):
             raise FeatureError(f"socket angles must be finite, got {list(angles)}")
         for i in range(n - 1):
             if angles[i + 1] <= angles[i]:
@@ -76,6 +77,8 @@ class JunctionFeature:
                 f"{self.min_separation_deg} degrees: {list(angles)}"
             )
         for i, s in enumerate(self.sockets):
+            if not all(isinstance(x, int) and not isinstance(x, bool) for x in (s.lanes_in, s.lanes_out)):
+                raise FeatureError(f"socket {i} lane counts must be integers, got in={s.lanes_in!r} out={s.lanes_out!r}")
             if s.lanes_in < 0 or s.lanes_out < 0 or s.lanes_in + s.lanes_out == 0:
                 raise FeatureError(f"socket {i} must have at least one lane, got in={s.lanes_in} out={s.lanes_out}")
         if not any(s.lanes_in for s in self.sockets) or not any(s.lanes_out for s in self.sockets):
@@ -249,8 +252,8 @@ class FeatureSpace:
     def validate(self) -> None:
         if not self.road_counts or not self.controls or not self.crosswalks:
             raise FeatureError("road_counts, controls and crosswalks must each be non-empty")
-        if min(self.road_counts) < 3:
-            raise FeatureError(f"road counts must be >= 3, got {list(self.road_counts)}")
+        if min(self.road_counts) < 3 or max(self.road_counts) > MAX_LEGS:
+            raise FeatureError(f"road counts must be 3 to {MAX_LEGS}, got {list(self.road_counts)}")
         for n in self.road_counts:
             ranges = self.rotation_ranges.get(n)
             if ranges is None:
@@ -312,34 +315,50 @@ class FeatureSpace:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "feature space") -> "FeatureSpace":
         if not isinstance(data, Mapping):
-            raise FeatureError("expected a JSON object", where)
+            raise FeatureError(f"expected a JSON object, got a {type(data).__name__}", where)
         missing = {"road_counts", "controls", "crosswalks", "rotation_ranges"} - set(data)
         if missing:
             raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
+        for key, kind, name in (("road_counts", int, "integers"), ("controls", str, "strings"),
+                                ("crosswalks", bool, "true/false")):
+            value = data[key]
+            if not isinstance(value, list) or not all(isinstance(x, kind) and (kind is bool or not isinstance(
+                    x, bool)) for x in value):
+                raise FeatureError(f"must be a list of {name}, got {snippet(value)}", f"{where}: {key}")
         unknown = [c for c in data["controls"] if c not in CONTROLS]
         if unknown:
-            raise FeatureError(f"unknown control(s) {unknown}, expected {list(CONTROLS)}", f"{where}: controls")
-        if any(not isinstance(c, bool) for c in data["crosswalks"]):
-            raise FeatureError("crosswalks must be a list of true/false", f"{where}: crosswalks")
+            raise FeatureError(f"unknown control(s) {snippet(unknown)}, expected {list(CONTROLS)}", f"{where}: controls")
+        rr = data["rotation_ranges"]
+        if not isinstance(rr, Mapping):
+            raise FeatureError(f"must be an object n -> ranges, got {snippet(rr)}", f"{where}: rotation_ranges")
+        ranges = {}
+        for n, rs in rr.items():
+            at = f"{where}: rotation_ranges.{n}"
+            if not (isinstance(n, str) and n.isdigit()) or not isinstance(rs, list) or not all(
+                    isinstance(r, list) and len(r) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                                for x in r) for r in rs):
+                raise FeatureError(f"must map a road count to a list of [low, high] angles, got {snippet(rs)}", at)
+            ranges[int(n)] = tuple((float(r[0]), float(r[1])) for r in rs)
         try:
-            ranges = {int(n): tuple((float(r[0]), float(r[1])) for r in rs) for n, rs in data["rotation_ranges"].items()}
-            return cls(tuple(int(n) for n in data["road_counts"]), tuple(data["controls"]),
-                       tuple(data["crosswalks"]), ranges)
+            return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges)
         except FeatureError as exc:
             raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
-        except (TypeError, ValueError, IndexError, AttributeError) as exc:
-            raise FeatureError(f"malformed field ({exc})", where) from None
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n"
 
     @classmethod
     def from_json(cls, text: str, where: str = "feature space") -> "FeatureSpace":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise FeatureError(f"not valid JSON ({exc})", where) from None
-        return cls.from_dict(data, where)
+        from .documents import parse_document
+
+        return cls.from_dict(parse_document(text, where, "json", FeatureError), where)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "FeatureSpace":
+        """A feature-space JSON file (as `extract --out` writes it)."""
+        from .documents import load_document
+
+        return cls.from_dict(load_document(path, FeatureError, fmt="json"), str(path))
 
 
 # The San Francisco feature space of the paper's Table I, in this module's convention.

@@ -6,12 +6,20 @@ from typing import Sequence
 import numpy as np
 
 from . import __version__
-from .config import GenerationConfig
+from .config import GenerationConfig, limits
 from .construct import RoadChain, build_map
+from .errors import ConfigError, snippet
 from .features import FeatureSpace, JunctionFeature, normalize_rotation
 from .layout import Cell, place
 from .model import HDMap
 from .sampling import sample_features
+
+
+def check_seed(seed: int) -> int:
+    """A seed is an integer 0 <= seed < 2**63 (numpy's seed sequences take no negatives)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
+        raise ConfigError(f"seed must be an integer from 0 to 2**63-1, got {snippet(seed)}")
+    return int(seed)
 
 
 def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
@@ -24,7 +32,9 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     hand-written roads added as they are (a map may consist of chains only); `names` label
     the features in layout errors; `keep_orientation` (per feature) prefers, among equally good
     placements, the quarter turn that shows the junction closest to its given angles."""
-    rng = np.random.default_rng([int(seed), 1])
+    rng = np.random.default_rng([check_seed(seed), 1])
+    config.check_limits()
+    limits().check("max_junctions", len(features), "the junction count")
     prefer = None
     if keep_orientation is not None:
         prefer = [round(-normalize_rotation(f.rotation).rotation_deg / 90.0) % 4 if keep else None
@@ -47,6 +57,7 @@ def check_buildable(feature: JunctionFeature, config: GenerationConfig = Generat
 
 def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = GenerationConfig()) -> HDMap:
     """Algorithm 1: one junction per feature combination (x samples_per_combination), seeded."""
-    rng = np.random.default_rng([int(seed), 0])
+    rng = np.random.default_rng([check_seed(seed), 0])
+    config.check_limits()
     features = sample_features(space, rng, config)
     return generate_from_features(features, seed, config, meta={"feature_space": space.to_dict()})

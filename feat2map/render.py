@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 
 from . import atomic  # noqa: E402
+from .errors import Feat2MapError  # noqa: E402
 from .model import HDMap  # noqa: E402
 
 CONTROL_COLOURS = {"signal": "#2e7d32", "stop": "#c62828", "bare": "#1565c0"}
@@ -26,12 +27,24 @@ LEGEND_WIDTH_IN = 3.0  # beside the map in render_map
 ONE_WAY_ARROW_SPACING_M = 40.0  # one direction arrow per this much lane of a one-way road
 
 
+PICTURE_SUFFIXES = (".png", ".svg", ".pdf")
+
+
+def check_picture_path(path: str | Path) -> Path:
+    """`path` when a picture can be written there (a known suffix, not a folder); before any work."""
+    path = atomic.check_file_target(path, "--picture")
+    if path.suffix.lower() not in PICTURE_SUFFIXES:
+        raise Feat2MapError(f"unknown picture type {path.suffix or '(no suffix)'!r}: use one of "
+                            f"{', '.join(PICTURE_SUFFIXES)}", str(path))
+    return path
+
+
 def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
     """Write a matplotlib figure atomically (format from the suffix, PNG by default) and close it."""
-    path = Path(path)
     try:
+        path = check_picture_path(path)
         buf = io.BytesIO()
-        fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
+        fig.savefig(buf, format=path.suffix.lstrip(".").lower(), dpi=dpi)
     finally:
         plt.close(fig)
     atomic.write_bytes(path, buf.getvalue())

@@ -5,7 +5,7 @@ import itertools
 
 import numpy as np
 
-from .config import MAX_ORDER_RETRIES, GenerationConfig
+from .config import MAX_ORDER_RETRIES, GenerationConfig, limits
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, normalize_rotation
 
@@ -37,6 +37,9 @@ def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Gene
 def sample_features(space: FeatureSpace, rng: np.random.Generator,
                     config: GenerationConfig = GenerationConfig()) -> list[JunctionFeature]:
     """One feature per (n, control, crosswalk) combination, `samples_per_combination` times."""
+    combos = len(space.road_counts) * len(space.controls) * len(space.crosswalks)
+    limits().check("max_junctions", combos * int(config.samples_per_combination),
+                   f"the junction count ({combos} feature combinations x samples_per_combination)")
     out: list[JunctionFeature] = []
     for n, control, crosswalk in itertools.product(space.road_counts, space.controls, space.crosswalks):
         for _ in range(int(config.samples_per_combination)):

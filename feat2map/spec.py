@@ -19,14 +19,14 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-import yaml
 from shapely.geometry import LineString, Polygon
 from shapely.ops import unary_union
 
 from .bezier import Bezier
-from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig
+from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig, limits
 from .construct import RoadChain, chain_road_id, junction_radius
-from .errors import FeatureError, LayoutError
+from .documents import check_schema, element_path, element_where, load_document
+from .errors import FeatureError, LayoutError, LimitError
 from .features import FeatureSpace, JunctionFeature, Socket, socket_lanes
 from .invariants import AREA_EPS_M2, connectivity, dead_ends, two_way
 from .layout import Cell
@@ -82,89 +82,15 @@ def spec_schema() -> dict:
 
 def load_spec(path: str | Path) -> MapSpec:
     """Read and validate a YAML (.yaml/.yml) or JSON spec file."""
-    path = Path(path)
-    name = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise SpecError(f"cannot read ({exc.strerror})", str(path)) from None
-    except UnicodeDecodeError:
-        raise SpecError("not UTF-8 text", str(path)) from None
-    try:
-        if path.suffix.lower() == ".json":
-            doc = json.loads(text)
-        else:
-            doc = yaml.safe_load(text)
-    except json.JSONDecodeError as exc:
-        raise SpecError(f"not valid JSON (line {exc.lineno}: {exc.msg})", name) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f"line {mark.line + 1}: " if mark is not None else ""
-        raise SpecError(f"not valid YAML ({at}{getattr(exc, 'problem', None) or exc})", name) from None
-    return parse_spec(doc, name)
-
-
-def _path(items: Sequence[Any]) -> str:
-    out = ""
-    for p in items:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
-    return out
-
-
-def _where(source: str, items: Sequence[Any]) -> str:
-    return f"{source}: {_path(items)}" if items else source
-
-
-_TYPE_NAMES = {"object": "an object (mapping)", "array": "a list", "number": "a number", "integer": "an integer",
-               "string": "a string", "boolean": "true or false"}
-
-
-def _schema_message(err) -> tuple[list[Any], str]:
-    """A short message for one jsonschema error, and the element path it is about."""
-    path = list(err.absolute_path)
-    v, val, inst = err.validator, err.validator_value, err.instance
-    if v == "minimum":
-        return path, f"must be >= {val}, got {inst!r}"
-    if v == "maximum":
-        return path, f"must be <= {val}, got {inst!r}"
-    if v == "exclusiveMinimum":
-        return path, f"must be > {val}, got {inst!r}"
-    if v == "type":
-        want = [val] if isinstance(val, str) else list(val)
-        return path, f"must be {' or '.join(_TYPE_NAMES.get(t, t) for t in want)}, got {inst!r}"
-    if v == "enum":
-        return path, f"must be one of {', '.join(map(str, val))}, got {inst!r}"
-    if v == "const":
-        return path, f"must be {val!r}, got {inst!r}"
-    if v == "required":
-        missing = [k for k in val if k not in inst]
-        return path, f"missing required field {missing[0]!r}"
-    if v == "additionalProperties":
-        known = set(err.schema.get("properties", {}))
-        extra = sorted(k for k in inst if k not in known)
-        return path + extra[:1], f"unknown field (expected one of {', '.join(sorted(known))})"
-    if v == "minItems":
-        return path, f"needs at least {val} entries, got {len(inst)}"
-    if v == "maxItems":
-        return path, f"takes at most {val} entries, got {len(inst)}"
-    return path, err.message
+    return parse_spec(load_document(path, SpecError), str(path))
 
 
 def _validate_schema(doc: Any, source: str) -> None:
-    from jsonschema import Draft202012Validator
-
     if doc is None:
         raise SpecError("empty spec", source)
-    validator = Draft202012Validator(spec_schema())
-    errors = list(validator.iter_errors(doc))
-    if not errors:
-        return
-
-    def key(e) -> tuple:
-        return tuple((0, p, "") if isinstance(p, int) else (1, 0, str(p)) for p in e.absolute_path)
-
-    path, message = _schema_message(min(errors, key=key))
-    raise SpecError(message, _where(source, path))
+    if not isinstance(doc, Mapping):  # the document is not quoted: it may be any file
+        raise SpecError(f"a spec must be an object (mapping) with junctions and/or chains, got a {type(doc).__name__}", source)
+    check_schema(doc, spec_schema(), source, SpecError)
 
 
 def _socket(raw: Any, where: str) -> Socket:
@@ -214,10 +140,17 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float) -> JunctionSpe
 def _chain(raw: Mapping[str, Any], index: int, where: str) -> RoadChain:
     start = raw["start"]
     poses = [((float(start["point"][0]), float(start["point"][1])), math.radians(float(start["heading"])))]
+    lim = limits()
     for k, r in enumerate(raw["roads"]):
         p = (float(r["end"][0]), float(r["end"][1]))
+        if max(abs(p[0]), abs(p[1]), abs(poses[0][0][0]), abs(poses[0][0][1])) > lim.max_coordinate_m:
+            raise SpecError(f"point beyond the limit max_coordinate_m={lim.max_coordinate_m:g}", f"{where}.roads[{k}]")
         if math.dist(p, poses[-1][0]) < 1.0:
             raise SpecError("road shorter than 1 m: its end is (almost) the previous road's end", f"{where}.roads[{k}]")
+        if math.dist(p, poses[-1][0]) > lim.max_road_length_m:
+            raise SpecError(f"road {math.dist(p, poses[-1][0]):.0f} m long, above the limit max_road_length_m="
+                            f"{lim.max_road_length_m:g} (raise it with --limit max_road_length_m=N)",
+                            f"{where}.roads[{k}]")
         poses.append((p, math.radians(float(r["heading"]))))
     fwd, bwd = int(raw.get("lanes_forward", 1)), int(raw.get("lanes_backward", 1))
     if fwd + bwd == 0:
@@ -238,22 +171,27 @@ def _chain(raw: Mapping[str, Any], index: int, where: str) -> RoadChain:
 
 def parse_spec(doc: Any, source: str = "spec") -> MapSpec:
     """Validate a spec document (already loaded from YAML/JSON) and build its values."""
+    if isinstance(doc, Mapping) and isinstance(doc.get("junctions"), list):  # before the (slow) schema check
+        try:
+            limits().check("max_junctions", len(doc["junctions"]), "the number of junctions")
+        except LimitError as exc:
+            raise SpecError(exc.message, element_where(source, ["junctions"])) from None
     _validate_schema(doc, source)
     if not doc.get("junctions") and not doc.get("chains"):
         raise SpecError("a spec needs at least one junction or chain", source)
     config = dict(doc.get("config", {}))
     spec = MapSpec((), (), config, source)
     cfg = spec.generation_config()
-    junctions = tuple(_junction(j, _where(source, ["junctions", i]), cfg.min_socket_separation_deg)
+    junctions = tuple(_junction(j, element_where(source, ["junctions", i]), cfg.min_socket_separation_deg)
                       for i, j in enumerate(doc.get("junctions", [])))
     seen: dict[Cell, int] = {}
     for i, j in enumerate(junctions):
         if j.cell is not None:
             if j.cell in seen:
                 raise SpecError(f"cell {list(j.cell)} is already taken by junctions[{seen[j.cell]}]",
-                                _where(source, ["junctions", i, "cell"]))
+                                element_where(source, ["junctions", i, "cell"]))
             seen[j.cell] = i
-    chains = tuple(_chain(c, i, _where(source, ["chains", i])) for i, c in enumerate(doc.get("chains", [])))
+    chains = tuple(_chain(c, i, element_where(source, ["chains", i])) for i, c in enumerate(doc.get("chains", [])))
     spec = replace(spec, junctions=junctions, chains=chains)
     check_buildable(spec, cfg)
     return spec
@@ -341,15 +279,15 @@ def check_buildable(spec: MapSpec, cfg: GenerationConfig) -> None:
             need = 2 * (r + MIN_STUB_LENGTH_M + cfg.junction_margin)
             raise SpecError(f"legs too close to fit their lanes: the junction needs a {r:.1f} m radius, a "
                             f"{cfg.grid_gap:g} m grid leaves {room:.1f} m (raise config.grid_gap to >= {need:.0f}, "
-                            "spread the sockets or drop lanes)", _where(spec.source, ["junctions", i]))
+                            "spread the sockets or drop lanes)", element_where(spec.source, ["junctions", i]))
     polys = []
     for i, c in enumerate(spec.chains):
-        _check_chain(c, _where(spec.source, ["chains", i]), cfg)
+        _check_chain(c, element_where(spec.source, ["chains", i]), cfg)
         polys.append(unary_union(chain_piece_polygons(c, cfg)))
     for a in range(len(polys)):
         for b in range(a + 1, len(polys)):
             if polys[a].intersection(polys[b]).area > AREA_EPS_M2:
-                raise SpecError(f"overlaps chains[{a}]", _where(spec.source, ["chains", b]))
+                raise SpecError(f"overlaps chains[{a}]", element_where(spec.source, ["chains", b]))
 
 
 # ------------------------------------------------------------------------------------- building
@@ -369,7 +307,7 @@ def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = N
         check_buildable(spec, cfg)
     features = spec.features()
     cells: list[Cell | None] = [j.cell for j in spec.junctions]
-    names = [_path(["junctions", i]) for i in range(len(spec.junctions))]
+    names = [element_path(["junctions", i]) for i in range(len(spec.junctions))]
     meta: dict[str, Any] = {"spec": spec.source}
     if space is not None:
         sampled = sample_features(space, np.random.default_rng([int(seed), 0]), cfg)
@@ -394,7 +332,7 @@ def _element(m: HDMap, lane_id: str, spec: MapSpec, names: Sequence[str]) -> str
         for i, c in enumerate(spec.chains):
             for k in range(c.n_pieces):
                 if chain_road_id(c, k) == road.id:
-                    return _where(spec.source, ["chains", i, "roads", k])
+                    return element_where(spec.source, ["chains", i, "roads", k])
     jid = lane.junction_id or (road.end_junction if lane_id in road.right_lanes else road.start_junction) \
         or road.start_junction or road.end_junction
     if jid is not None and jid.startswith("J") and jid[1:].isdigit() and int(jid[1:]) < len(names):
@@ -426,4 +364,4 @@ def _check_network(m: HDMap, spec: MapSpec, names: Sequence[str], cfg: Generatio
             for idx in tree.query(poly, predicate="intersects"):
                 if poly.intersection(others[idx][1]).area > AREA_EPS_M2:
                     raise SpecError(f"overlaps {others[idx][0]} of the junction grid (move the chain)",
-                                    _where(spec.source, ["chains", i, "roads", k]))
+                                    element_where(spec.source, ["chains", i, "roads", k]))

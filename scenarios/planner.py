@@ -393,16 +393,30 @@ def _travel_time(distance: float, speed: float, accel: float, v_max: float = mat
 
 
 class CallablePolicy:
-    """A Policy from a plain function obs -> action."""
+    """A Policy from a plain function `obs -> action` or `(obs, info) -> action`, told apart
+    by its signature (two or more positional parameters, or *args: it gets `info` too)."""
 
-    def __init__(self, fn: Callable[[Any], Any]) -> None:
+    def __init__(self, fn: Callable[..., Any]) -> None:
         self.fn = fn
+        self.with_info = takes_info(fn)
 
     def reset(self, env: Any) -> None:
         return None
 
     def act(self, obs: Any, info: dict) -> Any:
-        return self.fn(obs)
+        return self.fn(obs, info) if self.with_info else self.fn(obs)
+
+
+def takes_info(fn: Callable[..., Any]) -> bool:
+    """Whether a policy callable takes `(obs, info)` rather than `(obs)`."""
+    import inspect
+
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):  # no signature (some builtins): the documented minimum
+        return False
+    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params)
 
 
 class ModelPolicy:
@@ -430,4 +444,4 @@ def as_policy(obj: Any) -> Policy:
     if callable(obj):
         return CallablePolicy(obj)
     raise TypeError(f"cannot use {type(obj).__name__} as a policy: expected a Policy, a model with "
-                    f".predict, or a callable obs -> action")
+                    f".predict, or a callable obs -> action or (obs, info) -> action")

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
 from feat2map import atomic
+from feat2map.documents import load_document
 from feat2map.errors import Feat2MapError
 from feat2map.messages import counted
 
@@ -45,7 +45,7 @@ def junit_xml(result: SuiteResult, fail_on: str = "any") -> bytes:
                           failures=str(fails), errors=str(errors), skipped="0", time=f"{result.wall_s:.3f}")
     props = ET.SubElement(suite, "properties")
     for k, v in (("planner", result.planner), ("fail_on", fail_on), ("workers", result.workers),
-                 ("backend", result.backend)):
+                 ("backend", result.backend), ("stopped", result.stopped)):
         ET.SubElement(props, "property", name=k, value=str(v))
     for o in result.outcomes:
         case = ET.SubElement(suite, "testcase", classname=f"{result.name}", name=o.name, time=f"{o.wall_s:.3f}")
@@ -116,11 +116,13 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
     cov_acc_pairs = ((len(cov.pairs.get(ROAD_CONTEXT, ())),) if road else ()) + cov.accumulated_pairs
     cov_acc_trans = ((len(cov.transitions.get(ROAD_CONTEXT, ())),) if road else ()) + cov.accumulated_transitions
     sum_pairs = sum(len(cov.pairs.get(j, ())) for j in rows)
-    verdict = "FAILED" if failing else "passed"
+    verdict = "FAILED" if failing or result.stopped else "passed"
     lines = [f"# Rollout report: {result.name}", "",
              f"Planner `{result.planner}`, {len(result.outcomes)} scenarios, failure policy `--fail-on {fail_on}`: "
              f"**{verdict}** ({len(failing)} failing). Wall time {result.wall_s:.1f} s on {result.workers} "
              f"worker(s), backend {result.backend}.", "",
+             *([f"**Stopped early**: {_cell(result.stopped)}; {len(result.outcomes)} of {result.scenarios} "
+                "scenarios ran.", ""] if result.stopped else []),
              "| " + " | ".join(OUTCOMES) + " |", "|" + "---:|" * len(OUTCOMES),
              "| " + " | ".join(str(counts[k]) for k in OUTCOMES) + " |", "", "![outcomes](outcomes.png)", "",
              "## Scenarios", "", "Stage codes (`LF`, `T_A`, ...) are explained under *Stage codes* at the end.", "",
@@ -225,7 +227,7 @@ _CSS = ("body{font-family:system-ui,sans-serif;max-width:75em;margin:2em auto;pa
 def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> Path:
     """Write summary, JUnit XML, Markdown report, plots and failure GIFs into `out` atomically."""
     out = Path(out)
-    with atomic.staged_dir(out) as tmp:
+    with atomic.staged_dir(out, (SUMMARY,)) as tmp:
         gifs: dict[str, str] = {}
         used: set[str] = set()
         for o in result.outcomes:
@@ -248,7 +250,6 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
         text = report_markdown(result, fail_on, gifs)
         atomic.write_text(tmp / REPORT, text)
         atomic.write_text(tmp / REPORT_HTML, report_html(text, tmp, f"Rollout report: {result.name}"))
-        shutil.rmtree(out / FAILURES, ignore_errors=True)  # GIFs of an earlier run into the same dir
     return out
 
 
@@ -256,12 +257,9 @@ def load_result(path: str | Path) -> SuiteResult:
     """A SuiteResult from a rollout output directory (or its summary.json)."""
     p = Path(path)
     f = p / SUMMARY if p.is_dir() else p
-    try:
-        doc = json.loads(f.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise Feat2MapError("no rollout summary here (run `feat2map rollout ... --out DIR` first)", str(f)) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise Feat2MapError(f"cannot read rollout summary ({exc.__class__.__name__}: {exc})", str(f)) from None
+    if not f.is_file():
+        raise Feat2MapError("no rollout summary here (run `feat2map rollout ... --out DIR` first)", str(f))
+    doc = load_document(f, fmt="json")
     if not isinstance(doc, dict):
         raise Feat2MapError("rollout summary must be a JSON object", str(f))
     return SuiteResult.from_dict(doc, str(f))

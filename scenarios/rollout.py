@@ -50,7 +50,7 @@ HASH_SEED = "0"  # PYTHONHASHSEED of every worker: set iteration orders (and so 
 class PlannerFactory:
     """A picklable zero-argument factory of fresh planners from a spec: "baseline",
     "module:attr" or the object itself: a Policy class or a zero-argument factory (called per
-    scenario), a Policy instance (deep-copied per scenario), a callable `obs -> action` or an
+    scenario), a Policy instance (deep-copied per scenario), a callable `obs -> action` or `(obs, info) -> action` (told apart by its signature) or an
     SB3 model (wrapped by `as_policy`)."""
 
     def __init__(self, spec: Any = "baseline") -> None:
@@ -188,13 +188,15 @@ class SuiteResult:
     workers: int = field(default=1, compare=False)
     backend: str = field(default="process", compare=False)
     wall_s: float = field(default=0.0, compare=False)
+    stopped: str = ""  # why the run ended before every scenario ran ("" when it did not)
+    scenarios: int | None = field(default=None, compare=False)  # in the suite (None: as many as outcomes)
 
     def failures(self, fail_on: str = "any") -> list[Outcome]:
         return [o for o in self.outcomes if o.fails(fail_on)]
 
     def exit_code(self, fail_on: str = "any") -> int:
-        """0 when no outcome fails under the policy, else 1."""
-        return 1 if self.failures(fail_on) else 0
+        """0 when no outcome fails under the policy and the whole suite ran, else 1."""
+        return 1 if self.failures(fail_on) or self.stopped else 0
 
     def counts(self) -> dict[str, int]:
         return {k: sum(o.outcome == k for o in self.outcomes) for k in OUTCOMES}
@@ -203,6 +205,7 @@ class SuiteResult:
         return {"name": self.name, "planner": self.planner, "coverage": self.coverage,
                 "planner_digest": self.planner_digest,
                 "workers": self.workers, "backend": self.backend, "wall_s": self.wall_s,
+                "stopped": self.stopped, "scenarios": len(self.outcomes) if self.scenarios is None else self.scenarios,
                 "counts": self.counts(), "outcomes": [o.to_dict() for o in self.outcomes]}
 
     @classmethod
@@ -212,7 +215,8 @@ class SuiteResult:
             return cls(name=str(d["name"]), planner=str(d["planner"]), outcomes=outcomes,
                        coverage=bool(d.get("coverage", False)), planner_digest=str(d.get("planner_digest", "")),
                        workers=int(d.get("workers", 1)),
-                       backend=str(d.get("backend", "process")), wall_s=float(d.get("wall_s", 0.0)))
+                       backend=str(d.get("backend", "process")), wall_s=float(d.get("wall_s", 0.0)),
+                       stopped=str(d.get("stopped", "")), scenarios=int(d.get("scenarios", len(outcomes))))
         except (KeyError, TypeError, ValueError) as exc:
             raise Feat2MapError(f"malformed suite result ({exc!r})", where) from None
 
@@ -455,7 +459,15 @@ class _Task:
     coverage_modules: tuple[str, ...]
 
 
-def _run_task(task: _Task) -> tuple[int, Outcome]:
+def _error_outcome(scenario: Any, index: int, message: str) -> Outcome:
+    return Outcome(name=str(getattr(scenario, "name", f"scenario {index}")), outcome="error", violations={},
+                   sim_s=0.0, steps=0, stage_path=(), transitions=(), junctions=(), route_progress=0.0,
+                   message=message, seed=getattr(scenario, "seed", None), map=str(getattr(scenario, "map", "")))
+
+
+def _run_task(task: _Task) -> tuple[int, Outcome, str]:
+    """(index, outcome, stop): `stop` names why the suite must end here ("" to go on): the
+    planner raised SystemExit or KeyboardInterrupt, whose scenario is an error outcome."""
     import feat2map  # noqa: F401  (registers the env ids in spawned workers)
 
     os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
@@ -471,12 +483,11 @@ def _run_task(task: _Task) -> tuple[int, Outcome]:
         name = f"scenario {getattr(scenario, 'name', task.index)}"
         raise Feat2MapError(exc.message, f"{name}: {exc.where}" if exc.where else name) from None
     except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
-        name = str(getattr(scenario, "name", f"scenario {task.index}"))
-        out = Outcome(name=name, outcome="error", violations={}, sim_s=0.0, steps=0,
-                      stage_path=(), transitions=(), junctions=(), route_progress=0.0,
-                      message=f"planner or env raised {type(exc).__name__}: {exc}",
-                      seed=getattr(scenario, "seed", None), map=str(getattr(scenario, "map", "")))
-    return task.index, out
+        out = _error_outcome(scenario, task.index, f"planner or env raised {type(exc).__name__}: {exc}")
+    except (SystemExit, KeyboardInterrupt) as exc:  # the planner asks to stop: end the suite, keep the report
+        stop = f"the planner raised {type(exc).__name__} in scenario {getattr(scenario, 'name', task.index)}"
+        return task.index, _error_outcome(scenario, task.index, f"{stop}: the rollout stopped here"), stop
+    return task.index, out, ""
 
 
 def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backend: str = "process",
@@ -503,14 +514,20 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         raise Feat2MapError("cannot be pickled for worker processes: use a module-level class or function, "
                             "or functools.partial of one", f"planner {getattr(factory, 'name', planner)!r}")
     results: dict[int, Outcome] = {}
+    stopped: list[str] = []
     bar = tqdm(total=len(tasks), desc=f"rollout {getattr(suite, 'name', '')}".strip(), unit="scenario",
                disable=not progress)
     t0 = time.perf_counter()
 
-    def done(index: int, out: Outcome) -> None:
-        results[index] = out
+    def done(index: int, out: Outcome, stop: str = "") -> bool:
+        """Record one outcome; True when the suite must end (the planner asked to stop)."""
+        if not stopped:
+            results[index] = out
+        if stop and not stopped:
+            stopped.append(stop)
         bar.update(1)
         bar.set_postfix(failed=sum(o.fails(fail_on) for o in results.values()))
+        return bool(stopped)
 
     try:
         if backend == "ray":
@@ -520,20 +537,26 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
                 warnings.warn("the planner cannot be pickled: running in this process, whose string hashing "
                               "may change which planner lines run (results stay the same)", stacklevel=2)
             for t in tasks:  # this process already hashes like the workers would
-                done(*_run_task(t))
+                if done(*_run_task(t)):
+                    break
         elif tasks:
             with _env_var("PYTHONHASHSEED", HASH_SEED), \
                     ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=get_context("spawn")) as pool:
                 futures = [pool.submit(_run_task, t) for t in tasks]
                 for fut in as_completed(futures):
-                    done(*fut.result())
+                    if done(*fut.result()):
+                        pool.shutdown(wait=True, cancel_futures=True)
+                        break
+    except KeyboardInterrupt:  # Ctrl-C: end with what has run so far
+        stopped.append("interrupted (KeyboardInterrupt)")
     finally:
         bar.close()
-    outcomes = tuple(results[i] for i in range(len(tasks)))
+    outcomes = tuple(results[i] for i in sorted(results))
     return SuiteResult(name=str(getattr(suite, "name", "suite")), planner=getattr(factory, "name", str(planner)),
                        outcomes=outcomes, coverage=coverage,
                        planner_digest=suite_digest(outcomes) if coverage else "",
-                       workers=workers, backend=backend, wall_s=time.perf_counter() - t0)
+                       workers=workers, backend=backend, wall_s=time.perf_counter() - t0,
+                       stopped=stopped[0] if stopped else "", scenarios=len(tasks))
 
 
 def _picklable(obj: Any) -> bool:
@@ -558,7 +581,7 @@ def _env_var(name: str, value: str) -> Iterator[None]:
             os.environ[name] = old
 
 
-def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome], None]) -> None:
+def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[..., bool]) -> None:
     try:
         import ray
     except ImportError:
@@ -576,7 +599,10 @@ def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[[int, Outcome]
             ready, pending = ray.wait(pending, num_returns=1)
             for ref in ready:
                 try:
-                    done(*ray.get(ref))
+                    if done(*ray.get(ref)):
+                        for rest in pending:
+                            ray.cancel(rest)
+                        return
                 except ray.exceptions.RayTaskError as exc:  # bad input in a worker: its one-line error
                     cause = getattr(exc, "cause", None)
                     if isinstance(cause, Feat2MapError):

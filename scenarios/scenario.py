@@ -19,7 +19,8 @@ from typing import Any, Mapping
 import yaml
 
 from ..atomic import write_text
-from ..errors import Feat2MapError
+from ..documents import check_schema, load_document
+from ..errors import Feat2MapError, snippet
 
 SCHEMA_RESOURCE = ("feat2map", "schemas/scenario.schema.json")  # package data
 SUITE_FORMAT_VERSION = 1
@@ -63,6 +64,16 @@ class Scenario:
     duration: float = 60.0  # [s] truncation
 
     def __post_init__(self) -> None:
+        where = f"scenario {snippet(self.name)}"
+        for name in ("traffic_vehicles", "seed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ScenarioError(f"must be an integer, got {snippet(value)}", f"{where}.{name}")
+        values = {"pedestrian_rate": self.pedestrian_rate, "duration": self.duration,
+                  **{f"signal_offsets.{k}": v for k, v in dict(self.signal_offsets).items()}}
+        for name, value in values.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ScenarioError(f"must be a finite number, got {snippet(value)}", f"{where}.{name}")
         object.__setattr__(self, "route", tuple(tuple(str(x) for x in item) for item in self.route))
         object.__setattr__(self, "signal_offsets",
                            FrozenDict({str(k): float(v) for k, v in dict(self.signal_offsets).items()}))
@@ -83,7 +94,7 @@ class Scenario:
     @classmethod
     def from_dict(cls, d: Any, where: str = "scenario") -> "Scenario":
         """Validate one scenario dict against the schema and build it; errors name `where`."""
-        _validate(d, _schema()["$defs"]["scenario"], where)
+        check_schema(d, {**_schema()["$defs"]["scenario"], "$defs": _schema()["$defs"]}, where, ScenarioError)
         for key in ("map", "route"):
             if key not in d:
                 raise ScenarioError(f"missing required field '{key}'", where)
@@ -130,31 +141,12 @@ def _schema() -> dict:
     return json.loads(files(pkg).joinpath(name).read_text(encoding="utf-8"))
 
 
-def _element(path) -> str:
-    out = ""
-    for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
-
-
-def _validate(data: Any, schema: dict, where: str) -> None:
-    """Raise ScenarioError naming `where` and the first offending element (schema order)."""
-    import jsonschema
-
-    full = dict(_schema())
-    validator = jsonschema.Draft202012Validator({**schema, "$defs": full["$defs"]})
-    errors = sorted(validator.iter_errors(data), key=lambda e: (list(map(str, e.absolute_path)), e.message))
-    if errors:
-        err = errors[0]
-        elem = _element(err.absolute_path)
-        raise ScenarioError(err.message, f"{where}.{elem}" if elem else where)
-
-
 def suite_from_dict(data: Any, where: str = "suite", base_dir: Path | None = None) -> Suite:
     """Validate a whole suite document (schema + defaults + unique names) and build it."""
-    if not isinstance(data, dict):
-        raise ScenarioError("a suite must be a mapping with 'name' and 'scenarios'", where)
-    _validate(data, _schema(), where)
+    if not isinstance(data, dict):  # the document is not quoted: it may be any file
+        raise ScenarioError(f"a suite must be a mapping with 'name' and 'scenarios', got a {type(data).__name__}",
+                            where)
+    check_schema(data, _schema(), where, ScenarioError)
     defaults = dict(data.get("defaults", {}))
     scenarios, names = [], set()
     for i, raw in enumerate(data["scenarios"]):
@@ -179,15 +171,7 @@ def load_suite(path: str | Path, check_maps: bool = True) -> Suite:
     """Read a suite file (YAML or JSON), validate it against the schema and resolve map paths
     against its folder; with `check_maps`, every referenced map file must exist."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"cannot read suite file ({exc.__class__.__name__}: {exc})", str(path)) from None
-    try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        msg = str(exc).replace("\n", " ")
-        raise ScenarioError(f"not valid {'JSON' if path.suffix == '.json' else 'YAML'} ({msg})", str(path)) from None
+    data = load_document(path, ScenarioError)
     suite = suite_from_dict(data, str(path), path.resolve().parent)
     if check_maps:
         for i, sc in enumerate(suite.scenarios):
@@ -200,7 +184,7 @@ def save_suite(suite: Suite, path: str | Path) -> None:
     """Write `suite` atomically as YAML (or JSON for a .json path), map paths relative to it."""
     path = Path(path)
     data = suite.to_dict(relative_to=path.resolve().parent)
-    _validate(data, _schema(), str(path))
+    check_schema(data, _schema(), str(path), ScenarioError)
     if path.suffix == ".json":
         text = json.dumps(data, indent=2) + "\n"
     else:

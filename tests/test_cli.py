@@ -88,7 +88,7 @@ def test_generate_from_maps_skips_junctions_it_cannot_build(tmp_path, capsys):
     ('{"road_counts": [3]}', "missing field"),
     ("{not json", "not valid JSON"),
     ('{"road_counts": [2], "controls": ["bare"], "crosswalks": [false], "rotation_ranges": {"2": [[0,1],[90,91]]}}',
-     "road counts must be >= 3"),
+     "road counts must be 3 to 8"),
 ])
 def test_bad_feature_file_fails_cleanly_and_writes_nothing(tmp_path, capsys, content, message):
     bad = tmp_path / "bad.json"
@@ -121,7 +121,7 @@ def test_truncated_map_file(tmp_path, capsys, sf_default_map):
 def test_bad_arguments_exit_2():
     r = subprocess.run([sys.executable, "-m", "feat2map.cli", "generate", "--seed", "x", "--out", "/tmp/never"],
                        capture_output=True, text=True)
-    assert r.returncode == 2 and "invalid int value" in r.stderr
+    assert r.returncode == 2 and "--seed: must be an integer" in r.stderr
     r = subprocess.run([sys.executable, "-m", "feat2map.cli", "generate", "--out", "/tmp/never", "--lane-width", "-2"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "lane_width" in r.stderr and "Traceback" not in r.stderr

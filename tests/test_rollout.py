@@ -215,6 +215,48 @@ def _full_throttle(obs):
     return np.array([0.2], dtype=np.float32)
 
 
+def _throttle_seeing_info(obs, info):
+    assert isinstance(info, dict) and "time" in info  # the documented (obs, info) form gets the step info
+    return _full_throttle(obs)
+
+
+class Quitter(BaselinePlanner):
+    """A planner that asks to stop (SystemExit or KeyboardInterrupt) in its first scenario."""
+
+    signal = SystemExit
+
+    def act(self, obs, info):
+        if self._steps >= 3:
+            raise self.signal(3)
+        return super().act(obs, info)
+
+
+class Interrupter(Quitter):
+    signal = KeyboardInterrupt
+
+
+@pytest.mark.parametrize("fn", [_full_throttle, _throttle_seeing_info, lambda obs, info=None: _full_throttle(obs)])
+def test_callable_planners_take_obs_or_obs_and_info(suite_file, fn):
+    sc = load_suite(suite_file).scenarios[1]
+    out = run_scenario(sc, PlannerFactory(fn), record_failure_gif=False)
+    assert out.outcome != "error" and out.steps > 0, out.message
+
+
+@pytest.mark.parametrize("planner", ["Quitter", "Interrupter"])
+def test_a_planner_that_stops_ends_the_rollout_with_the_report_so_far(suite_file, tmp_path, capsys, planner):
+    out = tmp_path / "stopped"
+    code = cli.main(["rollout", str(suite_file), "--planner", f"{__name__}:{planner}", "--out", str(out), "--quiet",
+                     "--no-coverage", "--no-gif"])
+    assert code == 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["outcomes"]) == 1 and summary["scenarios"] == 3
+    assert summary["outcomes"][0]["outcome"] == "error" and globals()[planner].signal.__name__ in summary["stopped"]
+    assert "Stopped early" in (out / "report.md").read_text()
+    assert "STOPPED after 1 of 3 scenarios" in capsys.readouterr().out
+    res = run_suite(load_suite(suite_file), globals()[planner], progress=False, record_failure_gif=False)
+    assert len(res.outcomes) == 1 and res.stopped and res.exit_code("none") == 1
+
+
 @pytest.mark.parametrize("args,needle", [
     (["rollout", "missing.yaml", "--out", "o"], "missing.yaml"),
     (["rollout", "SUITE", "--out", "o", "--planner", "no_such_module_x:P"], "no_such_module_x"),

@@ -32,7 +32,8 @@ def _is_protobuf(head: bytes) -> bool:
 _P = "feat2map.formats"
 FORMATS: dict[str, MapFormat] = {f.name: f for f in (
     MapFormat("apollo", "Apollo HD map: base_map, sim_map, routing_map (.bin + .txt)", (".bin", ".pb", ".txt"),
-              output="dir", read=f"{_P}.apollo:read_apollo", write=f"{_P}.apollo:write_apollo",
+              output="dir", markers=("base_map.bin", "base_map.txt"),
+              read=f"{_P}.apollo:read_apollo", write=f"{_P}.apollo:write_apollo",
               validate=f"{_P}.apollo:validate_apollo", picture=f"{_P}.apollo:render_problems",
               sniff=_is_protobuf, options=GEO_OPTIONS),
     MapFormat("commonroad", "CommonRoad scenario (.xml, 2020a)", (".xml",), write=f"{_P}.commonroad:write_commonroad",
@@ -49,7 +50,8 @@ FORMATS: dict[str, MapFormat] = {f.name: f for f in (
                   ExportOption("--odr-version", "version", {"choices": OPENDRIVE_VERSIONS,
                                                             "help": f"OpenDRIVE revision (default {OPENDRIVE_VERSIONS[0]})"}),)),
     MapFormat("openscenario", "ASAM OpenSCENARIO XML 1.3: a suite as one .xosc per scenario + its maps' .xodr",
-              (".xosc",), output="dir", input="suite", write=f"{_P}.openscenario:write_openscenario",
+              (".xosc",), output="dir", markers=("*.xosc",), input="suite",
+              write=f"{_P}.openscenario:write_openscenario",
               validate=f"{_P}.openscenario:validate_openscenario"),
 )}
 
@@ -80,9 +82,22 @@ def read_map(path: str | Path) -> HDMap:
     return detect(path, "read").face("read")(Path(path))
 
 
+def check_target(path: str | Path, format: str) -> Path:
+    """`path` when format `format` may be written there (see feat2map.atomic); before any work."""
+    from .. import atomic
+
+    fmt = FORMATS[format]
+    return atomic.check_dir_target(path, fmt.markers) if fmt.output == "dir" else atomic.check_file_target(path)
+
+
 def write_map(m: HDMap, path: str | Path, format: str, **options) -> None:
-    """Write `m` to `path` (a file, or a folder for directory formats) in `format`, atomically."""
+    """Write `m` to `path` (a file, or a folder for directory formats) in `format`, atomically;
+    a map with values no format can hold (NaN, ...) is refused naming the element."""
+    from ..validation import validate_model
+
+    check_target(path, format)
+    validate_model(m, "map to write")
     return FORMATS[format].face("write")(m, path, **options)
 
 
-__all__ = ["FORMATS", "ExportOption", "MapFormat", "Problem", "detect", "read_map", "write_map"]
+__all__ = ["FORMATS", "ExportOption", "MapFormat", "Problem", "check_target", "detect", "read_map", "write_map"]

@@ -60,6 +60,7 @@ class MapFormat:
     picture: str | None = None  # (path, out, problems, title) -> None: the map with its problems marked
     sniff: Callable[[bytes], bool] | None = None  # does a file starting with these bytes hold this format?
     options: tuple[ExportOption, ...] = ()
+    markers: tuple[str, ...] = ()  # "dir" output: files of an earlier export (a folder holding one is replaced whole)
 
     def face(self, name: str) -> Callable[..., Any]:
         """The function behind face `name` (read, write, validate, picture), imported now."""

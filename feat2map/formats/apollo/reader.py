@@ -22,10 +22,11 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from . import schema as aps
-from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M
-from ...errors import MapFormatError
+from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, limits
+from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       incoming_lanes, signal_precedence)
+from ...validation import validate_model
 
 # overlap kind -> (the Map field listing the elements, the model class)
 _CONTROL_FIELDS = {"signal": ("signal", Signal), "stop_sign": ("stop_sign", StopSign),
@@ -99,6 +100,13 @@ class _Reader:
     def err(self, what: str, message: str) -> MapFormatError:
         return MapFormatError(message, f"{self.where}: {what}")
 
+    def points(self, pts: np.ndarray, what: str) -> np.ndarray:
+        """`pts` when finite and within the limit max_coordinate_m (checked before any geometry)."""
+        cap = limits().max_coordinate_m
+        if not np.isfinite(pts).all() or (len(pts) and float(np.abs(pts).max()) > cap):
+            raise self.err(what, f"coordinates not finite or beyond the limit max_coordinate_m={cap:g}")
+        return pts
+
     def warn(self, what: str, message: str) -> None:
         warnings.warn(f"{self.where}: {what}: {message}", stacklevel=3)
 
@@ -167,10 +175,9 @@ class _Reader:
             centre = _curve_points(ln.central_curve)
             if len(centre) < 2:
                 raise self.err(f"lane {lid!r}", "central_curve has fewer than 2 points")
-            if not np.isfinite(centre).all():
-                raise self.err(f"lane {lid!r}", "central_curve has non-finite coordinates")
-            raw[lid] = {"c": centre, "l": _curve_points(ln.left_boundary.curve),
-                        "r": _curve_points(ln.right_boundary.curve)}
+            raw[lid] = {"c": self.points(centre, f"lane {lid!r} central_curve"),
+                        "l": self.points(_curve_points(ln.left_boundary.curve), f"lane {lid!r} left_boundary"),
+                        "r": self.points(_curve_points(ln.right_boundary.curve), f"lane {lid!r} right_boundary")}
         allpts = np.vstack([r["c"] for r in raw.values()])
         origin = (float(np.floor(allpts[:, 0].min())), float(np.floor(allpts[:, 1].min())))
         o = np.array(origin)
@@ -202,7 +209,7 @@ class _Reader:
         junctions: dict[str, Junction] = {}
         for j in pb.junction:
             jid = j.id.id
-            pts = _polygon_points(j.polygon) - o
+            pts = self.points(_polygon_points(j.polygon), f"junction {jid!r} polygon") - o
             # real maps draw self-touching outlines: kept as drawn, only an empty area is replaced
             if len(pts) < 3 or Polygon(pts).buffer(0).area <= 0:
                 member = [raw[lid][k] - o for lid, jj in lane_junction.items() if jj == jid for k in ("l", "r", "c")]
@@ -299,7 +306,8 @@ class _Reader:
         out: dict = {}
         for el in items:
             sid = el.id.id
-            line = next((p for p in (_curve_points(c) for c in el.stop_line) if len(p) >= 2), None)
+            line = next((self.points(p, f"{kind} {sid!r} stop_line") for p in (_curve_points(c) for c in el.stop_line)
+                         if len(p) >= 2), None)
             lane_ids = incoming_lanes(lanes, governed.get(sid, []))
             # its junction: the one its lanes lie in or lead into (junction overlaps of Baidu-style maps may
             # name a neighbour whose polygon reaches the stop line), preferring one it overlaps
@@ -359,7 +367,7 @@ class _Reader:
             cid = c.id.id or f"crosswalk_unnamed_{i}"
             if cid in out:
                 cid = f"{cid}_{i}"
-            pts = _polygon_points(c.polygon) - o
+            pts = self.points(_polygon_points(c.polygon), f"crosswalk {cid!r} polygon") - o
             if len(pts) < 3:
                 self.warn(f"crosswalk {cid!r}", "polygon has fewer than 3 points, skipped")
                 continue
@@ -393,13 +401,16 @@ def read_apollo(path: str | Path) -> HDMap:
     base_map, into an HDMap."""
     path = base_map_file(path)
     try:
+        limits().check("max_file_bytes", path.stat().st_size, "the file size (bytes)")
         data = path.read_bytes()
     except OSError as exc:
         raise MapFormatError(f"cannot read ({exc.strerror})", str(path)) from None
+    except LimitError as exc:
+        raise LimitError(exc.message, str(path)) from None
     pb = aps.parse_map(data, str(path))
-    return _Reader(pb, str(path)).read()
+    return validate_model(_Reader(pb, str(path)).read(), str(path))
 
 
 def read_apollo_bytes(data: bytes, where: str = "<bytes>") -> HDMap:
     """Like `read_apollo`, from the file's content."""
-    return _Reader(aps.parse_map(data, where), where).read()
+    return validate_model(_Reader(aps.parse_map(data, where), where).read(), where)

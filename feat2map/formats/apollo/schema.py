@@ -413,8 +413,14 @@ def _parse(cls: Any, data: bytes, where: str, what: str) -> Message:
     if is_text(data):
         try:
             text_format.Parse(data.decode("utf-8", errors="strict"), msg, allow_unknown_field=True)
-        except (text_format.ParseError, UnicodeDecodeError) as exc:
-            raise MapFormatError(f"broken Apollo {what} text: {exc}", where) from None
+        except text_format.ParseError as exc:  # its message quotes the offending line: not repeated
+            reason = str(exc).rpartition("': ")[2] if "': " in str(exc) else "unexpected token"
+            raise MapFormatError(f"broken Apollo {what} text (line {exc.GetLine()}, column {exc.GetColumn()}: "
+                                 f"{reason})", where) from None
+        except UnicodeDecodeError as exc:
+            raise MapFormatError(f"broken Apollo {what} text: not UTF-8 (byte {exc.start})", where) from None
+        except RecursionError:
+            raise MapFormatError(f"broken Apollo {what} text: nested too deeply", where) from None
         return msg
     try:
         msg.ParseFromString(data)

@@ -28,6 +28,7 @@ from .reader import base_map_file
 from .routing import build_routing_graph
 from ...config import APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
 from ...errors import MapFormatError
+from ...validation import unusable_numbers
 
 LENGTH_TOL_M = 0.05  # recorded lengths vs. the polyline's; endpoints of linked lanes
 LINK_TOL_M = 0.1  # successor starts where its predecessor ends
@@ -167,6 +168,10 @@ def validate_map(m: Any, graph: Any | None = None, progress: bool = False, sim: 
     against the thinned centrelines. Everything else is checked as for a base map."""
     from tqdm import tqdm
 
+    bad = [Problem(element, f"unusable number {value} (text line {line}): NaN, infinite or >= 1e9")
+           for value, element, line in unusable_numbers(str(m))]
+    if bad:  # the geometric checks below need finite coordinates
+        return bad
     idx = _Index(m)
     checks = [("header", lambda: _header(m) + _ids(m)), ("lanes", lambda: _lanes(m, idx, sim)),
               ("roads", lambda: _roads(m, idx) + _areas(m)), ("signals", lambda: _controls(m, idx)),

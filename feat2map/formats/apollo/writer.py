@@ -18,6 +18,7 @@ from shapely import STRtree
 from shapely.geometry import LineString, Polygon
 
 from ... import __version__, atomic
+from .. import FORMATS
 from . import schema as aps
 from .geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
                                stop_line_range, usable_boundaries)
@@ -27,6 +28,7 @@ from ..geo import utm_projection
 from ...config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline
+from ...validation import refuse_nonfinite
 
 FILES = ("base_map", "sim_map", "routing_map")
 BOUNDARY_TYPE = {
@@ -326,12 +328,13 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
         bar.set_postfix_str("routing_map")
         messages["routing_map"] = build_routing_graph(base)
         bar.update()
+        texts = {name: refuse_nonfinite(text_of(msg), f"{out_dir}: {name}") for name, msg in messages.items()}
         try:
-            with atomic.staged_dir(out_dir) as tmp:
+            with atomic.staged_dir(out_dir, FORMATS["apollo"].markers) as tmp:
                 for name, msg in messages.items():
                     bar.set_postfix_str(f"{name}.bin/.txt")
                     atomic.write_bytes(tmp / f"{name}.bin", msg.SerializeToString())
-                    atomic.write_text(tmp / f"{name}.txt", text_of(msg))
+                    atomic.write_text(tmp / f"{name}.txt", texts[name])
                     bar.update()
         except OSError as exc:
             raise Feat2MapError(f"cannot write the Apollo map ({exc.strerror or exc})", str(out_dir)) from None

@@ -6,12 +6,16 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ... import atomic
 from ...bezier import Bezier
 from ...config import MAP_FORMAT_VERSION
-from ...errors import MapFormatError
+from ...documents import load_document
+from ...errors import FeatureError, MapFormatError, snippet
 from ...features import JunctionFeature
 from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign
+from ...validation import check_references, validate_model
 
 FORMAT_NAME = "feat2map-map"
 _KINDS: dict[str, type] = {
@@ -46,35 +50,57 @@ def to_dict(m: HDMap) -> dict[str, Any]:
 
 
 def _tuples(value: Any) -> Any:
+    """JSON lists as tuples (the model's sequences); nesting is bounded by the document loader."""
     if isinstance(value, list):
         return tuple(_tuples(v) for v in value)
     return value
+
+
+def _bezier(value: Any, where: str, key: str) -> Bezier | None:
+    if value is None:
+        return None
+    try:
+        pts = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        pts = None
+    if pts is None or pts.shape != (4, 2):
+        raise MapFormatError(f"{key} must be 4 [x, y] control points, got {snippet(value)}", where)
+    return Bezier(*(tuple(map(float, p)) for p in pts))
 
 
 def _decode(cls: type, data: dict[str, Any], where: str) -> Any:
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise MapFormatError(f"unknown field(s) {sorted(unknown)}", where)
+        raise MapFormatError(f"unknown field(s) {snippet(sorted(map(str, unknown)), 80)}", where)
     kw: dict[str, Any] = {}
     for key, value in data.items():
-        if key == "bezier" or (key == "reference" and value is not None):
-            kw[key] = None if value is None else Bezier(*(tuple(p) for p in value))
+        if key in ("bezier", "reference"):
+            kw[key] = _bezier(value, where, key)
         elif key == "feature":
-            kw[key] = None if value is None else JunctionFeature.from_dict(value, where)
+            if value is not None and not isinstance(value, dict):
+                raise MapFormatError(f"feature must be an object, got {snippet(value)}", where)
+            try:
+                kw[key] = None if value is None else JunctionFeature.from_dict(value, where)
+            except FeatureError as exc:
+                raise MapFormatError(f"feature: {exc.message}", where) from None
         else:
             kw[key] = _tuples(value)
     try:
         return cls(**kw)
-    except TypeError as exc:
-        raise MapFormatError(f"missing or malformed fields ({exc})", where) from None
+    except TypeError:
+        missing = sorted(names - set(data))
+        raise MapFormatError(f"missing field(s) {snippet(missing, 80)}", where) from None
 
 
 def from_dict(data: Any, where: str = "map") -> HDMap:
+    """The map of a parsed map document, checked by `validate_model` (MapFormatError naming
+    the file and element)."""
     if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
         raise MapFormatError(f"not a {FORMAT_NAME} document", where)
     if data.get("version") != MAP_FORMAT_VERSION:
-        raise MapFormatError(f"unsupported version {data.get('version')!r} (this is {MAP_FORMAT_VERSION})", where)
+        raise MapFormatError(f"unsupported version {snippet(data.get('version'))} (this is {MAP_FORMAT_VERSION})",
+                             where)
     parts: dict[str, dict[str, Any]] = {}
     for kind, cls in _KINDS.items():
         items = data.get(kind, [])
@@ -83,46 +109,26 @@ def from_dict(data: Any, where: str = "map") -> HDMap:
         parts[kind] = {}
         for i, item in enumerate(items):
             ident = item.get("id") if isinstance(item, dict) else None
-            at = f"{where}: {kind}[{i}]" + (f" id={ident}" if ident else "")
-            if not isinstance(item, dict) or not isinstance(ident, str):
+            at = f"{where}: {kind}[{i}]" + (f" id={ident}" if isinstance(ident, str) else "")
+            if not isinstance(item, dict) or not isinstance(ident, str) or not ident:
                 raise MapFormatError("element without an id", at)
             if ident in parts[kind]:
                 raise MapFormatError("duplicate id", at)
             parts[kind][ident] = _decode(cls, item, at)
-    m = HDMap(**parts, origin=tuple(data.get("origin", (0.0, 0.0))), meta=data.get("meta", {}))
-    check_references(m, where)
-    return m
-
-
-def check_references(m: HDMap, where: str = "map") -> None:
-    """Every id an element refers to exists; raises MapFormatError naming the element."""
-    for ln in m.lanes.values():
-        if ln.road_id not in m.roads:
-            raise MapFormatError(f"unknown road id {ln.road_id!r}", f"{where}: lane {ln.id}")
-        if ln.junction_id is not None and ln.junction_id not in m.junctions:
-            raise MapFormatError(f"unknown junction id {ln.junction_id!r}", f"{where}: lane {ln.id}")
-        for ref in ln.predecessors + ln.successors + ln.left_neighbors + ln.right_neighbors + ln.left_reverse_neighbors:
-            if ref not in m.lanes:
-                raise MapFormatError(f"unknown lane id {ref!r}", f"{where}: lane {ln.id}")
-        if len(ln.centerline) < 2:
-            raise MapFormatError("centerline has fewer than 2 points", f"{where}: lane {ln.id}")
-    for r in m.roads.values():
-        for ref in r.lane_ids:
-            if ref not in m.lanes:
-                raise MapFormatError(f"unknown lane id {ref!r}", f"{where}: road {r.id}")
-    for kind in ("signals", "stop_signs", "yield_signs"):
-        for s in getattr(m, kind).values():
-            for ref in s.lane_ids:
-                if ref not in m.lanes:
-                    raise MapFormatError(f"unknown lane id {ref!r}", f"{where}: {kind[:-1]} {s.id}")
-    for kind in ("signals", "stop_signs", "yield_signs", "crosswalks"):
-        for s in getattr(m, kind).values():
-            if s.junction_id is not None and s.junction_id not in m.junctions:
-                raise MapFormatError(f"unknown junction id {s.junction_id!r}", f"{where}: {kind[:-1]} {s.id}")
+    meta = data.get("meta", {})
+    if not isinstance(meta, dict):
+        raise MapFormatError(f"meta must be an object, got {snippet(meta)}", where)
+    m = HDMap(**parts, origin=_tuples(data.get("origin", [0.0, 0.0])), meta=meta)
+    return validate_model(m, where)
 
 
 def dumps(m: HDMap) -> str:
-    return json.dumps(to_dict(m), separators=(",", ":"), sort_keys=False) + "\n"
+    """The map file's text; a map holding NaN/inf is refused (JSON has no such numbers)."""
+    try:
+        return json.dumps(to_dict(m), separators=(",", ":"), sort_keys=False, allow_nan=False) + "\n"
+    except ValueError:
+        validate_model(m, "map to write")  # names the element
+        raise MapFormatError("refusing to write a non-finite number (in the map's meta)", "map to write") from None
 
 
 def save(m: HDMap, path: str | Path) -> None:
@@ -130,13 +136,4 @@ def save(m: HDMap, path: str | Path) -> None:
 
 
 def load(path: str | Path) -> HDMap:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapFormatError(f"cannot read ({exc})", str(path)) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise MapFormatError(f"not valid JSON, truncated or corrupt ({exc})", str(path)) from None
-    return from_dict(data, str(path))
+    return from_dict(load_document(path, MapFormatError, fmt="json", finite=False), str(path))

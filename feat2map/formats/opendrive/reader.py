@@ -23,10 +23,11 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...config import MIN_ARM_LENGTH_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS
-from ...errors import MapFormatError
+from ...config import MIN_ARM_LENGTH_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, limits
+from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
+from ...validation import validate_model
 
 # OpenDRIVE signal type -> feat2map control kind. CARLA/VectorZero, SVL and esmini use the
 # OpenDRIVE 1.5 country "OpenDRIVE" codes (1000001 light, 1000002 pedestrian light); RoadRunner
@@ -191,18 +192,30 @@ class _Ctx:
         try:
             v = float(raw)
         except ValueError:
-            raise MapFormatError(f"attribute '{attr}' is not a number: {raw!r}", self.where(el, what)) from None
+            raise MapFormatError(f"attribute '{attr}' is not a number: {snippet(raw)}", self.where(el, what)) from None
         if not math.isfinite(v):
-            raise MapFormatError(f"attribute '{attr}' is not finite: {raw!r}", self.where(el, what))
+            raise MapFormatError(f"attribute '{attr}' is not finite: {snippet(raw)}", self.where(el, what))
+        return v
+
+    def length(self, el, attr: str, what: str) -> float:
+        """A length attribute: finite, >= 0 and within the limit max_road_length_m."""
+        v = self.num(el, attr, what=what)
+        if v < 0:
+            raise MapFormatError(f"attribute '{attr}' is negative: {snippet(v)}", self.where(el, what))
+        try:
+            limits().check("max_road_length_m", v, f"attribute '{attr}'")
+        except LimitError as exc:
+            raise LimitError(exc.message, self.where(el, what)) from None
         return v
 
 
 def _geometry(ctx: _Ctx, g, road_id: str) -> _Geometry:
     what = f"road {road_id} <geometry>"
     base = dict(s=ctx.num(g, "s", what=what), x=ctx.num(g, "x", what=what), y=ctx.num(g, "y", what=what),
-                hdg=ctx.num(g, "hdg", what=what), length=ctx.num(g, "length", what=what))
-    if base["length"] < 0:
-        raise MapFormatError("negative length", ctx.where(g, what))
+                hdg=ctx.num(g, "hdg", what=what), length=ctx.length(g, "length", what=what))
+    cap = limits().max_coordinate_m
+    if max(abs(base["x"]), abs(base["y"]), abs(base["s"])) > cap:
+        raise MapFormatError(f"x, y or s beyond the limit max_coordinate_m={cap:g}", ctx.where(g, what))
     for child in g:
         tag = child.tag if isinstance(child.tag, str) else ""
         w = f"road {road_id} <{tag}>"
@@ -244,7 +257,7 @@ def _parse_road(ctx: _Ctx, r) -> _OdrRoad:
     if rid is None:
         raise MapFormatError("road without id", ctx.where(r))
     what = f"road {rid}"
-    length = ctx.num(r, "length", what=what)
+    length = ctx.length(r, "length", what=what)
     pv = r.find("planView")
     geoms = [_geometry(ctx, g, rid) for g in (pv.findall("geometry") if pv is not None else [])]
     if not geoms:
@@ -300,16 +313,22 @@ class _LaneGeom:
     speed: float
 
 
-def _section_lanes(road: _OdrRoad, k: int) -> list[_LaneGeom]:
-    """Sample every driving lane of one lane section."""
+def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
+    """Sample every driving lane of one lane section; geometry that is not finite, lies beyond
+    the limit max_coordinate_m or has lanes wider than max_lane_width_m is a MapFormatError."""
     sec = road.sections[k]
     n = max(2, int(math.ceil((sec.s1 - sec.s0) / SAMPLE_SPACING_M)) + 1)
     s = np.linspace(sec.s0, sec.s1, n)
     if sec.s1 - sec.s0 > 4 * END_TANGENT_M:  # short end segments: end headings are the true tangents
         s = np.concatenate([[s[0], s[0] + END_TANGENT_M], s[1:-1], [s[-1] - END_TANGENT_M, s[-1]]])
     x, y, h = road.ref.eval(s)
-    nx, ny = -np.sin(h), np.cos(h)
+    lim = limits()
     off = _poly(road.lane_offset, s)
+    if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(h).all() and np.isfinite(off).all()
+            and max(float(np.abs(x).max()), float(np.abs(y).max()), float(np.abs(off).max())) <= lim.max_coordinate_m):
+        raise MapFormatError(f"reference line or lane offset is not finite or beyond the limit max_coordinate_m="
+                             f"{lim.max_coordinate_m:g}", ctx.where(road.el, f"road {road.id}"))
+    nx, ny = -np.sin(h), np.cos(h)
     ds = s - sec.s0
     out = []
     for side in (-1, 1):
@@ -323,6 +342,9 @@ def _section_lanes(road: _OdrRoad, k: int) -> list[_LaneGeom]:
             else:  # border records give the outer edge's t directly
                 outer = off + _poly(ln.borders, ds)
                 w = np.abs(outer - inner)
+            if not (np.isfinite(outer).all() and float(np.abs(w).max(initial=0.0)) <= lim.max_lane_width_m):
+                raise MapFormatError(f"lane {lid} width is not finite or above the limit max_lane_width_m="
+                                     f"{lim.max_lane_width_m:g}", ctx.where(road.el, f"road {road.id}"))
             if ln.type in DRIVING_TYPES and float(w.max()) >= MIN_LANE_WIDTH_M:
                 mid = 0.5 * (inner + outer)
                 pts = lambda t: np.column_stack([x + t * nx, y + t * ny])  # noqa: E731
@@ -365,9 +387,13 @@ def read_opendrive(path: str | Path) -> HDMap:
     path = Path(path)
     ctx = _Ctx(str(path))
     try:
-        tree = etree.parse(str(path), etree.XMLParser(remove_comments=True, huge_tree=True))
+        limits().check("max_file_bytes", path.stat().st_size, "the file size (bytes)")
+        parser = etree.XMLParser(remove_comments=True, resolve_entities=False, no_network=True)
+        tree = etree.parse(str(path), parser)
+    except LimitError as exc:
+        raise LimitError(exc.message, str(path)) from None
     except OSError as exc:
-        raise MapFormatError(f"cannot read ({exc})", str(path)) from None
+        raise MapFormatError(f"cannot read ({exc.strerror or type(exc).__name__})", str(path)) from None
     except etree.XMLSyntaxError as exc:
         raise MapFormatError(f"malformed XML ({exc})", str(path)) from None
     root = tree.getroot()
@@ -391,17 +417,25 @@ def read_opendrive(path: str | Path) -> HDMap:
         roads[road.id] = road
     if not roads:
         raise MapFormatError("no readable <road> elements", str(path))
-    return _Builder(ctx, root, roads, origin).build()
+    return validate_model(_Builder(ctx, root, roads, origin).build(), str(path))
 
 
 class _Builder:
     def __init__(self, ctx: _Ctx, root, roads: dict[str, _OdrRoad], origin: tuple[float, float]) -> None:
         self.ctx, self.root, self.roads, self.origin = ctx, root, roads, origin
         self.geoms: dict[tuple[str, int, int], _LaneGeom] = {}
-        for road in roads.values():
-            for k in range(len(road.sections)):
-                for g in _section_lanes(road, k):
+        for rid, road in list(roads.items()):
+            try:
+                with np.errstate(all="ignore"):  # overflow shows as non-finite geometry, checked there
+                    sampled = [g for k in range(len(road.sections)) for g in _section_lanes(road, k, ctx)]
+                for g in sampled:
                     self.geoms[g.key] = g
+            except MapFormatError as exc:  # geometry that evaluates to nonsense: skip the road, like a bad road
+                warnings.warn(f"skipping bad road: {exc}", stacklevel=3)
+                self.geoms = {key: g for key, g in self.geoms.items() if key[0] != rid}
+                del roads[rid]
+        if not roads:
+            raise MapFormatError("no readable <road> elements", ctx.path)
 
     @staticmethod
     def lane_id(key: tuple[str, int, int]) -> str:
@@ -705,8 +739,9 @@ class _Builder:
                 if kind is None or sid is None:
                     continue
                 try:
-                    pos, h = self._pose(r, self.ctx.num(s_el, "s", what=f"road {r.id} <signal id={sid}>"),
-                                        self.ctx.num(s_el, "t", 0.0, what=f"road {r.id} <signal id={sid}>"))
+                    what = f"road {r.id} <signal id={sid}>"
+                    pos, h = self._pose(r, self.ctx.num(s_el, "s", what=what), self.ctx.num(s_el, "t", 0.0, what=what))
+                    _check_points([pos], self.ctx.where(s_el, what))
                 except MapFormatError as exc:
                     warnings.warn(f"skipping bad signal: {exc}", stacklevel=2)
                     continue
@@ -793,6 +828,7 @@ class _Builder:
                 oid = o.get("id") or f"{r.id}_cw{len(out)}"
                 try:
                     poly = self._object_outline(r, o)
+                    _check_points(poly, self.ctx.where(o, f"road {r.id} <object id={oid}>"))
                 except MapFormatError as exc:
                     warnings.warn(f"skipping bad crosswalk: {exc}", stacklevel=2)
                     continue
@@ -872,6 +908,13 @@ def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str],
         for group in road_lanes.values():
             for side in group:
                 side[:] = [x for x in side if x not in gone]
+
+
+def _check_points(points, where: str) -> None:
+    """Points of a signal or object: finite and within the limit max_coordinate_m."""
+    cap = limits().max_coordinate_m
+    if any(not (math.isfinite(x) and math.isfinite(y) and abs(x) <= cap and abs(y) <= cap) for x, y in points):
+        raise MapFormatError(f"position not finite or beyond the limit max_coordinate_m={cap:g}", where)
 
 
 def _turn(ln: Lane) -> str:

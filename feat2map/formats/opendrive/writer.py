@@ -73,7 +73,9 @@ def param_poly3(b: Bezier) -> tuple[float, float, float, dict[str, float]]:
 
 
 def _f(x: float) -> str:
-    return repr(float(x)) if math.isfinite(x) else "0.0"
+    if not math.isfinite(x):  # never written as a made-up value
+        raise Feat2MapError(f"refusing to write a non-finite number ({x}) to OpenDRIVE", "map")
+    return repr(float(x))
 
 
 class _Ref:

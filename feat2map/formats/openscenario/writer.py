@@ -34,6 +34,7 @@ from ... import atomic
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane
 from ...phases import junction_phases
+from .. import FORMATS
 from ..base import header_date
 
 OSC_MINOR = 3  # OpenSCENARIO XML 1.3
@@ -333,7 +334,7 @@ def write_openscenario(suite, out: str | Path) -> list[Path]:
     maps: dict[Path, tuple[str, HDMap, Any]] = {}
     names: set[str] = set()
     written = []
-    with atomic.staged_dir(out) as tmp:
+    with atomic.staged_dir(out, FORMATS["openscenario"].markers) as tmp:
         for sc in suite.scenarios:
             path = suite.map_path(sc).resolve()
             if path not in maps:

@@ -1,0 +1,766 @@
+"""Hardening harness (issue 14): counts what a careless user or an attacker gets out of feat2map.
+
+Not part of the test suite (it runs for minutes); run it with the interpreter whose feat2map
+you want to measure, e.g. `.venv/bin/python scripts/harden_harness.py --quick`. Sections:
+
+1. corrupt inputs: truncations, bit flips and value mutations (NaN, inf, 1e308, 1e9 lengths,
+   negative / string widths, self-successors, 1-point Béziers, 5,000-deep nesting ...) of a
+   generated map in every format (and of the small shared maps, when ../shared/maps exists),
+   run through `extract`, `generate --from-maps`, `validate` and `export`; plus bad command
+   lines. Counted: tracebacks (an exception escaping the CLI, or a crash/timeout of the
+   worker), non-finite values written with exit 0, over-long or leaking error lines.
+2. SIGKILL: `generate` / `export apollo` killed at random moments, over nothing, over a
+   complete run of another seed, over a killed run; the output folder must be absent, the old
+   one or the new one, whole (never half-written or mixed); hidden staging leftovers must be
+   gone after the next run.
+3. invariants: >= N random 3-8-leg maps (random feature spaces through `generate`, random
+   specs through `build_spec`, random features through `generate_from_features`): check_map
+   violations, and whether the Apollo validator reports problems on the violating maps.
+4. huge requests: time and peak memory of a YAML alias bomb, a 100,000-junction spec,
+   --samples-per-combination 125000, a chain of 10,000 km roads, OpenDRIVE length 1e9.
+
+Prints one table per section and a summary (also as JSON with --json FILE).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import math
+import multiprocessing as mp
+import os
+import random
+import re
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("FEAT2MAP_SHARED_MAPS", REPO.parent / "shared" / "maps"))
+SMALL_SHARED = ["apollo/cube_town/base_map.bin", "apollo/borregas_ave/base_map.bin",
+                "opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr",
+                "opendrive/commonroad_four_way_crossing/four_way_crossing.xodr"]
+MEM_LIMIT = 6 << 30  # bytes of address space per worker: a 149 GiB allocation fails fast
+CASE_TIMEOUT_S = 60.0
+ERROR_LINE_CAP = 500  # an error line longer than this counts as over-long
+_NONFINITE_TEXT = re.compile(rb"(?<![\w.])[-+]?(nan|inf|infinity)(?![\w.])", re.I)
+
+
+# ------------------------------------------------------------------------------ corpus
+
+def _mutate_numbers(text: str, rng: random.Random, value: str, k: int, pattern: str) -> str:
+    """Replace k random matches of `pattern` (a number in group 1) with `value`."""
+    spans = [m.span(1) for m in re.finditer(pattern, text)]
+    if not spans:
+        return text
+    for a, b in sorted(rng.sample(spans, min(k, len(spans))), reverse=True):
+        text = text[:a] + value + text[b:]
+    return text
+
+
+def _json_mutations(doc: dict, rng: random.Random) -> list[tuple[str, str]]:
+    """Semantic mutations of a native map document: (name, text)."""
+    out = []
+
+    def dump(d):
+        return json.dumps(d, allow_nan=True)
+
+    def lane(d):
+        return rng.choice(d["lanes"])
+
+    for name, fn in [
+        ("centerline-nan", lambda d: lane(d)["centerline"][0].__setitem__(0, float("nan"))),
+        ("centerline-inf", lambda d: lane(d)["centerline"][1].__setitem__(1, float("inf"))),
+        ("centerline-1e308", lambda d: lane(d)["centerline"][0].__setitem__(0, 1e308)),
+        ("centerline-1pt", lambda d: lane(d).__setitem__("centerline", lane(d)["centerline"][:1])),
+        ("boundary-nan", lambda d: lane(d)["left_boundary"][0].__setitem__(1, float("nan"))),
+        ("width-negative", lambda d: lane(d).__setitem__("width", -3.5)),
+        ("width-string", lambda d: lane(d).__setitem__("width", "wide")),
+        ("width-nan", lambda d: lane(d).__setitem__("width", float("nan"))),
+        ("speed-inf", lambda d: lane(d).__setitem__("speed_limit", float("inf"))),
+        ("self-successor", lambda d: (lambda ln: ln.__setitem__("successors", [ln["id"]]))(lane(d))),
+        ("bezier-1pt", lambda d: lane(d).__setitem__("bezier", [[0, 0]])),
+        ("bezier-nan", lambda d: lane(d).__setitem__("bezier", [[0, 0], [1, float("nan")], [2, 0], [3, 0]])),
+        ("reference-string", lambda d: rng.choice(d["roads"]).__setitem__("reference", "x")),
+        ("stopline-nan", lambda d: (d["signals"] or d["stop_signs"])[0]["stop_line"][0].__setitem__(0, float("nan"))),
+        ("heading-inf", lambda d: (d["signals"] or d["stop_signs"])[0].__setitem__("heading", float("inf"))),
+        ("junction-polygon-nan", lambda d: d["junctions"][0]["polygon"][0].__setitem__(0, float("nan"))),
+        ("origin-inf", lambda d: d.__setitem__("origin", [float("inf"), 0])),
+        ("feature-9-legs", lambda d: d["junctions"][0].__setitem__("feature", {
+            "rotation": [i * 40.0 for i in range(9)], "control": "bare", "crosswalk": False})),
+        ("lanes-not-list", lambda d: d.__setitem__("lanes", {"a": 1})),
+        ("predecessors-int", lambda d: lane(d).__setitem__("predecessors", 5)),
+        ("crosswalk-2pt", lambda d: d["crosswalks"][0].__setitem__("polygon", d["crosswalks"][0]["polygon"][:2])
+         if d["crosswalks"] else None),
+    ]:
+        d = json.loads(json.dumps(doc))
+        try:
+            fn(d)
+        except (IndexError, KeyError):
+            continue
+        out.append((name, dump(d)))
+    out.append(("nested-5000", '{"format": "feat2map-map", "version": 1, "meta": ' + "[" * 5000 + "]" * 5000 + "}"))
+    return out
+
+
+def _xodr_mutations(text: str, rng: random.Random) -> list[tuple[str, str]]:
+    out = []
+    for name, attr, value in [("length-1e9", "length", "1e9"), ("length-1e308", "length", "1e308"),
+                              ("length-nan", "length", "nan"), ("length-negative", "length", "-5"),
+                              ("hdg-inf", "hdg", "inf"), ("x-1e308", "x", "1e308"), ("s-nan", "s", "NaN")]:
+        out.append((name, _mutate_numbers(text, rng, value, 3, rf'\b{attr}="([^"]*)"')))
+    for name, value in [("width-1e6", "1e6"), ("width-1e300", "1e300"), ("width-negative", "-3.5"),
+                        ("width-string", "wide"), ("width-nan", "nan")]:
+        out.append((name, _mutate_numbers(text, rng, value, 3, r'<width [^>]*\ba="([^"]*)"')))
+    out.append(("curvature-1e300", _mutate_numbers(text, rng, "1e300", 2, r'\b[abcd][UV]="([^"]*)"')))
+    out.append(("geometry-length-1e9-all", re.sub(r'(<geometry [^>]*length=")[^"]*"', r'\g<1>1e9"', text)))
+    out.append(("nested-5000", '<?xml version="1.0"?><OpenDRIVE>' + "<a>" * 5000 + "</a>" * 5000 + "</OpenDRIVE>"))
+    return out
+
+
+def _apollo_txt_mutations(text: str, rng: random.Random) -> list[tuple[str, str]]:
+    out = []
+    num = r"\b(?:x|y|z|width|length|s|speed_limit|heading): (-?[0-9.e+-]+)"
+    for name, value in [("coord-nan", "nan"), ("coord-inf", "inf"), ("coord-1e308", "1e308"),
+                        ("coord-neg-inf", "-inf")]:
+        out.append((name, _mutate_numbers(text, rng, value, 3, r"\b(?:x|y): (-?[0-9.e+-]+)")))
+    out.append(("width-negative", _mutate_numbers(text, rng, "-3.5", 5, r"\bwidth: (-?[0-9.e+-]+)")))
+    out.append(("length-1e308", _mutate_numbers(text, rng, "1e308", 3, r"\blength: (-?[0-9.e+-]+)")))
+    out.append(("any-number-nan", _mutate_numbers(text, rng, "nan", 20, num)))
+    m = re.search(r'lane \{\n  id \{\n    id: "([^"]+)"', text)
+    if m:
+        lid = m.group(1)
+        out.append(("self-successor", text.replace(f'lane {{\n  id {{\n    id: "{lid}"\n  }}',
+                                                   f'lane {{\n  id {{\n    id: "{lid}"\n  }}\n  successor_id {{\n'
+                                                   f'    id: "{lid}"\n  }}', 1)))
+    out.append(("nested-5000", "lane { " * 5000 + "}" * 5000))
+    return out
+
+
+def _byte_mutations(data: bytes, rng: random.Random, n_trunc: int, n_flip: int) -> list[tuple[str, bytes]]:
+    out = []
+    for i in range(n_trunc):
+        k = rng.randrange(1, max(2, len(data)))
+        out.append((f"trunc-{k}", data[:k]))
+    for i in range(n_flip):
+        b = bytearray(data)
+        for _ in range(rng.randint(1, 8)):
+            p = rng.randrange(len(b))
+            b[p] ^= 1 << rng.randrange(8)
+        out.append((f"flip-{i}", bytes(b)))
+    return out
+
+
+def build_corpus(work: Path, rng: random.Random, n_trunc: int, n_flip: int) -> list[tuple[str, Path]]:
+    """Write every corrupt input file; returns (label, path)."""
+    import feat2map
+    from feat2map.formats import write_map
+    from feat2map.formats.native import save
+
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1)
+    src = work / "src"
+    src.mkdir()
+    save(m, src / "map.json")
+    write_map(m, src / "map.xodr", "opendrive")
+    write_map(m, src / "apollo", "apollo")
+    seeds = [("gen.json", src / "map.json"), ("gen.xodr", src / "map.xodr"),
+             ("gen.base_map.txt", src / "apollo" / "base_map.txt"), ("gen.base_map.bin", src / "apollo" / "base_map.bin")]
+    seeds += [(rel.replace("/", "_"), SHARED / rel) for rel in SMALL_SHARED if (SHARED / rel).is_file()]
+    corpus: list[tuple[str, Path]] = []
+    cdir = work / "corpus"
+    cdir.mkdir()
+
+    def put(label: str, suffix: str, data: bytes | str) -> None:
+        p = cdir / f"{len(corpus):04d}{suffix}"
+        p.write_bytes(data.encode() if isinstance(data, str) else data)
+        corpus.append((label, p))
+
+    for label, path in seeds:
+        data = path.read_bytes()
+        suffix = "".join(path.suffixes[-1:])
+        for name, b in _byte_mutations(data, rng, n_trunc, n_flip):
+            put(f"{label}:{name}", suffix, b)
+        if label == "gen.json":
+            for name, t in _json_mutations(json.loads(data), rng):
+                put(f"{label}:{name}", suffix, t)
+        elif suffix == ".xodr":
+            for name, t in _xodr_mutations(data.decode("utf-8", "replace"), rng):
+                put(f"{label}:{name}", suffix, t)
+        elif label == "gen.base_map.txt":
+            for name, t in _apollo_txt_mutations(data.decode(), rng):
+                put(f"{label}:{name}", suffix, t)
+    return corpus
+
+
+def commands_for(path: Path, out: Path) -> list[list[str]]:
+    return [["extract", str(path)],
+            ["generate", "--from-maps", str(path), "--out", str(out / "gen"), "--no-picture", "--quiet"],
+            ["validate", str(path)],
+            ["export", "apollo", str(path), "--out", str(out / "apollo")],
+            ["export", "opendrive", str(path), "--out", str(out / "map.xodr")]]
+
+
+def special_cases(work: Path) -> list[tuple[str, list[str], str | None]]:
+    """Bad command lines and special inputs: (label, argv, cwd)."""
+    sp = work / "special"
+    sp.mkdir()
+    (sp / "dir_out").mkdir()
+    (sp / "dir_out" / "keep.txt").write_text("x")
+    import feat2map
+    from feat2map.formats.native import save
+
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=2)
+    save(m, sp / "m.json")
+    (sp / "deep.json").write_text("[" * 5000 + "]" * 5000)
+    (sp / "deep.yaml").write_text("a: " + "[" * 5000 + "]" * 5000 + "\n")
+    (sp / "bomb.yaml").write_text(_alias_bomb())
+    (sp / "nine.json").write_text(json.dumps({"road_counts": [9], "controls": ["bare"], "crosswalks": [False],
+                                              "rotation_ranges": {"9": [[i * 40, i * 40] for i in range(9)]}}))
+    (sp / "spec_bad_width.yaml").write_text("config: {lane_width: .nan}\njunctions:\n- sockets: [0, 90, 180]\n")
+    (sp / "suite_passwd.yaml").write_text("version: 1\nname: s\nscenarios:\n- name: a\n  map: /etc/passwd\n"
+                                          "  route: [[J0, R0, R1]]\n")
+    out = sp / "o"
+    g = ["generate", "--no-picture", "--quiet", "--no-apollo"]
+    cases = [
+        ("extract /etc/passwd", ["extract", "/etc/passwd"], None),
+        ("generate --grid-gap nan", g + ["--grid-gap", "nan", "--out", str(out / "a")], None),
+        ("generate --grid-gap inf", g + ["--grid-gap", "inf", "--out", str(out / "b")], None),
+        ("generate --grid-gap 1e308", g + ["--grid-gap", "1e308", "--out", str(out / "c")], None),
+        ("generate --lane-width nan", g + ["--lane-width", "nan", "--out", str(out / "d")], None),
+        ("generate --crosswalk-width -inf", g + ["--crosswalk-width", "-inf", "--out", str(out / "e")], None),
+        ("generate --seed -1", g + ["--seed", "-1", "--out", str(out / "f")], None),
+        ("generate --out ''", g + ["--out", ""], str(sp)),
+        ("generate --features 9 legs", g + ["--features", str(sp / "nine.json"), "--out", str(out / "g")], None),
+        ("generate --features deep.json", g + ["--features", str(sp / "deep.json"), "--out", str(out / "h")], None),
+        ("generate --spec deep.yaml", g + ["--spec", str(sp / "deep.yaml"), "--out", str(out / "i")], None),
+        ("generate --spec nan lane width", g + ["--spec", str(sp / "spec_bad_width.yaml"), "--out", str(out / "j")],
+         None),
+        ("extract --out existing dir", ["extract", str(sp / "m.json"), "--out", str(sp / "dir_out")], None),
+        ("extract --out f.json --picture p.xyz", ["extract", str(sp / "m.json"), "--out", str(sp / "f.json"),
+                                                  "--picture", str(sp / "p.xyz")], None),
+        ("export opendrive --out existing dir", ["export", "opendrive", str(sp / "m.json"), "--out",
+                                                 str(sp / "dir_out")], None),
+        ("suite --out existing dir", ["suite", str(sp / "m.json"), "--out", str(sp / "dir_out")], None),
+        ("suite --duration nan", ["suite", str(sp / "m.json"), "--out", str(sp / "s.yaml"), "--duration", "nan"],
+         None),
+        ("suite --traffic -5", ["suite", str(sp / "m.json"), "--out", str(sp / "s2.yaml"), "--traffic", "-5"], None),
+        ("rollout suite with map /etc/passwd", ["rollout", str(sp / "suite_passwd.yaml"), "--out", str(out / "r"),
+                                                "--quiet"], None),
+    ]
+    return cases
+
+
+def _alias_bomb() -> str:
+    """A YAML billion-laughs document of about 400 bytes."""
+    lines = ['a0: &a0 ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    for i in range(1, 9):
+        lines.append(f"a{i}: &a{i} [{','.join([f'*a{i - 1}'] * 9)}]")
+    lines.append("junctions: *a8")
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------ workers
+
+def _worker(conn, mem_limit: int) -> None:
+    """Run CLI invocations in-process; report (rc, escaped exception, stderr, stdout size)."""
+    resource.setrlimit(resource.RLIMIT_AS, (mem_limit, mem_limit))
+    os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    from feat2map.cli import main
+
+    while True:
+        job = conn.recv()
+        if job is None:
+            return
+        argv, cwd = job
+        err, out = io.StringIO(), io.StringIO()
+        old = os.getcwd()
+        exc_text = None
+        rc = None
+        try:
+            if cwd:
+                os.chdir(cwd)
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+                rc = main(argv)
+        except SystemExit as exc:
+            rc = exc.code if isinstance(exc.code, int) else 2
+        except BaseException as exc:  # what a user would see as a traceback
+            exc_text = f"{type(exc).__name__}: {str(exc)[:300]}\n" + "".join(traceback.format_tb(exc.__traceback__)[-3:])
+        finally:
+            os.chdir(old)
+        conn.send((rc, exc_text, err.getvalue()[-20000:]))
+
+
+class Pool:
+    """Worker processes with a hard per-job deadline (a hung worker is killed and replaced)."""
+
+    def __init__(self, n: int, mem_limit: int) -> None:
+        self.ctx = mp.get_context("fork")
+        self.mem_limit = mem_limit
+        self.workers = [self._start() for _ in range(n)]
+
+    def _start(self):
+        a, b = self.ctx.Pipe()
+        p = self.ctx.Process(target=_worker, args=(b, self.mem_limit))  # not daemonic: rollout spawns workers
+        p.start()
+        return [p, a]
+
+    def run(self, jobs: list, timeout: float) -> list:
+        results = [None] * len(jobs)
+        todo = list(enumerate(jobs))
+        busy: dict[int, tuple[int, float]] = {}
+        while todo or busy:
+            for w, (p, conn) in enumerate(self.workers):
+                if w not in busy and todo:
+                    i, job = todo.pop(0)
+                    conn.send(job)
+                    busy[w] = (i, time.monotonic())
+            time.sleep(0.005)
+            for w in list(busy):
+                p, conn = self.workers[w]
+                i, t0 = busy[w]
+                if conn.poll():
+                    try:
+                        results[i] = conn.recv() + (time.monotonic() - t0,)
+                    except EOFError:
+                        results[i] = (None, "worker died", "", time.monotonic() - t0)
+                        self._replace(w)
+                    del busy[w]
+                elif not p.is_alive():
+                    results[i] = (None, f"worker died (exit {p.exitcode})", "", time.monotonic() - t0)
+                    self._replace(w)
+                    del busy[w]
+                elif time.monotonic() - t0 > timeout:
+                    results[i] = (None, f"timeout after {timeout:.0f} s", "", timeout)
+                    p.kill()
+                    p.join()
+                    self._replace(w)
+                    del busy[w]
+        return results
+
+    def _replace(self, w: int) -> None:
+        p, conn = self.workers[w]
+        if p.is_alive():
+            p.kill()
+        p.join()
+        self.workers[w] = self._start()
+
+    def close(self) -> None:
+        for p, conn in self.workers:
+            with contextlib.suppress(Exception):
+                conn.send(None)
+            p.join(5)
+            if p.is_alive():
+                p.kill()
+
+
+def nonfinite_written(root: Path) -> list[str]:
+    """Files under `root` (or `root` itself) holding NaN/inf values."""
+    files = [root] if root.is_file() else [p for p in root.rglob("*") if p.is_file()] if root.exists() else []
+    bad = []
+    for f in files:
+        data = f.read_bytes()
+        if f.suffix == ".bin":
+            try:
+                from feat2map.formats.apollo import schema as aps
+
+                msg = aps.parse_map(data, str(f)) if "routing" not in f.name else aps.parse_graph(data, str(f))
+                data = str(msg).encode()
+            except Exception:
+                continue
+        elif f.suffix in (".png", ".gif"):
+            continue
+        if _NONFINITE_TEXT.search(data):
+            bad.append(str(f))
+    return bad
+
+
+def section_corpus(work: Path, args) -> dict:
+    rng = random.Random(args.seed)
+    corpus = build_corpus(work, rng, args.trunc, args.flips)
+    jobs, meta = [], []
+    for label, path in corpus:
+        for argv in commands_for(path, work / "out" / path.stem):
+            jobs.append((argv, None))
+            meta.append((label, " ".join(argv[:2]) if argv[0] == "export" else argv[0], argv))
+    for label, argv, cwd in special_cases(work):
+        jobs.append((argv, cwd))
+        meta.append((label, "special", argv))
+    t0 = time.time()
+    pool = Pool(args.workers, MEM_LIMIT)
+    try:
+        results = pool.run(jobs, CASE_TIMEOUT_S)
+    finally:
+        pool.close()
+    counts = {"inputs": len(corpus), "runs": len(jobs), "tracebacks": 0, "timeouts": 0, "exit0_nonfinite": 0,
+              "long_error_lines": 0, "leaks": 0, "accepted_bad_cli": 0, "wall_s": round(time.time() - t0, 1)}
+    examples: dict[str, list[str]] = {}
+    passwd_first = Path("/etc/passwd").read_text().splitlines()[0] if Path("/etc/passwd").is_file() else "root:x:0:0"
+    for (label, cmd, argv), (rc, exc, err, dt) in zip(meta, results):
+        key = None
+        if exc is not None:
+            key = "timeouts" if exc.startswith("timeout") else "tracebacks"
+        elif "Traceback" in err:
+            key = "tracebacks"
+        if key:
+            counts[key] += 1
+            examples.setdefault(key, []).append(f"{label} | {cmd} | {(exc or err).splitlines()[0][:200]}")
+        lines = [ln for ln in err.splitlines() if "error" in ln]
+        if any(len(ln) > ERROR_LINE_CAP for ln in lines):
+            counts["long_error_lines"] += 1
+            examples.setdefault("long_error_lines", []).append(f"{label} | {cmd} | {max(map(len, lines))} chars")
+        if passwd_first[:12] in err:
+            counts["leaks"] += 1
+            examples.setdefault("leaks", []).append(f"{label} | {cmd}")
+        if rc == 0:
+            outs = [Path(a) for i, a in enumerate(argv) if i and argv[i - 1] in ("--out", "--picture")]
+            bad = [b for o in outs for b in nonfinite_written(o)]
+            if bad:
+                counts["exit0_nonfinite"] += 1
+                examples.setdefault("exit0_nonfinite", []).append(f"{label} | {cmd} | {bad[0]}")
+            if cmd == "special":
+                counts["accepted_bad_cli"] += 1
+                examples.setdefault("accepted_bad_cli", []).append(label)
+    counts["examples"] = {k: v[:6] for k, v in examples.items()}
+    counts["all_examples"] = examples
+    return counts
+
+
+# ------------------------------------------------------------------------------ SIGKILL
+
+def section_kill(work: Path, args) -> dict:
+    """Kill runs (a) right before their k-th filesystem change (rename, replace, unlink, rmdir,
+    mkdir, rmtree, swap), for every k or a sample of them, and (b) at random moments; the output
+    folder must then be absent, the old output or the new one, whole; the next complete run must
+    leave exactly its own output and no hidden leftovers."""
+    sys.path.insert(0, str(REPO / "tests"))
+    from killpoints import RUNNER, fingerprint
+
+    rng = random.Random(args.seed + 1)
+    env = dict(os.environ, SDL_VIDEODRIVER="offscreen", MPLBACKEND="Agg")
+    base = work / "kill"
+    base.mkdir()
+    py = [sys.executable, "-c", RUNNER]
+
+    def run(argv, kill_at=0, timeout=600):
+        return subprocess.run(py + argv, env=dict(env, FEAT2MAP_KILL_AT=str(kill_at)), cwd=base, timeout=timeout,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    for s in (1, 2):
+        run(["generate", "--seed", str(s), "--out", str(base / f"g{s}"), "--quiet", "--no-apollo", "--no-picture"])
+        shutil.copy(base / f"g{s}" / "map.json", base / f"m{s}.json")
+    cmds = {
+        "generate": lambda s, out: ["generate", "--seed", str(s), "--out", str(out), "--quiet", "--opendrive"],
+        "generate-no-apollo": lambda s, out: ["generate", "--seed", str(s), "--out", str(out), "--quiet",
+                                              "--no-apollo", "--no-picture"],
+        "export-apollo": lambda s, out: ["export", "apollo", str(base / f"m{s}.json"), "--out", str(out)],
+    }
+    # (case, command before (seed 1) or None, command under test (seed 2))
+    cases = [("generate over nothing", None, "generate"), ("generate over another seed", "generate", "generate"),
+             ("generate --no-apollo over a full output", "generate", "generate-no-apollo"),
+             ("export apollo over another seed", "export-apollo", "export-apollo")]
+    refs, mutations, durations = {}, {}, {}
+    for name, cmd in cmds.items():
+        for s in (1, 2):
+            out = base / f"ref-{name}-{s}"
+            t0 = time.time()
+            r = run(cmd(s, out))
+            durations[name] = max(durations.get(name, 0.0), time.time() - t0)
+            refs[(name, s)] = fingerprint(out)
+            m = re.search(r"FEAT2MAP_CHANGES (\d+)", r.stderr)
+            mutations[name] = int(m.group(1)) if m else 0
+    counts = {"runs": 0, "half_written": 0, "mixed": 0, "orphans_after_next_run": 0, "stale_after_rerun": 0,
+              "swept_points": 0, "random_time_runs": 0}
+    examples: list[str] = []
+
+    def trial(case: str, before: str | None, cmd: str, kill_at: int = 0, after_s: float | None = None) -> None:
+        out = base / "out"
+        shutil.rmtree(out, ignore_errors=True)
+        prev = None
+        if before is not None:
+            run(cmds[before](1, out))
+            prev = fingerprint(out)
+        if after_s is None:
+            run(cmds[cmd](2, out), kill_at=kill_at)
+        else:
+            proc = subprocess.Popen(py + cmds[cmd](2, out), env=env, cwd=base, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
+            time.sleep(after_s)
+            proc.kill()
+            proc.wait()
+        counts["runs"] += 1
+        state = fingerprint(out)
+        new = refs[(cmd, 2)]
+        if state is not None and state != new and state != prev:
+            if set(state) in (set(new), set(prev or {})):
+                counts["mixed"] += 1
+                kind = "mixed"
+            else:
+                counts["half_written"] += 1
+                kind = "half-written"
+            examples.append(f"{case}, killed at change {kill_at or f'{after_s:.2f} s'}: {kind}: "
+                            f"{sorted(set(state) ^ set(new))[:5]}")
+        run(cmds[cmd](2, out))  # the next complete run
+        if fingerprint(out) != new:
+            counts["stale_after_rerun"] += 1
+            examples.append(f"{case}: the next run left {sorted(set(fingerprint(out)) ^ set(new))[:4]}")
+        if any(p.name.startswith(".out.") for p in base.iterdir()):
+            counts["orphans_after_next_run"] += 1
+            examples.append(f"{case}: hidden leftovers {[p.name for p in base.iterdir() if p.name.startswith('.out.')][:3]}")
+            for p in base.iterdir():
+                if p.name.startswith(".out."):
+                    shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink()
+
+    for case, before, cmd in cases:
+        total = mutations[cmd]
+        points = list(range(1, total + 1))
+        if args.kill_points and len(points) > args.kill_points:
+            points = sorted(rng.sample(points, args.kill_points))
+        for k in points:
+            trial(case, before, cmd, kill_at=k)
+            counts["swept_points"] += 1
+    for _ in range(args.kills):
+        case, before, cmd = rng.choice(cases)
+        trial(case, before, cmd, after_s=rng.uniform(0.3, durations[cmd] * 1.05))
+        counts["random_time_runs"] += 1
+    counts["mutations_per_run"] = mutations
+    counts["examples"] = examples[:10]
+    return counts
+
+
+# ------------------------------------------------------------------------------ invariants
+
+def random_feature(rng, legs=(3, 8), min_sep=None, one_way=True, max_lanes=2):
+    """(angles, control, crosswalk, road types, lanes) of a random junction."""
+    import numpy as np
+
+    from feat2map.config import GenerationConfig
+
+    sep = min_sep if min_sep is not None else GenerationConfig().min_socket_separation_deg
+    n = int(rng.integers(legs[0], legs[1] + 1))
+    while True:
+        a = np.sort(rng.uniform(-180, 180, n))
+        if np.diff(np.append(a, a[0] + 360)).min() >= sep:
+            break
+    types = [str(rng.choice(["in-out", "in-out", "in", "out"])) if one_way else "in-out" for _ in range(n)]
+    if "in-out" not in types and not ("in" in types and "out" in types):
+        types[0] = "in-out"
+    lanes = [int(rng.integers(1, max_lanes + 1)) for _ in range(n)]
+    return ([float(x) for x in a], str(rng.choice(["bare", "signal", "stop"])), bool(rng.integers(2)), types, lanes)
+
+
+def _invariant_job(kind: str, seed: int) -> tuple:
+    """Build one random map; returns (kind, status, problems, validate_problems)."""
+    import numpy as np
+
+    import feat2map
+    from feat2map.config import GenerationConfig
+    from feat2map.errors import Feat2MapError
+    from feat2map.invariants import check_map
+
+    rng = np.random.default_rng([seed, 14])
+    try:
+        if kind == "space":
+            counts = sorted(set(int(x) for x in rng.integers(3, 9, int(rng.integers(1, 4)))))
+            ranges = {}
+            for n in counts:
+                step = 360.0 / n
+                ranges[n] = tuple((i * step + c - s, i * step + c + s) for i, (c, s) in
+                                  enumerate(zip(rng.uniform(-8, 8, n), rng.uniform(0, 10, n))))
+            controls = tuple(rng.choice(["bare", "signal", "stop"], int(rng.integers(1, 4)), replace=False))
+            space = feat2map.FeatureSpace(tuple(counts), controls, (True, False) if rng.integers(2) else (False,),
+                                          ranges)
+            m = feat2map.generate(space, seed=int(seed))
+        elif kind == "features":
+            feats = []
+            for _ in range(int(rng.integers(1, 5))):
+                a, c, x, t, ln = random_feature(rng)
+                feats.append(feat2map.JunctionFeature.make(a, c, x, road_types=t, lanes=ln))
+            m = feat2map.generate_from_features(feats, seed=int(seed), config=GenerationConfig(grid_gap=160.0))
+        else:  # spec
+            from feat2map.spec import build_spec, parse_spec
+
+            junctions = []
+            for _ in range(int(rng.integers(1, 4))):
+                a, c, x, t, ln = random_feature(rng)
+                junctions.append({"control": c, "crosswalk": x,
+                                  "sockets": [{"angle": ang, "type": tt, "lanes": ll} for ang, tt, ll in zip(a, t, ln)]})
+            spec = parse_spec({"version": 1, "config": {"grid_gap": 160.0}, "junctions": junctions}, f"spec{seed}")
+            m = build_spec(spec, seed=int(seed))
+    except Feat2MapError as exc:
+        return kind, "refused", [str(exc)[:200]], None
+    except Exception as exc:
+        return kind, "traceback", [f"{type(exc).__name__}: {str(exc)[:200]}"], None
+    problems = check_map(m)
+    vp = None
+    if problems:
+        try:
+            from feat2map.formats import write_map
+            from feat2map.formats.apollo import validate_apollo
+
+            with tempfile.TemporaryDirectory() as tmp:
+                write_map(m, Path(tmp) / "a", "apollo")
+                vp = len(validate_apollo(Path(tmp) / "a"))
+        except Exception as exc:
+            vp = f"{type(exc).__name__}"
+    return kind, "built", problems[:5], vp
+
+
+def section_invariants(args) -> dict:
+    jobs = [(k, s) for s in range(args.seed * 100000, args.seed * 100000 + args.maps) for k in
+            ("space", "features", "spec")][: args.maps]
+    t0 = time.time()
+    with mp.get_context("fork").Pool(args.workers) as pool:
+        res = pool.starmap(_invariant_job, jobs, chunksize=4)
+    counts: dict = {"maps_tried": len(res), "wall_s": 0.0}
+    examples: dict[str, list] = {}
+    for kind, status, problems, vp in res:
+        c = counts.setdefault(kind, {"built": 0, "refused": 0, "traceback": 0, "violating": 0,
+                                     "validate_missed": 0})
+        c[status] += 1
+        if status == "built" and problems:
+            c["violating"] += 1
+            examples.setdefault(kind, []).append(problems[0])
+            if vp == 0:
+                c["validate_missed"] += 1
+        if status == "traceback":
+            examples.setdefault(kind + " traceback", []).append(problems[0])
+        if status == "refused":
+            examples.setdefault(kind + " refused", []).append(problems[0])
+    counts["violations"] = sum(counts[k]["violating"] for k in ("space", "features", "spec") if k in counts)
+    counts["built"] = sum(counts[k]["built"] for k in ("space", "features", "spec") if k in counts)
+    counts["wall_s"] = round(time.time() - t0, 1)
+    counts["examples"] = {k: v[:4] for k, v in examples.items()}
+    return counts
+
+
+# ------------------------------------------------------------------------------ huge requests
+
+def section_huge(work: Path, args) -> dict:
+    h = work / "huge"
+    h.mkdir()
+    (h / "bomb.yaml").write_text(_alias_bomb())
+    junctions = [{"sockets": [0, 90, 180]} for _ in range(100_000)]
+    (h / "many.json").write_text(json.dumps({"version": 1, "junctions": junctions}))
+    (h / "chain.yaml").write_text("chains:\n- start: {point: [0, 0], heading: 0}\n  roads:\n" + "".join(
+        f"  - {{end: [{(k + 1) * 1e7}, 0], heading: 0}}\n" for k in range(20)))
+    src = work / "src" / "map.xodr"
+    if src.is_file():
+        (h / "long.xodr").write_text(re.sub(r'(<road [^>]*length=")[^"]*"', r'\g<1>1e9"',
+                                            re.sub(r'(<geometry [^>]*length=")[^"]*"', r'\g<1>1e9"',
+                                                   src.read_text())))
+    g = ["generate", "--no-picture", "--quiet", "--no-apollo"]
+    cases = [("YAML alias bomb spec (419 B)", g + ["--spec", str(h / "bomb.yaml"), "--out", str(h / "o1")]),
+             ("100,000-junction spec", g + ["--spec", str(h / "many.json"), "--out", str(h / "o2")]),
+             ("--samples-per-combination 125000", g + ["--samples-per-combination", "125000", "--out", str(h / "o3")]),
+             ("chain of 20 roads of 10,000 km", g + ["--spec", str(h / "chain.yaml"), "--out", str(h / "o4")]),
+             ("OpenDRIVE length 1e9", ["extract", str(h / "long.xodr")]),
+             ("--grid-gap 1e308", g + ["--grid-gap", "1e308", "--out", str(h / "o5")])]
+    rows = []
+    for label, argv in cases:
+        t0 = time.time()
+        proc = subprocess.Popen([sys.executable, "-m", "feat2map.cli", *argv], stdout=subprocess.DEVNULL, cwd=h,
+                                stderr=subprocess.PIPE, preexec_fn=lambda: resource.setrlimit(
+                                    resource.RLIMIT_AS, (MEM_LIMIT, MEM_LIMIT)))
+        try:
+            _, err = proc.communicate(timeout=args.huge_timeout)
+            rc = proc.returncode
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+            rc = "timeout"
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+        line = err.decode("utf-8", "replace").strip().splitlines()
+        rows.append({"case": label, "rc": rc, "s": round(time.time() - t0, 1), "maxrss_mb_all_children":
+                     round(ru.ru_maxrss / 1024), "error_chars": len(line[-1]) if line else 0,
+                     "error": (line[-1][:160] if line else ""), "traceback": "Traceback" in err.decode("utf-8", "replace")})
+    return {"cases": rows, "unbounded": sum(r["rc"] == "timeout" for r in rows),
+            "tracebacks": sum(bool(r["traceback"]) for r in rows)}
+
+
+# ------------------------------------------------------------------------------ main
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true", help="small numbers everywhere (a smoke run)")
+    p.add_argument("--sections", default="corpus,kill,invariants,huge")
+    p.add_argument("--seed", type=int, default=14)
+    p.add_argument("--trunc", type=int, default=12, help="truncations per seed file")
+    p.add_argument("--flips", type=int, default=12, help="bit-flip variants per seed file")
+    p.add_argument("--kills", type=int, default=20, help="SIGKILL runs at random moments")
+    p.add_argument("--kill-points", type=int, default=40,
+                   help="filesystem changes to kill at per case (0: every one)")
+    p.add_argument("--maps", type=int, default=1050, help="random maps for the invariant section")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--huge-timeout", type=float, default=120.0, help="seconds before a huge request counts unbounded")
+    p.add_argument("--json", help="write the counts here too")
+    args = p.parse_args()
+    if args.quick:
+        args.trunc, args.flips, args.kills, args.kill_points, args.maps, args.huge_timeout = 2, 2, 2, 4, 30, 30.0
+    sections = args.sections.split(",")
+    report: dict = {"python": sys.executable}
+    import feat2map
+
+    report["feat2map"] = str(Path(feat2map.__file__).parent)
+    with tempfile.TemporaryDirectory(prefix="harden-") as tmp:
+        work = Path(tmp)
+        for name in ("corpus", "kill", "invariants", "huge"):
+            if name not in sections:
+                continue
+            t0 = time.time()
+            print(f"== {name}", flush=True)
+            if name == "corpus":
+                report[name] = section_corpus(work, args)
+            elif name == "kill":
+                report[name] = section_kill(work, args)
+            elif name == "invariants":
+                report[name] = section_invariants(args)
+            else:
+                if "corpus" not in sections:
+                    (work / "src").mkdir(exist_ok=True)
+                    import feat2map as f2m
+                    from feat2map.formats import write_map
+
+                    write_map(f2m.generate(f2m.PAPER_SF_FEATURE_SPACE, seed=1), work / "src" / "map.xodr", "opendrive")
+                report[name] = section_huge(work, args)
+            print(json.dumps({k: v for k, v in report[name].items() if k != "all_examples"}, indent=1), flush=True)
+            print(f"   ({time.time() - t0:.0f} s)", flush=True)
+    summary = {}
+    if "corpus" in report:
+        c = report["corpus"]
+        summary.update({"corrupt inputs": c["inputs"], "CLI runs": c["runs"], "tracebacks": c["tracebacks"],
+                        "timeouts": c["timeouts"], "non-finite written (exit 0)": c["exit0_nonfinite"],
+                        "bad command lines accepted": c["accepted_bad_cli"], "error lines > cap": c["long_error_lines"],
+                        "leaks": c["leaks"]})
+    if "kill" in report:
+        k = report["kill"]
+        summary.update({"SIGKILL runs": k["runs"], "half-written folders": k["half_written"],
+                        "mixed folders": k["mixed"], "orphaned staging after next run": k["orphans_after_next_run"],
+                        "stale files after rerun": k["stale_after_rerun"]})
+    if "invariants" in report:
+        i = report["invariants"]
+        summary.update({"random maps tried": i["maps_tried"], "maps built": i["built"],
+                        "maps violating check_map": i["violations"],
+                        "invariant-run tracebacks": sum(i[k]["traceback"] for k in ("space", "features", "spec")
+                                                        if k in i)})
+    if "huge" in report:
+        summary.update({"huge requests unbounded": report["huge"]["unbounded"],
+                        "huge requests max s": max(r["s"] for r in report["huge"]["cases"])})
+    report["summary"] = summary
+    print("\n== summary")
+    for k, v in summary.items():
+        print(f"{k:<40} {v}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

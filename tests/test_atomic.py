@@ -1,0 +1,151 @@
+"""Whole-folder atomic outputs: a folder output is the old one or the new one, whole, even when
+the command is SIGKILLed at any moment; an earlier output is replaced as a whole, any other
+non-empty folder refused; staging leftovers of killed runs are removed by the next run.
+
+FEAT2MAP_KILL_RUNS=N kills N runs per case instead of a few."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import subprocess
+import sys
+
+import pytest
+from killpoints import fingerprint, run
+
+from feat2map import atomic
+from feat2map.cli import main
+from feat2map.errors import Feat2MapError
+from feat2map.features import FeatureSpace
+
+KILL_RUNS = int(os.environ.get("FEAT2MAP_KILL_RUNS", "3"))
+SPACE = FeatureSpace((3,), ("signal",), (True,), {3: ((-5, 5), (85, 95), (175, 185))})
+
+
+@pytest.fixture(scope="module")
+def space_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("space") / "space.json"
+    path.write_text(SPACE.to_json())
+    return path
+
+
+def _generate(space_file, seed, out, *extra):
+    return ["generate", "--features", str(space_file), "--seed", str(seed), "--out", str(out), "--quiet",
+            "--opendrive", *extra]
+
+
+def test_an_earlier_output_is_replaced_whole(tmp_path, space_file):
+    out = tmp_path / "m"
+    assert main(_generate(space_file, 1, out, "--no-picture")) == 0
+    assert (out / "apollo").is_dir() and (out / "map.xodr").is_file()
+    assert main(["generate", "--features", str(space_file), "--seed", "2", "--out", str(out), "--quiet",
+                 "--no-picture", "--no-apollo"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["features.json", "map.json"]  # nothing of seed 1 stays
+    assert json.loads((out / "map.json").read_text())["meta"]["seed"] == 2
+
+
+def test_other_folders_are_refused_before_any_work(tmp_path, space_file, capsys):
+    out = tmp_path / "home"
+    out.mkdir()
+    (out / "thesis.tex").write_text("precious")
+    assert main(_generate(space_file, 1, out)) == 2
+    err = capsys.readouterr().err
+    assert "refusing to replace it" in err and len(err.strip().splitlines()) == 1
+    assert [p.name for p in out.iterdir()] == ["thesis.tex"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".home.")]
+
+
+@pytest.mark.parametrize("argv", [["generate", "--out", ""], ["generate", "--out", "."],
+                                  ["export", "opendrive", "MAP", "--out", ""]])
+def test_an_empty_out_is_an_error(tmp_path, argv, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "m.json").write_text("{}")
+    assert main([str(tmp_path / "m.json") if a == "MAP" else a for a in argv]) == 2
+    assert "--out" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"]
+
+
+def test_file_outputs_that_are_folders_and_late_failures_write_nothing(tmp_path, space_file, capsys):
+    m = tmp_path / "g"
+    assert main(_generate(space_file, 1, m, "--no-picture", "--no-apollo")) == 0
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for argv in (["extract", str(m / "map.json"), "--out", str(folder)],
+                 ["export", "opendrive", str(m / "map.json"), "--out", str(folder)],
+                 ["suite", str(m / "map.json"), "--out", str(folder)],
+                 ["extract", str(m / "map.json"), "--out", str(tmp_path / "f.json"), "--picture",
+                  str(tmp_path / "p.xyz")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not list(folder.iterdir()) and not (tmp_path / "f.json").exists()
+
+
+def test_leftovers_of_dead_runs_are_removed_and_live_ones_kept(tmp_path):
+    out = tmp_path / "report"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)
+    stale = [tmp_path / f".report.stage-{pid}-abc", tmp_path / f".report.old-{pid}-x1", tmp_path / f".report.tmp-{pid}-q"]
+    stale[0].mkdir()
+    (stale[0] / "half.json").write_text("{")
+    stale[1].mkdir()
+    stale[2].write_text("x")
+    live = tmp_path / f".report.stage-{os.getpid()}-zz"
+    live.mkdir()
+    other = tmp_path / f".other.stage-{pid}-abc"
+    other.mkdir()
+    with atomic.staged_dir(out, ("summary.json",)) as tmp:
+        (tmp / "summary.json").write_text("{}")
+    assert not any(p.exists() for p in stale) and live.exists() and other.exists()
+    assert [p.name for p in out.iterdir()] == ["summary.json"]
+
+
+def test_a_failing_block_leaves_the_old_folder(tmp_path):
+    out = tmp_path / "o"
+    with atomic.staged_dir(out, ("a",)) as tmp:
+        (tmp / "a").write_text("old")
+    with pytest.raises(RuntimeError), atomic.staged_dir(out, ("a",)) as tmp:
+        (tmp / "a").write_text("new")
+        raise RuntimeError("late failure")
+    assert (out / "a").read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+    with pytest.raises(Feat2MapError, match="is a folder"):
+        atomic.write_text(out, "x")
+
+
+@pytest.mark.parametrize("case", ["generate over another seed", "generate --no-apollo over a full output",
+                                  "export apollo over another seed"])
+def test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder(tmp_path, space_file, case):
+    """Each run is killed right before a random one of its filesystem changes (every change
+    point is a moment a real SIGKILL can hit); the folder must be the old output or the new
+    one, whole, and the next run must leave exactly its own output and no hidden leftovers."""
+    rng = random.Random()
+    seed = rng.randrange(2**32)
+    rng.seed(seed)
+    maps = tmp_path / "maps"
+    for s in (1, 2):
+        assert main(_generate(space_file, s, maps / str(s), "--no-picture", "--no-apollo")) == 0
+    cmds = {"generate": lambda s, out: _generate(space_file, s, out, "--no-picture"),
+            "generate --no-apollo": lambda s, out: _generate(space_file, s, out, "--no-apollo", "--no-picture"),
+            "export apollo": lambda s, out: ["export", "apollo", str(maps / str(s) / "map.json"), "--out", str(out)]}
+    under_test = case.split(" over ")[0]
+    before = "generate" if "full output" in case else under_test
+    old = tmp_path / "old"
+    assert run(cmds[before](1, old), cwd=tmp_path)[0] == 0
+    new = tmp_path / "new"
+    code, changes = run(cmds[under_test](2, new), cwd=tmp_path)
+    assert code == 0 and changes > 3
+    want_old, want_new = fingerprint(old), fingerprint(new)
+    work = tmp_path / "work"
+    work.mkdir()
+    out = work / "out"
+    for k in sorted(rng.sample(range(1, changes + 1), min(KILL_RUNS, changes))):
+        shutil.rmtree(out, ignore_errors=True)
+        shutil.copytree(old, out)
+        code, _ = run(cmds[under_test](2, out), kill_at=k, cwd=work)
+        assert code == -9, f"not killed at change {k} (random seed {seed})"
+        assert fingerprint(out) in (want_old, want_new), f"killed at change {k} of {changes} (random seed {seed})"
+        assert run(cmds[under_test](2, out), cwd=work)[0] == 0
+        assert fingerprint(out) == want_new
+        assert [p.name for p in work.iterdir()] == ["out"], f"leftovers after a kill at change {k} (seed {seed})"
