@@ -56,7 +56,7 @@ def test_generate_from_maps_skips_junctions_it_cannot_build(tmp_path, capsys):
     from feat2map.config import GenerationConfig
 
     J = feat2map.JunctionFeature.make
-    wide = GenerationConfig(grid_gap=260.0, min_socket_separation_deg=5.0)
+    wide = GenerationConfig(grid_gap=260.0)  # the close legs come from the feature's own separation
     maps = {"close": ([J([0, 8, 120, 240], "bare", False, min_separation_deg=5.0)], wide),
             "big": ([J([0, 30, 120, 240], "signal", False, lanes=4)], wide),
             "good": ([J([0, 90, 180, 270], "stop", True), J([0, 90, 180], "signal", False)], GenerationConfig())}
