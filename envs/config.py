@@ -17,6 +17,7 @@ from highway_env.envs.common import action as he_action
 from highway_env.envs.common import observation as he_obs
 
 from ..errors import Feat2MapError
+from .driver_view import DriverViewObservation
 
 MAX_TRAFFIC_VEHICLES = 500  # a larger count is a typo, not a scene (raise it here if you mean it)
 MAX_FREQUENCY_HZ = 1000.0
@@ -25,7 +26,7 @@ OBSERVATION_TYPES = {
     "TimeToCollision": he_obs.TimeToCollisionObservation, "LidarObservation": he_obs.LidarObservation,
     "GrayscaleObservation": he_obs.GrayscaleObservation, "KinematicsGoal": he_obs.KinematicsGoalObservation,
     "AttributesObservation": he_obs.AttributesObservation, "TupleObservation": he_obs.TupleObservation,
-    "ExitObservation": he_obs.ExitObservation,
+    "ExitObservation": he_obs.ExitObservation, "DriverView": DriverViewObservation,
 }
 ACTION_TYPES = {"ContinuousAction": he_action.ContinuousAction, "DiscreteAction": he_action.DiscreteAction,
                 "DiscreteMetaAction": he_action.DiscreteMetaAction}

@@ -9,6 +9,8 @@ from gymnasium import spaces
 from highway_env.envs.common.observation import (KinematicObservation, ObservationType, OccupancyGridObservation,
                                                  observation_factory)
 
+from .driver_view import DriverViewObservation
+
 ANY_FLOAT32 = float(np.finfo(np.float32).max)  # the bound of a feature that has none: any float32 value
 UNIT_FEATURES = ("cos_h", "sin_h", "cos_d", "sin_d")
 DEFAULT_RANGED = ("x", "y", "vx", "vy")  # features highway-env normalizes when features_range is not given
@@ -156,6 +158,8 @@ def make_observation(env, config: dict) -> ObservationType:
         return Kinematics(env, **config)
     if kind == "OccupancyGrid":
         return OccupancyGrid(env, **config)
+    if kind == "DriverView":
+        return DriverViewObservation(env)
     return observation_factory(env, config)
 
 

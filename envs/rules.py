@@ -409,6 +409,11 @@ class EgoJudge:
         self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
             ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors
 
+    def stopped_before(self, in_lane: str | None) -> bool:
+        """Whether the ego has made its full stop at the line of `in_lane` (it counts until the
+        ego is on another road lane)."""
+        return in_lane in self._stopped
+
     def _entry_lane(self, prev: str, junction_lane: str) -> str:
         """The road lane the ego entered `junction_lane` from: its route lane before it (a lane
         short enough to be driven over within a frame is never located), else `prev`."""

@@ -330,6 +330,11 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
         return int(np.argmin(np.abs(self.target_speeds - self.speed)))
 
     def act(self, action=None) -> None:
+        """A new command (a dict) at each decision; between decisions (`action` None) the
+        acceleration is held and, with `auto_steer`, the steering follows the route every frame
+        (a lane-keeping assist: steering held over a decision period drifts out of turns)."""
+        if action is None and self.auto_steer and isinstance(self.action, dict) and "acceleration" in self.action:
+            action = {"acceleration": self.action["acceleration"]}
         if isinstance(action, dict):
             action = dict(action)
             self.follow_road()

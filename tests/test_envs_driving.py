@@ -255,3 +255,26 @@ def test_left_turn_yields_to_oncoming_straight_traffic():
     u.control.update(u.road, 0.0)
     assert not u.control.junction_clear(left.id, turner)  # priority traffic 2 s away
     assert u.control.junction_clear(oncoming.id, straight)  # the straight one does not wait
+
+
+@pytest.mark.parametrize("turn", ["left", "right"])
+def test_route_steering_acts_every_frame_between_decisions(turn):
+    """Longitudinal-only ContinuousAction at 1 decision per second: the lane-keeping assist
+    steers every simulation frame, so the ego stays near its lane centre through a turn
+    (steering held over a decision period drifted 2-3 m out and left the road)."""
+    feats = [J(FOUR, "bare", False)]
+    m = feat2map.generate_from_features(feats, seed=0)
+    env = gym.make("feat2map/JunctionGrid-v0", config={
+        "features": [f.to_dict() for f in feats], "route": [manoeuvre(m, "J0", turn)], "action": DRIVER_ACTION_CONFIG,
+        "policy_frequency": 1, "traffic_vehicles": 0, "pedestrian_rate": 0.0})
+    env.reset(seed=0)
+    lo, hi = DRIVER_ACTION_CONFIG["acceleration_range"]
+    gentle = np.array([2 * (1.0 - lo) / (hi - lo) - 1], dtype=np.float32)  # +1 m/s2
+    worst = 0.0
+    while True:
+        _, _, term, trunc, info = env.step(gentle)
+        worst = max(worst, abs(env.unwrapped.vehicle.lane_lat))
+        if term or trunc:
+            break
+    assert info["route_completed"] and not info["off_road"], info
+    assert worst < 1.0

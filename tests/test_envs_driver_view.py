@@ -1,0 +1,179 @@
+"""The DriverView observation (envs/driver_view.py): Gymnasium's checker, and each feature against
+what the env and its rules say along real drives (stop line distance and zone, the full stop,
+signal colour and time to change, the arrival queue, conflicting traffic, the leader)."""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import feat2map
+from feat2map.envs import driver_view as dv
+from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
+from feat2map.envs.rules import STOP_ZONE_M
+from feat2map.envs.vehicles import TrafficVehicle
+
+J = feat2map.JunctionFeature.make
+FOUR = [0, 90, 180, 270]
+F = {name: i for i, name in enumerate(dv.DRIVER_VIEW_FEATURES)}
+
+
+def make(control, traffic=0, pedestrians=0.0, turn=None, **config):
+    feats = [J(FOUR, control, False)]
+    route = None
+    if turn is not None:
+        m = feat2map.generate_from_features(feats, seed=0)
+        ln = sorted((ln for ln in m.lanes_by_junction["J0"] if ln.turn == turn), key=lambda ln: ln.id)[0]
+        route = [("J0", m.lanes[ln.predecessors[0]].road_id, m.lanes[ln.successors[0]].road_id)]
+    return gym.make("feat2map/JunctionGrid-v0", config={
+        "features": [f.to_dict() for f in feats], "observation": {"type": "DriverView"}, "action": DRIVER_ACTION_CONFIG,
+        "policy_frequency": 5, "traffic_vehicles": traffic, "pedestrian_rate": pedestrians, "route": route,
+        "route_junctions": 1, "duration": 60.0, **config})
+
+
+def drive(env, seed=0):
+    """(observation, info) pairs of a ScriptedDriver episode, the first from reset."""
+    obs, info = env.reset(seed=seed)
+    out = [(obs, info)]
+    driver = ScriptedDriver(env)
+    while True:
+        obs, _, term, trunc, info = env.step(driver.act())
+        out.append((obs, info))
+        if term or trunc:
+            return out
+
+
+@pytest.mark.parametrize("control", ["signal", "stop", "bare"])
+def test_checker_and_bounds(control):
+    env = make(control, traffic=4, pedestrians=3.0)
+    check_env(env.unwrapped, skip_render_check=True)
+    assert env.observation_space.shape == (len(dv.DRIVER_VIEW_FEATURES),)
+    for obs, _ in drive(env):
+        assert env.observation_space.contains(obs)
+
+
+def test_stop_sign_features_along_a_drive():
+    """Distance and zone match info's stop-line distance; the control is a stop sign until the
+    junction; stop_made turns on only after a stop inside the zone and the entry is no violation."""
+    steps = drive(make("stop", turn="left"))
+    obs, info = steps[-1]
+    assert info["route_completed"] and info["violations"]["stop_sign"] == 0
+    made = None
+    for i, (obs, info) in enumerate(steps):
+        d = info["distance_to_stop_line"]
+        if info["lane_id"] and obs[F["in_junction"]] == 0 and obs[F["stop"]] == 1:
+            assert obs[F["line_near"]] == pytest.approx(min(max(d, 0) / dv.LINE_NEAR_M, 1), abs=1e-4)
+            assert obs[F["line_far"]] == pytest.approx(min(max(d, 0) / dv.LINE_FAR_M, 1), abs=1e-4)
+            assert obs[F["in_stop_zone"]] == float(0 <= d <= STOP_ZONE_M)
+            assert obs[F["left"]] == 1 and obs[F["straight"]] == obs[F["right"]] == 0
+            if made is None and obs[F["stop_made"]]:
+                made = i
+    assert made is not None
+    before = steps[made - 1][1]
+    assert steps[made][1]["speed"] <= 0.3 + 1e-6 or before["speed"] <= 1.0
+    assert 0 <= steps[made][1]["distance_to_stop_line"] <= STOP_ZONE_M
+    assert all(obs[F["stop_made"]] == 0 for obs, _ in steps[:made])
+    assert any(obs[F["in_junction"]] == 1 for obs, _ in steps)
+    last = steps[-1][0]  # past the junction: no control, far line
+    assert last[F["signal"]] == last[F["stop"]] == last[F["bare"]] == 0 and last[F["line_far"]] == 1
+
+
+def test_signal_features_match_info():
+    steps = drive(make("signal", turn="none"))
+    seen = set()
+    for obs, info in steps:
+        if info["control_ahead"] != "signal":
+            continue
+        state = info["signal_state"]
+        seen.add(state)
+        assert [obs[F[s]] for s in ("green", "amber", "red")] == [float(state == s) for s in ("green", "amber", "red")]
+        assert obs[F["signal_change"]] == pytest.approx(min(info["signal_time_to_change"] / dv.SIGNAL_SCALE_S, 1),
+                                                        abs=1e-4)
+    assert "green" in seen and steps[-1][1]["violations"]["red_light"] == 0
+
+
+def _spawn(u, in_lane, j_lane, d, speed):
+    """A traffic vehicle `d` metres before the end of `in_lane`, routed into `j_lane`."""
+    ln = u.net.lane_of[in_lane]
+    v = TrafficVehicle(u.road, ln.position(ln.length - d, 0.0), ln.heading_at(ln.length - d), speed)
+    v.init_route([in_lane, j_lane, *u.net.hdmap.lanes[j_lane].successors[:1]])
+    u.road.vehicles.append(v)
+    u.control.update(u.road, 0.0)
+    return v
+
+
+def _conflict(u, mine, turn, higher):
+    """A junction lane of `turn` in conflict with `mine`, with higher (else lower) priority."""
+    m, net = u.net.hdmap, u.net
+    return next(l for l in sorted(net.conflicts[mine]) if m.lanes[l].turn == turn
+                and (net.lane_of[l].priority > net.lane_of[mine].priority) == higher)
+
+
+def test_conflicting_traffic_with_and_without_priority():
+    """Ego turning left at a bare junction: an oncoming straight car is traffic with priority,
+    seen with its time to arrival, distance and speed; going straight, a left-turner crossing
+    its path is traffic without priority; a vehicle inside a conflicting lane occupies it."""
+    env = make("bare", turn="left")
+    env.reset(seed=0)
+    u = env.unwrapped
+    m = u.net.hdmap
+    mine = next(l for l in u.vehicle.lane_route if m.lanes[l].junction_id)
+    obs = u.observation_type.observe()
+    assert obs[F["priority_time"]] == obs[F["other_time"]] == 1 and obs[F["conflict_occupied"]] == 0
+    oncoming = _conflict(u, mine, "none", higher=True)
+    _spawn(u, m.lanes[oncoming].predecessors[0], oncoming, 20.0, 8.0)
+    obs = u.observation_type.observe()
+    assert obs[F["priority_time"]] == pytest.approx(20.0 / 8.0 / dv.CONFLICT_TIME_S, abs=0.02)
+    assert obs[F["priority_distance"]] == pytest.approx(20.0 / dv.CONFLICT_DISTANCE_M, abs=0.01)
+    assert obs[F["priority_speed"]] == pytest.approx(8.0 / dv.SPEED_SCALE_MPS, abs=0.01)
+    assert obs[F["other_time"]] == 1 and obs[F["conflict_occupied"]] == 0
+    ln = u.net.lane_of[oncoming]
+    v = TrafficVehicle(u.road, ln.position(3.0, 0.0), ln.heading_at(3.0), 5.0)
+    v.init_route([oncoming])
+    u.road.vehicles.append(v)
+    u.control.update(u.road, 0.0)
+    assert u.observation_type.observe()[F["conflict_occupied"]] == 1
+
+    env = make("bare", turn="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    mine = next(l for l in u.vehicle.lane_route if m.lanes[l].junction_id)
+    turner = _conflict(u, mine, "left", higher=False)
+    _spawn(u, m.lanes[turner].predecessors[0], turner, 10.0, 5.0)
+    obs = u.observation_type.observe()
+    assert obs[F["other_time"]] == pytest.approx(10.0 / 5.0 / dv.CONFLICT_TIME_S, abs=0.02)
+    assert obs[F["priority_time"]] == 1
+
+
+def test_stop_queue_counts_earlier_arrivals_with_conflicting_lanes():
+    env = make("stop", turn="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    m, net = u.net.hdmap, u.net
+    mine = next(l for l in u.vehicle.lane_route if m.lanes[l].junction_id)
+    crossing = next(l for l in sorted(net.conflicts[mine]) if m.lanes[l].turn == "none")
+    assert u.observation_type.observe()[F["queue_ahead"]] == 0
+    v = _spawn(u, m.lanes[crossing].predecessors[0], crossing, 4.0, 0.0)  # stopped in its zone
+    assert v in u.control.stop_queue["J0"]
+    assert u.observation_type.observe()[F["queue_ahead"]] == pytest.approx(1 / dv.QUEUE_SCALE)
+
+
+def test_leader_gap_and_speed():
+    env = make("bare", turn="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    ego = u.vehicle
+    lane = u.net.lane_of[ego.lane_route[0]]
+    s = ego.lane_s + 15.0
+    v = TrafficVehicle(u.road, lane.position(s, 0.0), lane.heading_at(s), 3.0)
+    v.init_route(ego.lane_route)
+    u.road.vehicles.append(v)
+    u.control.update(u.road, 0.0)
+    obs = u.observation_type.observe()
+    assert obs[F["leader_gap"]] == pytest.approx((15.0 - ego.LENGTH) / dv.LEADER_SCALE_M, abs=0.02)
+    assert obs[F["leader_speed"]] == pytest.approx(3.0 / dv.SPEED_SCALE_MPS, abs=0.01)
