@@ -114,6 +114,18 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     return None, None, None, math.inf
 
 
+def enters_next(vehicle, lane_id: str) -> bool:
+    """Whether a road user located on the lane before `lane_id` drives into it next: its next
+    route lane, or its current one when its route position has already moved on while it is
+    still on the lane before (route followers move on in the last metre of a lane; missing
+    them there let traffic claim a junction lane in conflict with one about to be entered)."""
+    route = getattr(vehicle, "lane_route", None)
+    if route is None:
+        return False
+    pos = vehicle.route_pos
+    return lane_id in route[pos:pos + 2]
+
+
 class TrafficRules:
     """The rules' questions, answered from the traffic control state of `control.TrafficControl`
     (which inherits them): signals (`plans`, `t`), junction reservations, stop-sign queues,
@@ -218,10 +230,7 @@ class TrafficRules:
         and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
         lane = self.net.lane_of.get(approach)
         for v in self.buckets.get(approach, ()):
-            if v is exclude or not hasattr(v, "lane_route"):
-                continue
-            k = v.route_pos + 1
-            if k < len(v.lane_route) and v.lane_route[k] == lane_id:
+            if v is not exclude and enters_next(v, lane_id):
                 d = lane.length - v.s_on(approach)
                 if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + margin:
                     return True
@@ -248,11 +257,8 @@ class TrafficRules:
             if self._held(p):
                 continue
             lane_p = net.lane_of.get(p)
-            for v in self.buckets.get(p, ()):
-                k = getattr(v, "route_pos", -2) + 1
-                if v is exclude or not hasattr(v, "lane_route") or k >= len(v.lane_route) or v.lane_route[k] != lane_id:
-                    continue
-                out.append((lane_p.length - v.s_on(p), v))
+            out += [(lane_p.length - v.s_on(p), v) for v in self.buckets.get(p, ())
+                    if v is not exclude and enters_next(v, lane_id)]
         return out
 
     def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:

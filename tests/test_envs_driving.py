@@ -278,3 +278,32 @@ def test_route_steering_acts_every_frame_between_decisions(turn):
             break
     assert info["route_completed"] and not info["off_road"], info
     assert worst < 1.0
+
+
+def test_a_vehicle_in_the_last_metre_before_the_junction_is_about_to_enter():
+    """Route followers move their route position onto the junction lane in the last metre of
+    the approach, while still located on it: they must still count as about to enter (a
+    left-turner claimed its lane in front of the ego going straight at 10 m/s, then collided)."""
+    feats = [J(FOUR, "bare", False)]
+    m = feat2map.generate_from_features(feats, seed=0)
+    env = gym.make("feat2map/JunctionGrid-v0", config={
+        "features": [f.to_dict() for f in feats], "route": [manoeuvre(m, "J0", "none")], "traffic_vehicles": 0, **DRIVE})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, ego = u.net, u.vehicle
+    straight = next(l for l in ego.lane_route if m.lanes[l].junction_id)
+    left = next(l for l in sorted(net.conflicts[straight]) if m.lanes[l].turn == "left")
+    approach = net.lane_of[ego.lane_route[0]]
+    s = approach.length - 0.5
+    ego.position, ego.heading, ego.speed = approach.position(s, 0.0), approach.heading_at(s), 10.0
+    ego.on_state_update()
+    ego.follow_road()
+    assert ego.lane_route[ego.route_pos] == straight and net.id_of[ego.lane_index] == ego.lane_route[0]
+    ln = net.lane_of[m.lanes[left].predecessors[0]]
+    turner = TrafficVehicle(u.road, ln.position(ln.length - 3.0, 0.0), ln.heading_at(ln.length - 3.0), 0.0)
+    turner.init_route([m.lanes[left].predecessors[0], left])
+    u.road.vehicles.append(turner)
+    u.control.update(u.road, 0.0)
+    assert u.control.about_to_enter(ego.lane_route[0], straight)
+    assert not u.control.junction_clear(left, turner)
+    assert any(v is ego for _, v in u.control.traffic_towards(straight))
