@@ -167,8 +167,9 @@ class Signal:
 
 
 @dataclass(frozen=True)
-class StopSign:
-    """A stop sign on the right of its road, facing the traffic; the stop line it guards."""
+class TrafficSign:
+    """A sign on the right of its road, facing the traffic: the line it guards, its pole, the
+    incoming lanes it governs."""
 
     id: str
     junction_id: str | None
@@ -179,20 +180,19 @@ class StopSign:
 
 
 @dataclass(frozen=True)
-class YieldSign:
-    """A yield (give-way) sign and the stop line it guards. Not a stop sign: traffic on its
-    lanes gives way without stopping, so the junction stays `bare` in its feature (bare with
-    priority: the signed approaches are the minor ones; see docs/extraction.md)."""
-
-    id: str
-    junction_id: str | None
-    stop_line: Polyline
-    position: Point
-    heading: float
-    lane_ids: tuple[str, ...] = ()
+class StopSign(TrafficSign):
+    """A stop sign: traffic on its lanes stops at the line."""
 
 
-def signal_precedence(lanes: Mapping[str, Lane], signals: Mapping[str, Signal], signs: Mapping[str, Any]) -> dict:
+@dataclass(frozen=True)
+class YieldSign(TrafficSign):
+    """A yield (give-way) sign. Not a stop sign: traffic on its lanes gives way without
+    stopping, so the junction stays `bare` in its feature (bare with priority: the signed
+    approaches are the minor ones; see docs/extraction.md)."""
+
+
+def signal_precedence(lanes: Mapping[str, Lane], signals: Mapping[str, Signal],
+                      signs: Mapping[str, TrafficSign]) -> dict:
     """`signs` (stop or yield signs) without the lanes a signal governs: a signal governs where
     both exist (a sign under a light is for when the light is dark). A sign left with no lane
     is dropped; one that governed no lane to begin with is kept as it is."""
