@@ -468,3 +468,24 @@ def test_yield_signs_are_read_as_yield_signs_and_lights_govern_signs_under_them(
         f"y_{k}": s.lane_ids for k, s in m.stop_signs.items()}
     assert sorted((j.feature.n_roads, j.feature.control) for j in extract_junctions(back)) == [(3, "bare"), (4, "signal")]
     assert native.from_dict(native.to_dict(back)) == back
+
+
+def test_a_sign_overlapping_another_junctions_lane_at_its_end_does_not_govern_that_junctions_approach(baidu_source):
+    """GoMentum's stop_sign_22 (J_31) also overlaps the last 0.7 m of a J_30 junction lane that
+    ends at its line: the sign is at J_30's exit, not a control of J_30's approach (reading it as
+    one put a J_31 stop line on a J_30 approach, and stop-sign queues never let the ego in)."""
+    pb = aps.Map()
+    pb.CopyFrom(baidu_source)
+    clean = read_apollo_bytes(pb.SerializeToString(), "clean.bin")
+    sign = next(s for s in pb.stop_sign)
+    mine = clean.stop_signs[sign.id.id].junction_id
+    other = next(ln for ln in pb.lane if clean.lanes[ln.id.id].junction_id not in (None, mine))
+    ov = pb.overlap.add()
+    ov.id.id = "exit_overlap"
+    a, b = ov.object.add(), ov.object.add()
+    a.id.id, b.id.id = other.id.id, sign.id.id
+    a.lane_overlap_info.start_s, a.lane_overlap_info.end_s = other.length - 0.7, other.length
+    b.stop_sign_overlap_info.SetInParent()
+    other.overlap_id.add().id = sign.overlap_id.add().id = "exit_overlap"
+    m = read_apollo_bytes(pb.SerializeToString(), "exit.bin")
+    assert m.stop_signs[sign.id.id] == clean.stop_signs[sign.id.id]

@@ -296,7 +296,10 @@ class _Reader:
                   o: np.ndarray) -> dict:
         """Signals, stop signs or yield signs with the incoming lanes they overlap and their junction."""
         governed: dict[str, list[str]] = {}
-        for lid, sid, _ in pairs.get(("lane", kind), []):
+        for lid, sid, (obj, _) in pairs.get(("lane", kind), []):
+            ln = lanes.get(lid)
+            if ln is not None and ln.junction_id is not None and obj.lane_overlap_info.start_s > ln.length / 2:
+                continue  # a line at a junction lane's end is that junction's exit: not its approaches' control
             governed.setdefault(sid, []).append(lid)
         named: dict[str, list[str]] = {}
         for jid, sid, _ in pairs.get(("junction", kind), []):
