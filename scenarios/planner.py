@@ -34,7 +34,7 @@ import numpy as np
 
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.network import CONFLICT_DISTANCE_M
-from ..envs.rules import IDM_ACC, RULES, STOPPED_SPEED_MPS, idm, in_stop_zone
+from ..envs.rules import IDM_ACC, RULES, STOP_POINT_M, STOPPED_SPEED_MPS, braking_distance, idm, in_stop_zone
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
 CREEP_TRIGGER_M = 12.0  # an unprotected left creeps when held by traffic this close to the line
@@ -128,7 +128,7 @@ class BaselinePlanner:
         self.j_lane: str | None = None
         self.in_lane: str | None = None
         self.stage_since = 0.0
-        self.go = False  # a creep stage decided to go (sticky until the stage changes)
+        self.go = False  # the unprotected left's gap acceptance lets it past the line (re-taken each step)
         self.full_stop = False  # stopped at the selected junction's line (right on red needs it)
         self._zones: dict[tuple[str, str], tuple[float, float, float, float]] = {}
         self._curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -208,8 +208,8 @@ class BaselinePlanner:
             self._go("S_S")
         elif self.stage == "S_S" and t_stage >= STOP_DURATION_S and self._line_free():
             self._go("S_C")
-        elif self.stage == "L_A" and d <= CREEP_TRIGGER_M and self._held_by_traffic():
-            self._go("L_C")
+        elif self.stage == "L_A" and d <= CREEP_TRIGGER_M and (self._held_by_traffic() or not self._decide(d)):
+            self._go("L_C")  # held by the rules, or by its own gap acceptance
         elif self.stage == "R_S" and self.full_stop and t_stage >= STOP_DURATION_S and self._signal_state() != "green":
             self._go("R_C")  # (a light turning green in R_S lets the ego on: R_S -> R_I, as in Apollo)
 
@@ -288,9 +288,10 @@ class BaselinePlanner:
         return self._zones[key]
 
     def _gap_ok(self) -> bool:
-        """Gap acceptance for a creeping turn, per conflict zone of our junction lane: every
-        vehicle heading through it either leaves it GAP_MARGIN_S before we can arrive (at its
-        current speed) or arrives GAP_MARGIN_S after we have left (accelerating)."""
+        """Gap acceptance of the unprotected left (scenarios/README.md), per conflict zone of our
+        junction lane: every vehicle heading through it either leaves it GAP_MARGIN_S before we
+        can arrive (at its current speed) or arrives GAP_MARGIN_S after we have left (it
+        accelerating up to its lane's speed limit)."""
         env = self.env
         ego, net = env.vehicle, env.net
         v_me = max(ego.speed, 0.0)
@@ -309,11 +310,29 @@ class BaselinePlanner:
                 if d_out <= 0:
                     continue  # already through
                 sp = max(float(getattr(v, "speed", 0.0)), 0.0)
-                t_in = _travel_time(d_in - v.LENGTH / 2, sp, IDM_ACC)
+                # it may speed up, to its lane's speed limit (IDM's target), not beyond
+                lane = net.lane_of.get(net.id_of.get(getattr(v, "lane_index", None)))
+                t_in = _travel_time(d_in - v.LENGTH / 2, sp, IDM_ACC, max(sp, lane.speed_limit if lane else sp))
                 t_out = d_out / sp if sp > 0.1 else math.inf
                 if not (t_in >= t_me_out + GAP_MARGIN_S or t_out + GAP_MARGIN_S <= t_me_in):
                     return False
         return True
+
+    def _deciding(self) -> bool:
+        """The unprotected left is within its decision distance of the line: CREEP_TRIGGER_M, or
+        farther when the ego needs more than that to stop comfortably."""
+        ego = self.env.vehicle
+        return self._line_distance() <= max(CREEP_TRIGGER_M, braking_distance(max(ego.speed, 0.0), ego.LENGTH))
+
+    def _decide(self, d_line: float) -> bool:
+        """The unprotected left's go decision at `d_line` from the line (`self.go`): the signal
+        and pedestrians let it past and `_gap_ok` finds a gap; a decision to go stands once the
+        ego is too close to the line to stop comfortably before it."""
+        ego = self.env.vehicle
+        if not (self.go and d_line < braking_distance(max(ego.speed, 0.0), ego.LENGTH)):
+            free = self.env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > d_line + 0.5
+            self.go = free and self._gap_ok()
+        return self.go
 
     def _curve_speeds(self, lane_id: str) -> tuple[np.ndarray, np.ndarray]:
         """(s, comfortable speed) at the vertices of a lane: sqrt(a_lat / curvature), never below
@@ -359,14 +378,16 @@ class BaselinePlanner:
         if stage == "R_C" and self._right_on_red() and self._signal_state() == "red" and \
                 (not self.full_stop or self._cross_traffic_near()):
             stop = self._line_distance() - 1.0
-        elif stage == "L_C" and "conflict" not in self.ignore:
-            # creep to the line; go when the gap acceptance finds a gap (the env's conflict rule
-            # also waits for vehicles already past the conflict), reserving the junction lane
-            free = env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > self._line_distance() + 0.5
-            self.go = free and (self.go or self._gap_ok())
-            stop = env.rule_stop_distance(self.ignore | {"conflict"} if self.go else self.ignore, commit=True)
-            if self.go:
-                return idm(ego, env.leader_gaps(), stop)
+        elif stage in ("L_A", "L_C") and "conflict" not in self.ignore and self._deciding():
+            # the unprotected left's gap acceptance (scenarios/README.md): past the line only when
+            # the signal and pedestrians allow and its own prediction finds a gap in the oncoming
+            # and crossing traffic (the env's conflict rule, which also waits for vehicles already
+            # past the conflict, is then overruled and the junction lane reserved); re-taken every
+            # step until the ego can no longer stop before the line
+            d_line = self._line_distance()
+            if self._decide(d_line):
+                return idm(ego, env.leader_gaps(), env.rule_stop_distance(self.ignore | {"conflict"}, commit=True))
+            stop = min(env.rule_stop_distance(self.ignore, commit=False), d_line - STOP_POINT_M)
         else:
             stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
         a = idm(ego, env.leader_gaps(), stop)

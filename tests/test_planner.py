@@ -4,6 +4,7 @@ logs Apollo-like stage paths, is deterministic per seed; the broken variants get
 any callable or SB3-style model plugs in as a Policy."""
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -113,6 +114,59 @@ def test_unprotected_left_creeps_behind_oncoming_traffic(tmp_path_factory):
         assert info["route_completed"] and info["violations"] == NO_VIOLATIONS and not info["collision"]
         paths.add(planner.stage_path())
     assert ("LF", "L_A", "L_C", "L_I", "LF") in paths
+
+
+def _oncoming(map_path, m, mv, offsets, distance: float, speed: float = 13.0):
+    """Drive the unprotected left `mv` (green on arrival, no other traffic) with one car coming
+    straight the other way, `distance` before its line at `speed`; (info, stage path, time
+    the ego entered its junction lane, times the car entered and left its junction lane)."""
+    import math
+
+    sc = Scenario("l", str(map_path), (mv,), signal_offsets=offsets, seed=0, duration=40.0)
+    env = make_env(sc, config={"traffic_respawn": False})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    mine = u.route_lanes[1]
+    turn = lambda a, b: abs((m.lanes[a].heading_at_start() - m.lanes[b].heading_at_start() + math.pi)  # noqa: E731
+                            % (2 * math.pi) - math.pi)
+    (c,) = [c for c in u.net.conflicts[mine] if m.lanes[c].turn == "none" and turn(c, mine) > 2.5]
+    approach, exit_ = m.lanes[c].predecessors[0], m.lanes[c].successors[0]
+    car = u.road.spawn(approach, u.net.lane_of[approach].length - distance, speed, [approach, c, exit_])
+    planner = BaselinePlanner()
+    planner.reset(env)
+    times: dict[str, float] = {}
+    while True:
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        here = {"ego": u.net.id_of.get(u.vehicle.lane_index), "car": u.net.id_of.get(car.lane_index)}
+        for key, lane in (("ego in", here["ego"] == mine), ("car in", here["car"] == c), ("car out", here["car"] == exit_)):
+            if lane:
+                times.setdefault(key, info["time"])
+        if term or trunc:
+            env.close()
+            return info, planner.stage_path(), times
+
+
+def test_unprotected_left_takes_only_the_gaps_its_own_prediction_accepts(tmp_path_factory):
+    """Issue 13: a left turn started into oncoming traffic that only the env's 3 s priority
+    horizon found clear. Now the ego turns only into a gap its own prediction accepts (every
+    conflicting vehicle clears the conflict GAP_MARGIN_S before it arrives or arrives that long
+    after it has left, the car at most at its lane's speed limit): a car 98 m away at 13 m/s
+    (4 s from the conflict when the ego decides, outside that horizon) goes first; one 170 m
+    away does not hold the ego up at all."""
+    from feat2map.config import GenerationConfig
+
+    m = feat2map.generate_from_features([J(FOUR, "signal", False)], seed=0,
+                                        config=GenerationConfig(grid_gap=420.0, stub_length=190.0))
+    map_path = tmp_path_factory.mktemp("maps") / "long_legs.json"
+    native.save(m, map_path)
+    mv = manoeuvre(m, "J0", "left")
+    offsets = {"J0": signal_offset(map_path, mv, "green")}
+    info, path, t = _oncoming(map_path, m, mv, offsets, 98.0)
+    assert info["route_completed"] and not info["collision"] and info["violations"] == NO_VIOLATIONS
+    assert path == ("LF", "L_A", "L_C", "L_I", "LF") and t["car out"] < t["ego in"]
+    info, path, t = _oncoming(map_path, m, mv, offsets, 170.0)
+    assert info["route_completed"] and not info["collision"]
+    assert path == ("LF", "L_A", "L_I", "LF") and t["ego in"] < t.get("car in", math.inf)
 
 
 def test_multi_junction_route_through_every_control(tmp_path_factory):
