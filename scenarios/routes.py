@@ -8,6 +8,7 @@ them that the route does not name).
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -21,6 +22,8 @@ BASE_DURATION_S = 20.0
 SIGNAL_CROSSING_S = 10.0  # after a whole signal cycle: time to cross the junction
 ROUTE_SPEED_MPS = 8.0  # plus the route's length at this speed
 START_AND_GOAL_M = 45.0  # the env starts the ego <= 30 m before the first junction and ends 15 m after the last
+END_ROOM_M = 25.0  # a route ends on an exit road at least this long before the next junction where it can:
+# the env's goal lies 15 m into it, and an ego at speed reaching a goal closer to a junction runs into it
 
 Route = tuple[Manoeuvre, ...]
 
@@ -98,7 +101,8 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     graph). While a manoeuvre is uncovered, take the first uncovered one (map order) as the
     anchor, search exhaustively backwards and forwards from it for the chains of at most
     `max_junctions` manoeuvres in total (never visiting a junction twice) that add the most
-    uncovered manoeuvres (ties: fewer junctions, then map order), and add that route. Each
+    uncovered manoeuvres (ties: an end with END_ROOM_M of road before the next junction, fewer
+    junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
     a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped.
     """
@@ -112,6 +116,7 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
         for n in nxts:
             preds[n].append(mv)
     order = {mv: i for i, mv in enumerate(all_moves)}
+    room = {mv: _exit_room(m, mv) for mv in graph}
     uncovered = set(targets)
     routes: list[Route] = []
     for anchor in targets:
@@ -124,12 +129,31 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
             for fwd in _chains(graph, anchor, max_junctions - 1 - len(back), used):
                 route = tuple(reversed(back)) + (anchor,) + fwd
                 gain = len(set(route) & uncovered)
-                key = (-gain, len(route), [order[mv] for mv in route])
+                key = (-gain, room[route[-1]] < END_ROOM_M, len(route), [order[mv] for mv in route])
                 if best_key is None or key < best_key:
                     best, best_key = route, key
         routes.append(best)
         uncovered -= set(best)
     return routes
+
+
+def _exit_room(m: HDMap, mv: Manoeuvre) -> float:
+    """Metres of road after the manoeuvre's junction lane before the next junction (inf where the
+    road leaves the map): the longest chain of road lanes from the lane it leads into."""
+    ln = pick_lane(m, mv)
+    best = 0.0
+    stack = [(s, 0.0, frozenset()) for s in (ln.successors if ln is not None else ()) if s in m.lanes]
+    while stack:
+        lid, done, seen = stack.pop()
+        lane = m.lanes[lid]
+        if lane.junction_id is not None or lid in seen:
+            best = max(best, done)
+            continue
+        nxt = [x for x in lane.successors if x in m.lanes]
+        if not nxt:
+            return math.inf
+        stack += [(x, done + lane.length, seen | {lid}) for x in nxt]
+    return best
 
 
 def _chains(graph: dict[Manoeuvre, list[Manoeuvre]], start: Manoeuvre, depth: int,

@@ -204,6 +204,23 @@ def test_coverage_of_a_mega_junction_with_uturns():
     assert any(ln.turn == "uturn" for ln in m.lanes.values())
 
 
+def test_routes_do_not_end_just_before_another_junction_where_they_can_go_on():
+    """Two junctions 23 m apart (a 62 m grid): a route whose last manoeuvre leaves onto that
+    road goes on through the next junction when the length allows (the env's goal, 15 m into
+    the road, put an ego at speed into the next junction, on red in Town06); with one junction
+    per route there is no choice."""
+    from feat2map.config import GenerationConfig
+    from feat2map.scenarios.routes import END_ROOM_M, _exit_room
+
+    m = feat2map.generate_from_features([J([0, 90, 180, 270], "bare", False), J([0, 90, 180], "bare", False)],
+                                        seed=0, config=GenerationConfig(grid_gap=62.0))
+    (short,) = [r for r in m.roads.values() if r.kind == "connection"]
+    assert m.lanes[short.right_lanes[0]].length < END_ROOM_M
+    ends_short = lambda routes: [r for r in routes if _exit_room(m, r[-1]) < END_ROOM_M]  # noqa: E731
+    assert ends_short(coverage_routes(m, 1)) and not ends_short(coverage_routes(m, 2))
+    assert route_coverage(m, coverage_routes(m, 2)) == 1.0
+
+
 def test_build_suite_of_a_map_file(map_file, m1, tmp_path):
     suite = build_suite(map_file, seed=10, traffic_vehicles=3, pedestrian_rate=2.0)
     assert route_coverage(m1, [sc.route for sc in suite.scenarios]) == 1.0
