@@ -475,6 +475,29 @@ def test_a_centimetre_road_is_no_arm_in_any_map():
     assert [j.feature for j in extract_junctions(bent)] == [j.feature for j in extract_junctions(m)]
 
 
+def test_a_lane_offset_jumping_at_a_section_end_does_not_fold_the_lane(tmp_path):
+    """CARLA (Town03/05/06: 87 lanes) jumps the lane offset at a lane section's start and widens
+    an inner non-driving lane by as much, so the driving lane runs straight on; the section
+    before must keep its own offset at its last sample (taking the next record folded the lane
+    back 2.5 m at every such boundary, and the ego's lane keeping left the road)."""
+    doc = """<OpenDRIVE><header revMajor="1" revMinor="4"/>
+      <road id="1" length="40" junction="-1"><planView>
+        <geometry s="0" x="0" y="0" hdg="0" length="40"><line/></geometry></planView>
+        <lanes><laneOffset s="0" a="0" b="0" c="0" d="0"/><laneOffset s="20" a="2.5" b="0" c="0" d="0"/>
+          <laneSection s="0"><center><lane id="0" type="none"/></center><right>
+            <lane id="-1" type="driving"><link><successor id="-2"/></link><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>
+          </right></laneSection>
+          <laneSection s="20"><center><lane id="0" type="none"/></center><right>
+            <lane id="-1" type="none"><width sOffset="0" a="2.5" b="0" c="0" d="0"/></lane>
+            <lane id="-2" type="driving"><link><predecessor id="-1"/></link><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>
+          </right></laneSection></lanes></road></OpenDRIVE>"""
+    (tmp_path / "jump.xodr").write_text(doc)
+    (lane,) = read_opendrive(tmp_path / "jump.xodr").lanes.values()
+    pts = np.array(lane.centerline)
+    assert np.all(np.diff(pts[:, 0]) > 0) and pts[:, 1] == pytest.approx(-1.75)
+    assert lane.length == pytest.approx(40.0)
+
+
 def test_cli_export_opendrive(tmp_path, capsys):
     from feat2map.cli import main
 

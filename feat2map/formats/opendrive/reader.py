@@ -130,12 +130,16 @@ class _RefLine:
         return x, y, h
 
 
-def _poly(records: list[tuple[float, float, float, float, float]], s: np.ndarray) -> np.ndarray:
-    """Piecewise cubic a + b ds + c ds^2 + d ds^3, each record valid from its start s."""
+def _poly(records: list[tuple[float, float, float, float, float]], s: np.ndarray,
+          end: float = math.inf) -> np.ndarray:
+    """Piecewise cubic a + b ds + c ds^2 + d ds^3, each record valid from its start s; at `end`
+    (a lane section's end) the record before it still holds: one starting there is the next
+    section's (CARLA jumps the lane offset at section ends; taking the next record at the last
+    sample folded the lane back on itself)."""
     if not records:
         return np.zeros_like(s)
     starts = np.array([r[0] for r in records])
-    idx = np.clip(np.searchsorted(starts, s + 1e-9, side="right") - 1, 0, len(records) - 1)
+    idx = np.clip(np.searchsorted(starts, np.minimum(s + 1e-9, end - 1e-9), side="right") - 1, 0, len(records) - 1)
     rec = np.array(records)[idx]
     ds = s - rec[:, 0]
     return rec[:, 1] + ds * (rec[:, 2] + ds * (rec[:, 3] + ds * rec[:, 4]))
@@ -323,7 +327,7 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
         s = np.concatenate([[s[0], s[0] + END_TANGENT_M], s[1:-1], [s[-1] - END_TANGENT_M, s[-1]]])
     x, y, h = road.ref.eval(s)
     lim = limits()
-    off = _poly(road.lane_offset, s)
+    off = _poly(road.lane_offset, s, sec.s1)
     if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(h).all() and np.isfinite(off).all()
             and max(float(np.abs(x).max()), float(np.abs(y).max()), float(np.abs(off).max())) <= lim.max_coordinate_m):
         raise MapFormatError(f"reference line or lane offset is not finite or beyond the limit max_coordinate_m="
@@ -337,10 +341,10 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
         for lid in ids:
             ln = sec.lanes[lid]
             if ln.widths or not ln.borders:
-                w = np.maximum(_poly(ln.widths, ds), 0.0)
+                w = np.maximum(_poly(ln.widths, ds, sec.s1 - sec.s0), 0.0)
                 outer = inner + side * w
             else:  # border records give the outer edge's t directly
-                outer = off + _poly(ln.borders, ds)
+                outer = off + _poly(ln.borders, ds, sec.s1 - sec.s0)
                 w = np.abs(outer - inner)
             if not (np.isfinite(outer).all() and float(np.abs(w).max(initial=0.0)) <= lim.max_lane_width_m):
                 raise MapFormatError(f"lane {lid} width is not finite or above the limit max_lane_width_m="
