@@ -283,9 +283,8 @@ class TrafficRules:
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
             state = self.signal_state(sl.control_id)
             if state == "red":
-                if self.reservations.get(j_lane) is vehicle and commit:
-                    del self.reservations[j_lane]
-                    vehicle.reserved = None
+                if commit:
+                    self.release(vehicle, j_lane)
                 return False
             if state == "amber" and stops_at_amber(d_line, vehicle.speed):
                 return False
@@ -300,6 +299,12 @@ class TrafficRules:
             self.reservations[j_lane] = vehicle
             vehicle.reserved = j_lane
         return True
+
+    def release(self, vehicle, j_lane: str) -> None:
+        """Give up `vehicle`'s reservation of `j_lane` (if it holds it): it will not enter now."""
+        if self.reservations.get(j_lane) is vehicle:
+            del self.reservations[j_lane]
+            vehicle.reserved = None
 
     def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
         """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""

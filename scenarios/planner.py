@@ -332,6 +332,8 @@ class BaselinePlanner:
         if not (self.go and d_line < braking_distance(max(ego.speed, 0.0), ego.LENGTH)):
             free = self.env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > d_line + 0.5
             self.go = free and self._gap_ok()
+            if not self.go:  # a reservation made while it meant to go would hold up the traffic it now waits for
+                self.env.rules.release(ego, self.j_lane)
         return self.go
 
     def _curve_speeds(self, lane_id: str) -> tuple[np.ndarray, np.ndarray]:

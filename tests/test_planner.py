@@ -116,13 +116,12 @@ def test_unprotected_left_creeps_behind_oncoming_traffic(tmp_path_factory):
     assert ("LF", "L_A", "L_C", "L_I", "LF") in paths
 
 
-def _oncoming(map_path, m, mv, offsets, distance: float, speed: float = 13.0):
+def _oncoming(map_path, m, mv, offsets, distance: float, speed: float = 13.0, when_reserved: bool = False):
     """Drive the unprotected left `mv` (green on arrival, no other traffic) with one car coming
-    straight the other way, `distance` before its line at `speed`; (info, stage path, time
-    the ego entered its junction lane, times the car entered and left its junction lane)."""
-    import math
-
-    sc = Scenario("l", str(map_path), (mv,), signal_offsets=offsets, seed=0, duration=40.0)
+    straight the other way, `distance` before its line at `speed` (from the start, or from when
+    the ego has reserved its junction lane); (info, stage path, times: the ego entered its
+    junction lane, the car entered and left its junction lane, the ego released its lane)."""
+    sc = Scenario("l", str(map_path), (mv,), signal_offsets=offsets, seed=0, duration=60.0)
     env = make_env(sc, config={"traffic_respawn": False})
     obs, info = env.reset(seed=0)
     u = env.unwrapped
@@ -131,13 +130,21 @@ def _oncoming(map_path, m, mv, offsets, distance: float, speed: float = 13.0):
                             % (2 * math.pi) - math.pi)
     (c,) = [c for c in u.net.conflicts[mine] if m.lanes[c].turn == "none" and turn(c, mine) > 2.5]
     approach, exit_ = m.lanes[c].predecessors[0], m.lanes[c].successors[0]
-    car = u.road.spawn(approach, u.net.lane_of[approach].length - distance, speed, [approach, c, exit_])
+
+    def spawn():
+        return u.road.spawn(approach, u.net.lane_of[approach].length - distance, speed, [approach, c, exit_])
+    car = None if when_reserved else spawn()
     planner = BaselinePlanner()
     planner.reset(env)
     times: dict[str, float] = {}
     while True:
         obs, _, term, trunc, info = env.step(planner.act(obs, info))
-        here = {"ego": u.net.id_of.get(u.vehicle.lane_index), "car": u.net.id_of.get(car.lane_index)}
+        reserved = u.control.reservations.get(mine) is u.vehicle
+        if car is None and reserved:
+            car, times["reserved"] = spawn(), info["time"]
+        if car is not None and not reserved and "reserved" in times and "ego in" not in times:
+            times.setdefault("released", info["time"])
+        here = {"ego": u.net.id_of.get(u.vehicle.lane_index), "car": u.net.id_of.get(car.lane_index) if car else None}
         for key, lane in (("ego in", here["ego"] == mine), ("car in", here["car"] == c), ("car out", here["car"] == exit_)):
             if lane:
                 times.setdefault(key, info["time"])
@@ -167,6 +174,13 @@ def test_unprotected_left_takes_only_the_gaps_its_own_prediction_accepts(tmp_pat
     info, path, t = _oncoming(map_path, m, mv, offsets, 170.0)
     assert info["route_completed"] and not info["collision"]
     assert path == ("LF", "L_A", "L_I", "LF") and t["ego in"] < t.get("car in", math.inf)
+    # the ego waits at the line for green, decides to go and reserves its lane; a car that appears
+    # then, while it can still stop: it stops, gives the lane up (the car would otherwise wait for
+    # it, and it for the car: a deadlock in Borregas Ave) and lets the car through
+    red = {"J0": signal_offset(map_path, mv, "red")}
+    info, path, t = _oncoming(map_path, m, mv, red, 40.0, when_reserved=True)
+    assert info["route_completed"] and not info["collision"] and info["violations"] == NO_VIOLATIONS
+    assert t["reserved"] < t["released"] < t["car in"] < t["car out"] < t["ego in"]
 
 
 def test_multi_junction_route_through_every_control(tmp_path_factory):
