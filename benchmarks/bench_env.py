@@ -1,12 +1,29 @@
-"""Steps per second of feat2map/JunctionGrid-v0 against highway-env's intersection-v1, in one
-process, with the same vehicle count and frequencies, on maps of 4, 100 and 400 junctions.
+"""Steps per second of feat2map/JunctionGrid-v0 with the batched traffic core ("arrays", the
+default) against the object core ("objects", the core before it: "today") and highway-env's
+intersection-v1 with the same vehicle count, at 1 Hz and 10 Hz decisions, 10 and 30 vehicles,
+on maps of 4, 8 (the default map), ~100 and ~400 junctions; make_vec scaling over 1 and 2
+workers; resident memory of one env on the ~400-junction map; optionally the profile of a step.
 
-Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_env.py [--steps N]
+Speeds are measured in one process, interleaved (a round of each env in turn, the median of the
+rounds), as CPU time of this process (on a shared machine other jobs' load stretches wall time,
+not CPU time), with the wall-clock ratio beside it: the ratios hold on a loaded machine, absolute
+numbers do not.
+
+Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_env.py [--rounds N] [--quick] [--profile]
 """
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
+import os
+import pstats
+import statistics
+import subprocess
+import sys
 import time
+
+import warnings
 
 import gymnasium as gym
 import highway_env  # noqa: F401  (registers intersection-v1)
@@ -14,60 +31,179 @@ import numpy as np
 
 import feat2map
 
-FREQS = {"simulation_frequency": 15, "policy_frequency": 1}
-VEHICLES = 10  # intersection-v1's initial_vehicle_count
+HZ = {1: {"simulation_frequency": 15, "policy_frequency": 1},  # the env's default
+      10: {"simulation_frequency": 20, "policy_frequency": 10}}  # as issue 15 measured
+STEPS = {1: 12, 10: 120}  # per round
+VEHICLES = (10, 30)  # ego + traffic (intersection-v1: initial_vehicle_count)
+IDLE = 1  # DiscreteMetaAction's IDLE
+J = feat2map.JunctionFeature.make
+FOUR = [J([0, 90, 180, 270], "signal", True), J([0, 90, 180, 270], "stop", True), J([0, 90, 180], "bare", False),
+        J([0, 90, 180, 270], "bare", True)]
+# the SF space has 8 (road count, control, crosswalk) combinations: samples_per_combination k gives 8k junctions
+MAPS = {4: {"features": [f.to_dict() for f in FOUR]}, 8: {}, 96: {"generation": {"samples_per_combination": 12}},
+        400: {"generation": {"samples_per_combination": 50}}}
 
 
-def measure(env: gym.Env, steps: int, seed: int = 0) -> tuple[float, float]:
-    """(steps per second, mean vehicles on the road) over `steps` IDLE steps, resetting at episode ends."""
-    env.reset(seed=seed)
-    space = env.action_space
-    idle = 1 if isinstance(space, gym.spaces.Discrete) else np.zeros(space.shape, dtype=space.dtype)
-    counts = []
-    t = time.perf_counter()
+def feat2map_env(map_cfg: dict, hz: int, vehicles: int, core: str) -> gym.Env:
+    return gym.make("feat2map/JunctionGrid-v0", config={
+        **map_cfg, **HZ[hz], "traffic_vehicles": vehicles - 1, "duration": 1e9, "route_junctions": 3,
+        "traffic_core": core})
+
+
+def intersection_env(hz: int, vehicles: int) -> gym.Env:
+    return gym.make("intersection-v1", config={
+        **HZ[hz], "initial_vehicle_count": vehicles, "duration": 1e9,
+        "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False, "target_speeds": [0, 4.5, 9]}})
+
+
+class Runner:
+    """An env stepped IDLE in rounds (reset at episode ends), its steps/s per round."""
+
+    def __init__(self, env: gym.Env, seed: int = 0) -> None:
+        self.env = env
+        env.reset(seed=seed)
+        self.rates: list[float] = []  # CPU time
+        self.wall: list[float] = []
+        self.counts: list[int] = []
+
+    def round(self, steps: int) -> None:
+        env = self.env
+        t, w = time.process_time(), time.perf_counter()
+        for _ in range(steps):
+            _, _, term, trunc, _ = env.step(IDLE)
+            self.counts.append(len(env.unwrapped.road.vehicles))
+            if term or trunc:
+                env.reset()
+        self.rates.append(steps / max(time.process_time() - t, 1e-9))
+        self.wall.append(steps / (time.perf_counter() - w))
+
+    @property
+    def rate(self) -> float:
+        return statistics.median(self.rates)
+
+    @property
+    def wall_rate(self) -> float:
+        return statistics.median(self.wall)
+
+
+def speed_table(rounds: int, sizes: list[int]) -> list[dict]:
+    rows = []
+    for hz in HZ:
+        for n in VEHICLES:
+            ref = Runner(intersection_env(hz, n))
+            for size in sizes:
+                old = Runner(feat2map_env(MAPS[size], hz, n, "objects"))
+                new = Runner(feat2map_env(MAPS[size], hz, n, "arrays"))
+                for _ in range(rounds):
+                    for r in (ref, old, new):
+                        r.round(STEPS[hz] if r is not new else 4 * STEPS[hz])
+                rows.append({"hz": hz, "vehicles": n, "junctions": len(new.env.unwrapped.net.hdmap.junctions),
+                             "ref": ref.rate, "old": old.rate, "new": new.rate, "n_ref": np.mean(ref.counts),
+                             "n_new": np.mean(new.counts), "wall": new.wall_rate / old.wall_rate})
+                print(f"  measured {hz:2d} Hz {n} vehicles {rows[-1]['junctions']} junctions", file=sys.stderr, flush=True)
+    return rows
+
+
+def print_speed(rows: list[dict]) -> None:
+    print("steps/s of CPU time (median of interleaved rounds; 'today' = the object core; wall = the same ratio in "
+          "wall-clock time)")
+    print(f"{'Hz':>3} {'veh':>4} {'junctions':>9} {'intersection-v1':>15} {'objects':>8} {'arrays':>8} "
+          f"{'arrays/objects':>14} {'(wall)':>7} {'arrays/inters.':>14} {'vs 4-j':>7} {'on road (ref/ours)':>18}")
+    for r in rows:
+        base = next(x for x in rows if x["hz"] == r["hz"] and x["vehicles"] == r["vehicles"])
+        print(f"{r['hz']:>3} {r['vehicles']:>4} {r['junctions']:>9} {r['ref']:>15.0f} {r['old']:>8.0f} {r['new']:>8.0f} "
+              f"{r['new'] / r['old']:>13.1f}x {r['wall']:>6.1f}x {r['new'] / r['ref']:>13.1f}x {r['new'] / base['new']:>7.2f} "
+              f"{r['n_ref']:>9.1f}/{r['n_new']:<8.1f}")
+
+
+def vector_scaling(rounds: int, seconds: float = 3.0) -> None:
+    """Env-steps/s (wall clock: the workers are other processes) of gym.make_vec with 1 and 2
+    async workers and 2 sync envs, measured in interleaved rounds: 10 Hz, 10 vehicles, the
+    default map, the arrays core."""
+    print("\nmake_vec (10 Hz, 10 vehicles, default map, arrays core): total env-steps/s, wall clock, "
+          "median of interleaved rounds")
+    setups = {(mode, n): gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode=mode, config={
+        **HZ[10], "traffic_vehicles": 9, "duration": 1e9, "route_junctions": 3})
+        for mode, n in (("async", 1), ("async", 2), ("sync", 2))}
+    rates: dict = {k: [] for k in setups}
+    for envs in setups.values():
+        envs.reset(seed=0)
+    for _ in range(rounds):
+        for (mode, n), envs in setups.items():
+            actions = np.full(n, IDLE)
+            steps, t = 0, time.perf_counter()
+            while time.perf_counter() - t < seconds:
+                envs.step(actions)
+                steps += n
+            rates[(mode, n)].append(steps / (time.perf_counter() - t))
+    base = statistics.median(rates[("async", 1)])
+    for (mode, n), envs in setups.items():
+        rate = statistics.median(rates[(mode, n)])
+        envs.close()
+        print(f"  {mode:5s} {n} worker(s): {rate:7.0f} env-steps/s  ({rate / base:.2f}x of 1 async worker)")
+
+
+MEMORY_CODE = """
+import gymnasium as gym, feat2map, sys
+def rss():
+    with open("/proc/self/status") as f:
+        return next(int(l.split()[1]) / 1024 for l in f if l.startswith("VmRSS"))
+env = gym.make("feat2map/JunctionGrid-v0", config={"generation": {"samples_per_combination": 50},
+               "traffic_vehicles": 29, "traffic_core": sys.argv[1]})
+env.reset(seed=0)
+for _ in range(100):
+    env.step(1)
+print(rss(), len(env.unwrapped.net.hdmap.junctions), len(env.unwrapped.net.lane_ids))
+"""
+
+
+def memory() -> None:
+    """Resident memory of a fresh process holding one env of the ~400-junction map (30
+    vehicles, after 100 steps): what each vector-env worker costs."""
+    print("\nmemory per env (a fresh process, ~400-junction map, 30 vehicles, after 100 steps)")
+    for core in ("arrays", "objects"):
+        out = subprocess.run([sys.executable, "-c", MEMORY_CODE, core], capture_output=True, text=True,
+                             env={**os.environ, "SDL_VIDEODRIVER": "offscreen"}, check=True)
+        mib, junctions, lanes = out.stdout.split()
+        print(f"  {core:7s}: {float(mib):6.0f} MiB resident ({junctions} junctions, {lanes} lanes)")
+
+
+def profile(steps: int = 300) -> None:
+    """cProfile of policy steps: 10 Hz, 10 vehicles, the default map, the arrays core."""
+    env = feat2map_env({}, 10, 10, "arrays")
+    env.reset(seed=0)
+    for _ in range(20):
+        env.step(IDLE)
+    prof = cProfile.Profile()
+    prof.enable()
     for _ in range(steps):
-        _, _, term, trunc, _ = env.step(idle)
-        counts.append(len(env.unwrapped.road.vehicles))
+        _, _, term, trunc, _ = env.step(IDLE)
         if term or trunc:
             env.reset()
-    return steps / (time.perf_counter() - t), float(np.mean(counts))
-
-
-def junction_config(k: int) -> dict:
-    return {**FREQS, "generation": {"samples_per_combination": k}, "traffic_vehicles": VEHICLES - 1,
-            "duration": 1e9, "route_junctions": 3}
+    prof.disable()
+    text = io.StringIO()
+    pstats.Stats(prof, stream=text).sort_stats("tottime").print_stats(18)
+    print(f"\nprofile of {steps} policy steps (10 Hz, 10 vehicles, default map, arrays core), by own time:")
+    print("\n".join(line for line in text.getvalue().splitlines() if line.strip())[:4000])
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved measurement rounds (default: 3)")
+    ap.add_argument("--quick", action="store_true", help="maps of 4 and 8 junctions only, no vector envs or memory")
+    ap.add_argument("--profile", action="store_true", help="also print the profile of a policy step")
     args = ap.parse_args(argv)
-    ref = gym.make("intersection-v1", config={**FREQS, "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False, "target_speeds": [0, 4.5, 9]}, "initial_vehicle_count": VEHICLES, "duration": 1e9})
-    ref_sps, ref_n = measure(ref, args.steps)
-    rows = [("intersection-v1", 1, 0.0, ref_sps, ref_n)]
-    # the SF space has 2 road counts x 2 controls x 2 crosswalk values = 8 combinations;
-    # samples_per_combination k gives 8k junctions: k = 1/2 for ~4 (explicit features), 12, 50
-    sizes = {4: None, 100: 12, 400: 50}
-    for n, k in sizes.items():
-        if k is None:
-            J = feat2map.JunctionFeature.make
-            cfg = {**FREQS, "features": [J([0, 90, 180, 270], "signal", True).to_dict(),
-                                         J([0, 90, 180, 270], "stop", True).to_dict(),
-                                         J([0, 90, 180], "bare", False).to_dict(),
-                                         J([0, 90, 180, 270], "bare", True).to_dict()],
-                   "traffic_vehicles": VEHICLES - 1, "duration": 1e9, "route_junctions": 3}
-        else:
-            cfg = junction_config(k)
-        t = time.perf_counter()
-        env = gym.make("feat2map/JunctionGrid-v0", config=cfg)
-        build = time.perf_counter() - t
-        junctions = len(env.unwrapped.net.hdmap.junctions)
-        sps, nv = measure(env, args.steps)
-        rows.append(("feat2map JunctionGrid-v0", junctions, build, sps, nv))
-    base4 = rows[1][3]
-    print(f"{'env':28s} {'junctions':>9s} {'build s':>8s} {'steps/s':>8s} {'vehicles':>8s} {'vs ref':>7s} {'vs 4-j':>7s}")
-    for name, j, build, sps, nv in rows:
-        print(f"{name:28s} {j:9d} {build:8.2f} {sps:8.1f} {nv:8.1f} {sps / ref_sps:7.2f} {sps / base4:7.2f}")
+    warnings.filterwarnings("ignore", message=".*intersection-v1 is out of date.*")
+    load = os.getloadavg()[0]
+    print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at start")
+    sizes = [4, 8] if args.quick else list(MAPS)
+    print_speed(speed_table(args.rounds, sizes))
+    if not args.quick:
+        vector_scaling(args.rounds)
+        memory()
+    if args.profile:
+        profile()
+    print(f"load average at the end {os.getloadavg()[0]:.1f}")
     return 0
 
 

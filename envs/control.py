@@ -7,12 +7,13 @@ keeps that state up to date after every simulation frame and inherits the rules'
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from ..phases import group_phases, travel_headings
 from .network import MapNetwork
-from .rules import PEDESTRIAN_CLEARANCE_M, STOPPED_SPEED_MPS, TrafficRules, in_stop_zone
+from .rules import PEDESTRIAN_CLEARANCE_M, STOP_ZONE_M, STOPPED_SPEED_MPS, TrafficRules, in_stop_zone
 from .vehicles import Pedestrian
 
 PEDESTRIAN_SPAWN_HORIZON_S = 3.0  # a pedestrian waits for a vehicle this many seconds away (plus the clearance)
@@ -30,12 +31,16 @@ class PhasePlan:
     all_red: float
     offset: float
 
-    @property
+    @cached_property
     def cycle(self) -> float:
         return len(self.phases) * (self.green + self.amber + self.all_red)
 
+    @cached_property
+    def _phase(self) -> dict[str, int]:
+        return {sid: i for i, p in enumerate(self.phases) for sid in p}
+
     def phase_of(self, signal_id: str) -> int:
-        return next(i for i, p in enumerate(self.phases) if signal_id in p)
+        return self._phase[signal_id]
 
     def state(self, signal_id: str, t: float) -> str:
         slot = self.green + self.amber + self.all_red
@@ -55,6 +60,17 @@ class PhasePlan:
         return 0.0
 
 
+def junction_phases(net: MapNetwork, paired: bool) -> tuple[dict, list]:
+    """({junction: sorted signal ids}, [(junction, phases)] in junction order) of a network's
+    signals (per network and phase mode: the same every episode)."""
+    m = net.hdmap
+    by_j: dict[str | None, list] = {}
+    for sig in m.signals.values():
+        by_j.setdefault(sig.junction_id, []).append(sig)
+    ids = {j: sorted(x.id for x in sigs) for j, sigs in by_j.items()}
+    return ids, [(jid, group_phases(by_j[jid], paired, travel_headings(m, by_j[jid]))) for jid in sorted(by_j, key=str)]
+
+
 class TrafficControl(TrafficRules):
     """Signals, stop-sign queues, junction reservations and crosswalk pedestrians of one episode."""
 
@@ -63,18 +79,14 @@ class TrafficControl(TrafficRules):
         self.t = 0.0
         self.cfg = cfg
         self.rng = rng
-        m = net.hdmap
         self.plans: dict[str, PhasePlan] = {}
-        by_j: dict[str | None, list] = {}
-        for sig in m.signals.values():
-            by_j.setdefault(sig.junction_id, []).append(sig)
-        self.signals_by_junction = {j: sorted(x.id for x in sigs) for j, sigs in by_j.items()}
+        self.signals_by_junction, grouped = net.memo(("phases", cfg["signal_phases"]),
+                                                     lambda: junction_phases(net, cfg["signal_phases"] == "paired"))
         g, a, r = cfg["signal_green"], cfg["signal_amber"], cfg["signal_all_red"]
-        for jid in sorted(by_j, key=str):
-            phases = group_phases(by_j[jid], cfg["signal_phases"] == "paired", travel_headings(m, by_j[jid]))
+        fixed = cfg.get("signal_offsets") or {}  # by junction id, or by any of its signal ids
+        for jid, phases in grouped:
             offset = float(rng.uniform(0, len(phases) * (g + a + r)))
-            fixed = cfg.get("signal_offsets") or {}  # by junction id, or by any of its signal ids
-            key = next((k for k in [jid, *sorted(x.id for x in by_j[jid])] if k is not None and str(k) in fixed), None)
+            key = next((k for k in [jid, *self.signals_by_junction[jid]] if k is not None and str(k) in fixed), None)
             if key is not None:
                 offset = float(fixed[str(key)])
             plan = PhasePlan(phases, g, a, r, offset)
@@ -128,7 +140,7 @@ class TrafficControl(TrafficRules):
             if sl is None or not in_stop_zone(sl.s - getattr(v, "lane_s", 0.0)):
                 if not hasattr(v, "lane_route") or lid not in m.lanes or m.lanes[lid].junction_id is not None:
                     continue
-                sl, _, _, d = self.line_ahead(v)  # stopped before a short last lane: along the route
+                sl, _, _, d = self.line_ahead(v, STOP_ZONE_M)  # stopped before a short last lane: along the route
                 if sl is None or not in_stop_zone(d):
                     continue
             if sl.kind != "stop":

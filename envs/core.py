@@ -59,7 +59,7 @@ import numpy as np
 from .network import MapNetwork
 from .rules import (IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M,
                     IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M)
-from .vehicles import RouteFollower, TrafficVehicle
+from .vehicles import TrafficVehicle
 
 if TYPE_CHECKING:
     from .road import ArrayRoad
@@ -100,21 +100,76 @@ class LaneTable:
         self.ax, self.ay = pts[:, 0].copy(), pts[:, 1].copy()
         self.ux, self.uy = u[:, 0].copy(), u[:, 1].copy()
         self.vh = np.concatenate([ln.vertex_heading for ln in lanes])
-        self.near: dict[int, frozenset[int]] = {}  # junction lane -> conflicting or diverging lanes
-        for lid in net.lane_ids:
-            ln = m.lanes[lid]
-            if ln.junction_id is None:
+        # junction lanes that conflict with or diverge from each other, per junction as a dense
+        # matrix (the relation never leaves a junction): near[joff[j] + a * jsize[j] + b]
+        self.jid = np.full(len(lanes), -1, dtype=np.int64)
+        self.jloc = np.zeros(len(lanes), dtype=np.int64)
+        members: dict[str, list[int]] = {}
+        for k, lid in enumerate(net.lane_ids):
+            jid = m.lanes[lid].junction_id
+            if jid is not None:
+                members.setdefault(jid, []).append(k)
+        self.jsize = np.array([len(v) for v in members.values()], dtype=np.int64)
+        self.joff = np.concatenate([[0], np.cumsum(self.jsize ** 2)[:-1]]).astype(np.int64)
+        self.near = np.zeros(int((self.jsize ** 2).sum()), dtype=bool)
+        for j, ks in enumerate(members.values()):
+            self.jid[ks] = j
+            self.jloc[ks] = np.arange(len(ks))
+        for k, lid in enumerate(net.lane_ids):
+            j = self.jid[k]
+            if j < 0:
                 continue
+            ln = m.lanes[lid]
             near = set(net.conflicts.get(lid, ()))
             for p in ln.predecessors:
                 if p in m.lanes:
-                    near.update(x for x in m.lanes[p].successors if x != lid and x in self.index)
-            self.near[self.index[lid]] = frozenset(self.index[x] for x in near if x in self.index)
+                    near.update(x for x in m.lanes[p].successors if x != lid)
+            for x in near:
+                b = self.index.get(x, -1)
+                if b >= 0 and self.jid[b] == j:
+                    self.near[self.joff[j] + self.jloc[k] * self.jsize[j] + self.jloc[b]] = True
         self.crosswalk_lanes: dict[str, list[int]] = {}  # crosswalk -> the lanes crossing it
         for lid, crossings in net.crossings.items():
             for cw, _, _ in crossings:
                 self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
-        self._pairs: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # lane-pair tables (`pair`), concatenated: where a road user on lane b is seen from lane a
+        self._pairs: dict[tuple[int, int], tuple[int, int, float]] = {}  # (a, b) -> (start, samples, step)
+        self.pair_sa = self.pair_ra = np.zeros(0)
+
+    def near_pairs(self, lane_a: np.ndarray, lane_b: np.ndarray) -> np.ndarray:
+        """Whether junction lane b conflicts with or diverges from junction lane a, elementwise
+        (False where either is not a junction lane or they are in different junctions)."""
+        ja, jb = self.jid[lane_a], self.jid[lane_b]
+        same = (ja >= 0) & (ja == jb)
+        out = np.zeros(len(lane_a), dtype=bool)
+        if same.any():
+            j = ja[same]
+            out[same] = self.near[self.joff[j] + self.jloc[lane_a[same]] * self.jsize[j] + self.jloc[lane_b[same]]]
+        return out
+
+    def seen_from(self, a: np.ndarray, b: np.ndarray, s_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(s along lane a, lateral offset from lane a) of the points at s_b on lanes b, from
+        tables that sample each lane pair every PAIR_SAMPLE_M (built on first use)."""
+        keys = list(zip(a.tolist(), b.tolist()))
+        for key in keys:
+            if key not in self._pairs:
+                self._add_pair(*key)
+        start, count, step = np.array([self._pairs[k] for k in keys]).T
+        pos = np.clip(s_b / step, 0.0, count - 1)
+        i = np.minimum(np.floor(pos), count - 2)
+        f = pos - i
+        i = (start + i).astype(np.int64)
+        return (self.pair_sa[i] * (1 - f) + self.pair_sa[i + 1] * f,
+                self.pair_ra[i] * (1 - f) + self.pair_ra[i + 1] * f)
+
+    def _add_pair(self, a: int, b: int) -> None:
+        la, lb = self.net.lane_of[self.net.lane_ids[a]], self.net.lane_of[self.net.lane_ids[b]]
+        count = max(2, int(math.ceil(lb.length / PAIR_SAMPLE_M)) + 1)
+        sb = np.linspace(0.0, lb.length, count)
+        proj = np.array([la.local_coordinates(lb.position(x, 0.0)) for x in sb])
+        self._pairs[(a, b)] = (len(self.pair_sa), count, lb.length / (count - 1))
+        self.pair_sa = np.concatenate([self.pair_sa, proj[:, 0]])
+        self.pair_ra = np.concatenate([self.pair_ra, proj[:, 1]])
 
     @classmethod
     def of(cls, net: MapNetwork) -> "LaneTable":
@@ -142,19 +197,6 @@ class LaneTable:
         f = (self.offset[lane] + sc - self.G[j]) / np.maximum(seg, 1e-12)
         heading = self.vh[j] + f * (self.vh[j + 1] - self.vh[j])
         return x, y, heading
-
-    def pair(self, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(s along lane b, s along lane a, lateral offset from lane a) of points of lane b's
-        centre every PAIR_SAMPLE_M: where a road user on b is, seen from a (cached)."""
-        key = (a, b)
-        table = self._pairs.get(key)
-        if table is None:
-            la, lb = self.net.lane_of[self.net.lane_ids[a]], self.net.lane_of[self.net.lane_ids[b]]
-            sb = np.linspace(0.0, lb.length, max(2, int(math.ceil(lb.length / PAIR_SAMPLE_M)) + 1))
-            proj = np.array([la.local_coordinates(lb.position(x, 0.0)) for x in sb])
-            table = self._pairs[key] = (sb, proj[:, 0].copy(), proj[:, 1].copy())
-        return table
-
 
 class ArrayVehicle(TrafficVehicle):
     """A traffic vehicle of the arrays core: a `TrafficVehicle` whose state (position, heading,
@@ -250,15 +292,11 @@ class ArrayVehicle(TrafficVehicle):
 
     @property
     def lane_route(self) -> list[str]:
-        c = self._core
-        ids = c.net.lane_ids
-        return [ids[k] for k in c.routes[self._row]]
+        return self._core.route_ids[self._row]
 
     @lane_route.setter
     def lane_route(self, value) -> None:
-        c = self._core
-        c.routes[self._row] = [c.table.index[x] for x in value]
-        c.dirty.add(self._row)
+        self._core.set_route(self._row, list(value))
 
     @property
     def route_pos(self) -> int:
@@ -347,7 +385,12 @@ class TrafficCore:
         self.length = np.zeros(0)
         self.width = np.zeros(0)
         self.route_pos = np.zeros(0, dtype=np.int64)
-        self.routes: list[list[int]] = []
+        self.route_end = np.zeros(0, dtype=np.int64)  # index of the route's last lane
+        self.entry = np.zeros(0)  # distance from the current lane's start to the next junction entry (inf: none in the window)
+        self.driven = np.zeros(0, dtype=bool)
+        self._not_self = np.zeros((0, 1, 0), dtype=bool)
+        self.routes: list[list[int]] = []  # lane ints
+        self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
         self.reserved: list[str | None] = []
         self.dirty: set[int] = set()
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
@@ -355,7 +398,7 @@ class TrafficCore:
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
-               "length", "width", "route_pos")
+               "length", "width", "route_pos", "route_end", "entry")
 
     def add_traffic(self, lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
         """A new driven row (and its view) at s on `lane_id`, its route starting there."""
@@ -365,7 +408,8 @@ class TrafficCore:
         self._init_view(v)
         row = dict(kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
                    timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, mobil_t=-1e9,
-                   crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0)
+                   crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0,
+                   route_end=len(route) - 1, entry=math.inf)
         self._append(v, row, [self.table.index[x] for x in route], None)
         self.road.vehicles.append(v)
         return v
@@ -391,18 +435,26 @@ class TrafficCore:
         for name in self._ARRAYS:
             setattr(self, name, np.append(getattr(self, name), row[name]).astype(getattr(self, name).dtype))
         self.routes.append(route)
+        self.route_ids.append([self.net.lane_ids[k] for k in route])
         self.reserved.append(reserved)
         self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
         self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
         if isinstance(obj, ArrayVehicle):
             obj._core, obj._row = self, i
         self.dirty.add(i)
+        self._masks()
+
+    def _masks(self) -> None:
+        """Masks that change only when rows come or go."""
+        n = len(self.objs)
+        self.driven = self.kind == DRIVEN
+        self._not_self = ~np.eye(n, dtype=bool)[:, None, :]
 
     def sync(self) -> None:
         """Bring the rows in line with `road.vehicles` (by identity): take in vehicles user code
         appended, let go of removed ones (their views keep their last state), follow reordering."""
         objs = self.road.vehicles
-        if len(objs) == len(self.objs) and all(a is b for a, b in zip(objs, self.objs)):
+        if objs == self.objs:  # element by element, by identity (vehicles define no __eq__)
             return
         present = {id(o) for o in objs}
         for o in self.objs:
@@ -426,11 +478,13 @@ class TrafficCore:
             setattr(self, name, getattr(self, name)[idx])
         self.W, self.C = self.W[idx], self.C[idx]
         self.routes = [self.routes[k] for k in rows]
+        self.route_ids = [self.route_ids[k] for k in rows]
         self.reserved = [self.reserved[k] for k in rows]
         self.objs = [self.objs[k] for k in rows]
         for i, o in enumerate(self.objs):
             if isinstance(o, ArrayVehicle):
                 o._row = i
+        self._masks()
 
     def _take_in(self, obj) -> None:
         """A road user user code added: a TrafficVehicle on a lane route becomes a driven row
@@ -442,7 +496,8 @@ class TrafficCore:
             s, lat = self.net.lane_of[obj.lane_route[pos]].local_coordinates(obj.position)
             row = dict(kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0, timer=float(obj.timer),
                        mobil_t=float(getattr(obj, "_mobil_t", -1e9)), crashed=bool(obj.crashed), x=obj.position[0],
-                       y=obj.position[1], heading=obj.heading, length=obj.LENGTH, width=obj.WIDTH, route_pos=pos)
+                       y=obj.position[1], heading=obj.heading, length=obj.LENGTH, width=obj.WIDTH, route_pos=pos,
+                       route_end=len(route) - 1, entry=math.inf)
             reserved = getattr(obj, "reserved", None)
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
@@ -452,7 +507,8 @@ class TrafficCore:
             self._place_rows(np.array([len(self.objs) - 1]))
         else:
             row = dict(kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
-                       crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0)
+                       crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0,
+                       route_end=0, entry=math.inf)
             self._append(obj, row, [], None)
             self._read_external(len(self.objs) - 1)
 
@@ -478,11 +534,17 @@ class TrafficCore:
         if lane in route[self.route_pos[i]:]:
             self.route_pos[i] = route.index(lane, int(self.route_pos[i]))
         elif lane != route[self.route_pos[i]]:
-            self.routes[i] = [lane]
+            self.set_route(i, [self.net.lane_ids[lane]])
             self.route_pos[i] = 0
         self.lane[i], self.s[i], self.lat[i] = lane, s, lat
         self.dirty.add(i)
         self._place_rows(np.array([i]))
+
+    def set_route(self, i: int, lane_ids: list[str]) -> None:
+        self.route_ids[i] = lane_ids
+        self.routes[i] = [self.table.index[x] for x in lane_ids]
+        self.route_end[i] = len(lane_ids) - 1
+        self.dirty.add(i)
 
     def change_lane(self, i: int, lane: int) -> None:
         if lane == self.lane[i]:
@@ -517,6 +579,9 @@ class TrafficCore:
                 d += length[route[k]]
             rows[i] = (lanes, cum)
             need = max(need, len(lanes))
+            junction = self.table.junction
+            self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
+                                 math.inf)
         if need > self.W.shape[1]:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])
@@ -530,7 +595,7 @@ class TrafficCore:
     # ---- a frame -----------------------------------------------------------------------------
     def accelerations(self) -> None:
         """Acceleration of every driven row (see the module docstring, step 3)."""
-        driven = self.kind == DRIVEN
+        driven = self.driven
         if not driven.any():
             return
         self._mobil(driven)
@@ -541,20 +606,23 @@ class TrafficCore:
         free = 1.0 - (v / v0) ** IDM_DELTA
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven)
-        if len(fi):
+        stops = [(i, self.road.control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
+        stops = [(i, d) for i, d in stops if d < math.inf]
+        if stops:  # a stop point is a standing leader (the bumper IDM_STOP_MARGIN_M short of it)
+            si = np.array([i for i, _ in stops], dtype=np.int64)
+            fi = np.concatenate([fi, si])
+            gap = np.concatenate([gap, np.array([d for _, d in stops]) - self.length[si] / 2 - IDM_STOP_MARGIN_M])
+            vl = np.concatenate([vl, np.zeros(len(si))])
+        if len(fi):  # rules.idm, vectorized over (follower, leader) pairs
             vf = v[fi]
-            s_star = IDM_GAP_M + vf * IDM_TIME_GAP_S + vf * (vf - vl) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
+            s0 = np.full(len(fi), IDM_GAP_M)
+            if stops:
+                s0[-len(stops):] = IDM_STOP_GAP_M
+            s_star = s0 + vf * IDM_TIME_GAP_S + vf * (vf - vl) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
             a_pair = IDM_ACC * (free[fi] - (np.maximum(s_star, 0.0) / np.maximum(gap, IDM_MIN_GAP_M)) ** 2)
             np.minimum.at(acc, fi, a_pair)
-        for i in self._rule_rows(driven):
-            stop = self.road.control.stop_distance(self.objs[i])
-            if stop < math.inf:
-                gap_i = stop - self.length[i] / 2 - IDM_STOP_MARGIN_M
-                s_star = IDM_STOP_GAP_M + v[i] * IDM_TIME_GAP_S + v[i] * v[i] / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
-                acc[i] = min(acc[i], IDM_ACC * (free[i] - (max(s_star, 0.0) / max(gap_i, IDM_MIN_GAP_M)) ** 2))
-        acc = np.clip(acc, *IDM_RANGE_MPS2)
-        acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
-        self.acc = np.where(driven, acc, self.acc)
+        acc = np.minimum(np.maximum(acc, IDM_RANGE_MPS2[0]), IDM_RANGE_MPS2[1])
+        self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
 
     def _leaders(self, driven: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(follower row, bumper gap, leader speed) of every road user in a driven row's way
@@ -566,42 +634,28 @@ class TrafficCore:
         lane_w = np.where(valid, W, -2)
         # same lane: every row on a window lane
         match = lane_w[:, :, None] == self.lane[None, None, :]
-        match &= ~np.eye(n, dtype=bool)[:, None, :]
+        match &= self._not_self
         fi, k, lj = np.nonzero(match)
         so = self.s[lj]
         ro = self.lat[lj]
         wl = W[fi, k]
         # rows on junction lanes conflicting with or diverging from a window junction lane
-        jlane = self.lane >= 0
-        jlane[jlane] = t.junction[self.lane[jlane]]
-        if jlane.any():
-            occupied: dict[int, list[int]] = {}
-            for j in np.nonzero(jlane)[0].tolist():
-                occupied.setdefault(int(self.lane[j]), []).append(j)
-            lanes_occ = set(occupied)
-            wj = valid & t.junction[np.maximum(W, 0)]
-            extra = []
-            for f2, k2 in zip(*np.nonzero(wj)):
-                a = int(W[f2, k2])
-                for b in t.near.get(a, frozenset()) & lanes_occ:
-                    for j in occupied[b]:
-                        if j == f2:
-                            continue
-                        if self.kind[j] == DRIVEN:
-                            sb, sa, ra = t.pair(a, b)
-                            so2 = float(np.interp(self.s[j], sb, sa))
-                            ro2 = float(np.interp(self.s[j], sb, ra))
-                        else:
-                            so2, ro2 = self.net._lanes[a].local_coordinates(self.objs[j].position)
-                        extra.append((f2, k2, j, so2, ro2))
-            if extra:
-                e = np.array(extra, dtype=float)
-                fi = np.concatenate([fi, e[:, 0].astype(np.int64)])
-                k = np.concatenate([k, e[:, 1].astype(np.int64)])
-                lj = np.concatenate([lj, e[:, 2].astype(np.int64)])
-                so = np.concatenate([so, e[:, 3]])
-                ro = np.concatenate([ro, e[:, 4]])
-                wl = W[fi, k]
+        occ = np.nonzero((self.lane >= 0) & (t.jid[self.lane] >= 0))[0]
+        if len(occ):
+            ef, ek = np.nonzero(valid & (t.jid[np.maximum(W, 0)] >= 0) & (W >= 0))
+            if len(ef):
+                ei, oj = np.repeat(np.arange(len(ef)), len(occ)), np.tile(occ, len(ef))
+                hit = t.near_pairs(W[ef[ei], ek[ei]], self.lane[oj]) & (ef[ei] != oj)
+                pf, pk, pj = ef[ei[hit]], ek[ei[hit]], oj[hit]
+                if len(pj):
+                    a_l, b_l = W[pf, pk], self.lane[pj]
+                    so2, ro2 = t.seen_from(a_l, b_l, self.s[pj])
+                    for n_, j in enumerate(pj.tolist()):  # external road users: their exact position
+                        if not self.driven[j]:
+                            so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[j].position)
+                    fi, k, lj = np.concatenate([fi, pf]), np.concatenate([k, pk]), np.concatenate([lj, pj])
+                    so, ro = np.concatenate([so, so2]), np.concatenate([ro, ro2])
+                    wl = W[fi, k]
         if not len(fi):
             return fi, np.zeros(0), np.zeros(0)
         s_own = self.s[fi]
@@ -615,16 +669,12 @@ class TrafficCore:
         """Driven rows whose window holds a junction entry or a lane with a crosswalk that has
         people on it within LOOKAHEAD_M: the only ones the rules can stop (in row order)."""
         t = self.table
-        W, C = self.W, self.C
-        valid = (W >= 0) & ((C - self.s[:, None]) <= LOOKAHEAD_M)
-        jw = np.where(valid, t.junction[np.maximum(W, 0)], False)
-        entry = np.zeros_like(jw)
-        entry[:, 1:] = jw[:, 1:] & ~jw[:, :-1] & valid[:, :-1]
-        flag = entry.any(axis=1)
+        flag = self.entry - self.s <= LOOKAHEAD_M
         busy = [k for cw, people in self.road.control.pedestrians.items() if people
                 for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
-            flag |= (np.isin(W, busy) & valid).any(axis=1)
+            W = self.W
+            flag |= (np.isin(W, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return np.nonzero(flag & driven & ~self.crashed)[0].tolist()
 
     def _mobil(self, driven: np.ndarray) -> None:
@@ -640,17 +690,16 @@ class TrafficCore:
 
     def integrate(self, dt: float) -> None:
         """Advance driven rows by dt along their routes (step 4)."""
-        driven = self.kind == DRIVEN
+        driven = self.driven
         if not driven.any():
             return
-        s = self.s + self.speed * dt
-        speed = np.maximum(self.speed + self.acc * dt, 0.0)
-        self.s = np.where(driven, s, self.s)
-        self.speed = np.where(driven, speed, self.speed)
-        self.timer = np.where(driven, self.timer + dt, self.timer)
-        self.lat = np.where(driven, self.lat * math.exp(-dt / LANE_CHANGE_TAU_S), self.lat)
+        # every row moves; external rows are read back from their objects right after
+        self.s += self.speed * dt
+        self.speed = np.maximum(self.speed + self.acc * dt, 0.0)
+        self.timer += dt
+        self.lat *= math.exp(-dt / LANE_CHANGE_TAU_S)
         length = self.table.length
-        over = driven & (self.s > length[self.lane])
+        over = driven & (self.s > length[self.lane]) & (self.route_pos < self.route_end)
         for i in np.nonzero(over)[0].tolist():
             route = self.routes[i]
             pos = int(self.route_pos[i])
@@ -689,21 +738,41 @@ class TrafficCore:
         """Crash flags and hits: a vectorized centre-distance broad phase over vehicles and
         pedestrians, highway-env's `handle_collisions` (polygons) for the close pairs."""
         objects = self.road.objects
-        n = len(self.objs)
+        x, y, speed = self.x, self.y, np.abs(self.speed)
+        diag = np.hypot(self.length, self.width)
+        n = len(x)
         if objects:
-            ox = np.array([o.position[0] for o in objects])
-            oy = np.array([o.position[1] for o in objects])
-            od = np.array([o.diagonal for o in objects])
-            x, y = np.concatenate([self.x, ox]), np.concatenate([self.y, oy])
-            diag = np.concatenate([np.hypot(self.length, self.width), od])
-        else:
-            x, y, diag = self.x, self.y, np.hypot(self.length, self.width)
-        reach = (diag[:, None] + diag[None, :]) / 2 + np.abs(np.concatenate([self.speed, np.zeros(len(objects))]))[:, None] * dt
-        close = (np.abs(x[:, None] - x[None, :]) <= reach) & (np.abs(y[:, None] - y[None, :]) <= reach)
-        close = np.triu(close, 1)
-        close[n:, :] = False  # pedestrian-pedestrian pairs never collide
-        if not close.any():
+            x = np.concatenate([x, [o.position[0] for o in objects]])
+            y = np.concatenate([y, [o.position[1] for o in objects]])
+            diag = np.concatenate([diag, [o.diagonal for o in objects]])
+            speed = np.concatenate([speed, np.zeros(len(objects))])
+        reach = (diag[:, None] + diag) / 2 + speed[:, None] * dt
+        close = (np.abs(x[:, None] - x) <= reach) & (np.abs(y[:, None] - y) <= reach)
+        close[n:] = False  # pedestrians never collide with each other
+        a, b = np.nonzero(np.triu(close, 1))
+        if not len(a):
             return
+        # two driven rows (most close pairs: neighbours side by side, queues): their rectangles
+        # by separating axes; pairs with the ego, other external vehicles or pedestrians go
+        # straight to highway-env (impacts, hits)
+        both = (b < n)
+        both[both] = self.driven[a[both]] & self.driven[b[both]]
+        keep = ~both
+        if both.any():
+            keep[both] = rectangles_overlap(self, a[both], b[both])
         everyone = self.objs + list(objects)
-        for a, b in zip(*np.nonzero(close)):
-            everyone[a].handle_collisions(everyone[b], dt)
+        for i, j in zip(a[keep].tolist(), b[keep].tolist()):
+            everyone[i].handle_collisions(everyone[j], dt)
+
+
+def rectangles_overlap(core: TrafficCore, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether the footprints of rows a and b overlap (separating axes of two rectangles)."""
+    ca, sa, cb, sb = np.cos(core.heading[a]), np.sin(core.heading[a]), np.cos(core.heading[b]), np.sin(core.heading[b])
+    dx, dy = core.x[b] - core.x[a], core.y[b] - core.y[a]
+    la, wa, lb, wb = core.length[a] / 2, core.width[a] / 2, core.length[b] / 2, core.width[b] / 2
+    overlap = np.ones(len(a), dtype=bool)
+    for ux, uy in ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb)):
+        reach = la * np.abs(ca * ux + sa * uy) + wa * np.abs(-sa * ux + ca * uy) + \
+            lb * np.abs(cb * ux + sb * uy) + wb * np.abs(-sb * ux + cb * uy)
+        overlap &= np.abs(dx * ux + dy * uy) <= reach
+    return overlap

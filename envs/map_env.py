@@ -154,8 +154,10 @@ class MapEnv(AbstractEnv):
         self._make_ego(route, extend)
         route = self.vehicle.lane_route
         route_junctions = {self.net.hdmap.lanes[l].junction_id for l in route} - {None}
-        self.control.active_crosswalks = [c.id for c in self.net.hdmap.crosswalks.values()
-                                          if c.junction_id in route_junctions]
+        by_junction, order = self.net.memo("crosswalks", lambda: group_by(self.net.hdmap.crosswalks.values(),
+                                                                          "junction_id"))
+        self.control.active_crosswalks = sorted((c for j in route_junctions for c in by_junction.get(j, ())),
+                                                key=order.__getitem__)  # in map order
         self._spawn_lanes = self._traffic_spawn_lanes(route, route_junctions)
         for _ in range(int(self.config["traffic_vehicles"])):
             self._spawn_traffic()
@@ -393,6 +395,16 @@ class MapEnv(AbstractEnv):
         return super().render()
 
 
+def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:
+    """({value: ids of the items whose `attribute` has it}, {id: the item's place}), in order."""
+    groups: dict[Any, list[str]] = {}
+    order: dict[str, int] = {}
+    for k, x in enumerate(items):
+        groups.setdefault(getattr(x, attribute), []).append(x.id)
+        order[x.id] = k
+    return groups, order
+
+
 def check_action(space: spaces.Space, action: Any) -> None:
     """An action of the right kind, shape and value for `space`, else a Feat2MapError naming it."""
     if isinstance(space, spaces.Discrete):
@@ -619,8 +631,9 @@ def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions
 def sample_route(net: MapNetwork, rng: np.random.Generator, junctions: int) -> list[str]:
     """A random route that starts on a lane entering a junction and crosses >= 1 junction."""
     m = net.hdmap
-    starts = [ln.id for ln in m.lanes.values() if ln.junction_id is None
-              and any(m.lanes[s].junction_id is not None for s in ln.successors if s in m.lanes)]
+    starts = net.memo("route starts", lambda: [
+        ln.id for ln in m.lanes.values() if ln.junction_id is None
+        and any(m.lanes[s].junction_id is not None for s in ln.successors if s in m.lanes)])
     if not starts:
         return []
     start = starts[int(rng.integers(len(starts)))]

@@ -66,6 +66,15 @@ class MapNetwork(RoadNetwork):
     conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
+    max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
+    _memo: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def memo(self, key, build):
+        """A value derived from the (immutable) network, built once: per-map tables that every
+        reset would otherwise rebuild by scanning the whole map."""
+        if key not in self._memo:
+            self._memo[key] = build()
+        return self._memo[key]
 
     def __post_init__(self) -> None:
         self.graph = {}
@@ -242,6 +251,7 @@ class MapNetwork(RoadNetwork):
                         inter = line.intersection(cl)
                         s = cl.project(inter.representative_point())
                     self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(min(s, self.lane_of[lid].length)))
+        self.max_line_setback = max((self.lane_of[l].length - sl.s for l, sl in self.stop_lines.items()), default=0.0)
         # junction conflicts: different entry lanes whose paths cross, merge or pass too close
         jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
         lines = [LineString(ln.centerline) for ln in jl]

@@ -58,11 +58,10 @@ class Kinematics(KinematicObservation):
         lane (behind it only with see_behind; pedestrians from 2 lengths behind), relative to
         it, normalized and clipped, zero rows to fill."""
         ego = self.observer_vehicle
-        vehicles = self.env.road.vehicles
+        core.sync()  # vehicles respawned or added since the last frame
         rows = [i for i, o in enumerate(core.objs) if o is not ego]
-        if len(core.objs) != len(vehicles) or len(rows) != len(core.objs) - 1 or \
-                any(core.kind[i] != 1 for i in rows):
-            return super().observe()  # user code changed the road since the last frame, or foreign vehicles
+        if len(rows) != len(core.objs) - 1 or any(core.kind[i] != 1 for i in rows):
+            return super().observe()  # vehicles the core does not drive (user code added foreign ones)
         obstacles = self.env.road.objects if self.include_obstacles else []
         ex, ey = float(ego.position[0]), float(ego.position[1])
         idx = np.array(rows, dtype=np.int64)
@@ -91,7 +90,7 @@ class Kinematics(KinematicObservation):
             obs[:1 + len(cand), j] = table[f]
         if self.order == "shuffled":
             self.env.np_random.shuffle(obs[1:])
-        return obs.astype(self.space().dtype)
+        return obs.astype(np.float32)
 
     def _rows(self, core, ego, idx, obstacles, cand, n_v) -> dict[str, np.ndarray]:
         """Feature columns of the observer's row and the chosen road users' rows, as

@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING, Any, Iterable, Sequence
 if TYPE_CHECKING:
     from .network import MapNetwork, StopLine
 
-SIGNAL_STATES = ("green", "amber", "red")
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
 STOPPED_SPEED_MPS = 0.3
 STOP_ZONE_M = 6.0  # a stop counts when made with the vehicle centre within this distance of the stop line
@@ -179,9 +178,11 @@ class TrafficRules:
         return bool(self.cfg.get("right_turn_on_red", False))
 
     # ---- where a vehicle is --------------------------------------------------------------
-    def line_ahead(self, vehicle) -> tuple["StopLine | None", str | None, str | None, float]:
-        """`stop_line_ahead` of a route follower."""
-        return stop_line_ahead(self.net, vehicle.upcoming(math.inf), vehicle.lane_route)
+    def line_ahead(self, vehicle, within: float = math.inf) -> tuple["StopLine | None", str | None, str | None, float]:
+        """`stop_line_ahead` of a route follower (looking `within` metres ahead: beyond, none)."""
+        horizon = within + self.net.max_line_setback if within < math.inf else within
+        sl, in_lane, j_lane, d = stop_line_ahead(self.net, vehicle.upcoming(horizon), vehicle.lane_route)
+        return (sl, in_lane, j_lane, d) if d <= within else (None, None, None, math.inf)
 
     def line_distance(self, vehicle, junction_lane: str) -> float:
         """Distance along the vehicle's route from its centre to the stop line before
@@ -386,7 +387,7 @@ class EgoJudge:
                     if sl.kind == "stop" or rtor:
                         self._stopped.add(lid)
                 else:  # stopped on a lane before a short last lane: the line along the route
-                    sl, in_lane, _, d = rules.line_ahead(ego)
+                    sl, in_lane, _, d = rules.line_ahead(ego, STOP_ZONE_M)
                     if sl is not None and (sl.kind == "stop" or rtor) and in_stop_zone(d):
                         self._stopped.add(in_lane)
             # stops and line crossings count until the ego is on another road lane (a stop made

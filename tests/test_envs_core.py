@@ -108,9 +108,12 @@ def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
     view.speed = 0.0
     assert core.speed[1] == 0.0
     # a TrafficVehicle user code appends is driven by the core from the next frame on
-    ego_lane = u.vehicle.lane_route[0]
-    extra = TrafficVehicle(u.road, net.lane_of[ego_lane].position(1.0, 0.0), net.lane_of[ego_lane].heading_at(1.0), 3.0)
-    extra.init_route(list(u.vehicle.lane_route))
+    m = net.hdmap
+    free = next(l for l in net.lane_ids if m.lanes[l].junction_id is None and net.lane_of[l].length > 24
+                and all(np.hypot(*(net.lane_of[l].position(12.0, 0.0) - v.position)) > 15 for v in u.road.vehicles))
+    lane = net.lane_of[free]
+    extra = TrafficVehicle(u.road, lane.position(12.0, 0.0), lane.heading_at(12.0), 3.0)
+    extra.init_route([free])
     u.road.vehicles.append(extra)
     before = extra.position.copy()
     env.step(np.array([-1.0], dtype=np.float32))
