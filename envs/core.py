@@ -23,9 +23,10 @@ A frame (`ArrayRoad.act` + `ArrayRoad.step`):
 2. external rows act (the ego takes the agent's action).
 3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
    of every row's lane against every row's window (on the same lane the leader's s is its row's
-   s), plus rows on junction lanes that conflict with or diverge from a window lane (their s and
-   offset on the window lane from a table sampled once per lane pair); IDM per (follower, leader)
-   pair and the minimum per follower. The rules (`rules.TrafficRules.stop_distance`: signals,
+   s), plus rows on junction lanes that conflict with or diverge from a window lane (found through
+   one boolean matrix per junction; their s and offset on the window lane from a table sampled
+   once per lane pair); IDM per (follower, leader) pair (a stop point the rules impose is a
+   standing leader) and the minimum per follower. The rules (`rules.TrafficRules.stop_distance`: signals,
    stop signs, reservations, pedestrians) are asked only for rows with a junction entry or a
    crosswalk with people on it within LOOKAHEAD_M in their window, in row order, so that
    reservations are claimed in road order as in the object core. MOBIL runs every second for
@@ -33,8 +34,9 @@ A frame (`ArrayRoad.act` + `ArrayRoad.step`):
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
    external rows step themselves.
 5. positions of driven rows from the lane table; pedestrians walk; `TrafficControl.update` does
-   the rules' bookkeeping; collisions: a vectorized centre-distance broad phase, then
-   highway-env's own `handle_collisions` for the few close pairs (crash flags, impacts, hits).
+   the rules' bookkeeping; collisions: a vectorized centre-distance broad phase, separating
+   axes for pairs of traffic rows, and highway-env's own `handle_collisions` for the pairs that
+   overlap or involve the ego or a pedestrian (crash flags, impacts, hits).
 
 Objects. Every driven row has a view, `ArrayVehicle` (a `TrafficVehicle` whose state attributes
 are properties reading its row, positions computed on read), so that highway-env's observation
@@ -173,10 +175,7 @@ class LaneTable:
 
     @classmethod
     def of(cls, net: MapNetwork) -> "LaneTable":
-        table = getattr(net, "_lane_table", None)
-        if table is None:
-            table = net._lane_table = cls(net)
-        return table
+        return net.memo("lane table", lambda: cls(net))
 
     def segments(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
         key = self.offset[lane] + s
