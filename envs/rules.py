@@ -333,6 +333,7 @@ class TrafficRules:
         pedestrian's crosswalk."""
         net = self.net
         m = net.hdmap
+        entered = False  # the scan has reached the next junction entry
         for k, lid, d, s_own in vehicle.upcoming():
             lane_model = m.lanes[lid]
             if s_own is not None:  # the current lane: pedestrians ahead of us on it
@@ -349,8 +350,10 @@ class TrafficRules:
             ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)
             if ped is not None:
                 return d + ped
-            if lane_model.junction_id is None and k > vehicle.route_pos + 1:
-                break
+            if lane_model.junction_id is not None:
+                entered = True
+            elif entered:  # up to the first road lane after the next junction entry, however many
+                break  # short road lanes lie before it (real maps: 1.5 m and 2.4 m before a line)
         return math.inf
 
 

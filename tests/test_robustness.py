@@ -159,3 +159,69 @@ def test_generated_maps_drive_with_traffic_and_pedestrians_without_collision_or_
     suite = build_suite(generated[seed], seed=100 * seed, traffic_vehicles=TRAFFIC, pedestrian_rate=PEDESTRIAN_RATE)
     picked = suite if LONG else Suite(suite.name, (suite.scenarios[seed % len(suite.scenarios)],), suite.base_dir)
     assert _failures(picked) == []
+
+
+def _split_approach(src: Path, dst: Path, pieces: tuple[float, ...]) -> None:
+    """CARLA-style short roads before a stop line: the exported stub road 1 (junction at its
+    start, a stop sign there) cut into roads of `pieces` metres from the junction out, the rest
+    of its length last; straight stubs become lines."""
+    import copy
+    import math
+
+    from lxml import etree
+
+    root = etree.parse(str(src)).getroot()
+    road = next(r for r in root.findall("road") if r.get("id") == "1")
+    g = road.find("planView/geometry")
+    x, y, h, total = (float(g.get(k)) for k in ("x", "y", "hdg", "length"))
+    lengths = [*pieces, total - sum(pieces)]
+    ids = ["1"] + [str(900 + k) for k in range(1, len(lengths))]
+    parent, at = road.getparent(), road.getparent().index(road)
+    parent.remove(road)
+    s0 = 0.0
+    for k, length in enumerate(lengths):
+        r = copy.deepcopy(road)
+        r.attrib.update({"id": ids[k], "length": repr(length)})
+        geo = r.find("planView/geometry")
+        geo.remove(geo[0])
+        etree.SubElement(geo, "line")
+        geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(length)})
+        link = r.find("link")
+        if k > 0:
+            for el in list(link):
+                link.remove(el)
+            etree.SubElement(link, "predecessor", elementType="road", elementId=ids[k - 1], contactPoint="end")
+            for sig in r.findall("signals/signal"):
+                sig.getparent().remove(sig)
+        if k + 1 < len(lengths):
+            etree.SubElement(link, "successor", elementType="road", elementId=ids[k + 1], contactPoint="start")
+        for ln in r.findall("lanes/laneSection/*/lane"):
+            lk = ln.find("link")
+            if lk is None or ln.get("id") == "0":
+                continue
+            if k > 0:
+                etree.SubElement(lk, "predecessor", id=ln.get("id"))
+            if k + 1 < len(lengths):
+                etree.SubElement(lk, "successor", id=ln.get("id"))
+        parent.insert(at + k, r)
+        s0 += length
+    dst.write_bytes(etree.tostring(root))
+
+
+def test_short_roads_before_a_stop_line_drive_clean(tmp_path):
+    """An OpenDRIVE map the test makes (a stop-controlled T exported, one approach cut into a
+    2.4 m last road before the line, a 1.5 m road and the rest, as CARLA draws them): read
+    back, every manoeuvre's route drives with traffic, the ego starting a braking distance
+    before the line and its stop on the short last lane counting."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "stop", False)], seed=0)
+    write_opendrive(m, tmp_path / "t.xodr")
+    _split_approach(tmp_path / "t.xodr", tmp_path / "short.xodr", (2.4, 1.5))
+    short = read_map(tmp_path / "short.xodr")
+    lens = sorted(round(ln.length, 1) for ln in short.lanes.values() if ln.junction_id is None)
+    assert lens[:4] == [1.5, 1.5, 2.4, 2.4]
+    assert any(round(short.lanes[x].length, 1) == 2.4 for s in short.stop_signs.values() for x in s.lane_ids)
+    suite = build_suite(tmp_path / "short.xodr", traffic_vehicles=2)
+    assert len(suite.scenarios) == 6  # every manoeuvre of the T
+    assert _failures(suite) == []
