@@ -124,7 +124,7 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
             continue
         kept.append(j)
     if not kept:
-        raise Feat2MapError(f"none of the {len(junctions)} junctions found can be generated", ", ".join(paths))
+        raise Feat2MapError(f"none of the {counted(len(junctions), 'junction')} found can be generated", ", ".join(paths))
     return kept
 
 

@@ -15,9 +15,15 @@ GRID_GAP_M = 100.0  # paper: P_{x+1,y} is 100 m east of P_{x,y}
 LANE_WIDTH_M = 3.5  # paper: default lane width of the input maps
 CROSSWALK_WIDTH_M = 4.5  # paper: slightly longer than a sedan
 STUB_LENGTH_M = 25.0  # dead-end roads: the map's entries and exits; short of half a grid gap
-MIN_LEG_SEPARATION_DEG = 20.0  # the one leg rule: legs closer than this are one leg to extraction, an error to specs and features
-MIN_SOCKET_SEPARATION_DEG = MIN_LEG_SEPARATION_DEG  # generation's default (configurable, never below the rule)
+# The one leg rule, shared by features, specs, generation and extraction: a junction's legs are
+# at least MIN_LEG_SEPARATION_DEG apart (features and specs refuse closer legs, generation's
+# min_socket_separation_deg never goes below it, extraction skips junctions with closer legs), and
+# extraction counts lane mouths that all enter (or all leave) as one leg only when their
+# directions differ by less than LEG_MERGE_DEG, half the rule, so legs the rule allows stay apart.
+MIN_LEG_SEPARATION_DEG = 20.0
+LEG_MERGE_DEG = MIN_LEG_SEPARATION_DEG / 2
 MAX_LEGS = 8  # legs per junction in features, specs and feature spaces (README: 3-8)
+MAX_CARDINAL_DEVIATION_DEG = 90.0  # layout: a socket serves a grid direction at most this far from it
 MIN_STUB_LENGTH_M = 10.0  # a junction must leave at least this much road before the half-way line
 MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
@@ -66,13 +72,13 @@ APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a 
 APOLLO_JUNCTION_COVER_M = 0.5  # a junction-lane overlap within this of both lane ends makes a junction lane
 # (only where roads name no junction: maps draw junction polygons over approach lanes too)
 # junction extraction from real maps (feat2map/extract.py, docs/extraction.md)
-ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this
+ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this (LEG_MERGE_DEG when
+# the lanes all enter or all leave)
 ARM_PROBE_M = 20.0  # an arm's direction: towards the point this far out along its road
 ARM_MAX_WIDTH_M = 30.0  # lanes of one arm lie within this across the arm (medians included)
 ARM_MAX_DEPTH_M = 15.0  # ... and within this along it
 ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to one arm
 ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
-MIN_EXTRACTED_SEPARATION_DEG = 1.0  # real maps may have legs much closer than generated ones
 MIN_ARM_LENGTH_M = 0.5  # a road shorter than this between two ends of one junction is part of it, not an arm
 
 
@@ -96,7 +102,7 @@ class GenerationConfig:
     lane_width: float = LANE_WIDTH_M
     crosswalk_width: float = CROSSWALK_WIDTH_M
     stub_length: float = STUB_LENGTH_M
-    min_socket_separation_deg: float = MIN_SOCKET_SEPARATION_DEG
+    min_socket_separation_deg: float = MIN_LEG_SEPARATION_DEG
     min_junction_radius: float = MIN_JUNCTION_RADIUS_M
     junction_margin: float = JUNCTION_MARGIN_M
     speed_limit: float = SPEED_LIMIT_MPS

@@ -214,6 +214,13 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
         center = np.array(p.cell, dtype=float) * cfg.grid_gap
         sockets.append(socket_geometry(p.feature, center, p.rotation_deg, cfg))
 
+    # the pavement of every road between junctions, so that no stub is laid across one
+    connections = [pavement(Bezier.from_poses(sockets[j][s].point, sockets[j][s].angle,
+                                              sockets[ln.junction][ln.socket].point,
+                                              sockets[ln.junction][ln.socket].angle + math.pi),
+                            sockets[j][s].half_width + cfg.junction_margin, cfg)
+                   for j, p in enumerate(placements) for s, ln in enumerate(p.links)
+                   if ln is not None and (ln.junction, ln.socket) > (j, s)]
     # roads: incoming / outgoing lanes per (junction, socket), each listed right to left
     incoming: dict[tuple[int, int], list[str]] = {}
     outgoing: dict[tuple[int, int], list[str]] = {}
@@ -228,8 +235,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
             rid = f"R{n_roads}"
             n_roads += 1
             if link is None:
-                # stubs end short of the half-way line, so facing stubs never meet
-                length = min(cfg.stub_length, cfg.grid_gap / 2 - cfg.junction_margin - math.dist(g.point, centers[j]))
+                length = _stub_length(g, centers[j], connections, cfg, f"junction J{j}")
                 end = tuple(np.asarray(g.point) + length * unit(g.angle))
                 road = b.add_road(rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out, sock.lanes_in, f"J{j}", None)
             else:
@@ -306,6 +312,36 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
         lanes[lid] = Lane(**d)
     roads = dict(sorted(b.roads.items(), key=lambda kv: (kv[1].kind == "junction", kv[0])))
     return HDMap(lanes, roads, junctions, signals, stops, crosswalks, meta=dict(meta or {}))
+
+
+def pavement(reference: Bezier, half_width: float, cfg: GenerationConfig) -> Polygon:
+    """The area a road takes: its reference line widened by `half_width` on each side."""
+    ts = reference.sample_params(cfg.sample_spacing)
+    left, right = reference.offset_point(ts, half_width), reference.offset_point(ts, -half_width)
+    return Polygon(np.concatenate([left, right[::-1]])).buffer(0)
+
+
+def _stub_length(g: SocketGeometry, center, connections: Sequence[Polygon], cfg: GenerationConfig,
+                 where: str) -> float:
+    """A stub ends short of the half-way line (facing stubs never meet) and short of every road
+    between junctions that sweeps across its way (a connection leaving a socket far from its
+    grid direction); a stub that would keep less than MIN_STUB_LENGTH_M is a LayoutError."""
+    length = min(cfg.stub_length, cfg.grid_gap / 2 - cfg.junction_margin - math.dist(g.point, center))
+    p, u = np.asarray(g.point), unit(g.angle)
+    hw = g.half_width + cfg.junction_margin
+    n = left_normal(g.angle)
+    way = Polygon([tuple(p + hw * n), tuple(p + length * u + hw * n), tuple(p + length * u - hw * n),
+                   tuple(p - hw * n)])
+    for road in connections:
+        hit = way.intersection(road)
+        if hit.area > 1e-6:
+            pts = np.concatenate([np.asarray(part.exterior.coords) for part in getattr(hit, "geoms", [hit])
+                                  if part.geom_type == "Polygon"])
+            length = min(length, float(((pts - p) @ u).min()) - cfg.junction_margin)
+    if length < MIN_STUB_LENGTH_M:
+        raise LayoutError(f"the leg at {math.degrees(g.angle) % 360:.1f} deg would run into a road between "
+                          f"junctions within {MIN_STUB_LENGTH_M:g} m (raise grid_gap or spread the legs)", where)
+    return length
 
 
 def _junction_polygon(center: np.ndarray, socks: Sequence[SocketGeometry]) -> Polygon:

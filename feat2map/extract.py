@@ -20,7 +20,7 @@ from shapely import STRtree
 from shapely.geometry import Polygon
 
 from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
-                     ARM_PROBE_M, MIN_EXTRACTED_SEPARATION_DEG)
+                     ARM_PROBE_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
 from .model import HDMap, Lane, interior_lane
@@ -138,7 +138,9 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     short curved road pieces). Two mouths are one arm when their road lanes are neighbours,
     or their tangents agree within ARM_CLUSTER_DEG and they are within ARM_NEAR_M, or their
     far directions agree within ARM_CLUSTER_DEG and they lie side by side (ARM_MAX_WIDTH_M
-    across, ARM_MAX_DEPTH_M along the arm): divided roads and one-way pairs count once.
+    across, ARM_MAX_DEPTH_M along the arm): divided roads and one-way pairs count once. Mouths
+    that all enter (or all leave) merge only when their tangents agree within LEG_MERGE_DEG
+    (the leg rule: legs at least MIN_LEG_SEPARATION_DEG apart, one-way ones too, stay apart).
     Two mouths that a junction lane joins (other than a U-turn) are never one arm: merges
     go strongest evidence first (neighbour links, then nearest pairs) and skip any merge
     that would put such a pair into one arm, so legs a few degrees apart stay apart.
@@ -186,6 +188,8 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     along = np.abs((mean * d).sum(axis=-1))
     same = ((tangents @ tangents.T >= cos_tol) & (dist <= ARM_NEAR_M)) | (  # adjacent, same local direction
         (dirs @ dirs.T >= cos_tol) & (across <= ARM_MAX_WIDTH_M) & (along <= ARM_MAX_DEPTH_M))
+    entering = np.array([k == "in" for k in kinds])  # the leg rule: all-in or all-out mouths need close tangents
+    same &= (entering[:, None] != entering[None, :]) | (tangents @ tangents.T >= math.cos(math.radians(LEG_MERGE_DEG)))
     index = {key: i for i, key in enumerate(ends)}
     apart = _joined_mouths(m, jid, lanes, index)
     pairs = [(0.0, i, k) for i in range(len(pts)) for k in range(i + 1, len(pts)) if ext[k] in linked[i]]
@@ -331,7 +335,7 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
             arms = [arms[i] for i in norm.order]
             feature = JunctionFeature(
                 tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms)),
-                control, crosswalk, MIN_EXTRACTED_SEPARATION_DEG)
+                control, crosswalk, MIN_LEG_SEPARATION_DEG)
         except FeatureError as exc:
             skip(len(arms), exc.message)
             continue

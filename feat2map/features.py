@@ -14,12 +14,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from .config import MAX_LEGS, MIN_SOCKET_SEPARATION_DEG
+from .config import MAX_LEGS, MIN_LEG_SEPARATION_DEG
 from .errors import FeatureError, snippet
 
 CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
 ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
 QUARTER = 90.0
+# Float noise of rotated, re-measured angles (~1e-7 deg) must not decide ties of symmetric junctions
+# (equal gaps, equally good alignments): gaps this close are equal, costs equal to this many digits.
+ANGLE_NOISE_DEG = 1e-4
+COST_DIGITS = 3
 
 
 @dataclass(frozen=True)
@@ -51,7 +55,7 @@ class JunctionFeature:
     sockets: tuple[Socket, ...]
     control: str = "bare"
     crosswalk: bool = False
-    min_separation_deg: float = field(default=MIN_SOCKET_SEPARATION_DEG, compare=False, repr=False)
+    min_separation_deg: float = field(default=MIN_LEG_SEPARATION_DEG, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "sockets", tuple(self.sockets))
@@ -83,6 +87,14 @@ class JunctionFeature:
                 raise FeatureError(f"socket {i} must have at least one lane, got in={s.lanes_in} out={s.lanes_out}")
         if not any(s.lanes_in for s in self.sockets) or not any(s.lanes_out for s in self.sockets):
             raise FeatureError("a junction needs at least one incoming and one outgoing road")
+        for i, s in enumerate(self.sockets):  # every approach has a way through (a U-turn is not one)
+            others = [o for k, o in enumerate(self.sockets) if k != i]
+            if s.lanes_in and not any(o.lanes_out for o in others):
+                raise FeatureError(f"socket {i} has incoming lanes but no other socket has outgoing ones: "
+                                   "they would be dead ends")
+            if s.lanes_out and not any(o.lanes_in for o in others):
+                raise FeatureError(f"socket {i} has outgoing lanes but no other socket has incoming ones: "
+                                   "nothing could drive into them")
 
     @classmethod
     def make(
@@ -92,7 +104,7 @@ class JunctionFeature:
         crosswalk: bool = False,
         road_types: Sequence[str] | None = None,
         lanes: Sequence[int] | int = 1,
-        min_separation_deg: float = MIN_SOCKET_SEPARATION_DEG,
+        min_separation_deg: float = MIN_LEG_SEPARATION_DEG,
     ) -> "JunctionFeature":
         """Build a feature from plain angles, road types and lanes per direction."""
         n = len(angles)
@@ -188,7 +200,7 @@ def best_alignment(offsets: Sequence[float]) -> float:
         if alpha >= 45.0:
             alpha -= QUARTER
         cost = alignment_cost(alpha, offsets)
-        key = (round(cost, 6), round(abs(alpha), 6), round(alpha, 6))
+        key = (round(cost, COST_DIGITS), round(abs(alpha), 6), round(alpha, 6))
         if best is None or key < best:
             best = key
     assert best is not None
@@ -200,9 +212,10 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
 
     Sockets are ordered counter-clockwise starting right after the largest gap (so the
     largest gap closes the cycle, as in the paper's Table II), then rotated by the exact
-    optimal alpha. Among equally large gaps the start with the lowest cost wins; gaps within
-    `tie_tol_deg` of the largest count as equal (measured maps: a 4-way junction's gaps
-    differ by noise, and the start should not flip with it).
+    optimal alpha. Among equally large gaps the start with the lowest cost wins, then the
+    smallest |alpha|, then the smallest angle list, so every orientation of one shape gives the
+    same feature; gaps within `tie_tol_deg` of the largest count as equal (measured maps: a
+    4-way junction's gaps differ by noise, and the start should not flip with it).
     """
     n = len(angles)
     if n == 0:
@@ -215,13 +228,15 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
     largest = max(gaps)
     candidates = []
     for i, g in enumerate(gaps):
-        if g < largest - max(tie_tol_deg, 1e-9):
+        if g < largest - max(tie_tol_deg, ANGLE_NOISE_DEG):
             continue
         start = (i + 1) % n
         offsets = [(sorted_angles[(start + k) % n] - sorted_angles[start]) % 360.0 for k in range(n)]
         alpha = best_alignment(offsets)
-        candidates.append((round(alignment_cost(alpha, offsets), 6), round(abs(alpha), 6), start, alpha, offsets))
-    _, _, start, alpha, offsets = min(candidates, key=lambda c: c[:3])
+        shape = tuple(round(alpha + c, 4) for c in offsets)  # the same for every orientation of the junction
+        candidates.append((round(alignment_cost(alpha, offsets), COST_DIGITS), round(abs(alpha), 6), shape, start,
+                           alpha, offsets))
+    *_, start, alpha, offsets = min(candidates, key=lambda c: c[:4])
     return Normalization(
         angles=tuple(alpha + c for c in offsets),
         order=tuple(order[(start + k) % n] for k in range(n)),

@@ -48,7 +48,8 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
 
 def check_buildable(feature: JunctionFeature, config: GenerationConfig = GenerationConfig()) -> None:
     """Raise the FeatureError or LayoutError generation would raise on `feature`: its legs must
-    keep the generation's minimum separation (extraction accepts closer legs) and the junction
+    keep the generation's minimum separation (a config may ask for more than the leg rule
+    extraction applies) and the junction
     must be built on its own (it fits the grid gap). Extraction and generation agree through
     this: a junction extraction accepts either passes here or is reported as skipped."""
     JunctionFeature(feature.sockets, feature.control, feature.crosswalk, config.min_socket_separation_deg)

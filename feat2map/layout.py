@@ -16,11 +16,13 @@ when placement ends. Stubs are the map's entries and exits.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
+from .config import MAX_CARDINAL_DEVIATION_DEG
 from .errors import LayoutError
 from .features import JunctionFeature, Socket
 
@@ -51,24 +53,36 @@ class Placement:
 
 
 def cardinal_assignment(feature: JunctionFeature) -> tuple[int | None, ...]:
-    """Per socket the cardinal direction (0=E..3=S) it serves, injective, least squared deviation."""
+    """Per socket the cardinal direction (0=E..3=S) it serves, or None (a stub): injective, as
+    many sockets as can be, then least squared deviation. A socket serves a direction only
+    when no other leg lies between them and it is within MAX_CARDINAL_DEVIATION_DEG: a road
+    turning from its socket across another leg to the neighbour would overlap that leg's road
+    outside the junction, so such a socket ends in a stub instead."""
     n = feature.n_roads
     angles = feature.rotation
-    best: tuple[float, tuple[int | None, ...]] | None = None
-    slots = min(n, 4)
-    for chosen in itertools.combinations(range(n), slots):
-        for dirs in itertools.permutations(range(4), slots):
-            cost = 0.0
-            for s, d in zip(chosen, dirs):
-                dev = (angles[s] - 90.0 * d + 180.0) % 360.0 - 180.0
-                cost += dev * dev
-            if best is None or cost < best[0] - 1e-9:
-                assign: list[int | None] = [None] * n
-                for s, d in zip(chosen, dirs):
-                    assign[s] = d
-                best = (cost, tuple(assign))
-    assert best is not None
-    return best[1]
+    dev = [[(angles[s] - 90.0 * d + 180.0) % 360.0 - 180.0 for d in range(4)] for s in range(n)]
+
+    def allowed(s: int, d: int) -> bool:
+        if abs(dev[s][d]) > MAX_CARDINAL_DEVIATION_DEG + 1e-9:
+            return False
+        side = math.copysign(1.0, dev[s][d])
+        return not any(0.0 < side * dev[k][d] < abs(dev[s][d]) for k in range(n) if k != s)
+
+    for size in range(min(n, 4), 0, -1):
+        best: tuple[float, tuple[int | None, ...]] | None = None
+        for chosen in itertools.combinations(range(n), size):
+            for dirs in itertools.permutations(range(4), size):
+                if not all(allowed(s, d) for s, d in zip(chosen, dirs)):
+                    continue
+                cost = sum(dev[s][d] ** 2 for s, d in zip(chosen, dirs))
+                if best is None or cost < best[0] - 1e-9:
+                    assign: list[int | None] = [None] * n
+                    for s, d in zip(chosen, dirs):
+                        assign[s] = d
+                    best = (cost, tuple(assign))
+        if best is not None:
+            return best[1]
+    return (None,) * n
 
 
 def compatible(a: Socket, b: Socket) -> bool:

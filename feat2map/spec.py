@@ -24,7 +24,7 @@ from shapely.ops import unary_union
 
 from .bezier import Bezier
 from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig, limits
-from .construct import RoadChain, chain_road_id, junction_radius
+from .construct import RoadChain, chain_road_id, junction_radius, pavement
 from .documents import check_schema, element_path, element_where, load_document
 from .errors import FeatureError, LayoutError, LimitError
 from .features import FeatureSpace, JunctionFeature, Socket, socket_lanes
@@ -219,19 +219,10 @@ def min_turn_radius(b: Bezier, samples: int = 129) -> float:
 
 def chain_piece_polygons(chain: RoadChain, cfg: GenerationConfig) -> list[Polygon]:
     """The pavement of every piece: its reference line widened to the lanes on each side."""
-    w = cfg.lane_width
-    polys = []
-    for k in range(chain.n_pieces):
-        (p0, h0), (p1, h1) = chain.poses[k], chain.poses[k + 1]
-        ref = Bezier.from_poses(p0, h0, p1, h1)
-        pts = ref.sample(cfg.sample_spacing)
-        heads = ref.heading(ref.sample_params(cfg.sample_spacing))
-        nrm = np.stack([-np.sin(heads), np.cos(heads)], axis=1)
-        # the reference is centred between the outer edges (lanes split by the divider offset)
-        half = (chain.lanes_forward + chain.lanes_backward) * w / 2
-        left, right = pts + half * nrm, pts - half * nrm
-        polys.append(Polygon(np.concatenate([left, right[::-1]])).buffer(0))
-    return polys
+    # the reference is centred between the outer edges (lanes split by the divider offset)
+    half = (chain.lanes_forward + chain.lanes_backward) * cfg.lane_width / 2
+    return [pavement(Bezier.from_poses(*chain.poses[k], *chain.poses[k + 1]), half, cfg)
+            for k in range(chain.n_pieces)]
 
 
 def _check_chain(chain: RoadChain, where: str, cfg: GenerationConfig) -> None:

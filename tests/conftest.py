@@ -5,6 +5,15 @@ import os
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+# Property tests draw new examples every run (CI keeps no example database). Tests that set no count
+# of their own (the invariant tests) run 100 examples each under the default "ci" profile and
+# 1,500 under "thorough", which FEAT2MAP_LONG_TESTS=1 (the long version of the suite) loads.
+LONG_TESTS = os.environ.get("FEAT2MAP_LONG_TESTS") == "1"
+settings.register_profile("ci", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("thorough", deadline=None, max_examples=1500, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("thorough" if LONG_TESTS else "ci")
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 

@@ -23,6 +23,9 @@ from feat2map.features import FeatureSpace, JunctionFeature
 from feat2map.formats.apollo import geometry as geo
 from feat2map.formats.apollo import sim_map as simmap
 from feat2map.formats.apollo import writer as wa
+from feat2map.formats import write_map
+from feat2map.formats.apollo import read_apollo
+from conftest import shared_map
 
 APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
 FILES = ("base_map", "sim_map", "routing_map")
@@ -811,3 +814,34 @@ def test_generate_writes_apollo_unless_told_not_to(tmp_path):
     assert main(["generate", "--seed", "2", "--out", str(tmp_path / "b"), "--quiet", "--no-picture",
                  "--no-apollo"]) == 0
     assert not (tmp_path / "b" / "apollo").exists()
+
+
+def test_point_lanes_are_spliced_out_of_the_apollo_export(tmp_path):
+    """A lane without two points a millimetre apart (CARLA's micrometre road pieces) cannot be an
+    Apollo lane: the export links its neighbours through it, and the result validates."""
+    import dataclasses
+
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "signal", True)], seed=0)
+    a = next(ln for ln in m.lanes.values() if ln.junction_id is None and len(ln.successors) > 1)
+    x = dataclasses.replace(a, id="tiny", centerline=(a.end, (a.end[0] + 1e-5, a.end[1])),
+                            left_boundary=(a.end, a.end), right_boundary=(a.end, a.end), bezier=None,
+                            predecessors=(a.id,), successors=a.successors, left_neighbors=(), right_neighbors=(),
+                            left_reverse_neighbors=())
+    lanes = {k: dataclasses.replace(ln, predecessors=tuple("tiny" if p == a.id else p for p in ln.predecessors))
+             for k, ln in m.lanes.items()}
+    lanes[a.id] = dataclasses.replace(a, successors=("tiny",))
+    lanes["tiny"] = x
+    road = m.roads[a.road_id]
+    m = dataclasses.replace(m, lanes=lanes, roads={**m.roads, road.id: dataclasses.replace(
+        road, right_lanes=road.right_lanes + ("tiny",) if a.id in road.right_lanes else road.right_lanes,
+        left_lanes=road.left_lanes + ("tiny",) if a.id in road.left_lanes else road.left_lanes)})
+    write_map(m, tmp_path / "a", "apollo")
+    assert validate_apollo(tmp_path / "a") == []
+    back = read_apollo(tmp_path / "a")
+    assert "tiny" not in back.lanes and set(back.lanes[a.id].successors) == set(a.successors)
+
+
+def test_carla_town03_exports_to_apollo(tmp_path):
+    path = shared_map("opendrive/carla_town03/Town03.xodr")
+    assert main(["export", "apollo", str(path), "--out", str(tmp_path / "t03")]) == 0
+    assert len(read_apollo(tmp_path / "t03").lanes) > 300

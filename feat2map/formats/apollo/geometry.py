@@ -13,6 +13,7 @@ from shapely.geometry import LineString, Polygon
 from ...config import APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_STOP_LINE_OVERLAP_M
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, as_polyline
+from ...validation import CONTROL_KINDS
 
 
 def arc_lengths(points: np.ndarray) -> np.ndarray:
@@ -90,6 +91,43 @@ def _usable(points: Polyline) -> bool:
     """At least two points more than 1 mm apart (the validator counts 0.1 mm as distinct)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     return len(p) >= 2 and bool((np.abs(p - p[0]).max(axis=1) > 1e-3).any())
+
+
+def without_point_lanes(m: HDMap) -> HDMap:
+    """`m` without lanes whose centreline is shorter than Apollo can hold (no two points 1 mm
+    apart: CARLA's micrometre road pieces): each is spliced out, its predecessors linked
+    straight to its successors (they meet where it was), and every reference to it dropped."""
+    gone = {lid for lid, ln in m.lanes.items() if not _usable(ln.centerline)}
+    if not gone:
+        return m
+
+    def through(ids: tuple[str, ...], attr: str) -> tuple[str, ...]:
+        out: dict[str, None] = {}
+        todo, seen = list(ids), set()
+        while todo:
+            x = todo.pop(0)
+            if x in gone:
+                if x not in seen:
+                    seen.add(x)
+                    todo += list(getattr(m.lanes[x], attr))
+            else:
+                out[x] = None
+        return tuple(out)
+
+    lanes = {}
+    for lid, ln in m.lanes.items():
+        if lid in gone:
+            continue
+        drop = {f: tuple(x for x in getattr(ln, f) if x not in gone)
+                for f in ("left_neighbors", "right_neighbors", "left_reverse_neighbors")}
+        lanes[lid] = dataclasses.replace(ln, predecessors=through(ln.predecessors, "predecessors"),
+                                         successors=through(ln.successors, "successors"), **drop)
+    roads = {rid: dataclasses.replace(r, right_lanes=tuple(x for x in r.right_lanes if x not in gone),
+                                      left_lanes=tuple(x for x in r.left_lanes if x not in gone))
+             for rid, r in m.roads.items()}
+    controls = {kind: {k: dataclasses.replace(c, lane_ids=tuple(x for x in c.lane_ids if x not in gone))
+                       for k, c in getattr(m, kind).items()} for kind in CONTROL_KINDS}
+    return dataclasses.replace(m, lanes=lanes, roads=roads, **controls)
 
 
 def usable_boundaries(m: HDMap) -> HDMap:

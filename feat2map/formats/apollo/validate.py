@@ -20,7 +20,7 @@ from typing import Any, Iterable
 import numpy as np
 import shapely
 from shapely import STRtree
-from shapely.geometry import LineString, Polygon
+from shapely.geometry import LineString, Point, Polygon
 
 from . import schema as aps
 from ..base import Problem
@@ -28,6 +28,7 @@ from .reader import base_map_file
 from .routing import build_routing_graph
 from ...config import APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
 from ...errors import MapFormatError
+from ...invariants import AREA_EPS_M2
 from ...validation import unusable_numbers
 
 LENGTH_TOL_M = 0.05  # recorded lengths vs. the polyline's; endpoints of linked lanes
@@ -176,6 +177,7 @@ def validate_map(m: Any, graph: Any | None = None, progress: bool = False, sim: 
     checks = [("header", lambda: _header(m) + _ids(m)), ("lanes", lambda: _lanes(m, idx, sim)),
               ("roads", lambda: _roads(m, idx) + _areas(m)), ("signals", lambda: _controls(m, idx)),
               ("overlaps", lambda: _overlaps(m, idx) + ([] if sim else _crosswalk_cover(m, idx))),
+              ("conflicts", lambda: _conflicts(m, idx) + _dead_ends(m, idx) if _generated(m) else []),
               ("reachability", lambda: reachability(m, graph if graph is not None else build_routing_graph(m)))]
     problems: list[Problem] = []
     with tqdm(checks, desc="validate", unit="check", disable=not progress) as bar:
@@ -356,6 +358,99 @@ def _junction_lanes(m: Any, idx: _Index) -> dict[str, str]:
         info = lane.lane_overlap_info
         if info.start_s <= LENGTH_TOL_M and info.end_s >= idx.lanes[lane.id.id].length - LENGTH_TOL_M:
             out.setdefault(lane.id.id, junction.id.id)
+    return out
+
+
+def _generated(m: Any) -> bool:
+    """A map feat2map generated (not converted) also keeps feat2map's own promises (invariants.
+    check_map): no roads crossing without a junction, no overlapping crosswalks, no lane ending
+    at a junction without a way on. Apollo does not need them, and real maps break them."""
+    from .writer import GENERATED_MARK
+
+    return m.header.generation == GENERATED_MARK
+
+
+def _in_junction(m: Any, idx: _Index) -> dict[str, str]:
+    """Lane id -> junction id: junction lanes and the lanes of junction roads."""
+    out = _junction_lanes(m, idx)
+    for r in m.road:
+        if r.junction_id.id:
+            out.update((x.id, r.junction_id.id) for sec in r.section for x in sec.lane_id if x.id not in out)
+    return out
+
+
+def _conflicts(m: Any, idx: _Index) -> list[Problem]:
+    """Roads that cross without a junction (as check_map sees them): a lane outside
+    junctions sharing area, outside every junction polygon, with a lane it is not linked to
+    (neighbours, predecessors, successors, or lanes that split from or merge into the same
+    lane); and junctions or crosswalks that share area."""
+    inside = _in_junction(m, idx)
+    links: dict[str, set[str]] = {}
+    for ln in m.lane:
+        lid = ln.id.id
+        group = {x.id for f in ("predecessor_id", "successor_id", "left_neighbor_forward_lane_id",
+                                "right_neighbor_forward_lane_id", "left_neighbor_reverse_lane_id",
+                                "right_neighbor_reverse_lane_id") for x in getattr(ln, f)}
+        links.setdefault(lid, set()).update(group)
+        for f in ("predecessor_id", "successor_id"):  # siblings: they split from / merge into one lane
+            sib = [x.id for x in getattr(ln, f)]
+            for other in (idx.lanes.get(x) for x in sib):
+                if other is not None:
+                    back = "successor_id" if f == "predecessor_id" else "predecessor_id"
+                    links[lid].update(x.id for x in getattr(other, back))
+    junctions = [Polygon(_xy(j.polygon.point)).buffer(0.01) for j in m.junction if _distinct(_xy(j.polygon.point)) >= 3]
+    cover = shapely.union_all(junctions) if junctions else None
+    ids, polys = [], []
+    for ln in m.lane:
+        left, right = _curve_points(ln.left_boundary.curve), _curve_points(ln.right_boundary.curve)
+        if ln.id.id in inside or len(left) < 2 or len(right) < 2:
+            continue
+        poly = Polygon(np.vstack([left, right[::-1]])).buffer(0)
+        if cover is not None:
+            poly = poly.difference(cover)
+        if not poly.is_empty:
+            ids.append(ln.id.id)
+            polys.append(poly)
+    out = []
+    pairs = STRtree(polys).query(polys, predicate="intersects") if polys else ((), ())
+    for a, b in zip(*pairs):
+        if a < b and ids[b] not in links.get(ids[a], ()) and ids[a] not in links.get(ids[b], ()) \
+                and polys[a].intersection(polys[b]).area > AREA_EPS_M2:
+            out.append(Problem(f"lane {ids[a]}", f"shares area with lane {ids[b]} outside any junction "
+                                                 "(roads cross without a junction)"))
+    for kind in ("junction", "crosswalk"):  # areas of one kind never share area
+        areas = [(e.id.id, Polygon(_xy(e.polygon.point)).buffer(0)) for e in getattr(m, kind)
+                 if _distinct(_xy(e.polygon.point)) >= 3]
+        shapes = [p for _, p in areas]
+        for a, b in zip(*(STRtree(shapes).query(shapes, predicate="intersects") if shapes else ((), ()))):
+            if a < b and shapes[a].intersection(shapes[b]).area > AREA_EPS_M2:
+                out.append(Problem(f"{kind} {areas[a][0]}", f"shares area with {kind} {areas[b][0]}"))
+    return out
+
+
+def _dead_ends(m: Any, idx: _Index) -> list[Problem]:
+    """Lanes outside junctions that end at a junction with nothing to drive on to (or start at
+    one with nothing leading in): such a lane would otherwise pass for a map exit (entry)."""
+    inside = _in_junction(m, idx)
+    polys = [(j.id.id, Polygon(_xy(j.polygon.point)).buffer(0)) for j in m.junction
+             if _distinct(_xy(j.polygon.point)) >= 3]
+    if not polys:
+        return []
+    tree = STRtree([p for _, p in polys])
+    out = []
+    for ln in m.lane:
+        if ln.id.id in inside or (ln.successor_id and ln.predecessor_id):
+            continue
+        pts = _curve_points(ln.central_curve)
+        if len(pts) < 2:
+            continue
+        for field, end, what in (("successor_id", pts[-1], "ends at junction {} with no lane leading on"),
+                                 ("predecessor_id", pts[0], "starts at junction {} with no lane leading in")):
+            if getattr(ln, field):
+                continue
+            near = tree.query(Point(end), predicate="dwithin", distance=LINK_TOL_M)
+            if len(near):
+                out.append(Problem(f"lane {ln.id.id}", what.format(polys[int(near[0])][0])))
     return out
 
 
@@ -586,10 +681,12 @@ def all_roads_two_way(m: Any) -> bool:
 def reachability(m: Any, graph: Any) -> list[Problem]:
     """When every road is two-way: over the routing graph, every exit is reachable from every
     entry (bar its own road's, which needs a U-turn), every lane from some entry, and every
-    lane reaches some exit; a map without entries and exits must be strongly connected.
+    lane reaches some exit; a map without entries and exits must be strongly connected. Maps
+    feat2map generated get the per-lane checks with one-way roads too (as check_map does).
     Entries are lanes without predecessors (the open ends of stub roads), exits lanes without
     successors."""
-    if not m.lane or not all_roads_two_way(m):
+    two_way = all_roads_two_way(m)
+    if not m.lane or not (two_way or _generated(m)):  # one-way roads: per lane only, generated maps only
         return []
     nodes = [n.lane_id for n in graph.node]
     fwd: dict[str, list[str]] = {n: [] for n in nodes}
@@ -622,7 +719,7 @@ def reachability(m: Any, graph: Any) -> list[Problem]:
     for e in entries:
         r = reach(e, fwd)
         from_entries |= r
-        for x in exits:
+        for x in exits if two_way else ():
             if x not in r and road_of.get(x) != road_of.get(e):
                 out.append(Problem(f"lane {x}", f"exit not reachable from entry lane {e}"))
     to_exits: set[str] = set()

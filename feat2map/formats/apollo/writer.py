@@ -21,7 +21,7 @@ from ... import __version__, atomic
 from .. import FORMATS
 from . import schema as aps
 from .geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
-                               stop_line_range, usable_boundaries)
+                               stop_line_range, usable_boundaries, without_point_lanes)
 from .sim_map import to_sim_map
 from ..base import header_date
 from ..geo import utm_projection
@@ -31,6 +31,7 @@ from ...model import HDMap, Lane, Polyline
 from ...validation import refuse_nonfinite
 
 FILES = ("base_map", "sim_map", "routing_map")
+GENERATED_MARK = b"feat2map"  # header.generation of maps feat2map generated (not of maps it converted)
 BOUNDARY_TYPE = {
     "solid_white": aps.LaneBoundaryType.SOLID_WHITE, "dotted_white": aps.LaneBoundaryType.DOTTED_WHITE,
     "solid_yellow": aps.LaneBoundaryType.SOLID_YELLOW, "dotted_yellow": aps.LaneBoundaryType.DOTTED_YELLOW,
@@ -131,7 +132,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         origin = tuple(m.origin) if any(m.origin) else UTM_ORIGIN
     if len(origin) != 2 or not all(math.isfinite(float(v)) for v in origin):
         raise Feat2MapError(f"origin must be two finite numbers, got {origin!r}", "apollo export")
-    m = usable_boundaries(m)
+    m = usable_boundaries(without_point_lanes(m))
     frame = _Frame(origin)
     ids = _Ids()
     out = aps.Map()
@@ -230,6 +231,8 @@ def _header(h: Any, m: HDMap, zone: int) -> None:
     h.projection.proj = utm_projection(zone)
     h.district = b"feat2map"
     h.vendor = b"feat2map"
+    if m.meta.get("generator"):  # generated, not converted: the validator holds it to check_map's rules too
+        h.generation = GENERATED_MARK
     h.rev_major = b"1"
     h.rev_minor = b"0"
 
