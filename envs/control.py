@@ -13,7 +13,7 @@ import numpy as np
 
 from ..phases import group_phases, travel_headings
 from .network import MapNetwork
-from .rules import PEDESTRIAN_CLEARANCE_M, STOP_ZONE_M, STOPPED_SPEED_MPS, TrafficRules, in_stop_zone
+from .rules import PEDESTRIAN_CLEARANCE_M, STOPPED_SPEED_MPS, TrafficRules
 from .vehicles import Pedestrian
 
 PEDESTRIAN_SPAWN_HORIZON_S = 3.0  # a pedestrian waits for a vehicle this many seconds away (plus the clearance)
@@ -127,23 +127,17 @@ class TrafficControl(TrafficRules):
         # stop-sign queues: join after stopping at the line, leave on entering the junction
         lane_of = {id(v): lid for v, lid in zip(vehicles, lanes)}
 
-        def waiting(v) -> bool:
+        def waiting(v, jid) -> bool:  # not yet on a lane of the junction (maybe on the one before)
             lid = lane_of.get(id(v))
-            return lid in m.lanes and m.lanes[lid].junction_id is None
+            return lid in m.lanes and m.lanes[lid].junction_id != jid
 
         for jid, queue in list(self.stop_queue.items()):
-            self.stop_queue[jid] = [v for v in queue if waiting(v)]
+            self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
         for v, lid, speed in zip(vehicles, lanes, speeds):
             if speed > STOPPED_SPEED_MPS:
                 continue
-            sl = net.stop_lines.get(lid) if lid else None
-            if sl is None or not in_stop_zone(sl.s - getattr(v, "lane_s", 0.0)):
-                if not hasattr(v, "lane_route") or lid not in m.lanes or m.lanes[lid].junction_id is not None:
-                    continue
-                sl, _, _, d = self.line_ahead(v, STOP_ZONE_M)  # stopped before a short last lane: along the route
-                if sl is None or not in_stop_zone(d):
-                    continue
-            if sl.kind != "stop":
+            sl, _ = self.waiting_line(v, lid)
+            if sl is None or sl.kind != "stop":
                 continue
             q = self.stop_queue.setdefault(sl.junction_id, [])
             if v not in q:

@@ -184,6 +184,23 @@ class TrafficRules:
         sl, in_lane, j_lane, d = stop_line_ahead(self.net, vehicle.upcoming(horizon), vehicle.lane_route)
         return (sl, in_lane, j_lane, d) if d <= within else (None, None, None, math.inf)
 
+    def waiting_line(self, vehicle, lane_id: str | None) -> tuple["StopLine | None", str | None]:
+        """(stop line, incoming lane) of the line a vehicle on `lane_id` stands before, its centre
+        within STOP_ZONE_M of it along its route: its own lane's line, or the next line ahead from
+        a lane before a short last lane or from a junction lane of the junction before (back-to-
+        back junctions: Shalun's 3.5 m road from J_1 to J_14 leaves a car stopped at J_14's line
+        inside J_1); (None, None) anywhere else."""
+        net = self.net
+        if lane_id not in net.hdmap.lanes:
+            return None, None
+        sl = net.stop_lines.get(lane_id)
+        if sl is not None and in_stop_zone(sl.s - getattr(vehicle, "lane_s", 0.0)):
+            return sl, lane_id
+        if not hasattr(vehicle, "lane_route"):
+            return None, None
+        sl, in_lane, _, d = self.line_ahead(vehicle, STOP_ZONE_M)
+        return (sl, in_lane) if sl is not None and in_stop_zone(d) else (None, None)
+
     def line_distance(self, vehicle, junction_lane: str) -> float:
         """Distance along the vehicle's route from its centre to the stop line before
         `junction_lane` (the lane's start at a bare entry); 0 once that lane is behind."""
@@ -383,16 +400,11 @@ class EgoJudge:
         prev = self._lane
         on_road = lid in m.lanes and m.lanes[lid].junction_id is None
         rtor = rules.right_turn_on_red()
+        if ego.speed <= STOPPED_SPEED_MPS:
+            sl, in_lane = rules.waiting_line(ego, lid)
+            if sl is not None and (sl.kind == "stop" or rtor):
+                self._stopped.add(in_lane)
         if on_road:
-            if ego.speed <= STOPPED_SPEED_MPS:
-                sl = net.stop_lines.get(lid)
-                if sl is not None and in_stop_zone(sl.s - ego.lane_s):
-                    if sl.kind == "stop" or rtor:
-                        self._stopped.add(lid)
-                else:  # stopped on a lane before a short last lane: the line along the route
-                    sl, in_lane, _, d = rules.line_ahead(ego, STOP_ZONE_M)
-                    if sl is not None and (sl.kind == "stop" or rtor) and in_stop_zone(d):
-                        self._stopped.add(in_lane)
             # stops and line crossings count until the ego is on another road lane (a stop made
             # before a short last lane counts until the ego passes that lane's line)
             if self._stopped - {lid}:

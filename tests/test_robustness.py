@@ -13,6 +13,7 @@ from collections import Counter
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import feat2map
@@ -22,7 +23,7 @@ from feat2map.formats import native, read_map
 from feat2map.formats.opendrive.reader import SIGNAL_CODES
 from feat2map.scenarios.rollout import run_suite
 from feat2map.scenarios.routes import build_suite
-from feat2map.scenarios.scenario import Suite
+from feat2map.scenarios.scenario import Scenario, Suite, make_env
 
 LONG = os.environ.get("FEAT2MAP_LONG_TESTS") == "1"
 TRAFFIC = 6
@@ -225,3 +226,66 @@ def test_short_roads_before_a_stop_line_drive_clean(tmp_path):
     suite = build_suite(tmp_path / "short.xodr", traffic_vehicles=2)
     assert len(suite.scenarios) == 6  # every manoeuvre of the T
     assert _failures(suite) == []
+
+
+def _shorten_link(src: Path, dst: Path, length: float) -> None:
+    """Back-to-back junctions, as Shalun has them: the exported straight road between J0 and J1
+    (road 3, west to east, stop lines at both ends) cut to `length` metres, J1 and its roads
+    moved west by what was cut."""
+    from lxml import etree
+
+    root = etree.parse(str(src)).getroot()
+    roads = {r.get("id"): r for r in root.findall("road")}
+    link = roads["3"]
+    cut = float(link.get("length")) - length
+    geo = link.find("planView/geometry")
+    geo.remove(geo[0])
+    etree.SubElement(geo, "line")
+    geo.set("length", repr(length))
+    link.set("length", repr(length))
+    for sig in link.findall("signals/signal"):
+        sig.set("s", repr(min(float(sig.get("s")), length)))
+    east = [r for r in roads.values() if r.get("junction") == "2" or any(
+        e.get("elementType") == "junction" and e.get("elementId") == "2" for e in r.find("link")) and r is not link]
+    for r in east:
+        for g in r.findall("planView/geometry"):
+            g.set("x", repr(float(g.get("x")) - cut))
+    dst.write_bytes(etree.tostring(root))
+
+
+def test_back_to_back_stop_junctions_drive_clean(tmp_path):
+    """An OpenDRIVE map the test makes (two 4-way stop junctions joined by a 3 m road, as
+    Shalun's J_1 and J_14 are): a vehicle stopped at the second junction's line stands with its
+    centre inside the first; its stop counts there (it joins the second junction's stop-sign
+    queue, the ego's judge records it), so every route drives on (Shalun r001 and nine more
+    timed out with a car waiting forever at J_14's line inside J_1)."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "stop", False)
+    write_opendrive(feat2map.generate_from_features([four, four], seed=0), tmp_path / "twin.xodr")
+    _shorten_link(tmp_path / "twin.xodr", tmp_path / "back_to_back.xodr", 3.0)
+    m = read_map(tmp_path / "back_to_back.xodr")
+    link = [ln for ln in m.lanes.values() if ln.road_id == "3"]
+    assert len(link) == 2 and all(abs(ln.length - 3.0) < 1e-6 for ln in link)
+    assert {s.junction_id for s in m.stop_signs.values() if set(s.lane_ids) & {ln.id for ln in link}} == {"1", "2"}
+    suite = build_suite(tmp_path / "back_to_back.xodr", traffic_vehicles=0)
+    assert _failures(suite) == []
+    # traffic: a car that leaves J0 for J1 waits at J1's line inside J0, then drives on
+    held = Scenario("held", str(tmp_path / "back_to_back.xodr"), (("1", "2", "4"),), seed=0, duration=60.0)
+    env = make_env(held, config={"traffic_respawn": False})  # the ego waits on J0's south approach
+    env.reset(seed=0)
+    u = env.unwrapped
+
+    def through(jid: str, entry: str, exit_: str) -> str:
+        return next(ln.id for ln in m.lanes_by_junction[jid] if m.lanes[ln.predecessors[0]].road_id == entry
+                    and m.lanes[ln.successors[0]].road_id == exit_)
+
+    j0, j1 = through("1", "1", "3"), through("2", "3", "6")
+    route = [j0, m.lanes[j0].successors[0], j1, m.lanes[j1].successors[0]]
+    car = u.road.spawn(route[0], u.net.lane_of[route[0]].length - 8.0, 5.0, route)
+    for _ in range(40 * u.config["policy_frequency"]):
+        env.step(np.array([-1.0]))  # full brake: the ego stands
+        if u.net.id_of.get(car.lane_index) == route[-1]:
+            break
+    env.close()
+    assert u.net.id_of.get(car.lane_index) == route[-1]
