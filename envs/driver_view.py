@@ -20,7 +20,7 @@ import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.observation import ObservationType
 
-from .rules import STOP_ZONE_M, in_stop_zone
+from .rules import STOP_ZONE_M, TURN_NAMES, in_stop_zone
 
 DRIVER_VIEW_FEATURES = (
     "speed",  # ego speed / SPEED_SCALE_MPS
@@ -50,7 +50,6 @@ CONFLICT_DISTANCE_M = 60.0
 ARRIVAL_MIN_SPEED_MPS = 1.0  # times to arrival divide by at least this speed (a waiting car is not "never")
 PEDESTRIAN_SCALE_M = 30.0
 LEADER_SCALE_M = 40.0
-_TURNS = {"none": "straight", "left": "left", "right": "right"}
 _IGNORE_BUT_PEDESTRIANS = frozenset({"signal", "stop", "conflict"})
 
 
@@ -98,8 +97,8 @@ def driver_view(env) -> list[float]:
                    line_time=_scaled(d / max(ego.speed, ARRIVAL_MIN_SPEED_MPS), CONFLICT_TIME_S),
                    in_stop_zone=float(not in_junction and in_stop_zone(d)), in_junction=float(in_junction))
         out["signal" if sl is not None and sl.kind == "signal" else "stop" if sl is not None else "bare"] = 1.0
-        turn = _TURNS.get(m.lanes[j_lane].turn)
-        if turn:
+        turn = TURN_NAMES.get(m.lanes[j_lane].turn)
+        if turn in out:  # a U-turn has no feature of its own
             out[turn] = 1.0
         if sl is not None and sl.kind == "signal":
             out[rules.signal_state(sl.control_id)] = 1.0

@@ -1,17 +1,36 @@
-"""Train a Stable-Baselines3 PPO ego on a generated junction grid, then evaluate it by junction type.
+"""Train a Stable-Baselines3 PPO ego on every junction type of a generated grid, then evaluate it
+per (junction type, manoeuvre) against the rule-following ScriptedDriver.
 
-The map holds one junction per feature combination (road count n x control x crosswalk). The
-agent chooses target speeds (DiscreteMetaAction, longitudinal only: steering follows the route)
-from Kinematics plus the traffic-control vector (signal colour, stop sign, distance to the stop
-line, pedestrian ahead) with two features added by `StopLineFeatures` (stop-line closeness,
-full stop made). Printed: success rate and mean return of the untrained and the trained
-policy on a fixed evaluation set. Written to OUT: `success.csv`, `success.md` and `success.png`
-(success per (n, control, crosswalk, manoeuvre) for the trained and untrained policy and, as a
-reference, the rule-following ScriptedDriver), and `ppo_model.zip`.
+The map holds one junction per (road count n, control, crosswalk) combination. Each episode is
+one sampled manoeuvre through one junction with traffic and crosswalk pedestrians.
+- Action: a target speed (TARGET_SPEEDS) at 2 Hz; the `TargetSpeed` wrapper turns it into the
+  constant acceleration that reaches it by the next decision (bounded), steering follows the
+  route. Braking to 0 from a creeping speed stops within a metre, so the 6 m stop zone is easy to hit.
+- Observation: the env's `DriverView` (envs/driver_view.py): ego speed, distance to the stop line
+  (fine near it), control, manoeuvre, signal colour and time to change, protected movement, full
+  stop made, arrival-order queue, conflicting junction traffic with and without priority,
+  pedestrians in the path, the leader.
+- Reward (`TaskRewards` on the env's terms): route progress (1 for the route) + 1 on arrival,
+  -2 for a collision, leaving the road or a violation, each ending the episode (as they end a
+  success); +STOP_BONUS once for a full stop in the stop zone of a stop sign; -TIME_COST per
+  decision so that waiting is never free.
+- Training: PPO on `--n-envs` copies in subprocesses (torch single-threaded in every process)
+  for `--train-minutes` of wall time (or `--timesteps`, whichever ends first); each training
+  episode draws its traffic count from TRAIN_TRAFFIC.
+- Evaluation: `--episodes-per-cell` episodes per (junction type, manoeuvre) cell from fixed seeds
+  that training never draws (EVAL_SEED on), for PPO (deterministic) and the ScriptedDriver, in
+  parallel processes.
+
+Printed: the per-cell table, wall times of training and evaluation, the machine's load. Written
+to OUT: `summary.md` (the block of examples/README.md), `success.csv` / `success.md` (per cell:
+episodes, success, mean return of PPO and the scripted driver, PPO's failures by kind),
+`success.png` (heat maps), `learning_curve.csv` / `learning_curve.png` (training episodes'
+success and return against steps and wall time), `ppo_model.zip`, `run.json` (sizes, wall
+times, load).
 
 A success is a completed route without collision, leaving the road or any rule violation.
 
-Run: .venv/bin/python examples/train_ppo.py --out out/ppo [--timesteps 30000]
+Run: .venv/bin/python examples/train_ppo.py --out out/ppo
 Needs the `rl` extra: pip install torch==2.13.0 && pip install -e '.[rl]'
 """
 from __future__ import annotations
@@ -19,12 +38,14 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import json
+import multiprocessing as mp
 import os
 import time
 from collections import defaultdict
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Sequence
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
@@ -33,33 +54,37 @@ import numpy as np  # noqa: E402
 
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
-from feat2map.render import save_figure  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
-from feat2map.envs.traffic import STOP_ZONE_M, STOPPED_SPEED_MPS  # noqa: E402
+from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
+from feat2map.envs.rules import TURN_NAMES  # noqa: E402
+from feat2map.render import save_figure  # noqa: E402
 
 ROAD_ANGLES = {3: (0, 90, 180), 4: (0, 90, 180, 270)}
 CONTROLS = ("signal", "stop", "bare")
 MANOEUVRES = ("left", "straight", "right")
-TURN_NAMES = {"left": "left", "none": "straight", "right": "right"}
+FAILURES = ("collision", "off_road", "red_light", "stop_sign", "pedestrian_yield", "timeout")
 
-#: What the agent sees and does: target speeds at 2 Hz, steering follows the route.
-AGENT_CONFIG = {
-    "observation": {"type": "Kinematics", "vehicles_count": 6,
-                    "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"]},
-    "observe_traffic_control": True,
-    "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
-               "target_speeds": [0.0, 4.5, 9.0]},
-    "policy_frequency": 2,
-}
-#: The task: one junction per route, light traffic and pedestrians, violations cost more than
-#: the whole route's progress reward so that rushing through does not pay.
+TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the agent's actions
+ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s2] the TargetSpeed wrapper's bounds
+DECISION_HZ = 2
+#: What the agent sees and does: the driver's view of the rules; longitudinal acceleration
+#: (steering follows the route), set by the TargetSpeed wrapper.
+AGENT_CONFIG = {"observation": {"type": "DriverView"}, "action": DRIVER_ACTION_CONFIG,
+                "policy_frequency": DECISION_HZ, "simulation_frequency": 10}
+#: The task: one junction per route, traffic and pedestrians; the env's reward terms (the
+#: wrapper ends the episode on a violation, as it ends a success).
+FAILURE_PENALTY = -5.0
 TASK_CONFIG = {
-    "route_junctions": 1, "duration": 40.0, "traffic_vehicles": 4, "pedestrian_rate": 3.0,
-    "reward_progress": 1.0, "reward_arrived": 1.0, "reward_collision": -3.0, "reward_red_light": -2.0,
-    "reward_stop_sign": -2.0, "reward_pedestrian_yield": -2.0, "reward_off_road": -1.0,
+    "route_junctions": 1, "duration": 60.0, "traffic_vehicles": 4, "pedestrian_rate": 3.0,
+    "reward_progress": 1.0, "reward_arrived": 1.0,
+    **{f"reward_{k}": FAILURE_PENALTY for k in ("collision", "red_light", "stop_sign", "pedestrian_yield", "off_road")},
 }
-CLOSENESS_RANGE_M = 30.0
-EVAL_SEED = 10_000  # first seed of the fixed evaluation set (training uses seeds below it)
+TRAIN_TRAFFIC = (2, 8)  # training episodes draw their traffic count from this range (evaluation: 4)
+STOP_BONUS = 0.3
+TIME_COST = 0.002
+LOAD_SAMPLE_S = 30.0  # the machine's load average is sampled this often during training
+EVAL_SEED = 10_000  # first seed of the evaluation episodes (training envs are seeded below it)
+STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
 
 Policy = Callable[[object, gym.Env], object]  # (observation, env) -> action
 
@@ -77,37 +102,65 @@ def env_config(features: Sequence[feat2map.JunctionFeature], map_seed: int = 0, 
             "map_seed": map_seed, **overrides}
 
 
-class StopLineFeatures(gym.ObservationWrapper):
-    """Appends two features to the traffic-control vector: how close the next stop line is (1 at
-    the line .. 0 from CLOSENESS_RANGE_M on; the env's distance/100 spans only 0..0.06 in the 6 m
-    where a stop counts), and whether the ego has already made its full stop at the stop sign
-    ahead (without it, "stopped at the line" looks the same before and after the stop is made)."""
+class TargetSpeed(gym.ActionWrapper):
+    """Discrete target speeds over the env's longitudinal ContinuousAction: the constant
+    acceleration (within ACCELERATION_RANGE) that reaches the chosen speed by the next decision."""
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, speeds: Sequence[float] = TARGET_SPEEDS) -> None:
         super().__init__(env)
-        spaces = dict(env.observation_space.spaces)
-        spaces["traffic_control"] = gym.spaces.Box(0.0, 1.0, (spaces["traffic_control"].shape[0] + 2,), np.float32)
-        self.observation_space = gym.spaces.Dict(spaces)
-        self._stopped = False
+        self.speeds = tuple(speeds)
+        self.action_space = gym.spaces.Discrete(len(self.speeds))
+        u = env.unwrapped
+        self.period = 1.0 / u.config["policy_frequency"]
+        self.lo, self.hi = u.action_type.acceleration_range
+
+    def action(self, action) -> np.ndarray:
+        v = self.env.unwrapped.vehicle.speed
+        a = np.clip((self.speeds[int(action)] - v) / self.period, *ACCELERATION_RANGE)
+        return np.array([2 * (a - self.lo) / (self.hi - self.lo) - 1], dtype=np.float32)
+
+
+class TaskRewards(gym.Wrapper):
+    """The task's shaping on top of the env's reward: +STOP_BONUS when the full stop at a stop
+    sign is made (DriverView's stop_made turning on), -TIME_COST per decision; a violation ends
+    the episode (it already ends a success)."""
 
     def reset(self, **kwargs):
-        self._stopped = False
-        return super().reset(**kwargs)
+        obs, info = self.env.reset(**kwargs)
+        self._stopped = obs[STOP_MADE] > 0.5
+        return obs, info
 
-    def observation(self, obs: dict) -> dict:
-        tc = obs["traffic_control"]
-        distance = float(tc[4]) * 100.0
-        if tc[3] < 0.5:  # no stop sign ahead: forget the last stop
-            self._stopped = False
-        elif distance <= STOP_ZONE_M and self.env.unwrapped.vehicle.speed <= STOPPED_SPEED_MPS:
-            self._stopped = True
-        close = np.clip(1.0 - distance / CLOSENESS_RANGE_M, 0.0, 1.0)
-        return {**obs, "traffic_control": np.append(tc, [close, float(self._stopped)]).astype(np.float32)}
+    def step(self, action):
+        obs, r, term, trunc, info = self.env.step(action)
+        stopped = obs[STOP_MADE] > 0.5
+        r += STOP_BONUS * (stopped and not self._stopped) - TIME_COST
+        self._stopped = stopped
+        return obs, r, term or bool(info["new_violations"]), trunc, info
 
 
-def make_env(config: dict) -> gym.Env:
+class TrafficRange(gym.Wrapper):
+    """Training only: each episode draws its traffic count from [lo, hi], so that the agent meets
+    conflicting traffic more often (and sparser scenes too) than at the evaluation's fixed count."""
+
+    def __init__(self, env: gym.Env, lo: int, hi: int) -> None:
+        super().__init__(env)
+        self.lo, self.hi = lo, hi
+        self._rng = np.random.default_rng()
+
+    def reset(self, *, seed=None, options=None):
+        if seed is not None:
+            self._rng = np.random.default_rng(seed + 1)
+        self.env.unwrapped.configure({"traffic_vehicles": int(self._rng.integers(self.lo, self.hi + 1))})
+        return self.env.reset(seed=seed, options=options)
+
+
+def make_env(config: dict, agent: bool = True, traffic: tuple[int, int] | None = None) -> gym.Env:
+    """The env of `config`; with `agent`, wrapped into the agent's task (target speeds, rewards);
+    with `traffic` (training), a traffic count drawn per episode from that range."""
     env = gym.make("feat2map/JunctionGrid-v0", config=config)
-    return StopLineFeatures(env) if config.get("observe_traffic_control") else env
+    if traffic is not None:
+        env = TrafficRange(env, *traffic)
+    return TaskRewards(TargetSpeed(env)) if agent else env
 
 
 @dataclass(frozen=True)
@@ -120,6 +173,7 @@ class Outcome:
     violations: int
     ret: float
     steps: int
+    failure: str = ""  # the first of FAILURES that applies ("" for a success)
 
     @property
     def success(self) -> bool:
@@ -136,51 +190,57 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, route=None) -> Outcome:
         ret += float(r)
         steps += 1
         if term or trunc:
-            return Outcome(bool(info["route_completed"]), bool(info["collision"]), bool(info["off_road"]),
-                           int(sum(info["violations"].values())), ret, steps)
+            return outcome(info, ret, steps)
+
+
+def outcome(info: dict, ret: float, steps: int) -> Outcome:
+    """The Outcome of an episode from its last info."""
+    v = info["violations"]
+    flags = {"collision": info["collision"], "off_road": info["off_road"], **{k: v[k] > 0 for k in v},
+             "timeout": not info["route_completed"]}
+    failure = next((k for k in FAILURES if flags.get(k)), "")
+    return Outcome(bool(info["route_completed"]), bool(info["collision"]), bool(info["off_road"]),
+                   int(sum(v.values())), ret, steps, failure)
 
 
 def model_policy(model) -> Policy:
     """A deterministic policy from an SB3 model."""
-    return lambda obs, env: model.predict(obs, deterministic=True)[0]
+    return lambda obs, env: int(model.predict(obs, deterministic=True)[0])
 
 
 def scripted_policy(obs, env: gym.Env):
-    """The rule-following reference driver (needs DRIVER_ACTION_CONFIG)."""
+    """The rule-following reference driver (on the env without the agent's wrappers)."""
     return ScriptedDriver(env).act()
 
 
 def summarize(outcomes: Sequence[Outcome]) -> dict:
     n = max(len(outcomes), 1)
+    fails = {k: sum(o.failure == k for o in outcomes) for k in FAILURES}
     return {"episodes": len(outcomes), "success": sum(o.success for o in outcomes) / n,
             "completed": sum(o.completed for o in outcomes) / n, "return": sum(o.ret for o in outcomes) / n,
-            "collisions": sum(o.collision for o in outcomes), "violations": sum(o.violations for o in outcomes)}
-
-
-def evaluate(env: gym.Env, policy: Policy, seeds: Iterable[int]) -> dict:
-    """Success rate and mean return over sampled routes from fixed seeds."""
-    return summarize([run_episode(env, policy, s) for s in seeds])
+            "collisions": sum(o.collision for o in outcomes), "violations": sum(o.violations for o in outcomes),
+            "failures": fails}
 
 
 @dataclass(frozen=True)
 class Case:
-    """One evaluation route: a manoeuvre through a junction of a given type."""
+    """One evaluation cell: a manoeuvre through a junction of a given type, with its routes."""
 
     n: int
     control: str
     crosswalk: bool
     manoeuvre: str
-    route: tuple[tuple[str, str, str], ...]
+    routes: tuple[tuple[tuple[str, str, str], ...], ...]
 
     @property
     def key(self) -> tuple[int, str, bool, str]:
         return (self.n, self.control, self.crosswalk, self.manoeuvre)
 
 
-def junction_cases(hdmap, per_manoeuvre: int = 2) -> list[Case]:
-    """Up to `per_manoeuvre` (entry, exit) pairs per junction and manoeuvre, as one-junction routes."""
+def junction_cases(hdmap) -> list[Case]:
+    """One cell per junction and manoeuvre, with every (entry, exit) pair of it as a one-junction route."""
     cases = []
-    for jid in sorted(hdmap.junctions):
+    for jid in sorted(hdmap.junctions, key=lambda j: (len(j), j)):
         f = hdmap.junctions[jid].feature
         by_turn: dict[str, list[tuple[str, str, str]]] = defaultdict(list)
         for ln in sorted(hdmap.lanes_by_junction.get(jid, []), key=lambda ln: ln.id):
@@ -191,30 +251,68 @@ def junction_cases(hdmap, per_manoeuvre: int = 2) -> list[Case]:
             if m not in by_turn[turn]:
                 by_turn[turn].append(m)
         for turn in MANOEUVRES:
-            for m in by_turn[turn][:per_manoeuvre]:
-                cases.append(Case(len(f.sockets), f.control, f.crosswalk, turn, (m,)))
+            if by_turn[turn]:
+                cases.append(Case(len(f.sockets), f.control, f.crosswalk, turn, tuple((m,) for m in by_turn[turn])))
     return cases
 
 
-def evaluate_cases(cases: Sequence[Case], policies: dict[str, tuple[gym.Env, Policy]], seeds: Sequence[int],
-                   progress: bool = True) -> list[dict]:
-    """Success table rows per (n, control, crosswalk, manoeuvre), one column group per policy."""
+# ---- evaluation in worker processes -------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _init_worker(config: dict, model_bytes: bytes | None) -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    _WORKER["scripted"] = (make_env(config, agent=False), scripted_policy)
+    if model_bytes is not None:
+        model = PPO.load(io.BytesIO(model_bytes), device="cpu")
+        _WORKER["ppo"] = (make_env(config), model_policy(model))
+
+
+def _run_job(job: tuple[str, int, tuple, int]) -> tuple[str, int, Outcome]:
+    name, case_index, route, seed = job
+    env, policy = _WORKER[name]
+    return name, case_index, run_episode(env, policy, seed, route)
+
+
+def evaluate_cases(config: dict, cases: Sequence[Case], model_bytes: bytes | None, episodes: int,
+                   workers: int, progress: bool = True) -> tuple[list[dict], dict]:
+    """Per cell, `episodes` episodes (its routes in turn, seeds EVAL_SEED + i) of PPO (when
+    `model_bytes`) and the scripted driver, over `workers` processes: one table row per cell,
+    and each policy's summary over all cells."""
     from tqdm import tqdm
 
-    results: dict[tuple, dict[str, list[Outcome]]] = defaultdict(lambda: defaultdict(list))
-    jobs = [(c, name, s) for c in cases for name in policies for s in seeds]
-    for case, name, seed in tqdm(jobs, desc="evaluating", disable=not progress, unit="ep"):
-        env, policy = policies[name]
-        results[case.key][name].append(run_episode(env, policy, seed, case.route))
+    names = ["ppo", "scripted"] if model_bytes is not None else ["scripted"]
+    jobs = [(name, ci, c.routes[i % len(c.routes)], EVAL_SEED + i)
+            for ci, c in enumerate(cases) for i in range(episodes) for name in names]
+    results: dict[int, dict[str, list[Outcome]]] = defaultdict(lambda: defaultdict(list))
+    bar = tqdm(total=len(jobs), desc="evaluating", disable=not progress, unit="ep", mininterval=5.0)
+    if workers > 1:
+        with mp.get_context("fork").Pool(workers, _init_worker, (config, model_bytes)) as pool:
+            for name, ci, o in pool.imap_unordered(_run_job, jobs, chunksize=4):
+                results[ci][name].append(o)
+                bar.update()
+    else:
+        _init_worker(config, model_bytes)
+        for job in jobs:
+            name, ci, o = _run_job(job)
+            results[ci][name].append(o)
+            bar.update()
+    bar.close()
     rows = []
-    for key in sorted(results, key=lambda k: (k[0], CONTROLS.index(k[1]), not k[2], MANOEUVRES.index(k[3]))):
-        row = {"n": key[0], "control": key[1], "crosswalk": key[2], "manoeuvre": key[3]}
-        for name in policies:
-            s = summarize(results[key][name])
-            row["episodes"] = s["episodes"]
+    for ci, c in enumerate(cases):
+        row = {"n": c.n, "control": c.control, "crosswalk": c.crosswalk, "manoeuvre": c.manoeuvre,
+               "episodes": episodes}
+        for name in names:
+            s = summarize(results[ci][name])
             row.update({f"{name}_success": round(s["success"], 3), f"{name}_return": round(s["return"], 3)})
+            if name == "ppo":
+                row["ppo_failures"] = " ".join(f"{k}:{v}" for k, v in s["failures"].items() if v) or "-"
         rows.append(row)
-    return rows
+    rows.sort(key=lambda r: (r["n"], CONTROLS.index(r["control"]), not r["crosswalk"], MANOEUVRES.index(r["manoeuvre"])))
+    return rows, {name: summarize([o for ci in results for o in results[ci][name]]) for name in names}
 
 
 def rows_csv(rows: Sequence[dict]) -> str:
@@ -232,18 +330,16 @@ def rows_markdown(rows: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot(rows: Sequence[dict], names: Sequence[str], fixed: dict[str, dict], path: Path) -> None:
-    """Heat maps of success per junction type (rows) and manoeuvre (columns), one per policy,
-    and a bar chart of success and return on the fixed evaluation set."""
+def plot_cells(rows: Sequence[dict], names: Sequence[str], path: Path) -> None:
+    """Heat maps of success per junction type (rows) and manoeuvre (columns), one per policy."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     types = list(dict.fromkeys((r["n"], r["control"], r["crosswalk"]) for r in rows))
-    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.2 * len(names) + 4, 0.42 * len(types) + 2.2),
-                             gridspec_kw={"width_ratios": [1.0] * len(names) + [1.1]})
-    for ax, name in zip(axes, names):
+    fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names) + 1.2, 0.42 * len(types) + 1.6), squeeze=False)
+    for ax, name in zip(axes[0], names):
         grid = np.full((len(types), len(MANOEUVRES)), np.nan)
         for r in rows:
             grid[types.index((r["n"], r["control"], r["crosswalk"])), MANOEUVRES.index(r["manoeuvre"])] = \
@@ -253,52 +349,99 @@ def plot(rows: Sequence[dict], names: Sequence[str], fixed: dict[str, dict], pat
             ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=8)
         ax.set_xticks(range(len(MANOEUVRES)), MANOEUVRES, fontsize=8)
         ax.set_yticks(range(len(types)), [f"n={n} {c}{' +cw' if cw else ''}" for n, c, cw in types], fontsize=8)
-        ax.set_title(f"success: {name}", fontsize=9)
-        if ax is not axes[0]:
+        ax.set_title(f"success: {name} ({rows[0]['episodes']} episodes per cell)", fontsize=9)
+        if ax is not axes[0][0]:
             ax.set_yticklabels([])
-    ax = axes[-1]
-    labels = list(fixed)
-    x = np.arange(len(labels))
-    ax.bar(x - 0.2, [fixed[k]["success"] for k in labels], 0.4, label="success rate")
-    ax.bar(x + 0.2, [fixed[k]["return"] for k in labels], 0.4, label="mean return")
-    ax.set_xticks(x, labels, fontsize=8)
-    ax.axhline(0, color="k", lw=0.5)
-    ax.set_title("fixed evaluation set", fontsize=9)
-    ax.legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path)
 
 
-def build_model(config: dict, n_envs: int, seed: int, n_steps: int, batch_size: int):
-    """An untrained PPO on `n_envs` copies of the env (each with its own seed stream)."""
+def plot_curve(curve: Sequence[dict], path: Path, window: int = 200) -> None:
+    """Rolling success rate and return of the training episodes against steps (wall time on top)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = np.array([c["steps"] for c in curve], dtype=float)
+    wall = np.array([c["wall_s"] for c in curve], dtype=float)
+    w = max(1, min(window, len(curve)))
+    kernel = np.ones(w) / w
+    succ = np.convolve([c["success"] for c in curve], kernel, mode="valid")
+    ret = np.convolve([c["return"] for c in curve], kernel, mode="valid")
+    x = steps[w - 1:]
+    fig, ax = plt.subplots(figsize=(7, 3.8))
+    ax.plot(x, succ, color="tab:green", label=f"success (last {w} training episodes)")
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("environment steps (decisions)")
+    ax.set_ylabel("success rate")
+    ax2 = ax.twinx()
+    ax2.plot(x, ret, color="tab:blue", alpha=0.7, label="mean return")
+    ax2.set_ylabel("return")
+    if len(steps) > 1:
+        top = ax.secondary_xaxis("top", functions=(lambda s: np.interp(s, steps, wall / 60),
+                                                   lambda m: np.interp(m, wall / 60, steps)))
+        top.set_xlabel("training wall time [min]")
+    lines = ax.get_lines() + ax2.get_lines()
+    ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="lower right")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+# ---- training ---------------------------------------------------------------------------------------
+def build_model(config: dict, rc: "RunConfig"):
+    """An untrained PPO on `rc.n_envs` monitored copies of the agent's env (each its own seed
+    stream), in subprocesses when `rc.subprocess`."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     torch.set_num_threads(1)
-    venv = make_vec_env(lambda: make_env(config), n_envs=n_envs, seed=seed)
-    return PPO("MultiInputPolicy", venv, n_steps=n_steps, batch_size=batch_size, n_epochs=8, gamma=0.99,
-               learning_rate=5e-4, ent_coef=0.01, policy_kwargs={"net_arch": [64, 64]}, seed=seed, verbose=0,
-               device="cpu")
+    vec_cls, vec_kwargs = (SubprocVecEnv, {"start_method": "fork"}) if rc.subprocess else (DummyVecEnv, None)
+    venv = make_vec_env(make_env, n_envs=rc.n_envs, seed=rc.seed,
+                        env_kwargs={"config": config, "traffic": rc.train_traffic},
+                        vec_env_cls=vec_cls, vec_env_kwargs=vec_kwargs)
+    return PPO("MlpPolicy", venv, n_steps=rc.n_steps, batch_size=rc.batch_size, n_epochs=rc.n_epochs,
+               gamma=rc.gamma, gae_lambda=0.95, learning_rate=rc.learning_rate, ent_coef=rc.ent_coef,
+               policy_kwargs={"net_arch": list(rc.net_arch)}, seed=rc.seed, verbose=0, device="cpu")
 
 
-def progress_bar(total: int, enabled: bool):
-    """An SB3 callback showing training steps with tqdm."""
+def training_log(total: int, enabled: bool, minutes: float | None = None):
+    """An SB3 callback: a tqdm bar over training steps showing the recent success rate, and the
+    learning curve (one record per finished training episode) in `.curve`; training stops once
+    `minutes` of wall time have passed."""
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
 
-    class _Bar(BaseCallback):
+    class _Log(BaseCallback):
         def _on_training_start(self) -> None:
-            self.bar = tqdm(total=total, desc="training", unit="step", disable=not enabled)
+            self.bar = tqdm(total=total, desc="training", unit="step", disable=not enabled, mininterval=5.0)
+            self.t0 = self.t_load = time.perf_counter()
+            self.curve: list[dict] = []
+            self.loads = [os.getloadavg()[0]]
 
         def _on_step(self) -> bool:
             self.bar.update(self.training_env.num_envs)
-            return True
+            for done, info in zip(self.locals["dones"], self.locals["infos"]):
+                if done and "episode" in info:
+                    o = outcome(info, float(info["episode"]["r"]), int(info["episode"]["l"]))
+                    self.curve.append({"steps": self.num_timesteps, "wall_s": round(time.perf_counter() - self.t0, 2),
+                                       "success": int(o.success), "return": round(o.ret, 4), "failure": o.failure})
+            if self.curve and self.n_calls % 50 == 0:
+                recent = self.curve[-200:]
+                self.bar.set_postfix(success=f"{np.mean([c['success'] for c in recent]):.2f}",
+                                     episodes=len(self.curve))
+            now = time.perf_counter()
+            if now - self.t_load > LOAD_SAMPLE_S:
+                self.loads.append(os.getloadavg()[0])
+                self.t_load = now
+            return minutes is None or now - self.t0 < 60.0 * minutes
 
         def _on_training_end(self) -> None:
             self.bar.close()
 
-    return _Bar()
+    return _Log()
 
 
 @dataclass(frozen=True)
@@ -306,78 +449,129 @@ class RunConfig:
     """Sizes of one training + evaluation run (the smoke test uses tiny ones)."""
 
     features: tuple = tuple(junction_features())
-    timesteps: int = 60_000
+    timesteps: int = 2_000_000  # at most; training also ends after train_minutes
+    train_minutes: float | None = 24.0
+    train_traffic: tuple[int, int] | None = TRAIN_TRAFFIC
     n_envs: int = 4
-    n_steps: int = 256
-    batch_size: int = 128
-    eval_episodes: int = 40
-    per_manoeuvre: int = 2
-    case_seeds: tuple[int, ...] = (EVAL_SEED + 500,)
+    subprocess: bool = True
+    n_steps: int = 512  # per env and rollout
+    batch_size: int = 256
+    n_epochs: int = 6
+    gamma: float = 0.998
+    learning_rate: float = 3e-4
+    ent_coef: float = 0.01
+    net_arch: tuple[int, ...] = (128, 128)
+    episodes_per_cell: int = 20
+    eval_workers: int = 2
     seed: int = 0
     progress: bool = True
+    extra: dict = field(default_factory=dict)  # env config overrides
 
 
 def run(out: Path, rc: RunConfig = RunConfig()) -> dict:
-    """Train, evaluate before/after on the fixed set and per junction type; write the tables."""
-    from stable_baselines3 import PPO
-
-    config = env_config(rc.features)
-    model = build_model(config, rc.n_envs, rc.seed, rc.n_steps, rc.batch_size)
-    untrained = PPO.load(_saved(model), device="cpu")  # a frozen copy of the initial weights
-    eval_env = make_env(config)
-    seeds = range(EVAL_SEED, EVAL_SEED + rc.eval_episodes)
-    before = evaluate(eval_env, model_policy(untrained), seeds)
-    t = time.perf_counter()
-    model.learn(total_timesteps=rc.timesteps, callback=progress_bar(rc.timesteps, rc.progress))
-    train_s = time.perf_counter() - t
-    after = evaluate(eval_env, model_policy(model), seeds)
+    """Train, evaluate per (junction type, manoeuvre) against the scripted driver; write the
+    tables, the learning curve, the model and the wall times."""
+    config = env_config(rc.features, **rc.extra)
+    t_start = time.perf_counter()
+    model = build_model(config, rc)
+    log = training_log(rc.timesteps, rc.progress, rc.train_minutes)
+    model.learn(total_timesteps=rc.timesteps, callback=log)
+    model.get_env().close()
+    train_s = time.perf_counter() - t_start
     out.mkdir(parents=True, exist_ok=True)
-    atomic.write_bytes(out / "ppo_model.zip", _saved(model).getvalue())
+    model_bytes = _saved(model)
+    atomic.write_bytes(out / "ppo_model.zip", model_bytes)
+    curve = log.curve
+    if curve:
+        atomic.write_text(out / "learning_curve.csv", rows_csv(curve))
+        plot_curve(curve, out / "learning_curve.png")
 
-    scripted_env = make_env(env_config(rc.features, action=DRIVER_ACTION_CONFIG, policy_frequency=5))
-    policies = {"ppo": (eval_env, model_policy(model)), "untrained": (eval_env, model_policy(untrained)),
-                "scripted": (scripted_env, scripted_policy)}
-    cases = junction_cases(eval_env.unwrapped.net.hdmap, rc.per_manoeuvre)
-    rows = evaluate_cases(cases, policies, rc.case_seeds, rc.progress)
+    t_eval = time.perf_counter()
+    cases = junction_cases(make_env(config, agent=False).unwrapped.net.hdmap)
+    rows, totals = evaluate_cases(config, cases, model_bytes, rc.episodes_per_cell, rc.eval_workers, rc.progress)
+    eval_s = time.perf_counter() - t_eval
+    overall = {name: round(float(np.mean([r[f"{name}_success"] for r in rows])), 3) for name in ("ppo", "scripted")}
+    worst = min(rows, key=lambda r: r["ppo_success"])
+    timing = {"train_s": round(train_s, 1), "eval_s": round(eval_s, 1), "total_s": round(train_s + eval_s, 1),
+              "load_avg_1min": load_summary(log.loads + [os.getloadavg()[0]]), "timesteps": int(model.num_timesteps),
+              "training_episodes": len(curve), "cells": len(rows), "episodes_per_cell": rc.episodes_per_cell,
+              "mean_cell_success": overall, "min_cell_success_ppo": worst["ppo_success"],
+              "cells_below_0.9": sum(r["ppo_success"] < 0.9 for r in rows),
+              "ppo_failures": {k: v for k, v in totals["ppo"]["failures"].items() if v}}
     atomic.write_text(out / "success.csv", rows_csv(rows))
-    fixed = {"untrained": before, "ppo": after}
-    header = (f"PPO, {rc.timesteps} steps ({train_s:.0f} s), {len(rc.features)} junction types; fixed set of "
-              f"{rc.eval_episodes} sampled routes: success {before['success']:.2f} -> {after['success']:.2f}, "
-              f"mean return {before['return']:.2f} -> {after['return']:.2f}\n\n")
+    header = (f"PPO, {timing['timesteps']} steps ({train_s / 60:.1f} min training, {eval_s / 60:.1f} min evaluation), "
+              f"{len(rc.features)} junction types, {rc.episodes_per_cell} episodes per cell: mean cell success "
+              f"{overall['ppo']:.3f} (scripted {overall['scripted']:.3f}), lowest cell {worst['ppo_success']:.2f}, "
+              f"{timing['cells_below_0.9']} of {len(rows)} cells below 0.9\n\n")
     atomic.write_text(out / "success.md", header + rows_markdown(rows))
-    plot(rows, list(policies), fixed, out / "success.png")
-    return {"before": before, "after": after, "train_seconds": train_s, "rows": rows}
+    plot_cells(rows, ["ppo", "scripted"], out / "success.png")
+    atomic.write_text(out / "summary.md", summary_markdown(rows, timing, rc))
+    cfg = {k: v for k, v in asdict(rc).items() if k != "features"}
+    atomic.write_text(out / "run.json", json.dumps({"timing": timing, "run_config": cfg}, indent=1, default=str))
+    return {"rows": rows, "curve": curve, **timing}
 
 
-def _saved(model) -> io.BytesIO:
+def summary_markdown(rows: Sequence[dict], timing: dict, rc: RunConfig) -> str:
+    """The run for examples/README.md: sizes, wall times, machine load, success per cell (PPO,
+    the scripted driver in brackets) as junction type x manoeuvre, PPO's failures."""
+    load = timing["load_avg_1min"]
+    fails = ", ".join(f"{k} {v}" for k, v in timing["ppo_failures"].items()) or "none"
+    below = [f"n={r['n']} {r['control']}{' +cw' if r['crosswalk'] else ''} {r['manoeuvre']} ({r['ppo_success']:.2f})"
+             for r in rows if r["ppo_success"] < 0.9]
+    lines = [f"- training: {timing['timesteps']:,} steps ({timing['training_episodes']:,} episodes) in "
+             f"{timing['train_s'] / 60:.1f} min ({rc.n_envs} subprocess envs); evaluation: {timing['episodes_per_cell']} "
+             f"episodes per cell for PPO and for the scripted driver, {timing['cells']} cells, {rc.eval_workers} "
+             f"processes, {timing['eval_s'] / 60:.1f} min; **total {timing['total_s'] / 60:.1f} min**",
+             f"- machine load during training (1-min load average, 2 cores): min {load['min']}, mean {load['mean']}, "
+             f"max {load['max']}",
+             f"- mean cell success: PPO **{timing['mean_cell_success']['ppo']:.3f}**, scripted driver "
+             f"{timing['mean_cell_success']['scripted']:.3f}; lowest PPO cell {timing['min_cell_success_ppo']:.2f}; "
+             f"cells below 0.9: {len(below)} of {timing['cells']}" + (f" ({'; '.join(below)})" if below else ""),
+             f"- PPO's failed episodes by first cause: {fails}", "",
+             f"| junction (success: PPO (scripted), {timing['episodes_per_cell']} episodes per cell) | "
+             + " | ".join(MANOEUVRES) + " |", "|---|" + "---|" * len(MANOEUVRES)]
+    types = list(dict.fromkeys((r["n"], r["control"], r["crosswalk"]) for r in rows))
+    for n, c, cw in types:
+        cell = {r["manoeuvre"]: r for r in rows if (r["n"], r["control"], r["crosswalk"]) == (n, c, cw)}
+        vals = [f"{cell[m]['ppo_success']:.2f} ({cell[m]['scripted_success']:.2f})" if m in cell else "–"
+                for m in MANOEUVRES]
+        lines.append(f"| n={n} {c}{', crosswalk' if cw else ''} | " + " | ".join(vals) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def load_summary(loads: Sequence[float]) -> dict:
+    """min / mean / max of load-average samples (the machine's load while this ran)."""
+    return {"min": round(min(loads), 2), "mean": round(float(np.mean(loads)), 2), "max": round(max(loads), 2)}
+
+
+def _saved(model) -> bytes:
     buf = io.BytesIO()
     model.save(buf)
-    buf.seek(0)
-    return buf
+    return buf.getvalue()
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/ppo")
-    ap.add_argument("--timesteps", type=int, default=RunConfig.timesteps)
-    ap.add_argument("--eval-episodes", type=int, default=RunConfig.eval_episodes)
+    ap.add_argument("--timesteps", type=int, default=RunConfig.timesteps, help="at most this many training steps")
+    ap.add_argument("--train-minutes", type=float, default=RunConfig.train_minutes,
+                    help="training ends after this wall time (0: only --timesteps ends it)")
+    ap.add_argument("--n-envs", type=int, default=RunConfig.n_envs)
+    ap.add_argument("--episodes-per-cell", type=int, default=RunConfig.episodes_per_cell)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    if args.timesteps < 1 or args.eval_episodes < 1:
-        ap.error("--timesteps and --eval-episodes must be positive")
+    if args.timesteps < 1 or args.episodes_per_cell < 1 or args.n_envs < 1 or args.train_minutes < 0:
+        ap.error("--timesteps, --n-envs and --episodes-per-cell must be positive, --train-minutes not negative")
     try:
         import stable_baselines3  # noqa: F401
     except ImportError:
         ap.exit(2, "train_ppo: needs the rl extra: pip install torch==2.13.0 && pip install -e '.[rl]'\n")
-    rc = replace(RunConfig(), timesteps=args.timesteps, eval_episodes=args.eval_episodes, seed=args.seed)
-    res = run(Path(args.out), rc)
-    b, a = res["before"], res["after"]
-    print(f"trained {rc.timesteps} steps in {res['train_seconds']:.0f} s")
-    print(f"{'policy':10s} {'success':>8s} {'completed':>9s} {'return':>7s} {'violations':>10s} {'collisions':>10s}")
-    for name, s in (("untrained", b), ("ppo", a)):
-        print(f"{name:10s} {s['success']:8.2f} {s['completed']:9.2f} {s['return']:7.2f} {s['violations']:10d} "
-              f"{s['collisions']:10d}")
-    print(f"per junction type: {args.out}/success.md, success.csv, success.png")
+    rc = replace(RunConfig(), timesteps=args.timesteps, train_minutes=args.train_minutes or None, n_envs=args.n_envs,
+                 episodes_per_cell=args.episodes_per_cell, seed=args.seed)
+    run(Path(args.out), rc)
+    print((Path(args.out) / "summary.md").read_text(encoding="utf-8"))
+    print(f"written: {args.out}/summary.md, success.md, success.csv, success.png, learning_curve.png, ppo_model.zip, "
+          "run.json")
     return 0
 
 

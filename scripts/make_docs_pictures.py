@@ -4,7 +4,8 @@ atomically and prints them.
 
     .venv/bin/python scripts/make_docs_pictures.py              # the fast pictures (about a minute)
     .venv/bin/python scripts/make_docs_pictures.py --slow       # also the slow ones (see --list): the
-        # M1 vs M1x3 rollout comparison (~10 min), docs/benchmarks.md (~10 min) and docs/experiments/ (hours)
+        # M1 vs M1x3 rollout comparison (~10 min), docs/benchmarks.md (~10 min), docs/experiments/ (hours)
+        # and the PPO run of examples/README.md (~30 min; take it on a quiet machine)
     .venv/bin/python scripts/make_docs_pictures.py --only m1 drive
 
 Jobs that read the real maps skip (saying so) when ../shared/maps is absent; the netconvert
@@ -185,6 +186,16 @@ def experiments(tmp: Path) -> list[Path]:
     return sorted((DOCS / "experiments").iterdir())
 
 
+def ppo(tmp: Path) -> list[Path]:
+    """The reported PPO run (examples/train_ppo.py, ~30 min on 2 cores): its pictures, and its
+    per-cell table and wall times in examples/README.md. Take it on a quiet machine."""
+    run_python("examples/train_ppo.py", "--out", str(tmp / "ppo"))
+    readme = REPO / "examples" / "README.md"
+    replace_marked(readme, "ppo", (tmp / "ppo" / "summary.md").read_text(encoding="utf-8").strip())
+    return [copy(tmp / "ppo" / "learning_curve.png", "ppo_learning_curve.png"),
+            copy(tmp / "ppo" / "success.png", "ppo_success.png"), readme]
+
+
 JOBS = [
     Job("m1", "docs/m1.png, docs/m1_junctions.png (README)", m1),
     Job("drive", "docs/drive.png", drive),
@@ -198,6 +209,8 @@ JOBS = [
     Job("benchmarks", "docs/benchmarks.md (benchmarks/run_all.py)", benchmarks, slow=True),
     Job("experiments", "docs/experiments/ (examples/experiments.py --rq all)", experiments, slow=True,
         needs_shared=True),
+    Job("ppo", "docs/ppo_learning_curve.png, docs/ppo_success.png and the table in examples/README.md "
+        "(examples/train_ppo.py, ~30 min)", ppo, slow=True),
 ]
 
 

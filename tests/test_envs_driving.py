@@ -13,7 +13,8 @@ import pytest
 
 import feat2map
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
-from feat2map.envs.traffic import STOP_ZONE_M, Pedestrian, TrafficVehicle
+from feat2map.envs.rules import STOP_ZONE_M
+from feat2map.envs.vehicles import Pedestrian, TrafficVehicle
 
 J = feat2map.JunctionFeature.make
 FOUR = [0, 90, 180, 270]

@@ -1,9 +1,10 @@
-"""Smoke version of examples/train_ppo.py: a tiny PPO training and the per-junction-type
-evaluation through the same code path (`run`), on a two-junction map."""
+"""Smoke version of examples/train_ppo.py: a tiny PPO training and the per-cell evaluation through
+the same code path (`run`) on a two-junction map, and the task's wrappers (target speeds, rewards)."""
 from __future__ import annotations
 
 import csv
 import importlib.util
+import json
 import os
 import sys
 from dataclasses import replace
@@ -12,7 +13,6 @@ from pathlib import Path
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-import numpy as np
 import pytest
 
 pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
@@ -34,75 +34,98 @@ def tp():
 def tiny(tp):
     feats = (*tp.junction_features(ns=(4,), controls=("signal",), crosswalks=(True,)),
              *tp.junction_features(ns=(3,), controls=("stop",), crosswalks=(False,)))
-    return replace(tp.RunConfig(), features=feats, timesteps=256, n_envs=2, n_steps=64, batch_size=64,
-                   eval_episodes=2, per_manoeuvre=1, case_seeds=(7,), progress=False)
+    return replace(tp.RunConfig(), features=feats, timesteps=256, n_envs=2, subprocess=False, n_steps=64,
+                   batch_size=64, n_epochs=2, episodes_per_cell=1, eval_workers=1, progress=False)
 
 
 def test_tiny_training_and_success_table(tp, tiny, tmp_path):
     res = tp.run(tmp_path, tiny)
-    for name in ("success.csv", "success.md", "success.png", "ppo_model.zip"):
+    for name in ("success.csv", "success.md", "success.png", "ppo_model.zip", "run.json"):
         assert (tmp_path / name).stat().st_size > 100, name
-    assert res["before"]["episodes"] == res["after"]["episodes"] == 2
     with open(tmp_path / "success.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     keys = {(int(r["n"]), r["control"], r["crosswalk"] == "True", r["manoeuvre"]) for r in rows}
     # one row per junction type and manoeuvre the map offers: 4-leg signal + crosswalk, 3-leg stop
-    hdmap = tp.make_env(tp.env_config(tiny.features)).unwrapped.net.hdmap
+    hdmap = tp.make_env(tp.env_config(tiny.features), agent=False).unwrapped.net.hdmap
     assert keys == {c.key for c in tp.junction_cases(hdmap)}
     assert {k[:3] for k in keys} == {(4, "signal", True), (3, "stop", False)}
     assert {"left", "straight", "right"} <= {k[3] for k in keys}
     for r in rows:
-        for name in ("ppo", "untrained", "scripted"):
-            assert 0.0 <= float(r[f"{name}_success"]) <= 1.0
+        assert int(r["episodes"]) == 1
+        assert 0.0 <= float(r["ppo_success"]) <= 1.0
+        assert (r["ppo_failures"] == "-") == (float(r["ppo_success"]) == 1.0)
         # the rule-following reference driver succeeds everywhere: the evaluation itself is sound
         assert float(r["scripted_success"]) == 1.0, r
     md = (tmp_path / "success.md").read_text()
     assert "success" in md and md.count("\n| ") == len(rows) + 1
+    summary = (tmp_path / "summary.md").read_text()  # for examples/README.md: one table row per junction type
+    assert summary.count("\n| n=") == 2 and "total" in summary and "machine load" in summary
+    timing = json.loads((tmp_path / "run.json").read_text())["timing"]
+    assert timing["total_s"] == pytest.approx(timing["train_s"] + timing["eval_s"], abs=0.2)
+    assert timing["cells"] == len(rows) == res["cells"]
+    if res["curve"]:  # training episodes that ended: the learning curve
+        assert (tmp_path / "learning_curve.png").stat().st_size > 100
+        assert res["curve"][-1]["steps"] <= tiny.timesteps
 
 
-def test_outcome_counts_only_clean_completions(tp, tiny):
-    env = tp.make_env(tp.env_config(tiny.features))
-    brake = lambda obs, env: 0  # DiscreteMetaAction longitudinal-only: 0 = SLOWER
-    o = tp.run_episode(env, brake, seed=3)
-    assert not o.completed and not o.success and o.steps == int(tp.TASK_CONFIG["duration"] * 2)
+def _single(tp, control, **config):
+    feats = tp.junction_features(ns=(4,), controls=(control,), crosswalks=(False,))
+    return tp.make_env(tp.env_config(feats, traffic_vehicles=0, pedestrian_rate=0.0, **config))
+
+
+def test_target_speeds_are_reached_by_the_next_decision(tp):
+    env = _single(tp, "bare")
+    env.reset(seed=0)
+    ego = env.unwrapped.vehicle
+    for i in (3, 2, 1, 0, 0):  # 5.0, 3.0, 1.5, 0 m/s, each within the acceleration bounds from the last
+        env.step(i)
+        assert ego.speed == pytest.approx(tp.TARGET_SPEEDS[i], abs=0.05)
+    _, _, _, _, info = env.step(0)
+    assert info["speed"] == 0.0
+
+
+def test_stop_bonus_once_and_a_violation_ends_the_episode(tp):
+    env = _single(tp, "stop")
+    obs, _ = env.reset(seed=0)
+    rewards, stops = [], []
+    while True:  # creep to the line, stop in the zone, then go
+        near, stop, inside = (obs[tp.DRIVER_VIEW_FEATURES.index(f)] for f in ("line_near", "stop", "in_junction"))
+        go = obs[tp.STOP_MADE] > 0.5 or stop == 0 or inside
+        action = 4 if go else (0 if near < 0.4 else 2 if near < 1 else 3)
+        obs, r, term, trunc, info = env.step(action)
+        rewards.append(r)
+        stops.append(obs[tp.STOP_MADE] > 0.5)
+        if term or trunc:
+            break
+    assert info["route_completed"] and info["violations"]["stop_sign"] == 0
+    first = stops.index(True)
+    assert rewards[first] > tp.STOP_BONUS - tp.TIME_COST - 0.05 and sum(stops[first:]) >= 1
+    assert sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1  # the bonus once (the last step: arrival)
+
+    obs, _ = env.reset(seed=0)
+    for steps in range(200):  # full speed through the stop sign
+        obs, r, term, trunc, info = env.step(len(tp.TARGET_SPEEDS) - 1)
+        if term or trunc:
+            break
+    assert term and info["violations"]["stop_sign"] == 1 and not info["route_completed"]
+    assert r < -1.5
+    o = tp.outcome(info, 0.0, steps)
+    assert not o.success and o.failure == "stop_sign"
+
+
+def test_outcome_counts_only_clean_completions(tp):
+    env = _single(tp, "bare")
+    o = tp.run_episode(env, lambda obs, env: 0, seed=3)  # target speed 0: never arrives
+    assert not o.completed and not o.success and o.failure == "timeout"
+    assert o.steps == int(tp.TASK_CONFIG["duration"] * tp.DECISION_HZ)
     assert tp.Outcome(True, False, False, 1, 1.0, 5).success is False
     assert tp.Outcome(True, False, False, 0, 1.0, 5).success is True
     s = tp.summarize([o, tp.Outcome(True, False, False, 0, 2.0, 5)])
     assert s["success"] == 0.5 and s["return"] == pytest.approx((o.ret + 2.0) / 2)
+    assert s["failures"]["timeout"] == 1
 
 
 def test_bad_arguments_exit_2(tp, capsys):
     with pytest.raises(SystemExit) as e:
         tp.main(["--timesteps", "0"])
     assert e.value.code == 2 and "timesteps" in capsys.readouterr().err
-
-
-def test_model_policy_drives_the_eval_env(tp, tiny):
-    from stable_baselines3 import PPO
-
-    env = tp.make_env(tp.env_config(tiny.features))
-    model = PPO("MultiInputPolicy", env, n_steps=32, batch_size=32, seed=0, device="cpu")
-    obs, _ = env.reset(seed=0)
-    a = tp.model_policy(model)(obs, env)
-    assert env.action_space.contains(np.asarray(a).item())
-
-
-def test_stop_line_features_remember_the_full_stop(tp):
-    """The example's extra features: closeness rises towards the line; the stop flag turns on once
-    the ego stood still in the stop zone (the env's own rule: then no stop_sign violation)."""
-    feats = tp.junction_features(ns=(4,), controls=("stop",), crosswalks=(False,))
-    env = tp.make_env(tp.env_config(feats, traffic_vehicles=0, pedestrian_rate=0.0))
-    obs, _ = env.reset(seed=0)
-    assert obs["traffic_control"].shape == (8,) and env.observation_space.contains(obs)
-    closeness, flags = [], []
-    while True:
-        tc = obs["traffic_control"]
-        closeness.append(float(tc[6]))
-        flags.append(bool(tc[7]))
-        action = 2 if tc[7] else (0 if tc[6] > 0.85 else 1)  # FASTER after the stop, SLOWER near the line
-        obs, _, term, trunc, info = env.step(action)
-        if term or trunc:
-            break
-    first = flags.index(True)
-    assert first > 0 and closeness[first] > 0.8 and closeness[first - 1] > closeness[0]
-    assert info["route_completed"] and info["violations"]["stop_sign"] == 0, info
