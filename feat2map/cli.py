@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
+import importlib.util
 import json
 import math
 import sys
+import warnings
 from typing import Sequence
 
 from tqdm import tqdm
@@ -101,15 +104,9 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
     from .extract import extract_junctions
     from .generate import check_buildable
 
-    import warnings
-
     junctions = []
-    with warnings.catch_warnings(record=True) as caught:  # one line each, not Python's format
-        warnings.simplefilter("always")
-        for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2):
-            junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
-    for w in caught:
-        print(f"feat2map: warning: {one_line(w.message)}", file=sys.stderr)
+    for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2):
+        junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     if buildable is None:
@@ -368,11 +365,29 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _print_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Our warnings (a skipped road, junction or element) as one line, like errors: no source
+    line; other libraries' warnings as Python prints them."""
+    if filename.startswith(_our_dirs()):
+        print(f"feat2map: warning: {one_line(message)}", file=sys.stderr)
+    else:
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
+@functools.cache
+def _our_dirs() -> tuple[str, ...]:
+    """The folders of feat2map and its subpackages installed from elsewhere (envs, scenarios)."""
+    return tuple(d for name in ("feat2map", "feat2map.envs", "feat2map.scenarios")
+                 for d in importlib.util.find_spec(name).submodule_search_locations)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with raised_limits(**dict(args.limit)):
+        with raised_limits(**dict(args.limit)), warnings.catch_warnings():
+            warnings.simplefilter("default", UserWarning)  # each once per run (in-process runs start afresh)
+            warnings.showwarning = _print_warning
             return int(args.func(args) or 0)
     except Feat2MapError as exc:
         print(f"feat2map: error: {one_line(exc)}", file=sys.stderr)

@@ -187,14 +187,15 @@ def build_corpus(work: Path, rng: random.Random, n_trunc: int, n_flip: int) -> l
         suffix = "".join(path.suffixes[-1:])
         for name, b in _byte_mutations(data, rng, n_trunc, n_flip):
             put(f"{label}:{name}", suffix, b)
+        values: list[tuple[str, str]] = []
         if label == "gen.json":
-            for name, t in _json_mutations(json.loads(data), rng):
-                put(f"{label}:{name}", suffix, t)
+            values = _json_mutations(json.loads(data), rng)
         elif suffix == ".xodr":
-            for name, t in _xodr_mutations(data.decode("utf-8", "replace"), rng):
-                put(f"{label}:{name}", suffix, t)
+            values = _xodr_mutations(data.decode("utf-8", "replace"), rng)
         elif label == "gen.base_map.txt":
-            for name, t in _apollo_txt_mutations(data.decode(), rng):
+            values = _apollo_txt_mutations(data.decode(), rng)
+        for name, t in values:
+            if t.encode() != data:  # a mutation that found nothing to change is no invalid input
                 put(f"{label}:{name}", suffix, t)
     return corpus
 
@@ -428,6 +429,21 @@ def section_corpus(work: Path, args) -> dict:
             if cmd == "special":
                 counts["accepted_bad_cli"] += 1
                 examples.setdefault("accepted_bad_cli", []).append(label)
+    # a value mutation (not a truncation or bit flip, which may leave a valid file) is an invalid
+    # input: accepted when a command exits 0 on it, silently when it also warns of nothing
+    accepted: dict[str, dict[str, list[str]]] = {}
+    for (label, cmd, argv), (rc, exc, err, dt) in zip(meta, results):
+        name = label.rsplit(":", 1)[-1]
+        if cmd != "special" and not name.startswith(("trunc-", "flip-")) and rc == 0:
+            kind = "exit0_invalid_warned" if "warning" in err else "exit0_invalid"
+            accepted.setdefault(label, {}).setdefault(kind, []).append(cmd)
+    for label, kinds in accepted.items():
+        kind = min(kinds)  # silent acceptance by any command counts first
+        examples.setdefault(kind, []).append(f"{label} | {', '.join(kinds[kind])}")
+    counts["value_mutations"] = sum(1 for label, _ in corpus if not label.rsplit(":", 1)[-1].startswith(("trunc-",
+                                                                                                        "flip-")))
+    for kind in ("exit0_invalid", "exit0_invalid_warned"):
+        counts[kind] = len(examples.get(kind, []))
     counts["examples"] = {k: v[:6] for k, v in examples.items()}
     counts["all_examples"] = examples
     return counts
@@ -737,7 +753,10 @@ def main() -> int:
         c = report["corpus"]
         summary.update({"corrupt inputs": c["inputs"], "CLI runs": c["runs"], "tracebacks": c["tracebacks"],
                         "timeouts": c["timeouts"], "non-finite written (exit 0)": c["exit0_nonfinite"],
-                        "bad command lines accepted": c["accepted_bad_cli"], "error lines > cap": c["long_error_lines"],
+                        "bad command lines accepted": c["accepted_bad_cli"],
+                        "invalid values accepted (exit 0, no warning)": f"{c['exit0_invalid']} of {c['value_mutations']}",
+                        "invalid values accepted with a warning": c["exit0_invalid_warned"],
+                        "error lines > cap": c["long_error_lines"],
                         "leaks": c["leaks"]})
     if "kill" in report:
         k = report["kill"]

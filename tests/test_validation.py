@@ -111,14 +111,28 @@ def test_opendrive_values_that_parse_but_are_invalid(tmp_path, small_doc, attr, 
         read_opendrive(bad)
 
 
-def test_huge_opendrive_widths_skip_the_road(tmp_path, small_doc):
+@pytest.mark.parametrize("width, message", [("1e300", "max_lane_width_m"), ("-3.5", "width -3.5 m is negative")])
+def test_huge_or_negative_opendrive_widths_skip_the_road(tmp_path, small_doc, width, message):
     write_map(small_doc[0], tmp_path / "m.xodr", "opendrive")
     text = (tmp_path / "m.xodr").read_text()
     bad = tmp_path / "wide.xodr"
-    bad.write_text(text.replace('<width sOffset="0.0" a="3.5"', '<width sOffset="0.0" a="1e300"', 1))
-    with pytest.warns(UserWarning, match="max_lane_width_m"):
+    bad.write_text(text.replace('<width sOffset="0.0" a="3.5"', f'<width sOffset="0.0" a="{width}"', 1))
+    with pytest.warns(UserWarning, match=message):
         m = read_opendrive(bad)
     assert 0 < len(m.lanes) < len(small_doc[0].lanes)
+
+
+def test_cli_warnings_are_one_line_each(tmp_path, small_doc, capsys):
+    """A road the reader skips is a `feat2map: warning:` line, in every command, not Python's
+    two-line format with our source line."""
+    write_map(small_doc[0], tmp_path / "m.xodr", "opendrive")
+    bad = tmp_path / "bad.xodr"
+    bad.write_text((tmp_path / "m.xodr").read_text().replace('<width sOffset="0.0" a="3.5"',
+                                                             '<width sOffset="0.0" a="-3.5"', 1))
+    assert main(["export", "apollo", str(bad), "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err and all(line.startswith("feat2map: warning: ") and str(bad) in line for line in err)
+    assert "width -3.5 m is negative" in err[0]
 
 
 @pytest.mark.parametrize("field, value", [("grid_gap", math.nan), ("grid_gap", math.inf), ("lane_width", math.nan),

@@ -23,7 +23,7 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...config import MIN_ARM_LENGTH_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, limits
+from ...config import MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, limits
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
@@ -341,7 +341,11 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
         for lid in ids:
             ln = sec.lanes[lid]
             if ln.widths or not ln.borders:
-                w = np.maximum(_poly(ln.widths, ds, sec.s1 - sec.s0), 0.0)
+                w = _poly(ln.widths, ds, sec.s1 - sec.s0)
+                low = min([float(w.min(initial=0.0))] + [r[1] for r in ln.widths])  # records shorter than a sample too
+                if low < -NEGATIVE_WIDTH_TOL_M:
+                    raise MapFormatError(f"lane {lid} width {low:g} m is negative", ctx.where(road.el, f"road {road.id}"))
+                w = np.maximum(w, 0.0)
                 outer = inner + side * w
             else:  # border records give the outer edge's t directly
                 outer = off + _poly(ln.borders, ds, sec.s1 - sec.s0)
