@@ -11,13 +11,16 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from shapely import STRtree
 from shapely.geometry import MultiPoint, Polygon
+from shapely.ops import unary_union
 from shapely.geometry.polygon import orient
 
 from .bezier import Bezier, left_normal, unit
 from .config import MIN_STUB_LENGTH_M, GenerationConfig
 from .features import JunctionFeature
-from .errors import LayoutError
+from .invariants import AREA_EPS_M2
+from .errors import CrossingRoadsError, LayoutError
 from .layout import Placement
 from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, classify_turn
 
@@ -221,6 +224,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
                             sockets[j][s].half_width + cfg.junction_margin, cfg)
                    for j, p in enumerate(placements) for s, ln in enumerate(p.links)
                    if ln is not None and (ln.junction, ln.socket) > (j, s)]
+    _check_uncrossed(connections, [_junction_polygon(np.asarray(c), socks) for c, socks in zip(centers, sockets)], cfg)
     # roads: incoming / outgoing lanes per (junction, socket), each listed right to left
     incoming: dict[tuple[int, int], list[str]] = {}
     outgoing: dict[tuple[int, int], list[str]] = {}
@@ -339,9 +343,23 @@ def _stub_length(g: SocketGeometry, center, connections: Sequence[Polygon], cfg:
                                   if part.geom_type == "Polygon"])
             length = min(length, float(((pts - p) @ u).min()) - cfg.junction_margin)
     if length < MIN_STUB_LENGTH_M:
-        raise LayoutError(f"the leg at {math.degrees(g.angle) % 360:.1f} deg would run into a road between "
-                          f"junctions within {MIN_STUB_LENGTH_M:g} m (raise grid_gap or spread the legs)", where)
+        raise CrossingRoadsError(f"the leg at {math.degrees(g.angle) % 360:.1f} deg would run into a road between "
+                                 f"junctions within {MIN_STUB_LENGTH_M:g} m (raise grid_gap or spread the legs)", where)
     return length
+
+
+def _check_uncrossed(connections: Sequence[Polygon], junctions: Sequence[Polygon], cfg: GenerationConfig) -> None:
+    """Roads between junctions share no area outside the junctions (their margins aside): a
+    socket far from the grid direction it serves can sweep its road across a neighbour's."""
+    if len(connections) < 2:
+        return
+    inside = unary_union(junctions).buffer(cfg.junction_margin)
+    roads = [c.buffer(-cfg.junction_margin).difference(inside) for c in connections]
+    tree = STRtree(roads)
+    for a, b in zip(*tree.query(roads, predicate="intersects")):
+        if a < b and roads[a].intersection(roads[b]).area > AREA_EPS_M2:
+            raise CrossingRoadsError("two roads between junctions would cross outside the junctions "
+                                     "(spread the legs or pin the junctions elsewhere)", "layout")
 
 
 def _junction_polygon(center: np.ndarray, socks: Sequence[SocketGeometry]) -> Polygon:

@@ -42,6 +42,11 @@ class LayoutError(Feat2MapError):
     """A feature set that cannot be placed or built as a valid map."""
 
 
+class CrossingRoadsError(LayoutError):
+    """Roads between junctions (or a stub) that would cross outside junctions with this layout:
+    generation lays the map out again with the strict cardinal rule before giving up."""
+
+
 class ConfigError(Feat2MapError, ValueError):
     """A configuration or command-line value that is not finite, out of range or of the wrong type."""
 

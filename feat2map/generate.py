@@ -6,9 +6,9 @@ from typing import Sequence
 import numpy as np
 
 from . import __version__
-from .config import GenerationConfig, limits
+from .config import STRICT_CARDINAL_DEVIATION_DEG, GenerationConfig, limits
 from .construct import RoadChain, build_map
-from .errors import ConfigError, snippet
+from .errors import ConfigError, CrossingRoadsError, snippet
 from .features import FeatureSpace, JunctionFeature, normalize_rotation
 from .layout import Cell, place
 from .model import HDMap
@@ -39,11 +39,16 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     if keep_orientation is not None:
         prefer = [round(-normalize_rotation(f.rotation).rotation_deg / 90.0) % 4 if keep else None
                   for f, keep in zip(features, keep_orientation)]
-    placements = place([f.normalized() for f in features], rng, cells, names, prefer) \
-        if features or not chains else []
     info = {"generator": f"feat2map {__version__}", "seed": int(seed), "config": config.to_dict()}
     info.update(meta or {})
-    return build_map(placements, config, info, chains)
+    normalized = [f.normalized() for f in features]
+    try:
+        placements = place(normalized, rng, cells, names, prefer) if features or not chains else []
+        return build_map(placements, config, info, chains)
+    except CrossingRoadsError:  # lay it out again, sockets nearer their grid directions (more stubs)
+        rng = np.random.default_rng([int(seed), 1])
+        placements = place(normalized, rng, cells, names, prefer, STRICT_CARDINAL_DEVIATION_DEG)
+        return build_map(placements, config, info, chains)
 
 
 def check_buildable(feature: JunctionFeature, config: GenerationConfig = GenerationConfig()) -> None:

@@ -52,18 +52,19 @@ class Placement:
         return 90.0 * self.quarter_turns
 
 
-def cardinal_assignment(feature: JunctionFeature) -> tuple[int | None, ...]:
+def cardinal_assignment(feature: JunctionFeature, max_deviation_deg: float = MAX_CARDINAL_DEVIATION_DEG
+                        ) -> tuple[int | None, ...]:
     """Per socket the cardinal direction (0=E..3=S) it serves, or None (a stub): injective, as
     many sockets as can be, then least squared deviation. A socket serves a direction only
-    when no other leg lies between them and it is within MAX_CARDINAL_DEVIATION_DEG: a road
-    turning from its socket across another leg to the neighbour would overlap that leg's road
-    outside the junction, so such a socket ends in a stub instead."""
+    when no other leg lies between them and it is within `max_deviation_deg`: a road turning
+    from its socket across another leg to the neighbour would overlap that leg's road outside
+    the junction, so such a socket ends in a stub instead."""
     n = feature.n_roads
     angles = feature.rotation
     dev = [[(angles[s] - 90.0 * d + 180.0) % 360.0 - 180.0 for d in range(4)] for s in range(n)]
 
     def allowed(s: int, d: int) -> bool:
-        if abs(dev[s][d]) > MAX_CARDINAL_DEVIATION_DEG + 1e-9:
+        if abs(dev[s][d]) > max_deviation_deg + 1e-9:
             return False
         side = math.copysign(1.0, dev[s][d])
         return not any(0.0 < side * dev[k][d] < abs(dev[s][d]) for k in range(n) if k != s)
@@ -98,7 +99,8 @@ def describe_socket(s: Socket) -> str:
 def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
           fixed_cells: Sequence[Cell | None] | None = None,
           names: Sequence[str] | None = None,
-          prefer_turns: Sequence[int | None] | None = None) -> list[Placement]:
+          prefer_turns: Sequence[int | None] | None = None,
+          max_deviation_deg: float = MAX_CARDINAL_DEVIATION_DEG) -> list[Placement]:
     """Place every feature on the grid; returns placements in the order of `features`.
 
     `fixed_cells` optionally pins features to cells (custom specs); pinned ones are placed first.
@@ -108,6 +110,7 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
     `names` label the features in error messages (default "junction <index>"); among equally
     good placements, `prefer_turns` (per feature, or None) picks that quarter turn (custom
     specs use it to keep a junction as it was written) before the seeded random choice.
+    `max_deviation_deg` bounds how far a socket may be from the grid direction it serves.
     Only empty points faced by an open socket can connect, so only those are scored: the
     paper's other empty points all score below them, and the run stays near-linear.
     """
@@ -115,7 +118,7 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
         raise LayoutError("no junction features to place")
     fixed = list(fixed_cells) if fixed_cells is not None else [None] * len(features)
     label = list(names) if names is not None else [f"junction {j}" for j in range(len(features))]
-    assigns = [cardinal_assignment(f) for f in features]
+    assigns = [cardinal_assignment(f, max_deviation_deg) for f in features]
     cells: dict[Cell, int] = {}
     turns: dict[int, int] = {}
     links: dict[int, list[Link | None]] = {}
