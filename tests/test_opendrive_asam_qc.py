@@ -124,3 +124,16 @@ def test_checker_problems_name_the_element(tmp_path):
     assert problems and all(p.element.startswith("stretched.xodr") for p in problems)
     assert any("parampoly3_length_match" in p.message and p.element.endswith("/OpenDRIVE/road[1]/planView/geometry")
                for p in problems)
+
+
+def test_validate_reports_what_the_reader_skips(tmp_path):
+    """A negative lane width passes the checker's schema but makes the road unusable: validate
+    reports feat2map's reader skipping it, naming the road."""
+    root = etree.fromstring(to_opendrive(_map("one_way_t")))
+    width = root.find(".//lane/width")
+    width.set("a", "-3.5")
+    path = tmp_path / "negative.xodr"
+    path.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+    problems = validate_opendrive(path)
+    assert any(p.element == "negative.xodr" and p.message.startswith("feat2map reader: skipping bad road")
+               and "width -3.5 m is negative" in p.message for p in problems)
