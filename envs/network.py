@@ -29,11 +29,32 @@ GRID_CELL_M = 8.0
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
 VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
 TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
+CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's lane its lane crosses (plus half its width)
 FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
 _PRIORITY = {"none": 2, "right": 2, "left": 1, "uturn": 0}
+
+
+def _clear_of_crossings(ln, cl: LineString, roads: list, tree: STRtree) -> float:
+    """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
+    clear of every road lane of another road its centreline crosses (the crossing less half that
+    lane's width and CROSSING_CLEARANCE_M); inf when it crosses none. GoMentum's lane_79 crosses
+    lane_78, an exit of J_13, 2 m before its stop line: a car waiting there stood in the path of
+    the right turn into lane_78."""
+    linked = {ln.id, *ln.predecessors, *ln.successors}
+    best = math.inf
+    for k in tree.query(cl, predicate="intersects").tolist():
+        other = roads[k]
+        if other.road_id == ln.road_id or other.id in linked or set(other.predecessors) & set(ln.predecessors) \
+                or set(other.successors) & set(ln.successors):
+            continue
+        inter = cl.intersection(LineString(other.centerline))
+        for g in getattr(inter, "geoms", [inter]):
+            for p in g.coords:
+                best = min(best, cl.project(Point(p)) - other.width / 2 - CROSSING_CLEARANCE_M)
+    return max(best, 0.0)
 
 
 def flip(points) -> np.ndarray:
@@ -240,6 +261,8 @@ class MapNetwork(RoadNetwork):
 
     def _build_controls(self) -> None:
         m = self.hdmap
+        roads = [ln for ln in m.lanes.values() if ln.junction_id is None]
+        road_tree = STRtree([LineString(ln.centerline) for ln in roads])
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
             for c in table.values():
                 line = LineString(c.stop_line) if len(c.stop_line) >= 2 else None
@@ -250,7 +273,8 @@ class MapNetwork(RoadNetwork):
                     if line is not None and line.intersects(cl):
                         inter = line.intersection(cl)
                         s = cl.project(inter.representative_point())
-                    self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(min(s, self.lane_of[lid].length)))
+                    s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, roads, road_tree))
+                    self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(s))
         self.max_line_setback = max((self.lane_of[l].length - sl.s for l, sl in self.stop_lines.items()), default=0.0)
         # junction conflicts: different entry lanes whose paths cross, merge or pass too close
         jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]

@@ -179,3 +179,29 @@ def test_controls_named_on_junction_lanes_stop_on_the_road_lane(net):
         assert net2.stop_lines[lid].kind == "stop" and net2.stop_lines[lid].control_id == sign.id
         assert net2.stop_lines[lid].s == pytest.approx(net.stop_lines[lid].s, abs=0.5)
     assert not set(junction_lanes) & set(net2.stop_lines)
+
+
+def test_stop_line_stands_clear_of_another_road_lane_crossing_before_it(net):
+    """A map whose incoming lane crosses a lane of another road before its line (GoMentum's
+    lane_79 crosses lane_78, an exit of J_13, 2 m before it: the ego waiting there was hit by the
+    right turn into lane_78): the line moves back to half that lane's width plus
+    CROSSING_CLEARANCE_M before the crossing; lanes of its own road and linked lanes do not count."""
+    from dataclasses import replace
+
+    from feat2map.envs.network import CROSSING_CLEARANCE_M
+    from feat2map.model import Lane
+
+    m = net.hdmap
+    lid, sl = next((k, v) for k, v in net.stop_lines.items() if v.kind == "signal")
+    ln = m.lanes[lid]
+    (x0, y0), (x1, y1) = (p[:2] for p in ln.centerline[-2:])
+    length = math.hypot(x1 - x0, y1 - y0)
+    ux, uy = (x1 - x0) / length, (y1 - y0) / length
+    cx, cy = x1 - 6.0 * ux, y1 - 6.0 * uy  # 6 m before the lane's end, across it at 80 degrees
+    a = math.atan2(uy, ux) + math.radians(80)
+    across = ((cx - 5 * math.cos(a), cy - 5 * math.sin(a)), (cx + 5 * math.cos(a), cy + 5 * math.sin(a)))
+    cross = Lane("x", "X", across, across, across, 3.5, 10.0)
+    for road, expect in (("X", 6.0 + 3.5 / 2 + CROSSING_CLEARANCE_M), (ln.road_id, 0.0)):
+        net2 = MapNetwork.from_map(replace(m, lanes={**m.lanes, "x": replace(cross, road_id=road)}))
+        assert net2.stop_lines[lid].s == pytest.approx(sl.s - expect, abs=0.2)
+        assert all(net2.stop_lines[k].s == v.s for k, v in net.stop_lines.items() if k != lid)
