@@ -95,6 +95,12 @@ def braking_distance(speed: float, length: float) -> float:
     return speed ** 2 / (2 * SPAWN_BRAKE_MPS2) + length / 2 + SPAWN_MARGIN_M
 
 
+def can_stop_before(distance: float, speed: float, length: float) -> bool:
+    """Whether a vehicle whose centre is `distance` before a line can still stop comfortably with
+    its front before it (a standing vehicle can, unless its front is past the line)."""
+    return distance - length / 2 >= max(speed, 0.0) ** 2 / (2 * SPAWN_BRAKE_MPS2)
+
+
 def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],
                     route: Sequence[str]) -> tuple["StopLine | None", str | None, str | None, float]:
     """(stop line or None, incoming lane, junction lane, distance along the route from the

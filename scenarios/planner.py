@@ -34,7 +34,8 @@ import numpy as np
 
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.network import CONFLICT_DISTANCE_M
-from ..envs.rules import IDM_ACC, RULES, STOP_POINT_M, STOPPED_SPEED_MPS, braking_distance, idm, in_stop_zone
+from ..envs.rules import (IDM_ACC, RULES, STOP_POINT_M, STOPPED_SPEED_MPS, braking_distance, can_stop_before, idm,
+                          in_stop_zone)
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
 CREEP_TRIGGER_M = 12.0  # an unprotected left creeps when held by traffic this close to the line
@@ -327,9 +328,11 @@ class BaselinePlanner:
     def _decide(self, d_line: float) -> bool:
         """The unprotected left's go decision at `d_line` from the line (`self.go`): the signal
         and pedestrians let it past and `_gap_ok` finds a gap; a decision to go stands once the
-        ego is too close to the line to stop comfortably before it."""
+        ego's front can no longer stop comfortably before the line. A standing ego always re-takes
+        it (a go held by an amber 3 m before the line stood through the red and sent the ego
+        across the oncoming traffic at the next green: four_way_crossing r009)."""
         ego = self.env.vehicle
-        if not (self.go and d_line < braking_distance(max(ego.speed, 0.0), ego.LENGTH)):
+        if not (self.go and not can_stop_before(d_line, ego.speed, ego.LENGTH)):
             free = self.env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > d_line + 0.5
             self.go = free and self._gap_ok()
             if not self.go:  # a reservation made while it meant to go would hold up the traffic it now waits for

@@ -183,6 +183,23 @@ def test_unprotected_left_takes_only_the_gaps_its_own_prediction_accepts(tmp_pat
     assert t["reserved"] < t["released"] < t["car in"] < t["car out"] < t["ego in"]
 
 
+def test_a_go_decision_stands_only_while_the_ego_cannot_stop_before_the_line():
+    """The unprotected left's go stands once the ego's front cannot stop comfortably before the
+    line, never while it stands: four_way_crossing r009 stopped for an amber with its centre
+    3.06 m before the line and a go taken just before; the braking distance from the centre
+    (3.5 m at rest) kept that go through the red, and at the next green the ego turned across
+    the oncoming car starting from its line."""
+    from feat2map.envs.rules import SPAWN_BRAKE_MPS2, braking_distance, can_stop_before
+
+    length = 5.0
+    assert 3.06 < braking_distance(0.0, length)  # the old rule: too close to stop
+    assert can_stop_before(3.06, 0.0, length) and can_stop_before(length / 2, 0.0, length)
+    assert not can_stop_before(length / 2 - 0.1, 0.0, length)  # front past the line
+    v = 6.0
+    reach = length / 2 + v * v / (2 * SPAWN_BRAKE_MPS2)
+    assert can_stop_before(reach + 0.01, v, length) and not can_stop_before(reach - 0.01, v, length)
+
+
 def test_multi_junction_route_through_every_control(tmp_path_factory):
     feats = [J(FOUR, "signal", True), J(FOUR, "stop", False), J([0, 90, 180], "bare", True)]
     m = feat2map.generate_from_features(feats, seed=0)
