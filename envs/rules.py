@@ -244,6 +244,28 @@ class TrafficRules:
                     return False
         return True
 
+    def box_clear(self, vehicle, junction_lane: str) -> bool:
+        """Don't block the box: a vehicle whose wait at the next junction's line would leave it
+        inside the junction of `junction_lane` (the road between them shorter than the vehicle
+        and its stop margin: back-to-back junctions) enters only while its lane in the next
+        junction is clear too; otherwise two cars, each waiting inside the junction the other
+        needs, lock up (Shalun's J_5 and J_15, 2-4 m apart)."""
+        net, lanes = self.net, self.net.hdmap.lanes
+        route = vehicle.lane_route
+        if junction_lane not in route[vehicle.route_pos:]:
+            return True
+        k = route.index(junction_lane, vehicle.route_pos)
+        room = 0.0
+        for i in range(k + 1, len(route)):
+            lane = lanes[route[i]]
+            if lane.junction_id is None:
+                room += net.lane_of[route[i]].length
+            elif lane.junction_id != lanes[junction_lane].junction_id:
+                sl = net.stop_lines.get(route[i - 1])
+                room -= net.lane_of[route[i - 1]].length - sl.s if sl is not None else 0.0
+                return room >= vehicle.LENGTH + STOP_POINT_M or self.junction_clear(route[i], vehicle)
+        return True
+
     def _held(self, approach: str) -> bool:
         """Traffic on an approach waits at its line: a stop sign or a red signal."""
         sl = self.net.stop_lines.get(approach)
@@ -286,7 +308,8 @@ class TrafficRules:
         return out
 
     def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
-        """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane."""
+        """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane
+        (and may take it: one the box rule holds back lets later ones go)."""
         jid = self.net.hdmap.lanes[junction_lane].junction_id
         queue = self.stop_queue.get(jid, [])
         if vehicle not in queue:
@@ -294,7 +317,7 @@ class TrafficRules:
         conflicts = self.net.conflicts.get(junction_lane, frozenset())
         for other in queue[:queue.index(vehicle)]:
             _, lane, _ = other.next_junction_lane() if hasattr(other, "next_junction_lane") else (None, None, 0)
-            if lane is None or lane in conflicts:
+            if lane is None or lane in conflicts and self.box_clear(other, lane):
                 return False
         return True
 
@@ -317,7 +340,7 @@ class TrafficRules:
         if sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):
                 return False
-        if "conflict" not in ignore and not self.junction_clear(j_lane, vehicle):
+        if "conflict" not in ignore and not (self.junction_clear(j_lane, vehicle) and self.box_clear(vehicle, j_lane)):
             return False
         if commit and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
             self.reservations[j_lane] = vehicle

@@ -268,7 +268,7 @@ def test_back_to_back_stop_junctions_drive_clean(tmp_path):
     link = [ln for ln in m.lanes.values() if ln.road_id == "3"]
     assert len(link) == 2 and all(abs(ln.length - 3.0) < 1e-6 for ln in link)
     assert {s.junction_id for s in m.stop_signs.values() if set(s.lane_ids) & {ln.id for ln in link}} == {"1", "2"}
-    suite = build_suite(tmp_path / "back_to_back.xodr", traffic_vehicles=0)
+    suite = build_suite(tmp_path / "back_to_back.xodr", traffic_vehicles=2)
     assert _failures(suite) == []
     # traffic: a car that leaves J0 for J1 waits at J1's line inside J0, then drives on
     held = Scenario("held", str(tmp_path / "back_to_back.xodr"), (("1", "2", "4"),), seed=0, duration=60.0)
