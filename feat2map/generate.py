@@ -6,7 +6,7 @@ from typing import Sequence
 import numpy as np
 
 from . import __version__
-from .config import STRICT_CARDINAL_DEVIATION_DEG, GenerationConfig, limits
+from .config import MAX_CARDINAL_DEVIATION_DEG, STRICT_CARDINAL_DEVIATION_DEG, GenerationConfig, limits
 from .construct import RoadChain, build_map
 from .errors import ConfigError, CrossingRoadsError, snippet
 from .features import FeatureSpace, JunctionFeature, normalize_rotation
@@ -32,7 +32,7 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     hand-written roads added as they are (a map may consist of chains only); `names` label
     the features in layout errors; `keep_orientation` (per feature) prefers, among equally good
     placements, the quarter turn that shows the junction closest to its given angles."""
-    rng = np.random.default_rng([check_seed(seed), 1])
+    check_seed(seed)
     config.check_limits()
     limits().check("max_junctions", len(features), "the junction count")
     prefer = None
@@ -42,21 +42,24 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     info = {"generator": f"feat2map {__version__}", "seed": int(seed), "config": config.to_dict()}
     info.update(meta or {})
     normalized = [f.normalized() for f in features]
-    try:
-        placements = place(normalized, rng, cells, names, prefer) if features or not chains else []
-        return build_map(placements, config, info, chains)
-    except CrossingRoadsError:  # lay it out again, sockets nearer their grid directions (more stubs)
+
+    def build(max_deviation_deg: float) -> HDMap:
         rng = np.random.default_rng([int(seed), 1])
-        placements = place(normalized, rng, cells, names, prefer, STRICT_CARDINAL_DEVIATION_DEG)
+        placements = place(normalized, rng, cells, names, prefer, max_deviation_deg) if features or not chains else []
         return build_map(placements, config, info, chains)
+
+    try:
+        return build(MAX_CARDINAL_DEVIATION_DEG)
+    except CrossingRoadsError:  # lay it out again, sockets nearer their grid directions (more stubs)
+        return build(STRICT_CARDINAL_DEVIATION_DEG)
 
 
 def check_buildable(feature: JunctionFeature, config: GenerationConfig = GenerationConfig()) -> None:
     """Raise the FeatureError or LayoutError generation would raise on `feature`: its legs must
     keep the generation's minimum separation (a config may ask for more than the leg rule
-    extraction applies) and the junction
-    must be built on its own (it fits the grid gap). Extraction and generation agree through
-    this: a junction extraction accepts either passes here or is reported as skipped."""
+    extraction applies) and the junction must be built on its own (it fits the grid gap).
+    Extraction and generation agree through this: a junction extraction accepts either passes
+    here or is reported as skipped."""
     JunctionFeature(feature.sockets, feature.control, feature.crosswalk, config.min_socket_separation_deg)
     generate_from_features([feature], 0, config)
 

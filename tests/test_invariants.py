@@ -237,3 +237,22 @@ def test_a_junction_needs_a_way_through_for_every_approach():
     with pytest.raises(Feat2MapError, match="nothing could drive into them"):
         JunctionFeature.make([0, 90, 180], road_types=["out", "in-out", "out"])
     JunctionFeature.make([0, 90, 180], road_types=["in", "in-out", "out"])
+
+
+def test_roads_that_would_cross_are_laid_out_again():
+    """A 4-leg junction whose legs at -3.6 and 67.3 degrees both serve grid directions (S and E)
+    would sweep its east road across its south road's start (found by the property test):
+    generation lays the map out again with sockets within 45 degrees, and the map is clean."""
+    import numpy as np
+
+    from feat2map.construct import build_map
+    from feat2map.errors import CrossingRoadsError
+    from feat2map.layout import place
+
+    J = JunctionFeature.make
+    features = [J([0, 120, 240], lanes=[1, 1, 2]), J([0, 90, 180, 270], lanes=[1, 1, 1, 2]), J([0, 120, 240]),
+                J([0, 70.90909072727273, 243.6363629090909, 314.5454536363636], lanes=[1, 1, 2, 1])]
+    cfg = GenerationConfig()
+    with pytest.raises(CrossingRoadsError):
+        build_map(place([f.normalized() for f in features], np.random.default_rng([0, 1])), cfg)
+    assert check_map(feat2map.generate_from_features(features, seed=0, config=cfg)) == []
