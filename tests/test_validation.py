@@ -122,6 +122,17 @@ def test_huge_or_negative_opendrive_widths_skip_the_road(tmp_path, small_doc, wi
     assert 0 < len(m.lanes) < len(small_doc[0].lanes)
 
 
+@pytest.mark.parametrize("value", ["-3.5", "nan"])
+def test_apollo_width_samples_must_be_non_negative(tmp_path, small_doc, value):
+    """Apollo lane widths are the mean of the width samples, which would hide a bad one."""
+    write_map(small_doc[0], tmp_path / "a", "apollo")
+    (tmp_path / "a" / "base_map.bin").unlink()
+    text = (tmp_path / "a" / "base_map.txt").read_text()
+    (tmp_path / "a" / "base_map.txt").write_text(text.replace("width: ", f"width: {value}  # ", 1))
+    with pytest.raises(MapFormatError, match=r"base_map.txt: lane '.+': width sample .+ is negative or not a number"):
+        read_map(tmp_path / "a")
+
+
 def test_cli_warnings_are_one_line_each(tmp_path, small_doc, capsys):
     """A road the reader skips is a `feat2map: warning:` line, in every command, not Python's
     two-line format with our source line."""

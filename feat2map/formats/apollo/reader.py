@@ -241,6 +241,9 @@ class _Reader:
                 links[attr] = tuple(x for x in ids if x in driving)
             r = raw[lid]
             centre, left, right = r["c"] - o, r["l"] - o, r["r"] - o
+            bad = [x.width for x in list(ln.left_sample) + list(ln.right_sample) if not x.width >= 0.0]
+            if bad:  # the mean width would hide it
+                raise self.err(f"lane {lid!r}", f"width sample {bad[0]:g} m is negative or not a number")
             width = _sample_width(ln) or _boundary_width(centre, left, right)
             lanes[lid] = Lane(
                 lid, lane_road.get(lid, lid), as_polyline(centre),
