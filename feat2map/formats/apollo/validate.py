@@ -26,7 +26,7 @@ from . import schema as aps
 from ..base import Problem
 from .reader import base_map_file
 from .routing import build_routing_graph
-from ...config import APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
+from ...config import APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
 from ...errors import MapFormatError
 from ...invariants import AREA_EPS_M2
 from ...validation import unusable_numbers
@@ -365,9 +365,7 @@ def _generated(m: Any) -> bool:
     """A map feat2map generated (not converted) also keeps feat2map's own promises (invariants.
     check_map): no roads crossing without a junction, no overlapping crosswalks, no lane ending
     at a junction without a way on. Apollo does not need them, and real maps break them."""
-    from .writer import GENERATED_MARK
-
-    return m.header.generation == GENERATED_MARK
+    return m.header.generation == APOLLO_GENERATED_MARK
 
 
 def _in_junction(m: Any, idx: _Index) -> dict[str, str]:

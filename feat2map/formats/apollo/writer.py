@@ -25,13 +25,12 @@ from .geometry import (arc_lengths, distance_samples, exact_end_centerline, poly
 from .sim_map import to_sim_map
 from ..base import header_date
 from ..geo import utm_projection
-from ...config import APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
+from ...config import APOLLO_GENERATED_MARK, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline
 from ...validation import refuse_nonfinite
 
 FILES = ("base_map", "sim_map", "routing_map")
-GENERATED_MARK = b"feat2map"  # header.generation of maps feat2map generated (not of maps it converted)
 BOUNDARY_TYPE = {
     "solid_white": aps.LaneBoundaryType.SOLID_WHITE, "dotted_white": aps.LaneBoundaryType.DOTTED_WHITE,
     "solid_yellow": aps.LaneBoundaryType.SOLID_YELLOW, "dotted_yellow": aps.LaneBoundaryType.DOTTED_YELLOW,
@@ -232,7 +231,7 @@ def _header(h: Any, m: HDMap, zone: int) -> None:
     h.district = b"feat2map"
     h.vendor = b"feat2map"
     if m.meta.get("generator"):  # generated, not converted: the validator holds it to check_map's rules too
-        h.generation = GENERATED_MARK
+        h.generation = APOLLO_GENERATED_MARK
     h.rev_major = b"1"
     h.rev_minor = b"0"
 
