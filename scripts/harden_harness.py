@@ -404,7 +404,7 @@ def section_corpus(work: Path, args) -> dict:
               "long_error_lines": 0, "leaks": 0, "accepted_bad_cli": 0, "wall_s": round(time.time() - t0, 1)}
     examples: dict[str, list[str]] = {}
     passwd_first = Path("/etc/passwd").read_text().splitlines()[0] if Path("/etc/passwd").is_file() else "root:x:0:0"
-    for (label, cmd, argv), (rc, exc, err, dt) in zip(meta, results):
+    for (label, cmd, argv), (rc, exc, err, dt), (_, cwd) in zip(meta, results, jobs):
         key = None
         if exc is not None:
             key = "timeouts" if exc.startswith("timeout") else "tracebacks"
@@ -421,7 +421,8 @@ def section_corpus(work: Path, args) -> dict:
             counts["leaks"] += 1
             examples.setdefault("leaks", []).append(f"{label} | {cmd}")
         if rc == 0:
-            outs = [Path(a) for i, a in enumerate(argv) if i and argv[i - 1] in ("--out", "--picture")]
+            outs = [Path(cwd or ".") / a for i, a in enumerate(argv)  # --out '' is the job's folder
+                    if i and argv[i - 1] in ("--out", "--picture") and (a or cwd)]
             bad = [b for o in outs for b in nonfinite_written(o)]
             if bad:
                 counts["exit0_nonfinite"] += 1
