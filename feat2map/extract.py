@@ -20,7 +20,7 @@ from shapely import STRtree
 from shapely.geometry import Polygon
 
 from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
-                     ARM_PROBE_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
+                     ARM_PROBE_M, ARM_SAME_POINT_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
 from .model import HDMap, Lane, interior_lane
@@ -190,6 +190,7 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
         (dirs @ dirs.T >= cos_tol) & (across <= ARM_MAX_WIDTH_M) & (along <= ARM_MAX_DEPTH_M))
     entering = np.array([k == "in" for k in kinds])  # the leg rule: all-in or all-out mouths need close tangents
     same &= (entering[:, None] != entering[None, :]) | (tangents @ tangents.T >= math.cos(math.radians(LEG_MERGE_DEG)))
+    same |= dist <= ARM_SAME_POINT_M  # mouths at one point are one leg whatever their tangents (thinned sim_map curves)
     index = {key: i for i, key in enumerate(ends)}
     apart = _joined_mouths(m, jid, lanes, index)
     pairs = [(0.0, i, k) for i in range(len(pts)) for k in range(i + 1, len(pts)) if ext[k] in linked[i]]

@@ -182,6 +182,28 @@ def test_extraction_of_the_t_junction(t_map):
     assert [(s.lanes_in, s.lanes_out) for s in f.sockets] == [(1, 1)] * 3
 
 
+def test_lane_mouths_at_one_point_are_one_arm():
+    """Two incoming lanes of different roads that end at one point are one leg, even when their
+    last segments differ by more than any merge angle (an Apollo sim_map's thinned
+    curves: GoMentum J_22/J_24 came out with two sockets at one angle and were skipped)."""
+    pb = t_junction_map()
+    r, h = 10.0, W / 2
+    end = (r, h)  # where in_e meets the junction
+    a = math.radians(35.0)  # the second lane comes in 35 degrees off the arm's direction (beyond ARM_CLUSTER_DEG)
+    start = (end[0] + 40 * math.cos(a), end[1] + 40 * math.sin(a))
+    _lane(pb, "in_e2", [start, ((start[0] + end[0]) / 2, (start[1] + end[1]) / 2), end], succs=["j_e2_w"])
+    pb.road.add(id=aps.Id(id="road_e2")).section.add().lane_id.add().id = "in_e2"
+    w_start = (-r, h)  # start of out_w
+    _lane(pb, "j_e2_w", [end, (0.0, h), w_start], preds=["in_e2"], succs=["out_w"])
+    jroad = pb.road.add()
+    jroad.id.id, jroad.junction_id.id = "jroad_e2_w", "J_0"
+    jroad.section.add().lane_id.add().id = "j_e2_w"
+    _overlap(pb, "ov_j_e2_w", ("junction", "J_0"), ("lane", "j_e2_w"))
+    (j,) = extract_junctions(read_apollo_bytes(pb.SerializeToString(), "mouths.bin"))
+    assert j.feature.n_roads == 3
+    assert sorted((s.lanes_in, s.lanes_out) for s in j.feature.sockets) == [(1, 1), (1, 1), (2, 1)]
+
+
 @settings(max_examples=15, deadline=None)
 @given(st.lists(st.floats(0, 360, exclude_max=True, allow_nan=False), min_size=3, max_size=6).filter(
     lambda a: min(np.diff(np.sort(np.append(a, min(a) + 360)))) > 35.0))
