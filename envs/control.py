@@ -98,6 +98,8 @@ class TrafficControl(TrafficRules):
         self.pedestrians: dict[str, list[Pedestrian]] = {}
         self.active_crosswalks: list[str] = []
         self.buckets: dict[str, list] = {}
+        self.passage_holders: dict[int, tuple[set, set]] = {}
+        self.passage_waiters: dict[int, dict] = {}
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
     def update(self, road, dt: float) -> None:
@@ -124,6 +126,8 @@ class TrafficControl(TrafficRules):
                 if getattr(v, "reserved", None) == lid:
                     v.reserved = None
 
+        if net.passages:
+            self._update_passages(buckets, alive)
         # stop-sign queues: join after stopping at the line, leave on entering the junction
         lane_of = {id(v): lid for v, lid in zip(vehicles, lanes)}
 
@@ -144,6 +148,40 @@ class TrafficControl(TrafficRules):
                 q.append(v)
                 v.stopped_at = sl.control_id
         self._update_pedestrians(road, vehicles, dt)
+
+    def _update_passages(self, buckets: dict, alive: set) -> None:
+        """Road users within a narrow passage hold it from their side; holders and waiters that
+        left the road or whose route no longer leads into it let go."""
+        net = self.net
+        for lid, users in buckets.items():
+            ps = net.passages.get(lid)
+            if ps is None:
+                continue
+            for v in users:
+                s = v.s_on(lid)
+                if ps.s0 - v.LENGTH / 2 <= s <= ps.s1 + v.LENGTH / 2:
+                    self.passage_holders.setdefault(ps.group, (set(), set()))[ps.side].add(v)
+
+        def ahead(v, group: int, side: int) -> bool:  # the passage is on the rest of its route
+            if id(v) not in alive:
+                return False
+            route = getattr(v, "lane_route", None)
+            if route is None:
+                lid = net.id_of.get(getattr(v, "lane_index", None))
+                ps = net.passages.get(lid)
+                return ps is not None and ps.group == group
+            for lid in route[v.route_pos:]:
+                ps = net.passages.get(lid)
+                if ps is not None and ps.group == group and ps.side == side:
+                    return True
+            return False
+
+        for g, sides in self.passage_holders.items():
+            for side, holders in enumerate(sides):
+                holders.intersection_update([v for v in holders if ahead(v, g, side)])
+        for g, waiters in self.passage_waiters.items():
+            for v in [v for v, (side, _) in waiters.items() if not ahead(v, g, side)]:
+                del waiters[v]
 
     def _update_pedestrians(self, road, vehicles, dt: float) -> None:
         rate = self.cfg["pedestrian_rate"] / 60.0

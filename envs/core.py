@@ -87,6 +87,7 @@ class LaneTable:
         self.speed_limit = np.maximum(np.array([ln.speed_limit for ln in lanes], dtype=float), 1.0)
         self.junction = np.array([m.lanes[lid].junction_id is not None for lid in net.lane_ids])
         self.crossing = np.array([lid in net.crossings for lid in net.lane_ids])
+        self.passage = np.array([lid in net.passages for lid in net.lane_ids], dtype=bool)
         self.neighbours = np.array([bool(m.lanes[lid].left_neighbors or m.lanes[lid].right_neighbors)
                                     for lid in net.lane_ids])
         npts = np.array([len(ln.points) for ln in lanes])
@@ -665,10 +666,14 @@ class TrafficCore:
         return fi[ok], gap[ok], self.speed[lj[ok]]
 
     def _rule_rows(self, driven: np.ndarray) -> list[int]:
-        """Driven rows whose window holds a junction entry or a lane with a crosswalk that has
-        people on it within LOOKAHEAD_M: the only ones the rules can stop (in row order)."""
+        """Driven rows whose window holds a junction entry, a narrow passage or a lane with a
+        crosswalk that has people on it within LOOKAHEAD_M: the only ones the rules can stop (in
+        row order)."""
         t = self.table
         flag = self.entry - self.s <= LOOKAHEAD_M
+        if t.passage.any():  # narrow passages on the window
+            W = self.W
+            flag |= (t.passage[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         busy = [k for cw, people in self.road.control.pedestrians.items() if people
                 for k in t.crosswalk_lanes.get(cw, ())]
         if busy:

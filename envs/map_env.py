@@ -213,6 +213,7 @@ class MapEnv(AbstractEnv):
             ego.init_route(route)
         ego.cache_projections = self.config["traffic_core"] == "arrays"
         self.road.vehicles.append(ego)
+        self.control.passage_start(ego)  # the first on the road: it holds the passages it starts in
         self.controlled_vehicles = [ego]
 
     def _traffic_spawn_lanes(self, route: list[str], junctions: set[str]) -> list[str]:
@@ -228,8 +229,9 @@ class MapEnv(AbstractEnv):
         return sorted({l for l in lanes if m.lanes[l].junction_id is None})  # no route starts in a junction
 
     def _spawn_traffic(self, min_ego_distance: float = EGO_CLEARANCE_M) -> TrafficVehicle | None:
-        """A traffic vehicle on a random spawn lane and random walk, clear of other vehicles and at
-        least its braking distance before the first stop line of its route (None if no place)."""
+        """A traffic vehicle on a random spawn lane and random walk, clear of other vehicles, at
+        least its braking distance before the first stop line of its route and not head-on with
+        the holder of a narrow passage (None if no place)."""
         if not self._spawn_lanes:
             return None
         rng = self.np_random
@@ -246,7 +248,10 @@ class MapEnv(AbstractEnv):
             route = random_walk(self.net, rng, lid, 3)
             if first_line_distance(self.net, route, s) < braking_distance(speed, TrafficVehicle.LENGTH):
                 continue
-            return self.road.spawn(lid, s, speed, route)
+            v = self.road.spawn(lid, s, speed, route)
+            if self.control.passage_start(v):
+                return v
+            self.road.vehicles.remove(v)  # head-on with a holder of a narrow passage
         return None
 
     # ---- stepping ------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 """HDMap -> highway-env road network, with a grid-hash lane index, lane-graph routing and the
-tables traffic control needs (stop lines, junction conflicts, crosswalk crossings).
+tables traffic control needs (stop lines, junction conflicts, crosswalk crossings, narrow
+passages).
 
 highway-env's frame has y pointing down: every point is flipped (x, y) -> (x, -y) here, so
 right-hand traffic renders as right-hand traffic. Lane groups (the same-direction lanes of one
@@ -31,6 +32,8 @@ VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
 TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
 CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's lane its lane crosses (plus half its width)
 FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
+PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
+PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
@@ -74,6 +77,21 @@ class StopLine:
     s: float
 
 
+@dataclass(frozen=True)
+class Passage:
+    """Where a road lane runs closer than PASSAGE_DISTANCE_M to a road lane of the opposite
+    direction (one-lane two-way roads: autonomous_stuff's opposite lanes 0.5 m apart; a road
+    splitting into two one-way roads: GoMentum's lane_61 and lane_62 2.1 m apart): vehicles
+    of the two directions cannot pass each other there. `group` numbers the passage (the lanes
+    linked by such pairs), `side` is the lane's direction in it (0 or 1), [s0, s1] its stretch
+    of the lane."""
+
+    group: int
+    side: int
+    s0: float
+    s1: float
+
+
 @dataclass
 class MapNetwork(RoadNetwork):
     """A `RoadNetwork` built from an HDMap, with O(1) lane lookups and lane-level routing."""
@@ -88,6 +106,7 @@ class MapNetwork(RoadNetwork):
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
+    passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     def memo(self, key, build):
@@ -159,6 +178,7 @@ class MapNetwork(RoadNetwork):
                 net.lane_ids.append(lid)
         net._build_index()
         net._build_controls()
+        net._build_passages()
         return net
 
     def _build_index(self) -> None:
@@ -321,6 +341,62 @@ class MapNetwork(RoadNetwork):
                 a = (pts[i] + pts[(i + 1) % 4]) / 2
                 b = (pts[(i + 2) % 4] + pts[(i + 3) % 4]) / 2
                 self.crosswalk_axes[c.id] = (flip(a)[0], flip(b)[0], float(e[i]))
+
+    def _build_passages(self) -> None:
+        """`passages`: pairs of road lanes of opposite directions (not linked to each other) whose
+        centrelines come closer than PASSAGE_DISTANCE_M, found once through an STRtree; lanes
+        linked by such pairs form one passage, its two sides coloured by direction."""
+        m = self.hdmap
+        roads = [ln for ln in m.lanes.values() if ln.junction_id is None]
+        lines = [LineString(ln.centerline) for ln in roads]
+        if not lines:
+            return
+        left, right = STRtree(lines).query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M)
+        span: dict[str, list[float]] = {}
+        edges: dict[str, set[str]] = {}
+        for i, j in zip(left.tolist(), right.tolist()):
+            a, b = roads[i], roads[j]
+            if i == j or b.id in {*a.predecessors, *a.successors, *a.left_neighbors, *a.right_neighbors}:
+                continue
+            la, lb = lines[i], lines[j]
+            s = np.linspace(0.0, la.length, max(2, int(math.ceil(la.length / PASSAGE_STEP_M)) + 1))
+            pts = shapely.line_interpolate_point(la, s)
+            near = shapely.distance(pts, lb) < PASSAGE_DISTANCE_M
+            if not near.any():
+                continue
+            # opposite directions where they are close: the tangents point against each other
+            k = int(np.argmax(near))
+            ta = np.subtract(*[np.asarray(la.interpolate(min(s[k] + d, la.length)).coords[0]) for d in (0.5, -0.5)])
+            t0 = lb.project(pts[k])
+            tb = np.subtract(*[np.asarray(lb.interpolate(min(max(t0 + d, 0.0), lb.length)).coords[0])
+                               for d in (0.5, -0.5)])
+            if float(np.dot(ta, tb)) >= 0.0:
+                continue
+            on_b = shapely.line_locate_point(lb, pts[near])
+            for lid, lo, hi in ((a.id, s[near].min(), s[near].max()), (b.id, on_b.min(), on_b.max())):
+                old = span.get(lid)
+                span[lid] = [float(lo), float(hi)] if old is None else [min(old[0], lo), max(old[1], hi)]
+            edges.setdefault(a.id, set()).add(b.id)
+            edges.setdefault(b.id, set()).add(a.id)
+        side: dict[str, tuple[int, int]] = {}
+        group = 0
+        for start in sorted(span):
+            if start in side:
+                continue
+            side[start] = (group, 0)
+            stack = [start]
+            while stack:
+                x = stack.pop()
+                for y in sorted(edges.get(x, ())):
+                    if y not in side and y in span:
+                        side[y] = (group, 1 - side[x][1])
+                        stack.append(y)
+            group += 1
+        for lid, (g, k) in side.items():
+            length = self.lane_of[lid].length
+            s0, s1 = span[lid]
+            self.passages[lid] = Passage(g, k, max(s0 - VEHICLE_LENGTH_M / 2, 0.0),
+                                         min(s1 + VEHICLE_LENGTH_M / 2, length))
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:

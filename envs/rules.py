@@ -5,9 +5,11 @@ and the baseline planner (scenarios/planner.py) all ask this module.
   commits to a junction, how pedestrians are yielded to) and the IDM car-following law;
 - `TrafficRules`: the questions traffic and planners ask of the traffic control state (the
   signal's state, where the rules make a vehicle stop, whether it may enter a junction lane,
-  whether a turn is protected, who is heading into a conflicting lane). `control.TrafficControl`
-  holds that state (signal plans, reservations, stop-sign queues, pedestrians) and inherits
-  these questions; `env.unwrapped.rules` is that object;
+  whether a turn is protected, who is heading into a conflicting lane, who may drive into a
+  narrow passage, where opposite lanes are too close to pass: one direction at a time, first
+  come first served, a vehicle claiming passages that follow each other together).
+  `control.TrafficControl` holds that state (signal plans, reservations, stop-sign queues,
+  passage holders and waiters, pedestrians) and inherits these questions; `env.unwrapped.rules` is that object;
 - `EgoJudge`: the ego's violations (red light, stop sign, pedestrian yield) and leaving the road.
 
 Stop lines are measured along the route: `stop_line_ahead` gives the distance from a vehicle's
@@ -35,6 +37,7 @@ COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane t
 COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
 AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)
 LOOKAHEAD_M = 60.0
+PASSAGE_HORIZON_M = 400.0  # how far along its route a vehicle looks for narrow passages it must claim together
 PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield
 PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
 PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
@@ -144,6 +147,8 @@ class TrafficRules:
     stop_queue: dict
     pedestrians: dict
     buckets: dict
+    passage_holders: dict  # passage group -> (holders from side 0, from side 1)
+    passage_waiters: dict  # passage group -> {vehicle: (side, time it began to wait)}
 
     # ---- signals ----------------------------------------------------------------------
     def signal_state(self, signal_id: str) -> str:
@@ -276,7 +281,7 @@ class TrafficRules:
         and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
         lane = self.net.lane_of.get(approach)
         for v in self.buckets.get(approach, ()):
-            if v is not exclude and enters_next(v, lane_id):
+            if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude):
                 d = lane.length - v.s_on(approach)
                 if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + margin:
                     return True
@@ -304,18 +309,20 @@ class TrafficRules:
                 continue
             lane_p = net.lane_of.get(p)
             out += [(lane_p.length - v.s_on(p), v) for v in self.buckets.get(p, ())
-                    if v is not exclude and enters_next(v, lane_id)]
+                    if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude)]
         return out
 
     def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
         """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane
-        (and may take it: one the box rule holds back lets later ones go)."""
+        (and may take it: one the box rule or a narrow passage holds back lets later ones go)."""
         jid = self.net.hdmap.lanes[junction_lane].junction_id
         queue = self.stop_queue.get(jid, [])
         if vehicle not in queue:
             return False
         conflicts = self.net.conflicts.get(junction_lane, frozenset())
         for other in queue[:queue.index(vehicle)]:
+            if any(other in w for w in self.passage_waiters.values()):  # it waits for a narrow passage
+                continue
             _, lane, _ = other.next_junction_lane() if hasattr(other, "next_junction_lane") else (None, None, 0)
             if lane is None or lane in conflicts and self.box_clear(other, lane):
                 return False
@@ -353,6 +360,119 @@ class TrafficRules:
             del self.reservations[j_lane]
             vehicle.reserved = None
 
+    # ---- narrow passages -------------------------------------------------------------------
+    def passage_ahead(self, vehicle, entered: bool = False) -> tuple[list[tuple[int, int]], float] | None:
+        """([(passage group, side)], distance from the vehicle centre to where it waits for them)
+        of the next passages (`MapNetwork.passages`) on the vehicle's route that it neither holds
+        nor has entered (with `entered`, from the one it is in): the first one and every one
+        after it with no room to wait between (less than a vehicle length of road outside
+        passages and junctions: holding one passage while waiting for the next locked up
+        autonomous_stuff's one-lane roads that lead into each other); None without one within
+        PASSAGE_HORIZON_M. It waits before the first passage, or at the line
+        of the junction before it when that wait would be inside the junction (a car standing at
+        a junction exit blocks the box and stands beside the other direction's lane)."""
+        net = self.net
+        lanes = net.hdmap.lanes
+        route = vehicle.lane_route
+        holders = self.passage_holders
+        skip: set[int] = set()
+        chain: list[tuple[int, int]] = []
+        wait = room = 0.0
+        line = exit_d = None  # stop point of the junction entry ahead, start of the road after it
+        for k, lid, d, s_own in vehicle.upcoming(PASSAGE_HORIZON_M):
+            length = net.lane_of[lid].length
+            junction = lanes[lid].junction_id is not None
+            if s_own is None and junction and lanes[route[k - 1]].junction_id is None:
+                sl = net.stop_lines.get(route[k - 1])
+                line = d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0) - STOP_POINT_M
+                exit_d = None
+            elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
+                exit_d = d
+            ps = net.passages.get(lid)
+            if ps is not None and ps.group not in skip and (ps.group, ps.side) not in chain:
+                start = d + ps.s0 if s_own is None else ps.s0 - s_own
+                if not chain and not entered and (start - vehicle.LENGTH / 2 <= 0.0 or
+                                                  vehicle in holders.get(ps.group, ((), ()))[ps.side]):
+                    skip.add(ps.group)  # entered (or holding) it: the next passage counts
+                    continue
+                if chain and room + ps.s0 >= vehicle.LENGTH + STOP_POINT_M:
+                    break
+                if not chain:
+                    wait = start - STOP_POINT_M
+                    if line is not None and line >= 0.0 and exit_d is not None and \
+                            start - exit_d < vehicle.LENGTH + STOP_POINT_M:
+                        wait = line  # the wait before the passage would be inside the junction
+                chain.append((ps.group, ps.side))
+                room = 0.0 if ps.s1 >= length - 1e-6 else length - ps.s1
+            elif chain and not junction:
+                room += length
+                if room >= vehicle.LENGTH + STOP_POINT_M:
+                    break
+        return (chain, wait) if chain else None
+
+    def passage_allows(self, vehicle, chain: list[tuple[int, int]], commit: bool) -> bool:
+        """One direction at a time, first come first served: `vehicle` may drive into the passages
+        of `chain` ((group, side) pairs) while no one holds one of them from the other side or
+        waits there since before it; with `commit` it takes its place among the holders of all
+        (or among the waiters of all)."""
+        ok = True
+        for group, side in chain:
+            holders = self.passage_holders.get(group, ((), ()))
+            waiters = self.passage_waiters.get(group, {})
+            mine = waiters.get(vehicle, (side, math.inf))[1]
+            if any(h is not vehicle for h in holders[1 - side]) or \
+                    any(s != side and t < mine for w, (s, t) in waiters.items() if w is not vehicle):
+                ok = False
+        if commit:
+            for group, side in chain:
+                waiters = self.passage_waiters.setdefault(group, {})
+                if ok:
+                    self.passage_holders.setdefault(group, (set(), set()))[side].add(vehicle)
+                    waiters.pop(vehicle, None)
+                elif vehicle not in waiters:
+                    waiters[vehicle] = (side, self.t)
+        return ok
+
+    def waits_for(self, vehicle, other, depth: int = 4) -> bool:
+        """Whether `vehicle` waits for a narrow passage that `other` holds from the other
+        direction, or that someone waiting for `other` in turn holds up (up to `depth` links):
+        it stays where it is until `other` has left the passage (a car waiting at a junction at
+        the far end of a one-lane road is no oncoming traffic for the one that holds the road:
+        taking it for one locked both up, GoMentum r034)."""
+        if other is None or depth <= 0:
+            return False
+        for group, waiters in self.passage_waiters.items():
+            w = waiters.get(vehicle)
+            if w is None:
+                continue
+            side, since = w
+            blockers = list(self.passage_holders.get(group, ((), ()))[1 - side])
+            blockers += [u for u, (s, t) in waiters.items() if s != side and t < since]
+            if other in blockers or any(self.waits_for(u, other, depth - 1) for u in blockers if u is not vehicle):
+                return True
+        return False
+
+    def passage_start(self, vehicle) -> bool:
+        """Whether a vehicle just placed on the road (the ego at reset, traffic at a spawn) may
+        be there: the passages it starts in or is about to enter, with those chained after them,
+        are not held from the other direction; it then holds them."""
+        nxt = self.passage_ahead(vehicle, entered=True) if self.net.passages else None
+        if nxt is None or not commits(nxt[1] + STOP_POINT_M, vehicle.speed):
+            return True
+        ok = self.passage_allows(vehicle, nxt[0], commit=False)
+        if ok:
+            self.passage_allows(vehicle, nxt[0], commit=True)
+        return ok
+
+    def passage_stop(self, vehicle, commit: bool) -> float:
+        """Distance ahead of `vehicle` where it waits for the next narrow passage (inf: free)."""
+        nxt = self.passage_ahead(vehicle) if self.net.passages else None
+        if nxt is None:
+            return math.inf
+        chain, wait = nxt
+        near = commits(wait + STOP_POINT_M, vehicle.speed)
+        return math.inf if self.passage_allows(vehicle, chain, commit and near) else wait
+
     def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
         """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""
         net = self.net
@@ -375,8 +495,15 @@ class TrafficRules:
 
     def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset()) -> float:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
-        STOP_POINT_M before a stop line it may not pass (measured along the route), or before a
-        pedestrian's crosswalk."""
+        STOP_POINT_M before a stop line it may not pass (measured along the route), before a
+        pedestrian's crosswalk, or before a narrow passage the other direction holds."""
+        passage = self.passage_stop(vehicle, commit)
+        if passage < math.inf:  # waiting for a passage: no junction lane is reserved meanwhile
+            return min(passage, self._rule_stop(vehicle, False, ignore))
+        return self._rule_stop(vehicle, commit, ignore)
+
+    def _rule_stop(self, vehicle, commit: bool, ignore: frozenset) -> float:
+        """`stop_distance` without narrow passages."""
         net = self.net
         m = net.hdmap
         entered = False  # the scan has reached the next junction entry

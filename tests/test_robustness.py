@@ -43,10 +43,7 @@ def _real_maps() -> list[str]:
 REAL_MAPS = _real_maps() or [pytest.param("", marks=pytest.mark.skip(
     reason=f"third-party maps not present ({SHARED_MAPS} is absent on this machine)"))]
 # maps whose drives fail for a known reason outside the map readers (strict: an unexpected pass fails)
-KNOWN_DRIVE_FAILURES = {
-    "apollo/autonomous_stuff/base_map.bin": "opposite lanes of every road overlap (centrelines 0.5 m apart, 3.5 m "
-    "wide): a one-lane two-way road the env's traffic has no rule for, so oncoming cars meet head-on",
-}
+KNOWN_DRIVE_FAILURES: dict[str, str] = {}
 
 
 @lru_cache(maxsize=None)

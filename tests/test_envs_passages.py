@@ -1,0 +1,129 @@
+"""Narrow passages (envs.network.Passage, envs.rules): road lanes of opposite directions closer
+than a car width plus margin (autonomous_stuff's one-lane two-way roads, 0.5 m apart; GoMentum's
+lane_61/lane_62, 2.1 m apart where a road splits) are driven one direction at a time, first come
+first served, by traffic and by the baseline planner; the map the test makes is a two-junction
+map whose link road narrows to a one-lane bridge (lanes 1 m wide, centrelines 1 m apart).
+Generated maps have no such lanes, so nothing changes on them."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import feat2map
+from feat2map.envs.network import PASSAGE_DISTANCE_M, MapNetwork
+from feat2map.formats import read_map
+from feat2map.scenarios.rollout import run_suite
+from feat2map.scenarios.routes import build_suite
+from feat2map.scenarios.scenario import Scenario, make_env
+
+BRIDGE_WIDTH_M, TAPER_M = 1.0, 12.0
+
+
+def _narrow(src: Path, dst: Path, road_id: str, width: float, taper: float) -> None:
+    """Road `road_id` of an exported OpenDRIVE map narrowed from its lane width to `width` over
+    `taper` metres at both ends (cubic widths with zero slope at the joints)."""
+    from lxml import etree
+
+    root = etree.parse(str(src)).getroot()
+    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    length = float(road.get("length"))
+    for lane in road.findall("lanes/laneSection/*/lane"):
+        old = lane.find("width")
+        if old is None:
+            continue
+        w0 = float(old.get("a"))
+        at = lane.index(old)
+        lane.remove(old)
+        dw = width - w0
+        parts = [(0.0, w0, 3 * dw / taper ** 2, -2 * dw / taper ** 3), (taper, width, 0.0, 0.0),
+                 (length - taper, width, -3 * dw / taper ** 2, 2 * dw / taper ** 3)]
+        for k, (s, a, c, d) in enumerate(parts):
+            lane.insert(at + k, etree.Element("width", sOffset=repr(s), a=repr(a), b="0.0", c=repr(c), d=repr(d)))
+    dst.write_bytes(etree.tostring(root))
+
+
+@pytest.fixture(scope="module")
+def bridge(tmp_path_factory) -> Path:
+    """Two 4-way stop junctions joined by road 3 (61 m), narrowed to a one-lane bridge."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    d = tmp_path_factory.mktemp("bridge")
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "stop", False)
+    write_opendrive(feat2map.generate_from_features([four, four], seed=0), d / "twin.xodr")
+    _narrow(d / "twin.xodr", d / "bridge.xodr", "3", BRIDGE_WIDTH_M, TAPER_M)
+    return d / "bridge.xodr"
+
+
+def test_generated_maps_have_no_passages():
+    """Opposite lanes of generated roads are a lane width apart: no passage, so the rules (and
+    the PPO example's behaviour) are those of before on every generated map."""
+    maps = [feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=s) for s in range(3)]
+    maps.append(feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 72, 144, 216, 288], "signal", True)],
+                                                seed=0))
+    for m in maps:
+        net = MapNetwork.from_map(m)
+        assert net.passages == {}
+        assert any(ln.junction_id is None for ln in m.lanes.values())
+
+
+def test_one_lane_bridge_is_one_passage(bridge):
+    """Both lanes of the narrowed road form one passage, one lane a side, over the stretch where
+    their centrelines are closer than PASSAGE_DISTANCE_M (plus half a car at each end)."""
+    m = read_map(bridge)
+    net = MapNetwork.from_map(m)
+    link = [ln.id for ln in m.lanes.values() if ln.road_id == "3"]
+    assert len(link) == 2 and set(net.passages) == set(link)
+    a, b = (net.passages[x] for x in link)
+    assert a.group == b.group and {a.side, b.side} == {0, 1}
+    for x in link:
+        p = net.passages[x]
+        assert 30.0 < p.s1 - p.s0 <= net.lane_of[x].length + 1e-6
+    assert BRIDGE_WIDTH_M < PASSAGE_DISTANCE_M
+
+
+def _through(m, jid: str, entry: str, exit_: str) -> str:
+    return next(ln.id for ln in m.lanes_by_junction[jid] if m.lanes[ln.predecessors[0]].road_id == entry
+                and m.lanes[ln.successors[0]].road_id == exit_)
+
+
+def test_oncoming_car_waits_until_the_ego_has_crossed(bridge):
+    """The ego drives west to east over the bridge; a traffic car heading into it from the east
+    waits before it (outside the junction) until the ego is off it: the two are never on the
+    bridge together and nobody collides. Without the rule they met head-on."""
+    m = read_map(bridge)
+    sc = Scenario("bridge", str(bridge), (("1", "1", "3"), ("2", "3", "6")), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    net = u.net
+    west_east = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id in u.vehicle.lane_route)
+    east_west = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id != west_east)
+    j = next(ln for ln in m.lanes.values() if ln.junction_id is not None and east_west in ln.successors)
+    route = [j.predecessors[0], j.id, east_west]
+    car = u.road.spawn(route[0], net.lane_of[route[0]].length - 40.0, 8.0, route)
+    from feat2map.scenarios.planner import BaselinePlanner
+
+    planner = BaselinePlanner()
+    planner.reset(env)
+    together = waited = False
+    for _ in range(int(60 * u.config["policy_frequency"])):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        ego_on = net.id_of.get(u.vehicle.lane_index) == west_east
+        car_on = net.id_of.get(car.lane_index) == east_west
+        assert not info["collision"], f"collision at t={info['time']:.1f} s"
+        together |= ego_on and car_on
+        waited |= ego_on and car.speed < 0.5 and m.lanes[net.id_of.get(car.lane_index)].junction_id is None
+        if term or trunc:
+            break
+    env.close()
+    assert u.route_completed()
+    assert not together and waited and not car.crashed
+
+
+def test_bridge_map_drives_clean_with_traffic(bridge):
+    """Every manoeuvre's route of the bridge map drives with 6 traffic cars without a failure."""
+    suite = build_suite(bridge, traffic_vehicles=6)
+    assert suite.scenarios
+    result = run_suite(suite, "baseline", workers=1, progress=False, record_failure_gif=False)
+    assert [f"{o.name}: {o.outcome}: {o.message}" for o in result.failures("any")] == []
