@@ -1,6 +1,8 @@
 """Shared fixtures: generated maps, and the third-party maps in ../shared/maps (skipped when absent)."""
 from __future__ import annotations
 
+import copy
+import math
 import os
 from pathlib import Path
 
@@ -19,6 +21,22 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MAPS = Path(os.environ.get("FEAT2MAP_SHARED_MAPS", REPO.parent / "shared" / "maps"))
+
+
+def straight_piece(road, rid: str, s0: float, length: float):
+    """A copy of the OpenDRIVE `road` element (first geometry straight) as its straight piece of
+    `length` from `s0`, with id `rid`: fixtures cut exported roads into CARLA-style pieces."""
+    from lxml import etree
+
+    g = road.find("planView/geometry")
+    x, y, h = (float(g.get(k)) for k in ("x", "y", "hdg"))
+    r = copy.deepcopy(road)
+    r.attrib.update({"id": rid, "length": repr(length)})
+    geo = r.find("planView/geometry")
+    geo.remove(geo[0])
+    etree.SubElement(geo, "line")
+    geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(length)})
+    return r
 
 
 def shared_map(relative: str) -> Path:

@@ -21,7 +21,7 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import shared_map
+from conftest import shared_map, straight_piece
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -393,25 +393,19 @@ def _split_with_a_centimetre_road(src: Path, dst: Path, gap: float = 0.013) -> N
     """CARLA-style: cut one straight connecting road of the exported junction in three, the
     first part in the junction, a `gap`-long ordinary road, the last part in a second junction
     element (the elements touch, so the reader merges them)."""
-    import copy
 
     root = etree.parse(str(src)).getroot()
     jx = root.find("junction")
     con = next(r for r in root.findall("road") if r.get("junction") == jx.get("id")
                and all(abs(float(r.find("planView/geometry/paramPoly3").get(k))) < 1e-9 for k in ("cV", "dV")))
-    g = con.find("planView/geometry")
-    x, y, h, length = (float(g.get(k)) for k in ("x", "y", "hdg", "length"))
+    length = float(con.find("planView/geometry").get("length"))
     ids = ("901", "902", "903")
     parts = [(0.0, length / 2 - gap / 2), (length / 2 - gap / 2, gap), (length / 2 + gap / 2, length / 2 - gap / 2)]
     parent, at = con.getparent(), con.getparent().index(con)
     parent.remove(con)
     for k, (s0, piece) in enumerate(parts):
-        r = copy.deepcopy(con)
-        r.attrib.update({"id": ids[k], "length": repr(piece), "junction": (jx.get("id"), "-1", "999")[k]})
-        geo = r.find("planView/geometry")
-        geo.remove(geo[0])
-        etree.SubElement(geo, "line")
-        geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(piece)})
+        r = straight_piece(con, ids[k], s0, piece)
+        r.set("junction", (jx.get("id"), "-1", "999")[k])
         lane_link = r.find("lanes/laneSection/right/lane/link")
         if k > 0:
             r.find("link/predecessor").attrib.update({"elementId": ids[k - 1], "contactPoint": "end"})

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from conftest import SHARED_MAPS
+from conftest import SHARED_MAPS, straight_piece
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import native, read_map
 from feat2map.formats.opendrive.reader import SIGNAL_CODES
@@ -163,27 +163,18 @@ def _split_approach(src: Path, dst: Path, pieces: tuple[float, ...]) -> None:
     """CARLA-style short roads before a stop line: the exported stub road 1 (junction at its
     start, a stop sign there) cut into roads of `pieces` metres from the junction out, the rest
     of its length last; straight stubs become lines."""
-    import copy
-    import math
-
     from lxml import etree
 
     root = etree.parse(str(src)).getroot()
     road = next(r for r in root.findall("road") if r.get("id") == "1")
-    g = road.find("planView/geometry")
-    x, y, h, total = (float(g.get(k)) for k in ("x", "y", "hdg", "length"))
+    total = float(road.find("planView/geometry").get("length"))
     lengths = [*pieces, total - sum(pieces)]
     ids = ["1"] + [str(900 + k) for k in range(1, len(lengths))]
     parent, at = road.getparent(), road.getparent().index(road)
     parent.remove(road)
     s0 = 0.0
     for k, length in enumerate(lengths):
-        r = copy.deepcopy(road)
-        r.attrib.update({"id": ids[k], "length": repr(length)})
-        geo = r.find("planView/geometry")
-        geo.remove(geo[0])
-        etree.SubElement(geo, "line")
-        geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(length)})
+        r = straight_piece(road, ids[k], s0, length)
         link = r.find("link")
         if k > 0:
             for el in list(link):
