@@ -156,20 +156,24 @@ def test_a_short_last_lane_before_a_stop_line_is_driven(base_map, who):
     env.close()
 
 
-def test_running_a_stop_over_a_lane_too_short_to_be_seen_is_caught(base_map):
-    """A 1 cm entry lane is driven over within a frame (the ego is never located on it): entering
-    the junction from the lane before it still judges that lane's stop sign."""
-    m = split_entries(base_map, 0.01)
+def _through_a_stop(m):
+    """An env on `m` without traffic, reset, whose route goes from the lane before a stop-sign
+    entry lane through its junction; and that route."""
     stop_in = next(l for s in m.stop_signs.values() for l in s.lane_ids)
     jl = m.lanes[stop_in].successors[0]
     route = {"lanes": [m.lanes[stop_in].predecessors[0], stop_in, jl, m.lanes[jl].successors[0]]}
     env = gym.make("feat2map/MapFile-v0", config={"map": m, "route": route, "traffic_vehicles": 0, **DRIVE})
     env.reset(seed=0)
+    return env, route
+
+
+def test_running_a_stop_over_a_lane_too_short_to_be_seen_is_caught(base_map):
+    """A 1 cm entry lane is driven over within a frame (the ego is never located on it): entering
+    the junction from the lane before it still judges that lane's stop sign."""
+    env, _ = _through_a_stop(split_entries(base_map, 0.01))
     driver = ScriptedDriver(env, ignore={"stop"})
-    lanes = []
     while True:
         _, _, term, trunc, info = env.step(driver.act())
-        lanes.append(info["lane_id"])
         if term or trunc:
             break
     assert info["violations"]["stop_sign"] == 1 and info["route_completed"]
@@ -180,12 +184,7 @@ def test_running_a_stop_over_a_lane_too_short_to_be_seen_is_caught(base_map):
 def test_a_stop_on_the_lane_before_a_short_last_lane_is_a_full_stop(base_map):
     """The judge counts the stop the driver makes on the lane before a 2.4 m last lane (the
     stop line 4 m ahead, along the route) as the stop sign's full stop."""
-    m = split_entries(base_map, 2.4)
-    stop_in = next(l for s in m.stop_signs.values() for l in s.lane_ids)
-    jl = m.lanes[stop_in].successors[0]
-    route = {"lanes": [m.lanes[stop_in].predecessors[0], stop_in, jl, m.lanes[jl].successors[0]]}
-    env = gym.make("feat2map/MapFile-v0", config={"map": m, "route": route, "traffic_vehicles": 0, **DRIVE})
-    env.reset(seed=0)
+    env, route = _through_a_stop(split_entries(base_map, 2.4))
     u = env.unwrapped
     driver = ScriptedDriver(env)
     seen = False
@@ -193,7 +192,7 @@ def test_a_stop_on_the_lane_before_a_short_last_lane_is_a_full_stop(base_map):
         _, _, term, trunc, info = env.step(driver.act())
         on_lane_before = info["lane_id"] == route["lanes"][0]
         if on_lane_before and u.vehicle.speed <= 0.3 and info["distance_to_stop_line"] <= 6.0:
-            assert u.judge.stopped_before(stop_in) and not u.judge.stopped_before(route["lanes"][0])
+            assert u.judge.stopped_before(route["lanes"][1]) and not u.judge.stopped_before(route["lanes"][0])
             seen = True
         if term or trunc:
             break
