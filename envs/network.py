@@ -40,12 +40,13 @@ _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTI
 _PRIORITY = {"none": 2, "right": 2, "left": 1, "uturn": 0}
 
 
-def _clear_of_crossings(ln, cl: LineString, roads: list, tree: STRtree) -> float:
+def _clear_of_crossings(ln, cl: LineString, road_lanes: "RoadLanes") -> float:
     """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
     clear of every road lane of another road its centreline crosses (the crossing less half that
     lane's width and CROSSING_CLEARANCE_M); inf when it crosses none. GoMentum's lane_79 crosses
     lane_78, an exit of J_13, 2 m before its stop line: a car waiting there stood in the path of
     the right turn into lane_78."""
+    roads, lines, tree = road_lanes
     linked = {ln.id, *ln.predecessors, *ln.successors}
     best = math.inf
     for k in tree.query(cl, predicate="intersects").tolist():
@@ -53,11 +54,22 @@ def _clear_of_crossings(ln, cl: LineString, roads: list, tree: STRtree) -> float
         if other.road_id == ln.road_id or other.id in linked or set(other.predecessors) & set(ln.predecessors) \
                 or set(other.successors) & set(ln.successors):
             continue
-        inter = cl.intersection(LineString(other.centerline))
+        inter = cl.intersection(lines[k])
         for g in getattr(inter, "geoms", [inter]):
             for p in g.coords:
                 best = min(best, cl.project(Point(p)) - other.width / 2 - CROSSING_CLEARANCE_M)
     return max(best, 0.0)
+
+
+RoadLanes = tuple[list, list[LineString], STRtree]  # road lanes (outside junctions), centrelines, their STRtree
+
+
+def _road_lanes(hdmap) -> RoadLanes:
+    """The map's road lanes, their centrelines and an STRtree over them: built once per network
+    for the stop lines' crossing clearances and the narrow passages."""
+    roads = [ln for ln in hdmap.lanes.values() if ln.junction_id is None]
+    lines = [LineString(ln.centerline) for ln in roads]
+    return roads, lines, STRtree(lines)
 
 
 def flip(points) -> np.ndarray:
@@ -177,8 +189,9 @@ class MapNetwork(RoadNetwork):
                 net.lane_of[lid] = lane
                 net.lane_ids.append(lid)
         net._build_index()
-        net._build_controls()
-        net._build_passages()
+        road_lanes = _road_lanes(m)
+        net._build_controls(road_lanes)
+        net._build_passages(road_lanes)
         return net
 
     def _build_index(self) -> None:
@@ -279,10 +292,8 @@ class MapNetwork(RoadNetwork):
         hw = min(VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M, max(ln.width / 2 - 0.1, VEHICLE_WIDTH_M / 2))
         return np.stack([centre + a * hl * u + b * hw * n for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
 
-    def _build_controls(self) -> None:
+    def _build_controls(self, road_lanes: RoadLanes) -> None:
         m = self.hdmap
-        roads = [ln for ln in m.lanes.values() if ln.junction_id is None]
-        road_tree = STRtree([LineString(ln.centerline) for ln in roads])
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
             for c in table.values():
                 line = LineString(c.stop_line) if len(c.stop_line) >= 2 else None
@@ -293,7 +304,7 @@ class MapNetwork(RoadNetwork):
                     if line is not None and line.intersects(cl):
                         inter = line.intersection(cl)
                         s = cl.project(inter.representative_point())
-                    s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, roads, road_tree))
+                    s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, road_lanes))
                     self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(s))
         self.max_line_setback = max((self.lane_of[l].length - sl.s for l, sl in self.stop_lines.items()), default=0.0)
         # junction conflicts: different entry lanes whose paths cross, merge or pass too close
@@ -342,16 +353,14 @@ class MapNetwork(RoadNetwork):
                 b = (pts[(i + 2) % 4] + pts[(i + 3) % 4]) / 2
                 self.crosswalk_axes[c.id] = (flip(a)[0], flip(b)[0], float(e[i]))
 
-    def _build_passages(self) -> None:
+    def _build_passages(self, road_lanes: RoadLanes) -> None:
         """`passages`: pairs of road lanes of opposite directions (not linked to each other) whose
         centrelines come closer than PASSAGE_DISTANCE_M, found once through an STRtree; lanes
         linked by such pairs form one passage, its two sides coloured by direction."""
-        m = self.hdmap
-        roads = [ln for ln in m.lanes.values() if ln.junction_id is None]
-        lines = [LineString(ln.centerline) for ln in roads]
+        roads, lines, tree = road_lanes
         if not lines:
             return
-        left, right = STRtree(lines).query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M)
+        left, right = tree.query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M)
         span: dict[str, list[float]] = {}
         edges: dict[str, set[str]] = {}
         for i, j in zip(left.tolist(), right.tolist()):
