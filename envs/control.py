@@ -11,7 +11,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..phases import group_phases, travel_headings
+from ..phases import junction_phases
 from .network import MapNetwork
 from .rules import PEDESTRIAN_CLEARANCE_M, STOPPED_SPEED_MPS, TrafficRules
 from .vehicles import Pedestrian
@@ -60,15 +60,14 @@ class PhasePlan:
         return 0.0
 
 
-def junction_phases(net: MapNetwork, paired: bool) -> tuple[dict, list]:
+def signal_tables(net: MapNetwork, paired: bool) -> tuple[dict, list]:
     """({junction: sorted signal ids}, [(junction, phases)] in junction order) of a network's
     signals (per network and phase mode: the same every episode)."""
-    m = net.hdmap
-    by_j: dict[str | None, list] = {}
-    for sig in m.signals.values():
-        by_j.setdefault(sig.junction_id, []).append(sig)
-    ids = {j: sorted(x.id for x in sigs) for j, sigs in by_j.items()}
-    return ids, [(jid, group_phases(by_j[jid], paired, travel_headings(m, by_j[jid]))) for jid in sorted(by_j, key=str)]
+    ids: dict[str | None, list[str]] = {}
+    for sig in net.hdmap.signals.values():
+        ids.setdefault(sig.junction_id, []).append(sig.id)
+    phases = junction_phases(net.hdmap, paired)
+    return {j: sorted(x) for j, x in ids.items()}, [(jid, phases[jid]) for jid in sorted(phases, key=str)]
 
 
 class TrafficControl(TrafficRules):
@@ -81,7 +80,7 @@ class TrafficControl(TrafficRules):
         self.rng = rng
         self.plans: dict[str, PhasePlan] = {}
         self.signals_by_junction, grouped = net.memo(("phases", cfg["signal_phases"]),
-                                                     lambda: junction_phases(net, cfg["signal_phases"] == "paired"))
+                                                     lambda: signal_tables(net, cfg["signal_phases"] == "paired"))
         g, a, r = cfg["signal_green"], cfg["signal_amber"], cfg["signal_all_red"]
         fixed = cfg.get("signal_offsets") or {}  # by junction id, or by any of its signal ids
         for jid, phases in grouped:

@@ -332,10 +332,7 @@ def rows_markdown(rows: Sequence[dict]) -> str:
 
 def plot_cells(rows: Sequence[dict], names: Sequence[str], path: Path) -> None:
     """Heat maps of success per junction type (rows) and manoeuvre (columns), one per policy."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # headless: feat2map.render selected the Agg backend
 
     types = list(dict.fromkeys((r["n"], r["control"], r["crosswalk"]) for r in rows))
     fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names) + 1.2, 0.42 * len(types) + 1.6), squeeze=False)
@@ -358,10 +355,7 @@ def plot_cells(rows: Sequence[dict], names: Sequence[str], path: Path) -> None:
 
 def plot_curve(curve: Sequence[dict], path: Path, window: int = 200) -> None:
     """Rolling success rate and return of the training episodes against steps (wall time on top)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # headless: feat2map.render selected the Agg backend
 
     steps = np.array([c["steps"] for c in curve], dtype=float)
     wall = np.array([c["wall_s"] for c in curve], dtype=float)

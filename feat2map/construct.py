@@ -224,7 +224,9 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
                             sockets[j][s].half_width + cfg.junction_margin, cfg)
                    for j, p in enumerate(placements) for s, ln in enumerate(p.links)
                    if ln is not None and (ln.junction, ln.socket) > (j, s)]
-    _check_uncrossed(connections, [_junction_polygon(np.asarray(c), socks) for c, socks in zip(centers, sockets)], cfg)
+    junction_polys = [_junction_polygon(np.asarray(c), socks) for c, socks in zip(centers, sockets)]
+    _check_uncrossed(connections, junction_polys, cfg)
+    connection_tree = STRtree(connections)
     # roads: incoming / outgoing lanes per (junction, socket), each listed right to left
     incoming: dict[tuple[int, int], list[str]] = {}
     outgoing: dict[tuple[int, int], list[str]] = {}
@@ -239,7 +241,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
             rid = f"R{n_roads}"
             n_roads += 1
             if link is None:
-                length = _stub_length(g, centers[j], connections, cfg, f"junction J{j}")
+                length = _stub_length(g, centers[j], connection_tree, cfg, f"junction J{j}")
                 end = tuple(np.asarray(g.point) + length * unit(g.angle))
                 road = b.add_road(rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out, sock.lanes_in, f"J{j}", None)
             else:
@@ -260,8 +262,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
     for j, p in enumerate(placements):
         jid = f"J{j}"
         f = p.feature
-        center = np.array(p.cell, dtype=float) * cfg.grid_gap
-        poly = _junction_polygon(center, sockets[j])
+        poly = junction_polys[j]
         n_conn = 0
         for a in range(f.n_roads):
             ins = incoming[(j, a)]
@@ -325,18 +326,19 @@ def pavement(reference: Bezier, half_width: float, cfg: GenerationConfig) -> Pol
     return Polygon(np.concatenate([left, right[::-1]])).buffer(0)
 
 
-def _stub_length(g: SocketGeometry, center, connections: Sequence[Polygon], cfg: GenerationConfig,
+def _stub_length(g: SocketGeometry, center, connections: STRtree, cfg: GenerationConfig,
                  where: str) -> float:
     """A stub ends short of the half-way line (facing stubs never meet) and short of every road
     between junctions that sweeps across its way (a connection leaving a socket far from its
-    grid direction); a stub that would keep less than MIN_STUB_LENGTH_M is a LayoutError."""
+    grid direction; `connections`: an STRtree of their pavements); a stub that would keep less than
+    MIN_STUB_LENGTH_M is a LayoutError."""
     length = min(cfg.stub_length, cfg.grid_gap / 2 - cfg.junction_margin - math.dist(g.point, center))
     p, u = np.asarray(g.point), unit(g.angle)
     hw = g.half_width + cfg.junction_margin
     n = left_normal(g.angle)
     way = Polygon([tuple(p + hw * n), tuple(p + length * u + hw * n), tuple(p + length * u - hw * n),
                    tuple(p - hw * n)])
-    for road in connections:
+    for road in connections.geometries.take(connections.query(way, predicate="intersects")):
         hit = way.intersection(road)
         if hit.area > 1e-6:
             pts = np.concatenate([np.asarray(part.exterior.coords) for part in getattr(hit, "geoms", [hit])

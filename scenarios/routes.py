@@ -260,10 +260,11 @@ def _no_routes_reason(m: HDMap) -> str:
     """Why a map gives no route-coverage route, in one line."""
     if not m.junctions:
         return "no junctions: a route-coverage suite drives junction manoeuvres"
-    if not manoeuvres(m):
+    found = manoeuvres(m)
+    if not found:
         return (f"no manoeuvres: none of its {len(m.junctions)} junctions has a junction lane from a road lane "
                 "to a road lane")
-    return f"none of its {len(manoeuvres(m))} manoeuvres can be driven (no junction lane the env drives)"
+    return f"none of its {len(found)} manoeuvres can be driven (no junction lane the env drives)"
 
 
 def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names: Sequence[str] | None = None,

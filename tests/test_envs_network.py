@@ -142,7 +142,7 @@ def test_signal_heads_of_one_approach_share_a_phase(net):
     grouped by the direction of travel of the governed lanes, opposite approaches paired."""
     from dataclasses import replace
 
-    from feat2map.envs.control import group_phases, travel_headings
+    from feat2map.phases import group_phases, travel_headings
 
     m = net.hdmap
     sigs = [s for s in m.signals.values() if s.junction_id == "J0"]
