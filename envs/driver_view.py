@@ -50,7 +50,7 @@ CONFLICT_DISTANCE_M = 60.0
 ARRIVAL_MIN_SPEED_MPS = 1.0  # times to arrival divide by at least this speed (a waiting car is not "never")
 PEDESTRIAN_SCALE_M = 30.0
 LEADER_SCALE_M = 40.0
-_IGNORE_BUT_PEDESTRIANS = frozenset({"signal", "stop", "conflict"})
+_IGNORE_BUT_PEDESTRIANS = frozenset({"signal", "stop", "conflict", "passage"})
 
 
 def _scaled(value: float, scale: float) -> float:

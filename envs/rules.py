@@ -496,8 +496,9 @@ class TrafficRules:
     def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset()) -> float:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
         STOP_POINT_M before a stop line it may not pass (measured along the route), before a
-        pedestrian's crosswalk, or before a narrow passage the other direction holds."""
-        passage = self.passage_stop(vehicle, commit)
+        pedestrian's crosswalk, or before a narrow passage the other direction holds. `ignore`
+        names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage"."""
+        passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
         if passage < math.inf:  # waiting for a passage: no junction lane is reserved meanwhile
             return min(passage, self._rule_stop(vehicle, False, ignore))
         return self._rule_stop(vehicle, commit, ignore)

@@ -6,8 +6,10 @@ map whose link road narrows to a one-lane bridge (lanes 1 m wide, centrelines 1 
 Generated maps have no such lanes, so nothing changes on them."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import feat2map
@@ -127,3 +129,27 @@ def test_bridge_map_drives_clean_with_traffic(bridge):
     assert suite.scenarios
     result = run_suite(suite, "baseline", workers=1, progress=False, record_failure_gif=False)
     assert [f"{o.name}: {o.outcome}: {o.message}" for o in result.failures("any")] == []
+
+
+def test_driver_views_pedestrian_feature_is_not_a_passage_wait(bridge):
+    """DriverView's `pedestrian` feature asks the rules for pedestrians only: an oncoming car
+    holding the bridge makes the ego wait (the rules' stop distance is finite), the feature stays 0."""
+    from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES
+
+    m = read_map(bridge)
+    sc = Scenario("bridge", str(bridge), (("1", "1", "3"), ("2", "3", "6")), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False, "pedestrian_rate": 0.0,
+                               "observation": {"type": "DriverView"}})
+    env.reset(seed=0)
+    u = env.unwrapped
+    west_east = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id in u.vehicle.lane_route)
+    east_west = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id != west_east)
+    u.road.spawn(east_west, 1.0, 0.0, [east_west])  # holds the bridge, standing on it
+    waited = False
+    for _ in range(40):
+        obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        if u.control.passage_stop(u.vehicle, False) < math.inf:
+            waited = True
+            assert obs[DRIVER_VIEW_FEATURES.index("pedestrian")] == 1.0  # 1: none within its scale
+    env.close()
+    assert waited
