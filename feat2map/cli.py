@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from . import __version__, atomic
 from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, GenerationConfig, Limits, raised_limits
-from .errors import WHERE_MAX_CHARS, Feat2MapError, FeatureError, LayoutError
+from .errors import WHERE_MAX_CHARS, ConfigError, Feat2MapError, FeatureError, LayoutError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 from .formats import FORMATS, check_target, detect, native, read_map, write_map
 from .messages import counted, one_line
@@ -58,18 +58,18 @@ def _summary(m) -> str:
 
 
 GENERATE_MARKERS = ("map.json",)  # a folder holding one is an earlier `generate` output, replaced whole
-MAX_SEED = 2**63 - 1
-
-
 def seed_arg(text: str) -> int:
-    """argparse type of --seed: an integer 0 <= seed < 2**63."""
+    """argparse type of --seed: an integer 0 <= seed < 2**63 (`generate.check_seed`)."""
+    from .generate import check_seed
+
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be an integer, got {text[:40]!r}") from None
-    if not 0 <= value <= MAX_SEED:
-        raise argparse.ArgumentTypeError(f"must be between 0 and {MAX_SEED}, got {text[:40]}")
-    return value
+    try:
+        return check_seed(value)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(exc.message) from None
 
 
 def _limit_arg(text: str) -> tuple[str, float]:
