@@ -388,6 +388,10 @@ class TrafficCore:
         self.route_end = np.zeros(0, dtype=np.int64)  # index of the route's last lane
         self.entry = np.zeros(0)  # distance from the current lane's start to the next junction entry (inf: none in the window)
         self.driven = np.zeros(0, dtype=bool)
+        # controlled rows (the agents of envs/multi_agent.py): driven rows that move along their
+        # route like traffic but take `command` as their acceleration (no IDM, no MOBIL, no rule stops)
+        self.controlled = np.zeros(0, dtype=bool)
+        self.command = np.zeros(0)
         self._not_self = np.zeros((0, 1, 0), dtype=bool)
         self.routes: list[list[int]] = []  # lane ints
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
@@ -398,10 +402,12 @@ class TrafficCore:
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
-               "length", "width", "route_pos", "route_end", "entry")
+               "length", "width", "route_pos", "route_end", "entry", "controlled", "command")
 
-    def add_traffic(self, lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
-        """A new driven row (and its view) at s on `lane_id`, its route starting there."""
+    def add_traffic(self, lane_id: str, s: float, speed: float, route: list[str],
+                    controlled: bool = False) -> ArrayVehicle:
+        """A new driven row (and its view) at s on `lane_id`, its route starting there; with
+        `controlled`, a row whose acceleration is `command` (an agent's)."""
         lane = self.table.index[lane_id]
         x, y, h = self.table.place(np.array([lane]), np.array([s]), np.zeros(1))
         v = ArrayVehicle.__new__(ArrayVehicle)
@@ -409,7 +415,7 @@ class TrafficCore:
         row = dict(kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
                    timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, mobil_t=-1e9,
                    crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0,
-                   route_end=len(route) - 1, entry=math.inf)
+                   route_end=len(route) - 1, entry=math.inf, controlled=controlled, command=0.0)
         self._append(v, row, [self.table.index[x] for x in route], None)
         self.road.vehicles.append(v)
         return v
@@ -497,7 +503,7 @@ class TrafficCore:
             row = dict(kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0, timer=float(obj.timer),
                        mobil_t=float(getattr(obj, "_mobil_t", -1e9)), crashed=bool(obj.crashed), x=obj.position[0],
                        y=obj.position[1], heading=obj.heading, length=obj.LENGTH, width=obj.WIDTH, route_pos=pos,
-                       route_end=len(route) - 1, entry=math.inf)
+                       route_end=len(route) - 1, entry=math.inf, controlled=False, command=0.0)
             reserved = getattr(obj, "reserved", None)
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
@@ -508,7 +514,7 @@ class TrafficCore:
         else:
             row = dict(kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
                        crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0,
-                       route_end=0, entry=math.inf)
+                       route_end=0, entry=math.inf, controlled=False, command=0.0)
             self._append(obj, row, [], None)
             self._read_external(len(self.objs) - 1)
 
@@ -622,6 +628,7 @@ class TrafficCore:
             a_pair = IDM_ACC * (free[fi] - (np.maximum(s_star, 0.0) / np.maximum(gap, IDM_MIN_GAP_M)) ** 2)
             np.minimum.at(acc, fi, a_pair)
         acc = np.minimum(np.maximum(acc, IDM_RANGE_MPS2[0]), IDM_RANGE_MPS2[1])
+        acc = np.where(self.controlled, self.command, acc)
         self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
 
     def _leaders(self, driven: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -679,10 +686,10 @@ class TrafficCore:
         if busy:
             W = self.W
             flag |= (np.isin(W, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        return np.nonzero(flag & driven & ~self.crashed)[0].tolist()
+        return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
 
     def _mobil(self, driven: np.ndarray) -> None:
-        due = driven & (self.timer - self.mobil_t >= TrafficVehicle.MOBIL_PERIOD_S) & ~self.crashed
+        due = driven & (self.timer - self.mobil_t >= TrafficVehicle.MOBIL_PERIOD_S) & ~self.crashed & ~self.controlled
         if not due.any():
             return
         self.mobil_t = np.where(due, self.timer, self.mobil_t)

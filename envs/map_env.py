@@ -192,15 +192,9 @@ class MapEnv(AbstractEnv):
         lanes before a short first lane), at least its braking distance before the first stop
         line (slower where the road before the line is too short)."""
         c = self.config
-        if extend:
-            route = extend_route(self.net, route, float(c["ego_start_distance"]), float(c["goal_distance"]))
-        start = float(c["ego_start_distance"])
-        s0 = max(0.0, route_start_s(self.net, route, start) if extend else self.net.lane_of[route[0]].length - start)
+        route, s0, speed = start_place(self.net, route, extend, float(c["ego_start_distance"]),
+                                       float(c["goal_distance"]), float(c["ego_initial_speed"]), EgoVehicle.LENGTH)
         lane = self.net.lane_of[route[0]]
-        speed = float(c["ego_initial_speed"])
-        d_line = first_line_distance(self.net, route, s0)
-        if d_line < braking_distance(speed, EgoVehicle.LENGTH):
-            speed = fitting_speed(d_line, EgoVehicle.LENGTH)
         pos, heading = lane.position(s0, 0.0), lane.heading_at(s0)
         if isinstance(self.action_type, DiscreteMetaAction):
             ego = EgoMDPVehicle(self.road, pos, heading, speed, target_speeds=self.action_type.target_speeds)
@@ -229,7 +223,8 @@ class MapEnv(AbstractEnv):
         return sorted({l for l in lanes if m.lanes[l].junction_id is None})  # no route starts in a junction
 
     def _spawn_traffic(self, min_ego_distance: float = EGO_CLEARANCE_M) -> TrafficVehicle | None:
-        """A traffic vehicle on a random spawn lane and random walk, clear of other vehicles, at
+        """A traffic vehicle on a random spawn lane and random walk, clear of other vehicles (and
+        `min_ego_distance` from the controlled ones: the ego, or the agents of multi_agent), at
         least its braking distance before the first stop line of its route and not head-on with
         the holder of a narrow passage (None if no place)."""
         if not self._spawn_lanes:
@@ -241,7 +236,7 @@ class MapEnv(AbstractEnv):
             lane = self.net.lane_of[lid]
             s = float(rng.uniform(0.0, max(lane.length - TRAFFIC_LANE_END_M, 0.1)))
             pos = lane.position(s, 0.0)
-            if np.hypot(*(pos - self.vehicle.position)) < min_ego_distance:
+            if any(np.hypot(*(pos - v.position)) < min_ego_distance for v in self.controlled_vehicles):
                 continue
             if any(np.hypot(*(pos - v.position)) < TRAFFIC_SPAWN_GAP_M for v in self.road.vehicles):
                 continue
@@ -472,6 +467,22 @@ def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_
             break
         route.append(nxt)
     return route
+
+
+def start_place(net: MapNetwork, route: list[str], extend: bool, start_distance: float, goal_distance: float,
+                speed: float, length: float) -> tuple[list[str], float, float]:
+    """(route, s on its first lane, speed) of a vehicle starting `start_distance` before the end
+    of its route's first lane (a manoeuvre route, `extend`: walking back over the road lanes
+    before a short first lane, the route extended at both ends), at most at the speed whose
+    braking distance fits before the first stop line. The ego's start (MapEnv) and the agents'
+    (multi_agent) both come from here."""
+    if extend:
+        route = extend_route(net, route, start_distance, goal_distance)
+    s0 = max(0.0, route_start_s(net, route, start_distance) if extend else net.lane_of[route[0]].length - start_distance)
+    d_line = first_line_distance(net, route, s0)
+    if d_line < braking_distance(speed, length):
+        speed = fitting_speed(d_line, length)
+    return route, s0, speed
 
 
 def road_neighbour(m, lane_id: str, candidates: Sequence[str], exclude: set[str]) -> str | None:

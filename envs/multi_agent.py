@@ -1,0 +1,593 @@
+"""Many learning agents through the same junctions: a PettingZoo `ParallelEnv` on any feat2map map.
+
+`feat2map.envs.parallel_env(config)` (or `MultiAgentMapEnv(config)`) drives `agents` controlled
+vehicles through a generated map (JunctionGrid-v0's keys: `features`, `feature_space`,
+`map_seed`...) or any map file (`map_file`) or HDMap (`map`), among IDM/MOBIL traffic and
+crosswalk pedestrians under the same rules as the single env (MapEnv's config keys, strict).
+
+World. One `MapEnv` (a `_World`: the generated or file env with its config, network, traffic
+control, arrays core, traffic and pedestrians) holds every agent: an agent is a controlled row of
+the arrays core (`core.TrafficCore.controlled`): it moves along its lane route like traffic but
+takes its acceleration from its action (steering follows the route), so traffic and agents are
+advanced in one array program and traffic sees agents as road users (leaders, stop queues,
+conflicts, reservations, crosswalks). Traffic respawns as in the single env, away from agents.
+
+Agents. `possible_agents` are "agent_0".."agent_{n-1}". Each gets a route (`agent_routes`:
+None = sampled through `route_junctions` junctions, as the single env samples the ego's;
+"coverage" = the map's route-coverage routes, `scenarios.routes.coverage_routes`, dealt round
+from a random start; or a list of routes in the single env's `route` format, dealt round) and
+starts at its entry where the ego would (`ego_start_distance` before the first stop line), or
+up to `agent_queue - 1` places of `agent_spacing` behind it; an agent whose place is taken waits
+and enters at a later step (it then appears in `agents`: PettingZoo's lifecycle). An agent
+finishes (terminated) on reaching its goal (`goal_distance` into its last lane) or in a crash,
+and leaves the road; every agent left is truncated at `duration`, and an episode ends when no
+agent is left.
+
+Per agent: the observation of the config's `observation` (Kinematics, DriverView, any type the
+single env takes; `observe_traffic_control` too), computed as the single env computes the ego's
+(each agent sees every other road user, agents included); the action of `action`: "TargetSpeed"
+(the default: discrete target speeds, the constant acceleration that reaches the chosen one by
+the next decision), "DiscreteMetaAction" (SLOWER/IDLE/FASTER over target speeds) or
+"ContinuousAction" (longitudinal acceleration in [-1, 1] over `acceleration_range`); the single
+env's reward terms and weights; the single env's judge (`rules.EgoJudge`: red light, missed stop,
+pedestrian yield) with two more violations (`AgentJudge`): `not_yielding` (entering a junction
+lane while a conflicting one is occupied or reserved, or priority traffic is about to enter one:
+`TrafficRules.junction_clear`, the rule traffic obeys) and `stop_order` (entering from a stop sign
+while a vehicle that stopped there earlier wants a conflicting lane: `TrafficRules.
+stop_queue_allows`), weighted by `reward_not_yielding` / `reward_stop_order`; infos with the
+single env's keys (`map_env` module docstring; `violations` holds the two more) plus
+`agent_collision` (the agent crashed into another agent; `collision` is any crash) and
+`wait_time` (seconds stopped so far).
+"""
+from __future__ import annotations
+
+import functools
+import math
+import types
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from ..errors import Feat2MapError
+from .config import number, one_of, pair, unknown_key_message
+from .control import TrafficControl
+from .junction_env import JunctionGridEnv, MapFileEnv
+from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_to_lanes, sample_lane_walk,
+                      sample_route, start_place)
+from .observation import TrafficControlObservation, make_observation
+from .road import ArrayRoad
+from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge
+from .vehicles import TrafficVehicle
+
+AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
+TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the default TargetSpeed actions (examples/train_ppo.py's)
+ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s2]
+META_GAIN = 1 / 0.6  # DiscreteMetaAction: acceleration per m/s off the target speed (highway-env's 1/TAU_ACC)
+ENTRY_LOOK_M = 8.0  # the judge notes the rules' verdict for agents this close to their next stop line
+MAX_AGENTS = 500
+#: the multi-agent env's own keys (the rest is MapEnv's config, checked by it)
+AGENT_DEFAULTS: dict[str, Any] = {
+    "agents": 8,  # possible agents
+    "agent_routes": None,  # None: sampled; "coverage": the map's route-coverage routes; or a list of routes
+    "agent_spacing": 12.0,  # [m] between agents queued on one approach at their start
+    "agent_queue": 3,  # places on an approach (the first at ego_start_distance before the stop line)
+    "action": {"type": "TargetSpeed", "target_speeds": list(TARGET_SPEEDS), "acceleration_range": list(ACCELERATION_RANGE)},
+    "reward_not_yielding": -1.0, "reward_stop_order": -1.0,
+}
+#: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
+WORLD_DEFAULTS: dict[str, Any] = {"simulation_frequency": 10, "policy_frequency": 2, "route_junctions": 1,
+                                  "duration": 60.0, "traffic_vehicles": 8}
+ACTION_KEYS = {"TargetSpeed": {"target_speeds", "acceleration_range"},
+               "DiscreteMetaAction": {"target_speeds", "longitudinal", "lateral"},
+               "ContinuousAction": {"acceleration_range", "longitudinal", "lateral"}}
+
+
+def parallel_env(config: Mapping[str, Any] | None = None, render_mode: str | None = None) -> "MultiAgentMapEnv":
+    """The multi-agent env (see the module docstring) on a generated map, or on `map_file` / `map`."""
+    return MultiAgentMapEnv(config, render_mode)
+
+
+# ---- config -----------------------------------------------------------------------------------
+def check_agent_config(cfg: Mapping[str, Any]) -> None:
+    """The multi-agent keys, strictly: a bad value is a Feat2MapError naming `config.<key>`."""
+    number(1, MAX_AGENTS, integer=True)(cfg["agents"], "config.agents")
+    routes = cfg["agent_routes"]
+    if not (routes is None or routes == "coverage"):
+        if isinstance(routes, (str, bytes, Mapping)) or not isinstance(routes, Sequence) or not routes:
+            raise Feat2MapError(f"must be null, 'coverage' or a non-empty list of routes, got {routes!r:.60}",
+                                "config.agent_routes")
+    number(0, lo_open=True)(cfg["agent_spacing"], "config.agent_spacing")
+    number(1, 100, integer=True)(cfg["agent_queue"], "config.agent_queue")
+    number()(cfg["reward_not_yielding"], "config.reward_not_yielding")
+    number()(cfg["reward_stop_order"], "config.reward_stop_order")
+    act = cfg["action"]
+    if not isinstance(act, Mapping):
+        raise Feat2MapError(f"must be a mapping, got {type(act).__name__}", "config.action")
+    one_of(*ACTION_KEYS)(act.get("type"), "config.action.type")
+    for key in act:
+        if key != "type" and key not in ACTION_KEYS[act["type"]]:
+            raise Feat2MapError(unknown_key_message(key, ACTION_KEYS[act["type"]], f"{act['type']} action"),
+                                f"config.action.{key}")
+    if act.get("lateral"):
+        raise Feat2MapError("agents steer along their routes: lateral actions are not supported", "config.action.lateral")
+    if "acceleration_range" in act:
+        pair()(act["acceleration_range"], "config.action.acceleration_range")
+        lo, hi = act["acceleration_range"]
+        if not lo < hi:
+            raise Feat2MapError(f"must be (low, high) with low < high, got {list(act['acceleration_range'])}",
+                                "config.action.acceleration_range")
+    if "target_speeds" in act:
+        speeds = act["target_speeds"]
+        if isinstance(speeds, (str, bytes)) or not isinstance(speeds, Sequence) or not speeds:
+            raise Feat2MapError("must be a non-empty list of speeds", "config.action.target_speeds")
+        for i, v in enumerate(speeds):
+            number(0, 40.0)(v, f"config.action.target_speeds[{i}]")
+
+
+def split_config(config: Mapping[str, Any] | None) -> tuple[dict, dict]:
+    """(multi-agent keys, MapEnv keys) of a config; the action dict merges as MapEnv's do."""
+    if config is not None and not isinstance(config, Mapping):
+        raise Feat2MapError(f"must be a mapping, got {type(config).__name__}", "config")
+    ma, world = {}, {}
+    for k, v in (config or {}).items():
+        (ma if k in AGENT_DEFAULTS else world)[k] = v
+    return ma, world
+
+
+def merge_agent_config(base: dict, delta: Mapping[str, Any]) -> dict:
+    out = dict(base)
+    for k, v in delta.items():
+        cur = out.get(k)
+        if k == "action" and isinstance(v, Mapping) and isinstance(cur, Mapping):
+            out[k] = {**cur, **v} if v.get("type", cur.get("type")) == cur.get("type") else dict(v)
+        else:
+            out[k] = v
+    check_agent_config(out)
+    return out
+
+
+# ---- actions ----------------------------------------------------------------------------------
+class AgentActions:
+    """The agents' action type: its space, and the accelerations of all agents at once."""
+
+    def __init__(self, cfg: Mapping[str, Any], policy_frequency: float) -> None:
+        self.kind = cfg["type"]
+        self.speeds = np.array(cfg.get("target_speeds", TARGET_SPEEDS), dtype=float)
+        self.acceleration_range = tuple(float(x) for x in cfg.get("acceleration_range", ACCELERATION_RANGE))
+        self.period = 1.0 / policy_frequency
+        if self.kind == "TargetSpeed":
+            self.space: spaces.Space = spaces.Discrete(len(self.speeds))
+        elif self.kind == "DiscreteMetaAction":
+            self.space = spaces.Discrete(3)  # highway-env's longitudinal meta-actions: SLOWER, IDLE, FASTER
+        else:
+            self.space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
+
+    def decide(self, action, speed: float, state: dict) -> None:
+        """A new decision for one agent: its held acceleration, or its target speed index."""
+        lo, hi = self.acceleration_range
+        if self.kind == "TargetSpeed":
+            state["acc"] = float(np.clip((self.speeds[int(action)] - speed) / self.period, lo, hi))
+        elif self.kind == "DiscreteMetaAction":
+            state["index"] = int(np.clip(state.get("index", 0) + int(action) - 1, 0, len(self.speeds) - 1))
+        else:
+            a = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
+            state["acc"] = lo + (a + 1.0) / 2.0 * (hi - lo)
+
+    def start(self, speed: float) -> dict:
+        """The state of a new agent: hold its speed (its target speed index the nearest)."""
+        return {"acc": 0.0, "index": int(np.argmin(np.abs(self.speeds - speed)))}
+
+    def accelerations(self, states: Sequence[dict], speeds: np.ndarray) -> np.ndarray:
+        """Accelerations of the agents this frame (DiscreteMetaAction tracks its target speed every frame)."""
+        if self.kind == "DiscreteMetaAction":
+            target = self.speeds[[s["index"] for s in states]]
+            return np.clip(META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
+        return np.array([s["acc"] for s in states], dtype=float)
+
+
+# ---- the world --------------------------------------------------------------------------------
+class AgentJudge(EgoJudge):
+    """The single env's judge of one agent, plus `not_yielding` and `stop_order` (module docstring):
+    before each frame `note` keeps the rules' verdict for the junction lane the agent is about to
+    enter; `check` counts a violation when it enters against it."""
+
+    def __init__(self, rules, vehicle) -> None:
+        super().__init__(rules, vehicle)
+        self.violations.update(not_yielding=0, stop_order=0)
+        self._verdict: tuple[str | None, bool, bool] = (None, True, True)  # (junction lane, clear, order ok)
+
+    def note(self) -> None:
+        rules, v = self.rules, self.ego
+        sl, in_lane, j_lane, d = rules.line_ahead(v, ENTRY_LOOK_M)
+        if j_lane is None:
+            return
+        order = True
+        if sl is not None and sl.kind == "stop":
+            queue = rules.stop_queue.get(sl.junction_id, [])
+            order = v not in queue or rules.stop_queue_allows(v, j_lane)  # not stopped at all: a stop_sign violation
+        self._verdict = (j_lane, rules.junction_clear(j_lane, v), order)
+
+    def check(self) -> None:
+        prev = self._lane
+        before = len(self.new)
+        super().check()
+        lid, m = self._lane, self.rules.net.hdmap
+        if lid == prev or lid not in m.lanes or m.lanes[lid].junction_id is None:
+            return
+        if prev is not None and prev in m.lanes and m.lanes[prev].junction_id is not None:
+            return  # from one junction lane to the next
+        j_lane, clear, order = self._verdict
+        self._verdict = (None, True, True)
+        if j_lane != lid or "red_light" in self.new[before:]:
+            return
+        if not order:
+            self._violate("stop_order")
+        elif not clear:
+            self._violate("not_yielding")
+
+
+class AgentView:
+    """One agent's view of the world as if it were a single MapEnv whose ego is the agent: its
+    own vehicle, judge, spaces, progress and reward terms; everything else is the world's, and
+    MapEnv's methods and properties run on the view (so observation types, `_info`, `_rewards`,
+    `route_completed`, `rule_stop_distance`, `ScriptedDriver` see the agent as the ego)."""
+
+    def __init__(self, world: "_World", vehicle, action_type: AgentActions | None, action_space: spaces.Space) -> None:
+        self.world = world
+        self.vehicle = vehicle
+        self.controlled_vehicles = [vehicle]
+        self.action_type = action_type
+        self.action_space = action_space
+
+    def __getattr__(self, name: str):
+        if name == "world":
+            raise AttributeError(name)
+        attr = getattr(type(self.world), name, None)
+        if isinstance(attr, types.FunctionType):
+            return types.MethodType(attr, self)
+        if isinstance(attr, property):
+            return attr.fget(self)
+        return getattr(self.world, name)
+
+
+class _World(MapEnv):
+    """The map, traffic control, traffic and pedestrians of the multi-agent env, with the agents'
+    vehicles as controlled rows of its arrays core (MapEnv's reset and step are not used)."""
+
+    def __init__(self, config: dict, agent_config: dict, render_mode: str | None = None) -> None:
+        self.agent_config = agent_config
+        self._built = False
+        super().__init__(config, render_mode)
+        self._built = True
+
+    def define_spaces(self) -> None:  # per agent (MultiAgentMapEnv)
+        pass
+
+    def reset(self, *, seed=None, options=None):
+        if not self._built:  # AbstractEnv.__init__ resets; the multi-agent env resets explicitly
+            return None, {}
+        raise NotImplementedError("reset the MultiAgentMapEnv")
+
+    def new_episode(self, seed: int | None) -> list[tuple[list[str], bool]]:
+        """A fresh episode (traffic control, road, traffic); the agents' routes, placed by the caller."""
+        gymnasium.Env.reset(self, seed=seed)  # seeds np_random
+        if self.config["traffic_core"] != "arrays":
+            raise Feat2MapError("the multi-agent env runs on the arrays core", "config.traffic_core")
+        self.time = self.steps = 0
+        self.done = False
+        self.net = self._network()
+        rng = self.np_random
+        self.control = TrafficControl(self.net, rng, self.config)
+        self.road = ArrayRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        self.controlled_vehicles = []
+        routes = self._agent_routes(int(self.agent_config["agents"]))
+        m = self.net.hdmap
+        lanes = [l for r, _ in routes for l in r]
+        junctions = {m.lanes[l].junction_id for l in lanes} - {None}
+        self.control.active_crosswalks = sorted(c.id for c in m.crosswalks.values() if c.junction_id in junctions)
+        self._spawn_lanes = self._traffic_spawn_lanes(sorted(set(lanes)), junctions)
+        return routes
+
+    def fill_traffic(self) -> None:
+        for _ in range(int(self.config["traffic_vehicles"])):
+            self._spawn_traffic()
+        self.control.update(self.road, 0.0)
+
+    def _agent_routes(self, n: int) -> list[tuple[list[str], bool]]:
+        """(lane route, whether a manoeuvre route to extend) of each agent."""
+        spec = self.agent_config["agent_routes"]
+        net, rng, c = self.net, self.np_random, self.config
+        if spec == "coverage":
+            from ..scenarios.routes import coverage_routes
+
+            spec = net.memo(("coverage routes", int(c["route_junctions"])),
+                            lambda: coverage_routes(net.hdmap, max(1, int(c["route_junctions"]))))
+            if not spec:
+                raise Feat2MapError("the map has no route-coverage route (no junction manoeuvre)", "config.agent_routes")
+        if spec is not None:
+            first = int(rng.integers(len(spec)))
+            out = []
+            for i in range(n):
+                k = (first + i) % len(spec)
+                r = spec[k]
+                out.append((lane_route_from_config(net, r), False) if isinstance(r, Mapping)
+                           else (manoeuvres_to_lanes(net, r), True))
+            return out
+        out = []
+        for _ in range(n):
+            if int(c["route_junctions"]) <= 0 or not net.hdmap.junctions:
+                out.append((sample_lane_walk(net, rng, float(c["route_length"]), float(c["ego_start_distance"]),
+                                             float(c["goal_distance"])), False))
+                continue
+            for _ in range(100):
+                r = sample_route(net, rng, int(c["route_junctions"]))
+                if r:
+                    out.append((r, True))
+                    break
+            else:
+                raise Feat2MapError("no route through a junction could be sampled", "map")
+        return out
+
+    def place(self, route: list[str], extend: bool):
+        """An agent's vehicle at the first free place of its entry (None while all are taken)."""
+        c, ac = self.config, self.agent_config
+        core = self.road.core
+        core.sync()
+        spacing = float(ac["agent_spacing"])
+        for k in range(int(ac["agent_queue"])):
+            start = float(c["ego_start_distance"]) + k * spacing
+            r, s0, speed = start_place(self.net, route, extend, start, float(c["goal_distance"]),
+                                       float(c["ego_initial_speed"]), TrafficVehicle.LENGTH)
+            if k and s0 <= 0.0:
+                return None  # the road before the entry is full
+            pos = self.net.lane_of[r[0]].position(s0, 0.0)
+            if len(core.x) and np.min(np.hypot(core.x - pos[0], core.y - pos[1])) < spacing - 2.0:
+                continue
+            v = core.add_traffic(r[0], s0, speed, r, controlled=True)
+            if self.control.passage_start(v):
+                return v
+            self.road.vehicles.remove(v)
+            core.sync()
+        return None
+
+    def respawn_traffic(self, agents: set[int]) -> None:
+        """MapEnv's respawn: finished and crashed traffic leaves, as many new vehicles spawn."""
+        if not self.config["traffic_respawn"]:
+            return
+        keep = [v for v in self.road.vehicles if id(v) in agents
+                or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
+        removed = len(self.road.vehicles) - len(keep)
+        self.road.vehicles = keep
+        for _ in range(removed):
+            self._spawn_traffic(min_ego_distance=40.0)
+
+
+class _GridWorld(_World, JunctionGridEnv):
+    pass
+
+
+class _FileWorld(_World, MapFileEnv):
+    pass
+
+
+# ---- the parallel env -------------------------------------------------------------------------
+class MultiAgentMapEnv(ParallelEnv):
+    """A PettingZoo ParallelEnv of many agents on one feat2map map (see the module docstring)."""
+
+    metadata = {"name": "feat2map_parallel_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True}
+
+    def __init__(self, config: Mapping[str, Any] | None = None, render_mode: str | None = None) -> None:
+        ma, world = split_config(config)
+        self.agent_config = merge_agent_config(AGENT_DEFAULTS, ma)
+        cls = _FileWorld if ("map_file" in world or "map" in world) else _GridWorld
+        self.world = cls({**WORLD_DEFAULTS, **world}, self.agent_config, render_mode)
+        self.render_mode = render_mode
+        self.possible_agents = [f"agent_{i}" for i in range(int(self.agent_config["agents"]))]
+        self.agents: list[str] = []
+        self._define_spaces()
+        self._views: dict[str, AgentView] = {}
+
+    def _define_spaces(self) -> None:
+        w = self.world
+        self.actions = AgentActions(self.agent_config["action"], float(w.config["policy_frequency"]))
+        probe = AgentView(w, None, self.actions, self.actions.space)
+        self._obs_space = self._make_observation(probe).space()
+
+    def _make_observation(self, view: AgentView):
+        obs = make_observation(view, self.world.config["observation"])
+        return TrafficControlObservation(view, obs) if self.world.config["observe_traffic_control"] else obs
+
+    @functools.lru_cache(maxsize=None)
+    def observation_space(self, agent: str) -> spaces.Space:
+        return self._obs_space
+
+    @functools.lru_cache(maxsize=None)
+    def action_space(self, agent: str) -> spaces.Space:
+        return self.actions.space
+
+    def configure(self, config: Mapping[str, Any]) -> None:
+        """Merge `config` (multi-agent and MapEnv keys) into the current config; strict."""
+        ma, world = split_config(config)
+        merged = merge_agent_config(self.agent_config, ma)
+        self.world.configure(world)
+        self.agent_config = merged
+        self.world.agent_config = merged
+        self.possible_agents = [f"agent_{i}" for i in range(int(merged["agents"]))]
+        self._define_spaces()
+        self.observation_space.cache_clear()
+        self.action_space.cache_clear()
+
+    # ---- episode ---------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if options and "config" in options:
+            self.configure(options["config"])
+        w = self.world
+        routes = w.new_episode(seed)
+        self.agents = []
+        self._views = {}
+        self._state: dict[str, dict] = {}
+        self._pending = list(zip(self.possible_agents, routes))
+        self._agent_ids: dict[int, str] = {}
+        self._spawn_pending()
+        w.fill_traffic()
+        obs = {a: self._views[a].observation_type.observe() for a in self.agents}
+        infos = {a: self._info(a, obs[a], self.actions.space.sample()) for a in self.agents}
+        return obs, infos
+
+    def _spawn_pending(self) -> list[str]:
+        """Agents waiting to enter take their places where free (in agent order)."""
+        w = self.world
+        new, waiting = [], []
+        for name, (route, extend) in self._pending:
+            v = w.place(route, extend)
+            if v is None:
+                waiting.append((name, (route, extend)))
+                continue
+            view = AgentView(w, v, self.actions, self.actions.space)
+            view.judge = AgentJudge(w.control, v)
+            view.violations = view.judge.violations
+            view._progress = v.route_distance_done()
+            last = w.net.lane_of[v.lane_route[-1]]
+            view._route_len = v.route_length() - last.length + MapEnv._goal_s(view, last)
+            view._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
+            view.observation_type = self._make_observation(view)
+            view.wait_time = 0.0
+            view.agent_collision = False
+            self._views[name] = view
+            self._state[name] = self.actions.start(v.speed)
+            self._agent_ids[id(v)] = name
+            w.controlled_vehicles.append(v)
+            self.agents.append(name)
+            new.append(name)
+        self._pending = waiting
+        return new
+
+    @staticmethod
+    def _reward_terms() -> tuple[str, ...]:
+        return (*MapEnv._reward_terms(), "not_yielding", "stop_order")
+
+    def step(self, actions: Mapping[str, Any]):
+        w = self.world
+        live = list(self.agents)
+        for name, a in actions.items():
+            if name not in self._views or name not in live:
+                raise Feat2MapError(f"{name!r} is not a live agent (live: {', '.join(live) or 'none'})", "actions")
+            check_action(self.actions.space, a)
+            self.actions.decide(a, self._views[name].vehicle.speed, self._state[name])
+        for name in live:
+            self._views[name].judge.new = []
+        core = w.road.core
+        frames = max(1, int(w.config["simulation_frequency"] // w.config["policy_frequency"]))
+        dt = 1.0 / w.config["simulation_frequency"]
+        vehicles = [self._views[a].vehicle for a in live]
+        judges = [self._views[a].judge for a in live]
+        crashed_before = {a for a in live if self._views[a].vehicle.crashed}
+        for _ in range(frames):
+            core.sync()
+            if vehicles:
+                rows = np.array([v._row for v in vehicles], dtype=np.int64)
+                core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
+            for j in judges:
+                j.note()
+            w.road.act()
+            w.road.step(dt)
+            w.steps += 1
+            for a, v, j in zip(live, vehicles, judges):
+                j.check()
+                if v.speed <= STOPPED_SPEED_MPS:
+                    self._views[a].wait_time += dt
+            self._collisions(live, crashed_before)
+        w.time += 1.0 / w.config["policy_frequency"]
+        obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
+        truncated = w.time >= w.config["duration"]
+        for a, action in ((a, actions.get(a)) for a in live):
+            view = self._views[a]
+            obs[a] = view.observation_type.observe()
+            rewards[a] = self._reward(view, action)
+            terms[a] = bool(view.vehicle.crashed or MapEnv.route_completed(view))
+            truncs[a] = bool(truncated and not terms[a])
+            infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
+        gone = [a for a in live if terms[a] or truncs[a]]
+        if gone:
+            out = {id(self._views[a].vehicle) for a in gone}
+            w.road.vehicles = [v for v in w.road.vehicles if id(v) not in out]
+            w.controlled_vehicles = [v for v in w.controlled_vehicles if id(v) not in out]
+            self.agents = [a for a in self.agents if a not in gone]
+        w.respawn_traffic(set(self._agent_ids))
+        if truncated:
+            self._pending = []
+        for a in self._spawn_pending():
+            obs[a] = self._views[a].observation_type.observe()
+            rewards[a], terms[a], truncs[a] = 0.0, False, False
+            infos[a] = self._info(a, obs[a], self._noop())
+        if not self.agents and self._pending:  # nobody on the road: the waiting ones will never get in
+            self._pending = []
+        return obs, rewards, terms, truncs, infos
+
+    def _noop(self):
+        s = self.actions.space
+        return 1 if self.actions.kind == "DiscreteMetaAction" else (0 if isinstance(s, spaces.Discrete)
+                                                                     else np.zeros(s.shape, dtype=s.dtype))
+
+    def _collisions(self, live: list[str], seen: set[str]) -> None:
+        """Agents that crashed this frame: whether the other vehicle (the nearest crashed one
+        within reach) is an agent."""
+        core = self.world.road.core
+        for a in live:
+            v = self._views[a].vehicle
+            if a in seen or not v.crashed:
+                continue
+            seen.add(a)
+            i = v._row
+            d = np.hypot(core.x - core.x[i], core.y - core.y[i])
+            d[i] = np.inf
+            d[~core.crashed] = np.inf
+            j = int(np.argmin(d))
+            if d[j] < np.hypot(core.length[i], core.width[i]) + np.hypot(core.length[j], core.width[j]):
+                other = core.objs[j]
+                if id(other) in self._agent_ids:
+                    self._views[a].agent_collision = True
+                    peer = self._agent_ids[id(other)]
+                    if peer in self._views:
+                        self._views[peer].agent_collision = True
+
+    def _reward(self, view: AgentView, action) -> float:
+        r = MapEnv._rewards(view, action)
+        new = view.judge.new
+        r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
+        view._last_rewards = r
+        c, ac = self.world.config, self.agent_config
+        total = sum(c[f"reward_{k}"] * r[k] for k in MapEnv._reward_terms())
+        return float(total + ac["reward_not_yielding"] * r["not_yielding"] + ac["reward_stop_order"] * r["stop_order"])
+
+    def _info(self, agent: str, obs, action) -> dict:
+        view = self._views[agent]
+        info = MapEnv._info(view, obs, action)
+        info["agent_collision"] = bool(view.agent_collision)
+        info["wait_time"] = float(view.wait_time)
+        return info
+
+    # ---- helpers -------------------------------------------------------------------------------
+    def view(self, agent: str) -> AgentView:
+        """The agent's view of the world as a single env (for planners: `ScriptedDriver(view)`)."""
+        return self._views[agent]
+
+    def state(self) -> np.ndarray:
+        """Positions, headings and speeds of every road user ([n, 4], float32)."""
+        core = self.world.road.core
+        return np.stack([core.x, core.y, core.heading, core.speed], axis=1).astype(np.float32)
+
+    def render(self):
+        w = self.world
+        if self.render_mode is None:
+            return None
+        if self.agents:
+            w.controlled_vehicles = [self._views[a].vehicle for a in self.agents]
+        return MapEnv.render(w)
+
+    def close(self) -> None:
+        self.world.close()
