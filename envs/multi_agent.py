@@ -435,7 +435,7 @@ class MultiAgentMapEnv(ParallelEnv):
         self._spawn_pending()
         w.fill_traffic()
         obs = {a: self._views[a].observation_type.observe() for a in self.agents}
-        infos = {a: self._info(a, obs[a], self.actions.space.sample()) for a in self.agents}
+        infos = {a: self._info(a, obs[a], self._noop()) for a in self.agents}
         return obs, infos
 
     def _spawn_pending(self) -> list[str]:

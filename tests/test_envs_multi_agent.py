@@ -1,0 +1,189 @@
+"""The multi-agent env (envs/multi_agent.py): PettingZoo's parallel API and seed tests on a
+generated, a spec and a real map; agents enter and leave; each agent's judge agrees with the
+single env's on the same drive; agents collide with each other and are told so; strict config."""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.utils.env_checker import data_equivalence
+import pytest
+
+pytest.importorskip("pettingzoo")
+from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
+
+import feat2map  # noqa: E402
+from feat2map.envs import parallel_env  # noqa: E402
+from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
+from feat2map.envs.multi_agent import AGENT_VIOLATIONS  # noqa: E402
+from feat2map.errors import Feat2MapError  # noqa: E402
+from feat2map.spec import build_spec, load_spec  # noqa: E402
+
+from conftest import REPO, shared_map  # noqa: E402
+
+J = feat2map.JunctionFeature.make
+FOUR = [0, 90, 180, 270]
+SMALL = {"agents": 6, "traffic_vehicles": 3, "pedestrian_rate": 6.0, "duration": 20.0}
+
+
+def map_config(kind: str) -> dict:
+    if kind == "generated":
+        return {"features": [J(FOUR, "signal", True).to_dict(), J([0, 90, 180], "stop", False).to_dict()]}
+    if kind == "spec":
+        return {"map": build_spec(load_spec(REPO / "examples" / "one_way_t.yaml"))}
+    return {"map_file": str(shared_map("opendrive/carla_town01/Town01.xodr"))}
+
+
+MAPS = ["generated", "spec", pytest.param("real", marks=pytest.mark.real_maps)]
+
+
+@pytest.mark.parametrize("kind", MAPS)
+def test_parallel_api(kind):
+    env = parallel_env({**map_config(kind), **SMALL})
+    parallel_api_test(env, num_cycles=50)
+    obs, infos = env.reset(seed=1)
+    assert env.agents and set(obs) == set(env.agents) == set(infos)
+    assert all(env.observation_space(a).contains(o) for a, o in obs.items())
+
+
+@pytest.mark.parametrize("kind", MAPS)
+def test_parallel_seed(kind):
+    parallel_seed_test(lambda: parallel_env({**map_config(kind), **SMALL}), num_cycles=30)
+    # PettingZoo's test stops after the first step (`any` of a dict of agents): 30 steps here
+    envs = [parallel_env({**map_config(kind), **SMALL}) for _ in range(2)]
+    outs = [e.reset(seed=3) for e in envs]
+    assert data_equivalence(outs[0], outs[1])
+    for k in range(30):
+        if not envs[0].agents:
+            break
+        for i, e in enumerate(envs):
+            e.action_space("agent_0").seed(k)
+        acts = [{a: e.action_space(a).sample() for a in e.agents} for e in envs]
+        outs = [e.step(a) for e, a in zip(envs, acts)]
+        assert data_equivalence(outs[0], outs[1]), k
+
+
+@pytest.mark.parametrize("action", [{"type": "TargetSpeed"}, {"type": "DiscreteMetaAction"},
+                                    {"type": "ContinuousAction"}])
+@pytest.mark.parametrize("observation", ["Kinematics", "DriverView"])
+def test_actions_observations_and_infos(action, observation):
+    cfg = {**map_config("generated"), **SMALL, "action": action}
+    if observation != "Kinematics":
+        cfg["observation"] = {"type": observation}
+    env = parallel_env(cfg)
+    single = gym.make("feat2map/JunctionGrid-v0", config={**map_config("generated"), "traffic_vehicles": 2})
+    _, single_info = single.reset(seed=0)
+    obs, infos = env.reset(seed=0)
+    for _ in range(6):
+        obs, rew, term, trunc, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
+        for a, info in infos.items():
+            assert set(single_info) <= set(info)  # the single env's keys (and agent_collision, wait_time)
+            assert set(info["violations"]) == set(AGENT_VIOLATIONS)
+            assert env.observation_space(a).contains(obs[a])
+            assert isinstance(rew[a], float)
+
+
+def test_agents_enter_when_their_place_is_free_and_leave_at_their_goal():
+    # 10 agents on the short stubs of one junction: not all fit at the start
+    env = parallel_env({**map_config("generated"), "agents": 10, "agent_queue": 1, "traffic_vehicles": 0,
+                        "pedestrian_rate": 0.0, "duration": 120.0, "action": {"type": "TargetSpeed"}})
+    obs, _ = env.reset(seed=0)
+    first = set(env.agents)
+    assert 0 < len(first) < 10
+    seen, done = set(first), set()
+    while env.agents:
+        views = {a: env.view(a) for a in env.agents}
+        drivers = {a: ScriptedDriver(v) for a, v in views.items()}
+        # the scripted driver's acceleration, as the nearest target speed reached by the next decision
+        acts = {}
+        for a, d in drivers.items():
+            v = views[a].vehicle.speed + d.acceleration() * 0.5
+            acts[a] = int(np.argmin(np.abs(env.actions.speeds - max(v, 0.0))))
+        obs, rew, term, trunc, infos = env.step(acts)
+        seen |= set(obs)
+        for a in term:
+            if term[a]:
+                done.add(a)
+                assert infos[a]["route_completed"] and not infos[a]["collision"], infos[a]
+                assert a not in env.agents
+    assert seen - first  # later agents entered
+    assert len(done) >= 8  # nearly all reached their goals within the time
+
+
+def _judged(single: bool, ignore, offset: float, seed: int) -> dict:
+    feats = [J(FOUR, "signal", False), J(FOUR, "stop", False)]
+    m = feat2map.generate_from_features(feats, seed=0)
+    route = []
+    for jid in ("J0", "J1"):
+        ln = sorted((ln for ln in m.lanes_by_junction[jid] if ln.turn == "none"), key=lambda ln: ln.id)[0]
+        route.append((jid, m.lanes[ln.predecessors[0]].road_id, m.lanes[ln.successors[0]].road_id))
+    route = route[:1] if "signal" in ignore else route[1:]
+    cfg = {"features": [f.to_dict() for f in feats], "traffic_vehicles": 0, "pedestrian_rate": 0.0, "duration": 40.0,
+           "signal_offsets": {"J0": offset}, "simulation_frequency": 15, "policy_frequency": 5}
+    if single:
+        env = gym.make("feat2map/JunctionGrid-v0", config={**cfg, "route": route, "action": DRIVER_ACTION_CONFIG})
+        env.reset(seed=seed)
+        driver = ScriptedDriver(env, ignore)
+        while True:
+            _, _, term, trunc, info = env.step(driver.act())
+            if term or trunc:
+                return {k: info["violations"][k] for k in ("red_light", "stop_sign", "pedestrian_yield")}
+    env = parallel_env({**cfg, "agents": 1, "agent_routes": [route],
+                        "action": {"type": "ContinuousAction", "acceleration_range": [-8.0, 4.0]}})
+    env.reset(seed=seed)
+    info = None
+    while env.agents:
+        driver = ScriptedDriver(env.view("agent_0"), ignore)
+        _, _, _, _, infos = env.step({"agent_0": driver.act()})
+        info = infos["agent_0"]
+    return {k: info["violations"][k] for k in ("red_light", "stop_sign", "pedestrian_yield")}
+
+
+def test_agent_judge_agrees_with_the_single_env():
+    results = []
+    for ignore, offset in ((("signal",), 0.0), (("signal",), 12.0), (("signal",), 24.0), (("stop",), 0.0), ((), 0.0)):
+        ours, theirs = _judged(False, ignore, offset, 0), _judged(True, ignore, offset, 0)
+        assert ours == theirs, (ignore, offset, ours, theirs)
+        results.append(ours)
+    assert any(r["red_light"] for r in results) and any(r["stop_sign"] for r in results)
+    assert results[-1] == {"red_light": 0, "stop_sign": 0, "pedestrian_yield": 0}
+
+
+def test_agents_crossing_against_the_rules_collide_and_are_told_so():
+    m = feat2map.generate_from_features([J(FOUR, "bare", False)], seed=0)
+    by_entry = {}
+    for ln in sorted(m.lanes_by_junction["J0"], key=lambda ln: ln.id):
+        if ln.turn == "none":
+            by_entry.setdefault(m.lanes[ln.predecessors[0]].road_id, (ln.predecessors, ln.successors))
+    roads = sorted(by_entry)[:2]  # two straight movements from neighbouring legs cross
+    routes = [[("J0", r, m.lanes[by_entry[r][1][0]].road_id)] for r in roads]
+    env = parallel_env({"features": [J(FOUR, "bare", False).to_dict()], "agents": 2, "agent_routes": routes,
+                        "traffic_vehicles": 0, "pedestrian_rate": 0.0, "ego_start_distance": 20.0,
+                        "action": {"type": "TargetSpeed"}})
+    env.reset(seed=0)
+    crashed = {}
+    for _ in range(40):
+        if not env.agents:
+            break
+        _, _, term, _, infos = env.step({a: 3 for a in env.agents})  # 5 m/s, nobody yields
+        crashed.update({a: i for a, i in infos.items() if i["collision"]})
+    if crashed:
+        assert all(i["agent_collision"] for i in crashed.values())
+    # both went without yielding: the later one into a junction the other holds is judged
+    assert crashed or any(i["violations"]["not_yielding"] for i in infos.values())
+
+
+def test_config_is_strict():
+    with pytest.raises(Feat2MapError, match="agent_spacing"):
+        parallel_env({"agent_spacing": -1.0})
+    with pytest.raises(Feat2MapError, match="trafic_vehicles"):
+        parallel_env({"trafic_vehicles": 3})
+    with pytest.raises(Feat2MapError, match="config.action.lateral"):
+        parallel_env({"action": {"type": "ContinuousAction", "lateral": True}})
+    env = parallel_env({**map_config("generated"), "agents": 2, "traffic_vehicles": 0})
+    env.reset(seed=0)
+    with pytest.raises(Feat2MapError, match="actions"):
+        env.step({"agent_9": 0})
