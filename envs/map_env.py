@@ -433,7 +433,20 @@ def action_array(space: spaces.Space, action: Any) -> np.ndarray:
 
 
 def feature_info(feature) -> dict[str, Any]:
-    """A junction feature as a dict of fixed keys, types and shapes (n_roads -1 without one)."""
+    """A junction feature as a dict of fixed keys, types and shapes (n_roads -1 without one);
+    new arrays each call (from one conversion per feature)."""
+    held = _FEATURE_INFO.get(id(feature))
+    if held is None or held[0] is not feature:
+        if len(_FEATURE_INFO) > 4096:
+            _FEATURE_INFO.clear()
+        held = _FEATURE_INFO[id(feature)] = (feature, _feature_info(feature))
+    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in held[1].items()}
+
+
+_FEATURE_INFO: dict[int, tuple[Any, dict[str, Any]]] = {}  # id -> (feature, its info): features are frozen
+
+
+def _feature_info(feature) -> dict[str, Any]:
     rot = np.full(MAX_LEGS, np.inf)
     lanes_in = np.full(MAX_LEGS, -1, dtype=np.int64)
     lanes_out = np.full(MAX_LEGS, -1, dtype=np.int64)

@@ -187,3 +187,23 @@ def test_config_is_strict():
     env.reset(seed=0)
     with pytest.raises(Feat2MapError, match="actions"):
         env.step({"agent_9": 0})
+
+
+def test_batched_kinematics_equals_each_agents_own_observation():
+    cfg = {**map_config("generated"), "agents": 8, "traffic_vehicles": 6, "pedestrian_rate": 20.0,
+           "observation": {"type": "Kinematics", "vehicles_count": 6, "see_behind": False,
+                           "features": ["presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h"],
+                           "features_range": {"x": [-50, 50], "y": [-50, 50], "vx": [-10, 10], "vy": [-10, 10]}}}
+    env = parallel_env(cfg)
+    obs, _ = env.reset(seed=2)
+    checked = 0
+    for _ in range(25):
+        if not env.agents:
+            break
+        obs = env._observe(env.agents)  # (step's observations come before traffic respawns)
+        for a in env.agents:
+            own = env.view(a).observation_type.observe()  # Kinematics.fast of the agent as the ego
+            np.testing.assert_array_equal(obs[a], own)
+            checked += 1
+        env.step({a: env.action_space(a).sample() for a in env.agents})
+    assert checked > 50 and env.world.road.objects  # pedestrians were seen too

@@ -1,0 +1,72 @@
+"""The Kinematics observation of many observers at once (the agents of envs/multi_agent.py): the
+values `observation.Kinematics.fast` gives each of them, from one array program over all
+observers (observers on the same lane share one projection of the road users onto it)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .observation import RELATIVE, Kinematics, project_s
+
+BATCH_FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d"})
+
+
+def batch_supported(obs: Kinematics, core) -> bool:
+    """Options the batch reproduces (Kinematics.fast's, without lane offsets or shuffling), on
+    a core whose rows are all driven (traffic and agents)."""
+    return (type(obs) is Kinematics and set(obs.features) <= BATCH_FEATURES and obs.vehicles_count >= 2
+            and obs.order == "sorted" and bool(obs.features_range or not obs.normalize)
+            and bool((core.kind == 1).all()))
+
+
+def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: list, perception: float) -> np.ndarray:
+    """[observers, vehicles_count, features] float32: for each observer (its core row in `rows`,
+    its lane in `lanes`) its own row (absolute) then the nearest road users (other rows, then
+    `objects` such as pedestrians) within `perception` metres by distance along its lane."""
+    m, n_v = len(rows), len(core.objs)
+    objs = objects if obs.include_obstacles else []
+    X = np.concatenate([core.x, [o.position[0] for o in objs]])
+    Y = np.concatenate([core.y, [o.position[1] for o in objs]])
+    N = len(X)
+    along = np.empty((m, N))
+    by_lane: dict[int, list[int]] = {}
+    for k, lane in enumerate(lanes):
+        by_lane.setdefault(id(lane), []).append(k)
+    for ks in by_lane.values():
+        along[ks] = project_s(lanes[ks[0]], X, Y)
+    own = along[np.arange(m), rows]
+    dist = along - own[:, None]
+    dx, dy = X[None, :] - core.x[rows][:, None], Y[None, :] - core.y[rows][:, None]
+    keep = np.sqrt(dx * dx + dy * dy) < perception
+    behind_ok = dist > -2 * core.length[rows][:, None]  # the observer's LENGTH, as Kinematics.fast
+    if not obs.see_behind:
+        keep &= behind_ok
+    keep[:, n_v:] &= behind_ok[:, n_v:]
+    keep[np.arange(m), rows] = False
+    key = np.where(keep, np.abs(dist), np.inf)
+    K = obs.vehicles_count - 1
+    order = np.argsort(key, axis=1, kind="stable")[:, :K]
+    valid = np.take_along_axis(key, order, axis=1) < np.inf  # [m, K]
+    # columns of every row (vehicles, then objects), as Vehicle.to_dict / RoadObject.to_dict give them
+    h = np.concatenate([core.heading, np.full(len(objs), np.nan)])
+    oh = np.array([o.heading for o in objs], dtype=float)
+    cos_h = np.concatenate([np.cos(core.heading), np.cos(oh)])
+    sin_h = np.concatenate([np.sin(core.heading), np.sin(oh)])
+    sp = np.concatenate([core.speed, np.zeros(len(objs))])
+    vx, vy = sp * cos_h, sp * sin_h
+    vx[n_v:] = vy[n_v:] = 0.0
+    cols = {"presence": np.ones(N), "x": X, "y": Y, "vx": vx, "vy": vy, "heading": h, "cos_h": cos_h, "sin_h": sin_h,
+            "cos_d": np.zeros(N), "sin_d": np.zeros(N)}
+    idx = np.concatenate([rows[:, None], order], axis=1)  # [m, 1 + K]
+    out = np.zeros((m, obs.vehicles_count, len(obs.features)))
+    filled = np.concatenate([np.ones((m, 1), dtype=bool), valid], axis=1)
+    for j, f in enumerate(obs.features):
+        col = cols[f][idx]
+        if not obs.absolute and f in RELATIVE:
+            col[:, 1:] -= col[:, :1]
+        if obs.normalize and f in (obs.features_range or {}):
+            a, b = obs.features_range[f]
+            col = -1 + (col - a) * (1 - (-1)) / (b - a)
+            if obs.clip:
+                col = np.clip(col, -1, 1)
+        out[:, :idx.shape[1], j] = np.where(filled, col, 0.0)
+    return out.astype(np.float32)
