@@ -27,10 +27,10 @@ def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: 
     X = np.concatenate([core.x, [o.position[0] for o in objs]])
     Y = np.concatenate([core.y, [o.position[1] for o in objs]])
     N = len(X)
-    along = np.empty((m, N))
     by_lane: dict[int, list[int]] = {}
     for k, lane in enumerate(lanes):
         by_lane.setdefault(id(lane), []).append(k)
+    along = np.empty((m, N))
     for ks in by_lane.values():
         along[ks] = project_s(lanes[ks[0]], X, Y)
     own = along[np.arange(m), rows]
@@ -70,3 +70,4 @@ def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: 
                 col = np.clip(col, -1, 1)
         out[:, :idx.shape[1], j] = np.where(filled, col, 0.0)
     return out.astype(np.float32)
+

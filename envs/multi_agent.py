@@ -60,6 +60,7 @@ from .kinematics_batch import batch_supported, observe_many
 from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_to_lanes, sample_lane_walk,
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
+from .core import ArrayVehicle
 from .road import ArrayRoad
 from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge
 from .vehicles import TrafficVehicle
@@ -231,6 +232,22 @@ class AgentJudge(EgoJudge):
             self._violate("not_yielding")
 
 
+class AgentVehicle(ArrayVehicle):
+    """An agent's vehicle: a controlled row of the arrays core (its view), whose route progress
+    adds the lanes behind it once per lane (the same sum as RouteFollower's, in the same order)."""
+
+    _done_at: tuple[int, int] = (-1, -1)
+    _done_before = 0.0
+
+    def route_distance_done(self) -> float:
+        c, i = self._core, self._row
+        pos, route, lane_of = int(c.route_pos[i]), c.route_ids[i], c.net.lane_of
+        if self._done_at != (id(route), pos):
+            self._done_before = sum(lane_of[x].length for x in route[:pos])
+            self._done_at = (id(route), pos)
+        return self._done_before + min(max(float(c.s[i]), 0.0), lane_of[route[pos]].length)
+
+
 class AgentView:
     """One agent's view of the world as if it were a single MapEnv whose ego is the agent: its
     own vehicle, judge, spaces, progress and reward terms; everything else is the world's, and
@@ -247,6 +264,9 @@ class AgentView:
     def __getattr__(self, name: str):
         if name == "world":
             raise AttributeError(name)
+        state = self.world.__dict__
+        if name in state:  # the world's own attributes (config, net, road, control, time...)
+            return state[name]
         attr = getattr(type(self.world), name, None)
         if isinstance(attr, types.FunctionType):
             bound = self.__dict__[name] = types.MethodType(attr, self)  # looked up once
@@ -350,6 +370,7 @@ class _World(MapEnv):
             if len(core.x) and np.min(np.hypot(core.x - pos[0], core.y - pos[1])) < spacing - 2.0:
                 continue
             v = core.add_traffic(r[0], s0, speed, r, controlled=True)
+            v.__class__ = AgentVehicle
             if self.control.passage_start(v):
                 return v
             self.road.vehicles.remove(v)
