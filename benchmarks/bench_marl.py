@@ -39,7 +39,7 @@ HOLD = 3  # TargetSpeed index of 5 m/s
 SCENE = {"features": [feat2map.JunctionFeature.make([0, 90, 180, 270], "signal", False).to_dict()],
          "generation": {"grid_gap": 400.0, "stub_length": 150.0}, "traffic_vehicles": 0, "pedestrian_rate": 0.0,
          "simulation_frequency": 20, "policy_frequency": 10, "duration": 60.0}
-MULTI = {**SCENE, "agents": AGENTS, "agent_queue": 6, "agent_routes": "coverage"}
+MULTI = {**SCENE, "agents": AGENTS, "agent_queue": 2, "agent_routes": "coverage"}
 SINGLE = {**SCENE, "route_junctions": 1, "action": {"type": "DiscreteMetaAction", "longitudinal": True,
                                                     "lateral": False, "target_speeds": [0.0, 2.5, 5.0]}}
 MD_PYTHON = Path("/tmp/md-venv/bin/python")

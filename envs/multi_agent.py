@@ -455,6 +455,7 @@ class MultiAgentMapEnv(ParallelEnv):
         self._state: dict[str, dict] = {}
         self._pending = list(zip(self.possible_agents, routes))
         self._agent_ids: dict[int, str] = {}
+        self._judged_lane: dict[str, int] = {}  # the lane each agent's judge last looked at it on
         self._spawn_pending()
         w.fill_traffic()
         obs = self._observe(self.agents)
@@ -481,6 +482,7 @@ class MultiAgentMapEnv(ParallelEnv):
             view._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
             view.observation_type = self._make_observation(view)
             view.wait_time = 0.0
+            self._judged_lane[name] = -1
             view.agent_collision = False
             self._views[name] = view
             self._state[name] = self.actions.start(v.speed)
@@ -508,28 +510,43 @@ class MultiAgentMapEnv(ParallelEnv):
         core = w.road.core
         frames = max(1, int(w.config["simulation_frequency"] // w.config["policy_frequency"]))
         dt = 1.0 / w.config["simulation_frequency"]
-        vehicles = [self._views[a].vehicle for a in live]
-        judges = [self._views[a].judge for a in live]
-        crashed_before = {a for a in live if self._views[a].vehicle.crashed}
+        views = [self._views[a] for a in live]
+        vehicles = [v.vehicle for v in views]
+        judges = [v.judge for v in views]
+        judged = np.array([self._judged_lane[a] for a in live], dtype=np.int64)
+        table = core.table
         for _ in range(frames):
             core.sync()
-            if vehicles:
-                rows = np.array([v._row for v in vehicles], dtype=np.int64)
-                core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
-                # the rules' verdict is noted for agents near a junction entry (core.entry: where the
-                # next one starts, from the current lane's start; the line may lie before it)
-                core._refresh_windows()  # rows that moved to a new lane last frame
-                near = core.entry[rows] - core.s[rows] <= ENTRY_LOOK_M + w.net.max_line_setback
-                for k in np.nonzero(near)[0].tolist():
-                    judges[k].note()
+            if not vehicles:
+                w.road.act()
+                w.road.step(dt)
+                w.steps += 1
+                continue
+            rows = np.array([v._row for v in vehicles], dtype=np.int64)
+            core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
+            # the rules' verdict is noted for agents near a junction entry (core.entry: where the
+            # next one starts, from the current lane's start; the line may lie before it)
+            core._refresh_windows()  # rows that moved to a new lane last frame
+            near = core.entry[rows] - core.s[rows] <= ENTRY_LOOK_M + w.net.max_line_setback
+            for k in np.nonzero(near)[0].tolist():
+                judges[k].note()
+            crashed = core.crashed[rows]
             w.road.act()
             w.road.step(dt)
             w.steps += 1
-            for a, v, j in zip(live, vehicles, judges):
-                j.check()
-                if v.speed <= STOPPED_SPEED_MPS:
-                    self._views[a].wait_time += dt
-            self._collisions(live, crashed_before)
+            # the judge looks at an agent whenever its check can change anything: a new lane, a
+            # stop, a crosswalk on its lane, or near the end of its lane (off the road past a dead end)
+            lane, speed, s_on = core.lane[rows], core.speed[rows], core.s[rows]
+            stopped = speed <= STOPPED_SPEED_MPS
+            due = (lane != judged) | stopped | table.crossing[lane] | (s_on > table.length[lane])
+            for k in np.nonzero(due)[0].tolist():
+                judges[k].check()
+            judged = lane
+            for k in np.nonzero(stopped)[0].tolist():
+                views[k].wait_time += dt
+            for k in np.nonzero(core.crashed[rows] & ~crashed)[0].tolist():
+                self._collided(live[k])
+        self._judged_lane.update(zip(live, judged.tolist()))
         w.time += 1.0 / w.config["policy_frequency"]
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         truncated = w.time >= w.config["duration"]
@@ -580,27 +597,20 @@ class MultiAgentMapEnv(ParallelEnv):
         return 1 if self.actions.kind == "DiscreteMetaAction" else (0 if isinstance(s, spaces.Discrete)
                                                                      else np.zeros(s.shape, dtype=s.dtype))
 
-    def _collisions(self, live: list[str], seen: set[str]) -> None:
-        """Agents that crashed this frame: whether the other vehicle (the nearest crashed one
-        within reach) is an agent."""
+    def _collided(self, agent: str) -> None:
+        """An agent crashed this frame: whether the other vehicle (the nearest crashed one within
+        reach) is an agent."""
         core = self.world.road.core
-        for a in live:
-            v = self._views[a].vehicle
-            if a in seen or not v.crashed:
-                continue
-            seen.add(a)
-            i = v._row
-            d = np.hypot(core.x - core.x[i], core.y - core.y[i])
-            d[i] = np.inf
-            d[~core.crashed] = np.inf
-            j = int(np.argmin(d))
-            if d[j] < np.hypot(core.length[i], core.width[i]) + np.hypot(core.length[j], core.width[j]):
-                other = core.objs[j]
-                if id(other) in self._agent_ids:
-                    self._views[a].agent_collision = True
-                    peer = self._agent_ids[id(other)]
-                    if peer in self._views:
-                        self._views[peer].agent_collision = True
+        i = self._views[agent].vehicle._row
+        d = np.hypot(core.x - core.x[i], core.y - core.y[i])
+        d[i] = np.inf
+        d[~core.crashed] = np.inf
+        j = int(np.argmin(d))
+        if d[j] < np.hypot(core.length[i], core.width[i]) + np.hypot(core.length[j], core.width[j]):
+            peer = self._agent_ids.get(id(core.objs[j]))
+            if peer is not None:
+                self._views[agent].agent_collision = True
+                self._views[peer].agent_collision = True
 
     def _reward(self, view: AgentView, action) -> float:
         r = MapEnv._rewards(view, action)
