@@ -276,6 +276,21 @@ class AgentView:
         return getattr(self.world, name)
 
 
+def route_memo(view: AgentView, method):
+    """`method` of the view, recomputed only when the agent's route or route position changes
+    (for answers that depend on nothing else, such as `MapEnv.junction_ahead`)."""
+    bound = types.MethodType(method, view)
+    memo: list = [None, None]
+
+    def call():
+        v = view.vehicle
+        key = (id(v.lane_route), v.route_pos)
+        if memo[0] != key:
+            memo[0], memo[1] = key, bound()
+        return memo[1]
+    return call
+
+
 class _World(MapEnv):
     """The map, traffic control, traffic and pedestrians of the multi-agent env, with the agents'
     vehicles as controlled rows of its arrays core (MapEnv's reset and step are not used)."""
@@ -306,6 +321,7 @@ class _World(MapEnv):
         self.control = TrafficControl(self.net, rng, self.config)
         self.road = ArrayRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
         self.controlled_vehicles = []
+        self._places: dict[tuple, list] = {}
         routes = self._agent_routes(int(self.agent_config["agents"]))
         m = self.net.hdmap
         lanes = [l for r, _ in routes for l in r]
@@ -354,22 +370,39 @@ class _World(MapEnv):
                 raise Feat2MapError("no route through a junction could be sampled", "map")
         return out
 
+    def places(self, route: list[str], extend: bool) -> list[tuple[list[str], float, float, float, float]]:
+        """(route, s on its first lane, speed, x, y) of each place of an agent's entry, nearest
+        the junction first (`agent_queue` at most; fewer where the road before the entry ends)."""
+        key = (tuple(route), extend)
+        out = self._places.get(key)
+        if out is None:
+            c, ac = self.config, self.agent_config
+            out = []
+            for k in range(int(ac["agent_queue"])):
+                start = float(c["ego_start_distance"]) + k * float(ac["agent_spacing"])
+                r, s0, speed = start_place(self.net, list(route), extend, start, float(c["goal_distance"]),
+                                           float(c["ego_initial_speed"]), TrafficVehicle.LENGTH)
+                if k and s0 <= 0.0:
+                    break  # the road before the entry is full
+                x, y = self.net.lane_of[r[0]].position(s0, 0.0)
+                out.append((r, s0, speed, float(x), float(y)))
+            self._places[key] = out
+        return out
+
     def place(self, route: list[str], extend: bool):
         """An agent's vehicle at the first free place of its entry (None while all are taken)."""
-        c, ac = self.config, self.agent_config
         core = self.road.core
         core.sync()
-        spacing = float(ac["agent_spacing"])
-        for k in range(int(ac["agent_queue"])):
-            start = float(c["ego_start_distance"]) + k * spacing
-            r, s0, speed = start_place(self.net, route, extend, start, float(c["goal_distance"]),
-                                       float(c["ego_initial_speed"]), TrafficVehicle.LENGTH)
-            if k and s0 <= 0.0:
-                return None  # the road before the entry is full
-            pos = self.net.lane_of[r[0]].position(s0, 0.0)
-            if len(core.x) and np.min(np.hypot(core.x - pos[0], core.y - pos[1])) < spacing - 2.0:
-                continue
-            v = core.add_traffic(r[0], s0, speed, r, controlled=True)
+        places = self.places(route, extend)
+        xy = np.array([(x, y) for *_, x, y in places])
+        if len(core.x):
+            gap = np.hypot(core.x[None, :] - xy[:, :1], core.y[None, :] - xy[:, 1:]).min(axis=1)
+            free = gap >= float(self.agent_config["agent_spacing"]) - 2.0
+        else:
+            free = np.ones(len(places), dtype=bool)
+        for k in np.nonzero(free)[0].tolist():
+            r, s0, speed, _, _ = places[k]
+            v = core.add_traffic(r[0], s0, speed, list(r), controlled=True)
             v.__class__ = AgentVehicle
             if self.control.passage_start(v):
                 return v
@@ -481,6 +514,7 @@ class MultiAgentMapEnv(ParallelEnv):
             view._route_len = v.route_length() - last.length + MapEnv._goal_s(view, last)
             view._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
             view.observation_type = self._make_observation(view)
+            view.junction_ahead = route_memo(view, MapEnv.junction_ahead)
             view.wait_time = 0.0
             self._judged_lane[name] = -1
             view.agent_collision = False
