@@ -42,7 +42,6 @@ single env's keys (`map_env` module docstring; `violations` holds the two more) 
 from __future__ import annotations
 
 import functools
-import math
 import types
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -55,12 +54,12 @@ from pettingzoo import ParallelEnv
 from ..errors import Feat2MapError
 from .config import number, one_of, pair, unknown_key_message
 from .control import TrafficControl
+from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .kinematics_batch import batch_supported, observe_many
 from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_to_lanes, sample_lane_walk,
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
-from .core import ArrayVehicle
 from .road import ArrayRoad
 from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge
 from .vehicles import TrafficVehicle
@@ -236,6 +235,7 @@ class AgentVehicle(ArrayVehicle):
     """An agent's vehicle: a controlled row of the arrays core (its view), whose route progress
     adds the lanes behind it once per lane (the same sum as RouteFollower's, in the same order)."""
 
+    color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
     _done_at: tuple[int, int] = (-1, -1)
     _done_before = 0.0
 
