@@ -32,9 +32,12 @@ the next decision), "DiscreteMetaAction" (SLOWER/IDLE/FASTER over target speeds)
 env's reward terms and weights; the single env's judge (`rules.EgoJudge`: red light, missed stop,
 pedestrian yield) with two more violations (`AgentJudge`): `not_yielding` (entering a junction
 lane while a conflicting one is occupied or reserved, or priority traffic is about to enter one:
-`TrafficRules.junction_clear`, the rule traffic obeys) and `stop_order` (entering from a stop sign
+`TrafficRules.junction_clear`, the rule traffic obeys, asked at the last moment the agent could
+still stop comfortably before the line) and `stop_order` (entering from a stop sign
 while a vehicle that stopped there earlier wants a conflicting lane: `TrafficRules.
-stop_queue_allows`), weighted by `reward_not_yielding` / `reward_stop_order`; infos with the
+stop_queue_allows`), unless it holds the junction lane's reservation (as `TrafficRules.may_enter`
+lets a vehicle that committed go: the scripted driver reserves, agents choosing their own
+speeds do not), weighted by `reward_not_yielding` / `reward_stop_order`; infos with the
 single env's keys (`map_env` module docstring; `violations` holds the two more) plus
 `agent_collision` (the agent crashed into another agent; `collision` is any crash) and
 `wait_time` (seconds stopped so far).
@@ -61,7 +64,7 @@ from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_t
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
 from .road import ArrayRoad
-from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge
+from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge, can_stop_before
 from .vehicles import TrafficVehicle
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
@@ -194,7 +197,9 @@ class AgentActions:
 class AgentJudge(EgoJudge):
     """The single env's judge of one agent, plus `not_yielding` and `stop_order` (module docstring):
     before each frame `note` keeps the rules' verdict for the junction lane the agent is about to
-    enter; `check` counts a violation when it enters against it."""
+    enter, as long as the agent could still stop comfortably before the line (`rules.
+    can_stop_before`: past that point a conflict that turns up is not its fault, as at amber);
+    `check` counts a violation when it enters against the verdict."""
 
     def __init__(self, rules, vehicle) -> None:
         super().__init__(rules, vehicle)
@@ -205,6 +210,11 @@ class AgentJudge(EgoJudge):
         rules, v = self.rules, self.ego
         sl, in_lane, j_lane, d = rules.line_ahead(v, ENTRY_LOOK_M)
         if j_lane is None:
+            return
+        if self._verdict[0] == j_lane and not can_stop_before(d, v.speed, v.LENGTH):
+            return  # past the point where it could still stop: judged by the last verdict it could act on
+        if rules.reservations.get(j_lane) is v:  # a vehicle the rules let commit goes (TrafficRules.may_enter)
+            self._verdict = (j_lane, True, True)
             return
         order = True
         if sl is not None and sl.kind == "stop":

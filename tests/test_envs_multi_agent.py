@@ -207,3 +207,21 @@ def test_batched_kinematics_equals_each_agents_own_observation():
             checked += 1
         env.step({a: env.action_space(a).sample() for a in env.agents})
     assert checked > 50 and env.world.road.objects  # pedestrians were seen too
+
+
+@pytest.mark.parametrize("angles,control", [(FOUR, "stop"), ([0, 90, 180], "bare"), (FOUR, "signal")])
+def test_agents_driven_by_the_rules_are_judged_clean(angles, control):
+    """Every agent driven by the ScriptedDriver (which asks the same rules) through one junction:
+    no collisions, no violation of the agent judge's rules, all reach their goals."""
+    env = parallel_env({"features": [J(angles, control, True).to_dict()], "agents": 8, "agent_routes": "coverage",
+                        "traffic_vehicles": 2, "pedestrian_rate": 3.0, "duration": 90.0,
+                        "action": {"type": "ContinuousAction", "acceleration_range": [-8.0, 4.0]}})
+    env.reset(seed=5)
+    last = {}
+    while env.agents:
+        _, _, _, _, infos = env.step({a: ScriptedDriver(env.view(a)).act() for a in env.agents})
+        last.update(infos)
+    assert len(last) == 8
+    for a, info in last.items():
+        assert info["route_completed"] and not info["collision"], (a, info)
+        assert sum(info["violations"].values()) == 0, (a, info["violations"])
