@@ -6,8 +6,8 @@ then evaluate it per junction type against every agent driven by the rule-follow
   (every manoeuvre, dealt round), a little IDM traffic and crosswalk pedestrians. Training steps
   all worlds in turn in this process (a vector of parallel envs).
 - Agent: the DriverView observation, the TargetSpeed action (target speeds at 2 Hz), the env's
-  reward terms (progress, arrival, collisions, violations incl. not yielding and stop order) and
-  -TIME_COST per decision.
+  reward terms (progress, arrival, collisions, violations incl. not yielding and stop order),
+  -TIME_COST per decision and +STOP_BONUS once for the full stop at a stop sign (as train_ppo.py).
 - PPO: a small loop (torch): each agent's trajectory gets its own GAE (an agent that leaves is a
   terminal; one still driving at the rollout's end, or truncated, is bootstrapped), one shared
   actor-critic, clipped updates. SuperSuit's vector wrappers need every possible agent present
@@ -42,11 +42,14 @@ import feat2map  # noqa: E402
 from feat2map import atomic  # noqa: E402
 from feat2map.envs import parallel_env  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
+from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
 
 TYPES = [(n, c) for n in (3, 4) for c in ("signal", "stop", "bare")]
 ANGLES = {3: [0, 90, 180], 4: [0, 90, 180, 270]}
 PENALTY = -5.0
-TIME_COST = 0.002
+TIME_COST = 0.005
+STOP_BONUS = 0.3  # once, when DriverView's stop_made turns on (the full stop at a stop sign), as train_ppo.py
+STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
 EVAL_SEED = 10_000
 WORLD = {"observation": {"type": "DriverView"}, "agent_routes": "coverage", "route_junctions": 1,
          "traffic_vehicles": 2, "pedestrian_rate": 3.0, "duration": 60.0, "agent_spacing": 12.0, "agent_queue": 2,
@@ -146,7 +149,8 @@ def train(envs: list, minutes: float, rollout: int, seed: int, progress: bool) -
                 nxt, rew, term, trunc, infos = env.step({a: c[0] for a, c in choice.items()})
                 steps += len(choice)
                 for a in choice:
-                    open_[i][a].rew.append(rew[a] - TIME_COST)
+                    stop = STOP_BONUS * float(nxt[a][STOP_MADE] > 0.5 and obs[i][a][STOP_MADE] <= 0.5)
+                    open_[i][a].rew.append(rew[a] - TIME_COST + stop)
                     key = (i, episode[i], a)
                     returns[key] = returns.get(key, 0.0) + rew[a]
                     if term[a] or trunc[a]:
@@ -233,7 +237,7 @@ def evaluate(cfg: dict, policy, episodes: int) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/marl")
-    ap.add_argument("--train-minutes", type=float, default=10.0)
+    ap.add_argument("--train-minutes", type=float, default=15.0)
     ap.add_argument("--agents", type=int, default=8, help="agents per junction world")
     ap.add_argument("--episodes", type=int, default=5, help="evaluation episodes per junction type")
     ap.add_argument("--rollout", type=int, default=64, help="env steps per world between updates")
