@@ -95,6 +95,13 @@ def parallel_env(config: Mapping[str, Any] | None = None, render_mode: str | Non
     return MultiAgentMapEnv(config, render_mode)
 
 
+def env(config: Mapping[str, Any] | None = None, render_mode: str | None = None):
+    """The same env as an AEC env (PettingZoo's `parallel_to_aec`), by PettingZoo's module convention."""
+    from pettingzoo.utils.conversions import parallel_to_aec
+
+    return parallel_to_aec(parallel_env(config, render_mode))
+
+
 # ---- config -----------------------------------------------------------------------------------
 def check_agent_config(cfg: Mapping[str, Any]) -> None:
     """The multi-agent keys, strictly: a bad value is a Feat2MapError naming `config.<key>`."""

@@ -13,12 +13,13 @@ from gymnasium.utils.env_checker import data_equivalence
 import pytest
 
 pytest.importorskip("pettingzoo")
-from pettingzoo.test import parallel_api_test, parallel_seed_test  # noqa: E402
+from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test  # noqa: E402
 
 import feat2map  # noqa: E402
 from feat2map.envs import parallel_env  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.multi_agent import AGENT_VIOLATIONS  # noqa: E402
+from feat2map.envs.multi_agent import env as aec_env  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.spec import build_spec, load_spec  # noqa: E402
 
@@ -64,6 +65,13 @@ def test_parallel_seed(kind):
         acts = [{a: e.action_space(a).sample() for a in e.agents} for e in envs]
         outs = [e.step(a) for e, a in zip(envs, acts)]
         assert data_equivalence(outs[0], outs[1]), k
+
+
+def test_aec_api_and_seed():
+    """The AEC form (`multi_agent.env`, PettingZoo's module convention) passes its API and seed tests."""
+    cfg = {**map_config("generated"), **SMALL, "duration": 10.0}
+    api_test(aec_env(cfg), num_cycles=30)
+    seed_test(lambda: aec_env(cfg), num_cycles=30)
 
 
 @pytest.mark.parametrize("action", [{"type": "TargetSpeed"}, {"type": "DiscreteMetaAction"},
