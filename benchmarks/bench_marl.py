@@ -4,7 +4,7 @@ map, and against MetaDrive's MultiAgentIntersectionEnv (30 agents) where its scr
 (/work/shared/tools/metadrive-venv.sh makes /tmp/md-venv; never a feat2map dependency).
 
 Scene: one generated 4-way signalled junction with 150 m approaches; `AGENTS` agents per
-episode on the map's route-coverage routes (every manoeuvre), up to 6 queued per approach, so
+episode on the map's route-coverage routes (every manoeuvre), up to 3 queued per approach, so
 that ~20 are on the road at once (agents waiting for a free place enter as others leave); no
 other traffic or pedestrians (MetaDrive's intersection has only its agents); decisions at 10 Hz
 (2 simulation frames of 50 ms; MetaDrive: 5 physics steps of 20 ms per decision), each agent
@@ -39,7 +39,7 @@ HOLD = 3  # TargetSpeed index of 5 m/s
 SCENE = {"features": [feat2map.JunctionFeature.make([0, 90, 180, 270], "signal", False).to_dict()],
          "generation": {"grid_gap": 400.0, "stub_length": 150.0}, "traffic_vehicles": 0, "pedestrian_rate": 0.0,
          "simulation_frequency": 20, "policy_frequency": 10, "duration": 60.0}
-MULTI = {**SCENE, "agents": AGENTS, "agent_queue": 2, "agent_routes": "coverage"}
+MULTI = {**SCENE, "agents": AGENTS, "agent_queue": 3, "agent_routes": "coverage"}
 SINGLE = {**SCENE, "route_junctions": 1, "action": {"type": "DiscreteMetaAction", "longitudinal": True,
                                                     "lateral": False, "target_speeds": [0.0, 2.5, 5.0]}}
 MD_PYTHON = Path("/tmp/md-venv/bin/python")

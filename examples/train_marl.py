@@ -13,7 +13,8 @@ then evaluate it per junction type against every agent driven by the rule-follow
   actor-critic, clipped updates. SuperSuit's vector wrappers need every possible agent present
   from reset to the end (black death), which agents that enter later are not.
 - Evaluation: `--episodes` episodes per junction type from seeds training never drew, PPO
-  (greedy) and the ScriptedDriver (on the same seeds: the same routes, traffic and pedestrians).
+  (greedy, and sampling its actions) and the ScriptedDriver (on the same seeds: the same routes,
+  traffic and pedestrians).
 
 Per junction type: success (agents that reached their goal without a crash or a violation),
 collisions between agents, stop-sign order violations, not-yielding violations, mean wait
@@ -205,8 +206,12 @@ def update(policy, opt, batch, epochs: int = 4, minibatch: int = 512, clip: floa
             opt.step()
 
 
-def evaluate(cfg: dict, policy, episodes: int) -> dict:
-    """Per-agent outcomes of `episodes` episodes: PPO (greedy) when `policy`, else the ScriptedDriver."""
+def evaluate(cfg: dict, policy, episodes: int, greedy: bool = True, seed: int = 0) -> dict:
+    """Per-agent outcomes of `episodes` episodes: PPO (greedy, or sampling its actions) when
+    `policy`, else the ScriptedDriver."""
+    import torch
+
+    torch.manual_seed(seed)
     scripted = policy is None
     env = parallel_env({**cfg, "action": {"type": "ContinuousAction", "acceleration_range":
                                           DRIVER_ACTION_CONFIG["acceleration_range"]}} if scripted else cfg)
@@ -219,7 +224,7 @@ def evaluate(cfg: dict, policy, episodes: int) -> dict:
             if scripted:
                 acts = {a: ScriptedDriver(env.view(a)).act() for a in env.agents}
             else:
-                acts = {a: c[0] for a, c in act_batch(policy, {a: obs[a] for a in env.agents}, greedy=True).items()}
+                acts = {a: c[0] for a, c in act_batch(policy, {a: obs[a] for a in env.agents}, greedy).items()}
             obs, _, term, trunc, infos = env.step(acts)
             last.update(infos)
         for info in last.values():
@@ -258,10 +263,10 @@ def main(argv=None) -> int:
     t1 = time.perf_counter()
     rows = []
     for (n, c), cfg in configs.items():
-        ppo, ref = evaluate(cfg, policy, args.episodes), evaluate(cfg, None, args.episodes)
-        rows.append({"junction": f"{n}-way {c}", "agents": ppo["agents"],
-                     **{f"ppo_{k}": round(v, 3) for k, v in ppo.items() if k != "agents"},
-                     **{f"scripted_{k}": round(v, 3) for k, v in ref.items() if k != "agents"}})
+        runs = {"ppo": evaluate(cfg, policy, args.episodes), "sampled": evaluate(cfg, policy, args.episodes, False),
+                "scripted": evaluate(cfg, None, args.episodes)}
+        rows.append({"junction": f"{n}-way {c}", "agents": runs["ppo"]["agents"],
+                     **{f"{name}_{k}": round(v, 3) for name, r in runs.items() for k, v in r.items() if k != "agents"}})
     eval_s = time.perf_counter() - t1
     out.mkdir(parents=True, exist_ok=True)
     buf = io.StringIO()
@@ -285,13 +290,18 @@ def main(argv=None) -> int:
              f"{load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2 cores)",
              f"- training success over the last {len(last)} agent episodes: "
              f"{np.mean([c['success'] for c in last]) if last else 0:.2f}", "",
-             "| junction | agents | success PPO (scripted) | agent-agent collisions | stop-order violations | "
-             "not yielding | mean wait [s] |", "|---|---|---|---|---|---|---|"]
+             "Each cell: PPO greedy / PPO sampling its actions (every agent driven by the scripted driver).", "",
+             "| junction | agents | success | agent-agent collisions | stop-order violations | not yielding | "
+             "mean wait [s] |", "|---|---|---|---|---|---|---|"]
+
+    def cell(r: dict, key: str, fmt: str = "{}") -> str:
+        return " / ".join(fmt.format(r[f"{n}_{key}"]) for n in ("ppo", "sampled")) + \
+            f" ({fmt.format(r[f'scripted_{key}'])})"
+
     for r in rows:
-        lines.append(f"| {r['junction']} | {r['agents']} | {r['ppo_success']:.2f} ({r['scripted_success']:.2f}) | "
-                     f"{r['ppo_agent_collisions']} ({r['scripted_agent_collisions']}) | {r['ppo_stop_order']} "
-                     f"({r['scripted_stop_order']}) | {r['ppo_not_yielding']} ({r['scripted_not_yielding']}) | "
-                     f"{r['ppo_mean_wait_s']:.1f} ({r['scripted_mean_wait_s']:.1f}) |")
+        lines.append(f"| {r['junction']} | {r['agents']} | {cell(r, 'success', '{:.2f}')} | "
+                     f"{cell(r, 'agent_collisions')} | {cell(r, 'stop_order')} | {cell(r, 'not_yielding')} | "
+                     f"{cell(r, 'mean_wait_s', '{:.1f}')} |")
     summary = "\n".join(lines) + "\n"
     atomic.write_text(out / "summary.md", summary)
     atomic.write_text(out / "run.json", json.dumps({"train_s": round(train_s, 1), "eval_s": round(eval_s, 1),
