@@ -611,7 +611,7 @@ class TrafficCore:
         v0 = t.speed_limit[self.lane]
         free = 1.0 - (v / v0) ** IDM_DELTA
         acc = IDM_ACC * free
-        fi, gap, vl = self._leaders(driven)
+        fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
         stops = [(i, self.road.control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
         stops = [(i, d) for i, d in stops if d < math.inf]
         if stops:  # a stop point is a standing leader (the bumper IDM_STOP_MARGIN_M short of it)

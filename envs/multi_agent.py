@@ -551,8 +551,9 @@ class MultiAgentMapEnv(ParallelEnv):
     def step(self, actions: Mapping[str, Any]):
         w = self.world
         live = list(self.agents)
+        alive = set(live)
         for name, a in actions.items():
-            if name not in self._views or name not in live:
+            if name not in alive:
                 raise Feat2MapError(f"{name!r} is not a live agent (live: {', '.join(live) or 'none'})", "actions")
             check_action(self.actions.space, a)
             self.actions.decide(a, self._views[name].vehicle.speed, self._state[name])
@@ -602,9 +603,10 @@ class MultiAgentMapEnv(ParallelEnv):
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         truncated = w.time >= w.config["duration"]
         obs = self._observe(live)
+        weights = self._weights()
         for a, action in ((a, actions.get(a)) for a in live):
             view = self._views[a]
-            rewards[a] = self._reward(view, action)
+            rewards[a] = self._reward(view, action, weights)
             terms[a] = bool(view.vehicle.crashed or MapEnv.route_completed(view))
             truncs[a] = bool(truncated and not terms[a])
             infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
@@ -663,14 +665,18 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[agent].agent_collision = True
                 self._views[peer].agent_collision = True
 
-    def _reward(self, view: AgentView, action) -> float:
+    def _reward(self, view: AgentView, action, weights: dict[str, float]) -> float:
         r = MapEnv._rewards(view, action)
         new = view.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         view._last_rewards = r
+        return float(sum(w * r[k] for k, w in weights.items()))
+
+    def _weights(self) -> dict[str, float]:
+        """{reward term: weight}: the single env's `reward_*` and the two of the agents' judge."""
         c, ac = self.world.config, self.agent_config
-        total = sum(c[f"reward_{k}"] * r[k] for k in MapEnv._reward_terms())
-        return float(total + ac["reward_not_yielding"] * r["not_yielding"] + ac["reward_stop_order"] * r["stop_order"])
+        return {**{k: c[f"reward_{k}"] for k in MapEnv._reward_terms()},
+                "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
 
     def _info(self, agent: str, obs, action) -> dict:
         view = self._views[agent]
