@@ -5,8 +5,9 @@ map, and against MetaDrive's MultiAgentIntersectionEnv (30 agents) where its scr
 
 Scene: one generated 4-way signalled junction with 150 m approaches; `AGENTS` agents per
 episode on the map's route-coverage routes (every manoeuvre), up to 3 queued per approach, so
-that ~20 are on the road at once (agents waiting for a free place enter as others leave); no
-other traffic or pedestrians (MetaDrive's intersection has only its agents); decisions at 10 Hz
+that ~20 are on the road at once (MetaDrive's bench keeps ~22 of its 30; agents waiting for a
+free place enter as others leave); no other traffic or pedestrians (MetaDrive's intersection
+has only its agents); decisions at 10 Hz
 (2 simulation frames of 50 ms; MetaDrive: 5 physics steps of 20 ms per decision), each agent
 holding a 5 m/s target speed (TargetSpeed action; MetaDrive's bench: constant throttle);
 Kinematics observations (10 vehicles x 7 features) for every agent. An episode ends when no
