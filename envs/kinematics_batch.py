@@ -7,6 +7,7 @@ import numpy as np
 
 from .observation import RELATIVE, Kinematics, project_s
 
+SIMILAR = 1.5  # lanes whose vertex counts are within this factor are projected in one program
 BATCH_FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d"})
 
 
@@ -31,8 +32,19 @@ def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: 
     for k, lane in enumerate(lanes):
         by_lane.setdefault(id(lane), []).append(k)
     along = np.empty((m, N))
-    for ks in by_lane.values():
-        along[ks] = project_s(lanes[ks[0]], X, Y)
+    groups = sorted(by_lane.values(), key=lambda ks: len(lanes[ks[0]]._ax))
+    start = 0
+    while start < len(groups):  # lanes of similar vertex counts projected together
+        end = start + 1
+        while end < len(groups) and len(lanes[groups[end][0]]._ax) <= SIMILAR * len(lanes[groups[start][0]]._ax):
+            end += 1
+        if end - start == 1:
+            along[groups[start]] = project_s(lanes[groups[start][0]], X, Y)
+        else:
+            projected = project_many([lanes[ks[0]] for ks in groups[start:end]], X, Y)
+            for g, ks in enumerate(groups[start:end]):
+                along[ks] = projected[g]
+        start = end
     own = along[np.arange(m), rows]
     dist = along - own[:, None]
     dx, dy = X[None, :] - core.x[rows][:, None], Y[None, :] - core.y[rows][:, None]
@@ -71,3 +83,24 @@ def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: 
         out[:, :idx.shape[1], j] = np.where(filled, col, 0.0)
     return out.astype(np.float32)
 
+
+def project_many(lanes: list, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """[lanes, points]: `observation.project_s(lane, x, y)` of each lane in one program (segments
+    padded to the lane with the most; padding never wins the nearest segment), with the same
+    arithmetic, so the values are identical."""
+    L, S = len(lanes), max(len(ln._ax) for ln in lanes)
+    ax, ay, ux, uy, lo, hi, cum = (np.zeros((L, S)) for _ in range(7))
+    real = np.zeros((L, S), dtype=bool)
+    for g, ln in enumerate(lanes):
+        n = len(ln._ax)
+        ax[g, :n], ay[g, :n], ux[g, :n], uy[g, :n] = ln._ax, ln._ay, ln._ux, ln._uy
+        lo[g, :n], hi[g, :n], cum[g, :n] = ln._lo, ln._hi, ln.cum[:n]
+        real[g, :n] = True
+    rx = x[None, :, None] - ax[:, None, :]
+    ry = y[None, :, None] - ay[:, None, :]
+    t = rx * ux[:, None, :] + ry * uy[:, None, :]
+    tc = np.minimum(np.maximum(t, lo[:, None, :]), hi[:, None, :])
+    dx = rx - tc * ux[:, None, :]
+    dy = ry - tc * uy[:, None, :]
+    i = np.where(real[:, None, :], dx * dx + dy * dy, np.inf).argmin(axis=2)
+    return cum[np.arange(L)[:, None], i] + np.take_along_axis(tc, i[:, :, None], axis=2)[:, :, 0]
