@@ -44,6 +44,7 @@ single env's keys (`map_env` module docstring; `violations` holds the two more) 
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import types
 from collections.abc import Mapping, Sequence
@@ -291,6 +292,25 @@ class AgentView:
         if isinstance(attr, property):
             return attr.fget(self)
         return getattr(self.world, name)
+
+
+@contextlib.contextmanager
+def signal_states_once(control):
+    """While the infos of all agents are made (the clock stands still), each junction's signal
+    states are asked of the traffic control once (every info still gets its own dict)."""
+    ask = control.signal_states
+    memo: dict = {}
+
+    def once(junction_id=None):
+        states = memo.get(junction_id)
+        if states is None:
+            states = memo[junction_id] = ask(junction_id)
+        return dict(states)
+    control.signal_states = once
+    try:
+        yield
+    finally:
+        del control.signal_states
 
 
 def route_memo(view: AgentView, method):
@@ -604,12 +624,13 @@ class MultiAgentMapEnv(ParallelEnv):
         truncated = w.time >= w.config["duration"]
         obs = self._observe(live)
         weights = self._weights()
-        for a, action in ((a, actions.get(a)) for a in live):
-            view = self._views[a]
-            rewards[a] = self._reward(view, action, weights)
-            terms[a] = bool(view.vehicle.crashed or MapEnv.route_completed(view))
-            truncs[a] = bool(truncated and not terms[a])
-            infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
+        with signal_states_once(w.control):
+            for a, action in ((a, actions.get(a)) for a in live):
+                view = self._views[a]
+                rewards[a] = self._reward(view, action, weights)
+                terms[a] = bool(view.vehicle.crashed or MapEnv.route_completed(view))
+                truncs[a] = bool(truncated and not terms[a])
+                infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}
