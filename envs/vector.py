@@ -106,3 +106,70 @@ def map_file_vector(num_envs: int, **kwargs) -> MapVectorEnv:
     from .junction_env import MapFileEnv
 
     return MapVectorEnv(MapFileEnv, num_envs, **kwargs)
+
+
+def info_of(infos: dict[str, Any], i: int) -> dict[str, Any]:
+    """Sub-env i's info from a vector env's batched info (the "_key" masks say which it has)."""
+    out: dict[str, Any] = {}
+    for key, value in infos.items():
+        if key.startswith("_") or not infos.get(f"_{key}", np.ones(i + 1, dtype=bool))[i]:
+            continue
+        out[key] = info_of(value, i) if isinstance(value, dict) else value[i]
+    return out
+
+
+def sb3_vec_env(venv) -> Any:
+    """A Stable-Baselines3 `VecEnv` over a Gymnasium vector env with same-step autoreset (such
+    as `MapVectorEnv(..., autoreset_mode=AutoresetMode.SAME_STEP)` or a wrapper of it): SB3's conventions
+    (done = terminated or truncated, the final observation in info["terminal_observation"],
+    info["TimeLimit.truncated"]); infos are built only for the sub-envs whose episode ended."""
+    from stable_baselines3.common.vec_env import VecEnv
+
+    class GymnasiumVecEnv(VecEnv):
+        def __init__(self, venv) -> None:
+            if venv.metadata.get("autoreset_mode") != AutoresetMode.SAME_STEP:
+                raise Feat2MapError("SB3 needs a vector env with autoreset_mode='same-step'", "autoreset_mode")
+            self.venv = venv
+            self._actions = None
+            super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
+
+        def reset(self):
+            seeds = None if all(s is None for s in self._seeds) else list(self._seeds)
+            obs, _ = self.venv.reset(seed=seeds)
+            self._reset_seeds()
+            return obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = actions
+
+        def step_wait(self):
+            obs, rew, term, trunc, info = self.venv.step(self._actions)
+            done = term | trunc
+            infos: list[dict] = [{} for _ in range(self.num_envs)]
+            for i in np.nonzero(done)[0].tolist():
+                infos[i] = info_of(info["final_info"], i)
+                infos[i]["terminal_observation"] = info["final_obs"][i]
+                infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+            return obs, rew.astype(np.float32), done, infos
+
+        def close(self) -> None:
+            self.venv.close()
+
+        def _subs(self, indices) -> list:
+            subs = self.venv.unwrapped.envs
+            return [subs[i] for i in self._get_indices(indices)]
+
+        def get_attr(self, attr_name: str, indices=None) -> list:
+            return [getattr(e, attr_name) for e in self._subs(indices)]
+
+        def set_attr(self, attr_name: str, value, indices=None) -> None:
+            for e in self._subs(indices):
+                setattr(e, attr_name, value)
+
+        def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list:
+            return [getattr(e, method_name)(*args, **kwargs) for e in self._subs(indices)]
+
+        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+            return [False for _ in self._subs(indices)]
+
+    return GymnasiumVecEnv(venv)

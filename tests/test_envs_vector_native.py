@@ -140,3 +140,30 @@ def test_unsupported_configs_are_refused_naming_the_key(key, value):
     with pytest.raises(Feat2MapError, match=key):
         gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vectorization_mode="vector_entry_point",
                      config={**SHORT, key: value})
+
+
+def test_sb3_adapter_steps_through_episode_ends():
+    pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from feat2map.envs.vector import sb3_vec_env
+
+    with pytest.raises(Feat2MapError, match="autoreset_mode"):
+        sb3_vec_env(gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT))
+    batch = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT, autoreset_mode=AutoresetMode.SAME_STEP)
+    venv = VecMonitor(sb3_vec_env(batch))
+    venv.seed(0)
+    obs = venv.reset()
+    assert obs.shape == (2, *batch.single_observation_space.shape)
+    episodes = 0
+    for _ in range(20):
+        obs, rew, done, infos = venv.step(np.array([2, 1]))
+        assert len(infos) == 2 and rew.dtype == np.float32
+        for d, info in zip(done, infos):
+            if d:  # SB3's conventions: the final observation and the episode's summary in info
+                assert info["terminal_observation"].shape == obs.shape[1:] and "episode" in info
+                assert info["TimeLimit.truncated"] == (not info["route_completed"] and not info["crashed"])
+                episodes += 1
+    assert episodes >= 6
+    assert venv.get_attr("time") == [e.time for e in batch.unwrapped.envs]
+    venv.close()
