@@ -522,9 +522,10 @@ class TrafficCore:
         self.objs = [self.objs[k] for k in rows]
         new_row = {old: new for new, old in enumerate(rows)}
         self.dirty = {new_row[d] for d in self.dirty if d in new_row}
-        for i, o in enumerate(self.objs):
-            if isinstance(o, ArrayVehicle):
-                o._row = i
+        objs = self.objs
+        for i in np.nonzero(idx != np.arange(len(idx)))[0].tolist():  # rows that moved
+            if isinstance(objs[i], ArrayVehicle):
+                objs[i]._row = i
         self._masks()
 
     def _take_in(self, obj, road) -> None:

@@ -77,17 +77,46 @@ class MapVectorEnv(SyncVectorEnv):
         for i, env in zip(stepping, envs):
             self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
                 env._end_step(acts[i])
+        finals = []
         for i, env in enumerate(self.envs):
-            info = done_infos[i]
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
-                infos = self._add_info(infos, {"final_obs": self._env_obs[i], "final_info": info}, i)
-                self._env_obs[i], info = env.reset()
-            infos = self._add_info(infos, info, i)
+                finals.append((i, {"final_obs": self._env_obs[i], "final_info": done_infos[i]}))
+                self._env_obs[i], done_infos[i] = env.reset()
+        infos = self.stack_infos(finals + sorted(done_infos.items()))
         self._observations = concatenate(self.single_observation_space, self._env_obs, self._observations)
         self._autoreset_envs = np.logical_or(self._terminations, self._truncations)
         obs = self._observations
         return (np.copy(obs) if self.copy and isinstance(obs, np.ndarray) else obs, np.copy(self._rewards),
                 np.copy(self._terminations), np.copy(self._truncations), infos)
+
+    def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:
+        """The batched info of (sub-env, info) pairs: what `VectorEnv._add_info` makes of them
+        one by one (arrays per key, "_key" masks, nested dicts alike), a key at a time."""
+        n = self.num_envs
+        keys: dict[str, None] = {}
+        for _, d in items:
+            keys.update(dict.fromkeys(d))
+        out: dict[str, Any] = {}
+        for key in keys:
+            sub = [(i, d[key]) for i, d in items if key in d]
+            idx = [i for i, _ in sub]
+            first = sub[0][1]
+            if isinstance(first, dict) and key != "final_obs":
+                array = self.stack_infos(sub)
+            elif key != "final_obs" and (type(first) in (int, float, bool) or issubclass(type(first), np.number)):
+                array = np.zeros(n, dtype=type(first))
+                array[idx] = [v for _, v in sub]
+            elif key != "final_obs" and isinstance(first, np.ndarray):
+                array = np.zeros((n, *first.shape), dtype=first.dtype)
+                array[idx] = np.stack([v for _, v in sub])
+            else:
+                array = np.full(n, None, dtype=object)
+                for i, v in sub:
+                    array[i] = v
+            mask = np.zeros(n, dtype=np.bool_)
+            mask[idx] = True
+            out[key], out[f"_{key}"] = array, mask
+        return out
 
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""
