@@ -74,6 +74,7 @@ class MapVectorEnv(SyncVectorEnv):
         for i, env in zip(stepping, envs):
             env._begin_step(acts[i])
         simulate(envs, [acts[i] for i in stepping])
+        self.core.sync()  # respawns of every sub-env taken in at once (not one observation at a time)
         for i, env in zip(stepping, envs):
             self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
                 env._end_step(acts[i])
