@@ -516,12 +516,12 @@ class TrafficCore:
         for name in self._ARRAYS:
             setattr(self, name, getattr(self, name)[idx])
         self.W, self.C = self.W[idx], self.C[idx]
-        self.routes = [self.routes[k] for k in rows]
-        self.route_ids = [self.route_ids[k] for k in rows]
-        self.reserved = [self.reserved[k] for k in rows]
-        self.objs = [self.objs[k] for k in rows]
-        new_row = {old: new for new, old in enumerate(rows)}
-        self.dirty = {new_row[d] for d in self.dirty if d in new_row}
+        new_row = np.full(len(self.objs), -1, dtype=np.int64)
+        new_row[idx] = np.arange(len(idx))
+        self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
+        take = (lambda seq: list(map(seq.__getitem__, rows)))  # noqa: E731
+        self.routes, self.route_ids = take(self.routes), take(self.route_ids)
+        self.reserved, self.objs = take(self.reserved), take(self.objs)
         objs = self.objs
         for i in np.nonzero(idx != np.arange(len(idx)))[0].tolist():  # rows that moved
             if isinstance(objs[i], ArrayVehicle):
