@@ -28,6 +28,7 @@ from .map_env import MapEnv, simulate
 UNSUPPORTED = (("traffic_core", "objects", "the batch steps the arrays core only"),
                ("new_map_each_reset", True, "the sub-envs of a batch share one map"),
                ("manual_control", True, "no keyboard in a batch"))
+MAP_KEYS = ("map_seed", "features", "feature_space", "generation", "map_file", "map")  # fixed for a batch's life
 
 
 class MapVectorEnv(SyncVectorEnv):
@@ -38,9 +39,7 @@ class MapVectorEnv(SyncVectorEnv):
                  render_env: int = 0, copy: bool = True) -> None:
         if int(num_envs) < 1:
             raise Feat2MapError(f"must be >= 1, got {num_envs}", "num_envs")
-        for key, value, why in UNSUPPORTED:
-            if (config or {}).get(key) == value:
-                raise Feat2MapError(f"{value!r} is not supported by the batched vector env ({why})", f"config.{key}")
+        check_config(config or {})
         if not 0 <= render_env < num_envs:
             raise Feat2MapError(f"must be in [0, {num_envs}), got {render_env}", "render_env")
         self.render_env = render_env
@@ -54,6 +53,17 @@ class MapVectorEnv(SyncVectorEnv):
         for k, env in enumerate(self.envs):
             env.core_slot = (self.core, k)
             env._network = lambda net=net: net  # the map of the batch, for every reset
+
+    def reset(self, *, seed=None, options: dict[str, Any] | None = None):
+        """Reset the sub-envs (all, or those of `options["reset_mask"]`); `options["config"]`
+        may change anything but the map and the keys the batch refuses."""
+        cfg = dict((options or {}).get("config") or {})
+        check_config(cfg)
+        for key in MAP_KEYS:
+            if key in cfg:
+                raise Feat2MapError("the sub-envs of a batch keep the map they were made with: make a new batch",
+                                    f"options.config.{key}")
+        return super().reset(seed=seed, options=options)
 
     def step(self, actions):
         """Step every sub-env (next-step autoreset: those that ended last step are reset
@@ -122,6 +132,13 @@ class MapVectorEnv(SyncVectorEnv):
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""
         return self.envs[self.render_env].render() if self.render_mode is not None else None
+
+
+def check_config(config: dict) -> None:
+    """A Feat2MapError naming the first config key whose value the batch cannot hold."""
+    for key, value, why in UNSUPPORTED:
+        if config.get(key) == value:
+            raise Feat2MapError(f"{value!r} is not supported by the batched vector env ({why})", f"config.{key}")
 
 
 def junction_grid_vector(num_envs: int, **kwargs) -> MapVectorEnv:

@@ -167,3 +167,14 @@ def test_sb3_adapter_steps_through_episode_ends():
     assert episodes >= 6
     assert venv.get_attr("time") == [e.time for e in batch.unwrapped.envs]
     venv.close()
+
+
+def test_a_reset_cannot_change_the_batchs_map():
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT)
+    envs.reset(seed=0, options={"config": {"traffic_vehicles": 1}})  # anything else may change
+    assert all(len(e.road.vehicles) <= 2 for e in envs.unwrapped.envs)
+    with pytest.raises(Feat2MapError, match="map_seed"):
+        envs.reset(options={"config": {"map_seed": 4}})
+    with pytest.raises(Feat2MapError, match="traffic_core"):
+        envs.reset(options={"config": {"traffic_core": "objects"}})
+    envs.close()
