@@ -207,13 +207,13 @@ def signal_cycle(m: HDMap, junction_id: str) -> float:
     """The env's default signal cycle [s] at a junction (0 without signals): the longest red
     an approach can meet, plus its own green."""
     from ..envs.map_env import MapEnv
-    from ..phases import group_phases, travel_headings
+    from ..phases import plan_junction
 
     signals = [s for s in m.signals.values() if s.junction_id == junction_id]
     if not signals:
         return 0.0
     cfg = MapEnv.default_config()
-    phases = group_phases(signals, cfg["signal_phases"] == "paired", travel_headings(m, signals))
+    phases = plan_junction(m, signals, cfg["signal_phases"] == "paired")
     return len(phases) * (cfg["signal_green"] + cfg["signal_amber"] + cfg["signal_all_red"])
 
 

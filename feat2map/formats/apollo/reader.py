@@ -26,7 +26,7 @@ from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, limits
 from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       incoming_lanes, signal_precedence)
-from ...validation import validate_model
+from ...semantics import loaded
 
 # overlap kind -> (the Map field listing the elements, the model class)
 _CONTROL_FIELDS = {"signal": ("signal", Signal), "stop_sign": ("stop_sign", StopSign),
@@ -414,9 +414,9 @@ def read_apollo(path: str | Path) -> HDMap:
     except LimitError as exc:
         raise LimitError(exc.message, str(path)) from None
     pb = aps.parse_map(data, str(path))
-    return validate_model(_Reader(pb, str(path)).read(), str(path))
+    return loaded(_Reader(pb, str(path)).read(), str(path))
 
 
 def read_apollo_bytes(data: bytes, where: str = "<bytes>") -> HDMap:
     """Like `read_apollo`, from the file's content."""
-    return validate_model(_Reader(aps.parse_map(data, where), where).read(), where)
+    return loaded(_Reader(aps.parse_map(data, where), where).read(), where)

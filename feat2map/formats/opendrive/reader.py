@@ -27,7 +27,7 @@ from ...config import MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, 
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
-from ...validation import validate_model
+from ...semantics import loaded
 
 # OpenDRIVE signal type -> feat2map control kind. CARLA/VectorZero, SVL and esmini use the
 # OpenDRIVE 1.5 country "OpenDRIVE" codes (1000001 light, 1000002 pedestrian light); RoadRunner
@@ -425,7 +425,7 @@ def read_opendrive(path: str | Path) -> HDMap:
         roads[road.id] = road
     if not roads:
         raise MapFormatError("no readable <road> elements", str(path))
-    return validate_model(_Builder(ctx, root, roads, origin).build(), str(path))
+    return loaded(_Builder(ctx, root, roads, origin).build(), str(path))
 
 
 class _Builder:

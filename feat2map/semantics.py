@@ -1,0 +1,179 @@
+"""Load-time semantic checks of a map: what must hold for a map to be driven and exported
+safely, beyond the values `validation.validate_model` checks.
+
+Every reader runs `check_map` on the map it returns (each problem a one-line warning naming the
+file and element; `feat2map validate` reports them), and the env asserts `assert_sound` at reset.
+The checks are a list (`CHECKS`) of small functions `(HDMap) -> Iterable[Finding]`; add one by
+appending it. A `Finding` is `fatal` when the map cannot be driven safely (the env refuses it).
+
+`drop_dangling` is the readers' repair step after their own transforms: a control or link that
+names an element the map does not hold loses that reference (one warning naming both), never a
+traceback further on.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+from typing import Callable, Iterable
+
+from .errors import Feat2MapError
+from .model import HDMap, incoming_lanes
+
+CONTROL_TABLES = ("signals", "stop_signs", "yield_signs")
+_LINKS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One semantic problem: the element (kind and id), what is wrong, and whether the map
+    cannot be driven safely with it."""
+
+    element: str
+    message: str
+    fatal: bool = False
+
+    def __str__(self) -> str:
+        return f"{self.element}: {self.message}"
+
+
+# ------------------------------------------------------------------------------- checks
+
+def dangling_references(m: HDMap) -> Iterable[Finding]:
+    """Every id an element refers to exists (lanes, roads, junctions, controls' lanes)."""
+    for ln in m.lanes.values():
+        if ln.road_id not in m.roads:
+            yield Finding(f"lane {ln.id}", f"refers to unknown road {ln.road_id}", True)
+        if ln.junction_id is not None and ln.junction_id not in m.junctions:
+            yield Finding(f"lane {ln.id}", f"refers to unknown junction {ln.junction_id}", True)
+        for f in _LINKS:
+            for x in getattr(ln, f):
+                if x not in m.lanes:
+                    yield Finding(f"lane {ln.id}", f"{f} names unknown lane {x}", True)
+    for r in m.roads.values():
+        for x in r.lane_ids:
+            if x not in m.lanes:
+                yield Finding(f"road {r.id}", f"lists unknown lane {x}", True)
+    for kind in (*CONTROL_TABLES, "crosswalks"):
+        for s in getattr(m, kind).values():
+            for x in getattr(s, "lane_ids", ()):
+                if x not in m.lanes:
+                    yield Finding(f"{kind[:-1]} {s.id}", f"governs unknown lane {x}", True)
+            if s.junction_id is not None and s.junction_id not in m.junctions:
+                yield Finding(f"{kind[:-1]} {s.id}", f"refers to unknown junction {s.junction_id}", True)
+
+
+def governed_lanes_are_approaches(m: HDMap) -> Iterable[Finding]:
+    """A control of a junction governs lanes that lead into that junction (its approaches)."""
+    for kind in CONTROL_TABLES:
+        for s in getattr(m, kind).values():
+            if s.junction_id is None:
+                continue
+            for lid in incoming_lanes(m.lanes, s.lane_ids):
+                if not any(m.lanes[x].junction_id == s.junction_id for x in m.lanes[lid].successors if x in m.lanes):
+                    yield Finding(f"{kind[:-1]} {s.id}", f"governs lane {lid}, which is not an approach of "
+                                                         f"junction {s.junction_id}")
+
+
+def conflict_free_phases(m: HDMap) -> Iterable[Finding]:
+    """No two signals whose paths conflict are green together in the phase plan (paired and
+    single), and every group the map declares can switch together."""
+    from .phases import declared_group_conflicts, junction_phases, phase_conflicts
+
+    for paired in (True, False):
+        for jid, a, b, why in phase_conflicts(m, junction_phases(m, paired), paired):
+            yield Finding(f"junction {jid}", f"signals {a} and {b} are green together in the "
+                                             f"{'paired' if paired else 'single'} plan: {why}", True)
+    for gid, a, b, why in declared_group_conflicts(m):
+        yield Finding(f"signal group {gid}", f"the map switches signals {a} and {b} together, but {why} "
+                                              "(the phase plan keeps them apart)")
+
+
+CHECKS: list[Callable[[HDMap], Iterable[Finding]]] = [
+    dangling_references,
+    governed_lanes_are_approaches,
+    conflict_free_phases,
+]
+
+
+def findings(m: HDMap) -> list[Finding]:
+    """Every problem every check finds, in check order."""
+    return [f for check in CHECKS for f in check(m)]
+
+
+def check_map(m: HDMap, where: str = "map") -> HDMap:
+    """Warn (one line each, naming `where` and the element) about every finding; returns `m`."""
+    for f in findings(m):
+        warnings.warn(f"{where}: {f}", stacklevel=2)
+    return m
+
+
+def assert_sound(m: HDMap, where: str = "map") -> None:
+    """Raise Feat2MapError naming the first fatal finding (the env's check at reset)."""
+    bad = [f for f in findings(m) if f.fatal]
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise Feat2MapError(f"{bad[0]}{more}", where)
+
+
+def loaded(m: HDMap, where: str = "map") -> HDMap:
+    """A reader's last step: dangling references dropped (`drop_dangling`), values checked
+    (`validation.validate_model`), semantic findings warned (`check_map`)."""
+    from .validation import validate_model
+
+    return check_map(validate_model(drop_dangling(m, where), where), where)
+
+
+# ------------------------------------------------------------------------------- repair
+
+def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
+    """`m` without references to elements it does not hold: links and controls' lanes that name
+    unknown lanes lose them, junction ids that name unknown junctions become None; each with a
+    one-line warning naming `where`, the element and the id. Returns `m` itself when clean."""
+    def warn(element: str, msg: str) -> None:
+        warnings.warn(f"{where}: {element}: {msg}, skipped", stacklevel=3)
+
+    lanes = dict(m.lanes)
+    changed = False
+    for lid, ln in m.lanes.items():
+        upd = {}
+        for f in _LINKS:
+            ids = getattr(ln, f)
+            keep = tuple(x for x in ids if x in m.lanes)
+            if keep != ids:
+                warn(f"lane {lid}", f"{f} names unknown lane(s) {', '.join(x for x in ids if x not in m.lanes)}")
+                upd[f] = keep
+        if ln.junction_id is not None and ln.junction_id not in m.junctions:
+            warn(f"lane {lid}", f"unknown junction {ln.junction_id}")
+            upd["junction_id"] = None
+        if upd:
+            lanes[lid] = replace(ln, **upd)
+            changed = True
+    tables = {}
+    for kind in (*CONTROL_TABLES, "crosswalks"):
+        out = {}
+        for sid, s in getattr(m, kind).items():
+            upd = {}
+            ids = getattr(s, "lane_ids", ())
+            keep = tuple(x for x in ids if x in m.lanes)
+            if keep != ids:
+                warn(f"{kind[:-1]} {sid}", f"governs unknown lane(s) {', '.join(x for x in ids if x not in m.lanes)}")
+                upd["lane_ids"] = keep
+            if s.junction_id is not None and s.junction_id not in m.junctions:
+                warn(f"{kind[:-1]} {sid}", f"unknown junction {s.junction_id}")
+                upd["junction_id"] = None
+            out[sid] = replace(s, **upd) if upd else s
+            changed = changed or bool(upd)
+        tables[kind] = out
+    roads = dict(m.roads)
+    for rid, r in m.roads.items():
+        if any(x not in m.lanes for x in r.lane_ids):
+            warn(f"road {rid}", f"lists unknown lane(s) {', '.join(x for x in r.lane_ids if x not in m.lanes)}")
+            roads[rid] = replace(r, right_lanes=tuple(x for x in r.right_lanes if x in m.lanes),
+                                 left_lanes=tuple(x for x in r.left_lanes if x in m.lanes))
+            changed = True
+    if not changed:
+        return m
+    return replace(m, lanes=lanes, roads=roads, **tables)
+
+
+__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "findings", "loaded"]
