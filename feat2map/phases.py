@@ -191,24 +191,44 @@ def declared_groups(m: HDMap) -> list[tuple[str, tuple[str, ...]]]:
     return out
 
 
-def declared_group_conflicts(m: HDMap, pc: PathConflicts | None = None) -> list[tuple[str, str, str, str]]:
-    """(group id, signal a, signal b, why) for every declared group holding two signals whose
-    paths conflict (paired rules): the map says they switch together but they cannot."""
-    pc = pc or PathConflicts(m)
+def _unit_paths(m: HDMap, sids: Iterable[str]) -> list[tuple[list[str], tuple[str, ...]]]:
+    """The approach units of signals `sids` with each unit's paths."""
+    sigs = [m.signals[s] for s in sids if s in m.signals]
+    return [(u, tuple(dict.fromkeys(p for s in u for p in signal_paths(m, m.signals[s]))))
+            for u in _approach_units(m, sigs)]
+
+
+def _unit_clashes(pc: PathConflicts, units: list[tuple[list[str], tuple[str, ...]]],
+                  paired: bool) -> list[tuple[str, str, str]]:
+    """(signal of one unit, signal of another, why) for every two units whose paths conflict."""
     out = []
-    for gid, ids in declared_groups(m):
-        paths = {s: signal_paths(m, m.signals[s]) for s in ids}
-        for i, a in enumerate(ids):
-            for b in ids[i + 1:]:
-                hit = units_conflict(pc, paths[a], paths[b], True)
-                if hit is not None and m.signals[a].junction_id == m.signals[b].junction_id:
-                    out.append((gid, a, b, f"paths {hit[0]} and {hit[1]} conflict"))
+    for i, (u, pu) in enumerate(units):
+        for v, pv in units[i + 1:]:
+            if m_junction(pc.m, u) != m_junction(pc.m, v):
+                continue
+            hit = units_conflict(pc, pu, pv, paired)
+            if hit is not None:
+                out.append((u[0], v[0], f"paths {hit[0]} and {hit[1]} conflict"))
     return out
 
 
-def _junction_units(m: HDMap, sigs: list[Signal], pc: PathConflicts) -> list[list[str]]:
+def m_junction(m: HDMap, unit: list[str]) -> str | None:
+    return m.signals[unit[0]].junction_id
+
+
+def declared_group_conflicts(m: HDMap, pc: PathConflicts | None = None,
+                             paired: bool = True) -> list[tuple[str, str, str, str]]:
+    """(group id, signal a, signal b, why) for every declared group holding two approaches whose
+    paths conflict (by the `paired` or single rules): the map says they switch together but
+    they cannot."""
+    pc = pc or PathConflicts(m)
+    return [(gid, a, b, why) for gid, ids in declared_groups(m)
+            for a, b, why in _unit_clashes(pc, _unit_paths(m, ids), paired)]
+
+
+def _junction_units(m: HDMap, sigs: list[Signal], pc: PathConflicts, paired: bool) -> list[list[str]]:
     units = _approach_units(m, sigs)
-    bad = {g for g, *_ in declared_group_conflicts(m, pc)}
+    bad = {g for g, *_ in declared_group_conflicts(m, pc, paired)}
     mine = {g.id for g in sigs}
     for gid, ids in declared_groups(m):
         ids = [x for x in ids if x in mine]
@@ -226,7 +246,7 @@ def plan_junction(m: HDMap, sigs: Iterable[Signal], paired: bool, pc: PathConfli
     sigs = sorted(sigs, key=lambda g: g.id)
     pc = pc or PathConflicts(m)
     by_id = {g.id: g for g in sigs}
-    units = _junction_units(m, sigs, pc)
+    units = _junction_units(m, sigs, pc, paired)
     paths = {u[0]: tuple(dict.fromkeys(p for s in u for p in signal_paths(m, by_id[s]))) for u in units}
     blind = [s for u in units if not paths[u[0]] for s in u]
     phases: list[list[list[str]]] = []
@@ -257,23 +277,11 @@ def junction_phases(m: HDMap, paired: bool = True) -> dict[str | None, Phases]:
 
 
 def phase_conflicts(m: HDMap, phases: Mapping[str | None, Phases], paired: bool = True) -> list[tuple[str, str, str, str]]:
-    """(junction, signal a, signal b, why) for every two signals green together in a plan whose
-    paths conflict (paired rules: permissive lefts of opposed units allowed). Signals of one
-    approach are never compared (their paths leave one road)."""
+    """(junction, signal a, signal b, why) for every two approaches green together in a plan
+    whose paths conflict (paired rules: permissive lefts of opposed approaches allowed)."""
     pc = PathConflicts(m)
-    out = []
-    for jid, plan in phases.items():
-        sigs = [m.signals[s] for ph in plan for s in ph if s in m.signals]
-        same = {s: k for k, u in enumerate(_approach_units(m, sigs)) for s in u}
-        for ph in plan:
-            for i, a in enumerate(ph):
-                for b in ph[i + 1:]:
-                    if a not in m.signals or b not in m.signals or same.get(a) == same.get(b):
-                        continue
-                    hit = units_conflict(pc, signal_paths(m, m.signals[a]), signal_paths(m, m.signals[b]), paired)
-                    if hit is not None:
-                        out.append((str(jid), a, b, f"paths {hit[0]} and {hit[1]} conflict"))
-    return out
+    return [(str(jid), a, b, why) for jid, plan in phases.items() for ph in plan
+            for a, b, why in _unit_clashes(pc, _unit_paths(m, ph), paired)]
 
 
 def timeline(phase: int, n_phases: int, green: float = SIGNAL_GREEN_S, amber: float = SIGNAL_AMBER_S,
