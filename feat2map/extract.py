@@ -331,6 +331,12 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
                     (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
+        raw = sorted(a.angle_deg % 360.0 for a in arms)
+        gap = min((raw[(i + 1) % len(raw)] - raw[i]) % 360.0 for i in range(len(raw)))
+        if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
+            skip(len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
+                            f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")
+            continue
         try:
             norm = normalize_rotation([a.angle_deg for a in arms], tie_tol_deg)
             arms = [arms[i] for i in norm.order]
