@@ -842,8 +842,10 @@ class _Builder:
                 made[kind][ident] = _CONTROL_CLASS[kind](ident, jid, line, pos, heading, tuple(governed))
                 ident_of.setdefault(sid, ident)
         for (t, c), n in sorted(unknown.items()):
+            static = SIGNAL_CODES.get(t) == "signal" or SIGNAL_CODES.get(t.lower()) == "signal"
             warnings.warn(f"{self.ctx.path}: {n} <signal> of type {t!r}" + (f" (country {c!r})" if c else "")
-                          + " not in the code tables: ignored, not made a control", stacklevel=2)
+                          + (' marked dynamic="no": a sign or marking, not made a light' if static else
+                             " not in the code tables: ignored, not made a control"), stacklevel=2)
         signals = made["signal"]
         self.signal_groups = self._controller_groups(ident_of, signals)
         return (signals, signal_precedence(lanes, signals, made["stop"]),
