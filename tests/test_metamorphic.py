@@ -1,0 +1,301 @@
+"""Metamorphic tests: transformations that keep a map's meaning must keep what feat2map reads
+from it: the junction features, the controls of each junction and its phase groups.
+
+OpenDRIVE: rename every id, translate and rotate the whole map, split every lane section in
+two, drop optional elements. Apollo: rename every id, translate and rotate, thin the curves as
+Apollo's sim_map does, drop optional elements. Run over maps the project generates itself
+(exported to .xodr and Apollo) and over the maps in ../shared/maps: a few small ones by
+default, all of them with FEAT2MAP_LONG_TESTS=1 (skipped cleanly without ../shared/maps).
+"""
+from __future__ import annotations
+
+import copy
+import math
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lxml import etree
+
+import feat2map
+from conftest import LONG_TESTS, SHARED_MAPS
+from feat2map.extract import extract_junctions
+from feat2map.features import JunctionFeature as JF
+from feat2map.formats import write_map
+from feat2map.formats.apollo import read_apollo
+from feat2map.formats.apollo import schema as aps
+from feat2map.formats.apollo.sim_map import to_sim_map
+from feat2map.formats.opendrive import read_opendrive, write_opendrive
+from feat2map.phases import junction_phases, phase_conflicts
+
+SMALL_XODR = ("opendrive/svl_cubetown/cubetown.xodr", "opendrive/commonroad_four_way_crossing/four_way_crossing.xodr",
+              "opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr")
+SMALL_APOLLO = ("apollo/cube_town/base_map.bin",)
+ANGLE = 0.7  # radians: a rotation no grid direction survives
+SHIFT = (1234.5, -678.25)
+
+
+def _read(fn, path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return fn(path)
+
+
+def meaning(m) -> list[tuple]:
+    """What a map means to feat2map, independent of ids and placement: per junction (sorted)
+    its feature (arm count, control, crosswalk, lanes per arm, angles rounded), its signal,
+    stop sign and yield sign counts, and the sizes of its phase groups (paired and single)."""
+    paired, single = junction_phases(m, True), junction_phases(m, False)
+    assert phase_conflicts(m, paired, True) == [] and phase_conflicts(m, single, False) == []
+    out = []
+    for j in extract_junctions(m):
+        f = j.feature
+        kinds = [sum(1 for s in getattr(m, t).values() if s.junction_id == j.id)
+                 for t in ("signals", "stop_signs", "yield_signs")]
+        out.append((f.n_roads, f.control, f.crosswalk, tuple((s.lanes_in, s.lanes_out) for s in f.sockets),
+                    tuple(round(a) for a in f.rotation), tuple(kinds),
+                    tuple(sorted(len(p) for p in paired.get(j.id, ()))),
+                    tuple(sorted(len(p) for p in single.get(j.id, ())))))
+    return sorted(out)
+
+
+def assert_same_meaning(a, b, angle_tol_deg: float = 1.01) -> None:
+    """Same features, controls and phase groups; measured leg angles within `angle_tol_deg`
+    (rounding of measurement noise by default)."""
+    ma, mb = meaning(a), meaning(b)
+    assert len(ma) == len(mb)
+    for x, y in zip(ma, mb):
+        assert x[:4] == y[:4] and x[5:] == y[5:], (x, y)
+        assert np.allclose(x[4], y[4], atol=angle_tol_deg), (x, y)
+
+
+# ---------------------------------------------------------------------------------- OpenDRIVE
+
+def xodr_rename(root) -> None:
+    """Every road, junction and signal id prefixed, and every reference to one."""
+    for r in root.findall("road"):
+        r.set("id", "r" + r.get("id"))
+        if r.get("junction") not in (None, "-1", ""):
+            r.set("junction", "j" + r.get("junction"))
+        for kind in ("predecessor", "successor"):
+            e = r.find(f"link/{kind}")
+            if e is not None and e.get("elementId") is not None:
+                e.set("elementId", ("j" if e.get("elementType") == "junction" else "r") + e.get("elementId"))
+        for s in r.findall("signals/signal") + r.findall("signals/signalReference"):
+            s.set("id", "s" + s.get("id"))
+    for j in root.findall("junction"):
+        j.set("id", "j" + j.get("id"))
+        for c in j.findall("connection"):
+            for k in ("incomingRoad", "connectingRoad"):
+                if c.get(k) is not None:
+                    c.set(k, "r" + c.get(k))
+    for c in root.findall("controller"):
+        for k in c.findall("control"):
+            k.set("signalId", "s" + k.get("signalId"))
+
+
+def xodr_move(root) -> None:
+    """The whole map rotated by ANGLE about the origin and shifted by SHIFT."""
+    c, s = math.cos(ANGLE), math.sin(ANGLE)
+    for g in root.iter("geometry"):
+        x, y = float(g.get("x")), float(g.get("y"))
+        g.set("x", repr(c * x - s * y + SHIFT[0]))
+        g.set("y", repr(s * x + c * y + SHIFT[1]))
+        g.set("hdg", repr(float(g.get("hdg")) + ANGLE))
+
+
+def _shift_poly(el, d: float, key: str) -> None:
+    """A cubic record a + b u + c u^2 + d u^3 re-expanded about u = d (its new start)."""
+    a, b, c, e = (float(el.get(k, "0")) for k in "abcd")
+    el.set("a", repr(a + b * d + c * d * d + e * d ** 3))
+    el.set("b", repr(b + 2 * c * d + 3 * e * d * d))
+    el.set("c", repr(c + 3 * e * d))
+    el.set(key, "0")
+
+
+def xodr_split_sections(root) -> None:
+    """Every lane section cut in two at its middle (width records re-expanded, lanes linked
+    across the cut): the same lanes in more pieces."""
+    for r in root.findall("road"):
+        lanes = r.find("lanes")
+        secs = lanes.findall("laneSection")
+        ends = [float(x.get("s")) for x in secs[1:]] + [float(r.get("length"))]
+        for sec, end in zip(secs, ends):
+            s0 = float(sec.get("s"))
+            mid = (s0 + end) / 2
+            if end - s0 < 1.0 or sec.findall(".//border") or any(len(ln.findall("width")) != 1 for ln in sec.iter("lane")
+                                                                 if ln.get("id") != "0"):
+                continue
+            second = copy.deepcopy(sec)
+            second.set("s", repr(mid))
+            for ln in second.iter("lane"):
+                for w in ln.findall("width"):
+                    _shift_poly(w, mid - s0, "sOffset")
+                for rm in ln.findall("roadMark"):
+                    ln.remove(rm)
+            for first_ln, second_ln in zip(sec.iter("lane"), second.iter("lane")):
+                lid = first_ln.get("id")
+                if lid == "0":
+                    continue
+                for ln, keep, new in ((first_ln, "predecessor", "successor"), (second_ln, "successor", "predecessor")):
+                    link = ln.find("link")
+                    if link is None:
+                        link = etree.Element("link")
+                        ln.insert(0, link)
+                    for x in link.findall(new):
+                        link.remove(x)
+                    etree.SubElement(link, new, id=lid)
+            sec.addnext(second)
+
+
+def xodr_drop_optional(root) -> None:
+    """Elements that carry no meaning for driving: user data, road marks, elevation, lateral
+    profiles, materials, lane speeds, the header's geo reference."""
+    for tag in ("userData", "roadMark", "elevationProfile", "lateralProfile", "material", "geoReference"):
+        for el in list(root.iter(tag)):
+            el.getparent().remove(el)
+
+
+XODR_TRANSFORMS = {"rename": xodr_rename, "move": xodr_move, "split_sections": xodr_split_sections,
+                   "drop_optional": xodr_drop_optional}
+
+
+def _xodr_case(src: Path, tmp: Path, name: str):
+    root = etree.parse(str(src)).getroot()
+    XODR_TRANSFORMS[name](root)
+    out = tmp / f"{name}.xodr"
+    out.write_bytes(etree.tostring(root))
+    return _read(read_opendrive, out)
+
+
+# ---------------------------------------------------------------------------------- Apollo
+
+def _walk(msg, fn) -> None:
+    """Call fn on every sub-message of `msg` (depth first)."""
+    for field, value in msg.ListFields():
+        if field.type != field.TYPE_MESSAGE:
+            continue
+        for v in (value if getattr(field, "is_repeated", None) or isinstance(value, Sequence) else [value]):
+            fn(v)
+            _walk(v, fn)
+
+
+def apollo_rename(pb) -> None:
+    def ren(v):
+        if v.DESCRIPTOR.name == "Id" and v.id:
+            v.id = "x_" + v.id
+    _walk(pb, ren)
+
+
+def apollo_move(pb) -> None:
+    c, s = math.cos(ANGLE), math.sin(ANGLE)
+
+    def mv(v):
+        if v.DESCRIPTOR.name == "PointENU":
+            x, y = v.x, v.y
+            v.x, v.y = c * x - s * y + SHIFT[0], s * x + c * y + SHIFT[1]
+    _walk(pb, mv)
+
+
+def apollo_thin(pb) -> None:
+    pb.CopyFrom(to_sim_map(pb))
+
+
+def apollo_drop_optional(pb) -> None:
+    for ln in pb.lane:
+        for f in ("left_sample", "right_sample", "left_road_sample", "right_road_sample"):
+            ln.ClearField(f)
+        ln.ClearField("speed_limit")
+    pb.header.ClearField("vendor")
+    pb.header.ClearField("district")
+
+
+APOLLO_TRANSFORMS = {"rename": apollo_rename, "move": apollo_move, "thin": apollo_thin,
+                     "drop_optional": apollo_drop_optional}
+# sim_map thinning is lossy: a curved road's last segment becomes a chord up to 5 m long, whose
+# direction is off the tangent by a degree or two, and the measured centre of a junction with
+# such arms moves (up to 4 degrees seen on a generated skewed 4-way); everything else is exact
+ANGLE_TOL_DEG = {"thin": 5.0}
+
+
+def _apollo_case(src: Path, tmp: Path, name: str):
+    pb = aps.parse_map(src.read_bytes(), str(src))
+    APOLLO_TRANSFORMS[name](pb)
+    out = tmp / f"{name}.bin"
+    out.write_bytes(pb.SerializeToString())
+    return _read(read_apollo, out)
+
+
+# ---------------------------------------------------------------------------------- generated maps
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    """A generated map with a signalized 4-way, a stop T and a bare 5-leg junction, exported to
+    OpenDRIVE and Apollo."""
+    tmp = tmp_path_factory.mktemp("gen")
+    m = feat2map.generate_from_features([JF.make([0, 90, 180, 270], "signal", True), JF.make([0, 90, 180], "stop", False),
+                                         JF.make([-16, 80, 179, 207], "signal", False)], seed=2)
+    write_opendrive(m, tmp / "gen.xodr")
+    write_map(m, tmp / "apollo", "apollo")
+    return tmp / "gen.xodr", tmp / "apollo" / "base_map.bin"
+
+
+@pytest.mark.parametrize("name", sorted(XODR_TRANSFORMS))
+def test_generated_xodr_keeps_its_meaning(generated, tmp_path, name):
+    base = _read(read_opendrive, generated[0])
+    assert len(meaning(base)) == 3
+    assert_same_meaning(base, _xodr_case(generated[0], tmp_path, name))
+
+
+@pytest.mark.parametrize("name", sorted(APOLLO_TRANSFORMS))
+def test_generated_apollo_keeps_its_meaning(generated, tmp_path, name):
+    base = _read(read_apollo, generated[1])
+    assert len(meaning(base)) == 3
+    assert_same_meaning(base, _apollo_case(generated[1], tmp_path, name), ANGLE_TOL_DEG.get(name, 1.01))
+
+
+def test_the_transforms_change_the_files(generated, tmp_path):
+    """A transform that left the file as it was would prove nothing."""
+    src = generated[0].read_bytes()
+    for name in XODR_TRANSFORMS:
+        root = etree.fromstring(src)
+        XODR_TRANSFORMS[name](root)
+        assert etree.tostring(root) != etree.tostring(etree.fromstring(src)), name
+    pb0 = aps.parse_map(generated[1].read_bytes(), "x")
+    for name, fn in APOLLO_TRANSFORMS.items():
+        pb = aps.Map()
+        pb.CopyFrom(pb0)
+        fn(pb)
+        assert pb.SerializeToString() != pb0.SerializeToString(), name
+
+
+# ---------------------------------------------------------------------------------- real maps
+
+def _shared(kind: str, small: tuple[str, ...]) -> list[str]:
+    if not LONG_TESTS:
+        return list(small)
+    if kind == "opendrive":
+        return sorted(str(p.relative_to(SHARED_MAPS)) for p in SHARED_MAPS.glob("opendrive/*/*.xodr"))
+    return sorted(str(p.relative_to(SHARED_MAPS)) for p in SHARED_MAPS.glob("apollo/*/base_map.bin"))
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("name", sorted(XODR_TRANSFORMS))
+@pytest.mark.parametrize("rel", _shared("opendrive", SMALL_XODR))
+def test_shared_xodr_keeps_its_meaning(rel, name, tmp_path):
+    path = SHARED_MAPS / rel
+    if not path.exists():
+        pytest.skip(f"third-party map {path} not present (../shared/maps is absent on this machine)")
+    assert_same_meaning(_read(read_opendrive, path), _xodr_case(path, tmp_path, name))
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("name", sorted(APOLLO_TRANSFORMS))
+@pytest.mark.parametrize("rel", _shared("apollo", SMALL_APOLLO))
+def test_shared_apollo_keeps_its_meaning(rel, name, tmp_path):
+    path = SHARED_MAPS / rel
+    if not path.exists():
+        pytest.skip(f"third-party map {path} not present (../shared/maps is absent on this machine)")
+    assert_same_meaning(_read(read_apollo, path), _apollo_case(path, tmp_path, name), ANGLE_TOL_DEG.get(name, 1.01))
