@@ -150,6 +150,175 @@ def xodr_split_sections(root) -> None:
             sec.addnext(second)
 
 
+def _compose(coef: list[float], shift: float, sign: float = 1.0) -> list[float]:
+    """Coefficients (a, b, c, d) of q(x) = p(shift - x) for the cubic p with coefficients `coef`,
+    times `sign`."""
+    a, b, c, d = coef
+    return [sign * (a + b * shift + c * shift ** 2 + d * shift ** 3), sign * -(b + 2 * c * shift + 3 * d * shift ** 2),
+            sign * (c + 3 * d * shift), sign * -d]
+
+
+def _reverse_records(els, start_key: str, span: float, sign: float = 1.0) -> None:
+    """Piecewise cubic records (start `start_key`, a..d) over [0, span] rewritten for the
+    reversed direction: record j on [o_j, o_j+1) becomes one on [span - o_j+1, span - o_j)."""
+    recs = sorted(((float(e.get(start_key)), [float(e.get(k, "0")) for k in "abcd"], e) for e in els), key=lambda r: r[0])
+    ends = [r[0] for r in recs[1:]] + [span]
+    for (o, coef, e), end in zip(recs, ends):
+        new = _compose(coef, end - o, sign)  # x' from the reversed start: p(end - o - x')
+        e.set(start_key, repr(max(span - end, 0.0)))
+        for k, v in zip("abcd", new):
+            e.set(k, repr(v))
+
+
+def _reversible(r) -> bool:
+    geoms = r.findall("planView/geometry")
+    kinds = [next((c.tag for c in g if isinstance(c.tag, str)), None) for g in geoms]
+    return bool(geoms) and all(k in ("line", "arc", "spiral", "paramPoly3") for k in kinds) and not r.findall(".//border")
+
+
+def _reverse_geometry(g, x1: float, y1: float, h1: float) -> None:
+    """One geometry record driven backwards from its end pose (x1, y1, h1)."""
+    prim = next(c for c in g if isinstance(c.tag, str))
+    length = float(g.get("length"))
+    h0 = float(g.get("hdg"))
+    g.set("x", repr(x1))
+    g.set("y", repr(y1))
+    g.set("hdg", repr(h1 + math.pi))
+    if prim.tag == "arc":
+        prim.set("curvature", repr(-float(prim.get("curvature"))))
+    elif prim.tag == "spiral":
+        a, b = float(prim.get("curvStart")), float(prim.get("curvEnd"))
+        prim.set("curvStart", repr(-b))
+        prim.set("curvEnd", repr(-a))
+    elif prim.tag == "paramPoly3":
+        pmax = 1.0 if prim.get("pRange", "normalized") != "arcLength" else length
+        u = [float(prim.get(k, "0")) for k in ("aU", "bU", "cU", "dU")]
+        v = [float(prim.get(k, "0")) for k in ("aV", "bV", "cV", "dV")]
+        ur, vr = _compose(u, pmax), _compose(v, pmax)  # P(pmax - p'), still in the old local frame
+        ur[0] -= sum(c * pmax ** i for i, c in enumerate(u))  # relative to the old end point
+        vr[0] -= sum(c * pmax ** i for i, c in enumerate(v))
+        rot = h0 - (h1 + math.pi)  # old local frame -> new local frame
+        c, s = math.cos(rot), math.sin(rot)
+        for k, (a, b) in enumerate(zip(ur, vr)):
+            prim.set(("aU", "bU", "cU", "dU")[k], repr(c * a - s * b))
+            prim.set(("aV", "bV", "cV", "dV")[k], repr(s * a + c * b))
+
+
+def xodr_reverse(root) -> None:
+    """Every road whose reference line is made of lines, arcs, spirals or paramPoly3 driven the
+    other way: geometry reversed, lanes renumbered (left <-> right, ids negated), sections,
+    widths and the lane offset reversed, links, junction connections, signals (s, t,
+    orientation, validity) and objects moved to the new s and t."""
+    from feat2map.formats.opendrive.reader import _geometry, _Ctx, _RefLine
+
+    ctx = _Ctx("reverse")
+    flipped = {r.get("id") for r in root.findall("road") if _reversible(r)}
+    swap_cp = {"start": "end", "end": "start"}
+    for r in root.findall("road"):
+        if r.get("id") not in flipped:
+            continue
+        length = float(r.get("length"))
+        geoms = r.findall("planView/geometry")
+        ref = _RefLine([_geometry(ctx, g, r.get("id")) for g in geoms])
+        starts = [float(g.get("s")) for g in geoms]
+        ends = starts[1:] + [length]
+        pv = r.find("planView")
+        for g, s0, s1 in zip(geoms, starts, ends):
+            x, y, h = ref.eval([s1 - 1e-9])
+            _reverse_geometry(g, float(x[0]), float(y[0]), float(h[0]))
+            g.set("s", repr(length - s1))
+            pv.remove(g)
+        for g in sorted(geoms, key=lambda e: float(e.get("s"))):
+            pv.append(g)
+        link = r.find("link")
+        if link is not None:
+            p, q = link.find("predecessor"), link.find("successor")
+            if p is not None:
+                p.tag = "successor"
+            if q is not None:
+                q.tag = "predecessor"
+            for e in link:
+                if e.get("elementType", "road") == "road" and e.get("elementId") in flipped and e.get("contactPoint"):
+                    pass  # the other road turns too: its contact point stays the same word
+        lanes = r.find("lanes")
+        _reverse_records(lanes.findall("laneOffset"), "s", length, -1.0)
+        secs = lanes.findall("laneSection")
+        s_starts = [float(x.get("s")) for x in secs]
+        s_ends = s_starts[1:] + [length]
+        for sec, s0, s1 in zip(secs, s_starts, s_ends):
+            lanes.remove(sec)
+            sec.set("s", repr(length - s1))
+            left, right = sec.find("left"), sec.find("right")
+            for side in (left, right):
+                if side is None:
+                    continue
+                for ln in side.findall("lane"):
+                    ln.set("id", str(-int(ln.get("id"))))
+                    _reverse_records(ln.findall("width"), "sOffset", s1 - s0)
+                    for tag in ("roadMark", "speed", "access", "height", "material", "rule"):
+                        for e in ln.findall(tag):
+                            ln.remove(e)
+                    lk = ln.find("link")
+                    if lk is not None:
+                        for e in lk:
+                            e.tag = {"predecessor": "successor", "successor": "predecessor"}.get(e.tag, e.tag)
+                            if e.get("id") is not None:
+                                e.set("id", str(-int(e.get("id"))))
+            if left is not None:
+                left.tag = "right"
+            if right is not None:
+                right.tag = "left"
+            for side in (sec.find("left"), sec.find("right")):  # lanes listed outward-in as the standard shows
+                if side is not None:
+                    side[:] = sorted(side, key=lambda e: -int(e.get("id")))
+            order = [x for x in (sec.find("left"), sec.find("center"), sec.find("right")) if x is not None]
+            for x in order:
+                sec.remove(x)
+            sec.extend(order)
+            center = sec.find("center")
+            if center is not None:
+                for ln in center.findall("lane"):
+                    for e in ln.findall("roadMark"):
+                        ln.remove(e)
+        for sec in sorted(secs, key=lambda e: float(e.get("s"))):
+            lanes.append(sec)
+        for e in r.findall("type")[1:]:
+            r.remove(e)
+        for e in r.findall("type"):
+            e.set("s", "0.0")
+        for tag in ("elevationProfile", "lateralProfile"):
+            for e in r.findall(tag):
+                r.remove(e)
+        for sg in r.findall("signals/signal") + r.findall("signals/signalReference"):
+            sg.set("s", repr(length - float(sg.get("s", "0"))))
+            sg.set("t", repr(-float(sg.get("t", "0"))))
+            sg.set("orientation", {"+": "-", "-": "+"}.get(sg.get("orientation", "+"), sg.get("orientation")))
+            for v in sg.findall("validity"):
+                a, b = -int(v.get("fromLane")), -int(v.get("toLane"))
+                v.set("fromLane", str(min(a, b)))
+                v.set("toLane", str(max(a, b)))
+        for o in r.findall("objects/object"):
+            o.set("s", repr(length - float(o.get("s", "0"))))
+            o.set("t", repr(-float(o.get("t", "0"))))
+            o.set("hdg", repr(float(o.get("hdg", "0")) - math.pi))
+            for k in o.iter("cornerRoad"):
+                k.set("s", repr(length - float(k.get("s"))))
+                k.set("t", repr(-float(k.get("t"))))
+    for r in root.findall("road"):  # links to a turned road meet its other end
+        for e in r.findall("link/predecessor") + r.findall("link/successor"):
+            if e.get("elementType", "road") == "road" and e.get("elementId") in flipped and e.get("contactPoint"):
+                e.set("contactPoint", swap_cp[e.get("contactPoint")])
+    for j in root.findall("junction"):
+        for c in j.findall("connection"):
+            if c.get("connectingRoad") in flipped and c.get("contactPoint"):
+                c.set("contactPoint", swap_cp[c.get("contactPoint")])
+            for ll in c.findall("laneLink"):
+                if c.get("incomingRoad") in flipped:
+                    ll.set("from", str(-int(ll.get("from"))))
+                if c.get("connectingRoad") in flipped:
+                    ll.set("to", str(-int(ll.get("to"))))
+
+
 def xodr_drop_optional(root) -> None:
     """Elements that carry no meaning for driving: user data, road marks, elevation, lateral
     profiles, materials, lane speeds, the header's geo reference."""
@@ -159,7 +328,7 @@ def xodr_drop_optional(root) -> None:
 
 
 XODR_TRANSFORMS = {"rename": xodr_rename, "move": xodr_move, "split_sections": xodr_split_sections,
-                   "drop_optional": xodr_drop_optional}
+                   "drop_optional": xodr_drop_optional, "reverse": xodr_reverse}
 
 
 def _xodr_case(src: Path, tmp: Path, name: str):
