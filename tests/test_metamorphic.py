@@ -44,31 +44,43 @@ def _read(fn, path):
 
 
 def meaning(m) -> list[tuple]:
-    """What a map means to feat2map, independent of ids and placement: per junction (sorted)
-    its feature (arm count, control, crosswalk, lanes per arm, angles rounded), its signal,
-    stop sign and yield sign counts, and the sizes of its phase groups (paired and single)."""
+    """What a map means to feat2map, independent of ids and placement: per junction its arm
+    count, control, crosswalk, signal / stop sign / yield sign counts, phase group sizes
+    (paired and single), and its arms counter-clockwise as (lanes in, lanes out, gap in degrees
+    to the next arm). Phase plans must be conflict-free."""
     paired, single = junction_phases(m, True), junction_phases(m, False)
     assert phase_conflicts(m, paired, True) == [] and phase_conflicts(m, single, False) == []
     out = []
     for j in extract_junctions(m):
         f = j.feature
-        kinds = [sum(1 for s in getattr(m, t).values() if s.junction_id == j.id)
-                 for t in ("signals", "stop_signs", "yield_signs")]
-        out.append((f.n_roads, f.control, f.crosswalk, tuple((s.lanes_in, s.lanes_out) for s in f.sockets),
-                    tuple(round(a) for a in f.rotation), tuple(kinds),
-                    tuple(sorted(len(p) for p in paired.get(j.id, ()))),
-                    tuple(sorted(len(p) for p in single.get(j.id, ())))))
-    return sorted(out)
+        kinds = tuple(sum(1 for s in getattr(m, t).values() if s.junction_id == j.id)
+                      for t in ("signals", "stop_signs", "yield_signs"))
+        rot = f.rotation
+        gaps = [(rot[(i + 1) % len(rot)] - rot[i]) % 360.0 for i in range(len(rot))]
+        arms = tuple((s.lanes_in, s.lanes_out, g) for s, g in zip(f.sockets, gaps))
+        out.append(((f.n_roads, f.control, f.crosswalk, kinds, tuple(sorted(len(p) for p in paired.get(j.id, ()))),
+                     tuple(sorted(len(p) for p in single.get(j.id, ())))), arms))
+    return sorted(out, key=lambda x: (x[0], sorted(a[:2] for a in x[1])))
 
 
-def assert_same_meaning(a, b, angle_tol_deg: float = 1.01) -> None:
-    """Same features, controls and phase groups; measured leg angles within `angle_tol_deg`
-    (rounding of measurement noise by default)."""
+def _same_arms(a, b, tol: float) -> bool:
+    """Arms equal up to where the cycle starts (normalization picks among tied gaps), gaps
+    within `tol` degrees."""
+    n = len(a)
+    return len(b) == n and any(all(x[:2] == y[:2] and abs(x[2] - y[2]) <= tol for x, y in zip(a, b[r:] + b[:r]))
+                               for r in range(n))
+
+
+def assert_same_meaning(a, b, angle_tol_deg: float = 1.0) -> None:
+    """Every junction of `a` has one of `b` with the same features, controls and phase groups;
+    leg gaps within `angle_tol_deg`."""
     ma, mb = meaning(a), meaning(b)
-    assert len(ma) == len(mb)
-    for x, y in zip(ma, mb):
-        assert x[:4] == y[:4] and x[5:] == y[5:], (x, y)
-        assert np.allclose(x[4], y[4], atol=angle_tol_deg), (x, y)
+    assert len(ma) == len(mb), (len(ma), len(mb))
+    left = list(mb)
+    for key, arms in ma:
+        hit = next((k for k, (kb, armsb) in enumerate(left) if kb == key and _same_arms(arms, armsb, angle_tol_deg)), None)
+        assert hit is not None, (key, arms, [x for x in left if x[0][0] == key[0]][:3])
+        left.pop(hit)
 
 
 # ---------------------------------------------------------------------------------- OpenDRIVE
@@ -385,8 +397,8 @@ APOLLO_TRANSFORMS = {"rename": apollo_rename, "move": apollo_move, "thin": apoll
                      "drop_optional": apollo_drop_optional}
 # sim_map thinning is lossy: a curved road's last segment becomes a chord up to 5 m long, whose
 # direction is off the tangent by a degree or two, and the measured centre of a junction with
-# such arms moves (up to 4 degrees seen on a generated skewed 4-way); everything else is exact
-ANGLE_TOL_DEG = {"thin": 5.0}
+# such arms moves (gaps up to 6 degrees off seen on a generated skewed 4-way); everything else is exact
+ANGLE_TOL_DEG = {"thin": 8.0}
 
 
 def _apollo_case(src: Path, tmp: Path, name: str):
@@ -422,7 +434,7 @@ def test_generated_xodr_keeps_its_meaning(generated, tmp_path, name):
 def test_generated_apollo_keeps_its_meaning(generated, tmp_path, name):
     base = _read(read_apollo, generated[1])
     assert len(meaning(base)) == 3
-    assert_same_meaning(base, _apollo_case(generated[1], tmp_path, name), ANGLE_TOL_DEG.get(name, 1.01))
+    assert_same_meaning(base, _apollo_case(generated[1], tmp_path, name), ANGLE_TOL_DEG.get(name, 1.0))
 
 
 def test_the_transforms_change_the_files(generated, tmp_path):
@@ -467,4 +479,4 @@ def test_shared_apollo_keeps_its_meaning(rel, name, tmp_path):
     path = SHARED_MAPS / rel
     if not path.exists():
         pytest.skip(f"third-party map {path} not present (../shared/maps is absent on this machine)")
-    assert_same_meaning(_read(read_apollo, path), _apollo_case(path, tmp_path, name), ANGLE_TOL_DEG.get(name, 1.01))
+    assert_same_meaning(_read(read_apollo, path), _apollo_case(path, tmp_path, name), ANGLE_TOL_DEG.get(name, 1.0))
