@@ -16,6 +16,7 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import Callable, Iterable
 
+from .config import LANE_LINK_GAP_M
 from .errors import Feat2MapError
 from .model import HDMap, incoming_lanes
 
@@ -88,8 +89,22 @@ def conflict_free_phases(m: HDMap) -> Iterable[Finding]:
                                               "(the phase plan keeps them apart)")
 
 
+def links_meet(m: HDMap) -> Iterable[Finding]:
+    """A lane and its successor meet: the successor starts within LANE_LINK_GAP_M of its end."""
+    for a, b, gap in _far_links(m):
+        yield Finding(f"lane {a}", f"successor {b} starts {gap:.1f} m from its end")
+
+
+def _far_links(m: HDMap) -> list[tuple[str, str, float]]:
+    import math
+
+    return [(ln.id, s, d) for ln in m.lanes.values() for s in ln.successors if s in m.lanes
+            and (d := math.dist(ln.end, m.lanes[s].start)) > LANE_LINK_GAP_M]
+
+
 CHECKS: list[Callable[[HDMap], Iterable[Finding]]] = [
     dangling_references,
+    links_meet,
     governed_lanes_are_approaches,
     conflict_free_phases,
 ]
@@ -116,14 +131,36 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 
 
 def loaded(m: HDMap, where: str = "map") -> HDMap:
-    """A reader's last step: dangling references dropped (`drop_dangling`), values checked
+    """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
+    dangling references dropped (`drop_dangling`), values checked
     (`validation.validate_model`), semantic findings warned (`check_map`)."""
     from .validation import validate_model
 
-    return check_map(validate_model(drop_dangling(m, where), where), where)
+    return check_map(validate_model(drop_dangling(drop_far_links(m, where), where), where), where)
 
 
 # ------------------------------------------------------------------------------- repair
+
+def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
+    """`m` without successor/predecessor links between lanes whose ends lie more than
+    LANE_LINK_GAP_M apart (converters that link the roads on both sides of a junction past its
+    connecting roads: routes jumped across the junction), with one warning for them all."""
+    far = _far_links(m)
+    if not far:
+        return m
+    cut: dict[str, dict[str, set[str]]] = {}
+    for a, b, _ in far:
+        cut.setdefault(a, {}).setdefault("successors", set()).add(b)
+        cut.setdefault(b, {}).setdefault("predecessors", set()).add(a)
+    lanes = dict(m.lanes)
+    for lid, fields in cut.items():
+        ln = lanes[lid]
+        lanes[lid] = replace(ln, **{f: tuple(x for x in getattr(ln, f) if x not in gone) for f, gone in fields.items()})
+    shown = ", ".join(f"{a} -> {b} ({d:.0f} m)" for a, b, d in sorted(far, key=lambda x: -x[2])[:3])
+    warnings.warn(f"{where}: {len(far)} lane link(s) between ends more than {LANE_LINK_GAP_M:g} m apart dropped "
+                  f"(largest: {shown})", stacklevel=3)
+    return replace(m, lanes=lanes)
+
 
 def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     """`m` without references to elements it does not hold: links and controls' lanes that name
@@ -176,4 +213,4 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes, roads=roads, **tables)
 
 
-__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "findings", "loaded"]
+__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded"]

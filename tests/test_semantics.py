@@ -7,6 +7,7 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 from lxml import etree
 
@@ -304,3 +305,19 @@ def test_legs_at_one_angle_are_skipped_with_the_leg_rule(monkeypatch, four_way):
     assert len(skipped) == 1 and skipped[0].reason.startswith("sockets 0.00 degrees apart, closer than the minimum")
     assert not any("strictly increasing" in w for w in caught)
     assert np.isfinite(skipped[0].n_arms)
+
+
+def test_links_between_lanes_that_do_not_meet_are_dropped(four_way):
+    """osm2xodr links the roads on both sides of a junction past its connecting roads (gaps up
+    to 85 m): routes jumped across the junction. Such links are dropped with one warning."""
+    road_lanes = [ln for ln in four_way.lanes.values() if ln.junction_id is None]
+    a, b = road_lanes[0], max(road_lanes, key=lambda ln: np.hypot(*np.subtract(ln.start, road_lanes[0].end)))
+    lanes = dict(four_way.lanes)
+    lanes[a.id] = replace(a, successors=a.successors + (b.id,))
+    lanes[b.id] = replace(b, predecessors=b.predecessors + (a.id,))
+    jumping = replace(four_way, lanes=lanes)
+    assert [f.element for f in semantics.findings(jumping)] == [f"lane {a.id}"]
+    fixed, caught = _quiet(semantics.drop_far_links, jumping, "m.xodr")
+    assert fixed.lanes[a.id] == a and fixed.lanes[b.id] == b
+    assert len(caught) == 1 and caught[0].startswith("m.xodr: 1 lane link(s) between ends more than 5 m apart dropped")
+    assert semantics.drop_far_links(four_way) is four_way
