@@ -84,8 +84,13 @@ def conflict_free_phases(m: HDMap) -> Iterable[Finding]:
         for jid, a, b, why in phase_conflicts(m, junction_phases(m, paired), paired):
             yield Finding(f"junction {jid}", f"signals {a} and {b} are green together in the "
                                              f"{'paired' if paired else 'single'} plan: {why}", True)
+    clashes: dict[str, list[tuple[str, str, str]]] = {}
     for gid, a, b, why in declared_group_conflicts(m):
-        yield Finding(f"signal group {gid}", f"the map switches signals {a} and {b} together, but {why} "
+        clashes.setdefault(gid, []).append((a, b, why))
+    for gid, found in clashes.items():
+        a, b, why = found[0]
+        more = f" ({len(found) - 1} more such pairs)" if len(found) > 1 else ""
+        yield Finding(f"signal group {gid}", f"the map switches signals {a} and {b} together, but {why}{more} "
                                               "(the phase plan keeps them apart)")
 
 

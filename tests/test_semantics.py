@@ -193,6 +193,16 @@ def test_free_text_traffic_light_types_are_lights(four_way_xodr, tmp_path):
     assert [j.feature.control for j in extract_junctions(m)] == ["signal"]
 
 
+def test_code_tables():
+    from feat2map.formats.opendrive.reader import known_non_control, signal_kind
+
+    assert [signal_kind(t) for t in ("1000001", "traffic_light", "206", "DE:206", "R1-1", "205", "give_way")] == [
+        "signal", "signal", "stop", "stop", "stop", "yield", "yield"]
+    assert signal_kind("206", "USA") is None and signal_kind("1000001", "OpenDRIVE", "no") is None
+    assert signal_kind("1000003", "OpenDRIVE", "no") is None and known_non_control("1000003")
+    assert known_non_control("DE:274[60]") and not known_non_control("987654")
+
+
 def test_a_reference_to_a_lane_joined_away_follows_it(tmp_path):
     """CARLA and netconvert maps: a signal referenced from a junction road whose lane the reader
     joins into one junction lane (through a centimetre road) crashed with KeyError '<road>_0_-1'."""

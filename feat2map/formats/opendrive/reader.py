@@ -64,7 +64,7 @@ def signal_kind(type_: str | None, country: str | None = None, dynamic: str | No
     """The control kind ("signal", "stop", "yield") of a `<signal>` from its type code, country
     and `dynamic` flag, or None for no control. A light type marked dynamic="no" is no light
     (a sign or marking drawn with a light's code); a sign code marked dynamic="yes" stays a sign."""
-    t = (type_ or "").strip()
+    t, country = _code(type_, country)
     kind = SIGNAL_CODES.get(t) or SIGNAL_CODES.get(t.lower())
     if t in ("205", "206") and (country or "").strip().lower() in US_COUNTRIES:
         return None
@@ -75,8 +75,18 @@ def signal_kind(type_: str | None, country: str | None = None, dynamic: str | No
 
 def known_non_control(type_: str | None) -> bool:
     """Whether a signal type is in the code tables as something that is no junction control."""
-    t = (type_ or "").strip()
+    t, _ = _code(type_, None)
     return t in NOT_CONTROLS or t.lower() in NOT_CONTROLS
+
+
+def _code(type_: str | None, country: str | None) -> tuple[str, str | None]:
+    """(code, country) of a type as written: OSM-style "DE:206" carries its country, "DE:274[60]"
+    its value; both come off."""
+    t = re.sub(r"\[[^\]]*\]$", "", (type_ or "").strip())
+    m = re.match(r"^([A-Za-z]{2,3}):(.+)$", t)
+    if m:
+        return m.group(2).strip(), m.group(1)
+    return t, country
 
 
 # A yield sign is not a stop sign: it becomes a `YieldSign` (its junction stays bare).
