@@ -56,9 +56,10 @@ def _governed(m) -> dict[str, tuple[str, ...]]:
 
 # ---------------------------------------------------------------------------------- phases
 
-def test_legs_at_minus_16_80_179_207_get_a_conflict_free_plan():
+def test_legs_at_minus_16_80_179_207_get_a_conflict_free_plan(tmp_path):
     """The generated junction of issue 21 (a Baidu-style map's legs): the angle rule put three of
-    its four signals in one phase; grouping by path conflicts gives none green together."""
+    its four signals in one phase (CommonRoad validate: 1 problem); grouping by path conflicts
+    gives none green together."""
     f = JF(tuple(Socket(a, 1, 1) for a in (-16, 80, 179, 207)), "signal", False)
     m = feat2map.generate_from_features([f], seed=0)
     for paired in (True, False):
@@ -67,6 +68,11 @@ def test_legs_at_minus_16_80_179_207_get_a_conflict_free_plan():
         assert phase_conflicts(m, plan, paired) == []
         assert max(len(ph) for ph in plan["J0"]) <= 2
     assert not [f for f in semantics.findings(m) if f.fatal]
+    pytest.importorskip("commonroad", reason="commonroad-io not installed")
+    from feat2map.formats.commonroad import validate_commonroad
+
+    write_map(m, tmp_path / "m.xml", "commonroad")
+    assert validate_commonroad(tmp_path / "m.xml") == []
 
 
 def test_a_generated_four_way_pairs_opposite_approaches(four_way):
