@@ -226,6 +226,26 @@ def declared_group_conflicts(m: HDMap, pc: PathConflicts | None = None,
             for a, b, why in _unit_clashes(pc, _unit_paths(m, ids), paired)]
 
 
+def signal_self_conflicts(m: HDMap, pc: PathConflicts | None = None) -> list[tuple[str, str, str, str]]:
+    """(signal, road a, road b, why) for every signal that governs lanes of two roads whose paths
+    conflict (paired rules): one light cannot keep them apart (a map may declare one light for
+    two opposite approaches, which is fine; crossing ones are not)."""
+    pc = pc or PathConflicts(m)
+    out = []
+    for sig in m.signals.values():
+        by_road: dict[str, list[str]] = {}
+        for lid in incoming_lanes(m.lanes, sig.lane_ids):
+            by_road.setdefault(m.lanes[lid].road_id, []).extend(
+                x for x in m.lanes[lid].successors if x in m.lanes and m.lanes[x].junction_id is not None)
+        roads = sorted(by_road)
+        for i, a in enumerate(roads):
+            for b in roads[i + 1:]:
+                hit = units_conflict(pc, tuple(by_road[a]), tuple(by_road[b]), True)
+                if hit is not None:
+                    out.append((sig.id, a, b, f"paths {hit[0]} and {hit[1]} conflict"))
+    return out
+
+
 def _junction_units(m: HDMap, sigs: list[Signal], pc: PathConflicts, paired: bool) -> list[list[str]]:
     units = _approach_units(m, sigs)
     bad = {g for g, *_ in declared_group_conflicts(m, pc, paired)}

@@ -84,6 +84,11 @@ def conflict_free_phases(m: HDMap) -> Iterable[Finding]:
         for jid, a, b, why in phase_conflicts(m, junction_phases(m, paired), paired):
             yield Finding(f"junction {jid}", f"signals {a} and {b} are green together in the "
                                              f"{'paired' if paired else 'single'} plan: {why}", True)
+    from .phases import signal_self_conflicts
+
+    for sid, a, b, why in signal_self_conflicts(m):
+        yield Finding(f"signal {sid}", f"governs roads {a} and {b} whose paths conflict ({why}): one light cannot "
+                                       "keep them apart")
     clashes: dict[str, list[tuple[str, str, str]]] = {}
     for gid, a, b, why in declared_group_conflicts(m):
         clashes.setdefault(gid, []).append((a, b, why))
@@ -137,14 +142,60 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 
 def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
-    dangling references dropped (`drop_dangling`), values checked
+    dangling references dropped (`drop_dangling`), signals over conflicting approaches split
+    (`split_conflicting_signals`), values checked
     (`validation.validate_model`), semantic findings warned (`check_map`)."""
     from .validation import validate_model
 
-    return check_map(validate_model(drop_dangling(drop_far_links(m, where), where), where), where)
+    m = validate_model(drop_dangling(drop_far_links(m, where), where), where)
+    return check_map(split_conflicting_signals(m, where), where)
 
 
 # ------------------------------------------------------------------------------- repair
+
+def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with every signal that governs approaches whose paths conflict split into one signal
+    per group of approaches that do not (ids `<id>`, `<id>~2`, ...; groups the map declares get
+    the new ids too), one warning each: one light cannot keep crossing traffic apart, and the
+    phase plans must (a CARLA town's references give one light a right turn and the road it
+    merges into)."""
+    from .phases import PathConflicts, units_conflict
+
+    pc = PathConflicts(m)
+    signals: dict = {}
+    renamed: dict[str, list[str]] = {}
+    for sid, sig in m.signals.items():
+        by_road: dict[str, list[str]] = {}
+        for lid in sig.lane_ids:
+            if lid in m.lanes:
+                by_road.setdefault(m.lanes[lid].road_id, []).append(lid)
+        paths = {r: tuple(x for lid in incoming_lanes(m.lanes, ids) for x in m.lanes[lid].successors
+                          if x in m.lanes and m.lanes[x].junction_id is not None) for r, ids in by_road.items()}
+        parts: list[list[str]] = []
+        for road in by_road:
+            home = next((p for p in parts if all(units_conflict(pc, paths[road], paths[q], True) is None for q in p)), None)
+            if home is None:
+                parts.append([road])
+            else:
+                home.append(road)
+        if len(parts) < 2:
+            signals[sid] = sig
+            continue
+        ids = [sid] + [f"{sid}~{k}" for k in range(2, len(parts) + 1)]
+        for new, part in zip(ids, parts):
+            keep = tuple(x for x in sig.lane_ids if x in m.lanes and m.lanes[x].road_id in part)
+            signals[new] = replace(sig, id=new, lane_ids=keep)
+        renamed[sid] = ids
+        warnings.warn(f"{where}: signal {sid}: governs approaches whose paths conflict (roads "
+                      f"{' / '.join(', '.join(p) for p in parts)}): split into signals {', '.join(ids)}", stacklevel=3)
+    if not renamed:
+        return m
+    meta = dict(m.meta)
+    groups = meta.get("signal_groups")
+    if isinstance(groups, dict):
+        meta["signal_groups"] = {g: [y for x in ids for y in renamed.get(x, [x])] for g, ids in groups.items()}
+    return replace(m, signals=signals, meta=meta)
+
 
 def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
     """`m` without successor/predecessor links between lanes whose ends lie more than
@@ -218,4 +269,4 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes, roads=roads, **tables)
 
 
-__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded"]
+__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded", "split_conflicting_signals"]
