@@ -337,3 +337,17 @@ def test_links_between_lanes_that_do_not_meet_are_dropped(four_way):
     assert fixed.lanes[a.id] == a and fixed.lanes[b.id] == b
     assert len(caught) == 1 and caught[0].startswith("m.xodr: 1 lane link(s) between ends more than 5 m apart dropped")
     assert semantics.drop_far_links(four_way) is four_way
+
+
+def test_a_signal_over_crossing_approaches_is_split(four_way):
+    """A CARLA town's references give one light two crossing approaches: one light cannot keep
+    them apart, so the readers split it (and the phase plans keep the parts apart)."""
+    a, b = list(four_way.signals.values())[:2]
+    both = replace(four_way, signals={a.id: replace(a, lane_ids=a.lane_ids + b.lane_ids),
+                                      **{k: s for k, s in four_way.signals.items() if k not in (a.id, b.id)}})
+    assert any(f.element == f"signal {a.id}" for f in semantics.findings(both))
+    split, caught = _quiet(semantics.split_conflicting_signals, both, "m")
+    assert {split.signals[a.id].lane_ids, split.signals[f"{a.id}~2"].lane_ids} == {a.lane_ids, b.lane_ids}
+    assert len(caught) == 1 and f"split into signals {a.id}, {a.id}~2" in caught[0]
+    assert phase_conflicts(split, junction_phases(split)) == []
+    assert semantics.split_conflicting_signals(four_way) is four_way
