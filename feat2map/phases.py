@@ -255,7 +255,9 @@ def _junction_units(m: HDMap, sigs: list[Signal], pc: PathConflicts, paired: boo
         if gid in bad or len(ids) < 2:
             continue
         hit = [u for u in units if set(u) & set(ids)]
-        if len(hit) > 1:
+        whole = [(u, tuple(dict.fromkeys(p for x in u for p in signal_paths(m, m.signals[x])))) for u in hit]
+        if len(hit) > 1 and not any(units_conflict(pc, pu, pv, paired) is not None
+                                    for i, (_, pu) in enumerate(whole) for _, pv in whole[i + 1:]):
             merged = sorted(x for u in hit for x in u)
             units = sorted([u for u in units if u not in hit] + [merged], key=lambda u: u[0])
     return units

@@ -63,14 +63,35 @@ def dangling_references(m: HDMap) -> Iterable[Finding]:
                 yield Finding(f"{kind[:-1]} {s.id}", f"refers to unknown junction {s.junction_id}", True)
 
 
+APPROACH_LINKS = 3  # a governed lane may reach its junction through this many road lanes (SVL: the lane before)
+
+
+def _leads_into(m: HDMap, lid: str, jid: str) -> bool:
+    frontier, seen = [lid], {lid}
+    for _ in range(APPROACH_LINKS):
+        nxt = []
+        for x in frontier:
+            for y in m.lanes[x].successors:
+                if y not in m.lanes or y in seen:
+                    continue
+                if m.lanes[y].junction_id == jid:
+                    return True
+                if m.lanes[y].junction_id is None:
+                    seen.add(y)
+                    nxt.append(y)
+        frontier = nxt
+    return False
+
+
 def governed_lanes_are_approaches(m: HDMap) -> Iterable[Finding]:
-    """A control of a junction governs lanes that lead into that junction (its approaches)."""
+    """A control of a junction governs lanes that lead into that junction (its approaches,
+    through at most APPROACH_LINKS road lanes: SVL maps give signals the lane before)."""
     for kind in CONTROL_TABLES:
         for s in getattr(m, kind).values():
             if s.junction_id is None:
                 continue
             for lid in incoming_lanes(m.lanes, s.lane_ids):
-                if not any(m.lanes[x].junction_id == s.junction_id for x in m.lanes[lid].successors if x in m.lanes):
+                if not _leads_into(m, lid, s.junction_id):
                     yield Finding(f"{kind[:-1]} {s.id}", f"governs lane {lid}, which is not an approach of "
                                                          f"junction {s.junction_id}")
 
