@@ -36,6 +36,7 @@ SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
 ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
 MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles
 # Apollo export (formats/apollo: writer, sim_map, routing topo graph)
+APOLLO_KMH_SPEED_MPS = 40.0  # an Apollo map whose median lane speed_limit exceeds this wrote km/h into the m/s field
 APOLLO_SIGNAL_HEIGHT_M = 5.0  # centre of the light head above the road
 APOLLO_SIGNAL_HEAD_SIZE_M = (0.4, 1.2)  # width, height of a 3-light vertical head (its boundary)
 APOLLO_STOP_LINE_OVERLAP_M = 0.5  # signal/stop-sign overlaps span +- this around the stop line

@@ -351,3 +351,18 @@ def test_a_signal_over_crossing_approaches_is_split(four_way):
     assert len(caught) == 1 and f"split into signals {a.id}, {a.id}~2" in caught[0]
     assert phase_conflicts(split, junction_phases(split)) == []
     assert semantics.split_conflicting_signals(four_way) is four_way
+
+
+def test_apollo_speed_limits_in_kmh_are_converted(apollo_pb, tmp_path):
+    """A CARLA-to-Apollo converter wrote 60 (km/h) into every lane's m/s speed_limit: traffic
+    entered junctions at 28 m/s. An implausible median is read as km/h, with one warning."""
+    pb0, folder = apollo_pb
+    plain = read_apollo(folder / "base_map.bin")
+    pb = aps.Map()
+    pb.CopyFrom(pb0)
+    for ln in pb.lane:
+        ln.speed_limit = 60.0
+    m, caught = _quiet(read_apollo, _write_pb(pb, tmp_path, "kmh.bin"))
+    assert [ln.speed_limit for ln in m.lanes.values()] == pytest.approx([60 / 3.6] * len(m.lanes))
+    assert sum("read as km/h" in w for w in caught) == 1
+    assert max(ln.speed_limit for ln in plain.lanes.values()) < 40

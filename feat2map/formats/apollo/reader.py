@@ -22,7 +22,7 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from . import schema as aps
-from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, limits
+from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_KMH_SPEED_MPS, limits
 from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       incoming_lanes, signal_precedence)
@@ -229,6 +229,11 @@ class _Reader:
         # lanes (links to non-driving lanes are dropped with them)
         driving = {ln.id.id for ln in pb.lane if not (ln.HasField("type") and ln.type in _NON_DRIVING)}
         lanes: dict[str, Lane] = {}
+        speeds = sorted(float(ln.speed_limit) for ln in pb.lane if ln.id.id in driving)
+        unit = 1.0
+        if speeds and speeds[len(speeds) // 2] > APOLLO_KMH_SPEED_MPS:  # converters writing km/h (60 = 60 km/h)
+            unit = 1 / 3.6
+            self.warn("map", f"median lane speed_limit {speeds[len(speeds) // 2]:g} m/s is implausible: read as km/h")
         for ln in pb.lane:
             lid = ln.id.id
             if lid not in driving:
@@ -252,7 +257,7 @@ class _Reader:
             lanes[lid] = Lane(
                 lid, lane_road.get(lid, lid), as_polyline(centre),
                 as_polyline(left if len(left) >= 2 else centre), as_polyline(right if len(right) >= 2 else centre),
-                width, float(ln.speed_limit), turn=_TURNS.get(ln.turn, "none"),
+                width, float(ln.speed_limit) * unit, turn=_TURNS.get(ln.turn, "none"),
                 junction_id=lane_junction.get(lid),
                 left_boundary_type=_boundary_type(ln.left_boundary),
                 right_boundary_type=_boundary_type(ln.right_boundary), **links)
