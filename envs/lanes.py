@@ -10,7 +10,6 @@ and last segments extend beyond the ends so longitudinal coordinates run below 0
 from __future__ import annotations
 
 import bisect
-import math
 
 import numpy as np
 from highway_env.road.lane import AbstractLane, LineType
@@ -124,8 +123,3 @@ class PolylineLane(AbstractLane):
 
     def __repr__(self) -> str:
         return f"PolylineLane({self.lane_id!r}, length={self.length:.1f})"
-
-
-def heading_delta(a: float, b: float) -> float:
-    """Signed smallest angle from a to b."""
-    return (b - a + math.pi) % (2 * math.pi) - math.pi

@@ -25,6 +25,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from ...angles import wrap_angle
 from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG, STRAIGHT_TOLERANCE_DEG, UTURN_THRESHOLD_DEG
 from ...errors import Feat2MapError
 from ..base import Problem
@@ -195,7 +196,7 @@ def _intersections(net, report: CommonRoadReport) -> None:
 
 def _turn_deg(ll) -> float:
     d = _heading(ll.center_vertices, "end") - _heading(ll.center_vertices, "start")
-    return math.degrees((d + math.pi) % (2 * math.pi) - math.pi)
+    return math.degrees(wrap_angle(d))
 
 
 def _green_steps(light) -> set[int]:
@@ -244,7 +245,7 @@ def _controls(net, report: CommonRoadReport) -> None:
                     continue
                 if _green_steps(a) & _green_steps(b):
                     ha, hb = heading_of.get(a.traffic_light_id, [0.0])[0], heading_of.get(b.traffic_light_id, [0.0])[0]
-                    apart = math.degrees(abs((ha - hb + math.pi) % (2 * math.pi) - math.pi))
+                    apart = math.degrees(abs(wrap_angle(ha - hb)))
                     if SIGNAL_SAME_APPROACH_DEG <= apart <= SIGNAL_OPPOSITE_DEG:
                         report.problems.append(Problem(f"intersection {iid}", f"traffic lights {a.traffic_light_id} and "
                                                        f"{b.traffic_light_id} are green together on crossing approaches"))
