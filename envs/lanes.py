@@ -107,7 +107,8 @@ class PolylineLane(AbstractLane):
     def on_lane(self, position, longitudinal=None, lateral=None, margin=0) -> bool:
         if longitudinal is None or lateral is None:
             longitudinal, lateral = self.local_coordinates(position)
-        return abs(lateral) <= self.width / 2 + margin and -self.VEHICLE_LENGTH <= longitudinal < self.length + self.VEHICLE_LENGTH
+        return (abs(lateral) <= self.width / 2 + margin
+                and -self.VEHICLE_LENGTH <= longitudinal < self.length + self.VEHICLE_LENGTH)
 
     @classmethod
     def from_config(cls, config: dict) -> "PolylineLane":

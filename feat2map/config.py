@@ -232,7 +232,8 @@ def raised_limits(**values: float) -> Iterator[Limits]:
             raise ConfigError(f"unknown limit {name!r} (limits: {', '.join(known)})")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise ConfigError(f"limit {name} must be a positive finite number, got {_short(value)}")
-    token = _LIMITS.set(replace(limits(), **{k: (int(v) if known[k] == "int" else float(v)) for k, v in values.items()}))
+    raised: dict[str, Any] = {k: (int(v) if known[k] == "int" else float(v)) for k, v in values.items()}
+    token = _LIMITS.set(replace(limits(), **raised))
     try:
         yield limits()
     finally:

@@ -177,7 +177,7 @@ def _intersections(net, report: CommonRoadReport) -> None:
             if missing or not feeders:
                 report.problems.append(Problem(where, f"incoming lanelets {sorted(missing) or 'none'} not in the network"))
                 continue
-            for key, turns in _TURN_SETS.items():
+            for key in _TURN_SETS:
                 for jl in _lanelet_ids(getattr(inc, key) or ()):
                     ll = lls.get(jl)
                     if ll is None:
@@ -221,7 +221,8 @@ def _controls(net, report: CommonRoadReport) -> None:
             users_sign.setdefault(s, set()).add(ll.lanelet_id)
             refs = ll.stop_line.traffic_sign_ref if ll.stop_line is not None else None
             if not refs or s not in refs:
-                report.problems.append(Problem(f"lanelet {ll.lanelet_id}", f"traffic sign {s} without a stop line referring to it"))
+                report.problems.append(Problem(f"lanelet {ll.lanelet_id}",
+                                               f"traffic sign {s} without a stop line referring to it"))
     for light in net.traffic_lights:
         where = f"traffic light {light.traffic_light_id}"
         cycle = light.traffic_light_cycle

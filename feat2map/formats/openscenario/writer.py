@@ -45,8 +45,8 @@ LAMPS = {"red": "on;off;off", "amber": "off;on;off", "green": "off;off;on"}  # r
 CAR_SIZE = (4.5, 1.8, 1.5)  # length, width, height [m]
 PEDESTRIAN_SIZE = (0.8, 0.8, 1.8)
 TRAFFIC_CLEARANCE_M = 12.0  # between two placed cars on one lane, and from the ego
-TRAFFIC_MARGIN_M = 5.0
-GOAL_RADIUS_M = 2.0  # the storyboard stops when the ego is this close to the goal  # cars start at least this far from either end of their lane
+TRAFFIC_MARGIN_M = 5.0  # cars start at least this far from either end of their lane
+GOAL_RADIUS_M = 2.0  # the storyboard stops when the ego is this close to the goal
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -198,7 +198,8 @@ class _ScenarioWriter:
             if cw.junction_id not in junctions:
                 continue
             a, b, width = _axis(cw.polygon)
-            t, walking = 0.0, []  # end times of the pedestrians on this crosswalk
+            t = 0.0
+            walking: list[float] = []  # end times of the pedestrians on this crosswalk
             while True:
                 t += float(rng.exponential(1.0 / rate))
                 if t >= sc.duration:
