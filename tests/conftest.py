@@ -4,6 +4,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import random
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,28 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MAPS = Path(os.environ.get("FEAT2MAP_SHARED_MAPS", REPO.parent / "shared" / "maps"))
+
+
+SEED_ENV = "FEAT2MAP_TEST_SEED"
+_SEED = pytest.StashKey[int]()
+
+
+@pytest.fixture
+def random_seed(request) -> int:
+    """A new seed each run for a randomized test, or FEAT2MAP_TEST_SEED's value; a failing test's
+    report says how to rerun it with the same seed (the section "how to reproduce")."""
+    raw = os.environ.get(SEED_ENV, "").strip()
+    seed = int(raw) if raw else random.randrange(2**32)
+    request.node.stash[_SEED] = seed
+    return seed
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = (yield).get_result()
+    seed = item.stash.get(_SEED, None)
+    if seed is not None and report.failed:
+        report.sections.append(("how to reproduce", f"{SEED_ENV}={seed} python -m pytest '{item.nodeid}'"))
 
 
 def straight_piece(road, rid: str, s0: float, length: float):
