@@ -634,9 +634,9 @@ def check_sim_map(base: Any, sim: Any) -> list[Problem]:
             if _distinct(pts) < 2:
                 out.append(Problem(f"sim_map lane {ln.id.id}", f"{name} has fewer than 2 distinct points"))
                 continue
-            b = base_lanes.get(ln.id.id)
-            if b is not None:
-                bc = getattr(b, name) if name == "central_curve" else getattr(b, name).curve
+            base_ln = base_lanes.get(ln.id.id)
+            if base_ln is not None:
+                bc = getattr(base_ln, name) if name == "central_curve" else getattr(base_ln, name).curve
                 bp = _curve_points(bc)
                 if len(bp) and (math.dist(bp[0], pts[0]) > LENGTH_TOL_M or math.dist(bp[-1], pts[-1]) > LENGTH_TOL_M):
                     out.append(Problem(f"sim_map lane {ln.id.id}", f"{name} ends differ from base_map"))

@@ -15,7 +15,7 @@ from ...documents import load_document
 from ...errors import FeatureError, MapFormatError, snippet
 from ...features import JunctionFeature
 from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign
-from ...validation import check_references, validate_model
+from ...validation import validate_model
 
 FORMAT_NAME = "feat2map-map"
 _KINDS: dict[str, type] = {
