@@ -404,7 +404,7 @@ class TrafficCore:
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "route_pos", "route_end", "entry")
 
-    def attach(self, road, slot: int = 0) -> None:
+    def attach(self, road: "ArrayRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
         if road.network is not self.net:
             raise ValueError("the roads of one traffic core must share its map")
@@ -416,11 +416,11 @@ class TrafficCore:
         road.slot = slot
         self.sync([road])
 
-    def rows(self, road) -> np.ndarray:
+    def rows(self, road: "ArrayRoad") -> np.ndarray:
         """The rows of `road`, in its vehicles' order (after a sync)."""
         return np.nonzero(self.env == road.slot)[0]
 
-    def add_traffic(self, road, lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
+    def add_traffic(self, road: "ArrayRoad", lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
         """A new driven row (and its view) on `road` at s on `lane_id`, its route starting there."""
         lane = self.table.index[lane_id]
         x, y, h = self.table.place(np.array([lane]), np.array([s]), np.zeros(1))
@@ -536,10 +536,10 @@ class TrafficCore:
             pos = int(obj.route_pos)
             lane = route[pos]
             s, lat = self.net.lane_of[obj.lane_route[pos]].local_coordinates(obj.position)
-            row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0, timer=float(obj.timer),
-                       mobil_t=float(getattr(obj, "_mobil_t", -1e9)), crashed=bool(obj.crashed), x=obj.position[0],
-                       y=obj.position[1], heading=obj.heading, length=obj.LENGTH, width=obj.WIDTH, route_pos=pos,
-                       route_end=len(route) - 1, entry=math.inf)
+            row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0,
+                       timer=float(obj.timer), mobil_t=float(getattr(obj, "_mobil_t", -1e9)),
+                       crashed=bool(obj.crashed), x=obj.position[0], y=obj.position[1], heading=obj.heading,
+                       length=obj.LENGTH, width=obj.WIDTH, route_pos=pos, route_end=len(route) - 1, entry=math.inf)
             reserved = getattr(obj, "reserved", None)
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):

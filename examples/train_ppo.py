@@ -594,7 +594,8 @@ def summary_markdown(rows: Sequence[dict], timing: dict, rc: RunConfig) -> str:
     below = [f"n={r['n']} {r['control']}{' +cw' if r['crosswalk'] else ''} {r['manoeuvre']} ({r['ppo_success']:.2f})"
              for r in rows if r["ppo_success"] < 0.9]
     lines = [f"- training: {timing['timesteps']:,} steps ({timing['training_episodes']:,} episodes) in "
-             f"{timing['train_s'] / 60:.1f} min ({rc.n_envs} {'subprocess' if rc.subprocess else 'batched'} envs); evaluation: {timing['episodes_per_cell']} "
+             f"{timing['train_s'] / 60:.1f} min ({rc.n_envs} {'subprocess' if rc.subprocess else 'batched'} envs); "
+             f"evaluation: {timing['episodes_per_cell']} "
              f"episodes per cell for PPO and for the scripted driver, {timing['cells']} cells, {rc.eval_workers} "
              f"processes, {timing['eval_s'] / 60:.1f} min; **total {timing['total_s'] / 60:.1f} min**",
              f"- machine load during training (1-min load average, 2 cores): min {load['min']}, mean {load['mean']}, "
