@@ -13,10 +13,10 @@ BATCH_FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h"
 
 def batch_supported(obs: Kinematics, core) -> bool:
     """Options the batch reproduces (Kinematics.fast's, without lane offsets or shuffling), on
-    a core whose rows are all driven (traffic and agents)."""
+    a core of one road whose rows are all driven (traffic and agents)."""
     return (type(obs) is Kinematics and set(obs.features) <= BATCH_FEATURES and obs.vehicles_count >= 2
             and obs.order == "sorted" and bool(obs.features_range or not obs.normalize)
-            and bool((core.kind == 1).all()))
+            and bool((core.kind == 1).all()) and bool((core.env == core.env[:1]).all()))  # one road's rows
 
 
 def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: list, perception: float) -> np.ndarray:

@@ -45,7 +45,6 @@ single env's keys (`map_env` module docstring; `violations` holds the two more) 
 from __future__ import annotations
 
 import contextlib
-import functools
 import types
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -439,7 +438,7 @@ class _World(MapEnv):
             free = np.ones(len(places), dtype=bool)
         for k in np.nonzero(free)[0].tolist():
             r, s0, speed, _, _ = places[k]
-            v = core.add_traffic(r[0], s0, speed, list(r), controlled=True)
+            v = core.add_traffic(self.road, r[0], s0, speed, list(r), controlled=True)
             v.__class__ = AgentVehicle
             if self.control.passage_start(v):
                 return v
@@ -494,11 +493,10 @@ class MultiAgentMapEnv(ParallelEnv):
         obs = make_observation(view, self.world.config["observation"])
         return TrafficControlObservation(view, obs) if self.world.config["observe_traffic_control"] else obs
 
-    @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Space:
+        """The same space object for every agent (PettingZoo's tests ask for one object)."""
         return self._obs_space
 
-    @functools.lru_cache(maxsize=None)
     def action_space(self, agent: str) -> spaces.Space:
         return self.actions.space
 
@@ -511,8 +509,6 @@ class MultiAgentMapEnv(ParallelEnv):
         self.world.agent_config = merged
         self.possible_agents = [f"agent_{i}" for i in range(int(merged["agents"]))]
         self._define_spaces()
-        self.observation_space.cache_clear()
-        self.action_space.cache_clear()
 
     # ---- episode ---------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None):

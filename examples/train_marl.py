@@ -162,7 +162,7 @@ def train(envs: list, minutes: float, rollout: int, seed: int, progress: bool) -
                         curve.append({"steps": steps, "wall_s": round(time.perf_counter() - t0, 1), "success": int(ok),
                                       "return": round(returns.pop(key), 3)})
                 obs[i] = nxt
-        for i, env in enumerate(envs):  # trajectories still open: bootstrap, and start afresh
+        for i in range(len(envs)):  # trajectories still open: bootstrap, and start afresh
             values = act_batch(policy, {a: obs[i][a] for a in open_[i] if a in obs[i]})
             for a, t in list(open_[i].items()):
                 if t.rew:

@@ -60,7 +60,7 @@ def test_parallel_seed(kind):
     for k in range(30):
         if not envs[0].agents:
             break
-        for i, e in enumerate(envs):
+        for e in envs:
             e.action_space("agent_0").seed(k)
         acts = [{a: e.action_space(a).sample() for a in e.agents} for e in envs]
         outs = [e.step(a) for e, a in zip(envs, acts)]
