@@ -355,8 +355,13 @@ def _check_uncrossed(connections: Sequence[Polygon], junctions: Sequence[Polygon
     socket far from the grid direction it serves can sweep its road across a neighbour's."""
     if len(connections) < 2:
         return
-    inside = unary_union(junctions).buffer(cfg.junction_margin)
-    roads = [c.buffer(-cfg.junction_margin).difference(inside) for c in connections]
+    inside = [j.buffer(cfg.junction_margin) for j in junctions]
+    near = STRtree(inside)
+    roads = []
+    for c in connections:  # each road minus the junctions it touches (the union of all is quadratic)
+        road = c.buffer(-cfg.junction_margin)
+        hits = near.query(road, predicate="intersects")
+        roads.append(road.difference(unary_union([inside[i] for i in hits])) if len(hits) else road)
     tree = STRtree(roads)
     for a, b in zip(*tree.query(roads, predicate="intersects")):
         if a < b and roads[a].intersection(roads[b]).area > AREA_EPS_M2:

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 import feat2map
 from feat2map.formats.apollo import schema as aps
+from feat2map.atomic import MANIFEST
 from feat2map.formats import native
 from feat2map.formats.apollo.routing import build_routing_graph, node_cost
 from feat2map.formats.apollo.validate import Problem, validate_apollo, validate_map
@@ -70,7 +71,7 @@ def _assert_clean(m: feat2map.HDMap, problems: list[Problem]) -> None:
 # --- export is complete and validates clean --------------------------------------------------
 
 def test_export_writes_six_files_that_validate_clean(small_map, exported):
-    assert sorted(p.name for p in exported.iterdir()) == sorted(f"{n}.{e}" for n in FILES for e in ("bin", "txt"))
+    assert sorted(p.name for p in exported.iterdir()) == sorted([MANIFEST, *(f"{n}.{e}" for n in FILES for e in ("bin", "txt"))])
     assert _pinched_lanes(small_map) == set()
     assert validate_apollo(exported) == []
 
@@ -744,8 +745,8 @@ def test_real_maps_re_exported_validate_clean(name):
 
 def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "base_map.bin").write_bytes(b"old")
+    wa.write_apollo(small_map, out)  # an earlier export
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     def boom(_):
         raise RuntimeError("disk full")
@@ -753,7 +754,7 @@ def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch)
     monkeypatch.setattr(wa, "to_sim_map", boom)
     with pytest.raises(RuntimeError):
         wa.write_apollo(small_map, out)
-    assert [p.name for p in out.iterdir()] == ["base_map.bin"] and (out / "base_map.bin").read_bytes() == b"old"
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no staging left behind
 
 

@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from feat2map.atomic import MANIFEST
 from feat2map.formats import native
 from feat2map.cli import main
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace
@@ -15,7 +16,7 @@ from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 def test_generate_default_writes_map_features_and_picture(tmp_path, capsys):
     out = tmp_path / "m1"
     assert main(["generate", "--seed", "1", "--out", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["apollo", "features.json", "junctions.png", "map.json", "map.png"]
+    assert sorted(p.name for p in out.iterdir()) == sorted([MANIFEST, "apollo", "features.json", "junctions.png", "map.json", "map.png"])
     m = native.load(out / "map.json")
     assert len(m.junctions) == 8
     assert FeatureSpace.from_json((out / "features.json").read_text()) == PAPER_SF_FEATURE_SPACE
