@@ -59,9 +59,15 @@ class Bezier:
 
     def offset_point(self, t: np.ndarray | float, offset: float) -> np.ndarray:
         """The true offset curve: B(t) moved `offset` metres along its left unit normal."""
+        return self.offset_points(t, (offset,))[0]
+
+    def offset_points(self, t: np.ndarray | float, offsets: tuple[float, ...]) -> list[np.ndarray]:
+        """`offset_point` for several offsets, evaluating the curve and its normals once."""
         d = self.derivative(t)
         n = np.stack([-d[..., 1], d[..., 0]], axis=-1)
-        return self.point(t) + offset * n / np.maximum(np.hypot(n[..., 0], n[..., 1]), 1e-12)[..., None]
+        p = self.point(t)
+        norm = np.maximum(np.hypot(n[..., 0], n[..., 1]), 1e-12)[..., None]
+        return [p + offset * n / norm for offset in offsets]
 
     @cached_property
     def _arc(self) -> tuple[np.ndarray, np.ndarray]:

@@ -99,9 +99,9 @@ class _Builder:
         centre = reference if offset == 0.0 else Bezier.from_poses(
             tuple(np.asarray(start) + offset * left_normal(h0)), h0, tuple(np.asarray(end) + offset * left_normal(h1)), h1)
         ts = reference.sample_params(self.cfg.sample_spacing)  # centre and boundaries share parameters
-        pts = reference.offset_point(ts, offset)
+        pts, left, right = reference.offset_points(ts, (offset, offset + w, offset - w))
         pts[0], pts[-1] = centre.p0, centre.p3  # exactly the end poses the links were built on
-        return centre, pts, reference.offset_point(ts, offset + w), reference.offset_point(ts, offset - w)
+        return centre, pts, left, right
 
     def add_lane(self, lane_id: str, road_id: str, centre: Bezier, pts, left, right, *, speed: float,
                  junction_id: str | None = None, turn: str = "none", ltype: str = "solid_white",
@@ -322,7 +322,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
 def pavement(reference: Bezier, half_width: float, cfg: GenerationConfig) -> Polygon:
     """The area a road takes: its reference line widened by `half_width` on each side."""
     ts = reference.sample_params(cfg.sample_spacing)
-    left, right = reference.offset_point(ts, half_width), reference.offset_point(ts, -half_width)
+    left, right = reference.offset_points(ts, (half_width, -half_width))
     return Polygon(np.concatenate([left, right[::-1]])).buffer(0)
 
 
