@@ -17,11 +17,12 @@ from typing import Sequence
 from tqdm import tqdm
 
 from . import __version__, atomic
-from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, GenerationConfig, Limits, raised_limits
+from .config import (CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, GenerationConfig, Limits, plain_number,
+                     raised_limits)
 from .errors import WHERE_MAX_CHARS, ConfigError, Feat2MapError, FeatureError, LayoutError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 from .formats import FORMATS, check_target, detect, native, read_map, write_map
-from .messages import counted, one_line
+from .messages import counted, on_terminal, one_line
 
 
 class _Parser(argparse.ArgumentParser):
@@ -105,7 +106,7 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
     from .generate import check_buildable
 
     junctions = []
-    for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2):
+    for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2 or not on_terminal()):
         junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
@@ -154,7 +155,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         feats = [j.feature for j in m.junctions.values() if j.feature is not None]
         space = FeatureSpace.from_features(feats) if feats else None
     else:
-        m = generate(space, seed=args.seed, config=cfg)
+        m = generate(space, seed=args.seed, config=cfg, progress=not args.quiet)
     stages.update(2)
     with atomic.staged_dir(out, GENERATE_MARKERS) as tmp:
         native.save(m, tmp / "map.json")
@@ -234,7 +235,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
         from .render import check_picture_path
 
         check_picture_path(args.picture)
-    problems = fmt.face("validate")(args.path, progress=not args.quiet)
+    problems = fmt.face("validate")(args.path, progress=not args.quiet and on_terminal())
     for p in problems:
         print(one_line(p))
     if args.picture:
@@ -284,7 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     lim = Limits()
     p.add_argument(LIMIT_FLAG, action="append", type=_limit_arg, metavar="NAME=VALUE", default=[],
                    help="raise a size limit for this run (repeatable); limits and defaults: " + ", ".join(
-                       f"{f.name}={getattr(lim, f.name):g}" for f in dataclasses.fields(lim)))
+                       f"{f.name}={plain_number(getattr(lim, f.name))}" for f in dataclasses.fields(lim)))
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser, title="commands", metavar="COMMAND")
 
     g = sub.add_parser("generate", help="generate a map from a feature space, input maps or a spec",
@@ -387,6 +388,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with raised_limits(**dict(args.limit)), warnings.catch_warnings():
             warnings.simplefilter("default", UserWarning)  # each once per run (in-process runs start afresh)
+            # numpy's and shapely's floating-point notes ("invalid value encountered in ...") on odd
+            # input geometry: what matters is reported as problems or errors, these say nothing to a user
+            warnings.filterwarnings("ignore", r"(invalid value|divide by zero|overflow|underflow) encountered",
+                                    RuntimeWarning)
             warnings.showwarning = _print_warning
             return int(args.func(args) or 0)
     except Feat2MapError as exc:

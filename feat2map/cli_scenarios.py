@@ -13,7 +13,7 @@ from pathlib import Path
 
 from . import atomic
 from .errors import Feat2MapError
-from .messages import counted, one_line
+from .messages import counted, on_terminal, one_line
 
 COVERAGE_MARKERS = ("coverage.json",)  # a folder holding one is an earlier `coverage` output, replaced whole
 
@@ -53,7 +53,7 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
     factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
-    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet,
+    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
                        coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on)
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)

@@ -197,9 +197,19 @@ def _build_chain(b: _Builder, chain: RoadChain) -> None:
 
 
 def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None = None,
-              chains: Sequence[RoadChain] = ()) -> HDMap:
+              chains: Sequence[RoadChain] = (), progress: bool = False) -> HDMap:
     """Instantiate every placed junction, its roads, lanes, controls and crosswalks, and the
-    hand-written road chains (which keep their absolute coordinates)."""
+    hand-written road chains (which keep their absolute coordinates); `progress` shows a bar
+    over the junctions (twice: their roads, then their lanes), on a terminal only."""
+    from tqdm import tqdm
+
+    with tqdm(total=2 * len(placements), desc="build", unit="junction", unit_scale=0.5, leave=False,
+              disable=None if progress and len(placements) > 1 else True) as bar:
+        return _build_map(placements, cfg, meta, chains, bar.update)
+
+
+def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None,
+               chains: Sequence[RoadChain], tick) -> HDMap:
     b = _Builder(cfg)
     for chain in chains:
         _build_chain(b, chain)
@@ -233,6 +243,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
     socket_road: dict[tuple[int, int], str] = {}
     n_roads = 0
     for j, p in enumerate(placements):
+        tick()
         for s, link in enumerate(p.links):
             if link is not None and (link.junction, link.socket) < (j, s):
                 continue
@@ -260,6 +271,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
     stops: dict[str, StopSign] = {}
     crosswalks: dict[str, Crosswalk] = {}
     for j, p in enumerate(placements):
+        tick()
         jid = f"J{j}"
         f = p.feature
         poly = junction_polys[j]

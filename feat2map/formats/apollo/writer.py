@@ -320,7 +320,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
 
     from .routing import build_routing_graph
 
-    with tqdm(total=6, desc="apollo export", unit="step", disable=not progress) as bar:
+    with tqdm(total=6, desc="apollo export", unit="step", disable=None if progress else True) as bar:
         bar.set_postfix_str("base_map")
         base = to_apollo(m, zone=zone, origin=origin)
         bar.update()
