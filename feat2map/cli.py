@@ -10,6 +10,7 @@ import functools
 import importlib.util
 import json
 import math
+import re
 import sys
 import warnings
 from typing import Sequence
@@ -90,12 +91,20 @@ def _overrides(args: argparse.Namespace) -> dict:
                                           "samples_per_combination") if getattr(args, k) is not None}
 
 
+def option_names(message: str) -> str:
+    """A config error about fields the command line set, in the options' words:
+    "config field 'grid_gap' must be ..." -> "--grid-gap must be ..."."""
+    return re.sub(r"config field '(\w+)'", lambda m: "--" + m[1].replace("_", "-"), message)
+
+
 def _config(args: argparse.Namespace) -> GenerationConfig:
     overrides = _overrides(args)
     try:
-        return GenerationConfig.from_dict(overrides)
-    except ValueError as exc:
-        raise Feat2MapError(str(exc), "command line") from None
+        cfg = GenerationConfig.from_dict(overrides)
+        cfg.check_limits()
+        return cfg
+    except ValueError as exc:  # ConfigError, LimitError: about the options just given
+        raise type(exc)(option_names(exc.message), "command line") from None
 
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
@@ -134,7 +143,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if args.opendrive:
         check_target(out / "map.xodr", "opendrive")
     cfg = _config(args)
-    cfg.check_limits()
     stages = tqdm(total=4, desc="generate", unit="stage", disable=True if args.quiet else None)
     if args.features:
         space = FeatureSpace.load(args.features)
@@ -261,7 +269,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     if not m.lanes:
         raise Feat2MapError("map has no lanes", str(args.map))
     if "origin" in options:
-        options["origin"] = tuple(options["origin"])
+        from .formats.geo import check_origin
+
+        options["origin"] = check_origin(options["origin"], "--origin")
     try:
         write_map(m, args.out, fmt.name, **options)
     except OSError as exc:

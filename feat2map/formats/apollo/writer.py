@@ -24,7 +24,7 @@ from .geometry import (arc_lengths, distance_samples, exact_end_centerline, poly
                                stop_line_range, usable_boundaries, without_point_lanes)
 from .sim_map import to_sim_map
 from ..base import header_date
-from ..geo import utm_projection
+from ..geo import check_origin, utm_projection
 from ...config import APOLLO_GENERATED_MARK, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline
@@ -129,8 +129,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         raise Feat2MapError(f"UTM zone must be an integer 1..60, got {zone!r}", "apollo export")
     if origin is None:
         origin = tuple(m.origin) if any(m.origin) else UTM_ORIGIN
-    if len(origin) != 2 or not all(math.isfinite(float(v)) for v in origin):
-        raise Feat2MapError(f"origin must be two finite numbers, got {origin!r}", "apollo export")
+    origin = check_origin(origin, "apollo export: origin")
     m = usable_boundaries(without_point_lanes(m))
     frame = _Frame(origin)
     ids = _Ids()
