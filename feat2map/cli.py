@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
 import functools
 import importlib.util
 import json
@@ -35,6 +36,29 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        """As argparse, but an unknown option is reported by the command it was given to (its
+        usage prefix, `feat2map generate: error: ...`) with the nearest known option."""
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:
+            parser = self._innermost(ns)
+            known = [o for a in parser._actions for o in a.option_strings if o.startswith("--")]
+            hints = [difflib.get_close_matches(x.split("=")[0], known, n=1, cutoff=0.75) for x in extras
+                     if x.startswith("-")]
+            hint = "; ".join(f"did you mean {h[0]}?" for h in hints if h)
+            parser.error(f"unrecognized arguments: {' '.join(extras)}" + (f" ({hint})" if hint else ""))
+        return ns
+
+    def _innermost(self, ns: argparse.Namespace) -> argparse.ArgumentParser:
+        """The (sub)command parser that `ns` was parsed by: `feat2map export apollo`'s, say."""
+        parser: argparse.ArgumentParser = self
+        while True:
+            subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+            chosen = getattr(ns, subs[0].dest, None) if subs else None
+            if chosen not in (subs[0].choices if subs else {}):
+                return parser
+            parser = subs[0].choices[chosen]
 
 
 class _HelpFormatter(argparse.HelpFormatter):
