@@ -403,7 +403,8 @@ def read_opendrive(path: str | Path) -> HDMap:
     except OSError as exc:
         raise MapFormatError(f"cannot read ({exc.strerror or type(exc).__name__})", str(path)) from None
     except etree.XMLSyntaxError as exc:
-        raise MapFormatError(f"malformed XML ({exc})", str(path)) from None
+        where = "" if exc.msg and "line" in exc.msg else f", line {exc.lineno}"  # libxml2 names it mostly
+        raise MapFormatError(f"malformed XML ({exc.msg or exc}{where})", str(path)) from None
     root = tree.getroot()
     if etree.QName(root).localname != "OpenDRIVE":
         raise MapFormatError(f"root element is <{root.tag}>, not <OpenDRIVE>", str(path))

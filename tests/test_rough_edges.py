@@ -1,0 +1,90 @@
+"""Issue 25's rough edges, each as a user meets it: messages that name the culprit (file, option,
+command), terminal-only output, export outputs that validate, output folders recognised safely."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from feat2map.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def one_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+@pytest.fixture(scope="module")
+def small_map(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("m") / "m"
+    assert main(["generate", "--seed", "3", "--out", str(out), "--no-apollo", "--no-picture", "--quiet"]) == 0
+    return out / "map.json"
+
+
+def test_a_spec_config_over_a_limit_names_the_file(tmp_path, capsys):
+    spec = tmp_path / "big.yaml"
+    spec.write_text("config: {samples_per_combination: 1000000}\njunctions:\n"
+                    "  - sockets: [{angle: 0}, {angle: 90}, {angle: 180}]\n")
+    assert main(["generate", "--spec", str(spec), "--out", str(tmp_path / "o")]) == 2
+    err = one_error(capsys)
+    assert f"{spec}: config: config field 'samples_per_combination' is 1000000, above the limit" in err
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["--grid-gap", "-5"], "command line: --grid-gap must be at least 20, got -5.0"),
+    (["--samples-per-combination", "100000000"], "command line: --samples-per-combination is 100000000, above"),
+])
+def test_generate_options_are_named_as_options(tmp_path, capsys, argv, text):
+    assert main(["generate", "--out", str(tmp_path / "o"), *argv]) == 2
+    err = one_error(capsys)
+    assert text in err and "config field" not in err
+
+
+@pytest.mark.parametrize("fmt, out", [("apollo", "a"), ("lanelet2", "m.osm"), ("commonroad", "m.xml")])
+def test_an_absurd_origin_names_the_option(tmp_path, capsys, small_map, fmt, out):
+    assert main(["export", fmt, str(small_map), "--origin", "1e300", "1e300", "--out", str(tmp_path / out)]) == 2
+    assert one_error(capsys).startswith("feat2map: error: --origin: easting and northing must be finite")
+    assert not (tmp_path / out).exists()
+
+
+def test_an_unknown_option_gets_its_command_and_the_nearest_option(tmp_path, capsys):
+    with pytest.raises(SystemExit) as ex:
+        main(["generate", "--sed", "2", "--out", str(tmp_path / "o")])
+    assert ex.value.code == 2
+    assert one_error(capsys) == "feat2map generate: error: unrecognized arguments: --sed 2 (did you mean --seed?)"
+    with pytest.raises(SystemExit):
+        main(["export", "apollo", "m.json", "--out", "x", "--orign", "1", "2"])
+    assert one_error(capsys).startswith("feat2map export apollo: error: unrecognized arguments: --orign 1 2 "
+                                        "(did you mean --origin?)")
+    with pytest.raises(SystemExit):
+        main(["generate", "--out", "x", "--bogus"])
+    assert "did you mean" not in one_error(capsys)
+
+
+def test_a_plain_text_file_is_not_blamed_on_apollo(tmp_path, capsys):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("hello world, these are my notes\n")
+    assert main(["extract", str(notes)]) == 2
+    err = one_error(capsys)
+    assert "not a map feat2map reads" in err and "'hello world" in err and "broken Apollo" not in err
+
+
+def test_an_xodr_parse_error_gives_its_position_once(tmp_path, capsys):
+    bad = tmp_path / "bad.xodr"
+    bad.write_text('<OpenDRIVE><header/><road id="1"\n')
+    assert main(["extract", str(bad)]) == 2
+    err = one_error(capsys)
+    assert err.count("line 2") == 1 and "malformed XML" in err, err
+
+
+def test_help_shows_limits_as_whole_numbers(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "max_file_bytes=2147483648" in out and "e+0" not in out
