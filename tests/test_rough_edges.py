@@ -88,3 +88,11 @@ def test_help_shows_limits_as_whole_numbers(capsys):
         main(["--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "max_file_bytes=2147483648" in out and "e+0" not in out
+
+
+def test_a_non_utf8_file_name_in_a_picture_title_is_drawn(tmp_path, capsys, small_map):
+    folder = tmp_path / b"ma\xffp".decode("utf-8", "surrogateescape")
+    assert main(["export", "apollo", str(small_map), "--out", str(folder)]) == 0
+    picture = tmp_path / "problems.png"
+    assert main(["validate", str(folder), "--picture", str(picture), "--quiet"]) == 0
+    assert picture.read_bytes().startswith(b"\x89PNG") and "Traceback" not in capsys.readouterr().err
