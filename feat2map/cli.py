@@ -20,8 +20,8 @@ from typing import Sequence
 from tqdm import tqdm
 
 from . import __version__, atomic
-from .config import (CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, GenerationConfig, Limits, plain_number,
-                     raised_limits)
+from .config import (CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, OPENDRIVE_VERSIONS, GenerationConfig,
+                     Limits, plain_number, raised_limits)
 from .errors import WHERE_MAX_CHARS, ConfigError, Feat2MapError, FeatureError, LayoutError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 from .formats import FORMATS, check_target, detect, native, read_map, write_map
@@ -241,7 +241,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2))
         return 0
     _print_junction_table(args.maps, junctions, skipped)
-    print(f"\n{counted(len(junctions), 'junction')} ({len(skipped)} skipped); map feature:\n{space.to_json()}", end="")
+    found = f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped)"
+    if args.out:  # the map feature is in the file: not again on the screen
+        print(f"\n{found}; map feature written to {args.out}")
+        return 0
+    shown = space.to_dict()  # angles to 0.001 deg on the screen (the file keeps them exact)
+    shown["rotation_ranges"] = {n: [[round(a, 3) for a in r] for r in rs] for n, rs in shown["rotation_ranges"].items()}
+    print(f"\n{found}; map feature:\n{json.dumps(shown, indent=2, sort_keys=True)}")
     return 0
 
 
@@ -301,7 +307,10 @@ def cmd_export(args: argparse.Namespace) -> int:
         write_map(m, args.out, fmt.name, **options)
     except OSError as exc:
         raise Feat2MapError(f"cannot write ({exc.strerror or exc})", str(args.out)) from None
-    print(f"wrote {args.out} ({fmt.title}): {_summary(m)}")
+    title = fmt.title  # the revision written, where an option chose one ("ASAM OpenDRIVE 1.7 (.xodr)")
+    if fmt.name == "opendrive" and options.get("version"):
+        title = title.replace(OPENDRIVE_VERSIONS[0], options["version"], 1)
+    print(f"wrote {args.out} ({title}): {_summary(m)}")
     return 0
 
 

@@ -21,12 +21,13 @@ COVERAGE_MARKERS = ("coverage.json",)  # a folder holding one is an earlier `cov
 def cmd_suite(args: argparse.Namespace) -> int:
     from .formats import read_map
     from .scenarios.routes import build_suite, manoeuvres, route_coverage
-    from .scenarios.scenario import save_suite
+    from .scenarios.scenario import check_suite_path, save_suite
 
     path = Path(args.map)
     if not path.is_file():
         raise Feat2MapError("map file not found", str(path))
     atomic.check_file_target(args.out)
+    check_suite_path(args.out)
     if args.max_junctions < 1:
         raise Feat2MapError("--max-junctions must be at least 1", "command line")
     kw = {"seed": args.seed, "traffic_vehicles": args.traffic, "pedestrian_rate": args.pedestrian_rate,
