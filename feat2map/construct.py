@@ -61,9 +61,14 @@ def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
         j = (i + 1) % n
         delta = math.radians((feature.rotation[j] - feature.rotation[i]) % 360.0)
         if delta < math.pi - 1e-6:
-            s = math.sin(delta)
-            need = max(need, (halves[j] + halves[i] * math.cos(delta)) / s,
-                       (halves[i] + halves[j] * math.cos(delta)) / s)
+            s, c = math.sin(delta), math.cos(delta)
+            for near, far in ((i, j), (j, i)):
+                # the socket corner of leg `far` facing leg `near` clears that leg's pavement from
+                # this radius on; legs more than 90 deg apart also clear it once the corner lies
+                # behind the centre as seen along `near` (nearly opposite legs of unequal widths:
+                # their pavements point away from each other whatever the radius)
+                clear = (halves[near] + halves[far] * c) / s
+                need = max(need, clear if c >= 0 else min(clear, halves[far] * s / -c))
     return need + cfg.crosswalk_width + 2 * cfg.junction_margin
 
 

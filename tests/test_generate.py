@@ -175,3 +175,21 @@ def test_placement_rescoring_only_changed_points_draws_what_scoring_all_draws(mo
     monkeypatch.setattr(layout, "_Frontier", Fresh)
     assert layout.place(feats, np.random.default_rng(5)) == fast
     assert len({p.cell for p in fast}) == len(feats) > 100
+
+
+@pytest.mark.parametrize("rotation, lanes_in, lanes_out", [
+    ([-2.503514, 93.53888758, 178.964626387], [0, 2, 4], [3, 2, 0]),  # San Francisco J_34 (was: grid_gap >= 175)
+    ([-0.343878, 90.335296321, 180.008582602], [0, 1, 2], [2, 1, 1]),  # GoMentum J_24 (was: grid_gap >= 607)
+])
+def test_nearly_opposite_legs_of_unequal_widths_need_no_huge_radius(rotation, lanes_in, lanes_out):
+    """Legs almost 180 deg apart point away from each other: their widths do not push the
+    sockets out (a T-junction with a wide and a narrow through leg was 'too close for its lanes')."""
+    from feat2map.construct import junction_radius
+    from feat2map.features import JunctionFeature
+    from feat2map.invariants import check_map
+
+    f = JunctionFeature.from_dict({"n_roads": 3, "rotation": rotation, "control": "signal", "crosswalk": True,
+                                   "lanes_in": lanes_in, "lanes_out": lanes_out})
+    assert junction_radius(f, GenerationConfig()) < 30.0
+    m = feat2map.generate_from_features([f])
+    assert check_map(m) == [] and len(m.junctions) == 1
