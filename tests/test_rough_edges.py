@@ -96,3 +96,47 @@ def test_a_non_utf8_file_name_in_a_picture_title_is_drawn(tmp_path, capsys, smal
     picture = tmp_path / "problems.png"
     assert main(["validate", str(folder), "--picture", str(picture), "--quiet"]) == 0
     assert picture.read_bytes().startswith(b"\x89PNG") and "Traceback" not in capsys.readouterr().err
+
+
+def test_extract_out_writes_the_feature_and_prints_no_json(tmp_path, capsys, small_map):
+    out = tmp_path / "f.json"
+    assert main(["extract", str(small_map), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "{" not in printed and f"map feature written to {out}" in printed
+    assert json.loads(out.read_text())["road_counts"]
+    assert main(["extract", str(small_map)]) == 0
+    shown = json.loads(capsys.readouterr().out.split("map feature:\n", 1)[1])
+    angles = [a for rs in shown["rotation_ranges"].values() for r in rs for a in r]
+    assert angles and all(round(a, 3) == a for a in angles)
+
+
+def test_suite_out_takes_yaml_or_json_by_suffix(tmp_path, capsys, small_map):
+    assert main(["suite", str(small_map), "--out", str(tmp_path / "s.txt")]) == 2
+    assert "YAML (.yaml, .yml) or JSON (.json)" in one_error(capsys) and not (tmp_path / "s.txt").exists()
+    assert main(["suite", str(small_map), "--out", str(tmp_path / "s.json"), "--traffic", "0"]) == 0
+    assert json.loads((tmp_path / "s.json").read_text())["scenarios"]
+
+
+def test_export_opendrive_reports_the_revision_it_wrote(tmp_path, capsys, small_map):
+    assert main(["export", "opendrive", str(small_map), "--odr-version", "1.7", "--out", str(tmp_path / "m.xodr")]) == 0
+    assert "(ASAM OpenDRIVE 1.7 " in capsys.readouterr().out
+    assert 'revMinor="7"' in (tmp_path / "m.xodr").read_text()
+
+
+def test_no_progress_frames_or_float_warnings_on_a_non_terminal_stderr(tmp_path):
+    """A log file or pipe gets the result lines only: no redrawn progress bars, no numpy notes."""
+    code = ("import sys, warnings, numpy as np; from feat2map.cli import main\n"
+            "import feat2map.cli as c\n"
+            "orig = c.cmd_validate\n"
+            "def noisy(args):\n"
+            "    np.array([1.0]) / np.array([0.0])\n"  # a RuntimeWarning: divide by zero
+            "    return orig(args)\n"
+            "c.cmd_validate = noisy\n"
+            "sys.exit(main(sys.argv[1:]))\n")
+    out = tmp_path / "m"
+    r = subprocess.run([sys.executable, "-c", code, "generate", "--seed", "2", "--out", str(out)],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    r = subprocess.run([sys.executable, "-c", code, "validate", str(out / "apollo")], capture_output=True,
+                       text=True, cwd=tmp_path)
+    assert r.returncode == 0 and r.stderr == "" and "\r" not in r.stdout, r.stderr
