@@ -140,3 +140,36 @@ def test_no_progress_frames_or_float_warnings_on_a_non_terminal_stderr(tmp_path)
     r = subprocess.run([sys.executable, "-c", code, "validate", str(out / "apollo")], capture_output=True,
                        text=True, cwd=tmp_path)
     assert r.returncode == 0 and r.stderr == "" and "\r" not in r.stdout, r.stderr
+
+
+def _broken(small_map: Path, tmp_path: Path, how: str) -> Path:
+    d = json.loads(small_map.read_text())
+    junction = [ln for ln in d["lanes"] if ln.get("junction_id")]
+    if how == "junction-lane cycle":
+        a, b = junction[0], junction[1]
+        a["successors"], b["predecessors"], b["successors"], a["predecessors"] = [b["id"]], [a["id"]], [a["id"]], [b["id"]]
+    else:  # a zero-length road lane, in a map that does not say feat2map generated it
+        ln = [x for x in d["lanes"] if not x.get("junction_id")][3]
+        for key in ("centerline", "left_boundary", "right_boundary"):
+            ln[key] = [ln[key][0]] * 2
+        d["meta"].pop("generator", None)
+    path = tmp_path / "broken.json"
+    path.write_text(json.dumps(d))
+    return path
+
+
+@pytest.mark.parametrize("how", ["junction-lane cycle", "zero-length lane"])
+def test_export_refuses_what_validate_would_reject(tmp_path, capsys, small_map, how):
+    src = _broken(small_map, tmp_path, how)
+    assert main(["export", "apollo", str(src), "--out", str(tmp_path / "a")]) == 2
+    err = one_error(capsys)
+    assert "refusing to export a map that would not validate" in err and "first: lane " in err
+    assert not (tmp_path / "a").exists()
+    assert main(["export", "apollo", str(small_map), "--out", str(tmp_path / "ok")]) == 0
+    assert main(["validate", str(tmp_path / "ok"), "--quiet"]) == 0
+
+
+def test_pip_check_is_clean():
+    """commonroad-io's protobuf pin is kept out of the environment (scripts/setup.sh)."""
+    r = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
