@@ -3,6 +3,8 @@ command), terminal-only output, export outputs that validate, output folders rec
 from __future__ import annotations
 
 import json
+import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -173,3 +175,28 @@ def test_pip_check_is_clean():
     """commonroad-io's protobuf pin is kept out of the environment (scripts/setup.sh)."""
     r = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def readme_python_block() -> str:
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    section = text.split("\n## Python\n", 1)[1].split("\n## ", 1)[0]
+    return re.search(r"```python\n(.*?)\n```", section, re.S).group(1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shared", [False, True])
+def test_readme_python_block_runs_as_written_with_and_without_shared_maps(tmp_path, shared):
+    from conftest import SHARED_MAPS
+
+    if shared and not SHARED_MAPS.is_dir():
+        pytest.skip(f"needs {SHARED_MAPS} (the real maps beside the repository: see docs/realmaps.md)")
+    work = tmp_path / "repo"
+    work.mkdir()
+    if shared:
+        (tmp_path / "shared").mkdir()
+        (tmp_path / "shared" / "maps").symlink_to(SHARED_MAPS)
+    r = subprocess.run([sys.executable, "-c", readme_python_block()], cwd=work, capture_output=True, text=True,
+                       timeout=600, env={**os.environ, "SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "junctions," in r.stdout and "one step:" in r.stdout
+    assert ("'signal', 'stop'" in r.stdout) or not shared
