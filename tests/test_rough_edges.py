@@ -201,13 +201,3 @@ def test_readme_python_block_runs_as_written_with_and_without_shared_maps(tmp_pa
     assert "junctions," in r.stdout and "one step:" in r.stdout
     assert ("'signal', 'stop'" in r.stdout) or not shared
 
-
-def test_importing_from_the_folder_holding_a_clone_says_so(tmp_path):
-    """A clone named feat2map in the working folder shadows the installed package; without the
-    repository root's __init__.py it was an empty namespace package ("cannot import name '__version__'")."""
-    (tmp_path / "feat2map").symlink_to(REPO, target_is_directory=True)
-    r = subprocess.run([sys.executable, "-c", "import feat2map"], cwd=tmp_path, capture_output=True, text=True)
-    assert r.returncode == 1 and "found the folder of a feat2map clone" in r.stderr, r.stderr
-    r = subprocess.run([sys.executable, "-c", "import feat2map; print(feat2map.__version__)"], cwd=REPO,
-                       capture_output=True, text=True)
-    assert r.returncode == 0 and r.stdout.strip(), r.stderr
