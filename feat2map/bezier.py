@@ -84,7 +84,11 @@ class Bezier:
         """Parameters t of points at (nearly) equal arc-length spacing, t=0 and t=1 included."""
         t, s = self._arc
         k = max(2, int(math.ceil(s[-1] / spacing)) + 1)
-        ts = np.interp(np.linspace(0.0, s[-1], k), s, t)
+        stop = float(s[-1])
+        step = stop / (k - 1)  # np.linspace(0, stop, k), the same floats without its overhead
+        grid = np.arange(k, dtype=float) * step if step != 0 else np.zeros(k)
+        grid[-1] = stop
+        ts = np.interp(grid, s, t)
         ts[0], ts[-1] = 0.0, 1.0
         return ts
 
