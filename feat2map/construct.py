@@ -91,6 +91,16 @@ class _Builder:
         self.lanes: dict[str, dict] = {}
         self.roads: dict[str, Road] = {}
         self.beziers: dict[str, Bezier] = {}
+        self._references: dict[tuple[float, ...], Bezier] = {}
+
+    def reference(self, start, h0: float, end, h1: float) -> Bezier:
+        """`Bezier.from_poses`, one object per pose pair: a road's pavement, its reference and its
+        lanes along it share one curve, so its arc-length table is computed once."""
+        key = (float(start[0]), float(start[1]), float(h0), float(end[0]), float(end[1]), float(h1))
+        b = self._references.get(key)
+        if b is None:
+            b = self._references[key] = Bezier.from_poses(start, h0, end, h1)
+        return b
 
     def lane_curves(self, start, h0, end, h1, offset: float) -> tuple[Bezier, np.ndarray, np.ndarray, np.ndarray]:
         """A lane `offset` metres left of the reference Bézier start->end: its end-pose Bézier
@@ -100,7 +110,7 @@ class _Builder:
         (Béziers between offset end poses pinch on S-bends); the returned Bézier shares the
         centreline's end points and end tangents, which is what links and features use."""
         w = self.cfg.lane_width / 2
-        reference = Bezier.from_poses(start, h0, end, h1)
+        reference = self.reference(start, h0, end, h1)
         centre = reference if offset == 0.0 else Bezier.from_poses(
             tuple(np.asarray(start) + offset * left_normal(h0)), h0, tuple(np.asarray(end) + offset * left_normal(h1)), h1)
         ts = reference.sample_params(self.cfg.sample_spacing)  # centre and boundaries share parameters
@@ -149,7 +159,7 @@ class _Builder:
         if right_ids and left_ids:
             self.lanes[right_ids[0]]["left_reverse_neighbors"].append(left_ids[0])
             self.lanes[left_ids[0]]["left_reverse_neighbors"].append(right_ids[0])
-        road = Road(road_id, kind, tuple(right_ids), tuple(left_ids), Bezier.from_poses(start, h0, end, h1),
+        road = Road(road_id, kind, tuple(right_ids), tuple(left_ids), self.reference(start, h0, end, h1),
                     divider, None, start_junction, end_junction)
         self.roads[road_id] = road
         return road
@@ -233,7 +243,7 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
         sockets.append(socket_geometry(p.feature, center, p.rotation_deg, cfg))
 
     # the pavement of every road between junctions, so that no stub is laid across one
-    connections = [pavement(Bezier.from_poses(sockets[j][s].point, sockets[j][s].angle,
+    connections = [pavement(b.reference(sockets[j][s].point, sockets[j][s].angle,
                                               sockets[ln.junction][ln.socket].point,
                                               sockets[ln.junction][ln.socket].angle + math.pi),
                             sockets[j][s].half_width + cfg.junction_margin, cfg)
