@@ -156,7 +156,7 @@ def test_generation_config_refuses_what_value_checks_let_through(field, value):
 
 def test_size_limits_fail_before_the_work_and_can_be_raised():
     space = feat2map.PAPER_SF_FEATURE_SPACE
-    with pytest.raises(LimitError, match="is 1500000, above the limit max_junctions=20000 "):
+    with pytest.raises(LimitError, match="is 125000, above the limit max_junctions=20000 "):
         feat2map.generate(space, config=GenerationConfig(samples_per_combination=125_000))
     with pytest.raises(LimitError, match="max_road_length_m"):
         feat2map.generate(space, config=GenerationConfig(grid_gap=1e308))
