@@ -26,7 +26,7 @@ from feat2map.formats.apollo import sim_map as simmap
 from feat2map.formats.apollo import writer as wa
 from feat2map.formats import write_map
 from feat2map.formats.apollo import read_apollo
-from conftest import shared_map
+from conftest import shared_map, SHARED_MAPS_MISSING
 
 APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
 FILES = ("base_map", "sim_map", "routing_map")
@@ -690,7 +690,7 @@ def test_bad_input_is_one_clear_error(tmp_path):
 def test_validator_runs_on_real_apollo_maps(name):
     folder = APOLLO_MAPS / name
     if not folder.exists():
-        pytest.skip(f"third-party map {folder} not present (../shared/maps is absent)")
+        pytest.skip(SHARED_MAPS_MISSING)
     problems = validate_apollo(folder)
     # these folders ship no routing_map: that alone is a problem
     assert any("missing routing_map" in str(p) for p in problems)
@@ -716,7 +716,7 @@ def test_real_sim_maps_report_nothing_their_base_map_does_not(name):
     base map's own problems (SVL boundary lengths)."""
     path = APOLLO_MAPS / name / "sim_map.txt"
     if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
+        pytest.skip(SHARED_MAPS_MISSING)
     sim = validate_apollo(path)
     base = validate_apollo(APOLLO_MAPS / name / "base_map.bin")
     assert {(p.element, p.message.split(" length")[0]) for p in sim} <= {
@@ -730,7 +730,7 @@ def test_real_maps_re_exported_validate_clean(name):
     the original (lengths, overlaps, crosswalk links) is rebuilt consistently."""
     path = APOLLO_MAPS / name / "base_map.bin"
     if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
+        pytest.skip(SHARED_MAPS_MISSING)
     from feat2map.formats.apollo import read_apollo
 
     m = read_apollo(path)

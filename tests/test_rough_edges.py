@@ -186,10 +186,10 @@ def readme_python_block() -> str:
 @pytest.mark.slow
 @pytest.mark.parametrize("shared", [False, True])
 def test_readme_python_block_runs_as_written_with_and_without_shared_maps(tmp_path, shared):
-    from conftest import SHARED_MAPS
+    from conftest import SHARED_MAPS, SHARED_MAPS_MISSING
 
     if shared and not SHARED_MAPS.is_dir():
-        pytest.skip(f"needs {SHARED_MAPS} (the real maps beside the repository: see docs/realmaps.md)")
+        pytest.skip(SHARED_MAPS_MISSING)
     work = tmp_path / "repo"
     work.mkdir()
     if shared:
