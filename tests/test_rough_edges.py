@@ -201,3 +201,29 @@ def test_readme_python_block_runs_as_written_with_and_without_shared_maps(tmp_pa
     assert "junctions," in r.stdout and "one step:" in r.stdout
     assert ("'signal', 'stop'" in r.stdout) or not shared
 
+
+
+def test_pictures_explain_their_colours(tmp_path, monkeypatch):
+    """drive.png's env frames and the rollout report's outcomes.png carry legends."""
+    import importlib.util
+    import types
+
+    import matplotlib.figure
+
+    spec = importlib.util.spec_from_file_location("demo_example", REPO / "examples" / "demo.py")
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    labels = [h.get_label() for h in demo.frame_legend((200, 200, 0))]
+    assert {"ego vehicle (at the centre)", "other vehicles", "ego route", "pedestrian", "stop sign"} <= set(labels)
+    assert sum(label.startswith("signal ") for label in labels) == 3
+
+    from feat2map.scenarios import report
+
+    seen = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: seen.extend(
+        t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()))
+    outcome = lambda name, kind: types.SimpleNamespace(name=name, outcome=kind, sim_s=3.0)  # noqa: E731
+    result = types.SimpleNamespace(name="s", outcomes=[outcome("a", "completed"), outcome("b", "collision")],
+                                   counts=lambda: {k: int(k in ("completed", "collision")) for k in report.OUTCOMES})
+    report._plot_outcomes(result, tmp_path / "outcomes.png")
+    assert seen == ["completed", "collision"] or set(seen) == {"completed", "collision"}
