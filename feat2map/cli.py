@@ -296,9 +296,16 @@ def cmd_export(args: argparse.Namespace) -> int:
         written = fmt.face("write")(suite, args.out, **options)
         print(f"wrote {args.out} ({fmt.title}): {len(written)} scenarios")
         return 0
-    m = read_map(args.map)
+    with warnings.catch_warnings(record=True) as caught:  # what reading skipped, shown once each
+        warnings.simplefilter("always")
+        m = read_map(args.map)
+    for w in {str(w.message): w for w in caught}.values():
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     if not m.lanes:
         raise Feat2MapError("map has no lanes", str(args.map))
+    skipped = sum(1 for w in caught if w.filename.startswith(_our_dirs()))
+    if skipped:  # what is left of a broken input must validate whole (see formats/apollo/writer.refuse_invalid)
+        m = dataclasses.replace(m, meta={**m.meta, "skipped_on_read": skipped})
     if "origin" in options:
         from .formats.geo import check_origin
 

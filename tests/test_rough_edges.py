@@ -227,3 +227,24 @@ def test_pictures_explain_their_colours(tmp_path, monkeypatch):
                                    counts=lambda: {k: int(k in ("completed", "collision")) for k in report.OUTCOMES})
     report._plot_outcomes(result, tmp_path / "outcomes.png")
     assert seen == ["completed", "collision"] or set(seen) == {"completed", "collision"}
+
+
+def test_an_xodr_with_links_to_a_missing_road_is_refused_or_validates(tmp_path, capsys, small_map):
+    """Reading drops what it cannot resolve, with a warning; what is left must validate whole,
+    else the export refuses (links of roads to a missing road leave exits unreachable), and a
+    map whose dropped connections leave it sound is written and validates."""
+    xodr = tmp_path / "m.xodr"
+    assert main(["export", "opendrive", str(small_map), "--out", str(xodr)]) == 0
+    text = xodr.read_text()
+    k = iter(range(10**6))
+    (tmp_path / "roads.xodr").write_text(re.sub(r'(elementType="road" elementId=")[^"]*(")',
+                                                lambda m: m[1] + "9999" + m[2] if next(k) < 24 else m[0], text))
+    (tmp_path / "connections.xodr").write_text(re.sub(r'(incomingRoad=")[^"]*(")', r"\g<1>8888\2", text, count=24))
+    capsys.readouterr()
+    assert main(["export", "apollo", str(tmp_path / "roads.xodr"), "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown road id '9999', link skipped" in err and "would not validate after reading skipped" in err
+    assert not (tmp_path / "a").exists()
+    assert main(["export", "apollo", str(tmp_path / "connections.xodr"), "--out", str(tmp_path / "b")]) == 0
+    assert "unknown road id, skipped" in capsys.readouterr().err
+    assert main(["validate", str(tmp_path / "b"), "--quiet"]) == 0

@@ -311,19 +311,21 @@ def text_of(msg: Any) -> str:
     return text if text.endswith("\n") or not text else text + "\n"
 
 
-def refuse_invalid(base: Any, graph: Any, out_dir: str | Path) -> None:
+def refuse_invalid(base: Any, graph: Any, out_dir: str | Path, strict: bool = False) -> None:
     """Before anything is written, the lanes of every map must pass `feat2map validate`'s lane
     checks (links that exist, are listed back and meet, lengths, types): an input edited into
     a broken map (a junction-lane cycle, a self-link, a zero-length lane) is refused with its
     first problem named, instead of written for validate to reject. A map feat2map generated
-    (its header says so) is held to every rule validate applies to such maps; converted real
-    maps keep their own flaws of routing and signals (validate reports them)."""
+    (its header says so), and with `strict` a map whose reading skipped broken elements (links
+    to a missing road), is held to every rule validate applies; converted real maps keep their
+    own flaws of routing and signals (validate reports them)."""
     from .validate import _Index, _lanes, validate_map
 
-    problems = validate_map(base, graph) if base.header.generation == APOLLO_GENERATED_MARK else \
-        _lanes(base, _Index(base), False)
+    whole = strict or base.header.generation == APOLLO_GENERATED_MARK
+    problems = validate_map(base, graph) if whole else _lanes(base, _Index(base), False)
     if problems:
-        raise Feat2MapError(f"refusing to export a map that would not validate ({len(problems)} problems; "
+        why = " after reading skipped broken elements" if strict else ""
+        raise Feat2MapError(f"refusing to export a map that would not validate{why} ({len(problems)} problems; "
                             f"first: {problems[0]})", str(out_dir))
 
 
@@ -345,7 +347,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
         bar.set_postfix_str("routing_map")
         messages["routing_map"] = build_routing_graph(base)
         bar.update()
-        refuse_invalid(base, messages["routing_map"], out_dir)
+        refuse_invalid(base, messages["routing_map"], out_dir, strict=bool(m.meta.get("skipped_on_read")))
         texts = {name: refuse_nonfinite(text_of(msg), f"{out_dir}: {name}") for name, msg in messages.items()}
         try:
             with atomic.staged_dir(out_dir, FORMATS["apollo"].markers) as tmp:

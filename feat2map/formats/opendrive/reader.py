@@ -470,6 +470,9 @@ class _Builder:
                         add((road.id, k, lid), "low", (road.id, k - 1, ln.predecessor), "high")
             for kind, end in (("predecessor", "low"), ("successor", "high")):
                 link = road.links.get(kind)
+                if link is not None and link[0] == "road" and link[1] not in self.roads:
+                    warnings.warn(f"{self.ctx.path}: road {road.id} <{kind}>: unknown road id {link[1]!r:.40}, "
+                                  "link skipped", stacklevel=2)
                 if link is None or link[0] != "road" or link[1] not in self.roads:
                     continue
                 other = self.roads[link[1]]
