@@ -709,7 +709,7 @@ def section_huge(work: Path, args) -> dict:
 # ------------------------------------------------------------------------------ main
 
 def _cli(argv: list[str], cwd: Path | None = None, timeout: float = 300.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "feat2map.cli", *argv], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "feat2map.cli", *argv], capture_output=True, text=True, errors="replace",
                           cwd=cwd, timeout=timeout, env=dict(os.environ, SDL_VIDEODRIVER="offscreen", MPLBACKEND="Agg"))
 
 
