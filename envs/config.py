@@ -149,9 +149,22 @@ def parameters(cls: type) -> list[str]:
     return list(names)
 
 
+# highway-env keys of its own envs that these envs do not take, and what to use instead
+HIGHWAY_ENV_KEYS = {"lanes_count": "the map sets the lanes", "vehicles_count": "use traffic_vehicles",
+                    "vehicles_density": "use traffic_vehicles", "controlled_vehicles": "one ego vehicle",
+                    "initial_lane_id": "use route", "ego_spacing": "use ego_start_distance",
+                    "collision_reward": "use reward_collision", "high_speed_reward": "use reward_progress"}
+
+
 def unknown_key_message(key: Any, valid, what: str = "config") -> str:
-    close = difflib.get_close_matches(str(key), sorted(map(str, valid)), n=1)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
+    names = sorted(map(str, valid))
+    close = difflib.get_close_matches(str(key), names, n=1)
+    if close:
+        hint = f"; did you mean {close[0]!r}?"
+    elif other := difflib.get_close_matches(str(key), list(HIGHWAY_ENV_KEYS), n=1):
+        hint = f"; highway-env's {other[0]!r} is not a key here ({HIGHWAY_ENV_KEYS[other[0]]})"
+    else:
+        hint = f"; the keys are default_config()'s: {', '.join(names)}"
     return f"unknown {what} key {str(key)!r:.60}{hint}"
 
 

@@ -59,15 +59,37 @@ def drive(map_file: str, seed: int):
             entered.setdefault(jid, t)
             if t - entered[jid] >= FRAME_AFTER_ENTRY_S:
                 frames.append((jid, t, planner.stage, env.render()))
+    from highway_env.vehicle.graphics import VehicleGraphics
+
+    info = dict(info, ego_rgb=VehicleGraphics.get_color(env.unwrapped.vehicle))  # the frames' ego colour
     env.close()
     return m, track, frames, route, info, steps, planner.stage_path()
+
+
+def frame_legend(ego_rgb) -> list:
+    """What the colours of the env's frames mean (envs/render.py and highway-env's vehicle colours)."""
+    from matplotlib.patches import Patch
+    from highway_env.vehicle.graphics import VehicleGraphics
+
+    from feat2map.envs.render import PED_RGB, ROUTE_RGB, SIGNAL_RGB
+
+    def rgb(c):
+        return tuple(v / 255 for v in c)
+
+    return [Patch(color=rgb(ego_rgb), label="ego vehicle (at the centre)"),
+            Patch(color=rgb(VehicleGraphics.BLUE), label="other vehicles"),
+            Line2D([], [], color=rgb(ROUTE_RGB), lw=2, label="ego route"),
+            Line2D([], [], ls="none", marker="o", ms=6, color=rgb(PED_RGB), mec="k", label="pedestrian"),
+            *(Line2D([], [], color=rgb(c), lw=3, marker="o", ms=6, mec="k", label=f"signal {state}: head, stop line")
+              for state, c in SIGNAL_RGB.items()),
+            Line2D([], [], ls="none", marker="8", ms=7, color=(200 / 255, 0, 0), mec="w", label="stop sign")]
 
 
 def draw(m, track, frames, route, info, steps, stages, path: Path) -> None:
     """The map panel (route, trajectory) above one env frame per junction."""
     cols = max(2, len(frames))
-    fig = plt.figure(figsize=(4.0 * cols + 1.0, 11.0), layout="constrained")
-    top, bottom = fig.subfigures(2, 1, height_ratios=[1.5, 1])
+    fig = plt.figure(figsize=(4.0 * cols + 1.0, 12.0), layout="constrained")
+    top, bottom, key = fig.subfigures(3, 1, height_ratios=[1.5, 1, 0.17])
     ax = top.subplots()
     draw_map(m, ax, highlight_lanes=route)
     pts = np.array([(x, y) for _, x, y in track])
@@ -89,6 +111,8 @@ def draw(m, track, frames, route, info, steps, stages, path: Path) -> None:
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.03, 1.0), borderaxespad=0, fontsize=8)
     junctions = list(dict.fromkeys(m.lanes[i].junction_id for i in route if m.lanes[i].junction_id))
     ax.set_title(f"route through {' → '.join(junctions)} on the map (bird's-eye)", fontsize=10)
+    key.legend(handles=frame_legend(info["ego_rgb"]), loc="center", ncol=4, fontsize=8, frameon=False,
+               title="env frames", title_fontsize=8)
     for k, (jid, t, stage, img) in enumerate(frames):
         a = bottom.add_subplot(1, cols, k + 1)
         a.imshow(img)

@@ -386,7 +386,7 @@ def drive_map(settings: Settings, name: str, map_path: Path, junction_subset: Se
                                               coverage=True, record_failure_gif=False).outcomes)
     else:  # chunks of `workers` scenarios until the budget is spent
         chunk = max(1, settings.workers)
-        bar = tqdm(total=len(todo), desc=f"drive {name}", unit="scenario", disable=not settings.progress)
+        bar = tqdm(total=len(todo), desc=f"drive {name}", unit="scenario", disable=None if settings.progress else True)
         for i in range(0, len(todo), chunk):
             if time.perf_counter() - t0 > settings.budget_s:
                 break

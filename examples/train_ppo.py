@@ -364,7 +364,7 @@ def evaluate_cases(config: dict, cases: Sequence[Case], model_bytes: bytes | Non
     jobs = [(name, ci, c.routes[i % len(c.routes)], EVAL_SEED + i)
             for ci, c in enumerate(cases) for i in range(episodes) for name in names]
     results: dict[int, dict[str, list[Outcome]]] = defaultdict(lambda: defaultdict(list))
-    bar = tqdm(total=len(jobs), desc="evaluating", disable=not progress, unit="ep", mininterval=5.0)
+    bar = tqdm(total=len(jobs), desc="evaluating", disable=None if progress else True, unit="ep", mininterval=5.0)
     if workers > 1:
         with mp.get_context("fork").Pool(workers, _init_worker, (config, model_bytes)) as pool:
             for name, ci, o in pool.imap_unordered(_run_job, jobs, chunksize=4):
@@ -490,7 +490,7 @@ def training_log(total: int, enabled: bool, minutes: float | None = None):
 
     class _Log(BaseCallback):
         def _on_training_start(self) -> None:
-            self.bar = tqdm(total=total, desc="training", unit="step", disable=not enabled, mininterval=5.0)
+            self.bar = tqdm(total=total, desc="training", unit="step", disable=None if enabled else True, mininterval=5.0)
             self.t0 = self.t_load = time.perf_counter()
             self.curve: list[dict] = []
             self.loads = [os.getloadavg()[0]]

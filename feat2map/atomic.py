@@ -8,9 +8,12 @@ killed at any moment therefore leaves the old folder, the new one, or (only with
 RENAME_EXCHANGE) none; never a half-written or mixed one. Its hidden leftovers
 (`.NAME.<kind>-<pid>-...`) are removed by the next run that writes NAME, once their process is gone.
 
-An existing non-empty output folder is replaced as a whole only when it holds one of the
-caller's marker files (a previous output of the same command); any other folder is refused
-before any work is done (`check_dir_target`), so `--out ~` never deletes a home directory.
+Every folder output carries a manifest, `MANIFEST` (a hidden file listing each file the run
+wrote). An existing non-empty output folder is replaced as a whole only when its manifest is
+a regular file, every file in the folder is listed in it (nothing the user added since) and
+one of the caller's marker files is listed (a previous output of the same command); any other
+folder is refused before any work is done (`check_dir_target`), so `--out ~` never deletes a
+home directory, and neither does a folder that merely holds something named like our outputs.
 """
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ import contextlib
 import ctypes
 import errno
 import fnmatch
+import json
 import os
 import re
 import shutil
@@ -38,6 +42,7 @@ _FILE_MODE = 0o666 & ~_umask()
 _DIR_MODE = 0o777 & ~_umask()
 _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?:tmp|stage|old)-(?P<pid>\d+)-[^.]+$")
 _RENAME_EXCHANGE = 2
+MANIFEST = ".feat2map-output.json"  # in every folder staged_dir writes: the files it holds
 _AT_FDCWD = -100
 
 
@@ -116,19 +121,53 @@ def write_text(path: str | Path, text: str) -> None:
 
 
 def check_dir_target(out: str | Path, markers: Sequence[str] = ()) -> Path:
-    """`out` as a Path when a folder may be written there: absent, empty, or holding one of
-    `markers` (names or glob patterns of a previous output of the same kind, which is then
-    replaced as a whole)."""
+    """`out` as a Path when a folder may be written there: absent, empty, or an earlier output
+    of ours (see `ours`) listing one of `markers` (names or glob patterns of a previous output
+    of the same kind, which is then replaced as a whole)."""
     out = output_path(out)
     if out.exists() and not out.is_dir():
         raise Feat2MapError("exists and is not a folder", str(out))
-    if out.is_dir():
-        names = [p.name for p in out.iterdir()]
-        if names and not any(fnmatch.fnmatchcase(n, pat) for n in names for pat in markers):
-            want = f" (a previous output holds {' or '.join(markers)})" if markers else ""
-            raise Feat2MapError(f"folder exists, is not empty and is not an earlier output of this command{want}: "
-                                "refusing to replace it; remove it or choose another --out", str(out))
+    if out.is_dir() and any(out.iterdir()) and not ours(out, markers):
+        want = f" (holding {' or '.join(markers)})" if markers else ""
+        raise Feat2MapError(f"folder exists, is not empty and is not an earlier output of this command{want} "
+                            f"with nothing added since (its {MANIFEST} lists what feat2map wrote): "
+                            "refusing to replace it; remove it or choose another --out", str(out))
     return out
+
+
+def _files(root: Path) -> list[str] | None:
+    """Every entry under `root` that is not a folder, relative, '/'-separated (links not followed);
+    None when a folder cannot be read."""
+    found = []
+    try:
+        for top, dirs, names in os.walk(root, onerror=_raise):
+            rel = Path(top).relative_to(root)
+            found += [(rel / n).as_posix() for n in names]
+            found += [(rel / d).as_posix() for d in dirs if (Path(top) / d).is_symlink()]
+    except OSError:
+        return None
+    return sorted(found)
+
+
+def _raise(err: OSError) -> None:
+    raise err
+
+
+def ours(folder: Path, markers: Sequence[str] = ()) -> bool:
+    """Whether `folder` is an output feat2map wrote: its MANIFEST (a regular file) lists every
+    file in it, and (when `markers` are given) one listed regular file matches a marker."""
+    manifest = folder / MANIFEST
+    if manifest.is_symlink() or not manifest.is_file():
+        return False
+    try:
+        listed = json.loads(manifest.read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    present = _files(folder)
+    if present is None or not isinstance(listed, list) or not set(present) <= set(listed) | {MANIFEST}:
+        return False
+    return not markers or any(fnmatch.fnmatchcase(n, pat) and (folder / n).is_file() and not (folder / n).is_symlink()
+                              for n in present if "/" not in n for pat in markers)
 
 
 def _exchange(a: Path, b: Path) -> bool:
@@ -158,6 +197,7 @@ def staged_dir(out: str | Path, markers: Sequence[str] = ()) -> Iterator[Path]:
     tmp = Path(tempfile.mkdtemp(prefix=_prefix(out, "stage"), dir=out.parent))
     try:
         yield tmp
+        write_text(tmp / MANIFEST, json.dumps({"files": _files(tmp)}, indent=1) + "\n")
         os.chmod(tmp, _DIR_MODE)
         check_dir_target(out, markers)  # still ours to replace after the work
         if not out.exists():

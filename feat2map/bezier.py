@@ -59,9 +59,15 @@ class Bezier:
 
     def offset_point(self, t: np.ndarray | float, offset: float) -> np.ndarray:
         """The true offset curve: B(t) moved `offset` metres along its left unit normal."""
+        return self.offset_points(t, (offset,))[0]
+
+    def offset_points(self, t: np.ndarray | float, offsets: tuple[float, ...]) -> list[np.ndarray]:
+        """`offset_point` for several offsets, evaluating the curve and its normals once."""
         d = self.derivative(t)
         n = np.stack([-d[..., 1], d[..., 0]], axis=-1)
-        return self.point(t) + offset * n / np.maximum(np.hypot(n[..., 0], n[..., 1]), 1e-12)[..., None]
+        p = self.point(t)
+        norm = np.maximum(np.hypot(n[..., 0], n[..., 1]), 1e-12)[..., None]
+        return [p + offset * n / norm for offset in offsets]
 
     @cached_property
     def _arc(self) -> tuple[np.ndarray, np.ndarray]:
@@ -78,7 +84,11 @@ class Bezier:
         """Parameters t of points at (nearly) equal arc-length spacing, t=0 and t=1 included."""
         t, s = self._arc
         k = max(2, int(math.ceil(s[-1] / spacing)) + 1)
-        ts = np.interp(np.linspace(0.0, s[-1], k), s, t)
+        stop = float(s[-1])
+        step = stop / (k - 1)  # np.linspace(0, stop, k), the same floats without its overhead
+        grid = np.arange(k, dtype=float) * step if step != 0 else np.zeros(k)
+        grid[-1] = stop
+        ts = np.interp(grid, s, t)
         ts[0], ts[-1] = 0.0, 1.0
         return ts
 

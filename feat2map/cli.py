@@ -5,11 +5,14 @@ drive them headless and compare their coverage."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import difflib
 import functools
 import importlib.util
 import json
 import math
+import re
 import sys
 import warnings
 from typing import Sequence
@@ -17,11 +20,12 @@ from typing import Sequence
 from tqdm import tqdm
 
 from . import __version__, atomic
-from .config import CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, GenerationConfig, Limits, raised_limits
+from .config import (CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, OPENDRIVE_VERSIONS, GenerationConfig,
+                     Limits, plain_number, raised_limits)
 from .errors import WHERE_MAX_CHARS, ConfigError, Feat2MapError, FeatureError, LayoutError
 from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 from .formats import FORMATS, check_target, detect, native, read_map, write_map
-from .messages import counted, one_line
+from .messages import counted, on_terminal, one_line
 
 
 class _Parser(argparse.ArgumentParser):
@@ -33,6 +37,29 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        """As argparse, but an unknown option is reported by the command it was given to (its
+        usage prefix, `feat2map generate: error: ...`) with the nearest known option."""
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:
+            parser = self._innermost(ns)
+            known = [o for a in parser._actions for o in a.option_strings if o.startswith("--")]
+            hints = [difflib.get_close_matches(x.split("=")[0], known, n=1, cutoff=0.75) for x in extras
+                     if x.startswith("-")]
+            hint = "; ".join(f"did you mean {h[0]}?" for h in hints if h)
+            parser.error(f"unrecognized arguments: {' '.join(extras)}" + (f" ({hint})" if hint else ""))
+        return ns
+
+    def _innermost(self, ns: argparse.Namespace) -> argparse.ArgumentParser:
+        """The (sub)command parser that `ns` was parsed by: `feat2map export apollo`'s, say."""
+        parser: argparse.ArgumentParser = self
+        while True:
+            subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+            chosen = getattr(ns, subs[0].dest, None) if subs else None
+            if chosen not in (subs[0].choices if subs else {}):
+                return parser
+            parser = subs[0].choices[chosen]
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -89,12 +116,20 @@ def _overrides(args: argparse.Namespace) -> dict:
                                           "samples_per_combination") if getattr(args, k) is not None}
 
 
+def option_names(message: str) -> str:
+    """A config error about fields the command line set, in the options' words:
+    "config field 'grid_gap' must be ..." -> "--grid-gap must be ..."."""
+    return re.sub(r"config field '(\w+)'", lambda m: "--" + m[1].replace("_", "-"), message)
+
+
 def _config(args: argparse.Namespace) -> GenerationConfig:
     overrides = _overrides(args)
     try:
-        return GenerationConfig.from_dict(overrides)
-    except ValueError as exc:
-        raise Feat2MapError(str(exc), "command line") from None
+        cfg = GenerationConfig.from_dict(overrides)
+        cfg.check_limits()
+        return cfg
+    except ValueError as exc:  # ConfigError, LimitError: about the options just given
+        raise type(exc)(option_names(exc.message), "command line") from None
 
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
@@ -105,7 +140,7 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
     from .generate import check_buildable
 
     junctions = []
-    for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2):
+    for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2 or not on_terminal()):
         junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
@@ -133,7 +168,6 @@ def cmd_generate(args: argparse.Namespace) -> int:
     if args.opendrive:
         check_target(out / "map.xodr", "opendrive")
     cfg = _config(args)
-    cfg.check_limits()
     stages = tqdm(total=4, desc="generate", unit="stage", disable=True if args.quiet else None)
     if args.features:
         space = FeatureSpace.load(args.features)
@@ -154,7 +188,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         feats = [j.feature for j in m.junctions.values() if j.feature is not None]
         space = FeatureSpace.from_features(feats) if feats else None
     else:
-        m = generate(space, seed=args.seed, config=cfg)
+        m = generate(space, seed=args.seed, config=cfg, progress=not args.quiet)
     stages.update(2)
     with atomic.staged_dir(out, GENERATE_MARKERS) as tmp:
         native.save(m, tmp / "map.json")
@@ -207,7 +241,13 @@ def cmd_extract(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2))
         return 0
     _print_junction_table(args.maps, junctions, skipped)
-    print(f"\n{counted(len(junctions), 'junction')} ({len(skipped)} skipped); map feature:\n{space.to_json()}", end="")
+    found = f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped)"
+    if args.out:  # the map feature is in the file: not again on the screen
+        print(f"\n{found}; map feature written to {args.out}")
+        return 0
+    shown = space.to_dict()  # angles to 0.001 deg on the screen (the file keeps them exact)
+    shown["rotation_ranges"] = {n: [[round(a, 3) for a in r] for r in rs] for n, rs in shown["rotation_ranges"].items()}
+    print(f"\n{found}; map feature:\n{json.dumps(shown, indent=2, sort_keys=True)}")
     return 0
 
 
@@ -234,7 +274,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
         from .render import check_picture_path
 
         check_picture_path(args.picture)
-    problems = fmt.face("validate")(args.path, progress=not args.quiet)
+    problems = fmt.face("validate")(args.path, progress=not args.quiet and on_terminal())
     for p in problems:
         print(one_line(p))
     if args.picture:
@@ -256,16 +296,28 @@ def cmd_export(args: argparse.Namespace) -> int:
         written = fmt.face("write")(suite, args.out, **options)
         print(f"wrote {args.out} ({fmt.title}): {len(written)} scenarios")
         return 0
-    m = read_map(args.map)
+    with warnings.catch_warnings(record=True) as caught:  # what reading skipped, shown once each
+        warnings.simplefilter("always")
+        m = read_map(args.map)
+    for w in {str(w.message): w for w in caught}.values():
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     if not m.lanes:
         raise Feat2MapError("map has no lanes", str(args.map))
+    skipped = sum(1 for w in caught if w.filename.startswith(_our_dirs()))
+    if skipped:  # what is left of a broken input must validate whole (see formats/apollo/writer.refuse_invalid)
+        m = dataclasses.replace(m, meta={**m.meta, "skipped_on_read": skipped})
     if "origin" in options:
-        options["origin"] = tuple(options["origin"])
+        from .formats.geo import check_origin
+
+        options["origin"] = check_origin(options["origin"], "--origin")
     try:
         write_map(m, args.out, fmt.name, **options)
     except OSError as exc:
         raise Feat2MapError(f"cannot write ({exc.strerror or exc})", str(args.out)) from None
-    print(f"wrote {args.out} ({fmt.title}): {_summary(m)}")
+    title = fmt.title  # the revision written, where an option chose one ("ASAM OpenDRIVE 1.7 (.xodr)")
+    if fmt.name == "opendrive" and options.get("version"):
+        title = title.replace(OPENDRIVE_VERSIONS[0], options["version"], 1)
+    print(f"wrote {args.out} ({title}): {_summary(m)}")
     return 0
 
 
@@ -284,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     lim = Limits()
     p.add_argument(LIMIT_FLAG, action="append", type=_limit_arg, metavar="NAME=VALUE", default=[],
                    help="raise a size limit for this run (repeatable); limits and defaults: " + ", ".join(
-                       f"{f.name}={getattr(lim, f.name):g}" for f in dataclasses.fields(lim)))
+                       f"{f.name}={plain_number(getattr(lim, f.name))}" for f in dataclasses.fields(lim)))
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser, title="commands", metavar="COMMAND")
 
     g = sub.add_parser("generate", help="generate a map from a feature space, input maps or a spec",
@@ -382,11 +434,18 @@ def _our_dirs() -> tuple[str, ...]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    for stream in (sys.stdout, sys.stderr):  # a non-UTF-8 file name is printed escaped, not a traceback
+        with contextlib.suppress(AttributeError, ValueError):
+            stream.reconfigure(errors="backslashreplace")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         with raised_limits(**dict(args.limit)), warnings.catch_warnings():
             warnings.simplefilter("default", UserWarning)  # each once per run (in-process runs start afresh)
+            # numpy's and shapely's floating-point notes ("invalid value encountered in ...") on odd
+            # input geometry: what matters is reported as problems or errors, these say nothing to a user
+            warnings.filterwarnings("ignore", r"(invalid value|divide by zero|overflow|underflow) encountered",
+                                    RuntimeWarning)
             warnings.showwarning = _print_warning
             return int(args.func(args) or 0)
     except Feat2MapError as exc:

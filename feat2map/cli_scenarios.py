@@ -13,7 +13,7 @@ from pathlib import Path
 
 from . import atomic
 from .errors import Feat2MapError
-from .messages import counted, one_line
+from .messages import counted, on_terminal, one_line
 
 COVERAGE_MARKERS = ("coverage.json",)  # a folder holding one is an earlier `coverage` output, replaced whole
 
@@ -21,12 +21,13 @@ COVERAGE_MARKERS = ("coverage.json",)  # a folder holding one is an earlier `cov
 def cmd_suite(args: argparse.Namespace) -> int:
     from .formats import read_map
     from .scenarios.routes import build_suite, manoeuvres, route_coverage
-    from .scenarios.scenario import save_suite
+    from .scenarios.scenario import check_suite_path, save_suite
 
     path = Path(args.map)
     if not path.is_file():
         raise Feat2MapError("map file not found", str(path))
     atomic.check_file_target(args.out)
+    check_suite_path(args.out)
     if args.max_junctions < 1:
         raise Feat2MapError("--max-junctions must be at least 1", "command line")
     kw = {"seed": args.seed, "traffic_vehicles": args.traffic, "pedestrian_rate": args.pedestrian_rate,
@@ -53,7 +54,7 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
     factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
-    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet,
+    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
                        coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on)
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)

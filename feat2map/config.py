@@ -195,7 +195,7 @@ class Limits:
     memory; each is checked before the work it bounds and its error says how to raise it
     (`feat2map --limit NAME=VALUE ...`, or `raised_limits(NAME=VALUE)` in Python)."""
 
-    max_junctions: int = 5000  # junctions one generate/spec run builds (1,000 take about 10 s)
+    max_junctions: int = 20_000  # junctions one generate/spec run builds (linear: 10,000 take about 15 s)
     max_road_length_m: float = 20_000.0  # one road (OpenDRIVE road, spec chain piece, grid gap)
     max_lanes: int = 500_000  # lanes in one map read from a file
     max_points: int = 20_000_000  # polyline points in one map read from a file
@@ -212,8 +212,15 @@ class Limits:
         if value > cap:
             from .errors import LimitError
 
-            raise LimitError(f"{what} is {value:g}, above the limit {name}={cap:g} "
+            raise LimitError(f"{what} is {plain_number(value)}, above the limit {name}={plain_number(cap)} "
                              f"(raise it with {LIMIT_FLAG} {name}=N)")
+
+
+def plain_number(value: float) -> str:
+    """`2147483648`, `20000`, `0.5`, `1e+300`: whole numbers in full (not 2.14748e+09), others short."""
+    if float(value).is_integer() and abs(value) < 1e16:
+        return str(int(value))
+    return f"{value:g}"
 
 
 _LIMITS: contextvars.ContextVar[Limits] = contextvars.ContextVar("feat2map_limits", default=Limits())

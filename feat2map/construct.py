@@ -61,9 +61,14 @@ def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
         j = (i + 1) % n
         delta = math.radians((feature.rotation[j] - feature.rotation[i]) % 360.0)
         if delta < math.pi - 1e-6:
-            s = math.sin(delta)
-            need = max(need, (halves[j] + halves[i] * math.cos(delta)) / s,
-                       (halves[i] + halves[j] * math.cos(delta)) / s)
+            s, c = math.sin(delta), math.cos(delta)
+            for near, far in ((i, j), (j, i)):
+                # the socket corner of leg `far` facing leg `near` clears that leg's pavement from
+                # this radius on; legs more than 90 deg apart also clear it once the corner lies
+                # behind the centre as seen along `near` (nearly opposite legs of unequal widths:
+                # their pavements point away from each other whatever the radius)
+                clear = (halves[near] + halves[far] * c) / s
+                need = max(need, clear if c >= 0 else min(clear, halves[far] * s / -c))
     return need + cfg.crosswalk_width + 2 * cfg.junction_margin
 
 
@@ -86,6 +91,16 @@ class _Builder:
         self.lanes: dict[str, dict] = {}
         self.roads: dict[str, Road] = {}
         self.beziers: dict[str, Bezier] = {}
+        self._references: dict[tuple[float, ...], Bezier] = {}
+
+    def reference(self, start, h0: float, end, h1: float) -> Bezier:
+        """`Bezier.from_poses`, one object per pose pair: a road's pavement, its reference and its
+        lanes along it share one curve, so its arc-length table is computed once."""
+        key = (float(start[0]), float(start[1]), float(h0), float(end[0]), float(end[1]), float(h1))
+        b = self._references.get(key)
+        if b is None:
+            b = self._references[key] = Bezier.from_poses(start, h0, end, h1)
+        return b
 
     def lane_curves(self, start, h0, end, h1, offset: float) -> tuple[Bezier, np.ndarray, np.ndarray, np.ndarray]:
         """A lane `offset` metres left of the reference Bézier start->end: its end-pose Bézier
@@ -95,13 +110,13 @@ class _Builder:
         (Béziers between offset end poses pinch on S-bends); the returned Bézier shares the
         centreline's end points and end tangents, which is what links and features use."""
         w = self.cfg.lane_width / 2
-        reference = Bezier.from_poses(start, h0, end, h1)
+        reference = self.reference(start, h0, end, h1)
         centre = reference if offset == 0.0 else Bezier.from_poses(
             tuple(np.asarray(start) + offset * left_normal(h0)), h0, tuple(np.asarray(end) + offset * left_normal(h1)), h1)
         ts = reference.sample_params(self.cfg.sample_spacing)  # centre and boundaries share parameters
-        pts = reference.offset_point(ts, offset)
+        pts, left, right = reference.offset_points(ts, (offset, offset + w, offset - w))
         pts[0], pts[-1] = centre.p0, centre.p3  # exactly the end poses the links were built on
-        return centre, pts, reference.offset_point(ts, offset + w), reference.offset_point(ts, offset - w)
+        return centre, pts, left, right
 
     def add_lane(self, lane_id: str, road_id: str, centre: Bezier, pts, left, right, *, speed: float,
                  junction_id: str | None = None, turn: str = "none", ltype: str = "solid_white",
@@ -144,7 +159,7 @@ class _Builder:
         if right_ids and left_ids:
             self.lanes[right_ids[0]]["left_reverse_neighbors"].append(left_ids[0])
             self.lanes[left_ids[0]]["left_reverse_neighbors"].append(right_ids[0])
-        road = Road(road_id, kind, tuple(right_ids), tuple(left_ids), Bezier.from_poses(start, h0, end, h1),
+        road = Road(road_id, kind, tuple(right_ids), tuple(left_ids), self.reference(start, h0, end, h1),
                     divider, None, start_junction, end_junction)
         self.roads[road_id] = road
         return road
@@ -197,9 +212,19 @@ def _build_chain(b: _Builder, chain: RoadChain) -> None:
 
 
 def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None = None,
-              chains: Sequence[RoadChain] = ()) -> HDMap:
+              chains: Sequence[RoadChain] = (), progress: bool = False) -> HDMap:
     """Instantiate every placed junction, its roads, lanes, controls and crosswalks, and the
-    hand-written road chains (which keep their absolute coordinates)."""
+    hand-written road chains (which keep their absolute coordinates); `progress` shows a bar
+    over the junctions (twice: their roads, then their lanes), on a terminal only."""
+    from tqdm import tqdm
+
+    with tqdm(total=2 * len(placements), desc="build", unit="junction", unit_scale=0.5, leave=False,
+              disable=None if progress and len(placements) > 1 else True) as bar:
+        return _build_map(placements, cfg, meta, chains, bar.update)
+
+
+def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None,
+               chains: Sequence[RoadChain], tick) -> HDMap:
     b = _Builder(cfg)
     for chain in chains:
         _build_chain(b, chain)
@@ -218,7 +243,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
         sockets.append(socket_geometry(p.feature, center, p.rotation_deg, cfg))
 
     # the pavement of every road between junctions, so that no stub is laid across one
-    connections = [pavement(Bezier.from_poses(sockets[j][s].point, sockets[j][s].angle,
+    connections = [pavement(b.reference(sockets[j][s].point, sockets[j][s].angle,
                                               sockets[ln.junction][ln.socket].point,
                                               sockets[ln.junction][ln.socket].angle + math.pi),
                             sockets[j][s].half_width + cfg.junction_margin, cfg)
@@ -233,6 +258,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
     socket_road: dict[tuple[int, int], str] = {}
     n_roads = 0
     for j, p in enumerate(placements):
+        tick()
         for s, link in enumerate(p.links):
             if link is not None and (link.junction, link.socket) < (j, s):
                 continue
@@ -260,6 +286,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
     stops: dict[str, StopSign] = {}
     crosswalks: dict[str, Crosswalk] = {}
     for j, p in enumerate(placements):
+        tick()
         jid = f"J{j}"
         f = p.feature
         poly = junction_polys[j]
@@ -322,7 +349,7 @@ def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict
 def pavement(reference: Bezier, half_width: float, cfg: GenerationConfig) -> Polygon:
     """The area a road takes: its reference line widened by `half_width` on each side."""
     ts = reference.sample_params(cfg.sample_spacing)
-    left, right = reference.offset_point(ts, half_width), reference.offset_point(ts, -half_width)
+    left, right = reference.offset_points(ts, (half_width, -half_width))
     return Polygon(np.concatenate([left, right[::-1]])).buffer(0)
 
 
@@ -355,8 +382,13 @@ def _check_uncrossed(connections: Sequence[Polygon], junctions: Sequence[Polygon
     socket far from the grid direction it serves can sweep its road across a neighbour's."""
     if len(connections) < 2:
         return
-    inside = unary_union(junctions).buffer(cfg.junction_margin)
-    roads = [c.buffer(-cfg.junction_margin).difference(inside) for c in connections]
+    inside = [j.buffer(cfg.junction_margin) for j in junctions]
+    near = STRtree(inside)
+    roads = []
+    for c in connections:  # each road minus the junctions it touches (the union of all is quadratic)
+        road = c.buffer(-cfg.junction_margin)
+        hits = near.query(road, predicate="intersects")
+        roads.append(road.difference(unary_union([inside[i] for i in hits])) if len(hits) else road)
     tree = STRtree(roads)
     for a, b in zip(*tree.query(roads, predicate="intersects")):
         if a < b and roads[a].intersection(roads[b]).area > AREA_EPS_M2:

@@ -125,6 +125,9 @@ def _yaml_events(text: str, where: str, error: type[Feat2MapError]) -> None:
                 raise error(f"more than {lim.max_yaml_nodes} nodes once aliases are expanded (an alias bomb?) "
                             f"(raise it with --limit max_yaml_nodes=N)", where)
     except yaml.YAMLError as exc:
+        if "nesting depth" in str(getattr(exc, "problem", "")):  # PyYAML >= 6.0.3 has a depth cap of its own
+            raise error(f"nested deeper than the limit max_nesting={lim.max_nesting} "
+                        f"(raise it with --limit max_nesting=N)", where) from None
         raise error(f"not valid YAML ({_yaml_problem(exc)})", where) from None
 
 

@@ -1,7 +1,9 @@
 """The generation pipeline: feature space -> sampled features -> grid layout -> HD map."""
 from __future__ import annotations
 
-from typing import Sequence
+import contextlib
+import gc
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -22,16 +24,30 @@ def check_seed(seed: int) -> int:
     return int(seed)
 
 
+@contextlib.contextmanager
+def _no_cyclic_gc() -> Iterator[None]:
+    """Building a map allocates millions of small tuples (polyline points) that form no cycles;
+    the cyclic collector would walk them all again and again (a fifth of the build time)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
                            config: GenerationConfig = GenerationConfig(),
                            cells: Sequence[Cell | None] | None = None, meta: dict | None = None,
                            chains: Sequence[RoadChain] = (), names: Sequence[str] | None = None,
-                           keep_orientation: Sequence[bool] | None = None) -> HDMap:
+                           keep_orientation: Sequence[bool] | None = None, progress: bool = False) -> HDMap:
     """Lay out and build a map with one junction per feature; each junction realizes the
     normalized form of its feature (the same shape, rotated and re-indexed). `chains` are
     hand-written roads added as they are (a map may consist of chains only); `names` label
     the features in layout errors; `keep_orientation` (per feature) prefers, among equally good
-    placements, the quarter turn that shows the junction closest to its given angles."""
+    placements, the quarter turn that shows the junction closest to its given angles.
+    `progress` shows a bar over the junctions built, on a terminal only."""
     check_seed(seed)
     config.check_limits()
     limits().check("max_junctions", len(features), "the junction count")
@@ -46,12 +62,13 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     def build(max_deviation_deg: float) -> HDMap:
         rng = np.random.default_rng([int(seed), 1])
         placements = place(normalized, rng, cells, names, prefer, max_deviation_deg) if features or not chains else []
-        return build_map(placements, config, info, chains)
+        return build_map(placements, config, info, chains, progress=progress)
 
-    try:
-        return build(MAX_CARDINAL_DEVIATION_DEG)
-    except CrossingRoadsError:  # lay it out again, sockets nearer their grid directions (more stubs)
-        return build(STRICT_CARDINAL_DEVIATION_DEG)
+    with _no_cyclic_gc():
+        try:
+            return build(MAX_CARDINAL_DEVIATION_DEG)
+        except CrossingRoadsError:  # lay it out again, sockets nearer their grid directions (more stubs)
+            return build(STRICT_CARDINAL_DEVIATION_DEG)
 
 
 def check_buildable(feature: JunctionFeature, config: GenerationConfig = GenerationConfig()) -> None:
@@ -64,9 +81,11 @@ def check_buildable(feature: JunctionFeature, config: GenerationConfig = Generat
     generate_from_features([feature], 0, config)
 
 
-def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = GenerationConfig()) -> HDMap:
-    """Algorithm 1: one junction per feature combination (x samples_per_combination), seeded."""
+def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = GenerationConfig(),
+             progress: bool = False) -> HDMap:
+    """Algorithm 1: one junction per feature combination (x samples_per_combination), seeded;
+    `progress` shows a bar over the junctions built, on a terminal only."""
     rng = np.random.default_rng([check_seed(seed), 0])
     config.check_limits()
     features = sample_features(space, rng, config)
-    return generate_from_features(features, seed, config, meta={"feature_space": space.to_dict()})
+    return generate_from_features(features, seed, config, meta={"feature_space": space.to_dict()}, progress=progress)

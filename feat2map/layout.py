@@ -15,6 +15,7 @@ when placement ends. Stubs are the map's entries and exits.
 """
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from dataclasses import dataclass
@@ -127,73 +128,55 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
     order = [i for i in range(len(features)) if fixed[i] is not None]
     order += sorted((i for i in range(len(features)) if fixed[i] is None), key=lambda i: -features[i].n_roads)
 
+    def evaluate(j: int, cell: Cell, k: int) -> tuple[str, list[Link | None], int, int]:
+        """Junction j at `cell` turned by k: (clash or "", its links, roads connected, legs facing empty points)."""
+        f = features[j]
+        here = facing.get(cell, [])
+        connect: list[Link | None] = [None] * f.n_roads
+        n_connect = n_free = 0
+        bad = ""
+        for s, d0 in enumerate(assigns[j]):
+            if d0 is None:
+                continue
+            d = (d0 + k) % 4
+            other = cells.get((cell[0] + DIRECTIONS[d][0], cell[1] + DIRECTIONS[d][1]))
+            if other is None:
+                n_free += 1
+                continue
+            for o, t in here:
+                if o == other and links[o][t] is None and Link(o, t) not in connect:
+                    if not compatible(f.sockets[s], features[o].sockets[t]):
+                        bad = (f"its {describe_socket(f.sockets[s])} leg would face the "
+                               f"{describe_socket(features[o].sockets[t])} leg of {label[o]}")
+                        break
+                    connect[s] = Link(o, t)
+                    n_connect += 1
+                    break
+        return bad, connect, n_connect, n_free
+
+    changed: list[Cell] = []  # cells whose score may have changed, in placement order (see _Frontier)
+    frontiers: dict[tuple, _Frontier] = {}
     for step, j in enumerate(order):
         f = features[j]
         remaining = len(order) - step - 1
-        if fixed[j] is not None:
-            if fixed[j] in cells:
-                raise LayoutError(f"grid cell {tuple(fixed[j])} is pinned twice", label[j])
-            candidates = [fixed[j]]
-        else:
-            candidates = sorted(facing) if cells else [(0, 0)]
-        best_key = None
-        best: list[tuple[Cell, int, list[Link | None]]] = []
-        clash = ""
-        for cell in candidates:
-            here = facing.get(cell, [])
-            for k in range(4):
-                connect: list[Link | None] = [None] * f.n_roads
-                n_connect = n_free = 0
-                bad = ""
-                for s, d0 in enumerate(assigns[j]):
-                    if d0 is None:
-                        continue
-                    d = (d0 + k) % 4
-                    nb = (cell[0] + DIRECTIONS[d][0], cell[1] + DIRECTIONS[d][1])
-                    other = cells.get(nb)
-                    if other is None:
-                        n_free += 1
-                        continue
-                    for o, t in here:
-                        if o == other and links[o][t] is None and connect.count(Link(o, t)) == 0:
-                            if not compatible(f.sockets[s], features[o].sockets[t]):
-                                bad = (f"its {describe_socket(f.sockets[s])} leg would face the "
-                                       f"{describe_socket(features[o].sockets[t])} leg of {label[o]}")
-                                break
-                            connect[s] = Link(o, t)
-                            n_connect += 1
-                            break
-                if bad:
-                    clash = clash or bad
-                    continue
-                if cells and n_connect == 0 and fixed[j] is None:
-                    continue
-                k_paper = n_connect + n_free
-                open_after = n_open - len(here) + n_free
-                key = (
-                    f.n_roads <= k_paper,  # paper: score -inf when n > k
-                    k_paper if f.n_roads <= k_paper else 0,
-                    remaining == 0 or open_after > 0,
-                    n_connect,
-                )
-                if best_key is None or key > best_key:
-                    best_key, best = key, [(cell, k, connect)]
-                elif key == best_key:
-                    best.append((cell, k, connect))
-        if not best and fixed[j] is not None:
-            raise LayoutError(
-                f"no quarter turn at cell {tuple(fixed[j])} makes the sockets facing its neighbours "
-                f"direction-compatible ({clash}; an out socket must face an in socket with as many lanes)",
-                label[j])
-        if not best:
-            raise LayoutError(
-                "no grid point connects this junction to the network (no matching open socket)",
-                f"{label[j]} ({f.n_roads} legs, {f.control})",
-            )
         want = prefer_turns[j] if prefer_turns is not None else None
-        if want is not None and any(k == want for _, k, _ in best):
-            best = [c for c in best if c[1] == want]
-        cell, k, connect = best[int(rng.integers(len(best)))]
+        if cells and fixed[j] is None and want is None and (remaining == 0 or n_open > 4):
+            # every candidate leaves an open socket (a point is faced by at most 4), so the paper's
+            # score alone ranks them: kept per feature signature and updated where junctions land
+            sig = (assigns[j], tuple((s.lanes_in, s.lanes_out) for s in f.sockets))
+            frontier = frontiers.get(sig)
+            if frontier is None:
+                frontier = frontiers[sig] = _Frontier(j, evaluate, facing, len(changed))
+            else:
+                frontier.update(j, changed, facing)
+            ties = frontier.best()
+            if not ties:
+                raise LayoutError("no grid point connects this junction to the network (no matching open socket)",
+                                  f"{label[j]} ({f.n_roads} legs, {f.control})")
+            cell, k = ties[int(rng.integers(len(ties)))]
+            connect = frontier.connect[(cell, k)]
+        else:
+            cell, k, connect = _score_all(j, f, cells, fixed, facing, evaluate, n_open, remaining, label, want, rng)
         cells[cell] = j
         turns[j] = k
         links[j] = list(connect)
@@ -201,6 +184,7 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
             if ln is not None:
                 links[ln.junction][ln.socket] = Link(j, s)
         n_open -= len(facing.pop(cell, []))
+        changed.append(cell)
         for s, d0 in enumerate(assigns[j]):
             if d0 is None:
                 continue
@@ -209,9 +193,99 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
             if nb not in cells:
                 facing.setdefault(nb, []).append((j, s))
                 n_open += 1
+        changed.extend((cell[0] + dx, cell[1] + dy) for dx, dy in DIRECTIONS)
     where = {j: c for c, j in cells.items()}
     _check_connected(order, links, where, label)
     return [Placement(features[j], where[j], turns[j], tuple(links[j])) for j in range(len(features))]
+
+
+def _score_all(j: int, f: JunctionFeature, cells: dict[Cell, int], fixed: Sequence[Cell | None],
+               facing: dict[Cell, list[tuple[int, int]]], evaluate, n_open: int, remaining: int,
+               label: Sequence[str], want: int | None, rng: np.random.Generator
+               ) -> tuple[Cell, int, list[Link | None]]:
+    """Score every candidate (cell, quarter turn) of junction j and draw one of the best: the
+    first junction, pinned ones, preferred turns and the last few open sockets come here."""
+    candidates = [fixed[j]] if fixed[j] is not None else (sorted(facing) if cells else [(0, 0)])
+    best_key = None
+    best: list[tuple[Cell, int, list[Link | None]]] = []
+    clash = ""
+    for cell in candidates:
+        n_here = len(facing.get(cell, []))
+        for k in range(4):
+            bad, connect, n_connect, n_free = evaluate(j, cell, k)
+            if bad:
+                clash = clash or bad
+                continue
+            if cells and n_connect == 0 and fixed[j] is None:
+                continue
+            key = (*_paper_key(f.n_roads, n_connect, n_free)[:2], remaining == 0 or n_open - n_here + n_free > 0,
+                   n_connect)
+            if best_key is None or key > best_key:
+                best_key, best = key, [(cell, k, connect)]
+            elif key == best_key:
+                best.append((cell, k, connect))
+    if not best and fixed[j] is not None:
+        raise LayoutError(
+            f"no quarter turn at cell {tuple(fixed[j])} makes the sockets facing its neighbours "
+            f"direction-compatible ({clash}; an out socket must face an in socket with as many lanes)",
+            label[j])
+    if not best:
+        raise LayoutError(
+            "no grid point connects this junction to the network (no matching open socket)",
+            f"{label[j]} ({f.n_roads} legs, {f.control})",
+        )
+    if want is not None and any(k == want for _, k, _ in best):
+        best = [c for c in best if c[1] == want]
+    return best[int(rng.integers(len(best)))]
+
+
+def _paper_key(n_roads: int, n_connect: int, n_free: int) -> tuple[bool, int, int]:
+    """The paper's score (n <= k, then k; 0 when -inf), then the roads connected now."""
+    k_paper = n_connect + n_free
+    return n_roads <= k_paper, k_paper if n_roads <= k_paper else 0, n_connect
+
+
+class _Frontier:
+    """The scored (cell, quarter turn) candidates of one feature signature (its cardinal
+    assignment and socket lanes, all that scoring reads of a feature), sorted per score key.
+    A placement changes the scores of its cell and its four neighbours only, so each
+    signature re-scores just the cells changed since it last placed a junction: placement
+    stays linear in the junction count, and draws the same candidate as scoring every cell."""
+
+    def __init__(self, j: int, evaluate, facing: dict[Cell, list[tuple[int, int]]], seen: int) -> None:
+        self.evaluate = evaluate
+        self.keys: dict[Cell, list[tuple[tuple[bool, int, int], int]]] = {}
+        self.by_key: dict[tuple[bool, int, int], list[tuple[Cell, int]]] = {}
+        self.connect: dict[tuple[Cell, int], list[Link | None]] = {}
+        self.seen = seen  # changes before this were scored
+        for cell in facing:
+            self._score(j, cell)
+
+    def update(self, j: int, changed: list[Cell], facing: dict[Cell, list[tuple[int, int]]]) -> None:
+        for cell in set(changed[self.seen:]):
+            for key, k in self.keys.pop(cell, ()):
+                ties = self.by_key[key]
+                del ties[bisect.bisect_left(ties, (cell, k))]
+                del self.connect[(cell, k)]
+            if cell in facing:
+                self._score(j, cell)
+        self.seen = len(changed)
+
+    def best(self) -> list[tuple[Cell, int]]:
+        live = [key for key, ties in self.by_key.items() if ties]
+        return self.by_key[max(live)] if live else []
+
+    def _score(self, j: int, cell: Cell) -> None:
+        scored = []
+        for k in range(4):
+            bad, connect, n_connect, n_free = self.evaluate(j, cell, k)
+            if bad or n_connect == 0:
+                continue
+            key = _paper_key(len(connect), n_connect, n_free)
+            scored.append((key, k))
+            bisect.insort(self.by_key.setdefault(key, []), (cell, k))
+            self.connect[(cell, k)] = connect
+        self.keys[cell] = scored
 
 
 def _check_connected(order: Sequence[int], links: dict[int, list[Link | None]], where: dict[int, Cell],

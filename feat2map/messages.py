@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import sys
 
 MAX_LINE_CHARS = 300  # one error or warning line, file and element included
 
@@ -23,3 +24,12 @@ def one_line(text: object, limit: int = MAX_LINE_CHARS) -> str:
     keep = limit - len(f" ... [{len(s):,} characters cut] ... ")  # at least as long as the real marker
     head, tail = keep * 2 // 3, keep - keep * 2 // 3
     return f"{s[:head]} ... [{len(s) - head - tail:,} characters cut] ... {s[len(s) - tail:]}"
+
+
+def on_terminal() -> bool:
+    """Whether stderr is a terminal: progress bars are drawn only there (a log file or a pipe
+    would collect every redrawn frame)."""
+    try:
+        return sys.stderr is not None and sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False

@@ -23,7 +23,10 @@ BOUNDARY_TYPES = ("solid_white", "dotted_white", "solid_yellow", "dotted_yellow"
 
 
 def as_polyline(points: Any) -> Polyline:
-    return tuple(map(tuple, np.asarray(points, dtype=float).tolist()))
+    a = np.asarray(points, dtype=float)
+    if a.ndim == 2 and a.shape[1] == 2:  # the common case, twice as fast
+        return tuple(zip(a[:, 0].tolist(), a[:, 1].tolist()))
+    return tuple(map(tuple, a.tolist()))
 
 
 @dataclass(frozen=True)

@@ -39,10 +39,20 @@ def check_picture_path(path: str | Path) -> Path:
     return path
 
 
+def printable(text: object) -> str:
+    """`text` as fonts can draw it: a file name's undecodable bytes (surrogate escapes, as Python
+    reads non-UTF-8 names) become U+FFFD instead of failing the renderer."""
+    s = str(text)
+    return s.encode("utf-8", "surrogateescape").decode("utf-8", "replace") if any(
+        "\udc80" <= c <= "\udcff" for c in s) else s
+
+
 def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
     """Write a matplotlib figure atomically (format from the suffix, PNG by default) and close it."""
     try:
         path = check_picture_path(path)
+        for text in fig.findobj(lambda a: hasattr(a, "get_text") and hasattr(a, "set_text")):
+            text.set_text(printable(text.get_text()))
         buf = io.BytesIO()
         fig.savefig(buf, format=path.suffix.lstrip(".").lower(), dpi=dpi)
     finally:

@@ -63,7 +63,11 @@ class MapSpec:
         """The spec's config with `overrides` (e.g. command-line options) on top."""
         data = {**(self.config or {}), **(overrides or {})}
         try:
-            return GenerationConfig.from_dict(data)
+            cfg = GenerationConfig.from_dict(data)
+            cfg.check_limits()  # a spec's config may ask for more than the limits allow: name the file
+            return cfg
+        except LimitError as exc:
+            raise LimitError(exc.message, f"{self.source}: config") from None
         except ValueError as exc:
             raise SpecError(str(exc), f"{self.source}: config") from None
 

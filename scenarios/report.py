@@ -86,6 +86,12 @@ def _plot_outcomes(result: SuiteResult, path: Path) -> None:
     else:
         ax_s.set_xlabel("scenario index (suite order)")
     ax_s.grid(axis="y", alpha=0.3)
+    from matplotlib.patches import Patch
+
+    present = [k for k in OUTCOMES if any(o.outcome == k for o in result.outcomes)]
+    if present:
+        ax_s.legend(handles=[Patch(color=OUTCOME_COLOURS[k], label=k) for k in present], title="outcome",
+                    fontsize=8, title_fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -179,12 +179,26 @@ def load_suite(path: str | Path, check_maps: bool = True) -> Suite:
     return suite
 
 
+SUITE_SUFFIXES = (".yaml", ".yml", ".json")
+
+
+def check_suite_path(path: str | Path, what: str = "--out") -> Path:
+    """`path` when a suite can be written there: YAML (.yaml/.yml) or JSON (.json), by its suffix
+    (a .txt would hold YAML its name does not announce)."""
+    path = Path(path)
+    if path.suffix.lower() not in SUITE_SUFFIXES:
+        raise ScenarioError(f"a suite is written as YAML (.yaml, .yml) or JSON (.json), by the suffix; "
+                            f"got {path.suffix or 'no suffix'!r}", f"{what} {path}")
+    return path
+
+
 def save_suite(suite: Suite, path: str | Path) -> None:
     """Write `suite` atomically as YAML (or JSON for a .json path), map paths relative to it."""
     path = Path(path)
+    check_suite_path(path)
     data = suite.to_dict(relative_to=path.resolve().parent)
     check_schema(data, _schema(), str(path), ScenarioError)
-    if path.suffix == ".json":
+    if path.suffix.lower() == ".json":
         text = json.dumps(data, indent=2) + "\n"
     else:
         text = yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)

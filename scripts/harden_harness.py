@@ -18,6 +18,10 @@ you want to measure, e.g. `.venv/bin/python scripts/harden_harness.py --quick`. 
    violations, and whether the Apollo validator reports problems on the violating maps.
 4. huge requests: time and peak memory of a YAML alias bomb, a 100,000-junction spec,
    --samples-per-combination 125000, a chain of 10,000 km roads, OpenDRIVE length 1e9.
+5. rough edges (issue 25): exports of broken maps (junction-lane cycle, self-link, zero-length
+   lane, .xodr links to a missing road) must be refused or validate clean; messages name the
+   file/option/command; no traceback on a non-UTF-8 name; a folder named map.json is not ours;
+   a non-terminal stderr stays clean; `pip check` passes. Pass/fail per case.
 
 Prints one table per section and a summary (also as JSON with --json FILE).
 """
@@ -702,10 +706,127 @@ def section_huge(work: Path, args) -> dict:
 
 # ------------------------------------------------------------------------------ main
 
+def _cli(argv: list[str], cwd: Path | None = None, timeout: float = 300.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "feat2map.cli", *argv], capture_output=True, text=True, errors="replace",
+                          cwd=cwd, timeout=timeout, env=dict(os.environ, SDL_VIDEODRIVER="offscreen", MPLBACKEND="Agg"))
+
+
+def section_rough(work: Path, args) -> dict:
+    """Issue 25's rough edges, each a pass/fail case: exports must not write what validate
+    rejects; messages name the culprit (file, option, command); no traceback on a non-UTF-8
+    file name; output folders recognised by our manifest, not by a name; a non-terminal stderr
+    gets no progress frames or numpy notes; suites by suffix; `pip check` clean."""
+    rw = work / "rough"
+    rw.mkdir()
+    m = rw / "g"
+    assert _cli(["generate", "--seed", "3", "--out", str(m), "--no-picture", "--opendrive"]).returncode == 0
+    doc = json.loads((m / "map.json").read_text())
+    cases: dict[str, tuple[bool, str]] = {}
+
+    def native(name: str, edit) -> Path:
+        d = json.loads(json.dumps(doc))
+        edit(d)
+        path = rw / f"{name}.json"
+        path.write_text(json.dumps(d))
+        return path
+
+    def junction_cycle(d):
+        a, b = [ln for ln in d["lanes"] if ln.get("junction_id")][:2]
+        a["successors"], b["predecessors"], b["successors"], a["predecessors"] = [b["id"]], [a["id"]], [a["id"]], [b["id"]]
+
+    def self_link(d):
+        ln = d["lanes"][0]
+        ln["successors"] = ln["successors"] + [ln["id"]]
+
+    def zero_length(d):
+        ln = [x for x in d["lanes"] if not x.get("junction_id")][3]
+        for key in ("centerline", "left_boundary", "right_boundary"):
+            ln[key] = [ln[key][0]] * 2
+        d["meta"].pop("generator", None)
+
+    xodr = (m / "map.xodr").read_text()
+    k = iter(range(10**6))
+    missing = rw / "missing.xodr"
+    missing.write_text(re.sub(r'(elementType="road" elementId=")[^"]*(")',
+                              lambda mm: mm.group(1) + "9999" + mm.group(2) if next(k) < 24 else mm.group(0), xodr))
+    connections = rw / "connections.xodr"
+    connections.write_text(re.sub(r'(incomingRoad=")[^"]*(")', r"\g<1>8888\2", xodr, count=24))
+    for name, src in [("junction-lane cycle", native("cycle", junction_cycle)),
+                      ("self-link", native("self", self_link)),
+                      ("zero-length lane", native("zero", zero_length)),
+                      (".xodr links to a missing road", missing),
+                      (".xodr connections of a missing road", connections)]:
+        out = rw / f"apollo-{name.replace(' ', '_')}"
+        r = _cli(["export", "apollo", str(src), "--out", str(out)])
+        if r.returncode != 0:
+            errors = [ln for ln in r.stderr.splitlines() if ln.startswith("feat2map: error:")]  # after any warnings
+            ok = len(errors) == 1 and not out.exists()
+            cases[f"export {name}"] = (ok, f"refused: {(errors or [r.stderr])[0][:160]}")
+        else:
+            v = _cli(["validate", str(out), "--quiet"])
+            cases[f"export {name}"] = (v.returncode == 0, f"written; validate: {v.stdout.strip().splitlines()[-1]}")
+
+    def err_has(argv, *texts, code=2, cwd=None):
+        r = _cli(argv, cwd=cwd)
+        line = r.stderr.strip()
+        return (r.returncode == code and len(line.splitlines()) == 1 and all(t in line for t in texts), line[:200])
+
+    (rw / "big.yaml").write_text("config: {samples_per_combination: 1000000}\njunctions:\n"
+                                 "  - sockets: [{angle: 0}, {angle: 90}, {angle: 180}]\n")
+    (rw / "notes.txt").write_text("hello, these are my notes\n")
+    (rw / "bad.xodr").write_text('<OpenDRIVE><header/><road id="1"\n')
+    o = str(rw / "o")
+    cases["spec config over a limit names the file"] = err_has(["generate", "--spec", str(rw / "big.yaml"), "--out", o],
+                                                               f"{rw / 'big.yaml'}: config")
+    cases["--origin 1e300 names the option"] = err_has(["export", "apollo", str(m / "map.json"), "--origin", "1e300",
+                                                        "1e300", "--out", o], "--origin:")
+    cases["--grid-gap -5 names the option"] = err_has(["generate", "--grid-gap", "-5", "--out", o], "--grid-gap must")
+    cases["--sed: command and did you mean"] = err_has(["generate", "--sed", "2", "--out", o],
+                                                       "feat2map generate: error", "did you mean --seed?")
+    cases["plain text to extract not blamed on Apollo"] = err_has(["extract", str(rw / "notes.txt")],
+                                                                  "not a map feat2map reads")
+    r = _cli(["extract", str(rw / "bad.xodr")])
+    cases[".xodr parse error gives its position once"] = (r.stderr.count("line 2") == 1, r.stderr.strip()[:200])
+    from feat2map.envs.config import SCHEMA, unknown_key_message
+
+    hint = unknown_key_message("lanes_cont", SCHEMA)
+    cases["env key lanes_cont gets a hint"] = ("lanes_count" in hint, hint[:200])
+    odd = rw / b"ma\xffp".decode("utf-8", "surrogateescape")
+    _cli(["export", "apollo", str(m / "map.json"), "--out", str(odd)])
+    r = _cli(["validate", str(odd), "--picture", str(rw / "p.png"), "--quiet"])
+    cases["non-UTF-8 name with validate --picture"] = (r.returncode == 0 and "Traceback" not in r.stderr,
+                                                       r.stderr.strip()[-200:])
+    d = rw / "mine"
+    d.mkdir()
+    (d / "map.json").mkdir()
+    (d / "thesis.tex").write_text("precious")
+    r = _cli(["generate", "--out", str(d), "--no-picture", "--no-apollo"])
+    cases["folder named map.json inside a user's folder"] = (r.returncode == 2 and (d / "thesis.tex").exists(),
+                                                            r.stderr.strip()[:200])
+    r1 = _cli(["generate", "--seed", "4", "--out", str(rw / "g4")])
+    r2 = _cli(["validate", str(rw / "g4" / "apollo")])
+    cases["non-terminal stderr: no bars or numpy notes"] = (r1.stderr == "" and r2.stderr == "",
+                                                             (r1.stderr + r2.stderr)[:200])
+    r = _cli(["extract", str(m / "map.json"), "--out", str(rw / "f.json")])
+    cases["extract --out prints no JSON"] = ("{" not in r.stdout, r.stdout[-200:])
+    cases["suite --out s.txt refused"] = err_has(["suite", str(m / "map.json"), "--out", str(rw / "s.txt")],
+                                                 ".yaml, .yml) or JSON")
+    r = _cli(["export", "opendrive", str(m / "map.json"), "--odr-version", "1.7", "--out", str(rw / "m17.xodr")])
+    cases["--odr-version 1.7 reported as 1.7"] = ("OpenDRIVE 1.7" in r.stdout, r.stdout.strip()[:200])
+    r = _cli(["--help"])
+    cases["--help limits as integers"] = ("e+0" not in r.stdout, "")
+    r = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True, timeout=120)
+    cases["pip check"] = (r.returncode == 0, r.stdout.strip()[:200])
+    failed = [name for name, (ok, _) in cases.items() if not ok]
+    return {"cases": len(cases), "failed": len(failed),
+            "results": {name: ("ok" if ok else "FAIL") + (f": {detail}" if detail else "")
+                        for name, (ok, detail) in cases.items()}}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="small numbers everywhere (a smoke run)")
-    p.add_argument("--sections", default="corpus,kill,invariants,huge")
+    p.add_argument("--sections", default="corpus,kill,invariants,huge,rough")
     p.add_argument("--seed", type=int, default=14)
     p.add_argument("--trunc", type=int, default=12, help="truncations per seed file")
     p.add_argument("--flips", type=int, default=12, help="bit-flip variants per seed file")
@@ -726,7 +847,7 @@ def main() -> int:
     report["feat2map"] = str(Path(feat2map.__file__).parent)
     with tempfile.TemporaryDirectory(prefix="harden-") as tmp:
         work = Path(tmp)
-        for name in ("corpus", "kill", "invariants", "huge"):
+        for name in ("corpus", "kill", "invariants", "huge", "rough"):
             if name not in sections:
                 continue
             t0 = time.time()
@@ -737,6 +858,8 @@ def main() -> int:
                 report[name] = section_kill(work, args)
             elif name == "invariants":
                 report[name] = section_invariants(args)
+            elif name == "rough":
+                report[name] = section_rough(work, args)
             else:
                 if "corpus" not in sections:
                     (work / "src").mkdir(exist_ok=True)
@@ -771,6 +894,8 @@ def main() -> int:
     if "huge" in report:
         summary.update({"huge requests unbounded": report["huge"]["unbounded"],
                         "huge requests max s": max(r["s"] for r in report["huge"]["cases"])})
+    if "rough" in report:
+        summary["rough edges (issue 25) failing"] = f"{report['rough']['failed']} of {report['rough']['cases']}"
     report["summary"] = summary
     print("\n== summary")
     for k, v in summary.items():

@@ -12,12 +12,15 @@ extras=${1:-}
 .venv/bin/python -m pip install -q --upgrade pip
 if [[ ",$extras," == *",rl,"* ]]; then
   # CPU torch first, pinned, so resolving the rl extra never pulls a multi-GB CUDA build
-  .venv/bin/python -m pip install -q torch==2.13.0
+  .venv/bin/python -m pip install -q torch==2.13.0  # the newest CPU build here (2.14/2.15: CUDA wheels only)
 fi
 .venv/bin/python -m pip install -q -e ".${extras:+[$extras]}"
 if [[ ",$extras," == *",commonroad,"* || ",$extras," == *",dev,"* ]]; then
-  # commonroad-io pins protobuf==3.20 (Apollo needs newer); feat2map uses only its XML modules
-  .venv/bin/python -m pip install -q --no-deps 'commonroad-io>=2026.1,<2027'
+  # commonroad-io pins protobuf==3.20 (Apollo needs newer); feat2map uses only its XML modules:
+  # installed without its pins into .venv/commonroad-io, off sys.path (feat2map adds it when it
+  # imports commonroad), so `pip check` stays clean
+  .venv/bin/python -m pip uninstall -q -y commonroad-io 2>/dev/null || true  # an older setup's copy
+  .venv/bin/python -m pip install -q --no-deps --upgrade --target .venv/commonroad-io 'commonroad-io>=2026.1,<2027'
 fi
 if [[ ",$extras," == *",dev,"* ]]; then
   # ASAM's checkers (the OpenDRIVE/OpenSCENARIO exports' tests, `feat2map validate` of .xodr/.xosc)

@@ -22,6 +22,9 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MAPS = Path(os.environ.get("FEAT2MAP_SHARED_MAPS", REPO.parent / "shared" / "maps"))
+# the one skip reason of every test that reads the third-party maps
+SHARED_MAPS_MISSING = (f"needs the third-party maps at {SHARED_MAPS} (absent here): put that maps/ folder at "
+                       "../shared/maps beside the repository or set FEAT2MAP_SHARED_MAPS (README, Command line)")
 
 
 # The test tiers. `pytest -m "not slow"` is the fast tier to run after each change (about 2
@@ -112,7 +115,7 @@ def shared_map(relative: str) -> Path:
     """Path of a third-party map under ../shared/maps, or skip the test with the reason."""
     path = SHARED_MAPS / relative
     if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent on this machine)")
+        pytest.skip(SHARED_MAPS_MISSING)
     return path
 
 

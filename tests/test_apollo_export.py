@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 import feat2map
 from feat2map.formats.apollo import schema as aps
+from feat2map.atomic import MANIFEST
 from feat2map.formats import native
 from feat2map.formats.apollo.routing import build_routing_graph, node_cost
 from feat2map.formats.apollo.validate import Problem, validate_apollo, validate_map
@@ -26,7 +27,7 @@ from feat2map.formats.apollo import sim_map as simmap
 from feat2map.formats.apollo import writer as wa
 from feat2map.formats import write_map
 from feat2map.formats.apollo import read_apollo
-from conftest import shared_map
+from conftest import shared_map, SHARED_MAPS_MISSING
 
 APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
 FILES = ("base_map", "sim_map", "routing_map")
@@ -71,7 +72,7 @@ def _assert_clean(m: feat2map.HDMap, problems: list[Problem]) -> None:
 # --- export is complete and validates clean --------------------------------------------------
 
 def test_export_writes_six_files_that_validate_clean(small_map, exported):
-    assert sorted(p.name for p in exported.iterdir()) == sorted(f"{n}.{e}" for n in FILES for e in ("bin", "txt"))
+    assert sorted(p.name for p in exported.iterdir()) == sorted([MANIFEST, *(f"{n}.{e}" for n in FILES for e in ("bin", "txt"))])
     assert _pinched_lanes(small_map) == set()
     assert validate_apollo(exported) == []
 
@@ -686,7 +687,7 @@ def test_bad_input_is_one_clear_error(tmp_path):
 def test_validator_runs_on_real_apollo_maps(name):
     folder = APOLLO_MAPS / name
     if not folder.exists():
-        pytest.skip(f"third-party map {folder} not present (../shared/maps is absent)")
+        pytest.skip(SHARED_MAPS_MISSING)
     problems = validate_apollo(folder)
     # these folders ship no routing_map: that alone is a problem
     assert any("missing routing_map" in str(p) for p in problems)
@@ -712,7 +713,7 @@ def test_real_sim_maps_report_nothing_their_base_map_does_not(name):
     base map's own problems (SVL boundary lengths)."""
     path = APOLLO_MAPS / name / "sim_map.txt"
     if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
+        pytest.skip(SHARED_MAPS_MISSING)
     sim = validate_apollo(path)
     base = validate_apollo(APOLLO_MAPS / name / "base_map.bin")
     assert {(p.element, p.message.split(" length")[0]) for p in sim} <= {
@@ -726,7 +727,7 @@ def test_real_maps_re_exported_validate_clean(name):
     the original (lengths, overlaps, crosswalk links) is rebuilt consistently."""
     path = APOLLO_MAPS / name / "base_map.bin"
     if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent)")
+        pytest.skip(SHARED_MAPS_MISSING)
     from feat2map.formats.apollo import read_apollo
 
     m = read_apollo(path)
@@ -741,8 +742,8 @@ def test_real_maps_re_exported_validate_clean(name):
 
 def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch):
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "base_map.bin").write_bytes(b"old")
+    wa.write_apollo(small_map, out)  # an earlier export
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     def boom(_):
         raise RuntimeError("disk full")
@@ -750,7 +751,7 @@ def test_nothing_written_when_the_export_fails(small_map, tmp_path, monkeypatch)
     monkeypatch.setattr(wa, "to_sim_map", boom)
     with pytest.raises(RuntimeError):
         wa.write_apollo(small_map, out)
-    assert [p.name for p in out.iterdir()] == ["base_map.bin"] and (out / "base_map.bin").read_bytes() == b"old"
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no staging left behind
 
 

@@ -42,7 +42,7 @@ def test_an_earlier_output_is_replaced_whole(tmp_path, space_file):
     assert (out / "apollo").is_dir() and (out / "map.xodr").is_file()
     assert main(["generate", "--features", str(space_file), "--seed", "2", "--out", str(out), "--quiet",
                  "--no-picture", "--no-apollo"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["features.json", "map.json"]  # nothing of seed 1 stays
+    assert sorted(p.name for p in out.iterdir()) == sorted([atomic.MANIFEST, "features.json", "map.json"])  # nothing of seed 1 stays
     assert json.loads((out / "map.json").read_text())["meta"]["seed"] == 2
 
 
@@ -99,7 +99,7 @@ def test_leftovers_of_dead_runs_are_removed_and_live_ones_kept(tmp_path):
     with atomic.staged_dir(out, ("summary.json",)) as tmp:
         (tmp / "summary.json").write_text("{}")
     assert not any(p.exists() for p in stale) and live.exists() and other.exists()
-    assert [p.name for p in out.iterdir()] == ["summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [atomic.MANIFEST, "summary.json"]
 
 
 def test_a_failing_block_leaves_the_old_folder(tmp_path):
@@ -148,3 +148,38 @@ def test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder(t
         assert run(cmds[under_test](2, out), cwd=work)[0] == 0
         assert fingerprint(out) == want_new
         assert [p.name for p in work.iterdir()] == ["out"], f"leftovers after a kill at change {k} (seed {seed})"
+
+
+@pytest.mark.parametrize("decoy", ["map.json folder", "map.json file", "manifest folder", "manifest link"])
+def test_a_folder_is_not_ours_by_the_names_it_holds(tmp_path, space_file, decoy):
+    """Only the manifest feat2map writes makes a folder replaceable: a folder (or file) named
+    like our outputs, or a fake manifest, does not; the user's files stay."""
+    out = tmp_path / "d"
+    out.mkdir()
+    (out / "notes.txt").write_text("precious")
+    if decoy == "map.json folder":
+        (out / "map.json").mkdir()
+    elif decoy == "map.json file":
+        (out / "map.json").write_text("{}")
+    elif decoy == "manifest folder":
+        (out / atomic.MANIFEST).mkdir()
+    else:
+        (tmp_path / "m.json").write_text('{"files": ["notes.txt", "map.json"]}')
+        (out / atomic.MANIFEST).symlink_to(tmp_path / "m.json")
+        (out / "map.json").write_text("{}")
+    assert main(_generate(space_file, 1, out)) == 2
+    assert (out / "notes.txt").read_text() == "precious"
+
+
+def test_an_earlier_output_with_a_file_added_is_refused(tmp_path, space_file, capsys):
+    out = tmp_path / "m"
+    assert main(_generate(space_file, 1, out, "--no-picture", "--no-apollo")) == 0
+    assert atomic.ours(out, ("map.json",)) and not atomic.ours(out, ("base_map.bin",))
+    (out / "apollo").mkdir()
+    (out / "apollo" / "mine.txt").write_text("precious")
+    assert main(_generate(space_file, 2, out, "--no-picture", "--no-apollo")) == 2
+    assert "refusing to replace it" in capsys.readouterr().err
+    assert (out / "apollo" / "mine.txt").read_text() == "precious"
+    (out / "apollo" / "mine.txt").unlink()
+    (out / "apollo").rmdir()
+    assert main(_generate(space_file, 2, out, "--no-picture", "--no-apollo")) == 0

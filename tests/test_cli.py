@@ -7,6 +7,7 @@ import sys
 
 import pytest
 
+from feat2map.atomic import MANIFEST
 from feat2map.formats import native
 from feat2map.cli import main
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace
@@ -15,7 +16,7 @@ from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 def test_generate_default_writes_map_features_and_picture(tmp_path, capsys):
     out = tmp_path / "m1"
     assert main(["generate", "--seed", "1", "--out", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["apollo", "features.json", "junctions.png", "map.json", "map.png"]
+    assert sorted(p.name for p in out.iterdir()) == sorted([MANIFEST, "apollo", "features.json", "junctions.png", "map.json", "map.png"])
     m = native.load(out / "map.json")
     assert len(m.junctions) == 8
     assert FeatureSpace.from_json((out / "features.json").read_text()) == PAPER_SF_FEATURE_SPACE
@@ -124,7 +125,7 @@ def test_bad_arguments_exit_2():
     assert r.returncode == 2 and "--seed: must be an integer" in r.stderr
     r = subprocess.run([sys.executable, "-m", "feat2map.cli", "generate", "--out", "/tmp/never", "--lane-width", "-2"],
                        capture_output=True, text=True)
-    assert r.returncode == 2 and "lane_width" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "--lane-width must be" in r.stderr and "Traceback" not in r.stderr
 
 
 # --- help, version, progress, messages (issue 16) ------------------------------------------------
@@ -170,7 +171,10 @@ def test_version(capsys):
     assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"feat2map {feat2map.__version__}"
 
 
-def test_quiet_silences_every_progress_bar(tmp_path, capsys):
+def test_quiet_silences_every_progress_bar(tmp_path, capsys, monkeypatch):
+    from feat2map import cli
+
+    monkeypatch.setattr(cli, "on_terminal", lambda: True)  # bars are drawn on a terminal only
     main(["generate", "--seed", "3", "--out", str(tmp_path / "a"), "--quiet", "--no-picture", "--no-apollo"])
     maps = [str(tmp_path / "a" / "map.json")] * 2
     capsys.readouterr()

@@ -29,6 +29,8 @@ def make(config=None, env_id="feat2map/JunctionGrid-v0"):
 @pytest.mark.parametrize("config, where, text", [
     ({"trafic_vehicles": 3}, "config.trafic_vehicles", "did you mean 'traffic_vehicles'"),
     ({"signal_gren": 10}, "config.signal_gren", "did you mean 'signal_green'"),
+    ({"lanes_cont": 3}, "config.lanes_cont", "highway-env's 'lanes_count' is not a key here (the map sets the lanes)"),
+    ({"zzzz": 3}, "config.zzzz", "the keys are default_config()'s: action, "),
     ({"observation": {"vehicle_count": 5}}, "config.observation.vehicle_count", "did you mean 'vehicles_count'"),
     ({"observation": {"type": "Kinematic"}}, "config.observation.type", "did you mean 'Kinematics'"),
     ({"action": {"type": "ContinuousAction", "acceleration": [-3, 3]}}, "config.action.acceleration",

@@ -150,3 +150,46 @@ def test_legs_too_close_for_their_lanes_fail_with_the_junction_named():
     feats = [JunctionFeature.make([0, 20, 40, 200], "signal", True, lanes=2)]
     with pytest.raises(LayoutError, match=r"junction J0.*too close for their lanes.*grid_gap >= \d+"):
         feat2map.generate_from_features(feats, seed=0)
+
+
+def test_placement_rescoring_only_changed_points_draws_what_scoring_all_draws(monkeypatch):
+    """The layout keeps each open grid point's score and re-scores only the points a placement
+    changes; re-scoring every open point at every step (what the paper's greedy loop does)
+    must draw the very same layout, junction for junction."""
+    import numpy as np
+
+    from feat2map import layout
+    from feat2map.sampling import sample_features
+
+    space = FeatureSpace((3, 4, 5), ("bare", "signal"), (True, False), {
+        3: ((-10, 10), (80, 100), (170, 190)), 4: ((-10, 10), (80, 100), (170, 190), (260, 280)),
+        5: ((-10, 10), (60, 80), (140, 160), (210, 230), (280, 300))})
+    feats = [f.normalized() for f in sample_features(space, np.random.default_rng(4),
+                                                     GenerationConfig(samples_per_combination=12))]
+    fast = layout.place(feats, np.random.default_rng(5))
+
+    class Fresh(layout._Frontier):
+        def update(self, j, changed, facing):  # forget everything: score every open point anew
+            self.__init__(j, self.evaluate, facing, len(changed))
+
+    monkeypatch.setattr(layout, "_Frontier", Fresh)
+    assert layout.place(feats, np.random.default_rng(5)) == fast
+    assert len({p.cell for p in fast}) == len(feats) > 100
+
+
+@pytest.mark.parametrize("rotation, lanes_in, lanes_out", [
+    ([-2.503514, 93.53888758, 178.964626387], [0, 2, 4], [3, 2, 0]),  # San Francisco J_34 (was: grid_gap >= 175)
+    ([-0.343878, 90.335296321, 180.008582602], [0, 1, 2], [2, 1, 1]),  # GoMentum J_24 (was: grid_gap >= 607)
+])
+def test_nearly_opposite_legs_of_unequal_widths_need_no_huge_radius(rotation, lanes_in, lanes_out):
+    """Legs almost 180 deg apart point away from each other: their widths do not push the
+    sockets out (a T-junction with a wide and a narrow through leg was 'too close for its lanes')."""
+    from feat2map.construct import junction_radius
+    from feat2map.features import JunctionFeature
+    from feat2map.invariants import check_map
+
+    f = JunctionFeature.from_dict({"n_roads": 3, "rotation": rotation, "control": "signal", "crosswalk": True,
+                                   "lanes_in": lanes_in, "lanes_out": lanes_out})
+    assert junction_radius(f, GenerationConfig()) < 30.0
+    m = feat2map.generate_from_features([f])
+    assert check_map(m) == [] and len(m.junctions) == 1

@@ -12,6 +12,7 @@ from lxml import etree
 import feat2map
 from feat2map.cli import main
 from feat2map.errors import Feat2MapError
+from feat2map.atomic import MANIFEST
 from feat2map.formats import native
 from feat2map.formats.asam_qc import OPENSCENARIO, find_bundle, run_bundle
 from feat2map.formats.openscenario import validate_openscenario, write_openscenario
@@ -56,7 +57,7 @@ def _check(path):
 @needs_checker
 def test_mega_junction_suite_passes_every_check(mega):
     _, suite, out, files = mega
-    assert sorted(p.name for p in out.iterdir()) == sorted([f.name for f in files] + ["map.xodr"])
+    assert sorted(p.name for p in out.iterdir()) == sorted([f.name for f in files] + ["map.xodr", MANIFEST])
     assert len(files) == len(suite.scenarios)
     for f in files:
         _check(f)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from conftest import SHARED_MAPS, straight_piece
+from conftest import SHARED_MAPS, straight_piece, SHARED_MAPS_MISSING
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import native, read_map
 from feat2map.formats.opendrive.reader import SIGNAL_CODES
@@ -40,7 +40,7 @@ def _real_maps() -> list[str]:
 
 
 REAL_MAPS = _real_maps() or [pytest.param("", marks=pytest.mark.skip(
-    reason=f"third-party maps not present ({SHARED_MAPS} is absent on this machine)"))]
+    reason=SHARED_MAPS_MISSING))]
 # maps whose drives fail for a known reason outside the map readers (strict: an unexpected pass fails)
 KNOWN_DRIVE_FAILURES: dict[str, str] = {}
 

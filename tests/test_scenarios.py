@@ -11,6 +11,8 @@ from pathlib import Path
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import pytest
+
+from conftest import SHARED_MAPS, SHARED_MAPS_MISSING
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -26,7 +28,6 @@ from feat2map.scenarios.scenario import (Scenario, ScenarioError, Suite, load_su
 
 J = feat2map.JunctionFeature.make
 REPO = Path(__file__).resolve().parents[1]
-SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +234,7 @@ def test_build_suite_of_a_map_file(map_file, m1, tmp_path):
 def test_build_suite_of_a_real_opendrive_map():
     maps = sorted((SHARED_MAPS / "opendrive").rglob("*.xodr")) if SHARED_MAPS.is_dir() else []
     if not maps:
-        pytest.skip(f"no third-party OpenDRIVE maps under {SHARED_MAPS}")
+        pytest.skip(SHARED_MAPS_MISSING)
     path = min(maps, key=lambda p: p.stat().st_size)
     suite = build_suite(path)
     from feat2map.readers import read_map

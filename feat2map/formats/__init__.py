@@ -16,7 +16,7 @@ import re
 from pathlib import Path
 
 from ..config import OPENDRIVE_VERSIONS
-from ..errors import MapFormatError
+from ..errors import MapFormatError, snippet
 from ..model import HDMap
 from .base import ExportOption, MapFormat, Problem
 from .geo import GEO_OPTIONS
@@ -67,10 +67,14 @@ def detect(path: str | Path, face: str = "read") -> MapFormat:
         if not path.is_file():
             raise MapFormatError("no such map file", str(path))
         found = [f for f in cands if path.suffix.lower() in f.suffixes]
+        with path.open("rb") as fh:
+            head = fh.read(512)
         if not found:
-            with path.open("rb") as fh:
-                head = fh.read(512)
             found = [f for f in cands if f.sniff is not None and f.sniff(head)]
+        elif path.suffix.lower() == ".txt" and not _is_protobuf(head):  # .txt: any text, not only Apollo's
+            raise MapFormatError("not a map feat2map reads: a .txt map is Apollo protobuf text (it starts with "
+                                 f"a field such as `header {{`), this file starts with {snippet(head[:40].decode('utf-8', 'replace'))}",
+                                 str(path))
     if not found:
         known = ", ".join(f"{f.name} ({' '.join(f.suffixes) or 'folder'})" for f in cands)
         raise MapFormatError(f"unsupported map format for {face}: expected one of {known}", str(path))

@@ -7,7 +7,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..config import UTM_ORIGIN, UTM_ZONE
+import math
+
+from ..config import UTM_ORIGIN, UTM_ZONE, limits, plain_number
 from ..errors import Feat2MapError
 from ..model import HDMap
 from .base import ExportOption
@@ -20,13 +22,28 @@ GEO_OPTIONS = (
 )
 
 
+def check_origin(origin, where: str) -> tuple[float, float]:
+    """`origin` as two floats when they are finite and within the coordinate limit (an easting
+    or northing of 1e300 would make every written coordinate unusable); else an error naming
+    `where` (the option, on the command line)."""
+    cap = limits().max_coordinate_m
+    try:
+        x, y = (float(v) for v in origin)
+    except (TypeError, ValueError):
+        raise Feat2MapError(f"needs two numbers (easting, northing), got {origin!r:.60}", where) from None
+    if not all(math.isfinite(v) and abs(v) <= cap for v in (x, y)):
+        raise Feat2MapError(f"easting and northing must be finite and within +-{plain_number(cap)} m "
+                            f"(max_coordinate_m), got {x:g} {y:g}", where)
+    return x, y
+
+
 def utm_origin(m: HDMap, zone: int, origin: tuple[float, float] | None, where: str) -> tuple[float, float]:
     """The UTM easting/northing of the map's (0, 0): `origin` if given, else the map's, else
     `UTM_ORIGIN`; a zone outside 1..60 is an error naming `where`."""
     if not isinstance(zone, int) or isinstance(zone, bool) or not 1 <= zone <= 60:
         raise Feat2MapError(f"UTM zone must be an integer 1..60, got {zone!r}", where)
     if origin is not None:
-        return float(origin[0]), float(origin[1])
+        return check_origin(origin, f"{where}: origin")
     return (float(m.origin[0]), float(m.origin[1])) if any(m.origin) else UTM_ORIGIN
 
 

@@ -198,7 +198,7 @@ def validate_map(m: Any, graph: Any | None = None, progress: bool = False, sim: 
               ("conflicts", lambda: _conflicts(m, idx) + _dead_ends(m, idx) if _generated(m) else []),
               ("reachability", lambda: reachability(m, graph if graph is not None else build_routing_graph(m)))]
     problems: list[Problem] = []
-    with tqdm(checks, desc="validate", unit="check", disable=not progress) as bar:
+    with tqdm(checks, desc="validate", unit="check", disable=None if progress else True) as bar:
         for name, check in bar:
             bar.set_postfix_str(name)
             problems += check()

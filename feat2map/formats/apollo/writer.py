@@ -24,7 +24,7 @@ from .geometry import (arc_lengths, distance_samples, exact_end_centerline, poly
                                stop_line_range, usable_boundaries, without_point_lanes)
 from .sim_map import to_sim_map
 from ..base import header_date
-from ..geo import utm_projection
+from ..geo import check_origin, utm_projection
 from ...config import APOLLO_GENERATED_MARK, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline
@@ -129,8 +129,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         raise Feat2MapError(f"UTM zone must be an integer 1..60, got {zone!r}", "apollo export")
     if origin is None:
         origin = tuple(m.origin) if any(m.origin) else UTM_ORIGIN
-    if len(origin) != 2 or not all(math.isfinite(float(v)) for v in origin):
-        raise Feat2MapError(f"origin must be two finite numbers, got {origin!r}", "apollo export")
+    origin = check_origin(origin, "apollo export: origin")
     m = usable_boundaries(without_point_lanes(m))
     frame = _Frame(origin)
     ids = _Ids()
@@ -312,6 +311,24 @@ def text_of(msg: Any) -> str:
     return text if text.endswith("\n") or not text else text + "\n"
 
 
+def refuse_invalid(base: Any, graph: Any, out_dir: str | Path, strict: bool = False) -> None:
+    """Before anything is written, the lanes of every map must pass `feat2map validate`'s lane
+    checks (links that exist, are listed back and meet, lengths, types): an input edited into
+    a broken map (a junction-lane cycle, a self-link, a zero-length lane) is refused with its
+    first problem named, instead of written for validate to reject. A map feat2map generated
+    (its header says so), and with `strict` a map whose reading skipped broken elements (links
+    to a missing road), is held to every rule validate applies; converted real maps keep their
+    own flaws of routing and signals (validate reports them)."""
+    from .validate import _Index, _lanes, validate_map
+
+    whole = strict or base.header.generation == APOLLO_GENERATED_MARK
+    problems = validate_map(base, graph) if whole else _lanes(base, _Index(base), False)
+    if problems:
+        why = " after reading skipped broken elements" if strict else ""
+        raise Feat2MapError(f"refusing to export a map that would not validate{why} ({len(problems)} problems; "
+                            f"first: {problems[0]})", str(out_dir))
+
+
 def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
                  origin: tuple[float, float] | None = None, progress: bool = False) -> None:
     """Write base_map, sim_map and routing_map (.txt and .bin each) into `out_dir`, all or
@@ -320,7 +337,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
 
     from .routing import build_routing_graph
 
-    with tqdm(total=6, desc="apollo export", unit="step", disable=not progress) as bar:
+    with tqdm(total=6, desc="apollo export", unit="step", disable=None if progress else True) as bar:
         bar.set_postfix_str("base_map")
         base = to_apollo(m, zone=zone, origin=origin)
         bar.update()
@@ -330,6 +347,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
         bar.set_postfix_str("routing_map")
         messages["routing_map"] = build_routing_graph(base)
         bar.update()
+        refuse_invalid(base, messages["routing_map"], out_dir, strict=bool(m.meta.get("skipped_on_read")))
         texts = {name: refuse_nonfinite(text_of(msg), f"{out_dir}: {name}") for name, msg in messages.items()}
         try:
             with atomic.staged_dir(out_dir, FORMATS["apollo"].markers) as tmp:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import sys
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -44,8 +45,17 @@ _STATES = {"green": "GREEN", "amber": "YELLOW", "red": "RED"}
 _TURNS = {"right": "outgoing_right", "none": "outgoing_straight", "left": "outgoing_left", "uturn": "outgoing_left"}
 
 
+COMMONROAD_IO_DIR = "commonroad-io"  # scripts/setup.sh installs commonroad-io here, in the venv, off sys.path
+
+
 def commonroad_io():
-    """commonroad-io's scenario modules, or a clear error without the package."""
+    """commonroad-io's scenario modules, or a clear error without the package. commonroad-io
+    pins protobuf 3.20 (Apollo's maps need a newer one) and feat2map uses only its XML modules:
+    scripts/setup.sh installs it --no-deps into <venv>/commonroad-io, outside site-packages, so
+    the environment stays consistent (`pip check`), and that folder joins sys.path only here."""
+    isolated = Path(sys.prefix) / COMMONROAD_IO_DIR
+    if isolated.is_dir() and str(isolated) not in sys.path:
+        sys.path.append(str(isolated))
     try:
         from commonroad.common.writer import file_writer_xml  # noqa: F401
         import commonroad.scenario.intersection  # noqa: F401

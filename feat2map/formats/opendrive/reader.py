@@ -450,7 +450,8 @@ def read_opendrive(path: str | Path) -> HDMap:
     except OSError as exc:
         raise MapFormatError(f"cannot read ({exc.strerror or type(exc).__name__})", str(path)) from None
     except etree.XMLSyntaxError as exc:
-        raise MapFormatError(f"malformed XML ({exc})", str(path)) from None
+        where = "" if exc.msg and "line" in exc.msg else f", line {exc.lineno}"  # libxml2 names it mostly
+        raise MapFormatError(f"malformed XML ({exc.msg or exc}{where})", str(path)) from None
     root = tree.getroot()
     if etree.QName(root).localname != "OpenDRIVE":
         raise MapFormatError(f"root element is <{root.tag}>, not <OpenDRIVE>", str(path))
@@ -516,6 +517,9 @@ class _Builder:
                         add((road.id, k, lid), "low", (road.id, k - 1, ln.predecessor), "high")
             for kind, end in (("predecessor", "low"), ("successor", "high")):
                 link = road.links.get(kind)
+                if link is not None and link[0] == "road" and link[1] not in self.roads:
+                    warnings.warn(f"{self.ctx.path}: road {road.id} <{kind}>: unknown road id {link[1]!r:.40}, "
+                                  "link skipped", stacklevel=2)
                 if link is None or link[0] != "road" or link[1] not in self.roads:
                     continue
                 other = self.roads[link[1]]
