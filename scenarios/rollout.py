@@ -380,6 +380,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                 if cov:
                     cov.switch(info.get("junction") or cov.context or ROAD_CONTEXT)
                 action = policy.act(obs, info)
+                _check_planner_action(env, action)
                 obs, _, terminated, truncated, info = env.step(action)
                 steps += 1
                 lane = info.get("lane_id")
@@ -411,6 +412,20 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         junction_lines=lines, message=_message(kind, info, first_violation), seed=getattr(scenario, "seed", None),
         map=str(getattr(scenario, "map", "")), planner_digest=digest, wall_s=time.perf_counter() - t0)
     return outcome, frames
+
+
+class PlannerActionError(Exception):
+    """The planner returned an action the env refuses (NaN, None, a wrong shape, garbage): the
+    planner's failure, an `error` outcome, not bad input that ends the run."""
+
+
+def _check_planner_action(env: Any, action: Any) -> None:
+    from feat2map.envs.map_env import check_action
+
+    try:
+        check_action(env.unwrapped.action_space, action)
+    except Feat2MapError as exc:
+        raise PlannerActionError(f"bad action: {exc.message}") from None
 
 
 def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
