@@ -359,9 +359,12 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     if render:
         os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     policy = factory()
+    remote = hasattr(policy, "remote_coverage")  # an out-of-process planner measures itself (planner bridge)
+    if remote:
+        policy.remote_coverage = coverage
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
     frames: list = []
-    cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage else None
+    cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage and not remote else None
     try:
         seed = getattr(scenario, "seed", None)
         obs, info = env.reset(seed=None if seed is None else int(seed))
@@ -396,11 +399,15 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                     break
         finally:
             lines = cov.stop() if cov else {}
+            if callable(getattr(policy, "close", None)):
+                policy.close()  # ends a planner process (planner bridge); it may hand back its coverage
+            if remote:
+                lines = dict(getattr(policy, "junction_lines", None) or {})
     finally:
         env.close()
     kind = classify(info)
     events = _events(policy)
-    digest = cov.digest if cov else ""
+    digest = cov.digest if cov else (str(getattr(policy, "planner_digest", "")) if remote and lines else "")
     path = tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
     ev_path = stage_path_of(events)
     outcome = Outcome(
