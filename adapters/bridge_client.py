@@ -127,21 +127,23 @@ class RuleGate:
     """Stop lines on the route (the end of a route lane that a signal or stop sign governs,
     before a junction lane) and where a step message's rules make the ego stop."""
 
-    def __init__(self, native_map: dict, route: Route, ego_length: float) -> None:
-        lanes = {ln["id"]: ln for ln in native_map["lanes"]}
+    def __init__(self, step: dict, route_lanes: list[str], junction_of_lane: list, lane_end: list[float],
+                 ego_length: float, route: "Route | None" = None) -> None:
+        """From the first step message (its signals and stop signs, with the lanes they govern),
+        the route's lanes, the junction of each (None on roads) and the arc length where each
+        ends along the planner's path."""
         self.half = ego_length / 2
         control: dict[str, tuple[str, str]] = {}
-        for s in native_map.get("signals", []):
-            for lid in s.get("lane_ids", []):
+        for s in step.get("signals", []):
+            for lid in s.get("lanes", []):
                 control[lid] = ("signal", s["id"])
-        for s in native_map.get("stop_signs", []):
-            for lid in s.get("lane_ids", []):
+        for s in step.get("stop_signs", []):
+            for lid in s.get("lanes", []):
                 control[lid] = ("stop", s["id"])
         self.lines: list[tuple[float, str, str]] = []  # (route arc length of the line, kind, control id)
-        for i, lid in enumerate(route.lanes[:-1]):
-            nxt = lanes[route.lanes[i + 1]]
-            if lid in control and nxt.get("junction_id") and not lanes[lid].get("junction_id"):
-                self.lines.append((route.lane_end[i], *control[lid]))
+        for i, lid in enumerate(route_lanes[:-1]):
+            if lid in control and junction_of_lane[i + 1] and not junction_of_lane[i]:
+                self.lines.append((lane_end[i], *control[lid]))
         self.route = route
         self.stopped_at: dict[str, float] = {}  # stop sign line -> time the full stop began
         self.passed: set[str] = set()
@@ -174,6 +176,7 @@ class RuleGate:
         return math.inf, ""
 
     def obstacles_ahead(self, msg: dict, s_ego: float, horizon: float = 60.0) -> list[tuple[float, float, str]]:
+        assert self.route is not None, "obstacles_ahead needs the Route"
         """(arc length, speed along the route, kind) of road users on the route ahead."""
         out = []
         for kind in ("vehicles", "pedestrians"):

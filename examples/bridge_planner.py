@@ -33,7 +33,8 @@ class ReferencePlanner:
         native = json.loads(Path(msg["map"]).read_text())
         self.lanes = {ln["id"]: ln for ln in native["lanes"]}
         self.route = Route(self.lanes, msg["route"]["lanes"])
-        self.gate = RuleGate(native, self.route, msg["ego"]["length"])
+        self.init_msg = msg
+        self.gate = None  # from the first step (it lists the signals and stop signs)
         self.half = msg["ego"]["length"] / 2
         self.s = None
 
@@ -44,6 +45,10 @@ class ReferencePlanner:
 
     def step(self, msg: dict) -> dict:
         ego = msg["ego"]
+        if self.gate is None:
+            r = self.init_msg["route"]
+            self.gate = RuleGate(msg, r["lanes"], r["junction_of_lane"], self.route.lane_end,
+                                 self.init_msg["ego"]["length"], self.route)
         s, _ = self.route.project(ego["x"], ego["y"], near=self.s)
         self.s = s
         v = max(float(ego["speed"]), 0.0)

@@ -326,7 +326,9 @@ class BridgePlanner:
                 "route": {"lanes": lanes, "lanes_in_format": [lane_ids.get(x) for x in lanes],
                           "manoeuvres": [list(x) for x in (e.config.get("route") or [])
                                          if isinstance(x, (list, tuple))],
-                          "junctions": [m.lanes[x].junction_id for x in lanes if m.lanes[x].junction_id]},
+                          "junctions": [m.lanes[x].junction_id for x in lanes if m.lanes[x].junction_id],
+                          "junction_of_lane": [m.lanes[x].junction_id for x in lanes],
+                          "speed_limits": [float(m.lanes[x].speed_limit) for x in lanes]},
                 "goal": {"lane": lanes[-1], "lane_in_format": lane_ids.get(lanes[-1]), "s": goal_s,
                          "x": float(gx), "y": -float(gy)},
                 "ego": {"length": float(ego.LENGTH), "width": float(ego.WIDTH)},

@@ -156,6 +156,12 @@ def test_exits_and_entries_continue_past_a_planners_horizon(exported):
             length = float(np.sum(np.hypot(*np.diff(c.center_vertices, axis=0).T)))
             assert abs(length - COMMONROAD_CONTINUATION_M) < 0.5
             assert (c.predecessor if missing == "end" else c.successor) == [ids[lid]]
+            # it drives on in the lanelet's direction: straight, the same heading as where they meet
+            d = np.diff(c.center_vertices, axis=0)
+            h = np.arctan2(d[:, 1], d[:, 0])
+            p = ll.center_vertices[[-2, -1]] if missing == "end" else ll.center_vertices[[0, 1]]
+            hp = np.arctan2(*(p[1] - p[0])[::-1])
+            assert np.all(np.abs((h - hp + np.pi) % (2 * np.pi) - np.pi) < 1e-3), lid
 
 
 def test_one_planning_problem_per_manoeuvre_with_a_single_goal(exported):

@@ -264,7 +264,7 @@ def _continuations(m: HDMap, lanes, adj, ids: _Ids, net) -> None:
         parent = net.find_lanelet_by_id(ids("lane", lid))
         k, k0 = (-1, -2) if at == "end" else (0, 1)
         d = parent.center_vertices[k] - parent.center_vertices[k0]
-        d = d / max(float(np.hypot(*d)), 1e-9) * (1.0 if at == "end" else -1.0)
+        d = d / max(float(np.hypot(*d)), 1e-9)  # away from the lanelet, at either end
         steps = np.linspace(0.0, COMMONROAD_CONTINUATION_M, 11)[:, None] * d
         left, right = parent.left_vertices[k] + steps, parent.right_vertices[k] + steps
         if at == "start":  # drawn backwards from the entry: reverse so it drives into it
