@@ -16,14 +16,15 @@ from typing import Callable, Sequence
 import numpy as np
 
 # pure pursuit: look ahead this far [m] plus this many seconds of the current speed
-LOOKAHEAD_MIN_M = 4.0
-LOOKAHEAD_TIME_S = 0.8
+LOOKAHEAD_MIN_M = 2.5  # (pure pursuit cuts a curve of radius R by about R - sqrt(R^2 - L^2): keep L short)
+LOOKAHEAD_TIME_S = 0.3
 SPEED_GAIN = 1.5  # [1/s] speed error -> acceleration
 POSITION_GAIN = 0.4  # [1/s^2] along-track position error -> acceleration
 ACCEL_RANGE = (-8.0, 4.0)  # [m/s^2] the command is clipped to these (the baseline's range)
 MAX_STEERING_RAD = math.pi / 3  # highway-env's ControlledVehicle.MAX_STEERING_ANGLE
 STOP_SPEED_MPS = 0.3  # a trajectory whose speed falls below this holds the ego still
 PREVIEW_S = 0.2  # the speed reference is read this far ahead (the actuation lag of one decision)
+HOLD_WINDOW_S = 1.0  # the ego is held still only if the trajectory stays below STOP_SPEED_MPS this long
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,9 @@ class TrajectoryTracker:
         p = np.asarray(position[:2], dtype=float)
         s_ego = self._project(p)
         s_ref = float(np.interp(t, tr.t, self.s))
-        if v_ref < STOP_SPEED_MPS and (t >= tr.t[-1] or s_ego >= s_ref - 0.5):
+        ahead = (tr.t >= t) & (tr.t <= t + HOLD_WINDOW_S)
+        v_ahead = max(v_ref, float(tr.speed[ahead].max()) if ahead.any() else 0.0)
+        if v_ahead < STOP_SPEED_MPS and (t >= tr.t[-1] or s_ego >= s_ref - 0.5):  # asked to stay
             acc = -SPEED_GAIN * max(speed, 0.0) - (2.0 if speed > 0.05 else 0.0)
         else:
             acc = a_ff + SPEED_GAIN * (v_ref - speed) + POSITION_GAIN * (s_ref - s_ego)

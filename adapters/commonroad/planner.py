@@ -39,13 +39,16 @@ from bridge_client import RuleGate, serve  # noqa: E402
 
 COVERED_PACKAGES = ("commonroad_rp",)  # the planner under test, measured for RQ3
 DT = 0.1  # the reactive planner's time step [s]
-HORIZON_STEPS = 40  # 4 s
+HORIZON_STEPS = 30  # 3 s
 REPLAN_S = 0.4  # the bridge asks for a new plan this often
+SAMPLING_LEVELS = 3  # the planner tries sampling levels 1..SAMPLING_LEVELS-1 until one finds a trajectory
 OBSTACLE_RADIUS_M = 80.0
-JUNCTION_SPEED_MPS = 8.0
-LAT_ACC_MPS2 = 2.5
+JUNCTION_SPEED_MPS = 6.0
+LAT_ACC_MPS2 = 1.5
 STOP_MARGIN_M = 1.5
 FALLBACK_DECEL = 6.0
+APPROACH_DECEL = 2.0  # [m/s^2] speed cap towards a stop point: it can stop there braking this hard
+STOPPING_RANGE_M = 10.0  # "stopping" mode (a target position) this far beyond the braking distance
 ROAD_CONTEXT = "(road)"  # coverage context before the first junction (as feat2map's rollout)
 
 
@@ -91,6 +94,7 @@ class ReactiveAdapter:
         config.planning.dt = DT
         config.planning.time_steps_computation = HORIZON_STEPS
         config.planning.__post_init__()
+        config.sampling.num_sampling_levels = SAMPLING_LEVELS
         config.vehicle.length, config.vehicle.width = self.ego_len, self.ego_wid
         pp = next(iter(problems.planning_problem_dict.values()))  # any: the planner needs one to start
         config.update(scenario=self.scenario, planning_problem=pp)
@@ -177,9 +181,15 @@ class ReactiveAdapter:
         except Exception as exc:  # noqa: BLE001 (the planner under test failed: brake, and say why)
             name = type(exc).__name__
             self.failures[name] = self.failures.get(name, 0) + 1
-            if self.failures[name] <= 3:
-                print(f"t={msg['t']:.1f}: reactive planner raised {name}: {exc}", file=sys.stderr)
-                traceback.print_exc(limit=3, file=sys.stderr)
+            if self.failures[name] <= 3 or self.failures[name] % 20 == 0:
+                p = self.planner
+                print(f"t={msg['t']:.1f}: reactive planner raised {name}: {exc} (rejected: "
+                      f"{p.infeasible_count_kinematics} kinematics {dict(p.infeasible_reason_dict)}, "
+                      f"{p.infeasible_count_collision} collision of {p.total_count_samples}; "
+                      f"{len(msg.get('vehicles', []))} vehicles, {len(msg.get('pedestrians', []))} pedestrians)",
+                      file=sys.stderr)
+                if self.failures[name] <= 1:
+                    traceback.print_exc(limit=3, file=sys.stderr)
             return self._brake(msg, ego, f"FALLBACK_{name}"[:40])
 
     def _plan(self, msg: dict, ego: dict) -> dict:
@@ -188,8 +198,9 @@ class ReactiveAdapter:
         from commonroad_rp.state import ReactivePlannerState
 
         x, y, h, v = float(ego["x"]), float(ego["y"]), float(ego["heading"]), max(float(ego["speed"]), 0.0)
-        init = InitialState(position=np.array([x, y]), orientation=h, velocity=v,
-                            acceleration=float(ego.get("acceleration", 0.0)), yaw_rate=0.0, slip_angle=0.0, time_step=0)
+        acc = float(ego.get("acceleration", 0.0)) if v > 0.1 else 0.0  # a stopped car does not decelerate
+        init = InitialState(position=np.array([x, y]), orientation=h, velocity=v, acceleration=acc,
+                            yaw_rate=0.0, slip_angle=0.0, time_step=0)
         x0 = ReactivePlannerState.create_from_initial_state(init, self.config.vehicle.wheelbase, self.wb_rear)
         cc = pycrcc.CollisionChecker()
         cc.add_collision_object(self.boundary)
@@ -199,7 +210,14 @@ class ReactiveAdapter:
         p.reset(initial_state_cart=x0, collision_checker=cc, coordinate_system=self.co)
         s_centre = self._s_of((x, y))
         stop, why = self.gate.stop_s(msg, s_centre, v)
-        if math.isfinite(stop):
+        room = stop - s_centre
+        if math.isfinite(stop) and room > v * v / (2 * APPROACH_DECEL) + STOPPING_RANGE_M:
+            # far from the stop point: keep a speed from which it can still stop there comfortably
+            self.config.sampling.longitudinal_mode = "velocity_keeping"
+            cap = math.sqrt(2 * APPROACH_DECEL * max(room - STOPPING_RANGE_M, 0.0)) + 1.0
+            p.set_desired_velocity(min(self._desired_speed(s_centre), cap), current_speed=max(v, 0.01))
+            stage = f"APPROACH_{why}"
+        elif math.isfinite(stop):
             self.config.sampling.longitudinal_mode = "stopping"
             p.set_desired_lon_position(max(stop - self.wb_rear, p.x_0_cl[0][0]))
             stage = f"STOPPING_{why}"
@@ -241,7 +259,7 @@ class ReactiveAdapter:
         from commonroad.geometry.shape import Rectangle
         from commonroad.prediction.prediction import TrajectoryPrediction
         from commonroad.scenario.obstacle import DynamicObstacle, ObstacleType
-        from commonroad.scenario.state import InitialState, PMState
+        from commonroad.scenario.state import CustomState, InitialState
         from commonroad.scenario.trajectory import Trajectory
         from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import create_collision_object
 
@@ -256,10 +274,8 @@ class ReactiveAdapter:
                 width = float(o.get("width", 0.8))
                 h, v = float(o["heading"]), float(o["speed"])
                 vx, vy = v * math.cos(h), v * math.sin(h)
-                states = [PMState(time_step=k, position=np.array([o["x"] + vx * k * DT, o["y"] + vy * k * DT]),
-                                  velocity=vx, velocity_y=vy) for k in range(1, HORIZON_STEPS + 2)]
-                for st in states:
-                    st.orientation = h
+                states = [CustomState(time_step=k, position=np.array([o["x"] + vx * k * DT, o["y"] + vy * k * DT]),
+                                      orientation=h, velocity=v) for k in range(1, HORIZON_STEPS + 2)]
                 shape = Rectangle(length, width)
                 init = InitialState(position=np.array([o["x"], o["y"]]), orientation=h, velocity=v, time_step=0,
                                     acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
