@@ -231,6 +231,7 @@ class BridgePlanner:
     """
 
     action_config: ClassVar[dict] = dict(BRIDGE_ACTION_CONFIG)
+    render_during_run: ClassVar[bool] = True  # failure GIFs are recorded while it drives (no replay)
 
     def __init__(self, cmd: str | list[str], *, step_timeout: float = STEP_TIMEOUT_S,
                  start_timeout: float = START_TIMEOUT_S, replan_s: float | None = None,
