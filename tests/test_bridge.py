@@ -162,3 +162,19 @@ def test_the_tracker_follows_a_straight_trajectory_and_stops_at_its_end():
         Trajectory.of([[0, 0, 0, 0, float("nan")]])
     with pytest.raises(ValueError):
         Trajectory.of([[1, 0, 0, 0, 1], [0, 1, 0, 0, 1]])
+
+
+def test_a_control_planner_that_leaves_the_road_fails_with_a_gif_recorded_while_it_drove(suite_file, tmp_path):
+    """`control` replies drive the ego directly; the failure's GIF comes from the run itself (an
+    out-of-process planner is not replayed)."""
+    cmd = _script(tmp_path, "wild", HELLO + "while True:\n    m = recv()\n"
+                                            "    if m['type'] == 'close':\n        send({'type': 'bye'}); break\n"
+                                            "    send({'type': 'control', 'acceleration': 3.0, 'steering': 0.6})\n")
+    out = tmp_path / "rep"
+    rc = cli.main(["rollout", str(_one(suite_file, tmp_path)), "--planner-cmd", cmd, "--out", str(out), "--quiet",
+                   "--no-coverage"])
+    assert rc == 1
+    o = json.loads((out / "summary.json").read_text())["outcomes"][0]
+    assert o["outcome"] in ("off_road", "collision") and o["route_progress"] < 0.5
+    gif = out / "failures" / f"{o['name']}.gif"
+    assert gif.is_file() and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
