@@ -188,6 +188,17 @@ _EXPORTS: dict[tuple[str, float, str], tuple[str, dict]] = {}  # (map file, mtim
 _EXPORT_DIR: list[str] = []
 
 
+def export_dir() -> str:
+    """This process's folder of map exports for planners (removed at exit)."""
+    if not _EXPORT_DIR:
+        import atexit
+        import shutil
+
+        _EXPORT_DIR.append(tempfile.mkdtemp(prefix="feat2map-bridge-"))
+        atexit.register(shutil.rmtree, _EXPORT_DIR[0], True)
+    return _EXPORT_DIR[0]
+
+
 def export_for_planner(map_path: str, hdmap: Any, fmt: str) -> tuple[str, dict]:
     """(file in format `fmt`, {"lanes": {our lane id: the format's id}}) for a scenario's map,
     written once per process (a temporary folder removed at exit)."""
@@ -196,12 +207,7 @@ def export_for_planner(map_path: str, hdmap: Any, fmt: str) -> tuple[str, dict]:
     key = (str(map_path), os.path.getmtime(map_path) if os.path.exists(map_path) else 0.0, fmt)
     if key in _EXPORTS and os.path.exists(_EXPORTS[key][0]):
         return _EXPORTS[key]
-    if not _EXPORT_DIR:
-        import atexit
-        import shutil
-
-        _EXPORT_DIR.append(tempfile.mkdtemp(prefix="feat2map-bridge-"))
-        atexit.register(shutil.rmtree, _EXPORT_DIR[0], True)
+    export_dir()
     tag = hashlib.sha256(repr(key).encode()).hexdigest()[:12]
     out = Path(_EXPORT_DIR[0]) / tag / MAP_SUFFIX[fmt]
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -295,9 +301,13 @@ class BridgePlanner:
     def _export_inline(self, fmt: str) -> tuple[str, dict]:
         from feat2map.formats import native
 
-        tmp = Path(tempfile.mkdtemp(prefix="feat2map-bridge-map-")) / "map.json"
-        native.save(self.env.net.hdmap, tmp)
-        return export_for_planner(str(tmp), self.env.net.hdmap, fmt)
+        m = self.env.net.hdmap
+        key = f"inline-{id(m)}"
+        tmp = Path(export_dir()) / key / "source.json"
+        if not tmp.exists():
+            tmp.parent.mkdir(parents=True, exist_ok=True)
+            native.save(m, tmp)
+        return export_for_planner(str(tmp), m, fmt)
 
     def _check_hello(self, hello: dict) -> None:
         bad = None
