@@ -40,7 +40,7 @@ from bridge_client import RuleGate, serve  # noqa: E402
 COVERED_PACKAGES = ("commonroad_rp",)  # the planner under test, measured for RQ3
 DT = 0.1  # the reactive planner's time step [s]
 HORIZON_STEPS = 30  # 3 s
-REPLAN_S = 0.4  # the bridge asks for a new plan this often
+REPLAN_S = 0.6  # the bridge asks for a new plan this often (the planner costs ~0.3 s a call on a loaded 2-core machine)
 SAMPLING_LEVELS = 3  # the planner tries sampling levels 1..SAMPLING_LEVELS-1 until one finds a trajectory
 OBSTACLE_RADIUS_M = 80.0
 JUNCTION_SPEED_MPS = 6.0
