@@ -85,8 +85,8 @@ def tables(out: Path, results: dict[str, SuiteResult]) -> str:
     md = [f"### {out.name}: {', '.join(f'{k} {len(r.outcomes)} scenarios' for k, r in results.items())}", "",
           compare(results).to_markdown()]
     for name, r in results.items():
-        md += [f"#### {name}: what it did at each junction", "", "| junction | scenarios through it | outcomes | stage paths there |",
-               "|---|---:|---|---|"]
+        md += [f"#### {name}: what it did at each junction", "",
+               "| junction | scenarios through it | outcomes | stage paths there |", "|---|---:|---|---|"]
         per: dict[str, dict] = {}
         for o in r.outcomes:
             for j, (pairs, _) in outcome_behaviour(o).items():
