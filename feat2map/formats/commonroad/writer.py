@@ -28,6 +28,7 @@ from typing import Iterator, Mapping
 import numpy as np
 
 from ... import __version__, atomic
+from ...angles import wrap_angle
 from ...config import (COMMONROAD_CONTINUATION_M, COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S,
                        STRAIGHT_TOLERANCE_DEG, UTM_ZONE, UTURN_THRESHOLD_DEG)
 from ...errors import Feat2MapError
@@ -54,7 +55,7 @@ def turn_deg(centre: np.ndarray) -> float:
     c = np.asarray(centre, dtype=float)
     h0 = math.atan2(c[1][1] - c[0][1], c[1][0] - c[0][0])
     h1 = math.atan2(c[-1][1] - c[-2][1], c[-1][0] - c[-2][0])
-    return math.degrees((h1 - h0 + math.pi) % (2 * math.pi) - math.pi)
+    return math.degrees(wrap_angle(h1 - h0))
 
 
 def turn_set(declared: str, centre: np.ndarray) -> str:
