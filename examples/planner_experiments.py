@@ -24,6 +24,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import feat2map  # noqa: E402
 from feat2map.formats import native  # noqa: E402
+from feat2map.messages import one_line  # noqa: E402
 from feat2map.scenarios.bridge import BridgePlanner  # noqa: E402
 from feat2map.scenarios.metrics import compare, outcome_behaviour, suite_coverage  # noqa: E402
 from feat2map.scenarios.report import load_result, write_report  # noqa: E402
@@ -84,6 +85,14 @@ def merge(planner_name: str, out: Path) -> SuiteResult | None:
 def tables(out: Path, results: dict[str, SuiteResult]) -> str:
     md = [f"### {out.name}: {', '.join(f'{k} {len(r.outcomes)} scenarios' for k, r in results.items())}", "",
           compare(results).to_markdown()]
+    md += ["#### line coverage of each planner's own code, accumulated in the order the suite reaches the junctions",
+           "", "| planner | " + " | ".join(f"{i + 1}" for i in range(max(len(suite_coverage(r).junctions)
+                                                                    for r in results.values()))) + " |",
+           "|---|" + "---:|" * max(len(suite_coverage(r).junctions) for r in results.values())]
+    for name, r in results.items():
+        c = suite_coverage(r)
+        md.append(f"| {name} | " + " | ".join(f"{j}: {n}" for j, n in zip(c.junctions, c.accumulated_lines)) + " |")
+    md.append("")
     for name, r in results.items():
         md += [f"#### {name}: what it did at each junction", "",
                "| junction | scenarios through it | outcomes | stage paths there |", "|---|---:|---|---|"]
@@ -104,7 +113,9 @@ def tables(out: Path, results: dict[str, SuiteResult]) -> str:
                "| scenario | outcome | what happened | stage path | GIF |", "|---|---|---|---|---|"]
         for o in fails:
             gif = out / f"{name}-all" / "failures" / f"{o.name}.gif"
-            md.append(f"| {o.name} | {o.outcome} | {o.message} | {' -> '.join(o.stage_path[:12])}"
+            what = one_line(o.message.splitlines()[0] + (f" ... {o.message.splitlines()[-1]}"
+                                                          if len(o.message.splitlines()) > 1 else ""))
+            md.append(f"| {o.name} | {o.outcome} | {what} | {' -> '.join(o.stage_path[:12])}"
                       f"{' ...' if len(o.stage_path) > 12 else ''} | {gif.relative_to(out) if gif.exists() else '-'} |")
         md.append("")
     return "\n".join(md)
