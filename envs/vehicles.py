@@ -320,6 +320,7 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
     lateral control, steering follows the route (a lane-keeping assist)."""
 
     auto_steer = True
+    tracker = None  # an envs.tracking.TrajectoryTracker: when set, it commands the ego every frame
     target_speeds = np.array([0.0, 4.5, 9.0])  # for highway-env's TimeToCollision observation
 
     def index_to_speed(self, index: int) -> float:
@@ -332,7 +333,12 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
     def act(self, action=None) -> None:
         """A new command (a dict) at each decision; between decisions (`action` None) the
         acceleration is held and, with `auto_steer`, the steering follows the route every frame
-        (a lane-keeping assist: steering held over a decision period drifts out of turns)."""
+        (a lane-keeping assist: steering held over a decision period drifts out of turns).
+        With a `tracker` (an external planner's trajectory) the tracker commands every frame."""
+        if self.tracker is not None:
+            self.follow_road()
+            Vehicle.act(self, self.tracker.command(self.position, self.heading, self.speed))
+            return
         if action is None and self.auto_steer and isinstance(self.action, dict) and "acceleration" in self.action:
             action = {"acceleration": self.action["acceleration"]}
         if isinstance(action, dict):

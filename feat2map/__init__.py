@@ -33,6 +33,9 @@ __all__ = [
     "__version__",
 ]
 
+from .commonroad_io import install as _commonroad_io_install  # noqa: E402
 from .envs.registration import register_envs as _register_envs  # noqa: E402
+
+_commonroad_io_install()  # commonroad-io's XML readers importable next to our protobuf
 
 _register_envs()

@@ -52,7 +52,18 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory
         sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
-    factory = PlannerFactory(args.planner)
+    if args.planner_cmd is not None:
+        if args.planner != "baseline":
+            raise Feat2MapError("give --planner or --planner-cmd, not both", "command line")
+        if not args.planner_cmd.strip():
+            raise Feat2MapError("--planner-cmd is empty", "command line")
+        if not args.planner_timeout > 0:
+            raise Feat2MapError("--planner-timeout must be positive", "command line")
+        from .scenarios.bridge import BridgePlanner
+
+        factory = PlannerFactory(BridgePlanner(args.planner_cmd, step_timeout=args.planner_timeout))
+    else:
+        factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
     result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
                        coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on)
@@ -129,6 +140,11 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
                    help="'baseline' or module:attr (a Policy class/instance, a callable obs -> action or "
                         "(obs, info) -> action, told apart by its signature, an SB3 model); a planner raising "
                         "SystemExit/KeyboardInterrupt ends the run with the report of the scenarios so far")
+    r.add_argument("--planner-cmd", metavar="CMD", help="run a planner in its own process that speaks the planner "
+                   "bridge protocol over stdin/stdout (docs/planners.md), e.g. \"python examples/bridge_planner.py\"; "
+                   "a crash, a missed deadline or garbage is an error outcome with its stderr in the report")
+    r.add_argument("--planner-timeout", type=float, default=10.0, metavar="S",
+                   help="with --planner-cmd: seconds the planner has for each step reply (default 10)")
     r.add_argument("--workers", type=int, default=1, metavar="N", help="scenarios driven in parallel")
     r.add_argument("--backend", choices=BACKENDS, default="process",
                    help="where the workers run: local processes, or a Ray cluster (needs the ray extra)")

@@ -76,6 +76,7 @@ SIGNAL_OPPOSITE_DEG = 150.0  # approaches further apart than this are opposite (
 STOP_SIGN_SIZE_M = 0.75  # an octagon this wide, its lower edge this high (exports that draw signs)
 STOP_SIGN_HEIGHT_M = 2.0
 COMMONROAD_DT_S = 0.1  # CommonRoad export: time step of the scenario (light cycles count in steps)
+COMMONROAD_CONTINUATION_M = 100.0  # CommonRoad export: straight lanelets past map exits / before entries
 COMMONROAD_HORIZON_S = 120.0  # CommonRoad export: its planning problem's goal time
 COMMONROAD_DATE = "2020-01-01"  # the date a CommonRoad file needs, when SOURCE_DATE_EPOCH is not set
 LANE_END_SNAP_M = 2.0  # Lanelet2/CommonRoad export: ends of linked lanes (per side) this close become one point

@@ -350,18 +350,44 @@ def _line_key(s: str) -> tuple[str, int]:
     return mod, int(line)
 
 
+class _Frames(list):
+    """Rendered frames, thinned as they come: past 2 x GIF_MAX_FRAMES every other one is
+    dropped and the stride doubles, so a long episode keeps at most that many in memory."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stride, self.seen = 1, 0
+
+    def add(self, frame: Any) -> None:
+        self.last = frame
+        if self.seen % self.stride == 0:
+            self.append(frame)
+            if len(self) > 2 * GIF_MAX_FRAMES:
+                del self[1::2]
+                self.stride *= 2
+        self.seen += 1
+
+    def with_last(self) -> list:
+        """The kept frames and the episode's last one."""
+        last = getattr(self, "last", None)
+        return list(self) + ([last] if self and last is not None and last is not self[-1] else [])
+
+
 def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
-           coverage_modules: Sequence[str] = ()) -> tuple[Outcome, list]:
+           coverage_modules: Sequence[str] = (), policy: Any = None) -> tuple[Outcome, list]:
     """Run one episode; returns its outcome and (when rendering) its frames."""
     from .scenario import make_env
 
     t0 = time.perf_counter()
     if render:
         os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    policy = factory()
+    policy = factory() if policy is None else policy
+    remote = hasattr(policy, "remote_coverage")  # an out-of-process planner measures itself (planner bridge)
+    if remote:
+        policy.remote_coverage = coverage
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
-    frames: list = []
-    cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage else None
+    frames = _Frames()
+    cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage and not remote else None
     try:
         seed = getattr(scenario, "seed", None)
         obs, info = env.reset(seed=None if seed is None else int(seed))
@@ -370,7 +396,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         first_violation: tuple[str, float, Any] | None = None
         steps = 0
         if render:
-            frames.append(env.render())
+            frames.add(env.render())
         if cov:
             cov.start()
             cov.switch(info.get("junction") or ROAD_CONTEXT)
@@ -380,6 +406,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                 if cov:
                     cov.switch(info.get("junction") or cov.context or ROAD_CONTEXT)
                 action = policy.act(obs, info)
+                _check_planner_action(env, action)
                 obs, _, terminated, truncated, info = env.step(action)
                 steps += 1
                 lane = info.get("lane_id")
@@ -390,16 +417,20 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                     first_violation = (str(info["new_violations"][0]), float(info.get("time", 0.0)),
                                        jid or (visited[-1] if visited else info.get("junction")))
                 if render:
-                    frames.append(env.render())
+                    frames.add(env.render())
                 if terminated or truncated:
                     break
         finally:
             lines = cov.stop() if cov else {}
+            if callable(getattr(policy, "close", None)):
+                policy.close()  # ends a planner process (planner bridge); it may hand back its coverage
+            if remote:
+                lines = dict(getattr(policy, "junction_lines", None) or {})
     finally:
         env.close()
     kind = classify(info)
     events = _events(policy)
-    digest = cov.digest if cov else ""
+    digest = cov.digest if cov else (str(getattr(policy, "planner_digest", "")) if remote and lines else "")
     path = tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
     ev_path = stage_path_of(events)
     outcome = Outcome(
@@ -411,6 +442,20 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         junction_lines=lines, message=_message(kind, info, first_violation), seed=getattr(scenario, "seed", None),
         map=str(getattr(scenario, "map", "")), planner_digest=digest, wall_s=time.perf_counter() - t0)
     return outcome, frames
+
+
+class PlannerActionError(Exception):
+    """The planner returned an action the env refuses (NaN, None, a wrong shape, garbage): the
+    planner's failure, an `error` outcome, not bad input that ends the run."""
+
+
+def _check_planner_action(env: Any, action: Any) -> None:
+    from feat2map.envs.map_env import check_action
+
+    try:
+        check_action(env.unwrapped.action_space, action)
+    except Feat2MapError as exc:
+        raise PlannerActionError(f"bad action: {exc.message}") from None
 
 
 def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
@@ -439,11 +484,18 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
     """Drive one scenario headless with a fresh planner; on a failure under `fail_on` re-run it
     with rendering and attach a GIF. `coverage` measures the planner's lines per junction."""
     factory = as_factory(planner_factory)
-    outcome, _ = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules)
+    policy = factory()
+    # a planner that costs as much to re-run as to run (an out-of-process planner, whose replay
+    # need not even repeat: its timing is not ours) is rendered while it runs, not replayed
+    during = record_failure_gif and bool(getattr(policy, "render_during_run", False))
+    outcome, frames = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules,
+                             policy=policy, render=during)
     if record_failure_gif and outcome.fails(fail_on):
-        replay, frames = _drive(scenario, factory, render=True)
-        step_s = replay.sim_s / replay.steps if replay.steps and replay.sim_s > 0 else 1.0
-        outcome = replace(outcome, gif=gif_bytes(frames, step_s))
+        run = outcome
+        if not during:
+            run, frames = _drive(scenario, factory, render=True)
+        step_s = run.sim_s / run.steps if run.steps and run.sim_s > 0 else 1.0
+        outcome = replace(outcome, gif=gif_bytes(frames.with_last(), step_s * frames.stride))
     return outcome
 
 

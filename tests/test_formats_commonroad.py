@@ -1,6 +1,7 @@
 """CommonRoad export, read back and checked with commonroad-io (its schema and its reader)."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from feat2map.errors import Feat2MapError
@@ -31,7 +32,9 @@ def _approaches(m) -> int:
 def test_commonroad_io_reads_it_and_counts_match(exported):
     m, _, report = exported
     assert report.problems == []
-    assert report.counts == {"lanelets": len(m.lanes) + len(m.crosswalks), "crosswalks": len(m.crosswalks),
+    ends = sum((not ln.junction_id and not ln.successors) + (not ln.junction_id and not ln.predecessors)
+               for ln in m.lanes.values())  # a continuation lanelet past every exit, before every entry
+    assert report.counts == {"lanelets": len(m.lanes) + len(m.crosswalks) + ends, "crosswalks": len(m.crosswalks),
                              "intersections": len(m.junctions), "incomings": _approaches(m),
                              "traffic_lights": len(m.signals), "traffic_signs": len(m.stop_signs)}
     assert len(report.routes) == sum(1 for ln in m.lanes.values() if ln.junction_id)
@@ -69,8 +72,8 @@ def test_intersections_controls_and_stop_lines_follow_the_map(exported):
     lit = {lid for s in m.signals.values() for lid in s.lane_ids}
     for ll in net.lanelets:
         lane = lane_of.get(ll.lanelet_id)
-        if lane is None:  # a crosswalk
-            assert {t.value for t in ll.lanelet_type} == {"crosswalk"}
+        if lane is None:  # a crosswalk, or a continuation past an exit / before an entry
+            assert {t.value for t in ll.lanelet_type} == {"crosswalk"} or len(ll.successor) + len(ll.predecessor) == 1
             continue
         assert bool(ll.traffic_signs) == (lane in signed) and bool(ll.traffic_lights) == (lane in lit)
         assert (ll.stop_line is not None) == (lane in signed | lit)
@@ -134,3 +137,88 @@ def test_cli_export_and_validate(tmp_path, capsys):
     assert out.read_bytes() == (tmp_path / "g" / "commonroad.xml").read_bytes()
     assert main(["validate", str(out)]) == 0
     assert "0 problems" in capsys.readouterr().out
+
+
+def test_exits_and_entries_continue_past_a_planners_horizon(exported):
+    """Every map exit (entry) lanelet has a straight 100 m successor (predecessor), adjacent like
+    it, so that a planner's horizon never ends in a dead end at the map's edge."""
+    from feat2map.config import COMMONROAD_CONTINUATION_M
+
+    m, _, report = exported
+    lls = lanelet_index(report.scenario.lanelet_network)
+    ids = lanelet_ids(m)
+    for lid, ln in m.lanes.items():
+        if ln.junction_id:
+            continue
+        ll = lls[ids[lid]]
+        for own, linked, missing in ((ln.successors, ll.successor, "end"), (ln.predecessors, ll.predecessor, "start")):
+            if own:
+                assert all(x in {ids[o] for o in own} for x in linked)
+                continue
+            (cid,) = linked
+            c = lls[cid]
+            length = float(np.sum(np.hypot(*np.diff(c.center_vertices, axis=0).T)))
+            assert abs(length - COMMONROAD_CONTINUATION_M) < 0.5
+            assert (c.predecessor if missing == "end" else c.successor) == [ids[lid]]
+            # it drives on in the lanelet's direction: straight, the same heading as where they meet
+            d = np.diff(c.center_vertices, axis=0)
+            h = np.arctan2(d[:, 1], d[:, 0])
+            p = ll.center_vertices[[-2, -1]] if missing == "end" else ll.center_vertices[[0, 1]]
+            hp = np.arctan2(*(p[1] - p[0])[::-1])
+            assert np.all(np.abs((h - hp + np.pi) % (2 * np.pi) - np.pi) < 1e-3), lid
+
+
+def test_one_planning_problem_per_manoeuvre_with_a_single_goal(exported):
+    m, _, report = exported
+    from commonroad.common.reader.file_reader_xml import XMLFileReader
+
+    _, problems = XMLFileReader(str(exported[1])).open()
+    pps = list(problems.planning_problem_dict.values())
+    assert len(pps) == len(manoeuvres(m))
+    for pp in pps:
+        (goal,) = pp.goal.lanelets_of_goal_position.values()
+        assert len(goal) == 1
+
+
+def test_one_sided_neighbours_and_mislabelled_turns_still_validate(sf_default_map, tmp_path):
+    """Issue 21 item 7 as a class: a map that lists a neighbour on one side only (or two on a side),
+    and a junction lane declared "left" that runs straight, exports to a file feat2map's own
+    CommonRoad validator accepts: adjacency is written mutual, turn sets follow the geometry."""
+    import dataclasses
+
+    m = sf_default_map
+    lanes = dict(m.lanes)
+    road = next(ln for ln in lanes.values() if ln.junction_id is None and ln.left_reverse_neighbors)
+    other = next(ln for ln in lanes.values() if ln.junction_id is None and ln.road_id != road.road_id)
+    lanes[road.id] = dataclasses.replace(road, left_neighbors=(other.id,), right_neighbors=(other.id,))
+    straight = next(ln for ln in lanes.values() if ln.junction_id and ln.turn == "none")
+    lanes[straight.id] = dataclasses.replace(straight, turn="left")
+    bad = dataclasses.replace(m, lanes=lanes)
+    path = tmp_path / "bad.xml"
+    write_commonroad(bad, path)
+    report = check_commonroad(path)
+    assert report.problems == []
+    inc = {x for i in report.scenario.lanelet_network.intersections for g in i.incomings
+           for x in g.outgoing_straight or ()}
+    assert lanelet_ids(bad)[straight.id] in inc
+
+
+def test_commonroad_ios_file_reader_imports_next_to_feat2map(sf_default_map, tmp_path):
+    """`from commonroad.common.file_reader import CommonRoadFileReader` works once feat2map is
+    imported (its protobuf modules need protobuf 3.20; feat2map stands in for them), reads our
+    XML, and Apollo's protobuf still works in the same process."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "m1.xml"
+    write_commonroad(sf_default_map, path)
+    code = ("import feat2map, logging; logging.getLogger('commonroad').setLevel(logging.ERROR)\n"
+            "from commonroad.common.file_reader import CommonRoadFileReader\n"
+            "from commonroad.common.file_writer import CommonRoadFileWriter\n"
+            f"sc, pp = CommonRoadFileReader({str(path)!r}).open()\n"
+            "from feat2map.formats.apollo.schema import parse_map\n"
+            "print(len(sc.lanelet_network.lanelets), len(pp.planning_problem_dict))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-800:]
+    n, problems = map(int, out.stdout.split())
+    assert n > len(sf_default_map.lanes) and problems == len(manoeuvres(sf_default_map))

@@ -174,6 +174,46 @@ def test_a_raising_planner_is_an_error_outcome(suite_file):
     assert res.exit_code("collision") == 1 and res.exit_code("none") == 0
 
 
+class BadAction(BaselinePlanner):
+    """A planner that returns a bad action (NaN, None, a wrong shape, garbage) at its 3rd step."""
+
+    bad: object = None
+
+    def act(self, obs, info):
+        a = super().act(obs, info)
+        return self.bad if self._steps >= 3 else a
+
+
+class NaNAction(BadAction):
+    bad = [float("nan")]
+
+
+class NoneAction(BadAction):
+    bad = None
+
+
+class ShapeAction(BadAction):
+    bad = [0.0, 0.0, 0.0]
+
+
+class GarbageAction(BadAction):
+    bad = "go fast"
+
+
+@pytest.mark.parametrize("planner", [NaNAction, NoneAction, ShapeAction, GarbageAction])
+def test_a_planner_returning_a_bad_action_is_an_error_outcome_and_the_report_is_written(suite_file, tmp_path,
+                                                                                         planner, capsys):
+    out = tmp_path / "rep"
+    one = tmp_path / "one.yaml"
+    save_suite(Suite("one", load_suite(suite_file).scenarios[:1], suite_file.parent), one)
+    rc = cli.main(["rollout", str(one), "--planner", f"{__name__}:{planner.__name__}", "--out", str(out),
+                   "--quiet", "--no-coverage", "--no-gif"])
+    assert rc == 1  # a failed scenario, not bad input (2)
+    o = json.loads((out / "summary.json").read_text())["outcomes"][0]
+    assert o["outcome"] == "error" and "bad action" in o["message"]
+    assert "FAIL t-r000: error:" in capsys.readouterr().out and (out / "report.md").is_file()
+
+
 def test_unpicklable_planners_run_in_process_or_fail_clearly(suite_file):
     sc = load_suite(suite_file).scenarios[0]
     with pytest.warns(UserWarning, match="cannot be pickled"):

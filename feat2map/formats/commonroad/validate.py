@@ -26,15 +26,13 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from ...angles import wrap_angle
-from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG, STRAIGHT_TOLERANCE_DEG, UTURN_THRESHOLD_DEG
+from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG
 from ...errors import Feat2MapError
 from ..base import Problem
-from .writer import commonroad_io, quiet_commonroad
+from .writer import TURN_SETS as _TURN_SETS
+from .writer import commonroad_io, quiet_commonroad, turn_deg
 
 LINK_TOLERANCE_M = 0.05
-# heading change [deg, left positive] each turn set allows (U-turns are listed as left)
-_TURN_SETS = {"outgoing_right": lambda d: d < 0, "outgoing_straight": lambda d: abs(d) <= 2 * STRAIGHT_TOLERANCE_DEG,
-              "outgoing_left": lambda d: d > 0 or abs(d) > UTURN_THRESHOLD_DEG}
 
 
 @dataclass
@@ -195,8 +193,7 @@ def _intersections(net, report: CommonRoadReport) -> None:
 
 
 def _turn_deg(ll) -> float:
-    d = _heading(ll.center_vertices, "end") - _heading(ll.center_vertices, "start")
-    return math.degrees(wrap_angle(d))
+    return turn_deg(ll.center_vertices)
 
 
 def _green_steps(light) -> set[int]:

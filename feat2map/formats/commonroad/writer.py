@@ -24,12 +24,14 @@ import math
 import sys
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Mapping
 
 import numpy as np
 
 from ... import __version__, atomic
-from ...config import COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S, UTM_ZONE
+from ...angles import wrap_angle
+from ...config import (COMMONROAD_CONTINUATION_M, COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S,
+                       STRAIGHT_TOLERANCE_DEG, UTM_ZONE, UTURN_THRESHOLD_DEG)
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, incoming_lanes
 from ...phases import junction_phases, timeline
@@ -43,6 +45,54 @@ _MARKS = {"solid_white": "SOLID", "dotted_white": "DASHED", "solid_yellow": "SOL
           "curb": "CURB", "virtual": "NO_MARKING"}
 _STATES = {"green": "GREEN", "amber": "YELLOW", "red": "RED"}
 _TURNS = {"right": "outgoing_right", "none": "outgoing_straight", "left": "outgoing_left", "uturn": "outgoing_left"}
+# heading change [deg, left positive] each CommonRoad turn set allows (U-turns are listed as left);
+# the writer lists a junction lanelet by its declared turn only when its geometry agrees
+TURN_SETS = {"outgoing_right": lambda d: d < 0, "outgoing_straight": lambda d: abs(d) <= 2 * STRAIGHT_TOLERANCE_DEG,
+             "outgoing_left": lambda d: d > 0 or abs(d) > UTURN_THRESHOLD_DEG}
+
+
+def turn_deg(centre: np.ndarray) -> float:
+    """Heading change [deg, left positive] from the first to the last segment of a centreline."""
+    c = np.asarray(centre, dtype=float)
+    h0 = math.atan2(c[1][1] - c[0][1], c[1][0] - c[0][0])
+    h1 = math.atan2(c[-1][1] - c[-2][1], c[-1][0] - c[-2][0])
+    return math.degrees(wrap_angle(h1 - h0))
+
+
+def turn_set(declared: str, centre: np.ndarray) -> str:
+    """The CommonRoad turn set of a junction lanelet: its declared turn's when the geometry
+    agrees, else the one its heading change gives (maps declare turns their geometry does not
+    make, e.g. a "left" lane that runs straight)."""
+    key = _TURNS.get(declared, "outgoing_straight")
+    d = turn_deg(centre)
+    if TURN_SETS[key](d):
+        return key
+    if abs(d) <= STRAIGHT_TOLERANCE_DEG:
+        return "outgoing_straight"
+    return "outgoing_left" if d > 0 else "outgoing_right"
+
+
+def mutual_adjacency(lanes: Mapping[str, Lane]) -> dict[str, dict[str, tuple[str, bool]]]:
+    """{lane: {"left"/"right": (other lane, same direction)}} from the model's neighbour lists,
+    mutual by construction: a pair is kept only when each side is still free on both lanes
+    (same direction: my left is your right; opposite: my left is your left), in map order. Real
+    maps list neighbours one-sidedly or several per side; CommonRoad needs each adjacency
+    stated back."""
+    adj: dict[str, dict[str, tuple[str, bool]]] = {lid: {} for lid in lanes}
+    proposals = []
+    for lid, ln in lanes.items():
+        proposals += [(lid, "left", o, True) for o in ln.left_neighbors]
+        proposals += [(lid, "right", o, True) for o in ln.right_neighbors]
+        proposals += [(lid, "left", o, False) for o in ln.left_reverse_neighbors]
+    for lid, side, other, same in proposals:
+        if other == lid or other not in lanes:
+            continue
+        back = ("right" if side == "left" else "left") if same else side
+        if side in adj[lid] or back in adj[other]:
+            continue
+        adj[lid][side] = (other, same)
+        adj[other][back] = (lid, same)
+    return adj
 
 
 COMMONROAD_IO_DIR = "commonroad-io"  # scripts/setup.sh installs commonroad-io here, in the venv, off sys.path
@@ -146,20 +196,16 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
         for lid in governed:
             controls.setdefault(lid, (set(), set()))[1].add(ids("light", sid))
 
-    def ref(lane_ids) -> int | None:
-        return next((ids("lane", x) for x in lane_ids if x in lanes), None)
-
     ends = lane_ends(m, lanes)
+    adj = mutual_adjacency(lanes)
     for lid, ln in lanes.items():
         n = max(len(ln.left_boundary), len(ln.right_boundary), len(ln.centerline), 2)
         left, right, centre = resample(ln.left_boundary, n), resample(ln.right_boundary, n), resample(ln.centerline, n)
         for k, at in ((0, "start"), (-1, "end")):  # linked lanelets meet exactly
             left[k], right[k] = ends[(lid, "left", at)], ends[(lid, "right", at)]
             centre[k] = (left[k] + right[k]) / 2
-        adj_left, same_left = ref(ln.left_neighbors), True
-        if adj_left is None:
-            adj_left, same_left = ref(ln.left_reverse_neighbors), False
-        adj_right = ref(ln.right_neighbors)
+        (adj_left, same_left), (adj_right, same_right) = (
+            (ids("lane", adj[lid][k][0]), adj[lid][k][1]) if k in adj[lid] else (None, None) for k in ("left", "right"))
         stop = None
         if lid in controls:
             sign_ids, light_ids = controls[lid]
@@ -168,8 +214,8 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
             left, centre, right, ids("lane", lid),
             predecessor=[ids("lane", x) for x in ln.predecessors if x in lanes],
             successor=[ids("lane", x) for x in ln.successors if x in lanes],
-            adjacent_left=adj_left, adjacent_left_same_direction=same_left if adj_left is not None else None,
-            adjacent_right=adj_right, adjacent_right_same_direction=True if adj_right is not None else None,
+            adjacent_left=adj_left, adjacent_left_same_direction=same_left,
+            adjacent_right=adj_right, adjacent_right_same_direction=same_right,
             line_marking_left_vertices=LineMarking[_MARKS.get(ln.left_boundary_type, "UNKNOWN")],
             line_marking_right_vertices=LineMarking[_MARKS.get(ln.right_boundary_type, "UNKNOWN")],
             stop_line=stop, lanelet_type={LaneletType.INTERSECTION if ln.junction_id else LaneletType.URBAN},
@@ -181,6 +227,7 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
             net.add_lanelet(Lanelet(left, (left + right) / 2, right, ids("crosswalk", cw.id),
                                     lanelet_type={LaneletType.CROSSWALK}, user_bidirectional={RoadUser.PEDESTRIAN}),
                             rtree=False)
+    _continuations(m, lanes, adj, ids, net)
     for s in m.stop_signs.values():
         if signs[s.id]:
             sign = TrafficSign(ids("sign", s.id), [TrafficSignElement(TrafficSignIDZamunda.STOP, [])],
@@ -198,7 +245,7 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
                                          TrafficLightCycle(cycle, time_offset=0, active=True), active=True)
                     net.add_traffic_light(light, {ids("lane", x) for x in signals[sid]})
     for jid in m.junctions:
-        incomings = _incomings(m, jid, lanes)
+        incomings = _incomings(m, jid, lanes, net, ids)
         groups = []
         for road, (feeders, turns) in incomings.items():
             groups.append(IncomingGroup(ids("incoming", f"{jid}/{road}"), {ids("lane", x) for x in feeders},
@@ -210,7 +257,75 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
     return scenario, _planning_problems(m, lanes, ids, net)
 
 
+def _continuations(m: HDMap, lanes, adj, ids: _Ids, net) -> None:
+    """A straight lanelet of COMMONROAD_CONTINUATION_M past every map exit and before every map
+    entry (no successor / predecessor), linked to it and adjacent like it: a planner's horizon
+    (several seconds at speed) then never ends in a dead end at the map's edge. Ids follow
+    every other element's."""
+    from commonroad.common.common_lanelet import LaneletType, LineMarking, RoadUser
+    from commonroad.scenario.lanelet import Lanelet
+
+    ext: dict[tuple[str, str], int] = {}
+    for lid, ln in lanes.items():
+        if ln.junction_id is None and not any(x in lanes for x in ln.successors):
+            ext[(lid, "end")] = ids("continuation", f"{lid}/end")
+        if ln.junction_id is None and not any(x in lanes for x in ln.predecessors):
+            ext[(lid, "start")] = ids("continuation", f"{lid}/start")
+    for (lid, at), cid in ext.items():
+        parent = net.find_lanelet_by_id(ids("lane", lid))
+        k, k0 = (-1, -2) if at == "end" else (0, 1)
+        d = parent.center_vertices[k] - parent.center_vertices[k0]
+        d = d / max(float(np.hypot(*d)), 1e-9)  # away from the lanelet, at either end
+        steps = np.linspace(0.0, COMMONROAD_CONTINUATION_M, 11)[:, None] * d
+        left, right = parent.left_vertices[k] + steps, parent.right_vertices[k] + steps
+        if at == "start":  # drawn backwards from the entry: reverse so it drives into it
+            left, right = left[::-1], right[::-1]
+        sides = {}
+        for side, (other, same) in adj[lid].items():  # the continuation beside mine, if any
+            o_at = at if same else ("start" if at == "end" else "end")
+            if (other, o_at) in ext:
+                sides[side] = (ext[(other, o_at)], same)
+        lsides = sides.get("left", (None, None))
+        rsides = sides.get("right", (None, None))
+        net.add_lanelet(Lanelet(
+            left, (left + right) / 2, right, cid,
+            predecessor=[parent.lanelet_id] if at == "end" else [], successor=[parent.lanelet_id] if at == "start" else [],
+            adjacent_left=lsides[0], adjacent_left_same_direction=lsides[1],
+            adjacent_right=rsides[0], adjacent_right_same_direction=rsides[1],
+            line_marking_left_vertices=LineMarking.UNKNOWN, line_marking_right_vertices=LineMarking.UNKNOWN,
+            lanelet_type={LaneletType.URBAN}, user_one_way={RoadUser.VEHICLE}), rtree=False)
+        if at == "end":
+            parent.successor.append(cid)
+        else:
+            parent.predecessor.append(cid)
+
+
 def _planning_problems(m: HDMap, lanes, ids: _Ids, net):
+    """One planning problem per junction manoeuvre (junction, entry road, exit road), each with a
+    single goal lanelet: from half-way along the lanelet into the junction lane, at rest, to the
+    lanelet it leads to. A map without junctions gets one: from the first map entry lane to the
+    exit lanes it leads to (or, in a closed network, to the lanes furthest from the first)."""
+    from commonroad.planning.planning_problem import PlanningProblemSet
+
+    problems, seen = [], set()
+    for jid in m.junctions:
+        for ln in m.lanes_by_junction[jid]:
+            if ln.id not in lanes:
+                continue
+            for p in ln.predecessors:
+                for s_ in ln.successors:
+                    if p not in lanes or s_ not in lanes or m.lanes[p].junction_id or m.lanes[s_].junction_id:
+                        continue
+                    key = (jid, m.lanes[p].road_id, m.lanes[s_].road_id)
+                    if key not in seen:
+                        seen.add(key)
+                        problems.append(_problem(m, p, [s_], ids, net, f"{jid}/{p}/{s_}"))
+    if problems:
+        return PlanningProblemSet(problems)
+    return PlanningProblemSet([_whole_map_problem(m, lanes, ids, net)])
+
+
+def _whole_map_problem(m: HDMap, lanes, ids: _Ids, net):
     """The one planning problem CommonRoad's schema asks for: from the first map entry lane to
     any map exit lane it leads to; in a closed network (no entries or exits), from the first lane
     to the lanes furthest from it (in links)."""
@@ -228,22 +343,22 @@ def _planning_problems(m: HDMap, lanes, ids: _Ids, net):
                     stack.append(s)
         exits.discard(ln.id)
         if exits:
-            return _problem(m, ln.id, [x for x in lanes if x in exits], ids, net)
+            return _problem(m, ln.id, [x for x in lanes if x in exits], ids, net, ln.id)
     first = next(iter(lanes))
     level, seen, furthest = [first], {first}, [first]
     while level:
         furthest = level
         level = list(dict.fromkeys(s for x in level for s in m.lanes[x].successors if s in lanes and s not in seen))
         seen.update(level)
-    return _problem(m, first, furthest, ids, net)
+    return _problem(m, first, furthest, ids, net, first)
 
 
-def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net):
+def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net, key: str):
     """Start half-way along `start_lane`, at rest; reach a goal lane within `COMMONROAD_HORIZON_S`."""
     from commonroad.common.util import Interval
     from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
     from commonroad.planning.goal import GoalRegion
-    from commonroad.planning.planning_problem import PlanningProblem, PlanningProblemSet
+    from commonroad.planning.planning_problem import PlanningProblem
     from commonroad.scenario.state import CustomState, InitialState
 
     ln = m.lanes[start_lane]
@@ -255,18 +370,20 @@ def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net):
     goal_ids = [ids("lane", x) for x in goal_lanes]
     area = OccupancyGroup(occupancies=tuple(net.find_lanelet_by_id(x).polygon for x in goal_ids))
     goal = GoalRegion([CustomState(time_step=Interval(0, horizon), position=area)], {0: goal_ids})
-    return PlanningProblemSet([PlanningProblem(ids("planning", start_lane), start, goal)])
+    return PlanningProblem(ids("planning", key), start, goal)
 
 
-def _incomings(m: HDMap, jid: str, lanes) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
-    """Entry road -> (its lanes into junction `jid`, junction lanes from them by CommonRoad turn)."""
+def _incomings(m: HDMap, jid: str, lanes, net, ids: "_Ids") -> dict[str, tuple[list[str], dict[str, list[str]]]]:
+    """Entry road -> (its lanes into junction `jid`, junction lanes from them by CommonRoad turn:
+    `turn_set` of the lanelet as written)."""
     out: dict[str, tuple[list[str], dict[str, list[str]]]] = {}
     for road, feeders in m.approaches(jid).items():
         feeders = [x for x in feeders if x in lanes]
         turns: dict[str, list[str]] = {}
         for ln in m.lanes_by_junction[jid]:
             if ln.id in lanes and any(p in feeders for p in ln.predecessors):
-                turns.setdefault(_TURNS.get(ln.turn, "outgoing_straight"), []).append(ln.id)
+                centre = net.find_lanelet_by_id(ids("lane", ln.id)).center_vertices
+                turns.setdefault(turn_set(ln.turn, centre), []).append(ln.id)
         if feeders:
             out[road] = (feeders, turns)
     return out

@@ -1,0 +1,352 @@
+#!/usr/bin/env python3
+"""CommonRoad's reactive planner (commonroad-reactive-planner 2025.1, TUM) as a feat2map bridge
+planner. Runs in its own venv (adapters/commonroad/setup.sh makes .venv-crplanner):
+
+    feat2map rollout suite.yaml --planner-cmd ".venv-crplanner/bin/python adapters/commonroad/planner.py" --out out/cr
+
+What it does (docs/planners.md):
+- init: reads the map's CommonRoad export (commonroad-io's reader); commonroad-route-planner
+  gives the reference path along the scenario's route (from the ego's first lanelet to the
+  continuation lanelet past its exit lanelet, so the path never ends inside the horizon; our
+  route's lanelets are the fallback when the route planner picks another lane); the reactive
+  planner's curvilinear frame is built with CLCSParams() passed explicitly; its
+  multiprocessing is off.
+- step: the ego's state becomes the planner's initial state (rear axle); every vehicle and
+  pedestrian near the ego, not behind it, becomes a dynamic obstacle with a constant-velocity
+  prediction over the horizon, next to the road boundary, in a fresh collision checker; the
+  traffic rules the step message states (red/amber signals, stop signs in queue order; the
+  reactive planner has none of its own) put it in "stopping" mode before the stop line,
+  else "velocity_keeping" at the lane's speed limit (curves slower). The optimal trajectory
+  goes back with its states shifted to the vehicle centre. When it finds none (or raises), the
+  adapter brakes along the reference path and says so in its stage (FALLBACK_...).
+- close: with coverage requested, the reactive planner's own lines (commonroad_rp) per
+  junction, measured by coverage.py in this process.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import os
+import sys
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from bridge_client import RuleGate, serve  # noqa: E402
+
+COVERED_PACKAGES = ("commonroad_rp",)  # the planner under test, measured for RQ3
+DT = 0.1  # the reactive planner's time step [s]
+HORIZON_STEPS = 30  # 3 s
+REPLAN_S = 0.6  # the bridge asks for a new plan this often (the planner costs ~0.3 s a call on a loaded 2-core machine)
+SAMPLING_LEVELS = 3  # the planner tries sampling levels 1..SAMPLING_LEVELS-1 until one finds a trajectory
+OBSTACLE_RADIUS_M = 80.0
+JUNCTION_SPEED_MPS = 6.0
+LAT_ACC_MPS2 = 1.5
+STOP_MARGIN_M = 1.5
+FALLBACK_DECEL = 6.0
+APPROACH_DECEL = 2.0  # [m/s^2] speed cap towards a stop point: it can stop there braking this hard
+STOPPING_RANGE_M = 10.0  # "stopping" mode (a target position) this far beyond the braking distance
+ROAD_CONTEXT = "(road)"  # coverage context before the first junction (as feat2map's rollout)
+
+
+class ReactiveAdapter:
+    def __init__(self) -> None:
+        self.cov = None
+        self.context = None
+        self.failures: dict[str, int] = {}
+
+    def hello(self) -> dict:
+        return {"name": "commonroad-reactive-planner 2025.1 (feat2map adapter)", "map_format": "commonroad",
+                "output": "trajectory", "replan_s": REPLAN_S}
+
+    # ---- init ---------------------------------------------------------------------------------
+    def init(self, msg: dict) -> None:
+        if msg.get("coverage"):
+            import coverage
+
+            self.cov = coverage.Coverage(data_file=None, config_file=False, source_pkgs=list(COVERED_PACKAGES))
+            self.cov.set_option("run:disable_warnings", ["no-data-collected", "module-not-measured"])
+            self.cov.start()
+            self._switch(ROAD_CONTEXT)
+        logging.disable(logging.WARNING)  # commonroad-io's and the planner's INFO/WARNING chatter
+        from commonroad.common.file_reader import CommonRoadFileReader
+        from commonroad_clcs.config import CLCSParams
+        from commonroad_dc.boundary.boundary import create_road_boundary_obstacle
+        from commonroad_rp.reactive_planner import ReactivePlanner
+        from commonroad_rp.utility.config import ReactivePlannerConfiguration
+        from commonroad_rp.utility.utils_coordinate_system import CoordinateSystem
+
+        self.scenario, problems = CommonRoadFileReader(msg["map"]).open()
+        self.net = self.scenario.lanelet_network
+        route = msg["route"]
+        self.route_lanes = route["lanes"]
+        self.lanelets = [int(x) for x in route["lanes_in_format"]]
+        self.junction_of_lane = route["junction_of_lane"]
+        self.limits = route["speed_limits"]
+        self.ego_len, self.ego_wid = float(msg["ego"]["length"]), float(msg["ego"]["width"])
+        config = ReactivePlannerConfiguration()
+        config.debug.multiproc = False  # its worker pool dies and hangs the parent (issue 22)
+        config.debug.logging_level = "ERROR"
+        config.debug.show_plots = config.debug.save_plots = config.debug.draw_traj_set = False
+        config.planning.dt = DT
+        config.planning.time_steps_computation = HORIZON_STEPS
+        config.planning.__post_init__()
+        config.sampling.num_sampling_levels = SAMPLING_LEVELS
+        config.vehicle.length, config.vehicle.width = self.ego_len, self.ego_wid
+        pp = next(iter(problems.planning_problem_dict.values()))  # any: the planner needs one to start
+        config.update(scenario=self.scenario, planning_problem=pp)
+        self.config = config
+        self.wb_rear = config.vehicle.wb_rear_axle
+        self.ref = self._reference_path(pp)
+        self.co = CoordinateSystem(reference=self.ref, preprocess_reference=True, clcs_params=CLCSParams())
+        self.planner = ReactivePlanner(config)
+        self.planner.set_reference_path(coordinate_system=self.co)
+        _, self.boundary = create_road_boundary_obstacle(self.scenario, method="obb_rectangles")
+        # where each route lanelet ends along the reference path
+        self.lane_end = []
+        for lid in self.lanelets:
+            end = self.net.find_lanelet_by_id(lid).center_vertices[-1]
+            self.lane_end.append(self._s_of(end))
+        self.gate = None
+
+    def _reference_path(self, pp) -> np.ndarray:
+        """commonroad-route-planner's reference path from the route's first lanelet to the
+        continuation past its last; our route's lanelets (and their continuations) when the
+        route planner's path leaves them."""
+        first = self.net.find_lanelet_by_id(self.lanelets[0])
+        last = self.net.find_lanelet_by_id(self.lanelets[-1])
+        tail = [s for s in last.successor]
+        head = [p for p in first.predecessor if not self.net.find_lanelet_by_id(p).predecessor]
+        own = head[:1] + self.lanelets + tail[:1]
+        try:
+            path = self._route_planner_path(own)
+        except Exception as exc:  # noqa: BLE001 (a third-party failure: fall back, say so)
+            print(f"route planner failed ({type(exc).__name__}: {exc}); using the route's lanelets", file=sys.stderr)
+            path = None
+        if path is not None and not _aligned(path):
+            print("route planner's reference path turns back on itself; using the route's lanelets", file=sys.stderr)
+            path = None
+        if path is None:
+            pts = [self.net.find_lanelet_by_id(x).center_vertices for x in own]
+            path = np.concatenate([pts[0]] + [p[1:] for p in pts[1:]])
+            keep = np.concatenate([[True], np.hypot(*np.diff(path, axis=0).T) > 1e-3])
+            path = path[keep]
+        return np.asarray(path, dtype=float)
+
+    def _route_planner_path(self, own: list[int]):
+        from commonroad.common.util import Interval
+        from commonroad.planning.goal import GoalRegion
+        from commonroad.planning.planning_problem import PlanningProblem
+        from commonroad.scenario.state import CustomState, InitialState
+        from commonroad_route_planner.reference_path_planner import ReferencePathPlanner
+        from commonroad_route_planner.route_planner import RoutePlanner
+
+        start = self.net.find_lanelet_by_id(own[0]).center_vertices
+        k = max(0, len(start) // 2 - 1)
+        h = math.atan2(*(start[k + 1] - start[k])[::-1])
+        init = InitialState(position=np.array(start[k]), orientation=h, velocity=0.0, acceleration=0.0,
+                            yaw_rate=0.0, slip_angle=0.0, time_step=0)
+        goal_ll = self.net.find_lanelet_by_id(own[-1])
+        goal = GoalRegion([CustomState(time_step=Interval(0, 10000), position=goal_ll.polygon)], {0: [own[-1]]})
+        pp = PlanningProblem(999_999, init, goal)
+        routes = RoutePlanner(self.net, pp).plan_routes()
+        ref = ReferencePathPlanner(self.net, pp, routes).plan_shortest_reference_path()
+        if list(ref.lanelet_ids) != [x for x in own if x in ref.lanelet_ids] or not set(self.lanelets) <= set(ref.lanelet_ids):
+            return None  # another lane than the scenario's route
+        return ref.reference_path
+
+    def _s_of(self, p) -> float:
+        try:
+            return float(self.co.convert_to_curvilinear_coords(float(p[0]), float(p[1]))[0])
+        except Exception:  # noqa: BLE001 (outside the frame's domain)
+            d = np.hypot(*(self.ref - np.asarray(p)[:2]).T)
+            return float(np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(self.ref, axis=0).T))])[int(np.argmin(d))])
+
+    # ---- step ---------------------------------------------------------------------------------
+    def _switch(self, ctx: str) -> None:
+        if self.cov is not None and ctx != self.context:
+            self.context = ctx
+            self.cov.switch_context(ctx)
+
+    def step(self, msg: dict) -> dict:
+        self._switch(msg.get("junction") or self.context or ROAD_CONTEXT)
+        ego = msg["ego"]
+        if self.gate is None:
+            self.gate = RuleGate(msg, self.route_lanes, self.junction_of_lane, self.lane_end, self.ego_len)
+        try:
+            return self._plan(msg, ego)
+        except Exception as exc:  # noqa: BLE001 (the planner under test failed: brake, and say why)
+            name = type(exc).__name__
+            self.failures[name] = self.failures.get(name, 0) + 1
+            if self.failures[name] <= 3 or self.failures[name] % 20 == 0:
+                p = self.planner
+                print(f"t={msg['t']:.1f}: reactive planner raised {name}: {exc} (rejected: "
+                      f"{p.infeasible_count_kinematics} kinematics {dict(p.infeasible_reason_dict)}, "
+                      f"{p.infeasible_count_collision} collision of {p.total_count_samples}; "
+                      f"{len(msg.get('vehicles', []))} vehicles, {len(msg.get('pedestrians', []))} pedestrians)",
+                      file=sys.stderr)
+                if self.failures[name] <= 1:
+                    traceback.print_exc(limit=3, file=sys.stderr)
+            return self._brake(msg, ego, f"FALLBACK_{name}"[:40])
+
+    def _plan(self, msg: dict, ego: dict) -> dict:
+        import commonroad_dc.pycrcc as pycrcc
+        from commonroad.scenario.state import InitialState
+        from commonroad_rp.state import ReactivePlannerState
+
+        x, y, h, v = float(ego["x"]), float(ego["y"]), float(ego["heading"]), max(float(ego["speed"]), 0.0)
+        acc = float(ego.get("acceleration", 0.0)) if v > 0.1 else 0.0  # a stopped car does not decelerate
+        init = InitialState(position=np.array([x, y]), orientation=h, velocity=v, acceleration=acc,
+                            yaw_rate=0.0, slip_angle=0.0, time_step=0)
+        x0 = ReactivePlannerState.create_from_initial_state(init, self.config.vehicle.wheelbase, self.wb_rear)
+        cc = pycrcc.CollisionChecker()
+        cc.add_collision_object(self.boundary)
+        for obs in self._obstacles(msg, x, y, h):
+            cc.add_collision_object(obs)
+        p = self.planner
+        p.reset(initial_state_cart=x0, collision_checker=cc, coordinate_system=self.co)
+        s_centre = self._s_of((x, y))
+        stop, why = self.gate.stop_s(msg, s_centre, v)
+        room = stop - s_centre
+        if math.isfinite(stop) and room > v * v / (2 * APPROACH_DECEL) + STOPPING_RANGE_M:
+            # far from the stop point: keep a speed from which it can still stop there comfortably
+            self.config.sampling.longitudinal_mode = "velocity_keeping"
+            cap = math.sqrt(2 * APPROACH_DECEL * max(room - STOPPING_RANGE_M, 0.0)) + 1.0
+            p.set_desired_velocity(min(self._desired_speed(s_centre), cap), current_speed=max(v, 0.01))
+            stage = f"APPROACH_{why}"
+        elif math.isfinite(stop):
+            self.config.sampling.longitudinal_mode = "stopping"
+            p.set_desired_lon_position(max(stop - self.wb_rear, p.x_0_cl[0][0]))
+            stage = f"STOPPING_{why}"
+        else:
+            self.config.sampling.longitudinal_mode = "velocity_keeping"
+            p.set_desired_velocity(self._desired_speed(s_centre), current_speed=max(v, 0.01))  # 0: it would take the goal's
+            stage = "VELOCITY_KEEPING"
+        result = p.plan()
+        if result is None:
+            return self._brake(msg, ego, "FALLBACK_NO_TRAJECTORY")
+        states = result[0].state_list
+        if all(st.velocity < 0.05 for st in states) and v < 0.05:
+            stage = "STANDSTILL" if stage == "VELOCITY_KEEPING" else stage
+        t0 = float(msg["t"])
+        pts = []
+        for st in states:
+            c = ReactivePlannerState.shift_state_to_center(st, self.wb_rear)
+            pts.append({"t": t0 + (st.time_step - states[0].time_step) * DT, "x": float(c.position[0]),
+                        "y": float(c.position[1]), "heading": float(c.orientation), "speed": max(float(c.velocity), 0.0)})
+        return {"type": "trajectory", "points": pts, "scenario": "REACTIVE", "stage": stage}
+
+    def _desired_speed(self, s: float) -> float:
+        i = int(np.searchsorted(self.lane_end, s))
+        i = min(i, len(self.limits) - 1)
+        v = float(self.limits[i])
+        if self.junction_of_lane[i] or (i + 1 < len(self.junction_of_lane) and self.junction_of_lane[i + 1]
+                                        and self.lane_end[i] - s < 30.0):
+            v = min(v, JUNCTION_SPEED_MPS)
+        # curvature of the reference over the next 25 m
+        ref_s, ref_k = np.asarray(self.co.ref_pos), np.abs(np.asarray(self.co.ref_curv))
+        window = (ref_s >= s) & (ref_s <= s + 25.0)
+        if window.any():
+            kmax = float(ref_k[window].max())
+            if kmax > 1e-3:
+                v = min(v, max(3.0, math.sqrt(LAT_ACC_MPS2 / kmax)))
+        return v
+
+    def _obstacles(self, msg: dict, ex: float, ey: float, eh: float):
+        from commonroad.geometry.shape import Rectangle
+        from commonroad.prediction.prediction import TrajectoryPrediction
+        from commonroad.scenario.obstacle import DynamicObstacle, ObstacleType
+        from commonroad.scenario.state import CustomState, InitialState
+        from commonroad.scenario.trajectory import Trajectory
+        from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import create_collision_object
+
+        out = []
+        fwd = np.array([math.cos(eh), math.sin(eh)])
+        for kind in ("vehicles", "pedestrians"):
+            for o in msg.get(kind, []):
+                rel = np.array([o["x"] - ex, o["y"] - ey])
+                if np.hypot(*rel) > OBSTACLE_RADIUS_M or float(rel @ fwd) < -self.ego_len / 2:
+                    continue  # far, or behind the ego: its business to keep its distance
+                length = float(o.get("length", 0.8))
+                width = float(o.get("width", 0.8))
+                h, v = float(o["heading"]), float(o["speed"])
+                vx, vy = v * math.cos(h), v * math.sin(h)
+                states = [CustomState(time_step=k, position=np.array([o["x"] + vx * k * DT, o["y"] + vy * k * DT]),
+                                      orientation=h, velocity=v) for k in range(1, HORIZON_STEPS + 2)]
+                shape = Rectangle(length, width)
+                init = InitialState(position=np.array([o["x"], o["y"]]), orientation=h, velocity=v, time_step=0,
+                                    acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
+                dyn = DynamicObstacle(100_000 + int(o["id"]),
+                                      ObstacleType.CAR if kind == "vehicles" else ObstacleType.PEDESTRIAN, shape, init,
+                                      TrajectoryPrediction(Trajectory(1, states), shape))
+                out.append(create_collision_object(dyn))
+        return out
+
+    def _brake(self, msg: dict, ego: dict, stage: str) -> dict:
+        """Brake at FALLBACK_DECEL along the reference path from where the ego is."""
+        v = max(float(ego["speed"]), 0.0)
+        ref = self.ref
+        cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ref, axis=0).T))])
+        k = int(np.argmin(np.hypot(*(ref - np.array([ego["x"], ego["y"]])).T)))
+        s = cum[k]
+        pts = []
+        for i in range(HORIZON_STEPS + 1):
+            t = i * DT
+            vi = max(v - FALLBACK_DECEL * t, 0.0)
+            si = s + (v * t - FALLBACK_DECEL * t * t / 2 if vi > 0 else v * v / (2 * FALLBACK_DECEL))
+            px, py = np.interp(si, cum, ref[:, 0]), np.interp(si, cum, ref[:, 1])
+            j = min(int(np.searchsorted(cum, si)), len(ref) - 1)
+            a, b = ref[max(j - 1, 0)], ref[max(j, 1)]
+            pts.append({"t": float(msg["t"]) + t, "x": float(px), "y": float(py),
+                        "heading": float(math.atan2(b[1] - a[1], b[0] - a[0])), "speed": float(vi)})
+        return {"type": "trajectory", "points": pts, "scenario": "REACTIVE", "stage": stage}
+
+    # ---- close --------------------------------------------------------------------------------
+    def close(self) -> dict:
+        if self.cov is None:
+            return {}
+        self.cov.stop()
+        data = self.cov.get_data()
+        lines: dict[str, set[str]] = {}
+        files = {}
+        for fname in data.measured_files():
+            mod = _module_name(fname)
+            if mod is None:
+                continue
+            files[fname] = mod
+            for line, ctxs in data.contexts_by_lineno(fname).items():
+                for ctx in ctxs:
+                    if ctx:
+                        lines.setdefault(ctx, set()).add(f"{mod}:{line}")
+        import commonroad_rp
+
+        h = hashlib.sha256()
+        root = Path(commonroad_rp.__file__).parent
+        for f in sorted(root.rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
+        return {"coverage": {"lines": {k: sorted(v) for k, v in lines.items()}, "digest": h.hexdigest()[:16]}}
+
+
+def _aligned(path, max_turn: float = math.pi / 2) -> bool:
+    """No two consecutive segments of `path` turn more than `max_turn` (CLCS's own check)."""
+    d = np.diff(np.asarray(path, dtype=float), axis=0)
+    d = d[np.hypot(*d.T) > 1e-6]
+    h = np.arctan2(d[:, 1], d[:, 0])
+    return bool(len(h) < 2 or np.all(np.abs((np.diff(h) + np.pi) % (2 * np.pi) - np.pi) < max_turn))
+
+
+def _module_name(fname: str) -> str | None:
+    parts = Path(fname).with_suffix("").parts
+    for pkg in COVERED_PACKAGES:
+        if pkg in parts:
+            mod = ".".join(parts[parts.index(pkg):])
+            return mod[: -len(".__init__")] if mod.endswith(".__init__") else mod
+    return None
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    sys.exit(serve(ReactiveAdapter()))

@@ -1,0 +1,117 @@
+"""Trajectory following for an ego driven by an external planner (the planner bridge,
+`feat2map.scenarios.bridge`): a time-indexed trajectory of poses and speeds, tracked every
+simulation frame by a standard controller: pure pursuit for the steering and a P controller on
+the speed (with the trajectory's acceleration as feed-forward and a gain on the along-track
+position error).
+
+Hooked into the ego by `EgoVehicle.tracker` (envs/vehicles.py): when set, the ego asks it for
+its command each frame, whatever the action type holds.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+# pure pursuit: look ahead this far [m] plus this many seconds of the current speed
+LOOKAHEAD_MIN_M = 2.5  # (pure pursuit cuts a curve of radius R by about R - sqrt(R^2 - L^2): keep L short)
+LOOKAHEAD_TIME_S = 0.3
+SPEED_GAIN = 1.5  # [1/s] speed error -> acceleration
+POSITION_GAIN = 0.4  # [1/s^2] along-track position error -> acceleration
+ACCEL_RANGE = (-8.0, 4.0)  # [m/s^2] the command is clipped to these (the baseline's range)
+MAX_STEERING_RAD = math.pi / 3  # highway-env's ControlledVehicle.MAX_STEERING_ANGLE
+STOP_SPEED_MPS = 0.3  # a trajectory whose speed falls below this holds the ego still
+PREVIEW_S = 0.2  # the speed reference is read this far ahead (the actuation lag of one decision)
+HOLD_WINDOW_S = 1.0  # the ego is held still only if the trajectory stays below STOP_SPEED_MPS this long
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Timestamped poses of the vehicle centre: time [s, simulation clock], x, y [m], heading
+    [rad], speed [m/s]; at least one point, times strictly increasing."""
+
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    speed: np.ndarray
+
+    @classmethod
+    def of(cls, points: Sequence[Sequence[float]]) -> "Trajectory":
+        """From rows (t, x, y, heading, speed); raises ValueError on a malformed one."""
+        a = np.asarray(points, dtype=float)
+        if a.ndim != 2 or a.shape[1] != 5 or len(a) < 1:
+            raise ValueError(f"a trajectory is a list of (t, x, y, heading, speed) rows, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("a trajectory must hold finite numbers only")
+        if len(a) > 1 and np.any(np.diff(a[:, 0]) <= 0):
+            raise ValueError("trajectory times must be strictly increasing")
+        if np.any(a[:, 4] < -0.5):
+            raise ValueError("trajectory speeds must not be negative")
+        return cls(a[:, 0], a[:, 1], a[:, 2], a[:, 3], np.maximum(a[:, 4], 0.0))
+
+
+class TrajectoryTracker:
+    """Pure pursuit + speed P control along one trajectory; `clock()` gives the simulation time."""
+
+    def __init__(self, trajectory: Trajectory, clock: Callable[[], float], wheelbase: float = 5.0) -> None:
+        self.traj = trajectory
+        self.clock = clock
+        self.wheelbase = wheelbase  # highway-env's bicycle model turns at speed * steering / LENGTH
+        pts = np.column_stack([trajectory.x, trajectory.y])
+        seg = np.hypot(*np.diff(pts, axis=0).T) if len(pts) > 1 else np.zeros(0)
+        self.s = np.concatenate([[0.0], np.cumsum(seg)])
+        self.pts = pts
+
+    def _point_at(self, s: float) -> np.ndarray:
+        s = float(np.clip(s, 0.0, self.s[-1]))
+        return np.array([np.interp(s, self.s, self.pts[:, 0]), np.interp(s, self.s, self.pts[:, 1])])
+
+    def _project(self, p: np.ndarray) -> float:
+        """Arc length of the trajectory point nearest `p`."""
+        if len(self.pts) == 1:
+            return 0.0
+        a, b = self.pts[:-1], self.pts[1:]
+        d = b - a
+        L2 = np.maximum((d * d).sum(axis=1), 1e-12)
+        u = np.clip(((p - a) * d).sum(axis=1) / L2, 0.0, 1.0)
+        q = a + d * u[:, None]
+        k = int(np.argmin(((q - p) ** 2).sum(axis=1)))
+        return float(self.s[k] + u[k] * math.sqrt(L2[k]))
+
+    def command(self, position: Sequence[float], heading: float, speed: float) -> dict[str, float]:
+        """{"acceleration", "steering"} for a vehicle at this pose and speed, now."""
+        tr = self.traj
+        t = self.clock()
+        v_ref = float(np.interp(t + PREVIEW_S, tr.t, tr.speed))
+        if len(tr.t) > 1:
+            k = int(np.clip(np.searchsorted(tr.t, t) - 1, 0, len(tr.t) - 2))
+            a_ff = float((tr.speed[k + 1] - tr.speed[k]) / (tr.t[k + 1] - tr.t[k])) if tr.t[0] <= t <= tr.t[-1] else 0.0
+        else:
+            a_ff = 0.0
+        p = np.asarray(position[:2], dtype=float)
+        s_ego = self._project(p)
+        s_ref = float(np.interp(t, tr.t, self.s))
+        ahead = (tr.t >= t) & (tr.t <= t + HOLD_WINDOW_S)
+        v_ahead = max(v_ref, float(tr.speed[ahead].max()) if ahead.any() else 0.0)
+        if v_ahead < STOP_SPEED_MPS and (t >= tr.t[-1] or s_ego >= s_ref - 0.5):  # asked to stay
+            acc = -SPEED_GAIN * max(speed, 0.0) - (2.0 if speed > 0.05 else 0.0)
+        else:
+            acc = a_ff + SPEED_GAIN * (v_ref - speed) + POSITION_GAIN * (s_ref - s_ego)
+        lookahead = LOOKAHEAD_MIN_M + LOOKAHEAD_TIME_S * max(speed, 0.0)
+        if self.s[-1] > 0:
+            target = self._point_at(s_ego + lookahead)
+            if s_ego + lookahead > self.s[-1]:  # beyond the end: continue along the last heading
+                extra = s_ego + lookahead - self.s[-1]
+                target = target + extra * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
+        else:
+            target = p + lookahead * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
+        dx, dy = target - p
+        alpha = math.atan2(dy, dx) - heading
+        alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
+        ld = max(math.hypot(dx, dy), 1e-3)
+        steering = math.atan2(2.0 * self.wheelbase * math.sin(alpha), ld)
+        return {"acceleration": float(np.clip(acc, *ACCEL_RANGE)),
+                "steering": float(np.clip(steering, -MAX_STEERING_RAD, MAX_STEERING_RAD))}

@@ -1,0 +1,154 @@
+"""RQ2/RQ3 with a planner none of us wrote: a generated map's route-coverage suite driven by an
+out-of-process planner through the planner bridge (CommonRoad's reactive planner by default)
+and by the in-process baseline planner, side by side: outcomes, behaviour coverage (what the
+planner did at each junction: its stage paths) and line coverage of each planner's own code.
+
+  # M1 (feat2map generate --seed 1; feat2map suite map.json --traffic 6), resumable chunk by chunk
+  SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python examples/planner_experiments.py --maps m1 --traffic 6
+  .venv/bin/python examples/planner_experiments.py --maps m1 --report-only   # tables from what ran
+
+Writes out/planners/<map>/{map.json, suite.yaml, chunkN/ (rollout reports), <planner>/ (merged
+report with its failure GIFs), tables.md}. Chunks make a long run (minutes per scenario for a
+sampling planner on a shared machine) resumable: a chunk with a summary.json is not run again.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from pathlib import Path
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import feat2map  # noqa: E402
+from feat2map.formats import native  # noqa: E402
+from feat2map.messages import one_line  # noqa: E402
+from feat2map.scenarios.bridge import BridgePlanner  # noqa: E402
+from feat2map.scenarios.metrics import compare, outcome_behaviour, suite_coverage  # noqa: E402
+from feat2map.scenarios.report import load_result, write_report  # noqa: E402
+from feat2map.scenarios.rollout import SuiteResult, run_suite, suite_digest  # noqa: E402
+from feat2map.scenarios.routes import build_suite  # noqa: E402
+from feat2map.scenarios.scenario import Suite, load_suite, save_suite  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SEEDS = {"m1": 1, "m2": 2, "m3": 3}
+CR_CMD = f"{ROOT / '.venv-crplanner' / 'bin' / 'python'} {ROOT / 'adapters' / 'commonroad' / 'planner.py'}"
+
+
+def prepare(name: str, out: Path, traffic: int, chunk: int) -> list[Path]:
+    """The map, its suite and the suite's chunks (made once)."""
+    out.mkdir(parents=True, exist_ok=True)
+    if not (out / "map.json").exists():
+        native.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=SEEDS[name]), out / "map.json")
+    if not (out / "suite.yaml").exists():
+        save_suite(build_suite(out / "map.json", traffic_vehicles=traffic, name=name), out / "suite.yaml")
+    suite = load_suite(out / "suite.yaml")
+    paths = []
+    for k in range(0, len(suite.scenarios), chunk):
+        p = out / f"chunk{k // chunk}.yaml"
+        if not p.exists():
+            save_suite(Suite(name, suite.scenarios[k:k + chunk], suite.base_dir), p)
+        paths.append(p)
+    return paths
+
+
+def run(planner_name: str, planner, chunks: list[Path], out: Path, workers: int) -> None:
+    for p in chunks:
+        dest = out / planner_name / p.stem
+        if (dest / "summary.json").exists():
+            continue
+        result = run_suite(load_suite(p), planner, workers=workers, coverage=True, progress=sys.stderr.isatty())
+        write_report(result, dest)
+        print(f"{planner_name} {p.stem}: {result.counts()} in {result.wall_s:.0f} s", flush=True)
+
+
+def merge(planner_name: str, out: Path) -> SuiteResult | None:
+    """One result of the chunks that ran (in suite order), its report and failure GIFs."""
+    parts = sorted((out / planner_name).glob("chunk*/summary.json"), key=lambda p: int(p.parent.name[5:]))
+    if not parts:
+        return None
+    results = [load_result(p.parent) for p in parts]
+    outcomes = tuple(o for r in results for o in r.outcomes)
+    merged = SuiteResult(name=results[0].name, planner=results[0].planner, outcomes=outcomes, coverage=True,
+                         planner_digest=suite_digest(outcomes), wall_s=sum(r.wall_s for r in results))
+    dest = out / f"{planner_name}-all"
+    write_report(merged, dest)
+    (dest / "failures").mkdir(exist_ok=True)
+    for p in parts:
+        for gif in (p.parent / "failures").glob("*.gif"):
+            shutil.copyfile(gif, dest / "failures" / gif.name)
+    return merged
+
+
+def tables(out: Path, results: dict[str, SuiteResult]) -> str:
+    md = [f"### {out.name}: {', '.join(f'{k} {len(r.outcomes)} scenarios' for k, r in results.items())}", "",
+          compare(results).to_markdown()]
+    md += ["#### line coverage of each planner's own code, accumulated in the order the suite reaches the junctions",
+           "", "| planner | " + " | ".join(f"{i + 1}" for i in range(max(len(suite_coverage(r).junctions)
+                                                                    for r in results.values()))) + " |",
+           "|---|" + "---:|" * max(len(suite_coverage(r).junctions) for r in results.values())]
+    for name, r in results.items():
+        c = suite_coverage(r)
+        md.append(f"| {name} | " + " | ".join(f"{j}: {n}" for j, n in zip(c.junctions, c.accumulated_lines)) + " |")
+    md.append("")
+    for name, r in results.items():
+        md += [f"#### {name}: what it did at each junction", "",
+               "| junction | scenarios through it | outcomes | stage paths there |", "|---|---:|---|---|"]
+        per: dict[str, dict] = {}
+        for o in r.outcomes:
+            for j, (pairs, _) in outcome_behaviour(o).items():
+                d = per.setdefault(j, {"n": 0, "out": {}, "paths": set()})
+                d["n"] += 1
+                d["out"][o.outcome] = d["out"].get(o.outcome, 0) + 1
+                d["paths"] |= {" -> ".join(p) for _, p in pairs}
+        for j in suite_coverage(r).junctions:
+            d = per.get(j)
+            if d:
+                md.append(f"| {j} | {d['n']} | {', '.join(f'{k} {v}' for k, v in sorted(d['out'].items()))} | "
+                          f"{'; '.join(sorted(d['paths']))} |")
+        fails = [o for o in r.outcomes if o.outcome != "completed"]
+        md += ["", f"#### {name}: every scenario that did not complete ({len(fails)})", "",
+               "| scenario | outcome | what happened | stage path | GIF |", "|---|---|---|---|---|"]
+        for o in fails:
+            gif = out / f"{name}-all" / "failures" / f"{o.name}.gif"
+            what = one_line(o.message.splitlines()[0] + (f" ... {o.message.splitlines()[-1]}"
+                                                          if len(o.message.splitlines()) > 1 else ""))
+            md.append(f"| {o.name} | {o.outcome} | {what} | {' -> '.join(o.stage_path[:12])}"
+                      f"{' ...' if len(o.stage_path) > 12 else ''} | {gif.relative_to(out) if gif.exists() else '-'} |")
+        md.append("")
+    return "\n".join(md)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--maps", nargs="+", default=["m1"], choices=sorted(SEEDS))
+    ap.add_argument("--traffic", type=int, default=6)
+    ap.add_argument("--chunk", type=int, default=6)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--planner-cmd", default=CR_CMD)
+    ap.add_argument("--planner-name", default="reactive")
+    ap.add_argument("--step-timeout", type=float, default=120.0)
+    ap.add_argument("--out", type=Path, default=ROOT / "out" / "planners")
+    ap.add_argument("--report-only", action="store_true", help="only merge what ran and write the tables")
+    ap.add_argument("--no-baseline", action="store_true")
+    args = ap.parse_args()
+    for name in args.maps:
+        out = args.out / name
+        chunks = prepare(name, out, args.traffic, args.chunk)
+        if not args.report_only:
+            if not args.no_baseline:
+                run("baseline", "baseline", chunks, out, args.workers)
+            run(args.planner_name, BridgePlanner(args.planner_cmd, step_timeout=args.step_timeout), chunks, out,
+                args.workers)
+        results = {k: r for k in ("baseline", args.planner_name) if (r := merge(k, out)) is not None}
+        if results:
+            text = tables(out, results)
+            (out / "tables.md").write_text(text)
+            print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

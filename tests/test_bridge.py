@@ -1,0 +1,180 @@
+"""The planner bridge: a planner in another process drives scenarios through JSON lines; the
+reference planner (examples/bridge_planner.py) completes a small signalled suite; a planner that
+crashes, hangs past its deadline, returns garbage or speaks another protocol gives an `error`
+outcome with its stderr in the message, its process group killed and reaped, and the rollout
+goes on to write its report (never a hang, never exit 2)."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import numpy as np
+import pytest
+
+import feat2map
+from feat2map import cli
+from feat2map.envs.tracking import Trajectory, TrajectoryTracker
+from feat2map.formats import native
+from feat2map.scenarios.bridge import BridgePlanner, PlannerProcess
+from feat2map.scenarios.rollout import run_suite
+from feat2map.scenarios.scenario import Suite, load_suite, save_suite
+
+ROOT = Path(__file__).resolve().parent.parent
+REFERENCE = f"{sys.executable} {ROOT / 'examples' / 'bridge_planner.py'}"
+J = feat2map.JunctionFeature.make
+
+
+@pytest.fixture(scope="module")
+def suite_file(tmp_path_factory) -> Path:
+    """A signalled T junction: its route-coverage suite with 2 traffic vehicles (6 scenarios)."""
+    d = tmp_path_factory.mktemp("bridge")
+    m = feat2map.generate_from_features([J([0, 90, 180], "signal", False)], seed=0)
+    native.save(m, d / "t.json")
+    assert cli.main(["suite", str(d / "t.json"), "--out", str(d / "suite.yaml"), "--traffic", "2"]) == 0
+    return d / "suite.yaml"
+
+
+def _script(tmp_path: Path, name: str, body: str) -> str:
+    """A tiny planner script; returns its command."""
+    p = tmp_path / f"{name}.py"
+    p.write_text(body)
+    return f"{sys.executable} {p}"
+
+
+HELLO = textwrap.dedent("""
+    import json, sys
+    def send(m):
+        sys.stdout.write(json.dumps(m) + "\\n"); sys.stdout.flush()
+    def recv():
+        return json.loads(sys.stdin.readline())
+    recv(); send({"type": "hello", "protocol": 1, "map_format": "native", "output": "control"})
+    recv(); send({"type": "ready"})
+""")
+
+
+def _one(suite_file: Path, tmp_path: Path) -> Path:
+    one = tmp_path / "one.yaml"
+    suite = load_suite(suite_file)
+    save_suite(Suite("one", suite.scenarios[:1], suite.base_dir), one)
+    return one
+
+
+def test_the_reference_planner_drives_a_suite_through_the_bridge(suite_file, tmp_path, capsys):
+    out = tmp_path / "ref"
+    rc = cli.main(["rollout", str(suite_file), "--planner-cmd", REFERENCE, "--out", str(out), "--quiet", "--no-gif",
+                   "--fail-on", "violation"])
+    summary = json.loads((out / "summary.json").read_text())
+    counts = summary["counts"]
+    assert counts["completed"] >= 5 and counts["error"] == 0 and counts["violation"] == 0, summary["counts"]
+    assert rc == (0 if counts["completed"] == 6 else 1)
+    assert summary["planner"].startswith("bridge: ")
+    o = summary["outcomes"][0]
+    assert o["stage_path"] and set(o["stage_path"]) <= {"CRUISE", "STOP_SIGNAL", "STOP_SIGN", "FOLLOW",
+                                                        "YIELD_PEDESTRIAN"}
+
+
+@pytest.mark.parametrize("name,body,expect", [
+    ("crashing", HELLO + "recv(); sys.stderr.write('Traceback: planner exploded\\n'); sys.exit(3)\n",
+     ["exited (code 3)", "planner exploded"]),
+    ("hanging", HELLO + "recv(); sys.stderr.write('thinking forever\\n'); sys.stderr.flush()\n"
+                        "import time\nwhile True: time.sleep(1)\n", ["planner timeout", "thinking forever"]),
+    ("garbage", HELLO + "recv(); sys.stdout.write('{{{ not json\\n'); sys.stdout.flush(); recv()\n",
+     ["garbage step reply (not JSON)"]),
+    ("nan_control", HELLO + "recv(); sys.stdout.write('{\"type\": \"control\", \"acceleration\": NaN, "
+                            "\"steering\": 0}\\n'); sys.stdout.flush(); recv()\n", ["garbage control"]),
+    ("bad_trajectory", HELLO + "recv(); send({'type': 'trajectory', 'points': [{'t': 0, 'x': 'a'}]}); recv()\n",
+     ["garbage trajectory"]),
+    ("wrong_protocol", "import json, sys\nsys.stdin.readline()\n"
+                       "print(json.dumps({'type': 'hello', 'protocol': 99}), flush=True)\nsys.stdin.readline()\n",
+     ["bad hello", "protocol 99"]),
+])
+def test_a_failing_planner_is_an_error_outcome_with_its_stderr(suite_file, tmp_path, name, body, expect):
+    cmd = _script(tmp_path, name, body)
+    out = tmp_path / "rep"
+    t0 = time.monotonic()
+    rc = cli.main(["rollout", str(_one(suite_file, tmp_path)), "--planner-cmd", cmd, "--planner-timeout", "2",
+                   "--out", str(out), "--quiet", "--no-gif"])
+    assert time.monotonic() - t0 < 60  # never a hang
+    assert rc == 1  # a failed scenario, the report written: not bad input (2)
+    o = json.loads((out / "summary.json").read_text())["outcomes"][0]
+    assert o["outcome"] == "error"
+    for text in expect:
+        assert text in o["message"], o["message"]
+    assert "BridgeError" in (out / "report.md").read_text()
+
+
+def test_a_killed_planner_leaves_no_process_behind(tmp_path):
+    cmd = _script(tmp_path, "sleeper", "import subprocess, sys, time\n"
+                                       "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\n"
+                                       "print(child.pid, flush=True)\ntime.sleep(600)\n")
+    proc = PlannerProcess(cmd)
+    grandchild = int(proc.lines.get(timeout=30))
+    proc.kill()
+    assert proc.proc.poll() is not None  # reaped
+    for _ in range(50):  # the whole process group got SIGKILL (the grandchild is init's to reap)
+        try:
+            os.kill(grandchild, 0)
+            with open(f"/proc/{grandchild}/stat") as f:
+                if f.read().split()[2] == "Z":
+                    break
+        except (ProcessLookupError, FileNotFoundError):
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("the planner's child process survived")
+
+
+def test_a_missing_planner_command_is_an_error_outcome(suite_file, tmp_path):
+    res = run_suite(load_suite(_one(suite_file, tmp_path)), BridgePlanner("/nonexistent/planner --x"),
+                    progress=False, record_failure_gif=False)
+    assert res.outcomes[0].outcome == "error" and "cannot start the planner" in res.outcomes[0].message
+
+
+def test_the_bridge_planner_pickles_before_reset():
+    import pickle
+
+    p = pickle.loads(pickle.dumps(BridgePlanner("python x.py", step_timeout=3)))
+    assert p.cmd == "python x.py" and p.step_timeout == 3 and p.proc is None
+
+
+def test_the_tracker_follows_a_straight_trajectory_and_stops_at_its_end():
+    clock = [0.0]
+    traj = Trajectory.of([[0, 0, 0, 0, 5.0], [2, 10, 0, 0, 5.0], [4, 15, 0, 0, 0.0]])
+    tr = TrajectoryTracker(traj, clock=lambda: clock[0])
+    x, y, h, v = 0.0, 1.0, 0.0, 5.0  # 1 m left of the path
+    for _ in range(90):  # 6 s at 15 Hz (highway-env's bicycle, wheelbase = length 5 m)
+        cmd = tr.command((x, y), h, v)
+        beta = np.arctan(0.5 * np.tan(cmd["steering"]))
+        x += v * np.cos(h + beta) / 15
+        y += v * np.sin(h + beta) / 15
+        h += v * np.sin(beta) / 2.5 / 15
+        v = max(0.0, v + cmd["acceleration"] / 15)
+        clock[0] += 1 / 15
+    assert abs(y) < 0.3 and v < 0.5 and 12.0 < x < 17.0
+    with pytest.raises(ValueError):
+        Trajectory.of([[0, 0, 0, 0, float("nan")]])
+    with pytest.raises(ValueError):
+        Trajectory.of([[1, 0, 0, 0, 1], [0, 1, 0, 0, 1]])
+
+
+def test_a_control_planner_that_leaves_the_road_fails_with_a_gif_recorded_while_it_drove(suite_file, tmp_path):
+    """`control` replies drive the ego directly; the failure's GIF comes from the run itself (an
+    out-of-process planner is not replayed)."""
+    cmd = _script(tmp_path, "wild", HELLO + "while True:\n    m = recv()\n"
+                                            "    if m['type'] == 'close':\n        send({'type': 'bye'}); break\n"
+                                            "    send({'type': 'control', 'acceleration': 3.0, 'steering': 0.6})\n")
+    out = tmp_path / "rep"
+    rc = cli.main(["rollout", str(_one(suite_file, tmp_path)), "--planner-cmd", cmd, "--out", str(out), "--quiet",
+                   "--no-coverage"])
+    assert rc == 1
+    o = json.loads((out / "summary.json").read_text())["outcomes"][0]
+    assert o["outcome"] in ("off_road", "collision") and o["route_progress"] < 0.5
+    gif = out / "failures" / f"{o['name']}.gif"
+    assert gif.is_file() and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
