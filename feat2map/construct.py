@@ -53,7 +53,14 @@ class SocketGeometry:
 
 def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
     """Centre-to-socket distance: far enough that neighbouring legs' pavements (plus a margin,
-    the crosswalks' overhang) do not overlap, plus room for a crosswalk and stop line."""
+    the crosswalks' overhang) do not overlap, plus room for a crosswalk and stop line.
+
+    Two neighbouring legs `delta` apart overlap where the facing pavement edges meet: at
+    `(h_j + h_i cos delta) / sin delta` along leg i and `(h_i + h_j cos delta) / sin delta` along
+    leg j (half widths h). Where one of the two is not positive the edges diverge outside the
+    centre and the pavements never meet, whatever the radius: legs nearly opposite with different
+    widths (179.98 deg apart with 6 and 7 lanes asked for a 4219 m radius) need no room from
+    each other."""
     n = feature.n_roads
     halves = [(s.lanes_in + s.lanes_out) * cfg.lane_width / 2 + cfg.junction_margin for s in feature.sockets]
     need = cfg.min_junction_radius
@@ -62,8 +69,9 @@ def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
         delta = math.radians((feature.rotation[j] - feature.rotation[i]) % 360.0)
         if delta < math.pi - 1e-6:
             s = math.sin(delta)
-            need = max(need, (halves[j] + halves[i] * math.cos(delta)) / s,
-                       (halves[i] + halves[j] * math.cos(delta)) / s)
+            along = ((halves[j] + halves[i] * math.cos(delta)) / s, (halves[i] + halves[j] * math.cos(delta)) / s)
+            if min(along) > 0.0:
+                need = max(need, *along)
     return need + cfg.crosswalk_width + 2 * cfg.junction_margin
 
 
