@@ -72,6 +72,15 @@ def _road_lanes(hdmap) -> RoadLanes:
     return roads, lines, STRtree(lines)
 
 
+def _tangent(line: LineString, s: float) -> np.ndarray:
+    """Chord of `line` over the metre around arc length `s`, kept on the line (shapely reads a
+    negative distance from the far end: at s = 0 the chord pointed backwards, so lanes that
+    coincide with an opposite lane from their start, Baidu-style `2765`/`2765dup1`, read as the
+    same direction and their passage was missed)."""
+    a, b = (np.asarray(line.interpolate(min(max(s + d, 0.0), line.length)).coords[0]) for d in (-0.5, 0.5))
+    return b - a
+
+
 def flip(points) -> np.ndarray:
     """Map frame (y north) -> highway-env frame (y down)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2).copy()
@@ -375,11 +384,7 @@ class MapNetwork(RoadNetwork):
                 continue
             # opposite directions where they are close: the tangents point against each other
             k = int(np.argmax(near))
-            ta = np.subtract(*[np.asarray(la.interpolate(min(s[k] + d, la.length)).coords[0]) for d in (0.5, -0.5)])
-            t0 = lb.project(pts[k])
-            tb = np.subtract(*[np.asarray(lb.interpolate(min(max(t0 + d, 0.0), lb.length)).coords[0])
-                               for d in (0.5, -0.5)])
-            if float(np.dot(ta, tb)) >= 0.0:
+            if float(np.dot(_tangent(la, s[k]), _tangent(lb, lb.project(pts[k])))) >= 0.0:
                 continue
             on_b = shapely.line_locate_point(lb, pts[near])
             for lid, lo, hi in ((a.id, s[near].min(), s[near].max()), (b.id, on_b.min(), on_b.max())):
