@@ -81,6 +81,33 @@ def _tangent(line: LineString, s: float) -> np.ndarray:
     return b - a
 
 
+def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
+    """Pairs of junction lanes from different approaches that end in one lane (a merge: a left
+    turn into the lane straight traffic enters): conflicts like crossings (issue 21). They are
+    registered from the links, not only from how close the centrelines come, so a merge counts
+    where a map's junction lanes end apart on a wide exit lane or carry different junction ids
+    (overlapping junction polygons). Paths from one lane (a diverge) never merge."""
+    into: dict[str, list] = {}
+    for ln in m.lanes.values():
+        if ln.junction_id is not None:
+            for x in ln.successors:
+                into.setdefault(x, []).append(ln)
+    out: set[tuple[str, str]] = set()
+    for group in into.values():
+        for i, a in enumerate(group):
+            for b in group[i + 1:]:
+                if a.id != b.id and not set(a.predecessors) & set(b.predecessors):
+                    out.add((min(a.id, b.id), max(a.id, b.id)))
+    return sorted(out)
+
+
+def unregistered_merges(net: "MapNetwork") -> list[str]:
+    """Load-time check: every merge (`merge_pairs`) is a conflict in the network's table, like a
+    crossing; one line per pair that is not (empty when sound)."""
+    return [f"junction lanes {a} and {b} merge into one lane but are no conflict"
+            for a, b in merge_pairs(net.hdmap) if b not in net.conflicts.get(a, ())]
+
+
 def flip(points) -> np.ndarray:
     """Map frame (y north) -> highway-env frame (y down)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2).copy()
@@ -339,6 +366,9 @@ class MapNetwork(RoadNetwork):
                     continue
                 conf[a.id].add(b.id)
                 conf[b.id].add(a.id)
+        for a, b in merge_pairs(m):  # whatever their geometry or junction ids say
+            conf[a].add(b)
+            conf[b].add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}
         # crosswalk crossings
         cws = list(m.crosswalks.values())

@@ -1,0 +1,100 @@
+"""Failure classes found driving a real Baidu-style Apollo map (issue 21 item 5), each on a map
+the test makes itself: merges registered as conflicts whatever the junction ids say, ...
+
+Every fixture is a generated map changed the way the real map is drawn."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+import feat2map
+from feat2map.envs.network import MapNetwork, merge_pairs, unregistered_merges
+from feat2map.formats import native
+from feat2map.scenarios.planner import BaselinePlanner
+from feat2map.scenarios.scenario import Scenario, make_env
+
+
+def _drive(path: Path, route, spawns, duration: float = 40.0, config: dict | None = None):
+    """Drive the ego with the baseline planner along `route`; `spawns` are (time, lane path, s
+    before the first lane's end, speed) traffic cars added during the drive. Returns
+    (outcome, env, planner): 'collision', 'completed' or 'timeout'."""
+    sc = Scenario("fixture", str(path), route, seed=0, duration=duration)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False, **(config or {})})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    planner = BaselinePlanner()
+    planner.reset(env)
+    todo = sorted(spawns, key=lambda x: x[0])
+    f = u.config["policy_frequency"]
+    outcome = "timeout"
+    for k in range(int(duration * f)):
+        while todo and k >= todo[0][0] * f:
+            _, path_, back, speed = todo.pop(0)
+            u.road.spawn(path_[0], u.net.lane_of[path_[0]].length - back, speed, list(path_))
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        if info["collision"]:
+            outcome = "collision"
+            break
+        if term or trunc:
+            outcome = "completed" if u.route_completed() else "timeout"
+            break
+    env.close()
+    return outcome, env, planner
+
+
+def _in(m, jid: str, road: str) -> str:
+    return next(ln.id for ln in m.lanes.values() if ln.road_id == road and ln.junction_id is None
+                and any(m.lanes[s].junction_id == jid for s in ln.successors))
+
+
+def _out(m, jid: str, road: str) -> str:
+    return next(ln.id for ln in m.lanes.values() if ln.road_id == road and ln.junction_id is None
+                and any(m.lanes[p].junction_id == jid for p in ln.predecessors))
+
+
+def _path(m, jid: str, entry: str, exit_: str) -> str:
+    return next(ln.id for ln in m.lanes.values() if ln.junction_id is not None and m.lanes[ln.predecessors[0]].road_id == entry
+                and m.lanes[ln.successors[0]].road_id == exit_)
+
+
+# ---- merges ------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def overlapping_t(tmp_path_factory) -> Path:
+    """A bare T (legs east R0, north R1, west R2) whose straight path west -> east belongs to a
+    second junction element over the same area (Baidu-style overlapping junction polygons): the
+    left turn north -> east merges into the lane that straight traffic enters."""
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "bare", False)], seed=0)
+    straight = _path(m, "J0", "R2", "R0")
+    lanes, roads = dict(m.lanes), dict(m.roads)
+    lanes[straight] = dataclasses.replace(lanes[straight], junction_id="J0b")
+    rid = lanes[straight].road_id
+    roads[rid] = dataclasses.replace(roads[rid], junction_id="J0b")
+    junctions = {**m.junctions, "J0b": dataclasses.replace(m.junctions["J0"], id="J0b")}
+    path = tmp_path_factory.mktemp("merge") / "overlapping_t.json"
+    native.save(dataclasses.replace(m, lanes=lanes, roads=roads, junctions=junctions), path)
+    return path
+
+
+def test_merges_are_conflicts_whatever_the_junction_ids(overlapping_t):
+    m = native.load(overlapping_t)
+    net = MapNetwork.from_map(m)
+    left, straight = _path(m, "J0", "R1", "R0"), _path(m, "J0b", "R2", "R0")
+    assert (min(left, straight), max(left, straight)) in merge_pairs(m)
+    assert straight in net.conflicts[left] and left in net.conflicts[straight]
+    assert unregistered_merges(net) == []
+    # a diverge (two paths from one lane) is no merge
+    assert all(not set(m.lanes[a].predecessors) & set(m.lanes[b].predecessors) for a, b in merge_pairs(m))
+
+
+@pytest.mark.parametrize("t_spawn, back", [(3.0, 20.0), (4.0, 10.0), (5.0, 10.0)])
+def test_left_turn_waits_for_straight_traffic_entering_its_exit(overlapping_t, t_spawn, back):
+    """The ego turns left north -> east at the bare T while a car drives west -> east at 10 m/s
+    into the same exit lane: nobody collides (the two entered together before: no conflict
+    was registered between lanes of different junction elements)."""
+    m = native.load(overlapping_t)
+    car = [_in(m, "J0b", "R2"), _path(m, "J0b", "R2", "R0"), _out(m, "J0", "R0")]
+    outcome, *_ = _drive(overlapping_t, (("J0", "R1", "R0"),), [(t_spawn, car, back, 10.0)])
+    assert outcome == "completed"
