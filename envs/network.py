@@ -34,6 +34,7 @@ CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's la
 FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
 PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
 PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
+CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
@@ -79,6 +80,30 @@ def _tangent(line: LineString, s: float) -> np.ndarray:
     same direction and their passage was missed)."""
     a, b = (np.asarray(line.interpolate(min(max(s + d, 0.0), line.length)).coords[0]) for d in (-0.5, 0.5))
     return b - a
+
+
+def _curvature(line: LineString, s: np.ndarray) -> np.ndarray:
+    """|curvature| [1/m] of `line` at arc lengths `s`: the turn between the chords CURVE_CHORD_M
+    long either side (kept on the line), over the distance between their midpoints, so polyline
+    kinks of read maps do not read as sharp bends."""
+    c = CURVE_CHORD_M
+    p = [np.asarray(shapely.get_coordinates(shapely.line_interpolate_point(line, np.clip(s + d, 0.0, line.length))))
+         for d in (-c, 0.0, c)]
+    d1, d2 = p[1] - p[0], p[2] - p[1]
+    n1, n2 = np.hypot(*d1.T), np.hypot(*d2.T)
+    h1, h2 = np.arctan2(d1[:, 1], d1[:, 0]), np.arctan2(d2[:, 1], d2[:, 0])
+    both = (n1 > 1e-6) & (n2 > 1e-6)  # at a lane end one chord is empty: no turn measured there
+    turn = np.where(both, np.abs((h2 - h1 + np.pi) % (2 * np.pi) - np.pi), 0.0)
+    return turn / np.maximum((n1 + n2) / 2, 1e-6)
+
+
+def swing(curvature):
+    """How far [m] a car (VEHICLE_LENGTH_M x VEHICLE_WIDTH_M) whose centre follows a bend of this
+    curvature sweeps beyond its width: its outer corners reach sqrt((R + W/2)^2 + (L/2)^2) from
+    the bend's centre (0 on a straight)."""
+    k = np.asarray(curvature, dtype=float)
+    hl, hw = VEHICLE_LENGTH_M / 2, VEHICLE_WIDTH_M / 2
+    return hl * hl * k / (np.sqrt((1 + k * hw) ** 2 + (k * hl) ** 2) + 1 + k * hw)
 
 
 def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
@@ -394,12 +419,17 @@ class MapNetwork(RoadNetwork):
 
     def _build_passages(self, road_lanes: RoadLanes) -> None:
         """`passages`: pairs of road lanes of opposite directions (not linked to each other) whose
-        centrelines come closer than PASSAGE_DISTANCE_M, found once through an STRtree; lanes
-        linked by such pairs form one passage, its two sides coloured by direction."""
+        centrelines come closer than PASSAGE_DISTANCE_M plus both cars' `swing` on the bend
+        there, found once through an STRtree; lanes linked by such pairs form one passage, its
+        two sides coloured by direction. (2.66 m lanes on a 10.7 m bend: the cars' bodies
+        overlapped where their paths stayed 2.66 m apart, issue 21.)"""
         roads, lines, tree = road_lanes
         if not lines:
             return
-        left, right = tree.query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M)
+        samples = [np.linspace(0.0, ln.length, max(2, int(math.ceil(ln.length / PASSAGE_STEP_M)) + 1)) for ln in lines]
+        swings = [swing(_curvature(ln, s)) for ln, s in zip(lines, samples)]
+        most = np.array([float(w.max()) for w in swings])
+        left, right = tree.query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M + most + most.max())
         span: dict[str, list[float]] = {}
         edges: dict[str, set[str]] = {}
         for i, j in zip(left.tolist(), right.tolist()):
@@ -407,16 +437,20 @@ class MapNetwork(RoadNetwork):
             if i == j or b.id in {*a.predecessors, *a.successors, *a.left_neighbors, *a.right_neighbors}:
                 continue
             la, lb = lines[i], lines[j]
-            s = np.linspace(0.0, la.length, max(2, int(math.ceil(la.length / PASSAGE_STEP_M)) + 1))
+            if la.distance(lb) >= PASSAGE_DISTANCE_M + most[i] + most[j]:
+                continue
+            s = samples[i]
             pts = shapely.line_interpolate_point(la, s)
-            near = shapely.distance(pts, lb) < PASSAGE_DISTANCE_M
+            on_b = shapely.line_locate_point(lb, pts)
+            room = PASSAGE_DISTANCE_M + swings[i] + np.interp(on_b, samples[j], swings[j])
+            near = shapely.distance(pts, lb) < room
             if not near.any():
                 continue
             # opposite directions where they are close: the tangents point against each other
             k = int(np.argmax(near))
             if float(np.dot(_tangent(la, s[k]), _tangent(lb, lb.project(pts[k])))) >= 0.0:
                 continue
-            on_b = shapely.line_locate_point(lb, pts[near])
+            on_b = on_b[near]
             for lid, lo, hi in ((a.id, s[near].min(), s[near].max()), (b.id, on_b.min(), on_b.max())):
                 old = span.get(lid)
                 span[lid] = [float(lo), float(hi)] if old is None else [min(old[0], lo), max(old[1], hi)]
@@ -439,8 +473,8 @@ class MapNetwork(RoadNetwork):
         for lid, (g, k) in side.items():
             length = self.lane_of[lid].length
             s0, s1 = span[lid]
-            self.passages[lid] = Passage(g, k, max(s0 - VEHICLE_LENGTH_M / 2, 0.0),
-                                         min(s1 + VEHICLE_LENGTH_M / 2, length))
+            self.passages[lid] = Passage(g, k, float(max(s0 - VEHICLE_LENGTH_M / 2, 0.0)),
+                                         float(min(s1 + VEHICLE_LENGTH_M / 2, length)))
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:
