@@ -1,5 +1,6 @@
 """Failure classes found driving a real Baidu-style Apollo map (issue 21 item 5), each on a map
-the test makes itself: merges registered as conflicts whatever the junction ids say, ...
+the test makes itself: merges registered as conflicts whatever the junction ids say; narrow lanes
+on a bend (2.66 m lanes: a car's corners swing out of its lane there) are a narrow passage; ...
 
 Every fixture is a generated map changed the way the real map is drawn."""
 from __future__ import annotations
@@ -7,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import feat2map
@@ -97,4 +99,49 @@ def test_left_turn_waits_for_straight_traffic_entering_its_exit(overlapping_t, t
     m = native.load(overlapping_t)
     car = [_in(m, "J0b", "R2"), _path(m, "J0b", "R2", "R0"), _out(m, "J0", "R0")]
     outcome, *_ = _drive(overlapping_t, (("J0", "R1", "R0"),), [(t_spawn, car, back, 10.0)])
+    assert outcome == "completed"
+
+
+# ---- narrow lanes on a bend --------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def narrow(tmp_path_factory) -> Path:
+    """The San Francisco feature space, seed 1, with 2.66 m lanes (the real map's width): road R1
+    bends at a 10.7 m radius before J0."""
+    from feat2map.config import GenerationConfig
+
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1, config=GenerationConfig(lane_width=2.66))
+    path = tmp_path_factory.mktemp("narrow") / "narrow.json"
+    native.save(m, path)
+    return path
+
+
+def test_swing_grows_with_curvature():
+    from feat2map.envs.network import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M, swing
+
+    k = np.array([0.0, 0.01, 0.05, 0.1, 0.2])
+    w = swing(k)
+    assert w[0] == 0.0 and np.all(np.diff(w) > 0)
+    r = 1 / 0.1
+    assert w[3] == pytest.approx(np.hypot(r + VEHICLE_WIDTH_M / 2, VEHICLE_LENGTH_M / 2) - r - VEHICLE_WIDTH_M / 2)
+
+
+def test_narrow_lanes_on_a_bend_are_a_passage(narrow):
+    """R1's opposite lanes are 2.66 m apart everywhere: more than a car width plus margin (no
+    passage on its straight part), less once both cars swing on the bend before J0."""
+    m = native.load(narrow)
+    net = MapNetwork.from_map(m)
+    assert set(net.passages) == {"R1_0", "R1_1"}
+    toward_j0 = net.passages["R1_1"]
+    assert toward_j0.s1 > net.lane_of["R1_1"].length - 2.0 and toward_j0.s0 > 40.0  # the bend, to J0
+    assert MapNetwork.from_map(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1)).passages == {}
+
+
+@pytest.mark.parametrize("t_spawn, back", [(35.0, 20.0), (36.0, 40.0), (39.0, 20.0)])
+def test_oncoming_car_on_the_bend_waits_for_the_ego(narrow, t_spawn, back):
+    """The ego drives R1 towards J0 (a left turn there) while a car turns out of J0 into R1 at
+    10 m/s: the two never meet on the bend (their corners clipped there before)."""
+    car = ["R2_1", "J0_c5_0", "R1_0", "J1_c2_0", "R4_0"]
+    outcome, *_ = _drive(narrow, (("J1", "R3", "R1"), ("J0", "R1", "R0")), [(t_spawn, car, back, 10.0)],
+                         duration=150.0)
     assert outcome == "completed"
