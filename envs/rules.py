@@ -298,6 +298,22 @@ class TrafficRules:
                 return True
         return False
 
+    def yields_to_reservation(self, other, lane_id: str) -> bool:
+        """Whether road user `other`, heading into junction lane `lane_id` from the road lane
+        before it, would wait if someone reserved a lane conflicting with it now: it holds no
+        reservation of `lane_id` and can still stop comfortably before its line (every vehicle's
+        `junction_clear` waits while a conflicting lane is occupied or reserved)."""
+        net = self.net
+        if self.reservations.get(lane_id) is other or not hasattr(other, "lane_route"):
+            return False
+        pos = other.route_pos
+        route = other.lane_route
+        k = route.index(lane_id, pos) if lane_id in route[pos:] else -1
+        if k <= 0 or net.hdmap.lanes[route[k - 1]].junction_id is not None:
+            return False
+        d = self.line_distance(other, lane_id)
+        return can_stop_before(d - STOP_POINT_M, max(other.speed, 0.0), other.LENGTH)
+
     def traffic_towards(self, lane_id: str, exclude=None) -> list[tuple[float, Any]]:
         """(distance from the vehicle centre to the start of `lane_id`, vehicle) of every road
         user on the lane (negative distances) or heading into it next from an approach allowed

@@ -1,6 +1,8 @@
 """Failure classes found driving a real Baidu-style Apollo map (issue 21 item 5), each on a map
 the test makes itself: merges registered as conflicts whatever the junction ids say; narrow lanes
-on a bend (2.66 m lanes: a car's corners swing out of its lane there) are a narrow passage; ...
+on a bend (2.66 m lanes: a car's corners swing out of its lane there) are a narrow passage; an
+unprotected entry held by a steady stream with the right of way takes its lane after PATIENCE_S
+where the vehicles it relies on can still stop for its reservation.
 
 Every fixture is a generated map changed the way the real map is drawn."""
 from __future__ import annotations
@@ -20,7 +22,8 @@ from feat2map.scenarios.scenario import Scenario, make_env
 
 def _drive(path: Path, route, spawns, duration: float = 40.0, config: dict | None = None):
     """Drive the ego with the baseline planner along `route`; `spawns` are (time, lane path, s
-    before the first lane's end, speed) traffic cars added during the drive. Returns
+    before the first lane's end, speed) traffic cars added during the drive (and removed at the
+    end of their path). Returns
     (outcome, env, planner): 'collision', 'completed' or 'timeout'."""
     sc = Scenario("fixture", str(path), route, seed=0, duration=duration)
     env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False, **(config or {})})
@@ -36,6 +39,9 @@ def _drive(path: Path, route, spawns, duration: float = 40.0, config: dict | Non
             _, path_, back, speed = todo.pop(0)
             u.road.spawn(path_[0], u.net.lane_of[path_[0]].length - back, speed, list(path_))
         obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        done = [v for v in u.road.vehicles if v is not u.vehicle and getattr(v, "finished", False)]
+        if done:  # cars at the end of their route leave (they would park there)
+            u.road.vehicles = [v for v in u.road.vehicles if v not in done]
         if info["collision"]:
             outcome = "collision"
             break
@@ -145,3 +151,22 @@ def test_oncoming_car_on_the_bend_waits_for_the_ego(narrow, t_spawn, back):
     outcome, *_ = _drive(narrow, (("J1", "R3", "R1"), ("J0", "R1", "R0")), [(t_spawn, car, back, 10.0)],
                          duration=150.0)
     assert outcome == "completed"
+
+
+# ---- an unprotected entry into a steady stream ------------------------------------------------
+
+@pytest.mark.parametrize("headway", [5.4, 5.8])
+def test_entry_into_a_steady_stream_decides_instead_of_waiting_forever(overlapping_t, headway):
+    """The ego turns left at the bare T into the exit that a car enters every `headway` seconds
+    at 12 m/s (traffic with the right of way). It waited to the end of the drive before; now,
+    held PATIENCE_S, it reserves its lane when the cars it relies on can still stop for that,
+    and nobody collides."""
+    from feat2map.scenarios.planner import PATIENCE_S
+
+    m = native.load(overlapping_t)
+    car = [_in(m, "J0b", "R2"), _path(m, "J0b", "R2", "R0"), _out(m, "J0", "R0")]
+    spawns = [(k * headway, car, 40.0, 12.0) for k in range(int(90 / headway))]
+    outcome, env, planner = _drive(overlapping_t, (("J0", "R1", "R0"),), spawns, duration=90.0)
+    assert outcome == "completed"
+    entered = next(e.time for e in planner.events if e.stage == "B_I")
+    assert entered >= PATIENCE_S
