@@ -133,6 +133,26 @@ def unregistered_merges(net: "MapNetwork") -> list[str]:
             for a, b in merge_pairs(net.hdmap) if b not in net.conflicts.get(a, ())]
 
 
+def unguarded_coincident_lanes(net: "MapNetwork", tolerance: float = 0.1) -> list[str]:
+    """Load-time check: road lanes of opposite directions whose centre lines coincide (within
+    `tolerance` metres, Baidu-style `2765`/`2765dup1`) are both in one narrow passage (one
+    direction at a time); one line per pair that is not (empty when sound)."""
+    roads, lines, tree = _road_lanes(net.hdmap)
+    out = []
+    if not lines:
+        return out
+    left, right = tree.query(lines, predicate="dwithin", distance=tolerance)
+    for i, j in zip(left.tolist(), right.tolist()):
+        a, b = roads[i], roads[j]
+        if i >= j or lines[i].hausdorff_distance(lines[j].reverse()) > tolerance:
+            continue
+        pa, pb = net.passages.get(a.id), net.passages.get(b.id)
+        if pa is None or pb is None or pa.group != pb.group or pa.side == pb.side:
+            x, y = sorted((a.id, b.id))
+            out.append(f"road lanes {x} and {y} coincide in opposite directions but are no narrow passage")
+    return out
+
+
 def flip(points) -> np.ndarray:
     """Map frame (y north) -> highway-env frame (y down)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2).copy()

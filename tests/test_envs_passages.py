@@ -117,6 +117,12 @@ def test_coincident_opposite_lanes_are_one_passage(one_lane):
     assert pa.group == pb.group and {pa.side, pb.side} == {0, 1}
     for x in (a, b):
         assert net.passages[x].s0 == 0.0 and net.passages[x].s1 == pytest.approx(net.lane_of[x].length)
+    from feat2map.envs.network import unguarded_coincident_lanes
+
+    assert unguarded_coincident_lanes(net) == []
+    net.passages.clear()  # the load-time check names the pair when no passage guards it
+    assert unguarded_coincident_lanes(net) == [f"road lanes {min(a, b)} and {max(a, b)} coincide in opposite "
+                                               "directions but are no narrow passage"]
 
 
 def test_coincident_lanes_drive_clean_with_traffic(one_lane):
