@@ -82,7 +82,8 @@ def _coincident(m, road_id: str):
         w = (s / s[-1] if at_end else 1 - s / s[-1])[:, None] * (np.asarray(to) - p[-1 if at_end else 0])
         moved = [as_polyline(np.asarray(q) + w) if len(q) == len(p) else q
                  for q in (ln.centerline, ln.left_boundary, ln.right_boundary)]
-        return dataclasses.replace(ln, centerline=moved[0], left_boundary=moved[1], right_boundary=moved[2], bezier=None)
+        return dataclasses.replace(ln, centerline=moved[0], left_boundary=moved[1], right_boundary=moved[2],
+                                   bezier=None)
 
     for ln in (a, b):
         new = lanes[ln.id]

@@ -63,8 +63,8 @@ def _out(m, jid: str, road: str) -> str:
 
 
 def _path(m, jid: str, entry: str, exit_: str) -> str:
-    return next(ln.id for ln in m.lanes.values() if ln.junction_id is not None and m.lanes[ln.predecessors[0]].road_id == entry
-                and m.lanes[ln.successors[0]].road_id == exit_)
+    return next(ln.id for ln in m.lanes.values() if ln.junction_id is not None
+                and m.lanes[ln.predecessors[0]].road_id == entry and m.lanes[ln.successors[0]].road_id == exit_)
 
 
 # ---- merges ------------------------------------------------------------------------------------
