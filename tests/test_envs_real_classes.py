@@ -170,3 +170,28 @@ def test_entry_into_a_steady_stream_decides_instead_of_waiting_forever(overlappi
     assert outcome == "completed"
     entered = next(e.time for e in planner.events if e.stage == "B_I")
     assert entered >= PATIENCE_S
+
+
+# ---- stop-sign queue: a route position that moved on ------------------------------------------
+
+def test_queue_member_that_moved_on_still_wants_its_lane_in_this_junction():
+    """A route follower moves its route position onto the junction lane in the last metre before
+    it; the stop-sign queue still reads that lane as the one it wants in this junction (it read
+    the next junction's: a car later in the queue took a lane merging with the ego's as the ego
+    crossed its line, Shalun's sim_map r008)."""
+    from types import SimpleNamespace
+
+    from feat2map.envs.rules import TrafficRules
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "stop", False)
+    m = feat2map.generate_from_features([four, four], seed=0)
+    rules = TrafficRules()
+    rules.net = MapNetwork.from_map(m)
+    j0 = next(ln for ln in m.lanes.values() if ln.junction_id == "J0" and ln.successors[0] in m.roads["R2"].lane_ids)
+    link = j0.successors[0]
+    j1 = next(x for x in m.lanes[link].successors if m.lanes[x].junction_id == "J1")
+    route = [j0.predecessors[0], j0.id, link, j1]
+    for pos in (0, 1):
+        v = SimpleNamespace(lane_route=route, route_pos=pos)
+        assert rules._lane_in(v, "J0") == j0.id
+    assert rules._lane_in(SimpleNamespace(lane_route=route, route_pos=3), "J0") is None
