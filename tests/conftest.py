@@ -36,6 +36,7 @@ SLOW_TESTS = (
     "tests/test_apollo_export.py::test_validator_survives_any_cleared_fields",
     "tests/test_atomic.py::test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder",
     "tests/test_envs_passages.py::test_bridge_map_drives_clean_with_traffic",
+    "tests/test_envs_passages.py::test_coincident_lanes_drive_clean_with_traffic",
     "tests/test_envs_vector.py::test_sb3_subproc_vec_env_steps_through_episode_ends",
     "tests/test_experiments.py::test_rq1_on_real_san_francisco",
     "tests/test_experiments.py::test_rq4_builds_draws_and_drives_custom_maps",
