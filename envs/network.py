@@ -273,6 +273,9 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
+        problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
+        if problems:
+            raise Feat2MapError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""), "map")
         return net
 
     def _build_index(self) -> None:
