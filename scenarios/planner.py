@@ -408,6 +408,7 @@ class BaselinePlanner:
             # past the conflict, is then overruled and the junction lane reserved); re-taken every
             # step until the ego can no longer stop before the line
             d_line = self._line_distance()
+            env.rules.passage_stop(ego, True)  # queue for the narrow passages ahead while deciding (first come first served)
             if self._decide(d_line):
                 return idm(ego, env.leader_gaps(), env.rule_stop_distance(self.ignore | {"conflict"}, commit=True))
             stop = min(env.rule_stop_distance(self.ignore, commit=False), d_line - STOP_POINT_M)
