@@ -34,6 +34,7 @@ CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's la
 FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
 PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
 PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
+CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}
@@ -70,6 +71,86 @@ def _road_lanes(hdmap) -> RoadLanes:
     roads = [ln for ln in hdmap.lanes.values() if ln.junction_id is None]
     lines = [LineString(ln.centerline) for ln in roads]
     return roads, lines, STRtree(lines)
+
+
+def _tangent(line: LineString, s: float) -> np.ndarray:
+    """Chord of `line` over the metre around arc length `s`, kept on the line (shapely reads a
+    negative distance from the far end: at s = 0 the chord pointed backwards, so lanes that
+    coincide with an opposite lane from their start, Baidu-style `2765`/`2765dup1`, read as the
+    same direction and their passage was missed)."""
+    a, b = (np.asarray(line.interpolate(min(max(s + d, 0.0), line.length)).coords[0]) for d in (-0.5, 0.5))
+    return b - a
+
+
+def _curvature(line: LineString, s: np.ndarray) -> np.ndarray:
+    """|curvature| [1/m] of `line` at arc lengths `s`: the turn between the chords CURVE_CHORD_M
+    long either side (kept on the line), over the distance between their midpoints, so polyline
+    kinks of read maps do not read as sharp bends."""
+    c = CURVE_CHORD_M
+    p = [np.asarray(shapely.get_coordinates(shapely.line_interpolate_point(line, np.clip(s + d, 0.0, line.length))))
+         for d in (-c, 0.0, c)]
+    d1, d2 = p[1] - p[0], p[2] - p[1]
+    n1, n2 = np.hypot(*d1.T), np.hypot(*d2.T)
+    h1, h2 = np.arctan2(d1[:, 1], d1[:, 0]), np.arctan2(d2[:, 1], d2[:, 0])
+    both = (n1 > 1e-6) & (n2 > 1e-6)  # at a lane end one chord is empty: no turn measured there
+    turn = np.where(both, np.abs((h2 - h1 + np.pi) % (2 * np.pi) - np.pi), 0.0)
+    return turn / np.maximum((n1 + n2) / 2, 1e-6)
+
+
+def swing(curvature):
+    """How far [m] a car (VEHICLE_LENGTH_M x VEHICLE_WIDTH_M) whose centre follows a bend of this
+    curvature sweeps beyond its width: its outer corners reach sqrt((R + W/2)^2 + (L/2)^2) from
+    the bend's centre (0 on a straight)."""
+    k = np.asarray(curvature, dtype=float)
+    hl, hw = VEHICLE_LENGTH_M / 2, VEHICLE_WIDTH_M / 2
+    return hl * hl * k / (np.sqrt((1 + k * hw) ** 2 + (k * hl) ** 2) + 1 + k * hw)
+
+
+def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
+    """Pairs of junction lanes from different approaches that end in one lane (a merge: a left
+    turn into the lane straight traffic enters): conflicts like crossings (issue 21). They are
+    registered from the links, not only from how close the centrelines come, so a merge counts
+    where a map's junction lanes end apart on a wide exit lane or carry different junction ids
+    (overlapping junction polygons). Paths from one lane (a diverge) never merge."""
+    into: dict[str, list] = {}
+    for ln in m.lanes.values():
+        if ln.junction_id is not None:
+            for x in ln.successors:
+                into.setdefault(x, []).append(ln)
+    out: set[tuple[str, str]] = set()
+    for group in into.values():
+        for i, a in enumerate(group):
+            for b in group[i + 1:]:
+                if a.id != b.id and not set(a.predecessors) & set(b.predecessors):
+                    out.add((min(a.id, b.id), max(a.id, b.id)))
+    return sorted(out)
+
+
+def unregistered_merges(net: "MapNetwork") -> list[str]:
+    """Load-time check: every merge (`merge_pairs`) is a conflict in the network's table, like a
+    crossing; one line per pair that is not (empty when sound)."""
+    return [f"junction lanes {a} and {b} merge into one lane but are no conflict"
+            for a, b in merge_pairs(net.hdmap) if b not in net.conflicts.get(a, ())]
+
+
+def unguarded_coincident_lanes(net: "MapNetwork", tolerance: float = 0.1) -> list[str]:
+    """Load-time check: road lanes of opposite directions whose centre lines coincide (within
+    `tolerance` metres, Baidu-style `2765`/`2765dup1`) are both in one narrow passage (one
+    direction at a time); one line per pair that is not (empty when sound)."""
+    roads, lines, tree = _road_lanes(net.hdmap)
+    out = []
+    if not lines:
+        return out
+    left, right = tree.query(lines, predicate="dwithin", distance=tolerance)
+    for i, j in zip(left.tolist(), right.tolist()):
+        a, b = roads[i], roads[j]
+        if i >= j or lines[i].hausdorff_distance(lines[j].reverse()) > tolerance:
+            continue
+        pa, pb = net.passages.get(a.id), net.passages.get(b.id)
+        if pa is None or pb is None or pa.group != pb.group or pa.side == pb.side:
+            x, y = sorted((a.id, b.id))
+            out.append(f"road lanes {x} and {y} coincide in opposite directions but are no narrow passage")
+    return out
 
 
 def flip(points) -> np.ndarray:
@@ -192,6 +273,9 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
+        problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
+        if problems:
+            raise Feat2MapError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""), "map")
         return net
 
     def _build_index(self) -> None:
@@ -330,6 +414,9 @@ class MapNetwork(RoadNetwork):
                     continue
                 conf[a.id].add(b.id)
                 conf[b.id].add(a.id)
+        for a, b in merge_pairs(m):  # whatever their geometry or junction ids say
+            conf[a].add(b)
+            conf[b].add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}
         # crosswalk crossings
         cws = list(m.crosswalks.values())
@@ -355,12 +442,17 @@ class MapNetwork(RoadNetwork):
 
     def _build_passages(self, road_lanes: RoadLanes) -> None:
         """`passages`: pairs of road lanes of opposite directions (not linked to each other) whose
-        centrelines come closer than PASSAGE_DISTANCE_M, found once through an STRtree; lanes
-        linked by such pairs form one passage, its two sides coloured by direction."""
+        centrelines come closer than PASSAGE_DISTANCE_M plus both cars' `swing` on the bend
+        there, found once through an STRtree; lanes linked by such pairs form one passage, its
+        two sides coloured by direction. (2.66 m lanes on a 10.7 m bend: the cars' bodies
+        overlapped where their paths stayed 2.66 m apart, issue 21.)"""
         roads, lines, tree = road_lanes
         if not lines:
             return
-        left, right = tree.query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M)
+        samples = [np.linspace(0.0, ln.length, max(2, int(math.ceil(ln.length / PASSAGE_STEP_M)) + 1)) for ln in lines]
+        swings = [swing(_curvature(ln, s)) for ln, s in zip(lines, samples)]
+        most = np.array([float(w.max()) for w in swings])
+        left, right = tree.query(lines, predicate="dwithin", distance=PASSAGE_DISTANCE_M + most + most.max())
         span: dict[str, list[float]] = {}
         edges: dict[str, set[str]] = {}
         for i, j in zip(left.tolist(), right.tolist()):
@@ -368,20 +460,20 @@ class MapNetwork(RoadNetwork):
             if i == j or b.id in {*a.predecessors, *a.successors, *a.left_neighbors, *a.right_neighbors}:
                 continue
             la, lb = lines[i], lines[j]
-            s = np.linspace(0.0, la.length, max(2, int(math.ceil(la.length / PASSAGE_STEP_M)) + 1))
+            if la.distance(lb) >= PASSAGE_DISTANCE_M + most[i] + most[j]:
+                continue
+            s = samples[i]
             pts = shapely.line_interpolate_point(la, s)
-            near = shapely.distance(pts, lb) < PASSAGE_DISTANCE_M
+            on_b = shapely.line_locate_point(lb, pts)
+            room = PASSAGE_DISTANCE_M + swings[i] + np.interp(on_b, samples[j], swings[j])
+            near = shapely.distance(pts, lb) < room
             if not near.any():
                 continue
             # opposite directions where they are close: the tangents point against each other
             k = int(np.argmax(near))
-            ta = np.subtract(*[np.asarray(la.interpolate(min(s[k] + d, la.length)).coords[0]) for d in (0.5, -0.5)])
-            t0 = lb.project(pts[k])
-            tb = np.subtract(*[np.asarray(lb.interpolate(min(max(t0 + d, 0.0), lb.length)).coords[0])
-                               for d in (0.5, -0.5)])
-            if float(np.dot(ta, tb)) >= 0.0:
+            if float(np.dot(_tangent(la, s[k]), _tangent(lb, lb.project(pts[k])))) >= 0.0:
                 continue
-            on_b = shapely.line_locate_point(lb, pts[near])
+            on_b = on_b[near]
             for lid, lo, hi in ((a.id, s[near].min(), s[near].max()), (b.id, on_b.min(), on_b.max())):
                 old = span.get(lid)
                 span[lid] = [float(lo), float(hi)] if old is None else [min(old[0], lo), max(old[1], hi)]
@@ -404,8 +496,8 @@ class MapNetwork(RoadNetwork):
         for lid, (g, k) in side.items():
             length = self.lane_of[lid].length
             s0, s1 = span[lid]
-            self.passages[lid] = Passage(g, k, max(s0 - VEHICLE_LENGTH_M / 2, 0.0),
-                                         min(s1 + VEHICLE_LENGTH_M / 2, length))
+            self.passages[lid] = Passage(g, k, float(max(s0 - VEHICLE_LENGTH_M / 2, 0.0)),
+                                         float(min(s1 + VEHICLE_LENGTH_M / 2, length)))
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:

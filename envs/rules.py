@@ -298,6 +298,22 @@ class TrafficRules:
                 return True
         return False
 
+    def yields_to_reservation(self, other, lane_id: str) -> bool:
+        """Whether road user `other`, heading into junction lane `lane_id` from the road lane
+        before it, would wait if someone reserved a lane conflicting with it now: it holds no
+        reservation of `lane_id` and can still stop comfortably before its line (every vehicle's
+        `junction_clear` waits while a conflicting lane is occupied or reserved)."""
+        net = self.net
+        if self.reservations.get(lane_id) is other or not hasattr(other, "lane_route"):
+            return False
+        pos = other.route_pos
+        route = other.lane_route
+        k = route.index(lane_id, pos) if lane_id in route[pos:] else -1
+        if k <= 0 or net.hdmap.lanes[route[k - 1]].junction_id is not None:
+            return False
+        d = self.line_distance(other, lane_id)
+        return can_stop_before(d - STOP_POINT_M, max(other.speed, 0.0), other.LENGTH)
+
     def traffic_towards(self, lane_id: str, exclude=None) -> list[tuple[float, Any]]:
         """(distance from the vehicle centre to the start of `lane_id`, vehicle) of every road
         user on the lane (negative distances) or heading into it next from an approach allowed
@@ -323,10 +339,27 @@ class TrafficRules:
         for other in queue[:queue.index(vehicle)]:
             if any(other in w for w in self.passage_waiters.values()):  # it waits for a narrow passage
                 continue
-            _, lane, _ = other.next_junction_lane() if hasattr(other, "next_junction_lane") else (None, None, 0)
+            lane = self._lane_in(other, jid)
             if lane is None or lane in conflicts and self.box_clear(other, lane):
                 return False
         return True
+
+    def _lane_in(self, vehicle, junction_id: str | None) -> str | None:
+        """The lane of junction `junction_id` that a queued road user drives into next: looked up
+        from the lane before its route position, since a route follower moves on in the last metre
+        of its lane (`next_junction_lane` then names the junction after: Shalun's sim_map r008, a
+        car later in J_1's stop queue took a lane merging with the ego's as the ego crossed its
+        line)."""
+        lanes = self.net.hdmap.lanes
+        route = getattr(vehicle, "lane_route", None)
+        if junction_id is None:
+            return vehicle.next_junction_lane()[1] if hasattr(vehicle, "next_junction_lane") else None
+        if route is None:
+            return None
+        for lid in route[max(vehicle.route_pos - 1, 0):]:
+            if lanes[lid].junction_id == junction_id:
+                return lid
+        return None
 
     def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
                   ignore: frozenset = frozenset()) -> bool:

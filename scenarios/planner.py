@@ -51,6 +51,7 @@ CURVE_LOOKAHEAD_M = 50.0
 GAP_ACCEL_MPS2 = 1.5  # the ego's assumed acceleration when judging whether it clears a conflict in time
 GAP_MARGIN_S = 2.0  # a creeping turn goes when every conflicting vehicle arrives this much after it clears
 CROSS_TRAFFIC_MARGIN_M = 5.0  # a right turn on red waits for vehicles this far (plus 3 s) from a conflict
+PATIENCE_S = 15.0  # held at the line by traffic this long, an unprotected entry takes its lane when the rules allow it
 
 LANE_FOLLOW = "LANE_FOLLOW"
 STOP_SIGN = "STOP_SIGN_UNPROTECTED"
@@ -131,6 +132,7 @@ class BaselinePlanner:
         self.stage_since = 0.0
         self.go = False  # the unprotected left's gap acceptance lets it past the line (re-taken each step)
         self.full_stop = False  # stopped at the selected junction's line (right on red needs it)
+        self.held = 0.0  # seconds held at the selected junction's line by traffic (PATIENCE_S)
         self._zones: dict[tuple[str, str], tuple[float, float, float, float]] = {}
         self._curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._steps = 0
@@ -170,6 +172,7 @@ class BaselinePlanner:
         self.go = False
         if scenario is not None:
             self.full_stop = False
+            self.held = 0.0
         if scenario == LANE_FOLLOW:
             self.junction = self.j_lane = self.in_lane = None
         self._log()
@@ -203,6 +206,8 @@ class BaselinePlanner:
         d = self._line_distance()
         t_stage = float(env.time) - self.stage_since
         stopped = ego.speed <= STOPPED_SPEED_MPS
+        if self.stage in ("B_A", "L_C") and stopped and d <= CREEP_TRIGGER_M and self._held_by_traffic():
+            self.held += 1.0 / float(env.config["policy_frequency"])
         if stopped and self._in_stop_zone():
             self.full_stop = True
         if self.stage == "S_PS" and stopped and self._in_stop_zone():
@@ -288,11 +293,12 @@ class BaselinePlanner:
             self._zones[key] = (float(a.cum[ia[0]]), float(a.cum[ia[-1]]), float(b.cum[ib[0]]), float(b.cum[ib[-1]]))
         return self._zones[key]
 
-    def _gap_ok(self) -> bool:
+    def _gap_ok(self, yielding: bool = False) -> bool:
         """Gap acceptance of the unprotected left (scenarios/README.md), per conflict zone of our
         junction lane: every vehicle heading through it either leaves it GAP_MARGIN_S before we
         can arrive (at its current speed) or arrives GAP_MARGIN_S after we have left (it
-        accelerating up to its lane's speed limit)."""
+        accelerating up to its lane's speed limit). With `yielding`, vehicles that would wait for
+        our reservation (`TrafficRules.yields_to_reservation`) are left out."""
         env = self.env
         ego, net = env.vehicle, env.net
         v_me = max(ego.speed, 0.0)
@@ -310,6 +316,8 @@ class BaselinePlanner:
                 d_out = d_in + (c1 - c0) + v.LENGTH
                 if d_out <= 0:
                     continue  # already through
+                if yielding and env.rules.yields_to_reservation(v, c):
+                    continue
                 sp = max(float(getattr(v, "speed", 0.0)), 0.0)
                 # it may speed up, to its lane's speed limit (IDM's target), not beyond
                 lane = net.lane_of.get(net.id_of.get(getattr(v, "lane_index", None)))
@@ -334,10 +342,20 @@ class BaselinePlanner:
         ego = self.env.vehicle
         if not (self.go and not can_stop_before(d_line, ego.speed, ego.LENGTH)):
             free = self.env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > d_line + 0.5
-            self.go = free and self._gap_ok()
+            self.go = free and (self._gap_ok() or self._forces())
             if not self.go:  # a reservation made while it meant to go would hold up the traffic it now waits for
                 self.env.rules.release(ego, self.j_lane)
         return self.go
+
+    def _forces(self) -> bool:
+        """After PATIENCE_S held at the line by traffic, the unprotected entry takes its lane by
+        reserving it when the gap acceptance finds a gap among the vehicles that would not wait
+        for that reservation (those inside the junction, holding their lane, or too close to stop
+        comfortably): a steady stream with the right of way (an entry into a bare junction's
+        busy exit, an unprotected left at a signal waiting 70 s: issue 21) is then a decision,
+        not a timeout; everyone it relies on waiting does so by the rules."""
+        return "conflict" not in self.ignore and self.held >= PATIENCE_S and \
+            self.env.rules.box_clear(self.env.vehicle, self.j_lane) and self._gap_ok(yielding=True)
 
     def _curve_speeds(self, lane_id: str) -> tuple[np.ndarray, np.ndarray]:
         """(s, comfortable speed) at the vertices of a lane: sqrt(a_lat / curvature), never below
@@ -390,9 +408,12 @@ class BaselinePlanner:
             # past the conflict, is then overruled and the junction lane reserved); re-taken every
             # step until the ego can no longer stop before the line
             d_line = self._line_distance()
+            env.rules.passage_stop(ego, True)  # queue for the narrow passages ahead while deciding (first come first served)
             if self._decide(d_line):
                 return idm(ego, env.leader_gaps(), env.rule_stop_distance(self.ignore | {"conflict"}, commit=True))
             stop = min(env.rule_stop_distance(self.ignore, commit=False), d_line - STOP_POINT_M)
+        elif stage == "B_A" and self._forces():
+            stop = env.rule_stop_distance(self.ignore | {"conflict"}, commit=True)  # reserves its lane
         else:
             stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
         a = idm(ego, env.leader_gaps(), stop)

@@ -41,6 +41,7 @@ SLOW_TESTS = (
     "tests/test_bridge.py::test_the_reference_planner_drives_a_suite_through_the_bridge",
     "tests/test_bridge_commonroad.py",
     "tests/test_envs_passages.py::test_bridge_map_drives_clean_with_traffic",
+    "tests/test_envs_passages.py::test_coincident_lanes_drive_clean_with_traffic",
     "tests/test_envs_vector.py::test_sb3_subproc_vec_env_steps_through_episode_ends",
     "tests/test_experiments.py::test_rq1_on_real_san_francisco",
     "tests/test_experiments.py::test_rq4_builds_draws_and_drives_custom_maps",

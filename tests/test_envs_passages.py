@@ -57,6 +57,84 @@ def bridge(tmp_path_factory) -> Path:
     return d / "bridge.xodr"
 
 
+def _coincident(m, road_id: str):
+    """`m` with road `road_id`'s two opposite lanes drawn on one centre line, the one reversed
+    (Baidu-style one-lane two-way roads: lanes `2765` and `2765dup1`), and the junction lanes
+    at its ends bent (linearly along their length) to meet it."""
+    import dataclasses
+
+    from feat2map.model import as_polyline
+
+    road = m.roads[road_id]
+    a, b = m.lanes[road.right_lanes[0]], m.lanes[road.left_lanes[0]]
+    mid = (a.points + b.points[::-1]) / 2
+    u = np.gradient(mid, axis=0)
+    u /= np.hypot(*u.T)[:, None]
+    n = np.stack([-u[:, 1], u[:, 0]], axis=1) * a.width / 2
+    lanes = dict(m.lanes)
+    for ln, c, side in ((a, mid, n), (b, mid[::-1], -n[::-1])):
+        lanes[ln.id] = dataclasses.replace(ln, centerline=as_polyline(c), left_boundary=as_polyline(c + side),
+                                           right_boundary=as_polyline(c - side), bezier=None)
+
+    def bend(ln, to, at_end: bool):
+        p = ln.points
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+        w = (s / s[-1] if at_end else 1 - s / s[-1])[:, None] * (np.asarray(to) - p[-1 if at_end else 0])
+        moved = [as_polyline(np.asarray(q) + w) if len(q) == len(p) else q
+                 for q in (ln.centerline, ln.left_boundary, ln.right_boundary)]
+        return dataclasses.replace(ln, centerline=moved[0], left_boundary=moved[1], right_boundary=moved[2],
+                                   bezier=None)
+
+    for ln in (a, b):
+        new = lanes[ln.id]
+        for x in ln.predecessors:
+            lanes[x] = bend(lanes[x], new.centerline[0], True)
+        for x in ln.successors:
+            lanes[x] = bend(lanes[x], new.centerline[-1], False)
+    return dataclasses.replace(m, lanes=lanes)
+
+
+@pytest.fixture(scope="module")
+def one_lane(tmp_path_factory) -> Path:
+    """Two 4-way stop junctions whose link road R2 is one lane used both ways, drawn as two
+    lanes with identical reversed centre lines (native map)."""
+    from feat2map.formats import native
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "stop", False)
+    path = tmp_path_factory.mktemp("one_lane") / "one_lane.json"
+    native.save(_coincident(feat2map.generate_from_features([four, four], seed=0), "R2"), path)
+    return path
+
+
+def test_coincident_opposite_lanes_are_one_passage(one_lane):
+    """Opposite lanes at distance 0 from end to end are a passage over their whole length (their
+    direction was read backwards at s = 0 and the pair dropped: both directions drove in)."""
+    m = read_map(one_lane)
+    net = MapNetwork.from_map(m)
+    a, b = m.roads["R2"].lane_ids
+    assert m.lanes[a].centerline == m.lanes[b].centerline[::-1]
+    assert set(net.passages) == {a, b}
+    pa, pb = net.passages[a], net.passages[b]
+    assert pa.group == pb.group and {pa.side, pb.side} == {0, 1}
+    for x in (a, b):
+        assert net.passages[x].s0 == 0.0 and net.passages[x].s1 == pytest.approx(net.lane_of[x].length)
+    from feat2map.envs.network import unguarded_coincident_lanes
+
+    assert unguarded_coincident_lanes(net) == []
+    net.passages.clear()  # the load-time check names the pair when no passage guards it
+    assert unguarded_coincident_lanes(net) == [f"road lanes {min(a, b)} and {max(a, b)} coincide in opposite "
+                                               "directions but are no narrow passage"]
+
+
+def test_coincident_lanes_drive_clean_with_traffic(one_lane):
+    """Every manoeuvre's route of the one-lane map drives with 6 traffic cars without a failure
+    (head-on collisions on the shared lane before)."""
+    suite = build_suite(one_lane, traffic_vehicles=6)
+    assert suite.scenarios
+    result = run_suite(suite, "baseline", workers=1, progress=False, record_failure_gif=False)
+    assert [f"{o.name}: {o.outcome}: {o.message}" for o in result.failures("any")] == []
+
+
 def test_generated_maps_have_no_passages():
     """Opposite lanes of generated roads are a lane width apart: no passage, so the rules (and
     the PPO example's behaviour) are those of before on every generated map."""

@@ -193,3 +193,20 @@ def test_nearly_opposite_legs_of_unequal_widths_need_no_huge_radius(rotation, la
     assert junction_radius(f, GenerationConfig()) < 30.0
     m = feat2map.generate_from_features([f])
     assert check_map(m) == [] and len(m.junctions) == 1
+
+
+@pytest.mark.parametrize("opposite", [179.98, 178.0, 170.0])
+def test_nearly_opposite_legs_of_different_widths_need_no_huge_radius(opposite):
+    """Legs almost opposite with 6 and 7 lanes (3+3, 4+3) asked for a 4219 m
+    radius (the overlap distance divides by the sine of the angle between them) and the junction
+    was skipped; their facing pavement edges diverge, so the radius stays that of the other legs,
+    and the junction builds without overlapping roads."""
+    from feat2map.construct import junction_radius
+    from feat2map.features import Socket
+
+    cfg = GenerationConfig()
+    f = JunctionFeature((Socket(0.0, 3, 3), Socket(90.0, 1, 1), Socket(opposite, 4, 3)), "bare", False)
+    plain = JunctionFeature((Socket(0.0, 3, 3), Socket(90.0, 1, 1), Socket(180.0, 4, 3)), "bare", False)
+    assert junction_radius(f, cfg) < 1.1 * junction_radius(plain, cfg)
+    m = feat2map.generate_from_features([f], seed=0)
+    assert overlapping_roads(m) == [] and check_map(m) == []

@@ -1,0 +1,197 @@
+"""Failure classes found driving a real Baidu-style Apollo map (issue 21 item 5), each on a map
+the test makes itself: merges registered as conflicts whatever the junction ids say; narrow lanes
+on a bend (2.66 m lanes: a car's corners swing out of its lane there) are a narrow passage; an
+unprotected entry held by a steady stream with the right of way takes its lane after PATIENCE_S
+where the vehicles it relies on can still stop for its reservation.
+
+Every fixture is a generated map changed the way the real map is drawn."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import feat2map
+from feat2map.envs.network import MapNetwork, merge_pairs, unregistered_merges
+from feat2map.formats import native
+from feat2map.scenarios.planner import BaselinePlanner
+from feat2map.scenarios.scenario import Scenario, make_env
+
+
+def _drive(path: Path, route, spawns, duration: float = 40.0, config: dict | None = None):
+    """Drive the ego with the baseline planner along `route`; `spawns` are (time, lane path, s
+    before the first lane's end, speed) traffic cars added during the drive (and removed at the
+    end of their path). Returns
+    (outcome, env, planner): 'collision', 'completed' or 'timeout'."""
+    sc = Scenario("fixture", str(path), route, seed=0, duration=duration)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False, **(config or {})})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    planner = BaselinePlanner()
+    planner.reset(env)
+    todo = sorted(spawns, key=lambda x: x[0])
+    f = u.config["policy_frequency"]
+    outcome = "timeout"
+    for k in range(int(duration * f)):
+        while todo and k >= todo[0][0] * f:
+            _, path_, back, speed = todo.pop(0)
+            u.road.spawn(path_[0], u.net.lane_of[path_[0]].length - back, speed, list(path_))
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        done = [v for v in u.road.vehicles if v is not u.vehicle and getattr(v, "finished", False)]
+        if done:  # cars at the end of their route leave (they would park there)
+            u.road.vehicles = [v for v in u.road.vehicles if v not in done]
+        if info["collision"]:
+            outcome = "collision"
+            break
+        if term or trunc:
+            outcome = "completed" if u.route_completed() else "timeout"
+            break
+    env.close()
+    return outcome, env, planner
+
+
+def _in(m, jid: str, road: str) -> str:
+    return next(ln.id for ln in m.lanes.values() if ln.road_id == road and ln.junction_id is None
+                and any(m.lanes[s].junction_id == jid for s in ln.successors))
+
+
+def _out(m, jid: str, road: str) -> str:
+    return next(ln.id for ln in m.lanes.values() if ln.road_id == road and ln.junction_id is None
+                and any(m.lanes[p].junction_id == jid for p in ln.predecessors))
+
+
+def _path(m, jid: str, entry: str, exit_: str) -> str:
+    return next(ln.id for ln in m.lanes.values() if ln.junction_id is not None
+                and m.lanes[ln.predecessors[0]].road_id == entry and m.lanes[ln.successors[0]].road_id == exit_)
+
+
+# ---- merges ------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def overlapping_t(tmp_path_factory) -> Path:
+    """A bare T (legs east R0, north R1, west R2) whose straight path west -> east belongs to a
+    second junction element over the same area (Baidu-style overlapping junction polygons): the
+    left turn north -> east merges into the lane that straight traffic enters."""
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "bare", False)], seed=0)
+    straight = _path(m, "J0", "R2", "R0")
+    lanes, roads = dict(m.lanes), dict(m.roads)
+    lanes[straight] = dataclasses.replace(lanes[straight], junction_id="J0b")
+    rid = lanes[straight].road_id
+    roads[rid] = dataclasses.replace(roads[rid], junction_id="J0b")
+    junctions = {**m.junctions, "J0b": dataclasses.replace(m.junctions["J0"], id="J0b")}
+    path = tmp_path_factory.mktemp("merge") / "overlapping_t.json"
+    native.save(dataclasses.replace(m, lanes=lanes, roads=roads, junctions=junctions), path)
+    return path
+
+
+def test_merges_are_conflicts_whatever_the_junction_ids(overlapping_t):
+    m = native.load(overlapping_t)
+    net = MapNetwork.from_map(m)
+    left, straight = _path(m, "J0", "R1", "R0"), _path(m, "J0b", "R2", "R0")
+    assert (min(left, straight), max(left, straight)) in merge_pairs(m)
+    assert straight in net.conflicts[left] and left in net.conflicts[straight]
+    assert unregistered_merges(net) == []
+    # a diverge (two paths from one lane) is no merge
+    assert all(not set(m.lanes[a].predecessors) & set(m.lanes[b].predecessors) for a, b in merge_pairs(m))
+
+
+@pytest.mark.parametrize("t_spawn, back", [(3.0, 20.0), (4.0, 10.0), (5.0, 10.0)])
+def test_left_turn_waits_for_straight_traffic_entering_its_exit(overlapping_t, t_spawn, back):
+    """The ego turns left north -> east at the bare T while a car drives west -> east at 10 m/s
+    into the same exit lane: nobody collides (the two entered together before: no conflict
+    was registered between lanes of different junction elements)."""
+    m = native.load(overlapping_t)
+    car = [_in(m, "J0b", "R2"), _path(m, "J0b", "R2", "R0"), _out(m, "J0", "R0")]
+    outcome, *_ = _drive(overlapping_t, (("J0", "R1", "R0"),), [(t_spawn, car, back, 10.0)])
+    assert outcome == "completed"
+
+
+# ---- narrow lanes on a bend --------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def narrow(tmp_path_factory) -> Path:
+    """The San Francisco feature space, seed 1, with 2.66 m lanes (the real map's width): road R1
+    bends at a 10.7 m radius before J0."""
+    from feat2map.config import GenerationConfig
+
+    m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1, config=GenerationConfig(lane_width=2.66))
+    path = tmp_path_factory.mktemp("narrow") / "narrow.json"
+    native.save(m, path)
+    return path
+
+
+def test_swing_grows_with_curvature():
+    from feat2map.envs.network import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M, swing
+
+    k = np.array([0.0, 0.01, 0.05, 0.1, 0.2])
+    w = swing(k)
+    assert w[0] == 0.0 and np.all(np.diff(w) > 0)
+    r = 1 / 0.1
+    assert w[3] == pytest.approx(np.hypot(r + VEHICLE_WIDTH_M / 2, VEHICLE_LENGTH_M / 2) - r - VEHICLE_WIDTH_M / 2)
+
+
+def test_narrow_lanes_on_a_bend_are_a_passage(narrow):
+    """R1's opposite lanes are 2.66 m apart everywhere: more than a car width plus margin (no
+    passage on its straight part), less once both cars swing on the bend before J0."""
+    m = native.load(narrow)
+    net = MapNetwork.from_map(m)
+    assert set(net.passages) == {"R1_0", "R1_1"}
+    toward_j0 = net.passages["R1_1"]
+    assert toward_j0.s1 > net.lane_of["R1_1"].length - 2.0 and toward_j0.s0 > 40.0  # the bend, to J0
+    assert MapNetwork.from_map(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=1)).passages == {}
+
+
+@pytest.mark.parametrize("t_spawn, back", [(35.0, 20.0), (36.0, 40.0), (39.0, 20.0)])
+def test_oncoming_car_on_the_bend_waits_for_the_ego(narrow, t_spawn, back):
+    """The ego drives R1 towards J0 (a left turn there) while a car turns out of J0 into R1 at
+    10 m/s: the two never meet on the bend (their corners clipped there before)."""
+    car = ["R2_1", "J0_c5_0", "R1_0", "J1_c2_0", "R4_0"]
+    outcome, *_ = _drive(narrow, (("J1", "R3", "R1"), ("J0", "R1", "R0")), [(t_spawn, car, back, 10.0)],
+                         duration=150.0)
+    assert outcome == "completed"
+
+
+# ---- an unprotected entry into a steady stream ------------------------------------------------
+
+@pytest.mark.parametrize("headway", [5.4, 5.8])
+def test_entry_into_a_steady_stream_decides_instead_of_waiting_forever(overlapping_t, headway):
+    """The ego turns left at the bare T into the exit that a car enters every `headway` seconds
+    at 12 m/s (traffic with the right of way). It waited to the end of the drive before; now,
+    held PATIENCE_S, it reserves its lane when the cars it relies on can still stop for that,
+    and nobody collides."""
+    from feat2map.scenarios.planner import PATIENCE_S
+
+    m = native.load(overlapping_t)
+    car = [_in(m, "J0b", "R2"), _path(m, "J0b", "R2", "R0"), _out(m, "J0", "R0")]
+    spawns = [(k * headway, car, 40.0, 12.0) for k in range(int(90 / headway))]
+    outcome, env, planner = _drive(overlapping_t, (("J0", "R1", "R0"),), spawns, duration=90.0)
+    assert outcome == "completed"
+    entered = next(e.time for e in planner.events if e.stage == "B_I")
+    assert entered >= PATIENCE_S
+
+
+# ---- stop-sign queue: a route position that moved on ------------------------------------------
+
+def test_queue_member_that_moved_on_still_wants_its_lane_in_this_junction():
+    """A route follower moves its route position onto the junction lane in the last metre before
+    it; the stop-sign queue still reads that lane as the one it wants in this junction (it read
+    the next junction's: a car later in the queue took a lane merging with the ego's as the ego
+    crossed its line, Shalun's sim_map r008)."""
+    from types import SimpleNamespace
+
+    from feat2map.envs.rules import TrafficRules
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "stop", False)
+    m = feat2map.generate_from_features([four, four], seed=0)
+    rules = TrafficRules()
+    rules.net = MapNetwork.from_map(m)
+    j0 = next(ln for ln in m.lanes.values() if ln.junction_id == "J0" and ln.successors[0] in m.roads["R2"].lane_ids)
+    link = j0.successors[0]
+    j1 = next(x for x in m.lanes[link].successors if m.lanes[x].junction_id == "J1")
+    route = [j0.predecessors[0], j0.id, link, j1]
+    for pos in (0, 1):
+        v = SimpleNamespace(lane_route=route, route_pos=pos)
+        assert rules._lane_in(v, "J0") == j0.id
+    assert rules._lane_in(SimpleNamespace(lane_route=route, route_pos=3), "J0") is None
