@@ -16,6 +16,7 @@ import importlib.abc
 import importlib.util
 import sys
 import types
+from pathlib import Path
 
 STUBBED = {
     "commonroad.common.reader.file_reader_protobuf": ("ProtobufFileReaderDynamic", "ProtobufFileReaderMap",
@@ -61,7 +62,14 @@ class _Finder(importlib.abc.MetaPathFinder):
         return importlib.util.spec_from_loader(name, _Loader())
 
 
+ISOLATED_DIR = "commonroad-io"  # scripts/setup.sh installs commonroad-io here, in the venv, off site-packages
+
+
 def install() -> None:
-    """Put the finder first on sys.meta_path (once)."""
+    """Put the finder first on sys.meta_path (once), and the venv's isolated commonroad-io folder
+    (scripts/setup.sh: outside site-packages, so `pip check` holds) on sys.path, last."""
+    isolated = str(Path(sys.prefix) / ISOLATED_DIR)
+    if Path(isolated).is_dir() and isolated not in sys.path:
+        sys.path.append(isolated)
     if not any(isinstance(f, _Finder) for f in sys.meta_path):
         sys.meta_path.insert(0, _Finder())

@@ -30,6 +30,7 @@ import numpy as np
 
 from ... import __version__, atomic
 from ...angles import wrap_angle
+from ...commonroad_io import install
 from ...config import (COMMONROAD_CONTINUATION_M, COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S,
                        STRAIGHT_TOLERANCE_DEG, UTM_ZONE, UTURN_THRESHOLD_DEG)
 from ...errors import Feat2MapError
@@ -95,17 +96,13 @@ def mutual_adjacency(lanes: Mapping[str, Lane]) -> dict[str, dict[str, tuple[str
     return adj
 
 
-COMMONROAD_IO_DIR = "commonroad-io"  # scripts/setup.sh installs commonroad-io here, in the venv, off sys.path
-
-
 def commonroad_io():
     """commonroad-io's scenario modules, or a clear error without the package. commonroad-io
     pins protobuf 3.20 (Apollo's maps need a newer one) and feat2map uses only its XML modules:
     scripts/setup.sh installs it --no-deps into <venv>/commonroad-io, outside site-packages, so
-    the environment stays consistent (`pip check`), and that folder joins sys.path only here."""
-    isolated = Path(sys.prefix) / COMMONROAD_IO_DIR
-    if isolated.is_dir() and str(isolated) not in sys.path:
-        sys.path.append(str(isolated))
+    the environment stays consistent (`pip check`); `import feat2map` puts that folder on sys.path
+    (feat2map.commonroad_io.install)."""
+    install()
     try:
         from commonroad.common.writer import file_writer_xml  # noqa: F401
         import commonroad.scenario.intersection  # noqa: F401
