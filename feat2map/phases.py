@@ -29,7 +29,7 @@ import math
 from typing import Iterable, Mapping
 
 from .config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S, SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG
-from .model import HDMap, Lane, Signal, incoming_lanes
+from .model import HDMap, Signal, incoming_lanes
 
 Phases = tuple[tuple[str, ...], ...]
 PERMISSIVE_TURNS = ("left", "uturn")  # turns that yield to opposed traffic in a paired plan
@@ -250,8 +250,8 @@ def _junction_units(m: HDMap, sigs: list[Signal], pc: PathConflicts, paired: boo
     units = _approach_units(m, sigs)
     bad = {g for g, *_ in declared_group_conflicts(m, pc, paired)}
     mine = {g.id for g in sigs}
-    for gid, ids in declared_groups(m):
-        ids = [x for x in ids if x in mine]
+    for gid, declared in declared_groups(m):
+        ids = [x for x in declared if x in mine]
         if gid in bad or len(ids) < 2:
             continue
         hit = [u for u in units if set(u) & set(ids)]

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, replace
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 from .config import LANE_LINK_GAP_M
 from .errors import Feat2MapError
@@ -232,7 +232,8 @@ def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
     lanes = dict(m.lanes)
     for lid, fields in cut.items():
         ln = lanes[lid]
-        lanes[lid] = replace(ln, **{f: tuple(x for x in getattr(ln, f) if x not in gone) for f, gone in fields.items()})
+        kept: dict[str, Any] = {f: tuple(x for x in getattr(ln, f) if x not in gone) for f, gone in fields.items()}
+        lanes[lid] = replace(ln, **kept)
     shown = ", ".join(f"{a} -> {b} ({d:.0f} m)" for a, b, d in sorted(far, key=lambda x: -x[2])[:3])
     warnings.warn(f"{where}: {len(far)} lane link(s) between ends more than {LANE_LINK_GAP_M:g} m apart dropped "
                   f"(largest: {shown})", stacklevel=3)
@@ -249,7 +250,7 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     lanes = dict(m.lanes)
     changed = False
     for lid, ln in m.lanes.items():
-        upd = {}
+        upd: dict[str, Any] = {}
         for f in _LINKS:
             ids = getattr(ln, f)
             keep = tuple(x for x in ids if x in m.lanes)
@@ -262,7 +263,7 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
         if upd:
             lanes[lid] = replace(ln, **upd)
             changed = True
-    tables = {}
+    tables: dict[str, Any] = {}
     for kind in (*CONTROL_TABLES, "crosswalks"):
         out = {}
         for sid, s in getattr(m, kind).items():
@@ -290,4 +291,5 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes, roads=roads, **tables)
 
 
-__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded", "split_conflicting_signals"]
+__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded",
+           "split_conflicting_signals"]

@@ -356,7 +356,8 @@ def test_cli_reports_a_bad_element_as_one_warning_line(tmp_path, capsys):
     path.write_bytes(pb.SerializeToString())
     assert main(["extract", str(path), "--json"]) == 0
     captured = capsys.readouterr()
-    assert captured.err.splitlines()[0] == f"feat2map: warning: {path}: junction 'J_empty': no usable polygon and no lanes, skipped"
+    assert captured.err.splitlines()[0] == (f"feat2map: warning: {path}: junction 'J_empty': "
+                                            "no usable polygon and no lanes, skipped")
     assert captured.err.splitlines()[1:] == [f"feat2map: warning: {path}: signal signal_0: governs approaches whose paths "
                                              "conflict (roads road_e, road_w / road_s): split into signals signal_0, signal_0~2"]
     assert len(json.loads(captured.out)["junctions"]) == 1

@@ -42,7 +42,8 @@ def test_an_earlier_output_is_replaced_whole(tmp_path, space_file):
     assert (out / "apollo").is_dir() and (out / "map.xodr").is_file()
     assert main(["generate", "--features", str(space_file), "--seed", "2", "--out", str(out), "--quiet",
                  "--no-picture", "--no-apollo"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == sorted([atomic.MANIFEST, "features.json", "map.json"])  # nothing of seed 1 stays
+    # nothing of seed 1 stays
+    assert sorted(p.name for p in out.iterdir()) == sorted([atomic.MANIFEST, "features.json", "map.json"])
     assert json.loads((out / "map.json").read_text())["meta"]["seed"] == 2
 
 

@@ -22,7 +22,6 @@ from feat2map.construct import junction_radius
 from feat2map.errors import Feat2MapError
 from feat2map.features import FeatureSpace, JunctionFeature
 from feat2map.formats import write_map
-from feat2map.formats.apollo import validate_apollo
 from feat2map.invariants import check_map
 from feat2map.spec import build_spec, parse_spec
 

@@ -15,7 +15,6 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
 import pytest
 from lxml import etree
 
@@ -151,7 +150,7 @@ def xodr_split_sections(root) -> None:
                 lid = first_ln.get("id")
                 if lid == "0":
                     continue
-                for ln, keep, new in ((first_ln, "predecessor", "successor"), (second_ln, "successor", "predecessor")):
+                for ln, _keep, new in ((first_ln, "predecessor", "successor"), (second_ln, "successor", "predecessor")):
                     link = ln.find("link")
                     if link is None:
                         link = etree.Element("link")
@@ -235,7 +234,7 @@ def xodr_reverse(root) -> None:
         starts = [float(g.get("s")) for g in geoms]
         ends = starts[1:] + [length]
         pv = r.find("planView")
-        for g, s0, s1 in zip(geoms, starts, ends):
+        for g, _s0, s1 in zip(geoms, starts, ends):
             x, y, h = ref.eval([s1 - 1e-9])
             _reverse_geometry(g, float(x[0]), float(y[0]), float(h[0]))
             g.set("s", repr(length - s1))

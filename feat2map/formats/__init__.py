@@ -73,7 +73,8 @@ def detect(path: str | Path, face: str = "read") -> MapFormat:
             found = [f for f in cands if f.sniff is not None and f.sniff(head)]
         elif path.suffix.lower() == ".txt" and not _is_protobuf(head):  # .txt: any text, not only Apollo's
             raise MapFormatError("not a map feat2map reads: a .txt map is Apollo protobuf text (it starts with "
-                                 f"a field such as `header {{`), this file starts with {snippet(head[:40].decode('utf-8', 'replace'))}",
+                                 f"a field such as `header {{`), this file starts with "
+                                 f"{snippet(head[:40].decode('utf-8', 'replace'))}",
                                  str(path))
     if not found:
         known = ", ".join(f"{f.name} ({' '.join(f.suffixes) or 'folder'})" for f in cands)

@@ -887,7 +887,8 @@ class _Builder:
             r = self.roads.get(rid)
             if r is None or r.junction is None:
                 continue
-            for lid in self._resolve(self._valid_lanes(r, el, s_el).values(), lanes, what):  # junction lanes: govern their feeders
+            # junction lanes: govern their feeders
+            for lid in self._resolve(self._valid_lanes(r, el, s_el).values(), lanes, what):
                 out += [p for p in lanes[lid].predecessors if p in lanes and lanes[p].junction_id is None]
         if out:
             return list(dict.fromkeys(out))
