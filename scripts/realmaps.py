@@ -37,10 +37,15 @@ from feat2map.scenarios.rollout import OUTCOMES, run_suite
 from feat2map.scenarios.routes import build_suite
 from feat2map.scenarios.scenario import Suite
 
+try:  # load-time semantic checks (issue 21), where this checkout has them
+    from feat2map import semantics
+except ImportError:
+    semantics = None
+
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared" / "maps"
 TRAFFIC = 6  # the issue's traffic level
-STAGES = ("read", "extract", "phases", "suite", "rollout")
+STAGES = ("read", "extract", "phases", "checks", "suite", "rollout")
 NOT_MAPS = ("routing_map",)  # Apollo routing graphs sit beside base maps but are no HD maps
 WARNINGS_KEPT = 20  # distinct warning lines kept per map
 
@@ -58,6 +63,7 @@ class MapSurvey:
     controls: dict[str, int] = field(default_factory=dict)
     signals: int = 0
     phases: dict[str, int] = field(default_factory=dict)  # junction id -> number of phase groups
+    checks: list[str] | None = None  # semantic findings (None: this checkout has no feat2map.semantics)
     scenarios: int = 0
     driven: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
@@ -95,7 +101,7 @@ def sample(suite: Suite, k: int | None) -> Suite:
 def _error(stage: str, exc: BaseException) -> dict:
     """A refusal (Feat2MapError: one clear line) or a traceback (anything else), for the record."""
     if isinstance(exc, Feat2MapError):
-        return {"stage": stage, "kind": "refusal", "error": str(exc)}
+        return {"stage": stage, "kind": "refusal", "error": str(exc), "message": exc.message}
     frames = traceback.extract_tb(exc.__traceback__)
     return {"stage": stage, "kind": "traceback", "error": f"{type(exc).__name__}: {exc}",
             "at": [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in frames[-4:]]}
@@ -138,6 +144,10 @@ def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool 
     groups = stage("phases", lambda: junction_phases(m))
     if groups:
         s.phases = {str(j): len(p) for j, p in groups.items()}
+    if semantics is not None:
+        found_checks = stage("checks", lambda: semantics.findings(m))
+        if found_checks is not None:
+            s.checks = [f"{'fatal: ' if f.fatal else ''}{f}" for f in found_checks]
     suite = stage("suite", lambda: build_suite(path, traffic_vehicles=traffic, name=Path(label).stem))
     if suite is not None:
         s.scenarios = len(suite.scenarios)
@@ -162,21 +172,30 @@ def _phase_cell(s: MapSurvey) -> str:
     return f"{sum(per)} ({min(per)}-{max(per)})" if min(per) != max(per) else f"{sum(per)} ({len(per)}x{per[0]})"
 
 
+def _checks_cell(s: MapSurvey) -> str:
+    """Semantic findings (fatal ones in brackets); n/a where the checkout has no checks."""
+    if s.checks is None:
+        return "n/a"
+    return f"{len(s.checks)} ({sum(c.startswith('fatal') for c in s.checks)} fatal)" if s.checks else "0"
+
+
 def _failure_cell(s: MapSurvey) -> str:
     parts = [f"{k} {v}" for k, v in s.outcomes.items() if k != "completed"]
-    parts += [f"{e['stage']} {e['kind']}" for e in s.errors]
+    parts += [f"{e['stage']}: {e['message'].split(':')[0]}" if e["kind"] == "refusal" else f"{e['stage']} traceback"
+              for e in s.errors]
     return ", ".join(parts) or "-"
 
 
 def markdown(results: Sequence[MapSurvey]) -> str:
     """The survey table plus one line per error and per failing scenario."""
     head = ("| map | source | junction elements | junctions (skipped) | signal / stop / bare | signals | phase groups "
-            "| scenarios | driven | completed | failures |\n|" + "---|" * 11)
+            "| checks | scenarios | driven | completed | failures |\n|" + "---|" * 12)
     rows = []
     for s in results:
         c = s.controls
         rows.append(f"| `{s.path}` | {s.source} | {s.junction_elements} | {s.junctions} ({len(s.skipped)}) | "
                     f"{c.get('signal', 0)} / {c.get('stop', 0)} / {c.get('bare', 0)} | {s.signals} | {_phase_cell(s)} | "
+                    f"{_checks_cell(s)} | "
                     f"{s.scenarios} | {s.driven} | {s.outcomes.get('completed', 0)} | {_failure_cell(s)} |")
     tot = Counter()
     for s in results:
@@ -191,6 +210,7 @@ def markdown(results: Sequence[MapSurvey]) -> str:
                                                                          if e.get("at") else "")
                for s in results for e in s.errors]
     details += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in results for f in s.failing]
+    details += [f"- `{s.path}` check: {c}" for s in results for c in (s.checks or ())]
     if details:
         lines += ["Errors and failing scenarios:", "", *details, ""]
     return "\n".join(lines)

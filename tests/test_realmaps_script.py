@@ -65,7 +65,7 @@ def test_the_table_counts_junctions_controls_phases_scenarios_and_drives(surveye
         row = next(r for r in md.splitlines() if f"`{d.name}/{rel}`" in r)
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[3:6] == ["2 (0)", "1 / 1 / 0", str(s["signals"])]
-        assert cells[7:] == [str(n), "1", "1", "-"]
+        assert cells[8:] == [str(n), "1", "1", "-"]
 
 
 def test_a_broken_map_is_a_finding_with_its_stage_and_the_survey_goes_on(surveyed):
