@@ -109,8 +109,8 @@ def _error(stage: str, exc: BaseException) -> dict:
 
 def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True,
                max_scenarios: int | None = None, workers: int = 1, progress: bool = False) -> MapSurvey:
-    """One map through every stage; a stage that raises is recorded and ends this map's survey
-    (later stages need its result), never the whole survey."""
+    """One map through every stage. A stage that raises is recorded; the stages that need its
+    result are left out for this map (a map that cannot be read ends here), never the survey."""
     s = MapSurvey(label, size=path.stat().st_size)
     t0 = time.perf_counter()
     seen: Counter[str] = Counter()
