@@ -14,6 +14,7 @@ Usage:
   .venv/bin/python scripts/realmaps.py                              # ../shared/maps, whole suites
   .venv/bin/python scripts/realmaps.py --corpus /work/corpus --max-scenarios 10 --workers 1
   .venv/bin/python scripts/realmaps.py --no-shared --corpus DIR --no-rollout   # extract + suite only
+  .venv/bin/python scripts/realmaps.py --compare before.json after.json --md changes.md   # map by map
 """
 from __future__ import annotations
 
@@ -216,6 +217,34 @@ def markdown(results: Sequence[MapSurvey]) -> str:
     return "\n".join(lines)
 
 
+def compare(before: dict, after: dict) -> str:
+    """Per map, before -> after (two --json files): junctions (skipped), controls, phase groups,
+    scenarios, completed of driven, failures; maps whose row is the same are marked "=", plus totals."""
+    def cells(s: dict | None) -> list[str]:
+        if s is None:
+            return ["-"] * 6
+        x = MapSurvey(**{k: v for k, v in s.items() if k in MapSurvey.__dataclass_fields__})
+        c = x.controls
+        return [f"{x.junctions} ({len(x.skipped)})", f"{c.get('signal', 0)}/{c.get('stop', 0)}/{c.get('bare', 0)}",
+                _phase_cell(x), str(x.scenarios), f"{x.outcomes.get('completed', 0)}/{x.driven}", _failure_cell(x)]
+
+    b = {s["path"]: s for s in before["maps"]}
+    a = {s["path"]: s for s in after["maps"]}
+    heads = ("junctions (skipped)", "signal/stop/bare", "phase groups", "scenarios", "completed/driven", "failures")
+    lines = ["| map | " + " | ".join(heads) + " |", "|---|" + "---|" * len(heads)]
+    for path in sorted(set(b) | set(a)):
+        old, new = cells(b.get(path)), cells(a.get(path))
+        lines.append(f"| `{path}` | " + " | ".join(o if o == n else f"{o} -> **{n}**" for o, n in zip(old, new)) + " |")
+
+    def total(maps: dict) -> str:
+        t = Counter()
+        for s in maps.values():
+            t.update(scenarios=s["scenarios"], driven=s["driven"], completed=s["outcomes"].get("completed", 0),
+                     tracebacks=sum(e["kind"] == "traceback" for e in s["errors"]))
+        return f"{t['completed']} of {t['driven']} driven completed ({t['scenarios']} scenarios), {t['tracebacks']} tracebacks"
+    return "\n".join([*lines, "", f"Before: {total(b)}. After: {total(a)}.", ""])
+
+
 def _labelled(folders: Sequence[Path]) -> Iterator[tuple[Path, str, str]]:
     """(file, label: its path under its folder with the folder's name first, source: its first sub-folder)."""
     for folder in folders:
@@ -237,7 +266,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--only", action="append", default=[], help="survey only maps whose label contains this")
     ap.add_argument("--md", type=Path, default=Path("realmaps.md"), help="Markdown table (default realmaps.md)")
     ap.add_argument("--json", type=Path, default=Path("realmaps.json"), help="JSON results (default realmaps.json)")
+    ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
+                    help="no survey: compare two --json files map by map into --md")
     args = ap.parse_args(argv)
+    if args.compare:
+        before, after = (json.loads(p.read_text(encoding="utf-8")) for p in args.compare)
+        atomic.write_text(args.md, compare(before, after))
+        return 0
     folders = list(args.folders) or ([] if args.no_shared or not SHARED.is_dir() else [SHARED])
     folders += args.corpus
     for f in folders:

@@ -75,3 +75,21 @@ def test_a_broken_map_is_a_finding_with_its_stage_and_the_survey_goes_on(surveye
     assert broken["errors"][0]["kind"] == "refusal" and "broken.xodr" in broken["errors"][0]["error"]
     assert f"- `{d.name}/odr/broken.xodr` read: refusal: " in md
     assert "**3 maps: 4 junctions (0 skipped)" in md
+
+
+def test_compare_marks_the_maps_whose_numbers_changed(surveyed, tmp_path):
+    import copy
+
+    d, _, _, data = surveyed
+    after = copy.deepcopy(data)
+    odr = next(s for s in after["maps"] if s["path"].endswith("two.xodr"))
+    odr["outcomes"] = {"completed": 0, "collision": 1}
+    files = [tmp_path / "before.json", tmp_path / "after.json"]
+    for p, doc in zip(files, (data, after)):
+        p.write_text(json.dumps(doc))
+    out = tmp_path / "cmp.md"
+    assert _script().main(["--compare", *map(str, files), "--md", str(out)]) == 0
+    rows = {r.split("|")[1].strip(): r for r in out.read_text().splitlines() if r.startswith("| `")}
+    assert "1/1 -> **0/1**" in rows[f"`{d.name}/odr/two.xodr`"] and "- -> **collision 1**" in rows[f"`{d.name}/odr/two.xodr`"]
+    assert "->" not in rows[f"`{d.name}/apollo/base_map.bin`"]
+    assert "Before: 2 of 2 driven completed" in out.read_text() and "After: 1 of 2 driven completed" in out.read_text()
