@@ -49,9 +49,9 @@ def main(argv: list[str]) -> None:
           f"{'total ms':>9} {'wall ms':>8} {'total/decode':>13}")
     warnings.simplefilter("ignore")
     for p in paths:
-        dec, _, _ = best(lambda: decode(p))
-        rd, rd_wall, m = best(lambda: read_map(p))
-        ex, ex_wall, js = best(lambda: extract_junctions(m))  # type: ignore[arg-type]
+        dec, _, _ = best(lambda p=p: decode(p))
+        rd, rd_wall, m = best(lambda p=p: read_map(p))
+        ex, ex_wall, js = best(lambda m=m: extract_junctions(m))  # type: ignore[arg-type]
         total = rd + ex
         name = str(p.relative_to(SHARED)) if p.is_relative_to(SHARED) else str(p)
         print(f"{name[-46:]:<46} {p.stat().st_size / 1e6:>5.2f} {len(js):>4} {1000 * dec:>10.1f} "  # type: ignore[arg-type]

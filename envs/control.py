@@ -195,8 +195,8 @@ class TrafficControl(TrafficRules):
                     a, b = b, a
                 d = (b - a) / max(np.hypot(*(b - a)), 1e-9)
                 off = np.array([-d[1], d[0]]) * self.rng.uniform(-0.3, 0.3) * width
-                if not any(np.hypot(*(v.position - a - off)) < PEDESTRIAN_CLEARANCE_M + PEDESTRIAN_SPAWN_HORIZON_S * max(v.speed, 0.0)
-                           for v in vehicles):
+                if not any(np.hypot(*(v.position - a - off))
+                           < PEDESTRIAN_CLEARANCE_M + PEDESTRIAN_SPAWN_HORIZON_S * max(v.speed, 0.0) for v in vehicles):
                     speed = float(self.cfg["pedestrian_speed"] * self.rng.uniform(0.85, 1.15))
                     peds.append(Pedestrian(road, a + off, b + off, speed, cw))
                     changed = True

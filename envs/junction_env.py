@@ -8,7 +8,7 @@
   new_map_each_reset   draw a fresh map seed from the env's np_random at every reset
 `feat2map/MapFile-v0` config:
   map_file        path of any map file feat2map reads (feat2map.formats.read_map: native JSON,
-                  OpenDRIVE .xodr, and Apollo once its reader lands), or
+                  OpenDRIVE .xodr, Apollo base map), or
   map             an HDMap object
 """
 from __future__ import annotations

@@ -10,7 +10,6 @@ and last segments extend beyond the ends so longitudinal coordinates run below 0
 from __future__ import annotations
 
 import bisect
-import math
 
 import numpy as np
 from highway_env.road.lane import AbstractLane, LineType
@@ -108,7 +107,8 @@ class PolylineLane(AbstractLane):
     def on_lane(self, position, longitudinal=None, lateral=None, margin=0) -> bool:
         if longitudinal is None or lateral is None:
             longitudinal, lateral = self.local_coordinates(position)
-        return abs(lateral) <= self.width / 2 + margin and -self.VEHICLE_LENGTH <= longitudinal < self.length + self.VEHICLE_LENGTH
+        return (abs(lateral) <= self.width / 2 + margin
+                and -self.VEHICLE_LENGTH <= longitudinal < self.length + self.VEHICLE_LENGTH)
 
     @classmethod
     def from_config(cls, config: dict) -> "PolylineLane":
@@ -124,8 +124,3 @@ class PolylineLane(AbstractLane):
 
     def __repr__(self) -> str:
         return f"PolylineLane({self.lane_id!r}, length={self.length:.1f})"
-
-
-def heading_delta(a: float, b: float) -> float:
-    """Signed smallest angle from a to b."""
-    return (b - a + math.pi) % (2 * math.pi) - math.pi

@@ -39,6 +39,7 @@ from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
 from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
 from ..errors import Feat2MapError
+from ..semantics import assert_sound
 from .config import merge_config, validate_config
 from .control import TrafficControl
 from .network import MapNetwork, release_memory
@@ -147,6 +148,7 @@ class MapEnv(AbstractEnv):
     def _reset(self) -> None:
         self.net = self._network()
         rng = self.np_random
+        self.net.memo("semantics", lambda: assert_sound(self.net.hdmap))  # the map is safe to drive, once per map
         self.control = TrafficControl(self.net, rng, self.config)
         road = ArrayRoad if self.config["traffic_core"] == "arrays" else MapRoad
         self.road = road(self.net, self.control, rng, record_history=self.config["show_trajectories"])

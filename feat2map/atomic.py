@@ -60,7 +60,7 @@ def _alive(pid: int) -> bool:
 def clean_leftovers(path: str | Path) -> list[Path]:
     """Remove the hidden staging siblings of `path` left by killed runs (their process is gone)."""
     path = Path(path)
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(path.parent.iterdir())
     except OSError:

@@ -9,7 +9,8 @@ import contextlib
 import contextvars
 import math
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any, Iterator
+from types import MappingProxyType
+from typing import Any, Iterator, Mapping
 
 GRID_GAP_M = 100.0  # paper: P_{x+1,y} is 100 m east of P_{x,y}
 LANE_WIDTH_M = 3.5  # paper: default lane width of the input maps
@@ -31,11 +32,12 @@ JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| below this is "straight"
-UTURN_THRESHOLD_DEG = 150.0
+UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150)
 SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
 ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
 MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles
 # Apollo export (formats/apollo: writer, sim_map, routing topo graph)
+APOLLO_KMH_SPEED_MPS = 40.0  # an Apollo map whose median lane speed_limit exceeds this wrote km/h into the m/s field
 APOLLO_SIGNAL_HEIGHT_M = 5.0  # centre of the light head above the road
 APOLLO_SIGNAL_HEAD_SIZE_M = (0.4, 1.2)  # width, height of a 3-light vertical head (its boundary)
 APOLLO_STOP_LINE_OVERLAP_M = 0.5  # signal/stop-sign overlaps span +- this around the stop line
@@ -56,6 +58,19 @@ ROUTING_MIN_LENGTH_FOR_LANE_CHANGE_M = 1.0
 SIGNAL_POLE_OFFSET_M = 1.0  # pole beyond the road edge
 # fixed-time signal plans (feat2map/phases.py: the env's defaults, the CommonRoad export's cycles)
 SIGNAL_GREEN_S, SIGNAL_AMBER_S, SIGNAL_ALL_RED_S = 12.0, 3.0, 2.0
+# the driving scenario's defaults, keyed as the env's config (envs/map_env.py `MapEnv.default_config`
+# holds the same values; tests/test_layers.py keeps them equal) and read by the OpenSCENARIO export and the
+# scenario tools, which must model the drive as the env does without importing it
+DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
+    "ego_start_distance": 30.0,  # [m] before the end of the route's first lane (the first stop line)
+    "ego_initial_speed": 4.5,  # [m/s]
+    "goal_distance": 15.0,  # [m] into the last lane of the route
+    "traffic_initial_speed": 5.0,  # [m/s]
+    "signal_green": SIGNAL_GREEN_S, "signal_amber": SIGNAL_AMBER_S, "signal_all_red": SIGNAL_ALL_RED_S,  # [s]
+    "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
+    "pedestrian_speed": 1.4,  # [m/s]
+    "pedestrians_per_crosswalk": 3,
+})
 SIGNAL_SAME_APPROACH_DEG = 30.0  # signals whose traffic travels within this of one direction: one approach
 SIGNAL_OPPOSITE_DEG = 150.0  # approaches further apart than this are opposite (paired phases)
 STOP_SIGN_SIZE_M = 0.75  # an octagon this wide, its lower edge this high (exports that draw signs)
@@ -69,7 +84,9 @@ MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
-NEGATIVE_WIDTH_TOL_M = 1e-3  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road
+LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
+NEGATIVE_WIDTH_TOL_M = 0.01  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road (a
+# lane closing to 0 dips a few mm below it in converters' output: clamped to 0)
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
 APOLLO_JUNCTION_COVER_M = 0.5  # a junction-lane overlap within this of both lane ends makes a junction lane
 APOLLO_GENERATED_MARK = b"feat2map"  # header.generation of maps feat2map generated (validate holds them to check_map)
@@ -218,7 +235,8 @@ def raised_limits(**values: float) -> Iterator[Limits]:
             raise ConfigError(f"unknown limit {name!r} (limits: {', '.join(known)})")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise ConfigError(f"limit {name} must be a positive finite number, got {_short(value)}")
-    token = _LIMITS.set(replace(limits(), **{k: (int(v) if known[k] == "int" else float(v)) for k, v in values.items()}))
+    raised: dict[str, Any] = {k: (int(v) if known[k] == "int" else float(v)) for k, v in values.items()}
+    token = _LIMITS.set(replace(limits(), **raised))
     try:
         yield limits()
     finally:

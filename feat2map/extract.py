@@ -145,14 +145,25 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     go strongest evidence first (neighbour links, then nearest pairs) and skip any merge
     that would put such a pair into one arm, so legs a few degrees apart stay apart.
     """
-    # one end per lane outside (its incoming or outgoing road lane), else per point
+    # one end per lane outside (its incoming or outgoing road lane), else per point (points
+    # within ARM_SAME_POINT_M are one: rounding coordinates would split them by where they lie)
     ends: dict[tuple, tuple[np.ndarray, np.ndarray, float, str, str | None]] = {}
+    loose: list[tuple[tuple[float, float], tuple]] = []
+
+    def point_key(p: tuple[float, float]) -> tuple:
+        for q, key in loose:
+            if math.dist(p, q) <= ARM_SAME_POINT_M:
+                return key
+        key = ("point", len(loose))
+        loose.append((p, key))
+        return key
+
     for ln in lanes:
         if any(interior_lane(m.lanes, m.lanes[x]) for x in ln.predecessors + ln.successors):
             continue  # a path through a piece of the junction (a centimetre road): no mouth
         if not any(m.lanes[p].junction_id == jid for p in ln.predecessors):
             outside = [m.lanes[p] for p in ln.predecessors]
-            key = ("in", outside[0].id) if outside else (round(ln.start[0], 2), round(ln.start[1], 2))
+            key = ("in", outside[0].id) if outside else point_key(ln.start)
             if key not in ends:
                 tangent = (outside[0].heading_at_end() if outside else ln.heading_at_start()) + math.pi
                 mouth = outside[0].end if outside else ln.start
@@ -160,7 +171,7 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
                              outside[0].id if outside else None)
         if not any(m.lanes[s].junction_id == jid for s in ln.successors):
             outside = [m.lanes[s] for s in ln.successors]
-            key = ("out", outside[0].id) if outside else (round(ln.end[0], 2), round(ln.end[1], 2))
+            key = ("out", outside[0].id) if outside else point_key(ln.end)
             if key not in ends:
                 tangent = outside[0].heading_at_start() if outside else ln.heading_at_end()
                 mouth = outside[0].start if outside else ln.end
@@ -331,6 +342,12 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
                     (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
+        raw = sorted(a.angle_deg % 360.0 for a in arms)
+        gap = min((raw[(i + 1) % len(raw)] - raw[i]) % 360.0 for i in range(len(raw)))
+        if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
+            skip(len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
+                            f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")
+            continue
         try:
             norm = normalize_rotation([a.angle_deg for a in arms], tie_tol_deg)
             arms = [arms[i] for i in norm.order]

@@ -12,6 +12,7 @@ from shapely import STRtree
 from shapely.geometry import Polygon
 from shapely.ops import unary_union
 
+from .angles import wrap_degrees
 from .config import ENDPOINT_TOLERANCE_M
 from .features import JunctionFeature
 from .model import HDMap
@@ -227,7 +228,7 @@ def unrealized_features(m: HDMap, angle_tol_deg: float = 0.01) -> list[str]:
 
 def _circ(a: float, b: float) -> float:
     """Absolute angular difference in degrees, in [0, 180]."""
-    return abs((a - b + 180.0) % 360.0 - 180.0)
+    return abs(wrap_degrees(a - b))
 
 
 def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg: float = 0.01) -> list[str]:

@@ -14,8 +14,8 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
 
 def one_line(text: object, limit: int = MAX_LINE_CHARS) -> str:
     """`text` on one line of at most `limit` characters: whitespace runs become one space, other
-    control characters are escaped, and an over-long middle is cut (the start names the file and element, the end usually says what was
-    expected)."""
+    control characters are escaped, and an over-long middle is cut (the start names the file and
+    element, the end usually says what was expected)."""
     s = re.sub(r"\s+", " ", str(text)).strip()
     s = "".join(c if c.isprintable() else ascii(c)[1:-1] for c in s)  # no terminal control sequences
     if len(s) <= limit:

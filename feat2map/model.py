@@ -12,6 +12,7 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from .angles import wrap_angle
 from .bezier import Bezier, Point
 from .config import MIN_ARM_LENGTH_M, STRAIGHT_TOLERANCE_DEG
 from .features import JunctionFeature
@@ -81,7 +82,7 @@ class Lane:
 
 def classify_turn(entry_heading: float, exit_heading: float) -> str:
     """left / straight ("none") / right from the heading change, in the paper's sense."""
-    d = math.degrees((exit_heading - entry_heading + math.pi) % (2 * math.pi) - math.pi)
+    d = math.degrees(wrap_angle(exit_heading - entry_heading))
     if abs(d) <= STRAIGHT_TOLERANCE_DEG:
         return "none"
     return "left" if d > 0 else "right"

@@ -22,6 +22,7 @@ import numpy as np
 from shapely.geometry import LineString, Polygon
 from shapely.ops import unary_union
 
+from .angles import wrap_angle
 from .bezier import Bezier
 from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig, limits
 from .construct import RoadChain, chain_road_id, junction_radius, pavement
@@ -158,7 +159,7 @@ def _chain(raw: Mapping[str, Any], index: int, where: str) -> RoadChain:
     last = len(poses) - 2
     closes = math.dist(poses[-1][0], poses[0][0]) <= ENDPOINT_TOLERANCE_M
     if closes:
-        dh = math.degrees((poses[-1][1] - poses[0][1] + math.pi) % (2 * math.pi) - math.pi)
+        dh = math.degrees(wrap_angle(poses[-1][1] - poses[0][1]))
         if abs(dh) > HEADING_TOLERANCE_DEG:
             raise SpecError(f"ends at the chain's start but heading {math.degrees(poses[-1][1]):g} deg, not the start "
                             f"heading {math.degrees(poses[0][1]):g} deg: a closed chain must join smoothly",

@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from ..errors import Feat2MapError
+from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane, interior_lane
+from ..routes import manoeuvre_lane
 from .scenario import Manoeuvre, Scenario, Suite
 
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
@@ -52,13 +54,9 @@ def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:
 
 
 def pick_lane(m: HDMap, mv: Manoeuvre) -> Lane | None:
-    """The junction lane the env drives for a manoeuvre (as `envs.map_env.manoeuvres_to_lanes`:
-    the smallest id among the junction's lanes from the entry road to the exit road)."""
-    jid, entry, exit_ = mv
-    cands = [ln for ln in m.lanes_by_junction.get(jid, [])
-             if any(m.lanes[p].road_id == entry for p in ln.predecessors if p in m.lanes)
-             and any(m.lanes[s].road_id == exit_ for s in ln.successors if s in m.lanes)]
-    return min(cands, key=lambda ln: ln.id) if cands else None
+    """The junction lane the env drives for a manoeuvre (the map layer's rule,
+    `feat2map.routes.manoeuvre_lane`)."""
+    return manoeuvre_lane(m, mv)
 
 
 def successor_graph(m: HDMap, moves: Sequence[Manoeuvre] | None = None) -> dict[Manoeuvre, list[Manoeuvre]]:
@@ -206,14 +204,13 @@ def _road_gap(m: HDMap, a: Lane, b: Lane) -> float:
 def signal_cycle(m: HDMap, junction_id: str) -> float:
     """The env's default signal cycle [s] at a junction (0 without signals): the longest red
     an approach can meet, plus its own green."""
-    from ..envs.map_env import MapEnv
-    from ..phases import group_phases, travel_headings
+    from ..phases import plan_junction
 
     signals = [s for s in m.signals.values() if s.junction_id == junction_id]
     if not signals:
         return 0.0
-    cfg = MapEnv.default_config()
-    phases = group_phases(signals, cfg["signal_phases"] == "paired", travel_headings(m, signals))
+    cfg = DRIVE_DEFAULTS
+    phases = plan_junction(m, signals, cfg["signal_phases"] == "paired")
     return len(phases) * (cfg["signal_green"] + cfg["signal_amber"] + cfg["signal_all_red"])
 
 

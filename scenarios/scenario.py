@@ -21,13 +21,12 @@ import yaml
 from ..atomic import write_text
 from ..documents import check_schema, load_document
 from ..errors import Feat2MapError, snippet
+from ..routes import Manoeuvre
 
 SCHEMA_RESOURCE = ("feat2map", "schemas/scenario.schema.json")  # package data
 SUITE_FORMAT_VERSION = 1
 ENV_ID = "feat2map/MapFile-v0"
 POLICY_FREQUENCY_HZ = 5  # planner decisions per simulated second in scenario envs
-
-Manoeuvre = tuple[str, str, str]
 
 
 class ScenarioError(Feat2MapError, ValueError):

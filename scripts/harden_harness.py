@@ -27,14 +27,12 @@ import argparse
 import contextlib
 import io
 import json
-import math
 import multiprocessing as mp
 import os
 import random
 import re
 import resource
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -146,7 +144,7 @@ def _apollo_txt_mutations(text: str, rng: random.Random) -> list[tuple[str, str]
 
 def _byte_mutations(data: bytes, rng: random.Random, n_trunc: int, n_flip: int) -> list[tuple[str, bytes]]:
     out = []
-    for i in range(n_trunc):
+    for _ in range(n_trunc):
         k = rng.randrange(1, max(2, len(data)))
         out.append((f"trunc-{k}", data[:k]))
     for i in range(n_flip):
@@ -318,7 +316,7 @@ class Pool:
         todo = list(enumerate(jobs))
         busy: dict[int, tuple[int, float]] = {}
         while todo or busy:
-            for w, (p, conn) in enumerate(self.workers):
+            for w, (_p, conn) in enumerate(self.workers):
                 if w not in busy and todo:
                     i, job = todo.pop(0)
                     conn.send(job)
@@ -404,7 +402,7 @@ def section_corpus(work: Path, args) -> dict:
               "long_error_lines": 0, "leaks": 0, "accepted_bad_cli": 0, "wall_s": round(time.time() - t0, 1)}
     examples: dict[str, list[str]] = {}
     passwd_first = Path("/etc/passwd").read_text().splitlines()[0] if Path("/etc/passwd").is_file() else "root:x:0:0"
-    for (label, cmd, argv), (rc, exc, err, dt), (_, cwd) in zip(meta, results, jobs):
+    for (label, cmd, argv), (rc, exc, err, _dt), (_, cwd) in zip(meta, results, jobs):
         key = None
         if exc is not None:
             key = "timeouts" if exc.startswith("timeout") else "tracebacks"
@@ -433,7 +431,7 @@ def section_corpus(work: Path, args) -> dict:
     # a value mutation (not a truncation or bit flip, which may leave a valid file) is an invalid
     # input: accepted when a command exits 0 on it, silently when it also warns of nothing
     accepted: dict[str, dict[str, list[str]]] = {}
-    for (label, cmd, argv), (rc, exc, err, dt) in zip(meta, results):
+    for (label, cmd, _argv), (rc, _exc, err, _dt) in zip(meta, results):
         name = label.rsplit(":", 1)[-1]
         if cmd != "special" and not name.startswith(("trunc-", "flip-")) and rc == 0:
             kind = "exit0_invalid_warned" if "warning" in err else "exit0_invalid"

@@ -167,6 +167,69 @@ def rollout_coverage(tmp: Path) -> list[Path]:
     return [copy(tmp / "c.png", "rollout_coverage.png"), DOCS / "rollouts.md"]
 
 
+def architecture(tmp: Path) -> list[Path]:
+    """docs/architecture.png: the layers and the data flow formats -> model -> envs -> scenarios."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import FancyArrowPatch, FancyBboxPatch
+
+    from feat2map.render import save_figure
+
+    fig, ax = plt.subplots(figsize=(13.4, 6.2))
+    ax.set_xlim(0, 13.4)
+    ax.set_ylim(0, 6.2)
+    ax.set_axis_off()
+    layers = [  # (x, y, w, h, colour, title, lines)
+        (0.2, 3.3, 2.6, 2.5, "#dbe9f6", "inputs", ["feature space (.json)", "spec (.yaml)", "real maps:",
+                                                   "Apollo .bin/.txt", "OpenDRIVE .xodr", "native .json"]),
+        (3.6, 3.3, 2.6, 2.5, "#fde2c8", "feat2map.formats", ["FORMATS: one package each", "read -> HDMap",
+                                                             "write HDMap (atomic)", "validate -> [Problem]",
+                                                             "base.py: Protocols"]),
+        (3.6, 0.3, 2.6, 2.6, "#e4f3d8", "feat2map (map layer)", ["generate: features ->", "sampling, construct,",
+                                                                 "layout -> HDMap", "extract: HDMap -> features",
+                                                                 "phases, routes, angles,", "config (constants)"]),
+        (7.0, 1.8, 2.6, 2.6, "#f2f2f2", "model.HDMap", ["frozen value: lanes, roads,", "junctions, signals,",
+                                                        "stop signs, crosswalks", "(the one type every",
+                                                        "layer exchanges)"]),
+        (10.4, 3.3, 2.8, 2.5, "#e8def8", "feat2map.envs", ["MapNetwork (lanes, STRtree)", "rules, control",
+                                                          "core (traffic arrays)", "MapEnv + subclasses",
+                                                          "observation, DriverView"]),
+        (10.4, 0.3, 2.8, 2.6, "#fbe3ea", "feat2map.scenarios", ["scenario: Suite (.yaml)", "routes: coverage",
+                                                               "planner (baseline)", "rollout -> report",
+                                                               "metrics, report.md/html"]),
+    ]
+    centre = {}
+    for x, y, w, h, colour, title, lines in layers:
+        ax.add_patch(FancyBboxPatch((x, y), w, h, boxstyle="round,pad=0.05", fc=colour, ec="#444", lw=1.2))
+        ax.text(x + w / 2, y + h - 0.28, title, ha="center", va="center", fontsize=11, weight="bold")
+        for k, line in enumerate(lines):
+            ax.text(x + 0.15, y + h - 0.7 - 0.33 * k, line, ha="left", va="center", fontsize=8.5)
+        centre[title] = (x, y, w, h)
+
+    def arrow(a: str, b: str, label: str, sa: str, sb: str) -> None:
+        def port(name: str, side: str) -> tuple[float, float]:
+            x, y, w, h = centre[name]
+            return {"l": (x, y + h / 2), "r": (x + w, y + h / 2), "t": (x + w / 2, y + h),
+                    "b": (x + w / 2, y)}[side]
+        (x0, y0), (x1, y1) = port(a, sa), port(b, sb)
+        ax.add_patch(FancyArrowPatch((x0, y0), (x1, y1), arrowstyle="-|>", mutation_scale=14, lw=1.4,
+                                     color="#333", connectionstyle="arc3,rad=0.0"))
+        ax.text((x0 + x1) / 2, (y0 + y1) / 2 + 0.12, label, ha="center", va="bottom", fontsize=8, color="#333",
+                bbox={"fc": "white", "ec": "none", "pad": 1})
+
+    arrow("inputs", "feat2map.formats", "read_map", "r", "l")
+    arrow("feat2map.formats", "model.HDMap", "HDMap", "r", "t")
+    arrow("feat2map (map layer)", "model.HDMap", "generate", "r", "l")
+    arrow("model.HDMap", "feat2map.envs", "MapNetwork", "r", "l")
+    arrow("feat2map.envs", "feat2map.scenarios", "gym env, rules", "b", "t")
+    ax.text(6.7, 5.95, "imports point downwards only: scenarios -> envs -> map layer / formats -> model "
+            "(no cycles; formats never import envs or scenarios)", ha="center", fontsize=9, style="italic")
+    ax.text(8.3, 0.7, "write_map: Apollo, OpenDRIVE, Lanelet2,\nCommonRoad, native; a Suite -> OpenSCENARIO",
+            ha="center", fontsize=8.5, color="#555")
+    out = DOCS / "architecture.png"
+    save_figure(fig, out, 110)
+    return [out]
+
+
 def replace_marked(path: Path, name: str, body: str) -> None:
     """Replace the text between `<!-- make_docs_pictures: NAME -->` and `<!-- end NAME -->`."""
     text = path.read_text(encoding="utf-8")
@@ -198,6 +261,7 @@ def ppo(tmp: Path) -> list[Path]:
 
 JOBS = [
     Job("m1", "docs/m1.png, docs/m1_junctions.png (README)", m1),
+    Job("architecture", "docs/architecture.png (docs/architecture.md)", architecture),
     Job("drive", "docs/drive.png", drive),
     Job("specs", ", ".join(f"docs/{p}" for p in SPECS), specs),
     Job("apollo_export", "docs/apollo_export.png", apollo_export),

@@ -4,6 +4,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import random
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,74 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MAPS = Path(os.environ.get("FEAT2MAP_SHARED_MAPS", REPO.parent / "shared" / "maps"))
+
+
+# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change (about 2
+# minutes on 2 cores); plain `pytest` (CI, scripts/test.sh) runs everything. SLOW_TESTS are the
+# tests, each 8 s or more of the 17 min the whole suite took under --durations on a loaded 2-core
+# machine: whole end-to-end drives, external checkers over many maps, property tests with many
+# examples, subprocess and worker-pool runs. An entry is a module or a test function (all its
+# parameters); tests/test_tiers.py checks that each names a test that exists.
+SLOW_TESTS = (
+    "tests/test_apollo_export.py::test_real_sim_maps_report_nothing_their_base_map_does_not",
+    "tests/test_apollo_export.py::test_validator_runs_on_real_apollo_maps",
+    "tests/test_apollo_export.py::test_validator_survives_any_cleared_fields",
+    "tests/test_atomic.py::test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder",
+    "tests/test_envs_passages.py::test_bridge_map_drives_clean_with_traffic",
+    "tests/test_envs_vector.py::test_sb3_subproc_vec_env_steps_through_episode_ends",
+    "tests/test_experiments.py::test_rq1_on_real_san_francisco",
+    "tests/test_experiments.py::test_rq4_builds_draws_and_drives_custom_maps",
+    "tests/test_features.py::test_exact_alignment_matches_brute_force",
+    "tests/test_invariants.py::test_random_feature_spaces_of_3_to_8_legs",
+    "tests/test_invariants.py::test_random_features_with_one_way_and_multi_lane_legs",
+    "tests/test_invariants.py::test_random_specs",
+    "tests/test_metrics.py::test_coverage_is_stable_for_a_fixed_seed",
+    "tests/test_opendrive_asam_qc.py::test_every_check_runs_on_some_revision",
+    "tests/test_opendrive_asam_qc.py::test_generated_and_spec_maps_pass_every_check",
+    "tests/test_planner.py::test_planner_completes_each_junction_type_with_its_stage_path",
+    "tests/test_reproducible.py::test_generate_export_suite_are_byte_identical_across_runs",
+    "tests/test_robustness.py::test_generated_maps_drive_with_traffic_and_pedestrians_without_collision_or_timeout",
+    "tests/test_robustness.py::test_real_map_controls_match_its_own_overlaps_and_signals",
+    "tests/test_robustness.py::test_real_map_suite_is_not_empty_and_a_sample_drives_clean",
+    "tests/test_rollout.py::test_a_planner_that_stops_ends_the_rollout_with_the_report_so_far",
+    "tests/test_rollout.py::test_broken_planner_fails_with_readable_report_and_gif",
+    "tests/test_rollout.py::test_ray_backend_gives_the_local_results",
+    "tests/test_train_smoke.py::test_tiny_training_and_success_table",
+)
+
+
+def is_slow(nodeid: str) -> bool:
+    """Whether the test `nodeid` ("tests/x.py::test_f[param]") is in SLOW_TESTS."""
+    base = nodeid.split("[", 1)[0]
+    return any(base == s or base.startswith(s + "::") for s in SLOW_TESTS)
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if is_slow(item.nodeid):
+            item.add_marker(pytest.mark.slow)
+
+
+SEED_ENV = "FEAT2MAP_TEST_SEED"
+_SEED = pytest.StashKey[int]()
+
+
+@pytest.fixture
+def random_seed(request) -> int:
+    """A new seed each run for a randomized test, or FEAT2MAP_TEST_SEED's value; a failing test's
+    report says how to rerun it with the same seed (the section "how to reproduce")."""
+    raw = os.environ.get(SEED_ENV, "").strip()
+    seed = int(raw) if raw else random.randrange(2**32)
+    request.node.stash[_SEED] = seed
+    return seed
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = (yield).get_result()
+    seed = item.stash.get(_SEED, None)
+    if seed is not None and report.failed:
+        report.sections.append(("how to reproduce", f"{SEED_ENV}={seed} python -m pytest '{item.nodeid}'"))
 
 
 def straight_piece(road, rid: str, s0: float, length: float):

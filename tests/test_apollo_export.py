@@ -15,6 +15,7 @@ from feat2map.formats.apollo import schema as aps
 from feat2map.formats import native
 from feat2map.formats.apollo.routing import build_routing_graph, node_cost
 from feat2map.formats.apollo.validate import Problem, validate_apollo, validate_map
+from feat2map.formats.apollo.reader import read_apollo_bytes
 from feat2map.cli import main
 from feat2map.config import (APOLLO_MIN_HALF_WIDTH_M, ROUTING_BASE_SPEED_MPS, ROUTING_CHANGE_PENALTY,
                              ROUTING_LEFT_TURN_PENALTY, ROUTING_RIGHT_TURN_PENALTY, UTM_ORIGIN)
@@ -228,13 +229,14 @@ def _assert_same_features(m: feat2map.HDMap, back: feat2map.HDMap) -> None:
 
 
 def test_round_trip_through_the_apollo_reader_keeps_features(small_map, exported):
-    reader = pytest.importorskip("feat2map.formats.apollo", reason="Apollo reader (issue 3) not present")
+    from feat2map.formats.apollo import read_apollo
+
     for name in ("base_map.bin", "base_map.txt"):
-        _assert_same_features(small_map, reader.read_apollo(exported / name))
+        _assert_same_features(small_map, read_apollo(exported / name))
     # sim_map drops the points that carry the exact end tangents: structure survives
     from feat2map.extract import extract_junctions
 
-    coarse = {e.id: e.feature for e in extract_junctions(reader.read_apollo(exported / "sim_map.bin"))}
+    coarse = {e.id: e.feature for e in extract_junctions(read_apollo(exported / "sim_map.bin"))}
     assert {j: (f.n_roads, f.control, f.crosswalk) for j, f in coarse.items()} == {
         jid: (j.feature.n_roads, j.feature.control, j.feature.crosswalk) for jid, j in small_map.junctions.items()}
 
@@ -260,12 +262,7 @@ def test_every_generated_map_exports_clean(space, seed):
     m = feat2map.generate(space, seed=seed)
     base = wa.to_apollo(m)
     _assert_clean(m, validate_map(base))
-    try:
-        from feat2map.formats.apollo import read_apollo_bytes
-    except ImportError:  # the Apollo reader is issue 3's
-        pass
-    else:
-        _assert_same_features(m, read_apollo_bytes(base.SerializeToString(), "exported base_map"))
+    _assert_same_features(m, read_apollo_bytes(base.SerializeToString(), "exported base_map"))
     # the graph routes every lane; sim_map keeps every element
     graph = build_routing_graph(base)
     assert {n.lane_id for n in graph.node} == set(m.lanes)

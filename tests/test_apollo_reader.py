@@ -164,7 +164,9 @@ def test_reads_lanes_roads_and_origin(t_map):
 
 def test_signals_and_crosswalks(t_map):
     sig = t_map.signals["signal_0"]
-    assert set(sig.lane_ids) == {"in_e", "in_w", "in_s"} and sig.junction_id == "J_0"
+    # one light over the T's three approaches: split so the through road and the stem can differ
+    assert set(sig.lane_ids) == {"in_e", "in_w"} and sig.junction_id == "J_0"
+    assert t_map.signals["signal_0~2"].lane_ids == ("in_s",)
     assert sig.position == pytest.approx((12.25 + X0 - t_map.origin[0], 6.5 + Y0 - t_map.origin[1]))
     # the light faces the traffic of its first lane (in_e drives west, so it faces east)
     assert math.cos(sig.heading) == pytest.approx(1.0, abs=1e-6)
@@ -354,7 +356,9 @@ def test_cli_reports_a_bad_element_as_one_warning_line(tmp_path, capsys):
     path.write_bytes(pb.SerializeToString())
     assert main(["extract", str(path), "--json"]) == 0
     captured = capsys.readouterr()
-    assert captured.err == f"feat2map: warning: {path}: junction 'J_empty': no usable polygon and no lanes, skipped\n"
+    assert captured.err.splitlines()[0] == f"feat2map: warning: {path}: junction 'J_empty': no usable polygon and no lanes, skipped"
+    assert captured.err.splitlines()[1:] == [f"feat2map: warning: {path}: signal signal_0: governs approaches whose paths "
+                                             "conflict (roads road_e, road_w / road_s): split into signals signal_0, signal_0~2"]
     assert len(json.loads(captured.out)["junctions"]) == 1
 
 

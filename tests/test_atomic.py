@@ -116,13 +116,12 @@ def test_a_failing_block_leaves_the_old_folder(tmp_path):
 
 @pytest.mark.parametrize("case", ["generate over another seed", "generate --no-apollo over a full output",
                                   "export apollo over another seed"])
-def test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder(tmp_path, space_file, case):
+def test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder(tmp_path, space_file, case, random_seed):
     """Each run is killed right before a random one of its filesystem changes (every change
     point is a moment a real SIGKILL can hit); the folder must be the old output or the new
     one, whole, and the next run must leave exactly its own output and no hidden leftovers."""
-    rng = random.Random()
-    seed = rng.randrange(2**32)
-    rng.seed(seed)
+    seed = random_seed
+    rng = random.Random(seed)
     maps = tmp_path / "maps"
     for s in (1, 2):
         assert main(_generate(space_file, s, maps / str(s), "--no-picture", "--no-apollo")) == 0

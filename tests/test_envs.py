@@ -102,7 +102,6 @@ def test_map_file_real_opendrive_signalized_crossing():
 def test_map_file_real_apollo_map_with_signals_and_stop_signs():
     """An Apollo base_map.bin (stop lines on junction lanes, as Apollo's overlaps put them) drives
     without violations, and the driver meets both signals and stop signs on its routes."""
-    pytest.importorskip("feat2map.formats.apollo", reason="the Apollo reader is not installed")
     path = shared_map("apollo/cube_town/base_map.bin")
     env = gym.make("feat2map/MapFile-v0", config={"map_file": str(path), "traffic_vehicles": 3,
                                                    "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5,

@@ -65,7 +65,7 @@ def test_grid_index_agrees_with_brute_force(net):
         p = lane.position(rng.uniform(0, lane.length), rng.uniform(-1.5, 1.5))
         idx, s, r = net.locate(p)
 
-        def dist(ln):
+        def dist(ln, p=p):
             t, q = ln.local_coordinates(p)
             return abs(q) + max(t - ln.length, 0) + max(-t, 0)
 

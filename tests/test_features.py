@@ -77,7 +77,14 @@ def test_invalid_features_are_rejected(kwargs, message):
 
 
 def test_min_separation_is_configurable():
-    JunctionFeature.make([0, 10, 180], min_separation_deg=5)
+    """Legs 10 degrees apart: refused under the default rule, accepted when the caller lowers it
+    (and then still refused below the lowered one)."""
+    with pytest.raises(FeatureError, match="minimum separation"):
+        JunctionFeature.make([0, 10, 180])
+    f = JunctionFeature.make([0, 10, 180], min_separation_deg=5)
+    assert f.rotation == (0.0, 10.0, 180.0) and f.n_roads == 3
+    with pytest.raises(FeatureError, match="minimum separation"):
+        JunctionFeature.make([0, 4, 180], min_separation_deg=5)
 
 
 def test_feature_dict_round_trip():

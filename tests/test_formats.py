@@ -16,11 +16,35 @@ def small_map():
 
 
 def test_every_format_has_a_package_with_its_faces():
+    """Each entry's faces import and fit their Protocols (formats/base.py), export options included."""
     for fmt in FORMATS.values():
-        for face in ("read", "write", "validate", "picture"):
-            if getattr(fmt, face) is not None:
-                assert callable(fmt.face(face)), (fmt.name, face)
+        assert fmt.check_faces() == [], fmt.name
         assert fmt.output in ("file", "dir")
+        assert fmt.input in ("map", "suite")
+
+
+def test_a_face_that_does_not_fit_its_protocol_is_named():
+    from feat2map.formats.base import ExportOption, MapFormat
+
+    bad = MapFormat("bad", "bad", (".bad",), read="feat2map.formats.base:header_date",  # takes no path
+                    write="feat2map.formats.native:save", validate="feat2map.formats.native:no_such_function",
+                    options=(ExportOption("--zone", "zone"),))  # save takes no zone
+    found = bad.check_faces()
+    assert len(found) == 3, found
+    assert found[0].startswith("bad.read:") and "MapReader" in found[0]
+    assert found[1].startswith("bad.write:") and "export options" in found[1]
+    assert found[2].startswith("bad.validate:") and "does not import" in found[2]
+
+
+def test_the_package_exports_read_write_and_extract():
+    import importlib.metadata
+
+    import feat2map
+    from feat2map.extract import extract_junctions
+
+    assert feat2map.read_map is read_map and feat2map.write_map is write_map
+    assert feat2map.extract_junctions is extract_junctions
+    assert feat2map.__version__ == importlib.metadata.version("feat2map")
 
 
 @pytest.mark.parametrize("name", [n for n, f in FORMATS.items() if f.read and f.write])

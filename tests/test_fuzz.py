@@ -4,7 +4,8 @@ validator and `feat2map extract`; each gives a valid, finite map (or problem lis
 Feat2MapError / exit 2 naming the file, never another exception and never NaN or inf.
 
 FEAT2MAP_FUZZ=N: N truncations and N bit-flip variants per file (default 1; the generated
-map's files get 3 times as many).
+map's files get 3 times as many). The mutations are new each run; a failure names its seed
+(FEAT2MAP_TEST_SEED=N reruns them).
 """
 from __future__ import annotations
 
@@ -80,29 +81,29 @@ def generated_files(tmp_path_factory):
 
 
 @pytest.mark.parametrize("k", range(4))
-def test_fuzzed_generated_maps(generated_files, tmp_path, k, capsys):
+def test_fuzzed_generated_maps(generated_files, tmp_path, k, capsys, random_seed):
     src = generated_files[k]
-    rng = random.Random(f"{src.name}-{random.randrange(2**32)}")
+    rng = random.Random(f"{src.name}-{random_seed}")
     for label, data in mutants(src.read_bytes(), rng, 3 * FUZZ):
         path = tmp_path / f"m{src.suffix}"
         path.write_bytes(data)
         try:
             read_everything(path, check_cli=True)
         except AssertionError as exc:
-            raise AssertionError(f"{src.name} {label}: {exc}") from None
+            raise AssertionError(f"{src.name} {label} (seed {random_seed}): {exc}") from None
         capsys.readouterr()
 
 
 @pytest.mark.parametrize("rel", SHARED_FILES)
-def test_fuzzed_shared_maps(rel, tmp_path):
+def test_fuzzed_shared_maps(rel, tmp_path, random_seed):
     src = SHARED_MAPS / rel
     if not src.is_file():
         pytest.skip(f"third-party map {src} not present (../shared/maps is absent on this machine)")
-    rng = random.Random(f"{rel}-{random.randrange(2**32)}")
+    rng = random.Random(f"{rel}-{random_seed}")
     for label, data in mutants(src.read_bytes(), rng, FUZZ):
         path = tmp_path / src.name
         path.write_bytes(data)
         try:
             read_everything(path, check_cli=False)
         except AssertionError as exc:
-            raise AssertionError(f"{rel} {label}: {exc}") from None
+            raise AssertionError(f"{rel} {label} (seed {random_seed}): {exc}") from None

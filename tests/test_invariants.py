@@ -148,13 +148,14 @@ def _moved(m, dx, dy, prefix):
     def ids(xs):
         return tuple(prefix + x for x in xs)
     lanes = {prefix + k: dataclasses.replace(
-        ln, id=prefix + k, road_id=prefix + ln.road_id, centerline=mv(ln.centerline), left_boundary=mv(ln.left_boundary),
-        right_boundary=mv(ln.right_boundary), bezier=None, predecessors=ids(ln.predecessors),
+        ln, id=prefix + k, road_id=prefix + ln.road_id, centerline=mv(ln.centerline),
+        left_boundary=mv(ln.left_boundary), right_boundary=mv(ln.right_boundary), bezier=None, predecessors=ids(ln.predecessors),
         successors=ids(ln.successors), left_neighbors=ids(ln.left_neighbors), right_neighbors=ids(ln.right_neighbors),
         left_reverse_neighbors=ids(ln.left_reverse_neighbors),
         junction_id=None if ln.junction_id is None else prefix + ln.junction_id) for k, ln in m.lanes.items()}
     roads = {prefix + k: dataclasses.replace(r, id=prefix + k, right_lanes=ids(r.right_lanes), left_lanes=ids(r.left_lanes),
-                                             reference=None, junction_id=None if r.junction_id is None else prefix + r.junction_id,
+                                             reference=None,
+                                             junction_id=None if r.junction_id is None else prefix + r.junction_id,
                                              start_junction=None if r.start_junction is None else prefix + r.start_junction,
                                              end_junction=None if r.end_junction is None else prefix + r.end_junction)
              for k, r in m.roads.items()}
@@ -195,8 +196,8 @@ def _defect(maps, defect):
     return dataclasses.replace(m, crosswalks={**m.crosswalks, "copy": dataclasses.replace(first, id="copy")})
 
 
-@pytest.mark.parametrize("defect", ["overlapping roads", "overlapping junctions", "dead end", "dead end, one-way roads", "broken link",
-                                    "overlapping crosswalks"])
+@pytest.mark.parametrize("defect", ["overlapping roads", "overlapping junctions", "dead end", "dead end, one-way roads",
+                                    "broken link", "overlapping crosswalks"])
 def test_the_apollo_validator_catches_what_check_map_catches(sound_maps, tmp_path, defect):
     m = _defect(sound_maps, defect)
     assert check_map(m), defect

@@ -1,15 +1,23 @@
-"""What every map format offers: a record of its faces (read, write, validate), and the
-`Problem` a validator reports. Faces are named as "module:function" and imported on first
-use, so the table costs nothing until a format is used."""
+"""What every map format offers: a record of its faces (read, write, validate), the shape
+of each face (the Protocols `MapReader`, `MapWriter`, `SuiteWriter`, `MapValidator`,
+`ProblemPicture`), and the `Problem` a validator reports. Faces are named as "module:function"
+and imported on first use, so the table costs nothing until a format is used;
+`MapFormat.check_faces` (run by the tests for every entry) says where an entry's function does
+not fit its Protocol."""
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import Any, Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Protocol, Sequence
 
 from ..errors import Feat2MapError
+
+if TYPE_CHECKING:
+    from ..model import HDMap
 
 
 def header_date() -> str | None:
@@ -34,6 +42,61 @@ class Problem:
 
     def __str__(self) -> str:
         return f"{self.element}: {self.message}"
+
+
+class MapReader(Protocol):
+    """A format's `read` face: the map in the file (or folder) `path`; bad input raises
+    `MapFormatError` naming the file and the element."""
+
+    def __call__(self, path: str | Path, /) -> HDMap: ...
+
+
+class MapWriter(Protocol):
+    """A format's `write` face for maps: write `m` to `path` atomically (same map, same bytes);
+    format options (`MapFormat.options`) come as keywords with defaults."""
+
+    def __call__(self, m: HDMap, path: str | Path, /) -> object: ...
+
+
+class SuiteWriter(Protocol):
+    """A format's `write` face for scenario suites (`MapFormat.input == "suite"`): write the
+    suite to the folder `out` atomically."""
+
+    def __call__(self, suite: Any, out: str | Path, /) -> object: ...
+
+
+class MapValidator(Protocol):
+    """A format's `validate` face: every problem of the file `path` (none: it passed);
+    `progress` shows a progress bar on a terminal."""
+
+    def __call__(self, path: str | Path, /, progress: bool = False) -> list[Problem]: ...
+
+
+class ProblemPicture(Protocol):
+    """A format's `picture` face: the map in `path` drawn with `problems` marked, to `out`."""
+
+    def __call__(self, path: str | Path, out: str | Path, problems: Sequence[Problem] = (), /,
+                 title: str | None = None) -> None: ...
+
+
+def fits(func: Callable[..., Any], protocol: type) -> str | None:
+    """None when `func` can be called as `protocol.__call__` is (every positional parameter
+    positionally, every keyword parameter by name), else what does not fit. Checks the
+    parameters, not their types (the type checker does that where the function is named)."""
+    want = list(inspect.signature(protocol.__call__).parameters.values())[1:]  # without self
+    try:
+        have = inspect.signature(func)
+    except (TypeError, ValueError):
+        return "has no inspectable signature"
+    positional = [object()] * sum(p.kind is p.POSITIONAL_ONLY for p in want)
+    keywords = {p.name: object() for p in want if p.kind is p.POSITIONAL_OR_KEYWORD or p.kind is p.KEYWORD_ONLY}
+    required = [p for p in want if p.kind is p.POSITIONAL_ONLY and p.default is p.empty]
+    for args, kwargs in ((positional, keywords), ([object()] * len(required), {})):
+        try:
+            have.bind(*args, **kwargs)
+        except TypeError as exc:
+            return f"cannot be called as {protocol.__name__}: {exc}"
+    return None
 
 
 @dataclass(frozen=True)
@@ -69,3 +132,31 @@ class MapFormat:
             raise LookupError(f"format {self.name} has no {name}")
         module, func = ref.split(":")
         return getattr(importlib.import_module(module), func)
+
+    def protocol(self, name: str) -> type:
+        """The Protocol face `name` must fit."""
+        if name == "write":
+            return SuiteWriter if self.input == "suite" else MapWriter
+        return {"read": MapReader, "validate": MapValidator, "picture": ProblemPicture}[name]
+
+    def check_faces(self) -> list[str]:
+        """What does not fit: each face that does not import, is not callable or does not fit
+        its Protocol (an export option the writer does not take included), one line each."""
+        out = []
+        for name in ("read", "write", "validate", "picture"):
+            if getattr(self, name) is None:
+                continue
+            try:
+                func = self.face(name)
+            except (ImportError, AttributeError, ValueError) as exc:
+                out.append(f"{self.name}.{name}: {getattr(self, name)!r} does not import ({exc})")
+                continue
+            problem = fits(func, self.protocol(name)) if callable(func) else "is not callable"
+            if problem is None and name == "write" and self.options:
+                try:
+                    inspect.signature(func).bind(object(), object(), **{o.kwarg: object() for o in self.options})
+                except TypeError as exc:
+                    problem = f"does not take its export options: {exc}"
+            if problem:
+                out.append(f"{self.name}.{name}: {getattr(self, name)} {problem}")
+        return out

@@ -5,7 +5,8 @@ gaps of a decimetre or more between linked lanes, which the export closes.
 
 Each lane has four end points (left/right boundary, start/end). The points of linked lanes (a
 predecessor's end and its successor's start, on each side; the ends of a boundary two
-neighbours share) that lie within `LANE_END_SNAP_M` are one point; every group of such points is placed at its first member's position, in map order.
+neighbours share) that lie within `LANE_END_SNAP_M` are one point; every group of such points
+is placed at its first member's position, in map order.
 """
 from __future__ import annotations
 

@@ -22,11 +22,11 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from . import schema as aps
-from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, limits
+from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_KMH_SPEED_MPS, limits
 from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       incoming_lanes, signal_precedence)
-from ...validation import validate_model
+from ...semantics import loaded
 
 # overlap kind -> (the Map field listing the elements, the model class)
 _CONTROL_FIELDS = {"signal": ("signal", Signal), "stop_sign": ("stop_sign", StopSign),
@@ -122,6 +122,10 @@ class _Reader:
                 if kind is None:
                     raise self.err(f"overlap {ov.id.id!r}", f"object {obj.id.id!r} has no overlap info")
                 kind = kind.removesuffix("_overlap_info")
+                if not obj.id.id:  # SVL-era maps: a broken object, not a broken map
+                    self.warn(f"overlap {ov.id.id!r}", f"holds a {kind} with an empty id, skipped")
+                    objs = []
+                    break
                 if kind in known and obj.id.id not in known[kind]:
                     raise self.err(f"overlap {ov.id.id!r}", f"refers to unknown {kind} {obj.id.id!r}")
                 objs.append((kind, obj.id.id, obj))
@@ -225,6 +229,11 @@ class _Reader:
         # lanes (links to non-driving lanes are dropped with them)
         driving = {ln.id.id for ln in pb.lane if not (ln.HasField("type") and ln.type in _NON_DRIVING)}
         lanes: dict[str, Lane] = {}
+        speeds = sorted(float(ln.speed_limit) for ln in pb.lane if ln.id.id in driving)
+        unit = 1.0
+        if speeds and speeds[len(speeds) // 2] > APOLLO_KMH_SPEED_MPS:  # converters writing km/h (60 = 60 km/h)
+            unit = 1 / 3.6
+            self.warn("map", f"median lane speed_limit {speeds[len(speeds) // 2]:g} m/s is implausible: read as km/h")
         for ln in pb.lane:
             lid = ln.id.id
             if lid not in driving:
@@ -248,7 +257,7 @@ class _Reader:
             lanes[lid] = Lane(
                 lid, lane_road.get(lid, lid), as_polyline(centre),
                 as_polyline(left if len(left) >= 2 else centre), as_polyline(right if len(right) >= 2 else centre),
-                width, float(ln.speed_limit), turn=_TURNS.get(ln.turn, "none"),
+                width, float(ln.speed_limit) * unit, turn=_TURNS.get(ln.turn, "none"),
                 junction_id=lane_junction.get(lid),
                 left_boundary_type=_boundary_type(ln.left_boundary),
                 right_boundary_type=_boundary_type(ln.right_boundary), **links)
@@ -310,10 +319,15 @@ class _Reader:
                 named.setdefault(sid, []).append(jid)
         items = getattr(self.pb, _CONTROL_FIELDS[kind][0])
         out: dict = {}
-        for el in items:
+        for i, el in enumerate(items):
             sid = el.id.id
+            if not sid:
+                self.warn(f"{kind} #{i}", "empty id, skipped")
+                continue
             line = next((self.points(p, f"{kind} {sid!r} stop_line") for p in (_curve_points(c) for c in el.stop_line)
                          if len(p) >= 2), None)
+            if not governed.get(sid) and line is not None:  # the map ties it to no lane: its stop line tells
+                governed[sid] = self._crossed_lanes(lanes, line - o)
             lane_ids = incoming_lanes(lanes, governed.get(sid, []))
             # its junction: the one its lanes lie in or lead into (junction overlaps of Baidu-style maps may
             # name a neighbour whose polygon reaches the stop line), preferring one it overlaps
@@ -334,6 +348,29 @@ class _Reader:
             heading = self._facing(lane_ids, lanes, line_local)
             cls = _CONTROL_FIELDS[kind][1]
             out[sid] = cls(sid, jid, as_polyline(line_local), pos, heading, lane_ids)
+        return out
+
+    def _crossed_lanes(self, lanes: dict[str, Lane], line: np.ndarray) -> list[str]:
+        """The heuristic for a control whose overlaps name no lane (maps converted from other
+        formats): the lanes its stop line crosses that enter a junction (road lanes whose
+        successors lie in one, crossed in their second half; junction lanes crossed in their
+        first half)."""
+        from shapely.geometry import LineString
+
+        if not hasattr(self, "_lane_tree"):
+            self._lane_ids = list(lanes)
+            self._lane_lines = [LineString(lanes[x].centerline) for x in self._lane_ids]
+            self._lane_tree = STRtree(self._lane_lines)
+        stop = LineString(line)
+        out = []
+        for k in self._lane_tree.query(stop, predicate="intersects"):
+            ln = lanes[self._lane_ids[int(k)]]
+            at = self._lane_lines[int(k)].project(stop.intersection(self._lane_lines[int(k)]).representative_point())
+            if ln.junction_id is None and at >= ln.length / 2 and any(
+                    lanes[x].junction_id for x in ln.successors if x in lanes):
+                out.append(ln.id)
+            elif ln.junction_id is not None and at <= ln.length / 2:
+                out.append(ln.id)
         return out
 
     @staticmethod
@@ -414,9 +451,9 @@ def read_apollo(path: str | Path) -> HDMap:
     except LimitError as exc:
         raise LimitError(exc.message, str(path)) from None
     pb = aps.parse_map(data, str(path))
-    return validate_model(_Reader(pb, str(path)).read(), str(path))
+    return loaded(_Reader(pb, str(path)).read(), str(path))
 
 
 def read_apollo_bytes(data: bytes, where: str = "<bytes>") -> HDMap:
     """Like `read_apollo`, from the file's content."""
-    return validate_model(_Reader(aps.parse_map(data, where), where).read(), where)
+    return loaded(_Reader(aps.parse_map(data, where), where).read(), where)

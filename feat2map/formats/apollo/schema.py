@@ -291,8 +291,8 @@ def _file(name: str, package: str, deps: list[str], messages: dict[str, list[str
         local_enums = {k.split(".", 1)[1]: v for k, v in enums.items() if k.split(".", 1)[0] == msg_name}
         for enum_name, values in local_enums.items():
             enum = msg.enum_type.add(name=enum_name)
-            for value_name, number in values.items():
-                enum.value.add(name=value_name, number=number)
+            for value_name, value in values.items():
+                enum.value.add(name=value_name, number=value)
         oneofs: list[str] = []
         for spec in specs:
             head, _, default = spec.partition("[default=")

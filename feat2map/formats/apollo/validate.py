@@ -99,7 +99,8 @@ def validate_apollo(path: str | Path, progress: bool = False, sim: bool | None =
     path = Path(path)
     if path.is_file():
         sim = is_sim_map_file(path) if sim is None else sim
-        return validate_map(aps.parse_map(_read(path), str(path)), progress=progress, sim=sim)
+        found = validate_map(aps.parse_map(_read(path), str(path)), progress=progress, sim=sim)
+        return found if sim else found + reader_problems(path)
     if not path.is_dir():
         raise MapFormatError("no such map folder or file", str(path))
     base, problems = _pair(path, "base_map", aps.parse_map)
@@ -117,7 +118,24 @@ def validate_apollo(path: str | Path, progress: bool = False, sim: bool | None =
         problems.append(Problem("file routing_map", "missing routing_map.bin/.txt (routing cannot start)"))
     else:
         problems += check_routing_map(base, graph)
-    return problems
+    return problems + reader_problems(path)
+
+
+def reader_problems(path: Path) -> list[Problem]:
+    """What feat2map's reader skips or its load-time semantic checks (feat2map.semantics) find
+    in the base map at `path`, one Problem each."""
+    import warnings
+
+    from ...errors import Feat2MapError
+    from .reader import base_map_file, read_apollo
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            read_apollo(path)
+        except Feat2MapError as exc:
+            return [Problem(base_map_file(path).name, f"feat2map reader: {exc}")]
+    return [Problem(base_map_file(path).name, f"feat2map reader: {w.message}") for w in caught]
 
 
 # --- helpers --------------------------------------------------------------------------------
@@ -616,9 +634,9 @@ def check_sim_map(base: Any, sim: Any) -> list[Problem]:
             if _distinct(pts) < 2:
                 out.append(Problem(f"sim_map lane {ln.id.id}", f"{name} has fewer than 2 distinct points"))
                 continue
-            b = base_lanes.get(ln.id.id)
-            if b is not None:
-                bc = getattr(b, name) if name == "central_curve" else getattr(b, name).curve
+            base_ln = base_lanes.get(ln.id.id)
+            if base_ln is not None:
+                bc = getattr(base_ln, name) if name == "central_curve" else getattr(base_ln, name).curve
                 bp = _curve_points(bc)
                 if len(bp) and (math.dist(bp[0], pts[0]) > LENGTH_TOL_M or math.dist(bp[-1], pts[-1]) > LENGTH_TOL_M):
                     out.append(Problem(f"sim_map lane {ln.id.id}", f"{name} ends differ from base_map"))

@@ -25,6 +25,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from ...angles import wrap_angle
 from ...config import SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG, STRAIGHT_TOLERANCE_DEG, UTURN_THRESHOLD_DEG
 from ...errors import Feat2MapError
 from ..base import Problem
@@ -176,7 +177,7 @@ def _intersections(net, report: CommonRoadReport) -> None:
             if missing or not feeders:
                 report.problems.append(Problem(where, f"incoming lanelets {sorted(missing) or 'none'} not in the network"))
                 continue
-            for key, turns in _TURN_SETS.items():
+            for key in _TURN_SETS:
                 for jl in _lanelet_ids(getattr(inc, key) or ()):
                     ll = lls.get(jl)
                     if ll is None:
@@ -195,7 +196,7 @@ def _intersections(net, report: CommonRoadReport) -> None:
 
 def _turn_deg(ll) -> float:
     d = _heading(ll.center_vertices, "end") - _heading(ll.center_vertices, "start")
-    return math.degrees((d + math.pi) % (2 * math.pi) - math.pi)
+    return math.degrees(wrap_angle(d))
 
 
 def _green_steps(light) -> set[int]:
@@ -220,7 +221,8 @@ def _controls(net, report: CommonRoadReport) -> None:
             users_sign.setdefault(s, set()).add(ll.lanelet_id)
             refs = ll.stop_line.traffic_sign_ref if ll.stop_line is not None else None
             if not refs or s not in refs:
-                report.problems.append(Problem(f"lanelet {ll.lanelet_id}", f"traffic sign {s} without a stop line referring to it"))
+                report.problems.append(Problem(f"lanelet {ll.lanelet_id}",
+                                               f"traffic sign {s} without a stop line referring to it"))
     for light in net.traffic_lights:
         where = f"traffic light {light.traffic_light_id}"
         cycle = light.traffic_light_cycle
@@ -244,7 +246,7 @@ def _controls(net, report: CommonRoadReport) -> None:
                     continue
                 if _green_steps(a) & _green_steps(b):
                     ha, hb = heading_of.get(a.traffic_light_id, [0.0])[0], heading_of.get(b.traffic_light_id, [0.0])[0]
-                    apart = math.degrees(abs((ha - hb + math.pi) % (2 * math.pi) - math.pi))
+                    apart = math.degrees(abs(wrap_angle(ha - hb)))
                     if SIGNAL_SAME_APPROACH_DEG <= apart <= SIGNAL_OPPOSITE_DEG:
                         report.problems.append(Problem(f"intersection {iid}", f"traffic lights {a.traffic_light_id} and "
                                                        f"{b.traffic_light_id} are green together on crossing approaches"))

@@ -24,14 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import Feat2MapError
+from ...routes import Manoeuvre
 from ..base import Problem
 from .writer import PROJECTOR_INFO, TAG
 
 MAX_CURVATURE = 0.5  # 1/m, lanelet2_validation's CurvatureTooBig
 MIN_POINT_DISTANCE_M = 0.05  # lanelet2_validation's PointsTooClose
 LOCAL_TOLERANCE_M = 0.01
-
-Manoeuvre = tuple[str, str, str]
 
 
 @dataclass

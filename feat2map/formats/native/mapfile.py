@@ -15,7 +15,7 @@ from ...documents import load_document
 from ...errors import FeatureError, MapFormatError, snippet
 from ...features import JunctionFeature
 from ...model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign
-from ...validation import check_references, validate_model
+from ...validation import validate_model
 
 FORMAT_NAME = "feat2map-map"
 _KINDS: dict[str, type] = {
@@ -119,7 +119,9 @@ def from_dict(data: Any, where: str = "map") -> HDMap:
     if not isinstance(meta, dict):
         raise MapFormatError(f"meta must be an object, got {snippet(meta)}", where)
     m = HDMap(**parts, origin=_tuples(data.get("origin", [0.0, 0.0])), meta=meta)
-    return validate_model(m, where)
+    from ...semantics import check_map
+
+    return check_map(validate_model(m, where), where)
 
 
 def dumps(m: HDMap) -> str:

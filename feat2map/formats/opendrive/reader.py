@@ -27,21 +27,68 @@ from ...config import MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, 
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
-from ...validation import validate_model
+from ...semantics import loaded
 
-# OpenDRIVE signal type -> feat2map control kind. CARLA/VectorZero, SVL and esmini use the
-# OpenDRIVE 1.5 country "OpenDRIVE" codes (1000001 light, 1000002 pedestrian light); RoadRunner
-# exports 1000011 (arrow lights, subtype 10 left / 20 right); 206 is the stop sign and 205 the
-# yield sign of the German catalogue every dialect reuses; US exports may write "R1-1"/"R1-2".
+# OpenDRIVE signal type -> feat2map control kind, from the code tables the dialects use: the
+# OpenDRIVE 1.5 country "OpenDRIVE" codes for lights (CARLA/VectorZero, SVL and esmini: 1000001
+# light, 1000002 pedestrian light; RoadRunner 1000011 arrow lights, subtype 10 left / 20 right),
+# the German StVO catalogue every dialect reuses for signs (206 stop, 205 yield), the US MUTCD
+# (R1-1 stop, R1-2 yield), and the free-text types some converters write ("traffic_light",
+# "give_way"). 1000003 is esmini's crosswalk road marking (SgRMCrosswalk), not a light.
 SIGNAL_CODES: dict[str, str] = {
-    "1000001": "signal", "1000002": "signal", "1000003": "signal", "1000007": "signal",
+    "1000001": "signal", "1000002": "signal", "1000007": "signal",
     "1000008": "signal", "1000009": "signal", "1000010": "signal", "1000011": "signal",
     "1000012": "signal", "1000013": "signal", "1000014": "signal", "1000015": "signal",
     "1000016": "signal", "1000017": "signal", "1000018": "signal", "1000019": "signal",
     "1000020": "signal",
     "206": "stop", "R1-1": "stop",
     "205": "yield", "R1-2": "yield",
+    "traffic_light": "signal", "trafficlight": "signal", "traffic_signals": "signal", "traffic_signal": "signal",
+    "stop": "stop", "stop_sign": "stop", "give_way": "yield", "yield": "yield", "yield_sign": "yield",
 }
+# known codes that are no junction control (speed limits, stop lines, road markings, priority
+# and direction signs, ...): ignored without a warning
+NOT_CONTROLS = frozenset({
+    "1000003", "274", "274.1", "274.2", "278", "282", "294", "301", "306", "307", "310", "311", "314", "331",
+    "332", "333", "336", "350", "625", "626", "215", "209", "211", "214", "220", "222", "237", "239", "240",
+    "241", "250", "251", "253", "254", "260", "267", "283", "286", "290", "325", "330", "101", "102", "103",
+    "105", "108", "110", "112", "114", "120", "123", "125", "131", "133", "136", "138", "142", "151",
+    "R2-1", "R3-1", "R3-2", "R3-4", "R3-5", "R3-7", "R4-7", "R5-1", "R6-1", "W3-1", "W3-3",
+    "speed", "maxspeed", "city_limit", "stop_line", "stopline", "holdingline", "crosswalk", "pedestrian_crossing",
+    "-1", "",
+})
+US_COUNTRIES = frozenset({"us", "usa"})  # 205/206 are German codes: not stop/yield under the MUTCD
+
+
+def signal_kind(type_: str | None, country: str | None = None, dynamic: str | None = None) -> str | None:
+    """The control kind ("signal", "stop", "yield") of a `<signal>` from its type code, country
+    and `dynamic` flag, or None for no control. A light type marked dynamic="no" is no light
+    (a sign or marking drawn with a light's code); a sign code marked dynamic="yes" stays a sign."""
+    t, country = _code(type_, country)
+    kind = SIGNAL_CODES.get(t) or SIGNAL_CODES.get(t.lower())
+    if t in ("205", "206") and (country or "").strip().lower() in US_COUNTRIES:
+        return None
+    if kind == "signal" and (dynamic or "").strip().lower() == "no":
+        return None
+    return kind
+
+
+def known_non_control(type_: str | None) -> bool:
+    """Whether a signal type is in the code tables as something that is no junction control."""
+    t, _ = _code(type_, None)
+    return t in NOT_CONTROLS or t.lower() in NOT_CONTROLS
+
+
+def _code(type_: str | None, country: str | None) -> tuple[str, str | None]:
+    """(code, country) of a type as written: OSM-style "DE:206" carries its country, "DE:274[60]"
+    its value; both come off."""
+    t = re.sub(r"\[[^\]]*\]$", "", (type_ or "").strip())
+    m = re.match(r"^([A-Za-z]{2,3}):(.+)$", t)
+    if m:
+        return m.group(2).strip(), m.group(1)
+    return t, country
+
+
 # A yield sign is not a stop sign: it becomes a `YieldSign` (its junction stays bare).
 _CONTROL_CLASS = {"signal": Signal, "stop": StopSign, "yield": YieldSign}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
@@ -425,7 +472,7 @@ def read_opendrive(path: str | Path) -> HDMap:
         roads[road.id] = road
     if not roads:
         raise MapFormatError("no readable <road> elements", str(path))
-    return validate_model(_Builder(ctx, root, roads, origin).build(), str(path))
+    return loaded(_Builder(ctx, root, roads, origin).build(), str(path))
 
 
 class _Builder:
@@ -638,7 +685,7 @@ class _Builder:
             rl = road_lanes.setdefault(road_id, ([], []))
             (rl[0] if chain[0][2] < 0 else rl[1]).append(lid)
         self._neighbours(lanes, chain_of)
-        _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
+        self.joined = _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
         for lid, ln in lanes.items():
             if ln.junction_id is not None:
                 lanes[lid] = _replace(ln, turn=_turn(ln))
@@ -678,6 +725,8 @@ class _Builder:
         crosswalks = self._crosswalks(junctions)
         meta = {"source": self.ctx.path, "format": "opendrive",
                 "junction_elements": {m: sorted(v, key=_id_key) for m, v in members.items()}}
+        if self.signal_groups:
+            meta["signal_groups"] = self.signal_groups
         return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=self.origin, meta=meta,
                      yield_signs=yields)
 
@@ -726,9 +775,33 @@ class _Builder:
         x, y, h = road.ref.eval([s])
         return (float(x[0] - t * math.sin(h[0])), float(y[0] + t * math.cos(h[0]))), float(h[0])
 
+    def _resolve(self, ids: Iterable[str], lanes: dict[str, Lane], what: str) -> list[str]:
+        """Lane ids as the built map holds them: a lane joined into junction lanes by
+        `_join_through` stands for those; an id that resolves to nothing is skipped with a
+        one-line warning naming `what` (never a KeyError further on)."""
+        out: list[str] = []
+        for lid in ids:
+            todo, seen = [lid], set()
+            found = []
+            while todo:
+                x = todo.pop()
+                if x in seen:
+                    continue
+                seen.add(x)
+                if x in lanes:
+                    found.append(x)
+                else:
+                    todo += self.joined.get(x, [])
+            if not found:
+                warnings.warn(f"{what}: refers to lane {lid}, which the map does not hold, skipped", stacklevel=3)
+            out += found
+        return list(dict.fromkeys(out))
+
     def _signals(self, lanes: dict[str, Lane], groups: dict[str, str], junctions: dict[str, Junction]):
-        """Signals, stop signs and yield signs, each attached to the incoming lanes it governs; a
-        signal governs where a sign shares its lanes (`signal_precedence`)."""
+        """Signals, stop signs and yield signs, each attached to the incoming lanes it governs
+        (the map's `orientation` and `validity` first); a signal governs where a sign shares its
+        lanes (`signal_precedence`). Controllers that switch several signals together become
+        `meta["signal_groups"]`. Unknown types are skipped with one warning per type."""
         refs: dict[str, list[tuple[str, object]]] = {}
         for r in self.roads.values():
             sig_el = r.el.find("signals")
@@ -739,12 +812,19 @@ class _Builder:
                          and any(lanes[s].junction_id for s in ln.successors)]
         ends = np.array([ln.end for ln in incoming_ends]) if incoming_ends else np.zeros((0, 2))
         made: dict[str, dict] = {kind: {} for kind in _CONTROL_CLASS}
+        unknown: dict[tuple[str, str], int] = {}
+        ident_of: dict[str, str] = {}
         for r in self.roads.values():
             sig_el = r.el.find("signals")
             for s_el in (sig_el.findall("signal") if sig_el is not None else []):
-                kind = SIGNAL_CODES.get((s_el.get("type") or "").strip())
+                kind = signal_kind(s_el.get("type"), s_el.get("country"), s_el.get("dynamic"))
                 sid = s_el.get("id")
-                if kind is None or sid is None:
+                if kind is None:
+                    if not known_non_control(s_el.get("type")):
+                        key = ((s_el.get("type") or "").strip(), (s_el.get("country") or "").strip())
+                        unknown[key] = unknown.get(key, 0) + 1
+                    continue
+                if sid is None:
                     continue
                 try:
                     what = f"road {r.id} <signal id={sid}>"
@@ -753,10 +833,15 @@ class _Builder:
                 except MapFormatError as exc:
                     warnings.warn(f"skipping bad signal: {exc}", stacklevel=2)
                     continue
-                heading = (h + (math.pi if s_el.get("orientation", "+") == "+" else 0.0)) % (2 * math.pi)
+                orientation = (s_el.get("orientation") or "+").strip()
+                heading = (h + (math.pi if orientation != "-" else 0.0)) % (2 * math.pi)
                 governed = self._governed(r, s_el, refs.get(sid, []), lanes)
                 if not governed and len(ends):
                     d = np.hypot(ends[:, 0] - pos[0], ends[:, 1] - pos[1])
+                    if orientation in ("+", "-"):  # only lanes whose traffic the signal faces
+                        travel = heading + math.pi
+                        facing = np.array([math.cos(ln.heading_at_end() - travel) > 0 for ln in incoming_ends])
+                        d = np.where(facing, d, np.inf)
                     i = int(np.argmin(d))
                     if d[i] <= SIGNAL_SEARCH_M:
                         governed = [incoming_ends[i].id]
@@ -765,59 +850,90 @@ class _Builder:
                 line = self._stop_line(governed, lanes, pos)
                 ident = sid if all(sid not in v for v in made.values()) else f"{r.id}_{sid}"
                 made[kind][ident] = _CONTROL_CLASS[kind](ident, jid, line, pos, heading, tuple(governed))
+                ident_of.setdefault(sid, ident)
+        for (t, c), n in sorted(unknown.items()):
+            static = SIGNAL_CODES.get(t) == "signal" or SIGNAL_CODES.get(t.lower()) == "signal"
+            warnings.warn(f"{self.ctx.path}: {n} <signal> of type {t!r}" + (f" (country {c!r})" if c else "")
+                          + (' marked dynamic="no": a sign or marking, not made a light' if static else
+                             " not in the code tables: ignored, not made a control"), stacklevel=2)
         signals = made["signal"]
+        self.signal_groups = self._controller_groups(ident_of, signals)
         return (signals, signal_precedence(lanes, signals, made["stop"]),
                 signal_precedence(lanes, signals, made["yield"]))
 
+    def _controller_groups(self, ident_of: dict[str, str], signals: dict) -> dict[str, list[str]]:
+        """`<controller>` id -> the signals (lights) it switches together, where it holds two or more."""
+        out: dict[str, list[str]] = {}
+        for c in self.root.findall("controller"):
+            ids = [ident_of[x] for x in (k.get("signalId") for k in c.findall("control"))
+                   if x in ident_of and ident_of[x] in signals]
+            ids = list(dict.fromkeys(ids))
+            if len(ids) > 1 and c.get("id") is not None:
+                out[f"controller {c.get('id')}"] = ids
+        return out
+
     def _governed(self, road: _OdrRoad, s_el, refs: list, lanes: dict[str, Lane]) -> list[str]:
-        """Incoming lanes a signal governs: via references on junction roads, else the lanes of
-        its own road that enter a junction at the road end nearest the signal."""
+        """Incoming lanes a signal governs: via its placements on junction roads (the signal or
+        its references), else the lanes of its own road of the direction it is valid for that
+        enter a junction at their end (nearest the signal when it is valid for both)."""
         out: list[str] = []
         placements = [(road.id, s_el)] + refs
+        what = self.ctx.where(s_el, f"road {road.id} <signal id={s_el.get('id')}>")
         for rid, el in placements:
-            r = self.roads[rid]
-            if r.junction is None:
+            r = self.roads.get(rid)
+            if r is None or r.junction is None:
                 continue
-            for lid in self._valid_lanes(r, el, lanes):  # junction lanes: govern their feeders
-                out += [p for p in lanes[lid].predecessors if lanes[p].junction_id is None]
+            for lid in self._resolve(self._valid_lanes(r, el, s_el).values(), lanes, what):  # junction lanes: govern their feeders
+                out += [p for p in lanes[lid].predecessors if p in lanes and lanes[p].junction_id is None]
         if out:
             return list(dict.fromkeys(out))
         for rid, el in placements:
-            r = self.roads[rid]
-            if r.junction is not None:
+            r = self.roads.get(rid)
+            if r is None or r.junction is not None:
                 continue
             try:
                 s = float(el.get("s", "0"))
             except ValueError:
                 continue
+            valid = self._valid_lanes(r, el, s_el)
             for end in sorted(("low", "high"), key=lambda e: abs(s - (0.0 if e == "low" else r.length))):
                 sec = self._sec_at(r, end)
-                cands = [self.chain_of[self.lane_id((r.id, sec, lid))] for lid in r.sections[sec].lanes
-                         if (r.id, sec, lid) in self.geoms and self._exit_end((r.id, sec, lid)) == end]
-                cands = [c for c in cands if any(lanes[x].junction_id for x in lanes[c].successors)]
-                valid = set(self._valid_lanes(r, el, lanes, sec))
-                if cands and valid & set(cands):
-                    cands = [c for c in cands if c in valid]
+                keys = [(r.id, sec, lid) for lid in r.sections[sec].lanes
+                        if (r.id, sec, lid) in self.geoms and self._exit_end((r.id, sec, lid)) == end]
+                cands = self._resolve([self.chain_of[self.lane_id(k)] for k in keys if self.lane_id(k) in valid],
+                                      lanes, what)
+                cands = [c for c in cands if any(lanes[x].junction_id for x in lanes[c].successors if x in lanes)]
                 if cands:
                     out += cands
                     break
         return list(dict.fromkeys(out))
 
-    def _valid_lanes(self, road: _OdrRoad, el, lanes: dict[str, Lane], sec: int | None = None) -> list[str]:
-        secs = range(len(road.sections)) if sec is None else [sec]
-        ids = [(road.id, k, lid) for k in secs for lid in road.sections[k].lanes if (road.id, k, lid) in self.geoms]
-        vals = el.findall("validity")
-        if vals:
-            keep = set()
-            for v in vals:
-                try:
-                    a, b = sorted((int(v.get("fromLane")), int(v.get("toLane"))))
-                except (TypeError, ValueError):
-                    continue
-                keep |= {i for i in range(a, b + 1)}
-            if keep - {0}:
-                ids = [k for k in ids if k[2] in keep]
-        return list(dict.fromkeys(self.chain_of[self.lane_id(k)] for k in ids))
+    def _valid_lanes(self, road: _OdrRoad, el, signal_el=None) -> dict[str, str]:
+        """Lane pieces (piece id -> chain id) a signal placement is valid for: the lanes its
+        `<validity>` records name; without them (or only lane 0, the whole road), the lanes of
+        the driving direction its `orientation` gives ("+": along the reference line, lanes
+        with negative ids; "-": against it; "none": both). Declared lanes of the other
+        direction than the orientation are dropped unless nothing else is left."""
+        orientation = (el.get("orientation") or (signal_el.get("orientation") if signal_el is not None else None)
+                       or "none").strip()
+        side = -1 if orientation == "+" else 1 if orientation == "-" else 0
+        keys = [(road.id, k, lid) for k in range(len(road.sections)) for lid in road.sections[k].lanes
+                if (road.id, k, lid) in self.geoms]
+        keep: set[int] = set()
+        for v in el.findall("validity"):
+            try:
+                a, b = sorted((int(v.get("fromLane")), int(v.get("toLane"))))
+            except (TypeError, ValueError):
+                continue
+            keep |= set(range(a, b + 1))
+        keep -= {0}
+        if keep:
+            declared = [k for k in keys if k[2] in keep]
+            mine = [k for k in declared if side == 0 or k[2] * side > 0]
+            keys = mine or declared
+        elif side:
+            keys = [k for k in keys if k[2] * side > 0]
+        return {self.lane_id(k): self.chain_of[self.lane_id(k)] for k in keys}
 
     @staticmethod
     def _stop_line(governed: list[str], lanes: dict[str, Lane], pos) -> tuple:
@@ -874,11 +990,13 @@ class _Builder:
 
 
 def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str], list[str]]],
-                  inner: set[str]) -> None:
+                  inner: set[str]) -> dict[str, list[str]]:
     """Replace every path junction lane -> interior lane -> junction lane by one junction lane
     (id `a+inner+b`, on a's road): a manoeuvre drives one junction lane from road to road. Only
     where the path is unambiguous (a leads into the interior lane alone, b comes from it alone);
-    in place on `lanes` and the roads' lane lists."""
+    in place on `lanes` and the roads' lane lists. Returns removed lane -> the lanes it was
+    joined into, so references to it (signals, validity records) can follow."""
+    joined: dict[str, list[str]] = {}
     for mid in sorted(inner):
         ln = lanes.get(mid)
         if ln is None or not ln.predecessors or not ln.successors:
@@ -895,6 +1013,8 @@ def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str],
                 cat = lambda attr: as_polyline(np.vstack(  # noqa: E731
                     [getattr(parts[0], attr)] + [getattr(x, attr)[1:] for x in parts[1:]]))
                 lens = [max(x.length, 1e-9) for x in parts]
+                for x in parts:
+                    joined.setdefault(x.id, []).append(new)
                 lanes[new] = Lane(new, a.road_id, cat("centerline"), cat("left_boundary"), cat("right_boundary"),
                                   float(np.average([x.width for x in parts], weights=lens)), a.speed_limit,
                                   a.predecessors, b.successors, junction_id=a.junction_id,
@@ -916,6 +1036,7 @@ def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str],
         for group in road_lanes.values():
             for side in group:
                 side[:] = [x for x in side if x not in gone]
+    return joined
 
 
 def _check_points(points, where: str) -> None:
@@ -947,4 +1068,4 @@ def _replace(obj, **kw):
     return replace(obj, **kw)
 
 
-__all__ = ["read_opendrive", "SIGNAL_CODES"]
+__all__ = ["read_opendrive", "SIGNAL_CODES", "signal_kind"]

@@ -2,11 +2,11 @@
 OpenDRIVE export of its map, built with `scenariogeneration` (the xosc object model) and
 checked by asam-qc-openscenarioxml in the tests.
 
-What a scenario becomes (the env's model, `MapEnv.default_config()`, drawn once from the
-scenario's seed, and no wall-clock date: the same suite gives the same bytes):
+What a scenario becomes (the env's model with its defaults, `feat2map.config.DRIVE_DEFAULTS`,
+drawn once from the scenario's seed, and no wall-clock date: the same suite gives the same bytes):
 - the ego starts `ego_start_distance` before the end of the road lane leading into its first
   manoeuvre at `ego_initial_speed`, with an `AssignRouteAction` whose waypoints are the
-  junction lanes the env drives for each manoeuvre (`routes.pick_lane`) and the goal
+  junction lanes the env drives for each manoeuvre (`feat2map.routes.manoeuvre_lane`) and the goal
   `goal_distance` into the last exit lane; the storyboard stops at the goal or at `duration`;
 - `traffic_vehicles` cars on road lanes at `traffic_initial_speed`, spread at random;
 - pedestrians cross the crosswalks of the route's junctions as the env spawns them: Poisson
@@ -31,9 +31,11 @@ from typing import Any
 import numpy as np
 
 from ... import atomic
+from ...config import DRIVE_DEFAULTS
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane
 from ...phases import junction_phases
+from ...routes import manoeuvre_lane
 from .. import FORMATS
 from ..base import header_date
 
@@ -43,8 +45,8 @@ LAMPS = {"red": "on;off;off", "amber": "off;on;off", "green": "off;off;on"}  # r
 CAR_SIZE = (4.5, 1.8, 1.5)  # length, width, height [m]
 PEDESTRIAN_SIZE = (0.8, 0.8, 1.8)
 TRAFFIC_CLEARANCE_M = 12.0  # between two placed cars on one lane, and from the ego
-TRAFFIC_MARGIN_M = 5.0
-GOAL_RADIUS_M = 2.0  # the storyboard stops when the ego is this close to the goal  # cars start at least this far from either end of their lane
+TRAFFIC_MARGIN_M = 5.0  # cars start at least this far from either end of their lane
+GOAL_RADIUS_M = 2.0  # the storyboard stops when the ego is this close to the goal
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -62,12 +64,6 @@ class _Crossing:
 def file_stem(name: str) -> str:
     """A file name for a scenario or map name (anything outside [A-Za-z0-9._-] becomes '_')."""
     return _SAFE_NAME.sub("_", name).strip("._") or "scenario"
-
-
-def _env_defaults() -> dict[str, Any]:
-    from ...envs.map_env import MapEnv
-
-    return MapEnv.default_config()
 
 
 class _ScenarioWriter:
@@ -129,12 +125,10 @@ class _ScenarioWriter:
 
     def route_lanes(self, sc) -> list[Lane]:
         """The lane before the first manoeuvre, each manoeuvre's junction lane, the exit lane."""
-        from ...scenarios.routes import pick_lane
-
         m = self.m
         out: list[Lane] = []
         for i, mv in enumerate(sc.route):
-            ln = pick_lane(m, tuple(mv))
+            ln = manoeuvre_lane(m, mv)
             if ln is None:
                 raise Feat2MapError(f"no junction lane drives manoeuvre {list(mv)}", f"{sc.name}.route[{i}]")
             out.append(ln)
@@ -204,7 +198,8 @@ class _ScenarioWriter:
             if cw.junction_id not in junctions:
                 continue
             a, b, width = _axis(cw.polygon)
-            t, walking = 0.0, []  # end times of the pedestrians on this crosswalk
+            t = 0.0
+            walking: list[float] = []  # end times of the pedestrians on this crosswalk
             while True:
                 t += float(rng.exponential(1.0 / rate))
                 if t >= sc.duration:
@@ -330,7 +325,7 @@ def write_openscenario(suite, out: str | Path) -> list[Path]:
     from .. import read_map
     from ..opendrive.writer import opendrive_ids, to_opendrive
 
-    cfg = _env_defaults()
+    cfg = dict(DRIVE_DEFAULTS)
     maps: dict[Path, tuple[str, HDMap, Any]] = {}
     names: set[str] = set()
     written = []

@@ -1,0 +1,293 @@
+"""Load-time semantic checks of a map: what must hold for a map to be driven and exported
+safely, beyond the values `validation.validate_model` checks.
+
+Every reader runs `check_map` on the map it returns (each problem a one-line warning naming the
+file and element; `feat2map validate` reports them), and the env asserts `assert_sound` at reset.
+The checks are a list (`CHECKS`) of small functions `(HDMap) -> Iterable[Finding]`; add one by
+appending it. A `Finding` is `fatal` when the map cannot be driven safely (the env refuses it).
+
+`drop_dangling` is the readers' repair step after their own transforms: a control or link that
+names an element the map does not hold loses that reference (one warning naming both), never a
+traceback further on.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+from typing import Callable, Iterable
+
+from .config import LANE_LINK_GAP_M
+from .errors import Feat2MapError
+from .model import HDMap, incoming_lanes
+
+CONTROL_TABLES = ("signals", "stop_signs", "yield_signs")
+_LINKS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One semantic problem: the element (kind and id), what is wrong, and whether the map
+    cannot be driven safely with it."""
+
+    element: str
+    message: str
+    fatal: bool = False
+
+    def __str__(self) -> str:
+        return f"{self.element}: {self.message}"
+
+
+# ------------------------------------------------------------------------------- checks
+
+def dangling_references(m: HDMap) -> Iterable[Finding]:
+    """Every id an element refers to exists (lanes, roads, junctions, controls' lanes)."""
+    for ln in m.lanes.values():
+        if ln.road_id not in m.roads:
+            yield Finding(f"lane {ln.id}", f"refers to unknown road {ln.road_id}", True)
+        if ln.junction_id is not None and ln.junction_id not in m.junctions:
+            yield Finding(f"lane {ln.id}", f"refers to unknown junction {ln.junction_id}", True)
+        for f in _LINKS:
+            for x in getattr(ln, f):
+                if x not in m.lanes:
+                    yield Finding(f"lane {ln.id}", f"{f} names unknown lane {x}", True)
+    for r in m.roads.values():
+        for x in r.lane_ids:
+            if x not in m.lanes:
+                yield Finding(f"road {r.id}", f"lists unknown lane {x}", True)
+    for kind in (*CONTROL_TABLES, "crosswalks"):
+        for s in getattr(m, kind).values():
+            for x in getattr(s, "lane_ids", ()):
+                if x not in m.lanes:
+                    yield Finding(f"{kind[:-1]} {s.id}", f"governs unknown lane {x}", True)
+            if s.junction_id is not None and s.junction_id not in m.junctions:
+                yield Finding(f"{kind[:-1]} {s.id}", f"refers to unknown junction {s.junction_id}", True)
+
+
+APPROACH_LINKS = 3  # a governed lane may reach its junction through this many road lanes (SVL: the lane before)
+
+
+def _leads_into(m: HDMap, lid: str, jid: str) -> bool:
+    frontier, seen = [lid], {lid}
+    for _ in range(APPROACH_LINKS):
+        nxt = []
+        for x in frontier:
+            for y in m.lanes[x].successors:
+                if y not in m.lanes or y in seen:
+                    continue
+                if m.lanes[y].junction_id == jid:
+                    return True
+                if m.lanes[y].junction_id is None:
+                    seen.add(y)
+                    nxt.append(y)
+        frontier = nxt
+    return False
+
+
+def governed_lanes_are_approaches(m: HDMap) -> Iterable[Finding]:
+    """A control of a junction governs lanes that lead into that junction (its approaches,
+    through at most APPROACH_LINKS road lanes: SVL maps give signals the lane before)."""
+    for kind in CONTROL_TABLES:
+        for s in getattr(m, kind).values():
+            if s.junction_id is None:
+                continue
+            for lid in incoming_lanes(m.lanes, s.lane_ids):
+                if not _leads_into(m, lid, s.junction_id):
+                    yield Finding(f"{kind[:-1]} {s.id}", f"governs lane {lid}, which is not an approach of "
+                                                         f"junction {s.junction_id}")
+
+
+def conflict_free_phases(m: HDMap) -> Iterable[Finding]:
+    """No two signals whose paths conflict are green together in the phase plan (paired and
+    single), and every group the map declares can switch together."""
+    from .phases import declared_group_conflicts, junction_phases, phase_conflicts
+
+    for paired in (True, False):
+        for jid, a, b, why in phase_conflicts(m, junction_phases(m, paired), paired):
+            yield Finding(f"junction {jid}", f"signals {a} and {b} are green together in the "
+                                             f"{'paired' if paired else 'single'} plan: {why}", True)
+    from .phases import signal_self_conflicts
+
+    for sid, a, b, why in signal_self_conflicts(m):
+        yield Finding(f"signal {sid}", f"governs roads {a} and {b} whose paths conflict ({why}): one light cannot "
+                                       "keep them apart")
+    clashes: dict[str, list[tuple[str, str, str]]] = {}
+    for gid, a, b, why in declared_group_conflicts(m):
+        clashes.setdefault(gid, []).append((a, b, why))
+    for gid, found in clashes.items():
+        a, b, why = found[0]
+        more = f" ({len(found) - 1} more such pairs)" if len(found) > 1 else ""
+        yield Finding(f"signal group {gid}", f"the map switches signals {a} and {b} together, but {why}{more} "
+                                              "(the phase plan keeps them apart)")
+
+
+def links_meet(m: HDMap) -> Iterable[Finding]:
+    """A lane and its successor meet: the successor starts within LANE_LINK_GAP_M of its end."""
+    for a, b, gap in _far_links(m):
+        yield Finding(f"lane {a}", f"successor {b} starts {gap:.1f} m from its end")
+
+
+def _far_links(m: HDMap) -> list[tuple[str, str, float]]:
+    import math
+
+    return [(ln.id, s, d) for ln in m.lanes.values() for s in ln.successors if s in m.lanes
+            and (d := math.dist(ln.end, m.lanes[s].start)) > LANE_LINK_GAP_M]
+
+
+CHECKS: list[Callable[[HDMap], Iterable[Finding]]] = [
+    dangling_references,
+    links_meet,
+    governed_lanes_are_approaches,
+    conflict_free_phases,
+]
+
+
+def findings(m: HDMap) -> list[Finding]:
+    """Every problem every check finds, in check order."""
+    return [f for check in CHECKS for f in check(m)]
+
+
+def check_map(m: HDMap, where: str = "map") -> HDMap:
+    """Warn (one line each, naming `where` and the element) about every finding; returns `m`."""
+    for f in findings(m):
+        warnings.warn(f"{where}: {f}", stacklevel=2)
+    return m
+
+
+def assert_sound(m: HDMap, where: str = "map") -> None:
+    """Raise Feat2MapError naming the first fatal finding (the env's check at reset)."""
+    bad = [f for f in findings(m) if f.fatal]
+    if bad:
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise Feat2MapError(f"{bad[0]}{more}", where)
+
+
+def loaded(m: HDMap, where: str = "map") -> HDMap:
+    """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
+    dangling references dropped (`drop_dangling`), signals over conflicting approaches split
+    (`split_conflicting_signals`), values checked
+    (`validation.validate_model`), semantic findings warned (`check_map`)."""
+    from .validation import validate_model
+
+    m = validate_model(drop_dangling(drop_far_links(m, where), where), where)
+    return check_map(split_conflicting_signals(m, where), where)
+
+
+# ------------------------------------------------------------------------------- repair
+
+def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with every signal that governs approaches whose paths conflict split into one signal
+    per group of approaches that do not (ids `<id>`, `<id>~2`, ...; groups the map declares get
+    the new ids too), one warning each: one light cannot keep crossing traffic apart, and the
+    phase plans must (a CARLA town's references give one light a right turn and the road it
+    merges into)."""
+    from .phases import PathConflicts, units_conflict
+
+    pc = PathConflicts(m)
+    signals: dict = {}
+    renamed: dict[str, list[str]] = {}
+    for sid, sig in m.signals.items():
+        by_road: dict[str, list[str]] = {}
+        for lid in sig.lane_ids:
+            if lid in m.lanes:
+                by_road.setdefault(m.lanes[lid].road_id, []).append(lid)
+        paths = {r: tuple(x for lid in incoming_lanes(m.lanes, ids) for x in m.lanes[lid].successors
+                          if x in m.lanes and m.lanes[x].junction_id is not None) for r, ids in by_road.items()}
+        parts: list[list[str]] = []
+        for road in by_road:
+            home = next((p for p in parts if all(units_conflict(pc, paths[road], paths[q], True) is None for q in p)), None)
+            if home is None:
+                parts.append([road])
+            else:
+                home.append(road)
+        if len(parts) < 2:
+            signals[sid] = sig
+            continue
+        ids = [sid] + [f"{sid}~{k}" for k in range(2, len(parts) + 1)]
+        for new, part in zip(ids, parts):
+            keep = tuple(x for x in sig.lane_ids if x in m.lanes and m.lanes[x].road_id in part)
+            signals[new] = replace(sig, id=new, lane_ids=keep)
+        renamed[sid] = ids
+        warnings.warn(f"{where}: signal {sid}: governs approaches whose paths conflict (roads "
+                      f"{' / '.join(', '.join(p) for p in parts)}): split into signals {', '.join(ids)}", stacklevel=3)
+    if not renamed:
+        return m
+    meta = dict(m.meta)
+    groups = meta.get("signal_groups")
+    if isinstance(groups, dict):
+        meta["signal_groups"] = {g: [y for x in ids for y in renamed.get(x, [x])] for g, ids in groups.items()}
+    return replace(m, signals=signals, meta=meta)
+
+
+def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
+    """`m` without successor/predecessor links between lanes whose ends lie more than
+    LANE_LINK_GAP_M apart (converters that link the roads on both sides of a junction past its
+    connecting roads: routes jumped across the junction), with one warning for them all."""
+    far = _far_links(m)
+    if not far:
+        return m
+    cut: dict[str, dict[str, set[str]]] = {}
+    for a, b, _ in far:
+        cut.setdefault(a, {}).setdefault("successors", set()).add(b)
+        cut.setdefault(b, {}).setdefault("predecessors", set()).add(a)
+    lanes = dict(m.lanes)
+    for lid, fields in cut.items():
+        ln = lanes[lid]
+        lanes[lid] = replace(ln, **{f: tuple(x for x in getattr(ln, f) if x not in gone) for f, gone in fields.items()})
+    shown = ", ".join(f"{a} -> {b} ({d:.0f} m)" for a, b, d in sorted(far, key=lambda x: -x[2])[:3])
+    warnings.warn(f"{where}: {len(far)} lane link(s) between ends more than {LANE_LINK_GAP_M:g} m apart dropped "
+                  f"(largest: {shown})", stacklevel=3)
+    return replace(m, lanes=lanes)
+
+
+def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
+    """`m` without references to elements it does not hold: links and controls' lanes that name
+    unknown lanes lose them, junction ids that name unknown junctions become None; each with a
+    one-line warning naming `where`, the element and the id. Returns `m` itself when clean."""
+    def warn(element: str, msg: str) -> None:
+        warnings.warn(f"{where}: {element}: {msg}, skipped", stacklevel=3)
+
+    lanes = dict(m.lanes)
+    changed = False
+    for lid, ln in m.lanes.items():
+        upd = {}
+        for f in _LINKS:
+            ids = getattr(ln, f)
+            keep = tuple(x for x in ids if x in m.lanes)
+            if keep != ids:
+                warn(f"lane {lid}", f"{f} names unknown lane(s) {', '.join(x for x in ids if x not in m.lanes)}")
+                upd[f] = keep
+        if ln.junction_id is not None and ln.junction_id not in m.junctions:
+            warn(f"lane {lid}", f"unknown junction {ln.junction_id}")
+            upd["junction_id"] = None
+        if upd:
+            lanes[lid] = replace(ln, **upd)
+            changed = True
+    tables = {}
+    for kind in (*CONTROL_TABLES, "crosswalks"):
+        out = {}
+        for sid, s in getattr(m, kind).items():
+            upd = {}
+            ids = getattr(s, "lane_ids", ())
+            keep = tuple(x for x in ids if x in m.lanes)
+            if keep != ids:
+                warn(f"{kind[:-1]} {sid}", f"governs unknown lane(s) {', '.join(x for x in ids if x not in m.lanes)}")
+                upd["lane_ids"] = keep
+            if s.junction_id is not None and s.junction_id not in m.junctions:
+                warn(f"{kind[:-1]} {sid}", f"unknown junction {s.junction_id}")
+                upd["junction_id"] = None
+            out[sid] = replace(s, **upd) if upd else s
+            changed = changed or bool(upd)
+        tables[kind] = out
+    roads = dict(m.roads)
+    for rid, r in m.roads.items():
+        if any(x not in m.lanes for x in r.lane_ids):
+            warn(f"road {rid}", f"lists unknown lane(s) {', '.join(x for x in r.lane_ids if x not in m.lanes)}")
+            roads[rid] = replace(r, right_lanes=tuple(x for x in r.right_lanes if x in m.lanes),
+                                 left_lanes=tuple(x for x in r.left_lanes if x in m.lanes))
+            changed = True
+    if not changed:
+        return m
+    return replace(m, lanes=lanes, roads=roads, **tables)
+
+
+__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded", "split_conflicting_signals"]

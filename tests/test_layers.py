@@ -1,0 +1,117 @@
+"""One source of truth: imports point down the layers (formats -> model; envs -> map layer;
+scenarios on top), and each rule the layers share is written once (or, where a copy remains
+in a module that is being reworked, kept equal to the one place by these tests)."""
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+# modules of the map layer allowed to import a layer above it: the package's __init__ registers
+# the Gymnasium envs (by string entry points), the command line dispatches to every layer
+ALLOWED_UP = {"feat2map/__init__.py", "feat2map/cli.py", "feat2map/cli_scenarios.py"}
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    """(line, absolute dotted name) of every import in the module at `path`."""
+    package = ".".join(("feat2map",) + path.relative_to(REPO).with_suffix("").parts[1:-1])
+    layer = {"feat2map": "feat2map", "envs": "feat2map.envs", "scenarios": "feat2map.scenarios"}[
+        path.relative_to(REPO).parts[0]]
+    package = layer + package[len("feat2map"):]
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package.split(".")
+            if node.level:
+                base = base[:len(base) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            out += [(node.lineno, f"{name}.{a.name}") for a in node.names]
+    return out
+
+
+def _up_imports(folder: str, above: tuple[str, ...]) -> list[str]:
+    found = []
+    for path in sorted((REPO / folder).rglob("*.py")):
+        if str(path.relative_to(REPO)) in ALLOWED_UP:
+            continue
+        for line, name in _imports(path):
+            if any(name == a or name.startswith(a + ".") for a in above):
+                found.append(f"{path.relative_to(REPO)}:{line} imports {name}")
+    return found
+
+
+def test_the_map_layer_and_the_formats_never_import_envs_or_scenarios():
+    assert _up_imports("feat2map", ("feat2map.envs", "feat2map.scenarios")) == []
+
+
+def test_envs_never_import_scenarios():
+    assert _up_imports("envs", ("feat2map.scenarios",)) == []
+
+
+def test_the_import_scan_sees_relative_imports(tmp_path):
+    """The scan resolves `from ...envs import x` inside feat2map/formats/<name>/ (else the two
+    tests above could not fail)."""
+    names = [n for _, n in _imports(REPO / "feat2map" / "formats" / "openscenario" / "writer.py")]
+    assert "feat2map.routes.manoeuvre_lane" in names and "feat2map.config.DRIVE_DEFAULTS" in names
+
+
+def test_the_env_defaults_are_the_drive_defaults():
+    """The OpenSCENARIO export and the scenario tools model the env's drive from DRIVE_DEFAULTS."""
+    from feat2map.config import DRIVE_DEFAULTS
+    from feat2map.envs.map_env import MapEnv
+
+    cfg = MapEnv.default_config()
+    assert {k: cfg[k] for k in DRIVE_DEFAULTS} == dict(DRIVE_DEFAULTS)
+
+
+def test_max_legs_is_the_feature_rule():
+    from feat2map import config
+    from feat2map.envs import map_env
+
+    assert map_env.MAX_LEGS == config.MAX_LEGS
+
+
+def test_the_env_drives_the_map_layers_lane_for_every_manoeuvre(sf_default_map):
+    """envs.map_env.manoeuvres_to_lanes picks the junction lane feat2map.routes.manoeuvre_lane names."""
+    from feat2map.envs.map_env import manoeuvres_to_lanes
+    from feat2map.envs.network import MapNetwork
+    from feat2map.routes import manoeuvre_lane
+    from feat2map.scenarios.routes import manoeuvres, pick_lane
+
+    m = sf_default_map
+    net = MapNetwork.from_map(m)
+    moves = manoeuvres(m)
+    assert len(moves) > 50
+    for mv in moves:
+        lane = manoeuvre_lane(m, mv)
+        assert lane is not None and pick_lane(m, mv) is lane
+        assert manoeuvres_to_lanes(net, [mv])[1] == lane.id, mv
+    assert manoeuvre_lane(m, ("J0", "no such road", "R1")) is None
+
+
+@pytest.mark.parametrize("a", [0.0, 1.0, -1.0, math.pi, -math.pi, 3 * math.pi, -7.5, 1e6, 2 * math.pi - 1e-12])
+def test_wrap_angle_gives_the_inline_formulas_bits(a):
+    from feat2map.angles import wrap_angle, wrap_degrees
+
+    w = wrap_angle(a)
+    assert w == (a + math.pi) % (2 * math.pi) - math.pi and -math.pi <= w < math.pi
+    assert math.isclose(math.cos(w), math.cos(a), abs_tol=1e-6) and math.isclose(math.sin(w), math.sin(a), abs_tol=1e-6)
+    d = wrap_degrees(math.degrees(a))
+    assert d == (math.degrees(a) + 180.0) % 360.0 - 180.0 and -180.0 <= d < 180.0
+    arr = np.array([a, -a, 0.5 * a])
+    assert np.array_equal(wrap_angle(arr), (arr + np.pi) % (2 * np.pi) - np.pi)
+
+
+def test_one_uturn_threshold():
+    """A turn sharper than any left a real map has (150 deg) but short of a U-turn (180)."""
+    from feat2map.config import STRAIGHT_TOLERANCE_DEG, UTURN_THRESHOLD_DEG
+
+    assert 150.0 < UTURN_THRESHOLD_DEG < 180.0 and UTURN_THRESHOLD_DEG > STRAIGHT_TOLERANCE_DEG

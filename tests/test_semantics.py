@@ -1,0 +1,368 @@
+"""Load-time semantic checks (feat2map.semantics), conflict-free phase plans (feat2map.phases)
+and the readers' handling of what maps declare, on maps the project makes itself: generated
+maps exported to OpenDRIVE / Apollo and edited the way other tools write them."""
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lxml import etree
+
+import feat2map
+from feat2map.errors import Feat2MapError
+from feat2map.extract import extract_junctions
+from feat2map.features import JunctionFeature as JF
+from feat2map.features import Socket
+from feat2map.formats import write_map
+from feat2map.formats.apollo import read_apollo
+from feat2map.formats.apollo import schema as aps
+from feat2map.formats.opendrive import read_opendrive, write_opendrive
+from feat2map.phases import declared_group_conflicts, junction_phases, phase_conflicts
+from feat2map import semantics
+
+
+def _quiet(fn, *a, **kw):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = fn(*a, **kw)
+    return out, [str(w.message) for w in caught]
+
+
+@pytest.fixture(scope="module")
+def four_way():
+    return feat2map.generate_from_features([JF.make([0, 90, 180, 270], "signal", False)], seed=1)
+
+
+@pytest.fixture(scope="module")
+def four_way_xodr(tmp_path_factory, four_way):
+    path = tmp_path_factory.mktemp("xodr") / "four.xodr"
+    write_opendrive(four_way, path)
+    return path
+
+
+def _edit(src: Path, dst: Path, fn) -> Path:
+    root = etree.parse(str(src)).getroot()
+    fn(root)
+    dst.write_bytes(etree.tostring(root))
+    return dst
+
+
+def _governed(m) -> dict[str, tuple[str, ...]]:
+    return {s.name if hasattr(s, "name") else k: tuple(sorted(s.lane_ids)) for k, s in m.signals.items()}
+
+
+# ---------------------------------------------------------------------------------- phases
+
+def test_legs_at_minus_16_80_179_207_get_a_conflict_free_plan(tmp_path):
+    """The generated junction of issue 21 (a Baidu-style map's legs): the angle rule put three of
+    its four signals in one phase (CommonRoad validate: 1 problem); grouping by path conflicts
+    gives none green together."""
+    f = JF(tuple(Socket(a, 1, 1) for a in (-16, 80, 179, 207)), "signal", False)
+    m = feat2map.generate_from_features([f], seed=0)
+    for paired in (True, False):
+        plan = junction_phases(m, paired)
+        assert sorted(s for ph in plan["J0"] for s in ph) == sorted(m.signals)
+        assert phase_conflicts(m, plan, paired) == []
+        assert max(len(ph) for ph in plan["J0"]) <= 2
+    assert not [f for f in semantics.findings(m) if f.fatal]
+    pytest.importorskip("commonroad", reason="commonroad-io not installed")
+    from feat2map.formats.commonroad import validate_commonroad
+
+    write_map(m, tmp_path / "m.xml", "commonroad")
+    assert validate_commonroad(tmp_path / "m.xml") == []
+
+
+def test_a_generated_four_way_pairs_opposite_approaches(four_way):
+    plan = junction_phases(four_way)
+    (phases,) = plan.values()
+    assert len(phases) == 2 and all(len(p) == 2 for p in phases)
+    assert len(junction_phases(four_way, paired=False)[next(iter(plan))]) == 4
+    assert phase_conflicts(four_way, plan) == []
+
+
+def test_a_plan_that_puts_crossing_approaches_together_is_reported(four_way):
+    jid = next(iter(junction_phases(four_way)))
+    everyone = {jid: (tuple(sorted(four_way.signals)),)}
+    assert phase_conflicts(four_way, everyone)
+
+
+def test_declared_groups_are_checked_and_conflicting_ones_kept_apart(four_way):
+    (jid, (first, second)), = junction_phases(four_way).items()
+    ok = replace(four_way, meta={**four_way.meta, "signal_groups": {"c1": list(first)}})
+    assert declared_group_conflicts(ok) == [] and junction_phases(ok)[jid][0] == first
+    bad = replace(four_way, meta={**four_way.meta, "signal_groups": {"c2": [first[0], second[0]]}})
+    assert declared_group_conflicts(bad) and declared_group_conflicts(bad)[0][0] == "c2"
+    assert phase_conflicts(bad, junction_phases(bad)) == []
+    found = semantics.findings(bad)
+    assert any(f.element == "signal group c2" and not f.fatal for f in found)
+
+
+# ---------------------------------------------------------------------------------- semantics
+
+def test_dangling_references_are_dropped_with_one_warning_each(four_way):
+    sid = next(iter(four_way.signals))
+    sig = four_way.signals[sid]
+    broken = replace(four_way, signals={**four_way.signals, sid: replace(sig, lane_ids=sig.lane_ids + ("nowhere",))})
+    assert any(f.fatal and "nowhere" in f.message for f in semantics.findings(broken))
+    with pytest.raises(Feat2MapError, match="nowhere"):
+        semantics.assert_sound(broken)
+    fixed, caught = _quiet(semantics.drop_dangling, broken, "m.json")
+    assert fixed.signals[sid].lane_ids == sig.lane_ids
+    assert caught == [f"m.json: signal {sid}: governs unknown lane(s) nowhere, skipped"]
+    assert semantics.drop_dangling(four_way) is four_way
+
+
+def test_checks_are_a_list_others_extend(four_way, monkeypatch):
+    """i21b's checks (coincident opposite lanes, merge conflicts) append to CHECKS; the env
+    refuses at reset a map with a fatal finding."""
+    from feat2map.envs.junction_env import MapFileEnv
+
+    def always(m):
+        yield semantics.Finding("lane x", "made-up problem", True)
+
+    monkeypatch.setattr(semantics, "CHECKS", semantics.CHECKS + [always])
+    assert semantics.findings(four_way)[-1].message == "made-up problem"
+    with pytest.raises(Feat2MapError, match="made-up problem"):  # highway-env resets on construction
+        MapFileEnv(config={"map": four_way, "traffic_vehicles": 0}).reset(seed=0)
+
+
+def test_validate_reports_semantic_findings(four_way_xodr, tmp_path):
+    from feat2map.formats.opendrive import validate_opendrive
+
+    def everyone_in_one_controller(root):
+        c = etree.SubElement(root, "controller", id="77", name="all")
+        for s in root.iter("signal"):
+            etree.SubElement(c, "control", signalId=s.get("id"), type="0")
+    path = _edit(four_way_xodr, tmp_path / "one_controller.xodr", everyone_in_one_controller)
+    m, caught = _quiet(read_opendrive, path)
+    assert set(m.meta["signal_groups"]) == {"controller 77"}
+    assert any("signal group controller 77" in w for w in caught)
+    assert phase_conflicts(m, junction_phases(m)) == []
+    problems = [p for p in validate_opendrive(path) if "signal group" in p.message]
+    assert problems
+
+
+# ---------------------------------------------------------------------------------- OpenDRIVE declarations
+
+def test_whole_road_validity_governs_the_orientation_direction_only(four_way_xodr, tmp_path):
+    """fromLane=0 toLane=0 (or no validity) means the lanes of the signal's orientation, not
+    both directions of the road (a CARLA town put every signal of a junction in one phase)."""
+    whole = read_opendrive(four_way_xodr)
+
+    def zero(root):
+        for s in root.iter("signal"):
+            for v in s.findall("validity"):
+                v.set("fromLane", "0")
+                v.set("toLane", "0")
+
+    def none(root):
+        for s in root.iter("signal"):
+            for v in s.findall("validity"):
+                s.remove(v)
+    for fn in (zero, none):
+        m = read_opendrive(_edit(four_way_xodr, tmp_path / f"{fn.__name__}.xodr", fn))
+        assert {k: s.lane_ids for k, s in m.signals.items()} == {k: s.lane_ids for k, s in whole.signals.items()}
+        assert junction_phases(m) == junction_phases(whole)
+        assert phase_conflicts(m, junction_phases(m)) == []
+
+
+def test_crosswalk_markings_and_unknown_types_are_no_lights(four_way_xodr, tmp_path):
+    def add(root):
+        for k, sigs in enumerate(root.iter("signals")):
+            for code, name, dyn in (("1000003", "SgRMCrosswalk-2Lanes-4m.flt", "no"), ("987654", "mystery", "yes"),
+                                    ("1000001", "painted light", "no")):
+                etree.SubElement(sigs, "signal", s="1", t="0", id=f"x{code}_{k}", name=name, dynamic=dyn,
+                                 orientation="+", country="OpenDRIVE", type=code, subtype="-1")
+    m, caught = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "markings.xodr", add))
+    plain = read_opendrive(four_way_xodr)
+    assert set(m.signals) == set(plain.signals)
+    unknown = [w for w in caught if "not in the code tables" in w]
+    assert len(unknown) == 1 and "'987654'" in unknown[0]
+    static = [w for w in caught if 'dynamic="no"' in w]
+    assert len(static) == 1 and "'1000001'" in static[0]
+    assert not [w for w in caught if "1000003" in w]  # a known marking: no warning
+
+
+def test_free_text_traffic_light_types_are_lights(four_way_xodr, tmp_path):
+    """Converters from OSM write type="traffic_light" with no country."""
+    def free_text(root):
+        for s in root.iter("signal"):
+            if s.get("type") == "1000001":
+                s.set("type", "traffic_light")
+                s.set("country", "")
+    m = read_opendrive(_edit(four_way_xodr, tmp_path / "free.xodr", free_text))
+    plain = read_opendrive(four_way_xodr)
+    assert {k: s.lane_ids for k, s in m.signals.items()} == {k: s.lane_ids for k, s in plain.signals.items()}
+    assert [j.feature.control for j in extract_junctions(m)] == ["signal"]
+
+
+def test_code_tables():
+    from feat2map.formats.opendrive.reader import known_non_control, signal_kind
+
+    assert [signal_kind(t) for t in ("1000001", "traffic_light", "206", "DE:206", "R1-1", "205", "give_way")] == [
+        "signal", "signal", "stop", "stop", "stop", "yield", "yield"]
+    assert signal_kind("206", "USA") is None and signal_kind("1000001", "OpenDRIVE", "no") is None
+    assert signal_kind("1000003", "OpenDRIVE", "no") is None and known_non_control("1000003")
+    assert known_non_control("DE:274[60]") and not known_non_control("987654")
+
+
+def test_a_reference_to_a_lane_joined_away_follows_it(tmp_path):
+    """CARLA and netconvert maps: a signal referenced from a junction road whose lane the reader
+    joins into one junction lane (through a centimetre road) crashed with KeyError '<road>_0_-1'."""
+    from test_opendrive import _split_with_a_centimetre_road
+
+    m0 = feat2map.generate_from_features([JF.make([0, 90, 180], "signal", False)], seed=0)
+    write_opendrive(m0, tmp_path / "t.xodr")
+    _split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
+
+    def reference(root):
+        sid = next(s.get("id") for s in root.iter("signal") if s.get("type") == "1000001")
+        for rid in ("901", "903"):
+            road = next(r for r in root.findall("road") if r.get("id") == rid)
+            sigs = road.find("signals")
+            if sigs is None:
+                sigs = etree.SubElement(road, "signals")
+            ref = etree.SubElement(sigs, "signalReference", id=sid, s="0", t="0", orientation="+")
+            etree.SubElement(ref, "validity", fromLane="-1", toLane="-1")
+    path = _edit(tmp_path / "split.xodr", tmp_path / "ref.xodr", reference)
+    m, caught = _quiet(read_opendrive, path)
+    assert not [w for w in caught if "does not hold" in w]
+    (joined,) = [ln for ln in m.lanes.values() if "902_0_-1" in ln.id]
+    governs = {x for s in m.signals.values() for x in s.lane_ids}
+    assert set(joined.predecessors) <= governs
+    assert [j.feature.control for j in extract_junctions(m)] == ["signal"]
+
+
+# ---------------------------------------------------------------------------------- Apollo
+
+@pytest.fixture(scope="module")
+def apollo_pb(tmp_path_factory, four_way):
+    out = tmp_path_factory.mktemp("apollo") / "map"
+    write_map(four_way, out, "apollo")
+    return aps.parse_map((out / "base_map.bin").read_bytes(), "base_map.bin"), out
+
+
+def _write_pb(pb, tmp_path: Path, name: str) -> Path:
+    path = tmp_path / name
+    path.write_bytes(pb.SerializeToString())
+    return path
+
+
+def test_apollo_empty_id_objects_are_skipped_not_the_map(apollo_pb, tmp_path):
+    pb0, folder = apollo_pb
+    plain = read_apollo(folder / "base_map.bin")
+    pb = aps.Map()
+    pb.CopyFrom(pb0)
+    ov = pb.overlap.add()
+    ov.id.id = "svl_broken"
+    a, b = ov.object.add(), ov.object.add()
+    a.id.id = pb.lane[0].id.id
+    a.lane_overlap_info.start_s, a.lane_overlap_info.end_s = 0.0, 1.0
+    b.id.id = ""
+    b.stop_sign_overlap_info.SetInParent()
+    pb.stop_sign.add()  # an empty stop sign element, too
+    m, caught = _quiet(read_apollo, _write_pb(pb, tmp_path, "empty.bin"))
+    assert set(m.signals) == set(plain.signals) and set(m.junctions) == set(plain.junctions)
+    assert any("overlap 'svl_broken': holds a stop_sign with an empty id, skipped" in w for w in caught)
+    assert any("stop_sign #0: empty id, skipped" in w for w in caught)
+
+
+def test_apollo_signals_without_overlaps_govern_by_their_stop_line(apollo_pb, tmp_path):
+    """Maps converted from other formats tie signals to no lane: the lanes their stop lines
+    cross into the junction are governed (a heuristic where the map declares nothing)."""
+    pb0, folder = apollo_pb
+    plain = read_apollo(folder / "base_map.bin")
+    pb = aps.Map()
+    pb.CopyFrom(pb0)
+    keep = [ov for ov in pb.overlap if not any(o.HasField("signal_overlap_info") for o in ov.object)]
+    del pb.overlap[:]
+    pb.overlap.extend(keep)
+    for s in pb.signal:
+        del s.overlap_id[:]
+    m = read_apollo(_write_pb(pb, tmp_path, "no_overlaps.bin"))
+    assert {k: s.lane_ids for k, s in m.signals.items()} == {k: s.lane_ids for k, s in plain.signals.items()}
+    assert [j.feature.control for j in extract_junctions(m)] == ["signal"]
+
+
+def test_apollo_junction_overlap_ids_naming_lanes_change_nothing(apollo_pb, tmp_path):
+    pb0, folder = apollo_pb
+    plain = read_apollo(folder / "base_map.bin")
+    pb = aps.Map()
+    pb.CopyFrom(pb0)
+    for j in pb.junction:
+        del j.overlap_id[:]
+        for ln in pb.lane[:5]:
+            j.overlap_id.add().id = ln.id.id
+    m = read_apollo(_write_pb(pb, tmp_path, "lane_ids.bin"))
+    assert {k: s.lane_ids for k, s in m.signals.items()} == {k: s.lane_ids for k, s in plain.signals.items()}
+    assert [j.feature for j in extract_junctions(m)] == [j.feature for j in extract_junctions(plain)]
+
+
+# ---------------------------------------------------------------------------------- extraction
+
+def test_legs_at_one_angle_are_skipped_with_the_leg_rule(monkeypatch, four_way):
+    """Two legs at the same angle (an older CARLA town): the leg rule's reason, not the
+    internal 'socket angles must be strictly increasing'."""
+    import numpy as np
+
+    from feat2map import extract
+
+    real = extract._arms
+
+    def twins(m, jid, lanes):
+        arms = real(m, jid, lanes)
+        return arms[:-1] + [replace(arms[0], lanes_in=1, lanes_out=0)]
+    monkeypatch.setattr(extract, "_arms", twins)
+    skipped: list = []
+    _, caught = _quiet(extract.extract_junctions, four_way, "m", skipped=skipped)
+    assert len(skipped) == 1 and skipped[0].reason.startswith("sockets 0.00 degrees apart, closer than the minimum")
+    assert not any("strictly increasing" in w for w in caught)
+    assert np.isfinite(skipped[0].n_arms)
+
+
+def test_links_between_lanes_that_do_not_meet_are_dropped(four_way):
+    """osm2xodr links the roads on both sides of a junction past its connecting roads (gaps up
+    to 85 m): routes jumped across the junction. Such links are dropped with one warning."""
+    road_lanes = [ln for ln in four_way.lanes.values() if ln.junction_id is None]
+    a, b = road_lanes[0], max(road_lanes, key=lambda ln: np.hypot(*np.subtract(ln.start, road_lanes[0].end)))
+    lanes = dict(four_way.lanes)
+    lanes[a.id] = replace(a, successors=a.successors + (b.id,))
+    lanes[b.id] = replace(b, predecessors=b.predecessors + (a.id,))
+    jumping = replace(four_way, lanes=lanes)
+    assert [f.element for f in semantics.findings(jumping)] == [f"lane {a.id}"]
+    fixed, caught = _quiet(semantics.drop_far_links, jumping, "m.xodr")
+    assert fixed.lanes[a.id] == a and fixed.lanes[b.id] == b
+    assert len(caught) == 1 and caught[0].startswith("m.xodr: 1 lane link(s) between ends more than 5 m apart dropped")
+    assert semantics.drop_far_links(four_way) is four_way
+
+
+def test_a_signal_over_crossing_approaches_is_split(four_way):
+    """A CARLA town's references give one light two crossing approaches: one light cannot keep
+    them apart, so the readers split it (and the phase plans keep the parts apart)."""
+    a, b = list(four_way.signals.values())[:2]
+    both = replace(four_way, signals={a.id: replace(a, lane_ids=a.lane_ids + b.lane_ids),
+                                      **{k: s for k, s in four_way.signals.items() if k not in (a.id, b.id)}})
+    assert any(f.element == f"signal {a.id}" for f in semantics.findings(both))
+    split, caught = _quiet(semantics.split_conflicting_signals, both, "m")
+    assert {split.signals[a.id].lane_ids, split.signals[f"{a.id}~2"].lane_ids} == {a.lane_ids, b.lane_ids}
+    assert len(caught) == 1 and f"split into signals {a.id}, {a.id}~2" in caught[0]
+    assert phase_conflicts(split, junction_phases(split)) == []
+    assert semantics.split_conflicting_signals(four_way) is four_way
+
+
+def test_apollo_speed_limits_in_kmh_are_converted(apollo_pb, tmp_path):
+    """A CARLA-to-Apollo converter wrote 60 (km/h) into every lane's m/s speed_limit: traffic
+    entered junctions at 28 m/s. An implausible median is read as km/h, with one warning."""
+    pb0, folder = apollo_pb
+    plain = read_apollo(folder / "base_map.bin")
+    pb = aps.Map()
+    pb.CopyFrom(pb0)
+    for ln in pb.lane:
+        ln.speed_limit = 60.0
+    m, caught = _quiet(read_apollo, _write_pb(pb, tmp_path, "kmh.bin"))
+    assert [ln.speed_limit for ln in m.lanes.values()] == pytest.approx([60 / 3.6] * len(m.lanes))
+    assert sum("read as km/h" in w for w in caught) == 1
+    assert max(ln.speed_limit for ln in plain.lanes.values()) < 40
