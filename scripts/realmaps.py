@@ -34,7 +34,7 @@ from feat2map.errors import Feat2MapError
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import FORMATS, read_map
 from feat2map.phases import junction_phases
-from feat2map.scenarios.rollout import OUTCOMES, run_suite
+from feat2map.scenarios.rollout import run_suite
 from feat2map.scenarios.routes import build_suite
 from feat2map.scenarios.scenario import Suite
 
