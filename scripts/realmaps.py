@@ -46,7 +46,6 @@ except ImportError:
 REPO = Path(__file__).resolve().parent.parent
 SHARED = REPO.parent / "shared" / "maps"
 TRAFFIC = 6  # the traffic level
-STAGES = ("read", "extract", "phases", "checks", "suite", "rollout")
 NOT_MAPS = ("routing_map",)  # Apollo routing graphs sit beside base maps but are no HD maps
 WARNINGS_KEPT = 20  # distinct warning lines kept per map
 
