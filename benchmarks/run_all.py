@@ -162,11 +162,13 @@ BENCHMARKS: dict[str, Callable[[], Table]] = {
     "apollo": lambda: run_script("apollo", "Apollo export and validation time vs map size", "bench_apollo.py"),
     "env": lambda: run_script("env", "Env steps/s: batched core vs object core vs highway-env intersection-v1",
                               "bench_env.py"),
+    "vector": lambda: run_script("vector", "Native batched vector env: N sub-envs in one core", "bench_vector.py"),
     "scenarios": lambda: run_script("scenarios", "Route coverage vs map size; baseline planner vs scripted driver",
                                     "bench_scenarios.py"),
     "rollout": rollout_throughput,
 }
-KNOWN_SCRIPTS = {"bench_generate.py", "bench_extract.py", "bench_apollo.py", "bench_env.py", "bench_scenarios.py"}
+KNOWN_SCRIPTS = {"bench_generate.py", "bench_extract.py", "bench_apollo.py", "bench_env.py", "bench_vector.py",
+                 "bench_scenarios.py"}
 for _extra in sorted(HERE.glob("bench_*.py")):  # benchmarks added later still get a table
     if _extra.name not in KNOWN_SCRIPTS:
         _key = _extra.stem.removeprefix("bench_")

@@ -61,7 +61,7 @@ import numpy as np
 from .network import MapNetwork
 from .rules import (IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M,
                     IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M)
-from .vehicles import TrafficVehicle
+from .vehicles import Pedestrian, TrafficVehicle
 
 if TYPE_CHECKING:
     from .road import ArrayRoad
@@ -363,13 +363,18 @@ class ArrayVehicle(TrafficVehicle):
 
 
 class TrafficCore:
-    """The rows of one episode's road users and the batched frame (see the module docstring)."""
+    """The rows of the road users of one or more roads (one per sub-env of a batch, `slots` of
+    them, all on one map) and the batched frame (see the module docstring)."""
 
-    def __init__(self, road: "ArrayRoad") -> None:
-        self.road = road
-        self.net: MapNetwork = road.network
+    def __init__(self, net: MapNetwork, slots: int = 1) -> None:
+        self.net = net
         self.table = LaneTable.of(self.net)
+        self.roads: list[Any] = [None] * slots  # the road of each slot (sub-env)
+        self.seen: list[list[Any]] = [[] for _ in range(slots)]  # each road's vehicles at its last sync
+        self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
+        self.on = np.zeros(0, dtype=bool)  # their rows
         self.objs: list[Any] = []
+        self.env = np.zeros(0, dtype=np.int64)  # the slot of each row
         self.kind = np.zeros(0, dtype=np.int8)
         self.lane = np.zeros(0, dtype=np.int64)
         self.s = np.zeros(0)
@@ -388,7 +393,6 @@ class TrafficCore:
         self.route_end = np.zeros(0, dtype=np.int64)  # index of the route's last lane
         self.entry = np.zeros(0)  # distance from the current lane's start to the next junction entry (inf: none in the window)
         self.driven = np.zeros(0, dtype=bool)
-        self._not_self = np.zeros((0, 1, 0), dtype=bool)
         self.routes: list[list[int]] = []  # lane ints
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
         self.reserved: list[str | None] = []
@@ -397,26 +401,44 @@ class TrafficCore:
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
 
     # ---- rows --------------------------------------------------------------------------------
-    _ARRAYS = ("kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
+    _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "route_pos", "route_end", "entry")
 
-    def add_traffic(self, lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
-        """A new driven row (and its view) at s on `lane_id`, its route starting there."""
+    def attach(self, road: "ArrayRoad", slot: int = 0) -> None:
+        """Make `road` the road of `slot`: the rows of the road there before are dropped."""
+        if road.network is not self.net:
+            raise ValueError("the roads of one traffic core must share its map")
+        old = self.env == slot
+        if old.any():
+            self._select(np.nonzero(~old)[0].tolist())
+        self.roads[slot] = road
+        self.seen[slot] = []
+        road.slot = slot
+        self.sync([road])
+
+    def rows(self, road: "ArrayRoad") -> np.ndarray:
+        """The rows of `road`, in its vehicles' order (after a sync)."""
+        return np.nonzero(self.env == road.slot)[0]
+
+    def add_traffic(self, road: "ArrayRoad", lane_id: str, s: float, speed: float, route: list[str]) -> ArrayVehicle:
+        """A new driven row (and its view) on `road` at s on `lane_id`, its route starting there."""
         lane = self.table.index[lane_id]
         x, y, h = self.table.place(np.array([lane]), np.array([s]), np.zeros(1))
         v = ArrayVehicle.__new__(ArrayVehicle)
-        self._init_view(v)
-        row = dict(kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
+        self._init_view(v, road)
+        row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
                    timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, mobil_t=-1e9,
                    crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0,
                    route_end=len(route) - 1, entry=math.inf)
         self._append(v, row, [self.table.index[x] for x in route], None)
-        self.road.vehicles.append(v)
+        road.vehicles.append(v)
+        if self.seen[road.slot] == road.vehicles[:-1]:
+            self.seen[road.slot].append(v)
         return v
 
-    def _init_view(self, v: ArrayVehicle) -> None:
+    def _init_view(self, v: ArrayVehicle, road) -> None:
         """The plain attributes highway-env reads from a vehicle (what __init__ would set)."""
-        v.road = self.road
+        v.road = road
         v.collidable, v.solid, v.check_collisions = True, True, True
         v.diagonal = math.hypot(v.LENGTH, v.WIDTH)
         v.hit = False
@@ -446,30 +468,47 @@ class TrafficCore:
 
     def _masks(self) -> None:
         """Masks that change only when rows come or go."""
-        n = len(self.objs)
         self.driven = self.kind == DRIVEN
-        self._not_self = ~np.eye(n, dtype=bool)[:, None, :]
+        self.on = self.stepped[self.env]
 
-    def sync(self) -> None:
-        """Bring the rows in line with `road.vehicles` (by identity): take in vehicles user code
-        appended, let go of removed ones (their views keep their last state), follow reordering."""
-        objs = self.road.vehicles
-        if objs == self.objs:  # element by element, by identity (vehicles define no __eq__)
+    def sync(self, roads: list | None = None) -> None:
+        """Bring the rows in line with the roads' `vehicles` (by identity): take in vehicles user
+        code appended, let go of removed ones (their views keep their last state), follow
+        reordering. Rows are kept grouped by slot, each road's in its vehicles' order."""
+        roads = [r for r in self.roads if r is not None] if roads is None else roads
+        # element by element, by identity (vehicles define no __eq__)
+        changed = [r for r in roads if r.vehicles != self.seen[r.slot]]
+        if not changed:
             return
-        present = {id(o) for o in objs}
-        for o in self.objs:
-            if id(o) not in present and isinstance(o, ArrayVehicle):
-                o.detach()
-        where = {id(o): i for i, o in enumerate(self.objs)}
-        self._select([where[id(o)] for o in objs if id(o) in where])
-        for o in objs:
-            if id(o) not in where:
-                self._take_in(o)
-        row = {id(o): i for i, o in enumerate(self.objs)}
-        order = [row[id(o)] for o in objs]
-        if order != list(range(len(order))):
-            self._select(order)
-        self.dirty = set(range(len(self.objs)))
+        pos: dict[int, int] = {}
+        for road in changed:
+            present = {id(o) for o in road.vehicles}
+            mine = [self.objs[i] for i in self.rows(road).tolist()]
+            for o in mine:
+                if id(o) not in present and isinstance(o, ArrayVehicle):
+                    o.detach()
+            known = {id(o) for o in mine}
+            for o in road.vehicles:
+                if id(o) not in known:
+                    self._take_in(o, road)
+            pos.update((id(o), k) for k, o in enumerate(road.vehicles))
+        n = len(self.objs)
+        within = np.arange(n)
+        keep = np.ones(n, dtype=bool)
+        slots = np.array([r.slot for r in changed])
+        for i in np.nonzero(np.isin(self.env, slots))[0].tolist():
+            k = pos.get(id(self.objs[i]))
+            if k is None:
+                keep[i] = False
+            else:
+                within[i] = k
+        order = np.nonzero(keep)[0]
+        order = order[np.lexsort((within[order], self.env[order]))]
+        if len(order) != n or (order != np.arange(n)).any():
+            self._select(order.tolist())
+        self.dirty.update(np.nonzero(np.isin(self.env, slots))[0].tolist())
+        for road in changed:
+            self.seen[road.slot] = list(road.vehicles)
 
     def _select(self, rows: list[int]) -> None:
         """Keep these rows, in this order."""
@@ -477,27 +516,30 @@ class TrafficCore:
         for name in self._ARRAYS:
             setattr(self, name, getattr(self, name)[idx])
         self.W, self.C = self.W[idx], self.C[idx]
-        self.routes = [self.routes[k] for k in rows]
-        self.route_ids = [self.route_ids[k] for k in rows]
-        self.reserved = [self.reserved[k] for k in rows]
-        self.objs = [self.objs[k] for k in rows]
-        for i, o in enumerate(self.objs):
-            if isinstance(o, ArrayVehicle):
-                o._row = i
+        new_row = np.full(len(self.objs), -1, dtype=np.int64)
+        new_row[idx] = np.arange(len(idx))
+        self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
+        take = (lambda seq: list(map(seq.__getitem__, rows)))  # noqa: E731
+        self.routes, self.route_ids = take(self.routes), take(self.route_ids)
+        self.reserved, self.objs = take(self.reserved), take(self.objs)
+        objs = self.objs
+        for i in np.nonzero(idx != np.arange(len(idx)))[0].tolist():  # rows that moved
+            if isinstance(objs[i], ArrayVehicle):
+                objs[i]._row = i
         self._masks()
 
-    def _take_in(self, obj) -> None:
-        """A road user user code added: a TrafficVehicle on a lane route becomes a driven row
-        (its object a view), anything else an external row."""
+    def _take_in(self, obj, road) -> None:
+        """A road user user code added to `road`: a TrafficVehicle on a lane route becomes a
+        driven row (its object a view), anything else an external row."""
         if isinstance(obj, TrafficVehicle) and not isinstance(obj, ArrayVehicle) and getattr(obj, "lane_route", None):
             route = [self.table.index[x] for x in obj.lane_route]
             pos = int(obj.route_pos)
             lane = route[pos]
             s, lat = self.net.lane_of[obj.lane_route[pos]].local_coordinates(obj.position)
-            row = dict(kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0, timer=float(obj.timer),
-                       mobil_t=float(getattr(obj, "_mobil_t", -1e9)), crashed=bool(obj.crashed), x=obj.position[0],
-                       y=obj.position[1], heading=obj.heading, length=obj.LENGTH, width=obj.WIDTH, route_pos=pos,
-                       route_end=len(route) - 1, entry=math.inf)
+            row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0,
+                       timer=float(obj.timer), mobil_t=float(getattr(obj, "_mobil_t", -1e9)),
+                       crashed=bool(obj.crashed), x=obj.position[0], y=obj.position[1], heading=obj.heading,
+                       length=obj.LENGTH, width=obj.WIDTH, route_pos=pos, route_end=len(route) - 1, entry=math.inf)
             reserved = getattr(obj, "reserved", None)
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
@@ -506,7 +548,7 @@ class TrafficCore:
             self._append(obj, row, route, reserved)
             self._place_rows(np.array([len(self.objs) - 1]))
         else:
-            row = dict(kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
+            row = dict(env=road.slot, kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
                        crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0,
                        route_end=0, entry=math.inf)
             self._append(obj, row, [], None)
@@ -593,9 +635,40 @@ class TrafficCore:
         self.dirty.clear()
 
     # ---- a frame -----------------------------------------------------------------------------
+    def act(self, roads: list) -> None:
+        """First half of a frame for `roads` (the others' rows stand still): sync, the external
+        road users act, accelerations of the traffic."""
+        self.sync(roads)
+        self.stepped[:] = len(roads) == len(self.roads)
+        self.stepped[[r.slot for r in roads]] = True
+        self.on = self.stepped[self.env]
+        for i in np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist():
+            self.objs[i].act()
+        self.accelerations()
+
+    def step(self, roads: list, dt: float) -> None:
+        """Second half of a frame for `roads`: external road users step, traffic integrates,
+        pedestrians walk, the rules' bookkeeping, collisions."""
+        external = np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist()
+        for i in external:
+            self.objs[i].step(dt)
+        self.integrate(dt)
+        for i in external:
+            self._read_external(i)
+        for road in roads:
+            for o in road.objects:
+                if isinstance(o, Pedestrian):
+                    o.step(dt)
+            road.control.update(road, dt)
+        self.collisions(roads, dt)
+        for road in roads:
+            if road.record_history:
+                for v in self.views(road):
+                    v.history.appendleft(TrafficVehicle.create_from(v))
+
     def accelerations(self) -> None:
-        """Acceleration of every driven row (see the module docstring, step 3)."""
-        driven = self.driven
+        """Acceleration of every driven row being stepped (see the module docstring, step 3)."""
+        driven = self.driven & self.on
         if not driven.any():
             return
         self._mobil(driven)
@@ -606,7 +679,8 @@ class TrafficCore:
         free = 1.0 - (v / v0) ** IDM_DELTA
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven)
-        stops = [(i, self.road.control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
+        roads, env = self.roads, self.env
+        stops = [(i, roads[env[i]].control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
         stops = [(i, d) for i, d in stops if d < math.inf]
         if stops:  # a stop point is a standing leader (the bumper IDM_STOP_MARGIN_M short of it)
             si = np.array([i for i, _ in stops], dtype=np.int64)
@@ -629,13 +703,15 @@ class TrafficCore:
         along its window (the object core's `RouteFollower.leader_gaps`)."""
         t = self.table
         W, C = self.W, self.C
-        n, K = W.shape
         valid = (W >= 0) & driven[:, None] & ((C - self.s[:, None]) <= LOOKAHEAD_M)
-        lane_w = np.where(valid, W, -2)
-        # same lane: every row on a window lane
-        match = lane_w[:, :, None] == self.lane[None, None, :]
-        match &= self._not_self
-        fi, k, lj = np.nonzero(match)
+        nl = len(t.length)
+        # same lane: every row (of the same slot) on a window lane
+        ef, ek = np.nonzero(valid)
+        on_map = np.nonzero(self.lane >= 0)[0]
+        a, b = same_key_pairs(self.env[ef] * nl + W[ef, ek], self.env[on_map] * nl + self.lane[on_map])
+        fi, k, lj = ef[a], ek[a], on_map[b]
+        other = fi != lj
+        fi, k, lj = fi[other], k[other], lj[other]
         so = self.s[lj]
         ro = self.lat[lj]
         wl = W[fi, k]
@@ -644,7 +720,8 @@ class TrafficCore:
         if len(occ):
             ef, ek = np.nonzero(valid & (t.jid[np.maximum(W, 0)] >= 0) & (W >= 0))
             if len(ef):
-                ei, oj = np.repeat(np.arange(len(ef)), len(occ)), np.tile(occ, len(ef))
+                ei, oi = same_key_pairs(self.env[ef], self.env[occ])
+                oj = occ[oi]
                 hit = t.near_pairs(W[ef[ei], ek[ei]], self.lane[oj]) & (ef[ei] != oj)
                 pf, pk, pj = ef[ei[hit]], ek[ei[hit]], oj[hit]
                 if len(pj):
@@ -674,11 +751,13 @@ class TrafficCore:
         if t.passage.any():  # narrow passages on the window
             W = self.W
             flag |= (t.passage[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        busy = [k for cw, people in self.road.control.pedestrians.items() if people
-                for k in t.crosswalk_lanes.get(cw, ())]
+        nl = len(t.length)
+        busy = [road.slot * nl + k for road in self.roads if road is not None
+                for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
             W = self.W
-            flag |= (np.isin(W, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
+            key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
+            flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return np.nonzero(flag & driven & ~self.crashed)[0].tolist()
 
     def _mobil(self, driven: np.ndarray) -> None:
@@ -693,15 +772,16 @@ class TrafficCore:
             self.objs[i].mobil_change()
 
     def integrate(self, dt: float) -> None:
-        """Advance driven rows by dt along their routes (step 4)."""
-        driven = self.driven
+        """Advance driven rows being stepped by dt along their routes (step 4)."""
+        on = self.on
+        driven = self.driven & on
         if not driven.any():
             return
-        # every row moves; external rows are read back from their objects right after
-        self.s += self.speed * dt
-        self.speed = np.maximum(self.speed + self.acc * dt, 0.0)
-        self.timer += dt
-        self.lat *= math.exp(-dt / LANE_CHANGE_TAU_S)
+        # every row being stepped moves; external rows are read back from their objects right after
+        self.s = np.where(on, self.s + self.speed * dt, self.s)
+        self.speed = np.where(on, np.maximum(self.speed + self.acc * dt, 0.0), self.speed)
+        self.timer = np.where(on, self.timer + dt, self.timer)
+        self.lat = np.where(on, self.lat * math.exp(-dt / LANE_CHANGE_TAU_S), self.lat)
         length = self.table.length
         over = driven & (self.s > length[self.lane]) & (self.route_pos < self.route_end)
         for i in np.nonzero(over)[0].tolist():
@@ -724,49 +804,66 @@ class TrafficCore:
         h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * (np.abs(lat) > 1e-3)
         self.x[rows], self.y[rows], self.heading[rows] = x, y, h
 
-    def externals(self) -> list[Any]:
-        return [o for o, k in zip(self.objs, self.kind) if k == EXTERNAL]
+    def externals(self, road) -> list[Any]:
+        return [self.objs[i] for i in self.rows(road).tolist() if self.kind[i] == EXTERNAL]
 
-    def views(self) -> list[ArrayVehicle]:
-        return [o for o, k in zip(self.objs, self.kind) if k == DRIVEN]
+    def views(self, road) -> list[ArrayVehicle]:
+        return [self.objs[i] for i in self.rows(road).tolist() if self.kind[i] == DRIVEN]
 
-    def occupancy(self) -> tuple[list[str | None], list[float]]:
+    def occupancy(self, road) -> tuple[list[str | None], list[float]]:
         ids = self.net.lane_ids
-        return [ids[k] if k >= 0 else None for k in self.lane.tolist()], self.speed.tolist()
+        rows = self.rows(road)
+        return [ids[k] if k >= 0 else None for k in self.lane[rows].tolist()], self.speed[rows].tolist()
 
-    def read_externals(self) -> None:
-        for i in np.nonzero(self.kind == EXTERNAL)[0].tolist():
-            self._read_external(i)
-
-    def collisions(self, dt: float) -> None:
-        """Crash flags and hits: a vectorized centre-distance broad phase over vehicles and
-        pedestrians, highway-env's `handle_collisions` (polygons) for the close pairs."""
-        objects = self.road.objects
-        x, y, speed = self.x, self.y, np.abs(self.speed)
-        diag = np.hypot(self.length, self.width)
+    def collisions(self, roads: list, dt: float) -> None:
+        """Crash flags and hits on `roads`: a vectorized centre-distance broad phase over the
+        vehicles and pedestrians of each road, highway-env's `handle_collisions` (polygons) for
+        the close pairs."""
+        rows = np.nonzero(self.on)[0]
+        objects = [o for road in roads for o in road.objects]
+        x, y, speed = self.x[rows], self.y[rows], np.abs(self.speed[rows])
+        diag = np.hypot(self.length[rows], self.width[rows])
+        env = self.env[rows]
         n = len(x)
         if objects:
             x = np.concatenate([x, [o.position[0] for o in objects]])
             y = np.concatenate([y, [o.position[1] for o in objects]])
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
-        reach = (diag[:, None] + diag) / 2 + speed[:, None] * dt
-        close = (np.abs(x[:, None] - x) <= reach) & (np.abs(y[:, None] - y) <= reach)
-        close[n:] = False  # pedestrians never collide with each other
-        a, b = np.nonzero(np.triu(close, 1))
+            env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
+        a, b = same_key_pairs(env[:n], env)  # pedestrians never collide with each other
+        later = a < b
+        a, b = a[later], b[later]
+        reach = (diag[a] + diag[b]) / 2 + speed[a] * dt
+        close = (np.abs(x[a] - x[b]) <= reach) & (np.abs(y[a] - y[b]) <= reach)
+        a, b = a[close], b[close]
         if not len(a):
             return
+        order = np.lexsort((b, a))  # in the order of a (rows x rows) matrix
+        a, b = a[order], b[order]
         # two driven rows (most close pairs: neighbours side by side, queues): their rectangles
         # by separating axes; pairs with the ego, other external vehicles or pedestrians go
         # straight to highway-env (impacts, hits)
         both = (b < n)
-        both[both] = self.driven[a[both]] & self.driven[b[both]]
+        both[both] = self.driven[rows[a[both]]] & self.driven[rows[b[both]]]
         keep = ~both
         if both.any():
-            keep[both] = rectangles_overlap(self, a[both], b[both])
-        everyone = self.objs + list(objects)
+            keep[both] = rectangles_overlap(self, rows[a[both]], rows[b[both]])
+        everyone = [self.objs[i] for i in rows.tolist()] + objects
         for i, j in zip(a[keep].tolist(), b[keep].tolist()):
             everyone[i].handle_collisions(everyone[j], dt)
+
+
+def same_key_pairs(key_a: np.ndarray, key_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every (i, j) with key_a[i] == key_b[j], grouped by i (an equality join by sorting: no
+    len(a) x len(b) matrix, so that rows of many sub-envs pair only within their own)."""
+    order = np.argsort(key_b, kind="stable")
+    sk = key_b[order]
+    lo = np.searchsorted(sk, key_a, side="left")
+    cnt = np.searchsorted(sk, key_a, side="right") - lo
+    i = np.repeat(np.arange(len(key_a)), cnt)
+    j = order[np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt - lo, cnt)]
+    return i, j
 
 
 def rectangles_overlap(core: TrafficCore, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -74,6 +74,7 @@ class MapEnv(AbstractEnv):
     """Drive a route of junction manoeuvres on a feat2map map (see module docstring for info)."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
+    core_slot: tuple[Any, int] | None = None  # (shared TrafficCore, slot) of a sub-env of a batch (vector.py)
 
     def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
         self.metadata = dict(type(self).metadata)  # highway-env writes render_fps into it: one per env
@@ -151,7 +152,8 @@ class MapEnv(AbstractEnv):
         self.net.memo("semantics", lambda: assert_sound(self.net.hdmap))  # the map is safe to drive, once per map
         self.control = TrafficControl(self.net, rng, self.config)
         road = ArrayRoad if self.config["traffic_core"] == "arrays" else MapRoad
-        self.road = road(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        slot = {"slot": self.core_slot} if self.core_slot is not None else {}
+        self.road = road(self.net, self.control, rng, record_history=self.config["show_trajectories"], **slot)
         route, extend = self._ego_route()
         self._make_ego(route, extend)
         route = self.vehicle.lane_route
@@ -258,24 +260,33 @@ class MapEnv(AbstractEnv):
 
     # ---- stepping ------------------------------------------------------------------------
     def step(self, action):
+        self._begin_step(action)
+        self._simulate(action)
+        return self._end_step(action)
+
+    def _begin_step(self, action) -> None:
+        """What `AbstractEnv.step` does before simulating (with the action checked)."""
         check_action(self.action_space, action)
-        return super().step(action)
+        if self.road is None or self.vehicle is None:
+            raise NotImplementedError("The road and vehicle must be initialized in the environment implementation")
+        self.time += 1 / self.config["policy_frequency"]
+
+    def _end_step(self, action):
+        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info)."""
+        obs = self.observation_type.observe()
+        reward = self._reward(action)
+        terminated = self._is_terminated()
+        truncated = self._is_truncated()
+        info = self._info(obs, action)
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, info
 
     def _simulate(self, action=None) -> None:
-        self.judge.new = []
-        frames = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
-        dt = 1 / self.config["simulation_frequency"]
-        for frame in range(frames):
-            if action is not None and not self.config["manual_control"] and \
-                    self.steps % frames == 0:
-                self.action_type.act(action)
-            self.road.act()
-            self.road.step(dt)
-            self.steps += 1
-            self.judge.check()
-            if frame < frames - 1:
-                self._automatic_rendering()
-        self.enable_auto_render = False
+        simulate([self], [action])
+
+    def _respawn_traffic(self) -> None:
+        """Traffic that finished its route or crashed leaves; as many new vehicles spawn."""
         if self.config["traffic_respawn"]:
             keep = [v for v in self.road.vehicles if not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
@@ -400,6 +411,43 @@ class MapEnv(AbstractEnv):
         if self.viewer is None:
             self.viewer = MapViewer(self)
         return super().render()
+
+
+def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
+    """One policy step of `envs` (one env, or the sub-envs of a batch, all of one config) with
+    their actions, frame by frame together: on the arrays core the traffic of all roads that
+    share a core moves in one call per frame (`TrafficCore.act` / `step`); on the object core
+    each road steps its own."""
+    if not envs:
+        return
+    c = envs[0].config
+    frames = int(c["simulation_frequency"] // c["policy_frequency"])
+    dt = 1 / c["simulation_frequency"]
+    groups: dict[int, tuple[Any, list]] = {}  # roads by their core (one group: one batch)
+    for env in envs:
+        core = getattr(env.road, "core", None)
+        groups.setdefault(id(core) if core is not None else id(env.road), (core, []))[1].append(env.road)
+    for env in envs:
+        env.judge.new = []
+    for frame in range(frames):
+        for env, action in zip(envs, actions):
+            if action is not None and not env.config["manual_control"] and env.steps % frames == 0:
+                env.action_type.act(action)
+        for core, roads in groups.values():
+            if core is not None:
+                core.act(roads)
+                core.step(roads, dt)
+            else:
+                roads[0].act()
+                roads[0].step(dt)
+        for env in envs:
+            env.steps += 1
+            env.judge.check()
+            if frame < frames - 1:
+                env._automatic_rendering()
+    for env in envs:
+        env.enable_auto_render = False
+        env._respawn_traffic()
 
 
 def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:

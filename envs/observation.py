@@ -58,9 +58,11 @@ class Kinematics(KinematicObservation):
         lane (behind it only with see_behind; pedestrians from 2 lengths behind), relative to
         it, normalized and clipped, zero rows to fill."""
         ego = self.observer_vehicle
-        core.sync()  # vehicles respawned or added since the last frame
-        rows = [i for i, o in enumerate(core.objs) if o is not ego]
-        if len(rows) != len(core.objs) - 1 or any(core.kind[i] != 1 for i in rows):
+        road = self.env.road
+        core.sync([road])  # vehicles respawned or added since the last frame
+        mine = core.rows(road).tolist()  # this road's rows (a batch holds other sub-envs' too)
+        rows = [i for i in mine if core.objs[i] is not ego]
+        if len(rows) != len(mine) - 1 or any(core.kind[i] != 1 for i in rows):
             return super().observe()  # vehicles the core does not drive (user code added foreign ones)
         obstacles = self.env.road.objects if self.include_obstacles else []
         ex, ey = float(ego.position[0]), float(ego.position[1])

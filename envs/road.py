@@ -94,41 +94,27 @@ class MapRoad(Road):
 
 class ArrayRoad(MapRoad):
     """A `MapRoad` whose traffic the batched core (core.py) advances; `vehicles` holds the ego,
-    views of the traffic rows and anything user code adds (taken in at the next frame)."""
+    views of the traffic rows and anything user code adds (taken in at the next frame). With
+    `slot` = (core, k) it is sub-env k of a batch whose roads share that core (vector.py)."""
 
-    def __init__(self, network: MapNetwork, control: TrafficControl, np_random, record_history=False) -> None:
+    def __init__(self, network: MapNetwork, control: TrafficControl, np_random, record_history=False,
+                 slot: tuple[TrafficCore, int] | None = None) -> None:
         super().__init__(network, control, np_random, record_history)
-        self.core = TrafficCore(self)
+        self.core, k = slot if slot is not None else (TrafficCore(network), 0)
+        self.core.attach(self, k)
 
     def sync(self) -> None:
-        self.core.sync()
+        self.core.sync([self])
 
     def spawn(self, lane_id: str, s: float, speed: float, route: list[str]) -> TrafficVehicle:
-        return self.core.add_traffic(lane_id, s, speed, route)
+        return self.core.add_traffic(self, lane_id, s, speed, route)
 
     def occupancy(self) -> tuple[list[str | None], list[float]]:
-        self.core.sync()
-        return self.core.occupancy()
+        self.core.sync([self])
+        return self.core.occupancy(self)
 
     def act(self) -> None:
-        core = self.core
-        core.sync()
-        for v in core.externals():
-            v.act()
-        core.accelerations()
+        self.core.act([self])
 
     def step(self, dt: float) -> None:
-        core = self.core
-        for v in core.externals():
-            v.step(dt)
-        core.integrate(dt)
-        core.read_externals()
-        for o in self.objects:
-            if isinstance(o, Pedestrian):
-                o.step(dt)
-        self.control.update(self, dt)
-        core.collisions(dt)
-        if self.record_history:
-            for v in core.views():
-                v.history.appendleft(TrafficVehicle.create_from(v))
-
+        self.core.step([self], dt)

@@ -14,9 +14,11 @@ one sampled manoeuvre through one junction with traffic and crosswalk pedestrian
   -2 for a collision, leaving the road or a violation, each ending the episode (as they end a
   success); +STOP_BONUS once for a full stop in the stop zone of a stop sign; -TIME_COST per
   decision so that waiting is never free.
-- Training: PPO on `--n-envs` copies in subprocesses (torch single-threaded in every process)
-  for `--train-minutes` of wall time (or `--timesteps`, whichever ends first); each training
-  episode draws its traffic count from TRAIN_TRAFFIC.
+- Training: PPO on `--n-envs` sub-envs of the native batched vector env (envs/vector.py: one
+  process, the traffic of all sub-envs in one array program; `--subprocess` for copies in
+  subprocesses instead, torch single-threaded in every process) for `--train-minutes` of wall
+  time (or `--timesteps`, whichever ends first); each training episode draws its traffic count
+  from TRAIN_TRAFFIC.
 - Evaluation: `--episodes-per-cell` episodes per (junction type, manoeuvre) cell from fixed seeds
   that training never draws (EVAL_SEED on), for PPO (deterministic) and the ScriptedDriver, in
   parallel processes.
@@ -50,12 +52,15 @@ from typing import Callable, Sequence
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import gymnasium as gym  # noqa: E402
+from gymnasium.vector import AutoresetMode  # noqa: E402
 import numpy as np  # noqa: E402
 
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
+from feat2map.envs.junction_env import JunctionGridEnv  # noqa: E402
+from feat2map.envs.vector import MapVectorEnv, info_of, sb3_vec_env  # noqa: E402
 from feat2map.envs.rules import TURN_NAMES  # noqa: E402
 from feat2map.render import save_figure  # noqa: E402
 
@@ -116,8 +121,21 @@ class TargetSpeed(gym.ActionWrapper):
 
     def action(self, action) -> np.ndarray:
         v = self.env.unwrapped.vehicle.speed
-        a = np.clip((self.speeds[int(action)] - v) / self.period, *ACCELERATION_RANGE)
-        return np.array([2 * (a - self.lo) / (self.hi - self.lo) - 1], dtype=np.float32)
+        return np.array([speed_command(self.speeds[int(action)], v, self.period, self.lo, self.hi)], dtype=np.float32)
+
+
+def speed_command(target, speed, period: float, lo: float, hi: float):
+    """The normalized longitudinal action (ContinuousAction's [-1, 1] over [lo, hi]) of the
+    constant acceleration, within ACCELERATION_RANGE, that takes `speed` to `target` in
+    `period` (scalars or arrays: one env or a batch)."""
+    a = np.clip((target - speed) / period, *ACCELERATION_RANGE)
+    return 2 * (a - lo) / (hi - lo) - 1
+
+
+def shaped_reward(r, stopped, was_stopped):
+    """The task's shaping of the env's reward (scalars or arrays): +STOP_BONUS when the full
+    stop is made, -TIME_COST per decision."""
+    return r + STOP_BONUS * np.logical_and(stopped, np.logical_not(was_stopped)) - TIME_COST
 
 
 class TaskRewards(gym.Wrapper):
@@ -133,7 +151,7 @@ class TaskRewards(gym.Wrapper):
     def step(self, action):
         obs, r, term, trunc, info = self.env.step(action)
         stopped = obs[STOP_MADE] > 0.5
-        r += STOP_BONUS * (stopped and not self._stopped) - TIME_COST
+        r = shaped_reward(r, stopped, self._stopped)
         self._stopped = stopped
         return obs, r, term or bool(info["new_violations"]), trunc, info
 
@@ -152,6 +170,64 @@ class TrafficRange(gym.Wrapper):
             self._rng = np.random.default_rng(seed + 1)
         self.env.unwrapped.configure({"traffic_vehicles": int(self._rng.integers(self.lo, self.hi + 1))})
         return self.env.reset(seed=seed, options=options)
+
+
+class BatchedTask(gym.vector.VectorWrapper):
+    """The agent's task on the native batched vector env (same-step autoreset), as array
+    operations over the sub-envs: TargetSpeed's action, TaskRewards' shaping and its end of an
+    episode on a violation (those sub-envs are reset through `reset_mask`), TrafficRange's
+    draw of each episode's traffic count (made when the episode before it starts)."""
+
+    def __init__(self, venv, traffic: tuple[int, int] | None = None, speeds: Sequence[float] = TARGET_SPEEDS) -> None:
+        super().__init__(venv)
+        self.subs = venv.unwrapped.envs
+        u = self.subs[0]
+        self.speeds = np.asarray(speeds, dtype=float)
+        self.period = 1.0 / u.config["policy_frequency"]
+        self.lo, self.hi = u.action_type.acceleration_range
+        self.single_action_space = gym.spaces.Discrete(len(self.speeds))
+        self.action_space = gym.spaces.MultiDiscrete([len(self.speeds)] * self.num_envs)
+        self.traffic = traffic
+        self._rngs = [np.random.default_rng() for _ in self.subs]
+        self._stopped = np.zeros(self.num_envs, dtype=bool)
+
+    def _draw(self, which) -> None:
+        if self.traffic is not None:
+            for i in np.nonzero(which)[0].tolist():
+                self.subs[i].configure({"traffic_vehicles": int(self._rngs[i].integers(self.traffic[0], self.traffic[1] + 1))})
+
+    def reset(self, *, seed=None, options=None):
+        if seed is not None:
+            seeds = [seed + k for k in range(self.num_envs)] if isinstance(seed, int) else seed
+            self._rngs = [np.random.default_rng(None if s is None else s + 1) for s in seeds]
+        everyone = np.ones(self.num_envs, dtype=bool)
+        self._draw(everyone)
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._draw(everyone)  # the next episode's count
+        self._stopped = obs[:, STOP_MADE] > 0.5
+        return obs, info
+
+    def step(self, actions):
+        speeds = np.array([e.vehicle.speed for e in self.subs])
+        command = speed_command(self.speeds[np.asarray(actions)], speeds, self.period, self.lo, self.hi)
+        obs, r, term, trunc, info = self.env.step(command[:, None].astype(np.float32))
+        done = term | trunc
+        last = obs.copy()
+        for i in np.nonzero(done)[0].tolist():
+            last[i] = info["final_obs"][i]
+        new = [info["final_info"]["new_violations"][i] if done[i] else info["new_violations"][i]
+               for i in range(self.num_envs)]
+        stopped = last[:, STOP_MADE] > 0.5
+        r = shaped_reward(r, stopped, self._stopped)
+        ended = np.array([bool(v) for v in new]) & ~done  # a violation ends the task's episode
+        if ended.any():
+            for i in np.nonzero(ended)[0].tolist():
+                info = self.env.unwrapped._add_info(info, {"final_obs": obs[i], "final_info": info_of(info, i)}, i)
+            obs, _ = self.env.reset(options={"reset_mask": ended})
+            term = term | ended
+        self._draw(done | ended)
+        self._stopped = obs[:, STOP_MADE] > 0.5
+        return obs, r, term, trunc, info
 
 
 def make_env(config: dict, agent: bool = True, traffic: tuple[int, int] | None = None) -> gym.Env:
@@ -384,19 +460,23 @@ def plot_curve(curve: Sequence[dict], path: Path, window: int = 200) -> None:
 
 # ---- training ---------------------------------------------------------------------------------------
 def build_model(config: dict, rc: "RunConfig"):
-    """An untrained PPO on `rc.n_envs` monitored copies of the agent's env (each its own seed
-    stream), in subprocesses when `rc.subprocess`."""
+    """An untrained PPO on `rc.n_envs` monitored sub-envs of the native batched vector env (each
+    its own seed stream), or copies of the agent's env in subprocesses when `rc.subprocess`."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    from stable_baselines3.common.vec_env import SubprocVecEnv, VecMonitor
 
     torch.set_num_threads(1)
-    vec_cls, vec_kwargs = (SubprocVecEnv, {"start_method": "fork"}) if rc.subprocess else (DummyVecEnv, None)
-    venv = make_vec_env(make_env, n_envs=rc.n_envs, seed=rc.seed,
-                        env_kwargs={"config": config, "traffic": rc.train_traffic},
-                        vec_env_cls=vec_cls, vec_env_kwargs=vec_kwargs)
-    return PPO("MlpPolicy", venv, n_steps=rc.n_steps, batch_size=rc.batch_size, n_epochs=rc.n_epochs,
+    if rc.subprocess:
+        venv = make_vec_env(make_env, n_envs=rc.n_envs, seed=rc.seed,
+                            env_kwargs={"config": config, "traffic": rc.train_traffic},
+                            vec_env_cls=SubprocVecEnv, vec_env_kwargs={"start_method": "fork"})
+    else:
+        batch = MapVectorEnv(JunctionGridEnv, rc.n_envs, config=config, autoreset_mode=AutoresetMode.SAME_STEP)
+        venv = VecMonitor(sb3_vec_env(BatchedTask(batch, rc.train_traffic)))
+    n_steps = rc.n_steps or max(rc.rollout // rc.n_envs, 8)
+    return PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=rc.batch_size, n_epochs=rc.n_epochs,
                gamma=rc.gamma, gae_lambda=0.95, learning_rate=rc.learning_rate, ent_coef=rc.ent_coef,
                policy_kwargs={"net_arch": list(rc.net_arch)}, seed=rc.seed, verbose=0, device="cpu")
 
@@ -446,9 +526,10 @@ class RunConfig:
     timesteps: int = 2_000_000  # at most; training also ends after train_minutes
     train_minutes: float | None = 24.0
     train_traffic: tuple[int, int] | None = TRAIN_TRAFFIC
-    n_envs: int = 4
-    subprocess: bool = True
-    n_steps: int = 512  # per env and rollout
+    n_envs: int = 16
+    subprocess: bool = False  # copies in subprocesses instead of the native batched env
+    n_steps: int | None = None  # per env and rollout (None: rollout // n_envs)
+    rollout: int = 2048  # steps of all envs per rollout
     batch_size: int = 256
     n_epochs: int = 6
     gamma: float = 0.998
@@ -513,7 +594,8 @@ def summary_markdown(rows: Sequence[dict], timing: dict, rc: RunConfig) -> str:
     below = [f"n={r['n']} {r['control']}{' +cw' if r['crosswalk'] else ''} {r['manoeuvre']} ({r['ppo_success']:.2f})"
              for r in rows if r["ppo_success"] < 0.9]
     lines = [f"- training: {timing['timesteps']:,} steps ({timing['training_episodes']:,} episodes) in "
-             f"{timing['train_s'] / 60:.1f} min ({rc.n_envs} subprocess envs); evaluation: {timing['episodes_per_cell']} "
+             f"{timing['train_s'] / 60:.1f} min ({rc.n_envs} {'subprocess' if rc.subprocess else 'batched'} envs); "
+             f"evaluation: {timing['episodes_per_cell']} "
              f"episodes per cell for PPO and for the scripted driver, {timing['cells']} cells, {rc.eval_workers} "
              f"processes, {timing['eval_s'] / 60:.1f} min; **total {timing['total_s'] / 60:.1f} min**",
              f"- machine load during training (1-min load average, 2 cores): min {load['min']}, mean {load['mean']}, "
@@ -550,7 +632,9 @@ def main(argv=None) -> int:
     ap.add_argument("--timesteps", type=int, default=RunConfig.timesteps, help="at most this many training steps")
     ap.add_argument("--train-minutes", type=float, default=RunConfig.train_minutes,
                     help="training ends after this wall time (0: only --timesteps ends it)")
-    ap.add_argument("--n-envs", type=int, default=RunConfig.n_envs)
+    ap.add_argument("--n-envs", type=int, default=RunConfig.n_envs, help="sub-envs of the batched env (or subprocesses)")
+    ap.add_argument("--subprocess", action="store_true", help="copies of the env in subprocesses (SB3's SubprocVecEnv) "
+                    "instead of the native batched vector env")
     ap.add_argument("--episodes-per-cell", type=int, default=RunConfig.episodes_per_cell)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
@@ -561,7 +645,7 @@ def main(argv=None) -> int:
     except ImportError:
         ap.exit(2, "train_ppo: needs the rl extra: pip install torch==2.13.0 && pip install -e '.[rl]'\n")
     rc = replace(RunConfig(), timesteps=args.timesteps, train_minutes=args.train_minutes or None, n_envs=args.n_envs,
-                 episodes_per_cell=args.episodes_per_cell, seed=args.seed)
+                 subprocess=args.subprocess, episodes_per_cell=args.episodes_per_cell, seed=args.seed)
     run(Path(args.out), rc)
     print((Path(args.out) / "summary.md").read_text(encoding="utf-8"))
     print(f"written: {args.out}/summary.md, success.md, success.csv, success.png, learning_curve.png, ppo_model.zip, "

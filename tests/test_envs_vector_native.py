@@ -1,0 +1,180 @@
+"""The native batched vector env (envs/vector.py): N sub-envs whose traffic shares one core give,
+with the same seeds and actions, exactly what N single envs give (Gymnasium's SyncVectorEnv
+over gym.make), through episode ends and autoresets, on several configs; Gymnasium's vector
+conventions (spaces, seeding, reset_mask, autoreset modes, info arrays); unsupported configs
+are refused naming the key."""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import feat2map
+from feat2map.envs.driver import DRIVER_ACTION_CONFIG
+from feat2map.envs.vector import MapVectorEnv
+from feat2map.errors import Feat2MapError
+
+J = feat2map.JunctionFeature.make
+FEATS = [J([0, 90, 180], "signal", True).to_dict(), J([0, 90, 180, 270], "stop", False).to_dict()]
+# short episodes through one junction: many episode ends, autoresets and respawns
+SHORT = {"features": FEATS, "traffic_vehicles": 3, "route_junctions": 1, "duration": 2.5, "policy_frequency": 2}
+# pedestrians on every crosswalk, queues at the stop sign, the driver's view, continuous action
+BUSY = {"features": [J([0, 90, 180, 270], "signal", True).to_dict(), J([0, 90, 180, 270], "stop", True).to_dict()],
+        "traffic_vehicles": 14, "pedestrian_rate": 40.0, "route_junctions": 2, "duration": 12.0,
+        "policy_frequency": 5, "simulation_frequency": 10, "observation": {"type": "DriverView"},
+        "action": DRIVER_ACTION_CONFIG}
+# the default map, 10 Hz decisions, the traffic-control vector (a Dict observation)
+DEFAULT_10HZ = {"policy_frequency": 10, "simulation_frequency": 20, "traffic_vehicles": 10, "duration": 4.0,
+                "observe_traffic_control": True, "right_turn_on_red": True}
+
+
+def assert_same(a, b, path="") -> None:
+    """Equal values (arrays bit for bit, NaN equal to NaN), recursively; `action` of a reset's
+    info is a random sample of the action space and is left out."""
+    if isinstance(a, dict):
+        assert set(a) == set(b), (path, set(a) ^ set(b))
+        for k in a:
+            if k not in ("action", "_action"):
+                assert_same(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and a.shape == b.shape, (path, a.dtype, b.dtype, a.shape, b.shape)
+        if a.dtype == object:
+            for x, y in zip(a.ravel(), b.ravel()):
+                assert_same(x, y, path)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=path)
+    else:
+        assert a == b or (a != a and b != b), (path, a, b)
+
+
+def run_both(env_id: str, config: dict, n: int, steps: int, seed: int = 0, **kwargs) -> int:
+    """Step the batched env and a SyncVectorEnv of single envs side by side with the same seeds
+    and random actions; every output must be equal. Returns the number of episode ends."""
+    batched = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", config=config, **kwargs)
+    assert isinstance(batched.unwrapped, MapVectorEnv)
+    single = gym.make_vec(env_id, num_envs=n, vectorization_mode="sync", config=config,
+                          vector_kwargs={"autoreset_mode": kwargs.get("autoreset_mode", AutoresetMode.NEXT_STEP)})
+    seeds = [seed + 7 * k for k in range(n)]
+    ob, ib = batched.reset(seed=seeds)
+    os_, is_ = single.reset(seed=seeds)
+    assert_same(ob, os_)
+    assert_same(ib, is_)
+    assert batched.observation_space == single.observation_space and batched.action_space == single.action_space
+    space = batched.action_space
+    space.seed(seed)
+    ends = 0
+    for t in range(steps):
+        action = space.sample()
+        out_b, out_s = batched.step(action), single.step(action)
+        for name, x, y in zip(("obs", "reward", "terminated", "truncated", "info"), out_b, out_s):
+            assert_same(x, y, f"step {t} {name}")
+        assert batched.observation_space.contains(out_b[0])
+        ends += int(np.sum(out_b[2] | out_b[3]))
+    batched.close()
+    single.close()
+    return ends
+
+
+def test_short_episodes_equal_single_envs():
+    assert run_both("feat2map/JunctionGrid-v0", SHORT, n=3, steps=40) >= 15
+
+
+def test_pedestrians_stop_signs_driver_view_continuous_equal_single_envs():
+    assert run_both("feat2map/JunctionGrid-v0", BUSY, n=2, steps=70, seed=3) >= 1
+
+
+def test_default_map_dict_observation_same_step_autoreset_equal_single_envs():
+    assert run_both("feat2map/JunctionGrid-v0", DEFAULT_10HZ, n=3, steps=45, seed=1,
+                    autoreset_mode=AutoresetMode.SAME_STEP) >= 3
+
+
+def test_map_file_env_equals_single_envs(tmp_path):
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    m = feat2map.generate_from_features([J([0, 90, 180], "bare", True), J([0, 90, 180, 270], "signal", False)], seed=2)
+    write_opendrive(m, tmp_path / "two.xodr")
+    config = {**SHORT, "map_file": str(tmp_path / "two.xodr")}
+    del config["features"]
+    assert run_both("feat2map/MapFile-v0", config, n=2, steps=30) >= 10
+
+
+def test_vector_conventions():
+    """Batched spaces, seeding (same seeds: same observations; different sub-envs differ),
+    reset_mask, next-step autoreset (reset observation with reward 0), render of one sub-env."""
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, config=SHORT, render_mode="rgb_array")
+    assert isinstance(envs.unwrapped, MapVectorEnv)  # the vector entry point is the default
+    single = gym.make("feat2map/JunctionGrid-v0", config=SHORT)
+    assert envs.single_observation_space == single.observation_space
+    assert envs.observation_space.shape == (3, *single.observation_space.shape)
+    assert envs.action_space == gym.spaces.MultiDiscrete([single.action_space.n] * 3)
+    obs, info = envs.reset(seed=5)
+    again, _ = envs.reset(seed=5)
+    np.testing.assert_array_equal(obs, again)
+    assert not np.array_equal(obs[0], obs[1])
+    assert info["speed"].shape == (3,) and info["_speed"].all() and info["junction_feature"]["rotation"].shape == (3, 8)
+    part, pinfo = envs.reset(options={"reset_mask": np.array([False, True, False])})
+    np.testing.assert_array_equal(part[0], obs[0])
+    assert pinfo["_speed"].tolist() == [False, True, False]
+    ended = np.zeros(3, dtype=bool)
+    for _ in range(12):
+        before = ended
+        obs, rew, term, trunc, info = envs.step(np.ones(3, dtype=np.int64))
+        assert np.all(rew[before] == 0.0) and not np.any((term | trunc)[before])  # next step: reset
+        assert np.all(info["time"][before] == 0.0)
+        ended = term | trunc
+    frame = envs.render()
+    assert frame.ndim == 3 and frame.shape[2] == 3
+    core = envs.unwrapped.core
+    assert sorted(set(core.env.tolist())) == [0, 1, 2]  # one table holds the rows of every sub-env
+    assert len(core.objs) == sum(len(e.road.vehicles) for e in envs.unwrapped.envs)
+    envs.close()
+
+
+@pytest.mark.parametrize("key, value", [("traffic_core", "objects"), ("new_map_each_reset", True)])
+def test_unsupported_configs_are_refused_naming_the_key(key, value):
+    with pytest.raises(Feat2MapError, match=key):
+        gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                     config={**SHORT, key: value})
+
+
+def test_sb3_adapter_steps_through_episode_ends():
+    pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from feat2map.envs.vector import sb3_vec_env
+
+    with pytest.raises(Feat2MapError, match="autoreset_mode"):
+        sb3_vec_env(gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT))
+    batch = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT, autoreset_mode=AutoresetMode.SAME_STEP)
+    venv = VecMonitor(sb3_vec_env(batch))
+    venv.seed(0)
+    obs = venv.reset()
+    assert obs.shape == (2, *batch.single_observation_space.shape)
+    episodes = 0
+    for _ in range(20):
+        obs, rew, done, infos = venv.step(np.array([2, 1]))
+        assert len(infos) == 2 and rew.dtype == np.float32
+        for d, info in zip(done, infos):
+            if d:  # SB3's conventions: the final observation and the episode's summary in info
+                assert info["terminal_observation"].shape == obs.shape[1:] and "episode" in info
+                assert info["TimeLimit.truncated"] == (not info["route_completed"] and not info["crashed"])
+                episodes += 1
+    assert episodes >= 6
+    assert venv.get_attr("time") == [e.time for e in batch.unwrapped.envs]
+    venv.close()
+
+
+def test_a_reset_cannot_change_the_batchs_map():
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT)
+    envs.reset(seed=0, options={"config": {"traffic_vehicles": 1}})  # anything else may change
+    assert all(len(e.road.vehicles) <= 2 for e in envs.unwrapped.envs)
+    with pytest.raises(Feat2MapError, match="map_seed"):
+        envs.reset(options={"config": {"map_seed": 4}})
+    with pytest.raises(Feat2MapError, match="traffic_core"):
+        envs.reset(options={"config": {"traffic_core": "objects"}})
+    envs.close()
