@@ -53,6 +53,7 @@ SLOW_TESTS = (
     "tests/test_opendrive_asam_qc.py::test_every_check_runs_on_some_revision",
     "tests/test_opendrive_asam_qc.py::test_generated_and_spec_maps_pass_every_check",
     "tests/test_planner.py::test_planner_completes_each_junction_type_with_its_stage_path",
+    "tests/test_realmaps_script.py",
     "tests/test_reproducible.py::test_generate_export_suite_are_byte_identical_across_runs",
     "tests/test_robustness.py::test_generated_maps_drive_with_traffic_and_pedestrians_without_collision_or_timeout",
     "tests/test_robustness.py::test_real_map_controls_match_its_own_overlaps_and_signals",

@@ -1,0 +1,304 @@
+"""Survey real maps end to end: read, extract, build the route-coverage suite, drive it.
+
+For every map file under the given folders (default ../shared/maps; more with --corpus DIR):
+read it, extract its junctions (the skipped ones with their reasons), count its controls
+(signal / stop / bare) and its signals' phase groups per junction, build the route-coverage suite
+(traffic 6 by default) and roll it out with the baseline planner (all of it, or --max-scenarios
+spread over the suite). Any exception is a finding, recorded with the map and the stage
+(read / extract / phases / suite / rollout), and the survey goes on with the next map.
+
+Writes a Markdown table (--md) and a JSON file (--json) after every map, so a long survey can be
+watched and an interrupted one keeps what it did. Progress is shown on a terminal only.
+
+Usage:
+  .venv/bin/python scripts/realmaps.py                              # ../shared/maps, whole suites
+  .venv/bin/python scripts/realmaps.py --corpus /work/corpus --max-scenarios 10 --workers 1
+  .venv/bin/python scripts/realmaps.py --no-shared --corpus DIR --no-rollout   # extract + suite only
+  .venv/bin/python scripts/realmaps.py --compare before.json after.json --md changes.md   # map by map
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+import warnings
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+from feat2map import atomic
+from feat2map.errors import Feat2MapError
+from feat2map.extract import SkippedJunction, extract_junctions
+from feat2map.formats import FORMATS, read_map
+from feat2map.phases import junction_phases
+from feat2map.scenarios.rollout import run_suite
+from feat2map.scenarios.routes import build_suite
+from feat2map.scenarios.scenario import Suite
+
+try:  # load-time semantic checks (issue 21), where this checkout has them
+    from feat2map import semantics
+except ImportError:
+    semantics = None
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED = REPO.parent / "shared" / "maps"
+TRAFFIC = 6  # the issue's traffic level
+NOT_MAPS = ("routing_map",)  # Apollo routing graphs sit beside base maps but are no HD maps
+WARNINGS_KEPT = 20  # distinct warning lines kept per map
+
+
+@dataclass
+class MapSurvey:
+    """What one map gave at each stage; `errors` holds one entry per stage that raised."""
+
+    path: str
+    source: str = ""
+    size: int = 0
+    junction_elements: int = 0
+    junctions: int = 0
+    skipped: list[dict] = field(default_factory=list)
+    controls: dict[str, int] = field(default_factory=dict)
+    signals: int = 0
+    phases: dict[str, int] = field(default_factory=dict)  # junction id -> number of phase groups
+    checks: list[str] | None = None  # semantic findings (None: this checkout has no feat2map.semantics)
+    scenarios: int = 0
+    driven: int = 0
+    outcomes: dict[str, int] = field(default_factory=dict)
+    failing: list[dict] = field(default_factory=list)
+    errors: list[dict] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+
+
+def map_files(folder: Path) -> list[Path]:
+    """Every file under `folder` that a reader takes: by suffix, Apollo text files by their first
+    bytes (a README.txt is no map), routing maps left out."""
+    readable = {s for f in FORMATS.values() if f.read is not None for s in f.suffixes}
+    out = []
+    for p in sorted(folder.rglob("*")):
+        if not p.is_file() or p.suffix.lower() not in readable or p.stem.startswith(NOT_MAPS):
+            continue
+        if p.suffix.lower() == ".txt":
+            with p.open("rb") as fh:
+                if not FORMATS["apollo"].sniff(fh.read(512)):
+                    continue
+        out.append(p)
+    return out
+
+
+def sample(suite: Suite, k: int | None) -> Suite:
+    """`k` scenarios spread evenly over the suite (all of them when k is None or large)."""
+    n = len(suite.scenarios)
+    if k is None or k >= n:
+        return suite
+    picked = sorted({round(i * (n - 1) / max(k - 1, 1)) for i in range(k)})
+    return Suite(suite.name, tuple(suite.scenarios[i] for i in picked), suite.base_dir)
+
+
+def _error(stage: str, exc: BaseException) -> dict:
+    """A refusal (Feat2MapError: one clear line) or a traceback (anything else), for the record."""
+    if isinstance(exc, Feat2MapError):
+        return {"stage": stage, "kind": "refusal", "error": str(exc), "message": exc.message}
+    frames = traceback.extract_tb(exc.__traceback__)
+    return {"stage": stage, "kind": "traceback", "error": f"{type(exc).__name__}: {exc}",
+            "at": [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in frames[-4:]]}
+
+
+def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True,
+               max_scenarios: int | None = None, workers: int = 1, progress: bool = False) -> MapSurvey:
+    """One map through every stage. A stage that raises is recorded; the stages that need its
+    result are left out for this map (a map that cannot be read ends here), never the survey."""
+    s = MapSurvey(label, size=path.stat().st_size)
+    t0 = time.perf_counter()
+    seen: Counter[str] = Counter()
+
+    def stage(name: str, fn: Callable[[], Any]) -> Any:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                return fn()
+            except Exception as exc:  # every failure is a finding, never the end of the survey
+                s.errors.append(_error(name, exc))
+                return None
+            finally:
+                for w in caught:
+                    line = f"{name}: {w.category.__name__}: {str(w.message).splitlines()[0]}"
+                    if not seen[line] and len(s.warnings) < WARNINGS_KEPT:
+                        s.warnings.append(line)
+                    seen[line] += 1
+
+    m = stage("read", lambda: read_map(path))
+    if m is None:
+        s.wall_s = time.perf_counter() - t0
+        return s
+    s.junction_elements, s.signals = len(m.junctions), len(m.signals)
+    skipped: list[SkippedJunction] = []
+    found = stage("extract", lambda: extract_junctions(m, label, skipped=skipped))
+    if found is not None:
+        s.junctions = len(found)
+        s.skipped = [{"id": k.id, "n_arms": k.n_arms, "reason": k.reason} for k in skipped]
+        s.controls = dict(Counter(j.feature.control for j in found))
+    groups = stage("phases", lambda: junction_phases(m))
+    if groups:
+        s.phases = {str(j): len(p) for j, p in groups.items()}
+    if semantics is not None:
+        found_checks = stage("checks", lambda: semantics.findings(m))
+        if found_checks is not None:
+            s.checks = [f"{'fatal: ' if f.fatal else ''}{f}" for f in found_checks]
+    suite = stage("suite", lambda: build_suite(path, traffic_vehicles=traffic, name=Path(label).stem))
+    if suite is not None:
+        s.scenarios = len(suite.scenarios)
+        if rollout:
+            picked = sample(suite, max_scenarios)
+            result = stage("rollout", lambda: run_suite(picked, "baseline", workers=workers, progress=progress,
+                                                         record_failure_gif=False))
+            if result is not None:
+                s.driven = len(result.outcomes)
+                s.outcomes = {k: v for k, v in result.counts().items() if v}
+                s.failing = [{"scenario": o.name, "outcome": o.outcome, "message": o.message, "seed": o.seed}
+                             for o in result.failures("any")]
+    s.wall_s = time.perf_counter() - t0
+    return s
+
+
+def _phase_cell(s: MapSurvey) -> str:
+    """Total phase groups over signalled junctions, with the per-junction range."""
+    per = [n for j, n in s.phases.items() if j != "None"]
+    if not per:
+        return "0"
+    return f"{sum(per)} ({min(per)}-{max(per)})" if min(per) != max(per) else f"{sum(per)} ({len(per)}x{per[0]})"
+
+
+def _checks_cell(s: MapSurvey) -> str:
+    """Semantic findings (fatal ones in brackets); n/a where the checkout has no checks."""
+    if s.checks is None:
+        return "n/a"
+    return f"{len(s.checks)} ({sum(c.startswith('fatal') for c in s.checks)} fatal)" if s.checks else "0"
+
+
+def _failure_cell(s: MapSurvey) -> str:
+    parts = [f"{k} {v}" for k, v in s.outcomes.items() if k != "completed"]
+    parts += [f"{e['stage']}: {e['message'].split(':')[0]}" if e["kind"] == "refusal" else f"{e['stage']} traceback"
+              for e in s.errors]
+    return ", ".join(parts) or "-"
+
+
+def markdown(results: Sequence[MapSurvey]) -> str:
+    """The survey table plus one line per error and per failing scenario."""
+    head = ("| map | source | junction elements | junctions (skipped) | signal / stop / bare | signals | phase groups "
+            "| checks | scenarios | driven | completed | failures |\n|" + "---|" * 12)
+    rows = []
+    for s in results:
+        c = s.controls
+        rows.append(f"| `{s.path}` | {s.source} | {s.junction_elements} | {s.junctions} ({len(s.skipped)}) | "
+                    f"{c.get('signal', 0)} / {c.get('stop', 0)} / {c.get('bare', 0)} | {s.signals} | {_phase_cell(s)} | "
+                    f"{_checks_cell(s)} | "
+                    f"{s.scenarios} | {s.driven} | {s.outcomes.get('completed', 0)} | {_failure_cell(s)} |")
+    tot = Counter()
+    for s in results:
+        tot.update(scenarios=s.scenarios, driven=s.driven, completed=s.outcomes.get("completed", 0),
+                   errors=len(s.errors), tracebacks=sum(e["kind"] == "traceback" for e in s.errors),
+                   junctions=s.junctions, skipped=len(s.skipped))
+    lines = [head, *rows, "",
+             f"**{len(results)} maps: {tot['junctions']} junctions ({tot['skipped']} skipped), {tot['scenarios']} "
+             f"scenarios, {tot['completed']} of {tot['driven']} driven completed, {tot['errors']} stage errors "
+             f"({tot['tracebacks']} tracebacks).**", ""]
+    details = [f"- `{s.path}` {e['stage']}: {e['kind']}: {e['error']}" + (f" (at {' <- '.join(reversed(e['at']))})"
+                                                                         if e.get("at") else "")
+               for s in results for e in s.errors]
+    details += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in results for f in s.failing]
+    details += [f"- `{s.path}` check: {c}" for s in results for c in (s.checks or ())]
+    if details:
+        lines += ["Errors and failing scenarios:", "", *details, ""]
+    return "\n".join(lines)
+
+
+def compare(before: dict, after: dict) -> str:
+    """Per map, before -> after (two --json files): junctions (skipped), controls, phase groups,
+    scenarios, completed of driven, failures; maps whose row is the same are marked "=", plus totals."""
+    def cells(s: dict | None) -> list[str]:
+        if s is None:
+            return ["-"] * 6
+        x = MapSurvey(**{k: v for k, v in s.items() if k in MapSurvey.__dataclass_fields__})
+        c = x.controls
+        return [f"{x.junctions} ({len(x.skipped)})", f"{c.get('signal', 0)}/{c.get('stop', 0)}/{c.get('bare', 0)}",
+                _phase_cell(x), str(x.scenarios), f"{x.outcomes.get('completed', 0)}/{x.driven}", _failure_cell(x)]
+
+    b = {s["path"]: s for s in before["maps"]}
+    a = {s["path"]: s for s in after["maps"]}
+    heads = ("junctions (skipped)", "signal/stop/bare", "phase groups", "scenarios", "completed/driven", "failures")
+    lines = ["| map | " + " | ".join(heads) + " |", "|---|" + "---|" * len(heads)]
+    for path in sorted(set(b) | set(a)):
+        old, new = cells(b.get(path)), cells(a.get(path))
+        lines.append(f"| `{path}` | " + " | ".join(o if o == n else f"{o} -> **{n}**" for o, n in zip(old, new)) + " |")
+
+    def total(maps: dict) -> str:
+        t = Counter()
+        for s in maps.values():
+            t.update(scenarios=s["scenarios"], driven=s["driven"], completed=s["outcomes"].get("completed", 0),
+                     tracebacks=sum(e["kind"] == "traceback" for e in s["errors"]))
+        return f"{t['completed']} of {t['driven']} driven completed ({t['scenarios']} scenarios), {t['tracebacks']} tracebacks"
+    return "\n".join([*lines, "", f"Before: {total(b)}. After: {total(a)}.", ""])
+
+
+def _labelled(folders: Sequence[Path]) -> Iterator[tuple[Path, str, str]]:
+    """(file, label: its path under its folder with the folder's name first, source: its first sub-folder)."""
+    for folder in folders:
+        for p in map_files(folder):
+            rel = p.relative_to(folder)
+            yield p, f"{folder.name}/{rel}", rel.parts[0] if len(rel.parts) > 1 else folder.name
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("folders", nargs="*", type=Path, help=f"map folders (default {SHARED} when it exists)")
+    ap.add_argument("--corpus", action="append", type=Path, default=[], help="another map folder (repeatable)")
+    ap.add_argument("--no-shared", action="store_true", help="leave the default ../shared/maps out")
+    ap.add_argument("--traffic", type=int, default=TRAFFIC, help=f"traffic vehicles per scenario (default {TRAFFIC})")
+    ap.add_argument("--workers", type=int, default=1, help="rollout worker processes (default 1)")
+    ap.add_argument("--max-scenarios", type=int, default=None, help="drive at most N scenarios per map, spread over "
+                                                                     "its suite (default: the whole suite)")
+    ap.add_argument("--no-rollout", action="store_true", help="read, extract and build suites only")
+    ap.add_argument("--only", action="append", default=[], help="survey only maps whose label contains this")
+    ap.add_argument("--md", type=Path, default=Path("realmaps.md"), help="Markdown table (default realmaps.md)")
+    ap.add_argument("--json", type=Path, default=Path("realmaps.json"), help="JSON results (default realmaps.json)")
+    ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
+                    help="no survey: compare two --json files map by map into --md")
+    args = ap.parse_args(argv)
+    if args.compare:
+        before, after = (json.loads(p.read_text(encoding="utf-8")) for p in args.compare)
+        atomic.write_text(args.md, compare(before, after))
+        return 0
+    folders = list(args.folders) or ([] if args.no_shared or not SHARED.is_dir() else [SHARED])
+    folders += args.corpus
+    for f in folders:
+        if not f.is_dir():
+            print(f"{f}: no such folder", file=sys.stderr)
+            return 2
+    todo = [t for t in _labelled(folders) if not args.only or any(o in t[1] for o in args.only)]
+    if not todo:
+        print("no map files found in " + ", ".join(map(str, folders)), file=sys.stderr)
+        return 2
+    tty = sys.stderr.isatty()
+    results: list[MapSurvey] = []
+    for i, (path, label, source) in enumerate(todo, 1):
+        if tty:
+            print(f"[{i}/{len(todo)}] {label}", file=sys.stderr, flush=True)
+        s = survey_map(path, label, traffic=args.traffic, rollout=not args.no_rollout,
+                       max_scenarios=args.max_scenarios, workers=args.workers, progress=tty)
+        s.source = source
+        results.append(s)
+        atomic.write_text(args.json, json.dumps({"folders": [str(f) for f in folders], "traffic": args.traffic,
+                                                 "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout,
+                                                 "maps": [r.__dict__ for r in results]}, indent=1))
+        atomic.write_text(args.md, markdown(results))
+    if tty:
+        print(f"wrote {args.md} and {args.json}", file=sys.stderr)
+    return 1 if any(r.errors for r in results) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
