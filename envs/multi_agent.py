@@ -14,7 +14,7 @@ conflicts, reservations, crosswalks). Traffic respawns as in the single env, awa
 
 Agents. `possible_agents` are "agent_0".."agent_{n-1}". Each gets a route (`agent_routes`:
 None = sampled through `route_junctions` junctions, as the single env samples the ego's;
-"coverage" = the map's route-coverage routes, `scenarios.routes.coverage_routes`, dealt round
+"coverage" = the map's route-coverage routes, `feat2map.routes.coverage_routes`, dealt round
 from a random start; or a list of routes in the single env's `route` format, dealt round) and
 starts at its entry where the ego would (`ego_start_distance` before the first stop line), or
 up to `agent_queue - 1` places of `agent_spacing` behind it; an agent whose place is taken waits
@@ -376,7 +376,7 @@ class _World(MapEnv):
         spec = self.agent_config["agent_routes"]
         net, rng, c = self.net, self.np_random, self.config
         if spec == "coverage":
-            from ..scenarios.routes import coverage_routes
+            from ..routes import coverage_routes
 
             spec = net.memo(("coverage routes", int(c["route_junctions"])),
                             lambda: coverage_routes(net.hdmap, max(1, int(c["route_junctions"]))))

@@ -1,13 +1,20 @@
-"""The map layer's answer to "which lane drives this manoeuvre": one rule shared by the env's
-routes, the scenario tools (route coverage, durations, pictures) and the OpenSCENARIO export,
-so that all of them drive the same junction lane for a (junction, entry road, exit road)."""
+"""The map layer's manoeuvres and routes: which lane drives a (junction, entry road, exit road)
+manoeuvre (one rule shared by the env's routes, the scenario tools and the OpenSCENARIO export),
+every manoeuvre a map allows, and few routes that together cover them (used by the route-coverage
+suites and the multi-agent env, so neither layer imports the other)."""
 from __future__ import annotations
 
-from typing import Sequence
+import math
+from typing import Iterable, Sequence
 
-from .model import HDMap, Lane
+from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
+Route = tuple[Manoeuvre, ...]  # manoeuvres in driving order (Scenario.route, the env's `route`)
+
+DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
+END_ROOM_M = 25.0  # a route ends on an exit road at least this long before the next junction where it can:
+# the env's goal lies 15 m into it, and an ego at speed reaching a goal closer to a junction runs into it
 
 
 def manoeuvre_lanes(m: HDMap, mv: Sequence[str]) -> list[Lane]:
@@ -23,3 +30,131 @@ def manoeuvre_lane(m: HDMap, mv: Sequence[str]) -> Lane | None:
     """The junction lane a route drives for manoeuvre `mv` (junction, entry road, exit road):
     the one with the smallest id among `manoeuvre_lanes`; None when the map has none."""
     return min(manoeuvre_lanes(m, mv), key=lambda ln: ln.id, default=None)
+
+
+def manoeuvres(m: HDMap) -> list[Manoeuvre]:
+    """Every (junction id, entry road id, exit road id) some junction lane of `m` drives, in
+    junction order, then entry and exit road order."""
+    out: dict[Manoeuvre, None] = {}
+    for jid in m.junctions:
+        found = set()
+        for ln in m.lanes_by_junction.get(jid, []):
+            found.update(_lane_manoeuvres(m, ln))
+        for mv in sorted(found):
+            out[mv] = None
+    return list(out)
+
+def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:
+    """The (junction, entry road, exit road) a junction lane drives: from a road lane to a road
+    lane, neither of them a piece of a junction (`interior_lane`: no route starts or ends inside
+    one)."""
+    def roads(ids: Sequence[str]) -> set[str]:
+        return {m.lanes[x].road_id for x in ids if x in m.lanes and m.lanes[x].junction_id is None
+                and not interior_lane(m.lanes, m.lanes[x])}
+    return {(str(ln.junction_id), e, x) for e in roads(ln.predecessors) for x in roads(ln.successors)}
+
+def successor_graph(m: HDMap, moves: Sequence[Manoeuvre] | None = None) -> dict[Manoeuvre, list[Manoeuvre]]:
+    """Manoeuvre -> manoeuvres that can follow it directly: from the env's lane for the first,
+    road lanes only (successor links, no junction lane) lead to a predecessor of the env's lane
+    for the second."""
+    moves = list(moves if moves is not None else manoeuvres(m))
+    picks = {mv: manoeuvre_lane(m, mv) for mv in moves}
+    by_pred: dict[str, list[Manoeuvre]] = {}
+    for mv, ln in picks.items():
+        if ln is None:
+            continue
+        for p in ln.predecessors:
+            if p in m.lanes and m.lanes[p].road_id == mv[1]:
+                by_pred.setdefault(p, []).append(mv)
+    graph: dict[Manoeuvre, list[Manoeuvre]] = {}
+    for mv, ln in picks.items():
+        nxt: dict[Manoeuvre, None] = {}
+        if ln is not None:
+            stack = [s for s in ln.successors if s in m.lanes and m.lanes[s].junction_id is None]
+            seen = set(stack)
+            while stack:
+                lid = stack.pop()
+                for follower in by_pred.get(lid, ()):
+                    if follower[0] != mv[0]:
+                        nxt[follower] = None
+                for s in m.lanes[lid].successors:
+                    if s in m.lanes and m.lanes[s].junction_id is None and s not in seen:
+                        seen.add(s)
+                        stack.append(s)
+        graph[mv] = sorted(nxt)
+    return graph
+
+def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
+                    moves: Iterable[Manoeuvre] | None = None) -> list[Route]:
+    """Few routes that together cover every manoeuvre of `m` (or of `moves`) at least once.
+
+    How: greedy set cover over the manoeuvre graph (`successor_graph`, built from the lane
+    graph). While a manoeuvre is uncovered, take the first uncovered one (map order) as the
+    anchor, search exhaustively backwards and forwards from it for the chains of at most
+    `max_junctions` manoeuvres in total (never visiting a junction twice) that add the most
+    uncovered manoeuvres (ties: an end with END_ROOM_M of road before the next junction, fewer
+    junctions, then map order), and add that route. Each
+    route is the locally best extension of its anchor, so the result is a small cover but not
+    a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped.
+    """
+    if max_junctions < 1:
+        raise ValueError("max_junctions must be at least 1")
+    all_moves = manoeuvres(m)
+    targets = [mv for mv in (list(moves) if moves is not None else all_moves) if manoeuvre_lane(m, mv) is not None]
+    graph = successor_graph(m, all_moves)
+    preds: dict[Manoeuvre, list[Manoeuvre]] = {mv: [] for mv in graph}
+    for mv, nxts in graph.items():
+        for n in nxts:
+            preds[n].append(mv)
+    order = {mv: i for i, mv in enumerate(all_moves)}
+    room = {mv: _exit_room(m, mv) for mv in graph}
+    uncovered = set(targets)
+    routes: list[Route] = []
+    for anchor in targets:
+        if anchor not in uncovered:
+            continue
+        best: tuple = ()
+        best_key = None
+        for back in _chains(preds, anchor, max_junctions - 1, {anchor[0]}):
+            used = {anchor[0], *(mv[0] for mv in back)}
+            for fwd in _chains(graph, anchor, max_junctions - 1 - len(back), used):
+                route = tuple(reversed(back)) + (anchor,) + fwd
+                gain = len(set(route) & uncovered)
+                key = (-gain, room[route[-1]] < END_ROOM_M, len(route), [order[mv] for mv in route])
+                if best_key is None or key < best_key:
+                    best, best_key = route, key
+        routes.append(best)
+        uncovered -= set(best)
+    return routes
+
+def _exit_room(m: HDMap, mv: Manoeuvre) -> float:
+    """Metres of road after the manoeuvre's junction lane before the next junction (inf where the
+    road leaves the map): the longest chain of road lanes from the lane it leads into."""
+    ln = manoeuvre_lane(m, mv)
+    best = 0.0
+    stack: list[tuple[str, float, frozenset[str]]] = [(s, 0.0, frozenset()) for s in (ln.successors if ln is not None else ()) if s in m.lanes]
+    while stack:
+        lid, done, seen = stack.pop()
+        lane = m.lanes[lid]
+        if lane.junction_id is not None or lid in seen:
+            best = max(best, done)
+            continue
+        nxt = [x for x in lane.successors if x in m.lanes]
+        if not nxt:
+            return math.inf
+        stack += [(x, done + lane.length, seen | {lid}) for x in nxt]
+    return best
+
+def _chains(graph: dict[Manoeuvre, list[Manoeuvre]], start: Manoeuvre, depth: int,
+            used: set[str]) -> list[tuple[Manoeuvre, ...]]:
+    """Every chain of up to `depth` manoeuvres following `start` in `graph` (start excluded),
+    through junctions not in `used`; the empty chain first."""
+    out: list[tuple[Manoeuvre, ...]] = [()]
+    if depth <= 0:
+        return out
+    for nxt in graph.get(start, ()):
+        if nxt[0] in used:
+            continue
+        for tail in _chains(graph, nxt, depth - 1, used | {nxt[0]}):
+            out.append((nxt,) + tail)
+    return out
