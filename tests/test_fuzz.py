@@ -15,7 +15,7 @@ import random
 
 import numpy as np
 import pytest
-from conftest import SHARED_MAPS
+from conftest import shared_map
 
 import feat2map
 from feat2map.cli import main
@@ -96,9 +96,7 @@ def test_fuzzed_generated_maps(generated_files, tmp_path, k, capsys, random_seed
 
 @pytest.mark.parametrize("rel", SHARED_FILES)
 def test_fuzzed_shared_maps(rel, tmp_path, random_seed):
-    src = SHARED_MAPS / rel
-    if not src.is_file():
-        pytest.skip(f"third-party map {src} not present (../shared/maps is absent on this machine)")
+    src = shared_map(rel)
     rng = random.Random(f"{rel}-{random_seed}")
     for label, data in mutants(src.read_bytes(), rng, FUZZ):
         path = tmp_path / src.name

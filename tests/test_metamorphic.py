@@ -19,7 +19,7 @@ import pytest
 from lxml import etree
 
 import feat2map
-from conftest import LONG_TESTS, SHARED_MAPS
+from conftest import LONG_TESTS, SHARED_MAPS, shared_map
 from feat2map.extract import extract_junctions
 from feat2map.features import JunctionFeature as JF
 from feat2map.formats import write_map
@@ -467,9 +467,7 @@ def _shared(kind: str, small: tuple[str, ...]) -> list[str]:
 @pytest.mark.parametrize("name", sorted(XODR_TRANSFORMS))
 @pytest.mark.parametrize("rel", _shared("opendrive", SMALL_XODR))
 def test_shared_xodr_keeps_its_meaning(rel, name, tmp_path):
-    path = SHARED_MAPS / rel
-    if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent on this machine)")
+    path = shared_map(rel)
     assert_same_meaning(_read(read_opendrive, path), _xodr_case(path, tmp_path, name))
 
 
@@ -477,9 +475,7 @@ def test_shared_xodr_keeps_its_meaning(rel, name, tmp_path):
 @pytest.mark.parametrize("name", sorted(APOLLO_TRANSFORMS))
 @pytest.mark.parametrize("rel", _shared("apollo", SMALL_APOLLO))
 def test_shared_apollo_keeps_its_meaning(rel, name, tmp_path):
-    path = SHARED_MAPS / rel
-    if not path.exists():
-        pytest.skip(f"third-party map {path} not present (../shared/maps is absent on this machine)")
+    path = shared_map(rel)
     if (rel, name) in LOSSY:
         pytest.xfail(LOSSY[rel, name])
     assert_same_meaning(_read(read_apollo, path), _apollo_case(path, tmp_path, name), ANGLE_TOL_DEG.get(name, 1.0))
