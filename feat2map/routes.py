@@ -132,7 +132,8 @@ def _exit_room(m: HDMap, mv: Manoeuvre) -> float:
     road leaves the map): the longest chain of road lanes from the lane it leads into."""
     ln = manoeuvre_lane(m, mv)
     best = 0.0
-    stack: list[tuple[str, float, frozenset[str]]] = [(s, 0.0, frozenset()) for s in (ln.successors if ln is not None else ()) if s in m.lanes]
+    firsts = ln.successors if ln is not None else ()
+    stack: list[tuple[str, float, frozenset[str]]] = [(s, 0.0, frozenset()) for s in firsts if s in m.lanes]
     while stack:
         lid, done, seen = stack.pop()
         lane = m.lanes[lid]
