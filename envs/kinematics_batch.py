@@ -88,14 +88,8 @@ def project_many(lanes: list, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """[lanes, points]: `observation.project_s(lane, x, y)` of each lane in one program (segments
     padded to the lane with the most; padding never wins the nearest segment), with the same
     arithmetic, so the values are identical."""
-    L, S = len(lanes), max(len(ln._ax) for ln in lanes)
-    ax, ay, ux, uy, lo, hi, cum = (np.zeros((L, S)) for _ in range(7))
-    real = np.zeros((L, S), dtype=bool)
-    for g, ln in enumerate(lanes):
-        n = len(ln._ax)
-        ax[g, :n], ay[g, :n], ux[g, :n], uy[g, :n] = ln._ax, ln._ay, ln._ux, ln._uy
-        lo[g, :n], hi[g, :n], cum[g, :n] = ln._lo, ln._hi, ln.cum[:n]
-        real[g, :n] = True
+    L = len(lanes)
+    ax, ay, ux, uy, lo, hi, cum, real = _packed(lanes)
     rx = x[None, :, None] - ax[:, None, :]
     ry = y[None, :, None] - ay[:, None, :]
     t = rx * ux[:, None, :] + ry * uy[:, None, :]
@@ -104,3 +98,27 @@ def project_many(lanes: list, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     dy = ry - tc * uy[:, None, :]
     i = np.where(real[:, None, :], dx * dx + dy * dy, np.inf).argmin(axis=2)
     return cum[np.arange(L)[:, None], i] + np.take_along_axis(tc, i[:, :, None], axis=2)[:, :, 0]
+
+
+def _packed(lanes: list) -> tuple[np.ndarray, ...]:
+    """The padded segment arrays of `lanes` for project_many (ax, ay, ux, uy, lo, hi, cum, real),
+    packed once per set of lanes (lanes are fixed once built; the same set recurs every step)."""
+    key = tuple(map(id, lanes))
+    held = _PACKED.get(key)
+    if held is not None and all(a is b for a, b in zip(held[0], lanes)):
+        return held[1]
+    L, S = len(lanes), max(len(ln._ax) for ln in lanes)
+    ax, ay, ux, uy, lo, hi, cum = (np.zeros((L, S)) for _ in range(7))
+    real = np.zeros((L, S), dtype=bool)
+    for g, ln in enumerate(lanes):
+        n = len(ln._ax)
+        ax[g, :n], ay[g, :n], ux[g, :n], uy[g, :n] = ln._ax, ln._ay, ln._ux, ln._uy
+        lo[g, :n], hi[g, :n], cum[g, :n] = ln._lo, ln._hi, ln.cum[:n]
+        real[g, :n] = True
+    if len(_PACKED) > 1024:
+        _PACKED.clear()
+    packed = _PACKED[key] = (list(lanes), (ax, ay, ux, uy, lo, hi, cum, real))
+    return packed[1]
+
+
+_PACKED: dict[tuple[int, ...], tuple[list, tuple[np.ndarray, ...]]] = {}  # lane ids -> (lanes, arrays)
