@@ -45,6 +45,7 @@ single env's keys (`map_env` module docstring; `violations` holds the two more) 
 from __future__ import annotations
 
 import contextlib
+import math
 import types
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -264,6 +265,45 @@ class AgentVehicle(ArrayVehicle):
             self._done_at = (id(route), pos)
         return self._done_before + min(max(float(c.s[i]), 0.0), lane_of[route[pos]].length)
 
+    _line_at: tuple[int, int] = (-1, -1)
+    _line_plan: tuple = ()
+
+    def line_ahead(self, net) -> tuple:
+        """`rules.line_ahead(self)` (no range): the junction entry found once per route position
+        (`rules.stop_line_ahead` over `upcoming()`), its distance summed from the own position
+        in the same order as there, so the value is the same float."""
+        c, i = self._core, self._row
+        route, pos = c.route_ids[i], int(c.route_pos[i])
+        if self._line_at != (id(route), pos):
+            self._line_plan = _line_plan(net, route, pos)
+            self._line_at = (id(route), pos)
+        plan = self._line_plan
+        if plan[0] is None:
+            return None, None, None, math.inf
+        lengths, back, found = plan
+        d = net.lane_of[route[pos]].length - float(c.s[i])
+        for length in lengths:
+            d += length
+        if back is not None:
+            d -= back
+        return (*found, d)
+
+
+def _line_plan(net, route: list[str], pos: int) -> tuple:
+    """(lengths added after the own lane's rest, length taken off at a stop line or None, the
+    answer without its distance) of `rules.stop_line_ahead` from route position `pos`, or (None,)."""
+    lanes, lane_of = net.hdmap.lanes, net.lane_of
+    lengths: list[float] = []
+    for k in range(pos + 1, len(route)):
+        lid = route[k]
+        if lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
+            in_lane = route[k - 1]
+            sl = net.stop_lines.get(in_lane)
+            back = lane_of[in_lane].length - sl.s if sl is not None else None
+            return tuple(lengths), back, (sl, in_lane, lid)
+        lengths.append(lane_of[lid].length)
+    return (None,)
+
 
 class AgentView:
     """One agent's view of the world as if it were a single MapEnv whose ego is the agent: its
@@ -296,8 +336,10 @@ class AgentView:
 @contextlib.contextmanager
 def signal_states_once(control):
     """While the infos of all agents are made (the clock stands still), each junction's signal
-    states are asked of the traffic control once (every info still gets its own dict)."""
-    ask = control.signal_states
+    states are asked of the traffic control once (every info still gets its own dict), and an
+    agent's next stop line (`line_ahead` without a range) comes from its route plan
+    (`AgentVehicle.line_ahead`)."""
+    ask, line_ahead = control.signal_states, control.line_ahead
     memo: dict = {}
 
     def once(junction_id=None):
@@ -305,11 +347,18 @@ def signal_states_once(control):
         if states is None:
             states = memo[junction_id] = ask(junction_id)
         return dict(states)
+
+    def line(vehicle, within: float = math.inf):
+        if within == math.inf and isinstance(vehicle, AgentVehicle):
+            return vehicle.line_ahead(control.net)
+        return line_ahead(vehicle, within)
     control.signal_states = once
+    control.line_ahead = line
     try:
         yield
     finally:
         del control.signal_states
+        del control.line_ahead
 
 
 def route_memo(view: AgentView, method):
