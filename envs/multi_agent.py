@@ -376,6 +376,22 @@ def route_memo(view: AgentView, method):
     return call
 
 
+def frame_memo(view: AgentView, method):
+    """`method` of the view, computed once per simulation frame and route position (for answers
+    that depend only on where the vehicles are, such as `MapEnv.route_completed`, asked for the
+    reward, the termination and the info of one step)."""
+    bound = types.MethodType(method, view)
+    memo: list = [None, None]
+
+    def call():
+        v = view.vehicle
+        key = (view.world.steps, id(v.lane_route), v.route_pos)
+        if memo[0] != key:
+            memo[0], memo[1] = key, bound()
+        return memo[1]
+    return call
+
+
 class _World(MapEnv):
     """The map, traffic control, traffic and pedestrians of the multi-agent env, with the agents'
     vehicles as controlled rows of its arrays core (MapEnv's reset and step are not used)."""
@@ -597,6 +613,7 @@ class MultiAgentMapEnv(ParallelEnv):
             view._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
             view.observation_type = self._make_observation(view)
             view.junction_ahead = route_memo(view, MapEnv.junction_ahead)
+            view.route_completed = frame_memo(view, MapEnv.route_completed)
             view.wait_time = 0.0
             self._judged_lane[name] = -1
             view.agent_collision = False
@@ -673,7 +690,7 @@ class MultiAgentMapEnv(ParallelEnv):
             for a, action in ((a, actions.get(a)) for a in live):
                 view = self._views[a]
                 rewards[a] = self._reward(view, action, weights)
-                terms[a] = bool(view.vehicle.crashed or MapEnv.route_completed(view))
+                terms[a] = bool(view.vehicle.crashed or view.route_completed())
                 truncs[a] = bool(truncated and not terms[a])
                 infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
         gone = [a for a in live if terms[a] or truncs[a]]
@@ -731,18 +748,20 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[agent].agent_collision = True
                 self._views[peer].agent_collision = True
 
-    def _reward(self, view: AgentView, action, weights: dict[str, float]) -> float:
+    def _reward(self, view: AgentView, action, weights: list[tuple[str, float]]) -> float:
         r = MapEnv._rewards(view, action)
         new = view.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         view._last_rewards = r
-        return float(sum(w * r[k] for k, w in weights.items()))
+        return float(sum(w * r[k] for k, w in weights))
 
-    def _weights(self) -> dict[str, float]:
-        """{reward term: weight}: the single env's `reward_*` and the two of the agents' judge."""
+    def _weights(self) -> list[tuple[str, float]]:
+        """(reward term, weight) of the single env's `reward_*` and the two of the agents' judge,
+        in that order, without the zero weights (adding their 0.0 products changes no sum)."""
         c, ac = self.world.config, self.agent_config
-        return {**{k: c[f"reward_{k}"] for k in MapEnv._reward_terms()},
-                "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
+        weights = {**{k: c[f"reward_{k}"] for k in MapEnv._reward_terms()},
+                   "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
+        return [(k, w) for k, w in weights.items() if w != 0]
 
     def _info(self, agent: str, obs, action) -> dict:
         view = self._views[agent]
