@@ -377,17 +377,16 @@ def route_memo(view: AgentView, method):
 
 
 def frame_memo(view: AgentView, method):
-    """`method` of the view, computed once per simulation frame and route position (for answers
-    that depend only on where the vehicles are, such as `MapEnv.route_completed`, asked for the
-    reward, the termination and the info of one step)."""
+    """`method` of the view, computed once per simulation frame (for answers that depend only on
+    where the vehicles are, which changes only in a frame, such as `MapEnv.route_completed`,
+    asked for the reward, the termination and the info of one step)."""
     bound = types.MethodType(method, view)
+    world = view.world
     memo: list = [None, None]
 
     def call():
-        v = view.vehicle
-        key = (view.world.steps, id(v.lane_route), v.route_pos)
-        if memo[0] != key:
-            memo[0], memo[1] = key, bound()
+        if memo[0] != world.steps:
+            memo[0], memo[1] = world.steps, bound()
         return memo[1]
     return call
 
