@@ -489,11 +489,16 @@ def feature_info(feature) -> dict[str, Any]:
     if held is None or held[0] is not feature:
         if len(_FEATURE_INFO) > 4096:
             _FEATURE_INFO.clear()
-        held = _FEATURE_INFO[id(feature)] = (feature, _feature_info(feature))
-    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in held[1].items()}
+        info = _feature_info(feature)
+        held = _FEATURE_INFO[id(feature)] = (feature, info, [k for k, v in info.items() if isinstance(v, np.ndarray)])
+    out = dict(held[1])
+    for k in held[2]:
+        out[k] = out[k].copy()
+    return out
 
 
-_FEATURE_INFO: dict[int, tuple[Any, dict[str, Any]]] = {}  # id -> (feature, its info): features are frozen
+# id -> (feature, its info, the keys of its arrays): features are frozen
+_FEATURE_INFO: dict[int, tuple[Any, dict[str, Any], list[str]]] = {}
 
 
 def _feature_info(feature) -> dict[str, Any]:

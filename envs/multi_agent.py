@@ -318,6 +318,10 @@ class AgentView:
         self.action_type = action_type
         self.action_space = action_space
 
+    @property
+    def off_road(self) -> bool:  # MapEnv.off_road, without the lookup through the world
+        return self.judge.off_road
+
     def __getattr__(self, name: str):
         if name == "world":
             raise AttributeError(name)
@@ -605,6 +609,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 continue
             view = AgentView(w, v, self.actions, self.actions.space)
             view.judge = AgentJudge(w.control, v)
+            view.net, view.control = w.net, w.control  # the episode's (asked for in every info)
             view.violations = view.judge.violations
             view._progress = v.route_distance_done()
             last = w.net.lane_of[v.lane_route[-1]]
