@@ -323,7 +323,7 @@ class MapEnv(AbstractEnv):
         new = self.judge.new
         return {"progress": float(delta), "arrived": float(self.route_completed()),
                 "collision": float(self.vehicle.crashed), "off_road": float(self.off_road),
-                **{v: float(new.count(v)) for v in VIOLATIONS}}
+                **({v: float(new.count(v)) for v in VIOLATIONS} if new else _NO_VIOLATIONS)}
 
     def _reward(self, action) -> float:
         r = self._last_rewards = self._rewards(action)
@@ -497,6 +497,7 @@ def feature_info(feature) -> dict[str, Any]:
     return out
 
 
+_NO_VIOLATIONS = dict.fromkeys(VIOLATIONS, 0.0)  # the violation reward terms of a step without one
 # id -> (feature, its info, the keys of its arrays): features are frozen
 _FEATURE_INFO: dict[int, tuple[Any, dict[str, Any], list[str]]] = {}
 

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import operator
 import types
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -752,20 +753,21 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[agent].agent_collision = True
                 self._views[peer].agent_collision = True
 
-    def _reward(self, view: AgentView, action, weights: list[tuple[str, float]]) -> float:
+    def _reward(self, view: AgentView, action, weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
         r = MapEnv._rewards(view, action)
         new = view.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         view._last_rewards = r
-        return float(sum(w * r[k] for k, w in weights))
+        return float(sum(map(operator.mul, weights[1], map(r.__getitem__, weights[0]))))
 
-    def _weights(self) -> list[tuple[str, float]]:
-        """(reward term, weight) of the single env's `reward_*` and the two of the agents' judge,
-        in that order, without the zero weights (adding their 0.0 products changes no sum)."""
+    def _weights(self) -> tuple[tuple[str, ...], tuple[float, ...]]:
+        """(reward terms, their weights): the single env's `reward_*` and the two of the agents'
+        judge, in that order, without the zero weights (adding their 0.0 products changes no sum)."""
         c, ac = self.world.config, self.agent_config
         weights = {**{k: c[f"reward_{k}"] for k in MapEnv._reward_terms()},
                    "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
-        return [(k, w) for k, w in weights.items() if w != 0]
+        kept = [(k, w) for k, w in weights.items() if w != 0]
+        return tuple(k for k, _ in kept), tuple(w for _, w in kept)
 
     def _info(self, agent: str, obs, action) -> dict:
         view = self._views[agent]
