@@ -217,6 +217,39 @@ def test_batched_kinematics_equals_each_agents_own_observation():
     assert checked > 50 and env.world.road.objects  # pedestrians were seen too
 
 
+def test_info_shortcuts_equal_the_single_env_answers():
+    """The agents' shortcuts (next stop line per route position, route_completed once per frame,
+    the reward's weighted sum without zero weights) give the single env's values exactly."""
+    from feat2map.envs.map_env import MapEnv
+    from feat2map.envs.multi_agent import signal_states_once
+
+    env = parallel_env({**map_config("generated"), **SMALL, "agents": 10})
+    env.reset(seed=4)
+    rng = np.random.default_rng(4)
+    seen = {"line": 0, "completed": 0, "stop_line": 0}
+    for _ in range(120):
+        if not env.agents:
+            break
+        _, rewards, terms, _, infos = env.step({a: int(rng.choice([0, 3, 5, 5])) for a in env.agents})
+        control = env.world.control
+        for a in env.agents:
+            view = env.view(a)
+            slow = type(control).line_ahead(control, view.vehicle)
+            with signal_states_once(control):
+                fast = control.line_ahead(view.vehicle)
+            assert fast == slow and type(fast[3]) is type(slow[3])
+            assert view.route_completed() == MapEnv.route_completed(view)
+            seen["line"] += 1
+            seen["stop_line"] += slow[0] is not None
+        for a, info in infos.items():
+            r = info["rewards"]
+            c, ac = env.world.config, env.agent_config
+            full = sum((ac if k in ("not_yielding", "stop_order") else c)[f"reward_{k}"] * r[k] for k in r)
+            assert rewards[a] == float(full)
+            seen["completed"] += bool(terms[a] and info["route_completed"])
+    assert seen["line"] > 100 and seen["stop_line"] > 20 and seen["completed"] > 0, seen
+
+
 @pytest.mark.parametrize("angles,control", [(FOUR, "stop"), ([0, 90, 180], "bare"), (FOUR, "signal")])
 def test_agents_driven_by_the_rules_are_judged_clean(angles, control):
     """Every agent driven by the ScriptedDriver (which asks the same rules) through one junction:
