@@ -457,6 +457,8 @@ def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int
 
 def check_action(space: spaces.Space, action: Any) -> None:
     """An action of the right kind, shape and value for `space`, else a Feat2MapError naming it."""
+    if type(action) is int and type(space) is spaces.Discrete and 0 <= action - int(space.start) < space.n:
+        return  # the common case first (one check per agent per step in the multi-agent env)
     if isinstance(space, spaces.Discrete):
         value = action.item() if isinstance(action, np.ndarray) and action.shape in ((), (1,)) else action
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, np.integer)):
