@@ -341,11 +341,19 @@ class AgentView:
 @contextlib.contextmanager
 def signal_states_once(control):
     """While the infos of all agents are made (the clock stands still), each junction's signal
-    states are asked of the traffic control once (every info still gets its own dict), and an
+    states and each signal's state are asked of the traffic control once (every info still gets
+    its own dict), and an
     agent's next stop line (`line_ahead` without a range) comes from its route plan
     (`AgentVehicle.line_ahead`)."""
-    ask, line_ahead = control.signal_states, control.line_ahead
+    ask, line_ahead, ask_one = control.signal_states, control.line_ahead, control.signal_state
     memo: dict = {}
+    memo_one: dict[str, str] = {}
+
+    def one(signal_id: str) -> str:
+        state = memo_one.get(signal_id)
+        if state is None:
+            state = memo_one[signal_id] = ask_one(signal_id)
+        return state
 
     def once(junction_id=None):
         states = memo.get(junction_id)
@@ -357,13 +365,11 @@ def signal_states_once(control):
         if within == math.inf and isinstance(vehicle, AgentVehicle):
             return vehicle.line_ahead(control.net)
         return line_ahead(vehicle, within)
-    control.signal_states = once
-    control.line_ahead = line
+    control.signal_states, control.signal_state, control.line_ahead = once, one, line
     try:
         yield
     finally:
-        del control.signal_states
-        del control.line_ahead
+        del control.signal_states, control.signal_state, control.line_ahead
 
 
 def route_memo(view: AgentView, method):
