@@ -71,16 +71,17 @@ def observe_many(obs: Kinematics, core, rows: np.ndarray, lanes: list, objects: 
     idx = np.concatenate([rows[:, None], order], axis=1)  # [m, 1 + K]
     out = np.zeros((m, obs.vehicles_count, len(obs.features)))
     filled = np.concatenate([np.ones((m, 1), dtype=bool), valid], axis=1)
-    for j, f in enumerate(obs.features):
-        col = cols[f][idx]
-        if not obs.absolute and f in RELATIVE:
-            col[:, 1:] -= col[:, :1]
-        if obs.normalize and f in (obs.features_range or {}):
-            a, b = obs.features_range[f]
-            col = -1 + (col - a) * (1 - (-1)) / (b - a)
-            if obs.clip:
-                col = np.clip(col, -1, 1)
-        out[:, :idx.shape[1], j] = np.where(filled, col, 0.0)
+    col = np.stack([cols[f] for f in obs.features])[:, idx]  # [features, m, 1 + K]
+    rel = [j for j, f in enumerate(obs.features) if not obs.absolute and f in RELATIVE]
+    if rel:
+        col[rel, :, 1:] -= col[rel, :, :1]
+    ranges = obs.features_range or {}
+    norm = [j for j, f in enumerate(obs.features) if obs.normalize and f in ranges]
+    if norm:  # per feature the same arithmetic as Kinematics.fast's
+        a, b = (np.array([float(ranges[obs.features[j]][e]) for j in norm])[:, None, None] for e in (0, 1))
+        scaled = -1 + (col[norm] - a) * (1 - (-1)) / (b - a)
+        col[norm] = np.clip(scaled, -1, 1) if obs.clip else scaled
+    out[:, :idx.shape[1], :] = np.where(filled[None], col, 0.0).transpose(1, 2, 0)
     return out.astype(np.float32)
 
 
