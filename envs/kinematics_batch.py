@@ -91,13 +91,22 @@ def project_many(lanes: list, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     arithmetic, so the values are identical."""
     L = len(lanes)
     ax, ay, ux, uy, lo, hi, cum, real = _packed(lanes)
+    ux, uy = ux[:, None, :], uy[:, None, :]
+    # the same operations as project_s, in place ([lanes, points, segments] arrays are large)
     rx = x[None, :, None] - ax[:, None, :]
     ry = y[None, :, None] - ay[:, None, :]
-    t = rx * ux[:, None, :] + ry * uy[:, None, :]
-    tc = np.minimum(np.maximum(t, lo[:, None, :]), hi[:, None, :])
-    dx = rx - tc * ux[:, None, :]
-    dy = ry - tc * uy[:, None, :]
-    i = np.where(real[:, None, :], dx * dx + dy * dy, np.inf).argmin(axis=2)
+    tc = rx * ux
+    tmp = ry * uy
+    tc += tmp
+    np.maximum(tc, lo[:, None, :], out=tc)
+    np.minimum(tc, hi[:, None, :], out=tc)
+    np.subtract(rx, np.multiply(tc, ux, out=tmp), out=rx)  # dx
+    np.subtract(ry, np.multiply(tc, uy, out=tmp), out=ry)  # dy
+    np.multiply(rx, rx, out=rx)
+    np.multiply(ry, ry, out=ry)
+    rx += ry
+    np.copyto(rx, np.inf, where=~real[:, None, :])
+    i = rx.argmin(axis=2)
     return cum[np.arange(L)[:, None], i] + np.take_along_axis(tc, i[:, :, None], axis=2)[:, :, 0]
 
 
