@@ -276,3 +276,60 @@ def test_back_to_back_stop_junctions_drive_clean(tmp_path):
             break
     env.close()
     assert u.net.id_of.get(car.lane_index) == route[-1]
+
+
+def _shorten_road(src: Path, dst: Path, road: str, length: float) -> None:
+    """Road `road` of an exported west-to-east chain cut to `length` metres (a straight line),
+    every road starting east of it moved west by what was cut."""
+    from lxml import etree
+
+    root = etree.parse(str(src)).getroot()
+    link = next(r for r in root.findall("road") if r.get("id") == road)
+    geo = link.find("planView/geometry")
+    x0, cut = float(geo.get("x")), float(link.get("length")) - length
+    geo.remove(geo[0])
+    etree.SubElement(geo, "line")
+    geo.set("length", repr(length))
+    link.set("length", repr(length))
+    for r in root.findall("road"):
+        gs = r.findall("planView/geometry")
+        if r is not link and float(gs[0].get("x")) > x0 + 1.0:
+            for g in gs:
+                g.set("x", repr(float(g.get("x")) - cut))
+    dst.write_bytes(etree.tostring(root))
+
+
+def test_a_chain_of_back_to_back_junctions_is_one_box(tmp_path):
+    """An OpenDRIVE map the test makes (three bare 4-way junctions in a row joined by 3 m and
+    1.5 m roads, as CARLA Town04's 1249, 870 and 483 are): a car enters the first junction only
+    while its lanes in the second and the third are clear, since it cannot wait between them (a
+    car waiting inside 1249 for 483 and one inside 483 for 1249 locked up: Town04 r034)."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270])
+    write_opendrive(feat2map.generate_from_features([four, four, four], seed=0), tmp_path / "three.xodr")
+    _shorten_road(tmp_path / "three.xodr", tmp_path / "two.xodr", "6", 1.5)
+    _shorten_road(tmp_path / "two.xodr", tmp_path / "chain.xodr", "3", 3.0)
+    m = read_map(tmp_path / "chain.xodr")
+    assert sorted(round(ln.length, 1) for ln in m.lanes.values() if ln.road_id in ("3", "6")) == [1.5, 1.5, 3.0, 3.0]
+
+    def through(jid: str, entry: str, exit_: str) -> str:
+        return next(ln.id for ln in m.lanes_by_junction[jid] if m.lanes[ln.predecessors[0]].road_id == entry
+                    and m.lanes[ln.successors[0]].road_id == exit_)
+
+    j1, j2, j3 = through("1", "1", "3"), through("2", "3", "6"), through("3", "6", "9")
+    route = [j1, m.lanes[j1].successors[0], j2, m.lanes[j2].successors[0], j3, m.lanes[j3].successors[0]]
+    env = make_env(Scenario("chain", str(tmp_path / "chain.xodr"), (("1", "2", "4"),), seed=0),
+                   config={"traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    car = u.road.spawn(route[0], 0.5, 0.0, route)
+    env.step(np.array([-1.0]))
+    assert u.rules.box_clear(car, j1)  # nothing in the way
+    other = sorted(u.net.conflicts[j3])[0]
+    blocker = u.road.spawn(other, 2.0, 0.0, [other, m.lanes[other].successors[0]])
+    env.step(np.array([-1.0]))  # the rules see the blocker on its lane
+    assert any(v is blocker for v in u.rules.buckets.get(other, ()))
+    assert u.rules.junction_clear(j2, car)  # the second junction alone would let it in
+    assert not u.rules.box_clear(car, j1)  # but it would wait inside the first for the third
+    env.close()
