@@ -181,10 +181,15 @@ def profile(steps: int = 300) -> None:
         if term or trunc:
             env.reset()
     prof.disable()
+    print_profile(prof, f"{steps} policy steps (10 Hz, 10 vehicles, default map, arrays core)", 18, 4000)
+
+
+def print_profile(prof: cProfile.Profile, what: str, rows: int, chars: int) -> None:
+    """The `rows` functions of a profile with the most own time, blank lines dropped."""
     text = io.StringIO()
-    pstats.Stats(prof, stream=text).sort_stats("tottime").print_stats(18)
-    print(f"\nprofile of {steps} policy steps (10 Hz, 10 vehicles, default map, arrays core), by own time:")
-    print("\n".join(line for line in text.getvalue().splitlines() if line.strip())[:4000])
+    pstats.Stats(prof, stream=text).sort_stats("tottime").print_stats(rows)
+    print(f"\nprofile of {what}, by own time:")
+    print("\n".join(line for line in text.getvalue().splitlines() if line.strip())[:chars])
 
 
 def main(argv=None) -> int:

@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-import io
 import os
-import pstats
 import statistics
 import subprocess
 import sys
@@ -27,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 import feat2map  # noqa: F401  (registers the environment ids)
+from bench_env import print_profile  # noqa: E402  (benchmarks/ is the script's folder)
 
 HZ = {1: {"simulation_frequency": 15, "policy_frequency": 1},  # the env's default
       10: {"simulation_frequency": 20, "policy_frequency": 10}}
@@ -164,10 +163,7 @@ def profile(n: int = 256, steps: int = 20) -> None:
     for _ in range(steps):
         envs.step(action)
     prof.disable()
-    text = io.StringIO()
-    pstats.Stats(prof, stream=text).sort_stats("tottime").print_stats(22)
-    print(f"\nprofile of {steps} batched steps (N={n}, 10 Hz, 10 vehicles, default map), by own time:")
-    print("\n".join(line for line in text.getvalue().splitlines() if line.strip())[:5000])
+    print_profile(prof, f"{steps} batched steps (N={n}, 10 Hz, 10 vehicles, default map)", 22, 5000)
 
 
 def main(argv=None) -> int:
