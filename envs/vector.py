@@ -6,7 +6,7 @@ config={...})` (and for MapFile-v0) returns a `MapVectorEnv`. Each sub-env is an
 `MapEnv` (the same code: its ego, rules, judge, observation, reward and info) whose road is a
 slot of the shared core; `map_env.simulate` steps all of them frame by frame, the traffic of all
 sub-envs in one array program (`TrafficCore.act` / `step`). With the same seeds and actions a
-sub-env gives exactly what a single env gives (tests/test_envs_vector_native.py).
+sub-env gives exactly what a single env gives (tests/envs/test_vector_native.py).
 
 Gymnasium's conventions as in `SyncVectorEnv` (reset seeds per sub-env, `options["reset_mask"]`,
 autoreset next-step by default, `autoreset_mode` honoured, info as arrays with "_key" masks).

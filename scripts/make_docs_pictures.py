@@ -86,7 +86,7 @@ def specs(tmp: Path) -> list[Path]:
 
 
 def apollo_export(tmp: Path) -> list[Path]:
-    """The Apollo export of a 3-junction map (the fixture of tests/test_apollo_export.py)."""
+    """The Apollo export of a 3-junction map (the fixture of tests/formats/test_apollo_export.py)."""
     from feat2map.formats.apollo import render_problems, write_apollo
 
     J = feat2map.JunctionFeature.make

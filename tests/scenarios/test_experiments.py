@@ -7,12 +7,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import SHARED_MAPS
 
 import feat2map
 from feat2map.formats import native
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
+ROOT = Path(__file__).resolve().parents[2]
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 

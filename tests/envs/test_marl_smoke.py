@@ -15,7 +15,7 @@ import pytest
 pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
 pytest.importorskip("pettingzoo")
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "train_marl.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "train_marl.py"
 
 
 def test_train_marl_writes_the_per_junction_table(tmp_path, capsys):

@@ -18,7 +18,7 @@ import pytest
 pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
 pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "train_ppo.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
 
 
 @pytest.fixture(scope="module")

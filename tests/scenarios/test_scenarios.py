@@ -27,7 +27,7 @@ from feat2map.scenarios.scenario import (Scenario, ScenarioError, Suite, load_su
                                          suite_from_dict)
 
 J = feat2map.JunctionFeature.make
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

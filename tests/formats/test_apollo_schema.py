@@ -5,13 +5,14 @@ import random
 from pathlib import Path
 
 import pytest
+from conftest import SHARED_MAPS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from feat2map.formats.apollo import schema as aps
 from feat2map.errors import MapFormatError
 
-APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
+APOLLO_MAPS = SHARED_MAPS / "apollo"
 
 
 def _number(cls, field: str) -> int:

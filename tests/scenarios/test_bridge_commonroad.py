@@ -21,7 +21,7 @@ from feat2map import cli
 from feat2map.formats import native
 from feat2map.scenarios.scenario import Suite, load_suite, save_suite
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CRPY = ROOT / ".venv-crplanner" / "bin" / "python"
 ADAPTER = ROOT / "adapters" / "commonroad" / "planner.py"
 KEEP = ("t-r000", "t-r001", "t-r003")  # a signalled T junction: right, straight, left

@@ -23,7 +23,7 @@ from feat2map.envs.network import MapNetwork
 from feat2map.errors import Feat2MapError
 from feat2map.spec import build_spec, load_spec
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DRIVE = {"action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "duration": 60, "traffic_vehicles": 4}
 
 

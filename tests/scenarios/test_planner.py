@@ -7,12 +7,12 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import replace
-from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import numpy as np
 import pytest
+from conftest import SHARED_MAPS
 
 import feat2map
 from feat2map.formats import native
@@ -23,7 +23,6 @@ from feat2map.scenarios.scenario import Scenario, make_env
 J = feat2map.JunctionFeature.make
 FOUR = [0, 90, 180, 270]
 NO_VIOLATIONS = {"red_light": 0, "stop_sign": 0, "pedestrian_yield": 0}
-SHARED_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps"
 
 
 def one_junction_map(tmp_path_factory, control: str, crosswalk: bool, angles=FOUR):

@@ -26,7 +26,7 @@ from feat2map.scenarios.bridge import BridgePlanner, PlannerProcess
 from feat2map.scenarios.rollout import run_suite
 from feat2map.scenarios.scenario import Suite, load_suite, save_suite
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = f"{sys.executable} {ROOT / 'examples' / 'bridge_planner.py'}"
 J = feat2map.JunctionFeature.make
 

@@ -27,9 +27,9 @@ from feat2map.formats.apollo import sim_map as simmap
 from feat2map.formats.apollo import writer as wa
 from feat2map.formats import write_map
 from feat2map.formats.apollo import read_apollo
-from conftest import shared_map, SHARED_MAPS_MISSING
+from conftest import SHARED_MAPS, SHARED_MAPS_MISSING, shared_map
 
-APOLLO_MAPS = Path(__file__).resolve().parents[2] / "shared" / "maps" / "apollo"
+APOLLO_MAPS = SHARED_MAPS / "apollo"
 FILES = ("base_map", "sim_map", "routing_map")
 
 
@@ -292,7 +292,7 @@ def test_spec_maps_export_clean(example):
     multi-lane legs."""
     from feat2map.spec import build_spec, load_spec
 
-    spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / example)
+    spec = load_spec(Path(__file__).resolve().parents[2] / "examples" / example)
     m = build_spec(spec, seed=0, config=spec.generation_config({}))
     base = wa.to_apollo(m)
     _assert_clean(m, validate_map(base))
