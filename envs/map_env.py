@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections import OrderedDict
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -37,7 +37,7 @@ from gymnasium.vector import AutoresetMode
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
-from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
+from ..config import MAX_LEGS, SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
 from .config import merge_config, validate_config
@@ -45,10 +45,10 @@ from .control import TrafficControl
 from .network import MapNetwork, release_memory
 from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
 from .road import ArrayRoad, MapRoad
-from .rules import SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
+from .routes import ego_route, first_line_distance, random_walk, start_place
+from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
-MAX_LEGS = 8  # info["junction_feature"] arrays have this many socket slots (inf / -1 beyond a junction's legs)
 TRAFFIC_SPAWN_TRIES = 10
 TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
 TRAFFIC_LANE_END_M = 8.0  # ... and not within this of its lane's end
@@ -174,22 +174,8 @@ class MapEnv(AbstractEnv):
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
 
     def _ego_route(self) -> tuple[list[str], bool]:
-        """The ego's lane route, and whether it may be extended over neighbouring road lanes (a
-        route of junction manoeuvres, not a lane route given or walked lane by lane)."""
-        spec = self.config["route"]
-        if isinstance(spec, Mapping):
-            return lane_route_from_config(self.net, spec), False
-        if spec:
-            return manoeuvres_to_lanes(self.net, spec), True
-        if int(self.config["route_junctions"]) <= 0 or not self.net.hdmap.junctions:
-            c = self.config
-            return sample_lane_walk(self.net, self.np_random, float(c["route_length"]),
-                                    float(c["ego_start_distance"]), float(c["goal_distance"])), False
-        for _ in range(100):
-            r = sample_route(self.net, self.np_random, int(self.config["route_junctions"]))
-            if r:
-                return r, True
-        raise Feat2MapError("no route through a junction could be sampled", "map")
+        """The ego's lane route, and whether it may be extended (`routes.ego_route`)."""
+        return ego_route(self.net, self.np_random, self.config)
 
     def _make_ego(self, route: list[str], extend: bool) -> None:
         """The ego `ego_start_distance` before the end of its first lane (walking back over road
@@ -517,214 +503,3 @@ def _feature_info(feature) -> dict[str, Any]:
         arr[:len(vals)] = vals
     return {"n_roads": int(d["n_roads"]), "control": str(d["control"]), "crosswalk": bool(d["crosswalk"]),
             "rotation": rot, "lanes_in": lanes_in, "lanes_out": lanes_out}
-
-
-def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_distance: float) -> list[str]:
-    """A manoeuvre route extended over road lanes (never into a junction) where its ends are
-    short: predecessors before the first lane until `start_distance` fits before the first
-    lane's end, successors after the last until the goal `goal_distance` into it fits."""
-    m = net.hdmap
-    route = list(route)
-    room = net.lane_of[route[0]].length
-    while room < start_distance:
-        prev = road_neighbour(m, route[0], m.lanes[route[0]].predecessors, set(route))
-        if prev is None:
-            break
-        route.insert(0, prev)
-        room += net.lane_of[prev].length
-    while net.lane_of[route[-1]].length < goal_distance + 1.0:
-        nxt = road_neighbour(m, route[-1], m.lanes[route[-1]].successors, set(route))
-        if nxt is None:
-            break
-        route.append(nxt)
-    return route
-
-
-def start_place(net: MapNetwork, route: list[str], extend: bool, start_distance: float, goal_distance: float,
-                speed: float, length: float) -> tuple[list[str], float, float]:
-    """(route, s on its first lane, speed) of a vehicle starting `start_distance` before the end
-    of its route's first lane (a manoeuvre route, `extend`: walking back over the road lanes
-    before a short first lane, the route extended at both ends), at most at the speed whose
-    braking distance fits before the first stop line. The ego's start (MapEnv) and the agents'
-    (multi_agent) both come from here."""
-    if extend:
-        route = extend_route(net, route, start_distance, goal_distance)
-    s0 = max(0.0, route_start_s(net, route, start_distance) if extend else net.lane_of[route[0]].length - start_distance)
-    d_line = first_line_distance(net, route, s0)
-    if d_line < braking_distance(speed, length):
-        speed = fitting_speed(d_line, length)
-    return route, s0, speed
-
-
-def road_neighbour(m, lane_id: str, candidates: Sequence[str], exclude: set[str]) -> str | None:
-    """The road lane (not in a junction, not in `exclude`) among `candidates` to extend a route
-    with: one of the same road first, then the longest, ties by id."""
-    road = m.lanes[lane_id].road_id
-    cands = [c for c in candidates if c in m.lanes and m.lanes[c].junction_id is None and c not in exclude]
-    if not cands:
-        return None
-    return min(cands, key=lambda c: (m.lanes[c].road_id != road, -m.lanes[c].length, c))
-
-
-def route_start_s(net: MapNetwork, route: list[str], start_distance: float) -> float:
-    """s on the route's first lane of the point `start_distance` before the end of the first
-    lane that is not an extension (the approach): with lanes prepended, it walks back over them."""
-    m = net.hdmap
-    first_junction = next((k for k, l in enumerate(route) if m.lanes[l].junction_id is not None), len(route))
-    k = max(first_junction - 1, 0)
-    remaining = start_distance
-    while k > 0 and remaining > net.lane_of[route[k]].length:
-        remaining -= net.lane_of[route[k]].length
-        k -= 1
-    if k > 0:  # the start falls on a later lane: drop the lanes before it
-        del route[:k]
-    return net.lane_of[route[0]].length - remaining
-
-
-def first_line_distance(net: MapNetwork, route: Sequence[str], s0: float) -> float:
-    """Distance along `route` from s0 on its first lane to the first junction entry's stop line
-    (the entry itself when bare; inf without a junction)."""
-    m = net.hdmap
-    d = -s0
-    for k, lid in enumerate(route):
-        if k and m.lanes[lid].junction_id is not None and m.lanes[route[k - 1]].junction_id is None:
-            sl = net.stop_lines.get(route[k - 1])
-            return d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0)
-        d += net.lane_of[lid].length
-    return math.inf
-
-
-def fitting_speed(distance: float, length: float) -> float:
-    """The highest speed whose braking distance fits in `distance` (0 when none does)."""
-    room = distance - length / 2 - SPAWN_MARGIN_M
-    return math.sqrt(2 * SPAWN_BRAKE_MPS2 * room) if room > 0 else 0.0
-
-
-def manoeuvres_to_lanes(net: MapNetwork, spec: Sequence[Sequence[str]]) -> list[str]:
-    """Explicit route -> lane ids: per (junction, entry road, exit road) a junction lane, joined
-    by Dijkstra; starts on the first entry road's lane, ends on the last exit road's lane."""
-    m = net.hdmap
-    picks = []
-    for i, item in enumerate(spec):
-        jid, entry, exit_ = (str(x) for x in item)
-        cands = [ln for ln in m.lanes_by_junction.get(jid, [])
-                 if any(m.lanes[p].road_id == entry for p in ln.predecessors if p in m.lanes)
-                 and any(m.lanes[s].road_id == exit_ for s in ln.successors if s in m.lanes)]
-        if not cands:
-            raise Feat2MapError(f"no lane of junction {jid} leads from road {entry} to road {exit_}", f"route[{i}]")
-        picks.append(sorted(cands, key=lambda ln: ln.id)[0])
-    lanes = [next(p for p in picks[0].predecessors if m.lanes[p].road_id == str(spec[0][1])), picks[0].id]
-    for i, ln in enumerate(picks[1:], 1):
-        best: list[str] = []
-        for pred in ln.predecessors:
-            path = net.lane_route(lanes[-1], pred)
-            if path and (not best or len(path) < len(best)):
-                best = path
-        if not best:
-            raise Feat2MapError(f"junction {ln.junction_id} is not reachable from the previous manoeuvre", f"route[{i}]")
-        lanes += best[1:] + [ln.id]
-    lanes.append(next(s for s in picks[-1].successors if m.lanes[s].road_id == str(spec[-1][2])))
-    return lanes
-
-
-def lane_route_from_config(net: MapNetwork, spec: Mapping[str, Any]) -> list[str]:
-    """Explicit lane-level route: {"lanes": [ids]} (each lane a successor of the one before), or
-    {"from_lane": a, "to_lane": b} (shortest by Dijkstra; a == b goes once round a loop, e.g. a
-    lap of a ring road). Errors name the config element."""
-    m = net.hdmap
-    keys = set(spec)
-    if keys == {"lanes"}:
-        raw = spec["lanes"]
-        if isinstance(raw, (str, bytes)) or not isinstance(raw, Sequence) or len(raw) < 2:
-            raise Feat2MapError("needs a list of at least 2 lane ids (the ego starts on the first and "
-                                "finishes in the last)", "route.lanes")
-        lanes = [str(x) for x in raw]
-        for i, lid in enumerate(lanes):
-            if lid not in m.lanes:
-                raise Feat2MapError(f"unknown lane {lid!r}", f"route.lanes[{i}]")
-            if i and lid not in m.lanes[lanes[i - 1]].successors:
-                succ = ", ".join(m.lanes[lanes[i - 1]].successors) or "none"
-                raise Feat2MapError(f"lane {lid} does not follow lane {lanes[i - 1]} (its successors: {succ})",
-                                    f"route.lanes[{i}]")
-        return lanes
-    if keys == {"from_lane", "to_lane"}:
-        a, b = str(spec["from_lane"]), str(spec["to_lane"])
-        for key, lid in (("from_lane", a), ("to_lane", b)):
-            if lid not in m.lanes:
-                raise Feat2MapError(f"unknown lane {lid!r}", f"route.{key}")
-        if a != b:
-            path = net.lane_route(a, b)
-        else:  # round a loop back to the start lane: the shortest cycle through it
-            loops = [[a] + p for p in (net.lane_route(s, a) for s in m.lanes[a].successors if s in m.lanes) if p]
-            path = min(loops, key=lambda p: sum(net.lane_of[x].length for x in p), default=[])
-        if not path:
-            raise Feat2MapError(f"lane {b} cannot be reached from lane {a} along lane successors", "route.to_lane")
-        return path
-    raise Feat2MapError(f"expected {{'lanes': [...]}} or {{'from_lane': ..., 'to_lane': ...}}, got keys "
-                        f"{sorted(map(str, keys))}", "route")
-
-
-def sample_lane_walk(net: MapNetwork, rng: np.random.Generator, length: float, start_distance: float = math.inf,
-                     goal_distance: float = 0.0, tries: int = 100, max_lanes: int = 10_000) -> list[str]:
-    """A random walk along lane successors from a road lane, long enough that an ego starting
-    `start_distance` before the end of its first lane and finishing `goal_distance` into its
-    last (as MapEnv places them) drives >= `length` metres; a closed ring simply loops. Maps
-    without junctions are driven on such routes. When no walk is that long (dead ends), the
-    longest walk found."""
-    m = net.hdmap
-    starts = sorted(ln.id for ln in m.lanes.values()
-                    if ln.junction_id is None and any(s in m.lanes for s in ln.successors))
-    if not starts:
-        raise Feat2MapError("no road lane with a successor to start a route on", "map")
-    best: list[str] = []
-    best_len = -math.inf
-    for _ in range(tries):
-        path = [starts[int(rng.integers(len(starts)))]]
-        ahead = min(start_distance, net.lane_of[path[0]].length)  # ego start -> end of the last lane but one
-        while len(path) < max_lanes:
-            succ = [s for s in m.lanes[path[-1]].successors if s in m.lanes]
-            if not succ:
-                break
-            path.append(succ[int(rng.integers(len(succ)))])
-            last = net.lane_of[path[-1]].length
-            driven = ahead + min(goal_distance, last - 1.0)
-            if driven >= length:
-                return path
-            if driven > best_len:
-                best, best_len = list(path), driven
-            ahead += last
-    return best
-
-
-def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions: int) -> list[str]:
-    """A route from `start` through up to `junctions` junctions, choosing successors at random."""
-    m = net.hdmap
-    path = [start]
-    count = 0
-    while True:
-        succ = [s for s in m.lanes[path[-1]].successors if s in m.lanes]
-        if not succ or len(path) > 200:
-            break
-        nxt = succ[int(rng.integers(len(succ)))]
-        entering = m.lanes[nxt].junction_id is not None and m.lanes[path[-1]].junction_id is None
-        if entering:
-            if count >= junctions:
-                break
-            count += 1
-        path.append(nxt)
-    return path
-
-
-def sample_route(net: MapNetwork, rng: np.random.Generator, junctions: int) -> list[str]:
-    """A random route that starts on a lane entering a junction and crosses >= 1 junction."""
-    m = net.hdmap
-    starts = net.memo("route starts", lambda: [
-        ln.id for ln in m.lanes.values() if ln.junction_id is None
-        and any(m.lanes[s].junction_id is not None for s in ln.successors if s in m.lanes)])
-    if not starts:
-        return []
-    start = starts[int(rng.integers(len(starts)))]
-    path = random_walk(net, rng, start, max(1, junctions))
-    if m.lanes[path[-1]].junction_id is not None or not any(m.lanes[l].junction_id for l in path):
-        return []
-    return path

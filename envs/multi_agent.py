@@ -62,10 +62,10 @@ from .control import TrafficControl
 from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .kinematics_batch import batch_supported, observe_many
-from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_to_lanes, sample_lane_walk,
-                      sample_route, start_place)
+from .map_env import MapEnv, check_action
 from .observation import TrafficControlObservation, make_observation
 from .road import ArrayRoad
+from .routes import route_from_config, sample_config_route, start_place
 from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge, can_stop_before
 from .vehicles import TrafficVehicle
 
@@ -462,24 +462,9 @@ class _World(MapEnv):
             out = []
             for i in range(n):
                 k = (first + i) % len(spec)
-                r = spec[k]
-                out.append((lane_route_from_config(net, r), False) if isinstance(r, Mapping)
-                           else (manoeuvres_to_lanes(net, r), True))
+                out.append(route_from_config(net, spec[k]))
             return out
-        out = []
-        for _ in range(n):
-            if int(c["route_junctions"]) <= 0 or not net.hdmap.junctions:
-                out.append((sample_lane_walk(net, rng, float(c["route_length"]), float(c["ego_start_distance"]),
-                                             float(c["goal_distance"])), False))
-                continue
-            for _ in range(100):
-                r = sample_route(net, rng, int(c["route_junctions"]))
-                if r:
-                    out.append((r, True))
-                    break
-            else:
-                raise Feat2MapError("no route through a junction could be sampled", "map")
-        return out
+        return [sample_config_route(net, rng, c) for _ in range(n)]
 
     def places(self, route: list[str], extend: bool) -> list[tuple[list[str], float, float, float, float]]:
         """(route, s on its first lane, speed, x, y) of each place of an agent's entry, nearest

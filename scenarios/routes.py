@@ -132,7 +132,7 @@ def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names:
     (as the env drives them) and its manoeuvres listed; written atomically."""
     import matplotlib.pyplot as plt
 
-    from ..envs.map_env import manoeuvres_to_lanes
+    from ..envs.routes import manoeuvres_to_lanes
     from ..envs.network import MapNetwork
     from ..render import draw_map, save_figure
 

@@ -72,16 +72,38 @@ def test_the_env_defaults_are_the_drive_defaults():
     assert {k: cfg[k] for k in DRIVE_DEFAULTS} == dict(DRIVE_DEFAULTS)
 
 
-def test_max_legs_is_the_feature_rule():
-    from feat2map import config
-    from feat2map.envs import map_env
+def _constants(path: Path) -> dict[str, int]:
+    """UPPER_CASE names a module assigns at its top level, with their lines."""
+    out = {}
+    for node in ast.parse(path.read_text()).body:
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        for t in targets:
+            out.update({n.id: node.lineno for n in ast.walk(t) if isinstance(n, ast.Name) and n.id.isupper()})
+    return out
 
-    assert map_env.MAX_LEGS == config.MAX_LEGS
+
+def test_every_map_layer_constant_is_named_once():
+    """A constant of feat2map/config.py (MAX_LEGS, UTURN_THRESHOLD_DEG, ...) is assigned nowhere
+    else in the package: every module imports it."""
+    config = REPO / "feat2map" / "config.py"
+    named = _constants(config)
+    assert {"MAX_LEGS", "UTURN_THRESHOLD_DEG", "STRAIGHT_TOLERANCE_DEG"} <= set(named)
+    again = [f"{p.relative_to(REPO)}:{line} {name}" for folder in ("feat2map", "envs", "scenarios")
+             for p in sorted((REPO / folder).rglob("*.py")) if p != config
+             for name, line in _constants(p).items() if name in named]
+    assert again == []
+
+
+def test_the_constant_scan_sees_assignments(tmp_path):
+    """The scan finds plain, annotated and tuple assignments (else the test above could not fail)."""
+    f = tmp_path / "m.py"
+    f.write_text("MAX_LEGS = 8\nA: int = 1\nB, C = 1, 2\nlower = 3\ndef f():\n    D = 4\n")
+    assert set(_constants(f)) == {"MAX_LEGS", "A", "B", "C"}
 
 
 def test_the_env_drives_the_map_layers_lane_for_every_manoeuvre(sf_default_map):
-    """envs.map_env.manoeuvres_to_lanes picks the junction lane feat2map.routes.manoeuvre_lane names."""
-    from feat2map.envs.map_env import manoeuvres_to_lanes
+    """envs.routes.manoeuvres_to_lanes picks the junction lane feat2map.routes.manoeuvre_lane names."""
+    from feat2map.envs.routes import manoeuvres_to_lanes
     from feat2map.envs.network import MapNetwork
     from feat2map.routes import manoeuvre_lane
     from feat2map.scenarios.routes import manoeuvres, pick_lane

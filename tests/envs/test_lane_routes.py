@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 import feat2map
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
-from feat2map.envs.map_env import sample_lane_walk
+from feat2map.envs.routes import sample_lane_walk
 from feat2map.envs.network import MapNetwork
 from feat2map.errors import Feat2MapError
 from feat2map.spec import build_spec, load_spec

@@ -15,7 +15,7 @@ import pytest
 
 import feat2map
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
-from feat2map.envs.map_env import first_line_distance
+from feat2map.envs.routes import first_line_distance
 from feat2map.envs.rules import SPAWN_BRAKE_MPS2, braking_distance
 from feat2map.envs.vehicles import TrafficVehicle
 from feat2map.model import HDMap, as_polyline

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 import feat2map
 from feat2map.formats import native
-from feat2map.envs.map_env import manoeuvres_to_lanes
+from feat2map.envs.routes import manoeuvres_to_lanes
 from feat2map.envs.network import MapNetwork
 from feat2map.scenarios.routes import (START_AND_GOAL_M, build_suite, coverage_routes, manoeuvres, render_routes,
                                        route_coverage, route_duration, route_length, successor_graph)
