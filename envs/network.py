@@ -22,6 +22,7 @@ import shapely
 from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
+from ..angles import wrap_angle
 from ..errors import Feat2MapError
 from ..model import HDMap, incoming_lanes
 from .lanes import PolylineLane
@@ -93,7 +94,7 @@ def _curvature(line: LineString, s: np.ndarray) -> np.ndarray:
     n1, n2 = np.hypot(*d1.T), np.hypot(*d2.T)
     h1, h2 = np.arctan2(d1[:, 1], d1[:, 0]), np.arctan2(d2[:, 1], d2[:, 0])
     both = (n1 > 1e-6) & (n2 > 1e-6)  # at a lane end one chord is empty: no turn measured there
-    turn = np.where(both, np.abs((h2 - h1 + np.pi) % (2 * np.pi) - np.pi), 0.0)
+    turn = np.where(both, np.abs(wrap_angle(h2 - h1)), 0.0)
     return turn / np.maximum((n1 + n2) / 2, 1e-6)
 
 
@@ -318,7 +319,7 @@ class MapNetwork(RoadNetwork):
             lane = self.get_lane(hint)
             s, r = lane.local_coordinates(position)
             if abs(r) <= lane.width / 2 and -0.5 <= s <= lane.length + 0.5 and (
-                    heading is None or abs(_wrap(lane.heading_at(s) - heading)) < math.pi / 3):
+                    heading is None or abs(wrap_angle(lane.heading_at(s) - heading)) < math.pi / 3):
                 return hint, s, r
         key = (math.floor(x / GRID_CELL_M), math.floor(y / GRID_CELL_M))
         cell = self._cells.get(key)
@@ -331,7 +332,7 @@ class MapNetwork(RoadNetwork):
         dx, dy = rx - t * u[:, 0], ry - t * u[:, 1]
         cost = np.sqrt(dx * dx + dy * dy)
         if heading is not None:
-            cost = cost + np.abs((h - heading + np.pi) % (2 * np.pi) - np.pi)
+            cost = cost + np.abs(wrap_angle(h - heading))
         j = int(np.argmin(cost))
         k = int(ks[j])
         lat = u[j, 0] * ry[j] - u[j, 1] * rx[j]
@@ -549,6 +550,3 @@ def release_memory() -> None:
     except (OSError, AttributeError):  # not glibc
         pass
 
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -15,6 +15,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ..angles import wrap_angle
+
 # pure pursuit: look ahead this far [m] plus this many seconds of the current speed
 LOOKAHEAD_MIN_M = 2.5  # (pure pursuit cuts a curve of radius R by about R - sqrt(R^2 - L^2): keep L short)
 LOOKAHEAD_TIME_S = 0.3
@@ -110,7 +112,7 @@ class TrajectoryTracker:
             target = p + lookahead * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
         dx, dy = target - p
         alpha = math.atan2(dy, dx) - heading
-        alpha = (alpha + math.pi) % (2 * math.pi) - math.pi
+        alpha = wrap_angle(alpha)
         ld = max(math.hypot(dx, dy), 1e-3)
         steering = math.atan2(2.0 * self.wheelbase * math.sin(alpha), ld)
         return {"acceleration": float(np.clip(acc, *ACCEL_RANGE)),

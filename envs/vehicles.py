@@ -10,6 +10,7 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
+from ..angles import wrap_angle
 from .network import MapNetwork
 from .rules import LOOKAHEAD_M, idm
 
@@ -129,7 +130,7 @@ class RouteFollower:
         v = self.speed if abs(self.speed) > 1e-2 else 1e-2
         heading_cmd = math.asin(min(max(-self.KP_LATERAL * r / v, -1.0), 1.0))
         heading_ref = future_heading + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
-        rate = self.KP_HEADING * ((heading_ref - self.heading + math.pi) % (2 * math.pi) - math.pi)
+        rate = self.KP_HEADING * wrap_angle(heading_ref - self.heading)
         slip = math.asin(min(max(self.LENGTH / 2 / v * rate, -1.0), 1.0))
         steer = math.atan(2 * math.tan(slip))
         return min(max(steer, -self.MAX_STEERING_ANGLE), self.MAX_STEERING_ANGLE)

@@ -16,13 +16,14 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.ops import unary_union
 from shapely.geometry.polygon import orient
 
+from .angles import classify_turn, positive_angle, positive_degrees, wrap_angle
 from .bezier import Bezier, left_normal, unit
 from .config import MIN_STUB_LENGTH_M, GenerationConfig
 from .features import JunctionFeature
 from .invariants import AREA_EPS_M2
 from .errors import CrossingRoadsError, LayoutError
 from .layout import Placement
-from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline, classify_turn
+from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
 
 
 Pose = tuple[tuple[float, float], float]  # (point, heading in radians)
@@ -59,7 +60,7 @@ def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
     need = cfg.min_junction_radius
     for i in range(n):
         j = (i + 1) % n
-        delta = math.radians((feature.rotation[j] - feature.rotation[i]) % 360.0)
+        delta = math.radians(positive_degrees(feature.rotation[j] - feature.rotation[i]))
         if delta < math.pi - 1e-6:
             s, c = math.sin(delta), math.cos(delta)
             for near, far in ((i, j), (j, i)):
@@ -301,7 +302,7 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 if not outgoing[(j, c)] or (c == a and not cfg.uturns):
                     continue
                 turn = "uturn" if c == a else classify_turn(entry_heading, sockets[j][c].angle)
-                delta = (sockets[j][c].angle - entry_heading + math.pi) % (2 * math.pi) - math.pi
+                delta = wrap_angle(sockets[j][c].angle - entry_heading)
                 exits.append((c, len(outgoing[(j, c)]), turn, delta if c != a else math.pi))
             exits.sort(key=lambda e: e[3])
             for i, e, k in lane_pairs(len(ins), [x[:3] for x in exits]):
@@ -372,7 +373,7 @@ def _stub_length(g: SocketGeometry, center, connections: STRtree, cfg: Generatio
                                   if part.geom_type == "Polygon"])
             length = min(length, float(((pts - p) @ u).min()) - cfg.junction_margin)
     if length < MIN_STUB_LENGTH_M:
-        raise CrossingRoadsError(f"the leg at {math.degrees(g.angle) % 360:.1f} deg would run into a road between "
+        raise CrossingRoadsError(f"the leg at {positive_degrees(math.degrees(g.angle)):.1f} deg would run into a road between "
                                  f"junctions within {MIN_STUB_LENGTH_M:g} m (raise grid_gap or spread the legs)", where)
     return length
 
@@ -418,7 +419,7 @@ def _stop_line(b: _Builder, ins: list[str], cfg: GenerationConfig):
     p_right = np.asarray(right_lane["centerline"][-1]) + w * n_right
     p_left = np.asarray(left_lane["centerline"][-1]) - w * n_right
     pos = p_right + cfg.junction_margin * n_right
-    return as_polyline([p_right, p_left]), (float(pos[0]), float(pos[1])), (h + math.pi) % (2 * math.pi)
+    return as_polyline([p_right, p_left]), (float(pos[0]), float(pos[1])), positive_angle(h + math.pi)
 
 
 def _crosswalk_polygon(g: SocketGeometry, junction: Polygon, cfg: GenerationConfig):

@@ -19,6 +19,7 @@ import numpy as np
 from shapely import STRtree
 from shapely.geometry import Polygon
 
+from .angles import positive_degrees
 from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
                      ARM_PROBE_M, ARM_SAME_POINT_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
@@ -342,8 +343,8 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
                     (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
-        raw = sorted(a.angle_deg % 360.0 for a in arms)
-        gap = min((raw[(i + 1) % len(raw)] - raw[i]) % 360.0 for i in range(len(raw)))
+        raw = sorted(positive_degrees(a.angle_deg) for a in arms)
+        gap = min(positive_degrees(raw[(i + 1) % len(raw)] - raw[i]) for i in range(len(raw)))
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
             skip(len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
                             f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")

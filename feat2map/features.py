@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
+from .angles import positive_degrees
 from .config import MAX_LEGS, MIN_LEG_SEPARATION_DEG
 from .errors import FeatureError, snippet
 
@@ -220,9 +221,9 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
     n = len(angles)
     if n == 0:
         raise FeatureError("no sockets to normalize")
-    order = sorted(range(n), key=lambda i: angles[i] % 360.0)
-    sorted_angles = [angles[i] % 360.0 for i in order]
-    gaps = [(sorted_angles[(i + 1) % n] - sorted_angles[i]) % 360.0 for i in range(n)]
+    order = sorted(range(n), key=lambda i: positive_degrees(angles[i]))
+    sorted_angles = [positive_degrees(angles[i]) for i in order]
+    gaps = [positive_degrees(sorted_angles[(i + 1) % n] - sorted_angles[i]) for i in range(n)]
     if n == 1:
         gaps = [360.0]
     largest = max(gaps)
@@ -231,7 +232,7 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
         if g < largest - max(tie_tol_deg, ANGLE_NOISE_DEG):
             continue
         start = (i + 1) % n
-        offsets = [(sorted_angles[(start + k) % n] - sorted_angles[start]) % 360.0 for k in range(n)]
+        offsets = [positive_degrees(sorted_angles[(start + k) % n] - sorted_angles[start]) for k in range(n)]
         alpha = best_alignment(offsets)
         shape = tuple(round(alpha + c, 4) for c in offsets)  # the same for every orientation of the junction
         candidates.append((round(alignment_cost(alpha, offsets), COST_DIGITS), round(abs(alpha), 6), shape, start,
@@ -240,7 +241,7 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
     return Normalization(
         angles=tuple(alpha + c for c in offsets),
         order=tuple(order[(start + k) % n] for k in range(n)),
-        rotation_deg=(alpha - sorted_angles[start]) % 360.0,
+        rotation_deg=positive_degrees(alpha - sorted_angles[start]),
     )
 
 

@@ -23,6 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .angles import wrap_degrees
 from .config import MAX_CARDINAL_DEVIATION_DEG
 from .errors import LayoutError
 from .features import JunctionFeature, Socket
@@ -62,7 +63,7 @@ def cardinal_assignment(feature: JunctionFeature, max_deviation_deg: float = MAX
     the junction, so such a socket ends in a stub instead."""
     n = feature.n_roads
     angles = feature.rotation
-    dev = [[(angles[s] - 90.0 * d + 180.0) % 360.0 - 180.0 for d in range(4)] for s in range(n)]
+    dev = [[wrap_degrees(angles[s] - 90.0 * d) for d in range(4)] for s in range(n)]
 
     def allowed(s: int, d: int) -> bool:
         if abs(dev[s][d]) > max_deviation_deg + 1e-9:

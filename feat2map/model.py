@@ -12,9 +12,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from .angles import wrap_angle
 from .bezier import Bezier, Point
-from .config import MIN_ARM_LENGTH_M, STRAIGHT_TOLERANCE_DEG
+from .config import MIN_ARM_LENGTH_M
 from .features import JunctionFeature
 
 Polyline = tuple[Point, ...]
@@ -81,14 +80,6 @@ class Lane:
             return float(self.bezier.heading(1.0))
         (x0, y0), (x1, y1) = self.centerline[-2], self.centerline[-1]
         return math.atan2(y1 - y0, x1 - x0)
-
-
-def classify_turn(entry_heading: float, exit_heading: float) -> str:
-    """left / straight ("none") / right from the heading change, in the paper's sense."""
-    d = math.degrees(wrap_angle(exit_heading - entry_heading))
-    if abs(d) <= STRAIGHT_TOLERANCE_DEG:
-        return "none"
-    return "left" if d > 0 else "right"
 
 
 def incoming_lanes(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> tuple[str, ...]:

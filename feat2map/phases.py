@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Mapping
 
+from .angles import wrap_angle
 from .config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S, SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG
 from .model import HDMap, Signal, incoming_lanes
 
@@ -46,7 +47,7 @@ def group_phases(signals: Iterable[Signal], paired: bool,
     heading = {g.id: travel.get(g.id, g.heading + math.pi) for g in sigs}
 
     def apart(a: float, b: float) -> float:  # angle between two directions, 0..pi
-        return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+        return abs(wrap_angle(a - b))
 
     approaches: list[list[str]] = []
     for g in sigs:

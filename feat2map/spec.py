@@ -22,7 +22,7 @@ import numpy as np
 from shapely.geometry import LineString, Polygon
 from shapely.ops import unary_union
 
-from .angles import wrap_angle
+from .angles import positive_degrees, wrap_angle
 from .bezier import Bezier
 from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig, limits
 from .construct import RoadChain, chain_road_id, junction_radius, pavement
@@ -117,11 +117,11 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float) -> JunctionSpe
     """Sockets are sorted counter-clockwise (their listed order needs no unwrapping);
     duplicates and legs closer than the minimum separation are errors naming the socket."""
     socks = [(i, _socket(s, f"{where}.sockets[{i}]")) for i, s in enumerate(raw["sockets"])]
-    socks.sort(key=lambda t: t[1].angle % 360.0)
+    socks.sort(key=lambda t: positive_degrees(t[1].angle))
     n = len(socks)
     for k in range(n):
         (i, a), (j, b) = socks[k], socks[(k + 1) % n]
-        gap = (b.angle - a.angle) % 360.0
+        gap = positive_degrees(b.angle - a.angle)
         if gap < 1e-9:
             raise SpecError(f"same direction ({b.angle:g} deg) as sockets[{i}]", f"{where}.sockets[{j}]")
         if gap < min_sep - 1e-9:
@@ -130,9 +130,9 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float) -> JunctionSpe
     if not any(s.lanes_in for _, s in socks) or not any(s.lanes_out for _, s in socks):
         raise SpecError("needs a socket where traffic enters (in / in-out) and one where it leaves (out / in-out)",
                         where)
-    first = socks[0][1].angle % 360.0
+    first = positive_degrees(socks[0][1].angle)
     first = first - 360.0 if first >= 180.0 else first
-    angles = [first + (s.angle - socks[0][1].angle) % 360.0 for _, s in socks]
+    angles = [first + positive_degrees(s.angle - socks[0][1].angle) for _, s in socks]
     sockets = tuple(Socket(a, s.lanes_in, s.lanes_out) for a, (_, s) in zip(angles, socks))
     try:
         feature = JunctionFeature(sockets, raw.get("control", "bare"), bool(raw.get("crosswalk", False)), min_sep)

@@ -32,6 +32,7 @@ from typing import Any, Callable, ClassVar, Iterable, Protocol, runtime_checkabl
 
 import numpy as np
 
+from ..angles import wrap_angle
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.network import CONFLICT_DISTANCE_M
 from ..envs.rules import (IDM_ACC, RULES, STOP_POINT_M, STOPPED_SPEED_MPS, braking_distance, can_stop_before, idm,
@@ -370,7 +371,7 @@ class BaselinePlanner:
             a, b, c = (np.array([lane.position(float(x), 0.0) for x in xs]) for xs in (mid - w / 2, mid, mid + w / 2))
             h1 = np.arctan2(*(b - a).T[::-1])
             h2 = np.arctan2(*(c - b).T[::-1])
-            turn = np.abs((h2 - h1 + np.pi) % (2 * np.pi) - np.pi)
+            turn = np.abs(wrap_angle(h2 - h1))
             speed = np.sqrt(LATERAL_ACCEL_MPS2 * (w / 2) / np.maximum(turn, 1e-6))
             self._curves[lane_id] = (s, np.maximum(speed, CURVE_MIN_SPEED_MPS))
         return self._curves[lane_id]

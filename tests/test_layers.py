@@ -137,3 +137,43 @@ def test_one_uturn_threshold():
     from feat2map.config import STRAIGHT_TOLERANCE_DEG, UTURN_THRESHOLD_DEG
 
     assert 150.0 < UTURN_THRESHOLD_DEG < 180.0 and UTURN_THRESHOLD_DEG > STRAIGHT_TOLERANCE_DEG
+
+
+@pytest.mark.parametrize("change, plain, with_uturns", [
+    (0.0, "none", "none"), (29.0, "none", "none"), (-29.0, "none", "none"), (31.0, "left", "left"),
+    (-31.0, "right", "right"), (150.0, "left", "left"), (-150.0, "right", "right"), (-179.0, "right", "uturn")])
+def test_one_turn_rule(change, plain, with_uturns):
+    """`angles.classify_turn` is the turn of the generator, the OpenDRIVE reader (U-turns from
+    config.UTURN_THRESHOLD_DEG on) and the CommonRoad export's fallback turn set."""
+    from feat2map.angles import classify_turn, turn_name
+    from feat2map.config import UTURN_THRESHOLD_DEG
+    from feat2map.formats.commonroad.writer import turn_set
+    from feat2map.formats.opendrive.reader import _turn
+    from feat2map.model import Lane
+
+    h0 = 0.3
+    h1 = h0 + math.radians(change)
+    assert classify_turn(h0, h1) == turn_name(change) == plain
+    assert classify_turn(h0, h1, uturns=True) == with_uturns
+    assert turn_name(30.0) == turn_name(-30.0) == "none"  # straight up to STRAIGHT_TOLERANCE_DEG included
+    for at, turn in ((UTURN_THRESHOLD_DEG, "uturn"), (UTURN_THRESHOLD_DEG - 0.5, "left")):
+        assert turn_name(at, uturns=True) == turn and turn_name(-at, uturns=True) == turn.replace("left", "right")
+    # a junction lane of an OpenDRIVE map: two segments, heading h0 then h1
+    mid = (10 * math.cos(h0), 10 * math.sin(h0))
+    end = (mid[0] + 10 * math.cos(h1), mid[1] + 10 * math.sin(h1))
+    lane = Lane("l", "r", ((0.0, 0.0), mid, end), (), (), 3.5, 10.0)
+    assert _turn(lane) == with_uturns
+    # CommonRoad: a lane declared straight whose geometry is not lists under its geometry's turn
+    if abs(change) > 60.0:
+        assert turn_set("none", np.array(lane.centerline)) == {"left": "outgoing_left", "right": "outgoing_right"}[plain]
+
+
+@pytest.mark.parametrize("a", [0.0, 1.0, -1.0, math.pi, -math.pi, 3 * math.pi, -7.5, 1e6, 2 * math.pi - 1e-12, -1e-300])
+def test_positive_wraps_give_the_inline_formulas_bits(a):
+    from feat2map.angles import positive_angle, positive_degrees
+
+    assert positive_angle(a) == a % (2 * math.pi) and 0.0 <= positive_angle(a) <= 2 * math.pi  # -1e-300: 2 pi
+    d = math.degrees(a)
+    assert positive_degrees(d) == d % 360.0 and 0.0 <= positive_degrees(d) <= 360.0
+    arr = np.array([a, -a, 0.5 * a])
+    assert np.array_equal(positive_angle(arr), arr % (2 * np.pi))

@@ -29,7 +29,7 @@ from typing import Iterator, Mapping
 import numpy as np
 
 from ... import __version__, atomic
-from ...angles import wrap_angle
+from ...angles import turn_name, wrap_angle
 from ...commonroad_io import install
 from ...config import (COMMONROAD_CONTINUATION_M, COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S,
                        STRAIGHT_TOLERANCE_DEG, UTM_ZONE, UTURN_THRESHOLD_DEG)
@@ -68,9 +68,7 @@ def turn_set(declared: str, centre: np.ndarray) -> str:
     d = turn_deg(centre)
     if TURN_SETS[key](d):
         return key
-    if abs(d) <= STRAIGHT_TOLERANCE_DEG:
-        return "outgoing_straight"
-    return "outgoing_left" if d > 0 else "outgoing_right"
+    return _TURNS[turn_name(d)]
 
 
 def mutual_adjacency(lanes: Mapping[str, Lane]) -> dict[str, dict[str, tuple[str, bool]]]:

@@ -23,9 +23,10 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
+from ...angles import classify_turn, positive_angle
 from ...config import MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, limits
 from ...errors import LimitError, MapFormatError, snippet
-from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
+from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       signal_precedence)
 from ...semantics import loaded
 
@@ -94,7 +95,6 @@ _CONTROL_CLASS = {"signal": Signal, "stop": StopSign, "yield": YieldSign}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
-UTURN_CHANGE_DEG = 170.0  # heading change of a junction lane that makes it a U-turn (sharp lefts reach 150)
 END_TANGENT_M = 0.05  # extra sample this close to each lane end, so polyline end headings are exact
 SIGNAL_SEARCH_M = 40.0  # a signal governs incoming lanes ending within this distance
 _MPH = 0.44704
@@ -838,7 +838,7 @@ class _Builder:
                     warnings.warn(f"skipping bad signal: {exc}", stacklevel=2)
                     continue
                 orientation = (s_el.get("orientation") or "+").strip()
-                heading = (h + (math.pi if orientation != "-" else 0.0)) % (2 * math.pi)
+                heading = positive_angle(h + (math.pi if orientation != "-" else 0.0))
                 governed = self._governed(r, s_el, refs.get(sid, []), lanes)
                 if not governed and len(ends):
                     d = np.hypot(ends[:, 0] - pos[0], ends[:, 1] - pos[1])
@@ -1052,12 +1052,9 @@ def _check_points(points, where: str) -> None:
 
 
 def _turn(ln: Lane) -> str:
-    """left / right / uturn / none from the heading change along a junction lane."""
-    h0, h1 = ln.heading_at_start(), ln.heading_at_end()
-    change = math.degrees((h1 - h0 + math.pi) % (2 * math.pi) - math.pi)
-    if abs(change) >= UTURN_CHANGE_DEG:
-        return "uturn"
-    return classify_turn(h0, h1)
+    """left / right / uturn / none from the heading change along a junction lane (OpenDRIVE
+    declares no turns)."""
+    return classify_turn(ln.heading_at_start(), ln.heading_at_end(), uturns=True)
 
 
 def _id_key(j: str) -> tuple[int, float, str]:

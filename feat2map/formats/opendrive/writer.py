@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ... import atomic
+from ...angles import wrap_angle
 from ...bezier import Bezier
 from ...config import OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
@@ -142,7 +143,7 @@ def _merge_straight_runs(pts: np.ndarray, tol_rad: float = STRAIGHT_RUN_TOL_RAD)
     heads = np.arctan2(*np.diff(pts, axis=0).T[::-1])
     keep, run = [0], heads[0]
     for i in range(1, len(heads)):
-        if abs(math.remainder(heads[i] - run, math.tau)) > tol_rad:
+        if abs(wrap_angle(heads[i] - run)) > tol_rad:
             keep.append(i)
             run = heads[i]
     return pts[keep + [len(pts) - 1]]
