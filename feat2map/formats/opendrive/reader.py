@@ -1,4 +1,6 @@
-"""Read OpenDRIVE 1.4-1.6 (.xodr) files into the feat2map map model.
+"""Read OpenDRIVE 1.4 to 1.8 (.xodr) files into the feat2map map model: the 1.4 and 1.6 files
+of CARLA, SVL, esmini and CommonRoad, and every revision the writer produces (1.4, 1.6, 1.7,
+1.8; the header's revMinor is not checked: 1.4 `outline` and 1.5+ `outlines` both read).
 
 Road reference lines (line, arc, spiral, poly3, paramPoly3) are evaluated in closed form or
 by dense numeric integration; lanes are the reference shifted by the lane offset and the
