@@ -18,9 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from feat2map import PAPER_SF_FEATURE_SPACE
+from feat2map.envs.rules import TURN_NAMES
 from feat2map.formats import native
 from feat2map.generate import generate_from_features
 from feat2map.model import HDMap
+from feat2map.routes import manoeuvre_lane
 from feat2map.sampling import sample_features
 from feat2map.scenarios.routes import Route, coverage_routes, render_routes, route_duration
 from feat2map.scenarios.scenario import Scenario, Suite, save_suite
@@ -32,7 +34,6 @@ JUNCTION_TYPES = ((4, "signal", True), (3, "signal", False), (4, "stop", False),
 ROUTE_JUNCTIONS = 3
 TRAFFIC_VEHICLES = 4
 PEDESTRIAN_RATE = 4.0  # per crosswalk per minute
-TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
 
 def ci_map() -> HDMap:
@@ -48,9 +49,9 @@ def behaviour_keys(m: HDMap, route: Route) -> set[tuple]:
     keys: set[tuple] = set()
     for jid, entry, exit_ in route:
         j = m.junctions[jid]
-        lane = min((ln for ln in m.lanes_by_junction[jid]
-                    if any(m.lanes[p].road_id == entry for p in ln.predecessors)
-                    and any(m.lanes[s].road_id == exit_ for s in ln.successors)), key=lambda ln: ln.id)
+        lane = manoeuvre_lane(m, (jid, entry, exit_))
+        if lane is None:
+            raise ValueError(f"route {list(route)}: no lane of junction {jid} leads from road {entry} to road {exit_}")
         control = j.feature.control if j.feature else "unknown"
         keys |= {("junction", jid), ("turn", control, TURN_NAMES.get(lane.turn, lane.turn))}
     return keys
