@@ -31,8 +31,9 @@ MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
-STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| below this is "straight"
-UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150)
+STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| at most this is "straight"
+UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150):
+# the turn of lanes whose map declares none (OpenDRIVE reader, `angles.turn_name`) and the CommonRoad export's turn sets
 SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
 ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
 MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles
