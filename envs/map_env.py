@@ -37,10 +37,9 @@ from gymnasium.vector import AutoresetMode
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
-from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
-from .config import merge_config, validate_config
+from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
 from .network import MapNetwork, release_memory
 from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
@@ -82,41 +81,10 @@ class MapEnv(AbstractEnv):
 
     @classmethod
     def default_config(cls) -> dict:
+        """highway-env's keys (less `other_vehicles_type`) and MapEnv's: `config.SETTINGS`."""
         config = super().default_config()
-        config.update({
-            "observation": {
-                "type": "Kinematics", "vehicles_count": 10,
-                "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
-                "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-20, 20], "vy": [-20, 20]},
-                "absolute": False, "see_behind": True,
-            },
-            "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
-                       "target_speeds": [0.0, 4.5, 9.0]},
-            "simulation_frequency": 15, "policy_frequency": 1,
-            "traffic_core": "arrays",  # "arrays": all traffic in arrays (core.py); "objects": one object each
-            "duration": 60.0,  # [s] truncation
-            "route": None,  # [(junction id, entry road, exit road), ...], {"lanes": [...]},
-            # {"from_lane": a, "to_lane": b}, or None to sample
-            "route_junctions": 2,  # junctions on a sampled route (0: a lane walk of route_length)
-            "route_length": 200.0,  # [m] driven on a sampled lane walk (maps without junctions)
-            "ego_start_distance": 30.0,  # [m] before the end of the first lane (the first stop line)
-            "ego_initial_speed": 4.5,
-            "goal_distance": 15.0,  # [m] into the last lane of the route
-            "traffic_vehicles": 8, "traffic_respawn": True, "traffic_initial_speed": 5.0,
-            "signal_green": SIGNAL_GREEN_S, "signal_amber": SIGNAL_AMBER_S, "signal_all_red": SIGNAL_ALL_RED_S,  # [s]
-            "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
-            "right_turn_on_red": False,  # a right turn past a red signal after a full stop is legal
-            "signal_offsets": {},  # {junction or signal id: phase plan offset [s]}; others drawn from np_random
-            "pedestrian_rate": 3.0,  # per crosswalk per minute
-            "pedestrian_speed": 1.4, "pedestrians_per_crosswalk": 3,
-            "observe_traffic_control": False,
-            "reward_progress": 1.0, "reward_arrived": 1.0, "reward_collision": -5.0,
-            "reward_red_light": -2.0, "reward_stop_sign": -1.0, "reward_pedestrian_yield": -2.0,
-            "reward_off_road": -1.0,
-            "offroad_terminal": True,
-            "screen_width": 600, "screen_height": 600, "centering_position": [0.5, 0.5], "scaling": 5.5,
-            "show_route": True,
-        })
+        del config["other_vehicles_type"]  # it names highway-env's traffic class; the traffic here is the env's
+        config.update(defaults(MAP_ENV))
         return config
 
     def configure(self, config: dict) -> None:
