@@ -218,7 +218,9 @@ HIGHWAY_ENV_KEYS = {"lanes_count": "the map sets the lanes", "vehicles_count": "
 def unknown_key_message(key: Any, valid, what: str = "config") -> str:
     names = sorted(map(str, valid))
     close = difflib.get_close_matches(str(key), names, n=1)
-    if close:
+    if what == "config" and str(key) in HIGHWAY_ENV_KEYS:  # highway-env's own name: say what to use here
+        hint = f"; highway-env's {str(key)!r} is not a key here ({HIGHWAY_ENV_KEYS[str(key)]})"
+    elif close:
         hint = f"; did you mean {close[0]!r}?"
     elif other := difflib.get_close_matches(str(key), list(HIGHWAY_ENV_KEYS), n=1):
         hint = f"; highway-env's {other[0]!r} is not a key here ({HIGHWAY_ENV_KEYS[other[0]]})"

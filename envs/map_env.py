@@ -5,24 +5,8 @@ sampled lane walk on maps without junctions such as a closed ring road) through 
 signals, stop signs, crosswalk pedestrians and IDM traffic. Subclasses only say where the map comes
 from: `JunctionGridEnv` (generated from a feature space) and `MapFileEnv` (a file or an HDMap).
 
-info keys (every step and reset; a new dict each time, each key of one type and shape in every
-step and env, so that vector envs stack them: "", -1, inf or empty stand for "none"; never NaN,
-which Gymnasium's determinism checks cannot compare):
-  junction            id of the junction the ego is in, else the next one on its route ("")
-  junction_feature    that junction's feature: {"n_roads" (-1 without one), "control", "crosswalk",
-                      "rotation" (MAX_LEGS socket angles, inf padded), "lanes_in", "lanes_out" (-1 padded)}
-  manoeuvre           the ego's turn there: "left" | "straight" | "right" | "uturn" ("")
-  control_ahead       "signal" | "stop" | "bare" for the next stop line on the route ("" past the last)
-  signal_id / signal_state / signal_time_to_change   the signal governing the ego's next stop line
-                      ("" / "" / inf without one)
-  distance_to_stop_line   metres along the route from the ego centre to the next stop line (the
-                      junction entry where bare; inf if none)
-  violations          counts {"red_light", "stop_sign", "pedestrian_yield"} so far this episode
-  new_violations      violations committed during this step, e.g. ["red_light"]
-  collision, off_road, route_progress (0..1), route_completed, lane_id, time, speed, crashed
-  action              the action taken, as an array of the action space's dtype
-  rewards             the reward terms of this step (zeros after reset)
-  signal_states       {signal id: state} of the next junction's signals
+Config keys: `config.SETTINGS` (key, default, check, doc); info keys: `info.INFO_KEYS` (key,
+type, doc): envs/README.md's tables are made from them.
 """
 from __future__ import annotations
 
@@ -70,7 +54,7 @@ def cached_network(key: Any, build) -> MapNetwork:
 
 
 class MapEnv(AbstractEnv):
-    """Drive a route of junction manoeuvres on a feat2map map (see module docstring for info)."""
+    """Drive a route of junction manoeuvres on a feat2map map (info keys: `info.INFO_KEYS`)."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
     core_slot: tuple[Any, int] | None = None  # (shared TrafficCore, slot) of a sub-env of a batch (vector.py)
@@ -307,7 +291,7 @@ class MapEnv(AbstractEnv):
 
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
-        instead), so that vector envs can stack them (see the module docstring)."""
+        instead), so that vector envs can stack them: `info.INFO_KEYS`."""
         ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
         jid, turn = self.junction_ahead()
         sl, in_lane, j_lane, d = rules.line_ahead(ego)

@@ -38,7 +38,7 @@ while a vehicle that stopped there earlier wants a conflicting lane: `TrafficRul
 stop_queue_allows`), unless it holds the junction lane's reservation (as `TrafficRules.may_enter`
 lets a vehicle that committed go: the scripted driver reserves, agents choosing their own
 speeds do not), weighted by `reward_not_yielding` / `reward_stop_order`; infos with the
-single env's keys (`map_env` module docstring; `violations` holds the two more) plus
+single env's keys (`info.INFO_KEYS`; `violations` holds the two more) plus
 `agent_collision` (the agent crashed into another agent; `collision` is any crash) and
 `wait_time` (seconds stopped so far).
 """
