@@ -94,7 +94,8 @@ class MapEnv(AbstractEnv):
 
     @property
     def rules(self) -> TrafficControl:
-        """The traffic rules of this episode (`rules.TrafficRules`), for planners."""
+        """The episode's `TrafficControl` (`self.control`): it answers the rules' questions
+        (`rules.TrafficRules`, its base class) from this episode's signals and queues, for planners."""
         return self.control
 
     # ---- episode -------------------------------------------------------------------------
@@ -240,10 +241,6 @@ class MapEnv(AbstractEnv):
             self.road.vehicles = keep
             for _ in range(removed):
                 self._spawn_traffic(min_ego_distance=EGO_RESPAWN_CLEARANCE_M)
-
-    def _check_ego(self) -> None:
-        """Judge the ego after a frame (`rules.EgoJudge`)."""
-        self.judge.check()
 
     @property
     def new_violations(self) -> list[str]:
