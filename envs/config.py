@@ -235,6 +235,12 @@ SAME: Any = object()  # `Setting.multi_agent`: the multi-agent env keeps the Map
 
 
 @dataclass(frozen=True)
+class NotTaken:
+    """`Setting.multi_agent`: the multi-agent env refuses this MapEnv key (nothing there reads it)."""
+    reason: str
+
+
+@dataclass(frozen=True)
 class Setting:
     """One config key: `default_config()`, the checks and the README's config table are made
     from the rows of `SETTINGS` (tests/envs/test_config.py keeps the README equal)."""
@@ -244,7 +250,7 @@ class Setting:
     doc: str
     env: str = MAP_ENV  # MapEnv (every env), JunctionGrid-v0, MapFile-v0 or multi-agent (its own keys)
     highway_env: bool = False  # a key of highway-env's AbstractEnv (which reads it too)
-    multi_agent: Any = SAME  # the multi-agent env's default for this MapEnv key, where it differs
+    multi_agent: Any = SAME  # the multi-agent env's default for this MapEnv key where it differs, or NotTaken
     shown: str = ""  # the default as the README shows it, where its value is too long
 
 
@@ -314,7 +320,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("offscreen_rendering", None, optional(boolean), "render without a window (None: unless "
             "render_mode is human)", highway_env=True),
     Setting("manual_control", False, boolean, "drive the ego from the keyboard (render_mode human)",
-            highway_env=True),
+            highway_env=True, multi_agent=NotTaken("there is no ego: every agent takes its action")),
     Setting("real_time_rendering", False, boolean, "on screen, pace frames at simulation_frequency",
             highway_env=True),
     Setting("neighbour_vehicles_connected_lanes", False, fixed("the neighbour search always follows connected "
@@ -324,7 +330,8 @@ SETTINGS: tuple[Setting, ...] = (
             "\"arrays\": all traffic in arrays (core.py); \"objects\": one object each"),
     Setting("duration", 60.0, number(0, lo_open=True), "[s] episode length (truncation)"),
     Setting("route", None, route, "[(junction, entry road, exit road), ...], {\"lanes\": [...]}, "
-            "{\"from_lane\": a, \"to_lane\": b}, or None to sample"),
+            "{\"from_lane\": a, \"to_lane\": b}, or None to sample",
+            multi_agent=NotTaken("agents take their routes from agent_routes")),
     Setting("route_junctions", 2, number(0, integer=True), "junctions on a sampled route (0: a lane walk of "
             "route_length)", multi_agent=1),
     Setting("route_length", 200.0, number(0, lo_open=True), "[m] driven on a sampled lane walk (maps without "
@@ -361,7 +368,8 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("reward_stop_sign", -1.0, REWARD, "weight of a stop_sign violation"),
     Setting("reward_pedestrian_yield", -2.0, REWARD, "weight of a pedestrian_yield violation"),
     Setting("reward_off_road", -1.0, REWARD, "weight of leaving the road"),
-    Setting("offroad_terminal", True, boolean, "leaving the road ends the episode"),
+    Setting("offroad_terminal", True, boolean, "leaving the road ends the episode",
+            multi_agent=NotTaken("agents steer along their routes; a crash or the goal ends an agent")),
     Setting("show_route", True, boolean, "draw the ego's route"),
     # JunctionGridEnv
     Setting("feature_space", PAPER_SF_FEATURE_SPACE.to_dict(), unchecked("FeatureSpace"),
@@ -405,7 +413,12 @@ def defaults(*envs: str) -> dict[str, Any]:
 
 def multi_agent_defaults() -> dict[str, Any]:
     """The MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)."""
-    return {s.key: s.multi_agent for s in SETTINGS if s.multi_agent is not SAME}
+    return {s.key: s.multi_agent for s in SETTINGS if s.multi_agent is not SAME and not isinstance(s.multi_agent, NotTaken)}
+
+
+def multi_agent_not_taken() -> dict[str, str]:
+    """{MapEnv key the multi-agent env refuses: why}."""
+    return {s.key: s.multi_agent.reason for s in SETTINGS if isinstance(s.multi_agent, NotTaken)}
 
 
 def checks(*envs: str) -> dict[str, Check]:
@@ -423,7 +436,8 @@ def markdown_table() -> str:
     rows = ["| key | env | default | accepts | what |", "|---|---|---|---|---|"]
     for s in SETTINGS:
         default = s.shown or repr(s.default)
-        marl = "" if s.multi_agent is SAME else f" (multi-agent: `{s.multi_agent!r}`)"
+        marl = ("" if s.multi_agent is SAME else " (multi-agent: not taken)" if isinstance(s.multi_agent, NotTaken)
+                else f" (multi-agent: `{s.multi_agent!r}`)")
         env = s.env + (" (highway-env's)" if s.highway_env else "")
         rows.append(f"| `{s.key}` | {env} | {cell(default if s.shown else f'`{default}`')}{marl} | "
                     f"{cell(accepts(s.check))} | {cell(s.doc)} |")

@@ -57,7 +57,8 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from ..errors import Feat2MapError
-from .config import ACCELERATION_RANGE, MULTI, TARGET_SPEEDS, checks, defaults, multi_agent_defaults
+from .config import (ACCELERATION_RANGE, MULTI, TARGET_SPEEDS, checks, defaults, multi_agent_defaults,
+                     multi_agent_not_taken)
 from .control import TrafficControl
 from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
@@ -77,6 +78,7 @@ AGENT_DEFAULTS: dict[str, Any] = defaults(MULTI)
 #: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
 WORLD_DEFAULTS: dict[str, Any] = multi_agent_defaults()
 AGENT_CHECKS = checks(MULTI)
+NOT_TAKEN = multi_agent_not_taken()  # MapEnv keys nothing in the multi-agent env reads: refused
 
 
 def parallel_env(config: Mapping[str, Any] | None = None, render_mode: str | None = None) -> "MultiAgentMapEnv":
@@ -104,6 +106,8 @@ def split_config(config: Mapping[str, Any] | None) -> tuple[dict, dict]:
         raise Feat2MapError(f"must be a mapping, got {type(config).__name__}", "config")
     ma, world = {}, {}
     for k, v in (config or {}).items():
+        if k in NOT_TAKEN:
+            raise Feat2MapError(f"has no effect in the multi-agent env ({NOT_TAKEN[k]})", f"config.{k}")
         (ma if k in AGENT_DEFAULTS else world)[k] = v
     return ma, world
 

@@ -141,7 +141,7 @@ def readme_block(name: str) -> str:
 
 def test_readme_tables_are_made_from_the_tables():
     """envs/README.md's config and info tables are the rendered SETTINGS and INFO_KEYS (after
-    changing a row, paste the output of the module's `markdown_table()`)."""
+    changing a row, `scripts/env_tables.py` rewrites them)."""
     assert readme_block("config") == config.markdown_table()
     assert readme_block("info") == info.markdown_table()
     assert "| `traffic_vehicles` | MapEnv | `8` | integer in [0, 500] |" in config.markdown_table()
@@ -173,6 +173,18 @@ def test_keys_without_effect_are_refused(config_, where, text):
     with pytest.raises(Feat2MapError) as err:
         make(config_)
     assert err.value.where == where and text in err.value.message, str(err.value)
+
+
+@pytest.mark.parametrize("key, value, text", [("route", [("J0", "R0", "R1")], "agent_routes"),
+                                             ("offroad_terminal", False, "agents steer along their routes"),
+                                             ("manual_control", True, "there is no ego")])
+def test_the_multi_agent_env_refuses_the_keys_it_does_not_read(key, value, text):
+    from feat2map.envs import parallel_env
+
+    with pytest.raises(Feat2MapError) as err:
+        parallel_env({**SMALL, key: value})
+    assert err.value.where == f"config.{key}" and "has no effect in the multi-agent env" in err.value.message
+    assert text in err.value.message
 
 
 def assert_info_matches(got: dict, keys: dict[str, type], where: str) -> None:
