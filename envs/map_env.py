@@ -67,7 +67,7 @@ class MapEnv(AbstractEnv):
     def default_config(cls) -> dict:
         """highway-env's keys (less `other_vehicles_type`) and MapEnv's: `config.SETTINGS`."""
         config = super().default_config()
-        del config["other_vehicles_type"]  # it names highway-env's traffic class; the traffic here is the env's
+        config.pop("other_vehicles_type", None)  # it names highway-env's traffic class; the traffic here is the env's
         config.update(defaults(MAP_ENV))
         return config
 
