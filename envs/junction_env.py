@@ -1,15 +1,8 @@
 """The registered environments: a generated junction grid, and any map file or HDMap.
 
-`feat2map/JunctionGrid-v0` config (besides MapEnv's, see map_env):
-  feature_space   FeatureSpace or its dict (default: the paper's SF space, PAPER_SF_FEATURE_SPACE)
-  features        optional explicit list of JunctionFeature (or their dicts): overrides feature_space
-  map_seed        seed of the generated map (default 0)
-  generation      dict of GenerationConfig fields (e.g. {"samples_per_combination": 2})
-  new_map_each_reset   draw a fresh map seed from the env's np_random at every reset
-`feat2map/MapFile-v0` config:
-  map_file        path of any map file feat2map reads (feat2map.formats.read_map: native JSON,
-                  OpenDRIVE .xodr, Apollo base map), or
-  map             an HDMap object
+`feat2map/JunctionGrid-v0` takes MapEnv's keys and its own (`feature_space`, `features`,
+`map_seed`, `generation`, `new_map_each_reset`), `feat2map/MapFile-v0` MapEnv's and `map_file` or
+`map`: every key's default, check and doc is a row of `config.SETTINGS` (the README's table).
 """
 from __future__ import annotations
 
@@ -18,7 +11,8 @@ from pathlib import Path
 
 from ..config import GenerationConfig
 from ..errors import Feat2MapError
-from ..features import PAPER_SF_FEATURE_SPACE, FeatureSpace, JunctionFeature
+from ..features import FeatureSpace, JunctionFeature
+from .config import FILE, GRID, defaults
 from .map_env import MapEnv, cached_network
 from .network import MapNetwork
 
@@ -29,8 +23,7 @@ class JunctionGridEnv(MapEnv):
     @classmethod
     def default_config(cls) -> dict:
         config = super().default_config()
-        config.update({"feature_space": PAPER_SF_FEATURE_SPACE.to_dict(), "features": None, "map_seed": 0,
-                       "generation": {}, "new_map_each_reset": False})
+        config.update(defaults(GRID))
         return config
 
     def _network(self) -> MapNetwork:
@@ -57,7 +50,7 @@ class MapFileEnv(MapEnv):
     @classmethod
     def default_config(cls) -> dict:
         config = super().default_config()
-        config.update({"map_file": None, "map": None})
+        config.update(defaults(FILE))
         return config
 
     def _network(self) -> MapNetwork:

@@ -5,24 +5,8 @@ sampled lane walk on maps without junctions such as a closed ring road) through 
 signals, stop signs, crosswalk pedestrians and IDM traffic. Subclasses only say where the map comes
 from: `JunctionGridEnv` (generated from a feature space) and `MapFileEnv` (a file or an HDMap).
 
-info keys (every step and reset; a new dict each time, each key of one type and shape in every
-step and env, so that vector envs stack them: "", -1, inf or empty stand for "none"; never NaN,
-which Gymnasium's determinism checks cannot compare):
-  junction            id of the junction the ego is in, else the next one on its route ("")
-  junction_feature    that junction's feature: {"n_roads" (-1 without one), "control", "crosswalk",
-                      "rotation" (MAX_LEGS socket angles, inf padded), "lanes_in", "lanes_out" (-1 padded)}
-  manoeuvre           the ego's turn there: "left" | "straight" | "right" | "uturn" ("")
-  control_ahead       "signal" | "stop" | "bare" for the next stop line on the route ("" past the last)
-  signal_id / signal_state / signal_time_to_change   the signal governing the ego's next stop line
-                      ("" / "" / inf without one)
-  distance_to_stop_line   metres along the route from the ego centre to the next stop line (the
-                      junction entry where bare; inf if none)
-  violations          counts {"red_light", "stop_sign", "pedestrian_yield"} so far this episode
-  new_violations      violations committed during this step, e.g. ["red_light"]
-  collision, off_road, route_progress (0..1), route_completed, lane_id, time, speed, crashed
-  action              the action taken, as an array of the action space's dtype
-  rewards             the reward terms of this step (zeros after reset)
-  signal_states       {signal id: state} of the next junction's signals
+Config keys: `config.SETTINGS` (key, default, check, doc); info keys: `info.INFO_KEYS` (key,
+type, doc): envs/README.md's tables are made from them.
 """
 from __future__ import annotations
 
@@ -37,10 +21,10 @@ from gymnasium.vector import AutoresetMode
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
-from ..config import MAX_LEGS, SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
+from ..config import MAX_LEGS
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
-from .config import merge_config, validate_config
+from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
 from .network import MapNetwork, release_memory
 from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
@@ -71,7 +55,7 @@ def cached_network(key: Any, build) -> MapNetwork:
 
 
 class MapEnv(AbstractEnv):
-    """Drive a route of junction manoeuvres on a feat2map map (see module docstring for info)."""
+    """Drive a route of junction manoeuvres on a feat2map map (info keys: `info.INFO_KEYS`)."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
     core_slot: tuple[Any, int] | None = None  # (shared TrafficCore, slot) of a sub-env of a batch (vector.py)
@@ -82,41 +66,10 @@ class MapEnv(AbstractEnv):
 
     @classmethod
     def default_config(cls) -> dict:
+        """highway-env's keys (less `other_vehicles_type`) and MapEnv's: `config.SETTINGS`."""
         config = super().default_config()
-        config.update({
-            "observation": {
-                "type": "Kinematics", "vehicles_count": 10,
-                "features": ["presence", "x", "y", "vx", "vy", "cos_h", "sin_h"],
-                "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-20, 20], "vy": [-20, 20]},
-                "absolute": False, "see_behind": True,
-            },
-            "action": {"type": "DiscreteMetaAction", "longitudinal": True, "lateral": False,
-                       "target_speeds": [0.0, 4.5, 9.0]},
-            "simulation_frequency": 15, "policy_frequency": 1,
-            "traffic_core": "arrays",  # "arrays": all traffic in arrays (core.py); "objects": one object each
-            "duration": 60.0,  # [s] truncation
-            "route": None,  # [(junction id, entry road, exit road), ...], {"lanes": [...]},
-            # {"from_lane": a, "to_lane": b}, or None to sample
-            "route_junctions": 2,  # junctions on a sampled route (0: a lane walk of route_length)
-            "route_length": 200.0,  # [m] driven on a sampled lane walk (maps without junctions)
-            "ego_start_distance": 30.0,  # [m] before the end of the first lane (the first stop line)
-            "ego_initial_speed": 4.5,
-            "goal_distance": 15.0,  # [m] into the last lane of the route
-            "traffic_vehicles": 8, "traffic_respawn": True, "traffic_initial_speed": 5.0,
-            "signal_green": SIGNAL_GREEN_S, "signal_amber": SIGNAL_AMBER_S, "signal_all_red": SIGNAL_ALL_RED_S,  # [s]
-            "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
-            "right_turn_on_red": False,  # a right turn past a red signal after a full stop is legal
-            "signal_offsets": {},  # {junction or signal id: phase plan offset [s]}; others drawn from np_random
-            "pedestrian_rate": 3.0,  # per crosswalk per minute
-            "pedestrian_speed": 1.4, "pedestrians_per_crosswalk": 3,
-            "observe_traffic_control": False,
-            "reward_progress": 1.0, "reward_arrived": 1.0, "reward_collision": -5.0,
-            "reward_red_light": -2.0, "reward_stop_sign": -1.0, "reward_pedestrian_yield": -2.0,
-            "reward_off_road": -1.0,
-            "offroad_terminal": True,
-            "screen_width": 600, "screen_height": 600, "centering_position": [0.5, 0.5], "scaling": 5.5,
-            "show_route": True,
-        })
+        config.pop("other_vehicles_type", None)  # it names highway-env's traffic class; the traffic here is the env's
+        config.update(defaults(MAP_ENV))
         return config
 
     def configure(self, config: dict) -> None:
@@ -142,7 +95,8 @@ class MapEnv(AbstractEnv):
 
     @property
     def rules(self) -> TrafficControl:
-        """The traffic rules of this episode (`rules.TrafficRules`), for planners."""
+        """The episode's `TrafficControl` (`self.control`): it answers the rules' questions
+        (`rules.TrafficRules`, its base class) from this episode's signals and queues, for planners."""
         return self.control
 
     # ---- episode -------------------------------------------------------------------------
@@ -275,10 +229,6 @@ class MapEnv(AbstractEnv):
             for _ in range(removed):
                 self._spawn_traffic(min_ego_distance=EGO_RESPAWN_CLEARANCE_M)
 
-    def _check_ego(self) -> None:
-        """Judge the ego after a frame (`rules.EgoJudge`)."""
-        self.judge.check()
-
     @property
     def new_violations(self) -> list[str]:
         return self.judge.new
@@ -325,7 +275,7 @@ class MapEnv(AbstractEnv):
 
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
-        instead), so that vector envs can stack them (see the module docstring)."""
+        instead), so that vector envs can stack them: `info.INFO_KEYS`."""
         ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
         jid, turn = self.junction_ahead()
         sl, in_lane, j_lane, d = rules.line_ahead(ego)

@@ -38,7 +38,7 @@ while a vehicle that stopped there earlier wants a conflicting lane: `TrafficRul
 stop_queue_allows`), unless it holds the junction lane's reservation (as `TrafficRules.may_enter`
 lets a vehicle that committed go: the scripted driver reserves, agents choosing their own
 speeds do not), weighted by `reward_not_yielding` / `reward_stop_order`; infos with the
-single env's keys (`map_env` module docstring; `violations` holds the two more) plus
+single env's keys (`info.INFO_KEYS`; `violations` holds the two more) plus
 `agent_collision` (the agent crashed into another agent; `collision` is any crash) and
 `wait_time` (seconds stopped so far).
 """
@@ -57,7 +57,8 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from ..errors import Feat2MapError
-from .config import number, one_of, pair, unknown_key_message
+from .config import (ACCELERATION_RANGE, MULTI, TARGET_SPEEDS, checks, defaults, multi_agent_defaults,
+                     multi_agent_not_taken)
 from .control import TrafficControl
 from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
@@ -70,26 +71,14 @@ from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge, can_
 from .vehicles import TrafficVehicle
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
-TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the default TargetSpeed actions (examples/train_ppo.py's)
-ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s2]
 META_GAIN = 1 / 0.6  # DiscreteMetaAction: acceleration per m/s off the target speed (highway-env's 1/TAU_ACC)
 ENTRY_LOOK_M = 8.0  # the judge notes the rules' verdict for agents this close to their next stop line
-MAX_AGENTS = 500
-#: the multi-agent env's own keys (the rest is MapEnv's config, checked by it)
-AGENT_DEFAULTS: dict[str, Any] = {
-    "agents": 8,  # possible agents
-    "agent_routes": None,  # None: sampled; "coverage": the map's route-coverage routes; or a list of routes
-    "agent_spacing": 12.0,  # [m] between agents queued on one approach at their start
-    "agent_queue": 3,  # places on an approach (the first at ego_start_distance before the stop line)
-    "action": {"type": "TargetSpeed", "target_speeds": list(TARGET_SPEEDS), "acceleration_range": list(ACCELERATION_RANGE)},
-    "reward_not_yielding": -1.0, "reward_stop_order": -1.0,
-}
+#: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
+AGENT_DEFAULTS: dict[str, Any] = defaults(MULTI)
 #: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
-WORLD_DEFAULTS: dict[str, Any] = {"simulation_frequency": 10, "policy_frequency": 2, "route_junctions": 1,
-                                  "duration": 60.0, "traffic_vehicles": 8}
-ACTION_KEYS = {"TargetSpeed": {"target_speeds", "acceleration_range"},
-               "DiscreteMetaAction": {"target_speeds", "longitudinal", "lateral"},
-               "ContinuousAction": {"acceleration_range", "longitudinal", "lateral"}}
+WORLD_DEFAULTS: dict[str, Any] = multi_agent_defaults()
+AGENT_CHECKS = checks(MULTI)
+NOT_TAKEN = multi_agent_not_taken()  # MapEnv keys nothing in the multi-agent env reads: refused
 
 
 def parallel_env(config: Mapping[str, Any] | None = None, render_mode: str | None = None) -> "MultiAgentMapEnv":
@@ -107,38 +96,8 @@ def env(config: Mapping[str, Any] | None = None, render_mode: str | None = None)
 # ---- config -----------------------------------------------------------------------------------
 def check_agent_config(cfg: Mapping[str, Any]) -> None:
     """The multi-agent keys, strictly: a bad value is a Feat2MapError naming `config.<key>`."""
-    number(1, MAX_AGENTS, integer=True)(cfg["agents"], "config.agents")
-    routes = cfg["agent_routes"]
-    if not (routes is None or routes == "coverage"):
-        if isinstance(routes, (str, bytes, Mapping)) or not isinstance(routes, Sequence) or not routes:
-            raise Feat2MapError(f"must be null, 'coverage' or a non-empty list of routes, got {routes!r:.60}",
-                                "config.agent_routes")
-    number(0, lo_open=True)(cfg["agent_spacing"], "config.agent_spacing")
-    number(1, 100, integer=True)(cfg["agent_queue"], "config.agent_queue")
-    number()(cfg["reward_not_yielding"], "config.reward_not_yielding")
-    number()(cfg["reward_stop_order"], "config.reward_stop_order")
-    act = cfg["action"]
-    if not isinstance(act, Mapping):
-        raise Feat2MapError(f"must be a mapping, got {type(act).__name__}", "config.action")
-    one_of(*ACTION_KEYS)(act.get("type"), "config.action.type")
-    for key in act:
-        if key != "type" and key not in ACTION_KEYS[act["type"]]:
-            raise Feat2MapError(unknown_key_message(key, ACTION_KEYS[act["type"]], f"{act['type']} action"),
-                                f"config.action.{key}")
-    if act.get("lateral"):
-        raise Feat2MapError("agents steer along their routes: lateral actions are not supported", "config.action.lateral")
-    if "acceleration_range" in act:
-        pair()(act["acceleration_range"], "config.action.acceleration_range")
-        lo, hi = act["acceleration_range"]
-        if not lo < hi:
-            raise Feat2MapError(f"must be (low, high) with low < high, got {list(act['acceleration_range'])}",
-                                "config.action.acceleration_range")
-    if "target_speeds" in act:
-        speeds = act["target_speeds"]
-        if isinstance(speeds, (str, bytes)) or not isinstance(speeds, Sequence) or not speeds:
-            raise Feat2MapError("must be a non-empty list of speeds", "config.action.target_speeds")
-        for i, v in enumerate(speeds):
-            number(0, 40.0)(v, f"config.action.target_speeds[{i}]")
+    for key, check in AGENT_CHECKS.items():
+        check(cfg[key], f"config.{key}")
 
 
 def split_config(config: Mapping[str, Any] | None) -> tuple[dict, dict]:
@@ -147,6 +106,8 @@ def split_config(config: Mapping[str, Any] | None) -> tuple[dict, dict]:
         raise Feat2MapError(f"must be a mapping, got {type(config).__name__}", "config")
     ma, world = {}, {}
     for k, v in (config or {}).items():
+        if k in NOT_TAKEN:
+            raise Feat2MapError(f"has no effect in the multi-agent env ({NOT_TAKEN[k]})", f"config.{k}")
         (ma if k in AGENT_DEFAULTS else world)[k] = v
     return ma, world
 

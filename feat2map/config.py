@@ -59,8 +59,8 @@ ROUTING_MIN_LENGTH_FOR_LANE_CHANGE_M = 1.0
 SIGNAL_POLE_OFFSET_M = 1.0  # pole beyond the road edge
 # fixed-time signal plans (feat2map/phases.py: the env's defaults, the CommonRoad export's cycles)
 SIGNAL_GREEN_S, SIGNAL_AMBER_S, SIGNAL_ALL_RED_S = 12.0, 3.0, 2.0
-# the driving scenario's defaults, keyed as the env's config (envs/map_env.py `MapEnv.default_config`
-# holds the same values; tests/test_layers.py keeps them equal) and read by the OpenSCENARIO export and the
+# the driving scenario's defaults, keyed as the env's config (envs/config.py `SETTINGS` takes these values;
+# tests/test_layers.py checks the env's defaults) and read by the OpenSCENARIO export and the
 # scenario tools, which must model the drive as the env does without importing it
 DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
     "ego_start_distance": 30.0,  # [m] before the end of the route's first lane (the first stop line)

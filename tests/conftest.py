@@ -27,9 +27,9 @@ SHARED_MAPS_MISSING = (f"needs the third-party maps at {SHARED_MAPS} (absent her
                        "../shared/maps beside the repository or set FEAT2MAP_SHARED_MAPS (README, Command line)")
 
 
-# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change (about 2
-# minutes on 2 cores); plain `pytest` (CI, scripts/test.sh) runs everything. SLOW_TESTS are the
-# tests, each 8 s or more of the 17 min the whole suite took under --durations on a loaded 2-core
+# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change (2.5
+# minutes on an idle 2-core machine); plain `pytest` (CI, scripts/test.sh) runs everything.
+# SLOW_TESTS are the tests, each 8 s or more of the 17 min the whole suite took under --durations on a loaded 2-core
 # machine: whole end-to-end drives, external checkers over many maps, property tests with many
 # examples, subprocess and worker-pool runs. An entry is a module or a test function (all its
 # parameters); tests/test_tiers.py checks that each names a test that exists.

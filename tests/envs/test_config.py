@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
@@ -15,7 +16,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import feat2map
+from feat2map.envs import config, info
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG
+from feat2map.envs.rules import VIOLATIONS
 from feat2map.errors import Feat2MapError
 
 J = feat2map.JunctionFeature.make
@@ -123,3 +126,105 @@ def test_kinematics_bounds_follow_normalization():
     np.testing.assert_array_equal(space.low[0], [0.0, -1.0, np.finfo(np.float32).min, -1.0])
     np.testing.assert_array_equal(space.high[0], [1.0, 1.0, np.finfo(np.float32).max, 1.0])
     assert env.unwrapped.metadata["autoreset_mode"] == gym.vector.AutoresetMode.NEXT_STEP
+
+
+# ---- one table per setting family: SETTINGS (config keys) and INFO_KEYS (info keys) ------------
+README = Path(__file__).resolve().parents[2] / "envs" / "README.md"
+
+
+def readme_block(name: str) -> str:
+    text = README.read_text()
+    start = text.index(f"<!-- {name} table: ")
+    start = text.index("\n", start) + 1
+    return text[start:text.index(f"<!-- end {name} table -->")]
+
+
+def test_readme_tables_are_made_from_the_tables():
+    """envs/README.md's config and info tables are the rendered SETTINGS and INFO_KEYS (after
+    changing a row, `scripts/env_tables.py` rewrites them)."""
+    assert readme_block("config") == config.markdown_table()
+    assert readme_block("info") == info.markdown_table()
+    assert "| `traffic_vehicles` | MapEnv | `8` | integer in [0, 500] |" in config.markdown_table()
+
+
+def test_default_config_keys_are_the_table_keys_and_the_checked_keys():
+    from feat2map.envs import multi_agent
+    from feat2map.envs.junction_env import JunctionGridEnv, MapFileEnv
+
+    for env, family in ((JunctionGridEnv, config.GRID), (MapFileEnv, config.FILE)):
+        keys = [s.key for s in config.settings(config.MAP_ENV, family)]
+        assert list(env.default_config()) == keys  # same keys, in the table's order
+        assert set(keys) <= set(config.SCHEMA)
+    assert set(config.SCHEMA) == {s.key for s in config.settings(config.MAP_ENV, config.GRID, config.FILE)}
+    assert list(multi_agent.AGENT_DEFAULTS) == [s.key for s in config.settings(config.MULTI)]
+    assert multi_agent.WORLD_DEFAULTS == {"simulation_frequency": 10, "policy_frequency": 2, "route_junctions": 1}
+    assert JunctionGridEnv.default_config()["signal_green"] == feat2map.config.SIGNAL_GREEN_S
+    for s in config.SETTINGS:
+        s.check(s.default, f"config.{s.key}")  # every default passes its own check
+        assert s.doc and config.accepts(s.check), s.key
+
+
+@pytest.mark.parametrize("config_, where, text", [
+    ({"other_vehicles_type": "highway_env.vehicle.behavior.IDMVehicle"}, "config.other_vehicles_type",
+     "highway-env's 'other_vehicles_type' is not a key here (traffic is the env's own IDM/MOBIL vehicles)"),
+    ({"neighbour_vehicles_connected_lanes": True}, "config.neighbour_vehicles_connected_lanes", "has no effect here"),
+])
+def test_keys_without_effect_are_refused(config_, where, text):
+    with pytest.raises(Feat2MapError) as err:
+        make(config_)
+    assert err.value.where == where and text in err.value.message, str(err.value)
+
+
+@pytest.mark.parametrize("key, value, text", [("route", [("J0", "R0", "R1")], "agent_routes"),
+                                             ("offroad_terminal", False, "agents steer along their routes"),
+                                             ("manual_control", True, "there is no ego")])
+def test_the_multi_agent_env_refuses_the_keys_it_does_not_read(key, value, text):
+    from feat2map.envs import parallel_env
+
+    with pytest.raises(Feat2MapError) as err:
+        parallel_env({**SMALL, key: value})
+    assert err.value.where == f"config.{key}" and "has no effect in the multi-agent env" in err.value.message
+    assert text in err.value.message
+
+
+def assert_info_matches(got: dict, keys: dict[str, type], where: str) -> None:
+    assert set(got) == set(keys), (where, set(got) ^ set(keys))
+    for key, kind in keys.items():
+        assert isinstance(got[key], kind), (where, key, type(got[key]))
+
+
+def test_info_has_exactly_the_table_keys_with_their_types():
+    """A real reset's and step's info (single env), the native vector env's batched info (the
+    same keys; values stacked as arrays, nested dicts as dicts of arrays) and the multi-agent
+    env's infos (the MapEnv keys and its own)."""
+    from feat2map.envs import multi_agent
+
+    top = info.info_keys(config.MAP_ENV)
+    feature = {k.key.split(".", 1)[1]: k.type for k in info.INFO_KEYS if k.key.startswith("junction_feature.")}
+    env = make({"traffic_vehicles": 2})
+    infos = [env.reset(seed=0)[1]] + [env.step(env.action_space.sample())[-1] for _ in range(3)]
+    for got in infos:
+        assert_info_matches(got, top, "single")
+        assert_info_matches(got["junction_feature"], feature, "junction_feature")
+        assert set(got["violations"]) == set(VIOLATIONS) and set(got["rewards"]) == set(env.unwrapped._reward_terms())
+    env.close()
+
+    venv = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config={**SMALL, "traffic_vehicles": 2})
+    venv.reset(seed=0)
+    batched = venv.step(venv.action_space.sample())[-1]
+    assert {k for k in batched if not k.startswith("_") and not k.startswith("final_")} == set(top)
+    for key, kind in top.items():
+        value = batched[key]
+        if kind is dict:
+            assert isinstance(value, dict), key
+        else:
+            assert isinstance(value, np.ndarray) and len(value) == 2, key
+            assert value.dtype.kind == {float: "f", bool: "b", int: "i", str: "O", list: "O"}.get(kind, value.dtype.kind)
+    venv.close()
+
+    ma = multi_agent.parallel_env({**SMALL, "agents": 2, "traffic_vehicles": 1})
+    _, infos_ = ma.reset(seed=0)
+    for got in infos_.values():
+        assert_info_matches(got, info.info_keys(), "multi-agent")
+        assert set(got["violations"]) == set(multi_agent.AGENT_VIOLATIONS)
+    ma.close()
