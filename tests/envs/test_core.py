@@ -4,7 +4,9 @@ user code, and its trajectories follow the object core's on fixed seeds (intende
 lane-centre following instead of the steering controller)."""
 from __future__ import annotations
 
+import json
 import os
+from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
@@ -155,3 +157,61 @@ def test_arrays_core_follows_the_object_core(seed):
     assert dev.max() < 2.0  # turns: the object core's controller cuts corners
     for key in ("route_completed", "collision", "violations", "junction"):
         assert info_a[key] == info_b[key]
+
+
+# ---- recorded reference ------------------------------------------------------------------------
+# Trajectories of the arrays core on fixed seeds, recorded from the env (tests/envs/data/
+# traffic_reference.json): a change to a traffic rule, the IDM law, MOBIL, the rules' stops or
+# the respawns moves a vehicle and fails this test. A change meant to alter traffic re-records
+# the file on purpose: FEAT2MAP_RECORD_TRAFFIC=1 pytest tests/envs/test_core.py -k reference
+REFERENCE = Path(__file__).parent / "data" / "traffic_reference.json"
+REFERENCE_RUNS = {  # name -> (seed, config changes): the "quiet" ones without respawns or pedestrians
+    "quiet-0": (0, {"traffic_respawn": False, "pedestrian_rate": 0.0}),
+    "quiet-1": (1, {"traffic_respawn": False, "pedestrian_rate": 0.0}),
+    "busy-3": (3, {"traffic_vehicles": 14, "pedestrian_rate": 20.0}),
+    "two-lanes-4": (4, {"features": [J([0, 90, 180, 270], "signal", True, lanes=2).to_dict(),
+                                     J([0, 120, 240], "stop", False, lanes=2).to_dict()],
+                        "traffic_vehicles": 30, "route_junctions": 3}),  # MOBIL lane changes
+}
+REFERENCE_EVERY = 10  # a sample of every vehicle's position every this many steps (and the last step)
+
+
+def drive_reference(seed: int, changes: dict) -> dict:
+    """Positions of every road user (ego first) each REFERENCE_EVERY steps of 30 s driven by the
+    scripted driver, the ego's outcome and the lane changes made."""
+    cfg = {"features": FEATS, "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "duration": 30,
+           "traffic_vehicles": 8, **changes}
+    env = gym.make("feat2map/JunctionGrid-v0", config=cfg)
+    env.reset(seed=seed)
+    driver = ScriptedDriver(env)
+    samples = []
+    changes = 0
+    for step in range(150):
+        before = {id(v): getattr(v, "lane_changes", 0) for v in env.unwrapped.road.vehicles}
+        _, _, term, trunc, info = env.step(driver.act())
+        changes += sum(getattr(v, "lane_changes", 0) - before.get(id(v), 0) for v in env.unwrapped.road.vehicles)
+        if step % REFERENCE_EVERY == 0 or term or trunc or step == 149:
+            samples.append([step, [[round(float(x), 6) for x in v.position] for v in env.unwrapped.road.vehicles]])
+        if term or trunc:
+            break
+    env.close()
+    return {"samples": samples, "lane_changes": changes,
+            "outcome": {k: info[k] for k in ("route_completed", "collision", "violations", "junction", "lane_id")}}
+
+
+@pytest.mark.parametrize("name", sorted(REFERENCE_RUNS))
+def test_traffic_follows_the_recorded_reference(name):
+    """Same seed, same scripted ego: the same road users at the same places (to 1e-5 m) and the
+    same outcome for the ego as when the reference was recorded."""
+    got = drive_reference(*REFERENCE_RUNS[name])
+    if os.environ.get("FEAT2MAP_RECORD_TRAFFIC") == "1":
+        ref = json.loads(REFERENCE.read_text()) if REFERENCE.exists() else {}
+        ref[name] = got
+        REFERENCE.write_text(json.dumps(ref, sort_keys=True, separators=(",", ":")) + "\n")
+        pytest.skip("recorded")
+    want = json.loads(REFERENCE.read_text())[name]
+    assert got["outcome"] == want["outcome"] and got["lane_changes"] == want["lane_changes"]
+    assert [s for s, _ in got["samples"]] == [s for s, _ in want["samples"]]
+    for (step, a), (_, b) in zip(got["samples"], want["samples"]):
+        assert len(a) == len(b), f"step {step}: {len(a)} road users, recorded {len(b)}"
+        np.testing.assert_allclose(np.array(a), np.array(b), atol=1e-5, err_msg=f"step {step}")
