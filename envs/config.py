@@ -182,7 +182,6 @@ SCHEMA: dict[str, Check] = {
     "show_trajectories": boolean, "render_agent": boolean, "offscreen_rendering": optional(boolean),
     "manual_control": boolean, "real_time_rendering": boolean, "neighbour_vehicles_connected_lanes": boolean,
     # MapEnv
-    "traffic_core": one_of("arrays", "objects"),
     "duration": number(0, lo_open=True),
     "route": route, "route_junctions": number(0, integer=True), "route_length": number(0, lo_open=True),
     "ego_start_distance": number(0), "ego_initial_speed": number(0, 40.0), "goal_distance": number(0),

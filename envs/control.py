@@ -104,8 +104,7 @@ class TrafficControl(TrafficRules):
     def update(self, road, dt: float) -> None:
         """Advance the clock by `dt` and bring the state up to date with the road's vehicles."""
         self.t += dt
-        if hasattr(road, "sync"):
-            road.sync()  # the arrays core: take in vehicles added or removed by user code
+        road.sync()  # the core takes in vehicles added or removed by user code
         net = self.net
         m = net.hdmap
         vehicles = road.vehicles

@@ -65,7 +65,7 @@ from .kinematics_batch import batch_supported, observe_many
 from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_to_lanes, sample_lane_walk,
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
-from .road import ArrayRoad
+from .road import MapRoad
 from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge, can_stop_before
 from .vehicles import TrafficVehicle
 
@@ -423,14 +423,12 @@ class _World(MapEnv):
     def new_episode(self, seed: int | None) -> list[tuple[list[str], bool]]:
         """A fresh episode (traffic control, road, traffic); the agents' routes, placed by the caller."""
         gymnasium.Env.reset(self, seed=seed)  # seeds np_random
-        if self.config["traffic_core"] != "arrays":
-            raise Feat2MapError("the multi-agent env runs on the arrays core", "config.traffic_core")
         self.time = self.steps = 0
         self.done = False
         self.net = self._network()
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
-        self.road = ArrayRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
         self.controlled_vehicles = []
         self._places: dict[tuple, list] = {}
         routes = self._agent_routes(int(self.agent_config["agents"]))
@@ -523,14 +521,7 @@ class _World(MapEnv):
 
     def respawn_traffic(self, agents: set[int]) -> None:
         """MapEnv's respawn: finished and crashed traffic leaves, as many new vehicles spawn."""
-        if not self.config["traffic_respawn"]:
-            return
-        keep = [v for v in self.road.vehicles if id(v) in agents
-                or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
-        removed = len(self.road.vehicles) - len(keep)
-        self.road.vehicles = keep
-        for _ in range(removed):
-            self._spawn_traffic(min_ego_distance=40.0)
+        self._respawn_traffic(frozenset(agents))
 
 
 class _GridWorld(_World, JunctionGridEnv):

@@ -18,13 +18,17 @@ maps have 0.01-2.4 m lanes there) changes neither where a vehicle stops nor whet
 counts.
 
 Vehicles are any objects with the route-follower interface (`vehicles.RouteFollower`):
-`lane_route`, `route_pos`, `speed`, `LENGTH`, `reserved`, `upcoming()`, `s_on(lane)`; both
-traffic cores provide it (objects directly, the arrays core through lightweight views).
+`lane_route`, `route_pos`, `speed`, `LENGTH`, `reserved`, `upcoming()`, `s_on(lane)`; the ego
+provides it directly, traffic through the arrays core's lightweight views. The laws the arrays
+core applies to all rows at once (IDM, MOBIL's eligibility, who is in the way) are written once
+here for scalars and arrays alike.
 """
 from __future__ import annotations
 
 import math
 from typing import TYPE_CHECKING, Any, Iterable, Sequence
+
+import numpy as np
 
 if TYPE_CHECKING:
     from .network import MapNetwork, StopLine
@@ -53,8 +57,50 @@ IDM_STOP_GAP_M = 0.3  # jam distance to a stop point (vs IDM_GAP_M to a leader)
 IDM_STOP_MARGIN_M = 0.5  # the front bumper halts this short of a stop point
 IDM_MIN_GAP_M = 0.05
 IDM_RANGE_MPS2 = (-8.0, 6.0)
+LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way
+MOBIL_PERIOD_S = 1.0  # traffic considers a lane change this often
+MOBIL_GAIN_MPS2 = 0.3  # own acceleration gain that makes a lane change worth it
+MOBIL_SAFE_BRAKE_MPS2 = 3.0  # the new follower must not need to brake harder
+MOBIL_POLITENESS = 0.3  # weight of the new follower's acceleration loss
+MOBIL_MIN_ROOM_M = 30.0  # no lane change closer than this to the lane's end
+MOBIL_MIN_SPEED_MPS = 1.0  # ... or slower than this
+MOBIL_MIN_GAP_M = 2.0  # bumper gap to the new leader and the new follower at least
+MOBIL_DETOUR_M = 5.0  # the route from the new lane may be at most this much longer
+FINISH_MARGIN_M = 2.0  # traffic has finished its route this close to the end of its last lane
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
+
+
+def idm_free(v, v0):
+    """IDM's free-road term 1 - (v / v0)^delta (its acceleration without leaders is IDM_ACC times
+    this); scalars or arrays."""
+    return 1.0 - (v / v0) ** IDM_DELTA
+
+
+def idm_behind(free, v, v_lead, gap, jam_gap):
+    """IDM's acceleration behind one leader (`gap`: bumper to bumper, `jam_gap`: IDM_GAP_M
+    behind a vehicle, IDM_STOP_GAP_M before a stop point) given the free term `free`; scalars or
+    arrays (then elementwise, as the arrays core takes it for all (follower, leader) pairs)."""
+    s_star = jam_gap + v * IDM_TIME_GAP_S + v * (v - v_lead) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
+    return IDM_ACC * (free - (_larger(s_star, 0.0) / _larger(gap, IDM_MIN_GAP_M)) ** 2)
+
+
+def stop_gap(distance, length, margin: float = IDM_STOP_MARGIN_M):
+    """The gap IDM keeps to a stop point `distance` ahead of a vehicle's centre: its front bumper
+    halts `margin` short of it (a stop point is a standing leader)."""
+    return distance - length / 2 - margin
+
+
+def idm_clip(acc):
+    """An IDM acceleration within IDM_RANGE_MPS2 (a float, or an array elementwise)."""
+    lo, hi = IDM_RANGE_MPS2
+    if isinstance(acc, np.ndarray):
+        return np.minimum(np.maximum(acc, lo), hi)
+    return min(max(float(acc), lo), hi)
+
+
+def _larger(x, lo: float):
+    return np.maximum(x, lo) if isinstance(x, np.ndarray) else max(x, lo)
 
 
 def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = math.inf,
@@ -65,17 +111,39 @@ def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = mat
     net = vehicle.net
     v = max(vehicle.speed, 0.0)
     v0 = max(net.lane_of[vehicle.lane_route[vehicle.route_pos]].speed_limit, 1.0)
-    a_max = IDM_ACC
-    free = 1 - (v / v0) ** IDM_DELTA
-    acc = a_max * free
+    free = idm_free(v, v0)
+    acc = IDM_ACC * free
     items = [(g, vl, IDM_GAP_M) for g, vl in gaps]
     if stop_distance < math.inf:
-        items.append((stop_distance - vehicle.LENGTH / 2 - stop_margin, 0.0, IDM_STOP_GAP_M))
-    root = 2 * math.sqrt(a_max * IDM_BRAKE)
+        items.append((stop_gap(stop_distance, vehicle.LENGTH, stop_margin), 0.0, IDM_STOP_GAP_M))
     for gap, vl, s0 in items:
-        s_star = s0 + v * IDM_TIME_GAP_S + v * (v - vl) / root
-        acc = min(acc, a_max * (free - (max(s_star, 0.0) / max(gap, IDM_MIN_GAP_M)) ** 2))
-    return min(max(float(acc), IDM_RANGE_MPS2[0]), IDM_RANGE_MPS2[1])
+        acc = min(acc, idm_behind(free, v, vl, gap, s0))
+    return idm_clip(acc)
+
+
+def in_the_way(s, lateral, lane_width, lane_length, length):
+    """Whether a road user at (s, lateral) on a lane ahead is in the way of a vehicle `length`
+    long on it: within LEADER_LATERAL_M beyond the lane's half width, and not more than a vehicle
+    length off either end (scalars or arrays)."""
+    return (abs(lateral) <= lane_width / 2 + LEADER_LATERAL_M) & (s >= -length) & (s <= lane_length + length)
+
+
+def may_change_lane(in_junction, room, speed):
+    """MOBIL's eligibility: a lane change is considered only on a road lane (not in a junction),
+    at least MOBIL_MIN_ROOM_M before the lane's end and at MOBIL_MIN_SPEED_MPS or faster
+    (scalars or arrays)."""
+    return np.logical_not(in_junction) & (room >= MOBIL_MIN_ROOM_M) & (speed >= MOBIL_MIN_SPEED_MPS)
+
+
+def mobil_safe(a_follower: float) -> bool:
+    """MOBIL's safety criterion: the new follower need not brake harder than MOBIL_SAFE_BRAKE_MPS2."""
+    return a_follower >= -MOBIL_SAFE_BRAKE_MPS2
+
+
+def mobil_accepts(a_current: float, a_new: float, follower_loss: float) -> bool:
+    """MOBIL's incentive criterion: the own acceleration gain, less MOBIL_POLITENESS times the
+    new follower's loss, exceeds MOBIL_GAIN_MPS2."""
+    return a_new - a_current - MOBIL_POLITENESS * follower_loss > MOBIL_GAIN_MPS2
 
 
 def stops_at_amber(distance: float, speed: float) -> bool:
