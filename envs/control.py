@@ -11,12 +11,12 @@ from functools import cached_property
 
 import numpy as np
 
+from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOPPED_SPEED_MPS
 from ..phases import junction_phases
 from .network import MapNetwork
-from .rules import PEDESTRIAN_CLEARANCE_M, STOPPED_SPEED_MPS, TrafficRules
+from .rules import TrafficRules
 from .vehicles import Pedestrian
 
-PEDESTRIAN_SPAWN_HORIZON_S = 3.0  # a pedestrian waits for a vehicle this many seconds away (plus the clearance)
 
 
 @dataclass(frozen=True)

@@ -59,16 +59,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..config import IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M
 from .network import MapNetwork
-from .rules import (IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LOOKAHEAD_M, MOBIL_PERIOD_S, idm_behind, idm_clip, idm_free,
-                    in_the_way, may_change_lane, stop_gap)
+from .rules import idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap
 from .vehicles import Pedestrian, TrafficVehicle
 
 if TYPE_CHECKING:
     from .road import MapRoad
 
-LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time constant
-PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
 EXTERNAL, DRIVEN = 0, 1
 
 

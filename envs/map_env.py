@@ -37,22 +37,19 @@ from gymnasium.vector import AutoresetMode
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
-from ..config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S
+from ..config import (EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M, MAX_LEGS, SIGNAL_ALL_RED_S, SIGNAL_AMBER_S,
+                      SIGNAL_GREEN_S, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOP_LINE_RANGE_M, TRAFFIC_LANE_END_M,
+                      TRAFFIC_SPAWN_GAP_M, TRAFFIC_SPAWN_TRIES)
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
 from .config import merge_config, validate_config
 from .control import TrafficControl
 from .network import MapNetwork, release_memory
-from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
+from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
-from .rules import SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
+from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance, line_setback
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
-MAX_LEGS = 8  # info["junction_feature"] arrays have this many socket slots (inf / -1 beyond a junction's legs)
-TRAFFIC_SPAWN_TRIES = 10
-TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
-TRAFFIC_LANE_END_M = 8.0  # ... and not within this of its lane's end
-EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M = 25.0, 40.0  # ... and this far from the ego (at reset, on respawn)
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
 _CACHE_SIZE = 8
 
@@ -581,8 +578,7 @@ def first_line_distance(net: MapNetwork, route: Sequence[str], s0: float) -> flo
     d = -s0
     for k, lid in enumerate(route):
         if k and m.lanes[lid].junction_id is not None and m.lanes[route[k - 1]].junction_id is None:
-            sl = net.stop_lines.get(route[k - 1])
-            return d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0)
+            return d - line_setback(net, route[k - 1])
         d += net.lane_of[lid].length
     return math.inf
 

@@ -56,6 +56,8 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from ..config import (AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_META_GAIN, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2,
+                      STOPPED_SPEED_MPS)
 from ..errors import Feat2MapError
 from .config import number, one_of, pair, unknown_key_message
 from .control import TrafficControl
@@ -66,14 +68,10 @@ from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_t
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
-from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge, can_stop_before
+from .rules import VIOLATIONS, EgoJudge, can_stop_before, line_setback
 from .vehicles import TrafficVehicle
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
-TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the default TargetSpeed actions (examples/train_ppo.py's)
-ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s2]
-META_GAIN = 1 / 0.6  # DiscreteMetaAction: acceleration per m/s off the target speed (highway-env's 1/TAU_ACC)
-ENTRY_LOOK_M = 8.0  # the judge notes the rules' verdict for agents this close to their next stop line
 MAX_AGENTS = 500
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it)
 AGENT_DEFAULTS: dict[str, Any] = {
@@ -81,7 +79,8 @@ AGENT_DEFAULTS: dict[str, Any] = {
     "agent_routes": None,  # None: sampled; "coverage": the map's route-coverage routes; or a list of routes
     "agent_spacing": 12.0,  # [m] between agents queued on one approach at their start
     "agent_queue": 3,  # places on an approach (the first at ego_start_distance before the stop line)
-    "action": {"type": "TargetSpeed", "target_speeds": list(TARGET_SPEEDS), "acceleration_range": list(ACCELERATION_RANGE)},
+    "action": {"type": "TargetSpeed", "target_speeds": list(AGENT_TARGET_SPEEDS),
+               "acceleration_range": list(AGENT_ACCELERATION_RANGE)},
     "reward_not_yielding": -1.0, "reward_stop_order": -1.0,
 }
 #: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
@@ -169,8 +168,8 @@ class AgentActions:
 
     def __init__(self, cfg: Mapping[str, Any], policy_frequency: float) -> None:
         self.kind = cfg["type"]
-        self.speeds = np.array(cfg.get("target_speeds", TARGET_SPEEDS), dtype=float)
-        self.acceleration_range = tuple(float(x) for x in cfg.get("acceleration_range", ACCELERATION_RANGE))
+        self.speeds = np.array(cfg.get("target_speeds", AGENT_TARGET_SPEEDS), dtype=float)
+        self.acceleration_range = tuple(float(x) for x in cfg.get("acceleration_range", AGENT_ACCELERATION_RANGE))
         self.period = 1.0 / policy_frequency
         if self.kind == "TargetSpeed":
             self.space: spaces.Space = spaces.Discrete(len(self.speeds))
@@ -198,7 +197,7 @@ class AgentActions:
         """Accelerations of the agents this frame (DiscreteMetaAction tracks its target speed every frame)."""
         if self.kind == "DiscreteMetaAction":
             target = self.speeds[[s["index"] for s in states]]
-            return np.clip(META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
+            return np.clip(AGENT_META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
         return np.array([s["acc"] for s in states], dtype=float)
 
 
@@ -217,7 +216,7 @@ class AgentJudge(EgoJudge):
 
     def note(self) -> None:
         rules, v = self.rules, self.ego
-        sl, in_lane, j_lane, d = rules.line_ahead(v, ENTRY_LOOK_M)
+        sl, in_lane, j_lane, d = rules.line_ahead(v, AGENT_ENTRY_LOOK_M)
         if j_lane is None:
             return
         if self._verdict[0] == j_lane and not can_stop_before(d, v.speed, v.LENGTH):
@@ -285,23 +284,19 @@ class AgentVehicle(ArrayVehicle):
         d = net.lane_of[route[pos]].length - float(c.s[i])
         for length in lengths:
             d += length
-        if back is not None:
-            d -= back
-        return (*found, d)
+        return (*found, d - back)
 
 
 def _line_plan(net, route: list[str], pos: int) -> tuple:
-    """(lengths added after the own lane's rest, length taken off at a stop line or None, the
-    answer without its distance) of `rules.stop_line_ahead` from route position `pos`, or (None,)."""
+    """(lengths added after the own lane's rest, the line's `rules.line_setback`, the answer
+    without its distance) of `rules.stop_line_ahead` from route position `pos`, or (None,)."""
     lanes, lane_of = net.hdmap.lanes, net.lane_of
     lengths: list[float] = []
     for k in range(pos + 1, len(route)):
         lid = route[k]
         if lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
             in_lane = route[k - 1]
-            sl = net.stop_lines.get(in_lane)
-            back = lane_of[in_lane].length - sl.s if sl is not None else None
-            return tuple(lengths), back, (sl, in_lane, lid)
+            return tuple(lengths), line_setback(net, in_lane), (net.stop_lines.get(in_lane), in_lane, lid)
         lengths.append(lane_of[lid].length)
     return (None,)
 
@@ -663,7 +658,7 @@ class MultiAgentMapEnv(ParallelEnv):
             # the rules' verdict is noted for agents near a junction entry (core.entry: where the
             # next one starts, from the current lane's start; the line may lie before it)
             core._refresh_windows()  # rows that moved to a new lane last frame
-            near = core.entry[rows] - core.s[rows] <= ENTRY_LOOK_M + w.net.max_line_setback
+            near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
             for k in np.nonzero(near)[0].tolist():
                 judges[k].note()
             crashed = core.crashed[rows]

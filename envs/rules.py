@@ -1,8 +1,10 @@
 """Every traffic rule of the environments, in one place: the env's traffic, its judge of the ego
 and the baseline planner (scenarios/planner.py) all ask this module.
 
-- constants of the rules (what counts as a stop, how far ahead vehicles look, when a vehicle
-  commits to a junction, how pedestrians are yielded to) and the IDM car-following law;
+- the IDM car-following law and MOBIL's lane-change criteria, for one vehicle and for the
+  arrays core's rows at once; their constants and the rules' (what counts as a stop, how far
+  ahead vehicles look, when a vehicle commits to a junction, how pedestrians are yielded to) are
+  named in feat2map/config.py (env layer);
 - `TrafficRules`: the questions traffic and planners ask of the traffic control state (the
   signal's state, where the rules make a vehicle stop, whether it may enter a junction lane,
   whether a turn is protected, who is heading into a conflicting lane, who may drive into a
@@ -30,43 +32,17 @@ from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
 import numpy as np
 
+from ..config import (AMBER_BRAKE_MPS2, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M,
+                      IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
+                      LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
+                      MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
+                      PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
+                      SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
+
 if TYPE_CHECKING:
     from .network import MapNetwork, StopLine
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
-STOPPED_SPEED_MPS = 0.3
-STOP_ZONE_M = 6.0  # a stop counts when made with the vehicle centre within this distance of the stop line
-STOP_POINT_M = 1.0  # vehicles held by a rule stop this far before the line (centre target, see idm)
-COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane this close to the line
-COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
-AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)
-LOOKAHEAD_M = 60.0
-PASSAGE_HORIZON_M = 400.0  # how far along its route a vehicle looks for narrow passages it must claim together
-PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield
-PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
-PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
-PRIORITY_HORIZON_S = 3.0  # left turns wait for priority traffic this close in time
-PRIORITY_MARGIN_M = 3.0
-SPAWN_BRAKE_MPS2 = 3.0  # vehicles start at least their braking distance at this rate before the first stop line
-SPAWN_MARGIN_M = 1.0
-OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
-OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
-# IDM parameters of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
-IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_TIME_GAP_S = 3.0, 4.0, 4.0, 2.5, 1.2
-IDM_STOP_GAP_M = 0.3  # jam distance to a stop point (vs IDM_GAP_M to a leader)
-IDM_STOP_MARGIN_M = 0.5  # the front bumper halts this short of a stop point
-IDM_MIN_GAP_M = 0.05
-IDM_RANGE_MPS2 = (-8.0, 6.0)
-LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way
-MOBIL_PERIOD_S = 1.0  # traffic considers a lane change this often
-MOBIL_GAIN_MPS2 = 0.3  # own acceleration gain that makes a lane change worth it
-MOBIL_SAFE_BRAKE_MPS2 = 3.0  # the new follower must not need to brake harder
-MOBIL_POLITENESS = 0.3  # weight of the new follower's acceleration loss
-MOBIL_MIN_ROOM_M = 30.0  # no lane change closer than this to the lane's end
-MOBIL_MIN_SPEED_MPS = 1.0  # ... or slower than this
-MOBIL_MIN_GAP_M = 2.0  # bumper gap to the new leader and the new follower at least
-MOBIL_DETOUR_M = 5.0  # the route from the new lane may be at most this much longer
-FINISH_MARGIN_M = 2.0  # traffic has finished its route this close to the end of its last lane
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
@@ -172,6 +148,14 @@ def can_stop_before(distance: float, speed: float, length: float) -> bool:
     return distance - length / 2 >= max(speed, 0.0) ** 2 / (2 * SPAWN_BRAKE_MPS2)
 
 
+def line_setback(net: "MapNetwork", in_lane: str) -> float:
+    """How far before the end of incoming lane `in_lane` its stop line lies (0 at a bare entry,
+    whose line is the junction lane's start): a distance to a junction entry less this is the
+    distance to its line."""
+    sl = net.stop_lines.get(in_lane)
+    return net.lane_of[in_lane].length - sl.s if sl is not None else 0.0
+
+
 def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],
                     route: Sequence[str]) -> tuple["StopLine | None", str | None, str | None, float]:
     """(stop line or None, incoming lane, junction lane, distance along the route from the
@@ -183,10 +167,7 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     for k, lid, d, s_own in upcoming:
         if s_own is None and lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
             in_lane = route[k - 1]
-            sl = net.stop_lines.get(in_lane)
-            if sl is not None:
-                d -= net.lane_of[in_lane].length - sl.s
-            return sl, in_lane, lid, d
+            return net.stop_lines.get(in_lane), in_lane, lid, d - line_setback(net, in_lane)
     return None, None, None, math.inf
 
 
@@ -289,8 +270,7 @@ class TrafficRules:
             if lid == junction_lane:
                 if s_own is not None:
                     return -s_own
-                sl = net.stop_lines.get(route[k - 1])
-                return d - (net.lane_of[route[k - 1]].length - sl.s) if sl is not None else d
+                return d - line_setback(net, route[k - 1])
         return 0.0
 
     # ---- occupancy ----------------------------------------------------------------------
@@ -338,8 +318,7 @@ class TrafficRules:
             if lane.junction_id is None:
                 room += net.lane_of[route[i]].length
             elif lane.junction_id != jid:
-                sl = net.stop_lines.get(route[i - 1])
-                room -= net.lane_of[route[i - 1]].length - sl.s if sl is not None else 0.0
+                room -= line_setback(net, route[i - 1])
                 if room >= vehicle.LENGTH + STOP_POINT_M:
                     return True
                 if not self.junction_clear(route[i], vehicle):
@@ -492,8 +471,7 @@ class TrafficRules:
             length = net.lane_of[lid].length
             junction = lanes[lid].junction_id is not None
             if s_own is None and junction and lanes[route[k - 1]].junction_id is None:
-                sl = net.stop_lines.get(route[k - 1])
-                line = d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0) - STOP_POINT_M
+                line = d - line_setback(net, route[k - 1]) - STOP_POINT_M
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
                 exit_d = d
@@ -626,8 +604,7 @@ class TrafficRules:
                 continue
             if lane_model.junction_id is not None and m.lanes[vehicle.lane_route[k - 1]].junction_id is None:
                 in_lane = vehicle.lane_route[k - 1]
-                sl = net.stop_lines.get(in_lane)
-                d_line = d - (net.lane_of[in_lane].length - sl.s) if sl is not None else d
+                d_line = d - line_setback(net, in_lane)
                 if not self.may_enter(vehicle, in_lane, lid, d_line, commit, ignore):
                     return d_line - STOP_POINT_M
             ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)

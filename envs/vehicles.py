@@ -11,9 +11,9 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
+from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from .network import MapNetwork
-from .rules import (FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M, idm, in_the_way, may_change_lane,
-                    mobil_accepts, mobil_safe)
+from .rules import idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
 
 class Pedestrian(RoadObject):
