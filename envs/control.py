@@ -11,10 +11,10 @@ from functools import cached_property
 
 import numpy as np
 
-from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOPPED_SPEED_MPS
+from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S
 from ..phases import junction_phases
 from .network import MapNetwork
-from .rules import TrafficRules
+from .rules import TrafficRules, has_stopped
 from .vehicles import Pedestrian
 
 
@@ -136,7 +136,7 @@ class TrafficControl(TrafficRules):
         for jid, queue in list(self.stop_queue.items()):
             self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
         for v, lid, speed in zip(vehicles, lanes, speeds):
-            if speed > STOPPED_SPEED_MPS:
+            if not has_stopped(speed):
                 continue
             sl, _ = self.waiting_line(v, lid)
             if sl is None or sl.kind != "stop":

@@ -56,8 +56,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from ..config import (AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_META_GAIN, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2,
-                      STOPPED_SPEED_MPS)
+from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_META_GAIN, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
 from ..errors import Feat2MapError
 from .config import number, one_of, pair, unknown_key_message
 from .control import TrafficControl
@@ -68,7 +67,7 @@ from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_t
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
-from .rules import VIOLATIONS, EgoJudge, can_stop_before, line_setback
+from .rules import VIOLATIONS, EgoJudge, can_stop_before, has_stopped, line_setback
 from .vehicles import TrafficVehicle
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
@@ -668,7 +667,7 @@ class MultiAgentMapEnv(ParallelEnv):
             # the judge looks at an agent whenever its check can change anything: a new lane, a
             # stop, a crosswalk on its lane, or near the end of its lane (off the road past a dead end)
             lane, speed, s_on = core.lane[rows], core.speed[rows], core.s[rows]
-            stopped = speed <= STOPPED_SPEED_MPS
+            stopped = has_stopped(speed)
             due = (lane != judged) | stopped | table.crossing[lane] | (s_on > table.length[lane])
             for k in np.nonzero(due)[0].tolist():
                 judges[k].check()

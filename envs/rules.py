@@ -122,6 +122,18 @@ def mobil_accepts(a_current: float, a_new: float, follower_loss: float) -> bool:
     return a_new - a_current - MOBIL_POLITENESS * follower_loss > MOBIL_GAIN_MPS2
 
 
+def has_stopped(speed):
+    """A road user at most STOPPED_SPEED_MPS fast has stopped (a full stop at a stop sign, a place
+    in a stop-sign queue, an agent's wait); a float, or an array elementwise."""
+    return speed <= STOPPED_SPEED_MPS
+
+
+def pedestrian_in_path(lateral: float, lane_width: float) -> bool:
+    """A pedestrian `lateral` metres off a lane's centre is in the path of its vehicles (within
+    PEDESTRIAN_IN_PATH_M beyond the lane's half width)."""
+    return abs(lateral) < lane_width / 2 + PEDESTRIAN_IN_PATH_M
+
+
 def stops_at_amber(distance: float, speed: float) -> bool:
     """At amber a vehicle stays when it can stop before the line (else it goes through)."""
     return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
@@ -574,7 +586,7 @@ class TrafficRules:
                     continue
                 h = lane.heading_at(sp)
                 towards = rp * (p.direction[0] * -math.sin(h) + p.direction[1] * math.cos(h)) < 0
-                if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M or (
+                if pedestrian_in_path(rp, lane.width) or (
                         towards and abs(rp) < lane.width / 2 + PEDESTRIAN_CORRIDOR_M):
                     stop_at = s0 - 1.0
                     best = stop_at if best is None else min(best, stop_at)
@@ -643,7 +655,7 @@ class EgoJudge:
         prev = self._lane
         on_road = lid in m.lanes and m.lanes[lid].junction_id is None
         rtor = rules.right_turn_on_red()
-        if ego.speed <= STOPPED_SPEED_MPS:
+        if has_stopped(ego.speed):
             sl, in_lane = rules.waiting_line(ego, lid)
             if sl is not None and (sl.kind == "stop" or rtor):
                 self._stopped.add(in_lane)
@@ -671,7 +683,7 @@ class EgoJudge:
                 lane = net.lane_of[lid]
                 for p in rules.pedestrians.get(cw, ()):
                     sp, rp = lane.local_coordinates(p.position)
-                    if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M and abs(sp - ego.lane_s) < ego.LENGTH:
+                    if pedestrian_in_path(rp, lane.width) and abs(sp - ego.lane_s) < ego.LENGTH:
                         self._ped_flags.add((lid, cw))
                         self._violate("pedestrian_yield")
                         break
