@@ -47,7 +47,7 @@ from .control import TrafficControl
 from .network import MapNetwork, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
-from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance, line_setback
+from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance, enters_junction, line_setback
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
@@ -577,7 +577,7 @@ def first_line_distance(net: MapNetwork, route: Sequence[str], s0: float) -> flo
     m = net.hdmap
     d = -s0
     for k, lid in enumerate(route):
-        if k and m.lanes[lid].junction_id is not None and m.lanes[route[k - 1]].junction_id is None:
+        if k and enters_junction(m.lanes, route[k - 1], lid):
             return d - line_setback(net, route[k - 1])
         d += net.lane_of[lid].length
     return math.inf
@@ -695,7 +695,7 @@ def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions
         if not succ or len(path) > 200:
             break
         nxt = succ[int(rng.integers(len(succ)))]
-        entering = m.lanes[nxt].junction_id is not None and m.lanes[path[-1]].junction_id is None
+        entering = enters_junction(m.lanes, path[-1], nxt)
         if entering:
             if count >= junctions:
                 break

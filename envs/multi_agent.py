@@ -67,7 +67,7 @@ from .map_env import (MapEnv, check_action, lane_route_from_config, manoeuvres_t
                       sample_route, start_place)
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
-from .rules import VIOLATIONS, EgoJudge, can_stop_before, has_stopped, line_setback
+from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
 from .vehicles import TrafficVehicle
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
@@ -293,7 +293,7 @@ def _line_plan(net, route: list[str], pos: int) -> tuple:
     lengths: list[float] = []
     for k in range(pos + 1, len(route)):
         lid = route[k]
-        if lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
+        if enters_junction(lanes, route[k - 1], lid):
             in_lane = route[k - 1]
             return tuple(lengths), line_setback(net, in_lane), (net.stop_lines.get(in_lane), in_lane, lid)
         lengths.append(lane_of[lid].length)

@@ -28,7 +28,7 @@ here for scalars and arrays alike.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -160,6 +160,12 @@ def can_stop_before(distance: float, speed: float, length: float) -> bool:
     return distance - length / 2 >= max(speed, 0.0) ** 2 / (2 * SPAWN_BRAKE_MPS2)
 
 
+def enters_junction(lanes: Mapping[str, Any], before: str, lane: str) -> bool:
+    """Whether driving from lane `before` into lane `lane` (map lanes by id) is a junction entry:
+    `lane` is a junction lane and `before` is not (the incoming lane, whose stop line governs it)."""
+    return lanes[lane].junction_id is not None and lanes[before].junction_id is None
+
+
 def line_setback(net: "MapNetwork", in_lane: str) -> float:
     """How far before the end of incoming lane `in_lane` its stop line lies (0 at a bare entry,
     whose line is the junction lane's start): a distance to a junction entry less this is the
@@ -177,7 +183,7 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     m = net.hdmap
     lanes = m.lanes
     for k, lid, d, s_own in upcoming:
-        if s_own is None and lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
+        if s_own is None and enters_junction(lanes, route[k - 1], lid):
             in_lane = route[k - 1]
             return net.stop_lines.get(in_lane), in_lane, lid, d - line_setback(net, in_lane)
     return None, None, None, math.inf
@@ -482,7 +488,7 @@ class TrafficRules:
         for k, lid, d, s_own in vehicle.upcoming(PASSAGE_HORIZON_M):
             length = net.lane_of[lid].length
             junction = lanes[lid].junction_id is not None
-            if s_own is None and junction and lanes[route[k - 1]].junction_id is None:
+            if s_own is None and enters_junction(lanes, route[k - 1], lid):
                 line = d - line_setback(net, route[k - 1]) - STOP_POINT_M
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
@@ -614,7 +620,7 @@ class TrafficRules:
                 if ped is not None:
                     return ped - s_own
                 continue
-            if lane_model.junction_id is not None and m.lanes[vehicle.lane_route[k - 1]].junction_id is None:
+            if enters_junction(m.lanes, vehicle.lane_route[k - 1], lid):
                 in_lane = vehicle.lane_route[k - 1]
                 d_line = d - line_setback(net, in_lane)
                 if not self.may_enter(vehicle, in_lane, lid, d_line, commit, ignore):

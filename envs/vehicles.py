@@ -13,7 +13,7 @@ from highway_env.vehicle.objects import RoadObject
 
 from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from .network import MapNetwork
-from .rules import idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
+from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
 
 class Pedestrian(RoadObject):
@@ -203,8 +203,7 @@ class RouteFollower:
         """(incoming lane, junction lane, distance to the stop line) of the next junction entry."""
         m = self.net.hdmap
         for k, lid, d, _ in self.upcoming(1e9):
-            if k > self.route_pos and m.lanes[lid].junction_id is not None and \
-                    m.lanes[self.lane_route[k - 1]].junction_id is None:
+            if k > self.route_pos and enters_junction(m.lanes, self.lane_route[k - 1], lid):
                 return self.lane_route[k - 1], lid, d
         return None, None, math.inf
 
