@@ -1,5 +1,4 @@
-"""Steps per second of feat2map/JunctionGrid-v0 with the batched traffic core ("arrays", the
-default) against the object core ("objects", the core before it: "today") and highway-env's
+"""Steps per second of feat2map/JunctionGrid-v0 (its batched traffic core) against highway-env's
 intersection-v1 with the same vehicle count, at 1 Hz and 10 Hz decisions, 10 and 30 vehicles,
 on maps of 4, 8 (the default map), ~100 and ~400 junctions; make_vec scaling over 1 and 2
 workers; resident memory of one env on the ~400-junction map; optionally the profile of a step.
@@ -44,10 +43,9 @@ MAPS = {4: {"features": [f.to_dict() for f in FOUR]}, 8: {}, 96: {"generation": 
         400: {"generation": {"samples_per_combination": 50}}}
 
 
-def feat2map_env(map_cfg: dict, hz: int, vehicles: int, core: str) -> gym.Env:
+def feat2map_env(map_cfg: dict, hz: int, vehicles: int) -> gym.Env:
     return gym.make("feat2map/JunctionGrid-v0", config={
-        **map_cfg, **HZ[hz], "traffic_vehicles": vehicles - 1, "duration": 1e9, "route_junctions": 3,
-        "traffic_core": core})
+        **map_cfg, **HZ[hz], "traffic_vehicles": vehicles - 1, "duration": 1e9, "route_junctions": 3})
 
 
 def intersection_env(hz: int, vehicles: int) -> gym.Env:
@@ -92,35 +90,33 @@ def speed_table(rounds: int, sizes: list[int]) -> list[dict]:
         for n in VEHICLES:
             ref = Runner(intersection_env(hz, n))
             for size in sizes:
-                old = Runner(feat2map_env(MAPS[size], hz, n, "objects"))
-                new = Runner(feat2map_env(MAPS[size], hz, n, "arrays"))
+                new = Runner(feat2map_env(MAPS[size], hz, n))
                 for _ in range(rounds):
-                    for r in (ref, old, new):
+                    for r in (ref, new):
                         r.round(STEPS[hz] if r is not new else 4 * STEPS[hz])
                 rows.append({"hz": hz, "vehicles": n, "junctions": len(new.env.unwrapped.net.hdmap.junctions),
-                             "ref": ref.rate, "old": old.rate, "new": new.rate, "n_ref": np.mean(ref.counts),
-                             "n_new": np.mean(new.counts), "wall": new.wall_rate / old.wall_rate})
+                             "ref": ref.rate, "new": new.rate, "n_ref": np.mean(ref.counts),
+                             "n_new": np.mean(new.counts), "wall": new.wall_rate / ref.wall_rate})
                 print(f"  measured {hz:2d} Hz {n} vehicles {rows[-1]['junctions']} junctions", file=sys.stderr, flush=True)
     return rows
 
 
 def print_speed(rows: list[dict]) -> None:
-    print("steps/s of CPU time (median of interleaved rounds; 'today' = the object core; wall = the same ratio in "
-          "wall-clock time)")
-    print(f"{'Hz':>3} {'veh':>4} {'junctions':>9} {'intersection-v1':>15} {'objects':>8} {'arrays':>8} "
-          f"{'arrays/objects':>14} {'(wall)':>7} {'arrays/inters.':>14} {'vs 4-j':>7} {'on road (ref/ours)':>18}")
+    print("steps/s of CPU time (median of interleaved rounds; wall = the same ratio in wall-clock time)")
+    print(f"{'Hz':>3} {'veh':>4} {'junctions':>9} {'intersection-v1':>15} {'feat2map':>8} "
+          f"{'feat2map/inters.':>16} {'(wall)':>7} {'vs 4-j':>7} {'on road (ref/ours)':>18}")
     for r in rows:
         base = next(x for x in rows if x["hz"] == r["hz"] and x["vehicles"] == r["vehicles"])
-        print(f"{r['hz']:>3} {r['vehicles']:>4} {r['junctions']:>9} {r['ref']:>15.0f} {r['old']:>8.0f} {r['new']:>8.0f} "
-              f"{r['new'] / r['old']:>13.1f}x {r['wall']:>6.1f}x {r['new'] / r['ref']:>13.1f}x {r['new'] / base['new']:>7.2f} "
+        print(f"{r['hz']:>3} {r['vehicles']:>4} {r['junctions']:>9} {r['ref']:>15.0f} {r['new']:>8.0f} "
+              f"{r['new'] / r['ref']:>15.1f}x {r['wall']:>6.1f}x {r['new'] / base['new']:>7.2f} "
               f"{r['n_ref']:>9.1f}/{r['n_new']:<8.1f}")
 
 
 def vector_scaling(rounds: int, seconds: float = 3.0) -> None:
     """Env-steps/s (wall clock: the workers are other processes) of gym.make_vec with 1 and 2
     async workers and 2 sync envs, measured in interleaved rounds: 10 Hz, 10 vehicles, the
-    default map, the arrays core."""
-    print("\nmake_vec (10 Hz, 10 vehicles, default map, arrays core): total env-steps/s, wall clock, "
+    default map."""
+    print("\nmake_vec (10 Hz, 10 vehicles, default map): total env-steps/s, wall clock, "
           "median of interleaved rounds")
     setups = {(mode, n): gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode=mode, config={
         **HZ[10], "traffic_vehicles": 9, "duration": 1e9, "route_junctions": 3})
@@ -144,12 +140,12 @@ def vector_scaling(rounds: int, seconds: float = 3.0) -> None:
 
 
 MEMORY_CODE = """
-import gymnasium as gym, feat2map, sys
+import gymnasium as gym, feat2map
 def rss():
     with open("/proc/self/status") as f:
         return next(int(l.split()[1]) / 1024 for l in f if l.startswith("VmRSS"))
 env = gym.make("feat2map/JunctionGrid-v0", config={"generation": {"samples_per_combination": 50},
-               "traffic_vehicles": 29, "traffic_core": sys.argv[1]})
+               "traffic_vehicles": 29})
 env.reset(seed=0)
 for _ in range(100):
     env.step(1)
@@ -161,16 +157,15 @@ def memory() -> None:
     """Resident memory of a fresh process holding one env of the ~400-junction map (30
     vehicles, after 100 steps): what each vector-env worker costs."""
     print("\nmemory per env (a fresh process, ~400-junction map, 30 vehicles, after 100 steps)")
-    for core in ("arrays", "objects"):
-        out = subprocess.run([sys.executable, "-c", MEMORY_CODE, core], capture_output=True, text=True,
-                             env={**os.environ, "SDL_VIDEODRIVER": "offscreen"}, check=True)
-        mib, junctions, lanes = out.stdout.split()
-        print(f"  {core:7s}: {float(mib):6.0f} MiB resident ({junctions} junctions, {lanes} lanes)")
+    out = subprocess.run([sys.executable, "-c", MEMORY_CODE], capture_output=True, text=True,
+                         env={**os.environ, "SDL_VIDEODRIVER": "offscreen"}, check=True)
+    mib, junctions, lanes = out.stdout.split()
+    print(f"  {float(mib):6.0f} MiB resident ({junctions} junctions, {lanes} lanes)")
 
 
 def profile(steps: int = 300) -> None:
-    """cProfile of policy steps: 10 Hz, 10 vehicles, the default map, the arrays core."""
-    env = feat2map_env({}, 10, 10, "arrays")
+    """cProfile of policy steps: 10 Hz, 10 vehicles, the default map."""
+    env = feat2map_env({}, 10, 10)
     env.reset(seed=0)
     for _ in range(20):
         env.step(IDLE)
@@ -181,7 +176,7 @@ def profile(steps: int = 300) -> None:
         if term or trunc:
             env.reset()
     prof.disable()
-    print_profile(prof, f"{steps} policy steps (10 Hz, 10 vehicles, default map, arrays core)", 18, 4000)
+    print_profile(prof, f"{steps} policy steps (10 Hz, 10 vehicles, default map)", 18, 4000)
 
 
 def print_profile(prof: cProfile.Profile, what: str, rows: int, chars: int) -> None:

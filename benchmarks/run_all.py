@@ -8,7 +8,7 @@ shared machine):
      Apollo export and validation vs map size    (benchmarks/bench_apollo.py)
      route coverage and planner overhead         (benchmarks/bench_scenarios.py)
      and any other benchmarks/bench_*.py
-  3. env steps/s: batched core vs object core vs intersection-v1 (benchmarks/bench_env.py)
+  3. env steps/s: feat2map vs highway-env intersection-v1 (benchmarks/bench_env.py)
   4. rollout throughput: scenarios per minute per core with the baseline planner, plain and
      with line coverage measured (this file; baseline = the plain run in the same process)
 
@@ -160,7 +160,7 @@ BENCHMARKS: dict[str, Callable[[], Table]] = {
     "generate": lambda: run_script("generate", "Generation time vs junction count", "bench_generate.py"),
     "extract": extraction,
     "apollo": lambda: run_script("apollo", "Apollo export and validation time vs map size", "bench_apollo.py"),
-    "env": lambda: run_script("env", "Env steps/s: batched core vs object core vs highway-env intersection-v1",
+    "env": lambda: run_script("env", "Env steps/s: feat2map vs highway-env intersection-v1",
                               "bench_env.py"),
     "vector": lambda: run_script("vector", "Native batched vector env: N sub-envs in one core", "bench_vector.py"),
     "scenarios": lambda: run_script("scenarios", "Route coverage vs map size; baseline planner vs scripted driver",

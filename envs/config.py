@@ -18,7 +18,7 @@ from typing import Any, Callable
 from highway_env.envs.common import action as he_action
 from highway_env.envs.common import observation as he_obs
 
-from ..config import DRIVE_DEFAULTS
+from ..config import AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS, DRIVE_DEFAULTS
 from ..errors import Feat2MapError
 from ..features import PAPER_SF_FEATURE_SPACE
 from .driver_view import DriverViewObservation
@@ -26,8 +26,6 @@ from .driver_view import DriverViewObservation
 MAX_TRAFFIC_VEHICLES = 500  # a larger count is a typo, not a scene (raise it here if you mean it)
 MAX_FREQUENCY_HZ = 1000.0
 MAX_AGENTS = 500  # multi-agent env
-TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] its default TargetSpeed actions (examples/train_ppo.py's)
-ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s2] its TargetSpeed and ContinuousAction accelerations
 AGENT_ACTION_KEYS = {"TargetSpeed": {"target_speeds", "acceleration_range"},
                      "DiscreteMetaAction": {"target_speeds", "longitudinal", "lateral"},
                      "ContinuousAction": {"acceleration_range", "longitudinal", "lateral"}}
@@ -326,8 +324,6 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("neighbour_vehicles_connected_lanes", False, fixed("the neighbour search always follows connected "
             "lanes"), "read by highway-env's reset; has no effect here", highway_env=True),
     # MapEnv
-    Setting("traffic_core", "arrays", one_of("arrays", "objects"),
-            "\"arrays\": all traffic in arrays (core.py); \"objects\": one object each"),
     Setting("duration", 60.0, number(0, lo_open=True), "[s] episode length (truncation)"),
     Setting("route", None, route, "[(junction, entry road, exit road), ...], {\"lanes\": [...]}, "
             "{\"from_lane\": a, \"to_lane\": b}, or None to sample",
@@ -394,8 +390,8 @@ SETTINGS: tuple[Setting, ...] = (
             "ego_start_distance before the stop line)", MULTI),
     Setting("reward_not_yielding", -1.0, REWARD, "weight of a not_yielding violation", MULTI),
     Setting("reward_stop_order", -1.0, REWARD, "weight of a stop_order violation", MULTI),
-    Setting("action", {"type": "TargetSpeed", "target_speeds": list(TARGET_SPEEDS),
-                       "acceleration_range": list(ACCELERATION_RANGE)}, agent_action,
+    Setting("action", {"type": "TargetSpeed", "target_speeds": list(AGENT_TARGET_SPEEDS),
+                       "acceleration_range": list(AGENT_ACCELERATION_RANGE)}, agent_action,
             "the agents' action: TargetSpeed, DiscreteMetaAction or ContinuousAction (longitudinal only)", MULTI,
             shown="TargetSpeed, 0-10 m/s, -6..3 m/s2"),
 )

@@ -11,12 +11,12 @@ from functools import cached_property
 
 import numpy as np
 
+from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S
 from ..phases import junction_phases
 from .network import MapNetwork
-from .rules import PEDESTRIAN_CLEARANCE_M, STOPPED_SPEED_MPS, TrafficRules
+from .rules import TrafficRules, has_stopped
 from .vehicles import Pedestrian
 
-PEDESTRIAN_SPAWN_HORIZON_S = 3.0  # a pedestrian waits for a vehicle this many seconds away (plus the clearance)
 
 
 @dataclass(frozen=True)
@@ -104,8 +104,7 @@ class TrafficControl(TrafficRules):
     def update(self, road, dt: float) -> None:
         """Advance the clock by `dt` and bring the state up to date with the road's vehicles."""
         self.t += dt
-        if hasattr(road, "sync"):
-            road.sync()  # the arrays core: take in vehicles added or removed by user code
+        road.sync()  # the core takes in vehicles added or removed by user code
         net = self.net
         m = net.hdmap
         vehicles = road.vehicles
@@ -137,7 +136,7 @@ class TrafficControl(TrafficRules):
         for jid, queue in list(self.stop_queue.items()):
             self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
         for v, lid, speed in zip(vehicles, lanes, speeds):
-            if speed > STOPPED_SPEED_MPS:
+            if not has_stopped(speed):
                 continue
             sl, _ = self.waiting_line(v, lid)
             if sl is None or sl.kind != "stop":

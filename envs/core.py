@@ -1,5 +1,5 @@
-"""The batched traffic core (`"traffic_core": "arrays"`, the default): all traffic advanced
-together in NumPy arrays, highway-env objects only as views for whoever reads them.
+"""The traffic core: all traffic advanced together in NumPy arrays, highway-env objects only as
+views for whoever reads them.
 
 Design
 ------
@@ -17,7 +17,7 @@ Geometry. `LaneTable` (built once per network, cached on it) concatenates every 
 a position is a `searchsorted` on the global cumulative arc length and one multiply-add, a
 heading an interpolation of vertex headings, for all rows at once; traffic is never projected.
 
-A frame (`ArrayRoad.act` + `ArrayRoad.step`):
+A frame (`MapRoad.act` + `MapRoad.step`):
 1. sync: `road.vehicles` is compared by identity with the rows; vehicles user code appended are
    taken in (a `TrafficVehicle` becomes a driven row), removed ones let go.
 2. external rows act (the ego takes the agent's action).
@@ -26,11 +26,12 @@ A frame (`ArrayRoad.act` + `ArrayRoad.step`):
    s), plus rows on junction lanes that conflict with or diverge from a window lane (found through
    one boolean matrix per junction; their s and offset on the window lane from a table sampled
    once per lane pair); IDM per (follower, leader) pair (a stop point the rules impose is a
-   standing leader) and the minimum per follower. The rules (`rules.TrafficRules.stop_distance`: signals,
-   stop signs, reservations, pedestrians) are asked only for rows with a junction entry or a
-   crosswalk with people on it within LOOKAHEAD_M in their window, in row order, so that
-   reservations are claimed in road order as in the object core. MOBIL runs every second for
-   rows on lanes with same-direction neighbours (the object core's code, on the view).
+   standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
+   (`rules.TrafficRules.stop_distance`: signals, stop signs, reservations, pedestrians) are asked
+   only for rows with a junction entry or a crosswalk with people on it within LOOKAHEAD_M in
+   their window, in row order, so that reservations are claimed in road order. MOBIL runs every
+   MOBIL_PERIOD_S for rows `rules.may_change_lane` allows on lanes with same-direction
+   neighbours (`TrafficVehicle.mobil_change`, on the view).
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
    external rows step themselves.
 5. positions of driven rows from the lane table; pedestrians walk; `TrafficControl.update` does
@@ -42,12 +43,12 @@ Objects. Every driven row has a view, `ArrayVehicle` (a `TrafficVehicle` whose s
 are properties reading its row, positions computed on read), so that highway-env's observation
 types, the renderer, the rules and user code see ordinary vehicles; nothing is copied per frame.
 
-Intended differences from the object core (`"traffic_core": "objects"`):
+The traffic model, where it differs from highway-env's own vehicles:
 - traffic follows its lane centre exactly (no steering controller, no corner cutting), speed is
   along the lane, and a lane change is a lateral offset on the new lane that decays with
   LANE_CHANGE_TAU_S instead of a steered manoeuvre;
-- a traffic vehicle is on its route lane until its centre passes the lane's end (the object
-  core moves the route on 1 m before the end, and locates the vehicle by projection);
+- a traffic vehicle is on its route lane until its centre passes the lane's end (never located
+  by projection);
 - a crashed traffic vehicle brakes to a stop in place (no impact displacement).
 """
 from __future__ import annotations
@@ -58,17 +59,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..config import IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M
 from .network import MapNetwork
-from .rules import (IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M,
-                    IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M)
+from .rules import idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap
 from .vehicles import Pedestrian, TrafficVehicle
 
 if TYPE_CHECKING:
-    from .road import ArrayRoad
+    from .road import MapRoad
 
-LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time constant
-PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
-LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way
 EXTERNAL, DRIVEN = 0, 1
 
 
@@ -337,12 +335,6 @@ class ArrayVehicle(TrafficVehicle):
             return float(c.s[i])
         return super().s_on(lane_id)
 
-    @property
-    def finished(self) -> bool:
-        c, i = self._core, self._row
-        route = c.routes[i]
-        return c.route_pos[i] >= len(route) - 1 and c.s[i] >= c.table.length[route[-1]] - 2.0
-
     def act(self, action=None) -> None:  # the core drives it
         pass
 
@@ -408,7 +400,7 @@ class TrafficCore:
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "route_pos", "route_end", "entry", "controlled", "command")
 
-    def attach(self, road: "ArrayRoad", slot: int = 0) -> None:
+    def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
         if road.network is not self.net:
             raise ValueError("the roads of one traffic core must share its map")
@@ -420,11 +412,11 @@ class TrafficCore:
         road.slot = slot
         self.sync([road])
 
-    def rows(self, road: "ArrayRoad") -> np.ndarray:
+    def rows(self, road: "MapRoad") -> np.ndarray:
         """The rows of `road`, in its vehicles' order (after a sync)."""
         return np.nonzero(self.env == road.slot)[0]
 
-    def add_traffic(self, road: "ArrayRoad", lane_id: str, s: float, speed: float, route: list[str],
+    def add_traffic(self, road: "MapRoad", lane_id: str, s: float, speed: float, route: list[str],
                     controlled: bool = False) -> ArrayVehicle:
         """A new driven row (and its view) on `road` at s on `lane_id`, its route starting there;
         with `controlled`, a row whose acceleration is `command` (an agent's)."""
@@ -682,33 +674,28 @@ class TrafficCore:
         self._refresh_windows()
         t = self.table
         v = np.maximum(self.speed, 0.0)
-        v0 = t.speed_limit[self.lane]
-        free = 1.0 - (v / v0) ** IDM_DELTA
+        free = idm_free(v, t.speed_limit[self.lane])
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
         roads, env = self.roads, self.env
         stops = [(i, roads[env[i]].control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
         stops = [(i, d) for i, d in stops if d < math.inf]
-        if stops:  # a stop point is a standing leader (the bumper IDM_STOP_MARGIN_M short of it)
+        if stops:  # a stop point is a standing leader
             si = np.array([i for i, _ in stops], dtype=np.int64)
             fi = np.concatenate([fi, si])
-            gap = np.concatenate([gap, np.array([d for _, d in stops]) - self.length[si] / 2 - IDM_STOP_MARGIN_M])
+            gap = np.concatenate([gap, stop_gap(np.array([d for _, d in stops]), self.length[si])])
             vl = np.concatenate([vl, np.zeros(len(si))])
         if len(fi):  # rules.idm, vectorized over (follower, leader) pairs
-            vf = v[fi]
             s0 = np.full(len(fi), IDM_GAP_M)
             if stops:
                 s0[-len(stops):] = IDM_STOP_GAP_M
-            s_star = s0 + vf * IDM_TIME_GAP_S + vf * (vf - vl) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
-            a_pair = IDM_ACC * (free[fi] - (np.maximum(s_star, 0.0) / np.maximum(gap, IDM_MIN_GAP_M)) ** 2)
-            np.minimum.at(acc, fi, a_pair)
-        acc = np.minimum(np.maximum(acc, IDM_RANGE_MPS2[0]), IDM_RANGE_MPS2[1])
-        acc = np.where(self.controlled, self.command, acc)
+            np.minimum.at(acc, fi, idm_behind(free[fi], v[fi], vl, gap, s0))
+        acc = np.where(self.controlled, self.command, idm_clip(acc))
         self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
 
     def _leaders(self, driven: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(follower row, bumper gap, leader speed) of every road user in a driven row's way
-        along its window (the object core's `RouteFollower.leader_gaps`)."""
+        along its window (`RouteFollower.leader_gaps` for all rows at once)."""
         t = self.table
         W, C = self.W, self.C
         valid = (W >= 0) & driven[:, None] & ((C - self.s[:, None]) <= LOOKAHEAD_M)
@@ -745,8 +732,7 @@ class TrafficCore:
             return fi, np.zeros(0), np.zeros(0)
         s_own = self.s[fi]
         L = self.length[fi]
-        ok = (np.abs(ro) <= t.width[wl] / 2 + LEADER_LATERAL_M) & (so >= -L) & (so <= t.length[wl] + L)
-        ok &= (k > 0) | (so > s_own)
+        ok = in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | (so > s_own))
         gap = C[fi, k] - s_own + so - L
         return fi[ok], gap[ok], self.speed[lj[ok]]
 
@@ -769,13 +755,13 @@ class TrafficCore:
         return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
 
     def _mobil(self, driven: np.ndarray) -> None:
-        due = driven & (self.timer - self.mobil_t >= TrafficVehicle.MOBIL_PERIOD_S) & ~self.crashed & ~self.controlled
+        due = driven & (self.timer - self.mobil_t >= MOBIL_PERIOD_S) & ~self.crashed & ~self.controlled
         if not due.any():
             return
         self.mobil_t = np.where(due, self.timer, self.mobil_t)
         t = self.table
-        cand = due & t.neighbours[self.lane] & ~t.junction[self.lane] & (self.speed >= 1.0) & \
-            (t.length[self.lane] - self.s >= 30.0)
+        cand = due & t.neighbours[self.lane] & may_change_lane(t.junction[self.lane], t.length[self.lane] - self.s,
+                                                                self.speed)
         for i in np.nonzero(cand)[0].tolist():
             self.objs[i].mobil_change()
 

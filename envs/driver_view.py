@@ -20,9 +20,14 @@ import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.observation import ObservationType
 
-from .rules import STOP_ZONE_M, TURN_NAMES, in_stop_zone
+from ..config import (DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS, DRIVER_VIEW_CONFLICT_DISTANCE_M, DRIVER_VIEW_CONFLICT_TIME_S,
+                      DRIVER_VIEW_LEADER_SCALE_M, DRIVER_VIEW_LINE_FAR_M, DRIVER_VIEW_LINE_NEAR_M,
+                      DRIVER_VIEW_PEDESTRIAN_SCALE_M, DRIVER_VIEW_QUEUE_SCALE, DRIVER_VIEW_SIGNAL_SCALE_S,
+                      DRIVER_VIEW_SPEED_SCALE_MPS)
+from .rules import TURN_NAMES, in_stop_zone
 
 DRIVER_VIEW_FEATURES = (
+    # (the scales x of "/ x" below are feat2map.config's DRIVER_VIEW_* constants)
     "speed",  # ego speed / SPEED_SCALE_MPS
     "line_near", "line_far",  # distance to the next stop line (junction entry) / LINE_NEAR_M, / LINE_FAR_M
     "line_time",  # time to reach that line at the current speed / CONFLICT_TIME_S
@@ -40,16 +45,6 @@ DRIVER_VIEW_FEATURES = (
     "pedestrian",  # distance to where a pedestrian in or entering the path makes the ego stop / PEDESTRIAN_SCALE_M
     "leader_gap", "leader_speed",  # bumper gap / LEADER_SCALE_M and speed of the nearest road user ahead
 )
-SPEED_SCALE_MPS = 15.0
-LINE_NEAR_M = 2 * STOP_ZONE_M
-LINE_FAR_M = 60.0
-SIGNAL_SCALE_S = 15.0
-QUEUE_SCALE = 3.0
-CONFLICT_TIME_S = 8.0
-CONFLICT_DISTANCE_M = 60.0
-ARRIVAL_MIN_SPEED_MPS = 1.0  # times to arrival divide by at least this speed (a waiting car is not "never")
-PEDESTRIAN_SCALE_M = 30.0
-LEADER_SCALE_M = 40.0
 _IGNORE_BUT_PEDESTRIANS = frozenset({"signal", "stop", "conflict", "passage"})
 
 
@@ -83,7 +78,7 @@ def driver_view(env) -> list[float]:
     net = rules.net
     m = net.hdmap
     out = dict.fromkeys(DRIVER_VIEW_FEATURES, 0.0)
-    out["speed"] = _scaled(ego.speed, SPEED_SCALE_MPS)
+    out["speed"] = _scaled(ego.speed, DRIVER_VIEW_SPEED_SCALE_MPS)
     for key in ("line_near", "line_far", "line_time", "priority_time", "priority_distance", "other_time", "other_distance",
                 "pedestrian", "leader_gap"):
         out[key] = 1.0
@@ -93,8 +88,8 @@ def driver_view(env) -> list[float]:
         in_lane = ego.lane_route[k - 1] if k > 0 else None
         sl = rules.control_at(in_lane)
         d = 0.0 if in_junction else max(rules.line_distance(ego, j_lane), 0.0)
-        out.update(line_near=_scaled(d, LINE_NEAR_M), line_far=_scaled(d, LINE_FAR_M),
-                   line_time=_scaled(d / max(ego.speed, ARRIVAL_MIN_SPEED_MPS), CONFLICT_TIME_S),
+        out.update(line_near=_scaled(d, DRIVER_VIEW_LINE_NEAR_M), line_far=_scaled(d, DRIVER_VIEW_LINE_FAR_M),
+                   line_time=_scaled(d / max(ego.speed, DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS), DRIVER_VIEW_CONFLICT_TIME_S),
                    in_stop_zone=float(not in_junction and in_stop_zone(d)), in_junction=float(in_junction))
         out["signal" if sl is not None and sl.kind == "signal" else "stop" if sl is not None else "bare"] = 1.0
         turn = TURN_NAMES.get(m.lanes[j_lane].turn)
@@ -104,19 +99,20 @@ def driver_view(env) -> list[float]:
             out[rules.signal_state(sl.control_id)] = 1.0
             plan = rules.plans.get(sl.control_id)
             if plan is not None:
-                out["signal_change"] = _scaled(plan.time_to_change(sl.control_id, rules.t), SIGNAL_SCALE_S)
+                out["signal_change"] = _scaled(plan.time_to_change(sl.control_id, rules.t), DRIVER_VIEW_SIGNAL_SCALE_S)
             out["protected"] = float(rules.protected(in_lane, j_lane))
         if sl is not None and sl.kind == "stop" and not in_junction:
             out["stop_made"] = float(env.judge.stopped_before(in_lane))
-            out["queue_ahead"] = _scaled(_queue_ahead(rules, ego, j_lane), QUEUE_SCALE)
+            out["queue_ahead"] = _scaled(_queue_ahead(rules, ego, j_lane), DRIVER_VIEW_QUEUE_SCALE)
         _conflicts(rules, ego, j_lane, out)
     ped = rules.stop_distance(ego, commit=False, ignore=_IGNORE_BUT_PEDESTRIANS)
     if ped < math.inf:
-        out["pedestrian"] = _scaled(ped, PEDESTRIAN_SCALE_M)
+        out["pedestrian"] = _scaled(ped, DRIVER_VIEW_PEDESTRIAN_SCALE_M)
     gaps = ego.leader_gaps()
     if gaps:
         gap, speed = min(gaps)
-        out.update(leader_gap=_scaled(gap, LEADER_SCALE_M), leader_speed=_scaled(speed, SPEED_SCALE_MPS))
+        out.update(leader_gap=_scaled(gap, DRIVER_VIEW_LEADER_SCALE_M),
+                   leader_speed=_scaled(speed, DRIVER_VIEW_SPEED_SCALE_MPS))
     return [out[f] for f in DRIVER_VIEW_FEATURES]
 
 
@@ -146,10 +142,11 @@ def _conflicts(rules, ego, j_lane: str, out: dict) -> None:
         group = "priority" if net.lane_of[c].priority >= mine else "other"
         for d, v in rules.traffic_towards(c, exclude=ego):
             speed = max(float(v.speed), 0.0)
-            t = max(d, 0.0) / max(speed, ARRIVAL_MIN_SPEED_MPS)
+            t = max(d, 0.0) / max(speed, DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS)
             if t < nearest[group][0]:
                 nearest[group] = (t, max(d, 0.0), speed)
     for group, (t, d, speed) in nearest.items():
         if t < math.inf:
-            out.update({f"{group}_time": _scaled(t, CONFLICT_TIME_S), f"{group}_distance": _scaled(d, CONFLICT_DISTANCE_M),
-                        f"{group}_speed": _scaled(speed, SPEED_SCALE_MPS)})
+            out.update({f"{group}_time": _scaled(t, DRIVER_VIEW_CONFLICT_TIME_S),
+                        f"{group}_distance": _scaled(d, DRIVER_VIEW_CONFLICT_DISTANCE_M),
+                        f"{group}_speed": _scaled(speed, DRIVER_VIEW_SPEED_SCALE_MPS)})

@@ -21,22 +21,19 @@ from gymnasium.vector import AutoresetMode
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 
-from ..config import MAX_LEGS
+from ..config import (EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M, MAX_LEGS, STOP_LINE_RANGE_M, TRAFFIC_LANE_END_M,
+                      TRAFFIC_SPAWN_GAP_M, TRAFFIC_SPAWN_TRIES)
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
 from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
 from .network import MapNetwork, release_memory
-from .observation import STOP_LINE_RANGE_M, TrafficControlObservation, make_observation
-from .road import ArrayRoad, MapRoad
+from .observation import TrafficControlObservation, make_observation
+from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place
 from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
-TRAFFIC_SPAWN_TRIES = 10
-TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
-TRAFFIC_LANE_END_M = 8.0  # ... and not within this of its lane's end
-EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M = 25.0, 40.0  # ... and this far from the ego (at reset, on respawn)
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
 _CACHE_SIZE = 8
 
@@ -105,9 +102,8 @@ class MapEnv(AbstractEnv):
         rng = self.np_random
         self.net.memo("semantics", lambda: assert_sound(self.net.hdmap))  # the map is safe to drive, once per map
         self.control = TrafficControl(self.net, rng, self.config)
-        road = ArrayRoad if self.config["traffic_core"] == "arrays" else MapRoad
         slot = {"slot": self.core_slot} if self.core_slot is not None else {}
-        self.road = road(self.net, self.control, rng, record_history=self.config["show_trajectories"], **slot)
+        self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"], **slot)
         route, extend = self._ego_route()
         self._make_ego(route, extend)
         route = self.vehicle.lane_route
@@ -149,7 +145,6 @@ class MapEnv(AbstractEnv):
             ego = EgoVehicle(self.road, pos, heading, speed)
             ego.auto_steer = not getattr(self.action_type, "lateral", True)
             ego.init_route(route)
-        ego.cache_projections = self.config["traffic_core"] == "arrays"
         self.road.vehicles.append(ego)
         self.control.passage_start(ego)  # the first on the road: it holds the passages it starts in
         self.controlled_vehicles = [ego]
@@ -220,10 +215,12 @@ class MapEnv(AbstractEnv):
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def _respawn_traffic(self) -> None:
-        """Traffic that finished its route or crashed leaves; as many new vehicles spawn."""
+    def _respawn_traffic(self, stay: frozenset[int] = frozenset()) -> None:
+        """Traffic that finished its route or crashed leaves (but the vehicles whose ids are in
+        `stay`: the multi-agent env's agents); as many new vehicles spawn."""
         if self.config["traffic_respawn"]:
-            keep = [v for v in self.road.vehicles if not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
+            keep = [v for v in self.road.vehicles if id(v) in stay
+                    or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
             self.road.vehicles = keep
             for _ in range(removed):
@@ -346,9 +343,8 @@ class MapEnv(AbstractEnv):
 
 def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     """One policy step of `envs` (one env, or the sub-envs of a batch, all of one config) with
-    their actions, frame by frame together: on the arrays core the traffic of all roads that
-    share a core moves in one call per frame (`TrafficCore.act` / `step`); on the object core
-    each road steps its own."""
+    their actions, frame by frame together: the traffic of all roads that share a core moves in
+    one call per frame (`TrafficCore.act` / `step`)."""
     if not envs:
         return
     c = envs[0].config
@@ -356,8 +352,7 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     dt = 1 / c["simulation_frequency"]
     groups: dict[int, tuple[Any, list]] = {}  # roads by their core (one group: one batch)
     for env in envs:
-        core = getattr(env.road, "core", None)
-        groups.setdefault(id(core) if core is not None else id(env.road), (core, []))[1].append(env.road)
+        groups.setdefault(id(env.road.core), (env.road.core, []))[1].append(env.road)
     for env in envs:
         env.judge.new = []
     for frame in range(frames):
@@ -365,12 +360,8 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             if action is not None and not env.config["manual_control"] and env.steps % frames == 0:
                 env.action_type.act(action)
         for core, roads in groups.values():
-            if core is not None:
-                core.act(roads)
-                core.step(roads, dt)
-            else:
-                roads[0].act()
-                roads[0].step(dt)
+            core.act(roads)
+            core.step(roads, dt)
         for env in envs:
             env.steps += 1
             env.judge.check()

@@ -56,8 +56,9 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_META_GAIN, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
 from ..errors import Feat2MapError
-from .config import (ACCELERATION_RANGE, MULTI, TARGET_SPEEDS, checks, defaults, multi_agent_defaults,
+from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
 from .control import TrafficControl
 from .core import ArrayVehicle
@@ -65,14 +66,12 @@ from .junction_env import JunctionGridEnv, MapFileEnv
 from .kinematics_batch import batch_supported, observe_many
 from .map_env import MapEnv, check_action
 from .observation import TrafficControlObservation, make_observation
-from .road import ArrayRoad
+from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
-from .rules import IDM_RANGE_MPS2, STOPPED_SPEED_MPS, VIOLATIONS, EgoJudge, can_stop_before
+from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
 from .vehicles import TrafficVehicle
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
-META_GAIN = 1 / 0.6  # DiscreteMetaAction: acceleration per m/s off the target speed (highway-env's 1/TAU_ACC)
-ENTRY_LOOK_M = 8.0  # the judge notes the rules' verdict for agents this close to their next stop line
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
 AGENT_DEFAULTS: dict[str, Any] = defaults(MULTI)
 #: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
@@ -130,8 +129,8 @@ class AgentActions:
 
     def __init__(self, cfg: Mapping[str, Any], policy_frequency: float) -> None:
         self.kind = cfg["type"]
-        self.speeds = np.array(cfg.get("target_speeds", TARGET_SPEEDS), dtype=float)
-        self.acceleration_range = tuple(float(x) for x in cfg.get("acceleration_range", ACCELERATION_RANGE))
+        self.speeds = np.array(cfg.get("target_speeds", AGENT_TARGET_SPEEDS), dtype=float)
+        self.acceleration_range = tuple(float(x) for x in cfg.get("acceleration_range", AGENT_ACCELERATION_RANGE))
         self.period = 1.0 / policy_frequency
         if self.kind == "TargetSpeed":
             self.space: spaces.Space = spaces.Discrete(len(self.speeds))
@@ -159,7 +158,7 @@ class AgentActions:
         """Accelerations of the agents this frame (DiscreteMetaAction tracks its target speed every frame)."""
         if self.kind == "DiscreteMetaAction":
             target = self.speeds[[s["index"] for s in states]]
-            return np.clip(META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
+            return np.clip(AGENT_META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
         return np.array([s["acc"] for s in states], dtype=float)
 
 
@@ -178,7 +177,7 @@ class AgentJudge(EgoJudge):
 
     def note(self) -> None:
         rules, v = self.rules, self.ego
-        sl, in_lane, j_lane, d = rules.line_ahead(v, ENTRY_LOOK_M)
+        sl, in_lane, j_lane, d = rules.line_ahead(v, AGENT_ENTRY_LOOK_M)
         if j_lane is None:
             return
         if self._verdict[0] == j_lane and not can_stop_before(d, v.speed, v.LENGTH):
@@ -246,23 +245,19 @@ class AgentVehicle(ArrayVehicle):
         d = net.lane_of[route[pos]].length - float(c.s[i])
         for length in lengths:
             d += length
-        if back is not None:
-            d -= back
-        return (*found, d)
+        return (*found, d - back)
 
 
 def _line_plan(net, route: list[str], pos: int) -> tuple:
-    """(lengths added after the own lane's rest, length taken off at a stop line or None, the
-    answer without its distance) of `rules.stop_line_ahead` from route position `pos`, or (None,)."""
+    """(lengths added after the own lane's rest, the line's `rules.line_setback`, the answer
+    without its distance) of `rules.stop_line_ahead` from route position `pos`, or (None,)."""
     lanes, lane_of = net.hdmap.lanes, net.lane_of
     lengths: list[float] = []
     for k in range(pos + 1, len(route)):
         lid = route[k]
-        if lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
+        if enters_junction(lanes, route[k - 1], lid):
             in_lane = route[k - 1]
-            sl = net.stop_lines.get(in_lane)
-            back = lane_of[in_lane].length - sl.s if sl is not None else None
-            return tuple(lengths), back, (sl, in_lane, lid)
+            return tuple(lengths), line_setback(net, in_lane), (net.stop_lines.get(in_lane), in_lane, lid)
         lengths.append(lane_of[lid].length)
     return (None,)
 
@@ -384,14 +379,12 @@ class _World(MapEnv):
     def new_episode(self, seed: int | None) -> list[tuple[list[str], bool]]:
         """A fresh episode (traffic control, road, traffic); the agents' routes, placed by the caller."""
         gymnasium.Env.reset(self, seed=seed)  # seeds np_random
-        if self.config["traffic_core"] != "arrays":
-            raise Feat2MapError("the multi-agent env runs on the arrays core", "config.traffic_core")
         self.time = self.steps = 0
         self.done = False
         self.net = self._network()
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
-        self.road = ArrayRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
         self.controlled_vehicles = []
         self._places: dict[tuple, list] = {}
         routes = self._agent_routes(int(self.agent_config["agents"]))
@@ -469,14 +462,7 @@ class _World(MapEnv):
 
     def respawn_traffic(self, agents: set[int]) -> None:
         """MapEnv's respawn: finished and crashed traffic leaves, as many new vehicles spawn."""
-        if not self.config["traffic_respawn"]:
-            return
-        keep = [v for v in self.road.vehicles if id(v) in agents
-                or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
-        removed = len(self.road.vehicles) - len(keep)
-        self.road.vehicles = keep
-        for _ in range(removed):
-            self._spawn_traffic(min_ego_distance=40.0)
+        self._respawn_traffic(frozenset(agents))
 
 
 class _GridWorld(_World, JunctionGridEnv):
@@ -618,7 +604,7 @@ class MultiAgentMapEnv(ParallelEnv):
             # the rules' verdict is noted for agents near a junction entry (core.entry: where the
             # next one starts, from the current lane's start; the line may lie before it)
             core._refresh_windows()  # rows that moved to a new lane last frame
-            near = core.entry[rows] - core.s[rows] <= ENTRY_LOOK_M + w.net.max_line_setback
+            near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
             for k in np.nonzero(near)[0].tolist():
                 judges[k].note()
             crashed = core.crashed[rows]
@@ -628,7 +614,7 @@ class MultiAgentMapEnv(ParallelEnv):
             # the judge looks at an agent whenever its check can change anything: a new lane, a
             # stop, a crosswalk on its lane, or near the end of its lane (off the road past a dead end)
             lane, speed, s_on = core.lane[rows], core.speed[rows], core.s[rows]
-            stopped = speed <= STOPPED_SPEED_MPS
+            stopped = has_stopped(speed)
             due = (lane != judged) | stopped | table.crossing[lane] | (s_on > table.length[lane])
             for k in np.nonzero(due)[0].tolist():
                 judges[k].check()

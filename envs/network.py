@@ -23,19 +23,13 @@ from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
 from ..angles import wrap_angle
+from ..config import (CONFLICT_DISTANCE_M, CROSSING_CLEARANCE_M, CURVE_CHORD_M, FOOTPRINT_STEP_M, PASSAGE_DISTANCE_M,
+                      PASSAGE_STEP_M, TRACKING_MARGIN_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
 from ..model import HDMap, incoming_lanes
 from .lanes import PolylineLane
 
 GRID_CELL_M = 8.0
-CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
-VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
-TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
-CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's lane its lane crosses (plus half its width)
-FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
-PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
-PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
-CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
          "curb": LineType.CONTINUOUS_LINE, "dotted_white": LineType.STRIPED,
          "dotted_yellow": LineType.STRIPED, "virtual": LineType.NONE}

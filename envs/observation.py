@@ -9,6 +9,7 @@ from gymnasium import spaces
 from highway_env.envs.common.observation import (KinematicObservation, ObservationType, OccupancyGridObservation,
                                                  observation_factory)
 
+
 from .driver_view import DriverViewObservation
 
 ANY_FLOAT32 = float(np.finfo(np.float32).max)  # the bound of a feature that has none: any float32 value
@@ -18,7 +19,6 @@ FAST_FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h",
                            "long_off", "lat_off", "ang_off"})
 RELATIVE = ("x", "y", "vx", "vy")
 TRAFFIC_CONTROL_FEATURES = ("green", "amber", "red", "stop_sign", "stop_line_distance", "pedestrian_ahead")
-STOP_LINE_RANGE_M = 100.0  # the distance feature is metres / this, clipped to 1
 
 
 class Kinematics(KinematicObservation):

@@ -18,9 +18,9 @@ import numpy as np
 from ..errors import Feat2MapError
 from ..routes import manoeuvre_lane
 from .network import MapNetwork
-from .rules import SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, braking_distance
+from ..config import ROUTE_SAMPLE_TRIES, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M
+from .rules import braking_distance, enters_junction, line_setback
 
-ROUTE_SAMPLE_TRIES = 100  # sampled routes through a junction tried before the map counts as having none
 
 
 def route_from_config(net: MapNetwork, spec: Any) -> tuple[list[str], bool]:
@@ -125,9 +125,8 @@ def first_line_distance(net: MapNetwork, route: Sequence[str], s0: float) -> flo
     m = net.hdmap
     d = -s0
     for k, lid in enumerate(route):
-        if k and m.lanes[lid].junction_id is not None and m.lanes[route[k - 1]].junction_id is None:
-            sl = net.stop_lines.get(route[k - 1])
-            return d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0)
+        if k and enters_junction(m.lanes, route[k - 1], lid):
+            return d - line_setback(net, route[k - 1])
         d += net.lane_of[lid].length
     return math.inf
 
@@ -243,7 +242,7 @@ def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions
         if not succ or len(path) > 200:
             break
         nxt = succ[int(rng.integers(len(succ)))]
-        entering = m.lanes[nxt].junction_id is not None and m.lanes[path[-1]].junction_id is None
+        entering = enters_junction(m.lanes, path[-1], nxt)
         if entering:
             if count >= junctions:
                 break

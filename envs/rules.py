@@ -1,8 +1,10 @@
 """Every traffic rule of the environments, in one place: the env's traffic, its judge of the ego
 and the baseline planner (scenarios/planner.py) all ask this module.
 
-- constants of the rules (what counts as a stop, how far ahead vehicles look, when a vehicle
-  commits to a junction, how pedestrians are yielded to) and the IDM car-following law;
+- the IDM car-following law and MOBIL's lane-change criteria, for one vehicle and for the
+  arrays core's rows at once; their constants and the rules' (what counts as a stop, how far
+  ahead vehicles look, when a vehicle commits to a junction, how pedestrians are yielded to) are
+  named in feat2map/config.py (env layer);
 - `TrafficRules`: the questions traffic and planners ask of the traffic control state (the
   signal's state, where the rules make a vehicle stop, whether it may enter a junction lane,
   whether a turn is protected, who is heading into a conflicting lane, who may drive into a
@@ -18,43 +20,63 @@ maps have 0.01-2.4 m lanes there) changes neither where a vehicle stops nor whet
 counts.
 
 Vehicles are any objects with the route-follower interface (`vehicles.RouteFollower`):
-`lane_route`, `route_pos`, `speed`, `LENGTH`, `reserved`, `upcoming()`, `s_on(lane)`; both
-traffic cores provide it (objects directly, the arrays core through lightweight views).
+`lane_route`, `route_pos`, `speed`, `LENGTH`, `reserved`, `upcoming()`, `s_on(lane)`; the ego
+provides it directly, traffic through the arrays core's lightweight views. The laws the arrays
+core applies to all rows at once (IDM, MOBIL's eligibility, who is in the way) are written once
+here for scalars and arrays alike.
 """
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ..config import (AMBER_BRAKE_MPS2, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M,
+                      IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
+                      LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
+                      MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
+                      PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
+                      SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
 if TYPE_CHECKING:
     from .network import MapNetwork, StopLine
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
-STOPPED_SPEED_MPS = 0.3
-STOP_ZONE_M = 6.0  # a stop counts when made with the vehicle centre within this distance of the stop line
-STOP_POINT_M = 1.0  # vehicles held by a rule stop this far before the line (centre target, see idm)
-COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane this close to the line
-COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
-AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)
-LOOKAHEAD_M = 60.0
-PASSAGE_HORIZON_M = 400.0  # how far along its route a vehicle looks for narrow passages it must claim together
-PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield
-PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
-PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
-PRIORITY_HORIZON_S = 3.0  # left turns wait for priority traffic this close in time
-PRIORITY_MARGIN_M = 3.0
-SPAWN_BRAKE_MPS2 = 3.0  # vehicles start at least their braking distance at this rate before the first stop line
-SPAWN_MARGIN_M = 1.0
-OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
-OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
-# IDM parameters of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
-IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_TIME_GAP_S = 3.0, 4.0, 4.0, 2.5, 1.2
-IDM_STOP_GAP_M = 0.3  # jam distance to a stop point (vs IDM_GAP_M to a leader)
-IDM_STOP_MARGIN_M = 0.5  # the front bumper halts this short of a stop point
-IDM_MIN_GAP_M = 0.05
-IDM_RANGE_MPS2 = (-8.0, 6.0)
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
+
+
+def idm_free(v, v0):
+    """IDM's free-road term 1 - (v / v0)^delta (its acceleration without leaders is IDM_ACC times
+    this); scalars or arrays."""
+    return 1.0 - (v / v0) ** IDM_DELTA
+
+
+def idm_behind(free, v, v_lead, gap, jam_gap):
+    """IDM's acceleration behind one leader (`gap`: bumper to bumper, `jam_gap`: IDM_GAP_M
+    behind a vehicle, IDM_STOP_GAP_M before a stop point) given the free term `free`; scalars or
+    arrays (then elementwise, as the arrays core takes it for all (follower, leader) pairs)."""
+    s_star = jam_gap + v * IDM_TIME_GAP_S + v * (v - v_lead) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
+    return IDM_ACC * (free - (_larger(s_star, 0.0) / _larger(gap, IDM_MIN_GAP_M)) ** 2)
+
+
+def stop_gap(distance, length, margin: float = IDM_STOP_MARGIN_M):
+    """The gap IDM keeps to a stop point `distance` ahead of a vehicle's centre: its front bumper
+    halts `margin` short of it (a stop point is a standing leader)."""
+    return distance - length / 2 - margin
+
+
+def idm_clip(acc):
+    """An IDM acceleration within IDM_RANGE_MPS2 (a float, or an array elementwise)."""
+    lo, hi = IDM_RANGE_MPS2
+    if isinstance(acc, np.ndarray):
+        return np.minimum(np.maximum(acc, lo), hi)
+    return min(max(float(acc), lo), hi)
+
+
+def _larger(x, lo: float):
+    return np.maximum(x, lo) if isinstance(x, np.ndarray) else max(x, lo)
 
 
 def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = math.inf,
@@ -65,17 +87,51 @@ def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = mat
     net = vehicle.net
     v = max(vehicle.speed, 0.0)
     v0 = max(net.lane_of[vehicle.lane_route[vehicle.route_pos]].speed_limit, 1.0)
-    a_max = IDM_ACC
-    free = 1 - (v / v0) ** IDM_DELTA
-    acc = a_max * free
+    free = idm_free(v, v0)
+    acc = IDM_ACC * free
     items = [(g, vl, IDM_GAP_M) for g, vl in gaps]
     if stop_distance < math.inf:
-        items.append((stop_distance - vehicle.LENGTH / 2 - stop_margin, 0.0, IDM_STOP_GAP_M))
-    root = 2 * math.sqrt(a_max * IDM_BRAKE)
+        items.append((stop_gap(stop_distance, vehicle.LENGTH, stop_margin), 0.0, IDM_STOP_GAP_M))
     for gap, vl, s0 in items:
-        s_star = s0 + v * IDM_TIME_GAP_S + v * (v - vl) / root
-        acc = min(acc, a_max * (free - (max(s_star, 0.0) / max(gap, IDM_MIN_GAP_M)) ** 2))
-    return min(max(float(acc), IDM_RANGE_MPS2[0]), IDM_RANGE_MPS2[1])
+        acc = min(acc, idm_behind(free, v, vl, gap, s0))
+    return idm_clip(acc)
+
+
+def in_the_way(s, lateral, lane_width, lane_length, length):
+    """Whether a road user at (s, lateral) on a lane ahead is in the way of a vehicle `length`
+    long on it: within LEADER_LATERAL_M beyond the lane's half width, and not more than a vehicle
+    length off either end (scalars or arrays)."""
+    return (abs(lateral) <= lane_width / 2 + LEADER_LATERAL_M) & (s >= -length) & (s <= lane_length + length)
+
+
+def may_change_lane(in_junction, room, speed):
+    """MOBIL's eligibility: a lane change is considered only on a road lane (not in a junction),
+    at least MOBIL_MIN_ROOM_M before the lane's end and at MOBIL_MIN_SPEED_MPS or faster
+    (scalars or arrays)."""
+    return np.logical_not(in_junction) & (room >= MOBIL_MIN_ROOM_M) & (speed >= MOBIL_MIN_SPEED_MPS)
+
+
+def mobil_safe(a_follower: float) -> bool:
+    """MOBIL's safety criterion: the new follower need not brake harder than MOBIL_SAFE_BRAKE_MPS2."""
+    return a_follower >= -MOBIL_SAFE_BRAKE_MPS2
+
+
+def mobil_accepts(a_current: float, a_new: float, follower_loss: float) -> bool:
+    """MOBIL's incentive criterion: the own acceleration gain, less MOBIL_POLITENESS times the
+    new follower's loss, exceeds MOBIL_GAIN_MPS2."""
+    return a_new - a_current - MOBIL_POLITENESS * follower_loss > MOBIL_GAIN_MPS2
+
+
+def has_stopped(speed):
+    """A road user at most STOPPED_SPEED_MPS fast has stopped (a full stop at a stop sign, a place
+    in a stop-sign queue, an agent's wait); a float, or an array elementwise."""
+    return speed <= STOPPED_SPEED_MPS
+
+
+def pedestrian_in_path(lateral: float, lane_width: float) -> bool:
+    """A pedestrian `lateral` metres off a lane's centre is in the path of its vehicles (within
+    PEDESTRIAN_IN_PATH_M beyond the lane's half width)."""
+    return abs(lateral) < lane_width / 2 + PEDESTRIAN_IN_PATH_M
 
 
 def stops_at_amber(distance: float, speed: float) -> bool:
@@ -104,6 +160,20 @@ def can_stop_before(distance: float, speed: float, length: float) -> bool:
     return distance - length / 2 >= max(speed, 0.0) ** 2 / (2 * SPAWN_BRAKE_MPS2)
 
 
+def enters_junction(lanes: Mapping[str, Any], before: str, lane: str) -> bool:
+    """Whether driving from lane `before` into lane `lane` (map lanes by id) is a junction entry:
+    `lane` is a junction lane and `before` is not (the incoming lane, whose stop line governs it)."""
+    return lanes[lane].junction_id is not None and lanes[before].junction_id is None
+
+
+def line_setback(net: "MapNetwork", in_lane: str) -> float:
+    """How far before the end of incoming lane `in_lane` its stop line lies (0 at a bare entry,
+    whose line is the junction lane's start): a distance to a junction entry less this is the
+    distance to its line."""
+    sl = net.stop_lines.get(in_lane)
+    return net.lane_of[in_lane].length - sl.s if sl is not None else 0.0
+
+
 def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],
                     route: Sequence[str]) -> tuple["StopLine | None", str | None, str | None, float]:
     """(stop line or None, incoming lane, junction lane, distance along the route from the
@@ -113,12 +183,9 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     m = net.hdmap
     lanes = m.lanes
     for k, lid, d, s_own in upcoming:
-        if s_own is None and lanes[lid].junction_id is not None and lanes[route[k - 1]].junction_id is None:
+        if s_own is None and enters_junction(lanes, route[k - 1], lid):
             in_lane = route[k - 1]
-            sl = net.stop_lines.get(in_lane)
-            if sl is not None:
-                d -= net.lane_of[in_lane].length - sl.s
-            return sl, in_lane, lid, d
+            return net.stop_lines.get(in_lane), in_lane, lid, d - line_setback(net, in_lane)
     return None, None, None, math.inf
 
 
@@ -221,8 +288,7 @@ class TrafficRules:
             if lid == junction_lane:
                 if s_own is not None:
                     return -s_own
-                sl = net.stop_lines.get(route[k - 1])
-                return d - (net.lane_of[route[k - 1]].length - sl.s) if sl is not None else d
+                return d - line_setback(net, route[k - 1])
         return 0.0
 
     # ---- occupancy ----------------------------------------------------------------------
@@ -270,8 +336,7 @@ class TrafficRules:
             if lane.junction_id is None:
                 room += net.lane_of[route[i]].length
             elif lane.junction_id != jid:
-                sl = net.stop_lines.get(route[i - 1])
-                room -= net.lane_of[route[i - 1]].length - sl.s if sl is not None else 0.0
+                room -= line_setback(net, route[i - 1])
                 if room >= vehicle.LENGTH + STOP_POINT_M:
                     return True
                 if not self.junction_clear(route[i], vehicle):
@@ -423,9 +488,8 @@ class TrafficRules:
         for k, lid, d, s_own in vehicle.upcoming(PASSAGE_HORIZON_M):
             length = net.lane_of[lid].length
             junction = lanes[lid].junction_id is not None
-            if s_own is None and junction and lanes[route[k - 1]].junction_id is None:
-                sl = net.stop_lines.get(route[k - 1])
-                line = d - (net.lane_of[route[k - 1]].length - sl.s if sl is not None else 0.0) - STOP_POINT_M
+            if s_own is None and enters_junction(lanes, route[k - 1], lid):
+                line = d - line_setback(net, route[k - 1]) - STOP_POINT_M
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
                 exit_d = d
@@ -528,7 +592,7 @@ class TrafficRules:
                     continue
                 h = lane.heading_at(sp)
                 towards = rp * (p.direction[0] * -math.sin(h) + p.direction[1] * math.cos(h)) < 0
-                if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M or (
+                if pedestrian_in_path(rp, lane.width) or (
                         towards and abs(rp) < lane.width / 2 + PEDESTRIAN_CORRIDOR_M):
                     stop_at = s0 - 1.0
                     best = stop_at if best is None else min(best, stop_at)
@@ -556,10 +620,9 @@ class TrafficRules:
                 if ped is not None:
                     return ped - s_own
                 continue
-            if lane_model.junction_id is not None and m.lanes[vehicle.lane_route[k - 1]].junction_id is None:
+            if enters_junction(m.lanes, vehicle.lane_route[k - 1], lid):
                 in_lane = vehicle.lane_route[k - 1]
-                sl = net.stop_lines.get(in_lane)
-                d_line = d - (net.lane_of[in_lane].length - sl.s) if sl is not None else d
+                d_line = d - line_setback(net, in_lane)
                 if not self.may_enter(vehicle, in_lane, lid, d_line, commit, ignore):
                     return d_line - STOP_POINT_M
             ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)
@@ -598,7 +661,7 @@ class EgoJudge:
         prev = self._lane
         on_road = lid in m.lanes and m.lanes[lid].junction_id is None
         rtor = rules.right_turn_on_red()
-        if ego.speed <= STOPPED_SPEED_MPS:
+        if has_stopped(ego.speed):
             sl, in_lane = rules.waiting_line(ego, lid)
             if sl is not None and (sl.kind == "stop" or rtor):
                 self._stopped.add(in_lane)
@@ -626,7 +689,7 @@ class EgoJudge:
                 lane = net.lane_of[lid]
                 for p in rules.pedestrians.get(cw, ()):
                     sp, rp = lane.local_coordinates(p.position)
-                    if abs(rp) < lane.width / 2 + PEDESTRIAN_IN_PATH_M and abs(sp - ego.lane_s) < ego.LENGTH:
+                    if pedestrian_in_path(rp, lane.width) and abs(sp - ego.lane_s) < ego.LENGTH:
                         self._ped_flags.add((lid, cw))
                         self._violate("pedestrian_yield")
                         break

@@ -16,17 +16,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..angles import wrap_angle
+from ..config import (TRACKING_ACCEL_RANGE, TRACKING_HOLD_WINDOW_S, TRACKING_LOOKAHEAD_MIN_M, TRACKING_LOOKAHEAD_TIME_S,
+                      TRACKING_POSITION_GAIN, TRACKING_PREVIEW_S, TRACKING_SPEED_GAIN, TRACKING_STOP_SPEED_MPS)
 
-# pure pursuit: look ahead this far [m] plus this many seconds of the current speed
-LOOKAHEAD_MIN_M = 2.5  # (pure pursuit cuts a curve of radius R by about R - sqrt(R^2 - L^2): keep L short)
-LOOKAHEAD_TIME_S = 0.3
-SPEED_GAIN = 1.5  # [1/s] speed error -> acceleration
-POSITION_GAIN = 0.4  # [1/s^2] along-track position error -> acceleration
-ACCEL_RANGE = (-8.0, 4.0)  # [m/s^2] the command is clipped to these (the baseline's range)
 MAX_STEERING_RAD = math.pi / 3  # highway-env's ControlledVehicle.MAX_STEERING_ANGLE
-STOP_SPEED_MPS = 0.3  # a trajectory whose speed falls below this holds the ego still
-PREVIEW_S = 0.2  # the speed reference is read this far ahead (the actuation lag of one decision)
-HOLD_WINDOW_S = 1.0  # the ego is held still only if the trajectory stays below STOP_SPEED_MPS this long
 
 
 @dataclass(frozen=True)
@@ -87,7 +80,7 @@ class TrajectoryTracker:
         """{"acceleration", "steering"} for a vehicle at this pose and speed, now."""
         tr = self.traj
         t = self.clock()
-        v_ref = float(np.interp(t + PREVIEW_S, tr.t, tr.speed))
+        v_ref = float(np.interp(t + TRACKING_PREVIEW_S, tr.t, tr.speed))
         if len(tr.t) > 1:
             k = int(np.clip(np.searchsorted(tr.t, t) - 1, 0, len(tr.t) - 2))
             a_ff = float((tr.speed[k + 1] - tr.speed[k]) / (tr.t[k + 1] - tr.t[k])) if tr.t[0] <= t <= tr.t[-1] else 0.0
@@ -96,13 +89,13 @@ class TrajectoryTracker:
         p = np.asarray(position[:2], dtype=float)
         s_ego = self._project(p)
         s_ref = float(np.interp(t, tr.t, self.s))
-        ahead = (tr.t >= t) & (tr.t <= t + HOLD_WINDOW_S)
+        ahead = (tr.t >= t) & (tr.t <= t + TRACKING_HOLD_WINDOW_S)
         v_ahead = max(v_ref, float(tr.speed[ahead].max()) if ahead.any() else 0.0)
-        if v_ahead < STOP_SPEED_MPS and (t >= tr.t[-1] or s_ego >= s_ref - 0.5):  # asked to stay
-            acc = -SPEED_GAIN * max(speed, 0.0) - (2.0 if speed > 0.05 else 0.0)
+        if v_ahead < TRACKING_STOP_SPEED_MPS and (t >= tr.t[-1] or s_ego >= s_ref - 0.5):  # asked to stay
+            acc = -TRACKING_SPEED_GAIN * max(speed, 0.0) - (2.0 if speed > 0.05 else 0.0)
         else:
-            acc = a_ff + SPEED_GAIN * (v_ref - speed) + POSITION_GAIN * (s_ref - s_ego)
-        lookahead = LOOKAHEAD_MIN_M + LOOKAHEAD_TIME_S * max(speed, 0.0)
+            acc = a_ff + TRACKING_SPEED_GAIN * (v_ref - speed) + TRACKING_POSITION_GAIN * (s_ref - s_ego)
+        lookahead = TRACKING_LOOKAHEAD_MIN_M + TRACKING_LOOKAHEAD_TIME_S * max(speed, 0.0)
         if self.s[-1] > 0:
             target = self._point_at(s_ego + lookahead)
             if s_ego + lookahead > self.s[-1]:  # beyond the end: continue along the last heading
@@ -115,5 +108,5 @@ class TrajectoryTracker:
         alpha = wrap_angle(alpha)
         ld = max(math.hypot(dx, dy), 1e-3)
         steering = math.atan2(2.0 * self.wheelbase * math.sin(alpha), ld)
-        return {"acceleration": float(np.clip(acc, *ACCEL_RANGE)),
+        return {"acceleration": float(np.clip(acc, *TRACKING_ACCEL_RANGE)),
                 "steering": float(np.clip(steering, -MAX_STEERING_RAD, MAX_STEERING_RAD))}

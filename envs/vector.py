@@ -25,8 +25,7 @@ from .core import TrafficCore
 from .map_env import MapEnv, simulate
 
 # config values a batch cannot hold: (key, value, why)
-UNSUPPORTED = (("traffic_core", "objects", "the batch steps the arrays core only"),
-               ("new_map_each_reset", True, "the sub-envs of a batch share one map"),
+UNSUPPORTED = (("new_map_each_reset", True, "the sub-envs of a batch share one map"),
                ("manual_control", True, "no keyboard in a batch"))
 MAP_KEYS = ("map_seed", "features", "feature_space", "generation", "map_file", "map")  # fixed for a batch's life
 

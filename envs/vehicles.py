@@ -1,5 +1,6 @@
 """Road users: crosswalk pedestrians, and vehicles that follow explicit lane routes (highway-env
-vehicles: traffic driven by IDM and MOBIL, the ego driven by the agent's actions)."""
+vehicles: traffic, which the arrays core (core.py) drives by IDM and MOBIL through views of its
+rows, and the ego, driven by the agent's actions)."""
 from __future__ import annotations
 
 import math
@@ -11,8 +12,9 @@ from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
 from ..angles import wrap_angle
+from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from .network import MapNetwork
-from .rules import LOOKAHEAD_M, idm
+from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
 
 class Pedestrian(RoadObject):
@@ -46,7 +48,6 @@ class RouteFollower:
 
     lane_route: list[str]
     route_pos: int
-    cache_projections = False
     _projected_at: tuple[float, float] | None = None
     _projections: dict = {}
 
@@ -68,11 +69,9 @@ class RouteFollower:
         return self.lane_route[self.route_pos]
 
     def projection(self, lane_id: str) -> tuple[float, float]:
-        """(s, lateral) of the vehicle centre on lane `lane_id`. With `cache_projections` (the
-        ego on the arrays core) each lane is projected once per position."""
+        """(s, lateral) of the vehicle centre on lane `lane_id`, each lane projected once per
+        position."""
         lane = self.net.lane_of[lane_id]
-        if not self.cache_projections:
-            return lane.local_coordinates(self.position)
         p = self.position
         at = (float(p[0]), float(p[1]))
         if at != self._projected_at:
@@ -141,7 +140,7 @@ class RouteFollower:
             hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
             self.lane_index, self.lane_s, self.lane_lat = net.locate(self.position, self.heading, hint)
             self.lane = net.get_lane(self.lane_index)
-            if self.cache_projections and self.lane_index == hint:  # locate projected on the hint lane
+            if self.lane_index == hint:  # locate projected on the hint lane
                 p = self.position
                 self._projected_at = (float(p[0]), float(p[1]))
                 self._projections = {net.id_of[hint]: (self.lane_s, self.lane_lat)}
@@ -196,7 +195,7 @@ class RouteFollower:
                 so, ro = lane.local_coordinates(o.position)
                 if s_own is not None and so <= s_own:
                     continue
-                if abs(ro) > lane.width / 2 + 1.0 or so < -self.LENGTH or so > lane.length + self.LENGTH:
+                if not in_the_way(so, ro, lane.width, lane.length, self.LENGTH):
                     continue
                 gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
         return gaps
@@ -205,39 +204,15 @@ class RouteFollower:
         """(incoming lane, junction lane, distance to the stop line) of the next junction entry."""
         m = self.net.hdmap
         for k, lid, d, _ in self.upcoming(1e9):
-            if k > self.route_pos and m.lanes[lid].junction_id is not None and \
-                    m.lanes[self.lane_route[k - 1]].junction_id is None:
+            if k > self.route_pos and enters_junction(m.lanes, self.lane_route[k - 1], lid):
                 return self.lane_route[k - 1], lid, d
         return None, None, math.inf
 
 
 class TrafficVehicle(RouteFollower, IDMVehicle):
-    """An IDM vehicle on its own lane route; stops for signals, stop signs, pedestrians and
-    conflicting junction traffic (reservations), following leaders along its route."""
-
-    def __init__(self, road, position, heading=0, speed=0, target_lane_index=None, target_speed=None,
-                 route=None, enable_lane_change=False, timer=None):
-        super().__init__(road, position, heading, speed, target_lane_index, target_speed, route,
-                         enable_lane_change, timer)
-
-    MOBIL_PERIOD_S = 1.0
-    MOBIL_GAIN = 0.3  # [m/s2] own acceleration gain that makes a lane change worth it
-    MOBIL_SAFE_BRAKE = 3.0  # [m/s2] the new follower must not need to brake harder
-    MOBIL_POLITENESS = 0.3
-
-    def act(self, action=None) -> None:
-        if self.crashed:
-            return
-        self.follow_road()
-        if self.timer - getattr(self, "_mobil_t", -1e9) >= self.MOBIL_PERIOD_S:
-            self._mobil_t = self.timer
-            self.mobil_change()
-        steering = self.steering_control(self.target_lane_index)
-        Vehicle.act(self, {"steering": steering, "acceleration": self.idm_acceleration()})
-
-    def idm_acceleration(self) -> float:
-        stop = self.road.control.stop_distance(self)
-        return idm(self, self.leader_gaps(), stop)
+    """A traffic vehicle on its own lane route. The arrays core (core.py) drives it (IDM behind
+    leaders and before the rules' stop points, MOBIL lane changes) through `core.ArrayVehicle`
+    views; one user code appends to `road.vehicles` is taken in as a row at the next frame."""
 
     def mobil_change(self) -> bool:
         """MOBIL on multi-lane roads: move to a same-direction neighbour lane when it raises the
@@ -250,7 +225,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         ln = m.lanes[lid]
         lane = net.lane_of[lid]
         s, _ = lane.local_coordinates(self.position)
-        if ln.junction_id is not None or lane.length - s < 30.0 or self.speed < 1.0:
+        if not may_change_lane(ln.junction_id is not None, lane.length - s, self.speed):
             return False
         remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
         a_cur = idm(self, self.leader_gaps())
@@ -261,7 +236,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
             goal = m.lanes[self.lane_route[-1]]
             paths = [net.lane_route(n, g) for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
                      if g in m.lanes]  # any lane of the destination road will do
-            paths = [p for p in paths if p and sum(net.lane_of[l].length for l in p) <= remaining + 5.0]
+            paths = [p for p in paths if p and sum(net.lane_of[l].length for l in p) <= remaining + MOBIL_DETOUR_M]
             if not paths:
                 continue
             path = min(paths, key=len)
@@ -274,37 +249,32 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
                     ahead.append((so - sn - self.LENGTH, float(o.speed)))
                 elif behind is None or so > behind[0]:
                     behind = (so, o)
-            if any(g < 2.0 for g, _ in ahead):
+            if any(g < MOBIL_MIN_GAP_M for g, _ in ahead):
                 continue
             a_new = idm(self, ahead)
-            follower_cost = 0.0
+            follower_loss = 0.0
             if behind is not None:
                 so, f = behind
                 gap = sn - so - self.LENGTH
-                if gap < 2.0 or not isinstance(f, RouteFollower):
+                if gap < MOBIL_MIN_GAP_M or not isinstance(f, RouteFollower):
                     continue
                 a_f = idm(f, [(gap, self.speed)])
-                if a_f < -self.MOBIL_SAFE_BRAKE:
+                if not mobil_safe(a_f):
                     continue
-                follower_cost = max(0.0, idm(f, []) - a_f)
-            if a_new - a_cur - self.MOBIL_POLITENESS * follower_cost > self.MOBIL_GAIN:
+                follower_loss = max(0.0, idm(f, []) - a_f)
+            if mobil_accepts(a_cur, a_new, follower_loss):
                 self.lane_route = self.lane_route[:self.route_pos] + path
                 self.target_lane_index = net.index_of[n]
                 self.lane_changes = getattr(self, "lane_changes", 0) + 1
                 return True
         return False
 
-    def step(self, dt: float) -> None:
-        super().step(dt)
-        if self.speed < 0:
-            self.speed = 0.0
-
     @property
     def finished(self) -> bool:
+        """On the last lane of its route, within FINISH_MARGIN_M of its end."""
         if self.route_pos < len(self.lane_route) - 1:
             return False
-        lane = self.net.lane_of[self.lane_route[-1]]
-        return lane.local_coordinates(self.position)[0] >= lane.length - 2.0
+        return self.route_s() >= self.net.lane_of[self.lane_route[-1]].length - FINISH_MARGIN_M
 
 
 class EgoMDPVehicle(RouteFollower, MDPVehicle):

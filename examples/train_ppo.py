@@ -57,6 +57,7 @@ import numpy as np  # noqa: E402
 
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
+from feat2map.config import AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
 from feat2map.envs.junction_env import JunctionGridEnv  # noqa: E402
@@ -69,8 +70,8 @@ CONTROLS = ("signal", "stop", "bare")
 MANOEUVRES = ("left", "straight", "right")
 FAILURES = ("collision", "off_road", "red_light", "stop_sign", "pedestrian_yield", "timeout")
 
-TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the agent's actions
-ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s2] the TargetSpeed wrapper's bounds
+TARGET_SPEEDS = AGENT_TARGET_SPEEDS  # [m/s] the agent's actions (the multi-agent env's default too)
+ACCELERATION_RANGE = AGENT_ACCELERATION_RANGE  # [m/s2] the TargetSpeed wrapper's bounds
 DECISION_HZ = 2
 #: What the agent sees and does: the driver's view of the rules; longitudinal acceleration
 #: (steering follows the route), set by the TargetSpeed wrapper.

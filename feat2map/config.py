@@ -250,3 +250,92 @@ def raised_limits(**values: float) -> Iterator[Limits]:
         yield limits()
     finally:
         _LIMITS.reset(token)
+
+
+# ---- env layer (feat2map/envs): the traffic rules, the traffic core, the road network, the ego's
+# observations and controllers. Units in the names: _M metres, _S seconds, _MPS m/s, _MPS2 m/s^2.
+# the rules (envs/rules.py)
+STOPPED_SPEED_MPS = 0.3  # a vehicle at most this fast has stopped (a stop at a stop sign, a stop-sign queue)
+STOP_ZONE_M = 6.0  # a stop counts when made with the vehicle centre within this distance of the stop line
+STOP_POINT_M = 1.0  # vehicles held by a rule stop their centre this far before the line
+COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane this close to the line
+COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
+AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)
+LOOKAHEAD_M = 60.0  # how far along its route a vehicle looks for leaders, stop lines and pedestrians
+PASSAGE_HORIZON_M = 400.0  # how far along its route a vehicle looks for narrow passages it must claim together
+PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield
+PEDESTRIAN_IN_PATH_M = 0.6  # beyond the lane half-width, a pedestrian is in the vehicle's path
+PEDESTRIAN_CLEARANCE_M = 6.0  # a pedestrian does not step out in front of a vehicle this close
+PEDESTRIAN_SPAWN_HORIZON_S = 3.0  # ... nor one this many seconds away (plus the clearance)
+PRIORITY_HORIZON_S = 3.0  # left turns wait for priority traffic this close in time
+PRIORITY_MARGIN_M = 3.0  # ... plus this distance to the end of its approach lane
+ROUTE_SAMPLE_TRIES = 100  # sampled routes through a junction tried before a map counts as having none
+SPAWN_BRAKE_MPS2 = 3.0  # vehicles start at least their braking distance at this rate before the first stop line
+SPAWN_MARGIN_M = 1.0  # ... plus this
+OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
+OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
+FINISH_MARGIN_M = 2.0  # traffic has finished its route this close to the end of its last lane
+LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way of a vehicle on it
+# IDM car following of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
+IDM_ACC = 3.0  # [m/s^2] maximum acceleration
+IDM_BRAKE = 4.0  # [m/s^2] comfortable deceleration
+IDM_DELTA = 4.0  # free-road exponent (dimensionless)
+IDM_GAP_M = 2.5  # jam distance to a leader
+IDM_TIME_GAP_S = 1.2  # desired time headway
+IDM_STOP_GAP_M = 0.3  # jam distance to a stop point (vs IDM_GAP_M to a leader)
+IDM_STOP_MARGIN_M = 0.5  # the front bumper halts this short of a stop point
+IDM_MIN_GAP_M = 0.05  # gaps below this count as this (no division by zero)
+IDM_RANGE_MPS2 = (-8.0, 6.0)  # an IDM acceleration is clipped to these
+# MOBIL lane changes of traffic (envs/vehicles.py TrafficVehicle.mobil_change, rules.may_change_lane)
+MOBIL_PERIOD_S = 1.0  # traffic considers a lane change this often
+MOBIL_GAIN_MPS2 = 0.3  # own acceleration gain that makes a lane change worth it
+MOBIL_SAFE_BRAKE_MPS2 = 3.0  # the new follower must not need to brake harder
+MOBIL_POLITENESS = 0.3  # weight of the new follower's acceleration loss (dimensionless)
+MOBIL_MIN_ROOM_M = 30.0  # no lane change closer than this to the lane's end
+MOBIL_MIN_SPEED_MPS = 1.0  # ... or slower than this
+MOBIL_MIN_GAP_M = 2.0  # bumper gap to the new leader and the new follower at least
+MOBIL_DETOUR_M = 5.0  # the route from the new lane may be at most this much longer
+# the traffic core (envs/core.py)
+LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time constant
+PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
+# the road network (envs/network.py)
+CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
+VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
+TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
+CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's lane its lane crosses (plus half its width)
+FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart
+PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
+PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
+CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
+# the episode (envs/map_env.py): where traffic spawns
+TRAFFIC_SPAWN_TRIES = 10  # random places tried per traffic vehicle (count)
+TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
+TRAFFIC_LANE_END_M = 8.0  # ... and not within this of its lane's end
+EGO_CLEARANCE_M = 25.0  # ... and this far from the ego (or the agents) at reset
+EGO_RESPAWN_CLEARANCE_M = 40.0  # ... and this far when it respawns
+# observations (envs/observation.py, envs/driver_view.py): distances, times and speeds are divided by these
+STOP_LINE_RANGE_M = 100.0  # the traffic-control vector's stop-line distance is metres / this, clipped to 1
+DRIVER_VIEW_SPEED_SCALE_MPS = 15.0  # DriverView speeds / this
+DRIVER_VIEW_LINE_NEAR_M = 2 * STOP_ZONE_M  # DriverView line_near: distance to the next stop line / this
+DRIVER_VIEW_LINE_FAR_M = 60.0  # DriverView line_far: the same / this
+DRIVER_VIEW_SIGNAL_SCALE_S = 15.0  # DriverView signal_change: time to the signal's next change / this
+DRIVER_VIEW_QUEUE_SCALE = 3.0  # DriverView queue_ahead: vehicles / this
+DRIVER_VIEW_CONFLICT_TIME_S = 8.0  # DriverView times to a line or a conflict / this
+DRIVER_VIEW_CONFLICT_DISTANCE_M = 60.0  # DriverView distances of vehicles heading into a conflict / this
+DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS = 1.0  # times to arrival divide by at least this speed (a waiting car is not "never")
+DRIVER_VIEW_PEDESTRIAN_SCALE_M = 30.0  # DriverView pedestrian: distance to the stop it makes / this
+DRIVER_VIEW_LEADER_SCALE_M = 40.0  # DriverView leader_gap: bumper gap / this
+# the trajectory tracker (envs/tracking.py: an external planner's trajectory followed by the ego)
+TRACKING_LOOKAHEAD_MIN_M = 2.5  # pure pursuit looks this far ahead (it cuts a curve of radius R by ~R - sqrt(R^2 - L^2))
+TRACKING_LOOKAHEAD_TIME_S = 0.3  # ... plus this many seconds of the current speed
+TRACKING_SPEED_GAIN = 1.5  # [1/s] speed error -> acceleration
+TRACKING_POSITION_GAIN = 0.4  # [1/s^2] along-track position error -> acceleration
+TRACKING_ACCEL_RANGE = (-8.0, 4.0)  # [m/s^2] the command is clipped to these (the baseline's range)
+TRACKING_STOP_SPEED_MPS = 0.3  # a trajectory whose speed falls below this holds the ego still
+TRACKING_PREVIEW_S = 0.2  # the speed reference is read this far ahead (the actuation lag of one decision)
+TRACKING_HOLD_WINDOW_S = 1.0  # the ego is held still only if the trajectory stays below the stop speed this long
+# the multi-agent env (envs/multi_agent.py)
+AGENT_TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the default TargetSpeed actions (examples/train_ppo.py's)
+AGENT_ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s^2] the default acceleration range of the agents' actions
+AGENT_META_GAIN = 1 / 0.6  # [1/s] DiscreteMetaAction: acceleration per m/s off the target speed (highway-env's 1/TAU_ACC)
+AGENT_ENTRY_LOOK_M = 8.0  # the judge notes the rules' verdict for agents this close to their next stop line

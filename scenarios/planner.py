@@ -33,9 +33,9 @@ from typing import Any, Callable, ClassVar, Iterable, Protocol, runtime_checkabl
 import numpy as np
 
 from ..angles import wrap_angle
+from ..config import CONFLICT_DISTANCE_M, IDM_ACC, STOP_POINT_M
 from ..envs.driver import DRIVER_ACTION_CONFIG
-from ..envs.network import CONFLICT_DISTANCE_M
-from ..envs.rules import (IDM_ACC, RULES, STOP_POINT_M, STOPPED_SPEED_MPS, braking_distance, can_stop_before, idm,
+from ..envs.rules import (RULES, braking_distance, can_stop_before, has_stopped, idm,
                           in_stop_zone)
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
@@ -206,7 +206,7 @@ class BaselinePlanner:
             return
         d = self._line_distance()
         t_stage = float(env.time) - self.stage_since
-        stopped = ego.speed <= STOPPED_SPEED_MPS
+        stopped = has_stopped(ego.speed)
         if self.stage in ("B_A", "L_C") and stopped and d <= CREEP_TRIGGER_M and self._held_by_traffic():
             self.held += 1.0 / float(env.config["policy_frequency"])
         if stopped and self._in_stop_zone():

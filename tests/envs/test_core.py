@@ -1,10 +1,11 @@
 """The batched traffic core: its lane table agrees with the polyline lanes, its fast Kinematics
 observation gives highway-env's values exactly, its vehicles behave as highway-env objects for
-user code, and its trajectories follow the object core's on fixed seeds (intended differences:
-lane-centre following instead of the steering controller)."""
+user code, and its trajectories on fixed seeds are the recorded reference's."""
 from __future__ import annotations
 
+import json
 import os
+from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
@@ -16,10 +17,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import feat2map
+from feat2map.errors import Feat2MapError
 from feat2map.envs.core import ArrayVehicle, LaneTable
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
-from feat2map.envs.road import ArrayRoad, MapRoad
+from feat2map.envs.road import MapRoad
 from feat2map.envs.vehicles import TrafficVehicle
 
 J = feat2map.JunctionFeature.make
@@ -84,15 +86,13 @@ def test_fast_kinematics_is_highway_envs(busy_env, features, count, normalize, c
     np.testing.assert_array_equal(fast, ref)  # NaN where highway-env's objects lack a feature, in both
 
 
-def test_the_core_is_selectable_and_arrays_by_default():
+def test_traffic_vehicles_are_views_of_the_core():
     env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS})
     env.reset(seed=0)
-    assert type(env.unwrapped.road) is ArrayRoad
-    assert all(isinstance(v, ArrayVehicle) for v in env.unwrapped.road.vehicles[1:])
-    env.unwrapped.configure({"traffic_core": "objects"})
-    env.reset(seed=0)
     assert type(env.unwrapped.road) is MapRoad
-    assert not any(isinstance(v, ArrayVehicle) for v in env.unwrapped.road.vehicles)
+    assert all(isinstance(v, ArrayVehicle) for v in env.unwrapped.road.vehicles[1:])
+    with pytest.raises(Feat2MapError, match="traffic_core"):  # the object core is gone
+        env.unwrapped.configure({"traffic_core": "objects"})
 
 
 def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
@@ -128,30 +128,59 @@ def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
     assert len(core.objs) == len(u.road.vehicles)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_arrays_core_follows_the_object_core(seed):
-    """Same seed, same scripted ego, no respawns or pedestrians (so that both cores draw the same
-    random numbers): the same traffic, trajectories within the steering controller's corner
-    cutting of each other, the same outcome for the ego."""
+# ---- recorded reference ------------------------------------------------------------------------
+# Trajectories of the arrays core on fixed seeds, recorded from the env (tests/envs/data/
+# traffic_reference.json): a change to a traffic rule, the IDM law, MOBIL, the rules' stops or
+# the respawns moves a vehicle and fails this test. A change meant to alter traffic re-records
+# the file on purpose: FEAT2MAP_RECORD_TRAFFIC=1 pytest tests/envs/test_core.py -k reference
+REFERENCE = Path(__file__).parent / "data" / "traffic_reference.json"
+REFERENCE_RUNS = {  # name -> (seed, config changes): the "quiet" ones without respawns or pedestrians
+    "quiet-0": (0, {"traffic_respawn": False, "pedestrian_rate": 0.0}),
+    "quiet-1": (1, {"traffic_respawn": False, "pedestrian_rate": 0.0}),
+    "busy-3": (3, {"traffic_vehicles": 14, "pedestrian_rate": 20.0}),
+    "two-lanes-4": (4, {"features": [J([0, 90, 180, 270], "signal", True, lanes=2).to_dict(),
+                                     J([0, 120, 240], "stop", False, lanes=2).to_dict()],
+                        "traffic_vehicles": 30, "route_junctions": 3}),  # MOBIL lane changes
+}
+REFERENCE_EVERY = 10  # a sample of every vehicle's position every this many steps (and the last step)
+
+
+def drive_reference(seed: int, changes: dict) -> dict:
+    """Positions of every road user (ego first) each REFERENCE_EVERY steps of 30 s driven by the
+    scripted driver, the ego's outcome and the lane changes made."""
     cfg = {"features": FEATS, "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "duration": 30,
-           "traffic_vehicles": 8, "traffic_respawn": False, "pedestrian_rate": 0.0}
-    runs = {}
-    for core in ("objects", "arrays"):
-        env = gym.make("feat2map/JunctionGrid-v0", config={**cfg, "traffic_core": core})
-        env.reset(seed=seed)
-        driver = ScriptedDriver(env)
-        track = []
-        for _ in range(60):  # 12 s
-            _, _, term, trunc, info = env.step(driver.act())
-            track.append(np.array([v.position for v in env.unwrapped.road.vehicles]))
-            if term or trunc:
-                break
-        runs[core] = (track, info)
-        env.close()
-    (a, info_a), (b, info_b) = runs["objects"], runs["arrays"]
-    assert len(a) == len(b) and a[0].shape == b[0].shape
-    dev = np.array([np.hypot(*(x - y).T) for x, y in zip(a, b)])  # steps x vehicles
-    assert np.median(dev) < 0.05  # mostly identical: straight lanes are followed exactly by both
-    assert dev.max() < 2.0  # turns: the object core's controller cuts corners
-    for key in ("route_completed", "collision", "violations", "junction"):
-        assert info_a[key] == info_b[key]
+           "traffic_vehicles": 8, **changes}
+    env = gym.make("feat2map/JunctionGrid-v0", config=cfg)
+    env.reset(seed=seed)
+    driver = ScriptedDriver(env)
+    samples = []
+    changes = 0
+    for step in range(150):
+        before = {id(v): getattr(v, "lane_changes", 0) for v in env.unwrapped.road.vehicles}
+        _, _, term, trunc, info = env.step(driver.act())
+        changes += sum(getattr(v, "lane_changes", 0) - before.get(id(v), 0) for v in env.unwrapped.road.vehicles)
+        if step % REFERENCE_EVERY == 0 or term or trunc or step == 149:
+            samples.append([step, [[round(float(x), 6) for x in v.position] for v in env.unwrapped.road.vehicles]])
+        if term or trunc:
+            break
+    env.close()
+    return {"samples": samples, "lane_changes": changes,
+            "outcome": {k: info[k] for k in ("route_completed", "collision", "violations", "junction", "lane_id")}}
+
+
+@pytest.mark.parametrize("name", sorted(REFERENCE_RUNS))
+def test_traffic_follows_the_recorded_reference(name):
+    """Same seed, same scripted ego: the same road users at the same places (to 1e-5 m) and the
+    same outcome for the ego as when the reference was recorded."""
+    got = drive_reference(*REFERENCE_RUNS[name])
+    if os.environ.get("FEAT2MAP_RECORD_TRAFFIC") == "1":
+        ref = json.loads(REFERENCE.read_text()) if REFERENCE.exists() else {}
+        ref[name] = got
+        REFERENCE.write_text(json.dumps(ref, sort_keys=True, separators=(",", ":")) + "\n")
+        pytest.skip("recorded")
+    want = json.loads(REFERENCE.read_text())[name]
+    assert got["outcome"] == want["outcome"] and got["lane_changes"] == want["lane_changes"]
+    assert [s for s, _ in got["samples"]] == [s for s, _ in want["samples"]]
+    for (step, a), (_, b) in zip(got["samples"], want["samples"]):
+        assert len(a) == len(b), f"step {step}: {len(a)} road users, recorded {len(b)}"
+        np.testing.assert_allclose(np.array(a), np.array(b), atol=1e-5, err_msg=f"step {step}")

@@ -66,8 +66,8 @@ def test_stop_sign_features_along_a_drive():
     for i, (obs, info) in enumerate(steps):
         d = info["distance_to_stop_line"]
         if info["lane_id"] and obs[F["in_junction"]] == 0 and obs[F["stop"]] == 1:
-            assert obs[F["line_near"]] == pytest.approx(min(max(d, 0) / dv.LINE_NEAR_M, 1), abs=1e-4)
-            assert obs[F["line_far"]] == pytest.approx(min(max(d, 0) / dv.LINE_FAR_M, 1), abs=1e-4)
+            assert obs[F["line_near"]] == pytest.approx(min(max(d, 0) / dv.DRIVER_VIEW_LINE_NEAR_M, 1), abs=1e-4)
+            assert obs[F["line_far"]] == pytest.approx(min(max(d, 0) / dv.DRIVER_VIEW_LINE_FAR_M, 1), abs=1e-4)
             assert obs[F["in_stop_zone"]] == float(0 <= d <= STOP_ZONE_M)
             assert obs[F["left"]] == 1 and obs[F["straight"]] == obs[F["right"]] == 0
             if made is None and obs[F["stop_made"]]:
@@ -91,7 +91,7 @@ def test_signal_features_match_info():
         state = info["signal_state"]
         seen.add(state)
         assert [obs[F[s]] for s in ("green", "amber", "red")] == [float(state == s) for s in ("green", "amber", "red")]
-        assert obs[F["signal_change"]] == pytest.approx(min(info["signal_time_to_change"] / dv.SIGNAL_SCALE_S, 1),
+        assert obs[F["signal_change"]] == pytest.approx(min(info["signal_time_to_change"] / dv.DRIVER_VIEW_SIGNAL_SCALE_S, 1),
                                                         abs=1e-4)
     assert "green" in seen and steps[-1][1]["violations"]["red_light"] == 0
 
@@ -127,9 +127,9 @@ def test_conflicting_traffic_with_and_without_priority():
     oncoming = _conflict(u, mine, "none", higher=True)
     _spawn(u, m.lanes[oncoming].predecessors[0], oncoming, 20.0, 8.0)
     obs = u.observation_type.observe()
-    assert obs[F["priority_time"]] == pytest.approx(20.0 / 8.0 / dv.CONFLICT_TIME_S, abs=0.02)
-    assert obs[F["priority_distance"]] == pytest.approx(20.0 / dv.CONFLICT_DISTANCE_M, abs=0.01)
-    assert obs[F["priority_speed"]] == pytest.approx(8.0 / dv.SPEED_SCALE_MPS, abs=0.01)
+    assert obs[F["priority_time"]] == pytest.approx(20.0 / 8.0 / dv.DRIVER_VIEW_CONFLICT_TIME_S, abs=0.02)
+    assert obs[F["priority_distance"]] == pytest.approx(20.0 / dv.DRIVER_VIEW_CONFLICT_DISTANCE_M, abs=0.01)
+    assert obs[F["priority_speed"]] == pytest.approx(8.0 / dv.DRIVER_VIEW_SPEED_SCALE_MPS, abs=0.01)
     assert obs[F["other_time"]] == 1 and obs[F["conflict_occupied"]] == 0
     ln = u.net.lane_of[oncoming]
     v = TrafficVehicle(u.road, ln.position(3.0, 0.0), ln.heading_at(3.0), 5.0)
@@ -145,7 +145,7 @@ def test_conflicting_traffic_with_and_without_priority():
     turner = _conflict(u, mine, "left", higher=False)
     _spawn(u, m.lanes[turner].predecessors[0], turner, 10.0, 5.0)
     obs = u.observation_type.observe()
-    assert obs[F["other_time"]] == pytest.approx(10.0 / 5.0 / dv.CONFLICT_TIME_S, abs=0.02)
+    assert obs[F["other_time"]] == pytest.approx(10.0 / 5.0 / dv.DRIVER_VIEW_CONFLICT_TIME_S, abs=0.02)
     assert obs[F["priority_time"]] == 1
 
 
@@ -159,7 +159,7 @@ def test_stop_queue_counts_earlier_arrivals_with_conflicting_lanes():
     assert u.observation_type.observe()[F["queue_ahead"]] == 0
     v = _spawn(u, m.lanes[crossing].predecessors[0], crossing, 4.0, 0.0)  # stopped in its zone
     assert v in u.control.stop_queue["J0"]
-    assert u.observation_type.observe()[F["queue_ahead"]] == pytest.approx(1 / dv.QUEUE_SCALE)
+    assert u.observation_type.observe()[F["queue_ahead"]] == pytest.approx(1 / dv.DRIVER_VIEW_QUEUE_SCALE)
 
 
 def test_leader_gap_and_speed():
@@ -174,5 +174,5 @@ def test_leader_gap_and_speed():
     u.road.vehicles.append(v)
     u.control.update(u.road, 0.0)
     obs = u.observation_type.observe()
-    assert obs[F["leader_gap"]] == pytest.approx((15.0 - ego.LENGTH) / dv.LEADER_SCALE_M, abs=0.02)
-    assert obs[F["leader_speed"]] == pytest.approx(3.0 / dv.SPEED_SCALE_MPS, abs=0.01)
+    assert obs[F["leader_gap"]] == pytest.approx((15.0 - ego.LENGTH) / dv.DRIVER_VIEW_LEADER_SCALE_M, abs=0.02)
+    assert obs[F["leader_speed"]] == pytest.approx(3.0 / dv.DRIVER_VIEW_SPEED_SCALE_MPS, abs=0.01)

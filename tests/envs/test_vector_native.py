@@ -135,7 +135,7 @@ def test_vector_conventions():
     envs.close()
 
 
-@pytest.mark.parametrize("key, value", [("traffic_core", "objects"), ("new_map_each_reset", True)])
+@pytest.mark.parametrize("key, value", [("new_map_each_reset", True), ("manual_control", True)])
 def test_unsupported_configs_are_refused_naming_the_key(key, value):
     with pytest.raises(Feat2MapError, match=key):
         gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vectorization_mode="vector_entry_point",
@@ -175,6 +175,6 @@ def test_a_reset_cannot_change_the_batchs_map():
     assert all(len(e.road.vehicles) <= 2 for e in envs.unwrapped.envs)
     with pytest.raises(Feat2MapError, match="map_seed"):
         envs.reset(options={"config": {"map_seed": 4}})
-    with pytest.raises(Feat2MapError, match="traffic_core"):
-        envs.reset(options={"config": {"traffic_core": "objects"}})
+    with pytest.raises(Feat2MapError, match="new_map_each_reset"):
+        envs.reset(options={"config": {"new_map_each_reset": True}})
     envs.close()
