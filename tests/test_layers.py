@@ -83,11 +83,12 @@ def _constants(path: Path) -> dict[str, int]:
 
 
 def test_every_map_layer_constant_is_named_once():
-    """A constant of feat2map/config.py (MAX_LEGS, UTURN_THRESHOLD_DEG, ...) is assigned nowhere
-    else in the package: every module imports it."""
+    """A constant of feat2map/config.py (map layer: MAX_LEGS, UTURN_THRESHOLD_DEG, ...; env layer:
+    LOOKAHEAD_M, IDM_ACC, ...) is assigned nowhere else in the package: every module imports it."""
     config = REPO / "feat2map" / "config.py"
     named = _constants(config)
-    assert {"MAX_LEGS", "UTURN_THRESHOLD_DEG", "STRAIGHT_TOLERANCE_DEG"} <= set(named)
+    assert {"MAX_LEGS", "UTURN_THRESHOLD_DEG", "STRAIGHT_TOLERANCE_DEG", "LOOKAHEAD_M", "IDM_ACC",
+            "CONFLICT_DISTANCE_M"} <= set(named)
     again = [f"{p.relative_to(REPO)}:{line} {name}" for folder in ("feat2map", "envs", "scenarios")
              for p in sorted((REPO / folder).rglob("*.py")) if p != config
              for name, line in _constants(p).items() if name in named]
