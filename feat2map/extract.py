@@ -182,8 +182,9 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     ext = [v[4] for v in ends.values()]
     linked: list[set[str | None]] = []
     for lid in ext:
-        ln = m.lanes.get(lid) if lid else None
-        linked.append(set(ln.left_neighbors + ln.right_neighbors + ln.left_reverse_neighbors) if ln else set())
+        ext_lane = m.lanes.get(lid) if lid else None
+        linked.append(set(ext_lane.left_neighbors + ext_lane.right_neighbors + ext_lane.left_reverse_neighbors)
+                      if ext_lane else set())
     pts = np.array([v[0] for v in ends.values()])
     dirs = np.array([v[1] - v[0] for v in ends.values()])
     dirs /= np.maximum(np.hypot(*dirs.T), 1e-12)[:, None]
@@ -287,7 +288,9 @@ def _junction_controls(m: HDMap) -> dict[str, set[str]]:
                 continue
             for lid in s.lane_ids:
                 ln = m.lanes.get(lid)
-                for nxt in (ln.successors if ln is not None else ()):
+                if ln is None:
+                    continue
+                for nxt in ln.successors:
                     jid = m.lanes[nxt].junction_id
                     if jid and jid != ln.junction_id:
                         out.setdefault(jid, set()).add(kind)
