@@ -605,7 +605,7 @@ class _Builder:
         from shapely import STRtree
 
         tree = STRtree([shapes[j] for j in ids])
-        for i, j in enumerate(ids):
+        for j in ids:
             for k in tree.query(shapes[j].buffer(JUNCTION_TOUCH_M), predicate="intersects"):
                 a, b = find(j), find(ids[int(k)])
                 if a != b:
@@ -668,7 +668,7 @@ class _Builder:
             road_id = chain[0][0]
             parts = [self.geoms[k] for k in chain]
 
-            def joined(attr: str) -> np.ndarray:
+            def joined(attr: str, parts: list[_LaneGeom] = parts) -> np.ndarray:  # this chain's parts
                 arrs = [getattr(g, attr) for g in parts]
                 return np.vstack([arrs[0]] + [a[1:] for a in arrs[1:]])
             centre = joined("centre")
@@ -1017,7 +1017,7 @@ def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str],
             for b in outs:
                 parts = (a, ln, b)
                 new = f"{a.id}+{mid}+{b.id}"
-                cat = lambda attr: as_polyline(np.vstack(  # noqa: E731
+                cat = lambda attr, parts=parts: as_polyline(np.vstack(  # noqa: E731  (this join's parts)
                     [getattr(parts[0], attr)] + [getattr(x, attr)[1:] for x in parts[1:]]))
                 lens = [max(x.length, 1e-9) for x in parts]
                 for x in parts:
