@@ -302,6 +302,7 @@ class BaselinePlanner:
         can arrive (at its current speed) or arrives GAP_MARGIN_S after we have left (it
         accelerating up to its lane's speed limit). With `yielding`, vehicles that would wait for
         our reservation (`TrafficRules.yields_to_reservation`) are left out."""
+        assert self.j_lane is not None  # a scenario that checks gaps has selected its junction lane
         env = self.env
         ego, net = env.vehicle, env.net
         v_me = max(ego.speed, 0.0)

@@ -374,7 +374,7 @@ class _Frames(list):
 
 
 def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
-           coverage_modules: Sequence[str] = (), policy: Any = None) -> tuple[Outcome, list]:
+           coverage_modules: Sequence[str] = (), policy: Any = None) -> tuple[Outcome, _Frames]:
     """Run one episode; returns its outcome and (when rendering) its frames."""
     from .scenario import make_env
 
@@ -472,7 +472,7 @@ def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
     for f in picked:
         im = Image.fromarray(f)
         h = max(1, round(im.height * GIF_WIDTH_PX / im.width))
-        images.append(im.resize((GIF_WIDTH_PX, h)).convert("P", palette=Image.ADAPTIVE, colors=128))
+        images.append(im.resize((GIF_WIDTH_PX, h)).convert("P", palette=Image.Palette.ADAPTIVE, colors=128))
     buf = io.BytesIO()
     duration = max(20, int(1000 * step_s * stride / GIF_SPEEDUP))
     images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0)
