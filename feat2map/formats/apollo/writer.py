@@ -128,7 +128,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     if not isinstance(zone, int) or isinstance(zone, bool) or not 1 <= zone <= 60:
         raise Feat2MapError(f"UTM zone must be an integer 1..60, got {zone!r}", "apollo export")
     if origin is None:
-        origin = (m.origin[0], m.origin[1]) if any(m.origin) else UTM_ORIGIN
+        origin = m.origin if any(m.origin) else UTM_ORIGIN  # checked (two numbers) just below
     origin = check_origin(origin, "apollo export: origin")
     m = usable_boundaries(without_point_lanes(m))
     frame = _Frame(origin)
