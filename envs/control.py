@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +94,7 @@ class TrafficControl(TrafficRules):
                 for sid in phase:
                     self.plans[sid] = plan
         self.stop_queue: dict[str | None, list] = {}
-        self.reservations: dict[str, object] = {}
+        self.reservations: dict[str, Any] = {}  # junction lane -> the vehicle holding it
         self.pedestrians: dict[str, list[Pedestrian]] = {}
         self.active_crosswalks: list[str] = []
         self.buckets: dict[str, list] = {}
@@ -131,7 +132,7 @@ class TrafficControl(TrafficRules):
 
         def waiting(v, jid) -> bool:  # not yet on a lane of the junction (maybe on the one before)
             lid = lane_of.get(id(v))
-            return lid in m.lanes and m.lanes[lid].junction_id != jid
+            return lid is not None and lid in m.lanes and m.lanes[lid].junction_id != jid
 
         for jid, queue in list(self.stop_queue.items()):
             self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
@@ -166,7 +167,7 @@ class TrafficControl(TrafficRules):
             route = getattr(v, "lane_route", None)
             if route is None:
                 lid = net.id_of.get(getattr(v, "lane_index", None))
-                ps = net.passages.get(lid)
+                ps = net.passages.get(lid) if lid is not None else None
                 return ps is not None and ps.group == group
             for lid in route[v.route_pos:]:
                 ps = net.passages.get(lid)

@@ -103,7 +103,8 @@ def split_config(config: Mapping[str, Any] | None) -> tuple[dict, dict]:
     """(multi-agent keys, MapEnv keys) of a config; the action dict merges as MapEnv's do."""
     if config is not None and not isinstance(config, Mapping):
         raise Feat2MapError(f"must be a mapping, got {type(config).__name__}", "config")
-    ma, world = {}, {}
+    ma: dict[str, Any] = {}
+    world: dict[str, Any] = {}
     for k, v in (config or {}).items():
         if k in NOT_TAKEN:
             raise Feat2MapError(f"has no effect in the multi-agent env ({NOT_TAKEN[k]})", f"config.{k}")
@@ -196,7 +197,7 @@ class AgentJudge(EgoJudge):
         before = len(self.new)
         super().check()
         lid, m = self._lane, self.rules.net.hdmap
-        if lid == prev or lid not in m.lanes or m.lanes[lid].junction_id is None:
+        if lid is None or lid == prev or lid not in m.lanes or m.lanes[lid].junction_id is None:
             return
         if prev is not None and prev in m.lanes and m.lanes[prev].junction_id is not None:
             return  # from one junction lane to the next
@@ -268,6 +269,20 @@ class AgentView:
     MapEnv's methods and properties run on the view (so observation types, `_info`, `_rewards`,
     `route_completed`, `rule_stop_distance`, `ScriptedDriver` see the agent as the ego)."""
 
+    # set per agent when it is placed (declared for the type checker; the rest is the world's)
+    judge: AgentJudge
+    net: Any  # the world's MapNetwork
+    control: TrafficControl
+    violations: dict[str, int]
+    _progress: float
+    _route_len: float
+    _last_rewards: dict[str, float]
+    observation_type: Any
+    junction_ahead: Any  # route_memo of MapEnv.junction_ahead
+    route_completed: Any  # frame_memo of MapEnv.route_completed
+    wait_time: float
+    agent_collision: bool
+
     def __init__(self, world: "_World", vehicle, action_type: AgentActions | None, action_space: spaces.Space) -> None:
         self.world = world
         self.vehicle = vehicle
@@ -289,7 +304,7 @@ class AgentView:
         if isinstance(attr, types.FunctionType):
             bound = self.__dict__[name] = types.MethodType(attr, self)  # looked up once
             return bound
-        if isinstance(attr, property):
+        if isinstance(attr, property) and attr.fget is not None:
             return attr.fget(self)
         return getattr(self.world, name)
 
@@ -390,7 +405,7 @@ class _World(MapEnv):
         routes = self._agent_routes(int(self.agent_config["agents"]))
         m = self.net.hdmap
         lanes = [l for r, _ in routes for l in r]
-        junctions = {m.lanes[l].junction_id for l in lanes} - {None}
+        junctions = {j for j in (m.lanes[l].junction_id for l in lanes) if j is not None}
         self.control.active_crosswalks = sorted(c.id for c in m.crosswalks.values() if c.junction_id in junctions)
         self._spawn_lanes = self._traffic_spawn_lanes(sorted(set(lanes)), junctions)
         return routes
@@ -552,7 +567,8 @@ class MultiAgentMapEnv(ParallelEnv):
             view.violations = view.judge.violations
             view._progress = v.route_distance_done()
             last = w.net.lane_of[v.lane_route[-1]]
-            view._route_len = v.route_length() - last.length + MapEnv._goal_s(view, last)
+            # the view stands in for a MapEnv (MapEnv's methods run on it: see AgentView)
+            view._route_len = v.route_length() - last.length + MapEnv._goal_s(view, last)  # type: ignore[arg-type]
             view._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
             view.observation_type = self._make_observation(view)
             view.junction_ahead = route_memo(view, MapEnv.junction_ahead)
@@ -692,7 +708,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[peer].agent_collision = True
 
     def _reward(self, view: AgentView, action, weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
-        r = MapEnv._rewards(view, action)
+        r = MapEnv._rewards(view, action)  # type: ignore[arg-type]  # the view stands in for a MapEnv
         new = view.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         view._last_rewards = r
@@ -709,7 +725,7 @@ class MultiAgentMapEnv(ParallelEnv):
 
     def _info(self, agent: str, obs, action) -> dict:
         view = self._views[agent]
-        info = MapEnv._info(view, obs, action)
+        info = MapEnv._info(view, obs, action)  # type: ignore[arg-type]  # the view stands in for a MapEnv
         info["agent_collision"] = bool(view.agent_collision)
         info["wait_time"] = float(view.wait_time)
         return info

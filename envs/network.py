@@ -133,7 +133,7 @@ def unguarded_coincident_lanes(net: "MapNetwork", tolerance: float = 0.1) -> lis
     `tolerance` metres, Baidu-style `2765`/`2765dup1`) are both in one narrow passage (one
     direction at a time); one line per pair that is not (empty when sound)."""
     roads, lines, tree = _road_lanes(net.hdmap)
-    out = []
+    out: list[str] = []
     if not lines:
         return out
     left, right = tree.query(lines, predicate="dwithin", distance=tolerance)
@@ -184,7 +184,7 @@ class Passage:
 class MapNetwork(RoadNetwork):
     """A `RoadNetwork` built from an HDMap, with O(1) lane lookups and lane-level routing."""
 
-    hdmap: HDMap | None = None
+    hdmap: HDMap  # MapNetwork.from_map builds it
     lane_ids: list[str] = field(default_factory=list)  # integer lane number -> map lane id
     index_of: dict[str, LaneIndex] = field(default_factory=dict)  # map lane id -> highway-env index
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
@@ -205,7 +205,7 @@ class MapNetwork(RoadNetwork):
         return self._memo[key]
 
     def __post_init__(self) -> None:
-        self.graph = {}
+        self.graph: dict[str, dict[str, list]] = {}
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -229,8 +229,8 @@ class MapNetwork(RoadNetwork):
         groups: list[list[str]] = []
         grouped: set[str] = set()
         for road in m.roads.values():
-            for g in (road.right_lanes, road.left_lanes):
-                g = [lid for lid in g if lid in m.lanes]
+            for side in (road.right_lanes, road.left_lanes):
+                g = [lid for lid in side if lid in m.lanes]
                 if g:
                     groups.append(g)
                     grouped.update(g)
@@ -426,14 +426,14 @@ class MapNetwork(RoadNetwork):
                         continue
                     ss = [cl.project(Point(p)) for g in getattr(inter, "geoms", [inter]) for p in g.coords]
                     self.crossings.setdefault(ln.id, []).append((cws[ci].id, min(ss), max(ss)))
-            for c, poly in zip(cws, polys):
+            for cw, poly in zip(cws, polys):
                 rect = poly.minimum_rotated_rectangle
                 pts = np.asarray(rect.exterior.coords[:4])
                 e = [np.hypot(*(pts[(i + 1) % 4] - pts[i])) for i in range(4)]
                 i = int(np.argmin(e[:2]))  # short side i and its opposite i+2
                 a = (pts[i] + pts[(i + 1) % 4]) / 2
                 b = (pts[(i + 2) % 4] + pts[(i + 3) % 4]) / 2
-                self.crosswalk_axes[c.id] = (flip(a)[0], flip(b)[0], float(e[i]))
+                self.crosswalk_axes[cw.id] = (flip(a)[0], flip(b)[0], float(e[i]))
 
     def _build_passages(self, road_lanes: RoadLanes) -> None:
         """`passages`: pairs of road lanes of opposite directions (not linked to each other) whose

@@ -83,8 +83,8 @@ class MapViewer(EnvViewer):
                     pygame.draw.polygon(surf, (200, 0, 0), pts)
                     pygame.draw.polygon(surf, WHITE, pts, 1)
         if env.config.get("show_route") and env.vehicle is not None:
-            pts = np.concatenate([net.lane_of[l].points for l in env.vehicle.lane_route])
-            pygame.draw.lines(surf, ROUTE_RGB, False, [surf.vec2pix(p) for p in pts], max(1, surf.pix(0.3)))
+            route = np.concatenate([net.lane_of[l].points for l in env.vehicle.lane_route])
+            pygame.draw.lines(surf, ROUTE_RGB, False, [surf.vec2pix(p) for p in route], max(1, surf.pix(0.3)))
         for o in env.road.objects:
             if isinstance(o, Pedestrian) and surf.is_visible(o.position):
                 pygame.draw.circle(surf, PED_RGB, surf.vec2pix(o.position), max(3, surf.pix(0.5)))

@@ -46,10 +46,10 @@ class MapVectorEnv(SyncVectorEnv):
                for k in range(int(num_envs))]
         super().__init__(fns, copy=copy, autoreset_mode=autoreset_mode)
         self.render_mode = render_mode
-        first = self.envs[0]
-        net = first.net
+        envs: list[Any] = list(self.envs)  # MapEnvs (gymnasium types them as Env)
+        net = envs[0].net
         self.core = TrafficCore(net, self.num_envs)
-        for k, env in enumerate(self.envs):
+        for k, env in enumerate(envs):
             env.core_slot = (self.core, k)
             env._network = lambda net=net: net  # the map of the batch, for every reset
 
@@ -112,7 +112,7 @@ class MapVectorEnv(SyncVectorEnv):
             idx = [i for i, _ in sub]
             first = sub[0][1]
             if isinstance(first, dict) and key != "final_obs":
-                array = self.stack_infos(sub)
+                array: Any = self.stack_infos(sub)
             elif key != "final_obs" and (type(first) in (int, float, bool) or issubclass(type(first), np.number)):
                 array = np.zeros(n, dtype=type(first))
                 array[idx] = [v for _, v in sub]
@@ -176,7 +176,7 @@ def sb3_vec_env(venv) -> Any:
             if venv.metadata.get("autoreset_mode") != AutoresetMode.SAME_STEP:
                 raise Feat2MapError("SB3 needs a vector env with autoreset_mode='same-step'", "autoreset_mode")
             self.venv = venv
-            self._actions = None
+            self._actions: np.ndarray | None = None
             super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
 
         def reset(self):

@@ -179,7 +179,7 @@ class RouteFollower:
         m = net.hdmap
         buckets = self.road.control.buckets
         gaps = []
-        for k, lid, d, s_own in self.upcoming():
+        for _k, lid, d, s_own in self.upcoming():
             lane = net.lane_of[lid]
             others = list(buckets.get(lid, ()))
             ln = m.lanes[lid]

@@ -129,6 +129,8 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
         cfg.check_limits()
         return cfg
     except ValueError as exc:  # ConfigError, LimitError: about the options just given
+        if not isinstance(exc, Feat2MapError):
+            raise
         raise type(exc)(option_names(exc.message), "command line") from None
 
 
@@ -188,6 +190,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         feats = [j.feature for j in m.junctions.values() if j.feature is not None]
         space = FeatureSpace.from_features(feats) if feats else None
     else:
+        assert space is not None  # set above whenever there is no spec
         m = generate(space, seed=args.seed, config=cfg, progress=not args.quiet)
     stages.update(2)
     with atomic.staged_dir(out, GENERATE_MARKERS) as tmp:
@@ -429,14 +432,16 @@ def _print_warning(message, category, filename, lineno, file=None, line=None) ->
 @functools.cache
 def _our_dirs() -> tuple[str, ...]:
     """The folders of feat2map and its subpackages installed from elsewhere (envs, scenarios)."""
-    return tuple(d for name in ("feat2map", "feat2map.envs", "feat2map.scenarios")
-                 for d in importlib.util.find_spec(name).submodule_search_locations)
+    specs = [importlib.util.find_spec(name) for name in ("feat2map", "feat2map.envs", "feat2map.scenarios")]
+    return tuple(d for spec in specs if spec is not None for d in spec.submodule_search_locations or ())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     for stream in (sys.stdout, sys.stderr):  # a non-UTF-8 file name is printed escaped, not a traceback
-        with contextlib.suppress(AttributeError, ValueError):
-            stream.reconfigure(errors="backslashreplace")
+        reconfigure = getattr(stream, "reconfigure", None)  # a replaced stream may not have it
+        if reconfigure is not None:
+            with contextlib.suppress(ValueError):
+                reconfigure(errors="backslashreplace")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -135,7 +135,8 @@ class _Builder:
         """A road with `n_right` lanes along start->end and `n_left` against it, centred on the reference."""
         w = self.cfg.lane_width
         divider = (n_right - n_left) * w / 2  # left of the reference by this much
-        right_ids, left_ids = [], []
+        right_ids: list[str] = []
+        left_ids: list[str] = []
         for i in range(n_right):
             lid = f"{road_id}_{len(right_ids)}"
             off = divider - (i + 0.5) * w

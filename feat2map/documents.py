@@ -92,6 +92,11 @@ def _json_depth(raw: bytes, where: str, error: type[Feat2MapError]) -> None:
                     f"(raise it with --limit max_nesting=N)", where)
 
 
+def _line(ev: yaml.Event) -> int | str:
+    """The 1-based line an event starts on (the parser always marks it; "?" if not)."""
+    return ev.start_mark.line + 1 if ev.start_mark is not None else "?"
+
+
 def _yaml_events(text: str, where: str, error: type[Feat2MapError]) -> None:
     """Depth and alias-expanded size of a YAML document from its event stream (no recursion,
     nothing built): an alias adds the size of the node it names."""
@@ -105,7 +110,7 @@ def _yaml_events(text: str, where: str, error: type[Feat2MapError]) -> None:
                 stack.append([ev.anchor, 1])
                 if len(stack) - 1 > lim.max_nesting:
                     raise error(f"nested deeper than the limit max_nesting={lim.max_nesting} "
-                                f"(raise it with --limit max_nesting=N)", f"{where}: line {ev.start_mark.line + 1}")
+                                f"(raise it with --limit max_nesting=N)", f"{where}: line {_line(ev)}")
             elif isinstance(ev, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
                 anchor, n = stack.pop()
                 if anchor is not None:
@@ -118,7 +123,7 @@ def _yaml_events(text: str, where: str, error: type[Feat2MapError]) -> None:
             elif isinstance(ev, yaml.AliasEvent):
                 if ev.anchor not in sizes:
                     raise error(f"alias *{ev.anchor} refers to a node that is not complete (a recursive "
-                                "document)", f"{where}: line {ev.start_mark.line + 1}")
+                                "document)", f"{where}: line {_line(ev)}")
                 stack[-1][1] += sizes[ev.anchor]
             total = sum(n for _, n in stack)
             if total > lim.max_yaml_nodes:

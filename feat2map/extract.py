@@ -5,8 +5,8 @@ by lane neighbour links and by direction and position (not by road ids, which re
 into pieces). A socket runs from the junction centre (where the arms' centre lines meet; the
 paper's polygon centroid on request) to the mean of its arm's mouth points. Control is
 `signal` if a signal names the junction (or, naming none, governs a lane entering it), else
-`stop` if a stop sign does, else `bare` (yield signs leave a junction bare); a crosswalk counts when it lies in or touches the junction area or
-is linked to the junction by the reader.
+`stop` if a stop sign does, else `bare` (yield signs leave a junction bare); a crosswalk counts
+when it lies in or touches the junction area or is linked to the junction by the reader.
 """
 from __future__ import annotations
 
@@ -183,8 +183,9 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     ext = [v[4] for v in ends.values()]
     linked: list[set[str | None]] = []
     for lid in ext:
-        ln = m.lanes.get(lid) if lid else None
-        linked.append(set(ln.left_neighbors + ln.right_neighbors + ln.left_reverse_neighbors) if ln else set())
+        ext_lane = m.lanes.get(lid) if lid else None
+        linked.append(set(ext_lane.left_neighbors + ext_lane.right_neighbors + ext_lane.left_reverse_neighbors)
+                      if ext_lane else set())
     pts = np.array([v[0] for v in ends.values()])
     dirs = np.array([v[1] - v[0] for v in ends.values()])
     dirs /= np.maximum(np.hypot(*dirs.T), 1e-12)[:, None]
@@ -288,7 +289,9 @@ def _junction_controls(m: HDMap) -> dict[str, set[str]]:
                 continue
             for lid in s.lane_ids:
                 ln = m.lanes.get(lid)
-                for nxt in (ln.successors if ln is not None else ()):
+                if ln is None:
+                    continue
+                for nxt in ln.successors:
                     jid = m.lanes[nxt].junction_id
                     if jid and jid != ln.junction_id:
                         out.setdefault(jid, set()).add(kind)
@@ -314,6 +317,15 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
     xw_tree = STRtree(xw_polys) if xw_polys else None
     xw_junctions = {c.junction_id for c in m.crosswalks.values() if c.junction_id}
     controls = _junction_controls(m)
+
+    def skip(jid: str, poly: Polygon | None, control: str, n_arms: int, reason: str, warn: bool = True) -> None:
+        if warn:
+            warnings.warn(f"{map_name}: junction {jid}: {reason}, skipped", stacklevel=3)
+        if skipped is not None:
+            has_xw = jid in xw_junctions or (poly is not None and xw_tree is not None and len(
+                xw_tree.query(poly, predicate="intersects")) > 0)
+            skipped.append(SkippedJunction(map_name, jid, n_arms, control, has_xw, reason))
+
     out = []
     for jid, j in m.junctions.items():
         lanes = by_junction.get(jid, [])
@@ -322,21 +334,12 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
             poly = poly.buffer(0)
         kinds = controls.get(jid, set())
         control = "signal" if "signal" in kinds else "stop" if "stop" in kinds else "bare"
-
-        def skip(n_arms: int, reason: str, warn: bool = True) -> None:
-            if warn:
-                warnings.warn(f"{map_name}: junction {jid}: {reason}, skipped", stacklevel=3)
-            if skipped is not None:
-                has_xw = jid in xw_junctions or (poly is not None and xw_tree is not None and len(
-                    xw_tree.query(poly, predicate="intersects")) > 0)
-                skipped.append(SkippedJunction(map_name, jid, n_arms, control, has_xw, reason))
-
         if not lanes or poly is None or poly.is_empty or poly.area <= 0:
-            skip(0, "no lanes or no valid polygon")
+            skip(jid, poly, control, 0, "no lanes or no valid polygon")
             continue
         ends = _arms(m, jid, lanes)
         if len(ends) < 3:
-            skip(len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
+            skip(jid, poly, control, len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
             continue
         c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
         arms = [Arm(round(math.degrees(math.atan2(a.point[1] - c[1], a.point[0] - c[0])), 9),  # float noise off
@@ -346,7 +349,7 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         raw = sorted(positive_degrees(a.angle_deg) for a in arms)
         gap = min(positive_degrees(raw[(i + 1) % len(raw)] - raw[i]) for i in range(len(raw)))
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
-            skip(len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
+            skip(jid, poly, control, len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
                             f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")
             continue
         try:
@@ -356,7 +359,7 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
                 tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms)),
                 control, crosswalk, MIN_LEG_SEPARATION_DEG)
         except FeatureError as exc:
-            skip(len(arms), exc.message)
+            skip(jid, poly, control, len(arms), exc.message)
             continue
         out.append(ExtractedJunction(map_name, jid, feature, (float(c[0]), float(c[1])), tuple(arms)))
     return out

@@ -206,7 +206,8 @@ def _score_all(j: int, f: JunctionFeature, cells: dict[Cell, int], fixed: Sequen
                ) -> tuple[Cell, int, list[Link | None]]:
     """Score every candidate (cell, quarter turn) of junction j and draw one of the best: the
     first junction, pinned ones, preferred turns and the last few open sockets come here."""
-    candidates = [fixed[j]] if fixed[j] is not None else (sorted(facing) if cells else [(0, 0)])
+    pinned = fixed[j]
+    candidates = [pinned] if pinned is not None else (sorted(facing) if cells else [(0, 0)])
     best_key = None
     best: list[tuple[Cell, int, list[Link | None]]] = []
     clash = ""
@@ -225,9 +226,9 @@ def _score_all(j: int, f: JunctionFeature, cells: dict[Cell, int], fixed: Sequen
                 best_key, best = key, [(cell, k, connect)]
             elif key == best_key:
                 best.append((cell, k, connect))
-    if not best and fixed[j] is not None:
+    if not best and pinned is not None:
         raise LayoutError(
-            f"no quarter turn at cell {tuple(fixed[j])} makes the sockets facing its neighbours "
+            f"no quarter turn at cell {tuple(pinned)} makes the sockets facing its neighbours "
             f"direction-compatible ({clash}; an out socket must face an in socket with as many lanes)",
             label[j])
     if not best:

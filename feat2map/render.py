@@ -95,9 +95,9 @@ def draw_map(m: HDMap, ax, *, labels: bool = True, controls: dict[str, str] | No
     for s in m.signals.values():
         ax.plot(*zip(*s.stop_line), color=CONTROL_COLOURS["signal"], lw=1.2, zorder=4)
         ax.plot(*s.position, marker="o", ms=3.5, color=CONTROL_COLOURS["signal"], mec="k", mew=0.3, zorder=5)
-    for s in m.stop_signs.values():
-        ax.plot(*zip(*s.stop_line), color=CONTROL_COLOURS["stop"], lw=1.2, zorder=4)
-        ax.plot(*s.position, marker="8", ms=4.0, color=CONTROL_COLOURS["stop"], mec="k", mew=0.3, zorder=5)
+    for stop in m.stop_signs.values():
+        ax.plot(*zip(*stop.stop_line), color=CONTROL_COLOURS["stop"], lw=1.2, zorder=4)
+        ax.plot(*stop.position, marker="8", ms=4.0, color=CONTROL_COLOURS["stop"], mec="k", mew=0.3, zorder=5)
     if labels:
         for jid, j in m.junctions.items():
             if len(j.polygon) >= 3:
@@ -142,7 +142,10 @@ def _one_way_arrows(m: HDMap, ax) -> None:
             i = min(int(np.searchsorted(s, at, side="right")) - 1, len(seg) - 1)
             d = (pts[i + 1] - pts[i]) / max(seg[i], 1e-9)
             p = pts[i] + d * (at - s[i]) - d * size / 2
-            xs.append(p[0]), ys.append(p[1]), us.append(d[0] * size), vs.append(d[1] * size)
+            xs.append(p[0])
+            ys.append(p[1])
+            us.append(d[0] * size)
+            vs.append(d[1] * size)
     ax.quiver(xs, ys, us, vs, angles="xy", scale_units="xy", scale=1, color=ONE_WAY_COLOUR, width=0.003,
               headwidth=3.5, headlength=3.5, headaxislength=3, zorder=5)
 
@@ -156,7 +159,7 @@ def legend_handles(m: HDMap, *, labels: bool = True, controls: dict[str, str] | 
     ctrl = controls if controls is not None else {
         jid: j.feature.control for jid, j in m.junctions.items() if j.feature is not None}
     used = {ctrl.get(jid, "") for jid in m.junctions}
-    out = [Patch(facecolor=CONTROL_COLOURS.get(k, NO_CONTROL_COLOUR), alpha=0.35, edgecolor="#616161",
+    out: list[Patch | Line2D] = [Patch(facecolor=CONTROL_COLOURS.get(k, NO_CONTROL_COLOUR), alpha=0.35, edgecolor="#616161",
                  label=f"junction: {name}") for k, name in JUNCTION_KINDS if k in used]
     if labels and m.junctions:
         out.append(Line2D([], [], ls="none", marker="$J0$", ms=11, color="k", label="junction id"))

@@ -51,7 +51,7 @@ STDERR_TAIL_CHARS = 1500  # of the planner's stderr, quoted in an error outcome
 MAX_LINE_BYTES = 16 << 20  # a reply longer than this is garbage
 MAX_TRAJECTORY_POINTS = 10_000
 WORLD_RADIUS_M = 150.0  # vehicles and pedestrians this close to the ego are sent
-BRIDGE_ACTION_CONFIG = {"type": "ContinuousAction", "longitudinal": True, "lateral": True,
+BRIDGE_ACTION_CONFIG: dict[str, Any] = {"type": "ContinuousAction", "longitudinal": True, "lateral": True,
                         "acceleration_range": [-8.0, 4.0], "steering_range": [-math.pi / 3, math.pi / 3]}
 
 
@@ -82,6 +82,7 @@ class PlannerProcess:
 
     def _read(self) -> None:
         out = self.proc.stdout
+        assert out is not None  # Popen(stdout=PIPE)
         try:
             while True:
                 line = out.readline(MAX_LINE_BYTES + 1)
@@ -93,6 +94,7 @@ class PlannerProcess:
         self.lines.put(None)  # end of output
 
     def send(self, msg: dict) -> None:
+        assert self.proc.stdin is not None  # Popen(stdin=PIPE)
         try:
             self.proc.stdin.write((json.dumps(msg, separators=(",", ":"), allow_nan=False) + "\n").encode())
             self.proc.stdin.flush()
@@ -157,6 +159,8 @@ class PlannerProcess:
         except subprocess.TimeoutExpired:
             pass
         for f in (self.proc.stdin, self.proc.stdout):
+            if f is None:  # never: both are pipes
+                continue
             try:
                 f.close()
             except (OSError, ValueError):
@@ -310,6 +314,7 @@ class BridgePlanner:
         return export_for_planner(str(tmp), m, fmt)
 
     def _check_hello(self, hello: dict) -> None:
+        assert self.proc is not None  # reset started the planner
         bad = None
         if hello.get("type") != "hello":
             bad = f"expected a hello, got {str(hello)[:80]}"
@@ -364,6 +369,7 @@ class BridgePlanner:
     def _apply(self, reply: dict, t: float, info: dict) -> None:
         from feat2map.envs.tracking import Trajectory, TrajectoryTracker
 
+        assert self.proc is not None  # act checked that reset started the planner
         kind = reply.get("type")
         ego = self.env.vehicle
         stage = reply.get("stage")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
+from typing import Iterable, Mapping, Sequence, cast
 
 from .rollout import MIXED_DIGEST, ROAD_CONTEXT, Outcome, SuiteResult
 
@@ -123,7 +123,7 @@ class Coverage:
 
 def suite_coverage(result: SuiteResult | Sequence[Outcome]) -> Coverage:
     """Behaviour and line coverage of a suite result, per junction."""
-    outcomes = list(getattr(result, "outcomes", result))
+    outcomes = list(cast(Iterable[Outcome], getattr(result, "outcomes", result)))
     pairs: dict[str, set[Pair]] = {}
     trans: dict[str, set[Transition]] = {}
     lines: dict[str, set[str]] = {}
@@ -202,7 +202,8 @@ def compare(results: Mapping[str, SuiteResult] | Sequence[SuiteResult]) -> Compa
 
 
 def _unique_names(names: Sequence[str]) -> tuple[str, ...]:
-    out, seen = [], {}
+    out: list[str] = []
+    seen: dict[str, int] = {}
     for n in names:
         seen[n] = seen.get(n, 0) + 1
         out.append(n if seen[n] == 1 else f"{n} ({seen[n]})")

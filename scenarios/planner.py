@@ -7,11 +7,14 @@ Scenarios and their stages (the paper's Section V abbreviations):
 | scenario | selected when | stages |
 |---|---|---|
 | LANE_FOLLOW | no junction within SELECT_DISTANCE_M | LF |
-| STOP_SIGN_UNPROTECTED | next stop line is a stop sign | S_PS pre-stop -> S_S stop -> S_C creep -> S_I intersection cruise |
-| TRAFFIC_LIGHT_PROTECTED | signal; straight, right on green, or a protected left | T_A approach -> T_C intersection cruise |
-| TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN | signal; left/U-turn whose conflicts share our phase | L_A approach -> (L_C creep ->) L_I intersection cruise |
-| TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN | signal red at selection; right turn (right on red) | R_S stop -> R_C creep -> R_I intersection cruise (R_S -> R_I when the light turns green first) |
-| BARE_INTERSECTION_UNPROTECTED | junction without signal or stop sign | B_A approach -> B_I intersection cruise |
+| STOP_SIGN_UNPROTECTED | next stop line is a stop sign | S_PS -> S_S -> S_C -> S_I |
+| TRAFFIC_LIGHT_PROTECTED | signal; straight, right on green, or a protected left | T_A -> T_C |
+| TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN | signal; left/U-turn whose conflicts share our phase | L_A -> (L_C ->) L_I |
+| TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN | signal red at selection; right turn (right on red) | R_S -> R_C -> R_I |
+| BARE_INTERSECTION_UNPROTECTED | junction without signal or stop sign | B_A -> B_I |
+
+Stages: S_PS pre-stop; S_S, R_S stop; S_C, L_C, R_C creep; T_A, L_A, B_A approach; S_I, T_C,
+L_I, R_I, B_I intersection cruise (R_S goes straight to R_I when the light turns green first).
 
 Every scenario ends back in LF when the ego leaves the junction. Longitudinal control is IDM
 towards the lane speed limit, behind leaders (`leader_gaps`) and before the stop point the
@@ -300,6 +303,7 @@ class BaselinePlanner:
         can arrive (at its current speed) or arrives GAP_MARGIN_S after we have left (it
         accelerating up to its lane's speed limit). With `yielding`, vehicles that would wait for
         our reservation (`TrafficRules.yields_to_reservation`) are left out."""
+        assert self.j_lane is not None  # a scenario that checks gaps has selected its junction lane
         env = self.env
         ego, net = env.vehicle, env.net
         v_me = max(ego.speed, 0.0)

@@ -3,8 +3,8 @@
 
 Determinism: every scenario builds its own env from its own seed and a fresh planner, and
 every worker runs with PYTHONHASHSEED=HASH_SEED, so the results (everything but wall-clock
-times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run with `render_mode="rgb_array"` to record a GIF, so only
-failing scenarios pay for rendering.
+times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run
+with `render_mode="rgb_array"` to record a GIF, so only failing scenarios pay for rendering.
 """
 from __future__ import annotations
 
@@ -35,8 +35,8 @@ FAIL_POLICIES = {  # --fail-on: which outcomes make the run fail
     "none": frozenset(),
 }
 BACKENDS = ("process", "ray")
-ROAD_CONTEXT = "(road)"
-MIXED_DIGEST = "mixed"  # SuiteResult.planner_digest when the planner's sources changed mid-run  # code-coverage context before the first junction is known
+ROAD_CONTEXT = "(road)"  # code-coverage context before the first junction is known
+MIXED_DIGEST = "mixed"  # SuiteResult.planner_digest when the planner's sources changed mid-run
 GIF_MAX_FRAMES = 160  # failure GIFs are subsampled to at most this many frames
 GIF_WIDTH_PX = 360  # and scaled down to this width
 GIF_SPEEDUP = 2.0  # playback speed relative to simulated time
@@ -50,8 +50,8 @@ HASH_SEED = "0"  # PYTHONHASHSEED of every worker: set iteration orders (and so 
 class PlannerFactory:
     """A picklable zero-argument factory of fresh planners from a spec: "baseline",
     "module:attr" or the object itself: a Policy class or a zero-argument factory (called per
-    scenario), a Policy instance (deep-copied per scenario), a callable `obs -> action` or `(obs, info) -> action` (told apart by its signature) or an
-    SB3 model (wrapped by `as_policy`)."""
+    scenario), a Policy instance (deep-copied per scenario), a callable `obs -> action` or
+    `(obs, info) -> action` (told apart by its signature) or an SB3 model (wrapped by `as_policy`)."""
 
     def __init__(self, spec: Any = "baseline") -> None:
         self.spec = spec
@@ -374,7 +374,7 @@ class _Frames(list):
 
 
 def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
-           coverage_modules: Sequence[str] = (), policy: Any = None) -> tuple[Outcome, list]:
+           coverage_modules: Sequence[str] = (), policy: Any = None) -> tuple[Outcome, _Frames]:
     """Run one episode; returns its outcome and (when rendering) its frames."""
     from .scenario import make_env
 
@@ -472,7 +472,7 @@ def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
     for f in picked:
         im = Image.fromarray(f)
         h = max(1, round(im.height * GIF_WIDTH_PX / im.width))
-        images.append(im.resize((GIF_WIDTH_PX, h)).convert("P", palette=Image.ADAPTIVE, colors=128))
+        images.append(im.resize((GIF_WIDTH_PX, h)).convert("P", palette=Image.Palette.ADAPTIVE, colors=128))
     buf = io.BytesIO()
     duration = max(20, int(1000 * step_s * stride / GIF_SPEEDUP))
     images[0].save(buf, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0)
@@ -559,7 +559,8 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     if not scenarios:  # nothing driven is not a pass
         raise Feat2MapError("has no scenarios: nothing to run", f"suite {getattr(suite, 'name', '')!r}")
     factory = as_factory(planner)
-    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on, tuple(coverage_modules))
+    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on,
+                   tuple(coverage_modules))
              for i, s in enumerate(scenarios)]
     picklable = _picklable(factory)
     if not picklable and (workers > 1 or backend == "ray"):

@@ -9,7 +9,7 @@ them that the route does not name).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Sequence, cast
 
 from ..errors import Feat2MapError
 from ..config import DRIVE_DEFAULTS
@@ -34,8 +34,9 @@ def pick_lane(m: HDMap, mv: Manoeuvre) -> Lane | None:
 def route_length(m: HDMap, route: Sequence[Manoeuvre]) -> float:
     """Metres the ego drives on `route` (from the env's start to its goal): the env's junction
     lanes, the road lanes joining them, and the start and goal stretches."""
-    picks = [pick_lane(m, tuple(str(x) for x in mv)) for mv in route]
-    if any(p is None for p in picks):
+    found = [pick_lane(m, cast(Manoeuvre, tuple(str(x) for x in mv))) for mv in route]
+    picks = [p for p in found if p is not None]
+    if len(picks) != len(found):
         raise ValueError(f"route {list(route)} has a manoeuvre the map does not allow")
     total = START_AND_GOAL_M + sum(p.length for p in picks)
     for a, b in zip(picks, picks[1:]):

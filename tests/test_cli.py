@@ -16,7 +16,8 @@ from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace
 def test_generate_default_writes_map_features_and_picture(tmp_path, capsys):
     out = tmp_path / "m1"
     assert main(["generate", "--seed", "1", "--out", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == sorted([MANIFEST, "apollo", "features.json", "junctions.png", "map.json", "map.png"])
+    assert sorted(p.name for p in out.iterdir()) == sorted([MANIFEST, "apollo", "features.json", "junctions.png", "map.json",
+                                                            "map.png"])
     m = native.load(out / "map.json")
     assert len(m.junctions) == 8
     assert FeatureSpace.from_json((out / "features.json").read_text()) == PAPER_SF_FEATURE_SPACE
@@ -101,8 +102,10 @@ def test_bad_feature_file_fails_cleanly_and_writes_nothing(tmp_path, capsys, con
     assert not out.exists()
 
 
-@pytest.mark.parametrize("content", [b"", b"\x00\x01garbage", b'{"format": "feat2map-map", "version": 1, "lanes": [{"id": "a"}]}',
-                                     b'{"format": "feat2map-map", "version": 1, "lanes": [], "roads": [{"id": "r", "kind": "stub", "right_lanes": ["ghost"]}]}'])
+@pytest.mark.parametrize("content", [
+    b"", b"\x00\x01garbage", b'{"format": "feat2map-map", "version": 1, "lanes": [{"id": "a"}]}',
+    b'{"format": "feat2map-map", "version": 1, "lanes": [], '
+    b'"roads": [{"id": "r", "kind": "stub", "right_lanes": ["ghost"]}]}'])
 def test_corrupt_map_files_name_the_file(tmp_path, capsys, content):
     bad = tmp_path / "broken.json"
     bad.write_bytes(content)

@@ -103,7 +103,7 @@ def test_stop_bonus_once_and_a_violation_ends_the_episode(tp):
     assert sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1  # the bonus once (the last step: arrival)
 
     obs, _ = env.reset(seed=0)
-    for steps in range(200):  # full speed through the stop sign
+    for steps in range(200):  # full speed through the stop sign  # noqa: B007 (steps is read after it)
         obs, r, term, trunc, info = env.step(len(tp.TARGET_SPEEDS) - 1)
         if term or trunc:
             break

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import shapely
@@ -75,7 +76,7 @@ def exact_end_centerline(ln: Lane, step: float = APOLLO_END_TANGENT_M) -> Polyli
     eps = step / bz.length
     if math.dist(pts[0], pts[1]) <= 2 * step or math.dist(pts[-2], pts[-1]) <= 2 * step:
         return pts
-    a, b = (tuple(map(float, p)) for p in bz.point(np.array([eps, 1.0 - eps])))
+    a, b = ((float(p[0]), float(p[1])) for p in bz.point(np.array([eps, 1.0 - eps])))
     return (pts[0], a) + tuple(pts[1:-1]) + (b, pts[-1])
 
 
@@ -118,14 +119,14 @@ def without_point_lanes(m: HDMap) -> HDMap:
     for lid, ln in m.lanes.items():
         if lid in gone:
             continue
-        drop = {f: tuple(x for x in getattr(ln, f) if x not in gone)
+        drop: dict[str, Any] = {f: tuple(x for x in getattr(ln, f) if x not in gone)
                 for f in ("left_neighbors", "right_neighbors", "left_reverse_neighbors")}
         lanes[lid] = dataclasses.replace(ln, predecessors=through(ln.predecessors, "predecessors"),
                                          successors=through(ln.successors, "successors"), **drop)
     roads = {rid: dataclasses.replace(r, right_lanes=tuple(x for x in r.right_lanes if x not in gone),
                                       left_lanes=tuple(x for x in r.left_lanes if x not in gone))
              for rid, r in m.roads.items()}
-    controls = {kind: {k: dataclasses.replace(c, lane_ids=tuple(x for x in c.lane_ids if x not in gone))
+    controls: dict[str, Any] = {kind: {k: dataclasses.replace(c, lane_ids=tuple(x for x in c.lane_ids if x not in gone))
                        for k, c in getattr(m, kind).items()} for kind in CONTROL_KINDS}
     return dataclasses.replace(m, lanes=lanes, roads=roads, **controls)
 
@@ -138,7 +139,7 @@ def usable_boundaries(m: HDMap) -> HDMap:
     for ln in m.lanes.values():
         if not _usable(ln.centerline):
             raise Feat2MapError("centerline needs 2 or more distinct points", f"lane {ln.id}")
-        sides = {}
+        sides: dict[str, Any] = {}
         for name, sign in (("left_boundary", 1.0), ("right_boundary", -1.0)):
             if not _usable(getattr(ln, name)):
                 sides[name] = offset_polyline(ln.centerline, sign * ln.width / 2)

@@ -59,10 +59,10 @@ def problem_locations(m: Any, problems: Sequence[Problem]) -> list[tuple[float, 
             if f"{kind} {o.id.id}" in where:
                 where.setdefault(f"overlap {ov.id.id}", where[f"{kind} {o.id.id}"])
     out = []
-    for p in problems:
-        key = p.element.removeprefix("sim_map ")
+    for prob in problems:
+        key = prob.element.removeprefix("sim_map ")
         if key in where:
-            out.append(tuple(map(float, where[key])))
+            out.append((float(where[key][0]), float(where[key][1])))
     return out
 
 

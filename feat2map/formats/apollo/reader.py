@@ -116,7 +116,7 @@ class _Reader:
         kinds sorted; ids are checked against the elements the map defines."""
         pairs: dict[tuple[str, str], list[tuple[str, str, Any]]] = {}
         for ov in self.pb.overlap:
-            objs = []
+            objs: list[tuple[str, str, Any]] = []
             for obj in ov.object:
                 kind = obj.WhichOneof("overlap_info")
                 if kind is None:
@@ -238,16 +238,16 @@ class _Reader:
             lid = ln.id.id
             if lid not in driving:
                 continue
-            links: dict[str, tuple[str, ...]] = {}
+            links: dict[str, Any] = {}  # Lane's link fields, passed as keywords
             for attr, field in (("predecessors", "predecessor_id"), ("successors", "successor_id"),
                                 ("left_neighbors", "left_neighbor_forward_lane_id"),
                                 ("right_neighbors", "right_neighbor_forward_lane_id"),
                                 ("left_reverse_neighbors", "left_neighbor_reverse_lane_id")):
-                ids = tuple(dict.fromkeys(x.id for x in getattr(ln, field)))
-                bad = [x for x in ids if x not in raw]
+                link_ids = tuple(dict.fromkeys(x.id for x in getattr(ln, field)))
+                bad = [x for x in link_ids if x not in raw]
                 if bad:
                     raise self.err(f"lane {lid!r}", f"{field} refers to unknown lane {bad[0]!r}")
-                links[attr] = tuple(x for x in ids if x in driving)
+                links[attr] = tuple(x for x in link_ids if x in driving)
             r = raw[lid]
             centre, left, right = r["c"] - o, r["l"] - o, r["r"] - o
             bad = [x.width for x in list(ln.left_sample) + list(ln.right_sample) if not x.width >= 0.0]

@@ -128,7 +128,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     if not isinstance(zone, int) or isinstance(zone, bool) or not 1 <= zone <= 60:
         raise Feat2MapError(f"UTM zone must be an integer 1..60, got {zone!r}", "apollo export")
     if origin is None:
-        origin = tuple(m.origin) if any(m.origin) else UTM_ORIGIN
+        origin = m.origin if any(m.origin) else UTM_ORIGIN  # checked (two numbers) just below
     origin = check_origin(origin, "apollo export: origin")
     m = usable_boundaries(without_point_lanes(m))
     frame = _Frame(origin)
@@ -152,7 +152,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         road.type = aps.Road.CITY_ROAD
         jid = r.junction_id or next((m.lanes[x].junction_id for x in r.lane_ids if x in m.lanes
                                      and m.lanes[x].junction_id), None)
-        if jid in m.junctions:
+        if jid is not None and jid in m.junctions:
             road.junction_id.id = ids.of[("junction", jid)]
         sec = road.section.add()
         sec.id.id = ids.claim("section", None, f"{road.id.id}_section")
@@ -181,9 +181,9 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
         msg = out.signal.add()
         msg.id.id = ids.of[("signal", s.id)]
         msg.type = aps.Signal.MIX_3_VERTICAL
-        for x, y, z in _signal_boundary(s.position, s.heading):
+        for bx, by, bz in _signal_boundary(s.position, s.heading):
             p = msg.boundary.point.add()
-            p.x, p.y, p.z = x + frame.ox, y + frame.oy, z
+            p.x, p.y, p.z = bx + frame.ox, by + frame.oy, bz
         _, h = APOLLO_SIGNAL_HEAD_SIZE_M
         for k, dz in enumerate((h / 3, 0.0, -h / 3)):  # red, yellow, green from the top
             sub = msg.subsignal.add()
@@ -193,15 +193,15 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
             sub.location.z = APOLLO_SIGNAL_HEIGHT_M + dz
         control_overlaps(msg, s, "signal_overlap_info")
     stop_types = stop_sign_types(m)
-    for s in m.stop_signs.values():
+    for stop in m.stop_signs.values():
         msg = out.stop_sign.add()
-        msg.id.id = ids.of[("stop_sign", s.id)]
-        msg.type = stop_types.get(s.junction_id, aps.StopSign.UNKNOWN)
-        control_overlaps(msg, s, "stop_sign_overlap_info")
-    for s in m.yield_signs.values():
+        msg.id.id = ids.of[("stop_sign", stop.id)]
+        msg.type = stop_types.get(stop.junction_id, aps.StopSign.UNKNOWN)
+        control_overlaps(msg, stop, "stop_sign_overlap_info")
+    for yld in m.yield_signs.values():
         msg = getattr(out, "yield").add()
-        msg.id.id = ids.of[("yield_sign", s.id)]
-        control_overlaps(msg, s, "yield_sign_overlap_info")
+        msg.id.id = ids.of[("yield_sign", yld.id)]
+        control_overlaps(msg, yld, "yield_sign_overlap_info")
     for ln in m.lanes.values():
         if ln.junction_id in junctions:
             overlaps.add(lanes[ln.id], "lane_overlap_info", (0.0, lanes[ln.id].length),
@@ -257,7 +257,7 @@ def _lane(msg: Any, m: HDMap, ln: Lane, centre: Polyline, frame: _Frame, lid: di
         for x in refs:
             if x in lid:
                 getattr(msg, field).add(id=lid[x])
-    if ln.junction_id in m.junctions:
+    if ln.junction_id is not None and ln.junction_id in m.junctions:
         msg.junction_id.id = ids.of[("junction", ln.junction_id)]
     for field, edge in (("left_sample", ln.left_boundary), ("right_sample", ln.right_boundary)):
         _samples(getattr(msg, field), centre, edge, msg.length)

@@ -21,7 +21,7 @@ import math
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
@@ -130,12 +130,12 @@ def _links(net, report: CommonRoadReport) -> None:
                 report.problems.append(Problem(where, f"adjacent {side} {adj} is not adjacent back"))
 
 
-def lanelet_index(net) -> dict[int, object]:
-    """Lanelet id -> commonroad-io Lanelet of a LaneletNetwork."""
+def lanelet_index(net) -> dict[int, Any]:
+    """Lanelet id -> commonroad-io Lanelet of a LaneletNetwork (commonroad-io is untyped: Any)."""
     return {ll.lanelet_id: ll for ll in net.lanelets}
 
 
-def reachable(lls: Mapping[int, object], starts: Iterable[int], goals: Iterable[int],
+def reachable(lls: Mapping[int, Any], starts: Iterable[int], goals: Iterable[int],
               allowed: Iterable[int] | None = None) -> bool:
     """Can a vehicle drive from a lanelet in `starts` to one in `goals` along successors and
     same-direction lane changes (commonroad-io's lists), within `allowed` lanelets (all when None)?"""
@@ -198,7 +198,8 @@ def _turn_deg(ll) -> float:
 
 def _green_steps(light) -> set[int]:
     """The time steps (within one cycle) at which a light is green."""
-    out, t = set(), 0
+    out: set[int] = set()
+    t = 0
     for el in light.traffic_light_cycle.cycle_elements:
         if el.state.value == "green":
             out.update(range(t, t + int(el.duration)))

@@ -13,15 +13,15 @@ left (U-turns count as left).
 The location is the map's (0, 0) in WGS84, and its geoReference a transverse Mercator whose
 false origin makes the file's coordinates the map's local metres. commonroad-io stamps the
 file with today's date; the writer sets SOURCE_DATE_EPOCH's date instead, else a fixed one
-(the schema requires a date), so the same map gives the same bytes. commonroad-io is imported from its XML modules only: its protobuf modules need
-protobuf 3.20, which the Apollo format cannot use.
+(the schema requires a date), so the same map gives the same bytes. commonroad-io is imported
+from its XML modules only: its protobuf modules need protobuf 3.20, which the Apollo format
+cannot use.
 """
 from __future__ import annotations
 
 import contextlib
 import logging
 import math
-import sys
 import tempfile
 from pathlib import Path
 from typing import Iterator, Mapping
@@ -230,7 +230,7 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
                                virtual=False)
             net.add_traffic_sign(sign, {ids("lane", x) for x in signs[s.id]})
     steps = round(1.0 / COMMONROAD_DT_S)
-    for jid, phases in junction_phases(m).items():
+    for phases in junction_phases(m).values():
         for k, phase in enumerate(phases):
             cycle = [TrafficLightCycleElement(TrafficLightState[_STATES[state]], int(round(d * steps)))
                      for state, d in timeline(k, len(phases))]

@@ -20,6 +20,7 @@ import math
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -96,7 +97,9 @@ def check_lanelet2(path: str | Path) -> Lanelet2Report:
     vehicle = traffic_rules.create(traffic_rules.Locations.Germany, traffic_rules.Participants.Vehicle)
     pedestrian = traffic_rules.create(traffic_rules.Locations.Germany, traffic_rules.Participants.Pedestrian)
     graph = routing.RoutingGraph(lmap, vehicle)
-    report.problems += [Problem(str(path), f"routing graph: {e}") for e in graph.checkValidity(False)]
+    # lanelet2's stub says checkValidity returns None; with throw_on_error=False it returns the errors
+    invalid: Any = graph.checkValidity(False)  # type: ignore[func-returns-value]
+    report.problems += [Problem(str(path), f"routing graph: {e}") for e in invalid]
     _manoeuvres(lmap, graph, report)
     _regulatory_elements(lmap, report)
     for ll in lmap.laneletLayer:

@@ -88,7 +88,7 @@ class _Osm:
             self._ends[key] = self._new(x, y, 0.0)
         return self._ends[key]
 
-    def way(self, points: Sequence[Sequence[float]], tags: dict[str, str], z: float = 0.0,
+    def way(self, points: Sequence[Sequence[float] | np.ndarray], tags: dict[str, str], z: float = 0.0,
             lane_ends: bool = False) -> int:
         """A linestring through `points`; with `lane_ends`, its first and last point are lane
         ends and a point within twice `LANELET2_MERGE_M` of the one before or of the end is

@@ -65,7 +65,7 @@ def _bezier(value: Any, where: str, key: str) -> Bezier | None:
         pts = None
     if pts is None or pts.shape != (4, 2):
         raise MapFormatError(f"{key} must be 4 [x, y] control points, got {snippet(value)}", where)
-    return Bezier(*(tuple(map(float, p)) for p in pts))
+    return Bezier(*((float(p[0]), float(p[1])) for p in pts))
 
 
 def _decode(cls: type, data: dict[str, Any], where: str) -> Any:

@@ -19,7 +19,7 @@ import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 import numpy as np
 from shapely.geometry import MultiPoint, Polygon
@@ -163,7 +163,7 @@ class _RefLine:
         self.geoms = sorted(geoms, key=lambda g: g.s)
         self.starts = np.array([g.s for g in self.geoms])
 
-    def eval(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def eval(self, s: np.ndarray | list[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         s = np.atleast_1d(np.asarray(s, dtype=float))
         idx = np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.geoms) - 1)
         x, y, h = np.empty_like(s), np.empty_like(s), np.empty_like(s)
@@ -222,7 +222,7 @@ class _OdrRoad:
     lane_offset: list[tuple[float, float, float, float, float]]
     links: dict[str, tuple[str, str, str]]  # "predecessor"/"successor" -> (type, id, contactPoint)
     speed: float | None
-    el: object = field(repr=False, default=None)
+    el: Any = field(repr=False, default=None)  # lxml element (lxml has no type stubs here)
 
 
 class _Ctx:
@@ -588,7 +588,7 @@ class _Builder:
         """OpenDRIVE junction id -> merged junction id (elements whose lanes touch are one)."""
         from shapely.ops import unary_union
 
-        areas: dict[str, object] = {}
+        areas: dict[str, list[Any]] = {}
         for key, g in self.geoms.items():
             jid = self.roads[key[0]].junction
             if jid is None:
@@ -607,7 +607,7 @@ class _Builder:
         from shapely import STRtree
 
         tree = STRtree([shapes[j] for j in ids])
-        for i, j in enumerate(ids):
+        for j in ids:
             for k in tree.query(shapes[j].buffer(JUNCTION_TOUCH_M), predicate="intersects"):
                 a, b = find(j), find(ids[int(k)])
                 if a != b:
@@ -626,8 +626,9 @@ class _Builder:
             for etype, eid, _ in r.links.values():
                 j = eid if etype == "junction" else self.roads[eid].junction if eid in self.roads else None
                 ends.add(groups.get(j) if j is not None else None)
-            if len(ends) == 1 and None not in ends:
-                out[r.id] = ends.pop()
+            only = next(iter(ends)) if len(ends) == 1 else None
+            if only is not None:
+                out[r.id] = only
         return out
 
     # ---- build ----------------------------------------------------------------------------
@@ -669,7 +670,7 @@ class _Builder:
             road_id = chain[0][0]
             parts = [self.geoms[k] for k in chain]
 
-            def joined(attr: str) -> np.ndarray:
+            def joined(attr: str, parts: list[_LaneGeom] = parts) -> np.ndarray:  # this chain's parts
                 arrs = [getattr(g, attr) for g in parts]
                 return np.vstack([arrs[0]] + [a[1:] for a in arrs[1:]])
             centre = joined("centre")
@@ -679,7 +680,8 @@ class _Builder:
                 keep[-1] = True
             lens = [max(float(np.hypot(*np.diff(g.centre, axis=0).T).sum()), 1e-9) for g in parts]
             width = float(np.average([g.width for g in parts], weights=lens))
-            jid = groups.get(self.roads[road_id].junction) if self.roads[road_id].junction else interior.get(road_id)
+            odr_junction = self.roads[road_id].junction
+            jid = groups.get(odr_junction) if odr_junction else interior.get(road_id)
             first, last = self.lane_id(chain[0]), self.lane_id(chain[-1])
             lanes[lid] = Lane(
                 lid, road_id, as_polyline(centre[keep]), as_polyline(joined("left")[keep]),
@@ -716,9 +718,9 @@ class _Builder:
         for merged in sorted(members, key=_id_key):
             pts = np.array([p for ln in lanes.values() if ln.junction_id == merged
                             for p in ln.left_boundary + ln.right_boundary])
-            centre = self._centre(merged, lanes)
-            if centre is not None:  # centrally symmetric about the arms' meeting point
-                pts = np.vstack([pts, 2 * centre - pts])
+            meeting = self._centre(merged, lanes)
+            if meeting is not None:  # centrally symmetric about the arms' meeting point
+                pts = np.vstack([pts, 2 * meeting - pts])
             hull = MultiPoint(pts).convex_hull
             if hull.geom_type != "Polygon":
                 warnings.warn(f"{self.ctx.path}: junction {merged}: degenerate area, skipped", stacklevel=2)
@@ -773,8 +775,8 @@ class _Builder:
                     lst = found.setdefault(me, {}).setdefault(attr, [])
                     if chain_of[self.lane_id(other)] not in lst and chain_of[self.lane_id(other)] != me:
                         lst.append(chain_of[self.lane_id(other)])
-        for lid, upd in found.items():
-            lanes[lid] = _replace(lanes[lid], **{k: tuple(v) for k, v in upd.items()})
+        for target, upd in found.items():
+            lanes[target] = _replace(lanes[target], **{k: tuple(v) for k, v in upd.items()})
 
     def _pose(self, road: _OdrRoad, s: float, t: float) -> tuple[tuple[float, float], float]:
         s = min(max(s, 0.0), road.length)
@@ -808,7 +810,7 @@ class _Builder:
         (the map's `orientation` and `validity` first); a signal governs where a sign shares its
         lanes (`signal_precedence`). Controllers that switch several signals together become
         `meta["signal_groups"]`. Unknown types are skipped with one warning per type."""
-        refs: dict[str, list[tuple[str, object]]] = {}
+        refs: dict[str, list[tuple[str, Any]]] = {}
         for r in self.roads.values():
             sig_el = r.el.find("signals")
             for sr in (sig_el.findall("signalReference") if sig_el is not None else []):
@@ -851,7 +853,7 @@ class _Builder:
                     i = int(np.argmin(d))
                     if d[i] <= SIGNAL_SEARCH_M:
                         governed = [incoming_ends[i].id]
-                jids = {lanes[s].junction_id for g in governed for s in lanes[g].successors if lanes[s].junction_id}
+                jids = {j for j in (lanes[s].junction_id for g in governed for s in lanes[g].successors) if j}
                 jid = sorted(jids, key=_id_key)[0] if jids else None
                 line = self._stop_line(governed, lanes, pos)
                 ident = sid if all(sid not in v for v in made.values()) else f"{r.id}_{sid}"
@@ -1017,7 +1019,7 @@ def _join_through(lanes: dict[str, Lane], road_lanes: dict[str, tuple[list[str],
             for b in outs:
                 parts = (a, ln, b)
                 new = f"{a.id}+{mid}+{b.id}"
-                cat = lambda attr: as_polyline(np.vstack(  # noqa: E731
+                cat = lambda attr, parts=parts: as_polyline(np.vstack(  # noqa: E731  (this join's parts)
                     [getattr(parts[0], attr)] + [getattr(x, attr)[1:] for x in parts[1:]]))
                 lens = [max(x.length, 1e-9) for x in parts]
                 for x in parts:

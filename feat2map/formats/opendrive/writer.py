@@ -214,10 +214,11 @@ class _Writer:
             ln = self.m.lanes[lid]
             touching += [(x, "start") for x in ln.successors] if end == "start" else [(x, "end") for x in ln.predecessors]
         if road.junction_id is None:
-            jids = [self.m.lanes[x].junction_id for x, _ in touching if self.m.lanes[x].junction_id]
+            jids = [j for j in (self.m.lanes[x].junction_id for x, _ in touching) if j]
             fallback = road.start_junction if end == "start" else road.end_junction
-            if jids or (fallback and fallback in self.junction_ids and not touching):
-                return ("junction", self.junction_ids[jids[0] if jids else fallback], None)
+            jid = jids[0] if jids else (fallback if fallback in self.junction_ids and not touching else None)
+            if jid:
+                return ("junction", self.junction_ids[jid], None)
         if not touching:
             return None
         other, at = touching[0]
