@@ -107,7 +107,7 @@ class MapEnv(AbstractEnv):
         route, extend = self._ego_route()
         self._make_ego(route, extend)
         route = self.vehicle.lane_route
-        route_junctions = {self.net.hdmap.lanes[l].junction_id for l in route} - {None}
+        route_junctions = {j for l in route if (j := self.net.hdmap.lanes[l].junction_id) is not None}
         by_junction, order = self.net.memo("crosswalks", lambda: group_by(self.net.hdmap.crosswalks.values(),
                                                                           "junction_id"))
         self.control.active_crosswalks = sorted((c for j in route_junctions for c in by_junction.get(j, ())),
@@ -279,13 +279,14 @@ class MapEnv(AbstractEnv):
         control = "" if in_lane is None else (sl.kind if sl else "bare")
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
         plan = rules.plans.get(sl.control_id) if sl is not None else None
-        feature = m.junctions[jid].feature if jid in m.junctions else None
+        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
         return {
             "speed": float(ego.speed), "crashed": bool(ego.crashed), "action": action_array(self.action_space, action),
             "junction": jid or "", "junction_feature": feature_info(feature),
             "manoeuvre": turn or "", "control_ahead": control,
-            "signal_id": sl.control_id if sig_state else "", "signal_state": sig_state,
-            "signal_time_to_change": float(plan.time_to_change(sl.control_id, rules.t)) if plan else math.inf,
+            "signal_id": sl.control_id if sl is not None and sig_state else "", "signal_state": sig_state,
+            "signal_time_to_change": (float(plan.time_to_change(sl.control_id, rules.t))
+                                      if sl is not None and plan else math.inf),
             "signal_states": rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
             "distance_to_stop_line": float(d),
             "violations": dict(self.violations), "new_violations": list(self.judge.new),

@@ -216,6 +216,7 @@ class TrafficRules:
     buckets: dict
     passage_holders: dict  # passage group -> (holders from side 0, from side 1)
     passage_waiters: dict  # passage group -> {vehicle: (side, time it began to wait)}
+    signals_by_junction: dict  # junction id -> its signal ids
 
     # ---- signals ----------------------------------------------------------------------
     def signal_state(self, signal_id: str) -> str:
@@ -242,7 +243,7 @@ class TrafficRules:
         net = self.net
         sl = net.stop_lines.get(in_lane)
         plan = self.plans.get(sl.control_id) if sl is not None else None
-        if plan is None:
+        if sl is None or plan is None:
             return False
         phase = plan.phases[plan.phase_of(sl.control_id)]
         for c in net.conflicts.get(junction_lane, ()):
@@ -269,7 +270,7 @@ class TrafficRules:
         back junctions: Shalun's 3.5 m road from J_1 to J_14 leaves a car stopped at J_14's line
         inside J_1); (None, None) anywhere else."""
         net = self.net
-        if lane_id not in net.hdmap.lanes:
+        if lane_id is None or lane_id not in net.hdmap.lanes:
             return None, None
         sl = net.stop_lines.get(lane_id)
         if sl is not None and in_stop_zone(sl.s - getattr(vehicle, "lane_s", 0.0)):
@@ -353,6 +354,8 @@ class TrafficRules:
         """A route follower on lane `approach` (other than `exclude`) drives into `lane_id` next
         and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
         lane = self.net.lane_of.get(approach)
+        if lane is None:
+            return False
         for v in self.buckets.get(approach, ()):
             if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude):
                 d = lane.length - v.s_on(approach)
@@ -397,6 +400,8 @@ class TrafficRules:
             if self._held(p):
                 continue
             lane_p = net.lane_of.get(p)
+            if lane_p is None:
+                continue
             out += [(lane_p.length - v.s_on(p), v) for v in self.buckets.get(p, ())
                     if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude)]
         return out
@@ -462,7 +467,7 @@ class TrafficRules:
 
     def release(self, vehicle, j_lane: str) -> None:
         """Give up `vehicle`'s reservation of `j_lane` (if it holds it): it will not enter now."""
-        if self.reservations.get(j_lane) is vehicle:
+        if j_lane in self.reservations and self.reservations[j_lane] is vehicle:
             del self.reservations[j_lane]
             vehicle.reserved = None
 
@@ -657,13 +662,13 @@ class EgoJudge:
     def check(self) -> None:
         rules, ego = self.rules, self.ego
         net, m = rules.net, rules.net.hdmap
-        lid = net.id_of.get(ego.lane_index)
+        lid = net.id_of[ego.lane_index]  # every lane of the network has its map id
         prev = self._lane
         on_road = lid in m.lanes and m.lanes[lid].junction_id is None
         rtor = rules.right_turn_on_red()
         if has_stopped(ego.speed):
             sl, in_lane = rules.waiting_line(ego, lid)
-            if sl is not None and (sl.kind == "stop" or rtor):
+            if sl is not None and in_lane is not None and (sl.kind == "stop" or rtor):
                 self._stopped.add(in_lane)
         if on_road:
             # stops and line crossings count until the ego is on another road lane (a stop made
