@@ -60,6 +60,37 @@ class PhasePlan:
         return 0.0
 
 
+def signal_arrays(control: "TrafficControl", signal_ids: list[str]) -> np.ndarray:
+    """[5, signals] (offset, cycle, start of the signal's phase in the cycle, green, green +
+    amber) of `signal_ids` under `control`'s plans (a signal without a plan: always green), so
+    that `states_at` gives the states of many signals at once; built once per control (episode)."""
+    held = getattr(control, "_signal_arrays", None)
+    if held is not None and held[0] is signal_ids:
+        return held[1]
+    out = np.zeros((5, len(signal_ids)))
+    out[1] = np.inf
+    out[3] = out[4] = np.inf  # no plan: green for ever
+    for k, sid in enumerate(signal_ids):
+        plan = control.plans.get(sid)
+        if plan is not None:  # the same float operations as PhasePlan.state
+            slot = plan.green + plan.amber + plan.all_red
+            out[:, k] = (plan.offset, plan.cycle, plan.phase_of(sid) * slot, plan.green, plan.green + plan.amber)
+    control._signal_arrays = (signal_ids, out)
+    return out
+
+
+def states_at(t: np.ndarray, arrays: np.ndarray) -> np.ndarray:
+    """`PhasePlan.state` of many signals at times `t` (columns of `signal_arrays`), elementwise,
+    with the same arithmetic: 0 green, 1 amber, 2 red."""
+    offset, cycle, start, green, amber_end = arrays
+    plan = np.isfinite(cycle)
+    local = np.where(plan, (t + offset) % np.where(plan, cycle, 1.0) - start, 0.0)
+    state = np.full(len(t), 2, dtype=np.int8)
+    state[(local >= 0) & (local < green)] = 0
+    state[(green <= local) & (local < amber_end)] = 1
+    return state
+
+
 def signal_tables(net: MapNetwork, paired: bool) -> tuple[dict, list]:
     """({junction: sorted signal ids}, [(junction, phases)] in junction order) of a network's
     signals (per network and phase mode: the same every episode)."""

@@ -58,9 +58,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .control import signal_arrays, states_at
 from .network import MapNetwork
 from .rules import (IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M,
-                    IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M)
+                    IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M, STOP_POINT_M, stops_at_amber)
 from .vehicles import Pedestrian, TrafficVehicle
 
 if TYPE_CHECKING:
@@ -135,6 +136,18 @@ class LaneTable:
         for lid, crossings in net.crossings.items():
             for cw, _, _ in crossings:
                 self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
+        # stop lines by incoming lane: kind (0 none, 1 signal, 2 stop sign), signal (index into
+        # signal_ids), and how far before the lane's end the line lies (rules.stop_line_ahead's term)
+        self.signal_ids = list(m.signals)
+        sig = {sid: k for k, sid in enumerate(self.signal_ids)}
+        self.line_kind = np.zeros(len(lanes), dtype=np.int8)
+        self.line_signal = np.full(len(lanes), -1, dtype=np.int64)
+        self.line_setback = np.zeros(len(lanes))
+        for lid, sl in net.stop_lines.items():
+            k = self.index[lid]
+            self.line_kind[k] = 1 if sl.kind == "signal" else 2
+            self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
+            self.line_setback[k] = net.lane_of[lid].length - sl.s
         # lane-pair tables (`pair`), concatenated: where a road user on lane b is seen from lane a
         self._pairs: dict[tuple[int, int], tuple[int, int, float]] = {}  # (a, b) -> (start, samples, step)
         self.pair_sa = self.pair_ra = np.zeros(0)
@@ -686,9 +699,7 @@ class TrafficCore:
         free = 1.0 - (v / v0) ** IDM_DELTA
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
-        roads, env = self.roads, self.env
-        stops = [(i, roads[env[i]].control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
-        stops = [(i, d) for i, d in stops if d < math.inf]
+        stops = [(i, d) for i, d in self._rule_stops(self._rule_rows(driven)) if d < math.inf]
         if stops:  # a stop point is a standing leader (the bumper IDM_STOP_MARGIN_M short of it)
             si = np.array([i for i, _ in stops], dtype=np.int64)
             fi = np.concatenate([fi, si])
@@ -767,6 +778,96 @@ class TrafficCore:
             key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
             flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
+
+    def _rule_stops(self, rows: list[int]) -> list[tuple[int, float]]:
+        """(row, `rules.TrafficRules.stop_distance` of its vehicle) for `rows`, in row order (the
+        rules claim junction reservations in road order). Where the answer lies at the next
+        junction entry alone (no narrow passages on the map, no people on a crosswalk of the
+        row's window, the road after the entry in the window), the scan along the route, the
+        distance to the line and the signal's state are one array program over all rows of all
+        sub-envs, and a row stops without asking the rules when its signal is red (and it holds
+        no reservation to give up) or amber and it can stop; rows that hold their junction lane
+        go; the others ask `may_enter` (reservations, stop-sign queues, conflicts), and rows
+        outside that case `stop_distance`, in row order. The same floating-point operations as
+        `upcoming` and `stop_line_ahead` (tests/envs/test_core.py compares both)."""
+        if not rows:
+            return []
+        roads, env, objs = self.roads, self.env, self.objs
+        if self.net.passages:
+            return [(i, roads[env[i]].control.stop_distance(objs[i])) for i in rows]
+        t = self.table
+        R = np.array(rows, dtype=np.int64)
+        W = self.W[R]
+        n, K = W.shape
+        s = self.s[R]
+        lanes = np.maximum(W, 0)
+        valid = W >= 0
+        # distance from the vehicle centre to each window lane's start, summed as upcoming() does
+        D = np.empty((n, K))
+        D[:, 0] = -s
+        d = t.length[lanes[:, 0]] - s
+        for k in range(1, K):
+            D[:, k] = d
+            d = d + t.length[lanes[:, k]]
+        junction = t.junction[lanes] & valid
+        entry = np.zeros((n, K), dtype=bool)
+        entry[:, 1:] = junction[:, 1:] & ~junction[:, :-1] & valid[:, :-1]
+        has = entry.any(axis=1)
+        ke = np.argmax(entry, axis=1)
+        after = np.minimum(ke + 1, K - 1)
+        first_junction = np.argmax(junction[:, 1:], axis=1) + 1  # a junction lane right after the current
+        simple = has & (first_junction == ke) & (ke + 1 < K) & valid[np.arange(n), after] & \
+            ~junction[np.arange(n), after]  # one (the first) junction lane after the current one is scanned
+        nl = len(t.length)
+        busy = [road.slot * nl + k for road in roads if road is not None
+                for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
+        if busy:
+            key = np.where(valid, env[R][:, None] * nl + W, -1)
+            simple &= ~np.isin(key, busy).any(axis=1)
+        d_e = D[np.arange(n), ke]
+        in_lane = lanes[np.arange(n), ke - 1]
+        j_lane = lanes[np.arange(n), ke]
+        d_line = np.where(t.line_kind[in_lane] > 0, d_e - t.line_setback[in_lane], d_e)
+        reach = simple & (d_e <= LOOKAHEAD_M)  # else the scan ends before the entry: free
+        state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
+        signal = reach & (t.line_signal[in_lane] >= 0)  # a signal not in the map has no plan: green
+        if signal.any():
+            si = np.nonzero(signal)[0]
+            slots = env[R[si]]
+            controls = [r.control if r is not None else None for r in roads]
+            times = np.array([c.t if c is not None else 0.0 for c in controls])
+            state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
+        halt = reach & ((state == 2) | ((state == 1) & stops_at_amber(d_line, self.speed[R])))
+        ids = self.net.lane_ids
+        out = []
+        for r, i in enumerate(rows):
+            if not simple[r]:
+                out.append((i, roads[env[i]].control.stop_distance(objs[i])))
+                continue
+            if not reach[r]:
+                out.append((i, math.inf))
+                continue
+            control, v, jl = roads[env[i]].control, objs[i], ids[j_lane[r]]
+            mine = control.reservations.get(jl) is v
+            if halt[r] and not (mine and state[r] == 2):  # held at the line (red: nothing to give up)
+                out.append((i, float(d_line[r]) - STOP_POINT_M))
+            elif mine and not halt[r]:
+                out.append((i, math.inf))
+            else:
+                go = control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]))
+                out.append((i, math.inf if go else float(d_line[r]) - STOP_POINT_M))
+        return out
+
+    def _signal_arrays(self, controls: list) -> np.ndarray:
+        """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only
+        when a control changed (a reset)."""
+        held = getattr(self, "_signals_held", None)
+        if held is None or len(held[0]) != len(controls) or any(a is not b for a, b in zip(held[0], controls)):
+            ids = self.table.signal_ids
+            blank = np.zeros((5, len(ids)))
+            held = self._signals_held = (list(controls), np.stack([signal_arrays(c, ids) if c is not None else blank
+                                                                   for c in controls]))
+        return held[1]
 
     def _mobil(self, driven: np.ndarray) -> None:
         due = driven & (self.timer - self.mobil_t >= TrafficVehicle.MOBIL_PERIOD_S) & ~self.crashed & ~self.controlled
