@@ -266,9 +266,10 @@ class MapEnv(AbstractEnv):
             raise NotImplementedError("The road and vehicle must be initialized in the environment implementation")
         self.time += 1 / self.config["policy_frequency"]
 
-    def _end_step(self, action):
-        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info)."""
-        obs = self.observation_type.observe()
+    def _end_step(self, action, obs=None):
+        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info);
+        `obs` when already made (a batch observes all its sub-envs at once, envs/vector.py)."""
+        obs = self.observation_type.observe() if obs is None else obs
         reward = self._reward(action)
         terminated = self._is_terminated()
         truncated = self._is_truncated()
