@@ -387,6 +387,7 @@ class TrafficCore:
         self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
         self.on = np.zeros(0, dtype=bool)  # their rows
         self.objs: list[Any] = []
+        self._slot_rows: list[np.ndarray] | None = None  # each slot's rows (`rows`), None: to be found again
         self.env = np.zeros(0, dtype=np.int64)  # the slot of each row
         self.kind = np.zeros(0, dtype=np.int8)
         self.lane = np.zeros(0, dtype=np.int64)
@@ -434,8 +435,13 @@ class TrafficCore:
         self.sync([road])
 
     def rows(self, road: "ArrayRoad") -> np.ndarray:
-        """The rows of `road`, in its vehicles' order (after a sync)."""
-        return np.nonzero(self.env == road.slot)[0]
+        """The rows of `road`, in its vehicles' order (after a sync); the rows of every slot are
+        found at once, again only when rows come or go."""
+        if self._slot_rows is None:
+            order = np.argsort(self.env, kind="stable")
+            ends = np.cumsum(np.bincount(self.env, minlength=len(self.roads)))
+            self._slot_rows = np.split(order, ends[:-1])
+        return self._slot_rows[road.slot]
 
     def add_traffic(self, road: "ArrayRoad", lane_id: str, s: float, speed: float, route: list[str],
                     controlled: bool = False) -> ArrayVehicle:
@@ -489,6 +495,7 @@ class TrafficCore:
         """Masks that change only when rows come or go."""
         self.driven = self.kind == DRIVEN
         self.on = self.stepped[self.env]
+        self._slot_rows = None
 
     def sync(self, roads: list | None = None) -> None:
         """Bring the rows in line with the roads' `vehicles` (by identity): take in vehicles user
@@ -699,17 +706,19 @@ class TrafficCore:
         free = 1.0 - (v / v0) ** IDM_DELTA
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
-        stops = [(i, d) for i, d in self._rule_stops(self._rule_rows(driven)) if d < math.inf]
+        si, sd = self._rule_stops(self._rule_rows(driven))
+        stopping = sd < math.inf
+        si, sd = si[stopping], sd[stopping]
+        stops = len(si)
         if stops:  # a stop point is a standing leader (the bumper IDM_STOP_MARGIN_M short of it)
-            si = np.array([i for i, _ in stops], dtype=np.int64)
             fi = np.concatenate([fi, si])
-            gap = np.concatenate([gap, np.array([d for _, d in stops]) - self.length[si] / 2 - IDM_STOP_MARGIN_M])
+            gap = np.concatenate([gap, sd - self.length[si] / 2 - IDM_STOP_MARGIN_M])
             vl = np.concatenate([vl, np.zeros(len(si))])
         if len(fi):  # rules.idm, vectorized over (follower, leader) pairs
             vf = v[fi]
             s0 = np.full(len(fi), IDM_GAP_M)
             if stops:
-                s0[-len(stops):] = IDM_STOP_GAP_M
+                s0[-stops:] = IDM_STOP_GAP_M
             s_star = s0 + vf * IDM_TIME_GAP_S + vf * (vf - vl) / (2 * math.sqrt(IDM_ACC * IDM_BRAKE))
             a_pair = IDM_ACC * (free[fi] - (np.maximum(s_star, 0.0) / np.maximum(gap, IDM_MIN_GAP_M)) ** 2)
             np.minimum.at(acc, fi, a_pair)
@@ -779,8 +788,8 @@ class TrafficCore:
             flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
 
-    def _rule_stops(self, rows: list[int]) -> list[tuple[int, float]]:
-        """(row, `rules.TrafficRules.stop_distance` of its vehicle) for `rows`, in row order (the
+    def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, `rules.TrafficRules.stop_distance` of their vehicles) for `rows`, in row order (the
         rules claim junction reservations in road order). Where the answer lies at the next
         junction entry alone (no narrow passages on the map, no people on a crosswalk of the
         row's window, the road after the entry in the window), the scan along the route, the
@@ -790,13 +799,11 @@ class TrafficCore:
         go; the others ask `may_enter` (reservations, stop-sign queues, conflicts), and rows
         outside that case `stop_distance`, in row order. The same floating-point operations as
         `upcoming` and `stop_line_ahead` (tests/envs/test_core.py compares both)."""
-        if not rows:
-            return []
         roads, env, objs = self.roads, self.env, self.objs
-        if self.net.passages:
-            return [(i, roads[env[i]].control.stop_distance(objs[i])) for i in rows]
-        t = self.table
         R = np.array(rows, dtype=np.int64)
+        if not rows or self.net.passages:
+            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
+        t = self.table
         W = self.W[R]
         n, K = W.shape
         s = self.s[R]
@@ -839,24 +846,23 @@ class TrafficCore:
             state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
         halt = reach & ((state == 2) | ((state == 1) & stops_at_amber(d_line, self.speed[R])))
         ids = self.net.lane_ids
-        out = []
-        for r, i in enumerate(rows):
+        stop = d_line - STOP_POINT_M
+        dist = np.where(halt, stop, math.inf)  # held at the line, or free (beyond the scan)
+        ask = ~simple | (reach & ~(halt & (state == 1)))  # the rules decide, in row order
+        for r in np.nonzero(ask)[0].tolist():
+            i = rows[r]
+            control, v = roads[env[i]].control, objs[i]
             if not simple[r]:
-                out.append((i, roads[env[i]].control.stop_distance(objs[i])))
+                dist[r] = control.stop_distance(v)
                 continue
-            if not reach[r]:
-                out.append((i, math.inf))
-                continue
-            control, v, jl = roads[env[i]].control, objs[i], ids[j_lane[r]]
-            mine = control.reservations.get(jl) is v
-            if halt[r] and not (mine and state[r] == 2):  # held at the line (red: nothing to give up)
-                out.append((i, float(d_line[r]) - STOP_POINT_M))
-            elif mine and not halt[r]:
-                out.append((i, math.inf))
-            else:
-                go = control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]))
-                out.append((i, math.inf if go else float(d_line[r]) - STOP_POINT_M))
-        return out
+            jl = ids[j_lane[r]]
+            if control.reservations.get(jl) is v:
+                if state[r] == 2:  # red: it gives its reservation up
+                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]))
+                continue  # (it goes: inf; red: already the stop)
+            if not halt[r] and not control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r])):
+                dist[r] = stop[r]
+        return R, dist
 
     def _signal_arrays(self, controls: list) -> np.ndarray:
         """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only
@@ -912,6 +918,16 @@ class TrafficCore:
         settle = self.lat[rows] * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
         h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * (np.abs(lat) > 1e-3)
         self.x[rows], self.y[rows], self.heading[rows] = x, y, h
+
+    def may_leave(self) -> np.ndarray:
+        """[slots] bool: whether a slot may hold traffic that finished its route or crashed (a
+        driven row crashed or finished, or an external traffic vehicle), so that a respawn looks
+        at its vehicles; False: none did."""
+        rows = self.crashed | ~self.driven
+        rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in np.nonzero(~self.driven)[0].tolist()]
+        last = np.nonzero(self.driven & ~rows & (self.route_pos >= self.route_end))[0]
+        rows[last] = [self.objs[i].finished for i in last.tolist()]
+        return np.bincount(self.env[rows], minlength=len(self.roads)) > 0
 
     def externals(self, road) -> list[Any]:
         return [self.objs[i] for i in self.rows(road).tolist() if self.kind[i] == EXTERNAL]

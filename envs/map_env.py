@@ -281,9 +281,10 @@ class MapEnv(AbstractEnv):
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def _respawn_traffic(self) -> None:
-        """Traffic that finished its route or crashed leaves; as many new vehicles spawn."""
-        if self.config["traffic_respawn"]:
+    def _respawn_traffic(self, maybe: bool = True) -> None:
+        """Traffic that finished its route or crashed leaves; as many new vehicles spawn (`maybe`
+        False: the core knows that none did)."""
+        if self.config["traffic_respawn"] and maybe:
             keep = [v for v in self.road.vehicles if not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
             self.road.vehicles = keep
@@ -441,9 +442,11 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             env.judge.check()
             if frame < frames - 1:
                 env._automatic_rendering()
+    maybe = {id(core): core.may_leave() for core, _ in groups.values() if core is not None}
     for env in envs:
         env.enable_auto_render = False
-        env._respawn_traffic()
+        core = getattr(env.road, "core", None)
+        env._respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
 
 
 def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:
