@@ -62,7 +62,7 @@ from .control import signal_arrays, states_at
 from .network import MapNetwork
 from .rules import (IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M,
                     IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LOOKAHEAD_M, STOP_POINT_M, stops_at_amber)
-from .vehicles import Pedestrian, TrafficVehicle
+from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
 
 if TYPE_CHECKING:
     from .road import ArrayRoad
@@ -71,6 +71,7 @@ LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time 
 PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
 LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way
 EXTERNAL, DRIVEN = 0, 1
+EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batched (vehicles.step_egos)
 
 
 class LaneTable:
@@ -677,8 +678,12 @@ class TrafficCore:
         """Second half of a frame for `roads`: external road users step, traffic integrates,
         pedestrians walk, the rules' bookkeeping, collisions."""
         external = np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist()
+        egos = [self.objs[i] for i in external if type(self.objs[i]) in EGOS and self.objs[i].impact is None]
+        step_egos(egos, dt)  # the egos of all sub-envs together
+        batched = set(map(id, egos))
         for i in external:
-            self.objs[i].step(dt)
+            if id(self.objs[i]) not in batched:
+                self.objs[i].step(dt)
         self.integrate(dt)
         for i in external:
             self._read_external(i)

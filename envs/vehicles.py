@@ -48,6 +48,7 @@ class RouteFollower:
     cache_projections = False
     _projected_at: tuple[float, float] | None = None
     _projections: dict = {}
+    _done_before: tuple | None = None  # (route, position, metres of the route's lanes before it)
 
     def init_route(self, lane_route: list[str]) -> None:
         self.lane_route = list(lane_route)
@@ -150,7 +151,11 @@ class RouteFollower:
     def route_distance_done(self) -> float:
         """Metres driven along the route: lanes behind plus the position on the current one."""
         net = self.net
-        done = sum(net.lane_of[l].length for l in self.lane_route[:self.route_pos])
+        route, pos = self.lane_route, self.route_pos
+        held = self._done_before
+        if held is None or held[0] is not route or held[1] != pos:  # summed once per route position
+            held = self._done_before = (route, pos, sum(net.lane_of[l].length for l in route[:pos]))
+        done = held[2]
         lane = net.lane_of[self.lane_route[self.route_pos]]
         return done + min(max(self.route_s(), 0.0), lane.length)
 
@@ -311,6 +316,10 @@ class EgoMDPVehicle(RouteFollower, MDPVehicle):
 
     def step(self, dt: float) -> None:
         super().step(dt)
+        self.settle()
+
+    def settle(self) -> None:
+        """After a step: no reversing while the target speed is not negative."""
         if self.speed < 0 and self.target_speed >= 0:
             self.speed = 0.0
 
@@ -350,5 +359,36 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
 
     def step(self, dt: float) -> None:
         Vehicle.step(self, dt)
+        self.settle()
+
+    def settle(self) -> None:
+        """After a step: no reversing without a negative acceleration command."""
         if self.speed < 0 and self.action.get("acceleration", 0) <= 0:
             self.speed = 0.0
+
+
+def step_egos(egos: list, dt: float) -> None:
+    """`step(dt)` of many egos (`EgoMDPVehicle`, `EgoVehicle`; none with an impact pending) at
+    once: highway-env's `Vehicle.step` (its modified bicycle model) as one array program over
+    them, with the same operations (NumPy's ufuncs give arrays the values they give scalars),
+    then each one's lane location (`on_state_update`) and `settle`."""
+    for v in egos:
+        v.clip_actions()
+    steer = np.array([v.action["steering"] for v in egos], dtype=float)
+    acc = np.array([v.action["acceleration"] for v in egos], dtype=float)
+    speed = np.array([v.speed for v in egos], dtype=float)
+    heading = np.array([v.heading for v in egos], dtype=float)
+    half = np.array([v.LENGTH for v in egos], dtype=float) / 2
+    beta = np.arctan(1 / 2 * np.tan(steer))
+    dx = speed * np.cos(heading + beta) * dt
+    dy = speed * np.sin(heading + beta) * dt
+    heading = heading + speed * np.sin(beta) / half * dt
+    speed = (speed + acc * dt).tolist()
+    for k, v in enumerate(egos):
+        p = v.position
+        p[0] += dx[k]
+        p[1] += dy[k]
+        v.heading = heading[k]
+        v.speed = speed[k]
+        v.on_state_update()
+        v.settle()
