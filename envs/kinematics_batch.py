@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .lanes import project_rows, segment_table
 from .observation import RELATIVE, Kinematics, project_s
 
 SIMILAR = 1.5  # lanes whose vertex counts are within this factor are projected in one program
@@ -244,31 +245,5 @@ def _ego_batchable(obs, core) -> bool:
 
 def _project_rows(net, lanes: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """[observers, points]: `observation.project_s(lane, x[g], y[g])` of each observer g's lane
-    (`lanes`, indices into net._lanes) in one program, segments padded to the longest of these
-    lanes (padding never wins), gathered from every lane's segments concatenated once per map."""
-    first, count, ax, ay, ux, uy, lo, hi, cum = net.memo("projection segments", lambda: _segments(net._lanes))
-    S = int(count[lanes].max())
-    j = np.arange(S)
-    real = (j[None, :] < count[lanes][:, None])[:, None, :]
-    at = np.where(real[:, 0], first[lanes][:, None] + j[None, :], first[lanes][:, None])
-    ax, ay, ux, uy, lo, hi = (a[at][:, None, :] for a in (ax, ay, ux, uy, lo, hi))
-    rx = x[:, :, None] - ax
-    ry = y[:, :, None] - ay
-    t = rx * ux + ry * uy
-    tc = np.minimum(np.maximum(t, lo), hi)
-    dx = rx - tc * ux
-    dy = ry - tc * uy
-    d2 = dx * dx + dy * dy
-    np.copyto(d2, np.inf, where=~real)
-    i = d2.argmin(axis=2)
-    return np.take_along_axis(cum[at], i, axis=1) + np.take_along_axis(tc, i[:, :, None], axis=2)[:, :, 0]
-
-
-def _segments(lanes: list) -> tuple[np.ndarray, ...]:
-    """(first segment, segment count, then ax, ay, ux, uy, lo, hi, cum per segment) of every lane
-    (`PolylineLane`'s projection arrays), concatenated."""
-    count = np.array([len(ln._ax) for ln in lanes], dtype=np.int64)
-    first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
-    cat = [np.concatenate([getattr(ln, a) for ln in lanes]) for a in ("_ax", "_ay", "_ux", "_uy", "_lo", "_hi")]
-    cum = np.concatenate([ln.cum[:len(ln._ax)] for ln in lanes])
-    return (first, count, *cat, cum)
+    (`lanes`, indices into net._lanes) in one program (`lanes.project_rows`)."""
+    return project_rows(net.memo("segment table", lambda: segment_table(net._lanes)), lanes, x, y)[0]

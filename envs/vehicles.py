@@ -137,9 +137,18 @@ class RouteFollower:
 
     def on_state_update(self) -> None:
         if self.road:
+            hint = self.location_hint()
+            self.located(self.road.network.locate(self.position, self.heading, hint), hint)
+
+    def location_hint(self):
+        """The lane to look on first when locating the vehicle (its target lane)."""
+        return getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
+
+    def located(self, location: tuple, hint) -> None:
+        """Take the (lane index, s, lateral) that `MapNetwork.locate` found with `hint`."""
+        if self.road:
             net = self.road.network
-            hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
-            self.lane_index, self.lane_s, self.lane_lat = net.locate(self.position, self.heading, hint)
+            self.lane_index, self.lane_s, self.lane_lat = location
             self.lane = net.get_lane(self.lane_index)
             if self.cache_projections and self.lane_index == hint:  # locate projected on the hint lane
                 p = self.position
@@ -371,7 +380,7 @@ def step_egos(egos: list, dt: float) -> None:
     """`step(dt)` of many egos (`EgoMDPVehicle`, `EgoVehicle`; none with an impact pending) at
     once: highway-env's `Vehicle.step` (its modified bicycle model) as one array program over
     them, with the same operations (NumPy's ufuncs give arrays the values they give scalars),
-    then each one's lane location (`on_state_update`) and `settle`."""
+    then their lane locations (`MapNetwork.locate_many`, as `on_state_update`) and `settle`."""
     for v in egos:
         v.clip_actions()
     steer = np.array([v.action["steering"] for v in egos], dtype=float)
@@ -390,5 +399,11 @@ def step_egos(egos: list, dt: float) -> None:
         p[1] += dy[k]
         v.heading = heading[k]
         v.speed = speed[k]
-        v.on_state_update()
+    located = [v for v in egos if v.road]
+    if located:
+        hints = [v.location_hint() for v in located]
+        places = located[0].road.network.locate_many([v.position for v in located], [v.heading for v in located], hints)
+        for v, place, hint in zip(located, places, hints):
+            v.located(place, hint)
+    for v in egos:
         v.settle()
