@@ -147,7 +147,7 @@ class TrafficControl(TrafficRules):
                 buckets.setdefault(lid, []).append(v)
         self.buckets = buckets
         # release reservations of vehicles that left their junction lane (or the road)
-        alive = set(map(id, vehicles))
+        alive = set(map(id, vehicles)) if self.reservations or net.passages else set()
         for lid, v in list(self.reservations.items()):
             on = lid in (net.id_of.get(v.lane_index), getattr(v, "lane_route", [None])[getattr(v, "route_pos", 0)])
             passed = hasattr(v, "lane_route") and lid in v.lane_route[:v.route_pos]
@@ -159,14 +159,15 @@ class TrafficControl(TrafficRules):
         if net.passages:
             self._update_passages(buckets, alive)
         # stop-sign queues: join after stopping at the line, leave on entering the junction
-        lane_of = {id(v): lid for v, lid in zip(vehicles, lanes)}
+        if any(self.stop_queue.values()):
+            lane_of = {id(v): lid for v, lid in zip(vehicles, lanes)}
 
-        def waiting(v, jid) -> bool:  # not yet on a lane of the junction (maybe on the one before)
-            lid = lane_of.get(id(v))
-            return lid in m.lanes and m.lanes[lid].junction_id != jid
+            def waiting(v, jid) -> bool:  # not yet on a lane of the junction (maybe on the one before)
+                lid = lane_of.get(id(v))
+                return lid in m.lanes and m.lanes[lid].junction_id != jid
 
-        for jid, queue in list(self.stop_queue.items()):
-            self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
+            for jid, queue in list(self.stop_queue.items()):
+                self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
         for v, lid, speed in zip(vehicles, lanes, speeds):
             if speed > STOPPED_SPEED_MPS:
                 continue
