@@ -72,6 +72,10 @@ PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
 LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way
 EXTERNAL, DRIVEN = 0, 1
 EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batched (vehicles.step_egos)
+# below these counts the array programs cost more than they save (a single env: ~7 rule rows, one
+# ego), and the rows ask the rules one by one, the egos step one by one (the same values)
+BATCH_MIN_RULE_ROWS = 48
+BATCH_MIN_EGOS = 8
 
 
 class LaneTable:
@@ -679,6 +683,8 @@ class TrafficCore:
         pedestrians walk, the rules' bookkeeping, collisions."""
         external = np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist()
         egos = [self.objs[i] for i in external if type(self.objs[i]) in EGOS and self.objs[i].impact is None]
+        if len(egos) < BATCH_MIN_EGOS:
+            egos = []
         step_egos(egos, dt)  # the egos of all sub-envs together
         batched = set(map(id, egos))
         for i in external:
@@ -806,11 +812,11 @@ class TrafficCore:
         `upcoming` and `stop_line_ahead` (tests/envs/test_core.py compares both)."""
         roads, env, objs = self.roads, self.env, self.objs
         R = np.array(rows, dtype=np.int64)
-        if not rows or self.net.passages:
-            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
-        t = self.table
         W = self.W[R]
         n, K = W.shape
+        if len(rows) < max(BATCH_MIN_RULE_ROWS, 1) or self.net.passages or K < 2:
+            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
+        t = self.table
         s = self.s[R]
         lanes = np.maximum(W, 0)
         valid = W >= 0

@@ -146,6 +146,10 @@ def test_array_programs_equal_the_scalar_code(config, monkeypatch):
     `vehicles.step_egos`) give bit for bit what the rules asked row by row, each ego stepped
     alone and each sub-env's own observation give (the equality with single envs above cannot
     see this: a single env is the same core with one slot)."""
+    from feat2map.envs import core
+
+    monkeypatch.setattr(core, "BATCH_MIN_RULE_ROWS", 1)  # the array programs however few the rows
+    monkeypatch.setattr(core, "BATCH_MIN_EGOS", 1)
     fast = trajectory(config, 3, 40, seed=5)
     scalar_code(monkeypatch)
     slow = trajectory(config, 3, 40, seed=5)
