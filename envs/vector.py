@@ -21,6 +21,7 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import concatenate, iterate
 
 from ..errors import Feat2MapError
+from . import core
 from .core import TrafficCore
 from .kinematics_batch import observe_egos
 from .map_env import MapEnv, simulate
@@ -107,8 +108,8 @@ class MapVectorEnv(SyncVectorEnv):
         """The observations of `envs` where one array program over the batch makes them (the
         Kinematics egos, `kinematics_batch.observe_egos`, also inside the traffic-control dict),
         None for the others (each observes itself)."""
-        if not envs:
-            return []
+        if len(envs) < core.BATCH_MIN_EGOS:  # too few for the array program to pay
+            return [None] * len(envs)
         types = [env.observation_type for env in envs]
         wrapped = isinstance(types[0], TrafficControlObservation)
         kin = observe_egos([t.inner if wrapped else t for t in types], self.core)
