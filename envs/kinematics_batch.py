@@ -147,6 +147,8 @@ def observe_egos(observers: list, core) -> list:
     picks = [k for k, o in enumerate(observers) if _ego_batchable(o, core)]
     if not picks:
         return out
+    first = _options(observers[picks[0]])
+    picks = [k for k in picks if _options(observers[k]) == first]  # one config (a reset may change one)
     net = core.net
     lane_index = net.memo("lane object index", lambda: {id(ln): k for k, ln in enumerate(net._lanes)})
     obs0 = observers[picks[0]]
@@ -234,6 +236,12 @@ def observe_egos(observers: list, core) -> list:
     for g, k in enumerate(picks):
         out[k] = table[g]
     return out
+
+
+def _options(obs) -> tuple:
+    """What an observer's values depend on besides the road: its observation options."""
+    return (tuple(obs.features), obs.vehicles_count, repr(obs.features_range), obs.absolute, obs.see_behind,
+            obs.normalize, obs.clip, obs.include_obstacles, obs.env.PERCEPTION_DISTANCE)
 
 
 def _ego_batchable(obs, core) -> bool:
