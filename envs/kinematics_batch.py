@@ -239,9 +239,14 @@ def observe_egos(observers: list, core) -> list:
 
 
 def _options(obs) -> tuple:
-    """What an observer's values depend on besides the road: its observation options."""
-    return (tuple(obs.features), obs.vehicles_count, repr(obs.features_range), obs.absolute, obs.see_behind,
-            obs.normalize, obs.clip, obs.include_obstacles, obs.env.PERCEPTION_DISTANCE)
+    """What an observer's values depend on besides the road: its observation options (held on
+    the observation object, which a config change replaces)."""
+    held = getattr(obs, "_batch_options", None)
+    if held is None:
+        held = obs._batch_options = (tuple(obs.features), obs.vehicles_count, repr(obs.features_range), obs.absolute,
+                                     obs.see_behind, obs.normalize, obs.clip, obs.include_obstacles,
+                                     obs.env.PERCEPTION_DISTANCE)
+    return held
 
 
 def _ego_batchable(obs, core) -> bool:
