@@ -75,6 +75,7 @@ EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batche
 # below these counts the array programs cost more than they save (a single env: ~7 rule rows, one
 # ego), and the rows ask the rules one by one, the egos step one by one (the same values)
 BATCH_MIN_RULE_ROWS = 48
+SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 BATCH_MIN_EGOS = 8
 
 
@@ -867,11 +868,12 @@ class TrafficCore:
                 dist[r] = control.stop_distance(v)
                 continue
             jl = ids[j_lane[r]]
+            known = SIGNAL_STATES[state[r]] if signal[r] else None
             if control.reservations.get(jl) is v:
                 if state[r] == 2:  # red: it gives its reservation up
-                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]))
+                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state=known)
                 continue  # (it goes: inf; red: already the stop)
-            if not halt[r] and not control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r])):
+            if not halt[r] and not control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state=known):
                 dist[r] = stop[r]
         return R, dist
 
