@@ -201,9 +201,10 @@ class MapEnv(AbstractEnv):
             raise NotImplementedError("The road and vehicle must be initialized in the environment implementation")
         self.time += 1 / self.config["policy_frequency"]
 
-    def _end_step(self, action):
-        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info)."""
-        obs = self.observation_type.observe()
+    def _end_step(self, action, obs=None):
+        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info);
+        `obs` when already made (a batch observes all its sub-envs at once, envs/vector.py)."""
+        obs = self.observation_type.observe() if obs is None else obs
         reward = self._reward(action)
         terminated = self._is_terminated()
         truncated = self._is_truncated()
@@ -215,10 +216,11 @@ class MapEnv(AbstractEnv):
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def _respawn_traffic(self, stay: frozenset[int] = frozenset()) -> None:
+    def _respawn_traffic(self, maybe: bool = True, stay: frozenset[int] = frozenset()) -> None:
         """Traffic that finished its route or crashed leaves (but the vehicles whose ids are in
-        `stay`: the multi-agent env's agents); as many new vehicles spawn."""
-        if self.config["traffic_respawn"]:
+        `stay`: the multi-agent env's agents); as many new vehicles spawn (`maybe` False: the core
+        knows that none did)."""
+        if self.config["traffic_respawn"] and maybe:
             keep = [v for v in self.road.vehicles if id(v) in stay
                     or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
@@ -368,9 +370,11 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             env.judge.check()
             if frame < frames - 1:
                 env._automatic_rendering()
+    maybe = {id(core): core.may_leave() for core, _ in groups.values() if core is not None}
     for env in envs:
         env.enable_auto_render = False
-        env._respawn_traffic()
+        core = getattr(env.road, "core", None)
+        env._respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
 
 
 def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:

@@ -134,8 +134,9 @@ def pedestrian_in_path(lateral: float, lane_width: float) -> bool:
     return abs(lateral) < lane_width / 2 + PEDESTRIAN_IN_PATH_M
 
 
-def stops_at_amber(distance: float, speed: float) -> bool:
-    """At amber a vehicle stays when it can stop before the line (else it goes through)."""
+def stops_at_amber(distance, speed):
+    """At amber a vehicle stays when it can stop before the line (else it goes through); floats
+    or arrays (elementwise)."""
     return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
 
 
@@ -440,13 +441,14 @@ class TrafficRules:
         return None
 
     def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
-                  ignore: frozenset = frozenset()) -> bool:
+                  ignore: frozenset = frozenset(), state: str | None = None) -> bool:
         """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now. A
         reservation skips the other checks but not the signal: a vehicle held at the line (e.g. by
-        pedestrians) into amber stays there if it can stop, and on red gives its reservation up."""
+        pedestrians) into amber stays there if it can stop, and on red gives its reservation up.
+        `state`: the signal's state when the caller knows it (the batched core)."""
         sl = self.net.stop_lines.get(in_lane)
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
-            state = self.signal_state(sl.control_id)
+            state = state or self.signal_state(sl.control_id)
             if state == "red":
                 if commit:
                     self.release(vehicle, j_lane)
