@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
+from lxml import etree
+
+from feat2map.extract import extract_junctions
 
 # Property tests draw new examples every run (CI keeps no example database). Tests that set no count
 # of their own (the invariant tests) run 100 examples each under the default "ci" profile and
@@ -158,3 +161,63 @@ def ecosystem_map(request, sf_default_map):
         junctions = extract_junctions(read_map(shared_map("opendrive/carla_town01/Town01.xodr")))
         return name, feat2map.generate(map_feature(junctions), seed=0)
     return name, build_spec(load_spec(REPO / "examples" / f"{name}.yaml"))
+
+
+# ---- OpenDRIVE test helpers (tests/formats/test_opendrive.py, test_opendrive_asam_qc.py, test_semantics.py) ----
+def largest_gap_tied(angles, tol_deg: float) -> bool:
+    a = sorted(x % 360.0 for x in angles)
+    gaps = sorted(((a[(i + 1) % len(a)] - a[i]) % 360.0 for i in range(len(a))), reverse=True)
+    return gaps[0] - gaps[1] < tol_deg
+
+
+def assert_same_features(a, b, tol_deg=0.5):
+    """Junctions paired by centre: n, control, crosswalk, lanes exact; socket angles within
+    `tol_deg`. Where two largest gaps tie (within tol), rotation normalization may start at
+    either, so there the absolute socket angles are compared instead."""
+    ja, jb = extract_junctions(a), extract_junctions(b)
+    assert len(ja) == len(jb)
+    for x in ja:
+        y = min(jb, key=lambda y: math.dist(x.center, y.center))
+        assert math.dist(x.center, y.center) < 0.5
+        fx, fy = x.feature, y.feature
+        assert (fx.n_roads, fx.control, fx.crosswalk) == (fy.n_roads, fy.control, fy.crosswalk)
+        abs_x = [arm.angle_deg for arm in x.arms]
+        abs_y = [arm.angle_deg for arm in y.arms]
+        for ang in abs_x:  # every socket has a partner within tol (circular distance)
+            assert min(abs((ang - o + 180.0) % 360.0 - 180.0) for o in abs_y) < tol_deg
+        if not largest_gap_tied(abs_x, tol_deg):
+            assert fx.rotation == pytest.approx(fy.rotation, abs=tol_deg)
+            assert [(s.lanes_in, s.lanes_out) for s in fx.sockets] == [(s.lanes_in, s.lanes_out) for s in fy.sockets]
+
+
+def split_with_a_centimetre_road(src: Path, dst: Path, gap: float = 0.013) -> None:
+    """CARLA-style: cut one straight connecting road of the exported junction in three, the
+    first part in the junction, a `gap`-long ordinary road, the last part in a second junction
+    element (the elements touch, so the reader merges them)."""
+
+    root = etree.parse(str(src)).getroot()
+    jx = root.find("junction")
+    con = next(r for r in root.findall("road") if r.get("junction") == jx.get("id")
+               and all(abs(float(r.find("planView/geometry/paramPoly3").get(k))) < 1e-9 for k in ("cV", "dV")))
+    length = float(con.find("planView/geometry").get("length"))
+    ids = ("901", "902", "903")
+    parts = [(0.0, length / 2 - gap / 2), (length / 2 - gap / 2, gap), (length / 2 + gap / 2, length / 2 - gap / 2)]
+    parent, at = con.getparent(), con.getparent().index(con)
+    parent.remove(con)
+    for k, (s0, piece) in enumerate(parts):
+        r = straight_piece(con, ids[k], s0, piece)
+        r.set("junction", (jx.get("id"), "-1", "999")[k])
+        lane_link = r.find("lanes/laneSection/right/lane/link")
+        if k > 0:
+            r.find("link/predecessor").attrib.update({"elementId": ids[k - 1], "contactPoint": "end"})
+            lane_link.find("predecessor").set("id", "-1")
+        if k < 2:
+            r.find("link/successor").attrib.update({"elementId": ids[k + 1], "contactPoint": "start"})
+            lane_link.find("successor").set("id", "-1")
+        parent.insert(at + k, r)
+    next(c for c in jx.findall("connection") if c.get("connectingRoad") == con.get("id")).set("connectingRoad", "901")
+    jy = etree.Element("junction", id="999", name="split")
+    c = etree.SubElement(jy, "connection", id="0", incomingRoad="902", connectingRoad="903", contactPoint="start")
+    etree.SubElement(c, "laneLink", attrib={"from": "-1", "to": "-1"})
+    jx.addnext(jy)
+    dst.write_bytes(etree.tostring(root))

@@ -217,11 +217,11 @@ def test_code_tables():
 def test_a_reference_to_a_lane_joined_away_follows_it(tmp_path):
     """CARLA and netconvert maps: a signal referenced from a junction road whose lane the reader
     joins into one junction lane (through a centimetre road) crashed with KeyError '<road>_0_-1'."""
-    from test_opendrive import _split_with_a_centimetre_road
+    from conftest import split_with_a_centimetre_road
 
     m0 = feat2map.generate_from_features([JF.make([0, 90, 180], "signal", False)], seed=0)
     write_opendrive(m0, tmp_path / "t.xodr")
-    _split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
+    split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
 
     def reference(root):
         sid = next(s.get("id") for s in root.iter("signal") if s.get("type") == "1000001")

@@ -21,7 +21,7 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import shared_map, straight_piece
+from conftest import assert_same_features, shared_map, split_with_a_centimetre_road
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -281,32 +281,6 @@ def test_paramPoly3_in_file_reproduces_the_model_bezier(exported, sf_default_map
 # round trip through our reader
 
 
-def _largest_gap_tied(angles, tol_deg: float) -> bool:
-    a = sorted(x % 360.0 for x in angles)
-    gaps = sorted(((a[(i + 1) % len(a)] - a[i]) % 360.0 for i in range(len(a))), reverse=True)
-    return gaps[0] - gaps[1] < tol_deg
-
-
-def _assert_same_features(a, b, tol_deg=0.5):
-    """Junctions paired by centre: n, control, crosswalk, lanes exact; socket angles within
-    `tol_deg`. Where two largest gaps tie (within tol), rotation normalization may start at
-    either, so there the absolute socket angles are compared instead."""
-    ja, jb = extract_junctions(a), extract_junctions(b)
-    assert len(ja) == len(jb)
-    for x in ja:
-        y = min(jb, key=lambda y: math.dist(x.center, y.center))
-        assert math.dist(x.center, y.center) < 0.5
-        fx, fy = x.feature, y.feature
-        assert (fx.n_roads, fx.control, fx.crosswalk) == (fy.n_roads, fy.control, fy.crosswalk)
-        abs_x = [arm.angle_deg for arm in x.arms]
-        abs_y = [arm.angle_deg for arm in y.arms]
-        for ang in abs_x:  # every socket has a partner within tol (circular distance)
-            assert min(abs((ang - o + 180.0) % 360.0 - 180.0) for o in abs_y) < tol_deg
-        if not _largest_gap_tied(abs_x, tol_deg):
-            assert fx.rotation == pytest.approx(fy.rotation, abs=tol_deg)
-            assert [(s.lanes_in, s.lanes_out) for s in fx.sockets] == [(s.lanes_in, s.lanes_out) for s in fy.sockets]
-
-
 def test_round_trip_gives_the_same_junction_features(exported, sf_default_map):
     m = sf_default_map
     back = read_opendrive(exported)
@@ -314,7 +288,7 @@ def test_round_trip_gives_the_same_junction_features(exported, sf_default_map):
     assert (len(back.lanes), len(back.signals), len(back.stop_signs), len(back.crosswalks)) == (
         len(m.lanes), len(m.signals), len(m.stop_signs), len(m.crosswalks))
     assert back.origin == pytest.approx((587000.0, 4141000.0))
-    _assert_same_features(m, back)
+    assert_same_features(m, back)
     turns = Counter(ln.turn for ln in back.lanes.values() if ln.junction_id)
     assert turns == Counter(ln.turn for ln in m.lanes.values() if ln.junction_id)
     for ln in back.lanes.values():  # lanes meet their successors
@@ -330,7 +304,7 @@ def test_round_trip_for_any_seed(tmp_path_factory, seed):
     m = feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=seed)
     path = tmp_path_factory.mktemp("seed") / "m.xodr"
     write_opendrive(m, path)
-    _assert_same_features(m, read_opendrive(path))
+    assert_same_features(m, read_opendrive(path))
 
 
 def test_split_junction_elements_are_merged(exported, sf_default_map, tmp_path):
@@ -352,7 +326,7 @@ def test_split_junction_elements_are_merged(exported, sf_default_map, tmp_path):
     back = read_opendrive(path)
     assert len(back.junctions) == len(sf_default_map.junctions)
     assert sorted(back.meta["junction_elements"][j.get("id")]) == sorted([j.get("id"), "9999"])
-    _assert_same_features(sf_default_map, back)
+    assert_same_features(sf_default_map, back)
 
 
 def test_yield_signs_are_not_stop_signs_and_lights_govern_signs_under_them(tmp_path):
@@ -389,39 +363,6 @@ def test_yield_signs_are_not_stop_signs_and_lights_govern_signs_under_them(tmp_p
     assert set(kinds) == lit and set(kinds.values()) == {"signal"}
 
 
-def _split_with_a_centimetre_road(src: Path, dst: Path, gap: float = 0.013) -> None:
-    """CARLA-style: cut one straight connecting road of the exported junction in three, the
-    first part in the junction, a `gap`-long ordinary road, the last part in a second junction
-    element (the elements touch, so the reader merges them)."""
-
-    root = etree.parse(str(src)).getroot()
-    jx = root.find("junction")
-    con = next(r for r in root.findall("road") if r.get("junction") == jx.get("id")
-               and all(abs(float(r.find("planView/geometry/paramPoly3").get(k))) < 1e-9 for k in ("cV", "dV")))
-    length = float(con.find("planView/geometry").get("length"))
-    ids = ("901", "902", "903")
-    parts = [(0.0, length / 2 - gap / 2), (length / 2 - gap / 2, gap), (length / 2 + gap / 2, length / 2 - gap / 2)]
-    parent, at = con.getparent(), con.getparent().index(con)
-    parent.remove(con)
-    for k, (s0, piece) in enumerate(parts):
-        r = straight_piece(con, ids[k], s0, piece)
-        r.set("junction", (jx.get("id"), "-1", "999")[k])
-        lane_link = r.find("lanes/laneSection/right/lane/link")
-        if k > 0:
-            r.find("link/predecessor").attrib.update({"elementId": ids[k - 1], "contactPoint": "end"})
-            lane_link.find("predecessor").set("id", "-1")
-        if k < 2:
-            r.find("link/successor").attrib.update({"elementId": ids[k + 1], "contactPoint": "start"})
-            lane_link.find("successor").set("id", "-1")
-        parent.insert(at + k, r)
-    next(c for c in jx.findall("connection") if c.get("connectingRoad") == con.get("id")).set("connectingRoad", "901")
-    jy = etree.Element("junction", id="999", name="split")
-    c = etree.SubElement(jy, "connection", id="0", incomingRoad="902", connectingRoad="903", contactPoint="start")
-    etree.SubElement(c, "laneLink", attrib={"from": "-1", "to": "-1"})
-    jx.addnext(jy)
-    dst.write_bytes(etree.tostring(root))
-
-
 def test_a_centimetre_road_inside_a_merged_junction_is_no_arm_and_no_route_end(tmp_path):
     """A T junction written as two elements joined by a 1.3 cm road (as CARLA does): still a
     T (n=3, not 4), the road's lane is part of the one junction lane of its manoeuvre, and
@@ -432,7 +373,7 @@ def test_a_centimetre_road_inside_a_merged_junction_is_no_arm_and_no_route_end(t
 
     m = feat2map.generate_from_features([JF.make([0, 90, 180], "signal", False)], seed=0)
     write_opendrive(m, tmp_path / "t.xodr")
-    _split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
+    split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
     whole, split = read_opendrive(tmp_path / "t.xodr"), read_opendrive(tmp_path / "split.xodr")
     assert split.meta["junction_elements"] == {"1": ["1", "999"]}
     assert not {"902", "903"} & set(split.roads)
@@ -651,7 +592,7 @@ def test_maps_read_from_files_re_export_with_the_same_features(rel, tmp_path):
     out = tmp_path / "again.xodr"
     write_opendrive(m, out)
     assert structure_problems(etree.parse(str(out)).getroot()) == []
-    _assert_same_features(m, read_opendrive(out))
+    assert_same_features(m, read_opendrive(out))
 
 
 _FUZZ_ATTRS = ["s", "x", "y", "hdg", "length", "id", "a", "b", "sOffset", "curvature", "elementId", "incomingRoad",

@@ -16,7 +16,7 @@ from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
 from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
 
 from conftest import REPO, shared_map
-from test_opendrive import _assert_same_features
+from conftest import assert_same_features
 
 pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
                                 reason="qc_opendrive not installed (scripts/setup.sh installs asam-qc-opendrive)")
@@ -71,7 +71,7 @@ def test_older_revisions_are_valid_and_read_back(version, tmp_path):
     assert etree.parse(str(path)).getroot().find("header").get("revMinor") == version.split(".")[1]
     back = read_opendrive(path)
     assert len(back.crosswalks) == len(m.crosswalks) and len(back.signals) == len(m.signals)
-    _assert_same_features(m, back)
+    assert_same_features(m, back)
 
 
 def test_same_map_same_bytes():
