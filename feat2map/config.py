@@ -33,6 +33,7 @@ SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| below this is "straight"
 UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150)
+MIN_UTURN_RADIUS_M = 5.05386147161  # a U-turn tighter than this (Apollo's default car's turn radius) is no suite manoeuvre
 SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
 ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
 MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles

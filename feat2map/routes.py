@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
+from .config import MIN_UTURN_RADIUS_M
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -43,6 +44,27 @@ def manoeuvres(m: HDMap) -> list[Manoeuvre]:
         for mv in sorted(found):
             out[mv] = None
     return list(out)
+
+def tight_uturn(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
+    """A U-turn lane tighter than a car turns: the circle through its centreline's first, middle
+    and last points has a radius under `radius` (Apollo's topo_creator rule for U-turn lanes).
+    SUMO's turnaround connections (radius ~1 m) are such lanes; no car drives them."""
+    if ln.turn != "uturn" or len(ln.centerline) < 3:
+        return ln.turn == "uturn"
+    (x1, y1), (x2, y2), (x3, y3) = (tuple(ln.centerline[i][:2]) for i in (0, len(ln.centerline) // 2, -1))
+    d = 2 * (x1 * (y2 - y3) + x2 * (y3 - y1) + x3 * (y1 - y2))
+    if abs(d) < 1e-10:  # collinear: a wide U-turn
+        return False
+    ux = ((x1**2 + y1**2) * (y2 - y3) + (x2**2 + y2**2) * (y3 - y1) + (x3**2 + y3**2) * (y1 - y2)) / d
+    uy = ((x1**2 + y1**2) * (x3 - x2) + (x2**2 + y2**2) * (x1 - x3) + (x3**2 + y3**2) * (x2 - x1)) / d
+    return math.hypot(x1 - ux, y1 - uy) < radius
+
+
+def suite_manoeuvres(m: HDMap) -> list[Manoeuvre]:
+    """The manoeuvres a route-coverage suite drives: `manoeuvres` without those whose junction
+    lane is a `tight_uturn` (left out: no car turns that tightly; `build_suite` says how many)."""
+    return [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and not tight_uturn(ln)]
+
 
 def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:
     """The (junction, entry road, exit road) a junction lane drives: from a road lane to a road
@@ -95,11 +117,12 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     uncovered manoeuvres (ties: an end with END_ROOM_M of road before the next junction, fewer
     junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
-    a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped.
+    a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped, and so
+    are U-turns tighter than a car turns (`suite_manoeuvres`), as targets and as links of a route.
     """
     if max_junctions < 1:
         raise ValueError("max_junctions must be at least 1")
-    all_moves = manoeuvres(m)
+    all_moves = suite_manoeuvres(m)
     targets = [mv for mv in (list(moves) if moves is not None else all_moves) if manoeuvre_lane(m, mv) is not None]
     graph = successor_graph(m, all_moves)
     preds: dict[Manoeuvre, list[Manoeuvre]] = {mv: [] for mv in graph}

@@ -15,7 +15,7 @@ from ..errors import Feat2MapError
 from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane
 from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, Route, coverage_routes, manoeuvre_lane,  # noqa: F401 (re-exported)
-                      manoeuvres, successor_graph, _exit_room)
+                      manoeuvres, successor_graph, suite_manoeuvres, tight_uturn, _exit_room)
 from .scenario import Manoeuvre, Scenario, Suite
 
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
@@ -85,8 +85,9 @@ def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
 
 
 def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:
-    """Fraction of the manoeuvres of `m` that the routes drive (1.0 for a map without any)."""
-    all_moves = set(manoeuvres(m))
+    """Fraction of the suite manoeuvres of `m` (`suite_manoeuvres`: tight U-turns left out) that
+    the routes drive (1.0 for a map without any)."""
+    all_moves = set(suite_manoeuvres(m))
     if not all_moves:
         return 1.0
     driven = {tuple(str(x) for x in mv) for r in routes for mv in r}
@@ -98,11 +99,18 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                 name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
     """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
     `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given.
-    A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why."""
+    A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why; U-turns
+    tighter than a car turns are left out with one warning naming them."""
+    import warnings
+
     from ..formats import read_map
 
     path = Path(map_path)
     m = read_map(path)
+    tight = [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and tight_uturn(ln)]
+    if tight:
+        warnings.warn(f"{path}: {len(tight)} U-turn manoeuvre(s) tighter than a car turns left out of the suite "
+                      f"(first: junction {tight[0][0]}, road {tight[0][1]} -> {tight[0][2]})", stacklevel=2)
     routes = coverage_routes(m, max_junctions)
     if not routes:  # never an empty suite that "passes"
         raise Feat2MapError(_no_routes_reason(m), str(path))
@@ -120,6 +128,8 @@ def _no_routes_reason(m: HDMap) -> str:
     if not m.junctions:
         return "no junctions: a route-coverage suite drives junction manoeuvres"
     found = manoeuvres(m)
+    if found and not suite_manoeuvres(m):
+        return f"no manoeuvres but U-turns tighter than a car turns ({len(found)})"
     if not found:
         return (f"no manoeuvres: none of its {len(m.junctions)} junctions has a junction lane from a road lane "
                 "to a road lane")

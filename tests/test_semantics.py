@@ -371,3 +371,69 @@ def test_apollo_speed_limits_in_kmh_are_converted(apollo_pb, tmp_path):
     assert [ln.speed_limit for ln in m.lanes.values()] == pytest.approx([60 / 3.6] * len(m.lanes))
     assert sum("read as km/h" in w for w in caught) == 1
     assert max(ln.speed_limit for ln in plain.lanes.values()) < 40
+
+
+# ---------------------------------------------------------------------------------- SUMO turnarounds
+
+def _add_turnaround(root, road_id: str = "1") -> str:
+    """A netconvert-style turnaround connection at the junction end of road `road_id` (a generated
+    map's leg: lane 1 drives into the junction at s=0, lane -1 leaves it): an arc turning 126 deg
+    in 4.3 m from the incoming lane's end to the outgoing lane's start, with 27 deg kinks at both
+    ends (SUMO's `turnaround` connections). Returns the new road's id."""
+    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    g = road.find("planView/geometry")
+    x0, y0, h = float(g.get("x")), float(g.get("y")), float(g.get("hdg")) + np.pi  # into the junction
+    width = 3.5
+    lx, ly = x0 + np.sin(h) * width / 2, y0 - np.cos(h) * width / 2  # lane 1's centre: right of h
+    turn = np.radians(126.0)
+    radius = width / (2 * np.sin(turn / 2))
+    new = str(max(int(r.get("id")) for r in root.findall("road")) + 1)
+    jid = next(iter(root.findall("junction"))).get("id")
+    rd = etree.SubElement(root, "road", name="turnaround", length=f"{radius * turn}", id=new, junction=jid)
+    link = etree.SubElement(rd, "link")
+    etree.SubElement(link, "predecessor", elementType="road", elementId=road_id, contactPoint="start")
+    etree.SubElement(link, "successor", elementType="road", elementId=road_id, contactPoint="start")
+    pv = etree.SubElement(rd, "planView")
+    geo = etree.SubElement(pv, "geometry", s="0", x=f"{lx}", y=f"{ly}", hdg=f"{h + (np.pi - turn) / 2}",
+                           length=f"{radius * turn}")
+    etree.SubElement(geo, "arc", curvature=f"{1 / radius}")
+    lanes = etree.SubElement(rd, "lanes")
+    sec = etree.SubElement(lanes, "laneSection", s="0")
+    etree.SubElement(etree.SubElement(sec, "center"), "lane", id="0", type="none")
+    ln = etree.SubElement(etree.SubElement(sec, "right"), "lane", id="-1", type="driving")
+    ll = etree.SubElement(ln, "link")
+    etree.SubElement(ll, "predecessor", id="1")
+    etree.SubElement(ll, "successor", id="-1")
+    etree.SubElement(ln, "width", sOffset="0", a=f"{width}", b="0", c="0", d="0")
+    junction = next(iter(root.findall("junction")))
+    con = etree.SubElement(junction, "connection", id="99", incomingRoad=road_id, connectingRoad=new,
+                           contactPoint="start")
+    etree.SubElement(con, "laneLink", **{"from": "1", "to": "-1"})
+    return new
+
+
+@pytest.fixture(scope="module")
+def turnaround_xodr(tmp_path_factory, four_way_xodr) -> Path:
+    """The generated four-way with a SUMO-style turnaround connection on its first leg."""
+    return _edit(four_way_xodr, tmp_path_factory.mktemp("uturn") / "turnaround.xodr", _add_turnaround)
+
+
+def test_a_turnaround_connection_is_a_uturn_and_no_suite_manoeuvre(turnaround_xodr):
+    """netconvert's turnaround connections turn 126 deg themselves and reverse the road's heading
+    with kinks at both ends (radius ~1 m): read as left turns, the route-coverage suite drove them
+    and left the road (32 off-road scenarios on two SUMO maps). The connection reverses direction,
+    so it is a U-turn; tighter than a car turns, it is left out of the suite with one warning."""
+    from feat2map.routes import coverage_routes, manoeuvres, suite_manoeuvres
+    from feat2map.scenarios.routes import build_suite, route_coverage
+
+    m, _ = _quiet(read_opendrive, turnaround_xodr)
+    (lane,) = [ln for ln in m.lanes.values() if ln.junction_id is not None
+               and {m.lanes[x].road_id for x in ln.predecessors + ln.successors} == {"1"}]
+    assert lane.turn == "uturn"
+    mv = (lane.junction_id, "1", "1")
+    assert mv in manoeuvres(m) and mv not in suite_manoeuvres(m)
+    routes = coverage_routes(m)
+    assert all(mv not in r for r in routes) and route_coverage(m, routes) == 1.0
+    suite, caught = _quiet(build_suite, turnaround_xodr)
+    assert sum("1 U-turn manoeuvre(s) tighter than a car turns left out of the suite" in w for w in caught) == 1
+    assert all(mv not in sc.route for sc in suite.scenarios)

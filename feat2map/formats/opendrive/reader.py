@@ -23,7 +23,8 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...config import MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, limits
+from ...config import (MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG,
+                       limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
@@ -94,7 +95,6 @@ _CONTROL_CLASS = {"signal": Signal, "stop": StopSign, "yield": YieldSign}
 DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
-UTURN_CHANGE_DEG = 170.0  # heading change of a junction lane that makes it a U-turn (sharp lefts reach 150)
 END_TANGENT_M = 0.05  # extra sample this close to each lane end, so polyline end headings are exact
 SIGNAL_SEARCH_M = 40.0  # a signal governs incoming lanes ending within this distance
 _MPH = 0.44704
@@ -692,7 +692,7 @@ class _Builder:
         self.joined = _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
         for lid, ln in lanes.items():
             if ln.junction_id is not None:
-                lanes[lid] = _replace(ln, turn=_turn(ln))
+                lanes[lid] = _replace(ln, turn=_turn(ln, lanes))
         roads: dict[str, Road] = {}
         for rid, road in self.roads.items():
             right, left = road_lanes.get(rid, ([], []))
@@ -1051,12 +1051,23 @@ def _check_points(points, where: str) -> None:
         raise MapFormatError(f"position not finite or beyond the limit max_coordinate_m={cap:g}", where)
 
 
-def _turn(ln: Lane) -> str:
-    """left / right / uturn / none from the heading change along a junction lane."""
+def _turn(ln: Lane, lanes: dict[str, Lane]) -> str:
+    """left / right / uturn / none from the heading change along a junction lane; a U-turn also
+    where the connection reverses direction between the road lanes it joins (the end of its
+    predecessor to the start of its successor): SUMO's netconvert writes turnaround connections
+    that turn 127 deg themselves and make up the rest with kinks at both ends."""
     h0, h1 = ln.heading_at_start(), ln.heading_at_end()
     change = math.degrees((h1 - h0 + math.pi) % (2 * math.pi) - math.pi)
-    if abs(change) >= UTURN_CHANGE_DEG:
+    if abs(change) >= UTURN_THRESHOLD_DEG:
         return "uturn"
+    for p in ln.predecessors:
+        for q in ln.successors:
+            a, b = lanes.get(p), lanes.get(q)
+            if a is None or b is None or a.junction_id is not None or b.junction_id is not None:
+                continue
+            rev = math.degrees((b.heading_at_start() - a.heading_at_end() + math.pi) % (2 * math.pi) - math.pi)
+            if abs(rev) >= UTURN_THRESHOLD_DEG:
+                return "uturn"
     return classify_turn(h0, h1)
 
 
