@@ -175,8 +175,9 @@ def _exit_room(m: HDMap, mv: Manoeuvre) -> float:
     return best
 
 def _entry_room(m: HDMap, mv: Manoeuvre) -> float:
-    """Metres of road before the manoeuvre's junction lane back to the previous junction (inf where
-    the road enters the map): the longest chain of road lanes on predecessors of its entry lane."""
+    """Metres of road before the manoeuvre's junction lane back to the previous junction or the
+    map's edge (where the ego starts: osm2xodr's 1.2 m stub roads at a map's edge are no room):
+    the longest chain of road lanes on predecessors of its entry lane."""
     ln = manoeuvre_lane(m, mv)
     best = 0.0
     firsts = [p for p in ln.predecessors if p in m.lanes and m.lanes[p].road_id == mv[1]] if ln is not None else []
@@ -189,7 +190,8 @@ def _entry_room(m: HDMap, mv: Manoeuvre) -> float:
             continue
         prev = [x for x in lane.predecessors if x in m.lanes]
         if not prev:
-            return math.inf
+            best = max(best, done + lane.length)
+            continue
         stack += [(x, done + lane.length, seen | {lid}) for x in prev]
     return best
 
