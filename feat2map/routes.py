@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
-from .config import MIN_UTURN_RADIUS_M
+from .config import KINK_RADIUS_M, MIN_UTURN_RADIUS_M, TURN_WINDOW_M
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -49,10 +49,14 @@ def manoeuvres(m: HDMap) -> list[Manoeuvre]:
 
 def tight_uturn(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
     """A U-turn lane tighter than a car turns: the circle through its centreline's first, middle
-    and last points has a radius under `radius` (Apollo's topo_creator rule for U-turn lanes).
-    SUMO's turnaround connections (radius ~1 m) are such lanes; no car drives them."""
-    if ln.turn != "uturn" or len(ln.centerline) < 3:
-        return ln.turn == "uturn"
+    and last points has a radius under `radius` (Apollo's topo_creator rule for U-turn lanes), or
+    it kinks somewhere (`sharpest_radius` under KINK_RADIUS_M: U-turns a reader joined from
+    pieces through a junction's interior, with right-angle kinks between them). SUMO's
+    turnaround connections (radius ~1 m) are such lanes; no car drives them."""
+    if ln.turn != "uturn":
+        return False
+    if len(ln.centerline) < 3 or sharpest_radius(ln) < KINK_RADIUS_M:
+        return True
     (x1, y1), (x2, y2), (x3, y3) = (tuple(ln.centerline[i][:2]) for i in (0, len(ln.centerline) // 2, -1))
     d = 2 * (x1 * (y2 - y3) + x2 * (y3 - y1) + x3 * (y1 - y2))
     if abs(d) < 1e-10:  # collinear: a wide U-turn
@@ -60,6 +64,29 @@ def tight_uturn(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
     ux = ((x1**2 + y1**2) * (y2 - y3) + (x2**2 + y2**2) * (y3 - y1) + (x3**2 + y3**2) * (y1 - y2)) / d
     uy = ((x1**2 + y1**2) * (x3 - x2) + (x2**2 + y2**2) * (x1 - x3) + (x3**2 + y3**2) * (x2 - x1)) / d
     return math.hypot(x1 - ux, y1 - uy) < radius
+
+
+def sharpest_radius(ln: Lane, window: float = TURN_WINDOW_M) -> float:
+    """The smallest radius [m] a car following the lane's centreline turns on: the heading change
+    from each segment to the first one at least `window` metres further on (midpoint to
+    midpoint: a kink counts over the stretch around it, a coarse polyline over its segments),
+    as distance / change; inf for a straight lane."""
+    import numpy as np
+
+    pts = np.asarray(ln.centerline, dtype=float)[:, :2]
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    keep = seg > 1e-6
+    if keep.sum() < 2:
+        return math.inf
+    d = np.diff(pts, axis=0)[keep]
+    s = np.concatenate([[0.0], np.cumsum(seg[keep])])
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))  # heading of segment k, from s[k] to s[k + 1]
+    mid = (s[:-1] + s[1:]) / 2
+    k = np.arange(len(mid) - 1)
+    j = np.maximum(np.searchsorted(mid, mid[:-1] + window, side="left"), k + 1).clip(max=len(mid) - 1)
+    change = np.abs(heading[j] - heading[k])
+    radius = (mid[j] - mid[k]) / np.maximum(change, 1e-12)
+    return float(radius.min())
 
 
 def suite_manoeuvres(m: HDMap) -> list[Manoeuvre]:
@@ -115,10 +142,10 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     How: greedy set cover over the manoeuvre graph (`successor_graph`, built from the lane
     graph). While a manoeuvre is uncovered, take the first uncovered one (map order) as the
     anchor, search exhaustively backwards and forwards from it for the chains of at most
-    `max_junctions` manoeuvres in total (never visiting a junction twice) that add the most
-    uncovered manoeuvres (ties: a start with START_ROOM_M of road before the first junction, an
-    end with END_ROOM_M of road before the next junction, fewer junctions, then map order), and
-    add that route. Each
+    `max_junctions` manoeuvres in total (never visiting a junction twice) that start with
+    START_ROOM_M of road before the first junction where one can, and among those add the most
+    uncovered manoeuvres (ties: an end with END_ROOM_M of road before the next junction, fewer
+    junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
     a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped, and so
     are U-turns tighter than a car turns (`suite_manoeuvres`), as targets and as links of a route.
@@ -147,7 +174,7 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
             for fwd in _chains(graph, anchor, max_junctions - 1 - len(back), used):
                 route = tuple(reversed(back)) + (anchor,) + fwd
                 gain = len(set(route) & uncovered)
-                key = (-gain, start_room[route[0]] < START_ROOM_M, room[route[-1]] < END_ROOM_M, len(route),
+                key = (start_room[route[0]] < START_ROOM_M, -gain, room[route[-1]] < END_ROOM_M, len(route),
                        [order[mv] for mv in route])
                 if best_key is None or key < best_key:
                     best, best_key = route, key

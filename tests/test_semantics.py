@@ -437,3 +437,24 @@ def test_a_turnaround_connection_is_a_uturn_and_no_suite_manoeuvre(turnaround_xo
     suite, caught = _quiet(build_suite, turnaround_xodr)
     assert sum("1 U-turn manoeuvre(s) tighter than a car turns left out of the suite" in w for w in caught) == 1
     assert all(mv not in sc.route for sc in suite.scenarios)
+
+
+def test_a_uturn_joined_from_kinked_pieces_is_tight_where_its_ends_are_far_apart():
+    """netconvert U-turns that the reader joins from five pieces through a junction's interior run
+    round a box with right-angle kinks: the circle through their ends and middle is wide, the
+    car on them is not (off road on every such U-turn). The sharpest stretch decides."""
+    from feat2map.model import Lane, as_polyline
+    from feat2map.routes import sharpest_radius, tight_uturn
+
+    def lane(pts, turn="uturn"):
+        c = as_polyline(np.asarray(pts, dtype=float))
+        return Lane("u", "r", c, c, c, 3.0, 10.0, turn=turn, junction_id="J")
+
+    legs = [np.c_[np.arange(0, 10), np.zeros(10)], np.c_[np.full(12, 10), np.arange(0, 12)],
+            np.c_[np.arange(10, -1, -1), np.full(11, 12)]]
+    box = lane(np.vstack(legs))  # 1 m pieces round a 10 x 12 m box: ends 12 m apart, right-angle kinks
+    assert sharpest_radius(box) < 2.0 and tight_uturn(box)
+    t = np.linspace(-np.pi / 2, np.pi / 2, 40)
+    wide = lane(np.c_[8 * np.cos(t), 8 * np.sin(t)])  # a U-turn of radius 8 m
+    assert sharpest_radius(wide) == pytest.approx(8.0, rel=0.05) and not tight_uturn(wide)
+    assert not tight_uturn(replace(box, turn="left"))  # only U-turns are left out
