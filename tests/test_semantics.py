@@ -458,3 +458,34 @@ def test_a_uturn_joined_from_kinked_pieces_is_tight_where_its_ends_are_far_apart
     wide = lane(np.c_[8 * np.cos(t), 8 * np.sin(t)])  # a U-turn of radius 8 m
     assert sharpest_radius(wide) == pytest.approx(8.0, rel=0.05) and not tight_uturn(wide)
     assert not tight_uturn(replace(box, turn="left"))  # only U-turns are left out
+
+
+# ---------------------------------------------------------------------------------- osm2xodr stubs
+
+def _cut_leg(root, road_id: str = "1", length: float = 1.2) -> None:
+    """Cut a generated map's leg (a road from the junction to the map's edge) to `length` metres,
+    as osm2xodr cuts OSM ways at the map's bounds just past a junction."""
+    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    road.set("length", f"{length}")
+    g = road.find("planView/geometry")
+    g.set("length", f"{length}")
+    for child in list(g):
+        g.remove(child)
+    etree.SubElement(g, "line")
+
+
+def test_a_stub_at_the_maps_edge_is_part_of_its_junction(four_way_xodr, tmp_path):
+    """osm2xodr maps end OSM ways 1.2 m past a junction: a route from such a stub started the ego
+    inside the junction's swept area, where turning traffic hit it (Testfeld_Karlsruhe r018).
+    A road at the map's edge shorter than EDGE_STUB_LENGTH_M is part of its junction: no route
+    starts or ends on it, and the other legs keep their manoeuvres."""
+    from feat2map.routes import coverage_routes, manoeuvres
+
+    full, _ = _quiet(read_opendrive, four_way_xodr)
+    m, _ = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "stub.xodr", _cut_leg))
+    stub = [ln for ln in m.lanes.values() if ln.road_id == "1"]
+    assert stub and all(ln.junction_id is not None for ln in stub)
+    moves = manoeuvres(m)
+    assert moves and all("1" not in mv[1:] for mv in moves)
+    assert set(moves) == {mv for mv in manoeuvres(full) if "1" not in mv[1:]}
+    assert all("1" not in mv[1:] for r in coverage_routes(m) for mv in r)

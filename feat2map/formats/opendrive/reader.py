@@ -23,7 +23,7 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...config import (MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG,
+from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG,
                        limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
@@ -615,10 +615,21 @@ class _Builder:
     def _interior_roads(self, groups: dict[str, str]) -> dict[str, str]:
         """Ordinary roads shorter than MIN_ARM_LENGTH_M with both ends in one merged junction,
         road id -> that junction: pieces of the intersection, not arms (CARLA joins the
-        elements of one intersection with centimetre roads)."""
+        elements of one intersection with centimetre roads). So are roads shorter than
+        EDGE_STUB_LENGTH_M whose one end is a junction and whose other end is the map's edge
+        (osm2xodr cuts OSM ways at the map's bounds 1.2 m past a junction): a car on one
+        stands in the junction, so no route starts or ends there."""
         out = {}
         for r in self.roads.values():
-            if r.junction is not None or r.length >= MIN_ARM_LENGTH_M or len(r.links) != 2:
+            if r.junction is not None:
+                continue
+            if len(r.links) == 1 and r.length < EDGE_STUB_LENGTH_M:
+                ((etype, eid, _),) = r.links.values()
+                j = eid if etype == "junction" else self.roads[eid].junction if eid in self.roads else None
+                if j is not None and groups.get(j) is not None:
+                    out[r.id] = groups[j]
+                continue
+            if r.length >= MIN_ARM_LENGTH_M or len(r.links) != 2:
                 continue
             ends = set()
             for etype, eid, _ in r.links.values():
