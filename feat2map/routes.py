@@ -16,8 +16,6 @@ Route = tuple[Manoeuvre, ...]  # manoeuvres in driving order (Scenario.route, th
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
 END_ROOM_M = 25.0  # a route ends on an exit road at least this long before the next junction where it can:
 # the env's goal lies 15 m into it, and an ego at speed reaching a goal closer to a junction runs into it
-START_ROOM_M = 6.0  # a route starts on an entry road with at least a car length of lanes before its first junction
-# where it can (SUMO's 0.2 m approach lanes: an ego started there stands across the stop line)
 
 
 def manoeuvre_lanes(m: HDMap, mv: Sequence[str]) -> list[Lane]:
@@ -142,8 +140,7 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     How: greedy set cover over the manoeuvre graph (`successor_graph`, built from the lane
     graph). While a manoeuvre is uncovered, take the first uncovered one (map order) as the
     anchor, search exhaustively backwards and forwards from it for the chains of at most
-    `max_junctions` manoeuvres in total (never visiting a junction twice) that start with
-    START_ROOM_M of road before the first junction where one can, and among those add the most
+    `max_junctions` manoeuvres in total (never visiting a junction twice) that add the most
     uncovered manoeuvres (ties: an end with END_ROOM_M of road before the next junction, fewer
     junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
@@ -161,7 +158,6 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
             preds[n].append(mv)
     order = {mv: i for i, mv in enumerate(all_moves)}
     room = {mv: _exit_room(m, mv) for mv in graph}
-    start_room = {mv: _entry_room(m, mv) for mv in graph}
     uncovered = set(targets)
     routes: list[Route] = []
     for anchor in targets:
@@ -174,8 +170,7 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
             for fwd in _chains(graph, anchor, max_junctions - 1 - len(back), used):
                 route = tuple(reversed(back)) + (anchor,) + fwd
                 gain = len(set(route) & uncovered)
-                key = (start_room[route[0]] < START_ROOM_M, -gain, room[route[-1]] < END_ROOM_M, len(route),
-                       [order[mv] for mv in route])
+                key = (-gain, room[route[-1]] < END_ROOM_M, len(route), [order[mv] for mv in route])
                 if best_key is None or key < best_key:
                     best, best_key = route, key
         routes.append(best)
@@ -199,27 +194,6 @@ def _exit_room(m: HDMap, mv: Manoeuvre) -> float:
         if not nxt:
             return math.inf
         stack += [(x, done + lane.length, seen | {lid}) for x in nxt]
-    return best
-
-def _entry_room(m: HDMap, mv: Manoeuvre) -> float:
-    """Metres of road before the manoeuvre's junction lane back to the previous junction or the
-    map's edge (where the ego starts: osm2xodr's 1.2 m stub roads at a map's edge are no room):
-    the longest chain of road lanes on predecessors of its entry lane."""
-    ln = manoeuvre_lane(m, mv)
-    best = 0.0
-    firsts = [p for p in ln.predecessors if p in m.lanes and m.lanes[p].road_id == mv[1]] if ln is not None else []
-    stack: list[tuple[str, float, frozenset[str]]] = [(p, 0.0, frozenset()) for p in firsts]
-    while stack:
-        lid, done, seen = stack.pop()
-        lane = m.lanes[lid]
-        if lane.junction_id is not None or lid in seen:
-            best = max(best, done)
-            continue
-        prev = [x for x in lane.predecessors if x in m.lanes]
-        if not prev:
-            best = max(best, done + lane.length)
-            continue
-        stack += [(x, done + lane.length, seen | {lid}) for x in prev]
     return best
 
 def _chains(graph: dict[Manoeuvre, list[Manoeuvre]], start: Manoeuvre, depth: int,

@@ -10,7 +10,6 @@ from pathlib import Path
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
-import numpy as np
 import pytest
 
 from conftest import SHARED_MAPS, SHARED_MAPS_MISSING
@@ -304,30 +303,3 @@ def test_render_routes_png_and_svg(tmp_path, m1):
     assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     svg = (tmp_path / "r.svg").read_text()
     assert svg.lstrip().startswith("<?xml") and " → ".join(f"{j}:{e}>{x}" for j, e, x in routes[0]).replace(">", "&gt;") in svg
-
-
-def test_routes_start_with_a_car_length_of_road_where_they_can():
-    """netconvert writes 0.2 m approach lanes between two junctions: a route starting there put
-    the ego across the stop line (a red light at t=0.2 s). Where a route can start one junction
-    earlier it does; a route from a map edge starts where the map begins."""
-    import dataclasses
-
-    from feat2map.model import as_polyline
-    from feat2map.routes import START_ROOM_M, _entry_room
-
-    m = feat2map.generate_from_features([J([0, 90, 180, 270], "bare", False), J([0, 90, 180], "bare", False)],
-                                        seed=0)
-    (conn,) = [r for r in m.roads.values() if r.kind == "connection"]
-    lanes = dict(m.lanes)
-    for lid in conn.lane_ids:  # keep the last 0.2 m of the road between the junctions
-        ln = lanes[lid]
-        end, h = ln.end, ln.heading_at_end()
-        piece = lambda pts: as_polyline([(x - 0.2 * np.cos(h), y - 0.2 * np.sin(h)) for x, y in pts[-1:]] + [pts[-1]])  # noqa: E731
-        lanes[lid] = dataclasses.replace(ln, centerline=piece(ln.centerline), left_boundary=piece(ln.left_boundary),
-                                         right_boundary=piece(ln.right_boundary))
-    short = dataclasses.replace(m, lanes=lanes)
-    routes = coverage_routes(short)
-    assert route_coverage(short, routes) == 1.0
-    from_conn = [r for r in routes if r[0][1] == conn.id]
-    assert not from_conn, from_conn  # each starts one junction earlier
-    assert all(_entry_room(short, r[0]) >= START_ROOM_M for r in routes)
