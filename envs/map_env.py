@@ -526,15 +526,17 @@ def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_
     lane's end, successors after the last until the goal `goal_distance` into it fits. Where
     the road before the first junction is shorter than `min_room` (netconvert's 0.2 m approach
     lanes right after another junction: a car started there stands across the stop line), the
-    route starts before that other junction instead, through its junction lane."""
+    route starts before that other junction instead, through one of its junction lanes (straight
+    on where one is, never a U-turn)."""
     m = net.hdmap
     route = list(route)
     room = net.lane_of[route[0]].length
     while room < start_distance:
         prev = road_neighbour(m, route[0], m.lanes[route[0]].predecessors, set(route))
         if prev is None and room < min_room and len(route) > 1:
-            through = sorted(j for j in m.lanes[route[0]].predecessors
-                             if j in m.lanes and m.lanes[j].junction_id is not None and j not in route)
+            through = sorted((j for j in m.lanes[route[0]].predecessors if j in m.lanes and j not in route
+                              and m.lanes[j].junction_id is not None and m.lanes[j].turn != "uturn"),
+                             key=lambda j: (m.lanes[j].turn != "none", j))  # straight on, never a U-turn
             before = road_neighbour(m, through[0], m.lanes[through[0]].predecessors, set(route)) if through else None
             if before is not None:
                 route[:0] = [before, through[0]]
