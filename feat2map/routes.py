@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
-from .config import KINK_RADIUS_M, MIN_UTURN_RADIUS_M, TURN_WINDOW_M
+from .config import KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -87,10 +87,31 @@ def sharpest_radius(ln: Lane, window: float = TURN_WINDOW_M) -> float:
     return float(radius.min())
 
 
+def loops(ln: Lane, limit: float = MAX_TURN_DEG) -> bool:
+    """A lane whose heading turns further than `limit` degrees from start to end (unwrapped: a
+    U-turn turns 180): netconvert's internal lanes, joined by the reader into one junction lane,
+    can run round a junction's interior more than once (up to 700 deg)."""
+    import numpy as np
+
+    pts = np.asarray(ln.centerline, dtype=float)[:, :2]
+    d = np.diff(pts, axis=0)
+    d = d[np.hypot(*d.T) > 1e-6]
+    if len(d) < 2:
+        return False
+    h = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return bool(abs(math.degrees(h[-1] - h[0])) > limit)
+
+
+def undrivable(ln: Lane) -> bool:
+    """A junction lane no car drives: a `tight_uturn` or a lane that `loops`."""
+    return tight_uturn(ln) or loops(ln)
+
+
 def suite_manoeuvres(m: HDMap) -> list[Manoeuvre]:
     """The manoeuvres a route-coverage suite drives: `manoeuvres` without those whose junction
-    lane is a `tight_uturn` (left out: no car turns that tightly; `build_suite` says how many)."""
-    return [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and not tight_uturn(ln)]
+    lane is `undrivable` (left out: no car turns that tightly or loops; `build_suite` says how
+    many)."""
+    return [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and not undrivable(ln)]
 
 
 def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:

@@ -435,14 +435,16 @@ def test_a_turnaround_connection_is_a_uturn_and_no_suite_manoeuvre(turnaround_xo
     routes = coverage_routes(m)
     assert all(mv not in r for r in routes) and route_coverage(m, routes) == 1.0
     suite, caught = _quiet(build_suite, turnaround_xodr)
-    assert sum("1 U-turn manoeuvre(s) tighter than a car turns left out of the suite" in w for w in caught) == 1
+    assert sum("1 manoeuvre(s) no car drives (U-turns tighter than a car turns, lanes that loop) left out" in w
+               for w in caught) == 1
     assert all(mv not in sc.route for sc in suite.scenarios)
 
 
 def test_a_uturn_joined_from_kinked_pieces_is_tight_where_its_ends_are_far_apart():
     """netconvert U-turns that the reader joins from five pieces through a junction's interior run
     round a box with right-angle kinks: the circle through their ends and middle is wide, the
-    car on them is not (off road on every such U-turn). The sharpest stretch decides."""
+    car on them is not (off road on every such U-turn). The sharpest stretch decides. Joined
+    internal lanes can also run round the interior more than once (up to 700 deg): they loop."""
     from feat2map.model import Lane, as_polyline
     from feat2map.routes import sharpest_radius, tight_uturn
 
@@ -458,6 +460,11 @@ def test_a_uturn_joined_from_kinked_pieces_is_tight_where_its_ends_are_far_apart
     wide = lane(np.c_[8 * np.cos(t), 8 * np.sin(t)])  # a U-turn of radius 8 m
     assert sharpest_radius(wide) == pytest.approx(8.0, rel=0.05) and not tight_uturn(wide)
     assert not tight_uturn(replace(box, turn="left"))  # only U-turns are left out
+    from feat2map.routes import loops, undrivable
+
+    t = np.linspace(0, 3 * np.pi, 120)  # round a 4 m circle one and a half times: 540 deg
+    spin = lane(np.c_[4 * np.sin(t), 4 - 4 * np.cos(t)], turn="left")
+    assert loops(spin) and undrivable(spin) and not loops(wide) and not loops(replace(box, turn="left"))
 
 
 # ---------------------------------------------------------------------------------- osm2xodr stubs
