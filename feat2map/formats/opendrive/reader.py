@@ -23,8 +23,8 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG,
-                       limits)
+from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS,
+                       UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline, classify_turn,
                       signal_precedence)
