@@ -90,6 +90,9 @@ UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
+BRIDGE_AHEAD_M = 1.0  # a link whose successor starts further ahead than this (a stretch without lane) is bridged ...
+BRIDGE_ASIDE_M = 2.0  # ... and so is one whose successor starts further to the side than this (osm2xodr lane shifts)
+BRIDGE_TAIL_M = 10.0  # a bridged lane's last metres (at most) are bent smoothly to meet its successor's start
 NEGATIVE_WIDTH_TOL_M = 0.01  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road (a
 # lane closing to 0 dips a few mm below it in converters' output: clamped to 0)
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
