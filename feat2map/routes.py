@@ -55,13 +55,22 @@ def tight_uturn(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
         return False
     if len(ln.centerline) < 3 or sharpest_radius(ln) < KINK_RADIUS_M:
         return True
-    (x1, y1), (x2, y2), (x3, y3) = (tuple(ln.centerline[i][:2]) for i in (0, len(ln.centerline) // 2, -1))
+    return end_circle_radius(ln.centerline) < radius
+
+
+def end_circle_radius(points: Sequence[Sequence[float]]) -> float:
+    """Radius of the circle through a polyline's first, middle and last points (inf when they
+    are collinear, 0 without points): how tightly a U-turn turns, as Apollo's topo_creator
+    measures it."""
+    if not len(points):
+        return 0.0
+    (x1, y1), (x2, y2), (x3, y3) = (tuple(points[i][:2]) for i in (0, len(points) // 2, -1))
     d = 2 * (x1 * (y2 - y3) + x2 * (y3 - y1) + x3 * (y1 - y2))
     if abs(d) < 1e-10:  # collinear: a wide U-turn
-        return False
+        return math.inf
     ux = ((x1**2 + y1**2) * (y2 - y3) + (x2**2 + y2**2) * (y3 - y1) + (x3**2 + y3**2) * (y1 - y2)) / d
     uy = ((x1**2 + y1**2) * (x3 - x2) + (x2**2 + y2**2) * (x1 - x3) + (x3**2 + y3**2) * (x2 - x1)) / d
-    return math.hypot(x1 - ux, y1 - uy) < radius
+    return math.hypot(x1 - ux, y1 - uy)
 
 
 def sharpest_radius(ln: Lane, window: float = TURN_WINDOW_M) -> float:
@@ -166,7 +175,7 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
     a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped, and so
-    are U-turns tighter than a car turns (`suite_manoeuvres`), as targets and as links of a route.
+    are those no car drives (`suite_manoeuvres`), as targets and as links of a route.
     """
     if max_junctions < 1:
         raise ValueError("max_junctions must be at least 1")
