@@ -524,3 +524,25 @@ def test_links_between_lanes_a_few_metres_apart_are_bridged(four_way):
         seam = moved(back, side)
         assert semantics.bridge_gaps(seam) is seam
     assert semantics.bridge_gaps(four_way) is four_way
+
+
+def test_an_offset_lane_folding_round_a_tight_bend_is_cut_where_it_runs_backwards():
+    """osm2xodr puts lanes 9 m to the side of roads that bend at a 5 m radius: the lane's offset
+    curve folds into a loop (its heading turned 140 degrees in 5 m; the car left the road at
+    once). The OpenDRIVE reader keeps the samples that move the lane forward."""
+    from feat2map.formats.opendrive.reader import _unfolded
+
+    s = np.linspace(0.0, 20.0, 201)
+    h = np.where(s < 10, 0.0, (s - 10) / 3.0)  # straight, then a bend of radius 3 m
+    h = np.minimum(h, np.pi / 2)
+    x = np.concatenate([[0.0], np.cumsum(np.cos(h[:-1]) * np.diff(s))])
+    y = np.concatenate([[0.0], np.cumsum(np.sin(h[:-1]) * np.diff(s))])
+    for t in (4.5, -4.5, 1.0):  # 4.5 m to the inner side folds; to the outer side or 1 m in does not
+        px, py = x - t * np.sin(h), y + t * np.cos(h)
+        keep = _unfolded(s, h, np.full_like(s, t))
+        d = np.diff(np.c_[px, py][keep], axis=0)
+        heading = np.arctan2(d[:, 1], d[:, 0])
+        along = (h[keep][:-1] + h[keep][1:]) / 2  # the reference's direction over each kept step
+        assert np.all(np.abs(heading - along) < np.pi / 2 + 1e-6)  # never backwards (a corner, no loop)
+        raw = np.arctan2(np.diff(py), np.diff(px))
+        assert (len(keep) < len(s)) == bool(np.any(np.abs(np.angle(np.exp(1j * (raw - h[:-1])))) > np.pi / 2))

@@ -402,7 +402,8 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
                                      f"{lim.max_lane_width_m:g}", ctx.where(road.el, f"road {road.id}"))
             if ln.type in DRIVING_TYPES and float(w.max()) >= MIN_LANE_WIDTH_M:
                 mid = 0.5 * (inner + outer)
-                pts = lambda t: np.column_stack([x + t * nx, y + t * ny])  # noqa: E731
+                keep = _unfolded(s, h, mid) if road.junction is None else slice(None)
+                pts = lambda t: np.column_stack([x + t * nx, y + t * ny])[keep]  # noqa: E731
                 c, lft, rgt = pts(mid), pts(inner), pts(outer)
                 if side > 0:  # left lanes drive against the reference line
                     c, lft, rgt = c[::-1], lft[::-1], rgt[::-1]
@@ -410,6 +411,27 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
                                      ln.speed or road.speed or SPEED_LIMIT_MPS))
             inner = outer
     return out
+
+
+def _unfolded(s: np.ndarray, h: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Indices of the samples of the offset curve ref(s) + t(s) normal(s) that move it forward:
+    where t lies beyond the reference line's radius of curvature (1 - curvature * t < 0) the
+    curve runs backwards and folds into a loop (osm2xodr: a lane 9 m to the side of a road that
+    bends at a 5 m radius turns through 140 degrees in its first 5 m, and a car following it
+    leaves the road). A sample is kept when its progress along the reference line, the integral
+    of (1 - curvature * t) ds, is beyond every sample before it and short of every sample after
+    it: the fold's loop is cut out and the lane turns its corner where its two sides cross."""
+    if len(s) < 3:
+        return np.arange(len(s))
+    curv = np.gradient(np.unwrap(h), s)
+    rate = 1.0 - curv * t
+    if rate.min() > 0:
+        return np.arange(len(s))
+    progress = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(s))])
+    before = np.concatenate([[-np.inf], np.maximum.accumulate(progress)[:-1]])
+    after = np.concatenate([np.minimum.accumulate(progress[::-1])[::-1][1:], [np.inf]])
+    kept = np.flatnonzero((progress > before) & (progress < after))
+    return kept if len(kept) >= 2 else np.array([0, len(s) - 1])
 
 
 def _proj_origin(text: str | None) -> tuple[float, float]:
