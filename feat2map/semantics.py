@@ -163,9 +163,9 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 
 def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
-    short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped (`drop_dangling`), signals over conflicting approaches split
-    (`split_conflicting_signals`), values checked
-    (`validation.validate_model`), semantic findings warned (`check_map`)."""
+    short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
+    (`drop_dangling`), signals over conflicting approaches split (`split_conflicting_signals`),
+    values checked (`validation.validate_model`), semantic findings warned (`check_map`)."""
     from .validation import validate_model
 
     m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
@@ -264,7 +264,7 @@ def bridge_gaps(m: HDMap, where: str = "map") -> HDMap:
         if dist > LANE_LINK_GAP_M or (ahead <= BRIDGE_AHEAD_M and abs(aside) <= BRIDGE_ASIDE_M):
             continue
 
-        def bend(poly):
+        def bend(poly, gap=gap):
             p = np.asarray(poly, dtype=float)[:, :2]
             s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
             tail = min(BRIDGE_TAIL_M, s[-1]) or 1.0
