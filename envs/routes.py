@@ -57,15 +57,29 @@ def ego_route(net: MapNetwork, rng: np.random.Generator, config: Mapping[str, An
     return sample_config_route(net, rng, config)
 
 
-def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_distance: float) -> list[str]:
+def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_distance: float,
+                 min_room: float = 0.0) -> list[str]:
     """A manoeuvre route extended over road lanes (never into a junction) where its ends are
     short: predecessors before the first lane until `start_distance` fits before the first
-    lane's end, successors after the last until the goal `goal_distance` into it fits."""
+    lane's end, successors after the last until the goal `goal_distance` into it fits. Where
+    the road before the first junction is shorter than `min_room` (netconvert's 0.2 m approach
+    lanes right after another junction: a car started there stands across the stop line), the
+    route starts before that other junction instead, through one of its junction lanes (straight
+    on where one is, never a U-turn)."""
     m = net.hdmap
     route = list(route)
     room = net.lane_of[route[0]].length
     while room < start_distance:
         prev = road_neighbour(m, route[0], m.lanes[route[0]].predecessors, set(route))
+        if prev is None and room < min_room and len(route) > 1:
+            through = sorted((j for j in m.lanes[route[0]].predecessors if j in m.lanes and j not in route
+                              and m.lanes[j].junction_id is not None and m.lanes[j].turn != "uturn"),
+                             key=lambda j: (m.lanes[j].turn != "none", j))  # straight on, never a U-turn
+            before = road_neighbour(m, through[0], m.lanes[through[0]].predecessors, set(route)) if through else None
+            if before is not None:
+                route[:0] = [before, through[0]]
+                room = net.lane_of[before].length
+                continue
         if prev is None:
             break
         route.insert(0, prev)
@@ -86,7 +100,7 @@ def start_place(net: MapNetwork, route: list[str], extend: bool, start_distance:
     braking distance fits before the first stop line. The ego's start (MapEnv) and the agents'
     (multi_agent) both come from here."""
     if extend:
-        route = extend_route(net, route, start_distance, goal_distance)
+        route = extend_route(net, route, start_distance, goal_distance, length / 2)
     s0 = max(0.0, route_start_s(net, route, start_distance) if extend else net.lane_of[route[0]].length - start_distance)
     d_line = first_line_distance(net, route, s0)
     if d_line < braking_distance(speed, length):

@@ -34,6 +34,10 @@ JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| at most this is "straight"
 UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150):
 # the turn of lanes whose map declares none (OpenDRIVE reader, `angles.turn_name`) and the CommonRoad export's turn sets
+MIN_UTURN_RADIUS_M = 5.05386147161  # a U-turn tighter than this (Apollo's default car's turn radius) is no suite manoeuvre
+TURN_WINDOW_M = 3.0  # a lane's sharpest turn: the heading change over this much of its centreline (a car's wheelbase)
+KINK_RADIUS_M = 2.0  # a U-turn whose sharpest turn is tighter than this kinks (the env's cars leave the road there)
+MAX_TURN_DEG = 270.0  # a junction lane whose heading turns further than this (unwrapped) loops: no suite manoeuvre
 SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
 ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
 MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles
@@ -87,6 +91,9 @@ UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
+BRIDGE_AHEAD_M = 1.0  # a link whose successor starts further ahead than this (a stretch without lane) is bridged ...
+BRIDGE_ASIDE_M = 2.0  # ... and so is one whose successor starts further to the side than this (osm2xodr lane shifts)
+BRIDGE_TAIL_M = 10.0  # a bridged lane's last metres (at most) are bent smoothly to meet its successor's start
 NEGATIVE_WIDTH_TOL_M = 0.01  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road (a
 # lane closing to 0 dips a few mm below it in converters' output: clamped to 0)
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
@@ -103,6 +110,7 @@ ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to
 ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
 ARM_SAME_POINT_M = 0.05  # lane mouths this close are one arm, whatever their tangents
 MIN_ARM_LENGTH_M = 0.5  # a road shorter than this between two ends of one junction is part of it, not an arm
+EDGE_STUB_LENGTH_M = 3.0  # a road at the map's edge shorter than this is part of its junction (a car on it stands in it)
 
 
 # (low, high) of every GenerationConfig number, inclusive; None: no bound besides the limits below.

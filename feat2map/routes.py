@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
+from .config import KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -43,6 +44,84 @@ def manoeuvres(m: HDMap) -> list[Manoeuvre]:
         for mv in sorted(found):
             out[mv] = None
     return list(out)
+
+def tight_uturn(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
+    """A U-turn lane tighter than a car turns: the circle through its centreline's first, middle
+    and last points has a radius under `radius` (Apollo's topo_creator rule for U-turn lanes), or
+    it kinks somewhere (`sharpest_radius` under KINK_RADIUS_M: U-turns a reader joined from
+    pieces through a junction's interior, with right-angle kinks between them). SUMO's
+    turnaround connections (radius ~1 m) are such lanes; no car drives them."""
+    if ln.turn != "uturn":
+        return False
+    if len(ln.centerline) < 3 or sharpest_radius(ln) < KINK_RADIUS_M:
+        return True
+    return end_circle_radius(ln.centerline) < radius
+
+
+def end_circle_radius(points: Sequence[Sequence[float]]) -> float:
+    """Radius of the circle through a polyline's first, middle and last points (inf when they
+    are collinear, 0 without points): how tightly a U-turn turns, as Apollo's topo_creator
+    measures it."""
+    if not len(points):
+        return 0.0
+    (x1, y1), (x2, y2), (x3, y3) = (tuple(points[i][:2]) for i in (0, len(points) // 2, -1))
+    d = 2 * (x1 * (y2 - y3) + x2 * (y3 - y1) + x3 * (y1 - y2))
+    if abs(d) < 1e-10:  # collinear: a wide U-turn
+        return math.inf
+    ux = ((x1**2 + y1**2) * (y2 - y3) + (x2**2 + y2**2) * (y3 - y1) + (x3**2 + y3**2) * (y1 - y2)) / d
+    uy = ((x1**2 + y1**2) * (x3 - x2) + (x2**2 + y2**2) * (x1 - x3) + (x3**2 + y3**2) * (x2 - x1)) / d
+    return math.hypot(x1 - ux, y1 - uy)
+
+
+def sharpest_radius(ln: Lane, window: float = TURN_WINDOW_M) -> float:
+    """The smallest radius [m] a car following the lane's centreline turns on: the heading change
+    from each segment to the first one at least `window` metres further on (midpoint to
+    midpoint: a kink counts over the stretch around it, a coarse polyline over its segments),
+    as distance / change; inf for a straight lane."""
+    import numpy as np
+
+    pts = np.asarray(ln.centerline, dtype=float)[:, :2]
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    keep = seg > 1e-6
+    if keep.sum() < 2:
+        return math.inf
+    d = np.diff(pts, axis=0)[keep]
+    s = np.concatenate([[0.0], np.cumsum(seg[keep])])
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))  # heading of segment k, from s[k] to s[k + 1]
+    mid = (s[:-1] + s[1:]) / 2
+    k = np.arange(len(mid) - 1)
+    j = np.maximum(np.searchsorted(mid, mid[:-1] + window, side="left"), k + 1).clip(max=len(mid) - 1)
+    change = np.abs(heading[j] - heading[k])
+    radius = (mid[j] - mid[k]) / np.maximum(change, 1e-12)
+    return float(radius.min())
+
+
+def loops(ln: Lane, limit: float = MAX_TURN_DEG) -> bool:
+    """A lane whose heading turns further than `limit` degrees from start to end (unwrapped: a
+    U-turn turns 180): netconvert's internal lanes, joined by the reader into one junction lane,
+    can run round a junction's interior more than once (up to 700 deg)."""
+    import numpy as np
+
+    pts = np.asarray(ln.centerline, dtype=float)[:, :2]
+    d = np.diff(pts, axis=0)
+    d = d[np.hypot(*d.T) > 1e-6]
+    if len(d) < 2:
+        return False
+    h = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return bool(abs(math.degrees(h[-1] - h[0])) > limit)
+
+
+def undrivable(ln: Lane) -> bool:
+    """A junction lane no car drives: a `tight_uturn` or a lane that `loops`."""
+    return tight_uturn(ln) or loops(ln)
+
+
+def suite_manoeuvres(m: HDMap) -> list[Manoeuvre]:
+    """The manoeuvres a route-coverage suite drives: `manoeuvres` without those whose junction
+    lane is `undrivable` (left out: no car turns that tightly or loops; `build_suite` says how
+    many)."""
+    return [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and not undrivable(ln)]
+
 
 def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:
     """The (junction, entry road, exit road) a junction lane drives: from a road lane to a road
@@ -95,11 +174,12 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     uncovered manoeuvres (ties: an end with END_ROOM_M of road before the next junction, fewer
     junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
-    a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped.
+    a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped, and so
+    are those no car drives (`suite_manoeuvres`), as targets and as links of a route.
     """
     if max_junctions < 1:
         raise ValueError("max_junctions must be at least 1")
-    all_moves = manoeuvres(m)
+    all_moves = suite_manoeuvres(m)
     targets = [mv for mv in (list(moves) if moves is not None else all_moves) if manoeuvre_lane(m, mv) is not None]
     graph = successor_graph(m, all_moves)
     preds: dict[Manoeuvre, list[Manoeuvre]] = {mv: [] for mv in graph}

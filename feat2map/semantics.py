@@ -16,7 +16,7 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterable
 
-from .config import LANE_LINK_GAP_M
+from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M
 from .errors import Feat2MapError
 from .model import HDMap, incoming_lanes
 
@@ -163,12 +163,12 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 
 def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
-    dangling references dropped (`drop_dangling`), signals over conflicting approaches split
-    (`split_conflicting_signals`), values checked
-    (`validation.validate_model`), semantic findings warned (`check_map`)."""
+    short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
+    (`drop_dangling`), signals over conflicting approaches split (`split_conflicting_signals`),
+    values checked (`validation.validate_model`), semantic findings warned (`check_map`)."""
     from .validation import validate_model
 
-    m = validate_model(drop_dangling(drop_far_links(m, where), where), where)
+    m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
     return check_map(split_conflicting_signals(m, where), where)
 
 
@@ -240,6 +240,48 @@ def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes)
 
 
+def bridge_gaps(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with every lane whose only successor starts more than BRIDGE_AHEAD_M ahead of its end
+    or more than BRIDGE_ASIDE_M to its side (and within LANE_LINK_GAP_M: `drop_far_links` drops
+    the rest) bent to meet it: its last BRIDGE_TAIL_M metres (centre line and boundaries) move by
+    the gap, smoothly from nothing to all of it, so a car following the lanes never leaves them
+    (osm2xodr writes links between lanes 1-5 m apart: a stretch without lane, or a lane one over).
+    One warning for them all; a lane with several successors is left as it is."""
+    import math
+
+    import numpy as np
+
+    fixed: dict[str, Any] = {}
+    shown: list[tuple[float, str, str]] = []
+    for ln in m.lanes.values():
+        if len(ln.successors) != 1 or ln.successors[0] not in m.lanes or len(ln.centerline) < 2:
+            continue
+        nxt = m.lanes[ln.successors[0]]
+        gap = np.subtract(nxt.start[:2], ln.end[:2])
+        dist = float(np.hypot(*gap))
+        h = ln.heading_at_end()
+        ahead, aside = gap[0] * math.cos(h) + gap[1] * math.sin(h), -gap[0] * math.sin(h) + gap[1] * math.cos(h)
+        if dist > LANE_LINK_GAP_M or (ahead <= BRIDGE_AHEAD_M and abs(aside) <= BRIDGE_ASIDE_M):
+            continue
+
+        def bend(poly, gap=gap):
+            p = np.asarray(poly, dtype=float)[:, :2]
+            s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+            tail = min(BRIDGE_TAIL_M, s[-1]) or 1.0
+            u = np.clip((s - (s[-1] - tail)) / tail, 0.0, 1.0)
+            w = u * u * (3 - 2 * u)  # smoothstep: no kink where the bend begins
+            return tuple(map(tuple, p + w[:, None] * gap))
+        fixed[ln.id] = replace(ln, centerline=bend(ln.centerline), left_boundary=bend(ln.left_boundary),
+                               right_boundary=bend(ln.right_boundary), bezier=None)
+        shown.append((dist, ln.id, nxt.id))
+    if not fixed:
+        return m
+    top = ", ".join(f"{a} -> {b} ({d:.1f} m)" for d, a, b in sorted(shown, reverse=True)[:3])
+    warnings.warn(f"{where}: {len(fixed)} lane link(s) between ends 1-{LANE_LINK_GAP_M:g} m apart bridged: each "
+                  f"lane's last {BRIDGE_TAIL_M:g} m bent to meet its successor (largest: {top})", stacklevel=3)
+    return replace(m, lanes={**m.lanes, **fixed})
+
+
 def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     """`m` without references to elements it does not hold: links and controls' lanes that name
     unknown lanes lose them, junction ids that name unknown junctions become None; each with a
@@ -291,5 +333,5 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes, roads=roads, **tables)
 
 
-__all__ = ["CHECKS", "Finding", "assert_sound", "check_map", "drop_dangling", "drop_far_links", "findings", "loaded",
-           "split_conflicting_signals"]
+__all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links", "findings",
+           "loaded", "split_conflicting_signals"]

@@ -15,7 +15,7 @@ from ..errors import Feat2MapError
 from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane
 from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, Route, coverage_routes, manoeuvre_lane,  # noqa: F401 (re-exported)
-                      manoeuvres, successor_graph, _exit_room)
+                      manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room)
 from .scenario import Manoeuvre, Scenario, Suite
 
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
@@ -86,8 +86,9 @@ def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
 
 
 def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:
-    """Fraction of the manoeuvres of `m` that the routes drive (1.0 for a map without any)."""
-    all_moves = set(manoeuvres(m))
+    """Fraction of the suite manoeuvres of `m` (`suite_manoeuvres`: those no car drives left
+    out) that the routes drive (1.0 for a map without any)."""
+    all_moves = set(suite_manoeuvres(m))
     if not all_moves:
         return 1.0
     driven = {tuple(str(x) for x in mv) for r in routes for mv in r}
@@ -99,11 +100,20 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                 name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
     """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
     `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given.
-    A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why."""
+    A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why; U-turns
+    tighter than a car turns and lanes that loop (`feat2map.routes.undrivable`) are left out with
+    one warning."""
+    import warnings
+
     from ..formats import read_map
 
     path = Path(map_path)
     m = read_map(path)
+    tight = [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and undrivable(ln)]
+    if tight:
+        warnings.warn(f"{path}: {len(tight)} manoeuvre(s) no car drives (U-turns tighter than a car turns, lanes "
+                      f"that loop) left out of the suite (first: junction {tight[0][0]}, road {tight[0][1]} -> "
+                      f"{tight[0][2]})", stacklevel=2)
     routes = coverage_routes(m, max_junctions)
     if not routes:  # never an empty suite that "passes"
         raise Feat2MapError(_no_routes_reason(m), str(path))
@@ -121,6 +131,8 @@ def _no_routes_reason(m: HDMap) -> str:
     if not m.junctions:
         return "no junctions: a route-coverage suite drives junction manoeuvres"
     found = manoeuvres(m)
+    if found and not suite_manoeuvres(m):
+        return f"no manoeuvres but {len(found)} that no car drives (tight U-turns, lanes that loop)"
     if not found:
         return (f"no manoeuvres: none of its {len(m.junctions)} junctions has a junction lane from a road lane "
                 "to a road lane")

@@ -371,3 +371,178 @@ def test_apollo_speed_limits_in_kmh_are_converted(apollo_pb, tmp_path):
     assert [ln.speed_limit for ln in m.lanes.values()] == pytest.approx([60 / 3.6] * len(m.lanes))
     assert sum("read as km/h" in w for w in caught) == 1
     assert max(ln.speed_limit for ln in plain.lanes.values()) < 40
+
+
+# ---------------------------------------------------------------------------------- SUMO turnarounds
+
+def _add_turnaround(root, road_id: str = "1") -> str:
+    """A netconvert-style turnaround connection at the junction end of road `road_id` (a generated
+    map's leg: lane 1 drives into the junction at s=0, lane -1 leaves it): an arc turning 126 deg
+    in 4.3 m from the incoming lane's end to the outgoing lane's start, with 27 deg kinks at both
+    ends (SUMO's `turnaround` connections). Returns the new road's id."""
+    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    g = road.find("planView/geometry")
+    x0, y0, h = float(g.get("x")), float(g.get("y")), float(g.get("hdg")) + np.pi  # into the junction
+    width = 3.5
+    lx, ly = x0 + np.sin(h) * width / 2, y0 - np.cos(h) * width / 2  # lane 1's centre: right of h
+    turn = np.radians(126.0)
+    radius = width / (2 * np.sin(turn / 2))
+    new = str(max(int(r.get("id")) for r in root.findall("road")) + 1)
+    jid = next(iter(root.findall("junction"))).get("id")
+    rd = etree.SubElement(root, "road", name="turnaround", length=f"{radius * turn}", id=new, junction=jid)
+    link = etree.SubElement(rd, "link")
+    etree.SubElement(link, "predecessor", elementType="road", elementId=road_id, contactPoint="start")
+    etree.SubElement(link, "successor", elementType="road", elementId=road_id, contactPoint="start")
+    pv = etree.SubElement(rd, "planView")
+    geo = etree.SubElement(pv, "geometry", s="0", x=f"{lx}", y=f"{ly}", hdg=f"{h + (np.pi - turn) / 2}",
+                           length=f"{radius * turn}")
+    etree.SubElement(geo, "arc", curvature=f"{1 / radius}")
+    lanes = etree.SubElement(rd, "lanes")
+    sec = etree.SubElement(lanes, "laneSection", s="0")
+    etree.SubElement(etree.SubElement(sec, "center"), "lane", id="0", type="none")
+    ln = etree.SubElement(etree.SubElement(sec, "right"), "lane", id="-1", type="driving")
+    ll = etree.SubElement(ln, "link")
+    etree.SubElement(ll, "predecessor", id="1")
+    etree.SubElement(ll, "successor", id="-1")
+    etree.SubElement(ln, "width", sOffset="0", a=f"{width}", b="0", c="0", d="0")
+    junction = next(iter(root.findall("junction")))
+    con = etree.SubElement(junction, "connection", id="99", incomingRoad=road_id, connectingRoad=new,
+                           contactPoint="start")
+    etree.SubElement(con, "laneLink", **{"from": "1", "to": "-1"})
+    return new
+
+
+@pytest.fixture(scope="module")
+def turnaround_xodr(tmp_path_factory, four_way_xodr) -> Path:
+    """The generated four-way with a SUMO-style turnaround connection on its first leg."""
+    return _edit(four_way_xodr, tmp_path_factory.mktemp("uturn") / "turnaround.xodr", _add_turnaround)
+
+
+def test_a_turnaround_connection_is_a_uturn_and_no_suite_manoeuvre(turnaround_xodr):
+    """netconvert's turnaround connections turn 126 deg themselves and reverse the road's heading
+    with kinks at both ends (radius ~1 m): read as left turns, the route-coverage suite drove them
+    and left the road (32 off-road scenarios on two SUMO maps). The connection reverses direction,
+    so it is a U-turn; tighter than a car turns, it is left out of the suite with one warning."""
+    from feat2map.routes import coverage_routes, manoeuvres, suite_manoeuvres
+    from feat2map.scenarios.routes import build_suite, route_coverage
+
+    m, _ = _quiet(read_opendrive, turnaround_xodr)
+    (lane,) = [ln for ln in m.lanes.values() if ln.junction_id is not None
+               and {m.lanes[x].road_id for x in ln.predecessors + ln.successors} == {"1"}]
+    assert lane.turn == "uturn"
+    mv = (lane.junction_id, "1", "1")
+    assert mv in manoeuvres(m) and mv not in suite_manoeuvres(m)
+    routes = coverage_routes(m)
+    assert all(mv not in r for r in routes) and route_coverage(m, routes) == 1.0
+    suite, caught = _quiet(build_suite, turnaround_xodr)
+    assert sum("1 manoeuvre(s) no car drives (U-turns tighter than a car turns, lanes that loop) left out" in w
+               for w in caught) == 1
+    assert all(mv not in sc.route for sc in suite.scenarios)
+
+
+def test_a_uturn_joined_from_kinked_pieces_is_tight_where_its_ends_are_far_apart():
+    """netconvert U-turns that the reader joins from five pieces through a junction's interior run
+    round a box with right-angle kinks: the circle through their ends and middle is wide, the
+    car on them is not (off road on every such U-turn). The sharpest stretch decides. Joined
+    internal lanes can also run round the interior more than once (up to 700 deg): they loop."""
+    from feat2map.model import Lane, as_polyline
+    from feat2map.routes import sharpest_radius, tight_uturn
+
+    def lane(pts, turn="uturn"):
+        c = as_polyline(np.asarray(pts, dtype=float))
+        return Lane("u", "r", c, c, c, 3.0, 10.0, turn=turn, junction_id="J")
+
+    legs = [np.c_[np.arange(0, 10), np.zeros(10)], np.c_[np.full(12, 10), np.arange(0, 12)],
+            np.c_[np.arange(10, -1, -1), np.full(11, 12)]]
+    box = lane(np.vstack(legs))  # 1 m pieces round a 10 x 12 m box: ends 12 m apart, right-angle kinks
+    assert sharpest_radius(box) < 2.0 and tight_uturn(box)
+    t = np.linspace(-np.pi / 2, np.pi / 2, 40)
+    wide = lane(np.c_[8 * np.cos(t), 8 * np.sin(t)])  # a U-turn of radius 8 m
+    assert sharpest_radius(wide) == pytest.approx(8.0, rel=0.05) and not tight_uturn(wide)
+    assert not tight_uturn(replace(box, turn="left"))  # only U-turns are left out
+    from feat2map.routes import loops, undrivable
+
+    t = np.linspace(0, 3 * np.pi, 120)  # round a 4 m circle one and a half times: 540 deg
+    spin = lane(np.c_[4 * np.sin(t), 4 - 4 * np.cos(t)], turn="left")
+    assert loops(spin) and undrivable(spin) and not loops(wide) and not loops(replace(box, turn="left"))
+
+
+# ---------------------------------------------------------------------------------- osm2xodr stubs
+
+def _cut_leg(root, road_id: str = "1", length: float = 1.2) -> None:
+    """Cut a generated map's leg (a road from the junction to the map's edge) to `length` metres,
+    as osm2xodr cuts OSM ways at the map's bounds just past a junction."""
+    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    road.set("length", f"{length}")
+    g = road.find("planView/geometry")
+    g.set("length", f"{length}")
+    for child in list(g):
+        g.remove(child)
+    etree.SubElement(g, "line")
+
+
+def test_a_stub_at_the_maps_edge_is_part_of_its_junction(four_way_xodr, tmp_path):
+    """osm2xodr maps end OSM ways 1.2 m past a junction: a route from such a stub started the ego
+    inside the junction's swept area, where turning traffic hit it (Testfeld_Karlsruhe r018).
+    A road at the map's edge shorter than EDGE_STUB_LENGTH_M is part of its junction: no route
+    starts or ends on it, and the other legs keep their manoeuvres."""
+    from feat2map.routes import coverage_routes, manoeuvres
+
+    full, _ = _quiet(read_opendrive, four_way_xodr)
+    m, _ = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "stub.xodr", _cut_leg))
+    stub = [ln for ln in m.lanes.values() if ln.road_id == "1"]
+    assert stub and all(ln.junction_id is not None for ln in stub)
+    moves = manoeuvres(m)
+    assert moves and all("1" not in mv[1:] for mv in moves)
+    assert set(moves) == {mv for mv in manoeuvres(full) if "1" not in mv[1:]}
+    assert all("1" not in mv[1:] for r in coverage_routes(m) for mv in r)
+
+
+def test_links_between_lanes_a_few_metres_apart_are_bridged(four_way):
+    """osm2xodr links lanes whose ends lie 1-5 m apart (a stretch without lane ahead, or the
+    successor one lane over): a car following the lanes left the road there. The lane's last
+    10 m are bent to meet its successor, with one warning; gaps under a metre ahead and two
+    to the side (the SVL maps' 0.1-2.5 m seams, which drive clean) stay as they are."""
+    a = next(ln for ln in four_way.lanes.values() if ln.junction_id is not None and len(ln.successors) == 1)
+    h = a.heading_at_end()
+
+    def moved(back: float, side: float):
+        dx, dy = -back * np.cos(h) - side * np.sin(h), -back * np.sin(h) + side * np.cos(h)
+        shift = lambda poly: tuple((x + dx, y + dy) for x, y in poly)  # noqa: E731
+        lane = replace(a, centerline=shift(a.centerline), left_boundary=shift(a.left_boundary),
+                       right_boundary=shift(a.right_boundary), bezier=None)
+        return replace(four_way, lanes={**four_way.lanes, a.id: lane})
+
+    target = four_way.lanes[a.successors[0]].start
+    for back, side in ((3.0, 0.0), (0.0, 3.0)):
+        fixed, caught = _quiet(semantics.bridge_gaps, moved(back, side), "m.xodr")
+        assert np.allclose(fixed.lanes[a.id].end, target)
+        assert len(caught) == 1 and caught[0].startswith("m.xodr: 1 lane link(s) between ends 1-5 m apart bridged")
+        far = fixed.lanes[a.id].centerline[0]
+        assert np.allclose(far, moved(back, side).lanes[a.id].centerline[0])  # only the tail moves
+    for back, side in ((0.8, 0.0), (0.0, 1.5), (-2.0, 1.5)):
+        seam = moved(back, side)
+        assert semantics.bridge_gaps(seam) is seam
+    assert semantics.bridge_gaps(four_way) is four_way
+
+
+def test_an_offset_lane_folding_round_a_tight_bend_is_cut_where_it_runs_backwards():
+    """osm2xodr puts lanes 9 m to the side of roads that bend at a 5 m radius: the lane's offset
+    curve folds into a loop (its heading turned 140 degrees in 5 m; the car left the road at
+    once). The OpenDRIVE reader keeps the samples that move the lane forward."""
+    from feat2map.formats.opendrive.reader import _unfolded
+
+    s = np.linspace(0.0, 20.0, 201)
+    h = np.where(s < 10, 0.0, (s - 10) / 3.0)  # straight, then a bend of radius 3 m
+    h = np.minimum(h, np.pi / 2)
+    x = np.concatenate([[0.0], np.cumsum(np.cos(h[:-1]) * np.diff(s))])
+    y = np.concatenate([[0.0], np.cumsum(np.sin(h[:-1]) * np.diff(s))])
+    for t in (4.5, -4.5, 1.0):  # 4.5 m to the inner side folds; to the outer side or 1 m in does not
+        px, py = x - t * np.sin(h), y + t * np.cos(h)
+        keep = _unfolded(s, h, np.full_like(s, t))
+        d = np.diff(np.c_[px, py][keep], axis=0)
+        heading = np.arctan2(d[:, 1], d[:, 0])
+        along = (h[keep][:-1] + h[keep][1:]) / 2  # the reference's direction over each kept step
+        assert np.all(np.abs(heading - along) < np.pi / 2 + 1e-6)  # never backwards (a corner, no loop)
+        raw = np.arctan2(np.diff(py), np.diff(px))
+        assert (len(keep) < len(s)) == bool(np.any(np.abs(np.angle(np.exp(1j * (raw - h[:-1])))) > np.pi / 2))

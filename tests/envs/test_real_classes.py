@@ -195,3 +195,83 @@ def test_queue_member_that_moved_on_still_wants_its_lane_in_this_junction():
         v = SimpleNamespace(lane_route=route, route_pos=pos)
         assert rules._lane_in(v, "J0") == j0.id
     assert rules._lane_in(SimpleNamespace(lane_route=route, route_pos=3), "J0") is None
+
+
+# ---- an approach lane shorter than a car after another junction (netconvert) -------------------
+
+def _cut(poly, s: float):
+    """A polyline split at arc length `s`: (before, after), sharing the cut point."""
+    p = np.asarray(poly, dtype=float)
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    s = s / cum[-1] * cum[-1]
+    k = int(np.searchsorted(cum, s, side="right")) - 1
+    t = (s - cum[k]) / max(cum[k + 1] - cum[k], 1e-12)
+    q = p[k] + t * (p[k + 1] - p[k])
+    return [tuple(x) for x in np.vstack([p[:k + 1], q])], [tuple(x) for x in np.vstack([q, p[k + 1:]])]
+
+
+@pytest.fixture(scope="module")
+def short_approach(tmp_path_factory) -> Path:
+    """Two junctions (J0 bare, J1 signalled) joined by road R: the last 10 m of R's lanes towards
+    J1 become a junction lane of a two-arm junction JX and a 0.2 m road lane before J1's stop
+    line, the way netconvert writes them (its lane-count changes are junctions)."""
+    from shapely.geometry import LineString
+
+    from feat2map.model import as_polyline
+
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False),
+                                         feat2map.JunctionFeature.make([0, 90, 180], "signal", False)], seed=0)
+    (conn,) = [r for r in m.roads.values() if r.kind == "connection"]
+    lanes = dict(m.lanes)
+    shapes = []
+    for lid in conn.lane_ids:
+        ln = lanes[lid]
+        if not any(m.lanes[s].junction_id == "J1" for s in ln.successors):
+            continue
+        pieces = {}
+        for f in ("centerline", "left_boundary", "right_boundary"):
+            total = LineString(getattr(ln, f)).length
+            road, rest = _cut(getattr(ln, f), total * (1 - 10.0 / ln.length))
+            inner, last = _cut(rest, LineString(rest).length - total * 0.2 / ln.length)
+            pieces[f] = (road, inner, last)
+        r, a = f"{lid}_r", f"{lid}_jx"
+        lanes[r] = dataclasses.replace(ln, id=r, successors=(a,), left_neighbors=(), right_neighbors=(),
+                                       left_reverse_neighbors=(), **{f: as_polyline(p[0]) for f, p in pieces.items()})
+        lanes[a] = dataclasses.replace(ln, id=a, junction_id="JX", predecessors=(r,), successors=(lid,),
+                                       left_neighbors=(), right_neighbors=(), left_reverse_neighbors=(),
+                                       **{f: as_polyline(p[1]) for f, p in pieces.items()})
+        lanes[lid] = dataclasses.replace(ln, predecessors=(a,), **{f: as_polyline(p[2]) for f, p in pieces.items()})
+        for p in ln.predecessors:
+            lanes[p] = dataclasses.replace(lanes[p], successors=tuple(r if x == lid else x for x in lanes[p].successors))
+        parts = {"centerline": (pieces["centerline"][1],)}
+        shapes.append(LineString(parts["centerline"][0]).buffer(2.0))
+    from shapely.ops import unary_union
+
+    poly = unary_union(shapes).convex_hull
+    junctions = {**m.junctions, "JX": feat2map.model.Junction("JX", as_polyline(poly.exterior.coords[:-1]))}
+    path = tmp_path_factory.mktemp("short") / "short_approach.json"
+    native.save(dataclasses.replace(m, lanes=lanes, junctions=junctions), path)
+    return path
+
+
+def test_no_start_across_the_stop_line_of_a_short_approach(short_approach):
+    """A route from R at J1 started the ego on the 0.2 m lane, its front across J1's red line:
+    a red-light violation at t=0.2 s (netconvert maps). It starts before JX instead."""
+    m = native.load(short_approach)
+    (conn,) = [r for r in m.roads.values() if r.kind == "connection"]
+    sc = Scenario("fixture", str(short_approach), (("J1", conn.id, next(
+        m.lanes[s].road_id for ln in m.lanes_by_junction["J1"] for s in ln.successors
+        if any(m.lanes[p].road_id == conn.id for p in ln.predecessors))),), seed=0, duration=40.0)
+    env = make_env(sc, config={"traffic_vehicles": 0})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    route = u.vehicle.lane_route
+    assert m.lanes[route[1]].junction_id == "JX" and route[0].endswith("_r")
+    planner = BaselinePlanner()
+    planner.reset(env)
+    for _ in range(40):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        if term or trunc:
+            break
+    assert info["violations"]["red_light"] == 0
+    env.close()

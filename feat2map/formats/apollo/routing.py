@@ -16,6 +16,7 @@ from . import schema as aps
 from ...config import (APOLLO_MIN_TURN_RADIUS_M, ROUTING_BASE_CHANGING_LENGTH_M, ROUTING_BASE_SPEED_MPS,
                      ROUTING_CHANGE_PENALTY, ROUTING_LEFT_TURN_PENALTY, ROUTING_MIN_LENGTH_FOR_LANE_CHANGE_M,
                      ROUTING_RIGHT_TURN_PENALTY, ROUTING_UTURN_PENALTY)
+from ...routes import end_circle_radius
 
 _DOTTED = (aps.LaneBoundaryType.DOTTED_YELLOW, aps.LaneBoundaryType.DOTTED_WHITE)
 
@@ -65,15 +66,7 @@ def node_cost(lane: Any) -> float:
 def valid_uturn(lane: Any, radius: float = APOLLO_MIN_TURN_RADIUS_M) -> bool:
     """Radius of the circle through the centreline's first, middle and last points >= `radius`."""
     pts = [(p.x, p.y) for seg in lane.central_curve.segment for p in seg.line_segment.point]
-    if not pts:
-        return False
-    (x1, y1), (x2, y2), (x3, y3) = pts[0], pts[len(pts) // 2], pts[-1]
-    d = 2 * (x1 * (y2 - y3) + x2 * (y3 - y1) + x3 * (y1 - y2))
-    if abs(d) < 1e-10:  # collinear: a wide U-turn
-        return True
-    ux = ((x1**2 + y1**2) * (y2 - y3) + (x2**2 + y2**2) * (y3 - y1) + (x3**2 + y3**2) * (y1 - y2)) / d
-    uy = ((x1**2 + y1**2) * (x3 - x2) + (x2**2 + y2**2) * (x1 - x3) + (x3**2 + y3**2) * (x2 - x1)) / d
-    return math.hypot(x1 - ux, y1 - uy) >= radius
+    return bool(pts) and end_circle_radius(pts) >= radius
 
 
 def build_routing_graph(m: Any) -> Any:

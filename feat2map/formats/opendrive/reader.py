@@ -25,8 +25,9 @@ import numpy as np
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
-from ...angles import classify_turn, positive_angle
-from ...config import MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, limits
+from ...angles import classify_turn, positive_angle, wrap_angle
+from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS,
+                       UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       signal_precedence)
@@ -404,14 +405,35 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
                                      f"{lim.max_lane_width_m:g}", ctx.where(road.el, f"road {road.id}"))
             if ln.type in DRIVING_TYPES and float(w.max()) >= MIN_LANE_WIDTH_M:
                 mid = 0.5 * (inner + outer)
-                pts = lambda t: np.column_stack([x + t * nx, y + t * ny])  # noqa: E731
-                c, lft, rgt = pts(mid), pts(inner), pts(outer)
+                keep = _unfolded(s, h, mid) if road.junction is None else slice(None)
+                c, lft, rgt = (np.column_stack([x + t * nx, y + t * ny])[keep] for t in (mid, inner, outer))
                 if side > 0:  # left lanes drive against the reference line
                     c, lft, rgt = c[::-1], lft[::-1], rgt[::-1]
                 out.append(_LaneGeom((road.id, k, lid), c, lft, rgt, float(w.mean()),
                                      ln.speed or road.speed or SPEED_LIMIT_MPS))
             inner = outer
     return out
+
+
+def _unfolded(s: np.ndarray, h: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Indices of the samples of the offset curve ref(s) + t(s) normal(s) that move it forward:
+    where t lies beyond the reference line's radius of curvature (1 - curvature * t < 0) the
+    curve runs backwards and folds into a loop (osm2xodr: a lane 9 m to the side of a road that
+    bends at a 5 m radius turns through 140 degrees in its first 5 m, and a car following it
+    leaves the road). A sample is kept when its progress along the reference line, the integral
+    of (1 - curvature * t) ds, is beyond every sample before it and short of every sample after
+    it: the fold's loop is cut out and the lane turns its corner where its two sides cross."""
+    if len(s) < 3:
+        return np.arange(len(s))
+    curv = np.gradient(np.unwrap(h), s)
+    rate = 1.0 - curv * t
+    if rate.min() > 0:
+        return np.arange(len(s))
+    progress = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(s))])
+    before = np.concatenate([[-np.inf], np.maximum.accumulate(progress)[:-1]])
+    after = np.concatenate([np.minimum.accumulate(progress[::-1])[::-1][1:], [np.inf]])
+    kept = np.flatnonzero((progress > before) & (progress < after))
+    return kept if len(kept) >= 2 else np.array([0, len(s) - 1])
 
 
 def _proj_origin(text: str | None) -> tuple[float, float]:
@@ -617,10 +639,21 @@ class _Builder:
     def _interior_roads(self, groups: dict[str, str]) -> dict[str, str]:
         """Ordinary roads shorter than MIN_ARM_LENGTH_M with both ends in one merged junction,
         road id -> that junction: pieces of the intersection, not arms (CARLA joins the
-        elements of one intersection with centimetre roads)."""
+        elements of one intersection with centimetre roads). So are roads shorter than
+        EDGE_STUB_LENGTH_M whose one end is a junction and whose other end is the map's edge
+        (osm2xodr cuts OSM ways at the map's bounds 1.2 m past a junction): a car on one
+        stands in the junction, so no route starts or ends there."""
         out = {}
         for r in self.roads.values():
-            if r.junction is not None or r.length >= MIN_ARM_LENGTH_M or len(r.links) != 2:
+            if r.junction is not None:
+                continue
+            if len(r.links) == 1 and r.length < EDGE_STUB_LENGTH_M:
+                ((etype, eid, _),) = r.links.values()
+                j = eid if etype == "junction" else self.roads[eid].junction if eid in self.roads else None
+                if j is not None and groups.get(j) is not None:
+                    out[r.id] = groups[j]
+                continue
+            if r.length >= MIN_ARM_LENGTH_M or len(r.links) != 2:
                 continue
             ends = set()
             for etype, eid, _ in r.links.values():
@@ -696,7 +729,7 @@ class _Builder:
         self.joined = _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
         for lid, ln in lanes.items():
             if ln.junction_id is not None:
-                lanes[lid] = _replace(ln, turn=_turn(ln))
+                lanes[lid] = _replace(ln, turn=_turn(ln, lanes))
         roads: dict[str, Road] = {}
         for rid, road in self.roads.items():
             right, left = road_lanes.get(rid, ([], []))
@@ -1055,10 +1088,23 @@ def _check_points(points, where: str) -> None:
         raise MapFormatError(f"position not finite or beyond the limit max_coordinate_m={cap:g}", where)
 
 
-def _turn(ln: Lane) -> str:
+def _turn(ln: Lane, lanes: dict[str, Lane]) -> str:
     """left / right / uturn / none from the heading change along a junction lane (OpenDRIVE
-    declares no turns)."""
-    return classify_turn(ln.heading_at_start(), ln.heading_at_end(), uturns=True)
+    declares no turns); a U-turn also where the connection reverses direction between the road
+    lanes it joins (the end of its predecessor to the start of its successor): SUMO's netconvert
+    writes turnaround connections that turn 127 deg themselves and make up the rest with kinks at
+    both ends."""
+    turn = classify_turn(ln.heading_at_start(), ln.heading_at_end(), uturns=True)
+    if turn == "uturn":
+        return turn
+    for p in ln.predecessors:
+        for q in ln.successors:
+            a, b = lanes.get(p), lanes.get(q)
+            if a is None or b is None or a.junction_id is not None or b.junction_id is not None:
+                continue
+            if abs(math.degrees(wrap_angle(b.heading_at_start() - a.heading_at_end()))) >= UTURN_THRESHOLD_DEG:
+                return "uturn"
+    return turn
 
 
 def _id_key(j: str) -> tuple[int, float, str]:
