@@ -163,7 +163,7 @@ def test_one_turn_rule(change, plain, with_uturns):
     mid = (10 * math.cos(h0), 10 * math.sin(h0))
     end = (mid[0] + 10 * math.cos(h1), mid[1] + 10 * math.sin(h1))
     lane = Lane("l", "r", ((0.0, 0.0), mid, end), (), (), 3.5, 10.0)
-    assert _turn(lane) == with_uturns
+    assert _turn(lane, {}) == with_uturns
     # CommonRoad: a lane declared straight whose geometry is not lists under its geometry's turn
     if abs(change) > 60.0:
         assert turn_set("none", np.array(lane.centerline)) == {"left": "outgoing_left", "right": "outgoing_right"}[plain]
