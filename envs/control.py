@@ -226,7 +226,7 @@ class TrafficControl(TrafficRules):
         changed = False
         for cw in self.active_crosswalks:
             old = self.pedestrians.get(cw, ())
-            peds = [p for p in old if not p.done]
+            peds = [p for p in old if not p.done] if old else []
             changed = changed or len(peds) != len(old)
             # rng.random() is rng.uniform() (the same draw, the same value), at a fifth of the cost
             if rate > 0 and self.rng.random() < rate * dt and len(peds) < self.cfg["pedestrians_per_crosswalk"]:

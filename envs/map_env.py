@@ -10,6 +10,7 @@ type, doc): envs/README.md's tables are made from them.
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from collections import OrderedDict
@@ -265,8 +266,8 @@ class MapEnv(AbstractEnv):
                 *((float(new.count(v)) for v in VIOLATIONS) if new else _NO_VIOLATIONS.values()))
 
     def _reward_weights(self) -> tuple[float, ...]:
-        c = self.config
-        return tuple(c[f"reward_{k}"] for k in self._reward_terms())
+        """The config's weights of `_reward_terms`, in their order."""
+        return tuple(map(self.config.__getitem__, weight_keys(self._reward_terms())))
 
     def _reward(self, action) -> float:
         r = self._last_rewards = self._rewards(action)
@@ -424,6 +425,12 @@ def check_action(space: spaces.Space, action: Any) -> None:
 def action_array(space: spaces.Space, action: Any) -> np.ndarray:
     """A copy of the action in the action space's dtype (a 0-d array for discrete actions)."""
     return np.array(action, dtype=space.dtype if space.dtype is not None else None, copy=True)
+
+
+@functools.cache
+def weight_keys(terms: tuple[str, ...]) -> tuple[str, ...]:
+    """The config keys of reward terms' weights ("reward_<term>")."""
+    return tuple(f"reward_{k}" for k in terms)
 
 
 # the keys of `MapEnv._info` in the order of `MapEnv._info_values`
