@@ -253,8 +253,9 @@ class MapEnv(AbstractEnv):
         return ("progress", "arrived", "collision", "off_road", *VIOLATIONS)
 
     def _rewards(self, action) -> dict[str, float]:
-        return dict(zip(self._reward_terms(), self._reward_row(self.vehicle.route_distance_done(),
-                                                               self.route_completed())))
+        # MapEnv's own terms and methods by name: the multi-agent env's agent views call this too
+        return dict(zip(MapEnv._reward_terms(), MapEnv._reward_row(self, self.vehicle.route_distance_done(),
+                                                                   self.route_completed())))
 
     def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
         """This step's reward terms (`_reward_terms` order) given the route metres `done` and
@@ -284,7 +285,7 @@ class MapEnv(AbstractEnv):
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
         instead), so that vector envs can stack them: `info.INFO_KEYS`."""
-        return info_dict(self._info_values(action), self.action_space)
+        return info_dict(MapEnv._info_values(self, action), self.action_space)  # (agent views too)
 
     def _info_values(self, action, done: float | None = None, completed: bool | None = None) -> tuple:
         """The values of `_info`'s keys in INFO_ORDER, some as their sources (the action, the
