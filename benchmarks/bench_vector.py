@@ -9,12 +9,13 @@ jobs' load stretches wall time, not CPU time), with wall-clock rates beside them
 async workers are other processes, so their line is wall clock only.
 
 Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_vector.py [--rounds N] [--sizes 1,16,64,256,1024]
-     [--quick] [--profile]
+     [--quick] [--profile] [--freeze-gc]
 """
 from __future__ import annotations
 
 import argparse
 import cProfile
+import gc
 import os
 import statistics
 import subprocess
@@ -33,6 +34,7 @@ ENV_STEPS = {1: 60, 10: 600}  # env-steps per round and setup (at least 2 batche
 VEHICLES = (10, 30)  # ego + traffic per sub-env
 SIZES = (1, 16, 64, 256, 1024)
 IDLE = 1  # DiscreteMetaAction's IDLE
+FREEZE_GC = False  # --freeze-gc: gc.freeze() once the envs are made, as a training script may
 
 
 def config(hz: int, vehicles: int) -> dict:
@@ -71,6 +73,9 @@ def speed_table(rounds: int, sizes: list[int], hzs=(1, 10), vehicles=VEHICLES) -
             for n in sizes:
                 setups[n] = Setup(gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n,
                                                vectorization_mode="vector_entry_point", config=cfg), n)
+            if FREEZE_GC:
+                gc.collect()
+                gc.freeze()  # the envs' objects out of the cyclic collector's full passes
             for _ in range(rounds):
                 for s in setups.values():
                     s.round(ENV_STEPS[hz])
@@ -172,7 +177,11 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="batch sizes N (default: 1,16,64,256,1024)")
     ap.add_argument("--quick", action="store_true", help="10 Hz, 10 vehicles only; no async line or memory")
     ap.add_argument("--profile", action="store_true", help="also print the profile of a batched step")
+    ap.add_argument("--freeze-gc", action="store_true",
+                    help="gc.freeze() once the envs are made (the cyclic collector then skips their objects)")
     args = ap.parse_args(argv)
+    global FREEZE_GC
+    FREEZE_GC = args.freeze_gc
     sizes = [int(x) for x in args.sizes.split(",")]
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start")
     if args.quick:

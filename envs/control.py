@@ -135,14 +135,20 @@ class TrafficControl(TrafficRules):
         self.passage_waiters: dict[int, dict] = {}
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
-    def update(self, road, dt: float) -> None:
-        """Advance the clock by `dt` and bring the state up to date with the road's vehicles."""
+    def update(self, road, dt: float, occupancy: tuple[list, list, list[int]] | None = None) -> None:
+        """Advance the clock by `dt` and bring the state up to date with the road's vehicles;
+        `occupancy`: (lanes, speeds, places of the stopped ones) when the caller synced the road
+        and found them (`TrafficCore.occupancies`, for all sub-envs at once)."""
         self.t += dt
-        road.sync()  # the core takes in vehicles added or removed by user code
+        if occupancy is None:
+            road.sync()  # the core takes in vehicles added or removed by user code
+            lanes, speeds = road.occupancy()
+            stopped = [k for k, speed in enumerate(speeds) if has_stopped(speed)]
+        else:
+            lanes, speeds, stopped = occupancy
         net = self.net
         m = net.hdmap
         vehicles = road.vehicles
-        lanes, speeds = road.occupancy()
         buckets: dict[str, list] = {}
         for v, lid in zip(vehicles, lanes):
             if lid is not None:
@@ -170,9 +176,8 @@ class TrafficControl(TrafficRules):
 
             for jid, queue in list(self.stop_queue.items()):
                 self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
-        for v, lid, speed in zip(vehicles, lanes, speeds):
-            if not has_stopped(speed):
-                continue
+        for k in stopped:
+            v, lid = vehicles[k], lanes[k]
             sl, _ = self.waiting_line(v, lid)
             if sl is None or sl.kind != "stop":
                 continue
@@ -221,7 +226,7 @@ class TrafficControl(TrafficRules):
         changed = False
         for cw in self.active_crosswalks:
             old = self.pedestrians.get(cw, ())
-            peds = [p for p in old if not p.done]
+            peds = [p for p in old if not p.done] if old else []
             changed = changed or len(peds) != len(old)
             # rng.random() is rng.uniform() (the same draw, the same value), at a fifth of the cost
             if rate > 0 and self.rng.random() < rate * dt and len(peds) < self.cfg["pedestrians_per_crosswalk"]:

@@ -63,7 +63,8 @@ from ..config import (IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOO
                       STOP_POINT_M)
 from .control import signal_arrays, states_at
 from .network import MapNetwork
-from .rules import idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap, stops_at_amber
+from .rules import (has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap,
+                    stops_at_amber)
 from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
 
 if TYPE_CHECKING:
@@ -687,11 +688,12 @@ class TrafficCore:
         self.integrate(dt)
         for i in external:
             self._read_external(i)
-        for road in roads:
+        self.sync(roads)  # the core takes in vehicles added or removed by user code
+        for road, occupancy in zip(roads, self.occupancies(roads)):
             for o in road.objects:
                 if isinstance(o, Pedestrian):
                     o.step(dt)
-            road.control.update(road, dt)
+            road.control.update(road, dt, occupancy)
         self.collisions(roads, dt)
         for road in roads:
             if road.record_history:
@@ -934,6 +936,19 @@ class TrafficCore:
 
     def views(self, road) -> list[ArrayVehicle]:
         return [self.objs[i] for i in self.rows(road).tolist() if self.kind[i] == DRIVEN]
+
+    def occupancies(self, roads: list) -> list[tuple[list[str | None], list[float], list[int]]]:
+        """(`occupancy`, places of the vehicles that have stopped) of each of `roads` (synced),
+        from one pass over the arrays."""
+        ids = self.net.lane_ids
+        lane, speed = self.lane.tolist(), self.speed.tolist()
+        stopped = has_stopped(self.speed).tolist()
+        out = []
+        for road in roads:
+            rows = self.rows(road).tolist()
+            out.append(([ids[lane[i]] if lane[i] >= 0 else None for i in rows], [speed[i] for i in rows],
+                        [k for k, i in enumerate(rows) if stopped[i]]))
+        return out
 
     def occupancy(self, road) -> tuple[list[str | None], list[float]]:
         ids = self.net.lane_ids

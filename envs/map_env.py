@@ -10,6 +10,7 @@ type, doc): envs/README.md's tables are made from them.
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from collections import OrderedDict
@@ -252,21 +253,30 @@ class MapEnv(AbstractEnv):
         return ("progress", "arrived", "collision", "off_road", *VIOLATIONS)
 
     def _rewards(self, action) -> dict[str, float]:
-        done = self.vehicle.route_distance_done()
+        # MapEnv's own terms and methods by name: the multi-agent env's agent views call this too
+        return dict(zip(MapEnv._reward_terms(), MapEnv._reward_row(self, self.vehicle.route_distance_done(),
+                                                                   self.route_completed())))
+
+    def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
+        """This step's reward terms (`_reward_terms` order) given the route metres `done` and
+        whether the route is completed (each asked once per step, envs/vector.py too)."""
         delta = (done - self._progress) / max(self._route_len, 1e-6)
         self._progress = done
         new = self.judge.new
-        return {"progress": float(delta), "arrived": float(self.route_completed()),
-                "collision": float(self.vehicle.crashed), "off_road": float(self.off_road),
-                **({v: float(new.count(v)) for v in VIOLATIONS} if new else _NO_VIOLATIONS)}
+        return (float(delta), float(completed), float(self.vehicle.crashed), float(self.off_road),
+                *((float(new.count(v)) for v in VIOLATIONS) if new else _NO_VIOLATIONS.values()))
+
+    def _reward_weights(self) -> tuple[float, ...]:
+        """The config's weights of `_reward_terms`, in their order."""
+        return tuple(map(self.config.__getitem__, weight_keys(self._reward_terms())))
 
     def _reward(self, action) -> float:
         r = self._last_rewards = self._rewards(action)
         c = self.config
         return float(sum(c[f"reward_{k}"] * r[k] for k in self._reward_terms()))
 
-    def _is_terminated(self) -> bool:
-        return bool(self.vehicle.crashed or self.route_completed()
+    def _is_terminated(self, completed: bool | None = None) -> bool:
+        return bool(self.vehicle.crashed or (self.route_completed() if completed is None else completed)
                     or (self.config["offroad_terminal"] and self.off_road))
 
     def _is_truncated(self) -> bool:
@@ -275,6 +285,13 @@ class MapEnv(AbstractEnv):
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
         instead), so that vector envs can stack them: `info.INFO_KEYS`."""
+        return info_dict(MapEnv._info_values(self, action), self.action_space)  # (agent views too)
+
+    def _info_values(self, action, done: float | None = None, completed: bool | None = None) -> tuple:
+        """The values of `_info`'s keys in INFO_ORDER, some as their sources (the action, the
+        junction's feature, the live violation counts, new violations, signal states and reward
+        terms: `info_dict` converts them; envs/vector.py stacks them for a batch at once);
+        `done` and `completed` when already asked this step."""
         ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
         jid, turn = self.junction_ahead()
         sl, in_lane, j_lane, d = rules.line_ahead(ego)
@@ -282,22 +299,17 @@ class MapEnv(AbstractEnv):
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
         plan = rules.plans.get(sl.control_id) if sl is not None else None
         feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
-        return {
-            "speed": float(ego.speed), "crashed": bool(ego.crashed), "action": action_array(self.action_space, action),
-            "junction": jid or "", "junction_feature": feature_info(feature),
-            "manoeuvre": turn or "", "control_ahead": control,
-            "signal_id": sl.control_id if sl is not None and sig_state else "", "signal_state": sig_state,
-            "signal_time_to_change": (float(plan.time_to_change(sl.control_id, rules.t))
-                                      if sl is not None and plan else math.inf),
-            "signal_states": rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
-            "distance_to_stop_line": float(d),
-            "violations": dict(self.violations), "new_violations": list(self.judge.new),
-            "collision": bool(ego.crashed), "off_road": bool(self.off_road),
-            "route_progress": float(min(ego.route_distance_done() / max(self._route_len, 1e-6), 1.0)),
-            "route_completed": bool(self.route_completed()),
-            "lane_id": net.id_of.get(ego.lane_index) or "", "time": float(self.time),
-            "rewards": dict(self._last_rewards),
-        }
+        done = ego.route_distance_done() if done is None else done
+        return (
+            float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
+            sl.control_id if sl is not None and sig_state else "", sig_state,
+            float(plan.time_to_change(sl.control_id, rules.t)) if sl is not None and plan else math.inf,
+            rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
+            float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
+            float(min(done / max(self._route_len, 1e-6), 1.0)),
+            bool(self.route_completed() if completed is None else completed),
+            net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
+        )
 
     # ---- scripted-driver API -----------------------------------------------------------------
     @property
@@ -416,19 +428,52 @@ def action_array(space: spaces.Space, action: Any) -> np.ndarray:
     return np.array(action, dtype=space.dtype if space.dtype is not None else None, copy=True)
 
 
+@functools.cache
+def weight_keys(terms: tuple[str, ...]) -> tuple[str, ...]:
+    """The config keys of reward terms' weights ("reward_<term>")."""
+    return tuple(f"reward_{k}" for k in terms)
+
+
+# the keys of `MapEnv._info` in the order of `MapEnv._info_values`
+INFO_ORDER = ("speed", "crashed", "action", "junction", "junction_feature", "manoeuvre", "control_ahead", "signal_id",
+              "signal_state", "signal_time_to_change", "signal_states", "distance_to_stop_line", "violations",
+              "new_violations", "collision", "off_road", "route_progress", "route_completed", "lane_id", "time",
+              "rewards")
+# their places in the values
+(I_ACTION, I_FEATURE, I_VIOLATIONS, I_NEW, I_REWARDS) = (INFO_ORDER.index(k) for k in (
+    "action", "junction_feature", "violations", "new_violations", "rewards"))
+
+
+def info_dict(values: tuple, action_space: spaces.Space) -> dict[str, Any]:
+    """`MapEnv._info`'s dict of `MapEnv._info_values`: new containers, the action as an array."""
+    out = dict(zip(INFO_ORDER, values))
+    out["action"] = action_array(action_space, values[I_ACTION])
+    out["junction_feature"] = feature_info(values[I_FEATURE])
+    out["violations"] = dict(values[I_VIOLATIONS])
+    out["new_violations"] = list(values[I_NEW])
+    out["rewards"] = dict(values[I_REWARDS])
+    return out
+
+
 def feature_info(feature) -> dict[str, Any]:
     """A junction feature as a dict of fixed keys, types and shapes (n_roads -1 without one);
     new arrays each call (from one conversion per feature)."""
+    held = held_feature_info(feature)
+    out = dict(held[1])
+    for k in held[2]:
+        out[k] = out[k].copy()
+    return out
+
+
+def held_feature_info(feature) -> tuple[Any, dict[str, Any], list[str]]:
+    """(feature, its info dict, the keys of its arrays), converted once per feature: not to be changed."""
     held = _FEATURE_INFO.get(id(feature))
     if held is None or held[0] is not feature:
         if len(_FEATURE_INFO) > 4096:
             _FEATURE_INFO.clear()
         info = _feature_info(feature)
         held = _FEATURE_INFO[id(feature)] = (feature, info, [k for k, v in info.items() if isinstance(v, np.ndarray)])
-    out = dict(held[1])
-    for k in held[2]:
-        out[k] = out[k].copy()
-    return out
+    return held
 
 
 _NO_VIOLATIONS = dict.fromkeys(VIOLATIONS, 0.0)  # the violation reward terms of a step without one

@@ -24,7 +24,7 @@ from ..errors import Feat2MapError
 from . import core
 from .core import TrafficCore
 from .kinematics_batch import observe_egos
-from .map_env import MapEnv, simulate
+from .map_env import INFO_ORDER, MapEnv, action_array, held_feature_info, info_dict, simulate
 from .observation import TrafficControlObservation
 
 # config values a batch cannot hold: (key, value, why)
@@ -88,15 +88,35 @@ class MapVectorEnv(SyncVectorEnv):
         simulate(envs, [acts[i] for i in stepping])
         self.core.sync()  # respawns of every sub-env taken in at once (not one observation at a time)
         observed = self.observe(envs)
-        for i, env, obs in zip(stepping, envs, observed):
-            self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
-                env._end_step(acts[i], obs)
+        columns: dict[str, tuple[list[int], list]] = {}
+        if self.batch_end(envs):
+            columns = self.end_steps(stepping, envs, [acts[i] for i in stepping], observed)
+        else:
+            for i, env, obs in zip(stepping, envs, observed):
+                self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
+                    env._end_step(acts[i], obs)
         finals = []
+        ended = set()
         for i, env in enumerate(self.envs):
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
+                if i not in done_infos:  # its info is in the columns: out of them, as a dict
+                    done_infos[i] = info_dict(self._step_values[i], env.action_space)
+                    ended.add(i)
                 finals.append((i, {"final_obs": self._env_obs[i], "final_info": done_infos[i]}))
                 self._env_obs[i], done_infos[i] = env.reset()
-        infos = self.stack_infos(finals + sorted(done_infos.items()))
+        if ended:
+            for key, (idx, vals) in columns.items():
+                kept = [k for k, i in enumerate(idx) if i not in ended]
+                columns[key] = ([idx[k] for k in kept], [vals[k] for k in kept])
+        items = finals + sorted(done_infos.items())
+        for key, (idx, vals) in columns.items():
+            for i, d in items:
+                if key in d:
+                    idx.append(i)
+                    vals.append(d[key])
+        infos = self.stack_columns(columns) if columns else {}
+        if finals or any(key not in columns for _, d in items for key in d):
+            infos.update(self.stack_infos(items, skip=columns))
         self._observations = concatenate(self.single_observation_space, self._env_obs, self._observations)
         self._autoreset_envs = np.logical_or(self._terminations, self._truncations)
         obs = self._observations
@@ -117,34 +137,84 @@ class MapVectorEnv(SyncVectorEnv):
         return [None if o is None else {"observation": o, "traffic_control": env.traffic_control_vector()}
                 for env, o in zip(envs, kin)]
 
-    def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:
+    def batch_end(self, envs: list[MapEnv]) -> bool:
+        """Whether `end_steps` stands in for the `_end_step`s of `envs` (their classes keep
+        MapEnv's reward, termination and info)."""
+        return bool(envs) and all(type(env)._info is MapEnv._info and type(env)._rewards is MapEnv._rewards
+                                  and type(env)._is_terminated is MapEnv._is_terminated for env in envs)
+
+    def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
+        """What `MapEnv._end_step` does for each of `envs` (sub-envs `stepping`), their rewards
+        as one array program and their info as columns {key: ([sub-env], [value])} (the values
+        of `MapEnv._info_values`, each asked once: `stack_columns` makes the arrays)."""
+        rows, weights, values = [], [], []
+        terms = MapEnv._reward_terms()
+        for i, env, action, obs in zip(stepping, envs, actions, observed):
+            self._env_obs[i] = env.observation_type.observe() if obs is None else obs
+            done, completed = env.vehicle.route_distance_done(), env.route_completed()
+            row = env._reward_row(done, completed)
+            env._last_rewards = dict(zip(terms, row))
+            rows.append(row)
+            weights.append(env._reward_weights())
+            self._terminations[i] = env._is_terminated(completed)
+            self._truncations[i] = env._is_truncated()
+            values.append(env._info_values(action, done, completed))
+            if env.render_mode == "human":
+                env.render()
+        r, w = np.array(rows, dtype=float), np.array(weights, dtype=float)
+        reward = np.zeros(len(envs))  # sum(weight * term) in `_reward`'s order: the same float operations
+        for k in range(len(terms)):
+            reward = reward + w[:, k] * r[:, k]
+        self._rewards[stepping] = reward
+        columns = {key: (list(stepping), list(col)) for key, col in zip(INFO_ORDER, zip(*values))}
+        space = self.single_action_space
+        columns["action"] = (list(stepping), [action_array(space, a) for a in columns["action"][1]])
+        columns["junction_feature"] = (list(stepping), [held_feature_info(f)[1] for f in columns["junction_feature"][1]])
+        self._step_values = dict(zip(stepping, values))  # for the final info of same-step autoresets
+        return columns
+
+    def stack_columns(self, columns: dict[str, tuple[list[int], list]]) -> dict[str, Any]:
+        """The batched info of columns {key: ([sub-env], [value])}: what `stack_infos` makes of the
+        same values (held containers are copied into the arrays, never kept)."""
+        out: dict[str, Any] = {}
+        for key, (idx, vals) in columns.items():
+            out[key], out[f"_{key}"] = self.stack_values(key, idx, vals)
+        return out
+
+    def stack_infos(self, items: list[tuple[int, dict]], skip=()) -> dict[str, Any]:
         """The batched info of (sub-env, info) pairs: what `VectorEnv._add_info` makes of them
-        one by one (arrays per key, "_key" masks, nested dicts alike), a key at a time."""
-        n = self.num_envs
+        one by one (arrays per key, "_key" masks, nested dicts alike), a key at a time (but
+        the keys in `skip`)."""
         keys: dict[str, None] = {}
         for _, d in items:
             keys.update(dict.fromkeys(d))
         out: dict[str, Any] = {}
         for key in keys:
+            if key in skip:
+                continue
             sub = [(i, d[key]) for i, d in items if key in d]
-            idx = [i for i, _ in sub]
-            first = sub[0][1]
-            if isinstance(first, dict) and key != "final_obs":
-                array: Any = self.stack_infos(sub)
-            elif key != "final_obs" and (type(first) in (int, float, bool) or issubclass(type(first), np.number)):
-                array = np.zeros(n, dtype=type(first))
-                array[idx] = [v for _, v in sub]
-            elif key != "final_obs" and isinstance(first, np.ndarray):
-                array = np.zeros((n, *first.shape), dtype=first.dtype)
-                array[idx] = np.stack([v for _, v in sub])
-            else:
-                array = np.full(n, None, dtype=object)
-                for i, v in sub:
-                    array[i] = v
-            mask = np.zeros(n, dtype=np.bool_)
-            mask[idx] = True
-            out[key], out[f"_{key}"] = array, mask
+            out[key], out[f"_{key}"] = self.stack_values(key, [i for i, _ in sub], [v for _, v in sub])
         return out
+
+    def stack_values(self, key: str, idx: list[int], vals: list) -> tuple[Any, np.ndarray]:
+        """(array, mask) of one info key's values of sub-envs `idx` (`stack_infos`)."""
+        n = self.num_envs
+        first = vals[0]
+        if isinstance(first, dict) and key != "final_obs":
+            array: Any = self.stack_infos(list(zip(idx, vals)))
+        elif key != "final_obs" and (type(first) in (int, float, bool) or issubclass(type(first), np.number)):
+            array = np.zeros(n, dtype=type(first))
+            array[idx] = vals
+        elif key != "final_obs" and isinstance(first, np.ndarray):
+            array = np.zeros((n, *first.shape), dtype=first.dtype)
+            array[idx] = np.stack(vals)
+        else:
+            array = np.full(n, None, dtype=object)
+            for i, v in zip(idx, vals):
+                array[i] = list(v) if key == "new_violations" else v
+        mask = np.zeros(n, dtype=np.bool_)
+        mask[idx] = True
+        return array, mask
 
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""

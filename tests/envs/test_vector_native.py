@@ -113,7 +113,8 @@ KINEMATIC_BUSY = {**BUSY, "observation": {"type": "Kinematics", "vehicles_count"
 
 def scalar_code(monkeypatch) -> None:
     """The per-row and per-sub-env code the batch's array programs stand in for: the rules asked
-    row by row, each ego stepped and observing alone."""
+    row by row, each ego stepped and observing alone, each sub-env's reward and info dict, each
+    road's occupancy found by its rules' update."""
     from feat2map.envs import core, vector
 
     def rule_stops(self, rows):
@@ -127,6 +128,8 @@ def scalar_code(monkeypatch) -> None:
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
     monkeypatch.setattr(core, "step_egos", step_egos)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
+    monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's _end_step
+    monkeypatch.setattr(core.TrafficCore, "occupancies", lambda self, roads: [None] * len(roads))  # each road's own
 
 
 def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
@@ -143,9 +146,11 @@ def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
 @pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
 def test_array_programs_equal_the_scalar_code(config, monkeypatch):
     """The batch's array programs (the rules' stop distances, `kinematics_batch.observe_egos`,
-    `vehicles.step_egos`) give bit for bit what the rules asked row by row, each ego stepped
-    alone and each sub-env's own observation give (the equality with single envs above cannot
-    see this: a single env is the same core with one slot)."""
+    `vehicles.step_egos`, the rewards and info columns of `MapVectorEnv.end_steps`,
+    `TrafficCore.occupancies`) give bit
+    for bit what the rules asked row by row, each ego stepped alone and each sub-env's own
+    observation, reward and info give (the equality with single envs above cannot see this: a
+    single env is the same core with one slot)."""
     from feat2map.envs import core
 
     monkeypatch.setattr(core, "BATCH_MIN_RULE_ROWS", 1)  # the array programs however few the rows
