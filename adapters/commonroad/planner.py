@@ -100,8 +100,6 @@ class ReactiveAdapter:
         config.planning.time_steps_computation = HORIZON_STEPS
         config.planning.__post_init__()
         config.sampling.num_sampling_levels = SAMPLING_LEVELS
-        if os.environ.get("CR_LOWVEL"):
-            config.planning.low_vel_mode_threshold = float(os.environ["CR_LOWVEL"])
         config.vehicle.length, config.vehicle.width = self.ego_len, self.ego_wid
         pp = next(iter(problems.planning_problem_dict.values()))  # any: the planner needs one to start
         config.update(scenario=self.scenario, planning_problem=pp)
