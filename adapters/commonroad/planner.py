@@ -197,9 +197,10 @@ class ReactiveAdapter:
         i1 = len(ref) if not len(bad) else i0 + int(bad[0])  # the window's points are ref[i0:i1]
         i1 = max(i1, min(i0 + 3, len(ref)))
         self.ref = ref[i0:i1]
-        self.win_s0 = float(cum[i0])
         self.win_end = math.inf if i1 >= len(ref) else float(cum[i1 - 1])
         self.co = self._clcs(self.ref)
+        # the frame's arc length + win_s0 = the route's (its preprocessing extends the path's start)
+        self.win_s0 = float(cum[i0]) - float(self.co.convert_to_curvilinear_coords(*map(float, ref[i0]))[0])
         if self.planner is not None:
             self.planner.set_reference_path(coordinate_system=self.co)
 
