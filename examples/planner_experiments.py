@@ -152,6 +152,34 @@ def tables(out: Path, results: dict[str, SuiteResult]) -> str:
     return "\n".join(md)
 
 
+def all_lines(r: SuiteResult) -> set[str]:
+    """Every line of the planner's own code the suite ran (all junctions and the road between)."""
+    return {x for o in r.outcomes for ls in o.junction_lines.values() for x in ls}
+
+
+def cross_table(per_map: dict[str, dict[str, SuiteResult]]) -> str:
+    """RQ2/RQ3 across suites: outcomes and line coverage of each planner's own code, SF's next to
+    the generated maps' (lines a generated map runs that SF does not, and the other way round)."""
+    md = ["| suite | planner | scenarios | completed | timeout | collision | violation | off road | error "
+          "| lines run | not run on SF | run on SF only | steps/s |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for planner in ("baseline", "reactive"):
+        sf = per_map.get("sf", {}).get(planner)
+        sf_lines = all_lines(sf) if sf else None
+        for name, results in per_map.items():
+            r = results.get(planner)
+            if r is None:
+                continue
+            c, lines = r.counts(), all_lines(r)
+            steps, wall = sum(o.steps for o in r.outcomes), sum(o.wall_s for o in r.outcomes)
+            extra = ("-", "-") if sf_lines is None or name == "sf" else (len(lines - sf_lines), len(sf_lines - lines))
+            md.append(f"| {name.upper()} | {planner} | {len(r.outcomes)} | {c['completed']} | {c['timeout']} | "
+                      f"{c['collision']} | {c['violation']} | {c['off_road']} | {c['error']} | {len(lines)} | "
+                      f"{extra[0]} | {extra[1]} | {steps / wall if wall else 0:.1f} |")
+    union = {p: set().union(*(all_lines(rs[p]) for rs in per_map.values() if p in rs)) for p in ("baseline", "reactive")}
+    md += ["", "Lines run by all the suites together: " + ", ".join(f"{p} {len(v)}" for p, v in union.items()), ""]
+    return "\n".join(md)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--maps", nargs="+", default=["m1"], choices=sorted(SEEDS) + ["sf"])
@@ -168,6 +196,7 @@ def main() -> int:
     ap.add_argument("--report-only", action="store_true", help="only merge what ran and write the tables")
     ap.add_argument("--no-baseline", action="store_true")
     args = ap.parse_args()
+    per_map: dict[str, dict[str, SuiteResult]] = {}
     for name in args.maps:
         out = args.out / name
         chunks = prepare(name, out, args.traffic, args.chunk, args.sf_junctions, args.max_scenarios)
@@ -177,10 +206,15 @@ def main() -> int:
             run(args.planner_name, BridgePlanner(args.planner_cmd, step_timeout=args.step_timeout), chunks, out,
                 args.workers)
         results = {k: r for k in ("baseline", args.planner_name) if (r := merge(k, out)) is not None}
+        per_map[name] = results
         if results:
             text = tables(out, results)
             (out / "tables.md").write_text(text)
             print(text)
+    if len(per_map) > 1:
+        text = cross_table(per_map)
+        (args.out / "cross.md").write_text(text)
+        print(text)
     return 0
 
 
