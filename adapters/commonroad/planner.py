@@ -237,9 +237,8 @@ class ReactiveAdapter:
                       file=sys.stderr)
                 if self.failures[name] <= 1:
                     traceback.print_exc(limit=3, file=sys.stderr)
-            p = self.planner
-            _debug(f"t={msg['t']:.1f} v={float(ego['speed']):.2f} x0_cl={p.x_0_cl} raised {name} rejected kin={p.infeasible_count_kinematics} "
-                   f"{dict(p.infeasible_reason_dict)} coll={p.infeasible_count_collision} of {p.total_count_samples}")
+            if os.environ.get("CR_ADAPTER_LOG"):
+                _debug(f"t={msg['t']:.1f} v={float(ego['speed']):.2f} raised {name}: {_rejected(self.planner)}")
             return self._fallback(msg, ego, f"FALLBACK_{name}"[:40])
 
     def _plan(self, msg: dict, ego: dict) -> dict:
@@ -290,9 +289,10 @@ class ReactiveAdapter:
             self.config.sampling.longitudinal_mode = "velocity_keeping"
             p.set_desired_velocity(self._desired_speed(s_centre), current_speed=v_plan)
         result = p.plan()
-        _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} thcl={h - float(np.interp(p.x_0_cl[0][0], self.co.ref_pos, np.unwrap(self.co.ref_theta))):.2f} stop={stop:.1f} {stage} result={result is not None} "
-               f"rejected kin={p.infeasible_count_kinematics} {dict(p.infeasible_reason_dict)} "
-               f"coll={p.infeasible_count_collision} of {p.total_count_samples}")
+        if os.environ.get("CR_ADAPTER_LOG"):
+            ref_h = float(np.interp(p.x_0_cl[0][0], self.co.ref_pos, np.unwrap(self.co.ref_theta)))
+            _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} heading error={h - ref_h:.2f} "
+                   f"stop={stop:.1f} {stage} trajectory={result is not None}: {_rejected(p)}")
         if result is None:
             return self._fallback(msg, ego, "FALLBACK_NO_TRAJECTORY")
         states = result[0].state_list
@@ -437,6 +437,12 @@ def _debug(line: str) -> None:
     if path:
         with open(path, "a") as f:
             f.write(line + "\n")
+
+
+def _rejected(p) -> str:
+    """How many of the planner's samples its last plan() rejected, and why."""
+    return (f"rejected {p.infeasible_count_kinematics} for kinematics {dict(p.infeasible_reason_dict)}, "
+            f"{p.infeasible_count_collision} for collisions, of {p.total_count_samples}")
 
 
 def _aligned(path, max_turn: float = math.pi / 2) -> bool:
