@@ -105,6 +105,7 @@ def merge(planner_name: str, out: Path) -> SuiteResult | None:
     merged = SuiteResult(name=results[0].name, planner=results[0].planner, outcomes=outcomes, coverage=True,
                          planner_digest=suite_digest(outcomes), wall_s=sum(r.wall_s for r in results))
     dest = out / f"{planner_name}-all"
+    shutil.rmtree(dest, ignore_errors=True)  # derived from the chunks each time (it holds their GIFs too)
     write_report(merged, dest)
     (dest / "failures").mkdir(exist_ok=True)
     for p in parts:
