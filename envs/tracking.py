@@ -107,6 +107,13 @@ class TrajectoryTracker:
         alpha = math.atan2(dy, dx) - heading
         alpha = wrap_angle(alpha)
         ld = max(math.hypot(dx, dy), 1e-3)
-        steering = math.atan2(2.0 * self.wheelbase * math.sin(alpha), ld)
+        # pure pursuit of the vehicle centre, which travels at heading + slip (highway-env's
+        # bicycle model: tan(slip) = tan(steering) / 2, path curvature 2 sin(slip) / length):
+        # the arc to the target, 2 sin(alpha - slip) / ld, solved for the slip. Measuring alpha
+        # from the heading alone over-steered by (1 + length / ld) and cut a 10 m-radius turn
+        # by 0.7 m.
+        r = self.wheelbase / ld
+        slip = math.atan2(r * math.sin(alpha), 1.0 + r * math.cos(alpha))
+        steering = math.atan(2.0 * math.tan(slip))
         return {"acceleration": float(np.clip(acc, *TRACKING_ACCEL_RANGE)),
                 "steering": float(np.clip(steering, -MAX_STEERING_RAD, MAX_STEERING_RAD))}

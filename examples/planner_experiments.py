@@ -6,6 +6,8 @@ planner did at each junction: its stage paths) and line coverage of each planner
   # M1 (feat2map generate --seed 1; feat2map suite map.json --traffic 6), resumable chunk by chunk
   SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python examples/planner_experiments.py --maps m1 --traffic 6
   .venv/bin/python examples/planner_experiments.py --maps m1 --report-only   # tables from what ran
+  # SF (../shared/maps' Apollo San Francisco map): the manoeuvres of its first N junctions only
+  SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python examples/planner_experiments.py --maps sf --sf-junctions 4
 
 Writes out/planners/<map>/{map.json, suite.yaml, chunkN/ (rollout reports), <planner>/ (merged
 report with its failure GIFs), tables.md}. Chunks make a long run (minutes per scenario for a
@@ -34,17 +36,46 @@ from feat2map.scenarios.scenario import Suite, load_suite, save_suite  # noqa: E
 
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = {"m1": 1, "m2": 2, "m3": 3}
+SF_MAP = ROOT.parent / "shared" / "maps" / "apollo" / "san_francisco" / "base_map.bin"  # ../shared/maps/SOURCES.md
 CR_CMD = f"{ROOT / '.venv-crplanner' / 'bin' / 'python'} {ROOT / 'adapters' / 'commonroad' / 'planner.py'}"
 
 
-def prepare(name: str, out: Path, traffic: int, chunk: int) -> list[Path]:
-    """The map, its suite and the suite's chunks (made once)."""
+def sf_suite(traffic: int, junctions: int | None) -> Suite:
+    """SF's route-coverage suite (as examples/experiments.py drives it): with `junctions`, only the
+    manoeuvres of SF's first `junctions` junctions."""
+    from feat2map.readers import read_map
+    from feat2map.routes import DEFAULT_ROUTE_JUNCTIONS, coverage_routes, manoeuvres
+    from feat2map.scenarios.routes import route_duration
+    from feat2map.scenarios.scenario import Scenario
+
+    m = read_map(SF_MAP)
+    moves = manoeuvres(m)
+    if junctions is not None:
+        keep = set(list(m.junctions)[:junctions])
+        moves = [mv for mv in moves if mv[0] in keep]
+    routes = coverage_routes(m, DEFAULT_ROUTE_JUNCTIONS, moves)
+    return Suite("sf", tuple(Scenario(name=f"sf-r{i:03d}", map=str(SF_MAP.resolve()), route=r, traffic_vehicles=traffic,
+                                      seed=i, duration=route_duration(m, r)) for i, r in enumerate(routes)),
+                 SF_MAP.resolve().parent)
+
+
+def prepare(name: str, out: Path, traffic: int, chunk: int, sf_junctions: int | None = None,
+            max_scenarios: int | None = None) -> list[Path]:
+    """The map, its suite and the suite's chunks (made once; the first `max_scenarios` only)."""
     out.mkdir(parents=True, exist_ok=True)
-    if not (out / "map.json").exists():
-        native.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=SEEDS[name]), out / "map.json")
-    if not (out / "suite.yaml").exists():
-        save_suite(build_suite(out / "map.json", traffic_vehicles=traffic, name=name), out / "suite.yaml")
+    if name == "sf":
+        if not SF_MAP.is_file():
+            raise SystemExit(f"{SF_MAP}: not found (the SF map comes from ../shared/maps, see SOURCES.md there)")
+        if not (out / "suite.yaml").exists():
+            save_suite(sf_suite(traffic, sf_junctions), out / "suite.yaml")
+    else:
+        if not (out / "map.json").exists():
+            native.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=SEEDS[name]), out / "map.json")
+        if not (out / "suite.yaml").exists():
+            save_suite(build_suite(out / "map.json", traffic_vehicles=traffic, name=name), out / "suite.yaml")
     suite = load_suite(out / "suite.yaml")
+    if max_scenarios is not None:
+        suite = Suite(suite.name, suite.scenarios[:max_scenarios], suite.base_dir)
     paths = []
     for k in range(0, len(suite.scenarios), chunk):
         p = out / f"chunk{k // chunk}.yaml"
@@ -74,6 +105,7 @@ def merge(planner_name: str, out: Path) -> SuiteResult | None:
     merged = SuiteResult(name=results[0].name, planner=results[0].planner, outcomes=outcomes, coverage=True,
                          planner_digest=suite_digest(outcomes), wall_s=sum(r.wall_s for r in results))
     dest = out / f"{planner_name}-all"
+    shutil.rmtree(dest, ignore_errors=True)  # derived from the chunks each time (it holds their GIFs too)
     write_report(merged, dest)
     (dest / "failures").mkdir(exist_ok=True)
     for p in parts:
@@ -121,9 +153,40 @@ def tables(out: Path, results: dict[str, SuiteResult]) -> str:
     return "\n".join(md)
 
 
+def all_lines(r: SuiteResult) -> set[str]:
+    """Every line of the planner's own code the suite ran (all junctions and the road between)."""
+    return {x for o in r.outcomes for ls in o.junction_lines.values() for x in ls}
+
+
+def cross_table(per_map: dict[str, dict[str, SuiteResult]]) -> str:
+    """RQ2/RQ3 across suites: outcomes and line coverage of each planner's own code, SF's next to
+    the generated maps' (lines a generated map runs that SF does not, and the other way round)."""
+    md = ["| suite | planner | scenarios | completed | timeout | collision | violation | off road | error "
+          "| lines run | not run on SF | run on SF only | steps/s |", "|---|---|" + "---:|" * 11]
+    for planner in ("baseline", "reactive"):
+        sf = per_map.get("sf", {}).get(planner)
+        sf_lines = all_lines(sf) if sf else None
+        for name, results in per_map.items():
+            r = results.get(planner)
+            if r is None:
+                continue
+            c, lines = r.counts(), all_lines(r)
+            steps, wall = sum(o.steps for o in r.outcomes), sum(o.wall_s for o in r.outcomes)
+            extra = ("-", "-") if sf_lines is None or name == "sf" else (len(lines - sf_lines), len(sf_lines - lines))
+            md.append(f"| {name.upper()} | {planner} | {len(r.outcomes)} | {c['completed']} | {c['timeout']} | "
+                      f"{c['collision']} | {c['violation']} | {c['off_road']} | {c['error']} | {len(lines)} | "
+                      f"{extra[0]} | {extra[1]} | {steps / wall if wall else 0:.1f} |")
+    union = {p: set().union(*(all_lines(rs[p]) for rs in per_map.values() if p in rs)) for p in ("baseline", "reactive")}
+    md += ["", "Lines run by all the suites together: " + ", ".join(f"{p} {len(v)}" for p, v in union.items()), ""]
+    return "\n".join(md)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--maps", nargs="+", default=["m1"], choices=sorted(SEEDS))
+    ap.add_argument("--maps", nargs="+", default=["m1"], choices=sorted(SEEDS) + ["sf"])
+    ap.add_argument("--sf-junctions", type=int, default=None,
+                    help="SF: only the manoeuvres of its first N junctions (the suite is made once)")
+    ap.add_argument("--max-scenarios", type=int, default=None, help="only the first N scenarios of each suite")
     ap.add_argument("--traffic", type=int, default=6)
     ap.add_argument("--chunk", type=int, default=6)
     ap.add_argument("--workers", type=int, default=2)
@@ -134,19 +197,25 @@ def main() -> int:
     ap.add_argument("--report-only", action="store_true", help="only merge what ran and write the tables")
     ap.add_argument("--no-baseline", action="store_true")
     args = ap.parse_args()
+    per_map: dict[str, dict[str, SuiteResult]] = {}
     for name in args.maps:
         out = args.out / name
-        chunks = prepare(name, out, args.traffic, args.chunk)
+        chunks = prepare(name, out, args.traffic, args.chunk, args.sf_junctions, args.max_scenarios)
         if not args.report_only:
             if not args.no_baseline:
                 run("baseline", "baseline", chunks, out, args.workers)
             run(args.planner_name, BridgePlanner(args.planner_cmd, step_timeout=args.step_timeout), chunks, out,
                 args.workers)
         results = {k: r for k in ("baseline", args.planner_name) if (r := merge(k, out)) is not None}
+        per_map[name] = results
         if results:
             text = tables(out, results)
             (out / "tables.md").write_text(text)
             print(text)
+    if len(per_map) > 1:
+        text = cross_table(per_map)
+        (args.out / "cross.md").write_text(text)
+        print(text)
     return 0
 
 

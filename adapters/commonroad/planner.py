@@ -25,6 +25,7 @@ What it does (docs/planners.md):
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import math
 import os
@@ -47,8 +48,12 @@ JUNCTION_SPEED_MPS = 6.0
 LAT_ACC_MPS2 = 1.5
 STOP_MARGIN_M = 1.5
 FALLBACK_DECEL = 6.0
+ENGAGE_MPS = 1.0  # [m/s] the planner's initial speed when the ego is to move off from (near) standstill
 APPROACH_DECEL = 2.0  # [m/s^2] speed cap towards a stop point: it can stop there braking this hard
 STOPPING_RANGE_M = 10.0  # "stopping" mode (a target position) this far beyond the braking distance
+WINDOW_BACK_M = 20.0  # the reference path's window starts this far behind the ego
+WINDOW_AHEAD_M = 80.0  # and moves on when the ego comes this close to its end (the horizon: <= 45 m)
+WINDOW_THETA_MARGIN = 0.3  # [rad] kept off commonroad-clcs's [-2pi, 2pi] orientation bound
 ROAD_CONTEXT = "(road)"  # coverage context before the first junction (as feat2map's rollout)
 
 
@@ -98,10 +103,26 @@ class ReactiveAdapter:
         config.vehicle.length, config.vehicle.width = self.ego_len, self.ego_wid
         pp = next(iter(problems.planning_problem_dict.values()))  # any: the planner needs one to start
         config.update(scenario=self.scenario, planning_problem=pp)
+        # the planner's single-track model is the simulated ego's: highway-env's bicycle has its
+        # axles at +-length/2 (an adapter choice: with the BMW 320i's 2.58 m wheelbase the
+        # heading the env reports is off the planner's rear-axle path by the env's slip angle,
+        # 0.2 rad in a junction's turn, and every sample starting there breaks its kappa limits)
+        bmw_wheelbase = config.vehicle.wheelbase
+        config.vehicle.wb_front_axle = config.vehicle.wb_rear_axle = self.ego_len / 2
+        config.vehicle._update_computed_params()
+        # its steering-rate limit scaled with the wheelbase, so that the curvature rate it allows
+        # (kappa_dot = steering rate / wheelbase) stays the default vehicle's; highway-env's
+        # bicycle itself has no steering-rate limit
+        scale = config.vehicle.wheelbase / bmw_wheelbase
+        config.vehicle.v_delta_min, config.vehicle.v_delta_max = (config.vehicle.v_delta_min * scale,
+                                                                  config.vehicle.v_delta_max * scale)
         self.config = config
         self.wb_rear = config.vehicle.wb_rear_axle
-        self.ref = self._reference_path(pp)
-        self.co = CoordinateSystem(reference=self.ref, preprocess_reference=True, clcs_params=CLCSParams())
+        self.full_ref = self._reference_path(pp)
+        self.full_cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(self.full_ref, axis=0).T))])
+        self._clcs = lambda path: CoordinateSystem(reference=path, preprocess_reference=True, clcs_params=CLCSParams())
+        self.planner = None
+        self._set_window(0.0)
         self.planner = ReactivePlanner(config)
         self.planner.set_reference_path(coordinate_system=self.co)
         _, self.boundary = create_road_boundary_obstacle(self.scenario, method="obb_rectangles")
@@ -111,6 +132,9 @@ class ReactiveAdapter:
             end = self.net.find_lanelet_by_id(lid).center_vertices[-1]
             self.lane_end.append(self._s_of(end))
         self.gate = None
+        self.last_plan: tuple[float, list[float]] | None = None  # (t, steering angle per DT) of the last plan
+        self.last_pts: list[dict] | None = None  # the last trajectory sent (the fallback follows its rest)
+        _debug(f"init {json.dumps(msg)}")
 
     def _reference_path(self, pp) -> np.ndarray:
         """commonroad-route-planner's reference path from the route's first lanelet to the
@@ -158,12 +182,35 @@ class ReactiveAdapter:
             return None  # another lane than the scenario's route
         return ref.reference_path
 
+    def _set_window(self, s_from: float) -> None:
+        """The planner's reference path: the route's path from WINDOW_BACK_M behind `s_from` as
+        far as its unwrapped orientation stays inside the curvilinear frame's [-2pi, 2pi] (an
+        adapter choice: a route that turns more than about a full circle, e.g. several lefts in
+        a row, trips commonroad-clcs's assertion "Reference path orientations should be in
+        [-2pi, 2pi]" at init, issue 22's error outcome). The window moves on when the ego comes
+        within WINDOW_AHEAD_M of its end; the whole route fits one window almost always."""
+        ref, cum = self.full_ref, self.full_cum
+        i0 = max(0, int(np.searchsorted(cum, s_from - WINDOW_BACK_M)) - 1)
+        seg = np.diff(ref[i0:], axis=0)
+        theta = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
+        bad = np.nonzero(np.abs(theta) > 2 * math.pi - WINDOW_THETA_MARGIN)[0]
+        i1 = len(ref) if not len(bad) else i0 + int(bad[0])  # the window's points are ref[i0:i1]
+        i1 = max(i1, min(i0 + 3, len(ref)))
+        self.ref = ref[i0:i1]
+        self.win_end = math.inf if i1 >= len(ref) else float(cum[i1 - 1])
+        self.co = self._clcs(self.ref)
+        # the frame's arc length + win_s0 = the route's (its preprocessing extends the path's start)
+        self.win_s0 = float(cum[i0]) - float(self.co.convert_to_curvilinear_coords(*map(float, ref[i0]))[0])
+        if self.planner is not None:
+            self.planner.set_reference_path(coordinate_system=self.co)
+
     def _s_of(self, p) -> float:
+        """The route's arc length (over the whole reference path) nearest `p`."""
         try:
-            return float(self.co.convert_to_curvilinear_coords(float(p[0]), float(p[1]))[0])
+            return self.win_s0 + float(self.co.convert_to_curvilinear_coords(float(p[0]), float(p[1]))[0])
         except Exception:  # noqa: BLE001 (outside the frame's domain)
-            d = np.hypot(*(self.ref - np.asarray(p)[:2]).T)
-            return float(np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(self.ref, axis=0).T))])[int(np.argmin(d))])
+            d = np.hypot(*(self.full_ref - np.asarray(p)[:2]).T)
+            return float(self.full_cum[int(np.argmin(d))])
 
     # ---- step ---------------------------------------------------------------------------------
     def _switch(self, ctx: str) -> None:
@@ -190,7 +237,9 @@ class ReactiveAdapter:
                       file=sys.stderr)
                 if self.failures[name] <= 1:
                     traceback.print_exc(limit=3, file=sys.stderr)
-            return self._brake(msg, ego, f"FALLBACK_{name}"[:40])
+            if os.environ.get("CR_ADAPTER_LOG"):
+                _debug(f"t={msg['t']:.1f} v={float(ego['speed']):.2f} raised {name}: {_rejected(self.planner)}")
+            return self._fallback(msg, ego, f"FALLBACK_{name}"[:40])
 
     def _plan(self, msg: dict, ego: dict) -> dict:
         import commonroad_dc.pycrcc as pycrcc
@@ -198,46 +247,100 @@ class ReactiveAdapter:
         from commonroad_rp.state import ReactivePlannerState
 
         x, y, h, v = float(ego["x"]), float(ego["y"]), float(ego["heading"]), max(float(ego["speed"]), 0.0)
-        acc = float(ego.get("acceleration", 0.0)) if v > 0.1 else 0.0  # a stopped car does not decelerate
-        init = InitialState(position=np.array([x, y]), orientation=h, velocity=v, acceleration=acc,
-                            yaw_rate=0.0, slip_angle=0.0, time_step=0)
-        x0 = ReactivePlannerState.create_from_initial_state(init, self.config.vehicle.wheelbase, self.wb_rear)
-        cc = pycrcc.CollisionChecker()
-        cc.add_collision_object(self.boundary)
-        for obs in self._obstacles(msg, x, y, h):
-            cc.add_collision_object(obs)
-        p = self.planner
-        p.reset(initial_state_cart=x0, collision_checker=cc, coordinate_system=self.co)
         s_centre = self._s_of((x, y))
+        if s_centre > self.win_end - WINDOW_AHEAD_M:
+            self._set_window(s_centre)
+            s_centre = self._s_of((x, y))
         stop, why = self.gate.stop_s(msg, s_centre, v)
         room = stop - s_centre
         if math.isfinite(stop) and room > v * v / (2 * APPROACH_DECEL) + STOPPING_RANGE_M:
-            # far from the stop point: keep a speed from which it can still stop there comfortably
+            mode, stage = "approach", f"APPROACH_{why}"  # far from the stop point
+        elif math.isfinite(stop):
+            mode, stage = "stopping", f"STOPPING_{why}"
+        else:
+            mode, stage = "keeping", "VELOCITY_KEEPING"
+        # moving off: the planner starts from at least ENGAGE_MPS (an adapter choice, as Autoware's
+        # engage velocity: from v = 0 its first samples are coincident points whose finite-
+        # difference curvature breaks its kappa_dot/acceleration checks, so every sample is
+        # rejected and the ego never moves off; issue 22's standstill timeouts)
+        v_plan = max(v, ENGAGE_MPS) if mode != "stopping" else v
+        acc = float(ego.get("acceleration", 0.0)) if v > 0.1 else 0.0  # a stopped car does not decelerate
+        init = InitialState(position=np.array([x, y]), orientation=h, velocity=v_plan, acceleration=acc,
+                            yaw_rate=0.0, slip_angle=0.0, time_step=0)
+        x0 = ReactivePlannerState.create_from_initial_state(init, self.config.vehicle.wheelbase, self.wb_rear)
+        x0.steering_angle = self._steering_now(float(msg["t"]), x, y)
+        x0.yaw_rate = v_plan * math.tan(x0.steering_angle) / self.config.vehicle.wheelbase
+        cc = pycrcc.CollisionChecker()
+        cc.add_collision_object(self.boundary)
+        obstacles = self._obstacles(msg, x, y, h)
+        for obs in obstacles:
+            cc.add_collision_object(obs)
+        p = self.planner
+        p.reset(initial_state_cart=x0, collision_checker=cc, coordinate_system=self.co)
+        if mode == "approach":
+            # keep a speed from which it can still stop there comfortably
             self.config.sampling.longitudinal_mode = "velocity_keeping"
             cap = math.sqrt(2 * APPROACH_DECEL * max(room - STOPPING_RANGE_M, 0.0)) + 1.0
-            p.set_desired_velocity(min(self._desired_speed(s_centre), cap), current_speed=max(v, 0.01))
-            stage = f"APPROACH_{why}"
-        elif math.isfinite(stop):
+            p.set_desired_velocity(min(self._desired_speed(s_centre), cap), current_speed=v_plan)
+        elif mode == "stopping":
             self.config.sampling.longitudinal_mode = "stopping"
-            p.set_desired_lon_position(max(stop - self.wb_rear, p.x_0_cl[0][0]))
-            stage = f"STOPPING_{why}"
+            p.set_desired_lon_position(max(stop - self.win_s0 - self.wb_rear, p.x_0_cl[0][0]))
         else:
             self.config.sampling.longitudinal_mode = "velocity_keeping"
-            p.set_desired_velocity(self._desired_speed(s_centre), current_speed=max(v, 0.01))  # 0: it would take the goal's
-            stage = "VELOCITY_KEEPING"
+            p.set_desired_velocity(self._desired_speed(s_centre), current_speed=v_plan)
         result = p.plan()
+        if os.environ.get("CR_ADAPTER_LOG"):
+            ref_h = float(np.interp(p.x_0_cl[0][0], self.co.ref_pos, np.unwrap(self.co.ref_theta)))
+            _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} heading error={h - ref_h:.2f} "
+                   f"stop={stop:.1f} {stage} trajectory={result is not None}: {_rejected(p)}")
         if result is None:
-            return self._brake(msg, ego, "FALLBACK_NO_TRAJECTORY")
+            return self._fallback(msg, ego, "FALLBACK_NO_TRAJECTORY")
         states = result[0].state_list
         if all(st.velocity < 0.05 for st in states) and v < 0.05:
             stage = "STANDSTILL" if stage == "VELOCITY_KEEPING" else stage
         t0 = float(msg["t"])
+        self.last_plan = (t0, [float(st.steering_angle) for st in states])
         pts = []
         for st in states:
             c = ReactivePlannerState.shift_state_to_center(st, self.wb_rear)
             pts.append({"t": t0 + (st.time_step - states[0].time_step) * DT, "x": float(c.position[0]),
                         "y": float(c.position[1]), "heading": float(c.orientation), "speed": max(float(c.velocity), 0.0)})
+        self.last_pts = pts
         return {"type": "trajectory", "points": pts, "scenario": "REACTIVE", "stage": stage}
+
+    def _fallback(self, msg: dict, ego: dict, stage: str) -> dict:
+        """No trajectory this time: brake at FALLBACK_DECEL along the path of the last trajectory
+        while it reaches past the braking distance (an adapter choice: the last feasible plan's
+        path, as a planner's own loop keeps it through a failed cycle; its speeds are not kept,
+        since it was planned without the obstacles seen now), else along the reference path.
+        The stage says FALLBACK_<why> either way."""
+        t, v = float(msg["t"]), max(float(ego["speed"]), 0.0)
+        rest = [q for q in (self.last_pts or []) if q["t"] >= t - DT / 2]
+        if len(rest) >= 3:
+            path = np.array([[float(ego["x"]), float(ego["y"])]] + [[q["x"], q["y"]] for q in rest])
+            path = path[np.concatenate([[True], np.hypot(*np.diff(path, axis=0).T) > 1e-3])]
+            cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+            if len(path) >= 2 and cum[-1] >= v * v / (2 * FALLBACK_DECEL) + 0.5:
+                return self._brake(msg, ego, stage, path, cum)
+        self.last_plan = self.last_pts = None
+        return self._brake(msg, ego, stage, self.full_ref, self.full_cum)
+
+    def _steering_now(self, t: float, x: float, y: float) -> float:
+        """The steering angle the ego drives with now (the bridge sends no yaw rate): the angle the
+        last trajectory planned for this instant, else the one that follows the reference path's
+        curvature where the ego is. An adapter choice: from a measured state alone the planner
+        assumes straight wheels (steering from yaw rate 0), and in a junction's curve every
+        sample then starts with a curvature jump it rejects (kappa/kappa_dot), at low speed all
+        of them (issue 22's standstill timeouts)."""
+        delta_max = float(self.config.vehicle.delta_max)
+        if self.last_plan is not None:
+            t0, deltas = self.last_plan
+            k = int(round((t - t0) / DT))
+            if 0 <= k < len(deltas):
+                return float(np.clip(deltas[k], -delta_max, delta_max))
+        ref_s, ref_k = np.asarray(self.co.ref_pos) + self.win_s0, np.asarray(self.co.ref_curv)
+        kappa = float(np.interp(self._s_of((x, y)), ref_s, ref_k))
+        return float(np.clip(math.atan(self.config.vehicle.wheelbase * kappa), -delta_max, delta_max))
 
     def _desired_speed(self, s: float) -> float:
         i = int(np.searchsorted(self.lane_end, s))
@@ -247,7 +350,7 @@ class ReactiveAdapter:
                                         and self.lane_end[i] - s < 30.0):
             v = min(v, JUNCTION_SPEED_MPS)
         # curvature of the reference over the next 25 m
-        ref_s, ref_k = np.asarray(self.co.ref_pos), np.abs(np.asarray(self.co.ref_curv))
+        ref_s, ref_k = np.asarray(self.co.ref_pos) + self.win_s0, np.abs(np.asarray(self.co.ref_curv))
         window = (ref_s >= s) & (ref_s <= s + 25.0)
         if window.any():
             kmax = float(ref_k[window].max())
@@ -285,11 +388,9 @@ class ReactiveAdapter:
                 out.append(create_collision_object(dyn))
         return out
 
-    def _brake(self, msg: dict, ego: dict, stage: str) -> dict:
-        """Brake at FALLBACK_DECEL along the reference path from where the ego is."""
+    def _brake(self, msg: dict, ego: dict, stage: str, ref: np.ndarray, cum: np.ndarray) -> dict:
+        """Brake at FALLBACK_DECEL along the polyline `ref` (arc lengths `cum`) from where the ego is."""
         v = max(float(ego["speed"]), 0.0)
-        ref = self.ref
-        cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(ref, axis=0).T))])
         k = int(np.argmin(np.hypot(*(ref - np.array([ego["x"], ego["y"]])).T)))
         s = cum[k]
         pts = []
@@ -328,6 +429,20 @@ class ReactiveAdapter:
         for f in sorted(root.rglob("*.py")):
             h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
         return {"coverage": {"lines": {k: sorted(v) for k, v in lines.items()}, "digest": h.hexdigest()[:16]}}
+
+
+def _debug(line: str) -> None:
+    """One line per decision to $CR_ADAPTER_LOG (a diagnostic for single scenarios; off by default)."""
+    path = os.environ.get("CR_ADAPTER_LOG")
+    if path:
+        with open(path, "a") as f:
+            f.write(line + "\n")
+
+
+def _rejected(p) -> str:
+    """How many of the planner's samples its last plan() rejected, and why."""
+    return (f"rejected {p.infeasible_count_kinematics} for kinematics {dict(p.infeasible_reason_dict)}, "
+            f"{p.infeasible_count_collision} for collisions, of {p.total_count_samples}")
 
 
 def _aligned(path, max_turn: float = math.pi / 2) -> bool:

@@ -164,6 +164,36 @@ def test_the_tracker_follows_a_straight_trajectory_and_stops_at_its_end():
         Trajectory.of([[1, 0, 0, 0, 1], [0, 1, 0, 0, 1]])
 
 
+def _drive_tracker(tr, clock, x, y, h, v, steps, hz=15):
+    """highway-env's bicycle (wheelbase = length 5 m, slip at the centre) under the tracker."""
+    path = []
+    for _ in range(steps):
+        cmd = tr.command((x, y), h, v)
+        beta = np.arctan(0.5 * np.tan(cmd["steering"]))
+        x += v * np.cos(h + beta) / hz
+        y += v * np.sin(h + beta) / hz
+        h += v * np.sin(beta) / 2.5 / hz
+        v = max(0.0, v + cmd["acceleration"] / hz)
+        clock[0] += 1 / hz
+        path.append((x, y))
+    return np.array(path)
+
+
+def test_the_tracker_stays_on_a_junction_turn():
+    """A 10 m-radius quarter turn at 4.5 m/s: the centre stays within 0.25 m of the arc (pure
+    pursuit measured from the heading rather than the direction of travel cut it by 0.7 m and
+    the reactive planner then saw the ego's body on the road boundary, issue 22)."""
+    r, v = 10.0, 4.5
+    ang = np.linspace(0.0, np.pi / 2, 60)
+    t = ang * r / v
+    traj = Trajectory.of(np.column_stack([t, r * np.sin(ang), r - r * np.cos(ang), ang, np.full_like(t, v)]))
+    clock = [0.0]
+    path = _drive_tracker(TrajectoryTracker(traj, clock=lambda: clock[0]), clock, 0.0, 0.0, 0.0, v,
+                          int(t[-1] * 15) - 5)
+    radial = np.hypot(path[:, 0], path[:, 1] - r)
+    assert np.abs(radial - r).max() < 0.25, np.abs(radial - r).max()
+
+
 def test_a_control_planner_that_leaves_the_road_fails_with_a_gif_recorded_while_it_drove(suite_file, tmp_path):
     """`control` replies drive the ego directly; the failure's GIF comes from the run itself (an
     out-of-process planner is not replayed)."""

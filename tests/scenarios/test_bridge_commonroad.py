@@ -66,5 +66,62 @@ def test_the_reactive_planner_drives_a_short_suite_through_the_bridge(crplanner,
         lines = {x for v in o["junction_lines"].values() for x in v}
         assert lines and all(x.startswith("commonroad_rp") for x in lines)
         assert o["planner_digest"]
-    assert sum(o["outcome"] == "completed" for o in summary["outcomes"]) >= 1
+    # all three drive through (issue 22: the ego stopped at the red light used to stay there: the
+    # planner cannot plan from standstill, its vehicle model and the env's must agree)
+    assert [o["outcome"] for o in summary["outcomes"]] == ["completed"] * len(KEEP), \
+        [(o["name"], o["outcome"], o["stage_path"]) for o in summary["outcomes"]]
+    for o in summary["outcomes"]:  # each stopped at the red light and moved off again
+        path = o["stage_path"]
+        assert "STOPPING_STOP_SIGNAL" in path and "VELOCITY_KEEPING" in path[path.index("STOPPING_STOP_SIGNAL"):], path
     assert "J0" in summary["outcomes"][0]["junction_lines"]
+
+
+WINDOW_CHECK = r"""
+import math, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import planner as P
+from commonroad_clcs.config import CLCSParams
+from commonroad_rp.utility.utils_coordinate_system import CoordinateSystem
+
+# a route that turns 1.5 times round (a spiral, so it never crosses itself): its orientation
+# unwraps past 2 pi, which commonroad-clcs asserts against
+ang = np.linspace(0.0, 3 * math.pi, 600)
+rad = 25.0 + 4.0 * ang
+path = np.column_stack([rad * np.sin(ang), 25.0 - rad * np.cos(ang)])
+a = P.ReactiveAdapter.__new__(P.ReactiveAdapter)
+a.full_ref = path
+a.full_cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+a._clcs = lambda p: CoordinateSystem(reference=p, preprocess_reference=True, clcs_params=CLCSParams())
+a.planner = None
+try:
+    a._clcs(path)
+    whole = "built"
+except AssertionError as exc:
+    whole = str(exc)
+windows, s = [], 0.0
+while len(windows) < 10:
+    a._set_window(s)
+    windows.append((a.win_s0, a.win_end))
+    i0 = int(np.argmin(np.hypot(*(a.full_ref - a.ref[0]).T)))
+    lo, hi = a._s_of(a.ref[len(a.ref) // 2]), a.full_cum[i0 + len(a.ref) // 2]
+    assert abs(lo - hi) < 1.0, (lo, hi)  # window coordinates map back onto the whole route's
+    if math.isinf(a.win_end):
+        break
+    s = a.win_end - P.WINDOW_AHEAD_M + 1.0
+print(whole)
+print(len(windows), a.full_cum[-1])
+"""
+
+
+def test_the_adapter_plans_a_route_that_turns_more_than_a_full_circle_in_windows(crplanner, tmp_path):
+    """commonroad-clcs refuses a reference path whose orientation leaves [-2pi, 2pi] (M1's map-r004
+    was an init error for it); the adapter's windows of the route each pass, and cover it all."""
+    script = tmp_path / "window.py"
+    script.write_text(WINDOW_CHECK)
+    r = subprocess.run([str(CRPY), str(script), str(ADAPTER.parent)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    whole, counts = r.stdout.strip().splitlines()[-2:]
+    assert "[-2pi, 2pi]" in whole  # the whole route is what the planner cannot take
+    n, _ = counts.split()
+    assert 2 <= int(n) < 10  # a few windows, the last reaching the route's end
