@@ -105,11 +105,26 @@ class LaneTable:
         # matrix (the relation never leaves a junction): near[joff[j] + a * jsize[j] + b]
         self.jid = np.full(len(lanes), -1, dtype=np.int64)
         self.jloc = np.zeros(len(lanes), dtype=np.int64)
-        members: dict[str, list[int]] = {}
+        # (and road lanes that converge, `MapNetwork.merges`, grouped the same way: one group per
+        # set of road lanes linked by such pairs)
+        members: dict[object, list[int]] = {}
+        merge_group: dict[str, int] = {}
+        for lid in sorted(net.merges):
+            if lid in merge_group:
+                continue
+            stack, merge_group[lid] = [lid], len(merge_group)
+            g = merge_group[lid]
+            while stack:
+                for y in net.merges.get(stack.pop(), ()):
+                    if y not in merge_group:
+                        merge_group[y] = g
+                        stack.append(y)
         for k, lid in enumerate(net.lane_ids):
             jid = m.lanes[lid].junction_id
             if jid is not None:
                 members.setdefault(jid, []).append(k)
+            elif lid in merge_group:
+                members.setdefault(("merge", merge_group[lid]), []).append(k)
         self.jsize = np.array([len(v) for v in members.values()], dtype=np.int64)
         self.joff = np.concatenate([[0], np.cumsum(self.jsize ** 2)[:-1]]).astype(np.int64)
         self.near = np.zeros(int((self.jsize ** 2).sum()), dtype=bool)
@@ -120,12 +135,7 @@ class LaneTable:
             j = self.jid[k]
             if j < 0:
                 continue
-            ln = m.lanes[lid]
-            near = set(net.conflicts.get(lid, ()))
-            for p in ln.predecessors:
-                if p in m.lanes:
-                    near.update(x for x in m.lanes[p].successors if x != lid)
-            for x in near:
+            for x in net.near_lanes(lid):
                 b = self.index.get(x, -1)
                 if b >= 0 and self.jid[b] == j:
                     self.near[self.joff[j] + self.jloc[k] * self.jsize[j] + self.jloc[b]] = True
@@ -138,8 +148,8 @@ class LaneTable:
         self.pair_sa = self.pair_ra = np.zeros(0)
 
     def near_pairs(self, lane_a: np.ndarray, lane_b: np.ndarray) -> np.ndarray:
-        """Whether junction lane b conflicts with or diverges from junction lane a, elementwise
-        (False where either is not a junction lane or they are in different junctions)."""
+        """Whether junction lane b conflicts with or diverges from junction lane a, or road lane b
+        converges with road lane a, elementwise (`MapNetwork.near_lanes`; False elsewhere)."""
         ja, jb = self.jid[lane_a], self.jid[lane_b]
         same = (ja >= 0) & (ja == jb)
         out = np.zeros(len(lane_a), dtype=bool)
@@ -709,6 +719,7 @@ class TrafficCore:
         fi, k, lj = fi[other], k[other], lj[other]
         so = self.s[lj]
         ro = self.lat[lj]
+        ahead = so > self.s[fi]
         wl = W[fi, k]
         # rows on junction lanes conflicting with or diverging from a window junction lane
         occ = np.nonzero((self.lane >= 0) & (t.jid[self.lane] >= 0))[0]
@@ -725,14 +736,21 @@ class TrafficCore:
                     for n_, j in enumerate(pj.tolist()):  # external road users: their exact position
                         if not self.driven[j]:
                             so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[j].position)
+                    ahead2 = so2 > self.s[pf]
+                    zip_ = np.nonzero((pk == 0) & ~t.junction[a_l] & (a_l != b_l))[0]
+                    for n_ in zip_.tolist():  # converging road lanes: one order for both (`merge_ahead`)
+                        ids = self.net.lane_ids
+                        ahead2[n_] = self.net.merge_ahead(ids[a_l[n_]], self.objs[pf[n_]].position,
+                                                          ids[b_l[n_]], self.objs[pj[n_]].position)
                     fi, k, lj = np.concatenate([fi, pf]), np.concatenate([k, pk]), np.concatenate([lj, pj])
+                    ahead = np.concatenate([ahead, ahead2])
                     so, ro = np.concatenate([so, so2]), np.concatenate([ro, ro2])
                     wl = W[fi, k]
         if not len(fi):
             return fi, np.zeros(0), np.zeros(0)
         s_own = self.s[fi]
         L = self.length[fi]
-        ok = in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | (so > s_own))
+        ok = in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | ahead)
         gap = C[fi, k] - s_own + so - L
         return fi[ok], gap[ok], self.speed[lj[ok]]
 

@@ -19,6 +19,7 @@ import numpy as np
 from highway_env.road.lane import LineType
 from highway_env.road.road import LaneIndex, RoadNetwork
 import shapely
+import shapely.ops
 from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
@@ -121,6 +122,33 @@ def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
     return sorted(out)
 
 
+def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tuple[str, str]]:
+    """Pairs of road lanes of one direction (not linked to each other) whose centrelines come
+    closer than CONFLICT_DISTANCE_M (a car width and a margin): a taper merge along a road
+    (Highway101GLE's lane_92 and lane_93 of road_17 converge over 148 m into one point), a lane
+    opening or closing beside another, a diverge. Vehicles on them cannot drive side by side
+    there: they zip (`MapNetwork.merges`). Found from the geometry, since such maps declare no
+    merge outside junctions; lanes that meet only head to tail are left out."""
+    roads, lines, tree = road_lanes if road_lanes is not None else _road_lanes(m)
+    out: set[tuple[str, str]] = set()
+    if not lines:
+        return []
+    left, right = tree.query(lines, predicate="dwithin", distance=CONFLICT_DISTANCE_M)
+    for i, j in zip(left.tolist(), right.tolist()):
+        a, b = roads[i], roads[j]
+        if i >= j or b.id in {*a.predecessors, *a.successors}:
+            continue
+        la, lb = lines[i], lines[j]
+        pa, pb = shapely.ops.nearest_points(la, lb)
+        sa, sb = la.project(pa), lb.project(pb)
+        if float(np.dot(_tangent(la, sa), _tangent(lb, sb))) <= 0.0:
+            continue  # opposite directions: a narrow passage
+        if (sa >= la.length - 1e-6 and sb <= 1e-6) or (sb >= lb.length - 1e-6 and sa <= 1e-6):
+            continue  # head to tail
+        out.add((min(a.id, b.id), max(a.id, b.id)))
+    return sorted(out)
+
+
 def unregistered_merges(net: "MapNetwork") -> list[str]:
     """Load-time check: every merge (`merge_pairs`) is a conflict in the network's table, like a
     crossing; one line per pair that is not (empty when sound)."""
@@ -195,7 +223,35 @@ class MapNetwork(RoadNetwork):
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
+    merges: dict[str, frozenset[str]] = field(default_factory=dict)  # road lane -> lanes converging with it
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def near_lanes(self, lane_id: str) -> frozenset[str]:
+        """Lanes whose road users may be in the way of a vehicle on `lane_id`, besides its own:
+        for a junction lane those it conflicts with and those diverging from its predecessors,
+        for a road lane those converging with it (`merges`)."""
+        def build() -> dict[str, frozenset[str]]:
+            m = self.hdmap
+            out = {}
+            for lid, ln in m.lanes.items():
+                if ln.junction_id is None:
+                    near = set(self.merges.get(lid, ()))
+                else:
+                    near = set(self.conflicts.get(lid, ()))
+                    for p in ln.predecessors:
+                        if p in m.lanes:
+                            near.update(x for x in m.lanes[p].successors if x != lid)
+                out[lid] = frozenset(near)
+            return out
+        return self.memo("near lanes", build)[lane_id]
+
+    def merge_ahead(self, lane_a: str, pos_a, lane_b: str, pos_b) -> bool:
+        """Whether a road user at `pos_b` on `lane_b` is ahead of one at `pos_a` on `lane_a`, lanes
+        that converge: both measured along the pair's reference lane (the smaller id), so that of
+        two users side by side exactly one is the other's leader (each measuring along its own
+        lane, both could brake for the other and stand there)."""
+        ref = self.lane_of[min(lane_a, lane_b)]
+        return ref.local_coordinates(pos_b)[0] > ref.local_coordinates(pos_a)[0]
 
     def memo(self, key, build):
         """A value derived from the (immutable) network, built once: per-map tables that every
@@ -268,6 +324,9 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
+        for a, b in converging_pairs(m, road_lanes):
+            net.merges[a] = net.merges.get(a, frozenset()) | {b}
+            net.merges[b] = net.merges.get(b, frozenset()) | {a}
         problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
         if problems:
             raise Feat2MapError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""), "map")
