@@ -720,6 +720,7 @@ class TrafficCore:
         so = self.s[lj]
         ro = self.lat[lj]
         ahead = so > self.s[fi]
+        zips = np.zeros(len(fi), dtype=bool)  # converging road lanes: `MapNetwork.zip_leader` decides
         wl = W[fi, k]
         # rows on junction lanes conflicting with or diverging from a window junction lane
         occ = np.nonzero((self.lane >= 0) & (t.jid[self.lane] >= 0))[0]
@@ -737,20 +738,22 @@ class TrafficCore:
                         if not self.driven[j]:
                             so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[j].position)
                     ahead2 = so2 > self.s[pf]
-                    zip_ = np.nonzero((pk == 0) & ~t.junction[a_l] & (a_l != b_l))[0]
-                    for n_ in zip_.tolist():  # converging road lanes: one order for both (`merge_ahead`)
-                        ids = self.net.lane_ids
-                        ahead2[n_] = self.net.merge_ahead(ids[a_l[n_]], self.objs[pf[n_]].position,
-                                                          ids[b_l[n_]], self.objs[pj[n_]].position)
+                    zips2 = ~t.junction[a_l] & (a_l != b_l)
+                    ids = self.net.lane_ids
+                    for n_ in np.nonzero(zips2)[0].tolist():
+                        f_ = int(pf[n_])
+                        ahead2[n_] = self.net.zip_leader(
+                            ids[a_l[n_]], float(self.s[f_]) if pk[n_] == 0 else None, ids[b_l[n_]], float(so2[n_]),
+                            self.objs[f_].position, self.objs[pj[n_]].position, float(self.length[f_]))
                     fi, k, lj = np.concatenate([fi, pf]), np.concatenate([k, pk]), np.concatenate([lj, pj])
-                    ahead = np.concatenate([ahead, ahead2])
+                    ahead, zips = np.concatenate([ahead, ahead2]), np.concatenate([zips, zips2])
                     so, ro = np.concatenate([so, so2]), np.concatenate([ro, ro2])
                     wl = W[fi, k]
         if not len(fi):
             return fi, np.zeros(0), np.zeros(0)
         s_own = self.s[fi]
         L = self.length[fi]
-        ok = in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | ahead)
+        ok = np.where(zips, ahead, in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | ahead))
         gap = C[fi, k] - s_own + so - L
         return fi[ok], gap[ok], self.speed[lj[ok]]
 

@@ -223,7 +223,7 @@ class MapNetwork(RoadNetwork):
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
-    merges: dict[str, frozenset[str]] = field(default_factory=dict)  # road lane -> lanes converging with it
+    merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     def near_lanes(self, lane_id: str) -> frozenset[str]:
@@ -324,9 +324,7 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
-        for a, b in converging_pairs(m, road_lanes):
-            net.merges[a] = net.merges.get(a, frozenset()) | {b}
-            net.merges[b] = net.merges.get(b, frozenset()) | {a}
+        net._build_merges(road_lanes)
         problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
         if problems:
             raise Feat2MapError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""), "map")
@@ -552,6 +550,35 @@ class MapNetwork(RoadNetwork):
             s0, s1 = span[lid]
             self.passages[lid] = Passage(g, k, float(max(s0 - VEHICLE_LENGTH_M / 2, 0.0)),
                                          float(min(s1 + VEHICLE_LENGTH_M / 2, length)))
+
+    def _build_merges(self, road_lanes: RoadLanes) -> None:
+        """`merges`: for each lane of a `converging_pairs` pair, the other lane and the last s on
+        this lane where their centrelines are closer than CONFLICT_DISTANCE_M (the end of the
+        zip: past it the other lane's users are out of the way)."""
+        roads, lines, _ = road_lanes
+        line = {ln.id: cl for ln, cl in zip(roads, lines)}
+        for a, b in converging_pairs(self.hdmap, road_lanes):
+            for x, y in ((a, b), (b, a)):
+                lx = line[x]
+                s = np.linspace(0.0, lx.length, max(2, int(math.ceil(lx.length / PASSAGE_STEP_M)) + 1))
+                close = shapely.distance(shapely.line_interpolate_point(lx, s), line[y]) < CONFLICT_DISTANCE_M
+                end = float(s[np.nonzero(close)[0][-1]]) if close.any() else float(lx.length)
+                self.merges.setdefault(x, {})[y] = end
+
+    def zip_leader(self, lane_id: str, s_own: float | None, other_lane: str, so: float, pos, other_pos,
+                   length: float) -> bool:
+        """Whether a road user at `other_pos` on `other_lane`, a lane converging with `lane_id`
+        (`merges`), is a leader of a vehicle `length` long at `s_own` on `lane_id` (None: the
+        lane is ahead on its route) that sees it at `so` along `lane_id`: until the zip's end
+        whatever the lateral offset (lanes 3.5 m apart converge within a few car lengths: a
+        vehicle that waited until the other was within its lane's width had no room left to
+        fall back), in one order for both (`merge_ahead`)."""
+        end = self.merges[lane_id][other_lane]
+        if not -length <= so <= end + length:
+            return False
+        if s_own is None:
+            return True
+        return s_own <= end and self.merge_ahead(lane_id, pos, other_lane, other_pos)
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:

@@ -189,13 +189,11 @@ class RouteFollower:
                 if o is self:
                     continue
                 so, ro = lane.local_coordinates(o.position)
-                if s_own is not None:
-                    if on != lid and m.lanes[lid].junction_id is None:  # converging road lanes: zip
-                        if not net.merge_ahead(lid, self.position, on, o.position):
-                            continue
-                    elif so <= s_own:
+                if on != lid and m.lanes[lid].junction_id is None:  # converging road lanes: zip
+                    if not net.zip_leader(lid, s_own, on, so, self.position, o.position, self.LENGTH):
                         continue
-                if not in_the_way(so, ro, lane.width, lane.length, self.LENGTH):
+                elif s_own is not None and so <= s_own or not in_the_way(so, ro, lane.width, lane.length,
+                                                                          self.LENGTH):
                     continue
                 gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
         return gaps
