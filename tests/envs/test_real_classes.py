@@ -2,7 +2,8 @@
 the test makes itself: merges registered as conflicts whatever the junction ids say; narrow lanes
 on a bend (2.66 m lanes: a car's corners swing out of its lane there) are a narrow passage; an
 unprotected entry held by a steady stream with the right of way takes its lane after PATIENCE_S
-where the vehicles it relies on can still stop for its reservation.
+where the vehicles it relies on can still stop for its reservation; same-direction road lanes that
+converge along a road (a taper merge, Highway101GLE's lane_92 and lane_93) zip.
 
 Every fixture is a generated map changed the way the real map is drawn."""
 from __future__ import annotations
@@ -195,3 +196,56 @@ def test_queue_member_that_moved_on_still_wants_its_lane_in_this_junction():
         v = SimpleNamespace(lane_route=route, route_pos=pos)
         assert rules._lane_in(v, "J0") == j0.id
     assert rules._lane_in(SimpleNamespace(lane_route=route, route_pos=3), "J0") is None
+
+
+# ---- a taper merge along a road ----------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def taper(tmp_path_factory) -> Path:
+    """A bare 4-way junction with two lanes a direction whose exit east (R2) is a 60 m taper: the
+    outer lane R2_1 converges onto the inner lane R2_0 and both end in one point (Highway101GLE's
+    road_17 draws its merge so, without a junction or a link between the lanes)."""
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                        seed=0)
+
+    def along(ln, pts):
+        d = np.gradient(pts, axis=0)
+        d /= np.hypot(*d.T)[:, None]
+        n = np.stack([-d[:, 1], d[:, 0]], 1) * ln.width / 2
+        tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+        return dataclasses.replace(ln, centerline=tup(pts), left_boundary=tup(pts + n), right_boundary=tup(pts - n),
+                                   bezier=None)
+
+    x = np.linspace(19.5, 79.5, 31)
+    lanes = dict(m.lanes)
+    lanes["R2_0"] = along(m.lanes["R2_0"], np.stack([x, np.full_like(x, -1.75)], 1))
+    lanes["R2_1"] = along(m.lanes["R2_1"], np.stack([x, -5.25 + 3.5 * (x - 19.5) / 60.0], 1))
+    path = tmp_path_factory.mktemp("taper") / "taper.json"
+    native.save(dataclasses.replace(m, lanes=lanes), path)
+    return path
+
+
+def test_converging_lanes_zip_until_they_meet(taper):
+    """The taper's lanes are registered as converging, each with the end of its zip (where the
+    centrelines are last closer than a car width: the common end point); lanes 3.5 m apart that
+    never converge are not."""
+    from feat2map.envs.network import converging_pairs
+
+    m = native.load(taper)
+    net = MapNetwork.from_map(m)
+    assert converging_pairs(m) == [("R2_0", "R2_1")]
+    assert set(net.merges) == {"R2_0", "R2_1"}
+    assert net.merges["R2_0"]["R2_1"] == pytest.approx(net.lane_of["R2_0"].length, abs=1.0)
+    plain = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                            seed=0)
+    assert MapNetwork.from_map(plain).merges == {}
+
+
+@pytest.mark.parametrize("t_spawn, s0, speed", [(8.0, 0.0, 10.0), (8.0, 0.0, 14.0), (8.0, 5.0, 10.0), (7.0, 0.0, 14.0)])
+def test_car_beside_the_ego_in_a_taper_merge_zips(taper, t_spawn, s0, speed):
+    """The ego goes straight west -> east into the tapering lane R2_1 and a car drives R2_0 beside
+    or just behind it: they zip, nobody collides (the car drove into the ego where the lanes came
+    closer than a car width: road lanes had no merge rule)."""
+    outcome, *_ = _drive(taper, (("J0", "R0", "R2"),), [(t_spawn, ["R2_0"], 60.0 - s0, speed)], duration=40.0,
+                         config={"goal_distance": 100.0})
+    assert outcome == "completed"
