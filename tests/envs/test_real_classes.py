@@ -249,3 +249,31 @@ def test_car_beside_the_ego_in_a_taper_merge_zips(taper, t_spawn, s0, speed):
     outcome, *_ = _drive(taper, (("J0", "R0", "R2"),), [(t_spawn, ["R2_0"], 60.0 - s0, speed)], duration=40.0,
                          config={"goal_distance": 100.0})
     assert outcome == "completed"
+
+
+# ---- a traffic route that would end on a short road between junctions ----------------------------
+
+def test_traffic_route_never_ends_on_a_short_road_between_junctions(monkeypatch):
+    """Traffic walks through up to its number of junctions, and on through the next where the
+    road after the last is shorter than TRAFFIC_END_ROOM_M (Town07's 0.7 m road between junctions
+    515 and 703: a car whose route ended there drove on past its end, blind to the ego in 703,
+    and rear-ended it). Here the 50 m road between J0 and J1 counts as short."""
+    from feat2map.envs import routes
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)
+    m = feat2map.generate_from_features([four, four], seed=0)
+    net = MapNetwork.from_map(m)
+    link = [ln.id for ln in m.lanes.values() if ln.junction_id is None
+            and any(m.lanes[p].junction_id == "J0" for p in ln.predecessors)
+            and any(m.lanes[s].junction_id == "J1" for s in ln.successors)]
+    assert link
+    monkeypatch.setattr(routes, "TRAFFIC_END_ROOM_M", max(net.lane_of[x].length for x in link) + 1.0, raising=False)
+    starts = [ln.id for ln in m.lanes.values() if ln.junction_id is None
+              and any(m.lanes[s].junction_id == "J0" for s in ln.successors)]
+    rng = np.random.default_rng(0)
+    ends = set()
+    for _ in range(200):
+        path = routes.random_walk(net, rng, starts[int(rng.integers(len(starts)))], 1)
+        ends.add(path[-1])
+        assert path[-1] not in link
+    assert any(m.lanes[x].junction_id == "J1" for x in {p for x in ends for p in m.lanes[x].predecessors})
