@@ -453,17 +453,42 @@ class TrafficRules:
         if sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):
                 return False
-        if "conflict" not in ignore and not (self.junction_clear(j_lane, vehicle) and self.box_clear(vehicle, j_lane)):
+        chain = self.junction_chain(vehicle, j_lane)
+        if "conflict" not in ignore and not (all(self.junction_clear(x, vehicle) for x in chain)
+                                             and self.box_clear(vehicle, j_lane)):
             return False
         if commit and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
-            self.reservations[j_lane] = vehicle
+            for x in chain:
+                self.reservations.setdefault(x, vehicle)
             vehicle.reserved = j_lane
         return True
 
+    def junction_chain(self, vehicle, j_lane: str) -> list[str]:
+        """`j_lane` and the lanes of the same junction that follow it on the vehicle's route: a
+        map may chain connecting lanes inside one junction (USA_Lanker's 26_0_-5 -> 53_0_-3 in
+        junction 1); entering the first is entering them all, so all must be clear and are
+        reserved together (the second lane's conflicts went unchecked: a car crossed the ego's
+        reserved path on it)."""
+        route = getattr(vehicle, "lane_route", None)
+        if not route or j_lane not in route[vehicle.route_pos:]:
+            return [j_lane]
+        lanes = self.net.hdmap.lanes
+        k = route.index(j_lane, vehicle.route_pos)
+        jid = lanes[j_lane].junction_id
+        chain = [j_lane]
+        for lid in route[k + 1:]:
+            if lanes[lid].junction_id != jid or lid in chain:
+                break
+            chain.append(lid)
+        return chain
+
     def release(self, vehicle, j_lane: str) -> None:
-        """Give up `vehicle`'s reservation of `j_lane` (if it holds it): it will not enter now."""
-        if self.reservations.get(j_lane) is vehicle:
-            del self.reservations[j_lane]
+        """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
+        junction (if it holds them): it will not enter now."""
+        for x in self.junction_chain(vehicle, j_lane):
+            if self.reservations.get(x) is vehicle:
+                del self.reservations[x]
+        if vehicle.reserved == j_lane:
             vehicle.reserved = None
 
     # ---- narrow passages -------------------------------------------------------------------
