@@ -149,6 +149,33 @@ def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tu
     return sorted(out)
 
 
+def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -> list[tuple[str, str]]:
+    """(junction lane, road lane) pairs whose centrelines cross, at least CROSSING_CLEARANCE_M
+    from either lane's ends (not where a road lane meets its junction): a junction lane that
+    runs out of its junction across a road lane (USA_Lanker's 35.5 m 41_0_-1 across 47_0_-1, a
+    road lane just after the junction). They conflict like two junction lanes, and a vehicle
+    entering the junction towards that road lane claims it with its junction lanes
+    (`TrafficRules.junction_chain`)."""
+    roads, rlines, tree = road_lanes
+    out = []
+    if not rlines or not lines:
+        return out
+    a_idx, b_idx = tree.query(lines, predicate="crosses")
+    for i, k in zip(a_idx.tolist(), b_idx.tolist()):
+        ln, rd = jl[i], roads[k]
+        if rd.id in {*ln.predecessors, *ln.successors}:
+            continue
+        inter = lines[i].intersection(rlines[k])
+        for p in shapely.get_coordinates(inter):
+            pt = Point(p)
+            sa, sb = lines[i].project(pt), rlines[k].project(pt)
+            c = CROSSING_CLEARANCE_M
+            if c <= sa <= lines[i].length - c and c <= sb <= rlines[k].length - c:
+                out.append((ln.id, rd.id))
+                break
+    return out
+
+
 def unregistered_merges(net: "MapNetwork") -> list[str]:
     """Load-time check: every merge (`merge_pairs`) is a conflict in the network's table, like a
     crossing; one line per pair that is not (empty when sound)."""
@@ -218,7 +245,7 @@ class MapNetwork(RoadNetwork):
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
-    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones
+    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (and road lanes crossing it, `road_crossings`)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
@@ -469,6 +496,9 @@ class MapNetwork(RoadNetwork):
         for a, b in merge_pairs(m):  # whatever their geometry or junction ids say
             conf[a].add(b)
             conf[b].add(a)
+        for a, b in road_crossings(jl, lines, road_lanes):
+            conf[a].add(b)
+            conf.setdefault(b, set()).add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}
         # crosswalk crossings
         cws = list(m.crosswalks.values())

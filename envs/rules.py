@@ -464,20 +464,26 @@ class TrafficRules:
         return True
 
     def junction_chain(self, vehicle, j_lane: str) -> list[str]:
-        """`j_lane` and the lanes of the same junction that follow it on the vehicle's route: a
-        map may chain connecting lanes inside one junction (USA_Lanker's 26_0_-5 -> 53_0_-3 in
-        junction 1); entering the first is entering them all, so all must be clear and are
-        reserved together (the second lane's conflicts went unchecked: a car crossed the ego's
-        reserved path on it)."""
+        """`j_lane` and the lanes that follow it on the vehicle's route in the same junction, or
+        crossing one of its lanes (road lanes, `network.road_crossings`): a map may chain
+        connecting lanes inside one junction (USA_Lanker's 26_0_-5 -> 53_0_-3 in junction 1) or
+        let a junction lane run out across the road lane after another (41_0_-1 across 47_0_-1);
+        entering the first is entering them all, so all must be clear and are reserved together
+        (the later lanes' conflicts went unchecked: cars crossed the ego's reserved path)."""
         route = getattr(vehicle, "lane_route", None)
         if not route or j_lane not in route[vehicle.route_pos:]:
             return [j_lane]
-        lanes = self.net.hdmap.lanes
+        lanes, conflicts = self.net.hdmap.lanes, self.net.conflicts
         k = route.index(j_lane, vehicle.route_pos)
         jid = lanes[j_lane].junction_id
         chain = [j_lane]
         for lid in route[k + 1:]:
-            if lanes[lid].junction_id != jid or lid in chain:
+            if lid in chain:
+                break
+            if lanes[lid].junction_id is None:  # a road lane crossing a lane of this junction (`road_crossings`)
+                if not any(lanes[c].junction_id == jid for c in conflicts.get(lid, ())):
+                    break
+            elif lanes[lid].junction_id != jid:
                 break
             chain.append(lid)
         return chain
