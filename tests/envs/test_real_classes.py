@@ -277,3 +277,98 @@ def test_traffic_route_never_ends_on_a_short_road_between_junctions(monkeypatch)
         ends.add(path[-1])
         assert path[-1] not in link
     assert any(m.lanes[x].junction_id == "J1" for x in {p for x in ends for p in m.lanes[x].predecessors})
+
+
+# ---- lanes after a junction entry: chained junction lanes, junction lanes across road lanes --------
+
+_LINK_FIELDS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
+
+
+def _along(ln, pts, **changes):
+    """Lane `ln` redrawn along the points `pts` (boundaries half its width either side)."""
+    pts = np.asarray(pts, dtype=float)
+    d = np.gradient(pts, axis=0)
+    d /= np.hypot(*d.T)[:, None]
+    n = np.stack([-d[:, 1], d[:, 0]], 1) * ln.width / 2
+    tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+    return dataclasses.replace(ln, centerline=tup(pts), left_boundary=tup(pts + n), right_boundary=tup(pts - n),
+                               bezier=None, **changes)
+
+
+def _drive_lanes(path: Path, lanes: list[str], car: list[str], t_spawn: float, back: float, speed: float,
+                 duration: float = 40.0) -> str:
+    """Drive the ego with the baseline planner along the lane route `lanes` while a car spawned
+    at `t_spawn`, `back` metres before the end of its first lane, drives `car`."""
+    sc = Scenario("fixture", str(path), (), seed=0, duration=duration)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False, "route": {"lanes": lanes},
+                               "goal_distance": 60.0})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    planner = BaselinePlanner()
+    planner.reset(env)
+    f = u.config["policy_frequency"]
+    try:
+        for k in range(int(duration * f)):
+            if k == int(t_spawn * f):
+                u.road.spawn(car[0], u.net.lane_of[car[0]].length - back, speed, list(car))
+            obs, _, term, trunc, info = env.step(planner.act(obs, info))
+            if info["collision"]:
+                return "collision"
+            if term or trunc:
+                return "completed" if u.route_completed() else "timeout"
+        return "timeout"
+    finally:
+        env.close()
+
+
+def _two_lane_four_way():
+    return feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                           seed=0)
+
+
+@pytest.fixture(scope="module")
+def runs_out(tmp_path_factory) -> Path:
+    """The bare two-lane 4-way whose straight lane west -> east (J0_c3_0) runs on out of the
+    junction to the map's edge (it takes the place of R2_0), while the exit lane beside it (R2_1,
+    entered by the right turn J0_c6_0 from the south) swings across it 10-20 m past the junction
+    (USA_Lanker's 35.5 m junction lane 41_0_-1 across the road lane 47_0_-1)."""
+    m = _two_lane_four_way()
+    lanes = {k: v for k, v in m.lanes.items() if k != "R2_0"}
+    x = np.linspace(-19.5, 48.5, 35)
+    lanes["J0_c3_0"] = _along(m.lanes["J0_c3_0"], np.stack([x, np.full_like(x, -1.75)], 1))
+    t = np.linspace(0.0, 1.0, 12)
+    swing = [(19.5 + u, -5.25) for u in np.linspace(0.0, 8.5, 6)] + \
+        [(28.0 + 12.0 * u, -5.25 + 7.0 * (3 - 2 * u) * u * u) for u in t[1:]] + [(40.0 + u, 1.75) for u in (3.0, 8.5)]
+    lanes["R2_1"] = _along(m.lanes["R2_1"], swing)
+    lanes = {k: dataclasses.replace(v, **{f: tuple(x for x in getattr(v, f) if x != "R2_0") for f in _LINK_FIELDS})
+             for k, v in lanes.items()}
+    roads = {**m.roads, "R2": dataclasses.replace(m.roads["R2"], right_lanes=("R2_1",))}
+    path = tmp_path_factory.mktemp("runs_out") / "runs_out.json"
+    native.save(dataclasses.replace(m, lanes=lanes, roads=roads), path)
+    return path
+
+
+def test_a_junction_lane_across_a_road_lane_conflicts(runs_out):
+    """The crossing is a conflict both ways (`network.road_crossings`); road lanes that meet
+    their junction lanes at their ends cross none of them."""
+    from feat2map.envs.network import road_crossings
+
+    m = native.load(runs_out)
+    net = MapNetwork.from_map(m)
+    assert "R2_1" in net.conflicts["J0_c3_0"] and net.conflicts["R2_1"] == frozenset({"J0_c3_0"})
+    assert all(m.lanes[k].junction_id is not None for k in net.conflicts if k != "R2_1")
+    jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
+    from shapely.geometry import LineString
+
+    from feat2map.envs.network import _road_lanes
+    assert road_crossings(jl, [LineString(ln.centerline) for ln in jl], _road_lanes(m)) == [("J0_c3_0", "R2_1")]
+
+
+@pytest.mark.parametrize("t_spawn, back", [(4.0, 10.0), (4.0, 20.0), (3.5, 10.0)])
+def test_right_turn_into_a_road_lane_across_the_egos_path_waits(runs_out, t_spawn, back):
+    """The ego drives J0_c3_0 west -> east out of the junction while a car turns right from the
+    south into R2_1, which crosses the ego's lane past the junction: the car's entry claims R2_1
+    with its junction lane, nobody collides (the car crossed into the ego: no conflict between a
+    junction lane and a road lane was registered)."""
+    car = ["R1_3", "J0_c6_0", "R2_1"]
+    assert _drive_lanes(runs_out, ["R0_2", "J0_c3_0"], car, t_spawn, back, 10.0) == "completed"
