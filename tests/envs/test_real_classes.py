@@ -372,3 +372,45 @@ def test_right_turn_into_a_road_lane_across_the_egos_path_waits(runs_out, t_spaw
     junction lane and a road lane was registered)."""
     car = ["R1_3", "J0_c6_0", "R2_1"]
     assert _drive_lanes(runs_out, ["R0_2", "J0_c3_0"], car, t_spawn, back, 10.0) == "completed"
+
+
+@pytest.fixture(scope="module")
+def chained(tmp_path_factory) -> Path:
+    """The bare two-lane 4-way whose left turn north -> east (J0_c22_0) is drawn as two junction
+    lanes in a row (J0_c22_0 -> J0_c22_0b, on two connecting roads of J0: USA_Lanker's
+    26_0_-5 -> 53_0_-3 in junction 1); only the second crosses the straight lane west -> east."""
+    m = _two_lane_four_way()
+    ln = m.lanes["J0_c22_0"]
+    k = int(np.nonzero(ln.points[:, 1] < 5.0)[0][0])
+    lanes, roads = dict(m.lanes), dict(m.roads)
+    lanes["J0_c22_0"] = _along(ln, ln.points[:k + 1], successors=("J0_c22_0b",))
+    lanes["J0_c22_0b"] = _along(ln, ln.points[k:], id="J0_c22_0b", road_id="J0_c22b", predecessors=("J0_c22_0",))
+    lanes["R2_1"] = dataclasses.replace(m.lanes["R2_1"], predecessors=tuple(
+        "J0_c22_0b" if x == "J0_c22_0" else x for x in m.lanes["R2_1"].predecessors))
+    roads["J0_c22b"] = dataclasses.replace(m.roads["J0_c22"], id="J0_c22b", right_lanes=("J0_c22_0b",), reference=None)
+    path = tmp_path_factory.mktemp("chained") / "chained.json"
+    native.save(dataclasses.replace(m, lanes=lanes, roads=roads), path)
+    return path
+
+
+def test_chained_junction_lanes_are_entered_together(chained):
+    """Entering J0 on the first lane of the chain is entering both (`junction_chain`)."""
+    from types import SimpleNamespace
+
+    from feat2map.envs.rules import TrafficRules
+
+    net = MapNetwork.from_map(native.load(chained))
+    assert "J0_c3_0" not in net.conflicts["J0_c22_0"] and "J0_c3_0" in net.conflicts["J0_c22_0b"]
+    rules = TrafficRules()
+    rules.net = net
+    car = SimpleNamespace(lane_route=["R3_2", "J0_c22_0", "J0_c22_0b", "R2_1"], route_pos=0)
+    assert rules.junction_chain(car, "J0_c22_0") == ["J0_c22_0", "J0_c22_0b"]
+
+
+@pytest.mark.parametrize("t_spawn, back", [(1.5, 20.0), (1.5, 30.0), (2.0, 20.0), (2.5, 10.0), (3.0, 10.0)])
+def test_a_car_on_chained_junction_lanes_yields_to_the_ego(chained, t_spawn, back):
+    """The ego goes straight west -> east while a car turns left north -> east on the chained
+    lanes: nobody collides (the car checked only its first lane's conflicts and crossed the
+    ego's reserved path on the second)."""
+    car = ["R3_2", "J0_c22_0", "J0_c22_0b", "R2_1"]
+    assert _drive_lanes(chained, ["R0_2", "J0_c3_0", "R2_0"], car, t_spawn, back, 10.0) == "completed"
