@@ -414,3 +414,23 @@ def test_a_car_on_chained_junction_lanes_yields_to_the_ego(chained, t_spawn, bac
     ego's reserved path on the second)."""
     car = ["R3_2", "J0_c22_0", "J0_c22_0b", "R2_1"]
     assert _drive_lanes(chained, ["R0_2", "J0_c3_0", "R2_0"], car, t_spawn, back, 10.0) == "completed"
+
+
+# ---- a lane drawn with a cusp -------------------------------------------------------------------
+
+def test_a_lane_folding_back_at_a_cusp_loses_the_fold():
+    """The inner lane of a curve tighter than its offset from the reference line is drawn with a
+    cusp: north, back 0.4 m, then east (Issue295a's 995_0_-1 at its apex). The env's lane drops
+    the fold (the ego tracking it lost the lane there and drove straight on), keeping the ends; a
+    turn drawn with long segments is kept as drawn."""
+    from feat2map.envs.lanes import PolylineLane
+
+    cusp = [(0.0, 0.0), (0.0, 4.0), (0.0, 5.0), (0.02, 5.1), (-0.3, 4.9), (0.6, 4.8), (3.0, 4.4), (8.0, 3.6)]
+    lane = PolylineLane(np.array(cusp), 3.5, lane_id="cusp")
+    turn = np.cos(np.diff(lane.seg_heading))
+    assert np.all(turn > -0.5)
+    assert tuple(lane.points[0]) == cusp[0] and tuple(lane.points[-1]) == cusp[-1]
+    s = [lane.local_coordinates(np.array(p))[0] for p in lane.points]
+    assert np.all(np.diff(s) > 0)
+    hairpin = [(0.0, 0.0), (0.0, 10.0), (3.0, 0.0)]
+    assert len(PolylineLane(np.array(hairpin), 3.5, lane_id="hairpin").points) == 3
