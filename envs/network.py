@@ -157,7 +157,7 @@ def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -
     entering the junction towards that road lane claims it with its junction lanes
     (`TrafficRules.junction_chain`)."""
     roads, rlines, tree = road_lanes
-    out = []
+    out: list[tuple[str, str]] = []
     if not rlines or not lines:
         return out
     a_idx, b_idx = tree.query(lines, predicate="crosses")
@@ -245,7 +245,7 @@ class MapNetwork(RoadNetwork):
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
-    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (and road lanes crossing it, `road_crossings`)
+    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]

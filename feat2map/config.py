@@ -275,7 +275,7 @@ SPAWN_MARGIN_M = 1.0  # ... plus this
 OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
 OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
 FINISH_MARGIN_M = 2.0  # traffic has finished its route this close to the end of its last lane
-TRAFFIC_END_ROOM_M = 8.0  # a traffic route ends on at least this much road after its last junction (a car length and the finish margin)
+TRAFFIC_END_ROOM_M = 8.0  # traffic routes end on at least this much road after their last junction (a car and a margin)
 LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way of a vehicle on it
 # IDM car following of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
 IDM_ACC = 3.0  # [m/s^2] maximum acceleration
