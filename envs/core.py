@@ -23,9 +23,10 @@ A frame (`MapRoad.act` + `MapRoad.step`):
 2. external rows act (the ego takes the agent's action).
 3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
    of every row's lane against every row's window (on the same lane the leader's s is its row's
-   s), plus rows on junction lanes that conflict with or diverge from a window lane (found through
-   one boolean matrix per junction; their s and offset on the window lane from a table sampled
-   once per lane pair); IDM per (follower, leader) pair (a stop point the rules impose is a
+   s), plus rows on junction lanes that conflict with or diverge from a window lane, or on road
+   lanes converging with one (found through one boolean matrix per junction or group of
+   converging lanes; their s and offset on the window lane from a table sampled once per lane
+   pair; converging lanes zip: `MapNetwork.zip_leader`); IDM per (follower, leader) pair (a stop point the rules impose is a
    standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
    (`rules.TrafficRules.stop_distance`: signals, stop signs, reservations, pedestrians) are asked
    only for rows with a junction entry or a crosswalk with people on it within LOOKAHEAD_M in
