@@ -26,8 +26,8 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    s), plus rows on junction lanes that conflict with or diverge from a window lane, or on road
    lanes converging with one (found through one boolean matrix per junction or group of
    converging lanes; their s and offset on the window lane from a table sampled once per lane
-   pair; converging lanes zip: `MapNetwork.zip_leader`); IDM per (follower, leader) pair (a stop point the rules impose is a
-   standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
+   pair; converging lanes zip: `MapNetwork.zip_leader`); IDM per (follower, leader) pair (a stop
+   point the rules impose is a standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
    (`rules.TrafficRules.stop_distance`: signals, stop signs, reservations, pedestrians) are asked
    only for rows with a junction entry or a crosswalk with people on it within LOOKAHEAD_M in
    their window, in row order, so that reservations are claimed in road order. MOBIL runs every
@@ -60,15 +60,23 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config import IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M
+from ..config import (IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M,
+                      STOP_POINT_M)
+from .control import signal_arrays, states_at
 from .network import MapNetwork
-from .rules import idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap
-from .vehicles import Pedestrian, TrafficVehicle
+from .rules import idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap, stops_at_amber
+from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
 
 if TYPE_CHECKING:
     from .road import MapRoad
 
 EXTERNAL, DRIVEN = 0, 1
+EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batched (vehicles.step_egos)
+# below these counts the array programs cost more than they save (a single env: ~7 rule rows, one
+# ego), and the rows ask the rules one by one, the egos step one by one (the same values)
+BATCH_MIN_RULE_ROWS = 48
+SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
+BATCH_MIN_EGOS = 8
 
 
 class LaneTable:
@@ -144,6 +152,18 @@ class LaneTable:
         for lid, crossings in net.crossings.items():
             for cw, _, _ in crossings:
                 self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
+        # stop lines by incoming lane: kind (0 none, 1 signal, 2 stop sign), signal (index into
+        # signal_ids), and how far before the lane's end the line lies (rules.stop_line_ahead's term)
+        self.signal_ids = list(m.signals)
+        sig = {sid: k for k, sid in enumerate(self.signal_ids)}
+        self.line_kind = np.zeros(len(lanes), dtype=np.int8)
+        self.line_signal = np.full(len(lanes), -1, dtype=np.int64)
+        self.line_setback = np.zeros(len(lanes))
+        for lid, sl in net.stop_lines.items():
+            k = self.index[lid]
+            self.line_kind[k] = 1 if sl.kind == "signal" else 2
+            self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
+            self.line_setback[k] = net.lane_of[lid].length - sl.s
         # lane-pair tables (`pair`), concatenated: where a road user on lane b is seen from lane a
         self._pairs: dict[tuple[int, int], tuple[int, int, float]] = {}  # (a, b) -> (start, samples, step)
         self.pair_sa = self.pair_ra = np.zeros(0)
@@ -377,6 +397,7 @@ class TrafficCore:
         self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
         self.on = np.zeros(0, dtype=bool)  # their rows
         self.objs: list[Any] = []
+        self._slot_rows: list[np.ndarray] | None = None  # each slot's rows (`rows`), None: to be found again
         self.env = np.zeros(0, dtype=np.int64)  # the slot of each row
         self.kind = np.zeros(0, dtype=np.int8)
         self.lane = np.zeros(0, dtype=np.int64)
@@ -424,8 +445,13 @@ class TrafficCore:
         self.sync([road])
 
     def rows(self, road: "MapRoad") -> np.ndarray:
-        """The rows of `road`, in its vehicles' order (after a sync)."""
-        return np.nonzero(self.env == road.slot)[0]
+        """The rows of `road`, in its vehicles' order (after a sync); the rows of every slot are
+        found at once, again only when rows come or go."""
+        if self._slot_rows is None:
+            order = np.argsort(self.env, kind="stable")
+            ends = np.cumsum(np.bincount(self.env, minlength=len(self.roads)))
+            self._slot_rows = np.split(order, ends[:-1])
+        return self._slot_rows[road.slot]
 
     def add_traffic(self, road: "MapRoad", lane_id: str, s: float, speed: float, route: list[str],
                     controlled: bool = False) -> ArrayVehicle:
@@ -479,6 +505,7 @@ class TrafficCore:
         """Masks that change only when rows come or go."""
         self.driven = self.kind == DRIVEN
         self.on = self.stepped[self.env]
+        self._slot_rows = None
 
     def sync(self, roads: list | None = None) -> None:
         """Bring the rows in line with the roads' `vehicles` (by identity): take in vehicles user
@@ -660,8 +687,14 @@ class TrafficCore:
         """Second half of a frame for `roads`: external road users step, traffic integrates,
         pedestrians walk, the rules' bookkeeping, collisions."""
         external = np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist()
+        egos = [self.objs[i] for i in external if type(self.objs[i]) in EGOS and self.objs[i].impact is None]
+        if len(egos) < BATCH_MIN_EGOS:
+            egos = []
+        step_egos(egos, dt)  # the egos of all sub-envs together
+        batched = set(map(id, egos))
         for i in external:
-            self.objs[i].step(dt)
+            if id(self.objs[i]) not in batched:
+                self.objs[i].step(dt)
         self.integrate(dt)
         for i in external:
             self._read_external(i)
@@ -688,18 +721,18 @@ class TrafficCore:
         free = idm_free(v, t.speed_limit[self.lane])
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
-        roads, env = self.roads, self.env
-        stops = [(i, roads[env[i]].control.stop_distance(self.objs[i])) for i in self._rule_rows(driven)]
-        stops = [(i, d) for i, d in stops if d < math.inf]
+        si, sd = self._rule_stops(self._rule_rows(driven))
+        stopping = sd < math.inf
+        si, sd = si[stopping], sd[stopping]
+        stops = len(si)
         if stops:  # a stop point is a standing leader
-            si = np.array([i for i, _ in stops], dtype=np.int64)
             fi = np.concatenate([fi, si])
-            gap = np.concatenate([gap, stop_gap(np.array([d for _, d in stops]), self.length[si])])
+            gap = np.concatenate([gap, stop_gap(sd, self.length[si])])
             vl = np.concatenate([vl, np.zeros(len(si))])
         if len(fi):  # rules.idm, vectorized over (follower, leader) pairs
             s0 = np.full(len(fi), IDM_GAP_M)
             if stops:
-                s0[-len(stops):] = IDM_STOP_GAP_M
+                s0[-stops:] = IDM_STOP_GAP_M
             np.minimum.at(acc, fi, idm_behind(free[fi], v[fi], vl, gap, s0))
         acc = np.where(self.controlled, self.command, idm_clip(acc))
         self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
@@ -776,6 +809,94 @@ class TrafficCore:
             flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
 
+    def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, `rules.TrafficRules.stop_distance` of their vehicles) for `rows`, in row order (the
+        rules claim junction reservations in road order). Where the answer lies at the next
+        junction entry alone (no narrow passages on the map, no people on a crosswalk of the
+        row's window, the road after the entry in the window), the scan along the route, the
+        distance to the line and the signal's state are one array program over all rows of all
+        sub-envs, and a row stops without asking the rules when its signal is red (and it holds
+        no reservation to give up) or amber and it can stop; rows that hold their junction lane
+        go; the others ask `may_enter` (reservations, stop-sign queues, conflicts), and rows
+        outside that case `stop_distance`, in row order. The same floating-point operations as
+        `upcoming` and `stop_line_ahead` (tests/envs/test_core.py compares both)."""
+        roads, env, objs = self.roads, self.env, self.objs
+        R = np.array(rows, dtype=np.int64)
+        W = self.W[R]
+        n, K = W.shape
+        if len(rows) < max(BATCH_MIN_RULE_ROWS, 1) or self.net.passages or K < 2:
+            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
+        t = self.table
+        s = self.s[R]
+        lanes = np.maximum(W, 0)
+        valid = W >= 0
+        # distance from the vehicle centre to each window lane's start, summed as upcoming() does
+        D = np.empty((n, K))
+        D[:, 0] = -s
+        d = t.length[lanes[:, 0]] - s
+        for k in range(1, K):
+            D[:, k] = d
+            d = d + t.length[lanes[:, k]]
+        junction = t.junction[lanes] & valid
+        entry = np.zeros((n, K), dtype=bool)
+        entry[:, 1:] = junction[:, 1:] & ~junction[:, :-1] & valid[:, :-1]
+        has = entry.any(axis=1)
+        ke = np.argmax(entry, axis=1)
+        after = np.minimum(ke + 1, K - 1)
+        first_junction = np.argmax(junction[:, 1:], axis=1) + 1  # a junction lane right after the current
+        simple = has & (first_junction == ke) & (ke + 1 < K) & valid[np.arange(n), after] & \
+            ~junction[np.arange(n), after]  # one (the first) junction lane after the current one is scanned
+        nl = len(t.length)
+        busy = [road.slot * nl + k for road in roads if road is not None
+                for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
+        if busy:
+            key = np.where(valid, env[R][:, None] * nl + W, -1)
+            simple &= ~np.isin(key, busy).any(axis=1)
+        d_e = D[np.arange(n), ke]
+        in_lane = lanes[np.arange(n), ke - 1]
+        j_lane = lanes[np.arange(n), ke]
+        d_line = np.where(t.line_kind[in_lane] > 0, d_e - t.line_setback[in_lane], d_e)
+        reach = simple & (d_e <= LOOKAHEAD_M)  # else the scan ends before the entry: free
+        state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
+        signal = reach & (t.line_signal[in_lane] >= 0)  # a signal not in the map has no plan: green
+        if signal.any():
+            si = np.nonzero(signal)[0]
+            slots = env[R[si]]
+            controls = [r.control if r is not None else None for r in roads]
+            times = np.array([c.t if c is not None else 0.0 for c in controls])
+            state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
+        halt = reach & ((state == 2) | ((state == 1) & stops_at_amber(d_line, self.speed[R])))
+        ids = self.net.lane_ids
+        stop = d_line - STOP_POINT_M
+        dist = np.where(halt, stop, math.inf)  # held at the line, or free (beyond the scan)
+        ask = ~simple | (reach & ~(halt & (state == 1)))  # the rules decide, in row order
+        for r in np.nonzero(ask)[0].tolist():
+            i = rows[r]
+            control, v = roads[env[i]].control, objs[i]
+            if not simple[r]:
+                dist[r] = control.stop_distance(v)
+                continue
+            jl = ids[j_lane[r]]
+            known = SIGNAL_STATES[state[r]] if signal[r] else None
+            if control.reservations.get(jl) is v:
+                if state[r] == 2:  # red: it gives its reservation up
+                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state=known)
+                continue  # (it goes: inf; red: already the stop)
+            if not halt[r] and not control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state=known):
+                dist[r] = stop[r]
+        return R, dist
+
+    def _signal_arrays(self, controls: list) -> np.ndarray:
+        """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only
+        when a control changed (a reset)."""
+        held = getattr(self, "_signals_held", None)
+        if held is None or len(held[0]) != len(controls) or any(a is not b for a, b in zip(held[0], controls)):
+            ids = self.table.signal_ids
+            blank = np.zeros((5, len(ids)))
+            held = self._signals_held = (list(controls), np.stack([signal_arrays(c, ids) if c is not None else blank
+                                                                   for c in controls]))
+        return held[1]
+
     def _mobil(self, driven: np.ndarray) -> None:
         due = driven & (self.timer - self.mobil_t >= MOBIL_PERIOD_S) & ~self.crashed & ~self.controlled
         if not due.any():
@@ -819,6 +940,16 @@ class TrafficCore:
         settle = self.lat[rows] * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
         h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * (np.abs(lat) > 1e-3)
         self.x[rows], self.y[rows], self.heading[rows] = x, y, h
+
+    def may_leave(self) -> np.ndarray:
+        """[slots] bool: whether a slot may hold traffic that finished its route or crashed (a
+        driven row crashed or finished, or an external traffic vehicle), so that a respawn looks
+        at its vehicles; False: none did."""
+        rows = self.crashed | ~self.driven
+        rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in np.nonzero(~self.driven)[0].tolist()]
+        last = np.nonzero(self.driven & ~rows & (self.route_pos >= self.route_end))[0]
+        rows[last] = [self.objs[i].finished for i in last.tolist()]
+        return np.bincount(self.env[rows], minlength=len(self.roads)) > 0
 
     def externals(self, road) -> list[Any]:
         return [self.objs[i] for i in self.rows(road).tolist() if self.kind[i] == EXTERNAL]

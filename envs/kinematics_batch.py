@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .lanes import project_rows, segment_table
 from .observation import RELATIVE, Kinematics, project_s
 
 SIMILAR = 1.5  # lanes whose vertex counts are within this factor are projected in one program
@@ -132,3 +133,130 @@ def _packed(lanes: list) -> tuple[np.ndarray, ...]:
 
 
 _PACKED: dict[tuple[int, ...], tuple[list, tuple[np.ndarray, ...]]] = {}  # lane ids -> (lanes, arrays)
+
+
+def observe_egos(observers: list, core) -> list:
+    """`Kinematics.fast` of many sub-envs' egos on one core (a batch, envs/vector.py), from one
+    array program: each observer sees only its own slot's rows (its ego an external row, the
+    others driven) and its road's objects. Returns one [vehicles_count, features] float32 array
+    per observer, or None for an observer the batch does not reproduce (options outside
+    `Kinematics.fast`'s sorted case, lane offsets, vehicles the core does not drive): that one
+    observes as a single env does. The same arithmetic as `fast` and `project_s`, so the values
+    are identical (tests/envs/test_vector_native.py compares with single envs)."""
+    out: list = [None] * len(observers)
+    picks = [k for k, o in enumerate(observers) if _ego_batchable(o, core)]
+    if not picks:
+        return out
+    first = _options(observers[picks[0]])
+    picks = [k for k in picks if _options(observers[k]) == first]  # one config (a reset may change one)
+    net = core.net
+    lane_index = net.memo("lane object index", lambda: {id(ln): k for k, ln in enumerate(net._lanes)})
+    obs0 = observers[picks[0]]
+    # each observer's candidates: the driven rows of its slot in row order (as core.rows), then objects
+    slots = np.array([o.env.road.slot for o in (observers[k] for k in picks)], dtype=np.int64)
+    where = np.full(len(core.roads), -1, dtype=np.int64)
+    where[slots] = np.arange(len(picks))
+    order = np.argsort(core.env, kind="stable")
+    ext = order[core.kind[order] != 1]
+    sel = order[core.kind[order] == 1]
+    ego_row = np.full(len(core.roads), -1, dtype=np.int64)
+    ego_row[core.env[ext]] = ext
+    if len(ext) != len(np.unique(core.env[ext])) or any(
+            ego_row[q] < 0 or core.objs[ego_row[q]] is not observers[k].observer_vehicle
+            for q, k in zip(slots.tolist(), picks)):
+        return out  # a slot whose only external road user is not its ego: each observes alone
+    nv = np.bincount(core.env[sel], minlength=len(core.roads))[slots]
+    senv = core.env[sel]
+    rank = np.arange(len(sel)) - np.searchsorted(senv, senv, side="left")
+    objs = [o.env.road.objects if o.include_obstacles else [] for o in (observers[k] for k in picks)]
+    no = np.array([len(x) for x in objs], dtype=np.int64)
+    m, P = len(picks), int((nv + no).max()) if len(picks) else 0
+    X, Y, H, SP = (np.zeros((m, 1 + P)) for _ in range(4))
+    real = np.zeros((m, 1 + P), dtype=bool)
+    vehicle = np.zeros((m, 1 + P), dtype=bool)
+    mine = where[senv] >= 0
+    r, c = where[senv[mine]], 1 + rank[mine]
+    rows = sel[mine]
+    X[r, c], Y[r, c], H[r, c], SP[r, c] = core.x[rows], core.y[rows], core.heading[rows], core.speed[rows]
+    real[r, c] = vehicle[r, c] = True
+    lanes = np.empty(m, dtype=np.int64)
+    length = np.empty(m)
+    for g, k in enumerate(picks):
+        ego = observers[k].observer_vehicle
+        X[g, 0], Y[g, 0] = float(ego.position[0]), float(ego.position[1])
+        H[g, 0], SP[g, 0] = ego.heading, ego.speed
+        length[g] = ego.LENGTH
+        lane = ego.lane
+        lk = lane_index.get(id(lane), -1)
+        if lk < 0 or net._lanes[lk] is not lane:
+            return out
+        lanes[g] = lk
+        for j, o in enumerate(objs[g]):
+            col = 1 + nv[g] + j
+            X[g, col], Y[g, col] = o.position[0], o.position[1]
+            H[g, col], real[g, col] = o.heading, True
+    real[:, 0] = vehicle[:, 0] = True
+    along = _project_rows(net, lanes, X, Y)
+    dist = along[:, 1:] - along[:, :1]
+    dx, dy = X[:, 1:] - X[:, :1], Y[:, 1:] - Y[:, :1]
+    near = np.sqrt(dx * dx + dy * dy) < obs0.env.PERCEPTION_DISTANCE
+    behind_ok = -2 * length[:, None] < dist
+    keep = near & real[:, 1:]
+    if not obs0.see_behind:
+        keep &= behind_ok
+    keep &= vehicle[:, 1:] | behind_ok  # objects: only from 2 lengths behind
+    key = np.where(keep, np.abs(dist), np.inf)
+    K = obs0.vehicles_count - 1
+    pick = np.argsort(key, axis=1, kind="stable")[:, :K]
+    valid = np.take_along_axis(key, pick, axis=1) < np.inf
+    idx = np.concatenate([np.zeros((m, 1), dtype=np.int64), 1 + pick], axis=1)  # [m, 1 + K] columns
+    filled = np.concatenate([np.ones((m, 1), dtype=bool), valid], axis=1)
+    h, sp = np.take_along_axis(H, idx, axis=1), np.take_along_axis(SP, idx, axis=1)
+    isv = np.take_along_axis(vehicle, idx, axis=1)
+    cos_h, sin_h = np.cos(h), np.sin(h)
+    vx, vy = sp * cos_h, sp * sin_h
+    vx[~isv] = vy[~isv] = 0.0
+    h[~isv] = np.nan
+    zero = np.zeros(idx.shape)
+    col = {"presence": np.ones(idx.shape), "x": np.take_along_axis(X, idx, axis=1),
+           "y": np.take_along_axis(Y, idx, axis=1), "vx": vx, "vy": vy, "heading": h, "cos_h": cos_h, "sin_h": sin_h,
+           "cos_d": zero, "sin_d": zero}
+    if not obs0.absolute:
+        for name in RELATIVE:
+            col[name] = np.concatenate([col[name][:, :1], col[name][:, 1:] - col[name][:, :1]], axis=1)
+    if obs0.normalize:
+        for feature, (a, b) in obs0.features_range.items():
+            if feature in col:
+                v = -1 + (col[feature] - a) * (1 - (-1)) / (b - a)
+                col[feature] = np.clip(v, -1, 1) if obs0.clip else v
+    table = np.zeros((m, obs0.vehicles_count, len(obs0.features)))
+    for j, f in enumerate(obs0.features):
+        table[:, :idx.shape[1], j] = np.where(filled, col[f], 0.0)
+    table = table.astype(np.float32)
+    for g, k in enumerate(picks):
+        out[k] = table[g]
+    return out
+
+
+def _options(obs) -> tuple:
+    """What an observer's values depend on besides the road: its observation options (held on
+    the observation object, which a config change replaces)."""
+    held = getattr(obs, "_batch_options", None)
+    if held is None:
+        held = obs._batch_options = (tuple(obs.features), obs.vehicles_count, repr(obs.features_range), obs.absolute,
+                                     obs.see_behind, obs.normalize, obs.clip, obs.include_obstacles,
+                                     obs.env.PERCEPTION_DISTANCE)
+    return held
+
+
+def _ego_batchable(obs, core) -> bool:
+    """Whether `observe_egos` reproduces this observer's `Kinematics.fast` (all observers of a
+    batch share one config)."""
+    return (type(obs) is Kinematics and obs.fast_supported() and obs.order == "sorted"
+            and set(obs.features) <= BATCH_FEATURES and getattr(obs.env.road, "core", None) is core)
+
+
+def _project_rows(net, lanes: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """[observers, points]: `observation.project_s(lane, x[g], y[g])` of each observer g's lane
+    (`lanes`, indices into net._lanes) in one program (`lanes.project_rows`)."""
+    return project_rows(net.memo("segment table", lambda: segment_table(net._lanes)), lanes, x, y)[0]

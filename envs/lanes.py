@@ -146,3 +146,40 @@ class PolylineLane(AbstractLane):
 
     def __repr__(self) -> str:
         return f"PolylineLane({self.lane_id!r}, length={self.length:.1f})"
+
+
+def segment_table(lanes: list) -> tuple[np.ndarray, ...]:
+    """(first segment, segment count, then ax, ay, ux, uy, lo, hi, cum per segment) of `lanes`'
+    projection arrays, concatenated (built once per network: `project_rows`)."""
+    count = np.array([len(ln._ax) for ln in lanes], dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
+    cat = [np.concatenate([getattr(ln, a) for ln in lanes]) for a in ("_ax", "_ay", "_ux", "_uy", "_lo", "_hi")]
+    cum = np.concatenate([ln.cum[:len(ln._ax)] for ln in lanes])
+    return (first, count, *cat, cum)
+
+
+def project_rows(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray,
+                 y: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`PolylineLane.local_coordinates` of points x[g, :], y[g, :] on lane lanes[g] (indices into
+    the lanes of `table`, a `segment_table`), for all g in one program with the same arithmetic
+    (segments padded to the longest of these lanes; padding never wins): (s, lateral), each
+    [lanes, points]."""
+    first, count, ax, ay, ux, uy, lo, hi, cum = table
+    S = int(count[lanes].max())
+    j = np.arange(S)
+    real = (j[None, :] < count[lanes][:, None])[:, None, :]
+    at = np.where(real[:, 0], first[lanes][:, None] + j[None, :], first[lanes][:, None])
+    ax, ay, ux, uy, lo, hi = (a[at][:, None, :] for a in (ax, ay, ux, uy, lo, hi))
+    rx = x[:, :, None] - ax
+    ry = y[:, :, None] - ay
+    t = rx * ux + ry * uy
+    tc = np.minimum(np.maximum(t, lo), hi)
+    dx = rx - tc * ux
+    dy = ry - tc * uy
+    d2 = dx * dx + dy * dy
+    np.copyto(d2, np.inf, where=~real)
+    i = d2.argmin(axis=2)[:, :, None]
+    pick = (lambda a: np.take_along_axis(a, i, axis=2)[:, :, 0])  # noqa: E731
+    ux_i, uy_i = pick(np.broadcast_to(ux, rx.shape)), pick(np.broadcast_to(uy, rx.shape))
+    s = pick(np.broadcast_to(cum[at][:, None, :], rx.shape)) + pick(tc)
+    return s, ux_i * pick(ry) - uy_i * pick(rx)

@@ -107,7 +107,7 @@ class MapEnv(AbstractEnv):
         route, extend = self._ego_route()
         self._make_ego(route, extend)
         route = self.vehicle.lane_route
-        route_junctions = {self.net.hdmap.lanes[l].junction_id for l in route} - {None}
+        route_junctions = {j for l in route if (j := self.net.hdmap.lanes[l].junction_id) is not None}
         by_junction, order = self.net.memo("crosswalks", lambda: group_by(self.net.hdmap.crosswalks.values(),
                                                                           "junction_id"))
         self.control.active_crosswalks = sorted((c for j in route_junctions for c in by_junction.get(j, ())),
@@ -201,9 +201,10 @@ class MapEnv(AbstractEnv):
             raise NotImplementedError("The road and vehicle must be initialized in the environment implementation")
         self.time += 1 / self.config["policy_frequency"]
 
-    def _end_step(self, action):
-        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info)."""
-        obs = self.observation_type.observe()
+    def _end_step(self, action, obs=None):
+        """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info);
+        `obs` when already made (a batch observes all its sub-envs at once, envs/vector.py)."""
+        obs = self.observation_type.observe() if obs is None else obs
         reward = self._reward(action)
         terminated = self._is_terminated()
         truncated = self._is_truncated()
@@ -215,10 +216,11 @@ class MapEnv(AbstractEnv):
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def _respawn_traffic(self, stay: frozenset[int] = frozenset()) -> None:
+    def _respawn_traffic(self, maybe: bool = True, stay: frozenset[int] = frozenset()) -> None:
         """Traffic that finished its route or crashed leaves (but the vehicles whose ids are in
-        `stay`: the multi-agent env's agents); as many new vehicles spawn."""
-        if self.config["traffic_respawn"]:
+        `stay`: the multi-agent env's agents); as many new vehicles spawn (`maybe` False: the core
+        knows that none did)."""
+        if self.config["traffic_respawn"] and maybe:
             keep = [v for v in self.road.vehicles if id(v) in stay
                     or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
@@ -279,13 +281,14 @@ class MapEnv(AbstractEnv):
         control = "" if in_lane is None else (sl.kind if sl else "bare")
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
         plan = rules.plans.get(sl.control_id) if sl is not None else None
-        feature = m.junctions[jid].feature if jid in m.junctions else None
+        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
         return {
             "speed": float(ego.speed), "crashed": bool(ego.crashed), "action": action_array(self.action_space, action),
             "junction": jid or "", "junction_feature": feature_info(feature),
             "manoeuvre": turn or "", "control_ahead": control,
-            "signal_id": sl.control_id if sig_state else "", "signal_state": sig_state,
-            "signal_time_to_change": float(plan.time_to_change(sl.control_id, rules.t)) if plan else math.inf,
+            "signal_id": sl.control_id if sl is not None and sig_state else "", "signal_state": sig_state,
+            "signal_time_to_change": (float(plan.time_to_change(sl.control_id, rules.t))
+                                      if sl is not None and plan else math.inf),
             "signal_states": rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
             "distance_to_stop_line": float(d),
             "violations": dict(self.violations), "new_violations": list(self.judge.new),
@@ -367,9 +370,11 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             env.judge.check()
             if frame < frames - 1:
                 env._automatic_rendering()
+    maybe = {id(core): core.may_leave() for core, _ in groups.values() if core is not None}
     for env in envs:
         env.enable_auto_render = False
-        env._respawn_traffic()
+        core = getattr(env.road, "core", None)
+        env._respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
 
 
 def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:

@@ -217,15 +217,15 @@ class AgentVehicle(ArrayVehicle):
 
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
     _done_at: tuple[int, int] = (-1, -1)
-    _done_before = 0.0
+    _done_sum = 0.0  # metres of the route's lanes before route position _done_at
 
     def route_distance_done(self) -> float:
         c, i = self._core, self._row
         pos, route, lane_of = int(c.route_pos[i]), c.route_ids[i], c.net.lane_of
         if self._done_at != (id(route), pos):
-            self._done_before = sum(lane_of[x].length for x in route[:pos])
+            self._done_sum = sum(lane_of[x].length for x in route[:pos])
             self._done_at = (id(route), pos)
-        return self._done_before + min(max(float(c.s[i]), 0.0), lane_of[route[pos]].length)
+        return self._done_sum + min(max(float(c.s[i]), 0.0), lane_of[route[pos]].length)
 
     _line_at: tuple[int, int] = (-1, -1)
     _line_plan: tuple = ()
@@ -477,7 +477,7 @@ class _World(MapEnv):
 
     def respawn_traffic(self, agents: set[int]) -> None:
         """MapEnv's respawn: finished and crashed traffic leaves, as many new vehicles spawn."""
-        self._respawn_traffic(frozenset(agents))
+        self._respawn_traffic(stay=frozenset(agents))
 
 
 class _GridWorld(_World, JunctionGridEnv):

@@ -28,7 +28,7 @@ from ..config import (CONFLICT_DISTANCE_M, CROSSING_CLEARANCE_M, CURVE_CHORD_M, 
                       PASSAGE_STEP_M, TRACKING_MARGIN_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
 from ..model import HDMap, incoming_lanes
-from .lanes import PolylineLane
+from .lanes import PolylineLane, project_rows, segment_table
 
 GRID_CELL_M = 8.0
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
@@ -415,6 +415,27 @@ class MapNetwork(RoadNetwork):
         k = int(ks[j])
         lat = u[j, 0] * ry[j] - u[j, 1] * rx[j]
         return self._indices[k], float(cum[j] + t[j]), float(lat)
+
+    def locate_many(self, positions: list, headings: list, hints: list) -> list[tuple[LaneIndex, float, float]]:
+        """`locate` of many road users at once (each with its hint lane): the projections on the
+        hint lanes are one array program (`lanes.project_rows`, the same arithmetic); whoever is
+        not on its hint lane is located alone."""
+        out: list = [None] * len(positions)
+        index = self.memo("lane object index", lambda: {id(ln): k for k, ln in enumerate(self._lanes)})
+        lanes = [self.get_lane(h) if h is not None else None for h in hints]
+        ks = [index.get(id(ln), -1) if ln is not None else -1 for ln in lanes]
+        batch = [g for g, k in enumerate(ks) if k >= 0 and self._lanes[k] is lanes[g]]
+        if batch:
+            x = np.array([[float(positions[g][0])] for g in batch])
+            y = np.array([[float(positions[g][1])] for g in batch])
+            table = self.memo("segment table", lambda: segment_table(self._lanes))
+            s_all, r_all = project_rows(table, np.array([ks[g] for g in batch], dtype=np.int64), x, y)
+            for g, s, r in zip(batch, s_all[:, 0].tolist(), r_all[:, 0].tolist()):
+                lane, heading = lanes[g], headings[g]
+                if lane is not None and abs(r) <= lane.width / 2 and -0.5 <= s <= lane.length + 0.5 and (
+                        heading is None or abs(wrap_angle(lane.heading_at(s) - heading)) < math.pi / 3):
+                    out[g] = (hints[g], s, r)
+        return [o if o is not None else self.locate(p, h, hint) for o, p, h, hint in zip(out, positions, headings, hints)]
 
     def _far_locate(self, position, heading):
         best = None

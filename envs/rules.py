@@ -134,8 +134,9 @@ def pedestrian_in_path(lateral: float, lane_width: float) -> bool:
     return abs(lateral) < lane_width / 2 + PEDESTRIAN_IN_PATH_M
 
 
-def stops_at_amber(distance: float, speed: float) -> bool:
-    """At amber a vehicle stays when it can stop before the line (else it goes through)."""
+def stops_at_amber(distance, speed):
+    """At amber a vehicle stays when it can stop before the line (else it goes through); floats
+    or arrays (elementwise)."""
     return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
 
 
@@ -216,6 +217,7 @@ class TrafficRules:
     buckets: dict
     passage_holders: dict  # passage group -> (holders from side 0, from side 1)
     passage_waiters: dict  # passage group -> {vehicle: (side, time it began to wait)}
+    signals_by_junction: dict  # junction id -> its signal ids
 
     # ---- signals ----------------------------------------------------------------------
     def signal_state(self, signal_id: str) -> str:
@@ -242,7 +244,7 @@ class TrafficRules:
         net = self.net
         sl = net.stop_lines.get(in_lane)
         plan = self.plans.get(sl.control_id) if sl is not None else None
-        if plan is None:
+        if sl is None or plan is None:
             return False
         phase = plan.phases[plan.phase_of(sl.control_id)]
         for c in net.conflicts.get(junction_lane, ()):
@@ -269,7 +271,7 @@ class TrafficRules:
         back junctions: Shalun's 3.5 m road from J_1 to J_14 leaves a car stopped at J_14's line
         inside J_1); (None, None) anywhere else."""
         net = self.net
-        if lane_id not in net.hdmap.lanes:
+        if lane_id is None or lane_id not in net.hdmap.lanes:
             return None, None
         sl = net.stop_lines.get(lane_id)
         if sl is not None and in_stop_zone(sl.s - getattr(vehicle, "lane_s", 0.0)):
@@ -353,6 +355,8 @@ class TrafficRules:
         """A route follower on lane `approach` (other than `exclude`) drives into `lane_id` next
         and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
         lane = self.net.lane_of.get(approach)
+        if lane is None:
+            return False
         for v in self.buckets.get(approach, ()):
             if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude):
                 d = lane.length - v.s_on(approach)
@@ -397,6 +401,8 @@ class TrafficRules:
             if self._held(p):
                 continue
             lane_p = net.lane_of.get(p)
+            if lane_p is None:
+                continue
             out += [(lane_p.length - v.s_on(p), v) for v in self.buckets.get(p, ())
                     if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude)]
         return out
@@ -435,13 +441,14 @@ class TrafficRules:
         return None
 
     def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
-                  ignore: frozenset = frozenset()) -> bool:
+                  ignore: frozenset = frozenset(), state: str | None = None) -> bool:
         """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now. A
         reservation skips the other checks but not the signal: a vehicle held at the line (e.g. by
-        pedestrians) into amber stays there if it can stop, and on red gives its reservation up."""
+        pedestrians) into amber stays there if it can stop, and on red gives its reservation up.
+        `state`: the signal's state when the caller knows it (the batched core)."""
         sl = self.net.stop_lines.get(in_lane)
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
-            state = self.signal_state(sl.control_id)
+            state = state or self.signal_state(sl.control_id)
             if state == "red":
                 if commit:
                     self.release(vehicle, j_lane)
@@ -492,7 +499,7 @@ class TrafficRules:
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
         junction (if it holds them): it will not enter now."""
         for x in self.junction_chain(vehicle, j_lane):
-            if self.reservations.get(x) is vehicle:
+            if x in self.reservations and self.reservations[x] is vehicle:
                 del self.reservations[x]
         if vehicle.reserved == j_lane:
             vehicle.reserved = None
@@ -688,13 +695,13 @@ class EgoJudge:
     def check(self) -> None:
         rules, ego = self.rules, self.ego
         net, m = rules.net, rules.net.hdmap
-        lid = net.id_of.get(ego.lane_index)
+        lid = net.id_of[ego.lane_index]  # every lane of the network has its map id
         prev = self._lane
         on_road = lid in m.lanes and m.lanes[lid].junction_id is None
         rtor = rules.right_turn_on_red()
         if has_stopped(ego.speed):
             sl, in_lane = rules.waiting_line(ego, lid)
-            if sl is not None and (sl.kind == "stop" or rtor):
+            if sl is not None and in_lane is not None and (sl.kind == "stop" or rtor):
                 self._stopped.add(in_lane)
         if on_road:
             # stops and line crossings count until the ego is on another road lane (a stop made

@@ -21,8 +21,11 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import concatenate, iterate
 
 from ..errors import Feat2MapError
+from . import core
 from .core import TrafficCore
+from .kinematics_batch import observe_egos
 from .map_env import MapEnv, simulate
+from .observation import TrafficControlObservation
 
 # config values a batch cannot hold: (key, value, why)
 UNSUPPORTED = (("new_map_each_reset", True, "the sub-envs of a batch share one map"),
@@ -84,9 +87,10 @@ class MapVectorEnv(SyncVectorEnv):
             env._begin_step(acts[i])
         simulate(envs, [acts[i] for i in stepping])
         self.core.sync()  # respawns of every sub-env taken in at once (not one observation at a time)
-        for i, env in zip(stepping, envs):
+        observed = self.observe(envs)
+        for i, env, obs in zip(stepping, envs, observed):
             self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
-                env._end_step(acts[i])
+                env._end_step(acts[i], obs)
         finals = []
         for i, env in enumerate(self.envs):
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
@@ -98,6 +102,20 @@ class MapVectorEnv(SyncVectorEnv):
         obs = self._observations
         return (np.copy(obs) if self.copy and isinstance(obs, np.ndarray) else obs, np.copy(self._rewards),
                 np.copy(self._terminations), np.copy(self._truncations), infos)
+
+    def observe(self, envs: list[MapEnv]) -> list:
+        """The observations of `envs` where one array program over the batch makes them (the
+        Kinematics egos, `kinematics_batch.observe_egos`, also inside the traffic-control dict),
+        None for the others (each observes itself)."""
+        if len(envs) < core.BATCH_MIN_EGOS:  # too few for the array program to pay
+            return [None] * len(envs)
+        types = [env.observation_type for env in envs]
+        wrapped = isinstance(types[0], TrafficControlObservation)
+        kin = observe_egos([t.inner if wrapped else t for t in types], self.core)
+        if not wrapped:
+            return kin
+        return [None if o is None else {"observation": o, "traffic_control": env.traffic_control_vector()}
+                for env, o in zip(envs, kin)]
 
     def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:
         """The batched info of (sub-env, info) pairs: what `VectorEnv._add_info` makes of them

@@ -4,6 +4,7 @@ rows, and the ego, driven by the agent's actions)."""
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
@@ -35,7 +36,7 @@ class Pedestrian(RoadObject):
 
     def step(self, dt: float) -> None:
         move = min(self.speed * dt, self.remaining)
-        self.position = self.position + move * self.direction
+        self.position: np.ndarray = self.position + move * self.direction
         self.remaining -= move
 
     @property
@@ -50,6 +51,21 @@ class RouteFollower:
     route_pos: int
     _projected_at: tuple[float, float] | None = None
     _projections: dict = {}
+    _done_before: tuple | None = None  # (route, position, metres of the route's lanes before it)
+    if TYPE_CHECKING:  # the highway-env vehicle it is mixed into has these
+        road: Any
+        position: np.ndarray
+        speed: float
+        heading: float
+        history: Any
+        LENGTH: float
+        TAU_PURSUIT: float
+        KP_LATERAL: float
+        KP_HEADING: float
+        MAX_STEERING_ANGLE: float
+
+        @classmethod
+        def create_from(cls, vehicle: Any) -> Any: ...
 
     def init_route(self, lane_route: list[str]) -> None:
         self.lane_route = list(lane_route)
@@ -136,9 +152,18 @@ class RouteFollower:
 
     def on_state_update(self) -> None:
         if self.road:
+            hint = self.location_hint()
+            self.located(self.road.network.locate(self.position, self.heading, hint), hint)
+
+    def location_hint(self):
+        """The lane to look on first when locating the vehicle (its target lane)."""
+        return getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
+
+    def located(self, location: tuple, hint) -> None:
+        """Take the (lane index, s, lateral) that `MapNetwork.locate` found with `hint`."""
+        if self.road:
             net = self.road.network
-            hint = getattr(self, "target_lane_index", None) or getattr(self, "lane_index", None)
-            self.lane_index, self.lane_s, self.lane_lat = net.locate(self.position, self.heading, hint)
+            self.lane_index, self.lane_s, self.lane_lat = location
             self.lane = net.get_lane(self.lane_index)
             if self.lane_index == hint:  # locate projected on the hint lane
                 p = self.position
@@ -150,7 +175,11 @@ class RouteFollower:
     def route_distance_done(self) -> float:
         """Metres driven along the route: lanes behind plus the position on the current one."""
         net = self.net
-        done = sum(net.lane_of[l].length for l in self.lane_route[:self.route_pos])
+        route, pos = self.lane_route, self.route_pos
+        held = self._done_before
+        if held is None or held[0] is not route or held[1] != pos:  # summed once per route position
+            held = self._done_before = (route, pos, sum(net.lane_of[l].length for l in route[:pos]))
+        done = held[2]
         lane = net.lane_of[self.lane_route[self.route_pos]]
         return done + min(max(self.route_s(), 0.0), lane.length)
 
@@ -162,7 +191,7 @@ class RouteFollower:
         lane_of = self.net.lane_of
         route, pos = self.lane_route, self.route_pos
         s = self.route_s()
-        out = [(pos, route[pos], -s, s)]
+        out: list[tuple[int, str, float, float | None]] = [(pos, route[pos], -s, s)]
         d = lane_of[route[pos]].length - s
         for k in range(pos + 1, len(route)):
             if d > horizon:
@@ -280,6 +309,10 @@ class EgoMDPVehicle(RouteFollower, MDPVehicle):
 
     def step(self, dt: float) -> None:
         super().step(dt)
+        self.settle()
+
+    def settle(self) -> None:
+        """After a step: no reversing while the target speed is not negative."""
         if self.speed < 0 and self.target_speed >= 0:
             self.speed = 0.0
 
@@ -319,5 +352,42 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
 
     def step(self, dt: float) -> None:
         Vehicle.step(self, dt)
+        self.settle()
+
+    def settle(self) -> None:
+        """After a step: no reversing without a negative acceleration command."""
         if self.speed < 0 and self.action.get("acceleration", 0) <= 0:
             self.speed = 0.0
+
+
+def step_egos(egos: list, dt: float) -> None:
+    """`step(dt)` of many egos (`EgoMDPVehicle`, `EgoVehicle`; none with an impact pending) at
+    once: highway-env's `Vehicle.step` (its modified bicycle model) as one array program over
+    them, with the same operations (NumPy's ufuncs give arrays the values they give scalars),
+    then their lane locations (`MapNetwork.locate_many`, as `on_state_update`) and `settle`."""
+    for v in egos:
+        v.clip_actions()
+    steer = np.array([v.action["steering"] for v in egos], dtype=float)
+    acc = np.array([v.action["acceleration"] for v in egos], dtype=float)
+    speed = np.array([v.speed for v in egos], dtype=float)
+    heading = np.array([v.heading for v in egos], dtype=float)
+    half = np.array([v.LENGTH for v in egos], dtype=float) / 2
+    beta = np.arctan(1 / 2 * np.tan(steer))
+    dx = speed * np.cos(heading + beta) * dt
+    dy = speed * np.sin(heading + beta) * dt
+    heading = heading + speed * np.sin(beta) / half * dt
+    speed = (speed + acc * dt).tolist()
+    for k, v in enumerate(egos):
+        p = v.position
+        p[0] += dx[k]
+        p[1] += dy[k]
+        v.heading = heading[k]
+        v.speed = speed[k]
+    located = [v for v in egos if v.road]
+    if located:
+        hints = [v.location_hint() for v in located]
+        places = located[0].road.network.locate_many([v.position for v in located], [v.heading for v in located], hints)
+        for v, place, hint in zip(located, places, hints):
+            v.located(place, hint)
+    for v in egos:
+        v.settle()

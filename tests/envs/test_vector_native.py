@@ -103,6 +103,61 @@ def test_map_file_env_equals_single_envs(tmp_path):
     assert run_both("feat2map/MapFile-v0", config, n=2, steps=30) >= 10
 
 
+# pedestrians seen in the Kinematics observation, signals and stop signs, 3 Hz decisions
+KINEMATIC_BUSY = {**BUSY, "observation": {"type": "Kinematics", "vehicles_count": 8,
+                                          "features": ["presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h"],
+                                          "features_range": {"x": [-100, 100], "y": [-100, 100], "vx": [-20, 20],
+                                                             "vy": [-20, 20]}, "see_behind": False},
+                  "policy_frequency": 3, "simulation_frequency": 12}
+
+
+def scalar_code(monkeypatch) -> None:
+    """The per-row and per-sub-env code the batch's array programs stand in for: the rules asked
+    row by row, each ego stepped and observing alone."""
+    from feat2map.envs import core, vector
+
+    def rule_stops(self, rows):
+        stops = [self.roads[self.env[i]].control.stop_distance(self.objs[i]) for i in rows]
+        return np.array(rows, dtype=np.int64), np.array(stops, dtype=float)
+
+    def step_egos(egos, dt):
+        for v in egos:
+            v.step(dt)
+
+    monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
+    monkeypatch.setattr(core, "step_egos", step_egos)
+    monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
+
+
+def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                        config=config)
+    out = [envs.reset(seed=seed)]
+    envs.action_space.seed(seed)
+    for _ in range(steps):
+        out.append(envs.step(envs.action_space.sample()))
+    envs.close()
+    return out
+
+
+@pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
+def test_array_programs_equal_the_scalar_code(config, monkeypatch):
+    """The batch's array programs (the rules' stop distances, `kinematics_batch.observe_egos`,
+    `vehicles.step_egos`) give bit for bit what the rules asked row by row, each ego stepped
+    alone and each sub-env's own observation give (the equality with single envs above cannot
+    see this: a single env is the same core with one slot)."""
+    from feat2map.envs import core
+
+    monkeypatch.setattr(core, "BATCH_MIN_RULE_ROWS", 1)  # the array programs however few the rows
+    monkeypatch.setattr(core, "BATCH_MIN_EGOS", 1)
+    fast = trajectory(config, 3, 40, seed=5)
+    scalar_code(monkeypatch)
+    slow = trajectory(config, 3, 40, seed=5)
+    for t, (a, b) in enumerate(zip(fast, slow)):
+        for name, x, y in zip(("obs", "reward", "terminated", "truncated", "info"), a, b):
+            assert_same(x, y, f"step {t} {name}")
+
+
 def test_vector_conventions():
     """Batched spaces, seeding (same seeds: same observations; different sub-envs differ),
     reset_mask, next-step autoreset (reset observation with reward 0), render of one sub-env."""
