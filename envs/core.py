@@ -23,10 +23,11 @@ A frame (`MapRoad.act` + `MapRoad.step`):
 2. external rows act (the ego takes the agent's action).
 3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
    of every row's lane against every row's window (on the same lane the leader's s is its row's
-   s), plus rows on junction lanes that conflict with or diverge from a window lane (found through
-   one boolean matrix per junction; their s and offset on the window lane from a table sampled
-   once per lane pair); IDM per (follower, leader) pair (a stop point the rules impose is a
-   standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
+   s), plus rows on junction lanes that conflict with or diverge from a window lane, or on road
+   lanes converging with one (found through one boolean matrix per junction or group of
+   converging lanes; their s and offset on the window lane from a table sampled once per lane
+   pair; converging lanes zip: `MapNetwork.zip_leader`); IDM per (follower, leader) pair (a stop
+   point the rules impose is a standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
    (`rules.TrafficRules.stop_distance`: signals, stop signs, reservations, pedestrians) are asked
    only for rows with a junction entry or a crosswalk with people on it within LOOKAHEAD_M in
    their window, in row order, so that reservations are claimed in road order. MOBIL runs every
@@ -114,11 +115,26 @@ class LaneTable:
         # matrix (the relation never leaves a junction): near[joff[j] + a * jsize[j] + b]
         self.jid = np.full(len(lanes), -1, dtype=np.int64)
         self.jloc = np.zeros(len(lanes), dtype=np.int64)
-        members: dict[str, list[int]] = {}
+        # (and road lanes that converge, `MapNetwork.merges`, grouped the same way: one group per
+        # set of road lanes linked by such pairs)
+        members: dict[object, list[int]] = {}
+        merge_group: dict[str, int] = {}
+        for lid in sorted(net.merges):
+            if lid in merge_group:
+                continue
+            stack, merge_group[lid] = [lid], len(merge_group)
+            g = merge_group[lid]
+            while stack:
+                for y in net.merges.get(stack.pop(), ()):
+                    if y not in merge_group:
+                        merge_group[y] = g
+                        stack.append(y)
         for k, lid in enumerate(net.lane_ids):
             jid = m.lanes[lid].junction_id
             if jid is not None:
                 members.setdefault(jid, []).append(k)
+            elif lid in merge_group:
+                members.setdefault(("merge", merge_group[lid]), []).append(k)
         self.jsize = np.array([len(v) for v in members.values()], dtype=np.int64)
         self.joff = np.concatenate([[0], np.cumsum(self.jsize ** 2)[:-1]]).astype(np.int64)
         self.near = np.zeros(int((self.jsize ** 2).sum()), dtype=bool)
@@ -129,12 +145,7 @@ class LaneTable:
             j = self.jid[k]
             if j < 0:
                 continue
-            rec = m.lanes[lid]
-            near = set(net.conflicts.get(lid, ()))
-            for p in rec.predecessors:
-                if p in m.lanes:
-                    near.update(x for x in m.lanes[p].successors if x != lid)
-            for x in near:
+            for x in net.near_lanes(lid):
                 b = self.index.get(x, -1)
                 if b >= 0 and self.jid[b] == j:
                     self.near[self.joff[j] + self.jloc[k] * self.jsize[j] + self.jloc[b]] = True
@@ -159,8 +170,8 @@ class LaneTable:
         self.pair_sa = self.pair_ra = np.zeros(0)
 
     def near_pairs(self, lane_a: np.ndarray, lane_b: np.ndarray) -> np.ndarray:
-        """Whether junction lane b conflicts with or diverges from junction lane a, elementwise
-        (False where either is not a junction lane or they are in different junctions)."""
+        """Whether junction lane b conflicts with or diverges from junction lane a, or road lane b
+        converges with road lane a, elementwise (`MapNetwork.near_lanes`; False elsewhere)."""
         ja, jb = self.jid[lane_a], self.jid[lane_b]
         same = (ja >= 0) & (ja == jb)
         out = np.zeros(len(lane_a), dtype=bool)
@@ -744,6 +755,8 @@ class TrafficCore:
         fi, k, lj = fi[other], k[other], lj[other]
         so = self.s[lj]
         ro = self.lat[lj]
+        ahead = so > self.s[fi]
+        zips = np.zeros(len(fi), dtype=bool)  # converging road lanes: `MapNetwork.zip_leader` decides
         wl = W[fi, k]
         # rows on junction lanes conflicting with or diverging from a window junction lane
         occ = np.nonzero((self.lane >= 0) & (t.jid[self.lane] >= 0))[0]
@@ -760,14 +773,23 @@ class TrafficCore:
                     for n_, j in enumerate(pj.tolist()):  # external road users: their exact position
                         if not self.driven[j]:
                             so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[j].position)
+                    ahead2 = so2 > self.s[pf]
+                    zips2 = ~t.junction[a_l] & (a_l != b_l)
+                    ids = self.net.lane_ids
+                    for n_ in np.nonzero(zips2)[0].tolist():
+                        f_ = int(pf[n_])
+                        ahead2[n_] = self.net.zip_leader(
+                            ids[a_l[n_]], float(self.s[f_]) if pk[n_] == 0 else None, ids[b_l[n_]], float(so2[n_]),
+                            self.objs[f_].position, self.objs[pj[n_]].position, float(self.length[f_]))
                     fi, k, lj = np.concatenate([fi, pf]), np.concatenate([k, pk]), np.concatenate([lj, pj])
+                    ahead, zips = np.concatenate([ahead, ahead2]), np.concatenate([zips, zips2])
                     so, ro = np.concatenate([so, so2]), np.concatenate([ro, ro2])
                     wl = W[fi, k]
         if not len(fi):
             return fi, np.zeros(0), np.zeros(0)
         s_own = self.s[fi]
         L = self.length[fi]
-        ok = in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | (so > s_own))
+        ok = np.where(zips, ahead, in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | ahead))
         gap = C[fi, k] - s_own + so - L
         return fi[ok], gap[ok], self.speed[lj[ok]]
 

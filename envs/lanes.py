@@ -10,9 +10,31 @@ and last segments extend beyond the ends so longitudinal coordinates run below 0
 from __future__ import annotations
 
 import bisect
+import math
 
 import numpy as np
 from highway_env.road.lane import AbstractLane, LineType
+
+from ..config import FOLD_SEGMENT_M, FOLD_TURN_DEG
+
+
+def unfold(pts: np.ndarray) -> np.ndarray:
+    """`pts` without the vertices where the polyline folds back on itself (consecutive segments
+    turning more than FOLD_TURN_DEG, one of them shorter than FOLD_SEGMENT_M), repeatedly: the
+    inner lane of a curve tighter than the lane's offset from its reference line is drawn with a
+    cusp (Issue295a's 995_0_-1 turns back 0.4 m at its apex), where projections jump and the ego
+    tracking the lane lost it. A turn drawn with long segments is kept as drawn."""
+    limit = math.cos(math.radians(FOLD_TURN_DEG))
+    while len(pts) > 2:
+        d = np.diff(pts, axis=0)
+        n = np.maximum(np.hypot(*d.T), 1e-12)
+        u = d / n[:, None]
+        cos = np.einsum("ij,ij->i", u[:-1], u[1:])
+        bad = np.nonzero((cos < limit) & (np.minimum(n[:-1], n[1:]) < FOLD_SEGMENT_M))[0]
+        if not len(bad):
+            break
+        pts = np.delete(pts, bad[0] + 1, axis=0)
+    return pts
 
 
 class PolylineLane(AbstractLane):
@@ -23,7 +45,7 @@ class PolylineLane(AbstractLane):
                  lane_id: str = "") -> None:
         pts = np.asarray(points, dtype=float)
         keep = np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-9])
-        pts = pts[keep]
+        pts = unfold(pts[keep])
         if len(pts) < 2:
             raise ValueError(f"lane {lane_id!r} needs at least two distinct points")
         self.points = pts

@@ -19,6 +19,7 @@ import numpy as np
 from highway_env.road.lane import LineType
 from highway_env.road.road import LaneIndex, RoadNetwork
 import shapely
+import shapely.ops
 from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
@@ -121,6 +122,60 @@ def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
     return sorted(out)
 
 
+def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tuple[str, str]]:
+    """Pairs of road lanes of one direction (not linked to each other) whose centrelines come
+    closer than CONFLICT_DISTANCE_M (a car width and a margin): a taper merge along a road
+    (Highway101GLE's lane_92 and lane_93 of road_17 converge over 148 m into one point), a lane
+    opening or closing beside another, a diverge. Vehicles on them cannot drive side by side
+    there: they zip (`MapNetwork.merges`). Found from the geometry, since such maps declare no
+    merge outside junctions; lanes that meet only head to tail are left out."""
+    roads, lines, tree = road_lanes if road_lanes is not None else _road_lanes(m)
+    out: set[tuple[str, str]] = set()
+    if not lines:
+        return []
+    left, right = tree.query(lines, predicate="dwithin", distance=CONFLICT_DISTANCE_M)
+    for i, j in zip(left.tolist(), right.tolist()):
+        a, b = roads[i], roads[j]
+        if i >= j or b.id in {*a.predecessors, *a.successors}:
+            continue
+        la, lb = lines[i], lines[j]
+        pa, pb = shapely.ops.nearest_points(la, lb)
+        sa, sb = la.project(pa), lb.project(pb)
+        if float(np.dot(_tangent(la, sa), _tangent(lb, sb))) <= 0.0:
+            continue  # opposite directions: a narrow passage
+        if (sa >= la.length - 1e-6 and sb <= 1e-6) or (sb >= lb.length - 1e-6 and sa <= 1e-6):
+            continue  # head to tail
+        out.add((min(a.id, b.id), max(a.id, b.id)))
+    return sorted(out)
+
+
+def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -> list[tuple[str, str]]:
+    """(junction lane, road lane) pairs whose centrelines cross, at least CROSSING_CLEARANCE_M
+    from either lane's ends (not where a road lane meets its junction): a junction lane that
+    runs out of its junction across a road lane (USA_Lanker's 35.5 m 41_0_-1 across 47_0_-1, a
+    road lane just after the junction). They conflict like two junction lanes, and a vehicle
+    entering the junction towards that road lane claims it with its junction lanes
+    (`TrafficRules.junction_chain`)."""
+    roads, rlines, tree = road_lanes
+    out: list[tuple[str, str]] = []
+    if not rlines or not lines:
+        return out
+    a_idx, b_idx = tree.query(lines, predicate="crosses")
+    for i, k in zip(a_idx.tolist(), b_idx.tolist()):
+        ln, rd = jl[i], roads[k]
+        if rd.id in {*ln.predecessors, *ln.successors}:
+            continue
+        inter = lines[i].intersection(rlines[k])
+        for p in shapely.get_coordinates(inter):
+            pt = Point(p)
+            sa, sb = lines[i].project(pt), rlines[k].project(pt)
+            c = CROSSING_CLEARANCE_M
+            if c <= sa <= lines[i].length - c and c <= sb <= rlines[k].length - c:
+                out.append((ln.id, rd.id))
+                break
+    return out
+
+
 def unregistered_merges(net: "MapNetwork") -> list[str]:
     """Load-time check: every merge (`merge_pairs`) is a conflict in the network's table, like a
     crossing; one line per pair that is not (empty when sound)."""
@@ -190,12 +245,40 @@ class MapNetwork(RoadNetwork):
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
-    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones
+    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
+    merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def near_lanes(self, lane_id: str) -> frozenset[str]:
+        """Lanes whose road users may be in the way of a vehicle on `lane_id`, besides its own:
+        for a junction lane those it conflicts with and those diverging from its predecessors,
+        for a road lane those converging with it (`merges`)."""
+        def build() -> dict[str, frozenset[str]]:
+            m = self.hdmap
+            out = {}
+            for lid, ln in m.lanes.items():
+                if ln.junction_id is None:
+                    near = set(self.merges.get(lid, ()))
+                else:
+                    near = set(self.conflicts.get(lid, ()))
+                    for p in ln.predecessors:
+                        if p in m.lanes:
+                            near.update(x for x in m.lanes[p].successors if x != lid)
+                out[lid] = frozenset(near)
+            return out
+        return self.memo("near lanes", build)[lane_id]
+
+    def merge_ahead(self, lane_a: str, pos_a, lane_b: str, pos_b) -> bool:
+        """Whether a road user at `pos_b` on `lane_b` is ahead of one at `pos_a` on `lane_a`, lanes
+        that converge: both measured along the pair's reference lane (the smaller id), so that of
+        two users side by side exactly one is the other's leader (each measuring along its own
+        lane, both could brake for the other and stand there)."""
+        ref = self.lane_of[min(lane_a, lane_b)]
+        return ref.local_coordinates(pos_b)[0] > ref.local_coordinates(pos_a)[0]
 
     def memo(self, key, build):
         """A value derived from the (immutable) network, built once: per-map tables that every
@@ -268,6 +351,7 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
+        net._build_merges(road_lanes)
         problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
         if problems:
             raise Feat2MapError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""), "map")
@@ -433,6 +517,9 @@ class MapNetwork(RoadNetwork):
         for a, b in merge_pairs(m):  # whatever their geometry or junction ids say
             conf[a].add(b)
             conf[b].add(a)
+        for a, b in road_crossings(jl, lines, road_lanes):
+            conf[a].add(b)
+            conf.setdefault(b, set()).add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}
         # crosswalk crossings
         cws = list(m.crosswalks.values())
@@ -514,6 +601,35 @@ class MapNetwork(RoadNetwork):
             s0, s1 = span[lid]
             self.passages[lid] = Passage(g, k, float(max(s0 - VEHICLE_LENGTH_M / 2, 0.0)),
                                          float(min(s1 + VEHICLE_LENGTH_M / 2, length)))
+
+    def _build_merges(self, road_lanes: RoadLanes) -> None:
+        """`merges`: for each lane of a `converging_pairs` pair, the other lane and the last s on
+        this lane where their centrelines are closer than CONFLICT_DISTANCE_M (the end of the
+        zip: past it the other lane's users are out of the way)."""
+        roads, lines, _ = road_lanes
+        line = {ln.id: cl for ln, cl in zip(roads, lines)}
+        for a, b in converging_pairs(self.hdmap, road_lanes):
+            for x, y in ((a, b), (b, a)):
+                lx = line[x]
+                s = np.linspace(0.0, lx.length, max(2, int(math.ceil(lx.length / PASSAGE_STEP_M)) + 1))
+                close = shapely.distance(shapely.line_interpolate_point(lx, s), line[y]) < CONFLICT_DISTANCE_M
+                end = float(s[np.nonzero(close)[0][-1]]) if close.any() else float(lx.length)
+                self.merges.setdefault(x, {})[y] = end
+
+    def zip_leader(self, lane_id: str, s_own: float | None, other_lane: str, so: float, pos, other_pos,
+                   length: float) -> bool:
+        """Whether a road user at `other_pos` on `other_lane`, a lane converging with `lane_id`
+        (`merges`), is a leader of a vehicle `length` long at `s_own` on `lane_id` (None: the
+        lane is ahead on its route) that sees it at `so` along `lane_id`: until the zip's end
+        whatever the lateral offset (lanes 3.5 m apart converge within a few car lengths: a
+        vehicle that waited until the other was within its lane's width had no room left to
+        fall back), in one order for both (`merge_ahead`)."""
+        end = self.merges[lane_id][other_lane]
+        if not -length <= so <= end + length:
+            return False
+        if s_own is None:
+            return True
+        return s_own <= end and self.merge_ahead(lane_id, pos, other_lane, other_pos)
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:

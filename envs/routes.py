@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import Feat2MapError
 from ..routes import manoeuvre_lane
 from .network import MapNetwork
-from ..config import ROUTE_SAMPLE_TRIES, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M
+from ..config import ROUTE_SAMPLE_TRIES, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TRAFFIC_END_ROOM_M
 from .rules import braking_distance, enters_junction, line_setback
 
 
@@ -247,10 +247,14 @@ def sample_lane_walk(net: MapNetwork, rng: np.random.Generator, length: float, s
 
 
 def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions: int) -> list[str]:
-    """A route from `start` through up to `junctions` junctions, choosing successors at random."""
+    """A route from `start` through up to `junctions` junctions, choosing successors at random;
+    through one more where the road after the last is shorter than TRAFFIC_END_ROOM_M (a route
+    that ended on Town07's 0.7 m road between two junctions left its car driving on past its
+    end, blind to the vehicles in the next junction: it rear-ended the ego there)."""
     m = net.hdmap
     path = [start]
     count = 0
+    room = 0.0  # road after the last junction lane of the path
     while True:
         succ = [s for s in m.lanes[path[-1]].successors if s in m.lanes]
         if not succ or len(path) > 200:
@@ -258,10 +262,11 @@ def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions
         nxt = succ[int(rng.integers(len(succ)))]
         entering = enters_junction(m.lanes, path[-1], nxt)
         if entering:
-            if count >= junctions:
+            if count >= junctions and room >= TRAFFIC_END_ROOM_M:
                 break
             count += 1
         path.append(nxt)
+        room = 0.0 if m.lanes[nxt].junction_id is not None else room + net.lane_of[nxt].length
     return path
 
 

@@ -460,17 +460,48 @@ class TrafficRules:
         if sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):
                 return False
-        if "conflict" not in ignore and not (self.junction_clear(j_lane, vehicle) and self.box_clear(vehicle, j_lane)):
+        chain = self.junction_chain(vehicle, j_lane)
+        if "conflict" not in ignore and not (all(self.junction_clear(x, vehicle) for x in chain)
+                                             and self.box_clear(vehicle, j_lane)):
             return False
         if commit and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
-            self.reservations[j_lane] = vehicle
+            for x in chain:
+                self.reservations.setdefault(x, vehicle)
             vehicle.reserved = j_lane
         return True
 
+    def junction_chain(self, vehicle, j_lane: str) -> list[str]:
+        """`j_lane` and the lanes that follow it on the vehicle's route in the same junction, or
+        crossing one of its lanes (road lanes, `network.road_crossings`): a map may chain
+        connecting lanes inside one junction (USA_Lanker's 26_0_-5 -> 53_0_-3 in junction 1) or
+        let a junction lane run out across the road lane after another (41_0_-1 across 47_0_-1);
+        entering the first is entering them all, so all must be clear and are reserved together
+        (the later lanes' conflicts went unchecked: cars crossed the ego's reserved path)."""
+        route = getattr(vehicle, "lane_route", None)
+        if not route or j_lane not in route[vehicle.route_pos:]:
+            return [j_lane]
+        lanes, conflicts = self.net.hdmap.lanes, self.net.conflicts
+        k = route.index(j_lane, vehicle.route_pos)
+        jid = lanes[j_lane].junction_id
+        chain = [j_lane]
+        for lid in route[k + 1:]:
+            if lid in chain:
+                break
+            if lanes[lid].junction_id is None:  # a road lane crossing a lane of this junction (`road_crossings`)
+                if not any(lanes[c].junction_id == jid for c in conflicts.get(lid, ())):
+                    break
+            elif lanes[lid].junction_id != jid:
+                break
+            chain.append(lid)
+        return chain
+
     def release(self, vehicle, j_lane: str) -> None:
-        """Give up `vehicle`'s reservation of `j_lane` (if it holds it): it will not enter now."""
-        if j_lane in self.reservations and self.reservations[j_lane] is vehicle:
-            del self.reservations[j_lane]
+        """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
+        junction (if it holds them): it will not enter now."""
+        for x in self.junction_chain(vehicle, j_lane):
+            if x in self.reservations and self.reservations[x] is vehicle:
+                del self.reservations[x]
+        if vehicle.reserved == j_lane:
             vehicle.reserved = None
 
     # ---- narrow passages -------------------------------------------------------------------

@@ -203,28 +203,26 @@ class RouteFollower:
 
     def leader_gaps(self) -> list[tuple[float, float]]:
         """(bumper gap, speed) of every road user in the path ahead along the route: on the route's
-        lanes, and on junction lanes that diverge from or cross them where they are in the way."""
+        lanes, on junction lanes that diverge from or cross them and on road lanes converging with
+        them (`MapNetwork.near_lanes`), where they are in the way."""
         net = self.net
         m = net.hdmap
         buckets = self.road.control.buckets
         gaps = []
         for _k, lid, d, s_own in self.upcoming():
             lane = net.lane_of[lid]
-            others = list(buckets.get(lid, ()))
-            ln = m.lanes[lid]
-            if ln.junction_id is not None:
-                near = set(net.conflicts.get(lid, ()))
-                for p in ln.predecessors:
-                    near.update(x for x in m.lanes[p].successors if x != lid)
-                for x in near:
-                    others += [o for o in buckets.get(x, ()) if o not in others]
-            for o in others:
+            others = [(o, lid) for o in buckets.get(lid, ())]
+            for x in net.near_lanes(lid):
+                others += [(o, x) for o in buckets.get(x, ()) if all(o is not q for q, _ in others)]
+            for o, on in others:
                 if o is self:
                     continue
                 so, ro = lane.local_coordinates(o.position)
-                if s_own is not None and so <= s_own:
-                    continue
-                if not in_the_way(so, ro, lane.width, lane.length, self.LENGTH):
+                if on != lid and m.lanes[lid].junction_id is None:  # converging road lanes: zip
+                    if not net.zip_leader(lid, s_own, on, so, self.position, o.position, self.LENGTH):
+                        continue
+                elif s_own is not None and so <= s_own or not in_the_way(so, ro, lane.width, lane.length,
+                                                                          self.LENGTH):
                     continue
                 gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
         return gaps

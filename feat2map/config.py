@@ -283,6 +283,7 @@ SPAWN_MARGIN_M = 1.0  # ... plus this
 OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
 OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
 FINISH_MARGIN_M = 2.0  # traffic has finished its route this close to the end of its last lane
+TRAFFIC_END_ROOM_M = 8.0  # traffic routes end on at least this much road after their last junction (a car and a margin)
 LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way of a vehicle on it
 # IDM car following of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
 IDM_ACC = 3.0  # [m/s^2] maximum acceleration
@@ -306,7 +307,9 @@ MOBIL_DETOUR_M = 5.0  # the route from the new lane may be at most this much lon
 # the traffic core (envs/core.py)
 LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time constant
 PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
-# the road network (envs/network.py)
+# the road network (envs/network.py, envs/lanes.py)
+FOLD_TURN_DEG = 120.0  # a lane polyline turning more than this at a vertex ...
+FOLD_SEGMENT_M = 1.0  # ... next to a segment shorter than this folds back (a cusp): the vertex is dropped
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
 VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
 TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)

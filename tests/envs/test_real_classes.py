@@ -2,7 +2,8 @@
 the test makes itself: merges registered as conflicts whatever the junction ids say; narrow lanes
 on a bend (2.66 m lanes: a car's corners swing out of its lane there) are a narrow passage; an
 unprotected entry held by a steady stream with the right of way takes its lane after PATIENCE_S
-where the vehicles it relies on can still stop for its reservation.
+where the vehicles it relies on can still stop for its reservation; same-direction road lanes that
+converge along a road (a taper merge, Highway101GLE's lane_92 and lane_93) zip.
 
 Every fixture is a generated map changed the way the real map is drawn."""
 from __future__ import annotations
@@ -275,3 +276,241 @@ def test_no_start_across_the_stop_line_of_a_short_approach(short_approach):
             break
     assert info["violations"]["red_light"] == 0
     env.close()
+
+
+# ---- a taper merge along a road ----------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def taper(tmp_path_factory) -> Path:
+    """A bare 4-way junction with two lanes a direction whose exit east (R2) is a 60 m taper: the
+    outer lane R2_1 converges onto the inner lane R2_0 and both end in one point (Highway101GLE's
+    road_17 draws its merge so, without a junction or a link between the lanes)."""
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                        seed=0)
+
+    def along(ln, pts):
+        d = np.gradient(pts, axis=0)
+        d /= np.hypot(*d.T)[:, None]
+        n = np.stack([-d[:, 1], d[:, 0]], 1) * ln.width / 2
+        tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+        return dataclasses.replace(ln, centerline=tup(pts), left_boundary=tup(pts + n), right_boundary=tup(pts - n),
+                                   bezier=None)
+
+    x = np.linspace(19.5, 79.5, 31)
+    lanes = dict(m.lanes)
+    lanes["R2_0"] = along(m.lanes["R2_0"], np.stack([x, np.full_like(x, -1.75)], 1))
+    lanes["R2_1"] = along(m.lanes["R2_1"], np.stack([x, -5.25 + 3.5 * (x - 19.5) / 60.0], 1))
+    path = tmp_path_factory.mktemp("taper") / "taper.json"
+    native.save(dataclasses.replace(m, lanes=lanes), path)
+    return path
+
+
+def test_converging_lanes_zip_until_they_meet(taper):
+    """The taper's lanes are registered as converging, each with the end of its zip (where the
+    centrelines are last closer than a car width: the common end point); lanes 3.5 m apart that
+    never converge are not."""
+    from feat2map.envs.network import converging_pairs
+
+    m = native.load(taper)
+    net = MapNetwork.from_map(m)
+    assert converging_pairs(m) == [("R2_0", "R2_1")]
+    assert set(net.merges) == {"R2_0", "R2_1"}
+    assert net.merges["R2_0"]["R2_1"] == pytest.approx(net.lane_of["R2_0"].length, abs=1.0)
+    plain = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                            seed=0)
+    assert MapNetwork.from_map(plain).merges == {}
+
+
+@pytest.mark.parametrize("t_spawn, s0, speed", [(8.0, 0.0, 10.0), (8.0, 0.0, 14.0), (8.0, 5.0, 10.0), (7.0, 0.0, 14.0)])
+def test_car_beside_the_ego_in_a_taper_merge_zips(taper, t_spawn, s0, speed):
+    """The ego goes straight west -> east into the tapering lane R2_1 and a car drives R2_0 beside
+    or just behind it: they zip, nobody collides (the car drove into the ego where the lanes came
+    closer than a car width: road lanes had no merge rule)."""
+    outcome, *_ = _drive(taper, (("J0", "R0", "R2"),), [(t_spawn, ["R2_0"], 60.0 - s0, speed)], duration=40.0,
+                         config={"goal_distance": 100.0})
+    assert outcome == "completed"
+
+
+# ---- a traffic route that would end on a short road between junctions ----------------------------
+
+def test_traffic_route_never_ends_on_a_short_road_between_junctions(monkeypatch):
+    """Traffic walks through up to its number of junctions, and on through the next where the
+    road after the last is shorter than TRAFFIC_END_ROOM_M (Town07's 0.7 m road between junctions
+    515 and 703: a car whose route ended there drove on past its end, blind to the ego in 703,
+    and rear-ended it). Here the 50 m road between J0 and J1 counts as short."""
+    from feat2map.envs import routes
+
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)
+    m = feat2map.generate_from_features([four, four], seed=0)
+    net = MapNetwork.from_map(m)
+    link = [ln.id for ln in m.lanes.values() if ln.junction_id is None
+            and any(m.lanes[p].junction_id == "J0" for p in ln.predecessors)
+            and any(m.lanes[s].junction_id == "J1" for s in ln.successors)]
+    assert link
+    monkeypatch.setattr(routes, "TRAFFIC_END_ROOM_M", max(net.lane_of[x].length for x in link) + 1.0, raising=False)
+    starts = [ln.id for ln in m.lanes.values() if ln.junction_id is None
+              and any(m.lanes[s].junction_id == "J0" for s in ln.successors)]
+    rng = np.random.default_rng(0)
+    ends = set()
+    for _ in range(200):
+        path = routes.random_walk(net, rng, starts[int(rng.integers(len(starts)))], 1)
+        ends.add(path[-1])
+        assert path[-1] not in link
+    assert any(m.lanes[x].junction_id == "J1" for x in {p for x in ends for p in m.lanes[x].predecessors})
+
+
+# ---- lanes after a junction entry: chained junction lanes, junction lanes across road lanes --------
+
+_LINK_FIELDS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
+
+
+def _along(ln, pts, **changes):
+    """Lane `ln` redrawn along the points `pts` (boundaries half its width either side)."""
+    pts = np.asarray(pts, dtype=float)
+    d = np.gradient(pts, axis=0)
+    d /= np.hypot(*d.T)[:, None]
+    n = np.stack([-d[:, 1], d[:, 0]], 1) * ln.width / 2
+    tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+    return dataclasses.replace(ln, centerline=tup(pts), left_boundary=tup(pts + n), right_boundary=tup(pts - n),
+                               bezier=None, **changes)
+
+
+def _drive_lanes(path: Path, lanes: list[str], car: list[str], t_spawn: float, back: float, speed: float,
+                 duration: float = 40.0) -> str:
+    """Drive the ego with the baseline planner along the lane route `lanes` while a car spawned
+    at `t_spawn`, `back` metres before the end of its first lane, drives `car`."""
+    sc = Scenario("fixture", str(path), (), seed=0, duration=duration)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False, "route": {"lanes": lanes},
+                               "goal_distance": 60.0})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    planner = BaselinePlanner()
+    planner.reset(env)
+    f = u.config["policy_frequency"]
+    try:
+        for k in range(int(duration * f)):
+            if k == int(t_spawn * f):
+                u.road.spawn(car[0], u.net.lane_of[car[0]].length - back, speed, list(car))
+            obs, _, term, trunc, info = env.step(planner.act(obs, info))
+            if info["collision"]:
+                return "collision"
+            if term or trunc:
+                return "completed" if u.route_completed() else "timeout"
+        return "timeout"
+    finally:
+        env.close()
+
+
+def _two_lane_four_way():
+    return feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                           seed=0)
+
+
+@pytest.fixture(scope="module")
+def runs_out(tmp_path_factory) -> Path:
+    """The bare two-lane 4-way whose straight lane west -> east (J0_c3_0) runs on out of the
+    junction to the map's edge (it takes the place of R2_0), while the exit lane beside it (R2_1,
+    entered by the right turn J0_c6_0 from the south) swings across it 10-20 m past the junction
+    (USA_Lanker's 35.5 m junction lane 41_0_-1 across the road lane 47_0_-1)."""
+    m = _two_lane_four_way()
+    lanes = {k: v for k, v in m.lanes.items() if k != "R2_0"}
+    x = np.linspace(-19.5, 48.5, 35)
+    lanes["J0_c3_0"] = _along(m.lanes["J0_c3_0"], np.stack([x, np.full_like(x, -1.75)], 1))
+    t = np.linspace(0.0, 1.0, 12)
+    swing = [(19.5 + u, -5.25) for u in np.linspace(0.0, 8.5, 6)] + \
+        [(28.0 + 12.0 * u, -5.25 + 7.0 * (3 - 2 * u) * u * u) for u in t[1:]] + [(40.0 + u, 1.75) for u in (3.0, 8.5)]
+    lanes["R2_1"] = _along(m.lanes["R2_1"], swing)
+    lanes = {k: dataclasses.replace(v, **{f: tuple(x for x in getattr(v, f) if x != "R2_0") for f in _LINK_FIELDS})
+             for k, v in lanes.items()}
+    roads = {**m.roads, "R2": dataclasses.replace(m.roads["R2"], right_lanes=("R2_1",))}
+    path = tmp_path_factory.mktemp("runs_out") / "runs_out.json"
+    native.save(dataclasses.replace(m, lanes=lanes, roads=roads), path)
+    return path
+
+
+def test_a_junction_lane_across_a_road_lane_conflicts(runs_out):
+    """The crossing is a conflict both ways (`network.road_crossings`); road lanes that meet
+    their junction lanes at their ends cross none of them."""
+    from feat2map.envs.network import road_crossings
+
+    m = native.load(runs_out)
+    net = MapNetwork.from_map(m)
+    assert "R2_1" in net.conflicts["J0_c3_0"] and net.conflicts["R2_1"] == frozenset({"J0_c3_0"})
+    assert all(m.lanes[k].junction_id is not None for k in net.conflicts if k != "R2_1")
+    jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
+    from shapely.geometry import LineString
+
+    from feat2map.envs.network import _road_lanes
+    assert road_crossings(jl, [LineString(ln.centerline) for ln in jl], _road_lanes(m)) == [("J0_c3_0", "R2_1")]
+
+
+@pytest.mark.parametrize("t_spawn, back", [(4.0, 10.0), (4.0, 20.0), (3.5, 10.0)])
+def test_right_turn_into_a_road_lane_across_the_egos_path_waits(runs_out, t_spawn, back):
+    """The ego drives J0_c3_0 west -> east out of the junction while a car turns right from the
+    south into R2_1, which crosses the ego's lane past the junction: the car's entry claims R2_1
+    with its junction lane, nobody collides (the car crossed into the ego: no conflict between a
+    junction lane and a road lane was registered)."""
+    car = ["R1_3", "J0_c6_0", "R2_1"]
+    assert _drive_lanes(runs_out, ["R0_2", "J0_c3_0"], car, t_spawn, back, 10.0) == "completed"
+
+
+@pytest.fixture(scope="module")
+def chained(tmp_path_factory) -> Path:
+    """The bare two-lane 4-way whose left turn north -> east (J0_c22_0) is drawn as two junction
+    lanes in a row (J0_c22_0 -> J0_c22_0b, on two connecting roads of J0: USA_Lanker's
+    26_0_-5 -> 53_0_-3 in junction 1); only the second crosses the straight lane west -> east."""
+    m = _two_lane_four_way()
+    ln = m.lanes["J0_c22_0"]
+    k = int(np.nonzero(ln.points[:, 1] < 5.0)[0][0])
+    lanes, roads = dict(m.lanes), dict(m.roads)
+    lanes["J0_c22_0"] = _along(ln, ln.points[:k + 1], successors=("J0_c22_0b",))
+    lanes["J0_c22_0b"] = _along(ln, ln.points[k:], id="J0_c22_0b", road_id="J0_c22b", predecessors=("J0_c22_0",))
+    lanes["R2_1"] = dataclasses.replace(m.lanes["R2_1"], predecessors=tuple(
+        "J0_c22_0b" if x == "J0_c22_0" else x for x in m.lanes["R2_1"].predecessors))
+    roads["J0_c22b"] = dataclasses.replace(m.roads["J0_c22"], id="J0_c22b", right_lanes=("J0_c22_0b",), reference=None)
+    path = tmp_path_factory.mktemp("chained") / "chained.json"
+    native.save(dataclasses.replace(m, lanes=lanes, roads=roads), path)
+    return path
+
+
+def test_chained_junction_lanes_are_entered_together(chained):
+    """Entering J0 on the first lane of the chain is entering both (`junction_chain`)."""
+    from types import SimpleNamespace
+
+    from feat2map.envs.rules import TrafficRules
+
+    net = MapNetwork.from_map(native.load(chained))
+    assert "J0_c3_0" not in net.conflicts["J0_c22_0"] and "J0_c3_0" in net.conflicts["J0_c22_0b"]
+    rules = TrafficRules()
+    rules.net = net
+    car = SimpleNamespace(lane_route=["R3_2", "J0_c22_0", "J0_c22_0b", "R2_1"], route_pos=0)
+    assert rules.junction_chain(car, "J0_c22_0") == ["J0_c22_0", "J0_c22_0b"]
+
+
+@pytest.mark.parametrize("t_spawn, back", [(1.5, 20.0), (1.5, 30.0), (2.0, 20.0), (2.5, 10.0), (3.0, 10.0)])
+def test_a_car_on_chained_junction_lanes_yields_to_the_ego(chained, t_spawn, back):
+    """The ego goes straight west -> east while a car turns left north -> east on the chained
+    lanes: nobody collides (the car checked only its first lane's conflicts and crossed the
+    ego's reserved path on the second)."""
+    car = ["R3_2", "J0_c22_0", "J0_c22_0b", "R2_1"]
+    assert _drive_lanes(chained, ["R0_2", "J0_c3_0", "R2_0"], car, t_spawn, back, 10.0) == "completed"
+
+
+# ---- a lane drawn with a cusp -------------------------------------------------------------------
+
+def test_a_lane_folding_back_at_a_cusp_loses_the_fold():
+    """The inner lane of a curve tighter than its offset from the reference line is drawn with a
+    cusp: north, back 0.4 m, then east (Issue295a's 995_0_-1 at its apex). The env's lane drops
+    the fold (the ego tracking it lost the lane there and drove straight on), keeping the ends; a
+    turn drawn with long segments is kept as drawn."""
+    from feat2map.envs.lanes import PolylineLane
+
+    cusp = [(0.0, 0.0), (0.0, 4.0), (0.0, 5.0), (0.02, 5.1), (-0.3, 4.9), (0.6, 4.8), (3.0, 4.4), (8.0, 3.6)]
+    lane = PolylineLane(np.array(cusp), 3.5, lane_id="cusp")
+    turn = np.cos(np.diff(lane.seg_heading))
+    assert np.all(turn > -0.5)
+    assert tuple(lane.points[0]) == cusp[0] and tuple(lane.points[-1]) == cusp[-1]
+    s = [lane.local_coordinates(np.array(p))[0] for p in lane.points]
+    assert np.all(np.diff(s) > 0)
+    hairpin = [(0.0, 0.0), (0.0, 10.0), (3.0, 0.0)]
+    assert len(PolylineLane(np.array(hairpin), 3.5, lane_id="hairpin").points) == 3

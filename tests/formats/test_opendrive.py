@@ -630,3 +630,38 @@ def test_corrupted_documents_read_or_fail_cleanly(tmp_path_factory, data):
         extract_junctions(m)
     except Feat2MapError:
         pass
+
+
+# ---------------------------------------------------------------------------------------------
+# direct junctions (OpenDRIVE 1.7): lane splits and merges without connecting roads
+
+def _direct_junction_xodr() -> bytes:
+    """Road 1 (two lanes eastwards) splits at a direct junction into road 2 (one lane on) and road
+    3 (an exit bending away): the junction links road 1's lanes to the other roads' lanes."""
+    def road(rid, x, y, hdg, lanes, link):
+        right = "".join(f'<lane id="{-k}" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>'
+                        for k in range(1, lanes + 1))
+        return (f'<road id="{rid}" length="50" junction="-1"><link>{link}</link><planView>'
+                f'<geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="50"><line/></geometry></planView>'
+                f'<lanes><laneSection s="0"><center><lane id="0" type="none"/></center><right>{right}</right>'
+                f'</laneSection></lanes></road>')
+    return ('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="7"/>'
+            + road("1", 0, 0, 0, 2, '<successor elementType="junction" elementId="4"/>')
+            + road("2", 50, 0, 0, 1, '<predecessor elementType="junction" elementId="4"/>')
+            + road("3", 50, -3.5, -0.2, 1, '<predecessor elementType="junction" elementId="4"/>')
+            + '<junction id="4" type="direct">'
+              '<connection id="0" incomingRoad="1" linkedRoad="2" contactPoint="start"><laneLink from="-1" to="-1"/>'
+              '</connection><connection id="1" incomingRoad="1" linkedRoad="3" contactPoint="start">'
+              '<laneLink from="-2" to="-1"/></connection></junction></OpenDRIVE>').encode()
+
+
+def test_direct_junctions_link_the_roads_lanes(tmp_path):
+    path = tmp_path / "direct.xodr"
+    path.write_bytes(_direct_junction_xodr())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = read_opendrive(path)
+    assert not [w for w in caught if "unknown road id" in str(w.message)]
+    assert m.lanes["1_0_-1"].successors == ("2_0_-1",) and m.lanes["1_0_-2"].successors == ("3_0_-1",)
+    assert m.lanes["3_0_-1"].predecessors == ("1_0_-2",)
+    assert not m.junctions  # a lane split is no junction manoeuvre

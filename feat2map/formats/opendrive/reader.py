@@ -555,7 +555,10 @@ class _Builder:
                         add((road.id, k, lid), end, (other.id, ko, target), oend)
         for j in self.root.findall("junction"):
             for c in j.findall("connection"):
-                inc, con = self.roads.get(c.get("incomingRoad", "")), self.roads.get(c.get("connectingRoad", ""))
+                # a direct junction (OpenDRIVE 1.7 `type="direct"`: a lane split or merge) links the
+                # incoming road's lanes to the `linkedRoad`'s lanes themselves, with no connecting road
+                other = c.get("connectingRoad") if c.get("connectingRoad") is not None else c.get("linkedRoad", "")
+                inc, con = self.roads.get(c.get("incomingRoad", "")), self.roads.get(other)
                 if inc is None or con is None:
                     if c.get("incomingRoad") is not None:
                         warnings.warn(f"{self.ctx.where(c, 'junction ' + str(j.get('id')) + ' <connection>')}: "
