@@ -546,3 +546,50 @@ def test_an_offset_lane_folding_round_a_tight_bend_is_cut_where_it_runs_backward
         assert np.all(np.abs(heading - along) < np.pi / 2 + 1e-6)  # never backwards (a corner, no loop)
         raw = np.arctan2(np.diff(py), np.diff(px))
         assert (len(keep) < len(s)) == bool(np.any(np.abs(np.angle(np.exp(1j * (raw - h[:-1])))) > np.pi / 2))
+
+
+
+def _corner_road(path: Path, scale: float) -> Path:
+    """One road with a lane 3 m wide on each side: 10.63 m straight, then osm2xodr's cubic
+    rounding of a road's last OSM vertex (a paramPoly3 that turns 81 degrees in 1.7 m and
+    overshoots its end heading), scaled by `scale`."""
+    lane = '<lane id="{i}" type="driving"><link/><width sOffset="0" a="3" b="0" c="0" d="0"/></lane>'
+    h0, straight = -0.105, 10.63
+    cubic = dict(aU=0.0, bU=0.27915551, cU=2.91169902, dU=-1.45584951, aV=0.0, bV=-1.71240025, cV=3.42480050,
+                 dV=-1.71240025)
+    coeffs = " ".join(f'{k}="{v * scale}"' for k, v in cubic.items())
+    path.write_text(f"""<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="4"/>
+<road id="1" junction="-1" length="{straight + 1.735 * scale}"><link/><planView>
+<geometry s="0" x="0" y="0" hdg="{h0}" length="{straight}"><line/></geometry>
+<geometry s="{straight}" x="{straight * np.cos(h0)}" y="{straight * np.sin(h0)}" hdg="1.3039834"
+ length="{1.735 * scale}"><paramPoly3 {coeffs} pRange="normalized"/></geometry>
+</planView><lanes><laneSection s="0"><left>{lane.format(i=1)}</left>
+<center><lane id="0" type="none"/></center><right>{lane.format(i=-1)}</right></laneSection></lanes></road>
+</OpenDRIVE>""")
+    return path
+
+
+def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path):
+    """osm2xodr rounds a road's last corner at a 1.2 m radius in 1.7 m: the lane 1.5 m to the
+    inner side folds, and with samples 2 m apart one sample fell inside the fold, a 165-degree
+    spike in the lane (5 cars left the road there). The fold is found from the exact headings
+    between samples, the spike is cut, and both lanes still end where the road ends."""
+
+    def turns(points: np.ndarray) -> np.ndarray:
+        d = np.diff(points, axis=0)
+        a = np.arctan2(d[:, 1], d[:, 0])
+        return np.degrees(np.abs(np.angle(np.exp(1j * np.diff(a)))))
+
+    road = _corner_road(tmp_path / "corner.xodr", 1.0)
+    m, _ = _quiet(read_opendrive, road)
+    inner, outer = m.lanes["1_0_1"], m.lanes["1_0_-1"]
+    assert turns(inner.points).max() < 90.0 and turns(outer.points).max() < 90.0
+    h = 1.3039834  # the cubic ends along its own u axis: the end heading is the geometry's
+    end = np.array([10.63 * np.cos(-0.105), 10.63 * np.sin(-0.105)]) + 1.735 * np.array([np.cos(h), np.sin(h)])
+    normal = np.array([-np.sin(h), np.cos(h)])
+    assert np.allclose(inner.points[0], end + 1.5 * normal, atol=1e-3)  # the left lane starts at the road's end
+    assert np.allclose(outer.points[-1], end - 1.5 * normal, atol=1e-3)
+    assert np.allclose(inner.points[-1], [-1.5 * np.sin(-0.105), 1.5 * np.cos(-0.105)], atol=1e-6)
+    wide, _ = _quiet(read_opendrive, _corner_road(tmp_path / "wide.xodr", 4.0))  # radius 5 m: no fold, nothing cut
+    assert all(len(wide.lanes[k].points) == 12 for k in ("1_0_1", "1_0_-1"))  # every sample
