@@ -573,7 +573,8 @@ def _corner_road(path: Path, scale: float) -> Path:
 def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path):
     """osm2xodr rounds a road's last corner at a 1.2 m radius in 1.7 m: the lane 1.5 m to the
     inner side folds, and with samples 2 m apart one sample fell inside the fold, a 165-degree
-    spike in the lane (5 cars left the road there). The fold is found from the exact headings
+    spike in the lane (5 cars left the road there); the outer lane folds in the cubic's overshoot
+    at its end. The fold is found from the exact headings
     between samples, the spike is cut, and both lanes still end where the road ends."""
 
     def turns(points: np.ndarray) -> np.ndarray:
@@ -582,7 +583,9 @@ def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path
         return np.degrees(np.abs(np.angle(np.exp(1j * np.diff(a)))))
 
     road = _corner_road(tmp_path / "corner.xodr", 1.0)
-    m, _ = _quiet(read_opendrive, road)
+    m, caught = _quiet(read_opendrive, road)
+    assert [w for w in caught if "fold" in w] == [f"{road}: 2 lane(s) fold round a bend tighter than their offset from "
+                                                  "the reference line; cut where they run backwards (first: lane 1_0_-1)"]
     inner, outer = m.lanes["1_0_1"], m.lanes["1_0_-1"]
     assert turns(inner.points).max() < 90.0 and turns(outer.points).max() < 90.0
     h = 1.3039834  # the cubic ends along its own u axis: the end heading is the geometry's
@@ -591,5 +594,6 @@ def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path
     assert np.allclose(inner.points[0], end + 1.5 * normal, atol=1e-3)  # the left lane starts at the road's end
     assert np.allclose(outer.points[-1], end - 1.5 * normal, atol=1e-3)
     assert np.allclose(inner.points[-1], [-1.5 * np.sin(-0.105), 1.5 * np.cos(-0.105)], atol=1e-6)
-    wide, _ = _quiet(read_opendrive, _corner_road(tmp_path / "wide.xodr", 4.0))  # radius 5 m: no fold, nothing cut
+    wide, caught = _quiet(read_opendrive, _corner_road(tmp_path / "wide.xodr", 4.0))  # radius 5 m: no fold, nothing cut
+    assert not [w for w in caught if "fold" in w]
     assert all(len(wide.lanes[k].points) == 12 for k in ("1_0_1", "1_0_-1"))  # every sample

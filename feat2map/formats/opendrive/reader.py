@@ -365,6 +365,7 @@ class _LaneGeom:
     right: np.ndarray
     width: float
     speed: float
+    folded: bool = False  # samples were cut where the lane folds round a bend (see _unfolded)
 
 
 def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
@@ -405,12 +406,12 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
                                      f"{lim.max_lane_width_m:g}", ctx.where(road.el, f"road {road.id}"))
             if ln.type in DRIVING_TYPES and float(w.max()) >= MIN_LANE_WIDTH_M:
                 mid = 0.5 * (inner + outer)
-                keep = _unfolded(s, h, mid) if road.junction is None else slice(None)
+                keep = _unfolded(s, h, mid) if road.junction is None else np.arange(len(s))
                 c, lft, rgt = (np.column_stack([x + t * nx, y + t * ny])[keep] for t in (mid, inner, outer))
                 if side > 0:  # left lanes drive against the reference line
                     c, lft, rgt = c[::-1], lft[::-1], rgt[::-1]
                 out.append(_LaneGeom((road.id, k, lid), c, lft, rgt, float(w.mean()),
-                                     ln.speed or road.speed or SPEED_LIMIT_MPS))
+                                     ln.speed or road.speed or SPEED_LIMIT_MPS, len(keep) < len(s)))
             inner = outer
     return out
 
@@ -519,6 +520,10 @@ class _Builder:
                 warnings.warn(f"skipping bad road: {exc}", stacklevel=3)
                 self.geoms = {key: g for key, g in self.geoms.items() if key[0] != rid}
                 del roads[rid]
+        folded = [self.lane_id(key) for key, g in self.geoms.items() if g.folded]
+        if folded:
+            warnings.warn(f"{ctx.path}: {len(folded)} lane(s) fold round a bend tighter than their offset from the "
+                          f"reference line; cut where they run backwards (first: lane {folded[0]})", stacklevel=3)
         if not roads:
             raise MapFormatError("no readable <road> elements", ctx.path)
 
