@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
-from .config import KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M
+from .config import KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M, TURNAROUND_DEG
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -111,9 +111,20 @@ def loops(ln: Lane, limit: float = MAX_TURN_DEG) -> bool:
     return bool(abs(math.degrees(h[-1] - h[0])) > limit)
 
 
+def tight_turnaround(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
+    """A junction lane that turns round (at least TURNAROUND_DEG from its start heading to its
+    end heading, short of a U-turn's UTURN_THRESHOLD_DEG, so classed left or right) on a mean
+    radius (length / turn) under `radius`: where osm2xodr ends a dual carriageway it joins the
+    two one-way roads with a 7 m junction lane turning 154 degrees (radius 2.7 m); a car that
+    took it left the road."""
+    turn = abs(math.remainder(ln.heading_at_end() - ln.heading_at_start(), math.tau))
+    return turn >= math.radians(TURNAROUND_DEG) and ln.length / turn < radius
+
+
 def undrivable(ln: Lane) -> bool:
-    """A junction lane no car drives: a `tight_uturn` or a lane that `loops`."""
-    return tight_uturn(ln) or loops(ln)
+    """A junction lane no car drives: a `tight_uturn`, a `tight_turnaround` or a lane that
+    `loops`."""
+    return tight_uturn(ln) or tight_turnaround(ln) or loops(ln)
 
 
 def suite_manoeuvres(m: HDMap) -> list[Manoeuvre]:
