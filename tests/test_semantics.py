@@ -597,3 +597,22 @@ def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path
     wide, caught = _quiet(read_opendrive, _corner_road(tmp_path / "wide.xodr", 4.0))  # radius 5 m: no fold, nothing cut
     assert not [w for w in caught if "fold" in w]
     assert all(len(wide.lanes[k].points) == 12 for k in ("1_0_1", "1_0_-1"))  # every sample
+
+
+def test_a_tight_turnaround_classed_left_is_no_suite_manoeuvre():
+    """Where osm2xodr ends a dual carriageway it joins the two one-way roads with a junction lane
+    turning 154 degrees in 7 m: short of a U-turn, so classed left, and tighter than a car turns
+    (a car that took it left the road). A turnaround on a mean radius under Apollo's 5.05 m is
+    left out like a tight U-turn; a wide one, and a sharp 120-degree left, are not."""
+    from feat2map.model import Lane, as_polyline
+    from feat2map.routes import tight_turnaround, undrivable
+
+    def arc(radius: float, degrees: float) -> Lane:
+        t = np.linspace(0.0, np.radians(degrees), 30)
+        c = as_polyline(np.c_[radius * np.sin(t), radius * (1 - np.cos(t))])
+        return Lane("c11", "r", c, c, c, 3.0, 10.0, turn="left", junction_id="J")
+
+    tight = arc(2.7, 154.0)
+    assert tight_turnaround(tight) and undrivable(tight)
+    assert not undrivable(arc(8.0, 154.0))  # a wide turnaround is driven
+    assert not undrivable(arc(2.7, 120.0))  # a sharp left is no turnaround
