@@ -38,8 +38,9 @@ MIN_UTURN_RADIUS_M = 5.05386147161  # a U-turn tighter than this (Apollo's defau
 TURN_WINDOW_M = 3.0  # a lane's sharpest turn: the heading change over this much of its centreline (a car's wheelbase)
 KINK_RADIUS_M = 2.0  # a U-turn whose sharpest turn is tighter than this kinks (the env's cars leave the road there)
 MAX_TURN_DEG = 270.0  # a junction lane whose heading turns further than this (unwrapped) loops: no suite manoeuvre
-TURNAROUND_DEG = 135.0  # a junction lane turning at least this (a turnaround classed left/right) on a mean radius
-# (length / turn) under MIN_UTURN_RADIUS_M is no suite manoeuvre either (osm2xodr's dual-carriageway ends)
+TURNAROUND_DEG = 135.0  # a junction lane turning at least this (a turnaround classed left/right) ...
+TURNAROUND_RADIUS_M = 4.0  # ... on a mean radius (length / turn) under this is no suite manoeuvre (osm2xodr's
+# dual-carriageway ends turn on 1.3-3.7 m; generated junctions' sharpest turns, 5.0 m, are driven clean)
 SAMPLE_SPACING_M = 2.0  # polyline resolution of sampled curves
 ENDPOINT_TOLERANCE_M = 0.01  # lanes meet their neighbours within 1 cm
 MAX_ORDER_RETRIES = 1000  # rejection sampling of ordered socket angles

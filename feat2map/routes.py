@@ -7,7 +7,8 @@ from __future__ import annotations
 import math
 from typing import Iterable, Sequence
 
-from .config import KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M, TURNAROUND_DEG
+from .config import (KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M, TURNAROUND_DEG,
+                     TURNAROUND_RADIUS_M)
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -111,7 +112,7 @@ def loops(ln: Lane, limit: float = MAX_TURN_DEG) -> bool:
     return bool(abs(math.degrees(h[-1] - h[0])) > limit)
 
 
-def tight_turnaround(ln: Lane, radius: float = MIN_UTURN_RADIUS_M) -> bool:
+def tight_turnaround(ln: Lane, radius: float = TURNAROUND_RADIUS_M) -> bool:
     """A junction lane that turns round (at least TURNAROUND_DEG from its start heading to its
     end heading, short of a U-turn's UTURN_THRESHOLD_DEG, so classed left or right) on a mean
     radius (length / turn) under `radius`: where osm2xodr ends a dual carriageway it joins the

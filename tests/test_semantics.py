@@ -602,8 +602,9 @@ def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path
 def test_a_tight_turnaround_classed_left_is_no_suite_manoeuvre():
     """Where osm2xodr ends a dual carriageway it joins the two one-way roads with a junction lane
     turning 154 degrees in 7 m: short of a U-turn, so classed left, and tighter than a car turns
-    (a car that took it left the road). A turnaround on a mean radius under Apollo's 5.05 m is
-    left out like a tight U-turn; a wide one, and a sharp 120-degree left, are not."""
+    (a car that took it left the road). A turnaround on a mean radius under 4 m is left out like
+    a tight U-turn; a wider one (generated junctions turn 151 degrees on 5 m), and a sharp
+    120-degree left, are not."""
     from feat2map.model import Lane, as_polyline
     from feat2map.routes import tight_turnaround, undrivable
 
@@ -614,5 +615,5 @@ def test_a_tight_turnaround_classed_left_is_no_suite_manoeuvre():
 
     tight = arc(2.7, 154.0)
     assert tight_turnaround(tight) and undrivable(tight)
-    assert not undrivable(arc(8.0, 154.0))  # a wide turnaround is driven
+    assert not undrivable(arc(5.0, 151.0))  # a wider turnaround is driven
     assert not undrivable(arc(2.7, 120.0))  # a sharp left is no turnaround
