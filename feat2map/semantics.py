@@ -16,7 +16,7 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterable
 
-from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M
+from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG
 from .errors import Feat2MapError
 from .model import HDMap, incoming_lanes
 
@@ -133,6 +133,17 @@ def _far_links(m: HDMap) -> list[tuple[str, str, float]]:
             and (d := math.dist(ln.end, m.lanes[s].start)) > LANE_LINK_GAP_M]
 
 
+def _reversing_links(m: HDMap) -> list[tuple[str, str, float]]:
+    """Links (lane, successor, degrees) whose successor starts heading more than
+    LINK_REVERSAL_DEG away from the lane's end heading: no car turns round at a point
+    (osm2xodr links a road to the opposite carriageway beyond a junction)."""
+    import math
+
+    return [(ln.id, s, d) for ln in m.lanes.values() for s in ln.successors if s in m.lanes
+            and (d := abs(math.degrees(math.remainder(m.lanes[s].heading_at_start() - ln.heading_at_end(),
+                                                      math.tau)))) > LINK_REVERSAL_DEG]
+
+
 CHECKS: list[Callable[[HDMap], Iterable[Finding]]] = [
     dangling_references,
     links_meet,
@@ -221,12 +232,14 @@ def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
 def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
     """`m` without successor/predecessor links between lanes whose ends lie more than
     LANE_LINK_GAP_M apart (converters that link the roads on both sides of a junction past its
-    connecting roads: routes jumped across the junction), with one warning for them all."""
+    connecting roads: routes jumped across the junction), with one warning for them all; and
+    without links that reverse (`_reversing_links`), with one more warning."""
     far = _far_links(m)
-    if not far:
+    rev = [x for x in _reversing_links(m) if x[:2] not in {f[:2] for f in far}]
+    if not far and not rev:
         return m
     cut: dict[str, dict[str, set[str]]] = {}
-    for a, b, _ in far:
+    for a, b, _ in far + rev:
         cut.setdefault(a, {}).setdefault("successors", set()).add(b)
         cut.setdefault(b, {}).setdefault("predecessors", set()).add(a)
     lanes = dict(m.lanes)
@@ -234,9 +247,14 @@ def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
         ln = lanes[lid]
         kept: dict[str, Any] = {f: tuple(x for x in getattr(ln, f) if x not in gone) for f, gone in fields.items()}
         lanes[lid] = replace(ln, **kept)
-    shown = ", ".join(f"{a} -> {b} ({d:.0f} m)" for a, b, d in sorted(far, key=lambda x: -x[2])[:3])
-    warnings.warn(f"{where}: {len(far)} lane link(s) between ends more than {LANE_LINK_GAP_M:g} m apart dropped "
-                  f"(largest: {shown})", stacklevel=3)
+    if far:
+        shown = ", ".join(f"{a} -> {b} ({d:.0f} m)" for a, b, d in sorted(far, key=lambda x: -x[2])[:3])
+        warnings.warn(f"{where}: {len(far)} lane link(s) between ends more than {LANE_LINK_GAP_M:g} m apart dropped "
+                      f"(largest: {shown})", stacklevel=3)
+    if rev:
+        shown = ", ".join(f"{a} -> {b} ({d:.0f} deg)" for a, b, d in sorted(rev, key=lambda x: -x[2])[:3])
+        warnings.warn(f"{where}: {len(rev)} lane link(s) whose successor starts heading more than "
+                      f"{LINK_REVERSAL_DEG:g} degrees away dropped (largest: {shown})", stacklevel=3)
     return replace(m, lanes=lanes)
 
 

@@ -617,3 +617,22 @@ def test_a_tight_turnaround_classed_left_is_no_suite_manoeuvre():
     assert tight_turnaround(tight) and undrivable(tight)
     assert not undrivable(arc(5.0, 151.0))  # a wider turnaround is driven
     assert not undrivable(arc(2.7, 120.0))  # a sharp left is no turnaround
+
+
+def test_a_link_into_a_lane_heading_back_is_dropped(four_way):
+    """osm2xodr links a road to the opposite carriageway beyond a junction: the successor starts
+    3 m away (a gap the bridge rule closes) heading back the way the car came, and a car that
+    followed the link left the road. A link whose successor starts heading more than 120
+    degrees away from the lane's end is dropped with one warning; the map's own links stay."""
+    a = next(ln for ln in four_way.lanes.values() if ln.junction_id is None and ln.successors)
+    back = tuple(reversed(a.centerline))
+    rev = replace(a, id="rev", centerline=back, left_boundary=tuple(reversed(a.right_boundary)),
+                  right_boundary=tuple(reversed(a.left_boundary)), predecessors=(a.id,), successors=(),
+                  left_neighbors=(), right_neighbors=(), left_reverse_neighbors=(), bezier=None)
+    linked = replace(four_way, lanes={**four_way.lanes, a.id: replace(a, successors=a.successors + ("rev",)),
+                                      "rev": rev})
+    fixed, caught = _quiet(semantics.drop_far_links, linked, "m.xodr")
+    assert fixed.lanes[a.id].successors == a.successors and fixed.lanes["rev"].predecessors == ()
+    assert caught == [f"m.xodr: 1 lane link(s) whose successor starts heading more than 120 degrees away dropped "
+                      f"(largest: {a.id} -> rev (180 deg))"]
+    assert semantics.drop_far_links(four_way) is four_way
