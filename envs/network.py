@@ -24,8 +24,9 @@ from shapely import STRtree
 from shapely.geometry import LineString, Point, Polygon
 
 from ..angles import wrap_angle
-from ..config import (CONFLICT_DISTANCE_M, CROSSING_CLEARANCE_M, CURVE_CHORD_M, FOOTPRINT_STEP_M, PASSAGE_DISTANCE_M,
-                      PASSAGE_STEP_M, TRACKING_MARGIN_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
+from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEARANCE_M, CURVE_CHORD_M,
+                      FOOTPRINT_STEP_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
+                      VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
 from ..model import HDMap, incoming_lanes
 from .lanes import PolylineLane, project_rows, segment_table
@@ -128,7 +129,8 @@ def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tu
     (Highway101GLE's lane_92 and lane_93 of road_17 converge over 148 m into one point), a lane
     opening or closing beside another, a diverge. Vehicles on them cannot drive side by side
     there: they zip (`MapNetwork.merges`). Found from the geometry, since such maps declare no
-    merge outside junctions; lanes that meet only head to tail are left out."""
+    merge outside junctions; lanes that meet only head to tail, and lanes that come close at more
+    than CONVERGE_MAX_ANGLE_DEG (a road over another), are left out."""
     roads, lines, tree = road_lanes if road_lanes is not None else _road_lanes(m)
     out: set[tuple[str, str]] = set()
     if not lines:
@@ -141,8 +143,12 @@ def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tu
         la, lb = lines[i], lines[j]
         pa, pb = shapely.ops.nearest_points(la, lb)
         sa, sb = la.project(pa), lb.project(pb)
-        if float(np.dot(_tangent(la, sa), _tangent(lb, sb))) <= 0.0:
+        ta, tb = _tangent(la, sa), _tangent(lb, sb)
+        cos = float(np.dot(ta, tb)) / max(float(np.linalg.norm(ta) * np.linalg.norm(tb)), 1e-12)
+        if cos <= 0.0:
             continue  # opposite directions: a narrow passage
+        if cos < math.cos(math.radians(CONVERGE_MAX_ANGLE_DEG)):
+            continue  # lanes that come close at a steep angle cross (Town04's bridges), they do not zip
         if (sa >= la.length - 1e-6 and sb <= 1e-6) or (sb >= lb.length - 1e-6 and sa <= 1e-6):
             continue  # head to tail
         out.add((min(a.id, b.id), max(a.id, b.id)))

@@ -287,7 +287,6 @@ SPAWN_MARGIN_M = 1.0  # ... plus this
 OFF_ROAD_LATERAL_M = 1.5  # the ego is off the road this far beyond its lane's edge
 OFF_ROAD_END_M = 3.0  # ... or this far past the end of a lane without successors
 FINISH_MARGIN_M = 2.0  # traffic has finished its route this close to the end of its last lane
-TRAFFIC_END_ROOM_M = 8.0  # traffic routes end on at least this much road after their last junction (a car and a margin)
 LEADER_LATERAL_M = 1.0  # beyond a lane's half width, a road user is not in the way of a vehicle on it
 # IDM car following of our vehicles (own constants: highway-env's envs mutate IDMVehicle's class attributes)
 IDM_ACC = 3.0  # [m/s^2] maximum acceleration
@@ -316,6 +315,14 @@ FOLD_TURN_DEG = 120.0  # a lane polyline turning more than this at a vertex ...
 FOLD_SEGMENT_M = 1.0  # ... next to a segment shorter than this folds back (a cusp): the vertex is dropped
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
 VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
+# traffic routes end on at least this much road after their last junction: a car whose route ends
+# on less stands half inside the next junction, blind to it (Town07's 0.7 m road); Shalun's 3.5 m
+# roads between junctions are room enough (a longer limit changed their traffic for no need)
+TRAFFIC_END_ROOM_M = VEHICLE_LENGTH_M / 2
+# road lanes of one direction that come within CONFLICT_DISTANCE_M converge (zip) only where they
+# meet at most this steeply: a taper (Highway101GLE: 2.6 deg); steeper ones cross, as roads over
+# roads do (Town04's bridges: 89.5 deg)
+CONVERGE_MAX_ANGLE_DEG = 30.0
 TRACKING_MARGIN_M = 0.5  # lateral error of the lane keeping on tight junction curves (corners are cut)
 CROSSING_CLEARANCE_M = 1.0  # a stop line lies this far before another road's lane its lane crosses (plus half its width)
 FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far apart

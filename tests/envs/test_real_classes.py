@@ -321,6 +321,23 @@ def test_converging_lanes_zip_until_they_meet(taper):
     assert MapNetwork.from_map(plain).merges == {}
 
 
+def test_lanes_that_cross_steeply_do_not_zip(taper):
+    """A road lane passing over another of the same general direction at a steep angle (Town04's
+    bridges: 89.5 deg, which zipped and stopped traffic under the bridge) is no converging lane;
+    the same lanes at the taper's 3.3 deg are."""
+    from feat2map.envs.network import converging_pairs
+
+    m = native.load(taper)
+    ln = m.lanes["R2_1"]
+    x = np.linspace(30.0, 60.0, 16)
+    steep = np.stack([x, -1.75 + 1.2 * (x - 45.0)], 1)  # 50 deg to R2_0, crossing it at x = 45
+    tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+    crossing = dataclasses.replace(ln, centerline=tup(steep), left_boundary=tup(steep + (0.0, 1.75)),
+                                   right_boundary=tup(steep - (0.0, 1.75)), bezier=None)
+    assert converging_pairs(m) == [("R2_0", "R2_1")]
+    assert converging_pairs(dataclasses.replace(m, lanes={**m.lanes, "R2_1": crossing})) == []
+
+
 @pytest.mark.parametrize("t_spawn, s0, speed", [(8.0, 0.0, 10.0), (8.0, 0.0, 14.0), (8.0, 5.0, 10.0), (7.0, 0.0, 14.0)])
 def test_car_beside_the_ego_in_a_taper_merge_zips(taper, t_spawn, s0, speed):
     """The ego goes straight west -> east into the tapering lane R2_1 and a car drives R2_0 beside
