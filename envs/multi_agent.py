@@ -212,20 +212,10 @@ class AgentJudge(EgoJudge):
 
 
 class AgentVehicle(ArrayVehicle):
-    """An agent's vehicle: a controlled row of the arrays core (its view), whose route progress
-    adds the lanes behind it once per lane (the same sum as RouteFollower's, in the same order)."""
+    """An agent's vehicle: a controlled row of the arrays core (its view); its route progress is
+    RouteFollower's (the lanes behind it summed once per route position)."""
 
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
-    _done_at: tuple[int, int] = (-1, -1)
-    _done_sum = 0.0  # metres of the route's lanes before route position _done_at
-
-    def route_distance_done(self) -> float:
-        c, i = self._core, self._row
-        pos, route, lane_of = int(c.route_pos[i]), c.route_ids[i], c.net.lane_of
-        if self._done_at != (id(route), pos):
-            self._done_sum = sum(lane_of[x].length for x in route[:pos])
-            self._done_at = (id(route), pos)
-        return self._done_sum + min(max(float(c.s[i]), 0.0), lane_of[route[pos]].length)
 
     _line_at: tuple[int, int] = (-1, -1)
     _line_plan: tuple = ()
