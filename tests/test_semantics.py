@@ -204,6 +204,22 @@ def test_free_text_traffic_light_types_are_lights(four_way_xodr, tmp_path):
     assert [j.feature.control for j in extract_junctions(m)] == ["signal"]
 
 
+def test_a_signal_written_twice_on_its_road_is_one_control(four_way_xodr, tmp_path):
+    """VIRES's sample database writes a yield sign twice on one road (same id, place and type):
+    that made a second control (`<road>_<id>`). Read once, with one warning naming it."""
+    import copy
+
+    def twice(root):
+        for sigs in root.iter("signals"):
+            for s in list(sigs.findall("signal")):
+                sigs.append(copy.deepcopy(s))
+    m, caught = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "twice.xodr", twice))
+    plain = read_opendrive(four_way_xodr)
+    assert plain.signals and {k: s.lane_ids for k, s in m.signals.items()} == {
+        k: s.lane_ids for k, s in plain.signals.items()}
+    assert len([w for w in caught if "declared twice" in w]) == 1
+
+
 def test_code_tables():
     from feat2map.formats.opendrive.reader import known_non_control, signal_kind
 

@@ -868,11 +868,18 @@ class _Builder:
         made: dict[str, dict] = {kind: {} for kind in _CONTROL_CLASS}
         unknown: dict[tuple[str, str], int] = {}
         ident_of: dict[str, str] = {}
+        seen: set[tuple] = set()  # (road, id, s, t, type, subtype, orientation) of the controls made
+        twice: list[str] = []
         for r in self.roads.values():
             sig_el = r.el.find("signals")
             for s_el in (sig_el.findall("signal") if sig_el is not None else []):
                 kind = signal_kind(s_el.get("type"), s_el.get("country"), s_el.get("dynamic"))
                 sid = s_el.get("id")
+                key = (r.id, sid, *(s_el.get(a) for a in ("s", "t", "type", "subtype", "orientation")))
+                if kind is not None and key in seen:  # the same sign written twice (VIRES ROD does): one control
+                    twice.append(f"road {r.id} <signal id={sid}>")
+                    continue
+                seen.add(key)
                 if kind is None:
                     if not known_non_control(s_el.get("type")):
                         key = ((s_el.get("type") or "").strip(), (s_el.get("country") or "").strip())
@@ -910,6 +917,9 @@ class _Builder:
             warnings.warn(f"{self.ctx.path}: {n} <signal> of type {t!r}" + (f" (country {c!r})" if c else "")
                           + (' marked dynamic="no": a sign or marking, not made a light' if static else
                              " not in the code tables: ignored, not made a control"), stacklevel=2)
+        if twice:
+            warnings.warn(f"{self.ctx.path}: {len(twice)} <signal> declared twice on its road with the same position "
+                          f"and type (first: {twice[0]}): read once", stacklevel=2)
         signals = made["signal"]
         self.signal_groups = self._controller_groups(ident_of, signals)
         return (signals, signal_precedence(lanes, signals, made["stop"]),
