@@ -3,6 +3,8 @@ and the readers' handling of what maps declare, on maps the project makes itself
 maps exported to OpenDRIVE / Apollo and edited the way other tools write them."""
 from __future__ import annotations
 
+import math
+
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -218,6 +220,29 @@ def test_a_signal_written_twice_on_its_road_is_one_control(four_way_xodr, tmp_pa
     assert plain.signals and {k: s.lane_ids for k, s in m.signals.items()} == {
         k: s.lane_ids for k, s in plain.signals.items()}
     assert len([w for w in caught if "declared twice" in w]) == 1
+
+
+def test_a_stop_line_spans_its_lanes_in_any_listed_order(tmp_path):
+    """A signal's lanes listed out of their lateral order (CARLA Town06's 5, 4, 6) gave a stop
+    line from one lane's right border to another's left border: zero length where they touch.
+    It now runs from the rightmost border to the leftmost across every governed lane."""
+    m3 = feat2map.generate_from_features([JF.make([0, 90, 180, 270], "signal", False, lanes=3)], seed=1)
+    src = tmp_path / "three.xodr"
+    write_opendrive(m3, src)
+
+    def shuffle(root):  # list each side's lanes 2, 1, 3 (file order is free)
+        for side in list(root.iter("right")) + list(root.iter("left")):
+            lanes = side.findall("lane")
+            if len(lanes) == 3:
+                for ln in lanes:
+                    side.remove(ln)
+                for k in (1, 0, 2):
+                    side.append(lanes[k])
+    m = read_opendrive(_edit(src, tmp_path / "shuffled.xodr", shuffle))
+    assert m.signals
+    for s in m.signals.values():
+        width = sum(m.lanes[g].width for g in s.lane_ids)
+        assert len(s.lane_ids) == 3 and abs(math.dist(s.stop_line[0], s.stop_line[-1]) - width) < 0.05
 
 
 def test_code_tables():

@@ -1002,8 +1002,14 @@ class _Builder:
 
     @staticmethod
     def _stop_line(governed: list[str], lanes: dict[str, Lane], pos) -> tuple:
+        """Across the ends of the governed lanes, rightmost border to leftmost (in any order the
+        lanes are listed: a list such as 5, 4, 6 made a line of zero length)."""
         if governed:
-            return as_polyline([lanes[governed[0]].right_boundary[-1], lanes[governed[-1]].left_boundary[-1]])
+            ends = [lanes[g] for g in governed]
+            h = math.atan2(sum(math.sin(x.heading_at_end()) for x in ends), sum(math.cos(x.heading_at_end()) for x in ends))
+            pts = [p for x in ends for p in (x.right_boundary[-1], x.left_boundary[-1])]
+            lateral = [-math.sin(h) * px + math.cos(h) * py for px, py in pts]  # leftwards of the travel direction
+            return as_polyline([pts[int(np.argmin(lateral))], pts[int(np.argmax(lateral))]])
         return as_polyline([pos, (pos[0] + 0.01, pos[1])])
 
     def _crosswalks(self, junctions: dict[str, Junction]) -> dict[str, Crosswalk]:
