@@ -107,3 +107,28 @@ def test_apollo_export_starts_an_opening_lane_where_a_car_fits(exit_lane):
     assert math.dist(np.subtract(pts[-1], origin), src.centerline[-1]) < 1e-6
     kept = [x for x in base.lane if x.id.id != src.id]
     assert len(kept) == len(exit_lane.lanes) - 1  # the other lanes are all there
+
+
+def test_lanelet2_export_has_no_node_beside_a_lane_end(tmp_path):
+    """esmini's highway ramp: the through lane's border has a sample 5 cm before the point
+    where the exit lane opens, so the export made a node 5 cm from the exit lane's first node
+    (lanelet2_validation: points too close). Inner points that near any lane end are dropped;
+    two unlinked lanes ending at one place (within float noise) share their end node."""
+    from feat2map.formats.lanelet2.validate import validate_lanelet2
+    from feat2map.formats.lanelet2.writer import write_lanelet2
+    from feat2map.model import HDMap, Lane, Road, as_polyline
+
+    def line(xs, y):
+        return as_polyline([(x, y) for x in xs])
+
+    xs = [0.0, 20.0, 49.95, 50.0, 80.0, 100.0]
+    through = Lane("t", "r", line(xs, -1.75), line(xs, 0.0), line(xs, -3.5), 3.5, 10.0)
+    ex = [50.0, 80.0, 100.0]
+    opening = Lane("x", "r", as_polyline([(50.0, -3.5), (80.0, -5.25), (100.0, -5.25)]),
+                   line(ex, -3.5), as_polyline([(50.0, -3.5 - 1e-9), (80.0, -7.0), (100.0, -7.0)]), 3.5, 10.0,
+                   left_neighbors=("t",))
+    m = HDMap(lanes={"t": through, "x": opening}, roads={"r": Road("r", "stub", right_lanes=("t", "x"))},
+              junctions={})
+    out = tmp_path / "ramp.osm"
+    write_lanelet2(m, out)
+    assert [str(p) for p in validate_lanelet2(out) if "closer than" in str(p)] == []
