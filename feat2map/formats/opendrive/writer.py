@@ -143,15 +143,17 @@ def _merge_straight_runs(pts: np.ndarray, tol_rad: float = STRAIGHT_RUN_TOL_RAD)
     """`pts` without the inner points of straight runs (segments within `tol_rad` of the run's
     first heading): one `line` per run, not a chain of collinear ones (ASAM's
     performance.avoid_redundant_info)."""
-    if len(pts) < 3:
-        return pts
-    heads = np.arctan2(*np.diff(pts, axis=0).T[::-1])
-    keep, run = [0], heads[0]
-    for i in range(1, len(heads)):
-        if abs(wrap_angle(heads[i] - run)) > tol_rad:
-            keep.append(i)
-            run = heads[i]
-    return pts[keep + [len(pts) - 1]]
+    while len(pts) >= 3:  # again on the result: merged chords can end up within the tolerance of each other
+        heads = np.arctan2(*np.diff(pts, axis=0).T[::-1])
+        keep, run = [0], heads[0]
+        for i in range(1, len(heads)):
+            if abs(wrap_angle(heads[i] - run)) > tol_rad:
+                keep.append(i)
+                run = heads[i]
+        if len(keep) + 1 == len(pts):
+            break
+        pts = pts[keep + [len(pts) - 1]]
+    return pts
 
 
 def _width_profile(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,

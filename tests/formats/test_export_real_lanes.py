@@ -1,4 +1,4 @@
-"""Lanes whose width varies along them (a lane opening from 0 m, as highway exits and CARLA's
+"""Real maps' lanes survive export. Lanes whose width varies along them (a lane opening from 0 m, as highway exits and CARLA's
 turn pockets draw them) survive export: the OpenDRIVE export keeps their borders where they
 are, so they meet the linked lanes' borders; the Apollo export starts such a lane where a car
 fits, instead of refusing the whole map for its sliver."""
@@ -132,3 +132,16 @@ def test_lanelet2_export_has_no_node_beside_a_lane_end(tmp_path):
     out = tmp_path / "ramp.osm"
     write_lanelet2(m, out)
     assert [str(p) for p in validate_lanelet2(out) if "closer than" in str(p)] == []
+
+
+def test_no_two_written_lines_share_a_heading():
+    """Straight runs become one `line`; merged, two runs' chords could still differ by less
+    than ASAM's 1e-6 rad (performance.avoid_redundant_info, on esmini's Fabriksgatan with
+    string ids). The merge repeats on its result until no two consecutive lines are that close."""
+    from feat2map.formats.opendrive.writer import STRAIGHT_RUN_TOL_RAD, _merge_straight_runs
+
+    heads = np.array([0.0, 0.6e-6, 1.2e-6, 0.6e-6, 0.3])  # 1.2e-6 breaks the first run; the chords do not differ
+    pts = np.vstack([[0.0, 0.0], np.cumsum(np.c_[np.cos(heads), np.sin(heads)], axis=0)])
+    out = _merge_straight_runs(pts)
+    chords = np.arctan2(*np.diff(out, axis=0).T[::-1])
+    assert len(out) == 3 and np.all(np.abs(np.diff(chords)) >= STRAIGHT_RUN_TOL_RAD)
