@@ -1,7 +1,8 @@
-"""Real maps' lanes survive export. Lanes whose width varies along them (a lane opening from 0 m, as highway exits and CARLA's
-turn pockets draw them) survive export: the OpenDRIVE export keeps their borders where they
-are, so they meet the linked lanes' borders; the Apollo export starts such a lane where a car
-fits, instead of refusing the whole map for its sliver."""
+"""Lanes of real maps survive export. A lane whose width varies along it (a lane opening from
+0 m, as highway exits and CARLA's turn pockets draw them): the OpenDRIVE export keeps its
+borders where they are, so they meet the linked lanes' borders; the Apollo export starts it
+where a car fits, instead of refusing the whole map for its sliver. Lanelet2 puts no node
+beside another lane's end; OpenDRIVE writes no two lines of one heading."""
 from __future__ import annotations
 
 import math

@@ -155,7 +155,7 @@ def trimmed_tapers(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap:
             continue
         line = LineString(ln.centerline)
         a, b = s_l[first], s_l[last]
-        pieces = {}
+        pieces: dict[str, Any] = {}
         for name in ("left_boundary", "right_boundary"):
             edge = LineString(getattr(ln, name))
             lo = edge.project(shapely.Point(ln.centerline[first]))
