@@ -245,6 +245,17 @@ def test_a_stop_line_spans_its_lanes_in_any_listed_order(tmp_path):
         assert len(s.lane_ids) == 3 and abs(math.dist(s.stop_line[0], s.stop_line[-1]) - width) < 0.05
 
 
+def test_opendrive_1_3_motorway_lane_types_are_driven(four_way_xodr, tmp_path):
+    """VIRES ROD writes OpenDRIVE 1.1-1.3's lane types "mwyEntry"/"mwyExit" for ramp lanes; they
+    were dropped as undrivable (VIRES's sample database lost its ramps' lanes)."""
+    def old_types(root):
+        for k, ln in enumerate(root.iter("lane")):
+            if ln.get("type") == "driving":
+                ln.set("type", "mwyEntry" if k % 2 else "mwyExit")
+    m = read_opendrive(_edit(four_way_xodr, tmp_path / "mwy.xodr", old_types))
+    assert set(m.lanes) == set(read_opendrive(four_way_xodr).lanes)
+
+
 def test_code_tables():
     from feat2map.formats.opendrive.reader import known_non_control, signal_kind
 

@@ -57,6 +57,7 @@ NOT_CONTROLS = frozenset({
     "332", "333", "336", "350", "625", "626", "215", "209", "211", "214", "220", "222", "237", "239", "240",
     "241", "250", "251", "253", "254", "260", "267", "283", "286", "290", "325", "330", "101", "102", "103",
     "105", "108", "110", "112", "114", "120", "123", "125", "131", "133", "136", "138", "142", "151",
+    "1000", "1004", "334", "406", "430", "436", "440", "449", "450", "451", "452", "531", "605",
     "R2-1", "R3-1", "R3-2", "R3-4", "R3-5", "R3-7", "R4-7", "R5-1", "R6-1", "W3-1", "W3-3",
     "speed", "maxspeed", "city_limit", "stop_line", "stopline", "holdingline", "crosswalk", "pedestrian_crossing",
     "-1", "",
@@ -95,7 +96,9 @@ def _code(type_: str | None, country: str | None) -> tuple[str, str | None]:
 
 # A yield sign is not a stop sign: it becomes a `YieldSign` (its junction stays bare).
 _CONTROL_CLASS = {"signal": Signal, "stop": StopSign, "yield": YieldSign}
-DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
+# OpenDRIVE 1.4+ lane types cars drive, and 1.1-1.3's motorway entry/exit ("mwyEntry", "mwyExit":
+# VIRES ROD still writes them)
+DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp", "mwyentry", "mwyexit"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
 END_TANGENT_M = 0.05  # extra sample this close to each lane end, so polyline end headings are exact
