@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterable
 
 from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG
 from .errors import Feat2MapError
-from .model import HDMap, incoming_lanes
+from .model import HDMap, incoming_lanes, stop_line_across
 
 CONTROL_TABLES = ("signals", "stop_signs", "yield_signs")
 _LINKS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
@@ -216,7 +216,7 @@ def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
         ids = [sid] + [f"{sid}~{k}" for k in range(2, len(parts) + 1)]
         for new, part in zip(ids, parts):
             keep = tuple(x for x in sig.lane_ids if x in m.lanes and m.lanes[x].road_id in part)
-            signals[new] = replace(sig, id=new, lane_ids=keep)
+            signals[new] = replace(sig, id=new, lane_ids=keep, stop_line=stop_line_across(m.lanes, keep) or sig.stop_line)
         renamed[sid] = ids
         warnings.warn(f"{where}: signal {sid}: governs approaches whose paths conflict (roads "
                       f"{' / '.join(', '.join(p) for p in parts)}): split into signals {', '.join(ids)}", stacklevel=3)

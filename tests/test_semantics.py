@@ -408,6 +408,8 @@ def test_a_signal_over_crossing_approaches_is_split(four_way):
     assert len(caught) == 1 and f"split into signals {a.id}, {a.id}~2" in caught[0]
     assert phase_conflicts(split, junction_phases(split)) == []
     assert semantics.split_conflicting_signals(four_way) is four_way
+    for part, orig in ((split.signals[a.id], a), (split.signals[f"{a.id}~2"], b)):  # each part: its own lanes' line
+        assert np.allclose(part.stop_line, orig.stop_line, atol=1e-6)
 
 
 def test_apollo_speed_limits_in_kmh_are_converted(apollo_pb, tmp_path):

@@ -30,7 +30,7 @@ from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_
                        UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
-                      signal_precedence)
+                      signal_precedence, stop_line_across)
 from ...semantics import loaded
 
 # OpenDRIVE signal type -> feat2map control kind, from the code tables the dialects use: the
@@ -1005,14 +1005,11 @@ class _Builder:
 
     @staticmethod
     def _stop_line(governed: list[str], lanes: dict[str, Lane], pos) -> tuple:
-        """Across the ends of the governed lanes, rightmost border to leftmost (in any order the
-        lanes are listed: a list such as 5, 4, 6 made a line of zero length)."""
-        if governed:
-            ends = [lanes[g] for g in governed]
-            h = math.atan2(sum(math.sin(x.heading_at_end()) for x in ends), sum(math.cos(x.heading_at_end()) for x in ends))
-            pts = [p for x in ends for p in (x.right_boundary[-1], x.left_boundary[-1])]
-            lateral = [-math.sin(h) * px + math.cos(h) * py for px, py in pts]  # leftwards of the travel direction
-            return as_polyline([pts[int(np.argmin(lateral))], pts[int(np.argmax(lateral))]])
+        """Across the ends of the governed lanes (`stop_line_across`: in any listed order; a list
+        such as 5, 4, 6 made a line of zero length)."""
+        line = stop_line_across(lanes, governed)
+        if line is not None:
+            return line
         return as_polyline([pos, (pos[0] + 0.01, pos[1])])
 
     def _crosswalks(self, junctions: dict[str, Junction]) -> dict[str, Crosswalk]:
