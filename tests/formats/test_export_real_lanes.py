@@ -30,9 +30,10 @@ def _w(a: float, b: float = 0.0, c: float = 0.0, d: float = 0.0, s: float = 0.0)
     return f'<width sOffset="{s}" a="{a}" b="{b}" c="{c}" d="{d}"/>'
 
 
-def exit_lane_xodr(path: Path) -> Path:
+def exit_lane_xodr(path: Path, seam: float = 0.0) -> Path:
     """Road 1 (120 m, bending gently): one lane, and from s=40 a second lane on its right that
-    opens from 0 m over 30 m (a cubic, as CARLA writes it); road 2 carries both lanes on."""
+    opens from 0 m over 30 m (a cubic, as CARLA writes it); road 2 carries both lanes on,
+    starting `seam` metres to the side of road 1's end (converters leave such seams)."""
     c, d = 3 * FULL_M / OPEN_M ** 2, -2 * FULL_M / OPEN_M ** 3
     full = _w(FULL_M)
     sec1 = f"""<laneSection s="0"><center><lane id="0" type="none"/></center><right>
@@ -48,7 +49,8 @@ def exit_lane_xodr(path: Path) -> Path:
 <planView><geometry s="0" x="0" y="0" hdg="0" length="120"><arc curvature="0.004"/></geometry></planView>
 <lanes>{sec1}{sec2}</lanes></road>
 <road id="2" junction="-1" length="50"><link><predecessor elementType="road" elementId="1" contactPoint="end"/></link>
-<planView><geometry s="0" x="{250 * math.sin(0.48)}" y="{250 * (1 - math.cos(0.48))}" hdg="0.48" length="50"><line/></geometry>
+<planView><geometry s="0" x="{250 * math.sin(0.48) - seam * math.sin(0.48)}"
+ y="{250 * (1 - math.cos(0.48)) + seam * math.cos(0.48)}" hdg="0.48" length="50"><line/></geometry>
 </planView><lanes>{road2}</lanes></road>
 </OpenDRIVE>""")
     return path
@@ -146,3 +148,19 @@ def test_no_two_written_lines_share_a_heading():
     out = _merge_straight_runs(pts)
     chords = np.arctan2(*np.diff(out, axis=0).T[::-1])
     assert len(out) == 3 and np.all(np.abs(np.diff(chords)) >= STRAIGHT_RUN_TOL_RAD)
+
+
+def test_exports_close_a_seam_between_linked_lanes(tmp_path):
+    """CommonRoad's OpenDRIVE converter leaves 0.1-0.3 m between linked lanes: the Apollo export
+    refused such maps ("successor_id ... does not meet it (0.12 m apart)"). The lane with one
+    link across the seam is bent over its last metres to meet the other, in the Apollo and
+    OpenDRIVE exports; the map read keeps its own geometry."""
+    m = _read(exit_lane_xodr(tmp_path / "seam.xodr", seam=0.3))
+    seams = [math.dist(a.end, m.lanes[s].start) for a in m.lanes.values() for s in a.successors]
+    assert max(seams) > 0.25  # the map as read keeps its seam
+    base = wa.to_apollo(m)
+    assert not [p for p in validate_map(base) if "does not meet" in str(p)]
+    out = tmp_path / "out.xodr"
+    write_opendrive(m, out)
+    back = _read(out)
+    assert max(math.dist(a.end, back.lanes[s].start) for a in back.lanes.values() for s in a.successors) < 0.02

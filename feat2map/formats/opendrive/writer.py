@@ -33,6 +33,7 @@ from ...config import OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
 from ...model import HDMap, Lane, Road
 from ..base import header_date
+from ..lane_ends import closed_seams
 from ..geo import local_tmerc, utm_origin
 
 VERSIONS = OPENDRIVE_VERSIONS
@@ -222,7 +223,7 @@ class _Writer:
             raise MapFormatError(f"unsupported OpenDRIVE version {version!r}: expected one of {', '.join(VERSIONS)}",
                                  "version")
         self.E = etree
-        self.m = m
+        self.m = m = closed_seams(m)  # linked lanes' borders meet at their contact points
         self.minor = int(version.split(".")[1])
         self.roads = export_roads(m)
         self.road_ids = {rid: str(i + 1) for i, rid in enumerate(self.roads)}
