@@ -39,7 +39,7 @@ PROJECTOR_INFO = "map_projector_info.yaml"  # Autoware reads it from the map fol
 TAG = "feat2map:"  # our own tags: lane, road, junction, from/to (a junction lane's entry/exit roads), crosswalk
 STOP_SIGN_SUBTYPE = "usR1-1"  # MUTCD stop sign (Lanelet2: ISO country code + sign number)
 TURN_DIRECTION = {"none": "straight", "left": "left", "right": "right", "uturn": "left"}
-ROUND_TRIP_M = 1e-3  # lat/lon round trip error allowed for: nodes this much beyond the merge distance merge too
+ROUND_TRIP_M = 1e-3  # lat/lon round trip error allowed for near lane ends; unlinked ends this close are one node
 _LINES = {"solid_white": {"type": "line_thin", "subtype": "solid", "color": "white"},
           "dotted_white": {"type": "line_thin", "subtype": "dashed", "color": "white"},
           "solid_yellow": {"type": "line_thin", "subtype": "solid", "color": "yellow"},
@@ -67,12 +67,12 @@ class _Osm:
         """Register every lane end before any way is written: a bound's inner point near another
         lane's end (an end tangent sample beside where a new lane opens) is dropped, not made a
         node 5 cm from that end's node (lanelet2_validation: points too close)."""
-        r = 2 * LANELET2_MERGE_M
+        r = 2 * LANELET2_MERGE_M  # as for a bound's own ends: clear of it after the lat/lon round trip
         for x, y in points:
             self._reserved.setdefault((math.floor(x / r), math.floor(y / r)), []).append((float(x), float(y)))
 
     def _near_end(self, p: tuple[float, float]) -> bool:
-        r = 2 * LANELET2_MERGE_M
+        r = 2 * LANELET2_MERGE_M  # as for a bound's own ends: clear of it after the lat/lon round trip
         cx, cy = math.floor(p[0] / r), math.floor(p[1] / r)
         return any(math.dist(p, q) < r for dx in (-1, 0, 1) for dy in (-1, 0, 1)
                    for q in self._reserved.get((cx + dx, cy + dy), ()))
@@ -92,9 +92,9 @@ class _Osm:
         """The node at height z within `LANELET2_MERGE_M` of (x, y) (the nearest), else a new node."""
         cx, cy = math.floor(x / LANELET2_MERGE_M), math.floor(y / LANELET2_MERGE_M)
         near = [(math.hypot(self.nodes[n][0] - x, self.nodes[n][1] - y), n)
-                for dx in (-2, -1, 0, 1, 2) for dy in (-2, -1, 0, 1, 2) for n in self._grid.get((cx + dx, cy + dy, z), ())]
+                for dx in (-1, 0, 1) for dy in (-1, 0, 1) for n in self._grid.get((cx + dx, cy + dy, z), ())]
         best = min(near, default=None)
-        if best is not None and best[0] < LANELET2_MERGE_M + ROUND_TRIP_M:
+        if best is not None and best[0] < LANELET2_MERGE_M:
             return best[1]
         return self._new(x, y, z)
 
