@@ -104,3 +104,22 @@ def test_the_cli_takes_blocked_after(tmp_path, capsys):
     assert cli.main(["rollout", str(tmp_path / "suite.yaml"), "--out", str(tmp_path / "o2"), "--blocked-after",
                      "-1"]) == 2
     assert "--blocked-after" in capsys.readouterr().err
+
+
+def test_a_road_user_close_ahead_justifies_the_wait_and_a_clear_road_does_not(tmp_path):
+    """A queue never counts: the judge sees the car standing ahead of the ego."""
+    from feat2map.scenarios.scenario import make_env
+
+    sc = _scenario(tmp_path, "stop")
+    env = make_env(sc)  # the baseline planner's action: an acceleration
+    env.reset(seed=0)
+    e = env.unwrapped
+    brake = np.array([-1.0], dtype=np.float32)
+    env.step(brake)
+    assert e.judge.wait_reason() == ""  # 30 m before a stop sign's line: nothing holds it there
+    ego = e.vehicle
+    lane = e.net.id_of[ego.lane_index]
+    e.road.spawn(lane, ego.lane_s + 12.0, 0.0, list(ego.lane_route[ego.route_pos:]))
+    env.step(brake)
+    assert e.judge.wait_reason() == "road user ahead"
+    env.close()
