@@ -5,6 +5,9 @@ Determinism: every scenario builds its own env from its own seed and a fresh pla
 every worker runs with PYTHONHASHSEED=HASH_SEED, so the results (everything but wall-clock
 times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run
 with `render_mode="rgb_array"` to record a GIF, so only failing scenarios pay for rendering.
+
+A scenario whose ego stands still with nothing in its way for `blocked_after` seconds
+(`BlockedClock`, default BLOCKED_AFTER_S) ends early as a `timeout` whose message says "blocked".
 """
 from __future__ import annotations
 
