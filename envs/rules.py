@@ -28,7 +28,7 @@ here for scalars and arrays alike.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -696,9 +696,11 @@ class EgoJudge:
     entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
     route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
 
-    def __init__(self, rules: TrafficRules, ego) -> None:
+    def __init__(self, rules: TrafficRules, ego, arrived: Callable[[], bool] | None = None) -> None:
         self.rules = rules
         self.ego = ego
+        self.arrived = arrived  # whether the ego has reached its goal: the drive ends there
+        self.done = False
         self.violations = {k: 0 for k in VIOLATIONS}
         self.new: list[str] = []
         self.off_road = False
@@ -708,6 +710,12 @@ class EgoJudge:
         self._ped_flags: set[tuple[str, str]] = set()
 
     def check(self) -> None:
+        if self.done or (self.arrived is not None and self.arrived()):
+            # the drive ended at the goal: frames after it within the same policy step are no
+            # part of it (a goal on a 4.9 m road 1 m before a red line, osm2xodr's karl-wilhelm
+            # r027: at 12 m/s the ego passed both within one step, and the line was judged)
+            self.done = True
+            return
         rules, ego = self.rules, self.ego
         net, m = rules.net, rules.net.hdmap
         lid = net.id_of[ego.lane_index]  # every lane of the network has its map id

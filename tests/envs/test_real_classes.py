@@ -342,6 +342,31 @@ def test_the_line_after_a_junction_and_a_short_lane_is_seen_from_before_the_junc
     env.close()
 
 
+def test_a_line_just_past_the_goal_is_no_part_of_the_drive(tight_approach):
+    """osm2xodr's karl-wilhelm r027: a route ending on a 4.9 m road before a red line puts the
+    goal 1 m before the line; at 12 m/s the ego passed both within one policy step, and the
+    frame after the goal was judged a red-light violation. The drive ends at the goal: frames
+    after it are not judged. Here the route ends on the 0.2 m lane before J1's red line (its
+    goal is the lane itself), so the ego, seeing no line on its route, drives on into J1."""
+    sc = _through_jx_scenario(tight_approach)
+    m = native.load(tight_approach)
+    jx = next(ln for ln in m.lanes.values() if ln.junction_id == "JX")
+    lanes = [jx.predecessors[0], jx.id, jx.successors[0]]
+    env = make_env(sc, config={"traffic_vehicles": 0, "signal_offsets": {"J1": _red_offset(sc)},
+                               "route": {"lanes": lanes}, "ego_start_distance": 20.0})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    planner = BaselinePlanner()
+    planner.reset(env)
+    for _ in range(int(20 * u.config["policy_frequency"])):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        if term or trunc:
+            break
+    assert u.route_completed() and info["violations"]["red_light"] == 0
+    assert m.lanes[u.net.id_of[u.vehicle.lane_index]].junction_id == "J1"  # it did cross the line, after the goal
+    env.close()
+
+
 # ---- a taper merge along a road ----------------------------------------------------------------
 
 @pytest.fixture(scope="module")
