@@ -227,9 +227,10 @@ def tight_approach(tmp_path_factory) -> Path:
     return _short_approach_map(tmp_path_factory.mktemp("tight") / "tight_approach.json", 4.0)
 
 
-def _short_approach_map(path: Path, jx_length: float) -> Path:
+def _short_approach_map(path: Path, jx_length: float, jx: str = "JX") -> Path:
     """The two-junction map of `short_approach` with the last `jx_length` metres of R's lanes
-    towards J1 made JX's junction lane (less 0.2 m) and a 0.2 m road lane."""
+    towards J1 made a junction lane of junction `jx` (less 0.2 m; JX, a junction of its own, or
+    J1: one element drawn over both) and a 0.2 m road lane."""
     from shapely.geometry import LineString
 
     from feat2map.model import as_polyline
@@ -252,7 +253,7 @@ def _short_approach_map(path: Path, jx_length: float) -> Path:
         r, a = f"{lid}_r", f"{lid}_jx"
         lanes[r] = dataclasses.replace(ln, id=r, successors=(a,), left_neighbors=(), right_neighbors=(),
                                        left_reverse_neighbors=(), **{f: as_polyline(p[0]) for f, p in pieces.items()})
-        lanes[a] = dataclasses.replace(ln, id=a, junction_id="JX", predecessors=(r,), successors=(lid,),
+        lanes[a] = dataclasses.replace(ln, id=a, junction_id=jx, predecessors=(r,), successors=(lid,),
                                        left_neighbors=(), right_neighbors=(), left_reverse_neighbors=(),
                                        **{f: as_polyline(p[1]) for f, p in pieces.items()})
         lanes[lid] = dataclasses.replace(ln, predecessors=(a,), **{f: as_polyline(p[2]) for f, p in pieces.items()})
@@ -263,7 +264,9 @@ def _short_approach_map(path: Path, jx_length: float) -> Path:
     from shapely.ops import unary_union
 
     poly = unary_union(shapes).convex_hull
-    junctions = {**m.junctions, "JX": feat2map.model.Junction("JX", as_polyline(poly.exterior.coords[:-1]))}
+    junctions = dict(m.junctions)
+    if jx not in junctions:
+        junctions[jx] = feat2map.model.Junction(jx, as_polyline(poly.exterior.coords[:-1]))
     native.save(dataclasses.replace(m, lanes=lanes, junctions=junctions), path)
     return path
 
@@ -339,6 +342,31 @@ def test_the_line_after_a_junction_and_a_short_lane_is_seen_from_before_the_junc
         assert not (term or trunc)
     assert info["violations"]["red_light"] == 0
     assert ego.speed < 0.5 and 0.0 <= u.control.line_distance(ego, j1) < 3.0 + ego.LENGTH  # waiting at J1's line
+    env.close()
+
+
+def test_a_car_queued_behind_is_no_conflict(tmp_path):
+    """osm2xodr's karl-wilhelm r039: junctions drawn as one element (j_25420935), two of its lanes
+    joined by a 4.9 m road. The footprints of cars on the two lanes overlap across the road, so
+    they were conflicts: a car waiting on the road at its red line could never enter the next
+    lane while the car queued behind it stood in the first (three cars locked up). A junction
+    lane that follows another through less than two cars of road is one stream with it."""
+    path = _short_approach_map(tmp_path / "cluster.json", 4.0, jx="J1")
+    m = native.load(path)
+    first = next(ln for ln in m.lanes.values() if ln.id.endswith("_jx"))
+    short = first.successors[0]
+    nxt = next(s for s in m.lanes[short].successors)
+    assert m.lanes[nxt].junction_id == first.junction_id == "J1"
+    net = MapNetwork.from_map(m)
+    assert nxt not in net.conflicts[first.id] and first.id not in net.conflicts[nxt]
+    sc = _through_jx_scenario(path)
+    env = make_env(sc, config={"traffic_vehicles": 0, "route": {"lanes": [first.predecessors[0], first.id, short, nxt]},
+                               "ego_start_distance": 3.0})
+    env.reset(seed=0)
+    u = env.unwrapped
+    u.road.spawn(first.id, 1.0, 0.0, [first.id, short, nxt])  # queued behind a car waiting at J1's line
+    u.control.update(u.road, 0.0)
+    assert u.control.junction_clear(nxt, u.vehicle)  # the car behind holds the leader at the line no longer
     env.close()
 
 
