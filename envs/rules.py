@@ -28,7 +28,7 @@ here for scalars and arrays alike.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -190,6 +190,13 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     return None, None, None, math.inf
 
 
+def room_to_wait(room, length):
+    """Whether `room` metres of road between two junctions (up to the next one's stop line) hold
+    a vehicle `length` long waiting at that line; else it waits inside the junction before
+    (back-to-back junctions). Floats or arrays (elementwise)."""
+    return room >= length + STOP_POINT_M
+
+
 def enters_next(vehicle, lane_id: str) -> bool:
     """Whether a road user located on the lane before `lane_id` drives into it next: its next
     route lane, or its current one when its route position has already moved on while it is
@@ -339,7 +346,7 @@ class TrafficRules:
                 room += net.lane_of[route[i]].length
             elif lane.junction_id != jid:
                 room -= line_setback(net, route[i - 1])
-                if room >= vehicle.LENGTH + STOP_POINT_M:
+                if room_to_wait(room, vehicle.LENGTH):
                     return True
                 if not self.junction_clear(route[i], vehicle):
                     return False
@@ -647,10 +654,16 @@ class TrafficRules:
         return self._rule_stop(vehicle, commit, ignore)
 
     def _rule_stop(self, vehicle, commit: bool, ignore: frozenset) -> float:
-        """`stop_distance` without narrow passages."""
+        """`stop_distance` without narrow passages. The scan runs along the route up to the first
+        road after the next junction entry with room to wait on it (`room_to_wait`), however many
+        short road lanes lie before a line (CARLA's 1.5 m and 2.4 m roads) and however many
+        junctions follow each other with less road between them: a line right after a junction
+        is seen from before that junction (SUMO's 0.2 m approach lanes after a junction: the
+        line came into view 4 m ahead, too late to stop for its red)."""
         net = self.net
         m = net.hdmap
         entered = False  # the scan has reached the next junction entry
+        room = 0.0  # road since the last junction lane scanned
         for k, lid, d, s_own in vehicle.upcoming():
             lane_model = m.lanes[lid]
             if s_own is not None:  # the current lane: pedestrians ahead of us on it
@@ -667,9 +680,11 @@ class TrafficRules:
             if ped is not None:
                 return d + ped
             if lane_model.junction_id is not None:
-                entered = True
-            elif entered:  # up to the first road lane after the next junction entry, however many
-                break  # short road lanes lie before it (real maps: 1.5 m and 2.4 m before a line)
+                entered, room = True, 0.0
+            elif entered:  # on to the first road after a junction entry with room to wait on it
+                room += net.lane_of[lid].length
+                if room_to_wait(room - line_setback(net, lid), vehicle.LENGTH):
+                    break
         return math.inf
 
 
@@ -681,9 +696,11 @@ class EgoJudge:
     entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
     route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
 
-    def __init__(self, rules: TrafficRules, ego) -> None:
+    def __init__(self, rules: TrafficRules, ego, arrived: Callable[[], bool] | None = None) -> None:
         self.rules = rules
         self.ego = ego
+        self.arrived = arrived  # whether the ego has reached its goal: the drive ends there
+        self.done = False
         self.violations = {k: 0 for k in VIOLATIONS}
         self.new: list[str] = []
         self.off_road = False
@@ -693,6 +710,12 @@ class EgoJudge:
         self._ped_flags: set[tuple[str, str]] = set()
 
     def check(self) -> None:
+        if self.done or (self.arrived is not None and self.arrived()):
+            # the drive ended at the goal: frames after it within the same policy step are no
+            # part of it (a goal on a 4.9 m road 1 m before a red line, osm2xodr's karl-wilhelm
+            # r027: at 12 m/s the ego passed both within one step, and the line was judged)
+            self.done = True
+            return
         rules, ego = self.rules, self.ego
         net, m = rules.net, rules.net.hdmap
         lid = net.id_of[ego.lane_index]  # every lane of the network has its map id
