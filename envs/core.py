@@ -64,8 +64,8 @@ from ..config import (IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOO
                       STOP_POINT_M)
 from .control import signal_arrays, states_at
 from .network import MapNetwork
-from .rules import (has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, stop_gap,
-                    stops_at_amber)
+from .rules import (has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, room_to_wait,
+                    stop_gap, stops_at_amber)
 from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
 
 if TYPE_CHECKING:
@@ -846,8 +846,12 @@ class TrafficCore:
         ke = np.argmax(entry, axis=1)
         after = np.minimum(ke + 1, K - 1)
         first_junction = np.argmax(junction[:, 1:], axis=1) + 1  # a junction lane right after the current
+        road_after = lanes[np.arange(n), after]
         simple = has & (first_junction == ke) & (ke + 1 < K) & valid[np.arange(n), after] & \
-            ~junction[np.arange(n), after]  # one (the first) junction lane after the current one is scanned
+            ~junction[np.arange(n), after] & \
+            room_to_wait(t.length[road_after] - t.line_setback[road_after], self.length[R])
+        # one (the first) junction lane after the current one is scanned, and the road after it
+        # has room to wait (else the scan goes on to the next junction's line: the rules decide)
         nl = len(t.length)
         busy = [road.slot * nl + k for road in roads if road is not None
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]

@@ -117,7 +117,7 @@ class MapEnv(AbstractEnv):
         for _ in range(int(self.config["traffic_vehicles"])):
             self._spawn_traffic()
         self.control.update(self.road, 0.0)
-        self.judge = EgoJudge(self.control, self.vehicle)
+        self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
         self.violations = self.judge.violations
         self._progress = self.vehicle.route_distance_done()
         last = self.net.lane_of[route[-1]]

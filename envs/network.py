@@ -103,6 +103,27 @@ def swing(curvature):
     return hl * hl * k / (np.sqrt((1 + k * hw) ** 2 + (k * hl) ** 2) + 1 + k * hw)
 
 
+def _one_stream(m: HDMap, a, b) -> bool:
+    """Whether junction lane `b` follows junction lane `a` through road lanes shorter together
+    than two cars: a car on `b` is the leader of one leaving `a`, never in its way across a path
+    (osm2xodr draws a cluster of junctions as one element; the footprints of two of its lanes
+    joined by a 4.9 m road overlap, and a car waiting on the road for its light waited for the
+    car queued behind it: karl-wilhelm r039)."""
+    frontier, room = [(s, 0.0) for s in a.successors], 2 * VEHICLE_LENGTH_M
+    while frontier:
+        lid, d = frontier.pop()
+        ln = m.lanes.get(lid)
+        if ln is None or ln.junction_id is not None:
+            continue
+        d += float(np.sum(np.hypot(*np.diff(np.asarray(ln.centerline)[:, :2], axis=0).T)))
+        if d >= room:
+            continue
+        if b.id in ln.successors:
+            return True
+        frontier += [(x, d) for x in ln.successors]
+    return False
+
+
 def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
     """Pairs of junction lanes from different approaches that end in one lane (a merge: a left
     turn into the lane straight traffic enters): conflicts like crossings (issue 21). They are
@@ -516,7 +537,8 @@ class MapNetwork(RoadNetwork):
                 if i >= j:
                     continue
                 a, b = jl[i], jl[j]
-                if a.junction_id != b.junction_id or set(a.predecessors) & set(b.predecessors):
+                if a.junction_id != b.junction_id or set(a.predecessors) & set(b.predecessors) or \
+                        _one_stream(m, a, b) or _one_stream(m, b, a):
                     continue
                 conf[a.id].add(b.id)
                 conf[b.id].add(a.id)

@@ -28,12 +28,12 @@ here for scalars and arrays alike.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..config import (AMBER_BRAKE_MPS2, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M,
-                      IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
+from ..config import (AMBER_BRAKE_MPS2, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
+                      IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
                       LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
                       MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
                       PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
@@ -190,6 +190,13 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     return None, None, None, math.inf
 
 
+def room_to_wait(room, length):
+    """Whether `room` metres of road between two junctions (up to the next one's stop line) hold
+    a vehicle `length` long waiting at that line; else it waits inside the junction before
+    (back-to-back junctions). Floats or arrays (elementwise)."""
+    return room >= length + STOP_POINT_M
+
+
 def enters_next(vehicle, lane_id: str) -> bool:
     """Whether a road user located on the lane before `lane_id` drives into it next: its next
     route lane, or its current one when its route position has already moved on while it is
@@ -339,7 +346,7 @@ class TrafficRules:
                 room += net.lane_of[route[i]].length
             elif lane.junction_id != jid:
                 room -= line_setback(net, route[i - 1])
-                if room >= vehicle.LENGTH + STOP_POINT_M:
+                if room_to_wait(room, vehicle.LENGTH):
                     return True
                 if not self.junction_clear(route[i], vehicle):
                     return False
@@ -647,10 +654,16 @@ class TrafficRules:
         return self._rule_stop(vehicle, commit, ignore)
 
     def _rule_stop(self, vehicle, commit: bool, ignore: frozenset) -> float:
-        """`stop_distance` without narrow passages."""
+        """`stop_distance` without narrow passages. The scan runs along the route up to the first
+        road after the next junction entry with room to wait on it (`room_to_wait`), however many
+        short road lanes lie before a line (CARLA's 1.5 m and 2.4 m roads) and however many
+        junctions follow each other with less road between them: a line right after a junction
+        is seen from before that junction (SUMO's 0.2 m approach lanes after a junction: the
+        line came into view 4 m ahead, too late to stop for its red)."""
         net = self.net
         m = net.hdmap
         entered = False  # the scan has reached the next junction entry
+        room = 0.0  # road since the last junction lane scanned
         for k, lid, d, s_own in vehicle.upcoming():
             lane_model = m.lanes[lid]
             if s_own is not None:  # the current lane: pedestrians ahead of us on it
@@ -667,9 +680,11 @@ class TrafficRules:
             if ped is not None:
                 return d + ped
             if lane_model.junction_id is not None:
-                entered = True
-            elif entered:  # up to the first road lane after the next junction entry, however many
-                break  # short road lanes lie before it (real maps: 1.5 m and 2.4 m before a line)
+                entered, room = True, 0.0
+            elif entered:  # on to the first road after a junction entry with room to wait on it
+                room += net.lane_of[lid].length
+                if room_to_wait(room - line_setback(net, lid), vehicle.LENGTH):
+                    break
         return math.inf
 
 
@@ -681,9 +696,11 @@ class EgoJudge:
     entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
     route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
 
-    def __init__(self, rules: TrafficRules, ego) -> None:
+    def __init__(self, rules: TrafficRules, ego, arrived: Callable[[], bool] | None = None) -> None:
         self.rules = rules
         self.ego = ego
+        self.arrived = arrived  # whether the ego has reached its goal: the drive ends there
+        self.done = False
         self.violations = {k: 0 for k in VIOLATIONS}
         self.new: list[str] = []
         self.off_road = False
@@ -693,6 +710,12 @@ class EgoJudge:
         self._ped_flags: set[tuple[str, str]] = set()
 
     def check(self) -> None:
+        if self.done or (self.arrived is not None and self.arrived()):
+            # the drive ended at the goal: frames after it within the same policy step are no
+            # part of it (a goal on a 4.9 m road 1 m before a red line, osm2xodr's karl-wilhelm
+            # r027: at 12 m/s the ego passed both within one step, and the line was judged)
+            self.done = True
+            return
         rules, ego = self.rules, self.ego
         net, m = rules.net, rules.net.hdmap
         lid = net.id_of[ego.lane_index]  # every lane of the network has its map id
@@ -734,6 +757,25 @@ class EgoJudge:
         lane = net.get_lane(ego.lane_index)
         self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
             ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors
+
+    def wait_reason(self, near: float = BLOCKED_NEAR_M) -> str:
+        """What justifies the ego's standing where it stands, in words ("" when nothing does): a red
+        or amber signal at its next stop line (however far); the rules holding it within `near`
+        metres (`stop_distance`: its turn at a stop sign it stands at, conflicting traffic, a
+        pedestrian, a narrow passage; a stop sign it has not reached does not hold it); a road
+        user within `near` metres ahead in its path (`leader_gaps`: a queue). Read-only; the
+        rollouts' blocked early end (scenarios/rollout.py) asks it while the ego stands."""
+        rules, ego = self.rules, self.ego
+        sl = rules.line_ahead(ego)[0]
+        state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+        if state in ("red", "amber"):
+            return f"{state} signal"
+        at_line = rules.waiting_line(ego, rules.net.id_of.get(ego.lane_index))[0] is not None
+        if rules.stop_distance(ego, commit=False, ignore=frozenset() if at_line else frozenset({"stop"})) <= near:
+            return "held by the rules"
+        if any(gap <= near for gap, _ in ego.leader_gaps()):
+            return "road user ahead"
+        return ""
 
     def stopped_before(self, in_lane: str | None) -> bool:
         """Whether the ego has made its full stop at the line of `in_lane` (it counts until the

@@ -176,6 +176,37 @@ def test_whole_road_validity_governs_the_orientation_direction_only(four_way_xod
         assert phase_conflicts(m, junction_phases(m)) == []
 
 
+def test_signal_dependencies_switch_together(four_way_xodr, tmp_path):
+    """OpenDRIVE 1.6/1.7 `<dependency id=X>` in a signal: it controls signal X (a light switching
+    a secondary light). Two lights so linked are a declared group, like a controller's; a
+    dependency that names no signal of the file is skipped with one warning."""
+    plain = read_opendrive(four_way_xodr)
+    together = next(p for plan in junction_phases(plain).values() for p in plan if len(p) > 1)
+    a, b = together[0], together[1]
+
+    def depend(root):
+        for s in root.iter("signal"):
+            if s.get("id") == a:
+                etree.SubElement(s, "dependency", id=b, type="secondary")
+                etree.SubElement(s, "dependency", id="no-such-signal", type="sign")
+    m, caught = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "dependency.xodr", depend))
+    assert m.meta["signal_groups"] == {f"dependency {a}": [a, b]}
+    assert [w for w in caught if "<dependency>" in w] == \
+        [f"{tmp_path / 'dependency.xodr'}: <signal id={a}>: <dependency> on unknown signal(s) no-such-signal, skipped"]
+    assert declared_group_conflicts(m) == [] and phase_conflicts(m, junction_phases(m)) == []
+    assert junction_phases(m) == junction_phases(plain)  # the pair already shares a phase
+
+    crossing = next(x for plan in junction_phases(plain).values() for p in plan for x in p if x not in together)
+
+    def depend_across(root):  # a dependency between crossing approaches: reported, kept apart
+        for s in root.iter("signal"):
+            if s.get("id") == a:
+                etree.SubElement(s, "dependency", id=crossing, type="secondary")
+    m, _ = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "across.xodr", depend_across))
+    assert set(m.meta["signal_groups"]) == {f"dependency {a}"}
+    assert declared_group_conflicts(m) and phase_conflicts(m, junction_phases(m)) == []
+
+
 def test_crosswalk_markings_and_unknown_types_are_no_lights(four_way_xodr, tmp_path):
     def add(root):
         for k, sigs in enumerate(root.iter("signals")):

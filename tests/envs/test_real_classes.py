@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import feat2map
+from feat2map.config import STOP_POINT_M
 from feat2map.envs.network import MapNetwork, merge_pairs, unregistered_merges
 from feat2map.formats import native
 from feat2map.scenarios.planner import BaselinePlanner
@@ -216,6 +217,20 @@ def short_approach(tmp_path_factory) -> Path:
     """Two junctions (J0 bare, J1 signalled) joined by road R: the last 10 m of R's lanes towards
     J1 become a junction lane of a two-arm junction JX and a 0.2 m road lane before J1's stop
     line, the way netconvert writes them (its lane-count changes are junctions)."""
+    return _short_approach_map(tmp_path_factory.mktemp("short") / "short_approach.json", 10.0)
+
+
+@pytest.fixture(scope="module")
+def tight_approach(tmp_path_factory) -> Path:
+    """`short_approach` with a 3.8 m junction lane in JX, as in SUMO's durlacher-tor (junction
+    163's 3.8 m lane, then the 0.2 m lane before junction 9's line)."""
+    return _short_approach_map(tmp_path_factory.mktemp("tight") / "tight_approach.json", 4.0)
+
+
+def _short_approach_map(path: Path, jx_length: float, jx: str = "JX") -> Path:
+    """The two-junction map of `short_approach` with the last `jx_length` metres of R's lanes
+    towards J1 made a junction lane of junction `jx` (less 0.2 m; JX, a junction of its own, or
+    J1: one element drawn over both) and a 0.2 m road lane."""
     from shapely.geometry import LineString
 
     from feat2map.model import as_polyline
@@ -232,13 +247,13 @@ def short_approach(tmp_path_factory) -> Path:
         pieces = {}
         for f in ("centerline", "left_boundary", "right_boundary"):
             total = LineString(getattr(ln, f)).length
-            road, rest = _cut(getattr(ln, f), total * (1 - 10.0 / ln.length))
+            road, rest = _cut(getattr(ln, f), total * (1 - jx_length / ln.length))
             inner, last = _cut(rest, LineString(rest).length - total * 0.2 / ln.length)
             pieces[f] = (road, inner, last)
         r, a = f"{lid}_r", f"{lid}_jx"
         lanes[r] = dataclasses.replace(ln, id=r, successors=(a,), left_neighbors=(), right_neighbors=(),
                                        left_reverse_neighbors=(), **{f: as_polyline(p[0]) for f, p in pieces.items()})
-        lanes[a] = dataclasses.replace(ln, id=a, junction_id="JX", predecessors=(r,), successors=(lid,),
+        lanes[a] = dataclasses.replace(ln, id=a, junction_id=jx, predecessors=(r,), successors=(lid,),
                                        left_neighbors=(), right_neighbors=(), left_reverse_neighbors=(),
                                        **{f: as_polyline(p[1]) for f, p in pieces.items()})
         lanes[lid] = dataclasses.replace(ln, predecessors=(a,), **{f: as_polyline(p[2]) for f, p in pieces.items()})
@@ -249,8 +264,9 @@ def short_approach(tmp_path_factory) -> Path:
     from shapely.ops import unary_union
 
     poly = unary_union(shapes).convex_hull
-    junctions = {**m.junctions, "JX": feat2map.model.Junction("JX", as_polyline(poly.exterior.coords[:-1]))}
-    path = tmp_path_factory.mktemp("short") / "short_approach.json"
+    junctions = dict(m.junctions)
+    if jx not in junctions:
+        junctions[jx] = feat2map.model.Junction(jx, as_polyline(poly.exterior.coords[:-1]))
     native.save(dataclasses.replace(m, lanes=lanes, junctions=junctions), path)
     return path
 
@@ -275,6 +291,107 @@ def test_no_start_across_the_stop_line_of_a_short_approach(short_approach):
         if term or trunc:
             break
     assert info["violations"]["red_light"] == 0
+    env.close()
+
+
+def _through_jx_scenario(path: Path) -> Scenario:
+    m = native.load(path)
+    (conn,) = [r for r in m.roads.values() if r.kind == "connection"]
+    exit_ = next(m.lanes[s].road_id for ln in m.lanes_by_junction["J1"] for s in ln.successors
+                 if any(m.lanes[p].road_id == conn.id for p in ln.predecessors))
+    return Scenario("fixture", str(path), (("J1", conn.id, exit_),), seed=0, duration=40.0)
+
+
+def _red_offset(sc: Scenario) -> float:
+    """A `signal_offsets` value for J1 that holds the ego's approach red from t = 0 for a slot:
+    the phase after the approach's own is on."""
+    env = make_env(sc, config={"traffic_vehicles": 0})
+    env.reset(seed=0)
+    u = env.unwrapped
+    sl, _, _, _ = u.control.line_ahead(u.vehicle)
+    if sl is None:  # the ego starts before JX, whose bare entry comes first: J1's line is after it
+        route = u.vehicle.lane_route
+        sl = next(u.net.stop_lines[a] for a, b in zip(route, route[1:])
+                  if b in u.net.lane_of and u.net.hdmap.lanes[b].junction_id == "J1")
+    plan = u.control.plans[sl.control_id]
+    env.close()
+    slot = plan.green + plan.amber + plan.all_red
+    return ((plan.phase_of(sl.control_id) + 1) % len(plan.phases)) * slot
+
+
+def test_the_line_after_a_junction_and_a_short_lane_is_seen_from_before_the_junction(tight_approach):
+    """SUMO's durlacher-tor r014/r015: junction 163's 3.8 m lane, a 0.2 m lane, then junction 9's
+    red line. The rules' scan ended at the first road lane after the next junction entry, so J1's
+    line came into view 4 m ahead, inside JX, too late to stop: a red-light violation. The scan
+    now runs on across road too short to wait on: from before JX, J1's red is a stop."""
+    sc = _through_jx_scenario(tight_approach)
+    env = make_env(sc, config={"traffic_vehicles": 0, "signal_offsets": {"J1": _red_offset(sc)}})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    ego = u.vehicle
+    m = u.net.hdmap
+    assert m.lanes[ego.lane_route[ego.route_pos]].junction_id is None and m.lanes[ego.lane_route[1]].junction_id == "JX"
+    j1 = next(x for x in ego.lane_route if m.lanes[x].junction_id == "J1")
+    d_j1 = u.control.line_distance(ego, j1)
+    stop = u.control.stop_distance(ego, commit=False)
+    assert stop == pytest.approx(d_j1 - STOP_POINT_M)  # J1's red line holds it, seen from before JX
+    planner = BaselinePlanner()
+    planner.reset(env)
+    for _ in range(int(14 * u.config["policy_frequency"])):  # J1 is red all along
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        assert not (term or trunc)
+    assert info["violations"]["red_light"] == 0
+    assert ego.speed < 0.5 and 0.0 <= u.control.line_distance(ego, j1) < 3.0 + ego.LENGTH  # waiting at J1's line
+    env.close()
+
+
+def test_a_car_queued_behind_is_no_conflict(tmp_path):
+    """osm2xodr's karl-wilhelm r039: junctions drawn as one element (j_25420935), two of its lanes
+    joined by a 4.9 m road. The footprints of cars on the two lanes overlap across the road, so
+    they were conflicts: a car waiting on the road at its red line could never enter the next
+    lane while the car queued behind it stood in the first (three cars locked up). A junction
+    lane that follows another through less than two cars of road is one stream with it."""
+    path = _short_approach_map(tmp_path / "cluster.json", 4.0, jx="J1")
+    m = native.load(path)
+    first = next(ln for ln in m.lanes.values() if ln.id.endswith("_jx"))
+    short = first.successors[0]
+    nxt = next(s for s in m.lanes[short].successors)
+    assert m.lanes[nxt].junction_id == first.junction_id == "J1"
+    net = MapNetwork.from_map(m)
+    assert nxt not in net.conflicts[first.id] and first.id not in net.conflicts[nxt]
+    sc = _through_jx_scenario(path)
+    env = make_env(sc, config={"traffic_vehicles": 0, "route": {"lanes": [first.predecessors[0], first.id, short, nxt]},
+                               "ego_start_distance": 3.0})
+    env.reset(seed=0)
+    u = env.unwrapped
+    u.road.spawn(first.id, 1.0, 0.0, [first.id, short, nxt])  # queued behind a car waiting at J1's line
+    u.control.update(u.road, 0.0)
+    assert u.control.junction_clear(nxt, u.vehicle)  # the car behind holds the leader at the line no longer
+    env.close()
+
+
+def test_a_line_just_past_the_goal_is_no_part_of_the_drive(tight_approach):
+    """osm2xodr's karl-wilhelm r027: a route ending on a 4.9 m road before a red line puts the
+    goal 1 m before the line; at 12 m/s the ego passed both within one policy step, and the
+    frame after the goal was judged a red-light violation. The drive ends at the goal: frames
+    after it are not judged. Here the route ends on the 0.2 m lane before J1's red line (its
+    goal is the lane itself), so the ego, seeing no line on its route, drives on into J1."""
+    sc = _through_jx_scenario(tight_approach)
+    m = native.load(tight_approach)
+    jx = next(ln for ln in m.lanes.values() if ln.junction_id == "JX")
+    lanes = [jx.predecessors[0], jx.id, jx.successors[0]]
+    env = make_env(sc, config={"traffic_vehicles": 0, "signal_offsets": {"J1": _red_offset(sc)},
+                               "route": {"lanes": lanes}, "ego_start_distance": 20.0})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    planner = BaselinePlanner()
+    planner.reset(env)
+    for _ in range(int(20 * u.config["policy_frequency"])):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        if term or trunc:
+            break
+    assert u.route_completed() and info["violations"]["red_light"] == 0
+    assert m.lanes[u.net.id_of[u.vehicle.lane_index]].junction_id == "J1"  # it did cross the line, after the goal
     env.close()
 
 

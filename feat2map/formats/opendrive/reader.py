@@ -873,6 +873,7 @@ class _Builder:
         ident_of: dict[str, str] = {}
         seen: set[tuple] = set()  # (road, id, s, t, type, subtype, orientation) of the controls made
         twice: list[str] = []
+        depends: dict[str, list[str]] = {}  # signal id -> the signals it controls (`<dependency>`)
         for r in self.roads.values():
             sig_el = r.el.find("signals")
             for s_el in (sig_el.findall("signal") if sig_el is not None else []):
@@ -883,6 +884,8 @@ class _Builder:
                     twice.append(f"road {r.id} <signal id={sid}>")
                     continue
                 seen.add(key)
+                if sid is not None:
+                    depends.setdefault(sid, []).extend(d.get("id") for d in s_el.findall("dependency") if d.get("id"))
                 if kind is None:
                     if not known_non_control(s_el.get("type")):
                         key = ((s_el.get("type") or "").strip(), (s_el.get("country") or "").strip())
@@ -924,7 +927,8 @@ class _Builder:
             warnings.warn(f"{self.ctx.path}: {len(twice)} <signal> declared twice on its road with the same position "
                           f"and type (first: {twice[0]}): read once", stacklevel=2)
         signals = made["signal"]
-        self.signal_groups = self._controller_groups(ident_of, signals)
+        self.signal_groups = {**self._controller_groups(ident_of, signals),
+                              **self._dependency_groups(depends, ident_of, signals)}
         return (signals, signal_precedence(lanes, signals, made["stop"]),
                 signal_precedence(lanes, signals, made["yield"]))
 
@@ -937,6 +941,27 @@ class _Builder:
             ids = list(dict.fromkeys(ids))
             if len(ids) > 1 and c.get("id") is not None:
                 out[f"controller {c.get('id')}"] = ids
+        return out
+
+    def _dependency_groups(self, depends: dict[str, list[str]], ident_of: dict[str, str],
+                           signals: dict) -> dict[str, list[str]]:
+        """`dependency <id>` -> a light and the lights it controls through its `<dependency>`
+        elements (OpenDRIVE 1.6/1.7: the signal holding `<dependency id=X>` controls signal X,
+        e.g. a light switching a secondary light): they switch together, like a controller's.
+        A dependency on a signal the file does not hold is skipped with one warning; one on a
+        sign (no light) switches nothing the env drives."""
+        out: dict[str, list[str]] = {}
+        for sid, deps in depends.items():
+            missing = [x for x in deps if x not in depends]
+            if missing:
+                warnings.warn(f"{self.ctx.path}: <signal id={sid}>: <dependency> on unknown signal(s) "
+                              f"{', '.join(missing)}, skipped", stacklevel=3)
+            if sid not in ident_of or ident_of[sid] not in signals:
+                continue
+            ids = [ident_of[sid]] + [ident_of[x] for x in deps if x in ident_of and ident_of[x] in signals]
+            ids = list(dict.fromkeys(ids))
+            if len(ids) > 1:
+                out[f"dependency {sid}"] = ids
         return out
 
     def _governed(self, road: _OdrRoad, s_el, refs: list, lanes: dict[str, Lane]) -> list[str]:
