@@ -82,6 +82,19 @@ class Lane:
         return math.atan2(y1 - y0, x1 - x0)
 
 
+def stop_line_across(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> Polyline | None:
+    """A control's stop line across the ends of the lanes it governs, from the rightmost border
+    to the leftmost in their mean travel direction, whatever order the lanes are listed in; None
+    when none of them is in `lanes`."""
+    ends = [lanes[x] for x in lane_ids if x in lanes]
+    if not ends:
+        return None
+    h = math.atan2(sum(math.sin(x.heading_at_end()) for x in ends), sum(math.cos(x.heading_at_end()) for x in ends))
+    pts = [p for x in ends for p in (x.right_boundary[-1], x.left_boundary[-1])]
+    lateral = [-math.sin(h) * px + math.cos(h) * py for px, py in pts]  # leftwards of the travel direction
+    return as_polyline([pts[int(np.argmin(lateral))], pts[int(np.argmax(lateral))]])
+
+
 def incoming_lanes(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> tuple[str, ...]:
     """The road lanes a control governs, in the model's convention (`Signal.lane_ids`): a
     junction lane named instead (Apollo's overlaps tie controls to the junction lanes behind

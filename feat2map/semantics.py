@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterable
 
 from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG
 from .errors import Feat2MapError
-from .model import HDMap, incoming_lanes
+from .model import HDMap, Lane, incoming_lanes, stop_line_across
 
 CONTROL_TABLES = ("signals", "stop_signs", "yield_signs")
 _LINKS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
@@ -216,7 +216,7 @@ def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
         ids = [sid] + [f"{sid}~{k}" for k in range(2, len(parts) + 1)]
         for new, part in zip(ids, parts):
             keep = tuple(x for x in sig.lane_ids if x in m.lanes and m.lanes[x].road_id in part)
-            signals[new] = replace(sig, id=new, lane_ids=keep)
+            signals[new] = replace(sig, id=new, lane_ids=keep, stop_line=stop_line_across(m.lanes, keep) or sig.stop_line)
         renamed[sid] = ids
         warnings.warn(f"{where}: signal {sid}: governs approaches whose paths conflict (roads "
                       f"{' / '.join(', '.join(p) for p in parts)}): split into signals {', '.join(ids)}", stacklevel=3)
@@ -258,6 +258,23 @@ def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes)
 
 
+def bent(ln: Lane, gap, at: str = "end", tail: float = BRIDGE_TAIL_M) -> Lane:
+    """`ln` with its last (`at`="end") or first ("start") `tail` metres moved by `gap` (dx, dy),
+    centre line and boundaries, smoothly from nothing to all of it (smoothstep: no kink where the
+    bend begins), so that end lands where a linked lane's end is."""
+    import numpy as np
+
+    def bend(poly):
+        p = np.asarray(poly, dtype=float)[:, :2]
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+        t = min(tail, s[-1]) or 1.0
+        u = np.clip((s - (s[-1] - t)) / t if at == "end" else (t - s) / t, 0.0, 1.0)
+        w = u * u * (3 - 2 * u)
+        return tuple(map(tuple, p + w[:, None] * np.asarray(gap, dtype=float)))
+    return replace(ln, centerline=bend(ln.centerline), left_boundary=bend(ln.left_boundary),
+                   right_boundary=bend(ln.right_boundary), bezier=None)
+
+
 def bridge_gaps(m: HDMap, where: str = "map") -> HDMap:
     """`m` with every lane whose only successor starts more than BRIDGE_AHEAD_M ahead of its end
     or more than BRIDGE_ASIDE_M to its side (and within LANE_LINK_GAP_M: `drop_far_links` drops
@@ -282,15 +299,7 @@ def bridge_gaps(m: HDMap, where: str = "map") -> HDMap:
         if dist > LANE_LINK_GAP_M or (ahead <= BRIDGE_AHEAD_M and abs(aside) <= BRIDGE_ASIDE_M):
             continue
 
-        def bend(poly, gap=gap):
-            p = np.asarray(poly, dtype=float)[:, :2]
-            s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
-            tail = min(BRIDGE_TAIL_M, s[-1]) or 1.0
-            u = np.clip((s - (s[-1] - tail)) / tail, 0.0, 1.0)
-            w = u * u * (3 - 2 * u)  # smoothstep: no kink where the bend begins
-            return tuple(map(tuple, p + w[:, None] * gap))
-        fixed[ln.id] = replace(ln, centerline=bend(ln.centerline), left_boundary=bend(ln.left_boundary),
-                               right_boundary=bend(ln.right_boundary), bezier=None)
+        fixed[ln.id] = bent(ln, gap, "end")
         shown.append((dist, ln.id, nxt.id))
     if not fixed:
         return m

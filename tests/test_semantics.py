@@ -3,6 +3,8 @@ and the readers' handling of what maps declare, on maps the project makes itself
 maps exported to OpenDRIVE / Apollo and edited the way other tools write them."""
 from __future__ import annotations
 
+import math
+
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -235,6 +237,56 @@ def test_free_text_traffic_light_types_are_lights(four_way_xodr, tmp_path):
     assert [j.feature.control for j in extract_junctions(m)] == ["signal"]
 
 
+def test_a_signal_written_twice_on_its_road_is_one_control(four_way_xodr, tmp_path):
+    """VIRES's sample database writes a yield sign twice on one road (same id, place and type):
+    that made a second control (`<road>_<id>`). Read once, with one warning naming it."""
+    import copy
+
+    def twice(root):
+        for sigs in root.iter("signals"):
+            for s in list(sigs.findall("signal")):
+                sigs.append(copy.deepcopy(s))
+    m, caught = _quiet(read_opendrive, _edit(four_way_xodr, tmp_path / "twice.xodr", twice))
+    plain = read_opendrive(four_way_xodr)
+    assert plain.signals and {k: s.lane_ids for k, s in m.signals.items()} == {
+        k: s.lane_ids for k, s in plain.signals.items()}
+    assert len([w for w in caught if "declared twice" in w]) == 1
+
+
+def test_a_stop_line_spans_its_lanes_in_any_listed_order(tmp_path):
+    """A signal's lanes listed out of their lateral order (CARLA Town06's 5, 4, 6) gave a stop
+    line from one lane's right border to another's left border: zero length where they touch.
+    It now runs from the rightmost border to the leftmost across every governed lane."""
+    m3 = feat2map.generate_from_features([JF.make([0, 90, 180, 270], "signal", False, lanes=3)], seed=1)
+    src = tmp_path / "three.xodr"
+    write_opendrive(m3, src)
+
+    def shuffle(root):  # list each side's lanes 2, 1, 3 (file order is free)
+        for side in list(root.iter("right")) + list(root.iter("left")):
+            lanes = side.findall("lane")
+            if len(lanes) == 3:
+                for ln in lanes:
+                    side.remove(ln)
+                for k in (1, 0, 2):
+                    side.append(lanes[k])
+    m = read_opendrive(_edit(src, tmp_path / "shuffled.xodr", shuffle))
+    assert m.signals
+    for s in m.signals.values():
+        width = sum(m.lanes[g].width for g in s.lane_ids)
+        assert len(s.lane_ids) == 3 and abs(math.dist(s.stop_line[0], s.stop_line[-1]) - width) < 0.05
+
+
+def test_opendrive_1_3_motorway_lane_types_are_driven(four_way_xodr, tmp_path):
+    """VIRES ROD writes OpenDRIVE 1.1-1.3's lane types "mwyEntry"/"mwyExit" for ramp lanes; they
+    were dropped as undrivable (VIRES's sample database lost its ramps' lanes)."""
+    def old_types(root):
+        for k, ln in enumerate(root.iter("lane")):
+            if ln.get("type") == "driving":
+                ln.set("type", "mwyEntry" if k % 2 else "mwyExit")
+    m = read_opendrive(_edit(four_way_xodr, tmp_path / "mwy.xodr", old_types))
+    assert set(m.lanes) == set(read_opendrive(four_way_xodr).lanes)
+
+
 def test_code_tables():
     from feat2map.formats.opendrive.reader import known_non_control, signal_kind
 
@@ -387,6 +439,8 @@ def test_a_signal_over_crossing_approaches_is_split(four_way):
     assert len(caught) == 1 and f"split into signals {a.id}, {a.id}~2" in caught[0]
     assert phase_conflicts(split, junction_phases(split)) == []
     assert semantics.split_conflicting_signals(four_way) is four_way
+    for part, orig in ((split.signals[a.id], a), (split.signals[f"{a.id}~2"], b)):  # each part: its own lanes' line
+        assert np.allclose(part.stop_line, orig.stop_line, atol=1e-6)
 
 
 def test_apollo_speed_limits_in_kmh_are_converted(apollo_pb, tmp_path):

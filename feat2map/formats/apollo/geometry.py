@@ -9,9 +9,11 @@ from typing import Any
 
 import numpy as np
 import shapely
+import shapely.ops
 from shapely.geometry import LineString, Polygon
 
-from ...config import APOLLO_END_TANGENT_M, APOLLO_SAMPLE_WINDOW_M, APOLLO_STOP_LINE_OVERLAP_M
+from ...config import (APOLLO_END_TANGENT_M, APOLLO_MIN_HALF_WIDTH_M, APOLLO_SAMPLE_WINDOW_M,
+                       APOLLO_STOP_LINE_OVERLAP_M)
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, as_polyline
 from ...validation import CONTROL_KINDS
@@ -129,6 +131,43 @@ def without_point_lanes(m: HDMap) -> HDMap:
     controls: dict[str, Any] = {kind: {k: dataclasses.replace(c, lane_ids=tuple(x for x in c.lane_ids if x not in gone))
                        for k, c in getattr(m, kind).items()} for kind in CONTROL_KINDS}
     return dataclasses.replace(m, lanes=lanes, roads=roads, **controls)
+
+
+def trimmed_tapers(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap:
+    """`m` with every lane that opens from (or closes to) less than a car's width at a free end
+    (no predecessor at its start, no successor at its end: an exit lane or turn pocket growing
+    from 0 m, an acceleration lane tapering away) starting (ending) where both its half widths
+    reach `half`. Apollo wants every width sample at least half a car wide, and no car drives
+    the sliver (traffic enters such a lane by a lane change, further along). Linked ends, lanes
+    never that wide and lanes with a Bézier (generated: exact, full width) stay as they are."""
+    cut: dict[str, Lane] = {}
+    for ln in m.lanes.values():
+        if ln.bezier is not None or len(ln.centerline) < 3:
+            continue
+        s_l, w_l = zip(*distance_samples(ln.centerline, ln.left_boundary))
+        _, w_r = zip(*distance_samples(ln.centerline, ln.right_boundary))
+        wide = np.minimum(np.asarray(w_l), np.asarray(w_r)) >= half + 1e-3
+        if wide.all() or not wide.any():
+            continue
+        first = int(np.argmax(wide)) if not ln.predecessors else 0
+        last = len(wide) - 1 - int(np.argmax(wide[::-1])) if not ln.successors else len(wide) - 1
+        if (first, last) == (0, len(wide) - 1) or last - first < 1:
+            continue
+        line = LineString(ln.centerline)
+        a, b = s_l[first], s_l[last]
+        pieces: dict[str, Any] = {}
+        for name in ("left_boundary", "right_boundary"):
+            edge = LineString(getattr(ln, name))
+            lo = edge.project(shapely.Point(ln.centerline[first]))
+            hi = edge.project(shapely.Point(ln.centerline[last]))
+            pieces[name] = as_polyline(shapely.get_coordinates(shapely.ops.substring(edge, lo, hi)))
+        centre = as_polyline(shapely.get_coordinates(shapely.ops.substring(line, a, b)))
+        if not all(_usable(x) for x in (centre, *pieces.values())):
+            continue
+        cut[ln.id] = dataclasses.replace(ln, centerline=centre, **pieces)
+    if not cut:
+        return m
+    return dataclasses.replace(m, lanes={k: cut.get(k, ln) for k, ln in m.lanes.items()})
 
 
 def usable_boundaries(m: HDMap) -> HDMap:

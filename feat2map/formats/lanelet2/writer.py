@@ -39,6 +39,7 @@ PROJECTOR_INFO = "map_projector_info.yaml"  # Autoware reads it from the map fol
 TAG = "feat2map:"  # our own tags: lane, road, junction, from/to (a junction lane's entry/exit roads), crosswalk
 STOP_SIGN_SUBTYPE = "usR1-1"  # MUTCD stop sign (Lanelet2: ISO country code + sign number)
 TURN_DIRECTION = {"none": "straight", "left": "left", "right": "right", "uturn": "left"}
+ROUND_TRIP_M = 1e-3  # lat/lon round trip error allowed for near lane ends; unlinked ends this close are one node
 _LINES = {"solid_white": {"type": "line_thin", "subtype": "solid", "color": "white"},
           "dotted_white": {"type": "line_thin", "subtype": "dashed", "color": "white"},
           "solid_yellow": {"type": "line_thin", "subtype": "solid", "color": "yellow"},
@@ -59,6 +60,22 @@ class _Osm:
         self.relations: dict[int, tuple[list[tuple[str, int, str]], dict[str, str]]] = {}
         self._grid: dict[tuple[int, int, float], list[int]] = {}  # (cell x, cell y, height) -> nodes
         self._ends: dict[tuple[float, float], int] = {}
+        self._reserved: dict[tuple[int, int], list[tuple[float, float]]] = {}  # every lane end, by cell
+        self._end_cells: dict[tuple[int, int], int] = {}  # end nodes by millimetre cell
+
+    def reserve_ends(self, points) -> None:
+        """Register every lane end before any way is written: a bound's inner point near another
+        lane's end (an end tangent sample beside where a new lane opens) is dropped, not made a
+        node 5 cm from that end's node (lanelet2_validation: points too close)."""
+        r = 2 * LANELET2_MERGE_M  # as for a bound's own ends: clear of it after the lat/lon round trip
+        for x, y in points:
+            self._reserved.setdefault((math.floor(x / r), math.floor(y / r)), []).append((float(x), float(y)))
+
+    def _near_end(self, p: tuple[float, float]) -> bool:
+        r = 2 * LANELET2_MERGE_M  # as for a bound's own ends: clear of it after the lat/lon round trip
+        cx, cy = math.floor(p[0] / r), math.floor(p[1] / r)
+        return any(math.dist(p, q) < r for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                   for q in self._reserved.get((cx + dx, cy + dy), ()))
 
     def _id(self) -> int:
         self.next_id += 1
@@ -84,8 +101,13 @@ class _Osm:
     def end_node(self, x: float, y: float) -> int:
         """The node of a lane end at exactly (x, y)."""
         key = (float(x), float(y))
-        if key not in self._ends:
-            self._ends[key] = self._new(x, y, 0.0)
+        if key not in self._ends:  # unlinked ends at one place (within float noise) are one node too
+            cell = (round(x / ROUND_TRIP_M), round(y / ROUND_TRIP_M))
+            same = [self._end_cells[(cell[0] + dx, cell[1] + dy)] for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                    if (cell[0] + dx, cell[1] + dy) in self._end_cells]
+            self._ends[key] = next((n for n in same if math.hypot(self.nodes[n][0] - x, self.nodes[n][1] - y)
+                                    < ROUND_TRIP_M), None) or self._new(x, y, 0.0)
+            self._end_cells.setdefault(cell, self._ends[key])
         return self._ends[key]
 
     def way(self, points: Sequence[Sequence[float] | np.ndarray], tags: dict[str, str], z: float = 0.0,
@@ -97,7 +119,8 @@ class _Osm:
         if lane_ends and len(pts) > 2:  # keep points twice the limit apart: clear of it after the lat/lon round trip
             kept = [pts[0]]
             for p in pts[1:-1]:
-                if math.dist(p, kept[-1]) >= 2 * LANELET2_MERGE_M and math.dist(p, pts[-1]) >= 2 * LANELET2_MERGE_M:
+                if math.dist(p, kept[-1]) >= 2 * LANELET2_MERGE_M and math.dist(p, pts[-1]) >= 2 * LANELET2_MERGE_M \
+                        and not self._near_end(p):
                     kept.append(p)
             pts = kept + [pts[-1]]
         ids: list[int] = []
@@ -126,6 +149,7 @@ class _Writer:
         self.bound: dict[tuple[str, str], int] = {}  # (lane id, "left"/"right") -> way
         self.lanelet: dict[str, int] = {}  # lane id -> lanelet relation
         self.ends = lane_ends(m)  # where linked lanes meet: one node each
+        self.osm.reserve_ends(self.ends.values())
 
     # -- lanelets ----------------------------------------------------------------------------
     def build(self) -> None:

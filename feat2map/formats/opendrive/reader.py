@@ -30,7 +30,7 @@ from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_
                        UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
-                      signal_precedence)
+                      signal_precedence, stop_line_across)
 from ...semantics import loaded
 
 # OpenDRIVE signal type -> feat2map control kind, from the code tables the dialects use: the
@@ -57,6 +57,7 @@ NOT_CONTROLS = frozenset({
     "332", "333", "336", "350", "625", "626", "215", "209", "211", "214", "220", "222", "237", "239", "240",
     "241", "250", "251", "253", "254", "260", "267", "283", "286", "290", "325", "330", "101", "102", "103",
     "105", "108", "110", "112", "114", "120", "123", "125", "131", "133", "136", "138", "142", "151",
+    "1000", "1004", "334", "406", "430", "436", "440", "449", "450", "451", "452", "531", "605",
     "R2-1", "R3-1", "R3-2", "R3-4", "R3-5", "R3-7", "R4-7", "R5-1", "R6-1", "W3-1", "W3-3",
     "speed", "maxspeed", "city_limit", "stop_line", "stopline", "holdingline", "crosswalk", "pedestrian_crossing",
     "-1", "",
@@ -95,7 +96,9 @@ def _code(type_: str | None, country: str | None) -> tuple[str, str | None]:
 
 # A yield sign is not a stop sign: it becomes a `YieldSign` (its junction stays bare).
 _CONTROL_CLASS = {"signal": Signal, "stop": StopSign, "yield": YieldSign}
-DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp"})
+# OpenDRIVE 1.4+ lane types cars drive, and 1.1-1.3's motorway entry/exit ("mwyEntry", "mwyExit":
+# VIRES ROD still writes them)
+DRIVING_TYPES = frozenset({"driving", "entry", "exit", "onramp", "offramp", "connectingramp", "mwyentry", "mwyexit"})
 MIN_LANE_WIDTH_M = 0.3  # lanes never wider than this in a section are slivers, not lanes
 JUNCTION_TOUCH_M = 0.1  # junction elements whose connecting lanes touch (this close) are one intersection
 END_TANGENT_M = 0.05  # extra sample this close to each lane end, so polyline end headings are exact
@@ -868,12 +871,19 @@ class _Builder:
         made: dict[str, dict] = {kind: {} for kind in _CONTROL_CLASS}
         unknown: dict[tuple[str, str], int] = {}
         ident_of: dict[str, str] = {}
+        seen: set[tuple] = set()  # (road, id, s, t, type, subtype, orientation) of the controls made
+        twice: list[str] = []
         depends: dict[str, list[str]] = {}  # signal id -> the signals it controls (`<dependency>`)
         for r in self.roads.values():
             sig_el = r.el.find("signals")
             for s_el in (sig_el.findall("signal") if sig_el is not None else []):
                 kind = signal_kind(s_el.get("type"), s_el.get("country"), s_el.get("dynamic"))
                 sid = s_el.get("id")
+                key = (r.id, sid, *(s_el.get(a) for a in ("s", "t", "type", "subtype", "orientation")))
+                if kind is not None and key in seen:  # the same sign written twice (VIRES ROD does): one control
+                    twice.append(f"road {r.id} <signal id={sid}>")
+                    continue
+                seen.add(key)
                 if sid is not None:
                     depends.setdefault(sid, []).extend(d.get("id") for d in s_el.findall("dependency") if d.get("id"))
                 if kind is None:
@@ -913,6 +923,9 @@ class _Builder:
             warnings.warn(f"{self.ctx.path}: {n} <signal> of type {t!r}" + (f" (country {c!r})" if c else "")
                           + (' marked dynamic="no": a sign or marking, not made a light' if static else
                              " not in the code tables: ignored, not made a control"), stacklevel=2)
+        if twice:
+            warnings.warn(f"{self.ctx.path}: {len(twice)} <signal> declared twice on its road with the same position "
+                          f"and type (first: {twice[0]}): read once", stacklevel=2)
         signals = made["signal"]
         self.signal_groups = {**self._controller_groups(ident_of, signals),
                               **self._dependency_groups(depends, ident_of, signals)}
@@ -1017,8 +1030,11 @@ class _Builder:
 
     @staticmethod
     def _stop_line(governed: list[str], lanes: dict[str, Lane], pos) -> tuple:
-        if governed:
-            return as_polyline([lanes[governed[0]].right_boundary[-1], lanes[governed[-1]].left_boundary[-1]])
+        """Across the ends of the governed lanes (`stop_line_across`: in any listed order; a list
+        such as 5, 4, 6 made a line of zero length)."""
+        line = stop_line_across(lanes, governed)
+        if line is not None:
+            return line
         return as_polyline([pos, (pos[0] + 0.01, pos[1])])
 
     def _crosswalks(self, junctions: dict[str, Junction]) -> dict[str, Crosswalk]:

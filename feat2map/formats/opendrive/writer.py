@@ -31,12 +31,14 @@ from ...angles import wrap_angle
 from ...bezier import Bezier
 from ...config import OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
-from ...model import HDMap, Road
+from ...model import HDMap, Lane, Road
 from ..base import header_date
+from ..lane_ends import closed_seams
 from ..geo import local_tmerc, utm_origin
 
 VERSIONS = OPENDRIVE_VERSIONS
 STRAIGHT_RUN_TOL_RAD = 1e-6  # polyline segments turning less than this form one line geometry
+WIDTH_PROFILE_TOL_M = 0.01  # a lane's written width follows its boundaries within this (linear pieces)
 TRAFFIC_LIGHT_TYPE = "1000001"  # OpenDRIVE country code "OpenDRIVE": 3-light traffic signal
 STOP_SIGN_TYPE = "206"
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
@@ -82,6 +84,8 @@ def _f(x: float) -> str:
 class _Ref:
     """A road's reference line in the file: geometry elements, length, and sampled points."""
 
+    widths: list[tuple[float, float, float]] | None = None  # (s, a, b) width pieces; None: ln.width throughout
+
     def __init__(self, road: Road, m: HDMap) -> None:
         self.geoms: list[tuple[float, float, float, float, str, dict[str, float]]] = []
         if road.reference is not None:
@@ -108,7 +112,8 @@ class _Ref:
             pts = pts[::-1]
         seg = np.diff(pts, axis=0)
         keep = np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])
-        pts = _merge_straight_runs(pts[keep])
+        raw = pts[keep]
+        pts = _merge_straight_runs(raw)
         seg = np.diff(pts, axis=0)
         ln_len = np.hypot(seg[:, 0], seg[:, 1])
         if len(ln_len) == 0:
@@ -121,6 +126,7 @@ class _Ref:
         self.pts, self.s = pts, s
         self.heads = np.append(heads, heads[-1])
         self.divider = ln.width / 2 if road.right_lanes else -ln.width / 2
+        self.widths = _width_profile(ln, raw, keep, bool(road.left_lanes), self.length)
 
     def project(self, p) -> tuple[float, float]:
         """(s, t) of a point: nearest sampled reference point, lateral offset along its normal."""
@@ -138,15 +144,57 @@ def _merge_straight_runs(pts: np.ndarray, tol_rad: float = STRAIGHT_RUN_TOL_RAD)
     """`pts` without the inner points of straight runs (segments within `tol_rad` of the run's
     first heading): one `line` per run, not a chain of collinear ones (ASAM's
     performance.avoid_redundant_info)."""
-    if len(pts) < 3:
-        return pts
-    heads = np.arctan2(*np.diff(pts, axis=0).T[::-1])
-    keep, run = [0], heads[0]
-    for i in range(1, len(heads)):
-        if abs(wrap_angle(heads[i] - run)) > tol_rad:
-            keep.append(i)
-            run = heads[i]
-    return pts[keep + [len(pts) - 1]]
+    while len(pts) >= 3:  # again on the result: merged chords can end up within the tolerance of each other
+        heads = np.arctan2(*np.diff(pts, axis=0).T[::-1])
+        keep, run = [0], heads[0]
+        for i in range(1, len(heads)):
+            if abs(wrap_angle(heads[i] - run)) > tol_rad:
+                keep.append(i)
+                run = heads[i]
+        if len(keep) + 1 == len(pts):
+            break
+        pts = pts[keep + [len(pts) - 1]]
+    return pts
+
+
+def _width_profile(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
+                   length: float) -> list[tuple[float, float, float]] | None:
+    """A lane's width along its centreline `pts` (in the written direction: reversed when
+    `reverse`, the points `keep` selects) as linear pieces
+    (s, width at s, slope) within WIDTH_PROFILE_TOL_M, s scaled to the written `length`; None
+    when the width stays within that of `ln.width` (one constant record). A lane that opens or
+    closes (a taper, an exit lane growing from 0 m) keeps its borders where they are, so they
+    meet the linked lanes' borders (ASAM's lane_smoothness.contact_point_no_horizontal_gaps)."""
+    from shapely import LineString, distance, points
+
+    if len(pts) < 2 or len(ln.left_boundary) < 2 or len(ln.right_boundary) < 2:
+        return None
+    left, right = np.asarray(ln.left_boundary, dtype=float), np.asarray(ln.right_boundary, dtype=float)
+    if len(left) == len(right) == len(keep):  # boundaries sampled with the centreline: the exact widths
+        w = np.hypot(*(left - right).T)
+        w = (w[::-1] if reverse else w)[keep]
+    else:
+        p = points(pts)
+        w = distance(LineString(left), p) + distance(LineString(right), p)
+    if float(np.max(np.abs(w - ln.width))) <= WIDTH_PROFILE_TOL_M:
+        return None
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    if s[-1] <= 0:
+        return None
+    s = s * (length / s[-1])
+    breaks, i = [0], 0
+    while i < len(s) - 1:
+        j = i + 1
+        while j + 1 < len(s):  # extend the piece while every point inside stays within the tolerance
+            k = np.arange(i + 1, j + 1)
+            line = w[i] + (w[j + 1] - w[i]) * (s[k] - s[i]) / max(s[j + 1] - s[i], 1e-12)
+            if np.max(np.abs(line - w[k])) > WIDTH_PROFILE_TOL_M:
+                break
+            j += 1
+        breaks.append(j)
+        i = j
+    return [(float(s[a]), float(w[a]), float((w[b] - w[a]) / max(s[b] - s[a], 1e-12)))
+            for a, b in zip(breaks, breaks[1:])]
 
 
 def _divider_offset(road: Road, m: HDMap) -> float:
@@ -175,7 +223,7 @@ class _Writer:
             raise MapFormatError(f"unsupported OpenDRIVE version {version!r}: expected one of {', '.join(VERSIONS)}",
                                  "version")
         self.E = etree
-        self.m = m
+        self.m = m = closed_seams(m)  # linked lanes' borders meet at their contact points
         self.minor = int(version.split(".")[1])
         self.roads = export_roads(m)
         self.road_ids = {rid: str(i + 1) for i, rid in enumerate(self.roads)}
@@ -276,7 +324,12 @@ class _Writer:
         self.sub(self.sub(el, "elevationProfile"), "elevation", s=0.0, a=0.0, b=0.0, c=0.0, d=0.0)
         self.sub(el, "lateralProfile")
         lanes_el = self.sub(el, "lanes")
-        self.sub(lanes_el, "laneOffset", s=0.0, a=ref.divider, b=0.0, c=0.0, d=0.0)
+        if ref.widths is None:
+            self.sub(lanes_el, "laneOffset", s=0.0, a=ref.divider, b=0.0, c=0.0, d=0.0)
+        else:  # a one-lane road of varying width: the divider stays half its width off the centreline
+            sign = 1.0 if ref.divider >= 0 else -1.0
+            for s, a, b in ref.widths:
+                self.sub(lanes_el, "laneOffset", s=s, a=sign * a / 2, b=sign * b / 2, c=0.0, d=0.0)
         sec = self.sub(lanes_el, "laneSection", s=0.0)
         if road.left_lanes:
             left = self.sub(sec, "left")
@@ -323,7 +376,9 @@ class _Writer:
                 if self.road_ids[self.odr_lane[other][0]] == lk[1]:
                     self.sub(link, ref_kind, id=str(self.odr_lane[other][1]))
                     break
-        self.sub(el, "width", sOffset=0.0, a=ln.width, b=0.0, c=0.0, d=0.0)
+        widths = self.refs[self.odr_lane[lid][0]].widths
+        for s, a, b in widths or [(0.0, ln.width, 0.0)]:
+            self.sub(el, "width", sOffset=s, a=a, b=b, c=0.0, d=0.0)
         self._mark(el, ln.right_boundary_type)
         if ln.speed_limit > 0:
             self.sub(el, "speed", sOffset=0.0, max=ln.speed_limit, unit="m/s")
