@@ -13,12 +13,17 @@ def counted(n: int, noun: str, plural: str | None = None) -> str:
     return f"{n} {noun if n == 1 else plural or noun + 's'}"
 
 
+def printable(text: object) -> str:
+    """`text` with every character a terminal would act on (newlines, escapes) written as its
+    Python escape: an id read from a corrupt file cannot break a report into lines."""
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in str(text))
+
+
 def one_line(text: object, limit: int = MAX_LINE_CHARS) -> str:
     """`text` on one line of at most `limit` characters: whitespace runs become one space, other
     control characters are escaped, and an over-long middle is cut (the start names the file and
     element, the end usually says what was expected)."""
-    s = re.sub(r"\s+", " ", str(text)).strip()
-    s = "".join(c if c.isprintable() else ascii(c)[1:-1] for c in s)  # no terminal control sequences
+    s = printable(re.sub(r"\s+", " ", str(text)).strip())  # no terminal control sequences
     if len(s) <= limit:
         return s
     keep = limit - len(f" ... [{len(s):,} characters cut] ... ")  # at least as long as the real marker

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Protocol, Sequence
 
 from ..errors import Feat2MapError
+from ..messages import printable
 
 if TYPE_CHECKING:
     from ..model import HDMap
@@ -35,13 +36,14 @@ def header_date() -> str | None:
 
 @dataclass(frozen=True)
 class Problem:
-    """One thing wrong with a map: the element (kind and id, or file) and what is wrong."""
+    """One thing wrong with a map: the element (kind and id, or file) and what is wrong. Shown
+    on one line: ids from a damaged file may hold newlines or escapes, written escaped."""
 
     element: str
     message: str
 
     def __str__(self) -> str:
-        return f"{self.element}: {self.message}"
+        return printable(f"{self.element}: {self.message}")
 
 
 class MapReader(Protocol):

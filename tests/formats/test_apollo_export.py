@@ -843,3 +843,15 @@ def test_carla_town03_exports_to_apollo(tmp_path):
     path = shared_map("opendrive/carla_town03/Town03.xodr")
     assert main(["export", "apollo", str(path), "--out", str(tmp_path / "t03")]) == 0
     assert len(read_apollo(tmp_path / "t03").lanes) > 300
+
+
+def test_a_problem_naming_an_id_with_a_newline_stays_on_one_line(exported, tmp_path):
+    """A damaged file's id may hold a newline (a fuzzed bit found it): every problem of the
+    validator is still one line, the newline written as its escape."""
+    text = (exported / "base_map.txt").read_text()
+    key = 'overlap_id {\n    id: "'
+    overlap = text.index(key, text.index("\nlane {")) + len(key)
+    (tmp_path / "base_map.txt").write_text(text[:overlap] + "bad\\n" + text[overlap:])
+    problems = validate_apollo(tmp_path / "base_map.txt")
+    assert any("bad\\n" in str(p) for p in problems), [str(p) for p in problems][:5]
+    assert all("\n" not in str(p) for p in problems)
