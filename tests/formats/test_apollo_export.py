@@ -855,3 +855,21 @@ def test_a_problem_naming_an_id_with_a_newline_stays_on_one_line(exported, tmp_p
     problems = validate_apollo(tmp_path / "base_map.txt")
     assert any("bad\\n" in str(p) for p in problems), [str(p) for p in problems][:5]
     assert all("\n" not in str(p) for p in problems)
+
+
+def test_damaged_points_and_ids_are_problems_not_tracebacks(exported, tmp_path):
+    """Two damages a fuzzed bit made: a point whose y tag is gone (Apollo's PointENU reads a
+    missing coordinate as NaN, which no text shows) and a road id that is not UTF-8 (protobuf
+    hands it back as bytes). The validator reports the first and copes with the second."""
+    m = _load(exported, "base_map")
+    lane = m.lane[0]
+    lane.central_curve.segment[0].line_segment.point[1].ClearField("y")
+    (tmp_path / "base_map.bin").write_bytes(m.SerializeToString())
+    problems = [str(p) for p in validate_apollo(tmp_path / "base_map.bin")]
+    assert f"lane {lane.id.id}: a point has no x or y (a missing coordinate reads as NaN)" in problems
+
+    data = _load(exported, "base_map").SerializeToString()
+    road = _load(exported, "base_map").road[0].id.id.encode()
+    (tmp_path / "base_map.bin").write_bytes(data.replace(road, b"\xf2" + road[1:]))
+    problems = [str(p) for p in validate_apollo(tmp_path / "base_map.bin")]
+    assert all("\n" not in p for p in problems)

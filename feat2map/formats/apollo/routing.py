@@ -74,11 +74,11 @@ def build_routing_graph(m: Any) -> Any:
     g = aps.Graph()
     g.hdmap_version = m.header.version.decode("utf-8", "replace")
     g.hdmap_district = m.header.district.decode("utf-8", "replace")
-    road_of = {lid.id: road.id.id for road in m.road for sec in road.section for lid in sec.lane_id}
-    forbidden = {ln.id.id for ln in m.lane if ln.type != aps.Lane.CITY_DRIVING}
+    road_of = {aps.text(lid.id): aps.text(road.id.id) for road in m.road for sec in road.section for lid in sec.lane_id}
+    forbidden = {aps.text(ln.id.id) for ln in m.lane if ln.type != aps.Lane.CITY_DRIVING}
     index: dict[str, int] = {}
     for ln in m.lane:
-        lid = ln.id.id
+        lid = aps.text(ln.id.id)
         if lid in forbidden or (ln.turn == aps.Lane.U_TURN and not valid_uturn(ln)):
             continue
         index[lid] = len(g.node)
@@ -97,7 +97,7 @@ def build_routing_graph(m: Any) -> Any:
 
     def add_edges(frm: Any, targets: Any, kind: int) -> None:
         for t in targets:
-            to = t.id
+            to = aps.text(t.id)
             if to in forbidden or (frm.lane_id, to) in seen:
                 continue
             seen.add((frm.lane_id, to))
@@ -115,9 +115,10 @@ def build_routing_graph(m: Any) -> Any:
                 e.cost = ROUTING_CHANGE_PENALTY * ratio
 
     for ln in m.lane:
-        if ln.id.id in forbidden or ln.id.id not in index:
+        lid = aps.text(ln.id.id)
+        if lid in forbidden or lid not in index:
             continue
-        frm = g.node[index[ln.id.id]]
+        frm = g.node[index[lid]]
         add_edges(frm, ln.successor_id, aps.Edge.FORWARD)
         if ln.length < ROUTING_MIN_LENGTH_FOR_LANE_CHANGE_M:
             continue

@@ -406,6 +406,12 @@ def is_text(data: bytes) -> bool:
     return True
 
 
+def text(value: str | bytes) -> str:
+    """A protobuf string field as str: proto2 hands a value that is not UTF-8 (a damaged file's
+    id) back as bytes, which no string field of a new message accepts; decoded with U+FFFD."""
+    return value.decode("utf-8", "replace") if isinstance(value, bytes) else value
+
+
 def _parse(cls: Any, data: bytes, where: str, what: str) -> Message:
     if not data.strip():
         raise MapFormatError(f"empty file, expected an Apollo {what}", where)

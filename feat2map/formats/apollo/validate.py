@@ -148,6 +148,26 @@ def _curve_points(curve: Any) -> np.ndarray:
     return np.concatenate([_xy(seg.line_segment.point) for seg in curve.segment] or [np.zeros((0, 2))])
 
 
+def _unset_points(m: Any) -> list[Problem]:
+    """Elements with a point whose x or y is missing: Apollo's PointENU defaults a missing
+    coordinate to NaN, which the text check cannot see (unset fields are not written)."""
+    out = []
+    for kind in _KINDS:
+        fields = getattr(m, kind)
+        if not fields:
+            continue
+        names = fields[0].DESCRIPTOR.fields_by_name
+        for e in fields:
+            pieces = [_xy(e.polygon.point)] if "polygon" in names else []
+            if kind == "lane":
+                pieces += [_curve_points(c) for c in (e.central_curve, e.left_boundary.curve, e.right_boundary.curve)]
+            if "stop_line" in names:
+                pieces += [_curve_points(c) for c in e.stop_line]
+            if not all(np.isfinite(p).all() for p in pieces):
+                out.append(Problem(f"{kind} {e.id.id}", "a point has no x or y (a missing coordinate reads as NaN)"))
+    return out
+
+
 def _polyline_length(pts: np.ndarray) -> float:
     return float(np.hypot(*np.diff(pts, axis=0).T).sum()) if len(pts) > 1 else 0.0
 
@@ -189,6 +209,7 @@ def validate_map(m: Any, graph: Any | None = None, progress: bool = False, sim: 
 
     bad = [Problem(element, f"unusable number {value} (text line {line}): NaN, infinite or >= 1e9")
            for value, element, line in unusable_numbers(str(m))]
+    bad += _unset_points(m)
     if bad:  # the geometric checks below need finite coordinates
         return bad
     idx = _Index(m)
