@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..config import (AMBER_BRAKE_MPS2, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M,
-                      IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
+from ..config import (AMBER_BRAKE_MPS2, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
+                      IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
                       LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
                       MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
                       PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
@@ -734,6 +734,25 @@ class EgoJudge:
         lane = net.get_lane(ego.lane_index)
         self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
             ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors
+
+    def wait_reason(self, near: float = BLOCKED_NEAR_M) -> str:
+        """What justifies the ego's standing where it stands, in words ("" when nothing does): a red
+        or amber signal at its next stop line (however far); the rules holding it within `near`
+        metres (`stop_distance`: its turn at a stop sign it stands at, conflicting traffic, a
+        pedestrian, a narrow passage; a stop sign it has not reached does not hold it); a road
+        user within `near` metres ahead in its path (`leader_gaps`: a queue). Read-only; the
+        rollouts' blocked early end (scenarios/rollout.py) asks it while the ego stands."""
+        rules, ego = self.rules, self.ego
+        sl = rules.line_ahead(ego)[0]
+        state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+        if state in ("red", "amber"):
+            return f"{state} signal"
+        at_line = rules.waiting_line(ego, rules.net.id_of.get(ego.lane_index))[0] is not None
+        if rules.stop_distance(ego, commit=False, ignore=frozenset() if at_line else frozenset({"stop"})) <= near:
+            return "held by the rules"
+        if any(gap <= near for gap, _ in ego.leader_gaps()):
+            return "road user ahead"
+        return ""
 
     def stopped_before(self, in_lane: str | None) -> bool:
         """Whether the ego has made its full stop at the line of `in_lane` (it counts until the

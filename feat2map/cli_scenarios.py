@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from . import atomic
+from .config import BLOCKED_AFTER_S
 from .errors import Feat2MapError
 from .messages import counted, on_terminal, one_line
 
@@ -48,6 +49,8 @@ def cmd_rollout(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise Feat2MapError("--workers must be at least 1", "command line")
+    if not 0 <= args.blocked_after < float("inf"):
+        raise Feat2MapError("--blocked-after must be a finite number of seconds >= 0 (0: never)", "command line")
     atomic.check_dir_target(args.out, (SUMMARY,))  # before the run, not after it
     suite = load_suite(args.suite)
     if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory
@@ -66,7 +69,8 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
     result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
-                       coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on)
+                       coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on,
+                       blocked_after=args.blocked_after)
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)
     failing = result.failures(args.fail_on)
@@ -145,6 +149,11 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
                    "a crash, a missed deadline or garbage is an error outcome with its stderr in the report")
     r.add_argument("--planner-timeout", type=float, default=10.0, metavar="S",
                    help="with --planner-cmd: seconds the planner has for each step reply (default 10)")
+    r.add_argument("--blocked-after", type=float, default=BLOCKED_AFTER_S, metavar="S",
+                   help="end a scenario early as a timeout ('blocked: ...') once the ego has stood still S seconds of "
+                        "simulated time with nothing in its way: no red or amber signal at its next stop line, no "
+                        "stop-sign turn, conflicting traffic, pedestrian or road user close ahead (such waits do not "
+                        f"count; moving resets); 0: never (default {BLOCKED_AFTER_S:g})")
     r.add_argument("--workers", type=int, default=1, metavar="N", help="scenarios driven in parallel")
     r.add_argument("--backend", choices=BACKENDS, default="process",
                    help="where the workers run: local processes, or a Ray cluster (needs the ray extra)")

@@ -270,6 +270,10 @@ def raised_limits(**values: float) -> Iterator[Limits]:
 STOPPED_SPEED_MPS = 0.3  # a vehicle at most this fast has stopped (a stop at a stop sign, a stop-sign queue)
 STOP_ZONE_M = 6.0  # a stop counts when made with the vehicle centre within this distance of the stop line
 STOP_POINT_M = 1.0  # vehicles held by a rule stop their centre this far before the line
+# the blocked early end of rollouts (scenarios/rollout.py; envs/rules.py EgoJudge.wait_reason), as CARLA
+# leaderboard's AgentBlockedTest but for waits the rules do not justify
+BLOCKED_AFTER_S = 30.0  # [s] a rollout ends as a timeout once the ego stood still this long with nothing in its way
+BLOCKED_NEAR_M = 20.0  # a rule's stop point (not a stop sign not yet reached) or a road user this close ahead justifies a wait
 COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane this close to the line
 COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
 AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)

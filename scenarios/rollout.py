@@ -5,6 +5,9 @@ Determinism: every scenario builds its own env from its own seed and a fresh pla
 every worker runs with PYTHONHASHSEED=HASH_SEED, so the results (everything but wall-clock
 times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run
 with `render_mode="rgb_array"` to record a GIF, so only failing scenarios pay for rendering.
+
+A scenario whose ego stands still with nothing in its way for `blocked_after` seconds
+(`BlockedClock`, default BLOCKED_AFTER_S) ends early as a `timeout` whose message says "blocked".
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
+from feat2map.config import BLOCKED_AFTER_S
 from feat2map.errors import Feat2MapError
 
 OUTCOMES = ("completed", "collision", "off_road", "timeout", "violation", "error")  # error: planner/env raised
@@ -252,6 +256,57 @@ def _message(kind: str, info: Mapping[str, Any], first_violation: tuple[str, flo
     return ""
 
 
+class BlockedClock:
+    """The blocked early end (CARLA leaderboard's AgentBlockedTest, less the waits the rules
+    justify): `update` after every decision says when the ego has stood still (`has_stopped`)
+    for `after` seconds of simulated time with nothing justifying the wait
+    (`EgoJudge.wait_reason`: no red or amber signal at its next stop line, no stop-sign turn,
+    conflicting traffic or pedestrian holding it, no road user close ahead). Justified seconds
+    do not count (a red light, a queue) but do not reset the count either: only moving does, so
+    a planner stuck before a signal line is caught over its greens."""
+
+    def __init__(self, after: float) -> None:
+        self.after = float(after)
+        self.standing = 0.0  # [s] since the ego last moved
+        self.blocked = 0.0  # [s] of those with nothing justifying the wait
+        self._t: float | None = None  # sim time of the last update while standing
+
+    def update(self, env: Any, info: Mapping[str, Any]) -> bool:
+        """True when the episode must end as blocked (never with `after` 0)."""
+        from feat2map.envs.rules import has_stopped
+
+        t = float(info.get("time", 0.0))
+        if not self.after or not has_stopped(float(info.get("speed", 0.0))):
+            self.standing, self.blocked, self._t = 0.0, 0.0, None
+            return False
+        if self._t is not None:  # standing since the last decision
+            dt = t - self._t
+            self.standing += dt
+            if not env.unwrapped.judge.wait_reason():
+                self.blocked += dt
+        self._t = t
+        return self.blocked >= self.after - 1e-9
+
+    def message(self, env: Any, info: Mapping[str, Any]) -> str:
+        """Blocked where (lane, junction or the distance to the next stop line, position) and for how long."""
+        net = env.unwrapped.net
+        lid = str(info.get("lane_id") or "")
+        lane = net.hdmap.lanes.get(lid)
+        if lane is not None and lane.junction_id is not None:
+            place = f"inside junction {lane.junction_id} on lane {lid}"
+        else:
+            place = f"on lane {lid or '?'}"
+            d = float(info.get("distance_to_stop_line", float("inf")))
+            line = {"signal": "signal's stop line", "stop": "stop sign's line"}.get(str(info.get("control_ahead")), "entry")
+            if d < float("inf") and info.get("junction"):
+                place += f", {d:.1f} m before the {line} of junction {info['junction']}"
+        x, y = (float(c) for c in env.unwrapped.vehicle.position)
+        return (f"blocked: stood still {self.standing:.1f} s {place} at ({x:.1f}, {y:.1f}), {self.blocked:.1f} s of "
+                f"them with no red light, stop-sign turn, conflicting traffic, pedestrian or road user holding it "
+                f"(ended early at t={float(info.get('time', 0.0)):.1f} s, route "
+                f"{100 * float(info.get('route_progress', 0.0)):.0f}%; blocked_after {self.after:g} s)")
+
+
 def _env_config(policy: Any) -> dict[str, Any]:
     config: dict[str, Any] = dict(getattr(policy, "env_config", None) or {})
     action = getattr(policy, "action_config", None)
@@ -374,8 +429,10 @@ class _Frames(list):
 
 
 def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
-           coverage_modules: Sequence[str] = (), policy: Any = None) -> tuple[Outcome, _Frames]:
-    """Run one episode; returns its outcome and (when rendering) its frames."""
+           coverage_modules: Sequence[str] = (), policy: Any = None,
+           blocked_after: float = BLOCKED_AFTER_S) -> tuple[Outcome, _Frames]:
+    """Run one episode; returns its outcome and (when rendering) its frames. It ends early as
+    blocked (`BlockedClock`) after `blocked_after` seconds (0: never)."""
     from .scenario import make_env
 
     t0 = time.perf_counter()
@@ -395,6 +452,8 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         visited: list[str] = []
         first_violation: tuple[str, float, Any] | None = None
         steps = 0
+        clock = BlockedClock(blocked_after)
+        blocked = ""
         if render:
             frames.add(env.render())
         if cov:
@@ -420,6 +479,9 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                     frames.add(env.render())
                 if terminated or truncated:
                     break
+                if clock.update(env, info):
+                    blocked = clock.message(env, info)
+                    break
         finally:
             lines = cov.stop() if cov else {}
             if callable(getattr(policy, "close", None)):
@@ -429,6 +491,9 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     finally:
         env.close()
     kind = classify(info)
+    message = _message(kind, info, first_violation)
+    if blocked:
+        message = blocked if kind == "timeout" else f"{message}; {blocked}"
     events = _events(policy)
     digest = cov.digest if cov else (str(getattr(policy, "planner_digest", "")) if remote and lines else "")
     path = tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
@@ -439,9 +504,14 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         sim_s=round(float(info.get("time", 0.0)), 6), steps=steps, stage_path=path,
         transitions=tuple(zip(ev_path, ev_path[1:])), junctions=tuple(visited),
         route_progress=round(float(info.get("route_progress", 0.0)), 6), events=events,
-        junction_lines=lines, message=_message(kind, info, first_violation), seed=getattr(scenario, "seed", None),
+        junction_lines=lines, message=message, seed=getattr(scenario, "seed", None),
         map=str(getattr(scenario, "map", "")), planner_digest=digest, wall_s=time.perf_counter() - t0)
     return outcome, frames
+
+
+def _check_blocked_after(value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
+        raise Feat2MapError(f"must be a finite number of seconds >= 0 (0: never), got {value!r:.40}", "blocked_after")
 
 
 class PlannerActionError(Exception):
@@ -480,20 +550,24 @@ def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
 
 
 def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_failure_gif: bool = True,
-                 coverage: bool = False, fail_on: str = "any", coverage_modules: Sequence[str] = ()) -> Outcome:
+                 coverage: bool = False, fail_on: str = "any", coverage_modules: Sequence[str] = (),
+                 blocked_after: float = BLOCKED_AFTER_S) -> Outcome:
     """Drive one scenario headless with a fresh planner; on a failure under `fail_on` re-run it
-    with rendering and attach a GIF. `coverage` measures the planner's lines per junction."""
+    with rendering and attach a GIF. `coverage` measures the planner's lines per junction.
+    `blocked_after`: [s] the scenario ends as a timeout once the ego has stood still this long
+    with nothing in its way (`BlockedClock`; 0: never)."""
+    _check_blocked_after(blocked_after)
     factory = as_factory(planner_factory)
     policy = factory()
     # a planner that costs as much to re-run as to run (an out-of-process planner, whose replay
     # need not even repeat: its timing is not ours) is rendered while it runs, not replayed
     during = record_failure_gif and bool(getattr(policy, "render_during_run", False))
     outcome, frames = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules,
-                             policy=policy, render=during)
+                             policy=policy, render=during, blocked_after=blocked_after)
     if record_failure_gif and outcome.fails(fail_on):
         run = outcome
         if not during:
-            run, frames = _drive(scenario, factory, render=True)
+            run, frames = _drive(scenario, factory, render=True, blocked_after=blocked_after)
         step_s = run.sim_s / run.steps if run.steps and run.sim_s > 0 else 1.0
         outcome = replace(outcome, gif=gif_bytes(frames.with_last(), step_s * frames.stride))
     return outcome
@@ -509,6 +583,7 @@ class _Task:
     coverage: bool
     fail_on: str
     coverage_modules: tuple[str, ...]
+    blocked_after: float = BLOCKED_AFTER_S
 
 
 def _error_outcome(scenario: Any, index: int, message: str) -> Outcome:
@@ -530,7 +605,8 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
         scenario = Scenario.from_dict(scenario, f"scenario {scenario.get('name', task.index)!r}")
     try:
         out = run_scenario(scenario, task.factory, record_failure_gif=task.record_failure_gif,
-                           coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules)
+                           coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules,
+                           blocked_after=task.blocked_after)
     except Feat2MapError as exc:  # bad input: name the scenario too
         name = f"scenario {getattr(scenario, 'name', task.index)}"
         raise Feat2MapError(exc.message, f"{name}: {exc.where}" if exc.where else name) from None
@@ -544,9 +620,11 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
 
 def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backend: str = "process",
               progress: bool = True, coverage: bool = False, record_failure_gif: bool = True,
-              fail_on: str = "any", coverage_modules: Sequence[str] = ()) -> SuiteResult:
+              fail_on: str = "any", coverage_modules: Sequence[str] = (),
+              blocked_after: float = BLOCKED_AFTER_S) -> SuiteResult:
     """Run every scenario of `suite` (a Suite or a sequence of scenarios) and collect the outcomes
-    in suite order. `workers` > 1 uses spawned processes ("process") or Ray ("ray")."""
+    in suite order. `workers` > 1 uses spawned processes ("process") or Ray ("ray").
+    `blocked_after`: as `run_scenario`'s."""
     from tqdm import tqdm
 
     if backend not in BACKENDS:
@@ -555,12 +633,13 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         raise Feat2MapError(f"unknown failure policy (choose {', '.join(FAIL_POLICIES)})", f"fail-on {fail_on!r}")
     if workers < 1:
         raise Feat2MapError("must be at least 1", f"workers {workers}")
+    _check_blocked_after(blocked_after)
     scenarios = list(getattr(suite, "scenarios", suite))
     if not scenarios:  # nothing driven is not a pass
         raise Feat2MapError("has no scenarios: nothing to run", f"suite {getattr(suite, 'name', '')!r}")
     factory = as_factory(planner)
     tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on,
-                   tuple(coverage_modules))
+                   tuple(coverage_modules), float(blocked_after))
              for i, s in enumerate(scenarios)]
     picklable = _picklable(factory)
     if not picklable and (workers > 1 or backend == "ray"):
