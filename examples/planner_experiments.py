@@ -8,6 +8,7 @@ planner did at each junction: its stage paths) and line coverage of each planner
   .venv/bin/python examples/planner_experiments.py --maps m1 --report-only   # tables from what ran
   # SF (../shared/maps' Apollo San Francisco map): the manoeuvres of its first N junctions only
   SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python examples/planner_experiments.py --maps sf --sf-junctions 4
+  # M2-M4 likewise (M4: generated from SF + GoMentum + Shalun's merged features, seed 4, as RQ3)
 
 Writes out/planners/<map>/{map.json, suite.yaml, chunkN/ (rollout reports), <planner>/ (merged
 report with its failure GIFs), tables.md}. Chunks make a long run (minutes per scenario for a
@@ -35,8 +36,10 @@ from feat2map.scenarios.routes import build_suite  # noqa: E402
 from feat2map.scenarios.scenario import Suite, load_suite, save_suite  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SEEDS = {"m1": 1, "m2": 2, "m3": 3}
-SF_MAP = ROOT.parent / "shared" / "maps" / "apollo" / "san_francisco" / "base_map.bin"  # ../shared/maps/SOURCES.md
+SEEDS = {"m1": 1, "m2": 2, "m3": 3, "m4": 4}
+SHARED = ROOT.parent / "shared" / "maps"  # ../shared/maps/SOURCES.md
+SF_MAP = SHARED / "apollo" / "san_francisco" / "base_map.bin"
+M4_MAPS = (SF_MAP, SHARED / "apollo" / "gomentum" / "base_map.bin", SHARED / "apollo" / "shalun" / "base_map.bin")
 CR_CMD = f"{ROOT / '.venv-crplanner' / 'bin' / 'python'} {ROOT / 'adapters' / 'commonroad' / 'planner.py'}"
 
 
@@ -59,6 +62,17 @@ def sf_suite(traffic: int, junctions: int | None) -> Suite:
                  SF_MAP.resolve().parent)
 
 
+def m4_space():
+    """RQ3's feature space: SF, GoMentum and Shalun's junctions merged (as examples/experiments.py makes M4)."""
+    from feat2map.extract import extract_junctions, map_feature
+    from feat2map.readers import read_map
+
+    missing = [str(p) for p in M4_MAPS if not p.is_file()]
+    if missing:
+        raise SystemExit(f"{', '.join(missing)}: not found (M4 comes from ../shared/maps, see SOURCES.md there)")
+    return map_feature([j for p in M4_MAPS for j in extract_junctions(read_map(p), p.parent.name)])
+
+
 def prepare(name: str, out: Path, traffic: int, chunk: int, sf_junctions: int | None = None,
             max_scenarios: int | None = None) -> list[Path]:
     """The map, its suite and the suite's chunks (made once; the first `max_scenarios` only)."""
@@ -70,7 +84,8 @@ def prepare(name: str, out: Path, traffic: int, chunk: int, sf_junctions: int | 
             save_suite(sf_suite(traffic, sf_junctions), out / "suite.yaml")
     else:
         if not (out / "map.json").exists():
-            native.save(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=SEEDS[name]), out / "map.json")
+            native.save(feat2map.generate(m4_space() if name == "m4" else feat2map.PAPER_SF_FEATURE_SPACE,
+                                          seed=SEEDS[name]), out / "map.json")
         if not (out / "suite.yaml").exists():
             save_suite(build_suite(out / "map.json", traffic_vehicles=traffic, name=name), out / "suite.yaml")
     suite = load_suite(out / "suite.yaml")
