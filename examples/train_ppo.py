@@ -87,7 +87,7 @@ TASK_CONFIG = {
 }
 TRAIN_TRAFFIC = (2, 8)  # training episodes draw their traffic count from this range (evaluation: 4)
 STOP_BONUS = 0.3
-TIME_COST = 0.002
+TIME_COST = 0.01
 LOAD_SAMPLE_S = 30.0  # the machine's load average is sampled this often during training
 EVAL_SEED = 10_000  # first seed of the evaluation episodes (training envs are seeded below it)
 STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
@@ -133,10 +133,16 @@ def speed_command(target, speed, period: float, lo: float, hi: float):
     return 2 * (a - lo) / (hi - lo) - 1
 
 
-def shaped_reward(r, stopped, was_stopped):
-    """The task's shaping of the env's reward (scalars or arrays): +STOP_BONUS when the full
-    stop is made, -TIME_COST per decision."""
-    return r + STOP_BONUS * np.logical_and(stopped, np.logical_not(was_stopped)) - TIME_COST
+def shaped_reward(r, stopped, was_stopped, failed=False):
+    """The task's shaping of the env's reward (scalars or arrays): +STOP_BONUS when the ego
+    drives on into the junction after its full stop at a stop sign (DriverView's stop_made
+    turning off) without a violation or collision (`failed`), -TIME_COST per decision.
+
+    Paid on the way in, not when the stop is made: a bonus for the stop itself made standing at
+    the line look good to the policy, and a greedy (deterministic) policy stayed there until the
+    episode timed out."""
+    entered = np.logical_and(was_stopped, np.logical_not(stopped))
+    return r + STOP_BONUS * np.logical_and(entered, np.logical_not(failed)) - TIME_COST
 
 
 class TaskRewards(gym.Wrapper):
@@ -152,7 +158,8 @@ class TaskRewards(gym.Wrapper):
     def step(self, action):
         obs, r, term, trunc, info = self.env.step(action)
         stopped = obs[STOP_MADE] > 0.5
-        r = shaped_reward(r, stopped, self._stopped)
+        failed = bool(info["new_violations"]) or bool(info["collision"])
+        r = shaped_reward(r, stopped, self._stopped, failed)
         self._stopped = stopped
         return obs, r, term or bool(info["new_violations"]), trunc, info
 
@@ -218,8 +225,9 @@ class BatchedTask(gym.vector.VectorWrapper):
             last[i] = info["final_obs"][i]
         new = [info["final_info"]["new_violations"][i] if done[i] else info["new_violations"][i]
                for i in range(self.num_envs)]
+        hit = [info["final_info"]["collision"][i] if done[i] else info["collision"][i] for i in range(self.num_envs)]
         stopped = last[:, STOP_MADE] > 0.5
-        r = shaped_reward(r, stopped, self._stopped)
+        r = shaped_reward(r, stopped, self._stopped, np.array([bool(v) or bool(h) for v, h in zip(new, hit)]))
         ended = np.array([bool(v) for v in new]) & ~done  # a violation ends the task's episode
         if ended.any():
             for i in np.nonzero(ended)[0].tolist():
@@ -527,15 +535,15 @@ class RunConfig:
     timesteps: int = 2_000_000  # at most; training also ends after train_minutes
     train_minutes: float | None = 24.0
     train_traffic: tuple[int, int] | None = TRAIN_TRAFFIC
-    n_envs: int = 16
+    n_envs: int = 32
     subprocess: bool = False  # copies in subprocesses instead of the native batched env
     n_steps: int | None = None  # per env and rollout (None: rollout // n_envs)
     rollout: int = 2048  # steps of all envs per rollout
-    batch_size: int = 256
-    n_epochs: int = 6
-    gamma: float = 0.998
+    batch_size: int = 128
+    n_epochs: int = 10
+    gamma: float = 0.99
     learning_rate: float = 3e-4
-    ent_coef: float = 0.01
+    ent_coef: float = 0.003
     net_arch: tuple[int, ...] = (128, 128)
     episodes_per_cell: int = 20
     eval_workers: int = 2

@@ -99,8 +99,22 @@ def test_stop_bonus_once_and_a_violation_ends_the_episode(tp):
             break
     assert info["route_completed"] and info["violations"]["stop_sign"] == 0
     first = stops.index(True)
-    assert rewards[first] > tp.STOP_BONUS - tp.TIME_COST - 0.05 and sum(stops[first:]) >= 1
+    entry = len(stops) - stops[::-1].index(True)  # the step that drove on into the junction
+    assert rewards[first] < tp.STOP_BONUS / 2  # the stop itself is not paid ...
+    assert rewards[entry] > tp.STOP_BONUS - tp.TIME_COST - 0.05  # ... driving on after it is
     assert sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1  # the bonus once (the last step: arrival)
+
+    obs, _ = env.reset(seed=0)  # stop in the zone and stay: the episode times out
+    ret, held = 0.0, False
+    while True:
+        near = obs[tp.DRIVER_VIEW_FEATURES.index("line_near")]
+        held = held or obs[tp.STOP_MADE] > 0.5
+        obs, r, term, trunc, info = env.step(0 if held or near < 0.4 else 2 if near < 1 else 3)
+        ret += r
+        if term or trunc:
+            break
+    assert trunc and not info["route_completed"] and info["violations"]["stop_sign"] == 0
+    assert ret < 0.0  # halting for good at the line pays less than nothing: waiting is never free
 
     obs, _ = env.reset(seed=0)
     for steps in range(200):  # full speed through the stop sign  # noqa: B007 (steps is read after it)
