@@ -11,9 +11,11 @@ one sampled manoeuvre through one junction with traffic and crosswalk pedestrian
   stop made, arrival-order queue, conflicting junction traffic with and without priority,
   pedestrians in the path, the leader.
 - Reward (`TaskRewards` on the env's terms): route progress (1 for the route) + 1 on arrival,
-  -2 for a collision, leaving the road or a violation, each ending the episode (as they end a
-  success); +STOP_BONUS once for a full stop in the stop zone of a stop sign; -TIME_COST per
-  decision so that waiting is never free.
+  FAILURE_PENALTY for a collision, leaving the road or a violation, each ending the episode (as
+  they end a success); +STOP_BONUS once when the ego drives on into the junction after its full
+  stop at a stop sign (not for the stop itself: see `shaped_reward`); -TIME_COST per decision,
+  so that waiting is never free and standing at the line until the time limit pays less than
+  nothing.
 - Training: PPO on `--n-envs` sub-envs of the native batched vector env (envs/vector.py: one
   process, the traffic of all sub-envs in one array program; `--subprocess` for copies in
   subprocesses instead, torch single-threaded in every process) for `--train-minutes` of wall
@@ -146,9 +148,9 @@ def shaped_reward(r, stopped, was_stopped, failed=False):
 
 
 class TaskRewards(gym.Wrapper):
-    """The task's shaping on top of the env's reward: +STOP_BONUS when the full stop at a stop
-    sign is made (DriverView's stop_made turning on), -TIME_COST per decision; a violation ends
-    the episode (it already ends a success)."""
+    """The task's shaping on top of the env's reward (`shaped_reward`: +STOP_BONUS on driving
+    on after the full stop at a stop sign, -TIME_COST per decision); a violation ends the
+    episode (it already ends a success)."""
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
