@@ -492,10 +492,12 @@ def build_model(config: dict, rc: "RunConfig"):
                policy_kwargs={"net_arch": list(rc.net_arch)}, seed=rc.seed, verbose=0, device="cpu")
 
 
-def training_log(total: int, enabled: bool, minutes: float | None = None):
+def training_log(total: int, enabled: bool, minutes: float | None = None, lr_end: float = 1.0):
     """An SB3 callback: a tqdm bar over training steps showing the recent success rate, and the
     learning curve (one record per finished training episode) in `.curve`; training stops once
-    `minutes` of wall time have passed."""
+    `minutes` of wall time have passed. The learning rate decays linearly to `lr_end` times its
+    start over the budget (steps or wall time, whichever runs out first): large steps early,
+    fine ones for the final policy."""
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
 
@@ -505,6 +507,16 @@ def training_log(total: int, enabled: bool, minutes: float | None = None):
             self.t0 = self.t_load = time.perf_counter()
             self.curve: list[dict] = []
             self.loads = [os.getloadavg()[0]]
+            self.schedule = self.model.lr_schedule
+            if lr_end < 1.0:
+                lr0 = self.schedule(1.0)
+                self.model.lr_schedule = lambda p: lr0 * (lr_end + (1.0 - lr_end) * self.left(p))
+
+        def left(self, progress: float) -> float:
+            """Fraction of the budget left: SB3's progress remaining (steps) or wall time."""
+            if minutes is not None:
+                progress = min(progress, 1.0 - (time.perf_counter() - self.t0) / (60.0 * minutes))
+            return max(progress, 0.0)
 
         def _on_step(self) -> bool:
             self.bar.update(self.training_env.num_envs)
@@ -525,6 +537,7 @@ def training_log(total: int, enabled: bool, minutes: float | None = None):
 
         def _on_training_end(self) -> None:
             self.bar.close()
+            self.model.lr_schedule = self.schedule  # saved with the model: nothing of this callback
 
     return _Log()
 
@@ -545,6 +558,7 @@ class RunConfig:
     n_epochs: int = 10
     gamma: float = 0.99
     learning_rate: float = 3e-4
+    lr_end: float = 0.1  # the learning rate decays linearly to this fraction of it over the budget
     ent_coef: float = 0.003
     net_arch: tuple[int, ...] = (128, 128)
     episodes_per_cell: int = 20
@@ -560,7 +574,7 @@ def run(out: Path, rc: RunConfig = RunConfig()) -> dict:
     config = env_config(rc.features, **rc.extra)
     t_start = time.perf_counter()
     model = build_model(config, rc)
-    log = training_log(rc.timesteps, rc.progress, rc.train_minutes)
+    log = training_log(rc.timesteps, rc.progress, rc.train_minutes, rc.lr_end)
     model.learn(total_timesteps=rc.timesteps, callback=log)
     model.get_env().close()
     train_s = time.perf_counter() - t_start
