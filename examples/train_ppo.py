@@ -11,9 +11,11 @@ one sampled manoeuvre through one junction with traffic and crosswalk pedestrian
   stop made, arrival-order queue, conflicting junction traffic with and without priority,
   pedestrians in the path, the leader.
 - Reward (`TaskRewards` on the env's terms): route progress (1 for the route) + 1 on arrival,
-  -2 for a collision, leaving the road or a violation, each ending the episode (as they end a
-  success); +STOP_BONUS once for a full stop in the stop zone of a stop sign; -TIME_COST per
-  decision so that waiting is never free.
+  FAILURE_PENALTY for a collision, leaving the road or a violation, each ending the episode (as
+  they end a success); +STOP_BONUS once when the ego drives on into the junction after its full
+  stop at a stop sign (not for the stop itself: see `shaped_reward`); -TIME_COST per decision,
+  so that waiting is never free and standing at the line until the time limit pays less than
+  nothing.
 - Training: PPO on `--n-envs` sub-envs of the native batched vector env (envs/vector.py: one
   process, the traffic of all sub-envs in one array program; `--subprocess` for copies in
   subprocesses instead, torch single-threaded in every process) for `--train-minutes` of wall
@@ -87,7 +89,7 @@ TASK_CONFIG = {
 }
 TRAIN_TRAFFIC = (2, 8)  # training episodes draw their traffic count from this range (evaluation: 4)
 STOP_BONUS = 0.3
-TIME_COST = 0.002
+TIME_COST = 0.01
 LOAD_SAMPLE_S = 30.0  # the machine's load average is sampled this often during training
 EVAL_SEED = 10_000  # first seed of the evaluation episodes (training envs are seeded below it)
 STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
@@ -133,16 +135,22 @@ def speed_command(target, speed, period: float, lo: float, hi: float):
     return 2 * (a - lo) / (hi - lo) - 1
 
 
-def shaped_reward(r, stopped, was_stopped):
-    """The task's shaping of the env's reward (scalars or arrays): +STOP_BONUS when the full
-    stop is made, -TIME_COST per decision."""
-    return r + STOP_BONUS * np.logical_and(stopped, np.logical_not(was_stopped)) - TIME_COST
+def shaped_reward(r, stopped, was_stopped, failed=False):
+    """The task's shaping of the env's reward (scalars or arrays): +STOP_BONUS when the ego
+    drives on into the junction after its full stop at a stop sign (DriverView's stop_made
+    turning off) without a violation or collision (`failed`), -TIME_COST per decision.
+
+    Paid on the way in, not when the stop is made: a bonus for the stop itself made standing at
+    the line look good to the policy, and a greedy (deterministic) policy stayed there until the
+    episode timed out."""
+    entered = np.logical_and(was_stopped, np.logical_not(stopped))
+    return r + STOP_BONUS * np.logical_and(entered, np.logical_not(failed)) - TIME_COST
 
 
 class TaskRewards(gym.Wrapper):
-    """The task's shaping on top of the env's reward: +STOP_BONUS when the full stop at a stop
-    sign is made (DriverView's stop_made turning on), -TIME_COST per decision; a violation ends
-    the episode (it already ends a success)."""
+    """The task's shaping on top of the env's reward (`shaped_reward`: +STOP_BONUS on driving
+    on after the full stop at a stop sign, -TIME_COST per decision); a violation ends the
+    episode (it already ends a success)."""
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
@@ -152,7 +160,8 @@ class TaskRewards(gym.Wrapper):
     def step(self, action):
         obs, r, term, trunc, info = self.env.step(action)
         stopped = obs[STOP_MADE] > 0.5
-        r = shaped_reward(r, stopped, self._stopped)
+        failed = bool(info["new_violations"]) or bool(info["collision"])
+        r = shaped_reward(r, stopped, self._stopped, failed)
         self._stopped = stopped
         return obs, r, term or bool(info["new_violations"]), trunc, info
 
@@ -218,8 +227,9 @@ class BatchedTask(gym.vector.VectorWrapper):
             last[i] = info["final_obs"][i]
         new = [info["final_info"]["new_violations"][i] if done[i] else info["new_violations"][i]
                for i in range(self.num_envs)]
+        hit = [info["final_info"]["collision"][i] if done[i] else info["collision"][i] for i in range(self.num_envs)]
         stopped = last[:, STOP_MADE] > 0.5
-        r = shaped_reward(r, stopped, self._stopped)
+        r = shaped_reward(r, stopped, self._stopped, np.array([bool(v) or bool(h) for v, h in zip(new, hit)]))
         ended = np.array([bool(v) for v in new]) & ~done  # a violation ends the task's episode
         if ended.any():
             for i in np.nonzero(ended)[0].tolist():
@@ -482,10 +492,12 @@ def build_model(config: dict, rc: "RunConfig"):
                policy_kwargs={"net_arch": list(rc.net_arch)}, seed=rc.seed, verbose=0, device="cpu")
 
 
-def training_log(total: int, enabled: bool, minutes: float | None = None):
+def training_log(total: int, enabled: bool, minutes: float | None = None, lr_end: float = 1.0):
     """An SB3 callback: a tqdm bar over training steps showing the recent success rate, and the
     learning curve (one record per finished training episode) in `.curve`; training stops once
-    `minutes` of wall time have passed."""
+    `minutes` of wall time have passed. The learning rate decays linearly to `lr_end` times its
+    start over the budget (steps or wall time, whichever runs out first): large steps early,
+    fine ones for the final policy."""
     from stable_baselines3.common.callbacks import BaseCallback
     from tqdm import tqdm
 
@@ -495,6 +507,16 @@ def training_log(total: int, enabled: bool, minutes: float | None = None):
             self.t0 = self.t_load = time.perf_counter()
             self.curve: list[dict] = []
             self.loads = [os.getloadavg()[0]]
+            self.schedule = self.model.lr_schedule
+            if lr_end < 1.0:
+                lr0 = self.schedule(1.0)
+                self.model.lr_schedule = lambda p: lr0 * (lr_end + (1.0 - lr_end) * self.left(p))
+
+        def left(self, progress: float) -> float:
+            """Fraction of the budget left: SB3's progress remaining (steps) or wall time."""
+            if minutes is not None:
+                progress = min(progress, 1.0 - (time.perf_counter() - self.t0) / (60.0 * minutes))
+            return max(progress, 0.0)
 
         def _on_step(self) -> bool:
             self.bar.update(self.training_env.num_envs)
@@ -515,6 +537,7 @@ def training_log(total: int, enabled: bool, minutes: float | None = None):
 
         def _on_training_end(self) -> None:
             self.bar.close()
+            self.model.lr_schedule = self.schedule  # saved with the model: nothing of this callback
 
     return _Log()
 
@@ -527,15 +550,16 @@ class RunConfig:
     timesteps: int = 2_000_000  # at most; training also ends after train_minutes
     train_minutes: float | None = 24.0
     train_traffic: tuple[int, int] | None = TRAIN_TRAFFIC
-    n_envs: int = 16
+    n_envs: int = 32
     subprocess: bool = False  # copies in subprocesses instead of the native batched env
     n_steps: int | None = None  # per env and rollout (None: rollout // n_envs)
     rollout: int = 2048  # steps of all envs per rollout
-    batch_size: int = 256
-    n_epochs: int = 6
-    gamma: float = 0.998
+    batch_size: int = 128
+    n_epochs: int = 10
+    gamma: float = 0.99
     learning_rate: float = 3e-4
-    ent_coef: float = 0.01
+    lr_end: float = 0.1  # the learning rate decays linearly to this fraction of it over the budget
+    ent_coef: float = 0.003
     net_arch: tuple[int, ...] = (128, 128)
     episodes_per_cell: int = 20
     eval_workers: int = 2
@@ -550,7 +574,7 @@ def run(out: Path, rc: RunConfig = RunConfig()) -> dict:
     config = env_config(rc.features, **rc.extra)
     t_start = time.perf_counter()
     model = build_model(config, rc)
-    log = training_log(rc.timesteps, rc.progress, rc.train_minutes)
+    log = training_log(rc.timesteps, rc.progress, rc.train_minutes, rc.lr_end)
     model.learn(total_timesteps=rc.timesteps, callback=log)
     model.get_env().close()
     train_s = time.perf_counter() - t_start

@@ -13,6 +13,7 @@ from pathlib import Path
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+import numpy as np
 import pytest
 
 pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
@@ -99,8 +100,22 @@ def test_stop_bonus_once_and_a_violation_ends_the_episode(tp):
             break
     assert info["route_completed"] and info["violations"]["stop_sign"] == 0
     first = stops.index(True)
-    assert rewards[first] > tp.STOP_BONUS - tp.TIME_COST - 0.05 and sum(stops[first:]) >= 1
+    entry = len(stops) - stops[::-1].index(True)  # the step that drove on into the junction
+    assert rewards[first] < tp.STOP_BONUS / 2  # the stop itself is not paid ...
+    assert rewards[entry] > tp.STOP_BONUS - tp.TIME_COST - 0.05  # ... driving on after it is
     assert sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1  # the bonus once (the last step: arrival)
+
+    obs, _ = env.reset(seed=0)  # stop in the zone and stay: the episode times out
+    ret, held = 0.0, False
+    while True:
+        near = obs[tp.DRIVER_VIEW_FEATURES.index("line_near")]
+        held = held or obs[tp.STOP_MADE] > 0.5
+        obs, r, term, trunc, info = env.step(0 if held or near < 0.4 else 2 if near < 1 else 3)
+        ret += r
+        if term or trunc:
+            break
+    assert trunc and not info["route_completed"] and info["violations"]["stop_sign"] == 0
+    assert ret < 0.0  # halting for good at the line pays less than nothing: waiting is never free
 
     obs, _ = env.reset(seed=0)
     for steps in range(200):  # full speed through the stop sign  # noqa: B007 (steps is read after it)
@@ -129,3 +144,29 @@ def test_bad_arguments_exit_2(tp, capsys):
     with pytest.raises(SystemExit) as e:
         tp.main(["--timesteps", "0"])
     assert e.value.code == 2 and "timesteps" in capsys.readouterr().err
+
+
+def test_batched_task_pays_what_the_wrappers_pay(tp):
+    """BatchedTask (the training's shaping on the batched env) gives the rewards and the episode
+    end of TaskRewards(TargetSpeed(env)) on the same seed and actions: stop, then drive on."""
+    cfg = tp.env_config(tp.junction_features(ns=(4,), controls=("stop",), crosswalks=(False,)),
+                        traffic_vehicles=0, pedestrian_rate=0.0)
+    single = tp.make_env(cfg)
+    batch = tp.BatchedTask(tp.MapVectorEnv(tp.JunctionGridEnv, 1, config=cfg, autoreset_mode=tp.AutoresetMode.SAME_STEP))
+    obs, _ = single.reset(seed=0)
+    bobs, _ = batch.reset(seed=0)
+    rewards, brewards = [], []
+    while True:
+        assert np.allclose(obs, bobs[0])
+        near, inside = obs[tp.DRIVER_VIEW_FEATURES.index("line_near")], obs[tp.DRIVER_VIEW_FEATURES.index("in_junction")]
+        go = obs[tp.STOP_MADE] > 0.5 or inside
+        action = 4 if go else (0 if near < 0.4 else 2 if near < 1 else 3)
+        obs, r, term, trunc, info = single.step(action)
+        bobs, br, bterm, btrunc, _ = batch.step(np.array([action]))
+        rewards.append(r)
+        brewards.append(float(br[0]))
+        assert (term, trunc) == (bool(bterm[0]), bool(btrunc[0]))
+        if term or trunc:
+            break
+    assert info["route_completed"] and sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1
+    assert np.allclose(rewards, brewards)
