@@ -7,7 +7,8 @@ then evaluate it per junction type against every agent driven by the rule-follow
   all worlds in turn in this process (a vector of parallel envs).
 - Agent: the DriverView observation, the TargetSpeed action (target speeds at 2 Hz), the env's
   reward terms (progress, arrival, collisions, violations incl. not yielding and stop order),
-  -TIME_COST per decision and +STOP_BONUS once for the full stop at a stop sign (as train_ppo.py).
+  -TIME_COST per decision and +STOP_BONUS once for the full stop at a stop sign (train_ppo.py pays its
+  bonus on driving on after the stop instead: a greedy policy paid for the stop halts at the line).
 - PPO: a small loop (torch): each agent's trajectory gets its own GAE (an agent that leaves is a
   terminal; one still driving at the rollout's end, or truncated, is bootstrapped), one shared
   actor-critic, clipped updates. SuperSuit's vector wrappers need every possible agent present
@@ -49,7 +50,7 @@ TYPES = [(n, c) for n in (3, 4) for c in ("signal", "stop", "bare")]
 ANGLES = {3: [0, 90, 180], 4: [0, 90, 180, 270]}
 PENALTY = -5.0
 TIME_COST = 0.005
-STOP_BONUS = 0.3  # once, when DriverView's stop_made turns on (the full stop at a stop sign), as train_ppo.py
+STOP_BONUS = 0.3  # once, when DriverView's stop_made turns on (the full stop at a stop sign) (train_ppo.py pays it on driving on)
 STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
 EVAL_SEED = 10_000
 WORLD = {"observation": {"type": "DriverView"}, "agent_routes": "coverage", "route_junctions": 1,
