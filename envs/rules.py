@@ -558,6 +558,10 @@ class TrafficRules:
                 room += length
                 if room >= vehicle.LENGTH + STOP_POINT_M:
                     break
+            elif chain and s_own is None and enters_junction(lanes, route[k - 1], lid):
+                if room - line_setback(net, route[k - 1]) >= vehicle.LENGTH + STOP_POINT_M:
+                    break  # room to wait at the junction's line clear of the passage behind
+                room = 0.0  # no car waits across a junction: the road beyond must hold it alone
         return (chain, wait) if chain else None
 
     def passage_allows(self, vehicle, chain: list[tuple[int, int]], commit: bool) -> bool:
