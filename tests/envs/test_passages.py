@@ -286,3 +286,30 @@ def test_two_narrow_roads_at_a_junction_do_not_lock(two_narrow, car_speed):
             break
     env.close()
     assert u.route_completed() and info["time"] < 30.0 and not car.crashed
+
+
+def test_holder_lets_go_once_its_rear_is_out(bridge):
+    """A car holds the bridge from before it until its rear has passed the bridge's end, and no
+    longer (still on the same lane, waiting beyond the bridge, it held up the other direction for
+    nothing: digitaf r025)."""
+    m = read_map(bridge)
+    sc = Scenario("bridge", str(bridge), (("1", "1", "3"), ("2", "3", "6")), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net = u.net
+    west_east = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id in u.vehicle.lane_route)
+    east_west = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id != west_east)
+    ps = net.passages[east_west]
+    car = u.road.spawn(east_west, 1.0, 8.0, [east_west])
+    seen = {True: False, False: False}  # rear in the passage / past its end, on the bridge's lane
+    for _ in range(int(20 * u.config["policy_frequency"])):
+        env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        if net.id_of.get(car.lane_index) != east_west:
+            break
+        s = car.s_on(east_west)
+        inside = s - car.LENGTH / 2 <= ps.s1
+        assert (car in u.control.passage_holders[ps.group][ps.side]) == inside, (s, ps)
+        seen[inside] = True
+    env.close()
+    assert seen[True] and seen[False]
