@@ -534,7 +534,10 @@ class TrafficRules:
             length = net.lane_of[lid].length
             junction = lanes[lid].junction_id is not None
             if s_own is None and enters_junction(lanes, route[k - 1], lid):
-                line = d - line_setback(net, route[k - 1]) - STOP_POINT_M
+                at = d - line_setback(net, route[k - 1]) - STOP_POINT_M
+                if line is None or line < 0.0 or exit_d is None or at + STOP_POINT_M - exit_d >= \
+                        vehicle.LENGTH + STOP_POINT_M:
+                    line = at  # else a junction right after the one before: wait before that one
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
                 exit_d = d
