@@ -313,3 +313,35 @@ def test_holder_lets_go_once_its_rear_is_out(bridge):
         seen[inside] = True
     env.close()
     assert seen[True] and seen[False]
+
+
+def test_passage_wait_after_back_to_back_junctions_is_before_the_first(tmp_path):
+    """A one-lane two-way road (R4, coincident lanes) leaves J1, whose approach is 0.2 m of road
+    after the 4 m junction JX (`tight_approach` of test_real_classes). A car heading for R4 while
+    a car holds it from the other side waits at JX's entry, not at J1's line: a car waiting there
+    stands inside JX and blocks it (digitaf r033: a car waiting on a short road between two
+    junctions for the passage beyond locked the junction behind it)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from feat2map.formats import native
+    from test_real_classes import _short_approach_map
+
+    m = read_map(_short_approach_map(tmp_path / "tight.json", 4.0))
+    native.save(_coincident(m, "R4"), tmp_path / "b2b.json")
+    m = read_map(tmp_path / "b2b.json")
+    sc = Scenario("b2b", str(tmp_path / "b2b.json"), (("J0", "R0", "R3"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    out = next(ln.id for ln in m.lanes_by_junction["J1"] if ln.predecessors[0] == "R2_0" and ln.successors[0] == "R4_0")
+    back = next(ln.id for ln in m.lanes_by_junction["J1"] if ln.predecessors[0] == "R4_1")
+    to_jx = u.net.lane_of["R2_0_r"].length
+    car = u.road.spawn("R2_0_r", to_jx - 30.0, 0.0, ["R2_0_r", "R2_0_jx", "R2_0", out, "R4_0"])
+    u.road.spawn("R4_1", 10.0, 0.0, ["R4_1", back])  # holds R4 from the other side
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    chain, wait = u.control.passage_ahead(car)
+    assert chain == [(u.net.passages["R4_0"].group, u.net.passages["R4_0"].side)]
+    assert 0.0 < wait <= to_jx - car.s_on("R2_0_r") - 1.0 + 1e-6  # before JX, not inside it
+    assert u.control.passage_stop(car, False) == pytest.approx(wait)
+    env.close()
