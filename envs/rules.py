@@ -518,10 +518,14 @@ class TrafficRules:
         nor has entered (with `entered`, from the one it is in): the first one and every one
         after it with no room to wait between (less than a vehicle length of road outside
         passages and junctions: holding one passage while waiting for the next locked up
-        autonomous_stuff's one-lane roads that lead into each other); None without one within
-        PASSAGE_HORIZON_M. It waits before the first passage, or at the line
-        of the junction before it when that wait would be inside the junction (a car standing at
-        a junction exit blocks the box and stands beside the other direction's lane)."""
+        autonomous_stuff's one-lane roads that lead into each other). Room is counted on one side
+        of a junction alone, no car waits across one (two narrow roads meeting at a junction,
+        each car waiting at the line inside the passage it came through: scheck-in r006). None
+        without a passage within PASSAGE_HORIZON_M. It waits before the first passage, or at the
+        line of the junction before it when that wait would be inside the junction (a car
+        standing at a junction exit blocks the box and stands beside the other direction's
+        lane); after back-to-back junctions with no room to wait between, at the first one's
+        line (digitaf r033)."""
         net = self.net
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
