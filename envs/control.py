@@ -189,7 +189,9 @@ class TrafficControl(TrafficRules):
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
         """Road users within a narrow passage hold it from their side; holders and waiters that
-        left the road or whose route no longer leads into it let go."""
+        left the road or whose route no longer leads into it let go, and so do holders whose rear
+        has passed the passage's end (one standing beyond it, at the junction after it, held it
+        against the car waiting to come the other way: digitaf r025)."""
         net = self.net
         for lid, users in buckets.items():
             ps = net.passages.get(lid)
@@ -208,10 +210,11 @@ class TrafficControl(TrafficRules):
                 lid = net.id_of.get(getattr(v, "lane_index", None))
                 ps = net.passages.get(lid) if lid is not None else None
                 return ps is not None and ps.group == group
-            for lid in route[v.route_pos:]:
+            for k, lid in enumerate(route[v.route_pos:]):
                 ps = net.passages.get(lid)
-                if ps is not None and ps.group == group and ps.side == side:
-                    return True
+                if ps is not None and ps.group == group and ps.side == side and \
+                        (k > 0 or v.s_on(lid) - v.LENGTH / 2 <= ps.s1):
+                    return True  # not yet out of it: its rear has not passed the passage's end
             return False
 
         for g, sides in self.passage_holders.items():

@@ -518,10 +518,14 @@ class TrafficRules:
         nor has entered (with `entered`, from the one it is in): the first one and every one
         after it with no room to wait between (less than a vehicle length of road outside
         passages and junctions: holding one passage while waiting for the next locked up
-        autonomous_stuff's one-lane roads that lead into each other); None without one within
-        PASSAGE_HORIZON_M. It waits before the first passage, or at the line
-        of the junction before it when that wait would be inside the junction (a car standing at
-        a junction exit blocks the box and stands beside the other direction's lane)."""
+        autonomous_stuff's one-lane roads that lead into each other). Room is counted on one side
+        of a junction alone, no car waits across one (two narrow roads meeting at a junction,
+        each car waiting at the line inside the passage it came through: scheck-in r006). None
+        without a passage within PASSAGE_HORIZON_M. It waits before the first passage, or at the
+        line of the junction before it when that wait would be inside the junction (a car
+        standing at a junction exit blocks the box and stands beside the other direction's
+        lane); after back-to-back junctions with no room to wait between, at the first one's
+        line (digitaf r033)."""
         net = self.net
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
@@ -534,7 +538,10 @@ class TrafficRules:
             length = net.lane_of[lid].length
             junction = lanes[lid].junction_id is not None
             if s_own is None and enters_junction(lanes, route[k - 1], lid):
-                line = d - line_setback(net, route[k - 1]) - STOP_POINT_M
+                at = d - line_setback(net, route[k - 1]) - STOP_POINT_M
+                if line is None or line < 0.0 or exit_d is None or at + STOP_POINT_M - exit_d >= \
+                        vehicle.LENGTH + STOP_POINT_M:
+                    line = at  # else a junction right after the one before: wait before that one
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
                 exit_d = d
@@ -558,6 +565,10 @@ class TrafficRules:
                 room += length
                 if room >= vehicle.LENGTH + STOP_POINT_M:
                     break
+            elif chain and s_own is None and enters_junction(lanes, route[k - 1], lid):
+                if room - line_setback(net, route[k - 1]) >= vehicle.LENGTH + STOP_POINT_M:
+                    break  # room to wait at the junction's line clear of the passage behind
+                room = 0.0  # no car waits across a junction: the road beyond must hold it alone
         return (chain, wait) if chain else None
 
     def passage_allows(self, vehicle, chain: list[tuple[int, int]], commit: bool) -> bool:

@@ -231,3 +231,117 @@ def test_driver_views_pedestrian_feature_is_not_a_passage_wait(bridge):
             assert obs[DRIVER_VIEW_FEATURES.index("pedestrian")] == 1.0  # 1: none within its scale
     env.close()
     assert waited
+
+
+@pytest.fixture(scope="module")
+def two_narrow(tmp_path_factory) -> Path:
+    """One bare 4-way junction whose legs 1 and 2 narrow to 1.6 m lanes (12 m tapers): each is a
+    narrow passage ending 4.3 m before the junction, too little road to wait on at either side
+    of it alone, 8.5 m across it (the converter maps' 2.0-2.5 m roads meeting at a junction)."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    d = tmp_path_factory.mktemp("two_narrow")
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)
+    write_opendrive(feat2map.generate_from_features([four], seed=0), d / "one.xodr")
+    _narrow(d / "one.xodr", d / "n1.xodr", "1", 1.6, TAPER_M)
+    _narrow(d / "n1.xodr", d / "two_narrow.xodr", "2", 1.6, TAPER_M)
+    return d / "two_narrow.xodr"
+
+
+@pytest.mark.parametrize("car_speed", [8.0, 5.0])
+def test_two_narrow_roads_at_a_junction_do_not_lock(two_narrow, car_speed):
+    """The ego drives from narrow road 1 through the junction into narrow road 2, a car the other
+    way round. Each claims its way in and its way out together (no car can wait between them
+    clear of both), so one waits before its road until the other is through. Claiming the way
+    in alone, both drove into their roads and waited at the junction for each other's: locked
+    for the whole minute (scheck-in r006, Testfeld_Karlsruhe r137/r144)."""
+    m = read_map(two_narrow)
+    net0 = MapNetwork.from_map(m)
+    inbound = {r: next(x for x in net0.passages if m.lanes[x].road_id == r and m.lanes[x].successors)
+               for r in ("1", "2")}
+    outbound = {r: next(x for x in net0.passages if m.lanes[x].road_id == r and not m.lanes[x].successors)
+                for r in ("1", "2")}
+    for r in ("1", "2"):
+        ps = net0.passages[inbound[r]]
+        room = net0.lane_of[inbound[r]].length - ps.s1
+        assert 2.0 < room < 5.0 + 1.0 <= 2 * room  # not room alone, room across the junction
+    sc = Scenario("two_narrow", str(two_narrow), (("1", "1", "2"),), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    net = u.net
+    j = next(ln.id for ln in m.lanes_by_junction["1"]
+             if ln.predecessors[0] == inbound["2"] and ln.successors[0] == outbound["1"])
+    car = u.road.spawn(inbound["2"], 0.0, car_speed, [inbound["2"], j, outbound["1"]])
+    for lid in (inbound["1"], outbound["2"]):  # the ego, placed before road 1, holds both ways
+        assert u.vehicle in u.control.passage_holders[net.passages[lid].group][net.passages[lid].side]
+    from feat2map.scenarios.planner import BaselinePlanner
+
+    planner = BaselinePlanner()
+    planner.reset(env)
+    for _ in range(int(60 * u.config["policy_frequency"])):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        assert not info["collision"], f"collision at t={info['time']:.1f} s"
+        if term or trunc:
+            break
+    env.close()
+    assert u.route_completed() and info["time"] < 30.0 and not car.crashed
+
+
+def test_holder_lets_go_once_its_rear_is_out(bridge):
+    """A car holds the bridge from before it until its rear has passed the bridge's end, and no
+    longer (still on the same lane, waiting beyond the bridge, it held up the other direction for
+    nothing: digitaf r025)."""
+    m = read_map(bridge)
+    sc = Scenario("bridge", str(bridge), (("1", "1", "3"), ("2", "3", "6")), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net = u.net
+    west_east = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id in u.vehicle.lane_route)
+    east_west = next(ln.id for ln in m.lanes.values() if ln.road_id == "3" and ln.id != west_east)
+    ps = net.passages[east_west]
+    car = u.road.spawn(east_west, 1.0, 8.0, [east_west])
+    seen = {True: False, False: False}  # rear in the passage / past its end, on the bridge's lane
+    for _ in range(int(20 * u.config["policy_frequency"])):
+        env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        if net.id_of.get(car.lane_index) != east_west:
+            break
+        s = car.s_on(east_west)
+        inside = s - car.LENGTH / 2 <= ps.s1
+        assert (car in u.control.passage_holders[ps.group][ps.side]) == inside, (s, ps)
+        seen[inside] = True
+    env.close()
+    assert seen[True] and seen[False]
+
+
+def test_passage_wait_after_back_to_back_junctions_is_before_the_first(tmp_path):
+    """A one-lane two-way road (R4, coincident lanes) leaves J1, whose approach is 0.2 m of road
+    after the 4 m junction JX (`tight_approach` of test_real_classes). A car heading for R4 while
+    a car holds it from the other side waits at JX's entry, not at J1's line: a car waiting there
+    stands inside JX and blocks it (digitaf r033: a car waiting on a short road between two
+    junctions for the passage beyond locked the junction behind it)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from feat2map.formats import native
+    from test_real_classes import _short_approach_map
+
+    m = read_map(_short_approach_map(tmp_path / "tight.json", 4.0))
+    native.save(_coincident(m, "R4"), tmp_path / "b2b.json")
+    m = read_map(tmp_path / "b2b.json")
+    sc = Scenario("b2b", str(tmp_path / "b2b.json"), (("J0", "R0", "R3"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    out = next(ln.id for ln in m.lanes_by_junction["J1"] if ln.predecessors[0] == "R2_0" and ln.successors[0] == "R4_0")
+    back = next(ln.id for ln in m.lanes_by_junction["J1"] if ln.predecessors[0] == "R4_1")
+    to_jx = u.net.lane_of["R2_0_r"].length
+    car = u.road.spawn("R2_0_r", to_jx - 30.0, 0.0, ["R2_0_r", "R2_0_jx", "R2_0", out, "R4_0"])
+    u.road.spawn("R4_1", 10.0, 0.0, ["R4_1", back])  # holds R4 from the other side
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+    chain, wait = u.control.passage_ahead(car)
+    assert chain == [(u.net.passages["R4_0"].group, u.net.passages["R4_0"].side)]
+    assert 0.0 < wait <= to_jx - car.s_on("R2_0_r") - 1.0 + 1e-6  # before JX, not inside it
+    assert u.control.passage_stop(car, False) == pytest.approx(wait)
+    env.close()
