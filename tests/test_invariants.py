@@ -17,7 +17,7 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 import feat2map
-from feat2map.config import MAX_LEGS, MIN_LEG_SEPARATION_DEG, MIN_STUB_LENGTH_M, GenerationConfig
+from feat2map.config import LANE_END_SNAP_M, MAX_LEGS, MIN_LEG_SEPARATION_DEG, MIN_STUB_LENGTH_M, GenerationConfig
 from feat2map.construct import junction_radius
 from feat2map.errors import Feat2MapError
 from feat2map.features import FeatureSpace, JunctionFeature
@@ -186,13 +186,27 @@ def _defect(maps, defect):
         return dataclasses.replace(m, junctions={**m.junctions, "copy": dataclasses.replace(first, id="copy")})
     if defect.startswith("dead end"):
         return _dead_end(m)
-    if defect == "broken link":
-        lid = next(ln.id for ln in m.lanes.values() if ln.junction_id is None and ln.successors)
-        ln = m.lanes[lid]
-        return dataclasses.replace(m, lanes={**m.lanes, lid: dataclasses.replace(
-            ln, centerline=ln.centerline[:-1] + ((ln.end[0] + 0.5, ln.end[1]),), bezier=None)})
+    if defect == "broken link":  # beyond the seams the exports close (LANE_END_SNAP_M)
+        return _seam(m, LANE_END_SNAP_M + 1.0)
     first = next(iter(m.crosswalks.values()))  # overlapping crosswalks
     return dataclasses.replace(m, crosswalks={**m.crosswalks, "copy": dataclasses.replace(first, id="copy")})
+
+
+def _seam(m, gap: float):
+    """`m` with one road lane's end moved `gap` metres off its successor's start."""
+    lid = next(ln.id for ln in m.lanes.values() if ln.junction_id is None and ln.successors)
+    ln = m.lanes[lid]
+    return dataclasses.replace(m, lanes={**m.lanes, lid: dataclasses.replace(
+        ln, centerline=ln.centerline[:-1] + ((ln.end[0] + gap, ln.end[1]),), bezier=None)})
+
+
+def test_the_apollo_export_closes_a_seam_it_may_close(sound_maps, tmp_path):
+    """A seam up to LANE_END_SNAP_M between linked lanes (real maps carry 0.1-0.5 m ones) is
+    closed by bending the lane into its successor: the export validates and is written."""
+    m = _seam(sound_maps[0], 0.5)
+    assert check_map(m)
+    write_map(m, tmp_path / "apollo", "apollo")
+    assert (tmp_path / "apollo" / "base_map.bin").is_file()
 
 
 @pytest.mark.parametrize("defect", ["overlapping roads", "overlapping junctions", "dead end", "dead end, one-way roads",
