@@ -510,6 +510,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
 
 
 def _check_blocked_after(value: Any) -> None:
+    """`blocked_after` must be a finite number of seconds >= 0 (0: never end early)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
         raise Feat2MapError(f"must be a finite number of seconds >= 0 (0: never), got {value!r:.40}", "blocked_after")
 
