@@ -65,7 +65,7 @@ class _Osm:
         self._reserved: dict[tuple[int, int], list[tuple[float, float]]] = {}  # every lane end, by cell
         self._end_cells: dict[tuple[int, int], int] = {}  # end nodes by millimetre cell
 
-    def reserve_ends(self, points) -> None:
+    def reserve_ends(self, points: Iterable[tuple[float, float]]) -> None:
         """Register every lane end before any way is written: a bound's inner point near another
         lane's end (an end tangent sample beside where a new lane opens) is dropped, not made a
         node 5 cm from that end's node (lanelet2_validation: points too close)."""
@@ -74,6 +74,7 @@ class _Osm:
             self._reserved.setdefault((math.floor(x / r), math.floor(y / r)), []).append((float(x), float(y)))
 
     def _near_end(self, p: tuple[float, float]) -> bool:
+        """Whether `p` lies within END_CLEAR_M of a lane end (`reserve_ends`)."""
         r = END_CLEAR_M
         cx, cy = math.floor(p[0] / r), math.floor(p[1] / r)
         return any(math.dist(p, q) < r for dx in (-1, 0, 1) for dy in (-1, 0, 1)
@@ -115,8 +116,9 @@ class _Osm:
     def way(self, points: Sequence[Sequence[float] | np.ndarray], tags: dict[str, str], z: float = 0.0,
             lane_ends: bool = False) -> int:
         """A linestring through `points`; with `lane_ends`, its first and last point are lane
-        ends and a point within twice `LANELET2_MERGE_M` of the one before or of the end is
-        dropped (end tangent samples, joints of lanes read from other formats)."""
+        ends and a point within END_CLEAR_M (twice `LANELET2_MERGE_M`) of the one before, of the
+        end or of any lane's end (`reserve_ends`) is dropped (end tangent samples, joints of lanes
+        read from other formats)."""
         pts = [(float(p[0]), float(p[1])) for p in points]
         if lane_ends and len(pts) > 2:  # keep points END_CLEAR_M apart
             kept = [pts[0]]
