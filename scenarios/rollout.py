@@ -240,8 +240,13 @@ def classify(info: Mapping[str, Any]) -> str:
     return "timeout"
 
 
+def _when(info: Mapping[str, Any]) -> str:
+    """When in the episode its last info is from, for the outcome messages."""
+    return f"at t={float(info.get('time', 0.0)):.1f} s, route {100 * float(info.get('route_progress', 0.0)):.0f}%"
+
+
 def _message(kind: str, info: Mapping[str, Any], first_violation: tuple[str, float, Any] | None = None) -> str:
-    where = f"at t={float(info.get('time', 0.0)):.1f} s, route {100 * float(info.get('route_progress', 0.0)):.0f}%"
+    where = _when(info)
     if kind == "violation":
         v = ", ".join(f"{k} x{n}" for k, n in sorted(dict(info["violations"]).items()) if n)
         first = "" if first_violation is None else \
@@ -303,8 +308,7 @@ class BlockedClock:
         x, y = (float(c) for c in env.unwrapped.vehicle.position)
         return (f"blocked: stood still {self.standing:.1f} s {place} at ({x:.1f}, {y:.1f}), {self.blocked:.1f} s of "
                 f"them with no red light, stop-sign turn, conflicting traffic, pedestrian or road user holding it "
-                f"(ended early at t={float(info.get('time', 0.0)):.1f} s, route "
-                f"{100 * float(info.get('route_progress', 0.0)):.0f}%; blocked_after {self.after:g} s)")
+                f"(ended early {_when(info)}; blocked_after {self.after:g} s)")
 
 
 def _env_config(policy: Any) -> dict[str, Any]:
