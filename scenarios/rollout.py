@@ -588,7 +588,7 @@ class _Task:
     coverage: bool
     fail_on: str
     coverage_modules: tuple[str, ...]
-    blocked_after: float = BLOCKED_AFTER_S
+    blocked_after: float
 
 
 def _error_outcome(scenario: Any, index: int, message: str) -> Outcome:
