@@ -28,7 +28,7 @@ from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEA
                       FOOTPRINT_STEP_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
                       VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
-from ..model import HDMap, incoming_lanes
+from ..model import HDMap, Lane, incoming_lanes
 from .lanes import PolylineLane, project_rows, segment_table
 
 GRID_CELL_M = 8.0
@@ -103,7 +103,7 @@ def swing(curvature):
     return hl * hl * k / (np.sqrt((1 + k * hw) ** 2 + (k * hl) ** 2) + 1 + k * hw)
 
 
-def _one_stream(m: HDMap, a, b) -> bool:
+def _one_stream(m: HDMap, a: Lane, b: Lane) -> bool:
     """Whether junction lane `b` follows junction lane `a` through road lanes shorter together
     than two cars: a car on `b` is the leader of one leaving `a`, never in its way across a path
     (osm2xodr draws a cluster of junctions as one element; the footprints of two of its lanes
@@ -115,7 +115,7 @@ def _one_stream(m: HDMap, a, b) -> bool:
         ln = m.lanes.get(lid)
         if ln is None or ln.junction_id is not None:
             continue
-        d += float(np.sum(np.hypot(*np.diff(np.asarray(ln.centerline)[:, :2], axis=0).T)))
+        d += ln.length
         if d >= room:
             continue
         if b.id in ln.successors:

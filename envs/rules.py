@@ -190,10 +190,10 @@ def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float,
     return None, None, None, math.inf
 
 
-def room_to_wait(room, length):
-    """Whether `room` metres of road between two junctions (up to the next one's stop line) hold
-    a vehicle `length` long waiting at that line; else it waits inside the junction before
-    (back-to-back junctions). Floats or arrays (elementwise)."""
+def room_to_wait(room: float | np.ndarray, length: float | np.ndarray) -> bool | np.ndarray:
+    """Whether `room` metres of road up to where a vehicle waits (the next junction's stop line, a
+    narrow passage) hold one `length` long waiting there; else it would wait inside the junction
+    or passage before (back-to-back junctions, passages). Floats or arrays (elementwise)."""
     return room >= length + STOP_POINT_M
 
 
@@ -539,8 +539,8 @@ class TrafficRules:
             junction = lanes[lid].junction_id is not None
             if s_own is None and enters_junction(lanes, route[k - 1], lid):
                 at = d - line_setback(net, route[k - 1]) - STOP_POINT_M
-                if line is None or line < 0.0 or exit_d is None or at + STOP_POINT_M - exit_d >= \
-                        vehicle.LENGTH + STOP_POINT_M:
+                if line is None or line < 0.0 or exit_d is None or \
+                        room_to_wait(at + STOP_POINT_M - exit_d, vehicle.LENGTH):
                     line = at  # else a junction right after the one before: wait before that one
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
@@ -552,21 +552,21 @@ class TrafficRules:
                                                   vehicle in holders.get(ps.group, ((), ()))[ps.side]):
                     skip.add(ps.group)  # entered (or holding) it: the next passage counts
                     continue
-                if chain and room + ps.s0 >= vehicle.LENGTH + STOP_POINT_M:
+                if chain and room_to_wait(room + ps.s0, vehicle.LENGTH):
                     break
                 if not chain:
                     wait = start - STOP_POINT_M
                     if line is not None and line >= 0.0 and exit_d is not None and \
-                            start - exit_d < vehicle.LENGTH + STOP_POINT_M:
+                            not room_to_wait(start - exit_d, vehicle.LENGTH):
                         wait = line  # the wait before the passage would be inside the junction
                 chain.append((ps.group, ps.side))
                 room = 0.0 if ps.s1 >= length - 1e-6 else length - ps.s1
             elif chain and not junction:
                 room += length
-                if room >= vehicle.LENGTH + STOP_POINT_M:
+                if room_to_wait(room, vehicle.LENGTH):
                     break
             elif chain and s_own is None and enters_junction(lanes, route[k - 1], lid):
-                if room - line_setback(net, route[k - 1]) >= vehicle.LENGTH + STOP_POINT_M:
+                if room_to_wait(room - line_setback(net, route[k - 1]), vehicle.LENGTH):
                     break  # room to wait at the junction's line clear of the passage behind
                 room = 0.0  # no car waits across a junction: the road beyond must hold it alone
         return (chain, wait) if chain else None

@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
 from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG
 from .errors import Feat2MapError
 from .model import HDMap, Lane, incoming_lanes, stop_line_across
+
+if TYPE_CHECKING:
+    import numpy as np
 
 CONTROL_TABLES = ("signals", "stop_signs", "yield_signs")
 _LINKS = ("predecessors", "successors", "left_neighbors", "right_neighbors", "left_reverse_neighbors")
@@ -258,7 +261,7 @@ def drop_far_links(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes)
 
 
-def bent(ln: Lane, gap, at: str = "end", tail: float = BRIDGE_TAIL_M) -> Lane:
+def bent(ln: Lane, gap: Sequence[float] | np.ndarray, at: str = "end", tail: float = BRIDGE_TAIL_M) -> Lane:
     """`ln` with its last (`at`="end") or first ("start") `tail` metres moved by `gap` (dx, dy),
     centre line and boundaries, smoothly from nothing to all of it (smoothstep: no kink where the
     bend begins), so that end lands where a linked lane's end is."""

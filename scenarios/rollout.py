@@ -240,8 +240,13 @@ def classify(info: Mapping[str, Any]) -> str:
     return "timeout"
 
 
+def _when(info: Mapping[str, Any]) -> str:
+    """When in the episode its last info is from, for the outcome messages."""
+    return f"at t={float(info.get('time', 0.0)):.1f} s, route {100 * float(info.get('route_progress', 0.0)):.0f}%"
+
+
 def _message(kind: str, info: Mapping[str, Any], first_violation: tuple[str, float, Any] | None = None) -> str:
-    where = f"at t={float(info.get('time', 0.0)):.1f} s, route {100 * float(info.get('route_progress', 0.0)):.0f}%"
+    where = _when(info)
     if kind == "violation":
         v = ", ".join(f"{k} x{n}" for k, n in sorted(dict(info["violations"]).items()) if n)
         first = "" if first_violation is None else \
@@ -303,8 +308,7 @@ class BlockedClock:
         x, y = (float(c) for c in env.unwrapped.vehicle.position)
         return (f"blocked: stood still {self.standing:.1f} s {place} at ({x:.1f}, {y:.1f}), {self.blocked:.1f} s of "
                 f"them with no red light, stop-sign turn, conflicting traffic, pedestrian or road user holding it "
-                f"(ended early at t={float(info.get('time', 0.0)):.1f} s, route "
-                f"{100 * float(info.get('route_progress', 0.0)):.0f}%; blocked_after {self.after:g} s)")
+                f"(ended early {_when(info)}; blocked_after {self.after:g} s)")
 
 
 def _env_config(policy: Any) -> dict[str, Any]:
@@ -510,6 +514,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
 
 
 def _check_blocked_after(value: Any) -> None:
+    """`blocked_after` must be a finite number of seconds >= 0 (0: never end early)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
         raise Feat2MapError(f"must be a finite number of seconds >= 0 (0: never), got {value!r:.40}", "blocked_after")
 
@@ -583,7 +588,7 @@ class _Task:
     coverage: bool
     fail_on: str
     coverage_modules: tuple[str, ...]
-    blocked_after: float = BLOCKED_AFTER_S
+    blocked_after: float
 
 
 def _error_outcome(scenario: Any, index: int, message: str) -> Outcome:

@@ -40,6 +40,8 @@ TAG = "feat2map:"  # our own tags: lane, road, junction, from/to (a junction lan
 STOP_SIGN_SUBTYPE = "usR1-1"  # MUTCD stop sign (Lanelet2: ISO country code + sign number)
 TURN_DIRECTION = {"none": "straight", "left": "left", "right": "right", "uturn": "left"}
 ROUND_TRIP_M = 1e-3  # lat/lon round trip error allowed for near lane ends; unlinked ends this close are one node
+END_CLEAR_M = 2 * LANELET2_MERGE_M  # a bound's inner points keep this far from lane ends and each other: clear of
+# LANELET2_MERGE_M after the lat/lon round trip
 _LINES = {"solid_white": {"type": "line_thin", "subtype": "solid", "color": "white"},
           "dotted_white": {"type": "line_thin", "subtype": "dashed", "color": "white"},
           "solid_yellow": {"type": "line_thin", "subtype": "solid", "color": "yellow"},
@@ -63,16 +65,17 @@ class _Osm:
         self._reserved: dict[tuple[int, int], list[tuple[float, float]]] = {}  # every lane end, by cell
         self._end_cells: dict[tuple[int, int], int] = {}  # end nodes by millimetre cell
 
-    def reserve_ends(self, points) -> None:
+    def reserve_ends(self, points: Iterable[tuple[float, float]]) -> None:
         """Register every lane end before any way is written: a bound's inner point near another
         lane's end (an end tangent sample beside where a new lane opens) is dropped, not made a
         node 5 cm from that end's node (lanelet2_validation: points too close)."""
-        r = 2 * LANELET2_MERGE_M  # as for a bound's own ends: clear of it after the lat/lon round trip
+        r = END_CLEAR_M
         for x, y in points:
             self._reserved.setdefault((math.floor(x / r), math.floor(y / r)), []).append((float(x), float(y)))
 
     def _near_end(self, p: tuple[float, float]) -> bool:
-        r = 2 * LANELET2_MERGE_M  # as for a bound's own ends: clear of it after the lat/lon round trip
+        """Whether `p` lies within END_CLEAR_M of a lane end (`reserve_ends`)."""
+        r = END_CLEAR_M
         cx, cy = math.floor(p[0] / r), math.floor(p[1] / r)
         return any(math.dist(p, q) < r for dx in (-1, 0, 1) for dy in (-1, 0, 1)
                    for q in self._reserved.get((cx + dx, cy + dy), ()))
@@ -113,13 +116,14 @@ class _Osm:
     def way(self, points: Sequence[Sequence[float] | np.ndarray], tags: dict[str, str], z: float = 0.0,
             lane_ends: bool = False) -> int:
         """A linestring through `points`; with `lane_ends`, its first and last point are lane
-        ends and a point within twice `LANELET2_MERGE_M` of the one before or of the end is
-        dropped (end tangent samples, joints of lanes read from other formats)."""
+        ends and a point within END_CLEAR_M (twice `LANELET2_MERGE_M`) of the one before, of the
+        end or of any lane's end (`reserve_ends`) is dropped (end tangent samples, joints of lanes
+        read from other formats)."""
         pts = [(float(p[0]), float(p[1])) for p in points]
-        if lane_ends and len(pts) > 2:  # keep points twice the limit apart: clear of it after the lat/lon round trip
+        if lane_ends and len(pts) > 2:  # keep points END_CLEAR_M apart
             kept = [pts[0]]
             for p in pts[1:-1]:
-                if math.dist(p, kept[-1]) >= 2 * LANELET2_MERGE_M and math.dist(p, pts[-1]) >= 2 * LANELET2_MERGE_M \
+                if math.dist(p, kept[-1]) >= END_CLEAR_M and math.dist(p, pts[-1]) >= END_CLEAR_M \
                         and not self._near_end(p):
                     kept.append(p)
             pts = kept + [pts[-1]]

@@ -879,11 +879,11 @@ class _Builder:
             for s_el in (sig_el.findall("signal") if sig_el is not None else []):
                 kind = signal_kind(s_el.get("type"), s_el.get("country"), s_el.get("dynamic"))
                 sid = s_el.get("id")
-                key = (r.id, sid, *(s_el.get(a) for a in ("s", "t", "type", "subtype", "orientation")))
-                if kind is not None and key in seen:  # the same sign written twice (VIRES ROD does): one control
+                placed = (r.id, sid, *(s_el.get(a) for a in ("s", "t", "type", "subtype", "orientation")))
+                if kind is not None and placed in seen:  # the same sign written twice (VIRES ROD does): one control
                     twice.append(f"road {r.id} <signal id={sid}>")
                     continue
-                seen.add(key)
+                seen.add(placed)
                 if sid is not None:
                     depends.setdefault(sid, []).extend(d.get("id") for d in s_el.findall("dependency") if d.get("id"))
                 if kind is None:
