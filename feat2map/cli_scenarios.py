@@ -44,13 +44,12 @@ def cmd_suite(args: argparse.Namespace) -> int:
 
 def cmd_rollout(args: argparse.Namespace) -> int:
     from .scenarios.report import SUMMARY, write_report
-    from .scenarios.rollout import PlannerFactory, run_suite
+    from .scenarios.rollout import PlannerFactory, check_blocked_after, run_suite
     from .scenarios.scenario import load_suite
 
     if args.workers < 1:
         raise Feat2MapError("--workers must be at least 1", "command line")
-    if not 0 <= args.blocked_after < float("inf"):
-        raise Feat2MapError("--blocked-after must be a finite number of seconds >= 0 (0: never)", "command line")
+    check_blocked_after(args.blocked_after, "--blocked-after")
     atomic.check_dir_target(args.out, (SUMMARY,))  # before the run, not after it
     suite = load_suite(args.suite)
     if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory

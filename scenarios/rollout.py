@@ -513,10 +513,11 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     return outcome, frames
 
 
-def _check_blocked_after(value: Any) -> None:
-    """`blocked_after` must be a finite number of seconds >= 0 (0: never end early)."""
+def check_blocked_after(value: Any, where: str = "blocked_after") -> None:
+    """`blocked_after` must be a finite number of seconds >= 0 (0: never end early); `where`
+    names it in the error (the CLI's `--blocked-after`)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
-        raise Feat2MapError(f"must be a finite number of seconds >= 0 (0: never), got {value!r:.40}", "blocked_after")
+        raise Feat2MapError(f"must be a finite number of seconds >= 0 (0: never), got {value!r:.40}", where)
 
 
 class PlannerActionError(Exception):
@@ -561,7 +562,7 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
     with rendering and attach a GIF. `coverage` measures the planner's lines per junction.
     `blocked_after`: [s] the scenario ends as a timeout once the ego has stood still this long
     with nothing in its way (`BlockedClock`; 0: never)."""
-    _check_blocked_after(blocked_after)
+    check_blocked_after(blocked_after)
     factory = as_factory(planner_factory)
     policy = factory()
     # a planner that costs as much to re-run as to run (an out-of-process planner, whose replay
@@ -638,7 +639,7 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         raise Feat2MapError(f"unknown failure policy (choose {', '.join(FAIL_POLICIES)})", f"fail-on {fail_on!r}")
     if workers < 1:
         raise Feat2MapError("must be at least 1", f"workers {workers}")
-    _check_blocked_after(blocked_after)
+    check_blocked_after(blocked_after)
     scenarios = list(getattr(suite, "scenarios", suite))
     if not scenarios:  # nothing driven is not a pass
         raise Feat2MapError("has no scenarios: nothing to run", f"suite {getattr(suite, 'name', '')!r}")
