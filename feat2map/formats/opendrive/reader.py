@@ -495,17 +495,21 @@ def read_opendrive(path: str | Path) -> HDMap:
     geo = header.find("geoReference") if header is not None else None
     origin = _proj_origin(geo.text if geo is not None else None)
     roads: dict[str, _OdrRoad] = {}
+    bad: list[MapFormatError] = []
     for r in root.findall("road"):
         try:
             road = _parse_road(ctx, r)
         except MapFormatError as exc:  # one bad road in an otherwise good map: warn and skip
             warnings.warn(f"skipping bad road: {exc}", stacklevel=2)
+            bad.append(exc)
             continue
         if road.id in roads:
             raise MapFormatError(f"duplicate road id {road.id!r}", ctx.where(r))
         roads[road.id] = road
-    if not roads:
-        raise MapFormatError("no readable <road> elements", str(path))
+    if not roads:  # say why: a dialect without <planView> (point-set borders) is refused on every road
+        first = f"{(bad[0].where or '').removeprefix(f'{ctx.path}: ')}: {bad[0].message}" if bad else ""
+        why = f": all {len(bad)} unreadable (first: {first})" if bad else ""
+        raise MapFormatError(f"no readable <road> elements{why}", str(path))
     return loaded(_Builder(ctx, root, roads, origin).build(), str(path))
 
 
