@@ -60,6 +60,7 @@ NOT_CONTROLS = frozenset({
     "1000", "1004", "334", "406", "430", "436", "440", "449", "450", "451", "452", "531", "605",
     "R2-1", "R3-1", "R3-2", "R3-4", "R3-5", "R3-7", "R4-7", "R5-1", "R6-1", "W3-1", "W3-3",
     "speed", "maxspeed", "city_limit", "stop_line", "stopline", "holdingline", "crosswalk", "pedestrian_crossing",
+    "roadmark",  # RoadRunner (2021) writes its stop lines as <signal name="StopLine" type="roadmark">
     "-1", "",
 })
 US_COUNTRIES = frozenset({"us", "usa"})  # 205/206 are German codes: not stop/yield under the MUTCD
