@@ -81,6 +81,7 @@ DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
 })
 SIGNAL_SAME_APPROACH_DEG = 30.0  # signals whose traffic travels within this of one direction: one approach
 SIGNAL_OPPOSITE_DEG = 150.0  # approaches further apart than this are opposite (paired phases)
+APPROACH_SPLIT_DEG = 90.0  # a control's lanes ending further apart in heading are separate approaches (own stop lines)
 STOP_SIGN_SIZE_M = 0.75  # an octagon this wide, its lower edge this high (exports that draw signs)
 STOP_SIGN_HEIGHT_M = 2.0
 COMMONROAD_DT_S = 0.1  # CommonRoad export: time step of the scenario (light cycles count in steps)
