@@ -678,7 +678,7 @@ class TrafficRules:
         line keeps its place (a stop counts within STOP_ZONE_M of it)."""
         net = self.net
         at_rest = stop - IDM_STOP_MARGIN_M - vehicle.LENGTH / 2  # where its centre comes to rest
-        for k, lid, d, s_own in vehicle.upcoming(max(at_rest, 0.0)):
+        for _k, lid, d, _s_own in vehicle.upcoming(max(at_rest, 0.0)):
             spans = net.swept.get(lid)
             if spans is None or not d <= at_rest <= d + net.lane_of[lid].length:
                 continue
