@@ -10,9 +10,12 @@ than it can take, and its body turns late, so its corners sweep over the other l
 4 m after it; SUMO's 2.0-2.5 m lanes at junction 33: the ego turning out of `4262_0_-1` clipped a
 car standing at the bare entry of the opposite lane). Road design places stop lines behind the
 swept path of a design vehicle; here the design vehicle is the env's own lane keeping, driven
-along every path into and out of the opposite lanes at SWEEP_SPEEDS_MPS, and a waiting car's
-stop point moves back out of that path (`stretches`, asked by `rules.TrafficRules.stop_distance`).
-Maps without passages have no such stretch.
+along every path into and out of the opposite lanes at SWEEP_SPEEDS_MPS (`stretches`). A
+waiting car's stop point moves back out of that path (`rules.TrafficRules.clear_of_sweeps`), and
+where the path covers the first metres of the road after a junction, they are no room to wait
+for the passage beyond (`swept_head`, in `rules.TrafficRules.passage_ahead`): the car waits at
+the junction's line instead. Maps without passages (generated maps among them) have no such
+stretch, so nothing changes there.
 """
 from __future__ import annotations
 
@@ -87,11 +90,12 @@ def _cut(lane: PolylineLane, lo: float, hi: float) -> list[float]:
 
 def stretches(net: "MapNetwork") -> dict[str, list[tuple[float, float]]]:
     """For each road lane of a narrow passage: the stretches [lo, hi] of centre positions where a
-    car standing on it (on its centre, along it) comes within SWEEP_CLEARANCE_M of a car driven
-    by the lane keeping along a lane of the other direction of its passage group (one that comes
-    within a car length of it): along that lane, and turning into it from every lane before it
-    and out of it into every lane after it. Inside the passage itself every place is such a
-    place; what matters are the places beside it."""
+    car standing on it comes within SWEEP_CLEARANCE_M of a car driven by the lane keeping along a
+    lane of the other direction of its passage group (one that comes within a car length of it):
+    along that lane, and turning into it from every lane before it and out of it into every lane
+    after it. A standing car stands on its lane's centre, along it, or, where it has just turned
+    onto the lane, as the lane keeping brought it there (its body still turned). Inside the
+    passage itself every place is such a place; what matters are the places beside it."""
     by_group: dict[int, list[str]] = {}
     for lid, ps in net.passages.items():
         by_group.setdefault(ps.group, []).append(lid)
