@@ -527,7 +527,9 @@ class TrafficRules:
         line of the junction before it when that wait would be inside the junction (a car
         standing at a junction exit blocks the box and stands beside the other direction's
         lane); after back-to-back junctions with no room to wait between, at the first one's
-        line (digitaf r033)."""
+        line (digitaf r033). The first metres of a road after a junction that the other
+        direction's turns sweep (`sweep.swept_head`) are no room (SUMO durlacher-tor r025: a car
+        waiting there, its body still turned, was clipped)."""
         net = self.net
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
