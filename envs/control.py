@@ -191,8 +191,12 @@ class TrafficControl(TrafficRules):
         """Road users within a narrow passage hold it from their side; holders and waiters that
         left the road or whose route no longer leads into it let go, and so do holders whose rear
         has passed the passage's end (one standing beyond it, at the junction after it, held it
-        against the car waiting to come the other way: digitaf r025)."""
+        against the car waiting to come the other way: digitaf r025), and those that drove through
+        it and out onto a road lane beyond it, even where their route loops back into it (a
+        car circling a block held the passage from behind the cars waiting for it:
+        Testfeld_Karlsruhe r142)."""
         net = self.net
+        lanes = net.hdmap.lanes
         for lid, users in buckets.items():
             ps = net.passages.get(lid)
             if ps is None:
@@ -210,6 +214,11 @@ class TrafficControl(TrafficRules):
                 lid = net.id_of.get(getattr(v, "lane_index", None))
                 ps = net.passages.get(lid) if lid is not None else None
                 return ps is not None and ps.group == group
+            here = route[v.route_pos]
+            if lanes[here].junction_id is None and getattr(net.passages.get(here), "group", None) != group and \
+                    any(getattr(net.passages.get(x), "group", None) == group and net.passages[x].side == side
+                        for x in route[:v.route_pos]):
+                return False  # through it and out on the road beyond: a loop back into it is a new claim
             for k, lid in enumerate(route[v.route_pos:]):
                 ps = net.passages.get(lid)
                 if ps is not None and ps.group == group and ps.side == side and \
