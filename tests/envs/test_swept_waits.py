@@ -187,3 +187,37 @@ def test_swept_room_after_the_junction_is_no_room(jogged):
     assert (ps.group, ps.side) in chain
     assert wait <= line  # before the junction
     assert wait_unswept > line + net.lane_of[from_3].length  # without the stretches: in the room after it
+
+
+class _Stub:
+    """A route follower as `_update_passages` sees it: a route, a place on it, a length."""
+
+    LENGTH = 5.0
+
+    def __init__(self, route: list[str], pos: int, s: float) -> None:
+        self.lane_route, self.route_pos, self._s = route, pos, s
+
+    def s_on(self, lane_id: str) -> float:
+        return self._s
+
+
+def test_holder_out_on_the_road_beyond_lets_go_though_its_route_loops_back(jogged):
+    """A car that drove through road 2's passage and is out on a road beyond it lets go, even
+    though its route comes back into the passage later (a car circling a block held the passage
+    from behind the cars waiting for it: Testfeld_Karlsruhe r142); in the junction right after
+    the passage, and before it, a holder keeps holding."""
+    from feat2map.envs.control import TrafficControl
+    from feat2map.envs.map_env import MapEnv
+
+    m = read_map(jogged)
+    net = MapNetwork.from_map(m)
+    ps = net.passages[FAR]
+    j = next(ln.id for ln in m.lanes_by_junction["1"]
+             if ln.predecessors[0] == FAR and m.lanes[ln.successors[0]].road_id == "3")
+    loop = [FAR, j, m.lanes[j].successors[0], j, FAR]  # (not drivable: only its shape matters here)
+    beyond, inside, before = _Stub(loop, 2, 3.0), _Stub(loop, 1, 3.0), _Stub(loop, 0, 1.0)
+    control = TrafficControl(net, np.random.default_rng(0), MapEnv.default_config())
+    for v in (beyond, inside, before):
+        control.passage_holders.setdefault(ps.group, (set(), set()))[ps.side].add(v)
+    control._update_passages({}, {id(v) for v in (beyond, inside, before)})
+    assert control.passage_holders[ps.group][ps.side] == {inside, before}
