@@ -190,21 +190,33 @@ def test_swept_room_after_the_junction_is_no_room(jogged):
 
 
 class _Stub:
-    """A route follower as `_update_passages` sees it: a route, a place on it, a length."""
+    """A route follower as the passage rules see it: a route, a place on it, a length, a speed."""
 
-    LENGTH = 5.0
+    LENGTH, speed = 5.0, 0.0
 
-    def __init__(self, route: list[str], pos: int, s: float) -> None:
-        self.lane_route, self.route_pos, self._s = route, pos, s
+    def __init__(self, net: MapNetwork, route: list[str], pos: int, s: float) -> None:
+        self.net, self.lane_route, self.route_pos, self._s = net, route, pos, s
 
     def s_on(self, lane_id: str) -> float:
         return self._s
 
+    def upcoming(self, horizon: float = np.inf):
+        out = [(self.route_pos, self.lane_route[self.route_pos], -self._s, self._s)]
+        d = self.net.lane_of[self.lane_route[self.route_pos]].length - self._s
+        for k in range(self.route_pos + 1, len(self.lane_route)):
+            if d > horizon:
+                break
+            out.append((k, self.lane_route[k], d, None))
+            d += self.net.lane_of[self.lane_route[k]].length
+        return out
+
 
 def test_holder_out_on_the_road_beyond_lets_go_though_its_route_loops_back(jogged):
-    """A car that drove through road 2's passage and is out on a road beyond it lets go, even
-    though its route comes back into the passage later (a car circling a block held the passage
-    from behind the cars waiting for it: Testfeld_Karlsruhe r142); in the junction right after
+    """A car that drove through road 2's passage and is out on a road beyond it lets go, though
+    its route comes back into the passage later (a car circling a block held the passage from
+    behind the cars waiting for it: Testfeld_Karlsruhe r142), unless it is as near its wait for
+    the loop back in as a new claim and nobody waits on the other side before it (dropped there,
+    its claim was lost to a car from the other side: digitaf r022); in the junction right after
     the passage, and before it, a holder keeps holding."""
     from feat2map.envs.control import TrafficControl
     from feat2map.envs.map_env import MapEnv
@@ -214,10 +226,22 @@ def test_holder_out_on_the_road_beyond_lets_go_though_its_route_loops_back(jogge
     ps = net.passages[FAR]
     j = next(ln.id for ln in m.lanes_by_junction["1"]
              if ln.predecessors[0] == FAR and m.lanes[ln.successors[0]].road_id == "3")
-    loop = [FAR, j, m.lanes[j].successors[0], j, FAR]  # (not drivable: only its shape matters here)
-    beyond, inside, before = _Stub(loop, 2, 3.0), _Stub(loop, 1, 3.0), _Stub(loop, 0, 1.0)
+    road = m.lanes[j].successors[0]
+    back = next(ln.id for ln in m.lanes_by_junction["1"] if m.lanes[ln.predecessors[0]].road_id == "3")
+    loop = [FAR, j, road, back, FAR]  # its shape alone matters here (the stub drives nothing)
+    end = net.lane_of[road].length
+    far, near, inside, before = (_Stub(net, loop, 2, 1.0), _Stub(net, loop, 2, end - 1.0),
+                                 _Stub(net, loop, 1, 3.0), _Stub(net, loop, 0, 1.0))
+    everyone = (far, near, inside, before)
     control = TrafficControl(net, np.random.default_rng(0), MapEnv.default_config())
-    for v in (beyond, inside, before):
-        control.passage_holders.setdefault(ps.group, (set(), set()))[ps.side].add(v)
-    control._update_passages({}, {id(v) for v in (beyond, inside, before)})
+    control.passage_holders[ps.group] = (set(), set())
+    control.passage_holders[ps.group][ps.side].update(everyone)
+    control._update_passages({}, {id(v) for v in everyone})
+    assert control.passage_holders[ps.group][ps.side] == {near, inside, before}
+    to_2 = next(ln.id for ln in m.lanes_by_junction["1"]
+                if ln.predecessors[0] == INBOUND and ln.successors[0] == "2_0_-1")
+    waiter = _Stub(net, [INBOUND, to_2, "2_0_-1"], 0, 20.0)  # waits for the other side since t = 0
+    control.passage_waiters[ps.group] = {waiter: (1 - ps.side, 0.0)}
+    control._update_passages({}, {id(v) for v in (*everyone, waiter)})
     assert control.passage_holders[ps.group][ps.side] == {inside, before}
+    assert waiter in control.passage_waiters[ps.group]
