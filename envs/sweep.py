@@ -39,12 +39,12 @@ TAU_PURSUIT_S, KP_LATERAL, KP_HEADING, MAX_STEERING_RAD = 0.1, 1 / 0.6, 1 / 0.2,
 SAMPLE_M = 0.5  # standing places along a lane are tried this often
 
 
-def footprints(poses: np.ndarray, grow: float = 0.0) -> np.ndarray:
-    """Cars' rectangles (VEHICLE_LENGTH_M x VEHICLE_WIDTH_M, `grow` metres larger on every side)
-    at poses [n, 3] (x, y, heading), as shapely polygons."""
+def footprints(poses: np.ndarray) -> np.ndarray:
+    """Cars' rectangles (VEHICLE_LENGTH_M x VEHICLE_WIDTH_M) at poses [n, 3] (x, y, heading), as
+    shapely polygons."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-    hl, hw = VEHICLE_LENGTH_M / 2 + grow, VEHICLE_WIDTH_M / 2 + grow
+    hl, hw = VEHICLE_LENGTH_M / 2, VEHICLE_WIDTH_M / 2
     a, b = np.array([-hl, hl, hl, -hl]), np.array([-hw, -hw, hw, hw])
     ring = np.stack([poses[:, :1] + a * c - b * s, poses[:, 1:2] + a * s + b * c], axis=-1)
     return shapely.polygons(ring)
