@@ -30,6 +30,7 @@ from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEA
 from ..errors import Feat2MapError
 from ..model import HDMap, Lane, incoming_lanes
 from .lanes import PolylineLane, project_rows, segment_table
+from .sweep import stretches
 
 GRID_CELL_M = 8.0
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
@@ -278,6 +279,7 @@ class MapNetwork(RoadNetwork):
     max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
     merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
+    swept: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # passage lane -> `sweep.stretches`
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     def near_lanes(self, lane_id: str) -> frozenset[str]:
@@ -378,6 +380,8 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
+        if net.passages:
+            net.swept = stretches(net)
         net._build_merges(road_lanes)
         problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
         if problems:

@@ -39,6 +39,8 @@ from ..config import (AMBER_BRAKE_MPS2, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMI
                       PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
                       SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
+from .sweep import clear_stop, swept_head
+
 if TYPE_CHECKING:
     from .network import MapNetwork, StopLine
 
@@ -525,7 +527,9 @@ class TrafficRules:
         line of the junction before it when that wait would be inside the junction (a car
         standing at a junction exit blocks the box and stands beside the other direction's
         lane); after back-to-back junctions with no room to wait between, at the first one's
-        line (digitaf r033)."""
+        line (digitaf r033). The first metres of a road after a junction that the other
+        direction's turns sweep (`sweep.swept_head`) are no room (SUMO durlacher-tor r025: a car
+        waiting there, its body still turned, was clipped)."""
         net = self.net
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
@@ -544,7 +548,9 @@ class TrafficRules:
                     line = at  # else a junction right after the one before: wait before that one
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
-                exit_d = d
+                head = swept_head(net.swept.get(lid), vehicle.LENGTH)  # swept by the other direction's turns
+                exit_d = d + head
+                room -= head
             ps = net.passages.get(lid)
             if ps is not None and ps.group not in skip and (ps.group, ps.side) not in chain:
                 start = d + ps.s0 if s_own is None else ps.s0 - s_own
@@ -661,8 +667,30 @@ class TrafficRules:
         names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage"."""
         passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
         if passage < math.inf:  # waiting for a passage: no junction lane is reserved meanwhile
-            return min(passage, self._rule_stop(vehicle, False, ignore))
-        return self._rule_stop(vehicle, commit, ignore)
+            stop = min(passage, self._rule_stop(vehicle, False, ignore))
+        else:
+            stop = self._rule_stop(vehicle, commit, ignore)
+        return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
+
+    def clear_of_sweeps(self, vehicle, stop: float) -> float:
+        """A stop point `stop` metres ahead of `vehicle`, moved back so that the vehicle waits
+        with its body out of the swept path of the cars turning past it on the opposite lanes of
+        a narrow road (`sweep.stretches`: where road design puts a stop line on a narrow road,
+        behind the turning design vehicle; digitaf r110, SUMO durlacher-tor r025). A stop sign's
+        line keeps its place (a stop counts within STOP_ZONE_M of it)."""
+        net = self.net
+        at_rest = stop - IDM_STOP_MARGIN_M - vehicle.LENGTH / 2  # where its centre comes to rest
+        for _k, lid, d, _s_own in vehicle.upcoming(max(at_rest, 0.0)):
+            spans = net.swept.get(lid)
+            if spans is None or not d <= at_rest <= d + net.lane_of[lid].length:
+                continue
+            back = clear_stop(spans, at_rest - d)
+            if back > 0.0:
+                sl, _, _, d_line = self.line_ahead(vehicle, stop + STOP_POINT_M + 1e-6)
+                if sl is not None and sl.kind == "stop" and abs(d_line - STOP_POINT_M - stop) < 1e-6:
+                    return stop
+            return stop - back
+        return stop
 
     def _rule_stop(self, vehicle, commit: bool, ignore: frozenset) -> float:
         """`stop_distance` without narrow passages. The scan runs along the route up to the first

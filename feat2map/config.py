@@ -334,6 +334,12 @@ FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far a
 PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
 PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
 CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
+# where a car may wait beside a narrow road (envs/sweep.py): out of the swept path of the lane
+# keeping driven along the opposite lanes (from SWEEP_LEAD_M before them) at these speeds
+SWEEP_SPEEDS_MPS = (3.0, 6.0)  # turning speeds of the ego through junctions and bends (the planner's)
+SWEEP_STEP_S = 1 / 15  # one pose per simulation frame (the env's default simulation_frequency)
+SWEEP_LEAD_M = 20.0  # a swept car starts this far before the lane it turns into
+SWEEP_CLEARANCE_M = 0.2  # a waiting car's body keeps this far from the swept footprints
 # the episode (envs/map_env.py): where traffic spawns
 TRAFFIC_SPAWN_TRIES = 10  # random places tried per traffic vehicle (count)
 TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
