@@ -133,6 +133,7 @@ class TrafficControl(TrafficRules):
         self.buckets: dict[str, list] = {}
         self.passage_holders: dict[int, tuple[set, set]] = {}
         self.passage_waiters: dict[int, dict] = {}
+        self.passage_rooms: dict[tuple[int, int], set] = {}
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
     def update(self, road, dt: float, occupancy: tuple[list, list, list[int]] | None = None) -> None:
@@ -191,7 +192,8 @@ class TrafficControl(TrafficRules):
         """Road users within a narrow passage hold it from their side; holders and waiters that
         left the road or whose route no longer leads into it let go, and so do holders whose rear
         has passed the passage's end (one standing beyond it, at the junction after it, held it
-        against the car waiting to come the other way: digitaf r025)."""
+        against the car waiting to come the other way: digitaf r025). A place to wait before a
+        passage (`passage_rooms`) is given up on holding that passage or leaving its way."""
         net = self.net
         for lid, users in buckets.items():
             ps = net.passages.get(lid)
@@ -223,6 +225,9 @@ class TrafficControl(TrafficRules):
         for g, waiters in self.passage_waiters.items():
             for v in [v for v, (side, _) in waiters.items() if not ahead(v, g, side)]:
                 del waiters[v]
+        for (g, side), users in self.passage_rooms.items():  # a place to wait is given up on entering
+            held = self.passage_holders.get(g, ((), ()))[side]
+            users.intersection_update([v for v in users if v not in held and ahead(v, g, side)])
 
     def _update_pedestrians(self, road, vehicles, dt: float) -> None:
         rate = self.cfg["pedestrian_rate"] / 60.0
