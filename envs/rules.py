@@ -612,7 +612,7 @@ class TrafficRules:
             waiters = self.passage_waiters.get(group, {})
             mine = waiters.get(vehicle, (side, math.inf))[1]
             if any(h is not vehicle for h in holders[1 - side]) or \
-                    any(s != side and t < mine and not self._held_against(w)
+                    any(s != side and t < mine and not self._held_against(w, group)
                         for w, (s, t) in waiters.items() if w is not vehicle):
                 ok = False
         if commit:
@@ -628,14 +628,15 @@ class TrafficRules:
                 self.passage_rooms.setdefault(taken, set()).add(vehicle)
         return ok
 
-    def _held_against(self, vehicle) -> bool:
-        """Whether a passage `vehicle` waits for is held from the other side: it cannot go,
-        so its earlier wait holds no one back on the other passages of its chain (a car waiting
-        before a passage for it and the passage after its full room kept the car that waited
-        at the far end for the first from going, whose queue held the second: locked)."""
-        for group, waiters in self.passage_waiters.items():
-            w = waiters.get(vehicle)
-            if w is not None and any(h is not vehicle for h in self.passage_holders.get(group, ((), ()))[1 - w[0]]):
+    def _held_against(self, vehicle, group: int) -> bool:
+        """Whether another passage than `group` that `vehicle` waits for (the rest of its chain)
+        is held from the other side: it cannot go, so its earlier wait holds no one back on
+        `group` (a car waiting before a passage for it and for the passage after its full room
+        kept the car waiting at the far end for the first from going, whose queue held the
+        second: locked). On `group` itself its wait holds as before: first come first served."""
+        for g, waiters in self.passage_waiters.items():
+            w = waiters.get(vehicle) if g != group else None
+            if w is not None and any(h is not vehicle for h in self.passage_holders.get(g, ((), ()))[1 - w[0]]):
                 return True
         return False
 
