@@ -592,7 +592,7 @@ class TrafficRules:
                 opened = False
             elif chain and not junction:
                 room += length  # room to wait: the chain ends here, unless a passage follows whose room is taken
-                opened = opened or room_to_wait(room, vehicle.LENGTH)
+                opened = opened or bool(room_to_wait(room, vehicle.LENGTH))
             elif chain and s_own is None and enters_junction(lanes, route[k - 1], lid):
                 if opened or room_to_wait(room - line_setback(net, route[k - 1]), vehicle.LENGTH):
                     break  # room to wait at the junction's line clear of the passage behind
