@@ -612,7 +612,7 @@ class TrafficRules:
             waiters = self.passage_waiters.get(group, {})
             mine = waiters.get(vehicle, (side, math.inf))[1]
             if any(h is not vehicle for h in holders[1 - side]) or \
-                    any(s != side and t < mine and not self._held_against(w, group)
+                    any(s != side and t < mine and not self._held_against(w, group, side)
                         for w, (s, t) in waiters.items() if w is not vehicle):
                 ok = False
         if commit:
@@ -628,16 +628,26 @@ class TrafficRules:
                 self.passage_rooms.setdefault(taken, set()).add(vehicle)
         return ok
 
-    def _held_against(self, vehicle, group: int) -> bool:
-        """Whether another passage than `group` that `vehicle` waits for (the rest of its chain)
-        is held from the other side: it cannot go, so its earlier wait holds no one back on
-        `group` (a car waiting before a passage for it and for the passage after its full room
-        kept the car waiting at the far end for the first from going, whose queue held the
-        second: locked). On `group` itself its wait holds as before: first come first served."""
+    def _held_against(self, vehicle, group: int, side: int) -> bool:
+        """Whether `vehicle` waits for another passage of its chain than `group` that a vehicle
+        holds from the other direction whose own way leads through `group` from `side`: `vehicle`
+        cannot go before that one has come through, so its earlier wait on `group` must not hold
+        back the cars coming through from `side` (a car waiting before passage A for A and the
+        passage B after A's full room kept the car waiting at A's far end from going, whose queue
+        held B: locked). Otherwise its wait holds, first come first served."""
+        net = self.net
         for g, waiters in self.passage_waiters.items():
             w = waiters.get(vehicle) if g != group else None
-            if w is not None and any(h is not vehicle for h in self.passage_holders.get(g, ((), ()))[1 - w[0]]):
-                return True
+            if w is None:
+                continue
+            for h in self.passage_holders.get(g, ((), ()))[1 - w[0]]:
+                route = getattr(h, "lane_route", None)
+                if h is vehicle or not route:
+                    continue
+                for lid in route[h.route_pos:]:
+                    ps = net.passages.get(lid)
+                    if ps is not None and ps.group == group and ps.side == side:
+                        return True
         return False
 
     def waits_for(self, vehicle, other, depth: int = 4) -> bool:
