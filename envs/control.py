@@ -133,6 +133,7 @@ class TrafficControl(TrafficRules):
         self.buckets: dict[str, list] = {}
         self.passage_holders: dict[int, tuple[set, set]] = {}
         self.passage_waiters: dict[int, dict] = {}
+        self.passage_rooms: dict[tuple[int, int], set] = {}
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
     def update(self, road, dt: float, occupancy: tuple[list, list, list[int]] | None = None) -> None:
@@ -195,7 +196,8 @@ class TrafficControl(TrafficRules):
         it and out onto a road lane beyond it, where their route loops back into it, unless a new
         claim would hold it now (a car circling a block held the passage from behind the cars
         waiting for it: Testfeld_Karlsruhe r142; dropped as it came round again, its claim was
-        lost to a car from the other side: digitaf r022)."""
+        lost to a car from the other side: digitaf r022). A place to wait before a passage
+        (`passage_rooms`) is given up on holding that passage or leaving its way."""
         net = self.net
         lanes = net.hdmap.lanes
         for lid, users in buckets.items():
@@ -237,6 +239,9 @@ class TrafficControl(TrafficRules):
         for g, waiters in self.passage_waiters.items():
             for v in [v for v, (side, _) in waiters.items() if not ahead(v, g, side)]:
                 del waiters[v]
+        for (g, side), users in self.passage_rooms.items():  # a place to wait is given up on entering
+            held = self.passage_holders.get(g, ((), ()))[side]
+            users.intersection_update([v for v in users if v not in held and ahead(v, g, side)])
 
     def _update_pedestrians(self, road, vehicles, dt: float) -> None:
         rate = self.cfg["pedestrian_rate"] / 60.0
