@@ -333,6 +333,13 @@ FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far a
 PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
 PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
 CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
+# speed in curves, one rule for traffic (envs/core.py) and the baseline planner (scenarios/planner.py):
+# both take a curve at v <= sqrt(LATERAL_ACCEL_MPS2 * radius), from `lanes.curve_speeds`
+LATERAL_ACCEL_MPS2 = 2.5  # lateral acceleration a curve is driven at, at most
+CURVE_WINDOW_M = 4.0  # a lane's curvature for its curve speed is measured over this arc length
+CURVE_MIN_SPEED_MPS = 3.0  # no curve is taken slower (a 4 m radius at LATERAL_ACCEL_MPS2)
+CURVE_BRAKE_MPS2 = 2.0  # traffic's desired speed falls towards a curve ahead no faster than braking at this
+CURVE_BEHIND_M = 1.0  # a curve point this close behind a vehicle still limits its speed
 # the episode (envs/map_env.py): where traffic spawns
 TRAFFIC_SPAWN_TRIES = 10  # random places tried per traffic vehicle (count)
 TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
