@@ -58,7 +58,6 @@ def test_planner_and_traffic_read_the_same_curve_speeds(four_way):
 
 def _brute_force_limit(core, i: int) -> float:
     """The desired-speed cap of row i from every vertex of its window, one by one."""
-    t = core.table
     best = math.inf
     s = float(core.s[i])
     for k in range(core.W.shape[1]):
@@ -102,7 +101,6 @@ def test_traffic_takes_a_junction_turn_at_its_curve_speed(four_way):
     turn = "J0_c0_0"  # R0_1 -> R1_0
     lane = net.lane_of[turn]
     v_c = curve_speeds(lane)
-    approach = net.lane_of["R0_1"]
     core = u.road.core
     car = core.add_traffic(u.road, "R0_1", 0.0, 8.9, ["R0_1", turn, "R1_0"])
     tight = lane.cum[v_c < v_c.min() + 0.2]
