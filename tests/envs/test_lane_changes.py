@@ -66,3 +66,30 @@ def test_no_lane_change_onto_a_lane_before_it_begins(opening_lane):
             break
     env.close()
     assert not car.crashed
+
+
+# ---- a junction path drawn over the last metre of an approach (osm2xodr clusters) ---------------
+
+def test_stop_line_lies_clear_of_a_junction_path_drawn_over_the_approach():
+    """A generated signalled 4-way junction whose right turn from R1 (J0_c3_0) is redrawn to cut
+    across R0_1's last metre, as osm2xodr draws a cluster's paths over an approach (scheck-in's
+    `j_14959944_c98`, 0.9 m from the centre of `w268002703_2_0_-1` at its line): R0_1's line moves
+    back to clear it by half its width and CROSSING_CLEARANCE_M (fails without the rule: the line
+    stays at the lane's end, and the car waiting there stood in the path). Another approach's
+    line, which nothing crosses, stays where it was."""
+    from feat2map.config import CROSSING_CLEARANCE_M
+    from feat2map.envs.network import MapNetwork
+
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "signal", False)], seed=0)
+    base = MapNetwork.from_map(m).stop_lines
+    ln = m.lanes["J0_c3_0"]
+    # from R1_1's end (1.75, -19.5) west across R0_1 (y = -1.75) 1 m before its end (x = -20.5), to R2_0's start
+    pts = np.array([m.lanes["R1_1"].centerline[-1], (-20.5, -8.0), (-20.5, -1.75), (-20.5, 4.0),
+                    m.lanes["R2_0"].centerline[0]], dtype=float)
+    tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+    redrawn = dataclasses.replace(ln, centerline=tup(pts), left_boundary=tup(pts), right_boundary=tup(pts), bezier=None)
+    lines = MapNetwork.from_map(dataclasses.replace(m, lanes={**m.lanes, "J0_c3_0": redrawn})).stop_lines
+    assert base["R0_1"].s == pytest.approx(25.0)
+    # the path runs onto R0_1 at x = -20.5, s = 24.0 (R0_1 runs from x = -44.5 to -19.5)
+    assert lines["R0_1"].s == pytest.approx(24.0 - ln.width / 2 - CROSSING_CLEARANCE_M, abs=0.05)
+    assert lines["R3_1"].s == pytest.approx(base["R3_1"].s)
