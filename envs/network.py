@@ -59,11 +59,11 @@ def _clear_of_crossings(ln, cl: LineString, road_lanes: "RoadLanes") -> float:
     return max(best, 0.0)
 
 
-def _clear_of_paths_over(ln, cl: LineString, m) -> float:
+def _clear_of_paths_over(ln, cl: LineString, m, s_line: float) -> float:
     """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
     clear of the junction's lanes from other approaches that run over `ln` itself (within its
-    half width) before its end: where such a lane comes onto `ln`, less half its width and
-    CROSSING_CLEARANCE_M; inf when none does. osm2xodr draws a cluster's paths over the last
+    half width) where a car waiting at `s_line` stands (its length before the line): where such a
+    lane comes onto `ln` there, less half its width and CROSSING_CLEARANCE_M; inf when none does. osm2xodr draws a cluster's paths over the last
     metre of an approach (scheck-in's `j_14959944_c98` passes 0.9 m from the centre of
     `w268002703_2_0_-1` at its line): the car waiting there stood in their way."""
     own = set(ln.successors)
@@ -71,17 +71,18 @@ def _clear_of_paths_over(ln, cl: LineString, m) -> float:
     best = math.inf
     area = cl.buffer(ln.width / 2, cap_style="flat")
     for other in m.lanes.values():
-        if other.junction_id not in jids or other.id in own or set(other.predecessors) & set(ln.predecessors):
-            continue
-        if any(p in own or p == ln.id for p in other.predecessors):
-            continue
+        if other.junction_id not in jids or other.id in own or other.id in ln.predecessors \
+                or ln.id in other.successors or set(other.predecessors) & (own | {ln.id} | set(ln.predecessors)):
+            continue  # its own paths, the paths leading into it (a cluster's element around a short road)
         line = LineString(other.centerline)
         if not line.intersects(area):
             continue
         inter = line.intersection(area)
         for g in getattr(inter, "geoms", [inter]):
             for p in getattr(g, "coords", []):
-                best = min(best, cl.project(Point(p)) - other.width / 2 - CROSSING_CLEARANCE_M)
+                s = cl.project(Point(p))
+                if s >= s_line - VEHICLE_LENGTH_M:
+                    best = min(best, s - other.width / 2 - CROSSING_CLEARANCE_M)
     return max(best, 0.0)
 
 
@@ -541,8 +542,8 @@ class MapNetwork(RoadNetwork):
                     if line is not None and line.intersects(cl):
                         inter = line.intersection(cl)
                         s = cl.project(inter.representative_point())
-                    s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, road_lanes),
-                            _clear_of_paths_over(ln, cl, m))
+                    s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, road_lanes))
+                    s = min(s, _clear_of_paths_over(ln, cl, m, s))
                     self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(s))
         self.max_line_setback = max((self.lane_of[l].length - sl.s for l, sl in self.stop_lines.items()), default=0.0)
         # junction conflicts: different entry lanes whose paths cross, merge or pass too close
