@@ -61,11 +61,12 @@ def _clear_of_crossings(ln, cl: LineString, road_lanes: "RoadLanes") -> float:
 
 def _clear_of_paths_over(ln, cl: LineString, m, s_line: float) -> float:
     """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
-    clear of the junction's lanes from other approaches that run over `ln` itself (within its
-    half width) where a car waiting at `s_line` stands (its length before the line): where such a
-    lane comes onto `ln` there, less half its width and CROSSING_CLEARANCE_M; inf when none does. osm2xodr draws a cluster's paths over the last
-    metre of an approach (scheck-in's `j_14959944_c98` passes 0.9 m from the centre of
-    `w268002703_2_0_-1` at its line): the car waiting there stood in their way."""
+    clear of the junction's lanes from other approaches that run over `ln` itself (within its half
+    width) where a car waiting at `s_line` stands (its length before the line): where such a lane
+    comes onto `ln` there, less half its width and CROSSING_CLEARANCE_M; inf when none does.
+    osm2xodr draws a cluster's paths over the last metre of an approach (scheck-in's
+    `j_14959944_c98` passes 0.9 m from the centre of `w268002703_2_0_-1` at its line): the car
+    waiting there stood in their way."""
     own = set(ln.successors)
     jids = {m.lanes[s].junction_id for s in own if s in m.lanes} - {None}
     best = math.inf
