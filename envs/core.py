@@ -173,7 +173,8 @@ class LaneTable:
             k = self.index[lid]
             self.line_kind[k] = 1 if sl.kind == "signal" else 2
             self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
-            self.line_setback[k] = net.lane_of[lid].length - sl.s
+        for lid, back in net.setbacks.items():  # stop lines and bare entries alike (rules.line_setback)
+            self.line_setback[self.index[lid]] = back
         # lane-pair tables (`pair`), concatenated: where a road user on lane b is seen from lane a
         self._pairs: dict[tuple[int, int], tuple[int, int, float]] = {}  # (a, b) -> (start, samples, step)
         self.pair_sa = self.pair_ra = np.zeros(0)
@@ -889,7 +890,7 @@ class TrafficCore:
         d_e = D[np.arange(n), ke]
         in_lane = lanes[np.arange(n), ke - 1]
         j_lane = lanes[np.arange(n), ke]
-        d_line = np.where(t.line_kind[in_lane] > 0, d_e - t.line_setback[in_lane], d_e)
+        d_line = d_e - t.line_setback[in_lane]
         reach = simple & (d_e <= LOOKAHEAD_M)  # else the scan ends before the entry: free
         state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
         signal = reach & (t.line_signal[in_lane] >= 0)  # a signal not in the map has no plan: green

@@ -59,19 +59,21 @@ def _clear_of_crossings(ln, cl: LineString, road_lanes: "RoadLanes") -> float:
     return max(best, 0.0)
 
 
-def _clear_of_paths_over(ln, cl: LineString, m, s_line: float) -> float:
+def _clear_of_paths_over(ln, cl: LineString, m, s_line: float, by_junction: dict | None = None) -> float:
     """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
     clear of the junction's lanes from other approaches that run over `ln` itself (within its half
     width) where a car waiting at `s_line` stands (its length before the line): where such a lane
     comes onto `ln` there, less half its width and CROSSING_CLEARANCE_M; inf when none does.
     osm2xodr draws a cluster's paths over the last metre of an approach (scheck-in's
     `j_14959944_c98` passes 0.9 m from the centre of `w268002703_2_0_-1` at its line): the car
-    waiting there stood in their way."""
+    waiting there stood in their way. `by_junction` (junction id -> its lanes) spares a scan of
+    every lane of the map."""
     own = set(ln.successors)
     jids = {m.lanes[s].junction_id for s in own if s in m.lanes} - {None}
     best = math.inf
     area = cl.buffer(ln.width / 2, cap_style="flat")
-    for other in m.lanes.values():
+    cands = m.lanes.values() if by_junction is None else [o for j in jids for o in by_junction.get(j, ())]
+    for other in cands:
         if other.junction_id not in jids or other.id in own or other.id in ln.predecessors \
                 or ln.id in other.successors or set(other.predecessors) & (own | {ln.id} | set(ln.predecessors)):
             continue  # its own paths, the paths leading into it (a cluster's element around a short road)
@@ -300,10 +302,11 @@ class MapNetwork(RoadNetwork):
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
+    setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane id -> how far before its end vehicles wait (> 0 only)
     conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
-    max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
+    max_line_setback: float = 0.0  # the farthest a wait point (`setbacks`) lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
     merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
@@ -531,6 +534,29 @@ class MapNetwork(RoadNetwork):
         hw = min(VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M, max(ln.width / 2 - 0.1, VEHICLE_WIDTH_M / 2))
         return np.stack([centre + a * hl * u + b * hw * n for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
 
+    def _build_setbacks(self) -> None:
+        """`setbacks`, the one source of every junction entry's wait point: a stop line's distance
+        before its lane's end, and at a bare entry (no line) the same clearance a line gets from
+        the junction's paths drawn over the approach (`_clear_of_paths_over`). osm2xodr draws a
+        cluster's paths over bare approaches too: durlacher-tor's `j_14892149_c16` crosses
+        `w656222580_0_0_-1` 0.8 m before its end, where a car waiting at the entry stood."""
+        m = self.hdmap
+        for lid, sl in self.stop_lines.items():
+            if self.lane_of[lid].length - sl.s > 0.0:
+                self.setbacks[lid] = self.lane_of[lid].length - sl.s
+        by_junction: dict[str, list] = {}
+        for ln in m.lanes.values():
+            if ln.junction_id is not None:
+                by_junction.setdefault(ln.junction_id, []).append(ln)
+        bare = {p for lanes in by_junction.values() for jl in lanes for p in jl.predecessors
+                if p in m.lanes and m.lanes[p].junction_id is None and p not in self.stop_lines and p in self.lane_of}
+        for lid in sorted(bare):
+            ln, length = m.lanes[lid], self.lane_of[lid].length
+            s = min(length, _clear_of_paths_over(ln, LineString(ln.centerline), m, length, by_junction))
+            if length - s > 0.0:
+                self.setbacks[lid] = length - s
+        self.max_line_setback = max(self.setbacks.values(), default=0.0)
+
     def _build_controls(self, road_lanes: RoadLanes) -> None:
         m = self.hdmap
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
@@ -546,7 +572,7 @@ class MapNetwork(RoadNetwork):
                     s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, road_lanes))
                     s = min(s, _clear_of_paths_over(ln, cl, m, s))
                     self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(s))
-        self.max_line_setback = max((self.lane_of[l].length - sl.s for l, sl in self.stop_lines.items()), default=0.0)
+        self._build_setbacks()
         # junction conflicts: different entry lanes whose paths cross, merge or pass too close
         jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
         lines = [LineString(ln.centerline) for ln in jl]
