@@ -14,6 +14,7 @@ import gc
 import heapq
 import math
 from dataclasses import dataclass, field
+from typing import Any, Mapping
 
 import numpy as np
 from highway_env.road.lane import LineType
@@ -206,13 +207,28 @@ def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tu
     return sorted(out)
 
 
-def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -> list[tuple[str, str]]:
+def _meets(lanes: Mapping[str, Any], ln, rd) -> bool:
+    """Whether road lane `rd` meets junction lane `ln` where lanes join at a junction's edge: it
+    links to a lane of `ln`'s junction, lies on the road of one of `ln`'s own links, or shares a
+    successor or predecessor with it (a merge or a split, not a crossing)."""
+    links = (*rd.predecessors, *rd.successors)
+    return any(x in lanes and lanes[x].junction_id == ln.junction_id for x in links) \
+        or rd.road_id in {lanes[x].road_id for x in (*ln.predecessors, *ln.successors) if x in lanes} \
+        or bool(set(rd.successors) & set(ln.successors) or set(rd.predecessors) & set(ln.predecessors))
+
+
+def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes",
+                   lanes: Mapping[str, Any] | None = None) -> list[tuple[str, str]]:
     """(junction lane, road lane) pairs whose centrelines cross, at least CROSSING_CLEARANCE_M
-    from either lane's ends (not where a road lane meets its junction): a junction lane that
+    from either lane's ends where the road lane meets the junction lane (`_meets`: lanes joining
+    at the junction's edge touch there), else (`lanes`, the map's lanes, given) from the ends of
+    one of them (ends that touch are where lanes join, declared or not): a junction lane that
     runs out of its junction across a road lane (USA_Lanker's 35.5 m 41_0_-1 across 47_0_-1, a
-    road lane just after the junction). They conflict like two junction lanes, and a vehicle
-    entering the junction towards that road lane claims it with its junction lanes
-    (`TrafficRules.junction_chain`)."""
+    road lane just after the junction), or a road lane of another road
+    that osm2xodr draws across a junction lane's last metre (scheck-in's `w669252633_0_0_-1`
+    across `j_26026265_c55_0_-1`, 0.9 m before its end: r078). They conflict like two junction
+    lanes, and a vehicle entering the junction towards that road lane claims it with its
+    junction lanes (`TrafficRules.junction_chain`)."""
     roads, rlines, tree = road_lanes
     out: list[tuple[str, str]] = []
     if not rlines or not lines:
@@ -227,7 +243,8 @@ def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -
             pt = Point(p)
             sa, sb = lines[i].project(pt), rlines[k].project(pt)
             c = CROSSING_CLEARANCE_M
-            if c <= sa <= lines[i].length - c and c <= sb <= rlines[k].length - c:
+            mid_a, mid_b = c <= sa <= lines[i].length - c, c <= sb <= rlines[k].length - c
+            if (mid_a and mid_b) or ((mid_a or mid_b) and lanes is not None and not _meets(lanes, ln, rd)):
                 out.append((ln.id, rd.id))
                 break
     return out
@@ -302,7 +319,7 @@ class MapNetwork(RoadNetwork):
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
-    setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane id -> how far before its end vehicles wait (> 0 only)
+    setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane -> how far before its end vehicles wait (> 0)
     conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
@@ -600,7 +617,7 @@ class MapNetwork(RoadNetwork):
         for a, b in merge_pairs(m):  # whatever their geometry or junction ids say
             conf[a].add(b)
             conf[b].add(a)
-        for a, b in road_crossings(jl, lines, road_lanes):
+        for a, b in road_crossings(jl, lines, road_lanes, m.lanes):
             conf[a].add(b)
             conf.setdefault(b, set()).add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}

@@ -65,3 +65,34 @@ def test_rules_and_traffic_core_read_one_wait_point():
     sl, in_lane, lid, d = stop_line_ahead(net, upcoming, ["R0_1", j_lane])
     assert (sl, in_lane, lid) == (None, "R0_1", j_lane)
     assert d == pytest.approx(15.0 - net.setbacks["R0_1"]) and d < 15.0 - 1.0
+
+
+def test_road_lane_across_a_junction_lanes_last_metre_conflicts():
+    """A road lane of another road, linked to nothing of the junction, drawn across the last
+    half metre of a junction lane (osm2xodr's `w669252633_0_0_-1` across `j_26026265_c55_0_-1`,
+    0.9 m before its end: scheck-in r078, where the ego crossed in c55 blind to the car on it):
+    the crossing, in the middle of the road lane, is a conflict both ways (fails without the rule:
+    a crossing within CROSSING_CLEARANCE_M of either lane's end was dropped). Lanes that join at
+    the junction's edge still cross nothing."""
+    from shapely.geometry import LineString
+
+    from feat2map.envs.network import _road_lanes, road_crossings
+
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)], seed=0)
+    jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
+    lines = [LineString(ln.centerline) for ln in jl]
+    assert road_crossings(jl, lines, _road_lanes(m), m.lanes) == []
+    # the straight J0_c1_0 ends at (19.5, -1.75); RX_0 runs north along x = 19.0 from y = -14 to 0
+    pts = np.stack([np.full(8, 19.0), np.linspace(-14.0, 0.0, 8)], 1)
+    tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+    rx = dataclasses.replace(m.lanes["R2_0"], id="RX_0", road_id="RX", centerline=tup(pts), left_boundary=tup(pts - (1.75, 0)),
+                             right_boundary=tup(pts + (1.75, 0)), predecessors=(), successors=(), left_neighbors=(),
+                             right_neighbors=(), left_reverse_neighbors=(), bezier=None)
+    road = dataclasses.replace(m.roads["R2"], id="RX", right_lanes=("RX_0",), left_lanes=(), reference=None,
+                               start_junction=None, end_junction=None)
+    m = dataclasses.replace(m, lanes={**m.lanes, "RX_0": rx}, roads={**m.roads, "RX": road})
+    pairs = road_crossings(jl, lines, _road_lanes(m), m.lanes)
+    assert ("J0_c1_0", "RX_0") in pairs and all(b == "RX_0" for _, b in pairs)
+    assert road_crossings(jl, lines, _road_lanes(m)) == []  # the ends-only rule, without the lanes
+    net = MapNetwork.from_map(m)
+    assert "RX_0" in net.conflicts["J0_c1_0"] and "J0_c1_0" in net.conflicts["RX_0"]
