@@ -75,9 +75,10 @@ def _clear_of_paths_over(ln, cl: LineString, m, s_line: float, by_junction: dict
     area = cl.buffer(ln.width / 2, cap_style="flat")
     cands = m.lanes.values() if by_junction is None else [o for j in jids for o in by_junction.get(j, ())]
     for other in cands:
-        if other.junction_id not in jids or other.id in own or other.id in ln.predecessors \
+        if other.junction_id not in jids or other.id in own or other.id in ln.predecessors or not other.predecessors \
                 or ln.id in other.successors or set(other.predecessors) & (own | {ln.id} | set(ln.predecessors)):
-            continue  # its own paths, the paths leading into it (a cluster's element around a short road)
+            continue  # its own paths, the paths leading into it (a cluster's element around a short road), and
+            # paths no lane leads into: no one drives them (CommonRoad's Guetersloh 21_0_1 starts on 36_0_-1's end)
         line = LineString(other.centerline)
         if not line.intersects(area):
             continue

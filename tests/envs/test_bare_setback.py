@@ -48,6 +48,10 @@ def test_bare_entry_waits_clear_of_a_junction_path_drawn_over_the_approach():
     assert set(net.setbacks) == {"R0_1"} and net.max_line_setback == net.setbacks["R0_1"]
     _, signalled = _redrawn("signal")
     assert net.setbacks["R0_1"] == pytest.approx(net.lane_of["R0_1"].length - signalled.stop_lines["R0_1"].s)
+    # a path no lane leads into carries no one: it sets nothing back (CommonRoad's Guetersloh
+    # 21_0_1, with no predecessor, starts on the end of the approach 36_0_-1)
+    unlinked = dataclasses.replace(m, lanes={**m.lanes, "J0_c3_0": dataclasses.replace(m.lanes["J0_c3_0"], predecessors=())})
+    assert not MapNetwork.from_map(unlinked).setbacks
     # the same junction as generated: no path over any approach, no setback anywhere
     plain = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)], seed=0)
     assert not MapNetwork.from_map(plain).setbacks
