@@ -170,11 +170,11 @@ def enters_junction(lanes: Mapping[str, Any], before: str, lane: str) -> bool:
 
 
 def line_setback(net: "MapNetwork", in_lane: str) -> float:
-    """How far before the end of incoming lane `in_lane` its stop line lies (0 at a bare entry,
-    whose line is the junction lane's start): a distance to a junction entry less this is the
-    distance to its line."""
-    sl = net.stop_lines.get(in_lane)
-    return net.lane_of[in_lane].length - sl.s if sl is not None else 0.0
+    """How far before the end of incoming lane `in_lane` vehicles wait to enter the junction
+    (`MapNetwork.setbacks`: its stop line, or at a bare entry the point clear of the junction's
+    paths drawn over the approach; 0 where the entry itself is the line): a distance to a junction
+    entry less this is the distance to its line."""
+    return net.setbacks.get(in_lane, 0.0)
 
 
 def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],

@@ -340,6 +340,13 @@ SWEEP_SPEEDS_MPS = (3.0, 6.0)  # turning speeds of the ego through junctions and
 SWEEP_STEP_S = 1 / 15  # one pose per simulation frame (the env's default simulation_frequency)
 SWEEP_LEAD_M = 20.0  # a swept car starts this far before the lane it turns into
 SWEEP_CLEARANCE_M = 0.2  # a waiting car's body keeps this far from the swept footprints
+# speed in curves, one rule for traffic (envs/core.py) and the baseline planner (scenarios/planner.py):
+# both take a curve at v <= sqrt(LATERAL_ACCEL_MPS2 * radius), from `lanes.curve_speeds`
+LATERAL_ACCEL_MPS2 = 2.5  # lateral acceleration a curve is driven at, at most
+CURVE_WINDOW_M = 4.0  # a lane's curvature for its curve speed is measured over this arc length
+CURVE_MIN_SPEED_MPS = 3.0  # no curve is taken slower (a 4 m radius at LATERAL_ACCEL_MPS2)
+CURVE_BRAKE_MPS2 = 2.0  # traffic's desired speed falls towards a curve ahead no faster than braking at this
+CURVE_BEHIND_M = 1.0  # a curve point this close behind a vehicle still limits its speed
 # the episode (envs/map_env.py): where traffic spawns
 TRAFFIC_SPAWN_TRIES = 10  # random places tried per traffic vehicle (count)
 TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other
