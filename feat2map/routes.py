@@ -8,7 +8,7 @@ import math
 from typing import Iterable, Sequence
 
 from .config import (KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M, TURNAROUND_DEG,
-                     TURNAROUND_RADIUS_M)
+                     TURNAROUND_RADIUS_M, VEHICLE_LENGTH_M)
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -128,11 +128,42 @@ def undrivable(ln: Lane) -> bool:
     return tight_uturn(ln) or tight_turnaround(ln) or loops(ln)
 
 
+def approach_room(m: HDMap, mv: Sequence[str], enough: float = VEHICLE_LENGTH_M / 2) -> float:
+    """Metres of road a car can stand on before manoeuvre `mv`'s junction: the longest chain of
+    road lanes walking back from the approach lanes of its junction lane (inf where a junction
+    lane leads into that chain: a route can start before that junction instead,
+    `envs.routes.extend_route`). Stops counting at `enough`."""
+    ln = manoeuvre_lane(m, mv)
+    if ln is None:
+        return 0.0
+    best = 0.0
+    stack = [(p, 0.0, frozenset()) for p in ln.predecessors if p in m.lanes and m.lanes[p].road_id == mv[1]]
+    while stack and best < enough:
+        lid, done, seen = stack.pop()
+        lane = m.lanes[lid]
+        if lane.junction_id is not None:
+            return math.inf
+        done += lane.length
+        best = max(best, done)
+        stack += [(p, done, seen | {lid}) for p in lane.predecessors if p in m.lanes and p not in seen]
+    return best
+
+
+def edge_stub(m: HDMap, mv: Sequence[str]) -> bool:
+    """A manoeuvre from an approach at the map's edge too short to hold a car before its junction
+    (`approach_room` under half a car: osm2xodr's 1.1 m `w850595601_0_0_1` in Testfeld, a signal
+    line at its end and nothing before it). A car can only start there with its body in the
+    junction, inside the paths of the cars turning through it, and no road leads there: no car
+    drives it."""
+    return approach_room(m, mv) < VEHICLE_LENGTH_M / 2
+
+
 def suite_manoeuvres(m: HDMap) -> list[Manoeuvre]:
     """The manoeuvres a route-coverage suite drives: `manoeuvres` without those whose junction
-    lane is `undrivable` (left out: no car turns that tightly or loops; `build_suite` says how
-    many)."""
-    return [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and not undrivable(ln)]
+    lane is `undrivable` (left out: no car turns that tightly or loops) and the `edge_stub`s (no
+    car stands before their junction); `build_suite` says how many."""
+    return [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and not undrivable(ln)
+            and not edge_stub(m, mv)]
 
 
 def _lane_manoeuvres(m: HDMap, ln: Lane) -> set[Manoeuvre]:

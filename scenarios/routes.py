@@ -15,7 +15,7 @@ from ..errors import Feat2MapError
 from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane
 from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, Route, coverage_routes, manoeuvre_lane,  # noqa: F401 (re-exported)
-                      manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room)
+                      edge_stub, manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room)
 from .scenario import Manoeuvre, Scenario, Suite
 
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
@@ -102,7 +102,8 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
     `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given.
     A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why; U-turns
     tighter than a car turns and lanes that loop (`feat2map.routes.undrivable`) are left out with
-    one warning."""
+    one warning, and so are manoeuvres from a map-edge approach too short to hold a car
+    (`feat2map.routes.edge_stub`)."""
     import warnings
 
     from ..formats import read_map
@@ -114,6 +115,11 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
         warnings.warn(f"{path}: {len(tight)} manoeuvre(s) no car drives (U-turns tighter than a car turns, lanes "
                       f"that loop) left out of the suite (first: junction {tight[0][0]}, road {tight[0][1]} -> "
                       f"{tight[0][2]})", stacklevel=2)
+    stubs = [mv for mv in manoeuvres(m) if mv not in tight and edge_stub(m, mv)]
+    if stubs:
+        warnings.warn(f"{path}: {len(stubs)} manoeuvre(s) from an approach at the map's edge too short to hold a car "
+                      f"left out of the suite (first: junction {stubs[0][0]}, road {stubs[0][1]} -> {stubs[0][2]})",
+                      stacklevel=2)
     routes = coverage_routes(m, max_junctions)
     if not routes:  # never an empty suite that "passes"
         raise Feat2MapError(_no_routes_reason(m), str(path))
