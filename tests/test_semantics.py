@@ -584,6 +584,42 @@ def test_a_stub_at_the_maps_edge_is_part_of_its_junction(four_way_xodr, tmp_path
     assert all("1" not in mv[1:] for r in coverage_routes(m) for mv in r)
 
 
+def test_an_approach_lane_at_the_maps_edge_too_short_for_a_car_is_no_route_start(four_way):
+    """osm2xodr's Testfeld `w850595601_0_0_1`: a 1.1 m approach lane of a 108 m road (the road is
+    no stub, so its junction does not take it in), with a signal line at its end and nothing
+    before it. The route-coverage suite started the ego there with its front in the junction, and
+    a car turning past swung over it (r192). A manoeuvre whose approach holds less than half a
+    car, with no lane before it, is left out of the suite (one warning); the same short lane with
+    a junction lane before it keeps its manoeuvre (the route starts before that junction)."""
+    from feat2map.routes import approach_room, coverage_routes, edge_stub, manoeuvres, suite_manoeuvres
+    from feat2map.scenarios.routes import route_coverage
+
+    ln = min((x for x in four_way.lanes.values() if x.junction_id is not None and x.turn == "none"), key=lambda x: x.id)
+    (p,) = ln.predecessors
+    a = four_way.lanes[p]
+    assert not a.predecessors and a.length > 20.0
+
+    def tail(poly):  # the lane's last 1.2 m, straight along its end heading
+        pts = np.asarray(poly, dtype=float)
+        u = (pts[-1] - pts[-2]) / np.hypot(*(pts[-1] - pts[-2]))
+        return (tuple(pts[-1] - 1.2 * u), tuple(pts[-1]))
+
+    short = replace(a, centerline=tail(a.centerline), left_boundary=tail(a.left_boundary),
+                    right_boundary=tail(a.right_boundary), bezier=None)
+    m = replace(four_way, lanes={**four_way.lanes, p: short})
+    assert short.length == pytest.approx(1.2, abs=0.05)
+    moved = {mv for mv in manoeuvres(m) if mv[1] == a.road_id}
+    assert moved and all(edge_stub(m, mv) and approach_room(m, mv) < 2.5 for mv in moved)
+    assert not any(edge_stub(four_way, mv) for mv in manoeuvres(four_way))
+    assert set(suite_manoeuvres(m)) == set(suite_manoeuvres(four_way)) - moved
+    routes = coverage_routes(m)
+    assert all(mv not in moved for r in routes for mv in r) and route_coverage(m, routes) == 1.0
+    other = next(x for x in four_way.lanes.values() if x.junction_id is not None and x.successors
+                 and x.successors[0] != p and four_way.lanes[x.successors[0]].road_id != a.road_id)
+    fed = replace(m, lanes={**m.lanes, p: replace(short, predecessors=(other.id,))})
+    assert not any(edge_stub(fed, mv) for mv in moved)  # a junction lane leads in: a route can start before it
+
+
 def test_links_between_lanes_a_few_metres_apart_are_bridged(four_way):
     """osm2xodr links lanes whose ends lie 1-5 m apart (a stretch without lane ahead, or the
     successor one lane over): a car following the lanes left the road there. The lane's last
