@@ -25,6 +25,7 @@ from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 from ..config import (EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M, MAX_LEGS, STOP_LINE_RANGE_M, TRAFFIC_LANE_END_M,
                       TRAFFIC_SPAWN_GAP_M, TRAFFIC_SPAWN_TRIES)
 from ..errors import Feat2MapError
+from ..routes import first_tight_bend
 from ..semantics import assert_sound
 from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
@@ -120,6 +121,7 @@ class MapEnv(AbstractEnv):
         self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
         self.violations = self.judge.violations
         self._progress = self.vehicle.route_distance_done()
+        self._bend_s: dict[str, float] = {}  # `_goal_s`'s lanes (this map's)
         last = self.net.lane_of[route[-1]]
         self._route_len = self.vehicle.route_length() - last.length + self._goal_s(last)
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
@@ -246,7 +248,15 @@ class MapEnv(AbstractEnv):
         return ego.s_on(ego.lane_route[-1]) >= self._goal_s(lane)
 
     def _goal_s(self, lane) -> float:
-        return min(float(self.config["goal_distance"]), lane.length - 1.0)
+        """The goal on the route's last lane: `goal_distance` into it, at most a metre before its
+        end, and never past its first bend tighter than a car turns (`first_tight_bend`): no car
+        follows the lane there. osm2xodr folds the lanes of a road at the map's edge into one
+        point (digitaf's `w648817642_1_0_-1` turns 75 degrees 0.6 m after its start, radius
+        2.7 m): the ego driving on to a goal beyond swung over the lane beside it (r214)."""
+        bends = self.__dict__.setdefault("_bend_s", {})  # lane -> its first tight bend, found once
+        if lane.lane_id not in bends:
+            bends[lane.lane_id] = max(first_tight_bend(lane.points), 0.0)
+        return min(float(self.config["goal_distance"]), lane.length - 1.0, bends[lane.lane_id])
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:

@@ -13,7 +13,7 @@ import ctypes
 import gc
 import heapq
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 import numpy as np
@@ -31,7 +31,7 @@ from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEA
 from ..errors import Feat2MapError
 from ..model import HDMap, Lane, incoming_lanes
 from .lanes import PolylineLane, project_rows, segment_table
-from .sweep import stretches
+from .sweep import stretches, turn_setbacks
 
 GRID_CELL_M = 8.0
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
@@ -577,6 +577,10 @@ class MapNetwork(RoadNetwork):
             s = min(length, _clear_of_paths_over(ln, LineString(ln.centerline), m, length, by_junction))
             if length - s > 0.0:
                 self.setbacks[lid] = length - s
+        for lid, back in turn_setbacks(self, self.setbacks, sorted(set(self.stop_lines) | bare)).items():
+            self.setbacks[lid] = back  # out of the swept path of a turn tighter than a car turns
+            if lid in self.stop_lines:
+                self.stop_lines[lid] = replace(self.stop_lines[lid], s=self.lane_of[lid].length - back)
         self.max_line_setback = max(self.setbacks.values(), default=0.0)
 
     def _build_controls(self, road_lanes: RoadLanes) -> None:

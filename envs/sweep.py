@@ -27,8 +27,9 @@ import shapely
 from shapely import STRtree
 
 from ..angles import wrap_angle
-from ..config import (SWEEP_CLEARANCE_M, SWEEP_LEAD_M, SWEEP_SPEEDS_MPS, SWEEP_STEP_S, VEHICLE_LENGTH_M,
-                      VEHICLE_WIDTH_M)
+from ..config import (STOP_POINT_M, SWEEP_CLEARANCE_M, SWEEP_LEAD_M, SWEEP_SPEEDS_MPS, SWEEP_STEP_S,
+                      TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
+from ..routes import sharpest_radius
 from .lanes import PolylineLane
 
 if TYPE_CHECKING:
@@ -180,3 +181,78 @@ def swept_head(spans: list[tuple[float, float]] | None, length: float) -> float:
     if not spans or spans[0][0] > 0.0:
         return 0.0
     return max(spans[0][1] + SAMPLE_M - length / 2, 0.0)
+
+
+def turn_setbacks(net: "MapNetwork", setbacks: dict[str, float], waits: list[str]) -> dict[str, float]:
+    """Wait points of junction entries moved back out of the swept path of junction turns tighter
+    than a car turns: incoming lane -> its new setback (how far before its end cars wait), only
+    where it grows. osm2xodr's turns of 3-5 m radius (digitaf's `j_360700741_c305_0_-1`, a left
+    turn of 4.9 m radius onto the 16 m `w798909041_0_0_-1`): the lane keeping leaves such a turn
+    with its heading up to 30 degrees behind its lane, and its front corner swept over the car
+    waiting at the opposite lane's line 2.8 m away (digitaf r178). The design vehicle (`sweep`, at
+    SWEEP_SPEEDS_MPS) drives every path into and out of each junction lane whose `sharpest_radius`
+    is under TIGHT_BEND_RADIUS_M and that passes within reach of a wait; a car waiting at an
+    entry stands clear of those footprints by SWEEP_CLEARANCE_M, its own paths and those of the
+    cars behind it left out. Only tight turns are driven, and only those near a wait, so the cost
+    stays with the maps that have them (generated maps have none)."""
+    m = net.hdmap
+    tight = [ln for ln in m.lanes.values() if ln.junction_id is not None and ln.id in net.lane_of
+             and sharpest_radius(ln) < TIGHT_BEND_RADIUS_M]
+    if not tight or not waits:
+        return {}
+    reach = VEHICLE_LENGTH_M + VEHICLE_WIDTH_M
+    look = 3 * VEHICLE_LENGTH_M  # a wait may move back this far
+    spots = []  # (lane id, first and last centre position a waiting car may take)
+    for lid in waits:
+        lane = net.lane_of[lid]
+        line = lane.length - setbacks.get(lid, 0.0)
+        hi = line - STOP_POINT_M - VEHICLE_LENGTH_M / 2
+        if hi > 0.0:
+            spots.append((lid, max(hi - look, 0.0), hi))
+    if not spots:
+        return {}
+    areas = [shapely.LineString([net.lane_of[lid].position(c, 0.0) for c in _cut(net.lane_of[lid], lo, hi)])
+             if hi - lo > 1e-6 else shapely.Point(net.lane_of[lid].position(hi, 0.0)) for lid, lo, hi in spots]
+    tree = STRtree(areas)
+    near: dict[str, set[int]] = {}
+    for ln in tight:
+        ends = [ln.centerline[0], *ln.centerline, *[net.lane_of[n].position(min(SWEEP_LEAD_M, net.lane_of[n].length), 0.0)
+                                                    for n in ln.successors if n in net.lane_of]]
+        path = shapely.LineString(np.asarray(ends, dtype=float)[:, :2])
+        hits = tree.query(path, predicate="dwithin", distance=reach)
+        if len(hits):
+            near[ln.id] = {int(i) for i in hits}
+    out: dict[str, float] = {}
+    if not near:
+        return out
+    feet: dict[int, list] = {}
+    for jid, idx in near.items():
+        ln = m.lanes[jid]
+        paths = [((p, jid), _joined(net, p, jid, net.lane_of[jid].length), max(net.lane_of[p].length - SWEEP_LEAD_M, 0.0))
+                 for p in ln.predecessors if p in net.lane_of]
+        paths += [((jid, n), _joined(net, jid, n, SWEEP_LEAD_M), 0.0) for n in ln.successors if n in net.lane_of]
+        for ids, path, s0 in paths:
+            poses = np.array([pose for speed in SWEEP_SPEEDS_MPS for pose in sweep(path, speed, s0)])
+            prints = footprints(poses)
+            for i in idx:
+                lid = spots[i][0]
+                own = {lid, *m.lanes[lid].predecessors, *m.lanes[lid].successors}
+                if own & set(ids):
+                    continue  # its own paths, and those of the cars behind it
+                feet.setdefault(i, []).append(prints)
+    for i, parts in feet.items():
+        lid, lo, hi = spots[i]
+        lane = net.lane_of[lid]
+        every = np.concatenate(parts)
+        centres = np.arange(hi, lo - 1e-9, -SAMPLE_M)
+        mine = footprints(np.array([(*lane.position(c, 0.0), lane.heading_at(c)) for c in centres]))
+        hit = np.zeros(len(centres), dtype=bool)
+        hit[np.unique(STRtree(every).query(mine, predicate="dwithin", distance=SWEEP_CLEARANCE_M)[0])] = True
+        if not hit[0]:
+            continue
+        clear = np.flatnonzero(~hit)
+        if not len(clear):
+            continue  # no place clear of the sweep within reach: the wait keeps its place
+        c = float(centres[clear[0]])
+        out[lid] = lane.length - (c + VEHICLE_LENGTH_M / 2 + STOP_POINT_M)
+    return out

@@ -8,7 +8,7 @@ import math
 from typing import Iterable, Sequence
 
 from .config import (KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M, TURNAROUND_DEG,
-                     TURNAROUND_RADIUS_M, VEHICLE_LENGTH_M)
+                     TURNAROUND_RADIUS_M, TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M)
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
@@ -79,13 +79,20 @@ def sharpest_radius(ln: Lane, window: float = TURN_WINDOW_M) -> float:
     from each segment to the first one at least `window` metres further on (midpoint to
     midpoint: a kink counts over the stretch around it, a coarse polyline over its segments),
     as distance / change; inf for a straight lane."""
+    _, radius = turn_radii(ln.centerline, window)
+    return float(radius.min()) if len(radius) else math.inf
+
+
+def turn_radii(points, window: float = TURN_WINDOW_M):
+    """(arc length where each stretch of `sharpest_radius` begins, its radius [m]) along a
+    polyline: empty arrays for fewer than two segments."""
     import numpy as np
 
-    pts = np.asarray(ln.centerline, dtype=float)[:, :2]
+    pts = np.asarray(points, dtype=float)[:, :2]
     seg = np.hypot(*np.diff(pts, axis=0).T)
     keep = seg > 1e-6
     if keep.sum() < 2:
-        return math.inf
+        return np.zeros(0), np.zeros(0)
     d = np.diff(pts, axis=0)[keep]
     s = np.concatenate([[0.0], np.cumsum(seg[keep])])
     heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))  # heading of segment k, from s[k] to s[k + 1]
@@ -93,8 +100,15 @@ def sharpest_radius(ln: Lane, window: float = TURN_WINDOW_M) -> float:
     k = np.arange(len(mid) - 1)
     j = np.maximum(np.searchsorted(mid, mid[:-1] + window, side="left"), k + 1).clip(max=len(mid) - 1)
     change = np.abs(heading[j] - heading[k])
-    radius = (mid[j] - mid[k]) / np.maximum(change, 1e-12)
-    return float(radius.min())
+    return s[:-1][k], (mid[j] - mid[k]) / np.maximum(change, 1e-12)
+
+
+def first_tight_bend(points, radius: float = TIGHT_BEND_RADIUS_M) -> float:
+    """Arc length [m] along a polyline where its first bend tighter than `radius` (a car's
+    turning radius) begins; inf where it has none. No car follows the line past it."""
+    at, radii = turn_radii(points)
+    tight = radii < radius
+    return float(at[tight][0]) if tight.any() else math.inf
 
 
 def loops(ln: Lane, limit: float = MAX_TURN_DEG) -> bool:
