@@ -35,7 +35,7 @@ STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| at most this is "straight"
 UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150):
 # the turn of lanes whose map declares none (OpenDRIVE reader, `angles.turn_name`) and the CommonRoad export's turn sets
 MIN_UTURN_RADIUS_M = 5.05386147161  # a U-turn tighter than this (Apollo's default car's turn radius) is no suite manoeuvre
-TIGHT_BEND_RADIUS_M = MIN_UTURN_RADIUS_M  # a bend tighter than a car turns: swept for waits beside junction turns, no goal past it
+TIGHT_BEND_RADIUS_M = MIN_UTURN_RADIUS_M  # a bend tighter than a car turns: swept for waits beside it, no goal past it
 TURN_WINDOW_M = 3.0  # a lane's sharpest turn: the heading change over this much of its centreline (a car's wheelbase)
 KINK_RADIUS_M = 2.0  # a U-turn whose sharpest turn is tighter than this kinks (the env's cars leave the road there)
 MAX_TURN_DEG = 270.0  # a junction lane whose heading turns further than this (unwrapped) loops: no suite manoeuvre

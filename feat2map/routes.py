@@ -151,7 +151,8 @@ def approach_room(m: HDMap, mv: Sequence[str], enough: float = VEHICLE_LENGTH_M 
     if ln is None:
         return 0.0
     best = 0.0
-    stack = [(p, 0.0, frozenset()) for p in ln.predecessors if p in m.lanes and m.lanes[p].road_id == mv[1]]
+    stack: list[tuple[str, float, frozenset[str]]] = [(p, 0.0, frozenset()) for p in ln.predecessors
+                                                      if p in m.lanes and m.lanes[p].road_id == mv[1]]
     while stack and best < enough:
         lid, done, seen = stack.pop()
         lane = m.lanes[lid]
