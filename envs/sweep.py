@@ -232,13 +232,13 @@ def turn_setbacks(net: "MapNetwork", setbacks: dict[str, float], waits: list[str
                  for p in ln.predecessors if p in net.lane_of]
         paths += [((jid, n), _joined(net, jid, n, SWEEP_LEAD_M), 0.0) for n in ln.successors if n in net.lane_of]
         for ids, path, s0 in paths:
-            poses = np.array([pose for speed in SWEEP_SPEEDS_MPS for pose in sweep(path, speed, s0)])
-            prints = footprints(poses)
-            for i in idx:
-                lid = spots[i][0]
-                own = {lid, *m.lanes[lid].predecessors, *m.lanes[lid].successors}
-                if own & set(ids):
-                    continue  # its own paths, and those of the cars behind it
+            # a wait's own paths, and those of the cars behind it, are left out
+            others = [i for i in idx if not {spots[i][0], *m.lanes[spots[i][0]].predecessors,
+                                             *m.lanes[spots[i][0]].successors} & set(ids)]
+            if not others:
+                continue
+            prints = footprints(np.array([pose for speed in SWEEP_SPEEDS_MPS for pose in sweep(path, speed, s0)]))
+            for i in others:
                 feet.setdefault(i, []).append(prints)
     for i, parts in feet.items():
         lid, lo, hi = spots[i]
