@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..config import (AMBER_BRAKE_MPS2, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
+from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
                       IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
                       LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
                       MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
@@ -138,6 +138,28 @@ def stops_at_amber(distance, speed):
     """At amber a vehicle stays when it can stop before the line (else it goes through); floats
     or arrays (elementwise)."""
     return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
+
+
+def amber_arrival_speed(distance, line_speed: float, amber_s: float):
+    """The lowest speed at `distance` (float or array) before a signal's line from which a
+    vehicle that goes at amber onset crosses the line before red: holding its speed, or slowing
+    steadily to `line_speed` at the line (a turn's curve speed behind it) once faster than that."""
+    d = np.asarray(distance, dtype=float)
+    hold = d / amber_s
+    return np.where(hold <= line_speed, hold, 2 * d / amber_s - line_speed)
+
+
+def amber_speed_cap(distance, speed: float, line_speed: float, amber_s: float):
+    """The highest speed a vehicle now at `speed` may have at `distance` (float or array) before a
+    signal's line while it is green, so that an amber beginning there never finds it in the
+    dilemma zone: where it would be too slow to cross before red (`amber_arrival_speed`,
+    slowing to `line_speed` for the turn behind the line) it must be slow enough that
+    `stops_at_amber` stops it (plus AMBER_CAP_MARGIN_M); inf where its speed crosses in time.
+    (The go at amber assumed the speed held to the line while a turn was slowed for behind it:
+    SVL San Francisco 2019, 20 m/s on every lane, crossed 0.05-0.6 s after red.)"""
+    d = np.asarray(distance, dtype=float)
+    stop = np.sqrt(2 * AMBER_BRAKE_MPS2 * np.maximum(d - 1.0 - AMBER_CAP_MARGIN_M, 0.0))
+    return np.where(speed < amber_arrival_speed(d, line_speed, amber_s), stop, math.inf)
 
 
 def in_stop_zone(distance_to_line: float) -> bool:
