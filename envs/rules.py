@@ -154,12 +154,16 @@ def amber_speed_cap(distance, speed: float, line_speed: float, amber_s: float):
     signal's line while it is green, so that an amber beginning there never finds it in the
     dilemma zone: where it would be too slow to cross before red (`amber_arrival_speed`,
     slowing to `line_speed` for the turn behind the line) it must be slow enough that
-    `stops_at_amber` stops it (plus AMBER_CAP_MARGIN_M); inf where its speed crosses in time.
+    `stops_at_amber` stops it (plus AMBER_CAP_MARGIN_M); inf where its speed crosses in time or
+    where it is too near the line to stop at all.
     (The go at amber assumed the speed held to the line while a turn was slowed for behind it:
     SVL San Francisco 2019, 20 m/s on every lane, crossed 0.05-0.6 s after red.)"""
     d = np.asarray(distance, dtype=float)
-    stop = np.sqrt(2 * AMBER_BRAKE_MPS2 * np.maximum(d - 1.0 - AMBER_CAP_MARGIN_M, 0.0))
-    return np.where(speed < amber_arrival_speed(d, line_speed, amber_s), stop, math.inf)
+    room = d - 1.0 - AMBER_CAP_MARGIN_M
+    stop = np.sqrt(2 * AMBER_BRAKE_MPS2 * np.maximum(room, 0.0))
+    # (nearer than the stop rule's own metre and the margin no speed stops: no cap, or a car
+    # creeping up to the line on green would be held there)
+    return np.where((room > 0) & (speed < amber_arrival_speed(d, line_speed, amber_s)), stop, math.inf)
 
 
 def in_stop_zone(distance_to_line: float) -> bool:
