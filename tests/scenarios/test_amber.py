@@ -43,7 +43,8 @@ def test_go_at_amber_must_cross_before_red():
 @pytest.fixture(scope="module")
 def fast_turn(tmp_path_factory):
     """A generated signalled 4-way junction whose lanes all declare 20 m/s, with 120 m
-    approaches, and the ego's route through its right turn (a 12 m radius: 5.5 m/s)."""
+    approaches, and the ego's route through its right turn (29 m turning 87 degrees), started
+    100 m before the line at 20 m/s."""
     cfg = GenerationConfig(speed_limit=FAST, junction_speed_limit=FAST, stub_length=120.0, grid_gap=300.0)
     m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "signal", False)],
                                         seed=0, config=cfg)
@@ -79,9 +80,9 @@ def _drive(sc: Scenario, amber_at: float) -> dict:
 
 @pytest.mark.parametrize("amber_at", [2.0, 2.2, 2.4, 2.6])
 def test_a_fast_approach_to_a_tight_turn_never_runs_the_red(fast_turn, amber_at):
-    """Without the cap the ego, braking from 20 m/s for the turn since 50 m out, met these
-    ambers 36-45 m before the line: too close to stop at 3 m/s^2, too slow to cross in 3 s; it
-    went and crossed on red. It now approaches slowly enough to stop at any amber."""
+    """Without the cap these ambers found the ego 48-60 m before the line at 20 m/s: too close
+    to stop at 3 m/s^2 (68 m), and braking for the turn it crossed the line on red (at 4.8-8.3
+    m/s). It now meets them at 16-17 m/s, stops, and turns on the next green."""
     info = _drive(fast_turn, amber_at)
     assert info["violations"]["red_light"] == 0
     assert not info["collision"]
