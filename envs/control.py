@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S
+from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOP_POINT_M
 from ..phases import junction_phases
 from .network import MapNetwork
-from .rules import TrafficRules, has_stopped
+from .rules import TrafficRules, commits, has_stopped
 from .vehicles import Pedestrian
 
 
@@ -133,6 +133,7 @@ class TrafficControl(TrafficRules):
         self.buckets: dict[str, list] = {}
         self.passage_holders: dict[int, tuple[set, set]] = {}
         self.passage_waiters: dict[int, dict] = {}
+        self.passage_rooms: dict[tuple[int, int], set] = {}
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
     def update(self, road, dt: float, occupancy: tuple[list, list, list[int]] | None = None) -> None:
@@ -191,8 +192,14 @@ class TrafficControl(TrafficRules):
         """Road users within a narrow passage hold it from their side; holders and waiters that
         left the road or whose route no longer leads into it let go, and so do holders whose rear
         has passed the passage's end (one standing beyond it, at the junction after it, held it
-        against the car waiting to come the other way: digitaf r025)."""
+        against the car waiting to come the other way: digitaf r025), and those that drove through
+        it and out onto a road lane beyond it, where their route loops back into it, unless a new
+        claim would hold it now (a car circling a block held the passage from behind the cars
+        waiting for it: Testfeld_Karlsruhe r142; dropped as it came round again, its claim was
+        lost to a car from the other side: digitaf r022). A place to wait before a passage
+        (`passage_rooms`) is given up on holding that passage or leaving its way."""
         net = self.net
+        lanes = net.hdmap.lanes
         for lid, users in buckets.items():
             ps = net.passages.get(lid)
             if ps is None:
@@ -210,6 +217,15 @@ class TrafficControl(TrafficRules):
                 lid = net.id_of.get(getattr(v, "lane_index", None))
                 ps = net.passages.get(lid) if lid is not None else None
                 return ps is not None and ps.group == group
+            here = route[v.route_pos]
+            if lanes[here].junction_id is None and getattr(net.passages.get(here), "group", None) != group and \
+                    any(getattr(net.passages.get(x), "group", None) == group and net.passages[x].side == side
+                        for x in route[:v.route_pos]):
+                # through it and out on the road beyond: it holds it again only as a new claim would
+                # (near its wait for the loop back into it, and nobody from the other side first)
+                nxt = self.passage_ahead(v, entered=True)
+                return nxt is not None and (group, side) in nxt[0] and \
+                    commits(nxt[1] + STOP_POINT_M, v.speed) and self.passage_allows(v, nxt[0], commit=False)
             for k, lid in enumerate(route[v.route_pos:]):
                 ps = net.passages.get(lid)
                 if ps is not None and ps.group == group and ps.side == side and \
@@ -223,6 +239,9 @@ class TrafficControl(TrafficRules):
         for g, waiters in self.passage_waiters.items():
             for v in [v for v, (side, _) in waiters.items() if not ahead(v, g, side)]:
                 del waiters[v]
+        for (g, side), users in self.passage_rooms.items():  # a place to wait is given up on entering
+            held = self.passage_holders.get(g, ((), ()))[side]
+            users.intersection_update([v for v in users if v not in held and ahead(v, g, side)])
 
     def _update_pedestrians(self, road, vehicles, dt: float) -> None:
         rate = self.cfg["pedestrian_rate"] / 60.0

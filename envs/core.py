@@ -60,9 +60,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config import (IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M, LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M,
-                      STOP_POINT_M)
+from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M,
+                      LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
 from .control import signal_arrays, states_at
+from .lanes import curve_speeds
 from .network import MapNetwork
 from .rules import (has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, room_to_wait,
                     stop_gap, stops_at_amber)
@@ -111,6 +112,14 @@ class LaneTable:
         self.ax, self.ay = pts[:, 0].copy(), pts[:, 1].copy()
         self.ux, self.uy = u[:, 0].copy(), u[:, 1].copy()
         self.vh = np.concatenate([ln.vertex_heading for ln in lanes])
+        # curves: at each vertex the least of v_c^2 + 2 b s over it and the lane's later vertices
+        # (v_c its `curve_speeds`, s its arc length on its lane, b CURVE_BRAKE_MPS2), so that the
+        # speed a vehicle at s may have to brake to every curve ahead on the lane is
+        # sqrt(curve_q[next vertex] - 2 b s), one lookup (`TrafficCore.curve_limit`)
+        q = [np.minimum.accumulate((curve_speeds(ln) ** 2 + 2 * CURVE_BRAKE_MPS2 * ln.cum)[::-1])[::-1]
+             for ln in lanes]
+        self.curve_q = np.concatenate(q)
+        self.last_vertex = self.first + npts - 1
         # junction lanes that conflict with or diverge from each other, per junction as a dense
         # matrix (the relation never leaves a junction): near[joff[j] + a * jsize[j] + b]
         self.jid = np.full(len(lanes), -1, dtype=np.int64)
@@ -164,7 +173,8 @@ class LaneTable:
             k = self.index[lid]
             self.line_kind[k] = 1 if sl.kind == "signal" else 2
             self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
-            self.line_setback[k] = net.lane_of[lid].length - sl.s
+        for lid, back in net.setbacks.items():  # stop lines and bare entries alike (rules.line_setback)
+            self.line_setback[self.index[lid]] = back
         # lane-pair tables (`pair`), concatenated: where a road user on lane b is seen from lane a
         self._pairs: dict[tuple[int, int], tuple[int, int, float]] = {}  # (a, b) -> (start, samples, step)
         self.pair_sa = self.pair_ra = np.zeros(0)
@@ -720,7 +730,7 @@ class TrafficCore:
         self._refresh_windows()
         t = self.table
         v = np.maximum(self.speed, 0.0)
-        free = idm_free(v, t.speed_limit[self.lane])
+        free = idm_free(v, np.minimum(t.speed_limit[self.lane], self.curve_limit()))
         acc = IDM_ACC * free
         fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
         si, sd = self._rule_stops(self._rule_rows(driven))
@@ -738,6 +748,25 @@ class TrafficCore:
             np.minimum.at(acc, fi, idm_behind(free[fi], v[fi], vl, gap, s0))
         acc = np.where(self.controlled, self.command, idm_clip(acc))
         self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
+
+    def curve_limit(self) -> np.ndarray:
+        """Per row, the highest speed from which it can brake at CURVE_BRAKE_MPS2 to every curve
+        of its window at that curve's comfortable speed (`lanes.curve_speeds`; curve points up
+        to CURVE_BEHIND_M behind it count), never below CURVE_MIN_SPEED_MPS: traffic's desired
+        speed, as the baseline planner slows for curves. One lookup per window lane (LaneTable's
+        `curve_q`), no scan over lanes or vertices."""
+        t = self.table
+        lane = np.maximum(self.lane, 0)
+        s = self.s
+        j = np.searchsorted(t.G, t.offset[lane] + s - CURVE_BEHIND_M, side="left")
+        own = np.where(j <= t.last_vertex[lane], t.curve_q[np.minimum(j, len(t.G) - 1)], math.inf)
+        v2 = own - 2 * CURVE_BRAKE_MPS2 * s
+        if self.W.shape[1] > 1:
+            W, C = self.W[:, 1:], self.C[:, 1:]
+            ahead = C - s[:, None]
+            q = np.where((W >= 0) & (ahead <= LOOKAHEAD_M), t.curve_q[t.first[np.maximum(W, 0)]], math.inf)
+            v2 = np.minimum(v2, (q + 2 * CURVE_BRAKE_MPS2 * ahead).min(axis=1))
+        return np.sqrt(np.maximum(v2, CURVE_MIN_SPEED_MPS ** 2))
 
     def _leaders(self, driven: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(follower row, bumper gap, leader speed) of every road user in a driven row's way
@@ -861,7 +890,7 @@ class TrafficCore:
         d_e = D[np.arange(n), ke]
         in_lane = lanes[np.arange(n), ke - 1]
         j_lane = lanes[np.arange(n), ke]
-        d_line = np.where(t.line_kind[in_lane] > 0, d_e - t.line_setback[in_lane], d_e)
+        d_line = d_e - t.line_setback[in_lane]
         reach = simple & (d_e <= LOOKAHEAD_M)  # else the scan ends before the entry: free
         state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
         signal = reach & (t.line_signal[in_lane] >= 0)  # a signal not in the map has no plan: green

@@ -15,7 +15,8 @@ import math
 import numpy as np
 from highway_env.road.lane import AbstractLane, LineType
 
-from ..config import FOLD_SEGMENT_M, FOLD_TURN_DEG
+from ..angles import wrap_angle
+from ..config import CURVE_MIN_SPEED_MPS, CURVE_WINDOW_M, FOLD_SEGMENT_M, FOLD_TURN_DEG, LATERAL_ACCEL_MPS2
 
 
 def unfold(pts: np.ndarray) -> np.ndarray:
@@ -39,6 +40,8 @@ def unfold(pts: np.ndarray) -> np.ndarray:
 
 class PolylineLane(AbstractLane):
     """A lane whose centreline is a polyline (highway-env frame: y down), constant width."""
+
+    curve_speed: np.ndarray | None = None  # `curve_speeds(self)`, made on first use
 
     def __init__(self, points: np.ndarray, width: float = 3.5, line_types=(LineType.NONE, LineType.NONE),
                  forbidden: bool = False, speed_limit: float = 20.0, priority: int = 0,
@@ -146,6 +149,34 @@ class PolylineLane(AbstractLane):
 
     def __repr__(self) -> str:
         return f"PolylineLane({self.lane_id!r}, length={self.length:.1f})"
+
+
+def curve_speeds(lane: PolylineLane) -> np.ndarray:
+    """The comfortable speed at each vertex of `lane` (at `lane.cum`): sqrt(LATERAL_ACCEL_MPS2 /
+    curvature), never below CURVE_MIN_SPEED_MPS. Curvature is the turn between the chords over
+    the CURVE_WINDOW_M around each vertex (kept inside the lane), so polyline kinks and zig-zags
+    of read maps do not read as sharp curves. Computed once per lane (the lane is fixed once
+    built); the one curve rule of traffic (envs/core.py) and the baseline planner."""
+    if lane.curve_speed is not None:
+        return lane.curve_speed
+    s = lane.cum
+    w = min(CURVE_WINDOW_M, float(s[-1]))
+    mid = np.clip(s, w / 2, s[-1] - w / 2)
+    a, b, c = (_points(lane, xs) for xs in (mid - w / 2, mid, mid + w / 2))
+    h1 = np.arctan2(*(b - a).T[::-1])
+    h2 = np.arctan2(*(c - b).T[::-1])
+    turn = np.abs(wrap_angle(h2 - h1))
+    speed = np.maximum(np.sqrt(LATERAL_ACCEL_MPS2 * (w / 2) / np.maximum(turn, 1e-6)), CURVE_MIN_SPEED_MPS)
+    lane.curve_speed = speed
+    return speed
+
+
+def _points(lane: PolylineLane, s: np.ndarray) -> np.ndarray:
+    """[len(s), 2]: `lane.position(x, 0.0)` of each x in `s`, with the same arithmetic."""
+    i = np.minimum(np.maximum(np.searchsorted(lane.cum, s, side="right") - 1, 0), lane._n - 1)
+    ds = s - lane.cum[i]
+    return np.stack([lane._ax[i] + ds * lane._ux[i] - 0.0 * lane._uy[i],
+                     lane._ay[i] + ds * lane._uy[i] + 0.0 * lane._ux[i]], axis=1)
 
 
 def segment_table(lanes: list) -> tuple[np.ndarray, ...]:

@@ -14,6 +14,7 @@ import gc
 import heapq
 import math
 from dataclasses import dataclass, field
+from typing import Any, Mapping
 
 import numpy as np
 from highway_env.road.lane import LineType
@@ -30,6 +31,7 @@ from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEA
 from ..errors import Feat2MapError
 from ..model import HDMap, Lane, incoming_lanes
 from .lanes import PolylineLane, project_rows, segment_table
+from .sweep import stretches
 
 GRID_CELL_M = 8.0
 _LINE = {"solid_white": LineType.CONTINUOUS_LINE, "solid_yellow": LineType.CONTINUOUS_LINE,
@@ -56,6 +58,37 @@ def _clear_of_crossings(ln, cl: LineString, road_lanes: "RoadLanes") -> float:
         for g in getattr(inter, "geoms", [inter]):
             for p in g.coords:
                 best = min(best, cl.project(Point(p)) - other.width / 2 - CROSSING_CLEARANCE_M)
+    return max(best, 0.0)
+
+
+def _clear_of_paths_over(ln, cl: LineString, m, s_line: float, by_junction: dict | None = None) -> float:
+    """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
+    clear of the junction's lanes from other approaches that run over `ln` itself (within its half
+    width) where a car waiting at `s_line` stands (its length before the line): where such a lane
+    comes onto `ln` there, less half its width and CROSSING_CLEARANCE_M; inf when none does.
+    osm2xodr draws a cluster's paths over the last metre of an approach (scheck-in's
+    `j_14959944_c98` passes 0.9 m from the centre of `w268002703_2_0_-1` at its line): the car
+    waiting there stood in their way. `by_junction` (junction id -> its lanes) spares a scan of
+    every lane of the map."""
+    own = set(ln.successors)
+    jids = {m.lanes[s].junction_id for s in own if s in m.lanes} - {None}
+    best = math.inf
+    area = cl.buffer(ln.width / 2, cap_style="flat")
+    cands = m.lanes.values() if by_junction is None else [o for j in jids for o in by_junction.get(j, ())]
+    for other in cands:
+        if other.junction_id not in jids or other.id in own or other.id in ln.predecessors or not other.predecessors \
+                or ln.id in other.successors or set(other.predecessors) & (own | {ln.id} | set(ln.predecessors)):
+            continue  # its own paths, the paths leading into it (a cluster's element around a short road), and
+            # paths no lane leads into: no one drives them (CommonRoad's Guetersloh 21_0_1 starts on 36_0_-1's end)
+        line = LineString(other.centerline)
+        if not line.intersects(area):
+            continue
+        inter = line.intersection(area)
+        for g in getattr(inter, "geoms", [inter]):
+            for p in getattr(g, "coords", []):
+                s = cl.project(Point(p))
+                if s >= s_line - VEHICLE_LENGTH_M:
+                    best = min(best, s - other.width / 2 - CROSSING_CLEARANCE_M)
     return max(best, 0.0)
 
 
@@ -176,13 +209,28 @@ def converging_pairs(m: HDMap, road_lanes: "RoadLanes | None" = None) -> list[tu
     return sorted(out)
 
 
-def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -> list[tuple[str, str]]:
+def _meets(lanes: Mapping[str, Any], ln, rd) -> bool:
+    """Whether road lane `rd` meets junction lane `ln` where lanes join at a junction's edge: it
+    links to a lane of `ln`'s junction, lies on the road of one of `ln`'s own links, or shares a
+    successor or predecessor with it (a merge or a split, not a crossing)."""
+    links = (*rd.predecessors, *rd.successors)
+    return any(x in lanes and lanes[x].junction_id == ln.junction_id for x in links) \
+        or rd.road_id in {lanes[x].road_id for x in (*ln.predecessors, *ln.successors) if x in lanes} \
+        or bool(set(rd.successors) & set(ln.successors) or set(rd.predecessors) & set(ln.predecessors))
+
+
+def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes",
+                   lanes: Mapping[str, Any] | None = None) -> list[tuple[str, str]]:
     """(junction lane, road lane) pairs whose centrelines cross, at least CROSSING_CLEARANCE_M
-    from either lane's ends (not where a road lane meets its junction): a junction lane that
+    from either lane's ends where the road lane meets the junction lane (`_meets`: lanes joining
+    at the junction's edge touch there), else (`lanes`, the map's lanes, given) from the ends of
+    one of them (ends that touch are where lanes join, declared or not): a junction lane that
     runs out of its junction across a road lane (USA_Lanker's 35.5 m 41_0_-1 across 47_0_-1, a
-    road lane just after the junction). They conflict like two junction lanes, and a vehicle
-    entering the junction towards that road lane claims it with its junction lanes
-    (`TrafficRules.junction_chain`)."""
+    road lane just after the junction), or a road lane of another road
+    that osm2xodr draws across a junction lane's last metre (scheck-in's `w669252633_0_0_-1`
+    across `j_26026265_c55_0_-1`, 0.9 m before its end: r078). They conflict like two junction
+    lanes, and a vehicle entering the junction towards that road lane claims it with its
+    junction lanes (`TrafficRules.junction_chain`)."""
     roads, rlines, tree = road_lanes
     out: list[tuple[str, str]] = []
     if not rlines or not lines:
@@ -197,7 +245,8 @@ def road_crossings(jl: list, lines: list[LineString], road_lanes: "RoadLanes") -
             pt = Point(p)
             sa, sb = lines[i].project(pt), rlines[k].project(pt)
             c = CROSSING_CLEARANCE_M
-            if c <= sa <= lines[i].length - c and c <= sb <= rlines[k].length - c:
+            mid_a, mid_b = c <= sa <= lines[i].length - c, c <= sb <= rlines[k].length - c
+            if (mid_a and mid_b) or ((mid_a or mid_b) and lanes is not None and not _meets(lanes, ln, rd)):
                 out.append((ln.id, rd.id))
                 break
     return out
@@ -272,12 +321,14 @@ class MapNetwork(RoadNetwork):
     id_of: dict[LaneIndex, str] = field(default_factory=dict)
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
+    setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane -> how far before its end vehicles wait (> 0)
     conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
-    max_line_setback: float = 0.0  # the farthest a stop line lies before its lane's end [m]
+    max_line_setback: float = 0.0  # the farthest a wait point (`setbacks`) lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
     merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
+    swept: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # passage lane -> `sweep.stretches`
     _memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     def near_lanes(self, lane_id: str) -> frozenset[str]:
@@ -378,6 +429,8 @@ class MapNetwork(RoadNetwork):
         road_lanes = _road_lanes(m)
         net._build_controls(road_lanes)
         net._build_passages(road_lanes)
+        if net.passages:
+            net.swept = stretches(net)
         net._build_merges(road_lanes)
         problems = unregistered_merges(net) + unguarded_coincident_lanes(net)  # sound by construction: asserted
         if problems:
@@ -503,6 +556,29 @@ class MapNetwork(RoadNetwork):
         hw = min(VEHICLE_WIDTH_M / 2 + TRACKING_MARGIN_M, max(ln.width / 2 - 0.1, VEHICLE_WIDTH_M / 2))
         return np.stack([centre + a * hl * u + b * hw * n for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))], axis=1)
 
+    def _build_setbacks(self) -> None:
+        """`setbacks`, the one source of every junction entry's wait point: a stop line's distance
+        before its lane's end, and at a bare entry (no line) the same clearance a line gets from
+        the junction's paths drawn over the approach (`_clear_of_paths_over`). osm2xodr draws a
+        cluster's paths over bare approaches too: durlacher-tor's `j_14892149_c16` crosses
+        `w656222580_0_0_-1` 0.8 m before its end, where a car waiting at the entry stood."""
+        m = self.hdmap
+        for lid, sl in self.stop_lines.items():
+            if self.lane_of[lid].length - sl.s > 0.0:
+                self.setbacks[lid] = self.lane_of[lid].length - sl.s
+        by_junction: dict[str, list] = {}
+        for ln in m.lanes.values():
+            if ln.junction_id is not None:
+                by_junction.setdefault(ln.junction_id, []).append(ln)
+        bare = {p for lanes in by_junction.values() for jl in lanes for p in jl.predecessors
+                if p in m.lanes and m.lanes[p].junction_id is None and p not in self.stop_lines and p in self.lane_of}
+        for lid in sorted(bare):
+            ln, length = m.lanes[lid], self.lane_of[lid].length
+            s = min(length, _clear_of_paths_over(ln, LineString(ln.centerline), m, length, by_junction))
+            if length - s > 0.0:
+                self.setbacks[lid] = length - s
+        self.max_line_setback = max(self.setbacks.values(), default=0.0)
+
     def _build_controls(self, road_lanes: RoadLanes) -> None:
         m = self.hdmap
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
@@ -516,8 +592,9 @@ class MapNetwork(RoadNetwork):
                         inter = line.intersection(cl)
                         s = cl.project(inter.representative_point())
                     s = min(s, self.lane_of[lid].length, _clear_of_crossings(ln, cl, road_lanes))
+                    s = min(s, _clear_of_paths_over(ln, cl, m, s))
                     self.stop_lines[lid] = StopLine(kind, c.id, c.junction_id, float(s))
-        self.max_line_setback = max((self.lane_of[l].length - sl.s for l, sl in self.stop_lines.items()), default=0.0)
+        self._build_setbacks()
         # junction conflicts: different entry lanes whose paths cross, merge or pass too close
         jl = [ln for ln in m.lanes.values() if ln.junction_id is not None]
         lines = [LineString(ln.centerline) for ln in jl]
@@ -545,7 +622,7 @@ class MapNetwork(RoadNetwork):
         for a, b in merge_pairs(m):  # whatever their geometry or junction ids say
             conf[a].add(b)
             conf[b].add(a)
-        for a, b in road_crossings(jl, lines, road_lanes):
+        for a, b in road_crossings(jl, lines, road_lanes, m.lanes):
             conf[a].add(b)
             conf.setdefault(b, set()).add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}

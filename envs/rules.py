@@ -39,6 +39,8 @@ from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, BLOCKED_NEAR_M, COMM
                       PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
                       SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
+from .sweep import clear_stop, swept_head
+
 if TYPE_CHECKING:
     from .network import MapNetwork, StopLine
 
@@ -194,11 +196,11 @@ def enters_junction(lanes: Mapping[str, Any], before: str, lane: str) -> bool:
 
 
 def line_setback(net: "MapNetwork", in_lane: str) -> float:
-    """How far before the end of incoming lane `in_lane` its stop line lies (0 at a bare entry,
-    whose line is the junction lane's start): a distance to a junction entry less this is the
-    distance to its line."""
-    sl = net.stop_lines.get(in_lane)
-    return net.lane_of[in_lane].length - sl.s if sl is not None else 0.0
+    """How far before the end of incoming lane `in_lane` vehicles wait to enter the junction
+    (`MapNetwork.setbacks`: its stop line, or at a bare entry the point clear of the junction's
+    paths drawn over the approach; 0 where the entry itself is the line): a distance to a junction
+    entry less this is the distance to its line."""
+    return net.setbacks.get(in_lane, 0.0)
 
 
 def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],
@@ -221,6 +223,12 @@ def room_to_wait(room: float | np.ndarray, length: float | np.ndarray) -> bool |
     narrow passage) hold one `length` long waiting there; else it would wait inside the junction
     or passage before (back-to-back junctions, passages). Floats or arrays (elementwise)."""
     return room >= length + STOP_POINT_M
+
+
+def places_to_wait(room: float, length: float) -> int:
+    """How many vehicles `length` long `room` metres of road before a narrow passage hold
+    waiting there, one per length and stop margin (`room_to_wait` is whether it holds one)."""
+    return int(room // (length + STOP_POINT_M))
 
 
 def enters_next(vehicle, lane_id: str) -> bool:
@@ -250,6 +258,7 @@ class TrafficRules:
     buckets: dict
     passage_holders: dict  # passage group -> (holders from side 0, from side 1)
     passage_waiters: dict  # passage group -> {vehicle: (side, time it began to wait)}
+    passage_rooms: dict  # (passage group, side) -> vehicles that took a place to wait before it
     signals_by_junction: dict  # junction id -> its signal ids
 
     # ---- signals ----------------------------------------------------------------------
@@ -539,6 +548,18 @@ class TrafficRules:
 
     # ---- narrow passages -------------------------------------------------------------------
     def passage_ahead(self, vehicle, entered: bool = False) -> tuple[list[tuple[int, int]], float] | None:
+        """(chain, wait) of `passage_way`: the passages to claim together and where to wait."""
+        way = self.passage_way(vehicle, entered)
+        return None if way is None else (way[0], way[1])
+
+    def room_taken(self, group: int, side: int, vehicle=None) -> int:
+        """How many vehicles other than `vehicle` took a place to wait before passage `group`
+        from `side` (`passage_rooms`)."""
+        users = self.passage_rooms.get((group, side), ())
+        return len(users) - (vehicle in users)
+
+    def passage_way(self, vehicle, entered: bool = False) -> \
+            tuple[list[tuple[int, int]], float, tuple[int, int] | None] | None:
         """([(passage group, side)], distance from the vehicle centre to where it waits for them)
         of the next passages (`MapNetwork.passages`) on the vehicle's route that it neither holds
         nor has entered (with `entered`, from the one it is in): the first one and every one
@@ -551,14 +572,24 @@ class TrafficRules:
         line of the junction before it when that wait would be inside the junction (a car
         standing at a junction exit blocks the box and stands beside the other direction's
         lane); after back-to-back junctions with no room to wait between, at the first one's
-        line (digitaf r033)."""
+        line (digitaf r033). The room before a passage that follows the chain is a counted
+        resource, one place per vehicle length and stop margin (`places_to_wait`): the chain
+        ends before it while a place is free (the third item, the (group, side) whose room the
+        vehicle takes with the chain), else that passage joins the chain, all or nothing (two
+        cars out of one passage into a room for one: the second waited inside the junction
+        before it, in the way of the car that held the next passage, SUMO durlacher-tor r024). The
+        first metres of a road after a junction that the other direction's turns sweep
+        (`sweep.swept_head`) are no room (SUMO durlacher-tor r025: a car waiting there, its body
+        still turned, was clipped)."""
         net = self.net
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
         holders = self.passage_holders
         skip: set[int] = set()
         chain: list[tuple[int, int]] = []
+        taken: tuple[int, int] | None = None  # the passage whose room the chain ends before
         wait = room = 0.0
+        opened = False  # the road after the chain holds a waiting car (counted if a passage follows)
         line = exit_d = None  # stop point of the junction entry ahead, start of the road after it
         for k, lid, d, s_own in vehicle.upcoming(PASSAGE_HORIZON_M):
             length = net.lane_of[lid].length
@@ -570,7 +601,9 @@ class TrafficRules:
                     line = at  # else a junction right after the one before: wait before that one
                 exit_d = None
             elif s_own is None and not junction and lanes[route[k - 1]].junction_id is not None:
-                exit_d = d
+                head = swept_head(net.swept.get(lid), vehicle.LENGTH)  # swept by the other direction's turns
+                exit_d = d + head
+                room -= head
             ps = net.passages.get(lid)
             if ps is not None and ps.group not in skip and (ps.group, ps.side) not in chain:
                 start = d + ps.s0 if s_own is None else ps.s0 - s_own
@@ -578,7 +611,9 @@ class TrafficRules:
                                                   vehicle in holders.get(ps.group, ((), ()))[ps.side]):
                     skip.add(ps.group)  # entered (or holding) it: the next passage counts
                     continue
-                if chain and room_to_wait(room + ps.s0, vehicle.LENGTH):
+                if chain and room_to_wait(room + ps.s0, vehicle.LENGTH) and \
+                        self.room_taken(ps.group, ps.side, vehicle) < places_to_wait(room + ps.s0, vehicle.LENGTH):
+                    taken = (ps.group, ps.side)  # a place to wait before it is free: take it
                     break
                 if not chain:
                     wait = start - STOP_POINT_M
@@ -587,28 +622,31 @@ class TrafficRules:
                         wait = line  # the wait before the passage would be inside the junction
                 chain.append((ps.group, ps.side))
                 room = 0.0 if ps.s1 >= length - 1e-6 else length - ps.s1
+                opened = False
             elif chain and not junction:
-                room += length
-                if room_to_wait(room, vehicle.LENGTH):
-                    break
+                room += length  # room to wait: the chain ends here, unless a passage follows whose room is taken
+                opened = opened or bool(room_to_wait(room, vehicle.LENGTH))
             elif chain and s_own is None and enters_junction(lanes, route[k - 1], lid):
-                if room_to_wait(room - line_setback(net, route[k - 1]), vehicle.LENGTH):
+                if opened or room_to_wait(room - line_setback(net, route[k - 1]), vehicle.LENGTH):
                     break  # room to wait at the junction's line clear of the passage behind
                 room = 0.0  # no car waits across a junction: the road beyond must hold it alone
-        return (chain, wait) if chain else None
+        return (chain, wait, taken) if chain else None
 
-    def passage_allows(self, vehicle, chain: list[tuple[int, int]], commit: bool) -> bool:
+    def passage_allows(self, vehicle, chain: list[tuple[int, int]], commit: bool,
+                       room: tuple[int, int] | None = None) -> bool:
         """One direction at a time, first come first served: `vehicle` may drive into the passages
         of `chain` ((group, side) pairs) while no one holds one of them from the other side or
         waits there since before it; with `commit` it takes its place among the holders of all
-        (or among the waiters of all)."""
+        and the place to wait before passage `room` (`passage_way`'s third item), or among the
+        waiters of all, standing in the room before the first."""
         ok = True
         for group, side in chain:
             holders = self.passage_holders.get(group, ((), ()))
             waiters = self.passage_waiters.get(group, {})
             mine = waiters.get(vehicle, (side, math.inf))[1]
             if any(h is not vehicle for h in holders[1 - side]) or \
-                    any(s != side and t < mine for w, (s, t) in waiters.items() if w is not vehicle):
+                    any(s != side and t < mine and not self._held_against(w, group, side)
+                        for w, (s, t) in waiters.items() if w is not vehicle):
                 ok = False
         if commit:
             for group, side in chain:
@@ -618,7 +656,32 @@ class TrafficRules:
                     waiters.pop(vehicle, None)
                 elif vehicle not in waiters:
                     waiters[vehicle] = (side, self.t)
+            taken = room if ok else chain[0]
+            if taken is not None:
+                self.passage_rooms.setdefault(taken, set()).add(vehicle)
         return ok
+
+    def _held_against(self, vehicle, group: int, side: int) -> bool:
+        """Whether `vehicle` waits for another passage of its chain than `group` that a vehicle
+        holds from the other direction whose own way leads through `group` from `side`: `vehicle`
+        cannot go before that one has come through, so its earlier wait on `group` must not hold
+        back the cars coming through from `side` (a car waiting before passage A for A and the
+        passage B after A's full room kept the car waiting at A's far end from going, whose queue
+        held B: locked). Otherwise its wait holds, first come first served."""
+        net = self.net
+        for g, waiters in self.passage_waiters.items():
+            w = waiters.get(vehicle) if g != group else None
+            if w is None:
+                continue
+            for h in self.passage_holders.get(g, ((), ()))[1 - w[0]]:
+                route = getattr(h, "lane_route", None)
+                if h is vehicle or not route:
+                    continue
+                for lid in route[h.route_pos:]:
+                    ps = net.passages.get(lid)
+                    if ps is not None and ps.group == group and ps.side == side:
+                        return True
+        return False
 
     def waits_for(self, vehicle, other, depth: int = 4) -> bool:
         """Whether `vehicle` waits for a narrow passage that `other` holds from the other
@@ -643,22 +706,22 @@ class TrafficRules:
         """Whether a vehicle just placed on the road (the ego at reset, traffic at a spawn) may
         be there: the passages it starts in or is about to enter, with those chained after them,
         are not held from the other direction; it then holds them."""
-        nxt = self.passage_ahead(vehicle, entered=True) if self.net.passages else None
+        nxt = self.passage_way(vehicle, entered=True) if self.net.passages else None
         if nxt is None or not commits(nxt[1] + STOP_POINT_M, vehicle.speed):
             return True
         ok = self.passage_allows(vehicle, nxt[0], commit=False)
         if ok:
-            self.passage_allows(vehicle, nxt[0], commit=True)
+            self.passage_allows(vehicle, nxt[0], commit=True, room=nxt[2])
         return ok
 
     def passage_stop(self, vehicle, commit: bool) -> float:
         """Distance ahead of `vehicle` where it waits for the next narrow passage (inf: free)."""
-        nxt = self.passage_ahead(vehicle) if self.net.passages else None
+        nxt = self.passage_way(vehicle) if self.net.passages else None
         if nxt is None:
             return math.inf
-        chain, wait = nxt
+        chain, wait, room = nxt
         near = commits(wait + STOP_POINT_M, vehicle.speed)
-        return math.inf if self.passage_allows(vehicle, chain, commit and near) else wait
+        return math.inf if self.passage_allows(vehicle, chain, commit and near, room) else wait
 
     def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
         """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""
@@ -687,8 +750,30 @@ class TrafficRules:
         names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage"."""
         passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
         if passage < math.inf:  # waiting for a passage: no junction lane is reserved meanwhile
-            return min(passage, self._rule_stop(vehicle, False, ignore))
-        return self._rule_stop(vehicle, commit, ignore)
+            stop = min(passage, self._rule_stop(vehicle, False, ignore))
+        else:
+            stop = self._rule_stop(vehicle, commit, ignore)
+        return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
+
+    def clear_of_sweeps(self, vehicle, stop: float) -> float:
+        """A stop point `stop` metres ahead of `vehicle`, moved back so that the vehicle waits
+        with its body out of the swept path of the cars turning past it on the opposite lanes of
+        a narrow road (`sweep.stretches`: where road design puts a stop line on a narrow road,
+        behind the turning design vehicle; digitaf r110, SUMO durlacher-tor r025). A stop sign's
+        line keeps its place (a stop counts within STOP_ZONE_M of it)."""
+        net = self.net
+        at_rest = stop - IDM_STOP_MARGIN_M - vehicle.LENGTH / 2  # where its centre comes to rest
+        for _k, lid, d, _s_own in vehicle.upcoming(max(at_rest, 0.0)):
+            spans = net.swept.get(lid)
+            if spans is None or not d <= at_rest <= d + net.lane_of[lid].length:
+                continue
+            back = clear_stop(spans, at_rest - d)
+            if back > 0.0:
+                sl, _, _, d_line = self.line_ahead(vehicle, stop + STOP_POINT_M + 1e-6)
+                if sl is not None and sl.kind == "stop" and abs(d_line - STOP_POINT_M - stop) < 1e-6:
+                    return stop
+            return stop - back
+        return stop
 
     def _rule_stop(self, vehicle, commit: bool, ignore: frozenset) -> float:
         """`stop_distance` without narrow passages. The scan runs along the route up to the first

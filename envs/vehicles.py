@@ -269,6 +269,8 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
             path = min(paths, key=len)
             nl = net.lane_of[n]
             sn, _ = nl.local_coordinates(self.position)
+            if not 0.0 <= sn <= nl.length:  # no change onto a neighbour where it does not run beside us yet
+                continue  # (a lane that opens along the road: it would drive its lane's extension, blind)
             ahead, behind = [], None
             for o in buckets.get(n, ()):
                 so, _ = nl.local_coordinates(o.position)

@@ -81,6 +81,7 @@ DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
 })
 SIGNAL_SAME_APPROACH_DEG = 30.0  # signals whose traffic travels within this of one direction: one approach
 SIGNAL_OPPOSITE_DEG = 150.0  # approaches further apart than this are opposite (paired phases)
+APPROACH_SPLIT_DEG = 90.0  # a control's lanes ending further apart in heading are separate approaches (own stop lines)
 STOP_SIGN_SIZE_M = 0.75  # an octagon this wide, its lower edge this high (exports that draw signs)
 STOP_SIGN_HEIGHT_M = 2.0
 COMMONROAD_DT_S = 0.1  # CommonRoad export: time step of the scenario (light cycles count in steps)
@@ -334,6 +335,19 @@ FOOTPRINT_STEP_M = 2.0  # footprints along a junction lane are placed this far a
 PASSAGE_DISTANCE_M = VEHICLE_WIDTH_M + TRACKING_MARGIN_M  # opposite road lanes closer than this are one narrow passage
 PASSAGE_STEP_M = 1.0  # a lane is sampled this often to find where it runs that close to another
 CURVE_CHORD_M = 2.0  # a lane's curvature is the turn between the chords this long either side of a point
+# where a car may wait beside a narrow road (envs/sweep.py): out of the swept path of the lane
+# keeping driven along the opposite lanes (from SWEEP_LEAD_M before them) at these speeds
+SWEEP_SPEEDS_MPS = (3.0, 6.0)  # turning speeds of the ego through junctions and bends (the planner's)
+SWEEP_STEP_S = 1 / 15  # one pose per simulation frame (the env's default simulation_frequency)
+SWEEP_LEAD_M = 20.0  # a swept car starts this far before the lane it turns into
+SWEEP_CLEARANCE_M = 0.2  # a waiting car's body keeps this far from the swept footprints
+# speed in curves, one rule for traffic (envs/core.py) and the baseline planner (scenarios/planner.py):
+# both take a curve at v <= sqrt(LATERAL_ACCEL_MPS2 * radius), from `lanes.curve_speeds`
+LATERAL_ACCEL_MPS2 = 2.5  # lateral acceleration a curve is driven at, at most
+CURVE_WINDOW_M = 4.0  # a lane's curvature for its curve speed is measured over this arc length
+CURVE_MIN_SPEED_MPS = 3.0  # no curve is taken slower (a 4 m radius at LATERAL_ACCEL_MPS2)
+CURVE_BRAKE_MPS2 = 2.0  # traffic's desired speed falls towards a curve ahead no faster than braking at this
+CURVE_BEHIND_M = 1.0  # a curve point this close behind a vehicle still limits its speed
 # the episode (envs/map_env.py): where traffic spawns
 TRAFFIC_SPAWN_TRIES = 10  # random places tried per traffic vehicle (count)
 TRAFFIC_SPAWN_GAP_M = 12.0  # a traffic vehicle spawns this far from any other

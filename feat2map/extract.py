@@ -277,6 +277,29 @@ def arms_centre(arms: Sequence[_ArmEnds], polygon: Polygon) -> np.ndarray:
     return c if float(np.hypot(*(c - centroid))) <= 0.5 * reach else centroid
 
 
+def _behind(arm: _ArmEnds, c: np.ndarray) -> bool:
+    """Whether the arm's mouth lies behind `c`, both along its road's tangent and towards its road."""
+    off = arm.point - c
+    return float(off @ arm.direction) < 0.0 and float(off @ arm.far_direction) < 0.0
+
+
+def _socket_arms(ends: Sequence[_ArmEnds], c: np.ndarray, by_road: bool) -> list[Arm]:
+    """Arms with socket angles from the centre `c` to each mouth, or (`by_road`) each arm's own
+    road direction at its mouth. The latter is for a junction whose centre lies behind a mouth
+    and whose angles from it break the leg rule: a road running straight through a merge or
+    diverge has its in and out arms on one line, which a ramp's line meets beyond both mouths,
+    so both arms of the through road get one angle from there while their roads leave 180
+    degrees apart."""
+    return [Arm(round(math.degrees(math.atan2(*((a.direction if by_road else a.point - c)[::-1]))), 9),  # no noise
+                (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
+
+
+def _angles_and_gap(arms: Sequence[Arm]) -> tuple[list[float], float]:
+    """The arms' angles in [0, 360) sorted, and the smallest gap between neighbours."""
+    raw = sorted(positive_degrees(a.angle_deg) for a in arms)
+    return raw, min(positive_degrees(raw[(i + 1) % len(raw)] - raw[i]) for i in range(len(raw)))
+
+
 def _junction_controls(m: HDMap) -> dict[str, set[str]]:
     """Junction id -> control kinds: a signal or stop sign counts for the junction it names;
     one that names none, for the junctions its lanes lead into (the readers name a control's
@@ -342,12 +365,13 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
             skip(jid, poly, control, len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
             continue
         c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
-        arms = [Arm(round(math.degrees(math.atan2(a.point[1] - c[1], a.point[0] - c[0])), 9),  # float noise off
-                    (float(a.point[0]), float(a.point[1])), a.lanes_in, a.lanes_out) for a in ends]
+        arms = _socket_arms(ends, c, by_road=False)
+        raw, gap = _angles_and_gap(arms)
+        if gap < MIN_LEG_SEPARATION_DEG - 1e-9 and any(_behind(a, c) for a in ends):
+            arms = _socket_arms(ends, c, by_road=True)  # the centre lies beyond a mouth: see _socket_arms
+            raw, gap = _angles_and_gap(arms)
         crosswalk = jid in xw_junctions or (
             xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
-        raw = sorted(positive_degrees(a.angle_deg) for a in arms)
-        gap = min(positive_degrees(raw[(i + 1) % len(raw)] - raw[i]) for i in range(len(raw)))
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
             skip(jid, poly, control, len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
                             f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")

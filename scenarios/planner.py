@@ -35,9 +35,9 @@ from typing import Any, Callable, ClassVar, Iterable, Protocol, runtime_checkabl
 
 import numpy as np
 
-from ..angles import wrap_angle
-from ..config import CONFLICT_DISTANCE_M, IDM_ACC, STOP_POINT_M
+from ..config import CONFLICT_DISTANCE_M, CURVE_BEHIND_M, IDM_ACC, STOP_POINT_M
 from ..envs.driver import DRIVER_ACTION_CONFIG
+from ..envs.lanes import curve_speeds
 from ..envs.rules import (RULES, amber_speed_cap, braking_distance, can_stop_before, has_stopped, idm,
                           in_stop_zone)
 
@@ -48,9 +48,6 @@ CREEP_GAIN = 1.5  # [1/s] speed error -> acceleration while creeping or capping 
 STOP_DURATION_S = 1.0  # full stop held at stop signs and before a right turn on red
 BARE_APPROACH_M = 20.0  # bare junctions are approached at the junction speed limit from here
 HOLD_BRAKE_MPS2 = -3.0
-LATERAL_ACCEL_MPS2 = 2.5  # curves are driven at v <= sqrt(LATERAL_ACCEL_MPS2 * radius)
-CURVE_WINDOW_M = 4.0  # curvature is measured over this arc length
-CURVE_MIN_SPEED_MPS = 3.0  # no curve is taken slower (a 4 m radius at LATERAL_ACCEL_MPS2)
 CURVE_LOOKAHEAD_M = 50.0
 AMBER_LOOKAHEAD_M = 100.0  # a green signal's line is approached at a speed no amber can catch in its dilemma zone from here
 APPROACH_STAGES = ("T_A", "L_A", "L_C")  # the stages before a signal's line that may meet its amber
@@ -140,7 +137,6 @@ class BaselinePlanner:
         self.full_stop = False  # stopped at the selected junction's line (right on red needs it)
         self.held = 0.0  # seconds held at the selected junction's line by traffic (PATIENCE_S)
         self._zones: dict[tuple[str, str], tuple[float, float, float, float]] = {}
-        self._curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._steps = 0
         self._log()
 
@@ -365,22 +361,9 @@ class BaselinePlanner:
             self.env.rules.box_clear(self.env.vehicle, self.j_lane) and self._gap_ok(yielding=True)
 
     def _curve_speeds(self, lane_id: str) -> tuple[np.ndarray, np.ndarray]:
-        """(s, comfortable speed) at the vertices of a lane: sqrt(a_lat / curvature), never below
-        CURVE_MIN_SPEED_MPS. Curvature is the turn between the chords over the CURVE_WINDOW_M
-        around each vertex (kept inside the lane), so polyline kinks and zig-zags of read maps
-        do not read as sharp curves (cached per lane)."""
-        if lane_id not in self._curves:
-            lane = self.env.net.lane_of[lane_id]
-            s = lane.cum
-            w = min(CURVE_WINDOW_M, float(s[-1]))
-            mid = np.clip(s, w / 2, s[-1] - w / 2)
-            a, b, c = (np.array([lane.position(float(x), 0.0) for x in xs]) for xs in (mid - w / 2, mid, mid + w / 2))
-            h1 = np.arctan2(*(b - a).T[::-1])
-            h2 = np.arctan2(*(c - b).T[::-1])
-            turn = np.abs(wrap_angle(h2 - h1))
-            speed = np.sqrt(LATERAL_ACCEL_MPS2 * (w / 2) / np.maximum(turn, 1e-6))
-            self._curves[lane_id] = (s, np.maximum(speed, CURVE_MIN_SPEED_MPS))
-        return self._curves[lane_id]
+        """(s, comfortable speed) at the vertices of a lane (`lanes.curve_speeds`, traffic's rule too)."""
+        lane = self.env.net.lane_of[lane_id]
+        return lane.cum, curve_speeds(lane)
 
     def _curve_acceleration(self) -> float:
         """Deceleration that brings the ego to each upcoming curve at its comfortable speed
@@ -391,7 +374,7 @@ class BaselinePlanner:
         for _, lid, d, s_own in ego.upcoming(CURVE_LOOKAHEAD_M):
             s, speed = self._curve_speeds(lid)
             x = s - s_own if s_own is not None else s + d
-            ahead = (x >= -1.0) & (x <= CURVE_LOOKAHEAD_M) & (speed < v)
+            ahead = (x >= -CURVE_BEHIND_M) & (x <= CURVE_LOOKAHEAD_M) & (speed < v)
             if ahead.any():
                 need = (v * v - speed[ahead] ** 2) / (2 * np.maximum(x[ahead], 1.0))
                 a = min(a, -float(need.max()))

@@ -295,6 +295,7 @@ def test_code_tables():
     assert signal_kind("206", "USA") is None and signal_kind("1000001", "OpenDRIVE", "no") is None
     assert signal_kind("1000003", "OpenDRIVE", "no") is None and known_non_control("1000003")
     assert known_non_control("DE:274[60]") and not known_non_control("987654")
+    assert known_non_control("roadmark") and signal_kind("roadmark", "", "no") is None  # RoadRunner's stop lines
 
 
 def test_a_reference_to_a_lane_joined_away_follows_it(tmp_path):

@@ -138,7 +138,7 @@ def test_pedestrians_cross_and_are_yielded_to():
     u = env.unwrapped
     driver = ScriptedDriver(env)
     seen, finished, yielding = set(), set(), 0
-    for _ in range(450):  # until enough people have crossed (how soon depends on the traffic drawn)
+    for _ in range(900):  # until enough people have crossed (how soon depends on the traffic drawn)
         _, _, term, trunc, info = env.step(driver.act())
         peds = [o for o in u.road.objects if isinstance(o, Pedestrian)]
         for p in peds:

@@ -345,3 +345,91 @@ def test_passage_wait_after_back_to_back_junctions_is_before_the_first(tmp_path)
     assert 0.0 < wait <= to_jx - car.s_on("R2_0_r") - 1.0 + 1e-6  # before JX, not inside it
     assert u.control.passage_stop(car, False) == pytest.approx(wait)
     env.close()
+
+
+def _narrow_near(src: Path, dst: Path, road_id: str, profile: list[tuple[float, float | None]]) -> None:
+    """Road `road_id` of an exported OpenDRIVE map with lane widths through the points `profile`
+    ((s, width), None: the lane's own width), cubic between them with zero slope at each."""
+    from lxml import etree
+
+    root = etree.parse(str(src)).getroot()
+    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    for lane in road.findall("lanes/laneSection/*/lane"):
+        old = lane.find("width")
+        if old is None:
+            continue
+        w0 = float(old.get("a"))
+        at = lane.index(old)
+        lane.remove(old)
+        pts = [(s, w0 if w is None else w) for s, w in profile]
+        for k, (s, w) in enumerate(pts):
+            t, dw = (pts[k + 1][0] - s, pts[k + 1][1] - w) if k + 1 < len(pts) else (1.0, 0.0)
+            lane.insert(at + k, etree.Element("width", sOffset=repr(s), a=repr(w), b="0.0",
+                                              c=repr(3 * dw / t ** 2), d=repr(-2 * dw / t ** 3)))
+    dst.write_bytes(etree.tostring(root))
+
+
+@pytest.fixture(scope="module")
+def room_for_one(tmp_path_factory) -> Path:
+    """One bare 4-way junction: road 1 narrows to 1.6 m lanes over its 10 m next to the junction
+    (passage A, up to the junction's edge), road 2 from 8 m after the junction on (passage B):
+    7.2 m of road between the junction and B, room to wait for one car (SUMO durlacher-tor's
+    `3835_0_-1` into junction 33 and `3593_0_-1`, 7.4 m before the next passage)."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    d = tmp_path_factory.mktemp("room_for_one")
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)
+    write_opendrive(feat2map.generate_from_features([four], seed=0), d / "one.xodr")
+    _narrow_near(d / "one.xodr", d / "a.xodr", "1", [(0.0, 1.6), (10.0, 1.6), (14.0, None)])
+    _narrow_near(d / "a.xodr", d / "room_for_one.xodr", "2", [(0.0, None), (8.0, None), (12.0, 1.6)])
+    return d / "room_for_one.xodr"
+
+
+def test_room_before_a_passage_is_taken_with_the_passage_before_it(room_for_one):
+    """Two cars placed inside passage A both head through the junction into road 2, whose 7.2 m
+    before passage B hold one waiting car; two cars come the other way out of B. The first car
+    in A takes the place before B with A; the second must claim B too (all or nothing), and
+    while B is held from the other side it may not be placed there (refused like a head-on
+    spawn). Placed there before, it followed the first into the junction and stood in the way:
+    nobody moved for the whole minute and the ego behind them timed out (SUMO durlacher-tor
+    r024, r027, r029)."""
+    from feat2map.envs.rules import places_to_wait
+
+    m = read_map(room_for_one)
+    sc = Scenario("room", str(room_for_one), (("1", "1", "2"),), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    net, ctl = u.net, u.control
+    a_in, b_out = net.passages["1_0_1"], net.passages["2_0_-1"]
+    assert a_in.s1 == pytest.approx(net.lane_of["1_0_1"].length) and a_in.s0 > 5.0  # A up to the junction
+    assert places_to_wait(b_out.s0, 5.0) == 1  # room for one before B
+    to_b = next(ln.id for ln in m.lanes_by_junction["1"] if ln.predecessors[0] == "1_0_1" and ln.successors[0] == "2_0_-1")
+    back = next(ln.id for ln in m.lanes_by_junction["1"] if ln.predecessors[0] == "2_0_1" and ln.successors[0] == "1_0_-1")
+    out_of_b = [u.road.spawn("2_0_1", s, 5.0, ["2_0_1", back, "1_0_-1"]) for s in (10.0, 2.0)]
+    first = u.road.spawn("1_0_1", 21.0, 5.0, ["1_0_1", to_b, "2_0_-1"])
+    assert all(ctl.passage_start(v) for v in [*out_of_b, first])
+    assert first in ctl.passage_rooms[(b_out.group, b_out.side)]
+    second = u.road.spawn("1_0_1", 15.0, 5.0, ["1_0_1", to_b, "2_0_-1"])
+    chain, _, room = ctl.passage_way(second, entered=True)
+    assert chain == [(a_in.group, a_in.side), (b_out.group, b_out.side)] and room is None
+    placed = ctl.passage_start(second)  # what the reset's traffic placement asks
+    if not placed:
+        u.road.vehicles.remove(second)
+    from feat2map.scenarios.planner import BaselinePlanner
+
+    planner = BaselinePlanner()
+    planner.reset(env)
+    ego, entered_early = u.vehicle, []
+    for _ in range(int(60 * u.config["policy_frequency"])):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        assert not info["collision"], f"collision at t={info['time']:.1f} s"
+        in_a = net.id_of.get(ego.lane_index) == "1_0_1" and ego.s_on("1_0_1") + ego.LENGTH / 2 > a_in.s0
+        if in_a and ctl.passage_holders.get(b_out.group, ((), ()))[1 - b_out.side]:
+            entered_early.append(round(info["time"], 1))
+        if term or trunc:
+            break
+    env.close()
+    assert not placed
+    assert not entered_early  # the ego, behind them, waits before A while B is held the other way
+    assert u.route_completed() and info["time"] < 40.0

@@ -873,3 +873,29 @@ def test_damaged_points_and_ids_are_problems_not_tracebacks(exported, tmp_path):
     (tmp_path / "base_map.bin").write_bytes(data.replace(road, b"\xf2" + road[1:]))
     problems = [str(p) for p in validate_apollo(tmp_path / "base_map.bin")]
     assert all("\n" not in p for p in problems)
+
+
+def test_a_light_over_opposite_approaches_gets_a_stop_line_on_each():
+    """RoadRunner (2019, Tongji's `sa` scene) references one light from two opposite roads: its
+    lanes end 48 m apart, the model's one stop line runs diagonally between them, and the
+    Apollo export was refused ("overlap with lane ... is 4.5 m from the stop line"). The export
+    writes one stop line per approach (Apollo's `stop_line` is repeated), each overlap at its
+    own approach's line; a light over one approach keeps its single line."""
+    from dataclasses import replace
+
+    from feat2map.formats.apollo import writer as wa
+    from feat2map.model import stop_line_across
+
+    m = feat2map.generate_from_features([JunctionFeature.make([0, 90, 180, 270], "signal", False)], seed=0)
+    a = next(iter(m.signals.values()))
+    h = m.lanes[a.lane_ids[0]].heading_at_end()
+    b = next(s for s in m.signals.values() if s.junction_id == a.junction_id
+             and math.cos(m.lanes[s.lane_ids[0]].heading_at_end() - h) < -0.9)  # the opposite approach's light
+    both = a.lane_ids + b.lane_ids
+    merged = replace(a, lane_ids=both, stop_line=stop_line_across(m.lanes, both))
+    m2 = replace(m, signals={k: v for k, v in m.signals.items() if k != b.id} | {a.id: merged})
+    base = wa.to_apollo(m2)
+    assert not [p for p in validate_map(base) if "from the stop line" in str(p)]
+    sig = next(s for s in base.signal if len(s.stop_line) > 1)
+    assert len(sig.stop_line) == 2
+    assert all(len(s.stop_line) == 1 for s in base.signal if s is not sig)

@@ -127,6 +127,31 @@ def test_checker_finds_broken_files(sf_default_map, tmp_path):
     assert "green together on crossing approaches" in messages
 
 
+def test_lights_green_together_are_a_problem_only_where_their_movements_meet():
+    """SVL's 2019 San Francisco map gives a T-junction's stem (right turn only) and the main
+    road's approach whose left turn enters the stem one phase: the approaches are 90 degrees
+    apart but their paths neither cross nor merge (the env's conflict table keeps them
+    together). The checker flagged them ("green together on crossing approaches", 2 of the
+    map's junctions); it now looks at the movements: crossing centre lines or one lanelet both
+    lead into."""
+    from types import SimpleNamespace as NS
+
+    from feat2map.formats.commonroad.validate import _movements_meet
+
+    def move(points, succ):
+        return NS(center_vertices=np.asarray(points, dtype=float), successor=[succ])
+
+    # stem from the south (x = 2, heading north) turning right into the east road's far lane;
+    # the main road from the east (y = 2, heading west) turning left into the stem's out lane
+    stem_right = move([(2, -10), (2, -4), (10, -2)], 1)
+    main_left = move([(10, 2), (0, 2), (-2, -10)], 2)
+    main_straight = move([(10, 2), (-10, 2)], 3)
+    stem_left = move([(2, -10), (2, 0), (-10, 2)], 4)
+    assert not _movements_meet([stem_right], [main_left, main_straight])
+    assert _movements_meet([stem_left], [main_straight])  # crossing centre lines
+    assert _movements_meet([move([(0, -9), (9, 0)], 7)], [move([(9, 9), (9.5, 0.5)], 7)])  # a merge
+
+
 def test_cli_export_and_validate(tmp_path, capsys):
     from feat2map.cli import main
 

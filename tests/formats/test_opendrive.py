@@ -558,6 +558,21 @@ def test_malformed_xml_names_the_file(tmp_path):
         read_opendrive(r)
 
 
+def test_a_file_whose_every_road_is_unreadable_says_why(tmp_path):
+    """A dialect that draws lanes as point sets (no <planView>, empty lengths) has no road the
+    reader can use: the refusal counts them and names the first with its reason, so a user sees
+    what kind of file it is from one line, not only "no readable <road> elements"."""
+    p = tmp_path / "pointsets.xodr"
+    roads = "".join(f'<road id="R{i}" length="" junction="-1"><lanes><laneSection><left><lane id="1">'
+                    f'<border><geometry><pointSet><point x="0" y="{i}"/><point x="9" y="{i}"/></pointSet>'
+                    f'</geometry></border></lane></left></laneSection></lanes></road>' for i in range(3))
+    p.write_text(f"<OpenDRIVE><header/>{roads}</OpenDRIVE>")
+    with pytest.warns(UserWarning, match="skipping bad road"), pytest.raises(MapFormatError) as err:
+        read_opendrive(p)
+    assert str(err.value) == (f"{p}: no readable <road> elements: all 3 unreadable (first: road R0 (line 1): "
+                              "attribute 'length' is not a number: '')")
+
+
 def test_one_bad_road_is_skipped_with_a_warning_naming_it(exported, tmp_path):
     root = etree.parse(str(exported)).getroot()
     road = root.find("road")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from shapely import STRtree
@@ -26,9 +26,10 @@ from .sim_map import to_sim_map
 from ..base import header_date
 from ..lane_ends import closed_seams
 from ..geo import check_origin, utm_projection
-from ...config import APOLLO_GENERATED_MARK, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, UTM_ORIGIN, UTM_ZONE
+from ...config import (APOLLO_GENERATED_MARK, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APPROACH_SPLIT_DEG,
+                       UTM_ORIGIN, UTM_ZONE)
 from ...errors import Feat2MapError
-from ...model import HDMap, Lane, Polyline
+from ...model import HDMap, Lane, Polyline, stop_line_across
 from ...validation import refuse_nonfinite
 
 FILES = ("base_map", "sim_map", "routing_map")
@@ -109,6 +110,23 @@ class _Frame:
         return length
 
 
+def approach_groups(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> list[list[str]]:
+    """The governed lanes grouped by approach: lanes whose end headings are within
+    APPROACH_SPLIT_DEG of a group's first lane are one approach (in listed order)."""
+    groups: list[list[str]] = []
+    for x in lane_ids:
+        if x not in lanes:
+            continue
+        h = lanes[x].heading_at_end()
+        for g in groups:
+            if math.cos(h - lanes[g[0]].heading_at_end()) > math.cos(math.radians(APPROACH_SPLIT_DEG)):
+                g.append(x)
+                break
+        else:
+            groups.append([x])
+    return groups
+
+
 def _add_stop_line(msg: Any, frame: _Frame, line: Polyline) -> None:
     """One stop line (Apollo's `stop_line` is a repeated Curve on signals and stop signs)."""
     frame.fill_curve(msg.stop_line.add(), line)
@@ -170,11 +188,18 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     overlaps = _Overlaps(out, ids)
 
     def control_overlaps(msg: Any, c: Any, info: str) -> None:
-        """Stop line, and overlaps with the incoming lanes at the line and with the junction."""
-        _add_stop_line(msg, frame, c.stop_line)
+        """Stop lines, and overlaps with the incoming lanes at their line and with the junction:
+        one line per approach when a control governs lanes of several (a RoadRunner light
+        referenced from two opposite roads), where the model's one line runs between them."""
+        groups = approach_groups(m.lanes, c.lane_ids)
+        lines = [c.stop_line] if len(groups) < 2 else [stop_line_across(m.lanes, g) or c.stop_line for g in groups]
+        line_of = {x: line for g, line in zip(groups, lines) for x in g} if len(groups) > 1 else {}
+        for line in lines:
+            _add_stop_line(msg, frame, line)
         for x in c.lane_ids:
             if x in m.lanes:
-                overlaps.add(lanes[x], "lane_overlap_info", stop_line_range(centres[x], c.stop_line), msg, info)
+                overlaps.add(lanes[x], "lane_overlap_info", stop_line_range(centres[x], line_of.get(x, c.stop_line)),
+                             msg, info)
         if c.junction_id in junctions:
             overlaps.add(junctions[c.junction_id], "junction_overlap_info", None, msg, info)
 

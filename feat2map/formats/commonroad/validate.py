@@ -210,11 +210,9 @@ def _green_steps(light) -> set[int]:
 def _controls(net, report: CommonRoadReport) -> None:
     users_light: dict[int, set[int]] = {}
     users_sign: dict[int, set[int]] = {}
-    heading_of: dict[int, list[float]] = {}
     for ll in net.lanelets:
         for t in ll.traffic_lights:
             users_light.setdefault(t, set()).add(ll.lanelet_id)
-            heading_of.setdefault(t, []).append(_heading(ll.center_vertices, "end"))
         for s in ll.traffic_signs:
             users_sign.setdefault(s, set()).add(ll.lanelet_id)
             refs = ll.stop_line.traffic_sign_ref if ll.stop_line is not None else None
@@ -231,23 +229,49 @@ def _controls(net, report: CommonRoadReport) -> None:
     for sign in net.traffic_signs:
         if not users_sign.get(sign.traffic_sign_id):
             report.problems.append(Problem(f"traffic sign {sign.traffic_sign_id}", "no lanelet refers to it"))
-    # lights green at once must govern the same or opposite approaches
-    by_inter: dict[int, list] = {}
-    light_of_lanelet = {ll.lanelet_id: set(ll.traffic_lights) for ll in net.lanelets}
+    # lights green at once must govern the same or opposite approaches, unless their movements
+    # through the intersection neither cross nor merge (a T-junction's stem turning right and
+    # the main road's traffic turning left into the stem). A light's approach heading and
+    # movements are those of its lanelets entering this intersection (a map may also put a light
+    # on a lanelet that enters none: a dead end's heading says nothing here)
+    lanelet_of = {ll.lanelet_id: ll for ll in net.lanelets}
     for inter in net.intersections:
-        ids = {t for inc in inter.incomings for x in inc.incoming_lanelets or () for t in light_of_lanelet.get(x, ())}
-        by_inter[inter.intersection_id] = [light for light in net.traffic_lights if light.traffic_light_id in ids]
-    for iid, lights in by_inter.items():
+        heading_in: dict[int, float] = {}
+        moves: dict[int, list] = {}
+        for inc in inter.incomings:
+            for x in sorted(inc.incoming_lanelets or ()):
+                ll = lanelet_of.get(x)
+                if ll is None:
+                    continue
+                for t in ll.traffic_lights:
+                    heading_in.setdefault(t, _heading(ll.center_vertices, "end"))
+                    moves.setdefault(t, []).extend(lanelet_of[y] for y in ll.successor if y in lanelet_of)
+        lights = [light for light in net.traffic_lights if light.traffic_light_id in heading_in]
         for i, a in enumerate(lights):
             for b in lights[i + 1:]:
                 if a.traffic_light_cycle is None or b.traffic_light_cycle is None:
                     continue
                 if _green_steps(a) & _green_steps(b):
-                    ha, hb = heading_of.get(a.traffic_light_id, [0.0])[0], heading_of.get(b.traffic_light_id, [0.0])[0]
+                    ha, hb = heading_in[a.traffic_light_id], heading_in[b.traffic_light_id]
                     apart = math.degrees(abs(wrap_angle(ha - hb)))
-                    if SIGNAL_SAME_APPROACH_DEG <= apart <= SIGNAL_OPPOSITE_DEG:
-                        report.problems.append(Problem(f"intersection {iid}", f"traffic lights {a.traffic_light_id} and "
+                    if SIGNAL_SAME_APPROACH_DEG <= apart <= SIGNAL_OPPOSITE_DEG and \
+                            _movements_meet(moves[a.traffic_light_id], moves[b.traffic_light_id]):
+                        report.problems.append(Problem(f"intersection {inter.intersection_id}",
+                                                       f"traffic lights {a.traffic_light_id} and "
                                                        f"{b.traffic_light_id} are green together on crossing approaches"))
+
+
+def _movements_meet(xs: list, ys: list) -> bool:
+    """Whether any movement lanelet of one set crosses one of the other (centre lines) or leads
+    into the same lanelet (a merge)."""
+    from shapely.geometry import LineString
+
+    for x in xs:
+        lx = LineString(x.center_vertices)
+        for y in ys:
+            if set(x.successor) & set(y.successor) or lx.intersects(LineString(y.center_vertices)):
+                return True
+    return False
 
 
 def _planning(net, problems, report: CommonRoadReport) -> None:

@@ -60,6 +60,7 @@ NOT_CONTROLS = frozenset({
     "1000", "1004", "334", "406", "430", "436", "440", "449", "450", "451", "452", "531", "605",
     "R2-1", "R3-1", "R3-2", "R3-4", "R3-5", "R3-7", "R4-7", "R5-1", "R6-1", "W3-1", "W3-3",
     "speed", "maxspeed", "city_limit", "stop_line", "stopline", "holdingline", "crosswalk", "pedestrian_crossing",
+    "roadmark",  # RoadRunner (2021) writes its stop lines as <signal name="StopLine" type="roadmark">
     "-1", "",
 })
 US_COUNTRIES = frozenset({"us", "usa"})  # 205/206 are German codes: not stop/yield under the MUTCD
@@ -495,17 +496,21 @@ def read_opendrive(path: str | Path) -> HDMap:
     geo = header.find("geoReference") if header is not None else None
     origin = _proj_origin(geo.text if geo is not None else None)
     roads: dict[str, _OdrRoad] = {}
+    bad: list[MapFormatError] = []
     for r in root.findall("road"):
         try:
             road = _parse_road(ctx, r)
         except MapFormatError as exc:  # one bad road in an otherwise good map: warn and skip
             warnings.warn(f"skipping bad road: {exc}", stacklevel=2)
+            bad.append(exc)
             continue
         if road.id in roads:
             raise MapFormatError(f"duplicate road id {road.id!r}", ctx.where(r))
         roads[road.id] = road
-    if not roads:
-        raise MapFormatError("no readable <road> elements", str(path))
+    if not roads:  # say why: a dialect without <planView> (point-set borders) is refused on every road
+        first = f"{(bad[0].where or '').removeprefix(f'{ctx.path}: ')}: {bad[0].message}" if bad else ""
+        why = f": all {len(bad)} unreadable (first: {first})" if bad else ""
+        raise MapFormatError(f"no readable <road> elements{why}", str(path))
     return loaded(_Builder(ctx, root, roads, origin).build(), str(path))
 
 

@@ -1,0 +1,81 @@
+"""Junction extraction (feat2map.extract) on maps built here in code: where sockets point when a
+junction's centre lies beyond one of its mouths."""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from feat2map.extract import SkippedJunction, extract_junctions
+from feat2map.model import HDMap, Junction, Lane, Road, as_polyline
+
+W = 3.5  # lane width
+
+
+def _lane(lid: str, road: str, pts, preds=(), succs=(), junction: str | None = None) -> Lane:
+    """A lane along `pts` with borders W/2 to either side."""
+    p = np.asarray(pts, dtype=float)
+    d = np.gradient(p, axis=0)
+    n = np.c_[-d[:, 1], d[:, 0]] / np.hypot(d[:, 0], d[:, 1])[:, None]
+    return Lane(lid, road, as_polyline(p), as_polyline(p + n * W / 2), as_polyline(p - n * W / 2), W, 20.0,
+                predecessors=tuple(preds), successors=tuple(succs), junction_id=junction)
+
+
+def _merge_map(ramp_deg: float, mouth_y: float = -6.0) -> HDMap:
+    """A one-way road of two lanes (y = 0 and y = W, heading +x) running straight through a
+    junction from x = 0 to x = 12, and a one-lane on-ramp that meets the junction at (1, -6)
+    heading `ramp_deg` and merges into the right lane. The junction's outline reaches 30 m
+    along the road (as CARLA's 2019 Town06 draws its merges, with the shoulders), so the lines
+    of the three arms meet beyond the out mouths: both arms of the through road lie on one
+    side of that point."""
+    a = math.radians(ramp_deg)
+    mouth = np.array([1.0, mouth_y])
+    ramp_start = mouth - 40.0 * np.array([math.cos(a), math.sin(a)])
+    lanes = [
+        _lane("in_r", "in", [(-40, 0), (-20, 0), (0, 0)], succs=["j_r"]),
+        _lane("in_l", "in", [(-40, W), (-20, W), (0, W)], succs=["j_l"]),
+        _lane("j_r", "jr", [(0, 0), (6, 0), (12, 0)], preds=["in_r"], succs=["out_r"], junction="J"),
+        _lane("j_l", "jl", [(0, W), (6, W), (12, W)], preds=["in_l"], succs=["out_l"], junction="J"),
+        _lane("j_ramp", "jramp", [tuple(mouth), (6, mouth_y / 3), (12, 0)], preds=["ramp"], succs=["out_r"], junction="J"),
+        _lane("out_r", "out", [(12, 0), (32, 0), (52, 0)], preds=["j_r", "j_ramp"]),
+        _lane("out_l", "out", [(12, W), (32, W), (52, W)], preds=["j_l"]),
+        _lane("ramp", "ramp", [tuple(ramp_start), tuple((ramp_start + mouth) / 2), tuple(mouth)], succs=["j_ramp"]),
+    ]
+    lanes = [ln if ln.id not in ("in_r", "out_r") else Lane(**{**ln.__dict__, "left_neighbors": (
+        "in_l" if ln.id == "in_r" else "out_l",)}) for ln in lanes]
+    roads = {r: Road(r, "junction" if r.startswith("j") else "road", junction_id="J" if r.startswith("j") else None)
+             for r in {ln.road_id for ln in lanes}}
+    outline = as_polyline([(0, -7), (30, -7), (30, W + W / 2), (0, W + W / 2)])
+    return HDMap({ln.id: ln for ln in lanes}, roads, {"J": Junction("J", outline)})
+
+
+def test_a_road_running_straight_through_a_merge_keeps_its_arms_apart():
+    """CARLA's 2019 Town06 draws each on-ramp as a junction on a straight one-way motorway: the
+    arms' lines meet beyond the out mouths, and angles measured from there put the motorway's
+    in and out arms at one angle (180.03 and 180.03 degrees): 9 of its merges were skipped as
+    "sockets 0.00 degrees apart". Where the centre lies behind a mouth and its angles break the
+    leg rule, each socket takes its road's own direction: in 180, out 0, the ramp 30 degrees off
+    the motorway's incoming arm."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        skipped: list[SkippedJunction] = []
+        (j,) = extract_junctions(_merge_map(30.0), skipped=skipped)
+    assert not skipped
+    by_kind = {(a.lanes_in, a.lanes_out): a.angle_deg for a in j.arms}
+    assert set(by_kind) == {(2, 0), (0, 2), (1, 0)}
+    assert by_kind[(2, 0)] == pytest.approx(180.0, abs=1e-6) or by_kind[(2, 0)] == pytest.approx(-180.0, abs=1e-6)
+    assert by_kind[(0, 2)] == pytest.approx(0.0, abs=1e-6)
+    assert by_kind[(1, 0)] % 360 == pytest.approx(210.0, abs=1e-6)  # the ramp's road, outward from its mouth
+
+
+def test_a_ramp_closer_than_the_leg_rule_is_skipped_for_that_reason():
+    """The same merge with a ramp 12 degrees off the motorway is skipped by the leg rule, with
+    the angles its roads have (not two arms at one angle)."""
+    skipped: list[SkippedJunction] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert extract_junctions(_merge_map(12.0, -2.0), skipped=skipped) == []
+    (s,) = skipped
+    assert s.reason.startswith("sockets 12.00 degrees apart") and "[0.0, 180.0, 192.0]" in s.reason
