@@ -25,25 +25,12 @@ BRIDGE_WIDTH_M, TAPER_M = 1.0, 12.0
 
 def _narrow(src: Path, dst: Path, road_id: str, width: float, taper: float) -> None:
     """Road `road_id` of an exported OpenDRIVE map narrowed from its lane width to `width` over
-    `taper` metres at both ends (cubic widths with zero slope at the joints)."""
+    `taper` metres at both ends (`_narrow_near`)."""
     from lxml import etree
 
-    root = etree.parse(str(src)).getroot()
-    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    road = next(r for r in etree.parse(str(src)).getroot().findall("road") if r.get("id") == road_id)
     length = float(road.get("length"))
-    for lane in road.findall("lanes/laneSection/*/lane"):
-        old = lane.find("width")
-        if old is None:
-            continue
-        w0 = float(old.get("a"))
-        at = lane.index(old)
-        lane.remove(old)
-        dw = width - w0
-        parts = [(0.0, w0, 3 * dw / taper ** 2, -2 * dw / taper ** 3), (taper, width, 0.0, 0.0),
-                 (length - taper, width, -3 * dw / taper ** 2, 2 * dw / taper ** 3)]
-        for k, (s, a, c, d) in enumerate(parts):
-            lane.insert(at + k, etree.Element("width", sOffset=repr(s), a=repr(a), b="0.0", c=repr(c), d=repr(d)))
-    dst.write_bytes(etree.tostring(root))
+    _narrow_near(src, dst, road_id, [(0.0, None), (taper, width), (length - taper, width), (length, None)])
 
 
 @pytest.fixture(scope="module")
