@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..config import (AMBER_BRAKE_MPS2, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
+from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
                       IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
                       LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
                       MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
@@ -142,6 +142,32 @@ def stops_at_amber(distance, speed):
     return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
 
 
+def amber_arrival_speed(distance, line_speed: float, amber_s: float):
+    """The lowest speed at `distance` (float or array) before a signal's line from which a
+    vehicle that goes at amber onset crosses the line before red: holding its speed, or slowing
+    steadily to `line_speed` at the line (a turn's curve speed behind it) once faster than that."""
+    d = np.asarray(distance, dtype=float)
+    hold = d / amber_s
+    return np.where(hold <= line_speed, hold, 2 * d / amber_s - line_speed)
+
+
+def amber_speed_cap(distance, speed: float, line_speed: float, amber_s: float):
+    """The highest speed a vehicle now at `speed` may have at `distance` (float or array) before a
+    signal's line while it is green, so that an amber beginning there never finds it in the
+    dilemma zone: where it would be too slow to cross before red (`amber_arrival_speed`,
+    slowing to `line_speed` for the turn behind the line) it must be slow enough that
+    `stops_at_amber` stops it (plus AMBER_CAP_MARGIN_M); inf where its speed crosses in time or
+    where it is too near the line to stop at all.
+    (The go at amber assumed the speed held to the line while a turn was slowed for behind it:
+    SVL San Francisco 2019, 20 m/s on every lane, crossed 0.05-0.6 s after red.)"""
+    d = np.asarray(distance, dtype=float)
+    room = d - 1.0 - AMBER_CAP_MARGIN_M
+    stop = np.sqrt(2 * AMBER_BRAKE_MPS2 * np.maximum(room, 0.0))
+    # (nearer than the stop rule's own metre and the margin no speed stops: no cap, or a car
+    # creeping up to the line on green would be held there)
+    return np.where((room > 0) & (speed < amber_arrival_speed(d, line_speed, amber_s)), stop, math.inf)
+
+
 def in_stop_zone(distance_to_line: float) -> bool:
     """Where a stop at a line counts (centre before the line, within STOP_ZONE_M)."""
     return 0.0 <= distance_to_line <= STOP_ZONE_M
@@ -203,6 +229,12 @@ def places_to_wait(room: float, length: float) -> int:
     """How many vehicles `length` long `room` metres of road before a narrow passage hold
     waiting there, one per length and stop margin (`room_to_wait` is whether it holds one)."""
     return int(room // (length + STOP_POINT_M))
+
+
+def beyond(d: float, wait: float) -> bool:
+    """Whether a junction lane starting `d` metres ahead of a vehicle's centre lies beyond its
+    stop point `wait` metres ahead (a wait at the lane's line or at its edge, or before them)."""
+    return d >= wait + STOP_POINT_M - 1e-6
 
 
 def enters_next(vehicle, lane_id: str) -> bool:
@@ -546,7 +578,10 @@ class TrafficRules:
         line of the junction before it when that wait would be inside the junction (a car
         standing at a junction exit blocks the box and stands beside the other direction's
         lane); after back-to-back junctions with no room to wait between, at the first one's
-        line (digitaf r033). The room before a passage that follows the chain is a counted
+        line (digitaf r033). A vehicle already past that line but not yet in the junction (placed
+        there at a route's start) waits at the junction's edge, never in the junction at the
+        passage's mouth, where it stood in the way out of the passage (digitaf r114). The room
+        before a passage that follows the chain is a counted
         resource, one place per vehicle length and stop margin (`places_to_wait`): the chain
         ends before it while a place is free (the third item, the (group, side) whose room the
         vehicle takes with the chain), else that passage joins the chain, all or nothing (two
@@ -570,6 +605,8 @@ class TrafficRules:
             junction = lanes[lid].junction_id is not None
             if s_own is None and enters_junction(lanes, route[k - 1], lid):
                 at = d - line_setback(net, route[k - 1]) - STOP_POINT_M
+                if at < 0.0:  # past its line, not yet in the junction: its edge is the last wait outside
+                    at = max(d - STOP_POINT_M, 0.0)
                 if line is None or line < 0.0 or exit_d is None or \
                         room_to_wait(at + STOP_POINT_M - exit_d, vehicle.LENGTH):
                     line = at  # else a junction right after the one before: wait before that one
@@ -721,13 +758,34 @@ class TrafficRules:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
         STOP_POINT_M before a stop line it may not pass (measured along the route), before a
         pedestrian's crosswalk, or before a narrow passage the other direction holds. `ignore`
-        names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage"."""
+        names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage". A vehicle
+        waiting for a passage reserves the junction lanes before that wait as it commits to them
+        (unseen by the rules, it drove into a junction in which a car from the other side then
+        took a lane conflicting with its own: Testfeld_Karlsruhe r046), and none beyond it."""
         passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
-        if passage < math.inf:  # waiting for a passage: no junction lane is reserved meanwhile
-            stop = min(passage, self._rule_stop(vehicle, False, ignore))
+        if passage < math.inf:  # waiting for a passage: no junction lane beyond that wait is reserved meanwhile
+            if commit:
+                self._unreserve_beyond(vehicle, passage)
+            stop = min(passage, self._rule_stop(vehicle, commit, ignore, passage))
         else:
             stop = self._rule_stop(vehicle, commit, ignore)
         return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
+
+    def _unreserve_beyond(self, vehicle, wait: float) -> None:
+        """Give up `vehicle`'s reservation of a junction lane that begins beyond its wait for a
+        narrow passage (`wait` metres ahead): it will not enter that lane until the passage is its
+        own, and the reservation kept the passage's holder, whose way out crossed that lane, from
+        coming through (digitaf r025: a car reserved its lane into the passage while the passage
+        was free, then waited before it: the holder from the other side waited for the lane)."""
+        lane = getattr(vehicle, "reserved", None)
+        holder = self.reservations.get(lane) if lane is not None else None
+        if holder is None or holder is not vehicle:
+            return
+        for _k, lid, d, s_own in vehicle.upcoming(wait + vehicle.LENGTH):
+            if lid == lane:
+                if s_own is None and beyond(d, wait):
+                    self.release(vehicle, lane)
+                return
 
     def clear_of_sweeps(self, vehicle, stop: float) -> float:
         """A stop point `stop` metres ahead of `vehicle`, moved back so that the vehicle waits
@@ -749,13 +807,14 @@ class TrafficRules:
             return stop - back
         return stop
 
-    def _rule_stop(self, vehicle, commit: bool, ignore: frozenset) -> float:
+    def _rule_stop(self, vehicle, commit: bool, ignore: frozenset, before: float = math.inf) -> float:
         """`stop_distance` without narrow passages. The scan runs along the route up to the first
         road after the next junction entry with room to wait on it (`room_to_wait`), however many
         short road lanes lie before a line (CARLA's 1.5 m and 2.4 m roads) and however many
         junctions follow each other with less road between them: a line right after a junction
         is seen from before that junction (SUMO's 0.2 m approach lanes after a junction: the
-        line came into view 4 m ahead, too late to stop for its red)."""
+        line came into view 4 m ahead, too late to stop for its red). Junction lanes `beyond` the
+        stop point `before` (a passage's wait) are checked but never reserved."""
         net = self.net
         m = net.hdmap
         entered = False  # the scan has reached the next junction entry
@@ -770,7 +829,7 @@ class TrafficRules:
             if enters_junction(m.lanes, vehicle.lane_route[k - 1], lid):
                 in_lane = vehicle.lane_route[k - 1]
                 d_line = d - line_setback(net, in_lane)
-                if not self.may_enter(vehicle, in_lane, lid, d_line, commit, ignore):
+                if not self.may_enter(vehicle, in_lane, lid, d_line, commit and not beyond(d, before), ignore):
                     return d_line - STOP_POINT_M
             ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)
             if ped is not None:

@@ -279,6 +279,7 @@ BLOCKED_NEAR_M = 20.0  # a rule's stop point (not a stop sign not yet reached) o
 COMMIT_DISTANCE_M = 10.0  # a vehicle allowed to go reserves its junction lane this close to the line
 COMMIT_TIME_S = 1.5  # ... or this many seconds at its speed
 AMBER_BRAKE_MPS2 = 3.0  # at amber a vehicle stops when it can at this deceleration (plus 1 m)
+AMBER_CAP_MARGIN_M = 1.0  # a signal approach keeps this much more room than stops_at_amber needs (a decision step's travel)
 LOOKAHEAD_M = 60.0  # how far along its route a vehicle looks for leaders, stop lines and pedestrians
 PASSAGE_HORIZON_M = 400.0  # how far along its route a vehicle looks for narrow passages it must claim together
 PEDESTRIAN_CORRIDOR_M = 6.0  # beyond the lane half-width, a pedestrian walking towards the lane makes vehicles yield

@@ -38,7 +38,7 @@ import numpy as np
 from ..config import CONFLICT_DISTANCE_M, CURVE_BEHIND_M, IDM_ACC, STOP_POINT_M
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.lanes import curve_speeds
-from ..envs.rules import (RULES, braking_distance, can_stop_before, has_stopped, idm,
+from ..envs.rules import (RULES, amber_speed_cap, braking_distance, can_stop_before, has_stopped, idm,
                           in_stop_zone)
 
 SELECT_DISTANCE_M = 40.0  # junction scenarios are selected this far before the stop line
@@ -49,6 +49,8 @@ STOP_DURATION_S = 1.0  # full stop held at stop signs and before a right turn on
 BARE_APPROACH_M = 20.0  # bare junctions are approached at the junction speed limit from here
 HOLD_BRAKE_MPS2 = -3.0
 CURVE_LOOKAHEAD_M = 50.0
+AMBER_LOOKAHEAD_M = 100.0  # a green signal's line is approached at a speed no amber can catch in its dilemma zone from here
+APPROACH_STAGES = ("T_A", "L_A", "L_C")  # the stages before a signal's line that may meet its amber
 GAP_ACCEL_MPS2 = 1.5  # the ego's assumed acceleration when judging whether it clears a conflict in time
 GAP_MARGIN_S = 2.0  # a creeping turn goes when every conflicting vehicle arrives this much after it clears
 CROSS_TRAFFIC_MARGIN_M = 5.0  # a right turn on red waits for vehicles this far (plus 3 s) from a conflict
@@ -378,9 +380,39 @@ class BaselinePlanner:
                 a = min(a, -float(need.max()))
         return a
 
+    def _amber_acceleration(self) -> float:
+        """Deceleration that keeps the ego, approaching a green signal, out of its dilemma zone
+        (`rules.amber_speed_cap`): wherever an amber beginning there would leave it too slow to
+        cross before red, given the turn's curve speed it slows to behind the line, it is slow
+        enough to stop instead (inf when no such point ahead is slower than the ego). The amber
+        decision (`rules.stops_at_amber`) then stays right for a planner that brakes for its turn."""
+        env = self.env
+        if "signal" in self.ignore:
+            return math.inf
+        if self.stage == "LF":  # (the junction is selected SELECT_DISTANCE_M before its line: too late)
+            sl, _, j_lane, d = env.rules.line_ahead(env.vehicle, AMBER_LOOKAHEAD_M)
+            if sl is None or sl.kind != "signal" or env.rules.signal_state(sl.control_id) != "green":
+                return math.inf
+        elif self.stage in APPROACH_STAGES and self._signal_state() == "green":
+            j_lane, d = self.j_lane, self._line_distance()
+        else:
+            return math.inf
+        if j_lane is None or not 0.0 < d <= AMBER_LOOKAHEAD_M:
+            return math.inf
+        v = max(env.vehicle.speed, 0.0)
+        v_line = min(float(self._curve_speeds(j_lane)[1].min()), env.net.lane_of[j_lane].speed_limit)
+        amber = float(env.config["signal_amber"]) - 1.0 / float(env.config["policy_frequency"])  # decided a step late
+        x = np.arange(d, 0.0, -1.0)
+        cap = amber_speed_cap(x, v, v_line, amber)
+        ahead = cap < v
+        if not ahead.any():
+            return math.inf
+        need = (v * v - cap[ahead] ** 2) / (2 * np.maximum(d - x[ahead], 1.0))
+        return -float(need.max())
+
     # ---- control ---------------------------------------------------------------------------
     def _acceleration(self) -> float:
-        return min(self._rule_acceleration(), self._curve_acceleration())
+        return min(self._rule_acceleration(), self._curve_acceleration(), self._amber_acceleration())
 
     def _rule_acceleration(self) -> float:
         env = self.env

@@ -21,6 +21,7 @@ from .scenario import Manoeuvre, Scenario, Suite
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
 BASE_DURATION_S = 20.0
 SIGNAL_CROSSING_S = 10.0  # after a whole signal cycle: time to cross the junction
+YIELDING_TURN_CYCLES = 2  # signal cycles budgeted for a turn that yields to oncoming traffic in its green
 ROUTE_SPEED_MPS = 8.0  # plus the route's length at this speed
 START_AND_GOAL_M = 45.0  # the env starts the ego <= 30 m before the first junction and ends 15 m after the last
 
@@ -77,11 +78,21 @@ def signal_cycle(m: HDMap, junction_id: str) -> float:
     return len(phases) * (cfg["signal_green"] + cfg["signal_amber"] + cfg["signal_all_red"])
 
 
+def signal_cycles(m: HDMap, mv: Manoeuvre) -> int:
+    """Whole signal cycles a manoeuvre may wait at its junction: two for a left turn or U-turn
+    (it yields to oncoming traffic in its green, and a steady stream can hold it through a whole
+    green: CommonRoad's four_way_crossing r009 met red, waited out a green's oncoming stream and
+    the next red, and went in its second green), else one."""
+    lane = pick_lane(m, mv)
+    return YIELDING_TURN_CYCLES if lane is not None and lane.turn in ("left", "uturn") else 1
+
+
 def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
-    """A scenario duration [s] that leaves time for every junction (at least a whole signal
-    cycle plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget) and for
-    the distance."""
-    per_junction = sum(max(SECONDS_PER_JUNCTION, signal_cycle(m, jid) + SIGNAL_CROSSING_S) for jid, _, _ in route)
+    """A scenario duration [s] that leaves time for every junction (at least its signal cycles,
+    `signal_cycles`, plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget)
+    and for the distance."""
+    per_junction = sum(max(SECONDS_PER_JUNCTION, signal_cycles(m, mv) * signal_cycle(m, mv[0]) + SIGNAL_CROSSING_S)
+                       for mv in route)
     return round(BASE_DURATION_S + per_junction + route_length(m, route) / ROUTE_SPEED_MPS, 1)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import feat2map
+from feat2map.config import STOP_POINT_M
 from feat2map.envs.network import PASSAGE_DISTANCE_M, MapNetwork
 from feat2map.formats import read_map
 from feat2map.scenarios.rollout import run_suite
@@ -24,25 +25,12 @@ BRIDGE_WIDTH_M, TAPER_M = 1.0, 12.0
 
 def _narrow(src: Path, dst: Path, road_id: str, width: float, taper: float) -> None:
     """Road `road_id` of an exported OpenDRIVE map narrowed from its lane width to `width` over
-    `taper` metres at both ends (cubic widths with zero slope at the joints)."""
+    `taper` metres at both ends (`_narrow_near`)."""
     from lxml import etree
 
-    root = etree.parse(str(src)).getroot()
-    road = next(r for r in root.findall("road") if r.get("id") == road_id)
+    road = next(r for r in etree.parse(str(src)).getroot().findall("road") if r.get("id") == road_id)
     length = float(road.get("length"))
-    for lane in road.findall("lanes/laneSection/*/lane"):
-        old = lane.find("width")
-        if old is None:
-            continue
-        w0 = float(old.get("a"))
-        at = lane.index(old)
-        lane.remove(old)
-        dw = width - w0
-        parts = [(0.0, w0, 3 * dw / taper ** 2, -2 * dw / taper ** 3), (taper, width, 0.0, 0.0),
-                 (length - taper, width, -3 * dw / taper ** 2, 2 * dw / taper ** 3)]
-        for k, (s, a, c, d) in enumerate(parts):
-            lane.insert(at + k, etree.Element("width", sOffset=repr(s), a=repr(a), b="0.0", c=repr(c), d=repr(d)))
-    dst.write_bytes(etree.tostring(root))
+    _narrow_near(src, dst, road_id, [(0.0, None), (taper, width), (length - taper, width), (length, None)])
 
 
 @pytest.fixture(scope="module")
@@ -433,3 +421,111 @@ def test_room_before_a_passage_is_taken_with_the_passage_before_it(room_for_one)
     assert not placed
     assert not entered_early  # the ego, behind them, waits before A while B is held the other way
     assert u.route_completed() and info["time"] < 40.0
+
+
+def _parked(env) -> None:
+    """One step with the ego standing still (the rules' state brought up to date)."""
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+
+
+def test_car_past_its_line_waits_for_a_passage_at_the_junctions_edge(tmp_path):
+    """A car past its line but not yet in the junction (placed there at a route's start), heading
+    through the junction into a passage with no room to wait before it, waits for the passage at
+    the junction's edge, not in the junction at the passage's mouth: standing there it blocks
+    the lanes the passage's holders leave by, and they wait for it (digitaf r114: the ego, its
+    start lane's line behind it, waited 37 m into junction j_25760084 for the passage that a car
+    held from the other side, which waited to enter that junction: nobody moved for 120 s). The
+    map: `test_bare_setback`'s four-way whose right turn is drawn over R0_1's last metre (R0_1's
+    wait point 3.8 m before its end), with R2 one lane used both ways."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from feat2map.formats import native
+    from test_bare_setback import _redrawn
+
+    m, net0 = _redrawn("bare")
+    native.save(_coincident(m, "R2"), tmp_path / "edge.json")
+    m = read_map(tmp_path / "edge.json")
+    sc = Scenario("edge", str(tmp_path / "edge.json"), (("J0", "R3", "R1"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, ctl = u.net, u.control
+    into = next(ln.id for ln in m.lanes_by_junction["J0"] if ln.predecessors[0] == "R0_1" and ln.successors[0] == "R2_0")
+    ps = net.passages["R2_0"]
+    setback = net.setbacks["R0_1"]
+    assert ps.s0 < 1.0 and setback > 3.0  # no room before the passage; R0_1 waits 3.8 m before its end
+    to_junction = 2.0  # past the wait point, 2 m before the junction
+    u.road.spawn("R2_1", 20.0, 0.0, ["R2_1"])  # holds the passage from the other side
+    _parked(env)
+    assert ctl.passage_holders[ps.group][1 - ps.side]
+    car = u.road.spawn("R0_1", net.lane_of["R0_1"].length - to_junction, 0.0, ["R0_1", into, "R2_0"])
+    chain, wait = ctl.passage_ahead(car)
+    assert chain == [(ps.group, ps.side)]
+    assert wait == pytest.approx(to_junction - STOP_POINT_M)  # at the junction's edge, not inside it
+    assert ctl.passage_stop(car, False) == pytest.approx(wait)
+    env.close()
+
+
+def test_reservation_beyond_a_passage_wait_is_given_up(two_narrow):
+    """A car that reserved its junction lane into a passage while the passage was free, and now
+    waits for it at the junction's line, gives the reservation up: kept, it held back the
+    passage's holder from the other side, whose way out of the passage crossed that lane, while
+    the car waited for that holder (digitaf r025, junction j_1388683057)."""
+    m = read_map(two_narrow)
+    sc = Scenario("unreserve", str(two_narrow), (("1", "4", "1"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, ctl = u.net, u.control
+    into = next(ln.id for ln in m.lanes_by_junction["1"] if ln.predecessors[0] == "3_0_1" and ln.successors[0] == "2_0_-1")
+    ps = net.passages["2_0_-1"]
+    u.road.spawn("2_0_1", 12.0, 0.0, ["2_0_1"])  # holds the passage from the other side
+    _parked(env)
+    assert ctl.passage_holders[ps.group][1 - ps.side]
+    car = u.road.spawn("3_0_1", net.lane_of["3_0_1"].length - 8.0, 0.0, ["3_0_1", into, "2_0_-1"])
+    ctl.reservations[into], car.reserved = car, into  # reserved while the passage was free
+    wait = ctl.stop_distance(car)  # what the traffic core asks every step (commit)
+    assert wait < math.inf and wait == pytest.approx(ctl.passage_stop(car, False))  # it waits for the passage, at the line
+    assert into not in ctl.reservations and car.reserved is None
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def bare_bridge(tmp_path_factory) -> Path:
+    """Two bare 4-way junctions joined by road 3 (61 m), narrowed to 1 m lanes over its middle
+    (from 20 m to 40 m): a passage with room to wait on road 3 between junction 1 and it."""
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    d = tmp_path_factory.mktemp("bare_bridge")
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)
+    write_opendrive(feat2map.generate_from_features([four, four], seed=0), d / "twin.xodr")
+    _narrow_near(d / "twin.xodr", d / "bare_bridge.xodr", "3",
+                 [(0.0, None), (15.0, None), (20.0, 1.0), (40.0, 1.0), (45.0, None)])
+    return d / "bare_bridge.xodr"
+
+
+def test_junction_before_a_far_passage_wait_is_reserved(bare_bridge):
+    """A car whose wait for a passage lies on the road after a junction reserves its lane in
+    that junction as it commits to it, as it would with no passage ahead: only lanes beyond the
+    wait go unreserved. Reserving none, it drove into the junction unseen by the rules, a car
+    from the other side reserved a lane conflicting with its own, and the two stood nose to nose
+    in the junction (Testfeld_Karlsruhe r046, junction j_262852677)."""
+    m = read_map(bare_bridge)
+    sc = Scenario("far", str(bare_bridge), (("1", "2", "4"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, ctl = u.net, u.control
+    ps = net.passages["3_0_-1"]
+    assert 8.0 < ps.s0 < 20.0  # room to wait between junction 1 and the passage
+    into = next(ln.id for ln in m.lanes_by_junction["1"] if ln.predecessors[0] == "1_0_1" and ln.successors[0] == "3_0_-1")
+    u.road.spawn("3_0_1", 30.0, 0.0, ["3_0_1"])  # holds the passage from the other side
+    _parked(env)
+    assert ctl.passage_holders[ps.group][1 - ps.side]
+    car = u.road.spawn("1_0_1", net.lane_of["1_0_1"].length - 4.0, 5.0, ["1_0_1", into, "3_0_-1"])
+    wait = ctl.stop_distance(car)  # what the traffic core asks every step (commit)
+    assert wait == pytest.approx(ctl.passage_stop(car, False))
+    assert net.lane_of["1_0_1"].length - car.s_on("1_0_1") + net.lane_of[into].length < wait < math.inf  # beyond junction 1
+    assert ctl.reservations.get(into) is car and car.reserved == into
+    env.close()

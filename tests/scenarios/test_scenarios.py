@@ -21,8 +21,10 @@ import feat2map
 from feat2map.formats import native
 from feat2map.envs.routes import manoeuvres_to_lanes
 from feat2map.envs.network import MapNetwork
-from feat2map.scenarios.routes import (START_AND_GOAL_M, build_suite, coverage_routes, manoeuvres, render_routes,
-                                       route_coverage, route_duration, route_length, successor_graph)
+from feat2map.scenarios.routes import (BASE_DURATION_S, ROUTE_SPEED_MPS, SECONDS_PER_JUNCTION, SIGNAL_CROSSING_S,
+                                       START_AND_GOAL_M, build_suite, coverage_routes, manoeuvres, pick_lane,
+                                       render_routes, route_coverage, route_duration, route_length, signal_cycle,
+                                       signal_cycles, successor_graph)
 from feat2map.scenarios.scenario import (Scenario, ScenarioError, Suite, load_suite, make_env, save_suite,
                                          suite_from_dict)
 
@@ -169,6 +171,26 @@ def test_coverage_routes_cover_every_manoeuvre_and_are_drivable(seed):
         inner = sum(m.lanes[l].length for l in lanes[1:-1])
         assert route_length(m, r) == pytest.approx(inner + START_AND_GOAL_M)  # the env's lanes
         assert route_duration(m, r) > inner / 10.0
+
+
+def test_a_turn_that_yields_at_a_signal_gets_two_cycles(m1):
+    """A left turn at a signal yields to oncoming traffic in its green and may wait out a whole
+    green's stream and the next red (four_way_crossing r009): its budget is two cycles, a
+    straight or right turn's one."""
+    moves = {}
+    for mv in manoeuvres(m1):
+        lane = pick_lane(m1, mv)
+        if signal_cycle(m1, mv[0]) > 0 and lane is not None:
+            moves.setdefault(lane.turn, mv)
+    assert {"left", "none"} <= set(moves)
+    for turn, mv in moves.items():
+        cycles = 2 if turn in ("left", "uturn") else 1
+        assert signal_cycles(m1, mv) == cycles
+        expected = BASE_DURATION_S + max(SECONDS_PER_JUNCTION, cycles * signal_cycle(m1, mv[0]) + SIGNAL_CROSSING_S) \
+            + route_length(m1, [mv]) / ROUTE_SPEED_MPS
+        assert route_duration(m1, [mv]) == pytest.approx(expected, abs=0.06)
+    assert route_duration(m1, [moves["left"]]) - route_length(m1, [moves["left"]]) / ROUTE_SPEED_MPS > \
+        route_duration(m1, [moves["none"]]) - route_length(m1, [moves["none"]]) / ROUTE_SPEED_MPS
 
 
 def test_coverage_is_deterministic_and_partial_coverage_is_measured(m1):
