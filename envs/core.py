@@ -65,8 +65,8 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import MapNetwork
-from .rules import (has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane, room_to_wait,
-                    stop_gap, stops_at_amber)
+from .rules import (crossed_lanes, has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane,
+                    room_to_wait, stop_gap, stops_at_amber)
 from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
 
 if TYPE_CHECKING:
@@ -97,6 +97,7 @@ class LaneTable:
         self.junction = np.array([m.lanes[lid].junction_id is not None for lid in net.lane_ids])
         self.crossing = np.array([lid in net.crossings for lid in net.lane_ids])
         self.passage = np.array([lid in net.passages for lid in net.lane_ids], dtype=bool)
+        self.crossed = np.array([bool(crossed_lanes(net, lid)) for lid in net.lane_ids], dtype=bool)
         self.neighbours = np.array([bool(m.lanes[lid].left_neighbors or m.lanes[lid].right_neighbors)
                                     for lid in net.lane_ids])
         npts = np.array([len(ln.points) for ln in lanes])
@@ -828,14 +829,16 @@ class TrafficCore:
         row order)."""
         t = self.table
         flag = self.entry - self.s <= LOOKAHEAD_M
+        W = self.W
         if t.passage.any():  # narrow passages on the window
-            W = self.W
             flag |= (t.passage[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
+        if t.crossed.any():  # road lanes across junction lanes ahead on the window (`rules.crossing_held`)
+            flag |= (t.crossed[np.maximum(W[:, 1:], 0)] & (W[:, 1:] >= 0) &
+                        (self.C[:, 1:] - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         nl = len(t.length)
         busy = [road.slot * nl + k for road in self.roads if road is not None
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
-            W = self.W
             key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
             flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
@@ -880,7 +883,9 @@ class TrafficCore:
             ~junction[np.arange(n), after] & \
             room_to_wait(t.length[road_after] - t.line_setback[road_after], self.length[R])
         # one (the first) junction lane after the current one is scanned, and the road after it
-        # has room to wait (else the scan goes on to the next junction's line: the rules decide)
+        # has room to wait (else the scan goes on to the next junction's line: the rules decide);
+        # a road lane across a junction lane on the window: the rules decide (`crossing_held`)
+        simple &= ~(t.crossed[lanes[:, 1:]] & valid[:, 1:]).any(axis=1)
         nl = len(t.length)
         busy = [road.slot * nl + k for road in roads if road is not None
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]

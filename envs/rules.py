@@ -195,6 +195,16 @@ def enters_junction(lanes: Mapping[str, Any], before: str, lane: str) -> bool:
     return lanes[lane].junction_id is not None and lanes[before].junction_id is None
 
 
+def crossed_lanes(net: "MapNetwork", lane_id: str) -> list[str]:
+    """The junction lanes that road lane `lane_id` crosses (`network.road_crossings`: a road
+    lane of another road drawn across a junction lane, as osm2xodr draws scheck-in's
+    `w669252633_0_0_-1` across `j_26026265_c55_0_-1`); empty for a junction lane."""
+    lanes = net.hdmap.lanes
+    if lanes[lane_id].junction_id is not None:
+        return []
+    return [c for c in net.conflicts.get(lane_id, ()) if lanes[c].junction_id is not None]
+
+
 def line_setback(net: "MapNetwork", in_lane: str) -> float:
     """How far before the end of incoming lane `in_lane` vehicles wait to enter the junction
     (`MapNetwork.setbacks`: its stop line, or at a bare entry the point clear of the junction's
@@ -543,6 +553,20 @@ class TrafficRules:
             chain.append(lid)
         return chain
 
+    def crossing_held(self, vehicle, lane_id: str, d: float) -> bool:
+        """Whether `vehicle`, `d` metres before the start of road lane `lane_id`, waits there:
+        the lane crosses a junction lane (`crossed_lanes`) that someone else occupies or has
+        reserved, `vehicle` holds no reservation of `lane_id` (a vehicle entering through that
+        junction claims the road lane with its junction lanes, `junction_chain`) and it can still
+        stop comfortably before it. Nothing else gates such a road lane: no junction entry lies on
+        it, so traffic on it drove through the reserved junction lane's path (scheck-in r077: v1 on
+        `w669252633_0_0_-1` at 9-12 m/s into the ego's rear leaving `c55`)."""
+        if self.reservations.get(lane_id) is vehicle:
+            return False
+        crossed = crossed_lanes(self.net, lane_id)
+        return bool(crossed) and any(self.occupied(c, vehicle) for c in crossed) and \
+            can_stop_before(d, vehicle.speed, vehicle.LENGTH)
+
     def release(self, vehicle, j_lane: str) -> None:
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
         junction (if it holds them): it will not enter now."""
@@ -826,6 +850,8 @@ class TrafficRules:
                 if ped is not None:
                     return ped - s_own
                 continue
+            if "conflict" not in ignore and self.crossing_held(vehicle, lid, d):
+                return d - STOP_POINT_M
             if enters_junction(m.lanes, vehicle.lane_route[k - 1], lid):
                 in_lane = vehicle.lane_route[k - 1]
                 d_line = d - line_setback(net, in_lane)
