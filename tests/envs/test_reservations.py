@@ -1,0 +1,111 @@
+"""Junction reservations and the road lanes drawn across junction lanes: a reservation is held
+until the holder's rear has left the lane, and traffic heading into a road lane that crosses a
+junction lane waits for whoever holds that junction lane (osm2xodr scheck-in r077)."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import feat2map
+from feat2map.config import STOP_POINT_M
+from feat2map.envs.core import LaneTable
+from feat2map.formats import native
+from feat2map.scenarios.scenario import Scenario, make_env
+
+
+def _crossed_map(path: Path) -> Path:
+    """A generated bare four-way whose straight J0_c1_0 (ending at (19.5, -1.75)) is crossed
+    0.5 m before its end by RX_0, a road lane of a road of its own running north along x = 19
+    (scheck-in's `w669252633_0_0_-1` across `j_26026265_c55_0_-1`), fed by the 30 m road lane
+    RY_0 before it: traffic reaches RX_0 from a road lane, through no junction entry."""
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)], seed=0)
+    tup = lambda a: tuple(map(tuple, a))  # noqa: E731
+
+    def lane(lid: str, y0: float, y1: float, predecessors: tuple = (), successors: tuple = ()):
+        pts = np.stack([np.full(8, 19.0), np.linspace(y0, y1, 8)], 1)
+        return dataclasses.replace(m.lanes["R2_0"], id=lid, road_id=lid[:2], centerline=tup(pts),
+                                   left_boundary=tup(pts - (1.75, 0)), right_boundary=tup(pts + (1.75, 0)),
+                                   predecessors=predecessors, successors=successors, left_neighbors=(),
+                                   right_neighbors=(), left_reverse_neighbors=(), bezier=None)
+
+    def road(rid: str, lid: str):
+        return dataclasses.replace(m.roads["R2"], id=rid, right_lanes=(lid,), left_lanes=(), reference=None,
+                                   start_junction=None, end_junction=None)
+
+    lanes = {**m.lanes, "RY_0": lane("RY_0", -44.0, -14.0, successors=("RX_0",)),
+             "RX_0": lane("RX_0", -14.0, 0.0, predecessors=("RY_0",))}
+    m = dataclasses.replace(m, lanes=lanes, roads={**m.roads, "RY": road("RY", "RY_0"), "RX": road("RX", "RX_0")})
+    native.save(m, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def crossed(tmp_path_factory) -> Path:
+    return _crossed_map(tmp_path_factory.mktemp("crossed") / "crossed.json")
+
+
+def _env(path: Path):
+    sc = Scenario("crossed", str(path), (("J0", "R3", "R1"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    return env
+
+
+def _parked(env) -> None:
+    """One step with the ego standing still (the rules' state brought up to date)."""
+    env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+
+
+def test_traffic_into_a_road_lane_across_a_held_junction_lane_waits_at_its_start(crossed):
+    """A car on RY_0 heading into RX_0 waits at RX_0's start while J0_c1_0, which RX_0 crosses,
+    is occupied by someone else, and drives on while it is free (fails without the rule: no
+    junction entry lies ahead of it, nothing stopped it, and it drove into the car leaving
+    J0_c1_0: scheck-in r077). The traffic core hands such rows to the rules."""
+    env = _env(crossed)
+    u = env.unwrapped
+    net, ctl = u.net, u.control
+    assert "RX_0" in net.conflicts["J0_c1_0"]
+    car = u.road.spawn("RY_0", 20.0, 0.0, ["RY_0", "RX_0"])
+    _parked(env)
+    assert ctl.stop_distance(car) == math.inf  # J0_c1_0 is free
+    c1 = net.hdmap.lanes["J0_c1_0"]
+    u.road.spawn("J0_c1_0", 4.0, 0.0, ["J0_c1_0", c1.successors[0]])  # stands in J0_c1_0
+    _parked(env)
+    d = net.lane_of["RY_0"].length - car.s_on("RY_0")
+    assert ctl.stop_distance(car) == pytest.approx(d - STOP_POINT_M)
+    for _ in range(20):  # 2-4 s, driven by the batched traffic core: it stays before RX_0
+        _parked(env)
+    assert net.id_of[car.lane_index] == "RY_0"
+    assert set(np.asarray(net.lane_ids)[LaneTable(net).crossed]) == {"RX_0"}  # the core's table of such lanes
+    env.close()
+
+
+def test_a_reservation_is_held_until_the_holders_rear_leaves_the_lane(crossed):
+    """A car leaving J0_c1_0 keeps its reservation while its rear still covers the lane's end
+    (where RX_0 crosses it), and gives it up once its rear is off: released as its centre left
+    the lane, it let cross traffic into the body still over the crossing (fails without the
+    rule: the reservation ended with the centre)."""
+    env = _env(crossed)
+    u = env.unwrapped
+    net, ctl = u.net, u.control
+    c1 = net.hdmap.lanes["J0_c1_0"]
+    succ = c1.successors[0]
+    car = u.road.spawn("J0_c1_0", net.lane_of["J0_c1_0"].length - 3.0, 5.0, ["J0_c1_0", succ])
+    ctl.reservations["J0_c1_0"], car.reserved = car, "J0_c1_0"
+    seen = []  # (centre's s on the next lane, still reserved) once its centre left J0_c1_0
+    for _ in range(30):
+        _parked(env)
+        if net.id_of.get(car.lane_index) == succ:
+            seen.append((car.s_on(succ), ctl.reservations.get("J0_c1_0") is car))
+        if seen and seen[-1][0] > car.LENGTH:
+            break
+    rear_on = [held for s, held in seen if s < car.LENGTH / 2 - 0.3]
+    rear_off = [held for s, held in seen if s > car.LENGTH / 2 + 0.3]
+    assert rear_on and all(rear_on)
+    assert rear_off and not any(rear_off)
+    assert car.reserved is None
+    env.close()
