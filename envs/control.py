@@ -155,13 +155,12 @@ class TrafficControl(TrafficRules):
             if lid is not None:
                 buckets.setdefault(lid, []).append(v)
         self.buckets = buckets
-        # release reservations of vehicles that left their junction lane with their rear (or the road):
-        # one released as the centre left it let cross traffic into the body still over it
+        # release reservations of vehicles that left their junction lane (or the road)
         alive = set(map(id, vehicles)) if self.reservations or net.passages else set()
         for lid, v in list(self.reservations.items()):
             on = lid in (net.id_of.get(v.lane_index), getattr(v, "lane_route", [None])[getattr(v, "route_pos", 0)])
             passed = hasattr(v, "lane_route") and lid in v.lane_route[:v.route_pos]
-            if id(v) not in alive or (passed and not on and not self._rear_on(v, lid)):
+            if id(v) not in alive or (passed and not on):
                 del self.reservations[lid]
                 if getattr(v, "reserved", None) == lid:
                     v.reserved = None
@@ -188,14 +187,6 @@ class TrafficControl(TrafficRules):
                 q.append(v)
                 v.stopped_at = sl.control_id
         self._update_pedestrians(road, vehicles, dt)
-
-    def _rear_on(self, v, lid: str) -> bool:
-        """Whether route follower `v`, its centre past lane `lid`, still covers it with its rear
-        (the lanes after `lid` up to its centre are shorter than half its length)."""
-        route, pos = v.lane_route, v.route_pos
-        k = len(route[:pos]) - 1 - route[:pos][::-1].index(lid)
-        d = v.s_on(route[pos]) + sum(self.net.lane_of[x].length for x in route[k + 1:pos])
-        return d < v.LENGTH / 2
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
         """Road users within a narrow passage hold it from their side; holders and waiters that

@@ -1,6 +1,6 @@
-"""Junction reservations and the road lanes drawn across junction lanes: a reservation is held
-until the holder's rear has left the lane, and traffic heading into a road lane that crosses a
-junction lane waits for whoever holds that junction lane (osm2xodr scheck-in r077)."""
+"""Junction reservations and the road lanes drawn across junction lanes: traffic heading into a
+road lane that crosses a junction lane waits for whoever holds that junction lane (osm2xodr
+scheck-in r077)."""
 from __future__ import annotations
 
 import dataclasses
@@ -83,29 +83,3 @@ def test_traffic_into_a_road_lane_across_a_held_junction_lane_waits_at_its_start
     assert set(np.asarray(net.lane_ids)[LaneTable(net).crossed]) == {"RX_0"}  # the core's table of such lanes
     env.close()
 
-
-def test_a_reservation_is_held_until_the_holders_rear_leaves_the_lane(crossed):
-    """A car leaving J0_c1_0 keeps its reservation while its rear still covers the lane's end
-    (where RX_0 crosses it), and gives it up once its rear is off: released as its centre left
-    the lane, it let cross traffic into the body still over the crossing (fails without the
-    rule: the reservation ended with the centre)."""
-    env = _env(crossed)
-    u = env.unwrapped
-    net, ctl = u.net, u.control
-    c1 = net.hdmap.lanes["J0_c1_0"]
-    succ = c1.successors[0]
-    car = u.road.spawn("J0_c1_0", net.lane_of["J0_c1_0"].length - 3.0, 5.0, ["J0_c1_0", succ])
-    ctl.reservations["J0_c1_0"], car.reserved = car, "J0_c1_0"
-    seen = []  # (centre's s on the next lane, still reserved) once its centre left J0_c1_0
-    for _ in range(30):
-        _parked(env)
-        if net.id_of.get(car.lane_index) == succ:
-            seen.append((car.s_on(succ), ctl.reservations.get("J0_c1_0") is car))
-        if seen and seen[-1][0] > car.LENGTH:
-            break
-    rear_on = [held for s, held in seen if s < car.LENGTH / 2 - 0.3]
-    rear_off = [held for s, held in seen if s > car.LENGTH / 2 + 0.3]
-    assert rear_on and all(rear_on)
-    assert rear_off and not any(rear_off)
-    assert car.reserved is None
-    env.close()
