@@ -61,22 +61,21 @@ def _clear_of_crossings(ln, cl: LineString, road_lanes: "RoadLanes") -> float:
     return max(best, 0.0)
 
 
-def _clear_of_paths_over(ln, cl: LineString, m, s_line: float, by_junction: dict | None = None) -> float:
+def _clear_of_paths_over(ln, cl: LineString, m, s_line: float) -> float:
     """s on the incoming lane `ln` (centreline `cl`) at which a vehicle waiting at its line stands
     clear of the junction's lanes from other approaches that run over `ln` itself (within its half
     width) where a car waiting at `s_line` stands (its length before the line): where such a lane
     comes onto `ln` there, less half its width and CROSSING_CLEARANCE_M; inf when none does.
     osm2xodr draws a cluster's paths over the last metre of an approach (scheck-in's
     `j_14959944_c98` passes 0.9 m from the centre of `w268002703_2_0_-1` at its line): the car
-    waiting there stood in their way. `by_junction` (junction id -> its lanes) spares a scan of
-    every lane of the map."""
+    waiting there stood in their way. Only the lanes of the junctions `ln` leads into are looked
+    at (`HDMap.lanes_by_junction`)."""
     own = set(ln.successors)
     jids = {m.lanes[s].junction_id for s in own if s in m.lanes} - {None}
     best = math.inf
     area = cl.buffer(ln.width / 2, cap_style="flat")
-    cands = m.lanes.values() if by_junction is None else [o for j in jids for o in by_junction.get(j, ())]
-    for other in cands:
-        if other.junction_id not in jids or other.id in own or other.id in ln.predecessors or not other.predecessors \
+    for other in (o for j in sorted(jids) for o in m.lanes_by_junction.get(j, ())):
+        if other.id in own or other.id in ln.predecessors or not other.predecessors \
                 or ln.id in other.successors or set(other.predecessors) & (own | {ln.id} | set(ln.predecessors)):
             continue  # its own paths, the paths leading into it (a cluster's element around a short road), and
             # paths no lane leads into: no one drives them (CommonRoad's Guetersloh 21_0_1 starts on 36_0_-1's end)
@@ -566,15 +565,12 @@ class MapNetwork(RoadNetwork):
         for lid, sl in self.stop_lines.items():
             if self.lane_of[lid].length - sl.s > 0.0:
                 self.setbacks[lid] = self.lane_of[lid].length - sl.s
-        by_junction: dict[str, list] = {}
-        for ln in m.lanes.values():
-            if ln.junction_id is not None:
-                by_junction.setdefault(ln.junction_id, []).append(ln)
-        bare = {p for lanes in by_junction.values() for jl in lanes for p in jl.predecessors
+        bare = {p for jid, lanes in m.lanes_by_junction.items() if jid is not None for jl in lanes
+                for p in jl.predecessors
                 if p in m.lanes and m.lanes[p].junction_id is None and p not in self.stop_lines and p in self.lane_of}
         for lid in sorted(bare):
             ln, length = m.lanes[lid], self.lane_of[lid].length
-            s = min(length, _clear_of_paths_over(ln, LineString(ln.centerline), m, length, by_junction))
+            s = min(length, _clear_of_paths_over(ln, LineString(ln.centerline), m, length))
             if length - s > 0.0:
                 self.setbacks[lid] = length - s
         for lid, back in turn_setbacks(self, self.setbacks, sorted(set(self.stop_lines) | bare)).items():
