@@ -15,9 +15,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import numpy as np
 import pytest
+from conftest import SKIP_RL
 
-pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
-pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
+pytest.importorskip("torch", reason=SKIP_RL)
+pytest.importorskip("stable_baselines3", reason=SKIP_RL)
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
 
