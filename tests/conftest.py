@@ -5,6 +5,7 @@ import copy
 import math
 import os
 import random
+import warnings
 from pathlib import Path, PurePosixPath
 from typing import Callable
 
@@ -75,9 +76,9 @@ def shared_map_params(*patterns: str, ids: Callable[[str], str] | None = None) -
     return out
 
 
-# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change (2.5
-# minutes on an idle 2-core machine); plain `pytest` (CI, scripts/test.sh) runs everything.
-# SLOW_TESTS are the tests, each 8 s or more of the 17 min the whole suite took under --durations on a loaded 2-core
+# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change; plain `pytest`
+# (CI, scripts/test.sh) runs everything; README.md (Two commands) gives how long each takes.
+# SLOW_TESTS are the tests of 8 s or more each under --durations on a loaded 2-core
 # machine: whole end-to-end drives, external checkers over many maps, property tests with many
 # examples, subprocess and worker-pool runs. An entry is a module or a test function (all its
 # parameters); tests/test_tiers.py checks that each names a test that exists.
@@ -161,6 +162,19 @@ def straight_piece(road, rid: str, s0: float, length: float):
     etree.SubElement(geo, "line")
     geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(length)})
     return r
+
+
+def read_shared_map(relative: str, reader: Callable | None = None):
+    """A third-party map read by `reader` (read_map), or skip; the findings its readers warn about
+    (the map's own flaws, docs/semantics.md) are expected: each must name the file, none is shown."""
+    from feat2map.formats import read_map
+
+    path = shared_map(relative)
+    with warnings.catch_warnings(record=True) as found:
+        warnings.simplefilter("always")
+        m = (reader or read_map)(path)
+    assert all(str(path) in str(w.message) for w in found), [str(w.message) for w in found]
+    return m
 
 
 def shared_map(relative: str) -> Path:
