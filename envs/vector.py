@@ -252,17 +252,35 @@ def info_of(infos: dict[str, Any], i: int) -> dict[str, Any]:
     return out
 
 
+SAME_STEP_HOWTO = ("make it with same-step autoreset: gym.make_vec(ID, num_envs=N, autoreset_mode='SameStep') "
+                   "(a keyword of make_vec itself: Gymnasium refuses vector_kwargs for a vector_entry_point env), "
+                   "or vectorization_mode='async', vector_kwargs={'autoreset_mode': 'SameStep'}")
+
+
+def same_step(venv) -> None:
+    """Switch `venv` (a `SyncVectorEnv`, such as `MapVectorEnv`, or a wrapper of one) to same-step
+    autoreset before its next reset; a Feat2MapError saying how to make it so for any other."""
+    base = venv.unwrapped
+    if venv.metadata.get("autoreset_mode") == AutoresetMode.SAME_STEP:
+        return
+    if not isinstance(base, SyncVectorEnv):  # an AsyncVectorEnv's mode lives in its workers
+        raise Feat2MapError(f"SB3 needs same-step autoreset and {type(base).__name__} cannot switch to it: "
+                            + SAME_STEP_HOWTO, "autoreset_mode")
+    base.autoreset_mode = AutoresetMode.SAME_STEP
+    base.metadata["autoreset_mode"] = AutoresetMode.SAME_STEP  # in place: vector wrappers share this dict
+
+
 def sb3_vec_env(venv) -> Any:
-    """A Stable-Baselines3 `VecEnv` over a Gymnasium vector env with same-step autoreset (such
-    as `MapVectorEnv(..., autoreset_mode=AutoresetMode.SAME_STEP)` or a wrapper of it): SB3's conventions
-    (done = terminated or truncated, the final observation in info["terminal_observation"],
-    info["TimeLimit.truncated"]); infos are built only for the sub-envs whose episode ended."""
+    """A Stable-Baselines3 `VecEnv` over a Gymnasium vector env: SB3's conventions (done =
+    terminated or truncated, the final observation in info["terminal_observation"],
+    info["TimeLimit.truncated"]); infos are built only for the sub-envs whose episode ended.
+    SB3 needs same-step autoreset: a `gym.make_vec` env of the default mode (next-step) is
+    switched to it (`same_step`; the adapter resets it first); an async one must be made so."""
     from stable_baselines3.common.vec_env import VecEnv
 
     class GymnasiumVecEnv(VecEnv):
         def __init__(self, venv) -> None:
-            if venv.metadata.get("autoreset_mode") != AutoresetMode.SAME_STEP:
-                raise Feat2MapError("SB3 needs a vector env with autoreset_mode='same-step'", "autoreset_mode")
+            same_step(venv)
             self.venv = venv
             self._actions: np.ndarray | None = None
             super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)

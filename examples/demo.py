@@ -30,6 +30,8 @@ from feat2map.scenarios.planner import STAGE_NAMES, BaselinePlanner  # noqa: E40
 FRAME_AFTER_ENTRY_S = 1.0  # a junction's frame is taken this long after the ego enters it
 FRAME_SCALING = 8.0  # env frame pixels per metre (600 px: 75 m around the ego)
 MARGIN_M = 20.0  # around the route in the map panel
+LABEL_REACH_M = 15.0  # junctions whose centre is this close outside the panel are taken in
+LABEL_MARGIN_M = 8.0  # around those junctions' centres (their labels)
 
 
 def drive(map_file: str, seed: int):
@@ -101,6 +103,12 @@ def draw(m, track, frames, route, info, steps, stages, path: Path) -> None:
     ax.plot(*pts[-1], marker="s", ms=8, color="#ffffff", mec="k", zorder=9)
     route_pts = np.concatenate([np.asarray(m.lanes[i].centerline) for i in route])
     lo, hi = route_pts.min(axis=0) - MARGIN_M, route_pts.max(axis=0) + MARGIN_M
+    # a junction whose label would sit on the panel's edge is taken in whole (its label not cut)
+    near = [j.center for j in m.junctions.values() if len(j.polygon) >= 3
+            and np.all(np.asarray(j.center) > lo - LABEL_REACH_M) and np.all(np.asarray(j.center) < hi + LABEL_REACH_M)]
+    if near:
+        lo = np.minimum(lo, np.min(near, axis=0) - LABEL_MARGIN_M)
+        hi = np.maximum(hi, np.max(near, axis=0) + LABEL_MARGIN_M)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     top.colorbar(seg, ax=ax, label="simulated time [s]", location="bottom", shrink=0.5, aspect=40)
@@ -108,7 +116,7 @@ def draw(m, track, frames, route, info, steps, stages, path: Path) -> None:
         Line2D([], [], color="#21918c", lw=2.5, label="ego trajectory (colour: time)"),
         Line2D([], [], ls="none", marker="o", ms=7, color="#ffffff", mec="k", label="start"),
         Line2D([], [], ls="none", marker="s", ms=7, color="#ffffff", mec="k", label="end")]
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.03, 1.0), borderaxespad=0, fontsize=8)
+    top.legend(handles=handles, loc="outside right upper", fontsize=8)  # the layout makes room for it
     junctions = list(dict.fromkeys(m.lanes[i].junction_id for i in route if m.lanes[i].junction_id))
     ax.set_title(f"route through {' → '.join(junctions)} on the map (bird's-eye)", fontsize=10)
     key.legend(handles=frame_legend(info["ego_rgb"]), loc="center", ncol=4, fontsize=8, frameon=False,

@@ -23,7 +23,7 @@ collisions between agents, stop-sign order violations, not-yielding violations, 
 table.csv, learning_curve.csv, policy.pt, run.json.
 
 Run: nice -n 10 .venv/bin/python examples/train_marl.py --out out/marl
-Needs the `rl` extra (torch): pip install torch==2.13.0 && pip install -e '.[rl]'
+Needs the `rl` extra (torch): bash scripts/setup.sh rl
 """
 from __future__ import annotations
 
@@ -252,7 +252,7 @@ def main(argv=None) -> int:
     try:
         import torch
     except ImportError:
-        ap.exit(2, "train_marl: needs the rl extra: pip install torch==2.13.0 && pip install -e '.[rl]'\n")
+        ap.exit(2, "train_marl: needs the rl extra: bash scripts/setup.sh rl\n")
     out = Path(args.out)
     progress = os.isatty(1)
     configs = {t: world_config(*t, args.agents) for t in TYPES}

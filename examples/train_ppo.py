@@ -35,7 +35,8 @@ times, load).
 A success is a completed route without collision, leaving the road or any rule violation.
 
 Run: .venv/bin/python examples/train_ppo.py --out out/ppo
-Needs the `rl` extra: pip install torch==2.13.0 && pip install -e '.[rl]'
+Needs the `rl` extra: bash scripts/setup.sh rl
+Progress: a bar on a terminal, a line every PROGRESS_LINE_S seconds otherwise (stderr).
 """
 from __future__ import annotations
 
@@ -45,6 +46,7 @@ import io
 import json
 import multiprocessing as mp
 import os
+import sys
 import time
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field, replace
@@ -91,6 +93,7 @@ TRAIN_TRAFFIC = (2, 8)  # training episodes draw their traffic count from this r
 STOP_BONUS = 0.3
 TIME_COST = 0.01
 LOAD_SAMPLE_S = 30.0  # the machine's load average is sampled this often during training
+PROGRESS_LINE_S = 60.0  # off a terminal (a log, CI), a progress line this often; on one, a bar
 EVAL_SEED = 10_000  # first seed of the evaluation episodes (training envs are seeded below it)
 STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
 
@@ -364,18 +367,59 @@ def _run_job(job: tuple[str, int, tuple, int]) -> tuple[str, int, Outcome]:
     return name, case_index, run_episode(env, policy, seed, route)
 
 
+class Progress:
+    """Progress of `total` units: a tqdm bar on a terminal, else a line on stderr every
+    PROGRESS_LINE_S seconds (and at the end), so that a log shows the run is alive."""
+
+    def __init__(self, total: int, desc: str, unit: str, enabled: bool = True, minutes: float | None = None) -> None:
+        self.total, self.desc, self.unit, self.n, self.minutes = total, desc, unit, 0, minutes
+        self.terminal = enabled and sys.stderr.isatty()
+        self.lines = enabled and not self.terminal
+        self.t0 = self.t_line = time.perf_counter()
+        self.postfix: dict[str, object] = {}
+        self.bar = None
+        if self.terminal:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=desc, unit=unit, mininterval=5.0)
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+        if self.bar is not None:
+            self.bar.update(n)
+        elif self.lines and time.perf_counter() - self.t_line >= PROGRESS_LINE_S:
+            self.line()
+
+    def set_postfix(self, **values: object) -> None:
+        self.postfix = values
+        if self.bar is not None:
+            self.bar.set_postfix(**values)
+
+    def line(self) -> None:
+        """One progress line: done of total, elapsed wall time, the postfix values."""
+        self.t_line = time.perf_counter()
+        extra = "".join(f", {k} {v}" for k, v in self.postfix.items())
+        budget = f" of {self.minutes:g}" if self.minutes else ""
+        print(f"{self.desc}: {self.n:,} of {self.total:,} {self.unit}s, {(self.t_line - self.t0) / 60:.1f}{budget} min"
+              f"{extra}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        elif self.lines:
+            self.line()
+
+
 def evaluate_cases(config: dict, cases: Sequence[Case], model_bytes: bytes | None, episodes: int,
                    workers: int, progress: bool = True) -> tuple[list[dict], dict]:
     """Per cell, `episodes` episodes (its routes in turn, seeds EVAL_SEED + i) of PPO (when
     `model_bytes`) and the scripted driver, over `workers` processes: one table row per cell,
     and each policy's summary over all cells."""
-    from tqdm import tqdm
-
     names = ["ppo", "scripted"] if model_bytes is not None else ["scripted"]
     jobs = [(name, ci, c.routes[i % len(c.routes)], EVAL_SEED + i)
             for ci, c in enumerate(cases) for i in range(episodes) for name in names]
     results: dict[int, dict[str, list[Outcome]]] = defaultdict(lambda: defaultdict(list))
-    bar = tqdm(total=len(jobs), desc="evaluating", disable=None if progress else True, unit="ep", mininterval=5.0)
+    bar = Progress(len(jobs), "evaluating", "episode", progress)
     if workers > 1:
         with mp.get_context("fork").Pool(workers, _init_worker, (config, model_bytes)) as pool:
             for name, ci, o in pool.imap_unordered(_run_job, jobs, chunksize=4):
@@ -493,17 +537,20 @@ def build_model(config: dict, rc: "RunConfig"):
 
 
 def training_log(total: int, enabled: bool, minutes: float | None = None, lr_end: float = 1.0):
-    """An SB3 callback: a tqdm bar over training steps showing the recent success rate, and the
+    """An SB3 callback: progress over training steps (`Progress`: a bar on a terminal, a line a
+    minute otherwise) showing the recent success rate and the wall time budget, and the
     learning curve (one record per finished training episode) in `.curve`; training stops once
     `minutes` of wall time have passed. The learning rate decays linearly to `lr_end` times its
     start over the budget (steps or wall time, whichever runs out first): large steps early,
     fine ones for the final policy."""
     from stable_baselines3.common.callbacks import BaseCallback
-    from tqdm import tqdm
 
     class _Log(BaseCallback):
         def _on_training_start(self) -> None:
-            self.bar = tqdm(total=total, desc="training", unit="step", disable=None if enabled else True, mininterval=5.0)
+            if enabled:
+                budget = f"{minutes:g} min of wall time or {total:,} steps" if minutes else f"{total:,} steps"
+                print(f"training PPO for {budget}, then the evaluation", file=sys.stderr, flush=True)
+            self.bar = Progress(total, "training", "step", enabled, minutes)
             self.t0 = self.t_load = time.perf_counter()
             self.curve: list[dict] = []
             self.loads = [os.getloadavg()[0]]
@@ -668,7 +715,7 @@ def main(argv=None) -> int:
     try:
         import stable_baselines3  # noqa: F401
     except ImportError:
-        ap.exit(2, "train_ppo: needs the rl extra: pip install torch==2.13.0 && pip install -e '.[rl]'\n")
+        ap.exit(2, "train_ppo: needs the rl extra: bash scripts/setup.sh rl\n")
     rc = replace(RunConfig(), timesteps=args.timesteps, train_minutes=args.train_minutes or None, n_envs=args.n_envs,
                  subprocess=args.subprocess, episodes_per_cell=args.episodes_per_cell, seed=args.seed)
     run(Path(args.out), rc)

@@ -50,6 +50,8 @@ CLOSE_TIMEOUT_S = 30.0  # the bye (a planner may save coverage data first)
 STDERR_TAIL_CHARS = 1500  # of the planner's stderr, quoted in an error outcome
 MAX_LINE_BYTES = 16 << 20  # a reply longer than this is garbage
 MAX_TRAJECTORY_POINTS = 10_000
+# the likely cause of a missing hello: the planner's stdout is block-buffered (a pipe, not a terminal)
+NO_HELLO_HINT = "no reply line: does the planner flush stdout after each line? (python -u)"
 WORLD_RADIUS_M = 150.0  # vehicles and pedestrians this close to the ego are sent
 BRIDGE_ACTION_CONFIG: dict[str, Any] = {"type": "ContinuousAction", "longitudinal": True, "lateral": True,
                         "acceleration_range": [-8.0, 4.0], "steering_range": [-math.pi / 3, math.pi / 3]}
@@ -70,9 +72,12 @@ class PlannerProcess:
         self.argv = argv
         self.stderr = tempfile.TemporaryFile()
         self.lines: queue.Queue = queue.Queue()
+        # a Python planner's print() reaches the pipe at once, flushed or not (its env may say otherwise)
+        child_env = dict(os.environ if env is None else env)
+        child_env.setdefault("PYTHONUNBUFFERED", "1")
         try:
             self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
-                                         cwd=cwd, env=env, start_new_session=True)
+                                         cwd=cwd, env=child_env, start_new_session=True)
         except OSError as exc:
             self.stderr.close()
             raise BridgeError(f"cannot start the planner {argv[0]!r}: {exc.strerror or exc}") from None
@@ -109,7 +114,8 @@ class PlannerProcess:
             try:
                 line = self.lines.get(timeout=max(left, 0.0))
             except queue.Empty:
-                raise BridgeError(self.failure(f"planner timeout: no {what} reply within {timeout:g} s")) from None
+                hint = f": {NO_HELLO_HINT}" if what == "hello" else ""
+                raise BridgeError(self.failure(f"planner timeout: no {what} reply within {timeout:g} s{hint}")) from None
             if line is None:
                 self.proc.poll()
                 time.sleep(0.05)

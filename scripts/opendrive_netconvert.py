@@ -1,8 +1,8 @@
 """Export the paper's M1-style map (seed 1) to OpenDRIVE, rebuild it with SUMO's netconvert,
 and draw the SUMO network next to ours: docs/opendrive_netconvert.png.
 
-Usage: .venv/bin/python scripts/opendrive_netconvert.py [--seed N] [--out PNG]
-Needs the eclipse-sumo wheel (pip install eclipse-sumo) for the netconvert binary.
+Usage: .venv/bin/python scripts/opendrive_netconvert.py --seed 1 --out docs/opendrive_netconvert.png   # both optional
+Needs the eclipse-sumo wheel (the dev extra: bash scripts/setup.sh dev) for the netconvert binary.
 """
 from __future__ import annotations
 

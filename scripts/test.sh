@@ -6,4 +6,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh dev
 export SDL_VIDEODRIVER=offscreen MPLBACKEND=Agg
-exec .venv/bin/python -m pytest -q "$@"
+# pytest's default output: a line per test file with its dots and the percentage done (a CI log
+# shows where a long run is); -ra (pyproject.toml) lists every skip's reason at the end
+exec .venv/bin/python -m pytest "$@"

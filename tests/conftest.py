@@ -5,7 +5,9 @@ import copy
 import math
 import os
 import random
-from pathlib import Path
+import warnings
+from pathlib import Path, PurePosixPath
+from typing import Callable
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -26,13 +28,57 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 REPO = Path(__file__).resolve().parents[1]
 SHARED_MAPS = Path(os.environ.get("FEAT2MAP_SHARED_MAPS", REPO.parent / "shared" / "maps"))
 # the one skip reason of every test that reads the third-party maps
-SHARED_MAPS_MISSING = (f"needs the third-party maps at {SHARED_MAPS} (absent here): put that maps/ folder at "
-                       "../shared/maps beside the repository or set FEAT2MAP_SHARED_MAPS (README, Command line)")
+SHARED_MAPS_MISSING = (f"needs the third-party maps at {SHARED_MAPS} (absent here): get the public Apollo and "
+                       "OpenDRIVE files from the repositories that docs/realmaps.md (Getting the maps) and "
+                       "../shared/maps/SOURCES.md list, then put that maps/ folder at ../shared/maps beside the "
+                       "repository or set FEAT2MAP_SHARED_MAPS=/path/to/maps")
+# the other skip reasons: what is missing and the command that installs it (tests/test_tiers.py checks
+# that every skip in tests/ gives one of these or names such a remedy itself)
+SKIP_RL = "needs the rl extra (torch, stable-baselines3), not installed: bash scripts/setup.sh dev,rl"
+SKIP_RAY = "needs the ray extra (ray), not installed: bash scripts/setup.sh dev,ray"
+SKIP_COMMONROAD_IO = ("needs commonroad-io (the CommonRoad export), not installed: bash scripts/setup.sh dev "
+                      "(installs it with --no-deps into .venv/commonroad-io)")
+SKIP_NETCONVERT = "needs SUMO's netconvert (eclipse-sumo, the dev extra), not found: bash scripts/setup.sh dev"
+SKIP_QC_OPENDRIVE = "needs ASAM's qc_opendrive (asam-qc-opendrive), not installed: bash scripts/setup.sh dev"
+SKIP_QC_OPENSCENARIO = ("needs ASAM's qc_openscenario (asam-qc-openscenarioxml), not installed: "
+                        "bash scripts/setup.sh dev")
+SKIP_LANELET2 = ("needs the lanelet2 wheel (the dev extra; wheels exist for Linux x86_64 only), not installed: "
+                 "bash scripts/setup.sh dev")
+SKIP_REASONS = (SHARED_MAPS_MISSING, SKIP_RL, SKIP_RAY, SKIP_COMMONROAD_IO, SKIP_NETCONVERT, SKIP_QC_OPENDRIVE,
+                SKIP_QC_OPENSCENARIO, SKIP_LANELET2)
+# the files of ../shared/maps (its SOURCES.md): tests over every real map are parametrized over this
+# list, so a checkout without the maps collects the same tests and skips each with SHARED_MAPS_MISSING
+SHARED_MAP_FILES = (
+    "apollo/autonomous_stuff/base_map.bin", "apollo/borregas_ave/base_map.bin", "apollo/cube_town/base_map.bin",
+    "apollo/cube_town/sim_map.txt", "apollo/gomentum/base_map.bin", "apollo/gomentum/sim_map.txt",
+    "apollo/san_francisco/base_map.bin", "apollo/shalun/base_map.bin", "apollo/shalun/sim_map.txt",
+    "opendrive/carla_town01/Town01.xodr", "opendrive/carla_town02/Town02.xodr",
+    "opendrive/carla_town03/Town03.xodr", "opendrive/carla_town04/Town04.xodr",
+    "opendrive/carla_town05/Town05.xodr", "opendrive/carla_town06/Town06.xodr",
+    "opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr",
+    "opendrive/commonroad_four_way_crossing/four_way_crossing.xodr",
+    "opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr",
+    "opendrive/svl_borregas_ave/borregasave.xodr", "opendrive/svl_cubetown/cubetown.xodr",
+)
 
 
-# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change (2.5
-# minutes on an idle 2-core machine); plain `pytest` (CI, scripts/test.sh) runs everything.
-# SLOW_TESTS are the tests, each 8 s or more of the 17 min the whole suite took under --durations on a loaded 2-core
+def shared_map_params(*patterns: str, ids: Callable[[str], str] | None = None) -> list:
+    """pytest params, one per third-party map matching a glob of `patterns` (relative to SHARED_MAPS,
+    in pattern order): the files of SHARED_MAP_FILES and any other file present; a file that is
+    absent is still a test, skipped with SHARED_MAPS_MISSING."""
+    out = []
+    for pattern in patterns:
+        present = {str(p.relative_to(SHARED_MAPS)) for p in SHARED_MAPS.glob(pattern)} if SHARED_MAPS.is_dir() else set()
+        known = {f for f in SHARED_MAP_FILES if PurePosixPath(f).match(pattern)}
+        for rel in sorted(present | known):
+            marks = () if rel in present else (pytest.mark.skip(reason=SHARED_MAPS_MISSING),)
+            out.append(pytest.param(rel, marks=marks, id=ids(rel) if ids else rel))
+    return out
+
+
+# The test tiers. `pytest -m "not slow"` is the fast tier to run after each change; plain `pytest`
+# (CI, scripts/test.sh) runs everything; README.md (Two commands) gives how long each takes.
+# SLOW_TESTS are the tests of 8 s or more each under --durations on a loaded 2-core
 # machine: whole end-to-end drives, external checkers over many maps, property tests with many
 # examples, subprocess and worker-pool runs. An entry is a module or a test function (all its
 # parameters); tests/test_tiers.py checks that each names a test that exists.
@@ -116,6 +162,19 @@ def straight_piece(road, rid: str, s0: float, length: float):
     etree.SubElement(geo, "line")
     geo.attrib.update({"x": repr(x + s0 * math.cos(h)), "y": repr(y + s0 * math.sin(h)), "length": repr(length)})
     return r
+
+
+def read_shared_map(relative: str, reader: Callable | None = None):
+    """A third-party map read by `reader` (read_map), or skip; the findings its readers warn about
+    (the map's own flaws, docs/semantics.md) are expected: each must name the file, none is shown."""
+    from feat2map.formats import read_map
+
+    path = shared_map(relative)
+    with warnings.catch_warnings(record=True) as found:
+        warnings.simplefilter("always")
+        m = (reader or read_map)(path)
+    assert all(str(path) in str(w.message) for w in found), [str(w.message) for w in found]
+    return m
 
 
 def shared_map(relative: str) -> Path:

@@ -27,3 +27,17 @@ def test_user_docs_name_no_issue_numbers_or_commit_hashes():
             for i, line in enumerate(path.read_text().splitlines(), 1):
                 found += [f"{path.relative_to(REPO)}:{i}: {hit}" for hit in _hits(line)]
     assert found == []
+
+
+def test_shell_blocks_paste_as_written():
+    """A command line in a ```bash block runs when pasted: no `[--option]` usage brackets."""
+    found = []
+    for pattern in USER_DOCS:
+        for path in sorted(REPO.glob(pattern)):
+            block = False
+            for i, line in enumerate(path.read_text().splitlines(), 1):
+                if line.startswith("```"):
+                    block = line.strip() in ("```bash", "```sh")
+                elif block and re.search(r"\[--?\w", line.split("  #", 1)[0]):
+                    found.append(f"{path.relative_to(REPO)}:{i}: {line.strip()}")
+    assert found == []

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections import Counter
 from functools import lru_cache
 
 import pytest
 
-from conftest import shared_map
+from conftest import read_shared_map, shared_map
 from feat2map.cli import main
 from feat2map.extract import ExtractedJunction, SkippedJunction, extract_junctions, map_feature
 from feat2map.readers import read_map
@@ -22,7 +23,11 @@ pytestmark = pytest.mark.real_maps
 @lru_cache(maxsize=None)
 def _extract(rel: str) -> tuple[tuple[ExtractedJunction, ...], tuple[SkippedJunction, ...]]:
     skipped: list[SkippedJunction] = []
-    found = extract_junctions(read_map(shared_map(rel)), rel, skipped=skipped)
+    m = read_shared_map(rel)
+    with warnings.catch_warnings(record=True) as warned:  # each skipped junction, named with the map
+        warnings.simplefilter("always")
+        found = extract_junctions(m, rel, skipped=skipped)
+    assert all(str(w.message).startswith(f"{rel}: junction ") for w in warned), [str(w.message) for w in warned]
     return tuple(found), tuple(skipped)
 
 

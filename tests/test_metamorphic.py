@@ -19,7 +19,7 @@ import pytest
 from lxml import etree
 
 import feat2map
-from conftest import LONG_TESTS, SHARED_MAPS, shared_map
+from conftest import LONG_TESTS, shared_map, shared_map_params
 from feat2map.extract import extract_junctions
 from feat2map.features import JunctionFeature as JF
 from feat2map.formats import write_map
@@ -455,12 +455,10 @@ def test_the_transforms_change_the_files(generated, tmp_path):
 
 # ---------------------------------------------------------------------------------- real maps
 
-def _shared(kind: str, small: tuple[str, ...]) -> list[str]:
+def _shared(kind: str, small: tuple[str, ...]) -> list:
     if not LONG_TESTS:
         return list(small)
-    if kind == "opendrive":
-        return sorted(str(p.relative_to(SHARED_MAPS)) for p in SHARED_MAPS.glob("opendrive/*/*.xodr"))
-    return sorted(str(p.relative_to(SHARED_MAPS)) for p in SHARED_MAPS.glob("apollo/*/base_map.bin"))
+    return shared_map_params("opendrive/*/*.xodr" if kind == "opendrive" else "apollo/*/base_map.bin")
 
 
 @pytest.mark.real_maps

@@ -46,7 +46,8 @@ def files(root: Path) -> set[str]:
 def test_readme_command_block_runs_as_written(tmp_path):
     venv = Path(sys.prefix)
     if not (venv / "bin" / "activate").is_file():
-        pytest.skip(f"the tests do not run from a virtual environment ({venv}); the README block activates .venv")
+        pytest.skip(f"the tests do not run from a virtual environment ({venv}); the README block activates .venv: "
+                    "bash scripts/setup.sh dev, then .venv/bin/python -m pytest")
     lines = readme_block()
     commands = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
     assert commands[0].startswith("source .venv/bin/activate")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from conftest import SHARED_MAPS, straight_piece, SHARED_MAPS_MISSING
+from conftest import SHARED_MAPS, shared_map_params, straight_piece
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import native, read_map
 from feat2map.formats.opendrive.reader import SIGNAL_CODES
@@ -31,16 +31,7 @@ SEEDS = range(5)
 long_only = pytest.mark.skipif(not LONG, reason="long version: set FEAT2MAP_LONG_TESTS=1")
 
 
-def _real_maps() -> list[str]:
-    if not SHARED_MAPS.is_dir():
-        return []
-    files = sorted(SHARED_MAPS.glob("apollo/*/*.bin")) + sorted(SHARED_MAPS.glob("apollo/*/*.txt")) + sorted(
-        SHARED_MAPS.glob("opendrive/*/*.xodr"))
-    return [str(p.relative_to(SHARED_MAPS)) for p in files]
-
-
-REAL_MAPS = _real_maps() or [pytest.param("", marks=pytest.mark.skip(
-    reason=SHARED_MAPS_MISSING))]
+REAL_MAPS = shared_map_params("apollo/*/*.bin", "apollo/*/*.txt", "opendrive/*/*.xodr")
 # maps whose drives fail for a known reason outside the map readers (strict: an unexpected pass fails)
 KNOWN_DRIVE_FAILURES: dict[str, str] = {}
 

@@ -177,7 +177,7 @@ def test_traffic_follows_the_recorded_reference(name):
         ref = json.loads(REFERENCE.read_text()) if REFERENCE.exists() else {}
         ref[name] = got
         REFERENCE.write_text(json.dumps(ref, sort_keys=True, separators=(",", ":")) + "\n")
-        pytest.skip("recorded")
+        pytest.skip("recorded the reference traffic (FEAT2MAP_RECORD_TRAFFIC=1): rerun without it to compare")
     want = json.loads(REFERENCE.read_text())[name]
     assert got["outcome"] == want["outcome"] and got["lane_changes"] == want["lane_changes"]
     assert [s for s, _ in got["samples"]] == [s for s, _ in want["samples"]]

@@ -11,9 +11,9 @@ from pathlib import Path
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import pytest
+from conftest import SKIP_RL
 
-pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
-pytest.importorskip("pettingzoo")
+pytest.importorskip("torch", reason=SKIP_RL)
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "train_marl.py"
 

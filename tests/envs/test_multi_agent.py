@@ -11,9 +11,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.utils.env_checker import data_equivalence
 import pytest
-
-pytest.importorskip("pettingzoo")
-from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test  # noqa: E402
+from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test
 
 import feat2map  # noqa: E402
 from feat2map.envs import parallel_env  # noqa: E402

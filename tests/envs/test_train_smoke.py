@@ -15,9 +15,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import numpy as np
 import pytest
+from conftest import SKIP_RL
 
-pytest.importorskip("torch", reason="the rl extra (torch==2.13.0) is not installed")
-pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
+pytest.importorskip("torch", reason=SKIP_RL)
+pytest.importorskip("stable_baselines3", reason=SKIP_RL)
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
 
@@ -170,3 +171,17 @@ def test_batched_task_pays_what_the_wrappers_pay(tp):
             break
     assert info["route_completed"] and sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1
     assert np.allclose(rewards, brewards)
+
+
+def test_progress_is_a_line_a_minute_off_a_terminal(tp, capsys, monkeypatch):
+    monkeypatch.setattr(tp, "PROGRESS_LINE_S", 0.0)  # a line at every update
+    bar = tp.Progress(10, "training", "step", enabled=True, minutes=24)
+    bar.set_postfix(success="0.50")
+    bar.update(4)
+    bar.close()
+    lines = capsys.readouterr().err.splitlines()  # captured stderr is no terminal
+    assert len(lines) == 2 and lines[0].startswith("training: 4 of 10 steps, 0.0 of 24 min, success 0.50"), lines
+    quiet = tp.Progress(10, "training", "step", enabled=False)
+    quiet.update(4)
+    quiet.close()
+    assert capsys.readouterr().err == ""

@@ -9,6 +9,7 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import SKIP_RL
 
 import feat2map
 
@@ -66,7 +67,7 @@ def test_make_vec_steps_through_episode_ends(mode):
 
 
 def test_sb3_subproc_vec_env_steps_through_episode_ends():
-    pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
+    pytest.importorskip("stable_baselines3", reason=SKIP_RL)
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
     # the workers start afresh (forkserver): "feat2map:" makes gym.make import feat2map there

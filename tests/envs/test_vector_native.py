@@ -6,12 +6,15 @@ are refused naming the key."""
 from __future__ import annotations
 
 import os
+import re
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import REPO, SKIP_RL
+from gymnasium.utils.env_checker import data_equivalence
 from gymnasium.vector import AutoresetMode
 
 import feat2map
@@ -203,15 +206,15 @@ def test_unsupported_configs_are_refused_naming_the_key(key, value):
 
 
 def test_sb3_adapter_steps_through_episode_ends():
-    pytest.importorskip("stable_baselines3", reason="the rl extra (stable-baselines3) is not installed")
+    pytest.importorskip("stable_baselines3", reason=SKIP_RL)
     from stable_baselines3.common.vec_env import VecMonitor
 
     from feat2map.envs.vector import sb3_vec_env
 
-    with pytest.raises(Feat2MapError, match="autoreset_mode"):
-        sb3_vec_env(gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT))
-    batch = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT, autoreset_mode=AutoresetMode.SAME_STEP)
+    batch = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT)  # as a user writes it: next-step
+    assert batch.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     venv = VecMonitor(sb3_vec_env(batch))
+    assert batch.metadata["autoreset_mode"] == batch.autoreset_mode == AutoresetMode.SAME_STEP
     venv.seed(0)
     obs = venv.reset()
     assert obs.shape == (2, *batch.single_observation_space.shape)
@@ -238,3 +241,41 @@ def test_a_reset_cannot_change_the_batchs_map():
     with pytest.raises(Feat2MapError, match="new_map_each_reset"):
         envs.reset(options={"config": {"new_map_each_reset": True}})
     envs.close()
+
+
+def test_sb3_adapter_takes_either_autoreset_mode_with_the_same_steps():
+    pytest.importorskip("stable_baselines3", reason=SKIP_RL)
+    from feat2map.envs.vector import sb3_vec_env
+
+    runs = []
+    for kwargs in ({}, {"autoreset_mode": AutoresetMode.SAME_STEP}):  # the default, and the keyword that makes it
+        venv = sb3_vec_env(gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT, **kwargs))
+        venv.seed(0)
+        steps = [venv.reset()]
+        for _ in range(12):
+            obs, rew, done, infos = venv.step(np.array([2, 1]))
+            steps += [obs, rew, done, [sorted(i) for i in infos]]
+        runs.append(steps)
+        venv.close()
+    assert len(runs[0]) == len(runs[1])
+    for a, b in zip(*runs):
+        assert data_equivalence(a, b)
+
+
+def test_gymnasiums_vector_kwargs_is_refused_and_the_adapter_says_what_to_write():
+    """Gymnasium refuses `vector_kwargs` for any vector_entry_point env before feat2map is called;
+    envs/README.md gives the keyword that works, and so does the adapter's error for an env that
+    cannot switch to same-step itself."""
+    from feat2map.envs.vector import SAME_STEP_HOWTO, same_step
+
+    with pytest.raises(gym.error.Error, match="only through kwargs"):
+        gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP})
+    readme = (REPO / "envs" / "README.md").read_text()
+    assert "autoreset_mode=AutoresetMode.SAME_STEP" in readme and "sb3_vec_env(gym.make_vec(" in readme
+
+    class Remote(gym.vector.VectorEnv):  # as AsyncVectorEnv: its mode lives in worker processes
+        metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    with pytest.raises(Feat2MapError, match=re.escape("gym.make_vec(ID, num_envs=N, autoreset_mode='SameStep')")):
+        same_step(Remote())
+    assert "autoreset_mode='SameStep'" in SAME_STEP_HOWTO

@@ -2,10 +2,9 @@
 from __future__ import annotations
 
 import random
-from pathlib import Path
 
 import pytest
-from conftest import SHARED_MAPS
+from conftest import SHARED_MAPS, shared_map_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -129,16 +128,9 @@ def test_bad_input_names_the_file() -> None:
         assert info.value.where == where and where in str(info.value)
 
 
-def _apollo_files() -> list[Path]:
-    if not APOLLO_MAPS.is_dir():
-        return []
-    return sorted(p for p in APOLLO_MAPS.rglob("*") if p.suffix in (".bin", ".txt"))
-
-
-@pytest.mark.parametrize("path", _apollo_files() or [None], ids=lambda p: p and p.parent.name + "/" + p.name)
-def test_parses_every_real_apollo_map(path: Path | None) -> None:
-    if path is None:
-        pytest.skip(f"real Apollo maps not present at {APOLLO_MAPS}")
+@pytest.mark.parametrize("rel", shared_map_params("apollo/*/*.bin", "apollo/*/*.txt", ids=lambda r: r.split("/", 1)[1]))
+def test_parses_every_real_apollo_map(rel: str) -> None:
+    path = SHARED_MAPS / rel
     m = aps.parse_map(path.read_bytes(), str(path))
     assert m.lane and m.junction and m.overlap
     assert m.header.vendor == b"LGSVL"

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import SKIP_COMMONROAD_IO
 
 from feat2map.errors import Feat2MapError
 from feat2map.formats.commonroad import check_commonroad, lanelet_ids, write_commonroad
@@ -13,7 +14,7 @@ from feat2map.scenarios.routes import manoeuvres
 try:
     commonroad_io()  # where scripts/setup.sh puts it (off sys.path, see commonroad_io)
 except Feat2MapError:
-    pytest.skip("commonroad-io is not installed (scripts/setup.sh installs it with --no-deps)", allow_module_level=True)
+    pytest.skip(SKIP_COMMONROAD_IO, allow_module_level=True)
 
 
 @pytest.fixture(scope="module")

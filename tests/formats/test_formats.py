@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import pytest
+from conftest import SKIP_COMMONROAD_IO
 
 from feat2map.cli import main
 from feat2map.errors import MapFormatError
@@ -97,7 +98,7 @@ def test_exports_are_deterministic_and_atomic(tmp_path, small_map, name, needs):
         try:
             commonroad_io()  # puts scripts/setup.sh's off-path commonroad-io on sys.path
         except Feat2MapError:
-            pytest.skip(f"{name} export needs a package that is not installed")
+            pytest.skip(SKIP_COMMONROAD_IO)
     suffix = FORMATS[name].suffixes[0]
     native.save(small_map, tmp_path / "m.json")
     write_map(small_map, tmp_path / "a" / f"m{suffix}", name)

@@ -6,13 +6,13 @@ import math
 from collections import Counter
 
 import pytest
+from conftest import SKIP_LANELET2
 import yaml
 
 from feat2map.formats.lanelet2 import PROJECTOR_INFO, check_lanelet2, write_lanelet2
 from feat2map.scenarios.routes import manoeuvres
 
-lanelet2 = pytest.importorskip("lanelet2", reason="the lanelet2 wheel is not installed (wheels exist for Linux "
-                                                  "x86_64 only)")
+lanelet2 = pytest.importorskip("lanelet2", reason=SKIP_LANELET2)
 from lanelet2.io import Origin  # noqa: E402
 from lanelet2.projection import UtmProjector  # noqa: E402
 

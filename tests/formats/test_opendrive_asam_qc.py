@@ -15,11 +15,11 @@ from feat2map.config import OPENDRIVE_VERSIONS
 from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
 from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
 
-from conftest import REPO, shared_map
+from conftest import REPO, SKIP_QC_OPENDRIVE, shared_map
 from conftest import assert_same_features
 
 pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
-                                reason="qc_opendrive not installed (scripts/setup.sh installs asam-qc-opendrive)")
+                                reason=SKIP_QC_OPENDRIVE)
 
 ALL_CHECKS = 23  # checkers of asam-qc-opendrive 1.0.0
 # each rule that applies to only some revisions: the revision that skips it

@@ -19,10 +19,9 @@ from feat2map.formats.openscenario import validate_openscenario, write_openscena
 from feat2map.scenarios.routes import build_suite, pick_lane, signal_cycle
 from feat2map.scenarios.scenario import Suite, save_suite
 
-from conftest import REPO, shared_map
+from conftest import REPO, SKIP_QC_OPENSCENARIO, shared_map
 
-needs_checker = pytest.mark.skipif(find_bundle(OPENSCENARIO[0]) is None, reason="qc_openscenario not installed "
-                                   "(scripts/setup.sh installs asam-qc-openscenarioxml)")
+needs_checker = pytest.mark.skipif(find_bundle(OPENSCENARIO[0]) is None, reason=SKIP_QC_OPENSCENARIO)
 ALL_CHECKS = 17  # checkers of asam-qc-openscenarioxml 1.0.0
 
 

@@ -22,7 +22,7 @@ import feat2map
 from feat2map import cli
 from feat2map.envs.tracking import Trajectory, TrajectoryTracker
 from feat2map.formats import native
-from feat2map.scenarios.bridge import BridgePlanner, PlannerProcess
+from feat2map.scenarios.bridge import BridgeError, BridgePlanner, PlannerProcess
 from feat2map.scenarios.rollout import run_suite
 from feat2map.scenarios.scenario import Suite, load_suite, save_suite
 
@@ -135,6 +135,37 @@ def test_a_missing_planner_command_is_an_error_outcome(suite_file, tmp_path):
     res = run_suite(load_suite(_one(suite_file, tmp_path)), BridgePlanner("/nonexistent/planner --x"),
                     progress=False, record_failure_gif=False)
     assert res.outcomes[0].outcome == "error" and "cannot start the planner" in res.outcomes[0].message
+
+
+# a planner as a user first writes it: print() without flush, its stdout a pipe (block-buffered)
+UNFLUSHED = textwrap.dedent("""
+    import json, sys
+    def recv():
+        return json.loads(sys.stdin.readline())
+    recv(); print(json.dumps({"type": "hello", "protocol": 1, "map_format": "native", "output": "control"}))
+    recv(); print(json.dumps({"type": "ready"}))
+    while True:
+        m = recv()
+        if m["type"] == "close":
+            print(json.dumps({"type": "bye"}))
+            break
+        print(json.dumps({"type": "control", "acceleration": 0.0, "steering": 0.0}))
+""")
+
+
+def test_a_planner_that_never_flushes_works(suite_file, tmp_path, monkeypatch):
+    monkeypatch.delenv("PYTHONUNBUFFERED", raising=False)  # the bridge sets it for the planner
+    planner = BridgePlanner(_script(tmp_path, "unflushed", UNFLUSHED), start_timeout=10, step_timeout=5)
+    res = run_suite(load_suite(_one(suite_file, tmp_path)), planner, progress=False, record_failure_gif=False)
+    o = res.outcomes[0]
+    assert o.outcome != "error" and "BridgeError" not in o.message and o.steps > 1, (o.outcome, o.message)
+
+
+def test_a_missing_hello_names_the_likely_cause(tmp_path):
+    # a planner that stays silent (as an unflushed one in an env that asks for buffering)
+    proc = PlannerProcess(_script(tmp_path, "silent", "import sys, time\nsys.stdin.readline()\ntime.sleep(600)\n"))
+    with pytest.raises(BridgeError, match=r"no hello reply within 1 s: .*flush stdout after each line\? \(python -u\)"):
+        proc.request({"type": "hello", "protocol": 1}, 1.0, "hello")
 
 
 def test_the_bridge_planner_pickles_before_reset():

@@ -31,7 +31,7 @@ STAGES = {"VELOCITY", "APPROACH", "STOPPING", "STANDSTILL", "FALLBACK"}  # the a
 
 def _venv_problem() -> str | None:
     if not CRPY.exists():
-        return f"the CommonRoad planner venv is not built ({CRPY} missing: bash adapters/commonroad/setup.sh)"
+        return f"the CommonRoad planner venv is not built ({CRPY} missing)"
     r = subprocess.run([str(CRPY), "-c", "import commonroad_rp.reactive_planner, commonroad_route_planner.route_planner"],
                        capture_output=True, text=True, timeout=300)
     if r.returncode:
@@ -43,7 +43,7 @@ def _venv_problem() -> str | None:
 def crplanner() -> str:
     problem = _venv_problem()
     if problem:
-        pytest.skip(problem)
+        pytest.skip(f"{problem}: bash adapters/commonroad/setup.sh builds it")
     return f"{CRPY} {ADAPTER}"
 
 

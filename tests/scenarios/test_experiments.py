@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import SHARED_MAPS
+from conftest import SHARED_MAPS, shared_map
 
 import feat2map
 from feat2map.formats import native
@@ -109,9 +109,7 @@ def test_bad_arguments_exit_2(exp, argv, tmp_path, capsys):
 
 @pytest.mark.real_maps
 def test_rq1_on_real_san_francisco(exp, tmp_path):
-    sf = SHARED_MAPS / "apollo" / "san_francisco" / "base_map.bin"
-    if not sf.is_file():
-        pytest.skip(f"real maps absent: {sf}")
+    shared_map("apollo/san_francisco/base_map.bin")
     r = exp.rq1(exp.Settings(out=tmp_path / "out", docs=None, maps=SHARED_MAPS, progress=False))
     st = r["stats"]["San Francisco"]
     assert st["junctions"] == 91 and st["lanes"] == 1524  # the paper's counts

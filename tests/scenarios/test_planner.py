@@ -12,7 +12,7 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import numpy as np
 import pytest
-from conftest import SHARED_MAPS
+from conftest import shared_map
 
 import feat2map
 from feat2map.formats import native
@@ -297,9 +297,7 @@ def test_any_policy_plugs_in(tmp_path_factory):
 
 def test_coverage_suite_of_a_real_opendrive_map_drives_clean():
     """esmini's signalized Fabriksgatan (OpenDRIVE): every route of its coverage suite completes."""
-    path = SHARED_MAPS / "opendrive" / "esmini_fabriksgatan" / "fabriksgatan_traffic_lights.xodr"
-    if not path.is_file():
-        pytest.skip(f"third-party map not available: {path}")
+    path = shared_map("opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr")
     from feat2map.scenarios.routes import build_suite
 
     suite = build_suite(path, traffic_vehicles=4, pedestrian_rate=3.0, max_junctions=3)

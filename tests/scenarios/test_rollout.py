@@ -15,6 +15,7 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import pytest
+from conftest import SKIP_RAY
 
 import feat2map
 import feat2map.errors
@@ -129,7 +130,7 @@ def test_results_are_independent_of_worker_count(suite_file, cli_run):
 
 
 def test_ray_backend_gives_the_local_results(suite_file, cli_run):
-    pytest.importorskip("ray", reason="ray not installed (pip install 'feat2map[ray]')")
+    pytest.importorskip("ray", reason=SKIP_RAY)
     suite = load_suite(suite_file)
     remote = run_suite(suite.scenarios[:2], "baseline", workers=2, backend="ray", coverage=True, progress=False)
     local = load_result(cli_run[1])  # the in-process CLI run of the same scenarios
