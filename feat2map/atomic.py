@@ -114,9 +114,10 @@ def write_bytes(path: str | Path, data: bytes) -> None:
             fh.write(data)
         os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        _name_out(exc, Path(tmp), path)  # the user's name, not the hidden temporary one
         raise
 
 

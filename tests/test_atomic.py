@@ -266,3 +266,14 @@ def test_an_error_while_staging_names_the_output_not_the_staging_folder(tmp_path
         with pytest.raises((Feat2MapError, OSError)) as info, atomic.staged_dir(tmp_path / "d") as tmp:
             raise make(tmp)
         assert str(tmp_path / "d" / "x.json") in str(info.value) and ".stage-" not in str(info.value)
+
+
+def test_a_failed_file_write_names_the_file_not_its_temporary(tmp_path, monkeypatch):
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device", src)
+
+    monkeypatch.setattr(atomic.os, "replace", full_disk)
+    with pytest.raises(OSError) as info:
+        atomic.write_bytes(tmp_path / "map.json", b"{}")
+    assert info.value.filename == str(tmp_path / "map.json") and ".tmp-" not in str(info.value)
+    assert list(tmp_path.iterdir()) == []
