@@ -14,7 +14,7 @@ import functools
 import math
 import numbers
 from collections import OrderedDict
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -99,6 +99,11 @@ class MapEnv(AbstractEnv):
         return self.control
 
     # ---- episode -------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """highway-env's reset, with `options` checked first (`check_options`)."""
+        check_options(options)
+        return super().reset(seed=seed, options=options)
+
     def _reset(self) -> None:
         self.net = self._network()
         rng = self.np_random
@@ -407,6 +412,18 @@ def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int
         groups.setdefault(getattr(x, attribute), []).append(x.id)
         order[x.id] = k
     return groups, order
+
+
+def check_options(options: Any) -> None:
+    """Reset options as Gymnasium passes them: None or a dict whose "config", when given, is a
+    mapping; else a Feat2MapError saying what was expected (not an AttributeError later)."""
+    if options is None:
+        return
+    if not isinstance(options, Mapping):
+        raise Feat2MapError(f"must be a dict (such as {{'config': {{...}}}}) or None, got {type(options).__name__}",
+                            "options")
+    if "config" in options and not isinstance(options["config"], Mapping):
+        raise Feat2MapError(f"must be a dict of config keys, got {type(options['config']).__name__}", "options.config")
 
 
 def check_action(space: spaces.Space, action: Any) -> None:

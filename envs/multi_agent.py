@@ -64,7 +64,7 @@ from .control import TrafficControl
 from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .kinematics_batch import batch_supported, observe_many
-from .map_env import MapEnv, check_action
+from .map_env import MapEnv, check_action, check_options
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
@@ -524,6 +524,7 @@ class MultiAgentMapEnv(ParallelEnv):
 
     # ---- episode ---------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, options: dict | None = None):
+        check_options(options)
         if options and "config" in options:
             self.configure(options["config"])
         w = self.world
@@ -583,10 +584,16 @@ class MultiAgentMapEnv(ParallelEnv):
         w = self.world
         live = list(self.agents)
         alive = set(live)
-        for name, a in actions.items():
+        if not isinstance(actions, Mapping):
+            raise Feat2MapError(f"must be a dict agent name -> action, got {type(actions).__name__}", "actions")
+        for name, a in actions.items():  # every action checked before any agent's decision is applied
             if name not in alive:
                 raise Feat2MapError(f"{name!r} is not a live agent (live: {', '.join(live) or 'none'})", "actions")
-            check_action(self.actions.space, a)
+            try:
+                check_action(self.actions.space, a)
+            except Feat2MapError as exc:
+                raise Feat2MapError(exc.message, f"actions[{name!r}]") from None
+        for name, a in actions.items():
             self.actions.decide(a, self._views[name].vehicle.speed, self._state[name])
         for name in live:
             self._views[name].judge.new = []

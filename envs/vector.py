@@ -24,7 +24,8 @@ from ..errors import Feat2MapError
 from . import core
 from .core import TrafficCore
 from .kinematics_batch import observe_egos
-from .map_env import INFO_ORDER, MapEnv, action_array, held_feature_info, info_dict, simulate
+from .map_env import (INFO_ORDER, MapEnv, action_array, check_action, check_options, held_feature_info, info_dict,
+                      simulate)
 from .observation import TrafficControlObservation
 
 # config values a batch cannot hold: (key, value, why)
@@ -59,6 +60,7 @@ class MapVectorEnv(SyncVectorEnv):
     def reset(self, *, seed=None, options: dict[str, Any] | None = None):
         """Reset the sub-envs (all, or those of `options["reset_mask"]`); `options["config"]`
         may change anything but the map and the keys the batch refuses."""
+        check_options(options)
         cfg = dict((options or {}).get("config") or {})
         check_config(cfg)
         for key in MAP_KEYS:
@@ -69,8 +71,9 @@ class MapVectorEnv(SyncVectorEnv):
 
     def step(self, actions):
         """Step every sub-env (next-step autoreset: those that ended last step are reset
-        instead), all stepping ones together (`map_env.simulate`)."""
-        acts = list(iterate(self.action_space, actions))
+        instead), all stepping ones together (`map_env.simulate`). A bad batch action is refused
+        before any sub-env changes (`batch_actions`)."""
+        acts = self.batch_actions(actions)
         infos: dict[str, Any] = {}
         stepping, done_infos = [], {}
         for i, env in enumerate(self.envs):
@@ -122,6 +125,25 @@ class MapVectorEnv(SyncVectorEnv):
         obs = self._observations
         return (np.copy(obs) if self.copy and isinstance(obs, np.ndarray) else obs, np.copy(self._rewards),
                 np.copy(self._terminations), np.copy(self._truncations), infos)
+
+    def batch_actions(self, actions) -> list:
+        """The sub-envs' actions of a batch action, one per sub-env, each checked
+        (`map_env.check_action`); else a Feat2MapError naming the sub-env and its value, raised
+        before any sub-env is reset or stepped (a refused step leaves the batch as it was)."""
+        try:
+            acts = list(iterate(self.action_space, actions))
+        except (TypeError, ValueError, AssertionError, IndexError):
+            raise Feat2MapError(f"must be one action per sub-env ({self.num_envs}), got {type(actions).__name__} "
+                                f"{np.shape(actions) if isinstance(actions, np.ndarray) else ''}".rstrip(),
+                                "actions") from None
+        if len(acts) != self.num_envs:
+            raise Feat2MapError(f"must be one action per sub-env: {self.num_envs}, got {len(acts)}", "actions")
+        for i, a in enumerate(acts):
+            try:
+                check_action(self.single_action_space, a)
+            except Feat2MapError as exc:
+                raise Feat2MapError(exc.message, f"actions[{i}] (sub-env {i})") from None
+        return acts
 
     def observe(self, envs: list[MapEnv]) -> list:
         """The observations of `envs` where one array program over the batch makes them (the

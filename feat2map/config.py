@@ -117,6 +117,7 @@ ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the cent
 ARM_SAME_POINT_M = 0.05  # lane mouths this close are one arm, whatever their tangents
 MIN_ARM_LENGTH_M = 0.5  # a road shorter than this between two ends of one junction is part of it, not an arm
 EDGE_STUB_LENGTH_M = 3.0  # a road at the map's edge shorter than this is part of its junction (a car on it stands in it)
+OUTPUT_MANIFEST_MAX_BYTES = 16 << 20  # an output folder's .feat2map-output.json larger than this is not ours
 
 
 # (low, high) of every GenerationConfig number, inclusive; None: no bound besides the limits below.

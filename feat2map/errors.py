@@ -20,8 +20,9 @@ def snippet(value: Any, cap: int = SNIPPET_MAX_CHARS) -> str:
     return text if len(text) <= cap else text[: cap - 3] + "..."
 
 
-class Feat2MapError(Exception):
-    """Base error: `where` names the file and/or element, `message` says what is wrong."""
+class Feat2MapError(ValueError):
+    """Base error: `where` names the file and/or element, `message` says what is wrong. A
+    ValueError (bad input is a bad value), so code that catches ValueError catches it too."""
 
     def __init__(self, message: str, where: str | None = None) -> None:
         self.where = one_line(where, WHERE_MAX_CHARS) if where else where
@@ -29,12 +30,18 @@ class Feat2MapError(Exception):
         self.message = one_line(message, max(room, 100))
         super().__init__(f"{self.where}: {self.message}" if self.where else self.message)
 
+    def rename_path(self, old: str, new: str) -> None:
+        """Say `new` wherever the error says `old` (a hidden staging folder the user never named)."""
+        self.where = self.where.replace(old, new) if self.where else self.where
+        self.message = self.message.replace(old, new)
+        self.args = tuple(a.replace(old, new) if isinstance(a, str) else a for a in self.args)
 
-class FeatureError(Feat2MapError, ValueError):
+
+class FeatureError(Feat2MapError):
     """An invalid junction feature, feature space or spec."""
 
 
-class MapFormatError(Feat2MapError, ValueError):
+class MapFormatError(Feat2MapError):
     """A map file that cannot be read: corrupt, truncated, or referencing unknown ids."""
 
 
@@ -47,9 +54,9 @@ class CrossingRoadsError(LayoutError):
     generation lays the map out again with the strict cardinal rule before giving up."""
 
 
-class ConfigError(Feat2MapError, ValueError):
+class ConfigError(Feat2MapError):
     """A configuration or command-line value that is not finite, out of range or of the wrong type."""
 
 
-class LimitError(Feat2MapError, ValueError):
+class LimitError(Feat2MapError):
     """A request above a size limit (`feat2map.config.Limits`); the message says how to raise it."""

@@ -221,6 +221,8 @@ class SuiteResult:
                        workers=int(d.get("workers", 1)),
                        backend=str(d.get("backend", "process")), wall_s=float(d.get("wall_s", 0.0)),
                        stopped=str(d.get("stopped", "")), scenarios=int(d.get("scenarios", len(outcomes))))
+        except Feat2MapError:
+            raise  # an outcome's own error, naming it
         except (KeyError, TypeError, ValueError) as exc:
             raise Feat2MapError(f"malformed suite result ({exc!r})", where) from None
 

@@ -29,7 +29,7 @@ ENV_ID = "feat2map/MapFile-v0"
 POLICY_FREQUENCY_HZ = 5  # planner decisions per simulated second in scenario envs
 
 
-class ScenarioError(Feat2MapError, ValueError):
+class ScenarioError(Feat2MapError):
     """An invalid scenario or suite file: `where` names the file and element."""
 
 

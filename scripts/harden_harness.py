@@ -7,7 +7,8 @@ you want to measure, e.g. `.venv/bin/python scripts/harden_harness.py --quick`. 
    negative / string widths, self-successors, 1-point Béziers, 5,000-deep nesting ...) of a
    generated map in every format (and of the small shared maps, when ../shared/maps exists),
    run through `extract`, `generate --from-maps`, `validate` and `export`; plus bad command
-   lines. Counted: tracebacks (an exception escaping the CLI, or a crash/timeout of the
+   lines and special inputs (a non-map .txt, damaged output manifests, a user's
+   map_projector_info.yaml). Counted: tracebacks (an exception escaping the CLI, or a crash/timeout of the
    worker), non-finite values written with exit 0, over-long or leaking error lines.
 2. SIGKILL: `generate` / `export apollo` killed at random moments, over nothing, over a
    complete run of another seed, over a killed run; the output folder must be absent, the old
@@ -18,10 +19,13 @@ you want to measure, e.g. `.venv/bin/python scripts/harden_harness.py --quick`. 
    violations, and whether the Apollo validator reports problems on the violating maps.
 4. huge requests: time and peak memory of a YAML alias bomb, a 100,000-junction spec,
    --samples-per-combination 125000, a chain of 10,000 km roads, OpenDRIVE length 1e9.
-5. rough edges (issue 25): exports of broken maps (junction-lane cycle, self-link, zero-length
-   lane, .xodr links to a missing road) must be refused or validate clean; messages name the
-   file/option/command; no traceback on a non-UTF-8 name; a folder named map.json is not ours;
-   a non-terminal stderr stays clean; `pip check` passes. Pass/fail per case.
+5. rough edges (issues 25 and 35): exports of broken maps (junction-lane cycle, self-link,
+   zero-length lane, .xodr links to a missing road) must be refused or validate clean; messages
+   name the file/option/command, never a staging folder or a file's content; no traceback on a
+   non-UTF-8 name; a folder named map.json is not ours; a user's empty folder in an earlier
+   output, a user's map_projector_info.yaml are kept; --out LINK leaves no stray link; the envs
+   refuse bad (batch) actions and non-dict options/actions with a ValueError before any state
+   changes; a non-terminal stderr stays clean; `pip check` passes. Pass/fail per case.
 
 Prints one table per section and a summary (also as JSON with --json FILE).
 """
@@ -229,6 +233,18 @@ def special_cases(work: Path) -> list[tuple[str, list[str], str | None]]:
     (sp / "spec_bad_width.yaml").write_text("config: {lane_width: .nan}\njunctions:\n- sockets: [0, 90, 180]\n")
     (sp / "suite_passwd.yaml").write_text("version: 1\nname: s\nscenarios:\n- name: a\n  map: /etc/passwd\n"
                                           "  route: [[J0, R0, R1]]\n")
+    passwd = Path("/etc/passwd")  # its first line, as a .txt: an error that quotes content counts as a leak
+    (sp / "passwd.txt").write_text(passwd.read_text().splitlines()[0] + "\n" if passwd.is_file() else "root:x:0:0\n")
+    manifests = {"nested list": b'{"files": [["map.json"]]}', "not JSON": b"map.json", "a list": b'["map.json"]',
+                 "null": b"null", "not UTF-8": b"\xff\xfe{", "deep": b"[" * 100_000 + b"]" * 100_000,
+                 "huge": b'{"files": [' + b'"x", ' * 4_000_000 + b'"map.json"]}'}
+    for name, data in manifests.items():  # an earlier output whose manifest is damaged (issue 35)
+        d = sp / f"manifest_{name.replace(' ', '_')}"
+        d.mkdir()
+        save(m, d / "map.json")
+        (d / ".feat2map-output.json").write_bytes(data)
+    (sp / "ll2").mkdir()
+    (sp / "ll2" / "map_projector_info.yaml").write_text("projector_type: MGRS\nmgrs_grid: 54SUE\n")
     out = sp / "o"
     g = ["generate", "--no-picture", "--quiet", "--no-apollo"]
     cases = [
@@ -256,7 +272,13 @@ def special_cases(work: Path) -> list[tuple[str, list[str], str | None]]:
         ("suite --traffic -5", ["suite", str(sp / "m.json"), "--out", str(sp / "s2.yaml"), "--traffic", "-5"], None),
         ("rollout suite with map /etc/passwd", ["rollout", str(sp / "suite_passwd.yaml"), "--out", str(out / "r"),
                                                 "--quiet"], None),
+        ("extract a non-map .txt", ["extract", str(sp / "passwd.txt")], None),
+        ("validate a non-map .txt", ["validate", str(sp / "passwd.txt")], None),
+        ("export lanelet2 over a user's map_projector_info.yaml", ["export", "lanelet2", str(sp / "m.json"), "--out",
+                                                                   str(sp / "ll2" / "x.osm")], None),
     ]
+    cases += [(f"generate --out an earlier output with a manifest {name}",
+               g + ["--out", str(sp / f"manifest_{name.replace(' ', '_')}")], None) for name in manifests]
     return cases
 
 
@@ -815,12 +837,114 @@ def section_rough(work: Path, args) -> dict:
     cases["--odr-version 1.7 reported as 1.7"] = ("OpenDRIVE 1.7" in r.stdout, r.stdout.strip()[:200])
     r = _cli(["--help"])
     cases["--help limits as integers"] = ("e+0" not in r.stdout, "")
+    cases.update(_rough_outputs(rw, m))
+    cases.update(_rough_envs())
     r = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True, timeout=120)
     cases["pip check"] = (r.returncode == 0, r.stdout.strip()[:200])
     failed = [name for name, (ok, _) in cases.items() if not ok]
     return {"cases": len(cases), "failed": len(failed),
             "results": {name: ("ok" if ok else "FAIL") + (f": {detail}" if detail else "")
                         for name, (ok, detail) in cases.items()}}
+
+
+def _rough_outputs(rw: Path, m: Path) -> dict[str, tuple[bool, str]]:
+    """Issue 35's output-folder and error-place cases, each pass/fail: errors name --out, never
+    the staging folder nor the file's content; a user's empty folder in an earlier output is
+    kept (refused); --out LINK leaves no stray link; a user's map_projector_info.yaml is kept."""
+    cases: dict[str, tuple[bool, str]] = {}
+    ring = rw / "ring.yaml"  # a two-way closed ring: two loops, Apollo's routing graph is refused
+    pts = [(0, 40, 180), (-40, 0, 270), (0, -40, 0), (40, 0, 90)]
+    ring.write_text("version: 1\nchains:\n  - name: ring\n    lanes_forward: 1\n    lanes_backward: 1\n"
+                    "    start: {point: [40, 0], heading: 90}\n    roads:\n"
+                    + "".join(f"      - {{end: [{x}, {y}], heading: {h}}}\n" for x, y, h in pts))
+    r = _cli(["generate", "--spec", str(ring), "--out", str(rw / "ring"), "--no-picture", "--quiet"])
+    cases["refused Apollo export in generate names --out, not staging"] = (
+        r.returncode == 2 and f"{rw / 'ring' / 'apollo'}: refusing" in r.stderr and ".stage-" not in r.stderr,
+        r.stderr.strip()[:200])
+    notes = rw / "secret.txt"
+    notes.write_text("my password is hunter2\n")
+    r = _cli(["extract", str(notes)])
+    cases["non-map .txt: named, content not quoted"] = (r.returncode == 2 and str(notes) in r.stderr
+                                                        and "hunter2" not in r.stderr, r.stderr.strip()[:200])
+    out = rw / "g_empty"
+    g = ["generate", "--no-picture", "--quiet", "--out", str(out)]
+    _cli(g)
+    (out / "apollo" / "mine").mkdir()
+    r = _cli(g + ["--seed", "2"])
+    cases["user's empty folder in an earlier output kept (refused)"] = (
+        r.returncode == 2 and (out / "apollo" / "mine").is_dir() and "apollo/mine/" in r.stderr, r.stderr.strip()[:200])
+    (rw / "target").mkdir()
+    (rw / "link").symlink_to(rw / "target")
+    r1 = _cli(["generate", "--no-picture", "--quiet", "--no-apollo", "--out", str(rw / "link")])
+    stray = [p.name for p in rw.iterdir() if p.name.startswith(".link.")]
+    cases["--out LINK: written through, no stray staging link"] = (
+        r1.returncode == 0 and (rw / "link").is_symlink() and (rw / "target" / "map.json").is_file() and not stray,
+        (r1.stderr.strip() or ", ".join(stray))[:200])
+    (rw / "ll2").mkdir()
+    info = rw / "ll2" / "map_projector_info.yaml"
+    info.write_text("projector_type: MGRS\nmgrs_grid: 54SUE\n")
+    r = _cli(["export", "lanelet2", str(m / "map.json"), "--out", str(rw / "ll2" / "x.osm")])
+    cases["export lanelet2 keeps a user's map_projector_info.yaml"] = (
+        r.returncode == 2 and "MGRS" in info.read_text() and not (rw / "ll2" / "x.osm").exists(), r.stderr.strip()[:200])
+    return cases
+
+
+def _rough_envs() -> dict[str, tuple[bool, str]]:
+    """Issue 35's env cases, each pass/fail: a bad batch action (short, long, out of the space)
+    and a PettingZoo agent's NaN action are ValueErrors raised before any state changes (the
+    next step equals a twin's that never saw them); non-dict options and actions are ValueErrors."""
+    import gymnasium as gym
+    import numpy as np
+    from gymnasium.utils.env_checker import data_equivalence
+
+    import feat2map
+    from feat2map.envs import parallel_env
+
+    cases: dict[str, tuple[bool, str]] = {}
+    J = feat2map.JunctionFeature.make
+    cfg = {"features": [J([0, 90, 180], "signal", True).to_dict()], "traffic_vehicles": 3, "route_junctions": 1,
+           "duration": 2.5, "policy_frequency": 2}
+
+    def refused(call) -> str:
+        try:
+            call()
+        except ValueError as exc:
+            return str(exc)
+        except Exception as exc:  # noqa: BLE001 - the wrong type is what this counts
+            return f"WRONG TYPE {type(exc).__name__}: {exc}"
+        return "ACCEPTED"
+
+    def same(a, b) -> bool:
+        return all(np.array_equal(x, y) for x, y in zip(a[:4], b[:4]))
+
+    for label, bad in [("one short", [0, 1, 2]), ("one long", [0, 1, 2, 1, 1]), ("out of space", [0, 1, 2, 99])]:
+        envs, twin = (gym.make_vec("feat2map/JunctionGrid-v0", num_envs=4, config=cfg) for _ in range(2))
+        envs.reset(seed=3)
+        twin.reset(seed=3)
+        msg = refused(lambda envs=envs, bad=bad: envs.step(np.array(bad)))
+        good = np.array([1, 2, 0, 1])
+        ok = not msg.startswith(("WRONG", "ACCEPTED")) and all(same(envs.step(good), twin.step(good)) for _ in range(6))
+        cases[f"vector env: batch action {label} refused, no sub-env changed"] = (ok, msg[:200])
+    env, twin = (parallel_env({"features": cfg["features"], "agents": 3, "traffic_vehicles": 0,
+                               "action": {"type": "ContinuousAction"}}) for _ in range(2))
+    env.reset(seed=0)
+    twin.reset(seed=0)
+    a0, a1 = env.agents[:2]
+    msg = refused(lambda: env.step({a0: np.array([1.0], np.float32), a1: np.array([np.nan], np.float32)}))
+    ok = not msg.startswith(("WRONG", "ACCEPTED"))
+    for _ in range(4):  # a0 holds its decision: the refused step's must not have been taken
+        acts = {a: np.array([0.2], np.float32) for a in env.agents if a != a0}
+        ok = ok and data_equivalence(env.step(acts), twin.step(acts))
+    cases["PettingZoo: a NaN action refused before any agent's decision"] = (ok, msg[:200])
+    msg = refused(lambda: env.step([0, 1]))
+    cases["PettingZoo: actions not a dict -> ValueError"] = (not msg.startswith(("WRONG", "ACCEPTED")), msg[:200])
+    single = gym.make("feat2map/JunctionGrid-v0", config=cfg)
+    vec = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=cfg)
+    for name, e in (("single", single), ("vector", vec), ("PettingZoo", env)):
+        msg = refused(lambda e=e: e.reset(seed=0, options="config"))
+        cases[f"{name} env: reset(options='config') -> ValueError"] = (not msg.startswith(("WRONG", "ACCEPTED")),
+                                                                       msg[:200])
+    return cases
 
 
 def main() -> int:
@@ -895,7 +1019,7 @@ def main() -> int:
         summary.update({"huge requests unbounded": report["huge"]["unbounded"],
                         "huge requests max s": max(r["s"] for r in report["huge"]["cases"])})
     if "rough" in report:
-        summary["rough edges (issue 25) failing"] = f"{report['rough']['failed']} of {report['rough']['cases']}"
+        summary["rough edges (issues 25, 35) failing"] = f"{report['rough']['failed']} of {report['rough']['cases']}"
     report["summary"] = summary
     print("\n== summary")
     for k, v in summary.items():

@@ -184,3 +184,96 @@ def test_an_earlier_output_with_a_file_added_is_refused(tmp_path, space_file, ca
     (out / "apollo" / "mine.txt").unlink()
     (out / "apollo").rmdir()
     assert main(_generate(space_file, 2, out, "--no-picture", "--no-apollo")) == 0
+
+
+@pytest.mark.parametrize("where", ["top", "inside apollo"])
+def test_an_earlier_output_with_an_empty_folder_added_is_refused(tmp_path, space_file, capsys, where):
+    """Issue 35: replacing would delete a user's empty folder; it is refused, naming the folder,
+    and the earlier output replaced once the folder is gone (README's design notes)."""
+    out = tmp_path / "m"
+    assert main(_generate(space_file, 1, out, "--no-picture")) == 0
+    mine = out / ("mine" if where == "top" else "apollo/mine")
+    mine.mkdir()
+    assert main(_generate(space_file, 2, out, "--no-picture")) == 2
+    err = one_line(capsys)
+    assert f"{out}: folder is an earlier output with '{mine.relative_to(out)}/' added since" in err
+    assert mine.is_dir() and json.loads((out / "map.json").read_text())["meta"]["seed"] == 1
+    mine.rmdir()
+    assert main(_generate(space_file, 2, out, "--no-picture")) == 0
+    listed = json.loads((out / atomic.MANIFEST).read_text())
+    assert listed["folders"] == ["apollo"] and "map.json" in listed["files"]
+
+
+def one_line(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+MALFORMED = {"nested list": b'{"files": [["map.json"]]}', "not JSON": b"map.json", "a list": b'["map.json"]',
+             "files a string": b'{"files": "map.json"}', "folders a number": b'{"files": ["map.json"], "folders": 3}',
+             "not UTF-8": b"\xff\xfe{", "deep": b"[" * 100_000 + b"]" * 100_000, "null": b"null",
+             "huge": b'{"files": ["map.json"' + b', "x"' * 300 + b"]}"}
+
+
+@pytest.mark.parametrize("name", MALFORMED)
+def test_a_malformed_manifest_is_refused_in_one_line(tmp_path, space_file, capsys, monkeypatch, name):
+    """Issue 35: a damaged .feat2map-output.json never gives a traceback: the folder is not ours,
+    refused with one line naming the manifest; nothing in it changes."""
+    out = tmp_path / "m"
+    assert main(_generate(space_file, 1, out, "--no-picture", "--no-apollo")) == 0
+    manifest = out / atomic.MANIFEST
+    manifest.write_bytes(MALFORMED[name])
+    monkeypatch.setattr(atomic, "OUTPUT_MANIFEST_MAX_BYTES", 1000)  # "huge": over it
+    before = sorted((p.name, p.read_bytes()) for p in out.iterdir())
+    assert main(_generate(space_file, 2, out, "--no-picture", "--no-apollo")) == 2
+    err = one_line(capsys)
+    assert f"{manifest}: malformed" in err and "not an output feat2map wrote" in err
+    assert sorted((p.name, p.read_bytes()) for p in out.iterdir()) == before
+    assert not atomic.ours(out, ("map.json",))
+    assert [p.name for p in tmp_path.iterdir()] == ["m"]
+
+
+def test_an_out_that_is_a_link_is_written_through_and_leaves_no_stray_link(tmp_path, space_file):
+    """Issue 35: `--out LINK` (to a folder) writes the output into the link's target, keeps the
+    link, and leaves no hidden staging link behind, on the first run and on a replace."""
+    target = tmp_path / "data"
+    target.mkdir()
+    link = tmp_path / "out"
+    link.symlink_to(target)
+    for seed in (1, 2):
+        assert main(_generate(space_file, seed, link, "--no-picture", "--no-apollo")) == 0
+        assert link.is_symlink() and os.readlink(link) == str(target)
+        assert json.loads((target / "map.json").read_text())["meta"]["seed"] == seed
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "out"]
+
+
+def test_an_error_while_staging_names_the_output_not_the_staging_folder(tmp_path, capsys):
+    """Issue 35: an Apollo export refused inside `generate --spec` names DIR/apollo, never the
+    hidden `.DIR.stage-...` folder; the same for any Feat2MapError or OSError of a staged block."""
+    ring = tmp_path / "ring.yaml"  # a two-way closed ring: two loops, so Apollo's routing graph is refused
+    pts = [(40, 0, 90), (0, 40, 180), (-40, 0, 270), (0, -40, 0), (40, 0, 90)]
+    roads = "".join(f"      - {{end: [{x}, {y}], heading: {h}}}\n" for x, y, h in pts[1:])
+    ring.write_text("version: 1\nchains:\n  - name: ring\n    lanes_forward: 1\n    lanes_backward: 1\n"
+                    f"    start: {{point: [40, 0], heading: 90}}\n    roads:\n{roads}")
+    out = tmp_path / "o"
+    assert main(["generate", "--spec", str(ring), "--out", str(out), "--no-picture", "--quiet"]) == 2
+    err = one_line(capsys)
+    assert err.startswith(f"feat2map: error: {out / 'apollo'}: refusing to export") and ".stage-" not in err
+    assert [p.name for p in tmp_path.iterdir()] == ["ring.yaml"]
+    for make in (lambda t: Feat2MapError("bad", f"{t}/x.json"), lambda t: Feat2MapError(f"{t}/x.json is bad"),
+                 lambda t: FileNotFoundError(2, "No such file", f"{t}/x.json")):
+        with pytest.raises((Feat2MapError, OSError)) as info, atomic.staged_dir(tmp_path / "d") as tmp:
+            raise make(tmp)
+        assert str(tmp_path / "d" / "x.json") in str(info.value) and ".stage-" not in str(info.value)
+
+
+def test_a_failed_file_write_names_the_file_not_its_temporary(tmp_path, monkeypatch):
+    def full_disk(src, dst):
+        raise OSError(28, "No space left on device", src)
+
+    monkeypatch.setattr(atomic.os, "replace", full_disk)
+    with pytest.raises(OSError) as info:
+        atomic.write_bytes(tmp_path / "map.json", b"{}")
+    assert info.value.filename == str(tmp_path / "map.json") and ".tmp-" not in str(info.value)
+    assert list(tmp_path.iterdir()) == []

@@ -69,12 +69,26 @@ def test_an_unknown_option_gets_its_command_and_the_nearest_option(tmp_path, cap
     assert "did you mean" not in one_error(capsys)
 
 
-def test_a_plain_text_file_is_not_blamed_on_apollo(tmp_path, capsys):
+@pytest.mark.parametrize("command", ["extract", "validate"])
+def test_a_plain_text_file_is_not_blamed_on_apollo_nor_quoted(tmp_path, capsys, command):
+    """Issue 35: the error names the file and what a .txt map is, never the file's content."""
     notes = tmp_path / "notes.txt"
-    notes.write_text("hello world, these are my notes\n")
-    assert main(["extract", str(notes)]) == 2
+    notes.write_text("hello world, my password is hunter2\n")
+    assert main([command, str(notes)]) == 2
     err = one_error(capsys)
-    assert "not a map feat2map reads" in err and "'hello world" in err and "broken Apollo" not in err
+    assert f"{notes}: not a map feat2map reads" in err and "Apollo protobuf text" in err and "broken Apollo" not in err
+    assert "hello" not in err and "hunter2" not in err
+
+
+@pytest.mark.parametrize("text", ['header {\n  version: hunter2\n}\n',
+                                  'header { version: "1" }\nlane { central_curve { segment { line_segment { '
+                                  'point { x: hunter2 } } } } }\n'])
+def test_an_apollo_text_parse_error_gives_its_position_not_the_token(tmp_path, capsys, text):
+    bad = tmp_path / "bad.txt"
+    bad.write_text(text)
+    assert main(["extract", str(bad)]) == 2
+    err = one_error(capsys)
+    assert "broken Apollo map text (line" in err and "hunter2" not in err
 
 
 def test_an_xodr_parse_error_gives_its_position_once(tmp_path, capsys):

@@ -16,7 +16,7 @@ import re
 from pathlib import Path
 
 from ..config import OPENDRIVE_VERSIONS
-from ..errors import MapFormatError, snippet
+from ..errors import MapFormatError
 from ..model import HDMap
 from .base import ExportOption, MapFormat, Problem
 from .geo import GEO_OPTIONS
@@ -41,6 +41,7 @@ FORMATS: dict[str, MapFormat] = {f.name: f for f in (
               sniff=lambda head: b"<commonRoad" in head),
     MapFormat("lanelet2", "Lanelet2 for Autoware (.osm, map_projector_info.yaml beside it)", (".osm",),
               write=f"{_P}.lanelet2:write_lanelet2", validate=f"{_P}.lanelet2:validate_lanelet2", options=GEO_OPTIONS,
+              check=f"{_P}.lanelet2:check_projector_target",
               sniff=lambda head: b"<osm" in head),
     MapFormat("native", "feat2map map (.json)", (".json",), read=f"{_P}.native:load", write=f"{_P}.native:save",
               sniff=lambda head: head.lstrip().startswith(b"{")),
@@ -72,10 +73,8 @@ def detect(path: str | Path, face: str = "read") -> MapFormat:
         if not found:
             found = [f for f in cands if f.sniff is not None and f.sniff(head)]
         elif path.suffix.lower() == ".txt" and not _is_protobuf(head):  # .txt: any text, not only Apollo's
-            raise MapFormatError("not a map feat2map reads: a .txt map is Apollo protobuf text (it starts with "
-                                 f"a field such as `header {{`), this file starts with "
-                                 f"{snippet(head[:40].decode('utf-8', 'replace'))}",
-                                 str(path))
+            raise MapFormatError("not a map feat2map reads: a .txt map is Apollo protobuf text, which starts "
+                                 "with a field such as `header {`; this file does not", str(path))
     if not found:
         known = ", ".join(f"{f.name} ({' '.join(f.suffixes) or 'folder'})" for f in cands)
         raise MapFormatError(f"unsupported map format for {face}: expected one of {known}", str(path))
@@ -92,7 +91,10 @@ def check_target(path: str | Path, format: str) -> Path:
     from .. import atomic
 
     fmt = FORMATS[format]
-    return atomic.check_dir_target(path, fmt.markers) if fmt.output == "dir" else atomic.check_file_target(path)
+    target = atomic.check_dir_target(path, fmt.markers) if fmt.output == "dir" else atomic.check_file_target(path)
+    if fmt.check is not None:
+        fmt.face("check")(target)
+    return target
 
 
 def write_map(m: HDMap, path: str | Path, format: str, **options) -> None:

@@ -126,6 +126,7 @@ class MapFormat:
     sniff: Callable[[bytes], bool] | None = None  # does a file starting with these bytes hold this format?
     options: tuple[ExportOption, ...] = ()
     markers: tuple[str, ...] = ()  # "dir" output: files of an earlier export (a folder holding one is replaced whole)
+    check: str | None = None  # (path) -> None: a Feat2MapError when more than `path` may not be written (files beside it)
 
     def face(self, name: str) -> Callable[..., Any]:
         """The function behind face `name` (read, write, validate, picture), imported now."""

@@ -266,3 +266,45 @@ def test_agents_driven_by_the_rules_are_judged_clean(angles, control):
     for a, info in last.items():
         assert info["route_completed"] and not info["collision"], (a, info)
         assert sum(info["violations"].values()) == 0, (a, info["violations"])
+
+
+@pytest.mark.parametrize("action, good, bad", [({"type": "TargetSpeed"}, 5, 99),
+                                               ({"type": "DiscreteMetaAction"}, 2, 7),
+                                               ({"type": "ContinuousAction"}, np.array([1.0], np.float32),
+                                                np.array([np.nan], np.float32))])
+def test_a_refused_action_applies_no_agents_decision(action, good, bad):
+    """Issue 35: one agent's bad action (out of its space, NaN) is refused, naming the agent,
+    before any agent's decision is applied: after it, the env steps exactly as a twin that never
+    saw the refused step (the agent whose good action came first keeps its earlier decision)."""
+    cfg = {**map_config("generated"), "agents": 3, "traffic_vehicles": 2, "pedestrian_rate": 0.0,
+           "duration": 30.0, "action": action}
+    env, twin = parallel_env(cfg), parallel_env(cfg)
+    assert data_equivalence(env.reset(seed=4), twin.reset(seed=4))
+    space = env.action_space("agent_0")
+    space.seed(0)
+    for _ in range(3):
+        acts = {a: space.sample() for a in env.agents}
+        assert data_equivalence(env.step(acts), twin.step(acts))
+    first, second = env.agents[:2]
+    with pytest.raises(ValueError, match=rf"^actions\['{second}'\]: must be"):
+        env.step({first: good, second: bad})
+    for k in range(4):  # the first agent holds its decision in the first step after
+        acts = {a: space.sample() for a in env.agents if k or a != first}
+        assert data_equivalence(env.step(acts), twin.step(acts)), k
+
+
+@pytest.mark.parametrize("actions", [[0, 1], "agent_0", None, 3])
+def test_actions_that_are_not_a_dict_are_a_clear_error(actions):
+    env = parallel_env({**map_config("generated"), "agents": 2, "traffic_vehicles": 0})
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=f"^actions: must be a dict agent name -> action, got {type(actions).__name__}"):
+        env.step(actions)
+
+
+@pytest.mark.parametrize("options, where", [("config", "options"), ([1], "options"), ({"config": "abc"},
+                                                                                      "options.config")])
+def test_reset_options_that_are_not_a_dict_are_a_clear_error(options, where):
+    env = parallel_env({**map_config("generated"), "agents": 2, "traffic_vehicles": 0})
+    with pytest.raises(ValueError, match=f"^{where}: must be a dict"):
+        env.reset(seed=0, options=options)
+    assert env.reset(seed=0)[0]  # still usable

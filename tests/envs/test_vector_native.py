@@ -279,3 +279,67 @@ def test_gymnasiums_vector_kwargs_is_refused_and_the_adapter_says_what_to_write(
     with pytest.raises(Feat2MapError, match=re.escape("gym.make_vec(ID, num_envs=N, autoreset_mode='SameStep')")):
         same_step(Remote())
     assert "autoreset_mode='SameStep'" in SAME_STEP_HOWTO
+
+
+def same_outputs(a: tuple, b: tuple, label: str) -> None:
+    names = ("obs", "info") if len(a) == 2 else ("obs", "reward", "terminated", "truncated", "info")
+    assert len(a) == len(b) == len(names)
+    for name, x, y in zip(names, a, b):
+        assert_same(x, y, f"{label} {name}")
+
+
+BAD_BATCHES = {"one short": ([0, 1, 2], r"^actions: must be one action per sub-env: 4, got 3"),
+               "one long": ([0, 1, 2, 1, 1], r"^actions: must be one action per sub-env: 4, got 5"),
+               "out of space": ([0, 1, 2, 99], r"^actions\[3\] \(sub-env 3\): must be in \[0, 3\), got 99"),
+               "negative": (np.array([0, -1, 2, 1]), r"^actions\[1\] \(sub-env 1\): must be in \[0, 3\), got -1"),
+               "not integers": ([0, 1, 2, 0.5], r"^actions\[3\] \(sub-env 3\): must be an integer"),
+               "a scalar": (1, r"^actions: must be one action per sub-env \(4\), got int"),
+               "None": (None, r"^actions: must be one action per sub-env \(4\), got NoneType")}
+
+
+@pytest.mark.parametrize("bad", BAD_BATCHES)
+def test_a_refused_batch_action_leaves_every_sub_env_untouched(bad):
+    """Issue 35: a batch action of the wrong length or with a value out of the space is refused
+    (a ValueError naming the sub-env and the value) before any sub-env is stepped or autoreset:
+    afterwards the batch steps exactly as a twin that never saw the refused step."""
+    envs, twin = (gym.make_vec("feat2map/JunctionGrid-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                               config=SHORT) for _ in range(2))
+    same_outputs(envs.reset(seed=3), twin.reset(seed=3), "reset")
+    good = np.array([1, 2, 0, 1])
+    for t in range(5):  # to the episodes' end: the next step autoresets them
+        same_outputs(envs.step(good), twin.step(good), f"step {t}")
+    action, message = BAD_BATCHES[bad]
+    clocks = [e.time for e in envs.unwrapped.envs]
+    with pytest.raises(ValueError, match=message):
+        envs.step(action)
+    assert [e.time for e in envs.unwrapped.envs] == clocks
+    for t in range(7):
+        same_outputs(envs.step(good), twin.step(good), f"step {t} after")
+    envs.close()
+    twin.close()
+
+
+def test_a_refused_continuous_batch_action_names_the_sub_env():
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                        config={**SHORT, "action": DRIVER_ACTION_CONFIG})
+    envs.reset(seed=0)
+    shape = envs.single_action_space.shape
+    with pytest.raises(ValueError, match=r"^actions\[1\] \(sub-env 1\): must be finite"):
+        envs.step(np.stack([np.zeros(shape), np.full(shape, np.nan)]))
+    with pytest.raises(ValueError, match=r"^actions: must be one action per sub-env: 2, got 3"):
+        envs.step(np.zeros((3, *shape)))
+    assert [e.time for e in envs.unwrapped.envs] == [0, 0]
+    envs.close()
+
+
+@pytest.mark.parametrize("options, where", [("config", "options"), ([1], "options"), (5, "options"),
+                                            ({"config": "abc"}, "options.config")])
+def test_reset_options_that_are_not_a_dict_are_a_clear_error(options, where):
+    """Issue 35: not an AttributeError deep inside, for the batch and for a single env."""
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, vectorization_mode="vector_entry_point", config=SHORT)
+    single = gym.make("feat2map/JunctionGrid-v0", config=SHORT)
+    for env in (envs, single):
+        with pytest.raises(ValueError, match=f"^{where}: must be a dict"):
+            env.reset(seed=0, options=options)
+        env.reset(seed=0, options={"config": {"traffic_vehicles": 1}})  # a dict is taken
+    envs.close()

@@ -5,7 +5,7 @@ import pytest
 from conftest import SKIP_COMMONROAD_IO
 
 from feat2map.cli import main
-from feat2map.errors import MapFormatError
+from feat2map.errors import Feat2MapError, MapFormatError
 from feat2map.formats import FORMATS, detect, native, read_map, write_map
 
 
@@ -114,3 +114,40 @@ def test_exports_are_deterministic_and_atomic(tmp_path, small_map, name, needs):
         write_map(small_map, tmp_path / "a" / f"m{suffix}", name, zone=0)
     assert sorted(p.name for p in (tmp_path / "a").iterdir()) == before
     assert (tmp_path / "a" / f"m{suffix}").read_bytes() == first
+
+
+@pytest.mark.parametrize("theirs", ["Autoware's MGRS", "edited ours", "a folder", "a link to ours"])
+def test_lanelet2_export_keeps_a_projector_info_it_did_not_write(tmp_path, small_map, capsys, theirs):
+    """Issue 35: `export lanelet2 --out DIR/x.osm` refuses (one line naming the file, nothing
+    written) when DIR/map_projector_info.yaml is not one an earlier export wrote; its own
+    earlier one is replaced."""
+    from feat2map.formats.lanelet2 import PROJECTOR_INFO
+
+    src = tmp_path / "m.json"
+    native.save(small_map, src)
+    mine = tmp_path / "ours"
+    assert main(["export", "lanelet2", str(src), "--out", str(mine / "a.osm")]) == 0
+    ours = (mine / PROJECTOR_INFO).read_bytes()
+    assert main(["export", "lanelet2", str(src), "--out", str(mine / "b.osm"), "--origin", "500000", "4000000"]) == 0
+    assert (mine / PROJECTOR_INFO).read_bytes() != ours  # an earlier export's file: replaced
+    d = tmp_path / "d"
+    d.mkdir()
+    info = d / PROJECTOR_INFO
+    if theirs == "Autoware's MGRS":
+        info.write_text("projector_type: MGRS\nvertical_datum: WGS84\nmgrs_grid: 54SUE\n")
+    elif theirs == "edited ours":
+        info.write_bytes(ours.replace(b"altitude: 0.0", b"altitude: 12.5"))
+    elif theirs == "a folder":
+        info.mkdir()
+    else:
+        info.symlink_to(mine / PROJECTOR_INFO)
+    before = info.read_bytes() if info.is_file() else None
+    capsys.readouterr()
+    assert main(["export", "lanelet2", str(src), "--out", str(d / "x.osm")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"feat2map: error: {info}: exists and is not one a feat2map lanelet2 export wrote")
+    assert len(err.splitlines()) == 1
+    assert sorted(p.name for p in d.iterdir()) == [PROJECTOR_INFO]
+    assert (info.read_bytes() if info.is_file() else None) == before
+    with pytest.raises(Feat2MapError, match="refusing to overwrite"):
+        write_map(small_map, d / "y.osm", "lanelet2")

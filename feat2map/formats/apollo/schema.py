@@ -14,6 +14,7 @@ qualified name such as ``apollo.common.PointENU``.
 """
 from __future__ import annotations
 
+import re
 from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory, text_format
@@ -412,6 +413,11 @@ def text(value: str | bytes) -> str:
     return value.decode("utf-8", "replace") if isinstance(value, bytes) else value
 
 
+# where protobuf's text parser quotes the offending token ("Couldn't parse float: <token>",
+# "Expected string but found: <token>", "... has no value named <token>."): cut there
+PROTOBUF_TOKEN = re.compile(r"(?:(?: but found)?:|, got| named)\s.*$", re.S)
+
+
 def _parse(cls: Any, data: bytes, where: str, what: str) -> Message:
     if not data.strip():
         raise MapFormatError(f"empty file, expected an Apollo {what}", where)
@@ -421,6 +427,7 @@ def _parse(cls: Any, data: bytes, where: str, what: str) -> Message:
             text_format.Parse(data.decode("utf-8", errors="strict"), msg, allow_unknown_field=True)
         except text_format.ParseError as exc:  # its message quotes the offending line: not repeated
             reason = str(exc).rpartition("': ")[2] if "': " in str(exc) else "unexpected token"
+            reason = PROTOBUF_TOKEN.sub("", reason) or "unexpected token"  # nor the offending token (file content)
             raise MapFormatError(f"broken Apollo {what} text (line {exc.GetLine()}, column {exc.GetColumn()}: "
                                  f"{reason})", where) from None
         except UnicodeDecodeError as exc:

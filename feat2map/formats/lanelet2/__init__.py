@@ -3,6 +3,7 @@ regulatory elements (`writer`), and check them with the `lanelet2` wheel (`valid
 from __future__ import annotations
 
 from .validate import Lanelet2Report, check_lanelet2, validate_lanelet2
-from .writer import PROJECTOR_INFO, to_lanelet2, write_lanelet2
+from .writer import PROJECTOR_INFO, check_projector_target, to_lanelet2, write_lanelet2
 
-__all__ = ["PROJECTOR_INFO", "Lanelet2Report", "check_lanelet2", "to_lanelet2", "validate_lanelet2", "write_lanelet2"]
+__all__ = ["PROJECTOR_INFO", "Lanelet2Report", "check_lanelet2", "check_projector_target",
+           "to_lanelet2", "validate_lanelet2", "write_lanelet2"]

@@ -23,6 +23,7 @@ assigned in map order, so the same map gives the same bytes.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -31,6 +32,7 @@ import numpy as np
 from ... import atomic
 from ...config import (APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, LANELET2_MERGE_M, STOP_SIGN_HEIGHT_M,
                        STOP_SIGN_SIZE_M, UTM_ZONE)
+from ...errors import Feat2MapError
 from ...model import Crosswalk, HDMap, Lane, incoming_lanes
 from ..geo import utm_origin, utm_to_latlon
 from ..lane_ends import lane_ends
@@ -371,6 +373,34 @@ def projector_info(zone: int, origin: tuple[float, float]) -> bytes:
             f"  latitude: {lat[0]:.11f}\n  longitude: {lon[0]:.11f}\n  altitude: 0.0\n").encode()
 
 
+_NUMBER = rb"-?\d+\.\d+"
+# what `projector_info` writes, whatever the origin: a file like it was written by an earlier export
+_OUR_PROJECTOR_INFO = re.compile(rb"# the map's \(0, 0\): UTM zone \d{1,2}N easting " + _NUMBER + rb" northing " + _NUMBER
+                                 + rb"\nprojector_type: LocalCartesianUTM\nvertical_datum: WGS84\nmap_origin:\n"
+                                 rb"  latitude: " + _NUMBER + rb"\n  longitude: " + _NUMBER + rb"\n  altitude: 0\.0\n")
+_PROJECTOR_INFO_MAX_BYTES = 512  # ours is about 200 bytes
+
+
+def check_projector_target(path: str | Path) -> None:
+    """Whether map_projector_info.yaml may be written beside `path`: absent, or one an earlier
+    export wrote (`projector_info`'s form); else a Feat2MapError naming it, as Autoware reads
+    the map's origin from it and a user's or Autoware's own file is never overwritten."""
+    info = Path(path).parent / PROJECTOR_INFO
+    if not info.exists() and not info.is_symlink():
+        return
+    head = b""
+    if info.is_file() and not info.is_symlink():
+        try:
+            with info.open("rb") as fh:
+                head = fh.read(_PROJECTOR_INFO_MAX_BYTES + 1)
+        except OSError:
+            head = b""
+    if _OUR_PROJECTOR_INFO.fullmatch(head) is None:
+        raise Feat2MapError("exists and is not one a feat2map lanelet2 export wrote: refusing to overwrite it "
+                            "(Autoware reads the map's origin from it; the .osm goes beside it); move it or "
+                            "write the .osm into another folder", str(info))
+
+
 def to_lanelet2(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | None = None) -> tuple[bytes, bytes]:
     """The Lanelet2 OSM document of `m` and its map_projector_info.yaml, as bytes."""
     o = utm_origin(m, zone, origin, "lanelet2 export")
@@ -381,8 +411,10 @@ def to_lanelet2(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
 
 def write_lanelet2(m: HDMap, path: str | Path, *, zone: int = UTM_ZONE,
                    origin: tuple[float, float] | None = None) -> None:
-    """Write `m` to `path` (.osm) and map_projector_info.yaml beside it, each atomically."""
-    path = Path(path)
+    """Write `m` to `path` (.osm) and map_projector_info.yaml beside it, each atomically; an
+    existing map_projector_info.yaml that an earlier export did not write is refused first."""
+    path = atomic.check_file_target(path)
+    check_projector_target(path)
     osm, info = to_lanelet2(m, zone=zone, origin=origin)
     atomic.write_bytes(path.parent / PROJECTOR_INFO, info)
     atomic.write_bytes(path, osm)
