@@ -8,17 +8,18 @@ slot of the shared core; `map_env.simulate` steps all of them frame by frame, th
 sub-envs in one array program (`TrafficCore.act` / `step`). With the same seeds and actions a
 sub-env gives exactly what a single env gives (tests/envs/test_vector_native.py).
 
-Gymnasium's conventions as in `SyncVectorEnv` (reset seeds per sub-env, `options["reset_mask"]`,
+Gymnasium's conventions as in its `SyncVectorEnv` (reset seeds per sub-env, `options["reset_mask"]`,
 autoreset next-step by default, `autoreset_mode` honoured, info as arrays with "_key" masks).
 `render()` draws one sub-env (`render_env`, default 0).
 """
 from __future__ import annotations
 
+from copy import deepcopy
 from typing import Any
 
 import numpy as np
-from gymnasium.vector import AutoresetMode, SyncVectorEnv
-from gymnasium.vector.utils import concatenate, iterate
+from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
+from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from ..errors import Feat2MapError
 from . import core
@@ -34,8 +35,10 @@ UNSUPPORTED = (("new_map_each_reset", True, "the sub-envs of a batch share one m
 MAP_KEYS = ("map_seed", "features", "feature_space", "generation", "map_file", "map")  # fixed for a batch's life
 
 
-class MapVectorEnv(SyncVectorEnv):
-    """N `env_class` sub-envs of one config whose traffic shares one core (module docstring)."""
+class MapVectorEnv(VectorEnv):
+    """N `env_class` sub-envs of one config whose traffic shares one core (module docstring).
+    A `gymnasium.vector.VectorEnv` of its own: it keeps its buffers itself (no other vector
+    env's internals)."""
 
     def __init__(self, env_class: type[MapEnv], num_envs: int, config: dict | None = None,
                  render_mode: str | None = None, autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
@@ -46,44 +49,76 @@ class MapVectorEnv(SyncVectorEnv):
         if not 0 <= render_env < num_envs:
             raise Feat2MapError(f"must be in [0, {num_envs}), got {render_env}", "render_env")
         self.render_env = render_env
-        fns = [(lambda k=k: env_class(config=config, render_mode=render_mode if k == render_env else None))
-               for k in range(int(num_envs))]
-        super().__init__(fns, copy=copy, autoreset_mode=autoreset_mode)
+        self.num_envs = int(num_envs)
+        self.copy = copy
+        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        self.envs: list[Any] = [env_class(config=config, render_mode=render_mode if k == render_env else None)
+                                for k in range(self.num_envs)]
+        first = self.envs[0]
+        self.metadata = {**first.metadata, "autoreset_mode": self.autoreset_mode}
         self.render_mode = render_mode
-        envs: list[Any] = list(self.envs)  # MapEnvs (gymnasium types them as Env)
-        net = envs[0].net
-        self.core = TrafficCore(net, self.num_envs)
-        for k, env in enumerate(envs):
+        self.single_observation_space, self.single_action_space = first.observation_space, first.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        n = self.num_envs
+        self._env_obs: list[Any] = [None] * n  # each sub-env's latest observation
+        self._obs = create_empty_array(self.single_observation_space, n=n, fn=np.zeros)  # them, batched
+        self._rewards = np.zeros(n, dtype=np.float64)
+        self._terminations = np.zeros(n, dtype=np.bool_)
+        self._truncations = np.zeros(n, dtype=np.bool_)
+        self._ended = np.zeros(n, dtype=np.bool_)  # ended at the last step: next-step autoreset resets them
+        self._step_values: dict[int, tuple] = {}
+        net = first.net
+        self.core = TrafficCore(net, n)
+        for k, env in enumerate(self.envs):
             env.core_slot = (self.core, k)
             env._network = lambda net=net: net  # the map of the batch, for every reset
 
     def reset(self, *, seed=None, options: dict[str, Any] | None = None):
-        """Reset the sub-envs (all, or those of `options["reset_mask"]`); `options["config"]`
-        may change anything but the map and the keys the batch refuses."""
+        """Reset the sub-envs (all, or those of `options["reset_mask"]`, a bool array of N) with
+        seeds `seed` (an int: seed + k for sub-env k; or one per sub-env); `options["config"]`
+        may change anything but the map and the keys the batch refuses. Everything is checked
+        before any sub-env is reset."""
         check_options(options)
-        cfg = dict((options or {}).get("config") or {})
+        options = dict(options or {})
+        cfg = dict(options.get("config") or {})
         check_config(cfg)
         for key in MAP_KEYS:
             if key in cfg:
                 raise Feat2MapError("the sub-envs of a batch keep the map they were made with: make a new batch",
                                     f"options.config.{key}")
-        return super().reset(seed=seed, options=options)
+        n = self.num_envs
+        seeds = [None] * n if seed is None else [seed + k for k in range(n)] if isinstance(seed, int) else list(seed)
+        if len(seeds) != n:
+            raise Feat2MapError(f"must be one seed per sub-env ({n}), got {len(seeds)}", "seed")
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = np.ones(n, dtype=np.bool_)
+        elif not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (n,) and mask.any()):
+            raise Feat2MapError(f"must be a bool array of shape ({n},) with a True, got {mask!r}",
+                                "options.reset_mask")
+        items = []
+        for k in np.nonzero(mask)[0].tolist():
+            self._env_obs[k], info = self.envs[k].reset(seed=seeds[k], options=options)
+            items.append((k, info))
+        self._terminations[mask] = self._truncations[mask] = self._ended[mask] = False
+        return self._batch_obs(), self.stack_infos(items)
 
     def step(self, actions):
         """Step every sub-env (next-step autoreset: those that ended last step are reset
         instead), all stepping ones together (`map_env.simulate`). A bad batch action is refused
         before any sub-env changes (`batch_actions`)."""
         acts = self.batch_actions(actions)
-        infos: dict[str, Any] = {}
         stepping, done_infos = [], {}
         for i, env in enumerate(self.envs):
-            if self.autoreset_mode == AutoresetMode.NEXT_STEP and self._autoreset_envs[i]:
+            if self.autoreset_mode == AutoresetMode.NEXT_STEP and self._ended[i]:
                 self._env_obs[i], done_infos[i] = env.reset()
                 self._rewards[i] = 0.0
                 self._terminations[i] = self._truncations[i] = False
+            elif self.autoreset_mode == AutoresetMode.DISABLED and self._ended[i]:
+                raise Feat2MapError(f"sub-env {i} ended: with autoreset_mode disabled, reset it (options reset_mask) "
+                                    "before stepping it again", "step")
             else:
-                if self.autoreset_mode == AutoresetMode.DISABLED:
-                    assert not self._autoreset_envs[i], f"{self._autoreset_envs=}"
                 stepping.append(i)
         envs = [self.envs[i] for i in stepping]
         for i, env in zip(stepping, envs):
@@ -120,11 +155,21 @@ class MapVectorEnv(SyncVectorEnv):
         infos = self.stack_columns(columns) if columns else {}
         if finals or any(key not in columns for _, d in items for key in d):
             infos.update(self.stack_infos(items, skip=columns))
-        self._observations = concatenate(self.single_observation_space, self._env_obs, self._observations)
-        self._autoreset_envs = np.logical_or(self._terminations, self._truncations)
-        obs = self._observations
-        return (np.copy(obs) if self.copy and isinstance(obs, np.ndarray) else obs, np.copy(self._rewards),
-                np.copy(self._terminations), np.copy(self._truncations), infos)
+        self._ended = self._terminations | self._truncations
+        return self._batch_obs(), np.copy(self._rewards), np.copy(self._terminations), np.copy(self._truncations), infos
+
+    def _batch_obs(self):
+        """The sub-envs' latest observations as one batch (a copy unless `copy` is False)."""
+        self._obs = concatenate(self.single_observation_space, self._env_obs, self._obs)
+        return deepcopy(self._obs) if self.copy else self._obs
+
+    def get_attr(self, name: str) -> tuple:
+        """Attribute `name` of every sub-env."""
+        return tuple(getattr(env, name) for env in self.envs)
+
+    def close_extras(self, **kwargs) -> None:
+        for env in self.envs:
+            env.close()
 
     def batch_actions(self, actions) -> list:
         """The sub-envs' actions of a batch action, one per sub-env, each checked
@@ -280,12 +325,12 @@ SAME_STEP_HOWTO = ("make it with same-step autoreset: gym.make_vec(ID, num_envs=
 
 
 def same_step(venv) -> None:
-    """Switch `venv` (a `SyncVectorEnv`, such as `MapVectorEnv`, or a wrapper of one) to same-step
+    """Switch `venv` (a `MapVectorEnv` or a `SyncVectorEnv`, or a wrapper of one) to same-step
     autoreset before its next reset; a Feat2MapError saying how to make it so for any other."""
     base = venv.unwrapped
     if venv.metadata.get("autoreset_mode") == AutoresetMode.SAME_STEP:
         return
-    if not isinstance(base, SyncVectorEnv):  # an AsyncVectorEnv's mode lives in its workers
+    if not isinstance(base, (MapVectorEnv, SyncVectorEnv)):  # an AsyncVectorEnv's mode lives in its workers
         raise Feat2MapError(f"SB3 needs same-step autoreset and {type(base).__name__} cannot switch to it: "
                             + SAME_STEP_HOWTO, "autoreset_mode")
     base.autoreset_mode = AutoresetMode.SAME_STEP

@@ -343,3 +343,25 @@ def test_reset_options_that_are_not_a_dict_are_a_clear_error(options, where):
             env.reset(seed=0, options=options)
         env.reset(seed=0, options={"config": {"traffic_vehicles": 1}})  # a dict is taken
     envs.close()
+
+
+def test_the_batch_is_a_vector_env_of_its_own_and_refuses_bad_seeds_and_masks():
+    """MapVectorEnv is a `gymnasium.vector.VectorEnv` that keeps its own buffers (not a
+    SyncVectorEnv whose internals it rewrites); its outputs are fresh arrays each call, and bad
+    seeds or reset masks are refused, naming the argument, before any sub-env is reset."""
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point", config=SHORT)
+    base = envs.unwrapped
+    assert isinstance(base, gym.vector.VectorEnv) and not isinstance(base, gym.vector.SyncVectorEnv)
+    obs, _ = envs.reset(seed=1)
+    kept = obs.copy()
+    obs2, *_ = envs.step(np.array([1, 1, 1]))
+    assert obs2 is not obs and np.array_equal(obs, kept)  # the step wrote no array it handed out before
+    clocks = [e.time for e in base.envs]
+    for seed, options, where in (([1, 2], None, "seed"),
+                                 (None, {"reset_mask": [True, False, True]}, "options.reset_mask"),
+                                 (None, {"reset_mask": np.zeros(3, dtype=bool)}, "options.reset_mask"),
+                                 (None, {"reset_mask": np.ones(2, dtype=bool)}, "options.reset_mask")):
+        with pytest.raises(Feat2MapError, match=f"^{re.escape(where)}: "):
+            envs.reset(seed=seed, options=options)
+    assert [e.time for e in base.envs] == clocks
+    envs.close()
