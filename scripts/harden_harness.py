@@ -793,16 +793,17 @@ while True:
         seen = n; answer({"step": k} if "step" in h else {}, STAND); k += 1
     time.sleep(0.002)
 """, "error", "does not read its stdin"),
-    ("floods_replies", "valid replies in a loop", """
-start(); m = recv()
+    ("floods_replies", "valid replies in a loop (protocol 1: no step to tell them apart)", """
+h = recv(); send({"type": "hello", "protocol": 1, "map_format": "native", "output": "control"})
+recv(); send({"type": "ready"}); recv()
 while True:
-    answer(m, STAND)
+    send(STAND)
 """, "error", "replies without being asked"),
     ("closes_stdout", "closes stdout, keeps running", """
 start(); recv(); os.close(1); time.sleep(600)
 """, "error", "closed its stdout while still running"),
-    ("closes_stdin", "answers once, closes stdin, keeps running", """
-start(); answer(recv(), STAND); os.close(0); time.sleep(600)
+    ("closes_stdin", "closes stdin, answers once, keeps running", """
+start(); m = recv(); os.close(0); answer(m, STAND); time.sleep(600)
 """, "error", "closed its stdin before its step reply"),
     ("deep_json", "JSON nested 100,000 deep", """
 start(); recv(); sys.stdout.write("[" * 100000 + "]" * 100000 + "\\n"); sys.stdout.flush(); recv()
@@ -949,6 +950,8 @@ def section_bridge(work: Path, args) -> dict:
     message, whether the report was written, wall time, the rollout's peak RSS, and the planner's
     processes alive after the rollout (found by an environment tag, then killed). Targets: no
     hang, a report each time, RSS under BRIDGE_RSS_TARGET_MB, no survivor."""
+    from feat2map.scenarios.rollout import HASH_SEED
+
     bw = work / "bridge"
     suite = bridge_suite(bw)
     names = set(args.bridge_cases.split(",")) if args.bridge_cases else None
@@ -966,6 +969,7 @@ def section_bridge(work: Path, args) -> dict:
         proc = subprocess.Popen([sys.executable, "-c", _ROLLOUT, json.dumps(argv), str(result), args.bridge_module or ""],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
                                 env=dict(os.environ, SDL_VIDEODRIVER="offscreen", MPLBACKEND="Agg",
+                                         PYTHONHASHSEED=HASH_SEED,  # the rollout drives in its own process
                                          **{HARNESS_TAG_VAR: tag}))
         try:
             _, err = proc.communicate(timeout=args.bridge_timeout)

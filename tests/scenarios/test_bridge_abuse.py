@@ -22,7 +22,7 @@ import pytest
 from conftest import REPO
 
 from feat2map.scenarios.bridge import MAX_NUMBER, BridgePlanner, parse_reply
-from feat2map.scenarios.rollout import run_suite
+from feat2map.scenarios.rollout import HASH_SEED, run_suite
 from feat2map.scenarios.scenario import Suite, load_suite
 
 _spec = importlib.util.spec_from_file_location("harden_harness", REPO / "scripts" / "harden_harness.py")
@@ -73,6 +73,7 @@ def test_an_abusive_planner_ends_its_rollout_in_time_and_leaves_no_process(suite
                                                                           body, outcome, text):
     tag = f"{tmp_path.name}-{time.time_ns()}"
     monkeypatch.setenv(harness.HARNESS_TAG_VAR, tag)  # inherited by the planner and all it starts
+    monkeypatch.setenv("PYTHONHASHSEED", HASH_SEED)  # run_suite drives in this process, no worker
     script = tmp_path / "planner.py"
     script.write_text(harness.PLANNER_PRELUDE + body)
     planner = BridgePlanner(f"{sys.executable} {script}", step_timeout=harness.BRIDGE_STEP_TIMEOUT_S,
