@@ -370,7 +370,7 @@ class PlannerProcess:
                     message = f"garbage {what} reply: a line over {MAX_LINE_BYTES} bytes"
                     break
                 if self._end is not None:  # end of output
-                    message = self._gone(f"before its {what} reply", "closed its stdout while still running")
+                    message = self._gone(f"before its {what} reply", "closed its stdout while still running,")
                     break
                 now = time.monotonic()
                 if exited_at is not None and now - exited_at > EXIT_GRACE_S:  # a child holds its stdout
@@ -379,8 +379,8 @@ class PlannerProcess:
                 if now >= deadline:
                     message = f"planner timeout: no {what} reply within {timeout:g} s"
                     break
-                self._cv.wait(min(deadline - now, EXIT_POLL_S))
-            if exited_at is None and self.exit_code() is not None:
+                news = self._cv.wait(min(deadline - now, EXIT_POLL_S))
+            if not news and exited_at is None and self.exit_code() is not None:  # quiet: did it exit?
                 exited_at = time.monotonic()
         raise BridgeError(self.failure(message))
 
