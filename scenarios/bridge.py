@@ -7,14 +7,17 @@ ego of a scenario env through JSON lines over its stdin/stdout (protocol: docs/p
                signals with time to change, stop signs with their queues)
     close  ->  bye (optionally the planner's line coverage per junction)
 
+Protocol 2: every message carries the step index ("step") and every reply echoes it, so that a
+stale, doubled or early reply is caught; a planner whose hello answers 1 replies without it.
+
 Every position, heading and trajectory is in the map's own frame (x east, y north, heading
 anticlockwise from x: the frame of the native map and of every export); the bridge converts
 to and from the env's (y down). A trajectory (timestamped poses and speeds) is followed every simulation frame by the env's
 tracking controller (`feat2map.envs.tracking`: pure pursuit + speed P control); a control
 (acceleration, steering) is held over the decision period. A planner that crashes, misses a
 deadline or replies garbage raises `BridgeError` (the rollout records an `error` outcome with
-its message and the tail of the planner's stderr) and its whole process group is killed and
-reaped: never a hang, never an aborted run.
+its message and the tail of the planner's stderr) and every process of it is killed and the
+planner reaped: never a hang, never an aborted run, whatever the planner does (`PlannerProcess`).
 
     BridgePlanner(".venv-crplanner/bin/python adapters/commonroad/planner.py")
 
