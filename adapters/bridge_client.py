@@ -19,7 +19,7 @@ import math
 import sys
 from typing import Any
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # 2: each reply echoes its request's "step"; a bridge that speaks only 1 gets 1
 STOP_MARGIN_M = 1.5  # the ego's front stops this far before a stop line
 FULL_STOP_S = 1.0  # a stop sign needs a full stop this long
 STOPPED_MPS = 0.3
@@ -28,12 +28,15 @@ PATH_HALF_WIDTH_M = 1.8  # a road user this close to the route ahead is in the e
 
 
 def serve(planner: Any, stdin=None, stdout=None) -> int:
-    """Answer the bridge's messages until `close` (or end of input); 0 on a clean close."""
+    """Answer the bridge's messages until `close` (or end of input); 0 on a clean close. Each
+    reply echoes its request's `step` (protocol 2)."""
     stdin = stdin or sys.stdin
     stdout = stdout or sys.stdout
 
-    def reply(msg: dict) -> None:
-        stdout.write(json.dumps(msg, separators=(",", ":")) + "\n")
+    def reply(request: dict, answer: dict) -> None:
+        if "step" in request:
+            answer = {**answer, "step": request["step"]}
+        stdout.write(json.dumps(answer, separators=(",", ":")) + "\n")
         stdout.flush()
 
     for line in stdin:
@@ -42,15 +45,16 @@ def serve(planner: Any, stdin=None, stdout=None) -> int:
         msg = json.loads(line)
         kind = msg.get("type")
         if kind == "hello":
-            reply({"type": "hello", "protocol": PROTOCOL_VERSION, **planner.hello()})
+            reply(msg, {"type": "hello", "protocol": min(int(msg.get("protocol", 1)), PROTOCOL_VERSION),
+                        **planner.hello()})
         elif kind == "init":
             planner.init(msg)
-            reply({"type": "ready"})
+            reply(msg, {"type": "ready"})
         elif kind == "step":
-            reply(planner.step(msg))
+            reply(msg, planner.step(msg))
         elif kind == "close":
             extra = planner.close() if hasattr(planner, "close") else {}
-            reply({"type": "bye", **(extra or {})})
+            reply(msg, {"type": "bye", **(extra or {})})
             return 0
     return 1
 

@@ -7,14 +7,17 @@ ego of a scenario env through JSON lines over its stdin/stdout (protocol: docs/p
                signals with time to change, stop signs with their queues)
     close  ->  bye (optionally the planner's line coverage per junction)
 
+Protocol 2: every message carries the step index ("step") and every reply echoes it, so that a
+stale, doubled or early reply is caught; a planner whose hello answers 1 replies without it.
+
 Every position, heading and trajectory is in the map's own frame (x east, y north, heading
 anticlockwise from x: the frame of the native map and of every export); the bridge converts
 to and from the env's (y down). A trajectory (timestamped poses and speeds) is followed every simulation frame by the env's
 tracking controller (`feat2map.envs.tracking`: pure pursuit + speed P control); a control
 (acceleration, steering) is held over the decision period. A planner that crashes, misses a
 deadline or replies garbage raises `BridgeError` (the rollout records an `error` outcome with
-its message and the tail of the planner's stderr) and its whole process group is killed and
-reaped: never a hang, never an aborted run.
+its message and the tail of the planner's stderr) and every process of it is killed and the
+planner reaped: never a hang, never an aborted run, whatever the planner does (`PlannerProcess`).
 
     BridgePlanner(".venv-crplanner/bin/python adapters/commonroad/planner.py")
 
@@ -24,22 +27,25 @@ is a `Policy` like any other (`run_suite(suite, BridgePlanner(cmd))`, or `feat2m
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import os
-import queue
+import selectors
 import shlex
 import signal
 import subprocess
 import tempfile
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # the newest the bridge speaks; it sends it in its hello
+PROTOCOLS = (1, 2)  # what a planner's hello may answer (2: every message and reply carries "step")
 MAP_FORMATS = ("commonroad", "lanelet2", "opendrive", "apollo", "native")
 MAP_SUFFIX = {"commonroad": "map.xml", "lanelet2": "map.osm", "opendrive": "map.xodr", "apollo": "apollo",
               "native": "map.json"}
@@ -47,8 +53,20 @@ OUTPUTS = ("trajectory", "control")
 START_TIMEOUT_S = 120.0  # hello and init (a planner may import heavy libraries, build its map)
 STEP_TIMEOUT_S = 10.0  # each decision's reply
 CLOSE_TIMEOUT_S = 30.0  # the bye (a planner may save coverage data first)
+BYE_EXIT_S = 2.0  # after its bye, the planner has this long to exit before its group is killed
+EXIT_POLL_S = 0.1  # while waiting for a reply, how often the bridge looks whether the planner exited
+EXIT_GRACE_S = 1.0  # a planner that exited: its last output still read; one that closed stdout: its exit awaited
+PLANNER_TAG_VAR = "FEAT2MAP_PLANNER_TAG"  # in the planner's environment: finds every process it started
+KILL_ROUNDS = 5  # find-and-kill passes over the planner's processes (a forking one spawns between passes)
+KILL_ROUND_PAUSE_S = 0.02
+REAP_TIMEOUT_S = 10.0  # for a killed planner to be reaped (a process in the kernel may take a moment)
+READER_JOIN_S = 1.0  # for the reader thread to end once the planner is killed
 STDERR_TAIL_CHARS = 1500  # of the planner's stderr, quoted in an error outcome
-MAX_LINE_BYTES = 16 << 20  # a reply longer than this is garbage
+MAX_LINE_BYTES = 4 << 20  # a reply longer than this is garbage (10,000 trajectory points take about 1.2 MB)
+READ_CHUNK_BYTES = 1 << 16
+MAX_UNASKED_REPLIES = 4  # replies beyond those asked for, read ahead, before the planner counts as flooding
+MAX_NUMBER = 1e9  # a number in a reply larger than this in magnitude is garbage (metres, seconds, ids)
+MAX_NUMBER_DIGITS = 20  # an integer written with more digits is garbage, before it is parsed
 MAX_TRAJECTORY_POINTS = 10_000
 # the likely cause of a missing hello: the planner's stdout is block-buffered (a pipe, not a terminal)
 NO_HELLO_HINT = "no reply line: does the planner flush stdout after each line? (python -u)"
@@ -61,9 +79,147 @@ class BridgeError(RuntimeError):
     """The planner process failed: crashed, missed a deadline, or broke the protocol."""
 
 
+def _parse_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_NUMBER_DIGITS:
+        raise ValueError(f"an integer of {len(text)} digits")
+    value = int(text)
+    if abs(value) > MAX_NUMBER:
+        raise ValueError(f"a number out of range: {text}")
+    return value
+
+
+def _parse_float(text: str) -> float:
+    value = float(text)
+    if not abs(value) <= MAX_NUMBER:  # inf from 1e400 included
+        raise ValueError(f"a number out of range: {text[:40]}")
+    return value
+
+
+def _parse_constant(text: str) -> float:
+    raise ValueError(f"a non-finite number: {text}")
+
+
+def parse_reply(line: bytes) -> Any:
+    """A reply line as JSON, or ValueError (RecursionError from deep nesting included) for
+    anything but finite numbers of at most MAX_NUMBER in magnitude."""
+    try:
+        return json.loads(line, parse_int=_parse_int, parse_float=_parse_float, parse_constant=_parse_constant)
+    except json.JSONDecodeError:
+        raise ValueError("not JSON") from None
+    except RecursionError:
+        raise ValueError("nested too deep") from None
+    except UnicodeDecodeError:
+        raise ValueError("not UTF-8") from None
+
+
+def _show(value: Any, n: int = 80) -> str:
+    """At most `n` characters of a parsed reply, for a message (a deeply nested one included)."""
+    try:
+        return str(value)[:n]
+    except RecursionError:
+        return "(nested too deep)"
+
+
+def _number(value: Any) -> float:
+    """A reply's number as a float: finite and at most MAX_NUMBER in magnitude (a string such as
+    "nan" or "1e308" included), else ValueError."""
+    x = float(value)
+    if not abs(x) <= MAX_NUMBER:
+        raise ValueError(f"a number out of range: {_show(value, 40)}")
+    return x
+
+
+def _exit_text(code: int) -> str:
+    if code < 0:
+        try:
+            return f"was killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"was killed by signal {-code}"
+    return f"exited (code {code})"
+
+
+def planner_processes(pid: int, tag: str, pipes: set[tuple[str, int]]) -> set[int]:
+    """The live processes that belong to the planner `pid` (Linux /proc; elsewhere none): the
+    members of its session; those whose environment holds PLANNER_TAG_VAR=`tag` (every process
+    it started, daemons that left its session included, unless one cleared its environment);
+    those holding the planner's end of one of its `pipes` ("pipe:[inode]", O_RDONLY or
+    O_WRONLY); and the descendants of all of them."""
+    me = os.getpid()
+    try:
+        names = [int(n) for n in os.listdir("/proc") if n.isdigit()]
+    except OSError:
+        return set()
+    children: dict[int, list[int]] = {}
+    found: set[int] = set()
+    marker = f"{PLANNER_TAG_VAR}={tag}".encode()
+    for p in names:
+        if p == me:
+            continue
+        try:
+            with open(f"/proc/{p}/stat", "rb") as f:
+                stat = f.read()
+            fields = stat[stat.rindex(b")") + 2:].split()
+        except (OSError, ValueError):
+            continue  # gone meanwhile
+        if fields[0] in (b"Z", b"X"):
+            continue  # dead: only its parent's reaping left
+        ppid, sid = int(fields[1]), int(fields[3])
+        children.setdefault(ppid, []).append(p)
+        if sid == pid or _tagged(p, marker) or _holds(p, pipes):
+            found.add(p)
+    todo = [pid, *found]
+    while todo:
+        for c in children.get(todo.pop(), ()):
+            if c not in found:
+                found.add(c)
+                todo.append(c)
+    return found
+
+
+def _tagged(p: int, marker: bytes) -> bool:
+    """Whether process `p`'s environment holds `marker` (NAME=value)."""
+    try:
+        with open(f"/proc/{p}/environ", "rb") as f:
+            return marker in f.read().split(b"\0")
+    except OSError:
+        return False  # another user's, or gone
+
+
+def _holds(p: int, pipes: set[tuple[str, int]]) -> bool:
+    """Whether process `p` has one of `pipes` open at the planner's end."""
+    links = {link for link, _ in pipes}
+    try:
+        fds = os.listdir(f"/proc/{p}/fd")
+    except OSError:
+        return False
+    for fd in fds:
+        try:
+            link = os.readlink(f"/proc/{p}/fd/{fd}")
+            if link not in links:
+                continue
+            with open(f"/proc/{p}/fdinfo/{fd}") as f:
+                flags = next(int(x.split()[1], 8) for x in f if x.startswith("flags:"))
+        except (OSError, StopIteration, ValueError, IndexError):
+            continue
+        if (link, flags & os.O_ACCMODE) in pipes:
+            return True
+    return False
+
+
+_TAGS = itertools.count()
+
+
 class PlannerProcess:
-    """One planner child process: JSON lines in and out, stderr to a file, deadlines on every
-    reply, the process group killed and reaped on close."""
+    """One planner child process: JSON lines in and out, stderr to a file, a deadline on every
+    message and reply, read-ahead bounded, every process it started killed and itself reaped
+    on close.
+
+    The planner starts in its own session, with PLANNER_TAG_VAR in its environment. `kill`
+    SIGKILLs, in rounds, its process group and every process `planner_processes` finds,
+    whatever the planner itself did (exited, closed stdout, forked, left its session). Only a
+    process that left the session, cleared its environment, closed the planner's pipes and
+    lost its parent escapes: it may outlive the scenario, but it cannot block the rollout (the
+    bridge waits on no pipe without a deadline, and `kill` ends the reader thread)."""
 
     def __init__(self, cmd: str | list[str], cwd: str | None = None, env: dict | None = None) -> None:
         argv = shlex.split(cmd) if isinstance(cmd, str) else list(cmd)
@@ -71,72 +227,192 @@ class PlannerProcess:
             raise BridgeError("empty planner command")
         self.argv = argv
         self.stderr = tempfile.TemporaryFile()
-        self.lines: queue.Queue = queue.Queue()
+        self.tag = f"{os.getpid()}-{next(_TAGS)}-{time.time_ns()}"
+        env = {**(os.environ if env is None else env), PLANNER_TAG_VAR: self.tag}
         # a Python planner's print() reaches the pipe at once, flushed or not (its env may say otherwise)
-        child_env = dict(os.environ if env is None else env)
-        child_env.setdefault("PYTHONUNBUFFERED", "1")
+        env.setdefault("PYTHONUNBUFFERED", "1")
         try:
             self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
-                                         cwd=cwd, env=child_env, start_new_session=True)
+                                         cwd=cwd, env=env, start_new_session=True)
         except OSError as exc:
             self.stderr.close()
             raise BridgeError(f"cannot start the planner {argv[0]!r}: {exc.strerror or exc}") from None
+        assert self.proc.stdin is not None and self.proc.stdout is not None  # Popen(stdin=PIPE, stdout=PIPE)
+        self._in = self.proc.stdin.fileno()
+        os.set_blocking(self._in, False)
+        self._writable = selectors.DefaultSelector()
+        self._writable.register(self._in, selectors.EVENT_WRITE)
+        self._pipes = {(f"pipe:[{os.fstat(self._in).st_ino}]", os.O_RDONLY),
+                       (f"pipe:[{os.fstat(self.proc.stdout.fileno()).st_ino}]", os.O_WRONLY)}
+        self.step = 0  # the step index of the next message (protocol 2): the step messages sent so far
+        self.protocol: int | None = None  # the version the planner's hello answered
+        self._cv = threading.Condition()
+        self._lines: deque[bytes] = deque()
+        self._asked = 0  # messages sent (each asks for one reply)
+        self._received = 0  # non-blank lines read
+        self._end: str | None = None  # why reading stopped: "eof", "overlong", "flood", "killed"
+        self._wake_r, self._wake_w = os.pipe()  # closing the write end ends the reader thread
+        self._killed = False
+        self.closed = False
         self.reader = threading.Thread(target=self._read, daemon=True)
         self.reader.start()
-        self.closed = False
 
+    # ---- the reader thread ----------------------------------------------------------------
     def _read(self) -> None:
         out = self.proc.stdout
         assert out is not None  # Popen(stdout=PIPE)
+        sel = selectors.DefaultSelector()
         try:
-            while True:
-                line = out.readline(MAX_LINE_BYTES + 1)
-                if not line:
-                    break
-                self.lines.put(line)
-        except (OSError, ValueError):
-            pass
-        self.lines.put(None)  # end of output
+            sel.register(out.fileno(), selectors.EVENT_READ)
+            sel.register(self._wake_r, selectors.EVENT_READ)
+            end = self._read_lines(out.fileno(), sel)
+        finally:
+            sel.close()
+            out.close()  # only this thread reads it: closing never waits on a read in progress
+            os.close(self._wake_r)
+        with self._cv:
+            self._end = end
+            self._cv.notify_all()
 
-    def send(self, msg: dict) -> None:
-        assert self.proc.stdin is not None  # Popen(stdin=PIPE)
-        try:
-            self.proc.stdin.write((json.dumps(msg, separators=(",", ":"), allow_nan=False) + "\n").encode())
-            self.proc.stdin.flush()
-        except (BrokenPipeError, OSError, ValueError):
-            raise BridgeError(self.failure(f"the planner closed its input before {msg.get('type')!r}")) from None
-
-    def receive(self, timeout: float, what: str) -> dict:
-        """The next reply (a JSON object), or BridgeError after `timeout` seconds."""
-        deadline = time.monotonic() + timeout
+    def _read_lines(self, fd: int, sel: selectors.BaseSelector) -> str:
+        """Queue the planner's lines until its output ends ("eof"), a line exceeds
+        MAX_LINE_BYTES ("overlong"), it sends more than MAX_UNASKED_REPLIES replies nobody asked
+        for ("flood") or `kill` wakes this thread ("killed")."""
+        buf = bytearray()
         while True:
-            left = deadline - time.monotonic()
+            if any(key.fd == self._wake_r for key, _ in sel.select()):
+                return "killed"
             try:
-                line = self.lines.get(timeout=max(left, 0.0))
-            except queue.Empty:
-                hint = f": {NO_HELLO_HINT}" if what == "hello" else ""
-                raise BridgeError(self.failure(f"planner timeout: no {what} reply within {timeout:g} s{hint}")) from None
-            if line is None:
-                self.proc.poll()
-                time.sleep(0.05)
-                code = self.proc.poll()
-                raise BridgeError(self.failure(f"the planner exited (code {code}) before its {what} reply"))
-            if not line.strip():
+                chunk = os.read(fd, READ_CHUNK_BYTES)
+            except OSError:
+                chunk = b""
+            if not chunk:
+                return "eof" if self._queue(bytes(buf)) else "flood"
+            if b"\n" not in chunk:
+                buf += chunk
+                if len(buf) > MAX_LINE_BYTES:
+                    return "overlong"
                 continue
-            if len(line) > MAX_LINE_BYTES:
-                raise BridgeError(self.failure(f"garbage {what} reply: a line over {MAX_LINE_BYTES} bytes"))
-            try:
-                msg = json.loads(line)
-            except (ValueError, UnicodeDecodeError):
-                raise BridgeError(self.failure(f"garbage {what} reply (not JSON): {line[:80]!r}")) from None
-            if not isinstance(msg, dict):
-                raise BridgeError(self.failure(f"garbage {what} reply (not a JSON object): {line[:80]!r}"))
-            return msg
+            first, *middle, rest = chunk.split(b"\n")
+            buf += first
+            for line in (bytes(buf), *middle):
+                if len(line) > MAX_LINE_BYTES:
+                    return "overlong"
+                if not self._queue(line):
+                    return "flood"
+            buf = bytearray(rest)
 
+    def _queue(self, line: bytes) -> bool:
+        """Queue a line (blank lines are dropped); False once the planner floods."""
+        if not line.strip():
+            return True
+        with self._cv:
+            self._lines.append(line)
+            self._received += 1
+            self._cv.notify_all()
+            return self._received - self._asked <= MAX_UNASKED_REPLIES
+
+    # ---- messages -------------------------------------------------------------------------
     def request(self, msg: dict, timeout: float, what: str) -> dict:
-        self.send(msg)
-        return self.receive(timeout, what)
+        """Send `msg` (with the current step index) and return its reply, both within `timeout`
+        seconds; a step message moves the step index on."""
+        deadline = time.monotonic() + timeout
+        self.send({**msg, "step": self.step}, deadline, what)
+        reply = self.receive(timeout, what, deadline)
+        if msg.get("type") == "step":
+            self.step += 1
+        return reply
 
+    def send(self, msg: dict, deadline: float, what: str) -> None:
+        """Write `msg` by `deadline` (the planner's stdin is non-blocking: a planner that does
+        not read it is a timeout, never a hang)."""
+        data = memoryview((json.dumps(msg, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        with self._cv:
+            self._asked += 1
+        size = len(data)
+        while data:
+            try:
+                data = data[os.write(self._in, data):]
+                continue
+            except BlockingIOError:
+                pass
+            except OSError:  # BrokenPipeError: nobody reads the pipe any more
+                raise BridgeError(self.failure(self._gone(f"before its {what} reply", "closed its stdin"))) from None
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise BridgeError(self.failure(
+                    f"planner timeout: the planner does not read its stdin ({len(data)} of {size} bytes of the "
+                    f"{msg.get('type')} message unsent by the deadline)"))
+            self._writable.select(left)
+
+    def receive(self, timeout: float, what: str, deadline: float | None = None) -> dict:
+        """The next reply (a JSON object, checked against the step index), or BridgeError by
+        `deadline` (default: `timeout` seconds from now)."""
+        deadline = time.monotonic() + timeout if deadline is None else deadline
+        line = self._next_line(deadline, timeout, what)
+        try:
+            msg = parse_reply(line)
+        except ValueError as exc:
+            raise BridgeError(self.failure(f"garbage {what} reply ({exc}): {line[:80]!r}")) from None
+        if not isinstance(msg, dict):
+            raise BridgeError(self.failure(f"garbage {what} reply (not a JSON object): {line[:80]!r}"))
+        if "step" in msg:
+            if type(msg["step"]) is not int or msg["step"] != self.step:
+                raise BridgeError(self.failure(f"{what} reply for step {_show(msg['step'], 20)} at step {self.step}"))
+        elif (self.protocol or 1) >= 2:
+            raise BridgeError(self.failure(f"{what} reply without its 'step' (protocol {self.protocol} echoes it)"))
+        return msg
+
+    def _next_line(self, deadline: float, timeout: float, what: str) -> bytes:
+        exited_at: float | None = None
+        while True:
+            with self._cv:
+                if self._end == "flood":
+                    n = self._received - self._asked
+                    message = f"the planner sent {n} replies without being asked (at its {what} reply)"
+                    break
+                if self._lines:
+                    return self._lines.popleft()
+                if self._end == "overlong":
+                    message = f"garbage {what} reply: a line over {MAX_LINE_BYTES} bytes"
+                    break
+                if self._end is not None:  # end of output
+                    message = self._gone(f"before its {what} reply", "closed its stdout while still running,")
+                    break
+                now = time.monotonic()
+                if exited_at is not None and now - exited_at > EXIT_GRACE_S:  # a child holds its stdout
+                    message = self._gone(f"before its {what} reply; a process it started holds its stdout", "")
+                    break
+                if now >= deadline:
+                    hint = f": {NO_HELLO_HINT}" if what == "hello" else ""
+                    message = f"planner timeout: no {what} reply within {timeout:g} s{hint}"
+                    break
+                news = self._cv.wait(min(deadline - now, EXIT_POLL_S))
+            if not news and exited_at is None and self.exit_code() is not None:  # quiet: did it exit?
+                exited_at = time.monotonic()
+        raise BridgeError(self.failure(message))
+
+    def exit_code(self) -> int | None:
+        """The planner's exit status (negative: the signal) once it exited, else None; it is
+        left unreaped until `kill`, so its process group id stays its own."""
+        if self.proc.returncode is not None:
+            return self.proc.returncode
+        try:
+            info = os.waitid(os.P_PID, self.proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+        except ChildProcessError:
+            return self.proc.poll()
+        if info is None:
+            return None
+        return info.si_status if info.si_code == os.CLD_EXITED else -info.si_status
+
+    def _gone(self, when: str, running: str) -> str:
+        """What the planner did: exited (with its code, awaited EXIT_GRACE_S) or `running`."""
+        stop = time.monotonic() + EXIT_GRACE_S
+        while (code := self.exit_code()) is None and time.monotonic() < stop:
+            time.sleep(0.01)
+        return f"the planner {_exit_text(code) if code is not None else running} {when}"
+
+    # ---- the end ---------------------------------------------------------------------------
     def stderr_tail(self, n: int = STDERR_TAIL_CHARS) -> str:
         try:
             self.stderr.flush()
@@ -154,23 +430,34 @@ class PlannerProcess:
         return f"{message}; planner stderr: {tail}" if tail else f"{message} (planner stderr empty)"
 
     def kill(self) -> None:
-        """Kill the planner's process group and reap it (idempotent)."""
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
+        """Kill the planner and every process of it that /proc shows (see the class), reap it,
+        close the bridge's pipe ends and end the reader thread (idempotent; never waits on the
+        planner beyond REAP_TIMEOUT_S and READER_JOIN_S)."""
+        if self._killed:
+            return
+        self._killed = True
+        for _ in range(KILL_ROUNDS):
+            pids = planner_processes(self.proc.pid, self.tag, self._pipes)
+            for pgid_or_pid, kill in ((self.proc.pid, os.killpg), *((p, os.kill) for p in pids)):
+                try:
+                    kill(pgid_or_pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+            if not pids:
+                break
+            time.sleep(KILL_ROUND_PAUSE_S)
         try:
-            self.proc.wait(timeout=10)
+            self.proc.wait(timeout=REAP_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             pass
-        for f in (self.proc.stdin, self.proc.stdout):
-            if f is None:  # never: both are pipes
-                continue
-            try:
-                f.close()
-            except (OSError, ValueError):
-                pass
+        self._writable.close()
+        try:
+            assert self.proc.stdin is not None  # Popen(stdin=PIPE)
+            self.proc.stdin.close()  # nothing buffered: every write went straight to the pipe
+        except OSError:
+            pass
+        os.close(self._wake_w)  # the reader thread ends and closes stdout
+        self.reader.join(READER_JOIN_S)
 
     def close(self, timeout: float = CLOSE_TIMEOUT_S) -> dict | None:
         """Send `close`, wait for `bye` (returned, None if it never came), then kill and reap."""
@@ -179,12 +466,11 @@ class PlannerProcess:
         self.closed = True
         bye = None
         try:
-            if self.proc.poll() is None:
+            if self.exit_code() is None and not self._killed:
                 bye = self.request({"type": "close"}, timeout, "bye")
-                try:
-                    self.proc.wait(timeout=2.0)
-                except subprocess.TimeoutExpired:
-                    pass
+                stop = time.monotonic() + BYE_EXIT_S
+                while self.exit_code() is None and time.monotonic() < stop:
+                    time.sleep(0.01)
         except BridgeError:
             bye = None
         finally:
@@ -242,7 +528,8 @@ class BridgePlanner:
     """A `Policy` whose decisions come from a planner process speaking the bridge protocol.
 
     `cmd` starts the planner (a string split like a shell, or an argv list); `step_timeout`
-    bounds each reply; `replan_s` how often it is asked (default: every decision, or what its
+    bounds each step message and its reply, `start_timeout` the hello's and init's,
+    `close_timeout` the bye's; `replan_s` how often it is asked (default: every decision, or what its
     hello asks for). Picklable before `reset` (the process starts at reset and ends at `close`).
     """
 
@@ -250,11 +537,12 @@ class BridgePlanner:
     render_during_run: ClassVar[bool] = True  # failure GIFs are recorded while it drives (no replay)
 
     def __init__(self, cmd: str | list[str], *, step_timeout: float = STEP_TIMEOUT_S,
-                 start_timeout: float = START_TIMEOUT_S, replan_s: float | None = None,
-                 cwd: str | None = None) -> None:
+                 start_timeout: float = START_TIMEOUT_S, close_timeout: float = CLOSE_TIMEOUT_S,
+                 replan_s: float | None = None, cwd: str | None = None) -> None:
         self.cmd = cmd
         self.step_timeout = float(step_timeout)
         self.start_timeout = float(start_timeout)
+        self.close_timeout = float(close_timeout)
         self.replan_s = replan_s
         self.cwd = cwd
         self.__qualname__ = f"bridge: {cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
@@ -275,7 +563,7 @@ class BridgePlanner:
         self._control = np.zeros(2, dtype=np.float32)
 
     def __getstate__(self) -> dict:
-        return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "replan_s", "cwd",
+        return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "close_timeout", "replan_s", "cwd",
                                               "__qualname__", "remote_coverage")}
 
     def __setstate__(self, state: dict) -> None:
@@ -298,13 +586,14 @@ class BridgePlanner:
         hello = self.proc.request({"type": "hello", "protocol": PROTOCOL_VERSION}, self.start_timeout, "hello")
         self._check_hello(hello)
         self.hello = hello
+        self.proc.protocol = hello["protocol"]
         fmt = hello.get("map_format", "native")
         e = self.env
         path, ids = export_for_planner(str(e.config.get("map_file") or ""), e.net.hdmap, fmt) \
             if e.config.get("map_file") else self._export_inline(fmt)
         ready = self.proc.request(self._init_message(path, fmt, ids), self.start_timeout, "init")
         if ready.get("type") != "ready":
-            raise BridgeError(self.proc.failure(f"garbage init reply: expected 'ready', got {str(ready)[:80]}"))
+            raise BridgeError(self.proc.failure(f"garbage init reply: expected 'ready', got {_show(ready)}"))
         if self.replan_s is None and isinstance(hello.get("replan_s"), (int, float)) and hello["replan_s"] > 0:
             self.replan_s = float(hello["replan_s"])
 
@@ -323,13 +612,14 @@ class BridgePlanner:
         assert self.proc is not None  # reset started the planner
         bad = None
         if hello.get("type") != "hello":
-            bad = f"expected a hello, got {str(hello)[:80]}"
-        elif hello.get("protocol") != PROTOCOL_VERSION:
-            bad = f"speaks protocol {hello.get('protocol')!r}, the bridge speaks {PROTOCOL_VERSION}"
+            bad = f"expected a hello, got {_show(hello)}"
+        elif hello.get("protocol") not in PROTOCOLS or type(hello.get("protocol")) is not int:
+            bad = (f"speaks protocol {_show(hello.get('protocol'), 20)}, the bridge speaks "
+                   f"{' and '.join(map(str, PROTOCOLS))}")
         elif hello.get("map_format", "native") not in MAP_FORMATS:
-            bad = f"asks for map format {hello.get('map_format')!r}; known: {', '.join(MAP_FORMATS)}"
+            bad = f"asks for map format {_show(hello.get('map_format'), 40)}; known: {', '.join(MAP_FORMATS)}"
         elif hello.get("output", "trajectory") not in OUTPUTS:
-            bad = f"asks for output {hello.get('output')!r}; known: {', '.join(OUTPUTS)}"
+            bad = f"asks for output {_show(hello.get('output'), 40)}; known: {', '.join(OUTPUTS)}"
         if bad:
             raise BridgeError(self.proc.failure(f"bad hello: {bad}"))
 
@@ -343,7 +633,7 @@ class BridgePlanner:
         goal_s = min(float(e.config["goal_distance"]), last.length)
         gx, gy = last.position(goal_s, 0.0)
         sim_hz = float(e.config["simulation_frequency"])
-        return {"type": "init", "protocol": PROTOCOL_VERSION, "map": os.path.abspath(path), "map_format": fmt,
+        return {"type": "init", "protocol": self.hello["protocol"], "map": os.path.abspath(path), "map_format": fmt,
                 "ids": {"lanes": {k: v for k, v in lane_ids.items()}},
                 "route": {"lanes": lanes, "lanes_in_format": [lane_ids.get(x) for x in lanes],
                           "manoeuvres": [list(x) for x in (e.config.get("route") or [])
@@ -380,14 +670,14 @@ class BridgePlanner:
         ego = self.env.vehicle
         stage = reply.get("stage")
         if isinstance(stage, str) and stage:
-            self._log(stage[:40], str(reply.get("scenario") or "PLANNER")[:40], info)
+            self._log(stage[:40], _show(reply.get("scenario") or "PLANNER", 40), info)
         if kind == "trajectory":
             pts = reply.get("points")
             if not isinstance(pts, list) or not pts or len(pts) > MAX_TRAJECTORY_POINTS:
                 raise BridgeError(self.proc.failure("garbage trajectory: 'points' must be a list of 1 to "
                                                     f"{MAX_TRAJECTORY_POINTS} points"))
             try:
-                rows = [[float(p["t"]), float(p["x"]), -float(p["y"]), -float(p["heading"]), float(p["speed"])]
+                rows = [[_number(p["t"]), _number(p["x"]), -_number(p["y"]), -_number(p["heading"]), _number(p["speed"])]
                         for p in pts]  # the map's frame -> the env's (y down)
                 traj = Trajectory.of(rows)
             except (KeyError, TypeError, ValueError) as exc:
@@ -397,18 +687,16 @@ class BridgePlanner:
             self._control = np.zeros(2, dtype=np.float32)
         elif kind == "control":
             try:
-                acc, steer = float(reply["acceleration"]), float(reply["steering"])
+                acc, steer = _number(reply["acceleration"]), _number(reply["steering"])
             except (KeyError, TypeError, ValueError):
-                raise BridgeError(self.proc.failure(f"garbage control: {str(reply)[:80]}")) from None
-            if not (math.isfinite(acc) and math.isfinite(steer)):
-                raise BridgeError(self.proc.failure(f"garbage control: not finite: {str(reply)[:80]}"))
+                raise BridgeError(self.proc.failure(f"garbage control: {_show(reply)}")) from None
             ego.tracker = None
             (alo, ahi), (slo, shi) = BRIDGE_ACTION_CONFIG["acceleration_range"], BRIDGE_ACTION_CONFIG["steering_range"]
             self._control = np.array([2 * (np.clip(acc, alo, ahi) - alo) / (ahi - alo) - 1,
                                       2 * (np.clip(steer, slo, shi) - slo) / (shi - slo) - 1], dtype=np.float32)
         else:
             raise BridgeError(self.proc.failure(f"garbage step reply: expected 'trajectory' or 'control', "
-                                                f"got {str(reply)[:80]}"))
+                                                f"got {_show(reply)}"))
 
     def _log(self, stage: str, scenario: str, info: dict) -> None:
         from .planner import StageEvent
@@ -434,7 +722,7 @@ class BridgePlanner:
             self.env.vehicle.tracker = None
         if proc is None:
             return
-        bye = proc.close()
+        bye = proc.close(self.close_timeout)
         cov = (bye or {}).get("coverage")
         if isinstance(cov, dict) and isinstance(cov.get("lines"), dict):
             self.junction_lines = {str(j): tuple(sorted({str(x) for x in v}, key=_line_key))

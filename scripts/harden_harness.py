@@ -26,6 +26,11 @@ you want to measure, e.g. `.venv/bin/python scripts/harden_harness.py --quick`. 
    output, a user's map_projector_info.yaml are kept; --out LINK leaves no stray link; the envs
    refuse bad (batch) actions and non-dict options/actions with a ValueError before any state
    changes; a non-terminal stderr stays clean; `pip check` passes. Pass/fail per case.
+6. planner bridge (issue 33): abusive planners (BRIDGE_CASES: forked children holding stdout,
+   daemons, never reading stdin, floods, deep JSON, huge numbers, NaN, 50 MB lines, stale,
+   doubled and future step ids, crashes, 100 MB of stderr ...), each driving a rollout: its
+   outcome, report, wall time, peak RSS and surviving processes (--bridge-module: another
+   bridge.py, for a before/after).
 
 Prints one table per section and a summary (also as JSON with --json FILE).
 """
@@ -726,6 +731,300 @@ def section_huge(work: Path, args) -> dict:
             "tracebacks": sum(bool(r["traceback"]) for r in rows)}
 
 
+# ------------------------------------------------------------------------------ planner bridge
+
+BRIDGE_STEP_TIMEOUT_S = 2.0  # --planner-timeout of the bridge section's rollouts
+BRIDGE_DURATION_S = 4.0  # simulated seconds of its scenario: a well-behaved planner's rollout ends soon
+BRIDGE_CASE_TIMEOUT_S = 60.0  # a rollout running longer counts as a hang (and is killed)
+BRIDGE_RSS_TARGET_MB = 300
+HARNESS_TAG_VAR = "FEAT2MAP_HARNESS_TAG"  # in each rollout's environment, inherited by every planner process
+
+# The planners' common part: speaks protocol min(the bridge's, 2), echoing "step" when sent.
+PLANNER_PRELUDE = """\
+import json, os, signal, sys, time
+def send(m):
+    sys.stdout.write(json.dumps(m) + "\\n"); sys.stdout.flush()
+def recv():
+    line = sys.stdin.readline()
+    return json.loads(line) if line.strip() else {"type": "eof"}
+def answer(req, m):
+    if "step" in req:
+        m = dict(m, step=req["step"])
+    send(m)
+def hello(req):
+    answer(req, {"type": "hello", "protocol": min(req.get("protocol", 1), 2), "map_format": "native",
+                 "output": "control"})
+def start():
+    hello(recv()); i = recv(); answer(i, {"type": "ready"})
+STAND = {"type": "control", "acceleration": -8.0, "steering": 0.0}
+def drive():
+    while True:
+        m = recv()
+        if m["type"] in ("close", "eof"):
+            answer(m, {"type": "bye"}); return
+        answer(m, STAND)
+"""
+
+# (name, what the planner does, its code after PLANNER_PRELUDE, the outcome, text its message holds)
+BRIDGE_CASES: list[tuple[str, str, str, str, str]] = [
+    ("fork_keeps_stdout", "forks a child holding stdout, exits", """
+start(); recv()
+if os.fork() == 0:
+    time.sleep(600); os._exit(0)
+os._exit(0)
+""", "error", "exited (code 0) before its step reply; a process it started holds its stdout"),
+    ("setsid_keeps_stdout", "a setsid() child holds stdout, exits", """
+start(); recv()
+if os.fork() == 0:
+    os.setsid(); time.sleep(600); os._exit(0)
+os._exit(0)
+""", "error", "exited (code 0) before its step reply; a process it started holds its stdout"),
+    ("fork_at_init", "forks at init, drives, says bye, exits", """
+hello(recv()); i = recv()
+if os.fork() == 0:
+    time.sleep(600); os._exit(0)
+answer(i, {"type": "ready"}); drive()
+""", "timeout", ""),
+    ("double_fork_daemon", "a daemon (setsid, double fork, fds closed), then hangs", """
+start(); recv()
+if os.fork() == 0:
+    os.setsid()
+    if os.fork() == 0:
+        os.closerange(0, 3); time.sleep(600)
+    os._exit(0)
+time.sleep(600)
+""", "error", "no step reply within"),
+    ("fork_bomb_lite", "12 sleeping processes, then hangs", """
+start(); recv()
+for _ in range(4):
+    if os.fork() == 0:
+        for _ in range(2):
+            if os.fork() == 0:
+                time.sleep(600); os._exit(0)
+        time.sleep(600); os._exit(0)
+time.sleep(600)
+""", "error", "no step reply within"),
+    ("never_reads_stdin", "answers each message without reading it (4 KiB pipe)", """
+import fcntl, struct, termios
+h = recv(); hello(h); answer(recv(), {"type": "ready"})
+fcntl.fcntl(0, fcntl.F_SETPIPE_SZ, 4096)
+seen, k = 0, 0
+while True:
+    n = struct.unpack("i", fcntl.ioctl(0, termios.FIONREAD, b"\\0" * 4))[0]
+    if n > seen:
+        seen = n; answer({"step": k} if "step" in h else {}, STAND); k += 1
+    time.sleep(0.002)
+""", "error", "does not read its stdin"),
+    ("floods_replies", "valid replies in a loop (protocol 1: no step to tell them apart)", """
+h = recv(); send({"type": "hello", "protocol": 1, "map_format": "native", "output": "control"})
+recv(); send({"type": "ready"}); recv()
+while True:
+    send(STAND)
+""", "error", "replies without being asked"),
+    ("closes_stdout", "closes stdout, keeps running", """
+start(); recv(); os.close(1); time.sleep(600)
+""", "error", "closed its stdout while still running"),
+    ("closes_stdin", "closes stdin, answers once, keeps running", """
+start(); m = recv(); os.close(0); answer(m, STAND); time.sleep(600)
+""", "error", "closed its stdin before its step reply"),
+    ("deep_json", "JSON nested 100,000 deep", """
+start(); recv(); sys.stdout.write("[" * 100000 + "]" * 100000 + "\\n"); sys.stdout.flush(); recv()
+""", "error", "nested too deep"),
+    ("int_400_digits", "a 400-digit acceleration", """
+start(); answer(recv(), dict(STAND, acceleration=10 ** 400)); recv()
+""", "error", "an integer of 401 digits"),
+    ("float_1e308", "a trajectory at +-1e308", """
+start(); answer(recv(), {"type": "trajectory", "points": [{"t": 0, "x": 1e308, "y": -1e308, "heading": 0,
+                                                         "speed": 1e308}]}); recv()
+""", "error", "a number out of range"),
+    ("nan_points", "a trajectory of NaN", """
+start(); answer(recv(), {"type": "trajectory", "points": [{"t": 0, "x": float("nan"), "y": 0, "heading": 0,
+                                                         "speed": 0}]}); recv()
+""", "error", "a non-finite number: NaN"),
+    ("line_50mb", "a 50 MB line", """
+start(); recv(); sys.stdout.write("x" * 50_000_000 + "\\n"); sys.stdout.flush(); recv()
+""", "error", "a line over"),
+    ("binary_garbage", "a line of binary bytes", """
+start(); recv(); sys.stdout.buffer.write(bytes(range(256)).replace(b"\\n", b"") * 20 + b"\\n"); sys.stdout.flush()
+recv()
+""", "error", "garbage step reply"),
+    ("empty_lines_only", "blank lines in a loop", """
+start(); recv()
+while True:
+    sys.stdout.write("\\n" * 1000); sys.stdout.flush()
+""", "error", "no step reply within"),
+    ("stale_step", "answers step k as step k-1 (protocol 2)", """
+start()
+while True:
+    m = recv()
+    if m["type"] in ("close", "eof"):
+        answer(m, {"type": "bye"}); break
+    answer(dict(m, step=m["step"] - 1) if m.get("step", 0) > 0 else m, STAND)
+""", "error", "step reply for step 0 at step 1"),
+    ("duplicates_replies", "answers every step twice", """
+start()
+while True:
+    m = recv()
+    if m["type"] in ("close", "eof"):
+        answer(m, {"type": "bye"}); break
+    answer(m, STAND); answer(m, STAND)
+""", "error", "step reply for step 0 at step 1"),
+    ("future_step", "answers step k as step k+1 (protocol 2)", """
+start()
+while True:
+    m = recv()
+    if m["type"] in ("close", "eof"):
+        answer(m, {"type": "bye"}); break
+    answer(dict(m, step=m["step"] + 1) if "step" in m else m, STAND)
+""", "error", "step reply for step 1 at step 0"),
+    ("drops_step_v2", "speaks protocol 2 without echoing step", """
+start(); send(STAND); recv()
+""", "error", "step reply without its 'step'"),
+    ("replies_before_hello", "a control before the hello", """
+send(STAND); start(); drive()
+""", "error", "bad hello: expected a hello"),
+    ("late_replies", "answers each step after the deadline", """
+start()
+while True:
+    m = recv(); time.sleep(3.0); answer(m, STAND)
+""", "error", "no step reply within"),
+    ("sleeps_after_ready", "ready, then sleeps forever", """
+start(); time.sleep(600)
+""", "error", "no step reply within"),
+    ("exits_at_once", "exits before its hello", """
+sys.exit(0)
+""", "error", "exited (code 0) before its hello reply"),
+    ("crashes_mid_run", "SIGSEGV at its 4th step", """
+import resource
+resource.setrlimit(resource.RLIMIT_CORE, (0, 0)); start()
+for _ in range(3):
+    answer(recv(), STAND)
+recv(); os.kill(os.getpid(), signal.SIGSEGV)
+""", "error", "was killed by SIGSEGV before its step reply"),
+    ("stderr_100mb", "100 MB of stderr lines, then exit 1", """
+start(); recv()
+for _ in range(1000):
+    sys.stderr.write("e" * 99_999 + "\\n")
+sys.stderr.flush(); sys.exit(1)
+""", "error", "exited (code 1) before its step reply; planner stderr: eeee"),
+    ("stderr_no_newline", "10 MB of stderr in one line, then hangs", """
+start(); recv(); sys.stderr.write("x" * 10_000_000); sys.stderr.flush(); time.sleep(600)
+""", "error", "no step reply within 2 s; planner stderr: xxxx"),
+    ("ignores_sigterm", "ignores SIGTERM, lingers after its bye", """
+signal.signal(signal.SIGTERM, signal.SIG_IGN); start(); drive(); time.sleep(600)
+""", "timeout", ""),
+]
+
+
+def tagged_processes(tag: str) -> list[int]:
+    """Live processes whose environment holds HARNESS_TAG_VAR=`tag` (Linux /proc)."""
+    marker = f"{HARNESS_TAG_VAR}={tag}".encode()
+    found = []
+    for name in os.listdir("/proc"):
+        if not name.isdigit() or int(name) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{name}/stat", "rb") as f:
+                if f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X"):
+                    continue
+            with open(f"/proc/{name}/environ", "rb") as f:
+                if marker in f.read().split(b"\0"):
+                    found.append(int(name))
+        except (OSError, IndexError):
+            continue
+    return found
+
+
+def bridge_suite(work: Path) -> Path:
+    """A one-scenario suite (a signalled T junction, no traffic) of BRIDGE_DURATION_S."""
+    import feat2map
+    from feat2map import cli
+    from feat2map.formats import native
+    from feat2map.scenarios.scenario import Suite, load_suite, save_suite
+
+    work.mkdir(parents=True, exist_ok=True)
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "signal", False)], seed=0)
+    native.save(m, work / "t.json")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert cli.main(["suite", str(work / "t.json"), "--out", str(work / "all.yaml"),
+                         "--duration", str(BRIDGE_DURATION_S)]) == 0
+    suite = load_suite(work / "all.yaml")
+    save_suite(Suite("abuse", suite.scenarios[:1], suite.base_dir), work / "one.yaml")
+    return work / "one.yaml"
+
+
+_ROLLOUT = """\
+import importlib.util, json, resource, sys
+argv, result, bridge = json.loads(sys.argv[1]), sys.argv[2], sys.argv[3]
+if bridge:  # another bridge.py in place of feat2map.scenarios.bridge (e.g. main's, for a before/after)
+    spec = importlib.util.spec_from_file_location("feat2map.scenarios.bridge", bridge)
+    mod = importlib.util.module_from_spec(spec); sys.modules[spec.name] = mod; spec.loader.exec_module(mod)
+from feat2map import cli
+rc = cli.main(argv)
+with open(result, "w") as f:
+    json.dump({"rc": rc, "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}, f)
+"""
+
+
+def section_bridge(work: Path, args) -> dict:
+    """Issue 33: abusive planners through the planner bridge, each in a rollout of its own
+    (`feat2map rollout --planner-cmd`, --planner-timeout BRIDGE_STEP_TIMEOUT_S): its outcome and
+    message, whether the report was written, wall time, the rollout's peak RSS, and the planner's
+    processes alive after the rollout (found by an environment tag, then killed). Targets: no
+    hang, a report each time, RSS under BRIDGE_RSS_TARGET_MB, no survivor."""
+    from feat2map.scenarios.rollout import HASH_SEED
+
+    bw = work / "bridge"
+    suite = bridge_suite(bw)
+    names = set(args.bridge_cases.split(",")) if args.bridge_cases else None
+    rows = []
+    for name, what, body, want_outcome, want_text in BRIDGE_CASES:
+        if names is not None and name not in names:
+            continue
+        script = bw / f"{name}.py"
+        script.write_text(PLANNER_PRELUDE + body)
+        out, result = bw / f"out-{name}", bw / f"{name}.json"
+        tag = f"{name}-{os.getpid()}-{time.time_ns()}"
+        argv = ["rollout", str(suite), "--planner-cmd", f"{sys.executable} {script}", "--planner-timeout",
+                str(BRIDGE_STEP_TIMEOUT_S), "--out", str(out), "--quiet", "--no-gif", "--no-coverage"]
+        t0 = time.time()
+        proc = subprocess.Popen([sys.executable, "-c", _ROLLOUT, json.dumps(argv), str(result), args.bridge_module or ""],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
+                                env=dict(os.environ, SDL_VIDEODRIVER="offscreen", MPLBACKEND="Agg",
+                                         PYTHONHASHSEED=HASH_SEED,  # the rollout drives in its own process
+                                         **{HARNESS_TAG_VAR: tag}))
+        try:
+            _, err = proc.communicate(timeout=args.bridge_timeout)
+            hang = False
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, 9)
+            _, err = proc.communicate()
+            hang = True
+        wall = time.time() - t0
+        time.sleep(0.5)  # let killed processes finish dying
+        survivors = tagged_processes(tag)
+        for pid in survivors:
+            with contextlib.suppress(OSError):
+                os.kill(pid, 9)
+        res = json.loads(result.read_text()) if result.is_file() else {}
+        summary = out / "summary.json"
+        o = json.loads(summary.read_text())["outcomes"][0] if summary.is_file() else {}
+        outcome, message = o.get("outcome", "hang" if hang else "none"), o.get("message", "")
+        rows.append({"case": name, "planner": what, "outcome": outcome, "message": message[:200],
+                     "as_expected": outcome == want_outcome and want_text in message, "report": summary.is_file(),
+                     "s": round(wall, 1), "rss_mb": round(res["maxrss_mb"], 1) if res else None,
+                     "survivors": len(survivors), "hang": hang,
+                     "traceback": "Traceback" in err.decode("utf-8", "replace")})
+        print(f"   {name:<22} {outcome:<8} report={summary.is_file()!s:<5} {wall:5.1f} s "
+              f"rss={rows[-1]['rss_mb']} MB survivors={len(survivors)} {message[:90]}", flush=True)
+    rss = [r["rss_mb"] for r in rows if r["rss_mb"] is not None]
+    return {"cases": rows, "hangs": sum(r["hang"] for r in rows), "no_report": sum(not r["report"] for r in rows),
+            "max_rss_mb": max(rss, default=None), "over_rss_target": sum(x > BRIDGE_RSS_TARGET_MB for x in rss),
+            "survivors": sum(r["survivors"] for r in rows), "unexpected": [r["case"] for r in rows
+                                                                          if not r["as_expected"]],
+            "max_s": max((r["s"] for r in rows), default=0.0)}
+
+
 # ------------------------------------------------------------------------------ main
 
 def _cli(argv: list[str], cwd: Path | None = None, timeout: float = 300.0) -> subprocess.CompletedProcess:
@@ -950,7 +1249,7 @@ def _rough_envs() -> dict[str, tuple[bool, str]]:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="small numbers everywhere (a smoke run)")
-    p.add_argument("--sections", default="corpus,kill,invariants,huge,rough")
+    p.add_argument("--sections", default="corpus,kill,invariants,huge,rough,bridge")
     p.add_argument("--seed", type=int, default=14)
     p.add_argument("--trunc", type=int, default=12, help="truncations per seed file")
     p.add_argument("--flips", type=int, default=12, help="bit-flip variants per seed file")
@@ -960,6 +1259,11 @@ def main() -> int:
     p.add_argument("--maps", type=int, default=1050, help="random maps for the invariant section")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--huge-timeout", type=float, default=120.0, help="seconds before a huge request counts unbounded")
+    p.add_argument("--bridge-cases", help="bridge section: only these cases (comma-separated names)")
+    p.add_argument("--bridge-module", help="bridge section: drive through this bridge.py instead of feat2map's "
+                   "(e.g. an older one, for a before/after)")
+    p.add_argument("--bridge-timeout", type=float, default=BRIDGE_CASE_TIMEOUT_S,
+                   help="bridge section: seconds before a rollout counts as a hang")
     p.add_argument("--json", help="write the counts here too")
     args = p.parse_args()
     if args.quick:
@@ -971,7 +1275,7 @@ def main() -> int:
     report["feat2map"] = str(Path(feat2map.__file__).parent)
     with tempfile.TemporaryDirectory(prefix="harden-") as tmp:
         work = Path(tmp)
-        for name in ("corpus", "kill", "invariants", "huge", "rough"):
+        for name in ("corpus", "kill", "invariants", "huge", "rough", "bridge"):
             if name not in sections:
                 continue
             t0 = time.time()
@@ -984,6 +1288,8 @@ def main() -> int:
                 report[name] = section_invariants(args)
             elif name == "rough":
                 report[name] = section_rough(work, args)
+            elif name == "bridge":
+                report[name] = section_bridge(work, args)
             else:
                 if "corpus" not in sections:
                     (work / "src").mkdir(exist_ok=True)
@@ -1020,6 +1326,13 @@ def main() -> int:
                         "huge requests max s": max(r["s"] for r in report["huge"]["cases"])})
     if "rough" in report:
         summary["rough edges (issues 25, 35) failing"] = f"{report['rough']['failed']} of {report['rough']['cases']}"
+    if "bridge" in report:
+        b = report["bridge"]
+        summary.update({"abusive planners": len(b["cases"]), "bridge hangs": b["hangs"],
+                        "bridge rollouts without a report": b["no_report"],
+                        f"bridge peak RSS MB (target < {BRIDGE_RSS_TARGET_MB})": b["max_rss_mb"],
+                        "bridge surviving processes": b["survivors"],
+                        "bridge outcomes not as expected": ", ".join(b["unexpected"]) or 0})
     report["summary"] = summary
     print("\n== summary")
     for k, v in summary.items():

@@ -88,7 +88,7 @@ def test_the_reference_planner_drives_a_suite_through_the_bridge(suite_file, tmp
     ("garbage", HELLO + "recv(); sys.stdout.write('{{{ not json\\n'); sys.stdout.flush(); recv()\n",
      ["garbage step reply (not JSON)"]),
     ("nan_control", HELLO + "recv(); sys.stdout.write('{\"type\": \"control\", \"acceleration\": NaN, "
-                            "\"steering\": 0}\\n'); sys.stdout.flush(); recv()\n", ["garbage control"]),
+                            "\"steering\": 0}\\n'); sys.stdout.flush(); recv()\n", ["garbage step reply", "NaN"]),
     ("bad_trajectory", HELLO + "recv(); send({'type': 'trajectory', 'points': [{'t': 0, 'x': 'a'}]}); recv()\n",
      ["garbage trajectory"]),
     ("wrong_protocol", "import json, sys\nsys.stdin.readline()\n"
@@ -113,9 +113,9 @@ def test_a_failing_planner_is_an_error_outcome_with_its_stderr(suite_file, tmp_p
 def test_a_killed_planner_leaves_no_process_behind(tmp_path):
     cmd = _script(tmp_path, "sleeper", "import subprocess, sys, time\n"
                                        "child = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\n"
-                                       "print(child.pid, flush=True)\ntime.sleep(600)\n")
+                                       "print('{\"pid\": %d}' % child.pid, flush=True)\ntime.sleep(600)\n")
     proc = PlannerProcess(cmd)
-    grandchild = int(proc.lines.get(timeout=30))
+    grandchild = proc.receive(30, "pid")["pid"]
     proc.kill()
     assert proc.proc.poll() is not None  # reaped
     for _ in range(50):  # the whole process group got SIGKILL (the grandchild is init's to reap)
