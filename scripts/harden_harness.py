@@ -815,11 +815,11 @@ while True:
         seen = n; answer({"step": k} if "step" in h else {}, STAND); k += 1
     time.sleep(0.002)
 """, "error", "does not read its stdin"),
-    ("floods_replies", "valid replies in a loop (protocol 1: no step to tell them apart)", """
+    ("floods_replies", "valid replies in bursts of 50 (protocol 1: no step to tell them apart)", """
 h = recv(); send({"type": "hello", "protocol": 1, "map_format": "native", "output": "control"})
 recv(); send({"type": "ready"}); recv()
-while True:
-    send(STAND)
+while True:  # bursts: a starved planner writing one line at a time keeps pace with the steps it is asked
+    sys.stdout.write((json.dumps(STAND) + "\\n") * 50); sys.stdout.flush()
 """, "error", "replies without being asked"),
     ("closes_stdout", "closes stdout, keeps running", """
 start(); recv(); os.close(1); time.sleep(600)
