@@ -3,8 +3,9 @@
 
 Determinism: every scenario builds its own env from its own seed and a fresh planner, and
 every worker runs with PYTHONHASHSEED=HASH_SEED, so the results (everything but wall-clock
-times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run
-with `render_mode="rgb_array"` to record a GIF, so only failing scenarios pay for rendering.
+times and GIF bytes) do not depend on the worker count or the backend. Scenarios that do not
+complete are re-run with `render_mode="rgb_array"` to record a GIF (whatever the failure
+policy), so only they pay for rendering.
 
 A scenario whose ego stands still with nothing in its way for `blocked_after` seconds
 (`BlockedClock`, default BLOCKED_AFTER_S) ends early as a `timeout` whose message says "blocked".
@@ -556,10 +557,11 @@ def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
 
 
 def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_failure_gif: bool = True,
-                 coverage: bool = False, fail_on: str = "any", coverage_modules: Sequence[str] = (),
+                 coverage: bool = False, coverage_modules: Sequence[str] = (),
                  blocked_after: float = BLOCKED_AFTER_S) -> Outcome:
-    """Drive one scenario headless with a fresh planner; on a failure under `fail_on` re-run it
-    with rendering and attach a GIF. `coverage` measures the planner's lines per junction.
+    """Drive one scenario headless with a fresh planner; when it does not complete, re-run it
+    with rendering and attach a GIF, whatever the failure policy (a report shows every failure;
+    the policy decides only the exit code). `coverage` measures the planner's lines per junction.
     `blocked_after`: [s] the scenario ends as a timeout once the ego has stood still this long
     with nothing in its way (`BlockedClock`; 0: never)."""
     check_blocked_after(blocked_after)
@@ -570,7 +572,7 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
     during = record_failure_gif and bool(getattr(policy, "render_during_run", False))
     outcome, frames = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules,
                              policy=policy, render=during, blocked_after=blocked_after)
-    if record_failure_gif and outcome.fails(fail_on):
+    if record_failure_gif and not outcome.passed:
         run = outcome
         if not during:
             run, frames = _drive(scenario, factory, render=True, blocked_after=blocked_after)
@@ -587,7 +589,6 @@ class _Task:
     factory: Any
     record_failure_gif: bool
     coverage: bool
-    fail_on: str
     coverage_modules: tuple[str, ...]
     blocked_after: float
 
@@ -611,7 +612,7 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
         scenario = Scenario.from_dict(scenario, f"scenario {scenario.get('name', task.index)!r}")
     try:
         out = run_scenario(scenario, task.factory, record_failure_gif=task.record_failure_gif,
-                           coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules,
+                           coverage=task.coverage, coverage_modules=task.coverage_modules,
                            blocked_after=task.blocked_after)
     except Feat2MapError as exc:  # bad input: name the scenario too
         name = f"scenario {getattr(scenario, 'name', task.index)}"
@@ -644,7 +645,7 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     if not scenarios:  # nothing driven is not a pass
         raise Feat2MapError("has no scenarios: nothing to run", f"suite {getattr(suite, 'name', '')!r}")
     factory = as_factory(planner)
-    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on,
+    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage,
                    tuple(coverage_modules), float(blocked_after))
              for i, s in enumerate(scenarios)]
     picklable = _picklable(factory)
