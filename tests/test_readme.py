@@ -4,6 +4,7 @@ scripts/demo.sh) and the examples, every line succeeds, and nothing is written o
 Lines that read ../shared/maps run when those maps are present (beside the repository)."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -80,3 +81,7 @@ def test_readme_command_block_runs_as_written(tmp_path):
         for path in re.findall(r"--(?:out|picture) (\S+)", line):
             assert any(f == path or f.startswith(path.rstrip("/") + "/") for f in written), (line, path)
     assert "usage: feat2map" in r.stdout and "J0" in r.stdout
+    summary = json.loads((repo / "out" / "r3" / "summary.json").read_text())  # the bridge line, --fail-on none
+    failed = [o["name"] for o in summary["outcomes"] if o["outcome"] != "completed"]
+    assert failed and sorted(summary["gifs"]) == sorted(failed), "every failure of out/r3 gets its GIF"
+    assert all((repo / "out" / "r3" / gif).is_file() for gif in summary["gifs"].values())

@@ -246,6 +246,19 @@ def test_classification_and_policies():
     assert SuiteResult.from_dict(json.loads(json.dumps(r.to_dict()))) == r
 
 
+def test_report_counts_take_the_singular():
+    """"1 scenario", "1 worker", not "1 scenarios" (messages.counted everywhere a count is written)."""
+    from feat2map.scenarios.report import report_markdown
+
+    o = Outcome("a", "timeout", {}, 1.0, 5, (), (), (), 0.5)
+    one = report_markdown(SuiteResult("s", "baseline", (o,), workers=1, stopped="stop", scenarios=1))
+    assert "`baseline`, 1 scenario, failure policy" in one and "on 1 worker, backend" in one
+    assert "1 of 1 scenario ran" in one and "1 scenarios" not in one and "worker(s)" not in one
+    two = report_markdown(SuiteResult("s", "baseline", (o, o), workers=2, stopped="stop", scenarios=3))
+    assert "`baseline`, 2 scenarios, failure policy" in two and "on 2 workers, backend" in two
+    assert "2 of 3 scenarios ran" in two
+
+
 def test_planner_specs(suite_file):
     assert isinstance(PlannerFactory("baseline")(), BaselinePlanner)
     assert isinstance(PlannerFactory(f"{__name__}:RedLightRunner")(), RedLightRunner)
