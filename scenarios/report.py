@@ -138,7 +138,7 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
              "|---|---|---:|---:|---:|---|---|---|"]
     for o in result.outcomes:
         v = ", ".join(f"{k} {n}" for k, n in o.violations.items() if n) or "-"
-        mark = f"**{o.outcome}**" if o.fails(fail_on) else o.outcome
+        mark = f"**{md_text(o.outcome)}**" if o.fails(fail_on) else md_text(o.outcome)  # a summary read back may hold anything
         lines.append(f"| {md_text(o.name)} | {mark} | {o.sim_s:.1f} | {o.steps} | {100 * o.route_progress:.0f}% | "
                      f"{md_text(v)} | {md_text(' '.join(o.junctions) or '-')} | {md_text(' → '.join(o.stage_path) or '-')} |")
     not_completed = [o for o in result.outcomes if not o.passed]
@@ -147,7 +147,7 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
                   f"the run under `--fail-on {fail_on}`.", ""]
         for o in not_completed:
             verdict_o = "" if o.fails(fail_on) else " (*passes*)"
-            lines += [f"### {md_text(o.name)}: {o.outcome}{verdict_o}", "", *md_fenced(o.message), "",
+            lines += [f"### {md_text(o.name)}: {md_text(o.outcome)}{verdict_o}", "", *md_fenced(o.message), "",
                       *md_fenced(_details(o).rstrip()), ""]
             if o.name in gifs:
                 lines += [f"![GIF of the scenario]({gifs[o.name]})", ""]
