@@ -417,6 +417,7 @@ class _Frames(list):
     def __init__(self) -> None:
         super().__init__()
         self.stride, self.seen = 1, 0
+        self.step_s = 1.0  # simulated seconds per frame before thinning (set by _drive)
 
     def add(self, frame: Any) -> None:
         self.last = frame
@@ -435,9 +436,10 @@ class _Frames(list):
 
 def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
            coverage_modules: Sequence[str] = (), policy: Any = None,
-           blocked_after: float = BLOCKED_AFTER_S) -> tuple[Outcome, _Frames]:
-    """Run one episode; returns its outcome and (when rendering) its frames. It ends early as
-    blocked (`BlockedClock`) after `blocked_after` seconds (0: never)."""
+           blocked_after: float = BLOCKED_AFTER_S, frames: _Frames | None = None) -> tuple[Outcome, _Frames]:
+    """Run one episode; returns its outcome and (when rendering) its frames, collected into
+    `frames` when given (the caller keeps them if the planner raises). It ends early as blocked
+    (`BlockedClock`) after `blocked_after` seconds (0: never)."""
     from .scenario import make_env
 
     t0 = time.perf_counter()
@@ -448,7 +450,8 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     if remote:
         policy.remote_coverage = coverage
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
-    frames = _Frames()
+    frames = _Frames() if frames is None else frames
+    frames.step_s = 1.0 / float(env.unwrapped.config.get("policy_frequency") or 1.0)
     cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage and not remote else None
     try:
         seed = getattr(scenario, "seed", None)
@@ -581,6 +584,15 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
     return outcome
 
 
+def _error_gif(scenario: Any, factory: Callable[[], Any], blocked_after: float) -> bytes | None:
+    """The GIF of a scenario whose planner or env raised (an `error` outcome): replayed with
+    rendering up to the raise, so an error is shown like any other failure."""
+    frames = _Frames()
+    with contextlib.suppress(Exception):
+        _drive(scenario, factory, render=True, blocked_after=blocked_after, frames=frames)
+    return gif_bytes(frames.with_last(), frames.step_s * frames.stride) or None
+
+
 # ---- suites -------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Task:
@@ -619,6 +631,8 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
         raise Feat2MapError(exc.message, f"{name}: {exc.where}" if exc.where else name) from None
     except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
         out = _error_outcome(scenario, task.index, f"planner or env raised {type(exc).__name__}: {exc}")
+        if task.record_failure_gif:
+            out = replace(out, gif=_error_gif(scenario, task.factory, task.blocked_after))
     except (SystemExit, KeyboardInterrupt) as exc:  # the planner asks to stop: end the suite, keep the report
         stop = f"the planner raised {type(exc).__name__} in scenario {getattr(scenario, 'name', task.index)}"
         return task.index, _error_outcome(scenario, task.index, f"{stop}: the rollout stopped here"), stop

@@ -175,12 +175,18 @@ def test_broken_planner_fails_with_readable_report_and_gif(suite_file, tmp_path,
     assert "**passed**" in report and "### t-r000: violation (*passes*)" in report and "failures/t-r000.gif" in report
 
 
-def test_a_raising_planner_is_an_error_outcome(suite_file):
+def test_a_raising_planner_is_an_error_outcome_with_its_gif(suite_file, tmp_path):
     sc = load_suite(suite_file).scenarios[0]
-    res = run_suite([sc], Crashing, progress=False, record_failure_gif=False)
+    res = run_suite([sc], Crashing, progress=False)
     o = res.outcomes[0]
     assert o.outcome == "error" and "RuntimeError: planner bug" in o.message
     assert res.exit_code("collision") == 1 and res.exit_code("none") == 0
+    from PIL import Image
+
+    assert o.gif  # replayed with rendering up to the raise, as any failure
+    (tmp_path / "e.gif").write_bytes(o.gif)
+    with Image.open(tmp_path / "e.gif") as im:
+        assert im.format == "GIF" and im.n_frames >= 3
 
 
 class BadAction(BaselinePlanner):
