@@ -27,7 +27,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import feat2map  # noqa: E402
 from feat2map.formats import native  # noqa: E402
-from feat2map.messages import one_line  # noqa: E402
+from feat2map.messages import counted, one_line  # noqa: E402
 from feat2map.scenarios.bridge import BridgePlanner  # noqa: E402
 from feat2map.scenarios.metrics import compare, outcome_behaviour, suite_coverage  # noqa: E402
 from feat2map.scenarios.report import load_result, write_report  # noqa: E402
@@ -130,7 +130,8 @@ def merge(planner_name: str, out: Path) -> SuiteResult | None:
 
 
 def tables(out: Path, results: dict[str, SuiteResult]) -> str:
-    md = [f"### {out.name}: {', '.join(f'{k} {len(r.outcomes)} scenarios' for k, r in results.items())}", "",
+    runs = ", ".join(f"{k} {counted(len(r.outcomes), 'scenario')}" for k, r in results.items())
+    md = [f"### {out.name}: {runs}", "",
           compare(results).to_markdown()]
     md += ["#### line coverage of each planner's own code, accumulated in the order the suite reaches the junctions",
            "", "| planner | " + " | ".join(f"{i + 1}" for i in range(max(len(suite_coverage(r).junctions)

@@ -297,7 +297,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
         suite = load_suite(args.map)
         written = fmt.face("write")(suite, args.out, **options)
-        print(f"wrote {args.out} ({fmt.title}): {len(written)} scenarios")
+        print(f"wrote {args.out} ({fmt.title}): {counted(len(written), 'scenario')}")
         return 0
     with warnings.catch_warnings(record=True) as caught:  # what reading skipped, shown once each
         warnings.simplefilter("always")

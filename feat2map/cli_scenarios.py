@@ -68,7 +68,7 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
     result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
-                       coverage=not args.no_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on,
+                       coverage=args.line_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on,
                        blocked_after=args.blocked_after)
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)
@@ -78,11 +78,13 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     for o in failing:
         print(f"  FAIL {one_line(f'{o.name}: {o.outcome}: {o.message}')}")
     if result.stopped:
-        print(f"  STOPPED after {len(result.outcomes)} of {result.scenarios} scenarios: {one_line(result.stopped)}")
+        print(f"  STOPPED after {len(result.outcomes)} of {counted(result.scenarios or 0, 'scenario')}: "
+              f"{one_line(result.stopped)}")
     return result.exit_code(args.fail_on)
 
 
 def cmd_coverage(args: argparse.Namespace) -> int:
+    from .scenarios.markup import md_text
     from .scenarios.metrics import compare, plot_accumulated
     from .scenarios.report import load_result
 
@@ -93,19 +95,25 @@ def cmd_coverage(args: argparse.Namespace) -> int:
     names = args.names or _dir_names(args.results)
     results = {n: load_result(d) for n, d in zip(names, args.results)}
     table = compare(results)
+    unmeasured = [f"{n} ({d})" for n, d, r in zip(names, args.results, results.values()) if not r.coverage]
+    note = (f"note: no planner line coverage for {', '.join(unmeasured)}: run without --line-coverage, so their "
+            f"line columns are '-'; rerun them as `feat2map rollout SUITE --line-coverage --out DIR`" if unmeasured else "")
     with atomic.staged_dir(out, COVERAGE_MARKERS) as tmp:
         plot_accumulated(table, tmp / "coverage.png", title="accumulated coverage by junction")
-        md = ["# Coverage comparison", "", table.to_markdown(), "![accumulated coverage](coverage.png)", ""]
+        md = ["# Coverage comparison", "", *([md_text(note), ""] if note else []), table.to_markdown(),
+              "![accumulated coverage](coverage.png)", ""]
         for name, c in zip(table.names, table.coverages):
-            md += [f"## {name}", "", "| junction index | junction | accumulated lines | accumulated transitions |",
+            md += [f"## {md_text(name)}", "", "| junction index | junction | accumulated lines | accumulated transitions |",
                    "|---:|---|---:|---:|"]
             acc_l = c.accumulated_lines if c.lines else ("-",) * len(c.junctions)
             for i, (j, l, t) in enumerate(zip(c.junctions, acc_l, c.accumulated_transitions)):
-                md.append(f"| {i + 1} | {j} | {l} | {t} |")
+                md.append(f"| {i + 1} | {md_text(j)} | {l} | {t} |")
             md.append("")
         atomic.write_text(tmp / "coverage.md", "\n".join(md))
         atomic.write_text(tmp / "coverage.json", json.dumps(table.to_dict(), indent=1) + "\n")
     print(table.to_markdown(), end="")
+    if note:
+        print(one_line(note, limit=2000))
     print(f"wrote {Path(args.out) / 'coverage.md'} and {Path(args.out) / 'coverage.png'}")
     return 0
 
@@ -136,8 +144,9 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
 
     r = sub.add_parser("rollout", help="run a scenario suite headless and write a report",
                        description="Drive every scenario of a suite headless with a planner and write DIR/report.md and "
-                                   "report.html (one self-contained page), summary.json, junit.xml, plots and a GIF per failure; "
-                                   "exit 1 when a scenario fails under --fail-on.")
+                                   "report.html (one self-contained page), summary.json, junit.xml, plots and a GIF per "
+                                   "scenario that did not complete (failures/), whatever --fail-on says; exit 1 when a "
+                                   "scenario fails under --fail-on. Planner line coverage only with --line-coverage.")
     r.add_argument("suite", help="suite file (.yaml or .json)")
     r.add_argument("--planner", default="baseline", metavar="PLANNER",
                    help="'baseline' or module:attr (a Policy class/instance, a callable obs -> action or "
@@ -162,15 +171,23 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--fail-on", choices=tuple(FAIL_POLICIES), default="any",
                    help="outcomes that fail the run (exit 1): any non-completed; collision (+ off road, errors); "
                         "violation (+ collision, off road, errors); none")
-    r.add_argument("--no-coverage", action="store_true", help="skip measuring the planner's line coverage")
-    r.add_argument("--no-gif", action="store_true", help="do not re-run failures to record GIFs")
+    cov = r.add_mutually_exclusive_group()
+    cov.add_argument("--line-coverage", action="store_true",
+                     help="also measure the planner's line coverage per junction (coverage.py; for `feat2map coverage` "
+                          "and the report's line tables; the rollout takes longer); off by default")
+    cov.add_argument("--no-coverage", dest="line_coverage", action="store_false",
+                     help="no line coverage (the default; kept for older command lines)")
+    r.add_argument("--no-gif", action="store_true", help="do not re-run scenarios that did not complete to record "
+                   "their GIFs (by default each one gets failures/NAME.gif, whatever --fail-on says)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_rollout)
 
     c = sub.add_parser("coverage", help="compare suites' rollout results side by side",
                        description="Put rollout results side by side: behaviour coverage (the planner's stage "
                                    "paths and transitions) and planner line coverage, per junction and "
-                                   "accumulated in the order the suites reach the junctions.")
+                                   "accumulated in the order the suites reach the junctions. Line coverage is there "
+                                   "only for rollouts run with `feat2map rollout --line-coverage` (else '-', and a "
+                                   "note says which).")
     c.add_argument("results", nargs="+", metavar="RESULT_DIR", help="rollout output directories")
     c.add_argument("--out", required=True, metavar="DIR", help="directory for coverage.md, coverage.png, coverage.json")
     c.add_argument("--names", nargs="+", metavar="NAME", help="a name per result dir (default: the directory names)")

@@ -267,6 +267,10 @@ def raised_limits(**values: float) -> Iterator[Limits]:
         _LIMITS.reset(token)
 
 
+# rollout reports (scenarios/markup.py): report.html loads nothing but its inline pictures and style, runs no script
+REPORT_CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; base-uri 'none'; form-action 'none'"
+
+
 # ---- env layer (feat2map/envs): the traffic rules, the traffic core, the road network, the ego's
 # observations and controllers. Units in the names: _M metres, _S seconds, _MPS m/s, _MPS2 m/s^2.
 # the rules (envs/rules.py)

@@ -21,6 +21,7 @@ from feat2map import PAPER_SF_FEATURE_SPACE
 from feat2map.envs.rules import TURN_NAMES
 from feat2map.formats import native
 from feat2map.generate import generate_from_features
+from feat2map.messages import counted
 from feat2map.model import HDMap
 from feat2map.routes import manoeuvre_lane
 from feat2map.sampling import sample_features
@@ -91,8 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.picture:
         render_routes(native.load(map_path), [sc.route for sc in suite.scenarios], args.out_dir / "ci_suite.png",
                       names=[sc.name for sc in suite.scenarios])
-    print(f"{map_path}: {len(native.load(map_path).junctions)} junctions; "
-          f"{args.out_dir / 'ci_suite.yaml'}: {len(suite.scenarios)} scenarios")
+    print(f"{map_path}: {counted(len(native.load(map_path).junctions), 'junction')}; "
+          f"{args.out_dir / 'ci_suite.yaml'}: {counted(len(suite.scenarios), 'scenario')}")
     return 0
 
 

@@ -1,8 +1,9 @@
 """Rollout reports: OUT/summary.json (the SuiteResult, loads back with `load_result`),
 OUT/junit.xml (one testcase per scenario, for CI systems), OUT/report.md (tables, plots, one
-GIF per failure under OUT/failures/, the stage codes explained), OUT/report.html (the same as one
-self-contained page, pictures inline), OUT/outcomes.png and OUT/coverage.png. The directory is
-staged and moved into place whole.
+GIF per scenario that did not complete under OUT/failures/, whatever the failure policy, the stage
+codes explained), OUT/report.html (the same as one self-contained page, pictures inline),
+OUT/outcomes.png and OUT/coverage.png. The directory is staged and moved into place whole. Names,
+messages and planner stderr enter the Markdown as literal text (`markup`), never as markup.
 """
 from __future__ import annotations
 
@@ -10,13 +11,14 @@ import json
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any
+from typing import Collection
 
 from feat2map import atomic
 from feat2map.documents import load_document
 from feat2map.errors import Feat2MapError
 from feat2map.messages import counted
 
+from .markup import html_page, md_code, md_fenced, md_text
 from .metrics import FULL_COVERAGE_SHARE, compare, junctions_to_reach, plot_accumulated, suite_coverage
 from .rollout import FAIL_POLICIES, MIXED_DIGEST, OUTCOMES, ROAD_CONTEXT, Outcome, SuiteResult
 
@@ -25,6 +27,8 @@ JUNIT = "junit.xml"
 REPORT = "report.md"
 REPORT_HTML = "report.html"  # the same, one self-contained page (pictures inline)
 FAILURES = "failures"
+OUTCOMES_PNG = "outcomes.png"
+COVERAGE_PNG = "coverage.png"
 OUTCOME_COLOURS = {"completed": "#4caf50", "collision": "#d32f2f", "off_road": "#ff9800",
                    "timeout": "#9e9e9e", "violation": "#7b1fa2", "error": "#000000"}
 
@@ -97,10 +101,6 @@ def _plot_outcomes(result: SuiteResult, path: Path) -> None:
     plt.close(fig)
 
 
-def _cell(s: Any) -> str:
-    return str(s).replace("|", "\\|").replace("\n", " ")
-
-
 def _short_stage_names(transitions) -> dict[str, str]:
     """"Scenario.Stage" -> "Stage" where no other scenario has a stage of that name."""
     names = {n for t in transitions for n in t}
@@ -123,28 +123,34 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
     cov_acc_trans = ((len(cov.transitions.get(ROAD_CONTEXT, ())),) if road else ()) + cov.accumulated_transitions
     sum_pairs = sum(len(cov.pairs.get(j, ())) for j in rows)
     verdict = "FAILED" if failing or result.stopped else "passed"
-    lines = [f"# Rollout report: {result.name}", "",
-             f"Planner `{result.planner}`, {len(result.outcomes)} scenarios, failure policy `--fail-on {fail_on}`: "
-             f"**{verdict}** ({len(failing)} failing). Wall time {result.wall_s:.1f} s on {result.workers} "
-             f"worker(s), backend {result.backend}.", "",
-             *([f"**Stopped early**: {_cell(result.stopped)}; {len(result.outcomes)} of {result.scenarios} "
-                "scenarios ran.", ""] if result.stopped else []),
+    ran = len(result.outcomes)
+    lines = [f"# Rollout report: {md_text(result.name)}", "",
+             f"Planner {md_code(result.planner)}, {counted(ran, 'scenario')}, failure policy `--fail-on {fail_on}`: "
+             f"**{verdict}** ({len(failing)} failing). Wall time {result.wall_s:.1f} s on "
+             f"{counted(result.workers, 'worker')}, backend {md_text(result.backend)}.", "",
+             *([f"**Stopped early**: {md_text(result.stopped)}; {ran} of "
+                f"{counted(ran if result.scenarios is None else result.scenarios, 'scenario')} ran.", ""]
+               if result.stopped else []),
              "| " + " | ".join(OUTCOMES) + " |", "|" + "---:|" * len(OUTCOMES),
-             "| " + " | ".join(str(counts[k]) for k in OUTCOMES) + " |", "", "![outcomes](outcomes.png)", "",
+             "| " + " | ".join(str(counts[k]) for k in OUTCOMES) + " |", "", f"![outcomes]({OUTCOMES_PNG})", "",
              "## Scenarios", "", "Stage codes (`LF`, `T_A`, ...) are explained under *Stage codes* at the end.", "",
              "| scenario | outcome | simulated s | steps | route | violations | junctions | stage path |",
              "|---|---|---:|---:|---:|---|---|---|"]
     for o in result.outcomes:
         v = ", ".join(f"{k} {n}" for k, n in o.violations.items() if n) or "-"
-        mark = f"**{o.outcome}**" if o.fails(fail_on) else o.outcome
-        lines.append(f"| {_cell(o.name)} | {mark} | {o.sim_s:.1f} | {o.steps} | {100 * o.route_progress:.0f}% | "
-                     f"{_cell(v)} | {_cell(' '.join(o.junctions) or '-')} | {_cell(' → '.join(o.stage_path) or '-')} |")
-    if failing:
-        lines += ["", "## Failures", ""]
-        for o in failing:
-            lines += [f"### {o.name}: {o.outcome}", "", o.message, "", "```", _details(o).rstrip(), "```", ""]
+        mark = f"**{md_text(o.outcome)}**" if o.fails(fail_on) else md_text(o.outcome)  # a summary read back may hold anything
+        lines.append(f"| {md_text(o.name)} | {mark} | {o.sim_s:.1f} | {o.steps} | {100 * o.route_progress:.0f}% | "
+                     f"{md_text(v)} | {md_text(' '.join(o.junctions) or '-')} | {md_text(' → '.join(o.stage_path) or '-')} |")
+    not_completed = [o for o in result.outcomes if not o.passed]
+    if not_completed:
+        lines += ["", "## Failures", "", f"Every scenario that did not complete; those marked *passes* do not fail "
+                  f"the run under `--fail-on {fail_on}`.", ""]
+        for o in not_completed:
+            verdict_o = "" if o.fails(fail_on) else " (*passes*)"
+            lines += [f"### {md_text(o.name)}: {md_text(o.outcome)}{verdict_o}", "", *md_fenced(o.message), "",
+                      *md_fenced(_details(o).rstrip()), ""]
             if o.name in gifs:
-                lines += [f"![{o.name}]({gifs[o.name]})", ""]
+                lines += [f"![GIF of the scenario]({gifs[o.name]})", ""]
     lines += ["", "## Behaviour coverage", "",
               f"The planner made {counted(len(cov.all_pairs), 'distinct (planner scenario, stage path) pair')} and "
               f"{counted(len(cov.all_transitions), 'distinct stage transition')}; the suite drove "
@@ -157,13 +163,13 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
               "planner scenarios: stage paths |", "|---|---:|---:|---:|---:|---|"]
     for j, acc_p, acc_t in zip(rows, cov_acc_pairs, cov_acc_trans):
         p = sorted(cov.pairs.get(j, ()))
-        text = "; ".join(f"{sc}: {' → '.join(st)}" for sc, st in p) or "-"
+        text = "; ".join(f"{sc}: {' → '.join(st)}" for sc, st in p) or "-"  # md_text escapes it below
         name = "roads between junctions" if j == ROAD_CONTEXT else j
-        lines.append(f"| {_cell(name)} | {len(p)} | {acc_p} | {len(cov.transitions.get(j, ()))} | {acc_t} | "
-                     f"{_cell(text)} |")
+        lines.append(f"| {md_text(name)} | {len(p)} | {acc_p} | {len(cov.transitions.get(j, ()))} | {acc_t} | "
+                     f"{md_text(text)} |")
     if cov.all_transitions:
         short = _short_stage_names(cov.all_transitions)
-        lines += ["", "Transitions seen: " + ", ".join(f"`{short[a]} → {short[b]}`"
+        lines += ["", "Transitions seen: " + ", ".join(md_code(f"{short[a]} → {short[b]}")
                                                       for a, b in sorted(cov.all_transitions)) + "."]
     if result.coverage:
         acc = cov.accumulated_lines
@@ -172,15 +178,17 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
         new = cov.new_lines()
         k = junctions_to_reach(acc)
         share = int(FULL_COVERAGE_SHARE * 100)
-        reach = (f"The first {counted(k, 'junction')} the suite reaches ({', '.join(cov.junctions[:k])}) "
+        reach = (f"The first {counted(k, 'junction')} the suite reaches ({md_text(', '.join(cov.junctions[:k]))}) "
                  f"already cover {share}% of them ({acc[k - 1]} of {acc[-1]} lines)." if k else "")
         lines += ["", "## Planner line coverage", "",
                   f"{counted(len(cov.all_lines), 'line')} of the planner covered over "
                   f"{counted(len(cov.junctions), 'junction')}. {reach}", "",
                   "| junction index | junction | lines at junction | new lines | accumulated |", "|---:|---|---:|---:|---:|"]
         for i, j in enumerate(cov.junctions):
-            lines.append(f"| {i + 1} | {_cell(j)} | {len(cov.lines.get(j, ()))} | {new[i]} | {acc[i]} |")
-    lines += ["", "![coverage](coverage.png)", ""]
+            lines.append(f"| {i + 1} | {md_text(j)} | {len(cov.lines.get(j, ()))} | {new[i]} | {acc[i]} |")
+    else:
+        lines += ["", "Planner line coverage was not measured (`feat2map rollout --line-coverage` measures it).", ""]
+    lines += ["", f"![coverage]({COVERAGE_PNG})", ""]
     lines += _stage_legend(result)
     return "\n".join(lines)
 
@@ -198,36 +206,13 @@ def _stage_legend(result: SuiteResult) -> list[str]:
     return ["## Stage codes", "",
             "Stages of the planner's scenarios (after Apollo's planning; scenarios/README.md explains when "
             "each is selected):", "", "| code | stage |", "|---|---|",
-            *(f"| `{_cell(c)}` | {_cell(STAGE_NAMES.get(c, 'defined by the planner under test'))} |" for c in codes), ""]
+            *(f"| {md_code(c)} | {md_text(STAGE_NAMES.get(c, 'defined by the planner under test'))} |" for c in codes), ""]
 
 
-def report_html(markdown_text: str, folder: Path, title: str) -> str:
-    """The Markdown report as one self-contained HTML page: pictures (PNG, GIF) from `folder`
-    inlined as base64 data, so the page can be mailed or attached to a CI run on its own."""
-    import base64
-    import html
-    import mimetypes
-
-    import markdown
-
-    body = markdown.markdown(markdown_text, extensions=["tables", "fenced_code"], output_format="html")
-
-    def inline(m: re.Match) -> str:
-        path = folder / html.unescape(m.group(2))
-        if not path.is_file():
-            return m.group(0)
-        kind = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
-        return f'{m.group(1)}data:{kind};base64,{base64.b64encode(path.read_bytes()).decode()}"'
-
-    body = re.sub(r'(<img[^>]*\ssrc=")([^":]+)"', inline, body)
-    return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{html.escape(title)}</title>\n'
-            f"<style>{_CSS}</style>\n</head>\n<body>\n{body}\n</body>\n</html>\n")
-
-
-_CSS = ("body{font-family:system-ui,sans-serif;max-width:75em;margin:2em auto;padding:0 1em;line-height:1.4}"
-        "table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #ccc;padding:.2em .5em;"
-        "vertical-align:top}th{background:#f3f3f3}img{max-width:100%}code,pre{background:#f6f6f6}"
-        "pre{padding:.5em;overflow-x:auto}")
+def report_html(markdown_text: str, folder: Path, title: str, files: Collection[str] = ()) -> str:
+    """The Markdown report as one self-contained HTML page (`markup.html_page`): only the
+    pictures among `files`, the paths under `folder` the rollout wrote, are inlined."""
+    return html_page(markdown_text, folder, title, files)
 
 
 def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> Path:
@@ -237,7 +222,7 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
         gifs: dict[str, str] = {}
         used: set[str] = set()
         for o in result.outcomes:
-            if o.gif and o.fails(fail_on):
+            if o.gif and not o.passed:  # every scenario that did not complete, whatever fail_on says
                 name = _safe(o.name)
                 while name in used:
                     name += "_"
@@ -251,11 +236,12 @@ def write_report(result: SuiteResult, out: str | Path, fail_on: str = "any") -> 
         doc["gifs"] = gifs
         atomic.write_text(tmp / SUMMARY, json.dumps(doc, indent=1) + "\n")
         atomic.write_bytes(tmp / JUNIT, junit_xml(result, fail_on))
-        _plot_outcomes(result, tmp / "outcomes.png")
-        plot_accumulated(compare({result.name: result}), tmp / "coverage.png", title=result.name)
+        _plot_outcomes(result, tmp / OUTCOMES_PNG)
+        plot_accumulated(compare({result.name: result}), tmp / COVERAGE_PNG, title=result.name)
         text = report_markdown(result, fail_on, gifs)
         atomic.write_text(tmp / REPORT, text)
-        atomic.write_text(tmp / REPORT_HTML, report_html(text, tmp, f"Rollout report: {result.name}"))
+        pictures = {OUTCOMES_PNG, COVERAGE_PNG, *gifs.values()}  # what this rollout wrote, nothing else
+        atomic.write_text(tmp / REPORT_HTML, report_html(text, tmp, f"Rollout report: {result.name}", pictures))
     return out
 
 

@@ -3,8 +3,9 @@
 
 Determinism: every scenario builds its own env from its own seed and a fresh planner, and
 every worker runs with PYTHONHASHSEED=HASH_SEED, so the results (everything but wall-clock
-times and GIF bytes) do not depend on the worker count or the backend. Failures are re-run
-with `render_mode="rgb_array"` to record a GIF, so only failing scenarios pay for rendering.
+times and GIF bytes) do not depend on the worker count or the backend. Scenarios that do not
+complete are re-run with `render_mode="rgb_array"` to record a GIF (whatever the failure
+policy), so only they pay for rendering.
 
 A scenario whose ego stands still with nothing in its way for `blocked_after` seconds
 (`BlockedClock`, default BLOCKED_AFTER_S) ends early as a `timeout` whose message says "blocked".
@@ -418,6 +419,7 @@ class _Frames(list):
     def __init__(self) -> None:
         super().__init__()
         self.stride, self.seen = 1, 0
+        self.step_s = 1.0  # simulated seconds per frame before thinning (set by _drive)
 
     def add(self, frame: Any) -> None:
         self.last = frame
@@ -436,9 +438,10 @@ class _Frames(list):
 
 def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, coverage: bool = False,
            coverage_modules: Sequence[str] = (), policy: Any = None,
-           blocked_after: float = BLOCKED_AFTER_S) -> tuple[Outcome, _Frames]:
-    """Run one episode; returns its outcome and (when rendering) its frames. It ends early as
-    blocked (`BlockedClock`) after `blocked_after` seconds (0: never)."""
+           blocked_after: float = BLOCKED_AFTER_S, frames: _Frames | None = None) -> tuple[Outcome, _Frames]:
+    """Run one episode; returns its outcome and (when rendering) its frames, collected into
+    `frames` when given (the caller keeps them if the planner raises). It ends early as blocked
+    (`BlockedClock`) after `blocked_after` seconds (0: never)."""
     from .scenario import make_env
 
     t0 = time.perf_counter()
@@ -449,7 +452,8 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     if remote:
         policy.remote_coverage = coverage
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
-    frames = _Frames()
+    frames = _Frames() if frames is None else frames
+    frames.step_s = 1.0 / float(env.unwrapped.config.get("policy_frequency") or 1.0)
     cov = _LineCoverage(_module_files(policy, coverage_modules)) if coverage and not remote else None
     try:
         seed = getattr(scenario, "seed", None)
@@ -558,10 +562,11 @@ def gif_bytes(frames: Sequence[Any], step_s: float) -> bytes:
 
 
 def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_failure_gif: bool = True,
-                 coverage: bool = False, fail_on: str = "any", coverage_modules: Sequence[str] = (),
+                 coverage: bool = False, coverage_modules: Sequence[str] = (),
                  blocked_after: float = BLOCKED_AFTER_S) -> Outcome:
-    """Drive one scenario headless with a fresh planner; on a failure under `fail_on` re-run it
-    with rendering and attach a GIF. `coverage` measures the planner's lines per junction.
+    """Drive one scenario headless with a fresh planner; when it does not complete, re-run it
+    with rendering and attach a GIF, whatever the failure policy (a report shows every failure;
+    the policy decides only the exit code). `coverage` measures the planner's lines per junction.
     `blocked_after`: [s] the scenario ends as a timeout once the ego has stood still this long
     with nothing in its way (`BlockedClock`; 0: never)."""
     check_blocked_after(blocked_after)
@@ -572,13 +577,22 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
     during = record_failure_gif and bool(getattr(policy, "render_during_run", False))
     outcome, frames = _drive(scenario, factory, coverage=coverage, coverage_modules=coverage_modules,
                              policy=policy, render=during, blocked_after=blocked_after)
-    if record_failure_gif and outcome.fails(fail_on):
+    if record_failure_gif and not outcome.passed:
         run = outcome
         if not during:
             run, frames = _drive(scenario, factory, render=True, blocked_after=blocked_after)
         step_s = run.sim_s / run.steps if run.steps and run.sim_s > 0 else 1.0
         outcome = replace(outcome, gif=gif_bytes(frames.with_last(), step_s * frames.stride))
     return outcome
+
+
+def _error_gif(scenario: Any, factory: Callable[[], Any], blocked_after: float) -> bytes | None:
+    """The GIF of a scenario whose planner or env raised (an `error` outcome): replayed with
+    rendering up to the raise, so an error is shown like any other failure."""
+    frames = _Frames()
+    with contextlib.suppress(Exception):
+        _drive(scenario, factory, render=True, blocked_after=blocked_after, frames=frames)
+    return gif_bytes(frames.with_last(), frames.step_s * frames.stride) or None
 
 
 # ---- suites -------------------------------------------------------------------------------------
@@ -589,7 +603,6 @@ class _Task:
     factory: Any
     record_failure_gif: bool
     coverage: bool
-    fail_on: str
     coverage_modules: tuple[str, ...]
     blocked_after: float
 
@@ -613,13 +626,15 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
         scenario = Scenario.from_dict(scenario, f"scenario {scenario.get('name', task.index)!r}")
     try:
         out = run_scenario(scenario, task.factory, record_failure_gif=task.record_failure_gif,
-                           coverage=task.coverage, fail_on=task.fail_on, coverage_modules=task.coverage_modules,
+                           coverage=task.coverage, coverage_modules=task.coverage_modules,
                            blocked_after=task.blocked_after)
     except Feat2MapError as exc:  # bad input: name the scenario too
         name = f"scenario {getattr(scenario, 'name', task.index)}"
         raise Feat2MapError(exc.message, f"{name}: {exc.where}" if exc.where else name) from None
     except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
         out = _error_outcome(scenario, task.index, f"planner or env raised {type(exc).__name__}: {exc}")
+        if task.record_failure_gif:
+            out = replace(out, gif=_error_gif(scenario, task.factory, task.blocked_after))
     except (SystemExit, KeyboardInterrupt) as exc:  # the planner asks to stop: end the suite, keep the report
         stop = f"the planner raised {type(exc).__name__} in scenario {getattr(scenario, 'name', task.index)}"
         return task.index, _error_outcome(scenario, task.index, f"{stop}: the rollout stopped here"), stop
@@ -646,7 +661,7 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     if not scenarios:  # nothing driven is not a pass
         raise Feat2MapError("has no scenarios: nothing to run", f"suite {getattr(suite, 'name', '')!r}")
     factory = as_factory(planner)
-    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage, fail_on,
+    tasks = [_Task(i, s.to_dict() if hasattr(s, "to_dict") else s, factory, record_failure_gif, coverage,
                    tuple(coverage_modules), float(blocked_after))
              for i, s in enumerate(scenarios)]
     picklable = _picklable(factory)

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Iterable, Sequence, cast
 
 from ..errors import Feat2MapError
+from ..messages import counted
 from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane
 from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, Route, coverage_routes, manoeuvre_lane,  # noqa: F401 (re-exported)
@@ -123,7 +124,7 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
     m = read_map(path)
     tight = [mv for mv in manoeuvres(m) if (ln := manoeuvre_lane(m, mv)) is not None and undrivable(ln)]
     if tight:
-        warnings.warn(f"{path}: {len(tight)} manoeuvre(s) no car drives (U-turns tighter than a car turns, lanes "
+        warnings.warn(f"{path}: {counted(len(tight), 'manoeuvre')} no car drives (U-turns tighter than a car turns, lanes "
                       f"that loop) left out of the suite (first: junction {tight[0][0]}, road {tight[0][1]} -> "
                       f"{tight[0][2]})", stacklevel=2)
     stubs = [mv for mv in manoeuvres(m) if mv not in tight and edge_stub(m, mv)]

@@ -31,6 +31,12 @@ you want to measure, e.g. `.venv/bin/python scripts/harden_harness.py --quick`. 
    doubled and future step ids, crashes, 100 MB of stderr ...), each driving a rollout: its
    outcome, report, wall time, peak RSS and surviving processes (--bridge-module: another
    bridge.py, for a before/after).
+7. report injection (issue 35): each attack (a script tag, an event handler, a javascript: link, a
+   raw HTML block, a Markdown image or link of a local secret file by absolute or `../` path) in a
+   suite name, a scenario name, a stage name and a planner's stderr, and raw Markdown given to
+   report_html with a symlink out of the folder: report.html must hold no script, no handler, no
+   javascript: URL, no byte of the secret, only data: pictures of files the rollout wrote, and
+   a strict Content-Security-Policy; report.md no markup outside its code blocks. Pass/fail per case.
 
 Prints one table per section and a summary (also as JSON with --json FILE).
 """
@@ -1246,10 +1252,83 @@ def _rough_envs() -> dict[str, tuple[bool, str]]:
     return cases
 
 
+REPORT_ATTACKS = {
+    "script tag": "<script>alert(1)</script>",
+    "event handler": '<img src=x onerror="alert(1)"><b onmouseover=alert(1)>b</b>',
+    "javascript: link": "[go](javascript:alert(1)) <javascript:alert(1)>",
+    "raw HTML block": '\n<div onclick="alert(1)">\n<iframe src="javascript:alert(1)"></iframe>\n</div>\n',
+    "image of a local file": "![x]({secret})",
+    "image of ../": "![x](../secret.txt)",
+    "link to a local file": "[x]({secret})",
+    "fence breakout": "\n```\n</pre><script>alert(1)</script>\n```\n",
+}
+
+
+def _report_problems(page: str, secret: bytes) -> list[str]:
+    """What in a report.html could run, load or leak: [] for a clean page."""
+    import base64
+
+    import lxml.html
+
+    problems = [p for p, bad in (("<script", "<script" in page.lower()), ("secret bytes", secret.decode() in page),
+                                 ("secret base64", base64.b64encode(secret).decode() in page)) if bad]
+    doc = lxml.html.document_fromstring(page)
+    csp = doc.xpath("//head/meta[@http-equiv='Content-Security-Policy']/@content")
+    if not csp or not csp[0].startswith("default-src 'none'; img-src data:;") or "script-src" in csp[0]:
+        problems.append(f"CSP {csp}")
+    problems += [f"<{el.tag}>" for el in doc.xpath("//script|//iframe|//object|//embed|//base|//form|//body//style")]
+    for el in doc.iter():
+        for name, value in (el.attrib.items() if isinstance(el.tag, str) else ()):
+            if name.lower().startswith("on") or "javascript:" in value.lower():
+                problems.append(f"<{el.tag} {name}={value[:40]!r}>")
+            elif name == "src" and not value.startswith(("data:image/png;base64,", "data:image/gif;base64,")):
+                problems.append(f"<{el.tag} src={value[:60]!r}>")
+            elif name == "href":
+                problems.append(f"<{el.tag} href={value[:60]!r}>")
+    return problems
+
+
+def section_report(work: Path, args) -> dict:
+    """Issue 35: attacks planted in a rollout's names, stage names and planner stderr reach
+    neither report.html (parsed, every element and attribute) nor report.md as markup."""
+    from feat2map.scenarios.report import report_html, report_markdown, write_report
+    from feat2map.scenarios.rollout import Outcome, SuiteResult
+
+    rw = work / "report"
+    rw.mkdir()
+    secret = b"HARNESS-SECRET-35 token=hunter2"
+    (rw / "secret.txt").write_bytes(secret)
+    cases: dict[str, tuple[bool, str]] = {}
+    for label, attack in REPORT_ATTACKS.items():
+        a = attack.format(secret=rw / "secret.txt")
+        for where in ("suite name", "scenario name", "stage name", "planner stderr"):
+            o = Outcome(f"sc {a}" if where == "scenario name" else "sc", "error", {}, 1.0, 5,
+                        ("LF", a) if where == "stage name" else ("LF",), (), ("J0",), 0.5,
+                        message=f"planner stderr:\n{a}" if where == "planner stderr" else "raised")
+            result = SuiteResult(f"s {a}" if where == "suite name" else "s", "baseline", (o,))
+            out = write_report(result, rw / f"r-{len(cases)}")
+            problems = _report_problems((out / "report.html").read_text(), secret)
+            md = re.sub(r"(?ms)^(`{3,})$.*?^\1$", "", report_markdown(result, "any", {}))  # outside code blocks
+            problems += [f"report.md {t}" for t in ("<script", "<img", "<div", "](javascript", f"]({rw}", "](../")
+                         if t in md.replace("\\]", "")]
+            cases[f"{label} in the {where}"] = (not problems, "; ".join(problems)[:200])
+    folder = rw / "raw"
+    folder.mkdir()
+    (folder / "link.png").symlink_to(rw / "secret.txt")
+    md = "\n\n".join(v.format(secret=rw / "secret.txt") for v in REPORT_ATTACKS.values()) + "\n\n![l](link.png)"
+    page = report_html(md, folder, "t", {"link.png", str(rw / "secret.txt"), "../secret.txt"})
+    problems = _report_problems(page, secret)
+    cases["raw Markdown attacks and a symlink out, given to report_html"] = (not problems, "; ".join(problems)[:200])
+    failed = [name for name, (ok, _) in cases.items() if not ok]
+    return {"cases": len(cases), "failed": len(failed),
+            "results": {name: ("ok" if ok else "FAIL") + (f": {detail}" if detail else "")
+                        for name, (ok, detail) in cases.items()}}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="small numbers everywhere (a smoke run)")
-    p.add_argument("--sections", default="corpus,kill,invariants,huge,rough,bridge")
+    p.add_argument("--sections", default="corpus,kill,invariants,huge,rough,bridge,report")
     p.add_argument("--seed", type=int, default=14)
     p.add_argument("--trunc", type=int, default=12, help="truncations per seed file")
     p.add_argument("--flips", type=int, default=12, help="bit-flip variants per seed file")
@@ -1275,7 +1354,7 @@ def main() -> int:
     report["feat2map"] = str(Path(feat2map.__file__).parent)
     with tempfile.TemporaryDirectory(prefix="harden-") as tmp:
         work = Path(tmp)
-        for name in ("corpus", "kill", "invariants", "huge", "rough", "bridge"):
+        for name in ("corpus", "kill", "invariants", "huge", "rough", "bridge", "report"):
             if name not in sections:
                 continue
             t0 = time.time()
@@ -1290,6 +1369,8 @@ def main() -> int:
                 report[name] = section_rough(work, args)
             elif name == "bridge":
                 report[name] = section_bridge(work, args)
+            elif name == "report":
+                report[name] = section_report(work, args)
             else:
                 if "corpus" not in sections:
                     (work / "src").mkdir(exist_ok=True)
@@ -1333,6 +1414,8 @@ def main() -> int:
                         f"bridge peak RSS MB (target < {BRIDGE_RSS_TARGET_MB})": b["max_rss_mb"],
                         "bridge surviving processes": b["survivors"],
                         "bridge outcomes not as expected": ", ".join(b["unexpected"]) or 0})
+    if "report" in report:
+        summary["report injection (issue 35) failing"] = f"{report['report']['failed']} of {report['report']['cases']}"
     report["summary"] = summary
     print("\n== summary")
     for k, v in summary.items():

@@ -150,7 +150,7 @@ def rollout_coverage(tmp: Path) -> list[Path]:
         run_cli("suite", str(d / "map.json"), "--traffic", "2", "--name", name, "--out", str(d / "suite.yaml"))
         t0 = time.perf_counter()
         run_cli("rollout", str(d / "suite.yaml"), "--workers", "2", "--fail-on", "none", "--no-gif", "--quiet",
-                "--out", str(d / "r"))
+                "--line-coverage", "--out", str(d / "r"))
         walls[name] = time.perf_counter() - t0
         results[name] = load_result(d / "r")
     table = compare(results)

@@ -4,6 +4,7 @@ scripts/demo.sh) and the examples, every line succeeds, and nothing is written o
 Lines that read ../shared/maps run when those maps are present (beside the repository)."""
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -58,6 +59,7 @@ def test_readme_command_block_runs_as_written(tmp_path):
     repo = tmp_path / "repo"
     repo.mkdir()
     shutil.copytree(REPO / "examples", repo / "examples")
+    shutil.copytree(REPO / "adapters", repo / "adapters")  # examples/bridge_planner.py imports adapters/bridge_client.py
     (repo / ".venv").symlink_to(venv)
     if shared:
         (tmp_path / "shared").symlink_to(SHARED_MAPS.parent)
@@ -81,3 +83,9 @@ def test_readme_command_block_runs_as_written(tmp_path):
         for path in re.findall(r"--(?:out|picture) (\S+)", line):
             assert any(f == path or f.startswith(path.rstrip("/") + "/") for f in written), (line, path)
     assert "usage: feat2map" in r.stdout and "J0" in r.stdout
+    summary = json.loads((repo / "out" / "r3" / "summary.json").read_text())  # the bridge line, --fail-on none
+    failed = [o["name"] for o in summary["outcomes"] if o["outcome"] != "completed"]
+    assert all(o["outcome"] != "error" for o in summary["outcomes"]), summary["outcomes"]  # the planner drove
+    assert failed and sorted(summary["gifs"]) == sorted(failed), \
+        [(o["name"], o["outcome"], o["message"][:300]) for o in summary["outcomes"]]  # every failure gets its GIF
+    assert all((repo / "out" / "r3" / gif).is_file() for gif in summary["gifs"].values())

@@ -153,7 +153,8 @@ def test_cli_export_and_validate(tmp_path, capsys, mega):
     save_suite(Suite(suite.name, suite.scenarios[:1], suite.base_dir), path)
     out = tmp_path / "xosc"
     assert main(["export", "openscenario", str(path), "--out", str(out)]) == 0
-    assert "1 scenarios" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert printed.endswith(": 1 scenario\n") and "1 scenarios" not in printed, printed
     xosc = next(out.glob("*.xosc"))
     assert main(["validate", str(xosc)]) == 0
     root = etree.parse(str(xosc)).getroot()  # an action for an entity that does not exist

@@ -56,7 +56,7 @@ def test_the_reactive_planner_drives_a_short_suite_through_the_bridge(crplanner,
     save_suite(Suite("t", kept, full.base_dir), tmp_path / "s.yaml")
     out = tmp_path / "cr"
     rc = cli.main(["rollout", str(tmp_path / "s.yaml"), "--planner-cmd", crplanner, "--planner-timeout", "60",
-                   "--out", str(out), "--quiet", "--no-gif", "--fail-on", "none"])
+                   "--out", str(out), "--quiet", "--no-gif", "--fail-on", "none", "--line-coverage"])
     assert rc == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["planner"].startswith("bridge: ") and len(summary["outcomes"]) == len(KEEP)

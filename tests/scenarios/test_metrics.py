@@ -149,3 +149,22 @@ def test_compare_warns_when_planner_sources_differ(runs):
     assert suite_digest(mixed) == MIXED_DIGEST and suite_digest(mixed[:1]) == "aa"
     t = compare({"m": SuiteResult("m", "p", mixed, coverage=True, planner_digest=MIXED_DIGEST)})
     assert t.warnings and "changed during the run" in t.warnings[0]
+
+
+def test_coverage_command_says_which_rollouts_ran_without_line_coverage(tmp_path, capsys):
+    """Line coverage is opt-in (`rollout --line-coverage`): comparing a rollout without it says so,
+    naming the result and how to get the lines, in the output and in coverage.md."""
+    ev = [(0, 0.0, "J0", "STOP_SIGN", "S_PS"), (5, 1.0, "J0", "STOP_SIGN", "S_S")]
+    measured = SuiteResult("m", "baseline", (outcome("a", ev, {"J0": ("p:1", "p:2")}),), coverage=True,
+                           planner_digest="aa")
+    plain = SuiteResult("p", "baseline", (outcome("a", ev),))
+    write_report(measured, tmp_path / "with")
+    write_report(plain, tmp_path / "without")
+    assert cli.main(["coverage", str(tmp_path / "with"), str(tmp_path / "without"), "--out", str(tmp_path / "c")]) == 0
+    printed = capsys.readouterr().out
+    note = [ln for ln in printed.splitlines() if ln.startswith("note: ")]
+    assert len(note) == 1 and "without (" in note[0] and "with (" not in note[0] and "--line-coverage" in note[0]
+    assert "| without | baseline | 1 | 1 | 0 | 1 | 1 | 1 | 1 | - | - |" in printed
+    assert "--line-coverage" in (tmp_path / "c" / "coverage.md").read_text()
+    assert cli.main(["coverage", str(tmp_path / "with"), "--out", str(tmp_path / "c1")]) == 0
+    assert "note: " not in capsys.readouterr().out  # measured: nothing to say

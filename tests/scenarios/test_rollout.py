@@ -64,7 +64,7 @@ def suite_file(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def cli_run(suite_file, tmp_path_factory):
     out = tmp_path_factory.mktemp("out") / "report"
-    code = cli.main(["rollout", str(suite_file), "--out", str(out), "--quiet"])
+    code = cli.main(["rollout", str(suite_file), "--out", str(out), "--quiet", "--line-coverage"])
     return code, out
 
 
@@ -78,7 +78,7 @@ def test_suite_runs_end_to_end_through_the_cli(cli_run, capsys):
     for o in summary["outcomes"]:
         assert o["stage_path"][0] == "LF" and o["stage_path"][-1] == "LF" and len(o["stage_path"]) >= 3
         assert o["junctions"] == ["J0"] and o["route_progress"] == pytest.approx(1.0, abs=0.05)
-        assert o["junction_lines"]["J0"], "line coverage is on by default"
+        assert o["junction_lines"]["J0"], "--line-coverage measures the planner's lines"
     root = ET.parse(out / "junit.xml").getroot()
     cases = root.findall("./testsuite/testcase")
     assert [c.get("name") for c in cases] == list(KEEP)
@@ -143,7 +143,7 @@ def test_broken_planner_fails_with_readable_report_and_gif(suite_file, tmp_path,
     save_suite(Suite("red", suite.scenarios[:1], suite.base_dir), one)
     out = tmp_path / "red"
     code = cli.main(["rollout", str(one), "--planner", f"{__name__}:RedLightRunner", "--out", str(out),
-                     "--quiet", "--no-coverage"])
+                     "--quiet"])
     assert code == 1
     printed = capsys.readouterr().out
     assert "FAIL t-r000: violation: traffic rule violation: red_light x1" in printed
@@ -152,6 +152,8 @@ def test_broken_planner_fails_with_readable_report_and_gif(suite_file, tmp_path,
     assert fail is not None and fail.get("type") == "violation" and "red_light" in fail.get("message")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["failed"] == ["t-r000"] and summary["outcomes"][0]["violations"]["red_light"] >= 1
+    assert summary["coverage"] is False and summary["outcomes"][0]["junction_lines"] == {}, "line coverage is opt-in"
+    assert "line coverage was not measured (`feat2map rollout --line-coverage`" in (out / "report.md").read_text()
     gif = out / summary["gifs"]["t-r000"]
     from PIL import Image
 
@@ -159,20 +161,33 @@ def test_broken_planner_fails_with_readable_report_and_gif(suite_file, tmp_path,
         assert im.format == "GIF" and im.n_frames > 10 and im.size[0] > 100
     report = (out / "report.md").read_text()
     assert "**FAILED**" in report and "## Failures" in report and "failures/t-r000.gif" in report
-    # the failure policy decides the exit code; a re-run into the same dir drops the old GIFs
+    # the failure policy decides the exit code only: under --fail-on none the violation passes the run
+    # and still gets its GIF and its section (the README's bridge line relies on it)
+    (out / "failures" / "t-r000.gif").write_bytes(b"old")
     assert cli.main(["rollout", str(one), "--planner", f"{__name__}:RedLightRunner", "--out", str(out),
-                     "--quiet", "--no-coverage", "--fail-on", "collision"]) == 0
-    assert not (out / "failures").exists()
+                     "--quiet", "--fail-on", "none"]) == 0
     assert ET.parse(out / "junit.xml").getroot().get("failures") == "0"
-    assert json.loads((out / "summary.json").read_text())["outcomes"][0]["outcome"] == "violation"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["outcomes"][0]["outcome"] == "violation" and summary["failed"] == []
+    assert summary["gifs"] == {"t-r000": "failures/t-r000.gif"} and sorted(os.listdir(out / "failures")) == ["t-r000.gif"]
+    with Image.open(out / "failures" / "t-r000.gif") as im:
+        assert im.format == "GIF" and im.n_frames > 10
+    report = (out / "report.md").read_text()
+    assert "**passed**" in report and "### t-r000: violation (*passes*)" in report and "failures/t-r000.gif" in report
 
 
-def test_a_raising_planner_is_an_error_outcome(suite_file):
+def test_a_raising_planner_is_an_error_outcome_with_its_gif(suite_file, tmp_path):
     sc = load_suite(suite_file).scenarios[0]
-    res = run_suite([sc], Crashing, progress=False, record_failure_gif=False)
+    res = run_suite([sc], Crashing, progress=False)
     o = res.outcomes[0]
     assert o.outcome == "error" and "RuntimeError: planner bug" in o.message
     assert res.exit_code("collision") == 1 and res.exit_code("none") == 0
+    from PIL import Image
+
+    assert o.gif  # replayed with rendering up to the raise, as any failure
+    (tmp_path / "e.gif").write_bytes(o.gif)
+    with Image.open(tmp_path / "e.gif") as im:
+        assert im.format == "GIF" and im.n_frames >= 3
 
 
 class BadAction(BaselinePlanner):
@@ -236,6 +251,19 @@ def test_classification_and_policies():
     assert o.fails("any") and not o.fails("violation") and not o.fails("collision")
     r = SuiteResult("s", "baseline", (o,))
     assert SuiteResult.from_dict(json.loads(json.dumps(r.to_dict()))) == r
+
+
+def test_report_counts_take_the_singular():
+    """"1 scenario", "1 worker", not "1 scenarios" (messages.counted everywhere a count is written)."""
+    from feat2map.scenarios.report import report_markdown
+
+    o = Outcome("a", "timeout", {}, 1.0, 5, (), (), (), 0.5)
+    one = report_markdown(SuiteResult("s", "baseline", (o,), workers=1, stopped="stop", scenarios=1))
+    assert "`baseline`, 1 scenario, failure policy" in one and "on 1 worker, backend" in one
+    assert "1 of 1 scenario ran" in one and "1 scenarios" not in one and "worker(s)" not in one
+    two = report_markdown(SuiteResult("s", "baseline", (o, o), workers=2, stopped="stop", scenarios=3))
+    assert "`baseline`, 2 scenarios, failure policy" in two and "on 2 workers, backend" in two
+    assert "2 of 3 scenarios ran" in two
 
 
 def test_planner_specs(suite_file):
