@@ -1,0 +1,120 @@
+"""This checkout's env speed against another revision's, measured alternately in one run: the
+single env's steps/s and the native batched env's env-steps/s (10 Hz decisions, 10 vehicles per
+sub-env, the default map), as CPU time of the measuring process. What a change to envs/ reports
+("before and after, alternately in one run, and the ratio").
+
+The other revision is checked out into a temporary git worktree and imported from there (its
+`envs/` and `scenarios/` linked into its `feat2map/` as the installed package maps them); this
+checkout runs as installed. Each round runs one process per revision in turn, so load on a shared
+machine falls on both alike; the table gives the median of the rounds and after/before.
+
+Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_against.py [--base main] [--rounds 5]
+     [--sizes 1,64,256]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = {"simulation_frequency": 20, "policy_frequency": 10, "traffic_vehicles": 9, "duration": 1e9,
+          "route_junctions": 3}
+ENV_STEPS = 600  # env-steps per measurement and setup
+IDLE = 1  # DiscreteMetaAction's IDLE
+
+# one measurement in a fresh process: {size: env-steps per CPU second} (size 1: the single env)
+MEASURE = r"""
+import json, sys, time
+import gymnasium as gym
+import numpy as np
+import feat2map
+
+config, steps, sizes = json.loads(sys.argv[1])
+out = {"feat2map": feat2map.__file__}
+for n in sizes:
+    if n == 1:
+        env = gym.make("feat2map/JunctionGrid-v0", config=config)
+        env.reset(seed=0)
+        t = time.process_time()
+        for _ in range(steps):
+            *_, term, trunc, _ = env.step(1)
+            if term or trunc:
+                env.reset()
+    else:
+        env = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                           config=config)
+        env.reset(seed=0)
+        action = np.full(n, 1)
+        t = time.process_time()
+        for _ in range(max(steps // n, 2)):
+            env.step(action)
+    out[n] = (max(steps // n, 2) * n if n > 1 else steps) / (time.process_time() - t)
+    env.close()
+print(json.dumps(out))
+"""
+
+
+def base_checkout(rev: str, where: Path) -> Path:
+    """`rev` checked out at `where`, importable as the package `feat2map` from `where`."""
+    subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-q", str(where), rev], check=True)
+    for sub in ("envs", "scenarios"):
+        (where / "feat2map" / sub).symlink_to(where / sub, target_is_directory=True)
+    return where
+
+
+def measure(pythonpath: Path | None, sizes: list[int]) -> dict:
+    env = dict(os.environ, SDL_VIDEODRIVER="offscreen")
+    env.pop("PYTHONPATH", None)
+    if pythonpath is not None:
+        env["PYTHONPATH"] = str(pythonpath)
+    run = subprocess.run([sys.executable, "-c", MEASURE, json.dumps([CONFIG, ENV_STEPS, sizes])], env=env,
+                         capture_output=True, text=True, cwd=tempfile.gettempdir())
+    if run.returncode != 0:
+        raise SystemExit(f"measurement failed ({'base' if pythonpath else 'this checkout'}):\n{run.stderr[-2000:]}")
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", default="main", help="the revision to compare with (default: main)")
+    ap.add_argument("--rounds", type=int, default=5, help="alternating rounds (default: 5)")
+    ap.add_argument("--sizes", default="1,64,256", help="1: the single env; N > 1: the batched env (default: 1,64,256)")
+    args = ap.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    rates: dict[str, dict[int, list[float]]] = {k: {n: [] for n in sizes} for k in ("before", "after")}
+    with tempfile.TemporaryDirectory(prefix="bench-against-") as tmp:
+        base = base_checkout(args.base, Path(tmp) / "base")
+        try:
+            for r in range(args.rounds):
+                for label, path in (("before", base), ("after", None)):
+                    got = measure(path, sizes)
+                    if r == 0:
+                        where = Path(got["feat2map"]).parent
+                        assert (where.resolve() == (base / "feat2map").resolve()) == (path is not None), where
+                    for n in sizes:
+                        rates[label][n].append(got[str(n)])
+                print(f"  round {r + 1} of {args.rounds}", file=sys.stderr, flush=True)
+        finally:
+            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(base)], check=False)
+    print(f"env-steps/s of CPU time, median of {args.rounds} alternating rounds (before: {args.base}; after: this "
+          "checkout); 10 Hz, 10 vehicles per sub-env, default map")
+    print(f"{'setup':>12} {'before':>9} {'after':>9} {'after/before':>13}  rounds after/before")
+    for n in sizes:
+        b, a = statistics.median(rates["before"][n]), statistics.median(rates["after"][n])
+        each = " ".join(f"{x / y:.2f}" for x, y in zip(rates["after"][n], rates["before"][n]))
+        print(f"{'single' if n == 1 else f'N = {n}':>12} {b:>9.0f} {a:>9.0f} {a / b:>12.2f}x  {each}")
+    for label in ("before", "after"):
+        if 1 in sizes and len(sizes) > 1:
+            single = statistics.median(rates[label][1])
+            print(f"{label}: " + ", ".join(f"N = {n}: {statistics.median(rates[label][n]) / single:.2f}x the single env"
+                                          for n in sizes if n > 1))
+
+
+if __name__ == "__main__":
+    main()
