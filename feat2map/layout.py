@@ -161,7 +161,7 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
         f = features[j]
         remaining = len(order) - step - 1
         want = prefer_turns[j] if prefer_turns is not None else None
-        if cells and fixed[j] is None and want is None and (remaining == 0 or n_open > 4):
+        if cells and fixed[j] is None and (remaining == 0 or n_open > 4):
             # every candidate leaves an open socket (a point is faced by at most 4), so the paper's
             # score alone ranks them: kept per feature signature and updated where junctions land
             sig = (assigns[j], tuple((s.lanes_in, s.lanes_out) for s in f.sockets))
@@ -170,7 +170,7 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
                 frontier = frontiers[sig] = _Frontier(j, evaluate, facing, len(changed))
             else:
                 frontier.update(j, changed, facing)
-            ties = frontier.best()
+            ties = frontier.best(want)
             if not ties:
                 raise LayoutError("no grid point connects this junction to the network (no matching open socket)",
                                   f"{label[j]} ({f.n_roads} legs, {f.control})")
@@ -205,7 +205,7 @@ def _score_all(j: int, f: JunctionFeature, cells: dict[Cell, int], fixed: Sequen
                label: Sequence[str], want: int | None, rng: np.random.Generator
                ) -> tuple[Cell, int, list[Link | None]]:
     """Score every candidate (cell, quarter turn) of junction j and draw one of the best: the
-    first junction, pinned ones, preferred turns and the last few open sockets come here."""
+    first junction, pinned ones and the last few open sockets come here."""
     pinned = fixed[j]
     candidates = [pinned] if pinned is not None else (sorted(facing) if cells else [(0, 0)])
     best_key = None
@@ -252,12 +252,14 @@ class _Frontier:
     assignment and socket lanes, all that scoring reads of a feature), sorted per score key.
     A placement changes the scores of its cell and its four neighbours only, so each
     signature re-scores just the cells changed since it last placed a junction: placement
-    stays linear in the junction count, and draws the same candidate as scoring every cell."""
+    stays linear in the junction count, and draws the same candidate as scoring every cell.
+    `by_turn` holds the same candidates per (score key, quarter turn), for preferred turns."""
 
     def __init__(self, j: int, evaluate, facing: dict[Cell, list[tuple[int, int]]], seen: int) -> None:
         self.evaluate = evaluate
         self.keys: dict[Cell, list[tuple[tuple[bool, int, int], int]]] = {}
         self.by_key: dict[tuple[bool, int, int], list[tuple[Cell, int]]] = {}
+        self.by_turn: dict[tuple[tuple[bool, int, int], int], list[tuple[Cell, int]]] = {}
         self.connect: dict[tuple[Cell, int], list[Link | None]] = {}
         self.seen = seen  # changes before this were scored
         for cell in facing:
@@ -266,16 +268,22 @@ class _Frontier:
     def update(self, j: int, changed: list[Cell], facing: dict[Cell, list[tuple[int, int]]]) -> None:
         for cell in set(changed[self.seen:]):
             for key, k in self.keys.pop(cell, ()):
-                ties = self.by_key[key]
-                del ties[bisect.bisect_left(ties, (cell, k))]
+                for ties in (self.by_key[key], self.by_turn[(key, k)]):
+                    del ties[bisect.bisect_left(ties, (cell, k))]
                 del self.connect[(cell, k)]
             if cell in facing:
                 self._score(j, cell)
         self.seen = len(changed)
 
-    def best(self) -> list[tuple[Cell, int]]:
+    def best(self, want: int | None = None) -> list[tuple[Cell, int]]:
+        """The best-scored candidates in (cell, turn) order; with `want`, only those turned by
+        `want` when there are any (as `_score_all` filters them)."""
         live = [key for key, ties in self.by_key.items() if ties]
-        return self.by_key[max(live)] if live else []
+        if not live:
+            return []
+        key = max(live)
+        preferred = self.by_turn.get((key, want)) if want is not None else None
+        return preferred if preferred else self.by_key[key]
 
     def _score(self, j: int, cell: Cell) -> None:
         scored = []
@@ -286,6 +294,7 @@ class _Frontier:
             key = _paper_key(len(connect), n_connect, n_free)
             scored.append((key, k))
             bisect.insort(self.by_key.setdefault(key, []), (cell, k))
+            bisect.insort(self.by_turn.setdefault((key, k), []), (cell, k))
             self.connect[(cell, k)] = connect
         self.keys[cell] = scored
 

@@ -22,7 +22,7 @@ from feat2map.construct import junction_radius
 from feat2map.errors import Feat2MapError
 from feat2map.features import FeatureSpace, JunctionFeature
 from feat2map.formats import write_map
-from feat2map.invariants import check_map
+from feat2map.invariants import check_map, exits_reached
 from feat2map.spec import build_spec, parse_spec
 
 LEGS = st.integers(3, MAX_LEGS)
@@ -218,6 +218,28 @@ def test_the_apollo_validator_catches_what_check_map_catches(sound_maps, tmp_pat
     with pytest.raises(Feat2MapError, match="refusing to export a map that would not validate"):
         write_map(m, tmp_path / "apollo", "apollo")
     assert not (tmp_path / "apollo").exists()
+
+
+@given(st.integers(1, 40).flatmap(lambda n: st.tuples(
+    st.just(n), st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), max_size=3 * n),
+    st.sets(st.integers(0, n - 1)))))
+def test_exits_reached_is_what_a_search_from_each_node_finds(graph):
+    """The route checks' one-pass reachability (bit sets over strongly connected components)
+    gives, for every node of a random directed graph with cycles, the exits a search finds."""
+    n, edges, exit_nodes = graph
+    adj: dict[str, list[str]] = {str(i): [] for i in range(n)}
+    for a, b in edges:
+        adj[str(a)].append(str(b))
+    exits = [str(i) for i in sorted(exit_nodes)]
+    reached = exits_reached(adj, adj.__getitem__, exits)
+    for start in adj:
+        seen, todo = {start}, [start]
+        while todo:
+            for nxt in adj[todo.pop()]:
+                if nxt not in seen:
+                    seen.add(nxt)
+                    todo.append(nxt)
+        assert [x for i, x in enumerate(exits) if reached[start] >> i & 1] == [x for x in exits if x in seen]
 
 
 # ------------------------------------------------------------------ the one leg rule

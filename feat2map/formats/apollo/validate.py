@@ -28,7 +28,7 @@ from .reader import base_map_file
 from .routing import build_routing_graph
 from ...config import APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
 from ...errors import MapFormatError
-from ...invariants import AREA_EPS_M2
+from ...invariants import AREA_EPS_M2, exits_reached
 from ...validation import unusable_numbers
 
 LENGTH_TOL_M = 0.05  # recorded lengths vs. the polyline's; endpoints of linked lanes
@@ -436,15 +436,16 @@ def _conflicts(m: Any, idx: _Index) -> list[Problem]:
                     back = "successor_id" if f == "predecessor_id" else "predecessor_id"
                     links[lid].update(x.id for x in getattr(other, back))
     junctions = [Polygon(_xy(j.polygon.point)).buffer(0.01) for j in m.junction if _distinct(_xy(j.polygon.point)) >= 3]
-    cover = shapely.union_all(junctions) if junctions else None
+    cover = STRtree(junctions)  # a lane loses the area of the junctions it touches, not a union of all
     ids, polys = [], []
     for ln in m.lane:
         left, right = _curve_points(ln.left_boundary.curve), _curve_points(ln.right_boundary.curve)
         if ln.id.id in inside or len(left) < 2 or len(right) < 2:
             continue
         poly = Polygon(np.vstack([left, right[::-1]])).buffer(0)
-        if cover is not None:
-            poly = poly.difference(cover)
+        near = cover.query(poly, predicate="intersects")
+        if len(near):
+            poly = poly.difference(shapely.union_all([junctions[i] for i in near]))
         if not poly.is_empty:
             ids.append(ln.id.id)
             polys.append(poly)
@@ -738,8 +739,8 @@ def reachability(m: Any, graph: Any) -> list[Problem]:
     entries = [n for n in nodes if not lanes[n].predecessor_id]
     exits = [n for n in nodes if not lanes[n].successor_id]
 
-    def reach(start: str, adj: dict[str, list[str]]) -> set[str]:
-        seen, todo = {start}, deque([start])
+    def reach(starts: list[str], adj: dict[str, list[str]]) -> set[str]:
+        seen, todo = set(starts), deque(starts)
         while todo:
             for nxt in adj[todo.popleft()]:
                 if nxt not in seen:
@@ -749,19 +750,21 @@ def reachability(m: Any, graph: Any) -> list[Problem]:
 
     out = []
     if not entries and not exits:
-        if nodes and (len(reach(nodes[0], fwd)) != len(nodes) or len(reach(nodes[0], bwd)) != len(nodes)):
+        if nodes and (len(reach(nodes[:1], fwd)) != len(nodes) or len(reach(nodes[:1], bwd)) != len(nodes)):
             out.append(Problem("routing graph", "map without entries or exits is not strongly connected"))
         return out
-    from_entries: set[str] = set()
-    for e in entries:
-        r = reach(e, fwd)
-        from_entries |= r
-        for x in exits if two_way else ():
-            if x not in r and road_of.get(x) != road_of.get(e):
-                out.append(Problem(f"lane {x}", f"exit not reachable from entry lane {e}"))
-    to_exits: set[str] = set()
-    for x in exits:
-        to_exits |= reach(x, bwd)
+    if two_way:  # each entry's exits as a bit set (bit i: exits[i]), from one pass over the graph
+        reached = exits_reached(entries, fwd.__getitem__, exits)
+        everything = (1 << len(exits)) - 1
+        own: dict[str | None, int] = {}  # per road, its exits (reaching them needs a U-turn)
+        for i, x in enumerate(exits):
+            own[road_of.get(x)] = own.get(road_of.get(x), 0) | 1 << i
+        for e in entries:
+            need = everything & ~own.get(road_of.get(e), 0)
+            if reached[e] & need != need:
+                out += [Problem(f"lane {x}", f"exit not reachable from entry lane {e}") for i, x in enumerate(exits)
+                        if not reached[e] >> i & 1 and road_of.get(x) != road_of.get(e)]
+    from_entries, to_exits = reach(entries, fwd), reach(exits, bwd)
     for n in nodes:
         if n not in from_entries:
             out.append(Problem(f"lane {n}", "not reachable from any map entry"))
