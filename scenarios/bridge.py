@@ -44,6 +44,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from feat2map.config import BLOCKED_AFTER_S
+
 PROTOCOL_VERSION = 2  # the newest the bridge speaks; it sends it in its hello
 PROTOCOLS = (1, 2)  # what a planner's hello may answer (2: every message and reply carries "step")
 MAP_FORMATS = ("commonroad", "lanelet2", "opendrive", "apollo", "native")
@@ -547,6 +549,7 @@ class BridgePlanner:
         self.cwd = cwd
         self.__qualname__ = f"bridge: {cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
         self.remote_coverage = False  # set by the rollout: ask the planner for its line coverage
+        self.blocked_after = BLOCKED_AFTER_S  # set by the rollout: its blocked early end, told the planner
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -564,7 +567,7 @@ class BridgePlanner:
 
     def __getstate__(self) -> dict:
         return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "close_timeout", "replan_s", "cwd",
-                                              "__qualname__", "remote_coverage")}
+                                              "__qualname__", "remote_coverage", "blocked_after")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
@@ -578,9 +581,7 @@ class BridgePlanner:
     # ---- Policy ----------------------------------------------------------------------------
     def reset(self, env: Any) -> None:
         self.close()
-        coverage = self.remote_coverage
         self._reset_state()
-        self.remote_coverage = coverage
         self.env = env.unwrapped
         self.proc = PlannerProcess(self.cmd, cwd=self.cwd)
         hello = self.proc.request({"type": "hello", "protocol": PROTOCOL_VERSION}, self.start_timeout, "hello")
@@ -624,6 +625,8 @@ class BridgePlanner:
             raise BridgeError(self.proc.failure(f"bad hello: {bad}"))
 
     def _init_message(self, path: str, fmt: str, ids: dict) -> dict:
+        from feat2map.envs.rules import compliance_rules
+
         e = self.env
         ego = e.vehicle
         m = e.net.hdmap
@@ -644,8 +647,36 @@ class BridgePlanner:
                 "goal": {"lane": lanes[-1], "lane_in_format": lane_ids.get(lanes[-1]), "s": goal_s,
                          "x": float(gx), "y": -float(gy)},
                 "ego": {"length": float(ego.LENGTH), "width": float(ego.WIDTH)},
+                "vehicle": self.vehicle_model(), "stop_lines": self.route_stop_lines(lane_ids),
+                "rules": compliance_rules(e.control.right_turn_on_red(), self.blocked_after),
                 "dt": 1.0 / float(e.config["policy_frequency"]), "sim_dt": 1.0 / sim_hz,
                 "duration": float(e.config["duration"]), "coverage": bool(self.remote_coverage)}
+
+    def vehicle_model(self) -> dict:
+        """The ego's motion model (`vehicle_model`: the env's own vehicle and action limits) and
+        how the env's tracker follows a trajectory (`tracking_model`)."""
+        from feat2map.envs.tracking import tracking_model
+        from feat2map.envs.vehicles import vehicle_model
+
+        e = self.env
+        act = e.action_type
+        return {**vehicle_model(e.vehicle, act.acceleration_range, act.steering_range), "tracker": tracking_model()}
+
+    def route_stop_lines(self, lane_ids: dict) -> list[dict]:
+        """The stop lines on the ego's route (`MapNetwork.stop_lines` of its route lanes), in route
+        order, in the map's frame."""
+        net = self.env.net
+        out = []
+        for k, lid in enumerate(self.env.vehicle.lane_route):
+            sl = net.stop_lines.get(lid)
+            if sl is None:
+                continue
+            lane = net.lane_of[lid]
+            x, y = lane.position(sl.s, 0.0)
+            out.append({"junction": sl.junction_id, "kind": sl.kind, "control": sl.control_id, "lane": lid,
+                        "lane_in_format": lane_ids.get(lid), "route_index": k, "s": float(sl.s),
+                        "x": float(x), "y": -float(y), "heading": -float(lane.heading_at(sl.s))})
+        return out
 
     def act(self, obs: Any, info: dict) -> np.ndarray:
         if self.env is None or self.proc is None:
@@ -683,7 +714,7 @@ class BridgePlanner:
             except (KeyError, TypeError, ValueError) as exc:
                 raise BridgeError(self.proc.failure(f"garbage trajectory: {exc}")) from None
             control = self.env.control
-            ego.tracker = TrajectoryTracker(traj, clock=lambda: float(control.t))
+            ego.tracker = TrajectoryTracker(traj, clock=lambda: float(control.t), wheelbase=float(ego.LENGTH))
             self._control = np.zeros(2, dtype=np.float32)
         elif kind == "control":
             try:
@@ -740,11 +771,13 @@ class BridgePlanner:
 
     def world(self, info: dict) -> dict:
         """The step message: the world as the ego's planner sees it now."""
+        from feat2map.envs.vehicles import bicycle_state
+
         e = self.env
         net, m, rules = e.net, e.net.hdmap, e.control
         ego = e.vehicle
         ex, ey = float(ego.position[0]), -float(ego.position[1])  # the env's frame (y down) -> the map's
-        acc = float(ego.action.get("acceleration", 0.0)) if isinstance(ego.action, dict) else 0.0
+        steering, yaw_rate, acc = bicycle_state(ego)
         vehicles = []
         for v in e.road.vehicles:
             if v is ego:
@@ -777,7 +810,8 @@ class BridgePlanner:
         ttc = float(info.get("signal_time_to_change", math.inf))
         return {"type": "step", "t": float(rules.t),
                 "ego": {"x": ex, "y": ey, "heading": -float(ego.heading), "speed": float(ego.speed),
-                        "acceleration": acc, "lane": net.id_of.get(ego.lane_index), "route_index": int(ego.route_pos)},
+                        "acceleration": acc, "yaw_rate": -yaw_rate, "steering": -steering,
+                        "lane": net.id_of.get(ego.lane_index), "route_index": int(ego.route_pos)},
                 "ahead": {"junction": info.get("junction") or None, "control": info.get("control_ahead") or None,
                           "stop_line_distance": d if math.isfinite(d) else None,
                           "signal": info.get("signal_id") or None, "signal_state": info.get("signal_state") or None,

@@ -1,0 +1,151 @@
+"""Bridge protocol 2's planner-facing description of the env: `init` carries the ego's vehicle
+model, the route's stop lines and the compliance rules as numbers; each `step.ego` carries its
+steering, yaw rate and acceleration. Checked on a generated map with a signal (J0) and a stop
+sign (J1), for planners answering protocol 1 and 2."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import textwrap
+from pathlib import Path
+
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import pytest
+from highway_env.vehicle.kinematics import Vehicle
+
+import feat2map
+from feat2map import config
+from feat2map.envs.rules import has_stopped, in_stop_zone, pedestrian_in_path, stops_at_amber
+from feat2map.formats import native
+from feat2map.scenarios.bridge import BRIDGE_ACTION_CONFIG, BridgePlanner
+from feat2map.scenarios.rollout import run_scenario
+from feat2map.scenarios.scenario import Scenario, make_env
+
+J = feat2map.JunctionFeature.make
+STEER = 0.03  # the recording planner's control
+ACCEL = 1.0
+
+RECORDER = textwrap.dedent("""
+    import json, sys
+    log = open(sys.argv[1], "w")
+    protocol = int(sys.argv[2])
+    for line in sys.stdin:
+        msg = json.loads(line)
+        log.write(line); log.flush()
+        kind = msg["type"]
+        reply = {"hello": {"type": "hello", "protocol": protocol, "map_format": "native", "output": "control"},
+                 "init": {"type": "ready"}, "close": {"type": "bye"}}.get(kind)
+        if reply is None:
+            reply = {"type": "control", "acceleration": %r, "steering": %r}
+        if protocol >= 2:
+            reply["step"] = msg["step"]
+        print(json.dumps(reply), flush=True)
+        if kind == "close":
+            break
+""" % (ACCEL, STEER))
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory) -> Scenario:
+    """A drive through a signalled junction (J0), then a stop-sign junction (J1)."""
+    d = tmp_path_factory.mktemp("v2")
+    m = feat2map.generate_from_features([J([0, 90, 180], "signal", False), J([0, 90, 180], "stop", False)], seed=0)
+    native.save(m, d / "m.json")
+    return Scenario("sig-stop", str(d / "m.json"), (("J0", "R0", "R2"), ("J1", "R2", "R3")), duration=3.0)
+
+
+def _record(scenario: Scenario, tmp_path: Path, protocol: int) -> list[dict]:
+    script = tmp_path / "recorder.py"
+    script.write_text(RECORDER)
+    log = tmp_path / f"messages{protocol}.jsonl"
+    planner = BridgePlanner([sys.executable, str(script), str(log), str(protocol)])
+    run_scenario(scenario, planner, record_failure_gif=False, blocked_after=12.5)
+    return [json.loads(x) for x in log.read_text().splitlines()]
+
+
+def _on_polyline(p: tuple[float, float], line: list) -> float:
+    """Distance from `p` to the polyline `line`."""
+    best = math.inf
+    for (x0, y0), (x1, y1) in zip(line, line[1:]):
+        dx, dy = x1 - x0, y1 - y0
+        u = max(0.0, min(1.0, ((p[0] - x0) * dx + (p[1] - y0) * dy) / (dx * dx + dy * dy or 1e-12)))
+        best = min(best, math.hypot(p[0] - x0 - u * dx, p[1] - y0 - u * dy))
+    return best
+
+
+@pytest.mark.parametrize("protocol", [1, 2])
+def test_init_carries_the_vehicle_model_stop_lines_and_rules(scenario, tmp_path, protocol):
+    msgs = _record(scenario, tmp_path, protocol)
+    init = next(m for m in msgs if m["type"] == "init")
+    v = init["vehicle"]
+    assert (v["length"], v["width"]) == (Vehicle.LENGTH, Vehicle.WIDTH) == (init["ego"]["length"], init["ego"]["width"])
+    assert (v["wheelbase"], v["front_axle"], v["rear_axle"]) == (Vehicle.LENGTH, Vehicle.LENGTH / 2, -Vehicle.LENGTH / 2)
+    assert v["kind"] == "kinematic_bicycle" and v["reference_point"] == "centre"
+    assert v["acceleration_range"] == BRIDGE_ACTION_CONFIG["acceleration_range"]
+    assert v["steering_range"] == pytest.approx(BRIDGE_ACTION_CONFIG["steering_range"])
+    assert v["max_speed"] == Vehicle.MAX_SPEED
+    t = v["tracker"]
+    assert (t["lookahead_min_m"], t["speed_gain"], t["preview_s"], t["hold_window_s"]) == (
+        config.TRACKING_LOOKAHEAD_MIN_M, config.TRACKING_SPEED_GAIN, config.TRACKING_PREVIEW_S,
+        config.TRACKING_HOLD_WINDOW_S)
+
+    # the stop lines: the env's own (MapNetwork.stop_lines), on the native map's lane centreline
+    env = make_env(scenario)
+    env.reset(seed=scenario.seed)
+    net = env.unwrapped.net
+    route = init["route"]["lanes"]
+    expect = [(lid, net.stop_lines[lid]) for lid in route if lid in net.stop_lines]
+    rtor = env.unwrapped.control.right_turn_on_red()
+    env.close()
+    lines = init["stop_lines"]
+    assert [(x["junction"], x["kind"]) for x in lines] == [("J0", "signal"), ("J1", "stop")]
+    lanes = {ln["id"]: ln for ln in json.loads(Path(scenario.map).read_text())["lanes"]}
+    m = native.load(scenario.map)
+    for x, (lid, sl) in zip(lines, expect):
+        assert (x["lane"], x["control"], x["s"]) == (lid, sl.control_id, pytest.approx(sl.s))
+        assert x["control"] in (m.signals if x["kind"] == "signal" else m.stop_signs)
+        assert route[x["route_index"]] == lid
+        pos = net.lane_of[lid].position(sl.s, 0.0)
+        assert (x["x"], x["y"]) == pytest.approx((pos[0], -pos[1]))
+        assert _on_polyline((x["x"], x["y"]), lanes[lid]["centerline"]) < 1e-3  # the map's frame
+        cl = lanes[lid]["centerline"]
+        assert math.cos(x["heading"] - math.atan2(cl[-1][1] - cl[-2][1], cl[-1][0] - cl[-2][0])) > 0.99
+
+    # the rules: the numbers the judge decides with
+    r = init["rules"]
+    stop = r["full_stop"]
+    assert has_stopped(stop["speed_mps"]) and not has_stopped(stop["speed_mps"] + 1e-6)
+    assert in_stop_zone(stop["zone_m"]) and not in_stop_zone(stop["zone_m"] + 1e-6) and not in_stop_zone(-1e-6)
+    a = r["amber"]
+    v0 = 10.0
+    d0 = v0 ** 2 / (2 * a["brake_mps2"]) + a["margin_m"]
+    assert stops_at_amber(d0 + 1e-6, v0) and not stops_at_amber(d0 - 1e-6, v0)
+    ped = r["pedestrian_yield"]
+    assert pedestrian_in_path(1.75 + ped["in_path_m"] - 1e-6, 3.5) and not pedestrian_in_path(1.75 + ped["in_path_m"], 3.5)
+    assert (ped["moving_mps"], ped["stretch_m"]) == (config.PEDESTRIAN_YIELD_SPEED_MPS, config.PEDESTRIAN_YIELD_STRETCH_M)
+    assert r["blocked"] == {"after_s": 12.5, "near_m": config.BLOCKED_NEAR_M}
+    assert r["signal"] == {"red": "violation", "amber": "allowed", "right_turn_on_red": rtor}
+
+
+@pytest.mark.parametrize("protocol", [1, 2])
+def test_step_ego_carries_steering_yaw_rate_and_acceleration(scenario, tmp_path, protocol):
+    msgs = _record(scenario, tmp_path, protocol)
+    init = next(m for m in msgs if m["type"] == "init")
+    half = init["vehicle"]["wheelbase"] / 2
+    steps = [m["ego"] for m in msgs if m["type"] == "step"]
+    assert len(steps) >= 10
+    assert steps[0]["steering"] == 0.0 and steps[0]["yaw_rate"] == 0.0
+    for ego in steps[1:]:
+        # the control's steering turns clockwise in the map's frame (the env's sign): the ego's steering
+        # is reported anticlockwise-positive, as its heading and yaw rate
+        assert ego["steering"] == pytest.approx(-STEER) and ego["acceleration"] == pytest.approx(ACCEL)
+        slip = math.atan(math.tan(ego["steering"]) / 2)
+        assert ego["yaw_rate"] == pytest.approx(ego["speed"] * math.sin(slip) / half)
+    dt = init["dt"]
+    a, b = steps[5], steps[6]
+    turned = (b["heading"] - a["heading"]) / dt
+    assert turned < 0 and turned == pytest.approx((a["yaw_rate"] + b["yaw_rate"]) / 2, rel=0.1)
