@@ -247,6 +247,7 @@ class PlannerProcess:
         self._pipes = {(f"pipe:[{os.fstat(self._in).st_ino}]", os.O_RDONLY),
                        (f"pipe:[{os.fstat(self.proc.stdout.fileno()).st_ino}]", os.O_WRONLY)}
         self.step = 0  # the step index of the next message (protocol 2): the step messages sent so far
+        self.transcript: list[dict] | None = None  # when a list: every message and reply, for a recording
         self.protocol: int | None = None  # the version the planner's hello answered
         self._cv = threading.Condition()
         self._lines: deque[bytes] = deque()
@@ -329,6 +330,8 @@ class PlannerProcess:
         """Write `msg` by `deadline` (the planner's stdin is non-blocking: a planner that does
         not read it is a timeout, never a hang)."""
         data = memoryview((json.dumps(msg, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        if self.transcript is not None:
+            self.transcript.append({"dir": "to_planner", "wall": time.time(), "message": msg})
         with self._cv:
             self._asked += 1
         size = len(data)
@@ -354,7 +357,12 @@ class PlannerProcess:
         line = self._next_line(deadline, timeout, what)
         try:
             msg = parse_reply(line)
+            if self.transcript is not None:
+                self.transcript.append({"dir": "from_planner", "wall": time.time(), "message": msg})
         except ValueError as exc:
+            if self.transcript is not None:
+                self.transcript.append({"dir": "from_planner", "wall": time.time(),
+                                        "line": line.decode("utf-8", "replace")})
             raise BridgeError(self.failure(f"garbage {what} reply ({exc}): {line[:80]!r}")) from None
         if not isinstance(msg, dict):
             raise BridgeError(self.failure(f"garbage {what} reply (not a JSON object): {line[:80]!r}"))
@@ -540,8 +548,9 @@ class BridgePlanner:
 
     def __init__(self, cmd: str | list[str], *, step_timeout: float = STEP_TIMEOUT_S,
                  start_timeout: float = START_TIMEOUT_S, close_timeout: float = CLOSE_TIMEOUT_S,
-                 replan_s: float | None = None, cwd: str | None = None) -> None:
+                 replan_s: float | None = None, cwd: str | None = None, record: str | None = None) -> None:
         self.cmd = cmd
+        self.record = record  # a folder: each scenario's messages and map file kept in record/<scenario>
         self.step_timeout = float(step_timeout)
         self.start_timeout = float(start_timeout)
         self.close_timeout = float(close_timeout)
@@ -550,6 +559,7 @@ class BridgePlanner:
         self.__qualname__ = f"bridge: {cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
         self.remote_coverage = False  # set by the rollout: ask the planner for its line coverage
         self.blocked_after = BLOCKED_AFTER_S  # set by the rollout: its blocked early end, told the planner
+        self.scenario_name = "scenario"  # set by the rollout: names the recording's folder
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -564,10 +574,11 @@ class BridgePlanner:
         self._steps = 0
         self._stage: tuple[str, str] | None = None
         self._control = np.zeros(2, dtype=np.float32)
+        self._map_path = ""  # the map file the planner got
 
     def __getstate__(self) -> dict:
         return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "close_timeout", "replan_s", "cwd",
-                                              "__qualname__", "remote_coverage", "blocked_after")}
+                                              "__qualname__", "remote_coverage", "blocked_after", "record", "scenario_name")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
@@ -584,6 +595,8 @@ class BridgePlanner:
         self._reset_state()
         self.env = env.unwrapped
         self.proc = PlannerProcess(self.cmd, cwd=self.cwd)
+        if self.record:
+            self.proc.transcript = []
         hello = self.proc.request({"type": "hello", "protocol": PROTOCOL_VERSION}, self.start_timeout, "hello")
         self._check_hello(hello)
         self.hello = hello
@@ -592,6 +605,7 @@ class BridgePlanner:
         e = self.env
         path, ids = export_for_planner(str(e.config.get("map_file") or ""), e.net.hdmap, fmt) \
             if e.config.get("map_file") else self._export_inline(fmt)
+        self._map_path = path
         ready = self.proc.request(self._init_message(path, fmt, ids), self.start_timeout, "init")
         if ready.get("type") != "ready":
             raise BridgeError(self.proc.failure(f"garbage init reply: expected 'ready', got {_show(ready)}"))
@@ -754,6 +768,11 @@ class BridgePlanner:
         if proc is None:
             return
         bye = proc.close(self.close_timeout)
+        if self.record and proc.transcript:
+            from .bridge_record import recording_folder, save_recording
+
+            save_recording(recording_folder(self.record, self.scenario_name), proc.transcript, self._map_path,
+                           shlex.join(proc.argv))
         cov = (bye or {}).get("coverage")
         if isinstance(cov, dict) and isinstance(cov.get("lines"), dict):
             self.junction_lines = {str(j): tuple(sorted({str(x) for x in v}, key=_line_key))

@@ -452,6 +452,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     if remote:
         policy.remote_coverage = coverage
         policy.blocked_after = blocked_after
+        policy.scenario_name = str(getattr(scenario, "name", "scenario"))
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
     frames = _Frames() if frames is None else frames
     frames.step_s = 1.0 / float(env.unwrapped.config.get("policy_frequency") or 1.0)

@@ -149,3 +149,74 @@ def test_step_ego_carries_steering_yaw_rate_and_acceleration(scenario, tmp_path,
     a, b = steps[5], steps[6]
     turned = (b["heading"] - a["heading"]) / dt
     assert turned < 0 and turned == pytest.approx((a["yaw_rate"] + b["yaw_rate"]) / 2, rel=0.1)
+
+
+# ---- recording and replay ----------------------------------------------------------------------
+ROOT = Path(__file__).resolve().parents[2]
+REFERENCE = f"{sys.executable} {ROOT / 'examples' / 'bridge_planner.py'}"
+PERTURBED = textwrap.dedent("""
+    import sys
+    sys.path.insert(0, %r)
+    from bridge_planner import ReferencePlanner, serve
+
+    class Perturbed(ReferencePlanner):
+        def step(self, msg):
+            reply = super().step(msg)
+            if msg["step"] >= 4:
+                reply["points"][-1]["speed"] += 0.01
+            return reply
+
+    sys.exit(serve(Perturbed()))
+""" % str(ROOT / "examples"))
+
+
+@pytest.fixture(scope="module")
+def recorded(scenario, tmp_path_factory) -> Path:
+    """The reference planner's session of `scenario`, recorded by `feat2map rollout --record`."""
+    from feat2map import cli
+    from feat2map.scenarios.scenario import Suite, save_suite
+
+    d = tmp_path_factory.mktemp("rec")
+    save_suite(Suite("one", (scenario,), str(d)), d / "suite.yaml")
+    rc = cli.main(["rollout", str(d / "suite.yaml"), "--planner-cmd", REFERENCE, "--record", str(d / "rec"),
+                   "--out", str(d / "out"), "--quiet", "--no-gif", "--fail-on", "none"])
+    assert rc == 0
+    return d / "rec" / scenario.name
+
+
+def test_a_recording_keeps_the_map_and_every_message_both_ways(recorded):
+    from feat2map.scenarios.bridge_record import load_recording
+
+    meta, entries = load_recording(recorded)
+    assert meta["map"] == "map.json" and (recorded / "map" / "map.json").is_file()  # the export outlives the rollout
+    dirs = [e["dir"] for e in entries]
+    assert dirs == ["to_planner", "from_planner"] * (len(dirs) // 2)  # each message, then its reply
+    kinds = [e["message"]["type"] for e in entries]
+    assert kinds[:4] == ["hello", "hello", "init", "ready"] and kinds[-2:] == ["close", "bye"]
+    steps = [e["message"] for e in entries if e["message"]["type"] == "step"]
+    assert [m["step"] for m in steps] == list(range(len(steps))) and len(steps) >= 10
+    walls = [e["wall"] for e in entries]
+    assert walls == sorted(walls)
+
+
+def test_a_replay_of_the_same_planner_has_no_difference(recorded, capsys):
+    from feat2map import cli
+
+    assert cli.main(["replay", str(recorded), "--planner-cmd", REFERENCE]) == 0
+    out = capsys.readouterr().out
+    assert "0 differences" in out
+
+
+def test_a_replay_names_the_first_step_where_a_planner_answers_differently(recorded, tmp_path, capsys):
+    from feat2map import cli
+    from feat2map.scenarios.bridge_record import replay
+
+    script = tmp_path / "perturbed.py"
+    script.write_text(PERTURBED)
+    cmd = f"{sys.executable} {script}"
+    result = replay(recorded, cmd)
+    assert result.differences[0].startswith("step 4 (step): point 20 speed")
+    assert len(result.differences) == result.messages - 7  # steps 4.. differ; hello, init, steps 0-3, close do not
+    assert cli.main(["replay", str(recorded), "--planner-cmd", cmd]) == 1
+    assert "first difference: step 4 (step)" in capsys.readouterr().out
+    assert replay(recorded, cmd, tolerance=0.02).differences == ()
