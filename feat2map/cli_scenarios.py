@@ -7,6 +7,7 @@ results side by side). Hooked into `feat2map.cli` by
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -72,9 +73,11 @@ def cmd_rollout(args: argparse.Namespace) -> int:
                                 "command line")
         factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
-    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
+    bar = not args.quiet and on_terminal()  # off a terminal: one line per finished scenario instead
+    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=bar,
                        coverage=args.line_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on,
-                       blocked_after=args.blocked_after)
+                       blocked_after=args.blocked_after,
+                       log=None if args.quiet or bar else functools.partial(print, flush=True))
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)
     failing = result.failures(args.fail_on)
@@ -205,7 +208,7 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--record", metavar="DIR", help="with --planner-cmd: keep each scenario's bridge session in "
                    "DIR/SCENARIO (every message both ways with its wall time, and the map file the planner got) "
                    "for `feat2map replay`")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--quiet", action="store_true", help="no progress bar (off a terminal: no line per scenario)")
     r.set_defaults(func=cmd_rollout)
 
     p = sub.add_parser("replay", help="replay a recorded planner-bridge session against a planner",

@@ -72,6 +72,7 @@ MAX_NUMBER_DIGITS = 20  # an integer written with more digits is garbage, before
 MAX_TRAJECTORY_POINTS = 10_000
 # the likely cause of a missing hello: the planner's stdout is block-buffered (a pipe, not a terminal)
 NO_HELLO_HINT = "no reply line: does the planner flush stdout after each line? (python -u)"
+BRIDGE_NAME_PREFIX = "bridge: "  # a BridgePlanner's name (the suite's planner) starts with it
 WORLD_RADIUS_M = 150.0  # vehicles and pedestrians this close to the ego are sent
 BRIDGE_ACTION_CONFIG: dict[str, Any] = {"type": "ContinuousAction", "longitudinal": True, "lateral": True,
                         "acceleration_range": [-8.0, 4.0], "steering_range": [-math.pi / 3, math.pi / 3]}
@@ -248,6 +249,7 @@ class PlannerProcess:
                        (f"pipe:[{os.fstat(self.proc.stdout.fileno()).st_ino}]", os.O_WRONLY)}
         self.step = 0  # the step index of the next message (protocol 2): the step messages sent so far
         self.transcript: list[dict] | None = None  # when a list: every message and reply, for a recording
+        self.tail = ""  # the stderr tail, kept by `close`
         self.protocol: int | None = None  # the version the planner's hello answered
         self._cv = threading.Condition()
         self._lines: deque[bytes] = deque()
@@ -485,6 +487,7 @@ class PlannerProcess:
             bye = None
         finally:
             self.kill()
+            self.tail = self.stderr_tail()
             self.stderr.close()
         return bye if bye and bye.get("type") == "bye" else None
 
@@ -556,7 +559,7 @@ class BridgePlanner:
         self.close_timeout = float(close_timeout)
         self.replan_s = replan_s
         self.cwd = cwd
-        self.__qualname__ = f"bridge: {cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
+        self.__qualname__ = f"{BRIDGE_NAME_PREFIX}{cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
         self.remote_coverage = False  # set by the rollout: ask the planner for its line coverage
         self.blocked_after = BLOCKED_AFTER_S  # set by the rollout: its blocked early end, told the planner
         self.scenario_name = "scenario"  # set by the rollout: names the recording's folder
@@ -575,6 +578,7 @@ class BridgePlanner:
         self._stage: tuple[str, str] | None = None
         self._control = np.zeros(2, dtype=np.float32)
         self._map_path = ""  # the map file the planner got
+        self.stderr_tail = ""  # the planner's, once closed (the rollout reports it for a failed scenario)
 
     def __getstate__(self) -> dict:
         return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "close_timeout", "replan_s", "cwd",
@@ -768,6 +772,7 @@ class BridgePlanner:
         if proc is None:
             return
         bye = proc.close(self.close_timeout)
+        self.stderr_tail = proc.tail
         if self.record and proc.transcript:
             from .bridge_record import recording_folder, save_recording
 

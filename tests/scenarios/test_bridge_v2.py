@@ -220,3 +220,66 @@ def test_a_replay_names_the_first_step_where_a_planner_answers_differently(recor
     assert cli.main(["replay", str(recorded), "--planner-cmd", cmd]) == 1
     assert "first difference: step 4 (step)" in capsys.readouterr().out
     assert replay(recorded, cmd, tolerance=0.02).differences == ()
+
+
+# ---- reports -----------------------------------------------------------------------------------
+HOLDER = textwrap.dedent("""
+    import json, sys
+    for line in sys.stdin:
+        msg = json.loads(line)
+        kind = msg["type"]
+        reply = {"hello": {"type": "hello", "protocol": 2, "map_format": "native", "output": "control"},
+                 "init": {"type": "ready"}, "close": {"type": "bye"}}.get(kind)
+        if reply is None:
+            if msg["step"] == %(crash_at)d:
+                sys.stderr.write("Traceback: <b>planner *exploded*</b>\\n"); sys.exit(3)
+            sys.stderr.write("holding at step %%d\\n" %% msg["step"]); sys.stderr.flush()
+            reply = {"type": "control", "acceleration": -1.0, "steering": 0.0, "stage": "HOLD" if msg["step"] < 2 else "WAIT"}
+        reply["step"] = msg["step"]
+        print(json.dumps(reply), flush=True)
+        if kind == "close":
+            break
+""")
+
+
+def _suite(scenario: Scenario, tmp_path: Path) -> Path:
+    from feat2map.scenarios.scenario import Suite, save_suite
+
+    save_suite(Suite("one", (scenario,), str(tmp_path)), tmp_path / "suite.yaml")
+    return tmp_path / "suite.yaml"
+
+
+def test_a_failed_scenario_reports_the_planners_stderr_last_stage_and_missing_coverage(scenario, tmp_path, capsys):
+    from feat2map import cli
+
+    script = tmp_path / "holder.py"
+    script.write_text(HOLDER % {"crash_at": -1})
+    out = tmp_path / "out"
+    rc = cli.main(["rollout", str(_suite(scenario, tmp_path)), "--planner-cmd", f"{sys.executable} {script}",
+                   "--out", str(out), "--no-gif", "--line-coverage", "--blocked-after", "1"])
+    assert rc == 1
+    o = json.loads((out / "summary.json").read_text())["outcomes"][0]
+    assert o["outcome"] == "timeout" and o["stage_path"] == ["HOLD", "WAIT"]
+    assert o["planner_stderr"].endswith(f"holding at step {o['steps'] - 1}")
+    report = (out / "report.md").read_text()
+    assert "last stage: WAIT" in report and "The planner's stderr (its end):" in report
+    assert f"holding at step {o['steps'] - 1}" in report
+    assert "The planner sent no coverage" in report and "0 lines of the planner covered" not in report
+    # off a terminal (capsys): one line per finished scenario
+    assert "[1/1] sig-stop: timeout (" in capsys.readouterr().out
+
+
+def test_an_error_outcome_keeps_the_stage_path_and_quotes_stderr_once(scenario, tmp_path):
+    from feat2map import cli
+
+    script = tmp_path / "crasher.py"
+    script.write_text(HOLDER % {"crash_at": 3})
+    out = tmp_path / "out"
+    assert cli.main(["rollout", str(_suite(scenario, tmp_path)), "--planner-cmd", f"{sys.executable} {script}",
+                     "--out", str(out), "--no-gif", "--quiet"]) == 1
+    o = json.loads((out / "summary.json").read_text())["outcomes"][0]
+    assert o["outcome"] == "error" and o["stage_path"] == ["HOLD", "WAIT"]
+    assert "planner *exploded*" in o["planner_stderr"] and "planner *exploded*" in o["message"]
+    report = (out / "report.md").read_text()
+    assert "last stage: WAIT" in report and report.count("planner *exploded*") == 1  # in the message's block
+    assert "<b>" not in (out / "report.html").read_text().replace("&lt;b&gt;", "")
