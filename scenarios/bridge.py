@@ -52,6 +52,8 @@ MAP_FORMATS = ("commonroad", "lanelet2", "opendrive", "apollo", "native")
 MAP_SUFFIX = {"commonroad": "map.xml", "lanelet2": "map.osm", "opendrive": "map.xodr", "apollo": "apollo",
               "native": "map.json"}
 OUTPUTS = ("trajectory", "control")
+SETUP_COMMAND = "bash scripts/setup.sh"  # installs feat2map's base environment (.venv)
+FORMAT_SETUP = {"commonroad": f"{SETUP_COMMAND} commonroad"}  # a format needing an extra: what installs it
 START_TIMEOUT_S = 120.0  # hello and init (a planner may import heavy libraries, build its map)
 STEP_TIMEOUT_S = 10.0  # each decision's reply
 CLOSE_TIMEOUT_S = 30.0  # the bye (a planner may save coverage data first)
@@ -536,6 +538,25 @@ def export_for_planner(map_path: str, hdmap: Any, fmt: str) -> tuple[str, dict]:
     return _EXPORTS[key]
 
 
+def map_format_problem(fmt: str) -> str:
+    """Why this environment cannot write map format `fmt` for a planner ("" when it can): its
+    writer does not import, or the package it needs is missing (CommonRoad: commonroad-io)."""
+    from feat2map.errors import Feat2MapError
+    from feat2map.formats import FORMATS
+
+    try:
+        FORMATS[fmt].face("write")
+        if fmt == "commonroad":
+            from feat2map.formats.commonroad import writer
+
+            writer.commonroad_io()
+    except Feat2MapError as exc:
+        return exc.message
+    except ImportError as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return ""
+
+
 # ---- the policy --------------------------------------------------------------------------------
 class BridgePlanner:
     """A `Policy` whose decisions come from a planner process speaking the bridge protocol.
@@ -637,6 +658,10 @@ class BridgePlanner:
                    f"{' and '.join(map(str, PROTOCOLS))}")
         elif hello.get("map_format", "native") not in MAP_FORMATS:
             bad = f"asks for map format {_show(hello.get('map_format'), 40)}; known: {', '.join(MAP_FORMATS)}"
+        elif problem := map_format_problem(hello.get("map_format", "native")):
+            fmt = hello.get("map_format", "native")
+            bad = (f"asks for map format {fmt}, which this environment cannot write ({problem}); install it "
+                   f"with `{FORMAT_SETUP.get(fmt, SETUP_COMMAND)}`")
         elif hello.get("output", "trajectory") not in OUTPUTS:
             bad = f"asks for output {_show(hello.get('output'), 40)}; known: {', '.join(OUTPUTS)}"
         if bad:

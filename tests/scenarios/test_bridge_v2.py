@@ -283,3 +283,42 @@ def test_an_error_outcome_keeps_the_stage_path_and_quotes_stderr_once(scenario, 
     report = (out / "report.md").read_text()
     assert "last stage: WAIT" in report and report.count("planner *exploded*") == 1  # in the message's block
     assert "<b>" not in (out / "report.html").read_text().replace("&lt;b&gt;", "")
+
+
+# ---- a map format the planner cannot get --------------------------------------------------------
+WANTS_COMMONROAD = textwrap.dedent("""
+    import json, sys
+    sys.stdin.readline()
+    print(json.dumps({"type": "hello", "protocol": 2, "step": 0, "map_format": "commonroad"}), flush=True)
+    for line in sys.stdin:
+        print(json.dumps({"type": "ready", "step": 0}), flush=True)
+""")
+
+
+@pytest.mark.parametrize("how", ["package_missing", "writer_does_not_import"])
+def test_a_map_format_this_environment_cannot_write_is_an_error_at_hello(scenario, tmp_path, monkeypatch, how):
+    import dataclasses
+
+    from feat2map.errors import Feat2MapError
+    from feat2map.formats import FORMATS
+    from feat2map.formats.commonroad import writer
+    from feat2map.scenarios.rollout import HASH_SEED, run_suite
+
+    if how == "package_missing":
+        def missing():
+            raise Feat2MapError("CommonRoad export needs commonroad-io", "commonroad")
+
+        monkeypatch.setattr(writer, "commonroad_io", missing)
+    else:
+        monkeypatch.setitem(FORMATS, "commonroad", dataclasses.replace(FORMATS["commonroad"],
+                                                                       write="feat2map.formats.no_such_writer:write"))
+    monkeypatch.setenv("PYTHONHASHSEED", HASH_SEED)  # the suite runs in this process, where the patch is
+    script = tmp_path / "wants_commonroad.py"
+    script.write_text(WANTS_COMMONROAD)
+    suite = [scenario, dataclasses.replace(scenario, name="second")]
+    result = run_suite(suite, BridgePlanner([sys.executable, str(script)]), progress=False, record_failure_gif=False)
+    assert [o.outcome for o in result.outcomes] == ["error", "error"] and not result.stopped  # the rollout went on
+    for o in result.outcomes:
+        assert "bad hello: asks for map format commonroad, which this environment cannot write" in o.message
+        assert "install it with `bash scripts/setup.sh commonroad`" in o.message
+        assert ("commonroad-io" if how == "package_missing" else "no_such_writer") in o.message
