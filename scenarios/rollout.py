@@ -606,7 +606,10 @@ def _error_gif(scenario: Any, factory: Callable[[], Any], blocked_after: float) 
     rendering up to the raise, so an error is shown like any other failure."""
     frames = _Frames()
     with contextlib.suppress(Exception):
-        _drive(scenario, factory, render=True, blocked_after=blocked_after, frames=frames)
+        policy = factory()
+        if getattr(policy, "record", None):
+            policy.record = None  # a bridge recording keeps the session the outcome reports, not this replay
+        _drive(scenario, factory, render=True, blocked_after=blocked_after, frames=frames, policy=policy)
     return gif_bytes(frames.with_last(), frames.step_s * frames.stride) or None
 
 

@@ -322,3 +322,20 @@ def test_a_map_format_this_environment_cannot_write_is_an_error_at_hello(scenari
         assert "bad hello: asks for map format commonroad, which this environment cannot write" in o.message
         assert "install it with `bash scripts/setup.sh commonroad`" in o.message
         assert ("commonroad-io" if how == "package_missing" else "no_such_writer") in o.message
+
+
+def test_a_recording_keeps_the_session_of_the_outcome_not_the_gifs_replay(scenario, tmp_path):
+    from feat2map import cli
+    from feat2map.scenarios.bridge_record import load_recording
+
+    runs = tmp_path / "runs"
+    script = tmp_path / "flaky.py"  # the first run crashes at step 3, every later one at step 1
+    script.write_text(f"import os\nruns = {str(runs)!r}\nn = os.path.getsize(runs) if os.path.exists(runs) else 0\n"
+                      f"open(runs, 'a').write('x')\n" + (HOLDER % {"crash_at": -7}).replace("== -7", "== (3 if n == 0 else 1)"))
+    out = tmp_path / "out"
+    assert cli.main(["rollout", str(_suite(scenario, tmp_path)), "--planner-cmd", f"{sys.executable} {script}",
+                     "--record", str(tmp_path / "rec"), "--out", str(out), "--quiet"]) == 1
+    assert runs.read_text() == "xx"  # the error's GIF re-ran the planner
+    _, entries = load_recording(tmp_path / "rec" / scenario.name)
+    assert [e["message"]["step"] for e in entries if e["dir"] == "to_planner" and e["message"]["type"] == "step"] \
+        == [0, 1, 2, 3]
