@@ -64,6 +64,10 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         if not args.planner_timeout > 0:
             raise Feat2MapError("--planner-timeout must be positive", "command line")
         from .scenarios.bridge import BridgePlanner
+        from .scenarios.bridge_record import MESSAGES, recording_folder
+
+        for s in suite.scenarios if args.record else ():  # each recording replaces only an earlier one
+            atomic.check_dir_target(recording_folder(args.record, s.name), (MESSAGES,))
 
         factory = PlannerFactory(BridgePlanner(args.planner_cmd, step_timeout=args.planner_timeout,
                                                record=str(Path(args.record).resolve()) if args.record else None))

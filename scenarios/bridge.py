@@ -564,7 +564,8 @@ class BridgePlanner:
     `cmd` starts the planner (a string split like a shell, or an argv list); `step_timeout`
     bounds each step message and its reply, `start_timeout` the hello's and init's,
     `close_timeout` the bye's; `replan_s` how often it is asked (default: every decision, or what its
-    hello asks for). Picklable before `reset` (the process starts at reset and ends at `close`).
+    hello asks for); `record` a folder that keeps each scenario's session (`bridge_record`).
+    Picklable before `reset` (the process starts at reset and ends at `close`).
     """
 
     action_config: ClassVar[dict] = dict(BRIDGE_ACTION_CONFIG)

@@ -339,3 +339,19 @@ def test_a_recording_keeps_the_session_of_the_outcome_not_the_gifs_replay(scenar
     _, entries = load_recording(tmp_path / "rec" / scenario.name)
     assert [e["message"]["step"] for e in entries if e["dir"] == "to_planner" and e["message"]["type"] == "step"] \
         == [0, 1, 2, 3]
+
+
+def test_record_is_refused_before_the_run_without_a_planner_command_or_over_a_foreign_folder(scenario, tmp_path,
+                                                                                              capsys):
+    from feat2map import cli
+
+    suite = str(_suite(scenario, tmp_path))
+    assert cli.main(["rollout", suite, "--record", str(tmp_path / "rec"), "--out", str(tmp_path / "o1"),
+                     "--quiet"]) == 2
+    assert "--record needs --planner-cmd" in capsys.readouterr().err
+    (tmp_path / "rec" / scenario.name).mkdir(parents=True)
+    (tmp_path / "rec" / scenario.name / "notes.txt").write_text("mine")
+    assert cli.main(["rollout", suite, "--planner-cmd", REFERENCE, "--record", str(tmp_path / "rec"),
+                     "--out", str(tmp_path / "o2"), "--quiet"]) == 2
+    assert scenario.name in capsys.readouterr().err and not (tmp_path / "o2").exists()
+    assert (tmp_path / "rec" / scenario.name / "notes.txt").read_text() == "mine"
