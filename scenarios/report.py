@@ -188,7 +188,7 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
                  f"already cover {share}% of them ({acc[k - 1]} of {acc[-1]} lines)." if k else "")
         covered = (f"{counted(len(cov.all_lines), 'line')} of the planner covered over "
                    f"{counted(len(cov.junctions), 'junction')}. {reach}")
-        if not cov.all_lines and _out_of_process(result):
+        if result.sent_no_coverage:
             covered = ("The planner sent no coverage: its `bye` carried no `coverage` (docs/planners.md, close), "
                        "so its lines covered are unknown, not 0.")
         lines += ["", "## Planner line coverage", "", covered, "",

@@ -199,6 +199,15 @@ class SuiteResult:
     stopped: str = ""  # why the run ended before every scenario ran ("" when it did not)
     scenarios: int | None = field(default=None, compare=False)  # in the suite (None: as many as outcomes)
 
+    @property
+    def sent_no_coverage(self) -> bool:
+        """Line coverage was asked of a planner in its own process (the planner bridge, which
+        measures itself) and none came back: its lines covered are unknown, not 0."""
+        from .bridge import BRIDGE_NAME_PREFIX
+
+        return self.coverage and self.planner.startswith(BRIDGE_NAME_PREFIX) and \
+            not any(o.junction_lines for o in self.outcomes)
+
     def failures(self, fail_on: str = "any") -> list[Outcome]:
         return [o for o in self.outcomes if o.fails(fail_on)]
 

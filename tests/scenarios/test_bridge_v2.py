@@ -267,6 +267,12 @@ def test_a_failed_scenario_reports_the_planners_stderr_last_stage_and_missing_co
     assert "The planner sent no coverage" in report and "0 lines of the planner covered" not in report
     # off a terminal (capsys): one line per finished scenario
     assert "[1/1] sig-stop: timeout (" in capsys.readouterr().out
+    # side by side too: unknown, not 0
+    assert cli.main(["coverage", str(out), "--out", str(tmp_path / "cmp")]) == 0
+    table = json.loads((tmp_path / "cmp" / "coverage.json").read_text())
+    row = dict(zip(table["columns"], table["rows"][0]))
+    assert row["lines"] == row["unique lines"] == "-"
+    assert any("the planner sent no coverage" in w for w in table["warnings"])
 
 
 def test_an_error_outcome_keeps_the_stage_path_and_quotes_stderr_once(scenario, tmp_path):
