@@ -32,11 +32,12 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, BLOCKED_NEAR_M, COMMIT_DISTANCE_M, COMMIT_TIME_S, IDM_ACC, IDM_BRAKE,
-                      IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2, IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S,
-                      LEADER_LATERAL_M, MOBIL_GAIN_MPS2, MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS,
-                      MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M,
-                      PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
+from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, AMBER_STOP_MARGIN_M, BLOCKED_NEAR_M, COMMIT_DISTANCE_M,
+                      COMMIT_TIME_S, IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2,
+                      IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LEADER_LATERAL_M, MOBIL_GAIN_MPS2,
+                      MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS, MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M,
+                      OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M, PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M,
+                      PEDESTRIAN_YIELD_SPEED_MPS, PEDESTRIAN_YIELD_STRETCH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
                       SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
 from .sweep import clear_stop, swept_head
@@ -139,7 +140,7 @@ def pedestrian_in_path(lateral: float, lane_width: float) -> bool:
 def stops_at_amber(distance, speed):
     """At amber a vehicle stays when it can stop before the line (else it goes through); floats
     or arrays (elementwise)."""
-    return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + 1.0
+    return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + AMBER_STOP_MARGIN_M
 
 
 def amber_arrival_speed(distance, line_speed: float, amber_s: float):
@@ -161,7 +162,7 @@ def amber_speed_cap(distance, speed: float, line_speed: float, amber_s: float):
     (The go at amber assumed the speed held to the line while a turn was slowed for behind it:
     SVL San Francisco 2019, 20 m/s on every lane, crossed 0.05-0.6 s after red.)"""
     d = np.asarray(distance, dtype=float)
-    room = d - 1.0 - AMBER_CAP_MARGIN_M
+    room = d - AMBER_STOP_MARGIN_M - AMBER_CAP_MARGIN_M
     stop = np.sqrt(2 * AMBER_BRAKE_MPS2 * np.maximum(room, 0.0))
     # (nearer than the stop rule's own metre and the margin no speed stops: no cap, or a car
     # creeping up to the line on green would be held there)
@@ -869,6 +870,23 @@ class TrafficRules:
         return math.inf
 
 
+def compliance_rules(right_turn_on_red: bool, blocked_after: float) -> dict[str, Any]:
+    """What `EgoJudge` and the rollout judge, as numbers, for a planner in another process (the
+    planner bridge's init, docs/planners.md): read from the constants the judge uses, so that the
+    description follows the rules. `blocked_after` is the rollout's (0: never)."""
+    return {
+        "full_stop": {"speed_mps": STOPPED_SPEED_MPS, "zone_m": STOP_ZONE_M},
+        "stop_sign": {"order": "first_come_first_served"},
+        "signal": {"red": "violation", "amber": "allowed", "right_turn_on_red": bool(right_turn_on_red)},
+        "amber": {"brake_mps2": AMBER_BRAKE_MPS2, "margin_m": AMBER_STOP_MARGIN_M},
+        "stop_line": {"hold_m": STOP_POINT_M, "zone_m": STOP_ZONE_M},
+        "pedestrian_yield": {"in_path_m": PEDESTRIAN_IN_PATH_M, "moving_mps": PEDESTRIAN_YIELD_SPEED_MPS,
+                             "stretch_m": PEDESTRIAN_YIELD_STRETCH_M, "along": "ego_length"},
+        "off_road": {"lateral_m": OFF_ROAD_LATERAL_M, "end_m": OFF_ROAD_END_M},
+        "blocked": {"after_s": float(blocked_after), "near_m": BLOCKED_NEAR_M},
+    }
+
+
 class EgoJudge:
     """The ego's violations and leaving the road, judged after every simulation frame.
 
@@ -927,7 +945,8 @@ class EgoJudge:
         self._lane = lid
         # pedestrians: the ego on a crosswalk with a person next to its path
         for cw, s0, s1 in net.crossings.get(lid, ()):
-            if s0 - 1.0 <= ego.lane_s <= s1 + 1.0 and ego.speed > 0.5 and (lid, cw) not in self._ped_flags:
+            if s0 - PEDESTRIAN_YIELD_STRETCH_M <= ego.lane_s <= s1 + PEDESTRIAN_YIELD_STRETCH_M \
+                    and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS and (lid, cw) not in self._ped_flags:
                 lane = net.lane_of[lid]
                 for p in rules.pedestrians.get(cw, ()):
                     sp, rp = lane.local_coordinates(p.position)

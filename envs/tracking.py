@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -20,6 +20,16 @@ from ..config import (TRACKING_ACCEL_RANGE, TRACKING_HOLD_WINDOW_S, TRACKING_LOO
                       TRACKING_POSITION_GAIN, TRACKING_PREVIEW_S, TRACKING_SPEED_GAIN, TRACKING_STOP_SPEED_MPS)
 
 MAX_STEERING_RAD = math.pi / 3  # highway-env's ControlledVehicle.MAX_STEERING_ANGLE
+
+
+def tracking_model() -> dict[str, Any]:
+    """How `TrajectoryTracker` follows a trajectory, as numbers for a planner in another process
+    (the planner bridge's init; read from the constants it uses)."""
+    return {"steering": "pure_pursuit", "lookahead_min_m": TRACKING_LOOKAHEAD_MIN_M,
+            "lookahead_time_s": TRACKING_LOOKAHEAD_TIME_S, "speed_gain": TRACKING_SPEED_GAIN,
+            "position_gain": TRACKING_POSITION_GAIN, "preview_s": TRACKING_PREVIEW_S,
+            "acceleration_range": [float(x) for x in TRACKING_ACCEL_RANGE], "max_steering": MAX_STEERING_RAD,
+            "stop_speed_mps": TRACKING_STOP_SPEED_MPS, "hold_window_s": TRACKING_HOLD_WINDOW_S}
 
 
 @dataclass(frozen=True)

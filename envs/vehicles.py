@@ -362,6 +362,30 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
             self.speed = 0.0
 
 
+def vehicle_model(vehicle: Any, acceleration_range: Any, steering_range: Any) -> dict[str, Any]:
+    """The ego's motion model for a planner in another process (the planner bridge's init): the
+    kinematic bicycle of highway-env's `Vehicle.step`, which turns at speed * sin(slip) /
+    (LENGTH / 2), i.e. axles at +-LENGTH/2 about the body centre (its reference point); read from
+    `vehicle` and the env's action limits, so that a change of the model reaches the planner."""
+    length, width = float(vehicle.LENGTH), float(vehicle.WIDTH)
+    return {"kind": "kinematic_bicycle", "reference_point": "centre", "length": length, "width": width,
+            "wheelbase": length, "front_axle": length / 2, "rear_axle": -length / 2,
+            "acceleration_range": [float(x) for x in acceleration_range],
+            "steering_range": [float(x) for x in steering_range],
+            "max_speed": float(vehicle.MAX_SPEED), "min_speed": 0.0}
+
+
+def bicycle_state(vehicle: Any) -> tuple[float, float, float]:
+    """(steering, yaw rate, acceleration) of `vehicle` in the env's frame: its last command and
+    the yaw rate highway-env's `Vehicle.step` gives it (speed * sin(slip) / (LENGTH / 2), slip =
+    atan(tan(steering) / 2))."""
+    action = vehicle.action if isinstance(vehicle.action, dict) else {}
+    steering = float(action.get("steering", 0.0))
+    slip = math.atan(0.5 * math.tan(steering))
+    return steering, float(vehicle.speed) * math.sin(slip) / (float(vehicle.LENGTH) / 2), \
+        float(action.get("acceleration", 0.0))
+
+
 def step_egos(egos: list, dt: float) -> None:
     """`step(dt)` of many egos (`EgoMDPVehicle`, `EgoVehicle`; none with an impact pending) at
     once: highway-env's `Vehicle.step` (its modified bicycle model) as one array program over

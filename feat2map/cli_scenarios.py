@@ -1,11 +1,13 @@
 """The scenario commands of the `feat2map` CLI: `suite` (a route-coverage suite for a map),
-`rollout` (run a suite headless, write summary/JUnit/report; exit 1 on failures by policy) and
-`coverage` (compare suites' results side by side). Hooked into `feat2map.cli` by
+`rollout` (run a suite headless, write summary/JUnit/report; exit 1 on failures by policy),
+`replay` (a recorded planner-bridge session against a planner) and `coverage` (compare suites'
+results side by side). Hooked into `feat2map.cli` by
 `add_scenario_commands`.
 """
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -62,14 +64,24 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         if not args.planner_timeout > 0:
             raise Feat2MapError("--planner-timeout must be positive", "command line")
         from .scenarios.bridge import BridgePlanner
+        from .scenarios.bridge_record import MESSAGES, recording_folder
 
-        factory = PlannerFactory(BridgePlanner(args.planner_cmd, step_timeout=args.planner_timeout))
+        for s in suite.scenarios if args.record else ():  # each recording replaces only an earlier one
+            atomic.check_dir_target(recording_folder(args.record, s.name), (MESSAGES,))
+
+        factory = PlannerFactory(BridgePlanner(args.planner_cmd, step_timeout=args.planner_timeout,
+                                               record=str(Path(args.record).resolve()) if args.record else None))
     else:
+        if args.record:
+            raise Feat2MapError("--record needs --planner-cmd (it records the planner bridge's messages)",
+                                "command line")
         factory = PlannerFactory(args.planner)
     factory()  # fail early, in this process, on a planner that cannot be imported or built
-    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=not args.quiet and on_terminal(),
+    bar = not args.quiet and on_terminal()  # off a terminal: one line per finished scenario instead
+    result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=bar,
                        coverage=args.line_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on,
-                       blocked_after=args.blocked_after)
+                       blocked_after=args.blocked_after,
+                       log=None if args.quiet or bar else functools.partial(print, flush=True))
     write_report(result, args.out, fail_on=args.fail_on)
     counts = ", ".join(f"{n} {k}" for k, n in result.counts().items() if n)
     failing = result.failures(args.fail_on)
@@ -81,6 +93,23 @@ def cmd_rollout(args: argparse.Namespace) -> int:
         print(f"  STOPPED after {len(result.outcomes)} of {counted(result.scenarios or 0, 'scenario')}: "
               f"{one_line(result.stopped)}")
     return result.exit_code(args.fail_on)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .scenarios.bridge_record import replay
+
+    if not args.planner_cmd.strip():
+        raise Feat2MapError("--planner-cmd is empty", "command line")
+    if not args.planner_timeout > 0 or not args.tolerance >= 0:
+        raise Feat2MapError("--planner-timeout must be positive and --tolerance at least 0", "command line")
+    result = replay(args.recording, args.planner_cmd, tolerance=args.tolerance, step_timeout=args.planner_timeout)
+    print(f"{args.recording}: replayed {counted(result.messages, 'message')}; "
+          f"{counted(len(result.differences), 'difference')}")
+    if result.differences:
+        print(f"  first difference: {one_line(result.differences[0])}")
+        for d in result.differences[1:]:
+            print(f"  {one_line(d)}")
+    return 1 if result.differences else 0
 
 
 def cmd_coverage(args: argparse.Namespace) -> int:
@@ -126,7 +155,8 @@ def _dir_names(dirs: list[str]) -> list[str]:
 
 
 def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
-    """Add `suite`, `rollout` and `coverage` to the `feat2map` subcommands."""
+    """Add `suite`, `rollout`, `replay` and `coverage` to the `feat2map` subcommands."""
+    from .scenarios.bridge_record import REPLAY_TOLERANCE
     from .scenarios.rollout import BACKENDS, FAIL_POLICIES
 
     s = sub.add_parser("suite", help="build a route-coverage scenario suite for a map",
@@ -179,8 +209,24 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
                      help="no line coverage (the default; kept for older command lines)")
     r.add_argument("--no-gif", action="store_true", help="do not re-run scenarios that did not complete to record "
                    "their GIFs (by default each one gets failures/NAME.gif, whatever --fail-on says)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--record", metavar="DIR", help="with --planner-cmd: keep each scenario's bridge session in "
+                   "DIR/SCENARIO (every message both ways with its wall time, and the map file the planner got) "
+                   "for `feat2map replay`")
+    r.add_argument("--quiet", action="store_true", help="no progress bar (off a terminal: no line per scenario)")
     r.set_defaults(func=cmd_rollout)
+
+    p = sub.add_parser("replay", help="replay a recorded planner-bridge session against a planner",
+                       description="Send the messages a rollout recorded (`feat2map rollout --planner-cmd CMD --record "
+                                   "DIR`) to a planner, without the env, and report where its replies differ from the "
+                                   "recorded ones (type, step, stage, control values and trajectory points within "
+                                   "--tolerance); exit 1 when any does.")
+    p.add_argument("recording", help="a scenario's recording folder (DIR/SCENARIO)")
+    p.add_argument("--planner-cmd", required=True, metavar="CMD", help="the planner command to replay against")
+    p.add_argument("--planner-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds the planner has for each step reply (default 10)")
+    p.add_argument("--tolerance", type=float, default=REPLAY_TOLERANCE, metavar="X",
+                   help=f"replies' numbers equal within this (default {REPLAY_TOLERANCE:g})")
+    p.set_defaults(func=cmd_replay)
 
     c = sub.add_parser("coverage", help="compare suites' rollout results side by side",
                        description="Put rollout results side by side: behaviour coverage (the planner's stage "

@@ -44,12 +44,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from feat2map.config import BLOCKED_AFTER_S
+
 PROTOCOL_VERSION = 2  # the newest the bridge speaks; it sends it in its hello
 PROTOCOLS = (1, 2)  # what a planner's hello may answer (2: every message and reply carries "step")
 MAP_FORMATS = ("commonroad", "lanelet2", "opendrive", "apollo", "native")
 MAP_SUFFIX = {"commonroad": "map.xml", "lanelet2": "map.osm", "opendrive": "map.xodr", "apollo": "apollo",
               "native": "map.json"}
 OUTPUTS = ("trajectory", "control")
+SETUP_COMMAND = "bash scripts/setup.sh"  # installs feat2map's base environment (.venv)
+FORMAT_SETUP = {"commonroad": f"{SETUP_COMMAND} commonroad"}  # a format needing an extra: what installs it
 START_TIMEOUT_S = 120.0  # hello and init (a planner may import heavy libraries, build its map)
 STEP_TIMEOUT_S = 10.0  # each decision's reply
 CLOSE_TIMEOUT_S = 30.0  # the bye (a planner may save coverage data first)
@@ -70,6 +74,7 @@ MAX_NUMBER_DIGITS = 20  # an integer written with more digits is garbage, before
 MAX_TRAJECTORY_POINTS = 10_000
 # the likely cause of a missing hello: the planner's stdout is block-buffered (a pipe, not a terminal)
 NO_HELLO_HINT = "no reply line: does the planner flush stdout after each line? (python -u)"
+BRIDGE_NAME_PREFIX = "bridge: "  # a BridgePlanner's name (the suite's planner) starts with it
 WORLD_RADIUS_M = 150.0  # vehicles and pedestrians this close to the ego are sent
 BRIDGE_ACTION_CONFIG: dict[str, Any] = {"type": "ContinuousAction", "longitudinal": True, "lateral": True,
                         "acceleration_range": [-8.0, 4.0], "steering_range": [-math.pi / 3, math.pi / 3]}
@@ -245,6 +250,8 @@ class PlannerProcess:
         self._pipes = {(f"pipe:[{os.fstat(self._in).st_ino}]", os.O_RDONLY),
                        (f"pipe:[{os.fstat(self.proc.stdout.fileno()).st_ino}]", os.O_WRONLY)}
         self.step = 0  # the step index of the next message (protocol 2): the step messages sent so far
+        self.transcript: list[dict] | None = None  # when a list: every message and reply, for a recording
+        self.tail = ""  # the stderr tail, kept by `close`
         self.protocol: int | None = None  # the version the planner's hello answered
         self._cv = threading.Condition()
         self._lines: deque[bytes] = deque()
@@ -327,6 +334,8 @@ class PlannerProcess:
         """Write `msg` by `deadline` (the planner's stdin is non-blocking: a planner that does
         not read it is a timeout, never a hang)."""
         data = memoryview((json.dumps(msg, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        if self.transcript is not None:
+            self.transcript.append({"dir": "to_planner", "wall": time.time(), "message": msg})
         with self._cv:
             self._asked += 1
         size = len(data)
@@ -352,7 +361,12 @@ class PlannerProcess:
         line = self._next_line(deadline, timeout, what)
         try:
             msg = parse_reply(line)
+            if self.transcript is not None:
+                self.transcript.append({"dir": "from_planner", "wall": time.time(), "message": msg})
         except ValueError as exc:
+            if self.transcript is not None:
+                self.transcript.append({"dir": "from_planner", "wall": time.time(),
+                                        "line": line.decode("utf-8", "replace")})
             raise BridgeError(self.failure(f"garbage {what} reply ({exc}): {line[:80]!r}")) from None
         if not isinstance(msg, dict):
             raise BridgeError(self.failure(f"garbage {what} reply (not a JSON object): {line[:80]!r}"))
@@ -475,6 +489,7 @@ class PlannerProcess:
             bye = None
         finally:
             self.kill()
+            self.tail = self.stderr_tail()
             self.stderr.close()
         return bye if bye and bye.get("type") == "bye" else None
 
@@ -523,6 +538,25 @@ def export_for_planner(map_path: str, hdmap: Any, fmt: str) -> tuple[str, dict]:
     return _EXPORTS[key]
 
 
+def map_format_problem(fmt: str) -> str:
+    """Why this environment cannot write map format `fmt` for a planner ("" when it can): its
+    writer does not import, or the package it needs is missing (CommonRoad: commonroad-io)."""
+    from feat2map.errors import Feat2MapError
+    from feat2map.formats import FORMATS
+
+    try:
+        FORMATS[fmt].face("write")
+        if fmt == "commonroad":
+            from feat2map.formats.commonroad import writer
+
+            writer.commonroad_io()
+    except Feat2MapError as exc:
+        return exc.message
+    except ImportError as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return ""
+
+
 # ---- the policy --------------------------------------------------------------------------------
 class BridgePlanner:
     """A `Policy` whose decisions come from a planner process speaking the bridge protocol.
@@ -530,7 +564,8 @@ class BridgePlanner:
     `cmd` starts the planner (a string split like a shell, or an argv list); `step_timeout`
     bounds each step message and its reply, `start_timeout` the hello's and init's,
     `close_timeout` the bye's; `replan_s` how often it is asked (default: every decision, or what its
-    hello asks for). Picklable before `reset` (the process starts at reset and ends at `close`).
+    hello asks for); `record` a folder that keeps each scenario's session (`bridge_record`).
+    Picklable before `reset` (the process starts at reset and ends at `close`).
     """
 
     action_config: ClassVar[dict] = dict(BRIDGE_ACTION_CONFIG)
@@ -538,15 +573,18 @@ class BridgePlanner:
 
     def __init__(self, cmd: str | list[str], *, step_timeout: float = STEP_TIMEOUT_S,
                  start_timeout: float = START_TIMEOUT_S, close_timeout: float = CLOSE_TIMEOUT_S,
-                 replan_s: float | None = None, cwd: str | None = None) -> None:
+                 replan_s: float | None = None, cwd: str | None = None, record: str | None = None) -> None:
         self.cmd = cmd
+        self.record = record  # a folder: each scenario's messages and map file kept in record/<scenario>
         self.step_timeout = float(step_timeout)
         self.start_timeout = float(start_timeout)
         self.close_timeout = float(close_timeout)
         self.replan_s = replan_s
         self.cwd = cwd
-        self.__qualname__ = f"bridge: {cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
+        self.__qualname__ = f"{BRIDGE_NAME_PREFIX}{cmd if isinstance(cmd, str) else shlex.join(cmd)}"  # the suite's planner name
         self.remote_coverage = False  # set by the rollout: ask the planner for its line coverage
+        self.blocked_after = BLOCKED_AFTER_S  # set by the rollout: its blocked early end, told the planner
+        self.scenario_name = "scenario"  # set by the rollout: names the recording's folder
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -561,10 +599,12 @@ class BridgePlanner:
         self._steps = 0
         self._stage: tuple[str, str] | None = None
         self._control = np.zeros(2, dtype=np.float32)
+        self._map_path = ""  # the map file the planner got
+        self.stderr_tail = ""  # the planner's, once closed (the rollout reports it for a failed scenario)
 
     def __getstate__(self) -> dict:
         return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "close_timeout", "replan_s", "cwd",
-                                              "__qualname__", "remote_coverage")}
+                                              "__qualname__", "remote_coverage", "blocked_after", "record", "scenario_name")}
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
@@ -578,11 +618,11 @@ class BridgePlanner:
     # ---- Policy ----------------------------------------------------------------------------
     def reset(self, env: Any) -> None:
         self.close()
-        coverage = self.remote_coverage
         self._reset_state()
-        self.remote_coverage = coverage
         self.env = env.unwrapped
         self.proc = PlannerProcess(self.cmd, cwd=self.cwd)
+        if self.record:
+            self.proc.transcript = []
         hello = self.proc.request({"type": "hello", "protocol": PROTOCOL_VERSION}, self.start_timeout, "hello")
         self._check_hello(hello)
         self.hello = hello
@@ -591,6 +631,7 @@ class BridgePlanner:
         e = self.env
         path, ids = export_for_planner(str(e.config.get("map_file") or ""), e.net.hdmap, fmt) \
             if e.config.get("map_file") else self._export_inline(fmt)
+        self._map_path = path
         ready = self.proc.request(self._init_message(path, fmt, ids), self.start_timeout, "init")
         if ready.get("type") != "ready":
             raise BridgeError(self.proc.failure(f"garbage init reply: expected 'ready', got {_show(ready)}"))
@@ -618,12 +659,18 @@ class BridgePlanner:
                    f"{' and '.join(map(str, PROTOCOLS))}")
         elif hello.get("map_format", "native") not in MAP_FORMATS:
             bad = f"asks for map format {_show(hello.get('map_format'), 40)}; known: {', '.join(MAP_FORMATS)}"
+        elif problem := map_format_problem(hello.get("map_format", "native")):
+            fmt = hello.get("map_format", "native")
+            bad = (f"asks for map format {fmt}, which this environment cannot write ({problem}); install it "
+                   f"with `{FORMAT_SETUP.get(fmt, SETUP_COMMAND)}`")
         elif hello.get("output", "trajectory") not in OUTPUTS:
             bad = f"asks for output {_show(hello.get('output'), 40)}; known: {', '.join(OUTPUTS)}"
         if bad:
             raise BridgeError(self.proc.failure(f"bad hello: {bad}"))
 
     def _init_message(self, path: str, fmt: str, ids: dict) -> dict:
+        from feat2map.envs.rules import compliance_rules
+
         e = self.env
         ego = e.vehicle
         m = e.net.hdmap
@@ -644,8 +691,36 @@ class BridgePlanner:
                 "goal": {"lane": lanes[-1], "lane_in_format": lane_ids.get(lanes[-1]), "s": goal_s,
                          "x": float(gx), "y": -float(gy)},
                 "ego": {"length": float(ego.LENGTH), "width": float(ego.WIDTH)},
+                "vehicle": self.vehicle_model(), "stop_lines": self.route_stop_lines(lane_ids),
+                "rules": compliance_rules(e.control.right_turn_on_red(), self.blocked_after),
                 "dt": 1.0 / float(e.config["policy_frequency"]), "sim_dt": 1.0 / sim_hz,
                 "duration": float(e.config["duration"]), "coverage": bool(self.remote_coverage)}
+
+    def vehicle_model(self) -> dict:
+        """The ego's motion model (`vehicle_model`: the env's own vehicle and action limits) and
+        how the env's tracker follows a trajectory (`tracking_model`)."""
+        from feat2map.envs.tracking import tracking_model
+        from feat2map.envs.vehicles import vehicle_model
+
+        e = self.env
+        act = e.action_type
+        return {**vehicle_model(e.vehicle, act.acceleration_range, act.steering_range), "tracker": tracking_model()}
+
+    def route_stop_lines(self, lane_ids: dict) -> list[dict]:
+        """The stop lines on the ego's route (`MapNetwork.stop_lines` of its route lanes), in route
+        order, in the map's frame."""
+        net = self.env.net
+        out = []
+        for k, lid in enumerate(self.env.vehicle.lane_route):
+            sl = net.stop_lines.get(lid)
+            if sl is None:
+                continue
+            lane = net.lane_of[lid]
+            x, y = lane.position(sl.s, 0.0)
+            out.append({"junction": sl.junction_id, "kind": sl.kind, "control": sl.control_id, "lane": lid,
+                        "lane_in_format": lane_ids.get(lid), "route_index": k, "s": float(sl.s),
+                        "x": float(x), "y": -float(y), "heading": -float(lane.heading_at(sl.s))})
+        return out
 
     def act(self, obs: Any, info: dict) -> np.ndarray:
         if self.env is None or self.proc is None:
@@ -683,7 +758,7 @@ class BridgePlanner:
             except (KeyError, TypeError, ValueError) as exc:
                 raise BridgeError(self.proc.failure(f"garbage trajectory: {exc}")) from None
             control = self.env.control
-            ego.tracker = TrajectoryTracker(traj, clock=lambda: float(control.t))
+            ego.tracker = TrajectoryTracker(traj, clock=lambda: float(control.t), wheelbase=float(ego.LENGTH))
             self._control = np.zeros(2, dtype=np.float32)
         elif kind == "control":
             try:
@@ -723,6 +798,12 @@ class BridgePlanner:
         if proc is None:
             return
         bye = proc.close(self.close_timeout)
+        self.stderr_tail = proc.tail
+        if self.record and proc.transcript:
+            from .bridge_record import recording_folder, save_recording
+
+            save_recording(recording_folder(self.record, self.scenario_name), proc.transcript, self._map_path,
+                           shlex.join(proc.argv))
         cov = (bye or {}).get("coverage")
         if isinstance(cov, dict) and isinstance(cov.get("lines"), dict):
             self.junction_lines = {str(j): tuple(sorted({str(x) for x in v}, key=_line_key))
@@ -740,11 +821,13 @@ class BridgePlanner:
 
     def world(self, info: dict) -> dict:
         """The step message: the world as the ego's planner sees it now."""
+        from feat2map.envs.vehicles import bicycle_state
+
         e = self.env
         net, m, rules = e.net, e.net.hdmap, e.control
         ego = e.vehicle
         ex, ey = float(ego.position[0]), -float(ego.position[1])  # the env's frame (y down) -> the map's
-        acc = float(ego.action.get("acceleration", 0.0)) if isinstance(ego.action, dict) else 0.0
+        steering, yaw_rate, acc = bicycle_state(ego)
         vehicles = []
         for v in e.road.vehicles:
             if v is ego:
@@ -777,7 +860,8 @@ class BridgePlanner:
         ttc = float(info.get("signal_time_to_change", math.inf))
         return {"type": "step", "t": float(rules.t),
                 "ego": {"x": ex, "y": ey, "heading": -float(ego.heading), "speed": float(ego.speed),
-                        "acceleration": acc, "lane": net.id_of.get(ego.lane_index), "route_index": int(ego.route_pos)},
+                        "acceleration": acc, "yaw_rate": -yaw_rate, "steering": -steering,
+                        "lane": net.id_of.get(ego.lane_index), "route_index": int(ego.route_pos)},
                 "ahead": {"junction": info.get("junction") or None, "control": info.get("control_ahead") or None,
                           "stop_line_distance": d if math.isfinite(d) else None,
                           "signal": info.get("signal_id") or None, "signal_state": info.get("signal_state") or None,

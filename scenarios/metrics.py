@@ -186,15 +186,18 @@ def compare(results: Mapping[str, SuiteResult] | Sequence[SuiteResult]) -> Compa
         others_t = frozenset().union(*(x.all_transitions for k, x in enumerate(covs) if k != i))
         others_l = frozenset().union(*(x.all_lines for k, x in enumerate(covs) if k != i))
         counts = r.counts()
-        lines = len(c.all_lines) if r.coverage else "-"
-        reach = junctions_to_reach(c.accumulated_lines) if r.coverage else "-"
+        measured = r.coverage and not r.sent_no_coverage
+        lines = len(c.all_lines) if measured else "-"
+        reach = junctions_to_reach(c.accumulated_lines) if measured else "-"
         rows.append((name, r.planner, len(r.outcomes), counts["completed"],
                      sum(v for k, v in counts.items() if k != "completed"), len(c.junctions),
                      len({p for _, p in c.paths}), len(c.all_pairs), len(c.all_transitions), lines, reach,
-                     len(c.all_transitions - others_t), len(c.all_lines - others_l) if r.coverage else "-"))
+                     len(c.all_transitions - others_t), len(c.all_lines - others_l) if measured else "-"))
     digests = {r.planner_digest for r in res if r.coverage}
     warnings = [f"{n}: the planner's sources changed during the run: its line counts mix versions"
                 for n, r in zip(names, res) if r.coverage and r.planner_digest == MIXED_DIGEST]
+    warnings += [f"{n}: the planner sent no coverage (its bridge `bye` carried none): its line counts are "
+                 f"unknown ('-'), not 0" for n, r in zip(names, res) if r.sent_no_coverage]
     if len(digests - {MIXED_DIGEST}) > 1:
         warnings.append("the suites measured different planner sources (planner_digest differs): "
                         "their line counts are not comparable")

@@ -18,6 +18,7 @@ from feat2map.documents import load_document
 from feat2map.errors import Feat2MapError
 from feat2map.messages import counted
 
+from .bridge import BRIDGE_NAME_PREFIX
 from .markup import html_page, md_code, md_fenced, md_text
 from .metrics import FULL_COVERAGE_SHARE, compare, junctions_to_reach, plot_accumulated, suite_coverage
 from .rollout import FAIL_POLICIES, MIXED_DIGEST, OUTCOMES, ROAD_CONTEXT, Outcome, SuiteResult
@@ -67,7 +68,8 @@ def _details(o: Outcome) -> str:
     v = ", ".join(f"{k}={n}" for k, n in o.violations.items())
     return (f"map: {o.map}\nseed: {o.seed}\nsimulated: {o.sim_s:.1f} s in {o.steps} steps\n"
             f"route progress: {100 * o.route_progress:.0f}%\nviolations: {v or 'none'}\n"
-            f"junctions: {' -> '.join(o.junctions) or '-'}\nstage path: {' -> '.join(o.stage_path) or '-'}\n")
+            f"junctions: {' -> '.join(o.junctions) or '-'}\nstage path: {' -> '.join(o.stage_path) or '-'}\n"
+            f"last stage: {o.stage_path[-1] if o.stage_path else '-'}\n")
 
 
 def _plot_outcomes(result: SuiteResult, path: Path) -> None:
@@ -149,6 +151,10 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
             verdict_o = "" if o.fails(fail_on) else " (*passes*)"
             lines += [f"### {md_text(o.name)}: {md_text(o.outcome)}{verdict_o}", "", *md_fenced(o.message), "",
                       *md_fenced(_details(o).rstrip()), ""]
+            if o.planner_stderr and o.planner_stderr not in o.message:  # an error's message quotes it already
+                lines += ["The planner's stderr (its end):", "", *md_fenced(o.planner_stderr), ""]
+            elif not o.planner_stderr and _out_of_process(result) and "planner stderr" not in o.message:
+                lines += ["The planner's stderr was empty.", ""]
             if o.name in gifs:
                 lines += [f"![GIF of the scenario]({gifs[o.name]})", ""]
     lines += ["", "## Behaviour coverage", "",
@@ -180,9 +186,12 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
         share = int(FULL_COVERAGE_SHARE * 100)
         reach = (f"The first {counted(k, 'junction')} the suite reaches ({md_text(', '.join(cov.junctions[:k]))}) "
                  f"already cover {share}% of them ({acc[k - 1]} of {acc[-1]} lines)." if k else "")
-        lines += ["", "## Planner line coverage", "",
-                  f"{counted(len(cov.all_lines), 'line')} of the planner covered over "
-                  f"{counted(len(cov.junctions), 'junction')}. {reach}", "",
+        covered = (f"{counted(len(cov.all_lines), 'line')} of the planner covered over "
+                   f"{counted(len(cov.junctions), 'junction')}. {reach}")
+        if result.sent_no_coverage:
+            covered = ("The planner sent no coverage: its `bye` carried no `coverage` (docs/planners.md, close), "
+                       "so its lines covered are unknown, not 0.")
+        lines += ["", "## Planner line coverage", "", covered, "",
                   "| junction index | junction | lines at junction | new lines | accumulated |", "|---:|---|---:|---:|---:|"]
         for i, j in enumerate(cov.junctions):
             lines.append(f"| {i + 1} | {md_text(j)} | {len(cov.lines.get(j, ()))} | {new[i]} | {acc[i]} |")
@@ -191,6 +200,11 @@ def report_markdown(result: SuiteResult, fail_on: str = "any", gifs: dict[str, s
     lines += ["", f"![coverage]({COVERAGE_PNG})", ""]
     lines += _stage_legend(result)
     return "\n".join(lines)
+
+
+def _out_of_process(result: SuiteResult) -> bool:
+    """Whether the planner ran in its own process (the planner bridge: BridgePlanner's name)."""
+    return result.planner.startswith(BRIDGE_NAME_PREFIX)
 
 
 def _stage_legend(result: SuiteResult) -> list[str]:

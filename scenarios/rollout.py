@@ -41,6 +41,7 @@ FAIL_POLICIES = {  # --fail-on: which outcomes make the run fail
 }
 BACKENDS = ("process", "ray")
 ROAD_CONTEXT = "(road)"  # code-coverage context before the first junction is known
+PARTIAL_ATTR = "feat2map_partial"  # on an exception out of a drive: the planner's stage path and stderr so far
 MIXED_DIGEST = "mixed"  # SuiteResult.planner_digest when the planner's sources changed mid-run
 GIF_MAX_FRAMES = 160  # failure GIFs are subsampled to at most this many frames
 GIF_WIDTH_PX = 360  # and scaled down to this width
@@ -144,6 +145,7 @@ class Outcome:
     seed: int | None = None
     map: str = ""
     planner_digest: str = ""  # of the planner sources this scenario measured (coverage on)
+    planner_stderr: str = ""  # the tail of an out-of-process planner's stderr (a scenario that did not complete)
     wall_s: float = field(default=0.0, compare=False)
     gif: bytes | None = field(default=None, compare=False, repr=False)
 
@@ -176,7 +178,8 @@ class Outcome:
                 events=tuple((int(s), float(t), j, str(sc), str(st)) for s, t, j, sc, st in d.get("events", ())),
                 junction_lines={str(j): tuple(v) for j, v in d.get("junction_lines", {}).items()},
                 message=str(d.get("message", "")), seed=d.get("seed"), map=str(d.get("map", "")),
-                planner_digest=str(d.get("planner_digest", "")), wall_s=float(d.get("wall_s", 0.0)))
+                planner_digest=str(d.get("planner_digest", "")), planner_stderr=str(d.get("planner_stderr", "")),
+                wall_s=float(d.get("wall_s", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise Feat2MapError(f"malformed outcome ({exc!r})", where) from None
 
@@ -195,6 +198,15 @@ class SuiteResult:
     wall_s: float = field(default=0.0, compare=False)
     stopped: str = ""  # why the run ended before every scenario ran ("" when it did not)
     scenarios: int | None = field(default=None, compare=False)  # in the suite (None: as many as outcomes)
+
+    @property
+    def sent_no_coverage(self) -> bool:
+        """Line coverage was asked of a planner in its own process (the planner bridge, which
+        measures itself) and none came back: its lines covered are unknown, not 0."""
+        from .bridge import BRIDGE_NAME_PREFIX
+
+        return self.coverage and self.planner.startswith(BRIDGE_NAME_PREFIX) and \
+            not any(o.junction_lines for o in self.outcomes)
 
     def failures(self, fail_on: str = "any") -> list[Outcome]:
         return [o for o in self.outcomes if o.fails(fail_on)]
@@ -451,6 +463,8 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     remote = hasattr(policy, "remote_coverage")  # an out-of-process planner measures itself (planner bridge)
     if remote:
         policy.remote_coverage = coverage
+        policy.blocked_after = blocked_after
+        policy.scenario_name = str(getattr(scenario, "name", "scenario"))
     env = make_env(scenario, render_mode="rgb_array" if render else None, config=_env_config(policy))
     frames = _Frames() if frames is None else frames
     frames.step_s = 1.0 / float(env.unwrapped.config.get("policy_frequency") or 1.0)
@@ -498,6 +512,10 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                 policy.close()  # ends a planner process (planner bridge); it may hand back its coverage
             if remote:
                 lines = dict(getattr(policy, "junction_lines", None) or {})
+    except Exception as exc:  # the planner or env raised: what the planner did travels to its error outcome
+        setattr(exc, PARTIAL_ATTR, {"stage_path": _stage_path(policy, _events(policy)),
+                                    "planner_stderr": str(getattr(policy, "stderr_tail", ""))})
+        raise
     finally:
         env.close()
     kind = classify(info)
@@ -506,7 +524,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         message = blocked if kind == "timeout" else f"{message}; {blocked}"
     events = _events(policy)
     digest = cov.digest if cov else (str(getattr(policy, "planner_digest", "")) if remote and lines else "")
-    path = tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
+    path = _stage_path(policy, events)
     ev_path = stage_path_of(events)
     outcome = Outcome(
         name=str(getattr(scenario, "name", "scenario")), outcome=kind,
@@ -515,8 +533,14 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         transitions=tuple(zip(ev_path, ev_path[1:])), junctions=tuple(visited),
         route_progress=round(float(info.get("route_progress", 0.0)), 6), events=events,
         junction_lines=lines, message=message, seed=getattr(scenario, "seed", None),
-        map=str(getattr(scenario, "map", "")), planner_digest=digest, wall_s=time.perf_counter() - t0)
+        map=str(getattr(scenario, "map", "")), planner_digest=digest,
+        planner_stderr="" if kind == "completed" else str(getattr(policy, "stderr_tail", "")),
+        wall_s=time.perf_counter() - t0)
     return outcome, frames
+
+
+def _stage_path(policy: Any, events: Sequence[tuple]) -> tuple[str, ...]:
+    return tuple(str(s) for s in policy.stage_path()) if hasattr(policy, "stage_path") else stage_path_of(events)
 
 
 def check_blocked_after(value: Any, where: str = "blocked_after") -> None:
@@ -591,7 +615,10 @@ def _error_gif(scenario: Any, factory: Callable[[], Any], blocked_after: float) 
     rendering up to the raise, so an error is shown like any other failure."""
     frames = _Frames()
     with contextlib.suppress(Exception):
-        _drive(scenario, factory, render=True, blocked_after=blocked_after, frames=frames)
+        policy = factory()
+        if getattr(policy, "record", None):
+            policy.record = None  # a bridge recording keeps the session the outcome reports, not this replay
+        _drive(scenario, factory, render=True, blocked_after=blocked_after, frames=frames, policy=policy)
     return gif_bytes(frames.with_last(), frames.step_s * frames.stride) or None
 
 
@@ -607,10 +634,14 @@ class _Task:
     blocked_after: float
 
 
-def _error_outcome(scenario: Any, index: int, message: str) -> Outcome:
+def _error_outcome(scenario: Any, index: int, message: str, stage_path: tuple[str, ...] = (),
+                   planner_stderr: str = "") -> Outcome:
+    """The outcome of a scenario whose planner or env raised; `stage_path` and `planner_stderr`
+    as far as the planner got (`PARTIAL_ATTR` of the exception)."""
     return Outcome(name=str(getattr(scenario, "name", f"scenario {index}")), outcome="error", violations={},
-                   sim_s=0.0, steps=0, stage_path=(), transitions=(), junctions=(), route_progress=0.0,
-                   message=message, seed=getattr(scenario, "seed", None), map=str(getattr(scenario, "map", "")))
+                   sim_s=0.0, steps=0, stage_path=stage_path, transitions=(), junctions=(), route_progress=0.0,
+                   message=message, seed=getattr(scenario, "seed", None), map=str(getattr(scenario, "map", "")),
+                   planner_stderr=planner_stderr)
 
 
 def _run_task(task: _Task) -> tuple[int, Outcome, str]:
@@ -632,7 +663,8 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
         name = f"scenario {getattr(scenario, 'name', task.index)}"
         raise Feat2MapError(exc.message, f"{name}: {exc.where}" if exc.where else name) from None
     except Exception as exc:  # a crashing planner is a failed scenario, not a crashed suite
-        out = _error_outcome(scenario, task.index, f"planner or env raised {type(exc).__name__}: {exc}")
+        out = _error_outcome(scenario, task.index, f"planner or env raised {type(exc).__name__}: {exc}",
+                             **getattr(exc, PARTIAL_ATTR, {}))
         if task.record_failure_gif:
             out = replace(out, gif=_error_gif(scenario, task.factory, task.blocked_after))
     except (SystemExit, KeyboardInterrupt) as exc:  # the planner asks to stop: end the suite, keep the report
@@ -644,10 +676,11 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
 def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backend: str = "process",
               progress: bool = True, coverage: bool = False, record_failure_gif: bool = True,
               fail_on: str = "any", coverage_modules: Sequence[str] = (),
-              blocked_after: float = BLOCKED_AFTER_S) -> SuiteResult:
+              blocked_after: float = BLOCKED_AFTER_S, log: Callable[[str], None] | None = None) -> SuiteResult:
     """Run every scenario of `suite` (a Suite or a sequence of scenarios) and collect the outcomes
     in suite order. `workers` > 1 uses spawned processes ("process") or Ray ("ray").
-    `blocked_after`: as `run_scenario`'s."""
+    `blocked_after`: as `run_scenario`'s. `log` gets one line per finished scenario (where no
+    progress bar is drawn: a log file, CI)."""
     from tqdm import tqdm
 
     if backend not in BACKENDS:
@@ -678,6 +711,8 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         """Record one outcome; True when the suite must end (the planner asked to stop)."""
         if not stopped:
             results[index] = out
+            if log is not None:
+                log(scenario_line(out, len(results), len(tasks)))
         if stop and not stopped:
             stopped.append(stop)
         bar.update(1)
@@ -712,6 +747,16 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
                        planner_digest=suite_digest(outcomes) if coverage else "",
                        workers=workers, backend=backend, wall_s=time.perf_counter() - t0,
                        stopped=stopped[0] if stopped else "", scenarios=len(tasks))
+
+
+def scenario_line(out: Outcome, done: int, total: int) -> str:
+    """One line for a finished scenario: how many have finished, its name, outcome and times, and
+    what went wrong."""
+    from feat2map.messages import one_line
+
+    why = f": {out.message}" if not out.passed and out.message else ""
+    return one_line(f"[{done}/{total}] {out.name}: {out.outcome} ({out.sim_s:.1f} s simulated, "
+                    f"{out.wall_s:.1f} s wall){why}")
 
 
 def _picklable(obj: Any) -> bool:
