@@ -72,6 +72,15 @@ def _details(o: Outcome) -> str:
             f"last stage: {o.stage_path[-1] if o.stage_path else '-'}\n")
 
 
+TICK_LABEL_CHARS = 32
+
+
+def _tick_label(name: str) -> str:
+    """`name` as a tick label: its first TICK_LABEL_CHARS characters on one line ("…" where cut)."""
+    one_line = " ".join(name.split())
+    return one_line if len(one_line) <= TICK_LABEL_CHARS else one_line[:TICK_LABEL_CHARS - 1] + "…"
+
+
 def _plot_outcomes(result: SuiteResult, path: Path) -> None:
     import matplotlib
 
@@ -88,7 +97,8 @@ def _plot_outcomes(result: SuiteResult, path: Path) -> None:
     ax_s.bar(xs, [o.sim_s for o in result.outcomes], color=[OUTCOME_COLOURS[o.outcome] for o in result.outcomes])
     ax_s.set(title="simulated duration per scenario (colour = outcome)", xlabel="scenario", ylabel="s")
     if len(result.outcomes) <= 60:  # name the scenarios, else index them
-        ax_s.set_xticks(list(xs), [o.name for o in result.outcomes], rotation=90, fontsize=7)
+        # a long name would take the whole figure's height (tight_layout gives up): cut it short
+        ax_s.set_xticks(list(xs), [_tick_label(o.name) for o in result.outcomes], rotation=90, fontsize=7)
     else:
         ax_s.set_xlabel("scenario index (suite order)")
     ax_s.grid(axis="y", alpha=0.3)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import random
+import warnings
 
 import numpy as np
 import pytest
@@ -51,7 +52,19 @@ def assert_finite_map(m) -> None:
 
 
 def read_everything(path, check_cli: bool) -> None:
-    """Every reader, the Apollo validator and `extract`: a valid result or a Feat2MapError."""
+    """Every reader, the Apollo validator and `extract`: a valid result or a Feat2MapError; what
+    they warn about (a mutant's or the map's own flaws, varying with the seed) names the file."""
+    with warnings.catch_warnings(record=True) as found:
+        warnings.simplefilter("always")
+        _read_everything(path, check_cli)
+    ours = [str(w.message) for w in found if issubclass(w.category, UserWarning)]
+    assert all(str(path) in m and "\n" not in m for m in ours), [m for m in ours if str(path) not in m or "\n" in m]
+    for w in found:  # anything else (a library's own warning) is shown as it would have been
+        if not issubclass(w.category, UserWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
+def _read_everything(path, check_cli: bool) -> None:
     for name, read in READERS.items():
         try:
             m = read(path)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from conftest import SHARED_MAPS, shared_map_params, straight_piece
+from conftest import SHARED_MAPS, read_shared_map, shared_map_params, straight_piece
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import native, read_map
 from feat2map.formats.opendrive.reader import SIGNAL_CODES
@@ -40,9 +40,11 @@ KNOWN_DRIVE_FAILURES: dict[str, str] = {}
 def _controls(rel: str) -> dict[str, str]:
     """Junction id -> control extraction gives (junctions it skips included)."""
     skipped: list[SkippedJunction] = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        found = extract_junctions(read_map(SHARED_MAPS / rel), rel, skipped=skipped)
+    m = read_shared_map(rel)  # the map's own findings name its file
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        found = extract_junctions(m, rel, skipped=skipped)
+    assert all(rel in str(w.message) for w in said), [str(w.message) for w in said]
     return {**{j.id: j.feature.control for j in found}, **{s.id: s.control for s in skipped}}
 
 
@@ -86,7 +88,7 @@ def test_real_map_controls_match_its_own_overlaps_and_signals(rel):
     if rel.startswith("apollo/"):
         assert got == _apollo_truth(path)
         return
-    m = read_map(path)
+    m = read_shared_map(rel)  # its findings (signals split, groups kept apart) must name the file
     lit, any_control = _opendrive_lit(path)
     if not any_control:
         assert set(got.values()) <= {"bare"}

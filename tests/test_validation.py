@@ -117,9 +117,14 @@ def test_huge_or_negative_opendrive_widths_skip_the_road(tmp_path, small_doc, wi
     text = (tmp_path / "m.xodr").read_text()
     bad = tmp_path / "wide.xodr"
     bad.write_text(text.replace('<width sOffset="0.0" a="3.5"', f'<width sOffset="0.0" a="{width}"', 1))
-    with pytest.warns(UserWarning, match=message):
+    with pytest.warns(UserWarning, match=message) as rec:
         m = read_opendrive(bad)
     assert 0 < len(m.lanes) < len(small_doc[0].lanes)
+    # every finding names the file; past the skipped road's own, they are the links to it, skipped
+    found = [str(w.message) for w in rec]
+    assert all(f"{bad}: " in f for f in found), found
+    skipped = [f for f in found if message in f]
+    assert skipped and all(f in skipped or "unknown road id" in f for f in found), found
 
 
 @pytest.mark.parametrize("value", ["-3.5", "nan"])

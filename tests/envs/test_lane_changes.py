@@ -49,8 +49,11 @@ def test_no_lane_change_onto_a_lane_before_it_begins(opening_lane):
     begins only at x = 49.5: the car is never on R2_1 before that (fails without the rule: it
     changed at once, 25 m before the lane began, and drove on through the standing car's lane)."""
     sc = Scenario("fixture", str(opening_lane), (("J0", "R1", "R3"),), seed=0, duration=20.0)
-    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
-    env.reset(seed=0)
+    # the load reports the connectors whose successor R2_1 begins 30 m on (the fixture's point)
+    with pytest.warns(UserWarning, match=r"opening_lane\.json: lane J0_c\d+_0: successor R2_1 starts 30\.0 m") as rec:
+        env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+        env.reset(seed=0)
+    assert all(str(opening_lane) in str(w.message) for w in rec), [str(w.message) for w in rec]
     u = env.unwrapped
     core = u.road.core
     blocker = core.add_traffic(u.road, "R2_0", 40.5, 0.0, ["R2_0"])
