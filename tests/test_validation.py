@@ -117,7 +117,7 @@ def test_huge_or_negative_opendrive_widths_skip_the_road(tmp_path, small_doc, wi
     text = (tmp_path / "m.xodr").read_text()
     bad = tmp_path / "wide.xodr"
     bad.write_text(text.replace('<width sOffset="0.0" a="3.5"', f'<width sOffset="0.0" a="{width}"', 1))
-    with pytest.warns(UserWarning, match=message) as rec:
+    with pytest.warns(UserWarning) as rec:  # all of them (with match=, pytest 8 re-emits the others)
         m = read_opendrive(bad)
     assert 0 < len(m.lanes) < len(small_doc[0].lanes)
     # every finding names the file; past the skipped road's own, they are the links to it, skipped
