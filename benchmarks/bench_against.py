@@ -26,6 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIG = {"simulation_frequency": 20, "policy_frequency": 10, "traffic_vehicles": 9, "duration": 1e9,
           "route_junctions": 3}
 ENV_STEPS = 600  # env-steps per measurement and setup
+BATCH_MIN_STEPS = 10  # batched steps per measurement at the least (N = 256: 2,560 env-steps)
 IDLE = 1  # DiscreteMetaAction's IDLE
 
 # one measurement in a fresh process: {size: env-steps per CPU second} (size 1: the single env)
@@ -35,7 +36,7 @@ import gymnasium as gym
 import numpy as np
 import feat2map
 
-config, steps, sizes = json.loads(sys.argv[1])
+config, steps, sizes, BATCH_MIN_STEPS = json.loads(sys.argv[1])
 out = {"feat2map": feat2map.__file__}
 for n in sizes:
     if n == 1:
@@ -52,9 +53,9 @@ for n in sizes:
         env.reset(seed=0)
         action = np.full(n, 1)
         t = time.process_time()
-        for _ in range(max(steps // n, 2)):
+        for _ in range(max(steps // n, BATCH_MIN_STEPS)):
             env.step(action)
-    out[n] = (max(steps // n, 2) * n if n > 1 else steps) / (time.process_time() - t)
+    out[n] = (max(steps // n, BATCH_MIN_STEPS) * n if n > 1 else steps) / (time.process_time() - t)
     env.close()
 print(json.dumps(out))
 """
@@ -73,7 +74,7 @@ def measure(pythonpath: Path | None, sizes: list[int]) -> dict:
     env.pop("PYTHONPATH", None)
     if pythonpath is not None:
         env["PYTHONPATH"] = str(pythonpath)
-    run = subprocess.run([sys.executable, "-c", MEASURE, json.dumps([CONFIG, ENV_STEPS, sizes])], env=env,
+    run = subprocess.run([sys.executable, "-c", MEASURE, json.dumps([CONFIG, ENV_STEPS, sizes, BATCH_MIN_STEPS])], env=env,
                          capture_output=True, text=True, cwd=tempfile.gettempdir())
     if run.returncode != 0:
         raise SystemExit(f"measurement failed ({'base' if pythonpath else 'this checkout'}):\n{run.stderr[-2000:]}")
