@@ -173,6 +173,24 @@ def exits_reached(nodes: Iterable[str], nexts: Callable[[str], Sequence[str]], e
     return reached
 
 
+def unreached_exits(entries: Sequence[str], exits: Sequence[str], nexts: Callable[[str], Sequence[str]],
+                    road_of: Callable[[str], object]) -> list[tuple[str, str]]:
+    """(entry, exit) pairs where the exit is not reachable from the entry along `nexts`, leaving
+    out the exits on the entry's own road (reaching those needs a U-turn); in entry, then exit order."""
+    reached = exits_reached(entries, nexts, exits)
+    everything = (1 << len(exits)) - 1
+    own: dict[object, int] = {}  # per road, its exits
+    for i, x in enumerate(exits):
+        own[road_of(x)] = own.get(road_of(x), 0) | 1 << i
+    out = []
+    for e in entries:
+        road = road_of(e)
+        need = everything & ~own.get(road, 0)
+        if reached[e] & need != need:
+            out += [(e, x) for i, x in enumerate(exits) if not reached[e] >> i & 1 and road_of(x) != road]
+    return out
+
+
 def two_way(m: HDMap, lane_ids) -> bool:
     """Every road (outside junctions) carrying these lanes has lanes in both directions."""
     roads = {m.lanes[i].road_id for i in lane_ids}
@@ -239,17 +257,9 @@ def _part_connectivity(m: HDMap, part: list[str]) -> list[str]:
             problems.append(f"network of lane {first} without entries is not strongly connected")
         return problems
     if two_way(m, part):
-        reached = exits_reached(part, lambda lid: m.lanes[lid].successors + lane_changes(m.lanes[lid]), exits)
-        everything = (1 << len(exits)) - 1
-        own: dict[str, int] = {}  # per road, its exits (an entry need not reach its own stub's)
-        for i, x in enumerate(exits):
-            own[m.lanes[x].road_id] = own.get(m.lanes[x].road_id, 0) | 1 << i
-        for e in entries:
-            road = m.lanes[e].road_id
-            need = everything & ~own.get(road, 0)
-            if reached[e] & need != need:
-                problems += [f"exit lane {x} is not reachable from entry lane {e}" for i, x in enumerate(exits)
-                             if not reached[e] >> i & 1 and m.lanes[x].road_id != road]
+        unreached = unreached_exits(entries, exits, lambda lid: m.lanes[lid].successors + lane_changes(m.lanes[lid]),
+                                    lambda lid: m.lanes[lid].road_id)
+        problems += [f"exit lane {x} is not reachable from entry lane {e}" for e, x in unreached]
     from_entries, to_exits = _reach(m, entries), _reach(m, exits, forward=False)
     for lid in part:
         if lid not in from_entries:

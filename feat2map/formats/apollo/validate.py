@@ -28,7 +28,7 @@ from .reader import base_map_file
 from .routing import build_routing_graph
 from ...config import APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
 from ...errors import MapFormatError
-from ...invariants import AREA_EPS_M2, exits_reached
+from ...invariants import AREA_EPS_M2, unreached_exits
 from ...validation import unusable_numbers
 
 LENGTH_TOL_M = 0.05  # recorded lengths vs. the polyline's; endpoints of linked lanes
@@ -753,17 +753,9 @@ def reachability(m: Any, graph: Any) -> list[Problem]:
         if nodes and (len(reach(nodes[:1], fwd)) != len(nodes) or len(reach(nodes[:1], bwd)) != len(nodes)):
             out.append(Problem("routing graph", "map without entries or exits is not strongly connected"))
         return out
-    if two_way:  # each entry's exits as a bit set (bit i: exits[i]), from one pass over the graph
-        reached = exits_reached(entries, fwd.__getitem__, exits)
-        everything = (1 << len(exits)) - 1
-        own: dict[str | None, int] = {}  # per road, its exits (reaching them needs a U-turn)
-        for i, x in enumerate(exits):
-            own[road_of.get(x)] = own.get(road_of.get(x), 0) | 1 << i
-        for e in entries:
-            need = everything & ~own.get(road_of.get(e), 0)
-            if reached[e] & need != need:
-                out += [Problem(f"lane {x}", f"exit not reachable from entry lane {e}") for i, x in enumerate(exits)
-                        if not reached[e] >> i & 1 and road_of.get(x) != road_of.get(e)]
+    if two_way:
+        out += [Problem(f"lane {x}", f"exit not reachable from entry lane {e}")
+                for e, x in unreached_exits(entries, exits, fwd.__getitem__, road_of.get)]
     from_entries, to_exits = reach(entries, fwd), reach(exits, bwd)
     for n in nodes:
         if n not in from_entries:
