@@ -93,13 +93,6 @@ def _parse_int(text: str) -> int:
     return value
 
 
-def _parse_float(text: str) -> float:
-    value = float(text)
-    if not abs(value) <= MAX_NUMBER:  # inf from 1e400 included
-        raise ValueError(f"a number out of range: {text[:40]}")
-    return value
-
-
 def _parse_constant(text: str) -> float:
     raise ValueError(f"a non-finite number: {text}")
 
@@ -108,7 +101,7 @@ def parse_reply(line: bytes) -> Any:
     """A reply line as JSON, or ValueError (RecursionError from deep nesting included) for
     anything but finite numbers of at most MAX_NUMBER in magnitude."""
     try:
-        return json.loads(line, parse_int=_parse_int, parse_float=_parse_float, parse_constant=_parse_constant)
+        return json.loads(line, parse_int=_parse_int, parse_float=_number, parse_constant=_parse_constant)
     except json.JSONDecodeError:
         raise ValueError("not JSON") from None
     except RecursionError:
@@ -127,7 +120,7 @@ def _show(value: Any, n: int = 80) -> str:
 
 def _number(value: Any) -> float:
     """A reply's number as a float: finite and at most MAX_NUMBER in magnitude (a string such as
-    "nan" or "1e308" included), else ValueError."""
+    "nan", "1e308" or JSON's "1e400" included), else ValueError."""
     x = float(value)
     if not abs(x) <= MAX_NUMBER:
         raise ValueError(f"a number out of range: {_show(value, 40)}")
