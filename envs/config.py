@@ -22,6 +22,7 @@ from ..config import AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS, DRIVE_DEFAUL
 from ..errors import Feat2MapError
 from ..features import PAPER_SF_FEATURE_SPACE
 from .driver_view import DriverViewObservation
+from .sim.vehicle import VehicleModel
 
 MAX_TRAFFIC_VEHICLES = 500  # a larger count is a typo, not a scene (raise it here if you mean it)
 MAX_FREQUENCY_HZ = 1000.0
@@ -145,6 +146,20 @@ def offsets(value: Any, where: str) -> None:
 
 
 described(offsets, "{id: seconds}")
+
+
+def vehicle_body(value: Any, where: str) -> None:
+    """The ego's body and steering: keys of DRIVE_DEFAULTS["vehicle"], positive lengths, a
+    steering limit under 90 degrees, the wheelbase and front overhang inside the length."""
+    mapping(value, where)
+    for key, v in value.items():
+        if key not in DRIVE_DEFAULTS["vehicle"]:
+            fail(f"{where}.{key}", unknown_key_message(key, DRIVE_DEFAULTS["vehicle"], "vehicle"))
+        number(0, math.pi / 2 if key == "max_steering" else 100.0, lo_open=key != "front_overhang")(v, f"{where}.{key}")
+    VehicleModel.of(value, where)
+
+
+described(vehicle_body, "{length, width, wheelbase, front_overhang [m], max_steering [rad]}")
 
 
 def route(value: Any, where: str) -> None:
@@ -338,6 +353,10 @@ SETTINGS: tuple[Setting, ...] = (
             "where it cannot stop before the first line)"),
     Setting("goal_distance", _drive("goal_distance"), number(0), "[m] into the last lane of the route: "
             "completion"),
+    Setting("vehicle", dict(_drive("vehicle")), vehicle_body, "the ego's body and steering limit (a kinematic "
+            "bicycle about the rear axle; a dict merges into the default)",
+            multi_agent=NotTaken("agents follow their lanes' centre lines with traffic's body"),
+            shown="4.8 x 1.9 m, 2.9 m wheelbase, 0.95 m front overhang, 35 deg"),
     Setting("traffic_vehicles", 8, number(0, MAX_TRAFFIC_VEHICLES, integer=True), "traffic vehicles, on the "
             "ego route and the roads crossing it"),
     Setting("traffic_respawn", True, boolean, "traffic that finished its route or crashed is replaced"),
@@ -451,6 +470,8 @@ def merge_config(base: dict, delta: Mapping | None) -> dict:
         cur = base.get(key)
         if key in ("observation", "action") and isinstance(val, Mapping) and isinstance(cur, Mapping):
             base[key] = {**cur, **val} if val.get("type", cur.get("type")) == cur.get("type") else dict(val)
+        elif key == "vehicle" and isinstance(val, Mapping) and isinstance(cur, Mapping):
+            base[key] = {**cur, **val}
         else:
             base[key] = val
     return base

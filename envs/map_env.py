@@ -34,6 +34,7 @@ from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place
 from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
+from .sim.vehicle import VehicleModel
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
@@ -140,8 +141,9 @@ class MapEnv(AbstractEnv):
         lanes before a short first lane), at least its braking distance before the first stop
         line (slower where the road before the line is too short)."""
         c = self.config
+        model = VehicleModel.of(c["vehicle"])
         route, s0, speed = start_place(self.net, route, extend, float(c["ego_start_distance"]),
-                                       float(c["goal_distance"]), float(c["ego_initial_speed"]), EgoVehicle.LENGTH)
+                                       float(c["goal_distance"]), float(c["ego_initial_speed"]), model.length)
         lane = self.net.lane_of[route[0]]
         pos, heading = lane.position(s0, 0.0), lane.heading_at(s0)
         if isinstance(self.action_type, DiscreteMetaAction):
@@ -153,6 +155,7 @@ class MapEnv(AbstractEnv):
             ego = EgoVehicle(self.road, pos, heading, speed)
             ego.auto_steer = not getattr(self.action_type, "lateral", True)
             ego.init_route(route)
+        ego.fit(model)
         self.road.vehicles.append(ego)
         self.control.passage_start(ego)  # the first on the road: it holds the passages it starts in
         self.controlled_vehicles = [ego]

@@ -4,7 +4,7 @@ On a narrow two-way road (a `network.Passage`: opposite lanes too close to pass)
 one direction turn onto the road out of a junction, or through a kink of the road itself, right
 beside where the other direction waits (for the passage, or at the junction's line). A turning
 car's body does not stay on its centreline: the lane keeping (highway-env's lateral P -> heading
-P -> steering law, `vehicles.RouteFollower.steering_control`) runs wide through a bend tighter
+P -> yaw rate law, `sim.vehicle.lane_keeping`) runs wide through a bend tighter
 than it can take, and its body turns late, so its corners sweep over the other lane (digitaf's
 `w134499576_0_0_1`, a 90-degree kink within 2 m: the ego's heading was 0.56 rad off its lane
 4 m after it; SUMO's 2.0-2.5 m lanes at junction 33: the ego turning out of `4262_0_-1` clipped a
@@ -26,17 +26,15 @@ import numpy as np
 import shapely
 from shapely import STRtree
 
-from ..angles import wrap_angle
 from ..config import (STOP_POINT_M, SWEEP_CLEARANCE_M, SWEEP_LEAD_M, SWEEP_SPEEDS_MPS, SWEEP_STEP_S,
                       TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..routes import sharpest_radius
 from .lanes import PolylineLane
+from .sim.vehicle import VehicleModel, integrate, lane_keeping
 
 if TYPE_CHECKING:
     from .network import MapNetwork
 
-# highway-env's ControlledVehicle gains, which the ego's lane keeping uses (vehicles.RouteFollower)
-TAU_PURSUIT_S, KP_LATERAL, KP_HEADING, MAX_STEERING_RAD = 0.1, 1 / 0.6, 1 / 0.2, math.pi / 3
 SAMPLE_M = 0.5  # standing places along a lane are tried this often
 
 
@@ -53,24 +51,18 @@ def footprints(poses: np.ndarray) -> np.ndarray:
 
 def sweep(path: PolylineLane, speed: float, s_from: float = 0.0) -> list[tuple[float, float, float]]:
     """Poses (x, y, heading) of a car that starts on `path` at `s_from`, on its centre and
-    heading, and keeps to it at a constant `speed` with the ego's lane keeping and highway-env's
-    bicycle model (one pose every SWEEP_STEP_S), until its centre reaches the path's end."""
+    heading, and keeps to it at a constant `speed` with the ego's lane keeping and bicycle (the
+    default `VehicleModel`; one pose every SWEEP_STEP_S), until its centre reaches the path's end."""
     x, y = (float(c) for c in path.position(s_from, 0.0))
     h = path.heading_at(s_from)
-    half = VEHICLE_LENGTH_M / 2
+    model = VehicleModel.of()
     poses = [(x, y, h)]
     for _ in range(int(4 * path.length / max(speed * SWEEP_STEP_S, 1e-3)) + 10):
         s, r = path.local_coordinates(np.array([x, y]))
         if s >= path.length - 1e-3:
             break
-        heading_cmd = math.asin(min(max(-KP_LATERAL * r / speed, -1.0), 1.0))
-        heading_ref = path.heading_at(s + speed * TAU_PURSUIT_S) + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
-        slip = math.asin(min(max(half / speed * KP_HEADING * wrap_angle(heading_ref - h), -1.0), 1.0))
-        steer = min(max(math.atan(2 * math.tan(slip)), -MAX_STEERING_RAD), MAX_STEERING_RAD)
-        beta = math.atan(0.5 * math.tan(steer))
-        x += speed * math.cos(h + beta) * SWEEP_STEP_S
-        y += speed * math.sin(h + beta) * SWEEP_STEP_S
-        h += speed * math.sin(beta) / half * SWEEP_STEP_S
+        steer = lane_keeping(path, s, r, h, speed, model)
+        x, y, h, _ = integrate(x, y, h, speed, steer, 0.0, SWEEP_STEP_S, model.wheelbase, model.rear_offset, math)
         poses.append((x, y, h))
     return poses
 

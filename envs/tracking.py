@@ -15,20 +15,19 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..angles import wrap_angle
 from ..config import (TRACKING_ACCEL_RANGE, TRACKING_HOLD_WINDOW_S, TRACKING_LOOKAHEAD_MIN_M, TRACKING_LOOKAHEAD_TIME_S,
                       TRACKING_POSITION_GAIN, TRACKING_PREVIEW_S, TRACKING_SPEED_GAIN, TRACKING_STOP_SPEED_MPS)
+from .sim.vehicle import VehicleModel, pursuit_steering
 
-MAX_STEERING_RAD = math.pi / 3  # highway-env's ControlledVehicle.MAX_STEERING_ANGLE
 
 
-def tracking_model() -> dict[str, Any]:
-    """How `TrajectoryTracker` follows a trajectory, as numbers for a planner in another process
-    (the planner bridge's init; read from the constants it uses)."""
-    return {"steering": "pure_pursuit", "lookahead_min_m": TRACKING_LOOKAHEAD_MIN_M,
+def tracking_model(model: VehicleModel) -> dict[str, Any]:
+    """How `TrajectoryTracker` follows a trajectory with `model`, as numbers for a planner in
+    another process (the planner bridge's init; read from the constants it uses)."""
+    return {"steering": "pure_pursuit", "pursuit_point": "rear_axle", "lookahead_min_m": TRACKING_LOOKAHEAD_MIN_M,
             "lookahead_time_s": TRACKING_LOOKAHEAD_TIME_S, "speed_gain": TRACKING_SPEED_GAIN,
             "position_gain": TRACKING_POSITION_GAIN, "preview_s": TRACKING_PREVIEW_S,
-            "acceleration_range": [float(x) for x in TRACKING_ACCEL_RANGE], "max_steering": MAX_STEERING_RAD,
+            "acceleration_range": [float(x) for x in TRACKING_ACCEL_RANGE], "max_steering": model.max_steering,
             "stop_speed_mps": TRACKING_STOP_SPEED_MPS, "hold_window_s": TRACKING_HOLD_WINDOW_S}
 
 
@@ -61,10 +60,10 @@ class Trajectory:
 class TrajectoryTracker:
     """Pure pursuit + speed P control along one trajectory; `clock()` gives the simulation time."""
 
-    def __init__(self, trajectory: Trajectory, clock: Callable[[], float], wheelbase: float = 5.0) -> None:
+    def __init__(self, trajectory: Trajectory, clock: Callable[[], float], model: VehicleModel | None = None) -> None:
         self.traj = trajectory
         self.clock = clock
-        self.wheelbase = wheelbase  # highway-env's bicycle model turns at speed * steering / LENGTH
+        self.model = model or VehicleModel.of()  # the bicycle it steers (pure pursuit of its rear axle)
         pts = np.column_stack([trajectory.x, trajectory.y])
         seg = np.hypot(*np.diff(pts, axis=0).T) if len(pts) > 1 else np.zeros(0)
         self.s = np.concatenate([[0.0], np.cumsum(seg)])
@@ -113,17 +112,6 @@ class TrajectoryTracker:
                 target = target + extra * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
         else:
             target = p + lookahead * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
-        dx, dy = target - p
-        alpha = math.atan2(dy, dx) - heading
-        alpha = wrap_angle(alpha)
-        ld = max(math.hypot(dx, dy), 1e-3)
-        # pure pursuit of the vehicle centre, which travels at heading + slip (highway-env's
-        # bicycle model: tan(slip) = tan(steering) / 2, path curvature 2 sin(slip) / length):
-        # the arc to the target, 2 sin(alpha - slip) / ld, solved for the slip. Measuring alpha
-        # from the heading alone over-steered by (1 + length / ld) and cut a 10 m-radius turn
-        # by 0.7 m.
-        r = self.wheelbase / ld
-        slip = math.atan2(r * math.sin(alpha), 1.0 + r * math.cos(alpha))
-        steering = math.atan(2.0 * math.tan(slip))
+        steering = pursuit_steering(float(p[0]), float(p[1]), heading, float(target[0]), float(target[1]), self.model)
         return {"acceleration": float(np.clip(acc, *TRACKING_ACCEL_RANGE)),
-                "steering": float(np.clip(steering, -MAX_STEERING_RAD, MAX_STEERING_RAD))}
+                "steering": steering}

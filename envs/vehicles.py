@@ -12,9 +12,9 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-from ..angles import wrap_angle
 from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from .network import MapNetwork
+from .sim.vehicle import VehicleModel, integrate, lane_keeping, yaw_rate
 from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
 
@@ -59,10 +59,6 @@ class RouteFollower:
         heading: float
         history: Any
         LENGTH: float
-        TAU_PURSUIT: float
-        KP_LATERAL: float
-        KP_HEADING: float
-        MAX_STEERING_ANGLE: float
 
         @classmethod
         def create_from(cls, vehicle: Any) -> Any: ...
@@ -134,21 +130,6 @@ class RouteFollower:
                 return []
             path.append(nxt)
         return path
-
-    def steering_control(self, target_lane_index) -> float:
-        """highway-env's lane-following controller (lateral P -> heading P -> steering), in scalar
-        math: numpy's clip on scalars dominated the step time."""
-        net = self.road.network
-        lane = net.get_lane(target_lane_index)
-        s, r = self.projection(net.id_of[target_lane_index])
-        future_heading = lane.heading_at(s + self.speed * self.TAU_PURSUIT)
-        v = self.speed if abs(self.speed) > 1e-2 else 1e-2
-        heading_cmd = math.asin(min(max(-self.KP_LATERAL * r / v, -1.0), 1.0))
-        heading_ref = future_heading + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
-        rate = self.KP_HEADING * wrap_angle(heading_ref - self.heading)
-        slip = math.asin(min(max(self.LENGTH / 2 / v * rate, -1.0), 1.0))
-        steer = math.atan(2 * math.tan(slip))
-        return min(max(steer, -self.MAX_STEERING_ANGLE), self.MAX_STEERING_ANGLE)
 
     def on_state_update(self) -> None:
         if self.road:
@@ -306,20 +287,53 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         return self.route_s() >= self.net.lane_of[self.lane_route[-1]].length - FINISH_MARGIN_M
 
 
-class EgoMDPVehicle(RouteFollower, MDPVehicle):
-    """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
+class Ego(RouteFollower):
+    """Mixin of the controlled egos: our kinematic bicycle (`sim.vehicle`) with the config's body
+    in place of highway-env's (wheelbase = length = 5 m, axles at +-length/2), and lane keeping
+    through it."""
+
+    model = VehicleModel.of()
+    if TYPE_CHECKING:
+        action: dict
+        impact: Any
+        crashed: bool
+        WIDTH: float
+        MAX_STEERING_ANGLE: float
+
+        def clip_actions(self) -> None: ...
+
+    def fit(self, model: VehicleModel) -> None:
+        """Take `model`'s body and steering limit (highway-env reads LENGTH, WIDTH, diagonal)."""
+        self.model = model
+        self.LENGTH, self.WIDTH, self.MAX_STEERING_ANGLE = model.length, model.width, model.max_steering
+        self.diagonal = math.hypot(model.length, model.width)
+
+    def steering_control(self, target_lane_index) -> float:
+        """Lane keeping on the target lane (`sim.vehicle.lane_keeping`)."""
+        net = self.road.network
+        s, r = self.projection(net.id_of[target_lane_index])
+        return lane_keeping(net.get_lane(target_lane_index), s, r, self.heading, self.speed, self.model)
 
     def step(self, dt: float) -> None:
-        super().step(dt)
-        self.settle()
+        step_egos([self], dt)
 
     def settle(self) -> None:
-        """After a step: no reversing while the target speed is not negative."""
-        if self.speed < 0 and self.target_speed >= 0:
+        """After a step: no reversing while no reverse is asked for."""
+        if self.speed < 0 and not self.reversing():
             self.speed = 0.0
 
+    def reversing(self) -> bool:
+        return False
 
-class EgoVehicle(RouteFollower, ControlledVehicle):
+
+class EgoMDPVehicle(Ego, MDPVehicle):
+    """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
+
+    def reversing(self) -> bool:
+        return self.target_speed < 0
+
+
+class EgoVehicle(Ego, ControlledVehicle):
     """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
     lateral control, steering follows the route (a lane-keeping assist)."""
 
@@ -352,63 +366,58 @@ class EgoVehicle(RouteFollower, ControlledVehicle):
                 action["steering"] = self.steering_control(self.target_lane_index)
             Vehicle.act(self, action)
 
-    def step(self, dt: float) -> None:
-        Vehicle.step(self, dt)
-        self.settle()
-
-    def settle(self) -> None:
-        """After a step: no reversing without a negative acceleration command."""
-        if self.speed < 0 and self.action.get("acceleration", 0) <= 0:
-            self.speed = 0.0
+    def reversing(self) -> bool:
+        return self.action.get("acceleration", 0) > 0
 
 
-def vehicle_model(vehicle: Any, acceleration_range: Any, steering_range: Any) -> dict[str, Any]:
-    """The ego's motion model for a planner in another process (the planner bridge's init): the
-    kinematic bicycle of highway-env's `Vehicle.step`, which turns at speed * sin(slip) /
-    (LENGTH / 2), i.e. axles at +-LENGTH/2 about the body centre (its reference point); read from
-    `vehicle` and the env's action limits, so that a change of the model reaches the planner."""
-    length, width = float(vehicle.LENGTH), float(vehicle.WIDTH)
-    return {"kind": "kinematic_bicycle", "reference_point": "centre", "length": length, "width": width,
-            "wheelbase": length, "front_axle": length / 2, "rear_axle": -length / 2,
-            "acceleration_range": [float(x) for x in acceleration_range],
-            "steering_range": [float(x) for x in steering_range],
-            "max_speed": float(vehicle.MAX_SPEED), "min_speed": 0.0}
+def vehicle_model(vehicle: Ego, acceleration_range: Any, steering_range: Any) -> dict[str, Any]:
+    """The ego's motion model for a planner in another process (the planner bridge's init): its
+    `sim.vehicle.VehicleModel`, the env's action limits (steering within the model's) and speeds."""
+    m = vehicle.model
+    lo, hi = (float(x) for x in steering_range)
+    return {**m.describe(), "acceleration_range": [float(x) for x in acceleration_range],
+            "steering_range": [max(lo, -m.max_steering), min(hi, m.max_steering)],
+            "max_speed": float(getattr(vehicle, "MAX_SPEED", 40.0)), "min_speed": 0.0}
 
 
-def bicycle_state(vehicle: Any) -> tuple[float, float, float]:
-    """(steering, yaw rate, acceleration) of `vehicle` in the env's frame: its last command and
-    the yaw rate highway-env's `Vehicle.step` gives it (speed * sin(slip) / (LENGTH / 2), slip =
-    atan(tan(steering) / 2))."""
+def bicycle_state(vehicle: Ego) -> tuple[float, float, float]:
+    """(steering, yaw rate, acceleration) of `vehicle` in the env's frame: its last command
+    (steering within the model's limit) and the yaw rate the bicycle gives it."""
     action = vehicle.action if isinstance(vehicle.action, dict) else {}
-    steering = float(action.get("steering", 0.0))
-    slip = math.atan(0.5 * math.tan(steering))
-    return steering, float(vehicle.speed) * math.sin(slip) / (float(vehicle.LENGTH) / 2), \
-        float(action.get("acceleration", 0.0))
+    m = vehicle.model
+    steering = min(max(float(action.get("steering", 0.0)), -m.max_steering), m.max_steering)
+    return steering, yaw_rate(float(vehicle.speed), steering, m.wheelbase), float(action.get("acceleration", 0.0))
 
 
 def step_egos(egos: list, dt: float) -> None:
-    """`step(dt)` of many egos (`EgoMDPVehicle`, `EgoVehicle`; none with an impact pending) at
-    once: highway-env's `Vehicle.step` (its modified bicycle model) as one array program over
-    them, with the same operations (NumPy's ufuncs give arrays the values they give scalars),
-    then their lane locations (`MapNetwork.locate_many`, as `on_state_update`) and `settle`."""
+    """`step(dt)` of egos: the bicycle (`sim.vehicle.integrate`) over all of them at once (with
+    floats for one), a pending impact applied as highway-env does, then their lane locations
+    (`MapNetwork.locate_many`, as `on_state_update`) and `settle`."""
     for v in egos:
         v.clip_actions()
-    steer = np.array([v.action["steering"] for v in egos], dtype=float)
-    acc = np.array([v.action["acceleration"] for v in egos], dtype=float)
-    speed = np.array([v.speed for v in egos], dtype=float)
-    heading = np.array([v.heading for v in egos], dtype=float)
-    half = np.array([v.LENGTH for v in egos], dtype=float) / 2
-    beta = np.arctan(1 / 2 * np.tan(steer))
-    dx = speed * np.cos(heading + beta) * dt
-    dy = speed * np.sin(heading + beta) * dt
-    heading = heading + speed * np.sin(beta) / half * dt
-    speed = (speed + acc * dt).tolist()
-    for k, v in enumerate(egos):
+    if len(egos) == 1:
+        v = egos[0]
+        m = v.model
+        steer = min(max(v.action["steering"], -m.max_steering), m.max_steering)
+        x, y, heading, speed = integrate(float(v.position[0]), float(v.position[1]), float(v.heading), float(v.speed),
+                                         steer, v.action["acceleration"], dt, m.wheelbase, m.rear_offset, math)
+        moved = [(x, y, heading, speed)]
+    else:
+        limit = np.array([v.model.max_steering for v in egos])
+        steer = np.clip([v.action["steering"] for v in egos], -limit, limit)
+        x, y, heading, speed = integrate(
+            np.array([v.position[0] for v in egos], dtype=float), np.array([v.position[1] for v in egos], dtype=float),
+            np.array([v.heading for v in egos], dtype=float), np.array([v.speed for v in egos], dtype=float), steer,
+            np.array([v.action["acceleration"] for v in egos], dtype=float), dt,
+            np.array([v.model.wheelbase for v in egos]), np.array([v.model.rear_offset for v in egos]))
+        moved = list(zip(x.tolist(), y.tolist(), heading.tolist(), speed.tolist()))
+    for v, (x, y, heading, speed) in zip(egos, moved):
         p = v.position
-        p[0] += dx[k]
-        p[1] += dy[k]
-        v.heading = heading[k]
-        v.speed = speed[k]
+        p[0], p[1] = x, y
+        if v.impact is not None:
+            p += v.impact
+            v.crashed, v.impact = True, None
+        v.heading, v.speed = heading, speed
     located = [v for v in egos if v.road]
     if located:
         hints = [v.location_hint() for v in located]

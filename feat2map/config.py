@@ -70,6 +70,8 @@ SIGNAL_GREEN_S, SIGNAL_AMBER_S, SIGNAL_ALL_RED_S = 12.0, 3.0, 2.0
 # the driving scenario's defaults, keyed as the env's config (envs/config.py `SETTINGS` takes these values;
 # tests/test_layers.py checks the env's defaults) and read by the OpenSCENARIO export and the
 # scenario tools, which must model the drive as the env does without importing it
+# the ego's lane keeping (envs/sim/vehicle.py `lane_keeping`): highway-env's ControlledVehicle gains
+LANE_KEEPING_TAU_S, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_KP_HEADING = 0.1, 1 / 0.6, 1 / 0.2
 DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
     "ego_start_distance": 30.0,  # [m] before the end of the route's first lane (the first stop line)
     "ego_initial_speed": 4.5,  # [m/s]
@@ -79,6 +81,9 @@ DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
     "signal_phases": "paired",  # "paired": opposite approaches together; "single": one at a time
     "pedestrian_speed": 1.4,  # [m/s]
     "pedestrians_per_crosswalk": 3,
+    # the ego's body and steering (envs/sim/vehicle.py): a mid-size car, reference point the body's centre
+    "vehicle": MappingProxyType({"length": 4.8, "width": 1.9, "wheelbase": 2.9, "front_overhang": 0.95,  # [m]
+                                 "max_steering": round(math.radians(35.0), 4)}),  # [rad]
 })
 SIGNAL_SAME_APPROACH_DEG = 30.0  # signals whose traffic travels within this of one direction: one approach
 SIGNAL_OPPOSITE_DEG = 150.0  # approaches further apart than this are opposite (paired phases)

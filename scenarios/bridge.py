@@ -696,8 +696,8 @@ class BridgePlanner:
         from feat2map.envs.vehicles import vehicle_model
 
         e = self.env
-        act = e.action_type
-        return {**vehicle_model(e.vehicle, act.acceleration_range, act.steering_range), "tracker": tracking_model()}
+        act, ego = e.action_type, e.vehicle
+        return {**vehicle_model(ego, act.acceleration_range, act.steering_range), "tracker": tracking_model(ego.model)}
 
     def route_stop_lines(self, lane_ids: dict) -> list[dict]:
         """The stop lines on the ego's route (`MapNetwork.stop_lines` of its route lanes), in route
@@ -751,7 +751,7 @@ class BridgePlanner:
             except (KeyError, TypeError, ValueError) as exc:
                 raise BridgeError(self.proc.failure(f"garbage trajectory: {exc}")) from None
             control = self.env.control
-            ego.tracker = TrajectoryTracker(traj, clock=lambda: float(control.t), wheelbase=float(ego.LENGTH))
+            ego.tracker = TrajectoryTracker(traj, clock=lambda: float(control.t), model=ego.model)
             self._control = np.zeros(2, dtype=np.float32)
         elif kind == "control":
             try:

@@ -6,6 +6,7 @@ goes on to write its report (never a hang, never exit 2)."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import textwrap
@@ -20,6 +21,7 @@ import pytest
 
 import feat2map
 from feat2map import cli
+from feat2map.envs.sim.vehicle import VehicleModel, integrate
 from feat2map.envs.tracking import Trajectory, TrajectoryTracker
 from feat2map.formats import native
 from feat2map.scenarios.bridge import BridgeError, BridgePlanner, PlannerProcess
@@ -179,16 +181,9 @@ def test_the_tracker_follows_a_straight_trajectory_and_stops_at_its_end():
     clock = [0.0]
     traj = Trajectory.of([[0, 0, 0, 0, 5.0], [2, 10, 0, 0, 5.0], [4, 15, 0, 0, 0.0]])
     tr = TrajectoryTracker(traj, clock=lambda: clock[0])
-    x, y, h, v = 0.0, 1.0, 0.0, 5.0  # 1 m left of the path
-    for _ in range(90):  # 6 s at 15 Hz (highway-env's bicycle, wheelbase = length 5 m)
-        cmd = tr.command((x, y), h, v)
-        beta = np.arctan(0.5 * np.tan(cmd["steering"]))
-        x += v * np.cos(h + beta) / 15
-        y += v * np.sin(h + beta) / 15
-        h += v * np.sin(beta) / 2.5 / 15
-        v = max(0.0, v + cmd["acceleration"] / 15)
-        clock[0] += 1 / 15
-    assert abs(y) < 0.3 and v < 0.5 and 12.0 < x < 17.0
+    path = _drive_tracker(tr, clock, 0.0, 1.0, 0.0, 5.0, 90)  # 1 m left of the path, 6 s at 15 Hz
+    (x, y), v = path[-1], clock[1]
+    assert abs(y) < 0.3 and v < 0.5 and 12.0 < x < 17.0, (x, y, v)
     with pytest.raises(ValueError):
         Trajectory.of([[0, 0, 0, 0, float("nan")]])
     with pytest.raises(ValueError):
@@ -196,24 +191,25 @@ def test_the_tracker_follows_a_straight_trajectory_and_stops_at_its_end():
 
 
 def _drive_tracker(tr, clock, x, y, h, v, steps, hz=15):
-    """highway-env's bicycle (wheelbase = length 5 m, slip at the centre) under the tracker."""
+    """The env's bicycle (`sim.vehicle.integrate`, the default model) under the tracker: the
+    centre's path; the last speed is left in clock[1]."""
+    m = VehicleModel.of()
     path = []
     for _ in range(steps):
         cmd = tr.command((x, y), h, v)
-        beta = np.arctan(0.5 * np.tan(cmd["steering"]))
-        x += v * np.cos(h + beta) / hz
-        y += v * np.sin(h + beta) / hz
-        h += v * np.sin(beta) / 2.5 / hz
-        v = max(0.0, v + cmd["acceleration"] / hz)
+        x, y, h, v = integrate(x, y, h, v, cmd["steering"], cmd["acceleration"], 1 / hz, m.wheelbase, m.rear_offset,
+                               math)
+        v = max(0.0, v)
         clock[0] += 1 / hz
         path.append((x, y))
+    clock[1:] = [v]
     return np.array(path)
 
 
 def test_the_tracker_stays_on_a_junction_turn():
-    """A 10 m-radius quarter turn at 4.5 m/s: the centre stays within 0.25 m of the arc (pure
-    pursuit measured from the heading rather than the direction of travel cut it by 0.7 m and
-    the reactive planner then saw the ego's body on the road boundary, issue 22)."""
+    """A 10 m-radius quarter turn at 4.5 m/s: the centre stays within 0.25 m of the arc (a pure
+    pursuit that ignored where the model turns about cut it by 0.7 m and the reactive planner
+    then saw the ego's body on the road boundary, issue 22)."""
     r, v = 10.0, 4.5
     ang = np.linspace(0.0, np.pi / 2, 60)
     t = ang * r / v

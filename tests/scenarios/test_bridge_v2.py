@@ -82,11 +82,15 @@ def test_init_carries_the_vehicle_model_stop_lines_and_rules(scenario, tmp_path,
     msgs = _record(scenario, tmp_path, protocol)
     init = next(m for m in msgs if m["type"] == "init")
     v = init["vehicle"]
-    assert (v["length"], v["width"]) == (Vehicle.LENGTH, Vehicle.WIDTH) == (init["ego"]["length"], init["ego"]["width"])
-    assert (v["wheelbase"], v["front_axle"], v["rear_axle"]) == (Vehicle.LENGTH, Vehicle.LENGTH / 2, -Vehicle.LENGTH / 2)
+    body = config.DRIVE_DEFAULTS["vehicle"]  # the env's default vehicle, which the rollout drives
+    assert (v["length"], v["width"]) == (body["length"], body["width"]) == (init["ego"]["length"], init["ego"]["width"])
+    assert v["wheelbase"] == body["wheelbase"] == v["front_axle"] - v["rear_axle"]
+    assert v["length"] / 2 - v["front_axle"] == pytest.approx(body["front_overhang"]) == v["front_overhang"]
     assert v["kind"] == "kinematic_bicycle" and v["reference_point"] == "centre"
+    assert v["max_steering"] == body["max_steering"] == v["tracker"]["max_steering"]
     assert v["acceleration_range"] == BRIDGE_ACTION_CONFIG["acceleration_range"]
-    assert v["steering_range"] == pytest.approx(BRIDGE_ACTION_CONFIG["steering_range"])
+    lo, hi = BRIDGE_ACTION_CONFIG["steering_range"]
+    assert v["steering_range"] == pytest.approx([max(lo, -body["max_steering"]), min(hi, body["max_steering"])])
     assert v["max_speed"] == Vehicle.MAX_SPEED
     t = v["tracker"]
     assert (t["lookahead_min_m"], t["speed_gain"], t["preview_s"], t["hold_window_s"]) == (
@@ -135,7 +139,7 @@ def test_init_carries_the_vehicle_model_stop_lines_and_rules(scenario, tmp_path,
 def test_step_ego_carries_steering_yaw_rate_and_acceleration(scenario, tmp_path, protocol):
     msgs = _record(scenario, tmp_path, protocol)
     init = next(m for m in msgs if m["type"] == "init")
-    half = init["vehicle"]["wheelbase"] / 2
+    wheelbase = init["vehicle"]["wheelbase"]
     steps = [m["ego"] for m in msgs if m["type"] == "step"]
     assert len(steps) >= 10
     assert steps[0]["steering"] == 0.0 and steps[0]["yaw_rate"] == 0.0
@@ -143,8 +147,7 @@ def test_step_ego_carries_steering_yaw_rate_and_acceleration(scenario, tmp_path,
         # the control's steering turns clockwise in the map's frame (the env's sign): the ego's steering
         # is reported anticlockwise-positive, as its heading and yaw rate
         assert ego["steering"] == pytest.approx(-STEER) and ego["acceleration"] == pytest.approx(ACCEL)
-        slip = math.atan(math.tan(ego["steering"]) / 2)
-        assert ego["yaw_rate"] == pytest.approx(ego["speed"] * math.sin(slip) / half)
+        assert ego["yaw_rate"] == pytest.approx(ego["speed"] * math.tan(ego["steering"]) / wheelbase)
     dt = init["dt"]
     a, b = steps[5], steps[6]
     turned = (b["heading"] - a["heading"]) / dt

@@ -92,10 +92,11 @@ class _ScenarioWriter:
         rng = np.random.default_rng(sc.seed)
         lanes = self.route_lanes(sc)
         init, entities = X.Init(), X.Entities()
-        entities.add_scenario_object("ego", _car(X, "ego"))
+        entities.add_scenario_object("ego", _ego(X, cfg["vehicle"]))
         start = lanes[0]
-        s0 = max(0.0, start.length - float(cfg["ego_start_distance"]))
-        init.add_init_action("ego", X.TeleportAction(self.lane_position(start, s0)))
+        s0 = max(0.0, start.length - float(cfg["ego_start_distance"]))  # the body's centre, as the env
+        rear = s0 - _rear_offset(cfg["vehicle"])  # OpenSCENARIO's reference point: the rear axle
+        init.add_init_action("ego", X.TeleportAction(self.lane_position(start, max(rear, 0.0))))
         init.add_init_action("ego", X.AbsoluteSpeedAction(float(cfg["ego_initial_speed"]), _step(X)))
         route = X.Route(f"{sc.name} route")
         route.add_waypoint(self.lane_position(start, s0), X.RouteStrategy.shortest)
@@ -307,6 +308,22 @@ def _r(x: float) -> float:
 def _box(X, size):
     length, width, height = size
     return X.BoundingBox(width, length, height, 0, 0, height / 2)
+
+
+def _rear_offset(body) -> float:
+    """Metres from the body's centre back to the rear axle (the env's `VehicleModel.rear_offset`)."""
+    rear_overhang = body["length"] - body["wheelbase"] - body["front_overhang"]
+    return body["wheelbase"] / 2 + (rear_overhang - body["front_overhang"]) / 2
+
+
+def _ego(X, body):
+    """The env's ego (DRIVE_DEFAULTS["vehicle"]): its body about the rear axle, its axles and
+    steering limit."""
+    length, width, height = body["length"], body["width"], CAR_SIZE[2]
+    box = X.BoundingBox(width, length, height, _rear_offset(body), 0, height / 2)
+    track = width - 0.3
+    return X.Vehicle("ego", X.VehicleCategory.car, box, X.Axle(body["max_steering"], 0.7, track, body["wheelbase"], 0.35),
+                     X.Axle(0.0, 0.7, track, 0.0, 0.35), 40, 5, 9)
 
 
 def _car(X, name: str):

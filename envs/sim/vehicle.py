@@ -1,0 +1,103 @@
+"""The controlled vehicle: a kinematic bicycle about the rear axle with a real car's body
+(docs/architecture.md, "The vehicle"). One set of functions over arrays (or floats: a single
+ego is a batch of one) integrates it, turns a wanted yaw rate into steering, and describes it
+to planners in other processes."""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ...angles import wrap_angle
+from ...config import DRIVE_DEFAULTS, LANE_KEEPING_KP_HEADING, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_TAU_S
+from ...errors import Feat2MapError
+
+
+@dataclass(frozen=True)
+class VehicleModel:
+    """The body and steering of a controlled vehicle; (x, y) is the body's centre and the rear
+    axle lies `rear_offset` behind it along the heading."""
+
+    length: float
+    width: float
+    wheelbase: float
+    front_overhang: float
+    max_steering: float  # [rad] at the front wheels, either way
+
+    @classmethod
+    def of(cls, config: Mapping[str, Any] | None = None, where: str = "config.vehicle") -> "VehicleModel":
+        """From the env config's `vehicle` dict (the defaults where keys are missing); a body the
+        wheelbase and overhang do not fit is an error naming the key."""
+        values = {**DRIVE_DEFAULTS["vehicle"], **(config or {})}
+        model = cls(**{k: float(values[k]) for k in DRIVE_DEFAULTS["vehicle"]})
+        if model.wheelbase + model.front_overhang > model.length:
+            raise Feat2MapError(f"wheelbase + front_overhang ({model.wheelbase} + {model.front_overhang} m) must "
+                                f"fit in the length ({model.length} m)", where)
+        return model
+
+    @property
+    def rear_overhang(self) -> float:
+        return self.length - self.wheelbase - self.front_overhang
+
+    @property
+    def rear_offset(self) -> float:
+        """Metres from the body's centre back to the rear axle."""
+        return self.wheelbase / 2 + (self.rear_overhang - self.front_overhang) / 2
+
+    def describe(self) -> dict[str, Any]:
+        """The model as numbers for a planner in another process (the planner bridge's init):
+        axles as metres along the heading from the reference point, the body's centre."""
+        return {"kind": "kinematic_bicycle", "reference_point": "centre", **asdict(self),
+                "rear_overhang": self.rear_overhang, "front_axle": self.wheelbase - self.rear_offset,
+                "rear_axle": -self.rear_offset}
+
+
+def integrate(x, y, heading, speed, steering, acceleration, dt: float, wheelbase, rear_offset, lib: Any = np):
+    """(x, y, heading, speed) after `dt` of the bicycle: the rear axle runs along the arc of
+    curvature tan(steering) / wheelbase at `speed` (its chord, to 1e-8 for turns under a radian a
+    step), the body's centre `rear_offset` ahead of it; the speed then changes by acceleration *
+    dt. Arrays with `lib` numpy, or floats with `lib` math (a single ego: no array overhead)."""
+    ds = speed * dt
+    turn = ds * lib.tan(steering) / wheelbase
+    half = turn / 2
+    sq = half * half
+    chord = ds * (1.0 - sq / 6.0 + sq * sq / 120.0)  # ds * sin(half) / half
+    cos0, sin0 = lib.cos(heading), lib.sin(heading)
+    heading = heading + turn
+    cos1, sin1 = lib.cos(heading), lib.sin(heading)
+    mid = heading - half
+    return (x + rear_offset * (cos1 - cos0) + chord * lib.cos(mid),
+            y + rear_offset * (sin1 - sin0) + chord * lib.sin(mid), heading, speed + acceleration * dt)
+
+
+def yaw_rate(speed: float, steering: float, wheelbase: float) -> float:
+    """The body's yaw rate [rad/s] at this speed and steering."""
+    return speed * math.tan(steering) / wheelbase
+
+
+def steering_for(rate: float, speed: float, model: VehicleModel) -> float:
+    """The steering angle that gives yaw rate `rate` at `speed`, within the model's limit."""
+    steer = math.atan(model.wheelbase * rate / max(speed, 1e-2))
+    return min(max(steer, -model.max_steering), model.max_steering)
+
+
+def lane_keeping(lane: Any, s: float, r: float, heading: float, speed: float, model: VehicleModel) -> float:
+    """The steering that keeps the body's centre on `lane`, where it stands at (s along, r
+    beside): highway-env's lane keeping (lateral P -> heading P -> yaw rate), its yaw rate made
+    by this model's steering."""
+    v = speed if abs(speed) > 1e-2 else 1e-2
+    heading_cmd = math.asin(min(max(-LANE_KEEPING_KP_LATERAL * r / v, -1.0), 1.0))
+    heading_ref = lane.heading_at(s + speed * LANE_KEEPING_TAU_S) + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
+    return steering_for(LANE_KEEPING_KP_HEADING * wrap_angle(heading_ref - heading), v, model)
+
+
+def pursuit_steering(x: float, y: float, heading: float, tx: float, ty: float, model: VehicleModel) -> float:
+    """Pure pursuit: the steering that takes the rear axle on the arc through target (tx, ty)."""
+    rx, ry = x - model.rear_offset * math.cos(heading), y - model.rear_offset * math.sin(heading)
+    alpha = math.atan2(ty - ry, tx - rx) - heading
+    ld = max(math.hypot(tx - rx, ty - ry), 1e-3)
+    steer = math.atan2(2.0 * model.wheelbase * math.sin(alpha), ld)
+    return min(max(steer, -model.max_steering), model.max_steering)
