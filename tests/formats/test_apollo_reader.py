@@ -531,3 +531,50 @@ def test_a_sign_overlapping_another_junctions_lane_at_its_end_does_not_govern_th
     other.overlap_id.add().id = sign.overlap_id.add().id = "exit_overlap"
     m = read_apollo_bytes(pb.SerializeToString(), "exit.bin")
     assert m.stop_signs[sign.id.id] == clean.stop_signs[sign.id.id]
+
+
+def _ring_map(radii: tuple[float, ...] = (26.0, 26.0 + W)) -> aps.Map:
+    """A two-lane ring road driven anticlockwise, four quarter-circle lanes per ring, with no
+    link between the rings: only lane changes join them. Every boundary is `virtual` and
+    declares DOTTED_WHITE, as a Baidu-style map writes them."""
+    m = aps.Map()
+    m.header.projection.proj = "+proj=utm +zone=10 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+    names = [f"ring{k}" for k in range(len(radii))]
+    for q in range(4):
+        a = np.linspace(q * math.pi / 2, (q + 1) * math.pi / 2, 12)
+        road = m.road.add()
+        road.id.id = f"road_{q}"
+        sec = road.section.add()
+        for k, r in enumerate(radii):
+            ln = m.lane.add()
+            ln.id.id = f"{names[k]}_{q}"
+            sec.lane_id.add().id = ln.id.id
+            for curve, rr in ((ln.central_curve, r), (ln.left_boundary.curve, r - W / 2),
+                              (ln.right_boundary.curve, r + W / 2)):
+                _curve(curve, list(zip(rr * np.cos(a), rr * np.sin(a))))
+            for b in (ln.left_boundary, ln.right_boundary):
+                b.virtual = True
+                b.boundary_type.add(s=0.0, types=[aps.LaneBoundaryType.DOTTED_WHITE])
+            ln.length = r * math.pi / 2
+            ln.speed_limit, ln.type, ln.direction = 11.2, aps.Lane.CITY_DRIVING, aps.Lane.FORWARD
+            ln.successor_id.add().id = f"{names[k]}_{(q + 1) % 4}"
+            ln.predecessor_id.add().id = f"{names[k]}_{(q - 1) % 4}"
+            if k > 0:
+                ln.left_neighbor_forward_lane_id.add().id = f"{names[k - 1]}_{q}"
+            if k + 1 < len(radii):
+                ln.right_neighbor_forward_lane_id.add().id = f"{names[k + 1]}_{q}"
+    return m
+
+
+def test_declared_boundary_types_of_virtual_boundaries_keep_the_lane_changes():
+    """A boundary both `virtual` and DOTTED_WHITE may be crossed: the two rings stay one
+    strongly connected network, and the Apollo re-export validates with its lane-change edges."""
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+    from feat2map.invariants import connectivity, lane_changes
+
+    m = read_apollo_bytes(_ring_map().SerializeToString(), "ring.bin")
+    assert {(x.left_boundary_type, x.right_boundary_type) for x in m.lanes.values()} == {("dotted_white",) * 2}
+    assert sorted(x for ln in m.lanes.values() for x in lane_changes(ln)) == sorted(m.lanes)
+    assert connectivity(m) == []
+    assert validate_map(to_apollo(m)) == []

@@ -62,8 +62,9 @@ def _polygon_points(poly: Any) -> np.ndarray:
 
 
 def _boundary_type(boundary: Any) -> str:
-    if boundary.virtual:
-        return "virtual"
+    """The model's type of a lane boundary: the first type it declares, whether or not it is
+    `virtual` (Baidu-style maps mark every boundary virtual and declare DOTTED_WHITE between
+    lanes a car may change between); "virtual" only where it declares none (or UNKNOWN)."""
     for bt in boundary.boundary_type:
         for t in bt.types:
             return _BOUNDARY.get(t, "virtual")

@@ -272,7 +272,7 @@ def _lane(msg: Any, m: HDMap, ln: Lane, centre: Polyline, frame: _Frame, lid: di
                             ("right", ln.right_boundary, ln.right_boundary_type)):
         b = getattr(msg, f"{side}_boundary")
         b.length = frame.fill_curve(b.curve, pts)
-        b.virtual = kind == "virtual"
+        b.virtual = kind == "virtual" or ln.junction_id is not None  # no painted line in a junction
         bt = b.boundary_type.add()
         bt.s = 0.0
         bt.types.append(BOUNDARY_TYPE.get(kind, aps.LaneBoundaryType.UNKNOWN))
