@@ -14,6 +14,7 @@ from highway_env.vehicle.objects import RoadObject
 
 from ..angles import wrap_angle
 from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
+from ..invariants import lane_changes
 from .network import MapNetwork
 from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
@@ -257,7 +258,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
         a_cur = idm(self, self.leader_gaps())
         buckets = self.road.control.buckets
-        for n in ln.left_neighbors + ln.right_neighbors:
+        for n in lane_changes(ln):  # only across a dashed line
             if n not in m.lanes:
                 continue
             goal = m.lanes[self.lane_route[-1]]
@@ -308,6 +309,16 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
 
 class EgoMDPVehicle(RouteFollower, MDPVehicle):
     """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
+
+    def act(self, action=None) -> None:
+        """highway-env's meta-action, except that LANE_LEFT / LANE_RIGHT keep the lane unless the
+        line between the two lanes is dashed (`invariants.lane_changes`)."""
+        before = self.target_lane_index
+        super().act(action)
+        old, new = self.net.id_of.get(before), self.net.id_of.get(self.target_lane_index)
+        if action in ("LANE_LEFT", "LANE_RIGHT") and old is not None and new != old and (
+                new not in lane_changes(self.net.hdmap.lanes[old])):
+            self.target_lane_index = before
 
     def step(self, dt: float) -> None:
         super().step(dt)
