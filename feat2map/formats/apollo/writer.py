@@ -337,22 +337,22 @@ def text_of(msg: Any) -> str:
     return text if text.endswith("\n") or not text else text + "\n"
 
 
-def refuse_invalid(base: Any, graph: Any, out_dir: str | Path, strict: bool = False) -> None:
+def refuse_invalid(base: Any, graph: Any, out_dir: str | Path, skipped: int = 0) -> None:
     """Before anything is written, the lanes of every map must pass `feat2map validate`'s lane
     checks (links that exist, are listed back and meet, lengths, types): an input edited into
     a broken map (a junction-lane cycle, a self-link, a zero-length lane) is refused with its
     first problem named, instead of written for validate to reject. A map feat2map generated
-    (its header says so), and with `strict` a map whose reading skipped broken elements (links
-    to a missing road), is held to every rule validate applies; converted real maps keep their
-    own flaws of routing and signals (validate reports them)."""
+    (its header says so), and a map whose reading `skipped` broken elements (links to a missing
+    road), is held to every rule validate applies; converted real maps keep their own flaws of
+    routing and signals (validate reports them). The refusal leads with the first problem."""
     from .validate import _Index, _lanes, validate_map
 
-    whole = strict or base.header.generation == APOLLO_GENERATED_MARK
+    whole = skipped > 0 or base.header.generation == APOLLO_GENERATED_MARK
     problems = validate_map(base, graph) if whole else _lanes(base, _Index(base), False)
     if problems:
-        why = " after reading skipped broken elements" if strict else ""
-        raise Feat2MapError(f"refusing to export a map that would not validate{why} ({len(problems)} problems; "
-                            f"first: {problems[0]})", str(out_dir))
+        why = f"; every rule applies: reading skipped {skipped} broken element(s)" if skipped else ""
+        raise Feat2MapError(f"refusing to export a map that would not validate: {problems[0]} "
+                            f"({len(problems)} problem(s){why})", str(out_dir))
 
 
 def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
@@ -373,7 +373,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
         bar.set_postfix_str("routing_map")
         messages["routing_map"] = build_routing_graph(base)
         bar.update()
-        refuse_invalid(base, messages["routing_map"], out_dir, strict=bool(m.meta.get("skipped_on_read")))
+        refuse_invalid(base, messages["routing_map"], out_dir, skipped=int(m.meta.get("skipped_on_read", 0)))
         texts = {name: refuse_nonfinite(text_of(msg), f"{out_dir}: {name}") for name, msg in messages.items()}
         try:
             with atomic.staged_dir(out_dir, FORMATS["apollo"].markers) as tmp:
