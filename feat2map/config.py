@@ -31,6 +31,10 @@ MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
+# declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range
+# is no car's (a converter wrote 2.68 mph, 1.2 m/s, on every town lane); it reads as SPEED_LIMIT_MPS
+# (JUNCTION_SPEED_LIMIT_MPS in junctions), with one warning per map naming the lanes
+PLAUSIBLE_SPEED_MPS = (2.5, 70.0)  # 9 to 252 km/h
 STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| at most this is "straight"
 UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150):
 # the turn of lanes whose map declares none (OpenDRIVE reader, `angles.turn_name`) and the CommonRoad export's turn sets
