@@ -578,3 +578,29 @@ def test_declared_boundary_types_of_virtual_boundaries_keep_the_lane_changes():
     assert sorted(x for ln in m.lanes.values() for x in lane_changes(ln)) == sorted(m.lanes)
     assert connectivity(m) == []
     assert validate_map(to_apollo(m)) == []
+
+
+def test_a_map_in_local_metres_is_placed_like_an_opendrive_file():
+    """An Apollo map in local metres (x from -30 to 30 under `+zone=0`) keeps its frame with
+    origin (0, 0), so the re-export is shifted to the export's UTM origin and validates (it was
+    written unshifted under a zone 10 header: "lane coordinates are not absolute UTM metres")."""
+    from feat2map.config import UTM_ORIGIN
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+
+    pb = _ring_map()
+    pb.header.projection.proj = "+proj=utm +zone=0 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+    for ln in pb.lane:
+        for curve in (ln.central_curve, ln.left_boundary.curve, ln.right_boundary.curve):
+            for seg in curve.segment:
+                for p in list(seg.line_segment.point) + [seg.start_position]:
+                    p.x, p.y = p.x - X0, p.y - Y0
+    m = read_apollo_bytes(pb.SerializeToString(), "local.bin")
+    assert m.origin == (0.0, 0.0) and min(x for ln in m.lanes.values() for x, _ in ln.centerline) < -25
+    out = to_apollo(m)
+    assert out.lane[0].central_curve.segment[0].line_segment.point[0].x > UTM_ORIGIN[0] - 100
+    assert validate_map(out) == []
+    # absolute UTM maps keep their whole-metre origin
+    outer = 26.0 + W  # the outer ring's centreline radius
+    assert read_apollo_bytes(_ring_map().SerializeToString(), "utm.bin").origin == (math.floor(X0 - outer),
+                                                                                   math.floor(Y0 - outer))
