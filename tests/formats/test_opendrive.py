@@ -744,3 +744,24 @@ def test_left_hand_traffic_reads_as_the_mirror_of_its_right_hand_twin(tmp_path):
         assert b.turn == _MIRROR_TURN.get(a.turn, a.turn)
     problems = [p for p in validate_map(to_apollo(lht)) if "reachable" in p.message]
     assert problems == []
+
+
+def test_junction_ids_survive_a_round_trip(exported, tmp_path):
+    """A map read from OpenDRIVE keeps its junction ids through export and re-read (a 57-junction
+    city's ids were all renumbered 1, 2, ...); generated maps' ids (J0, ...) are numbered."""
+    root = etree.parse(str(exported)).getroot()
+    new = {j.get("id"): str(100 + 7 * k) for k, j in enumerate(root.findall("junction"))}
+    for el in root.iter():
+        if el.tag == "junction":
+            el.set("id", new[el.get("id")])
+        elif el.tag == "road" and el.get("junction") in new:
+            el.set("junction", new[el.get("junction")])
+        elif el.tag in ("predecessor", "successor") and el.get("elementType") == "junction":
+            el.set("elementId", new[el.get("elementId")])
+    (tmp_path / "ids.xodr").write_bytes(etree.tostring(root))
+    m = read_opendrive(tmp_path / "ids.xodr")
+    assert set(m.junctions) == set(new.values())
+    write_opendrive(m, tmp_path / "again.xodr")
+    assert set(read_opendrive(tmp_path / "again.xodr").junctions) == set(new.values())
+    assert [j.get("id") for j in etree.parse(str(exported)).getroot().findall("junction")] == [
+        str(k + 1) for k in range(len(new))]
