@@ -604,3 +604,26 @@ def test_a_map_in_local_metres_is_placed_like_an_opendrive_file():
     outer = 26.0 + W  # the outer ring's centreline radius
     assert read_apollo_bytes(_ring_map().SerializeToString(), "utm.bin").origin == (math.floor(X0 - outer),
                                                                                    math.floor(Y0 - outer))
+
+
+def test_a_lane_narrower_than_apollo_holds_is_widened_with_one_warning():
+    """A converter's geometry loop leaves a lane sample 0.117 m wide on one side: the Apollo
+    export widens that side to APOLLO_MIN_HALF_WIDTH_M with one warning naming the lane, and
+    validates (it was refused: "would not validate ... half width")."""
+    from dataclasses import replace
+
+    from feat2map.config import APOLLO_MIN_HALF_WIDTH_M
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+
+    m = read_apollo_bytes(_ring_map().SerializeToString(), "ring.bin")
+    ln = m.lanes["ring1_2"]
+    pinched = list(ln.right_boundary)
+    c = np.asarray(ln.centerline[5])
+    pinched[5] = tuple(c + 0.117 * (np.asarray(pinched[5]) - c) / np.hypot(*(np.asarray(pinched[5]) - c)))
+    m = replace(m, lanes={**m.lanes, ln.id: replace(ln, right_boundary=tuple(pinched))})
+    with pytest.warns(UserWarning, match=r"1 lane\(s\) narrower than Apollo holds .*first: lane ring1_2, 0\.1\d\d m"):
+        out = to_apollo(m)
+    assert validate_map(out) == []
+    right = next(x for x in out.lane if x.id.id == "ring1_2").right_sample
+    assert min(s.width for s in right) >= APOLLO_MIN_HALF_WIDTH_M

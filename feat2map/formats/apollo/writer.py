@@ -21,7 +21,7 @@ from ... import __version__, atomic
 from .. import FORMATS
 from . import schema as aps
 from .geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
-                               stop_line_range, trimmed_tapers, usable_boundaries, without_point_lanes)
+                       stop_line_range, trimmed_tapers, usable_boundaries, widened_boundaries, without_point_lanes)
 from .sim_map import to_sim_map
 from ..base import header_date
 from ..lane_ends import closed_seams
@@ -149,7 +149,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     if origin is None:
         origin = m.origin if any(m.origin) else UTM_ORIGIN  # checked (two numbers) just below
     origin = check_origin(origin, "apollo export: origin")
-    m = usable_boundaries(trimmed_tapers(closed_seams(without_point_lanes(m))))
+    m = widened_boundaries(usable_boundaries(trimmed_tapers(closed_seams(without_point_lanes(m)))))
     frame = _Frame(origin)
     ids = _Ids()
     out = aps.Map()
