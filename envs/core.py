@@ -62,6 +62,7 @@ import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
+from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import MapNetwork
@@ -98,8 +99,7 @@ class LaneTable:
         self.crossing = np.array([lid in net.crossings for lid in net.lane_ids])
         self.passage = np.array([lid in net.passages for lid in net.lane_ids], dtype=bool)
         self.crossed = np.array([bool(crossed_lanes(net, lid)) for lid in net.lane_ids], dtype=bool)
-        self.neighbours = np.array([bool(m.lanes[lid].left_neighbors or m.lanes[lid].right_neighbors)
-                                    for lid in net.lane_ids])
+        self.neighbours = np.array([bool(lane_changes(m.lanes[lid])) for lid in net.lane_ids])  # across a dashed line
         npts = np.array([len(ln.points) for ln in lanes])
         self.first = np.concatenate([[0], np.cumsum(npts)[:-1]])  # index of each lane's first point
         self.last_seg = self.first + npts - 2  # index of each lane's last segment start

@@ -32,7 +32,7 @@ from .control import TrafficControl
 from .network import MapNetwork, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
-from .routes import ego_route, first_line_distance, random_walk, start_place
+from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
 from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
 from .sim.vehicle import VehicleModel
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
@@ -170,7 +170,8 @@ class MapEnv(AbstractEnv):
         for jid in sorted(junctions):  # approaches and exits of the junctions on the route
             for jl in m.lanes_by_junction.get(jid, []):
                 lanes += [x for x in jl.predecessors + jl.successors if x in m.lanes]
-        return sorted({l for l in lanes if m.lanes[l].junction_id is None})  # no route starts in a junction
+        trapped = traffic_traps(self.net)  # no route starts in a junction, nor where it cannot leave
+        return sorted({l for l in lanes if m.lanes[l].junction_id is None and l not in trapped})
 
     def _spawn_traffic(self, min_ego_distance: float = EGO_CLEARANCE_M) -> TrafficVehicle | None:
         """A traffic vehicle on a random spawn lane and random walk, clear of other vehicles (and

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import Feat2MapError
-from ..routes import manoeuvre_lane
+from ..routes import manoeuvre_lane, trapped_lanes
 from .network import MapNetwork
 from ..config import ROUTE_SAMPLE_TRIES, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TRAFFIC_END_ROOM_M
 from .rules import braking_distance, enters_junction, line_setback
@@ -246,17 +246,24 @@ def sample_lane_walk(net: MapNetwork, rng: np.random.Generator, length: float, s
     return best
 
 
+def traffic_traps(net: MapNetwork) -> frozenset[str]:
+    """The lanes traffic is never routed onto or spawned on (`feat2map.routes.trapped_lanes`:
+    no way on from them but an undrivable junction lane), once per network."""
+    return net.memo("trapped lanes", lambda: trapped_lanes(net.hdmap))
+
+
 def random_walk(net: MapNetwork, rng: np.random.Generator, start: str, junctions: int) -> list[str]:
     """A route from `start` through up to `junctions` junctions, choosing successors at random;
     through one more where the road after the last is shorter than TRAFFIC_END_ROOM_M (a route
     that ended on Town07's 0.7 m road between two junctions left its car driving on past its
     end, blind to the vehicles in the next junction: it rear-ended the ego there)."""
     m = net.hdmap
+    trapped = traffic_traps(net)
     path = [start]
     count = 0
     room = 0.0  # road after the last junction lane of the path
     while True:
-        succ = [s for s in m.lanes[path[-1]].successors if s in m.lanes]
+        succ = [s for s in m.lanes[path[-1]].successors if s in m.lanes and s not in trapped]  # never into a dead end
         if not succ or len(path) > 200:
             break
         nxt = succ[int(rng.integers(len(succ)))]

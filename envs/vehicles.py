@@ -13,6 +13,7 @@ from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
 from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
+from ..invariants import lane_changes
 from .network import MapNetwork
 from .sim.vehicle import VehicleModel, integrate, lane_keeping, yaw_rate
 from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
@@ -238,7 +239,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
         a_cur = idm(self, self.leader_gaps())
         buckets = self.road.control.buckets
-        for n in ln.left_neighbors + ln.right_neighbors:
+        for n in lane_changes(ln):  # only across a dashed line
             if n not in m.lanes:
                 continue
             goal = m.lanes[self.lane_route[-1]]
@@ -313,6 +314,16 @@ class Ego(RouteFollower):
         net = self.road.network
         s, r = self.projection(net.id_of[target_lane_index])
         return lane_keeping(net.get_lane(target_lane_index), s, r, self.heading, self.speed, self.model)
+
+    def act(self, action=None) -> None:
+        """highway-env's meta-action, except that LANE_LEFT / LANE_RIGHT keep the lane unless the
+        line between the two lanes is dashed (`invariants.lane_changes`)."""
+        before = self.target_lane_index
+        super().act(action)
+        old, new = self.net.id_of.get(before), self.net.id_of.get(self.target_lane_index)
+        if action in ("LANE_LEFT", "LANE_RIGHT") and old is not None and new != old and (
+                new not in lane_changes(self.net.hdmap.lanes[old])):
+            self.target_lane_index = before
 
     def step(self, dt: float) -> None:
         step_egos([self], dt)

@@ -306,7 +306,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     if not m.lanes:
         raise Feat2MapError("map has no lanes", str(args.map))
-    skipped = sum(1 for w in caught if w.filename.startswith(_our_dirs()))
+    # elements reading skipped (their warnings say so); load-time findings and repairs are no skip
+    skipped = sum(1 for w in caught if w.filename.startswith(_our_dirs()) and "skip" in str(w.message).lower())
     if skipped:  # what is left of a broken input must validate whole (see formats/apollo/writer.refuse_invalid)
         m = dataclasses.replace(m, meta={**m.meta, "skipped_on_read": skipped})
     if "origin" in options:

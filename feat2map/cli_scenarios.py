@@ -11,6 +11,7 @@ import functools
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from . import atomic
@@ -22,6 +23,7 @@ COVERAGE_MARKERS = ("coverage.json",)  # a folder holding one is an earlier `cov
 
 
 def cmd_suite(args: argparse.Namespace) -> int:
+    from .extract import extract_junctions
     from .formats import read_map
     from .scenarios.routes import build_suite, manoeuvres, route_coverage
     from .scenarios.scenario import check_suite_path, save_suite
@@ -39,8 +41,14 @@ def cmd_suite(args: argparse.Namespace) -> int:
     save_suite(suite, args.out)
     m = read_map(path)
     cov = route_coverage(m, [s.route for s in suite.scenarios])
+    with warnings.catch_warnings():  # the load and extract already said what they skip
+        warnings.simplefilter("ignore")
+        features = len(extract_junctions(m, str(path)))
+    # manoeuvres are driven through every junction area of the map; `extract` counts only those
+    # with 3 or more arms (a bend or a merge drawn as a junction is no junction feature)
     print(f"wrote {args.out}: {counted(len(suite.scenarios), 'scenario')} covering {100 * cov:.1f}% of "
-          f"{counted(len(manoeuvres(m)), 'manoeuvre')} of {counted(len(m.junctions), 'junction')}")
+          f"{counted(len(manoeuvres(m)), 'manoeuvre')} at {counted(len(m.junctions), 'map junction')} "
+          f"({features} with 3 or more arms, as `extract` counts)")
     return 0
 
 

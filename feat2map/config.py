@@ -31,6 +31,10 @@ MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
+# declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range
+# is no car's (a converter wrote 2.68 mph, 1.2 m/s, on every town lane); it reads as SPEED_LIMIT_MPS
+# (JUNCTION_SPEED_LIMIT_MPS in junctions), with one warning per map naming the lanes
+PLAUSIBLE_SPEED_MPS = (2.5, 70.0)  # 9 to 252 km/h
 STRAIGHT_TOLERANCE_DEG = 30.0  # |heading change| at most this is "straight"
 UTURN_THRESHOLD_DEG = 170.0  # |heading change| of a junction lane at least this is a U-turn (sharp lefts reach 150):
 # the turn of lanes whose map declares none (OpenDRIVE reader, `angles.turn_name`) and the CommonRoad export's turn sets
@@ -99,6 +103,8 @@ LANELET2_MERGE_M = 0.05  # Lanelet2 export: points closer are one node (lanelet2
 MAP_FORMAT_VERSION = 1
 UTM_ZONE = 10
 UTM_ORIGIN = (587000.0, 4141000.0)  # San Francisco area, zone 10
+UTM_EASTING = (100_000.0, 900_000.0)  # absolute UTM metres lie in these ranges; an Apollo map outside them
+UTM_NORTHING = (0.0, 10_000_000.0)  # is in local metres and is placed at the export's origin like OpenDRIVE
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
 LINK_REVERSAL_DEG = 120.0  # ... nor is one whose successor starts heading more than this away from the lane's end

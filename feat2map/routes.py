@@ -142,6 +142,31 @@ def undrivable(ln: Lane) -> bool:
     return tight_uturn(ln) or tight_turnaround(ln) or loops(ln)
 
 
+def trapped_lanes(m: HDMap) -> frozenset[str]:
+    """Lanes a car cannot leave: every way on from them ends before a junction lane that is
+    `undrivable` (a stub into a one-arm junction whose only way on is a tight turnaround: traffic
+    routed in stood there for good). A lane without successors is the map's edge, where a car
+    leaves, and a lane on a loop always has a way on: neither is trapped."""
+    def blocked(x: str) -> bool:
+        ln = m.lanes[x]
+        return ln.junction_id is not None and undrivable(ln)
+    onward = {lid: set(x for x in ln.successors if x in m.lanes) for lid, ln in m.lanes.items()}
+    back: dict[str, list[str]] = {}
+    for lid, nxt in onward.items():
+        for x in nxt:
+            back.setdefault(x, []).append(lid)
+    open_ways = {lid: len(nxt) for lid, nxt in onward.items()}
+    todo = [lid for lid in m.lanes if blocked(lid)]
+    trapped = set(todo)
+    while todo:  # backward: a lane is trapped once every way on from it is
+        for p in back.get(todo.pop(), ()):
+            open_ways[p] -= 1
+            if open_ways[p] == 0 and p not in trapped:
+                trapped.add(p)
+                todo.append(p)
+    return frozenset(trapped)
+
+
 def approach_room(m: HDMap, mv: Sequence[str], enough: float = VEHICLE_LENGTH_M / 2) -> float:
     """Metres of road a car can stand on before manoeuvre `mv`'s junction: the longest chain of
     road lanes walking back from the approach lanes of its junction lane (inf where a junction

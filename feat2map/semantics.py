@@ -16,7 +16,8 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
-from .config import BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG
+from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M,
+                     LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS)
 from .errors import Feat2MapError
 from .model import HDMap, Lane, incoming_lanes, stop_line_across
 
@@ -178,15 +179,37 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
     short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
-    (`drop_dangling`), signals over conflicting approaches split (`split_conflicting_signals`),
-    values checked (`validation.validate_model`), semantic findings warned (`check_map`)."""
+    (`drop_dangling`), values checked (`validation.validate_model`), implausible speeds replaced
+    (`plausible_speeds`), signals over conflicting approaches split (`split_conflicting_signals`),
+    semantic findings warned (`check_map`)."""
     from .validation import validate_model
 
     m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
-    return check_map(split_conflicting_signals(m, where), where)
+    return check_map(split_conflicting_signals(plausible_speeds(m, where), where), where)
 
 
 # ------------------------------------------------------------------------------- repair
+
+def plausible_speeds(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with every lane speed limit outside PLAUSIBLE_SPEED_MPS replaced by the default a map
+    that declares none gets (SPEED_LIMIT_MPS, JUNCTION_SPEED_LIMIT_MPS in junctions), with one
+    warning naming the file and the lanes: a converter that wrote `<speed max="2.68016"
+    unit="mph"/>` on every lane made cars crawl at 1.2 m/s and every scenario time out."""
+    lo, hi = PLAUSIBLE_SPEED_MPS
+    bad = [ln for ln in m.lanes.values() if not lo <= ln.speed_limit <= hi]
+    if not bad:
+        return m
+    speeds = sorted({round(ln.speed_limit, 2) for ln in bad})
+    shown = ", ".join(f"{x:g}" for x in speeds[:5]) + (", ..." if len(speeds) > 5 else "")
+    names = ", ".join(ln.id for ln in bad[:3]) + (", ..." if len(bad) > 3 else "")
+    warnings.warn(f"{where}: {len(bad)} of {len(m.lanes)} lanes (lanes {names}) declare speed limits outside "
+                  f"{lo:g}-{hi:g} m/s ({shown} m/s), implausible for a driving lane: read as {SPEED_LIMIT_MPS:g} m/s "
+                  f"({JUNCTION_SPEED_LIMIT_MPS:g} in junctions)", stacklevel=3)
+    lanes = dict(m.lanes)
+    for ln in bad:
+        lanes[ln.id] = replace(ln, speed_limit=JUNCTION_SPEED_LIMIT_MPS if ln.junction_id else SPEED_LIMIT_MPS)
+    return replace(m, lanes=lanes)
+
 
 def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
     """`m` with every signal that governs approaches whose paths conflict split into one signal

@@ -267,8 +267,10 @@ def _message(kind: str, info: Mapping[str, Any], first_violation: tuple[str, flo
         first = "" if first_violation is None else \
             f"; first: {first_violation[0]} at t={first_violation[1]:.1f} s at junction {first_violation[2]}"
         return f"traffic rule violation: {v}{first} (episode ended {where})"
-    if kind == "collision":
-        return f"collision near junction {info.get('junction')} ({where})"
+    if kind == "collision":  # past the route's last junction there is none to name: the lane says where
+        near = f"near junction {info['junction']}" if info.get("junction") else \
+            f"on lane {info.get('lane_id') or '(none)'}, no junction ahead"
+        return f"collision {near} ({where})"
     if kind == "off_road":
         return f"left the road on lane {info.get('lane_id')} ({where})"
     if kind == "timeout":

@@ -9,7 +9,7 @@ them that the route does not name).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterable, Sequence, cast
+from typing import Callable, Iterable, Sequence, cast
 
 from ..errors import Feat2MapError
 from ..messages import counted
@@ -36,21 +36,38 @@ def pick_lane(m: HDMap, mv: Manoeuvre) -> Lane | None:
 def route_length(m: HDMap, route: Sequence[Manoeuvre]) -> float:
     """Metres the ego drives on `route` (from the env's start to its goal): the env's junction
     lanes, the road lanes joining them, and the start and goal stretches."""
+    return _route_sum(m, route, lambda ln: 1.0)
+
+
+def route_time(m: HDMap, route: Sequence[Manoeuvre]) -> float:
+    """Seconds the ego needs to drive `route`'s length at the speeds it drives: each lane at its
+    speed limit, at most ROUTE_SPEED_MPS (the mean budgeted on faster lanes, for starts, stops
+    and curves)."""
+    return _route_sum(m, route, lambda ln: 1.0 / min(ln.speed_limit, ROUTE_SPEED_MPS))
+
+
+def _route_sum(m: HDMap, route: Sequence[Manoeuvre], per_metre: Callable[[Lane], float]) -> float:
+    """`per_metre(lane)` summed over every metre of `route` (`route_length`'s stretches); the start
+    and goal stretches at the dearer of the first and last junction lane's road neighbours."""
     found = [pick_lane(m, cast(Manoeuvre, tuple(str(x) for x in mv))) for mv in route]
     picks = [p for p in found if p is not None]
     if len(picks) != len(found):
         raise ValueError(f"route {list(route)} has a manoeuvre the map does not allow")
-    total = START_AND_GOAL_M + sum(p.length for p in picks)
+    ends = [m.lanes[x] for x in picks[0].predecessors + picks[-1].successors if x in m.lanes] if picks else []
+    total = START_AND_GOAL_M * max((per_metre(x) for x in ends or picks), default=1.0)
+    total += sum(p.length * per_metre(p) for p in picks)
     for a, b in zip(picks, picks[1:]):
-        total += _road_gap(m, a, b)
+        total += _road_gap(m, a, b, per_metre)
     return total
 
 
-def _road_gap(m: HDMap, a: Lane, b: Lane) -> float:
-    """Length of the shortest chain of road lanes from junction lane `a` to junction lane `b`."""
+def _road_gap(m: HDMap, a: Lane, b: Lane, per_metre: Callable[[Lane], float]) -> float:
+    """`per_metre` summed over the cheapest chain of road lanes from junction lane `a` to junction
+    lane `b` (with 1 per metre: its length)."""
     import heapq
 
-    heap = [(m.lanes[s].length, s) for s in a.successors if s in m.lanes and m.lanes[s].junction_id is None]
+    cost = lambda ln: ln.length * per_metre(ln)  # noqa: E731
+    heap = [(cost(m.lanes[s]), s) for s in a.successors if s in m.lanes and m.lanes[s].junction_id is None]
     heapq.heapify(heap)
     seen: set[str] = set()
     while heap:
@@ -62,7 +79,7 @@ def _road_gap(m: HDMap, a: Lane, b: Lane) -> float:
         seen.add(lid)
         for s in m.lanes[lid].successors:
             if s in m.lanes and m.lanes[s].junction_id is None and s not in seen:
-                heapq.heappush(heap, (d + m.lanes[s].length, s))
+                heapq.heappush(heap, (d + cost(m.lanes[s]), s))
     return 0.0
 
 
@@ -91,10 +108,10 @@ def signal_cycles(m: HDMap, mv: Manoeuvre) -> int:
 def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
     """A scenario duration [s] that leaves time for every junction (at least its signal cycles,
     `signal_cycles`, plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget)
-    and for the distance."""
+    and for the distance at the speeds the ego drives there (`route_time`)."""
     per_junction = sum(max(SECONDS_PER_JUNCTION, signal_cycles(m, mv) * signal_cycle(m, mv[0]) + SIGNAL_CROSSING_S)
                        for mv in route)
-    return round(BASE_DURATION_S + per_junction + route_length(m, route) / ROUTE_SPEED_MPS, 1)
+    return round(BASE_DURATION_S + per_junction + route_time(m, route), 1)
 
 
 def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:

@@ -280,3 +280,32 @@ def split_with_a_centimetre_road(src: Path, dst: Path, gap: float = 0.013) -> No
     etree.SubElement(c, "laneLink", attrib={"from": "-1", "to": "-1"})
     jx.addnext(jy)
     dst.write_bytes(etree.tostring(root))
+
+
+def mirrored_to_left_hand_traffic(src: Path, dst: Path) -> None:
+    """The mirror image (y -> -y) of an OpenDRIVE file feat2map wrote, as left-hand traffic:
+    every road `rule="LHT"`, lanes on the other side of their reference lines (ids negated,
+    `<left>` and `<right>` swapped), so each lane drives the mirror of its twin's path. A
+    right-hand map's mirror is a left-hand map that drives the same way, mirrored."""
+    root = etree.parse(str(src)).getroot()
+    negate = {"geometry": ("y", "hdg"), "paramPoly3": ("aV", "bV", "cV", "dV"), "laneOffset": ("a", "b", "c", "d"),
+              "laneLink": ("from", "to"), "validity": ("fromLane", "toLane"), "signal": ("t",),
+              "object": ("t", "hdg"), "cornerLocal": ("v",), "lane": ("id",)}
+    for el in root.iter():
+        if not isinstance(el.tag, str):
+            continue
+        for attr in negate.get(el.tag, ()):
+            if el.get(attr) is not None:
+                el.set(attr, repr(-float(el.get(attr))) if "." in el.get(attr) or "e" in el.get(attr)
+                       else str(-int(el.get(attr))))
+        if el.tag in ("predecessor", "successor") and el.getparent().getparent().tag == "lane":
+            el.set("id", str(-int(el.get("id"))))
+    for road in root.findall("road"):
+        road.set("rule", "LHT")
+        for sec in road.iter("laneSection"):
+            for side in sec:
+                if side.tag in ("left", "right"):
+                    side.tag = "right" if side.tag == "left" else "left"
+                    side[:] = sorted(side, key=lambda ln: -int(ln.get("id")))
+            sec[:] = sorted(sec, key=lambda el: ("left", "center", "right").index(el.tag))
+    etree.ElementTree(root).write(str(dst), xml_declaration=True, encoding="UTF-8")

@@ -196,7 +196,28 @@ def test_counts_are_singular_for_one(tmp_path, capsys):
     assert main(["generate", "--spec", str(spec), "--out", str(tmp_path / "t"), "--quiet", "--no-picture"]) == 0
     assert main(["suite", str(tmp_path / "t" / "map.json"), "--out", str(tmp_path / "s.yaml")]) == 0
     out = capsys.readouterr().out
-    assert "1 junction," in out and "of 1 junction\n" in out and "junctions" not in out
+    assert "1 junction," in out and "at 1 map junction (1 with 3 or more arms, as `extract` counts)\n" in out
+    assert "junctions" not in out
+
+
+def test_suite_counts_map_junctions_and_extracted_junctions_apart(tmp_path, capsys):
+    """`suite` drives manoeuvres through every junction area of the map, `extract` counts only
+    those with 3 or more arms: the suite line gives both, labelled (it said "of 24 junctions"
+    where extract reported 10)."""
+    import dataclasses
+
+    import feat2map
+    from feat2map.formats import native
+
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "bare", False)], seed=0)
+    bend = dataclasses.replace(next(iter(m.junctions.values())), id="bend")  # a 2-arm area: no feature junction
+    rid = next(r.id for r in m.roads.values() if r.kind == "stub")
+    lanes = {k: dataclasses.replace(v, junction_id="bend") if v.road_id == rid else v for k, v in m.lanes.items()}
+    native.save(dataclasses.replace(m, lanes=lanes, junctions={**m.junctions, "bend": bend}), tmp_path / "m.json")
+    assert main(["extract", str(tmp_path / "m.json")]) == 0
+    assert "\n1 junction (" in capsys.readouterr().out
+    assert main(["suite", str(tmp_path / "m.json"), "--out", str(tmp_path / "s.yaml")]) == 0
+    assert "at 2 map junctions (1 with 3 or more arms, as `extract` counts)" in capsys.readouterr().out
 
 
 def test_extract_table_shows_full_paths_and_ids(tmp_path, capsys):

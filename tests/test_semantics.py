@@ -288,6 +288,25 @@ def test_opendrive_1_3_motorway_lane_types_are_driven(four_way_xodr, tmp_path):
     assert set(m.lanes) == set(read_opendrive(four_way_xodr).lanes)
 
 
+def test_implausible_declared_speeds_get_one_warning_and_the_default(four_way_xodr, tmp_path):
+    """A converter wrote `<speed max="2.68016" unit="mph"/>` on every lane: 1.2 m/s, no town's
+    limit. It reads as the default limits, with one warning naming the file and lanes (it read
+    silently as 1.2 m/s and every scenario timed out)."""
+    from feat2map.config import JUNCTION_SPEED_LIMIT_MPS, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS
+
+    def crawl(root):
+        for sp in root.iter("speed"):
+            sp.set("max", "2.68016")
+            sp.set("unit", "mph")
+    path = _edit(four_way_xodr, tmp_path / "mph.xodr", crawl)
+    m, said = _quiet(read_opendrive, path)
+    hits = [w for w in said if "implausible" in w]
+    assert len(hits) == 1 and hits[0].startswith(f"{path}: {len(m.lanes)} of {len(m.lanes)} lanes (lanes ")
+    assert "1.2 m/s" in hits[0] and f"outside {PLAUSIBLE_SPEED_MPS[0]:g}-{PLAUSIBLE_SPEED_MPS[1]:g} m/s" in hits[0]
+    assert {ln.speed_limit for ln in m.lanes.values()} == {SPEED_LIMIT_MPS, JUNCTION_SPEED_LIMIT_MPS}
+    assert not [w for w in _quiet(read_opendrive, four_way_xodr)[1] if "implausible" in w]
+
+
 def test_code_tables():
     from feat2map.formats.opendrive.reader import known_non_control, signal_kind
 

@@ -96,3 +96,35 @@ def test_stop_line_lies_clear_of_a_junction_path_drawn_over_the_approach():
     # the path runs onto R0_1 at x = -20.5, s = 24.0 (R0_1 runs from x = -44.5 to -19.5)
     assert lines["R0_1"].s == pytest.approx(24.0 - ln.width / 2 - CROSSING_CLEARANCE_M, abs=0.05)
     assert lines["R3_1"].s == pytest.approx(base["R3_1"].s)
+
+
+# ---- lane changes only across a dashed line ---------------------------------------------------
+
+@pytest.mark.parametrize("line", ["dotted_white", "solid_white"])
+def test_traffic_changes_lanes_only_across_a_dashed_line(tmp_path, line):
+    """A car on R2_0 behind a standing car changes onto the free neighbour R2_1 (MOBIL) across a
+    dashed line, and stays behind it across a solid one (it changed across any line before)."""
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False, lanes=2)],
+                                        seed=0, config=feat2map.GenerationConfig(grid_gap=300.0, stub_length=100.0))
+    lanes = dict(m.lanes)
+    assert "R2_1" in m.lanes["R2_0"].right_neighbors and m.lanes["R2_0"].length > 90
+    lanes["R2_0"] = dataclasses.replace(m.lanes["R2_0"], right_boundary_type=line)
+    lanes["R2_1"] = dataclasses.replace(m.lanes["R2_1"], left_boundary_type=line)
+    path = tmp_path / "lines.json"
+    native.save(dataclasses.replace(m, lanes=lanes), path)
+    env = make_env(Scenario("fixture", str(path), (("J0", "R1", "R3"),), seed=0, duration=20.0),
+                   config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    blocker = u.road.core.add_traffic(u.road, "R2_0", 50.0, 0.0, ["R2_0"])
+    blocker.crashed = True  # stands where it is
+    car = u.road.core.add_traffic(u.road, "R2_0", 2.0, 10.0, ["R2_0"])
+    seen = set()
+    for _ in range(150):
+        u.road.act()
+        u.road.step(1 / u.config["simulation_frequency"])
+        seen.add(u.net.id_of.get(car.lane_index))
+        if car.speed < 0.1:
+            break
+    env.close()
+    assert ("R2_1" in seen) == (line == "dotted_white"), seen

@@ -198,3 +198,53 @@ def test_a_stop_on_the_lane_before_a_short_last_lane_is_a_full_stop(base_map):
             break
     assert seen and info["route_completed"] and info["violations"]["stop_sign"] == 0
     env.close()
+
+
+# ---- dead ends: traffic is never routed where it cannot leave --------------------------------
+
+def _dead_end_map() -> HDMap:
+    """A bare T junction whose south stub R1 ends in a one-arm junction D whose only way on is a
+    U-turn of 1.75 m radius (undrivable: no car turns that tightly): a car sent down R1_0 (or the
+    junction lanes into it) could never leave."""
+    from feat2map.model import Junction, Road
+
+    m = feat2map.generate_from_features([J([0, 90, 180], "bare", False)], seed=0)
+    (x0, y0), (x1, y1) = m.lanes["R1_0"].end, m.lanes["R1_1"].start
+    cx, cy, r = (x0 + x1) / 2, (y0 + y1) / 2, math.dist((x0, y0), (x1, y1)) / 2
+    a = np.linspace(math.pi, 2 * math.pi, 13)
+
+    def arc(radius: float):
+        return as_polyline(np.column_stack([cx + radius * np.cos(a), cy + radius * np.sin(a)]))
+    turn = replace(m.lanes["R1_0"], id="T_uturn", road_id="T", centerline=arc(r), left_boundary=arc(0.5),
+                   right_boundary=arc(2 * r), predecessors=("R1_0",), successors=("R1_1",), left_neighbors=(),
+                   right_neighbors=(), left_reverse_neighbors=(), turn="uturn", junction_id="D",
+                   left_boundary_type="virtual", right_boundary_type="virtual", bezier=None)
+    lanes = {**m.lanes, "T_uturn": turn, "R1_0": replace(m.lanes["R1_0"], successors=("T_uturn",)),
+             "R1_1": replace(m.lanes["R1_1"], predecessors=("T_uturn",))}
+    roads = {**m.roads, "T": Road("T", "junction", ("T_uturn",), junction_id="D", start_junction="D", end_junction="D"),
+             "R1": replace(m.roads["R1"], kind="connection", end_junction="D")}
+    box = as_polyline([(cx - 5, cy - 5), (cx + 5, cy - 5), (cx + 5, cy + 1), (cx - 5, cy + 1)])
+    return replace(m, lanes=lanes, roads=roads, junctions={**m.junctions, "D": Junction("D", box)})
+
+
+def test_traffic_is_never_routed_into_a_dead_end():
+    """The lanes that lead only into the undrivable U-turn are trapped; traffic neither spawns on
+    them nor turns into them (two cars stood in such a stub for good, and the ego waited behind)."""
+    from feat2map.routes import trapped_lanes, undrivable
+
+    m = _dead_end_map()
+    assert undrivable(m.lanes["T_uturn"])
+    into = {x for x in m.lanes["R1_0"].predecessors}
+    assert trapped_lanes(m) == {"T_uturn", "R1_0", *into} and into
+    env = gym.make("feat2map/MapFile-v0", config={"map": m, "traffic_vehicles": 8, "route": [["J0", "R0", "R2"]],
+                                                  **DRIVE})
+    u = env.unwrapped
+    for seed in range(3):
+        env.reset(seed=seed)
+        assert not {"R1_0", *into} & set(u._spawn_lanes)
+        for _ in range(10):
+            env.step(np.array([0.0], dtype=np.float32))
+            for v in u.road.vehicles:
+                if isinstance(v, TrafficVehicle):
+                    assert not {"R1_0", "T_uturn", *into} & set(v.lane_route), v.lane_route
+    env.close()

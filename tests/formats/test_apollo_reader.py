@@ -531,3 +531,99 @@ def test_a_sign_overlapping_another_junctions_lane_at_its_end_does_not_govern_th
     other.overlap_id.add().id = sign.overlap_id.add().id = "exit_overlap"
     m = read_apollo_bytes(pb.SerializeToString(), "exit.bin")
     assert m.stop_signs[sign.id.id] == clean.stop_signs[sign.id.id]
+
+
+def _ring_map(radii: tuple[float, ...] = (26.0, 26.0 + W)) -> aps.Map:
+    """A two-lane ring road driven anticlockwise, four quarter-circle lanes per ring, with no
+    link between the rings: only lane changes join them. Every boundary is `virtual` and
+    declares DOTTED_WHITE, as a Baidu-style map writes them."""
+    m = aps.Map()
+    m.header.projection.proj = "+proj=utm +zone=10 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+    names = [f"ring{k}" for k in range(len(radii))]
+    for q in range(4):
+        a = np.linspace(q * math.pi / 2, (q + 1) * math.pi / 2, 12)
+        road = m.road.add()
+        road.id.id = f"road_{q}"
+        sec = road.section.add()
+        for k, r in enumerate(radii):
+            ln = m.lane.add()
+            ln.id.id = f"{names[k]}_{q}"
+            sec.lane_id.add().id = ln.id.id
+            for curve, rr in ((ln.central_curve, r), (ln.left_boundary.curve, r - W / 2),
+                              (ln.right_boundary.curve, r + W / 2)):
+                _curve(curve, list(zip(rr * np.cos(a), rr * np.sin(a))))
+            for b in (ln.left_boundary, ln.right_boundary):
+                b.virtual = True
+                b.boundary_type.add(s=0.0, types=[aps.LaneBoundaryType.DOTTED_WHITE])
+            ln.length = r * math.pi / 2
+            ln.speed_limit, ln.type, ln.direction = 11.2, aps.Lane.CITY_DRIVING, aps.Lane.FORWARD
+            ln.successor_id.add().id = f"{names[k]}_{(q + 1) % 4}"
+            ln.predecessor_id.add().id = f"{names[k]}_{(q - 1) % 4}"
+            if k > 0:
+                ln.left_neighbor_forward_lane_id.add().id = f"{names[k - 1]}_{q}"
+            if k + 1 < len(radii):
+                ln.right_neighbor_forward_lane_id.add().id = f"{names[k + 1]}_{q}"
+    return m
+
+
+def test_declared_boundary_types_of_virtual_boundaries_keep_the_lane_changes():
+    """A boundary both `virtual` and DOTTED_WHITE may be crossed: the two rings stay one
+    strongly connected network, and the Apollo re-export validates with its lane-change edges."""
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+    from feat2map.invariants import connectivity, lane_changes
+
+    m = read_apollo_bytes(_ring_map().SerializeToString(), "ring.bin")
+    assert {(x.left_boundary_type, x.right_boundary_type) for x in m.lanes.values()} == {("dotted_white",) * 2}
+    assert sorted(x for ln in m.lanes.values() for x in lane_changes(ln)) == sorted(m.lanes)
+    assert connectivity(m) == []
+    assert validate_map(to_apollo(m)) == []
+
+
+def test_a_map_in_local_metres_is_placed_like_an_opendrive_file():
+    """An Apollo map in local metres (x from -30 to 30 under `+zone=0`) keeps its frame with
+    origin (0, 0), so the re-export is shifted to the export's UTM origin and validates (it was
+    written unshifted under a zone 10 header: "lane coordinates are not absolute UTM metres")."""
+    from feat2map.config import UTM_ORIGIN
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+
+    pb = _ring_map()
+    pb.header.projection.proj = "+proj=utm +zone=0 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+    for ln in pb.lane:
+        for curve in (ln.central_curve, ln.left_boundary.curve, ln.right_boundary.curve):
+            for seg in curve.segment:
+                for p in list(seg.line_segment.point) + [seg.start_position]:
+                    p.x, p.y = p.x - X0, p.y - Y0
+    m = read_apollo_bytes(pb.SerializeToString(), "local.bin")
+    assert m.origin == (0.0, 0.0) and min(x for ln in m.lanes.values() for x, _ in ln.centerline) < -25
+    out = to_apollo(m)
+    assert out.lane[0].central_curve.segment[0].line_segment.point[0].x > UTM_ORIGIN[0] - 100
+    assert validate_map(out) == []
+    # absolute UTM maps keep their whole-metre origin
+    outer = 26.0 + W  # the outer ring's centreline radius
+    assert read_apollo_bytes(_ring_map().SerializeToString(), "utm.bin").origin == (math.floor(X0 - outer),
+                                                                                   math.floor(Y0 - outer))
+
+
+def test_a_lane_narrower_than_apollo_holds_is_widened_with_one_warning():
+    """A converter's geometry loop leaves a lane sample 0.117 m wide on one side: the Apollo
+    export widens that side to APOLLO_MIN_HALF_WIDTH_M with one warning naming the lane, and
+    validates (it was refused: "would not validate ... half width")."""
+    from dataclasses import replace
+
+    from feat2map.config import APOLLO_MIN_HALF_WIDTH_M
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+
+    m = read_apollo_bytes(_ring_map().SerializeToString(), "ring.bin")
+    ln = m.lanes["ring1_2"]
+    pinched = list(ln.right_boundary)
+    c = np.asarray(ln.centerline[5])
+    pinched[5] = tuple(c + 0.117 * (np.asarray(pinched[5]) - c) / np.hypot(*(np.asarray(pinched[5]) - c)))
+    m = replace(m, lanes={**m.lanes, ln.id: replace(ln, right_boundary=tuple(pinched))})
+    with pytest.warns(UserWarning, match=r"1 lane\(s\) narrower than Apollo holds .*first: lane ring1_2, 0\.1\d\d m"):
+        out = to_apollo(m)
+    assert validate_map(out) == []
+    right = next(x for x in out.lane if x.id.id == "ring1_2").right_sample
+    assert min(s.width for s in right) >= APOLLO_MIN_HALF_WIDTH_M

@@ -21,7 +21,8 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import SKIP_NETCONVERT, assert_same_features, shared_map, split_with_a_centimetre_road
+from conftest import (REPO, SKIP_NETCONVERT, assert_same_features, mirrored_to_left_hand_traffic, shared_map,
+                      split_with_a_centimetre_road)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -684,3 +685,83 @@ def test_direct_junctions_link_the_roads_lanes(tmp_path):
     assert m.lanes["1_0_-1"].successors == ("2_0_-1",) and m.lanes["1_0_-2"].successors == ("3_0_-1",)
     assert m.lanes["3_0_-1"].predecessors == ("1_0_-2",)
     assert not m.junctions  # a lane split is no junction manoeuvre
+
+
+# ---------------------------------------------------------------------------------------------
+# road marks and left-hand traffic
+
+_MIRROR_TURN = {"left": "right", "right": "left"}
+
+
+def _mirror_id(lid: str) -> str:
+    road, sec, lane = lid.rsplit("_", 2)
+    return f"{road}_{sec}_{-int(lane)}"
+
+
+def test_road_marks_give_the_boundary_types_and_lane_changes(tmp_path):
+    """Broken lines between same-direction lanes read as dotted (a lane change may cross
+    them), the centre line and edges as solid: the multi-lane example round-trips its types."""
+    from feat2map.invariants import lane_changes
+    from feat2map.spec import build_spec, load_spec
+
+    m = build_spec(load_spec(REPO / "examples" / "multi_lane.yaml"))
+    write_opendrive(m, tmp_path / "m.xodr")
+    back = read_opendrive(tmp_path / "m.xodr")
+    roads = [x for x in back.lanes.values() if x.junction_id is None]
+    assert Counter((x.left_boundary_type, x.right_boundary_type) for x in roads) == Counter(
+        (x.left_boundary_type, x.right_boundary_type) for x in m.lanes.values() if x.junction_id is None)
+    assert sum(len(lane_changes(x)) for x in roads) == sum(len(lane_changes(x)) for x in m.lanes.values()) > 0
+    # a double line: its inner line is the inner lane's, its outer line the outer lane's
+    text = (tmp_path / "m.xodr").read_text()
+    first = text.index('type="broken"')
+    (tmp_path / "d.xodr").write_text(text[:first] + 'type="solid broken"' + text[first + len('type="broken"'):])
+    d = read_opendrive(tmp_path / "d.xodr")
+    changed = [k for k in d.lanes if (d.lanes[k].left_boundary_type, d.lanes[k].right_boundary_type)
+               != (back.lanes[k].left_boundary_type, back.lanes[k].right_boundary_type)]
+    assert len(changed) == 1 and lane_changes(d.lanes[changed[0]]) == ()
+
+
+def test_left_hand_traffic_reads_as_the_mirror_of_its_right_hand_twin(tmp_path):
+    """rule="LHT": positive lane ids drive along the reference line, the centre is on the
+    driver's right. The mirror image of a right-hand map read as left-hand traffic drives the
+    mirrored paths, keeps its lane changes and exports to Apollo with every exit reachable."""
+    from feat2map.formats.apollo.validate import validate_map
+    from feat2map.formats.apollo.writer import to_apollo
+    from feat2map.spec import build_spec, load_spec
+
+    m = build_spec(load_spec(REPO / "examples" / "multi_lane.yaml"))
+    write_opendrive(m, tmp_path / "rht.xodr")
+    mirrored_to_left_hand_traffic(tmp_path / "rht.xodr", tmp_path / "lht.xodr")
+    rht, lht = read_opendrive(tmp_path / "rht.xodr"), read_opendrive(tmp_path / "lht.xodr")
+    assert len(rht.lanes) == len(lht.lanes)
+    for lid, a in rht.lanes.items():
+        b = lht.lanes[_mirror_id(lid)]
+        assert np.allclose(np.asarray(b.centerline), np.asarray(a.centerline) * [1, -1], atol=1e-6), lid
+        assert (b.left_boundary_type, b.right_boundary_type) == (a.right_boundary_type, a.left_boundary_type)
+        assert (b.left_neighbors, b.right_neighbors) == (tuple(map(_mirror_id, a.right_neighbors)),
+                                                         tuple(map(_mirror_id, a.left_neighbors)))
+        assert b.successors == tuple(map(_mirror_id, a.successors))
+        assert b.turn == _MIRROR_TURN.get(a.turn, a.turn)
+    problems = [p for p in validate_map(to_apollo(lht)) if "reachable" in p.message]
+    assert problems == []
+
+
+def test_junction_ids_survive_a_round_trip(exported, tmp_path):
+    """A map read from OpenDRIVE keeps its junction ids through export and re-read (a 57-junction
+    city's ids were all renumbered 1, 2, ...); generated maps' ids (J0, ...) are numbered."""
+    root = etree.parse(str(exported)).getroot()
+    new = {j.get("id"): str(100 + 7 * k) for k, j in enumerate(root.findall("junction"))}
+    for el in root.iter():
+        if el.tag == "junction":
+            el.set("id", new[el.get("id")])
+        elif el.tag == "road" and el.get("junction") in new:
+            el.set("junction", new[el.get("junction")])
+        elif el.tag in ("predecessor", "successor") and el.get("elementType") == "junction":
+            el.set("elementId", new[el.get("elementId")])
+    (tmp_path / "ids.xodr").write_bytes(etree.tostring(root))
+    m = read_opendrive(tmp_path / "ids.xodr")
+    assert set(m.junctions) == set(new.values())
+    write_opendrive(m, tmp_path / "again.xodr")
+    assert set(read_opendrive(tmp_path / "again.xodr").junctions) == set(new.values())
+    assert [j.get("id") for j in etree.parse(str(exported)).getroot().findall("junction")] == [
+        str(k + 1) for k in range(len(new))]

@@ -253,6 +253,17 @@ def test_classification_and_policies():
     assert SuiteResult.from_dict(json.loads(json.dumps(r.to_dict()))) == r
 
 
+def test_a_collision_message_says_where_it_happened():
+    """With a junction ahead it names it; past the last one it names the lane (the message read
+    "collision near junction  (at t=6.0 s, route 66%)" there)."""
+    from feat2map.scenarios.rollout import _message
+
+    info = {"time": 6.0, "route_progress": 0.66, "lane_id": "R7_0"}
+    assert _message("collision", {**info, "junction": "J3"}) == "collision near junction J3 (at t=6.0 s, route 66%)"
+    assert _message("collision", {**info, "junction": ""}) == \
+        "collision on lane R7_0, no junction ahead (at t=6.0 s, route 66%)"
+
+
 def test_report_counts_take_the_singular():
     """"1 scenario", "1 worker", not "1 scenarios" (messages.counted everywhere a count is written)."""
     from feat2map.scenarios.report import report_markdown

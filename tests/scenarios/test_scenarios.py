@@ -173,6 +173,19 @@ def test_coverage_routes_cover_every_manoeuvre_and_are_drivable(seed):
         assert route_duration(m, r) > inner / 10.0
 
 
+def test_durations_follow_the_speeds_the_ego_drives(m1):
+    """A map whose lanes are limited to 4 m/s gets the time to drive its routes at 4 m/s (the
+    durations assumed 8 m/s whatever the map declared: a 1.2-2.4 m/s map timed out at 97%);
+    lanes at 8 m/s or faster keep the old budget."""
+    from dataclasses import replace
+
+    route = coverage_routes(m1)[0]
+    assert min(ln.speed_limit for ln in m1.lanes.values()) >= ROUTE_SPEED_MPS  # M1 keeps its old durations
+    slow = replace(m1, lanes={k: replace(v, speed_limit=4.0) for k, v in m1.lanes.items()})
+    length = route_length(m1, route)
+    assert route_duration(slow, route) - route_duration(m1, route) == pytest.approx(length / 4.0 - length / 8.0, abs=0.2)
+
+
 def test_a_turn_that_yields_at_a_signal_gets_two_cycles(m1):
     """A left turn at a signal yields to oncoming traffic in its green and may wait out a whole
     green's stream and the next red (four_way_crossing r009): its budget is two cycles, a

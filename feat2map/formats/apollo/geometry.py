@@ -1,10 +1,11 @@
 """Geometry the Apollo export needs, computed on the map model (local metres): arc lengths,
 half-width and road-edge samples, stop-line and crosswalk s ranges on centrelines, exact end
-tangents, repaired degenerate boundaries, and a lane's carriageway edges."""
+tangents, repaired degenerate and too narrow boundaries, and a lane's carriageway edges."""
 from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -82,12 +83,42 @@ def exact_end_centerline(ln: Lane, step: float = APOLLO_END_TANGENT_M) -> Polyli
     return (pts[0], a) + tuple(pts[1:-1]) + (b, pts[-1])
 
 
-def offset_polyline(points: Polyline, d: float) -> Polyline:
-    """`points` shifted `d` metres to the left along vertex normals (central differences)."""
+def offset_polyline(points: Polyline, d: float | np.ndarray) -> Polyline:
+    """`points` shifted `d` metres (one value, or one per point) to the left along vertex normals
+    (central differences)."""
     p = np.asarray(points, dtype=float)
     t = np.gradient(p, axis=0)
     t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-12)[:, None]
-    return as_polyline(p + d * np.column_stack([-t[:, 1], t[:, 0]]))
+    return as_polyline(p + np.reshape(d, (-1, 1)) * np.column_stack([-t[:, 1], t[:, 0]]))
+
+
+def widened_boundaries(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap:
+    """`m` with every lane side that comes nearer its centreline than `half` somewhere rebuilt as
+    the centreline offset by the distance measured at each vertex, at least `half` (+1 cm), and
+    one warning per map naming the lanes. Apollo refuses narrower width samples, and converters
+    leave them: a geometry loop's 0.117 m-wide sample, a taper closing to 1.001 m at a linked
+    end, a fold-cut connection's boundary 0.15 m from its centre (Bézier lanes are exact)."""
+    fixed: dict[str, Lane] = {}
+    narrowest: list[tuple[float, str]] = []
+    for ln in m.lanes.values():
+        if ln.bezier is not None or len(ln.centerline) < 2:
+            continue
+        sides: dict[str, Any] = {}
+        for name, sign in (("left_boundary", 1.0), ("right_boundary", -1.0)):
+            w = np.array([d for _, d in distance_samples(ln.centerline, getattr(ln, name))])
+            w = np.where(np.isfinite(w), w, ln.width / 2)
+            if w.min() < half:
+                narrowest.append((float(w.min()), ln.id))
+                sides[name] = offset_polyline(ln.centerline, sign * np.maximum(w, half + 0.01))
+        if sides:
+            fixed[ln.id] = dataclasses.replace(ln, **sides)
+    if not fixed:
+        return m
+    w0, first = min(narrowest)
+    warnings.warn(f"{m.meta.get('source', 'map')}: {len(fixed)} lane(s) narrower than Apollo holds ({half:g} m a side; "
+                  f"first: lane {first}, {w0:.3f} m): those sides widened to {half:g} m in the Apollo export",
+                  stacklevel=3)
+    return dataclasses.replace(m, lanes={k: fixed.get(k, ln) for k, ln in m.lanes.items()})
 
 
 def _usable(points: Polyline) -> bool:

@@ -7,7 +7,8 @@ lane overlaps also name approach lanes in Baidu-style maps, so they count only w
 nothing), signals, stop signs and yield signs overlap the incoming lanes or the junction's own
 lanes (and usually the junction), and many crosswalks have no id and no overlaps (they are
 linked to junctions geometrically). A signal governs where a sign shares its lanes.
-Coordinates are UTM metres; a whole-metre origin is subtracted and kept in `HDMap.origin`.
+Coordinates are UTM metres; a whole-metre origin is subtracted and kept in `HDMap.origin`. A map in
+local metres (outside UTM's ranges) keeps its frame and origin (0, 0), as OpenDRIVE files do.
 """
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from . import schema as aps
-from ...config import APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_KMH_SPEED_MPS, limits
+from ...config import (APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_KMH_SPEED_MPS, UTM_EASTING,
+                       UTM_NORTHING, limits)
 from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       incoming_lanes, signal_precedence)
@@ -62,8 +64,9 @@ def _polygon_points(poly: Any) -> np.ndarray:
 
 
 def _boundary_type(boundary: Any) -> str:
-    if boundary.virtual:
-        return "virtual"
+    """The model's type of a lane boundary: the first type it declares, whether or not it is
+    `virtual` (Baidu-style maps mark every boundary virtual and declare DOTTED_WHITE between
+    lanes a car may change between); "virtual" only where it declares none (or UNKNOWN)."""
     for bt in boundary.boundary_type:
         for t in bt.types:
             return _BOUNDARY.get(t, "virtual")
@@ -183,7 +186,12 @@ class _Reader:
                         "l": self.points(_curve_points(ln.left_boundary.curve), f"lane {lid!r} left_boundary"),
                         "r": self.points(_curve_points(ln.right_boundary.curve), f"lane {lid!r} right_boundary")}
         allpts = np.vstack([r["c"] for r in raw.values()])
-        origin = (float(np.floor(allpts[:, 0].min())), float(np.floor(allpts[:, 1].min())))
+        lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+        absolute = (UTM_EASTING[0] <= lo[0] <= hi[0] <= UTM_EASTING[1]
+                    and UTM_NORTHING[0] <= lo[1] <= hi[1] <= UTM_NORTHING[1])
+        # absolute UTM: a whole-metre origin taken off; local metres (x from -400 to 200 under
+        # `utm zone 0`): the map's own frame, placed at the export's origin as OpenDRIVE files are
+        origin = (float(np.floor(lo[0])), float(np.floor(lo[1]))) if absolute else (0.0, 0.0)
         o = np.array(origin)
 
         # roads and junction membership

@@ -26,7 +26,8 @@ from . import schema as aps
 from ..base import Problem
 from .reader import base_map_file
 from .routing import build_routing_graph
-from ...config import APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M
+from ...config import (APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_STOP_LINE_OVERLAP_M, UTM_EASTING,
+                      UTM_NORTHING)
 from ...errors import MapFormatError
 from ...invariants import AREA_EPS_M2, unreached_exits
 from ...validation import unusable_numbers
@@ -38,8 +39,6 @@ STOP_LINE_TOL_M = 1.0  # an overlap's s range lies this close to where the stop 
 CROSSWALK_TOL_M = 0.5  # crosswalk overlap ranges vs. the polygon's cover of the centreline
 COST_TOL = 1e-6
 MAX_SPEED_MPS = 50.0  # a larger "speed limit" is likely km/h or mph
-UTM_EASTING = (100_000.0, 900_000.0)
-UTM_NORTHING = (0.0, 10_000_000.0)
 
 _INFO_KIND = {"lane_overlap_info": "lane", "signal_overlap_info": "signal", "stop_sign_overlap_info": "stop_sign",
               "crosswalk_overlap_info": "crosswalk", "junction_overlap_info": "junction",

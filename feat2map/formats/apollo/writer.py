@@ -21,7 +21,7 @@ from ... import __version__, atomic
 from .. import FORMATS
 from . import schema as aps
 from .geometry import (arc_lengths, distance_samples, exact_end_centerline, polygon_range, road_edges,
-                               stop_line_range, trimmed_tapers, usable_boundaries, without_point_lanes)
+                       stop_line_range, trimmed_tapers, usable_boundaries, widened_boundaries, without_point_lanes)
 from .sim_map import to_sim_map
 from ..base import header_date
 from ..lane_ends import closed_seams
@@ -149,7 +149,7 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     if origin is None:
         origin = m.origin if any(m.origin) else UTM_ORIGIN  # checked (two numbers) just below
     origin = check_origin(origin, "apollo export: origin")
-    m = usable_boundaries(trimmed_tapers(closed_seams(without_point_lanes(m))))
+    m = widened_boundaries(usable_boundaries(trimmed_tapers(closed_seams(without_point_lanes(m)))))
     frame = _Frame(origin)
     ids = _Ids()
     out = aps.Map()
@@ -272,7 +272,7 @@ def _lane(msg: Any, m: HDMap, ln: Lane, centre: Polyline, frame: _Frame, lid: di
                             ("right", ln.right_boundary, ln.right_boundary_type)):
         b = getattr(msg, f"{side}_boundary")
         b.length = frame.fill_curve(b.curve, pts)
-        b.virtual = kind == "virtual"
+        b.virtual = kind == "virtual" or ln.junction_id is not None  # no painted line in a junction
         bt = b.boundary_type.add()
         bt.s = 0.0
         bt.types.append(BOUNDARY_TYPE.get(kind, aps.LaneBoundaryType.UNKNOWN))
@@ -337,22 +337,22 @@ def text_of(msg: Any) -> str:
     return text if text.endswith("\n") or not text else text + "\n"
 
 
-def refuse_invalid(base: Any, graph: Any, out_dir: str | Path, strict: bool = False) -> None:
+def refuse_invalid(base: Any, graph: Any, out_dir: str | Path, skipped: int = 0) -> None:
     """Before anything is written, the lanes of every map must pass `feat2map validate`'s lane
     checks (links that exist, are listed back and meet, lengths, types): an input edited into
     a broken map (a junction-lane cycle, a self-link, a zero-length lane) is refused with its
     first problem named, instead of written for validate to reject. A map feat2map generated
-    (its header says so), and with `strict` a map whose reading skipped broken elements (links
-    to a missing road), is held to every rule validate applies; converted real maps keep their
-    own flaws of routing and signals (validate reports them)."""
+    (its header says so), and a map whose reading `skipped` broken elements (links to a missing
+    road), is held to every rule validate applies; converted real maps keep their own flaws of
+    routing and signals (validate reports them). The refusal leads with the first problem."""
     from .validate import _Index, _lanes, validate_map
 
-    whole = strict or base.header.generation == APOLLO_GENERATED_MARK
+    whole = skipped > 0 or base.header.generation == APOLLO_GENERATED_MARK
     problems = validate_map(base, graph) if whole else _lanes(base, _Index(base), False)
     if problems:
-        why = " after reading skipped broken elements" if strict else ""
-        raise Feat2MapError(f"refusing to export a map that would not validate{why} ({len(problems)} problems; "
-                            f"first: {problems[0]})", str(out_dir))
+        why = f"; every rule applies: reading skipped {skipped} broken element(s)" if skipped else ""
+        raise Feat2MapError(f"refusing to export a map that would not validate: {problems[0]} "
+                            f"({len(problems)} problem(s){why})", str(out_dir))
 
 
 def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
@@ -373,7 +373,7 @@ def write_apollo(m: HDMap, out_dir: str | Path, *, zone: int = UTM_ZONE,
         bar.set_postfix_str("routing_map")
         messages["routing_map"] = build_routing_graph(base)
         bar.update()
-        refuse_invalid(base, messages["routing_map"], out_dir, strict=bool(m.meta.get("skipped_on_read")))
+        refuse_invalid(base, messages["routing_map"], out_dir, skipped=int(m.meta.get("skipped_on_read", 0)))
         texts = {name: refuse_nonfinite(text_of(msg), f"{out_dir}: {name}") for name, msg in messages.items()}
         try:
             with atomic.staged_dir(out_dir, FORMATS["apollo"].markers) as tmp:

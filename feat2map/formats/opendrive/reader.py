@@ -7,7 +7,8 @@ by dense numeric integration; lanes are the reference shifted by the lane offset
 cumulative lane widths. Only driving lanes become `Lane`s (other lanes still take width).
 Lane links are collected as contacts between lane ends (inside a road, across road links and
 across junction lane links) and turned into successor/predecessor links in driving direction
-(right-hand traffic: negative lane ids drive along the reference, positive ones against it).
+(right-hand traffic: negative lane ids drive along the reference, positive ones against it; a
+road with `rule="LHT"` the other way round). Boundary types come from the `<roadMark>`s.
 CARLA splits one intersection into several `<junction>` elements: junction elements whose
 connecting lanes touch are merged into one `Junction`. Signals are mapped through the one
 `SIGNAL_CODES` table and attached to the incoming lanes they govern.
@@ -208,6 +209,7 @@ class _OdrLane:
     predecessor: int | None
     successor: int | None
     speed: float | None
+    marks: list[tuple[float, str, str]] = field(default_factory=list)  # (sOffset, type, color) of its outer edge
 
 
 @dataclass
@@ -215,6 +217,7 @@ class _Section:
     s0: float
     s1: float
     lanes: dict[int, _OdrLane]
+    centre_marks: list[tuple[float, str, str]] = field(default_factory=list)  # the centre lane's (id 0)
 
 
 @dataclass
@@ -228,6 +231,12 @@ class _OdrRoad:
     links: dict[str, tuple[str, str, str]]  # "predecessor"/"successor" -> (type, id, contactPoint)
     speed: float | None
     el: Any = field(repr=False, default=None)  # lxml element (lxml has no type stubs here)
+    lht: bool = False  # rule="LHT": positive lane ids drive along the reference line
+
+    def along(self, lane_id: int) -> bool:
+        """Lane `lane_id` drives along the reference line (negative ids in right-hand traffic,
+        positive ones in left-hand traffic)."""
+        return (lane_id < 0) != self.lht
 
 
 class _Ctx:
@@ -310,6 +319,42 @@ def _speed(el) -> float | None:
     return v * (_MPH if unit == "mph" else 1 / 3.6 if unit == "km/h" else 1.0)
 
 
+def _marks(ln) -> list[tuple[float, str, str]]:
+    """A lane's `<roadMark>` records (sOffset, type, color), lower case, in s order; an sOffset
+    that is no number counts as 0."""
+    out = []
+    for rm in ln.findall("roadMark"):
+        try:
+            s0 = float(rm.get("sOffset", "0"))
+        except ValueError:
+            s0 = 0.0
+        out.append((s0 if math.isfinite(s0) else 0.0, " ".join((rm.get("type") or "none").lower().split()),
+                    (rm.get("color") or "standard").lower()))
+    return sorted(out, key=lambda m: m[0])
+
+
+def _mark_type(marks: list[tuple[float, str, str]], length: float, same_direction: bool, first: bool) -> str:
+    """The model's boundary type of one lane side from the `<roadMark>`s of the line there:
+    the record covering most of the section's `length`. A double type names its lines from the
+    inside of the road out (the centre lane's from left to right), and the lane sees the line on
+    its side (`first`: the lane lies on the side of the first-named line). A broken line, botts dots or no mark
+    between same-direction lanes may be crossed (dotted); a solid line, a curb or grass may not;
+    the road's edge without a mark is solid white. See docs/opendrive.md."""
+    if not marks:
+        return "dotted_white" if same_direction else "solid_white"
+    spans = [(min(length, marks[i + 1][0] if i + 1 < len(marks) else length) - max(m[0], 0.0), m)
+             for i, m in enumerate(marks)]
+    _, (_, typ, colour) = max(spans, key=lambda x: x[0])
+    parts = typ.split()
+    line = (parts[0] if first else parts[-1]) if parts else "none"
+    yellow = colour == "yellow"
+    if line in ("broken", "botts") or (line == "none" and same_direction):
+        return "dotted_yellow" if yellow else "dotted_white"
+    if line in ("curb", "grass"):
+        return "curb"
+    return "solid_yellow" if yellow else "solid_white"
+
+
 def _parse_road(ctx: _Ctx, r) -> _OdrRoad:
     rid = r.get("id")
     if rid is None:
@@ -354,11 +399,13 @@ def _parse_road(ctx: _Ctx, r) -> _OdrRoad:
                     _records(ctx, ln.findall("width"), "sOffset", w), _records(ctx, ln.findall("border"), "sOffset", w),
                     int(ctx.num(pred, "id", what=w)) if pred is not None else None,
                     int(ctx.num(succ, "id", what=w)) if succ is not None else None,
-                    _speed(ln))
-        sections.append(_Section(s0, max(s1, s0), lanes))
+                    _speed(ln), _marks(ln))
+        centre = e.find("center")
+        centre_lane = centre.find("lane") if centre is not None else None
+        sections.append(_Section(s0, max(s1, s0), lanes, _marks(centre_lane) if centre_lane is not None else []))
     junction = r.get("junction", "-1")
     return _OdrRoad(rid, length, None if junction in ("-1", "") else junction, _RefLine(geoms), sections, offset,
-                    links, _speed(r.find("type")), r)
+                    links, _speed(r.find("type")), r, (r.get("rule") or "").strip().upper() == "LHT")
 
 
 @dataclass
@@ -370,6 +417,8 @@ class _LaneGeom:
     width: float
     speed: float
     folded: bool = False  # samples were cut where the lane folds round a bend (see _unfolded)
+    left_type: str = "solid_white"  # boundary types as its traffic sees them (from the roadMarks)
+    right_type: str = "solid_white"
 
 
 def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
@@ -393,7 +442,7 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
     for side in (-1, 1):
         ids = sorted((i for i in sec.lanes if i * side > 0), key=abs)
         inner = off.copy()
-        for lid in ids:
+        for i, lid in enumerate(ids):
             ln = sec.lanes[lid]
             if ln.widths or not ln.borders:
                 w = _poly(ln.widths, ds, sec.s1 - sec.s0)
@@ -412,12 +461,31 @@ def _section_lanes(road: _OdrRoad, k: int, ctx: _Ctx) -> list[_LaneGeom]:
                 mid = 0.5 * (inner + outer)
                 keep = _unfolded(s, h, mid) if road.junction is None else np.arange(len(s))
                 c, lft, rgt = (np.column_stack([x + t * nx, y + t * ny])[keep] for t in (mid, inner, outer))
-                if side > 0:  # left lanes drive against the reference line
+                ltype, rtype = _side_types(sec, ids, i, side)  # (inner, outer): the centre on the left
+                if road.lht:  # traffic keeps left: the side towards the centre is the driver's right
+                    lft, rgt, ltype, rtype = rgt, lft, rtype, ltype
+                if not road.along(lid):
                     c, lft, rgt = c[::-1], lft[::-1], rgt[::-1]
                 out.append(_LaneGeom((road.id, k, lid), c, lft, rgt, float(w.mean()),
-                                     ln.speed or road.speed or SPEED_LIMIT_MPS, len(keep) < len(s)))
+                                     ln.speed or road.speed or SPEED_LIMIT_MPS, len(keep) < len(s), ltype, rtype))
             inner = outer
     return out
+
+
+def _side_types(sec: _Section, ids: list[int], i: int, side: int) -> tuple[str, str]:
+    """(inner, outer) boundary types of lane `ids[i]` of one side of a section (`ids` ordered
+    from the centre out): its outer line is its own roadMark, its inner line the roadMark of
+    the lane inside it, or the centre lane's."""
+    length = sec.s1 - sec.s0
+    ln = sec.lanes[ids[i]]
+    beyond = sec.lanes[ids[i + 1]] if i + 1 < len(ids) else None
+    outer = _mark_type(ln.marks, length, beyond is not None and beyond.type in DRIVING_TYPES, True)
+    if i > 0:
+        prev = sec.lanes[ids[i - 1]]
+        inner = _mark_type(prev.marks, length, prev.type in DRIVING_TYPES, False)
+    else:
+        inner = _mark_type(sec.centre_marks, length, False, side > 0)
+    return inner, outer
 
 
 def _unfolded(s: np.ndarray, h: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -605,9 +673,8 @@ class _Builder:
         d = np.hypot(ix - cx[0], iy - cy[0])
         return "low" if d[0] <= d[1] else "high"
 
-    @staticmethod
-    def _exit_end(key: tuple[str, int, int]) -> str:
-        return "high" if key[2] < 0 else "low"
+    def _exit_end(self, key: tuple[str, int, int]) -> str:
+        return "high" if self.roads[key[0]].along(key[2]) else "low"
 
     def _links(self) -> tuple[dict[str, list[str]], dict[str, list[str]]]:
         succ: dict[str, list[str]] = {}
@@ -742,10 +809,10 @@ class _Builder:
                 as_polyline(joined("right")[keep]), width, parts[0].speed,
                 tuple(dict.fromkeys(chain_of[x] for x in piece_pred.get(first, ()))),
                 tuple(dict.fromkeys(chain_of[x] for x in piece_succ.get(last, ()))),
-                junction_id=jid, left_boundary_type="virtual" if jid else "solid_white",
-                right_boundary_type="virtual" if jid else "solid_white")
+                junction_id=jid, left_boundary_type="virtual" if jid else _longest(parts, "left_type"),
+                right_boundary_type="virtual" if jid else _longest(parts, "right_type"))
             rl = road_lanes.setdefault(road_id, ([], []))
-            (rl[0] if chain[0][2] < 0 else rl[1]).append(lid)
+            (rl[0] if self.roads[road_id].along(chain[0][2]) else rl[1]).append(lid)
         self._neighbours(lanes, chain_of)
         self.joined = _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
         for lid, ln in lanes.items():
@@ -817,14 +884,17 @@ class _Builder:
         return np.linalg.solve(A, rhs)
 
     def _neighbours(self, lanes: dict[str, Lane], chain_of: dict[str, str]) -> None:
-        """Same-direction neighbours (ids differ by one on one side) and the reverse neighbour."""
+        """Same-direction neighbours (ids differ by one on one side) and the reverse neighbour
+        across the centre (left-hand traffic has it on the right, which the model does not hold)."""
         found: dict[str, dict[str, list[str]]] = {}
         for key in self.geoms:
             road, k, lid = key
             side = -1 if lid < 0 else 1
+            out = -side if self.roads[road].lht else side  # lanes further out lie on the driver's right in RHT
             me = chain_of[self.lane_id(key)]
-            for attr, other in (("right_neighbors", (road, k, lid + side)), ("left_neighbors", (road, k, lid - side)),
-                                ("left_reverse_neighbors", (road, k, -side) if abs(lid) == 1 else None)):
+            centre = (road, k, -side) if abs(lid) == 1 and not self.roads[road].lht else None
+            for attr, other in (("right_neighbors", (road, k, lid + out)), ("left_neighbors", (road, k, lid - out)),
+                                ("left_reverse_neighbors", centre)):
                 if other is not None and other[2] != 0 and other in self.geoms:
                     lst = found.setdefault(me, {}).setdefault(attr, [])
                     if chain_of[self.lane_id(other)] not in lst and chain_of[self.lane_id(other)] != me:
@@ -1015,6 +1085,7 @@ class _Builder:
         orientation = (el.get("orientation") or (signal_el.get("orientation") if signal_el is not None else None)
                        or "none").strip()
         side = -1 if orientation == "+" else 1 if orientation == "-" else 0
+        side = -side if road.lht else side  # "+": the lanes driving along the reference line
         keys = [(road.id, k, lid) for k in range(len(road.sections)) for lid in road.sections[k].lanes
                 if (road.id, k, lid) in self.geoms]
         keep: set[int] = set()
@@ -1164,6 +1235,11 @@ def _turn(ln: Lane, lanes: dict[str, Lane]) -> str:
             if abs(math.degrees(wrap_angle(b.heading_at_start() - a.heading_at_end()))) >= UTURN_THRESHOLD_DEG:
                 return "uturn"
     return turn
+
+
+def _longest(parts: list[_LaneGeom], attr: str) -> str:
+    """The boundary type `attr` of the longest of a lane's pieces (one type per lane side)."""
+    return str(getattr(max(parts, key=lambda g: float(np.hypot(*np.diff(g.centre, axis=0).T).sum())), attr))
 
 
 def _id_key(j: str) -> tuple[int, float, str]:

@@ -21,6 +21,7 @@ road-type speeds, so its road types carry none (lane speeds stay).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +46,17 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
 _ROAD_MARKS = {"solid_white": ("solid", "white"), "dotted_white": ("broken", "white"),
                "solid_yellow": ("solid", "yellow"), "dotted_yellow": ("broken", "yellow"),
                "curb": ("curb", "standard"), "virtual": ("none", "standard")}
+
+
+def junction_ids(m: HDMap) -> dict[str, str]:
+    """OpenDRIVE ids of the map's junctions: their own where every one is a distinct whole number
+    (a map read from OpenDRIVE keeps its junction ids through a round trip), else 1, 2, ... in
+    map order (readers such as CARLA's and netconvert's want whole numbers; the model id is
+    written as the junction's `name`)."""
+    own = list(m.junctions)
+    if own and all(re.fullmatch(r"0|[1-9][0-9]*", j) for j in own):
+        return {j: j for j in own}
+    return {jid: str(i + 1) for i, jid in enumerate(own)}
 
 
 def bezier_length(b: Bezier, pieces: int = 16) -> float:
@@ -227,7 +239,7 @@ class _Writer:
         self.minor = int(version.split(".")[1])
         self.roads = export_roads(m)
         self.road_ids = {rid: str(i + 1) for i, rid in enumerate(self.roads)}
-        self.junction_ids = {jid: str(i + 1) for i, jid in enumerate(m.junctions)}
+        self.junction_ids = junction_ids(m)
         self.refs = {rid: _Ref(r, m) for rid, r in self.roads.items()}
         self.odr_lane: dict[str, tuple[str, int]] = {}  # model lane -> (exported road, OpenDRIVE lane id)
         for rid, r in self.roads.items():
