@@ -315,16 +315,6 @@ class Ego(RouteFollower):
         s, r = self.projection(net.id_of[target_lane_index])
         return lane_keeping(net.get_lane(target_lane_index), s, r, self.heading, self.speed, self.model)
 
-    def act(self, action=None) -> None:
-        """highway-env's meta-action, except that LANE_LEFT / LANE_RIGHT keep the lane unless the
-        line between the two lanes is dashed (`invariants.lane_changes`)."""
-        before = self.target_lane_index
-        super().act(action)
-        old, new = self.net.id_of.get(before), self.net.id_of.get(self.target_lane_index)
-        if action in ("LANE_LEFT", "LANE_RIGHT") and old is not None and new != old and (
-                new not in lane_changes(self.net.hdmap.lanes[old])):
-            self.target_lane_index = before
-
     def step(self, dt: float) -> None:
         step_egos([self], dt)
 
@@ -339,6 +329,16 @@ class Ego(RouteFollower):
 
 class EgoMDPVehicle(Ego, MDPVehicle):
     """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
+
+    def act(self, action=None) -> None:
+        """highway-env's meta-action, except that LANE_LEFT / LANE_RIGHT keep the lane unless the
+        line between the two lanes is dashed (`invariants.lane_changes`)."""
+        before = self.target_lane_index
+        super().act(action)
+        old, new = self.net.id_of.get(before), self.net.id_of.get(self.target_lane_index)
+        if action in ("LANE_LEFT", "LANE_RIGHT") and old is not None and new != old and (
+                new not in lane_changes(self.net.hdmap.lanes[old])):
+            self.target_lane_index = before
 
     def reversing(self) -> bool:
         return self.target_speed < 0
