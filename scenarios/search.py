@@ -163,8 +163,9 @@ def check_budget(budget_seconds: Any, budget_scenarios: Any) -> None:
         raise Feat2MapError(f"must be a positive integer, got {budget_scenarios!r:.40}", "--budget-scenarios")
 
 
-def make_study(sampler: str, seed: int) -> Any:
-    """An Optuna study maximising the value, with a seeded TPE or random sampler."""
+def make_study(sampler: str, seed: int, startup: int = SEARCH_STARTUP_TRIALS) -> Any:
+    """An Optuna study maximising the value, with a seeded TPE (drawing its first `startup`
+    candidates at random) or random sampler."""
     try:
         import optuna
     except ImportError:
@@ -177,18 +178,19 @@ def make_study(sampler: str, seed: int) -> Any:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)  # multivariate, group, constant_liar
         chosen = (optuna.samplers.RandomSampler(seed=seed) if sampler == "random" else
-                  optuna.samplers.TPESampler(seed=seed, n_startup_trials=SEARCH_STARTUP_TRIALS, multivariate=True,
+                  optuna.samplers.TPESampler(seed=seed, n_startup_trials=startup, multivariate=True,
                                              group=True, constant_liar=True))
     return optuna.create_study(direction="maximize", sampler=chosen)
 
 
 def search(start: Start, evaluate: Evaluator, *, workdir: Path, budget_seconds: float | None = None,
            budget_scenarios: int | None = None, seed: int = 0, sampler: str = "tpe", batch: int = SEARCH_BATCH,
-           fail_on: str = "any", shrink_failures: bool = True,
+           fail_on: str = "any", shrink_failures: bool = True, startup: int = SEARCH_STARTUP_TRIALS,
            log: Callable[[str], None] | None = None, progress: bool = False) -> SearchResult:
     """Search `start`'s space with the planner `evaluate` drives, until a budget is spent; returns
     every trial and one Finding per failure signature (shrunk unless `shrink_failures` is off).
-    `fail_on` says which outcomes are failures (rollout's policies). `log` gets a line per batch."""
+    `fail_on` says which outcomes are failures (rollout's policies); TPE draws its first `startup`
+    candidates at random. `log` gets a line per batch."""
     import optuna
     from tqdm import tqdm
 
@@ -197,15 +199,17 @@ def search(start: Start, evaluate: Evaluator, *, workdir: Path, budget_seconds: 
         raise Feat2MapError(f"unknown failure policy (choose {', '.join(FAIL_POLICIES)})", f"--fail-on {fail_on!r:.40}")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise Feat2MapError(f"must be a positive integer, got {batch!r:.40}", "--batch")
-    study = make_study(sampler, seed)
+    study = make_study(sampler, seed, startup)
     maps = MapCache(workdir / "maps")
     cpu0, trials, history = time.process_time(), [], []
     seen: dict[Signature, int] = {}
     infeasible, stopped = 0, ""
     bar = tqdm(total=budget_scenarios or None, desc="search", unit="scenario", disable=not progress)
 
+    cpu_before = evaluate.cpu_s  # an Evaluator may serve several searches
+
     def spent() -> float:
-        return evaluate.cpu_s + time.process_time() - cpu0
+        return evaluate.cpu_s - cpu_before + time.process_time() - cpu0
 
     try:
         while True:
