@@ -201,7 +201,9 @@ def search(start: Start, evaluate: Evaluator, *, workdir: Path, budget_seconds: 
         raise Feat2MapError(f"must be a positive integer, got {batch!r:.40}", "--batch")
     study = make_study(sampler, seed, startup)
     maps = MapCache(workdir / "maps")
-    cpu0, trials, history = time.process_time(), [], []
+    cpu0 = time.process_time()
+    trials: list[Trial] = []
+    history: list[tuple[float, int, int]] = []
     seen: dict[Signature, int] = {}
     infeasible, stopped = 0, ""
     bar = tqdm(total=budget_scenarios or None, desc="search", unit="scenario", disable=not progress)
