@@ -1,5 +1,6 @@
 """The scenario commands of the `feat2map` CLI: `suite` (a route-coverage suite for a map),
 `rollout` (run a suite headless, write summary/JUnit/report; exit 1 on failures by policy),
+`search` (search maps and traffic for a planner's failures, write them as regression scenarios),
 `replay` (a recorded planner-bridge session against a planner) and `coverage` (compare suites'
 results side by side). Hooked into `feat2map.cli` by
 `add_scenario_commands`.
@@ -54,7 +55,7 @@ def cmd_suite(args: argparse.Namespace) -> int:
 
 def cmd_rollout(args: argparse.Namespace) -> int:
     from .scenarios.report import SUMMARY, write_report
-    from .scenarios.rollout import PlannerFactory, check_blocked_after, run_suite
+    from .scenarios.rollout import check_blocked_after, run_suite
     from .scenarios.scenario import load_suite
 
     if args.workers < 1:
@@ -62,29 +63,15 @@ def cmd_rollout(args: argparse.Namespace) -> int:
     check_blocked_after(args.blocked_after, "--blocked-after")
     atomic.check_dir_target(args.out, (SUMMARY,))  # before the run, not after it
     suite = load_suite(args.suite)
-    if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory
-        sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
-    if args.planner_cmd is not None:
-        if args.planner != "baseline":
-            raise Feat2MapError("give --planner or --planner-cmd, not both", "command line")
-        if not args.planner_cmd.strip():
-            raise Feat2MapError("--planner-cmd is empty", "command line")
-        if not args.planner_timeout > 0:
-            raise Feat2MapError("--planner-timeout must be positive", "command line")
-        from .scenarios.bridge import BridgePlanner
-        from .scenarios.bridge_record import MESSAGES, recording_folder
-
-        for s in suite.scenarios if args.record else ():  # each recording replaces only an earlier one
-            atomic.check_dir_target(recording_folder(args.record, s.name), (MESSAGES,))
-
-        factory = PlannerFactory(BridgePlanner(args.planner_cmd, step_timeout=args.planner_timeout,
-                                               record=str(Path(args.record).resolve()) if args.record else None))
-    else:
-        if args.record:
+    if args.record:
+        if args.planner_cmd is None:
             raise Feat2MapError("--record needs --planner-cmd (it records the planner bridge's messages)",
                                 "command line")
-        factory = PlannerFactory(args.planner)
-    factory()  # fail early, in this process, on a planner that cannot be imported or built
+        from .scenarios.bridge_record import MESSAGES, recording_folder
+
+        for s in suite.scenarios:  # each recording replaces only an earlier one
+            atomic.check_dir_target(recording_folder(args.record, s.name), (MESSAGES,))
+    factory = _planner_factory(args, record=str(Path(args.record).resolve()) if args.record else None)
     bar = not args.quiet and on_terminal()  # off a terminal: one line per finished scenario instead
     result = run_suite(suite, factory, workers=args.workers, backend=args.backend, progress=bar,
                        coverage=args.line_coverage, record_failure_gif=not args.no_gif, fail_on=args.fail_on,
@@ -155,6 +142,66 @@ def cmd_coverage(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_search(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from .scenarios.rollout import check_blocked_after
+    from .scenarios.search import check_budget, evaluator, make_study, search
+    from .scenarios.search_output import SEARCH_JSON, write_search
+    from .scenarios.search_space import start_from
+
+    check_budget(args.budget_seconds, args.budget_scenarios)
+    if args.workers < 1:
+        raise Feat2MapError("--workers must be at least 1", "command line")
+    if args.batch < 1:
+        raise Feat2MapError("--batch must be at least 1", "command line")
+    check_blocked_after(args.blocked_after, "--blocked-after")
+    make_study(args.sampler, args.seed)  # Optuna there, the sampler and seed valid: before any work
+    atomic.check_dir_target(args.out, (SEARCH_JSON,))
+    factory = _planner_factory(args)
+    bar = not args.quiet and on_terminal()
+    log = None if args.quiet or bar else functools.partial(print, flush=True)
+    with tempfile.TemporaryDirectory(prefix="feat2map-search-") as work, \
+            evaluator(factory, workers=args.workers, backend=args.backend, blocked_after=args.blocked_after) as ev:
+        start = start_from(features=args.features, spec=args.spec, map_file=args.map, workdir=Path(work))
+        result = search(start, ev, workdir=Path(work), budget_seconds=args.budget_seconds,
+                        budget_scenarios=args.budget_scenarios, seed=args.seed, sampler=args.sampler, batch=args.batch,
+                        fail_on=args.fail_on, shrink_failures=not args.no_shrink, log=log, progress=bar)
+        replays = write_search(result, args.out, ev)
+    print(f"search ({result.sampler}, seed {result.seed}) of {start.label} with {result.planner}: "
+          f"{counted(len(result.trials), 'scenario')} in {result.cpu_s:.0f} CPU s; "
+          f"{counted(len(result.findings), 'distinct failure signature')}; report {Path(args.out) / 'report.md'}")
+    for r in replays:
+        print(f"  {one_line(f'{r.name}: {r.finding.signature.key}')}{'' if r.replays else ' (DOES NOT REPLAY)'}")
+    if result.stopped:
+        print(f"  STOPPED: {one_line(result.stopped)}")
+    return 1 if replays else 0
+
+
+def _planner_factory(args: argparse.Namespace, record: str | None = None):
+    """The planner of `rollout` and `search`: --planner (in this process's workers) or --planner-cmd
+    (its own process, through the planner bridge, its sessions kept in `record`), built once here
+    to fail early."""
+    from .scenarios.rollout import PlannerFactory
+
+    if os.getcwd() not in sys.path:  # --planner mypkg.mod:Planner from the working directory
+        sys.path.append(os.getcwd())  # (spawned workers inherit sys.path)
+    if args.planner_cmd is not None:
+        if args.planner != "baseline":
+            raise Feat2MapError("give --planner or --planner-cmd, not both", "command line")
+        if not args.planner_cmd.strip():
+            raise Feat2MapError("--planner-cmd is empty", "command line")
+        if not args.planner_timeout > 0:
+            raise Feat2MapError("--planner-timeout must be positive", "command line")
+        from .scenarios.bridge import BridgePlanner
+
+        factory = PlannerFactory(BridgePlanner(args.planner_cmd, step_timeout=args.planner_timeout, record=record))
+    else:
+        factory = PlannerFactory(args.planner)
+    factory()  # fail early, in this process, on a planner that cannot be imported or built
+    return factory
+
+
 def _dir_names(dirs: list[str]) -> list[str]:
     names = [Path(d).resolve().name or str(d) for d in dirs]
     if len(set(names)) < len(names):
@@ -163,9 +210,11 @@ def _dir_names(dirs: list[str]) -> list[str]:
 
 
 def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
-    """Add `suite`, `rollout`, `replay` and `coverage` to the `feat2map` subcommands."""
+    """Add `suite`, `rollout`, `search`, `replay` and `coverage` to the `feat2map` subcommands."""
+    from .config import SEARCH_BATCH
     from .scenarios.bridge_record import REPLAY_TOLERANCE
     from .scenarios.rollout import BACKENDS, FAIL_POLICIES
+    from .scenarios.search import SAMPLERS
 
     s = sub.add_parser("suite", help="build a route-coverage scenario suite for a map",
                        description="Write a scenario suite whose routes drive every (junction, entry, exit) "
@@ -235,6 +284,42 @@ def add_scenario_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tolerance", type=float, default=REPLAY_TOLERANCE, metavar="X",
                    help=f"replies' numbers equal within this (default {REPLAY_TOLERANCE:g})")
     p.set_defaults(func=cmd_replay)
+
+    q = sub.add_parser("search", help="search maps and traffic together for a planner's failures",
+                       description="Search one space joining the junction (legs, angles within the feature space's "
+                                   "ranges, control, crosswalk, lanes, a one-way leg; generated on the fly), traffic and "
+                                   "pedestrians (count, speeds, the signal plan) and the ego (manoeuvre, start, seeds) "
+                                   "for the planner's failures, guided by failures and criticality (time-to-collision, "
+                                   "distance, braking, time blocked) with Optuna's TPE sampler (docs/search.md). Each "
+                                   "distinct failure signature is shrunk and written to DIR/regressions.yaml (and "
+                                   "OpenSCENARIO), replayed, and shown in DIR/report.html with its GIF; exit 1 when a "
+                                   "failure is found. Needs the search extra (pip install 'feat2map[search]').")
+    start = q.add_mutually_exclusive_group()
+    start.add_argument("--features", metavar="FILE", help="feature-space JSON to generate junctions from (default: the "
+                       "paper's San Francisco feature space)")
+    start.add_argument("--spec", metavar="FILE", help="a map spec (YAML/JSON): its map is built once and its routes searched")
+    start.add_argument("--map", metavar="FILE", help="a map file (feat2map .json, OpenDRIVE, Apollo): its routes searched")
+    q.add_argument("--budget-seconds", type=float, metavar="S", help="CPU seconds to spend on candidates (the workers' "
+                   "and this process's; checked after each batch)")
+    q.add_argument("--budget-scenarios", type=int, metavar="N", help="candidate scenarios to drive")
+    q.add_argument("--seed", type=int, default=0, metavar="N", help="the sampler's seed: the same seed and scenario "
+                   "budget give the same candidates and findings, whatever --workers")
+    q.add_argument("--sampler", choices=SAMPLERS, default="tpe", help="tpe (Optuna's TPE) or random (the baseline)")
+    q.add_argument("--batch", type=int, default=SEARCH_BATCH, metavar="N", help="candidates asked and driven at once")
+    q.add_argument("--planner", default="baseline", metavar="PLANNER", help="as rollout's --planner")
+    q.add_argument("--planner-cmd", metavar="CMD", help="as rollout's --planner-cmd: a planner in its own process "
+                   "through the planner bridge")
+    q.add_argument("--planner-timeout", type=float, default=10.0, metavar="S",
+                   help="with --planner-cmd: seconds the planner has for each step reply")
+    q.add_argument("--blocked-after", type=float, default=BLOCKED_AFTER_S, metavar="S", help="as rollout's")
+    q.add_argument("--fail-on", choices=tuple(FAIL_POLICIES), default="any", help="outcomes that count as failures")
+    q.add_argument("--workers", type=int, default=1, metavar="N", help="candidates driven in parallel")
+    q.add_argument("--backend", choices=BACKENDS, default="process", help="local processes or Ray (the ray extra)")
+    q.add_argument("--no-shrink", action="store_true", help="write each failure as found, not shrunk")
+    q.add_argument("--out", required=True, metavar="DIR", help="output folder, built whole and swapped in; an existing "
+                   "folder is replaced only if it is an earlier search output (holds search.json)")
+    q.add_argument("--quiet", action="store_true", help="no progress bar (off a terminal: no line per batch)")
+    q.set_defaults(func=cmd_search)
 
     c = sub.add_parser("coverage", help="compare suites' rollout results side by side",
                        description="Put rollout results side by side: behaviour coverage (the planner's stage "

@@ -281,6 +281,30 @@ def raised_limits(**values: float) -> Iterator[Limits]:
 # rollout reports (scenarios/markup.py): report.html loads nothing but its inline pictures and style, runs no script
 REPORT_CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; base-uri 'none'; form-action 'none'"
 
+# criticality of a rollout (scenarios/criticality.py): what the search (scenarios/search.py) is guided by
+TTC_CAP_S = 10.0  # a time-to-collision beyond this (or none: nobody closing in) counts as this
+DISTANCE_CAP_M = 50.0  # the closest road user: farther than this (or none) counts as this
+BRAKE_CAP_MPS2 = 8.0  # the hardest braking scores 1 at this deceleration (the baseline's action range)
+TTC_RANGE_M = 60.0  # only road users this close to the ego enter its time-to-collision and distance
+# `feat2map search` (scenarios/search.py, search_space.py): the layer-4 ranges it searches, all within legal
+# driving and the env's config checks (envs/config.py), and how it proceeds
+SEARCH_TRAFFIC_MAX = 12  # traffic vehicles 0..this
+SEARCH_PEDESTRIAN_RATE_MAX = 12.0  # pedestrians per crosswalk per minute 0..this
+SEARCH_PEDESTRIAN_SPEED_MPS = (0.8, 2.0)  # walking speed, slow to brisk
+SEARCH_TRAFFIC_SPEED_MPS = (0.0, 12.0)  # traffic's speed at spawn (below SPEED_LIMIT_MPS)
+SEARCH_EGO_SPEED_MPS = (0.0, 10.0)  # the ego's speed at reset
+SEARCH_EGO_START_M = (10.0, 60.0)  # the ego starts this far before its first stop line
+SEARCH_SIGNAL_GREEN_S = (6.0, 30.0)  # green time of a phase
+SEARCH_SIGNAL_AMBER_S = (3.0, 5.0)  # amber: at least 3 s, as traffic engineering manuals ask
+SEARCH_SIGNAL_ALL_RED_S = (0.0, 2.0)  # all-red between phases
+SEARCH_LANES_MAX = 2  # lanes per direction of a generated junction's legs: 1..this
+SEARCH_ENV_SEED_MAX = 2**31 - 1  # env seeds (traffic and pedestrian spawn places and times) 0..this
+SEARCH_BATCH = 4  # candidates asked of the optimiser at once: results do not depend on the worker count
+SEARCH_STARTUP_TRIALS = 8  # TPE draws at random this many candidates before it models the good ones
+SEARCH_FAILURE_BONUS = 1.0  # a failing candidate scores this over its criticality (0..1), divided by 1 + earlier finds
+SEARCH_MAX_INFEASIBLE = 200  # candidates whose junction cannot be built (legs too close) before the search gives up
+SHRINK_MAX_ROUNDS = 6  # shrinking rounds per failure (each drives every smaller candidate once)
+
 
 # ---- env layer (feat2map/envs): the traffic rules, the traffic core, the road network, the ego's
 # observations and controllers. Units in the names: _M metres, _S seconds, _MPS m/s, _MPS2 m/s^2.

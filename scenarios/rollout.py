@@ -146,7 +146,10 @@ class Outcome:
     map: str = ""
     planner_digest: str = ""  # of the planner sources this scenario measured (coverage on)
     planner_stderr: str = ""  # the tail of an out-of-process planner's stderr (a scenario that did not complete)
+    criticality: Mapping[str, float] = field(default_factory=dict)  # scenarios/criticality.py's MEASURES
+    site: Mapping[str, Any] = field(default_factory=dict)  # where it failed: junction, its feature, manoeuvre, rule
     wall_s: float = field(default=0.0, compare=False)
+    cpu_s: float = field(default=0.0, compare=False)  # CPU time of the process that drove it (GIF included)
     gif: bytes | None = field(default=None, compare=False, repr=False)
 
     @property
@@ -179,7 +182,8 @@ class Outcome:
                 junction_lines={str(j): tuple(v) for j, v in d.get("junction_lines", {}).items()},
                 message=str(d.get("message", "")), seed=d.get("seed"), map=str(d.get("map", "")),
                 planner_digest=str(d.get("planner_digest", "")), planner_stderr=str(d.get("planner_stderr", "")),
-                wall_s=float(d.get("wall_s", 0.0)))
+                criticality={str(k): float(v) for k, v in d.get("criticality", {}).items()},
+                site=dict(d.get("site", {})), wall_s=float(d.get("wall_s", 0.0)), cpu_s=float(d.get("cpu_s", 0.0)))
         except (KeyError, TypeError, ValueError) as exc:
             raise Feat2MapError(f"malformed outcome ({exc!r})", where) from None
 
@@ -456,6 +460,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
     """Run one episode; returns its outcome and (when rendering) its frames, collected into
     `frames` when given (the caller keeps them if the planner raises). It ends early as blocked
     (`BlockedClock`) after `blocked_after` seconds (0: never)."""
+    from .criticality import CriticalityMeter
     from .scenario import make_env
 
     t0 = time.perf_counter()
@@ -479,6 +484,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         first_violation: tuple[str, float, Any] | None = None
         steps = 0
         clock = BlockedClock(blocked_after)
+        meter = CriticalityMeter()
         blocked = ""
         if render:
             frames.add(env.render())
@@ -503,6 +509,7 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
                                        jid or (visited[-1] if visited else info.get("junction")))
                 if render:
                     frames.add(env.render())
+                meter.update(env, info, clock.blocked)
                 if terminated or truncated:
                     break
                 if clock.update(env, info):
@@ -537,7 +544,8 @@ def _drive(scenario: Any, factory: Callable[[], Any], *, render: bool = False, c
         junction_lines=lines, message=message, seed=getattr(scenario, "seed", None),
         map=str(getattr(scenario, "map", "")), planner_digest=digest,
         planner_stderr="" if kind == "completed" else str(getattr(policy, "stderr_tail", "")),
-        wall_s=time.perf_counter() - t0)
+        criticality={**meter.values(), "blocked_s": round(max(meter.blocked, clock.blocked), 4)},
+        site=meter.site(), wall_s=time.perf_counter() - t0)
     return outcome, frames
 
 
@@ -596,6 +604,7 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
     `blocked_after`: [s] the scenario ends as a timeout once the ego has stood still this long
     with nothing in its way (`BlockedClock`; 0: never)."""
     check_blocked_after(blocked_after)
+    cpu0 = time.process_time()
     factory = as_factory(planner_factory)
     policy = factory()
     # a planner that costs as much to re-run as to run (an out-of-process planner, whose replay
@@ -609,7 +618,7 @@ def run_scenario(scenario: Any, planner_factory: Any = "baseline", *, record_fai
             run, frames = _drive(scenario, factory, render=True, blocked_after=blocked_after)
         step_s = run.sim_s / run.steps if run.steps and run.sim_s > 0 else 1.0
         outcome = replace(outcome, gif=gif_bytes(frames.with_last(), step_s * frames.stride))
-    return outcome
+    return replace(outcome, cpu_s=time.process_time() - cpu0)
 
 
 def _error_gif(scenario: Any, factory: Callable[[], Any], blocked_after: float) -> bytes | None:
@@ -678,11 +687,13 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
 def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backend: str = "process",
               progress: bool = True, coverage: bool = False, record_failure_gif: bool = True,
               fail_on: str = "any", coverage_modules: Sequence[str] = (),
-              blocked_after: float = BLOCKED_AFTER_S, log: Callable[[str], None] | None = None) -> SuiteResult:
+              blocked_after: float = BLOCKED_AFTER_S, log: Callable[[str], None] | None = None,
+              executor: ProcessPoolExecutor | None = None) -> SuiteResult:
     """Run every scenario of `suite` (a Suite or a sequence of scenarios) and collect the outcomes
     in suite order. `workers` > 1 uses spawned processes ("process") or Ray ("ray").
     `blocked_after`: as `run_scenario`'s. `log` gets one line per finished scenario (where no
-    progress bar is drawn: a log file, CI)."""
+    progress bar is drawn: a log file, CI). `executor`: a pool from `worker_pool` to run the
+    process backend on (kept open for the next suite: a search runs many small ones)."""
     from tqdm import tqdm
 
     if backend not in BACKENDS:
@@ -724,16 +735,22 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     try:
         if backend == "ray":
             _run_ray(tasks, workers, done)
-        elif workers == 1 and (os.environ.get("PYTHONHASHSEED") == HASH_SEED or not picklable):
+        elif executor is None and workers == 1 and (os.environ.get("PYTHONHASHSEED") == HASH_SEED or not picklable):
             if not picklable:
                 warnings.warn("the planner cannot be pickled: running in this process, whose string hashing "
                               "may change which planner lines run (results stay the same)", stacklevel=2)
             for t in tasks:  # this process already hashes like the workers would
                 if done(*_run_task(t)):
                     break
+        elif executor is not None:
+            futures = [executor.submit(_run_task, t) for t in tasks]
+            for fut in as_completed(futures):
+                if done(*fut.result()):
+                    for rest in futures:
+                        rest.cancel()
+                    break
         elif tasks:
-            with _env_var("PYTHONHASHSEED", HASH_SEED), \
-                    ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=get_context("spawn")) as pool:
+            with worker_pool(min(workers, len(tasks))) as pool:
                 futures = [pool.submit(_run_task, t) for t in tasks]
                 for fut in as_completed(futures):
                     if done(*fut.result()):
@@ -783,7 +800,17 @@ def _env_var(name: str, value: str) -> Iterator[None]:
             os.environ[name] = old
 
 
-def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[..., bool]) -> None:
+@contextlib.contextmanager
+def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """Spawned worker processes hashing strings like every other worker (PYTHONHASHSEED=HASH_SEED)."""
+    with _env_var("PYTHONHASHSEED", HASH_SEED), \
+            ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        yield pool
+
+
+@contextlib.contextmanager
+def ray_session(workers: int) -> Iterator[Any]:
+    """Ray, started for `workers` CPUs unless this process already started it (then left running)."""
     try:
         import ray
     except ImportError:
@@ -795,6 +822,14 @@ def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[..., bool]) ->
         ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
                  runtime_env={"env_vars": {"SDL_VIDEODRIVER": "offscreen", "MPLBACKEND": "Agg"}})
     try:
+        yield ray
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[..., bool]) -> None:
+    with ray_session(workers) as ray:
         remote = ray.remote(num_cpus=1, runtime_env={"env_vars": {"PYTHONHASHSEED": HASH_SEED}})(_run_task)
         pending = [remote.remote(t) for t in tasks]
         while pending:
@@ -810,6 +845,3 @@ def _run_ray(tasks: Sequence[_Task], workers: int, done: Callable[..., bool]) ->
                     if isinstance(cause, Feat2MapError):
                         raise Feat2MapError(cause.message, cause.where) from None
                     raise
-    finally:
-        if started:
-            ray.shutdown()

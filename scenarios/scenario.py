@@ -61,6 +61,7 @@ class Scenario:
     signal_offsets: Mapping[str, float] = field(default_factory=dict)  # signal/junction id -> seconds
     seed: int = 0
     duration: float = 60.0  # [s] truncation
+    env: Mapping[str, Any] = field(default_factory=dict)  # more MapFile-v0 settings (the schema's `env` keys)
 
     def __post_init__(self) -> None:
         where = f"scenario {snippet(self.name)}"
@@ -76,19 +77,24 @@ class Scenario:
         object.__setattr__(self, "route", tuple(tuple(str(x) for x in item) for item in self.route))
         object.__setattr__(self, "signal_offsets",
                            FrozenDict({str(k): float(v) for k, v in dict(self.signal_offsets).items()}))
+        object.__setattr__(self, "env", FrozenDict(dict(self.env)))
 
     def __hash__(self) -> int:
         return hash((self.name, self.map, self.route, self.traffic_vehicles, self.pedestrian_rate,
-                     tuple(sorted(self.signal_offsets.items())), self.seed, self.duration))
+                     tuple(sorted(self.signal_offsets.items())), self.seed, self.duration,
+                     tuple(sorted(self.env.items()))))
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Scenario) and self.to_dict() == other.to_dict()
 
     def to_dict(self) -> dict:
-        """Plain JSON/YAML-ready dict (the file format of one scenario)."""
-        return {"name": self.name, "map": self.map, "route": [list(r) for r in self.route],
-                "traffic_vehicles": int(self.traffic_vehicles), "pedestrian_rate": float(self.pedestrian_rate),
-                "signal_offsets": dict(self.signal_offsets), "seed": int(self.seed), "duration": float(self.duration)}
+        """Plain JSON/YAML-ready dict (the file format of one scenario; `env` only when it holds settings)."""
+        d = {"name": self.name, "map": self.map, "route": [list(r) for r in self.route],
+             "traffic_vehicles": int(self.traffic_vehicles), "pedestrian_rate": float(self.pedestrian_rate),
+             "signal_offsets": dict(self.signal_offsets), "seed": int(self.seed), "duration": float(self.duration)}
+        if self.env:
+            d["env"] = dict(self.env)
+        return d
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "scenario") -> "Scenario":
@@ -101,7 +107,7 @@ class Scenario:
                    traffic_vehicles=int(d.get("traffic_vehicles", 0)),
                    pedestrian_rate=float(d.get("pedestrian_rate", 0.0)),
                    signal_offsets=dict(d.get("signal_offsets", {})), seed=int(d.get("seed", 0)),
-                   duration=float(d.get("duration", 60.0)))
+                   duration=float(d.get("duration", 60.0)), env=dict(d.get("env", {})))
 
 
 @dataclass(frozen=True)
@@ -219,6 +225,7 @@ def env_config(scenario: Scenario, config: Mapping | None = None) -> dict:
         "action": dict(BaselinePlanner.action_config),
         "policy_frequency": POLICY_FREQUENCY_HZ,
         "right_turn_on_red": True,  # the planner's TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN scenario
+        **dict(scenario.env),
     }
     path = Path(scenario.map)
     if path.suffix == ".json":

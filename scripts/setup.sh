@@ -3,7 +3,8 @@
 # (generate, export, validate, suites, rollouts, the demo). With a comma-separated list of extras
 # (pyproject.toml): also those, e.g. `bash scripts/setup.sh dev` for the tests (and CommonRoad export),
 # `bash scripts/setup.sh commonroad` for the CommonRoad export,
-# `bash scripts/setup.sh dev,rl,ray` for everything (CI).
+# `bash scripts/setup.sh search` for `feat2map search` (Optuna; `dev` includes it),
+# `bash scripts/setup.sh dev,rl,ray,search` for everything (CI).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}

@@ -2,8 +2,9 @@
 OpenDRIVE export of its map, built with `scenariogeneration` (the xosc object model) and
 checked by asam-qc-openscenarioxml in the tests.
 
-What a scenario becomes (the env's model with its defaults, `feat2map.config.DRIVE_DEFAULTS`,
-drawn once from the scenario's seed, and no wall-clock date: the same suite gives the same bytes):
+What a scenario becomes (the env's model with its defaults, `feat2map.config.DRIVE_DEFAULTS`, under
+the scenario's own `env` settings, drawn once from the scenario's seed, and no wall-clock date: the
+same suite gives the same bytes):
 - the ego starts `ego_start_distance` before the end of the road lane leading into its first
   manoeuvre at `ego_initial_speed`, with an `AssignRouteAction` whose waypoints are the
   junction lanes the env drives for each manoeuvre (`feat2map.routes.manoeuvre_lane`) and the goal
@@ -356,7 +357,8 @@ def write_openscenario(suite, out: str | Path) -> list[Path]:
                 maps[path] = (xodr, m, opendrive_ids(m))
             xodr, m, ids = maps[path]
             name = _unique(file_stem(sc.name), names) + ".xosc"
-            atomic.write_bytes(tmp / name, _ScenarioWriter(m, xodr, ids, cfg).build(sc))
+            env = {**cfg, **dict(getattr(sc, "env", {}))}  # the scenario's own env settings over the defaults
+            atomic.write_bytes(tmp / name, _ScenarioWriter(m, xodr, ids, env).build(sc))
             written.append(Path(out) / name)
     return written
 
