@@ -50,6 +50,7 @@ STOP_MARGIN_M = 1.5
 FALLBACK_DECEL = 6.0
 ENGAGE_MPS = 1.0  # [m/s] the planner's initial speed when the ego is to move off from (near) standstill
 APPROACH_DECEL = 2.0  # [m/s^2] speed cap towards a stop point: it can stop there braking this hard
+CREEP_ROOM_M = 1.0  # [m] slower than ENGAGE_MPS further than this before its stop point, the ego creeps on
 STOPPING_RANGE_M = 10.0  # "stopping" mode (a target position) this far beyond the braking distance
 WINDOW_BACK_M = 20.0  # the reference path's window starts this far behind the ego
 WINDOW_AHEAD_M = 80.0  # and moves on when the ego comes this close to its end (the horizon: <= 45 m)
@@ -257,6 +258,11 @@ class ReactiveAdapter:
         # engage velocity: from v = 0 its first samples are coincident points whose finite-
         # difference curvature breaks its kappa_dot/acceleration checks, so every sample is
         # rejected and the ego never moves off; issue 22's standstill timeouts)
+        if mode == "stopping" and v < ENGAGE_MPS and room > CREEP_ROOM_M:
+            # halted short of its stop point (the fallback's braking): the planner's "stopping"
+            # samples from here all broke its checks and the ego stood outside the full-stop
+            # zone for good (issue 33): creep on to the point
+            return self._creep(msg, ego, f"CREEP_{why}", room)
         v_plan = max(v, ENGAGE_MPS) if mode != "stopping" else v
         acc = float(ego.get("acceleration", 0.0)) if v > 0.1 else 0.0  # a stopped car does not decelerate
         init = InitialState(position=np.array([x, y]), orientation=h, velocity=v_plan, acceleration=acc,
@@ -286,7 +292,7 @@ class ReactiveAdapter:
         result = p.plan()
         if os.environ.get("CR_ADAPTER_LOG"):
             ref_h = float(np.interp(p.x_0_cl[0][0], self.co.ref_pos, np.unwrap(self.co.ref_theta)))
-            _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} heading error={h - ref_h:.2f} "
+            _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} heading error={h - ref_h:.2f} steer={x0.steering_angle:.3f} "
                    f"stop={stop:.1f} {stage} trajectory={result is not None}: {_rejected(p)}")
         if result is None:
             return self._fallback(msg, ego, "FALLBACK_NO_TRAJECTORY")
@@ -368,17 +374,38 @@ class ReactiveAdapter:
     def _brake(self, msg: dict, ego: dict, stage: str, ref: np.ndarray, cum: np.ndarray) -> dict:
         """Brake at FALLBACK_DECEL along the polyline `ref` (arc lengths `cum`) from where the ego is."""
         v = max(float(ego["speed"]), 0.0)
-        k = int(np.argmin(np.hypot(*(ref - np.array([ego["x"], ego["y"]])).T)))
-        s = cum[k]
-        pts = []
+        profile = []
         for i in range(HORIZON_STEPS + 1):
             t = i * DT
             vi = max(v - FALLBACK_DECEL * t, 0.0)
-            si = s + (v * t - FALLBACK_DECEL * t * t / 2 if vi > 0 else v * v / (2 * FALLBACK_DECEL))
+            profile.append((vi, v * t - FALLBACK_DECEL * t * t / 2 if vi > 0 else v * v / (2 * FALLBACK_DECEL)))
+        return self._along(msg, ego, stage, ref, cum, profile)
+
+    def _creep(self, msg: dict, ego: dict, stage: str, room: float) -> dict:
+        """Creep `room` metres on along the reference path at up to ENGAGE_MPS and stop there (an
+        adapter choice, as Autoware's creep to a stop line: from a standstill short of its stop
+        point the planner rejects every "stopping" sample, its few metres from v = 0 breaking
+        its curvature and acceleration checks)."""
+        profile, v, done = [], max(float(ego["speed"]), 0.0), 0.0
+        for _ in range(HORIZON_STEPS + 1):
+            profile.append((v, done))
+            done = min(done + v * DT, room)
+            v = min(ENGAGE_MPS, v + FALLBACK_DECEL * DT, math.sqrt(2 * FALLBACK_DECEL * max(room - done, 0.0)))
+        return self._along(msg, ego, stage, self.full_ref, self.full_cum, profile)
+
+    @staticmethod
+    def _along(msg: dict, ego: dict, stage: str, ref: np.ndarray, cum: np.ndarray,
+               profile: list[tuple[float, float]]) -> dict:
+        """A trajectory along the polyline `ref` (arc lengths `cum`) from the point nearest the ego,
+        one point per DT of `profile`'s (speed, metres from the start)."""
+        k = int(np.argmin(np.hypot(*(ref - np.array([ego["x"], ego["y"]])).T)))
+        pts = []
+        for i, (vi, ds) in enumerate(profile):
+            si = cum[k] + ds
             px, py = np.interp(si, cum, ref[:, 0]), np.interp(si, cum, ref[:, 1])
             j = min(int(np.searchsorted(cum, si)), len(ref) - 1)
             a, b = ref[max(j - 1, 0)], ref[max(j, 1)]
-            pts.append({"t": float(msg["t"]) + t, "x": float(px), "y": float(py),
+            pts.append({"t": float(msg["t"]) + i * DT, "x": float(px), "y": float(py),
                         "heading": float(math.atan2(b[1] - a[1], b[0] - a[0])), "speed": float(vi)})
         return {"type": "trajectory", "points": pts, "scenario": "REACTIVE", "stage": stage}
 

@@ -23,7 +23,7 @@ from feat2map.scenarios.scenario import Scenario, load_suite
 from feat2map.scenarios.shrink import neighbours, shrink
 from feat2map.scenarios.signature import Signature, signature_of
 
-optuna = pytest.importorskip("optuna", reason="feat2map search needs Optuna: pip install 'feat2map[search]' "
+optuna = pytest.importorskip("optuna", reason="feat2map search needs Optuna: bash scripts/setup.sh search "
                                                "(scripts/test.sh installs it with the dev extra)")
 
 from feat2map.scenarios.search import check_budget, evaluator, search  # noqa: E402  (needs optuna)
