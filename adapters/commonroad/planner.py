@@ -292,8 +292,8 @@ class ReactiveAdapter:
         result = p.plan()
         if os.environ.get("CR_ADAPTER_LOG"):
             ref_h = float(np.interp(p.x_0_cl[0][0], self.co.ref_pos, np.unwrap(self.co.ref_theta)))
-            _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} heading error={h - ref_h:.2f} steer={x0.steering_angle:.3f} "
-                   f"stop={stop:.1f} {stage} trajectory={result is not None}: {_rejected(p)}")
+            _debug(f"t={msg['t']:.1f} v={v:.2f} s={s_centre:.1f} d={p.x_0_cl[1][0]:.2f} heading error={h - ref_h:.2f} "
+                   f"steer={x0.steering_angle:.3f} stop={stop:.1f} {stage} trajectory={result is not None}: {_rejected(p)}")
         if result is None:
             return self._fallback(msg, ego, "FALLBACK_NO_TRAJECTORY")
         states = result[0].state_list
