@@ -125,3 +125,21 @@ def test_the_adapter_plans_a_route_that_turns_more_than_a_full_circle_in_windows
     assert "[-2pi, 2pi]" in whole  # the whole route is what the planner cannot take
     n, _ = counts.split()
     assert 2 <= int(n) < 10  # a few windows, the last reaching the route's end
+
+
+def test_the_ego_has_room_in_every_turn_by_commonroads_own_road_boundary_check(crplanner, tmp_path):
+    """scripts/turn_room.py: the ego's body along its lane keeping through every manoeuvre of a
+    4-way and a sharp Y junction never touches commonroad-drivability-checker's road boundary of
+    the CommonRoad export (issue 33; highway-env's 5 m-wheelbase body touched it 44 times in M1's
+    turns, so every sample of the reactive planner there "left the road")."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("turn_room", ROOT / "scripts" / "turn_room.py")
+    turn_room = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(turn_room)
+    J = feat2map.JunctionFeature.make
+    m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", True), J([0, 60, 180], "stop", False)], seed=0)
+    native.save(m, tmp_path / "m.json")
+    row = turn_room.check(tmp_path / "m.json")
+    assert row["manoeuvres"] >= 18 and row["poses"] > 200
+    assert row["touching"] == 0, row["manoeuvres_touching"]
