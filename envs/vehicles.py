@@ -403,7 +403,7 @@ def bicycle_state(vehicle: Ego) -> tuple[float, float, float]:
 def step_egos(egos: list, dt: float) -> None:
     """`step(dt)` of egos: the bicycle (`sim.vehicle.integrate`) over all of them at once (with
     floats for one), a pending impact applied as highway-env does, then their lane locations
-    (`MapNetwork.locate_many`, as `on_state_update`) and `settle`."""
+    (`on_state_update`, with `MapNetwork.locate_many` for several) and `settle`."""
     for v in egos:
         v.clip_actions()
     if len(egos) == 1:
@@ -430,7 +430,9 @@ def step_egos(egos: list, dt: float) -> None:
             v.crashed, v.impact = True, None
         v.heading, v.speed = heading, speed
     located = [v for v in egos if v.road]
-    if located:
+    if len(located) == 1:  # `locate` (locate_many's arrays cost more than they save for one)
+        located[0].on_state_update()
+    elif located:
         hints = [v.location_hint() for v in located]
         places = located[0].road.network.locate_many([v.position for v in located], [v.heading for v in located], hints)
         for v, place, hint in zip(located, places, hints):

@@ -128,6 +128,7 @@ class ReactiveAdapter:
             end = self.net.find_lanelet_by_id(lid).center_vertices[-1]
             self.lane_end.append(self._s_of(end))
         self.gate = None
+        self.last_plan: tuple[float, list[float]] | None = None  # (t, steering angle per DT) of the last plan
         self.last_pts: list[dict] | None = None  # the last trajectory sent (the fallback follows its rest)
         _debug(f"init {json.dumps(msg)}")
 
@@ -268,8 +269,7 @@ class ReactiveAdapter:
         init = InitialState(position=np.array([x, y]), orientation=h, velocity=v_plan, acceleration=acc,
                             yaw_rate=0.0, slip_angle=0.0, time_step=0)
         x0 = ReactivePlannerState.create_from_initial_state(init, self.config.vehicle.wheelbase, self.wb_rear)
-        delta_max = float(self.config.vehicle.delta_max)
-        x0.steering_angle = float(np.clip(float(ego["steering"]), -delta_max, delta_max))  # protocol 2 sends it
+        x0.steering_angle = self._steering_now(float(msg["t"]), x, y)
         x0.yaw_rate = v_plan * math.tan(x0.steering_angle) / self.config.vehicle.wheelbase
         cc = pycrcc.CollisionChecker()
         cc.add_collision_object(self.boundary)
@@ -300,6 +300,7 @@ class ReactiveAdapter:
         if all(st.velocity < 0.05 for st in states) and v < 0.05:
             stage = "STANDSTILL" if stage == "VELOCITY_KEEPING" else stage
         t0 = float(msg["t"])
+        self.last_plan = (t0, [float(st.steering_angle) for st in states])
         pts = []
         for st in states:
             c = ReactivePlannerState.shift_state_to_center(st, self.wb_rear)
@@ -322,8 +323,25 @@ class ReactiveAdapter:
             cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
             if len(path) >= 2 and cum[-1] >= v * v / (2 * FALLBACK_DECEL) + 0.5:
                 return self._brake(msg, ego, stage, path, cum)
-        self.last_pts = None
+        self.last_plan = self.last_pts = None
         return self._brake(msg, ego, stage, self.full_ref, self.full_cum)
+
+    def _steering_now(self, t: float, x: float, y: float) -> float:
+        """The steering angle the ego drives with now (the bridge sends no yaw rate): the angle the
+        last trajectory planned for this instant, else the one that follows the reference path's
+        curvature where the ego is. An adapter choice: from a measured state alone the planner
+        assumes straight wheels (steering from yaw rate 0), and in a junction's curve every
+        sample then starts with a curvature jump it rejects (kappa/kappa_dot), at low speed all
+        of them (issue 22's standstill timeouts)."""
+        delta_max = float(self.config.vehicle.delta_max)
+        if self.last_plan is not None:
+            t0, deltas = self.last_plan
+            k = int(round((t - t0) / DT))
+            if 0 <= k < len(deltas):
+                return float(np.clip(deltas[k], -delta_max, delta_max))
+        ref_s, ref_k = np.asarray(self.co.ref_pos) + self.win_s0, np.asarray(self.co.ref_curv)
+        kappa = float(np.interp(self._s_of((x, y)), ref_s, ref_k))
+        return float(np.clip(math.atan(self.config.vehicle.wheelbase * kappa), -delta_max, delta_max))
 
     def _desired_speed(self, s: float) -> float:
         i = int(np.searchsorted(self.lane_end, s))
