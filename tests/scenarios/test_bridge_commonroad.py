@@ -26,7 +26,7 @@ CRPY = ROOT / ".venv-crplanner" / "bin" / "python"
 ADAPTER = ROOT / "adapters" / "commonroad" / "planner.py"
 KEEP = ("t-r000", "t-r001", "t-r003")  # a signalled T junction: right, straight, left
 DURATION_S = 40.0  # each: a completed turn takes ~20 s; a stuck planner costs no more than this
-STAGES = {"VELOCITY", "APPROACH", "STOPPING", "STANDSTILL", "FALLBACK"}  # the adapter's stage names
+STAGES = {"VELOCITY", "APPROACH", "STOPPING", "STANDSTILL", "FALLBACK", "CREEP"}  # the adapter's stage names
 
 
 def _venv_problem() -> str | None:
