@@ -132,11 +132,15 @@ class RuleGate:
     before a junction lane) and where a step message's rules make the ego stop."""
 
     def __init__(self, step: dict, route_lanes: list[str], junction_of_lane: list, lane_end: list[float],
-                 ego_length: float, route: "Route | None" = None) -> None:
+                 ego_length: float, route: "Route | None" = None, full_stop: dict | None = None) -> None:
         """From the first step message (its signals and stop signs, with the lanes they govern),
-        the route's lanes, the junction of each (None on roads) and the arc length where each
-        ends along the planner's path."""
+        the route's lanes, the junction of each (None on roads), the arc length where each ends
+        along the planner's path, and init's `rules.full_stop` (what the judge counts as a full
+        stop: at most `speed_mps` with the centre within `zone_m` before the line)."""
         self.half = ego_length / 2
+        full_stop = full_stop or {}
+        self.stopped_mps = float(full_stop.get("speed_mps", STOPPED_MPS))
+        self.zone_m = float(full_stop.get("zone_m", STOP_MARGIN_M + 3.0 + self.half))
         control: dict[str, tuple[str, str]] = {}
         for s in step.get("signals", []):
             for lid in s.get("lanes", []):
@@ -169,7 +173,7 @@ class RuleGate:
                     return target, "STOP_SIGNAL"
             else:
                 key = cid + str(line_s)
-                if speed < STOPPED_MPS and line_s - front < STOP_MARGIN_M + 3.0:
+                if speed < self.stopped_mps and line_s - s_ego < self.zone_m:  # the judge's full stop
                     self.stopped_at.setdefault(key, t)
                 began = self.stopped_at.get(key)
                 queue = stops.get(cid, {}).get("queue", [])

@@ -48,7 +48,8 @@ class ReferencePlanner:
         if self.gate is None:
             r = self.init_msg["route"]
             self.gate = RuleGate(msg, r["lanes"], r["junction_of_lane"], self.route.lane_end,
-                                 self.init_msg["ego"]["length"], self.route)
+                                 self.init_msg["ego"]["length"], self.route,
+                                 full_stop=self.init_msg.get("rules", {}).get("full_stop"))
         s, _ = self.route.project(ego["x"], ego["y"], near=self.s)
         self.s = s
         v = max(float(ego["speed"]), 0.0)

@@ -93,6 +93,7 @@ class ReactiveAdapter:
         self.junction_of_lane = route["junction_of_lane"]
         self.limits = route["speed_limits"]
         self.ego_len, self.ego_wid = float(msg["ego"]["length"]), float(msg["ego"]["width"])
+        self.full_stop = msg.get("rules", {}).get("full_stop")  # protocol 2: what counts as a full stop
         config = ReactivePlannerConfiguration()
         config.debug.multiproc = False  # its worker pool dies and hangs the parent (issue 22)
         config.debug.logging_level = "ERROR"
@@ -218,7 +219,8 @@ class ReactiveAdapter:
         self._switch(msg.get("junction") or self.context or ROAD_CONTEXT)
         ego = msg["ego"]
         if self.gate is None:
-            self.gate = RuleGate(msg, self.route_lanes, self.junction_of_lane, self.lane_end, self.ego_len)
+            self.gate = RuleGate(msg, self.route_lanes, self.junction_of_lane, self.lane_end, self.ego_len,
+                                 full_stop=self.full_stop)
         try:
             return self._plan(msg, ego)
         except Exception as exc:  # noqa: BLE001 (the planner under test failed: brake, and say why)
