@@ -5,7 +5,10 @@ read it, extract its junctions (the skipped ones with their reasons), count its 
 (signal / stop / bare) and its signals' phase groups per junction, build the route-coverage suite
 (traffic 6 by default) and roll it out with the baseline planner (all of it, or --max-scenarios
 spread over the suite). Any exception is a finding, recorded with the map and the stage
-(read / extract / phases / suite / rollout), and the survey goes on with the next map.
+(read / extract / phases / suite / export / rollout), and the survey goes on with the next map.
+Every map that reads is exported to Apollo, OpenDRIVE, Lanelet2 and CommonRoad the way a user would
+(`feat2map export`), and each export is checked by `feat2map validate` (each ecosystem's own rules):
+the `exports` column gives the problems per format, or the refusal.
 
 Writes a Markdown table (--md) and a JSON file (--json) after every map, so a long survey can be
 watched and an interrupted one keeps what it did. Progress is shown on a terminal only.
@@ -15,12 +18,16 @@ Usage:
   .venv/bin/python scripts/realmaps.py --corpus /work/corpus --max-scenarios 10 --workers 1
   .venv/bin/python scripts/realmaps.py --no-shared --corpus DIR --no-rollout   # extract + suite only
   .venv/bin/python scripts/realmaps.py --compare before.json after.json --md changes.md   # map by map
+  .venv/bin/python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realmaps.md   # the reference
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import sys
+import tempfile
 import time
 import traceback
 import warnings
@@ -29,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-from feat2map import atomic
+from feat2map import atomic, cli
 from feat2map.errors import Feat2MapError
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import FORMATS, read_map
@@ -48,6 +55,7 @@ SHARED = REPO.parent / "shared" / "maps"
 TRAFFIC = 6  # the issue's traffic level
 NOT_MAPS = ("routing_map",)  # Apollo routing graphs sit beside base maps but are no HD maps
 WARNINGS_KEPT = 20  # distinct warning lines kept per map
+EXPORTS = {"apollo": "apollo", "opendrive": "map.xodr", "lanelet2": "lanelet2/map.osm", "commonroad": "map.xml"}
 
 
 @dataclass
@@ -67,6 +75,7 @@ class MapSurvey:
     scenarios: int = 0
     driven: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
+    exports: dict[str, dict] = field(default_factory=dict)  # format -> {"problems": n, "first": line} or {"refused": line}
     failing: list[dict] = field(default_factory=list)
     errors: list[dict] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -107,7 +116,30 @@ def _error(stage: str, exc: BaseException) -> dict:
             "at": [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in frames[-4:]]}
 
 
-def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True,
+def _cli(argv: list[str]) -> tuple[int, list[str], list[str]]:
+    """`feat2map ARGV` in this process: exit status, stdout lines, stderr lines."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli.main(argv)
+    return rc, out.getvalue().splitlines(), err.getvalue().splitlines()
+
+
+def export_check(path: Path, fmt: str, folder: Path) -> dict:
+    """Export `path` to `fmt` under `folder` with `feat2map export` and check the result with
+    `feat2map validate`: {"problems": n, "first": its first line}, or {"refused": the error line}."""
+    out = folder / EXPORTS[fmt]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rc, _, err = _cli(["export", fmt, str(path), "--out", str(out)])
+    if rc:
+        return {"refused": next((ln for ln in err if "error:" in ln), f"exit {rc}").split("error: ", 1)[-1]}
+    rc, lines, err = _cli(["validate", "--quiet", "--format", fmt, str(out)])
+    problems = lines[:-1]  # the last line is the count
+    if rc and not problems:
+        return {"refused": next((ln for ln in err if "error:" in ln), f"validate exit {rc}").split("error: ", 1)[-1]}
+    return {"problems": len(problems), "first": problems[0] if problems else ""}
+
+
+def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True, export: bool = True,
                max_scenarios: int | None = None, workers: int = 1, progress: bool = False) -> MapSurvey:
     """One map through every stage. A stage that raises is recorded; the stages that need its
     result are left out for this map (a map that cannot be read ends here), never the survey."""
@@ -148,6 +180,12 @@ def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool 
         found_checks = stage("checks", lambda: semantics.findings(m))
         if found_checks is not None:
             s.checks = [f"{'fatal: ' if f.fatal else ''}{f}" for f in found_checks]
+    if export:
+        with tempfile.TemporaryDirectory(prefix="realmaps-") as tmp:
+            for fmt in EXPORTS:
+                done = stage("export", lambda fmt=fmt: export_check(path, fmt, Path(tmp) / fmt))
+                if done is not None:
+                    s.exports[fmt] = done
     suite = stage("suite", lambda: build_suite(path, traffic_vehicles=traffic, name=Path(label).stem))
     if suite is not None:
         s.scenarios = len(suite.scenarios)
@@ -186,17 +224,27 @@ def _failure_cell(s: MapSurvey) -> str:
     return ", ".join(parts) or "-"
 
 
+def _exports_cell(s: MapSurvey) -> str:
+    """Problems per export format (Apollo / OpenDRIVE / Lanelet2 / CommonRoad), "refused" where the
+    export was refused, "-" where no export ran."""
+    if not s.exports:
+        return "-"
+    return " / ".join("-" if fmt not in s.exports else "refused" if "refused" in s.exports[fmt]
+                      else str(s.exports[fmt]["problems"]) for fmt in EXPORTS)
+
+
 def markdown(results: Sequence[MapSurvey]) -> str:
     """The survey table plus one line per error and per failing scenario."""
     head = ("| map | source | junction elements | junctions (skipped) | signal / stop / bare | signals | phase groups "
-            "| checks | scenarios | driven | completed | failures |\n|" + "---|" * 12)
+            "| checks | scenarios | driven | completed | failures | exports (A / O / L / C) |\n|" + "---|" * 13)
     rows = []
     for s in results:
         c = s.controls
         rows.append(f"| `{s.path}` | {s.source} | {s.junction_elements} | {s.junctions} ({len(s.skipped)}) | "
                     f"{c.get('signal', 0)} / {c.get('stop', 0)} / {c.get('bare', 0)} | {s.signals} | {_phase_cell(s)} | "
                     f"{_checks_cell(s)} | "
-                    f"{s.scenarios} | {s.driven} | {s.outcomes.get('completed', 0)} | {_failure_cell(s)} |")
+                    f"{s.scenarios} | {s.driven} | {s.outcomes.get('completed', 0)} | {_failure_cell(s)} | "
+                    f"{_exports_cell(s)} |")
     tot = Counter()
     for s in results:
         tot.update(scenarios=s.scenarios, driven=s.driven, completed=s.outcomes.get("completed", 0),
@@ -211,6 +259,9 @@ def markdown(results: Sequence[MapSurvey]) -> str:
                for s in results for e in s.errors]
     details += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in results for f in s.failing]
     details += [f"- `{s.path}` check: {c}" for s in results for c in (s.checks or ())]
+    details += [f"- `{s.path}` export {fmt}: " + (f"refused: {e['refused']}" if "refused" in e else
+                                                  f"{e['problems']} problem(s), first: {e['first']}")
+                for s in results for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
     if details:
         lines += ["Errors and failing scenarios:", "", *details, ""]
     return "\n".join(lines)
@@ -244,6 +295,78 @@ def compare(before: dict, after: dict) -> str:
     return "\n".join([*lines, "", f"Before: {total(b)}. After: {total(a)}.", ""])
 
 
+DOC_HEAD = """# Real maps: the per-map reference
+
+What feat2map does with every public map it has been tried on: read, junctions extracted (the
+skipped ones with their reasons), controls, the route-coverage suite (traffic {traffic}) and how
+much of it the baseline planner drove, and the export to Apollo, OpenDRIVE, Lanelet2 and CommonRoad
+with each export checked by `feat2map validate`. The rules behind the numbers (how each class of
+real-map quirk is read and handled) are in [semantics.md](semantics.md#real-map-rule-classes). This
+page is generated; do not edit it by hand.
+
+## Reproducing
+
+The maps are public but not in the repository (their licences differ). `../shared/maps/SOURCES.md`
+names the repository, path, commit and sha256 of each `../shared` file; a corpus folder's own
+`SOURCES.md` does the same for its files. With the maps in place:
+
+```bash
+python scripts/realmaps.py --md shared.md --json shared.json --max-scenarios 6 --workers 1
+python scripts/realmaps.py --no-shared --corpus DIR --md corpus.md --json corpus.json --max-scenarios 6 --workers 1
+python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realmaps.md
+```
+
+`--no-rollout` reads, extracts, exports and builds suites only; without `--max-scenarios` every
+scenario is driven. Columns: **source** = the map's first sub-folder (its producing tool);
+**junctions (skipped)** = junctions extracted (3 or more arms) and junction elements skipped, each
+with a reason; **driven / completed** = scenarios driven (a sample spread over the suite, or all)
+and completed; **failures** = other outcomes and stage errors (a refusal names the problem);
+**exports** = problems `feat2map validate` finds in each export (Apollo / OpenDRIVE / Lanelet2 /
+CommonRoad), "refused" where the export was refused.
+"""
+
+
+def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
+    """docs/realmaps.md: how to reproduce, then per survey run (a --json file) one row per map and
+    its totals, then the refusals and failing scenarios by map."""
+    traffic = ", ".join(sorted({str(meta.get("traffic", TRAFFIC)) for meta, _ in runs}))
+    lines = [DOC_HEAD.format(traffic=traffic)]
+    for meta, maps in runs:
+        folders = ", ".join(f"`{Path(f).name}`" for f in meta.get("folders", ())) or "maps"
+        drive = ("not driven" if not meta.get("rollout", True) else "whole suites driven"
+                 if meta.get("max_scenarios") is None else f"at most {meta['max_scenarios']} scenarios driven per map")
+        lines += [f"## {folders}", "", f"{len(maps)} maps, traffic {meta.get('traffic', TRAFFIC)}, {drive}.", "",
+                  "| map | source | junctions (skipped) | signal / stop / bare | scenarios | driven / completed "
+                  "| failures | exports (A / O / L / C) |", "|" + "---|" * 8]
+        tot = Counter()
+        for s in maps:
+            c = s.controls
+            lines.append(f"| `{s.path}` | {s.source} | {s.junctions} ({len(s.skipped)}) | {c.get('signal', 0)} / "
+                         f"{c.get('stop', 0)} / {c.get('bare', 0)} | {s.scenarios} | {s.driven} / "
+                         f"{s.outcomes.get('completed', 0)} | {_failure_cell(s)} | {_exports_cell(s)} |")
+            tot.update(junctions=s.junctions, skipped=len(s.skipped), scenarios=s.scenarios, driven=s.driven,
+                       completed=s.outcomes.get("completed", 0), tracebacks=sum(e["kind"] == "traceback" for e in s.errors),
+                       clean=all(e.get("problems") == 0 for e in s.exports.values()) and len(s.exports) == len(EXPORTS))
+        lines += ["", f"Totals: {tot['junctions']} junctions ({tot['skipped']} skipped), {tot['scenarios']} scenarios, "
+                  f"{tot['completed']} of {tot['driven']} driven completed, {tot['tracebacks']} tracebacks; "
+                  f"{tot['clean']} of {len(maps)} maps export to all four formats with no problem.", ""]
+        notes = [f"- `{s.path}` {e['stage']}: {e['kind']}: {e['error']}" for s in maps for e in s.errors]
+        notes += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in maps for f in s.failing]
+        notes += [f"- `{s.path}` export {fmt}: " + (f"refused: {e['refused']}" if "refused" in e else
+                                                    f"{e['problems']} problem(s), first: {e['first']}")
+                  for s in maps for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
+        if notes:
+            lines += ["Refusals, failing scenarios and export problems:", "", *notes, ""]
+    return "\n".join(lines)
+
+
+def _loaded(path: Path) -> tuple[dict, list[MapSurvey]]:
+    """A --json file: its settings and its maps."""
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    maps = [MapSurvey(**{k: v for k, v in s.items() if k in MapSurvey.__dataclass_fields__}) for s in doc["maps"]]
+    return {k: v for k, v in doc.items() if k != "maps"}, maps
+
+
 def _labelled(folders: Sequence[Path]) -> Iterator[tuple[Path, str, str]]:
     """(file, label: its path under its folder with the folder's name first, source: its first sub-folder)."""
     for folder in folders:
@@ -261,13 +384,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="rollout worker processes (default 1)")
     ap.add_argument("--max-scenarios", type=int, default=None, help="drive at most N scenarios per map, spread over "
                                                                      "its suite (default: the whole suite)")
-    ap.add_argument("--no-rollout", action="store_true", help="read, extract and build suites only")
+    ap.add_argument("--no-rollout", action="store_true", help="read, extract, export and build suites only")
+    ap.add_argument("--no-export", action="store_true", help="leave out the exports to the four formats")
     ap.add_argument("--only", action="append", default=[], help="survey only maps whose label contains this")
     ap.add_argument("--md", type=Path, default=Path("realmaps.md"), help="Markdown table (default realmaps.md)")
     ap.add_argument("--json", type=Path, default=Path("realmaps.json"), help="JSON results (default realmaps.json)")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
                     help="no survey: compare two --json files map by map into --md")
+    ap.add_argument("--doc", type=Path, help="also write the per-map reference page (docs/realmaps.md)")
+    ap.add_argument("--from-json", nargs="+", type=Path, metavar="JSON",
+                    help="no survey: write --doc from these --json files, one section each")
     args = ap.parse_args(argv)
+    if args.from_json:
+        if not args.doc:
+            ap.error("--from-json needs --doc")
+        atomic.write_text(args.doc, reference([_loaded(p) for p in args.from_json]))
+        return 0
     if args.compare:
         before, after = (json.loads(p.read_text(encoding="utf-8")) for p in args.compare)
         atomic.write_text(args.md, compare(before, after))
@@ -287,7 +419,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for i, (path, label, source) in enumerate(todo, 1):
         if tty:
             print(f"[{i}/{len(todo)}] {label}", file=sys.stderr, flush=True)
-        s = survey_map(path, label, traffic=args.traffic, rollout=not args.no_rollout,
+        s = survey_map(path, label, traffic=args.traffic, rollout=not args.no_rollout, export=not args.no_export,
                        max_scenarios=args.max_scenarios, workers=args.workers, progress=tty)
         s.source = source
         results.append(s)
@@ -295,6 +427,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                  "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout,
                                                  "maps": [r.__dict__ for r in results]}, indent=1))
         atomic.write_text(args.md, markdown(results))
+    if args.doc:
+        atomic.write_text(args.doc, reference([({"folders": [str(f) for f in folders], "traffic": args.traffic,
+                                                 "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout},
+                                                results)]))
     if tty:
         print(f"wrote {args.md} and {args.json}", file=sys.stderr)
     return 1 if any(r.errors for r in results) else 0
