@@ -367,10 +367,14 @@ def _loaded(path: Path) -> tuple[dict, list[MapSurvey]]:
     return {k: v for k, v in doc.items() if k != "maps"}, maps
 
 
-def _labelled(folders: Sequence[Path]) -> Iterator[tuple[Path, str, str]]:
-    """(file, label: its path under its folder with the folder's name first, source: its first sub-folder)."""
+def _labelled(folders: Sequence[Path], written: Sequence[Path] = ()) -> Iterator[tuple[Path, str, str]]:
+    """(file, label: its path under its folder with the folder's name first, source: its first sub-folder);
+    the files this survey writes (`written`: --md, --json, --doc) are no maps, even inside a folder."""
+    ours = {p.resolve() for p in written}
     for folder in folders:
         for p in map_files(folder):
+            if p.resolve() in ours:
+                continue
             rel = p.relative_to(folder)
             yield p, f"{folder.name}/{rel}", rel.parts[0] if len(rel.parts) > 1 else folder.name
 
@@ -410,7 +414,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not f.is_dir():
             print(f"{f}: no such folder", file=sys.stderr)
             return 2
-    todo = [t for t in _labelled(folders) if not args.only or any(o in t[1] for o in args.only)]
+    todo = [t for t in _labelled(folders, [args.md, args.json, *([args.doc] if args.doc else [])]) if not args.only or any(o in t[1] for o in args.only)]
     if not todo:
         print("no map files found in " + ", ".join(map(str, folders)), file=sys.stderr)
         return 2

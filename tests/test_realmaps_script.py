@@ -41,7 +41,9 @@ def surveyed(tmp_path_factory):
             p.unlink()
     (d / "apollo" / "README.txt").write_text("These files are made by the test.\n")  # no map: never surveyed
     (d / "odr" / "broken.xodr").write_text("<OpenDRIVE><header/><road id='1'")  # cut off mid-element
-    md, js = d / "out" / "table.md", d / "out" / "table.json"
+    md, js = d / "table.md", d / "table.json"  # an earlier run's output inside the surveyed folder: no map
+    md.write_text("an earlier table\n")
+    js.write_text('{"maps": []}')
     rc = _script().main([str(d), "--max-scenarios", "1", "--md", str(md), "--json", str(js)])
     return d, rc, md.read_text(), json.loads(js.read_text())
 
