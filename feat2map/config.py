@@ -57,6 +57,7 @@ APOLLO_STOP_LINE_OVERLAP_M = 0.5  # signal/stop-sign overlaps span +- this aroun
 APOLLO_SAMPLE_WINDOW_M = 5.0  # width samples measure the boundary within this arc length of the point
 APOLLO_END_TANGENT_M = 0.05  # exported centrelines get a point this far inside each end (exact end headings)
 APOLLO_MIN_HALF_WIDTH_M = 1.05  # Apollo rejects lane width samples below this ("too small")
+APOLLO_WIDEN_MARGIN_M = 0.01  # a side widened for Apollo (boundary and width samples) lies this beyond the minimum
 APOLLO_MIN_TURN_RADIUS_M = 5.05386147161  # Apollo's default vehicle (Lincoln MKZ); U-turns tighter are dropped
 SIM_MAP_ANGLE_THRESHOLD_RAD = 3.141592653589793 / 180.0  # sim_map_generator: 1 degree
 SIM_MAP_DOWNSAMPLE_DISTANCE_M = 5.0
