@@ -304,11 +304,31 @@ with each export checked by `feat2map validate`. The rules behind the numbers (h
 real-map quirk is read and handled) are in [semantics.md](semantics.md#real-map-rule-classes). This
 page is generated; do not edit it by hand.
 
+## Getting the maps
+
+The 20 files are public but not in the repository (their licences differ). Fetch each from its
+repository as of the date given (the last change of that file; `SOURCES.md` names the commits), into a `maps/` folder at `../shared/maps` beside the repository
+(or anywhere, with `FEAT2MAP_SHARED_MAPS=/path/to/maps`); `../shared/maps/SOURCES.md`, where it
+exists, gives each file's size, sha256 and licence. Without them, the tests that read them skip
+with one reason saying so.
+
+| file under `maps/` | repository, file as of | path there |
+|---|---|---|
+| `apollo/{san_francisco,gomentum,shalun,borregas_ave,cube_town}/base_map.bin`; `apollo/{gomentum,shalun,cube_town}/sim_map.txt` | `lgsvl/apollo-5.0`, 2021-10-01 | `modules/map/data/<name>/` (`go_mentum` for gomentum) |
+| `apollo/autonomous_stuff/base_map.bin` | `lgsvl/apollo-5.0`, 2021-06-30 | `modules/map/data/autonomou_stuff/base_map.bin` (sic) |
+| `opendrive/carla_town0{1,2,4,6}/Town0N.xodr` | `BerkeleyLearnVerify/Scenic`, 2023-06-29 | `assets/maps/CARLA/Town0N.xodr` |
+| `opendrive/carla_town0{3,5}/Town0N.xodr` | `BerkeleyLearnVerify/Scenic`, 2021-04-20 | `tests/formats/opendrive/maps/CARLA/Town0N.xodr` |
+| `opendrive/svl_borregas_ave/borregasave.xodr`, `opendrive/svl_cubetown/cubetown.xodr` | `BerkeleyLearnVerify/Scenic`, 2023-06-29 | `assets/maps/LGSVL/` |
+| `opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr` | `esmini/esmini`, 2025-10-27 | `resources/xodr/` |
+| `opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr` | `CommonRoad/commonroad-scenario-designer`, 2024-12-20 | `tests/map_conversion/test_maps/cr2odr/reference_xodr_files/` |
+| `opendrive/commonroad_four_way_crossing/four_way_crossing.xodr` | `CommonRoad/commonroad-scenario-designer`, 2024-12-20 | `tests/map_conversion/test_maps/odr2cr/` |
+
+A corpus folder beside them (any folder of maps, one sub-folder per producing tool) has its own
+`SOURCES.md` naming each file's repository, path, commit and sha256.
+
 ## Reproducing
 
-The maps are public but not in the repository (their licences differ). `../shared/maps/SOURCES.md`
-names the repository, path, commit and sha256 of each `../shared` file; a corpus folder's own
-`SOURCES.md` does the same for its files. With the maps in place:
+With the maps in place:
 
 ```bash
 python scripts/realmaps.py --md shared.md --json shared.json --max-scenarios 6 --workers 1
@@ -323,6 +343,18 @@ with a reason; **driven / completed** = scenarios driven (a sample spread over t
 and completed; **failures** = other outcomes and stage errors (a refusal names the problem);
 **exports** = problems `feat2map validate` finds in each export (Apollo / OpenDRIVE / Lanelet2 /
 CommonRoad), "refused" where the export was refused.
+
+## Rule classes
+
+The classes of real-map quirk behind these numbers, each explained in
+[semantics.md](semantics.md#real-map-rule-classes): touching junction elements read as one
+junction; direct junctions; road links without lane links; boundary types from road marks and
+Apollo types; left-hand traffic; declared speeds in their unit and checked for plausibility; local
+coordinates; converter geometry repaired (gaps bridged, reversing links dropped, turnarounds,
+edge stubs, folded lanes); manoeuvres no car drives left out of suites; no traffic into lanes it
+cannot leave; exports that repair what a format cannot hold and name the first problem when they
+refuse; the env's driving rules for real junctions (merges, converging lanes, junction chains,
+narrow passages, swept paths, curve speed, the amber dilemma zone, wait points).
 """
 
 
@@ -330,7 +362,7 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
     """docs/realmaps.md: how to reproduce, then per survey run (a --json file) one row per map and
     its totals, then the refusals and failing scenarios by map."""
     traffic = ", ".join(sorted({str(meta.get("traffic", TRAFFIC)) for meta, _ in runs}))
-    lines = [DOC_HEAD.format(traffic=traffic)]
+    lines = [DOC_HEAD.replace("{traffic}", traffic)]
     for meta, maps in runs:
         folders = ", ".join(f"`{Path(f).name}`" for f in meta.get("folders", ())) or "maps"
         drive = ("not driven" if not meta.get("rollout", True) else "whole suites driven"

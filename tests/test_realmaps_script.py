@@ -106,7 +106,7 @@ def test_the_reference_page_has_one_row_per_map_and_names_each_refusal(surveyed,
     doc = tmp_path / "realmaps.md"
     assert _script().main(["--from-json", str(js), "--doc", str(doc)]) == 0
     text = doc.read_text()
-    rows = [r for r in text.splitlines() if r.startswith("| `")]
+    rows = [r for r in text.splitlines() if r.startswith(f"| `{d.name}/")]
     assert len(rows) == 3 and "## Reproducing" in text and "semantics.md" in text
     two = next(r for r in rows if "two.xodr" in r)
     assert [c.strip() for c in two.strip("|").split("|")][2:] == ["2 (0)", "1 / 1 / 0", next(
