@@ -295,6 +295,34 @@ def compare(before: dict, after: dict) -> str:
     return "\n".join([*lines, "", f"Before: {total(b)}. After: {total(a)}.", ""])
 
 
+SHARED_SOURCES = (  # ../shared/maps: (files under maps/, repository and file date, path there)
+    ('`apollo/{san_francisco,gomentum,shalun,borregas_ave,cube_town}/base_map.bin`; '
+     '`apollo/{gomentum,shalun,cube_town}/sim_map.txt`',
+     '`lgsvl/apollo-5.0`, 2021-10-01',
+     '`modules/map/data/<name>/` (`go_mentum` for gomentum)'),
+    ('`apollo/autonomous_stuff/base_map.bin`',
+     '`lgsvl/apollo-5.0`, 2021-06-30',
+     '`modules/map/data/autonomou_stuff/base_map.bin` (sic)'),
+    ('`opendrive/carla_town0{1,2,4,6}/Town0N.xodr`',
+     '`BerkeleyLearnVerify/Scenic`, 2023-06-29',
+     '`assets/maps/CARLA/Town0N.xodr`'),
+    ('`opendrive/carla_town0{3,5}/Town0N.xodr`',
+     '`BerkeleyLearnVerify/Scenic`, 2021-04-20',
+     '`tests/formats/opendrive/maps/CARLA/Town0N.xodr`'),
+    ('`opendrive/svl_borregas_ave/borregasave.xodr`, `opendrive/svl_cubetown/cubetown.xodr`',
+     '`BerkeleyLearnVerify/Scenic`, 2023-06-29',
+     '`assets/maps/LGSVL/`'),
+    ('`opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr`',
+     '`esmini/esmini`, 2025-10-27',
+     '`resources/xodr/`'),
+    ('`opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr`',
+     '`CommonRoad/commonroad-scenario-designer`, 2024-12-20',
+     '`tests/map_conversion/test_maps/cr2odr/reference_xodr_files/`'),
+    ('`opendrive/commonroad_four_way_crossing/four_way_crossing.xodr`',
+     '`CommonRoad/commonroad-scenario-designer`, 2024-12-20',
+     '`tests/map_conversion/test_maps/odr2cr/`'),
+)
+
 DOC_HEAD = """# Real maps: the per-map reference
 
 What feat2map does with every public map it has been tried on: read, junctions extracted (the
@@ -307,21 +335,13 @@ page is generated; do not edit it by hand.
 ## Getting the maps
 
 The 20 files are public but not in the repository (their licences differ). Fetch each from its
-repository as of the date given (the last change of that file; `SOURCES.md` names the commits), into a `maps/` folder at `../shared/maps` beside the repository
+repository as of the date given (the last change of that file; `SOURCES.md` names the commits),
+into a `maps/` folder at `../shared/maps` beside the repository
 (or anywhere, with `FEAT2MAP_SHARED_MAPS=/path/to/maps`); `../shared/maps/SOURCES.md`, where it
 exists, gives each file's size, sha256 and licence. Without them, the tests that read them skip
 with one reason saying so.
 
-| file under `maps/` | repository, file as of | path there |
-|---|---|---|
-| `apollo/{san_francisco,gomentum,shalun,borregas_ave,cube_town}/base_map.bin`; `apollo/{gomentum,shalun,cube_town}/sim_map.txt` | `lgsvl/apollo-5.0`, 2021-10-01 | `modules/map/data/<name>/` (`go_mentum` for gomentum) |
-| `apollo/autonomous_stuff/base_map.bin` | `lgsvl/apollo-5.0`, 2021-06-30 | `modules/map/data/autonomou_stuff/base_map.bin` (sic) |
-| `opendrive/carla_town0{1,2,4,6}/Town0N.xodr` | `BerkeleyLearnVerify/Scenic`, 2023-06-29 | `assets/maps/CARLA/Town0N.xodr` |
-| `opendrive/carla_town0{3,5}/Town0N.xodr` | `BerkeleyLearnVerify/Scenic`, 2021-04-20 | `tests/formats/opendrive/maps/CARLA/Town0N.xodr` |
-| `opendrive/svl_borregas_ave/borregasave.xodr`, `opendrive/svl_cubetown/cubetown.xodr` | `BerkeleyLearnVerify/Scenic`, 2023-06-29 | `assets/maps/LGSVL/` |
-| `opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr` | `esmini/esmini`, 2025-10-27 | `resources/xodr/` |
-| `opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr` | `CommonRoad/commonroad-scenario-designer`, 2024-12-20 | `tests/map_conversion/test_maps/cr2odr/reference_xodr_files/` |
-| `opendrive/commonroad_four_way_crossing/four_way_crossing.xodr` | `CommonRoad/commonroad-scenario-designer`, 2024-12-20 | `tests/map_conversion/test_maps/odr2cr/` |
+{sources}
 
 A corpus folder beside them (any folder of maps, one sub-folder per producing tool) has its own
 `SOURCES.md` naming each file's repository, path, commit and sha256.
@@ -362,7 +382,9 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
     """docs/realmaps.md: how to reproduce, then per survey run (a --json file) one row per map and
     its totals, then the refusals and failing scenarios by map."""
     traffic = ", ".join(sorted({str(meta.get("traffic", TRAFFIC)) for meta, _ in runs}))
-    lines = [DOC_HEAD.replace("{traffic}", traffic)]
+    sources = "\n".join(["| file under `maps/` | repository, file as of | path there |", "|---|---|---|",
+                         *("| " + " | ".join(row) + " |" for row in SHARED_SOURCES)])
+    lines = [DOC_HEAD.replace("{traffic}", traffic).replace("{sources}", sources)]
     for meta, maps in runs:
         folders = ", ".join(f"`{Path(f).name}`" for f in meta.get("folders", ())) or "maps"
         drive = ("not driven" if not meta.get("rollout", True) else "whole suites driven"
@@ -446,7 +468,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not f.is_dir():
             print(f"{f}: no such folder", file=sys.stderr)
             return 2
-    todo = [t for t in _labelled(folders, [args.md, args.json, *([args.doc] if args.doc else [])]) if not args.only or any(o in t[1] for o in args.only)]
+    ours = [args.md, args.json, *([args.doc] if args.doc else [])]
+    todo = [t for t in _labelled(folders, ours) if not args.only or any(o in t[1] for o in args.only)]
     if not todo:
         print("no map files found in " + ", ".join(map(str, folders)), file=sys.stderr)
         return 2

@@ -26,8 +26,8 @@ from .sim_map import to_sim_map
 from ..base import header_date
 from ..lane_ends import closed_seams
 from ..geo import check_origin, utm_projection
-from ...config import (APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_WIDEN_MARGIN_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APPROACH_SPLIT_DEG,
-                       UTM_ORIGIN, UTM_ZONE)
+from ...config import (APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M,
+                       APOLLO_WIDEN_MARGIN_M, APPROACH_SPLIT_DEG, UTM_ORIGIN, UTM_ZONE)
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, stop_line_across
 from ...validation import refuse_nonfinite

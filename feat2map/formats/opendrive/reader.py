@@ -27,8 +27,8 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from ...angles import classify_turn, positive_angle, wrap_angle
-from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS,
-                       UTURN_THRESHOLD_DEG, limits)
+from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M,
+                       SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       signal_precedence, stop_line_across)
