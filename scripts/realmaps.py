@@ -129,14 +129,18 @@ def export_check(path: Path, fmt: str, folder: Path) -> dict:
     `feat2map validate`: {"problems": n, "first": its first line}, or {"refused": the error line}."""
     out = folder / EXPORTS[fmt]
     out.parent.mkdir(parents=True, exist_ok=True)
+    def said(err: list[str], rc: int) -> str:  # the error line, the temporary folder's path left out
+        line = next((ln for ln in err if "error:" in ln), f"exit {rc}").split("error: ", 1)[-1]
+        return line.replace(str(out), out.name)
+
     rc, _, err = _cli(["export", fmt, str(path), "--out", str(out)])
     if rc:
-        return {"refused": next((ln for ln in err if "error:" in ln), f"exit {rc}").split("error: ", 1)[-1]}
+        return {"refused": said(err, rc)}
     rc, lines, err = _cli(["validate", "--quiet", "--format", fmt, str(out)])
     problems = lines[:-1]  # the last line is the count
     if rc and not problems:
-        return {"refused": next((ln for ln in err if "error:" in ln), f"validate exit {rc}").split("error: ", 1)[-1]}
-    return {"problems": len(problems), "first": problems[0] if problems else ""}
+        return {"refused": said(err, rc)}
+    return {"problems": len(problems), "first": problems[0].replace(str(out), out.name) if problems else ""}
 
 
 def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True, export: bool = True,
@@ -404,10 +408,16 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
         lines += ["", f"Totals: {tot['junctions']} junctions ({tot['skipped']} skipped), {tot['scenarios']} scenarios, "
                   f"{tot['completed']} of {tot['driven']} driven completed, {tot['tracebacks']} tracebacks; "
                   f"{tot['clean']} of {len(maps)} maps export to all four formats with no problem.", ""]
-        notes = [f"- `{s.path}` {e['stage']}: {e['kind']}: {e['error']}" for s in maps for e in s.errors]
-        notes += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in maps for f in s.failing]
-        notes += [f"- `{s.path}` export {fmt}: " + (f"refused: {e['refused']}" if "refused" in e else
-                                                    f"{e['problems']} problem(s), first: {e['first']}")
+        parents = [str(Path(f).parent) + "/" for f in meta.get("folders", ())]
+
+        def local(text: str, parents: list[str] = parents) -> str:  # a map by its label, not this machine's path
+            for parent in parents:
+                text = text.replace(parent, "")
+            return text
+        notes = [f"- `{s.path}` {e['stage']}: {e['kind']}: {local(e['error'])}" for s in maps for e in s.errors]
+        notes += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {local(f['message'])}" for s in maps for f in s.failing]
+        notes += [f"- `{s.path}` export {fmt}: " + (f"refused: {local(e['refused'])}" if "refused" in e else
+                                                    f"{e['problems']} problem(s), first: {local(e['first'])}")
                   for s in maps for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
         if notes:
             lines += ["Refusals, failing scenarios and export problems:", "", *notes, ""]
