@@ -393,6 +393,7 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
         folders = ", ".join(f"`{Path(f).name}`" for f in meta.get("folders", ())) or "maps"
         drive = ("not driven" if not meta.get("rollout", True) else "whole suites driven"
                  if meta.get("max_scenarios") is None else f"at most {meta['max_scenarios']} scenarios driven per map")
+        drive += "" if meta.get("export", True) else ", not exported"
         lines += [f"## {folders}", "", f"{len(maps)} maps, traffic {meta.get('traffic', TRAFFIC)}, {drive}.", "",
                   "| map | source | junctions (skipped) | signal / stop / bare | scenarios | driven / completed "
                   "| failures | exports (A / O / L / C) |", "|" + "---|" * 8]
@@ -494,12 +495,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         results.append(s)
         atomic.write_text(args.json, json.dumps({"folders": [str(f) for f in folders], "traffic": args.traffic,
                                                  "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout,
-                                                 "maps": [r.__dict__ for r in results]}, indent=1))
+                                                 "export": not args.no_export, "maps": [r.__dict__ for r in results]},
+                                                indent=1))
         atomic.write_text(args.md, markdown(results))
     if args.doc:
         atomic.write_text(args.doc, reference([({"folders": [str(f) for f in folders], "traffic": args.traffic,
-                                                 "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout},
-                                                results)]))
+                                                 "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout,
+                                                 "export": not args.no_export}, results)]))
     if tty:
         print(f"wrote {args.md} and {args.json}", file=sys.stderr)
     return 1 if any(r.errors for r in results) else 0
