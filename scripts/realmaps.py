@@ -407,8 +407,9 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
                        completed=s.outcomes.get("completed", 0), tracebacks=sum(e["kind"] == "traceback" for e in s.errors),
                        clean=all(e.get("problems") == 0 for e in s.exports.values()) and len(s.exports) == len(EXPORTS))
         lines += ["", f"Totals: {tot['junctions']} junctions ({tot['skipped']} skipped), {tot['scenarios']} scenarios, "
-                  f"{tot['completed']} of {tot['driven']} driven completed, {tot['tracebacks']} tracebacks; "
-                  f"{tot['clean']} of {len(maps)} maps export to all four formats with no problem.", ""]
+                  f"{tot['completed']} of {tot['driven']} driven completed, {tot['tracebacks']} tracebacks"
+                  + (f"; {tot['clean']} of {len(maps)} maps export to all four formats with no problem"
+                     if meta.get("export", True) else "") + ".", ""]
         parents = [str(Path(f).parent) + "/" for f in meta.get("folders", ())]
 
         def local(text: str, parents: list[str] = parents) -> str:  # a map by its label, not this machine's path
