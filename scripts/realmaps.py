@@ -5,7 +5,10 @@ read it, extract its junctions (the skipped ones with their reasons), count its 
 (signal / stop / bare) and its signals' phase groups per junction, build the route-coverage suite
 (traffic 6 by default) and roll it out with the baseline planner (all of it, or --max-scenarios
 spread over the suite). Any exception is a finding, recorded with the map and the stage
-(read / extract / phases / suite / rollout), and the survey goes on with the next map.
+(read / extract / phases / suite / export / rollout), and the survey goes on with the next map.
+Every map that reads is exported to Apollo, OpenDRIVE, Lanelet2 and CommonRoad the way a user would
+(`feat2map export`), and each export is checked by `feat2map validate` (each ecosystem's own rules):
+the `exports` column gives the problems per format, or the refusal.
 
 Writes a Markdown table (--md) and a JSON file (--json) after every map, so a long survey can be
 watched and an interrupted one keeps what it did. Progress is shown on a terminal only.
@@ -15,12 +18,16 @@ Usage:
   .venv/bin/python scripts/realmaps.py --corpus /work/corpus --max-scenarios 10 --workers 1
   .venv/bin/python scripts/realmaps.py --no-shared --corpus DIR --no-rollout   # extract + suite only
   .venv/bin/python scripts/realmaps.py --compare before.json after.json --md changes.md   # map by map
+  .venv/bin/python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realmaps.md   # the reference
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import sys
+import tempfile
 import time
 import traceback
 import warnings
@@ -29,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
-from feat2map import atomic
+from feat2map import atomic, cli
 from feat2map.errors import Feat2MapError
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import FORMATS, read_map
@@ -48,6 +55,7 @@ SHARED = REPO.parent / "shared" / "maps"
 TRAFFIC = 6  # the issue's traffic level
 NOT_MAPS = ("routing_map",)  # Apollo routing graphs sit beside base maps but are no HD maps
 WARNINGS_KEPT = 20  # distinct warning lines kept per map
+EXPORTS = {"apollo": "apollo", "opendrive": "map.xodr", "lanelet2": "lanelet2/map.osm", "commonroad": "map.xml"}
 
 
 @dataclass
@@ -67,6 +75,7 @@ class MapSurvey:
     scenarios: int = 0
     driven: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
+    exports: dict[str, dict] = field(default_factory=dict)  # format -> {"problems": n, "first": line} or {"refused": line}
     failing: list[dict] = field(default_factory=list)
     errors: list[dict] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
@@ -107,7 +116,34 @@ def _error(stage: str, exc: BaseException) -> dict:
             "at": [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in frames[-4:]]}
 
 
-def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True,
+def _cli(argv: list[str]) -> tuple[int, list[str], list[str]]:
+    """`feat2map ARGV` in this process: exit status, stdout lines, stderr lines."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli.main(argv)
+    return rc, out.getvalue().splitlines(), err.getvalue().splitlines()
+
+
+def export_check(path: Path, fmt: str, folder: Path) -> dict:
+    """Export `path` to `fmt` under `folder` with `feat2map export` and check the result with
+    `feat2map validate`: {"problems": n, "first": its first line}, or {"refused": the error line}."""
+    out = folder / EXPORTS[fmt]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    def said(err: list[str], rc: int) -> str:  # the error line, the temporary folder's path left out
+        line = next((ln for ln in err if "error:" in ln), f"exit {rc}").split("error: ", 1)[-1]
+        return line.replace(str(out), out.name)
+
+    rc, _, err = _cli(["export", fmt, str(path), "--out", str(out)])
+    if rc:
+        return {"refused": said(err, rc)}
+    rc, lines, err = _cli(["validate", "--quiet", "--format", fmt, str(out)])
+    problems = lines[:-1]  # the last line is the count
+    if rc and not problems:
+        return {"refused": said(err, rc)}
+    return {"problems": len(problems), "first": problems[0].replace(str(out), out.name) if problems else ""}
+
+
+def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool = True, export: bool = True,
                max_scenarios: int | None = None, workers: int = 1, progress: bool = False) -> MapSurvey:
     """One map through every stage. A stage that raises is recorded; the stages that need its
     result are left out for this map (a map that cannot be read ends here), never the survey."""
@@ -148,6 +184,12 @@ def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool 
         found_checks = stage("checks", lambda: semantics.findings(m))
         if found_checks is not None:
             s.checks = [f"{'fatal: ' if f.fatal else ''}{f}" for f in found_checks]
+    if export:
+        with tempfile.TemporaryDirectory(prefix="realmaps-") as tmp:
+            for fmt in EXPORTS:
+                done = stage("export", lambda fmt=fmt: export_check(path, fmt, Path(tmp) / fmt))
+                if done is not None:
+                    s.exports[fmt] = done
     suite = stage("suite", lambda: build_suite(path, traffic_vehicles=traffic, name=Path(label).stem))
     if suite is not None:
         s.scenarios = len(suite.scenarios)
@@ -186,17 +228,27 @@ def _failure_cell(s: MapSurvey) -> str:
     return ", ".join(parts) or "-"
 
 
+def _exports_cell(s: MapSurvey) -> str:
+    """Problems per export format (Apollo / OpenDRIVE / Lanelet2 / CommonRoad), "refused" where the
+    export was refused, "-" where no export ran."""
+    if not s.exports:
+        return "-"
+    return " / ".join("-" if fmt not in s.exports else "refused" if "refused" in s.exports[fmt]
+                      else str(s.exports[fmt]["problems"]) for fmt in EXPORTS)
+
+
 def markdown(results: Sequence[MapSurvey]) -> str:
     """The survey table plus one line per error and per failing scenario."""
     head = ("| map | source | junction elements | junctions (skipped) | signal / stop / bare | signals | phase groups "
-            "| checks | scenarios | driven | completed | failures |\n|" + "---|" * 12)
+            "| checks | scenarios | driven | completed | failures | exports (A / O / L / C) |\n|" + "---|" * 13)
     rows = []
     for s in results:
         c = s.controls
         rows.append(f"| `{s.path}` | {s.source} | {s.junction_elements} | {s.junctions} ({len(s.skipped)}) | "
                     f"{c.get('signal', 0)} / {c.get('stop', 0)} / {c.get('bare', 0)} | {s.signals} | {_phase_cell(s)} | "
                     f"{_checks_cell(s)} | "
-                    f"{s.scenarios} | {s.driven} | {s.outcomes.get('completed', 0)} | {_failure_cell(s)} |")
+                    f"{s.scenarios} | {s.driven} | {s.outcomes.get('completed', 0)} | {_failure_cell(s)} | "
+                    f"{_exports_cell(s)} |")
     tot = Counter()
     for s in results:
         tot.update(scenarios=s.scenarios, driven=s.driven, completed=s.outcomes.get("completed", 0),
@@ -211,6 +263,9 @@ def markdown(results: Sequence[MapSurvey]) -> str:
                for s in results for e in s.errors]
     details += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in results for f in s.failing]
     details += [f"- `{s.path}` check: {c}" for s in results for c in (s.checks or ())]
+    details += [f"- `{s.path}` export {fmt}: " + (f"refused: {e['refused']}" if "refused" in e else
+                                                  f"{e['problems']} problem(s), first: {e['first']}")
+                for s in results for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
     if details:
         lines += ["Errors and failing scenarios:", "", *details, ""]
     return "\n".join(lines)
@@ -244,10 +299,148 @@ def compare(before: dict, after: dict) -> str:
     return "\n".join([*lines, "", f"Before: {total(b)}. After: {total(a)}.", ""])
 
 
-def _labelled(folders: Sequence[Path]) -> Iterator[tuple[Path, str, str]]:
-    """(file, label: its path under its folder with the folder's name first, source: its first sub-folder)."""
+SHARED_SOURCES = (  # ../shared/maps: (files under maps/, repository and file date, path there)
+    ('`apollo/{san_francisco,gomentum,shalun,borregas_ave,cube_town}/base_map.bin`; '
+     '`apollo/{gomentum,shalun,cube_town}/sim_map.txt`',
+     '`lgsvl/apollo-5.0`, 2021-10-01',
+     '`modules/map/data/<name>/` (`go_mentum` for gomentum)'),
+    ('`apollo/autonomous_stuff/base_map.bin`',
+     '`lgsvl/apollo-5.0`, 2021-06-30',
+     '`modules/map/data/autonomou_stuff/base_map.bin` (sic)'),
+    ('`opendrive/carla_town0{1,2,4,6}/Town0N.xodr`',
+     '`BerkeleyLearnVerify/Scenic`, 2023-06-29',
+     '`assets/maps/CARLA/Town0N.xodr`'),
+    ('`opendrive/carla_town0{3,5}/Town0N.xodr`',
+     '`BerkeleyLearnVerify/Scenic`, 2021-04-20',
+     '`tests/formats/opendrive/maps/CARLA/Town0N.xodr`'),
+    ('`opendrive/svl_borregas_ave/borregasave.xodr`, `opendrive/svl_cubetown/cubetown.xodr`',
+     '`BerkeleyLearnVerify/Scenic`, 2023-06-29',
+     '`assets/maps/LGSVL/`'),
+    ('`opendrive/esmini_fabriksgatan/fabriksgatan_traffic_lights.xodr`',
+     '`esmini/esmini`, 2025-10-27',
+     '`resources/xodr/`'),
+    ('`opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr`',
+     '`CommonRoad/commonroad-scenario-designer`, 2024-12-20',
+     '`tests/map_conversion/test_maps/cr2odr/reference_xodr_files/`'),
+    ('`opendrive/commonroad_four_way_crossing/four_way_crossing.xodr`',
+     '`CommonRoad/commonroad-scenario-designer`, 2024-12-20',
+     '`tests/map_conversion/test_maps/odr2cr/`'),
+)
+
+DOC_HEAD = """# Real maps: the per-map reference
+
+What feat2map does with every public map it has been tried on: read, junctions extracted (the
+skipped ones with their reasons), controls, the route-coverage suite (traffic {traffic}) and how
+much of it the baseline planner drove, and the export to Apollo, OpenDRIVE, Lanelet2 and CommonRoad
+with each export checked by `feat2map validate`. The rules behind the numbers (how each class of
+real-map quirk is read and handled) are in [semantics.md](semantics.md#real-map-rule-classes). This
+page is generated; do not edit it by hand.
+
+## Getting the maps
+
+The 20 files are public but not in the repository (their licences differ). Fetch each from its
+repository as of the date given (the last change of that file; `SOURCES.md` names the commits),
+into a `maps/` folder at `../shared/maps` beside the repository
+(or anywhere, with `FEAT2MAP_SHARED_MAPS=/path/to/maps`); `../shared/maps/SOURCES.md`, where it
+exists, gives each file's size, sha256 and licence. Without them, the tests that read them skip
+with one reason saying so.
+
+{sources}
+
+A corpus folder beside them (any folder of maps, one sub-folder per producing tool) has its own
+`SOURCES.md` naming each file's repository, path, commit and sha256.
+
+## Reproducing
+
+With the maps in place:
+
+```bash
+python scripts/realmaps.py --md shared.md --json shared.json --max-scenarios 6 --workers 1
+python scripts/realmaps.py --no-shared --corpus DIR --md corpus.md --json corpus.json --max-scenarios 6 --workers 1
+python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realmaps.md
+```
+
+`--no-rollout` reads, extracts, exports and builds suites only; without `--max-scenarios` every
+scenario is driven. Columns: **source** = the map's first sub-folder (its producing tool);
+**junctions (skipped)** = junctions extracted (3 or more arms) and junction elements skipped, each
+with a reason; **driven / completed** = scenarios driven (a sample spread over the suite, or all)
+and completed; **failures** = other outcomes and stage errors (a refusal names the problem);
+**exports** = problems `feat2map validate` finds in each export (Apollo / OpenDRIVE / Lanelet2 /
+CommonRoad), "refused" where the export was refused.
+
+## Rule classes
+
+The classes of real-map quirk behind these numbers, each explained in
+[semantics.md](semantics.md#real-map-rule-classes): touching junction elements read as one
+junction; direct junctions; road links without lane links; boundary types from road marks and
+Apollo types; left-hand traffic; declared speeds in their unit and checked for plausibility; local
+coordinates; converter geometry repaired (gaps bridged, reversing links dropped, turnarounds,
+edge stubs, folded lanes); manoeuvres no car drives left out of suites; no traffic into lanes it
+cannot leave; exports that repair what a format cannot hold and name the first problem when they
+refuse; the env's driving rules for real junctions (merges, converging lanes, junction chains,
+narrow passages, swept paths, curve speed, the amber dilemma zone, wait points).
+"""
+
+
+def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
+    """docs/realmaps.md: how to reproduce, then per survey run (a --json file) one row per map and
+    its totals, then the refusals and failing scenarios by map."""
+    traffic = ", ".join(sorted({str(meta.get("traffic", TRAFFIC)) for meta, _ in runs}))
+    sources = "\n".join(["| file under `maps/` | repository, file as of | path there |", "|---|---|---|",
+                         *("| " + " | ".join(row) + " |" for row in SHARED_SOURCES)])
+    lines = [DOC_HEAD.replace("{traffic}", traffic).replace("{sources}", sources)]
+    for meta, maps in runs:
+        folders = ", ".join(f"`{Path(f).name}`" for f in meta.get("folders", ())) or "maps"
+        drive = ("not driven" if not meta.get("rollout", True) else "whole suites driven"
+                 if meta.get("max_scenarios") is None else f"at most {meta['max_scenarios']} scenarios driven per map")
+        drive += "" if meta.get("export", True) else ", not exported"
+        lines += [f"## {folders}", "", f"{len(maps)} maps, traffic {meta.get('traffic', TRAFFIC)}, {drive}.", "",
+                  "| map | source | junctions (skipped) | signal / stop / bare | scenarios | driven / completed "
+                  "| failures | exports (A / O / L / C) |", "|" + "---|" * 8]
+        tot = Counter()
+        for s in maps:
+            c = s.controls
+            lines.append(f"| `{s.path}` | {s.source} | {s.junctions} ({len(s.skipped)}) | {c.get('signal', 0)} / "
+                         f"{c.get('stop', 0)} / {c.get('bare', 0)} | {s.scenarios} | {s.driven} / "
+                         f"{s.outcomes.get('completed', 0)} | {_failure_cell(s)} | {_exports_cell(s)} |")
+            tot.update(junctions=s.junctions, skipped=len(s.skipped), scenarios=s.scenarios, driven=s.driven,
+                       completed=s.outcomes.get("completed", 0), tracebacks=sum(e["kind"] == "traceback" for e in s.errors),
+                       clean=all(e.get("problems") == 0 for e in s.exports.values()) and len(s.exports) == len(EXPORTS))
+        lines += ["", f"Totals: {tot['junctions']} junctions ({tot['skipped']} skipped), {tot['scenarios']} scenarios, "
+                  f"{tot['completed']} of {tot['driven']} driven completed, {tot['tracebacks']} tracebacks"
+                  + (f"; {tot['clean']} of {len(maps)} maps export to all four formats with no problem"
+                     if meta.get("export", True) else "") + ".", ""]
+        parents = [str(Path(f).parent) + "/" for f in meta.get("folders", ())]
+
+        def local(text: str, parents: list[str] = parents) -> str:  # a map by its label, not this machine's path
+            for parent in parents:
+                text = text.replace(parent, "")
+            return text
+        notes = [f"- `{s.path}` {e['stage']}: {e['kind']}: {local(e['error'])}" for s in maps for e in s.errors]
+        notes += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {local(f['message'])}" for s in maps for f in s.failing]
+        notes += [f"- `{s.path}` export {fmt}: " + (f"refused: {local(e['refused'])}" if "refused" in e else
+                                                    f"{e['problems']} problem(s), first: {local(e['first'])}")
+                  for s in maps for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
+        if notes:
+            lines += ["Refusals, failing scenarios and export problems:", "", *notes, ""]
+    return "\n".join(lines)
+
+
+def _loaded(path: Path) -> tuple[dict, list[MapSurvey]]:
+    """A --json file: its settings and its maps."""
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    maps = [MapSurvey(**{k: v for k, v in s.items() if k in MapSurvey.__dataclass_fields__}) for s in doc["maps"]]
+    return {k: v for k, v in doc.items() if k != "maps"}, maps
+
+
+def _labelled(folders: Sequence[Path], written: Sequence[Path] = ()) -> Iterator[tuple[Path, str, str]]:
+    """(file, label: its path under its folder with the folder's name first, source: its first sub-folder);
+    the files this survey writes (`written`: --md, --json, --doc) are no maps, even inside a folder."""
+    ours = {p.resolve() for p in written}
     for folder in folders:
         for p in map_files(folder):
+            if p.resolve() in ours:
+                continue
             rel = p.relative_to(folder)
             yield p, f"{folder.name}/{rel}", rel.parts[0] if len(rel.parts) > 1 else folder.name
 
@@ -261,13 +454,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="rollout worker processes (default 1)")
     ap.add_argument("--max-scenarios", type=int, default=None, help="drive at most N scenarios per map, spread over "
                                                                      "its suite (default: the whole suite)")
-    ap.add_argument("--no-rollout", action="store_true", help="read, extract and build suites only")
+    ap.add_argument("--no-rollout", action="store_true", help="read, extract, export and build suites only")
+    ap.add_argument("--no-export", action="store_true", help="leave out the exports to the four formats")
     ap.add_argument("--only", action="append", default=[], help="survey only maps whose label contains this")
     ap.add_argument("--md", type=Path, default=Path("realmaps.md"), help="Markdown table (default realmaps.md)")
     ap.add_argument("--json", type=Path, default=Path("realmaps.json"), help="JSON results (default realmaps.json)")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
                     help="no survey: compare two --json files map by map into --md")
+    ap.add_argument("--doc", type=Path, help="also write the per-map reference page (docs/realmaps.md)")
+    ap.add_argument("--from-json", nargs="+", type=Path, metavar="JSON",
+                    help="no survey: write --doc from these --json files, one section each")
     args = ap.parse_args(argv)
+    if args.from_json:
+        if not args.doc:
+            ap.error("--from-json needs --doc")
+        atomic.write_text(args.doc, reference([_loaded(p) for p in args.from_json]))
+        return 0
     if args.compare:
         before, after = (json.loads(p.read_text(encoding="utf-8")) for p in args.compare)
         atomic.write_text(args.md, compare(before, after))
@@ -278,7 +480,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not f.is_dir():
             print(f"{f}: no such folder", file=sys.stderr)
             return 2
-    todo = [t for t in _labelled(folders) if not args.only or any(o in t[1] for o in args.only)]
+    ours = [args.md, args.json, *([args.doc] if args.doc else [])]
+    todo = [t for t in _labelled(folders, ours) if not args.only or any(o in t[1] for o in args.only)]
     if not todo:
         print("no map files found in " + ", ".join(map(str, folders)), file=sys.stderr)
         return 2
@@ -287,14 +490,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     for i, (path, label, source) in enumerate(todo, 1):
         if tty:
             print(f"[{i}/{len(todo)}] {label}", file=sys.stderr, flush=True)
-        s = survey_map(path, label, traffic=args.traffic, rollout=not args.no_rollout,
+        s = survey_map(path, label, traffic=args.traffic, rollout=not args.no_rollout, export=not args.no_export,
                        max_scenarios=args.max_scenarios, workers=args.workers, progress=tty)
         s.source = source
         results.append(s)
         atomic.write_text(args.json, json.dumps({"folders": [str(f) for f in folders], "traffic": args.traffic,
                                                  "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout,
-                                                 "maps": [r.__dict__ for r in results]}, indent=1))
+                                                 "export": not args.no_export, "maps": [r.__dict__ for r in results]},
+                                                indent=1))
         atomic.write_text(args.md, markdown(results))
+    if args.doc:
+        atomic.write_text(args.doc, reference([({"folders": [str(f) for f in folders], "traffic": args.traffic,
+                                                 "max_scenarios": args.max_scenarios, "rollout": not args.no_rollout,
+                                                 "export": not args.no_export}, results)]))
     if tty:
         print(f"wrote {args.md} and {args.json}", file=sys.stderr)
     return 1 if any(r.errors for r in results) else 0

@@ -1,6 +1,7 @@
 """scripts/realmaps.py on a folder of maps the project makes itself: a signal 4-way and a stop T
 exported to OpenDRIVE and Apollo, a broken file beside them. The table counts what the map
-holds, a broken map is a recorded finding (stage and error), and the survey goes on."""
+holds, every map that reads exports to the four formats and each export validates, a broken map
+is a recorded finding (stage and error), the survey goes on, and --doc writes the reference page."""
 from __future__ import annotations
 
 import importlib.util
@@ -40,7 +41,9 @@ def surveyed(tmp_path_factory):
             p.unlink()
     (d / "apollo" / "README.txt").write_text("These files are made by the test.\n")  # no map: never surveyed
     (d / "odr" / "broken.xodr").write_text("<OpenDRIVE><header/><road id='1'")  # cut off mid-element
-    md, js = d / "out" / "table.md", d / "out" / "table.json"
+    md, js = d / "table.md", d / "table.json"  # an earlier run's output inside the surveyed folder: no map
+    md.write_text("an earlier table\n")
+    js.write_text('{"maps": []}')
     rc = _script().main([str(d), "--max-scenarios", "1", "--md", str(md), "--json", str(js)])
     return d, rc, md.read_text(), json.loads(js.read_text())
 
@@ -64,7 +67,9 @@ def test_the_table_counts_junctions_controls_phases_scenarios_and_drives(surveye
         row = next(r for r in md.splitlines() if f"`{d.name}/{rel}`" in r)
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[3:6] == ["2 (0)", "1 / 1 / 0", str(s["signals"])]
-        assert cells[8:] == [str(n), "1", "1", "-"]
+        assert cells[8:] == [str(n), "1", "1", "-", "0 / 0 / 0 / 0"]
+        assert s["exports"] == {fmt: {"problems": 0, "first": ""} for fmt in ("apollo", "opendrive", "lanelet2",
+                                                                              "commonroad")}
 
 
 def test_a_broken_map_is_a_finding_with_its_stage_and_the_survey_goes_on(surveyed):
@@ -92,3 +97,19 @@ def test_compare_marks_the_maps_whose_numbers_changed(surveyed, tmp_path):
     assert "1/1 -> **0/1**" in rows[f"`{d.name}/odr/two.xodr`"] and "- -> **collision 1**" in rows[f"`{d.name}/odr/two.xodr`"]
     assert "->" not in rows[f"`{d.name}/apollo/base_map.bin`"]
     assert "Before: 2 of 2 driven completed" in out.read_text() and "After: 1 of 2 driven completed" in out.read_text()
+
+
+def test_the_reference_page_has_one_row_per_map_and_names_each_refusal(surveyed, tmp_path):
+    d, _, _, data = surveyed
+    js = tmp_path / "run.json"
+    js.write_text(json.dumps(data))
+    doc = tmp_path / "realmaps.md"
+    assert _script().main(["--from-json", str(js), "--doc", str(doc)]) == 0
+    text = doc.read_text()
+    rows = [r for r in text.splitlines() if r.startswith(f"| `{d.name}/")]
+    assert len(rows) == 3 and "## Reproducing" in text and "semantics.md" in text
+    two = next(r for r in rows if "two.xodr" in r)
+    assert [c.strip() for c in two.strip("|").split("|")][2:] == ["2 (0)", "1 / 1 / 0", next(
+        str(s["scenarios"]) for s in data["maps"] if s["path"].endswith("two.xodr")), "1 / 1", "-", "0 / 0 / 0 / 0"]
+    assert f"- `{d.name}/odr/broken.xodr` read: refusal: " in text
+    assert "2 of 3 maps export to all four formats with no problem" in text

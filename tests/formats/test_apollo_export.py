@@ -899,3 +899,29 @@ def test_a_light_over_opposite_approaches_gets_a_stop_line_on_each():
     sig = next(s for s in base.signal if len(s.stop_line) > 1)
     assert len(sig.stop_line) == 2
     assert all(len(s.stop_line) == 1 for s in base.signal if s is not sig)
+
+
+_TIGHT_BEND_XODR = """<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="6"/>
+<road id="1" length="2.8" junction="-1"><link/><planView>
+<geometry s="0" x="0" y="0" hdg="0" length="2.8"><arc curvature="-1.1"/></geometry></planView>
+<lanes><laneOffset s="0" a="1.6" b="0" c="0" d="0"/><laneSection s="0"><center><lane id="0" type="none"/></center>
+<right><lane id="-1" type="driving"><width sOffset="0" a="3.2" b="0" c="0" d="0"/></lane></right></laneSection>
+</lanes></road></OpenDRIVE>
+"""
+
+
+def test_a_side_too_narrow_round_a_bend_tighter_than_apollo_half_width_exports_at_the_floor(tmp_path, capsys):
+    """A 3.2 m lane whose centre turns on a 0.9 m radius (SUMO's tight junction turns): its inner
+    side, widened to Apollo's minimum, folds back round the bend, so its measured width stays
+    below the minimum. The export still validates: the width samples are written at the floor,
+    and the one widening warning names the lane."""
+    src = tmp_path / "tight.xodr"
+    src.write_text(_TIGHT_BEND_XODR)
+    out = tmp_path / "apollo"
+    assert main(["export", "apollo", str(src), "--out", str(out)]) == 0
+    assert "lane 1_0_-1" in capsys.readouterr().err
+    assert validate_apollo(out) == []
+    lane = aps.Map.FromString((out / "base_map.bin").read_bytes()).lane[0]
+    widths = [x.width for x in (*lane.left_sample, *lane.right_sample)]
+    assert min(widths) >= APOLLO_MIN_HALF_WIDTH_M and max(widths) > APOLLO_MIN_HALF_WIDTH_M + 0.1

@@ -765,3 +765,89 @@ def test_junction_ids_survive_a_round_trip(exported, tmp_path):
     assert set(read_opendrive(tmp_path / "again.xodr").junctions) == set(new.values())
     assert [j.get("id") for j in etree.parse(str(exported)).getroot().findall("junction")] == [
         str(k + 1) for k in range(len(new))]
+
+
+# ---------------------------------------------------------------------------------------------
+# a connecting road whose lanes name no <link>: the road link links the lanes of the same id
+
+def _unlinked_connector_xodr(rule: str, tail_to_tail: bool) -> bytes:
+    """Road 1 (north, ending at junction 9), connecting road 2 (its lanes without <link>s; the
+    junction's laneLinks name the incoming side only) and road 3 beyond it, in traffic `rule`.
+    With `tail_to_tail` road 3 runs back south and meets road 2 end to end (lane ids mirror)."""
+    def lanes(ids: tuple[int, ...]) -> str:
+        out = {"left": "", "right": ""}
+        for k in ids:
+            out["left" if k > 0 else "right"] += (f'<lane id="{k}" type="driving"><width sOffset="0" a="3.5" b="0" '
+                                                   f'c="0" d="0"/></lane>')
+        return (f'<lanes><laneSection s="0"><left>{out["left"]}</left><center><lane id="0" type="none"/></center>'
+                f'<right>{out["right"]}</right></laneSection></lanes>')
+
+    def road(rid, y, hdg, junction, link):
+        return (f'<road id="{rid}" length="10" junction="{junction}" rule="{rule}"><link>{link}</link><planView>'
+                f'<geometry s="0" x="0" y="{y}" hdg="{hdg}" length="10"><line/></geometry></planView>'
+                f'{lanes((1, -1))}</road>')
+    ahead = ('<successor elementType="road" elementId="3" contactPoint="end"/>' if tail_to_tail else
+             '<successor elementType="road" elementId="3" contactPoint="start"/>')
+    road3 = (road("3", 30, -math.pi / 2, -1, '<successor elementType="junction" elementId="9"/>') if tail_to_tail
+             else road("3", 20, math.pi / 2, -1, '<predecessor elementType="junction" elementId="9"/>'))
+    inner, outer = (1, -1) if rule == "LHT" else (-1, 1)  # the lane driving north on road 1, the one driving south
+    back = -outer if tail_to_tail else outer  # road 3's lane driving south, towards the junction
+    return ('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="6"/>'
+            + road("1", 0, math.pi / 2, -1, '<successor elementType="junction" elementId="9"/>')
+            + road("2", 10, math.pi / 2, 9, '<predecessor elementType="road" elementId="1" contactPoint="end"/>' + ahead)
+            + road3
+            + '<junction id="9">'
+              f'<connection id="0" incomingRoad="1" connectingRoad="2" contactPoint="start">'
+              f'<laneLink from="{inner}" to="{inner}"/></connection>'
+              f'<connection id="1" incomingRoad="3" connectingRoad="2" contactPoint="end">'
+              f'<laneLink from="{back}" to="{outer}"/></connection></junction></OpenDRIVE>').encode()
+
+
+@pytest.mark.parametrize("rule", ["RHT", "LHT"])
+@pytest.mark.parametrize("tail_to_tail", [False, True])
+def test_a_connecting_road_without_lane_links_joins_the_road_it_names(tmp_path, rule, tail_to_tail):
+    """Without lane <link>s a connecting road's lanes go on into the lanes of the same id of the
+    road its road link names (the mirrored id where the roads meet end to end): both ways through
+    the junction are manoeuvres."""
+    path = tmp_path / f"{rule}.xodr"
+    path.write_bytes(_unlinked_connector_xodr(rule, tail_to_tail))
+    m = read_opendrive(path)
+    inner, outer = (1, -1) if rule == "LHT" else (-1, 1)
+    r3_north, r3_south = (inner, outer) if not tail_to_tail else (-inner, -outer)
+    assert m.lanes[f"2_0_{inner}"].successors == (f"3_0_{r3_north}",)
+    assert m.lanes[f"3_0_{r3_south}"].successors == (f"2_0_{outer}",)
+    assert m.lanes[f"2_0_{outer}"].successors == (f"1_0_{outer}",)
+
+
+# ---------------------------------------------------------------------------------------------
+# lane borders of linked polyline roads meet (ASAM's lane_smoothness.contact_point_no_horizontal_gaps)
+
+def _bend_xodr() -> bytes:
+    """Two one-lane roads on one 5 m-radius bend, road 1 running into road 2."""
+    def road(rid, x, y, hdg, link):
+        return (f'<road id="{rid}" length="6" junction="-1"><link>{link}</link><planView>'
+                f'<geometry s="0" x="{x}" y="{y}" hdg="{hdg}" length="6"><arc curvature="0.2"/></geometry></planView>'
+                '<lanes><laneSection s="0"><center><lane id="0" type="none"/></center><right><lane id="-1" '
+                'type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right></laneSection></lanes></road>')
+    end = _RefLine([_Geometry(0.0, 0.0, 0.0, 0.0, 6.0, "arc", {"curvature": 0.2})]).eval(np.array([6.0]))
+    return ('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="6"/>'
+            + road("1", 0, 0, 0, '<successor elementType="road" elementId="2" contactPoint="start"/>')
+            + road("2", float(end[0][0]), float(end[1][0]), float(end[2][0]),
+                   '<predecessor elementType="road" elementId="1" contactPoint="end"/>')
+            + '</OpenDRIVE>').encode()
+
+
+def test_linked_roads_exported_as_polylines_meet_border_to_border(tmp_path):
+    """A read map's lanes are exported as polylines of lines, and a lane's borders at an end lie
+    across its end chord. On a bend the end chords of two linked lanes differ, and their borders
+    missed each other by 2 cm (ASAM's checker allows 1 cm); the export aligns each joint."""
+    src, out = tmp_path / "bend.xodr", tmp_path / "out.xodr"
+    src.write_bytes(_bend_xodr())
+    m = read_opendrive(src)
+    write_opendrive(m, out)
+    back = read_opendrive(out)
+    first = next(ln for ln in back.lanes.values() if ln.successors)
+    second = back.lanes[first.successors[0]]
+    for side in ("left_boundary", "right_boundary"):
+        gap = np.hypot(*(np.asarray(getattr(first, side))[-1] - np.asarray(getattr(second, side))[0]))
+        assert gap < 0.005, (side, gap)

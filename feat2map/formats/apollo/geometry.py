@@ -13,7 +13,7 @@ import shapely
 import shapely.ops
 from shapely.geometry import LineString, Polygon
 
-from ...config import (APOLLO_END_TANGENT_M, APOLLO_MIN_HALF_WIDTH_M, APOLLO_SAMPLE_WINDOW_M,
+from ...config import (APOLLO_END_TANGENT_M, APOLLO_MIN_HALF_WIDTH_M, APOLLO_WIDEN_MARGIN_M, APOLLO_SAMPLE_WINDOW_M,
                        APOLLO_STOP_LINE_OVERLAP_M)
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, as_polyline
@@ -94,7 +94,8 @@ def offset_polyline(points: Polyline, d: float | np.ndarray) -> Polyline:
 
 def widened_boundaries(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap:
     """`m` with every lane side that comes nearer its centreline than `half` somewhere rebuilt as
-    the centreline offset by the distance measured at each vertex, at least `half` (+1 cm), and
+    the centreline offset by the distance measured at each vertex, at least `half` (plus
+    APOLLO_WIDEN_MARGIN_M), and
     one warning per map naming the lanes. Apollo refuses narrower width samples, and converters
     leave them: a geometry loop's 0.117 m-wide sample, a taper closing to 1.001 m at a linked
     end, a fold-cut connection's boundary 0.15 m from its centre (Bézier lanes are exact)."""
@@ -109,7 +110,7 @@ def widened_boundaries(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap
             w = np.where(np.isfinite(w), w, ln.width / 2)
             if w.min() < half:
                 narrowest.append((float(w.min()), ln.id))
-                sides[name] = offset_polyline(ln.centerline, sign * np.maximum(w, half + 0.01))
+                sides[name] = offset_polyline(ln.centerline, sign * np.maximum(w, half + APOLLO_WIDEN_MARGIN_M))
         if sides:
             fixed[ln.id] = dataclasses.replace(ln, **sides)
     if not fixed:

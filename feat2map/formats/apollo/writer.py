@@ -26,8 +26,8 @@ from .sim_map import to_sim_map
 from ..base import header_date
 from ..lane_ends import closed_seams
 from ..geo import check_origin, utm_projection
-from ...config import (APOLLO_GENERATED_MARK, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, APPROACH_SPLIT_DEG,
-                       UTM_ORIGIN, UTM_ZONE)
+from ...config import (APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M,
+                       APOLLO_WIDEN_MARGIN_M, APPROACH_SPLIT_DEG, UTM_ORIGIN, UTM_ZONE)
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, stop_line_across
 from ...validation import refuse_nonfinite
@@ -286,16 +286,19 @@ def _lane(msg: Any, m: HDMap, ln: Lane, centre: Polyline, frame: _Frame, lid: di
     if ln.junction_id is not None and ln.junction_id in m.junctions:
         msg.junction_id.id = ids.of[("junction", ln.junction_id)]
     for field, edge in (("left_sample", ln.left_boundary), ("right_sample", ln.right_boundary)):
-        _samples(getattr(msg, field), centre, edge, msg.length)
+        _samples(getattr(msg, field), centre, edge, msg.length, APOLLO_MIN_HALF_WIDTH_M + APOLLO_WIDEN_MARGIN_M)
     left, right = road_edges(m, ln)
     _samples(msg.left_road_sample, centre, left, msg.length)
     _samples(msg.right_road_sample, centre, right, msg.length)
     return msg
 
 
-def _samples(field: Any, centerline: Polyline, edge: Polyline, length: float) -> None:
+def _samples(field: Any, centerline: Polyline, edge: Polyline, length: float, floor: float = 0.0) -> None:
+    """Width samples from `centerline` to `edge`, at least `floor`: a side widened for Apollo
+    (widened_boundaries) that still measures narrower, because offsetting it round a bend tighter
+    than the offset folds it back, is written at the floor Apollo holds (its warning named it)."""
     for s, w in distance_samples(centerline, edge):
-        field.add(s=min(s, length), width=w)
+        field.add(s=min(s, length), width=max(w, floor))
 
 
 def _section_boundary(sec: Any, m: HDMap, r: Any, frame: _Frame) -> None:

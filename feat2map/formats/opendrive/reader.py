@@ -27,8 +27,8 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from ...angles import classify_turn, positive_angle, wrap_angle
-from ...config import (EDGE_STUB_LENGTH_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS,
-                       UTURN_THRESHOLD_DEG, limits)
+from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, SAMPLE_SPACING_M,
+                       SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       signal_precedence, stop_line_across)
@@ -635,8 +635,11 @@ class _Builder:
                 other = self.roads[link[1]]
                 oend = "high" if link[2] == "end" else "low"
                 k, ko = self._sec_at(road, end), self._sec_at(other, oend)
-                for lid, ln in road.sections[k].lanes.items():
-                    target = ln.successor if kind == "successor" else ln.predecessor
+                targets = {lid: ln.successor if kind == "successor" else ln.predecessor
+                           for lid, ln in road.sections[k].lanes.items()}
+                if all(t is None for t in targets.values()):  # a road link without lane links
+                    targets = self._implicit_targets(road, k, end, other, ko, oend)
+                for lid, target in targets.items():
                     if target is not None:
                         add((road.id, k, lid), end, (other.id, ko, target), oend)
         for j in self.root.findall("junction"):
@@ -661,6 +664,26 @@ class _Builder:
                         continue
                     add((inc.id, ki, a), iend, (con.id, kc, b), cend)
         return out
+
+    def _implicit_targets(self, road: _OdrRoad, k: int, end: str, other: _OdrRoad, ko: int,
+                          oend: str) -> dict[int, int | None]:
+        """Lane targets of a road link that names no lane links (a connecting road whose lanes have
+        no `<link>`): the other road's lane of the same id (the mirrored id where the roads meet
+        head to head or tail to tail), where their ends lie within IMPLICIT_LANE_LINK_M."""
+        flip = -1 if end == oend else 1
+        out: dict[int, int | None] = {}
+        for lid in road.sections[k].lanes:
+            a, b = (road.id, k, lid), (other.id, ko, flip * lid)
+            out[lid] = None
+            if a in self.geoms and b in self.geoms:
+                gap = np.hypot(*(self._end_point(a, end) - self._end_point(b, oend)))
+                out[lid] = b[2] if gap <= IMPLICIT_LANE_LINK_M else None
+        return out
+
+    def _end_point(self, key: tuple[str, int, int], end: str) -> np.ndarray:
+        """The centre point of lane `key` at its section's `end` ('low': its start s, 'high': its end s)."""
+        c = self.geoms[key].centre
+        return c[-1] if (end == "high") == self.roads[key[0]].along(key[2]) else c[0]
 
     def _incoming_end(self, inc: _OdrRoad, jid: str | None, con: _OdrRoad, cend: str) -> str:
         ends = [e for kind, e in (("predecessor", "low"), ("successor", "high"))

@@ -30,9 +30,9 @@ import numpy as np
 from ... import atomic
 from ...angles import wrap_angle
 from ...bezier import Bezier
-from ...config import OPENDRIVE_VERSIONS, UTM_ZONE
+from ...config import OPENDRIVE_JOINT_TANGENT_M, OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
-from ...model import HDMap, Lane, Road
+from ...model import HDMap, Lane, Polyline, Road
 from ..base import header_date
 from ..lane_ends import closed_seams
 from ..geo import local_tmerc, utm_origin
@@ -125,7 +125,8 @@ class _Ref:
         seg = np.diff(pts, axis=0)
         keep = np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])
         raw = pts[keep]
-        pts = _merge_straight_runs(raw)
+        joined = _joint_tangents(ln, m)
+        pts = _merge_straight_runs(joined[::-1] if road.left_lanes else joined)
         seg = np.diff(pts, axis=0)
         ln_len = np.hypot(seg[:, 0], seg[:, 1])
         if len(ln_len) == 0:
@@ -150,6 +151,37 @@ class _Ref:
 
     def heading_at(self, s: float) -> float:
         return float(np.interp(s, self.s, np.unwrap(self.heads)))
+
+
+def _end_heading(points: Polyline, at_start: bool) -> float:
+    """Heading of a polyline's first (last) chord."""
+    p = np.asarray(points, dtype=float)
+    a, b = (p[0], p[1]) if at_start else (p[-2], p[-1])
+    return math.atan2(b[1] - a[1], b[0] - a[0])
+
+
+def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> np.ndarray:
+    """`ln`'s centreline (driving direction, repeated points dropped) starting with a chord of
+    length `d` along its only predecessor's end heading, and ending with one along its only
+    successor's start heading where that successor has other predecessors (it keeps its own
+    start). A polyline road's lane borders at an end lie across its first (last) chord, so linked
+    roads whose end chords differ by a few milliradians left centimetre gaps between their
+    borders; each joint is aligned on one side only, to its neighbour's unchanged chord."""
+    pts = np.asarray(ln.centerline, dtype=float)
+    seg = np.diff(pts, axis=0)
+    pts = pts[np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])]
+    if len(pts) < 2:
+        return pts
+    chords = np.hypot(*np.diff(pts, axis=0).T)
+    head, tail = pts[:1], pts[-1:]
+    if len(ln.predecessors) == 1 and chords[0] > 2 * d and len(m.lanes[ln.predecessors[0]].centerline) >= 2:
+        h = _end_heading(m.lanes[ln.predecessors[0]].centerline, at_start=False)
+        head = np.array([pts[0], pts[0] + d * np.array([math.cos(h), math.sin(h)])])
+    nxt = m.lanes.get(ln.successors[0]) if len(ln.successors) == 1 else None
+    if nxt is not None and len(nxt.predecessors) > 1 and chords[-1] > 2 * d and len(nxt.centerline) >= 2:
+        h = _end_heading(nxt.centerline, at_start=True)
+        tail = np.array([pts[-1] - d * np.array([math.cos(h), math.sin(h)]), pts[-1]])
+    return np.concatenate([head, pts[1:-1], tail])
 
 
 def _merge_straight_runs(pts: np.ndarray, tol_rad: float = STRAIGHT_RUN_TOL_RAD) -> np.ndarray:
