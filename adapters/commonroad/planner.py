@@ -105,13 +105,13 @@ class ReactiveAdapter:
         config.vehicle.length, config.vehicle.width = self.ego_len, self.ego_wid
         pp = next(iter(problems.planning_problem_dict.values()))  # any: the planner needs one to start
         config.update(scenario=self.scenario, planning_problem=pp)
-        # the planner's single-track model is the simulated ego's, as init.vehicle describes it
-        # (axles along the heading from the body's centre, the steering limit); its steering-rate
-        # limit stays the default vehicle's (the env's bicycle has none)
+        # the planner's single-track model is the simulated ego's axles, as init.vehicle describes
+        # them (along the heading from the body's centre); its steering and steering-rate limits
+        # stay the default vehicle's (an adapter choice: with the ego's 35 degrees, kappa <= 0.24,
+        # every sample of a slow correction inside a junction broke the curvature check and the
+        # ego stood there; the env clips the tracker's steering to its own limit)
         vehicle = msg["vehicle"]
         config.vehicle.wb_front_axle, config.vehicle.wb_rear_axle = float(vehicle["front_axle"]), -float(vehicle["rear_axle"])
-        config.vehicle.delta_max = float(vehicle["max_steering"])
-        config.vehicle.delta_min = -config.vehicle.delta_max
         config.vehicle._update_computed_params()
         self.config = config
         self.wb_rear = config.vehicle.wb_rear_axle
