@@ -62,7 +62,8 @@ def write_search(result: SearchResult, out: str | Path, evaluate: Evaluator) -> 
     """Write the search's folder (module docstring) atomically; replays every finding from the
     written suite with `evaluate` (the planner the search drove) and returns the replays."""
     out = Path(out)
-    with atomic.staged_dir(out, (SEARCH_JSON,)) as tmp:
+    with atomic.staged_dir(out, (SEARCH_JSON,)) as staged:
+        tmp = staged.resolve()  # the suite's map paths are made relative to it: never to the working directory
         replays: list[Replay] = []
         if result.findings:
             maps: dict[str, str] = {}

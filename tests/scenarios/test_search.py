@@ -42,13 +42,15 @@ def space_file(tmp_path_factory) -> Path:
     return path
 
 
-def test_the_planted_stop_sign_fault_is_found_and_replays(space_file, tmp_path, capsys):
+def test_the_planted_stop_sign_fault_is_found_and_replays(space_file, tmp_path, capsys, monkeypatch):
     """Known answer: the planner that rolls through stop signs is caught at a stop junction, its
     S_S stage missing; the shrunk scenario keeps no traffic it does not need; the written suite
-    fails the same way when rolled out again, and the report shows it with its GIF."""
-    out = tmp_path / "search"
+    fails the same way when rolled out again, and the report shows it with its GIF. `--out` is
+    relative, as in the README (its maps were once written under the folder twice)."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out" / "search"
     code = cli.main(["search", "--features", str(space_file), "--planner", ROLLER, "--budget-scenarios", "6",
-                     "--batch", "3", "--workers", "2", "--seed", "0", "--quiet", "--out", str(out)])
+                     "--batch", "3", "--workers", "2", "--seed", "0", "--quiet", "--out", "out/search"])
     assert code == 1, "a failure found exits 1"
     doc = json.loads((out / "search.json").read_text())
     stop = [f for f in doc["findings"] if f["signature"]["rule"] == "stop_sign"]
