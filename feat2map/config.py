@@ -290,6 +290,8 @@ TTC_CAP_S = 10.0  # a time-to-collision beyond this (or none: nobody closing in)
 DISTANCE_CAP_M = 50.0  # the closest road user: farther than this (or none) counts as this
 BRAKE_CAP_MPS2 = 8.0  # the hardest braking scores 1 at this deceleration (the baseline's action range)
 TTC_RANGE_M = 60.0  # only road users this close to the ego enter its time-to-collision and distance
+RED_MARGIN_CAP_S = 5.0  # arriving at a signal's line further than this from its turning red counts as this
+RED_MARGIN_RANGE_M = 40.0  # only a signal line this close ahead (and the ego moving) enters the red margin
 # `feat2map search` (scenarios/search.py, search_space.py): the layer-4 ranges it searches, all within legal
 # driving and the env's config checks (envs/config.py), and how it proceeds
 SEARCH_TRAFFIC_MAX = 12  # traffic vehicles 0..this
