@@ -237,6 +237,16 @@ def _exports_cell(s: MapSurvey) -> str:
                       else str(s.exports[fmt]["problems"]) for fmt in EXPORTS)
 
 
+def _failure_notes(results: Sequence[Any], text: Callable[[str], str] = str) -> list[str]:
+    """A line per failing scenario and per export refused or with problems (`text` rewrites the
+    messages, e.g. without this machine's paths)."""
+    notes = [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {text(f['message'])}" for s in results for f in s.failing]
+    notes += [f"- `{s.path}` export {fmt}: " + (f"refused: {text(e['refused'])}" if "refused" in e else
+                                                f"{e['problems']} problem(s), first: {text(e['first'])}")
+              for s in results for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
+    return notes
+
+
 def markdown(results: Sequence[MapSurvey]) -> str:
     """The survey table plus one line per error and per failing scenario."""
     head = ("| map | source | junction elements | junctions (skipped) | signal / stop / bare | signals | phase groups "
@@ -261,11 +271,8 @@ def markdown(results: Sequence[MapSurvey]) -> str:
     details = [f"- `{s.path}` {e['stage']}: {e['kind']}: {e['error']}" + (f" (at {' <- '.join(reversed(e['at']))})"
                                                                          if e.get("at") else "")
                for s in results for e in s.errors]
-    details += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {f['message']}" for s in results for f in s.failing]
+    details += _failure_notes(results)
     details += [f"- `{s.path}` check: {c}" for s in results for c in (s.checks or ())]
-    details += [f"- `{s.path}` export {fmt}: " + (f"refused: {e['refused']}" if "refused" in e else
-                                                  f"{e['problems']} problem(s), first: {e['first']}")
-                for s in results for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
     if details:
         lines += ["Errors and failing scenarios:", "", *details, ""]
     return "\n".join(lines)
@@ -417,10 +424,7 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
                 text = text.replace(parent, "")
             return text
         notes = [f"- `{s.path}` {e['stage']}: {e['kind']}: {local(e['error'])}" for s in maps for e in s.errors]
-        notes += [f"- `{s.path}` {f['scenario']}: {f['outcome']}: {local(f['message'])}" for s in maps for f in s.failing]
-        notes += [f"- `{s.path}` export {fmt}: " + (f"refused: {local(e['refused'])}" if "refused" in e else
-                                                    f"{e['problems']} problem(s), first: {local(e['first'])}")
-                  for s in maps for fmt, e in s.exports.items() if e.get("refused") or e.get("problems")]
+        notes += _failure_notes(maps, local)
         if notes:
             lines += ["Refusals, failing scenarios and export problems:", "", *notes, ""]
     return "\n".join(lines)
