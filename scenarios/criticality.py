@@ -7,9 +7,10 @@ The red margin is how close the ego's arrival at the next signal's stop line, at
 speed, comes to that signal turning red (within RED_MARGIN_RANGE_M of a line, moving, on green or
 amber): the dilemma zone, where a late stop or a run through the red happen.
 
-Time-to-collision is the range over the closing speed of each vehicle or pedestrian within
-TTC_RANGE_M of the ego (centre to centre, less both half lengths), at constant velocities; a road
-user that is not closing in has none. Capped values (TTC_CAP_S, DISTANCE_CAP_M) keep every number
+Time-to-collision is the gap over the closing speed of each vehicle or pedestrian within
+TTC_RANGE_M of the ego, at constant velocities (the gap: the centre distance less how far each body
+reaches towards the other, so a car in the next lane is its half width away); a road user that is
+not closing in has none. Capped values (TTC_CAP_S, DISTANCE_CAP_M) keep every number
 finite, so outcomes stay JSON and compare equal.
 """
 from __future__ import annotations
@@ -52,12 +53,16 @@ class CriticalityMeter:
         if others:
             pos = np.array([o.position for o in others], dtype=float)
             vel = np.array([o.velocity for o in others], dtype=float)
-            half = np.array([float(getattr(o, "LENGTH", 0.0)) / 2 for o in others]) + float(ego.LENGTH) / 2
             rel = pos - np.asarray(ego.position, dtype=float)
             rng = np.hypot(rel[:, 0], rel[:, 1])
             near = rng <= TTC_RANGE_M
             if near.any():
-                gap = np.maximum(rng[near] - half[near], 0.0)
+                bearing = np.arctan2(rel[near, 1], rel[near, 0])
+                size = np.array([(float(getattr(o, "LENGTH", 0.0)), float(getattr(o, "WIDTH", 0.0)), float(o.heading))
+                                 for o, n in zip(others, near) if n]).reshape(-1, 3)
+                reach = (_extent(size[:, 0], size[:, 1], size[:, 2] - bearing)
+                         + _extent(float(ego.LENGTH), float(ego.WIDTH), float(ego.heading) - bearing))
+                gap = np.maximum(rng[near] - reach, 0.0)
                 self.min_distance = min(self.min_distance, float(gap.min()))
                 closing = -np.einsum("ij,ij->i", rel[near], vel[near] - np.asarray(ego.velocity, dtype=float))
                 closing = closing / np.maximum(rng[near], 1e-6)
@@ -78,6 +83,12 @@ class CriticalityMeter:
     def site(self) -> dict[str, Any]:
         """Where the drive failed: the first violation's junction, else the last step's."""
         return dict(self._violation_site or self._site)
+
+
+def _extent(length: Any, width: Any, angle: Any) -> Any:
+    """How far a length x width body reaches from its centre towards a direction `angle` off its
+    heading (its support there): a car beside the ego is its half width away, not its half length."""
+    return np.abs(length / 2 * np.cos(angle)) + np.abs(width / 2 * np.sin(angle))
 
 
 def _red_margin(control: Any, ego: Any, t: float, speed: float) -> float:
