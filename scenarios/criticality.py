@@ -8,9 +8,9 @@ speed, comes to that signal turning red (within RED_MARGIN_RANGE_M of a line, mo
 amber): the dilemma zone, where a late stop or a run through the red happen.
 
 Time-to-collision is the gap over the closing speed of each vehicle or pedestrian within
-TTC_RANGE_M of the ego, at constant velocities (the gap: the centre distance less how far each body
-reaches towards the other, so a car in the next lane is its half width away); a road user that is
-not closing in has none. Capped values (TTC_CAP_S, DISTANCE_CAP_M) keep every number
+TTC_RANGE_M of the ego, at constant velocities (the gap: the widest separation of the two bodies
+along their four axes, so a car in the next lane is its lateral clearance away); a road user that
+is not closing in has none. Capped values (TTC_CAP_S, DISTANCE_CAP_M) keep every number
 finite, so outcomes stay JSON and compare equal.
 """
 from __future__ import annotations
@@ -57,12 +57,9 @@ class CriticalityMeter:
             rng = np.hypot(rel[:, 0], rel[:, 1])
             near = rng <= TTC_RANGE_M
             if near.any():
-                bearing = np.arctan2(rel[near, 1], rel[near, 0])
                 size = np.array([(float(getattr(o, "LENGTH", 0.0)), float(getattr(o, "WIDTH", 0.0)), float(o.heading))
                                  for o, n in zip(others, near) if n]).reshape(-1, 3)
-                reach = (_extent(size[:, 0], size[:, 1], size[:, 2] - bearing)
-                         + _extent(float(ego.LENGTH), float(ego.WIDTH), float(ego.heading) - bearing))
-                gap = np.maximum(rng[near] - reach, 0.0)
+                gap = _gaps(rel[near], size, (float(ego.LENGTH), float(ego.WIDTH), float(ego.heading)))
                 self.min_distance = min(self.min_distance, float(gap.min()))
                 closing = -np.einsum("ij,ij->i", rel[near], vel[near] - np.asarray(ego.velocity, dtype=float))
                 closing = closing / np.maximum(rng[near], 1e-6)
@@ -85,10 +82,19 @@ class CriticalityMeter:
         return dict(self._violation_site or self._site)
 
 
-def _extent(length: Any, width: Any, angle: Any) -> Any:
-    """How far a length x width body reaches from its centre towards a direction `angle` off its
-    heading (its support there): a car beside the ego is its half width away, not its half length."""
-    return np.abs(length / 2 * np.cos(angle)) + np.abs(width / 2 * np.sin(angle))
+def _gaps(rel: np.ndarray, size: np.ndarray, ego: tuple[float, float, float]) -> np.ndarray:
+    """The gap between the ego's body and each other body (`rel` [n, 2] their centres from the
+    ego's, `size` [n, 3] their length, width, heading): the widest separation along the four axes
+    of the two rectangles (separating axes; 0 where they overlap). A car in the next lane is its
+    lateral clearance away, not its centre distance less both half lengths."""
+    length, width, heading = ego
+    best = np.zeros(len(rel))
+    for axis in (np.full(len(rel), heading), np.full(len(rel), heading + np.pi / 2), size[:, 2], size[:, 2] + np.pi / 2):
+        along = np.abs(rel[:, 0] * np.cos(axis) + rel[:, 1] * np.sin(axis))
+        reach = (np.abs(size[:, 0] / 2 * np.cos(size[:, 2] - axis)) + np.abs(size[:, 1] / 2 * np.sin(size[:, 2] - axis))
+                 + np.abs(length / 2 * np.cos(heading - axis)) + np.abs(width / 2 * np.sin(heading - axis)))
+        best = np.maximum(best, along - reach)
+    return best
 
 
 def _red_margin(control: Any, ego: Any, t: float, speed: float) -> float:
