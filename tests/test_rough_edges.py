@@ -180,7 +180,7 @@ def test_export_refuses_what_validate_would_reject(tmp_path, capsys, small_map, 
     assert main(["export", "apollo", str(src), "--out", str(tmp_path / "a")]) == 2
     errors = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("feat2map: error:")]  # after warnings
     assert len(errors) == 1 and "refusing to export a map that would not validate" in errors[0]
-    assert "first: lane " in errors[0]
+    assert "would not validate: lane " in errors[0]  # the first problem leads, naming the lane
     assert not (tmp_path / "a").exists()
     assert main(["export", "apollo", str(small_map), "--out", str(tmp_path / "ok")]) == 0
     assert main(["validate", str(tmp_path / "ok"), "--quiet"]) == 0
