@@ -280,12 +280,15 @@ def cmd_validate(args: argparse.Namespace) -> int:
     problems = fmt.face("validate")(args.path, progress=not args.quiet and on_terminal())
     for p in problems:
         print(one_line(p))
+    errors = [p for p in problems if not p.warning]
+    said = counted(len(errors), "problem") + (f", {counted(len(problems) - len(errors), 'warning')}"
+                                              if len(errors) < len(problems) else "")
     if args.picture:
         if fmt.picture is None:
             raise Feat2MapError(f"format {fmt.name} draws no problem picture", "--picture")
-        fmt.face("picture")(args.path, args.picture, problems, title=f"{args.path}: {counted(len(problems), 'problem')}")
-    print(f"{args.path}: {counted(len(problems), 'problem')}")
-    return 1 if problems else 0
+        fmt.face("picture")(args.path, args.picture, problems, title=f"{args.path}: {said}")
+    print(f"{args.path}: {said}")
+    return 1 if errors else 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:

@@ -68,8 +68,8 @@ def test_the_table_counts_junctions_controls_phases_scenarios_and_drives(surveye
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[3:6] == ["2 (0)", "1 / 1 / 0", str(s["signals"])]
         assert cells[8:] == [str(n), "1", "1", "-", "0 / 0 / 0 / 0"]
-        assert s["exports"] == {fmt: {"problems": 0, "first": ""} for fmt in ("apollo", "opendrive", "lanelet2",
-                                                                              "commonroad")}
+        assert s["exports"] == {fmt: {"problems": 0, "warnings": 0, "first": ""}
+                                for fmt in ("apollo", "opendrive", "lanelet2", "commonroad")}
 
 
 def test_a_broken_map_is_a_finding_with_its_stage_and_the_survey_goes_on(surveyed):

@@ -37,13 +37,16 @@ def header_date() -> str | None:
 @dataclass(frozen=True)
 class Problem:
     """One thing wrong with a map: the element (kind and id, or file) and what is wrong. Shown
-    on one line: ids from a damaged file may hold newlines or escapes, written escaped."""
+    on one line: ids from a damaged file may hold newlines or escapes, written escaped. A
+    `warning` is what the format's own tool rates a warning, not an error (lanelet2_validation's
+    curvature and point-distance checks): shown, but the map still validates."""
 
     element: str
     message: str
+    warning: bool = False
 
     def __str__(self) -> str:
-        return printable(f"{self.element}: {self.message}")
+        return printable(f"{'warning: ' if self.warning else ''}{self.element}: {self.message}")
 
 
 class MapReader(Protocol):

@@ -166,3 +166,35 @@ def test_cli_export_and_validate(tmp_path, capsys):
     assert main(["export", "lanelet2", str(tmp_path / "g" / "map.json"), "--out", str(out), "--zone", "11"]) == 0
     assert main(["validate", str(out)]) == 0
     assert "0 problems" in capsys.readouterr().out
+
+
+def test_what_lanelet2_rates_a_warning_is_shown_and_the_map_still_validates(tmp_path, capsys):
+    """lanelet2_validation rates bound curvature over 0.5 1/m and points closer than 5 cm
+    warnings, not errors: `feat2map validate` prints them as warnings and exits 0; an error
+    (a broken manoeuvre) still fails it."""
+    from lxml import etree
+
+    from feat2map.cli import main
+
+    assert main(["generate", "--spec", "examples/one_way_t.yaml", "--out", str(tmp_path / "g"), "--no-apollo",
+                 "--no-picture", "--quiet", "--lanelet2"]) == 0
+    path = next((tmp_path / "g" / "lanelet2").glob("*.osm"))
+    doc = etree.parse(str(path))
+    way = next(w for w in doc.iter("way") if len(w.findall("nd")) >= 3)
+    nds = way.findall("nd")
+    a, b = (doc.find(f"node[@id='{nd.get('ref')}']") for nd in nds[:2])
+    kink = copy.deepcopy(b)  # a point 2 cm beside b, between a and b: a sharp zigzag, too close to b
+    kink.set("id", "999998")
+    kink.set("lat", str(float(b.get("lat")) + 2e-7))
+    for tag in kink.findall("tag"):
+        kink.remove(tag)
+    doc.getroot().insert(0, kink)
+    way.insert(list(way).index(nds[1]), etree.Element("nd", ref="999998"))
+    doc.write(str(path))
+    found = check_lanelet2(path).problems
+    assert found and all(p.warning for p in found)
+    assert {p.message.split(" ")[0] for p in found} >= {"closer"}
+    capsys.readouterr()
+    assert main(["validate", "--format", "lanelet2", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: point 999998: closer than 0.05 m" in out and "0 problems, " in out

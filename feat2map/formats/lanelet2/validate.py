@@ -3,8 +3,9 @@ Autoware would load it: the projector origin from `map_projector_info.yaml` besi
 
 What is checked (each failure is a `Problem`):
 - the file loads without parser errors (`lanelet2.io.loadRobust`);
-- lanelet2_validation's map checks, on the loaded map: no point twice in a row in a linestring,
-  no two points closer than 5 cm, lanelet bound curvature at most 0.5 1/m;
+- lanelet2_validation's map checks, on the loaded map: no point twice in a row in a linestring;
+  no two points closer than 5 cm and lanelet bound curvature at most 0.5 1/m, which
+  lanelet2_validation rates warnings (`Severity::Warning`: "can confuse algorithms"), and so do we;
 - the routing graph for vehicles (German rules, the only ones Lanelet2 ships) has no validity
   errors (`RoutingGraph.checkValidity`, the check lanelet2_validation runs);
 - every manoeuvre a junction lanelet is tagged with (feat2map:junction/from/to) is a route:
@@ -128,7 +129,8 @@ def _points(lmap, report: Lanelet2Report) -> None:
         near = lmap.pointLayer.nearest(BasicPoint2d(p.x, p.y), 2)
         other = next((q for q in near if q.id != p.id), None)
         if other is not None and math.dist((p.x, p.y, p.z), (other.x, other.y, other.z)) < MIN_POINT_DISTANCE_M:
-            report.problems.append(Problem(f"point {p.id}", f"closer than {MIN_POINT_DISTANCE_M} m to point {other.id}"))
+            report.problems.append(Problem(f"point {p.id}", f"closer than {MIN_POINT_DISTANCE_M} m to point {other.id}",
+                                           warning=True))
         if "local_x" in p.attributes and "local_y" in p.attributes:
             d = math.hypot(p.x - float(p.attributes["local_x"]), p.y - float(p.attributes["local_y"]))
             if d > LOCAL_TOLERANCE_M:
@@ -143,7 +145,7 @@ def _points(lmap, report: Lanelet2Report) -> None:
                 k = np.divide(2 * cross, sides, out=np.zeros_like(cross), where=sides > 0)
                 if k.max() > MAX_CURVATURE:
                     report.problems.append(Problem(f"lanelet {ll.id}", f"{side} bound curvature {k.max():.2f} 1/m "
-                                                                        f"> {MAX_CURVATURE}"))
+                                                                        f"> {MAX_CURVATURE}", warning=True))
 
 
 def _manoeuvres(lmap, graph, report: Lanelet2Report) -> None:
