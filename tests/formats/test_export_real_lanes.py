@@ -137,6 +137,42 @@ def test_lanelet2_export_has_no_node_beside_a_lane_end(tmp_path):
     assert [str(p) for p in validate_lanelet2(out) if "closer than" in str(p)] == []
 
 
+def test_lanelet2_bound_keeps_its_direction_where_its_start_moves_past_a_short_kerb(tmp_path):
+    """Apollo Shalun J_5: a 3 m right turn's inner kerb (three points) starts 1.4 m from its
+    predecessor's end, which lies beyond the kerb's middle point; with the start moved there
+    the bound's first segment ran backwards, Lanelet2's loader inverted the bound
+    (`geometry::align`) and the turn was no successor of its road: "no route for vehicles".
+    Inner points the moved ends pass are dropped."""
+    lanelet2 = pytest.importorskip("lanelet2", reason="the lanelet2 wheel (Linux x86_64)")
+    import yaml
+
+    from feat2map.formats.lanelet2.writer import PROJECTOR_INFO, write_lanelet2
+    from feat2map.model import HDMap, Lane, Road, as_polyline
+
+    def lane(lid, road, c, left, right, **kw):
+        return Lane(lid, road, as_polyline(c), as_polyline(left), as_polyline(right), 3.5, 10.0, **kw)
+
+    a = lane("a", "ra", [(0, -1.75), (20, -1.75)], [(0, 0), (20, 0)], [(0, -3.5), (20, -3.5)], successors=("b",))
+    b = lane("b", "rb", [(19.3, -1.7), (22.0, -2.6), (22.7, -5.0)], [(20, 0), (24, -2), (25.5, -6)],
+             [(18.5, -3.3), (19.6, -3.4), (19.9, -4.6)], predecessors=("a",), successors=("c",), turn="right")
+    c = lane("c", "rc", [(22.7, -5.0), (22.7, -25.0)], [(25.5, -6), (25.5, -25)], [(19.9, -4.6), (19.9, -25)],
+             predecessors=("b",))
+    m = HDMap(lanes={"a": a, "b": b, "c": c}, roads={r: Road(r, "stub", right_lanes=(r[1],)) for r in ("ra", "rb", "rc")},
+              junctions={})
+    out = tmp_path / "kerb.osm"
+    write_lanelet2(m, out)
+    o = yaml.safe_load((tmp_path / PROJECTOR_INFO).read_text())["map_origin"]
+    lmap, errors = lanelet2.io.loadRobust(str(out), lanelet2.projection.UtmProjector(
+        lanelet2.io.Origin(o["latitude"], o["longitude"])))
+    rules = lanelet2.traffic_rules.create(lanelet2.traffic_rules.Locations.Germany,
+                                          lanelet2.traffic_rules.Participants.Vehicle)
+    graph = lanelet2.routing.RoutingGraph(lmap, rules)
+    by_lane = {str(ll.attributes["feat2map:lane"]): ll for ll in lmap.laneletLayer}
+    assert errors == []
+    assert [str(x.attributes["feat2map:lane"]) for x in graph.following(by_lane["a"])] == ["b"]
+    assert [str(x.attributes["feat2map:lane"]) for x in graph.following(by_lane["b"])] == ["c"]
+
+
 def test_no_two_written_lines_share_a_heading():
     """Straight runs become one `line`; merged, two runs' chords could still differ by less
     than ASAM's 1e-6 rad (performance.avoid_redundant_info, on esmini's Fabriksgatan with
