@@ -69,7 +69,7 @@ from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
-from .vehicles import TrafficVehicle
+from .sim.vehicle import VehicleModel
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
@@ -212,10 +212,22 @@ class AgentJudge(EgoJudge):
 
 
 class AgentVehicle(ArrayVehicle):
-    """An agent's vehicle: a controlled row of the arrays core (its view); its route progress is
-    RouteFollower's (the lanes behind it summed once per route position)."""
+    """An agent's vehicle: a controlled row of the arrays core (its view), the config's
+    `vehicle` (`model`: body, wheelbase, steering limit); its route progress is RouteFollower's
+    (the lanes behind it summed once per route position)."""
 
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
+    model: VehicleModel
+
+    @property
+    def action(self) -> dict:
+        """The last frame's command: the lane keeping's steering and the acceleration."""
+        c, i = self._core, self._row
+        return {"steering": float(c.steer[i]), "acceleration": float(c.acc[i])}
+
+    @action.setter
+    def action(self, value) -> None:
+        pass
 
     _line_at: tuple[int, int] = (-1, -1)
     _line_plan: tuple = ()
@@ -390,6 +402,7 @@ class _World(MapEnv):
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
         self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        self.model = VehicleModel.of(self.config["vehicle"])
         self.controlled_vehicles = []
         self._places: dict[tuple, list] = {}
         routes = self._agent_routes(int(self.agent_config["agents"]))
@@ -436,7 +449,7 @@ class _World(MapEnv):
             for k in range(int(ac["agent_queue"])):
                 start = float(c["ego_start_distance"]) + k * float(ac["agent_spacing"])
                 r, s0, speed = start_place(self.net, list(route), extend, start, float(c["goal_distance"]),
-                                           float(c["ego_initial_speed"]), TrafficVehicle.LENGTH)
+                                           float(c["ego_initial_speed"]), self.model.length)
                 if k and s0 <= 0.0:
                     break  # the road before the entry is full
                 x, y = self.net.lane_of[r[0]].position(s0, 0.0)
@@ -457,8 +470,8 @@ class _World(MapEnv):
             free = np.ones(len(places), dtype=bool)
         for k in np.nonzero(free)[0].tolist():
             r, s0, speed, _, _ = places[k]
-            v = core.add_traffic(self.road, r[0], s0, speed, list(r), controlled=True)
-            v.__class__ = AgentVehicle
+            v = core.add_traffic(self.road, r[0], s0, speed, list(r), model=self.model, view=AgentVehicle)
+            v.model = self.model
             if self.control.passage_start(v):
                 return v
             self.road.vehicles.remove(v)
