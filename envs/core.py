@@ -66,7 +66,7 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
-from .lanes import curve_speeds, project_rows, segment_table
+from .lanes import curve_speeds
 from .network import MapNetwork
 from .rules import (crossed_lanes, has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane,
                     room_to_wait, stop_gap, stops_at_amber)
@@ -83,6 +83,7 @@ EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batche
 BATCH_MIN_RULE_ROWS = 48
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 BATCH_MIN_EGOS = 8
+PROJECT_SEGMENTS = 3  # a controlled row is projected on this many segments either side of its last place's
 NO_BICYCLE = {"wheelbase": 0.0, "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0}  # the bicycle arrays of a traffic row
 
 
@@ -227,6 +228,29 @@ class LaneTable:
         key = self.offset[lane] + s
         i = np.searchsorted(self.G, key, side="right") - 1
         return np.minimum(np.maximum(i, self.first[lane]), self.last_seg[lane])
+
+    def project_near(self, lane: np.ndarray, s: np.ndarray, x: np.ndarray,
+                     y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, lat, settled) of points (x, y) on `lane`s: `PolylineLane.local_coordinates`'
+        arithmetic (the first and last segments extend beyond the lane's ends) over only the
+        PROJECT_SEGMENTS segments either side of the one at arc length `s` (a guess: where the
+        point was, moved on), so that a step never scans a whole lane. `settled` is False where
+        the nearest of these is the window's last on a side with more segments: project again
+        from the s found."""
+        i = self.segments(lane, s)
+        first, last = self.first[lane][:, None], self.last_seg[lane][:, None]
+        j = np.minimum(np.maximum(i[:, None] + np.arange(-PROJECT_SEGMENTS, PROJECT_SEGMENTS + 1), first), last)
+        rx, ry = x[:, None] - self.ax[j], y[:, None] - self.ay[j]
+        ux, uy = self.ux[j], self.uy[j]
+        t = rx * ux + ry * uy
+        tc = np.minimum(np.maximum(t, np.where(j == first, -math.inf, 0.0)),
+                        np.where(j == last, math.inf, self.G[j + 1] - self.G[j]))
+        dx, dy = rx - tc * ux, ry - tc * uy
+        k = (dx * dx + dy * dy).argmin(axis=1)
+        n = np.arange(len(k))
+        jk = j[n, k]
+        edge = ((k == 0) & (jk > first[:, 0])) | ((k == j.shape[1] - 1) & (jk < last[:, 0]))
+        return (self.G[jk] - self.offset[lane] + tc[n, k], ux[n, k] * ry[n, k] - uy[n, k] * rx[n, k], ~edge)
 
     def place(self, lane: np.ndarray, s: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, lane heading) of points at (lane, s, lat); beyond a lane's ends the first and
@@ -1010,26 +1034,29 @@ class TrafficCore:
         lane, speed, heading = self.lane[rows], self.speed[rows], self.heading[rows]
         steer = keeping_steering(t.heading_at(lane, self.s[rows] + speed * LANE_KEEPING_TAU_S), self.lat[rows],
                                  heading, speed, self.wheelbase[rows], self.max_steer[rows])
-        x, y, heading, speed = integrate(self.x[rows], self.y[rows], heading, speed, steer, self.acc[rows], dt,
-                                         self.wheelbase[rows], self.rear_offset[rows])
+        x, y, heading, new_speed = integrate(self.x[rows], self.y[rows], heading, speed, steer, self.acc[rows], dt,
+                                             self.wheelbase[rows], self.rear_offset[rows])
         self.x[rows], self.y[rows], self.heading[rows] = x, y, heading
-        self.speed[rows], self.steer[rows] = np.maximum(speed, 0.0), steer
+        self.speed[rows], self.steer[rows] = np.maximum(new_speed, 0.0), steer
         self.timer[rows] += dt
-        self._project(rows)
+        self._project(rows, self.s[rows] + speed * dt)
 
-    def _project(self, rows: np.ndarray) -> None:
-        """(s, lat) of `rows` on their route lanes (`lanes.project_rows`), a row whose centre is
-        past its lane's end moving on along its route (projected again there)."""
-        segments = self.net.memo("segment table", lambda: segment_table(self.net._lanes))
+    def _project(self, rows: np.ndarray, guess: np.ndarray) -> None:
+        """(s, lat) of `rows` on their route lanes near arc length `guess` (`LaneTable.
+        project_near`), a row whose centre is past its lane's end moving on along its route
+        (projected again there)."""
+        t = self.table
         while len(rows):
-            s, lat = project_rows(segments, self.lane[rows], self.x[rows, None], self.y[rows, None])
-            self.s[rows], self.lat[rows] = s[:, 0], lat[:, 0]
-            over = rows[(self.s[rows] > self.table.length[self.lane[rows]]) & (self.route_pos[rows] < self.route_end[rows])]
-            for i in over.tolist():
+            lane = self.lane[rows]
+            s, lat, settled = t.project_near(lane, guess, self.x[rows], self.y[rows])
+            self.s[rows], self.lat[rows] = s, lat
+            over = (s > t.length[lane]) & (self.route_pos[rows] < self.route_end[rows])
+            for i in rows[over].tolist():
                 self.route_pos[i] += 1
                 self.lane[i] = self.routes[i][self.route_pos[i]]
                 self.dirty.add(i)
-            rows = over
+            again = over | ~settled
+            rows, guess = rows[again], np.where(over, s - t.length[lane], s)[again]
 
     def _place_rows(self, rows: np.ndarray) -> None:
         if not len(rows):

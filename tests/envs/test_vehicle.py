@@ -177,3 +177,24 @@ def test_the_vehicle_config_changes_the_agents_turning():
     assert max(lat for *_, lat in default.values()) < 0.5
     wide = [mv for mv in stiff if stiff[mv][2] > default[mv][2] + 3.0]
     assert wide and all(stiff[mv][0]["off_road"] for mv in wide)
+
+
+def test_an_agents_place_on_its_lane_is_the_lanes_own_projection():
+    """`TrafficCore.drive` projects agents on their route lanes near where they were (a few
+    segments, `LaneTable.project_near`): the values `PolylineLane.local_coordinates` finds over
+    the whole lane, through every kind of turn."""
+    feats = [J([0, 60, 180], "stop", False), J([0, 90, 180, 270], "signal", True)]
+    env = parallel_env({"features": [f.to_dict() for f in feats], "agents": 12, "traffic_vehicles": 3,
+                        "duration": 30.0})
+    env.reset(seed=1)
+    core, lanes = env.world.road.core, env.world.net._lanes
+    rng = np.random.default_rng(0)
+    checked = 0
+    while env.agents:
+        env.step({a: int(rng.integers(6)) for a in env.agents})
+        for a in env.agents:
+            i = env.view(a).vehicle._row
+            s, r = lanes[core.lane[i]].local_coordinates(np.array([core.x[i], core.y[i]]))
+            assert (core.s[i], core.lat[i]) == (pytest.approx(s, abs=1e-9), pytest.approx(r, abs=1e-9))
+            checked += 1
+    assert checked > 200
