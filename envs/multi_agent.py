@@ -58,7 +58,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_META_GAIN, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
+from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
 from ..errors import Feat2MapError
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
@@ -71,7 +71,7 @@ from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
-from .sim.vehicle import VehicleModel
+from .sim.vehicle import VehicleModel, speed_control
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
@@ -161,7 +161,7 @@ class AgentActions:
         """Accelerations of the agents this frame (DiscreteMetaAction tracks its target speed every frame)."""
         if self.kind == "DiscreteMetaAction":
             target = self.speeds[[s["index"] for s in states]]
-            return np.clip(AGENT_META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
+            return np.clip(speed_control(target, speeds), *IDM_RANGE_MPS2)
         return np.array([s["acc"] for s in states], dtype=float)
 
 

@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from ...angles import wrap_angle
-from ...config import DRIVE_DEFAULTS, LANE_KEEPING_KP_HEADING, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_TAU_S
+from ...config import (DRIVE_DEFAULTS, LANE_KEEPING_KP_HEADING, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_TAU_S,
+                       SPEED_CONTROL_KP)
 from ...errors import Feat2MapError
 
 
@@ -103,6 +104,12 @@ def lane_keeping(lane: Any, s: float, r: float, heading: float, speed: float, mo
     beside): `keeping_steering` with the lane's heading LANE_KEEPING_TAU_S ahead."""
     return keeping_steering(lane.heading_at(s + speed * LANE_KEEPING_TAU_S), r, heading, speed, model.wheelbase,
                             model.max_steering, math)
+
+
+def speed_control(target, speed):
+    """The acceleration that tracks a target speed: highway-env's P law (floats or arrays; the
+    caller clips it to its range)."""
+    return SPEED_CONTROL_KP * (target - speed)
 
 
 def pursuit_steering(x: float, y: float, heading: float, tx: float, ty: float, model: VehicleModel) -> float:
