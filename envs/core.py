@@ -37,7 +37,7 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    controlled rows (the multi-agent env's agents) drive the kinematic bicycle with lane keeping
    (`sim.vehicle`), all at once, their (s, lat) projected on their route lanes; external rows
    step themselves.
-5. positions of driven rows from the lane table; pedestrians walk; `TrafficControl.update` does
+5. positions of traffic rows from the lane table; pedestrians walk; `TrafficControl.update` does
    the rules' bookkeeping; collisions: a vectorized centre-distance broad phase, separating
    axes for pairs of traffic rows, and highway-env's own `handle_collisions` for the pairs that
    overlap or involve the ego or a pedestrian (crash flags, impacts, hits).
@@ -83,7 +83,7 @@ EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batche
 BATCH_MIN_RULE_ROWS = 48
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 BATCH_MIN_EGOS = 8
-PROJECT_SEGMENTS = 3  # a controlled row is projected on this many segments either side of its last place's
+PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 NO_BICYCLE = {"wheelbase": 0.0, "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0}  # the bicycle arrays of a traffic row
 
 
