@@ -149,7 +149,7 @@ described(offsets, "{id: seconds}")
 
 
 def vehicle_body(value: Any, where: str) -> None:
-    """The ego's body and steering: keys of DRIVE_DEFAULTS["vehicle"], positive lengths, a
+    """The body and steering of the ego (and the agents): keys of DRIVE_DEFAULTS["vehicle"], positive lengths, a
     steering limit under 90 degrees, the wheelbase and front overhang inside the length."""
     mapping(value, where)
     for key, v in value.items():
@@ -353,9 +353,8 @@ SETTINGS: tuple[Setting, ...] = (
             "where it cannot stop before the first line)"),
     Setting("goal_distance", _drive("goal_distance"), number(0), "[m] into the last lane of the route: "
             "completion"),
-    Setting("vehicle", dict(_drive("vehicle")), vehicle_body, "the ego's body and steering limit (a kinematic "
-            "bicycle about the rear axle; a dict merges into the default)",
-            multi_agent=NotTaken("agents follow their lanes' centre lines with traffic's body"),
+    Setting("vehicle", dict(_drive("vehicle")), vehicle_body, "the body and steering limit of the ego (of each "
+            "agent in the multi-agent env): a kinematic bicycle about the rear axle; a dict merges into the default",
             shown="4.8 x 1.9 m, 2.9 m wheelbase, 0.95 m front overhang, 35 deg"),
     Setting("traffic_vehicles", 8, number(0, MAX_TRAFFIC_VEHICLES, integer=True), "traffic vehicles, on the "
             "ego route and the roads crossing it"),

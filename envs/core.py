@@ -34,8 +34,10 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    MOBIL_PERIOD_S for rows `rules.may_change_lane` allows on lanes with same-direction
    neighbours (`TrafficVehicle.mobil_change`, on the view).
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
-   external rows step themselves.
-5. positions of driven rows from the lane table; pedestrians walk; `TrafficControl.update` does
+   controlled rows (the multi-agent env's agents) drive the kinematic bicycle with lane keeping
+   (`sim.vehicle`), all at once, their (s, lat) projected on their route lanes; external rows
+   step themselves.
+5. positions of traffic rows from the lane table; pedestrians walk; `TrafficControl.update` does
    the rules' bookkeeping; collisions: a vectorized centre-distance broad phase, separating
    axes for pairs of traffic rows, and highway-env's own `handle_collisions` for the pairs that
    overlap or involve the ego or a pedestrian (crash flags, impacts, hits).
@@ -61,13 +63,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M,
-                      LANE_CHANGE_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
+                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import MapNetwork
 from .rules import (crossed_lanes, has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane,
                     room_to_wait, stop_gap, stops_at_amber)
+from .sim.vehicle import VehicleModel, integrate, keeping_steering
 from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
 
 if TYPE_CHECKING:
@@ -80,6 +83,8 @@ EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batche
 BATCH_MIN_RULE_ROWS = 48
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 BATCH_MIN_EGOS = 8
+PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
+NO_BICYCLE = {"wheelbase": 0.0, "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0}  # the bicycle arrays of a traffic row
 
 
 class LaneTable:
@@ -224,6 +229,29 @@ class LaneTable:
         i = np.searchsorted(self.G, key, side="right") - 1
         return np.minimum(np.maximum(i, self.first[lane]), self.last_seg[lane])
 
+    def project_near(self, lane: np.ndarray, s: np.ndarray, x: np.ndarray,
+                     y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, lat, settled) of points (x, y) on `lane`s: `PolylineLane.local_coordinates`'
+        arithmetic (the first and last segments extend beyond the lane's ends) over only the
+        PROJECT_SEGMENTS segments either side of the one at arc length `s` (a guess: where the
+        point was, moved on), so that a step never scans a whole lane. `settled` is False where
+        the nearest of these is the window's last on a side with more segments: project again
+        from the s found."""
+        i = self.segments(lane, s)
+        first, last = self.first[lane][:, None], self.last_seg[lane][:, None]
+        j = np.minimum(np.maximum(i[:, None] + np.arange(-PROJECT_SEGMENTS, PROJECT_SEGMENTS + 1), first), last)
+        rx, ry = x[:, None] - self.ax[j], y[:, None] - self.ay[j]
+        ux, uy = self.ux[j], self.uy[j]
+        t = rx * ux + ry * uy
+        tc = np.minimum(np.maximum(t, np.where(j == first, -math.inf, 0.0)),
+                        np.where(j == last, math.inf, self.G[j + 1] - self.G[j]))
+        dx, dy = rx - tc * ux, ry - tc * uy
+        k = (dx * dx + dy * dy).argmin(axis=1)
+        n = np.arange(len(k))
+        jk = j[n, k]
+        edge = ((k == 0) & (jk > first[:, 0])) | ((k == j.shape[1] - 1) & (jk < last[:, 0]))
+        return (self.G[jk] - self.offset[lane] + tc[n, k], ux[n, k] * ry[n, k] - uy[n, k] * rx[n, k], ~edge)
+
     def place(self, lane: np.ndarray, s: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, lane heading) of points at (lane, s, lat); beyond a lane's ends the first and
         last segments extend, as `PolylineLane.position` does."""
@@ -232,12 +260,15 @@ class LaneTable:
         ux, uy = self.ux[i], self.uy[i]
         x = self.ax[i] + ds * ux - lat * uy
         y = self.ay[i] + ds * uy + lat * ux
+        return x, y, self.heading_at(lane, s)
+
+    def heading_at(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """`PolylineLane.heading_at` of each (lane, s): vertex headings interpolated, s within the lane."""
         sc = np.minimum(np.maximum(s, 0.0), self.length[lane])
         j = self.segments(lane, sc)
         seg = self.G[j + 1] - self.G[j]
         f = (self.offset[lane] + sc - self.G[j]) / np.maximum(seg, 1e-12)
-        heading = self.vh[j] + f * (self.vh[j + 1] - self.vh[j])
-        return x, y, heading
+        return self.vh[j] + f * (self.vh[j + 1] - self.vh[j])
 
 class ArrayVehicle(TrafficVehicle):
     """A traffic vehicle of the arrays core: a `TrafficVehicle` whose state (position, heading,
@@ -425,12 +456,19 @@ class TrafficCore:
         self.heading = np.zeros(0)
         self.length = np.zeros(0)
         self.width = np.zeros(0)
+        # the bicycle of controlled rows (`sim.vehicle`; NO_BICYCLE for the others): wheelbase, the
+        # rear axle's distance behind the centre, the steering limit and the last steering
+        self.wheelbase = np.zeros(0)
+        self.rear_offset = np.zeros(0)
+        self.max_steer = np.zeros(0)
+        self.steer = np.zeros(0)
         self.route_pos = np.zeros(0, dtype=np.int64)
         self.route_end = np.zeros(0, dtype=np.int64)  # index of the route's last lane
         self.entry = np.zeros(0)  # distance from the current lane's start to the next junction entry (inf: none in the window)
         self.driven = np.zeros(0, dtype=bool)
-        # controlled rows (the agents of envs/multi_agent.py): driven rows that move along their
-        # route like traffic but take `command` as their acceleration (no IDM, no MOBIL, no rule stops)
+        # controlled rows (the agents of envs/multi_agent.py): driven rows that take `command` as
+        # their acceleration (no IDM, no MOBIL, no rule stops) and drive the bicycle with lane
+        # keeping on their route lanes (`integrate`); their lane, s and lat are projections
         self.controlled = np.zeros(0, dtype=bool)
         self.command = np.zeros(0)
         self.routes: list[list[int]] = []  # lane ints
@@ -442,7 +480,8 @@ class TrafficCore:
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
-               "length", "width", "route_pos", "route_end", "entry", "controlled", "command")
+               "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
+               "entry", "controlled", "command")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -466,17 +505,23 @@ class TrafficCore:
         return self._slot_rows[road.slot]
 
     def add_traffic(self, road: "MapRoad", lane_id: str, s: float, speed: float, route: list[str],
-                    controlled: bool = False) -> ArrayVehicle:
-        """A new driven row (and its view) on `road` at s on `lane_id`, its route starting there;
-        with `controlled`, a row whose acceleration is `command` (an agent's)."""
+                    model: VehicleModel | None = None, view: type[ArrayVehicle] = ArrayVehicle) -> ArrayVehicle:
+        """A new driven row (and its `view`) on `road` at s on `lane_id`, its route starting there;
+        with `model`, a controlled row (an agent's) with that body and bicycle, whose acceleration
+        is `command`."""
         lane = self.table.index[lane_id]
         x, y, h = self.table.place(np.array([lane]), np.array([s]), np.zeros(1))
-        v = ArrayVehicle.__new__(ArrayVehicle)
+        v = view.__new__(view)
+        bicycle = NO_BICYCLE
+        if model is not None:
+            v.LENGTH, v.WIDTH = model.length, model.width
+            bicycle = {"wheelbase": model.wheelbase, "rear_offset": model.rear_offset,
+                       "max_steer": model.max_steering, "steer": 0.0}
         self._init_view(v, road)
         row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
                    timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, mobil_t=-1e9,
                    crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0,
-                   route_end=len(route) - 1, entry=math.inf, controlled=controlled, command=0.0)
+                   route_end=len(route) - 1, entry=math.inf, controlled=model is not None, command=0.0, **bicycle)
         self._append(v, row, [self.table.index[x] for x in route], None)
         road.vehicles.append(v)
         if self.seen[road.slot] == road.vehicles[:-1]:
@@ -588,7 +633,7 @@ class TrafficCore:
                        timer=float(obj.timer), mobil_t=float(getattr(obj, "_mobil_t", -1e9)),
                        crashed=bool(obj.crashed), x=obj.position[0], y=obj.position[1], heading=obj.heading,
                        length=obj.LENGTH, width=obj.WIDTH, route_pos=pos, route_end=len(route) - 1, entry=math.inf,
-                       controlled=False, command=0.0)
+                       controlled=False, command=0.0, **NO_BICYCLE)
             reserved = getattr(obj, "reserved", None)
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
@@ -599,7 +644,7 @@ class TrafficCore:
         else:
             row = dict(env=road.slot, kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
                        crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0,
-                       route_end=0, entry=math.inf, controlled=False, command=0.0)
+                       route_end=0, entry=math.inf, controlled=False, command=0.0, **NO_BICYCLE)
             self._append(obj, row, [], None)
             self._read_external(len(self.objs) - 1)
 
@@ -629,7 +674,10 @@ class TrafficCore:
             self.route_pos[i] = 0
         self.lane[i], self.s[i], self.lat[i] = lane, s, lat
         self.dirty.add(i)
-        self._place_rows(np.array([i]))
+        if self.controlled[i]:  # a bicycle stands where it is put
+            self.x[i], self.y[i] = position[0], position[1]
+        else:
+            self._place_rows(np.array([i]))
 
     def set_route(self, i: int, lane_ids: list[str]) -> None:
         self.route_ids[i] = lane_ids
@@ -949,12 +997,18 @@ class TrafficCore:
             self.objs[i].mobil_change()
 
     def integrate(self, dt: float) -> None:
-        """Advance driven rows being stepped by dt along their routes (step 4)."""
+        """Advance driven rows being stepped by dt along their routes (step 4): controlled rows
+        by the bicycle (`drive`), traffic along its lanes."""
         on = self.on
         driven = self.driven & on
         if not driven.any():
             return
-        # every row being stepped moves; external rows are read back from their objects right after
+        bicycles = np.nonzero(driven & self.controlled)[0]
+        if len(bicycles):
+            self.drive(bicycles, dt)
+        # every other row being stepped moves; external rows are read back from their objects right after
+        on = on & ~self.controlled
+        driven = driven & ~self.controlled
         self.s = np.where(on, self.s + self.speed * dt, self.s)
         self.speed = np.where(on, np.maximum(self.speed + self.acc * dt, 0.0), self.speed)
         self.timer = np.where(on, self.timer + dt, self.timer)
@@ -971,6 +1025,38 @@ class TrafficCore:
             self.lane[i] = route[pos]
             self.dirty.add(i)
         self._place_rows(np.nonzero(driven)[0])
+
+    def drive(self, rows: np.ndarray, dt: float) -> None:
+        """Controlled `rows` over dt, all at once: lane keeping on the route lane
+        (`sim.vehicle.keeping_steering`), the bicycle (`sim.vehicle.integrate`, never reversing),
+        then (s, lat) projected on the route lane, moving on to the next route lane past its end."""
+        t = self.table
+        lane, speed, heading = self.lane[rows], self.speed[rows], self.heading[rows]
+        steer = keeping_steering(t.heading_at(lane, self.s[rows] + speed * LANE_KEEPING_TAU_S), self.lat[rows],
+                                 heading, speed, self.wheelbase[rows], self.max_steer[rows])
+        x, y, heading, new_speed = integrate(self.x[rows], self.y[rows], heading, speed, steer, self.acc[rows], dt,
+                                             self.wheelbase[rows], self.rear_offset[rows])
+        self.x[rows], self.y[rows], self.heading[rows] = x, y, heading
+        self.speed[rows], self.steer[rows] = np.maximum(new_speed, 0.0), steer
+        self.timer[rows] += dt
+        self._project(rows, self.s[rows] + speed * dt)
+
+    def _project(self, rows: np.ndarray, guess: np.ndarray) -> None:
+        """(s, lat) of `rows` on their route lanes near arc length `guess` (`LaneTable.
+        project_near`), a row whose centre is past its lane's end moving on along its route
+        (projected again there)."""
+        t = self.table
+        while len(rows):
+            lane = self.lane[rows]
+            s, lat, settled = t.project_near(lane, guess, self.x[rows], self.y[rows])
+            self.s[rows], self.lat[rows] = s, lat
+            over = (s > t.length[lane]) & (self.route_pos[rows] < self.route_end[rows])
+            for i in rows[over].tolist():
+                self.route_pos[i] += 1
+                self.lane[i] = self.routes[i][self.route_pos[i]]
+                self.dirty.add(i)
+            again = over | ~settled
+            rows, guess = rows[again], np.where(over, s - t.length[lane], s)[again]
 
     def _place_rows(self, rows: np.ndarray) -> None:
         if not len(rows):

@@ -54,7 +54,141 @@ def cached_network(key: Any, build) -> MapNetwork:
     return net
 
 
-class MapEnv(AbstractEnv):
+class EgoTask:
+    """The ego's task over explicit pieces: route completion, reward terms, infos and the
+    scripted-driver API (what planners, `ScriptedDriver` and `DriverView` ask an env), read from
+    `vehicle`, `net`, `control`, `config`, `judge`, `time` and the progress fields below. MapEnv
+    is one; each agent of the multi-agent env is another (`multi_agent.AgentView`, over the
+    shared world)."""
+
+    vehicle: Any
+    net: MapNetwork
+    control: TrafficControl
+    config: dict
+    judge: EgoJudge
+    violations: dict[str, int]
+    time: float
+    action_space: spaces.Space
+    _progress: float  # route metres at the last reward
+    _route_len: float  # route metres to the goal
+    _last_rewards: dict[str, float]
+
+    @property
+    def rules(self) -> TrafficControl:
+        """The episode's `TrafficControl` (`self.control`): it answers the rules' questions
+        (`rules.TrafficRules`, its base class) from this episode's signals and queues, for planners."""
+        return self.control
+
+    @property
+    def new_violations(self) -> list[str]:
+        return self.judge.new
+
+    @property
+    def off_road(self) -> bool:
+        return self.judge.off_road
+
+    # ---- task ----------------------------------------------------------------------------
+    def route_completed(self) -> bool:
+        ego = self.vehicle
+        if ego.route_pos < len(ego.lane_route) - 1:
+            return False
+        lane = self.net.lane_of[ego.lane_route[-1]]
+        return ego.s_on(ego.lane_route[-1]) >= self._goal_s(lane)
+
+    def _goal_s(self, lane) -> float:
+        """The goal on the route's last lane: `goal_distance` into it, at most a metre before its
+        end, and never past its first bend tighter than a car turns (`first_tight_bend`): no car
+        follows the lane there. osm2xodr folds the lanes of a road at the map's edge into one
+        point (digitaf's `w648817642_1_0_-1` turns 75 degrees 0.6 m after its start, radius
+        2.7 m): the ego driving on to a goal beyond swung over the lane beside it (r214)."""
+        bends = self.__dict__.setdefault("_bend_s", {})  # lane -> its first tight bend, found once
+        if lane.lane_id not in bends:
+            bends[lane.lane_id] = max(first_tight_bend(lane.points), 0.0)
+        return min(float(self.config["goal_distance"]), lane.length - 1.0, bends[lane.lane_id])
+
+    @staticmethod
+    def _reward_terms() -> tuple[str, ...]:
+        return ("progress", "arrived", "collision", "off_road", *VIOLATIONS)
+
+    def _rewards(self, action) -> dict[str, float]:
+        # the ego's own terms, by name (an agent's view adds its judge's two: multi_agent.py)
+        return dict(zip(EgoTask._reward_terms(), EgoTask._reward_row(self, self.vehicle.route_distance_done(),
+                                                                     self.route_completed())))
+
+    def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
+        """This step's reward terms (`_reward_terms` order) given the route metres `done` and
+        whether the route is completed (each asked once per step, envs/vector.py too)."""
+        delta = (done - self._progress) / max(self._route_len, 1e-6)
+        self._progress = done
+        new = self.judge.new
+        return (float(delta), float(completed), float(self.vehicle.crashed), float(self.off_road),
+                *((float(new.count(v)) for v in VIOLATIONS) if new else _NO_VIOLATIONS.values()))
+
+    def _info(self, obs, action=None) -> dict:
+        """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
+        instead), so that vector envs can stack them: `info.INFO_KEYS`."""
+        return info_dict(EgoTask._info_values(self, action), self.action_space)
+
+    def _info_values(self, action, done: float | None = None, completed: bool | None = None) -> tuple:
+        """The values of `_info`'s keys in INFO_ORDER, some as their sources (the action, the
+        junction's feature, the live violation counts, new violations, signal states and reward
+        terms: `info_dict` converts them; envs/vector.py stacks them for a batch at once);
+        `done` and `completed` when already asked this step."""
+        ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
+        jid, turn = self.junction_ahead()
+        sl, in_lane, j_lane, d = rules.line_ahead(ego)
+        control = "" if in_lane is None else (sl.kind if sl else "bare")
+        sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
+        plan = rules.plans.get(sl.control_id) if sl is not None else None
+        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
+        done = ego.route_distance_done() if done is None else done
+        return (
+            float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
+            sl.control_id if sl is not None and sig_state else "", sig_state,
+            float(plan.time_to_change(sl.control_id, rules.t)) if sl is not None and plan else math.inf,
+            rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
+            float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
+            float(min(done / max(self._route_len, 1e-6), 1.0)),
+            bool(self.route_completed() if completed is None else completed),
+            net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
+        )
+
+    # ---- scripted-driver API -----------------------------------------------------------------
+    @property
+    def route_lanes(self) -> list[str]:
+        """The ego's route as map lane ids."""
+        return list(self.vehicle.lane_route)
+
+    def junction_ahead(self) -> tuple[str | None, str | None]:
+        """(junction id, manoeuvre) of the junction the ego is in or will enter next."""
+        ego, m = self.vehicle, self.net.hdmap
+        for lid in ego.lane_route[ego.route_pos:]:
+            ln = m.lanes[lid]
+            if ln.junction_id is not None:
+                return ln.junction_id, TURN_NAMES.get(ln.turn, ln.turn)
+        return None, None
+
+    def rule_stop_distance(self, ignore: Sequence[str] = (), commit: bool = True) -> float:
+        """Where the traffic rules make the ego stop (metres from its centre; inf if free).
+        `ignore` may name "signal", "stop", "pedestrian", "conflict" to break those rules."""
+        return self.control.stop_distance(self.vehicle, commit=commit, ignore=frozenset(ignore))
+
+    def leader_gaps(self) -> list[tuple[float, float]]:
+        """(bumper gap [m], speed [m/s]) of road users ahead on the ego's route."""
+        return self.vehicle.leader_gaps()
+
+    def traffic_control_vector(self) -> np.ndarray:
+        """observation.TRAFFIC_CONTROL_FEATURES of the ego's next stop line."""
+        ego, rules = self.vehicle, self.control
+        sl, _, _, d = rules.line_ahead(ego)
+        state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+        ped = rules.stop_distance(ego, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
+        return np.array([state == "green", state == "amber", state == "red",
+                         sl is not None and sl.kind == "stop", min(d, STOP_LINE_RANGE_M) / STOP_LINE_RANGE_M,
+                         ped < math.inf], dtype=np.float32)
+
+
+class MapEnv(EgoTask, AbstractEnv):
     """Drive a route of junction manoeuvres on a feat2map map (info keys: `info.INFO_KEYS`)."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -92,12 +226,6 @@ class MapEnv(AbstractEnv):
             self.observation_type = TrafficControlObservation(self, self.observation_type)
         self.observation_space = self.observation_type.space()
         self.action_space = self.action_type.space()
-
-    @property
-    def rules(self) -> TrafficControl:
-        """The episode's `TrafficControl` (`self.control`): it answers the rules' questions
-        (`rules.TrafficRules`, its base class) from this episode's signals and queues, for planners."""
-        return self.control
 
     # ---- episode -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -240,51 +368,6 @@ class MapEnv(AbstractEnv):
             for _ in range(removed):
                 self._spawn_traffic(min_ego_distance=EGO_RESPAWN_CLEARANCE_M)
 
-    @property
-    def new_violations(self) -> list[str]:
-        return self.judge.new
-
-    @property
-    def off_road(self) -> bool:
-        return self.judge.off_road
-
-    # ---- task ----------------------------------------------------------------------------
-    def route_completed(self) -> bool:
-        ego = self.vehicle
-        if ego.route_pos < len(ego.lane_route) - 1:
-            return False
-        lane = self.net.lane_of[ego.lane_route[-1]]
-        return ego.s_on(ego.lane_route[-1]) >= self._goal_s(lane)
-
-    def _goal_s(self, lane) -> float:
-        """The goal on the route's last lane: `goal_distance` into it, at most a metre before its
-        end, and never past its first bend tighter than a car turns (`first_tight_bend`): no car
-        follows the lane there. osm2xodr folds the lanes of a road at the map's edge into one
-        point (digitaf's `w648817642_1_0_-1` turns 75 degrees 0.6 m after its start, radius
-        2.7 m): the ego driving on to a goal beyond swung over the lane beside it (r214)."""
-        bends = self.__dict__.setdefault("_bend_s", {})  # lane -> its first tight bend, found once
-        if lane.lane_id not in bends:
-            bends[lane.lane_id] = max(first_tight_bend(lane.points), 0.0)
-        return min(float(self.config["goal_distance"]), lane.length - 1.0, bends[lane.lane_id])
-
-    @staticmethod
-    def _reward_terms() -> tuple[str, ...]:
-        return ("progress", "arrived", "collision", "off_road", *VIOLATIONS)
-
-    def _rewards(self, action) -> dict[str, float]:
-        # MapEnv's own terms and methods by name: the multi-agent env's agent views call this too
-        return dict(zip(MapEnv._reward_terms(), MapEnv._reward_row(self, self.vehicle.route_distance_done(),
-                                                                   self.route_completed())))
-
-    def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
-        """This step's reward terms (`_reward_terms` order) given the route metres `done` and
-        whether the route is completed (each asked once per step, envs/vector.py too)."""
-        delta = (done - self._progress) / max(self._route_len, 1e-6)
-        self._progress = done
-        new = self.judge.new
-        return (float(delta), float(completed), float(self.vehicle.crashed), float(self.off_road),
-                *((float(new.count(v)) for v in VIOLATIONS) if new else _NO_VIOLATIONS.values()))
-
     def _reward_weights(self) -> tuple[float, ...]:
         """The config's weights of `_reward_terms`, in their order."""
         return tuple(map(self.config.__getitem__, weight_keys(self._reward_terms())))
@@ -300,69 +383,6 @@ class MapEnv(AbstractEnv):
 
     def _is_truncated(self) -> bool:
         return bool(self.time >= self.config["duration"])
-
-    def _info(self, obs, action=None) -> dict:
-        """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
-        instead), so that vector envs can stack them: `info.INFO_KEYS`."""
-        return info_dict(MapEnv._info_values(self, action), self.action_space)  # (agent views too)
-
-    def _info_values(self, action, done: float | None = None, completed: bool | None = None) -> tuple:
-        """The values of `_info`'s keys in INFO_ORDER, some as their sources (the action, the
-        junction's feature, the live violation counts, new violations, signal states and reward
-        terms: `info_dict` converts them; envs/vector.py stacks them for a batch at once);
-        `done` and `completed` when already asked this step."""
-        ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
-        jid, turn = self.junction_ahead()
-        sl, in_lane, j_lane, d = rules.line_ahead(ego)
-        control = "" if in_lane is None else (sl.kind if sl else "bare")
-        sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
-        plan = rules.plans.get(sl.control_id) if sl is not None else None
-        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
-        done = ego.route_distance_done() if done is None else done
-        return (
-            float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
-            sl.control_id if sl is not None and sig_state else "", sig_state,
-            float(plan.time_to_change(sl.control_id, rules.t)) if sl is not None and plan else math.inf,
-            rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
-            float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
-            float(min(done / max(self._route_len, 1e-6), 1.0)),
-            bool(self.route_completed() if completed is None else completed),
-            net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
-        )
-
-    # ---- scripted-driver API -----------------------------------------------------------------
-    @property
-    def route_lanes(self) -> list[str]:
-        """The ego's route as map lane ids."""
-        return list(self.vehicle.lane_route)
-
-    def junction_ahead(self) -> tuple[str | None, str | None]:
-        """(junction id, manoeuvre) of the junction the ego is in or will enter next."""
-        ego, m = self.vehicle, self.net.hdmap
-        for lid in ego.lane_route[ego.route_pos:]:
-            ln = m.lanes[lid]
-            if ln.junction_id is not None:
-                return ln.junction_id, TURN_NAMES.get(ln.turn, ln.turn)
-        return None, None
-
-    def rule_stop_distance(self, ignore: Sequence[str] = (), commit: bool = True) -> float:
-        """Where the traffic rules make the ego stop (metres from its centre; inf if free).
-        `ignore` may name "signal", "stop", "pedestrian", "conflict" to break those rules."""
-        return self.control.stop_distance(self.vehicle, commit=commit, ignore=frozenset(ignore))
-
-    def leader_gaps(self) -> list[tuple[float, float]]:
-        """(bumper gap [m], speed [m/s]) of road users ahead on the ego's route."""
-        return self.vehicle.leader_gaps()
-
-    def traffic_control_vector(self) -> np.ndarray:
-        """observation.TRAFFIC_CONTROL_FEATURES of the ego's next stop line."""
-        ego, rules = self.vehicle, self.control
-        sl, _, _, d = rules.line_ahead(ego)
-        state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
-        ped = rules.stop_distance(ego, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
-        return np.array([state == "green", state == "amber", state == "red",
-                         sl is not None and sl.kind == "stop", min(d, STOP_LINE_RANGE_M) / STOP_LINE_RANGE_M,
-                         ped < math.inf], dtype=np.float32)
 
     # ---- rendering ---------------------------------------------------------------------------
     def render(self):

@@ -7,10 +7,13 @@ crosswalk pedestrians under the same rules as the single env (MapEnv's config ke
 
 World. One `MapEnv` (a `_World`: the generated or file env with its config, network, traffic
 control, arrays core, traffic and pedestrians) holds every agent: an agent is a controlled row of
-the arrays core (`core.TrafficCore.controlled`): it moves along its lane route like traffic but
-takes its acceleration from its action (steering follows the route), so traffic and agents are
-advanced in one array program and traffic sees agents as road users (leaders, stop queues,
-conflicts, reservations, crosswalks). Traffic respawns as in the single env, away from agents.
+the arrays core (`core.TrafficCore.controlled`): the ego's kinematic bicycle with the config's
+`vehicle` (`sim/vehicle.py`), taking its acceleration from its action and steering by lane
+keeping on its route (`TrafficCore.drive`, all agents at once), so traffic and agents are
+advanced in one array program and traffic sees agents as road users where they are (leaders,
+stop queues, conflicts, reservations, crosswalks). Traffic respawns as in the single env, away
+from agents. An agent's `AgentView` is the single env's ego task (`map_env.EgoTask`) over its
+vehicle, its judge and the shared world.
 
 Agents. `possible_agents` are "agent_0".."agent_{n-1}". Each gets a route (`agent_routes`:
 None = sampled through `route_junctions` junctions, as the single env samples the ego's;
@@ -47,7 +50,6 @@ from __future__ import annotations
 import contextlib
 import math
 import operator
-import types
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -56,7 +58,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_META_GAIN, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
+from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
 from ..errors import Feat2MapError
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
@@ -64,12 +66,12 @@ from .control import TrafficControl
 from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .kinematics_batch import batch_supported, observe_many
-from .map_env import MapEnv, check_action, check_options
+from .map_env import EgoTask, MapEnv, check_action, check_options
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
-from .vehicles import TrafficVehicle
+from .sim.vehicle import VehicleModel, speed_control
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
@@ -159,7 +161,7 @@ class AgentActions:
         """Accelerations of the agents this frame (DiscreteMetaAction tracks its target speed every frame)."""
         if self.kind == "DiscreteMetaAction":
             target = self.speeds[[s["index"] for s in states]]
-            return np.clip(AGENT_META_GAIN * (target - speeds), *IDM_RANGE_MPS2)
+            return np.clip(speed_control(target, speeds), *IDM_RANGE_MPS2)
         return np.array([s["acc"] for s in states], dtype=float)
 
 
@@ -212,10 +214,22 @@ class AgentJudge(EgoJudge):
 
 
 class AgentVehicle(ArrayVehicle):
-    """An agent's vehicle: a controlled row of the arrays core (its view); its route progress is
-    RouteFollower's (the lanes behind it summed once per route position)."""
+    """An agent's vehicle: a controlled row of the arrays core (its view), the config's
+    `vehicle` (`model`: body, wheelbase, steering limit); its route progress is RouteFollower's
+    (the lanes behind it summed once per route position)."""
 
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
+    model: VehicleModel
+
+    @property
+    def action(self) -> dict:
+        """The last frame's command: the lane keeping's steering and the acceleration."""
+        c, i = self._core, self._row
+        return {"steering": float(c.steer[i]), "acceleration": float(c.acc[i])}
+
+    @action.setter
+    def action(self, value) -> None:
+        pass
 
     _line_at: tuple[int, int] = (-1, -1)
     _line_plan: tuple = ()
@@ -253,50 +267,68 @@ def _line_plan(net, route: list[str], pos: int) -> tuple:
     return (None,)
 
 
-class AgentView:
-    """One agent's view of the world as if it were a single MapEnv whose ego is the agent: its
-    own vehicle, judge, spaces, progress and reward terms; everything else is the world's, and
-    MapEnv's methods and properties run on the view (so observation types, `_info`, `_rewards`,
-    `route_completed`, `rule_stop_distance`, `ScriptedDriver` see the agent as the ego)."""
+class AgentView(EgoTask):
+    """One agent as the single env's ego (`map_env.EgoTask`: route completion, reward terms,
+    infos, the scripted-driver API) over the shared world: its own vehicle, judge, spaces,
+    progress and reward terms, and the world's road, map, rules, config and clock, which
+    observation types and `ScriptedDriver(view)` read as they read a MapEnv's."""
 
-    # set per agent when it is placed (declared for the type checker; the rest is the world's)
+    PERCEPTION_DISTANCE = MapEnv.PERCEPTION_DISTANCE
     judge: AgentJudge
-    net: Any  # the world's MapNetwork
-    control: TrafficControl
-    violations: dict[str, int]
-    _progress: float
-    _route_len: float
-    _last_rewards: dict[str, float]
     observation_type: Any
-    junction_ahead: Any  # route_memo of MapEnv.junction_ahead
-    route_completed: Any  # frame_memo of MapEnv.route_completed
-    wait_time: float
-    agent_collision: bool
 
-    def __init__(self, world: "_World", vehicle, action_type: AgentActions | None, action_space: spaces.Space) -> None:
+    def __init__(self, world: "_World", vehicle: AgentVehicle, action_type: AgentActions,
+                 action_space: spaces.Space) -> None:
         self.world = world
         self.vehicle = vehicle
         self.controlled_vehicles = [vehicle]
-        self.action_type = action_type
-        self.action_space = action_space
+        self.action_type, self.action_space = action_type, action_space
+        # the episode's (a new episode has new views)
+        self.config, self.road, self.net, self.control = world.config, world.road, world.net, world.control
+        self.wait_time = 0.0
+        self.agent_collision = False
+        self._completed_at = -1  # the world's frame of `route_completed`'s last answer
+        self._completed = False
+        self._junction_at: tuple[int, int] = (-1, -1)  # the route and position of `junction_ahead`'s last answer
+        self._junction: tuple[str | None, str | None] = (None, None)
+
+    def start(self, judge: AgentJudge, terms: Sequence[str], observation_type: Any) -> None:
+        """The agent is on the road: its judge, reward terms and observation; its progress from here."""
+        v = self.vehicle
+        self.judge, self.violations = judge, judge.violations
+        self.observation_type = observation_type
+        self._progress = v.route_distance_done()
+        last = self.net.lane_of[v.lane_route[-1]]
+        self._route_len = v.route_length() - last.length + self._goal_s(last)
+        self._last_rewards = dict.fromkeys(terms, 0.0)
 
     @property
-    def off_road(self) -> bool:  # MapEnv.off_road, without the lookup through the world
-        return self.judge.off_road
+    def time(self) -> float:  # type: ignore[override]  # the world's clock: read-only here
+        return self.world.time
 
-    def __getattr__(self, name: str):
-        if name == "world":
-            raise AttributeError(name)
-        state = self.world.__dict__
-        if name in state:  # the world's own attributes (config, net, road, control, time...)
-            return state[name]
-        attr = getattr(type(self.world), name, None)
-        if isinstance(attr, types.FunctionType):
-            bound = self.__dict__[name] = types.MethodType(attr, self)  # looked up once
-            return bound
-        if isinstance(attr, property) and attr.fget is not None:
-            return attr.fget(self)
-        return getattr(self.world, name)
+    @property
+    def np_random(self) -> np.random.Generator:
+        return self.world.np_random
+
+    @property
+    def unwrapped(self) -> "AgentView":
+        return self
+
+    def route_completed(self) -> bool:
+        """EgoTask's, computed once per simulation frame (it depends only on where the vehicles
+        are; the reward, the termination and the info of a step all ask)."""
+        steps = self.world.steps
+        if self._completed_at != steps:
+            self._completed_at, self._completed = steps, EgoTask.route_completed(self)
+        return self._completed
+
+    def junction_ahead(self) -> tuple[str | None, str | None]:
+        """EgoTask's, computed again only when the agent's route or route position changes."""
+        v = self.vehicle
+        at = (id(v.lane_route), v.route_pos)
+        if self._junction_at != at:
+            self._junction_at, self._junction = at, EgoTask.junction_ahead(self)
+        return self._junction
 
 
 @contextlib.contextmanager
@@ -333,36 +365,6 @@ def signal_states_once(control):
         del control.signal_states, control.signal_state, control.line_ahead
 
 
-def route_memo(view: AgentView, method):
-    """`method` of the view, recomputed only when the agent's route or route position changes
-    (for answers that depend on nothing else, such as `MapEnv.junction_ahead`)."""
-    bound = types.MethodType(method, view)
-    memo: list = [None, None]
-
-    def call():
-        v = view.vehicle
-        key = (id(v.lane_route), v.route_pos)
-        if memo[0] != key:
-            memo[0], memo[1] = key, bound()
-        return memo[1]
-    return call
-
-
-def frame_memo(view: AgentView, method):
-    """`method` of the view, computed once per simulation frame (for answers that depend only on
-    where the vehicles are, which changes only in a frame, such as `MapEnv.route_completed`,
-    asked for the reward, the termination and the info of one step)."""
-    bound = types.MethodType(method, view)
-    world = view.world
-    memo: list = [None, None]
-
-    def call():
-        if memo[0] != world.steps:
-            memo[0], memo[1] = world.steps, bound()
-        return memo[1]
-    return call
-
-
 class _World(MapEnv):
     """The map, traffic control, traffic and pedestrians of the multi-agent env, with the agents'
     vehicles as controlled rows of its arrays core (MapEnv's reset and step are not used)."""
@@ -390,6 +392,7 @@ class _World(MapEnv):
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
         self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        self.model = VehicleModel.of(self.config["vehicle"])
         self.controlled_vehicles = []
         self._places: dict[tuple, list] = {}
         routes = self._agent_routes(int(self.agent_config["agents"]))
@@ -436,7 +439,7 @@ class _World(MapEnv):
             for k in range(int(ac["agent_queue"])):
                 start = float(c["ego_start_distance"]) + k * float(ac["agent_spacing"])
                 r, s0, speed = start_place(self.net, list(route), extend, start, float(c["goal_distance"]),
-                                           float(c["ego_initial_speed"]), TrafficVehicle.LENGTH)
+                                           float(c["ego_initial_speed"]), self.model.length)
                 if k and s0 <= 0.0:
                     break  # the road before the entry is full
                 x, y = self.net.lane_of[r[0]].position(s0, 0.0)
@@ -457,8 +460,8 @@ class _World(MapEnv):
             free = np.ones(len(places), dtype=bool)
         for k in np.nonzero(free)[0].tolist():
             r, s0, speed, _, _ = places[k]
-            v = core.add_traffic(self.road, r[0], s0, speed, list(r), controlled=True)
-            v.__class__ = AgentVehicle
+            v = core.add_traffic(self.road, r[0], s0, speed, list(r), model=self.model, view=AgentVehicle)
+            v.model = self.model
             if self.control.passage_start(v):
                 return v
             self.road.vehicles.remove(v)
@@ -498,12 +501,11 @@ class MultiAgentMapEnv(ParallelEnv):
     def _define_spaces(self) -> None:
         w = self.world
         self.actions = AgentActions(self.agent_config["action"], float(w.config["policy_frequency"]))
-        probe = AgentView(w, None, self.actions, self.actions.space)
-        self._obs_space = self._make_observation(probe).space()
+        self._obs_space = self._make_observation(w).space()  # (an observation type's space needs no ego)
 
-    def _make_observation(self, view: AgentView):
-        obs = make_observation(view, self.world.config["observation"])
-        return TrafficControlObservation(view, obs) if self.world.config["observe_traffic_control"] else obs
+    def _make_observation(self, env: "AgentView | _World"):
+        obs = make_observation(env, self.world.config["observation"])
+        return TrafficControlObservation(env, obs) if self.world.config["observe_traffic_control"] else obs
 
     def observation_space(self, agent: str) -> spaces.Space:
         """The same space object for every agent (PettingZoo's tests ask for one object)."""
@@ -553,20 +555,8 @@ class MultiAgentMapEnv(ParallelEnv):
                 waiting.append((name, (route, extend)))
                 continue
             view = AgentView(w, v, self.actions, self.actions.space)
-            view.judge = AgentJudge(w.control, v)
-            view.net, view.control = w.net, w.control  # the episode's (asked for in every info)
-            view.violations = view.judge.violations
-            view._progress = v.route_distance_done()
-            last = w.net.lane_of[v.lane_route[-1]]
-            # the view stands in for a MapEnv (MapEnv's methods run on it: see AgentView)
-            view._route_len = v.route_length() - last.length + MapEnv._goal_s(view, last)  # type: ignore[arg-type]
-            view._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
-            view.observation_type = self._make_observation(view)
-            view.junction_ahead = route_memo(view, MapEnv.junction_ahead)
-            view.route_completed = frame_memo(view, MapEnv.route_completed)
-            view.wait_time = 0.0
+            view.start(AgentJudge(w.control, v), self._reward_terms(), self._make_observation(view))
             self._judged_lane[name] = -1
-            view.agent_collision = False
             self._views[name] = view
             self._state[name] = self.actions.start(v.speed)
             self._agent_ids[id(v)] = name
@@ -578,7 +568,7 @@ class MultiAgentMapEnv(ParallelEnv):
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:
-        return (*MapEnv._reward_terms(), "not_yielding", "stop_order")
+        return (*EgoTask._reward_terms(), "not_yielding", "stop_order")
 
     def step(self, actions: Mapping[str, Any]):
         w = self.world
@@ -705,7 +695,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[peer].agent_collision = True
 
     def _reward(self, view: AgentView, action, weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
-        r = MapEnv._rewards(view, action)  # type: ignore[arg-type]  # the view stands in for a MapEnv
+        r = view._rewards(action)
         new = view.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         view._last_rewards = r
@@ -715,14 +705,14 @@ class MultiAgentMapEnv(ParallelEnv):
         """(reward terms, their weights): the single env's `reward_*` and the two of the agents'
         judge, in that order, without the zero weights (adding their 0.0 products changes no sum)."""
         c, ac = self.world.config, self.agent_config
-        weights = {**{k: c[f"reward_{k}"] for k in MapEnv._reward_terms()},
+        weights = {**{k: c[f"reward_{k}"] for k in EgoTask._reward_terms()},
                    "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
         kept = [(k, w) for k, w in weights.items() if w != 0]
         return tuple(k for k, _ in kept), tuple(w for _, w in kept)
 
     def _info(self, agent: str, obs, action) -> dict:
         view = self._views[agent]
-        info = MapEnv._info(view, obs, action)  # type: ignore[arg-type]  # the view stands in for a MapEnv
+        info = view._info(obs, action)
         info["agent_collision"] = bool(view.agent_collision)
         info["wait_time"] = float(view.wait_time)
         return info

@@ -15,7 +15,7 @@ from highway_env.vehicle.objects import RoadObject
 from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from ..invariants import lane_changes
 from .network import MapNetwork
-from .sim.vehicle import VehicleModel, integrate, lane_keeping, yaw_rate
+from .sim.vehicle import VehicleModel, integrate, lane_keeping, speed_control, yaw_rate
 from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
 
@@ -314,6 +314,10 @@ class Ego(RouteFollower):
         net = self.road.network
         s, r = self.projection(net.id_of[target_lane_index])
         return lane_keeping(net.get_lane(target_lane_index), s, r, self.heading, self.speed, self.model)
+
+    def speed_control(self, target_speed: float) -> float:
+        """`sim.vehicle.speed_control` (highway-env's law, written once for the ego and the agents)."""
+        return speed_control(target_speed, self.speed)
 
     def step(self, dt: float) -> None:
         step_egos([self], dt)

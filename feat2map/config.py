@@ -75,8 +75,10 @@ SIGNAL_GREEN_S, SIGNAL_AMBER_S, SIGNAL_ALL_RED_S = 12.0, 3.0, 2.0
 # the driving scenario's defaults, keyed as the env's config (envs/config.py `SETTINGS` takes these values;
 # tests/test_layers.py checks the env's defaults) and read by the OpenSCENARIO export and the
 # scenario tools, which must model the drive as the env does without importing it
-# the ego's lane keeping (envs/sim/vehicle.py `lane_keeping`): highway-env's ControlledVehicle gains
+# the controlled vehicles' lane keeping and speed control (envs/sim/vehicle.py `keeping_steering`,
+# `speed_control`): highway-env's ControlledVehicle gains
 LANE_KEEPING_TAU_S, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_KP_HEADING = 0.1, 1 / 0.6, 1 / 0.2
+SPEED_CONTROL_KP = 1 / 0.6  # [1/s] acceleration per m/s off the target speed (highway-env's KP_A = 1 / TAU_ACC)
 DRIVE_DEFAULTS: Mapping[str, Any] = MappingProxyType({
     "ego_start_distance": 30.0,  # [m] before the end of the route's first lane (the first stop line)
     "ego_initial_speed": 4.5,  # [m/s]
@@ -428,5 +430,4 @@ TRACKING_HOLD_WINDOW_S = 1.0  # the ego is held still only if the trajectory sta
 # the multi-agent env (envs/multi_agent.py)
 AGENT_TARGET_SPEEDS = (0.0, 1.5, 3.0, 5.0, 7.5, 10.0)  # [m/s] the default TargetSpeed actions (examples/train_ppo.py's)
 AGENT_ACCELERATION_RANGE = (-6.0, 3.0)  # [m/s^2] the default acceleration range of the agents' actions
-AGENT_META_GAIN = 1 / 0.6  # [1/s] DiscreteMetaAction: acceleration per m/s off the target speed (highway-env's 1/TAU_ACC)
 AGENT_ENTRY_LOOK_M = 8.0  # the judge notes the rules' verdict for agents this close to their next stop line

@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from ...angles import wrap_angle
-from ...config import DRIVE_DEFAULTS, LANE_KEEPING_KP_HEADING, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_TAU_S
+from ...config import (DRIVE_DEFAULTS, LANE_KEEPING_KP_HEADING, LANE_KEEPING_KP_LATERAL, LANE_KEEPING_TAU_S,
+                       SPEED_CONTROL_KP)
 from ...errors import Feat2MapError
 
 
@@ -78,20 +79,37 @@ def yaw_rate(speed: float, steering: float, wheelbase: float) -> float:
     return speed * math.tan(steering) / wheelbase
 
 
-def steering_for(rate: float, speed: float, model: VehicleModel) -> float:
-    """The steering angle that gives yaw rate `rate` at `speed`, within the model's limit."""
-    steer = math.atan(model.wheelbase * rate / max(speed, 1e-2))
-    return min(max(steer, -model.max_steering), model.max_steering)
+def _clip(value, lo, hi, lib: Any):
+    return min(max(value, lo), hi) if lib is math else np.clip(value, lo, hi)
+
+
+def keeping_steering(heading_ahead, r, heading, speed, wheelbase, max_steering, lib: Any = np):
+    """Lane keeping's steering for a body `r` beside its lane, heading `heading`, where the lane
+    heads `heading_ahead` LANE_KEEPING_TAU_S ahead: highway-env's law (lateral P -> heading P ->
+    yaw rate), its yaw rate made by the bicycle's steering within +-max_steering. Arrays with
+    `lib` numpy (the agents of the multi-agent env), or floats with `lib` math (one ego)."""
+    if lib is math:
+        v = speed if abs(speed) > 1e-2 else 1e-2
+    else:
+        v = np.where(np.abs(speed) > 1e-2, speed, 1e-2)
+    heading_cmd = lib.asin(_clip(-LANE_KEEPING_KP_LATERAL * r / v, -1.0, 1.0, lib))
+    heading_ref = heading_ahead + _clip(heading_cmd, -math.pi / 4, math.pi / 4, lib)
+    rate = LANE_KEEPING_KP_HEADING * wrap_angle(heading_ref - heading)
+    steer = lib.atan(wheelbase * rate / _clip(v, 1e-2, math.inf, lib))
+    return _clip(steer, -max_steering, max_steering, lib)
 
 
 def lane_keeping(lane: Any, s: float, r: float, heading: float, speed: float, model: VehicleModel) -> float:
     """The steering that keeps the body's centre on `lane`, where it stands at (s along, r
-    beside): highway-env's lane keeping (lateral P -> heading P -> yaw rate), its yaw rate made
-    by this model's steering."""
-    v = speed if abs(speed) > 1e-2 else 1e-2
-    heading_cmd = math.asin(min(max(-LANE_KEEPING_KP_LATERAL * r / v, -1.0), 1.0))
-    heading_ref = lane.heading_at(s + speed * LANE_KEEPING_TAU_S) + min(max(heading_cmd, -math.pi / 4), math.pi / 4)
-    return steering_for(LANE_KEEPING_KP_HEADING * wrap_angle(heading_ref - heading), v, model)
+    beside): `keeping_steering` with the lane's heading LANE_KEEPING_TAU_S ahead."""
+    return keeping_steering(lane.heading_at(s + speed * LANE_KEEPING_TAU_S), r, heading, speed, model.wheelbase,
+                            model.max_steering, math)
+
+
+def speed_control(target, speed):
+    """The acceleration that tracks a target speed: highway-env's P law (floats or arrays; the
+    caller clips it to its range)."""
+    return SPEED_CONTROL_KP * (target - speed)
 
 
 def pursuit_steering(x: float, y: float, heading: float, tx: float, ty: float, model: VehicleModel) -> float:

@@ -16,7 +16,8 @@ from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, see
 import feat2map  # noqa: E402
 from feat2map.envs import parallel_env  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
-from feat2map.envs.multi_agent import AGENT_VIOLATIONS  # noqa: E402
+from feat2map.envs.map_env import EgoTask, MapEnv  # noqa: E402
+from feat2map.envs.multi_agent import AGENT_VIOLATIONS, AgentVehicle  # noqa: E402
 from feat2map.envs.multi_agent import env as aec_env  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.spec import build_spec, load_spec  # noqa: E402
@@ -220,7 +221,6 @@ def test_batched_kinematics_equals_each_agents_own_observation():
 def test_info_shortcuts_equal_the_single_env_answers():
     """The agents' shortcuts (next stop line per route position, route_completed once per frame,
     the reward's weighted sum without zero weights) give the single env's values exactly."""
-    from feat2map.envs.map_env import MapEnv
     from feat2map.envs.multi_agent import signal_states_once
 
     env = parallel_env({**map_config("generated"), **SMALL, "agents": 10})
@@ -291,6 +291,22 @@ def test_a_refused_action_applies_no_agents_decision(action, good, bad):
     for k in range(4):  # the first agent holds its decision in the first step after
         acts = {a: space.sample() for a in env.agents if k or a != first}
         assert data_equivalence(env.step(acts), twin.step(acts)), k
+
+
+def test_an_agents_view_is_the_ego_task_over_the_shared_world():
+    """`env.view(agent)` is the single env's ego task (`EgoTask`) over the agent's vehicle and the
+    world's pieces, not a stand-in MapEnv: nothing else of the world's env is reachable through it."""
+    env = parallel_env({**map_config("generated"), "agents": 2, "traffic_vehicles": 1})
+    env.reset(seed=0)
+    env.step({a: 3 for a in env.agents})
+    w = env.world
+    for a in env.agents:
+        view = env.view(a)
+        assert isinstance(view, EgoTask) and not isinstance(view, MapEnv)
+        assert type(view.vehicle) is AgentVehicle and view.vehicle in w.road.vehicles
+        assert (view.road, view.net, view.control, view.config) == (w.road, w.net, w.control, w.config)
+        assert view.time == w.time and view.rules is w.control and view.unwrapped is view
+        assert not any(hasattr(view, k) for k in ("step", "reset", "_spawn_traffic", "steps", "viewer"))
 
 
 @pytest.mark.parametrize("actions", [[0, 1], "agent_0", None, 3])

@@ -1,7 +1,8 @@
-"""The ego's vehicle (envs/sim/vehicle.py): a kinematic bicycle about the rear axle with the
-config's body. Its motion is exact on arcs, the same over arrays as over floats, configurable,
-and its body fits the junction turns the generator makes (highway-env's 5 m-wheelbase bicycle
-swept 0.83 m past a lane's edge in the default map's tightest turn)."""
+"""The controlled vehicle (envs/sim/vehicle.py) of the ego and of the multi-agent env's agents: a
+kinematic bicycle about the rear axle with the config's body. Its motion is exact on arcs, the
+same over arrays as over floats, configurable, and its body fits the junction turns the
+generator makes (highway-env's 5 m-wheelbase bicycle swept 0.83 m past a lane's edge in the
+default map's tightest turn)."""
 from __future__ import annotations
 
 import math
@@ -13,6 +14,7 @@ import pytest
 
 import feat2map
 from feat2map.config import DRIVE_DEFAULTS
+from feat2map.envs import parallel_env
 from feat2map.envs.sim.vehicle import VehicleModel, integrate, pursuit_steering
 from feat2map.errors import Feat2MapError
 from feat2map.routes import manoeuvres
@@ -106,3 +108,93 @@ def test_the_body_stays_inside_its_lane_through_every_turn(feature):
         assert info["route_completed"] and not info["crashed"], mv
         assert seen and inside < 0.0, f"{mv}: a corner {inside:.2f} m past the lane's edge"
     env.close()
+
+
+# ---- the multi-agent env's agents: the same bicycle, batched over the agents (core.TrafficCore.drive)
+def _agent_turns(feature, vehicle: dict | None = None) -> dict[tuple, tuple[dict, float, float]]:
+    """Per manoeuvre of the junction, one agent alone at 6 m/s (TargetSpeed): (its last info, how
+    far its body's corners reached past the junction lane's edges, its largest |lateral offset|
+    there)."""
+    env = parallel_env({"features": [feature.to_dict()], "agents": 1, "traffic_vehicles": 0, "pedestrian_rate": 0.0,
+                        "policy_frequency": 5, "duration": 40.0, "vehicle": vehicle or {},
+                        "action": {"type": "TargetSpeed", "target_speeds": [6.0]}})
+    env.reset(seed=0)
+    net = env.world.net
+    m = net.hdmap
+    out = {}
+    for mv in manoeuvres(m):
+        env.reset(seed=0, options={"config": {"agent_routes": [[list(mv)]]}})
+        v, inside, lat, info = env.view("agent_0").vehicle, -math.inf, 0.0, {}
+        while env.agents:
+            info = env.step({"agent_0": 0})[4]["agent_0"]
+            lid = v.lane_route[v.route_pos]
+            if m.lanes[lid].junction_id is not None:
+                lane = net.lane_of[lid]
+                lat = max(lat, abs(v.lane_lat))
+                for p in _corners(v.position[0], v.position[1], v.heading, v.LENGTH, v.WIDTH):
+                    s, r = lane.local_coordinates(np.array(p))
+                    if 0.0 < s < lane.length:
+                        inside = max(inside, abs(r) - lane.width / 2)
+        out[mv] = (info, inside, lat)
+    env.close()
+    return out
+
+
+def test_the_agents_take_the_vehicle_config():
+    env = parallel_env({"features": [J([0, 90, 180], "bare", False).to_dict()], "agents": 3, "traffic_vehicles": 2,
+                        "vehicle": {"length": 4.2, "width": 1.7, "wheelbase": 2.6}})
+    env.reset(seed=0)
+    core = env.world.road.core
+    assert env.agents
+    for a in env.agents:
+        v = env.view(a).vehicle
+        i = v._row
+        assert (v.LENGTH, v.WIDTH, v.model.wheelbase) == (4.2, 1.7, 2.6)
+        assert v.diagonal == pytest.approx(math.hypot(4.2, 1.7))
+        assert (core.length[i], core.width[i], core.wheelbase[i]) == (4.2, 1.7, 2.6)
+        assert core.rear_offset[i] == VehicleModel.of({"length": 4.2, "wheelbase": 2.6}).rear_offset
+    with pytest.raises(Feat2MapError, match=r"config\.vehicle\.wheel_base"):
+        parallel_env({"vehicle": {"wheel_base": 2.0}})
+
+
+@pytest.mark.parametrize("feature", [J([0, 90, 180, 270], "signal", True), J([0, 60, 180], "stop", False)],
+                         ids=["cross", "sharp-y"])
+def test_an_agents_body_stays_inside_its_lane_through_every_turn(feature):
+    """As the ego's test above, for an agent: it steers the bicycle by lane keeping (off the
+    lane's centre line in the turns, as a car is), and every corner stays inside the lane."""
+    turns = _agent_turns(feature)
+    assert len(turns) >= 6
+    for mv, (info, inside, _) in turns.items():
+        assert info["route_completed"] and not info["collision"] and not info["off_road"], mv
+        assert inside < 0.0, f"{mv}: a corner {inside:.2f} m past the lane's edge"
+    assert max(lat for *_, lat in turns.values()) > 0.1  # not the centre line: the bicycle's own path
+
+
+def test_the_vehicle_config_changes_the_agents_turning():
+    """A steering limit too small for the sharp Y's tight turns takes the agent wide, off the road."""
+    feature = J([0, 60, 180], "stop", False)
+    default, stiff = _agent_turns(feature), _agent_turns(feature, {"max_steering": 0.15})
+    assert max(lat for *_, lat in default.values()) < 0.5
+    wide = [mv for mv in stiff if stiff[mv][2] > default[mv][2] + 3.0]
+    assert wide and all(stiff[mv][0]["off_road"] for mv in wide)
+
+
+def test_an_agents_place_on_its_lane_is_the_lanes_own_projection():
+    """`TrafficCore.drive` projects agents on their route lanes near where they were (a few
+    segments, `LaneTable.project_near`): the values `PolylineLane.local_coordinates` finds over
+    the whole lane, through every kind of turn."""
+    feats = [J([0, 60, 180], "stop", False), J([0, 90, 180, 270], "signal", True)]
+    env = parallel_env({"features": [f.to_dict() for f in feats], "agents": 12, "traffic_vehicles": 3,
+                        "duration": 30.0})
+    env.reset(seed=1)
+    core, lanes = env.world.road.core, env.world.net._lanes
+    rng = np.random.default_rng(0)
+    checked = 0
+    while env.agents:
+        env.step({a: int(rng.integers(6)) for a in env.agents})
+        for a in env.agents:
+            i = env.view(a).vehicle._row
+            s, r = lanes[core.lane[i]].local_coordinates(np.array([core.x[i], core.y[i]]))
+            assert (core.s[i], core.lat[i]) == (pytest.approx(s, abs=1e-9), pytest.approx(r, abs=1e-9))
+            checked += 1
+    assert checked > 200
