@@ -16,7 +16,7 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
-from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M,
+from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, FOLD_BACK_M, JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M,
                      LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS)
 from .errors import Feat2MapError
 from .model import HDMap, Lane, incoming_lanes, stop_line_across
@@ -180,12 +180,14 @@ def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
     short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
     (`drop_dangling`), values checked (`validation.validate_model`), implausible speeds replaced
-    (`plausible_speeds`), signals over conflicting approaches split (`split_conflicting_signals`),
-    semantic findings warned (`check_map`)."""
+    (`plausible_speeds`), boundaries that fold back on themselves unfolded
+    (`unfolded_boundaries`), signals over conflicting approaches split
+    (`split_conflicting_signals`), semantic findings warned (`check_map`)."""
     from .validation import validate_model
 
     m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
-    return check_map(split_conflicting_signals(plausible_speeds(m, where), where), where)
+    m = unfolded_boundaries(plausible_speeds(m, where), where)
+    return check_map(split_conflicting_signals(m, where), where)
 
 
 # ------------------------------------------------------------------------------- repair
@@ -209,6 +211,75 @@ def plausible_speeds(m: HDMap, where: str = "map") -> HDMap:
     for ln in bad:
         lanes[ln.id] = replace(ln, speed_limit=JUNCTION_SPEED_LIMIT_MPS if ln.junction_id else SPEED_LIMIT_MPS)
     return replace(m, lanes=lanes)
+
+
+def _crossing(a: Sequence[float], b: Sequence[float], c: Sequence[float], d: Sequence[float]) -> float | None:
+    """Where segment a-b crosses segment c-d, as the fraction along a-b (None if they do not)."""
+    rx, ry, sx, sy = b[0] - a[0], b[1] - a[1], d[0] - c[0], d[1] - c[1]
+    den = rx * sy - ry * sx
+    if den == 0.0:
+        return None
+    qx, qy = c[0] - a[0], c[1] - a[1]
+    t, u = (qx * sy - qy * sx) / den, (qx * ry - qy * rx) / den
+    return t if 0.0 <= t <= 1.0 and 0.0 <= u <= 1.0 else None
+
+
+def unfold(line: Sequence[Sequence[float]], centre: Sequence[Sequence[float]]) -> list[tuple[float, ...]] | None:
+    """`line` (a boundary of the lane whose centre line is `centre`) without its folds, or None
+    when it has none: inner points more than FOLD_BACK_M behind the point kept before them
+    (along the centre line) are dropped, and loops where what is left still crosses itself are
+    cut at the crossing (each segment jumps to the crossing with the last later segment it meets)."""
+    from shapely.geometry import LineString, Point
+
+    if len(line) < 3:
+        return None
+    axis = LineString([p[:2] for p in centre])
+    pts = [tuple(float(v) for v in p) for p in line]
+    s = [axis.project(Point(p[:2])) for p in pts]
+    kept = [0]
+    for i in range(1, len(pts) - 1):
+        if s[i] >= s[kept[-1]] - FOLD_BACK_M:
+            kept.append(i)
+    while len(kept) > 1 and s[kept[-1]] > s[-1] + FOLD_BACK_M:
+        kept.pop()
+    pts2 = [pts[i] for i in kept] + [pts[-1]]
+    if LineString([p[:2] for p in pts2]).is_simple:
+        return pts2 if len(pts2) < len(pts) else None
+    cur, out, i, n = pts2[0], [pts2[0]], 0, len(pts2)
+    while i < n - 1:
+        nxt = pts2[i + 1]
+        for j in range(n - 2, i + 1, -1):
+            t = _crossing(cur, nxt, pts2[j], pts2[j + 1])
+            if t is not None:
+                cur = tuple(a + t * (b - a) for a, b in zip(cur, nxt))
+                out.append(cur)
+                i = j
+                break
+        else:
+            out.append(nxt)
+            cur, i = nxt, i + 1
+    return out
+
+
+def unfolded_boundaries(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with every lane boundary's folds removed (`unfold`), with one warning naming the
+    lanes: a lane wider than twice its inner border's turn radius folds that border back on
+    itself (SVL CubeTown's right turns: a loop and a spike), so Lanelet2's loader inverted the
+    bound and the turn lost its links, and the env's lane outline had a loop."""
+    from .model import as_polyline
+
+    fixed: dict[str, Lane] = {}
+    for ln in m.lanes.values():
+        left, right = unfold(ln.left_boundary, ln.centerline), unfold(ln.right_boundary, ln.centerline)
+        if left is not None or right is not None:
+            fixed[ln.id] = replace(ln, left_boundary=ln.left_boundary if left is None else as_polyline(left),
+                                   right_boundary=ln.right_boundary if right is None else as_polyline(right))
+    if not fixed:
+        return m
+    shown = ", ".join(list(fixed)[:3]) + (" ..." if len(fixed) > 3 else "")
+    warnings.warn(f"{where}: {len(fixed)} lane(s) with a boundary that folds back on itself (a border tighter than "
+                  f"the lane's width): the folds dropped ({shown})", stacklevel=3)
+    return replace(m, lanes={**m.lanes, **fixed})
 
 
 def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
@@ -387,4 +458,4 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
 
 
 __all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links", "findings",
-           "loaded", "split_conflicting_signals"]
+           "loaded", "split_conflicting_signals", "unfold", "unfolded_boundaries"]

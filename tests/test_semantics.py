@@ -668,6 +668,31 @@ def test_links_between_lanes_a_few_metres_apart_are_bridged(four_way):
     assert semantics.bridge_gaps(four_way) is four_way
 
 
+def test_a_boundary_folding_back_on_itself_is_unfolded(four_way):
+    """SVL CubeTown's right turns: the inner border of a lane wider than twice its radius runs
+    forward, back (a loop) and forward again. Lanelet2's loader then inverted the bound and the
+    turn lost its links. Points behind the ones before them along the centre line are dropped,
+    loops cut; both ends stay, and a map without folds is returned as it is."""
+    from shapely.geometry import LineString, Point
+
+    a = next(ln for ln in four_way.lanes.values() if ln.junction_id is not None and len(ln.right_boundary) >= 6)
+    r = np.asarray(a.right_boundary, dtype=float)
+    k = len(r) // 2
+    back = r[k - 2] + 0.6 * (r[k - 2] - r[k])  # a spike back past two samples, and a loop across them
+    folded = np.vstack([r[:k], [back, r[k - 1] + [0.3, -0.3]], r[k:]])
+    m = replace(four_way, lanes={**four_way.lanes, a.id: replace(a, right_boundary=tuple(map(tuple, folded)))})
+    fixed, caught = _quiet(semantics.unfolded_boundaries, m, "m.xodr")
+    assert caught == [f"m.xodr: 1 lane(s) with a boundary that folds back on itself (a border tighter than the lane's "
+                      f"width): the folds dropped ({a.id})"]
+    out = np.asarray(fixed.lanes[a.id].right_boundary)
+    axis = LineString(np.asarray(a.centerline)[:, :2])
+    s = [axis.project(Point(p)) for p in out]
+    assert np.all(np.diff(s) > -0.05) and LineString(out).is_simple
+    assert np.allclose(out[0], r[0]) and np.allclose(out[-1], r[-1])
+    assert fixed.lanes[a.id].left_boundary == a.left_boundary
+    assert semantics.unfolded_boundaries(four_way) is four_way
+
+
 def test_an_offset_lane_folding_round_a_tight_bend_is_cut_where_it_runs_backwards():
     """osm2xodr puts lanes 9 m to the side of roads that bend at a 5 m radius: the lane's offset
     curve folds into a loop (its heading turned 140 degrees in 5 m; the car left the road at
@@ -726,7 +751,7 @@ def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path
 
     road = _corner_road(tmp_path / "corner.xodr", 1.0)
     m, caught = _quiet(read_opendrive, road)
-    assert [w for w in caught if "fold" in w] == [f"{road}: 2 lane(s) fold round a bend tighter than their offset from "
+    assert [w for w in caught if "fold round" in w] == [f"{road}: 2 lane(s) fold round a bend tighter than their offset from "
                                                   "the reference line; cut where they run backwards (first: lane 1_0_-1)"]
     inner, outer = m.lanes["1_0_1"], m.lanes["1_0_-1"]
     assert turns(inner.points).max() < 90.0 and turns(outer.points).max() < 90.0
@@ -737,7 +762,7 @@ def test_an_offset_fold_shorter_than_the_sample_spacing_leaves_no_spike(tmp_path
     assert np.allclose(outer.points[-1], end - 1.5 * normal, atol=1e-3)
     assert np.allclose(inner.points[-1], [-1.5 * np.sin(-0.105), 1.5 * np.cos(-0.105)], atol=1e-6)
     wide, caught = _quiet(read_opendrive, _corner_road(tmp_path / "wide.xodr", 4.0))  # radius 5 m: no fold, nothing cut
-    assert not [w for w in caught if "fold" in w]
+    assert not [w for w in caught if "fold round" in w]  # (its inner border's loop in the overshoot is unfolded)
     assert all(len(wide.lanes[k].points) == 12 for k in ("1_0_1", "1_0_-1"))  # every sample
 
 
