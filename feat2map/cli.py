@@ -135,15 +135,19 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
 
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
-                  buildable: GenerationConfig | None = None):
+                  buildable: GenerationConfig | None = None, midblock: list | None = None):
     """Junction features of the maps; with `buildable`, only those generation can build with
-    that config (the others are skipped with a warning naming map, junction and why)."""
-    from .extract import extract_junctions
+    that config (the others are skipped with a warning naming map, junction and why); the
+    maps' mid-block crosswalks are appended to `midblock` when given."""
+    from .extract import extract_junctions, extract_midblock
     from .generate import check_buildable
 
     junctions = []
     for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2 or not on_terminal()):
-        junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
+        m = read_map(p)
+        junctions += extract_junctions(m, map_name=str(p), skipped=skipped)
+        if midblock is not None:
+            midblock += extract_midblock(m, map_name=str(p))
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     if buildable is None:
@@ -227,8 +231,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
         check_picture_path(args.picture)
     skipped: list = []
-    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet)
-    space = map_feature(junctions)
+    midblock: list = []
+    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock)
+    space = map_feature(junctions, midblock)
     if args.picture:  # first: it is the step that can fail; nothing is written if it does
         from .render import render_map
 
@@ -240,11 +245,14 @@ def cmd_extract(args: argparse.Namespace) -> int:
         atomic.write_text(args.out, space.to_json())
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
-               "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped]}
+               "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped],
+               "midblock_crosswalks": [c.to_dict() for c in midblock]}
         print(json.dumps(doc, indent=2))
         return 0
     _print_junction_table(args.maps, junctions, skipped)
-    found = f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped)"
+    signalised = sum(c.feature.control == "signal" for c in midblock)
+    found = (f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped), "
+             f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised)")
     if args.out:  # the map feature is in the file: not again on the screen
         print(f"\n{found}; map feature written to {args.out}")
         return 0
