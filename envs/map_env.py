@@ -118,8 +118,10 @@ class MapEnv(AbstractEnv):
         route_junctions = {j for l in route if (j := self.net.hdmap.lanes[l].junction_id) is not None}
         by_junction, order = self.net.memo("crosswalks", lambda: group_by(self.net.hdmap.crosswalks.values(),
                                                                           "junction_id"))
-        self.control.active_crosswalks = sorted((c for j in route_junctions for c in by_junction.get(j, ())),
-                                                key=order.__getitem__)  # in map order
+        # the crosswalks of the route's junctions and the mid-block ones its road lanes cross, in map order
+        crossed = {c for lid in route for c, _, _ in self.net.crossings.get(lid, ()) if c in by_junction.get(None, ())}
+        self.control.active_crosswalks = sorted({c for j in route_junctions for c in by_junction.get(j, ())} | crossed,
+                                                key=order.__getitem__)
         self._spawn_lanes = self._traffic_spawn_lanes(route, route_junctions)
         for _ in range(int(self.config["traffic_vehicles"])):
             self._spawn_traffic()
