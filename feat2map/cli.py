@@ -78,10 +78,13 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 
 def _summary(m) -> str:
-    """`8 junctions, 92 roads, ...`: what a map holds."""
-    return ", ".join(counted(n, noun) for n, noun in (
+    """`8 junctions, 92 roads, ...`: what a map holds (crosswalks outside junctions, mid-block
+    ones, counted apart when there are any)."""
+    text = ", ".join(counted(n, noun) for n, noun in (
         (len(m.junctions), "junction"), (len(m.roads), "road"), (len(m.lanes), "lane"), (len(m.signals), "signal"),
         (len(m.stop_signs), "stop sign"), (len(m.crosswalks), "crosswalk")))
+    midblock = sum(c.junction_id is None for c in m.crosswalks.values())
+    return text + (f" ({midblock} outside junctions)" if midblock else "")
 
 
 GENERATE_MARKERS = ("map.json",)  # a folder holding one is an earlier `generate` output, replaced whole
@@ -191,8 +194,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
         spec = load_spec(args.spec)
         m = build_spec(spec, seed=args.seed, config=spec.generation_config(_overrides(args)), space=space)
+        from .extract import extract_midblock
+
         feats = [j.feature for j in m.junctions.values() if j.feature is not None]
-        space = FeatureSpace.from_features(feats) if feats else None
+        space = FeatureSpace.from_features(feats, (c.feature for c in extract_midblock(m))) if feats else None
     else:
         assert space is not None  # set above whenever there is no spec
         m = generate(space, seed=args.seed, config=cfg, progress=not args.quiet)

@@ -259,8 +259,9 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     route is the locally best extension of its anchor, so the result is a small cover but not
     a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped, and so
     are those no car drives (`suite_manoeuvres`), as targets and as links of a route. Covering
-    every manoeuvre (`moves` None), a road lane across a mid-block crosswalk that no route drives
-    from junction to junction gets a route of its own (`_midblock_routes`).
+    every manoeuvre (`moves` None) with routes of 2 junctions or more, a road lane across a
+    mid-block crosswalk that no route drives from junction to junction gets a route of its own
+    (`_midblock_routes`).
     """
     if max_junctions < 1:
         raise ValueError("max_junctions must be at least 1")
@@ -290,7 +291,7 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
                     best, best_key = route, key
         routes.append(best)
         uncovered -= set(best)
-    if moves is None:
+    if moves is None and max_junctions >= 2:
         routes += _midblock_routes(m, graph, routes, order)
     return routes
 

@@ -214,3 +214,13 @@ def test_midblock_crosswalks_of_real_maps(rel, count):
     found = extract_midblock(m, rel)
     assert len(found) == count and all(e.feature.control == "bare" for e in found)
     assert midblock_controls(m) == {}  # no real light is taken for a mid-block one
+
+
+def test_cli_generate_with_midblock_values(tmp_path, capsys):
+    feats = tmp_path / "features.json"
+    feats.write_text(SPACE.to_json())
+    assert main(["generate", "--features", str(feats), "--seed", "3", "--out", str(tmp_path / "g"), "--quiet",
+                 "--no-picture"]) == 0
+    assert "16 crosswalks (2 outside junctions)" in capsys.readouterr().out
+    assert FeatureSpace.load(tmp_path / "g" / "features.json") == SPACE
+    assert native.dumps(native.load(tmp_path / "g" / "map.json")) == native.dumps(generate(SPACE, seed=3))
