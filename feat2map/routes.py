@@ -311,7 +311,7 @@ def midblock_lanes(m: HDMap) -> list[tuple[str, str]]:
             for k in sorted(tree.query(Polygon(c.polygon), predicate="intersects").tolist())]
 
 
-def _road_lanes_between(m: HDMap, a: Manoeuvre, b: Manoeuvre) -> set[str]:
+def road_lanes_between(m: HDMap, a: Manoeuvre, b: Manoeuvre) -> set[str]:
     """The road lanes a route drives from manoeuvre `a`'s junction lane to manoeuvre `b`'s."""
     def reach(starts: Iterable[str], forward: bool) -> set[str]:
         out: set[str] = set()
@@ -340,14 +340,14 @@ def _midblock_routes(m: HDMap, graph: dict[Manoeuvre, list[Manoeuvre]], routes: 
     wanted = [lid for _, lid in midblock_lanes(m)]
     if not wanted:
         return []
-    driven = {x for r in routes for a, b in zip(r, r[1:]) for x in _road_lanes_between(m, a, b)}
+    driven = {x for r in routes for a, b in zip(r, r[1:]) for x in road_lanes_between(m, a, b)}
     pairs = sorted(((a, b) for a, nxt in graph.items() for b in nxt), key=lambda p: (order[p[0]], order[p[1]]))
     out: list[Route] = []
     for lid in wanted:
         if lid in driven:
             continue
         for a, b in pairs:
-            between = _road_lanes_between(m, a, b)
+            between = road_lanes_between(m, a, b)
             if lid in between:
                 out.append((a, b))
                 driven |= between

@@ -89,7 +89,7 @@ def test_a_planner_ignoring_signals_runs_the_midblock_red(map_path):
 def test_the_suite_drives_every_midblock_lane_and_completes_at_traffic_6(map_path):
     """The route-coverage suite passes each mid-block crosswalk in both directions, and its
     scenarios through them complete with the baseline planner among 6 traffic vehicles."""
-    from feat2map.routes import _road_lanes_between, midblock_lanes
+    from feat2map.routes import road_lanes_between, midblock_lanes
     from feat2map.scenarios.rollout import run_scenario
     from feat2map.scenarios.routes import build_suite
 
@@ -98,7 +98,7 @@ def test_the_suite_drives_every_midblock_lane_and_completes_at_traffic_6(map_pat
     through = {}
     for sc in suite.scenarios:
         for a, b in zip(sc.route, sc.route[1:]):
-            for lid in _road_lanes_between(m, a, b):
+            for lid in road_lanes_between(m, a, b):
                 through.setdefault(lid, sc)
     lanes = [lid for _, lid in midblock_lanes(m)]
     assert sorted(lanes) == ["R0_0", "R0_1", "R4_0", "R4_1"] and set(lanes) <= set(through)
@@ -108,12 +108,12 @@ def test_the_suite_drives_every_midblock_lane_and_completes_at_traffic_6(map_pat
 
 
 def test_midblock_lanes_get_routes_of_their_own_when_the_cover_misses_them(map_path):
-    from feat2map.routes import (_midblock_routes, _road_lanes_between, midblock_lanes, successor_graph,
+    from feat2map.routes import (_midblock_routes, road_lanes_between, midblock_lanes, successor_graph,
                                  suite_manoeuvres)
 
     m = native.load(map_path)
     moves = suite_manoeuvres(m)
     extra = _midblock_routes(m, successor_graph(m, moves), [], {mv: i for i, mv in enumerate(moves)})
     assert all(len(r) == 2 for r in extra)
-    driven = {x for r in extra for x in _road_lanes_between(m, *r)}
+    driven = {x for r in extra for x in road_lanes_between(m, *r)}
     assert {lid for _, lid in midblock_lanes(m)} <= driven
