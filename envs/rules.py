@@ -759,6 +759,18 @@ class TrafficRules:
         near = commits(wait + STOP_POINT_M, vehicle.speed)
         return math.inf if self.passage_allows(vehicle, chain, commit and near, room) else wait
 
+    def midblock_ahead(self, vehicle, within: float = math.inf) -> tuple[str, float] | None:
+        """(light, distance along the route from the vehicle's centre) of the next mid-block
+        crossing's line ahead of a route follower within `within` metres, or None."""
+        if not self.net.midblock_lines:
+            return None
+        for _k, lid, d, s_own in vehicle.upcoming(within):
+            for sid, s in self.net.midblock_lines.get(lid, ()):
+                ahead = s - s_own if s_own is not None else d + s
+                if 0.0 < ahead <= within:
+                    return sid, ahead
+        return None
+
     def midblock_stop(self, vehicle, lane_id: str, d: float, ignore: frozenset = frozenset()) -> float:
         """Distance ahead of `vehicle` to stop at, STOP_POINT_M before the line of a mid-block
         crossing's light on road lane `lane_id` (its start `d` metres ahead of the vehicle's

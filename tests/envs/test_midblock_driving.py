@@ -40,7 +40,8 @@ def drive(map_path: Path, planner: BaselinePlanner, **kw) -> tuple[dict, dict]:
     by traffic, whether the ego stood before the line while red, the lanes of its red-light runs)."""
     sc = Scenario(name="midblock", map=str(map_path), route=ROUTE, duration=90.0, **kw)
     env = make_env(sc)
-    seen: dict = {"pedestrians": set(), "traffic_on_red": [], "ego_waited": False, "red_light_on": []}
+    seen: dict = {"pedestrians": set(), "traffic_on_red": [], "ego_waited": False, "red_light_on": [],
+                  "signals_ahead": set()}
     last: dict = {}
     try:
         obs, info = env.reset(seed=sc.seed)
@@ -49,6 +50,7 @@ def drive(map_path: Path, planner: BaselinePlanner, **kw) -> tuple[dict, dict]:
         for _ in range(5000):
             obs, _, terminated, truncated, info = env.step(planner.act(obs, info))
             seen["pedestrians"] |= {cw for cw, people in u.control.pedestrians.items() if people}
+            seen["signals_ahead"].add(info["signal_id"])
             if "red_light" in info["new_violations"]:
                 seen["red_light_on"].append(info["lane_id"])
             for v in u.road.vehicles:
@@ -76,6 +78,7 @@ def test_pedestrians_cross_and_the_baseline_planner_stops_for_them_and_the_light
     assert info["route_completed"] and not info["collision"]
     assert info["violations"] == {"red_light": 0, "stop_sign": 0, "pedestrian_yield": 0}
     assert seen["ego_waited"]  # held before the line on red
+    assert "R0_signal0" in seen["signals_ahead"]  # info names the crossing's light as the next control
     assert seen["traffic_on_red"] == []
 
 
