@@ -224,3 +224,15 @@ def test_cli_generate_with_midblock_values(tmp_path, capsys):
     assert "16 crosswalks (2 outside junctions)" in capsys.readouterr().out
     assert FeatureSpace.load(tmp_path / "g" / "features.json") == SPACE
     assert native.dumps(native.load(tmp_path / "g" / "map.json")) == native.dumps(generate(SPACE, seed=3))
+
+
+def test_openscenario_pedestrians_walk_the_midblock_crosswalks_a_route_passes(tmp_path, spec_map):
+    from feat2map.formats.openscenario.writer import write_openscenario
+    from feat2map.scenarios.routes import build_suite
+
+    native.save(spec_map, tmp_path / "map.json")
+    suite = build_suite(tmp_path / "map.json", pedestrian_rate=6.0, seed=0)
+    through = [sc for sc in suite.scenarios if ("J1", "R0", "R4") in sc.route]  # drives R0 and its crossing
+    assert through
+    (xosc,) = write_openscenario(type(suite)(suite.name, (through[0],)), tmp_path / "x")
+    assert 'name="pedestrian_R0_cw_' in xosc.read_text()
