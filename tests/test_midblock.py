@@ -188,6 +188,18 @@ def test_exports_with_midblock_crosswalks_validate(tmp_path, sampled, fmt):
     assert problems == [], problems[:3]
 
 
+def test_the_opendrive_export_passes_asam_qc(tmp_path, sampled):
+    from conftest import SKIP_QC_OPENDRIVE
+
+    from feat2map.formats.asam_qc import OPENDRIVE, find_bundle
+    from feat2map.formats.opendrive import validate_opendrive
+
+    if find_bundle(OPENDRIVE[0]) is None:
+        pytest.skip(SKIP_QC_OPENDRIVE)
+    write_map(sampled, tmp_path / "m.xodr", "opendrive")
+    assert validate_opendrive(tmp_path / "m.xodr") == []
+
+
 # ------------------------------------------------------------------------------ extraction
 
 def test_extraction_counts_midblock_crosswalks(tmp_path, sampled, capsys):
