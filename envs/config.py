@@ -369,7 +369,7 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("signal_offsets", {}, offsets, "{junction or signal id: phase plan offset [s]}; others drawn from "
             "np_random"),
     Setting("pedestrian_rate", 3.0, number(0), "pedestrians per crosswalk per minute (crosswalks of route "
-            "junctions)"),
+            "junctions and mid-block ones the route crosses)"),
     Setting("pedestrian_speed", _drive("pedestrian_speed"), number(0, 10.0, lo_open=True), "[m/s] walking speed"),
     Setting("pedestrians_per_crosswalk", _drive("pedestrians_per_crosswalk"), number(0, 100, integer=True),
             "at most this many on a crosswalk at once"),

@@ -104,6 +104,7 @@ class LaneTable:
         self.crossing = np.array([lid in net.crossings for lid in net.lane_ids])
         self.passage = np.array([lid in net.passages for lid in net.lane_ids], dtype=bool)
         self.crossed = np.array([bool(crossed_lanes(net, lid)) for lid in net.lane_ids], dtype=bool)
+        self.midblock = np.array([lid in net.midblock_lines for lid in net.lane_ids], dtype=bool)  # a crossing's light
         self.neighbours = np.array([bool(lane_changes(m.lanes[lid])) for lid in net.lane_ids])  # across a dashed line
         npts = np.array([len(ln.points) for ln in lanes])
         self.first = np.concatenate([[0], np.cumsum(npts)[:-1]])  # index of each lane's first point
@@ -872,9 +873,9 @@ class TrafficCore:
         return fi[ok], gap[ok], self.speed[lj[ok]]
 
     def _rule_rows(self, driven: np.ndarray) -> list[int]:
-        """Driven rows whose window holds a junction entry, a narrow passage or a lane with a
-        crosswalk that has people on it within LOOKAHEAD_M: the only ones the rules can stop (in
-        row order)."""
+        """Driven rows whose window holds a junction entry, a narrow passage, a mid-block
+        crossing's light or a lane with a crosswalk that has people on it within LOOKAHEAD_M: the
+        only ones the rules can stop (in row order)."""
         t = self.table
         flag = self.entry - self.s <= LOOKAHEAD_M
         W = self.W
@@ -883,6 +884,8 @@ class TrafficCore:
         if t.crossed.any():  # road lanes across junction lanes ahead on the window (`rules.crossing_held`)
             flag |= (t.crossed[np.maximum(W[:, 1:], 0)] & (W[:, 1:] >= 0) &
                         (self.C[:, 1:] - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
+        if t.midblock.any():  # a mid-block crossing's light on the window (`rules.midblock_stop`)
+            flag |= (t.midblock[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         nl = len(t.length)
         busy = [road.slot * nl + k for road in self.roads if road is not None
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
@@ -934,6 +937,7 @@ class TrafficCore:
         # has room to wait (else the scan goes on to the next junction's line: the rules decide);
         # a road lane across a junction lane on the window: the rules decide (`crossing_held`)
         simple &= ~(t.crossed[lanes[:, 1:]] & valid[:, 1:]).any(axis=1)
+        simple &= ~(t.midblock[lanes] & valid).any(axis=1)  # a mid-block light on the window: the rules decide
         nl = len(t.length)
         busy = [road.slot * nl + k for road in roads if road is not None
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]

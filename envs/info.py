@@ -38,12 +38,13 @@ INFO_KEYS: tuple[InfoKey, ...] = (
     InfoKey("junction_feature.lanes_in", np.ndarray, "incoming lanes per leg, 8 int64, -1 padded"),
     InfoKey("junction_feature.lanes_out", np.ndarray, "outgoing lanes per leg, 8 int64, -1 padded"),
     InfoKey("manoeuvre", str, "the ego's turn there: \"left\" | \"straight\" | \"right\" | \"uturn\" (\"\")"),
-    InfoKey("control_ahead", str, "\"signal\" | \"stop\" | \"bare\" for the next stop line on the route (\"\" past "
-            "the last)"),
+    InfoKey("control_ahead", str, "\"signal\" | \"stop\" | \"bare\" for the next stop line on the route, a "
+            "mid-block crossing's light's included (\"\" past the last)"),
     InfoKey("signal_id", str, "the signal governing the ego's next stop line (\"\")"),
     InfoKey("signal_state", str, "its state: \"green\" | \"amber\" | \"red\" (\"\")"),
     InfoKey("signal_time_to_change", float, "[s] until its state changes (inf)"),
-    InfoKey("signal_states", dict, "{signal id: state} of the next junction's signals"),
+    InfoKey("signal_states", dict, "{signal id: state} of the next junction's signals (before a mid-block "
+            "crossing's line: of the signals outside junctions)"),
     InfoKey("distance_to_stop_line", float, "[m] along the route from the ego centre to the next stop line (the "
             "junction entry where bare; inf if none)"),
     InfoKey("violations", dict, "counts {\"red_light\", \"stop_sign\", \"pedestrian_yield\"} so far this episode "

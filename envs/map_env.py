@@ -139,15 +139,20 @@ class EgoTask:
         sl, in_lane, j_lane, d = rules.line_ahead(ego)
         control = "" if in_lane is None else (sl.kind if sl else "bare")
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
+        sig_id = sl.control_id if sl is not None and sig_state else ""
         plan = rules.plans.get(sl.control_id) if sl is not None else None
+        states = rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {}
+        mid = rules.midblock_ahead(ego, d)  # a mid-block crossing's light before that line: the next one
+        if mid is not None:
+            sig_id, d = mid
+            control, sig_state, plan = "signal", rules.signal_state(sig_id), rules.plans.get(sig_id)
+            states = rules.signal_states(None)
         feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
         done = ego.route_distance_done() if done is None else done
         return (
             float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
-            sl.control_id if sl is not None and sig_state else "", sig_state,
-            float(plan.time_to_change(sl.control_id, rules.t)) if sl is not None and plan else math.inf,
-            rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {},
-            float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
+            sig_id, sig_state, float(plan.time_to_change(sig_id, rules.t)) if sig_id and plan else math.inf,
+            states, float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
             float(min(done / max(self._route_len, 1e-6), 1.0)),
             bool(self.route_completed() if completed is None else completed),
             net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
@@ -178,10 +183,14 @@ class EgoTask:
         return self.vehicle.leader_gaps()
 
     def traffic_control_vector(self) -> np.ndarray:
-        """observation.TRAFFIC_CONTROL_FEATURES of the ego's next stop line."""
+        """observation.TRAFFIC_CONTROL_FEATURES of the ego's next stop line (a mid-block
+        crossing's light's included)."""
         ego, rules = self.vehicle, self.control
         sl, _, _, d = rules.line_ahead(ego)
         state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else None
+        mid = rules.midblock_ahead(ego, d)
+        if mid is not None:
+            sl, state, d = None, rules.signal_state(mid[0]), mid[1]
         ped = rules.stop_distance(ego, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
         return np.array([state == "green", state == "amber", state == "red",
                          sl is not None and sl.kind == "stop", min(d, STOP_LINE_RANGE_M) / STOP_LINE_RANGE_M,
@@ -246,8 +255,10 @@ class MapEnv(EgoTask, AbstractEnv):
         route_junctions = {j for l in route if (j := self.net.hdmap.lanes[l].junction_id) is not None}
         by_junction, order = self.net.memo("crosswalks", lambda: group_by(self.net.hdmap.crosswalks.values(),
                                                                           "junction_id"))
-        self.control.active_crosswalks = sorted((c for j in route_junctions for c in by_junction.get(j, ())),
-                                                key=order.__getitem__)  # in map order
+        # the crosswalks of the route's junctions and the mid-block ones its road lanes cross, in map order
+        crossed = {c for lid in route for c, _, _ in self.net.crossings.get(lid, ()) if c in by_junction.get(None, ())}
+        self.control.active_crosswalks = sorted({c for j in route_junctions for c in by_junction.get(j, ())} | crossed,
+                                                key=order.__getitem__)
         self._spawn_lanes = self._traffic_spawn_lanes(route, route_junctions)
         for _ in range(int(self.config["traffic_vehicles"])):
             self._spawn_traffic()

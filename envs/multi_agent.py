@@ -399,7 +399,10 @@ class _World(MapEnv):
         m = self.net.hdmap
         lanes = [l for r, _ in routes for l in r]
         junctions = {j for j in (m.lanes[l].junction_id for l in lanes) if j is not None}
-        self.control.active_crosswalks = sorted(c.id for c in m.crosswalks.values() if c.junction_id in junctions)
+        crossed = {c for lid in set(lanes) for c, _, _ in self.net.crossings.get(lid, ())
+                   if m.crosswalks[c].junction_id is None}  # mid-block crossings on the routes
+        self.control.active_crosswalks = sorted(c.id for c in m.crosswalks.values()
+                                                if c.junction_id in junctions or c.id in crossed)
         self._spawn_lanes = self._traffic_spawn_lanes(sorted(set(lanes)), junctions)
         return routes
 

@@ -29,7 +29,7 @@ from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEA
                       FOOTPRINT_STEP_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
                       VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
-from ..model import HDMap, Lane, incoming_lanes
+from ..model import HDMap, Lane, incoming_lanes, midblock_controls
 from .lanes import PolylineLane, project_rows, segment_table
 from .sweep import stretches, turn_setbacks
 
@@ -324,6 +324,7 @@ class MapNetwork(RoadNetwork):
     conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
+    midblock_lines: dict[str, list[tuple[str, float]]] = field(default_factory=dict)  # road lane -> (light, s of its line)
     max_line_setback: float = 0.0  # the farthest a wait point (`setbacks`) lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
     merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
@@ -581,8 +582,19 @@ class MapNetwork(RoadNetwork):
 
     def _build_controls(self, road_lanes: RoadLanes) -> None:
         m = self.hdmap
+        midblock = midblock_controls(m)  # lights of mid-block crossings: lines on their lanes, not junction entries
+        for sid in midblock:
+            sig = m.signals[sid]
+            line = LineString(sig.stop_line)
+            for lid in incoming_lanes(m.lanes, sig.lane_ids):
+                cl = LineString(m.lanes[lid].centerline)
+                if line.intersects(cl):
+                    s = cl.project(line.intersection(cl).representative_point())
+                    self.midblock_lines.setdefault(lid, []).append((sid, float(s)))
         for kind, table in (("signal", m.signals), ("stop", m.stop_signs)):
             for c in table.values():
+                if c.id in midblock and kind == "signal":
+                    continue
                 line = LineString(c.stop_line) if len(c.stop_line) >= 2 else None
                 for lid in incoming_lanes(m.lanes, c.lane_ids):
                     ln = m.lanes[lid]
@@ -626,14 +638,19 @@ class MapNetwork(RoadNetwork):
             conf[a].add(b)
             conf.setdefault(b, set()).add(a)
         self.conflicts = {k: frozenset(v) for k, v in conf.items()}
-        # crosswalk crossings
+        # crosswalk crossings: junction lanes across any crosswalk, road lanes across those outside
+        # junctions (mid-block crossings; a junction's crosswalks reach onto its approaches' ends)
         cws = list(m.crosswalks.values())
         if cws:
             polys = [Polygon(c.polygon) for c in cws]
             tree = STRtree(polys)
-            for ln in jl:
+            road = [ln for ln in m.lanes.values() if ln.junction_id is None] \
+                if any(c.junction_id is None for c in cws) else []
+            for ln in jl + road:
                 cl = LineString(ln.centerline)
                 for ci in tree.query(cl, predicate="intersects").tolist():
+                    if ln.junction_id is None and cws[ci].junction_id is not None:
+                        continue
                     inter = cl.intersection(polys[ci])
                     if inter.is_empty:
                         continue

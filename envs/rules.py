@@ -759,6 +759,34 @@ class TrafficRules:
         near = commits(wait + STOP_POINT_M, vehicle.speed)
         return math.inf if self.passage_allows(vehicle, chain, commit and near, room) else wait
 
+    def midblock_ahead(self, vehicle, within: float = math.inf) -> tuple[str, float] | None:
+        """(light, distance along the route from the vehicle's centre) of the next mid-block
+        crossing's line ahead of a route follower within `within` metres, or None."""
+        if not self.net.midblock_lines:
+            return None
+        for _k, lid, d, s_own in vehicle.upcoming(within):
+            for sid, s in self.net.midblock_lines.get(lid, ()):
+                ahead = s - s_own if s_own is not None else d + s
+                if 0.0 < ahead <= within:
+                    return sid, ahead
+        return None
+
+    def midblock_stop(self, vehicle, lane_id: str, d: float, ignore: frozenset = frozenset()) -> float:
+        """Distance ahead of `vehicle` to stop at, STOP_POINT_M before the line of a mid-block
+        crossing's light on road lane `lane_id` (its start `d` metres ahead of the vehicle's
+        centre, negative once on it) that shows red, or amber where it can stop; inf when none
+        holds it (lines behind the centre are passed)."""
+        if "signal" in ignore:
+            return math.inf
+        for sid, s in self.net.midblock_lines.get(lane_id, ()):
+            d_line = d + s
+            if d_line <= 0.0:
+                continue
+            state = self.signal_state(sid)
+            if state == "red" or (state == "amber" and stops_at_amber(d_line, vehicle.speed)):
+                return d_line - STOP_POINT_M
+        return math.inf
+
     def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
         """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""
         net = self.net
@@ -846,10 +874,13 @@ class TrafficRules:
         room = 0.0  # road since the last junction lane scanned
         for k, lid, d, s_own in vehicle.upcoming():
             lane_model = m.lanes[lid]
-            if s_own is not None:  # the current lane: pedestrians ahead of us on it
+            if s_own is not None:  # the current lane: a mid-block light's line and pedestrians ahead of us on it
+                stop = self.midblock_stop(vehicle, lid, -s_own, ignore) if lid in net.midblock_lines else math.inf
                 ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, s_own)
                 if ped is not None:
-                    return ped - s_own
+                    stop = min(stop, ped - s_own)
+                if stop < math.inf:
+                    return stop
                 continue
             if "conflict" not in ignore and self.crossing_held(vehicle, lid, d):
                 return d - STOP_POINT_M
@@ -858,9 +889,12 @@ class TrafficRules:
                 d_line = d - line_setback(net, in_lane)
                 if not self.may_enter(vehicle, in_lane, lid, d_line, commit and not beyond(d, before), ignore):
                     return d_line - STOP_POINT_M
+            stop = self.midblock_stop(vehicle, lid, d, ignore) if lid in net.midblock_lines else math.inf
             ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)
             if ped is not None:
-                return d + ped
+                stop = min(stop, d + ped)
+            if stop < math.inf:
+                return stop
             if lane_model.junction_id is not None:
                 entered, room = True, 0.0
             elif entered:  # on to the first road after a junction entry with room to wait on it
@@ -891,7 +925,8 @@ class EgoJudge:
     """The ego's violations and leaving the road, judged after every simulation frame.
 
     red_light: the ego crossed a signal's stop line into the junction while red (amber is
-    allowed; with `right_turn_on_red`, a right turn after a full stop is too); stop_sign: it
+    allowed; with `right_turn_on_red`, a right turn after a full stop is too), or a mid-block
+    crossing's line on red; stop_sign: it
     entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
     route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
 
@@ -906,6 +941,8 @@ class EgoJudge:
         self._lane = rules.net.id_of.get(ego.lane_index)
         self._stopped: set[str] = set()  # incoming lanes whose line the ego has stopped at
         self._crossed: set[str] = set()
+        self._crossed_mid: set[tuple[str, str]] = set()  # (light, lane) of mid-block lines crossed on red
+        self._lane_s = getattr(ego, "lane_s", 0.0)
         self._ped_flags: set[tuple[str, str]] = set()
 
     def check(self) -> None:
@@ -942,7 +979,14 @@ class EgoJudge:
                     self._violate("red_light")
                 if psl is not None and psl.kind == "stop" and entry not in self._stopped:
                     self._violate("stop_sign")
-        self._lane = lid
+        # a mid-block crossing's light: its line crossed on red (on the lane, or at the lane change onto it)
+        s_before = self._lane_s if lid == prev else -math.inf
+        for sid, s_line in net.midblock_lines.get(lid, ()):
+            if s_before < s_line <= ego.lane_s and (sid, lid) not in self._crossed_mid \
+                    and rules.signal_state(sid) == "red":
+                self._crossed_mid.add((sid, lid))
+                self._violate("red_light")
+        self._lane, self._lane_s = lid, ego.lane_s
         # pedestrians: the ego on a crosswalk with a person next to its path
         for cw, s0, s1 in net.crossings.get(lid, ()):
             if s0 - PEDESTRIAN_YIELD_STRETCH_M <= ego.lane_s <= s1 + PEDESTRIAN_YIELD_STRETCH_M \

@@ -80,6 +80,11 @@ class Bezier:
     def length(self) -> float:
         return float(self._arc[1][-1])
 
+    def param_at(self, s: float) -> float:
+        """The parameter t at arc length `s` from the start (clamped to the curve)."""
+        t, arc = self._arc
+        return float(np.interp(s, arc, t))
+
     def sample_params(self, spacing: float) -> np.ndarray:
         """Parameters t of points at (nearly) equal arc-length spacing, t=0 and t=1 included."""
         t, s = self._arc

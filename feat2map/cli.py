@@ -78,10 +78,13 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 
 def _summary(m) -> str:
-    """`8 junctions, 92 roads, ...`: what a map holds."""
-    return ", ".join(counted(n, noun) for n, noun in (
+    """`8 junctions, 92 roads, ...`: what a map holds (crosswalks outside junctions, mid-block
+    ones, counted apart when there are any)."""
+    text = ", ".join(counted(n, noun) for n, noun in (
         (len(m.junctions), "junction"), (len(m.roads), "road"), (len(m.lanes), "lane"), (len(m.signals), "signal"),
         (len(m.stop_signs), "stop sign"), (len(m.crosswalks), "crosswalk")))
+    midblock = sum(c.junction_id is None for c in m.crosswalks.values())
+    return text + (f" ({midblock} outside junctions)" if midblock else "")
 
 
 GENERATE_MARKERS = ("map.json",)  # a folder holding one is an earlier `generate` output, replaced whole
@@ -135,15 +138,19 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
 
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
-                  buildable: GenerationConfig | None = None):
+                  buildable: GenerationConfig | None = None, midblock: list | None = None):
     """Junction features of the maps; with `buildable`, only those generation can build with
-    that config (the others are skipped with a warning naming map, junction and why)."""
-    from .extract import extract_junctions
+    that config (the others are skipped with a warning naming map, junction and why); the
+    maps' mid-block crosswalks are appended to `midblock` when given."""
+    from .extract import extract_junctions, extract_midblock
     from .generate import check_buildable
 
     junctions = []
     for p in tqdm(paths, desc="reading maps", unit="map", disable=quiet or len(paths) < 2 or not on_terminal()):
-        junctions += extract_junctions(read_map(p), map_name=str(p), skipped=skipped)
+        m = read_map(p)
+        junctions += extract_junctions(m, map_name=str(p), skipped=skipped)
+        if midblock is not None:
+            midblock += extract_midblock(m, map_name=str(p))
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     if buildable is None:
@@ -187,8 +194,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
         spec = load_spec(args.spec)
         m = build_spec(spec, seed=args.seed, config=spec.generation_config(_overrides(args)), space=space)
+        from .extract import extract_midblock
+
         feats = [j.feature for j in m.junctions.values() if j.feature is not None]
-        space = FeatureSpace.from_features(feats) if feats else None
+        space = FeatureSpace.from_features(feats, (c.feature for c in extract_midblock(m))) if feats else None
     else:
         assert space is not None  # set above whenever there is no spec
         m = generate(space, seed=args.seed, config=cfg, progress=not args.quiet)
@@ -227,8 +236,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
         check_picture_path(args.picture)
     skipped: list = []
-    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet)
-    space = map_feature(junctions)
+    midblock: list = []
+    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock)
+    space = map_feature(junctions, midblock)
     if args.picture:  # first: it is the step that can fail; nothing is written if it does
         from .render import render_map
 
@@ -240,11 +250,14 @@ def cmd_extract(args: argparse.Namespace) -> int:
         atomic.write_text(args.out, space.to_json())
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
-               "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped]}
+               "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped],
+               "midblock_crosswalks": [c.to_dict() for c in midblock]}
         print(json.dumps(doc, indent=2))
         return 0
     _print_junction_table(args.maps, junctions, skipped)
-    found = f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped)"
+    signalised = sum(c.feature.control == "signal" for c in midblock)
+    found = (f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped), "
+             f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised)")
     if args.out:  # the map feature is in the file: not again on the screen
         print(f"\n{found}; map feature written to {args.out}")
         return 0

@@ -29,6 +29,11 @@ STRICT_CARDINAL_DEVIATION_DEG = 45.0  # ... or this far, when the first layout's
 MIN_STUB_LENGTH_M = 10.0  # a junction must leave at least this much road before the half-way line
 MIN_JUNCTION_RADIUS_M = 12.0  # centre to socket, before lane-width growth
 JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
+# mid-block crosswalks (on a road between two junctions): their centre lies this fraction of the road's
+# length from the upstream junction when sampled; one asked for (specs) may lie anywhere its strip and
+# stop lines keep JUNCTION_MARGIN_M clear of both ends of the road
+MIDBLOCK_POSITION_RANGE = (0.35, 0.65)
+MIDBLOCK_LINE_REACH_M = 5.0  # a signal's stop line this close before a crosswalk outside junctions guards that crossing
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 # declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range

@@ -19,7 +19,7 @@ from shapely.geometry.polygon import orient
 from .angles import classify_turn, positive_angle, positive_degrees, wrap_angle
 from .bezier import Bezier, left_normal, unit
 from .config import MIN_STUB_LENGTH_M, GenerationConfig
-from .features import JunctionFeature
+from .features import JunctionFeature, MidblockFeature
 from .invariants import AREA_EPS_M2
 from .errors import CrossingRoadsError, LayoutError
 from .layout import Placement
@@ -43,6 +43,17 @@ class RoadChain:
     @property
     def n_pieces(self) -> int:
         return len(self.poses) - 1
+
+
+@dataclass(frozen=True)
+class MidblockRequest:
+    """A mid-block crosswalk to build: on the road at `socket` (junction index, socket index of
+    its normalized feature), its position measured from that junction; `socket` None: on a road
+    between junctions the layout draws (seeded). `name` labels it in errors."""
+
+    feature: MidblockFeature
+    socket: tuple[int, int] | None = None
+    name: str = "mid-block crosswalk"
 
 
 @dataclass(frozen=True)
@@ -213,20 +224,57 @@ def _build_chain(b: _Builder, chain: RoadChain) -> None:
             b.link(x, y)
 
 
+def assign_midblock(placements: Sequence[Placement], requests: Sequence[MidblockRequest],
+                    rng: np.random.Generator) -> dict[tuple[int, int], MidblockRequest]:
+    """(junction, socket) -> the request built on its road: the asked-for sockets as they are,
+    the others on distinct roads between junctions drawn by `rng` (measured from the road's
+    start). A socket ending in a stub, two crossings on one road or more crossings than roads
+    is a LayoutError naming the request."""
+    out: dict[tuple[int, int], MidblockRequest] = {}
+    taken: set[tuple[int, int]] = set()
+
+    def road_of(j: int, s: int) -> tuple[int, int]:  # a road by its start socket (the smaller end)
+        ln = placements[j].links[s]
+        return min((j, s), (ln.junction, ln.socket)) if ln is not None else (j, s)
+
+    for r in requests:
+        if r.socket is None:
+            continue
+        j, s = r.socket
+        if placements[j].links[s] is None:
+            raise LayoutError("its road ends in a stub at the map's edge: a mid-block crosswalk lies on a road "
+                              "between two junctions (pin the junctions next to each other with cell)", r.name)
+        if road_of(j, s) in taken:
+            raise LayoutError("its road already has a mid-block crosswalk (one per road)", r.name)
+        taken.add(road_of(j, s))
+        out[(j, s)] = r
+    free = [(j, s) for j, p in enumerate(placements) for s, ln in enumerate(p.links)
+            if ln is not None and (j, s) < (ln.junction, ln.socket) and (j, s) not in taken]
+    drawn = [r for r in requests if r.socket is None]
+    if len(drawn) > len(free):
+        raise LayoutError(f"{len(drawn)} mid-block crosswalks to place but {len(free)} free roads between junctions "
+                          "(one per road: ask for fewer, or more junctions)", drawn[0].name)
+    for r, k in zip(drawn, rng.permutation(len(free))[:len(drawn)].tolist()):
+        out[free[k]] = r
+    return out
+
+
 def build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None = None,
-              chains: Sequence[RoadChain] = (), progress: bool = False) -> HDMap:
-    """Instantiate every placed junction, its roads, lanes, controls and crosswalks, and the
-    hand-written road chains (which keep their absolute coordinates); `progress` shows a bar
-    over the junctions (twice: their roads, then their lanes), on a terminal only."""
+              chains: Sequence[RoadChain] = (), progress: bool = False,
+              midblock: dict[tuple[int, int], MidblockRequest] | None = None) -> HDMap:
+    """Instantiate every placed junction, its roads, lanes, controls and crosswalks, the
+    mid-block crosswalks (`assign_midblock`'s) and the hand-written road chains (which keep
+    their absolute coordinates); `progress` shows a bar over the junctions (twice: their roads,
+    then their lanes), on a terminal only."""
     from tqdm import tqdm
 
     with tqdm(total=2 * len(placements), desc="build", unit="junction", unit_scale=0.5, leave=False,
               disable=None if progress and len(placements) > 1 else True) as bar:
-        return _build_map(placements, cfg, meta, chains, bar.update)
+        return _build_map(placements, cfg, meta, chains, bar.update, midblock or {})
 
 
 def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dict | None,
-               chains: Sequence[RoadChain], tick) -> HDMap:
+               chains: Sequence[RoadChain], tick, midblock: dict[tuple[int, int], MidblockRequest]) -> HDMap:
     b = _Builder(cfg)
     for chain in chains:
         _build_chain(b, chain)
@@ -338,6 +386,11 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 crosswalks[cid] = Crosswalk(cid, jid, _crosswalk_polygon(g, poly, cfg))
         junctions[jid] = Junction(jid, as_polyline(poly.exterior.coords[:-1]), f, p.cell,
                                   tuple(socket_road[(j, s)] for s in range(f.n_roads)))
+    for (j, s), req in sorted(midblock.items()):
+        road = b.roads[socket_road[(j, s)]]
+        ln = placements[j].links[s]
+        from_start = ln is None or (j, s) < (ln.junction, ln.socket)
+        _midblock(b, road, req, from_start, cfg, crosswalks, signals)
 
     lanes = {}
     for lid, d in b.lanes.items():
@@ -346,6 +399,46 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
         lanes[lid] = Lane(**d)
     roads = dict(sorted(b.roads.items(), key=lambda kv: (kv[1].kind == "junction", kv[0])))
     return HDMap(lanes, roads, junctions, signals, stops, crosswalks, meta=dict(meta or {}))
+
+
+def _midblock(b: _Builder, road: Road, req: MidblockRequest, from_start: bool, cfg: GenerationConfig,
+              crosswalks: dict[str, Crosswalk], signals: dict[str, Signal]) -> None:
+    """A crosswalk `crosswalk_width` wide across all lanes of `road` (and `junction_margin`
+    beyond its edges, as at junctions), centred `req.feature.position` of the road's length from
+    the asking junction; for a signalised one a light per direction of travel, its stop line
+    `junction_margin` before the crossing and its pole on the right, facing the traffic."""
+    ref = road.reference
+    assert ref is not None
+    length = ref.length
+    centre = length * (req.feature.position if from_start else 1.0 - req.feature.position)
+    half = cfg.crosswalk_width / 2
+    reach = half + (2 * cfg.junction_margin if req.feature.control == "signal" else cfg.junction_margin)
+    if not reach <= centre <= length - reach:
+        raise LayoutError(f"at {req.feature.position:g} of a {length:.1f} m road it does not fit: its strip"
+                          f"{' and stop lines' if req.feature.control == 'signal' else ''} need {reach:.2f} m "
+                          "of road on each side of its centre", req.name)
+    w = cfg.lane_width
+    n_right, n_left = len(road.right_lanes), len(road.left_lanes)
+    right_edge, left_edge = road.lane_offset - n_right * w, road.lane_offset + n_left * w
+    t0, t1 = ref.param_at(centre - half), ref.param_at(centre + half)
+    margin = cfg.junction_margin
+    (a0, a1), (b0, b1) = (ref.offset_points(np.array([t]), (right_edge - margin, left_edge + margin)) for t in (t0, t1))
+    cid = f"{road.id}_cw"
+    crosswalks[cid] = Crosswalk(cid, None, as_polyline([a0[0], b0[0], b1[0], a1[0]]))
+    if req.feature.control != "signal":
+        return
+    # along the reference (right lanes) the line lies before the strip's start, against it after its end
+    for k, (lanes, at, edge, inner, turn) in enumerate((
+            (road.right_lanes, centre - half - margin, right_edge, road.lane_offset, 0.0),
+            (road.left_lanes, centre + half + margin, left_edge, road.lane_offset, math.pi))):
+        if not lanes:
+            continue
+        t = ref.param_at(at)
+        outer, mid, pole = ref.offset_points(np.array([t]), (edge, inner, edge + math.copysign(margin, edge - inner)))
+        sid = f"{road.id}_signal{k}"
+        heading = positive_angle(float(ref.heading(t)) + turn + math.pi)
+        signals[sid] = Signal(sid, None, as_polyline([outer[0], mid[0]]), (float(pole[0][0]), float(pole[0][1])),
+                              heading, tuple(reversed(lanes)))
 
 
 def pavement(reference: Bezier, half_width: float, cfg: GenerationConfig) -> Polygon:

@@ -7,6 +7,10 @@ paper's polygon centroid on request) to the mean of its arm's mouth points. Cont
 `signal` if a signal names the junction (or, naming none, governs a lane entering it), else
 `stop` if a stop sign does, else `bare` (yield signs leave a junction bare); a crosswalk counts
 when it lies in or touches the junction area or is linked to the junction by the reader.
+
+Mid-block crosswalks (`extract_midblock`): a crosswalk that no reader linked to a junction,
+crosses road lanes and touches neither a junction area nor a junction lane is a crossing between
+junctions; `signal` when a light guards it (`model.midblock_crossing`), else `bare`.
 """
 from __future__ import annotations
 
@@ -23,8 +27,8 @@ from .angles import positive_degrees
 from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
                      ARM_PROBE_M, ARM_SAME_POINT_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
-from .features import FeatureSpace, JunctionFeature, Socket, normalize_rotation
-from .model import HDMap, Lane, interior_lane
+from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, normalize_rotation
+from .model import HDMap, Lane, interior_lane, midblock_controls
 
 
 @dataclass(frozen=True)
@@ -303,10 +307,14 @@ def _angles_and_gap(arms: Sequence[Arm]) -> tuple[list[float], float]:
 def _junction_controls(m: HDMap) -> dict[str, set[str]]:
     """Junction id -> control kinds: a signal or stop sign counts for the junction it names;
     one that names none, for the junctions its lanes lead into (the readers name a control's
-    junction from the same two sources, so neither leaks into a neighbour)."""
+    junction from the same two sources, so neither leaks into a neighbour); a signal guarding a
+    mid-block crosswalk (`midblock_controls`) controls no junction."""
     out: dict[str, set[str]] = {}
+    midblock = midblock_controls(m)
     for kind, items in (("signal", m.signals), ("stop", m.stop_signs)):
         for s in items.values():
+            if kind == "signal" and s.id in midblock:
+                continue
             if s.junction_id:
                 out.setdefault(s.junction_id, set()).add(kind)
                 continue
@@ -389,6 +397,54 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
     return out
 
 
-def map_feature(junctions: Iterable[ExtractedJunction | JunctionFeature]) -> FeatureSpace:
-    """The map feature of one or several maps: union of discrete values, per-n angle ranges."""
-    return FeatureSpace.from_features(j.feature if isinstance(j, ExtractedJunction) else j for j in junctions)
+@dataclass(frozen=True)
+class ExtractedMidblock:
+    """One mid-block crosswalk: its feature (`position`: its centre's fraction along `lane`, the
+    first road lane it crosses) and the road lanes it crosses."""
+
+    map_name: str
+    id: str
+    feature: MidblockFeature
+    lane: str
+    lanes: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        return {"map": self.map_name, "id": self.id, "control": self.feature.control,
+                "position": round(self.feature.position, 4), "lane": self.lane, "lanes": list(self.lanes)}
+
+
+def extract_midblock(m: HDMap, map_name: str = "map") -> list[ExtractedMidblock]:
+    """The crosswalks between junctions (see the module docstring), in map order."""
+    from shapely.geometry import LineString, Point
+
+    walks = [c for c in m.crosswalks.values() if c.junction_id is None and len(c.polygon) >= 3]
+    if not walks:
+        return []
+    junctions = [Polygon(j.polygon).buffer(0) for j in m.junctions.values() if len(j.polygon) >= 3]
+    jtree = STRtree(junctions) if junctions else None
+    ids = list(m.lanes)
+    lines = [LineString(m.lanes[x].centerline) for x in ids]
+    tree = STRtree(lines)
+    guarded = {cw for cw, _, _ in midblock_controls(m).values()}
+    out = []
+    for c in walks:
+        poly = Polygon(c.polygon).buffer(0)
+        if poly.is_empty or (jtree is not None and len(jtree.query(poly, predicate="intersects"))):
+            continue
+        crossed = [ids[k] for k in sorted(tree.query(poly, predicate="intersects").tolist())]
+        if not crossed or any(m.lanes[x].junction_id is not None for x in crossed):
+            continue
+        lane = crossed[0]
+        line = lines[ids.index(lane)]
+        at = line.project(Point(poly.centroid.coords[0])) / max(line.length, 1e-9)
+        feature = MidblockFeature("signal" if c.id in guarded else "bare", min(max(at, 1e-6), 1 - 1e-6))
+        out.append(ExtractedMidblock(map_name, c.id, feature, lane, tuple(crossed)))
+    return out
+
+
+def map_feature(junctions: Iterable[ExtractedJunction | JunctionFeature],
+                midblock: Iterable[ExtractedMidblock | MidblockFeature] = ()) -> FeatureSpace:
+    """The map feature of one or several maps: union of discrete values, per-n angle ranges, and
+    the mid-block crosswalk values seen."""
+    return FeatureSpace.from_features((j.feature if isinstance(j, ExtractedJunction) else j for j in junctions),
+                                      (c.feature if isinstance(c, ExtractedMidblock) else c for c in midblock))

@@ -19,6 +19,9 @@ from .config import MAX_LEGS, MIN_LEG_SEPARATION_DEG
 from .errors import FeatureError, snippet
 
 CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
+# mid-block crosswalk values of a map feature: "none" (roads between junctions without one), a bare
+# crossing, or one with a signal per direction
+MIDBLOCK: tuple[str, ...] = ("none", "bare", "signal")
 ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
 QUARTER = 90.0
 # Float noise of rotated, re-measured angles (~1e-7 deg) must not decide ties of symmetric junctions
@@ -245,29 +248,55 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
     )
 
 
+@dataclass(frozen=True)
+class MidblockFeature:
+    """A crosswalk on a road between two junctions: `control` "bare" or "signal" (a light per
+    direction of travel), its centre `position` (0..1) of the road's length from the junction
+    that asks for it (the upstream one, for sampled crossings: the road's start)."""
+
+    control: str = "bare"
+    position: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.control not in MIDBLOCK[1:]:
+            raise FeatureError(f"unknown mid-block crosswalk control {self.control!r}, expected one of {MIDBLOCK[1:]}")
+        if isinstance(self.position, bool) or not isinstance(self.position, (int, float)) \
+                or not 0.0 < self.position < 1.0:
+            raise FeatureError(f"a mid-block crosswalk's position is a fraction of its road, strictly between 0 "
+                               f"and 1, got {snippet(self.position)}")
+
+
 Range = tuple[float, float]
 
 
 @dataclass(frozen=True)
 class FeatureSpace:
-    """The paper's map feature: discrete value sets and per-n socket angle ranges."""
+    """The paper's map feature: discrete value sets and per-n socket angle ranges, plus the
+    mid-block crosswalk values (`midblock`, a subset of MIDBLOCK) sampled on the roads between
+    junctions; the default ("none",) is the paper's map feature, with none."""
 
     road_counts: tuple[int, ...]
     controls: tuple[str, ...]
     crosswalks: tuple[bool, ...]
     rotation_ranges: Mapping[int, tuple[Range, ...]]
+    midblock: tuple[str, ...] = ("none",)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "road_counts", tuple(sorted(set(int(n) for n in self.road_counts))))
         object.__setattr__(self, "controls", tuple(c for c in CONTROLS if c in set(self.controls)))
         object.__setattr__(self, "crosswalks", tuple(sorted(set(bool(c) for c in self.crosswalks), reverse=True)))
+        unknown = [v for v in self.midblock if v not in MIDBLOCK]
+        if unknown:
+            raise FeatureError(f"unknown mid-block crosswalk value(s) {snippet(unknown)}, expected {list(MIDBLOCK)}",
+                               "midblock")
+        object.__setattr__(self, "midblock", tuple(v for v in MIDBLOCK if v in set(self.midblock)))
         ranges = {int(n): tuple((float(lo), float(hi)) for lo, hi in r) for n, r in self.rotation_ranges.items()}
         object.__setattr__(self, "rotation_ranges", dict(sorted(ranges.items())))
         self.validate()
 
     def validate(self) -> None:
-        if not self.road_counts or not self.controls or not self.crosswalks:
-            raise FeatureError("road_counts, controls and crosswalks must each be non-empty")
+        if not self.road_counts or not self.controls or not self.crosswalks or not self.midblock:
+            raise FeatureError("road_counts, controls, crosswalks and midblock must each be non-empty")
         if min(self.road_counts) < 3 or max(self.road_counts) > MAX_LEGS:
             raise FeatureError(f"road counts must be 3 to {MAX_LEGS}, got {list(self.road_counts)}")
         for n in self.road_counts:
@@ -288,9 +317,16 @@ class FeatureSpace:
             if ranges[-1][0] - ranges[0][1] >= 360.0:
                 raise FeatureError("socket ranges span 360 degrees or more", f"rotation_ranges.{n}")
 
+    @property
+    def midblock_controls(self) -> tuple[str, ...]:
+        """The mid-block crosswalk controls sampled (the values other than "none")."""
+        return tuple(v for v in self.midblock if v != "none")
+
     @classmethod
-    def from_features(cls, features: Iterable[JunctionFeature]) -> "FeatureSpace":
-        """Merge junction features into one map feature (union of values, per-n min/max angle)."""
+    def from_features(cls, features: Iterable[JunctionFeature],
+                      midblock: Iterable[MidblockFeature] = ()) -> "FeatureSpace":
+        """Merge junction features into one map feature (union of values, per-n min/max angle);
+        `midblock`: the mid-block crosswalks seen (their controls join "none", the roads without)."""
         feats = list(features)
         if not feats:
             raise FeatureError("no junction features to merge")
@@ -305,6 +341,7 @@ class FeatureSpace:
             controls=tuple({f.control for f in feats}),
             crosswalks=tuple({f.crosswalk for f in feats}),
             rotation_ranges={n: tuple((lo, hi) for lo, hi in r) for n, r in ranges.items()},
+            midblock=("none", *(c.control for c in midblock)),
         )
 
     def merge(self, other: "FeatureSpace") -> "FeatureSpace":
@@ -318,15 +355,21 @@ class FeatureSpace:
             self.controls + other.controls,
             self.crosswalks + other.crosswalks,
             ranges,
+            self.midblock + other.midblock,
         )
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        """The JSON form; `midblock` only when it asks for mid-block crosswalks, so that a map
+        feature without them writes (and its maps record) exactly what it always did."""
+        out: dict[str, Any] = {
             "road_counts": list(self.road_counts),
             "controls": list(self.controls),
             "crosswalks": list(self.crosswalks),
             "rotation_ranges": {str(n): [list(r) for r in rs] for n, rs in self.rotation_ranges.items()},
         }
+        if self.midblock != ("none",):
+            out["midblock"] = list(self.midblock)
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "feature space") -> "FeatureSpace":
@@ -336,7 +379,9 @@ class FeatureSpace:
         if missing:
             raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
         for key, kind, name in (("road_counts", int, "integers"), ("controls", str, "strings"),
-                                ("crosswalks", bool, "true/false")):
+                                ("crosswalks", bool, "true/false"), ("midblock", str, "strings")):
+            if key not in data:
+                continue
             value = data[key]
             if not isinstance(value, list) or not all(isinstance(x, kind) and (kind is bool or not isinstance(
                     x, bool)) for x in value):
@@ -344,6 +389,10 @@ class FeatureSpace:
         unknown = [c for c in data["controls"] if c not in CONTROLS]
         if unknown:
             raise FeatureError(f"unknown control(s) {snippet(unknown)}, expected {list(CONTROLS)}", f"{where}: controls")
+        midblock = data.get("midblock", ["none"])
+        unknown = [c for c in midblock if c not in MIDBLOCK]
+        if unknown:
+            raise FeatureError(f"unknown value(s) {snippet(unknown)}, expected {list(MIDBLOCK)}", f"{where}: midblock")
         rr = data["rotation_ranges"]
         if not isinstance(rr, Mapping):
             raise FeatureError(f"must be an object n -> ranges, got {snippet(rr)}", f"{where}: rotation_ranges")
@@ -356,7 +405,8 @@ class FeatureSpace:
                 raise FeatureError(f"must map a road count to a list of [low, high] angles, got {snippet(rs)}", at)
             ranges[int(n)] = tuple((float(r[0]), float(r[1])) for r in rs)
         try:
-            return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges)
+            return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges,
+                       tuple(midblock))
         except FeatureError as exc:
             raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
 

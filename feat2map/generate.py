@@ -9,12 +9,12 @@ import numpy as np
 
 from . import __version__
 from .config import MAX_CARDINAL_DEVIATION_DEG, STRICT_CARDINAL_DEVIATION_DEG, GenerationConfig, limits
-from .construct import RoadChain, build_map
+from .construct import MidblockRequest, RoadChain, assign_midblock, build_map
 from .errors import ConfigError, CrossingRoadsError, snippet
 from .features import FeatureSpace, JunctionFeature, normalize_rotation
 from .layout import Cell, place
 from .model import HDMap
-from .sampling import sample_features
+from .sampling import sample_features, sample_midblock
 
 
 def check_seed(seed: int) -> int:
@@ -41,12 +41,15 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
                            config: GenerationConfig = GenerationConfig(),
                            cells: Sequence[Cell | None] | None = None, meta: dict | None = None,
                            chains: Sequence[RoadChain] = (), names: Sequence[str] | None = None,
-                           keep_orientation: Sequence[bool] | None = None, progress: bool = False) -> HDMap:
+                           keep_orientation: Sequence[bool] | None = None, progress: bool = False,
+                           midblock: Sequence[MidblockRequest] = ()) -> HDMap:
     """Lay out and build a map with one junction per feature; each junction realizes the
     normalized form of its feature (the same shape, rotated and re-indexed). `chains` are
     hand-written roads added as they are (a map may consist of chains only); `names` label
     the features in layout errors; `keep_orientation` (per feature) prefers, among equally good
     placements, the quarter turn that shows the junction closest to its given angles.
+    `midblock`: mid-block crosswalks, on the socket's road they name (a socket index of the
+    feature as given) or on roads between junctions drawn with the seed.
     `progress` shows a bar over the junctions built, on a terminal only."""
     check_seed(seed)
     config.check_limits()
@@ -58,11 +61,18 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     info = {"generator": f"feat2map {__version__}", "seed": int(seed), "config": config.to_dict()}
     info.update(meta or {})
     normalized = [f.normalized() for f in features]
+    requests = []
+    for r in midblock:  # the socket index as given -> the normalized feature's
+        if r.socket is not None:
+            j, s = r.socket
+            r = MidblockRequest(r.feature, (j, normalize_rotation(features[j].rotation).order.index(s)), r.name)
+        requests.append(r)
 
     def build(max_deviation_deg: float) -> HDMap:
         rng = np.random.default_rng([int(seed), 1])
         placements = place(normalized, rng, cells, names, prefer, max_deviation_deg) if features or not chains else []
-        return build_map(placements, config, info, chains, progress=progress)
+        crossings = assign_midblock(placements, requests, np.random.default_rng([int(seed), 2])) if requests else {}
+        return build_map(placements, config, info, chains, progress=progress, midblock=crossings)
 
     with _no_cyclic_gc():
         try:
@@ -88,4 +98,7 @@ def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = Gene
     rng = np.random.default_rng([check_seed(seed), 0])
     config.check_limits()
     features = sample_features(space, rng, config)
-    return generate_from_features(features, seed, config, meta={"feature_space": space.to_dict()}, progress=progress)
+    midblock = [MidblockRequest(f, None, f"sampled mid-block crosswalk {k} ({f.control})")
+                for k, f in enumerate(sample_midblock(space, rng, config))]
+    return generate_from_features(features, seed, config, meta={"feature_space": space.to_dict()}, progress=progress,
+                                  midblock=midblock)

@@ -13,7 +13,7 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from .bezier import Bezier, Point
-from .config import MIN_ARM_LENGTH_M
+from .config import MIDBLOCK_LINE_REACH_M, MIN_ARM_LENGTH_M
 from .features import JunctionFeature
 
 Polyline = tuple[Point, ...]
@@ -92,6 +92,34 @@ def stop_line_across(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> Poly
     h = math.atan2(sum(math.sin(x.heading_at_end()) for x in ends), sum(math.cos(x.heading_at_end()) for x in ends))
     pts = [p for x in ends for p in (x.right_boundary[-1], x.left_boundary[-1])]
     lateral = [-math.sin(h) * px + math.cos(h) * py for px, py in pts]  # leftwards of the travel direction
+    return as_polyline([pts[int(np.argmin(lateral))], pts[int(np.argmax(lateral))]])
+
+
+def line_across_at(lanes: Mapping[str, Lane], lane_ids: Iterable[str], point: Point) -> Polyline | None:
+    """A stop line across lanes `lane_ids` where `point` (a control's pole beside them) lies
+    along them, from the rightmost border to the leftmost (None when none is in `lanes`)."""
+    from shapely.geometry import LineString
+    from shapely.geometry import Point as At
+
+    pts: list[tuple[float, float]] = []
+    heads = []
+    for lid in lane_ids:
+        ln = lanes.get(lid)
+        if ln is None or len(ln.centerline) < 2:
+            continue
+        cl = LineString(ln.centerline)
+        s = cl.project(At(point))
+        a, b = cl.interpolate(max(s - 0.5, 0.0)), cl.interpolate(min(s + 0.5, cl.length))
+        heads.append(math.atan2(b.y - a.y, b.x - a.x))
+        c = cl.interpolate(s)
+        for side in (ln.left_boundary, ln.right_boundary):
+            edge = LineString(side) if len(side) >= 2 else cl
+            q = edge.interpolate(edge.project(c))
+            pts.append((q.x, q.y))
+    if not pts:
+        return None
+    h = math.atan2(sum(map(math.sin, heads)), sum(map(math.cos, heads)))
+    lateral = [-math.sin(h) * px + math.cos(h) * py for px, py in pts]
     return as_polyline([pts[int(np.argmin(lateral))], pts[int(np.argmax(lateral))]])
 
 
@@ -200,11 +228,15 @@ class YieldSign(TrafficSign):
 
 
 def signal_precedence(lanes: Mapping[str, Lane], signals: Mapping[str, Signal],
-                      signs: Mapping[str, TrafficSign]) -> dict:
+                      signs: Mapping[str, TrafficSign], crosswalks: Iterable["Crosswalk"] = ()) -> dict:
     """`signs` (stop or yield signs) without the lanes a signal governs: a signal governs where
     both exist (a sign under a light is for when the light is dark). A sign left with no lane
-    is dropped; one that governed no lane to begin with is kept as it is."""
-    lit = {x for g in signals.values() for x in incoming_lanes(lanes, g.lane_ids)}
+    is dropped; one that governed no lane to begin with is kept as it is. Signals guarding a
+    mid-block crossing (`midblock_crossing` with `crosswalks`) do not count: they are not the
+    junction's."""
+    walks = list(crosswalks)
+    lit = {x for g in signals.values() if g.junction_id is not None or midblock_crossing(lanes, walks, g) is None
+           for x in incoming_lanes(lanes, g.lane_ids)}
     out = {}
     for k, s in signs.items():
         mine = incoming_lanes(lanes, s.lane_ids)
@@ -236,6 +268,52 @@ class Crosswalk:
         if (b - a)[0] * (d - a)[1] - (b - a)[1] * (d - a)[0] > 0:  # d->c must lie on the right of a->b
             a, b, cc, d = d, cc, b, a
         return as_polyline([a, b]), as_polyline([d, cc])
+
+
+def midblock_crossing(lanes: Mapping[str, Lane], crosswalks: Iterable[Crosswalk], control: Signal | TrafficSign
+                      ) -> tuple[str, str, float] | None:
+    """(crosswalk, lane, s of the line on it) when `control` guards a mid-block crossing: its
+    stop line crosses one of its road lanes at s and a crosswalk outside junctions crosses that
+    lane within MIDBLOCK_LINE_REACH_M beyond it, with as much lane again beyond the crosswalk (a
+    crosswalk at the end of a junction's approach is that junction's); None otherwise. Readers
+    leave such a control without a junction, extraction does not count it for the junction its
+    lanes lead into, and the envs stop traffic at its line on the lane."""
+    from shapely.geometry import LineString, Point, Polygon
+
+    walks = [c for c in crosswalks if c.junction_id is None and len(c.polygon) >= 3]
+    if not walks or len(control.stop_line) < 2:
+        return None
+    line = LineString(control.stop_line)
+    for lid in control.lane_ids:
+        ln = lanes.get(lid)
+        if ln is None or ln.junction_id is not None or len(ln.centerline) < 2:
+            continue
+        cl = LineString(ln.centerline)
+        hit = line.intersection(cl)
+        if hit.is_empty:
+            continue
+        at = cl.project(hit.representative_point())
+        for c in walks:
+            cross = cl.intersection(Polygon(c.polygon))
+            if cross.is_empty:
+                continue
+            along = [cl.project(Point(p)) for g in getattr(cross, "geoms", [cross]) for p in g.coords]
+            if 0.0 < min(along) - at <= MIDBLOCK_LINE_REACH_M and max(along) <= cl.length - MIDBLOCK_LINE_REACH_M:
+                return c.id, lid, float(at)
+    return None
+
+
+def midblock_controls(m: "HDMap") -> dict[str, tuple[str, str, float]]:
+    """Signal id -> `midblock_crossing` of every signal outside junctions that guards one."""
+    if not any(c.junction_id is None for c in m.crosswalks.values()):
+        return {}
+    out = {}
+    for sig in m.signals.values():
+        if sig.junction_id is None:
+            hit = midblock_crossing(m.lanes, m.crosswalks.values(), sig)
+            if hit is not None:
+                out[sig.id] = hit
+    return out
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,8 @@ grouped by the direction they face (`group_phases`, a heuristic used only where 
 nothing else) and given phases of their own.
 
 A phase is green, then amber, then all-red, phases in turn, the first phase green from time 0
-(`timeline`).
+(`timeline`). The lights of mid-block crossings (outside junctions) share one plan, which ends
+with an empty phase for the people crossing (`junction_phases`).
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ from typing import Iterable, Mapping
 
 from .angles import wrap_angle
 from .config import SIGNAL_ALL_RED_S, SIGNAL_AMBER_S, SIGNAL_GREEN_S, SIGNAL_OPPOSITE_DEG, SIGNAL_SAME_APPROACH_DEG
-from .model import HDMap, Signal, incoming_lanes
+from .model import HDMap, Signal, incoming_lanes, midblock_controls
 
 Phases = tuple[tuple[str, ...], ...]
 PERMISSIVE_TURNS = ("left", "uturn")  # turns that yield to opposed traffic in a paired plan
@@ -291,12 +292,17 @@ def plan_junction(m: HDMap, sigs: Iterable[Signal], paired: bool, pc: PathConfli
 
 
 def junction_phases(m: HDMap, paired: bool = True) -> dict[str | None, Phases]:
-    """The phases of every junction's signals (signals outside junctions under key None)."""
+    """The phases of every junction's signals (signals outside junctions under key None). When
+    lights of mid-block crossings are among the latter (`midblock_controls`), their plan ends
+    with a pedestrian phase: one slot with every light red, while people cross."""
     by_junction: dict[str | None, list[Signal]] = {}
     for s in m.signals.values():
         by_junction.setdefault(s.junction_id, []).append(s)
     pc = PathConflicts(m)
-    return {jid: plan_junction(m, sigs, paired, pc) for jid, sigs in by_junction.items()}
+    out = {jid: plan_junction(m, sigs, paired, pc) for jid, sigs in by_junction.items()}
+    if None in out and midblock_controls(m):
+        out[None] = out[None] + ((),)
+    return out
 
 
 def phase_conflicts(m: HDMap, phases: Mapping[str | None, Phases], paired: bool = True) -> list[tuple[str, str, str, str]]:

@@ -258,7 +258,10 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
     junctions, then map order), and add that route. Each
     route is the locally best extension of its anchor, so the result is a small cover but not
     a minimum one (set cover is NP-hard). Manoeuvres the env cannot drive are skipped, and so
-    are those no car drives (`suite_manoeuvres`), as targets and as links of a route.
+    are those no car drives (`suite_manoeuvres`), as targets and as links of a route. Covering
+    every manoeuvre (`moves` None) with routes of 2 junctions or more, a road lane across a
+    mid-block crosswalk that no route drives from junction to junction gets a route of its own
+    (`_midblock_routes`).
     """
     if max_junctions < 1:
         raise ValueError("max_junctions must be at least 1")
@@ -288,7 +291,68 @@ def coverage_routes(m: HDMap, max_junctions: int = DEFAULT_ROUTE_JUNCTIONS,
                     best, best_key = route, key
         routes.append(best)
         uncovered -= set(best)
+    if moves is None and max_junctions >= 2:
+        routes += _midblock_routes(m, graph, routes, order)
     return routes
+
+
+def midblock_lanes(m: HDMap) -> list[tuple[str, str]]:
+    """(crosswalk, road lane) for every road lane that crosses a crosswalk outside junctions (a
+    mid-block crossing), in map order."""
+    from shapely import STRtree
+    from shapely.geometry import LineString, Polygon
+
+    walks = [c for c in m.crosswalks.values() if c.junction_id is None and len(c.polygon) >= 3]
+    if not walks:
+        return []
+    road = [ln for ln in m.lanes.values() if ln.junction_id is None and len(ln.centerline) >= 2]
+    tree = STRtree([LineString(ln.centerline) for ln in road])
+    return [(c.id, road[k].id) for c in walks
+            for k in sorted(tree.query(Polygon(c.polygon), predicate="intersects").tolist())]
+
+
+def road_lanes_between(m: HDMap, a: Manoeuvre, b: Manoeuvre) -> set[str]:
+    """The road lanes a route drives from manoeuvre `a`'s junction lane to manoeuvre `b`'s."""
+    def reach(starts: Iterable[str], forward: bool) -> set[str]:
+        out: set[str] = set()
+        stack = [x for x in starts if x in m.lanes and m.lanes[x].junction_id is None]
+        while stack:
+            lid = stack.pop()
+            if lid in out:
+                continue
+            out.add(lid)
+            nxt = m.lanes[lid].successors if forward else m.lanes[lid].predecessors
+            stack += [x for x in nxt if x in m.lanes and m.lanes[x].junction_id is None]
+        return out
+
+    la, lb = manoeuvre_lane(m, a), manoeuvre_lane(m, b)
+    if la is None or lb is None:
+        return set()
+    return reach(la.successors, True) & reach(lb.predecessors, False)
+
+
+def _midblock_routes(m: HDMap, graph: dict[Manoeuvre, list[Manoeuvre]], routes: Sequence[Route],
+                     order: dict[Manoeuvre, int]) -> list[Route]:
+    """Two-manoeuvre routes, one per road lane across a mid-block crosswalk that no route of
+    `routes` drives from junction to junction (a route that starts on that lane begins near its
+    end, past the crossing): the first pair of consecutive manoeuvres, in map order, whose road
+    between them holds the lane."""
+    wanted = [lid for _, lid in midblock_lanes(m)]
+    if not wanted:
+        return []
+    driven = {x for r in routes for a, b in zip(r, r[1:]) for x in road_lanes_between(m, a, b)}
+    pairs = sorted(((a, b) for a, nxt in graph.items() for b in nxt), key=lambda p: (order[p[0]], order[p[1]]))
+    out: list[Route] = []
+    for lid in wanted:
+        if lid in driven:
+            continue
+        for a, b in pairs:
+            between = road_lanes_between(m, a, b)
+            if lid in between:
+                out.append((a, b))
+                driven |= between
+                break
+    return out
 
 def _exit_room(m: HDMap, mv: Manoeuvre) -> float:
     """Metres of road after the manoeuvre's junction lane before the next junction (inf where the

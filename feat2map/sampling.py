@@ -5,9 +5,9 @@ import itertools
 
 import numpy as np
 
-from .config import MAX_ORDER_RETRIES, GenerationConfig, limits
+from .config import MAX_ORDER_RETRIES, MIDBLOCK_POSITION_RANGE, GenerationConfig, limits
 from .errors import FeatureError
-from .features import FeatureSpace, JunctionFeature, normalize_rotation
+from .features import FeatureSpace, JunctionFeature, MidblockFeature, normalize_rotation
 
 
 def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Generator,
@@ -48,4 +48,16 @@ def sample_features(space: FeatureSpace, rng: np.random.Generator,
             angles = normalize_rotation(drawn).angles
             out.append(JunctionFeature.make(angles, control, crosswalk,
                                             min_separation_deg=config.min_socket_separation_deg))
+    return out
+
+
+def sample_midblock(space: FeatureSpace, rng: np.random.Generator,
+                    config: GenerationConfig = GenerationConfig()) -> list[MidblockFeature]:
+    """One mid-block crosswalk per control the map feature asks for ("bare", "signal"),
+    `samples_per_combination` times, each at a position drawn uniformly in
+    MIDBLOCK_POSITION_RANGE (its "none" value is every road left without one)."""
+    out = []
+    for control in space.midblock_controls:
+        for _ in range(int(config.samples_per_combination)):
+            out.append(MidblockFeature(control, round(float(rng.uniform(*MIDBLOCK_POSITION_RANGE)), 6)))
     return out

@@ -25,10 +25,10 @@ from shapely.ops import unary_union
 from .angles import positive_degrees, wrap_angle
 from .bezier import Bezier
 from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig, limits
-from .construct import RoadChain, chain_road_id, junction_radius, pavement
+from .construct import MidblockRequest, RoadChain, chain_road_id, junction_radius, pavement
 from .documents import check_schema, element_path, element_where, load_document
 from .errors import FeatureError, LayoutError, LimitError
-from .features import FeatureSpace, JunctionFeature, Socket, socket_lanes
+from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, socket_lanes
 from .invariants import AREA_EPS_M2, connectivity, dead_ends, two_way
 from .layout import Cell
 from .model import HDMap
@@ -43,11 +43,14 @@ class SpecError(FeatureError):
 
 @dataclass(frozen=True)
 class JunctionSpec:
-    """One hand-written junction: its feature (sockets in counter-clockwise order) and cell."""
+    """One hand-written junction: its feature (sockets in counter-clockwise order) and cell;
+    `midblock`: (socket index in that order, crosswalk, element path) of the mid-block
+    crosswalks its sockets ask for on their roads."""
 
     feature: JunctionFeature
     cell: Cell | None = None
     name: str | None = None
+    midblock: tuple[tuple[int, MidblockFeature, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,10 @@ class MapSpec:
 
     def features(self) -> list[JunctionFeature]:
         return [j.feature for j in self.junctions]
+
+    def midblock(self) -> list[MidblockRequest]:
+        """The mid-block crosswalks the junctions' sockets ask for, on their sockets' roads."""
+        return [MidblockRequest(f, (i, k), where) for i, j in enumerate(self.junctions) for k, f, where in j.midblock]
 
 
 @lru_cache(maxsize=1)
@@ -113,11 +120,25 @@ def _socket(raw: Any, where: str) -> Socket:
     return Socket(float(raw["angle"]), lanes_in, lanes_out)
 
 
-def _junction(raw: Mapping[str, Any], where: str, min_sep: float) -> JunctionSpec:
+def _midblock(raw: Any, where: str) -> MidblockFeature | None:
+    """A socket's `midblock` crosswalk on its road (None when it asks for none)."""
+    if not isinstance(raw, Mapping) or "midblock" not in raw:
+        return None
+    m = raw["midblock"]
+    try:
+        return MidblockFeature(m.get("control", "bare"), float(m.get("position", 0.5)))
+    except FeatureError as exc:
+        raise SpecError(exc.message, f"{where}.midblock") from None
+
+
+def _junction(raw: Mapping[str, Any], where: str, min_sep: float, path: Sequence[Any] = ()) -> JunctionSpec:
     """Sockets are sorted counter-clockwise (their listed order needs no unwrapping);
-    duplicates and legs closer than the minimum separation are errors naming the socket."""
+    duplicates and legs closer than the minimum separation are errors naming the socket.
+    `path`: the junction's element path (mid-block crosswalks name their socket by it)."""
     socks = [(i, _socket(s, f"{where}.sockets[{i}]")) for i, s in enumerate(raw["sockets"])]
     socks.sort(key=lambda t: positive_degrees(t[1].angle))
+    crossings = tuple((k, f, element_path([*path, "sockets", i, "midblock"])) for k, (i, _) in enumerate(socks)
+                      if (f := _midblock(raw["sockets"][i], f"{where}.sockets[{i}]")) is not None)
     n = len(socks)
     for k in range(n):
         (i, a), (j, b) = socks[k], socks[(k + 1) % n]
@@ -139,7 +160,7 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float) -> JunctionSpe
     except FeatureError as exc:
         raise SpecError(exc.message, where) from None
     cell = tuple(int(c) for c in raw["cell"]) if "cell" in raw else None
-    return JunctionSpec(feature, cell, raw.get("name"))  # type: ignore[arg-type]
+    return JunctionSpec(feature, cell, raw.get("name"), crossings)  # type: ignore[arg-type]
 
 
 def _chain(raw: Mapping[str, Any], index: int, where: str) -> RoadChain:
@@ -187,8 +208,8 @@ def parse_spec(doc: Any, source: str = "spec") -> MapSpec:
     config = dict(doc.get("config", {}))
     spec = MapSpec((), (), config, source)
     cfg = spec.generation_config()
-    junctions = tuple(_junction(j, element_where(source, ["junctions", i]), cfg.min_socket_separation_deg)
-                      for i, j in enumerate(doc.get("junctions", [])))
+    junctions = tuple(_junction(j, element_where(source, ["junctions", i]), cfg.min_socket_separation_deg,
+                                ["junctions", i]) for i, j in enumerate(doc.get("junctions", [])))
     seen: dict[Cell, int] = {}
     for i, j in enumerate(junctions):
         if j.cell is not None:
@@ -292,11 +313,12 @@ def check_buildable(spec: MapSpec, cfg: GenerationConfig) -> None:
 def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = None,
                space: FeatureSpace | None = None) -> HDMap:
     """The map of a spec: its junctions (listed first, ids J0.. in spec order) plus, when
-    `space` is given, one sampled junction per feature combination of it (Algorithm 1),
-    laid out together on the grid, and its chains. Raises `SpecError` naming the element
-    when the layout or the resulting network is impossible."""
+    `space` is given, one sampled junction per feature combination of it (Algorithm 1) and its
+    sampled mid-block crosswalks, laid out together on the grid, and its chains; the mid-block
+    crosswalks its sockets ask for. Raises `SpecError` naming the element when the layout or
+    the resulting network is impossible."""
     from .generate import generate_from_features
-    from .sampling import sample_features
+    from .sampling import sample_features, sample_midblock
 
     cfg = config if config is not None else spec.generation_config()
     if config is not None:
@@ -305,15 +327,19 @@ def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = N
     cells: list[Cell | None] = [j.cell for j in spec.junctions]
     names = [element_path(["junctions", i]) for i in range(len(spec.junctions))]
     meta: dict[str, Any] = {"spec": spec.source}
+    midblock = spec.midblock()
     if space is not None:
-        sampled = sample_features(space, np.random.default_rng([int(seed), 0]), cfg)
+        rng = np.random.default_rng([int(seed), 0])
+        sampled = sample_features(space, rng, cfg)
+        midblock += [MidblockRequest(f, None, f"sampled mid-block crosswalk {k} ({f.control})")
+                     for k, f in enumerate(sample_midblock(space, rng, cfg))]
         features += sampled
         cells += [None] * len(sampled)
         names += [f"sampled junction {k} (J{len(spec.junctions) + k})" for k in range(len(sampled))]
         meta["feature_space"] = space.to_dict()
     try:
         keep = [True] * len(spec.junctions) + [False] * (len(features) - len(spec.junctions))
-        m = generate_from_features(features, seed, cfg, cells, meta, spec.chains, names, keep)
+        m = generate_from_features(features, seed, cfg, cells, meta, spec.chains, names, keep, midblock=midblock)
     except LayoutError as exc:
         raise SpecError(exc.message, f"{spec.source}: {exc.where}" if exc.where else spec.source) from None
     _check_network(m, spec, names, cfg)

@@ -16,7 +16,8 @@ from ..messages import counted
 from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane
 from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, Route, coverage_routes, manoeuvre_lane,  # noqa: F401 (re-exported)
-                      edge_stub, manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room)
+                      edge_stub, manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room,
+                      road_lanes_between)
 from .scenario import Manoeuvre, Scenario, Suite
 
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
@@ -105,13 +106,29 @@ def signal_cycles(m: HDMap, mv: Manoeuvre) -> int:
     return YIELDING_TURN_CYCLES if lane is not None and lane.turn in ("left", "uturn") else 1
 
 
+def midblock_wait(m: HDMap, route: Sequence[Manoeuvre]) -> float:
+    """The env's default cycle of the mid-block crossings' lights [s] (their shared plan) for
+    each of them the route passes between its junctions (0 without)."""
+    from ..model import midblock_controls
+    from ..phases import junction_phases
+
+    lit = {lid for _, lid, _ in midblock_controls(m).values()}
+    if not lit:
+        return 0.0
+    passes = sum(len(lit & road_lanes_between(m, a, b)) for a, b in zip(route, route[1:]))
+    cfg = DRIVE_DEFAULTS
+    phases = junction_phases(m, cfg["signal_phases"] == "paired").get(None, ())
+    return passes * len(phases) * (cfg["signal_green"] + cfg["signal_amber"] + cfg["signal_all_red"])
+
+
 def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
     """A scenario duration [s] that leaves time for every junction (at least its signal cycles,
-    `signal_cycles`, plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget)
-    and for the distance at the speeds the ego drives there (`route_time`)."""
+    `signal_cycles`, plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget),
+    for the mid-block crossings' lights it passes (`midblock_wait`) and for the distance at the
+    speeds the ego drives there (`route_time`)."""
     per_junction = sum(max(SECONDS_PER_JUNCTION, signal_cycles(m, mv) * signal_cycle(m, mv[0]) + SIGNAL_CROSSING_S)
                        for mv in route)
-    return round(BASE_DURATION_S + per_junction + route_time(m, route), 1)
+    return round(BASE_DURATION_S + per_junction + midblock_wait(m, route) + route_time(m, route), 1)
 
 
 def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:

@@ -9,6 +9,7 @@ from feat2map.errors import Feat2MapError
 from feat2map.formats.commonroad import check_commonroad, lanelet_ids, write_commonroad
 from feat2map.formats.commonroad.writer import commonroad_io
 from feat2map.formats.commonroad.validate import lanelet_index, reachable
+from feat2map.model import midblock_controls
 from feat2map.scenarios.routes import manoeuvres
 
 try:
@@ -37,7 +38,8 @@ def test_commonroad_io_reads_it_and_counts_match(exported):
                for ln in m.lanes.values())  # a continuation lanelet past every exit, before every entry
     assert report.counts == {"lanelets": len(m.lanes) + len(m.crosswalks) + ends, "crosswalks": len(m.crosswalks),
                              "intersections": len(m.junctions), "incomings": _approaches(m),
-                             "traffic_lights": len(m.signals), "traffic_signs": len(m.stop_signs)}
+                             "traffic_lights": len(m.signals) - len(midblock_controls(m)),  # mid-lane: left out
+                             "traffic_signs": len(m.stop_signs)}
     assert len(report.routes) == sum(1 for ln in m.lanes.values() if ln.junction_id)
 
 
@@ -70,7 +72,7 @@ def test_intersections_controls_and_stop_lines_follow_the_map(exported):
             for key, allowed in turns.items():
                 assert {m.lanes[lane_of[x]].turn for x in getattr(inc, key) or ()} <= allowed
     signed = {lid for s in m.stop_signs.values() for lid in s.lane_ids}
-    lit = {lid for s in m.signals.values() for lid in s.lane_ids}
+    lit = {lid for s in m.signals.values() if s.id not in midblock_controls(m) for lid in s.lane_ids}
     for ll in net.lanelets:
         lane = lane_of.get(ll.lanelet_id)
         if lane is None:  # a crosswalk, or a continuation past an exit / before an entry

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -27,7 +28,7 @@ from ...config import (APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_
                        UTM_NORTHING, limits)
 from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
-                      incoming_lanes, signal_precedence)
+                      incoming_lanes, midblock_crossing, signal_precedence)
 from ...semantics import loaded
 
 # overlap kind -> (the Map field listing the elements, the model class)
@@ -271,10 +272,12 @@ class _Reader:
                 right_boundary_type=_boundary_type(ln.right_boundary), **links)
 
         roads = self._roads(lanes, road_lane_ids, road_junction)
-        signals = self._controls(pairs, lanes, junctions, "signal", o)
-        stops = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "stop_sign", o))
-        yields = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "yield_sign", o))
         crosswalks = self._crosswalks(pairs, lanes, junctions, o)
+        walks = list(crosswalks.values())
+        signals = {k: replace(s, junction_id=None) if s.junction_id and midblock_crossing(lanes, walks, s) else s
+                   for k, s in self._controls(pairs, lanes, junctions, "signal", o).items()}  # a mid-block light
+        stops = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "stop_sign", o), walks)
+        yields = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "yield_sign", o), walks)
         header = pb.header
         meta = {"source": self.where, "format": "apollo",
                 "projection": header.projection.proj,

@@ -2,8 +2,10 @@
 
 The lanelet network: one lanelet per lane (left, centre and right vertices resampled to one
 count; junction lanes typed `intersection`), adjacency from the model's neighbours (opposite
-lanes as `opposite`), one crosswalk lanelet per crosswalk for pedestrians. Controls: a stop
-line on every lane a signal or stop sign governs; stop signs as traffic signs (Zamunda/German
+lanes as `opposite`), one crosswalk lanelet per crosswalk for pedestrians (mid-block ones
+too). Controls: a stop line on every lane a signal or stop sign governs (a CommonRoad light
+governs the end of its lanelet, so the lights of a mid-block crossing, which stand mid-lane
+before the junction's own control, are left out); stop signs as traffic signs (Zamunda/German
 206, the catalogue CommonRoad's schema holds, in a ZAM scenario: CommonRoad's country code for
 synthetic maps); traffic lights with the fixed-time cycle of `feat2map.phases` (the env's
 default plan at offset 0: paired phases, green/amber/all-red from config). Intersections: per
@@ -34,7 +36,7 @@ from ...commonroad_io import install
 from ...config import (COMMONROAD_CONTINUATION_M, COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S,
                        STRAIGHT_TOLERANCE_DEG, UTM_ZONE, UTURN_THRESHOLD_DEG)
 from ...errors import Feat2MapError
-from ...model import HDMap, Lane, Polyline, incoming_lanes
+from ...model import HDMap, Lane, Polyline, incoming_lanes, midblock_controls
 from ...phases import junction_phases, timeline
 from ..base import header_date
 from ..geo import local_tmerc, utm_origin, utm_to_latlon
@@ -181,7 +183,9 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
     for lid in lanelet_ids(m):
         ids("lane", lid)
     lanes = {lid: m.lanes[lid] for lid in lanelet_ids(m)}
-    signals = {s.id: [x for x in incoming_lanes(m.lanes, s.lane_ids) if x in lanes] for s in m.signals.values()}
+    midblock = midblock_controls(m)  # a light stands at its lanelet's end: a mid-block crossing's has no place
+    signals = {s.id: [x for x in incoming_lanes(m.lanes, s.lane_ids) if x in lanes] for s in m.signals.values()
+               if s.id not in midblock}
     signs = {s.id: [x for x in incoming_lanes(m.lanes, s.lane_ids) if x in lanes] for s in m.stop_signs.values()}
     controls: dict[str, tuple[set[int], set[int]]] = {}  # lane -> (sign ids, light ids) at its end
     for sid, governed in signs.items():

@@ -31,7 +31,7 @@ from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_
                        SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
-                      signal_precedence, stop_line_across)
+                      line_across_at, midblock_crossing, signal_precedence, stop_line_across)
 from ...semantics import loaded
 
 # OpenDRIVE signal type -> feat2map control kind, from the code tables the dialects use: the
@@ -873,8 +873,8 @@ class _Builder:
         for lid, ln in list(lanes.items()):  # drop links into skipped junctions' lanes
             if ln.junction_id is not None and ln.junction_id not in junctions:
                 lanes[lid] = _replace(ln, junction_id=None)
-        signals, stops, yields = self._signals(lanes, groups, junctions)
         crosswalks = self._crosswalks(junctions)
+        signals, stops, yields = self._signals(lanes, groups, junctions, list(crosswalks.values()))
         meta = {"source": self.ctx.path, "format": "opendrive",
                 "junction_elements": {m: sorted(v, key=_id_key) for m, v in members.items()}}
         if self.signal_groups:
@@ -952,11 +952,14 @@ class _Builder:
             out += found
         return list(dict.fromkeys(out))
 
-    def _signals(self, lanes: dict[str, Lane], groups: dict[str, str], junctions: dict[str, Junction]):
+    def _signals(self, lanes: dict[str, Lane], groups: dict[str, str], junctions: dict[str, Junction],
+                 crosswalks: list[Crosswalk]):
         """Signals, stop signs and yield signs, each attached to the incoming lanes it governs
         (the map's `orientation` and `validity` first); a signal governs where a sign shares its
         lanes (`signal_precedence`). Controllers that switch several signals together become
-        `meta["signal_groups"]`. Unknown types are skipped with one warning per type."""
+        `meta["signal_groups"]`. Unknown types are skipped with one warning per type. A light
+        beside a mid-block crossing (`midblock_crossing`, its line across its lanes at its pole)
+        belongs to no junction."""
         refs: dict[str, list[tuple[str, Any]]] = {}
         for r in self.roads.values():
             sig_el = r.el.find("signals")
@@ -1015,6 +1018,11 @@ class _Builder:
                 line = self._stop_line(governed, lanes, pos)
                 ident = sid if all(sid not in v for v in made.values()) else f"{r.id}_{sid}"
                 made[kind][ident] = _CONTROL_CLASS[kind](ident, jid, line, pos, heading, tuple(governed))
+                if kind == "signal" and crosswalks:  # a light beside a mid-block crossing: its line is there
+                    there = line_across_at(lanes, governed, pos)
+                    mid = _replace(made[kind][ident], junction_id=None, stop_line=there) if there else None
+                    if mid is not None and midblock_crossing(lanes, crosswalks, mid):
+                        made[kind][ident] = mid
                 ident_of.setdefault(sid, ident)
         for (t, c), n in sorted(unknown.items()):
             static = SIGNAL_CODES.get(t) == "signal" or SIGNAL_CODES.get(t.lower()) == "signal"
@@ -1027,8 +1035,8 @@ class _Builder:
         signals = made["signal"]
         self.signal_groups = {**self._controller_groups(ident_of, signals),
                               **self._dependency_groups(depends, ident_of, signals)}
-        return (signals, signal_precedence(lanes, signals, made["stop"]),
-                signal_precedence(lanes, signals, made["yield"]))
+        return (signals, signal_precedence(lanes, signals, made["stop"], crosswalks),
+                signal_precedence(lanes, signals, made["yield"], crosswalks))
 
     def _controller_groups(self, ident_of: dict[str, str], signals: dict) -> dict[str, list[str]]:
         """`<controller>` id -> the signals (lights) it switches together, where it holds two or more."""

@@ -32,7 +32,7 @@ from ...angles import wrap_angle
 from ...bezier import Bezier
 from ...config import OPENDRIVE_JOINT_TANGENT_M, OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
-from ...model import HDMap, Lane, Polyline, Road
+from ...model import HDMap, Lane, Polyline, Road, midblock_controls
 from ..base import header_date
 from ..lane_ends import closed_seams
 from ..geo import local_tmerc, utm_origin
@@ -451,14 +451,19 @@ class _Writer:
             self.sub(el, "controller", id=cid, type="0", sequence=str(k))
 
     # -- signals, controllers, objects ----------------------------------------------------------
-    def _signal_place(self, lane_ids, position):
-        """(model road, s, t, orientation, validity lanes) of a sign governing `lane_ids`."""
+    def _signal_place(self, lane_ids, position, midblock: bool = False):
+        """(model road, s, t, orientation, validity lanes) of a sign governing `lane_ids`: at the
+        end of its lanes (their junction entry), or beside its pole for a light guarding a
+        mid-block crossing (`midblock`)."""
         lanes = [lid for lid in lane_ids if lid in self.odr_lane and self.m.lanes[lid].junction_id is None]
         if lanes:
             rid = self.odr_lane[lanes[0]][0]
             ids = [self.odr_lane[x][1] for x in lanes if self.odr_lane[x][0] == rid]
             along = ids[0] < 0
             ref = self.refs[rid]
+            if midblock:
+                s, t = ref.project(position)
+                return rid, s, t, "+" if along else "-", (min(ids), max(ids))
             s = ref.length if along else 0.0
             _, t = ref.project(position)
             h = ref.heading_at(s)
@@ -478,9 +483,10 @@ class _Writer:
         out: dict[str, list] = {}
         self.controllers: dict[str, list[tuple[str, str]]] = {}
         next_id = 1
+        midblock = midblock_controls(self.m)
         for kind, items in (("signal", self.m.signals), ("stop", self.m.stop_signs)):
             for s in items.values():
-                place = self._signal_place(s.lane_ids, s.position)
+                place = self._signal_place(s.lane_ids, s.position, kind == "signal" and s.id in midblock)
                 if place is None:
                     continue
                 rid, sv, tv, orient, valid = place

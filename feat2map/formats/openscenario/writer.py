@@ -36,7 +36,7 @@ from ...config import DRIVE_DEFAULTS
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane
 from ...phases import junction_phases
-from ...routes import manoeuvre_lane
+from ...routes import manoeuvre_lane, road_lanes_between
 from .. import FORMATS
 from ..base import header_date
 
@@ -189,15 +189,17 @@ class _ScenarioWriter:
         return out
 
     def crossings(self, sc, rng, lanes: list[Lane]) -> list[_Crossing]:
-        """Pedestrians on the crosswalks of the route's junctions, as the env spawns them."""
+        """Pedestrians on the crosswalks of the route's junctions and on the mid-block ones its
+        road lanes cross, as the env spawns them."""
         rate = float(sc.pedestrian_rate) / 60.0
         if rate <= 0:
             return []
         cfg = self.cfg
         junctions = {ln.junction_id for ln in lanes} - {None}
+        crossed = _midblock_crossed(self.m, sc.route, lanes)
         out: list[_Crossing] = []
         for cw in self.m.crosswalks.values():
-            if cw.junction_id not in junctions:
+            if cw.junction_id not in junctions and cw.id not in crossed:
                 continue
             a, b, width = _axis(cw.polygon)
             t = 0.0
@@ -370,3 +372,16 @@ def _unique(stem: str, taken: set[str]) -> str:
         name = f"{stem}_{k}"
     taken.add(name.lower())
     return name
+
+
+def _midblock_crossed(m: HDMap, route, lanes: list[Lane]) -> set[str]:
+    """The crosswalks outside junctions (mid-block crossings) that the route's road lanes cross:
+    its entry and exit lanes (`lanes`' ends) and the roads between its manoeuvres."""
+    from shapely.geometry import LineString, Polygon
+
+    walks = [c for c in m.crosswalks.values() if c.junction_id is None and len(c.polygon) >= 3]
+    if not walks:
+        return set()
+    road = {lanes[0].id, lanes[-1].id} | {x for a, b in zip(route, route[1:]) for x in road_lanes_between(m, a, b)}
+    lines = [LineString(m.lanes[x].centerline) for x in sorted(road) if len(m.lanes[x].centerline) >= 2]
+    return {c.id for c in walks if any(line.intersects(Polygon(c.polygon)) for line in lines)}
