@@ -118,6 +118,9 @@ BRIDGE_TAIL_M = 10.0  # a bridged lane's last metres (at most) are bent smoothly
 NEGATIVE_WIDTH_TOL_M = 0.01  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road (a
 # lane closing to 0 dips a few mm below it in converters' output: clamped to 0)
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
+APOLLO_TOUCHING_LINK_DEG = 45.0  # an Apollo lane ending where another starts (ENDPOINT_TOLERANCE_M), heading within
+# this, with no successor (or it no predecessor) misses the link: SVL maps leave right-turn lanes and back-to-back
+# junction lanes unlinked
 APOLLO_JUNCTION_COVER_M = 0.5  # a junction-lane overlap within this of both lane ends makes a junction lane
 APOLLO_GENERATED_MARK = b"feat2map"  # header.generation of maps feat2map generated (validate holds them to check_map)
 # (only where roads name no junction: maps draw junction polygons over approach lanes too)

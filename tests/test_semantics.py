@@ -778,3 +778,43 @@ def test_a_link_into_a_lane_heading_back_is_dropped(four_way):
     assert caught == [f"m.xodr: 1 lane link(s) whose successor starts heading more than 120 degrees away dropped "
                       f"(largest: {a.id} -> rev (180 deg))"]
     assert semantics.drop_far_links(four_way) is four_way
+
+
+# ------------------------------------------------------------- real maps' controls and links
+
+def _unlinked(four_way):
+    """four_way with one signalled road lane's links into its junction cut on both sides (SVL's
+    Borregas Ave leaves a right-turn lane that runs into its junction lane unlinked): the lane,
+    and the junction lanes it ends at."""
+    sig = next(iter(four_way.signals.values()))
+    lid = sig.lane_ids[0]
+    ahead = four_way.lanes[lid].successors
+    lanes = dict(four_way.lanes)
+    lanes[lid] = replace(lanes[lid], successors=())
+    for x in ahead:
+        lanes[x] = replace(lanes[x], predecessors=tuple(p for p in lanes[x].predecessors if p != lid))
+    meta = {k: v for k, v in four_way.meta.items() if k != "generator"}  # a converted map: written with its flaws
+    return replace(four_way, lanes=lanes, meta=meta), lid, ahead
+
+
+def test_apollo_lanes_that_end_where_others_start_without_a_link_are_linked(four_way, tmp_path):
+    """Borregas Ave: a right-turn lane ends exactly where its junction lane starts, neither
+    naming the other. Apollo routed nothing from it (56 'exit not reachable' problems in the
+    export) and its light governed a lane leading nowhere. The reader adds the links, one
+    warning naming them, and the export validates clean."""
+    from feat2map.formats.apollo.validate import validate_apollo
+
+    cut, lid, ahead = _unlinked(four_way)
+    write_map(cut, tmp_path / "cut", "apollo")
+    m, caught = _quiet(read_apollo, tmp_path / "cut" / "base_map.bin")
+    assert set(m.lanes[lid].successors) == set(ahead)
+    assert all(lid in m.lanes[x].predecessors for x in ahead)
+    added = [w for w in caught if "missing link(s) added" in w]
+    assert len(added) == 1 and f"lanes: {len(ahead)} missing link(s) added" in added[0]
+    assert f"{lid} -> {ahead[0]}" in added[0]
+    assert not [w for w in caught if "not an approach" in w]
+    write_map(m, tmp_path / "fixed", "apollo")
+    assert validate_apollo(tmp_path / "fixed") == []
+    # lanes that merely touch heading back (a dead end's two directions) stay apart
+    assert not [w for w in _quiet(read_apollo, tmp_path / "fixed" / "base_map.bin")[1] if "added" in w]
+
