@@ -71,6 +71,11 @@ APPROACH_LINKS = 3  # a governed lane may reach its junction through this many r
 
 
 def _leads_into(m: HDMap, lid: str, jid: str) -> bool:
+    """Lane `lid` is an approach of junction `jid`: a lane of `jid` itself (a junction lane a
+    control names for itself: its predecessors lie in another junction, `incoming_lanes`), or a
+    road lane reaching `jid` through at most APPROACH_LINKS road lanes."""
+    if m.lanes[lid].junction_id == jid:
+        return True
     frontier, seen = [lid], {lid}
     for _ in range(APPROACH_LINKS):
         nxt = []
@@ -89,7 +94,8 @@ def _leads_into(m: HDMap, lid: str, jid: str) -> bool:
 
 def governed_lanes_are_approaches(m: HDMap) -> Iterable[Finding]:
     """A control of a junction governs lanes that lead into that junction (its approaches,
-    through at most APPROACH_LINKS road lanes: SVL maps give signals the lane before)."""
+    through at most APPROACH_LINKS road lanes: SVL maps give signals the lane before), or its own
+    lanes where their predecessors lie in another junction (GoMentum's back-to-back junctions)."""
     for kind in CONTROL_TABLES:
         for s in getattr(m, kind).values():
             if s.junction_id is None:

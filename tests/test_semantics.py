@@ -818,3 +818,30 @@ def test_apollo_lanes_that_end_where_others_start_without_a_link_are_linked(four
     # lanes that merely touch heading back (a dead end's two directions) stay apart
     assert not [w for w in _quiet(read_apollo, tmp_path / "fixed" / "base_map.bin")[1] if "added" in w]
 
+
+def test_a_control_naming_its_own_junction_lane_stops_at_that_lanes_start(four_way):
+    """GoMentum's back-to-back junctions: a stop sign or light at a junction's entry names that
+    junction's lanes, whose predecessors lie in the junction before. Such a lane is an approach
+    (no finding), and the Apollo export draws its stop line and overlaps at the lane's start
+    (they went to its end, where the reader took the control for another junction's)."""
+    from feat2map.formats.apollo import writer as wa
+    from feat2map.formats.apollo.validate import validate_map
+
+    sig = next(iter(four_way.signals.values()))
+    own = tuple(x for lid in sig.lane_ids for x in four_way.lanes[lid].successors)
+    lanes = dict(four_way.lanes)
+    for lid in sig.lane_ids:
+        lanes[lid] = replace(lanes[lid], successors=())
+    for x in own:
+        lanes[x] = replace(lanes[x], predecessors=())
+    m = replace(four_way, lanes=lanes, signals={**four_way.signals, sig.id: replace(sig, lane_ids=own)})
+    assert not [f for f in semantics.findings(m) if "not an approach" in f.message]
+    base = wa.to_apollo(m)
+    signal = next(s for s in base.signal if s.id.id == sig.id)
+    assert len(signal.stop_line) == 1  # one approach, though its lanes turn apart
+    ranges = {o.id.id: (o.lane_overlap_info.start_s, o.lane_overlap_info.end_s) for ov in base.overlap
+              for o in ov.object if o.HasField("lane_overlap_info") and any(
+                  p.id.id == sig.id for p in ov.object)}
+    assert set(ranges) == set(own) and all(a == 0.0 for a, _ in ranges.values())
+    assert not [p for p in validate_map(base) if p.element == f"signal {sig.id}"]
+

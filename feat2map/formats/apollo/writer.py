@@ -29,7 +29,7 @@ from ..geo import check_origin, utm_projection
 from ...config import (APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M,
                        APOLLO_WIDEN_MARGIN_M, APPROACH_SPLIT_DEG, UTM_ORIGIN, UTM_ZONE)
 from ...errors import Feat2MapError
-from ...model import HDMap, Lane, Polyline, stop_line_across
+from ...model import HDMap, Lane, Polyline, line_end, stop_line_across
 from ...validation import refuse_nonfinite
 
 FILES = ("base_map", "sim_map", "routing_map")
@@ -111,15 +111,15 @@ class _Frame:
 
 
 def approach_groups(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> list[list[str]]:
-    """The governed lanes grouped by approach: lanes whose end headings are within
-    APPROACH_SPLIT_DEG of a group's first lane are one approach (in listed order)."""
+    """The governed lanes grouped by approach: lanes whose headings at the stop line (`line_end`)
+    are within APPROACH_SPLIT_DEG of a group's first lane are one approach (in listed order)."""
     groups: list[list[str]] = []
     for x in lane_ids:
         if x not in lanes:
             continue
-        h = lanes[x].heading_at_end()
+        h = line_end(lanes[x])[2]
         for g in groups:
-            if math.cos(h - lanes[g[0]].heading_at_end()) > math.cos(math.radians(APPROACH_SPLIT_DEG)):
+            if math.cos(h - line_end(lanes[g[0]])[2]) > math.cos(math.radians(APPROACH_SPLIT_DEG)):
                 g.append(x)
                 break
         else:
