@@ -186,12 +186,13 @@ def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
     short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
     (`drop_dangling`), values checked (`validation.validate_model`), implausible speeds replaced
-    (`plausible_speeds`), signals over conflicting approaches split (`split_conflicting_signals`),
-    semantic findings warned (`check_map`)."""
+    (`plausible_speeds`), governed lanes that are no approach dropped (`drop_non_approaches`),
+    signals over conflicting approaches split (`split_conflicting_signals`), semantic findings
+    warned (`check_map`)."""
     from .validation import validate_model
 
     m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
-    return check_map(split_conflicting_signals(plausible_speeds(m, where), where), where)
+    return check_map(split_conflicting_signals(drop_non_approaches(plausible_speeds(m, where), where), where), where)
 
 
 # ------------------------------------------------------------------------------- repair
@@ -215,6 +216,35 @@ def plausible_speeds(m: HDMap, where: str = "map") -> HDMap:
     for ln in bad:
         lanes[ln.id] = replace(ln, speed_limit=JUNCTION_SPEED_LIMIT_MPS if ln.junction_id else SPEED_LIMIT_MPS)
     return replace(m, lanes=lanes)
+
+
+def drop_non_approaches(m: HDMap, where: str = "map") -> HDMap:
+    """`m` without the lanes a control governs that are no approach of its junction (the
+    `governed_lanes_are_approaches` finding), one warning per control naming them: the control's
+    stop line is redrawn across the lanes it keeps, and a control left with none is dropped (a
+    stop line drawn across both directions of a road made GoMentum's stop sign govern the lane
+    leaving its junction too; every export then carried it)."""
+    tables: dict[str, Any] = {}
+    for kind in CONTROL_TABLES:
+        table = getattr(m, kind)
+        out = dict(table)
+        for sid, s in table.items():
+            if s.junction_id is None:
+                continue
+            keep = tuple(x for x in s.lane_ids if any(_leads_into(m, y, s.junction_id)
+                                                      for y in incoming_lanes(m.lanes, (x,))))
+            if keep == tuple(s.lane_ids):
+                continue
+            gone = ", ".join(x for x in s.lane_ids if x not in keep)
+            what = f"dropped from it (it keeps {', '.join(keep)})" if keep else "dropped with it (it governs no other)"
+            warnings.warn(f"{where}: {kind[:-1]} {sid}: governs lane(s) {gone}, which are not approaches of junction "
+                          f"{s.junction_id}: {what}", stacklevel=3)
+            if keep:
+                out[sid] = replace(s, lane_ids=keep, stop_line=stop_line_across(m.lanes, keep) or s.stop_line)
+            else:
+                del out[sid]
+            tables[kind] = out
+    return replace(m, **tables) if tables else m
 
 
 def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
@@ -392,5 +422,5 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes, roads=roads, **tables)
 
 
-__all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links", "findings",
-           "loaded", "split_conflicting_signals"]
+__all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links",
+           "drop_non_approaches", "findings", "loaded", "split_conflicting_signals"]

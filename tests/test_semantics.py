@@ -845,3 +845,33 @@ def test_a_control_naming_its_own_junction_lane_stops_at_that_lanes_start(four_w
     assert set(ranges) == set(own) and all(a == 0.0 for a, _ in ranges.values())
     assert not [p for p in validate_map(base) if p.element == f"signal {sig.id}"]
 
+
+def test_a_control_over_a_lane_leaving_its_junction_drops_that_lane_with_one_warning(four_way, tmp_path):
+    """GoMentum's stop sign 9: its stop line runs across both directions of the road, so it
+    also overlaps the lane leaving its junction. The reader drops that lane from it (one warning
+    naming both), redraws its line across the lanes it keeps, and the export reads back clean."""
+    from feat2map.formats.apollo.validate import validate_apollo
+    from feat2map.model import stop_line_across
+
+    sig = next(iter(four_way.signals.values()))
+    road = four_way.roads[four_way.lanes[sig.lane_ids[0]].road_id]
+    leaving = next(x for x in road.lane_ids if x not in sig.lane_ids)
+    both = sig.lane_ids + (leaving,)
+    wide = replace(sig, lane_ids=both, stop_line=stop_line_across(four_way.lanes, both))
+    m = replace(four_way, signals={**four_way.signals, sig.id: wide})
+    assert [f.message for f in semantics.findings(m) if "not an approach" in f.message] == [
+        f"governs lane {leaving}, which is not an approach of junction {sig.junction_id}"]
+    fixed, caught = _quiet(semantics.drop_non_approaches, m, "m.bin")
+    assert fixed.signals[sig.id].lane_ids == sig.lane_ids
+    assert np.allclose(fixed.signals[sig.id].stop_line, sig.stop_line, atol=1e-6)
+    assert caught == [f"m.bin: signal {sig.id}: governs lane(s) {leaving}, which are not approaches of junction "
+                      f"{sig.junction_id}: dropped from it (it keeps {', '.join(sig.lane_ids)})"]
+    alone = replace(four_way, signals={**four_way.signals, sig.id: replace(sig, lane_ids=(leaving,))})
+    assert sig.id not in _quiet(semantics.drop_non_approaches, alone)[0].signals
+    assert semantics.drop_non_approaches(four_way) is four_way
+    write_map(m, tmp_path / "wide", "apollo")
+    back, caught = _quiet(read_apollo, tmp_path / "wide" / "base_map.bin")
+    assert back.signals[sig.id].lane_ids == sig.lane_ids and any("not approaches" in w for w in caught)
+    write_map(back, tmp_path / "again", "apollo")
+    assert validate_apollo(tmp_path / "again") == []
+
