@@ -875,3 +875,25 @@ def test_a_control_over_a_lane_leaving_its_junction_drops_that_lane_with_one_war
     write_map(back, tmp_path / "again", "apollo")
     assert validate_apollo(tmp_path / "again") == []
 
+
+def test_a_stop_line_drawn_past_the_road_lanes_end_overlaps_the_junction_lanes_it_crosses(four_way):
+    """San Francisco draws some stop lines a few metres into the junction, past the road lane's
+    end, and ties them to the junction lanes there. The Apollo export overlapped the road lane's
+    end instead, 2.3 m from the line ('overlap ... from the stop line'); it now names the
+    junction lanes the line crosses, and reads back as the same control."""
+    from feat2map.formats.apollo import writer as wa
+    from feat2map.formats.apollo.reader import read_apollo_bytes
+    from feat2map.formats.apollo.validate import validate_map
+
+    sig = next(iter(four_way.signals.values()))
+    h = four_way.lanes[sig.lane_ids[0]].heading_at_end()
+    ahead = np.array([math.cos(h), math.sin(h)]) * 2.5
+    moved = replace(sig, stop_line=tuple(tuple(np.add(p, ahead)) for p in sig.stop_line))
+    m = replace(four_way, signals={**four_way.signals, sig.id: moved})
+    base = wa.to_apollo(m)
+    assert not [p for p in validate_map(base) if p.element == f"signal {sig.id}"]
+    named = {o.id.id for ov in base.overlap for o in ov.object if o.HasField("lane_overlap_info")
+             and any(p.id.id == sig.id for p in ov.object)}
+    assert named == {x for lid in sig.lane_ids for x in four_way.lanes[lid].successors}
+    back, _ = _quiet(read_apollo_bytes, base.SerializeToString())
+    assert set(back.signals[sig.id].lane_ids) == set(sig.lane_ids)
