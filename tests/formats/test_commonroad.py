@@ -248,3 +248,23 @@ def test_commonroad_ios_file_reader_imports_next_to_feat2map(sf_default_map, tmp
     assert out.returncode == 0, out.stderr[-800:]
     n, problems = map(int, out.stdout.split())
     assert n > len(sf_default_map.lanes) and problems == len(manoeuvres(sf_default_map))
+
+
+def test_a_planning_problem_starts_on_its_lanelet_as_written(tmp_path):
+    """San Francisco's and GoMentum's sparse lanes turn at a vertex: the model's centreline point
+    half-way along lay outside the lanelet written from the resampled borders ('its goal
+    lanelets ... are not reachable from its start (on lanelets [])'). The start is taken between
+    the written borders."""
+    from feat2map.model import HDMap, Lane, Road
+
+    def lane(lid, centre, left, right, **links):
+        return Lane(lid, "r", tuple(centre), tuple(left), tuple(right), 3.5, 10.0, **links)
+
+    bend = lane("a", [(0, 0), (10, 0), (10, 40), (10, 41)], [(0, 1.75), (8.25, 1.75), (8.25, 40), (8.25, 41)],
+                [(0, -1.75), (11.75, -1.75), (11.75, 40), (11.75, 41)], successors=("b",))
+    on = lane("b", [(10, 41), (10, 60)], [(8.25, 41), (8.25, 60)], [(11.75, 41), (11.75, 60)], predecessors=("a",))
+    m = HDMap({"a": bend, "b": on}, {"r": Road("r", "chain", ("a", "b"))}, {})
+    path = tmp_path / "bend.xml"
+    write_commonroad(m, path)
+    report = check_commonroad(path)
+    assert report.problems == []

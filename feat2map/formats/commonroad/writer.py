@@ -314,7 +314,7 @@ def _planning_problems(m: HDMap, lanes, ids: _Ids, net):
                     key = (jid, m.lanes[p].road_id, m.lanes[s_].road_id)
                     if key not in seen:
                         seen.add(key)
-                        problems.append(_problem(m, p, [s_], ids, net, f"{jid}/{p}/{s_}"))
+                        problems.append(_problem(p, [s_], ids, net, f"{jid}/{p}/{s_}"))
     if problems:
         return PlanningProblemSet(problems)
     return PlanningProblemSet([_whole_map_problem(m, lanes, ids, net)])
@@ -338,27 +338,30 @@ def _whole_map_problem(m: HDMap, lanes, ids: _Ids, net):
                     stack.append(s)
         exits.discard(ln.id)
         if exits:
-            return _problem(m, ln.id, [x for x in lanes if x in exits], ids, net, ln.id)
+            return _problem(ln.id, [x for x in lanes if x in exits], ids, net, ln.id)
     first = next(iter(lanes))
     level, seen, furthest = [first], {first}, [first]
     while level:
         furthest = level
         level = list(dict.fromkeys(s for x in level for s in m.lanes[x].successors if s in lanes and s not in seen))
         seen.update(level)
-    return _problem(m, first, furthest, ids, net, first)
+    return _problem(first, furthest, ids, net, first)
 
 
-def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net, key: str):
-    """Start half-way along `start_lane`, at rest; reach a goal lane within `COMMONROAD_HORIZON_S`."""
+def _problem(start_lane: str, goal_lanes: list[str], ids: _Ids, net, key: str):
+    """Start half-way along `start_lane` as written, between its lanelet's borders (a sparse real
+    lane's centreline vertex at a sharp bend lies outside the lanelet its resampled borders make:
+    a start there was on no lanelet), at rest; reach a goal lane within `COMMONROAD_HORIZON_S`."""
     from commonroad.common.util import Interval
     from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
     from commonroad.planning.goal import GoalRegion
     from commonroad.planning.planning_problem import PlanningProblem
     from commonroad.scenario.state import CustomState, InitialState
 
-    ln = m.lanes[start_lane]
-    k = (len(ln.centerline) - 1) // 2  # a centreline point half-way along, inside the lanelet
-    (x0, y0), (x1, y1) = ln.centerline[k][:2], ln.centerline[k + 1][:2]
+    ll = net.find_lanelet_by_id(ids("lane", start_lane))
+    mid = (ll.left_vertices + ll.right_vertices) / 2
+    k = (len(mid) - 1) // 2  # half-way along, between the borders
+    (x0, y0), (x1, y1) = mid[k], mid[k + 1]
     start = InitialState(position=np.array([x0, y0], dtype=float), orientation=math.atan2(y1 - y0, x1 - x0),
                          velocity=0.0, acceleration=0.0, yaw_rate=0.0, slip_angle=0.0, time_step=0)
     horizon = int(round(COMMONROAD_HORIZON_S / COMMONROAD_DT_S))
