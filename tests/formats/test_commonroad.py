@@ -268,3 +268,29 @@ def test_a_planning_problem_starts_on_its_lanelet_as_written(tmp_path):
     write_commonroad(m, path)
     report = check_commonroad(path)
     assert report.problems == []
+
+
+def test_a_junction_lane_leading_nowhere_is_no_manoeuvre(tmp_path):
+    """Autonomous Stuff's junction 4 has three lanes that end at an arm without a road: listed as
+    manoeuvres of their incomings, each was 'not reachable ... to a lanelet past it'. They are
+    written as lanelets and left out of the intersection, one warning naming them."""
+    import warnings
+    from dataclasses import replace
+
+    import feat2map
+    from feat2map.features import JunctionFeature
+
+    m = feat2map.generate_from_features([JunctionFeature.make([0, 90, 180, 270], "signal", False)], seed=0)
+    dead = next(ln for ln in m.lanes.values() if ln.junction_id is not None)
+    lanes = {k: replace(ln, predecessors=tuple(p for p in ln.predecessors if p != dead.id)) for k, ln in m.lanes.items()}
+    lanes[dead.id] = replace(dead, successors=())
+    path = tmp_path / "dead.xml"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        write_commonroad(replace(m, lanes=lanes), path)
+    assert [str(w.message) for w in caught if "lead nowhere" in str(w.message)] == [
+        f"map: 1 junction lane(s) lead nowhere ({dead.id}): written as lanelets, not listed as intersection "
+        "manoeuvres in the CommonRoad export"]
+    report = check_commonroad(path)
+    assert report.problems == []
+    assert lanelet_ids(m)[dead.id] in lanelet_index(report.scenario.lanelet_network)

@@ -23,6 +23,7 @@ import contextlib
 import logging
 import math
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Iterator, Mapping
 
@@ -239,8 +240,9 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
                     light = TrafficLight(ids("light", sid), np.asarray(m.signals[sid].position[:2], dtype=float),
                                          TrafficLightCycle(cycle, time_offset=0, active=True), active=True)
                     net.add_traffic_light(light, {ids("lane", x) for x in signals[sid]})
+    dead_ends = _dead_end_junction_lanes(m, lanes)
     for jid in m.junctions:
-        incomings = _incomings(m, jid, lanes, net, ids)
+        incomings = _incomings(m, jid, lanes, net, ids, dead_ends)
         groups = []
         for road, (feeders, turns) in incomings.items():
             groups.append(IncomingGroup(ids("incoming", f"{jid}/{road}"), {ids("lane", x) for x in feeders},
@@ -371,15 +373,29 @@ def _problem(start_lane: str, goal_lanes: list[str], ids: _Ids, net, key: str):
     return PlanningProblem(ids("planning", key), start, goal)
 
 
-def _incomings(m: HDMap, jid: str, lanes, net, ids: "_Ids") -> dict[str, tuple[list[str], dict[str, list[str]]]]:
+def _dead_end_junction_lanes(m: HDMap, lanes) -> set[str]:
+    """Junction lanes that lead nowhere (no successor written): no manoeuvre (CommonRoad's
+    turn sets list movements through the intersection), so they are left out of the incomings,
+    with one warning naming them (Autonomous Stuff's junction 4 has three lanes ending at an arm
+    without a road)."""
+    out = [x for x, ln in lanes.items() if ln.junction_id is not None and not any(s in lanes for s in ln.successors)]
+    if out:
+        shown = ", ".join(out[:5]) + (f" and {len(out) - 5} more" if len(out) > 5 else "")
+        warnings.warn(f"{m.meta.get('source', 'map')}: {len(out)} junction lane(s) lead nowhere ({shown}): written "
+                      "as lanelets, not listed as intersection manoeuvres in the CommonRoad export", stacklevel=3)
+    return set(out)
+
+
+def _incomings(m: HDMap, jid: str, lanes, net, ids: "_Ids",
+               dead_ends: set[str]) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
     """Entry road -> (its lanes into junction `jid`, junction lanes from them by CommonRoad turn:
-    `turn_set` of the lanelet as written)."""
+    `turn_set` of the lanelet as written; `dead_ends` left out)."""
     out: dict[str, tuple[list[str], dict[str, list[str]]]] = {}
     for road, feeders in m.approaches(jid).items():
         feeders = [x for x in feeders if x in lanes]
         turns: dict[str, list[str]] = {}
         for ln in m.lanes_by_junction[jid]:
-            if ln.id in lanes and any(p in feeders for p in ln.predecessors):
+            if ln.id in lanes and any(p in feeders for p in ln.predecessors) and ln.id not in dead_ends:
                 centre = net.find_lanelet_by_id(ids("lane", ln.id)).center_vertices
                 turns.setdefault(turn_set(ln.turn, centre), []).append(ln.id)
         if feeders:
