@@ -294,3 +294,28 @@ def test_a_junction_lane_leading_nowhere_is_no_manoeuvre(tmp_path):
     report = check_commonroad(path)
     assert report.problems == []
     assert lanelet_ids(m)[dead.id] in lanelet_index(report.scenario.lanelet_network)
+
+
+def test_opposed_approaches_left_turns_are_permissive_however_skewed():
+    """San Francisco's junction 90 pairs two approaches 128 degrees apart (a skewed crossing):
+    their straights do not meet, so feat2map's paired plan lets their left turns go permissive.
+    The checker took them for crossing approaches ('green together on crossing approaches');
+    like the plan, it now leaves opposed approaches' left turns out, and nothing else."""
+    from types import SimpleNamespace as NS
+
+    from feat2map.formats.commonroad.validate import _movements_meet, _unprotected
+
+    def move(lid, points):
+        return NS(lanelet_id=lid, center_vertices=np.asarray(points, dtype=float), successor=[100 + lid])
+
+    # right-hand traffic: northbound at x = 2, southbound at x = -2, each turning left across the other
+    north = [move(1, [(2, -10), (2, 10)]), move(2, [(2, -10), (2, 0), (-10, 2)])]
+    south = [move(3, [(-2, 10), (-2, -10)]), move(4, [(-2, 10), (-2, 0), (10, -2)])]
+    west = [move(5, [(10, 2), (-10, 2)])]  # westbound straight: crosses both
+    turn_of = {1: "outgoing_straight", 2: "outgoing_left", 3: "outgoing_straight", 4: "outgoing_left",
+               5: "outgoing_straight"}
+    assert _movements_meet(north, south)
+    assert not _movements_meet(*_unprotected(north, south, turn_of))
+    assert _movements_meet(*_unprotected(north, west, turn_of))  # not opposed: every movement counts
+    assert _movements_meet(*_unprotected(north, [move(3, [(-2, 10), (-2, -10)]), move(6, [(-2, 10), (10, -2)])],
+                                         {**turn_of, 6: "outgoing_right"}))  # a right turn across is no left
