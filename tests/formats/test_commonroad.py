@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SKIP_COMMONROAD_IO
+from conftest import SKIP_COMMONROAD_IO, shared_map, shared_map_params
 
 from feat2map.errors import Feat2MapError
 from feat2map.formats.commonroad import check_commonroad, lanelet_ids, write_commonroad
@@ -319,3 +319,19 @@ def test_opposed_approaches_left_turns_are_permissive_however_skewed():
     assert _movements_meet(*_unprotected(north, west, turn_of))  # not opposed: every movement counts
     assert _movements_meet(*_unprotected(north, [move(3, [(-2, 10), (-2, -10)]), move(6, [(-2, 10), (10, -2)])],
                                          {**turn_of, 6: "outgoing_right"}))  # a right turn across is no left
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("rel", shared_map_params("apollo/autonomous_stuff/base_map.bin", "apollo/gomentum/*",
+                                                  "apollo/san_francisco/base_map.bin"))
+def test_real_apollo_maps_commonroad_exports_validate_clean(rel, tmp_path):
+    """Autonomous Stuff's dead-end junction lanes, GoMentum's unlinked back-to-back junction
+    lanes, San Francisco's sparse bends and skewed opposed lights: each export validates clean."""
+    import warnings
+
+    from feat2map.formats import read_map
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the source's flaws, each repaired with its warning
+        write_commonroad(read_map(shared_map(rel)), tmp_path / "map.xml")
+    assert [str(p) for p in check_commonroad(tmp_path / "map.xml").problems] == []
