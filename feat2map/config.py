@@ -112,15 +112,14 @@ OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE wri
 IMPLICIT_LANE_LINK_M = 0.5  # a road link with no lane links: same-id lanes whose ends lie this close are linked
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
 LINK_REVERSAL_DEG = 120.0  # ... nor is one whose successor starts heading more than this away from the lane's end
+TOUCHING_LINK_DEG = 45.0  # a lane without successor ending where another starts (ENDPOINT_TOLERANCE_M), heading
+# within this, leads into it (SVL maps leave right-turn lanes and back-to-back junction lanes unlinked)
 BRIDGE_AHEAD_M = 1.0  # a link whose successor starts further ahead than this (a stretch without lane) is bridged ...
 BRIDGE_ASIDE_M = 2.0  # ... and so is one whose successor starts further to the side than this (osm2xodr lane shifts)
 BRIDGE_TAIL_M = 10.0  # a bridged lane's last metres (at most) are bent smoothly to meet its successor's start
 NEGATIVE_WIDTH_TOL_M = 0.01  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road (a
 # lane closing to 0 dips a few mm below it in converters' output: clamped to 0)
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close
-APOLLO_TOUCHING_LINK_DEG = 45.0  # an Apollo lane ending where another starts (ENDPOINT_TOLERANCE_M), heading within
-# this, with no successor (or it no predecessor) misses the link: SVL maps leave right-turn lanes and back-to-back
-# junction lanes unlinked
 APOLLO_JUNCTION_COVER_M = 0.5  # a junction-lane overlap within this of both lane ends makes a junction lane
 APOLLO_GENERATED_MARK = b"feat2map"  # header.generation of maps feat2map generated (validate holds them to check_map)
 # (only where roads name no junction: maps draw junction polygons over approach lanes too)

@@ -16,8 +16,8 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
-from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M,
-                     LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS)
+from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, JUNCTION_SPEED_LIMIT_MPS,
+                     LANE_LINK_GAP_M, LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS, TOUCHING_LINK_DEG)
 from .errors import Feat2MapError
 from .model import HDMap, Lane, incoming_lanes, stop_line_across
 
@@ -183,7 +183,8 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 
 
 def loaded(m: HDMap, where: str = "map") -> HDMap:
-    """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
+    """A reader's last step: links a lane leading nowhere leaves out added (`link_touching_ends`),
+    links between lanes that do not meet dropped (`drop_far_links`),
     short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
     (`drop_dangling`), values checked (`validation.validate_model`), implausible speeds replaced
     (`plausible_speeds`), governed lanes that are no approach dropped (`drop_non_approaches`),
@@ -191,11 +192,47 @@ def loaded(m: HDMap, where: str = "map") -> HDMap:
     warned (`check_map`)."""
     from .validation import validate_model
 
-    m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
+    m = drop_far_links(link_touching_ends(m, where), where)
+    m = validate_model(drop_dangling(bridge_gaps(m, where), where), where)
     return check_map(split_conflicting_signals(drop_non_approaches(plausible_speeds(m, where), where), where), where)
 
 
 # ------------------------------------------------------------------------------- repair
+
+def link_touching_ends(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with the links a lane without successor leaves out: it leads into every lane that starts
+    where it ends (within ENDPOINT_TOLERANCE_M, heading within TOUCHING_LINK_DEG), one warning
+    naming them. SVL's Borregas Ave leaves two right-turn lanes unlinked from their junction
+    lanes (routing reached no exit from them, their lights governed lanes leading nowhere),
+    GoMentum six lanes of back-to-back junctions."""
+    import math
+
+    import shapely
+
+    ids = [x for x, ln in m.lanes.items() if len(ln.centerline) >= 2]
+    open_ends = [x for x in ids if not m.lanes[x].successors]
+    if not open_ends:
+        return m
+    tree = shapely.STRtree(shapely.points([m.lanes[x].start[:2] for x in ids]))
+    cos_max = math.cos(math.radians(TOUCHING_LINK_DEG))
+    added: list[tuple[str, str]] = []
+    for a in open_ends:
+        ln = m.lanes[a]
+        near = sorted(int(k) for k in tree.query(shapely.Point(ln.end[:2]), predicate="dwithin",
+                                                 distance=ENDPOINT_TOLERANCE_M))
+        added += [(a, ids[k]) for k in near if ids[k] != a
+                  and math.cos(m.lanes[ids[k]].heading_at_start() - ln.heading_at_end()) >= cos_max]
+    if not added:
+        return m
+    lanes = dict(m.lanes)
+    for a, b in added:
+        lanes[a] = replace(lanes[a], successors=lanes[a].successors + (b,))
+        lanes[b] = replace(lanes[b], predecessors=lanes[b].predecessors + (a,))
+    shown = ", ".join(f"{a} -> {b}" for a, b in added[:5]) + (f" and {len(added) - 5} more" if len(added) > 5 else "")
+    warnings.warn(f"{where}: {len(added)} missing link(s) added where a lane without successor ends exactly where "
+                  f"another starts ({shown})", stacklevel=3)
+    return replace(m, lanes=lanes)
+
 
 def plausible_speeds(m: HDMap, where: str = "map") -> HDMap:
     """`m` with every lane speed limit outside PLAUSIBLE_SPEED_MPS replaced by the default a map
@@ -423,4 +460,4 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
 
 
 __all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links",
-           "drop_non_approaches", "findings", "loaded", "split_conflicting_signals"]
+           "drop_non_approaches", "findings", "link_touching_ends", "loaded", "split_conflicting_signals"]

@@ -797,10 +797,10 @@ def _unlinked(four_way):
     return replace(four_way, lanes=lanes, meta=meta), lid, ahead
 
 
-def test_apollo_lanes_that_end_where_others_start_without_a_link_are_linked(four_way, tmp_path):
+def test_a_lane_leading_nowhere_that_ends_where_others_start_leads_into_them(four_way, tmp_path):
     """Borregas Ave: a right-turn lane ends exactly where its junction lane starts, neither
     naming the other. Apollo routed nothing from it (56 'exit not reachable' problems in the
-    export) and its light governed a lane leading nowhere. The reader adds the links, one
+    export) and its light governed a lane leading nowhere. The readers add the links, one
     warning naming them, and the export validates clean."""
     from feat2map.formats.apollo.validate import validate_apollo
 
@@ -810,13 +810,17 @@ def test_apollo_lanes_that_end_where_others_start_without_a_link_are_linked(four
     assert set(m.lanes[lid].successors) == set(ahead)
     assert all(lid in m.lanes[x].predecessors for x in ahead)
     added = [w for w in caught if "missing link(s) added" in w]
-    assert len(added) == 1 and f"lanes: {len(ahead)} missing link(s) added" in added[0]
+    assert len(added) == 1 and f": {len(ahead)} missing link(s) added where a lane without successor" in added[0]
     assert f"{lid} -> {ahead[0]}" in added[0]
     assert not [w for w in caught if "not an approach" in w]
     write_map(m, tmp_path / "fixed", "apollo")
     assert validate_apollo(tmp_path / "fixed") == []
     # lanes that merely touch heading back (a dead end's two directions) stay apart
     assert not [w for w in _quiet(read_apollo, tmp_path / "fixed" / "base_map.bin")[1] if "added" in w]
+    # a lane that leads on keeps the links it declares (ASAM's VT01 starts a lane where a linked one ends)
+    one = replace(cut, lanes={**cut.lanes, lid: replace(cut.lanes[lid], successors=ahead[:1])})
+    kept, caught = _quiet(semantics.link_touching_ends, one, "m")
+    assert kept is one and caught == []
 
 
 def test_a_control_naming_its_own_junction_lane_stops_at_that_lanes_start(four_way):

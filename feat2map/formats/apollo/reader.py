@@ -14,19 +14,17 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
-import shapely
 from shapely import STRtree
 from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from . import schema as aps
-from ...config import (APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_KMH_SPEED_MPS,
-                       APOLLO_TOUCHING_LINK_DEG, ENDPOINT_TOLERANCE_M, UTM_EASTING, UTM_NORTHING, limits)
+from ...config import (APOLLO_CROSSWALK_LINK_M, APOLLO_JUNCTION_COVER_M, APOLLO_KMH_SPEED_MPS, UTM_EASTING,
+                       UTM_NORTHING, limits)
 from ...errors import LimitError, MapFormatError
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       incoming_lanes, signal_precedence)
@@ -272,7 +270,6 @@ class _Reader:
                 left_boundary_type=_boundary_type(ln.left_boundary),
                 right_boundary_type=_boundary_type(ln.right_boundary), **links)
 
-        lanes = self._touching_links(lanes)
         roads = self._roads(lanes, road_lane_ids, road_junction)
         signals = self._controls(pairs, lanes, junctions, "signal", o)
         stops = signal_precedence(lanes, signals, self._controls(pairs, lanes, junctions, "stop_sign", o))
@@ -287,37 +284,6 @@ class _Reader:
                 "non_driving_lanes": len(raw) - len(driving)}
         return HDMap(lanes, roads, junctions, signals, stops, crosswalks, origin=origin, meta=meta,
                      yield_signs=yields)
-
-    def _touching_links(self, lanes: dict[str, Lane]) -> dict[str, Lane]:
-        """`lanes` with the links the map leaves out where one lane ends exactly where another
-        starts (within ENDPOINT_TOLERANCE_M, headings within APOLLO_TOUCHING_LINK_DEG) and the
-        first has no successor or the second no predecessor: SVL maps leave a right-turn lane
-        that runs into its junction lane, and back-to-back junctions' lanes, unlinked (a dead
-        end for routing, a light governing a lane that leads nowhere). One warning names them."""
-        ids = list(lanes)
-        starts = np.array([lanes[x].start[:2] for x in ids])
-        tree = STRtree(shapely.points(starts))
-        cos_max = math.cos(math.radians(APOLLO_TOUCHING_LINK_DEG))
-        added: list[tuple[str, str]] = []
-        for a in ids:
-            ln = lanes[a]
-            for k in sorted(int(k) for k in tree.query(shapely.Point(ln.end[:2]), predicate="dwithin",
-                                                       distance=ENDPOINT_TOLERANCE_M)):
-                nxt = lanes[ids[k]]
-                if nxt.id == a or nxt.id in ln.successors or (ln.successors and nxt.predecessors):
-                    continue
-                if math.cos(nxt.heading_at_start() - ln.heading_at_end()) >= cos_max:
-                    added.append((a, nxt.id))
-        if not added:
-            return lanes
-        out = dict(lanes)
-        for a, b in added:
-            out[a] = replace(out[a], successors=out[a].successors + (b,))
-            out[b] = replace(out[b], predecessors=out[b].predecessors + (a,))
-        shown = ", ".join(f"{a} -> {b}" for a, b in added[:5]) + (f" and {len(added) - 5} more" if len(added) > 5 else "")
-        self.warn("lanes", f"{len(added)} missing link(s) added where a lane ends exactly where another starts "
-                           f"({shown})")
-        return out
 
     def _roads(self, lanes: dict[str, Lane], road_lane_ids: dict[str, list[str]],
                road_junction: dict[str, str | None]) -> dict[str, Road]:

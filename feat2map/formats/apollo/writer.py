@@ -136,8 +136,9 @@ def _lanes_at_line(m: HDMap, centres: Mapping[str, Polyline], x: str, line: Poly
     stop = LineString(line)
     if stop.distance(LineString(centres[x])) <= APOLLO_STOP_LINE_OVERLAP_M:
         return [x]
-    ahead = [y for y in m.lanes[x].successors if y in m.lanes and m.lanes[y].junction_id == junction_id
-             and junction_id is not None and stop.distance(LineString(centres[y])) <= APOLLO_STOP_LINE_OVERLAP_M]
+    ahead = [y for y in m.lanes[x].successors if junction_id is not None and y in m.lanes
+             and m.lanes[y].junction_id == junction_id
+             and stop.distance(LineString(centres[y])) <= APOLLO_STOP_LINE_OVERLAP_M]
     return ahead or [x]
 
 
