@@ -119,6 +119,8 @@ OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE wri
 IMPLICIT_LANE_LINK_M = 0.5  # a road link with no lane links: same-id lanes whose ends lie this close are linked
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
 LINK_REVERSAL_DEG = 120.0  # ... nor is one whose successor starts heading more than this away from the lane's end
+TOUCHING_LINK_DEG = 45.0  # a lane without successor ending where another starts (ENDPOINT_TOLERANCE_M), heading
+# within this, leads into it (SVL maps leave right-turn lanes and back-to-back junction lanes unlinked)
 BRIDGE_AHEAD_M = 1.0  # a link whose successor starts further ahead than this (a stretch without lane) is bridged ...
 BRIDGE_ASIDE_M = 2.0  # ... and so is one whose successor starts further to the side than this (osm2xodr lane shifts)
 BRIDGE_TAIL_M = 10.0  # a bridged lane's last metres (at most) are bent smoothly to meet its successor's start

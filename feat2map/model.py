@@ -82,15 +82,24 @@ class Lane:
         return math.atan2(y1 - y0, x1 - x0)
 
 
+def line_end(ln: Lane) -> tuple[Point, Point, float]:
+    """Where a governed lane meets its control's stop line: (right border point, left border point,
+    travel heading) at a road lane's end, or at the start of a junction lane a control names for
+    itself (`incoming_lanes`: its predecessors lie in another junction, so its line is its entry)."""
+    if ln.junction_id is not None:
+        return ln.right_boundary[0], ln.left_boundary[0], ln.heading_at_start()
+    return ln.right_boundary[-1], ln.left_boundary[-1], ln.heading_at_end()
+
+
 def stop_line_across(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> Polyline | None:
-    """A control's stop line across the ends of the lanes it governs, from the rightmost border
-    to the leftmost in their mean travel direction, whatever order the lanes are listed in; None
-    when none of them is in `lanes`."""
-    ends = [lanes[x] for x in lane_ids if x in lanes]
+    """A control's stop line across the lanes it governs where they meet it (`line_end`), from
+    the rightmost border to the leftmost in their mean travel direction, whatever order the lanes
+    are listed in; None when none of them is in `lanes`."""
+    ends = [line_end(lanes[x]) for x in lane_ids if x in lanes]
     if not ends:
         return None
-    h = math.atan2(sum(math.sin(x.heading_at_end()) for x in ends), sum(math.cos(x.heading_at_end()) for x in ends))
-    pts = [p for x in ends for p in (x.right_boundary[-1], x.left_boundary[-1])]
+    h = math.atan2(sum(math.sin(e[2]) for e in ends), sum(math.cos(e[2]) for e in ends))
+    pts = [p for e in ends for p in e[:2]]
     lateral = [-math.sin(h) * px + math.cos(h) * py for px, py in pts]  # leftwards of the travel direction
     return as_polyline([pts[int(np.argmin(lateral))], pts[int(np.argmax(lateral))]])
 

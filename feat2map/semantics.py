@@ -16,8 +16,9 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
-from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, FOLD_BACK_M, JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M,
-                     LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS)
+from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, FOLD_BACK_M,
+                     JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M, LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS,
+                     TOUCHING_LINK_DEG)
 from .errors import Feat2MapError
 from .model import HDMap, Lane, incoming_lanes, stop_line_across
 
@@ -71,6 +72,11 @@ APPROACH_LINKS = 3  # a governed lane may reach its junction through this many r
 
 
 def _leads_into(m: HDMap, lid: str, jid: str) -> bool:
+    """Lane `lid` is an approach of junction `jid`: a lane of `jid` itself (a junction lane a
+    control names for itself: its predecessors lie in another junction, `incoming_lanes`), or a
+    road lane reaching `jid` through at most APPROACH_LINKS road lanes."""
+    if m.lanes[lid].junction_id == jid:
+        return True
     frontier, seen = [lid], {lid}
     for _ in range(APPROACH_LINKS):
         nxt = []
@@ -89,7 +95,8 @@ def _leads_into(m: HDMap, lid: str, jid: str) -> bool:
 
 def governed_lanes_are_approaches(m: HDMap) -> Iterable[Finding]:
     """A control of a junction governs lanes that lead into that junction (its approaches,
-    through at most APPROACH_LINKS road lanes: SVL maps give signals the lane before)."""
+    through at most APPROACH_LINKS road lanes: SVL maps give signals the lane before), or its own
+    lanes where their predecessors lie in another junction (GoMentum's back-to-back junctions)."""
     for kind in CONTROL_TABLES:
         for s in getattr(m, kind).values():
             if s.junction_id is None:
@@ -177,20 +184,58 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 
 
 def loaded(m: HDMap, where: str = "map") -> HDMap:
-    """A reader's last step: links between lanes that do not meet dropped (`drop_far_links`),
+    """A reader's last step: links a lane leading nowhere leaves out added (`link_touching_ends`),
+    links between lanes that do not meet dropped (`drop_far_links`),
     short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
     (`drop_dangling`), values checked (`validation.validate_model`), implausible speeds replaced
-    (`plausible_speeds`), boundaries that fold back on themselves unfolded
-    (`unfolded_boundaries`), signals over conflicting approaches split
-    (`split_conflicting_signals`), semantic findings warned (`check_map`)."""
+    (`plausible_speeds`), governed lanes that are no approach dropped (`drop_non_approaches`),
+    boundaries that fold back on themselves unfolded (`unfolded_boundaries`), signals over
+    conflicting approaches split (`split_conflicting_signals`), semantic findings warned
+    (`check_map`)."""
     from .validation import validate_model
 
-    m = validate_model(drop_dangling(bridge_gaps(drop_far_links(m, where), where), where), where)
-    m = unfolded_boundaries(plausible_speeds(m, where), where)
+    m = drop_far_links(link_touching_ends(m, where), where)
+    m = validate_model(drop_dangling(bridge_gaps(m, where), where), where)
+    m = unfolded_boundaries(drop_non_approaches(plausible_speeds(m, where), where), where)
     return check_map(split_conflicting_signals(m, where), where)
 
 
 # ------------------------------------------------------------------------------- repair
+
+def link_touching_ends(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with the links a lane without successor leaves out: it leads into every lane that starts
+    where it ends (within ENDPOINT_TOLERANCE_M, heading within TOUCHING_LINK_DEG), one warning
+    naming them. SVL's Borregas Ave leaves two right-turn lanes unlinked from their junction
+    lanes (routing reached no exit from them, their lights governed lanes leading nowhere),
+    GoMentum six lanes of back-to-back junctions."""
+    import math
+
+    import shapely
+
+    ids = [x for x, ln in m.lanes.items() if len(ln.centerline) >= 2]
+    open_ends = [x for x in ids if not m.lanes[x].successors]
+    if not open_ends:
+        return m
+    tree = shapely.STRtree(shapely.points([m.lanes[x].start[:2] for x in ids]))
+    cos_max = math.cos(math.radians(TOUCHING_LINK_DEG))
+    added: list[tuple[str, str]] = []
+    for a in open_ends:
+        ln = m.lanes[a]
+        near = sorted(int(k) for k in tree.query(shapely.Point(ln.end[:2]), predicate="dwithin",
+                                                 distance=ENDPOINT_TOLERANCE_M))
+        added += [(a, ids[k]) for k in near if ids[k] != a
+                  and math.cos(m.lanes[ids[k]].heading_at_start() - ln.heading_at_end()) >= cos_max]
+    if not added:
+        return m
+    lanes = dict(m.lanes)
+    for a, b in added:
+        lanes[a] = replace(lanes[a], successors=lanes[a].successors + (b,))
+        lanes[b] = replace(lanes[b], predecessors=lanes[b].predecessors + (a,))
+    shown = ", ".join(f"{a} -> {b}" for a, b in added[:5]) + (f" and {len(added) - 5} more" if len(added) > 5 else "")
+    warnings.warn(f"{where}: {len(added)} missing link(s) added where a lane without successor ends exactly where "
+                  f"another starts ({shown})", stacklevel=3)
+    return replace(m, lanes=lanes)
+
 
 def plausible_speeds(m: HDMap, where: str = "map") -> HDMap:
     """`m` with every lane speed limit outside PLAUSIBLE_SPEED_MPS replaced by the default a map
@@ -280,6 +325,35 @@ def unfolded_boundaries(m: HDMap, where: str = "map") -> HDMap:
     warnings.warn(f"{where}: {len(fixed)} lane(s) with a boundary that folds back on itself (a border tighter than "
                   f"the lane's width): the folds dropped ({shown})", stacklevel=3)
     return replace(m, lanes={**m.lanes, **fixed})
+
+
+def drop_non_approaches(m: HDMap, where: str = "map") -> HDMap:
+    """`m` without the lanes a control governs that are no approach of its junction (the
+    `governed_lanes_are_approaches` finding), one warning per control naming them: the control's
+    stop line is redrawn across the lanes it keeps, and a control left with none is dropped (a
+    stop line drawn across both directions of a road made GoMentum's stop sign govern the lane
+    leaving its junction too; every export then carried it)."""
+    tables: dict[str, Any] = {}
+    for kind in CONTROL_TABLES:
+        table = getattr(m, kind)
+        out = dict(table)
+        for sid, s in table.items():
+            if s.junction_id is None:
+                continue
+            keep = tuple(x for x in s.lane_ids if any(_leads_into(m, y, s.junction_id)
+                                                      for y in incoming_lanes(m.lanes, (x,))))
+            if keep == tuple(s.lane_ids):
+                continue
+            gone = ", ".join(x for x in s.lane_ids if x not in keep)
+            what = f"dropped from it (it keeps {', '.join(keep)})" if keep else "dropped with it (it governs no other)"
+            warnings.warn(f"{where}: {kind[:-1]} {sid}: governs lane(s) {gone}, which are not approaches of junction "
+                          f"{s.junction_id}: {what}", stacklevel=3)
+            if keep:
+                out[sid] = replace(s, lane_ids=keep, stop_line=stop_line_across(m.lanes, keep) or s.stop_line)
+            else:
+                del out[sid]
+            tables[kind] = out
+    return replace(m, **tables) if tables else m
 
 
 def split_conflicting_signals(m: HDMap, where: str = "map") -> HDMap:
@@ -457,5 +531,6 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
     return replace(m, lanes=lanes, roads=roads, **tables)
 
 
-__all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links", "findings",
-           "loaded", "split_conflicting_signals", "unfold", "unfolded_boundaries"]
+__all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links",
+           "drop_non_approaches", "findings", "link_touching_ends", "loaded", "split_conflicting_signals", "unfold",
+           "unfolded_boundaries"]

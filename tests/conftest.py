@@ -86,6 +86,8 @@ SLOW_TESTS = (
     "tests/formats/test_apollo_export.py::test_real_sim_maps_report_nothing_their_base_map_does_not",
     "tests/formats/test_apollo_export.py::test_validator_runs_on_real_apollo_maps",
     "tests/formats/test_apollo_export.py::test_validator_survives_any_cleared_fields",
+    "tests/formats/test_apollo_export.py::test_real_maps_apollo_exports_validate_and_read_back_clean",
+    "tests/formats/test_commonroad.py::test_real_apollo_maps_commonroad_exports_validate_clean",
     "tests/test_atomic.py::test_sigkill_at_random_moments_never_leaves_a_half_written_or_mixed_folder",
     "tests/scenarios/test_bridge.py::test_the_reference_planner_drives_a_suite_through_the_bridge",
     "tests/scenarios/test_bridge_commonroad.py",

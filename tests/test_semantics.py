@@ -803,3 +803,126 @@ def test_a_link_into_a_lane_heading_back_is_dropped(four_way):
     assert caught == [f"m.xodr: 1 lane link(s) whose successor starts heading more than 120 degrees away dropped "
                       f"(largest: {a.id} -> rev (180 deg))"]
     assert semantics.drop_far_links(four_way) is four_way
+
+
+# ------------------------------------------------------------- real maps' controls and links
+
+def _unlinked(four_way):
+    """four_way with one signalled road lane's links into its junction cut on both sides (SVL's
+    Borregas Ave leaves a right-turn lane that runs into its junction lane unlinked): the lane,
+    and the junction lanes it ends at."""
+    sig = next(iter(four_way.signals.values()))
+    lid = sig.lane_ids[0]
+    ahead = four_way.lanes[lid].successors
+    lanes = dict(four_way.lanes)
+    lanes[lid] = replace(lanes[lid], successors=())
+    for x in ahead:
+        lanes[x] = replace(lanes[x], predecessors=tuple(p for p in lanes[x].predecessors if p != lid))
+    meta = {k: v for k, v in four_way.meta.items() if k != "generator"}  # a converted map: written with its flaws
+    return replace(four_way, lanes=lanes, meta=meta), lid, ahead
+
+
+def test_a_lane_leading_nowhere_that_ends_where_others_start_leads_into_them(four_way, tmp_path):
+    """Borregas Ave: a right-turn lane ends exactly where its junction lane starts, neither
+    naming the other. Apollo routed nothing from it (56 'exit not reachable' problems in the
+    export) and its light governed a lane leading nowhere. The readers add the links, one
+    warning naming them, and the export validates clean."""
+    from feat2map.formats.apollo.validate import validate_apollo
+
+    cut, lid, ahead = _unlinked(four_way)
+    write_map(cut, tmp_path / "cut", "apollo")
+    m, caught = _quiet(read_apollo, tmp_path / "cut" / "base_map.bin")
+    assert set(m.lanes[lid].successors) == set(ahead)
+    assert all(lid in m.lanes[x].predecessors for x in ahead)
+    added = [w for w in caught if "missing link(s) added" in w]
+    assert len(added) == 1 and f": {len(ahead)} missing link(s) added where a lane without successor" in added[0]
+    assert f"{lid} -> {ahead[0]}" in added[0]
+    assert not [w for w in caught if "not an approach" in w]
+    write_map(m, tmp_path / "fixed", "apollo")
+    assert validate_apollo(tmp_path / "fixed") == []
+    # lanes that merely touch heading back (a dead end's two directions) stay apart
+    assert not [w for w in _quiet(read_apollo, tmp_path / "fixed" / "base_map.bin")[1] if "added" in w]
+    # a lane that leads on keeps the links it declares (ASAM's VT01 starts a lane where a linked one ends)
+    one = replace(cut, lanes={**cut.lanes, lid: replace(cut.lanes[lid], successors=ahead[:1])})
+    kept, caught = _quiet(semantics.link_touching_ends, one, "m")
+    assert kept is one and caught == []
+
+
+def test_a_control_naming_its_own_junction_lane_stops_at_that_lanes_start(four_way):
+    """GoMentum's back-to-back junctions: a stop sign or light at a junction's entry names that
+    junction's lanes, whose predecessors lie in the junction before. Such a lane is an approach
+    (no finding), and the Apollo export draws its stop line and overlaps at the lane's start
+    (they went to its end, where the reader took the control for another junction's)."""
+    from feat2map.formats.apollo import writer as wa
+    from feat2map.formats.apollo.validate import validate_map
+
+    sig = next(iter(four_way.signals.values()))
+    own = tuple(x for lid in sig.lane_ids for x in four_way.lanes[lid].successors)
+    lanes = dict(four_way.lanes)
+    for lid in sig.lane_ids:
+        lanes[lid] = replace(lanes[lid], successors=())
+    for x in own:
+        lanes[x] = replace(lanes[x], predecessors=())
+    m = replace(four_way, lanes=lanes, signals={**four_way.signals, sig.id: replace(sig, lane_ids=own)})
+    assert not [f for f in semantics.findings(m) if "not an approach" in f.message]
+    base = wa.to_apollo(m)
+    signal = next(s for s in base.signal if s.id.id == sig.id)
+    assert len(signal.stop_line) == 1  # one approach, though its lanes turn apart
+    ranges = {o.id.id: (o.lane_overlap_info.start_s, o.lane_overlap_info.end_s) for ov in base.overlap
+              for o in ov.object if o.HasField("lane_overlap_info") and any(
+                  p.id.id == sig.id for p in ov.object)}
+    assert set(ranges) == set(own) and all(a == 0.0 for a, _ in ranges.values())
+    assert not [p for p in validate_map(base) if p.element == f"signal {sig.id}"]
+
+
+def test_a_control_over_a_lane_leaving_its_junction_drops_that_lane_with_one_warning(four_way, tmp_path):
+    """GoMentum's stop sign 9: its stop line runs across both directions of the road, so it
+    also overlaps the lane leaving its junction. The reader drops that lane from it (one warning
+    naming both), redraws its line across the lanes it keeps, and the export reads back clean."""
+    from feat2map.formats.apollo.validate import validate_apollo
+    from feat2map.model import stop_line_across
+
+    sig = next(iter(four_way.signals.values()))
+    road = four_way.roads[four_way.lanes[sig.lane_ids[0]].road_id]
+    leaving = next(x for x in road.lane_ids if x not in sig.lane_ids)
+    both = sig.lane_ids + (leaving,)
+    wide = replace(sig, lane_ids=both, stop_line=stop_line_across(four_way.lanes, both))
+    m = replace(four_way, signals={**four_way.signals, sig.id: wide})
+    assert [f.message for f in semantics.findings(m) if "not an approach" in f.message] == [
+        f"governs lane {leaving}, which is not an approach of junction {sig.junction_id}"]
+    fixed, caught = _quiet(semantics.drop_non_approaches, m, "m.bin")
+    assert fixed.signals[sig.id].lane_ids == sig.lane_ids
+    assert np.allclose(fixed.signals[sig.id].stop_line, sig.stop_line, atol=1e-6)
+    assert caught == [f"m.bin: signal {sig.id}: governs lane(s) {leaving}, which are not approaches of junction "
+                      f"{sig.junction_id}: dropped from it (it keeps {', '.join(sig.lane_ids)})"]
+    alone = replace(four_way, signals={**four_way.signals, sig.id: replace(sig, lane_ids=(leaving,))})
+    assert sig.id not in _quiet(semantics.drop_non_approaches, alone)[0].signals
+    assert semantics.drop_non_approaches(four_way) is four_way
+    write_map(m, tmp_path / "wide", "apollo")
+    back, caught = _quiet(read_apollo, tmp_path / "wide" / "base_map.bin")
+    assert back.signals[sig.id].lane_ids == sig.lane_ids and any("not approaches" in w for w in caught)
+    write_map(back, tmp_path / "again", "apollo")
+    assert validate_apollo(tmp_path / "again") == []
+
+
+def test_a_stop_line_drawn_past_the_road_lanes_end_overlaps_the_junction_lanes_it_crosses(four_way):
+    """San Francisco draws some stop lines a few metres into the junction, past the road lane's
+    end, and ties them to the junction lanes there. The Apollo export overlapped the road lane's
+    end instead, 2.3 m from the line ('overlap ... from the stop line'); it now names the
+    junction lanes the line crosses, and reads back as the same control."""
+    from feat2map.formats.apollo import writer as wa
+    from feat2map.formats.apollo.reader import read_apollo_bytes
+    from feat2map.formats.apollo.validate import validate_map
+
+    sig = next(iter(four_way.signals.values()))
+    h = four_way.lanes[sig.lane_ids[0]].heading_at_end()
+    ahead = np.array([math.cos(h), math.sin(h)]) * 2.5
+    moved = replace(sig, stop_line=tuple(tuple(np.add(p, ahead)) for p in sig.stop_line))
+    m = replace(four_way, signals={**four_way.signals, sig.id: moved})
+    base = wa.to_apollo(m)
+    assert not [p for p in validate_map(base) if p.element == f"signal {sig.id}"]
+    named = {o.id.id for ov in base.overlap for o in ov.object if o.HasField("lane_overlap_info")
+             and any(p.id.id == sig.id for p in ov.object)}
+    assert named == {x for lid in sig.lane_ids for x in four_way.lanes[lid].successors}
+    back, _ = _quiet(read_apollo_bytes, base.SerializeToString())
+    assert set(back.signals[sig.id].lane_ids) == set(sig.lane_ids)

@@ -27,9 +27,9 @@ from ..base import header_date
 from ..lane_ends import closed_seams
 from ..geo import check_origin, utm_projection
 from ...config import (APOLLO_GENERATED_MARK, APOLLO_MIN_HALF_WIDTH_M, APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M,
-                       APOLLO_WIDEN_MARGIN_M, APPROACH_SPLIT_DEG, UTM_ORIGIN, UTM_ZONE)
+                       APOLLO_STOP_LINE_OVERLAP_M, APOLLO_WIDEN_MARGIN_M, APPROACH_SPLIT_DEG, UTM_ORIGIN, UTM_ZONE)
 from ...errors import Feat2MapError
-from ...model import HDMap, Lane, Polyline, stop_line_across
+from ...model import HDMap, Lane, Polyline, line_end, stop_line_across
 from ...validation import refuse_nonfinite
 
 FILES = ("base_map", "sim_map", "routing_map")
@@ -111,20 +111,35 @@ class _Frame:
 
 
 def approach_groups(lanes: Mapping[str, Lane], lane_ids: Iterable[str]) -> list[list[str]]:
-    """The governed lanes grouped by approach: lanes whose end headings are within
-    APPROACH_SPLIT_DEG of a group's first lane are one approach (in listed order)."""
+    """The governed lanes grouped by approach: lanes whose headings at the stop line (`line_end`)
+    are within APPROACH_SPLIT_DEG of a group's first lane are one approach (in listed order)."""
     groups: list[list[str]] = []
     for x in lane_ids:
         if x not in lanes:
             continue
-        h = lanes[x].heading_at_end()
+        h = line_end(lanes[x])[2]
         for g in groups:
-            if math.cos(h - lanes[g[0]].heading_at_end()) > math.cos(math.radians(APPROACH_SPLIT_DEG)):
+            if math.cos(h - line_end(lanes[g[0]])[2]) > math.cos(math.radians(APPROACH_SPLIT_DEG)):
                 g.append(x)
                 break
         else:
             groups.append([x])
     return groups
+
+
+def _lanes_at_line(m: HDMap, centres: Mapping[str, Polyline], x: str, line: Polyline,
+                   junction_id: str | None) -> list[str]:
+    """The lanes a control's overlaps name for its governed lane `x`: `x` where its stop line
+    meets it (within APOLLO_STOP_LINE_OVERLAP_M), else the successors in the control's junction
+    that the line meets (San Francisco's SVL map draws some lines a few metres into the junction,
+    past the road lane's end, and ties them to those junction lanes), else `x`."""
+    stop = LineString(line)
+    if stop.distance(LineString(centres[x])) <= APOLLO_STOP_LINE_OVERLAP_M:
+        return [x]
+    ahead = [y for y in m.lanes[x].successors if junction_id is not None and y in m.lanes
+             and m.lanes[y].junction_id == junction_id
+             and stop.distance(LineString(centres[y])) <= APOLLO_STOP_LINE_OVERLAP_M]
+    return ahead or [x]
 
 
 def _add_stop_line(msg: Any, frame: _Frame, line: Polyline) -> None:
@@ -198,8 +213,9 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
             _add_stop_line(msg, frame, line)
         for x in c.lane_ids:
             if x in m.lanes:
-                overlaps.add(lanes[x], "lane_overlap_info", stop_line_range(centres[x], line_of.get(x, c.stop_line)),
-                             msg, info)
+                line = line_of.get(x, c.stop_line)
+                for y in _lanes_at_line(m, centres, x, line, c.junction_id):
+                    overlaps.add(lanes[y], "lane_overlap_info", stop_line_range(centres[y], line), msg, info)
         if c.junction_id in junctions:
             overlaps.add(junctions[c.junction_id], "junction_overlap_info", None, msg, info)
 

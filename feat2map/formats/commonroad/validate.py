@@ -11,7 +11,9 @@ needs from the lanelet network (each failure is a `Problem`):
   the way its set says (right: clockwise, left: anticlockwise or a U-turn, straight: within twice
   the straight tolerance);
 - traffic lights: a cycle with positive durations, used by a lanelet; lights of one
-  intersection whose greens overlap govern the same or opposite approaches;
+  intersection whose greens overlap govern the same or opposite approaches, or approaches
+  whose movements neither cross nor merge (opposed approaches' left turns permissive, as in
+  feat2map's paired phase plans);
 - stop signs: used by lanelets whose stop line refers to them;
 - each planning problem starts on a lanelet from which its goal lanelets are reachable.
 """
@@ -238,6 +240,7 @@ def _controls(net, report: CommonRoadReport) -> None:
     for inter in net.intersections:
         heading_in: dict[int, float] = {}
         moves: dict[int, list] = {}
+        turn_of = {x: key for inc in inter.incomings for key in _TURN_SETS for x in getattr(inc, key) or ()}
         for inc in inter.incomings:
             for x in sorted(inc.incoming_lanelets or ()):
                 ll = lanelet_of.get(x)
@@ -255,10 +258,27 @@ def _controls(net, report: CommonRoadReport) -> None:
                     ha, hb = heading_in[a.traffic_light_id], heading_in[b.traffic_light_id]
                     apart = math.degrees(abs(wrap_angle(ha - hb)))
                     if SIGNAL_SAME_APPROACH_DEG <= apart <= SIGNAL_OPPOSITE_DEG and \
-                            _movements_meet(moves[a.traffic_light_id], moves[b.traffic_light_id]):
+                            _movements_meet(*_unprotected(moves[a.traffic_light_id], moves[b.traffic_light_id],
+                                                          turn_of)):
                         report.problems.append(Problem(f"intersection {inter.intersection_id}",
                                                        f"traffic lights {a.traffic_light_id} and "
                                                        f"{b.traffic_light_id} are green together on crossing approaches"))
+
+
+def _unprotected(xs: list, ys: list, turn_of: Mapping[int, str]) -> tuple[list, list]:
+    """The movements of two lights green together that must not meet: all of them, but when the
+    approaches are opposed (each has a straight movement, and no straight of one meets one of
+    the other) their left turns and U-turns go permissive and yield, as in feat2map's paired
+    phase plans (`phases.units_conflict`); a skewed junction's opposed approaches lie well under
+    SIGNAL_OPPOSITE_DEG apart (San Francisco: 128 degrees)."""
+    def of(moves: list, key: str) -> list:
+        return [x for x in moves if turn_of.get(x.lanelet_id) == key]
+
+    sx, sy = of(xs, "outgoing_straight"), of(ys, "outgoing_straight")
+    if not sx or not sy or _movements_meet(sx, sy):
+        return xs, ys
+    left = {x.lanelet_id for x in of(xs, "outgoing_left") + of(ys, "outgoing_left")}
+    return [x for x in xs if x.lanelet_id not in left], [y for y in ys if y.lanelet_id not in left]
 
 
 def _movements_meet(xs: list, ys: list) -> bool:

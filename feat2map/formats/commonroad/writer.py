@@ -25,6 +25,7 @@ import contextlib
 import logging
 import math
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Iterator, Mapping
 
@@ -243,8 +244,9 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
                     light = TrafficLight(ids("light", sid), np.asarray(m.signals[sid].position[:2], dtype=float),
                                          TrafficLightCycle(cycle, time_offset=0, active=True), active=True)
                     net.add_traffic_light(light, {ids("lane", x) for x in signals[sid]})
+    dead_ends = _dead_end_junction_lanes(m, lanes)
     for jid in m.junctions:
-        incomings = _incomings(m, jid, lanes, net, ids)
+        incomings = _incomings(m, jid, lanes, net, ids, dead_ends)
         groups = []
         for road, (feeders, turns) in incomings.items():
             groups.append(IncomingGroup(ids("incoming", f"{jid}/{road}"), {ids("lane", x) for x in feeders},
@@ -318,7 +320,7 @@ def _planning_problems(m: HDMap, lanes, ids: _Ids, net):
                     key = (jid, m.lanes[p].road_id, m.lanes[s_].road_id)
                     if key not in seen:
                         seen.add(key)
-                        problems.append(_problem(m, p, [s_], ids, net, f"{jid}/{p}/{s_}"))
+                        problems.append(_problem(p, [s_], ids, net, f"{jid}/{p}/{s_}"))
     if problems:
         return PlanningProblemSet(problems)
     return PlanningProblemSet([_whole_map_problem(m, lanes, ids, net)])
@@ -342,27 +344,30 @@ def _whole_map_problem(m: HDMap, lanes, ids: _Ids, net):
                     stack.append(s)
         exits.discard(ln.id)
         if exits:
-            return _problem(m, ln.id, [x for x in lanes if x in exits], ids, net, ln.id)
+            return _problem(ln.id, [x for x in lanes if x in exits], ids, net, ln.id)
     first = next(iter(lanes))
     level, seen, furthest = [first], {first}, [first]
     while level:
         furthest = level
         level = list(dict.fromkeys(s for x in level for s in m.lanes[x].successors if s in lanes and s not in seen))
         seen.update(level)
-    return _problem(m, first, furthest, ids, net, first)
+    return _problem(first, furthest, ids, net, first)
 
 
-def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net, key: str):
-    """Start half-way along `start_lane`, at rest; reach a goal lane within `COMMONROAD_HORIZON_S`."""
+def _problem(start_lane: str, goal_lanes: list[str], ids: _Ids, net, key: str):
+    """Start half-way along `start_lane` as written, between its lanelet's borders (a sparse real
+    lane's centreline vertex at a sharp bend lies outside the lanelet its resampled borders make:
+    a start there was on no lanelet), at rest; reach a goal lane within `COMMONROAD_HORIZON_S`."""
     from commonroad.common.util import Interval
     from commonroad.geometry.occupancy.occupancy_group import OccupancyGroup
     from commonroad.planning.goal import GoalRegion
     from commonroad.planning.planning_problem import PlanningProblem
     from commonroad.scenario.state import CustomState, InitialState
 
-    ln = m.lanes[start_lane]
-    k = (len(ln.centerline) - 1) // 2  # a centreline point half-way along, inside the lanelet
-    (x0, y0), (x1, y1) = ln.centerline[k][:2], ln.centerline[k + 1][:2]
+    ll = net.find_lanelet_by_id(ids("lane", start_lane))
+    mid = (ll.left_vertices + ll.right_vertices) / 2
+    k = (len(mid) - 1) // 2  # half-way along, between the borders
+    (x0, y0), (x1, y1) = mid[k], mid[k + 1]
     start = InitialState(position=np.array([x0, y0], dtype=float), orientation=math.atan2(y1 - y0, x1 - x0),
                          velocity=0.0, acceleration=0.0, yaw_rate=0.0, slip_angle=0.0, time_step=0)
     horizon = int(round(COMMONROAD_HORIZON_S / COMMONROAD_DT_S))
@@ -372,15 +377,29 @@ def _problem(m: HDMap, start_lane: str, goal_lanes: list[str], ids: _Ids, net, k
     return PlanningProblem(ids("planning", key), start, goal)
 
 
-def _incomings(m: HDMap, jid: str, lanes, net, ids: "_Ids") -> dict[str, tuple[list[str], dict[str, list[str]]]]:
+def _dead_end_junction_lanes(m: HDMap, lanes) -> set[str]:
+    """Junction lanes that lead nowhere (no successor written): no manoeuvre (CommonRoad's
+    turn sets list movements through the intersection), so they are left out of the incomings,
+    with one warning naming them (Autonomous Stuff's junction 4 has three lanes ending at an arm
+    without a road)."""
+    out = [x for x, ln in lanes.items() if ln.junction_id is not None and not any(s in lanes for s in ln.successors)]
+    if out:
+        shown = ", ".join(out[:5]) + (f" and {len(out) - 5} more" if len(out) > 5 else "")
+        warnings.warn(f"{m.meta.get('source', 'map')}: {len(out)} junction lane(s) lead nowhere ({shown}): written "
+                      "as lanelets, not listed as intersection manoeuvres in the CommonRoad export", stacklevel=3)
+    return set(out)
+
+
+def _incomings(m: HDMap, jid: str, lanes, net, ids: "_Ids",
+               dead_ends: set[str]) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
     """Entry road -> (its lanes into junction `jid`, junction lanes from them by CommonRoad turn:
-    `turn_set` of the lanelet as written)."""
+    `turn_set` of the lanelet as written; `dead_ends` left out)."""
     out: dict[str, tuple[list[str], dict[str, list[str]]]] = {}
     for road, feeders in m.approaches(jid).items():
         feeders = [x for x in feeders if x in lanes]
         turns: dict[str, list[str]] = {}
         for ln in m.lanes_by_junction[jid]:
-            if ln.id in lanes and any(p in feeders for p in ln.predecessors):
+            if ln.id in lanes and any(p in feeders for p in ln.predecessors) and ln.id not in dead_ends:
                 centre = net.find_lanelet_by_id(ids("lane", ln.id)).center_vertices
                 turns.setdefault(turn_set(ln.turn, centre), []).append(ln.id)
         if feeders:
