@@ -18,6 +18,7 @@ from ...config import (APOLLO_END_TANGENT_M, APOLLO_MIN_HALF_WIDTH_M, APOLLO_WID
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, as_polyline
 from ...validation import CONTROL_KINDS
+from ...semantics import unfold
 
 
 def arc_lengths(points: np.ndarray) -> np.ndarray:
@@ -95,7 +96,7 @@ def offset_polyline(points: Polyline, d: float | np.ndarray) -> Polyline:
 def widened_boundaries(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap:
     """`m` with every lane side that comes nearer its centreline than `half` somewhere rebuilt as
     the centreline offset by the distance measured at each vertex, at least `half` (plus
-    APOLLO_WIDEN_MARGIN_M), and
+    APOLLO_WIDEN_MARGIN_M; unfolded where that folds it round a tighter bend: `semantics.unfold`), and
     one warning per map naming the lanes. Apollo refuses narrower width samples, and converters
     leave them: a geometry loop's 0.117 m-wide sample, a taper closing to 1.001 m at a linked
     end, a fold-cut connection's boundary 0.15 m from its centre (Bézier lanes are exact)."""
@@ -110,7 +111,8 @@ def widened_boundaries(m: HDMap, half: float = APOLLO_MIN_HALF_WIDTH_M) -> HDMap
             w = np.where(np.isfinite(w), w, ln.width / 2)
             if w.min() < half:
                 narrowest.append((float(w.min()), ln.id))
-                sides[name] = offset_polyline(ln.centerline, sign * np.maximum(w, half + APOLLO_WIDEN_MARGIN_M))
+                side = offset_polyline(ln.centerline, sign * np.maximum(w, half + APOLLO_WIDEN_MARGIN_M))
+                sides[name] = unfold(side, ln.centerline) or side  # round a bend tighter than `half` it folds
         if sides:
             fixed[ln.id] = dataclasses.replace(ln, **sides)
     if not fixed:
