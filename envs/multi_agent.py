@@ -72,6 +72,7 @@ from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
 from .sim.vehicle import VehicleModel, speed_control
+from .vehicles import SpeedGrid
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
@@ -213,10 +214,11 @@ class AgentJudge(EgoJudge):
             self._violate("not_yielding")
 
 
-class AgentVehicle(ArrayVehicle):
+class AgentVehicle(SpeedGrid, ArrayVehicle):
     """An agent's vehicle: a controlled row of the arrays core (its view), the config's
     `vehicle` (`model`: body, wheelbase, steering limit); its route progress is RouteFollower's
-    (the lanes behind it summed once per route position)."""
+    (the lanes behind it summed once per route position); TimeToCollision predicts for its
+    action's `target_speeds` (`SpeedGrid`)."""
 
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
     model: VehicleModel
@@ -554,6 +556,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 blocked.add(route[0])
                 waiting.append((name, (route, extend)))
                 continue
+            v.target_speeds = self.actions.speeds
             view = AgentView(w, v, self.actions, self.actions.space)
             view.start(AgentJudge(w.control, v), self._reward_terms(), self._make_observation(view))
             self._judged_lane[name] = -1

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.observation import (KinematicObservation, ObservationType, OccupancyGridObservation,
-                                                 observation_factory)
+                                                 TimeToCollisionObservation, observation_factory)
 
 
 from .driver_view import DriverViewObservation
@@ -152,6 +152,16 @@ class OccupancyGrid(OccupancyGridObservation):
         return spaces.Box(shape=self.grid.shape, low=-bound, high=bound, dtype=np.float32)
 
 
+class TimeToCollision(TimeToCollisionObservation):
+    """highway-env's time-to-collision grid (3 speeds x 3 lanes x horizon steps, in [0, 1]), its
+    space known without observing (highway-env's observes, and falls back to an unbounded
+    `spaces.Space` where the env has a road but no observer yet: the multi-agent env's world)."""
+
+    def space(self) -> spaces.Space:
+        steps = int(self.horizon * self.env.config["policy_frequency"])
+        return spaces.Box(shape=(3, 3, steps), low=0, high=1, dtype=np.float32)
+
+
 def make_observation(env, config: dict) -> ObservationType:
     """The observation type of `config` (highway-env's factory, with the bounded classes above)."""
     kind = config.get("type")
@@ -159,6 +169,8 @@ def make_observation(env, config: dict) -> ObservationType:
         return Kinematics(env, **config)
     if kind == "OccupancyGrid":
         return OccupancyGrid(env, **config)
+    if kind == "TimeToCollision":
+        return TimeToCollision(env, **config)
     if kind == "DriverView":
         return DriverViewObservation(env)
     return observation_factory(env, config)

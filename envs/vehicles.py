@@ -348,13 +348,14 @@ class EgoMDPVehicle(Ego, MDPVehicle):
         return self.target_speed < 0
 
 
-class EgoVehicle(Ego, ControlledVehicle):
-    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
-    lateral control, steering follows the route (a lane-keeping assist)."""
+class SpeedGrid:
+    """Mixin of vehicles that have no discrete target speeds of their own (the continuous ego,
+    the multi-agent env's agents): the speeds highway-env's TimeToCollision observation
+    predicts for (`target_speeds`, `index_to_speed`), the current one the nearest to the speed."""
 
-    auto_steer = True
-    tracker = None  # an envs.tracking.TrajectoryTracker: when set, it commands the ego every frame
-    target_speeds = np.array([0.0, 4.5, 9.0])  # for highway-env's TimeToCollision observation
+    target_speeds = np.array([0.0, 4.5, 9.0])
+    if TYPE_CHECKING:
+        speed: float
 
     def index_to_speed(self, index: int) -> float:
         return float(self.target_speeds[index])
@@ -362,6 +363,14 @@ class EgoVehicle(Ego, ControlledVehicle):
     @property
     def speed_index(self) -> int:
         return int(np.argmin(np.abs(self.target_speeds - self.speed)))
+
+
+class EgoVehicle(SpeedGrid, Ego, ControlledVehicle):
+    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
+    lateral control, steering follows the route (a lane-keeping assist)."""
+
+    auto_steer = True
+    tracker = None  # an envs.tracking.TrajectoryTracker: when set, it commands the ego every frame
 
     def act(self, action=None) -> None:
         """A new command (a dict) at each decision; between decisions (`action` None) the

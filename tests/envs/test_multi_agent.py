@@ -75,7 +75,7 @@ def test_aec_api_and_seed():
 
 @pytest.mark.parametrize("action", [{"type": "TargetSpeed"}, {"type": "DiscreteMetaAction"},
                                     {"type": "ContinuousAction"}])
-@pytest.mark.parametrize("observation", ["Kinematics", "DriverView"])
+@pytest.mark.parametrize("observation", ["Kinematics", "DriverView", "TimeToCollision"])
 def test_actions_observations_and_infos(action, observation):
     cfg = {**map_config("generated"), **SMALL, "action": action}
     if observation != "Kinematics":
@@ -91,6 +91,25 @@ def test_actions_observations_and_infos(action, observation):
             assert set(info["violations"]) == set(AGENT_VIOLATIONS)
             assert env.observation_space(a).contains(obs[a])
             assert isinstance(rew[a], float)
+
+
+def test_time_to_collision_predicts_for_each_agents_action_speeds():
+    """TimeToCollision, which highway-env computes for the observer's target speeds, is each
+    agent's grid over its action's speeds, centred on the one nearest its speed, and sees the
+    road users on a collision course."""
+    env = parallel_env({**map_config("generated"), **SMALL, "observation": {"type": "TimeToCollision", "horizon": 4}})
+    assert env.observation_space("agent_0").shape == (3, 3, 4 * env.world.config["policy_frequency"])
+    obs, _ = env.reset(seed=0)
+    seen = 0
+    for _ in range(15):
+        for a in env.agents:
+            v = env.view(a).vehicle
+            assert v.target_speeds is env.actions.speeds
+            assert v.index_to_speed(v.speed_index) == min(env.actions.speeds, key=lambda x: abs(x - v.speed))
+            assert env.observation_space(a).contains(obs[a])
+            seen += bool(obs[a].any())
+        obs, *_ = env.step({a: 5 for a in env.agents})
+    assert seen
 
 
 def test_agents_enter_when_their_place_is_free_and_leave_at_their_goal():
