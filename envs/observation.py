@@ -77,7 +77,7 @@ class Kinematics(KinematicObservation):
         behind_ok = -2 * ego.LENGTH < dist
         keep = near & (behind_ok if not self.see_behind else True)
         keep[n_v:] &= behind_ok[n_v:]
-        cand = np.nonzero(keep)[0]
+        cand = keep.nonzero()[0]
         if self.order == "sorted":
             cand = cand[np.argsort(np.abs(dist[cand]), kind="stable")]
         cand = cand[:self.vehicles_count - 1]
@@ -101,14 +101,14 @@ class Kinematics(KinematicObservation):
         n = 1 + len(cand)
         is_v = np.concatenate([[True], cand < n_v])
         vr = idx[cand[cand < n_v]]  # core rows of the chosen vehicles, in order
-        vrows = np.nonzero(is_v)[0][1:]
+        vrows = is_v.nonzero()[0][1:]
         h, sp, px, py = np.full(n, np.nan), np.zeros(n), np.empty(n), np.empty(n)
         h[0], sp[0] = ego.heading, ego.speed
         px[0], py[0] = ego.position[0], ego.position[1]
         h[vrows], sp[vrows], px[vrows], py[vrows] = core.heading[vr], core.speed[vr], core.x[vr], core.y[vr]
         cos_h, sin_h = np.cos(h), np.sin(h)
         vx, vy = sp * cos_h, sp * sin_h
-        orows = np.nonzero(~is_v)[0]
+        orows = (~is_v).nonzero()[0]
         if len(orows):
             objs = [obstacles[k - n_v] for k in cand[cand >= n_v]]
             oh = np.array([o.heading for o in objs], dtype=float)

@@ -170,18 +170,7 @@ class RouteFollower:
 
     def upcoming(self, horizon: float = LOOKAHEAD_M):
         """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""
-        lane_of = self.net.lane_of
-        route, pos = self.lane_route, self.route_pos
-        s = self.route_s()
-        out: list[tuple[int, str, float, float | None]] = [(pos, route[pos], -s, s)]
-        d = lane_of[route[pos]].length - s
-        for k in range(pos + 1, len(route)):
-            if d > horizon:
-                break
-            lid = route[k]
-            out.append((k, lid, d, None))
-            d += lane_of[lid].length
-        return out
+        return route_upcoming(self.net.lane_of, self.lane_route, self.route_pos, self.route_s(), horizon)
 
     def leader_gaps(self) -> list[tuple[float, float]]:
         """(bumper gap, speed) of every road user in the path ahead along the route: on the route's
@@ -216,6 +205,20 @@ class RouteFollower:
             if k > self.route_pos and enters_junction(m.lanes, self.lane_route[k - 1], lid):
                 return self.lane_route[k - 1], lid, d
         return None, None, math.inf
+
+
+def route_upcoming(lane_of: dict, route: list[str], pos: int, s: float,
+                   horizon: float) -> list[tuple[int, str, float, float | None]]:
+    """`RouteFollower.upcoming` of a road user at `s` on `route[pos]`."""
+    out: list[tuple[int, str, float, float | None]] = [(pos, route[pos], -s, s)]
+    d = lane_of[route[pos]].length - s
+    for k in range(pos + 1, len(route)):
+        if d > horizon:
+            break
+        lid = route[k]
+        out.append((k, lid, d, None))
+        d += lane_of[lid].length
+    return out
 
 
 class TrafficVehicle(RouteFollower, IDMVehicle):
