@@ -204,7 +204,7 @@ class LaneTable:
             if key not in self._pairs:
                 self._add_pair(*key)
         start, count, step = np.array([self._pairs[k] for k in keys]).T
-        pos = np.clip(s_b / step, 0.0, count - 1)
+        pos = np.minimum(np.maximum(s_b / step, 0.0), count - 1)
         i = np.minimum(np.floor(pos), count - 2)
         f = pos - i
         i = (start + i).astype(np.int64)
@@ -866,9 +866,8 @@ class TrafficCore:
                 if len(pj):
                     a_l, b_l = W[pf, pk], self.lane[pj]
                     so2, ro2 = t.seen_from(a_l, b_l, self.s[pj])
-                    for n_, j in enumerate(pj.tolist()):  # external road users: their exact position
-                        if not self.driven[j]:
-                            so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[j].position)
+                    for n_ in (~self.driven[pj]).nonzero()[0].tolist():  # external road users: their exact position
+                        so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[pj[n_]].position)
                     ahead2 = so2 > self.s[pf]
                     zips2 = ~t.junction[a_l] & (a_l != b_l)
                     ids = self.net.lane_ids
@@ -906,7 +905,7 @@ class TrafficCore:
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
             key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
-            flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
+            flag |= (is_any(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return (flag & driven & ~self.crashed & ~self.controlled).nonzero()[0].tolist()
 
     def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -957,7 +956,7 @@ class TrafficCore:
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
             key = np.where(valid, env[R][:, None] * nl + W, -1)
-            simple &= ~np.isin(key, busy).any(axis=1)
+            simple &= ~is_any(key, busy).any(axis=1)
         d_e = D[np.arange(n), ke]
         in_lane = lanes[np.arange(n), ke - 1]
         j_lane = lanes[np.arange(n), ke]
@@ -1125,6 +1124,13 @@ class TrafficCore:
         rows = self.rows(road)
         return [ids[k] if k >= 0 else None for k in self.lane[rows].tolist()], self.speed[rows].tolist()
 
+    def _all_pairs(self, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every (i, j) with i < n, i < j < m, grouped by i (`np.triu_indices`), kept for the last (n, m)."""
+        held = getattr(self, "_pairs_held", None)
+        if held is None or held[0] != (n, m):
+            held = self._pairs_held = ((n, m), np.triu_indices(n, 1, m))
+        return held[1]
+
     def collisions(self, roads: list, dt: float) -> None:
         """Crash flags and hits on `roads`: a vectorized centre-distance broad phase over the
         vehicles and pedestrians of each road, highway-env's `handle_collisions` (polygons) for
@@ -1142,7 +1148,7 @@ class TrafficCore:
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
         if len(self.roads) == 1:  # one slot: every pair (what the join below finds, in its order)
-            a, b = np.triu_indices(n, 1, len(env))
+            a, b = self._all_pairs(n, len(env))
         else:
             a, b = same_key_pairs(env[:n], env)  # pedestrians never collide with each other
             later = a < b
@@ -1165,6 +1171,14 @@ class TrafficCore:
         everyone = [self.objs[i] for i in rows.tolist()] + objects
         for i, j in zip(a[keep].tolist(), b[keep].tolist()):
             everyone[i].handle_collisions(everyone[j], dt)
+
+
+def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
+    """`np.isin(keys, few)` for a short list `few` (a comparison per value: no sort)."""
+    hit = keys == few[0]
+    for k in few[1:]:
+        hit |= keys == k
+    return hit
 
 
 def same_key_pairs(key_a: np.ndarray, key_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

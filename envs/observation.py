@@ -61,8 +61,9 @@ class Kinematics(KinematicObservation):
         road = self.env.road
         core.sync([road])  # vehicles respawned or added since the last frame
         mine = core.rows(road).tolist()  # this road's rows (a batch holds other sub-envs' too)
-        rows = [i for i in mine if core.objs[i] is not ego]
-        if len(rows) != len(mine) - 1 or any(core.kind[i] != 1 for i in rows):
+        objs = core.objs
+        rows = [i for i in mine if objs[i] is not ego]
+        if len(rows) != len(mine) - 1 or (core.kind[rows] != 1).any():
             return super().observe()  # vehicles the core does not drive (user code added foreign ones)
         obstacles = self.env.road.objects if self.include_obstacles else []
         ex, ey = float(ego.position[0]), float(ego.position[1])
@@ -86,7 +87,7 @@ class Kinematics(KinematicObservation):
             for feature, (a, b) in self.features_range.items():
                 if feature in table:
                     col = -1 + (table[feature] - a) * (1 - (-1)) / (b - a)
-                    table[feature] = np.clip(col, -1, 1) if self.clip else col
+                    table[feature] = np.minimum(np.maximum(col, -1), 1) if self.clip else col
         obs = np.zeros((self.vehicles_count, len(self.features)))
         for j, f in enumerate(self.features):
             obs[:1 + len(cand), j] = table[f]

@@ -582,10 +582,12 @@ class TrafficRules:
 
     def release(self, vehicle, j_lane: str) -> None:
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
-        junction (if it holds them): it will not enter now."""
-        for x in self.junction_chain(vehicle, j_lane):
-            if x in self.reservations and self.reservations[x] is vehicle:
-                del self.reservations[x]
+        junction (if it holds them): it will not enter now. (Asked every frame of every vehicle
+        at a red line: one that holds nothing skips the chain.)"""
+        if any(v is vehicle for v in self.reservations.values()):
+            for x in self.junction_chain(vehicle, j_lane):
+                if x in self.reservations and self.reservations[x] is vehicle:
+                    del self.reservations[x]
         if vehicle.reserved == j_lane:
             vehicle.reserved = None
 
