@@ -842,10 +842,14 @@ class TrafficCore:
         W, C = self.W, self.C
         valid = (W >= 0) & driven[:, None] & ((C - self.s[:, None]) <= LOOKAHEAD_M)
         nl = len(t.length)
+        one = len(self.roads) == 1  # one slot: no slot in the keys, every pair for the conflicts
         # same lane: every row (of the same slot) on a window lane
         ef, ek = valid.nonzero()
         on_map = (self.lane >= 0).nonzero()[0]
-        a, b = same_key_pairs(self.env[ef] * nl + W[ef, ek], self.env[on_map] * nl + self.lane[on_map])
+        if one:
+            a, b = same_key_pairs(W[ef, ek], self.lane[on_map])
+        else:
+            a, b = same_key_pairs(self.env[ef] * nl + W[ef, ek], self.env[on_map] * nl + self.lane[on_map])
         fi, k, lj = ef[a], ek[a], on_map[b]
         other = fi != lj
         fi, k, lj = fi[other], k[other], lj[other]
@@ -857,9 +861,12 @@ class TrafficCore:
         # rows on junction lanes conflicting with or diverging from a window junction lane
         occ = ((self.lane >= 0) & (t.jid[self.lane] >= 0)).nonzero()[0]
         if len(occ):
-            ef, ek = (valid & (t.jid[np.maximum(W, 0)] >= 0) & (W >= 0)).nonzero()
+            ef, ek = (valid & (t.jid[np.maximum(W, 0)] >= 0)).nonzero()
             if len(ef):
-                ei, oi = same_key_pairs(self.env[ef], self.env[occ])
+                if one:
+                    ei, oi = np.arange(len(ef)).repeat(len(occ)), np.tile(np.arange(len(occ)), len(ef))
+                else:
+                    ei, oi = same_key_pairs(self.env[ef], self.env[occ])
                 oj = occ[oi]
                 hit = t.near_pairs(W[ef[ei], ek[ei]], self.lane[oj]) & (ef[ei] != oj)
                 pf, pk, pj = ef[ei[hit]], ek[ei[hit]], oj[hit]
@@ -1086,8 +1093,10 @@ class TrafficCore:
             return
         lane, s, lat = self.lane[rows], self.s[rows], self.lat[rows]
         x, y, h = self.table.place(lane, s, lat)
-        settle = self.lat[rows] * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
-        h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * (np.abs(lat) > 1e-3)
+        changing = np.abs(lat) > 1e-3
+        if changing.any():  # (else the term below adds 0 to every heading)
+            settle = lat * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
+            h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * changing
         self.x[rows], self.y[rows], self.heading[rows] = x, y, h
 
     def may_leave(self) -> np.ndarray:
