@@ -864,7 +864,7 @@ class TrafficCore:
             ef, ek = (valid & (t.jid[np.maximum(W, 0)] >= 0)).nonzero()
             if len(ef):
                 if one:
-                    ei, oi = np.arange(len(ef)).repeat(len(occ)), np.tile(np.arange(len(occ)), len(ef))
+                    ei, oi = np.divmod(np.arange(len(ef) * len(occ)), len(occ))
                 else:
                     ei, oi = same_key_pairs(self.env[ef], self.env[occ])
                 oj = occ[oi]
