@@ -83,17 +83,27 @@ class Kinematics(KinematicObservation):
             cand = cand[np.argsort(np.abs(dist[cand]), kind="stable")]
         cand = cand[:self.vehicles_count - 1]
         table = self._rows(core, ego, idx, obstacles, cand, n_v)
-        if self.normalize:
-            for feature, (a, b) in self.features_range.items():
-                if feature in table:
-                    col = -1 + (table[feature] - a) * (1 - (-1)) / (b - a)
-                    table[feature] = np.minimum(np.maximum(col, -1), 1) if self.clip else col
         obs = np.zeros((self.vehicles_count, len(self.features)))
-        for j, f in enumerate(self.features):
-            obs[:1 + len(cand), j] = table[f]
+        obs[:1 + len(cand)] = np.stack([table[f] for f in self.features], axis=1)
+        if self.normalize:  # highway-env's arithmetic, on the ranged columns at once
+            cols, lo, hi = self._ranged()
+            if cols:
+                got = -1 + (obs[:1 + len(cand), cols] - lo) * (1 - (-1)) / (hi - lo)
+                obs[:1 + len(cand), cols] = np.minimum(np.maximum(got, -1), 1) if self.clip else got
         if self.order == "shuffled":
             self.env.np_random.shuffle(obs[1:])
         return obs.astype(np.float32)
+
+    def _ranged(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        """(columns of the features with a range, their lows, their highs), made again only
+        when `features_range` is another dict."""
+        held = self.__dict__.get("_ranged_held")
+        if held is None or held[0] is not self.features_range:
+            ranged = [(j, *self.features_range[f]) for j, f in enumerate(self.features) if f in self.features_range]
+            held = self._ranged_held = (self.features_range, [j for j, _, _ in ranged],
+                                        np.array([a for _, a, _ in ranged], dtype=float),
+                                        np.array([b for _, _, b in ranged], dtype=float))
+        return held[1:]
 
     def _rows(self, core, ego, idx, obstacles, cand, n_v) -> dict[str, np.ndarray]:
         """Feature columns of the observer's row and the chosen road users' rows, as
