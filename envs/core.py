@@ -71,7 +71,7 @@ from .network import MapNetwork
 from .rules import (crossed_lanes, has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane,
                     room_to_wait, stop_gap, stops_at_amber)
 from .sim.vehicle import VehicleModel, integrate, keeping_steering
-from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, step_egos
+from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, route_upcoming, step_egos
 
 if TYPE_CHECKING:
     from .road import MapRoad
@@ -205,7 +205,7 @@ class LaneTable:
             if key not in self._pairs:
                 self._add_pair(*key)
         start, count, step = np.array([self._pairs[k] for k in keys]).T
-        pos = np.clip(s_b / step, 0.0, count - 1)
+        pos = np.minimum(np.maximum(s_b / step, 0.0), count - 1)
         i = np.minimum(np.floor(pos), count - 2)
         f = pos - i
         i = (start + i).astype(np.int64)
@@ -227,7 +227,7 @@ class LaneTable:
 
     def segments(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
         key = self.offset[lane] + s
-        i = np.searchsorted(self.G, key, side="right") - 1
+        i = self.G.searchsorted(key, side="right") - 1
         return np.minimum(np.maximum(i, self.first[lane]), self.last_seg[lane])
 
     def project_near(self, lane: np.ndarray, s: np.ndarray, x: np.ndarray,
@@ -404,6 +404,11 @@ class ArrayVehicle(TrafficVehicle):
     def route_s(self) -> float:
         return float(self._core.s[self._row])
 
+    def upcoming(self, horizon: float = LOOKAHEAD_M):
+        """RouteFollower's, read straight from the row (the rules ask it of every rule row every frame)."""
+        c, i = self._core, self._row
+        return route_upcoming(c.net.lane_of, c.route_ids[i], int(c.route_pos[i]), float(c.s[i]), horizon)
+
     def s_on(self, lane_id: str) -> float:
         c, i = self._core, self._row
         if c.net.lane_ids[c.lane[i]] == lane_id:
@@ -440,6 +445,9 @@ class TrafficCore:
         self.seen: list[list[Any]] = [[] for _ in range(slots)]  # each road's vehicles at its last sync
         self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
         self.on = np.zeros(0, dtype=bool)  # their rows
+        self._all_on = self.on
+        self._external: list[int] = []  # the external rows (`_masks`)
+        self._acting: list[int] = []  # those being stepped this frame (`act`)
         self.objs: list[Any] = []
         self._slot_rows: list[np.ndarray] | None = None  # each slot's rows (`rows`), None: to be found again
         self.env = np.zeros(0, dtype=np.int64)  # the slot of each row
@@ -563,6 +571,8 @@ class TrafficCore:
         """Masks that change only when rows come or go."""
         self.driven = self.kind == DRIVEN
         self.on = self.stepped[self.env]
+        self._all_on = np.ones(len(self.env), dtype=bool)  # every row (all slots stepped); never written
+        self._external = np.nonzero(self.kind == EXTERNAL)[0].tolist()
         self._slot_rows = None
 
     def sync(self, roads: list | None = None) -> None:
@@ -737,25 +747,33 @@ class TrafficCore:
         """First half of a frame for `roads` (the others' rows stand still): sync, the external
         road users act, accelerations of the traffic."""
         self.sync(roads)
-        self.stepped[:] = len(roads) == len(self.roads)
-        self.stepped[[r.slot for r in roads]] = True
-        self.on = self.stepped[self.env]
-        for i in np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist():
+        if len(roads) == len(self.roads):
+            self.stepped[:] = True
+            self.on = self._all_on
+        else:
+            self.stepped[:] = False
+            self.stepped[[r.slot for r in roads]] = True
+            self.on = self.stepped[self.env]
+        self._acting = [i for i in self._external if self.on[i]]  # external rows this frame (`step` too)
+        for i in self._acting:
             self.objs[i].act()
         self.accelerations()
 
     def step(self, roads: list, dt: float) -> None:
         """Second half of a frame for `roads`: external road users step, traffic integrates,
         pedestrians walk, the rules' bookkeeping, collisions."""
-        external = np.nonzero((self.kind == EXTERNAL) & self.on)[0].tolist()
-        egos = [self.objs[i] for i in external if type(self.objs[i]) in EGOS and self.objs[i].impact is None]
-        if len(egos) < BATCH_MIN_EGOS:
-            egos = []
-        step_egos(egos, dt)  # the egos of all sub-envs together
-        batched = set(map(id, egos))
-        for i in external:
-            if id(self.objs[i]) not in batched:
-                self.objs[i].step(dt)
+        external = self._acting
+        objs = self.objs
+        egos = [objs[i] for i in external if type(objs[i]) in EGOS and objs[i].impact is None]
+        if len(egos) >= BATCH_MIN_EGOS:  # the egos of all sub-envs together (fewer: one by one)
+            step_egos(egos, dt)
+            batched = set(map(id, egos))
+            for i in external:
+                if id(objs[i]) not in batched:
+                    objs[i].step(dt)
+        else:
+            for i in external:
+                objs[i].step(dt)
         self.integrate(dt)
         for i in external:
             self._read_external(i)
@@ -808,7 +826,7 @@ class TrafficCore:
         t = self.table
         lane = np.maximum(self.lane, 0)
         s = self.s
-        j = np.searchsorted(t.G, t.offset[lane] + s - CURVE_BEHIND_M, side="left")
+        j = t.G.searchsorted(t.offset[lane] + s - CURVE_BEHIND_M, side="left")
         own = np.where(j <= t.last_vertex[lane], t.curve_q[np.minimum(j, len(t.G) - 1)], math.inf)
         v2 = own - 2 * CURVE_BRAKE_MPS2 * s
         if self.W.shape[1] > 1:
@@ -825,10 +843,14 @@ class TrafficCore:
         W, C = self.W, self.C
         valid = (W >= 0) & driven[:, None] & ((C - self.s[:, None]) <= LOOKAHEAD_M)
         nl = len(t.length)
+        one = len(self.roads) == 1  # one slot: no slot in the keys, every pair for the conflicts
         # same lane: every row (of the same slot) on a window lane
-        ef, ek = np.nonzero(valid)
-        on_map = np.nonzero(self.lane >= 0)[0]
-        a, b = same_key_pairs(self.env[ef] * nl + W[ef, ek], self.env[on_map] * nl + self.lane[on_map])
+        ef, ek = valid.nonzero()
+        on_map = (self.lane >= 0).nonzero()[0]
+        if one:
+            a, b = same_key_pairs(W[ef, ek], self.lane[on_map])
+        else:
+            a, b = same_key_pairs(self.env[ef] * nl + W[ef, ek], self.env[on_map] * nl + self.lane[on_map])
         fi, k, lj = ef[a], ek[a], on_map[b]
         other = fi != lj
         fi, k, lj = fi[other], k[other], lj[other]
@@ -838,24 +860,26 @@ class TrafficCore:
         zips = np.zeros(len(fi), dtype=bool)  # converging road lanes: `MapNetwork.zip_leader` decides
         wl = W[fi, k]
         # rows on junction lanes conflicting with or diverging from a window junction lane
-        occ = np.nonzero((self.lane >= 0) & (t.jid[self.lane] >= 0))[0]
+        occ = ((self.lane >= 0) & (t.jid[self.lane] >= 0)).nonzero()[0]
         if len(occ):
-            ef, ek = np.nonzero(valid & (t.jid[np.maximum(W, 0)] >= 0) & (W >= 0))
+            ef, ek = (valid & (t.jid[np.maximum(W, 0)] >= 0)).nonzero()
             if len(ef):
-                ei, oi = same_key_pairs(self.env[ef], self.env[occ])
+                if one:
+                    ei, oi = np.divmod(np.arange(len(ef) * len(occ)), len(occ))
+                else:
+                    ei, oi = same_key_pairs(self.env[ef], self.env[occ])
                 oj = occ[oi]
                 hit = t.near_pairs(W[ef[ei], ek[ei]], self.lane[oj]) & (ef[ei] != oj)
                 pf, pk, pj = ef[ei[hit]], ek[ei[hit]], oj[hit]
                 if len(pj):
                     a_l, b_l = W[pf, pk], self.lane[pj]
                     so2, ro2 = t.seen_from(a_l, b_l, self.s[pj])
-                    for n_, j in enumerate(pj.tolist()):  # external road users: their exact position
-                        if not self.driven[j]:
-                            so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[j].position)
+                    for n_ in (~self.driven[pj]).nonzero()[0].tolist():  # external road users: their exact position
+                        so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[pj[n_]].position)
                     ahead2 = so2 > self.s[pf]
                     zips2 = ~t.junction[a_l] & (a_l != b_l)
                     ids = self.net.lane_ids
-                    for n_ in np.nonzero(zips2)[0].tolist():
+                    for n_ in zips2.nonzero()[0].tolist():
                         f_ = int(pf[n_])
                         ahead2[n_] = self.net.zip_leader(
                             ids[a_l[n_]], float(self.s[f_]) if pk[n_] == 0 else None, ids[b_l[n_]], float(so2[n_]),
@@ -891,8 +915,8 @@ class TrafficCore:
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
             key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
-            flag |= (np.isin(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        return np.nonzero(flag & driven & ~self.crashed & ~self.controlled)[0].tolist()
+            flag |= (is_any(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
+        return (flag & driven & ~self.crashed & ~self.controlled).nonzero()[0].tolist()
 
     def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """(rows, `rules.TrafficRules.stop_distance` of their vehicles) for `rows`, in row order (the
@@ -907,10 +931,10 @@ class TrafficCore:
         `upcoming` and `stop_line_ahead` (tests/envs/test_core.py compares both)."""
         roads, env, objs = self.roads, self.env, self.objs
         R = np.array(rows, dtype=np.int64)
+        if len(rows) < max(BATCH_MIN_RULE_ROWS, 1) or self.net.passages or self.W.shape[1] < 2:
+            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
         W = self.W[R]
         n, K = W.shape
-        if len(rows) < max(BATCH_MIN_RULE_ROWS, 1) or self.net.passages or K < 2:
-            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
         t = self.table
         s = self.s[R]
         lanes = np.maximum(W, 0)
@@ -943,7 +967,7 @@ class TrafficCore:
                 for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
         if busy:
             key = np.where(valid, env[R][:, None] * nl + W, -1)
-            simple &= ~np.isin(key, busy).any(axis=1)
+            simple &= ~is_any(key, busy).any(axis=1)
         d_e = D[np.arange(n), ke]
         in_lane = lanes[np.arange(n), ke - 1]
         j_lane = lanes[np.arange(n), ke]
@@ -952,7 +976,7 @@ class TrafficCore:
         state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
         signal = reach & (t.line_signal[in_lane] >= 0)  # a signal not in the map has no plan: green
         if signal.any():
-            si = np.nonzero(signal)[0]
+            si = signal.nonzero()[0]
             slots = env[R[si]]
             controls = [r.control if r is not None else None for r in roads]
             times = np.array([c.t if c is not None else 0.0 for c in controls])
@@ -962,7 +986,7 @@ class TrafficCore:
         stop = d_line - STOP_POINT_M
         dist = np.where(halt, stop, math.inf)  # held at the line, or free (beyond the scan)
         ask = ~simple | (reach & ~(halt & (state == 1)))  # the rules decide, in row order
-        for r in np.nonzero(ask)[0].tolist():
+        for r in ask.nonzero()[0].tolist():
             i = rows[r]
             control, v = roads[env[i]].control, objs[i]
             if not simple[r]:
@@ -997,7 +1021,7 @@ class TrafficCore:
         t = self.table
         cand = due & t.neighbours[self.lane] & may_change_lane(t.junction[self.lane], t.length[self.lane] - self.s,
                                                                 self.speed)
-        for i in np.nonzero(cand)[0].tolist():
+        for i in cand.nonzero()[0].tolist():
             self.objs[i].mobil_change()
 
     def integrate(self, dt: float) -> None:
@@ -1007,19 +1031,25 @@ class TrafficCore:
         driven = self.driven & on
         if not driven.any():
             return
-        bicycles = np.nonzero(driven & self.controlled)[0]
+        bicycles = (driven & self.controlled).nonzero()[0]
         if len(bicycles):
             self.drive(bicycles, dt)
         # every other row being stepped moves; external rows are read back from their objects right after
-        on = on & ~self.controlled
-        driven = driven & ~self.controlled
-        self.s = np.where(on, self.s + self.speed * dt, self.s)
-        self.speed = np.where(on, np.maximum(self.speed + self.acc * dt, 0.0), self.speed)
-        self.timer = np.where(on, self.timer + dt, self.timer)
-        self.lat = np.where(on, self.lat * math.exp(-dt / LANE_CHANGE_TAU_S), self.lat)
+        if len(bicycles):
+            on = on & ~self.controlled
+            driven = driven & ~self.controlled
+        s = self.s + self.speed * dt
+        speed = np.maximum(self.speed + self.acc * dt, 0.0)
+        timer = self.timer + dt
+        lat = self.lat * math.exp(-dt / LANE_CHANGE_TAU_S)
+        if on.all():  # (a single env, a batch stepped whole)
+            self.s, self.speed, self.timer, self.lat = s, speed, timer, lat
+        else:
+            self.s, self.speed = np.where(on, s, self.s), np.where(on, speed, self.speed)
+            self.timer, self.lat = np.where(on, timer, self.timer), np.where(on, lat, self.lat)
         length = self.table.length
         over = driven & (self.s > length[self.lane]) & (self.route_pos < self.route_end)
-        for i in np.nonzero(over)[0].tolist():
+        for i in over.nonzero()[0].tolist():
             route = self.routes[i]
             pos = int(self.route_pos[i])
             while pos + 1 < len(route) and self.s[i] > length[route[pos]]:
@@ -1028,7 +1058,7 @@ class TrafficCore:
             self.route_pos[i] = pos
             self.lane[i] = route[pos]
             self.dirty.add(i)
-        self._place_rows(np.nonzero(driven)[0])
+        self._place_rows(driven.nonzero()[0])
 
     def drive(self, rows: np.ndarray, dt: float) -> None:
         """Controlled `rows` over dt, all at once: lane keeping on the route lane
@@ -1067,8 +1097,10 @@ class TrafficCore:
             return
         lane, s, lat = self.lane[rows], self.s[rows], self.lat[rows]
         x, y, h = self.table.place(lane, s, lat)
-        settle = self.lat[rows] * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
-        h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * (np.abs(lat) > 1e-3)
+        changing = np.abs(lat) > 1e-3
+        if changing.any():  # (else the term below adds 0 to every heading)
+            settle = lat * (-1.0 / LANE_CHANGE_TAU_S)  # lateral speed of a settling lane change
+            h = h + np.arctan2(settle, np.maximum(self.speed[rows], 0.1)) * changing
         self.x[rows], self.y[rows], self.heading[rows] = x, y, h
 
     def may_leave(self) -> np.ndarray:
@@ -1076,8 +1108,8 @@ class TrafficCore:
         driven row crashed or finished, or an external traffic vehicle), so that a respawn looks
         at its vehicles; False: none did."""
         rows = self.crashed | ~self.driven
-        rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in np.nonzero(~self.driven)[0].tolist()]
-        last = np.nonzero(self.driven & ~rows & (self.route_pos >= self.route_end))[0]
+        rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in (~self.driven).nonzero()[0].tolist()]
+        last = (self.driven & ~rows & (self.route_pos >= self.route_end)).nonzero()[0]
         rows[last] = [self.objs[i].finished for i in last.tolist()]
         return np.bincount(self.env[rows], minlength=len(self.roads)) > 0
 
@@ -1105,11 +1137,18 @@ class TrafficCore:
         rows = self.rows(road)
         return [ids[k] if k >= 0 else None for k in self.lane[rows].tolist()], self.speed[rows].tolist()
 
+    def _all_pairs(self, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Every (i, j) with i < n, i < j < m, grouped by i (`np.triu_indices`), kept for the last (n, m)."""
+        held = getattr(self, "_pairs_held", None)
+        if held is None or held[0] != (n, m):
+            held = self._pairs_held = ((n, m), np.triu_indices(n, 1, m))
+        return held[1]
+
     def collisions(self, roads: list, dt: float) -> None:
         """Crash flags and hits on `roads`: a vectorized centre-distance broad phase over the
         vehicles and pedestrians of each road, highway-env's `handle_collisions` (polygons) for
         the close pairs."""
-        rows = np.nonzero(self.on)[0]
+        rows = self.on.nonzero()[0]
         objects = [o for road in roads for o in road.objects]
         x, y, speed = self.x[rows], self.y[rows], np.abs(self.speed[rows])
         diag = np.hypot(self.length[rows], self.width[rows])
@@ -1121,9 +1160,12 @@ class TrafficCore:
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
-        a, b = same_key_pairs(env[:n], env)  # pedestrians never collide with each other
-        later = a < b
-        a, b = a[later], b[later]
+        if len(self.roads) == 1:  # one slot: every pair (what the join below finds, in its order)
+            a, b = self._all_pairs(n, len(env))
+        else:
+            a, b = same_key_pairs(env[:n], env)  # pedestrians never collide with each other
+            later = a < b
+            a, b = a[later], b[later]
         reach = (diag[a] + diag[b]) / 2 + speed[a] * dt
         close = (np.abs(x[a] - x[b]) <= reach) & (np.abs(y[a] - y[b]) <= reach)
         a, b = a[close], b[close]
@@ -1144,15 +1186,23 @@ class TrafficCore:
             everyone[i].handle_collisions(everyone[j], dt)
 
 
+def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
+    """`np.isin(keys, few)` for a short list `few` (a comparison per value: no sort)."""
+    hit = keys == few[0]
+    for k in few[1:]:
+        hit |= keys == k
+    return hit
+
+
 def same_key_pairs(key_a: np.ndarray, key_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Every (i, j) with key_a[i] == key_b[j], grouped by i (an equality join by sorting: no
     len(a) x len(b) matrix, so that rows of many sub-envs pair only within their own)."""
-    order = np.argsort(key_b, kind="stable")
+    order = key_b.argsort(kind="stable")
     sk = key_b[order]
-    lo = np.searchsorted(sk, key_a, side="left")
-    cnt = np.searchsorted(sk, key_a, side="right") - lo
-    i = np.repeat(np.arange(len(key_a)), cnt)
-    j = order[np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt - lo, cnt)]
+    lo = sk.searchsorted(key_a, side="left")
+    cnt = sk.searchsorted(key_a, side="right") - lo
+    i = np.arange(len(key_a)).repeat(cnt)
+    j = order[np.arange(int(cnt.sum())) - (cnt.cumsum() - cnt - lo).repeat(cnt)]
     return i, j
 
 

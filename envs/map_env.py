@@ -29,7 +29,7 @@ from ..routes import first_tight_bend
 from ..semantics import assert_sound
 from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
-from .network import MapNetwork, release_memory
+from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
@@ -136,7 +136,7 @@ class EgoTask:
         `done` and `completed` when already asked this step."""
         ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
         jid, turn = self.junction_ahead()
-        sl, in_lane, j_lane, d = rules.line_ahead(ego)
+        sl, in_lane, j_lane, d = self.next_stop_line()
         control = "" if in_lane is None else (sl.kind if sl else "bare")
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
         sig_id = sl.control_id if sl is not None and sig_state else ""
@@ -163,6 +163,11 @@ class EgoTask:
     def route_lanes(self) -> list[str]:
         """The ego's route as map lane ids."""
         return list(self.vehicle.lane_route)
+
+    def next_stop_line(self) -> tuple[StopLine | None, str | None, str | None, float]:
+        """(stop line, incoming lane, junction lane, distance) of the ego's next junction entry
+        (`rules.line_ahead`, no range)."""
+        return self.control.line_ahead(self.vehicle)
 
     def junction_ahead(self) -> tuple[str | None, str | None]:
         """(junction id, manoeuvre) of the junction the ego is in or will enter next."""

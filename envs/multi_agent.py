@@ -47,7 +47,6 @@ single env's keys (`info.INFO_KEYS`; `violations` holds the two more) plus
 """
 from __future__ import annotations
 
-import contextlib
 import math
 import operator
 from collections.abc import Mapping, Sequence
@@ -72,6 +71,7 @@ from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
 from .sim.vehicle import VehicleModel, speed_control
+from .vehicles import SpeedGrid
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
@@ -213,10 +213,11 @@ class AgentJudge(EgoJudge):
             self._violate("not_yielding")
 
 
-class AgentVehicle(ArrayVehicle):
+class AgentVehicle(SpeedGrid, ArrayVehicle):
     """An agent's vehicle: a controlled row of the arrays core (its view), the config's
     `vehicle` (`model`: body, wheelbase, steering limit); its route progress is RouteFollower's
-    (the lanes behind it summed once per route position)."""
+    (the lanes behind it summed once per route position); TimeToCollision predicts for its
+    action's `target_speeds` (`SpeedGrid`)."""
 
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
     model: VehicleModel
@@ -322,6 +323,10 @@ class AgentView(EgoTask):
             self._completed_at, self._completed = steps, EgoTask.route_completed(self)
         return self._completed
 
+    def next_stop_line(self) -> tuple:
+        """EgoTask's, from the agent's route plan (`AgentVehicle.line_ahead`: the same values)."""
+        return self.vehicle.line_ahead(self.net)
+
     def junction_ahead(self) -> tuple[str | None, str | None]:
         """EgoTask's, computed again only when the agent's route or route position changes."""
         v = self.vehicle
@@ -329,40 +334,6 @@ class AgentView(EgoTask):
         if self._junction_at != at:
             self._junction_at, self._junction = at, EgoTask.junction_ahead(self)
         return self._junction
-
-
-@contextlib.contextmanager
-def signal_states_once(control):
-    """While the infos of all agents are made (the clock stands still), each junction's signal
-    states and each signal's state are asked of the traffic control once (every info still gets
-    its own dict), and an
-    agent's next stop line (`line_ahead` without a range) comes from its route plan
-    (`AgentVehicle.line_ahead`)."""
-    ask, line_ahead, ask_one = control.signal_states, control.line_ahead, control.signal_state
-    memo: dict = {}
-    memo_one: dict[str, str] = {}
-
-    def one(signal_id: str) -> str:
-        state = memo_one.get(signal_id)
-        if state is None:
-            state = memo_one[signal_id] = ask_one(signal_id)
-        return state
-
-    def once(junction_id=None):
-        states = memo.get(junction_id)
-        if states is None:
-            states = memo[junction_id] = ask(junction_id)
-        return dict(states)
-
-    def line(vehicle, within: float = math.inf):
-        if within == math.inf and isinstance(vehicle, AgentVehicle):
-            return vehicle.line_ahead(control.net)
-        return line_ahead(vehicle, within)
-    control.signal_states, control.signal_state, control.line_ahead = once, one, line
-    try:
-        yield
-    finally:
-        del control.signal_states, control.signal_state, control.line_ahead
 
 
 class _World(MapEnv):
@@ -557,6 +528,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 blocked.add(route[0])
                 waiting.append((name, (route, extend)))
                 continue
+            v.target_speeds = self.actions.speeds
             view = AgentView(w, v, self.actions, self.actions.space)
             view.start(AgentJudge(w.control, v), self._reward_terms(), self._make_observation(view))
             self._judged_lane[name] = -1
@@ -635,13 +607,12 @@ class MultiAgentMapEnv(ParallelEnv):
         truncated = w.time >= w.config["duration"]
         obs = self._observe(live)
         weights = self._weights()
-        with signal_states_once(w.control):
-            for a, action in ((a, actions.get(a)) for a in live):
-                view = self._views[a]
-                rewards[a] = self._reward(view, action, weights)
-                terms[a] = bool(view.vehicle.crashed or view.route_completed())
-                truncs[a] = bool(truncated and not terms[a])
-                infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
+        for a, action in ((a, actions.get(a)) for a in live):
+            view = self._views[a]
+            rewards[a] = self._reward(view, action, weights)
+            terms[a] = bool(view.vehicle.crashed or view.route_completed())
+            truncs[a] = bool(truncated and not terms[a])
+            infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}

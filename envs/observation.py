@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium import spaces
 from highway_env.envs.common.observation import (KinematicObservation, ObservationType, OccupancyGridObservation,
-                                                 observation_factory)
+                                                 TimeToCollisionObservation, observation_factory)
 
 
 from .driver_view import DriverViewObservation
@@ -61,8 +61,9 @@ class Kinematics(KinematicObservation):
         road = self.env.road
         core.sync([road])  # vehicles respawned or added since the last frame
         mine = core.rows(road).tolist()  # this road's rows (a batch holds other sub-envs' too)
-        rows = [i for i in mine if core.objs[i] is not ego]
-        if len(rows) != len(mine) - 1 or any(core.kind[i] != 1 for i in rows):
+        objs = core.objs
+        rows = [i for i in mine if objs[i] is not ego]
+        if len(rows) != len(mine) - 1 or (core.kind[rows] != 1).any():
             return super().observe()  # vehicles the core does not drive (user code added foreign ones)
         obstacles = self.env.road.objects if self.include_obstacles else []
         ex, ey = float(ego.position[0]), float(ego.position[1])
@@ -77,22 +78,32 @@ class Kinematics(KinematicObservation):
         behind_ok = -2 * ego.LENGTH < dist
         keep = near & (behind_ok if not self.see_behind else True)
         keep[n_v:] &= behind_ok[n_v:]
-        cand = np.nonzero(keep)[0]
+        cand = keep.nonzero()[0]
         if self.order == "sorted":
             cand = cand[np.argsort(np.abs(dist[cand]), kind="stable")]
         cand = cand[:self.vehicles_count - 1]
         table = self._rows(core, ego, idx, obstacles, cand, n_v)
-        if self.normalize:
-            for feature, (a, b) in self.features_range.items():
-                if feature in table:
-                    col = -1 + (table[feature] - a) * (1 - (-1)) / (b - a)
-                    table[feature] = np.clip(col, -1, 1) if self.clip else col
         obs = np.zeros((self.vehicles_count, len(self.features)))
-        for j, f in enumerate(self.features):
-            obs[:1 + len(cand), j] = table[f]
+        obs[:1 + len(cand)] = np.stack([table[f] for f in self.features], axis=1)
+        if self.normalize:  # highway-env's arithmetic, on the ranged columns at once
+            cols, lo, hi = self._ranged()
+            if cols:
+                got = -1 + (obs[:1 + len(cand), cols] - lo) * (1 - (-1)) / (hi - lo)
+                obs[:1 + len(cand), cols] = np.minimum(np.maximum(got, -1), 1) if self.clip else got
         if self.order == "shuffled":
             self.env.np_random.shuffle(obs[1:])
         return obs.astype(np.float32)
+
+    def _ranged(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        """(columns of the features with a range, their lows, their highs), made again only
+        when `features_range` is another dict."""
+        held = self.__dict__.get("_ranged_held")
+        if held is None or held[0] is not self.features_range:
+            ranged = [(j, *self.features_range[f]) for j, f in enumerate(self.features) if f in self.features_range]
+            held = self._ranged_held = (self.features_range, [j for j, _, _ in ranged],
+                                        np.array([a for _, a, _ in ranged], dtype=float),
+                                        np.array([b for _, _, b in ranged], dtype=float))
+        return held[1:]
 
     def _rows(self, core, ego, idx, obstacles, cand, n_v) -> dict[str, np.ndarray]:
         """Feature columns of the observer's row and the chosen road users' rows, as
@@ -101,14 +112,14 @@ class Kinematics(KinematicObservation):
         n = 1 + len(cand)
         is_v = np.concatenate([[True], cand < n_v])
         vr = idx[cand[cand < n_v]]  # core rows of the chosen vehicles, in order
-        vrows = np.nonzero(is_v)[0][1:]
+        vrows = is_v.nonzero()[0][1:]
         h, sp, px, py = np.full(n, np.nan), np.zeros(n), np.empty(n), np.empty(n)
         h[0], sp[0] = ego.heading, ego.speed
         px[0], py[0] = ego.position[0], ego.position[1]
         h[vrows], sp[vrows], px[vrows], py[vrows] = core.heading[vr], core.speed[vr], core.x[vr], core.y[vr]
         cos_h, sin_h = np.cos(h), np.sin(h)
         vx, vy = sp * cos_h, sp * sin_h
-        orows = np.nonzero(~is_v)[0]
+        orows = (~is_v).nonzero()[0]
         if len(orows):
             objs = [obstacles[k - n_v] for k in cand[cand >= n_v]]
             oh = np.array([o.heading for o in objs], dtype=float)
@@ -152,6 +163,16 @@ class OccupancyGrid(OccupancyGridObservation):
         return spaces.Box(shape=self.grid.shape, low=-bound, high=bound, dtype=np.float32)
 
 
+class TimeToCollision(TimeToCollisionObservation):
+    """highway-env's time-to-collision grid (3 speeds x 3 lanes x horizon steps, in [0, 1]), its
+    space known without observing (highway-env's observes, and falls back to an unbounded
+    `spaces.Space` where the env has a road but no observer yet: the multi-agent env's world)."""
+
+    def space(self) -> spaces.Space:
+        steps = int(self.horizon * self.env.config["policy_frequency"])
+        return spaces.Box(shape=(3, 3, steps), low=0, high=1, dtype=np.float32)
+
+
 def make_observation(env, config: dict) -> ObservationType:
     """The observation type of `config` (highway-env's factory, with the bounded classes above)."""
     kind = config.get("type")
@@ -159,6 +180,8 @@ def make_observation(env, config: dict) -> ObservationType:
         return Kinematics(env, **config)
     if kind == "OccupancyGrid":
         return OccupancyGrid(env, **config)
+    if kind == "TimeToCollision":
+        return TimeToCollision(env, **config)
     if kind == "DriverView":
         return DriverViewObservation(env)
     return observation_factory(env, config)

@@ -278,10 +278,22 @@ class TrafficRules:
     passage_rooms: dict  # (passage group, side) -> vehicles that took a place to wait before it
     signals_by_junction: dict  # junction id -> its signal ids
 
+    _states_at: tuple[float, dict[str, str]] = (math.nan, {})  # (clock, states asked at it): `signal_state`
+
     # ---- signals ----------------------------------------------------------------------
     def signal_state(self, signal_id: str) -> str:
-        plan = self.plans.get(signal_id)
-        return plan.state(signal_id, self.t) if plan else "green"
+        """The state of a signal ("green" without a plan), worked out once per clock value: a
+        plan's state is a function of `t` alone, and a frame's rule queries, judges and infos ask
+        the same signals many times."""
+        t, states = self._states_at
+        if t != self.t:
+            states = {}
+            self._states_at = (self.t, states)
+        state = states.get(signal_id)
+        if state is None:
+            plan = self.plans.get(signal_id)
+            state = states[signal_id] = plan.state(signal_id, self.t) if plan else "green"
+        return state
 
     def signal_states(self, junction_id: str | None = None) -> dict[str, str]:
         """States of one junction's signals (all signals when `junction_id` is None)."""
@@ -570,10 +582,12 @@ class TrafficRules:
 
     def release(self, vehicle, j_lane: str) -> None:
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
-        junction (if it holds them): it will not enter now."""
-        for x in self.junction_chain(vehicle, j_lane):
-            if x in self.reservations and self.reservations[x] is vehicle:
-                del self.reservations[x]
+        junction (if it holds them): it will not enter now. (Asked every frame of every vehicle
+        at a red line: one that holds nothing skips the chain.)"""
+        if any(v is vehicle for v in self.reservations.values()):
+            for x in self.junction_chain(vehicle, j_lane):
+                if x in self.reservations and self.reservations[x] is vehicle:
+                    del self.reservations[x]
         if vehicle.reserved == j_lane:
             vehicle.reserved = None
 

@@ -170,18 +170,7 @@ class RouteFollower:
 
     def upcoming(self, horizon: float = LOOKAHEAD_M):
         """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""
-        lane_of = self.net.lane_of
-        route, pos = self.lane_route, self.route_pos
-        s = self.route_s()
-        out: list[tuple[int, str, float, float | None]] = [(pos, route[pos], -s, s)]
-        d = lane_of[route[pos]].length - s
-        for k in range(pos + 1, len(route)):
-            if d > horizon:
-                break
-            lid = route[k]
-            out.append((k, lid, d, None))
-            d += lane_of[lid].length
-        return out
+        return route_upcoming(self.net.lane_of, self.lane_route, self.route_pos, self.route_s(), horizon)
 
     def leader_gaps(self) -> list[tuple[float, float]]:
         """(bumper gap, speed) of every road user in the path ahead along the route: on the route's
@@ -216,6 +205,20 @@ class RouteFollower:
             if k > self.route_pos and enters_junction(m.lanes, self.lane_route[k - 1], lid):
                 return self.lane_route[k - 1], lid, d
         return None, None, math.inf
+
+
+def route_upcoming(lane_of: dict, route: list[str], pos: int, s: float,
+                   horizon: float) -> list[tuple[int, str, float, float | None]]:
+    """`RouteFollower.upcoming` of a road user at `s` on `route[pos]`."""
+    out: list[tuple[int, str, float, float | None]] = [(pos, route[pos], -s, s)]
+    d = lane_of[route[pos]].length - s
+    for k in range(pos + 1, len(route)):
+        if d > horizon:
+            break
+        lid = route[k]
+        out.append((k, lid, d, None))
+        d += lane_of[lid].length
+    return out
 
 
 class TrafficVehicle(RouteFollower, IDMVehicle):
@@ -348,13 +351,14 @@ class EgoMDPVehicle(Ego, MDPVehicle):
         return self.target_speed < 0
 
 
-class EgoVehicle(Ego, ControlledVehicle):
-    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
-    lateral control, steering follows the route (a lane-keeping assist)."""
+class SpeedGrid:
+    """Mixin of vehicles that have no discrete target speeds of their own (the continuous ego,
+    the multi-agent env's agents): the speeds highway-env's TimeToCollision observation
+    predicts for (`target_speeds`, `index_to_speed`), the current one the nearest to the speed."""
 
-    auto_steer = True
-    tracker = None  # an envs.tracking.TrajectoryTracker: when set, it commands the ego every frame
-    target_speeds = np.array([0.0, 4.5, 9.0])  # for highway-env's TimeToCollision observation
+    target_speeds = np.array([0.0, 4.5, 9.0])
+    if TYPE_CHECKING:
+        speed: float
 
     def index_to_speed(self, index: int) -> float:
         return float(self.target_speeds[index])
@@ -362,6 +366,14 @@ class EgoVehicle(Ego, ControlledVehicle):
     @property
     def speed_index(self) -> int:
         return int(np.argmin(np.abs(self.target_speeds - self.speed)))
+
+
+class EgoVehicle(SpeedGrid, Ego, ControlledVehicle):
+    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
+    lateral control, steering follows the route (a lane-keeping assist)."""
+
+    auto_steer = True
+    tracker = None  # an envs.tracking.TrajectoryTracker: when set, it commands the ego every frame
 
     def act(self, action=None) -> None:
         """A new command (a dict) at each decision; between decisions (`action` None) the

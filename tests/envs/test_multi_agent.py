@@ -4,6 +4,7 @@ single env's on the same drive; agents collide with each other and are told so; 
 from __future__ import annotations
 
 import os
+from collections import Counter
 
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
@@ -17,7 +18,8 @@ import feat2map  # noqa: E402
 from feat2map.envs import parallel_env  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.map_env import EgoTask, MapEnv  # noqa: E402
-from feat2map.envs.multi_agent import AGENT_VIOLATIONS, AgentVehicle  # noqa: E402
+from feat2map.envs.control import PhasePlan  # noqa: E402
+from feat2map.envs.multi_agent import AGENT_VIOLATIONS, AgentVehicle, MultiAgentMapEnv  # noqa: E402
 from feat2map.envs.multi_agent import env as aec_env  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.spec import build_spec, load_spec  # noqa: E402
@@ -75,7 +77,7 @@ def test_aec_api_and_seed():
 
 @pytest.mark.parametrize("action", [{"type": "TargetSpeed"}, {"type": "DiscreteMetaAction"},
                                     {"type": "ContinuousAction"}])
-@pytest.mark.parametrize("observation", ["Kinematics", "DriverView"])
+@pytest.mark.parametrize("observation", ["Kinematics", "DriverView", "TimeToCollision"])
 def test_actions_observations_and_infos(action, observation):
     cfg = {**map_config("generated"), **SMALL, "action": action}
     if observation != "Kinematics":
@@ -91,6 +93,25 @@ def test_actions_observations_and_infos(action, observation):
             assert set(info["violations"]) == set(AGENT_VIOLATIONS)
             assert env.observation_space(a).contains(obs[a])
             assert isinstance(rew[a], float)
+
+
+def test_time_to_collision_predicts_for_each_agents_action_speeds():
+    """TimeToCollision, which highway-env computes for the observer's target speeds, is each
+    agent's grid over its action's speeds, centred on the one nearest its speed, and sees the
+    road users on a collision course."""
+    env = parallel_env({**map_config("generated"), **SMALL, "observation": {"type": "TimeToCollision", "horizon": 4}})
+    assert env.observation_space("agent_0").shape == (3, 3, 4 * env.world.config["policy_frequency"])
+    obs, _ = env.reset(seed=0)
+    seen = 0
+    for _ in range(15):
+        for a in env.agents:
+            v = env.view(a).vehicle
+            assert v.target_speeds is env.actions.speeds
+            assert v.index_to_speed(v.speed_index) == min(env.actions.speeds, key=lambda x: abs(x - v.speed))
+            assert env.observation_space(a).contains(obs[a])
+            seen += bool(obs[a].any())
+        obs, *_ = env.step({a: 5 for a in env.agents})
+    assert seen
 
 
 def test_agents_enter_when_their_place_is_free_and_leave_at_their_goal():
@@ -221,8 +242,6 @@ def test_batched_kinematics_equals_each_agents_own_observation():
 def test_info_shortcuts_equal_the_single_env_answers():
     """The agents' shortcuts (next stop line per route position, route_completed once per frame,
     the reward's weighted sum without zero weights) give the single env's values exactly."""
-    from feat2map.envs.multi_agent import signal_states_once
-
     env = parallel_env({**map_config("generated"), **SMALL, "agents": 10})
     env.reset(seed=4)
     rng = np.random.default_rng(4)
@@ -234,9 +253,8 @@ def test_info_shortcuts_equal_the_single_env_answers():
         control = env.world.control
         for a in env.agents:
             view = env.view(a)
-            slow = type(control).line_ahead(control, view.vehicle)
-            with signal_states_once(control):
-                fast = control.line_ahead(view.vehicle)
+            slow = control.line_ahead(view.vehicle)
+            fast = view.next_stop_line()
             assert fast == slow and type(fast[3]) is type(slow[3])
             assert view.route_completed() == MapEnv.route_completed(view)
             seen["line"] += 1
@@ -248,6 +266,31 @@ def test_info_shortcuts_equal_the_single_env_answers():
             assert rewards[a] == float(full)
             seen["completed"] += bool(terms[a] and info["route_completed"])
     assert seen["line"] > 100 and seen["stop_line"] > 20 and seen["completed"] > 0, seen
+
+
+def test_signal_states_are_worked_out_once_per_clock_value_without_swapping_methods(monkeypatch):
+    """A signal's state is asked of its phase plan once per value of the traffic control's clock
+    (`TrafficRules.signal_state`'s cache: the frames' rule queries and judges, the agents'
+    infos), and nothing replaces the traffic control's methods while the infos are made."""
+    env = parallel_env({**map_config("generated"), **SMALL})
+    env.reset(seed=0)
+    asked: Counter = Counter()
+    swapped: list[str] = []
+    state, info = PhasePlan.state, MultiAgentMapEnv._info
+
+    def counted(plan, signal_id, t):
+        asked[signal_id, t] += 1
+        return state(plan, signal_id, t)
+
+    def checked(self, *args):
+        swapped.extend(set(vars(self.world.control)) & {"signal_state", "signal_states", "line_ahead"})
+        return info(self, *args)
+
+    monkeypatch.setattr(PhasePlan, "state", counted)
+    monkeypatch.setattr(MultiAgentMapEnv, "_info", checked)
+    for _ in range(10):
+        env.step({a: 3 for a in env.agents})
+    assert asked and max(asked.values()) == 1 and not swapped
 
 
 @pytest.mark.parametrize("angles,control", [(FOUR, "stop"), ([0, 90, 180], "bare"), (FOUR, "signal")])
