@@ -309,3 +309,25 @@ def mirrored_to_left_hand_traffic(src: Path, dst: Path) -> None:
                     side[:] = sorted(side, key=lambda ln: -int(ln.get("id")))
             sec[:] = sorted(sec, key=lambda el: ("left", "center", "right").index(el.tag))
     etree.ElementTree(root).write(str(dst), xml_declaration=True, encoding="UTF-8")
+
+
+def split_and_merge_map():
+    """One-lane roads (no reference curves, as maps read from Apollo have) outside any junction:
+    lane a splits into b (straight on) and c (bending away), and lanes g and h merge into i."""
+    import numpy as np
+
+    from feat2map.model import HDMap, Lane, Road
+
+    def lane(lid: str, pts, preds=(), succs=()) -> Lane:
+        p = np.asarray(pts, dtype=float)
+        d = np.gradient(p, axis=0)
+        n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
+        as_pl = lambda q: tuple((float(x), float(y)) for x, y in q)  # noqa: E731
+        return Lane(lid, lid, as_pl(p), as_pl(p + 1.75 * n), as_pl(p - 1.75 * n), 3.5, 10.0, tuple(preds), tuple(succs))
+    u = np.linspace(0.0, 1.0, 11)[:, None]
+    bend = np.hstack([50 + 50 * u, -10 * u ** 2])  # leaves a's end along its heading
+    lanes = [lane("a", [(0, 0), (50, 0)], succs=("b", "c")), lane("b", [(50, 0), (100, 0)], preds=("a",)),
+             lane("c", bend, preds=("a",)),
+             lane("g", [(0, -40), (50, -40)], succs=("i",)), lane("h", bend[::-1] * (-1, 1) + (100, -40), succs=("i",)),
+             lane("i", [(50, -40), (100, -40)], preds=("g", "h"))]
+    return HDMap({ln.id: ln for ln in lanes}, {ln.id: Road(ln.id, "chain", (ln.id,)) for ln in lanes}, {})

@@ -22,7 +22,7 @@ from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine,
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
 from conftest import (REPO, SKIP_NETCONVERT, assert_same_features, mirrored_to_left_hand_traffic, shared_map,
-                      split_with_a_centimetre_road)
+                      split_and_merge_map, split_with_a_centimetre_road)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -685,6 +685,30 @@ def test_direct_junctions_link_the_roads_lanes(tmp_path):
     assert m.lanes["1_0_-1"].successors == ("2_0_-1",) and m.lanes["1_0_-2"].successors == ("3_0_-1",)
     assert m.lanes["3_0_-1"].predecessors == ("1_0_-2",)
     assert not m.junctions  # a lane split is no junction manoeuvre
+
+
+def _link_ends(m) -> set:
+    """Each lane link as (end of the lane, end of its successor), to the metre: ids differ across a round trip."""
+    def at(p) -> tuple:
+        return tuple(np.round(p).astype(int).tolist())
+    return {(at(ln.end), at(m.lanes[s].end)) for ln in m.lanes.values() for s in ln.successors}
+
+
+def test_a_split_or_merge_outside_junctions_is_written_as_a_direct_junction(tmp_path):
+    """A lane with two successors (predecessors) outside any junction: a road link would be
+    ambiguous (two roads naming one road end), so the roads meet in a direct junction, which
+    reads back to the same lane links and no junction."""
+    m = split_and_merge_map()
+    path = tmp_path / "split.xodr"
+    write_opendrive(m, path)
+    root = etree.parse(str(path)).getroot()
+    assert len(root.findall("junction[@type='direct']")) == 2
+    named = Counter((lk.get("elementId"), lk.get("contactPoint")) for r in root.findall("road")
+                    if r.get("junction") == "-1" for lk in r.find("link") if lk.get("elementType") == "road")
+    assert all(n == 1 for n in named.values()), named
+    back = read_opendrive(path)
+    assert _link_ends(back) == _link_ends(m) and len(back.lanes) == len(m.lanes)
+    assert not back.junctions and extract_junctions(back) == []
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,7 +7,8 @@ pRange="normalized" and the Bézier's exact power-basis coefficients (no samplin
 without a Bézier falls back to a polyline of `line` geometries along its innermost lane
 edge. Lanes: right lanes (negative ids) drive along the reference, left lanes against it;
 the divider's lateral offset is the `laneOffset`. Each junction lane is its own connecting
-road, listed in its `<junction>` with a connection and lane link. Signals and stop signs
+road, listed in its `<junction>` with a connection and lane link; roads that split or merge
+outside junctions meet in a direct junction (1.7 on). Signals and stop signs
 sit at the end of the incoming lanes they govern, with one `<controller>` per traffic light;
 crosswalks are `object type="crosswalk"` with local outlines. The geoReference is the UTM
 zone of feat2map.config written as a transverse Mercator whose false origin puts the
@@ -282,6 +283,7 @@ class _Writer:
         missing = [lid for lid in m.lanes if lid not in self.odr_lane]
         if missing:
             raise MapFormatError(f"lane {missing[0]!r} belongs to no road's lane list", "map")
+        self.direct = self._direct_junctions()
 
     # -- helpers ------------------------------------------------------------------------------
     def sub(self, parent, tag: str, **attrs):
@@ -296,15 +298,62 @@ class _Writer:
         along = odr < 0
         return ("start" if along else "end") if at == "start" else ("end" if along else "start")
 
-    def _road_link(self, road: Road, end: str):
-        """(elementType, id, contactPoint) linked at the reference's `end` ('start'/'end')."""
-        touching: list[tuple[str, str]] = []  # (other lane, which of its ends touches here)
+    def _touching(self, road: Road, end: str) -> list[tuple[str, str]]:
+        """(other lane, which of its ends touches here) for the lanes linked at the reference's
+        `end` ('start'/'end') of `road`."""
+        touching: list[tuple[str, str]] = []
         for lid in road.right_lanes:
             ln = self.m.lanes[lid]
             touching += [(x, "end") for x in ln.predecessors] if end == "start" else [(x, "start") for x in ln.successors]
         for lid in road.left_lanes:
             ln = self.m.lanes[lid]
             touching += [(x, "start") for x in ln.successors] if end == "start" else [(x, "end") for x in ln.predecessors]
+        return touching
+
+    def _direct_junctions(self) -> dict[tuple[str, str], str]:
+        """(road, reference end) -> id of the direct junction written there: where more than two
+        road ends outside junctions meet (a lane split or merge between roads), a road link would
+        be ambiguous (ASAM's road.linkage.is_junction_needed), so they meet in a `type="direct"`
+        junction (OpenDRIVE 1.7 on; older revisions have none and keep the road links)."""
+        if self.minor < 7:
+            return {}
+        parent: dict[tuple[str, str], tuple[str, str]] = {}
+
+        def find(e: tuple[str, str]) -> tuple[str, str]:
+            while parent.setdefault(e, e) != e:
+                parent[e] = parent[parent[e]]
+                e = parent[e]
+            return e
+        for rid, road in self.roads.items():
+            if road.junction_id is not None:
+                continue
+            for end in ("start", "end"):
+                touching = self._touching(road, end)
+                find((rid, end))
+                if any(self.m.lanes[x].junction_id is not None for x, _ in touching):
+                    continue
+                for other, at in touching:
+                    a, b = find((rid, end)), find((self.odr_lane[other][0], self._lane_end(other, at)))
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)
+        groups: dict[tuple[str, str], list[tuple[str, str]]] = {}
+        for e in parent:
+            groups.setdefault(find(e), []).append(e)
+        taken = [int(j) for j in self.junction_ids.values()]
+        next_id = max(taken, default=0) + 1
+        out: dict[tuple[str, str], str] = {}
+        for ends in groups.values():  # in road order: the same map gives the same ids
+            if len(ends) > 2:
+                out.update({e: str(next_id) for e in ends})
+                next_id += 1
+        return out
+
+    def _road_link(self, rid: str, end: str):
+        """(elementType, id, contactPoint) linked at road `rid`'s reference `end` ('start'/'end')."""
+        road = self.roads[rid]
+        touching = self._touching(road, end)
+        if (rid, end) in self.direct:
+            return ("junction", self.direct[(rid, end)], None)
         if road.junction_id is None:
             jids = [j for j in (self.m.lanes[x].junction_id for x, _ in touching) if j]
             fallback = road.start_junction if end == "start" else road.end_junction
@@ -334,6 +383,8 @@ class _Writer:
         self._controllers(root)
         for jid in m.junctions:
             self._junction(root, jid)
+        for djid in dict.fromkeys(self.direct.values()):
+            self._direct_junction(root, djid)
         return root
 
     def _road(self, root, rid: str, road: Road, signals: list, objects: list) -> None:
@@ -345,7 +396,7 @@ class _Writer:
             el.set("rule", "RHT")
         link = self.sub(el, "link")
         for kind, end in (("predecessor", "start"), ("successor", "end")):
-            lk = self._road_link(road, end)
+            lk = self._road_link(rid, end)
             if lk is not None:
                 attrs = {"elementType": lk[0], "elementId": lk[1]}
                 if lk[2]:
@@ -408,12 +459,12 @@ class _Writer:
         link = self.sub(el, "link")
         # lane links name lanes of the linked road, so they exist only across road-road links
         # and inside junctions (connecting roads); an incoming road links to the junction itself
-        road = self.roads[self.odr_lane[lid][0]]
+        rid = self.odr_lane[lid][0]
         # in the reference direction (the schema's order: predecessor, then successor); for a
         # left lane the driving successors are the reference predecessors
         along = (ln.predecessors, ln.successors) if odr < 0 else (ln.successors, ln.predecessors)
         for ref_kind, end, lanes in zip(("predecessor", "successor"), ("start", "end"), along):
-            lk = self._road_link(road, end)
+            lk = self._road_link(rid, end)
             if lk is None or lk[0] != "road":
                 continue
             for other in lanes:
@@ -449,6 +500,30 @@ class _Writer:
                         break
         for k, (cid, _) in enumerate(self.controllers.get(jid, [])):
             self.sub(el, "controller", id=cid, type="0", sequence=str(k))
+
+    def _direct_junction(self, root, djid: str) -> None:
+        """A direct junction: per pair (incoming road, linked road) one connection with the lane
+        links from the incoming road's lanes that end there to the linked road's lanes they
+        continue in (contactPoint: the linked road's end)."""
+        el = self.sub(root, "junction", id=djid, type="direct")
+        conns: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        for (rid, end), j in self.direct.items():
+            if j != djid:
+                continue
+            for lid in self.roads[rid].lane_ids:
+                if self._lane_end(lid, "end") != end:
+                    continue
+                for nxt in self.m.lanes[lid].successors:
+                    other = self.odr_lane[nxt][0]
+                    if self.direct.get((other, self._lane_end(nxt, "start"))) == djid:
+                        conns.setdefault((rid, other), []).append((self.odr_lane[lid][1], self.odr_lane[nxt][1]))
+        for n, ((inc, linked), pairs) in enumerate(conns.items()):
+            contact = self._lane_end(next(x for x in self.roads[linked].lane_ids
+                                          if self.odr_lane[x][1] == pairs[0][1]), "start")
+            conn = self.sub(el, "connection", id=str(n), incomingRoad=self.road_ids[inc],
+                            linkedRoad=self.road_ids[linked], contactPoint=contact)
+            for a, b in pairs:
+                self.sub(conn, "laneLink", **{"from": str(a), "to": str(b)})
 
     # -- signals, controllers, objects ----------------------------------------------------------
     def _signal_place(self, lane_ids, position):
