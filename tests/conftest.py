@@ -311,23 +311,53 @@ def mirrored_to_left_hand_traffic(src: Path, dst: Path) -> None:
     etree.ElementTree(root).write(str(dst), xml_declaration=True, encoding="UTF-8")
 
 
+
+def _one_lane_road_lane(lid: str, pts, preds=(), succs=(), widths=3.5):
+    """A lane `lid` (its own road) along `pts`, `widths` wide (one value or one per point),
+    boundaries offset along the centreline's normals: as a map read from Apollo holds it."""
+    import numpy as np
+
+    from feat2map.model import Lane
+
+    p = np.asarray(pts, dtype=float)
+    d = np.gradient(p, axis=0)
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
+    half = np.broadcast_to(np.asarray(widths, dtype=float), len(p))[:, None] / 2
+
+    def pl(q) -> tuple:
+        return tuple((float(x), float(y)) for x, y in q)
+    return Lane(lid, lid, pl(p), pl(p + half * n), pl(p - half * n), float(np.mean(half) * 2), 10.0, tuple(preds),
+                tuple(succs))
+
+
+def _one_lane_roads_map(lanes):
+    from feat2map.model import HDMap, Road
+
+    return HDMap({ln.id: ln for ln in lanes}, {ln.id: Road(ln.id, "chain", (ln.id,)) for ln in lanes}, {})
+
+
 def split_and_merge_map():
     """One-lane roads (no reference curves, as maps read from Apollo have) outside any junction:
     lane a splits into b (straight on) and c (bending away), and lanes g and h merge into i."""
     import numpy as np
 
-    from feat2map.model import HDMap, Lane, Road
-
-    def lane(lid: str, pts, preds=(), succs=()) -> Lane:
-        p = np.asarray(pts, dtype=float)
-        d = np.gradient(p, axis=0)
-        n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
-        as_pl = lambda q: tuple((float(x), float(y)) for x, y in q)  # noqa: E731
-        return Lane(lid, lid, as_pl(p), as_pl(p + 1.75 * n), as_pl(p - 1.75 * n), 3.5, 10.0, tuple(preds), tuple(succs))
+    lane = _one_lane_road_lane
     u = np.linspace(0.0, 1.0, 11)[:, None]
     bend = np.hstack([50 + 50 * u, -10 * u ** 2])  # leaves a's end along its heading
-    lanes = [lane("a", [(0, 0), (50, 0)], succs=("b", "c")), lane("b", [(50, 0), (100, 0)], preds=("a",)),
-             lane("c", bend, preds=("a",)),
-             lane("g", [(0, -40), (50, -40)], succs=("i",)), lane("h", bend[::-1] * (-1, 1) + (100, -40), succs=("i",)),
-             lane("i", [(50, -40), (100, -40)], preds=("g", "h"))]
-    return HDMap({ln.id: ln for ln in lanes}, {ln.id: Road(ln.id, "chain", (ln.id,)) for ln in lanes}, {})
+    return _one_lane_roads_map([
+        lane("a", [(0, 0), (50, 0)], succs=("b", "c")), lane("b", [(50, 0), (100, 0)], preds=("a",)),
+        lane("c", bend, preds=("a",)), lane("g", [(0, -40), (50, -40)], succs=("i",)),
+        lane("h", bend[::-1] * (-1, 1) + (100, -40), succs=("i",)), lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
+
+
+def uneven_seams_map():
+    """One-lane roads whose source cross-sections differ where they meet (a coarse Apollo
+    junction lane is 4 m wide at its start, its feeder 3.5 m at its end): b continues a but
+    starts 4 m wide; h, merging into i beside g, ends 4 m wide."""
+    lane = _one_lane_road_lane
+    return _one_lane_roads_map([
+        lane("a", [(0, 0), (50, 0)], succs=("b",)),
+        lane("b", [(50, 0), (70, 0), (90, -10)], preds=("a",), widths=(4.0, 3.8, 3.5)),
+        lane("g", [(0, -40), (50, -40)], succs=("i",)),
+        lane("h", [(0, -60), (30, -45), (50, -40)], succs=("i",), widths=(3.5, 3.7, 4.0)),
+        lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])

@@ -22,7 +22,7 @@ from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine,
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
 from conftest import (REPO, SKIP_NETCONVERT, assert_same_features, mirrored_to_left_hand_traffic, shared_map,
-                      split_and_merge_map, split_with_a_centimetre_road)
+                      split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -709,6 +709,26 @@ def test_a_split_or_merge_outside_junctions_is_written_as_a_direct_junction(tmp_
     back = read_opendrive(path)
     assert _link_ends(back) == _link_ends(m) and len(back.lanes) == len(m.lanes)
     assert not back.junctions and extract_junctions(back) == []
+
+
+def _end_widths(root, name: str) -> tuple[float, float]:
+    """The lane width the one-lane road `name` writes at its reference's start and end."""
+    road = next(r for r in root.findall("road") if r.get("name") == name)
+    ws = road.findall("lanes/laneSection/right/lane/width")
+    last = ws[-1]
+    return float(ws[0].get("a")), float(last.get("a")) + float(last.get("b")) * (
+        float(road.get("length")) - float(last.get("sOffset")))
+
+
+def test_a_lane_takes_the_width_of_the_lane_it_continues_where_they_meet():
+    """Source cross-sections 4 m and 3.5 m wide at a seam: written as they are, the borders
+    would jump 0.25 m there. b starts as wide as a ends; h, merging into i, ends as wide as i
+    starts; the ends linked to nothing keep their own width."""
+    root = etree.fromstring(to_opendrive(uneven_seams_map()))
+    assert _end_widths(root, "b")[0] == pytest.approx(3.5, abs=1e-9)
+    assert _end_widths(root, "h")[1] == pytest.approx(3.5, abs=1e-9)
+    assert _end_widths(root, "b")[1] == pytest.approx(3.5, abs=1e-6)
+    assert _end_widths(root, "h")[0] == pytest.approx(3.5, abs=1e-6)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -98,6 +98,7 @@ class _Ref:
     """A road's reference line in the file: geometry elements, length, and sampled points."""
 
     widths: list[tuple[float, float, float]] | None = None  # (s, a, b) width pieces; None: ln.width throughout
+    width_samples: tuple[np.ndarray, np.ndarray] | None = None  # (s, width) a one-lane polyline road writes
 
     def __init__(self, road: Road, m: HDMap) -> None:
         self.geoms: list[tuple[float, float, float, float, str, dict[str, float]]] = []
@@ -140,7 +141,24 @@ class _Ref:
         self.pts, self.s = pts, s
         self.heads = np.append(heads, heads[-1])
         self.divider = ln.width / 2 if road.right_lanes else -ln.width / 2
-        self.widths = _width_profile(ln, raw, keep, bool(road.left_lanes), self.length)
+        samples = _width_samples(ln, raw, keep, bool(road.left_lanes), self.length)
+        if samples is not None and float(np.max(np.abs(samples[1] - ln.width))) > WIDTH_PROFILE_TOL_M:
+            self.width_samples = samples
+            self.widths = _width_pieces(*samples)
+        elif samples is not None:  # within the tolerance of ln.width: one constant record
+            self.width_samples = (samples[0], np.full(len(samples[0]), ln.width))
+
+    def set_end_widths(self, start: float, end: float) -> None:
+        """Make the written width `start` (`end`) at the reference's start (end), so a lane's
+        borders meet those of the lane it continues (ASAM's
+        lane_smoothness.contact_point_no_horizontal_gaps)."""
+        assert self.width_samples is not None
+        s, w = self.width_samples
+        if abs(w[0] - start) <= 1e-9 and abs(w[-1] - end) <= 1e-9:
+            return
+        w = w.copy()
+        w[0], w[-1] = start, end
+        self.widths = _width_pieces(s, w)
 
     def project(self, p) -> tuple[float, float]:
         """(s, t) of a point: nearest sampled reference point, lateral offset along its normal."""
@@ -202,14 +220,13 @@ def _merge_straight_runs(pts: np.ndarray, tol_rad: float = STRAIGHT_RUN_TOL_RAD)
     return pts
 
 
-def _width_profile(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
-                   length: float) -> list[tuple[float, float, float]] | None:
-    """A lane's width along its centreline `pts` (in the written direction: reversed when
-    `reverse`, the points `keep` selects) as linear pieces
-    (s, width at s, slope) within WIDTH_PROFILE_TOL_M, s scaled to the written `length`; None
-    when the width stays within that of `ln.width` (one constant record). A lane that opens or
-    closes (a taper, an exit lane growing from 0 m) keeps its borders where they are, so they
-    meet the linked lanes' borders (ASAM's lane_smoothness.contact_point_no_horizontal_gaps)."""
+def _width_samples(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
+                   length: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(s, width) of a lane along its centreline `pts` (in the written direction: reversed when
+    `reverse`, the points `keep` selects), s scaled to the written `length`; at the two ends the
+    width between the boundaries' end points, the cross-section the linked lanes share (the
+    distance to a coarse boundary's first chord, slanted against the centreline's, falls short).
+    None where the lane has no usable boundaries."""
     from shapely import LineString, distance, points
 
     if len(pts) < 2 or len(ln.left_boundary) < 2 or len(ln.right_boundary) < 2:
@@ -221,12 +238,17 @@ def _width_profile(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
     else:
         p = points(pts)
         w = distance(LineString(left), p) + distance(LineString(right), p)
-    if float(np.max(np.abs(w - ln.width))) <= WIDTH_PROFILE_TOL_M:
-        return None
+        ends = np.hypot(*(left[[0, -1]] - right[[0, -1]]).T)  # in driving direction
+        w[0], w[-1] = ends[::-1] if reverse else ends
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
     if s[-1] <= 0:
         return None
-    s = s * (length / s[-1])
+    return s * (length / s[-1]), w
+
+
+def _width_pieces(s: np.ndarray, w: np.ndarray) -> list[tuple[float, float, float]]:
+    """Linear pieces (s, width at s, slope) through the samples within WIDTH_PROFILE_TOL_M, ending
+    exactly on the first and last sample."""
     breaks, i = [0], 0
     while i < len(s) - 1:
         j = i + 1
@@ -284,6 +306,30 @@ class _Writer:
         if missing:
             raise MapFormatError(f"lane {missing[0]!r} belongs to no road's lane list", "map")
         self.direct = self._direct_junctions()
+        self._meet_widths()
+
+    def _meet_widths(self) -> None:
+        """A one-lane polyline road's lane takes, at each end where `_joint_tangents` aligns it to
+        a neighbour, that neighbour's written width: at its start its only predecessor's end width,
+        at its end its only successor's start width where that successor has other predecessors.
+        Linked lanes' borders then meet (ASAM's lane_smoothness.contact_point_no_horizontal_gaps);
+        the source's cross-sections there can differ by decimetres (a coarse Apollo junction lane
+        starts square to its own first chord, not to the lane it continues)."""
+        def written(lid: str, at: str) -> float:  # the lane's width at its driving start/end as sampled
+            ref = self.refs[self.odr_lane[lid][0]]
+            if ref.width_samples is None:
+                return self.m.lanes[lid].width
+            return float(ref.width_samples[1][0 if self._lane_end(lid, at) == "start" else -1])
+        for rid, ref in self.refs.items():
+            if ref.width_samples is None:
+                continue
+            ln = self.m.lanes[self.roads[rid].lane_ids[0]]
+            start, end = written(ln.id, "start"), written(ln.id, "end")
+            if len(ln.predecessors) == 1:
+                start = written(ln.predecessors[0], "end")
+            if len(ln.successors) == 1 and len(self.m.lanes[ln.successors[0]].predecessors) > 1:
+                end = written(ln.successors[0], "start")
+            ref.set_end_widths(*((end, start) if self.roads[rid].left_lanes else (start, end)))
 
     # -- helpers ------------------------------------------------------------------------------
     def sub(self, parent, tag: str, **attrs):
