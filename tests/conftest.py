@@ -361,3 +361,25 @@ def uneven_seams_map():
         lane("g", [(0, -40), (50, -40)], succs=("i",)),
         lane("h", [(0, -60), (30, -45), (50, -40)], succs=("i",), widths=(3.5, 3.7, 4.0)),
         lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
+
+
+def adjacent_junctions_map():
+    """Two junctions side by side with no road between (as in Apollo's Gomentum map): junction
+    lane b (junction 1) continues straight into junction lane c (junction 2), which lane f, fed
+    from an ordinary road, crosses."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    inside = {"b": "1", "c": "2", "f": "2"}
+    lanes = [replace(ln, junction_id=inside.get(ln.id)) for ln in (
+        lane("a", [(0, 0), (40, 0)], succs=("b",)), lane("b", [(40, 0), (50, 0)], preds=("a",), succs=("c",)),
+        lane("c", [(50, 0), (60, 0)], preds=("b",), succs=("d",)), lane("d", [(60, 0), (100, 0)], preds=("c",)),
+        lane("e", [(55, -50), (55, -10)], succs=("f",)), lane("f", [(55, -10), (55, 10)], preds=("e",), succs=("g",)),
+        lane("g", [(55, 10), (55, 50)], preds=("f",)))]
+    m = _one_lane_roads_map(lanes)
+    roads = {rid: Road(rid, "junction", (rid,), junction_id=inside[rid]) if rid in inside else r
+             for rid, r in m.roads.items()}
+    return replace(m, roads=roads, junctions={"1": Junction("1", ((40, -5), (50, -5), (50, 5), (40, 5))),
+                                             "2": Junction("2", ((50, -10), (60, -10), (60, 10), (50, 10)))})

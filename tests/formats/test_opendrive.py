@@ -21,8 +21,8 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import (REPO, SKIP_NETCONVERT, assert_same_features, mirrored_to_left_hand_traffic, shared_map,
-                      split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
+from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, mirrored_to_left_hand_traffic,
+                      shared_map, split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -709,6 +709,20 @@ def test_a_split_or_merge_outside_junctions_is_written_as_a_direct_junction(tmp_
     back = read_opendrive(path)
     assert _link_ends(back) == _link_ends(m) and len(back.lanes) == len(m.lanes)
     assert not back.junctions and extract_junctions(back) == []
+
+
+def test_a_connecting_road_is_no_incoming_road_of_the_next_junction(tmp_path):
+    """Junction lane b continues straight into junction lane c of the adjacent junction: c's
+    junction lists no connection from b's connecting road (connecting roads are no incoming
+    roads); the road and lane links keep the lane link."""
+    m = adjacent_junctions_map()
+    path = tmp_path / "adjacent.xodr"
+    write_opendrive(m, path)
+    root = etree.parse(str(path)).getroot()
+    in_junction = {r.get("id") for r in root.findall("road") if r.get("junction") != "-1"}
+    incoming = [c.get("incomingRoad") for c in root.iter("connection")]
+    assert len(incoming) == 2 and not in_junction & set(incoming)
+    assert _link_ends(read_opendrive(path)) == _link_ends(m)
 
 
 def _end_widths(root, name: str) -> tuple[float, float]:

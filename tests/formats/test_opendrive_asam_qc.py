@@ -15,7 +15,7 @@ from feat2map.config import OPENDRIVE_VERSIONS
 from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
 from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
 
-from conftest import REPO, SKIP_QC_OPENDRIVE, shared_map, split_and_merge_map, uneven_seams_map
+from conftest import REPO, SKIP_QC_OPENDRIVE, adjacent_junctions_map, shared_map, split_and_merge_map, uneven_seams_map
 from conftest import assert_same_features
 
 pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
@@ -83,6 +83,12 @@ def test_same_map_same_bytes():
 def test_splits_and_merges_outside_junctions_pass_every_check(version, tmp_path):
     """A lane splitting in two and two lanes merging, outside any junction: direct junctions."""
     _check(split_and_merge_map(), tmp_path, version)
+
+
+@pytest.mark.parametrize("version", OPENDRIVE_VERSIONS[:2])
+def test_adjacent_junctions_pass_every_check(version, tmp_path):
+    """A junction lane continuing straight into the next junction's: no connecting road as incoming road."""
+    _check(adjacent_junctions_map(), tmp_path, version)
 
 
 def test_lanes_whose_cross_sections_differ_where_they_meet_pass_every_check(tmp_path):

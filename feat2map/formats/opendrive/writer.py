@@ -532,7 +532,10 @@ class _Writer:
                 continue
             along = bool(road.right_lanes)
             first = self.m.lanes[road.lane_ids[0]]
-            feeders = [p for p in first.predecessors if self.m.lanes[p].junction_id != jid]
+            # incoming roads are ordinary roads (ASAM's junctions.connection.connect_road_no_incoming_road):
+            # a connecting road fed straight from another junction's (adjacent Apollo junctions) is
+            # linked to it by its road and lane links only
+            feeders = [p for p in first.predecessors if self.m.lanes[p].junction_id is None]
             if not feeders:
                 continue
             incoming = self.odr_lane[feeders[0]][0]
