@@ -383,3 +383,23 @@ def adjacent_junctions_map():
              for rid, r in m.roads.items()}
     return replace(m, roads=roads, junctions={"1": Junction("1", ((40, -5), (50, -5), (50, 5), (40, 5))),
                                              "2": Junction("2", ((50, -10), (60, -10), (60, 10), (50, 10)))})
+
+
+def merge_at_junction_entry_map():
+    """Lane x enters junction 1 and forks into s0 (turning 10 degrees left) and s1; lane y enters
+    at the same point and merges into s0 too: s0, with two predecessors, keeps its own start, so
+    x must end along it."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    inside = {"s0", "s1"}
+    lanes = [replace(ln, junction_id="1" if ln.id in inside else None) for ln in (
+        lane("x", [(0, 0), (50, 0)], succs=("s0", "s1")), lane("y", [(20, -30), (50, 0)], succs=("s0",)),
+        lane("s0", [(50, 0), (60, 1.763), (70, 3.527)], preds=("x", "y"), succs=("u",)),
+        lane("s1", [(50, 0), (60, -5.774), (70, -11.547)], preds=("x",), succs=("v",)),
+        lane("u", [(70, 3.527), (100, 8.817)], preds=("s0",)), lane("v", [(70, -11.547), (100, -28.868)], preds=("s1",)))]
+    m = _one_lane_roads_map(lanes)
+    roads = {rid: Road(rid, "junction", (rid,), junction_id="1") if rid in inside else r for rid, r in m.roads.items()}
+    return replace(m, roads=roads, junctions={"1": Junction("1", ((50, -15), (70, -15), (70, 15), (50, 15)))})

@@ -21,8 +21,9 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, mirrored_to_left_hand_traffic,
-                      shared_map, split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
+from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, merge_at_junction_entry_map,
+                      mirrored_to_left_hand_traffic, shared_map, split_and_merge_map, split_with_a_centimetre_road,
+                      uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -723,6 +724,19 @@ def test_a_connecting_road_is_no_incoming_road_of_the_next_junction(tmp_path):
     incoming = [c.get("incomingRoad") for c in root.iter("connection")]
     assert len(incoming) == 2 and not in_junction & set(incoming)
     assert _link_ends(read_opendrive(path)) == _link_ends(m)
+
+
+def test_a_lane_forking_into_a_merge_ends_along_the_merged_lane():
+    """x forks into s0 and s1 while y merges into s0 at the same point: s0 keeps its start (two
+    predecessors), so x's last chord turns to s0's heading and s1 starts along x's last chord;
+    ends across different headings left their borders apart (about 0.15 m)."""
+    root = etree.fromstring(to_opendrive(merge_at_junction_entry_map()))
+
+    def hdg(name: str, at: int) -> float:
+        return float(next(r for r in root.findall("road") if r.get("name") == name).findall(
+            "planView/geometry")[at].get("hdg"))
+    assert hdg("x", -1) == pytest.approx(hdg("s0", 0), abs=1e-9) == pytest.approx(math.radians(10), abs=1e-3)
+    assert hdg("s1", 0) == pytest.approx(hdg("x", -1), abs=1e-9)
 
 
 def _end_widths(root, name: str) -> tuple[float, float]:

@@ -15,7 +15,8 @@ from feat2map.config import OPENDRIVE_VERSIONS
 from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
 from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
 
-from conftest import REPO, SKIP_QC_OPENDRIVE, adjacent_junctions_map, shared_map, split_and_merge_map, uneven_seams_map
+from conftest import (REPO, SKIP_QC_OPENDRIVE, adjacent_junctions_map, merge_at_junction_entry_map, shared_map,
+                      split_and_merge_map, uneven_seams_map)
 from conftest import assert_same_features
 
 pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
@@ -91,9 +92,11 @@ def test_adjacent_junctions_pass_every_check(version, tmp_path):
     _check(adjacent_junctions_map(), tmp_path, version)
 
 
-def test_lanes_whose_cross_sections_differ_where_they_meet_pass_every_check(tmp_path):
-    """A lane 4 m wide at its start continuing one 3.5 m wide at its end: no border gap."""
-    _check(uneven_seams_map(), tmp_path)
+@pytest.mark.parametrize("name", ("uneven_seams", "merge_at_junction_entry"))
+def test_lanes_meeting_at_different_widths_or_headings_pass_every_check(name, tmp_path):
+    """A lane 4 m wide at its start continuing one 3.5 m wide at its end; a lane forking into a
+    lane that another merges into, turned 10 degrees: no border gap."""
+    _check({"uneven_seams": uneven_seams_map, "merge_at_junction_entry": merge_at_junction_entry_map}[name](), tmp_path)
 
 
 @pytest.mark.real_maps

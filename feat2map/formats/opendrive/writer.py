@@ -179,26 +179,48 @@ def _end_heading(points: Polyline, at_start: bool) -> float:
     return math.atan2(b[1] - a[1], b[0] - a[0])
 
 
-def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> np.ndarray:
-    """`ln`'s centreline (driving direction, repeated points dropped) starting with a chord of
-    length `d` along its only predecessor's end heading, and ending with one along its only
-    successor's start heading where that successor has other predecessors (it keeps its own
-    start). A polyline road's lane borders at an end lie across its first (last) chord, so linked
-    roads whose end chords differ by a few milliradians left centimetre gaps between their
-    borders; each joint is aligned on one side only, to its neighbour's unchanged chord."""
+def _merge_into(ln: Lane, m: HDMap) -> Lane | None:
+    """The lane whose start `ln`'s end is aligned to: its first successor (the one its road links
+    to) where that successor has other predecessors too (a merge: it keeps its own start)."""
+    nxt = m.lanes.get(ln.successors[0]) if ln.successors else None
+    return nxt if nxt is not None and len(nxt.predecessors) > 1 and len(nxt.centerline) >= 2 else None
+
+
+def _deduplicated(ln: Lane) -> np.ndarray:
+    """`ln`'s centreline without repeated points."""
     pts = np.asarray(ln.centerline, dtype=float)
     seg = np.diff(pts, axis=0)
-    pts = pts[np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])]
+    return pts[np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])]
+
+
+def _tail_heading(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> float | None:
+    """The heading `_joint_tangents` gives `ln`'s last chord where it aligns it (None: its own)."""
+    pts = _deduplicated(ln)
+    nxt = _merge_into(ln, m)
+    if nxt is None or len(pts) < 2 or np.hypot(*(pts[-1] - pts[-2])) <= 2 * d:
+        return None
+    return _end_heading(nxt.centerline, at_start=True)
+
+
+def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> np.ndarray:
+    """`ln`'s centreline (driving direction, repeated points dropped) starting with a chord of
+    length `d` along its only predecessor's end heading (as written), and ending with one along
+    its first successor's start heading where that successor has other predecessors (it keeps its
+    own start). A polyline road's lane borders at an end lie across its first (last) chord, so
+    linked roads whose end chords differ by a few milliradians left centimetre gaps between their
+    borders; each joint is aligned on one side only, to its neighbour's unchanged chord."""
+    pts = _deduplicated(ln)
     if len(pts) < 2:
         return pts
     chords = np.hypot(*np.diff(pts, axis=0).T)
     head, tail = pts[:1], pts[-1:]
     if len(ln.predecessors) == 1 and chords[0] > 2 * d and len(m.lanes[ln.predecessors[0]].centerline) >= 2:
-        h = _end_heading(m.lanes[ln.predecessors[0]].centerline, at_start=False)
+        prev = m.lanes[ln.predecessors[0]]
+        h = _tail_heading(prev, m, d)
+        h = _end_heading(prev.centerline, at_start=False) if h is None else h
         head = np.array([pts[0], pts[0] + d * np.array([math.cos(h), math.sin(h)])])
-    nxt = m.lanes.get(ln.successors[0]) if len(ln.successors) == 1 else None
-    if nxt is not None and len(nxt.predecessors) > 1 and chords[-1] > 2 * d and len(nxt.centerline) >= 2:
-        h = _end_heading(nxt.centerline, at_start=True)
+    h = _tail_heading(ln, m, d)
+    if h is not None:
         tail = np.array([pts[-1] - d * np.array([math.cos(h), math.sin(h)]), pts[-1]])
     return np.concatenate([head, pts[1:-1], tail])
 
@@ -311,24 +333,25 @@ class _Writer:
     def _meet_widths(self) -> None:
         """A one-lane polyline road's lane takes, at each end where `_joint_tangents` aligns it to
         a neighbour, that neighbour's written width: at its start its only predecessor's end width,
-        at its end its only successor's start width where that successor has other predecessors.
+        at its end its first successor's start width where that successor has other predecessors.
         Linked lanes' borders then meet (ASAM's lane_smoothness.contact_point_no_horizontal_gaps);
         the source's cross-sections there can differ by decimetres (a coarse Apollo junction lane
         starts square to its own first chord, not to the lane it continues)."""
-        def written(lid: str, at: str) -> float:  # the lane's width at its driving start/end as sampled
+        def sampled(lid: str, at: str) -> float:  # the lane's width at its driving start/end as sampled
             ref = self.refs[self.odr_lane[lid][0]]
             if ref.width_samples is None:
                 return self.m.lanes[lid].width
             return float(ref.width_samples[1][0 if self._lane_end(lid, at) == "start" else -1])
+
+        def end_width(ln: Lane) -> float:  # the width written at the lane's driving end
+            nxt = _merge_into(ln, self.m)
+            return sampled(ln.id, "end") if nxt is None else sampled(nxt.id, "start")
         for rid, ref in self.refs.items():
             if ref.width_samples is None:
                 continue
             ln = self.m.lanes[self.roads[rid].lane_ids[0]]
-            start, end = written(ln.id, "start"), written(ln.id, "end")
-            if len(ln.predecessors) == 1:
-                start = written(ln.predecessors[0], "end")
-            if len(ln.successors) == 1 and len(self.m.lanes[ln.successors[0]].predecessors) > 1:
-                end = written(ln.successors[0], "start")
+            start = end_width(self.m.lanes[ln.predecessors[0]]) if len(ln.predecessors) == 1 else sampled(ln.id, "start")
+            end = end_width(ln)
             ref.set_end_widths(*((end, start) if self.roads[rid].left_lanes else (start, end)))
 
     # -- helpers ------------------------------------------------------------------------------
