@@ -403,3 +403,19 @@ def merge_at_junction_entry_map():
     m = _one_lane_roads_map(lanes)
     roads = {rid: Road(rid, "junction", (rid,), junction_id="1") if rid in inside else r for rid, r in m.roads.items()}
     return replace(m, roads=roads, junctions={"1": Junction("1", ((50, -15), (70, -15), (70, 15), (50, 15)))})
+
+
+def fork_into_junction_and_road_map():
+    """Lane a forks into junction lane j (junction 1) and ordinary lane b, which lane c merges
+    into as well: a's end belongs to the junction, so b and c meet by a plain road link."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    lanes = [replace(ln, junction_id="1" if ln.id == "j" else None) for ln in (
+        lane("a", [(0, 0), (50, 0)], succs=("j", "b")), lane("j", [(50, 0), (60, 5)], preds=("a",)),
+        lane("b", [(50, 0), (100, 0)], preds=("a", "c")), lane("c", [(0, -20), (50, 0)], succs=("b",)))]
+    m = _one_lane_roads_map(lanes)
+    return replace(m, roads={**m.roads, "j": Road("j", "junction", ("j",), junction_id="1")},
+                   junctions={"1": Junction("1", ((50, -5), (60, -5), (60, 10), (50, 10)))})

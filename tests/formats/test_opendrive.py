@@ -21,9 +21,9 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, merge_at_junction_entry_map,
-                      mirrored_to_left_hand_traffic, shared_map, split_and_merge_map, split_with_a_centimetre_road,
-                      uneven_seams_map)
+from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, fork_into_junction_and_road_map,
+                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, shared_map, split_and_merge_map,
+                      split_with_a_centimetre_road, uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -710,6 +710,15 @@ def test_a_split_or_merge_outside_junctions_is_written_as_a_direct_junction(tmp_
     back = read_opendrive(path)
     assert _link_ends(back) == _link_ends(m) and len(back.lanes) == len(m.lanes)
     assert not back.junctions and extract_junctions(back) == []
+
+
+def test_a_road_end_at_a_junction_joins_no_direct_junction():
+    """a forks into junction lane j and ordinary lane b, which c merges into: a's end links to
+    junction 1 (a is its incoming road), not to a direct junction with b and c."""
+    root = etree.fromstring(to_opendrive(fork_into_junction_and_road_map()))
+    a = next(r for r in root.findall("road") if r.get("name") == "a")
+    assert a.find("link/successor").attrib == {"elementType": "junction", "elementId": "1"}
+    assert not root.findall("junction[@type='direct']")
 
 
 def test_a_connecting_road_is_no_incoming_road_of_the_next_junction(tmp_path):

@@ -393,27 +393,26 @@ class _Writer:
                 parent[e] = parent[parent[e]]
                 e = parent[e]
             return e
-        for rid, road in self.roads.items():
-            if road.junction_id is not None:
-                continue
-            for end in ("start", "end"):
-                touching = self._touching(road, end)
-                find((rid, end))
-                if any(self.m.lanes[x].junction_id is not None for x, _ in touching):
-                    continue
-                for other, at in touching:
-                    a, b = find((rid, end)), find((self.odr_lane[other][0], self._lane_end(other, at)))
-                    if a != b:
-                        parent[max(a, b)] = min(a, b)
+        ends = {(rid, end): self._touching(road, end) for rid, road in self.roads.items()
+                if road.junction_id is None for end in ("start", "end")}
+        # an end touching a junction lane links to that junction
+        at_junction = {e for e, touching in ends.items() if any(self.m.lanes[x].junction_id for x, _ in touching)}
+        for e, touching in ends.items():
+            find(e)
+            for other, at in touching:
+                o = (self.odr_lane[other][0], self._lane_end(other, at))
+                a, b = find(e), find(o)
+                if a != b and e not in at_junction and o not in at_junction:
+                    parent[max(a, b)] = min(a, b)
         groups: dict[tuple[str, str], list[tuple[str, str]]] = {}
         for e in parent:
             groups.setdefault(find(e), []).append(e)
         taken = [int(j) for j in self.junction_ids.values()]
         next_id = max(taken, default=0) + 1
         out: dict[tuple[str, str], str] = {}
-        for ends in groups.values():  # in road order: the same map gives the same ids
-            if len(ends) > 2:
-                out.update({e: str(next_id) for e in ends})
+        for group in groups.values():  # in road order: the same map gives the same ids
+            if len(group) > 2:
+                out.update({e: str(next_id) for e in group})
                 next_id += 1
         return out
 
