@@ -311,3 +311,113 @@ def mirrored_to_left_hand_traffic(src: Path, dst: Path) -> None:
                     side[:] = sorted(side, key=lambda ln: -int(ln.get("id")))
             sec[:] = sorted(sec, key=lambda el: ("left", "center", "right").index(el.tag))
     etree.ElementTree(root).write(str(dst), xml_declaration=True, encoding="UTF-8")
+
+
+
+def _one_lane_road_lane(lid: str, pts, preds=(), succs=(), widths=3.5):
+    """A lane `lid` (its own road) along `pts`, `widths` wide (one value or one per point),
+    boundaries offset along the centreline's normals: as a map read from Apollo holds it."""
+    import numpy as np
+
+    from feat2map.model import Lane
+
+    p = np.asarray(pts, dtype=float)
+    d = np.gradient(p, axis=0)
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
+    half = np.broadcast_to(np.asarray(widths, dtype=float), len(p))[:, None] / 2
+
+    def pl(q) -> tuple:
+        return tuple((float(x), float(y)) for x, y in q)
+    return Lane(lid, lid, pl(p), pl(p + half * n), pl(p - half * n), float(np.mean(half) * 2), 10.0, tuple(preds),
+                tuple(succs))
+
+
+def _one_lane_roads_map(lanes):
+    from feat2map.model import HDMap, Road
+
+    return HDMap({ln.id: ln for ln in lanes}, {ln.id: Road(ln.id, "chain", (ln.id,)) for ln in lanes}, {})
+
+
+def split_and_merge_map():
+    """One-lane roads (no reference curves, as maps read from Apollo have) outside any junction:
+    lane a splits into b (straight on) and c (bending away), and lanes g and h merge into i."""
+    import numpy as np
+
+    lane = _one_lane_road_lane
+    u = np.linspace(0.0, 1.0, 11)[:, None]
+    bend = np.hstack([50 + 50 * u, -10 * u ** 2])  # leaves a's end along its heading
+    return _one_lane_roads_map([
+        lane("a", [(0, 0), (50, 0)], succs=("b", "c")), lane("b", [(50, 0), (100, 0)], preds=("a",)),
+        lane("c", bend, preds=("a",)), lane("g", [(0, -40), (50, -40)], succs=("i",)),
+        lane("h", bend[::-1] * (-1, 1) + (100, -40), succs=("i",)), lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
+
+
+def uneven_seams_map():
+    """One-lane roads whose source cross-sections differ where they meet (a coarse Apollo
+    junction lane is 4 m wide at its start, its feeder 3.5 m at its end): b continues a but
+    starts 4 m wide; h, merging into i beside g, ends 4 m wide."""
+    lane = _one_lane_road_lane
+    return _one_lane_roads_map([
+        lane("a", [(0, 0), (50, 0)], succs=("b",)),
+        lane("b", [(50, 0), (70, 0), (90, -10)], preds=("a",), widths=(4.0, 3.8, 3.5)),
+        lane("g", [(0, -40), (50, -40)], succs=("i",)),
+        lane("h", [(0, -60), (30, -45), (50, -40)], succs=("i",), widths=(3.5, 3.7, 4.0)),
+        lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
+
+
+def adjacent_junctions_map():
+    """Two junctions side by side with no road between (as in Apollo's Gomentum map): junction
+    lane b (junction 1) continues straight into junction lane c (junction 2), which lane f, fed
+    from an ordinary road, crosses."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    inside = {"b": "1", "c": "2", "f": "2"}
+    lanes = [replace(ln, junction_id=inside.get(ln.id)) for ln in (
+        lane("a", [(0, 0), (40, 0)], succs=("b",)), lane("b", [(40, 0), (50, 0)], preds=("a",), succs=("c",)),
+        lane("c", [(50, 0), (60, 0)], preds=("b",), succs=("d",)), lane("d", [(60, 0), (100, 0)], preds=("c",)),
+        lane("e", [(55, -50), (55, -10)], succs=("f",)), lane("f", [(55, -10), (55, 10)], preds=("e",), succs=("g",)),
+        lane("g", [(55, 10), (55, 50)], preds=("f",)))]
+    m = _one_lane_roads_map(lanes)
+    roads = {rid: Road(rid, "junction", (rid,), junction_id=inside[rid]) if rid in inside else r
+             for rid, r in m.roads.items()}
+    return replace(m, roads=roads, junctions={"1": Junction("1", ((40, -5), (50, -5), (50, 5), (40, 5))),
+                                             "2": Junction("2", ((50, -10), (60, -10), (60, 10), (50, 10)))})
+
+
+def merge_at_junction_entry_map():
+    """Lane x enters junction 1 and forks into s0 (turning 10 degrees left) and s1; lane y enters
+    at the same point and merges into s0 too: s0, with two predecessors, keeps its own start, so
+    x must end along it."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    inside = {"s0", "s1"}
+    lanes = [replace(ln, junction_id="1" if ln.id in inside else None) for ln in (
+        lane("x", [(0, 0), (50, 0)], succs=("s0", "s1")), lane("y", [(20, -30), (50, 0)], succs=("s0",)),
+        lane("s0", [(50, 0), (60, 1.763), (70, 3.527)], preds=("x", "y"), succs=("u",)),
+        lane("s1", [(50, 0), (60, -5.774), (70, -11.547)], preds=("x",), succs=("v",)),
+        lane("u", [(70, 3.527), (100, 8.817)], preds=("s0",)), lane("v", [(70, -11.547), (100, -28.868)], preds=("s1",)))]
+    m = _one_lane_roads_map(lanes)
+    roads = {rid: Road(rid, "junction", (rid,), junction_id="1") if rid in inside else r for rid, r in m.roads.items()}
+    return replace(m, roads=roads, junctions={"1": Junction("1", ((50, -15), (70, -15), (70, 15), (50, 15)))})
+
+
+def fork_into_junction_and_road_map():
+    """Lane a forks into junction lane j (junction 1) and ordinary lane b, which lane c merges
+    into as well: a's end belongs to the junction, so b and c meet by a plain road link."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    lanes = [replace(ln, junction_id="1" if ln.id == "j" else None) for ln in (
+        lane("a", [(0, 0), (50, 0)], succs=("j", "b")), lane("j", [(50, 0), (60, 5)], preds=("a",)),
+        lane("b", [(50, 0), (100, 0)], preds=("a", "c")), lane("c", [(0, -20), (50, 0)], succs=("b",)))]
+    m = _one_lane_roads_map(lanes)
+    return replace(m, roads={**m.roads, "j": Road("j", "junction", ("j",), junction_id="1")},
+                   junctions={"1": Junction("1", ((50, -5), (60, -5), (60, 10), (50, 10)))})

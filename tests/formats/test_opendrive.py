@@ -21,8 +21,9 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import (REPO, SKIP_NETCONVERT, assert_same_features, mirrored_to_left_hand_traffic, shared_map,
-                      split_with_a_centimetre_road)
+from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, fork_into_junction_and_road_map,
+                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, shared_map, split_and_merge_map,
+                      split_with_a_centimetre_road, uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -685,6 +686,86 @@ def test_direct_junctions_link_the_roads_lanes(tmp_path):
     assert m.lanes["1_0_-1"].successors == ("2_0_-1",) and m.lanes["1_0_-2"].successors == ("3_0_-1",)
     assert m.lanes["3_0_-1"].predecessors == ("1_0_-2",)
     assert not m.junctions  # a lane split is no junction manoeuvre
+
+
+def _link_ends(m) -> set:
+    """Each lane link as (end of the lane, end of its successor), to the metre: ids differ across a round trip."""
+    def at(p) -> tuple:
+        return tuple(np.round(p).astype(int).tolist())
+    return {(at(ln.end), at(m.lanes[s].end)) for ln in m.lanes.values() for s in ln.successors}
+
+
+def test_a_split_or_merge_outside_junctions_is_written_as_a_direct_junction(tmp_path):
+    """A lane with two successors (predecessors) outside any junction: a road link would be
+    ambiguous (two roads naming one road end), so the roads meet in a direct junction, which
+    reads back to the same lane links and no junction."""
+    m = split_and_merge_map()
+    path = tmp_path / "split.xodr"
+    write_opendrive(m, path)
+    root = etree.parse(str(path)).getroot()
+    assert len(root.findall("junction[@type='direct']")) == 2
+    named = Counter((lk.get("elementId"), lk.get("contactPoint")) for r in root.findall("road")
+                    if r.get("junction") == "-1" for lk in r.find("link") if lk.get("elementType") == "road")
+    assert all(n == 1 for n in named.values()), named
+    back = read_opendrive(path)
+    assert _link_ends(back) == _link_ends(m) and len(back.lanes) == len(m.lanes)
+    assert not back.junctions and extract_junctions(back) == []
+
+
+def test_a_road_end_at_a_junction_joins_no_direct_junction():
+    """a forks into junction lane j and ordinary lane b, which c merges into: a's end links to
+    junction 1 (a is its incoming road), not to a direct junction with b and c."""
+    root = etree.fromstring(to_opendrive(fork_into_junction_and_road_map()))
+    a = next(r for r in root.findall("road") if r.get("name") == "a")
+    assert a.find("link/successor").attrib == {"elementType": "junction", "elementId": "1"}
+    assert not root.findall("junction[@type='direct']")
+
+
+def test_a_connecting_road_is_no_incoming_road_of_the_next_junction(tmp_path):
+    """Junction lane b continues straight into junction lane c of the adjacent junction: c's
+    junction lists no connection from b's connecting road (connecting roads are no incoming
+    roads); the road and lane links keep the lane link."""
+    m = adjacent_junctions_map()
+    path = tmp_path / "adjacent.xodr"
+    write_opendrive(m, path)
+    root = etree.parse(str(path)).getroot()
+    in_junction = {r.get("id") for r in root.findall("road") if r.get("junction") != "-1"}
+    incoming = [c.get("incomingRoad") for c in root.iter("connection")]
+    assert len(incoming) == 2 and not in_junction & set(incoming)
+    assert _link_ends(read_opendrive(path)) == _link_ends(m)
+
+
+def test_a_lane_forking_into_a_merge_ends_along_the_merged_lane():
+    """x forks into s0 and s1 while y merges into s0 at the same point: s0 keeps its start (two
+    predecessors), so x's last chord turns to s0's heading and s1 starts along x's last chord;
+    ends across different headings left their borders apart (about 0.15 m)."""
+    root = etree.fromstring(to_opendrive(merge_at_junction_entry_map()))
+
+    def hdg(name: str, at: int) -> float:
+        return float(next(r for r in root.findall("road") if r.get("name") == name).findall(
+            "planView/geometry")[at].get("hdg"))
+    assert hdg("x", -1) == pytest.approx(hdg("s0", 0), abs=1e-9) == pytest.approx(math.radians(10), abs=1e-3)
+    assert hdg("s1", 0) == pytest.approx(hdg("x", -1), abs=1e-9)
+
+
+def _end_widths(root, name: str) -> tuple[float, float]:
+    """The lane width the one-lane road `name` writes at its reference's start and end."""
+    road = next(r for r in root.findall("road") if r.get("name") == name)
+    ws = road.findall("lanes/laneSection/right/lane/width")
+    last = ws[-1]
+    return float(ws[0].get("a")), float(last.get("a")) + float(last.get("b")) * (
+        float(road.get("length")) - float(last.get("sOffset")))
+
+
+def test_a_lane_takes_the_width_of_the_lane_it_continues_where_they_meet():
+    """Source cross-sections 4 m and 3.5 m wide at a seam: written as they are, the borders
+    would jump 0.25 m there. b starts as wide as a ends; h, merging into i, ends as wide as i
+    starts; the ends linked to nothing keep their own width."""
+    root = etree.fromstring(to_opendrive(uneven_seams_map()))
+    assert _end_widths(root, "b")[0] == pytest.approx(3.5, abs=1e-9)
+    assert _end_widths(root, "h")[1] == pytest.approx(3.5, abs=1e-9)
+    assert _end_widths(root, "b")[1] == pytest.approx(3.5, abs=1e-6)
+    assert _end_widths(root, "h")[0] == pytest.approx(3.5, abs=1e-6)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,7 +15,8 @@ from feat2map.config import OPENDRIVE_VERSIONS
 from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
 from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
 
-from conftest import REPO, SKIP_QC_OPENDRIVE, shared_map
+from conftest import (REPO, SKIP_QC_OPENDRIVE, adjacent_junctions_map, merge_at_junction_entry_map, shared_map,
+                      split_and_merge_map, uneven_seams_map)
 from conftest import assert_same_features
 
 pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
@@ -77,6 +78,25 @@ def test_older_revisions_are_valid_and_read_back(version, tmp_path):
 def test_same_map_same_bytes():
     a, b = to_opendrive(_map("seed5")), to_opendrive(feat2map.generate(feat2map.PAPER_SF_FEATURE_SPACE, seed=5))
     assert a == b
+
+
+@pytest.mark.parametrize("version", OPENDRIVE_VERSIONS[:2])
+def test_splits_and_merges_outside_junctions_pass_every_check(version, tmp_path):
+    """A lane splitting in two and two lanes merging, outside any junction: direct junctions."""
+    _check(split_and_merge_map(), tmp_path, version)
+
+
+@pytest.mark.parametrize("version", OPENDRIVE_VERSIONS[:2])
+def test_adjacent_junctions_pass_every_check(version, tmp_path):
+    """A junction lane continuing straight into the next junction's: no connecting road as incoming road."""
+    _check(adjacent_junctions_map(), tmp_path, version)
+
+
+@pytest.mark.parametrize("name", ("uneven_seams", "merge_at_junction_entry"))
+def test_lanes_meeting_at_different_widths_or_headings_pass_every_check(name, tmp_path):
+    """A lane 4 m wide at its start continuing one 3.5 m wide at its end; a lane forking into a
+    lane that another merges into, turned 10 degrees: no border gap."""
+    _check({"uneven_seams": uneven_seams_map, "merge_at_junction_entry": merge_at_junction_entry_map}[name](), tmp_path)
 
 
 @pytest.mark.real_maps

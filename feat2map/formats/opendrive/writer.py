@@ -7,7 +7,8 @@ pRange="normalized" and the Bézier's exact power-basis coefficients (no samplin
 without a Bézier falls back to a polyline of `line` geometries along its innermost lane
 edge. Lanes: right lanes (negative ids) drive along the reference, left lanes against it;
 the divider's lateral offset is the `laneOffset`. Each junction lane is its own connecting
-road, listed in its `<junction>` with a connection and lane link. Signals and stop signs
+road, listed in its `<junction>` with a connection and lane link; roads that split or merge
+outside junctions meet in a direct junction (1.7 on). Signals and stop signs
 sit at the end of the incoming lanes they govern, with one `<controller>` per traffic light;
 crosswalks are `object type="crosswalk"` with local outlines. The geoReference is the UTM
 zone of feat2map.config written as a transverse Mercator whose false origin puts the
@@ -97,6 +98,7 @@ class _Ref:
     """A road's reference line in the file: geometry elements, length, and sampled points."""
 
     widths: list[tuple[float, float, float]] | None = None  # (s, a, b) width pieces; None: ln.width throughout
+    width_samples: tuple[np.ndarray, np.ndarray] | None = None  # (s, width) a one-lane polyline road writes
 
     def __init__(self, road: Road, m: HDMap) -> None:
         self.geoms: list[tuple[float, float, float, float, str, dict[str, float]]] = []
@@ -139,7 +141,24 @@ class _Ref:
         self.pts, self.s = pts, s
         self.heads = np.append(heads, heads[-1])
         self.divider = ln.width / 2 if road.right_lanes else -ln.width / 2
-        self.widths = _width_profile(ln, raw, keep, bool(road.left_lanes), self.length)
+        samples = _width_samples(ln, raw, keep, bool(road.left_lanes), self.length)
+        if samples is not None and float(np.max(np.abs(samples[1] - ln.width))) > WIDTH_PROFILE_TOL_M:
+            self.width_samples = samples
+            self.widths = _width_pieces(*samples)
+        elif samples is not None:  # within the tolerance of ln.width: one constant record
+            self.width_samples = (samples[0], np.full(len(samples[0]), ln.width))
+
+    def set_end_widths(self, start: float, end: float) -> None:
+        """Make the written width `start` (`end`) at the reference's start (end), so a lane's
+        borders meet those of the lane it continues (ASAM's
+        lane_smoothness.contact_point_no_horizontal_gaps)."""
+        assert self.width_samples is not None
+        s, w = self.width_samples
+        if abs(w[0] - start) <= 1e-9 and abs(w[-1] - end) <= 1e-9:
+            return
+        w = w.copy()
+        w[0], w[-1] = start, end
+        self.widths = _width_pieces(s, w)
 
     def project(self, p) -> tuple[float, float]:
         """(s, t) of a point: nearest sampled reference point, lateral offset along its normal."""
@@ -160,26 +179,48 @@ def _end_heading(points: Polyline, at_start: bool) -> float:
     return math.atan2(b[1] - a[1], b[0] - a[0])
 
 
-def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> np.ndarray:
-    """`ln`'s centreline (driving direction, repeated points dropped) starting with a chord of
-    length `d` along its only predecessor's end heading, and ending with one along its only
-    successor's start heading where that successor has other predecessors (it keeps its own
-    start). A polyline road's lane borders at an end lie across its first (last) chord, so linked
-    roads whose end chords differ by a few milliradians left centimetre gaps between their
-    borders; each joint is aligned on one side only, to its neighbour's unchanged chord."""
+def _merge_into(ln: Lane, m: HDMap) -> Lane | None:
+    """The lane whose start `ln`'s end is aligned to: its first successor (the one its road links
+    to) where that successor has other predecessors too (a merge: it keeps its own start)."""
+    nxt = m.lanes.get(ln.successors[0]) if ln.successors else None
+    return nxt if nxt is not None and len(nxt.predecessors) > 1 and len(nxt.centerline) >= 2 else None
+
+
+def _deduplicated(ln: Lane) -> np.ndarray:
+    """`ln`'s centreline without repeated points."""
     pts = np.asarray(ln.centerline, dtype=float)
     seg = np.diff(pts, axis=0)
-    pts = pts[np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])]
+    return pts[np.concatenate([[True], np.hypot(seg[:, 0], seg[:, 1]) > 1e-6])]
+
+
+def _tail_heading(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> float | None:
+    """The heading `_joint_tangents` gives `ln`'s last chord where it aligns it (None: its own)."""
+    pts = _deduplicated(ln)
+    nxt = _merge_into(ln, m)
+    if nxt is None or len(pts) < 2 or np.hypot(*(pts[-1] - pts[-2])) <= 2 * d:
+        return None
+    return _end_heading(nxt.centerline, at_start=True)
+
+
+def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> np.ndarray:
+    """`ln`'s centreline (driving direction, repeated points dropped) starting with a chord of
+    length `d` along its only predecessor's end heading (as written), and ending with one along
+    its first successor's start heading where that successor has other predecessors (it keeps its
+    own start). A polyline road's lane borders at an end lie across its first (last) chord, so
+    linked roads whose end chords differ by a few milliradians left centimetre gaps between their
+    borders; each joint is aligned on one side only, to its neighbour's unchanged chord."""
+    pts = _deduplicated(ln)
     if len(pts) < 2:
         return pts
     chords = np.hypot(*np.diff(pts, axis=0).T)
     head, tail = pts[:1], pts[-1:]
     if len(ln.predecessors) == 1 and chords[0] > 2 * d and len(m.lanes[ln.predecessors[0]].centerline) >= 2:
-        h = _end_heading(m.lanes[ln.predecessors[0]].centerline, at_start=False)
+        prev = m.lanes[ln.predecessors[0]]
+        h = _tail_heading(prev, m, d)
+        h = _end_heading(prev.centerline, at_start=False) if h is None else h
         head = np.array([pts[0], pts[0] + d * np.array([math.cos(h), math.sin(h)])])
-    nxt = m.lanes.get(ln.successors[0]) if len(ln.successors) == 1 else None
-    if nxt is not None and len(nxt.predecessors) > 1 and chords[-1] > 2 * d and len(nxt.centerline) >= 2:
-        h = _end_heading(nxt.centerline, at_start=True)
+    h = _tail_heading(ln, m, d)
+    if h is not None:
         tail = np.array([pts[-1] - d * np.array([math.cos(h), math.sin(h)]), pts[-1]])
     return np.concatenate([head, pts[1:-1], tail])
 
@@ -201,14 +242,13 @@ def _merge_straight_runs(pts: np.ndarray, tol_rad: float = STRAIGHT_RUN_TOL_RAD)
     return pts
 
 
-def _width_profile(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
-                   length: float) -> list[tuple[float, float, float]] | None:
-    """A lane's width along its centreline `pts` (in the written direction: reversed when
-    `reverse`, the points `keep` selects) as linear pieces
-    (s, width at s, slope) within WIDTH_PROFILE_TOL_M, s scaled to the written `length`; None
-    when the width stays within that of `ln.width` (one constant record). A lane that opens or
-    closes (a taper, an exit lane growing from 0 m) keeps its borders where they are, so they
-    meet the linked lanes' borders (ASAM's lane_smoothness.contact_point_no_horizontal_gaps)."""
+def _width_samples(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
+                   length: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(s, width) of a lane along its centreline `pts` (in the written direction: reversed when
+    `reverse`, the points `keep` selects), s scaled to the written `length`; at the two ends the
+    width between the boundaries' end points, the cross-section the linked lanes share (the
+    distance to a coarse boundary's first chord, slanted against the centreline's, falls short).
+    None where the lane has no usable boundaries."""
     from shapely import LineString, distance, points
 
     if len(pts) < 2 or len(ln.left_boundary) < 2 or len(ln.right_boundary) < 2:
@@ -220,12 +260,17 @@ def _width_profile(ln: Lane, pts: np.ndarray, keep: np.ndarray, reverse: bool,
     else:
         p = points(pts)
         w = distance(LineString(left), p) + distance(LineString(right), p)
-    if float(np.max(np.abs(w - ln.width))) <= WIDTH_PROFILE_TOL_M:
-        return None
+        ends = np.hypot(*(left[[0, -1]] - right[[0, -1]]).T)  # in driving direction
+        w[0], w[-1] = ends[::-1] if reverse else ends
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
     if s[-1] <= 0:
         return None
-    s = s * (length / s[-1])
+    return s * (length / s[-1]), w
+
+
+def _width_pieces(s: np.ndarray, w: np.ndarray) -> list[tuple[float, float, float]]:
+    """Linear pieces (s, width at s, slope) through the samples within WIDTH_PROFILE_TOL_M, ending
+    exactly on the first and last sample."""
     breaks, i = [0], 0
     while i < len(s) - 1:
         j = i + 1
@@ -282,6 +327,32 @@ class _Writer:
         missing = [lid for lid in m.lanes if lid not in self.odr_lane]
         if missing:
             raise MapFormatError(f"lane {missing[0]!r} belongs to no road's lane list", "map")
+        self.direct = self._direct_junctions()
+        self._meet_widths()
+
+    def _meet_widths(self) -> None:
+        """A one-lane polyline road's lane takes, at each end where `_joint_tangents` aligns it to
+        a neighbour, that neighbour's written width: at its start its only predecessor's end width,
+        at its end its first successor's start width where that successor has other predecessors.
+        Linked lanes' borders then meet (ASAM's lane_smoothness.contact_point_no_horizontal_gaps);
+        the source's cross-sections there can differ by decimetres (a coarse Apollo junction lane
+        starts square to its own first chord, not to the lane it continues)."""
+        def sampled(lid: str, at: str) -> float:  # the lane's width at its driving start/end as sampled
+            ref = self.refs[self.odr_lane[lid][0]]
+            if ref.width_samples is None:
+                return self.m.lanes[lid].width
+            return float(ref.width_samples[1][0 if self._lane_end(lid, at) == "start" else -1])
+
+        def end_width(ln: Lane) -> float:  # the width written at the lane's driving end
+            nxt = _merge_into(ln, self.m)
+            return sampled(ln.id, "end") if nxt is None else sampled(nxt.id, "start")
+        for rid, ref in self.refs.items():
+            if ref.width_samples is None:
+                continue
+            ln = self.m.lanes[self.roads[rid].lane_ids[0]]
+            start = end_width(self.m.lanes[ln.predecessors[0]]) if len(ln.predecessors) == 1 else sampled(ln.id, "start")
+            end = end_width(ln)
+            ref.set_end_widths(*((end, start) if self.roads[rid].left_lanes else (start, end)))
 
     # -- helpers ------------------------------------------------------------------------------
     def sub(self, parent, tag: str, **attrs):
@@ -296,15 +367,61 @@ class _Writer:
         along = odr < 0
         return ("start" if along else "end") if at == "start" else ("end" if along else "start")
 
-    def _road_link(self, road: Road, end: str):
-        """(elementType, id, contactPoint) linked at the reference's `end` ('start'/'end')."""
-        touching: list[tuple[str, str]] = []  # (other lane, which of its ends touches here)
+    def _touching(self, road: Road, end: str) -> list[tuple[str, str]]:
+        """(other lane, which of its ends touches here) for the lanes linked at the reference's
+        `end` ('start'/'end') of `road`."""
+        touching: list[tuple[str, str]] = []
         for lid in road.right_lanes:
             ln = self.m.lanes[lid]
             touching += [(x, "end") for x in ln.predecessors] if end == "start" else [(x, "start") for x in ln.successors]
         for lid in road.left_lanes:
             ln = self.m.lanes[lid]
             touching += [(x, "start") for x in ln.successors] if end == "start" else [(x, "end") for x in ln.predecessors]
+        return touching
+
+    def _direct_junctions(self) -> dict[tuple[str, str], str]:
+        """(road, reference end) -> id of the direct junction written there: where more than two
+        road ends outside junctions meet (a lane split or merge between roads), a road link would
+        be ambiguous (ASAM's road.linkage.is_junction_needed), so they meet in a `type="direct"`
+        junction (OpenDRIVE 1.7 on; older revisions have none and keep the road links)."""
+        if self.minor < 7:
+            return {}
+        parent: dict[tuple[str, str], tuple[str, str]] = {}
+
+        def find(e: tuple[str, str]) -> tuple[str, str]:
+            while parent.setdefault(e, e) != e:
+                parent[e] = parent[parent[e]]
+                e = parent[e]
+            return e
+        ends = {(rid, end): self._touching(road, end) for rid, road in self.roads.items()
+                if road.junction_id is None for end in ("start", "end")}
+        # an end touching a junction lane links to that junction
+        at_junction = {e for e, touching in ends.items() if any(self.m.lanes[x].junction_id for x, _ in touching)}
+        for e, touching in ends.items():
+            find(e)
+            for other, at in touching:
+                o = (self.odr_lane[other][0], self._lane_end(other, at))
+                a, b = find(e), find(o)
+                if a != b and e not in at_junction and o not in at_junction:
+                    parent[max(a, b)] = min(a, b)
+        groups: dict[tuple[str, str], list[tuple[str, str]]] = {}
+        for e in parent:
+            groups.setdefault(find(e), []).append(e)
+        taken = [int(j) for j in self.junction_ids.values()]
+        next_id = max(taken, default=0) + 1
+        out: dict[tuple[str, str], str] = {}
+        for group in groups.values():  # in road order: the same map gives the same ids
+            if len(group) > 2:
+                out.update({e: str(next_id) for e in group})
+                next_id += 1
+        return out
+
+    def _road_link(self, rid: str, end: str):
+        """(elementType, id, contactPoint) linked at road `rid`'s reference `end` ('start'/'end')."""
+        road = self.roads[rid]
+        touching = self._touching(road, end)
+        if (rid, end) in self.direct:
+            return ("junction", self.direct[(rid, end)], None)
         if road.junction_id is None:
             jids = [j for j in (self.m.lanes[x].junction_id for x, _ in touching) if j]
             fallback = road.start_junction if end == "start" else road.end_junction
@@ -334,6 +451,8 @@ class _Writer:
         self._controllers(root)
         for jid in m.junctions:
             self._junction(root, jid)
+        for djid in dict.fromkeys(self.direct.values()):
+            self._direct_junction(root, djid)
         return root
 
     def _road(self, root, rid: str, road: Road, signals: list, objects: list) -> None:
@@ -345,7 +464,7 @@ class _Writer:
             el.set("rule", "RHT")
         link = self.sub(el, "link")
         for kind, end in (("predecessor", "start"), ("successor", "end")):
-            lk = self._road_link(road, end)
+            lk = self._road_link(rid, end)
             if lk is not None:
                 attrs = {"elementType": lk[0], "elementId": lk[1]}
                 if lk[2]:
@@ -408,12 +527,12 @@ class _Writer:
         link = self.sub(el, "link")
         # lane links name lanes of the linked road, so they exist only across road-road links
         # and inside junctions (connecting roads); an incoming road links to the junction itself
-        road = self.roads[self.odr_lane[lid][0]]
+        rid = self.odr_lane[lid][0]
         # in the reference direction (the schema's order: predecessor, then successor); for a
         # left lane the driving successors are the reference predecessors
         along = (ln.predecessors, ln.successors) if odr < 0 else (ln.successors, ln.predecessors)
         for ref_kind, end, lanes in zip(("predecessor", "successor"), ("start", "end"), along):
-            lk = self._road_link(road, end)
+            lk = self._road_link(rid, end)
             if lk is None or lk[0] != "road":
                 continue
             for other in lanes:
@@ -435,7 +554,10 @@ class _Writer:
                 continue
             along = bool(road.right_lanes)
             first = self.m.lanes[road.lane_ids[0]]
-            feeders = [p for p in first.predecessors if self.m.lanes[p].junction_id != jid]
+            # incoming roads are ordinary roads (ASAM's junctions.connection.connect_road_no_incoming_road):
+            # a connecting road fed straight from another junction's (adjacent Apollo junctions) is
+            # linked to it by its road and lane links only
+            feeders = [p for p in first.predecessors if self.m.lanes[p].junction_id is None]
             if not feeders:
                 continue
             incoming = self.odr_lane[feeders[0]][0]
@@ -449,6 +571,30 @@ class _Writer:
                         break
         for k, (cid, _) in enumerate(self.controllers.get(jid, [])):
             self.sub(el, "controller", id=cid, type="0", sequence=str(k))
+
+    def _direct_junction(self, root, djid: str) -> None:
+        """A direct junction: per pair (incoming road, linked road) one connection with the lane
+        links from the incoming road's lanes that end there to the linked road's lanes they
+        continue in (contactPoint: the linked road's end)."""
+        el = self.sub(root, "junction", id=djid, type="direct")
+        conns: dict[tuple[str, str], list[tuple[int, int]]] = {}
+        for (rid, end), j in self.direct.items():
+            if j != djid:
+                continue
+            for lid in self.roads[rid].lane_ids:
+                if self._lane_end(lid, "end") != end:
+                    continue
+                for nxt in self.m.lanes[lid].successors:
+                    other = self.odr_lane[nxt][0]
+                    if self.direct.get((other, self._lane_end(nxt, "start"))) == djid:
+                        conns.setdefault((rid, other), []).append((self.odr_lane[lid][1], self.odr_lane[nxt][1]))
+        for n, ((inc, linked), pairs) in enumerate(conns.items()):
+            contact = self._lane_end(next(x for x in self.roads[linked].lane_ids
+                                          if self.odr_lane[x][1] == pairs[0][1]), "start")
+            conn = self.sub(el, "connection", id=str(n), incomingRoad=self.road_ids[inc],
+                            linkedRoad=self.road_ids[linked], contactPoint=contact)
+            for a, b in pairs:
+                self.sub(conn, "laneLink", **{"from": str(a), "to": str(b)})
 
     # -- signals, controllers, objects ----------------------------------------------------------
     def _signal_place(self, lane_ids, position, midblock: bool = False):
