@@ -143,7 +143,9 @@ def test_lanelet2_bound_keeps_its_direction_where_its_start_moves_past_a_short_k
     the bound's first segment ran backwards, Lanelet2's loader inverted the bound
     (`geometry::align`) and the turn was no successor of its road: "no route for vehicles".
     Inner points the moved ends pass are dropped."""
-    lanelet2 = pytest.importorskip("lanelet2", reason="the lanelet2 wheel (Linux x86_64)")
+    from conftest import SKIP_LANELET2
+
+    lanelet2 = pytest.importorskip("lanelet2", reason=SKIP_LANELET2)
     import yaml
 
     from feat2map.formats.lanelet2.writer import PROJECTOR_INFO, write_lanelet2
