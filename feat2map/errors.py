@@ -60,3 +60,9 @@ class ConfigError(Feat2MapError):
 
 class LimitError(Feat2MapError):
     """A request above a size limit (`feat2map.config.Limits`); the message says how to raise it."""
+
+
+class RepairWarning(UserWarning):
+    """A reader's repair of geometry the file holds validly but the env cannot drive as it is (a
+    lane border folding back round a bend tighter than the lane's width): validators report it
+    as a warning, not a problem with the file."""

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, FOLD_BACK_M,
                      JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M, LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS,
                      TOUCHING_LINK_DEG)
-from .errors import Feat2MapError
+from .errors import Feat2MapError, RepairWarning
 from .model import HDMap, Lane, incoming_lanes, stop_line_across
 
 if TYPE_CHECKING:
@@ -323,7 +323,7 @@ def unfolded_boundaries(m: HDMap, where: str = "map") -> HDMap:
         return m
     shown = ", ".join(list(fixed)[:3]) + (" ..." if len(fixed) > 3 else "")
     warnings.warn(f"{where}: {len(fixed)} lane(s) with a boundary that folds back on itself (a border tighter than "
-                  f"the lane's width): the folds dropped ({shown})", stacklevel=3)
+                  f"the lane's width): the folds dropped ({shown})", RepairWarning, stacklevel=3)
     return replace(m, lanes={**m.lanes, **fixed})
 
 

@@ -157,3 +157,19 @@ def test_validate_reports_what_the_reader_skips(tmp_path):
     problems = validate_opendrive(path)
     assert any(p.element == "negative.xodr" and p.message.startswith("feat2map reader: skipping bad road")
                and "width -3.5 m is negative" in p.message for p in problems)
+
+
+def test_a_border_the_reader_unfolds_is_a_warning_of_validate_not_a_problem(tmp_path, capsys):
+    """A lane wider than twice its inner border's radius is valid OpenDRIVE (ASAM's checker finds
+    nothing); feat2map's reader unfolds that border to drive it (`semantics.unfolded_boundaries`),
+    and validate reports the repair as a warning: every real map's OpenDRIVE export with such a
+    turn showed "1 problem" before."""
+    from test_apollo_export import _TIGHT_BEND_XODR
+
+    path = tmp_path / "tight.xodr"
+    path.write_text(_TIGHT_BEND_XODR)
+    found = validate_opendrive(path)
+    assert [p.warning for p in found] == [True] and "folds back on itself" in found[0].message
+    capsys.readouterr()
+    assert main(["validate", str(path)]) == 0
+    assert "0 problems, 1 warning" in capsys.readouterr().out

@@ -125,7 +125,7 @@ def reader_problems(path: Path) -> list[Problem]:
     in the base map at `path`, one Problem each."""
     import warnings
 
-    from ...errors import Feat2MapError
+    from ...errors import Feat2MapError, RepairWarning
     from .reader import base_map_file, read_apollo
 
     with warnings.catch_warnings(record=True) as caught:
@@ -134,7 +134,8 @@ def reader_problems(path: Path) -> list[Problem]:
             read_apollo(path)
         except Feat2MapError as exc:
             return [Problem(base_map_file(path).name, f"feat2map reader: {exc}")]
-    return [Problem(base_map_file(path).name, f"feat2map reader: {w.message}") for w in caught]
+    return [Problem(base_map_file(path).name, f"feat2map reader: {w.message}", warning=issubclass(w.category, RepairWarning))
+            for w in caught]
 
 
 # --- helpers --------------------------------------------------------------------------------

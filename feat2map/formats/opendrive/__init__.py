@@ -7,7 +7,7 @@ import warnings
 from pathlib import Path
 
 from ..asam_qc import OPENDRIVE, problems, run_bundle
-from ...errors import Feat2MapError
+from ...errors import Feat2MapError, RepairWarning
 from ..base import Problem
 from .reader import read_opendrive
 from .writer import VERSIONS, to_opendrive, write_opendrive
@@ -25,7 +25,8 @@ def validate_opendrive(path: str | Path, progress: bool = False) -> list[Problem
             read_opendrive(path)
         except Feat2MapError as exc:
             found.append(Problem(name, f"feat2map reader: {exc}"))
-    return found + [Problem(name, f"feat2map reader: {w.message}") for w in caught]
+    return found + [Problem(name, f"feat2map reader: {w.message}", warning=issubclass(w.category, RepairWarning))
+                    for w in caught]
 
 
 __all__ = ["VERSIONS", "read_opendrive", "to_opendrive", "validate_opendrive", "write_opendrive"]
