@@ -274,13 +274,14 @@ def unfold(line: Sequence[Sequence[float]], centre: Sequence[Sequence[float]]) -
     when it has none: inner points more than FOLD_BACK_M behind the point kept before them
     (along the centre line) are dropped, and loops where what is left still crosses itself are
     cut at the crossing (each segment jumps to the crossing with the last later segment it meets)."""
-    from shapely.geometry import LineString, Point
+    import shapely
+    from shapely.geometry import LineString
 
     if len(line) < 3:
         return None
     axis = LineString([p[:2] for p in centre])
     pts = [tuple(float(v) for v in p) for p in line]
-    s = [axis.project(Point(p[:2])) for p in pts]
+    s = shapely.line_locate_point(axis, shapely.points([p[:2] for p in pts])).tolist()  # along the centre line
     kept = [0]
     for i in range(1, len(pts) - 1):
         if s[i] >= s[kept[-1]] - FOLD_BACK_M:
