@@ -164,6 +164,7 @@ class TrafficControl(TrafficRules):
                 del self.reservations[lid]
                 if getattr(v, "reserved", None) == lid:
                     v.reserved = None
+                self.hand_over(lid)
 
         if net.passages:
             self._update_passages(buckets, alive)

@@ -580,6 +580,31 @@ class TrafficRules:
         return bool(crossed) and any(self.occupied(c, vehicle) for c in crossed) and \
             can_stop_before(d, vehicle.speed, vehicle.LENGTH)
 
+    def hand_over(self, j_lane: str) -> None:
+        """A reservation of junction lane `j_lane` was given up: the road user that followed its
+        holder past the line and can no longer stop before it takes it over (with its chain),
+        nearest the lane first. It found the lane reserved when it committed, so it claimed
+        nothing, and a lower-priority lane unreserved and not yet entered is invisible to cross
+        traffic's `junction_clear`: GoMentum's base_map r002, a car behind its leader into a
+        permissive left turn was hit by the ego going straight on the lane the leader's release
+        let it reserve."""
+        net = self.net
+        committed = []
+        for p in net.hdmap.lanes[j_lane].predecessors:
+            lane_p = net.lane_of.get(p)
+            if lane_p is None:
+                continue
+            for v in self.buckets.get(p, ()):
+                if enters_next(v, j_lane):
+                    d = self.line_distance(v, j_lane)
+                    if not can_stop_before(d - STOP_POINT_M, max(v.speed, 0.0), v.LENGTH):
+                        committed.append((d, v))
+        if committed:
+            _, v = min(committed, key=lambda dv: dv[0])
+            for x in self.junction_chain(v, j_lane):
+                self.reservations.setdefault(x, v)
+            v.reserved = j_lane
+
     def release(self, vehicle, j_lane: str) -> None:
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
         junction (if it holds them): it will not enter now. (Asked every frame of every vehicle

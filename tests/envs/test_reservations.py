@@ -83,3 +83,39 @@ def test_traffic_into_a_road_lane_across_a_held_junction_lane_waits_at_its_start
     assert set(np.asarray(net.lane_ids)[LaneTable(net).crossed]) == {"RX_0"}  # the core's table of such lanes
     env.close()
 
+
+
+@pytest.fixture(scope="module")
+def signal_cross(tmp_path_factory) -> Path:
+    m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "signal", False)], seed=0)
+    path = tmp_path_factory.mktemp("signal_cross") / "cross.json"
+    native.save(m, path)
+    return path
+
+
+def test_a_follower_past_the_line_takes_over_its_leaders_reservation(signal_cross):
+    """A car that followed its leader past the line into the leader's reserved left turn claimed
+    nothing (the lane was taken); when the leader gives the lane up, the follower, no longer
+    able to stop, holds it, so cross traffic's `junction_clear` sees it. Without the hand-over
+    the lane stood unreserved while the follower was still short of it, and the ego reserved a
+    crossing straight lane into its path (GoMentum base_map r002). A follower that can still
+    stop takes nothing: it asks `may_enter` as usual."""
+    sc = Scenario("cross", str(signal_cross), (("J0", "R3", "R1"),), seed=0, duration=30.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, ctl, m = u.net, u.control, u.net.hdmap
+    left = next(lid for lid, ln in sorted(m.lanes.items()) if ln.turn == "left" and ln.junction_id == "J0"
+                and not lid.startswith(("J0_c3", "J0_c1")))  # not across the ego's way in
+    approach, exit_ = m.lanes[left].predecessors[0], m.lanes[left].successors[0]
+    length = net.lane_of[approach].length
+    line = length - net.setbacks.get(approach, 0.0)
+    leader = u.road.spawn(left, 2.0, 5.0, [left, exit_])
+    near = u.road.spawn(approach, line + 1.0, 8.0, [approach, left, exit_])  # past its line at 8 m/s
+    far = u.road.spawn(approach, line - 40.0, 8.0, [approach, left, exit_])  # can still stop
+    ctl.reservations[left] = leader
+    u.road.vehicles.remove(leader)  # the leader is gone: its reservation is given up
+    ctl.update(u.road, 0.0)
+    assert ctl.reservations.get(left) is near
+    assert all(ctl.reservations.get(x) is not far for x in ctl.reservations)
+    env.close()
