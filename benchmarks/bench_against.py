@@ -11,7 +11,8 @@ checkout runs as installed. Each round runs one process per revision in turn, so
 machine falls on both alike; the table gives the median of the rounds and after/before.
 
 Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_against.py [--base main] [--rounds 5]
-     [--sizes 1,64,256] [--marl]   (--sizes "" --marl: the multi-agent env alone)
+     [--sizes 1,64,256] [--marl] [--metadrive]   (--sizes "" --marl: the multi-agent env alone;
+     --metadrive: MetaDrive 0.4.3's single-agent env in each round, from /tmp/md-venv)
 """
 from __future__ import annotations
 
@@ -79,6 +80,23 @@ print(json.dumps(out))
 """
 
 
+# MetaDrive 0.4.3's single-agent env as ../shared/tools/metadrive_bench.py drives it (3 blocks, traffic
+# density 0.1, 10 Hz decisions, constant throttle), in CPU time of its process: env-steps/s
+MD_SINGLE = """
+import time
+from metadrive.envs.metadrive_env import MetaDriveEnv
+env = MetaDriveEnv(dict(num_scenarios=10, start_seed=0, traffic_density=0.1, use_render=False, log_level=50, map=3))
+env.reset()
+t = time.process_time()
+for _ in range({steps}):
+    o, r, te, tr, i = env.step([0.0, 0.5])
+    if te or tr:
+        env.reset()
+print({steps} / (time.process_time() - t))
+env.close()
+"""
+
+
 def marl_config() -> dict:
     """bench_marl.py's multi-agent config (its scene, made in this checkout)."""
     sys.path.insert(0, str(REPO / "benchmarks"))
@@ -114,15 +132,29 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=5, help="alternating rounds (default: 5)")
     ap.add_argument("--sizes", default="1,64,256", help="1: the single env; N > 1: the batched env (default: 1,64,256)")
     ap.add_argument("--marl", action="store_true", help="the multi-agent env's agent-steps/s too (bench_marl.py's scene)")
+    ap.add_argument("--metadrive", action="store_true",
+                    help="MetaDrive 0.4.3's single-agent env in each round too (/tmp/md-venv: "
+                         "../shared/tools/metadrive-venv.sh), and the single env's ratio to it")
     args = ap.parse_args()
+    if args.metadrive:
+        sys.path.insert(0, str(REPO / "benchmarks"))
+        from bench_marl import metadrive_run
+        if 1 not in [int(s) for s in args.sizes.split(",") if s]:
+            ap.error("--metadrive compares the single env: --sizes must hold 1")
     sizes = [int(s) for s in args.sizes.split(",") if s]
     marl = marl_config() if args.marl else None
     keys: list[int | str] = [*sizes, *(["marl"] if marl else [])]
     rates: dict[str, dict[int | str, list[float]]] = {k: {n: [] for n in keys} for k in ("before", "after")}
+    metadrive: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bench-against-") as tmp:
         base = base_checkout(args.base, Path(tmp) / "base")
         try:
             for r in range(args.rounds):
+                if args.metadrive:
+                    got_md = metadrive_run(MD_SINGLE.format(steps=ENV_STEPS), 1)
+                    if got_md is None:
+                        raise SystemExit("MetaDrive did not run: make /tmp/md-venv with ../shared/tools/metadrive-venv.sh")
+                    metadrive.append(got_md[0])
                 for label, path in (("before", base), ("after", None)):
                     got = measure(path, sizes, marl)
                     if r == 0:
@@ -142,6 +174,12 @@ def main() -> None:
         each = " ".join(f"{x / y:.2f}" for x, y in zip(rates["after"][n], rates["before"][n]))
         name = "multi-agent" if n == "marl" else "single" if n == 1 else f"N = {n}"
         print(f"{name:>12} {b:>9.0f} {a:>9.0f} {a / b:>12.2f}x  {each}")
+    if metadrive:
+        md = statistics.median(metadrive)
+        print(f"MetaDrive 0.4.3 single-agent env: {md:.0f} env-steps/s (rounds: {' '.join(f'{x:.0f}' for x in metadrive)}); "
+              + ", ".join(f"{label}: {statistics.median(rates[label][1]) / md:.2f}x MetaDrive "
+                          f"(rounds {' '.join(f'{x / y:.2f}' for x, y in zip(rates[label][1], metadrive))})"
+                          for label in ("before", "after")))
     for label in ("before", "after"):
         if 1 in sizes and len(sizes) > 1:
             single = statistics.median(rates[label][1])

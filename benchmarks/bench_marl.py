@@ -104,16 +104,22 @@ class SingleRunner:
         self.wall.append(steps / (time.perf_counter() - w))
 
 
-def metadrive_round(steps: int) -> tuple[float, float, float] | None:
-    """(agent-steps/s CPU, wall, agents per step) of MetaDrive's multi-agent intersection, or None."""
+def metadrive_run(code: str, values: int) -> tuple[float, ...] | None:
+    """The last `values` numbers `code` prints, run by MetaDrive's venv (/tmp/md-venv), or None
+    when it is absent or the run fails (bench_against.py's single-agent round uses it too)."""
     if not MD_PYTHON.exists():
         return None
     try:
-        out = subprocess.run([str(MD_PYTHON), "-c", MD_CODE.format(steps=steps)], capture_output=True, text=True,
+        out = subprocess.run([str(MD_PYTHON), "-c", code], capture_output=True, text=True,
                              timeout=900, check=True).stdout.split()
-        return float(out[-3]), float(out[-2]), float(out[-1])
+        return tuple(float(x) for x in out[-values:])
     except (subprocess.SubprocessError, ValueError, IndexError, OSError):
         return None
+
+
+def metadrive_round(steps: int) -> tuple[float, ...] | None:
+    """(agent-steps/s CPU, wall, agents per step) of MetaDrive's multi-agent intersection, or None."""
+    return metadrive_run(MD_CODE.format(steps=steps), 3)
 
 
 def main(argv=None) -> int:
