@@ -138,11 +138,13 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
 
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
-                  buildable: GenerationConfig | None = None, midblock: list | None = None):
+                  buildable: GenerationConfig | None = None, midblock: list | None = None,
+                  filters: list | None = None):
     """Junction features of the maps; with `buildable`, only those generation can build with
     that config (the others are skipped with a warning naming map, junction and why); the
-    maps' mid-block crosswalks are appended to `midblock` when given."""
-    from .extract import extract_junctions, extract_midblock
+    maps' mid-block crosswalks are appended to `midblock` and their filter lanes to `filters` when
+    given."""
+    from .extract import extract_filters, extract_junctions, extract_midblock
     from .generate import check_buildable
 
     junctions = []
@@ -151,6 +153,8 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
         junctions += extract_junctions(m, map_name=str(p), skipped=skipped)
         if midblock is not None:
             midblock += extract_midblock(m, map_name=str(p))
+        if filters is not None:
+            filters += extract_filters(m, map_name=str(p))
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     if buildable is None:
@@ -237,7 +241,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
         check_picture_path(args.picture)
     skipped: list = []
     midblock: list = []
-    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock)
+    filters: list = []
+    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock, filters=filters)
     space = map_feature(junctions, midblock)
     if args.picture:  # first: it is the step that can fail; nothing is written if it does
         from .render import render_map
@@ -251,13 +256,14 @@ def cmd_extract(args: argparse.Namespace) -> int:
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
                "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped],
-               "midblock_crosswalks": [c.to_dict() for c in midblock]}
+               "midblock_crosswalks": [c.to_dict() for c in midblock], "filter_lanes": [f.to_dict() for f in filters]}
         print(json.dumps(doc, indent=2))
         return 0
     _print_junction_table(args.maps, junctions, skipped)
     signalised = sum(c.feature.control == "signal" for c in midblock)
     found = (f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped), "
-             f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised)")
+             f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised), "
+             f"{counted(len(filters), 'filter lane')} ({sum(f.control == 'signal' for f in filters)} signalised)")
     if args.out:  # the map feature is in the file: not again on the screen
         print(f"\n{found}; map feature written to {args.out}")
         return 0

@@ -471,9 +471,10 @@ def _filter_lane(b: _Builder, jid: str, a: int, sock, approach: str, exit_lane: 
     p0, p3 = np.asarray(b.lanes[src]["centerline"][-1]), np.asarray(b.lanes[dst]["centerline"][0])
     h0, h1 = float(b.beziers[src].heading(1.0)), float(b.beziers[dst].heading(0.0))
     d0, d1 = unit(h0), unit(h1)
-    det = d0[0] * -d1[1] + d1[0] * d0[1]  # p0 + u d0 = p3 - v d1, solved for u, v
-    u = ((p3 - p0)[0] * -d1[1] + d1[0] * (p3 - p0)[1]) / det if abs(det) > 1e-9 else -1.0
-    v = (d0[0] * (p3 - p0)[1] - d0[1] * (p3 - p0)[0]) / det if abs(det) > 1e-9 else -1.0
+    r = p3 - p0  # where the lines meet: u d0 + v d1 = r (Cramer's rule)
+    det = d0[0] * d1[1] - d0[1] * d1[0]
+    u = (r[0] * d1[1] - r[1] * d1[0]) / det if abs(det) > 1e-9 else -1.0
+    v = (d0[0] * r[1] - d0[1] * r[0]) / det if abs(det) > 1e-9 else -1.0
     if u > 0 and v > 0:
         centre = Bezier((float(p0[0]), float(p0[1])), tuple(p0 + FILTER_HANDLE * u * d0),
                         tuple(p3 - FILTER_HANDLE * v * d1), (float(p3[0]), float(p3[1])))
