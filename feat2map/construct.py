@@ -382,9 +382,9 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 b.link(src, lid)
                 b.link(lid, dst)
         for a in range(f.n_roads):
-            c = filter_exit(f, a) if f.sockets[a].filter != "none" else None
-            if c is not None:
-                poly = _filter_lane(b, jid, a, f.sockets[a], incoming[(j, a)][0], outgoing[(j, c)][0], poly, cfg,
+            into = filter_exit(f, a) if f.sockets[a].filter != "none" else None
+            if into is not None:
+                poly = _filter_lane(b, jid, a, f.sockets[a], incoming[(j, a)][0], outgoing[(j, into)][0], poly, cfg,
                                     signals, yields)
         for a in range(f.n_roads):
             ins = incoming[(j, a)]
