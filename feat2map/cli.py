@@ -79,12 +79,16 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 def _summary(m) -> str:
     """`8 junctions, 92 roads, ...`: what a map holds (crosswalks outside junctions, mid-block
-    ones, counted apart when there are any)."""
+    ones, counted apart when there are any; yield signs and generated filter lanes when there are
+    any)."""
     text = ", ".join(counted(n, noun) for n, noun in (
         (len(m.junctions), "junction"), (len(m.roads), "road"), (len(m.lanes), "lane"), (len(m.signals), "signal"),
         (len(m.stop_signs), "stop sign"), (len(m.crosswalks), "crosswalk")))
     midblock = sum(c.junction_id is None for c in m.crosswalks.values())
-    return text + (f" ({midblock} outside junctions)" if midblock else "")
+    filters = sum(1 for r in m.roads.values() if r.junction_id is not None and r.id.startswith(f"{r.junction_id}_f"))
+    return (text + (f" ({midblock} outside junctions)" if midblock else "")
+            + (f", {counted(len(m.yield_signs), 'yield sign')}" if m.yield_signs else "")
+            + (f", {counted(filters, 'filter lane')}" if filters else ""))
 
 
 GENERATE_MARKERS = ("map.json",)  # a folder holding one is an earlier `generate` output, replaced whole

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, replace
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from shapely import STRtree
@@ -437,23 +437,27 @@ class ExtractedFilter:
                 "control": self.control, "island": self.island, "early": self.early}
 
 
-def _leads_into(m: HDMap, start: str, jid: str) -> bool:
-    """Road lanes from `start` on reach a lane entering junction `jid` within FILTER_LEAD_MAX_M."""
-    stack = [(start, 0.0)]
+def junctions_within(lanes: Mapping[str, Lane], starts: Iterable[str], forward: bool = True,
+                     limit: float = FILTER_LEAD_MAX_M) -> set[str]:
+    """The junctions whose lanes road lanes from `starts` on lead into (`forward`; else come out
+    of) within `limit` metres of road (the start lanes' lengths counted)."""
+    stack = [(x, 0.0) for x in starts]
     seen: set[str] = set()
+    out: set[str] = set()
     while stack:
         lid, run = stack.pop()
-        ln = m.lanes.get(lid)
+        ln = lanes.get(lid)
         if ln is None or lid in seen or ln.junction_id is not None:
             continue
         seen.add(lid)
         run += ln.length
-        for nxt in ln.successors:
-            if nxt in m.lanes and m.lanes[nxt].junction_id == jid:
-                return True
-            if run < FILTER_LEAD_MAX_M:
+        for nxt in ln.successors if forward else ln.predecessors:
+            jid = lanes[nxt].junction_id if nxt in lanes else None
+            if jid is not None:
+                out.add(jid)
+            elif run < limit:
                 stack.append((nxt, run))
-    return False
+    return out
 
 
 def extract_filters(m: HDMap, map_name: str = "map") -> list[ExtractedFilter]:
@@ -475,7 +479,8 @@ def extract_filters(m: HDMap, map_name: str = "map") -> list[ExtractedFilter]:
                     turn_name(wrap_degrees(math.degrees(ln.heading_at_end() - ln.heading_at_start()))) != "right":
                 continue
             p = m.lanes[ins[0]]
-            early = any(_leads_into(m, x, jid) for x in p.successors if x in m.lanes and m.lanes[x].junction_id is None)
+            early = jid in junctions_within(m.lanes, [x for x in p.successors
+                                                      if x in m.lanes and m.lanes[x].junction_id is None])
             kinds = governed.get(p.id, set())
             if not early and not ("yield" in kinds and signalised and "signal" not in kinds):
                 continue
