@@ -199,3 +199,17 @@ def test_extraction_finds_filter_lanes_and_records_them_in_the_feature(tmp_path,
     assert main(["extract", str(tmp_path / "m.json"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert len(doc["filter_lanes"]) == 16 and doc["feature_space"]["filter"] == ["none", "yield", "signal"]
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("rel", ["apollo/san_francisco/base_map.bin", "apollo/gomentum/base_map.bin",
+                                 "opendrive/carla_town03/Town03.xodr", "opendrive/carla_town04/Town04.xodr"])
+def test_real_maps_hold_no_filter_lanes(rel):
+    """Their right turns all start at the junctions' entries under the junctions' own control (no
+    road lane forks into one, no yield sign governs one): none is taken for a filter lane, and no
+    OpenDRIVE road is given back to a junction as one."""
+    from conftest import read_shared_map
+
+    m = read_shared_map(rel)
+    assert extract_filters(m, rel) == []
+    assert not any(j.feature.has_filter for j in extract_junctions(m, rel))
