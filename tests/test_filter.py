@@ -112,6 +112,34 @@ def test_a_filter_lane_leaves_before_the_core_and_joins_the_exit_after_it(spec_m
     assert spec_map.signals["J0_filter2"].lane_ids == lanes["J0_f2_0"].predecessors
 
 
+def test_multi_lane_approaches_get_a_filter_lane_from_their_rightmost_lane():
+    import yaml
+
+    doc = yaml.safe_load("""
+junctions:
+  - cell: [0, 0]
+    control: signal
+    sockets:
+      - {angle: 0, lanes: 2}
+      - {angle: 90, lanes: 2, filter: {control: signal}}
+      - {angle: 180, lanes: 2}
+      - {angle: 270, lanes: 2, filter: {island: false}}
+  - cell: [1, 0]
+    sockets: [0, {angle: 180, lanes: 2, filter: {}}, 270]
+""")
+    m = build_spec(parse_spec(doc, "s.yaml"))
+    assert check_map(m) == []
+    found = sorted((f.junction, f.control, f.island) for f in extract_filters(m))
+    assert found == [("J0", "signal", True), ("J0", "yield", False), ("J1", "yield", True)]
+    for f in extract_filters(m):
+        before = m.lanes[f.approach]
+        road = m.roads[before.road_id]
+        lanes = road.right_lanes if f.approach in road.right_lanes else road.left_lanes
+        assert f.approach == lanes[-1]  # the rightmost of its direction (lanes listed from the divider)
+        (through,) = [x for x in before.successors if m.lanes[x].junction_id is None]
+        assert all(m.lanes[x].turn != "right" for x in m.lanes[through].successors)  # no second right turn
+
+
 @pytest.mark.parametrize("socket, message", [
     ("{angle: 90, filter: {control: yield}}", "no incoming lanes"),
     ("{angle: 0, filter: {control: stop}}", "junctions\\[0\\].sockets\\[0\\].filter"),
@@ -180,6 +208,27 @@ def test_the_opendrive_export_passes_asam_qc(tmp_path, spec_map):
     text = (tmp_path / "m.xodr").read_text()
     assert text.count('type="direct"') == 5 and text.count('type="205"') == 2  # one per road cut, one per sign
     assert validate_opendrive(tmp_path / "m.xodr") == []
+
+
+def test_openscenario_routes_through_filter_lanes_pass_asam_qc(tmp_path, spec_map):
+    """A suite's scenarios that take a filter lane route along it (in the OpenDRIVE file written
+    beside them, a road between direct junctions) and pass ASAM's OpenSCENARIO checks."""
+    from conftest import SKIP_QC_OPENSCENARIO
+
+    from feat2map.formats.asam_qc import OPENSCENARIO, find_bundle
+    from feat2map.formats.openscenario import validate_openscenario, write_openscenario
+    from feat2map.scenarios.routes import build_suite
+
+    native.save(spec_map, tmp_path / "map.json")
+    suite = build_suite(tmp_path / "map.json", traffic_vehicles=6, seed=0)
+    moves = {("J0", "R2", "R3"), ("J0", "R3", "R0"), ("J1", "R4", "R5")}
+    taking = tuple(sc for sc in suite.scenarios if moves & {tuple(mv) for mv in sc.route})
+    files = write_openscenario(type(suite)(suite.name, taking), tmp_path / "x")
+    assert len(files) == len(taking) >= 2
+    if find_bundle(OPENSCENARIO[0]) is None:
+        pytest.skip(SKIP_QC_OPENSCENARIO)
+    for f in files:
+        assert validate_openscenario(f) == [], f.name
 
 
 # ------------------------------------------------------------------------------ extraction

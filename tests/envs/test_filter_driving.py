@@ -50,6 +50,16 @@ def test_a_yield_filter_lane_gives_way_to_merging_traffic(map_path, monkeypatch)
         env.close()
 
 
+def test_info_names_a_yield_filter_lane_as_the_control_ahead(map_path):
+    for route, want in (((("J1", "R4", "R5"),), "yield"), ((("J0", "R2", "R3"),), "signal")):
+        env = make_env(Scenario(name="filter", map=str(map_path), route=route, seed=0))
+        try:
+            _, info = env.reset(seed=0)
+            assert info["control_ahead"] == want
+        finally:
+            env.close()
+
+
 def test_the_suite_takes_every_filter_lane_and_completes_at_traffic_6(map_path):
     from feat2map.scenarios.rollout import run_scenario
     from feat2map.scenarios.routes import build_suite
