@@ -277,11 +277,20 @@ def cmd_extract(args: argparse.Namespace) -> int:
     return 0
 
 
+def _filter_note(feature) -> str:
+    """`  filter lanes: 2 yield (island), 3 signal (painted)`: a junction's filter lanes by socket
+    (nothing for a junction without)."""
+    if not feature.has_filter:
+        return ""
+    return "  filter lanes: " + ", ".join(f"{k} {s.filter} ({'island' if s.island else 'painted'})"
+                                          for k, s in enumerate(feature.sockets) if s.filter != "none")
+
+
 def _print_junction_table(maps: Sequence[str], junctions: list, skipped: list) -> None:
     """One table per map, headed by the map's full path; ids in full (columns fit the widest)."""
     for path in map(str, maps):
         rows = [(j.id, j.feature.n_roads, j.feature.control, j.feature.crosswalk,
-                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]")
+                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]" + _filter_note(j.feature))
                 for j in junctions if j.map_name == path]
         rows += [(s.id, s.n_arms, s.control, s.crosswalk, f"skipped: {s.reason}")
                  for s in skipped if s.map_name == path]

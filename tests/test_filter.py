@@ -250,6 +250,14 @@ def test_extraction_finds_filter_lanes_and_records_them_in_the_feature(tmp_path,
     assert len(doc["filter_lanes"]) == 16 and doc["feature_space"]["filter"] == ["none", "yield", "signal"]
 
 
+def test_the_junction_table_notes_filter_lanes_by_socket(tmp_path, spec_map, capsys):
+    native.save(spec_map, tmp_path / "m.json")
+    assert main(["extract", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "[0.00, 90.00, 180.00, 270.00]  filter lanes: 2 signal (painted), 3 yield (island)\n" in out
+    assert "[0.00, 90.00, 180.00]  filter lanes: 1 yield (island)\n" in out
+
+
 @pytest.mark.real_maps
 @pytest.mark.parametrize("rel", ["apollo/san_francisco/base_map.bin", "apollo/gomentum/base_map.bin",
                                  "opendrive/carla_town03/Town03.xodr", "opendrive/carla_town04/Town04.xodr"])
