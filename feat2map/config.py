@@ -35,9 +35,10 @@ JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 MIDBLOCK_POSITION_RANGE = (0.35, 0.65)
 MIDBLOCK_LINE_REACH_M = 5.0  # a signal's stop line this close before a crosswalk outside junctions guards that crossing
 # filter lanes (slip lanes): one leaves its approach this far before the junction's socket and joins
-# its exit road as far after that road's socket (both roads are split there; each keeps at least a
-# quarter as much road beyond the split); its Bezier handles are this fraction of the distances from
-# its ends to where their lines meet (a rounder curve would cut into the junction's core)
+# its exit road as far after that road's socket (both roads are split there; a road too short for it
+# is split nearer, down to half as far, so that a quarter as much road is left beyond the split); its
+# Bezier handles are this fraction of the distances from its ends to where their lines meet (a
+# rounder curve would cut into the junction's core)
 FILTER_DIVERGE_M = 16.0
 FILTER_HANDLE = 0.4
 FILTER_LEAD_MAX_M = 60.0  # extraction: a right turn leaving its approach at most this far before the core's entries

@@ -424,7 +424,9 @@ def _add_road_split(b: _Builder, rid: str, kind: str, start, h0: float, end, h1:
                     start_junction: str | None, end_junction: str | None, cut_start: bool, cut_end: bool
                     ) -> tuple[Road, Road, Road]:
     """A road from `start` to `end` as `_Builder.add_road` makes it, split FILTER_DIVERGE_M from
-    the end(s) where a filter lane leaves (`cut_start`, `cut_end`): (the piece at the start, the
+    the end(s) where a filter lane leaves or joins it (`cut_start`, `cut_end`; on a road too short
+    for that, as far as leaves a quarter of FILTER_DIVERGE_M between the cuts, but at least half
+    FILTER_DIVERGE_M, else a LayoutError naming the road): (the piece at the start, the
     longest piece, the piece at the end), the same road three times when nothing is cut. The
     pieces' lanes link end to start; a cut piece at a junction is `<rid>a` (start) or `<rid>b`."""
     if not cut_start and not cut_end:
@@ -432,11 +434,12 @@ def _add_road_split(b: _Builder, rid: str, kind: str, start, h0: float, end, h1:
         return road, road, road
     ref = b.reference(start, h0, end, h1)
     length = ref.length
-    if length - FILTER_DIVERGE_M * (cut_start + cut_end) < FILTER_DIVERGE_M / 4:
-        raise LayoutError(f"a {length:.1f} m road is too short for a filter lane leaving it {FILTER_DIVERGE_M:g} m "
-                          "before its junction (raise stub_length or grid_gap)", f"road {rid}")
+    reach = min(FILTER_DIVERGE_M, (length - FILTER_DIVERGE_M / 4) / (cut_start + cut_end))
+    if reach < FILTER_DIVERGE_M / 2:
+        raise LayoutError(f"a {length:.1f} m road is too short for a filter lane leaving it {FILTER_DIVERGE_M / 2:g} to "
+                          f"{FILTER_DIVERGE_M:g} m before its junction (raise stub_length or grid_gap)", f"road {rid}")
     poses = [(tuple(start), h0)]
-    for cut, s in ((cut_start, FILTER_DIVERGE_M), (cut_end, length - FILTER_DIVERGE_M)):
+    for cut, s in ((cut_start, reach), (cut_end, length - reach)):
         if cut:
             t = ref.param_at(s)
             pt = ref.point(t)
