@@ -315,16 +315,16 @@ def _angles_and_gap(arms: Sequence[Arm]) -> tuple[list[float], float]:
     return raw, min(positive_degrees(raw[(i + 1) % len(raw)] - raw[i]) for i in range(len(raw)))
 
 
-def _junction_controls(m: HDMap, ignore: set[str] = frozenset()) -> dict[str, set[str]]:  # type: ignore[assignment]
+def _junction_controls(m: HDMap, ignore: Iterable[str] = ()) -> dict[str, set[str]]:
     """Junction id -> control kinds: a signal or stop sign counts for the junction it names;
     one that names none, for the junctions its lanes lead into (the readers name a control's
     junction from the same two sources, so neither leaks into a neighbour); a signal guarding a
     mid-block crosswalk (`midblock_controls`) or in `ignore` (a filter lane's) controls no junction."""
     out: dict[str, set[str]] = {}
-    midblock = midblock_controls(m)
+    skip = set(midblock_controls(m)) | set(ignore)
     for kind, items in (("signal", m.signals), ("stop", m.stop_signs)):
         for s in items.values():
-            if kind == "signal" and (s.id in midblock or s.id in ignore):
+            if kind == "signal" and s.id in skip:
                 continue
             if s.junction_id:
                 out.setdefault(s.junction_id, set()).add(kind)
