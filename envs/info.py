@@ -38,8 +38,9 @@ INFO_KEYS: tuple[InfoKey, ...] = (
     InfoKey("junction_feature.lanes_in", np.ndarray, "incoming lanes per leg, 8 int64, -1 padded"),
     InfoKey("junction_feature.lanes_out", np.ndarray, "outgoing lanes per leg, 8 int64, -1 padded"),
     InfoKey("manoeuvre", str, "the ego's turn there: \"left\" | \"straight\" | \"right\" | \"uturn\" (\"\")"),
-    InfoKey("control_ahead", str, "\"signal\" | \"stop\" | \"bare\" for the next stop line on the route, a "
-            "mid-block crossing's light's included (\"\" past the last)"),
+    InfoKey("control_ahead", str, "\"signal\" | \"stop\" | \"yield\" | \"bare\" for the next stop line on the "
+            "route (\"yield\": the entry of a filter lane behind a yield sign), a mid-block crossing's light's "
+            "included (\"\" past the last)"),
     InfoKey("signal_id", str, "the signal governing the ego's next stop line (\"\")"),
     InfoKey("signal_state", str, "its state: \"green\" | \"amber\" | \"red\" (\"\")"),
     InfoKey("signal_time_to_change", float, "[s] until its state changes (inf)"),

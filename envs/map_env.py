@@ -137,7 +137,7 @@ class EgoTask:
         ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
         jid, turn = self.junction_ahead()
         sl, in_lane, j_lane, d = self.next_stop_line()
-        control = "" if in_lane is None else (sl.kind if sl else "bare")
+        control = "" if in_lane is None else (sl.kind if sl else "yield" if j_lane in net.yield_entries else "bare")
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
         sig_id = sl.control_id if sl is not None and sig_state else ""
         plan = rules.plans.get(sl.control_id) if sl is not None else None

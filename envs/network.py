@@ -325,6 +325,7 @@ class MapNetwork(RoadNetwork):
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     midblock_lines: dict[str, list[tuple[str, float]]] = field(default_factory=dict)  # road lane -> (light, s of its line)
+    yield_entries: frozenset[str] = frozenset()  # filter lanes behind a yield sign (`rules.TrafficRules.yield_held`)
     max_line_setback: float = 0.0  # the farthest a wait point (`setbacks`) lies before its lane's end [m]
     passages: dict[str, "Passage"] = field(default_factory=dict)  # road lane -> its narrow passage zone
     merges: dict[str, dict[str, float]] = field(default_factory=dict)  # road lane -> {converging lane: zip end s}
@@ -582,6 +583,10 @@ class MapNetwork(RoadNetwork):
 
     def _build_controls(self, road_lanes: RoadLanes) -> None:
         m = self.hdmap
+        if m.yield_signs:  # filter lanes behind a yield sign give way at their entry
+            from ..extract import extract_filters
+
+            self.yield_entries = frozenset(f.id for f in extract_filters(m) if f.early and f.control == "yield")
         midblock = midblock_controls(m)  # lights of mid-block crossings: lines on their lanes, not junction entries
         for sid in midblock:
             sig = m.signals[sid]

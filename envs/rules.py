@@ -478,6 +478,23 @@ class TrafficRules:
                     if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude)]
         return out
 
+    def yield_held(self, vehicle, filter_lane: str) -> bool:
+        """A filter lane behind a yield sign gives way: `vehicle` waits at its entry while a lane
+        conflicting with it is taken or about to be (`cross_traffic_near`), or while a road user
+        is on, or within PRIORITY_HORIZON_S (plus PRIORITY_MARGIN_M) of, a lane that merges with
+        it (the exit road's lane that the junction's core feeds)."""
+        if self.cross_traffic_near(vehicle, filter_lane, PRIORITY_MARGIN_M):
+            return True
+        lanes = self.net.hdmap.lanes
+        for nxt in lanes[filter_lane].successors:
+            for p in lanes[nxt].predecessors if nxt in lanes else ():
+                if p == filter_lane or p not in self.net.lane_of:
+                    continue
+                for d, v in self.traffic_towards(p, exclude=vehicle):
+                    if d < PRIORITY_HORIZON_S * max(float(getattr(v, "speed", 0.0)), 0.0) + PRIORITY_MARGIN_M:
+                        return True
+        return False
+
     def stop_queue_allows(self, vehicle, junction_lane: str) -> bool:
         """Arrival order: no earlier vehicle in the junction's queue wants a conflicting lane
         (and may take it: one the box rule or a narrow passage holds back lets later ones go)."""
@@ -531,6 +548,8 @@ class TrafficRules:
         if sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):
                 return False
+        if j_lane in self.net.yield_entries and "conflict" not in ignore and self.yield_held(vehicle, j_lane):
+            return False
         chain = self.junction_chain(vehicle, j_lane)
         if "conflict" not in ignore and not (all(self.junction_clear(x, vehicle) for x in chain)
                                              and self.box_clear(vehicle, j_lane)):

@@ -79,12 +79,16 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 def _summary(m) -> str:
     """`8 junctions, 92 roads, ...`: what a map holds (crosswalks outside junctions, mid-block
-    ones, counted apart when there are any)."""
+    ones, counted apart when there are any; yield signs and generated filter lanes when there are
+    any)."""
     text = ", ".join(counted(n, noun) for n, noun in (
         (len(m.junctions), "junction"), (len(m.roads), "road"), (len(m.lanes), "lane"), (len(m.signals), "signal"),
         (len(m.stop_signs), "stop sign"), (len(m.crosswalks), "crosswalk")))
     midblock = sum(c.junction_id is None for c in m.crosswalks.values())
-    return text + (f" ({midblock} outside junctions)" if midblock else "")
+    filters = sum(1 for r in m.roads.values() if r.junction_id is not None and r.id.startswith(f"{r.junction_id}_f"))
+    return (text + (f" ({midblock} outside junctions)" if midblock else "")
+            + (f", {counted(len(m.yield_signs), 'yield sign')}" if m.yield_signs else "")
+            + (f", {counted(filters, 'filter lane')}" if filters else ""))
 
 
 GENERATE_MARKERS = ("map.json",)  # a folder holding one is an earlier `generate` output, replaced whole
@@ -138,11 +142,13 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
 
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
-                  buildable: GenerationConfig | None = None, midblock: list | None = None):
+                  buildable: GenerationConfig | None = None, midblock: list | None = None,
+                  filters: list | None = None):
     """Junction features of the maps; with `buildable`, only those generation can build with
     that config (the others are skipped with a warning naming map, junction and why); the
-    maps' mid-block crosswalks are appended to `midblock` when given."""
-    from .extract import extract_junctions, extract_midblock
+    maps' mid-block crosswalks are appended to `midblock` and their filter lanes to `filters` when
+    given."""
+    from .extract import extract_filters, extract_junctions, extract_midblock
     from .generate import check_buildable
 
     junctions = []
@@ -151,6 +157,8 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
         junctions += extract_junctions(m, map_name=str(p), skipped=skipped)
         if midblock is not None:
             midblock += extract_midblock(m, map_name=str(p))
+        if filters is not None:
+            filters += extract_filters(m, map_name=str(p))
     if not junctions:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     if buildable is None:
@@ -237,7 +245,8 @@ def cmd_extract(args: argparse.Namespace) -> int:
         check_picture_path(args.picture)
     skipped: list = []
     midblock: list = []
-    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock)
+    filters: list = []
+    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock, filters=filters)
     space = map_feature(junctions, midblock)
     if args.picture:  # first: it is the step that can fail; nothing is written if it does
         from .render import render_map
@@ -251,13 +260,14 @@ def cmd_extract(args: argparse.Namespace) -> int:
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
                "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped],
-               "midblock_crosswalks": [c.to_dict() for c in midblock]}
+               "midblock_crosswalks": [c.to_dict() for c in midblock], "filter_lanes": [f.to_dict() for f in filters]}
         print(json.dumps(doc, indent=2))
         return 0
     _print_junction_table(args.maps, junctions, skipped)
     signalised = sum(c.feature.control == "signal" for c in midblock)
     found = (f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped), "
-             f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised)")
+             f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised), "
+             f"{counted(len(filters), 'filter lane')} ({sum(f.control == 'signal' for f in filters)} signalised)")
     if args.out:  # the map feature is in the file: not again on the screen
         print(f"\n{found}; map feature written to {args.out}")
         return 0
@@ -267,11 +277,20 @@ def cmd_extract(args: argparse.Namespace) -> int:
     return 0
 
 
+def _filter_note(feature) -> str:
+    """`  filter lanes: 2 yield (island), 3 signal (painted)`: a junction's filter lanes by socket
+    (nothing for a junction without)."""
+    if not feature.has_filter:
+        return ""
+    return "  filter lanes: " + ", ".join(f"{k} {s.filter} ({'island' if s.island else 'painted'})"
+                                          for k, s in enumerate(feature.sockets) if s.filter != "none")
+
+
 def _print_junction_table(maps: Sequence[str], junctions: list, skipped: list) -> None:
     """One table per map, headed by the map's full path; ids in full (columns fit the widest)."""
     for path in map(str, maps):
         rows = [(j.id, j.feature.n_roads, j.feature.control, j.feature.crosswalk,
-                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]")
+                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]" + _filter_note(j.feature))
                 for j in junctions if j.map_name == path]
         rows += [(s.id, s.n_arms, s.control, s.crosswalk, f"skipped: {s.reason}")
                  for s in skipped if s.map_name == path]

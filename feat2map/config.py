@@ -34,6 +34,14 @@ JUNCTION_MARGIN_M = 1.5  # between crosswalk and socket, and around stop lines
 # stop lines keep JUNCTION_MARGIN_M clear of both ends of the road
 MIDBLOCK_POSITION_RANGE = (0.35, 0.65)
 MIDBLOCK_LINE_REACH_M = 5.0  # a signal's stop line this close before a crosswalk outside junctions guards that crossing
+# filter lanes (slip lanes): one leaves its approach this far before the junction's socket and joins
+# its exit road as far after that road's socket (both roads are split there; a road too short for it
+# is split nearer, down to half as far, so that a quarter as much road is left beyond the split); its
+# Bezier handles are this fraction of the distances from its ends to where their lines meet (a
+# rounder curve would cut into the junction's core)
+FILTER_DIVERGE_M = 16.0
+FILTER_HANDLE = 0.4
+FILTER_LEAD_MAX_M = 60.0  # extraction: a right turn leaving its approach at most this far before the core's entries
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 # declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range

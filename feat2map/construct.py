@@ -18,12 +18,12 @@ from shapely.geometry.polygon import orient
 
 from .angles import classify_turn, positive_angle, positive_degrees, wrap_angle
 from .bezier import Bezier, left_normal, unit
-from .config import MIN_STUB_LENGTH_M, GenerationConfig
-from .features import JunctionFeature, MidblockFeature
+from .config import FILTER_DIVERGE_M, FILTER_HANDLE, MIN_STUB_LENGTH_M, GenerationConfig
+from .features import JunctionFeature, MidblockFeature, filter_exit
 from .invariants import AREA_EPS_M2
 from .errors import CrossingRoadsError, LayoutError
 from .layout import Placement
-from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, as_polyline
+from .model import Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline
 
 
 Pose = tuple[tuple[float, float], float]  # (point, heading in radians)
@@ -305,7 +305,11 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
     # roads: incoming / outgoing lanes per (junction, socket), each listed right to left
     incoming: dict[tuple[int, int], list[str]] = {}
     outgoing: dict[tuple[int, int], list[str]] = {}
-    socket_road: dict[tuple[int, int], str] = {}
+    socket_road: dict[tuple[int, int], str] = {}  # the road (piece) at the socket
+    main_road: dict[tuple[int, int], str] = {}  # the same road's longest piece (a filter lane splits it)
+    cuts = {(j, s) for j, p in enumerate(placements) for a in range(p.feature.n_roads)
+            if p.feature.sockets[a].filter != "none"
+            for s in (a, filter_exit(p.feature, a)) if s is not None}  # roads split for a filter lane
     n_roads = 0
     for j, p in enumerate(placements):
         tick()
@@ -316,24 +320,31 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
             g = sockets[j][s]
             rid = f"R{n_roads}"
             n_roads += 1
+            cut_start = (j, s) in cuts
             if link is None:
                 length = _stub_length(g, centers[j], connection_tree, cfg, f"junction J{j}")
                 end = tuple(np.asarray(g.point) + length * unit(g.angle))
-                road = b.add_road(rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out, sock.lanes_in, f"J{j}", None)
+                road, main, last = _add_road_split(b, rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out,
+                                                   sock.lanes_in, f"J{j}", None, cut_start, False)
             else:
                 o = sockets[link.junction][link.socket]
-                road = b.add_road(rid, "connection", g.point, g.angle, o.point, o.angle + math.pi,
-                                  sock.lanes_out, sock.lanes_in, f"J{j}", f"J{link.junction}")
-                incoming[(link.junction, link.socket)] = list(reversed(road.right_lanes))
-                outgoing[(link.junction, link.socket)] = list(reversed(road.left_lanes))
-                socket_road[(link.junction, link.socket)] = rid
+                cut_end = (link.junction, link.socket) in cuts
+                road, main, last = _add_road_split(b, rid, "connection", g.point, g.angle, o.point, o.angle + math.pi,
+                                                   sock.lanes_out, sock.lanes_in, f"J{j}", f"J{link.junction}",
+                                                   cut_start, cut_end)
+                incoming[(link.junction, link.socket)] = list(reversed(last.right_lanes))
+                outgoing[(link.junction, link.socket)] = list(reversed(last.left_lanes))
+                socket_road[(link.junction, link.socket)] = last.id
+                main_road[(link.junction, link.socket)] = main.id
             incoming[(j, s)] = list(reversed(road.left_lanes))
             outgoing[(j, s)] = list(reversed(road.right_lanes))
-            socket_road[(j, s)] = rid
+            socket_road[(j, s)] = road.id
+            main_road[(j, s)] = main.id
 
     junctions: dict[str, Junction] = {}
     signals: dict[str, Signal] = {}
     stops: dict[str, StopSign] = {}
+    yields: dict[str, YieldSign] = {}
     crosswalks: dict[str, Crosswalk] = {}
     for j, p in enumerate(placements):
         tick()
@@ -346,9 +357,10 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
             if not ins:
                 continue
             entry_heading = sockets[j][a].angle + math.pi
+            slip = filter_exit(f, a) if f.sockets[a].filter != "none" else None
             exits = []
             for c in range(f.n_roads):
-                if not outgoing[(j, c)] or (c == a and not cfg.uturns):
+                if not outgoing[(j, c)] or (c == a and not cfg.uturns) or c == slip:
                     continue
                 turn = "uturn" if c == a else classify_turn(entry_heading, sockets[j][c].angle)
                 delta = wrap_angle(sockets[j][c].angle - entry_heading)
@@ -370,6 +382,11 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 b.link(src, lid)
                 b.link(lid, dst)
         for a in range(f.n_roads):
+            into = filter_exit(f, a) if f.sockets[a].filter != "none" else None
+            if into is not None:
+                poly = _filter_lane(b, jid, a, f.sockets[a], incoming[(j, a)][0], outgoing[(j, into)][0], poly, cfg,
+                                    signals, yields)
+        for a in range(f.n_roads):
             ins = incoming[(j, a)]
             if not ins or f.control == "bare":
                 continue
@@ -387,7 +404,7 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
         junctions[jid] = Junction(jid, as_polyline(poly.exterior.coords[:-1]), f, p.cell,
                                   tuple(socket_road[(j, s)] for s in range(f.n_roads)))
     for (j, s), req in sorted(midblock.items()):
-        road = b.roads[socket_road[(j, s)]]
+        road = b.roads[main_road[(j, s)]]
         ln = placements[j].links[s]
         from_start = ln is None or (j, s) < (ln.junction, ln.socket)
         _midblock(b, road, req, from_start, cfg, crosswalks, signals)
@@ -398,7 +415,100 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
             d[key] = tuple(d[key])
         lanes[lid] = Lane(**d)
     roads = dict(sorted(b.roads.items(), key=lambda kv: (kv[1].kind == "junction", kv[0])))
+    if yields:
+        return HDMap(lanes, roads, junctions, signals, stops, crosswalks, meta=dict(meta or {}), yield_signs=yields)
     return HDMap(lanes, roads, junctions, signals, stops, crosswalks, meta=dict(meta or {}))
+
+
+def _add_road_split(b: _Builder, rid: str, kind: str, start, h0: float, end, h1: float, n_right: int, n_left: int,
+                    start_junction: str | None, end_junction: str | None, cut_start: bool, cut_end: bool
+                    ) -> tuple[Road, Road, Road]:
+    """A road from `start` to `end` as `_Builder.add_road` makes it, split FILTER_DIVERGE_M from
+    the end(s) where a filter lane leaves or joins it (`cut_start`, `cut_end`; on a road too short
+    for that, as far as leaves a quarter of FILTER_DIVERGE_M between the cuts, but at least half
+    FILTER_DIVERGE_M, else a LayoutError naming the road): (the piece at the start, the
+    longest piece, the piece at the end), the same road three times when nothing is cut. The
+    pieces' lanes link end to start; a cut piece at a junction is `<rid>a` (start) or `<rid>b`."""
+    if not cut_start and not cut_end:
+        road = b.add_road(rid, kind, start, h0, end, h1, n_right, n_left, start_junction, end_junction)
+        return road, road, road
+    ref = b.reference(start, h0, end, h1)
+    length = ref.length
+    reach = min(FILTER_DIVERGE_M, (length - FILTER_DIVERGE_M / 4) / (cut_start + cut_end))
+    if reach < FILTER_DIVERGE_M / 2:
+        raise LayoutError(f"a {length:.1f} m road is too short for a filter lane leaving it {FILTER_DIVERGE_M / 2:g} to "
+                          f"{FILTER_DIVERGE_M:g} m before its junction (raise stub_length or grid_gap)", f"road {rid}")
+    poses = [(tuple(start), h0)]
+    for cut, s in ((cut_start, reach), (cut_end, length - reach)):
+        if cut:
+            t = ref.param_at(s)
+            pt = ref.point(t)
+            poses.append(((float(pt[0]), float(pt[1])), float(ref.heading(t))))
+    poses.append((tuple(end), h1))
+    names = ([f"{rid}a"] if cut_start else []) + [rid] + ([f"{rid}b"] if cut_end else [])
+    pieces = []
+    for k, name in enumerate(names):
+        (p0, a0), (p1, a1) = poses[k], poses[k + 1]
+        pieces.append(b.add_road(name, kind, p0, a0, p1, a1, n_right, n_left,
+                                 start_junction if k == 0 else None, end_junction if k == len(names) - 1 else None))
+    for x, y in zip(pieces, pieces[1:]):
+        for u, v in zip(x.right_lanes, y.right_lanes):
+            b.link(u, v)
+        for u, v in zip(y.left_lanes, x.left_lanes):
+            b.link(u, v)
+    main = pieces[1] if cut_start else pieces[0]
+    return pieces[0], main, pieces[-1]
+
+
+def _filter_lane(b: _Builder, jid: str, a: int, sock, approach: str, exit_lane: str, poly: Polygon,
+                 cfg: GenerationConfig, signals: dict[str, Signal], yields: dict[str, YieldSign]) -> Polygon:
+    """The filter lane of approach `a`: a junction lane `<jid>_f<a>_0` from the end of the lane
+    before the approach's rightmost lane (`approach`; the roads were split FILTER_DIVERGE_M from
+    the junction) to the start of the lane after the exit's rightmost lane (`exit_lane`), typed a
+    right turn, kerbs on its left with an island (else a solid line), a solid line on its right;
+    a yield sign or a light of its own on the lane before it. Returns the junction polygon grown
+    by the lane and the island or painted area between it and the core (the hull of both, less
+    the two road pieces beside it)."""
+    src = b.lanes[approach]["predecessors"][0]
+    dst = b.lanes[exit_lane]["successors"][0]
+    p0, p3 = np.asarray(b.lanes[src]["centerline"][-1]), np.asarray(b.lanes[dst]["centerline"][0])
+    h0, h1 = float(b.beziers[src].heading(1.0)), float(b.beziers[dst].heading(0.0))
+    d0, d1 = unit(h0), unit(h1)
+    r = p3 - p0  # where the lines meet: u d0 + v d1 = r (Cramer's rule)
+    det = d0[0] * d1[1] - d0[1] * d1[0]
+    u = (r[0] * d1[1] - r[1] * d1[0]) / det if abs(det) > 1e-9 else -1.0
+    v = (d0[0] * r[1] - d0[1] * r[0]) / det if abs(det) > 1e-9 else -1.0
+    if u > 0 and v > 0:
+        centre = Bezier((float(p0[0]), float(p0[1])), tuple(p0 + FILTER_HANDLE * u * d0),
+                        tuple(p3 - FILTER_HANDLE * v * d1), (float(p3[0]), float(p3[1])))
+    else:
+        centre = Bezier.from_poses(tuple(p0), h0, tuple(p3), h1)
+    w = cfg.lane_width / 2
+    pts, left, right = centre.offset_points(centre.sample_params(cfg.sample_spacing), (0.0, w, -w))
+    pts[0], pts[-1] = centre.p0, centre.p3
+    rid = f"{jid}_f{a}"
+    lid = f"{rid}_0"
+    b.add_lane(lid, rid, centre, pts, left, right, speed=cfg.junction_speed_limit, junction_id=jid, turn="right",
+               ltype="curb" if sock.island else "solid_white", rtype="solid_white")
+    b.roads[rid] = Road(rid, "junction", (lid,), (), centre, 0.0, jid, jid, jid)
+    b.link(src, lid)
+    b.link(lid, dst)
+    line, pos, heading = _stop_line(b, [src], cfg)
+    if sock.filter == "signal":
+        sid = f"{jid}_filter{a}"
+        signals[sid] = Signal(sid, jid, line, pos, heading, (src,))
+    else:
+        sid = f"{jid}_yield{a}"
+        yields[sid] = YieldSign(sid, jid, line, pos, heading, (src,))
+    lane = Polygon(np.concatenate([left, right[::-1]])).buffer(0)
+    pieces = [Polygon(list(d["left_boundary"]) + list(reversed(d["right_boundary"]))).buffer(0)
+              for r in (b.lanes[approach]["road_id"], b.lanes[exit_lane]["road_id"]) for x in b.roads[r].lane_ids
+              for d in (b.lanes[x],)]
+    grown = unary_union([poly, lane]).convex_hull.difference(unary_union(pieces))
+    merged = unary_union([grown, poly])
+    if merged.geom_type != "Polygon":  # slivers the pieces cut off
+        merged = max(getattr(merged, "geoms", [merged]), key=lambda g: g.area)
+    return orient(Polygon(merged.exterior.coords), 1.0)
 
 
 def _midblock(b: _Builder, road: Road, req: MidblockRequest, from_start: bool, cfg: GenerationConfig,

@@ -8,6 +8,14 @@ paper's polygon centroid on request) to the mean of its arm's mouth points. Cont
 `stop` if a stop sign does, else `bare` (yield signs leave a junction bare); a crosswalk counts
 when it lies in or touches the junction area or is linked to the junction by the reader.
 
+Filter lanes (`extract_filters`): a junction lane turning right whose road lane before it also
+continues, as a road lane, to the junction's other entries within FILTER_LEAD_MAX_M (it leaves
+its approach before the core), or one behind a yield sign in a signalised junction; its control
+is `signal` when a light governs the lane before it, else `yield`, with an island when kerbs
+line its left. Leaving early, it is no mouth of the junction: the arms are measured without it
+and the socket whose direction its start lies in records it (`Socket.filter`); a signal that
+governs only such lanes controls no junction.
+
 Mid-block crosswalks (`extract_midblock`): a crosswalk that no reader linked to a junction,
 crosses road lanes and touches neither a junction area nor a junction lane is a crossing between
 junctions; `signal` when a light guards it (`model.midblock_crossing`), else `bare`.
@@ -16,19 +24,19 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass
-from typing import Iterable, Sequence
+from dataclasses import dataclass, replace
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 from shapely import STRtree
 from shapely.geometry import Polygon
 
-from .angles import positive_degrees
+from .angles import positive_degrees, turn_name, wrap_degrees
 from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
-                     ARM_PROBE_M, ARM_SAME_POINT_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
+                     ARM_PROBE_M, ARM_SAME_POINT_M, FILTER_LEAD_MAX_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, normalize_rotation
-from .model import HDMap, Lane, interior_lane, midblock_controls
+from .model import HDMap, Lane, incoming_lanes, interior_lane, midblock_controls
 
 
 @dataclass(frozen=True)
@@ -50,10 +58,13 @@ class ExtractedJunction:
     arms: tuple[Arm, ...]
 
     def to_dict(self) -> dict:
-        return {"map": self.map_name, "id": self.id, "n_roads": self.feature.n_roads,
-                "rotation": [round(a, 4) for a in self.feature.rotation], "control": self.feature.control,
-                "crosswalk": self.feature.crosswalk, "lanes_in": [s.lanes_in for s in self.feature.sockets],
-                "lanes_out": [s.lanes_out for s in self.feature.sockets]}
+        out = {"map": self.map_name, "id": self.id, "n_roads": self.feature.n_roads,
+               "rotation": [round(a, 4) for a in self.feature.rotation], "control": self.feature.control,
+               "crosswalk": self.feature.crosswalk, "lanes_in": [s.lanes_in for s in self.feature.sockets],
+               "lanes_out": [s.lanes_out for s in self.feature.sockets]}
+        if self.feature.has_filter:
+            out.update(filter=list(self.feature.filters), island=[s.island for s in self.feature.sockets])
+        return out
 
 
 @dataclass(frozen=True)
@@ -304,16 +315,16 @@ def _angles_and_gap(arms: Sequence[Arm]) -> tuple[list[float], float]:
     return raw, min(positive_degrees(raw[(i + 1) % len(raw)] - raw[i]) for i in range(len(raw)))
 
 
-def _junction_controls(m: HDMap) -> dict[str, set[str]]:
+def _junction_controls(m: HDMap, ignore: Iterable[str] = ()) -> dict[str, set[str]]:
     """Junction id -> control kinds: a signal or stop sign counts for the junction it names;
     one that names none, for the junctions its lanes lead into (the readers name a control's
     junction from the same two sources, so neither leaks into a neighbour); a signal guarding a
-    mid-block crosswalk (`midblock_controls`) controls no junction."""
+    mid-block crosswalk (`midblock_controls`) or in `ignore` (a filter lane's) controls no junction."""
     out: dict[str, set[str]] = {}
-    midblock = midblock_controls(m)
+    skip = set(midblock_controls(m)) | set(ignore)
     for kind, items in (("signal", m.signals), ("stop", m.stop_signs)):
         for s in items.values():
-            if kind == "signal" and s.id in midblock:
+            if kind == "signal" and s.id in skip:
                 continue
             if s.junction_id:
                 out.setdefault(s.junction_id, set()).add(kind)
@@ -347,7 +358,12 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
     xw_polys = [Polygon(c.polygon) for c in m.crosswalks.values() if len(c.polygon) >= 3]
     xw_tree = STRtree(xw_polys) if xw_polys else None
     xw_junctions = {c.junction_id for c in m.crosswalks.values() if c.junction_id}
-    controls = _junction_controls(m)
+    filters = extract_filters(m, map_name)
+    early = {f.id for f in filters if f.early}
+    by_filter_junction: dict[str, list[ExtractedFilter]] = {}
+    for f in filters:
+        by_filter_junction.setdefault(f.junction, []).append(f)
+    controls = _junction_controls(m, _filter_signals(m, filters))
 
     def skip(jid: str, poly: Polygon | None, control: str, n_arms: int, reason: str, warn: bool = True) -> None:
         if warn:
@@ -368,6 +384,9 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         if not lanes or poly is None or poly.is_empty or poly.area <= 0:
             skip(jid, poly, control, 0, "no lanes or no valid polygon")
             continue
+        mine = by_filter_junction.get(jid, [])
+        if any(f.id in early for f in mine):
+            lanes = [ln for ln in lanes if ln.id not in early]  # they leave before the core: no mouth
         ends = _arms(m, jid, lanes)
         if len(ends) < 3:
             skip(jid, poly, control, len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
@@ -387,14 +406,113 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         try:
             norm = normalize_rotation([a.angle_deg for a in arms], tie_tol_deg)
             arms = [arms[i] for i in norm.order]
-            feature = JunctionFeature(
-                tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms)),
-                control, crosswalk, MIN_LEG_SEPARATION_DEG)
+            sockets = tuple(Socket(a, arm.lanes_in, arm.lanes_out) for a, arm in zip(norm.angles, arms))
+            feature = JunctionFeature(sockets, control, crosswalk, MIN_LEG_SEPARATION_DEG)
+            if mine:
+                feature = _with_filters(feature, arms, c, mine, m)
         except FeatureError as exc:
             skip(jid, poly, control, len(arms), exc.message)
             continue
         out.append(ExtractedJunction(map_name, jid, feature, (float(c[0]), float(c[1])), tuple(arms)))
     return out
+
+
+@dataclass(frozen=True)
+class ExtractedFilter:
+    """One filter lane: the junction lane `id` of `junction`, the road lane before it
+    (`approach`), its `control` ("yield" or "signal"), `island` (kerbs on its left) and whether
+    it leaves its approach before the core's entries (`early`; else it is a yield-sign right
+    turn of a signalised junction)."""
+
+    map_name: str
+    id: str
+    junction: str
+    approach: str
+    control: str
+    island: bool
+    early: bool
+
+    def to_dict(self) -> dict:
+        return {"map": self.map_name, "id": self.id, "junction": self.junction, "approach": self.approach,
+                "control": self.control, "island": self.island, "early": self.early}
+
+
+def junctions_within(lanes: Mapping[str, Lane], starts: Iterable[str], forward: bool = True,
+                     limit: float = FILTER_LEAD_MAX_M) -> set[str]:
+    """The junctions whose lanes road lanes from `starts` on lead into (`forward`; else come out
+    of) within `limit` metres of road (the start lanes' lengths counted)."""
+    stack = [(x, 0.0) for x in starts]
+    seen: set[str] = set()
+    out: set[str] = set()
+    while stack:
+        lid, run = stack.pop()
+        ln = lanes.get(lid)
+        if ln is None or lid in seen or ln.junction_id is not None:
+            continue
+        seen.add(lid)
+        run += ln.length
+        for nxt in ln.successors if forward else ln.predecessors:
+            jid = lanes[nxt].junction_id if nxt in lanes else None
+            if jid is not None:
+                out.add(jid)
+            elif run < limit:
+                stack.append((nxt, run))
+    return out
+
+
+def extract_filters(m: HDMap, map_name: str = "map") -> list[ExtractedFilter]:
+    """The filter lanes of every junction (see the module docstring), in map order."""
+    governed: dict[str, set[str]] = {}  # road lane -> control kinds on it
+    for kind, items in (("signal", m.signals), ("yield", m.yield_signs)):
+        for s in items.values():
+            for lid in incoming_lanes(m.lanes, s.lane_ids):
+                governed.setdefault(lid, set()).add(kind)
+    out = []
+    for jid, lanes in m.lanes_by_junction.items():
+        if jid is None:
+            continue
+        entries = {p for ln in lanes for p in ln.predecessors if p in m.lanes and m.lanes[p].junction_id is None}
+        signalised = any("signal" in governed.get(p, ()) for p in entries)
+        for ln in lanes:
+            ins = [p for p in ln.predecessors if p in m.lanes and m.lanes[p].junction_id is None]
+            if len(ins) != 1 or len(ln.centerline) < 2 or \
+                    turn_name(wrap_degrees(math.degrees(ln.heading_at_end() - ln.heading_at_start()))) != "right":
+                continue
+            p = m.lanes[ins[0]]
+            early = jid in junctions_within(m.lanes, [x for x in p.successors
+                                                      if x in m.lanes and m.lanes[x].junction_id is None])
+            kinds = governed.get(p.id, set())
+            if not early and not ("yield" in kinds and signalised and "signal" not in kinds):
+                continue
+            out.append(ExtractedFilter(map_name, ln.id, jid, p.id, "signal" if "signal" in kinds else "yield",
+                                       ln.left_boundary_type == "curb", early))
+    return out
+
+
+def _filter_signals(m: HDMap, filters: Sequence[ExtractedFilter]) -> set[str]:
+    """The signals that govern only the lanes before filter lanes that leave early (their own lights)."""
+    before = {f.approach for f in filters if f.early}
+    if not before:
+        return set()
+    return {s.id for s in m.signals.values()
+            if (lanes := incoming_lanes(m.lanes, s.lane_ids)) and set(lanes) <= before}
+
+
+def _with_filters(feature: JunctionFeature, arms: Sequence[Arm], centre: np.ndarray,
+                  filters: Sequence[ExtractedFilter], m: HDMap) -> JunctionFeature:
+    """`feature` (sockets in `arms`' order) with each filter lane on the socket whose direction
+    from `centre` its start lies closest to; the feature without them when that makes no valid
+    feature (a filter lane must turn right into the next socket)."""
+    sockets = list(feature.sockets)
+    for f in filters:
+        x, y = np.asarray(m.lanes[f.id].start) - centre
+        at = math.degrees(math.atan2(y, x))
+        k = min(range(len(arms)), key=lambda i: abs(wrap_degrees(arms[i].angle_deg - at)))
+        sockets[k] = replace(sockets[k], filter=f.control, island=f.island)
+    try:
+        return JunctionFeature(tuple(sockets), feature.control, feature.crosswalk, feature.min_separation_deg)
+    except FeatureError:
+        return feature
 
 
 @dataclass(frozen=True)

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-from .angles import positive_degrees
+from .angles import positive_degrees, turn_name
 from .config import MAX_LEGS, MIN_LEG_SEPARATION_DEG
 from .errors import FeatureError, snippet
 
@@ -22,6 +22,10 @@ CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
 # mid-block crosswalk values of a map feature: "none" (roads between junctions without one), a bare
 # crossing, or one with a signal per direction
 MIDBLOCK: tuple[str, ...] = ("none", "bare", "signal")
+# filter lane (slip lane) values of a socket: "none", or a lane that leaves the approach before the
+# junction, turns right round its core into the next socket counter-clockwise and gives way at a
+# yield sign ("yield") or a light of its own ("signal")
+FILTERS: tuple[str, ...] = ("none", "yield", "signal")
 ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
 QUARTER = 90.0
 # Float noise of rotated, re-measured angles (~1e-7 deg) must not decide ties of symmetric junctions
@@ -32,11 +36,16 @@ COST_DIGITS = 3
 
 @dataclass(frozen=True)
 class Socket:
-    """One road socket: its angle and the lanes that enter (`lanes_in`) and leave (`lanes_out`)."""
+    """One road socket: its angle and the lanes that enter (`lanes_in`) and leave (`lanes_out`);
+    `filter`: a filter lane from this approach into the next socket counter-clockwise (the right
+    turn), "none" (default), "yield" or "signal"; `island`: a traffic island (kerbs) separates
+    it from the junction's core (default), else painted lines do."""
 
     angle: float
     lanes_in: int = 1
     lanes_out: int = 1
+    filter: str = "none"
+    island: bool = True
 
     @property
     def road_type(self) -> str:
@@ -50,6 +59,35 @@ def socket_lanes(road_type: str, lanes: int = 1) -> tuple[int, int]:
     if road_type not in ROAD_TYPES:
         raise FeatureError(f"unknown road type {road_type!r}, expected one of {ROAD_TYPES}")
     return (lanes if road_type != "out" else 0, lanes if road_type != "in" else 0)
+
+
+def filter_exit(feature: "JunctionFeature", i: int) -> int | None:
+    """The socket a filter lane from socket `i` leads into: the next one counter-clockwise, when
+    driving into it from socket `i` is a right turn (`angles.turn_name`); None otherwise."""
+    n = feature.n_roads
+    c = (i + 1) % n
+    gap = (feature.sockets[c].angle - feature.sockets[i].angle) % 360.0
+    return c if turn_name(gap - 180.0) == "right" else None
+
+
+def with_filter(feature: "JunctionFeature", control: str, island: bool = True) -> "JunctionFeature":
+    """`feature` with a filter lane (`control` "yield" or "signal") on the approach whose right
+    turn into the next socket is closest to a quarter turn (the first such socket on ties); the
+    feature as it is for "none". A FeatureError when no approach has such a right turn."""
+    if control == "none":
+        return feature
+    n = feature.n_roads
+    legs = [i for i in range(n) if feature.sockets[i].lanes_in and feature.sockets[(i + 1) % n].lanes_out
+            and filter_exit(feature, i) is not None
+            and any(o.lanes_out for k, o in enumerate(feature.sockets) if k not in (i, (i + 1) % n))]
+    if not legs:
+        raise FeatureError(f"no approach of the junction at {list(feature.rotation)} turns right into the next "
+                           "socket: it has no place for a filter lane")
+    gap = [abs((feature.sockets[(i + 1) % n].angle - feature.sockets[i].angle) % 360.0 - QUARTER) for i in legs]
+    leg = legs[gap.index(min(gap))]
+    sockets = tuple(replace(s, filter=control, island=island) if i == leg else s
+                    for i, s in enumerate(feature.sockets))
+    return JunctionFeature(sockets, feature.control, feature.crosswalk, feature.min_separation_deg)
 
 
 @dataclass(frozen=True)
@@ -91,6 +129,18 @@ class JunctionFeature:
                 raise FeatureError(f"socket {i} must have at least one lane, got in={s.lanes_in} out={s.lanes_out}")
         if not any(s.lanes_in for s in self.sockets) or not any(s.lanes_out for s in self.sockets):
             raise FeatureError("a junction needs at least one incoming and one outgoing road")
+        for i, s in enumerate(self.sockets):
+            if s.filter not in FILTERS:
+                raise FeatureError(f"socket {i}: unknown filter lane {s.filter!r}, expected one of {FILTERS}")
+            if not isinstance(s.island, bool):
+                raise FeatureError(f"socket {i}: island must be true or false, got {s.island!r}")
+            if s.filter != "none" and (not s.lanes_in or not self.sockets[(i + 1) % n].lanes_out
+                                       or filter_exit(self, i) is None
+                                       or not any(o.lanes_out for k, o in enumerate(self.sockets)
+                                                  if k not in (i, (i + 1) % n))):
+                raise FeatureError(f"socket {i}: a filter lane needs incoming lanes there, a right turn into "
+                                   "the next socket counter-clockwise with outgoing lanes, and another exit for "
+                                   "the approach's lanes through the core")
         for i, s in enumerate(self.sockets):  # every approach has a way through (a U-turn is not one)
             others = [o for k, o in enumerate(self.sockets) if k != i]
             if s.lanes_in and not any(o.lanes_out for o in others):
@@ -131,15 +181,25 @@ class JunctionFeature:
     def road_types(self) -> tuple[str, ...]:
         return tuple(s.road_type for s in self.sockets)
 
+    @property
+    def filters(self) -> tuple[str, ...]:
+        """The filter lane value of every socket ("none" where it has none)."""
+        return tuple(s.filter for s in self.sockets)
+
+    @property
+    def has_filter(self) -> bool:
+        return any(s.filter != "none" for s in self.sockets)
+
     def normalized(self) -> "JunctionFeature":
         """The same junction in the normalized frame (sockets re-ordered and rotated)."""
         norm = normalize_rotation(self.rotation)
-        sockets = tuple(Socket(a, self.sockets[i].lanes_in, self.sockets[i].lanes_out)
-                        for a, i in zip(norm.angles, norm.order))
+        sockets = tuple(replace(self.sockets[i], angle=a) for a, i in zip(norm.angles, norm.order))
         return JunctionFeature(sockets, self.control, self.crosswalk, self.min_separation_deg)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        """The JSON form; `filter` and `island` (per socket) only when a socket has a filter lane,
+        so that a feature without one writes exactly what it always did."""
+        out: dict[str, Any] = {
             "n_roads": self.n_roads,
             "rotation": list(self.rotation),
             "control": self.control,
@@ -147,6 +207,10 @@ class JunctionFeature:
             "lanes_in": [s.lanes_in for s in self.sockets],
             "lanes_out": [s.lanes_out for s in self.sockets],
         }
+        if self.has_filter:
+            out["filter"] = list(self.filters)
+            out["island"] = [s.island for s in self.sockets]
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "junction feature") -> "JunctionFeature":
@@ -159,7 +223,12 @@ class JunctionFeature:
             lanes_out = list(data.get("lanes_out", [1] * n))
             if len(lanes_in) != n or len(lanes_out) != n:
                 raise FeatureError("lanes_in and lanes_out need one entry per socket")
-            sockets = tuple(Socket(a, int(i), int(o)) for a, i, o in zip(angles, lanes_in, lanes_out))
+            filters = list(data.get("filter", ["none"] * n))
+            islands = list(data.get("island", [True] * n))
+            if len(filters) != n or len(islands) != n:
+                raise FeatureError("filter and island need one entry per socket")
+            sockets = tuple(Socket(a, int(i), int(o), str(f), isl) for a, i, o, f, isl
+                            in zip(angles, lanes_in, lanes_out, filters, islands))
             return cls(sockets, str(data.get("control", "bare")), bool(data.get("crosswalk", False)))
         except FeatureError as exc:
             raise FeatureError(exc.message, where) from None
@@ -273,13 +342,15 @@ Range = tuple[float, float]
 class FeatureSpace:
     """The paper's map feature: discrete value sets and per-n socket angle ranges, plus the
     mid-block crosswalk values (`midblock`, a subset of MIDBLOCK) sampled on the roads between
-    junctions; the default ("none",) is the paper's map feature, with none."""
+    junctions and the filter lane values (`filter`, a subset of FILTERS) sampled per junction
+    combination; the defaults ("none",) are the paper's map feature, with neither."""
 
     road_counts: tuple[int, ...]
     controls: tuple[str, ...]
     crosswalks: tuple[bool, ...]
     rotation_ranges: Mapping[int, tuple[Range, ...]]
     midblock: tuple[str, ...] = ("none",)
+    filter: tuple[str, ...] = ("none",)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "road_counts", tuple(sorted(set(int(n) for n in self.road_counts))))
@@ -290,13 +361,17 @@ class FeatureSpace:
             raise FeatureError(f"unknown mid-block crosswalk value(s) {snippet(unknown)}, expected {list(MIDBLOCK)}",
                                "midblock")
         object.__setattr__(self, "midblock", tuple(v for v in MIDBLOCK if v in set(self.midblock)))
+        unknown = [v for v in self.filter if v not in FILTERS]
+        if unknown:
+            raise FeatureError(f"unknown filter lane value(s) {snippet(unknown)}, expected {list(FILTERS)}", "filter")
+        object.__setattr__(self, "filter", tuple(v for v in FILTERS if v in set(self.filter)))
         ranges = {int(n): tuple((float(lo), float(hi)) for lo, hi in r) for n, r in self.rotation_ranges.items()}
         object.__setattr__(self, "rotation_ranges", dict(sorted(ranges.items())))
         self.validate()
 
     def validate(self) -> None:
-        if not self.road_counts or not self.controls or not self.crosswalks or not self.midblock:
-            raise FeatureError("road_counts, controls, crosswalks and midblock must each be non-empty")
+        if not self.road_counts or not self.controls or not self.crosswalks or not self.midblock or not self.filter:
+            raise FeatureError("road_counts, controls, crosswalks, midblock and filter must each be non-empty")
         if min(self.road_counts) < 3 or max(self.road_counts) > MAX_LEGS:
             raise FeatureError(f"road counts must be 3 to {MAX_LEGS}, got {list(self.road_counts)}")
         for n in self.road_counts:
@@ -316,6 +391,11 @@ class FeatureSpace:
                     )
             if ranges[-1][0] - ranges[0][1] >= 360.0:
                 raise FeatureError("socket ranges span 360 degrees or more", f"rotation_ranges.{n}")
+
+    @property
+    def filter_controls(self) -> tuple[str, ...]:
+        """The filter lane controls sampled (the values other than "none")."""
+        return tuple(v for v in self.filter if v != "none")
 
     @property
     def midblock_controls(self) -> tuple[str, ...]:
@@ -342,6 +422,7 @@ class FeatureSpace:
             crosswalks=tuple({f.crosswalk for f in feats}),
             rotation_ranges={n: tuple((lo, hi) for lo, hi in r) for n, r in ranges.items()},
             midblock=("none", *(c.control for c in midblock)),
+            filter=tuple({v for f in feats for v in (set(f.filters) - {"none"} or {"none"})}),
         )
 
     def merge(self, other: "FeatureSpace") -> "FeatureSpace":
@@ -356,6 +437,7 @@ class FeatureSpace:
             self.crosswalks + other.crosswalks,
             ranges,
             self.midblock + other.midblock,
+            self.filter + other.filter,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -369,6 +451,8 @@ class FeatureSpace:
         }
         if self.midblock != ("none",):
             out["midblock"] = list(self.midblock)
+        if self.filter != ("none",):
+            out["filter"] = list(self.filter)
         return out
 
     @classmethod
@@ -379,7 +463,8 @@ class FeatureSpace:
         if missing:
             raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
         for key, kind, name in (("road_counts", int, "integers"), ("controls", str, "strings"),
-                                ("crosswalks", bool, "true/false"), ("midblock", str, "strings")):
+                                ("crosswalks", bool, "true/false"), ("midblock", str, "strings"),
+                                ("filter", str, "strings")):
             if key not in data:
                 continue
             value = data[key]
@@ -393,6 +478,10 @@ class FeatureSpace:
         unknown = [c for c in midblock if c not in MIDBLOCK]
         if unknown:
             raise FeatureError(f"unknown value(s) {snippet(unknown)}, expected {list(MIDBLOCK)}", f"{where}: midblock")
+        filters = data.get("filter", ["none"])
+        unknown = [c for c in filters if c not in FILTERS]
+        if unknown:
+            raise FeatureError(f"unknown value(s) {snippet(unknown)}, expected {list(FILTERS)}", f"{where}: filter")
         rr = data["rotation_ranges"]
         if not isinstance(rr, Mapping):
             raise FeatureError(f"must be an object n -> ranges, got {snippet(rr)}", f"{where}: rotation_ranges")
@@ -406,7 +495,7 @@ class FeatureSpace:
             ranges[int(n)] = tuple((float(r[0]), float(r[1])) for r in rs)
         try:
             return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges,
-                       tuple(midblock))
+                       tuple(midblock), tuple(filters))
         except FeatureError as exc:
             raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
 

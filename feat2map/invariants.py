@@ -302,7 +302,7 @@ def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg:
     position, so the same junction, turned by one of its symmetries (a quarter turn, a third of
     a turn, ...), may list its sockets from another start. The features match when they have
     the same socket directions and some cyclic re-listing of `got`, turned by one common angle,
-    has `want`'s lanes socket by socket."""
+    has `want`'s lanes and filter lanes socket by socket."""
     if (got.n_roads, got.control, got.crosswalk) != (want.n_roads, want.control, want.crosswalk):
         return [f"measured n/control/crosswalk {(got.n_roads, got.control, got.crosswalk)}"
                 f" != {(want.n_roads, want.control, want.crosswalk)}"]
@@ -310,13 +310,17 @@ def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg:
     off = max(min(_circ(w, g) for g in got.rotation) for w in want.rotation)
     out = [f"socket angles off by {off:.4f} deg"] if off > angle_tol_deg else []
     want_lanes = [(w.lanes_in, w.lanes_out) for w in want.sockets]
+    want_filters = [(w.filter, w.island) if w.filter != "none" else ("none",) for w in want.sockets]
+    lanes_match = False
     for k in range(n):
         sock = [got.sockets[(i + k) % n] for i in range(n)]
         turn = sock[0].angle - want.sockets[0].angle
         if max(_circ(g.angle - turn, w.angle) for g, w in zip(sock, want.sockets)) <= max(angle_tol_deg, off) \
                 and [(g.lanes_in, g.lanes_out) for g in sock] == want_lanes:
-            return out
-    return out + ["lanes per socket differ"]
+            lanes_match = True
+            if [(g.filter, g.island) if g.filter != "none" else ("none",) for g in sock] == want_filters:
+                return out
+    return out + ["filter lanes per socket differ" if lanes_match else "lanes per socket differ"]
 
 
 def check_map(m: HDMap) -> list[str]:

@@ -17,6 +17,7 @@ from .errors import Feat2MapError  # noqa: E402
 from .model import HDMap  # noqa: E402
 
 CONTROL_COLOURS = {"signal": "#2e7d32", "stop": "#c62828", "bare": "#1565c0"}
+YIELD_COLOUR = "#f9a825"  # yield signs (filter lanes)
 NO_CONTROL_COLOUR = "#9e9e9e"  # junctions of unknown control
 JUNCTION_KINDS = (("signal", "traffic lights"), ("stop", "stop signs"), ("bare", "no control"),
                   ("", "control unknown"))
@@ -98,6 +99,9 @@ def draw_map(m: HDMap, ax, *, labels: bool = True, controls: dict[str, str] | No
     for stop in m.stop_signs.values():
         ax.plot(*zip(*stop.stop_line), color=CONTROL_COLOURS["stop"], lw=1.2, zorder=4)
         ax.plot(*stop.position, marker="8", ms=4.0, color=CONTROL_COLOURS["stop"], mec="k", mew=0.3, zorder=5)
+    for y in m.yield_signs.values():  # a filter lane's give-way line: dashed, a triangle on its pole
+        ax.plot(*zip(*y.stop_line), color=YIELD_COLOUR, lw=1.2, ls=(0, (2, 1)), zorder=4)
+        ax.plot(*y.position, marker="v", ms=4.5, color=YIELD_COLOUR, mec="k", mew=0.3, zorder=5)
     if labels:
         for jid, j in m.junctions.items():
             if len(j.polygon) >= 3:
@@ -178,6 +182,9 @@ def legend_handles(m: HDMap, *, labels: bool = True, controls: dict[str, str] | 
     if m.stop_signs:
         out.append(Line2D([], [], color=CONTROL_COLOURS["stop"], marker="8", ms=5, mec="k", mew=0.3, lw=1.2,
                           label="stop sign and its stop line"))
+    if m.yield_signs:
+        out.append(Line2D([], [], color=YIELD_COLOUR, marker="v", ms=5, mec="k", mew=0.3, lw=1.2, ls=(0, (2, 1)),
+                          label="yield sign and its give-way line"))
     if m.crosswalks:
         out.append(Patch(facecolor="none", edgecolor="#212121", hatch="////", label="crosswalk"))
     return out

@@ -7,7 +7,7 @@ import numpy as np
 
 from .config import MAX_ORDER_RETRIES, MIDBLOCK_POSITION_RANGE, GenerationConfig, limits
 from .errors import FeatureError
-from .features import FeatureSpace, JunctionFeature, MidblockFeature, normalize_rotation
+from .features import FeatureSpace, JunctionFeature, MidblockFeature, normalize_rotation, with_filter
 
 
 def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Generator,
@@ -36,18 +36,21 @@ def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Gene
 
 def sample_features(space: FeatureSpace, rng: np.random.Generator,
                     config: GenerationConfig = GenerationConfig()) -> list[JunctionFeature]:
-    """One feature per (n, control, crosswalk) combination, `samples_per_combination` times."""
-    combos = len(space.road_counts) * len(space.controls) * len(space.crosswalks)
+    """One feature per (n, control, crosswalk, filter) combination, `samples_per_combination`
+    times; a filter lane value other than "none" puts one filter lane with that control on the
+    junction (`features.with_filter`: the approach whose right turn is nearest a quarter turn)."""
+    combos = len(space.road_counts) * len(space.controls) * len(space.crosswalks) * len(space.filter)
     limits().check("max_junctions", combos * int(config.samples_per_combination),
                    f"the junction count ({combos} feature combinations x samples_per_combination)")
     out: list[JunctionFeature] = []
-    for n, control, crosswalk in itertools.product(space.road_counts, space.controls, space.crosswalks):
+    for n, control, crosswalk, filt in itertools.product(space.road_counts, space.controls, space.crosswalks,
+                                                         space.filter):
         for _ in range(int(config.samples_per_combination)):
             drawn = sample_rotation(space.rotation_ranges[n], rng, config.min_socket_separation_deg)
             # a drawn angle set is a junction shape; its feature is that shape normalized
             angles = normalize_rotation(drawn).angles
-            out.append(JunctionFeature.make(angles, control, crosswalk,
-                                            min_separation_deg=config.min_socket_separation_deg))
+            out.append(with_filter(JunctionFeature.make(angles, control, crosswalk,
+                                                        min_separation_deg=config.min_socket_separation_deg), filt))
     return out
 
 

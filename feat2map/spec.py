@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import resources
@@ -117,7 +118,12 @@ def _socket(raw: Any, where: str) -> Socket:
             raise SpecError("a socket needs at least one lane (lanes_in + lanes_out > 0)", where)
     else:
         lanes_in, lanes_out = socket_lanes(raw.get("type", "in-out"), int(raw.get("lanes", 1)))
-    return Socket(float(raw["angle"]), lanes_in, lanes_out)
+    if "filter" not in raw:
+        return Socket(float(raw["angle"]), lanes_in, lanes_out)
+    f = raw["filter"]
+    if not lanes_in:
+        raise SpecError("a filter lane leaves an approach: this socket has no incoming lanes", f"{where}.filter")
+    return Socket(float(raw["angle"]), lanes_in, lanes_out, str(f.get("control", "yield")), bool(f.get("island", True)))
 
 
 def _midblock(raw: Any, where: str) -> MidblockFeature | None:
@@ -154,10 +160,13 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float, path: Sequence
     first = positive_degrees(socks[0][1].angle)
     first = first - 360.0 if first >= 180.0 else first
     angles = [first + positive_degrees(s.angle - socks[0][1].angle) for _, s in socks]
-    sockets = tuple(Socket(a, s.lanes_in, s.lanes_out) for a, (_, s) in zip(angles, socks))
+    sockets = tuple(replace(s, angle=a) for a, (_, s) in zip(angles, socks))
     try:
         feature = JunctionFeature(sockets, raw.get("control", "bare"), bool(raw.get("crosswalk", False)), min_sep)
     except FeatureError as exc:
+        hit = re.match(r"socket (\d+): (.*filter lane.*)", exc.message)
+        if hit:  # the socket in the spec's own order
+            raise SpecError(hit.group(2), f"{where}.sockets[{socks[int(hit.group(1))][0]}].filter") from None
         raise SpecError(exc.message, where) from None
     cell = tuple(int(c) for c in raw["cell"]) if "cell" in raw else None
     return JunctionSpec(feature, cell, raw.get("name"), crossings)  # type: ignore[arg-type]

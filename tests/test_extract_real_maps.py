@@ -171,4 +171,4 @@ def test_cli_extract_table_for_an_apollo_text_map(capsys):
     out = capsys.readouterr().out
     table = out.split(f"{path}: 2 junctions\n")[1].split("\n\n")[0].splitlines()[1:]  # under the column names
     assert len(table) == 2 and {r.split()[2] for r in table} == {"signal", "stop"}
-    assert "2 junctions (0 skipped), 0 mid-block crosswalks (0 signalised); map feature:" in out
+    assert "2 junctions (0 skipped), 0 mid-block crosswalks (0 signalised), 0 filter lanes (0 signalised); map feature:" in out

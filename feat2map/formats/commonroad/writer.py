@@ -6,7 +6,7 @@ lanes as `opposite`), one crosswalk lanelet per crosswalk for pedestrians (mid-b
 too). Controls: a stop line on every lane a signal or stop sign governs (a CommonRoad light
 governs the end of its lanelet, so the lights of a mid-block crossing, which stand mid-lane
 before the junction's own control, are left out); stop signs as traffic signs (Zamunda/German
-206, the catalogue CommonRoad's schema holds, in a ZAM scenario: CommonRoad's country code for
+206, yield signs 205, the catalogue CommonRoad's schema holds, in a ZAM scenario: CommonRoad's country code for
 synthetic maps); traffic lights with the fixed-time cycle of `feat2map.phases` (the env's
 default plan at offset 0: paired phases, green/amber/all-red from config). Intersections: per
 junction, one incoming per entry road, its junction lanelets split into right, straight and
@@ -195,6 +195,10 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
     for sid, governed in signals.items():
         for lid in governed:
             controls.setdefault(lid, (set(), set()))[1].add(ids("light", sid))
+    yields = {s.id: [x for x in incoming_lanes(m.lanes, s.lane_ids) if x in lanes] for s in m.yield_signs.values()}
+    for sid, governed in yields.items():  # a yield sign's line: where its lanes end (a filter lane's start)
+        for lid in governed:
+            controls.setdefault(lid, (set(), set()))[0].add(ids("sign", sid))
 
     ends = lane_ends(m, lanes)
     adj = mutual_adjacency(lanes)
@@ -234,6 +238,12 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
                                {ids("lane", x) for x in signs[s.id]}, np.asarray(s.position[:2], dtype=float),
                                virtual=False)
             net.add_traffic_sign(sign, {ids("lane", x) for x in signs[s.id]})
+    for y in m.yield_signs.values():  # a filter lane's (or any) yield sign: Zamunda 205 on the lanes it governs
+        given_way = {ids("lane", x) for x in yields[y.id]}
+        if given_way:
+            sign = TrafficSign(ids("sign", y.id), [TrafficSignElement(TrafficSignIDZamunda.YIELD, [])], given_way,
+                               np.asarray(y.position[:2], dtype=float), virtual=False)
+            net.add_traffic_sign(sign, given_way)
     steps = round(1.0 / COMMONROAD_DT_S)
     for phases in junction_phases(m).values():
         for k, phase in enumerate(phases):

@@ -40,6 +40,7 @@ from ..lane_ends import lane_ends
 PROJECTOR_INFO = "map_projector_info.yaml"  # Autoware reads it from the map folder
 TAG = "feat2map:"  # our own tags: lane, road, junction, from/to (a junction lane's entry/exit roads), crosswalk
 STOP_SIGN_SUBTYPE = "usR1-1"  # MUTCD stop sign (Lanelet2: ISO country code + sign number)
+YIELD_SIGN_SUBTYPE = "usR1-2"  # MUTCD yield sign
 TURN_DIRECTION = {"none": "straight", "left": "left", "right": "right", "uturn": "left"}
 ROUND_TRIP_M = 1e-3  # lat/lon round trip error allowed for near lane ends; unlinked ends this close are one node
 END_CLEAR_M = 2 * LANELET2_MERGE_M  # a bound's inner points keep this far from lane ends and each other: clear of
@@ -181,6 +182,7 @@ class _Writer:
         for s in self.m.signals.values():
             self._traffic_light(s)
         self._stop_junctions()
+        self._yield_signs()
         self._bare_junctions()
 
     def _lane(self, ln: Lane) -> None:
@@ -302,6 +304,34 @@ class _Writer:
                                             {"type": "regulatory_element", "subtype": "traffic_sign",
                                              TAG + "stop_sign": s.id})
                     self._refer(signed[s.id], reg)
+
+    def _yield_signs(self) -> None:
+        """A yield sign (a filter lane's): a `right_of_way` element whose yielding lanelets are
+        the junction lanes after its lanes and whose right-of-way lanelets are the other lanes
+        merging into the same lanes (the exit road's, that the junction's core feeds), its stop
+        line as ref_line; a `traffic_sign` element with its line where nothing merges."""
+        lanes = self.m.lanes
+        for s in self.m.yield_signs.values():
+            governed = self._governed(s.lane_ids)
+            after = [x for lid in governed for x in lanes[lid].successors if x in self.lanelet]
+            prio = list(dict.fromkeys(p for x in after for nxt in lanes[x].successors if nxt in lanes
+                                      for p in lanes[nxt].predecessors if p != x and p in self.lanelet))
+            if not governed or len(s.stop_line) < 2:
+                continue
+            line = self.osm.way(s.stop_line, {"type": "stop_line"})
+            if after and prio:
+                members = [("relation", self.lanelet[lid], "right_of_way") for lid in prio]
+                members += [("relation", self.lanelet[lid], "yield") for lid in after]
+                members += [("way", line, "ref_line")]
+                reg = self.osm.relation(members, {"type": "regulatory_element", "subtype": "right_of_way",
+                                                  TAG + "yield_sign": s.id})
+                self._refer(prio + after, reg)
+                continue
+            head = self._head(s.position, s.heading, STOP_SIGN_SIZE_M, STOP_SIGN_HEIGHT_M,
+                              {"type": "traffic_sign", "subtype": YIELD_SIGN_SUBTYPE, "height": f"{STOP_SIGN_SIZE_M:g}"})
+            reg = self.osm.relation([("way", head, "refers"), ("way", line, "ref_line")],
+                                    {"type": "regulatory_element", "subtype": "traffic_sign", TAG + "yield_sign": s.id})
+            self._refer(governed, reg)
 
     def _bare_junctions(self) -> None:
         controlled = {s.junction_id for s in self.m.signals.values()} | {s.junction_id for s in self.m.stop_signs.values()}

@@ -855,6 +855,7 @@ class _Builder:
             kind = "junction" if jid else ("connection" if len(road.links) == 2 else "stub")
             roads[rid] = Road(rid, kind, tuple(right), tuple(left), None, 0.0, jid,
                               ends.get("predecessor", jid), ends.get("successor", jid))
+        _filter_lanes_back(lanes, roads)
         junctions: dict[str, Junction] = {}
         members: dict[str, list[str]] = {}
         for odr, merged in groups.items():
@@ -1287,3 +1288,32 @@ def _replace(obj, **kw):
 
 
 __all__ = ["read_opendrive", "SIGNAL_CODES", "signal_kind"]
+
+
+def _filter_lanes_back(lanes: dict[str, Lane], roads: dict[str, Road]) -> None:
+    """Filter lanes written as roads outside junctions (feat2map's export: between two direct
+    junctions) back into their junction, in place: a road lane turning right whose one lane
+    before it also goes on to junction J's entries, and whose one lane after it also comes out
+    of J, within FILTER_LEAD_MAX_M (`extract.junctions_within`), becomes a lane of J."""
+    from ...angles import turn_name, wrap_degrees
+    from ...extract import junctions_within
+
+    for lid, ln in list(lanes.items()):
+        if ln.junction_id is not None or len(ln.predecessors) != 1 or len(ln.successors) != 1 \
+                or len(ln.centerline) < 2 or turn_name(wrap_degrees(math.degrees(
+                    ln.heading_at_end() - ln.heading_at_start()))) != "right":
+            continue
+        before, after = lanes.get(ln.predecessors[0]), lanes.get(ln.successors[0])
+        if before is None or after is None or before.junction_id is not None or after.junction_id is not None:
+            continue
+        into = junctions_within(lanes, [x for x in before.successors if x != lid])
+        out_of = junctions_within(lanes, [x for x in after.predecessors if x != lid], forward=False)
+        common = sorted(into & out_of)
+        if len(common) != 1:
+            continue
+        lanes[lid] = _replace(ln, junction_id=common[0], turn="right")
+        road = roads.get(ln.road_id)
+        if road is not None and road.lane_ids == (lid,):
+            roads[road.id] = _replace(road, kind="junction", junction_id=common[0], start_junction=common[0],
+                                      end_junction=common[0])
+

@@ -43,6 +43,7 @@ STRAIGHT_RUN_TOL_RAD = 1e-6  # polyline segments turning less than this form one
 WIDTH_PROFILE_TOL_M = 0.01  # a lane's written width follows its boundaries within this (linear pieces)
 TRAFFIC_LIGHT_TYPE = "1000001"  # OpenDRIVE country code "OpenDRIVE": 3-light traffic signal
 STOP_SIGN_TYPE = "206"
+YIELD_SIGN_TYPE = "205"
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
 _ROAD_MARKS = {"solid_white": ("solid", "white"), "dotted_white": ("broken", "white"),
                "solid_yellow": ("solid", "yellow"), "dotted_yellow": ("broken", "yellow"),
@@ -312,7 +313,7 @@ class _Writer:
             raise MapFormatError(f"unsupported OpenDRIVE version {version!r}: expected one of {', '.join(VERSIONS)}",
                                  "version")
         self.E = etree
-        self.m = m = closed_seams(m)  # linked lanes' borders meet at their contact points
+        self.m = m = closed_seams(_filter_lanes_as_roads(m))  # linked lanes' borders meet at their contact points
         self.minor = int(version.split(".")[1])
         self.roads = export_roads(m)
         self.road_ids = {rid: str(i + 1) for i, rid in enumerate(self.roads)}
@@ -630,7 +631,7 @@ class _Writer:
         self.controllers: dict[str, list[tuple[str, str]]] = {}
         next_id = 1
         midblock = midblock_controls(self.m)
-        for kind, items in (("signal", self.m.signals), ("stop", self.m.stop_signs)):
+        for kind, items in (("signal", self.m.signals), ("stop", self.m.stop_signs), ("yield", self.m.yield_signs)):
             for s in items.values():
                 place = self._signal_place(s.lane_ids, s.position, kind == "signal" and s.id in midblock)
                 if place is None:
@@ -641,7 +642,8 @@ class _Writer:
                 el = self.E.Element("signal")
                 attrs = dict(s=sv, t=tv, id=sid, name=s.id, dynamic="yes" if kind == "signal" else "no",
                              orientation=orient, zOffset=0.0 if kind == "signal" else 2.0, country="OpenDRIVE",
-                             type=TRAFFIC_LIGHT_TYPE if kind == "signal" else STOP_SIGN_TYPE, subtype="-1",
+                             type={"signal": TRAFFIC_LIGHT_TYPE, "stop": STOP_SIGN_TYPE, "yield": YIELD_SIGN_TYPE}[kind],
+                             subtype="-1",
                              hOffset=0.0, pitch=0.0, roll=0.0, height=1.0 if kind == "signal" else 0.75,
                              width=0.5 if kind == "signal" else 0.75)
                 for k, v in attrs.items():
@@ -722,6 +724,27 @@ def opendrive_ids(m: HDMap) -> OpenDriveIds:
     return OpenDriveIds({lid: (w.road_ids[rid], odr) for lid, (rid, odr) in w.odr_lane.items()},
                         {w.road_ids[rid]: ref.length for rid, ref in w.refs.items()},
                         {el.get("name"): el.get("id") for els in placed.values() for el in els})
+
+
+def _filter_lanes_as_roads(m: HDMap) -> HDMap:
+    """`m` with its filter lanes that leave their approach before the core (`extract_filters`)
+    as roads outside junctions: an OpenDRIVE road end links to one element, and where a filter
+    lane leaves (joins) a road the piece on to the core (from it) meets that road's end too, so
+    the three meet in a direct junction (the reader gives such lanes back to their junction)."""
+    from dataclasses import replace
+
+    from ...extract import extract_filters
+
+    early = [f.id for f in extract_filters(m) if f.early]
+    if not early:
+        return m
+    lanes, roads = dict(m.lanes), dict(m.roads)
+    for lid in early:
+        ln = lanes[lid]
+        lanes[lid] = replace(ln, junction_id=None)
+        road = roads[ln.road_id]
+        roads[road.id] = replace(road, junction_id=None, start_junction=None, end_junction=None)
+    return replace(m, lanes=lanes, roads=roads)
 
 
 def export_roads(m: HDMap) -> dict[str, Road]:

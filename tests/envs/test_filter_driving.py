@@ -1,0 +1,72 @@
+"""Driving filter lanes (a generated map, examples/filter_lanes.yaml): the network knows which
+filter lanes give way at a yield sign, the rules hold a car at such an entry while traffic merges
+or conflicts, and the route-coverage suite takes every filter lane and completes at traffic 6
+with the baseline planner."""
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from feat2map.envs.network import MapNetwork
+from feat2map.formats import native
+from feat2map.scenarios.scenario import Scenario, make_env
+from feat2map.spec import build_spec, load_spec
+
+REPO = Path(__file__).resolve().parents[2]
+FILTER_MOVES = {("J0", "R2", "R3"), ("J0", "R3", "R0"), ("J1", "R4", "R5")}  # (junction, entry, exit) of each
+
+
+@pytest.fixture(scope="module")
+def map_path(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("filter") / "filter_lanes.json"
+    native.save(build_spec(load_spec(REPO / "examples" / "filter_lanes.yaml"), seed=0), path)
+    return path
+
+
+def test_the_network_knows_the_yield_filter_lanes(map_path):
+    net = MapNetwork.from_map(native.load(map_path))
+    assert net.yield_entries == {"J0_f3_0", "J1_f1_0"}  # J0_f2_0 has a light of its own
+    assert net.stop_lines["R2_1"].kind == "signal" and net.stop_lines["R2_1"].control_id == "J0_filter2"
+    assert "R3_1" not in net.stop_lines  # a yield sign draws no stop line: the car gives way, it need not stop
+
+
+def test_a_yield_filter_lane_gives_way_to_merging_traffic(map_path, monkeypatch):
+    env = make_env(Scenario(name="filter", map=str(map_path), route=(("J1", "R4", "R5"),), seed=0))
+    try:
+        env.reset(seed=0)
+        rules, ego = env.unwrapped.control, env.unwrapped.vehicle
+        assert not rules.yield_held(ego, "J1_f1_0")
+        assert rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, commit=False)
+        # a car 5 m before the exit road's lane that the core feeds, at 8 m/s
+        car = SimpleNamespace(speed=8.0)
+        monkeypatch.setattr(type(rules), "traffic_towards",
+                            lambda self, lane, exclude=None: [(5.0, car)] if lane == "R5a_0" else [])
+        assert rules.yield_held(ego, "J1_f1_0")
+        assert not rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, commit=False)
+        assert rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, commit=False, ignore=frozenset({"conflict"}))
+    finally:
+        env.close()
+
+
+def test_info_names_a_yield_filter_lane_as_the_control_ahead(map_path):
+    for route, want in (((("J1", "R4", "R5"),), "yield"), ((("J0", "R2", "R3"),), "signal")):
+        env = make_env(Scenario(name="filter", map=str(map_path), route=route, seed=0))
+        try:
+            _, info = env.reset(seed=0)
+            assert info["control_ahead"] == want
+        finally:
+            env.close()
+
+
+def test_the_suite_takes_every_filter_lane_and_completes_at_traffic_6(map_path):
+    from feat2map.scenarios.rollout import run_scenario
+    from feat2map.scenarios.routes import build_suite
+
+    suite = build_suite(map_path, traffic_vehicles=6, seed=0)
+    taking = [sc for sc in suite.scenarios if FILTER_MOVES & {tuple(mv) for mv in sc.route}]
+    assert FILTER_MOVES <= {tuple(mv) for sc in taking for mv in sc.route}
+    for sc in taking:
+        out = run_scenario(sc, record_failure_gif=False)
+        assert out.outcome == "completed", (sc.name, out.message)
