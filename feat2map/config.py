@@ -117,6 +117,8 @@ UTM_EASTING = (100_000.0, 900_000.0)  # absolute UTM metres lie in these ranges;
 UTM_NORTHING = (0.0, 10_000_000.0)  # is in local metres and is placed at the export's origin like OpenDRIVE
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 IMPLICIT_LANE_LINK_M = 0.5  # a road link with no lane links: same-id lanes whose ends lie this close are linked
+ROAD_CONTACT_M = 0.5  # a road link whose contactPoint names an end further than this, while the other road's
+# other end lies within it, is read at that other end (CommonRoad's OpenDRIVE export names the far end)
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
 LINK_REVERSAL_DEG = 120.0  # ... nor is one whose successor starts heading more than this away from the lane's end
 TOUCHING_LINK_DEG = 45.0  # a lane without successor ending where another starts (ENDPOINT_TOLERANCE_M), heading
