@@ -365,6 +365,20 @@ def uneven_seams_map():
         lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
 
 
+def turned_link_map():
+    """One-lane roads 9 m wide (SVL Borregas Ave's flared junction lanes): lane a runs east and
+    its successor b starts turned 25 degrees clockwise about a's left end point, so the left
+    boundaries meet and the right ones miss each other by 3.9 m."""
+    import numpy as np
+
+    lane = _one_lane_road_lane
+    h = math.radians(-25.0)
+    d, n = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
+    start = np.array([20.0, 4.5]) - 4.5 * n  # b's centre: half its width right of a's left end
+    return _one_lane_roads_map([lane("a", [(0, 0), (10, 0), (20, 0)], succs=("b",), widths=9.0),
+                                lane("b", [start + k * d for k in (0.0, 15.0, 30.0)], preds=("a",), widths=9.0)])
+
+
 def adjacent_junctions_map():
     """Two junctions side by side with no road between (as in Apollo's Gomentum map): junction
     lane b (junction 1) continues straight into junction lane c (junction 2), which lane f, fed
