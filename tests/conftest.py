@@ -365,6 +365,30 @@ def uneven_seams_map():
         lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
 
 
+def crossed_merges_map():
+    """Back-to-back junctions as GoMentum has them: junction 1's lanes x and y end at one point,
+    each leading into both of junction 2's lanes a and b, all four at different headings (each
+    of a and b merges x and y; each of x and y forks into a and b)."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    inside = {"x": "1", "y": "1", "a": "2", "b": "2"}
+    lanes = [replace(ln, junction_id=inside.get(ln.id)) for ln in (
+        lane("p", [(0, -12), (30, -6)], succs=("x",)), lane("q", [(0, 12), (30, 6)], succs=("y",)),
+        lane("x", [(30, -6), (40, -2.5), (50, 0)], preds=("p",), succs=("a", "b")),
+        lane("y", [(30, 6), (40, 2.5), (50, 0)], preds=("q",), succs=("a", "b")),
+        lane("a", [(50, 0), (60, 3.5), (70, 8)], preds=("x", "y"), succs=("u",)),
+        lane("b", [(50, 0), (60, -3.5), (70, -8)], preds=("x", "y"), succs=("v",)),
+        lane("u", [(70, 8), (100, 20)], preds=("a",)), lane("v", [(70, -8), (100, -20)], preds=("b",)))]
+    m = _one_lane_roads_map(lanes)
+    roads = {rid: Road(rid, "junction", (rid,), junction_id=inside[rid]) if rid in inside else r
+             for rid, r in m.roads.items()}
+    return replace(m, roads=roads, junctions={"1": Junction("1", ((30, -8), (50, -8), (50, 8), (30, 8))),
+                                             "2": Junction("2", ((50, -10), (70, -10), (70, 10), (50, 10)))})
+
+
 def turned_link_map():
     """One-lane roads 9 m wide (SVL Borregas Ave's flared junction lanes): lane a runs east and
     its successor b starts turned 25 degrees clockwise about a's left end point, so the left
