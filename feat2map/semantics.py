@@ -16,9 +16,9 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
-from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, FOLD_BACK_M,
-                     JUNCTION_SPEED_LIMIT_MPS, LANE_END_SNAP_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS,
-                     SPEED_LIMIT_MPS, TOUCHING_LINK_DEG)
+from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, FOLD_BACK_M, FOLD_LOCATE_WINDOW,
+                     FOLD_LOOP_SPAN, JUNCTION_SPEED_LIMIT_MPS, LANE_END_SNAP_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG,
+                     PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS, TOUCHING_LINK_DEG)
 from .errors import Feat2MapError, RepairWarning
 from .model import HDMap, Lane, as_polyline, incoming_lanes, stop_line_across
 
@@ -270,33 +270,66 @@ def _crossing(a: Sequence[float], b: Sequence[float], c: Sequence[float], d: Seq
     return t if 0.0 <= t <= 1.0 and 0.0 <= u <= 1.0 else None
 
 
+def along(points: Sequence[Sequence[float]], centre: Sequence[Sequence[float]],
+          window: float = FOLD_LOCATE_WINDOW) -> list[float]:
+    """Each of a boundary's `points` located along the `centre` line (metres from its start): the
+    nearest place on the stretch of the centre line within `window` (a fraction of its length) of
+    the point's own fraction along the boundary. A U-turn's centre line passes its own start again
+    near its end, and the nearest place on the whole line put the boundary's last points at its
+    start (so `unfold` dropped all of GoMentum's lane_75's inner border but its ends)."""
+    import numpy as np
+
+    p, c = np.asarray(points, dtype=float)[:, :2], np.asarray(centre, dtype=float)[:, :2]
+    if len(c) < 2:
+        return [0.0] * len(p)
+    seg = np.diff(c, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    own = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    frac = own / own[-1] if own[-1] > 0 else np.zeros(len(p))
+    lo, hi = (frac - window) * cum[-1], (frac + window) * cum[-1]  # per point, metres along the centre
+    safe = np.where(length > 0, length, 1.0)
+    d = p[:, None, :] - c[None, :-1, :]
+    t = (d * seg[None]).sum(axis=2) / safe ** 2
+    t_lo, t_hi = (lo[:, None] - cum[None, :-1]) / safe, (hi[:, None] - cum[None, :-1]) / safe
+    allowed = (t_lo <= 1.0) & (t_hi >= 0.0)
+    t = np.clip(t, np.maximum(t_lo, 0.0), np.minimum(t_hi, 1.0))
+    t = np.where(length[None] > 0, np.clip(t, 0.0, 1.0), 0.0)
+    gap = np.hypot(*(d - t[..., None] * seg[None]).transpose(2, 0, 1))
+    best = np.argmin(np.where(allowed, gap, np.inf), axis=1)
+    rows = np.arange(len(p))
+    return (cum[best] + t[rows, best] * length[best]).tolist()
+
+
 def unfold(line: Sequence[Sequence[float]], centre: Sequence[Sequence[float]]) -> list[tuple[float, ...]] | None:
     """`line` (a boundary of the lane whose centre line is `centre`) without its folds, or None
     when it has none: inner points more than FOLD_BACK_M behind the point kept before them
-    (along the centre line) are dropped, and loops where what is left still crosses itself are
-    cut at the crossing (each segment jumps to the crossing with the last later segment it meets)."""
-    import shapely
+    (along the centre line, `along`) are dropped, and loops where what is left still crosses
+    itself are cut at the crossing (each segment jumps to the crossing with the last later segment
+    it meets). A crossing of segments further apart along the centre line than FOLD_LOOP_SPAN of
+    its length is no fold: a U-turn's inner border crosses itself where the lane's ends meet, and
+    cutting there left GoMentum's lane_75 a 1 m stub that Lanelet2's loader turned round."""
     from shapely.geometry import LineString
 
     if len(line) < 3:
         return None
-    axis = LineString([p[:2] for p in centre])
     pts = [tuple(float(v) for v in p) for p in line]
-    s = shapely.line_locate_point(axis, shapely.points([p[:2] for p in pts])).tolist()  # along the centre line
+    s = along(pts, centre)
     kept = [0]
     for i in range(1, len(pts) - 1):
         if s[i] >= s[kept[-1]] - FOLD_BACK_M:
             kept.append(i)
     while len(kept) > 1 and s[kept[-1]] > s[-1] + FOLD_BACK_M:
         kept.pop()
-    pts2 = [pts[i] for i in kept] + [pts[-1]]
+    pts2, s2 = [pts[i] for i in kept] + [pts[-1]], [s[i] for i in kept] + [s[-1]]
     if LineString([p[:2] for p in pts2]).is_simple:
         return pts2 if len(pts2) < len(pts) else None
+    span = FOLD_LOOP_SPAN * LineString([p[:2] for p in centre]).length
     cur, out, i, n = pts2[0], [pts2[0]], 0, len(pts2)
     while i < n - 1:
         nxt = pts2[i + 1]
         for j in range(n - 2, i + 1, -1):
-            t = _crossing(cur, nxt, pts2[j], pts2[j + 1])
+            t = _crossing(cur, nxt, pts2[j], pts2[j + 1]) if s2[j] - s2[i + 1] <= span else None
             if t is not None:
                 cur = tuple(a + t * (b - a) for a, b in zip(cur, nxt))
                 out.append(cur)
@@ -305,7 +338,7 @@ def unfold(line: Sequence[Sequence[float]], centre: Sequence[Sequence[float]]) -
         else:
             out.append(nxt)
             cur, i = nxt, i + 1
-    return out
+    return out if out != pts else None
 
 
 def unfolded_boundaries(m: HDMap, where: str = "map") -> HDMap:

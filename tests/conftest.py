@@ -365,6 +365,20 @@ def uneven_seams_map():
         lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
 
 
+def keyhole_uturn_map():
+    """One lane, 3.5 m wide, turning round on a 5 m circle (300 degrees of it, 2 m lead-in and
+    lead-out) so that its ends lie 1.5 m apart: its inner (left) border crosses itself where
+    the ends meet, as GoMentum's U-turns do."""
+    import numpy as np
+
+    ang = np.radians(np.linspace(-60.0, 240.0, 31))
+    arc = np.stack([5 * np.cos(ang), 5 + 5 * np.sin(ang)], axis=1)
+    h0, h1 = math.radians(30.0), math.radians(-30.0)
+    lead_in = arc[0] - 2 * np.array([math.cos(h0), math.sin(h0)])
+    lead_out = arc[-1] + 2 * np.array([math.cos(h1), math.sin(h1)])
+    return _one_lane_roads_map([_one_lane_road_lane("u", np.vstack([lead_in, arc, lead_out]))])
+
+
 def crossed_merges_map():
     """Back-to-back junctions as GoMentum has them: junction 1's lanes x and y end at one point,
     each leading into both of junction 2's lanes a and b, all four at different headings (each

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SKIP_COMMONROAD_IO, turned_link_map
+from conftest import SKIP_COMMONROAD_IO, keyhole_uturn_map, turned_link_map
 from lxml import etree
 
 import feat2map
@@ -960,3 +960,20 @@ def test_a_link_whose_ends_are_turned_against_each_other_is_closed_line_by_line(
     ends = lane_ends(fixed)  # the Lanelet2 and CommonRoad exports: each side one point
     assert all(ends[("a", side, "end")] == ends[("b", side, "start")] for side in ("left", "right"))
     assert semantics.turned_link_ends(fixed) is fixed
+
+
+def test_a_u_turns_inner_border_crossing_itself_where_its_ends_meet_is_no_fold():
+    """A U-turn whose ends lie closer than its width has an inner border that crosses itself
+    where the ends meet. Located on the whole centre line, its last points lay at the line's
+    start (which the centre passes again), and the loop cut at that crossing left a 1 m stub:
+    GoMentum's lane_75, whose Lanelet2 bound the loader then turned round (no route through the
+    junction). The border is kept as it is; the lane is left unchanged."""
+    from shapely.geometry import LineString
+
+    m = keyhole_uturn_map()
+    u = m.lanes["u"]
+    assert not LineString(u.left_boundary).is_simple  # the fixture's premise: it crosses itself
+    assert semantics.unfold(u.left_boundary, u.centerline) is None
+    assert semantics.unfolded_boundaries(m) is m
+    s = semantics.along(u.left_boundary, u.centerline)
+    assert np.all(np.diff(s) > 0) and s[-1] > 0.9 * LineString(u.centerline).length
