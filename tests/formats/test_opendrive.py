@@ -22,8 +22,8 @@ from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine,
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
 from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, fork_into_junction_and_road_map,
-                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, shared_map, split_and_merge_map,
-                      split_with_a_centimetre_road, uneven_seams_map)
+                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, read_shared_map, shared_map,
+                      split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -976,3 +976,13 @@ def test_a_road_link_naming_the_far_end_is_read_at_the_end_that_touches(tmp_path
     assert m.lanes["1_0_-1"].successors == ("2_0_-1",)
     assert m.lanes["2_0_1"].successors == ("1_0_1",)
     assert connectivity(m) == []
+
+
+@pytest.mark.real_maps
+def test_carcarana_reads_with_every_exit_reachable():
+    """CommonRoad's ARG_Carcarana names the far end in 44 of its 102 road links: read at the end
+    that touches, every entry reaches every exit (bar its own road's)."""
+    from feat2map.invariants import connectivity
+
+    m = read_shared_map("opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr", read_opendrive)
+    assert connectivity(m) == [] and len(m.entry_lanes) == len(m.exit_lanes) == 12
