@@ -125,6 +125,8 @@ UTM_EASTING = (100_000.0, 900_000.0)  # absolute UTM metres lie in these ranges;
 UTM_NORTHING = (0.0, 10_000_000.0)  # is in local metres and is placed at the export's origin like OpenDRIVE
 OPENDRIVE_VERSIONS = ("1.8", "1.7", "1.6", "1.4")  # revisions the OpenDRIVE writer produces, default first
 IMPLICIT_LANE_LINK_M = 0.5  # a road link with no lane links: same-id lanes whose ends lie this close are linked
+ROAD_CONTACT_M = 0.5  # a road link whose contactPoint names an end further than this, while the other road's
+# other end lies within it, is read at that other end (CommonRoad's OpenDRIVE export names the far end)
 LANE_LINK_GAP_M = 5.0  # a lane link whose ends lie further apart than this is no link (converters jumping junctions)
 LINK_REVERSAL_DEG = 120.0  # ... nor is one whose successor starts heading more than this away from the lane's end
 TOUCHING_LINK_DEG = 45.0  # a lane without successor ending where another starts (ENDPOINT_TOLERANCE_M), heading
@@ -133,6 +135,10 @@ BRIDGE_AHEAD_M = 1.0  # a link whose successor starts further ahead than this (a
 BRIDGE_ASIDE_M = 2.0  # ... and so is one whose successor starts further to the side than this (osm2xodr lane shifts)
 BRIDGE_TAIL_M = 10.0  # a bridged lane's last metres (at most) are bent smoothly to meet its successor's start
 FOLD_BACK_M = 0.05  # a boundary point this far behind the one before it (along the centre line) is a fold: dropped
+FOLD_LOCATE_WINDOW = 0.3  # ... located on the centre line's stretch within this fraction of its length of the point's
+# own fraction along its boundary (a U-turn's centre line passes its own start again near its end)
+FOLD_LOOP_SPAN = 0.5  # ... and a border crossing itself between points further apart along the centre line than
+# this fraction of its length is no fold (a U-turn's inner border crosses itself where the lane's ends meet)
 NEGATIVE_WIDTH_TOL_M = 0.01  # an OpenDRIVE width polynomial dipping further below 0 makes its road a bad road (a
 # lane closing to 0 dips a few mm below it in converters' output: clamped to 0)
 APOLLO_CROSSWALK_LINK_M = 3.0  # a crosswalk without lane overlaps belongs to a junction this close

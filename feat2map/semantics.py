@@ -16,11 +16,11 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 
-from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, FOLD_BACK_M,
-                     JUNCTION_SPEED_LIMIT_MPS, LANE_LINK_GAP_M, LINK_REVERSAL_DEG, PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS,
-                     TOUCHING_LINK_DEG)
+from .config import (BRIDGE_AHEAD_M, BRIDGE_ASIDE_M, BRIDGE_TAIL_M, ENDPOINT_TOLERANCE_M, FOLD_BACK_M, FOLD_LOCATE_WINDOW,
+                     FOLD_LOOP_SPAN, JUNCTION_SPEED_LIMIT_MPS, LANE_END_SNAP_M, LANE_LINK_GAP_M, LINK_REVERSAL_DEG,
+                     PLAUSIBLE_SPEED_MPS, SPEED_LIMIT_MPS, TOUCHING_LINK_DEG)
 from .errors import Feat2MapError, RepairWarning
-from .model import HDMap, Lane, incoming_lanes, stop_line_across
+from .model import HDMap, Lane, as_polyline, incoming_lanes, stop_line_across
 
 if TYPE_CHECKING:
     import numpy as np
@@ -186,7 +186,8 @@ def assert_sound(m: HDMap, where: str = "map") -> None:
 def loaded(m: HDMap, where: str = "map") -> HDMap:
     """A reader's last step: links a lane leading nowhere leaves out added (`link_touching_ends`),
     links between lanes that do not meet dropped (`drop_far_links`),
-    short gaps between linked lanes bridged (`bridge_gaps`), dangling references dropped
+    short gaps between linked lanes bridged (`bridge_gaps`), linked ends turned against each other
+    closed (`turned_link_ends`), dangling references dropped
     (`drop_dangling`), values checked (`validation.validate_model`), implausible speeds replaced
     (`plausible_speeds`), governed lanes that are no approach dropped (`drop_non_approaches`),
     boundaries that fold back on themselves unfolded (`unfolded_boundaries`), signals over
@@ -195,7 +196,7 @@ def loaded(m: HDMap, where: str = "map") -> HDMap:
     from .validation import validate_model
 
     m = drop_far_links(link_touching_ends(m, where), where)
-    m = validate_model(drop_dangling(bridge_gaps(m, where), where), where)
+    m = validate_model(drop_dangling(turned_link_ends(bridge_gaps(m, where), where), where), where)
     m = unfolded_boundaries(drop_non_approaches(plausible_speeds(m, where), where), where)
     return check_map(split_conflicting_signals(m, where), where)
 
@@ -269,33 +270,66 @@ def _crossing(a: Sequence[float], b: Sequence[float], c: Sequence[float], d: Seq
     return t if 0.0 <= t <= 1.0 and 0.0 <= u <= 1.0 else None
 
 
+def along(points: Sequence[Sequence[float]], centre: Sequence[Sequence[float]],
+          window: float = FOLD_LOCATE_WINDOW) -> list[float]:
+    """Each of a boundary's `points` located along the `centre` line (metres from its start): the
+    nearest place on the stretch of the centre line within `window` (a fraction of its length) of
+    the point's own fraction along the boundary. A U-turn's centre line passes its own start again
+    near its end, and the nearest place on the whole line put the boundary's last points at its
+    start (so `unfold` dropped all of GoMentum's lane_75's inner border but its ends)."""
+    import numpy as np
+
+    p, c = np.asarray(points, dtype=float)[:, :2], np.asarray(centre, dtype=float)[:, :2]
+    if len(c) < 2:
+        return [0.0] * len(p)
+    seg = np.diff(c, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    own = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    frac = own / own[-1] if own[-1] > 0 else np.zeros(len(p))
+    lo, hi = (frac - window) * cum[-1], (frac + window) * cum[-1]  # per point, metres along the centre
+    safe = np.where(length > 0, length, 1.0)
+    d = p[:, None, :] - c[None, :-1, :]
+    t = (d * seg[None]).sum(axis=2) / safe ** 2
+    t_lo, t_hi = (lo[:, None] - cum[None, :-1]) / safe, (hi[:, None] - cum[None, :-1]) / safe
+    allowed = (t_lo <= 1.0) & (t_hi >= 0.0)
+    t = np.clip(t, np.maximum(t_lo, 0.0), np.minimum(t_hi, 1.0))
+    t = np.where(length[None] > 0, np.clip(t, 0.0, 1.0), 0.0)
+    gap = np.hypot(*(d - t[..., None] * seg[None]).transpose(2, 0, 1))
+    best = np.argmin(np.where(allowed, gap, np.inf), axis=1)
+    rows = np.arange(len(p))
+    return (cum[best] + t[rows, best] * length[best]).tolist()
+
+
 def unfold(line: Sequence[Sequence[float]], centre: Sequence[Sequence[float]]) -> list[tuple[float, ...]] | None:
     """`line` (a boundary of the lane whose centre line is `centre`) without its folds, or None
     when it has none: inner points more than FOLD_BACK_M behind the point kept before them
-    (along the centre line) are dropped, and loops where what is left still crosses itself are
-    cut at the crossing (each segment jumps to the crossing with the last later segment it meets)."""
-    import shapely
+    (along the centre line, `along`) are dropped, and loops where what is left still crosses
+    itself are cut at the crossing (each segment jumps to the crossing with the last later segment
+    it meets). A crossing of segments further apart along the centre line than FOLD_LOOP_SPAN of
+    its length is no fold: a U-turn's inner border crosses itself where the lane's ends meet, and
+    cutting there left GoMentum's lane_75 a 1 m stub that Lanelet2's loader turned round."""
     from shapely.geometry import LineString
 
     if len(line) < 3:
         return None
-    axis = LineString([p[:2] for p in centre])
     pts = [tuple(float(v) for v in p) for p in line]
-    s = shapely.line_locate_point(axis, shapely.points([p[:2] for p in pts])).tolist()  # along the centre line
+    s = along(pts, centre)
     kept = [0]
     for i in range(1, len(pts) - 1):
         if s[i] >= s[kept[-1]] - FOLD_BACK_M:
             kept.append(i)
     while len(kept) > 1 and s[kept[-1]] > s[-1] + FOLD_BACK_M:
         kept.pop()
-    pts2 = [pts[i] for i in kept] + [pts[-1]]
+    pts2, s2 = [pts[i] for i in kept] + [pts[-1]], [s[i] for i in kept] + [s[-1]]
     if LineString([p[:2] for p in pts2]).is_simple:
         return pts2 if len(pts2) < len(pts) else None
+    span = FOLD_LOOP_SPAN * LineString([p[:2] for p in centre]).length
     cur, out, i, n = pts2[0], [pts2[0]], 0, len(pts2)
     while i < n - 1:
         nxt = pts2[i + 1]
         for j in range(n - 2, i + 1, -1):
-            t = _crossing(cur, nxt, pts2[j], pts2[j + 1])
+            t = _crossing(cur, nxt, pts2[j], pts2[j + 1]) if s2[j] - s2[i + 1] <= span else None
             if t is not None:
                 cur = tuple(a + t * (b - a) for a, b in zip(cur, nxt))
                 out.append(cur)
@@ -304,7 +338,7 @@ def unfold(line: Sequence[Sequence[float]], centre: Sequence[Sequence[float]]) -
         else:
             out.append(nxt)
             cur, i = nxt, i + 1
-    return out
+    return out if out != pts else None
 
 
 def unfolded_boundaries(m: HDMap, where: str = "map") -> HDMap:
@@ -312,7 +346,6 @@ def unfolded_boundaries(m: HDMap, where: str = "map") -> HDMap:
     lanes: a lane wider than twice its inner border's turn radius folds that border back on
     itself (SVL CubeTown's right turns: a loop and a spike), so Lanelet2's loader inverted the
     bound and the turn lost its links, and the env's lane outline had a loop."""
-    from .model import as_polyline
 
     fixed: dict[str, Lane] = {}
     for ln in m.lanes.values():
@@ -434,17 +467,109 @@ def bent(ln: Lane, gap: Sequence[float] | np.ndarray, at: str = "end", tail: flo
     """`ln` with its last (`at`="end") or first ("start") `tail` metres moved by `gap` (dx, dy),
     centre line and boundaries, smoothly from nothing to all of it (smoothstep: no kink where the
     bend begins), so that end lands where a linked lane's end is."""
+    return replace(ln, centerline=_bent_line(ln.centerline, gap, at, tail),
+                   left_boundary=_bent_line(ln.left_boundary, gap, at, tail),
+                   right_boundary=_bent_line(ln.right_boundary, gap, at, tail), bezier=None)
+
+
+def _bent_line(poly: Sequence[Sequence[float]], gap: Sequence[float] | np.ndarray, at: str, tail: float) -> tuple:
+    """`poly` with its last (first) `tail` metres moved by `gap`, smoothly from nothing to all of it."""
     import numpy as np
 
-    def bend(poly):
-        p = np.asarray(poly, dtype=float)[:, :2]
-        s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
-        t = min(tail, s[-1]) or 1.0
-        u = np.clip((s - (s[-1] - t)) / t if at == "end" else (t - s) / t, 0.0, 1.0)
-        w = u * u * (3 - 2 * u)
-        return tuple(map(tuple, p + w[:, None] * np.asarray(gap, dtype=float)))
-    return replace(ln, centerline=bend(ln.centerline), left_boundary=bend(ln.left_boundary),
-                   right_boundary=bend(ln.right_boundary), bezier=None)
+    p = np.asarray(poly, dtype=float)[:, :2]
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    t = min(tail, s[-1]) or 1.0
+    u = np.clip((s - (s[-1] - t)) / t if at == "end" else (t - s) / t, 0.0, 1.0)
+    w = u * u * (3 - 2 * u)
+    return tuple(map(tuple, p + w[:, None] * np.asarray(gap, dtype=float)))
+
+
+def _line_onto(poly: Sequence[Sequence[float]], target: Sequence[float], at: str, tail: float) -> tuple:
+    """`poly` ending (`at`="end", else starting) at `target`: cut where `target` lies alongside it
+    when that is short of its end (a bend alone would fold it back; the points in the last
+    BRIDGE_AHEAD_M before the cut go too, so the new end's heading is a chord's, not a wiggle's),
+    then its last (first) `tail` metres bent onto `target`."""
+    import shapely
+    from shapely.geometry import LineString
+
+    pts = [tuple(float(v) for v in q[:2]) for q in poly]
+    if at == "start":
+        pts.reverse()
+    line = LineString(pts)
+    cut = float(shapely.line_locate_point(line, shapely.Point(target[:2])))
+    if cut < line.length - FOLD_BACK_M:
+        s = shapely.line_locate_point(line, shapely.points(pts)).tolist()
+        pts = [q for q, d in zip(pts, s) if d < cut - BRIDGE_AHEAD_M] + [tuple(line.interpolate(cut).coords[0])]
+        if len(pts) < 2:
+            pts = [pts[0], pts[0]]
+    end = pts[-1]
+    out = list(_bent_line(pts, (target[0] - end[0], target[1] - end[1]), "end", tail))
+    if at == "start":
+        out.reverse()
+    return tuple(out)
+
+
+def _end_gaps(a: Lane, b: Lane) -> list[tuple[float, float]]:
+    """From `a`'s end to its successor `b`'s start: the (dx, dy) of the centre line, the left and
+    the right boundary."""
+    return [(float(q[0][0] - p[-1][0]), float(q[0][1] - p[-1][1]))
+            for p, q in ((a.centerline, b.centerline), (a.left_boundary, b.left_boundary),
+                         (a.right_boundary, b.right_boundary))]
+
+
+def _onto(ln: Lane, other: Lane, at: str) -> Lane:
+    """`ln` with its end (`at`="end") on `other`'s start, or its start on `other`'s end, line by
+    line (`_line_onto`)."""
+    i = 0 if at == "end" else -1
+
+    def line(f: str) -> Any:
+        return as_polyline(_line_onto(getattr(ln, f), getattr(other, f)[i], at, BRIDGE_TAIL_M))
+    return replace(ln, centerline=line("centerline"), left_boundary=line("left_boundary"),
+                   right_boundary=line("right_boundary"), bezier=None)
+
+
+def turned_link_ends(m: HDMap, where: str = "map") -> HDMap:
+    """`m` with every link whose lane ends turned against its successor's start (a boundary's ends
+    more than LANE_END_SNAP_M apart, all three lines within LANE_LINK_GAP_M) closed: the lane with
+    one link across it (the predecessor with one successor, else the successor with one
+    predecessor) has each line's last (first) BRIDGE_TAIL_M metres bent onto the other lane's
+    (`_line_onto`: a line whose new end lies alongside it is cut there first); one RepairWarning
+    names the largest. SVL's Borregas Ave joins 8-11 m wide junction lanes to their roads with
+    15-25 degree kinks in the reference line, so a side missed its successor's by up to 5 m: the
+    exports' per-side snap (LANE_END_SNAP_M) left them apart, Lanelet2 found no route through the
+    turn and Apollo refused the link."""
+    import numpy as np
+
+    lanes = dict(m.lanes)
+    moved: set[tuple[str, str]] = set()
+    shown: list[tuple[float, str, str]] = []
+    for lid in m.lanes:
+        for sid in m.lanes[lid].successors:
+            a, b = lanes[lid], lanes.get(sid)
+            if b is None or min(len(x) for x in (a.centerline, a.left_boundary, a.right_boundary, b.centerline,
+                                                  b.left_boundary, b.right_boundary)) < 2:
+                continue
+            gaps = _end_gaps(a, b)
+            dist = [float(np.hypot(*g)) for g in gaps]
+            if max(dist[1:]) <= LANE_END_SNAP_M or max(dist) > LANE_LINK_GAP_M:
+                continue
+            if len(a.successors) == 1 and (lid, "end") not in moved:
+                lanes[lid] = _onto(a, b, "end")
+                moved.add((lid, "end"))
+            elif len(b.predecessors) == 1 and (sid, "start") not in moved:
+                lanes[sid] = _onto(b, a, "start")
+                moved.add((sid, "start"))
+            else:
+                continue
+            shown.append((max(dist), lid, sid))
+    if not shown:
+        return m
+    top = ", ".join(f"{a} -> {b} ({d:.1f} m)" for d, a, b in sorted(shown, reverse=True)[:3])
+    warnings.warn(f"{where}: {len(shown)} lane link(s) whose ends are turned against each other (a side more than "
+                  f"{LANE_END_SNAP_M:g} m from its successor's) closed: each lane's last {BRIDGE_TAIL_M:g} m bent onto "
+                  f"its successor's start, or the successor's first onto the lane's end (largest: {top})", RepairWarning,
+                  stacklevel=3)
+    return replace(m, lanes=lanes)
 
 
 def bridge_gaps(m: HDMap, where: str = "map") -> HDMap:
@@ -533,5 +658,5 @@ def drop_dangling(m: HDMap, where: str = "map") -> HDMap:
 
 
 __all__ = ["CHECKS", "Finding", "assert_sound", "bridge_gaps", "check_map", "drop_dangling", "drop_far_links",
-           "drop_non_approaches", "findings", "link_touching_ends", "loaded", "split_conflicting_signals", "unfold",
-           "unfolded_boundaries"]
+           "drop_non_approaches", "findings", "link_touching_ends", "loaded", "split_conflicting_signals", "turned_link_ends",
+           "unfold", "unfolded_boundaries"]

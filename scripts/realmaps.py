@@ -388,9 +388,10 @@ was refused.
 
 The classes of real-map quirk behind these numbers, each explained in
 [semantics.md](semantics.md#real-map-rule-classes): touching junction elements read as one
-junction; direct junctions; road links without lane links; boundary types from road marks and
-Apollo types; left-hand traffic; declared speeds in their unit and checked for plausibility; local
-coordinates; converter geometry repaired (gaps bridged, reversing links dropped, turnarounds,
+junction; direct junctions; road links without lane links; road links that name the far end of
+the road they link to; boundary types from road marks and Apollo types; left-hand traffic; declared
+speeds in their unit and checked for plausibility; local coordinates; converter geometry repaired
+(gaps bridged, reversing links dropped, link ends turned against each other closed, turnarounds,
 edge stubs, folded lanes); manoeuvres no car drives left out of suites; no traffic into lanes it
 cannot leave; exports that repair what a format cannot hold and name the first problem when they
 refuse; the env's driving rules for real junctions (merges, converging lanes, junction chains,

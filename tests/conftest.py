@@ -365,6 +365,58 @@ def uneven_seams_map():
         lane("i", [(50, -40), (100, -40)], preds=("g", "h"))])
 
 
+def keyhole_uturn_map():
+    """One lane, 3.5 m wide, turning round on a 5 m circle (300 degrees of it, 2 m lead-in and
+    lead-out) so that its ends lie 1.5 m apart: its inner (left) border crosses itself where
+    the ends meet, as GoMentum's U-turns do."""
+    import numpy as np
+
+    ang = np.radians(np.linspace(-60.0, 240.0, 31))
+    arc = np.stack([5 * np.cos(ang), 5 + 5 * np.sin(ang)], axis=1)
+    h0, h1 = math.radians(30.0), math.radians(-30.0)
+    lead_in = arc[0] - 2 * np.array([math.cos(h0), math.sin(h0)])
+    lead_out = arc[-1] + 2 * np.array([math.cos(h1), math.sin(h1)])
+    return _one_lane_roads_map([_one_lane_road_lane("u", np.vstack([lead_in, arc, lead_out]))])
+
+
+def crossed_merges_map():
+    """Back-to-back junctions as GoMentum has them: junction 1's lanes x and y end at one point,
+    each leading into both of junction 2's lanes a and b, all four at different headings (each
+    of a and b merges x and y; each of x and y forks into a and b)."""
+    from dataclasses import replace
+
+    from feat2map.model import Junction, Road
+
+    lane = _one_lane_road_lane
+    inside = {"x": "1", "y": "1", "a": "2", "b": "2"}
+    lanes = [replace(ln, junction_id=inside.get(ln.id)) for ln in (
+        lane("p", [(0, -12), (30, -6)], succs=("x",)), lane("q", [(0, 12), (30, 6)], succs=("y",)),
+        lane("x", [(30, -6), (40, -2.5), (50, 0)], preds=("p",), succs=("a", "b")),
+        lane("y", [(30, 6), (40, 2.5), (50, 0)], preds=("q",), succs=("a", "b")),
+        lane("a", [(50, 0), (60, 3.5), (70, 8)], preds=("x", "y"), succs=("u",)),
+        lane("b", [(50, 0), (60, -3.5), (70, -8)], preds=("x", "y"), succs=("v",)),
+        lane("u", [(70, 8), (100, 20)], preds=("a",)), lane("v", [(70, -8), (100, -20)], preds=("b",)))]
+    m = _one_lane_roads_map(lanes)
+    roads = {rid: Road(rid, "junction", (rid,), junction_id=inside[rid]) if rid in inside else r
+             for rid, r in m.roads.items()}
+    return replace(m, roads=roads, junctions={"1": Junction("1", ((30, -8), (50, -8), (50, 8), (30, 8))),
+                                             "2": Junction("2", ((50, -10), (70, -10), (70, 10), (50, 10)))})
+
+
+def turned_link_map():
+    """One-lane roads 9 m wide (SVL Borregas Ave's flared junction lanes): lane a runs east and
+    its successor b starts turned 25 degrees clockwise about a's left end point, so the left
+    boundaries meet and the right ones miss each other by 3.9 m."""
+    import numpy as np
+
+    lane = _one_lane_road_lane
+    h = math.radians(-25.0)
+    d, n = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
+    start = np.array([20.0, 4.5]) - 4.5 * n  # b's centre: half its width right of a's left end
+    return _one_lane_roads_map([lane("a", [(0, 0), (10, 0), (20, 0)], succs=("b",), widths=9.0),
+                                lane("b", [start + k * d for k in (0.0, 15.0, 30.0)], preds=("a",), widths=9.0)])
+
+
 def adjacent_junctions_map():
     """Two junctions side by side with no road between (as in Apollo's Gomentum map): junction
     lane b (junction 1) continues straight into junction lane c (junction 2), which lane f, fed

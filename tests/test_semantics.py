@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SKIP_COMMONROAD_IO
+from conftest import SKIP_COMMONROAD_IO, keyhole_uturn_map, turned_link_map
 from lxml import etree
 
 import feat2map
@@ -926,3 +926,54 @@ def test_a_stop_line_drawn_past_the_road_lanes_end_overlaps_the_junction_lanes_i
     assert named == {x for lid in sig.lane_ids for x in four_way.lanes[lid].successors}
     back, _ = _quiet(read_apollo_bytes, base.SerializeToString())
     assert set(back.signals[sig.id].lane_ids) == set(sig.lane_ids)
+
+
+def test_a_link_whose_ends_are_turned_against_each_other_is_closed_line_by_line():
+    """SVL Borregas Ave joins 8-11 m wide junction lanes to their roads with a 15-25 degree kink:
+    one side met, the other missed its successor's by up to 5 m, beyond the exports' per-side snap
+    (LANE_END_SNAP_M). Lanelet2 found no route through the turn, CommonRoad a gap, and Apollo
+    refused the link. The lane's end is bent onto its successor's start line by line (a line
+    whose new end lies alongside it is cut there, not folded back), with one RepairWarning."""
+    from shapely.geometry import LineString, Point
+
+    from feat2map.config import LANE_END_SNAP_M
+    from feat2map.errors import RepairWarning
+    from feat2map.formats.lane_ends import lane_ends
+
+    m = turned_link_map()
+    a, b = m.lanes["a"], m.lanes["b"]
+    assert math.dist(a.right_boundary[-1], b.right_boundary[0]) > LANE_END_SNAP_M  # the fixture's premise
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fixed = semantics.loaded(m, "m.xodr")
+    said = [w for w in caught if "turned against" in str(w.message)]
+    assert len(said) == 1 and issubclass(said[0].category, RepairWarning) and "a -> b" in str(said[0].message)
+    fa, fb = fixed.lanes["a"], fixed.lanes["b"]
+    assert fb == b  # a, with one successor, is the lane bent
+    for f in ("centerline", "left_boundary", "right_boundary"):
+        assert math.dist(getattr(fa, f)[-1], getattr(fb, f)[0]) < 1e-9, f
+        assert getattr(fa, f)[0] == getattr(a, f)[0]
+    axis = LineString(fa.centerline)
+    for f in ("left_boundary", "right_boundary"):  # no fold: every line still runs forward
+        s = [axis.project(Point(p)) for p in getattr(fa, f)]
+        assert np.all(np.diff(s) > -0.05), (f, s)
+    ends = lane_ends(fixed)  # the Lanelet2 and CommonRoad exports: each side one point
+    assert all(ends[("a", side, "end")] == ends[("b", side, "start")] for side in ("left", "right"))
+    assert semantics.turned_link_ends(fixed) is fixed
+
+
+def test_a_u_turns_inner_border_crossing_itself_where_its_ends_meet_is_no_fold():
+    """A U-turn whose ends lie closer than its width has an inner border that crosses itself
+    where the ends meet. Located on the whole centre line, its last points lay at the line's
+    start (which the centre passes again), and the loop cut at that crossing left a 1 m stub:
+    GoMentum's lane_75, whose Lanelet2 bound the loader then turned round (no route through the
+    junction). The border is kept as it is; the lane is left unchanged."""
+    from shapely.geometry import LineString
+
+    m = keyhole_uturn_map()
+    u = m.lanes["u"]
+    assert not LineString(u.left_boundary).is_simple  # the fixture's premise: it crosses itself
+    assert semantics.unfold(u.left_boundary, u.centerline) is None
+    assert semantics.unfolded_boundaries(m) is m
+    s = semantics.along(u.left_boundary, u.centerline)
+    assert np.all(np.diff(s) > 0) and s[-1] > 0.9 * LineString(u.centerline).length

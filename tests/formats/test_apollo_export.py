@@ -623,6 +623,22 @@ def test_each_check_catches_its_breakage(exported, breakage, message):
     assert all(p.element for p in problems)
 
 
+def test_exits_the_same_entries_miss_are_one_problem(exported):
+    """One broken connection keeps every exit beyond it from every entry before it: the validator
+    says so once per set of exits those entries miss, with the counts, not once per pair (a
+    CommonRoad map read with its road links at the far end gave 1,156 lines)."""
+    import re
+
+    m = _load(exported, "base_map")
+    _cut_connection(m)
+    found = [p for p in validate_map(m) if "not reachable from" in p.message and "entry" in p.message]
+    counts = [re.match(r"(\d+) exit lane\(s\) not reachable from (\d+) entry lane\(s\): exits ", p.message)
+              for p in found]
+    assert found and all(counts), [p.message for p in found][:3]
+    pairs = sum(int(c.group(1)) * int(c.group(2)) for c in counts)
+    assert len(found) < pairs / 10  # grouped: far fewer lines than (entry, exit) pairs
+
+
 def _fields(msg, out: list, depth: int = 0) -> list:
     """Every (message, field name) pair below `msg` (points excluded: too many)."""
     for fd, value in msg.ListFields():

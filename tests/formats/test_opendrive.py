@@ -22,8 +22,8 @@ from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine,
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
 from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, fork_into_junction_and_road_map,
-                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, shared_map, split_and_merge_map,
-                      split_with_a_centimetre_road, uneven_seams_map)
+                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, read_shared_map, shared_map,
+                      split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -932,3 +932,57 @@ def test_linked_roads_exported_as_polylines_meet_border_to_border(tmp_path):
     for side in ("left_boundary", "right_boundary"):
         gap = np.hypot(*(np.asarray(getattr(first, side))[-1] - np.asarray(getattr(second, side))[0]))
         assert gap < 0.005, (side, gap)
+
+
+# ---------------------------------------------------------------------------------------------
+# a road link whose contactPoint names the far end of the road it links to (CommonRoad's export)
+
+def _far_contact_xodr(contact: str) -> bytes:
+    """Two-way road 1 running north to y = 10 and two-way road 2 going on from there, 3 degrees
+    off (its lanes' ends miss road 1's by 9 cm). Each road link names `contact` for the other
+    road: "far" names the end away from the joint, as CommonRoad's OpenDRIVE export does."""
+    def road(rid, y, hdg, link):
+        lane = ('<lane id="{k}" type="driving"><link><predecessor id="{k}"/><successor id="{k}"/></link>'
+                '<width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane>')
+        return (f'<road id="{rid}" length="10" junction="-1"><link>{link}</link><planView>'
+                f'<geometry s="0" x="0" y="{y}" hdg="{hdg}" length="10"><line/></geometry></planView>'
+                f'<lanes><laneSection s="0"><left>{lane.format(k=1)}</left><center><lane id="0" type="none"/>'
+                f'</center><right>{lane.format(k=-1)}</right></laneSection></lanes></road>')
+    one, two = ("start", "end") if contact == "far" else ("end", "start")
+    return ('<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="6"/>'
+            + road("1", 0, math.pi / 2, f'<successor elementType="road" elementId="2" contactPoint="{two}"/>')
+            + road("2", 10, math.pi / 2 + math.radians(3), f'<predecessor elementType="road" elementId="1" '
+                                                          f'contactPoint="{one}"/>')
+            + '</OpenDRIVE>').encode()
+
+
+@pytest.mark.parametrize("contact", ["far", "near"])
+def test_a_road_link_naming_the_far_end_is_read_at_the_end_that_touches(tmp_path, contact):
+    """A road link's contactPoint that names the other road's far end while its near end touches
+    is read at the near end, with one warning naming the link: CommonRoad's OpenDRIVE export
+    writes such links, and half of ARG_Carcarana's lanes led nowhere (Apollo's export reported
+    1,156 exits no entry reached). A link that names the touching end reads silently."""
+    from feat2map.invariants import connectivity
+
+    path = tmp_path / f"{contact}.xodr"
+    path.write_bytes(_far_contact_xodr(contact))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = read_opendrive(path)
+    said = [str(w.message) for w in caught if "far end" in str(w.message)]
+    assert len(said) == (1 if contact == "far" else 0), said
+    if said:
+        assert "road 1 <successor> road 2" in said[0] and "road 2 <predecessor> road 1" in said[0]
+    assert m.lanes["1_0_-1"].successors == ("2_0_-1",)
+    assert m.lanes["2_0_1"].successors == ("1_0_1",)
+    assert connectivity(m) == []
+
+
+@pytest.mark.real_maps
+def test_carcarana_reads_with_every_exit_reachable():
+    """CommonRoad's ARG_Carcarana names the far end in 44 of its 102 road links: read at the end
+    that touches, every entry reaches every exit (bar its own road's)."""
+    from feat2map.invariants import connectivity
+
+    m = read_shared_map("opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr", read_opendrive)
+    assert connectivity(m) == [] and len(m.entry_lanes) == len(m.exit_lanes) == 12

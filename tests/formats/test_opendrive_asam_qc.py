@@ -15,8 +15,8 @@ from feat2map.config import OPENDRIVE_VERSIONS
 from feat2map.formats.asam_qc import OPENDRIVE, find_bundle, run_bundle
 from feat2map.formats.opendrive import read_opendrive, to_opendrive, validate_opendrive, write_opendrive
 
-from conftest import (REPO, SKIP_QC_OPENDRIVE, adjacent_junctions_map, merge_at_junction_entry_map, shared_map,
-                      split_and_merge_map, uneven_seams_map)
+from conftest import (REPO, SKIP_QC_OPENDRIVE, adjacent_junctions_map, crossed_merges_map, merge_at_junction_entry_map,
+                      shared_map, split_and_merge_map, uneven_seams_map)
 from conftest import assert_same_features
 
 pytestmark = pytest.mark.skipif(find_bundle(OPENDRIVE[0]) is None,
@@ -97,6 +97,13 @@ def test_lanes_meeting_at_different_widths_or_headings_pass_every_check(name, tm
     """A lane 4 m wide at its start continuing one 3.5 m wide at its end; a lane forking into a
     lane that another merges into, turned 10 degrees: no border gap."""
     _check({"uneven_seams": uneven_seams_map, "merge_at_junction_entry": merge_at_junction_entry_map}[name](), tmp_path)
+
+
+def test_lanes_forking_into_lanes_others_merge_into_pass_every_check(tmp_path):
+    """Two junction lanes ending at one point, each leading into both lanes of the next junction
+    (GoMentum's back-to-back junctions): the road link of a lane no predecessor is aligned to names
+    a predecessor whose written end it must start along, or its borders miss it by decimetres."""
+    _check(crossed_merges_map(), tmp_path)
 
 
 @pytest.mark.real_maps

@@ -15,7 +15,7 @@ import math
 import re
 from collections import Counter, deque
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 import shapely
@@ -716,13 +716,30 @@ def all_roads_two_way(m: Any) -> bool:
     return True
 
 
+def _unreached_groups(pairs: list[tuple[str, str]]) -> list[Problem]:
+    """One problem per set of exits that the same entries miss, not one per (entry, exit) pair:
+    one broken link keeps every exit beyond it from every entry before it (a CommonRoad map read
+    with its road links at the far end gave 1,156 lines for 44 causes)."""
+    missed: dict[str, list[str]] = {}
+    for e, x in pairs:
+        missed.setdefault(e, []).append(x)
+    by_exits: dict[tuple[str, ...], list[str]] = {}
+    for e, xs in missed.items():
+        by_exits.setdefault(tuple(xs), []).append(e)
+
+    def few(ids: Sequence[str]) -> str:
+        return ", ".join(ids[:3]) + (f" and {len(ids) - 3} more" if len(ids) > 3 else "")
+    return [Problem(f"lane {xs[0]}", f"{len(xs)} exit lane(s) not reachable from {len(es)} entry lane(s): "
+                                     f"exits {few(xs)}; entries {few(es)}") for xs, es in by_exits.items()]
+
+
 def reachability(m: Any, graph: Any) -> list[Problem]:
     """When every road is two-way: over the routing graph, every exit is reachable from every
     entry (bar its own road's, which needs a U-turn), every lane from some entry, and every
     lane reaches some exit; a map without entries and exits must be strongly connected. Maps
     feat2map generated get the per-lane checks with one-way roads too (as check_map does).
     Entries are lanes without predecessors (the open ends of stub roads), exits lanes without
-    successors."""
+    successors; exits some entries miss are one problem per set of exits those entries miss."""
     two_way = all_roads_two_way(m)
     if not m.lane or not (two_way or _generated(m)):  # one-way roads: per lane only, generated maps only
         return []
@@ -754,8 +771,7 @@ def reachability(m: Any, graph: Any) -> list[Problem]:
             out.append(Problem("routing graph", "map without entries or exits is not strongly connected"))
         return out
     if two_way:
-        out += [Problem(f"lane {x}", f"exit not reachable from entry lane {e}")
-                for e, x in unreached_exits(entries, exits, fwd.__getitem__, road_of.get)]
+        out += _unreached_groups(unreached_exits(entries, exits, fwd.__getitem__, road_of.get))
     from_entries, to_exits = reach(entries, fwd), reach(exits, bwd)
     for n in nodes:
         if n not in from_entries:

@@ -187,6 +187,19 @@ def _merge_into(ln: Lane, m: HDMap) -> Lane | None:
     return nxt if nxt is not None and len(nxt.predecessors) > 1 and len(nxt.centerline) >= 2 else None
 
 
+def _start_aligned_to(ln: Lane, m: HDMap) -> Lane | None:
+    """The lane whose written end `ln`'s start is aligned to: its first predecessor (the one its
+    road links to), unless some predecessor's end is aligned to `ln` itself (a merge: `ln` keeps
+    its own start). Where a lane fans out into lanes that others merge into too (GoMentum's
+    back-to-back junctions), its end is aligned to its first successor only; the others start
+    along that written end, which every predecessor they share ends on too."""
+    prev = m.lanes.get(ln.predecessors[0]) if ln.predecessors else None
+    if prev is None or len(prev.centerline) < 2:
+        return None
+    merged = (_merge_into(m.lanes[p], m) for p in ln.predecessors if p in m.lanes)
+    return None if any(x is not None and x.id == ln.id for x in merged) else prev
+
+
 def _deduplicated(ln: Lane) -> np.ndarray:
     """`ln`'s centreline without repeated points."""
     pts = np.asarray(ln.centerline, dtype=float)
@@ -205,7 +218,7 @@ def _tail_heading(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> f
 
 def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) -> np.ndarray:
     """`ln`'s centreline (driving direction, repeated points dropped) starting with a chord of
-    length `d` along its only predecessor's end heading (as written), and ending with one along
+    length `d` along its predecessor's end heading as written (`_start_aligned_to`), and ending with one along
     its first successor's start heading where that successor has other predecessors (it keeps its
     own start). A polyline road's lane borders at an end lie across its first (last) chord, so
     linked roads whose end chords differ by a few milliradians left centimetre gaps between their
@@ -215,8 +228,8 @@ def _joint_tangents(ln: Lane, m: HDMap, d: float = OPENDRIVE_JOINT_TANGENT_M) ->
         return pts
     chords = np.hypot(*np.diff(pts, axis=0).T)
     head, tail = pts[:1], pts[-1:]
-    if len(ln.predecessors) == 1 and chords[0] > 2 * d and len(m.lanes[ln.predecessors[0]].centerline) >= 2:
-        prev = m.lanes[ln.predecessors[0]]
+    prev = _start_aligned_to(ln, m)
+    if prev is not None and chords[0] > 2 * d:
         h = _tail_heading(prev, m, d)
         h = _end_heading(prev.centerline, at_start=False) if h is None else h
         head = np.array([pts[0], pts[0] + d * np.array([math.cos(h), math.sin(h)])])
@@ -333,7 +346,7 @@ class _Writer:
 
     def _meet_widths(self) -> None:
         """A one-lane polyline road's lane takes, at each end where `_joint_tangents` aligns it to
-        a neighbour, that neighbour's written width: at its start its only predecessor's end width,
+        a neighbour, that neighbour's written width: at its start its predecessor's end width (`_start_aligned_to`),
         at its end its first successor's start width where that successor has other predecessors.
         Linked lanes' borders then meet (ASAM's lane_smoothness.contact_point_no_horizontal_gaps);
         the source's cross-sections there can differ by decimetres (a coarse Apollo junction lane
@@ -351,7 +364,8 @@ class _Writer:
             if ref.width_samples is None:
                 continue
             ln = self.m.lanes[self.roads[rid].lane_ids[0]]
-            start = end_width(self.m.lanes[ln.predecessors[0]]) if len(ln.predecessors) == 1 else sampled(ln.id, "start")
+            prev = _start_aligned_to(ln, self.m)
+            start = end_width(prev) if prev is not None else sampled(ln.id, "start")
             end = end_width(ln)
             ref.set_end_widths(*((end, start) if self.roads[rid].left_lanes else (start, end)))
 
