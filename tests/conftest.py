@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import hashlib
 import math
 import os
 import random
@@ -148,6 +149,20 @@ def pytest_runtest_makereport(item, call):
     seed = item.stash.get(_SEED, None)
     if seed is not None and report.failed:
         report.sections.append(("how to reproduce", f"{SEED_ENV}={seed} python -m pytest '{item.nodeid}'"))
+
+
+def example_map_file(tmp_path_factory, example: str) -> Path:
+    """examples/<example>.yaml built at seed 0 and saved as native JSON in a fresh folder."""
+    from feat2map.formats import native
+    from feat2map.spec import build_spec, load_spec
+
+    path = tmp_path_factory.mktemp(example) / f"{example}.json"
+    native.save(build_spec(load_spec(REPO / "examples" / f"{example}.yaml"), seed=0), path)
+    return path
+
+
+def sha256_text(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def straight_piece(road, rid: str, s0: float, length: float):

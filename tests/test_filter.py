@@ -4,13 +4,13 @@ extraction, on maps generated here; old feature files and specs (no `filter`) gi
 bytes as before."""
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import warnings
 from pathlib import Path
 
 import pytest
+from conftest import sha256_text
 from shapely.geometry import LineString, Polygon
 
 from feat2map.cli import main
@@ -35,10 +35,6 @@ MIDBLOCK_SPEC_SHA = "cc153b50ad7121299cb97ec7bae27168e19266628dae618d483ac5653a7
 MULTI_LANE_SPEC_SHA = "c3c2b1b6284233a6722dd645b22650ccdc57ca2725da5915b50f7048b2413eb8"
 
 
-def sha(text: str) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 @pytest.fixture(scope="module")
 def sampled() -> HDMap:
     return generate(SPACE, seed=0)
@@ -60,10 +56,10 @@ def test_old_feature_files_and_specs_give_the_bytes_they_always_did(monkeypatch)
     assert "filter" not in old
     space = FeatureSpace.from_dict(old)
     assert space.filter == ("none",) and space == PAPER_SF_FEATURE_SPACE
-    assert sha(native.dumps(generate(space, seed=2))) == PAPER_SEED2_SHA
+    assert sha256_text(native.dumps(generate(space, seed=2))) == PAPER_SEED2_SHA
     monkeypatch.chdir(REPO)  # the map records the spec's path as given
-    assert sha(native.dumps(build_spec(load_spec("examples/midblock.yaml"), seed=0))) == MIDBLOCK_SPEC_SHA
-    assert sha(native.dumps(build_spec(load_spec("examples/multi_lane.yaml"), seed=0))) == MULTI_LANE_SPEC_SHA
+    assert sha256_text(native.dumps(build_spec(load_spec("examples/midblock.yaml"), seed=0))) == MIDBLOCK_SPEC_SHA
+    assert sha256_text(native.dumps(build_spec(load_spec("examples/multi_lane.yaml"), seed=0))) == MULTI_LANE_SPEC_SHA
     f = JunctionFeature.make([0, 90, 180, 270], "signal")
     assert "filter" not in f.to_dict() and JunctionFeature.from_dict(f.to_dict()) == f
 
@@ -89,7 +85,7 @@ def test_sampling_covers_every_filter_value(sampled):
     assert values == ["signal"] * 8 + ["yield"] * 8
     assert len(filter_lanes(sampled)) == 16 and len(sampled.yield_signs) == 8
     assert check_map(sampled) == []
-    assert sha(native.dumps(generate(SPACE, seed=0))) == sha(native.dumps(sampled))  # seeded
+    assert sha256_text(native.dumps(generate(SPACE, seed=0))) == sha256_text(native.dumps(sampled))  # seeded
 
 
 def test_a_filter_lane_leaves_before_the_core_and_joins_the_exit_after_it(spec_map):

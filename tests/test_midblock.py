@@ -3,14 +3,13 @@ values, their sampling, spec requests, construction, exports and extraction, on 
 here; old feature files and specs (no `midblock`) give the same bytes as before."""
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import warnings
 from pathlib import Path
 
 import pytest
-from conftest import read_shared_map
+from conftest import read_shared_map, sha256_text
 from shapely.geometry import Polygon
 
 from feat2map.cli import main
@@ -36,10 +35,6 @@ MULTI_LANE_SPEC_SHA = "c3c2b1b6284233a6722dd645b22650ccdc57ca2725da5915b50f7048b
 PAPER_SPACE_JSON_SHA = "9f68374b69230c40b582ec0d385e9a0cc2dde740fc60a029638b7bf3e674b1b9"
 
 
-def sha(text: str) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()
-
-
 @pytest.fixture(scope="module")
 def sampled() -> HDMap:
     return generate(SPACE, seed=3)
@@ -61,13 +56,13 @@ def test_an_old_feature_file_reads_and_generates_the_bytes_it_always_did():
     assert "midblock" not in old  # what feature files written before mid-block crosswalks hold
     space = FeatureSpace.from_dict(old)
     assert space.midblock == ("none",) and space == PAPER_SF_FEATURE_SPACE
-    assert sha(space.to_json()) == PAPER_SPACE_JSON_SHA
-    assert sha(native.dumps(generate(space, seed=1))) == PAPER_SEED1_SHA
+    assert sha256_text(space.to_json()) == PAPER_SPACE_JSON_SHA
+    assert sha256_text(native.dumps(generate(space, seed=1))) == PAPER_SEED1_SHA
 
 
 def test_an_old_spec_builds_the_bytes_it_always_did(monkeypatch):
     monkeypatch.chdir(REPO)  # the map records the spec's path as given
-    assert sha(native.dumps(build_spec(load_spec("examples/multi_lane.yaml"), seed=0))) == MULTI_LANE_SPEC_SHA
+    assert sha256_text(native.dumps(build_spec(load_spec("examples/multi_lane.yaml"), seed=0))) == MULTI_LANE_SPEC_SHA
 
 
 def test_midblock_values_round_trip_and_bad_ones_are_named():
@@ -102,7 +97,7 @@ def test_sampling_places_one_crosswalk_per_value_on_roads_between_junctions(samp
             crossed = LineString(ln.centerline).intersection(poly)
             assert math.isclose(crossed.length, CROSSWALK_WIDTH_M, abs_tol=0.2), (c.id, crossed.length)
     assert check_map(sampled) == []
-    assert sha(native.dumps(generate(SPACE, seed=3))) == sha(native.dumps(sampled))  # seeded
+    assert sha256_text(native.dumps(generate(SPACE, seed=3))) == sha256_text(native.dumps(sampled))  # seeded
 
 
 def test_signalised_midblock_lights_face_their_traffic_and_have_a_pedestrian_phase(sampled):

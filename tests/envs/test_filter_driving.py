@@ -8,11 +8,11 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from conftest import example_map_file
 
 from feat2map.envs.network import MapNetwork
 from feat2map.formats import native
 from feat2map.scenarios.scenario import Scenario, make_env
-from feat2map.spec import build_spec, load_spec
 
 REPO = Path(__file__).resolve().parents[2]
 FILTER_MOVES = {("J0", "R2", "R3"), ("J0", "R3", "R0"), ("J1", "R4", "R5")}  # (junction, entry, exit) of each
@@ -20,9 +20,7 @@ FILTER_MOVES = {("J0", "R2", "R3"), ("J0", "R3", "R0"), ("J1", "R4", "R5")}  # (
 
 @pytest.fixture(scope="module")
 def map_path(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("filter") / "filter_lanes.json"
-    native.save(build_spec(load_spec(REPO / "examples" / "filter_lanes.yaml"), seed=0), path)
-    return path
+    return example_map_file(tmp_path_factory, "filter_lanes")
 
 
 def test_the_network_knows_the_yield_filter_lanes(map_path):

@@ -6,12 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import example_map_file
 
 from feat2map.envs.network import MapNetwork
 from feat2map.formats import native
 from feat2map.scenarios.planner import BaselinePlanner
 from feat2map.scenarios.scenario import Scenario, make_env
-from feat2map.spec import build_spec, load_spec
 
 REPO = Path(__file__).resolve().parents[2]
 ROUTE = (("J0", "R2", "R0"), ("J1", "R0", "R4"))  # through the signalised crossing on R0 and the bare one on R4
@@ -19,9 +19,7 @@ ROUTE = (("J0", "R2", "R0"), ("J1", "R0", "R4"))  # through the signalised cross
 
 @pytest.fixture(scope="module")
 def map_path(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("midblock") / "midblock.json"
-    native.save(build_spec(load_spec(REPO / "examples" / "midblock.yaml"), seed=0), path)
-    return path
+    return example_map_file(tmp_path_factory, "midblock")
 
 
 def test_the_network_holds_midblock_lines_and_crossings(map_path):
