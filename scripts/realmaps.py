@@ -369,13 +369,14 @@ A corpus folder beside them (any folder of maps, one sub-folder per producing to
 With the maps in place:
 
 ```bash
-python scripts/realmaps.py --md shared.md --json shared.json --max-scenarios 6 --workers 1
-python scripts/realmaps.py --no-shared --corpus DIR --md corpus.md --json corpus.json --max-scenarios 6 --workers 1
+python scripts/realmaps.py --md shared.md --json shared.json --workers 2
+python scripts/realmaps.py --no-shared --corpus DIR --md corpus.md --json corpus.json --workers 2
 python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realmaps.md
 ```
 
-`--no-rollout` reads, extracts, exports and builds suites only; without `--max-scenarios` every
-scenario is driven. Columns: **source** = the map's first sub-folder (its producing tool);
+`--no-rollout` reads, extracts, exports and builds suites only; `--max-scenarios N` drives N
+scenarios spread over each suite instead of all (driving all of `../shared` takes about 45 minutes
+on one worker; the corpus with its exports 15 minutes on two). Columns: **source** = the map's first sub-folder (its producing tool);
 **junctions (skipped)** = junctions extracted (3 or more arms) and junction elements skipped, each
 with a reason; **driven / completed** = scenarios driven (a sample spread over the suite, or all)
 and completed; **failures** = other outcomes and stage errors (a refusal names the problem);
