@@ -261,6 +261,7 @@ class Limits:
     max_document_bytes: int = 64 << 20  # one JSON/YAML spec, suite or feature-space document
     max_nesting: int = 100  # nesting depth of JSON/YAML documents
     max_yaml_nodes: int = 2_000_000  # YAML nodes after expanding aliases (an alias bomb is billions)
+    max_checker_s: float = 600.0  # [s] one run of a format's own checker on one file (ASAM's Quality Checker)
 
     def check(self, name: str, value: float, what: str) -> None:
         """Raise a LimitError when `value` exceeds limit `name`."""

@@ -376,7 +376,8 @@ python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realma
 
 `--no-rollout` reads, extracts, exports and builds suites only; `--max-scenarios N` drives N
 scenarios spread over each suite instead of all (driving all of `../shared` takes about 45 minutes
-on one worker; the corpus with its exports 15 minutes on two). Columns: **source** = the map's first sub-folder (its producing tool);
+on one worker; the corpus with its exports 15 minutes on two). Columns: **source** = the map's
+first sub-folder (its producing tool);
 **junctions (skipped)** = junctions extracted (3 or more arms) and junction elements skipped, each
 with a reason; **driven / completed** = scenarios driven (a sample spread over the suite, or all)
 and completed; **failures** = other outcomes and stage errors (a refusal names the problem);

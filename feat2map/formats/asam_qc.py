@@ -17,13 +17,13 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..config import LIMIT_FLAG, limits, plain_number
 from ..errors import Feat2MapError
 from .base import Problem
 
 # (command, bundle application name, pip package) per checked format
 OPENDRIVE = ("qc_opendrive", "xodrBundle", "asam-qc-opendrive")
 OPENSCENARIO = ("qc_openscenario", "xoscBundle", "asam-qc-openscenarioxml")
-TIMEOUT_S = 600
 
 
 @dataclass(frozen=True)
@@ -66,10 +66,12 @@ def run_bundle(path: str | Path, bundle: tuple[str, str, str]) -> list[CheckerRe
         cb = etree.SubElement(root, "CheckerBundle", application=application)
         etree.SubElement(cb, "Param", name="resultFile", value=str(result))
         config.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+        seconds = limits().max_checker_s
         try:
-            run = subprocess.run([exe, "-c", str(config)], cwd=tmp, capture_output=True, text=True, timeout=TIMEOUT_S)
+            run = subprocess.run([exe, "-c", str(config)], cwd=tmp, capture_output=True, text=True, timeout=seconds)
         except subprocess.TimeoutExpired:
-            raise Feat2MapError(f"{command} ran longer than {TIMEOUT_S} s", str(path)) from None
+            raise Feat2MapError(f"{command} ran longer than {plain_number(seconds)} s, the limit max_checker_s "
+                                f"(raise it with {LIMIT_FLAG} max_checker_s=N)", str(path)) from None
         if run.returncode != 0 or not result.is_file():
             last = (run.stderr.strip().splitlines() or ["no output"])[-1]
             raise Feat2MapError(f"{command} failed (exit {run.returncode}): {last}", str(path))

@@ -137,6 +137,21 @@ def test_cli_validate_runs_the_checker_and_reports_its_issues(tmp_path, capsys):
     assert all(ln.startswith("bad.xodr:") for ln in out[:-1])
 
 
+def test_a_checker_past_its_time_limit_says_how_to_raise_it(tmp_path, capsys):
+    """ASAM's checker runs past `max_checker_s` on a big file (San Francisco's export): the file
+    is refused with the limit's name and flag, and `--limit` raises it for one run."""
+    from feat2map.config import raised_limits
+    from feat2map.errors import Feat2MapError
+
+    path = tmp_path / "m.xodr"
+    write_opendrive(_map("mega_junction"), path)
+    with raised_limits(max_checker_s=0.01), pytest.raises(Feat2MapError, match="--limit max_checker_s=N"):
+        run_bundle(path, OPENDRIVE)
+    assert main(["--limit", "max_checker_s=0.01", "validate", str(path)]) != 0
+    assert "max_checker_s" in capsys.readouterr().err
+    assert main(["--limit", "max_checker_s=900", "validate", str(path)]) == 0
+
+
 def test_checker_problems_name_the_element(tmp_path):
     """A paramPoly3 whose declared length is not its arc length: a geometry issue located by
     XPath."""
