@@ -459,8 +459,13 @@ class TrafficRules:
         k = route.index(lane_id, pos) if lane_id in route[pos:] else -1
         if k <= 0 or net.hdmap.lanes[route[k - 1]].junction_id is not None:
             return False
-        d = self.line_distance(other, lane_id)
-        return can_stop_before(d - STOP_POINT_M, max(other.speed, 0.0), other.LENGTH)
+        return self.can_still_stop(other, lane_id)
+
+    def can_still_stop(self, vehicle, lane_id: str) -> bool:
+        """Whether `vehicle`, heading into junction lane `lane_id`, can still stop comfortably at
+        its stop point before the lane's line (else it is committed: it goes)."""
+        d = self.line_distance(vehicle, lane_id)
+        return can_stop_before(d - STOP_POINT_M, max(vehicle.speed, 0.0), vehicle.LENGTH)
 
     def traffic_towards(self, lane_id: str, exclude=None) -> list[tuple[float, Any]]:
         """(distance from the vehicle centre to the start of `lane_id`, vehicle) of every road
@@ -607,17 +612,11 @@ class TrafficRules:
         traffic's `junction_clear`: GoMentum's base_map r002, a car behind its leader into a
         permissive left turn was hit by the ego going straight on the lane the leader's release
         let it reserve."""
-        net = self.net
         committed = []
-        for p in net.hdmap.lanes[j_lane].predecessors:
-            lane_p = net.lane_of.get(p)
-            if lane_p is None:
-                continue
+        for p in self.net.hdmap.lanes[j_lane].predecessors:
             for v in self.buckets.get(p, ()):
-                if enters_next(v, j_lane):
-                    d = self.line_distance(v, j_lane)
-                    if not can_stop_before(d - STOP_POINT_M, max(v.speed, 0.0), v.LENGTH):
-                        committed.append((d, v))
+                if enters_next(v, j_lane) and not self.can_still_stop(v, j_lane):
+                    committed.append((self.line_distance(v, j_lane), v))
         if committed:
             _, v = min(committed, key=lambda dv: dv[0])
             for x in self.junction_chain(v, j_lane):
