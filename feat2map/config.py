@@ -152,6 +152,8 @@ ARM_PROBE_M = 20.0  # an arm's direction: towards the point this far out along i
 ARM_MAX_WIDTH_M = 30.0  # lanes of one arm lie within this across the arm (medians included)
 ARM_MAX_DEPTH_M = 15.0  # ... and within this along it
 ARM_NEAR_M = 8.0  # lane ends this close with the same local direction belong to one arm
+ARM_TIE_M = 1e-3  # ... each limit less this: a map drawn in round metres (an entry ramp 15 m along from an exit
+# ramp) must fall on one side of a limit, not on either by rounding, which an export and re-read changes
 ARM_CENTRE_EXACT_M = 0.05  # mouth tangents meeting this closely define the centre exactly
 ARM_SAME_POINT_M = 0.05  # lane mouths this close are one arm, whatever their tangents
 MIN_ARM_LENGTH_M = 0.5  # a road shorter than this between two ends of one junction is part of it, not an arm

@@ -32,7 +32,7 @@ from shapely import STRtree
 from shapely.geometry import Polygon
 
 from .angles import positive_degrees, turn_name, wrap_degrees
-from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M,
+from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M, ARM_TIE_M,
                      ARM_PROBE_M, ARM_SAME_POINT_M, FILTER_LEAD_MAX_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
 from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, normalize_rotation
@@ -214,8 +214,8 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     mean /= np.maximum(np.hypot(mean[..., 0], mean[..., 1]), 1e-12)[..., None]
     across = np.abs(mean[..., 0] * d[..., 1] - mean[..., 1] * d[..., 0])
     along = np.abs((mean * d).sum(axis=-1))
-    same = ((tangents @ tangents.T >= cos_tol) & (dist <= ARM_NEAR_M)) | (  # adjacent, same local direction
-        (dirs @ dirs.T >= cos_tol) & (across <= ARM_MAX_WIDTH_M) & (along <= ARM_MAX_DEPTH_M))
+    same = ((tangents @ tangents.T >= cos_tol) & (dist < ARM_NEAR_M - ARM_TIE_M)) | (  # adjacent, same local direction
+        (dirs @ dirs.T >= cos_tol) & (across < ARM_MAX_WIDTH_M - ARM_TIE_M) & (along < ARM_MAX_DEPTH_M - ARM_TIE_M))
     entering = np.array([k == "in" for k in kinds])  # the leg rule: all-in or all-out mouths need close tangents
     same &= (entering[:, None] != entering[None, :]) | (tangents @ tangents.T >= math.cos(math.radians(LEG_MERGE_DEG)))
     same |= dist <= ARM_SAME_POINT_M  # mouths at one point are one leg whatever their tangents (thinned sim_map curves)

@@ -79,3 +79,39 @@ def test_a_ramp_closer_than_the_leg_rule_is_skipped_for_that_reason():
         assert extract_junctions(_merge_map(12.0, -2.0), skipped=skipped) == []
     (s,) = skipped
     assert s.reason.startswith("sockets 12.00 degrees apart") and "[0.0, 180.0, 192.0]" in s.reason
+
+
+def _ramp_pair_map(along_m: float) -> HDMap:
+    """A junction on a one-way road (west to east) with an exit ramp leaving south from (0, -20)
+    and an entry ramp coming north into (5, -20 + along_m): the ramps' mouths lie 5 m across
+    and `along_m` along their arm (ASAM's motorway example draws its two ramp pairs 15 m
+    apart)."""
+    entry = (5.0, -20.0 + along_m)
+    lanes = [
+        _lane("main_in", "main_in", [(-70, 0), (-50, 0), (-30, 0)], succs=["j_main", "j_exit"]),
+        _lane("main_out", "main_out", [(30, 0), (50, 0), (70, 0)], preds=["j_main", "j_entry"]),
+        _lane("exit", "exit", [(0, -20), (0, -40), (0, -60)], preds=["j_exit"]),
+        _lane("entry", "entry", [(5, -60), (5, -40), entry], succs=["j_entry"]),
+        _lane("j_main", "j1", [(-30, 0), (0, 0), (30, 0)], preds=["main_in"], succs=["main_out"], junction="J"),
+        _lane("j_exit", "j2", [(-30, 0), (-5, -5), (0, -20)], preds=["main_in"], succs=["exit"], junction="J"),
+        _lane("j_entry", "j3", [entry, (10, -2), (30, 0)], preds=["entry"], succs=["main_out"], junction="J"),
+    ]
+    roads = {r: Road(r, "junction" if r.startswith("j") else "road", junction_id="J" if r.startswith("j") else None)
+             for r in {ln.road_id for ln in lanes}}
+    return HDMap({ln.id: ln for ln in lanes}, roads, {"J": Junction("J", as_polyline([(-30, -20), (30, -20), (30, 2),
+                                                                                         (-30, 2)]))})
+
+
+def test_ramps_at_an_arm_limit_fall_on_one_side_of_it_whatever_the_rounding():
+    """Mouths exactly ARM_MAX_DEPTH_M apart along their arm are apart, with either rounding:
+    an OpenDRIVE export and re-read moved ASAM's ramp pairs by 1e-12 m across the limit, and
+    its motorway junction went from skipped (4 arms) to extracted (3 arms)."""
+    from feat2map.config import ARM_MAX_DEPTH_M
+    arms = []
+    for noise in (-1e-9, 0.0, 1e-9):
+        skipped: list[SkippedJunction] = []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            extracted = extract_junctions(_ramp_pair_map(ARM_MAX_DEPTH_M + noise), skipped=skipped)
+        arms += [len(j.arms) for j in extracted] + [s.n_arms for s in skipped]
+    assert arms == [4, 4, 4]  # the ramps are two arms, however the limit's distance rounds

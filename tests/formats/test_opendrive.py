@@ -986,3 +986,27 @@ def test_carcarana_reads_with_every_exit_reachable():
 
     m = read_shared_map("opendrive/commonroad_arg_carcarana/ARG_Carcarana-1_1_T-1.xodr", read_opendrive)
     assert connectivity(m) == [] and len(m.entry_lanes) == len(m.exit_lanes) == 12
+
+
+def test_a_fold_spiking_into_the_next_junction_does_not_join_them():
+    """Junction elements are one intersection when their lanes' areas touch, with the borders'
+    folds dropped first: a skewed merge lane written back by the writer spiked 0.9 m past its
+    end, over a 0.2 m road, into the next element, and the re-read joined two junctions
+    (SUMO's WBeaverAve lost a junction in the round trip)."""
+    from types import SimpleNamespace
+
+    from feat2map.formats.opendrive.reader import _Builder, _LaneGeom
+
+    def geom(road: str, x0: float, x1: float, spike: float = 0.0) -> _LaneGeom:
+        x = np.linspace(x0, x1, 5)
+        left = np.c_[x, np.full(5, 1.75)]
+        if spike:  # a skewed end (the left border ends 1 m short), and the border runs past the lane's end first
+            left = np.vstack([left[:-1], [x1 + spike, 1.9], [x1 - 1.0, 1.75]])
+        return _LaneGeom((road, 0, -1), np.c_[x, np.zeros(5)], left, np.c_[x, np.full(5, -1.75)], 3.5, 10.0)
+
+    for spike, joined in ((0.0, False), (0.9, False)):
+        geoms = {g.key: g for g in (geom("a", 0.0, 10.0, spike), geom("b", 10.2, 20.0))}
+        stand_in = SimpleNamespace(geoms=geoms, roads={"a": SimpleNamespace(junction="1"),
+                                                       "b": SimpleNamespace(junction="2")})
+        groups = _Builder._junction_groups(stand_in)  # type: ignore[arg-type]
+        assert (groups["1"] == groups["2"]) is joined

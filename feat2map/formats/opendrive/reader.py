@@ -32,7 +32,7 @@ from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       line_across_at, midblock_crossing, signal_precedence, stop_line_across)
-from ...semantics import loaded
+from ...semantics import loaded, unfold
 
 # OpenDRIVE signal type -> feat2map control kind, from the code tables the dialects use: the
 # OpenDRIVE 1.5 country "OpenDRIVE" codes for lights (CARLA/VectorZero, SVL and esmini: 1000001
@@ -744,7 +744,10 @@ class _Builder:
 
     # ---- junctions ------------------------------------------------------------------------
     def _junction_groups(self) -> dict[str, str]:
-        """OpenDRIVE junction id -> merged junction id (elements whose lanes touch are one)."""
+        """OpenDRIVE junction id -> merged junction id (elements whose lanes touch are one). A
+        lane's area is taken with its borders' folds dropped (`unfold`, as the lanes are read):
+        a fold's spike must not join two elements (a skewed merge lane, written back, spiked
+        0.9 m past its end into the next element, 0.2 m on, and two junctions became one)."""
         from shapely.ops import unary_union
 
         areas: dict[str, list[Any]] = {}
@@ -752,7 +755,9 @@ class _Builder:
             jid = self.roads[key[0]].junction
             if jid is None:
                 continue
-            poly = Polygon(np.vstack([g.left, g.right[::-1]])).buffer(0)
+            centre = g.centre.tolist()
+            left, right = (b if (u := unfold(b.tolist(), centre)) is None else np.asarray(u) for b in (g.left, g.right))
+            poly = Polygon(np.vstack([left, right[::-1]])).buffer(0)
             areas.setdefault(jid, []).append(poly)
         shapes = {j: unary_union(p) for j, p in areas.items()}
         ids = list(shapes)
