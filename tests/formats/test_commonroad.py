@@ -231,6 +231,31 @@ def test_one_sided_neighbours_and_mislabelled_turns_still_validate(sf_default_ma
     assert lanelet_ids(bad)[straight.id] in inc
 
 
+def test_turn_sets_follow_the_lanelet_as_read_not_our_centre_line(sf_default_map, tmp_path):
+    """A CommonRoad file holds a lanelet's borders; a reader's centre line lies midway between
+    them. A junction lane whose own centre line lies off that midline (SUMO's WBeaverAve: a
+    U-turn whose centre turns 180 degrees and whose borders' midline 168) is listed by the turn
+    a reader sees, so the file validates."""
+    import dataclasses
+
+    m = sf_default_map
+    lanes = dict(m.lanes)
+    straight = next(ln for ln in lanes.values() if ln.junction_id and ln.turn == "none")
+    c = np.asarray(straight.centerline, dtype=float)
+    d = (c[-1] - c[0]) / np.hypot(*(c[-1] - c[0]))
+    off = c.copy()
+    off[1:-1] += 1.0 * np.array([-d[1], d[0]])  # the centre line 1 m off its borders' midline between its ends
+    lanes[straight.id] = dataclasses.replace(straight, centerline=tuple(map(tuple, off)))
+    bad = dataclasses.replace(m, lanes=lanes)
+    path = tmp_path / "hooked.xml"
+    write_commonroad(bad, path)
+    report = check_commonroad(path)
+    assert report.problems == []
+    inc = {x for i in report.scenario.lanelet_network.intersections for g in i.incomings
+           for x in g.outgoing_straight or ()}
+    assert lanelet_ids(bad)[straight.id] in inc
+
+
 def test_commonroad_ios_file_reader_imports_next_to_feat2map(sf_default_map, tmp_path):
     """`from commonroad.common.file_reader import CommonRoadFileReader` works once feat2map is
     imported (its protobuf modules need protobuf 3.20; feat2map stands in for them), reads our

@@ -403,15 +403,16 @@ def _dead_end_junction_lanes(m: HDMap, lanes) -> set[str]:
 def _incomings(m: HDMap, jid: str, lanes, net, ids: "_Ids",
                dead_ends: set[str]) -> dict[str, tuple[list[str], dict[str, list[str]]]]:
     """Entry road -> (its lanes into junction `jid`, junction lanes from them by CommonRoad turn:
-    `turn_set` of the lanelet as written; `dead_ends` left out)."""
+    `turn_set` of the lanelet as a reader sees it, its centre midway between its borders;
+    `dead_ends` left out)."""
     out: dict[str, tuple[list[str], dict[str, list[str]]]] = {}
     for road, feeders in m.approaches(jid).items():
         feeders = [x for x in feeders if x in lanes]
         turns: dict[str, list[str]] = {}
         for ln in m.lanes_by_junction[jid]:
             if ln.id in lanes and any(p in feeders for p in ln.predecessors) and ln.id not in dead_ends:
-                centre = net.find_lanelet_by_id(ids("lane", ln.id)).center_vertices
-                turns.setdefault(turn_set(ln.turn, centre), []).append(ln.id)
+                ll = net.find_lanelet_by_id(ids("lane", ln.id))  # the file holds its borders, not our centre line
+                turns.setdefault(turn_set(ln.turn, (ll.left_vertices + ll.right_vertices) / 2), []).append(ln.id)
         if feeders:
             out[road] = (feeders, turns)
     return out
