@@ -106,7 +106,7 @@ def seed_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(exc.message) from None
 
 
-def _limit_arg(text: str) -> tuple[str, float]:
+def limit_arg(text: str) -> tuple[str, float]:
     """argparse type of --limit NAME=VALUE."""
     name, sep, value = text.partition("=")
     try:
@@ -373,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="feat2map", description=__doc__ + "\n\nRun `feat2map COMMAND --help` for a command's options.")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     lim = Limits()
-    p.add_argument(LIMIT_FLAG, action="append", type=_limit_arg, metavar="NAME=VALUE", default=[],
+    p.add_argument(LIMIT_FLAG, action="append", type=limit_arg, metavar="NAME=VALUE", default=[],
                    help="raise a size limit for this run (repeatable); limits and defaults: " + ", ".join(
                        f"{f.name}={plain_number(getattr(lim, f.name))}" for f in dataclasses.fields(lim)))
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser, title="commands", metavar="COMMAND")

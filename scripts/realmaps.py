@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 from feat2map import atomic, cli
+from feat2map.config import LIMIT_FLAG, raised_limits
 from feat2map.errors import Feat2MapError
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import FORMATS, read_map
@@ -473,6 +474,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--no-rollout", action="store_true", help="read, extract, export and build suites only")
     ap.add_argument("--no-export", action="store_true", help="leave out the exports to the four formats")
     ap.add_argument("--only", action="append", default=[], help="survey only maps whose label contains this")
+    ap.add_argument(LIMIT_FLAG, action="append", type=cli.limit_arg, metavar="NAME=VALUE", default=[],
+                    help="raise a size limit for every stage, as feat2map's own flag (San Francisco's OpenDRIVE "
+                         "export needs max_checker_s above 600 on a loaded machine)")
     ap.add_argument("--md", type=Path, default=Path("realmaps.md"), help="Markdown table (default realmaps.md)")
     ap.add_argument("--json", type=Path, default=Path("realmaps.json"), help="JSON results (default realmaps.json)")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
@@ -501,6 +505,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not todo:
         print("no map files found in " + ", ".join(map(str, folders)), file=sys.stderr)
         return 2
+    with raised_limits(**dict(args.limit)):
+        return _survey(args, folders, todo)
+
+
+def _survey(args: argparse.Namespace, folders: list[Path], todo: list[tuple[Path, str, str]]) -> int:
+    """Survey `todo` ((path, label, source) of each map), writing --md, --json and --doc."""
     tty = sys.stderr.isatty()
     results: list[MapSurvey] = []
     for i, (path, label, source) in enumerate(todo, 1):
