@@ -21,9 +21,10 @@ from feat2map.extract import extract_junctions
 from feat2map.formats.opendrive.reader import SIGNAL_CODES, _Geometry, _RefLine, read_opendrive
 from feat2map.formats.opendrive.writer import bezier_length, param_poly3, to_opendrive, write_opendrive
 
-from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, assert_same_features, fork_into_junction_and_road_map,
-                      merge_at_junction_entry_map, mirrored_to_left_hand_traffic, read_shared_map, shared_map,
-                      split_and_merge_map, split_with_a_centimetre_road, uneven_seams_map)
+from conftest import (REPO, SKIP_NETCONVERT, adjacent_junctions_map, as_another_tools, assert_same_features,
+                      fork_into_junction_and_road_map, merge_at_junction_entry_map, mirrored_to_left_hand_traffic,
+                      read_shared_map, shared_map, split_and_merge_map, split_with_a_centimetre_road,
+                      uneven_seams_map)
 
 # ---------------------------------------------------------------------------------------------
 # plan-view geometry
@@ -181,7 +182,8 @@ def structure_problems(root) -> list[str]:
                     need(ln, "id", "type")
                     if int(ln.get("id")) * sign <= 0:
                         bad.append(f"road {r.get('id')}: lane {ln.get('id')} on the wrong side")
-                    order(ln, ["link", "width", "border", "roadMark", "material", "speed", "access", "height", "rule"])
+                    order(ln, ["link", "width", "border", "roadMark", "material", "speed", "access", "height", "rule",
+                               "include", "userData", "dataQuality"])  # then g_additionalData
                     if not ln.findall("width") and not ln.findall("border"):
                         bad.append(f"road {r.get('id')}: lane {ln.get('id')} has no width")
                     for w in ln.findall("width"):
@@ -311,7 +313,7 @@ def test_round_trip_for_any_seed(tmp_path_factory, seed):
 
 def test_split_junction_elements_are_merged(exported, sf_default_map, tmp_path):
     """CARLA-style: one intersection written as two <junction> elements reads as one junction."""
-    root = etree.parse(str(exported)).getroot()
+    root = as_another_tools(etree.parse(str(exported)).getroot())
     j = root.find("junction")
     conns = j.findall("connection")
     twin = etree.SubElement(root, "junction", id="9999", name="split")
@@ -375,6 +377,7 @@ def test_a_centimetre_road_inside_a_merged_junction_is_no_arm_and_no_route_end(t
 
     m = feat2map.generate_from_features([JF.make([0, 90, 180], "signal", False)], seed=0)
     write_opendrive(m, tmp_path / "t.xodr")
+    (tmp_path / "t.xodr").write_bytes(etree.tostring(as_another_tools(etree.parse(str(tmp_path / "t.xodr")).getroot())))
     split_with_a_centimetre_road(tmp_path / "t.xodr", tmp_path / "split.xodr")
     whole, split = read_opendrive(tmp_path / "t.xodr"), read_opendrive(tmp_path / "split.xodr")
     assert split.meta["junction_elements"] == {"1": ["1", "999"]}
@@ -829,8 +832,9 @@ def test_left_hand_traffic_reads_as_the_mirror_of_its_right_hand_twin(tmp_path):
 
 def test_junction_ids_survive_a_round_trip(exported, tmp_path):
     """A map read from OpenDRIVE keeps its junction ids through export and re-read (a 57-junction
-    city's ids were all renumbered 1, 2, ...); generated maps' ids (J0, ...) are numbered."""
-    root = etree.parse(str(exported)).getroot()
+    city's ids were all renumbered 1, 2, ...); generated maps' ids (J0, ...) are numbered, with
+    the id as the junction's name, which our reader takes back."""
+    root = as_another_tools(etree.parse(str(exported)).getroot())
     new = {j.get("id"): str(100 + 7 * k) for k, j in enumerate(root.findall("junction"))}
     for el in root.iter():
         if el.tag == "junction":
@@ -846,6 +850,39 @@ def test_junction_ids_survive_a_round_trip(exported, tmp_path):
     assert set(read_opendrive(tmp_path / "again.xodr").junctions) == set(new.values())
     assert [j.get("id") for j in etree.parse(str(exported)).getroot().findall("junction")] == [
         str(k + 1) for k in range(len(new))]
+
+    back = read_opendrive(tmp_path / "again.xodr")  # ours again: ids come back as written
+    assert set(read_opendrive(exported).junctions) == {j.get("name") for j in etree.parse(str(exported)).getroot()
+                                                        .findall("junction") if j.get("type") != "direct"}
+    assert set(back.junctions) == set(new.values())
+
+
+def test_our_own_files_keep_back_to_back_junctions_ids_and_declared_turns(tmp_path):
+    """A map with two junctions back to back (as Apollo's GoMentum has: its 33 became 24 when
+    its OpenDRIVE export was read back, the touching elements joined) keeps both through our
+    OpenDRIVE file, under their own ids (J_a, J_b, not 1, 2), and each junction lane keeps the
+    turn it declares (a U-turn drawn at 168 degrees came back a right turn). Another tool's file
+    with the same elements is read by the rules for other producers: one junction."""
+    import dataclasses
+
+    m = adjacent_junctions_map()
+    ids = {"1": "J_a", "2": "J_b"}
+    m = dataclasses.replace(
+        m, lanes={k: dataclasses.replace(ln, junction_id=ids.get(ln.junction_id, ln.junction_id),
+                                         turn="uturn" if k == "c" else ln.turn) for k, ln in m.lanes.items()},
+        roads={k: dataclasses.replace(r, junction_id=ids.get(r.junction_id, r.junction_id)) for k, r in m.roads.items()},
+        junctions={ids[k]: dataclasses.replace(j, id=ids[k]) for k, j in m.junctions.items()})
+    write_opendrive(m, tmp_path / "ours.xodr")
+    back = read_opendrive(tmp_path / "ours.xodr")
+    assert set(back.junctions) == {"J_a", "J_b"}
+    turns = {ln.junction_id: ln.turn for ln in back.lanes.values() if ln.junction_id and len(ln.predecessors) == 1
+             and back.lanes[ln.predecessors[0]].junction_id == "J_a"}
+    assert turns == {"J_b": "uturn"}  # c, as declared (its geometry runs straight)
+    root = as_another_tools(etree.parse(str(tmp_path / "ours.xodr")).getroot())
+    (tmp_path / "theirs.xodr").write_bytes(etree.tostring(root))
+    theirs = read_opendrive(tmp_path / "theirs.xodr")
+    assert len(theirs.junctions) == 1
+    assert all(ln.turn != "uturn" for ln in theirs.lanes.values())  # turns from geometry: c runs straight
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1006,7 +1043,7 @@ def test_a_fold_spiking_into_the_next_junction_does_not_join_them():
 
     for spike, joined in ((0.0, False), (0.9, False)):
         geoms = {g.key: g for g in (geom("a", 0.0, 10.0, spike), geom("b", 10.2, 20.0))}
-        stand_in = SimpleNamespace(geoms=geoms, roads={"a": SimpleNamespace(junction="1"),
+        stand_in = SimpleNamespace(geoms=geoms, ours=False, roads={"a": SimpleNamespace(junction="1"),
                                                        "b": SimpleNamespace(junction="2")})
         groups = _Builder._junction_groups(stand_in)  # type: ignore[arg-type]
         assert (groups["1"] == groups["2"]) is joined

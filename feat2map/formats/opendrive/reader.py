@@ -27,10 +27,10 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from ...angles import classify_turn, positive_angle, wrap_angle
-from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, ROAD_CONTACT_M,
-                       SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
+from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, OPENDRIVE_TURN_CODE,
+                       OPENDRIVE_VENDOR, ROAD_CONTACT_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
-from ...model import (Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
+from ...model import (TURNS, Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       line_across_at, midblock_crossing, signal_precedence, stop_line_across)
 from ...semantics import loaded, unfold
 
@@ -743,11 +743,45 @@ class _Builder:
         return succ, pred
 
     # ---- junctions ------------------------------------------------------------------------
+    @property
+    def ours(self) -> bool:
+        """Whether feat2map wrote this file (its header's vendor)."""
+        header = self.root.find("header")
+        return header is not None and header.get("vendor") == OPENDRIVE_VENDOR
+
+    def _declared_turns(self) -> dict[str, str]:
+        """Lane id -> the turn feat2map's own file declares for a connecting road's lane
+        (userData OPENDRIVE_TURN_CODE): OpenDRIVE has no turn, and geometry alone read the
+        declared U-turns and straights of a round trip back as right and left turns."""
+        if not self.ours:
+            return {}
+        out = {}
+        for rid, road in self.roads.items():
+            if road.junction is None or road.el is None:
+                continue
+            for k, sec in enumerate(road.el.findall("lanes/laneSection")):
+                for lane in sec.iter("lane"):
+                    turn = next((u.get("value") for u in lane.findall("userData") if u.get("code") == OPENDRIVE_TURN_CODE),
+                                None)
+                    if turn in TURNS and (lane.get("id") or "").lstrip("-").isdigit():
+                        out[self.lane_id((rid, k, int(lane.get("id"))))] = turn
+        return out
+
     def _junction_groups(self) -> dict[str, str]:
         """OpenDRIVE junction id -> merged junction id (elements whose lanes touch are one). A
         lane's area is taken with its borders' folds dropped (`unfold`, as the lanes are read):
         a fold's spike must not join two elements (a skewed merge lane, written back, spiked
-        0.9 m past its end into the next element, 0.2 m on, and two junctions became one)."""
+        0.9 m past its end into the next element, 0.2 m on, and two junctions became one).
+        feat2map's own files (header vendor) write one element per junction, named by the model's
+        junction id: each is kept, under that id (a city's back-to-back junctions, GoMentum's 33,
+        became 24 on re-reading its export, and ids J_0, ... came back as 1, ...)."""
+        if self.ours:
+            used = list(dict.fromkeys(r.junction for r in self.roads.values() if r.junction is not None))
+            names = {j.get("id"): (j.get("name") or "").strip() for j in self.root.findall("junction")}
+            named = [names.get(j) for j in used]
+            if all(named) and len(set(named)) == len(named):
+                return {j: str(n) for j, n in zip(used, named)}
+            return {j: j for j in used}
         from shapely.ops import unary_union
 
         areas: dict[str, list[Any]] = {}
@@ -869,9 +903,10 @@ class _Builder:
             (rl[0] if self.roads[road_id].along(chain[0][2]) else rl[1]).append(lid)
         self._neighbours(lanes, chain_of)
         self.joined = _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
+        declared = self._declared_turns()
         for lid, ln in lanes.items():
             if ln.junction_id is not None:
-                lanes[lid] = _replace(ln, turn=_turn(ln, lanes))
+                lanes[lid] = _replace(ln, turn=declared.get(lid) or _turn(ln, lanes))
         roads: dict[str, Road] = {}
         for rid, road in self.roads.items():
             right, left = road_lanes.get(rid, ([], []))

@@ -31,7 +31,7 @@ import numpy as np
 from ... import atomic
 from ...angles import wrap_angle
 from ...bezier import Bezier
-from ...config import OPENDRIVE_JOINT_TANGENT_M, OPENDRIVE_VERSIONS, UTM_ZONE
+from ...config import OPENDRIVE_JOINT_TANGENT_M, OPENDRIVE_TURN_CODE, OPENDRIVE_VENDOR, OPENDRIVE_VERSIONS, UTM_ZONE
 from ...errors import Feat2MapError, MapFormatError
 from ...model import HDMap, Lane, Polyline, Road, midblock_controls
 from ..base import header_date
@@ -456,7 +456,7 @@ class _Writer:
         date = header_date()  # optional in OpenDRIVE; never the wall clock (same map, same bytes)
         header = self.sub(root, "header", revMajor="1", revMinor=str(self.minor), name="feat2map",
                           version="1.00", **({"date": date} if date else {}),
-                          north=y1, south=y0, east=x1, west=x0, vendor="feat2map")
+                          north=y1, south=y0, east=x1, west=x0, vendor=OPENDRIVE_VENDOR)
         geo = self.sub(header, "geoReference")
         geo.text = E.CDATA(geo_reference(m))
         signal_roads = self._place_signals()
@@ -560,6 +560,8 @@ class _Writer:
         self._mark(el, ln.right_boundary_type)
         if ln.speed_limit > 0:
             self.sub(el, "speed", sOffset=0.0, max=ln.speed_limit, unit="m/s")
+        if ln.junction_id is not None:  # the turn, which OpenDRIVE cannot say, for our reader (last: additional data)
+            self.sub(el, "userData", code=OPENDRIVE_TURN_CODE, value=ln.turn)
 
     def _junction(self, root, jid: str) -> None:
         el = self.sub(root, "junction", id=self.junction_ids[jid], name=jid)
