@@ -958,3 +958,23 @@ def test_a_side_too_narrow_round_a_bend_tighter_than_apollo_half_width_exports_a
     lane = aps.Map.FromString((out / "base_map.bin").read_bytes()).lane[0]
     widths = [x.width for x in (*lane.left_sample, *lane.right_sample)]
     assert min(widths) >= APOLLO_MIN_HALF_WIDTH_M and max(widths) > APOLLO_MIN_HALF_WIDTH_M + 0.1
+
+
+def test_a_junction_keeps_its_id_where_a_road_has_the_same(tmp_path):
+    """OpenDRIVE numbers roads and junctions apart, so a map read from one has road "1" and
+    junction "1"; Apollo ids are unique across kinds here, and the junction keeps its own
+    (it came back as junction_1): extraction, suites and reports name junctions."""
+    from lxml import etree
+
+    from conftest import as_another_tools
+    from feat2map.formats.apollo.writer import to_apollo
+    from feat2map.formats.opendrive.reader import read_opendrive
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    m = feat2map.generate_from_features([JunctionFeature.make([0, 90, 180], "stop", False)], seed=0)
+    write_opendrive(m, tmp_path / "m.xodr")
+    (tmp_path / "m.xodr").write_bytes(etree.tostring(as_another_tools(etree.parse(str(tmp_path / "m.xodr")).getroot())))
+    odr = read_opendrive(tmp_path / "m.xodr")
+    assert set(odr.junctions) & set(odr.roads)  # the clash this is about
+    back = read_apollo_bytes(to_apollo(odr).SerializeToString())
+    assert set(back.junctions) == set(odr.junctions)

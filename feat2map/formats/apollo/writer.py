@@ -170,7 +170,9 @@ def to_apollo(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] | N
     out = aps.Map()
     _header(out.header, m, zone)
 
-    for kind, table in (("lane", m.lanes), ("road", m.roads), ("junction", m.junctions), ("signal", m.signals),
+    # junctions claim their ids first: where an OpenDRIVE map's road and junction share an id, the
+    # junction keeps it (extraction, suites and reports name junctions), the road takes road_<id>
+    for kind, table in (("junction", m.junctions), ("lane", m.lanes), ("road", m.roads), ("signal", m.signals),
                         ("stop_sign", m.stop_signs), ("yield_sign", m.yield_signs), ("crosswalk", m.crosswalks)):
         for key in table:
             ids.claim(kind, key, key)
