@@ -146,7 +146,7 @@ def _probe(m: HDMap, ln: Lane, outward_from_start: bool, jid: str | None) -> np.
     return end
 
 
-def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
+def _arms(m: HDMap, jid: str, lanes: Sequence[Lane], ramps: bool = False) -> list[_ArmEnds]:
     """Arms from the junction's mouths: one per road lane that feeds or leaves it.
 
     Each mouth gets two outward directions: towards a point ARM_PROBE_M out along its road
@@ -159,7 +159,9 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     (the leg rule: legs at least MIN_LEG_SEPARATION_DEG apart, one-way ones too, stay apart).
     Two mouths that a junction lane joins (other than a U-turn) are never one arm: merges
     go strongest evidence first (neighbour links, then nearest pairs) and skip any merge
-    that would put such a pair into one arm, so legs a few degrees apart stay apart.
+    that would put such a pair into one arm, so legs a few degrees apart stay apart. With
+    `ramps` (`_ramp_junction`: for junctions that are skipped without), the mouths of a merge or
+    a diverge between legs stay apart too (`_merging_mouths`).
     """
     # one end per lane outside (its incoming or outgoing road lane), else per point (points
     # within ARM_SAME_POINT_M are one: rounding coordinates would split them by where they lie)
@@ -220,7 +222,7 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     same &= (entering[:, None] != entering[None, :]) | (tangents @ tangents.T >= math.cos(math.radians(LEG_MERGE_DEG)))
     same |= dist <= ARM_SAME_POINT_M  # mouths at one point are one leg whatever their tangents (thinned sim_map curves)
     index = {key: i for i, key in enumerate(ends)}
-    merging = _merging_mouths(m, jid, lanes, index, tangents)
+    merging = _merging_mouths(m, jid, lanes, index, tangents) if ramps else set()
     apart = _joined_mouths(m, jid, lanes, index) | merging
     cos_leg = math.cos(math.radians(LEG_MERGE_DEG))
     for i in {i for i, _ in merging}:  # a ramp's mouth is no lane of another road whose direction differs
@@ -423,6 +425,13 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         if any(f.id in early for f in mine):
             lanes = [ln for ln in lanes if ln.id not in early]  # they leave before the core: no mouth
         ends = _arms(m, jid, lanes)
+        crosswalk = jid in xw_junctions or (
+            xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
+        if not (mine or crosswalk) and (len(ends) < 3 or _leg_gap(ends, poly, centre) < MIN_LEG_SEPARATION_DEG - 1e-9):
+            ramp = _ramp_junction(m, jid, lanes, poly, control)  # skipped otherwise: a motorway's ramps?
+            if ramp is not None:
+                out.append(ExtractedJunction(map_name, jid, *ramp))
+                continue
         if len(ends) < 3:
             skip(jid, poly, control, len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
             continue
@@ -432,16 +441,6 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9 and any(_behind(a, c) for a in ends):
             arms = _socket_arms(ends, c, by_road=True)  # the centre lies beyond a mouth: see _socket_arms
             raw, gap = _angles_and_gap(arms)
-        crosswalk = jid in xw_junctions or (
-            xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
-        if gap < MIN_LEG_SEPARATION_DEG - 1e-9 and not (mine or crosswalk):  # a motorway's ramps?
-            try:
-                ramp = ramp_feature(arms, control)
-            except FeatureError:
-                ramp = None
-            if ramp is not None:
-                out.append(ExtractedJunction(map_name, jid, ramp[0], (float(c[0]), float(c[1])), ramp[1]))
-                continue
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
             skip(jid, poly, control, len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
                             f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")
@@ -458,6 +457,41 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
             continue
         out.append(ExtractedJunction(map_name, jid, feature, (float(c[0]), float(c[1])), tuple(arms)))
     return out
+
+
+def _socket_angles(ends: Sequence[_ArmEnds], poly: Polygon, centre: str) -> tuple[list[Arm], np.ndarray, float]:
+    """The arms with their socket angles as `extract_junctions` measures them, their centre and
+    the smallest gap between neighbouring angles."""
+    c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
+    arms = _socket_arms(ends, c, by_road=False)
+    _, gap = _angles_and_gap(arms)
+    if gap < MIN_LEG_SEPARATION_DEG - 1e-9 and any(_behind(a, c) for a in ends):
+        arms = _socket_arms(ends, c, by_road=True)
+        _, gap = _angles_and_gap(arms)
+    return arms, c, gap
+
+
+def _leg_gap(ends: Sequence[_ArmEnds], poly: Polygon, centre: str) -> float:
+    return _socket_angles(ends, poly, centre)[2]
+
+
+def _ramp_junction(m: HDMap, jid: str, lanes: Sequence[Lane], poly: Polygon, control: str
+                   ) -> tuple[JunctionFeature, tuple[float, float], tuple[Arm, ...]] | None:
+    """(feature, centre, arms) of a ramp junction (`ramp_feature`), measured with the mouths of a
+    merge or diverge kept apart (`_arms` with `ramps`), or None when the junction makes none. Only
+    a junction that is skipped without it (fewer than 3 arms, or arms closer than the leg rule)
+    is taken as one, so every other junction measures as it always did."""
+    ends = _arms(m, jid, lanes, ramps=True)
+    if len(ends) < 3:
+        return None
+    arms, c, gap = _socket_angles(ends, poly, "arms")
+    if gap >= MIN_LEG_SEPARATION_DEG - 1e-9:
+        return None
+    try:
+        found = ramp_feature(arms, control)
+    except FeatureError:
+        return None
+    return None if found is None else (found[0], (float(c[0]), float(c[1])), found[1])
 
 
 def ramp_feature(arms: Sequence[Arm], control: str) -> tuple[JunctionFeature, tuple[Arm, ...]] | None:
@@ -636,8 +670,10 @@ def extract_midblock(m: HDMap, map_name: str = "map") -> list[ExtractedMidblock]
 
 
 def map_feature(junctions: Iterable[ExtractedJunction | JunctionFeature],
-                midblock: Iterable[ExtractedMidblock | MidblockFeature] = ()) -> FeatureSpace:
-    """The map feature of one or several maps: union of discrete values, per-n angle ranges, and
-    the mid-block crosswalk values seen."""
+                midblock: Iterable[ExtractedMidblock | MidblockFeature] = (), ramps: Iterable[str] = ()) -> FeatureSpace:
+    """The map feature of one or several maps: union of discrete values, per-n angle ranges, the
+    mid-block crosswalk values seen and the ramp values (ramp junctions', and `ramps`: the kinds
+    of ramps found outside them)."""
     return FeatureSpace.from_features((j.feature if isinstance(j, ExtractedJunction) else j for j in junctions),
-                                      (c.feature if isinstance(c, ExtractedMidblock) else c for c in midblock))
+                                      (c.feature if isinstance(c, ExtractedMidblock) else c for c in midblock),
+                                      ramps)

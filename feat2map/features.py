@@ -559,13 +559,15 @@ class FeatureSpace:
 
     @classmethod
     def from_features(cls, features: Iterable[JunctionFeature],
-                      midblock: Iterable[MidblockFeature] = ()) -> "FeatureSpace":
+                      midblock: Iterable[MidblockFeature] = (), ramps: Iterable[str] = ()) -> "FeatureSpace":
         """Merge junction features into one map feature (union of values, per-n min/max angle);
         `midblock`: the mid-block crosswalks seen (their controls join "none", the roads without);
-        ramp junctions give their ramp values and no road count or angle ranges."""
+        ramp junctions give their ramp values and no road count or angle ranges; `ramps`: the kinds
+        ("on", "off") of ramps found outside ramp junctions (`extract_ramps.extract_ramps`)."""
         every = list(features)
         feats = [f for f in every if not f.has_ramp]
-        if not every:
+        kinds = [*(f.ramp_value for f in every if f.has_ramp), *ramps]
+        if not every and not kinds:
             raise FeatureError("no junction features to merge")
         ranges: dict[int, list[list[float]]] = {}
         for f in feats:
@@ -580,7 +582,7 @@ class FeatureSpace:
             rotation_ranges={n: tuple((lo, hi) for lo, hi in r) for n, r in ranges.items()},
             midblock=("none", *(c.control for c in midblock)),
             filter=tuple({v for f in feats for v in (set(f.filters) - {"none"} or {"none"})}) or ("none",),
-            ramp=("none", *(f.ramp_value for f in every if f.has_ramp)),
+            ramp=("none", *kinds),
         )
 
     def merge(self, other: "FeatureSpace") -> "FeatureSpace":

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -243,3 +244,62 @@ def test_extraction_finds_ramp_junctions_and_records_them_in_the_feature(sampled
     got = {e.id: e.feature for e in extract_junctions(spec_map)}
     assert math.isclose(got["J1"].ramp_length, RAMP_LANE_M, abs_tol=0.01)
     assert got["J1"].ramps.count("on") == 1 and got["J1"].ramps.count("off") == 1
+
+
+def test_extract_ramps_finds_every_generated_ramp(spec_map, sampled):
+    from feat2map.extract_ramps import extract_ramps
+
+    found = extract_ramps(spec_map)
+    assert sorted(r.kind for r in found) == ["off", "off", "on"]
+    assert {r.junction for r in found} == {"J0", "J1"}
+    assert all(math.isclose(r.angle_deg, 15.0, abs_tol=1e-6) for r in found)
+    assert all(RAMP_LANE_M <= r.length_m <= RAMP_LANE_M * 1.02 for r in found)  # the ramp lane, inside the junction
+    found = extract_ramps(sampled)
+    assert sorted(r.kind for r in found) == ["off", "off", "on", "on"]  # "on", "off" and "both"
+    angles = {round(ramp_angle(j.feature, i), 4) for j in sampled.junctions.values()
+              for i, s in enumerate(j.feature.sockets) if s.ramp != "none"}
+    assert {round(r.angle_deg, 4) for r in found} == angles
+    assert extract_ramps(generate(PAPER_SF_FEATURE_SPACE, seed=0)) == []  # city junctions hold none
+
+
+def test_the_extract_command_lists_ramps(tmp_path, spec_map, capsys):
+    from feat2map.cli import main
+
+    native.save(spec_map, tmp_path / "m.json")
+    assert main(["extract", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "[-15.00, 0.00, 15.00, 180.00]  ramps: 0 off, 2 on (75.00 m)\n" in out
+    assert "  on-ramp R4 -> R5 at junction J1: 15.00 deg, 75.41 m (main road R1)\n" in out
+    assert "3 ramps (1 on, 2 off)" in out
+    assert main(["extract", str(tmp_path / "m.json"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["ramps"]) == 3 and doc["feature_space"]["ramp"] == ["none", "off", "both"]
+
+
+CORPUS = Path(os.environ.get("FEAT2MAP_CORPUS", REPO.parent / "corpus"))
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("rel, on, off", [
+    ("asam_examples/UC_Motorway-Exit-Entry.xodr", 2, 2),  # ramp lanes joining as added lanes in 5 m junctions
+    ("asam_qc/Ex_Entry_Exit.xodr", 1, 1),  # direct junctions
+    ("roadrunner_2020/DR_CHN_Merging_ZS_partial_v02.xodr", 0, 0),  # lane drops within a road: no ramp road
+    ("roadrunner_2020/DR_DEU_Merging_MT_v01_shifted.xodr", 0, 0),
+])
+def test_ramps_of_public_motorway_maps(rel, on, off):
+    """Public motorway maps (not in the repository: a corpus folder beside it, docs/realmaps.md)
+    declare their exits and entries as direct junctions or short junctions where a ramp's lane
+    becomes an added lane; extraction finds each as a ramp."""
+    import warnings
+
+    from feat2map.extract_ramps import extract_ramps
+    from feat2map.formats import read_map
+
+    path = CORPUS / rel
+    if not path.exists():
+        pytest.skip(f"needs the public map corpus at {CORPUS} (absent here): put the OpenDRIVE files that "
+                    "docs/realmaps.md surveys in a folder and set FEAT2MAP_CORPUS=/path/to/corpus")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        found = extract_ramps(read_map(path), rel)
+    assert (sum(r.kind == "on" for r in found), sum(r.kind == "off" for r in found)) == (on, off)
