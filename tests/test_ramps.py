@@ -211,6 +211,23 @@ def test_exports_with_ramps_validate(tmp_path, request, fmt, which):
     assert problems == [], problems[:3]
 
 
+@pytest.mark.parametrize("fmt, name", [("native", "m.json"), ("apollo", "apollo"), ("opendrive", "m.xodr")])
+def test_ramp_junctions_survive_a_round_trip(tmp_path, spec_map, fmt, name):
+    import warnings
+
+    from feat2map.extract_ramps import extract_ramps
+    from feat2map.formats import read_map
+
+    write_map(spec_map, tmp_path / name, fmt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = read_map(tmp_path / name)
+    got = [j.feature for j in extract_junctions(back)]  # OpenDRIVE numbers the junctions
+    for want, j in zip(spec_map.junctions.values(), got):
+        assert feature_mismatch(j, want.feature) == []
+    assert sorted(r.kind for r in extract_ramps(back)) == ["off", "off", "on"]
+
+
 def test_openscenario_routes_through_ramps_pass_asam_qc(tmp_path, spec_map):
     """The suite's scenarios that merge from an on-ramp or diverge onto an off-ramp pass ASAM's
     OpenSCENARIO checks."""
