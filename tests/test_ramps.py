@@ -186,6 +186,19 @@ def test_generate_from_ramps_alone_and_from_a_spec_with_a_space(tmp_path):
     assert sum(j.feature.has_ramp for j in m.junctions.values()) == 2 + 3 and check_map(m) == []
 
 
+def test_a_feature_space_of_ramps_alone_generates(tmp_path, capsys):
+    from feat2map.cli import main
+
+    doc = {"road_counts": [], "controls": [], "crosswalks": [], "rotation_ranges": {}, "ramp": ["none", "on", "both"]}
+    (tmp_path / "f.json").write_text(json.dumps(doc))
+    assert main(["generate", "--features", str(tmp_path / "f.json"), "--no-picture", "--no-apollo", "--quiet",
+                 "--out", str(tmp_path / "g")]) == 0
+    m = native.load(tmp_path / "g" / "map.json")
+    assert sorted(j.feature.ramp_value for j in m.junctions.values()) == ["both", "on"] and check_map(m) == []
+    with pytest.raises(FeatureError, match="must each be non-empty"):  # no junctions and no ramps
+        FeatureSpace.from_dict({**doc, "ramp": ["none"]})
+
+
 # ------------------------------------------------------------------------------ exports
 
 @pytest.mark.parametrize("fmt", ["apollo", "lanelet2", "commonroad", "opendrive"])
