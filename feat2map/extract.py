@@ -146,7 +146,12 @@ def _probe(m: HDMap, ln: Lane, outward_from_start: bool, jid: str | None) -> np.
     return end
 
 
-def _arms(m: HDMap, jid: str, lanes: Sequence[Lane], ramps: bool = False) -> list[_ArmEnds]:
+def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
+    """The junction's arms (`_group_arms`), as every junction is measured first."""
+    return _group_arms(m, jid, lanes)
+
+
+def _group_arms(m: HDMap, jid: str, lanes: Sequence[Lane], ramps: bool = False) -> list[_ArmEnds]:
     """Arms from the junction's mouths: one per road lane that feeds or leaves it.
 
     Each mouth gets two outward directions: towards a point ARM_PROBE_M out along its road
@@ -160,7 +165,7 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane], ramps: bool = False) -> lis
     Two mouths that a junction lane joins (other than a U-turn) are never one arm: merges
     go strongest evidence first (neighbour links, then nearest pairs) and skip any merge
     that would put such a pair into one arm, so legs a few degrees apart stay apart. With
-    `ramps` (`_ramp_junction`: for junctions that are skipped without), the mouths of a merge or
+    `ramps` (`_ramp_junction`, for junctions that are skipped without), the mouths of a merge or
     a diverge between legs stay apart too (`_merging_mouths`).
     """
     # one end per lane outside (its incoming or outgoing road lane), else per point (points
@@ -481,7 +486,7 @@ def _ramp_junction(m: HDMap, jid: str, lanes: Sequence[Lane], poly: Polygon, con
     merge or diverge kept apart (`_arms` with `ramps`), or None when the junction makes none. Only
     a junction that is skipped without it (fewer than 3 arms, or arms closer than the leg rule)
     is taken as one, so every other junction measures as it always did."""
-    ends = _arms(m, jid, lanes, ramps=True)
+    ends = _group_arms(m, jid, lanes, ramps=True)
     if len(ends) < 3:
         return None
     arms, c, gap = _socket_angles(ends, poly, "arms")
