@@ -120,6 +120,8 @@ def _socket(raw: Any, where: str) -> Socket:
     else:
         lanes_in, lanes_out = socket_lanes(raw.get("type", "in-out"), int(raw.get("lanes", 1)))
     if "ramp" in raw:
+        if "filter" in raw:
+            raise SpecError("a ramp has no filter lane (a ramp junction has none)", f"{where}.filter")
         kind = raw["ramp"].get("kind", "on")
         if (kind == "on" and lanes_out) or (kind == "off" and lanes_in):
             raise SpecError(f"an {kind}-ramp is one-way {'in' if kind == 'on' else 'out'}: give it type "

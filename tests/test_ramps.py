@@ -163,6 +163,8 @@ def test_the_main_road_connects_to_city_junctions_lane_for_lane(spec_map):
     ({"sockets": [{"angle": 0, "lanes": 2}, {"angle": 180, "lanes": 2},
                   {"angle": 200, "type": "in", "ramp": {"kind": "on"}},
                   {"angle": 204, "type": "in"}]}, "junctions[0].sockets[3]", "4 deg from sockets\\[2\\]"),
+    ({"sockets": [{"angle": -15, "type": "out", "ramp": {"kind": "off"}, "filter": {}}, {"angle": 0, "lanes": 2},
+                  {"angle": 180, "lanes": 2}]}, "junctions[0].sockets[0].filter", "no filter lane"),
 ])
 def test_bad_ramp_requests_name_their_element(change, path, message):
     doc = {"junctions": [{"sockets": [{"angle": -15, "type": "out", "ramp": {"kind": "off"}}, {"angle": 0, "lanes": 2},
