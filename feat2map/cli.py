@@ -143,12 +143,14 @@ def _config(args: argparse.Namespace) -> GenerationConfig:
 
 def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool = False,
                   buildable: GenerationConfig | None = None, midblock: list | None = None,
-                  filters: list | None = None):
+                  filters: list | None = None, ramps: list | None = None):
     """Junction features of the maps; with `buildable`, only those generation can build with
     that config (the others are skipped with a warning naming map, junction and why); the
-    maps' mid-block crosswalks are appended to `midblock` and their filter lanes to `filters` when
-    given."""
+    maps' mid-block crosswalks are appended to `midblock`, their filter lanes to `filters` and
+    their ramps to `ramps` when given (a map with ramps but no junction of 3 or more arms is no
+    error then)."""
     from .extract import extract_filters, extract_junctions, extract_midblock
+    from .extract_ramps import extract_ramps
     from .generate import check_buildable
 
     junctions = []
@@ -159,7 +161,9 @@ def _extract_maps(paths: Sequence[str], skipped: list | None = None, quiet: bool
             midblock += extract_midblock(m, map_name=str(p))
         if filters is not None:
             filters += extract_filters(m, map_name=str(p))
-    if not junctions:
+        if ramps is not None:
+            ramps += extract_ramps(m, map_name=str(p))
+    if not junctions and not ramps:
         raise Feat2MapError("no junctions with 3 or more arms found", ", ".join(paths))
     if buildable is None:
         return junctions
@@ -246,8 +250,10 @@ def cmd_extract(args: argparse.Namespace) -> int:
     skipped: list = []
     midblock: list = []
     filters: list = []
-    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock, filters=filters)
-    space = map_feature(junctions, midblock)
+    ramps: list = []
+    junctions = _extract_maps(args.maps, skipped, quiet=args.quiet, midblock=midblock, filters=filters, ramps=ramps)
+    measured = {(j.map_name, j.id) for j in junctions if j.feature.has_ramp}  # their features hold their ramps
+    space = map_feature(junctions, midblock, (r.kind for r in ramps if (r.map_name, r.junction) not in measured))
     if args.picture:  # first: it is the step that can fail; nothing is written if it does
         from .render import render_map
 
@@ -260,14 +266,18 @@ def cmd_extract(args: argparse.Namespace) -> int:
     if args.json:
         doc = {"maps": [str(p) for p in args.maps], "junctions": [j.to_dict() for j in junctions],
                "feature_space": space.to_dict(), "skipped": [s.to_dict() for s in skipped],
-               "midblock_crosswalks": [c.to_dict() for c in midblock], "filter_lanes": [f.to_dict() for f in filters]}
+               "midblock_crosswalks": [c.to_dict() for c in midblock], "filter_lanes": [f.to_dict() for f in filters],
+               "ramps": [r.to_dict() for r in ramps]}
         print(json.dumps(doc, indent=2))
         return 0
-    _print_junction_table(args.maps, junctions, skipped)
+    _print_junction_table(args.maps, junctions, skipped, ramps)
+    _print_ramps(ramps)
     signalised = sum(c.feature.control == "signal" for c in midblock)
     found = (f"{counted(len(junctions), 'junction')} ({len(skipped)} skipped), "
              f"{counted(len(midblock), 'mid-block crosswalk')} ({signalised} signalised), "
-             f"{counted(len(filters), 'filter lane')} ({sum(f.control == 'signal' for f in filters)} signalised)")
+             f"{counted(len(filters), 'filter lane')} ({sum(f.control == 'signal' for f in filters)} signalised)"
+             + (f", {counted(len(ramps), 'ramp')} ({sum(r.kind == 'on' for r in ramps)} on, "
+                f"{sum(r.kind == 'off' for r in ramps)} off)" if ramps else ""))
     if args.out:  # the map feature is in the file: not again on the screen
         print(f"\n{found}; map feature written to {args.out}")
         return 0
@@ -275,6 +285,27 @@ def cmd_extract(args: argparse.Namespace) -> int:
     shown["rotation_ranges"] = {n: [[round(a, 3) for a in r] for r in rs] for n, rs in shown["rotation_ranges"].items()}
     print(f"\n{found}; map feature:\n{json.dumps(shown, indent=2, sort_keys=True)}")
     return 0
+
+
+def _print_ramps(ramps: list) -> None:
+    """One line per ramp found (nothing when there are none): `  on-ramp 42 -> 5 at junction 1:
+    56.49 deg, 225.15 m`, under the map's name."""
+    for path in dict.fromkeys(r.map_name for r in ramps):
+        print(f"{path}: {counted(sum(r.map_name == path for r in ramps), 'ramp')}")
+        for r in (r for r in ramps if r.map_name == path):
+            at = f"junction {r.junction}" if r.junction is not None else "a direct link"
+            way = f"{r.ramp_road} -> {r.road}" if r.kind == "on" else f"{r.road} -> {r.ramp_road}"
+            print(f"  {r.kind}-ramp {way} at {at}: {r.angle_deg:.2f} deg, {r.length_m:.2f} m "
+                  f"(main road {r.main_road})")
+
+
+def _ramp_note(feature) -> str:
+    """`  ramps: 2 on, 1 off (75.00 m)`: a ramp junction's ramps by socket and its acceleration
+    and deceleration lanes' length (nothing for a junction without)."""
+    if not feature.has_ramp:
+        return ""
+    return "  ramps: " + ", ".join(f"{k} {s.ramp}" for k, s in enumerate(feature.sockets) if s.ramp != "none") \
+        + f" ({feature.ramp_length:.2f} m)"
 
 
 def _filter_note(feature) -> str:
@@ -286,13 +317,17 @@ def _filter_note(feature) -> str:
                                           for k, s in enumerate(feature.sockets) if s.filter != "none")
 
 
-def _print_junction_table(maps: Sequence[str], junctions: list, skipped: list) -> None:
-    """One table per map, headed by the map's full path; ids in full (columns fit the widest)."""
+def _print_junction_table(maps: Sequence[str], junctions: list, skipped: list, ramps: Sequence = ()) -> None:
+    """One table per map, headed by the map's full path; ids in full (columns fit the widest); a
+    skipped junction whose lanes join a ramp (`ramps`) says so."""
+    joins = {(r.map_name, r.junction): r.kind for r in ramps if r.junction is not None}
     for path in map(str, maps):
         rows = [(j.id, j.feature.n_roads, j.feature.control, j.feature.crosswalk,
-                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]" + _filter_note(j.feature))
+                 "[" + ", ".join(f"{a:.2f}" for a in j.feature.rotation) + "]" + _filter_note(j.feature)
+                 + _ramp_note(j.feature))
                 for j in junctions if j.map_name == path]
-        rows += [(s.id, s.n_arms, s.control, s.crosswalk, f"skipped: {s.reason}")
+        rows += [(s.id, s.n_arms, s.control, s.crosswalk, f"skipped: {s.reason}"
+                  + (f" (it joins an {joins[(path, s.id)]}-ramp: see the ramps)" if (path, s.id) in joins else ""))
                  for s in skipped if s.map_name == path]
         print(f"{path}: {counted(len(rows), 'junction')}")
         width = max([len("junction")] + [len(r[0]) for r in rows])

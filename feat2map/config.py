@@ -42,6 +42,22 @@ MIDBLOCK_LINE_REACH_M = 5.0  # a signal's stop line this close before a crosswal
 FILTER_DIVERGE_M = 16.0
 FILTER_HANDLE = 0.4
 FILTER_LEAD_MAX_M = 60.0  # extraction: a right turn leaving its approach at most this far before the core's entries
+# motorway ramps (a ramp junction: two main legs and on-/off-ramp legs beside them): a ramp leaves (an
+# off-ramp) or joins (an on-ramp) its main leg's carriageway on the right, RAMP_ANGLE_DEG from it (specs
+# say it with the socket angles; sampling draws it in RAMP_ANGLE_RANGE_DEG; a feature allows
+# RAMP_MIN_ANGLE_DEG to RAMP_MAX_ANGLE_DEG); the main legs lie within RAMP_MAIN_BEND_DEG of straight on
+RAMP_ANGLE_DEG = 15.0
+RAMP_ANGLE_RANGE_DEG = (10.0, 15.0)
+RAMP_MIN_ANGLE_DEG, RAMP_MAX_ANGLE_DEG = 5.0, 30.0
+RAMP_MAIN_BEND_DEG = 30.0
+# the acceleration (on-ramp) or deceleration (off-ramp) lane's length: the distance between the main
+# legs' sockets, along which the ramp's lane runs beside the main lanes. Design guidance asks ~150-250 m at
+# motorway speeds; a 100 m grid holds up to grid_gap - 2 * (MIN_STUB_LENGTH_M + junction_margin) = 77 m,
+# so the default is 75 m (raise grid_gap for longer ones). A ramp's socket lies where its road's line,
+# through the junction's centre, passes the main socket RAMP_GORE_M beyond the main road's edge.
+RAMP_LANE_M = 75.0
+RAMP_GORE_M = 0.75
+RAMP_PROBE_M = 60.0  # extraction: a ramp's lane joining its main road parallel is measured this far along it
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 # declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range

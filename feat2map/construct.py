@@ -19,7 +19,8 @@ from shapely.geometry.polygon import orient
 from .angles import classify_turn, positive_angle, positive_degrees, wrap_angle
 from .bezier import Bezier, left_normal, unit
 from .config import FILTER_DIVERGE_M, FILTER_HANDLE, MIN_STUB_LENGTH_M, GenerationConfig
-from .features import JunctionFeature, MidblockFeature, filter_exit
+from .features import JunctionFeature, MidblockFeature, filter_exit, ramp_angle
+from .ramps import ramp_fit, ramp_lanes, ramp_radius, ramp_socket_radius
 from .invariants import AREA_EPS_M2
 from .errors import CrossingRoadsError, LayoutError
 from .layout import Placement
@@ -65,7 +66,10 @@ class SocketGeometry:
 
 def junction_radius(feature: JunctionFeature, cfg: GenerationConfig) -> float:
     """Centre-to-socket distance: far enough that neighbouring legs' pavements (plus a margin,
-    the crosswalks' overhang) do not overlap, plus room for a crosswalk and stop line."""
+    the crosswalks' overhang) do not overlap, plus room for a crosswalk and stop line. A ramp
+    junction's main sockets lie half its `ramp_length` from the centre (`ramps.ramp_radius`)."""
+    if feature.has_ramp:
+        return ramp_radius(feature)
     n = feature.n_roads
     halves = [(s.lanes_in + s.lanes_out) * cfg.lane_width / 2 + cfg.junction_margin for s in feature.sockets]
     need = cfg.min_junction_radius
@@ -88,9 +92,9 @@ def socket_geometry(feature: JunctionFeature, center: np.ndarray, rotation_deg: 
                     cfg: GenerationConfig) -> list[SocketGeometry]:
     r = junction_radius(feature, cfg)
     out = []
-    for s in feature.sockets:
+    for i, s in enumerate(feature.sockets):
         a = math.radians(s.angle + rotation_deg)
-        p = center + r * unit(a)
+        p = center + (ramp_socket_radius(feature, i) if s.ramp != "none" else r) * unit(a)
         out.append(SocketGeometry((float(p[0]), float(p[1])), a, (s.lanes_in + s.lanes_out) * cfg.lane_width / 2))
     return out
 
@@ -249,7 +253,8 @@ def assign_midblock(placements: Sequence[Placement], requests: Sequence[Midblock
         taken.add(road_of(j, s))
         out[(j, s)] = r
     free = [(j, s) for j, p in enumerate(placements) for s, ln in enumerate(p.links)
-            if ln is not None and (j, s) < (ln.junction, ln.socket) and (j, s) not in taken]
+            if ln is not None and (j, s) < (ln.junction, ln.socket) and (j, s) not in taken
+            and not p.feature.has_ramp and not placements[ln.junction].feature.has_ramp]  # no crossing on a motorway
     drawn = [r for r in requests if r.socket is None]
     if len(drawn) > len(free):
         raise LayoutError(f"{len(drawn)} mid-block crosswalks to place but {len(free)} free roads between junctions "
@@ -283,6 +288,8 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
     for j, p in enumerate(placements):
         r = junction_radius(p.feature, cfg)
         room = cfg.grid_gap / 2 - MIN_STUB_LENGTH_M - cfg.junction_margin
+        if p.feature.has_ramp and (why := ramp_fit(p.feature, cfg, room)):
+            raise LayoutError(why, f"junction J{j}")
         if r > room:
             need = 2 * (r + MIN_STUB_LENGTH_M + cfg.junction_margin)
             raise LayoutError(
@@ -299,7 +306,10 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                             sockets[j][s].half_width + cfg.junction_margin, cfg)
                    for j, p in enumerate(placements) for s, ln in enumerate(p.links)
                    if ln is not None and (ln.junction, ln.socket) > (j, s)]
-    junction_polys = [_junction_polygon(np.asarray(c), socks) for c, socks in zip(centers, sockets)]
+    owners = [{j, ln.junction} for j, p in enumerate(placements) for s, ln in enumerate(p.links)
+              if ln is not None and (ln.junction, ln.socket) > (j, s)]
+    junction_polys = [_junction_polygon(np.asarray(c), socks, not p.feature.has_ramp)
+                      for c, socks, p in zip(centers, sockets, placements)]
     _check_uncrossed(connections, junction_polys, cfg)
     connection_tree = STRtree(connections)
     # roads: incoming / outgoing lanes per (junction, socket), each listed right to left
@@ -322,7 +332,11 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
             n_roads += 1
             cut_start = (j, s) in cuts
             if link is None:
-                length = _stub_length(g, centers[j], connection_tree, cfg, f"junction J{j}")
+                along, tree = 1.0, connection_tree
+                if sock.ramp != "none":  # it runs beside its own main road's, diverging: checked by its ramp angle
+                    along = math.cos(math.radians(ramp_angle(p.feature, s)))
+                    tree = STRtree([c for c, o in zip(connections, owners) if j not in o])
+                length = _stub_length(g, centers[j], tree, cfg, f"junction J{j}", along)
                 end = tuple(np.asarray(g.point) + length * unit(g.angle))
                 road, main, last = _add_road_split(b, rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out,
                                                    sock.lanes_in, f"J{j}", None, cut_start, False)
@@ -356,6 +370,8 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
             ins = incoming[(j, a)]
             if not ins:
                 continue
+            if f.has_ramp:
+                continue  # ramp junctions: below
             entry_heading = sockets[j][a].angle + math.pi
             slip = filter_exit(f, a) if f.sockets[a].filter != "none" else None
             exits = []
@@ -381,6 +397,10 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 b.roads[rid] = Road(rid, "junction", (lid,), (), centre, 0.0, jid, jid, jid)
                 b.link(src, lid)
                 b.link(lid, dst)
+        if f.has_ramp:
+            for src, dst, shape in ramp_lanes(f, incoming, outgoing, j):
+                _ramp_lane(b, jid, f"{jid}_c{n_conn}", src, dst, shape, cfg)
+                n_conn += 1
         for a in range(f.n_roads):
             into = filter_exit(f, a) if f.sockets[a].filter != "none" else None
             if into is not None:
@@ -511,6 +531,28 @@ def _filter_lane(b: _Builder, jid: str, a: int, sock, approach: str, exit_lane: 
     return orient(Polygon(merged.exterior.coords), 1.0)
 
 
+def _ramp_lane(b: _Builder, jid: str, rid: str, src: str, dst: str, shape: tuple[float, float],
+               cfg: GenerationConfig) -> None:
+    """A junction lane `<rid>_0` from the end of road lane `src` to the start of `dst`: a cubic
+    Bezier whose handles are `shape` (start, end) fractions of the distance between its ends
+    along their headings (a ramp's lane turns onto the main road's line early and runs beside its
+    lanes, or runs beside them and turns off late), its turn classed by its heading change."""
+    p0, p3 = np.asarray(b.lanes[src]["centerline"][-1]), np.asarray(b.lanes[dst]["centerline"][0])
+    h0, h1 = float(b.beziers[src].heading(1.0)), float(b.beziers[dst].heading(0.0))
+    dist = float(np.hypot(*(p3 - p0)))
+    centre = Bezier((float(p0[0]), float(p0[1])), tuple(p0 + shape[0] * dist * unit(h0)),
+                    tuple(p3 - shape[1] * dist * unit(h1)), (float(p3[0]), float(p3[1])))
+    w = cfg.lane_width / 2
+    pts, left, right = centre.offset_points(centre.sample_params(cfg.sample_spacing), (0.0, w, -w))
+    pts[0], pts[-1] = centre.p0, centre.p3
+    lid = f"{rid}_0"
+    b.add_lane(lid, rid, centre, pts, left, right, speed=cfg.junction_speed_limit, junction_id=jid,
+               turn=classify_turn(h0, h1), ltype="virtual", rtype="virtual")
+    b.roads[rid] = Road(rid, "junction", (lid,), (), centre, 0.0, jid, jid, jid)
+    b.link(src, lid)
+    b.link(lid, dst)
+
+
 def _midblock(b: _Builder, road: Road, req: MidblockRequest, from_start: bool, cfg: GenerationConfig,
               crosswalks: dict[str, Crosswalk], signals: dict[str, Signal]) -> None:
     """A crosswalk `crosswalk_width` wide across all lanes of `road` (and `junction_margin`
@@ -559,12 +601,14 @@ def pavement(reference: Bezier, half_width: float, cfg: GenerationConfig) -> Pol
 
 
 def _stub_length(g: SocketGeometry, center, connections: STRtree, cfg: GenerationConfig,
-                 where: str) -> float:
+                 where: str, along: float = 1.0) -> float:
     """A stub ends short of the half-way line (facing stubs never meet) and short of every road
     between junctions that sweeps across its way (a connection leaving a socket far from its
     grid direction; `connections`: an STRtree of their pavements); a stub that would keep less than
-    MIN_STUB_LENGTH_M is a LayoutError."""
-    length = min(cfg.stub_length, cfg.grid_gap / 2 - cfg.junction_margin - math.dist(g.point, center))
+    MIN_STUB_LENGTH_M is a LayoutError. `along`: the cosine of the stub's angle to the grid
+    direction whose half-way line bounds it (a ramp's, to its main road; 1 for other sockets)."""
+    reach = cfg.grid_gap / 2 - cfg.junction_margin - math.dist(g.point, center) * along
+    length = min(cfg.stub_length, reach / along)
     p, u = np.asarray(g.point), unit(g.angle)
     hw = g.half_width + cfg.junction_margin
     n = left_normal(g.angle)
@@ -601,15 +645,17 @@ def _check_uncrossed(connections: Sequence[Polygon], junctions: Sequence[Polygon
                                      "(spread the legs or pin the junctions elsewhere)", "layout")
 
 
-def _junction_polygon(center: np.ndarray, socks: Sequence[SocketGeometry]) -> Polygon:
-    """Centrally symmetric hull of the legs' pavement corners: its centroid is the junction centre."""
+def _junction_polygon(center: np.ndarray, socks: Sequence[SocketGeometry], symmetric: bool = True) -> Polygon:
+    """Centrally symmetric hull of the legs' pavement corners: its centroid is the junction centre
+    (`symmetric` False, a ramp junction's: their hull, the ramps on one side only)."""
     pts = []
     for g in socks:
         p = np.asarray(g.point)
         for side in (-1.0, 1.0):
             q = p + side * g.half_width * left_normal(g.angle)
             pts.append(q)
-            pts.append(2 * center - q)
+            if symmetric:
+                pts.append(2 * center - q)
     hull = MultiPoint([tuple(q) for q in pts]).convex_hull
     return orient(hull, 1.0)
 

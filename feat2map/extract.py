@@ -35,7 +35,7 @@ from .angles import positive_degrees, turn_name, wrap_degrees
 from .config import (ARM_CENTRE_EXACT_M, ARM_CLUSTER_DEG, ARM_MAX_DEPTH_M, ARM_MAX_WIDTH_M, ARM_NEAR_M, ARM_TIE_M,
                      ARM_PROBE_M, ARM_SAME_POINT_M, FILTER_LEAD_MAX_M, LEG_MERGE_DEG, MIN_LEG_SEPARATION_DEG)
 from .errors import FeatureError
-from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, normalize_rotation
+from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, normalize_rotation, ramp_normalization
 from .model import HDMap, Lane, incoming_lanes, interior_lane, midblock_controls
 
 
@@ -147,6 +147,11 @@ def _probe(m: HDMap, ln: Lane, outward_from_start: bool, jid: str | None) -> np.
 
 
 def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
+    """The junction's arms (`_group_arms`), as every junction is measured first."""
+    return _group_arms(m, jid, lanes)
+
+
+def _group_arms(m: HDMap, jid: str, lanes: Sequence[Lane], ramps: bool = False) -> list[_ArmEnds]:
     """Arms from the junction's mouths: one per road lane that feeds or leaves it.
 
     Each mouth gets two outward directions: towards a point ARM_PROBE_M out along its road
@@ -159,7 +164,9 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     (the leg rule: legs at least MIN_LEG_SEPARATION_DEG apart, one-way ones too, stay apart).
     Two mouths that a junction lane joins (other than a U-turn) are never one arm: merges
     go strongest evidence first (neighbour links, then nearest pairs) and skip any merge
-    that would put such a pair into one arm, so legs a few degrees apart stay apart.
+    that would put such a pair into one arm, so legs a few degrees apart stay apart. With
+    `ramps` (`_ramp_junction`, for junctions that are skipped without), the mouths of a merge or
+    a diverge between legs stay apart too (`_merging_mouths`).
     """
     # one end per lane outside (its incoming or outgoing road lane), else per point (points
     # within ARM_SAME_POINT_M are one: rounding coordinates would split them by where they lie)
@@ -220,7 +227,14 @@ def _arms(m: HDMap, jid: str, lanes: Sequence[Lane]) -> list[_ArmEnds]:
     same &= (entering[:, None] != entering[None, :]) | (tangents @ tangents.T >= math.cos(math.radians(LEG_MERGE_DEG)))
     same |= dist <= ARM_SAME_POINT_M  # mouths at one point are one leg whatever their tangents (thinned sim_map curves)
     index = {key: i for i, key in enumerate(ends)}
-    apart = _joined_mouths(m, jid, lanes, index)
+    merging = _merging_mouths(m, jid, lanes, index, tangents) if ramps else set()
+    apart = _joined_mouths(m, jid, lanes, index) | merging
+    cos_leg = math.cos(math.radians(LEG_MERGE_DEG))
+    for i in {i for i, _ in merging}:  # a ramp's mouth is no lane of another road whose direction differs
+        for k in range(len(pts)):
+            if kinds[k] != kinds[i] and float(tangents[i] @ tangents[k]) < cos_leg \
+                    and ext[k] not in linked[i] and ext[i] not in linked[k]:
+                apart |= {(i, k), (k, i)}
     pairs = [(0.0, i, k) for i in range(len(pts)) for k in range(i + 1, len(pts)) if ext[k] in linked[i]]
     pairs += sorted((float(dist[i, k]), int(i), int(k)) for i, k in zip(*np.nonzero(np.triu(same, 1))))
     members = {i: {i} for i in range(len(pts))}
@@ -254,6 +268,34 @@ def _joined_mouths(m: HDMap, jid: str, lanes: Sequence[Lane], index: dict[tuple,
         i, k = index.get(("in", ins[0])), index.get(("out", outs[0]))
         if i is not None and k is not None and i != k:
             apart |= {(i, k), (k, i)}
+    return apart
+
+
+def _merging_mouths(m: HDMap, jid: str, lanes: Sequence[Lane], index: dict[tuple, int],
+                    tangents: np.ndarray) -> set[tuple[int, int]]:
+    """Pairs of mouth indices (both orders) of a merge or a diverge between legs: entering mouths
+    whose junction lanes lead into one road lane (an on-ramp joining the main road), or leaving
+    mouths fed from one road lane (an off-ramp), with tangents more than LEG_MERGE_DEG apart (the
+    leg rule; the lanes of one approach run parallel). Such mouths are separate legs: without
+    this, a ramp a few degrees off its main road joins the main road's arm through the main
+    road's lanes of the other direction (`_arms` also keeps them apart from the mouths of the other
+    kind whose directions differ as much)."""
+    into: dict[tuple, set[int]] = {}
+    for ln in lanes:
+        ins = [p for p in ln.predecessors if m.lanes[p].junction_id != jid]
+        outs = [x for x in ln.successors if m.lanes[x].junction_id != jid]
+        if ins and outs:
+            i, k = index.get(("in", ins[0])), index.get(("out", outs[0]))
+            if i is not None and k is not None:
+                into.setdefault(("out", k), set()).add(i)
+                into.setdefault(("in", i), set()).add(k)
+    cos_leg = math.cos(math.radians(LEG_MERGE_DEG))
+    apart: set[tuple[int, int]] = set()
+    for group in into.values():
+        for i in group:
+            for k in group:
+                if i != k and float(tangents[i] @ tangents[k]) < cos_leg:
+                    apart.add((i, k))
     return apart
 
 
@@ -388,6 +430,13 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         if any(f.id in early for f in mine):
             lanes = [ln for ln in lanes if ln.id not in early]  # they leave before the core: no mouth
         ends = _arms(m, jid, lanes)
+        crosswalk = jid in xw_junctions or (
+            xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
+        if not (mine or crosswalk) and (len(ends) < 3 or _leg_gap(ends, poly, centre) < MIN_LEG_SEPARATION_DEG - 1e-9):
+            ramp = _ramp_junction(m, jid, lanes, poly, control)  # skipped otherwise: a motorway's ramps?
+            if ramp is not None:
+                out.append(ExtractedJunction(map_name, jid, *ramp))
+                continue
         if len(ends) < 3:
             skip(jid, poly, control, len(ends), f"{len(ends)} arm(s), not a junction of 3 or more roads", warn=False)
             continue
@@ -397,8 +446,6 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9 and any(_behind(a, c) for a in ends):
             arms = _socket_arms(ends, c, by_road=True)  # the centre lies beyond a mouth: see _socket_arms
             raw, gap = _angles_and_gap(arms)
-        crosswalk = jid in xw_junctions or (
-            xw_tree is not None and len(xw_tree.query(poly, predicate="intersects")) > 0)
         if gap < MIN_LEG_SEPARATION_DEG - 1e-9:  # the leg rule, before any ordering of equal angles
             skip(jid, poly, control, len(arms), f"sockets {gap:.2f} degrees apart, closer than the minimum separation "
                             f"{MIN_LEG_SEPARATION_DEG} degrees: {[round(a, 2) for a in raw]}")
@@ -415,6 +462,73 @@ def extract_junctions(m: HDMap, map_name: str = "map", centre: str = "arms", tie
             continue
         out.append(ExtractedJunction(map_name, jid, feature, (float(c[0]), float(c[1])), tuple(arms)))
     return out
+
+
+def _socket_angles(ends: Sequence[_ArmEnds], poly: Polygon, centre: str) -> tuple[list[Arm], np.ndarray, float]:
+    """The arms with their socket angles as `extract_junctions` measures them, their centre and
+    the smallest gap between neighbouring angles."""
+    c = arms_centre(ends, poly) if centre == "arms" else np.array(poly.centroid.coords[0])
+    arms = _socket_arms(ends, c, by_road=False)
+    _, gap = _angles_and_gap(arms)
+    if gap < MIN_LEG_SEPARATION_DEG - 1e-9 and any(_behind(a, c) for a in ends):
+        arms = _socket_arms(ends, c, by_road=True)
+        _, gap = _angles_and_gap(arms)
+    return arms, c, gap
+
+
+def _leg_gap(ends: Sequence[_ArmEnds], poly: Polygon, centre: str) -> float:
+    return _socket_angles(ends, poly, centre)[2]
+
+
+def _ramp_junction(m: HDMap, jid: str, lanes: Sequence[Lane], poly: Polygon, control: str
+                   ) -> tuple[JunctionFeature, tuple[float, float], tuple[Arm, ...]] | None:
+    """(feature, centre, arms) of a ramp junction (`ramp_feature`), measured with the mouths of a
+    merge or diverge kept apart (`_arms` with `ramps`), or None when the junction makes none. Only
+    a junction that is skipped without it (fewer than 3 arms, or arms closer than the leg rule)
+    is taken as one, so every other junction measures as it always did."""
+    ends = _group_arms(m, jid, lanes, ramps=True)
+    if len(ends) < 3:
+        return None
+    arms, c, gap = _socket_angles(ends, poly, "arms")
+    if gap >= MIN_LEG_SEPARATION_DEG - 1e-9:
+        return None
+    try:
+        found = ramp_feature(arms, control)
+    except FeatureError:
+        return None
+    return None if found is None else (found[0], (float(c[0]), float(c[1])), found[1])
+
+
+def ramp_feature(arms: Sequence[Arm], control: str) -> tuple[JunctionFeature, tuple[Arm, ...]] | None:
+    """The ramp junction feature of arms closer than the leg rule allows (None when they make
+    none): each pair of neighbouring arms closer than MIN_LEG_SEPARATION_DEG is a main leg and a
+    ramp, an on-ramp when the counter-clockwise one only enters, an off-ramp when the clockwise one
+    only leaves (right-hand traffic); `ramp_length` is the distance between the main legs'
+    mouths. A FeatureError when the result breaks the ramp junction rules (`JunctionFeature`)."""
+    order = sorted(range(len(arms)), key=lambda i: positive_degrees(arms[i].angle_deg))
+    ordered = [arms[i] for i in order]
+    n = len(ordered)
+    angles = [positive_degrees(a.angle_deg) for a in ordered]
+    kinds = ["none"] * n
+    for i in range(n):
+        k = (i + 1) % n
+        if positive_degrees(angles[k] - angles[i]) >= MIN_LEG_SEPARATION_DEG - 1e-9:
+            continue
+        if ordered[k].lanes_out == 0 and kinds[k] == "none":
+            kinds[k] = "on"
+        elif ordered[i].lanes_in == 0 and kinds[i] == "none":
+            kinds[i] = "off"
+        else:
+            return None
+    mains = [a for a, kind in zip(ordered, kinds) if kind == "none"]
+    if len(mains) != 2:
+        return None
+    unwrapped = [angles[0] + positive_degrees(a - angles[0]) for a in angles]
+    sockets = tuple(Socket(a, arm.lanes_in, arm.lanes_out, ramp=kind) for a, arm, kind in zip(unwrapped, ordered, kinds))
+    length = round(math.dist(mains[0].point, mains[1].point), 2)
+    feature = JunctionFeature(sockets, control, False, MIN_LEG_SEPARATION_DEG, length)
+    norm = ramp_normalization(feature)
+    return feature.normalized(), tuple(ordered[i] for i in norm.order)
 
 
 @dataclass(frozen=True)
@@ -561,8 +675,10 @@ def extract_midblock(m: HDMap, map_name: str = "map") -> list[ExtractedMidblock]
 
 
 def map_feature(junctions: Iterable[ExtractedJunction | JunctionFeature],
-                midblock: Iterable[ExtractedMidblock | MidblockFeature] = ()) -> FeatureSpace:
-    """The map feature of one or several maps: union of discrete values, per-n angle ranges, and
-    the mid-block crosswalk values seen."""
+                midblock: Iterable[ExtractedMidblock | MidblockFeature] = (), ramps: Iterable[str] = ()) -> FeatureSpace:
+    """The map feature of one or several maps: union of discrete values, per-n angle ranges, the
+    mid-block crosswalk values seen and the ramp values (ramp junctions', and `ramps`: the kinds
+    of ramps found outside them)."""
     return FeatureSpace.from_features((j.feature if isinstance(j, ExtractedJunction) else j for j in junctions),
-                                      (c.feature if isinstance(c, ExtractedMidblock) else c for c in midblock))
+                                      (c.feature if isinstance(c, ExtractedMidblock) else c for c in midblock),
+                                      ramps)

@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from .angles import positive_degrees, turn_name
-from .config import MAX_LEGS, MIN_LEG_SEPARATION_DEG
+from .config import (MAX_LEGS, MIN_LEG_SEPARATION_DEG, RAMP_LANE_M, RAMP_MAIN_BEND_DEG, RAMP_MAX_ANGLE_DEG,
+                     RAMP_MIN_ANGLE_DEG)
 from .errors import FeatureError, snippet
 
 CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
@@ -26,6 +27,12 @@ MIDBLOCK: tuple[str, ...] = ("none", "bare", "signal")
 # junction, turns right round its core into the next socket counter-clockwise and gives way at a
 # yield sign ("yield") or a light of its own ("signal")
 FILTERS: tuple[str, ...] = ("none", "yield", "signal")
+# motorway ramp values of a socket: "none" (a main leg, or a junction without ramps), an on-ramp ("on": one-way
+# in, joining its main leg's carriageway, the previous socket counter-clockwise, on its right) or an off-ramp
+# ("off": one-way out, leaving the carriageway that exits at the next socket counter-clockwise, on its right)
+RAMPS: tuple[str, ...] = ("none", "on", "off")
+# the map feature's ramp values: ramp junctions with an on-ramp, an off-ramp or one of each
+RAMP_VALUES: tuple[str, ...] = ("none", "on", "off", "both")
 ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
 QUARTER = 90.0
 # Float noise of rotated, re-measured angles (~1e-7 deg) must not decide ties of symmetric junctions
@@ -39,13 +46,15 @@ class Socket:
     """One road socket: its angle and the lanes that enter (`lanes_in`) and leave (`lanes_out`);
     `filter`: a filter lane from this approach into the next socket counter-clockwise (the right
     turn), "none" (default), "yield" or "signal"; `island`: a traffic island (kerbs) separates
-    it from the junction's core (default), else painted lines do."""
+    it from the junction's core (default), else painted lines do; `ramp`: "none" (default), or
+    an on-ramp ("on") or off-ramp ("off") beside a main leg (`ramp_main`)."""
 
     angle: float
     lanes_in: int = 1
     lanes_out: int = 1
     filter: str = "none"
     island: bool = True
+    ramp: str = "none"
 
     @property
     def road_type(self) -> str:
@@ -87,17 +96,55 @@ def with_filter(feature: "JunctionFeature", control: str, island: bool = True) -
     leg = legs[gap.index(min(gap))]
     sockets = tuple(replace(s, filter=control, island=island) if i == leg else s
                     for i, s in enumerate(feature.sockets))
-    return JunctionFeature(sockets, feature.control, feature.crosswalk, feature.min_separation_deg)
+    return replace(feature, sockets=sockets)
+
+
+def ramp_main(feature: "JunctionFeature", i: int) -> int:
+    """The main leg of ramp socket `i`: the previous socket counter-clockwise for an on-ramp
+    (right-hand traffic from that leg has the ramp on its right), the next one for an off-ramp."""
+    n = feature.n_roads
+    return (i - 1) % n if feature.sockets[i].ramp == "on" else (i + 1) % n
+
+
+def ramp_angle(feature: "JunctionFeature", i: int) -> float:
+    """The merge (on-ramp) or diverge (off-ramp) angle of ramp socket `i` from its main leg, degrees."""
+    m = feature.sockets[ramp_main(feature, i)].angle
+    a = feature.sockets[i].angle
+    return (a - m) % 360.0 if feature.sockets[i].ramp == "on" else (m - a) % 360.0
+
+
+def ramp_mains(feature: "JunctionFeature") -> tuple[int, int]:
+    """The two main legs (the sockets without a ramp) of a ramp junction."""
+    a, b = (i for i, s in enumerate(feature.sockets) if s.ramp == "none")
+    return a, b
+
+
+def ramp_junction(kind: str, angle_deg: float, main_lanes: int = 1, ramp_lanes: int = 1,
+                  length: float = RAMP_LANE_M) -> "JunctionFeature":
+    """A ramp junction on a straight two-way main road with `main_lanes` per direction: an on-ramp
+    ("on"), an off-ramp ("off") or one of each ("both"), `angle_deg` from the main road,
+    `ramp_lanes` each, acceleration/deceleration lanes `length` long."""
+    if kind not in RAMP_VALUES[1:]:
+        raise FeatureError(f"unknown ramp {kind!r}, expected one of {RAMP_VALUES[1:]}")
+    sockets = [Socket(0.0, main_lanes, main_lanes), Socket(180.0, main_lanes, main_lanes)]
+    if kind in ("off", "both"):
+        sockets.insert(0, Socket(-float(angle_deg), 0, ramp_lanes, ramp="off"))
+    if kind in ("on", "both"):
+        sockets.append(Socket(180.0 + float(angle_deg), ramp_lanes, 0, ramp="on"))
+    return JunctionFeature(tuple(sockets), ramp_length=float(length))
 
 
 @dataclass(frozen=True)
 class JunctionFeature:
-    """A junction feature F_J = [n, rotation, control, crosswalk] plus per-socket lanes."""
+    """A junction feature F_J = [n, rotation, control, crosswalk] plus per-socket lanes; a ramp
+    junction (a socket with `ramp`) also has `ramp_length`, its acceleration/deceleration lanes'
+    length (the distance between its main legs' sockets; ignored without ramps)."""
 
     sockets: tuple[Socket, ...]
     control: str = "bare"
     crosswalk: bool = False
     min_separation_deg: float = field(default=MIN_LEG_SEPARATION_DEG, compare=False, repr=False)
+    ramp_length: float = RAMP_LANE_M
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "sockets", tuple(self.sockets))
@@ -116,7 +163,14 @@ class JunctionFeature:
                 raise FeatureError(f"socket angles must be strictly increasing (counter-clockwise), got {list(angles)}")
         if angles[-1] - angles[0] >= 360.0:
             raise FeatureError(f"socket angles must span less than 360 degrees, got {list(angles)}")
+        for i, s in enumerate(self.sockets):
+            if s.ramp not in RAMPS:
+                raise FeatureError(f"socket {i}: unknown ramp {s.ramp!r}, expected one of {RAMPS}")
+        ramps = self.has_ramp
+        # a ramp and its main leg keep the ramp angles (RAMP_MIN_ANGLE_DEG..RAMP_MAX_ANGLE_DEG) instead
         gaps = [angles[i + 1] - angles[i] for i in range(n - 1)] + [angles[0] + 360.0 - angles[-1]]
+        gaps = [g for i, g in enumerate(gaps) if not ramps or (self.sockets[(i + 1) % n].ramp != "on"
+                                                                and self.sockets[i].ramp != "off")] or [360.0]
         if min(gaps) < self.min_separation_deg - 1e-9:
             raise FeatureError(
                 f"sockets {min(gaps):.2f} degrees apart, closer than the minimum separation "
@@ -141,6 +195,8 @@ class JunctionFeature:
                 raise FeatureError(f"socket {i}: a filter lane needs incoming lanes there, a right turn into "
                                    "the next socket counter-clockwise with outgoing lanes, and another exit for "
                                    "the approach's lanes through the core")
+        if ramps:
+            self._check_ramps()
         for i, s in enumerate(self.sockets):  # every approach has a way through (a U-turn is not one)
             others = [o for k, o in enumerate(self.sockets) if k != i]
             if s.lanes_in and not any(o.lanes_out for o in others):
@@ -149,6 +205,41 @@ class JunctionFeature:
             if s.lanes_out and not any(o.lanes_in for o in others):
                 raise FeatureError(f"socket {i} has outgoing lanes but no other socket has incoming ones: "
                                    "nothing could drive into them")
+
+    def _check_ramps(self) -> None:
+        """A ramp junction: two main legs near straight on, bare, without crosswalks or filter
+        lanes; each ramp one-way, on the right of its main leg's carriageway, at a ramp angle."""
+        mains = [i for i, s in enumerate(self.sockets) if s.ramp == "none"]
+        if len(mains) != 2:
+            raise FeatureError(f"a ramp junction has two main legs (sockets without a ramp), got {len(mains)}")
+        a, b = mains
+        bend = abs((self.sockets[b].angle - self.sockets[a].angle) % 360.0 - 180.0)
+        if bend > RAMP_MAIN_BEND_DEG + 1e-9:
+            raise FeatureError(f"a ramp junction's main legs lie {bend:.2f} degrees off straight on, more than "
+                               f"{RAMP_MAIN_BEND_DEG:g}")
+        if self.control != "bare" or self.crosswalk or self.has_filter:
+            raise FeatureError("a ramp junction is bare, without crosswalks or filter lanes")
+        if isinstance(self.ramp_length, bool) or not isinstance(self.ramp_length, (int, float)) \
+                or not math.isfinite(self.ramp_length) or self.ramp_length <= 0:
+            raise FeatureError(f"ramp_length must be a positive number of metres, got {snippet(self.ramp_length)}")
+        for i, s in enumerate(self.sockets):
+            if s.ramp == "none":
+                continue
+            m = ramp_main(self, i)
+            if self.sockets[m].ramp != "none":
+                raise FeatureError(f"socket {i}: an {s.ramp}-ramp lies next to its main leg (the "
+                                   f"{'previous' if s.ramp == 'on' else 'next'} socket counter-clockwise)")
+            other = b if m == a else a
+            theta = ramp_angle(self, i)
+            if not RAMP_MIN_ANGLE_DEG - 1e-9 <= theta <= RAMP_MAX_ANGLE_DEG + 1e-9:
+                raise FeatureError(f"socket {i}: the ramp lies {theta:.2f} degrees from its main leg, outside "
+                                   f"{RAMP_MIN_ANGLE_DEG:g} to {RAMP_MAX_ANGLE_DEG:g}")
+            if s.ramp == "on" and (s.lanes_out or not self.sockets[other].lanes_out):
+                raise FeatureError(f"socket {i}: an on-ramp is one-way in and joins a carriageway leaving at the "
+                                   "other main leg")
+            if s.ramp == "off" and (s.lanes_in or not self.sockets[other].lanes_in):
+                raise FeatureError(f"socket {i}: an off-ramp is one-way out and leaves a carriageway entering at "
+                                   "the other main leg")
 
     @classmethod
     def make(
@@ -190,11 +281,31 @@ class JunctionFeature:
     def has_filter(self) -> bool:
         return any(s.filter != "none" for s in self.sockets)
 
+    @property
+    def ramps(self) -> tuple[str, ...]:
+        """The ramp value of every socket ("none" for main legs and junctions without ramps)."""
+        return tuple(s.ramp for s in self.sockets)
+
+    @property
+    def has_ramp(self) -> bool:
+        return any(s.ramp != "none" for s in self.sockets)
+
+    @property
+    def ramp_value(self) -> str:
+        """The map feature's ramp value of this junction: "none", "on", "off" or "both"."""
+        kinds = set(self.ramps) - {"none"}
+        return "both" if len(kinds) == 2 else kinds.pop() if kinds else "none"
+
+    def normalization(self) -> "Normalization":
+        """How `normalized` turns and re-orders the sockets: the paper's rotation normalization,
+        or a ramp junction's (`ramp_normalization`)."""
+        return ramp_normalization(self) if self.has_ramp else normalize_rotation(self.rotation)
+
     def normalized(self) -> "JunctionFeature":
         """The same junction in the normalized frame (sockets re-ordered and rotated)."""
-        norm = normalize_rotation(self.rotation)
+        norm = self.normalization()
         sockets = tuple(replace(self.sockets[i], angle=a) for a, i in zip(norm.angles, norm.order))
-        return JunctionFeature(sockets, self.control, self.crosswalk, self.min_separation_deg)
+        return replace(self, sockets=sockets)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form; `filter` and `island` (per socket) only when a socket has a filter lane,
@@ -210,6 +321,9 @@ class JunctionFeature:
         if self.has_filter:
             out["filter"] = list(self.filters)
             out["island"] = [s.island for s in self.sockets]
+        if self.has_ramp:
+            out["ramp"] = list(self.ramps)
+            out["ramp_length"] = self.ramp_length
         return out
 
     @classmethod
@@ -227,9 +341,13 @@ class JunctionFeature:
             islands = list(data.get("island", [True] * n))
             if len(filters) != n or len(islands) != n:
                 raise FeatureError("filter and island need one entry per socket")
-            sockets = tuple(Socket(a, int(i), int(o), str(f), isl) for a, i, o, f, isl
-                            in zip(angles, lanes_in, lanes_out, filters, islands))
-            return cls(sockets, str(data.get("control", "bare")), bool(data.get("crosswalk", False)))
+            ramps = list(data.get("ramp", ["none"] * n))
+            if len(ramps) != n:
+                raise FeatureError("ramp needs one entry per socket")
+            sockets = tuple(Socket(a, int(i), int(o), str(f), isl, str(r)) for a, i, o, f, isl, r
+                            in zip(angles, lanes_in, lanes_out, filters, islands, ramps))
+            return cls(sockets, str(data.get("control", "bare")), bool(data.get("crosswalk", False)),
+                       ramp_length=float(data.get("ramp_length", RAMP_LANE_M)))
         except FeatureError as exc:
             raise FeatureError(exc.message, where) from None
         except (KeyError, TypeError, ValueError) as exc:
@@ -317,6 +435,28 @@ def normalize_rotation(angles: Sequence[float], tie_tol_deg: float = 0.0) -> Nor
     )
 
 
+def ramp_normalization(feature: JunctionFeature) -> Normalization:
+    """A ramp junction's normalized frame: turned so that its main legs best align with the
+    cardinal directions (the paper's objective over the main legs alone: the main road runs
+    along a grid direction, or nearly, its ramps beside it), sockets listed counter-clockwise
+    from the first one at or after -45 degrees. Of the four quarter turns that align them, the
+    one listing the smallest angles wins (so every orientation of one shape gives one feature)."""
+    a, b = ramp_mains(feature)
+    base = feature.sockets[a].angle
+    alpha = best_alignment([0.0, positive_degrees(feature.sockets[b].angle - base)])
+    best: tuple[tuple[float, ...], float, list[float]] | None = None
+    for k in range(4):
+        rotation = positive_degrees(alpha - base + QUARTER * k)
+        turned = [positive_degrees(s.angle + rotation + 45.0) - 45.0 for s in feature.sockets]
+        key = tuple(sorted(round(t, 6) + 0.0 for t in turned))
+        if best is None or key < best[0]:
+            best = (key, rotation, turned)
+    assert best is not None
+    _, rotation, turned = best
+    order = tuple(sorted(range(feature.n_roads), key=lambda i: turned[i]))
+    return Normalization(tuple(turned[i] for i in order), order, rotation)
+
+
 @dataclass(frozen=True)
 class MidblockFeature:
     """A crosswalk on a road between two junctions: `control` "bare" or "signal" (a light per
@@ -343,7 +483,8 @@ class FeatureSpace:
     """The paper's map feature: discrete value sets and per-n socket angle ranges, plus the
     mid-block crosswalk values (`midblock`, a subset of MIDBLOCK) sampled on the roads between
     junctions and the filter lane values (`filter`, a subset of FILTERS) sampled per junction
-    combination; the defaults ("none",) are the paper's map feature, with neither."""
+    combination and the ramp values (`ramp`, a subset of RAMP_VALUES: ramp junctions sampled beside
+    the junction combinations); the defaults ("none",) are the paper's map feature, with none."""
 
     road_counts: tuple[int, ...]
     controls: tuple[str, ...]
@@ -351,6 +492,7 @@ class FeatureSpace:
     rotation_ranges: Mapping[int, tuple[Range, ...]]
     midblock: tuple[str, ...] = ("none",)
     filter: tuple[str, ...] = ("none",)
+    ramp: tuple[str, ...] = ("none",)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "road_counts", tuple(sorted(set(int(n) for n in self.road_counts))))
@@ -365,14 +507,22 @@ class FeatureSpace:
         if unknown:
             raise FeatureError(f"unknown filter lane value(s) {snippet(unknown)}, expected {list(FILTERS)}", "filter")
         object.__setattr__(self, "filter", tuple(v for v in FILTERS if v in set(self.filter)))
+        unknown = [v for v in self.ramp if v not in RAMP_VALUES]
+        if unknown:
+            raise FeatureError(f"unknown ramp value(s) {snippet(unknown)}, expected {list(RAMP_VALUES)}", "ramp")
+        object.__setattr__(self, "ramp", tuple(v for v in RAMP_VALUES if v in set(self.ramp)))
         ranges = {int(n): tuple((float(lo), float(hi)) for lo, hi in r) for n, r in self.rotation_ranges.items()}
         object.__setattr__(self, "rotation_ranges", dict(sorted(ranges.items())))
         self.validate()
 
     def validate(self) -> None:
-        if not self.road_counts or not self.controls or not self.crosswalks or not self.midblock or not self.filter:
-            raise FeatureError("road_counts, controls, crosswalks, midblock and filter must each be non-empty")
-        if min(self.road_counts) < 3 or max(self.road_counts) > MAX_LEGS:
+        if not self.midblock or not self.filter or not self.ramp:
+            raise FeatureError("road_counts, controls, crosswalks, midblock, filter and ramp must each be non-empty")
+        junctions = (bool(self.road_counts), bool(self.controls), bool(self.crosswalks))
+        if not all(junctions) and (any(junctions) or not self.ramp_kinds):
+            raise FeatureError("road_counts, controls and crosswalks must each be non-empty (all three empty: a map "
+                               "feature of ramp junctions only, with ramp values other than none)")
+        if self.road_counts and (min(self.road_counts) < 3 or max(self.road_counts) > MAX_LEGS):
             raise FeatureError(f"road counts must be 3 to {MAX_LEGS}, got {list(self.road_counts)}")
         for n in self.road_counts:
             ranges = self.rotation_ranges.get(n)
@@ -398,17 +548,26 @@ class FeatureSpace:
         return tuple(v for v in self.filter if v != "none")
 
     @property
+    def ramp_kinds(self) -> tuple[str, ...]:
+        """The ramp junction values sampled (the values other than "none")."""
+        return tuple(v for v in self.ramp if v != "none")
+
+    @property
     def midblock_controls(self) -> tuple[str, ...]:
         """The mid-block crosswalk controls sampled (the values other than "none")."""
         return tuple(v for v in self.midblock if v != "none")
 
     @classmethod
     def from_features(cls, features: Iterable[JunctionFeature],
-                      midblock: Iterable[MidblockFeature] = ()) -> "FeatureSpace":
+                      midblock: Iterable[MidblockFeature] = (), ramps: Iterable[str] = ()) -> "FeatureSpace":
         """Merge junction features into one map feature (union of values, per-n min/max angle);
-        `midblock`: the mid-block crosswalks seen (their controls join "none", the roads without)."""
-        feats = list(features)
-        if not feats:
+        `midblock`: the mid-block crosswalks seen (their controls join "none", the roads without);
+        ramp junctions give their ramp values and no road count or angle ranges; `ramps`: the kinds
+        ("on", "off") of ramps found outside ramp junctions (`extract_ramps.extract_ramps`)."""
+        every = list(features)
+        feats = [f for f in every if not f.has_ramp]
+        kinds = [*(f.ramp_value for f in every if f.has_ramp), *ramps]
+        if not every and not kinds:
             raise FeatureError("no junction features to merge")
         ranges: dict[int, list[list[float]]] = {}
         for f in feats:
@@ -422,7 +581,8 @@ class FeatureSpace:
             crosswalks=tuple({f.crosswalk for f in feats}),
             rotation_ranges={n: tuple((lo, hi) for lo, hi in r) for n, r in ranges.items()},
             midblock=("none", *(c.control for c in midblock)),
-            filter=tuple({v for f in feats for v in (set(f.filters) - {"none"} or {"none"})}),
+            filter=tuple({v for f in feats for v in (set(f.filters) - {"none"} or {"none"})}) or ("none",),
+            ramp=("none", *kinds),
         )
 
     def merge(self, other: "FeatureSpace") -> "FeatureSpace":
@@ -438,6 +598,7 @@ class FeatureSpace:
             ranges,
             self.midblock + other.midblock,
             self.filter + other.filter,
+            self.ramp + other.ramp,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -453,6 +614,8 @@ class FeatureSpace:
             out["midblock"] = list(self.midblock)
         if self.filter != ("none",):
             out["filter"] = list(self.filter)
+        if self.ramp != ("none",):
+            out["ramp"] = list(self.ramp)
         return out
 
     @classmethod
@@ -464,7 +627,7 @@ class FeatureSpace:
             raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
         for key, kind, name in (("road_counts", int, "integers"), ("controls", str, "strings"),
                                 ("crosswalks", bool, "true/false"), ("midblock", str, "strings"),
-                                ("filter", str, "strings")):
+                                ("filter", str, "strings"), ("ramp", str, "strings")):
             if key not in data:
                 continue
             value = data[key]
@@ -482,6 +645,10 @@ class FeatureSpace:
         unknown = [c for c in filters if c not in FILTERS]
         if unknown:
             raise FeatureError(f"unknown value(s) {snippet(unknown)}, expected {list(FILTERS)}", f"{where}: filter")
+        ramps = data.get("ramp", ["none"])
+        unknown = [c for c in ramps if c not in RAMP_VALUES]
+        if unknown:
+            raise FeatureError(f"unknown value(s) {snippet(unknown)}, expected {list(RAMP_VALUES)}", f"{where}: ramp")
         rr = data["rotation_ranges"]
         if not isinstance(rr, Mapping):
             raise FeatureError(f"must be an object n -> ranges, got {snippet(rr)}", f"{where}: rotation_ranges")
@@ -495,7 +662,7 @@ class FeatureSpace:
             ranges[int(n)] = tuple((float(r[0]), float(r[1])) for r in rs)
         try:
             return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges,
-                       tuple(midblock), tuple(filters))
+                       tuple(midblock), tuple(filters), tuple(ramps))
         except FeatureError as exc:
             raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
 

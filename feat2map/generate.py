@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+from dataclasses import replace
 from typing import Iterator, Sequence
 
 import numpy as np
@@ -11,10 +12,10 @@ from . import __version__
 from .config import MAX_CARDINAL_DEVIATION_DEG, STRICT_CARDINAL_DEVIATION_DEG, GenerationConfig, limits
 from .construct import MidblockRequest, RoadChain, assign_midblock, build_map
 from .errors import ConfigError, CrossingRoadsError, snippet
-from .features import FeatureSpace, JunctionFeature, normalize_rotation
+from .features import FeatureSpace, JunctionFeature
 from .layout import Cell, place
 from .model import HDMap
-from .sampling import sample_features, sample_midblock
+from .sampling import sample_features, sample_midblock, sample_ramps
 
 
 def check_seed(seed: int) -> int:
@@ -56,7 +57,7 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     limits().check("max_junctions", len(features), "the junction count")
     prefer = None
     if keep_orientation is not None:
-        prefer = [round(-normalize_rotation(f.rotation).rotation_deg / 90.0) % 4 if keep else None
+        prefer = [round(-f.normalization().rotation_deg / 90.0) % 4 if keep else None
                   for f, keep in zip(features, keep_orientation)]
     info = {"generator": f"feat2map {__version__}", "seed": int(seed), "config": config.to_dict()}
     info.update(meta or {})
@@ -65,7 +66,7 @@ def generate_from_features(features: Sequence[JunctionFeature], seed: int = 0,
     for r in midblock:  # the socket index as given -> the normalized feature's
         if r.socket is not None:
             j, s = r.socket
-            r = MidblockRequest(r.feature, (j, normalize_rotation(features[j].rotation).order.index(s)), r.name)
+            r = MidblockRequest(r.feature, (j, features[j].normalization().order.index(s)), r.name)
         requests.append(r)
 
     def build(max_deviation_deg: float) -> HDMap:
@@ -87,18 +88,20 @@ def check_buildable(feature: JunctionFeature, config: GenerationConfig = Generat
     extraction applies) and the junction must be built on its own (it fits the grid gap).
     Extraction and generation agree through this: a junction extraction accepts either passes
     here or is reported as skipped."""
-    JunctionFeature(feature.sockets, feature.control, feature.crosswalk, config.min_socket_separation_deg)
+    replace(feature, min_separation_deg=config.min_socket_separation_deg)
     generate_from_features([feature], 0, config)
 
 
 def generate(space: FeatureSpace, seed: int = 0, config: GenerationConfig = GenerationConfig(),
              progress: bool = False) -> HDMap:
-    """Algorithm 1: one junction per feature combination (x samples_per_combination), seeded;
+    """Algorithm 1: one junction per feature combination (x samples_per_combination) and one ramp
+    junction per ramp value (`sampling.sample_ramps`), seeded;
     `progress` shows a bar over the junctions built, on a terminal only."""
     rng = np.random.default_rng([check_seed(seed), 0])
     config.check_limits()
     features = sample_features(space, rng, config)
     midblock = [MidblockRequest(f, None, f"sampled mid-block crosswalk {k} ({f.control})")
                 for k, f in enumerate(sample_midblock(space, rng, config))]
+    features += sample_ramps(space, rng, config)
     return generate_from_features(features, seed, config, meta={"feature_space": space.to_dict()}, progress=progress,
                                   midblock=midblock)

@@ -19,6 +19,7 @@ from .features import JunctionFeature
 from .model import HDMap
 
 AREA_EPS_M2 = 0.05
+RAMP_LENGTH_TOL_M = 0.05  # a ramp junction's measured ramp_length (between its main mouths) may be this far off
 
 
 def _road_polygons(m: HDMap) -> dict[str, Polygon]:
@@ -318,8 +319,13 @@ def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg:
         if max(_circ(g.angle - turn, w.angle) for g, w in zip(sock, want.sockets)) <= max(angle_tol_deg, off) \
                 and [(g.lanes_in, g.lanes_out) for g in sock] == want_lanes:
             lanes_match = True
-            if [(g.filter, g.island) if g.filter != "none" else ("none",) for g in sock] == want_filters:
-                return out
+            if [(g.filter, g.island) if g.filter != "none" else ("none",) for g in sock] != want_filters:
+                continue
+            if [g.ramp for g in sock] != list(want.ramps):
+                return out + ["ramps per socket differ"]
+            if want.has_ramp and abs(got.ramp_length - want.ramp_length) > RAMP_LENGTH_TOL_M:
+                return out + [f"ramp_length {got.ramp_length:g} m != {want.ramp_length:g} m"]
+            return out
     return out + ["filter lanes per socket differ" if lanes_match else "lanes per socket differ"]
 
 

@@ -60,12 +60,14 @@ def cardinal_assignment(feature: JunctionFeature, max_deviation_deg: float = MAX
     many sockets as can be, then least squared deviation. A socket serves a direction only
     when no other leg lies between them and it is within `max_deviation_deg`: a road turning
     from its socket across another leg to the neighbour would overlap that leg's road outside
-    the junction, so such a socket ends in a stub instead."""
+    the junction, so such a socket ends in a stub instead, as does every ramp (`Socket.ramp`)."""
     n = feature.n_roads
     angles = feature.rotation
     dev = [[wrap_degrees(angles[s] - 90.0 * d) for d in range(4)] for s in range(n)]
 
     def allowed(s: int, d: int) -> bool:
+        if feature.sockets[s].ramp != "none":  # a ramp's road runs beside its main road's: a stub
+            return False
         if abs(dev[s][d]) > max_deviation_deg + 1e-9:
             return False
         side = math.copysign(1.0, dev[s][d])

@@ -5,9 +5,9 @@ import itertools
 
 import numpy as np
 
-from .config import MAX_ORDER_RETRIES, MIDBLOCK_POSITION_RANGE, GenerationConfig, limits
+from .config import MAX_ORDER_RETRIES, MIDBLOCK_POSITION_RANGE, RAMP_ANGLE_RANGE_DEG, RAMP_LANE_M, GenerationConfig, limits
 from .errors import FeatureError
-from .features import FeatureSpace, JunctionFeature, MidblockFeature, normalize_rotation, with_filter
+from .features import FeatureSpace, JunctionFeature, MidblockFeature, normalize_rotation, ramp_junction, with_filter
 
 
 def sample_rotation(ranges: tuple[tuple[float, float], ...], rng: np.random.Generator,
@@ -63,4 +63,21 @@ def sample_midblock(space: FeatureSpace, rng: np.random.Generator,
     for control in space.midblock_controls:
         for _ in range(int(config.samples_per_combination)):
             out.append(MidblockFeature(control, round(float(rng.uniform(*MIDBLOCK_POSITION_RANGE)), 6)))
+    return out
+
+
+def sample_ramps(space: FeatureSpace, rng: np.random.Generator,
+                 config: GenerationConfig = GenerationConfig()) -> list[JunctionFeature]:
+    """One ramp junction per ramp value the map feature asks for ("on", "off", "both"),
+    `samples_per_combination` times: a straight main road with one lane per direction (as the
+    sampled junctions have, so that it connects to them), ramps of one lane at an angle drawn
+    uniformly in RAMP_ANGLE_RANGE_DEG, acceleration/deceleration lanes RAMP_LANE_M long (its
+    "none" value is every junction without ramps)."""
+    limits().check("max_junctions", len(space.ramp_kinds) * int(config.samples_per_combination),
+                   f"the ramp junction count ({len(space.ramp_kinds)} ramp values x samples_per_combination)")
+    out = []
+    for kind in space.ramp_kinds:
+        for _ in range(int(config.samples_per_combination)):
+            angle = round(float(rng.uniform(*RAMP_ANGLE_RANGE_DEG)), 6)
+            out.append(ramp_junction(kind, angle, 1, 1, RAMP_LANE_M).normalized())
     return out

@@ -25,7 +25,7 @@ from shapely.ops import unary_union
 
 from .angles import positive_degrees, wrap_angle
 from .bezier import Bezier
-from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, GenerationConfig, limits
+from .config import ENDPOINT_TOLERANCE_M, MIN_STUB_LENGTH_M, RAMP_LANE_M, GenerationConfig, limits
 from .construct import MidblockRequest, RoadChain, chain_road_id, junction_radius, pavement
 from .documents import check_schema, element_path, element_where, load_document
 from .errors import FeatureError, LayoutError, LimitError
@@ -33,6 +33,7 @@ from .features import FeatureSpace, JunctionFeature, MidblockFeature, Socket, so
 from .invariants import AREA_EPS_M2, connectivity, dead_ends, two_way
 from .layout import Cell
 from .model import HDMap
+from .ramps import ramp_fit
 
 SPEC_VERSION = 1
 HEADING_TOLERANCE_DEG = 0.01  # a chain is closed when its last pose equals its start within this
@@ -118,6 +119,15 @@ def _socket(raw: Any, where: str) -> Socket:
             raise SpecError("a socket needs at least one lane (lanes_in + lanes_out > 0)", where)
     else:
         lanes_in, lanes_out = socket_lanes(raw.get("type", "in-out"), int(raw.get("lanes", 1)))
+    if "ramp" in raw:
+        if "filter" in raw:
+            raise SpecError("a ramp has no filter lane (a ramp junction has none)", f"{where}.filter")
+        kind = raw["ramp"].get("kind", "on")
+        if (kind == "on" and lanes_out) or (kind == "off" and lanes_in):
+            raise SpecError(f"an {kind}-ramp is one-way {'in' if kind == 'on' else 'out'}: give it type "
+                            f"{'in' if kind == 'on' else 'out'} (or lanes_{'in' if kind == 'on' else 'out'} only)",
+                            f"{where}.ramp")
+        return Socket(float(raw["angle"]), lanes_in, lanes_out, ramp=str(kind))
     if "filter" not in raw:
         return Socket(float(raw["angle"]), lanes_in, lanes_out)
     f = raw["filter"]
@@ -151,7 +161,7 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float, path: Sequence
         gap = positive_degrees(b.angle - a.angle)
         if gap < 1e-9:
             raise SpecError(f"same direction ({b.angle:g} deg) as sockets[{i}]", f"{where}.sockets[{j}]")
-        if gap < min_sep - 1e-9:
+        if gap < min_sep - 1e-9 and b.ramp != "on" and a.ramp != "off":  # a ramp keeps the ramp angles instead
             raise SpecError(f"{gap:g} deg from sockets[{i}], closer than the minimum separation {min_sep:g} deg "
                             "(config.min_socket_separation_deg)", f"{where}.sockets[{j}]")
     if not any(s.lanes_in for _, s in socks) or not any(s.lanes_out for _, s in socks):
@@ -162,11 +172,15 @@ def _junction(raw: Mapping[str, Any], where: str, min_sep: float, path: Sequence
     angles = [first + positive_degrees(s.angle - socks[0][1].angle) for _, s in socks]
     sockets = tuple(replace(s, angle=a) for a, (_, s) in zip(angles, socks))
     try:
-        feature = JunctionFeature(sockets, raw.get("control", "bare"), bool(raw.get("crosswalk", False)), min_sep)
+        feature = JunctionFeature(sockets, raw.get("control", "bare"), bool(raw.get("crosswalk", False)), min_sep,
+                                  float(raw.get("ramp_length", RAMP_LANE_M)))
     except FeatureError as exc:
         hit = re.match(r"socket (\d+): (.*filter lane.*)", exc.message)
         if hit:  # the socket in the spec's own order
             raise SpecError(hit.group(2), f"{where}.sockets[{socks[int(hit.group(1))][0]}].filter") from None
+        hit = re.match(r"socket (\d+): (.*ramp.*)", exc.message)
+        if hit:
+            raise SpecError(hit.group(2), f"{where}.sockets[{socks[int(hit.group(1))][0]}].ramp") from None
         raise SpecError(exc.message, where) from None
     cell = tuple(int(c) for c in raw["cell"]) if "cell" in raw else None
     return JunctionSpec(feature, cell, raw.get("name"), crossings)  # type: ignore[arg-type]
@@ -204,6 +218,20 @@ def _chain(raw: Mapping[str, Any], index: int, where: str) -> RoadChain:
     return RoadChain(f"C{index}", tuple(poses), fwd, bwd, closes)
 
 
+def _check_ramp_kinds(doc: Any, source: str) -> None:
+    """YAML 1.1 reads an unquoted on/off as true/false: a ramp kind that is a boolean is named
+    with that hint (before the schema, whose message would only say it is no ramp kind)."""
+    if not isinstance(doc, Mapping) or not isinstance(doc.get("junctions"), list):
+        return
+    for i, j in enumerate(doc["junctions"]):
+        for k, sock in enumerate(j.get("sockets", []) if isinstance(j, Mapping) else []):
+            ramp = sock.get("ramp") if isinstance(sock, Mapping) else None
+            if isinstance(ramp, Mapping) and isinstance(ramp.get("kind"), bool):
+                raise SpecError(f"must be \"on\" or \"off\", got {str(ramp['kind']).lower()} (YAML reads an unquoted "
+                                "on/off as true/false: quote it)",
+                                element_where(source, ["junctions", i, "sockets", k, "ramp", "kind"]))
+
+
 def parse_spec(doc: Any, source: str = "spec") -> MapSpec:
     """Validate a spec document (already loaded from YAML/JSON) and build its values."""
     if isinstance(doc, Mapping) and isinstance(doc.get("junctions"), list):  # before the (slow) schema check
@@ -211,6 +239,7 @@ def parse_spec(doc: Any, source: str = "spec") -> MapSpec:
             limits().check("max_junctions", len(doc["junctions"]), "the number of junctions")
         except LimitError as exc:
             raise SpecError(exc.message, element_where(source, ["junctions"])) from None
+    _check_ramp_kinds(doc, source)
     _validate_schema(doc, source)
     if not doc.get("junctions") and not doc.get("chains"):
         raise SpecError("a spec needs at least one junction or chain", source)
@@ -300,6 +329,8 @@ def check_buildable(spec: MapSpec, cfg: GenerationConfig) -> None:
     half a grid gap, and chains that neither fold nor cross themselves or each other."""
     room = cfg.grid_gap / 2 - MIN_STUB_LENGTH_M - cfg.junction_margin
     for i, j in enumerate(spec.junctions):
+        if j.feature.has_ramp and (why := ramp_fit(j.feature, cfg, room)):
+            raise SpecError(why, element_where(spec.source, ["junctions", i, "ramp_length"]))
         r = junction_radius(j.feature, cfg)
         if r > room:
             need = 2 * (r + MIN_STUB_LENGTH_M + cfg.junction_margin)
@@ -327,7 +358,7 @@ def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = N
     crosswalks its sockets ask for. Raises `SpecError` naming the element when the layout or
     the resulting network is impossible."""
     from .generate import generate_from_features
-    from .sampling import sample_features, sample_midblock
+    from .sampling import sample_features, sample_midblock, sample_ramps
 
     cfg = config if config is not None else spec.generation_config()
     if config is not None:
@@ -342,6 +373,7 @@ def build_spec(spec: MapSpec, seed: int = 0, config: GenerationConfig | None = N
         sampled = sample_features(space, rng, cfg)
         midblock += [MidblockRequest(f, None, f"sampled mid-block crosswalk {k} ({f.control})")
                      for k, f in enumerate(sample_midblock(space, rng, cfg))]
+        sampled += sample_ramps(space, rng, cfg)
         features += sampled
         cells += [None] * len(sampled)
         names += [f"sampled junction {k} (J{len(spec.junctions) + k})" for k in range(len(sampled))]

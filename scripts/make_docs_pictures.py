@@ -37,7 +37,8 @@ REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"
 SHARED_MAPS = REPO.parent / "shared" / "maps"
 SPECS = {"spec_mega.png": "mega_junction", "spec_one_way.png": "one_way_t", "spec_circle.png": "road_circle",
-         "spec_multi_lane.png": "multi_lane", "spec_midblock.png": "midblock", "spec_filter_lanes.png": "filter_lanes"}
+         "spec_multi_lane.png": "multi_lane", "spec_midblock.png": "midblock", "spec_filter_lanes.png": "filter_lanes",
+         "spec_ramps.png": "ramps"}
 
 
 @dataclass(frozen=True)

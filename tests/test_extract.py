@@ -70,15 +70,20 @@ def test_a_road_running_straight_through_a_merge_keeps_its_arms_apart():
     assert by_kind[(1, 0)] % 360 == pytest.approx(210.0, abs=1e-6)  # the ramp's road, outward from its mouth
 
 
-def test_a_ramp_closer_than_the_leg_rule_is_skipped_for_that_reason():
-    """The same merge with a ramp 12 degrees off the motorway is skipped by the leg rule, with
-    the angles its roads have (not two arms at one angle)."""
+def test_a_ramp_closer_than_the_leg_rule_is_a_ramp_junction():
+    """The same merge with a ramp 12 degrees off the motorway breaks the leg rule, and is an
+    on-ramp: the arm that only enters lies counter-clockwise next to the motorway's incoming arm
+    (right-hand traffic), with the angles its roads have (not two arms at one angle)."""
     skipped: list[SkippedJunction] = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        assert extract_junctions(_merge_map(12.0, -2.0), skipped=skipped) == []
-    (s,) = skipped
-    assert s.reason.startswith("sockets 12.00 degrees apart") and "[0.0, 180.0, 192.0]" in s.reason
+        (j,) = extract_junctions(_merge_map(12.0, -2.0), skipped=skipped)
+    assert not skipped
+    assert j.feature.ramps.count("on") == 1 and j.feature.ramp_value == "on"
+    by_ramp = {s.ramp: s for s in j.feature.sockets}
+    assert (by_ramp["on"].lanes_in, by_ramp["on"].lanes_out) == (1, 0)
+    assert [round(a, 6) for a in j.feature.rotation] == [0.0, 12.0, 180.0]  # normalized: the smallest listing
+    assert j.feature.ramp_length == pytest.approx(12.0, abs=0.01)  # between the motorway's mouths
 
 
 def _ramp_pair_map(along_m: float) -> HDMap:

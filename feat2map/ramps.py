@@ -1,0 +1,100 @@
+"""Motorway ramp junctions: where their sockets lie and which lanes join them.
+
+A ramp junction (`features.JunctionFeature` with `Socket.ramp`) is a straight-on main road
+whose two main sockets lie half its `ramp_length` from the centre, with on-ramps and off-ramps
+beside them. A ramp's socket lies on its own socket line, where that line passes its main
+socket (its radius is the main radius over the cosine of the ramp angle), so every road of the
+junction leaves along a line through the centre (extraction measures the feature's angles
+exactly) and the ramp's lane runs the whole `ramp_length` beside the main lanes: an on-ramp's
+lane joins the carriageway's rightmost lane at the far main socket (the acceleration lane and
+its taper), an off-ramp's leaves the rightmost lane at the near one (the deceleration lane).
+Main lanes go straight on lane by lane; there are no turns between the carriageways.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+from .config import RAMP_GORE_M, GenerationConfig
+from .features import JunctionFeature, ramp_angle, ramp_main, ramp_mains
+
+# Bezier handles of a ramp's lane, as fractions of the distance between its ends (start, end): an
+# on-ramp's lane turns onto the main road's line early and runs beside it (a long end handle), an
+# off-ramp's runs beside it and turns off late; main lanes and ramp-to-ramp lanes are the paper's
+# halves (eq. 2)
+MERGE_SHAPE = (0.3, 0.5)
+DIVERGE_SHAPE = (0.5, 0.3)
+THROUGH_SHAPE = (0.5, 0.5)
+
+
+def ramp_radius(feature: JunctionFeature) -> float:
+    """Centre to main socket: half the acceleration/deceleration lanes' length."""
+    return feature.ramp_length / 2.0
+
+
+def ramp_socket_radius(feature: JunctionFeature, i: int) -> float:
+    """Centre to ramp socket `i`: on its socket line, level with its main socket."""
+    return ramp_radius(feature) / math.cos(math.radians(ramp_angle(feature, i)))
+
+
+def ramp_length_needed(feature: JunctionFeature, cfg: GenerationConfig) -> float:
+    """The shortest `ramp_length` that keeps every ramp's road RAMP_GORE_M clear of its main
+    road's pavement at the sockets (and diverging beyond), and the main sockets
+    `min_junction_radius` from the centre."""
+    w = cfg.lane_width
+    need = cfg.min_junction_radius
+    for i, s in enumerate(feature.sockets):
+        if s.ramp == "none":
+            continue
+        main = feature.sockets[ramp_main(feature, i)]
+        theta = math.radians(ramp_angle(feature, i))
+        side = (main.lanes_in + main.lanes_out) * w / 2 + RAMP_GORE_M + (s.lanes_in + s.lanes_out) * w / 2 / math.cos(theta)
+        need = max(need, side / math.tan(theta))
+    return 2.0 * need
+
+
+def ramp_fit(feature: JunctionFeature, cfg: GenerationConfig, room: float) -> str:
+    """Why a ramp junction cannot be built ("" when it can): its `ramp_length` too short for its
+    ramp angles and lanes, or too long for the grid's `room` (half a gap less stub and margin)."""
+    need = ramp_length_needed(feature, cfg)
+    if feature.ramp_length < need - 1e-9:
+        return (f"ramp_length {feature.ramp_length:g} m is too short for its ramp angles and lanes: the ramps' roads "
+                f"clear the main road only from {math.ceil(need * 10) / 10:g} m on (raise ramp_length or widen "
+                "the ramp angles)")
+    if ramp_radius(feature) > room + 1e-9:
+        grid = 2 * (ramp_radius(feature) + cfg.grid_gap / 2 - room)
+        return (f"ramp_length {feature.ramp_length:g} m does not fit a {cfg.grid_gap:g} m grid, which holds "
+                f"{2 * room:.1f} m (use grid_gap >= {math.ceil(grid):g})")
+    return ""
+
+
+def ramp_lanes(feature: JunctionFeature, incoming: Mapping[tuple[int, int], list[str]],
+               outgoing: Mapping[tuple[int, int], list[str]], j: int) -> list[tuple[str, str, tuple[float, float]]]:
+    """The junction lanes of ramp junction `j` as (road lane before, road lane after, Bezier
+    handles), lanes listed right to left per socket: main lanes go on lane by lane (monotone, as
+    `construct.lane_pairs` joins a single exit), on-ramp lane k joins the carriageway's lane k from the
+    right, off-ramp lane k leaves its lane k from the right, and an on-ramp's rightmost lane also
+    goes on to an off-ramp of the same carriageway."""
+    a, b = ramp_mains(feature)
+    out: list[tuple[str, str, tuple[float, float]]] = []
+    for x, y in ((a, b), (b, a)):
+        ins, outs = incoming[(j, x)], outgoing[(j, y)]
+        p, q = len(ins), len(outs)
+        if p and q:  # a monotone map, as `construct.lane_pairs` joins one exit
+            pairs = [(k * p // q, k) for k in range(q)] if q >= p else [(k, k * q // p) for k in range(p)]
+            out += [(ins[u], outs[v], THROUGH_SHAPE) for u, v in pairs]
+    for i, s in enumerate(feature.sockets):
+        if s.ramp == "none":
+            continue
+        m = ramp_main(feature, i)
+        other = b if m == a else a
+        if s.ramp == "on":
+            ramp_in, outs = incoming[(j, i)], outgoing[(j, other)]
+            out += [(lane, outs[min(k, len(outs) - 1)], MERGE_SHAPE) for k, lane in enumerate(ramp_in)]
+            for r, t in enumerate(feature.sockets):
+                if t.ramp == "off" and ramp_main(feature, r) == other:
+                    out.append((ramp_in[0], outgoing[(j, r)][0], THROUGH_SHAPE))
+        else:
+            ins, ramp_out = incoming[(j, other)], outgoing[(j, i)]
+            out += [(ins[min(k, len(ins) - 1)], lane, DIVERGE_SHAPE) for k, lane in enumerate(ramp_out)]
+    return out

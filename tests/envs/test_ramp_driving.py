@@ -1,0 +1,64 @@
+"""Driving motorway ramps (examples/ramps.yaml and a sampled map with every ramp value): the
+network makes every ramp merge a conflict (a car on the acceleration lane and one on the main
+lane take the merge in turn), and the route-coverage suites merge from every on-ramp, diverge
+onto every off-ramp and complete at traffic 6 with the baseline planner."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from conftest import example_map_file
+
+from feat2map.envs.network import MapNetwork, merge_pairs
+from feat2map.features import PAPER_SF_FEATURE_SPACE
+from feat2map.formats import native
+from feat2map.generate import generate
+from feat2map.model import HDMap
+
+
+@pytest.fixture(scope="module")
+def map_path(tmp_path_factory) -> Path:
+    return example_map_file(tmp_path_factory, "ramps")
+
+
+@pytest.fixture(scope="module")
+def sampled_path(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("sampled_ramps") / "map.json"
+    native.save(generate(replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both")), seed=0), path)
+    return path
+
+
+def ramp_roads(m: HDMap) -> set[str]:
+    return {r for j in m.junctions.values() if j.feature is not None and j.feature.has_ramp
+            for r, s in zip(j.socket_roads, j.feature.sockets) if s.ramp != "none"}
+
+
+def test_every_ramp_merge_is_a_conflict(map_path):
+    m = native.load(map_path)
+    net = MapNetwork.from_map(m)
+    ramps = ramp_roads(m)
+    merging = [ln.id for ln in m.lanes.values() if ln.junction_id and any(m.lanes[p].road_id in ramps
+                                                                          for p in ln.predecessors)]
+    pairs = {frozenset(p) for p in merge_pairs(m)}
+    for lid in merging:
+        partners = [p for p in pairs if lid in p]
+        assert partners, lid  # it merges with the main lane into the rightmost lane
+        for p in partners:
+            (other,) = p - {lid}
+            assert other in net.conflicts[lid]
+
+
+@pytest.mark.parametrize("which", ["map_path", "sampled_path"])
+def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(request, which):
+    from feat2map.scenarios.rollout import run_scenario
+    from feat2map.scenarios.routes import build_suite
+
+    path = request.getfixturevalue(which)
+    ramps = ramp_roads(native.load(path))
+    suite = build_suite(path, traffic_vehicles=6, seed=0)
+    taking = [sc for sc in suite.scenarios if any(mv[1] in ramps or mv[2] in ramps for mv in sc.route)]
+    assert {r for sc in taking for mv in sc.route for r in mv[1:] if r in ramps} == ramps  # every ramp, both ways
+    for sc in taking:
+        out = run_scenario(sc, record_failure_gif=False)
+        assert out.outcome == "completed", (sc.name, out.message)
