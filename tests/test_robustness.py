@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from conftest import SHARED_MAPS, read_shared_map, shared_map_params, straight_piece
+from conftest import SHARED_MAPS, as_another_tools, read_shared_map, shared_map_params, straight_piece
 from feat2map.extract import SkippedJunction, extract_junctions
 from feat2map.formats import native, read_map
 from feat2map.formats.opendrive.reader import SIGNAL_CODES
@@ -157,7 +157,7 @@ def _split_approach(src: Path, dst: Path, pieces: tuple[float, ...]) -> None:
     of its length last; straight stubs become lines."""
     from lxml import etree
 
-    root = etree.parse(str(src)).getroot()
+    root = as_another_tools(etree.parse(str(src)).getroot())
     road = next(r for r in root.findall("road") if r.get("id") == "1")
     total = float(road.find("planView/geometry").get("length"))
     lengths = [*pieces, total - sum(pieces)]
@@ -214,7 +214,7 @@ def _shorten_link(src: Path, dst: Path, length: float) -> None:
     moved west by what was cut."""
     from lxml import etree
 
-    root = etree.parse(str(src)).getroot()
+    root = as_another_tools(etree.parse(str(src)).getroot())
     roads = {r.get("id"): r for r in root.findall("road")}
     link = roads["3"]
     cut = float(link.get("length")) - length
@@ -276,7 +276,7 @@ def _shorten_road(src: Path, dst: Path, road: str, length: float) -> None:
     every road starting east of it moved west by what was cut."""
     from lxml import etree
 
-    root = etree.parse(str(src)).getroot()
+    root = as_another_tools(etree.parse(str(src)).getroot())
     link = next(r for r in root.findall("road") if r.get("id") == road)
     geo = link.find("planView/geometry")
     x0, cut = float(geo.get("x")), float(link.get("length")) - length

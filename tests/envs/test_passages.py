@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 import feat2map
+from conftest import as_another_tools
+
 from feat2map.config import STOP_POINT_M
 from feat2map.envs.network import PASSAGE_DISTANCE_M, MapNetwork
 from feat2map.formats import read_map
@@ -340,7 +342,7 @@ def _narrow_near(src: Path, dst: Path, road_id: str, profile: list[tuple[float, 
     ((s, width), None: the lane's own width), cubic between them with zero slope at each."""
     from lxml import etree
 
-    root = etree.parse(str(src)).getroot()
+    root = as_another_tools(etree.parse(str(src)).getroot())
     road = next(r for r in root.findall("road") if r.get("id") == road_id)
     for lane in road.findall("lanes/laneSection/*/lane"):
         old = lane.find("width")

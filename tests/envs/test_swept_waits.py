@@ -17,6 +17,8 @@ import pytest
 import shapely
 
 import feat2map
+from conftest import as_another_tools
+
 from feat2map.config import IDM_STOP_GAP_M, IDM_STOP_MARGIN_M
 from feat2map.envs.network import MapNetwork
 from feat2map.envs.rules import room_to_wait
@@ -57,7 +59,7 @@ def jogged(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("jogged")
     four = feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False)
     write_opendrive(feat2map.generate_from_features([four], seed=0), d / "four.xodr")
-    root = etree.parse(str(d / "four.xodr")).getroot()
+    root = as_another_tools(etree.parse(str(d / "four.xodr")).getroot())
     roads = {r.get("id"): r for r in root.findall("road")}
     _widths(roads["1"], _taper(2.6, 1.6, 10.0, 16.0))
     roads["1"].find("lanes/laneOffset").set("a", "-1.5")
