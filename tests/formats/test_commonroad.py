@@ -208,6 +208,18 @@ def test_one_planning_problem_per_manoeuvre_with_a_single_goal(exported):
         assert len(goal) == 1
 
 
+def _validates_with_straight_listed(bad, straight: str, tmp_path) -> None:
+    """`bad`'s CommonRoad export has no problem for feat2map's validator, and lists junction
+    lane `straight` among its intersection's straight-on manoeuvres."""
+    path = tmp_path / "bad.xml"
+    write_commonroad(bad, path)
+    report = check_commonroad(path)
+    assert report.problems == []
+    inc = {x for i in report.scenario.lanelet_network.intersections for g in i.incomings
+           for x in g.outgoing_straight or ()}
+    assert lanelet_ids(bad)[straight] in inc
+
+
 def test_one_sided_neighbours_and_mislabelled_turns_still_validate(sf_default_map, tmp_path):
     """Issue 21 item 7 as a class: a map that lists a neighbour on one side only (or two on a side),
     and a junction lane declared "left" that runs straight, exports to a file feat2map's own
@@ -221,14 +233,7 @@ def test_one_sided_neighbours_and_mislabelled_turns_still_validate(sf_default_ma
     lanes[road.id] = dataclasses.replace(road, left_neighbors=(other.id,), right_neighbors=(other.id,))
     straight = next(ln for ln in lanes.values() if ln.junction_id and ln.turn == "none")
     lanes[straight.id] = dataclasses.replace(straight, turn="left")
-    bad = dataclasses.replace(m, lanes=lanes)
-    path = tmp_path / "bad.xml"
-    write_commonroad(bad, path)
-    report = check_commonroad(path)
-    assert report.problems == []
-    inc = {x for i in report.scenario.lanelet_network.intersections for g in i.incomings
-           for x in g.outgoing_straight or ()}
-    assert lanelet_ids(bad)[straight.id] in inc
+    _validates_with_straight_listed(dataclasses.replace(m, lanes=lanes), straight.id, tmp_path)
 
 
 def test_turn_sets_follow_the_lanelet_as_read_not_our_centre_line(sf_default_map, tmp_path):
@@ -246,14 +251,7 @@ def test_turn_sets_follow_the_lanelet_as_read_not_our_centre_line(sf_default_map
     off = c.copy()
     off[1:-1] += 1.0 * np.array([-d[1], d[0]])  # the centre line 1 m off its borders' midline between its ends
     lanes[straight.id] = dataclasses.replace(straight, centerline=tuple(map(tuple, off)))
-    bad = dataclasses.replace(m, lanes=lanes)
-    path = tmp_path / "hooked.xml"
-    write_commonroad(bad, path)
-    report = check_commonroad(path)
-    assert report.problems == []
-    inc = {x for i in report.scenario.lanelet_network.intersections for g in i.incomings
-           for x in g.outgoing_straight or ()}
-    assert lanelet_ids(bad)[straight.id] in inc
+    _validates_with_straight_listed(dataclasses.replace(m, lanes=lanes), straight.id, tmp_path)
 
 
 def test_commonroad_ios_file_reader_imports_next_to_feat2map(sf_default_map, tmp_path):
