@@ -370,14 +370,15 @@ A corpus folder beside them (any folder of maps, one sub-folder per producing to
 With the maps in place:
 
 ```bash
-python scripts/realmaps.py --md shared.md --json shared.json --workers 2
+python scripts/realmaps.py --md shared.md --json shared.json --workers 2 --limit max_checker_s=3000
 python scripts/realmaps.py --no-shared --corpus DIR --md corpus.md --json corpus.json --workers 2
 python scripts/realmaps.py --from-json shared.json corpus.json --doc docs/realmaps.md
 ```
 
 `--no-rollout` reads, extracts, exports and builds suites only; `--max-scenarios N` drives N
 scenarios spread over each suite instead of all (driving all of `../shared` takes about 45 minutes
-on one worker; the corpus with its exports 15 minutes on two). Columns: **source** = the map's
+on one worker; the corpus with its exports 15 minutes on two; ASAM's checker takes 9 minutes on San
+Francisco's OpenDRIVE export alone, more under load: past its default limit). Columns: **source** = the map's
 first sub-folder (its producing tool);
 **junctions (skipped)** = junctions extracted (3 or more arms) and junction elements skipped, each
 with a reason; **driven / completed** = scenarios driven (a sample spread over the suite, or all)
