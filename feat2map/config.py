@@ -162,6 +162,7 @@ APOLLO_JUNCTION_COVER_M = 0.5  # a junction-lane overlap within this of both lan
 APOLLO_GENERATED_MARK = b"feat2map"  # header.generation of maps feat2map generated (validate holds them to check_map)
 OPENDRIVE_VENDOR = "feat2map"  # <header vendor> of feat2map's OpenDRIVE files (one element per junction: read apart)
 OPENDRIVE_TURN_CODE = "feat2map:turn"  # <userData code> of a connecting road's lane: its turn (OpenDRIVE declares none)
+OPENDRIVE_NEIGHBOURS_CODE = "feat2map:neighbours"  # <userData code> of a lane: neighbours written as other roads
 # (only where roads name no junction: maps draw junction polygons over approach lanes too)
 # junction extraction from real maps (feat2map/extract.py, docs/extraction.md)
 ARM_CLUSTER_DEG = 30.0  # outward directions of one arm's lanes differ by less than this (LEG_MERGE_DEG when

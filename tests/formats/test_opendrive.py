@@ -1047,3 +1047,26 @@ def test_a_fold_spiking_into_the_next_junction_does_not_join_them():
                                                        "b": SimpleNamespace(junction="2")})
         groups = _Builder._junction_groups(stand_in)  # type: ignore[arg-type]
         assert (groups["1"] == groups["2"]) is joined
+
+
+def test_neighbours_written_as_other_roads_come_back_from_our_own_files(tmp_path):
+    """A map without reference lines (read from Apollo) is written one lane per road, so its
+    neighbour lanes stand in other roads; our own file names them in the lane's user data and
+    they come back (without them Shalun's J_15 approach read back as two arms, and its lanes
+    lost their lane changes). Another producer's file with the same roads has none."""
+    import feat2map
+    from feat2map.features import JunctionFeature as JF
+    from feat2map.formats.apollo.reader import read_apollo_bytes
+    from feat2map.formats.apollo.writer import to_apollo
+
+    spec = JF.make([0, 90, 180, 270], "signal", False, lanes=2)
+    m = read_apollo_bytes(to_apollo(feat2map.generate_from_features([spec], seed=0)).SerializeToString())
+
+    def pairs(mm) -> set:
+        at = {k: tuple(np.round(ln.centerline[0], 2)) for k, ln in mm.lanes.items()}
+        return {(at[k], at[x], attr) for k, ln in mm.lanes.items() if ln.junction_id is None
+                for attr in ("left_neighbors", "right_neighbors", "left_reverse_neighbors") for x in getattr(ln, attr)}
+    write_opendrive(m, tmp_path / "ours.xodr")
+    assert pairs(m) and pairs(read_opendrive(tmp_path / "ours.xodr")) == pairs(m)
+    (tmp_path / "theirs.xodr").write_bytes(etree.tostring(as_another_tools(etree.parse(str(tmp_path / "ours.xodr")).getroot())))
+    assert not pairs(read_opendrive(tmp_path / "theirs.xodr"))

@@ -27,8 +27,9 @@ from shapely.geometry import MultiPoint, Polygon
 from shapely.geometry.polygon import orient
 
 from ...angles import classify_turn, positive_angle, wrap_angle
-from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M, OPENDRIVE_TURN_CODE,
-                       OPENDRIVE_VENDOR, ROAD_CONTACT_M, SAMPLE_SPACING_M, SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
+from ...config import (EDGE_STUB_LENGTH_M, IMPLICIT_LANE_LINK_M, MIN_ARM_LENGTH_M, NEGATIVE_WIDTH_TOL_M,
+                       OPENDRIVE_NEIGHBOURS_CODE, OPENDRIVE_TURN_CODE, OPENDRIVE_VENDOR, ROAD_CONTACT_M, SAMPLE_SPACING_M,
+                       SPEED_LIMIT_MPS, UTURN_THRESHOLD_DEG, limits)
 from ...errors import LimitError, MapFormatError, snippet
 from ...model import (TURNS, Crosswalk, HDMap, Junction, Lane, Road, Signal, StopSign, YieldSign, as_polyline,
                       line_across_at, midblock_crossing, signal_precedence, stop_line_across)
@@ -902,6 +903,7 @@ class _Builder:
             rl = road_lanes.setdefault(road_id, ([], []))
             (rl[0] if self.roads[road_id].along(chain[0][2]) else rl[1]).append(lid)
         self._neighbours(lanes, chain_of)
+        self._declared_neighbours(lanes, chain_of)
         self.joined = _join_through(lanes, road_lanes, {lid for r in interior for g in road_lanes.get(r, ()) for lid in g})
         declared = self._declared_turns()
         for lid, ln in lanes.items():
@@ -991,6 +993,35 @@ class _Builder:
                         lst.append(chain_of[self.lane_id(other)])
         for target, upd in found.items():
             lanes[target] = _replace(lanes[target], **{k: tuple(v) for k, v in upd.items()})
+
+    def _declared_neighbours(self, lanes: dict[str, Lane], chain_of: dict[str, str]) -> None:
+        """Neighbours that feat2map's own file writes as lanes of other roads (userData
+        OPENDRIVE_NEIGHBOURS_CODE, `left=ROAD:LANE,...;right=...;reverse=...`), added to those
+        `_neighbours` finds: a real map's lanes are written one road each, and its approaches
+        read back without their neighbours (lane changes, and arms: Shalun's J_15 split in two)."""
+        if not self.ours:
+            return
+        attrs = {"left": "left_neighbors", "right": "right_neighbors", "reverse": "left_reverse_neighbors"}
+        for rid, road in self.roads.items():
+            if road.el is None or road.junction is not None:
+                continue
+            for k, sec in enumerate(road.el.findall("lanes/laneSection")):
+                for lane in sec.iter("lane"):
+                    note = next((u.get("value") for u in lane.findall("userData") if u.get("code") ==
+                                 OPENDRIVE_NEIGHBOURS_CODE), None)
+                    me = chain_of.get(self.lane_id((rid, k, int(lane.get("id") or 0))))
+                    if note is None or me is None or me not in lanes:
+                        continue
+                    for part in note.split(";"):
+                        kind, _, ends = part.partition("=")
+                        others = [chain_of.get(f"{r}_0_{x}") for r, _, x in (e.partition(":") for e in ends.split(","))]
+                        attr = attrs.get(kind.strip())
+                        if attr is None:
+                            continue
+                        have = getattr(lanes[me], attr)
+                        add = tuple(o for o in others if o is not None and o in lanes and o != me and o not in have)
+                        if add:
+                            lanes[me] = _replace(lanes[me], **{attr: have + add})
 
     def _pose(self, road: _OdrRoad, s: float, t: float) -> tuple[tuple[float, float], float]:
         s = min(max(s, 0.0), road.length)

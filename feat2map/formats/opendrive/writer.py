@@ -31,7 +31,8 @@ import numpy as np
 from ... import atomic
 from ...angles import wrap_angle
 from ...bezier import Bezier
-from ...config import OPENDRIVE_JOINT_TANGENT_M, OPENDRIVE_TURN_CODE, OPENDRIVE_VENDOR, OPENDRIVE_VERSIONS, UTM_ZONE
+from ...config import (OPENDRIVE_JOINT_TANGENT_M, OPENDRIVE_NEIGHBOURS_CODE, OPENDRIVE_TURN_CODE, OPENDRIVE_VENDOR,
+                      OPENDRIVE_VERSIONS, UTM_ZONE)
 from ...errors import Feat2MapError, MapFormatError
 from ...model import HDMap, Lane, Polyline, Road, midblock_controls
 from ..base import header_date
@@ -562,6 +563,24 @@ class _Writer:
             self.sub(el, "speed", sOffset=0.0, max=ln.speed_limit, unit="m/s")
         if ln.junction_id is not None:  # the turn, which OpenDRIVE cannot say, for our reader (last: additional data)
             self.sub(el, "userData", code=OPENDRIVE_TURN_CODE, value=ln.turn)
+        elsewhere = self._neighbours_elsewhere(ln, rid)
+        if elsewhere:
+            self.sub(el, "userData", code=OPENDRIVE_NEIGHBOURS_CODE, value=elsewhere)
+
+    def _neighbours_elsewhere(self, ln: Lane, rid: str) -> str:
+        """`left=ROAD:LANE,...;right=...;reverse=...`: the neighbours of road lane `ln` written as
+        lanes of other roads (a map without reference lines writes each lane as its own road),
+        for our reader; "" when none. Neighbours in the same road need no note."""
+        if ln.junction_id is not None:
+            return ""
+        parts = []
+        for kind, others in (("left", ln.left_neighbors), ("right", ln.right_neighbors),
+                             ("reverse", ln.left_reverse_neighbors)):
+            ends = [f"{self.road_ids[self.odr_lane[x][0]]}:{self.odr_lane[x][1]}" for x in others
+                    if x in self.odr_lane and self.odr_lane[x][0] != rid]
+            if ends:
+                parts.append(f"{kind}={','.join(ends)}")
+        return ";".join(parts)
 
     def _junction(self, root, jid: str) -> None:
         el = self.sub(root, "junction", id=self.junction_ids[jid], name=jid)
