@@ -266,13 +266,13 @@ class PlannerProcess:
             sel.register(out.fileno(), selectors.EVENT_READ)
             sel.register(self._wake_r, selectors.EVENT_READ)
             end = self._read_lines(out.fileno(), sel)
+            with self._cv:  # why, before the pipe closes: a write that breaks after it finds the cause
+                self._end = end
+                self._cv.notify_all()
         finally:
             sel.close()
             out.close()  # only this thread reads it: closing never waits on a read in progress
             os.close(self._wake_r)
-        with self._cv:
-            self._end = end
-            self._cv.notify_all()
 
     def _read_lines(self, fd: int, sel: selectors.BaseSelector) -> str:
         """Queue the planner's lines until its output ends ("eof"), a line exceeds
@@ -338,8 +338,9 @@ class PlannerProcess:
                 continue
             except BlockingIOError:
                 pass
-            except OSError:  # BrokenPipeError: nobody reads the pipe any more
-                raise BridgeError(self.failure(self._gone(f"before its {what} reply", "closed its stdin"))) from None
+            except OSError:  # BrokenPipeError: nobody reads the pipe any more (maybe as it flooded us: say that)
+                raise BridgeError(self.failure(self._output_fault(what) or self._gone(f"before its {what} reply",
+                                                                                      "closed its stdin"))) from None
             left = deadline - time.monotonic()
             if left <= 0:
                 raise BridgeError(self.failure(
@@ -370,19 +371,25 @@ class PlannerProcess:
             raise BridgeError(self.failure(f"{what} reply without its 'step' (protocol {self.protocol} echoes it)"))
         return msg
 
+    def _output_fault(self, what: str) -> str | None:
+        """Why reading stopped when the planner's output was at fault (a flood of replies nobody
+        asked for, an overlong line), else None."""
+        with self._cv:
+            if self._end == "flood":
+                return f"the planner sent {self._received - self._asked} replies without being asked (at its {what} reply)"
+            if self._end == "overlong":
+                return f"garbage {what} reply: a line over {MAX_LINE_BYTES} bytes"
+        return None
+
     def _next_line(self, deadline: float, timeout: float, what: str) -> bytes:
         exited_at: float | None = None
         while True:
             with self._cv:
-                if self._end == "flood":
-                    n = self._received - self._asked
-                    message = f"the planner sent {n} replies without being asked (at its {what} reply)"
+                if self._end == "flood" or (self._end == "overlong" and not self._lines):
+                    message = self._output_fault(what) or ""
                     break
                 if self._lines:
                     return self._lines.popleft()
-                if self._end == "overlong":
-                    message = f"garbage {what} reply: a line over {MAX_LINE_BYTES} bytes"
-                    break
                 if self._end is not None:  # end of output
                     message = self._gone(f"before its {what} reply", "closed its stdout while still running,")
                     break
