@@ -750,23 +750,25 @@ class _Builder:
         header = self.root.find("header")
         return header is not None and header.get("vendor") == OPENDRIVE_VENDOR
 
+    def _lane_notes(self, code: str, in_junction: bool) -> Iterable[tuple[str, str]]:
+        """(piece lane id, value) of every lane's userData `code` in feat2map's own file, on the
+        connecting roads (`in_junction`) or the other roads; nothing from other producers."""
+        if not self.ours:
+            return
+        for rid, road in self.roads.items():
+            if road.el is None or (road.junction is not None) != in_junction:
+                continue
+            for k, sec in enumerate(road.el.findall("lanes/laneSection")):
+                for lane in sec.iter("lane"):
+                    value = next((u.get("value") for u in lane.findall("userData") if u.get("code") == code), None)
+                    if value is not None and (lane.get("id") or "").lstrip("-").isdigit():
+                        yield self.lane_id((rid, k, int(lane.get("id")))), value
+
     def _declared_turns(self) -> dict[str, str]:
         """Lane id -> the turn feat2map's own file declares for a connecting road's lane
         (userData OPENDRIVE_TURN_CODE): OpenDRIVE has no turn, and geometry alone read the
         declared U-turns and straights of a round trip back as right and left turns."""
-        if not self.ours:
-            return {}
-        out = {}
-        for rid, road in self.roads.items():
-            if road.junction is None or road.el is None:
-                continue
-            for k, sec in enumerate(road.el.findall("lanes/laneSection")):
-                for lane in sec.iter("lane"):
-                    turn = next((u.get("value") for u in lane.findall("userData") if u.get("code") == OPENDRIVE_TURN_CODE),
-                                None)
-                    if turn in TURNS and (lane.get("id") or "").lstrip("-").isdigit():
-                        out[self.lane_id((rid, k, int(lane.get("id"))))] = turn
-        return out
+        return {lid: turn for lid, turn in self._lane_notes(OPENDRIVE_TURN_CODE, True) if turn in TURNS}
 
     def _junction_groups(self) -> dict[str, str]:
         """OpenDRIVE junction id -> merged junction id (elements whose lanes touch are one). A
@@ -999,29 +1001,22 @@ class _Builder:
         OPENDRIVE_NEIGHBOURS_CODE, `left=ROAD:LANE,...;right=...;reverse=...`), added to those
         `_neighbours` finds: a real map's lanes are written one road each, and its approaches
         read back without their neighbours (lane changes, and arms: Shalun's J_15 split in two)."""
-        if not self.ours:
-            return
         attrs = {"left": "left_neighbors", "right": "right_neighbors", "reverse": "left_reverse_neighbors"}
-        for rid, road in self.roads.items():
-            if road.el is None or road.junction is not None:
+        for piece, note in self._lane_notes(OPENDRIVE_NEIGHBOURS_CODE, False):
+            me = chain_of.get(piece)
+            if me is None or me not in lanes:
                 continue
-            for k, sec in enumerate(road.el.findall("lanes/laneSection")):
-                for lane in sec.iter("lane"):
-                    note = next((u.get("value") for u in lane.findall("userData") if u.get("code") ==
-                                 OPENDRIVE_NEIGHBOURS_CODE), None)
-                    me = chain_of.get(self.lane_id((rid, k, int(lane.get("id") or 0))))
-                    if note is None or me is None or me not in lanes:
-                        continue
-                    for part in note.split(";"):
-                        kind, _, ends = part.partition("=")
-                        others = [chain_of.get(f"{r}_0_{x}") for r, _, x in (e.partition(":") for e in ends.split(","))]
-                        attr = attrs.get(kind.strip())
-                        if attr is None:
-                            continue
-                        have = getattr(lanes[me], attr)
-                        add = tuple(o for o in others if o is not None and o in lanes and o != me and o not in have)
-                        if add:
-                            lanes[me] = _replace(lanes[me], **{attr: have + add})
+            for part in note.split(";"):
+                kind, _, ends = part.partition("=")
+                attr = attrs.get(kind.strip())
+                if attr is None:
+                    continue
+                others = [chain_of.get(self.lane_id((r, 0, int(x)))) for r, _, x in (e.partition(":") for e in ends.split(","))
+                          if x.lstrip("-").isdigit()]
+                have = getattr(lanes[me], attr)
+                add = tuple(o for o in others if o is not None and o in lanes and o != me and o not in have)
+                if add:
+                    lanes[me] = _replace(lanes[me], **{attr: have + add})
 
     def _pose(self, road: _OdrRoad, s: float, t: float) -> tuple[tuple[float, float], float]:
         s = min(max(s, 0.0), road.length)
