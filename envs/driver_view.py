@@ -4,7 +4,8 @@ that matters for the next junction of the route, as one flat vector in [0, 1].
 Not the answer ("you may go now") but its ingredients, each from the rules module
 (`env.unwrapped.rules`, the ego's judge): the ego's speed; the distance along the route to the
 next stop line (finely near the line, coarsely further out), the time to reach it, and whether
-the ego is in the zone where a stop counts; the control and the ego's manoeuvre there; the
+the ego is in the zone where a stop counts; the control and the ego's manoeuvre there (a turn,
+or a ramp's merge or diverge); the
 signal's colour, time to change and whether the movement is protected; whether the ego has made
 its full stop at the stop sign ahead (the judge's own rule) and how many vehicles that arrived
 before it want a conflicting lane; the junction traffic in conflict with the ego's path (a
@@ -24,7 +25,7 @@ from ..config import (DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS, DRIVER_VIEW_CONFLICT_DI
                       DRIVER_VIEW_LEADER_SCALE_M, DRIVER_VIEW_LINE_FAR_M, DRIVER_VIEW_LINE_NEAR_M,
                       DRIVER_VIEW_PEDESTRIAN_SCALE_M, DRIVER_VIEW_QUEUE_SCALE, DRIVER_VIEW_SIGNAL_SCALE_S,
                       DRIVER_VIEW_SPEED_SCALE_MPS)
-from .rules import TURN_NAMES, in_stop_zone
+from .rules import in_stop_zone, manoeuvre_name
 
 DRIVER_VIEW_FEATURES = (
     # (the scales x of "/ x" below are feat2map.config's DRIVER_VIEW_* constants)
@@ -34,7 +35,7 @@ DRIVER_VIEW_FEATURES = (
     "in_stop_zone",  # the ego centre within STOP_ZONE_M before that line
     "in_junction",
     "signal", "stop", "bare",  # control of the junction entry ahead (or just crossed); all 0 past the junction
-    "left", "straight", "right",  # the ego's manoeuvre there
+    "left", "straight", "right", "merge", "diverge",  # the ego's manoeuvre there (rules.manoeuvre_name)
     "green", "amber", "red", "signal_change",  # the signal's colour, time to its next change / SIGNAL_SCALE_S
     "protected",  # a signalized movement no conflicting movement can have green with
     "stop_made",  # the full stop at the stop sign ahead is made (rules.EgoJudge)
@@ -92,7 +93,7 @@ def driver_view(env) -> list[float]:
                    line_time=_scaled(d / max(ego.speed, DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS), DRIVER_VIEW_CONFLICT_TIME_S),
                    in_stop_zone=float(not in_junction and in_stop_zone(d)), in_junction=float(in_junction))
         out["signal" if sl is not None and sl.kind == "signal" else "stop" if sl is not None else "bare"] = 1.0
-        turn = TURN_NAMES.get(m.lanes[j_lane].turn)
+        turn = manoeuvre_name(m, m.lanes[j_lane])
         if turn in out:  # a U-turn has no feature of its own
             out[turn] = 1.0
         if sl is not None and sl.kind == "signal":

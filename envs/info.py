@@ -37,7 +37,8 @@ INFO_KEYS: tuple[InfoKey, ...] = (
     InfoKey("junction_feature.rotation", np.ndarray, "[deg] socket angles, MAX_LEGS (8) floats, inf padded"),
     InfoKey("junction_feature.lanes_in", np.ndarray, "incoming lanes per leg, 8 int64, -1 padded"),
     InfoKey("junction_feature.lanes_out", np.ndarray, "outgoing lanes per leg, 8 int64, -1 padded"),
-    InfoKey("manoeuvre", str, "the ego's turn there: \"left\" | \"straight\" | \"right\" | \"uturn\" (\"\")"),
+    InfoKey("manoeuvre", str, "the ego's manoeuvre there: \"left\" | \"straight\" | \"right\" | \"uturn\" | a ramp's \"merge\" | "
+            "\"diverge\" (\"\")"),
     InfoKey("control_ahead", str, "\"signal\" | \"stop\" | \"yield\" | \"bare\" for the next stop line on the "
             "route (\"yield\": the entry of a filter lane behind a yield sign), a mid-block crossing's light's "
             "included (\"\" past the last)"),

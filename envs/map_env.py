@@ -33,7 +33,7 @@ from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
-from .rules import TURN_NAMES, VIOLATIONS, EgoJudge, braking_distance
+from .rules import VIOLATIONS, EgoJudge, braking_distance, manoeuvre_name
 from .sim.vehicle import VehicleModel
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
@@ -175,7 +175,7 @@ class EgoTask:
         for lid in ego.lane_route[ego.route_pos:]:
             ln = m.lanes[lid]
             if ln.junction_id is not None:
-                return ln.junction_id, TURN_NAMES.get(ln.turn, ln.turn)
+                return ln.junction_id, manoeuvre_name(m, ln)
         return None, None
 
     def rule_stop_distance(self, ignore: Sequence[str] = (), commit: bool = True) -> float:

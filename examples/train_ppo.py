@@ -1,13 +1,17 @@
 """Train a Stable-Baselines3 PPO ego on every junction type of a generated grid, then evaluate it
 per (junction type, manoeuvre) against the rule-following ScriptedDriver.
 
-The map holds one junction per (road count n, control, crosswalk) combination. Each episode is
-one sampled manoeuvre through one junction with traffic and crosswalk pedestrians.
+The map holds one junction per (road count n, control, crosswalk) combination and a motorway
+ramp junction (RAMP_JUNCTION: an on- and an off-ramp). Each episode is one sampled manoeuvre
+through one junction with traffic and crosswalk pedestrians (the env's sampled routes: the ramp
+junction's merge and diverge are drawn as often as its entry lanes are among all junctions').
+Cells: left / straight / right at each junction without ramps, merge (on-ramp onto the main
+road) / diverge (main road onto the off-ramp) at the ramp junction.
 - Action: a target speed (TARGET_SPEEDS) at 2 Hz; the `TargetSpeed` wrapper turns it into the
   constant acceleration that reaches it by the next decision (bounded), steering follows the
   route. Braking to 0 from a creeping speed stops within a metre, so the 6 m stop zone is easy to hit.
 - Observation: the env's `DriverView` (envs/driver_view.py): ego speed, distance to the stop line
-  (fine near it), control, manoeuvre, signal colour and time to change, protected movement, full
+  (fine near it), control, manoeuvre (left, straight, right, merge, diverge), signal colour and time to change, protected movement, full
   stop made, arrival-order queue, conflicting junction traffic with and without priority,
   pedestrians in the path, the leader.
 - Reward (`TaskRewards` on the env's terms): route progress (1 for the route) + 1 on arrival,
@@ -66,12 +70,18 @@ from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E
 from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
 from feat2map.envs.junction_env import JunctionGridEnv  # noqa: E402
 from feat2map.envs.vector import MapVectorEnv, info_of, sb3_vec_env  # noqa: E402
-from feat2map.envs.rules import TURN_NAMES  # noqa: E402
+from feat2map.envs.rules import manoeuvre_name  # noqa: E402
+from feat2map.features import ramp_junction  # noqa: E402
 from feat2map.render import save_figure  # noqa: E402
+from feat2map.routes import RAMP_MANOEUVRES  # noqa: E402
 
 ROAD_ANGLES = {3: (0, 90, 180), 4: (0, 90, 180, 270)}
 CONTROLS = ("signal", "stop", "bare")
-MANOEUVRES = ("left", "straight", "right")
+MANOEUVRES = ("left", "straight", "right")  # the cells of a junction without ramps
+RAMP_ANGLE_DEG = 15.0  # the ramps' angle from the main road
+RAMP_JUNCTION = ramp_junction("both", RAMP_ANGLE_DEG)  # an on- and an off-ramp: the merge and diverge cells
+RAMP_LABELS = {"on": "on-ramp", "off": "off-ramp", "both": "on- and off-ramp"}  # by JunctionFeature.ramp_value
+COLUMNS = MANOEUVRES + RAMP_MANOEUVRES  # the per-cell tables' manoeuvres
 FAILURES = ("collision", "off_road", "red_light", "stop_sign", "pedestrian_yield", "timeout")
 
 TARGET_SPEEDS = AGENT_TARGET_SPEEDS  # [m/s] the agent's actions (the multi-agent env's default too)
@@ -105,6 +115,17 @@ def junction_features(ns: Sequence[int] = (3, 4), controls: Sequence[str] = CONT
     """One feature per (road count, control, crosswalk) combination."""
     return [feat2map.JunctionFeature.make(list(ROAD_ANGLES[n]), c, cw)
             for n in ns for c in controls for cw in crosswalks]
+
+
+def task_features() -> tuple[feat2map.JunctionFeature, ...]:
+    """The map's junctions: every `junction_features()` combination and RAMP_JUNCTION."""
+    return (*junction_features(), RAMP_JUNCTION)
+
+
+def cell_manoeuvres(feature: feat2map.JunctionFeature) -> tuple[str, ...]:
+    """The manoeuvres evaluated at a junction of `feature`: merge and diverge at a ramp junction
+    (its main lanes and on-ramp to off-ramp lane are driven in training only), else the turns."""
+    return RAMP_MANOEUVRES if feature.has_ramp else MANOEUVRES
 
 
 def env_config(features: Sequence[feat2map.JunctionFeature], map_seed: int = 0, **overrides) -> dict:
@@ -319,30 +340,46 @@ class Case:
     n: int
     control: str
     crosswalk: bool
+    ramp: str  # JunctionFeature.ramp_value: "none", or the ramps of a ramp junction
     manoeuvre: str
     routes: tuple[tuple[tuple[str, str, str], ...], ...]
 
     @property
-    def key(self) -> tuple[int, str, bool, str]:
-        return (self.n, self.control, self.crosswalk, self.manoeuvre)
+    def key(self) -> tuple[int, str, bool, str, str]:
+        return (self.n, self.control, self.crosswalk, self.ramp, self.manoeuvre)
+
+
+def junction_type(row: dict) -> tuple[int, str, bool, str]:
+    """The junction type of a table row: (n, control, crosswalk, ramp)."""
+    return (row["n"], row["control"], row["crosswalk"], row["ramp"])
+
+
+def type_label(t: tuple[int, str, bool, str]) -> str:
+    """How the tables name junction type `t` (`junction_type`)."""
+    n, control, crosswalk, ramp = t
+    if ramp != "none":
+        return f"ramp junction ({RAMP_LABELS[ramp]})"
+    return f"n={n} {control}{', crosswalk' if crosswalk else ''}"
 
 
 def junction_cases(hdmap) -> list[Case]:
-    """One cell per junction and manoeuvre, with every (entry, exit) pair of it as a one-junction route."""
+    """One cell per junction and manoeuvre of it (`cell_manoeuvres`), with every (entry, exit)
+    pair of it as a one-junction route."""
     cases = []
     for jid in sorted(hdmap.junctions, key=lambda j: (len(j), j)):
         f = hdmap.junctions[jid].feature
         by_turn: dict[str, list[tuple[str, str, str]]] = defaultdict(list)
         for ln in sorted(hdmap.lanes_by_junction.get(jid, []), key=lambda ln: ln.id):
-            turn = TURN_NAMES.get(ln.turn)
-            if turn is None or not ln.predecessors or not ln.successors:
+            if not ln.predecessors or not ln.successors:
                 continue
+            turn = manoeuvre_name(hdmap, ln)
             m = (jid, hdmap.lanes[ln.predecessors[0]].road_id, hdmap.lanes[ln.successors[0]].road_id)
             if m not in by_turn[turn]:
                 by_turn[turn].append(m)
-        for turn in MANOEUVRES:
+        for turn in cell_manoeuvres(f):
             if by_turn[turn]:
-                cases.append(Case(len(f.sockets), f.control, f.crosswalk, turn, tuple((m,) for m in by_turn[turn])))
+                cases.append(Case(len(f.sockets), f.control, f.crosswalk, f.ramp_value, turn,
+                                  tuple((m,) for m in by_turn[turn])))
     return cases
 
 
@@ -434,7 +471,7 @@ def evaluate_cases(config: dict, cases: Sequence[Case], model_bytes: bytes | Non
     bar.close()
     rows = []
     for ci, c in enumerate(cases):
-        row = {"n": c.n, "control": c.control, "crosswalk": c.crosswalk, "manoeuvre": c.manoeuvre,
+        row = {"n": c.n, "control": c.control, "crosswalk": c.crosswalk, "ramp": c.ramp, "manoeuvre": c.manoeuvre,
                "episodes": episodes}
         for name in names:
             s = summarize(results[ci][name])
@@ -442,7 +479,8 @@ def evaluate_cases(config: dict, cases: Sequence[Case], model_bytes: bytes | Non
             if name == "ppo":
                 row["ppo_failures"] = " ".join(f"{k}:{v}" for k, v in s["failures"].items() if v) or "-"
         rows.append(row)
-    rows.sort(key=lambda r: (r["n"], CONTROLS.index(r["control"]), not r["crosswalk"], MANOEUVRES.index(r["manoeuvre"])))
+    rows.sort(key=lambda r: (r["ramp"] != "none", r["n"], CONTROLS.index(r["control"]), not r["crosswalk"],
+                             COLUMNS.index(r["manoeuvre"])))
     return rows, {name: summarize([o for ci in results for o in results[ci][name]]) for name in names}
 
 
@@ -465,18 +503,19 @@ def plot_cells(rows: Sequence[dict], names: Sequence[str], path: Path) -> None:
     """Heat maps of success per junction type (rows) and manoeuvre (columns), one per policy."""
     import matplotlib.pyplot as plt  # headless: feat2map.render selected the Agg backend
 
-    types = list(dict.fromkeys((r["n"], r["control"], r["crosswalk"]) for r in rows))
-    fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names) + 1.2, 0.42 * len(types) + 1.6), squeeze=False)
+    types = list(dict.fromkeys(junction_type(r) for r in rows))
+    columns = [m for m in COLUMNS if any(r["manoeuvre"] == m for r in rows)]
+    fig, axes = plt.subplots(1, len(names), figsize=(0.9 * len(columns) * len(names) + 2.4, 0.42 * len(types) + 1.6),
+                             squeeze=False)
     for ax, name in zip(axes[0], names):
-        grid = np.full((len(types), len(MANOEUVRES)), np.nan)
+        grid = np.full((len(types), len(columns)), np.nan)
         for r in rows:
-            grid[types.index((r["n"], r["control"], r["crosswalk"])), MANOEUVRES.index(r["manoeuvre"])] = \
-                r[f"{name}_success"]
+            grid[types.index(junction_type(r)), columns.index(r["manoeuvre"])] = r[f"{name}_success"]
         ax.imshow(grid, cmap="RdYlGn", vmin=0, vmax=1, aspect="auto")
         for (i, j), v in np.ndenumerate(grid):
             ax.text(j, i, "–" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=8)
-        ax.set_xticks(range(len(MANOEUVRES)), MANOEUVRES, fontsize=8)
-        ax.set_yticks(range(len(types)), [f"n={n} {c}{' +cw' if cw else ''}" for n, c, cw in types], fontsize=8)
+        ax.set_xticks(range(len(columns)), columns, fontsize=8)
+        ax.set_yticks(range(len(types)), [type_label(t) for t in types], fontsize=8)
         ax.set_title(f"success: {name} ({rows[0]['episodes']} episodes per cell)", fontsize=9)
         if ax is not axes[0][0]:
             ax.set_yticklabels([])
@@ -593,7 +632,7 @@ def training_log(total: int, enabled: bool, minutes: float | None = None, lr_end
 class RunConfig:
     """Sizes of one training + evaluation run (the smoke test uses tiny ones)."""
 
-    features: tuple = tuple(junction_features())
+    features: tuple = task_features()
     timesteps: int = 2_000_000  # at most; training also ends after train_minutes
     train_minutes: float | None = 24.0
     train_traffic: tuple[int, int] | None = TRAIN_TRAFFIC
@@ -663,8 +702,9 @@ def summary_markdown(rows: Sequence[dict], timing: dict, rc: RunConfig) -> str:
     the scripted driver in brackets) as junction type x manoeuvre, PPO's failures."""
     load = timing["load_avg_1min"]
     fails = ", ".join(f"{k} {v}" for k, v in timing["ppo_failures"].items()) or "none"
-    below = [f"n={r['n']} {r['control']}{' +cw' if r['crosswalk'] else ''} {r['manoeuvre']} ({r['ppo_success']:.2f})"
+    below = [f"{type_label(junction_type(r))} {r['manoeuvre']} ({r['ppo_success']:.2f})"
              for r in rows if r["ppo_success"] < 0.9]
+    columns = [m for m in COLUMNS if any(r["manoeuvre"] == m for r in rows)]
     lines = [f"- training: {timing['timesteps']:,} steps ({timing['training_episodes']:,} episodes) in "
              f"{timing['train_s'] / 60:.1f} min ({rc.n_envs} {'subprocess' if rc.subprocess else 'batched'} envs); "
              f"evaluation: {timing['episodes_per_cell']} "
@@ -677,13 +717,12 @@ def summary_markdown(rows: Sequence[dict], timing: dict, rc: RunConfig) -> str:
              f"cells below 0.9: {len(below)} of {timing['cells']}" + (f" ({'; '.join(below)})" if below else ""),
              f"- PPO's failed episodes by first cause: {fails}", "",
              f"| junction (success: PPO (scripted), {timing['episodes_per_cell']} episodes per cell) | "
-             + " | ".join(MANOEUVRES) + " |", "|---|" + "---|" * len(MANOEUVRES)]
-    types = list(dict.fromkeys((r["n"], r["control"], r["crosswalk"]) for r in rows))
-    for n, c, cw in types:
-        cell = {r["manoeuvre"]: r for r in rows if (r["n"], r["control"], r["crosswalk"]) == (n, c, cw)}
+             + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+    for t in dict.fromkeys(junction_type(r) for r in rows):
+        cell = {r["manoeuvre"]: r for r in rows if junction_type(r) == t}
         vals = [f"{cell[m]['ppo_success']:.2f} ({cell[m]['scripted_success']:.2f})" if m in cell else "–"
-                for m in MANOEUVRES]
-        lines.append(f"| n={n} {c}{', crosswalk' if cw else ''} | " + " | ".join(vals) + " |")
+                for m in columns]
+        lines.append(f"| {type_label(t)} | " + " | ".join(vals) + " |")
     return "\n".join(lines) + "\n"
 
 

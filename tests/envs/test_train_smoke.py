@@ -46,12 +46,12 @@ def test_tiny_training_and_success_table(tp, tiny, tmp_path):
         assert (tmp_path / name).stat().st_size > 100, name
     with open(tmp_path / "success.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
-    keys = {(int(r["n"]), r["control"], r["crosswalk"] == "True", r["manoeuvre"]) for r in rows}
+    keys = {(int(r["n"]), r["control"], r["crosswalk"] == "True", r["ramp"], r["manoeuvre"]) for r in rows}
     # one row per junction type and manoeuvre the map offers: 4-leg signal + crosswalk, 3-leg stop
     hdmap = tp.make_env(tp.env_config(tiny.features), agent=False).unwrapped.net.hdmap
     assert keys == {c.key for c in tp.junction_cases(hdmap)}
-    assert {k[:3] for k in keys} == {(4, "signal", True), (3, "stop", False)}
-    assert {"left", "straight", "right"} <= {k[3] for k in keys}
+    assert {k[:4] for k in keys} == {(4, "signal", True, "none"), (3, "stop", False, "none")}
+    assert {"left", "straight", "right"} <= {k[4] for k in keys}
     for r in rows:
         assert int(r["episodes"]) == 1
         assert 0.0 <= float(r["ppo_success"]) <= 1.0
@@ -68,6 +68,35 @@ def test_tiny_training_and_success_table(tp, tiny, tmp_path):
     if res["curve"]:  # training episodes that ended: the learning curve
         assert (tmp_path / "learning_curve.png").stat().st_size > 100
         assert res["curve"][-1]["steps"] <= tiny.timesteps
+
+
+def test_ramp_cells_merge_and_diverge(tp):
+    """The task's map holds the ramp junction: its merge and diverge are cells (the table's ramp
+    row), DriverView and the info name them, and the scripted driver completes both."""
+    assert tp.RAMP_JUNCTION in tp.task_features() and tp.RunConfig().features == tp.task_features()
+    config = tp.env_config((*tp.junction_features(ns=(3,), controls=("bare",), crosswalks=(False,)), tp.RAMP_JUNCTION))
+    env = tp.make_env(config, agent=False)
+    cases = tp.junction_cases(env.unwrapped.net.hdmap)
+    ramp = {c.manoeuvre: c for c in cases if c.ramp == "both"}
+    assert list(ramp) == list(tp.RAMP_MANOEUVRES) == ["merge", "diverge"]
+    assert {c.manoeuvre for c in cases if c.ramp == "none"} == set(tp.MANOEUVRES)
+    agent = tp.make_env(config)
+    for name, case in ramp.items():
+        o = tp.run_episode(env, tp.scripted_policy, tp.EVAL_SEED, case.routes[0])
+        assert o.success, (name, o)
+        agent.unwrapped.configure({"route": list(case.routes[0])})
+        obs, info = agent.reset(seed=0)
+        assert info["manoeuvre"] == name
+        assert [f for f, v in zip(tp.DRIVER_VIEW_FEATURES, obs) if f in tp.COLUMNS and v > 0.5] == [name]
+    rows = [{"n": c.n, "control": c.control, "crosswalk": c.crosswalk, "ramp": c.ramp, "manoeuvre": c.manoeuvre,
+             "episodes": 1, "ppo_success": 1.0, "scripted_success": 1.0} for c in cases]
+    timing = {"timesteps": 1, "training_episodes": 1, "train_s": 1.0, "eval_s": 1.0, "total_s": 2.0,
+              "episodes_per_cell": 1, "cells": len(rows), "load_avg_1min": tp.load_summary([1.0]),
+              "mean_cell_success": {"ppo": 1.0, "scripted": 1.0}, "min_cell_success_ppo": 1.0, "ppo_failures": {}}
+    table = tp.summary_markdown(rows, timing, tp.RunConfig()).splitlines()
+    assert "| left | straight | right | merge | diverge |" in table[5]
+    assert table[-1] == "| ramp junction (on- and off-ramp) | – | – | – | 1.00 (1.00) | 1.00 (1.00) |"
+    assert table[-2] == "| n=3 bare | 1.00 (1.00) | 1.00 (1.00) | 1.00 (1.00) | – | – |"
 
 
 def _single(tp, control, **config):
