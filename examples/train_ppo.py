@@ -11,9 +11,9 @@ road) / diverge (main road onto the off-ramp) at the ramp junction.
   constant acceleration that reaches it by the next decision (bounded), steering follows the
   route. Braking to 0 from a creeping speed stops within a metre, so the 6 m stop zone is easy to hit.
 - Observation: the env's `DriverView` (envs/driver_view.py): ego speed, distance to the stop line
-  (fine near it), control, manoeuvre (left, straight, right, merge, diverge), signal colour and time to change, protected movement, full
-  stop made, arrival-order queue, conflicting junction traffic with and without priority,
-  pedestrians in the path, the leader.
+  (fine near it), control, manoeuvre (left, straight, right, merge, diverge), signal colour and
+  time to change, protected movement, full stop made, arrival-order queue, conflicting junction
+  traffic with and without priority, pedestrians in the path, the leader.
 - Reward (`TaskRewards` on the env's terms): route progress (1 for the route) + 1 on arrival,
   FAILURE_PENALTY for a collision, leaving the road or a violation, each ending the episode (as
   they end a success); +STOP_BONUS once when the ego drives on into the junction after its full
