@@ -416,6 +416,10 @@ PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
 FOLD_TURN_DEG = 120.0  # a lane polyline turning more than this at a vertex ...
 FOLD_SEGMENT_M = 1.0  # ... next to a segment shorter than this folds back (a cusp): the vertex is dropped
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
+# two junction lanes merge (a conflict) where both lead into one road lane, directly or through road
+# pieces shorter than this: a filter lane joins its exit road just after the piece the junction's
+# own lanes run on (construct splits the road FILTER_DIVERGE_M or less from the junction)
+MERGE_REACH_M = 2 * FILTER_DIVERGE_M
 VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
 # traffic routes end on at least this much road after their last junction: a car whose route ends
 # on less stands half inside the next junction, blind to it (Town07's 0.7 m road); Shalun's 3.5 m
