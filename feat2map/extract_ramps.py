@@ -180,3 +180,19 @@ def _ramp_at(m: HDMap, map_name: str, rid: str, lanes: Sequence[Lane], kind: str
     theirs = {t.id for _, _, t in sides[main]}
     length = max((v.length for v in through), default=0.0) + _added_length(m, mine, theirs, not forward)
     return ExtractedRamp(map_name, kind, rid, ramp, main, junction, abs(angle), length)
+
+
+def ramp_moves(m: HDMap) -> dict[str, str]:
+    """The junction lanes that drive a ramp (`extract_ramps`), lane id -> "merge" (from an
+    on-ramp onto its main road) or "diverge" (from the main road onto an off-ramp): what a
+    planner selects its ramp scenarios by. Ramps through a direct link have no such lane."""
+    out: dict[str, str] = {}
+    for r in extract_ramps(m):
+        if r.junction is None:
+            continue
+        src, dst, move = (r.ramp_road, r.road, "merge") if r.kind == "on" else (r.road, r.ramp_road, "diverge")
+        for ln in m.lanes_by_junction.get(r.junction, ()):
+            if any(m.lanes[p].road_id == src for p in ln.predecessors) and \
+                    any(m.lanes[s].road_id == dst for s in ln.successors):
+                out[ln.id] = move
+    return out

@@ -1,7 +1,8 @@
 """Driving motorway ramps (examples/ramps.yaml and a sampled map with every ramp value): the
 network makes every ramp merge a conflict (a car on the acceleration lane and one on the main
 lane take the merge in turn), and the route-coverage suites merge from every on-ramp, diverge
-onto every off-ramp and complete at traffic 6 with the baseline planner."""
+onto every off-ramp and complete at traffic 6 with the baseline planner, which drives them in its
+ramp scenarios (RAMP_MERGE, RAMP_DIVERGE)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -29,9 +30,9 @@ def sampled_path(tmp_path_factory) -> Path:
     return path
 
 
-def ramp_roads(m: HDMap) -> set[str]:
+def ramp_roads(m: HDMap, kinds: tuple[str, ...] = ("on", "off")) -> set[str]:
     return {r for j in m.junctions.values() if j.feature is not None and j.feature.has_ramp
-            for r, s in zip(j.socket_roads, j.feature.sockets) if s.ramp != "none"}
+            for r, s in zip(j.socket_roads, j.feature.sockets) if s.ramp in kinds}
 
 
 def test_every_ramp_merge_is_a_conflict(map_path):
@@ -55,10 +56,16 @@ def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(
     from feat2map.scenarios.routes import build_suite
 
     path = request.getfixturevalue(which)
-    ramps = ramp_roads(native.load(path))
+    m = native.load(path)
+    ramps, ons, offs = ramp_roads(m), ramp_roads(m, ("on",)), ramp_roads(m, ("off",))
     suite = build_suite(path, traffic_vehicles=6, seed=0)
     taking = [sc for sc in suite.scenarios if any(mv[1] in ramps or mv[2] in ramps for mv in sc.route)]
     assert {r for sc in taking for mv in sc.route for r in mv[1:] if r in ramps} == ramps  # every ramp, both ways
     for sc in taking:
         out = run_scenario(sc, record_failure_gif=False)
         assert out.outcome == "completed", (sc.name, out.message)
+        # the planner drives them as ramps: a merge along the acceleration lane, a diverge along the deceleration
+        # lane (from an on-ramp straight on to an off-ramp is neither)
+        merges = sum(mv[1] in ons and mv[2] not in ramps for mv in sc.route)
+        diverges = sum(mv[2] in offs and mv[1] not in ramps for mv in sc.route)
+        assert (out.stage_path.count("M_I"), out.stage_path.count("D_I")) == (merges, diverges), (sc.name, out.stage_path)
