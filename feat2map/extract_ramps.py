@@ -27,6 +27,7 @@ import numpy as np
 from .angles import wrap_degrees
 from .config import RAMP_MAX_ANGLE_DEG, RAMP_MIN_ANGLE_DEG, RAMP_PROBE_M
 from .model import HDMap, Lane
+from .routes import manoeuvre_lanes
 
 MAX_WALK = 200  # lanes followed at most along a ramp's path or its added lanes
 
@@ -191,8 +192,5 @@ def ramp_moves(m: HDMap) -> dict[str, str]:
         if r.junction is None:
             continue
         src, dst, move = (r.ramp_road, r.road, "merge") if r.kind == "on" else (r.road, r.ramp_road, "diverge")
-        for ln in m.lanes_by_junction.get(r.junction, ()):
-            if any(m.lanes[p].road_id == src for p in ln.predecessors) and \
-                    any(m.lanes[s].road_id == dst for s in ln.successors):
-                out[ln.id] = move
+        out.update((ln.id, move) for ln in manoeuvre_lanes(m, (r.junction, src, dst)))
     return out

@@ -698,3 +698,8 @@ PAPER_SF_FEATURE_SPACE = FeatureSpace(
         4: ((-5.26, 13.61), (75.63, 93.10), (176.85, 191.76), (250.76, 272.09)),
     },
 )
+
+# The paper's San Francisco space with every value of the features its future work names (mid-block
+# crosswalks, filter lanes, motorway ramps): a highway-and-city map feature (examples/experiments.py's
+# RQ4, examples/planner_experiments.py's "hc")
+HIGHWAY_CITY_FEATURE_SPACE = replace(PAPER_SF_FEATURE_SPACE, midblock=MIDBLOCK, filter=FILTERS, ramp=RAMP_VALUES)
