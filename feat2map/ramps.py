@@ -8,7 +8,10 @@ junction leaves along a line through the centre (extraction measures the feature
 exactly) and the ramp's lane runs the whole `ramp_length` beside the main lanes: an on-ramp's
 lane joins the carriageway's rightmost lane at the far main socket (the acceleration lane and
 its taper), an off-ramp's leaves the rightmost lane at the near one (the deceleration lane).
-Main lanes go straight on lane by lane; there are no turns between the carriageways.
+Main lanes go straight on lane by lane; there are no turns between the carriageways. A motorway
+link (`Socket.link`, a motorway-to-motorway junction) lies where a ramp does, but its lanes
+become the carriageway's rightmost lanes (a lane gain) or its rightmost lanes become the link's
+(a lane drop), one to one (`link_lanes`).
 """
 from __future__ import annotations
 

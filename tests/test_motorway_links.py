@@ -205,3 +205,33 @@ def test_exports_with_links_validate(tmp_path, request, fmt, which):
     except ImportError as exc:  # the format's optional library
         pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
     assert problems == [], problems[:3]
+
+
+def test_openscenario_routes_through_links_pass_asam_qc(tmp_path, spec_map):
+    """The example's suite takes every link both ways, and its scenarios pass ASAM's OpenSCENARIO checks."""
+    from conftest import SKIP_QC_OPENSCENARIO
+
+    from feat2map.formats import native
+    from feat2map.formats.asam_qc import OPENSCENARIO, find_bundle
+    from feat2map.formats.openscenario import validate_openscenario, write_openscenario
+    from feat2map.scenarios.routes import build_suite
+
+    native.save(spec_map, tmp_path / "map.json")
+    suite = build_suite(tmp_path / "map.json", traffic_vehicles=6, seed=0)
+    links = {spec_map.junctions[jid].socket_roads[i] for jid, i in link_sockets(spec_map)}
+    assert {r for sc in suite.scenarios for mv in sc.route for r in mv[1:] if r in links} == links
+    files = write_openscenario(suite, tmp_path / "x")
+    assert len(files) == len(suite.scenarios) == 4
+    if find_bundle(OPENSCENARIO[0]) is None:
+        pytest.skip(SKIP_QC_OPENSCENARIO)
+    for f in files:
+        assert validate_openscenario(f) == [], f.name
+
+
+def test_the_extract_command_names_links(tmp_path, spec_map, capsys):
+    from feat2map.cli import main
+    from feat2map.formats import native
+
+    native.save(spec_map, tmp_path / "m.json")
+    assert main(["extract", str(tmp_path / "m.json")]) == 0
+    assert "[-15.00, 0.00, 15.00, 180.00]  ramps: 0 link-off, 2 link-on (75.00 m)\n" in capsys.readouterr().out
