@@ -8,7 +8,10 @@ junction leaves along a line through the centre (extraction measures the feature
 exactly) and the ramp's lane runs the whole `ramp_length` beside the main lanes: an on-ramp's
 lane joins the carriageway's rightmost lane at the far main socket (the acceleration lane and
 its taper), an off-ramp's leaves the rightmost lane at the near one (the deceleration lane).
-Main lanes go straight on lane by lane; there are no turns between the carriageways.
+Main lanes go straight on lane by lane; there are no turns between the carriageways. A motorway
+link (`Socket.link`, a motorway-to-motorway junction) lies where a ramp does, but its lanes
+become the carriageway's rightmost lanes (a lane gain) or its rightmost lanes become the link's
+(a lane drop), one to one (`link_lanes`).
 """
 from __future__ import annotations
 
@@ -16,7 +19,7 @@ import math
 from typing import Mapping
 
 from .config import RAMP_GORE_M, GenerationConfig
-from .features import JunctionFeature, ramp_angle, ramp_main, ramp_mains
+from .features import JunctionFeature, ramp_angle, ramp_carriageway, ramp_main, ramp_mains
 
 # Bezier handles of a ramp's lane, as fractions of the distance between its ends (start, end): an
 # on-ramp's lane turns onto the main road's line early and runs beside it (a long end handle), an
@@ -74,17 +77,21 @@ def ramp_lanes(feature: JunctionFeature, incoming: Mapping[tuple[int, int], list
     handles), lanes listed right to left per socket: main lanes go on lane by lane (monotone, as
     `construct.lane_pairs` joins a single exit), on-ramp lane k joins the carriageway's lane k from the
     right, off-ramp lane k leaves its lane k from the right, and an on-ramp's rightmost lane also
-    goes on to an off-ramp of the same carriageway."""
+    goes on to an off-ramp of the same carriageway. A motorway link's carriageway (`link_lanes`)
+    instead pairs its lanes one to one."""
     a, b = ramp_mains(feature)
     out: list[tuple[str, str, tuple[float, float]]] = []
+    links = {ramp_carriageway(feature, i): i for i, s in enumerate(feature.sockets) if s.link}
     for x, y in ((a, b), (b, a)):
         ins, outs = incoming[(j, x)], outgoing[(j, y)]
         p, q = len(ins), len(outs)
-        if p and q:  # a monotone map, as `construct.lane_pairs` joins one exit
+        if (x, y) in links:
+            out += link_lanes(feature, links[(x, y)], incoming, outgoing, j)
+        elif p and q:  # a monotone map, as `construct.lane_pairs` joins one exit
             pairs = [(k * p // q, k) for k in range(q)] if q >= p else [(k, k * q // p) for k in range(p)]
             out += [(ins[u], outs[v], THROUGH_SHAPE) for u, v in pairs]
     for i, s in enumerate(feature.sockets):
-        if s.ramp == "none":
+        if s.ramp == "none" or s.link:
             continue
         m = ramp_main(feature, i)
         other = b if m == a else a
@@ -98,3 +105,17 @@ def ramp_lanes(feature: JunctionFeature, incoming: Mapping[tuple[int, int], list
             ins, ramp_out = incoming[(j, other)], outgoing[(j, i)]
             out += [(ins[min(k, len(ins) - 1)], lane, DIVERGE_SHAPE) for k, lane in enumerate(ramp_out)]
     return out
+
+
+def link_lanes(feature: JunctionFeature, i: int, incoming: Mapping[tuple[int, int], list[str]],
+               outgoing: Mapping[tuple[int, int], list[str]], j: int) -> list[tuple[str, str, tuple[float, float]]]:
+    """The junction lanes of motorway link socket `i`'s carriageway, lanes right to left: a lane
+    gain (on) joins the link's lanes and then the upstream main lanes, in order, to the downstream
+    lanes; a lane drop (off) joins the upstream lanes to the link's lanes and then the downstream
+    main lanes. One to one: every lane goes on, none merges or splits."""
+    up, down = ramp_carriageway(feature, i)
+    if feature.sockets[i].ramp == "on":
+        ins = [(lane, MERGE_SHAPE) for lane in incoming[(j, i)]] + [(lane, THROUGH_SHAPE) for lane in incoming[(j, up)]]
+        return [(src, dst, shape) for (src, shape), dst in zip(ins, outgoing[(j, down)], strict=True)]
+    outs = [(lane, DIVERGE_SHAPE) for lane in outgoing[(j, i)]] + [(lane, THROUGH_SHAPE) for lane in outgoing[(j, down)]]
+    return [(src, dst, shape) for src, (dst, shape) in zip(incoming[(j, up)], outs, strict=True)]

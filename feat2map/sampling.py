@@ -68,10 +68,11 @@ def sample_midblock(space: FeatureSpace, rng: np.random.Generator,
 
 def sample_ramps(space: FeatureSpace, rng: np.random.Generator,
                  config: GenerationConfig = GenerationConfig()) -> list[JunctionFeature]:
-    """One ramp junction per ramp value the map feature asks for ("on", "off", "both"),
-    `samples_per_combination` times: a straight main road with one lane per direction (as the
-    sampled junctions have, so that it connects to them), ramps of one lane at an angle drawn
-    uniformly in RAMP_ANGLE_RANGE_DEG, acceleration/deceleration lanes RAMP_LANE_M long (its
+    """One ramp junction per ramp value the map feature asks for ("on", "off", "both", and the
+    motorway-to-motorway "link-" values), `samples_per_combination` times: a straight main road
+    with one lane per direction (as the sampled junctions have, so that it connects to them; a
+    link adds its lane to one main leg, `features.ramp_junction`), ramps of one lane at an angle
+    drawn uniformly in RAMP_ANGLE_RANGE_DEG, acceleration/deceleration lanes RAMP_LANE_M long (its
     "none" value is every junction without ramps)."""
     limits().check("max_junctions", len(space.ramp_kinds) * int(config.samples_per_combination),
                    f"the ramp junction count ({len(space.ramp_kinds)} ramp values x samples_per_combination)")

@@ -211,9 +211,10 @@ def sf_default_map():
 
 
 # maps whose exports other ecosystems' tools check (Lanelet2, CommonRoad): M1, the example specs
-# (one-way roads, a 5-leg junction, multi-lane roads, mid-block crosswalks, motorway ramps), bare junctions,
+# (one-way roads, a 5-leg junction, multi-lane roads, mid-block crosswalks, motorway ramps and links), bare junctions,
 # and a map generated from the features of a real map (CARLA Town01, skipped when ../shared/maps is absent)
-ECOSYSTEM_MAPS = ("m1", "one_way_t", "mega_junction", "multi_lane", "midblock", "ramps", "bare", "town01")
+ECOSYSTEM_MAPS = ("m1", "one_way_t", "mega_junction", "multi_lane", "midblock", "ramps", "motorway_links", "bare",
+                  "town01")
 BARE_SPEC = {"version": 1, "junctions": [
     {"name": "bare cross", "cell": [0, 0], "control": "bare", "crosswalk": True,
      "sockets": [{"angle": 0, "lanes": 2}, {"angle": 90}, {"angle": 180, "lanes": 2}, {"angle": 270}]},

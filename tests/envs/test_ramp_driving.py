@@ -1,8 +1,10 @@
-"""Driving motorway ramps (examples/ramps.yaml and a sampled map with every ramp value): the
+"""Driving motorway ramps (examples/ramps.yaml and a sampled map with every ramp value) and
+motorway links (examples/motorway_links.yaml and a sampled map with every link value): the
 network makes every ramp merge a conflict (a car on the acceleration lane and one on the main
-lane take the merge in turn), and the route-coverage suites merge from every on-ramp, diverge
-onto every off-ramp and complete at traffic 6 with the baseline planner, which drives them in its
-ramp scenarios (RAMP_MERGE, RAMP_DIVERGE)."""
+lane take the merge in turn) and no link a merge (its lane is an added lane), and the
+route-coverage suites merge from every on-ramp or link, diverge onto every off-ramp or link and
+complete at traffic 6 with the baseline planner, which drives ramps in its ramp scenarios
+(RAMP_MERGE, RAMP_DIVERGE)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -30,6 +32,19 @@ def sampled_path(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def links_path(tmp_path_factory) -> Path:
+    return example_map_file(tmp_path_factory, "motorway_links")
+
+
+@pytest.fixture(scope="module")
+def sampled_links_path(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("sampled_links") / "map.json"
+    native.save(generate(replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "link-on", "link-off", "link-both")), seed=0),
+                path)
+    return path
+
+
 def ramp_roads(m: HDMap, kinds: tuple[str, ...] = ("on", "off")) -> set[str]:
     return {r for j in m.junctions.values() if j.feature is not None and j.feature.has_ramp
             for r, s in zip(j.socket_roads, j.feature.sockets) if s.ramp in kinds}
@@ -50,7 +65,16 @@ def test_every_ramp_merge_is_a_conflict(map_path):
             assert other in net.conflicts[lid]
 
 
-@pytest.mark.parametrize("which", ["map_path", "sampled_path"])
+def test_no_motorway_link_is_a_merge(links_path):
+    m = native.load(links_path)
+    links = ramp_roads(m)
+    joining = {ln.id for ln in m.lanes.values() if ln.junction_id and any(m.lanes[p].road_id in links
+                                                                          for p in ln.predecessors)}
+    assert len(joining) == 2  # one link lane joins at each junction, as an added lane
+    assert not any(joining & set(p) for p in merge_pairs(m))
+
+
+@pytest.mark.parametrize("which", ["map_path", "sampled_path", "links_path", "sampled_links_path"])
 def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(request, which):
     from feat2map.scenarios.rollout import run_scenario
     from feat2map.scenarios.routes import build_suite
