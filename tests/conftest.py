@@ -240,6 +240,23 @@ def ecosystem_map(request, sf_default_map):
     return name, build_spec(load_spec(REPO / "examples" / f"{name}.yaml"))
 
 
+def export_problems(m, fmt: str, tmp_path: Path) -> list:
+    """What format `fmt`'s own checks (`feat2map validate`: the OpenDRIVE one ASAM's qc_opendrive)
+    find in map `m` written to `tmp_path`; skips where the format's checker or library is absent."""
+    from feat2map.formats import FORMATS, write_map
+    from feat2map.formats.asam_qc import OPENDRIVE, find_bundle
+
+    if fmt == "opendrive" and find_bundle(OPENDRIVE[0]) is None:
+        pytest.skip(SKIP_QC_OPENDRIVE)
+    f = FORMATS[fmt]
+    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
+    try:
+        write_map(m, out, fmt)
+        return f.face("validate")(out)
+    except ImportError as exc:  # the format's optional library
+        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
+
+
 # ---- OpenDRIVE test helpers (tests/formats/test_opendrive.py, test_opendrive_asam_qc.py, test_semantics.py) ----
 def largest_gap_tied(angles, tol_deg: float) -> bool:
     a = sorted(x % 360.0 for x in angles)

@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from conftest import export_problems
 
 from feat2map.errors import FeatureError
 from feat2map.extract import extract_junctions, map_feature
@@ -189,21 +190,7 @@ def test_link_junctions_survive_a_round_trip(tmp_path, spec_map, fmt, name):
 def test_exports_with_links_validate(tmp_path, request, fmt, which):
     """Every export of the example and of a sampled map with every link value passes its
     ecosystem's own checks (the OpenDRIVE one: ASAM's qc_opendrive)."""
-    from conftest import SKIP_QC_OPENDRIVE
-
-    from feat2map.formats import FORMATS
-    from feat2map.formats.asam_qc import OPENDRIVE, find_bundle
-
-    if fmt == "opendrive" and find_bundle(OPENDRIVE[0]) is None:
-        pytest.skip(SKIP_QC_OPENDRIVE)
-    m = request.getfixturevalue(which)
-    f = FORMATS[fmt]
-    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
-    try:
-        write_map(m, out, fmt)
-        problems = f.face("validate")(out)
-    except ImportError as exc:  # the format's optional library
-        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
+    problems = export_problems(request.getfixturevalue(which), fmt, tmp_path)
     assert problems == [], problems[:3]
 
 

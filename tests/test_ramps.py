@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import sha256_text
+from conftest import export_problems, sha256_text
 
 from feat2map.config import RAMP_ANGLE_RANGE_DEG, RAMP_LANE_M
 from feat2map.errors import FeatureError
@@ -208,21 +208,7 @@ def test_a_feature_space_of_ramps_alone_generates(tmp_path, capsys):
 def test_exports_with_ramps_validate(tmp_path, request, fmt, which):
     """Every export of the example spec and of a sampled map with ramps passes its ecosystem's own
     checks (the OpenDRIVE one: ASAM's qc_opendrive)."""
-    from conftest import SKIP_QC_OPENDRIVE
-
-    from feat2map.formats import FORMATS
-    from feat2map.formats.asam_qc import OPENDRIVE, find_bundle
-
-    if fmt == "opendrive" and find_bundle(OPENDRIVE[0]) is None:
-        pytest.skip(SKIP_QC_OPENDRIVE)
-    m = request.getfixturevalue(which)
-    f = FORMATS[fmt]
-    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
-    try:
-        write_map(m, out, fmt)
-        problems = f.face("validate")(out)
-    except ImportError as exc:  # the format's optional library
-        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
+    problems = export_problems(request.getfixturevalue(which), fmt, tmp_path)
     assert problems == [], problems[:3]
 
 
