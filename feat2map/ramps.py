@@ -13,7 +13,7 @@ Main lanes go straight on lane by lane; there are no turns between the carriagew
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from typing import Mapping, NamedTuple
 
 from .config import RAMP_GORE_M, GenerationConfig
 from .features import JunctionFeature, ramp_angle, ramp_main, ramp_mains
@@ -25,6 +25,33 @@ from .features import JunctionFeature, ramp_angle, ramp_main, ramp_mains
 MERGE_SHAPE = (0.3, 0.5)
 DIVERGE_SHAPE = (0.5, 0.3)
 THROUGH_SHAPE = (0.5, 0.5)
+
+
+class RampLane(NamedTuple):
+    """A junction lane of a ramp junction: from road lane `src` to `dst`, its Bezier handles and
+    its `kind`: "main" (straight on), "merge" (an on-ramp's acceleration lane), "diverge" (an
+    off-ramp's deceleration lane) or "ramp" (an on-ramp's lane going on to an off-ramp)."""
+
+    src: str
+    dst: str
+    shape: tuple[float, float]
+    kind: str
+
+
+def socket_speed(feature: JunctionFeature, i: int, cfg: GenerationConfig) -> float:
+    """The speed limit of the road at socket `i`: `motorway_speed_limit` at a ramp junction's
+    main legs, `ramp_speed_limit` at its ramps, `speed_limit` (a town road) at any other socket."""
+    if not feature.has_ramp:
+        return cfg.speed_limit
+    return cfg.ramp_speed_limit if feature.sockets[i].ramp != "none" else cfg.motorway_speed_limit
+
+
+def ramp_lane_speed(lane: RampLane, cfg: GenerationConfig) -> float:
+    """A ramp junction's lane: the motorway's limit straight on and on an acceleration lane (merging
+    traffic gets up to the main road's speed on it), the ramp's on a deceleration lane (leaving
+    traffic slows on it, where design guidance puts the deceleration, not on the ramp: the envs take
+    a lower limit where its lane begins) and between two ramps."""
+    return cfg.motorway_speed_limit if lane.kind in ("main", "merge") else cfg.ramp_speed_limit
 
 
 def ramp_radius(feature: JunctionFeature) -> float:
@@ -69,20 +96,20 @@ def ramp_fit(feature: JunctionFeature, cfg: GenerationConfig, room: float) -> st
 
 
 def ramp_lanes(feature: JunctionFeature, incoming: Mapping[tuple[int, int], list[str]],
-               outgoing: Mapping[tuple[int, int], list[str]], j: int) -> list[tuple[str, str, tuple[float, float]]]:
-    """The junction lanes of ramp junction `j` as (road lane before, road lane after, Bezier
-    handles), lanes listed right to left per socket: main lanes go on lane by lane (monotone, as
+               outgoing: Mapping[tuple[int, int], list[str]], j: int) -> list[RampLane]:
+    """The junction lanes of ramp junction `j` (`RampLane`), lanes listed right to left per
+    socket: main lanes go on lane by lane (monotone, as
     `construct.lane_pairs` joins a single exit), on-ramp lane k joins the carriageway's lane k from the
     right, off-ramp lane k leaves its lane k from the right, and an on-ramp's rightmost lane also
     goes on to an off-ramp of the same carriageway."""
     a, b = ramp_mains(feature)
-    out: list[tuple[str, str, tuple[float, float]]] = []
+    out: list[RampLane] = []
     for x, y in ((a, b), (b, a)):
         ins, outs = incoming[(j, x)], outgoing[(j, y)]
         p, q = len(ins), len(outs)
         if p and q:  # a monotone map, as `construct.lane_pairs` joins one exit
             pairs = [(k * p // q, k) for k in range(q)] if q >= p else [(k, k * q // p) for k in range(p)]
-            out += [(ins[u], outs[v], THROUGH_SHAPE) for u, v in pairs]
+            out += [RampLane(ins[u], outs[v], THROUGH_SHAPE, "main") for u, v in pairs]
     for i, s in enumerate(feature.sockets):
         if s.ramp == "none":
             continue
@@ -90,11 +117,11 @@ def ramp_lanes(feature: JunctionFeature, incoming: Mapping[tuple[int, int], list
         other = b if m == a else a
         if s.ramp == "on":
             ramp_in, outs = incoming[(j, i)], outgoing[(j, other)]
-            out += [(lane, outs[min(k, len(outs) - 1)], MERGE_SHAPE) for k, lane in enumerate(ramp_in)]
+            out += [RampLane(lane, outs[min(k, len(outs) - 1)], MERGE_SHAPE, "merge") for k, lane in enumerate(ramp_in)]
             for r, t in enumerate(feature.sockets):
                 if t.ramp == "off" and ramp_main(feature, r) == other:
-                    out.append((ramp_in[0], outgoing[(j, r)][0], THROUGH_SHAPE))
+                    out.append(RampLane(ramp_in[0], outgoing[(j, r)][0], THROUGH_SHAPE, "ramp"))
         else:
             ins, ramp_out = incoming[(j, other)], outgoing[(j, i)]
-            out += [(ins[min(k, len(ins) - 1)], lane, DIVERGE_SHAPE) for k, lane in enumerate(ramp_out)]
+            out += [RampLane(ins[min(k, len(ins) - 1)], lane, DIVERGE_SHAPE, "diverge") for k, lane in enumerate(ramp_out)]
     return out

@@ -10,12 +10,14 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from conftest import sha256_text
 
-from feat2map.config import RAMP_ANGLE_RANGE_DEG, RAMP_LANE_M
-from feat2map.errors import FeatureError
+from feat2map.config import (JUNCTION_SPEED_LIMIT_MPS, MOTORWAY_SPEED_LIMIT_MPS, RAMP_ANGLE_RANGE_DEG, RAMP_LANE_M,
+                             RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS, GenerationConfig)
+from feat2map.errors import ConfigError, FeatureError
 from feat2map.extract import extract_junctions, map_feature
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace, JunctionFeature, Socket, ramp_angle, ramp_junction
 from feat2map.formats import native, write_map
@@ -201,6 +203,69 @@ def test_a_feature_space_of_ramps_alone_generates(tmp_path, capsys):
         FeatureSpace.from_dict({**doc, "ramp": ["none"]})
 
 
+def lane_speeds(m: HDMap) -> dict[str, set[float]]:
+    """The speed limits of the example's lanes by kind: the motorway (main roads and lanes straight
+    on), ramp roads, acceleration and deceleration lanes, town roads and town junction lanes."""
+    ramps = {s for j in m.junctions.values() if j.feature.has_ramp
+             for s, sock in zip(j.socket_roads, j.feature.sockets) if sock.ramp != "none"}
+    aux = ramp_lanes(m)
+    out: dict[str, set[float]] = {}
+    for ln in m.lanes.values():
+        if ln.id in aux["on"] or ln.id in aux["off"]:
+            kind = "acceleration" if ln.id in aux["on"] else "deceleration"
+        elif ln.junction_id is not None:
+            kind = "motorway" if m.junctions[ln.junction_id].feature.has_ramp else "town junction"
+        elif ln.road_id in ramps:
+            kind = "ramp"
+        else:
+            road = m.roads[ln.road_id]
+            ends = [m.junctions[j].feature for j in (road.start_junction, road.end_junction) if j is not None]
+            kind = "motorway" if all(f.has_ramp for f in ends) else "town"
+        out.setdefault(kind, set()).add(ln.speed_limit)
+    return out
+
+
+def assert_same_speeds(back: HDMap, m: HDMap) -> None:
+    """Every lane of `m` read back (`back`, another format: other ids, maybe another origin) with
+    its speed limit: lanes matched by the middles of their centre lines, within 0.3 m."""
+    def middles(x: HDMap) -> tuple[np.ndarray, list[float]]:
+        mids = []
+        for ln in x.lanes.values():
+            pts = np.asarray(ln.centerline, dtype=float)
+            cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+            mids.append([np.interp(cum[-1] / 2, cum, pts[:, k]) for k in (0, 1)])
+        at = np.asarray(mids)
+        return at - at.min(axis=0), [ln.speed_limit for ln in x.lanes.values()]
+
+    (want_at, want), (got_at, got) = middles(m), middles(back)
+    assert len(got) == len(want)
+    for p, v in zip(want_at, want):
+        k = int(np.argmin(np.hypot(*(got_at - p).T)))
+        assert np.hypot(*(got_at[k] - p)) < 0.3 and got[k] == pytest.approx(v, abs=1e-3), (p, v, got[k])
+
+
+def test_ramp_junctions_carry_motorway_and_ramp_speeds(spec_map):
+    """The main carriageway and its acceleration lanes at the motorway's limit, the ramps and the
+    deceleration lanes at the ramp's, the motorway's road into the town junction at the town's."""
+    assert lane_speeds(spec_map) == {
+        "motorway": {MOTORWAY_SPEED_LIMIT_MPS}, "acceleration": {MOTORWAY_SPEED_LIMIT_MPS},
+        "deceleration": {RAMP_SPEED_LIMIT_MPS}, "ramp": {RAMP_SPEED_LIMIT_MPS}, "town": {SPEED_LIMIT_MPS},
+        "town junction": {JUNCTION_SPEED_LIMIT_MPS}}
+    assert JUNCTION_SPEED_LIMIT_MPS < SPEED_LIMIT_MPS < RAMP_SPEED_LIMIT_MPS < MOTORWAY_SPEED_LIMIT_MPS
+
+
+def test_motorway_and_ramp_speeds_are_configured_and_recorded_only_when_set(monkeypatch):
+    cfg = GenerationConfig(motorway_speed_limit=30.0, ramp_speed_limit=20.0)
+    monkeypatch.chdir(REPO)
+    m = build_spec(load_spec("examples/ramps.yaml"), seed=0, config=cfg)
+    speeds = lane_speeds(m)
+    assert speeds["motorway"] == speeds["acceleration"] == {30.0} and speeds["ramp"] == speeds["deceleration"] == {20.0}
+    assert m.meta["config"]["motorway_speed_limit"] == 30.0 and GenerationConfig.from_dict(m.meta["config"]) == cfg
+    assert "motorway_speed_limit" not in GenerationConfig().to_dict()  # old maps' recorded config keeps its bytes
+    with pytest.raises(ConfigError, match="ramp_speed_limit"):
+        GenerationConfig(ramp_speed_limit=0.0)
+
+
 # ------------------------------------------------------------------------------ exports
 
 @pytest.mark.parametrize("fmt", ["apollo", "lanelet2", "commonroad", "opendrive"])
@@ -241,6 +306,8 @@ def test_ramp_junctions_survive_a_round_trip(tmp_path, spec_map, fmt, name):
     for want, j in zip(spec_map.junctions.values(), got):
         assert feature_mismatch(j, want.feature) == []
     assert sorted(r.kind for r in extract_ramps(back)) == ["off", "off", "on"]
+    assert_same_speeds(back, spec_map)  # motorway, ramp and town speeds as written
+    assert {MOTORWAY_SPEED_LIMIT_MPS, RAMP_SPEED_LIMIT_MPS} <= {round(ln.speed_limit, 2) for ln in back.lanes.values()}
 
 
 def test_openscenario_routes_through_ramps_pass_asam_qc(tmp_path, spec_map):
@@ -264,6 +331,23 @@ def test_openscenario_routes_through_ramps_pass_asam_qc(tmp_path, spec_map):
         pytest.skip(SKIP_QC_OPENSCENARIO)
     for f in files:
         assert validate_openscenario(f) == [], f.name
+
+
+def test_lanelet2_writes_motorway_and_ramp_speeds(tmp_path, spec_map):
+    import xml.etree.ElementTree as ET
+
+    from feat2map.formats.lanelet2.writer import TAG
+
+    write_map(spec_map, tmp_path / "m.osm", "lanelet2")
+    kmh = {}
+    for rel in ET.parse(tmp_path / "m.osm").getroot().iter("relation"):
+        tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
+        if tags.get("type") == "lanelet" and TAG + "lane" in tags:
+            kmh[tags[TAG + "lane"]] = float(tags["speed_limit"])
+    assert kmh.keys() == spec_map.lanes.keys()
+    for lid, ln in spec_map.lanes.items():
+        assert kmh[lid] == pytest.approx(ln.speed_limit * 3.6, abs=0.01), lid
+    assert {round(v / 3.6, 2) for v in kmh.values()} >= {MOTORWAY_SPEED_LIMIT_MPS, RAMP_SPEED_LIMIT_MPS}
 
 
 # ------------------------------------------------------------------------------ extraction
