@@ -57,6 +57,9 @@ RAMP_MAIN_BEND_DEG = 30.0
 # through the junction's centre, passes the main socket RAMP_GORE_M beyond the main road's edge.
 RAMP_LANE_M = 75.0
 RAMP_GORE_M = 0.75
+# a feature space's `motorway_lanes` (lanes per direction of sampled ramp junctions' main roads) lie in
+# 1..this, the most lanes per direction a spec's socket may ask for (spec.schema.json's maximum)
+MAX_MOTORWAY_LANES = 6
 RAMP_PROBE_M = 60.0  # extraction: a ramp's lane joining its main road parallel is measured this far along it
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions

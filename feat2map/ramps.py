@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 from typing import Mapping, NamedTuple
 
-from .config import RAMP_GORE_M, GenerationConfig
-from .features import JunctionFeature, ramp_angle, ramp_main, ramp_mains
+from .config import RAMP_GORE_M, RAMP_MAX_ANGLE_DEG, RAMP_MIN_ANGLE_DEG, GenerationConfig
+from .features import JunctionFeature, ramp_angle, ramp_junction, ramp_main, ramp_mains
 
 # Bezier handles of a ramp's lane, as fractions of the distance between its ends (start, end): an
 # on-ramp's lane turns onto the main road's line early and runs beside it (a long end handle), an
@@ -78,6 +78,22 @@ def ramp_length_needed(feature: JunctionFeature, cfg: GenerationConfig) -> float
         side = (main.lanes_in + main.lanes_out) * w / 2 + RAMP_GORE_M + (s.lanes_in + s.lanes_out) * w / 2 / math.cos(theta)
         need = max(need, side / math.tan(theta))
     return 2.0 * need
+
+
+def min_ramp_angle(main_lanes: int, length: float, cfg: GenerationConfig) -> float:
+    """The smallest ramp angle (degrees, to 1e-6, up to RAMP_MAX_ANGLE_DEG) at which a one-lane
+    ramp beside a main road of `main_lanes` per direction clears it within `length`
+    (`ramp_length_needed`, which falls as the angle grows): a wider motorway needs steeper ramps."""
+    def fits(deg: float) -> bool:
+        return ramp_length_needed(ramp_junction("on", deg, main_lanes, 1, length), cfg) <= length
+
+    lo, hi = RAMP_MIN_ANGLE_DEG, RAMP_MAX_ANGLE_DEG
+    if fits(lo) or not fits(hi):
+        return lo if fits(lo) else hi
+    while hi - lo > 1e-7:
+        mid = (lo + hi) / 2
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return math.ceil(hi * 1e6) / 1e6
 
 
 def ramp_fit(feature: JunctionFeature, cfg: GenerationConfig, room: float) -> str:

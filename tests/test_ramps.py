@@ -28,6 +28,7 @@ from feat2map.spec import SpecError, build_spec, load_spec, parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 SPACE = replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both"))
+SPACE_LANES = replace(SPACE, motorway_lanes=(1, 2))  # ramp junctions on one- and two-lane motorways
 # sha256 of the native JSON of maps whose inputs name no ramp, recorded with the code before ramps
 # existed: such inputs must keep giving these bytes
 PAPER_SEED0_SHA = "a374afe338eaccdd5e249e518121927e73c1788b428a82240fec5fdeec7da902"
@@ -38,6 +39,11 @@ MEGA_SPEC_SHA = "a741b31e954a6fb284632eec05a387f367c0c28ba4680feb9bf769737d3e5c7
 @pytest.fixture(scope="module")
 def sampled() -> HDMap:
     return generate(SPACE, seed=0)
+
+
+@pytest.fixture(scope="module")
+def sampled_lanes() -> HDMap:
+    return generate(SPACE_LANES, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -126,27 +132,67 @@ def test_sampling_covers_every_ramp_value(sampled):
     assert len(lanes["on"]) == 3 and len(lanes["off"]) == 3  # "both": the on-ramp's lane also goes on to the off-ramp
 
 
+def assert_ramps_join_the_rightmost(m: HDMap) -> dict[str, list[str]]:
+    """Each ramp's lane runs the acceleration or deceleration lane's length beside the main lanes
+    and joins (leaves) its carriageway's rightmost lane, which a main lane also feeds (also goes
+    on); returns `ramp_lanes(m)`."""
+    lanes = ramp_lanes(m)
+    for lid in lanes["on"] + lanes["off"]:
+        ln = m.lanes[lid]
+        assert ln.turn == "none"  # a ramp's lane bends by the ramp angle only
+        # as long as the acceleration or deceleration lane: between the main sockets, 75 m apart (an
+        # on-ramp's lane going on to an off-ramp bows out to them, the more beside a two-lane road)
+        assert RAMP_LANE_M <= ln.length <= RAMP_LANE_M * 1.03
+    for lid in lanes["on"]:  # it joins the carriageway's rightmost lane, which the main lane also feeds
+        (dst,) = m.lanes[lid].successors
+        road = m.roads[m.lanes[dst].road_id]
+        side = road.right_lanes if dst in road.right_lanes else road.left_lanes
+        assert dst == side[-1] and len(m.lanes[dst].predecessors) == 2
+    for lid in lanes["off"]:  # it leaves the carriageway's rightmost lane, which also goes on
+        (src,) = m.lanes[lid].predecessors
+        road = m.roads[m.lanes[src].road_id]
+        side = road.right_lanes if src in road.right_lanes else road.left_lanes
+        assert src == side[-1] and len(m.lanes[src].successors) == 2
+    return lanes
+
+
+def test_sampled_ramp_junctions_take_their_main_roads_lanes_from_the_space(sampled_lanes):
+    """A map feature's `motorway_lanes` (1 and 2 here): one ramp junction per ramp value and lane
+    count, its main legs that many lanes per direction, its ramps steep enough to clear the wider
+    road within RAMP_LANE_M; the two-lane ones make a motorway of their own (no town junction has
+    two-lane legs), driven at the motorway's speed between them; seeded."""
+    from itertools import product
+
+    from feat2map.ramps import min_ramp_angle
+
+    ramps = [j.feature for j in sampled_lanes.junctions.values() if j.feature.has_ramp]
+    mains = [{(s.lanes_in, s.lanes_out) for s in f.sockets if s.ramp == "none"} for f in ramps]
+    assert all(len(m) == 1 and len(next(iter(m))) == 2 and len(set(next(iter(m)))) == 1 for m in mains)
+    got = sorted((f.ramp_value, next(iter(m))[0]) for f, m in zip(ramps, mains))
+    assert got == sorted(product(("on", "off", "both"), (1, 2)))
+    least = min_ramp_angle(2, RAMP_LANE_M, GenerationConfig())
+    assert RAMP_ANGLE_RANGE_DEG[0] < least < RAMP_ANGLE_RANGE_DEG[1]
+    for f, m in zip(ramps, mains):
+        lo = least if next(iter(m))[0] == 2 else RAMP_ANGLE_RANGE_DEG[0]
+        assert all(lo <= ramp_angle(f, i) <= RAMP_ANGLE_RANGE_DEG[1] for i, s in enumerate(f.sockets) if s.ramp != "none")
+    assert check_map(sampled_lanes) == []
+    assert len(assert_ramps_join_the_rightmost(sampled_lanes)["on"]) == 2 * 3  # "both": on to its off-ramp too
+    wide = [r for r in sampled_lanes.roads.values() if r.kind == "connection" and len(r.lane_ids) == 4]
+    assert len(wide) == 2 and all(sampled_lanes.lanes[x].speed_limit == MOTORWAY_SPEED_LIMIT_MPS
+                                  for r in wide for x in r.lane_ids)
+    assert sha256_text(native.dumps(generate(SPACE_LANES, seed=0))) == sha256_text(native.dumps(sampled_lanes))
+    assert FeatureSpace.from_json(SPACE_LANES.to_json()) == SPACE_LANES
+    assert json.loads(SPACE_LANES.to_json())["motorway_lanes"] == [1, 2] and "motorway_lanes" not in SPACE.to_dict()
+    with pytest.raises(FeatureError, match="motorway_lanes.*1 to 6"):
+        FeatureSpace.from_dict({**SPACE.to_dict(), "motorway_lanes": [0, 2]}, "f.json")
+
+
 def test_ramp_lanes_run_beside_the_main_lanes_and_join_the_rightmost(spec_map):
     assert check_map(spec_map) == []
     feats = {jid: j.feature for jid, j in spec_map.junctions.items()}
     assert feats["J0"].ramp_value == "off" and feats["J1"].ramp_value == "both" and not feats["J2"].has_ramp
-    lanes = ramp_lanes(spec_map)
+    lanes = assert_ramps_join_the_rightmost(spec_map)
     assert len(lanes["on"]) == 1 and len(lanes["off"]) == 2
-    for lid in lanes["on"] + lanes["off"]:
-        ln = spec_map.lanes[lid]
-        assert ln.turn == "none"  # a ramp's lane bends by the ramp angle only
-        # as long as the acceleration or deceleration lane: between the main sockets, 75 m apart
-        assert RAMP_LANE_M <= ln.length <= RAMP_LANE_M * 1.02
-    for lid in lanes["on"]:  # it joins the carriageway's rightmost lane, which the main lane also feeds
-        (dst,) = spec_map.lanes[lid].successors
-        road = spec_map.roads[spec_map.lanes[dst].road_id]
-        side = road.right_lanes if dst in road.right_lanes else road.left_lanes
-        assert dst == side[-1] and len(spec_map.lanes[dst].predecessors) == 2
-    for lid in lanes["off"]:  # it leaves the carriageway's rightmost lane, which also goes on
-        (src,) = spec_map.lanes[lid].predecessors
-        road = spec_map.roads[spec_map.lanes[src].road_id]
-        side = road.right_lanes if src in road.right_lanes else road.left_lanes
-        assert src == side[-1] and len(spec_map.lanes[src].successors) == 2
     ramp_roads = [r for r in spec_map.roads.values() if r.kind == "stub" and len(r.lane_ids) == 1]
     assert len(ramp_roads) == 3 and all(r.reference.length >= 10.0 for r in ramp_roads)
 
@@ -269,10 +315,10 @@ def test_motorway_and_ramp_speeds_are_configured_and_recorded_only_when_set(monk
 # ------------------------------------------------------------------------------ exports
 
 @pytest.mark.parametrize("fmt", ["apollo", "lanelet2", "commonroad", "opendrive"])
-@pytest.mark.parametrize("which", ["spec_map", "sampled"])
+@pytest.mark.parametrize("which", ["spec_map", "sampled", "sampled_lanes"])
 def test_exports_with_ramps_validate(tmp_path, request, fmt, which):
-    """Every export of the example spec and of a sampled map with ramps passes its ecosystem's own
-    checks (the OpenDRIVE one: ASAM's qc_opendrive)."""
+    """Every export of the example spec and of sampled maps with ramps (on one- and two-lane
+    motorways) passes its ecosystem's own checks (the OpenDRIVE one: ASAM's qc_opendrive)."""
     from conftest import SKIP_QC_OPENDRIVE
 
     from feat2map.formats import FORMATS
