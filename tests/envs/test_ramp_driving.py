@@ -2,7 +2,8 @@
 network makes every ramp merge a conflict (a car on the acceleration lane and one on the main
 lane take the merge in turn), traffic and the baseline planner drive the motorway at its speed
 and slow down on the ramps, and the route-coverage suites merge from every on-ramp, diverge
-onto every off-ramp and complete at traffic 6 with the baseline planner."""
+onto every off-ramp (on one- and two-lane motorways) and complete at traffic 6 with the
+baseline planner."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -28,6 +29,15 @@ def map_path(tmp_path_factory) -> Path:
 def sampled_path(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("sampled_ramps") / "map.json"
     native.save(generate(replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both")), seed=0), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def two_lane_path(tmp_path_factory) -> Path:
+    """A sampled map whose ramp junctions lie on one- and two-lane motorways (`motorway_lanes`)."""
+    path = tmp_path_factory.mktemp("two_lane_ramps") / "map.json"
+    space = replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both"), motorway_lanes=(1, 2))
+    native.save(generate(space, seed=0), path)
     return path
 
 
@@ -106,7 +116,7 @@ def test_the_motorway_is_driven_at_its_speed_and_the_ramps_slower(map_path):
     assert JUNCTION_SPEED_LIMIT_MPS < ramp["ramp"] <= RAMP_SPEED_LIMIT_MPS + 0.1 < ego["main"]
 
 
-@pytest.mark.parametrize("which", ["map_path", "sampled_path"])
+@pytest.mark.parametrize("which", ["map_path", "sampled_path", "two_lane_path"])
 def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(request, which):
     from feat2map.scenarios.rollout import run_scenario
     from feat2map.scenarios.routes import build_suite
