@@ -310,6 +310,9 @@ def test_motorway_and_ramp_speeds_are_configured_and_recorded_only_when_set(monk
     assert "motorway_speed_limit" not in GenerationConfig().to_dict()  # old maps' recorded config keeps its bytes
     with pytest.raises(ConfigError, match="ramp_speed_limit"):
         GenerationConfig(ramp_speed_limit=0.0)
+    doc = {**yaml.safe_load((REPO / "examples" / "ramps.yaml").read_text()), "config": {"ramp_speed_limit": 200}}
+    with pytest.raises(SpecError, match="r.yaml: config: config field 'ramp_speed_limit' must be between 0.1 and 100"):
+        build_spec(parse_spec(doc, "r.yaml"))
 
 
 # ------------------------------------------------------------------------------ exports
