@@ -58,8 +58,9 @@ RAMP_MAIN_BEND_DEG = 30.0
 RAMP_LANE_M = 75.0
 RAMP_GORE_M = 0.75
 # a feature space's `motorway_lanes` (lanes per direction of sampled ramp junctions' main roads) lie in
-# 1..this, the most lanes per direction a spec's socket may ask for (spec.schema.json's maximum)
-MAX_MOTORWAY_LANES = 6
+# 1..this: a wider road needs a steeper ramp to clear it within RAMP_LANE_M (ramps.min_ramp_angle: 19.3 deg
+# for 3 lanes, 24 for 4), and a ramp at MIN_LEG_SEPARATION_DEG or more no longer measures as a ramp
+MAX_MOTORWAY_LANES = 3
 RAMP_PROBE_M = 60.0  # extraction: a ramp's lane joining its main road parallel is measured this far along it
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions

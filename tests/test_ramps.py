@@ -15,8 +15,8 @@ import pytest
 import yaml
 from conftest import sha256_text
 
-from feat2map.config import (JUNCTION_SPEED_LIMIT_MPS, MOTORWAY_SPEED_LIMIT_MPS, RAMP_ANGLE_RANGE_DEG, RAMP_LANE_M,
-                             RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS, GenerationConfig)
+from feat2map.config import (JUNCTION_SPEED_LIMIT_MPS, MAX_MOTORWAY_LANES, MOTORWAY_SPEED_LIMIT_MPS, RAMP_ANGLE_RANGE_DEG,
+                             RAMP_LANE_M, RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS, GenerationConfig)
 from feat2map.errors import ConfigError, FeatureError
 from feat2map.extract import extract_junctions, map_feature
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace, JunctionFeature, Socket, ramp_angle, ramp_junction
@@ -183,8 +183,10 @@ def test_sampled_ramp_junctions_take_their_main_roads_lanes_from_the_space(sampl
     assert sha256_text(native.dumps(generate(SPACE_LANES, seed=0))) == sha256_text(native.dumps(sampled_lanes))
     assert FeatureSpace.from_json(SPACE_LANES.to_json()) == SPACE_LANES
     assert json.loads(SPACE_LANES.to_json())["motorway_lanes"] == [1, 2] and "motorway_lanes" not in SPACE.to_dict()
-    with pytest.raises(FeatureError, match="motorway_lanes.*1 to 6"):
+    with pytest.raises(FeatureError, match="motorway_lanes.*1 to 3"):
         FeatureSpace.from_dict({**SPACE.to_dict(), "motorway_lanes": [0, 2]}, "f.json")
+    widest = FeatureSpace((), (), (), {}, ramp=("none", "on", "off", "both"), motorway_lanes=(MAX_MOTORWAY_LANES,))
+    assert check_map(generate(widest, seed=0)) == []  # its ramps steeper than the range, still ramps
 
 
 def test_ramp_lanes_run_beside_the_main_lanes_and_join_the_rightmost(spec_map):
