@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from .angles import positive_degrees, turn_name
-from .config import (MAX_LEGS, MIN_LEG_SEPARATION_DEG, RAMP_LANE_M, RAMP_MAIN_BEND_DEG, RAMP_MAX_ANGLE_DEG,
-                     RAMP_MIN_ANGLE_DEG)
+from .config import (MAX_LEGS, MAX_MOTORWAY_LANES, MIN_LEG_SEPARATION_DEG, RAMP_LANE_M, RAMP_MAIN_BEND_DEG,
+                     RAMP_MAX_ANGLE_DEG, RAMP_MIN_ANGLE_DEG)
 from .errors import FeatureError, snippet
 
 CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
@@ -542,7 +542,9 @@ class FeatureSpace:
     mid-block crosswalk values (`midblock`, a subset of MIDBLOCK) sampled on the roads between
     junctions and the filter lane values (`filter`, a subset of FILTERS) sampled per junction
     combination and the ramp values (`ramp`, a subset of RAMP_VALUES: ramp junctions sampled beside
-    the junction combinations); the defaults ("none",) are the paper's map feature, with none."""
+    the junction combinations) with their main roads' lanes per direction (`motorway_lanes`, each
+    value sampled with each ramp value); the defaults ("none",) and (1,) are the paper's map
+    feature, with none and with one lane per direction as its junctions have."""
 
     road_counts: tuple[int, ...]
     controls: tuple[str, ...]
@@ -551,6 +553,7 @@ class FeatureSpace:
     midblock: tuple[str, ...] = ("none",)
     filter: tuple[str, ...] = ("none",)
     ramp: tuple[str, ...] = ("none",)
+    motorway_lanes: tuple[int, ...] = (1,)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "road_counts", tuple(sorted(set(int(n) for n in self.road_counts))))
@@ -569,6 +572,12 @@ class FeatureSpace:
         if unknown:
             raise FeatureError(f"unknown ramp value(s) {snippet(unknown)}, expected {list(RAMP_VALUES)}", "ramp")
         object.__setattr__(self, "ramp", tuple(v for v in RAMP_VALUES if v in set(self.ramp)))
+        bad = [v for v in self.motorway_lanes if isinstance(v, bool) or not isinstance(v, int)
+               or not 1 <= v <= MAX_MOTORWAY_LANES]
+        if bad or not self.motorway_lanes:
+            raise FeatureError(f"must be lanes per direction, 1 to {MAX_MOTORWAY_LANES}, got "
+                               f"{snippet(bad or list(self.motorway_lanes))}", "motorway_lanes")
+        object.__setattr__(self, "motorway_lanes", tuple(sorted(set(self.motorway_lanes))))
         ranges = {int(n): tuple((float(lo), float(hi)) for lo, hi in r) for n, r in self.rotation_ranges.items()}
         object.__setattr__(self, "rotation_ranges", dict(sorted(ranges.items())))
         self.validate()
@@ -625,6 +634,8 @@ class FeatureSpace:
         every = list(features)
         feats = [f for f in every if not f.has_ramp]
         kinds = [*(f.ramp_value for f in every if f.has_ramp), *ramps]
+        lanes = {n for f in every if f.has_ramp for i in ramp_mains(f)
+                 for n in (f.sockets[i].lanes_in, f.sockets[i].lanes_out) if 0 < n <= MAX_MOTORWAY_LANES}
         if not every and not kinds:
             raise FeatureError("no junction features to merge")
         ranges: dict[int, list[list[float]]] = {}
@@ -641,6 +652,7 @@ class FeatureSpace:
             midblock=("none", *(c.control for c in midblock)),
             filter=tuple({v for f in feats for v in (set(f.filters) - {"none"} or {"none"})}) or ("none",),
             ramp=("none", *kinds),
+            motorway_lanes=tuple(lanes) or (1,),
         )
 
     def merge(self, other: "FeatureSpace") -> "FeatureSpace":
@@ -657,11 +669,12 @@ class FeatureSpace:
             self.midblock + other.midblock,
             self.filter + other.filter,
             self.ramp + other.ramp,
+            tuple(n for x in (self, other) if x.ramp_kinds for n in x.motorway_lanes) or (1,),
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON form; `midblock` only when it asks for mid-block crosswalks, so that a map
-        feature without them writes (and its maps record) exactly what it always did."""
+        """The JSON form; `midblock`, `filter`, `ramp` and `motorway_lanes` only off their defaults,
+        so that a map feature without them writes (and its maps record) exactly what it always did."""
         out: dict[str, Any] = {
             "road_counts": list(self.road_counts),
             "controls": list(self.controls),
@@ -674,6 +687,8 @@ class FeatureSpace:
             out["filter"] = list(self.filter)
         if self.ramp != ("none",):
             out["ramp"] = list(self.ramp)
+        if self.motorway_lanes != (1,):
+            out["motorway_lanes"] = list(self.motorway_lanes)
         return out
 
     @classmethod
@@ -685,7 +700,8 @@ class FeatureSpace:
             raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
         for key, kind, name in (("road_counts", int, "integers"), ("controls", str, "strings"),
                                 ("crosswalks", bool, "true/false"), ("midblock", str, "strings"),
-                                ("filter", str, "strings"), ("ramp", str, "strings")):
+                                ("filter", str, "strings"), ("ramp", str, "strings"),
+                                ("motorway_lanes", int, "integers")):
             if key not in data:
                 continue
             value = data[key]
@@ -720,7 +736,7 @@ class FeatureSpace:
             ranges[int(n)] = tuple((float(r[0]), float(r[1])) for r in rs)
         try:
             return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges,
-                       tuple(midblock), tuple(filters), tuple(ramps))
+                       tuple(midblock), tuple(filters), tuple(ramps), tuple(data.get("motorway_lanes", [1])))
         except FeatureError as exc:
             raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
 

@@ -1,10 +1,11 @@
 """Driving motorway ramps (examples/ramps.yaml and a sampled map with every ramp value) and
 motorway links (examples/motorway_links.yaml and a sampled map with every link value): the
 network makes every ramp merge a conflict (a car on the acceleration lane and one on the main
-lane take the merge in turn) and no link a merge (its lane is an added lane), and the
-route-coverage suites merge from every on-ramp or link, diverge onto every off-ramp or link and
-complete at traffic 6 with the baseline planner, which drives ramps in its ramp scenarios
-(RAMP_MERGE, RAMP_DIVERGE)."""
+lane take the merge in turn) and no link a merge (its lane is an added lane), traffic and the
+baseline planner drive the motorway at its speed and slow down on the ramps, and the
+route-coverage suites merge from every on-ramp or link, diverge onto every off-ramp or link (on
+one- and two-lane motorways) and complete at traffic 6 with the baseline planner, which drives
+ramps in its ramp scenarios (RAMP_MERGE, RAMP_DIVERGE)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import example_map_file
 
+from feat2map.config import JUNCTION_SPEED_LIMIT_MPS, MOTORWAY_SPEED_LIMIT_MPS, RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS
 from feat2map.envs.network import MapNetwork, merge_pairs
 from feat2map.features import PAPER_SF_FEATURE_SPACE
 from feat2map.formats import native
@@ -45,6 +47,15 @@ def sampled_links_path(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def two_lane_path(tmp_path_factory) -> Path:
+    """A sampled map whose ramp junctions lie on one- and two-lane motorways (`motorway_lanes`)."""
+    path = tmp_path_factory.mktemp("two_lane_ramps") / "map.json"
+    space = replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both"), motorway_lanes=(1, 2))
+    native.save(generate(space, seed=0), path)
+    return path
+
+
 def ramp_roads(m: HDMap, kinds: tuple[str, ...] = ("on", "off")) -> set[str]:
     return {r for j in m.junctions.values() if j.feature is not None and j.feature.has_ramp
             for r, s in zip(j.socket_roads, j.feature.sockets) if s.ramp in kinds}
@@ -74,7 +85,62 @@ def test_no_motorway_link_is_a_merge(links_path):
     assert not any(joining & set(p) for p in merge_pairs(m))
 
 
-@pytest.mark.parametrize("which", ["map_path", "sampled_path", "links_path", "sampled_links_path"])
+def top_speeds(map_path: Path, route: tuple, traffic: int = 6) -> tuple[dict[str, float], dict[str, float]]:
+    """One drive of the baseline planner on `route` among `traffic` cars: the highest speeds of the
+    ego and of the traffic on the motorway ("main": ramp junctions' main roads and lanes straight
+    on) and on the ramps ("ramp": ramp roads and the deceleration lanes into them)."""
+    from feat2map.scenarios.planner import BaselinePlanner
+    from feat2map.scenarios.scenario import Scenario, make_env
+
+    m = native.load(map_path)
+    ramps = ramp_roads(m)
+    motorway = {j for j, x in m.junctions.items() if x.feature is not None and x.feature.has_ramp}
+    mains = {r for j in motorway for r in m.junctions[j].socket_roads} - ramps
+
+    def kind(lid: str) -> str:
+        ln = m.lanes[lid]
+        if ln.road_id in ramps or any(m.lanes[x].road_id in ramps for x in ln.successors):
+            return "ramp"
+        if ln.junction_id in motorway and not any(m.lanes[x].road_id in ramps for x in ln.predecessors):
+            return "main"
+        return "main" if ln.road_id in mains and ln.junction_id is None and all(
+            j in motorway for j in (m.roads[ln.road_id].start_junction, m.roads[ln.road_id].end_junction) if j) else ""
+
+    env = make_env(Scenario(name="speeds", map=str(map_path), route=route, duration=30.0, traffic_vehicles=traffic))
+    ego: dict[str, float] = {"main": 0.0, "ramp": 0.0}
+    others: dict[str, float] = {"main": 0.0, "ramp": 0.0}
+    try:
+        obs, info = env.reset(seed=0)
+        u = env.unwrapped
+        planner = BaselinePlanner()
+        planner.reset(env)
+        for _ in range(1000):
+            obs, _, terminated, truncated, info = env.step(planner.act(obs, info))
+            for v in u.road.vehicles:
+                k = kind(u.net.id_of[v.lane_index]) if v.lane_index in u.net.id_of else ""
+                seen = ego if v is u.vehicle else others
+                if k:
+                    seen[k] = max(seen[k], float(v.speed))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert info["route_completed"]
+    return ego, others
+
+
+def test_the_motorway_is_driven_at_its_speed_and_the_ramps_slower(map_path):
+    """Traffic reaches the motorway's speed on the main road and the baseline planner drives it
+    above the town's limit; the ego leaving on an off-ramp slows to the ramp's limit on the
+    deceleration lane and keeps it on the ramp."""
+    ego, traffic = top_speeds(map_path, (("J0", "R2", "R1"), ("J1", "R1", "R5")))  # east through both junctions
+    assert traffic["main"] >= 0.95 * MOTORWAY_SPEED_LIMIT_MPS and traffic["main"] <= MOTORWAY_SPEED_LIMIT_MPS + 0.1
+    assert ego["main"] > SPEED_LIMIT_MPS + 5.0 > JUNCTION_SPEED_LIMIT_MPS
+    ramp, _ = top_speeds(map_path, (("J0", "R2", "R0"),))  # onto J0's off-ramp
+    assert JUNCTION_SPEED_LIMIT_MPS < ramp["ramp"] <= RAMP_SPEED_LIMIT_MPS + 0.1 < ego["main"]
+
+
+@pytest.mark.parametrize("which", ["map_path", "sampled_path", "two_lane_path", "links_path", "sampled_links_path"])
 def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(request, which):
     from feat2map.scenarios.rollout import run_scenario
     from feat2map.scenarios.routes import build_suite
