@@ -58,6 +58,9 @@ RAMP_MAIN_BEND_DEG = 30.0
 RAMP_LANE_M = 75.0
 RAMP_GORE_M = 0.75
 RAMP_PROBE_M = 60.0  # extraction: a ramp's lane joining its main road parallel is measured this far along it
+# route coverage: what a suite calls the manoeuvre that takes a ramp of each kind (generated ramp junctions
+# and real maps' ramps alike, inside a junction or through a direct link)
+RAMP_MANOEUVRES: Mapping[str, str] = MappingProxyType({"on": "merge", "off": "diverge"})
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 # declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range
