@@ -439,8 +439,14 @@ narrow passages, swept paths, curve speed, the amber dilemma zone, wait points).
 """
 
 
-RAMP_HEAD = ("Ramp suites: the maps with motorway ramps (`extract_ramps`, inside a junction or through a direct "
-             "link), the suite's scenarios that merge from an on-ramp or diverge onto an off-ramp, and how they drove.")
+RAMP_HEAD = """## Ramp suites
+
+The maps with motorway ramps (`extract_ramps`, inside a junction or through a direct link: ASAM's
+`Ex_Entry_Exit` joins its ramps through OpenDRIVE direct junctions, which are no junctions of the
+map) and their route-coverage suites' ramp scenarios: a merge from each on-ramp onto the road it
+joins, a diverge from the road onto each off-ramp (a ramp in a junction is that junction's
+manoeuvre, a ramp through a direct link a lane route of its own), named `-merge` / `-diverge`.
+"""
 
 
 def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
@@ -471,9 +477,6 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
                   f"{tot['completed']} of {tot['driven']} driven completed, {tot['tracebacks']} tracebacks"
                   + (f"; {tot['clean']} of {len(maps)} maps export to all four formats with no problem"
                      if meta.get("export", True) else "") + ".", ""]
-        ramps = ramp_table(maps)
-        if ramps:
-            lines += [RAMP_HEAD, "", *ramps]
         parents = [str(Path(f).parent) + "/" for f in meta.get("folders", ())]
 
         def local(text: str, parents: list[str] = parents) -> str:  # a map by its label, not this machine's path
@@ -484,6 +487,9 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
         notes += _failure_notes(maps, local)
         if notes:
             lines += ["Refusals, failing scenarios and export problems:", "", *notes, ""]
+    ramps = ramp_table([s for _, maps in runs for s in maps])
+    if ramps:
+        lines += [RAMP_HEAD, *ramps]
     return "\n".join(lines)
 
 

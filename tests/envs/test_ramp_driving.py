@@ -112,6 +112,7 @@ def ramp_scenarios_complete(path: Path) -> list[str]:
 def test_ramps_through_direct_links_get_merge_and_diverge_routes_that_complete(direct_path, tmp_path):
     from feat2map.extract_ramps import extract_ramps
     from feat2map.formats import read_map
+    from feat2map.formats.openscenario import write_openscenario
     from feat2map.scenarios.routes import build_suite
     from feat2map.scenarios.scenario import load_suite, save_suite
 
@@ -126,6 +127,8 @@ def test_ramps_through_direct_links_get_merge_and_diverge_routes_that_complete(d
         assert links & set(zip(lanes, lanes[1:])), sc.route
     save_suite(suite, tmp_path / "suite.yaml")  # lane routes are suite-file routes
     assert load_suite(tmp_path / "suite.yaml").scenarios == suite.scenarios
+    files = write_openscenario(type(suite)(suite.name, tuple(lane_routes)), tmp_path / "xosc")  # and export
+    assert [f.stem for f in files] == [sc.name for sc in lane_routes]
     assert sorted(ramp_scenarios_complete(direct_path)) == sorted(sc.name for sc in lane_routes)
 
 
