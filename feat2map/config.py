@@ -62,6 +62,9 @@ RAMP_GORE_M = 0.75
 # for 3 lanes, 24 for 4), and a ramp at MIN_LEG_SEPARATION_DEG or more no longer measures as a ramp
 MAX_MOTORWAY_LANES = 3
 RAMP_PROBE_M = 60.0  # extraction: a ramp's lane joining its main road parallel is measured this far along it
+# route coverage: what a suite calls the manoeuvre that takes a ramp of each kind (generated ramp junctions
+# and real maps' ramps alike, inside a junction or through a direct link)
+RAMP_MANOEUVRES: Mapping[str, str] = MappingProxyType({"on": "merge", "off": "diverge"})
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
 # motorway speeds (ramp junctions, ramps.py): a ramp junction's main carriageway (its main legs' roads and

@@ -45,8 +45,12 @@ SKIP_QC_OPENSCENARIO = ("needs ASAM's qc_openscenario (asam-qc-openscenarioxml),
                         "bash scripts/setup.sh dev")
 SKIP_LANELET2 = ("needs the lanelet2 wheel (the dev extra; wheels exist for Linux x86_64 only), not installed: "
                  "bash scripts/setup.sh dev")
+# the public map corpus (docs/realmaps.md's `corpus` section: OpenDRIVE files of 8 tools, SOURCES.md beside them)
+CORPUS = Path(os.environ.get("FEAT2MAP_CORPUS", REPO.parent / "corpus"))
+CORPUS_MISSING = (f"needs the public map corpus at {CORPUS} (absent here): put the OpenDRIVE files that "
+                  "docs/realmaps.md surveys in a folder and set FEAT2MAP_CORPUS=/path/to/corpus")
 SKIP_REASONS = (SHARED_MAPS_MISSING, SKIP_RL, SKIP_RAY, SKIP_COMMONROAD_IO, SKIP_NETCONVERT, SKIP_QC_OPENDRIVE,
-                SKIP_QC_OPENSCENARIO, SKIP_LANELET2)
+                SKIP_QC_OPENSCENARIO, SKIP_LANELET2, CORPUS_MISSING)
 # the files of ../shared/maps (its SOURCES.md): tests over every real map are parametrized over this
 # list, so a checkout without the maps collects the same tests and skips each with SHARED_MAPS_MISSING
 SHARED_MAP_FILES = (
@@ -114,6 +118,8 @@ SLOW_TESTS = (
     "tests/scenarios/test_rollout.py::test_broken_planner_fails_with_readable_report_and_gif",
     "tests/scenarios/test_rollout.py::test_ray_backend_gives_the_local_results",
     "tests/envs/test_train_smoke.py::test_tiny_training_and_success_table",
+    "tests/envs/test_ramp_driving.py::test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6",
+    "tests/envs/test_ramp_driving.py::test_public_motorway_ramps_are_merged_and_diverged_at_traffic_6",
 )
 
 
@@ -199,6 +205,14 @@ def shared_map(relative: str) -> Path:
     path = SHARED_MAPS / relative
     if not path.exists():
         pytest.skip(SHARED_MAPS_MISSING)
+    return path
+
+
+def corpus_map(relative: str) -> Path:
+    """Path of a public map under the corpus folder (FEAT2MAP_CORPUS), or skip the test with the reason."""
+    path = CORPUS / relative
+    if not path.exists():
+        pytest.skip(CORPUS_MISSING)
     return path
 
 

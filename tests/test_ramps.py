@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from conftest import export_problems, sha256_text
+from conftest import corpus_map, export_problems, sha256_text
 
 from feat2map.config import (JUNCTION_SPEED_LIMIT_MPS, MAX_MOTORWAY_LANES, MOTORWAY_SPEED_LIMIT_MPS, RAMP_ANGLE_RANGE_DEG,
                              RAMP_LANE_M, RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS, GenerationConfig)
@@ -429,9 +428,6 @@ def test_the_extract_command_lists_ramps(tmp_path, spec_map, capsys):
     assert len(doc["ramps"]) == 3 and doc["feature_space"]["ramp"] == ["none", "off", "both"]
 
 
-CORPUS = Path(os.environ.get("FEAT2MAP_CORPUS", REPO.parent / "corpus"))
-
-
 @pytest.mark.real_maps
 @pytest.mark.parametrize("rel, on, off", [
     ("asam_examples/UC_Motorway-Exit-Entry.xodr", 2, 2),  # ramp lanes joining as added lanes in 5 m junctions
@@ -448,10 +444,7 @@ def test_ramps_of_public_motorway_maps(rel, on, off):
     from feat2map.extract_ramps import extract_ramps
     from feat2map.formats import read_map
 
-    path = CORPUS / rel
-    if not path.exists():
-        pytest.skip(f"needs the public map corpus at {CORPUS} (absent here): put the OpenDRIVE files that "
-                    "docs/realmaps.md surveys in a folder and set FEAT2MAP_CORPUS=/path/to/corpus")
+    path = corpus_map(rel)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         found = extract_ramps(read_map(path), rel)

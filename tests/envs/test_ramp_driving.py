@@ -5,14 +5,17 @@ lane take the merge in turn) and no link a merge (its lane is an added lane), tr
 baseline planner drive the motorway at its speed and slow down on the ramps, and the
 route-coverage suites merge from every on-ramp or link, diverge onto every off-ramp or link (on
 one- and two-lane motorways) and complete at traffic 6 with the baseline planner, which drives
-ramps in its ramp scenarios (RAMP_MERGE, RAMP_DIVERGE)."""
+ramps in its ramp scenarios (RAMP_MERGE, RAMP_DIVERGE), the scenarios named after their merge or
+diverge. Ramps joined through a direct link (no junction: OpenDRIVE's direct junctions) get lane
+routes that do the same, on our own map and on public ones."""
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from conftest import example_map_file
+from conftest import corpus_map, example_map_file, shared_map
 
 from feat2map.config import JUNCTION_SPEED_LIMIT_MPS, MOTORWAY_SPEED_LIMIT_MPS, RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS
 from feat2map.envs.network import MapNetwork, merge_pairs
@@ -151,6 +154,9 @@ def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(
     suite = build_suite(path, traffic_vehicles=6, seed=0)
     taking = [sc for sc in suite.scenarios if any(mv[1] in ramps or mv[2] in ramps for mv in sc.route)]
     assert {r for sc in taking for mv in sc.route for r in mv[1:] if r in ramps} == ramps  # every ramp, both ways
+    for sc in taking:  # named after each merge (ramp -> main) and diverge (main -> ramp), as real maps' ramps are
+        kinds = ["merge" if mv[1] in ramps else "diverge" for mv in sc.route if (mv[1] in ramps) != (mv[2] in ramps)]
+        assert sc.name == "-".join([sc.name.split("-")[0], sc.name.split("-")[1], *kinds]), sc.route
     for sc in taking:
         out = run_scenario(sc, record_failure_gif=False)
         assert out.outcome == "completed", (sc.name, out.message)
@@ -159,3 +165,80 @@ def test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6(
         merges = sum(mv[1] in ons and mv[2] not in ramps for mv in sc.route)
         diverges = sum(mv[2] in offs and mv[1] not in ramps for mv in sc.route)
         assert (out.stage_path.count("M_I"), out.stage_path.count("D_I")) == (merges, diverges), (sc.name, out.stage_path)
+
+
+def direct_ramps(m: HDMap) -> HDMap:
+    """`m` with every ramp's junction lane made a road lane of its own road: each ramp joins its
+    road through a direct link, as OpenDRIVE's direct junctions draw them (no junction holds it)."""
+    from feat2map.extract_ramps import extract_ramps
+
+    via = {path[1] for r in extract_ramps(m) for path in r.links if len(path) == 3}
+    lanes = {k: replace(ln, junction_id=None) if k in via else ln for k, ln in m.lanes.items()}
+    roads = {k: replace(r, kind="chain", junction_id=None) if set(r.lane_ids) & via else r for k, r in m.roads.items()}
+    return replace(m, lanes=lanes, roads=roads)
+
+
+@pytest.fixture(scope="module", params=[("json", "native"), ("xodr", "opendrive")], ids=["native", "opendrive"])
+def direct_path(request, map_path, tmp_path_factory) -> Path:
+    """examples/ramps.yaml's map with its ramps joined through direct links, saved natively or
+    exported to OpenDRIVE (which writes them as road links that read back as such)."""
+    from feat2map.formats import write_map
+
+    suffix, fmt = request.param
+    path = tmp_path_factory.mktemp("direct_ramps") / f"direct.{suffix}"
+    write_map(direct_ramps(native.load(map_path)), path, fmt)
+    return path
+
+
+def ramp_scenarios_complete(path: Path) -> list[str]:
+    """The names of the route-coverage suite's ramp scenarios (traffic 6), after asserting each
+    completes with the baseline planner."""
+    from feat2map.scenarios.rollout import run_scenario
+    from feat2map.scenarios.routes import build_suite
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # what the reader repairs in a public map is not this test's subject
+        suite = build_suite(path, traffic_vehicles=6, seed=0)
+    taking = [sc for sc in suite.scenarios if sc.name.endswith(("-merge", "-diverge"))]
+    for sc in taking:
+        out = run_scenario(sc, record_failure_gif=False)
+        assert out.outcome == "completed", (sc.name, sc.route, out.message)
+    return [sc.name for sc in taking]
+
+
+def test_ramps_through_direct_links_get_merge_and_diverge_routes_that_complete(direct_path, tmp_path):
+    from feat2map.extract_ramps import extract_ramps
+    from feat2map.formats import read_map
+    from feat2map.formats.openscenario import write_openscenario
+    from feat2map.scenarios.routes import build_suite
+    from feat2map.scenarios.scenario import load_suite, save_suite
+
+    found = extract_ramps(read_map(direct_path))
+    assert sorted(r.kind for r in found) == ["off", "off", "on"] and {r.junction for r in found} == {None}
+    suite = build_suite(direct_path, traffic_vehicles=6, seed=0)
+    lane_routes = [sc for sc in suite.scenarios if isinstance(sc.route, dict)]
+    assert sorted(sc.name.rsplit("-", 1)[1] for sc in lane_routes) == ["diverge", "diverge", "merge"]
+    links = {p for r in found for p in r.links}
+    for sc in lane_routes:  # each drives across a ramp's mouth
+        lanes = sc.route["lanes"]
+        assert links & set(zip(lanes, lanes[1:])), sc.route
+    save_suite(suite, tmp_path / "suite.yaml")  # lane routes are suite-file routes
+    assert load_suite(tmp_path / "suite.yaml").scenarios == suite.scenarios
+    files = write_openscenario(type(suite)(suite.name, tuple(lane_routes)), tmp_path / "xosc")  # and export
+    assert [f.stem for f in files] == [sc.name for sc in lane_routes]
+    assert sorted(ramp_scenarios_complete(direct_path)) == sorted(sc.name for sc in lane_routes)
+
+
+@pytest.mark.real_maps
+@pytest.mark.parametrize("find, rel, kinds", [
+    (corpus_map, "asam_qc/Ex_Entry_Exit.xodr", ["diverge", "merge"]),  # direct junctions: lane routes
+    (corpus_map, "asam_examples/UC_Motorway-Exit-Entry.xodr", ["diverge", "diverge", "merge", "merge"]),  # 5 m junctions
+    (shared_map, "opendrive/carla_town04/Town04.xodr", ["merge"]),
+    (shared_map, "opendrive/carla_town06/Town06.xodr", ["merge"]),
+], ids=["Ex_Entry_Exit", "UC_Motorway-Exit-Entry", "Town04", "Town06"])
+def test_public_motorway_ramps_are_merged_and_diverged_at_traffic_6(find, rel, kinds):
+    """Public motorway maps (the corpus and ../shared/maps beside the repository, docs/realmaps.md;
+    skipped without them): every ramp `extract_ramps` finds is a merge or diverge scenario of the
+    suite and completes."""
+    names = ramp_scenarios_complete(find(rel))
+    assert sorted(n.rsplit("-", 1)[1] for n in names) == kinds
