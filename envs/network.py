@@ -26,7 +26,7 @@ from shapely.geometry import LineString, Point, Polygon
 
 from ..angles import wrap_angle
 from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEARANCE_M, CURVE_CHORD_M,
-                      FOOTPRINT_STEP_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
+                      FOOTPRINT_STEP_M, MERGE_REACH_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
                       VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
 from ..model import HDMap, Lane, incoming_lanes, midblock_controls
@@ -156,16 +156,36 @@ def _one_stream(m: HDMap, a: Lane, b: Lane) -> bool:
     return False
 
 
+def _exit_lanes(m: HDMap, ln: Lane) -> set[str]:
+    """The lanes junction lane `ln` ends in (`merge_pairs`): its successors, and the road lanes
+    that road pieces adding up to less than MERGE_REACH_M lead on to."""
+    out = set(ln.successors)
+    frontier = [(x, 0.0) for x in ln.successors]
+    while frontier:
+        x, d = frontier.pop()
+        piece = m.lanes.get(x)
+        if piece is None or piece.junction_id is not None or d + piece.length >= MERGE_REACH_M:
+            continue
+        for y in piece.successors:
+            if y in m.lanes and m.lanes[y].junction_id is None and y not in out:
+                out.add(y)
+                frontier.append((y, d + piece.length))
+    return out
+
+
 def merge_pairs(m: HDMap) -> list[tuple[str, str]]:
     """Pairs of junction lanes from different approaches that end in one lane (a merge: a left
     turn into the lane straight traffic enters): conflicts like crossings (issue 21). They are
     registered from the links, not only from how close the centrelines come, so a merge counts
     where a map's junction lanes end apart on a wide exit lane or carry different junction ids
-    (overlapping junction polygons). Paths from one lane (a diverge) never merge."""
+    (overlapping junction polygons). Paths from one lane (a diverge) never merge. A lane also
+    ends in the road lanes it reaches through road pieces shorter than MERGE_REACH_M: a
+    signalised filter lane joins its exit road just after the piece that the junction's own lanes
+    run on, and the two streams met there side by side (a highway-and-city map, r010)."""
     into: dict[str, list] = {}
     for ln in m.lanes.values():
         if ln.junction_id is not None:
-            for x in ln.successors:
+            for x in _exit_lanes(m, ln):
                 into.setdefault(x, []).append(ln)
     out: set[tuple[str, str]] = set()
     for group in into.values():

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import Feat2MapError
-from ..routes import manoeuvre_lane, trapped_lanes
+from ..routes import manoeuvre_lane, road_neighbour, trapped_lanes  # noqa: F401 (road_neighbour re-exported)
 from .network import MapNetwork
 from ..config import ROUTE_SAMPLE_TRIES, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TRAFFIC_END_ROOM_M
 from .rules import braking_distance, enters_junction, line_setback
@@ -106,16 +106,6 @@ def start_place(net: MapNetwork, route: list[str], extend: bool, start_distance:
     if d_line < braking_distance(speed, length):
         speed = fitting_speed(d_line, length)
     return route, s0, speed
-
-
-def road_neighbour(m, lane_id: str, candidates: Sequence[str], exclude: set[str]) -> str | None:
-    """The road lane (not in a junction, not in `exclude`) among `candidates` to extend a route
-    with: one of the same road first, then the longest, ties by id."""
-    road = m.lanes[lane_id].road_id
-    cands = [c for c in candidates if c in m.lanes and m.lanes[c].junction_id is None and c not in exclude]
-    if not cands:
-        return None
-    return min(cands, key=lambda c: (m.lanes[c].road_id != road, -m.lanes[c].length, c))
 
 
 def route_start_s(net: MapNetwork, route: list[str], start_distance: float) -> float:

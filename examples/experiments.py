@@ -6,7 +6,9 @@
        driven in feat2map/MapFile-v0) and on M1-M3: accumulated planner line coverage per
        junction (Fig. 6a), stage transitions and stage paths covered (Figs. 6b, 7), a table.
   RQ3  M4 from SF + GoMentum + Shalun; the same measurements; what the bare junctions add.
-  RQ4  the custom maps of examples/*.yaml (mega junction, road circle, one-way T) built and driven.
+  RQ4  the custom maps of examples/*.yaml (mega junction, road circle, one-way T) built and driven,
+       and a highway-and-city map sampled from the paper's space with every mid-block crosswalk,
+       filter lane and ramp value: the stage paths at each of those features.
 
 Run: SDL_VIDEODRIVER=offscreen .venv/bin/python examples/experiments.py --rq all
 Writes out/experiments/rqN/ (maps, results JSON, pictures, tables) and copies the small
@@ -38,7 +40,7 @@ from feat2map import atomic  # noqa: E402
 from feat2map.formats import native  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.extract import ExtractedJunction, extract_junctions, map_feature  # noqa: E402
-from feat2map.features import FeatureSpace  # noqa: E402
+from feat2map.features import HIGHWAY_CITY_FEATURE_SPACE, FeatureSpace  # noqa: E402
 from feat2map.model import HDMap  # noqa: E402
 from feat2map.render import CONTROL_COLOURS, draw_map, render_junctions, save_figure  # noqa: E402
 
@@ -54,6 +56,7 @@ REAL_MAPS = {  # name -> path under the maps folder (see ../shared/maps/SOURCES.
 NEEDS = {1: ("san_francisco",), 2: ("san_francisco",), 3: ("san_francisco", "gomentum", "shalun"), 4: ()}
 SEEDS = (1, 2, 3)  # M1-M3
 M4_SEED = 4
+HIGHWAY_CITY = ("highway and city", 5)  # RQ4's sampled map (features.HIGHWAY_CITY_FEATURE_SPACE) and its seed
 CUSTOM_SPECS = {"mega junction": "examples/mega_junction.yaml", "road circle": "examples/road_circle.yaml",
                 "one-way roads": "examples/one_way_t.yaml"}
 PAPER = {  # the paper's numbers (Sec. V), shown next to ours
@@ -804,6 +807,8 @@ def rq4(settings: Settings) -> dict[str, Any]:
     folder = settings.out / "rq4"
     folder.mkdir(parents=True, exist_ok=True)
     built = build_custom(settings)
+    name, seed = HIGHWAY_CITY
+    built[name] = (feat2map.generate(HIGHWAY_CITY_FEATURE_SPACE, seed=seed), f"HIGHWAY_CITY_FEATURE_SPACE, seed {seed}")
     paths = {}
     for name, (m, rel) in built.items():
         paths[name] = folder / f"{name.replace(' ', '_')}.json"
@@ -823,16 +828,65 @@ def rq4(settings: Settings) -> dict[str, Any]:
                                                 "road_types": list(f.road_types)} for f in feats]}
         if not m.junctions:
             details[name]["lap"] = drive_lap(paths[name])
+    hc_map, _ = built[HIGHWAY_CITY[0]]
+    hc_run = load_run(folder / f"{HIGHWAY_CITY[0].replace(' ', '_')}_suite.json")
+    features_md = feature_paths_markdown(hc_map, hc_run, settings, measured["lane_follow"]) if hc_run else ""
     laps = [f"- {name}: one lap with the baseline planner: " + ", ".join(f"{k} {v}" for k, v in d["lap"].items())
             for name, d in details.items() if "lap" in d]
-    if laps:
-        md = folder / "rq4.md"
-        atomic.write_text(md, md.read_text() + "\nMaps without junctions, driven as laps (lane routes):\n\n"
-                          + "\n".join(laps) + "\n")
-        copy_to_docs(settings, [md])
+    md = folder / "rq4.md"
+    atomic.write_text(md, md.read_text() + features_md + ("\nMaps without junctions, driven as laps (lane routes):\n\n"
+                                                          + "\n".join(laps) + "\n" if laps else ""))
+    copy_to_docs(settings, [md])
     result = {"maps": details, "measured": measured}
     write_json(folder / "rq4_summary.json", result)
     return result
+
+
+def feature_moves(m: HDMap) -> dict[str, set[str]]:
+    """The future work's features of a map as what a route takes: feature -> the junction lanes
+    (a ramp merge or diverge, a filter lane) or road lanes (across a mid-block crosswalk) of it."""
+    from shapely.geometry import LineString, Polygon
+
+    from feat2map.extract import extract_filters
+    from feat2map.extract_ramps import ramp_moves
+
+    out: dict[str, set[str]] = {"ramp merge": set(), "ramp diverge": set(), "filter lane": set(),
+                                "mid-block crosswalk": set()}
+    for lane, move in ramp_moves(m).items():
+        out[f"ramp {move}"].add(lane)
+    out["filter lane"] = {f.id for f in extract_filters(m)}
+    walks = [Polygon(c.polygon) for c in m.crosswalks.values() if c.junction_id is None]
+    out["mid-block crosswalk"] = {ln.id for ln in m.lanes.values() if ln.junction_id is None
+                                  and any(LineString(ln.centerline).intersects(w) for w in walks)}
+    return out
+
+
+def feature_paths_markdown(m: HDMap, run: MapRun, settings: Settings, lane_follow: str) -> str:
+    """Per feature of the future work, the scenarios of `run` whose route takes it, their outcomes
+    and the planner's stage paths there (at the junction; on the road, for a mid-block crosswalk)."""
+    from feat2map.routes import manoeuvre_lanes
+
+    routes, _, _ = _scenario_machinery()
+    rts = routes.coverage_routes(m, settings.max_junctions, routes.manoeuvres(m))
+    by_name = {o.name: o for o in run.result.outcomes}
+    rows = []
+    for feature, lanes in feature_moves(m).items():
+        n, outs, paths = 0, {}, set()
+        for i, route in enumerate(rts):
+            o = by_name.get(f"{run.name}-r{i:03d}")
+            takes = [mv for mv in route if any(ln.id in lanes for ln in manoeuvre_lanes(m, mv))]
+            roads = {r for mv in route for r in mv[1:]}
+            if o is None or not (takes or any(m.lanes[x].road_id in roads for x in lanes if feature.startswith("mid"))):
+                continue
+            n += 1
+            outs[o.outcome] = outs.get(o.outcome, 0) + 1
+            at = {mv[0] for mv in takes}
+            paths |= {path_label(p, lane_follow) for j, p in junction_paths(o) if j in at}
+        rows.append((feature, len(lanes), n, ", ".join(f"{k} {v}" for k, v in sorted(outs.items())) or "-",
+                     "; ".join(sorted(paths)) or "LF (no junction scenario: the crossing's rules in lane following)"))
+    return (f"\nThe future work's features in the {run.name} map: the scenarios whose route takes each, their "
+            "outcomes and the planner's stage paths there:\n\n"
+            + md_table(("feature", "lanes", "scenarios", "outcomes", "stage paths there"), rows))
 
 
 # ---- command line ----------------------------------------------------------------------------------

@@ -9,6 +9,9 @@ planner did at each junction: its stage paths) and line coverage of each planner
   # SF (../shared/maps' Apollo San Francisco map): the manoeuvres of its first N junctions only
   SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python examples/planner_experiments.py --maps sf --sf-junctions 4
   # M2-M4 likewise (M4: generated from SF + GoMentum + Shalun's merged features, seed 4, as RQ3)
+  # HC: the highway-and-city map (every mid-block, filter and ramp value, RQ4); --ramps-only for the
+  # routes that merge from an on-ramp or diverge onto an off-ramp
+  SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python examples/planner_experiments.py --maps hc --ramps-only
 
 Writes out/planners/<map>/{map.json, suite.yaml, chunkN/ (rollout reports), <planner>/ (merged
 report with its failure GIFs), tables.md}. Chunks make a long run (minutes per scenario for a
@@ -36,7 +39,7 @@ from feat2map.scenarios.routes import build_suite  # noqa: E402
 from feat2map.scenarios.scenario import Suite, load_suite, save_suite  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SEEDS = {"m1": 1, "m2": 2, "m3": 3, "m4": 4}
+SEEDS = {"m1": 1, "m2": 2, "m3": 3, "m4": 4, "hc": 5}
 SHARED = ROOT.parent / "shared" / "maps"  # ../shared/maps/SOURCES.md
 SF_MAP = SHARED / "apollo" / "san_francisco" / "base_map.bin"
 M4_MAPS = (SF_MAP, SHARED / "apollo" / "gomentum" / "base_map.bin", SHARED / "apollo" / "shalun" / "base_map.bin")
@@ -73,9 +76,27 @@ def m4_space():
     return map_feature([j for p in M4_MAPS for j in extract_junctions(read_map(p), p.parent.name)])
 
 
+def space_of(name: str):
+    """The feature space map `name` is generated from."""
+    from feat2map.features import HIGHWAY_CITY_FEATURE_SPACE
+
+    return {"m4": m4_space, "hc": lambda: HIGHWAY_CITY_FEATURE_SPACE}.get(name, lambda: feat2map.PAPER_SF_FEATURE_SPACE)()
+
+
+def ramp_scenarios(suite: Suite, m) -> Suite:
+    """The scenarios of `suite` whose route takes a ramp's junction lane (a merge or a diverge)."""
+    from feat2map.extract_ramps import ramp_moves
+    from feat2map.routes import manoeuvre_lanes
+
+    moves = ramp_moves(m)
+    keep = tuple(sc for sc in suite.scenarios if any(ln.id in moves for mv in sc.route for ln in manoeuvre_lanes(m, mv)))
+    return Suite(suite.name, keep, suite.base_dir)
+
+
 def prepare(name: str, out: Path, traffic: int, chunk: int, sf_junctions: int | None = None,
-            max_scenarios: int | None = None) -> list[Path]:
-    """The map, its suite and the suite's chunks (made once; the first `max_scenarios` only)."""
+            max_scenarios: int | None = None, ramps_only: bool = False) -> list[Path]:
+    """The map, its suite and the suite's chunks (made once; with `ramps_only` the scenarios that
+    take a ramp, `ramp_scenarios`; the first `max_scenarios` only)."""
     out.mkdir(parents=True, exist_ok=True)
     if name == "sf":
         if not SF_MAP.is_file():
@@ -84,11 +105,12 @@ def prepare(name: str, out: Path, traffic: int, chunk: int, sf_junctions: int | 
             save_suite(sf_suite(traffic, sf_junctions), out / "suite.yaml")
     else:
         if not (out / "map.json").exists():
-            native.save(feat2map.generate(m4_space() if name == "m4" else feat2map.PAPER_SF_FEATURE_SPACE,
-                                          seed=SEEDS[name]), out / "map.json")
+            native.save(feat2map.generate(space_of(name), seed=SEEDS[name]), out / "map.json")
         if not (out / "suite.yaml").exists():
             save_suite(build_suite(out / "map.json", traffic_vehicles=traffic, name=name), out / "suite.yaml")
     suite = load_suite(out / "suite.yaml")
+    if ramps_only:
+        suite = ramp_scenarios(suite, native.load(out / "map.json"))
     if max_scenarios is not None:
         suite = Suite(suite.name, suite.scenarios[:max_scenarios], suite.base_dir)
     paths = []
@@ -203,6 +225,8 @@ def main() -> int:
     ap.add_argument("--sf-junctions", type=int, default=None,
                     help="SF: only the manoeuvres of its first N junctions (the suite is made once)")
     ap.add_argument("--max-scenarios", type=int, default=None, help="only the first N scenarios of each suite")
+    ap.add_argument("--ramps-only", action="store_true", help="only the scenarios that merge from an on-ramp or "
+                    "diverge onto an off-ramp (a generated map's)")
     ap.add_argument("--traffic", type=int, default=6)
     ap.add_argument("--chunk", type=int, default=6)
     ap.add_argument("--workers", type=int, default=2)
@@ -216,7 +240,7 @@ def main() -> int:
     per_map: dict[str, dict[str, SuiteResult]] = {}
     for name in args.maps:
         out = args.out / name
-        chunks = prepare(name, out, args.traffic, args.chunk, args.sf_junctions, args.max_scenarios)
+        chunks = prepare(name, out, args.traffic, args.chunk, args.sf_junctions, args.max_scenarios, args.ramps_only)
         if not args.report_only:
             if not args.no_baseline:
                 run("baseline", "baseline", chunks, out, args.workers)

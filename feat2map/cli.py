@@ -23,7 +23,7 @@ from . import __version__, atomic
 from .config import (CROSSWALK_WIDTH_M, GRID_GAP_M, LANE_WIDTH_M, LIMIT_FLAG, OPENDRIVE_VERSIONS, GenerationConfig,
                      Limits, plain_number, raised_limits)
 from .errors import WHERE_MAX_CHARS, ConfigError, Feat2MapError, FeatureError, LayoutError
-from .features import PAPER_SF_FEATURE_SPACE, FeatureSpace
+from .features import LINK_PREFIX, PAPER_SF_FEATURE_SPACE, FeatureSpace
 from .formats import FORMATS, check_target, detect, native, read_map, write_map
 from .messages import counted, on_terminal, one_line
 
@@ -300,11 +300,13 @@ def _print_ramps(ramps: list) -> None:
 
 
 def _ramp_note(feature) -> str:
-    """`  ramps: 2 on, 1 off (75.00 m)`: a ramp junction's ramps by socket and its acceleration
-    and deceleration lanes' length (nothing for a junction without)."""
+    """`  ramps: 2 on, 1 off (75.00 m)`: a ramp junction's ramps by socket (`link-on`, `link-off`
+    for motorway links) and its acceleration and deceleration lanes' length (nothing for a
+    junction without)."""
     if not feature.has_ramp:
         return ""
-    return "  ramps: " + ", ".join(f"{k} {s.ramp}" for k, s in enumerate(feature.sockets) if s.ramp != "none") \
+    return "  ramps: " + ", ".join(f"{k} {LINK_PREFIX if s.link else ''}{s.ramp}" for k, s in enumerate(feature.sockets)
+                                   if s.ramp != "none") \
         + f" ({feature.ramp_length:.2f} m)"
 
 

@@ -57,9 +57,27 @@ RAMP_MAIN_BEND_DEG = 30.0
 # through the junction's centre, passes the main socket RAMP_GORE_M beyond the main road's edge.
 RAMP_LANE_M = 75.0
 RAMP_GORE_M = 0.75
+# a feature space's `motorway_lanes` (lanes per direction of sampled ramp junctions' main roads) lie in
+# 1..this: a wider road needs a steeper ramp to clear it within RAMP_LANE_M (ramps.min_ramp_angle: 19.3 deg
+# for 3 lanes, 24 for 4), and a ramp at MIN_LEG_SEPARATION_DEG or more no longer measures as a ramp
+MAX_MOTORWAY_LANES = 3
 RAMP_PROBE_M = 60.0  # extraction: a ramp's lane joining its main road parallel is measured this far along it
+# route coverage: what a suite calls the manoeuvre that takes a ramp of each kind (generated ramp junctions
+# and real maps' ramps alike, inside a junction or through a direct link)
+RAMP_MANOEUVRES: Mapping[str, str] = MappingProxyType({"on": "merge", "off": "diverge"})
 SPEED_LIMIT_MPS = 13.4  # 30 mph, as in the SVL maps
 JUNCTION_SPEED_LIMIT_MPS = 8.94  # 20 mph inside junctions
+# motorway speeds (ramp junctions, ramps.py): a ramp junction's main carriageway (its main legs' roads and
+# lanes straight on) and its acceleration lanes (merging traffic gets up to the main road's speed on them)
+# are a motorway at MOTORWAY_SPEED_LIMIT_MPS, 55 mph (88.5 km/h, an urban motorway's limit, which its short
+# 75 m auxiliary lanes fit); its ramps' roads, its deceleration lanes (leaving traffic slows on them, where
+# design guidance puts the deceleration: the envs take a lower limit where its lane begins) and an on-ramp's
+# lane going on to an off-ramp at RAMP_SPEED_LIMIT_MPS, 35 mph (56 km/h): design guidance (AASHTO's Green
+# Book) asks a ramp design speed of about 50-85% of the motorway's, 64% here, above the town limit. A road
+# between two junctions is driven at the lower of its two ends' limits (a motorway into a town junction at
+# the town's), so roads between two ramp junctions' main legs are motorway
+MOTORWAY_SPEED_LIMIT_MPS = 24.59  # 55 mph
+RAMP_SPEED_LIMIT_MPS = 15.65  # 35 mph
 # declared lane speeds a map reads (semantics.plausible_speeds): a driving lane's limit outside this range
 # is no car's (a converter wrote 2.68 mph, 1.2 m/s, on every town lane); it reads as SPEED_LIMIT_MPS
 # (JUNCTION_SPEED_LIMIT_MPS in junctions), with one warning per map naming the lanes
@@ -188,7 +206,11 @@ CONFIG_RANGES: dict[str, tuple[float, float | None]] = {
     "stub_length": (1.0, None), "min_socket_separation_deg": (MIN_LEG_SEPARATION_DEG, 120.0),
     "min_junction_radius": (1.0, 1000.0), "junction_margin": (0.01, 50.0), "speed_limit": (0.1, 100.0),
     "junction_speed_limit": (0.1, 100.0), "sample_spacing": (0.1, 100.0), "samples_per_combination": (1, None),
+    "motorway_speed_limit": (0.1, 100.0), "ramp_speed_limit": (0.1, 100.0),
 }
+# fields added after maps recorded their config (`GenerationConfig.to_dict` writes them only when set off their
+# defaults, so that maps generated without them keep their bytes)
+LATE_CONFIG_FIELDS = ("motorway_speed_limit", "ramp_speed_limit")
 
 
 @dataclass(frozen=True)
@@ -208,6 +230,8 @@ class GenerationConfig:
     sample_spacing: float = SAMPLE_SPACING_M
     samples_per_combination: int = 1
     uturns: bool = False
+    motorway_speed_limit: float = MOTORWAY_SPEED_LIMIT_MPS  # ramp junctions' main carriageway (and auxiliary lanes)
+    ramp_speed_limit: float = RAMP_SPEED_LIMIT_MPS  # ramp junctions' ramps
 
     def __post_init__(self) -> None:
         from .errors import ConfigError
@@ -240,7 +264,10 @@ class GenerationConfig:
         lim.check("max_junctions", self.samples_per_combination, "config field 'samples_per_combination'")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """Every field, those of LATE_CONFIG_FIELDS only when off their defaults (a map records this)."""
+        default = GenerationConfig()
+        return {k: v for k, v in asdict(self).items()
+                if k not in LATE_CONFIG_FIELDS or v != getattr(default, k)}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "GenerationConfig":
@@ -416,6 +443,10 @@ PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often
 FOLD_TURN_DEG = 120.0  # a lane polyline turning more than this at a vertex ...
 FOLD_SEGMENT_M = 1.0  # ... next to a segment shorter than this folds back (a cusp): the vertex is dropped
 CONFLICT_DISTANCE_M = 2.2  # junction paths closer than a car width (+ margin) conflict
+# two junction lanes merge (a conflict) where both lead into one road lane, directly or through road
+# pieces shorter than this: a filter lane joins its exit road just after the piece the junction's
+# own lanes run on (construct splits the road FILTER_DIVERGE_M or less from the junction)
+MERGE_REACH_M = 2 * FILTER_DIVERGE_M
 VEHICLE_LENGTH_M, VEHICLE_WIDTH_M = 5.0, 2.0  # highway-env's vehicle footprint
 # traffic routes end on at least this much road after their last junction: a car whose route ends
 # on less stands half inside the next junction, blind to it (Town07's 0.7 m road); Shalun's 3.5 m

@@ -20,7 +20,7 @@ from .angles import classify_turn, positive_angle, positive_degrees, wrap_angle
 from .bezier import Bezier, left_normal, unit
 from .config import FILTER_DIVERGE_M, FILTER_HANDLE, MIN_STUB_LENGTH_M, GenerationConfig
 from .features import JunctionFeature, MidblockFeature, filter_exit, ramp_angle
-from .ramps import ramp_fit, ramp_lanes, ramp_radius, ramp_socket_radius
+from .ramps import RampLane, ramp_fit, ramp_lane_speed, ramp_lanes, ramp_radius, ramp_socket_radius, socket_speed
 from .invariants import AREA_EPS_M2
 from .errors import CrossingRoadsError, LayoutError
 from .layout import Placement
@@ -146,9 +146,11 @@ class _Builder:
         )
 
     def add_road(self, road_id: str, kind: str, start, h0: float, end, h1: float, n_right: int, n_left: int,
-                 start_junction: str | None, end_junction: str | None) -> Road:
-        """A road with `n_right` lanes along start->end and `n_left` against it, centred on the reference."""
+                 start_junction: str | None, end_junction: str | None, speed: float | None = None) -> Road:
+        """A road with `n_right` lanes along start->end and `n_left` against it, centred on the
+        reference, its lanes' limit `speed` (default `speed_limit`, a town road)."""
         w = self.cfg.lane_width
+        speed = self.cfg.speed_limit if speed is None else speed
         divider = (n_right - n_left) * w / 2  # left of the reference by this much
         right_ids: list[str] = []
         left_ids: list[str] = []
@@ -158,7 +160,7 @@ class _Builder:
             centre, pts, left, right = self.lane_curves(start, h0, end, h1, off)
             ltype = ("solid_yellow" if n_left else "solid_white") if i == 0 else "dotted_white"
             rtype = "dotted_white" if i < n_right - 1 else "solid_white"
-            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype, rtype=rtype)
+            self.add_lane(lid, road_id, centre, pts, left, right, speed=speed, ltype=ltype, rtype=rtype)
             right_ids.append(lid)
         for i in range(n_left):
             lid = f"{road_id}_{n_right + i}"
@@ -167,7 +169,7 @@ class _Builder:
             centre, pts, left, right = self.lane_curves(end, h1 + math.pi, start, h0 + math.pi, -off)
             ltype = ("solid_yellow" if n_right else "solid_white") if i == 0 else "dotted_white"
             rtype = "dotted_white" if i < n_left - 1 else "solid_white"
-            self.add_lane(lid, road_id, centre, pts, left, right, speed=self.cfg.speed_limit, ltype=ltype, rtype=rtype)
+            self.add_lane(lid, road_id, centre, pts, left, right, speed=speed, ltype=ltype, rtype=rtype)
             left_ids.append(lid)
         for ids in (right_ids, left_ids):
             for a, b in zip(ids, ids[1:]):  # a is nearer the divider: left of b
@@ -339,13 +341,16 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 length = _stub_length(g, centers[j], tree, cfg, f"junction J{j}", along)
                 end = tuple(np.asarray(g.point) + length * unit(g.angle))
                 road, main, last = _add_road_split(b, rid, "stub", g.point, g.angle, end, g.angle, sock.lanes_out,
-                                                   sock.lanes_in, f"J{j}", None, cut_start, False)
+                                                   sock.lanes_in, f"J{j}", None, cut_start, False,
+                                                   socket_speed(p.feature, s, cfg))
             else:
                 o = sockets[link.junction][link.socket]
                 cut_end = (link.junction, link.socket) in cuts
+                speed = min(socket_speed(p.feature, s, cfg),
+                            socket_speed(placements[link.junction].feature, link.socket, cfg))  # the lower end's
                 road, main, last = _add_road_split(b, rid, "connection", g.point, g.angle, o.point, o.angle + math.pi,
                                                    sock.lanes_out, sock.lanes_in, f"J{j}", f"J{link.junction}",
-                                                   cut_start, cut_end)
+                                                   cut_start, cut_end, speed)
                 incoming[(link.junction, link.socket)] = list(reversed(last.right_lanes))
                 outgoing[(link.junction, link.socket)] = list(reversed(last.left_lanes))
                 socket_road[(link.junction, link.socket)] = last.id
@@ -398,8 +403,8 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
                 b.link(src, lid)
                 b.link(lid, dst)
         if f.has_ramp:
-            for src, dst, shape in ramp_lanes(f, incoming, outgoing, j):
-                _ramp_lane(b, jid, f"{jid}_c{n_conn}", src, dst, shape, cfg)
+            for lane in ramp_lanes(f, incoming, outgoing, j):
+                _ramp_lane(b, jid, f"{jid}_c{n_conn}", lane, cfg)
                 n_conn += 1
         for a in range(f.n_roads):
             into = filter_exit(f, a) if f.sockets[a].filter != "none" else None
@@ -441,16 +446,17 @@ def _build_map(placements: Sequence[Placement], cfg: GenerationConfig, meta: dic
 
 
 def _add_road_split(b: _Builder, rid: str, kind: str, start, h0: float, end, h1: float, n_right: int, n_left: int,
-                    start_junction: str | None, end_junction: str | None, cut_start: bool, cut_end: bool
-                    ) -> tuple[Road, Road, Road]:
+                    start_junction: str | None, end_junction: str | None, cut_start: bool, cut_end: bool,
+                    speed: float) -> tuple[Road, Road, Road]:
     """A road from `start` to `end` as `_Builder.add_road` makes it, split FILTER_DIVERGE_M from
     the end(s) where a filter lane leaves or joins it (`cut_start`, `cut_end`; on a road too short
     for that, as far as leaves a quarter of FILTER_DIVERGE_M between the cuts, but at least half
     FILTER_DIVERGE_M, else a LayoutError naming the road): (the piece at the start, the
     longest piece, the piece at the end), the same road three times when nothing is cut. The
-    pieces' lanes link end to start; a cut piece at a junction is `<rid>a` (start) or `<rid>b`."""
+    pieces' lanes link end to start; a cut piece at a junction is `<rid>a` (start) or `<rid>b`.
+    Every piece's lanes have the limit `speed`."""
     if not cut_start and not cut_end:
-        road = b.add_road(rid, kind, start, h0, end, h1, n_right, n_left, start_junction, end_junction)
+        road = b.add_road(rid, kind, start, h0, end, h1, n_right, n_left, start_junction, end_junction, speed)
         return road, road, road
     ref = b.reference(start, h0, end, h1)
     length = ref.length
@@ -470,7 +476,8 @@ def _add_road_split(b: _Builder, rid: str, kind: str, start, h0: float, end, h1:
     for k, name in enumerate(names):
         (p0, a0), (p1, a1) = poses[k], poses[k + 1]
         pieces.append(b.add_road(name, kind, p0, a0, p1, a1, n_right, n_left,
-                                 start_junction if k == 0 else None, end_junction if k == len(names) - 1 else None))
+                                 start_junction if k == 0 else None, end_junction if k == len(names) - 1 else None,
+                                 speed))
     for x, y in zip(pieces, pieces[1:]):
         for u, v in zip(x.right_lanes, y.right_lanes):
             b.link(u, v)
@@ -531,12 +538,13 @@ def _filter_lane(b: _Builder, jid: str, a: int, sock, approach: str, exit_lane: 
     return orient(Polygon(merged.exterior.coords), 1.0)
 
 
-def _ramp_lane(b: _Builder, jid: str, rid: str, src: str, dst: str, shape: tuple[float, float],
-               cfg: GenerationConfig) -> None:
-    """A junction lane `<rid>_0` from the end of road lane `src` to the start of `dst`: a cubic
-    Bezier whose handles are `shape` (start, end) fractions of the distance between its ends
-    along their headings (a ramp's lane turns onto the main road's line early and runs beside its
-    lanes, or runs beside them and turns off late), its turn classed by its heading change."""
+def _ramp_lane(b: _Builder, jid: str, rid: str, lane: RampLane, cfg: GenerationConfig) -> None:
+    """A junction lane `<rid>_0` from the end of road lane `lane.src` to the start of `lane.dst`:
+    a cubic Bezier whose handles are `lane.shape` (start, end) fractions of the distance between
+    its ends along their headings (a ramp's lane turns onto the main road's line early and runs
+    beside its lanes, or runs beside them and turns off late), its turn classed by its heading
+    change, its limit `ramps.ramp_lane_speed`'s."""
+    src, dst, shape = lane.src, lane.dst, lane.shape
     p0, p3 = np.asarray(b.lanes[src]["centerline"][-1]), np.asarray(b.lanes[dst]["centerline"][0])
     h0, h1 = float(b.beziers[src].heading(1.0)), float(b.beziers[dst].heading(0.0))
     dist = float(np.hypot(*(p3 - p0)))
@@ -546,7 +554,7 @@ def _ramp_lane(b: _Builder, jid: str, rid: str, src: str, dst: str, shape: tuple
     pts, left, right = centre.offset_points(centre.sample_params(cfg.sample_spacing), (0.0, w, -w))
     pts[0], pts[-1] = centre.p0, centre.p3
     lid = f"{rid}_0"
-    b.add_lane(lid, rid, centre, pts, left, right, speed=cfg.junction_speed_limit, junction_id=jid,
+    b.add_lane(lid, rid, centre, pts, left, right, speed=ramp_lane_speed(lane, cfg), junction_id=jid,
                turn=classify_turn(h0, h1), ltype="virtual", rtype="virtual")
     b.roads[rid] = Road(rid, "junction", (lid,), (), centre, 0.0, jid, jid, jid)
     b.link(src, lid)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, replace
-from typing import Iterable, Mapping, Sequence
+from typing import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 from shapely import STRtree
@@ -90,6 +90,7 @@ class _ArmEnds:
     far_direction: np.ndarray  # unit vector towards the road ARM_PROBE_M out
     lanes_in: int
     lanes_out: int
+    mouths: frozenset[str] = frozenset()  # the road lanes of its mouths (`_link_arm`)
 
 
 class _UnionFind:
@@ -251,7 +252,8 @@ def _group_arms(m: HDMap, jid: str, lanes: Sequence[Lane], ramps: bool = False) 
         t, f = tangents[idx].sum(axis=0), dirs[idx].sum(axis=0)
         arms.append(_ArmEnds(pts[idx].mean(axis=0), t / max(float(np.hypot(*t)), 1e-12),
                              f / max(float(np.hypot(*f)), 1e-12),
-                             sum(kinds[i] == "in" for i in idx), sum(kinds[i] == "out" for i in idx)))
+                             sum(kinds[i] == "in" for i in idx), sum(kinds[i] == "out" for i in idx),
+                             frozenset(x for i in idx if (x := ext[i]) is not None)))
     return arms
 
 
@@ -271,24 +273,31 @@ def _joined_mouths(m: HDMap, jid: str, lanes: Sequence[Lane], index: dict[tuple,
     return apart
 
 
+def _through(m: HDMap, jid: str, lanes: Sequence[Lane]) -> Iterator[tuple[str, str]]:
+    """(road lane before, road lane after) of each junction lane with road lanes on both sides."""
+    for ln in lanes:
+        ins = [p for p in ln.predecessors if m.lanes[p].junction_id != jid]
+        outs = [x for x in ln.successors if m.lanes[x].junction_id != jid]
+        if ins and outs:
+            yield ins[0], outs[0]
+
+
 def _merging_mouths(m: HDMap, jid: str, lanes: Sequence[Lane], index: dict[tuple, int],
                     tangents: np.ndarray) -> set[tuple[int, int]]:
     """Pairs of mouth indices (both orders) of a merge or a diverge between legs: entering mouths
-    whose junction lanes lead into one road lane (an on-ramp joining the main road), or leaving
-    mouths fed from one road lane (an off-ramp), with tangents more than LEG_MERGE_DEG apart (the
+    whose junction lanes lead into one carriageway (an on-ramp joining the main road's rightmost
+    lane, or a motorway link its added lanes), or leaving mouths fed from one (an off-ramp or a
+    link), with tangents more than LEG_MERGE_DEG apart (the
     leg rule; the lanes of one approach run parallel). Such mouths are separate legs: without
     this, a ramp a few degrees off its main road joins the main road's arm through the main
     road's lanes of the other direction (`_arms` also keeps them apart from the mouths of the other
     kind whose directions differ as much)."""
     into: dict[tuple, set[int]] = {}
-    for ln in lanes:
-        ins = [p for p in ln.predecessors if m.lanes[p].junction_id != jid]
-        outs = [x for x in ln.successors if m.lanes[x].junction_id != jid]
-        if ins and outs:
-            i, k = index.get(("in", ins[0])), index.get(("out", outs[0]))
-            if i is not None and k is not None:
-                into.setdefault(("out", k), set()).add(i)
-                into.setdefault(("in", i), set()).add(k)
+    for src, dst in _through(m, jid, lanes):
+        i, k = index.get(("in", src)), index.get(("out", dst))
+        if i is not None and k is not None:
+            into.setdefault(("out", _carriageway(m, dst)), set()).add(i)
+            into.setdefault(("in", _carriageway(m, src)), set()).add(k)
     cos_leg = math.cos(math.radians(LEG_MERGE_DEG))
     apart: set[tuple[int, int]] = set()
     for group in into.values():
@@ -297,6 +306,22 @@ def _merging_mouths(m: HDMap, jid: str, lanes: Sequence[Lane], index: dict[tuple
                 if i != k and float(tangents[i] @ tangents[k]) < cos_leg:
                     apart.add((i, k))
     return apart
+
+
+def _carriageway(m: HDMap, lane_id: str) -> tuple[str, bool]:
+    """The road of a road lane and whether the lane runs along its reference line: its carriageway."""
+    return m.lanes[lane_id].road_id, lane_id not in m.roads[m.lanes[lane_id].road_id].left_lanes
+
+
+def _link_arm(m: HDMap, jid: str, lanes: Sequence[Lane], arm: _ArmEnds) -> bool:
+    """Whether an arm's lanes go on through the junction one to one, as a motorway link's do
+    (`Socket.link`): the road lanes its junction lanes lead into (entering) or come from (leaving)
+    meet no junction lane of another arm."""
+    pairs = [(src, dst) if arm.lanes_in else (dst, src) for src, dst in _through(m, jid, lanes)]
+    far = {other for near, other in pairs if near in arm.mouths}
+    if any(other in far and near not in arm.mouths for near, other in pairs):
+        return False
+    return bool(far)
 
 
 def _meeting_point(lines: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float] | None:
@@ -493,18 +518,21 @@ def _ramp_junction(m: HDMap, jid: str, lanes: Sequence[Lane], poly: Polygon, con
     if gap >= MIN_LEG_SEPARATION_DEG - 1e-9:
         return None
     try:
-        found = ramp_feature(arms, control)
+        found = ramp_feature(arms, control, [_link_arm(m, jid, lanes, e) for e in ends])
     except FeatureError:
         return None
     return None if found is None else (found[0], (float(c[0]), float(c[1])), found[1])
 
 
-def ramp_feature(arms: Sequence[Arm], control: str) -> tuple[JunctionFeature, tuple[Arm, ...]] | None:
+def ramp_feature(arms: Sequence[Arm], control: str, links: Sequence[bool] = ()
+                 ) -> tuple[JunctionFeature, tuple[Arm, ...]] | None:
     """The ramp junction feature of arms closer than the leg rule allows (None when they make
     none): each pair of neighbouring arms closer than MIN_LEG_SEPARATION_DEG is a main leg and a
     ramp, an on-ramp when the counter-clockwise one only enters, an off-ramp when the clockwise one
     only leaves (right-hand traffic); `ramp_length` is the distance between the main legs'
-    mouths. A FeatureError when the result breaks the ramp junction rules (`JunctionFeature`)."""
+    mouths. `links` (per arm): its lanes go on one to one (`_link_arm`); when every ramp's do,
+    the ramps are motorway links (`Socket.link`). A FeatureError when the result breaks the ramp
+    junction rules (`JunctionFeature`)."""
     order = sorted(range(len(arms)), key=lambda i: positive_degrees(arms[i].angle_deg))
     ordered = [arms[i] for i in order]
     n = len(ordered)
@@ -524,7 +552,9 @@ def ramp_feature(arms: Sequence[Arm], control: str) -> tuple[JunctionFeature, tu
     if len(mains) != 2:
         return None
     unwrapped = [angles[0] + positive_degrees(a - angles[0]) for a in angles]
-    sockets = tuple(Socket(a, arm.lanes_in, arm.lanes_out, ramp=kind) for a, arm, kind in zip(unwrapped, ordered, kinds))
+    link = bool(links) and all(links[i] for i, kind in zip(order, kinds) if kind != "none")
+    sockets = tuple(Socket(a, arm.lanes_in, arm.lanes_out, ramp=kind, link=link and kind != "none")
+                    for a, arm, kind in zip(unwrapped, ordered, kinds))
     length = round(math.dist(mains[0].point, mains[1].point), 2)
     feature = JunctionFeature(sockets, control, False, MIN_LEG_SEPARATION_DEG, length)
     norm = ramp_normalization(feature)

@@ -35,8 +35,10 @@ MAX_WALK = 200  # lanes followed at most along a ramp's path or its added lanes
 class ExtractedRamp:
     """One ramp: `kind` "on" or "off", the `road` the ramp's and the main road's lanes feed (on)
     or leave (off), the `ramp_road` and `main_road` on its other side, the `junction` whose lanes
-    join them (None for a direct link), its angle off the main road and its acceleration or
-    deceleration lanes' length."""
+    join them (None for a direct link), its angle off the main road, its acceleration or
+    deceleration lanes' length and its `links`: each lane path across the mouth from a ramp lane
+    (on) or a lane of `road` (off) to the lane after it, in driving order (the junction lane
+    between them where there is one), so routes can drive the ramp."""
 
     map_name: str
     kind: str
@@ -46,6 +48,7 @@ class ExtractedRamp:
     junction: str | None
     angle_deg: float
     length_m: float
+    links: tuple[tuple[str, ...], ...] = ()
 
     def to_dict(self) -> dict:
         return {"map": self.map_name, "kind": self.kind, "road": self.road, "ramp_road": self.ramp_road,
@@ -55,14 +58,22 @@ class ExtractedRamp:
 
 def _directions(m: HDMap) -> Iterator[tuple[str, list[Lane]]]:
     """(road id, its road lanes of one direction of travel), for every road outside junctions."""
-    for rid, road in m.roads.items():
-        if road.kind == "junction" or road.junction_id is not None:
+    for rid in m.roads:
+        if _junction_road(m, rid):
             continue
+        road = m.roads[rid]
         groups = [road.right_lanes, road.left_lanes] if (road.right_lanes or road.left_lanes) else [road.lane_ids]
         for ids in groups:
             lanes = [m.lanes[x] for x in ids if x in m.lanes and m.lanes[x].junction_id is None]
             if lanes:
                 yield rid, lanes
+
+
+def _junction_road(m: HDMap, rid: str) -> bool:
+    """Road `rid` is a piece of a junction (a junction's road, even where its lanes lost their
+    junction): no main road and no ramp."""
+    road = m.roads.get(rid)
+    return road is not None and (road.kind == "junction" or road.junction_id is not None)
 
 
 def _links(m: HDMap, lane: Lane, forward: bool) -> list[tuple[Lane, Lane | None]]:
@@ -158,7 +169,7 @@ def _ramp_at(m: HDMap, map_name: str, rid: str, lanes: Sequence[Lane], kind: str
     sides: dict[str, list[tuple[Lane, Lane | None, Lane]]] = {}
     for ln in lanes:
         for other, via in _links(m, ln, forward):
-            if other.road_id != rid:
+            if other.road_id != rid and not _junction_road(m, other.road_id):
                 sides.setdefault(other.road_id, []).append((other, via, ln))
     if len(sides) != 2:
         return None
@@ -179,4 +190,22 @@ def _ramp_at(m: HDMap, map_name: str, rid: str, lanes: Sequence[Lane], kind: str
     mine = [t for _, _, t in sides[ramp]]
     theirs = {t.id for _, _, t in sides[main]}
     length = max((v.length for v in through), default=0.0) + _added_length(m, mine, theirs, not forward)
-    return ExtractedRamp(map_name, kind, rid, ramp, main, junction, abs(angle), length)
+    return ExtractedRamp(map_name, kind, rid, ramp, main, junction, abs(angle), length, _paths(sides[ramp], forward))
+
+
+def _paths(links: Sequence[tuple[Lane, Lane | None, Lane]], forward: bool) -> tuple[tuple[str, ...], ...]:
+    """The lane paths (ramp side, junction lane or none, road side) of a ramp's links in driving
+    order: downstream (`forward`, an off-ramp) from the road's lane, else from the ramp's."""
+    out = []
+    for other, via, mine in links:
+        path = [mine.id, *([via.id] if via is not None else []), other.id]
+        out.append(tuple(path if forward else path[::-1]))
+    return tuple(out)
+
+
+def ramp_moves(m: HDMap) -> dict[str, str]:
+    """The junction lanes that drive a ramp (`extract_ramps`), lane id -> "merge" (from an
+    on-ramp onto its main road) or "diverge" (from the main road onto an off-ramp): what a
+    planner selects its ramp scenarios by. Ramps through a direct link have no such lane."""
+    return {path[1]: "merge" if r.kind == "on" else "diverge"
+            for r in extract_ramps(m) for path in r.links if len(path) == 3}

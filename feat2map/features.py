@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from .angles import positive_degrees, turn_name
-from .config import (MAX_LEGS, MIN_LEG_SEPARATION_DEG, RAMP_LANE_M, RAMP_MAIN_BEND_DEG, RAMP_MAX_ANGLE_DEG,
-                     RAMP_MIN_ANGLE_DEG)
+from .config import (MAX_LEGS, MAX_MOTORWAY_LANES, MIN_LEG_SEPARATION_DEG, RAMP_LANE_M, RAMP_MAIN_BEND_DEG,
+                     RAMP_MAX_ANGLE_DEG, RAMP_MIN_ANGLE_DEG)
 from .errors import FeatureError, snippet
 
 CONTROLS: tuple[str, ...] = ("bare", "signal", "stop")
@@ -31,8 +31,10 @@ FILTERS: tuple[str, ...] = ("none", "yield", "signal")
 # in, joining its main leg's carriageway, the previous socket counter-clockwise, on its right) or an off-ramp
 # ("off": one-way out, leaving the carriageway that exits at the next socket counter-clockwise, on its right)
 RAMPS: tuple[str, ...] = ("none", "on", "off")
-# the map feature's ramp values: ramp junctions with an on-ramp, an off-ramp or one of each
-RAMP_VALUES: tuple[str, ...] = ("none", "on", "off", "both")
+# the map feature's ramp values: ramp junctions with an on-ramp, an off-ramp or one of each, and
+# motorway-to-motorway junctions whose ramps are motorway links (`Socket.link`): "link-" and the same
+RAMP_VALUES: tuple[str, ...] = ("none", "on", "off", "both", "link-on", "link-off", "link-both")
+LINK_PREFIX = "link-"
 ROAD_TYPES: tuple[str, ...] = ("in-out", "in", "out")
 QUARTER = 90.0
 # Float noise of rotated, re-measured angles (~1e-7 deg) must not decide ties of symmetric junctions
@@ -47,7 +49,10 @@ class Socket:
     `filter`: a filter lane from this approach into the next socket counter-clockwise (the right
     turn), "none" (default), "yield" or "signal"; `island`: a traffic island (kerbs) separates
     it from the junction's core (default), else painted lines do; `ramp`: "none" (default), or
-    an on-ramp ("on") or off-ramp ("off") beside a main leg (`ramp_main`)."""
+    an on-ramp ("on") or off-ramp ("off") beside a main leg (`ramp_main`); `link`: the ramp is a
+    motorway link (a motorway-to-motorway junction): its carriageway gains the link's lanes (on)
+    or drops them into it (off), lane for lane, instead of a merge into (diverge from) its
+    rightmost lane."""
 
     angle: float
     lanes_in: int = 1
@@ -55,6 +60,7 @@ class Socket:
     filter: str = "none"
     island: bool = True
     ramp: str = "none"
+    link: bool = False
 
     @property
     def road_type(self) -> str:
@@ -113,6 +119,14 @@ def ramp_angle(feature: "JunctionFeature", i: int) -> float:
     return (a - m) % 360.0 if feature.sockets[i].ramp == "on" else (m - a) % 360.0
 
 
+def ramp_carriageway(feature: "JunctionFeature", i: int) -> tuple[int, int]:
+    """(upstream, downstream) main legs of the carriageway that ramp socket `i` joins or leaves."""
+    m = ramp_main(feature, i)
+    a, b = ramp_mains(feature)
+    other = b if m == a else a
+    return (m, other) if feature.sockets[i].ramp == "on" else (other, m)
+
+
 def ramp_mains(feature: "JunctionFeature") -> tuple[int, int]:
     """The two main legs (the sockets without a ramp) of a ramp junction."""
     a, b = (i for i, s in enumerate(feature.sockets) if s.ramp == "none")
@@ -123,14 +137,22 @@ def ramp_junction(kind: str, angle_deg: float, main_lanes: int = 1, ramp_lanes: 
                   length: float = RAMP_LANE_M) -> "JunctionFeature":
     """A ramp junction on a straight two-way main road with `main_lanes` per direction: an on-ramp
     ("on"), an off-ramp ("off") or one of each ("both"), `angle_deg` from the main road,
-    `ramp_lanes` each, acceleration/deceleration lanes `length` long."""
+    `ramp_lanes` each, acceleration/deceleration lanes `length` long. A "link-" kind makes the
+    ramps motorway links (`Socket.link`) beside the western main leg (socket 180), which keeps
+    `main_lanes`: the on-link joins the eastbound carriageway, the off-link leaves the westbound
+    one, and the eastern leg has their lanes added."""
     if kind not in RAMP_VALUES[1:]:
         raise FeatureError(f"unknown ramp {kind!r}, expected one of {RAMP_VALUES[1:]}")
-    sockets = [Socket(0.0, main_lanes, main_lanes), Socket(180.0, main_lanes, main_lanes)]
-    if kind in ("off", "both"):
-        sockets.insert(0, Socket(-float(angle_deg), 0, ramp_lanes, ramp="off"))
-    if kind in ("on", "both"):
-        sockets.append(Socket(180.0 + float(angle_deg), ramp_lanes, 0, ramp="on"))
+    link = kind.startswith(LINK_PREFIX)
+    kind = kind.removeprefix(LINK_PREFIX)
+    on, off = kind in ("on", "both"), kind in ("off", "both")
+    east = (main_lanes + ramp_lanes * (link and off), main_lanes + ramp_lanes * (link and on))
+    sockets = [Socket(0.0, *east), Socket(180.0, main_lanes, main_lanes)]
+    if off:  # a ramp leaves the eastbound carriageway, a link the westbound one
+        off_ramp = Socket(180.0 - float(angle_deg) if link else -float(angle_deg), 0, ramp_lanes, ramp="off", link=link)
+        sockets.insert(1 if link else 0, off_ramp)
+    if on:
+        sockets.append(Socket(180.0 + float(angle_deg), ramp_lanes, 0, ramp="on", link=link))
     return JunctionFeature(tuple(sockets), ramp_length=float(length))
 
 
@@ -166,6 +188,9 @@ class JunctionFeature:
         for i, s in enumerate(self.sockets):
             if s.ramp not in RAMPS:
                 raise FeatureError(f"socket {i}: unknown ramp {s.ramp!r}, expected one of {RAMPS}")
+            if not isinstance(s.link, bool) or (s.link and s.ramp == "none"):
+                raise FeatureError(f"socket {i}: link must be true or false, and true only on a ramp, got "
+                                   f"{snippet(s.link)}")
         ramps = self.has_ramp
         # a ramp and its main leg keep the ramp angles (RAMP_MIN_ANGLE_DEG..RAMP_MAX_ANGLE_DEG) instead
         gaps = [angles[i + 1] - angles[i] for i in range(n - 1)] + [angles[0] + 360.0 - angles[-1]]
@@ -240,6 +265,30 @@ class JunctionFeature:
             if s.ramp == "off" and (s.lanes_in or not self.sockets[other].lanes_in):
                 raise FeatureError(f"socket {i}: an off-ramp is one-way out and leaves a carriageway entering at "
                                    "the other main leg")
+        self._check_links()
+
+    def _check_links(self) -> None:
+        """Motorway links (`Socket.link`): a junction's ramps are all links or none; a link's
+        carriageway has no other ramp, and its lanes add up: downstream = upstream + the link's."""
+        linked = [s.link for s in self.sockets if s.ramp != "none"]
+        if any(linked) and not all(linked):
+            raise FeatureError("a junction's ramps are all motorway links (link: true) or none are")
+        for i, s in enumerate(self.sockets):
+            if not s.link:
+                continue
+            up, down = ramp_carriageway(self, i)
+            if any(k != i and t.ramp != "none" and ramp_carriageway(self, k) == (up, down)
+                   for k, t in enumerate(self.sockets)):
+                raise FeatureError(f"socket {i}: a motorway link's carriageway has no other ramp")
+            u, d = self.sockets[up].lanes_in, self.sockets[down].lanes_out
+            if s.ramp == "on" and d != u + s.lanes_in:
+                raise FeatureError(f"socket {i}: the lanes of a motorway link (on-ramp) do not add up: the carriageway "
+                                   f"leaves at socket {down} with {d} lane(s), not the {u} entering at socket {up} "
+                                   f"plus the link's {s.lanes_in}")
+            if s.ramp == "off" and u != d + s.lanes_out:
+                raise FeatureError(f"socket {i}: the lanes of a motorway link (off-ramp) do not add up: the carriageway "
+                                   f"enters at socket {up} with {u} lane(s), not the {d} leaving at socket {down} "
+                                   f"plus the link's {s.lanes_out}")
 
     @classmethod
     def make(
@@ -291,10 +340,16 @@ class JunctionFeature:
         return any(s.ramp != "none" for s in self.sockets)
 
     @property
+    def has_link(self) -> bool:
+        return any(s.link for s in self.sockets)
+
+    @property
     def ramp_value(self) -> str:
-        """The map feature's ramp value of this junction: "none", "on", "off" or "both"."""
+        """The map feature's ramp value of this junction: "none", "on", "off" or "both", with
+        LINK_PREFIX when its ramps are motorway links."""
         kinds = set(self.ramps) - {"none"}
-        return "both" if len(kinds) == 2 else kinds.pop() if kinds else "none"
+        value = "both" if len(kinds) == 2 else kinds.pop() if kinds else "none"
+        return LINK_PREFIX + value if self.has_link else value
 
     def normalization(self) -> "Normalization":
         """How `normalized` turns and re-orders the sockets: the paper's rotation normalization,
@@ -324,6 +379,8 @@ class JunctionFeature:
         if self.has_ramp:
             out["ramp"] = list(self.ramps)
             out["ramp_length"] = self.ramp_length
+        if self.has_link:
+            out["link"] = [s.link for s in self.sockets]
         return out
 
     @classmethod
@@ -342,10 +399,11 @@ class JunctionFeature:
             if len(filters) != n or len(islands) != n:
                 raise FeatureError("filter and island need one entry per socket")
             ramps = list(data.get("ramp", ["none"] * n))
-            if len(ramps) != n:
-                raise FeatureError("ramp needs one entry per socket")
-            sockets = tuple(Socket(a, int(i), int(o), str(f), isl, str(r)) for a, i, o, f, isl, r
-                            in zip(angles, lanes_in, lanes_out, filters, islands, ramps))
+            links = list(data.get("link", [False] * n))
+            if len(ramps) != n or len(links) != n:
+                raise FeatureError("ramp and link need one entry per socket")
+            sockets = tuple(Socket(a, int(i), int(o), str(f), isl, str(r), lk) for a, i, o, f, isl, r, lk
+                            in zip(angles, lanes_in, lanes_out, filters, islands, ramps, links))
             return cls(sockets, str(data.get("control", "bare")), bool(data.get("crosswalk", False)),
                        ramp_length=float(data.get("ramp_length", RAMP_LANE_M)))
         except FeatureError as exc:
@@ -484,7 +542,9 @@ class FeatureSpace:
     mid-block crosswalk values (`midblock`, a subset of MIDBLOCK) sampled on the roads between
     junctions and the filter lane values (`filter`, a subset of FILTERS) sampled per junction
     combination and the ramp values (`ramp`, a subset of RAMP_VALUES: ramp junctions sampled beside
-    the junction combinations); the defaults ("none",) are the paper's map feature, with none."""
+    the junction combinations) with their main roads' lanes per direction (`motorway_lanes`, each
+    value sampled with each ramp value); the defaults ("none",) and (1,) are the paper's map
+    feature, with none and with one lane per direction as its junctions have."""
 
     road_counts: tuple[int, ...]
     controls: tuple[str, ...]
@@ -493,6 +553,7 @@ class FeatureSpace:
     midblock: tuple[str, ...] = ("none",)
     filter: tuple[str, ...] = ("none",)
     ramp: tuple[str, ...] = ("none",)
+    motorway_lanes: tuple[int, ...] = (1,)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "road_counts", tuple(sorted(set(int(n) for n in self.road_counts))))
@@ -511,6 +572,12 @@ class FeatureSpace:
         if unknown:
             raise FeatureError(f"unknown ramp value(s) {snippet(unknown)}, expected {list(RAMP_VALUES)}", "ramp")
         object.__setattr__(self, "ramp", tuple(v for v in RAMP_VALUES if v in set(self.ramp)))
+        bad = [v for v in self.motorway_lanes if isinstance(v, bool) or not isinstance(v, int)
+               or not 1 <= v <= MAX_MOTORWAY_LANES]
+        if bad or not self.motorway_lanes:
+            raise FeatureError(f"must be lanes per direction, 1 to {MAX_MOTORWAY_LANES}, got "
+                               f"{snippet(bad or list(self.motorway_lanes))}", "motorway_lanes")
+        object.__setattr__(self, "motorway_lanes", tuple(sorted(set(self.motorway_lanes))))
         ranges = {int(n): tuple((float(lo), float(hi)) for lo, hi in r) for n, r in self.rotation_ranges.items()}
         object.__setattr__(self, "rotation_ranges", dict(sorted(ranges.items())))
         self.validate()
@@ -567,6 +634,8 @@ class FeatureSpace:
         every = list(features)
         feats = [f for f in every if not f.has_ramp]
         kinds = [*(f.ramp_value for f in every if f.has_ramp), *ramps]
+        lanes = {n for f in every if f.has_ramp for i in ramp_mains(f)
+                 for n in (f.sockets[i].lanes_in, f.sockets[i].lanes_out) if 0 < n <= MAX_MOTORWAY_LANES}
         if not every and not kinds:
             raise FeatureError("no junction features to merge")
         ranges: dict[int, list[list[float]]] = {}
@@ -583,6 +652,7 @@ class FeatureSpace:
             midblock=("none", *(c.control for c in midblock)),
             filter=tuple({v for f in feats for v in (set(f.filters) - {"none"} or {"none"})}) or ("none",),
             ramp=("none", *kinds),
+            motorway_lanes=tuple(lanes) or (1,),
         )
 
     def merge(self, other: "FeatureSpace") -> "FeatureSpace":
@@ -599,11 +669,12 @@ class FeatureSpace:
             self.midblock + other.midblock,
             self.filter + other.filter,
             self.ramp + other.ramp,
+            tuple(n for x in (self, other) if x.ramp_kinds for n in x.motorway_lanes) or (1,),
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON form; `midblock` only when it asks for mid-block crosswalks, so that a map
-        feature without them writes (and its maps record) exactly what it always did."""
+        """The JSON form; `midblock`, `filter`, `ramp` and `motorway_lanes` only off their defaults,
+        so that a map feature without them writes (and its maps record) exactly what it always did."""
         out: dict[str, Any] = {
             "road_counts": list(self.road_counts),
             "controls": list(self.controls),
@@ -616,6 +687,8 @@ class FeatureSpace:
             out["filter"] = list(self.filter)
         if self.ramp != ("none",):
             out["ramp"] = list(self.ramp)
+        if self.motorway_lanes != (1,):
+            out["motorway_lanes"] = list(self.motorway_lanes)
         return out
 
     @classmethod
@@ -627,7 +700,8 @@ class FeatureSpace:
             raise FeatureError(f"missing field(s): {', '.join(sorted(missing))}", where)
         for key, kind, name in (("road_counts", int, "integers"), ("controls", str, "strings"),
                                 ("crosswalks", bool, "true/false"), ("midblock", str, "strings"),
-                                ("filter", str, "strings"), ("ramp", str, "strings")):
+                                ("filter", str, "strings"), ("ramp", str, "strings"),
+                                ("motorway_lanes", int, "integers")):
             if key not in data:
                 continue
             value = data[key]
@@ -662,7 +736,7 @@ class FeatureSpace:
             ranges[int(n)] = tuple((float(r[0]), float(r[1])) for r in rs)
         try:
             return cls(tuple(data["road_counts"]), tuple(data["controls"]), tuple(data["crosswalks"]), ranges,
-                       tuple(midblock), tuple(filters), tuple(ramps))
+                       tuple(midblock), tuple(filters), tuple(ramps), tuple(data.get("motorway_lanes", [1])))
         except FeatureError as exc:
             raise FeatureError(exc.message, f"{where}: {exc.where}" if exc.where else where) from None
 
@@ -698,3 +772,8 @@ PAPER_SF_FEATURE_SPACE = FeatureSpace(
         4: ((-5.26, 13.61), (75.63, 93.10), (176.85, 191.76), (250.76, 272.09)),
     },
 )
+
+# The paper's San Francisco space with every value of the features its future work names (mid-block
+# crosswalks, filter lanes, motorway ramps): a highway-and-city map feature (examples/experiments.py's
+# RQ4, examples/planner_experiments.py's "hc")
+HIGHWAY_CITY_FEATURE_SPACE = replace(PAPER_SF_FEATURE_SPACE, midblock=MIDBLOCK, filter=FILTERS, ramp=RAMP_VALUES)

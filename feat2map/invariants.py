@@ -303,7 +303,7 @@ def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg:
     position, so the same junction, turned by one of its symmetries (a quarter turn, a third of
     a turn, ...), may list its sockets from another start. The features match when they have
     the same socket directions and some cyclic re-listing of `got`, turned by one common angle,
-    has `want`'s lanes and filter lanes socket by socket."""
+    has `want`'s lanes, filter lanes and ramps (motorway links too) socket by socket."""
     if (got.n_roads, got.control, got.crosswalk) != (want.n_roads, want.control, want.crosswalk):
         return [f"measured n/control/crosswalk {(got.n_roads, got.control, got.crosswalk)}"
                 f" != {(want.n_roads, want.control, want.crosswalk)}"]
@@ -321,7 +321,7 @@ def feature_mismatch(got: JunctionFeature, want: JunctionFeature, angle_tol_deg:
             lanes_match = True
             if [(g.filter, g.island) if g.filter != "none" else ("none",) for g in sock] != want_filters:
                 continue
-            if [g.ramp for g in sock] != list(want.ramps):
+            if [(g.ramp, g.link) for g in sock] != [(w.ramp, w.link) for w in want.sockets]:
                 return out + ["ramps per socket differ"]
             if want.has_ramp and abs(got.ramp_length - want.ramp_length) > RAMP_LENGTH_TOL_M:
                 return out + [f"ramp_length {got.ramp_length:g} m != {want.ramp_length:g} m"]

@@ -6,8 +6,11 @@ neighbours (a leg facing an empty point counts, it can connect later); -inf when
 Draws are broken by (1) the number of roads connected now, which keeps maps compact,
 then (2) a seeded random choice. Two rules keep the network connected: after the first
 junction a placement must connect at least one road, and it must leave an open socket
-while features remain. A quarter-turn keeps the normalized rotation feature unchanged
-(the alignment cost has period 90 degrees), so a placed junction still realizes its feature.
+while features remain. A ramp junction none of whose main legs could face any placed junction's
+leg lane for lane (a sampled two-lane motorway's among one-lane town junctions) starts a road
+network of its own, two grid points east of them all, which later junctions of its lanes join.
+A quarter-turn keeps the normalized rotation feature unchanged (the alignment cost has period 90
+degrees), so a placed junction still realizes its feature.
 
 Junctions with more than four legs (and legs that face a neighbour without a matching
 socket) cannot reach a grid neighbour: such legs end in stub roads, like the legs left open
@@ -159,11 +162,17 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
 
     changed: list[Cell] = []  # cells whose score may have changed, in placement order (see _Frontier)
     frontiers: dict[tuple, _Frontier] = {}
+    legs: set[tuple[int, int]] = set()  # (lanes in, lanes out) of the placed junctions' legs
+    roots = [order[0]]  # the first junction of each road network
     for step, j in enumerate(order):
         f = features[j]
         remaining = len(order) - step - 1
         want = prefer_turns[j] if prefer_turns is not None else None
-        if cells and fixed[j] is None and (remaining == 0 or n_open > 4):
+        mine = [(f.sockets[s].lanes_in, f.sockets[s].lanes_out) for s, d in enumerate(assigns[j]) if d is not None]
+        if f.has_ramp and cells and fixed[j] is None and mine and not any((b, a) in legs for a, b in mine):
+            cell, k, connect = _apart(j, cells, evaluate)
+            roots.append(j)
+        elif cells and fixed[j] is None and (remaining == 0 or n_open > 4):
             # every candidate leaves an open socket (a point is faced by at most 4), so the paper's
             # score alone ranks them: kept per feature signature and updated where junctions land
             sig = (assigns[j], tuple((s.lanes_in, s.lanes_out) for s in f.sockets))
@@ -180,6 +189,7 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
             connect = frontier.connect[(cell, k)]
         else:
             cell, k, connect = _score_all(j, f, cells, fixed, facing, evaluate, n_open, remaining, label, want, rng)
+        legs.update(mine)
         cells[cell] = j
         turns[j] = k
         links[j] = list(connect)
@@ -198,8 +208,16 @@ def place(features: Sequence[JunctionFeature], rng: np.random.Generator,
                 n_open += 1
         changed.extend((cell[0] + dx, cell[1] + dy) for dx, dy in DIRECTIONS)
     where = {j: c for c, j in cells.items()}
-    _check_connected(order, links, where, label)
+    _check_connected(order, roots, links, where, label)
     return [Placement(features[j], where[j], turns[j], tuple(links[j])) for j in range(len(features))]
+
+
+def _apart(j: int, cells: dict[Cell, int], evaluate) -> tuple[Cell, int, list[Link | None]]:
+    """Junction j where no placed junction neighbours it (two grid points east of them all): the
+    first of a new road network, turned to leave the most legs open (the least turn of those)."""
+    cell = (max(c[0] for c in cells) + 2, min(c[1] for c in cells))
+    k = max(range(4), key=lambda q: (evaluate(j, cell, q)[3], -q))
+    return cell, k, evaluate(j, cell, k)[1]
 
 
 def _score_all(j: int, f: JunctionFeature, cells: dict[Cell, int], fixed: Sequence[Cell | None],
@@ -301,11 +319,12 @@ class _Frontier:
         self.keys[cell] = scored
 
 
-def _check_connected(order: Sequence[int], links: dict[int, list[Link | None]], where: dict[int, Cell],
-                     label: Sequence[str]) -> None:
-    """The junctions form one road network (only pinned cells can split it)."""
-    seen = {order[0]}
-    todo = [order[0]]
+def _check_connected(order: Sequence[int], roots: Sequence[int], links: dict[int, list[Link | None]],
+                     where: dict[int, Cell], label: Sequence[str]) -> None:
+    """Every junction joins the road network of one of `roots` (the first junction, and those
+    whose lanes no earlier junction had); only pinned cells can split a network."""
+    seen = set(roots)
+    todo = list(roots)
     while todo:
         for ln in links[todo.pop()]:
             if ln is not None and ln.junction not in seen:

@@ -5,14 +5,19 @@ suites and the multi-agent env, so neither layer imports the other)."""
 from __future__ import annotations
 
 import math
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence, TypeGuard, Union, cast
 
-from .config import (KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, TURN_WINDOW_M, TURNAROUND_DEG,
-                     TURNAROUND_RADIUS_M, TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M)
+from .config import (DRIVE_DEFAULTS, KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, RAMP_MANOEUVRES, TURN_WINDOW_M,
+                     TURNAROUND_DEG, TURNAROUND_RADIUS_M, TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M)
+from .extract_ramps import ExtractedRamp, extract_ramps
 from .model import HDMap, Lane, interior_lane
 
 Manoeuvre = tuple[str, str, str]  # (junction id, entry road id, exit road id)
 Route = tuple[Manoeuvre, ...]  # manoeuvres in driving order (Scenario.route, the env's `route`)
+# the env's lane-level route, {"lanes": [ids]} or {"from_lane": a, "to_lane": b}: a suite drives a ramp
+# joined through a direct link (no junction, so no manoeuvre) on one (`ramp_routes`)
+LaneRoute = Mapping[str, Any]
+AnyRoute = Union[Route, LaneRoute]
 
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
 RAMP_MANOEUVRES = ("merge", "diverge")  # names of a ramp junction's manoeuvres onto and off its main road
@@ -408,3 +413,90 @@ def _chains(graph: dict[Manoeuvre, list[Manoeuvre]], start: Manoeuvre, depth: in
         for tail in _chains(graph, nxt, depth - 1, used | {nxt[0]}):
             out.append((nxt,) + tail)
     return out
+
+
+def is_lane_route(route: Any) -> TypeGuard[LaneRoute]:
+    """A lane-level route ({"lanes": ...} or {"from_lane", "to_lane"}), not a route of manoeuvres."""
+    return isinstance(route, Mapping)
+
+
+def lane_route_ids(route: LaneRoute) -> list[str]:
+    """The lane ids a lane-level route names: its lanes, or its first and last lane."""
+    return [str(x) for x in route["lanes"]] if "lanes" in route else [str(route["from_lane"]), str(route["to_lane"])]
+
+
+def road_neighbour(m: HDMap, lane_id: str, candidates: Sequence[str], exclude: set[str]) -> str | None:
+    """The road lane (not in a junction, not in `exclude`) among `candidates` to extend a route
+    with: one of the same road first, then the longest, ties by id."""
+    road = m.lanes[lane_id].road_id
+    cands = [c for c in candidates if c in m.lanes and m.lanes[c].junction_id is None and c not in exclude]
+    if not cands:
+        return None
+    return min(cands, key=lambda c: (m.lanes[c].road_id != road, -m.lanes[c].length, c))
+
+
+def ramp_manoeuvre(ramp: ExtractedRamp) -> Manoeuvre | None:
+    """The (junction, entry road, exit road) manoeuvre that takes `ramp`: from the ramp's road
+    onto the road it joins (an on-ramp), from the road onto the ramp (an off-ramp); None for a
+    ramp joined through a direct link, which no junction holds."""
+    if ramp.junction is None:
+        return None
+    return (ramp.junction, ramp.ramp_road, ramp.road) if ramp.kind == "on" else (ramp.junction, ramp.road, ramp.ramp_road)
+
+
+def ramp_lanes(m: HDMap, ramp: ExtractedRamp) -> list[str]:
+    """The lanes a suite drives across a ramp's mouth: its first link (`ExtractedRamp.links`),
+    with road lanes before it until the env's start (`ego_start_distance` before the end of
+    the first lane) lies before the mouth, and after it until its goal (`goal_distance` in) fits
+    in the last lane. [] for a ramp without links."""
+    if not ramp.links:
+        return []
+    path = list(ramp.links[0])
+    start, goal = float(DRIVE_DEFAULTS["ego_start_distance"]), float(DRIVE_DEFAULTS["goal_distance"])
+    while m.lanes[path[0]].length < start:
+        prev = road_neighbour(m, path[0], m.lanes[path[0]].predecessors, set(path))
+        if prev is None:
+            break
+        path.insert(0, prev)
+    while m.lanes[path[-1]].length < goal + 1.0:
+        nxt = road_neighbour(m, path[-1], m.lanes[path[-1]].successors, set(path))
+        if nxt is None:
+            break
+        path.append(nxt)
+    return path
+
+
+def ramp_routes(m: HDMap, ramps: Sequence[ExtractedRamp] | None = None) -> list[tuple[str, LaneRoute]]:
+    """(manoeuvre kind, lane route) for every ramp of `m` (`extract_ramps`, or `ramps`) joined
+    through a direct link: its merge ("merge": from the on-ramp onto the road it joins) or
+    diverge ("diverge": from the road onto the off-ramp), RAMP_MANOEUVRES. Ramps inside a
+    junction are manoeuvres of it (`ramp_manoeuvre`) that `coverage_routes` already drives."""
+    out: list[tuple[str, LaneRoute]] = []
+    for r in extract_ramps(m) if ramps is None else ramps:
+        lanes = ramp_lanes(m, r) if r.junction is None else []
+        if len(lanes) >= 2:
+            out.append((RAMP_MANOEUVRES[r.kind], {"lanes": lanes}))
+    return out
+
+
+def route_ramps(m: HDMap, route: AnyRoute, ramps: Sequence[ExtractedRamp] | None = None) -> list[str]:
+    """The ramp manoeuvres (RAMP_MANOEUVRES: "merge", "diverge") a route drives, in driving
+    order: its manoeuvres that take a ramp in a junction, or the links across a ramp's mouth
+    its lanes follow."""
+    ramps = extract_ramps(m) if ramps is None else ramps
+    if is_lane_route(route):
+        return _lane_route_ramps(lane_route_ids(route), ramps)
+    kinds = {ramp_manoeuvre(r): RAMP_MANOEUVRES[r.kind] for r in ramps}
+    return [kinds[mv] for mv in (cast(Manoeuvre, tuple(str(x) for x in item)) for item in route) if mv in kinds]
+
+
+def _lane_route_ramps(lanes: Sequence[str], ramps: Sequence[ExtractedRamp]) -> list[str]:
+    """`route_ramps` of a lane route: the ramps one of whose links its lanes follow, in order."""
+    found: list[tuple[int, str]] = []
+    for r in ramps:
+        for link in r.links:
+            at = next((i for i in range(len(lanes) - len(link) + 1) if tuple(lanes[i:i + len(link)]) == link), None)
+            if at is not None:
+                found.append((at, RAMP_MANOEUVRES[r.kind]))
+                break
+    return [kind for _, kind in sorted(found)]

@@ -66,18 +66,35 @@ def sample_midblock(space: FeatureSpace, rng: np.random.Generator,
     return out
 
 
+def ramp_angle_range(main_lanes: int, config: GenerationConfig) -> tuple[float, float]:
+    """Where a sampled ramp's angle is drawn: RAMP_ANGLE_RANGE_DEG, less the angles too shallow for
+    its ramp to clear a main road of `main_lanes` per direction within RAMP_LANE_M
+    (`ramps.min_ramp_angle`; the range's own bounds as they are for one lane, the paper's junctions'),
+    and that least angle alone when it lies beyond the range (a wide motorway)."""
+    from .ramps import min_ramp_angle
+
+    lo, hi = RAMP_ANGLE_RANGE_DEG
+    least = min_ramp_angle(main_lanes, RAMP_LANE_M, config)
+    return (lo, hi) if least <= lo else (least, max(least, hi))
+
+
 def sample_ramps(space: FeatureSpace, rng: np.random.Generator,
                  config: GenerationConfig = GenerationConfig()) -> list[JunctionFeature]:
-    """One ramp junction per ramp value the map feature asks for ("on", "off", "both"),
-    `samples_per_combination` times: a straight main road with one lane per direction (as the
-    sampled junctions have, so that it connects to them), ramps of one lane at an angle drawn
-    uniformly in RAMP_ANGLE_RANGE_DEG, acceleration/deceleration lanes RAMP_LANE_M long (its
-    "none" value is every junction without ramps)."""
-    limits().check("max_junctions", len(space.ramp_kinds) * int(config.samples_per_combination),
-                   f"the ramp junction count ({len(space.ramp_kinds)} ramp values x samples_per_combination)")
+    """One ramp junction per ramp value the map feature asks for ("on", "off", "both", and the
+    motorway-to-motorway "link-" values) and main road lanes per direction (`motorway_lanes`; one,
+    the default, connects to the sampled junctions lane for lane; a link adds its lane to one main
+    leg, `features.ramp_junction`), `samples_per_combination` times: a straight main road, ramps of
+    one lane joining or leaving its rightmost lane at an angle drawn uniformly in
+    `ramp_angle_range`, acceleration/deceleration lanes RAMP_LANE_M long (its "none" value is every
+    junction without ramps)."""
+    combos = len(space.ramp_kinds) * len(space.motorway_lanes)
+    limits().check("max_junctions", combos * int(config.samples_per_combination),
+                   f"the ramp junction count ({len(space.ramp_kinds)} ramp values x {len(space.motorway_lanes)} "
+                   "motorway lanes x samples_per_combination)")
     out = []
-    for kind in space.ramp_kinds:
+    for kind, lanes in itertools.product(space.ramp_kinds, space.motorway_lanes):
+        span = ramp_angle_range(lanes, config)
         for _ in range(int(config.samples_per_combination)):
-            angle = round(float(rng.uniform(*RAMP_ANGLE_RANGE_DEG)), 6)
-            out.append(ramp_junction(kind, angle, 1, 1, RAMP_LANE_M).normalized())
+            angle = round(float(rng.uniform(*span)), 6)
+            out.append(ramp_junction(kind, angle, lanes, 1, RAMP_LANE_M).normalized())
     return out

@@ -127,7 +127,7 @@ def _socket(raw: Any, where: str) -> Socket:
             raise SpecError(f"an {kind}-ramp is one-way {'in' if kind == 'on' else 'out'}: give it type "
                             f"{'in' if kind == 'on' else 'out'} (or lanes_{'in' if kind == 'on' else 'out'} only)",
                             f"{where}.ramp")
-        return Socket(float(raw["angle"]), lanes_in, lanes_out, ramp=str(kind))
+        return Socket(float(raw["angle"]), lanes_in, lanes_out, ramp=str(kind), link=bool(raw["ramp"].get("link", False)))
     if "filter" not in raw:
         return Socket(float(raw["angle"]), lanes_in, lanes_out)
     f = raw["filter"]

@@ -12,9 +12,15 @@ Scenarios and their stages (the paper's Section V abbreviations):
 | TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN | signal; left/U-turn whose conflicts share our phase | L_A -> (L_C ->) L_I |
 | TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN | signal red at selection; right turn (right on red) | R_S -> R_C -> R_I |
 | BARE_INTERSECTION_UNPROTECTED | junction without signal or stop sign | B_A -> B_I |
+| RAMP_MERGE | bare; from an on-ramp onto its main road | M_A -> (M_G ->) M_I |
+| RAMP_DIVERGE | bare; from the main road onto an off-ramp | D_A -> D_I |
 
-Stages: S_PS pre-stop; S_S, R_S stop; S_C, L_C, R_C creep; T_A, L_A, B_A approach; S_I, T_C,
-L_I, R_I, B_I intersection cruise (R_S goes straight to R_I when the light turns green first).
+Stages: S_PS pre-stop; S_S, R_S stop; S_C, L_C, R_C creep; T_A, L_A, B_A, M_A, D_A approach;
+M_G wait for a gap; S_I, T_C, L_I, R_I, B_I intersection cruise, M_I merge along the acceleration
+lane, D_I leave along the deceleration lane (R_S goes straight to R_I when the light turns green
+first). A ramp (`feat2map.extract_ramps.ramp_moves`) is approached at its own lane's speed, with no
+slowing to a bare junction's; a merge held at its mouth by main-road traffic waits for a gap (M_G);
+a diverge slows to the off-ramp's speed before the gore.
 
 Every scenario ends back in LF when the ego leaves the junction. Longitudinal control is IDM
 towards the lane speed limit, behind leaders (`leader_gaps`) and before the stop point the
@@ -38,6 +44,7 @@ import numpy as np
 from ..config import CONFLICT_DISTANCE_M, CURVE_BEHIND_M, IDM_ACC, STOP_POINT_M
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.lanes import curve_speeds
+from ..extract_ramps import ramp_moves
 from ..envs.rules import (RULES, amber_speed_cap, braking_distance, can_stop_before, has_stopped, idm,
                           in_stop_zone)
 
@@ -62,6 +69,8 @@ TL_PROTECTED = "TRAFFIC_LIGHT_PROTECTED"
 TL_LEFT = "TRAFFIC_LIGHT_UNPROTECTED_LEFT_TURN"
 TL_RIGHT = "TRAFFIC_LIGHT_UNPROTECTED_RIGHT_TURN"
 BARE = "BARE_INTERSECTION_UNPROTECTED"
+RAMP_MERGE = "RAMP_MERGE"
+RAMP_DIVERGE = "RAMP_DIVERGE"
 SCENARIO_STAGES: dict[str, tuple[str, ...]] = {
     LANE_FOLLOW: ("LF",),
     STOP_SIGN: ("S_PS", "S_S", "S_C", "S_I"),
@@ -69,6 +78,8 @@ SCENARIO_STAGES: dict[str, tuple[str, ...]] = {
     TL_LEFT: ("L_A", "L_C", "L_I"),
     TL_RIGHT: ("R_S", "R_C", "R_I"),
     BARE: ("B_A", "B_I"),
+    RAMP_MERGE: ("M_A", "M_G", "M_I"),
+    RAMP_DIVERGE: ("D_A", "D_I"),
 }
 STAGE_NAMES: dict[str, str] = {  # what each stage code means (reports explain the codes they show)
     "LF": "lane follow", "S_PS": "stop sign: pre-stop", "S_S": "stop sign: stop", "S_C": "stop sign: creep",
@@ -77,9 +88,12 @@ STAGE_NAMES: dict[str, str] = {  # what each stage code means (reports explain t
     "L_C": "signal, unprotected left: creep", "L_I": "signal, unprotected left: intersection cruise",
     "R_S": "signal, right turn on red: stop", "R_C": "signal, right turn on red: creep",
     "R_I": "signal, right turn: intersection cruise", "B_A": "bare junction: approach",
-    "B_I": "bare junction: intersection cruise",
+    "B_I": "bare junction: intersection cruise", "M_A": "ramp merge: approach", "M_G": "ramp merge: wait for a gap",
+    "M_I": "ramp merge: acceleration lane", "D_A": "ramp diverge: approach", "D_I": "ramp diverge: deceleration lane",
 }
-CRUISE_STAGE = {STOP_SIGN: "S_I", TL_PROTECTED: "T_C", TL_LEFT: "L_I", TL_RIGHT: "R_I", BARE: "B_I"}
+CRUISE_STAGE = {STOP_SIGN: "S_I", TL_PROTECTED: "T_C", TL_LEFT: "L_I", TL_RIGHT: "R_I", BARE: "B_I", RAMP_MERGE: "M_I",
+                RAMP_DIVERGE: "D_I"}
+HELD_STAGES = ("B_A", "L_C", "M_A", "M_G")  # stages that count the time held at the line by traffic (PATIENCE_S)
 
 
 @runtime_checkable
@@ -208,7 +222,8 @@ class BaselinePlanner:
         d = self._line_distance()
         t_stage = float(env.time) - self.stage_since
         stopped = has_stopped(ego.speed)
-        if self.stage in ("B_A", "L_C") and stopped and d <= CREEP_TRIGGER_M and self._held_by_traffic():
+        held = stopped and d <= CREEP_TRIGGER_M and self.stage in HELD_STAGES and self._held_by_traffic()
+        if held:
             self.held += 1.0 / float(env.config["policy_frequency"])
         if stopped and self._in_stop_zone():
             self.full_stop = True
@@ -220,6 +235,8 @@ class BaselinePlanner:
             self._go("L_C")  # held by the rules, or by its own gap acceptance
         elif self.stage == "R_S" and self.full_stop and t_stage >= STOP_DURATION_S and self._signal_state() != "green":
             self._go("R_C")  # (a light turning green in R_S lets the ego on: R_S -> R_I, as in Apollo)
+        elif self.stage == "M_A" and held:
+            self._go("M_G")  # main-road traffic holds the merge at its mouth
 
     def _select(self, in_lane: str, j_lane: str) -> None:
         env = self.env
@@ -229,7 +246,8 @@ class BaselinePlanner:
         sl = env.rules.control_at(in_lane)
         turn = m.lanes[j_lane].turn
         if sl is None:
-            self._go("B_A", BARE)
+            ramp = self.env.net.memo("ramp_moves", lambda: ramp_moves(m)).get(j_lane)
+            self._go(*{"merge": ("M_A", RAMP_MERGE), "diverge": ("D_A", RAMP_DIVERGE)}.get(ramp, ("B_A", BARE)))
         elif sl.kind == "stop":
             self._go("S_PS", STOP_SIGN)
         elif turn in ("left", "uturn") and not env.rules.protected(in_lane, j_lane):
@@ -432,7 +450,7 @@ class BaselinePlanner:
             if self._decide(d_line):
                 return idm(ego, env.leader_gaps(), env.rule_stop_distance(self.ignore | {"conflict"}, commit=True))
             stop = min(env.rule_stop_distance(self.ignore, commit=False), d_line - STOP_POINT_M)
-        elif stage == "B_A" and self._forces():
+        elif stage in ("B_A", "M_G") and self._forces():
             stop = env.rule_stop_distance(self.ignore | {"conflict"}, commit=True)  # reserves its lane
         else:
             stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
@@ -442,7 +460,7 @@ class BaselinePlanner:
             return min(a, HOLD_BRAKE_MPS2) if v > 0 else min(a, 0.0)
         if stage in ("S_C", "L_C", "R_C") and self._line_distance() <= CREEP_TRIGGER_M:
             return min(a, CREEP_GAIN * (CREEP_SPEED_MPS - v))
-        if stage == "B_A" and self._line_distance() <= BARE_APPROACH_M:
+        if stage in ("B_A", "D_A") and self._line_distance() <= BARE_APPROACH_M:
             v_j = env.net.lane_of[self.j_lane].speed_limit
             return min(a, CREEP_GAIN * (v_j - v))
         return a

@@ -4,7 +4,10 @@ that together drive each of them at least once, and suites of those routes.
 A route is a tuple of manoeuvres in driving order, the format of `Scenario.route` and of the
 env's `route` config: it starts on a lane of the first entry road and ends on a lane of the
 last exit road, and consecutive manoeuvres are joined by road lanes only (no junction between
-them that the route does not name).
+them that the route does not name). A ramp joined through a direct link (an OpenDRIVE direct
+junction, which is no junction of the map) has no manoeuvre: its merge or diverge is a
+lane-level route ({"lanes": [...]}, `feat2map.routes.ramp_routes`). Scenarios that take a ramp,
+in a junction or not, are named after it ("-merge", "-diverge").
 """
 from __future__ import annotations
 
@@ -15,9 +18,9 @@ from ..errors import Feat2MapError
 from ..messages import counted
 from ..config import DRIVE_DEFAULTS
 from ..model import HDMap, Lane
-from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, Route, coverage_routes, manoeuvre_lane,  # noqa: F401 (re-exported)
-                      edge_stub, manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room,
-                      road_lanes_between)
+from ..routes import (DEFAULT_ROUTE_JUNCTIONS, END_ROOM_M, AnyRoute, LaneRoute, Route, coverage_routes,  # noqa: F401 (re-exported)
+                      manoeuvre_lane, edge_stub, manoeuvres, successor_graph, suite_manoeuvres, undrivable, _exit_room,
+                      road_lanes_between, is_lane_route, lane_route_ids, ramp_routes, route_ramps)
 from .scenario import Manoeuvre, Scenario, Suite
 
 SECONDS_PER_JUNCTION = 35.0  # scenario duration budget per junction on the route (a red phase, a stop, a queue)
@@ -60,6 +63,15 @@ def _route_sum(m: HDMap, route: Sequence[Manoeuvre], per_metre: Callable[[Lane],
     for a, b in zip(picks, picks[1:]):
         total += _road_gap(m, a, b, per_metre)
     return total
+
+
+def _lane_route_time(m: HDMap, ids: Sequence[str]) -> float:
+    """Seconds the ego needs on a lane route (`route_time`'s speeds): the start and goal
+    stretches on its first and last lane, and every lane between them."""
+    lanes = [m.lanes[x] for x in ids]
+    per_metre = [1.0 / min(ln.speed_limit, ROUTE_SPEED_MPS) for ln in lanes]
+    ends = START_AND_GOAL_M * max(per_metre[0], per_metre[-1])
+    return ends + sum(ln.length * c for ln, c in zip(lanes[1:-1], per_metre[1:-1]))
 
 
 def _road_gap(m: HDMap, a: Lane, b: Lane, per_metre: Callable[[Lane], float]) -> float:
@@ -121,23 +133,27 @@ def midblock_wait(m: HDMap, route: Sequence[Manoeuvre]) -> float:
     return passes * len(phases) * (cfg["signal_green"] + cfg["signal_amber"] + cfg["signal_all_red"])
 
 
-def route_duration(m: HDMap, route: Sequence[Manoeuvre]) -> float:
+def route_duration(m: HDMap, route: Sequence[Manoeuvre] | LaneRoute) -> float:
     """A scenario duration [s] that leaves time for every junction (at least its signal cycles,
     `signal_cycles`, plus crossing at a signal: a 5-leg junction's red outlasts a fixed budget),
     for the mid-block crossings' lights it passes (`midblock_wait`) and for the distance at the
-    speeds the ego drives there (`route_time`)."""
+    speeds the ego drives there (`route_time`); a lane route (a direct-link ramp) as one
+    junction's budget plus its lanes' time."""
+    if is_lane_route(route):
+        return round(BASE_DURATION_S + SECONDS_PER_JUNCTION + _lane_route_time(m, lane_route_ids(route)), 1)
+    route = cast(Sequence[Manoeuvre], route)
     per_junction = sum(max(SECONDS_PER_JUNCTION, signal_cycles(m, mv) * signal_cycle(m, mv[0]) + SIGNAL_CROSSING_S)
                        for mv in route)
     return round(BASE_DURATION_S + per_junction + midblock_wait(m, route) + route_time(m, route), 1)
 
 
-def route_coverage(m: HDMap, routes: Iterable[Sequence[Sequence[str]]]) -> float:
+def route_coverage(m: HDMap, routes: Iterable[AnyRoute]) -> float:
     """Fraction of the suite manoeuvres of `m` (`suite_manoeuvres`: those no car drives left
     out) that the routes drive (1.0 for a map without any)."""
     all_moves = set(suite_manoeuvres(m))
     if not all_moves:
         return 1.0
-    driven = {tuple(str(x) for x in mv) for r in routes for mv in r}
+    driven = {tuple(str(x) for x in mv) for r in routes if not is_lane_route(r) for mv in r}
     return len(all_moves & driven) / len(all_moves)
 
 
@@ -146,12 +162,16 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
                 name: str | None = None, signal_offsets: dict[str, float] | None = None) -> Suite:
     """A route-coverage suite of the map file: one scenario per `coverage_routes` route, seeds
     `seed`, `seed + 1`, ...; durations from `route_duration` (junctions and length) unless given.
-    A map that gives no route (no junction, no manoeuvre) is a Feat2MapError saying why; U-turns
+    Ramps joined through a direct link (no junction holds them) get a lane route each
+    (`feat2map.routes.ramp_routes`) after the coverage routes; a scenario that takes a ramp is
+    named after its merge or diverge (`scenario_name`).
+    A map that gives no route (no junction, no manoeuvre, no ramp) is a Feat2MapError saying why; U-turns
     tighter than a car turns and lanes that loop (`feat2map.routes.undrivable`) are left out with
     one warning, and so are manoeuvres from a map-edge approach too short to hold a car
     (`feat2map.routes.edge_stub`)."""
     import warnings
 
+    from ..extract_ramps import extract_ramps
     from ..formats import read_map
 
     path = Path(map_path)
@@ -166,22 +186,37 @@ def build_suite(map_path: str | Path, *, seed: int = 0, traffic_vehicles: int = 
         warnings.warn(f"{path}: {len(stubs)} manoeuvre(s) from an approach at the map's edge too short to hold a car "
                       f"left out of the suite (first: junction {stubs[0][0]}, road {stubs[0][1]} -> {stubs[0][2]})",
                       stacklevel=2)
-    routes = coverage_routes(m, max_junctions)
+    ramps = extract_ramps(m)
+    routes: list[AnyRoute] = [*coverage_routes(m, max_junctions), *(r for _, r in ramp_routes(m, ramps))]
     if not routes:  # never an empty suite that "passes"
         raise Feat2MapError(_no_routes_reason(m), str(path))
     stem = name or path.stem
     scenarios = tuple(
-        Scenario(name=f"{stem}-r{i:03d}", map=str(path.resolve()), route=r, traffic_vehicles=traffic_vehicles,
-                 pedestrian_rate=pedestrian_rate, signal_offsets=dict(signal_offsets or {}), seed=seed + i,
+        Scenario(name=scenario_name(stem, i, route_ramps(m, r, ramps)), map=str(path.resolve()), route=r,
+                 traffic_vehicles=traffic_vehicles, pedestrian_rate=pedestrian_rate,
+                 signal_offsets=dict(signal_offsets or {}), seed=seed + i,
                  duration=duration if duration is not None else route_duration(m, r))
         for i, r in enumerate(routes))
     return Suite(stem, scenarios, path.resolve().parent)
 
 
+def scenario_name(stem: str, i: int, ramps: Sequence[str] = ()) -> str:
+    """The name of a suite's scenario `i`: `<stem>-r<i>`, and the ramp manoeuvres it drives
+    (`route_ramps`: "-merge", "-diverge"), so reports show which scenarios take a ramp."""
+    return f"{stem}-r{i:03d}" + "".join(f"-{k}" for k in ramps)
+
+
+def _route_label(route: AnyRoute) -> str:
+    """A route in one line: its manoeuvres (junction:entry>exit), or its lanes."""
+    if is_lane_route(route):
+        return " → ".join(lane_route_ids(route))
+    return " → ".join(f"{j}:{e}>{x}" for j, e, x in cast(Route, route))
+
+
 def _no_routes_reason(m: HDMap) -> str:
     """Why a map gives no route-coverage route, in one line."""
     if not m.junctions:
-        return "no junctions: a route-coverage suite drives junction manoeuvres"
+        return "no junctions and no ramps: a route-coverage suite drives junction manoeuvres and ramps"
     found = manoeuvres(m)
     if found and not suite_manoeuvres(m):
         return f"no manoeuvres but {len(found)} that no car drives (tight U-turns, lanes that loop)"
@@ -191,7 +226,7 @@ def _no_routes_reason(m: HDMap) -> str:
     return f"none of its {len(found)} manoeuvres can be driven (no junction lane the env drives)"
 
 
-def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names: Sequence[str] | None = None,
+def render_routes(m: HDMap, routes: Sequence[AnyRoute], path: str | Path, *, names: Sequence[str] | None = None,
                   cols: int = 4, dpi: int = 110) -> None:
     """A picture (PNG or SVG) with one panel per route: the map, the route's lanes highlighted
     (as the env drives them) and its manoeuvres listed; written atomically."""
@@ -213,12 +248,12 @@ def render_routes(m: HDMap, routes: Sequence[Route], path: str | Path, *, names:
             ax.set_axis_off()
         for i, (ax, route) in enumerate(zip(axes.flat, routes)):
             ax.set_axis_on()
-            lanes = manoeuvres_to_lanes(net, route)
+            lanes = lane_route_ids(route) if is_lane_route(route) else manoeuvres_to_lanes(net, cast(Route, route))
             draw_map(m, ax, labels=True, highlight_lanes=lanes)
             start = m.lanes[lanes[0]].centerline[0]
             ax.plot(*start, marker="o", ms=6, color="#ff6f00", mec="k", zorder=8)
             title = names[i] if names else f"route {i}"
-            ax.set_title(f"{title}\n" + " → ".join(f"{j}:{e}>{x}" for j, e, x in route), fontsize=7)
+            ax.set_title(f"{title}\n" + _route_label(route), fontsize=7)
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_xlabel("")

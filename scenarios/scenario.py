@@ -14,14 +14,14 @@ import os
 from dataclasses import dataclass, field, fields
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, cast
 
 import yaml
 
 from ..atomic import write_text
 from ..documents import check_schema, load_document
 from ..errors import Feat2MapError, snippet
-from ..routes import Manoeuvre
+from ..routes import AnyRoute, Manoeuvre, Route, is_lane_route  # noqa: F401 (Manoeuvre re-exported)
 
 SCHEMA_RESOURCE = ("feat2map", "schemas/scenario.schema.json")  # package data
 SUITE_FORMAT_VERSION = 1
@@ -55,7 +55,7 @@ class Scenario:
 
     name: str
     map: str  # map file path (native .json or OpenDRIVE .xodr)
-    route: tuple[Manoeuvre, ...]  # in driving order
+    route: AnyRoute  # manoeuvres in driving order, or a lane-level route ({"lanes": [...]}: a direct-link ramp)
     traffic_vehicles: int = 0
     pedestrian_rate: float = 0.0  # per crosswalk per minute
     signal_offsets: Mapping[str, float] = field(default_factory=dict)  # signal/junction id -> seconds
@@ -74,7 +74,7 @@ class Scenario:
         for name, value in values.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ScenarioError(f"must be a finite number, got {snippet(value)}", f"{where}.{name}")
-        object.__setattr__(self, "route", tuple(tuple(str(x) for x in item) for item in self.route))
+        object.__setattr__(self, "route", _normal_route(self.route))
         object.__setattr__(self, "signal_offsets",
                            FrozenDict({str(k): float(v) for k, v in dict(self.signal_offsets).items()}))
         object.__setattr__(self, "env", FrozenDict(dict(self.env)))
@@ -89,7 +89,7 @@ class Scenario:
 
     def to_dict(self) -> dict:
         """Plain JSON/YAML-ready dict (the file format of one scenario; `env` only when it holds settings)."""
-        d = {"name": self.name, "map": self.map, "route": [list(r) for r in self.route],
+        d = {"name": self.name, "map": self.map, "route": route_document(self.route),
              "traffic_vehicles": int(self.traffic_vehicles), "pedestrian_rate": float(self.pedestrian_rate),
              "signal_offsets": dict(self.signal_offsets), "seed": int(self.seed), "duration": float(self.duration)}
         if self.env:
@@ -103,11 +103,27 @@ class Scenario:
         for key in ("map", "route"):
             if key not in d:
                 raise ScenarioError(f"missing required field '{key}'", where)
-        return cls(name=d["name"], map=str(d["map"]), route=tuple(tuple(r) for r in d["route"]),
+        return cls(name=d["name"], map=str(d["map"]), route=d["route"],
                    traffic_vehicles=int(d.get("traffic_vehicles", 0)),
                    pedestrian_rate=float(d.get("pedestrian_rate", 0.0)),
                    signal_offsets=dict(d.get("signal_offsets", {})), seed=int(d.get("seed", 0)),
                    duration=float(d.get("duration", 60.0)), env=dict(d.get("env", {})))
+
+
+def _normal_route(route: Any) -> AnyRoute:
+    """A route as a scenario holds it (hashable, ids as strings): a tuple of manoeuvre tuples, or
+    a read-only lane route whose lane list is a tuple."""
+    if is_lane_route(route):
+        return FrozenDict({str(k): tuple(str(x) for x in v) if k == "lanes" else str(v) for k, v in route.items()})
+    return cast(Route, tuple(tuple(str(x) for x in item) for item in route))
+
+
+def route_document(route: AnyRoute) -> Any:
+    """A route as suite files and the env's config take it: lists of manoeuvres, or a lane
+    route's dict (lanes as a list)."""
+    if is_lane_route(route):
+        return {k: list(v) if k == "lanes" else v for k, v in route.items()}
+    return [list(r) for r in route]
 
 
 @dataclass(frozen=True)
@@ -217,7 +233,7 @@ def env_config(scenario: Scenario, config: Mapping | None = None) -> dict:
     from .planner import BaselinePlanner
 
     cfg: dict[str, Any] = {
-        "route": [list(r) for r in scenario.route],
+        "route": route_document(scenario.route),
         "traffic_vehicles": int(scenario.traffic_vehicles),
         "pedestrian_rate": float(scenario.pedestrian_rate),
         "signal_offsets": dict(scenario.signal_offsets),

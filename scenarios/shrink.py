@@ -7,9 +7,11 @@ the same signature; rounds go on until none does, at most SHRINK_MAX_ROUNDS.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Mapping, Sequence, cast
 
 from feat2map.config import SEARCH_EGO_START_M, SHRINK_MAX_ROUNDS
+
+from feat2map.routes import Route, is_lane_route
 
 from .rollout import Outcome
 from .scenario import Scenario
@@ -20,7 +22,7 @@ Evaluate = Callable[[Sequence[Scenario]], Sequence[Outcome]]  # scenarios -> out
 
 def size(sc: Scenario) -> tuple[int, float, int, float]:
     """How big a scenario is: vehicles, pedestrian rate, route manoeuvres, approach length."""
-    return (sc.traffic_vehicles, sc.pedestrian_rate, len(sc.route),
+    return (sc.traffic_vehicles, sc.pedestrian_rate, 1 if is_lane_route(sc.route) else len(sc.route),
             float(sc.env.get("ego_start_distance", SEARCH_EGO_START_M[1])))
 
 
@@ -34,12 +36,13 @@ def neighbours(sc: Scenario, junction: str) -> list[Scenario]:
             out.append(replace(sc, traffic_vehicles=k))
     if sc.pedestrian_rate > 0:
         out.append(replace(sc, pedestrian_rate=0.0))
-    if len(sc.route) > 1:
-        at = [i for i, mv in enumerate(sc.route) if mv[0] == junction]
+    route = () if is_lane_route(sc.route) else cast(Route, sc.route)  # a lane route (a direct-link ramp): one link
+    if len(route) > 1:
+        at = [i for i, mv in enumerate(route) if mv[0] == junction]
         if at:
             i = at[0]
-            cuts = [sc.route[i:i + 1], sc.route[:i + 1], sc.route[i:]]
-            out += [replace(sc, route=tuple(c)) for c in cuts if 0 < len(c) < len(sc.route)]
+            cuts = [route[i:i + 1], route[:i + 1], route[i:]]
+            out += [replace(sc, route=tuple(c)) for c in cuts if 0 < len(c) < len(route)]
     start = float(sc.env.get("ego_start_distance", SEARCH_EGO_START_M[1]))
     if start > SEARCH_EGO_START_M[0]:
         out.append(replace(sc, env={**dict(sc.env), "ego_start_distance": SEARCH_EGO_START_M[0]}))

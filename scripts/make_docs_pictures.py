@@ -38,7 +38,8 @@ DOCS = REPO / "docs"
 SHARED_MAPS = REPO.parent / "shared" / "maps"
 SPECS = {"spec_mega.png": "mega_junction", "spec_one_way.png": "one_way_t", "spec_circle.png": "road_circle",
          "spec_multi_lane.png": "multi_lane", "spec_midblock.png": "midblock", "spec_filter_lanes.png": "filter_lanes",
-         "spec_ramps.png": "ramps"}
+         "spec_ramps.png": "ramps", "spec_motorway_links.png": "motorway_links",
+         "spec_highway_city.png": "highway_city"}
 
 
 @dataclass(frozen=True)

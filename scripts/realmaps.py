@@ -2,10 +2,12 @@
 
 For every map file under the given folders (default ../shared/maps; more with --corpus DIR):
 read it, extract its junctions (the skipped ones with their reasons), count its controls
-(signal / stop / bare) and its signals' phase groups per junction, build the route-coverage suite
-(traffic 6 by default) and roll it out with the baseline planner (all of it, or --max-scenarios
-spread over the suite). Any exception is a finding, recorded with the map and the stage
-(read / extract / phases / suite / export / rollout), and the survey goes on with the next map.
+(signal / stop / bare) and its signals' phase groups per junction, list its motorway ramps
+(`extract_ramps`), build the route-coverage suite (traffic 6 by default; its scenarios that
+merge from an on-ramp or diverge onto an off-ramp are named so) and roll it out with the
+baseline planner (all of it, or --max-scenarios spread over the suite). Any exception is a
+finding, recorded with the map and the stage (read / extract / ramps / phases / suite / export /
+rollout), and the survey goes on with the next map.
 Every map that reads is exported to Apollo, OpenDRIVE, Lanelet2 and CommonRoad the way a user would
 (`feat2map export`), and each export is checked by `feat2map validate` (each ecosystem's own rules):
 the `exports` column gives the problems per format, or the refusal.
@@ -40,8 +42,10 @@ from feat2map import atomic, cli
 from feat2map.config import LIMIT_FLAG, raised_limits
 from feat2map.errors import Feat2MapError
 from feat2map.extract import SkippedJunction, extract_junctions
+from feat2map.extract_ramps import extract_ramps
 from feat2map.formats import FORMATS, read_map
 from feat2map.phases import junction_phases
+from feat2map.routes import route_ramps
 from feat2map.scenarios.rollout import run_suite
 from feat2map.scenarios.routes import build_suite
 from feat2map.scenarios.scenario import Suite
@@ -73,6 +77,8 @@ class MapSurvey:
     signals: int = 0
     phases: dict[str, int] = field(default_factory=dict)  # junction id -> number of phase groups
     checks: list[str] | None = None  # semantic findings (None: this checkout has no feat2map.semantics)
+    ramps: dict[str, int] = field(default_factory=dict)  # "on" / "off" -> ramps `extract_ramps` finds
+    ramp_scenarios: list[dict] = field(default_factory=list)  # {"scenario", "kinds": merge/diverge, "outcome"}
     scenarios: int = 0
     driven: int = 0
     outcomes: dict[str, int] = field(default_factory=dict)
@@ -182,6 +188,8 @@ def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool 
         s.junctions = len(found)
         s.skipped = [{"id": k.id, "n_arms": k.n_arms, "reason": k.reason} for k in skipped]
         s.controls = dict(Counter(j.feature.control for j in found))
+    ramps = stage("ramps", lambda: extract_ramps(m, label)) or []
+    s.ramps = dict(Counter(r.kind for r in ramps))
     groups = stage("phases", lambda: junction_phases(m))
     if groups:
         s.phases = {str(j): len(p) for j, p in groups.items()}
@@ -198,6 +206,8 @@ def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool 
     suite = stage("suite", lambda: build_suite(path, traffic_vehicles=traffic, name=Path(label).stem))
     if suite is not None:
         s.scenarios = len(suite.scenarios)
+        s.ramp_scenarios = [{"scenario": sc.name, "kinds": kinds, "outcome": ""} for sc in suite.scenarios
+                            if (kinds := route_ramps(m, sc.route, ramps))]
         if rollout:
             picked = sample(suite, max_scenarios)
             result = stage("rollout", lambda: run_suite(picked, "baseline", workers=workers, progress=progress,
@@ -207,6 +217,9 @@ def survey_map(path: Path, label: str, *, traffic: int = TRAFFIC, rollout: bool 
                 s.outcomes = {k: v for k, v in result.counts().items() if v}
                 s.failing = [{"scenario": o.name, "outcome": o.outcome, "message": o.message, "seed": o.seed}
                              for o in result.failures("any")]
+                driven = {o.name: o.outcome for o in result.outcomes}
+                for r in s.ramp_scenarios:
+                    r["outcome"] = driven.get(r["scenario"], "")
     s.wall_s = time.perf_counter() - t0
     return s
 
@@ -255,6 +268,26 @@ def _failure_notes(results: Sequence[Any], text: Callable[[str], str] = str) -> 
     return notes
 
 
+def ramp_table(results: Sequence[MapSurvey]) -> list[str]:
+    """The maps with ramps: ramps found (on / off), the suite's ramp scenarios (merge / diverge:
+    from each on-ramp onto its road, from the road onto each off-ramp), how many were driven and
+    completed, and the other outcomes; [] when no map has a ramp."""
+    rows = []
+    for s in results:
+        if not s.ramps:
+            continue
+        kinds = Counter(k for r in s.ramp_scenarios for k in r["kinds"])
+        driven = [r["outcome"] for r in s.ramp_scenarios if r["outcome"]]
+        other = Counter(o for o in driven if o != "completed")
+        rows.append(f"| `{s.path}` | {s.ramps.get('on', 0)} / {s.ramps.get('off', 0)} | {len(s.ramp_scenarios)} "
+                    f"({kinds['merge']} / {kinds['diverge']}) | {len(driven)} / {driven.count('completed')} | "
+                    + (", ".join(f"{k} {v}" for k, v in other.items()) or "-") + " |")
+    if not rows:
+        return []
+    return ["| map | ramps (on / off) | ramp scenarios (merge / diverge) | driven / completed | failures |",
+            "|" + "---|" * 5, *rows, ""]
+
+
 def markdown(results: Sequence[MapSurvey]) -> str:
     """The survey table plus one line per error and per failing scenario."""
     head = ("| map | source | junction elements | junctions (skipped) | signal / stop / bare | signals | phase groups "
@@ -276,6 +309,9 @@ def markdown(results: Sequence[MapSurvey]) -> str:
              f"**{len(results)} maps: {tot['junctions']} junctions ({tot['skipped']} skipped), {tot['scenarios']} "
              f"scenarios, {tot['completed']} of {tot['driven']} driven completed, {tot['errors']} stage errors "
              f"({tot['tracebacks']} tracebacks).**", ""]
+    ramps = ramp_table(results)
+    if ramps:
+        lines += ["Ramp suites:", "", *ramps]
     details = [f"- `{s.path}` {e['stage']}: {e['kind']}: {e['error']}" + (f" (at {' <- '.join(reversed(e['at']))})"
                                                                          if e.get("at") else "")
                for s in results for e in s.errors]
@@ -403,6 +439,16 @@ narrow passages, swept paths, curve speed, the amber dilemma zone, wait points).
 """
 
 
+RAMP_HEAD = """## Ramp suites
+
+The maps with motorway ramps (`extract_ramps`, inside a junction or through a direct link: ASAM's
+`Ex_Entry_Exit` joins its ramps through OpenDRIVE direct junctions, which are no junctions of the
+map) and their route-coverage suites' ramp scenarios: a merge from each on-ramp onto the road it
+joins, a diverge from the road onto each off-ramp (a ramp in a junction is that junction's
+manoeuvre, a ramp through a direct link a lane route of its own), named `-merge` / `-diverge`.
+"""
+
+
 def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
     """docs/realmaps.md: how to reproduce, then per survey run (a --json file) one row per map and
     its totals, then the refusals and failing scenarios by map."""
@@ -441,6 +487,9 @@ def reference(runs: Sequence[tuple[dict, list[MapSurvey]]]) -> str:
         notes += _failure_notes(maps, local)
         if notes:
             lines += ["Refusals, failing scenarios and export problems:", "", *notes, ""]
+    ramps = ramp_table([s for _, maps in runs for s in maps])
+    if ramps:
+        lines += [RAMP_HEAD, *ramps]
     return "\n".join(lines)
 
 

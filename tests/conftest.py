@@ -45,8 +45,12 @@ SKIP_QC_OPENSCENARIO = ("needs ASAM's qc_openscenario (asam-qc-openscenarioxml),
                         "bash scripts/setup.sh dev")
 SKIP_LANELET2 = ("needs the lanelet2 wheel (the dev extra; wheels exist for Linux x86_64 only), not installed: "
                  "bash scripts/setup.sh dev")
+# the public map corpus (docs/realmaps.md's `corpus` section: OpenDRIVE files of 8 tools, SOURCES.md beside them)
+CORPUS = Path(os.environ.get("FEAT2MAP_CORPUS", REPO.parent / "corpus"))
+CORPUS_MISSING = (f"needs the public map corpus at {CORPUS} (absent here): put the OpenDRIVE files that "
+                  "docs/realmaps.md surveys in a folder and set FEAT2MAP_CORPUS=/path/to/corpus")
 SKIP_REASONS = (SHARED_MAPS_MISSING, SKIP_RL, SKIP_RAY, SKIP_COMMONROAD_IO, SKIP_NETCONVERT, SKIP_QC_OPENDRIVE,
-                SKIP_QC_OPENSCENARIO, SKIP_LANELET2)
+                SKIP_QC_OPENSCENARIO, SKIP_LANELET2, CORPUS_MISSING)
 # the files of ../shared/maps (its SOURCES.md): tests over every real map are parametrized over this
 # list, so a checkout without the maps collects the same tests and skips each with SHARED_MAPS_MISSING
 SHARED_MAP_FILES = (
@@ -114,6 +118,8 @@ SLOW_TESTS = (
     "tests/scenarios/test_rollout.py::test_broken_planner_fails_with_readable_report_and_gif",
     "tests/scenarios/test_rollout.py::test_ray_backend_gives_the_local_results",
     "tests/envs/test_train_smoke.py::test_tiny_training_and_success_table",
+    "tests/envs/test_ramp_driving.py::test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6",
+    "tests/envs/test_ramp_driving.py::test_public_motorway_ramps_are_merged_and_diverged_at_traffic_6",
 )
 
 
@@ -202,6 +208,14 @@ def shared_map(relative: str) -> Path:
     return path
 
 
+def corpus_map(relative: str) -> Path:
+    """Path of a public map under the corpus folder (FEAT2MAP_CORPUS), or skip the test with the reason."""
+    path = CORPUS / relative
+    if not path.exists():
+        pytest.skip(CORPUS_MISSING)
+    return path
+
+
 @pytest.fixture(scope="session")
 def sf_default_map():
     """The paper's M1-style map: the embedded San Francisco feature space, seed 1."""
@@ -211,9 +225,10 @@ def sf_default_map():
 
 
 # maps whose exports other ecosystems' tools check (Lanelet2, CommonRoad): M1, the example specs
-# (one-way roads, a 5-leg junction, multi-lane roads, mid-block crosswalks, motorway ramps), bare junctions,
+# (one-way roads, a 5-leg junction, multi-lane roads, mid-block crosswalks, motorway ramps and links), bare junctions,
 # and a map generated from the features of a real map (CARLA Town01, skipped when ../shared/maps is absent)
-ECOSYSTEM_MAPS = ("m1", "one_way_t", "mega_junction", "multi_lane", "midblock", "ramps", "bare", "town01")
+ECOSYSTEM_MAPS = ("m1", "one_way_t", "mega_junction", "multi_lane", "midblock", "ramps", "motorway_links", "bare",
+                  "town01")
 BARE_SPEC = {"version": 1, "junctions": [
     {"name": "bare cross", "cell": [0, 0], "control": "bare", "crosswalk": True,
      "sockets": [{"angle": 0, "lanes": 2}, {"angle": 90}, {"angle": 180, "lanes": 2}, {"angle": 270}]},
@@ -237,6 +252,23 @@ def ecosystem_map(request, sf_default_map):
         junctions = extract_junctions(read_map(shared_map("opendrive/carla_town01/Town01.xodr")))
         return name, feat2map.generate(map_feature(junctions), seed=0)
     return name, build_spec(load_spec(REPO / "examples" / f"{name}.yaml"))
+
+
+def export_problems(m, fmt: str, tmp_path: Path) -> list:
+    """What format `fmt`'s own checks (`feat2map validate`: the OpenDRIVE one ASAM's qc_opendrive)
+    find in map `m` written to `tmp_path`; skips where the format's checker or library is absent."""
+    from feat2map.formats import FORMATS, write_map
+    from feat2map.formats.asam_qc import OPENDRIVE, find_bundle
+
+    if fmt == "opendrive" and find_bundle(OPENDRIVE[0]) is None:
+        pytest.skip(SKIP_QC_OPENDRIVE)
+    f = FORMATS[fmt]
+    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
+    try:
+        write_map(m, out, fmt)
+        return f.face("validate")(out)
+    except ImportError as exc:  # the format's optional library
+        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
 
 
 # ---- OpenDRIVE test helpers (tests/formats/test_opendrive.py, test_opendrive_asam_qc.py, test_semantics.py) ----

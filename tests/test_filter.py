@@ -10,7 +10,7 @@ import warnings
 from pathlib import Path
 
 import pytest
-from conftest import sha256_text
+from conftest import export_problems, sha256_text
 from shapely.geometry import LineString, Polygon
 
 from feat2map.cli import main
@@ -177,15 +177,7 @@ def test_filter_lanes_survive_a_round_trip(tmp_path, spec_map, fmt, name):
 
 @pytest.mark.parametrize("fmt", ["apollo", "lanelet2", "commonroad"])
 def test_exports_with_filter_lanes_validate(tmp_path, spec_map, fmt):
-    from feat2map.formats import FORMATS
-
-    f = FORMATS[fmt]
-    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
-    try:
-        write_map(spec_map, out, fmt)
-        problems = f.face("validate")(out)
-    except ImportError as exc:  # the format's optional library
-        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
+    problems = export_problems(spec_map, fmt, tmp_path)
     assert problems == [], problems[:3]
 
 

@@ -9,7 +9,7 @@ import warnings
 from pathlib import Path
 
 import pytest
-from conftest import read_shared_map, sha256_text
+from conftest import export_problems, read_shared_map, sha256_text
 from shapely.geometry import Polygon
 
 from feat2map.cli import main
@@ -171,15 +171,7 @@ def test_midblock_crosswalks_and_lights_survive_a_round_trip(tmp_path, sampled, 
 
 @pytest.mark.parametrize("fmt", ["apollo", "lanelet2", "commonroad"])
 def test_exports_with_midblock_crosswalks_validate(tmp_path, sampled, fmt):
-    from feat2map.formats import FORMATS
-
-    f = FORMATS[fmt]
-    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
-    try:
-        write_map(sampled, out, fmt)
-        problems = f.face("validate")(out)
-    except ImportError as exc:  # the format's optional library
-        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
+    problems = export_problems(sampled, fmt, tmp_path)
     assert problems == [], problems[:3]
 
 

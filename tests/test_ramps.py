@@ -6,16 +6,17 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
-from conftest import sha256_text
+from conftest import corpus_map, export_problems, sha256_text
 
-from feat2map.config import RAMP_ANGLE_RANGE_DEG, RAMP_LANE_M
-from feat2map.errors import FeatureError
+from feat2map.config import (JUNCTION_SPEED_LIMIT_MPS, MAX_MOTORWAY_LANES, MOTORWAY_SPEED_LIMIT_MPS, RAMP_ANGLE_RANGE_DEG,
+                             RAMP_LANE_M, RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS, GenerationConfig)
+from feat2map.errors import ConfigError, FeatureError
 from feat2map.extract import extract_junctions, map_feature
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace, JunctionFeature, Socket, ramp_angle, ramp_junction
 from feat2map.formats import native, write_map
@@ -26,6 +27,7 @@ from feat2map.spec import SpecError, build_spec, load_spec, parse_spec
 
 REPO = Path(__file__).resolve().parents[1]
 SPACE = replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both"))
+SPACE_LANES = replace(SPACE, motorway_lanes=(1, 2))  # ramp junctions on one- and two-lane motorways
 # sha256 of the native JSON of maps whose inputs name no ramp, recorded with the code before ramps
 # existed: such inputs must keep giving these bytes
 PAPER_SEED0_SHA = "a374afe338eaccdd5e249e518121927e73c1788b428a82240fec5fdeec7da902"
@@ -36,6 +38,11 @@ MEGA_SPEC_SHA = "a741b31e954a6fb284632eec05a387f367c0c28ba4680feb9bf769737d3e5c7
 @pytest.fixture(scope="module")
 def sampled() -> HDMap:
     return generate(SPACE, seed=0)
+
+
+@pytest.fixture(scope="module")
+def sampled_lanes() -> HDMap:
+    return generate(SPACE_LANES, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -124,27 +131,69 @@ def test_sampling_covers_every_ramp_value(sampled):
     assert len(lanes["on"]) == 3 and len(lanes["off"]) == 3  # "both": the on-ramp's lane also goes on to the off-ramp
 
 
+def assert_ramps_join_the_rightmost(m: HDMap) -> dict[str, list[str]]:
+    """Each ramp's lane runs the acceleration or deceleration lane's length beside the main lanes
+    and joins (leaves) its carriageway's rightmost lane, which a main lane also feeds (also goes
+    on); returns `ramp_lanes(m)`."""
+    lanes = ramp_lanes(m)
+    for lid in lanes["on"] + lanes["off"]:
+        ln = m.lanes[lid]
+        assert ln.turn == "none"  # a ramp's lane bends by the ramp angle only
+        # as long as the acceleration or deceleration lane: between the main sockets, 75 m apart (an
+        # on-ramp's lane going on to an off-ramp bows out to them, the more beside a two-lane road)
+        assert RAMP_LANE_M <= ln.length <= RAMP_LANE_M * 1.03
+    for lid in lanes["on"]:  # it joins the carriageway's rightmost lane, which the main lane also feeds
+        (dst,) = m.lanes[lid].successors
+        road = m.roads[m.lanes[dst].road_id]
+        side = road.right_lanes if dst in road.right_lanes else road.left_lanes
+        assert dst == side[-1] and len(m.lanes[dst].predecessors) == 2
+    for lid in lanes["off"]:  # it leaves the carriageway's rightmost lane, which also goes on
+        (src,) = m.lanes[lid].predecessors
+        road = m.roads[m.lanes[src].road_id]
+        side = road.right_lanes if src in road.right_lanes else road.left_lanes
+        assert src == side[-1] and len(m.lanes[src].successors) == 2
+    return lanes
+
+
+def test_sampled_ramp_junctions_take_their_main_roads_lanes_from_the_space(sampled_lanes):
+    """A map feature's `motorway_lanes` (1 and 2 here): one ramp junction per ramp value and lane
+    count, its main legs that many lanes per direction, its ramps steep enough to clear the wider
+    road within RAMP_LANE_M; the two-lane ones make a motorway of their own (no town junction has
+    two-lane legs), driven at the motorway's speed between them; seeded."""
+    from itertools import product
+
+    from feat2map.ramps import min_ramp_angle
+
+    ramps = [j.feature for j in sampled_lanes.junctions.values() if j.feature.has_ramp]
+    mains = [{(s.lanes_in, s.lanes_out) for s in f.sockets if s.ramp == "none"} for f in ramps]
+    assert all(len(m) == 1 and len(next(iter(m))) == 2 and len(set(next(iter(m)))) == 1 for m in mains)
+    got = sorted((f.ramp_value, next(iter(m))[0]) for f, m in zip(ramps, mains))
+    assert got == sorted(product(("on", "off", "both"), (1, 2)))
+    least = min_ramp_angle(2, RAMP_LANE_M, GenerationConfig())
+    assert RAMP_ANGLE_RANGE_DEG[0] < least < RAMP_ANGLE_RANGE_DEG[1]
+    for f, m in zip(ramps, mains):
+        lo = least if next(iter(m))[0] == 2 else RAMP_ANGLE_RANGE_DEG[0]
+        assert all(lo <= ramp_angle(f, i) <= RAMP_ANGLE_RANGE_DEG[1] for i, s in enumerate(f.sockets) if s.ramp != "none")
+    assert check_map(sampled_lanes) == []
+    assert len(assert_ramps_join_the_rightmost(sampled_lanes)["on"]) == 2 * 3  # "both": on to its off-ramp too
+    wide = [r for r in sampled_lanes.roads.values() if r.kind == "connection" and len(r.lane_ids) == 4]
+    assert len(wide) == 2 and all(sampled_lanes.lanes[x].speed_limit == MOTORWAY_SPEED_LIMIT_MPS
+                                  for r in wide for x in r.lane_ids)
+    assert sha256_text(native.dumps(generate(SPACE_LANES, seed=0))) == sha256_text(native.dumps(sampled_lanes))
+    assert FeatureSpace.from_json(SPACE_LANES.to_json()) == SPACE_LANES
+    assert json.loads(SPACE_LANES.to_json())["motorway_lanes"] == [1, 2] and "motorway_lanes" not in SPACE.to_dict()
+    with pytest.raises(FeatureError, match="motorway_lanes.*1 to 3"):
+        FeatureSpace.from_dict({**SPACE.to_dict(), "motorway_lanes": [0, 2]}, "f.json")
+    widest = FeatureSpace((), (), (), {}, ramp=("none", "on", "off", "both"), motorway_lanes=(MAX_MOTORWAY_LANES,))
+    assert check_map(generate(widest, seed=0)) == []  # its ramps steeper than the range, still ramps
+
+
 def test_ramp_lanes_run_beside_the_main_lanes_and_join_the_rightmost(spec_map):
     assert check_map(spec_map) == []
     feats = {jid: j.feature for jid, j in spec_map.junctions.items()}
     assert feats["J0"].ramp_value == "off" and feats["J1"].ramp_value == "both" and not feats["J2"].has_ramp
-    lanes = ramp_lanes(spec_map)
+    lanes = assert_ramps_join_the_rightmost(spec_map)
     assert len(lanes["on"]) == 1 and len(lanes["off"]) == 2
-    for lid in lanes["on"] + lanes["off"]:
-        ln = spec_map.lanes[lid]
-        assert ln.turn == "none"  # a ramp's lane bends by the ramp angle only
-        # as long as the acceleration or deceleration lane: between the main sockets, 75 m apart
-        assert RAMP_LANE_M <= ln.length <= RAMP_LANE_M * 1.02
-    for lid in lanes["on"]:  # it joins the carriageway's rightmost lane, which the main lane also feeds
-        (dst,) = spec_map.lanes[lid].successors
-        road = spec_map.roads[spec_map.lanes[dst].road_id]
-        side = road.right_lanes if dst in road.right_lanes else road.left_lanes
-        assert dst == side[-1] and len(spec_map.lanes[dst].predecessors) == 2
-    for lid in lanes["off"]:  # it leaves the carriageway's rightmost lane, which also goes on
-        (src,) = spec_map.lanes[lid].predecessors
-        road = spec_map.roads[spec_map.lanes[src].road_id]
-        side = road.right_lanes if src in road.right_lanes else road.left_lanes
-        assert src == side[-1] and len(spec_map.lanes[src].successors) == 2
     ramp_roads = [r for r in spec_map.roads.values() if r.kind == "stub" and len(r.lane_ids) == 1]
     assert len(ramp_roads) == 3 and all(r.reference.length >= 10.0 for r in ramp_roads)
 
@@ -201,28 +250,80 @@ def test_a_feature_space_of_ramps_alone_generates(tmp_path, capsys):
         FeatureSpace.from_dict({**doc, "ramp": ["none"]})
 
 
+def lane_speeds(m: HDMap) -> dict[str, set[float]]:
+    """The speed limits of the example's lanes by kind: the motorway (main roads and lanes straight
+    on), ramp roads, acceleration and deceleration lanes, town roads and town junction lanes."""
+    ramps = {s for j in m.junctions.values() if j.feature.has_ramp
+             for s, sock in zip(j.socket_roads, j.feature.sockets) if sock.ramp != "none"}
+    aux = ramp_lanes(m)
+    out: dict[str, set[float]] = {}
+    for ln in m.lanes.values():
+        if ln.id in aux["on"] or ln.id in aux["off"]:
+            kind = "acceleration" if ln.id in aux["on"] else "deceleration"
+        elif ln.junction_id is not None:
+            kind = "motorway" if m.junctions[ln.junction_id].feature.has_ramp else "town junction"
+        elif ln.road_id in ramps:
+            kind = "ramp"
+        else:
+            road = m.roads[ln.road_id]
+            ends = [m.junctions[j].feature for j in (road.start_junction, road.end_junction) if j is not None]
+            kind = "motorway" if all(f.has_ramp for f in ends) else "town"
+        out.setdefault(kind, set()).add(ln.speed_limit)
+    return out
+
+
+def assert_same_speeds(back: HDMap, m: HDMap) -> None:
+    """Every lane of `m` read back (`back`, another format: other ids, maybe another origin) with
+    its speed limit: lanes matched by the middles of their centre lines, within 0.3 m."""
+    def middles(x: HDMap) -> tuple[np.ndarray, list[float]]:
+        mids = []
+        for ln in x.lanes.values():
+            pts = np.asarray(ln.centerline, dtype=float)
+            cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+            mids.append([np.interp(cum[-1] / 2, cum, pts[:, k]) for k in (0, 1)])
+        at = np.asarray(mids)
+        return at - at.min(axis=0), [ln.speed_limit for ln in x.lanes.values()]
+
+    (want_at, want), (got_at, got) = middles(m), middles(back)
+    assert len(got) == len(want)
+    for p, v in zip(want_at, want):
+        k = int(np.argmin(np.hypot(*(got_at - p).T)))
+        assert np.hypot(*(got_at[k] - p)) < 0.3 and got[k] == pytest.approx(v, abs=1e-3), (p, v, got[k])
+
+
+def test_ramp_junctions_carry_motorway_and_ramp_speeds(spec_map):
+    """The main carriageway and its acceleration lanes at the motorway's limit, the ramps and the
+    deceleration lanes at the ramp's, the motorway's road into the town junction at the town's."""
+    assert lane_speeds(spec_map) == {
+        "motorway": {MOTORWAY_SPEED_LIMIT_MPS}, "acceleration": {MOTORWAY_SPEED_LIMIT_MPS},
+        "deceleration": {RAMP_SPEED_LIMIT_MPS}, "ramp": {RAMP_SPEED_LIMIT_MPS}, "town": {SPEED_LIMIT_MPS},
+        "town junction": {JUNCTION_SPEED_LIMIT_MPS}}
+    assert JUNCTION_SPEED_LIMIT_MPS < SPEED_LIMIT_MPS < RAMP_SPEED_LIMIT_MPS < MOTORWAY_SPEED_LIMIT_MPS
+
+
+def test_motorway_and_ramp_speeds_are_configured_and_recorded_only_when_set(monkeypatch):
+    cfg = GenerationConfig(motorway_speed_limit=30.0, ramp_speed_limit=20.0)
+    monkeypatch.chdir(REPO)
+    m = build_spec(load_spec("examples/ramps.yaml"), seed=0, config=cfg)
+    speeds = lane_speeds(m)
+    assert speeds["motorway"] == speeds["acceleration"] == {30.0} and speeds["ramp"] == speeds["deceleration"] == {20.0}
+    assert m.meta["config"]["motorway_speed_limit"] == 30.0 and GenerationConfig.from_dict(m.meta["config"]) == cfg
+    assert "motorway_speed_limit" not in GenerationConfig().to_dict()  # old maps' recorded config keeps its bytes
+    with pytest.raises(ConfigError, match="ramp_speed_limit"):
+        GenerationConfig(ramp_speed_limit=0.0)
+    doc = {**yaml.safe_load((REPO / "examples" / "ramps.yaml").read_text()), "config": {"ramp_speed_limit": 200}}
+    with pytest.raises(SpecError, match="r.yaml: config: config field 'ramp_speed_limit' must be between 0.1 and 100"):
+        build_spec(parse_spec(doc, "r.yaml"))
+
+
 # ------------------------------------------------------------------------------ exports
 
 @pytest.mark.parametrize("fmt", ["apollo", "lanelet2", "commonroad", "opendrive"])
-@pytest.mark.parametrize("which", ["spec_map", "sampled"])
+@pytest.mark.parametrize("which", ["spec_map", "sampled", "sampled_lanes"])
 def test_exports_with_ramps_validate(tmp_path, request, fmt, which):
-    """Every export of the example spec and of a sampled map with ramps passes its ecosystem's own
-    checks (the OpenDRIVE one: ASAM's qc_opendrive)."""
-    from conftest import SKIP_QC_OPENDRIVE
-
-    from feat2map.formats import FORMATS
-    from feat2map.formats.asam_qc import OPENDRIVE, find_bundle
-
-    if fmt == "opendrive" and find_bundle(OPENDRIVE[0]) is None:
-        pytest.skip(SKIP_QC_OPENDRIVE)
-    m = request.getfixturevalue(which)
-    f = FORMATS[fmt]
-    out = tmp_path / ("out" if f.output == "dir" else f"m{f.suffixes[0]}")
-    try:
-        write_map(m, out, fmt)
-        problems = f.face("validate")(out)
-    except ImportError as exc:  # the format's optional library
-        pytest.skip(f"needs {exc.name} (bash scripts/setup.sh dev)")
+    """Every export of the example spec and of sampled maps with ramps (on one- and two-lane
+    motorways) passes its ecosystem's own checks (the OpenDRIVE one: ASAM's qc_opendrive)."""
+    problems = export_problems(request.getfixturevalue(which), fmt, tmp_path)
     assert problems == [], problems[:3]
 
 
@@ -241,6 +342,8 @@ def test_ramp_junctions_survive_a_round_trip(tmp_path, spec_map, fmt, name):
     for want, j in zip(spec_map.junctions.values(), got):
         assert feature_mismatch(j, want.feature) == []
     assert sorted(r.kind for r in extract_ramps(back)) == ["off", "off", "on"]
+    assert_same_speeds(back, spec_map)  # motorway, ramp and town speeds as written
+    assert {MOTORWAY_SPEED_LIMIT_MPS, RAMP_SPEED_LIMIT_MPS} <= {round(ln.speed_limit, 2) for ln in back.lanes.values()}
 
 
 def test_openscenario_routes_through_ramps_pass_asam_qc(tmp_path, spec_map):
@@ -264,6 +367,23 @@ def test_openscenario_routes_through_ramps_pass_asam_qc(tmp_path, spec_map):
         pytest.skip(SKIP_QC_OPENSCENARIO)
     for f in files:
         assert validate_openscenario(f) == [], f.name
+
+
+def test_lanelet2_writes_motorway_and_ramp_speeds(tmp_path, spec_map):
+    import xml.etree.ElementTree as ET
+
+    from feat2map.formats.lanelet2.writer import TAG
+
+    write_map(spec_map, tmp_path / "m.osm", "lanelet2")
+    kmh = {}
+    for rel in ET.parse(tmp_path / "m.osm").getroot().iter("relation"):
+        tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
+        if tags.get("type") == "lanelet" and TAG + "lane" in tags:
+            kmh[tags[TAG + "lane"]] = float(tags["speed_limit"])
+    assert kmh.keys() == spec_map.lanes.keys()
+    for lid, ln in spec_map.lanes.items():
+        assert kmh[lid] == pytest.approx(ln.speed_limit * 3.6, abs=0.01), lid
+    assert {round(v / 3.6, 2) for v in kmh.values()} >= {MOTORWAY_SPEED_LIMIT_MPS, RAMP_SPEED_LIMIT_MPS}
 
 
 # ------------------------------------------------------------------------------ extraction
@@ -308,9 +428,6 @@ def test_the_extract_command_lists_ramps(tmp_path, spec_map, capsys):
     assert len(doc["ramps"]) == 3 and doc["feature_space"]["ramp"] == ["none", "off", "both"]
 
 
-CORPUS = Path(os.environ.get("FEAT2MAP_CORPUS", REPO.parent / "corpus"))
-
-
 @pytest.mark.real_maps
 @pytest.mark.parametrize("rel, on, off", [
     ("asam_examples/UC_Motorway-Exit-Entry.xodr", 2, 2),  # ramp lanes joining as added lanes in 5 m junctions
@@ -327,10 +444,7 @@ def test_ramps_of_public_motorway_maps(rel, on, off):
     from feat2map.extract_ramps import extract_ramps
     from feat2map.formats import read_map
 
-    path = CORPUS / rel
-    if not path.exists():
-        pytest.skip(f"needs the public map corpus at {CORPUS} (absent here): put the OpenDRIVE files that "
-                    "docs/realmaps.md surveys in a folder and set FEAT2MAP_CORPUS=/path/to/corpus")
+    path = corpus_map(rel)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         found = extract_ramps(read_map(path), rel)

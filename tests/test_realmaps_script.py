@@ -134,3 +134,20 @@ def test_a_raised_limit_reaches_every_stage(surveyed, tmp_path, monkeypatch):
     with pytest.raises(SystemExit) as bad:
         script.main([str(surveyed[0] / "odr"), "--limit", "max_checker_s=-1"])
     assert bad.value.code == 2
+
+
+def test_the_ramp_suites_table_counts_each_maps_ramps_and_their_scenarios(tmp_path):
+    """Maps with ramps get a row in the survey table's and the reference page's ramp section:
+    ramps found, the suite's merge and diverge scenarios, how many drove and completed."""
+    script = _script()
+    ramps = script.MapSurvey("c/Ex_Entry_Exit.xodr", ramps={"on": 1, "off": 1}, ramp_scenarios=[
+        {"scenario": "e-r000-diverge", "kinds": ["diverge"], "outcome": "completed"},
+        {"scenario": "e-r001-merge", "kinds": ["merge"], "outcome": "timeout"}])
+    plain = script.MapSurvey("c/plain.xodr")
+    rows = script.ramp_table([ramps, plain])
+    assert rows[2] == "| `c/Ex_Entry_Exit.xodr` | 1 / 1 | 2 (1 / 1) | 2 / 1 | timeout 1 |" and len(rows) == 4
+    assert script.ramp_table([plain]) == []
+    js = tmp_path / "run.json"
+    js.write_text(json.dumps({"folders": ["/x/c"], "maps": [ramps.__dict__, plain.__dict__]}))
+    assert script.main(["--from-json", str(js), "--doc", str(tmp_path / "doc.md")]) == 0
+    assert "## Ramp suites" in (text := (tmp_path / "doc.md").read_text()) and rows[2] in text

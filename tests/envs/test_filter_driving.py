@@ -68,3 +68,37 @@ def test_the_suite_takes_every_filter_lane_and_completes_at_traffic_6(map_path):
     for sc in taking:
         out = run_scenario(sc, record_failure_gif=False)
         assert out.outcome == "completed", (sc.name, out.message)
+
+
+def test_a_filter_lane_conflicts_with_the_lanes_it_merges_with_after_the_road_splits(map_path):
+    """A filter lane joins its exit road just after the road piece the junction's own lanes run on
+    (R3a, R0a, R5a): the lanes into that piece conflict with it, whatever its control."""
+    m = native.load(map_path)
+    net = MapNetwork.from_map(m)
+    for f in ("J0_f2_0", "J0_f3_0", "J1_f1_0"):
+        (exit_lane,) = m.lanes[f].successors
+        (piece,) = (p for p in m.lanes[exit_lane].predecessors if p != f)
+        assert m.lanes[piece].junction_id is None
+        assert set(m.lanes[piece].predecessors) <= net.conflicts[f], f
+
+
+def test_straight_traffic_and_a_signalised_filter_lane_merge_in_turn(tmp_path):
+    """A highway-and-city map (the paper's space with every mid-block, filter and ramp value), route
+    r010 of its suite at traffic 6: the ego went straight through J2 onto the piece before the
+    filter lane's join while a car came off the signalised filter lane on the same green, and the
+    two met side by side; the filter lane now conflicts with the lanes it merges with."""
+    import dataclasses
+
+    import feat2map
+    from feat2map.scenarios.rollout import run_scenario
+
+    space = dataclasses.replace(feat2map.PAPER_SF_FEATURE_SPACE, midblock=("none", "bare", "signal"),
+                                filter=("none", "yield", "signal"), ramp=("none", "on", "off", "both"))
+    m = feat2map.generate(space, seed=5)
+    assert m.junctions["J2"].feature.sockets[1].filter == "signal"  # the situation is still there
+    path = tmp_path / "hc.json"
+    native.save(m, path)
+    route = (("J5", "R12", "R14a"), ("J7", "R14b", "R18"), ("J12", "R18", "R5"), ("J2", "R5", "R6a"))
+    out = run_scenario(Scenario(name="hc-r010", map=str(path), route=route, traffic_vehicles=6, seed=10,
+                                duration=267.8), record_failure_gif=False)
+    assert out.outcome == "completed", out.message

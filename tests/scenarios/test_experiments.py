@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -79,7 +80,10 @@ def test_rq4_builds_draws_and_drives_custom_maps(exp, tmp_path):
     assert any({"in", "out"} <= set(f["road_types"]) for f in one_way)
     assert _is_png(tmp_path / "docs" / "rq4_custom.png")
     runs = r["measured"]["maps"]
-    assert [x["map"] for x in runs] == list(exp.CUSTOM_SPECS)
+    assert [x["map"] for x in runs] == [*exp.CUSTOM_SPECS, exp.HIGHWAY_CITY[0]]
+    table = (tmp_path / "docs" / "rq4.md").read_text()
+    for feature in ("ramp merge", "ramp diverge", "filter lane", "mid-block crosswalk"):  # each, with its lanes
+        assert re.search(rf"^\| {feature} \| [1-9]\d* \|", table, flags=re.M), feature
     for x in runs:
         if x["map"] == "road circle":  # no junction manoeuvre: driven as a lap on a lane route
             assert x["junctions"] == 0 and x["routes"] == 0 and "laps" in x["subset"]

@@ -36,7 +36,7 @@ from ...config import DRIVE_DEFAULTS
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane
 from ...phases import junction_phases
-from ...routes import manoeuvre_lane, road_lanes_between
+from ...routes import is_lane_route, manoeuvre_lane, road_lanes_between
 from .. import FORMATS
 from ..base import header_date
 
@@ -126,8 +126,14 @@ class _ScenarioWriter:
         return ET.tostring(el, encoding="UTF-8", xml_declaration=True) + b"\n"
 
     def route_lanes(self, sc) -> list[Lane]:
-        """The lane before the first manoeuvre, each manoeuvre's junction lane, the exit lane."""
+        """The lane before the first manoeuvre, each manoeuvre's junction lane, the exit lane (a
+        lane route's lanes: a ramp joined through a direct link)."""
         m = self.m
+        if is_lane_route(sc.route):
+            if "lanes" not in sc.route:
+                raise Feat2MapError("a lane route is exported with its lanes ({lanes: [...]}), not its ends",
+                                    f"{sc.name}.route")
+            return [m.lanes[x] for x in sc.route["lanes"]]
         out: list[Lane] = []
         for i, mv in enumerate(sc.route):
             ln = manoeuvre_lane(m, mv)
@@ -382,6 +388,9 @@ def _midblock_crossed(m: HDMap, route, lanes: list[Lane]) -> set[str]:
     walks = [c for c in m.crosswalks.values() if c.junction_id is None and len(c.polygon) >= 3]
     if not walks:
         return set()
-    road = {lanes[0].id, lanes[-1].id} | {x for a, b in zip(route, route[1:]) for x in road_lanes_between(m, a, b)}
+    if is_lane_route(route):
+        road = {ln.id for ln in lanes if ln.junction_id is None}
+    else:
+        road = {lanes[0].id, lanes[-1].id} | {x for a, b in zip(route, route[1:]) for x in road_lanes_between(m, a, b)}
     lines = [LineString(m.lanes[x].centerline) for x in sorted(road) if len(m.lanes[x].centerline) >= 2]
     return {c.id for c in walks if any(line.intersects(Polygon(c.polygon)) for line in lines)}
