@@ -93,7 +93,7 @@ def driver_view(env) -> list[float]:
                    line_time=_scaled(d / max(ego.speed, DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS), DRIVER_VIEW_CONFLICT_TIME_S),
                    in_stop_zone=float(not in_junction and in_stop_zone(d)), in_junction=float(in_junction))
         out["signal" if sl is not None and sl.kind == "signal" else "stop" if sl is not None else "bare"] = 1.0
-        turn = manoeuvre_name(m, m.lanes[j_lane])
+        turn = manoeuvre_name(m.lanes[j_lane], net.ramp_moves)
         if turn in out:  # a U-turn has no feature of its own
             out[turn] = 1.0
         if sl is not None and sl.kind == "signal":

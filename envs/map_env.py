@@ -175,7 +175,7 @@ class EgoTask:
         for lid in ego.lane_route[ego.route_pos:]:
             ln = m.lanes[lid]
             if ln.junction_id is not None:
-                return ln.junction_id, manoeuvre_name(m, ln)
+                return ln.junction_id, manoeuvre_name(ln, self.net.ramp_moves)
         return None, None
 
     def rule_stop_distance(self, ignore: Sequence[str] = (), commit: bool = True) -> float:

@@ -29,6 +29,7 @@ from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEA
                       FOOTPRINT_STEP_M, MERGE_REACH_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
                       VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
+from ..extract_ramps import ramp_moves
 from ..model import HDMap, Lane, incoming_lanes, midblock_controls
 from .lanes import PolylineLane, project_rows, segment_table
 from .sweep import stretches, turn_setbacks
@@ -378,6 +379,12 @@ class MapNetwork(RoadNetwork):
         lane, both could brake for the other and stand there)."""
         ref = self.lane_of[min(lane_a, lane_b)]
         return ref.local_coordinates(pos_b)[0] > ref.local_coordinates(pos_a)[0]
+
+    @property
+    def ramp_moves(self) -> dict[str, str]:
+        """Junction lane -> "merge" / "diverge" for the lanes that drive the map's ramps
+        (`feat2map.extract_ramps.ramp_moves`), found once per map."""
+        return self.memo("ramp_moves", lambda: ramp_moves(self.hdmap))
 
     def memo(self, key, build):
         """A value derived from the (immutable) network, built once: per-map tables that every

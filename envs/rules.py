@@ -40,11 +40,10 @@ from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, AMBER_STOP_MARGIN_M,
                       PEDESTRIAN_YIELD_SPEED_MPS, PEDESTRIAN_YIELD_STRETCH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
                       SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
-from ..routes import ramp_manoeuvre
 from .sweep import clear_stop, swept_head
 
 if TYPE_CHECKING:
-    from ..model import HDMap, Lane
+    from ..model import Lane
     from .network import MapNetwork, StopLine
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
@@ -52,10 +51,10 @@ VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
 
-def manoeuvre_name(m: HDMap, ln: Lane) -> str:
-    """The manoeuvre junction lane `ln` drives: a ramp's "merge" / "diverge"
-    (`feat2map.routes.ramp_manoeuvre`), else its turn's TURN_NAMES name."""
-    return ramp_manoeuvre(m, ln) or TURN_NAMES.get(ln.turn, ln.turn)
+def manoeuvre_name(ln: "Lane", ramps: Mapping[str, str]) -> str:
+    """The manoeuvre junction lane `ln` drives: a ramp's "merge" / "diverge" (`ramps`: the map's
+    `MapNetwork.ramp_moves`), else its turn's TURN_NAMES name."""
+    return ramps.get(ln.id) or TURN_NAMES.get(ln.turn, ln.turn)
 
 
 def idm_free(v, v0):

@@ -65,7 +65,8 @@ import numpy as np  # noqa: E402
 
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
-from feat2map.config import AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS  # noqa: E402
+from feat2map.config import AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS, RAMP_MANOEUVRES  # noqa: E402
+from feat2map.extract_ramps import ramp_moves  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
 from feat2map.envs.junction_env import JunctionGridEnv  # noqa: E402
@@ -73,7 +74,6 @@ from feat2map.envs.vector import MapVectorEnv, info_of, sb3_vec_env  # noqa: E40
 from feat2map.envs.rules import manoeuvre_name  # noqa: E402
 from feat2map.features import ramp_junction  # noqa: E402
 from feat2map.render import save_figure  # noqa: E402
-from feat2map.routes import RAMP_MANOEUVRES  # noqa: E402
 
 ROAD_ANGLES = {3: (0, 90, 180), 4: (0, 90, 180, 270)}
 CONTROLS = ("signal", "stop", "bare")
@@ -81,7 +81,8 @@ MANOEUVRES = ("left", "straight", "right")  # the cells of a junction without ra
 RAMP_ANGLE_DEG = 15.0  # the ramps' angle from the main road
 RAMP_JUNCTION = ramp_junction("both", RAMP_ANGLE_DEG)  # an on- and an off-ramp: the merge and diverge cells
 RAMP_LABELS = {"on": "on-ramp", "off": "off-ramp", "both": "on- and off-ramp"}  # by JunctionFeature.ramp_value
-COLUMNS = MANOEUVRES + RAMP_MANOEUVRES  # the per-cell tables' manoeuvres
+RAMP_CELLS = tuple(RAMP_MANOEUVRES.values())  # the cells of a ramp junction: "merge", "diverge"
+COLUMNS = MANOEUVRES + RAMP_CELLS  # the per-cell tables' manoeuvres
 FAILURES = ("collision", "off_road", "red_light", "stop_sign", "pedestrian_yield", "timeout")
 
 TARGET_SPEEDS = AGENT_TARGET_SPEEDS  # [m/s] the agent's actions (the multi-agent env's default too)
@@ -125,7 +126,7 @@ def task_features() -> tuple[feat2map.JunctionFeature, ...]:
 def cell_manoeuvres(feature: feat2map.JunctionFeature) -> tuple[str, ...]:
     """The manoeuvres evaluated at a junction of `feature`: merge and diverge at a ramp junction
     (its main lanes and on-ramp to off-ramp lane are driven in training only), else the turns."""
-    return RAMP_MANOEUVRES if feature.has_ramp else MANOEUVRES
+    return RAMP_CELLS if feature.has_ramp else MANOEUVRES
 
 
 def env_config(features: Sequence[feat2map.JunctionFeature], map_seed: int = 0, **overrides) -> dict:
@@ -366,13 +367,14 @@ def junction_cases(hdmap) -> list[Case]:
     """One cell per junction and manoeuvre of it (`cell_manoeuvres`), with every (entry, exit)
     pair of it as a one-junction route."""
     cases = []
+    ramps = ramp_moves(hdmap)
     for jid in sorted(hdmap.junctions, key=lambda j: (len(j), j)):
         f = hdmap.junctions[jid].feature
         by_turn: dict[str, list[tuple[str, str, str]]] = defaultdict(list)
         for ln in sorted(hdmap.lanes_by_junction.get(jid, []), key=lambda ln: ln.id):
             if not ln.predecessors or not ln.successors:
                 continue
-            turn = manoeuvre_name(hdmap, ln)
+            turn = manoeuvre_name(ln, ramps)
             m = (jid, hdmap.lanes[ln.predecessors[0]].road_id, hdmap.lanes[ln.successors[0]].road_id)
             if m not in by_turn[turn]:
                 by_turn[turn].append(m)

@@ -25,7 +25,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from .angles import wrap_degrees
-from .config import RAMP_MAX_ANGLE_DEG, RAMP_MIN_ANGLE_DEG, RAMP_PROBE_M
+from .config import RAMP_MANOEUVRES, RAMP_MAX_ANGLE_DEG, RAMP_MIN_ANGLE_DEG, RAMP_PROBE_M
 from .model import HDMap, Lane
 
 MAX_WALK = 200  # lanes followed at most along a ramp's path or its added lanes
@@ -207,5 +207,4 @@ def ramp_moves(m: HDMap) -> dict[str, str]:
     """The junction lanes that drive a ramp (`extract_ramps`), lane id -> "merge" (from an
     on-ramp onto its main road) or "diverge" (from the main road onto an off-ramp): what a
     planner selects its ramp scenarios by. Ramps through a direct link have no such lane."""
-    return {path[1]: "merge" if r.kind == "on" else "diverge"
-            for r in extract_ramps(m) for path in r.links if len(path) == 3}
+    return {path[1]: RAMP_MANOEUVRES[r.kind] for r in extract_ramps(m) for path in r.links if len(path) == 3}

@@ -20,8 +20,6 @@ LaneRoute = Mapping[str, Any]
 AnyRoute = Union[Route, LaneRoute]
 
 DEFAULT_ROUTE_JUNCTIONS = 4  # longest route coverage_routes builds (junctions)
-RAMP_MANOEUVRES = ("merge", "diverge")  # names of a ramp junction's manoeuvres onto and off its main road
-_RAMP_ENDS = {("on", None): RAMP_MANOEUVRES[0], (None, "off"): RAMP_MANOEUVRES[1]}  # (entry, exit) ramp kinds
 END_ROOM_M = 25.0  # a route ends on an exit road at least this long before the next junction where it can:
 # the env's goal lies 15 m into it, and an ego at speed reaching a goal closer to a junction runs into it
 
@@ -39,26 +37,6 @@ def manoeuvre_lane(m: HDMap, mv: Sequence[str]) -> Lane | None:
     """The junction lane a route drives for manoeuvre `mv` (junction, entry road, exit road):
     the one with the smallest id among `manoeuvre_lanes`; None when the map has none."""
     return min(manoeuvre_lanes(m, mv), key=lambda ln: ln.id, default=None)
-
-
-def ramp_roads(m: HDMap, jid: str | None) -> dict[str, str]:
-    """{road id: "on" | "off"} of the ramps of junction `jid` (empty for a junction without ramps
-    or without a feature: maps read from files)."""
-    j = m.junctions.get(jid) if jid is not None else None
-    if j is None or j.feature is None or not j.feature.has_ramp:
-        return {}
-    return {r: s.ramp for r, s in zip(j.socket_roads, j.feature.sockets) if s.ramp != "none"}
-
-
-def ramp_manoeuvre(m: HDMap, ln: Lane) -> str | None:
-    """The ramp manoeuvre (RAMP_MANOEUVRES) junction lane `ln` drives: "merge" from an on-ramp
-    onto a main road, "diverge" from a main road onto an off-ramp; None for any other lane (main
-    lanes, an on-ramp's lane on to an off-ramp, junctions without ramps)."""
-    ramps = ramp_roads(m, ln.junction_id)
-    if not ramps or not ln.predecessors or not ln.successors:
-        return None
-    entry, exit_ = (ramps.get(m.lanes[x].road_id) if x in m.lanes else None for x in (ln.predecessors[0], ln.successors[0]))
-    return _RAMP_ENDS.get((entry, exit_))
 
 
 def manoeuvres(m: HDMap) -> list[Manoeuvre]:

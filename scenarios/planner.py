@@ -18,7 +18,7 @@ Scenarios and their stages (the paper's Section V abbreviations):
 Stages: S_PS pre-stop; S_S, R_S stop; S_C, L_C, R_C creep; T_A, L_A, B_A, M_A, D_A approach;
 M_G wait for a gap; S_I, T_C, L_I, R_I, B_I intersection cruise, M_I merge along the acceleration
 lane, D_I leave along the deceleration lane (R_S goes straight to R_I when the light turns green
-first). A ramp (`feat2map.extract_ramps.ramp_moves`) is approached at its own lane's speed, with no
+first). A ramp (`MapNetwork.ramp_moves`) is approached at its own lane's speed, with no
 slowing to a bare junction's; a merge held at its mouth by main-road traffic waits for a gap (M_G);
 a diverge slows to the off-ramp's speed before the gore.
 
@@ -44,7 +44,6 @@ import numpy as np
 from ..config import CONFLICT_DISTANCE_M, CURVE_BEHIND_M, IDM_ACC, STOP_POINT_M
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.lanes import curve_speeds
-from ..extract_ramps import ramp_moves
 from ..envs.rules import (RULES, amber_speed_cap, braking_distance, can_stop_before, has_stopped, idm,
                           in_stop_zone)
 
@@ -246,7 +245,7 @@ class BaselinePlanner:
         sl = env.rules.control_at(in_lane)
         turn = m.lanes[j_lane].turn
         if sl is None:
-            ramp = self.env.net.memo("ramp_moves", lambda: ramp_moves(m)).get(j_lane)
+            ramp = self.env.net.ramp_moves.get(j_lane)
             self._go(*{"merge": ("M_A", RAMP_MERGE), "diverge": ("D_A", RAMP_DIVERGE)}.get(ramp, ("B_A", BARE)))
         elif sl.kind == "stop":
             self._go("S_PS", STOP_SIGN)

@@ -78,7 +78,7 @@ def test_ramp_cells_merge_and_diverge(tp):
     env = tp.make_env(config, agent=False)
     cases = tp.junction_cases(env.unwrapped.net.hdmap)
     ramp = {c.manoeuvre: c for c in cases if c.ramp == "both"}
-    assert list(ramp) == list(tp.RAMP_MANOEUVRES) == ["merge", "diverge"]
+    assert list(ramp) == list(tp.RAMP_CELLS) == ["merge", "diverge"]
     assert {c.manoeuvre for c in cases if c.ramp == "none"} == set(tp.MANOEUVRES)
     agent = tp.make_env(config)
     for name, case in ramp.items():
