@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import Feat2MapError
-from ..routes import manoeuvre_lane, road_neighbour, trapped_lanes  # noqa: F401 (road_neighbour re-exported)
+from ..routes import extend_to_goal, manoeuvre_lane, road_neighbour, trapped_lanes
 from .network import MapNetwork
 from ..config import ROUTE_SAMPLE_TRIES, SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, TRAFFIC_END_ROOM_M
 from .rules import braking_distance, enters_junction, line_setback
@@ -84,12 +84,7 @@ def extend_route(net: MapNetwork, route: list[str], start_distance: float, goal_
             break
         route.insert(0, prev)
         room += net.lane_of[prev].length
-    while net.lane_of[route[-1]].length < goal_distance + 1.0:
-        nxt = road_neighbour(m, route[-1], m.lanes[route[-1]].successors, set(route))
-        if nxt is None:
-            break
-        route.append(nxt)
-    return route
+    return extend_to_goal(m, route, goal_distance, lambda lid: net.lane_of[lid].length)
 
 
 def start_place(net: MapNetwork, route: list[str], extend: bool, start_distance: float, goal_distance: float,

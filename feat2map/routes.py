@@ -5,7 +5,7 @@ suites and the multi-agent env, so neither layer imports the other)."""
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Mapping, Sequence, TypeGuard, Union, cast
+from typing import Any, Callable, Iterable, Mapping, Sequence, TypeGuard, Union, cast
 
 from .config import (DRIVE_DEFAULTS, KINK_RADIUS_M, MAX_TURN_DEG, MIN_UTURN_RADIUS_M, RAMP_MANOEUVRES, TURN_WINDOW_M,
                      TURNAROUND_DEG, TURNAROUND_RADIUS_M, TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M)
@@ -413,6 +413,17 @@ def road_neighbour(m: HDMap, lane_id: str, candidates: Sequence[str], exclude: s
     return min(cands, key=lambda c: (m.lanes[c].road_id != road, -m.lanes[c].length, c))
 
 
+def extend_to_goal(m: HDMap, path: list[str], goal: float, length: Callable[[str], float]) -> list[str]:
+    """`path` with road lanes appended (`road_neighbour`) until its goal, `goal` metres into the
+    last lane, fits in it (`length`: a lane's length as the caller measures it)."""
+    while length(path[-1]) < goal + 1.0:
+        nxt = road_neighbour(m, path[-1], m.lanes[path[-1]].successors, set(path))
+        if nxt is None:
+            break
+        path.append(nxt)
+    return path
+
+
 def ramp_manoeuvre(ramp: ExtractedRamp) -> Manoeuvre | None:
     """The (junction, entry road, exit road) manoeuvre that takes `ramp`: from the ramp's road
     onto the road it joins (an on-ramp), from the road onto the ramp (an off-ramp); None for a
@@ -436,12 +447,7 @@ def ramp_lanes(m: HDMap, ramp: ExtractedRamp) -> list[str]:
         if prev is None:
             break
         path.insert(0, prev)
-    while m.lanes[path[-1]].length < goal + 1.0:
-        nxt = road_neighbour(m, path[-1], m.lanes[path[-1]].successors, set(path))
-        if nxt is None:
-            break
-        path.append(nxt)
-    return path
+    return extend_to_goal(m, path, goal, lambda lid: m.lanes[lid].length)
 
 
 def ramp_routes(m: HDMap, ramps: Sequence[ExtractedRamp] | None = None) -> list[tuple[str, LaneRoute]]:

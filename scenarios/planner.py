@@ -41,7 +41,7 @@ from typing import Any, Callable, ClassVar, Iterable, Protocol, runtime_checkabl
 
 import numpy as np
 
-from ..config import CONFLICT_DISTANCE_M, CURVE_BEHIND_M, IDM_ACC, STOP_POINT_M
+from ..config import CONFLICT_DISTANCE_M, CURVE_BEHIND_M, IDM_ACC, RAMP_MANOEUVRES, STOP_POINT_M
 from ..envs.driver import DRIVER_ACTION_CONFIG
 from ..envs.lanes import curve_speeds
 from ..envs.rules import (RULES, amber_speed_cap, braking_distance, can_stop_before, has_stopped, idm,
@@ -92,6 +92,7 @@ STAGE_NAMES: dict[str, str] = {  # what each stage code means (reports explain t
 }
 CRUISE_STAGE = {STOP_SIGN: "S_I", TL_PROTECTED: "T_C", TL_LEFT: "L_I", TL_RIGHT: "R_I", BARE: "B_I", RAMP_MERGE: "M_I",
                 RAMP_DIVERGE: "D_I"}
+RAMP_SCENARIOS = {RAMP_MANOEUVRES["on"]: ("M_A", RAMP_MERGE), RAMP_MANOEUVRES["off"]: ("D_A", RAMP_DIVERGE)}
 HELD_STAGES = ("B_A", "L_C", "M_A", "M_G")  # stages that count the time held at the line by traffic (PATIENCE_S)
 
 
@@ -246,7 +247,7 @@ class BaselinePlanner:
         turn = m.lanes[j_lane].turn
         if sl is None:
             ramp = self.env.net.ramp_moves.get(j_lane)
-            self._go(*{"merge": ("M_A", RAMP_MERGE), "diverge": ("D_A", RAMP_DIVERGE)}.get(ramp, ("B_A", BARE)))
+            self._go(*RAMP_SCENARIOS.get(ramp, ("B_A", BARE)))
         elif sl.kind == "stop":
             self._go("S_PS", STOP_SIGN)
         elif turn in ("left", "uturn") and not env.rules.protected(in_lane, j_lane):
