@@ -3,6 +3,7 @@ stop lines, signal heads in their colours, stop signs, pedestrians and the ego r
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pygame
@@ -22,6 +23,11 @@ MARKING_RGB = {"solid_white": WHITE, "curb": WHITE, "dotted_white": WHITE,
                "solid_yellow": (240, 200, 40), "dotted_yellow": (240, 200, 40)}
 MARKING_WIDTH_M = 0.3
 DASH_M, DASH_PERIOD_M = 3.0, 6.0  # dotted boundaries: 3 m dashes every 6 m
+
+# SDL (the viewer's pygame.display.init) would otherwise replace SIGTERM's default action with a
+# handler that only queues a quit event nobody reads: a rendering process, a rollout worker
+# recording a GIF, would ignore SIGTERM (read when SDL starts, so set before any viewer)
+os.environ.setdefault("SDL_NO_SIGNAL_HANDLERS", "1")
 
 
 class MapViewer(EnvViewer):

@@ -128,6 +128,8 @@ def run(planner_name: str, planner, chunks: list[Path], out: Path, workers: int)
         if (dest / "summary.json").exists():
             continue
         result = run_suite(load_suite(p), planner, workers=workers, coverage=True, progress=sys.stderr.isatty())
+        if result.stopped:  # Ctrl-C, SIGTERM or a planner's SystemExit: the chunk is not done (a rerun resumes at it)
+            sys.exit(f"{planner_name} {p.stem}: stopped: {result.stopped}")
         write_report(result, dest)
         print(f"{planner_name} {p.stem}: {result.counts()} in {result.wall_s:.0f} s", flush=True)
 

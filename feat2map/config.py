@@ -355,6 +355,8 @@ def raised_limits(**values: float) -> Iterator[Limits]:
         _LIMITS.reset(token)
 
 
+# rollout workers (scenarios/rollout.py worker_pool): none outlives its parent, however the parent ended
+WORKER_PARENT_POLL_S = 0.2  # [s] how often a worker looks whether its parent is gone (it then kills its planners, exits)
 # rollout reports (scenarios/markup.py): report.html loads nothing but its inline pictures and style, runs no script
 REPORT_CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; base-uri 'none'; form-action 'none'"
 

@@ -205,6 +205,16 @@ def _holds(p: int, pipes: set[tuple[str, int]]) -> bool:
 
 
 _TAGS = itertools.count()
+_LIVE: dict[int, "PlannerProcess"] = {}  # the planners started and not killed yet (by id), for kill_planners
+
+
+def kill_planners() -> None:
+    """SIGKILL every planner this process started and has not killed yet, with every process of
+    theirs, for a process that must end now (a rollout worker SIGTERMed or orphaned). Signals
+    only: it closes nothing, reaps nothing, waits on no lock and no planner, so a signal handler
+    or another thread may call it while the main thread is anywhere in the bridge."""
+    for proc in tuple(_LIVE.values()):
+        proc.signal_processes()
 
 
 class PlannerProcess:
@@ -235,6 +245,7 @@ class PlannerProcess:
         except OSError as exc:
             self.stderr.close()
             raise BridgeError(f"cannot start the planner {argv[0]!r}: {exc.strerror or exc}") from None
+        _LIVE[id(self)] = self
         assert self.proc.stdin is not None and self.proc.stdout is not None  # Popen(stdin=PIPE, stdout=PIPE)
         self._in = self.proc.stdin.fileno()
         os.set_blocking(self._in, False)
@@ -450,16 +461,8 @@ class PlannerProcess:
         if self._killed:
             return
         self._killed = True
-        for _ in range(KILL_ROUNDS):
-            pids = planner_processes(self.proc.pid, self.tag, self._pipes)
-            for pgid_or_pid, kill in ((self.proc.pid, os.killpg), *((p, os.kill) for p in pids)):
-                try:
-                    kill(pgid_or_pid, signal.SIGKILL)
-                except (ProcessLookupError, PermissionError):
-                    pass
-            if not pids:
-                break
-            time.sleep(KILL_ROUND_PAUSE_S)
+        self.signal_processes()
+        _LIVE.pop(id(self), None)
         try:
             self.proc.wait(timeout=REAP_TIMEOUT_S)
         except subprocess.TimeoutExpired:
@@ -472,6 +475,20 @@ class PlannerProcess:
             pass
         os.close(self._wake_w)  # the reader thread ends and closes stdout
         self.reader.join(READER_JOIN_S)
+
+    def signal_processes(self) -> None:
+        """SIGKILL, in rounds, the planner's process group and every process `planner_processes`
+        finds; only signals (`kill` does the rest: reaping, pipes, the reader thread)."""
+        for _ in range(KILL_ROUNDS):
+            pids = planner_processes(self.proc.pid, self.tag, self._pipes)
+            for pgid_or_pid, kill in ((self.proc.pid, os.killpg), *((p, os.kill) for p in pids)):
+                try:
+                    kill(pgid_or_pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+            if not pids:
+                break
+            time.sleep(KILL_ROUND_PAUSE_S)
 
     def close(self, timeout: float = CLOSE_TIMEOUT_S) -> dict | None:
         """Send `close`, wait for `bye` (returned, None if it never came), then kill and reap."""

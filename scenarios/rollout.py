@@ -9,6 +9,10 @@ policy), so only they pay for rendering.
 
 A scenario whose ego stands still with nothing in its way for `blocked_after` seconds
 (`BlockedClock`, default BLOCKED_AFTER_S) ends early as a `timeout` whose message says "blocked".
+
+Nothing outlives a rollout: a worker ends, killing the planner processes it started, on SIGTERM
+or once its parent is gone however it ended (`worker_pool`); a SIGTERM to the process running a
+suite ends it like Ctrl-C, with the report so far and without its workers (`run_suite`).
 """
 from __future__ import annotations
 
@@ -20,16 +24,18 @@ import io
 import inspect
 import os
 import pickle
+import signal
 import sys
+import threading
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, NoReturn, Sequence
 
-from feat2map.config import BLOCKED_AFTER_S
+from feat2map.config import BLOCKED_AFTER_S, WORKER_PARENT_POLL_S
 from feat2map.errors import Feat2MapError
 
 OUTCOMES = ("completed", "collision", "off_road", "timeout", "violation", "error")  # error: planner/env raised
@@ -678,6 +684,8 @@ def _run_task(task: _Task) -> tuple[int, Outcome, str]:
                              **getattr(exc, PARTIAL_ATTR, {}))
         if task.record_failure_gif:
             out = replace(out, gif=_error_gif(scenario, task.factory, task.blocked_after))
+    except Terminated:  # SIGTERM (in-process runs): not the planner's doing
+        raise
     except (SystemExit, KeyboardInterrupt) as exc:  # the planner asks to stop: end the suite, keep the report
         stop = f"the planner raised {type(exc).__name__} in scenario {getattr(scenario, 'name', task.index)}"
         return task.index, _error_outcome(scenario, task.index, f"{stop}: the rollout stopped here"), stop
@@ -693,7 +701,10 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
     in suite order. `workers` > 1 uses spawned processes ("process") or Ray ("ray").
     `blocked_after`: as `run_scenario`'s. `log` gets one line per finished scenario (where no
     progress bar is drawn: a log file, CI). `executor`: a pool from `worker_pool` to run the
-    process backend on (kept open for the next suite: a search runs many small ones)."""
+    process backend on (kept open for the next suite: a search runs many small ones).
+    Ctrl-C, and SIGTERM to this process (`_sigterm_interrupts`; not with `executor`: SIGTERM ends
+    the pool's owner, and its workers follow), end the run with the outcomes so far, `stopped`
+    saying which."""
     from tqdm import tqdm
 
     if backend not in BACKENDS:
@@ -733,31 +744,10 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         return bool(stopped)
 
     try:
-        if backend == "ray":
-            _run_ray(tasks, workers, done)
-        elif executor is None and workers == 1 and (os.environ.get("PYTHONHASHSEED") == HASH_SEED or not picklable):
-            if not picklable:
-                warnings.warn("the planner cannot be pickled: running in this process, whose string hashing "
-                              "may change which planner lines run (results stay the same)", stacklevel=2)
-            for t in tasks:  # this process already hashes like the workers would
-                if done(*_run_task(t)):
-                    break
-        elif executor is not None:
-            futures = [executor.submit(_run_task, t) for t in tasks]
-            for fut in as_completed(futures):
-                if done(*fut.result()):
-                    for rest in futures:
-                        rest.cancel()
-                    break
-        elif tasks:
-            with worker_pool(min(workers, len(tasks))) as pool:
-                futures = [pool.submit(_run_task, t) for t in tasks]
-                for fut in as_completed(futures):
-                    if done(*fut.result()):
-                        pool.shutdown(wait=True, cancel_futures=True)
-                        break
-    except KeyboardInterrupt:  # Ctrl-C: end with what has run so far
-        stopped.append("interrupted (KeyboardInterrupt)")
+        with contextlib.nullcontext() if executor is not None else _sigterm_interrupts():
+            _run_tasks(tasks, workers, backend, picklable, executor, done)
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: end with what has run so far
+        stopped.append(f"interrupted ({'SIGTERM' if isinstance(exc, Terminated) else 'KeyboardInterrupt'})")
     finally:
         bar.close()
     outcomes = tuple(results[i] for i in sorted(results))
@@ -766,6 +756,35 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
                        planner_digest=suite_digest(outcomes) if coverage else "",
                        workers=workers, backend=backend, wall_s=time.perf_counter() - t0,
                        stopped=stopped[0] if stopped else "", scenarios=len(tasks))
+
+
+def _run_tasks(tasks: Sequence[_Task], workers: int, backend: str, picklable: bool,
+               executor: ProcessPoolExecutor | None, done: Callable[..., bool]) -> None:
+    """Run `tasks` on the backend `run_suite` chose, handing each result to `done` until it
+    says the suite ends."""
+    if backend == "ray":
+        _run_ray(tasks, workers, done)
+    elif executor is None and workers == 1 and (os.environ.get("PYTHONHASHSEED") == HASH_SEED or not picklable):
+        if not picklable:
+            warnings.warn("the planner cannot be pickled: running in this process, whose string hashing "
+                          "may change which planner lines run (results stay the same)", stacklevel=3)
+        for t in tasks:  # this process already hashes like the workers would
+            if done(*_run_task(t)):
+                break
+    elif executor is not None:
+        futures = [executor.submit(_run_task, t) for t in tasks]
+        for fut in as_completed(futures):
+            if done(*fut.result()):
+                for rest in futures:
+                    rest.cancel()
+                break
+    elif tasks:
+        with worker_pool(min(workers, len(tasks))) as pool:
+            futures = [pool.submit(_run_task, t) for t in tasks]
+            for fut in as_completed(futures):
+                if done(*fut.result()):
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    break
 
 
 def scenario_line(out: Outcome, done: int, total: int) -> str:
@@ -802,10 +821,82 @@ def _env_var(name: str, value: str) -> Iterator[None]:
 
 @contextlib.contextmanager
 def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
-    """Spawned worker processes hashing strings like every other worker (PYTHONHASHSEED=HASH_SEED)."""
-    with _env_var("PYTHONHASHSEED", HASH_SEED), \
-            ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        yield pool
+    """Spawned worker processes hashing strings like every other worker (PYTHONHASHSEED=HASH_SEED).
+    None outlives this process (`_worker_init`); an exception out of the block (Ctrl-C, SIGTERM,
+    bad input) ends them at once, running scenarios and queued ones alike, rather than waiting
+    for every queued scenario to run."""
+    with _env_var("PYTHONHASHSEED", HASH_SEED):
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                                   initializer=_worker_init, initargs=(os.getpid(),))
+        try:
+            yield pool
+        except BaseException:
+            for proc in tuple((getattr(pool, "_processes", None) or {}).values()):
+                proc.terminate()  # SIGTERM: each kills its planners and exits (_worker_init)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread of a process running a suite (`_sigterm_interrupts`):
+    the run ends like on Ctrl-C, with the report so far."""
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """While a suite runs, SIGTERM kills the planner processes this process started and raises
+    `Terminated` in its main thread, so that the run ends with its report so far and takes its
+    workers with it (`worker_pool`). Only in the main thread (where Python runs handlers) and
+    only over the default action: a handler the program installed is its own."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, None):  # None: a C library's (SDL's)
+        yield
+        return
+
+    def terminated(signum: int, frame: Any) -> None:
+        _kill_planners()
+        raise Terminated
+
+    signal.signal(signal.SIGTERM, terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _kill_planners() -> None:
+    """The bridge's `kill_planners`, if this process loaded the bridge (else it started none)."""
+    bridge = sys.modules.get(f"{__package__}.bridge")
+    if bridge is not None:
+        bridge.kill_planners()
+
+
+def _worker_init(parent: int) -> None:
+    """A pool worker's start: SIGTERM ends it within moments, and so does the end of its parent
+    `parent` (whatever ended it: SIGTERM, SIGKILL, a crash), which a daemon thread notices as the
+    worker being re-parented. Not PR_SET_PDEATHSIG: it fires when the *thread* that spawned the
+    worker ends, and ProcessPoolExecutor spawns workers in whichever thread calls `submit`.
+    SDL (pygame, rendering GIFs) must not take SIGTERM over: its handler only queues a quit
+    event, which left SIGTERMed workers running."""
+    os.environ.setdefault("SDL_NO_SIGNAL_HANDLERS", "1")
+    signal.signal(signal.SIGTERM, lambda signum, frame: _end_worker())
+    threading.Thread(target=_watch_parent, args=(parent,), name="feat2map-watch-parent", daemon=True).start()
+
+
+def _watch_parent(parent: int) -> None:
+    """End this worker once its parent `parent` is gone (polled every WORKER_PARENT_POLL_S)."""
+    while os.getppid() == parent:
+        time.sleep(WORKER_PARENT_POLL_S)
+    _end_worker()
+
+
+def _end_worker() -> NoReturn:
+    """Kill the planner processes this worker started and exit now. No unwinding: `finally`
+    blocks would wait for a planner's bye (CLOSE_TIMEOUT_S) and re-render, and the pool's worker
+    loop would catch the exception and take the next scenario."""
+    _kill_planners()
+    os._exit(128 + signal.SIGTERM)
 
 
 @contextlib.contextmanager

@@ -117,6 +117,7 @@ SLOW_TESTS = (
     "tests/scenarios/test_rollout.py::test_a_planner_that_stops_ends_the_rollout_with_the_report_so_far",
     "tests/scenarios/test_rollout.py::test_broken_planner_fails_with_readable_report_and_gif",
     "tests/scenarios/test_rollout.py::test_ray_backend_gives_the_local_results",
+    "tests/scenarios/test_rollout_orphans.py",
     "tests/envs/test_train_smoke.py::test_tiny_training_and_success_table",
     "tests/envs/test_ramp_driving.py::test_the_suite_merges_and_diverges_at_every_ramp_and_completes_at_traffic_6",
     "tests/envs/test_ramp_driving.py::test_public_motorway_ramps_are_merged_and_diverged_at_traffic_6",
