@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from typing import Any
 
 import numpy as np
 from highway_env.road.lane import AbstractLane, LineType
@@ -179,6 +180,10 @@ def _points(lane: PolylineLane, s: np.ndarray) -> np.ndarray:
                      lane._ay[i] + ds * lane._uy[i] + 0.0 * lane._ux[i]], axis=1)
 
 
+SIMILAR_SEGMENTS = 1.5  # lanes whose segment counts are within this factor are projected in one program
+PADDING_LIMIT = 2.0  # ... unless padding all of them to the longest costs at most this factor of the work
+
+
 def segment_table(lanes: list) -> tuple[np.ndarray, ...]:
     """(first segment, segment count, then ax, ay, ux, uy, lo, hi, cum per segment) of `lanes`'
     projection arrays, concatenated (built once per network: `project_rows`)."""
@@ -190,27 +195,66 @@ def segment_table(lanes: list) -> tuple[np.ndarray, ...]:
 
 
 def project_rows(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray,
-                 y: np.ndarray) -> tuple[np.ndarray, ...]:
+                 y: np.ndarray, lateral: bool = True) -> tuple[np.ndarray, Any]:
     """`PolylineLane.local_coordinates` of points x[g, :], y[g, :] on lane lanes[g] (indices into
-    the lanes of `table`, a `segment_table`), for all g in one program with the same arithmetic
-    (segments padded to the longest of these lanes; padding never wins): (s, lateral), each
-    [lanes, points]."""
+    the lanes of `table`, a `segment_table`), for all g with the same arithmetic: (s, lateral),
+    each [lanes, points] (lateral None unless `lateral`). One program, the segments padded to the
+    longest lane's (padding never wins); where that would more than PADDING_LIMIT-fold the work,
+    one program per group of lanes of similar segment counts (within SIMILAR_SEGMENTS)."""
+    count = table[1][lanes]
+    if len(lanes) == 1 or len(lanes) * count.max() <= PADDING_LIMIT * count.sum():
+        return _project_group(table, lanes, x, y, lateral)
+    s_out, r_out = np.empty(x.shape), np.empty(x.shape)
+    order = np.argsort(count, kind="stable")
+    c = count[order]
+    start = 0
+    while start < len(order):
+        end = int(np.searchsorted(c, SIMILAR_SEGMENTS * c[start], side="right"))
+        g = order[start:end]
+        s_g, r_g = _project_group(table, lanes[g], x[g], y[g], lateral)
+        s_out[g] = s_g
+        if lateral:
+            r_out[g] = r_g
+        start = end
+    return s_out, r_out if lateral else None
+
+
+def _project_group(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray,
+                   y: np.ndarray, lateral: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """`project_rows` of one group of lanes: one program, in place where the arrays are big."""
     first, count, ax, ay, ux, uy, lo, hi, cum = table
-    S = int(count[lanes].max())
+    if len(lanes) == 1:  # one lane: its segments are a slice (no gathers)
+        seg = slice(int(first[lanes[0]]), int(first[lanes[0]] + count[lanes[0]]))
+        rx = x[0][:, None] - ax[seg]
+        ry = y[0][:, None] - ay[seg]
+        t = rx * ux[seg] + ry * uy[seg]
+        tc = np.minimum(np.maximum(t, lo[seg]), hi[seg])
+        dx = rx - tc * ux[seg]
+        dy = ry - tc * uy[seg]
+        i = (dx * dx + dy * dy).argmin(axis=1)
+        p = np.arange(len(i))
+        return ((cum[seg][i] + tc[p, i])[None], (ux[seg][i] * ry[p, i] - uy[seg][i] * rx[p, i])[None])
+    n = count[lanes]
+    S = int(n.max())
     j = np.arange(S)
-    real = (j[None, :] < count[lanes][:, None])[:, None, :]
-    at = np.where(real[:, 0], first[lanes][:, None] + j[None, :], first[lanes][:, None])
-    ax, ay, ux, uy, lo, hi = (a[at][:, None, :] for a in (ax, ay, ux, uy, lo, hi))
+    real = j[None, :] < n[:, None]
+    at = np.where(real, first[lanes][:, None] + j[None, :], first[lanes][:, None])
+    ux, uy, cum = ux[at], uy[at], cum[at]  # [lanes, S]
+    ax, ay, lo, hi, uxs, uys = (a[:, None, :] for a in (ax[at], ay[at], lo[at], hi[at], ux, uy))
     rx = x[:, :, None] - ax
     ry = y[:, :, None] - ay
-    t = rx * ux + ry * uy
-    tc = np.minimum(np.maximum(t, lo), hi)
-    dx = rx - tc * ux
-    dy = ry - tc * uy
-    d2 = dx * dx + dy * dy
-    np.copyto(d2, np.inf, where=~real)
-    i = d2.argmin(axis=2)[:, :, None]
-    pick = (lambda a: np.take_along_axis(a, i, axis=2)[:, :, 0])  # noqa: E731
-    ux_i, uy_i = pick(np.broadcast_to(ux, rx.shape)), pick(np.broadcast_to(uy, rx.shape))
-    s = pick(np.broadcast_to(cum[at][:, None, :], rx.shape)) + pick(tc)
-    return s, ux_i * pick(ry) - uy_i * pick(rx)
+    tc = rx * uxs  # the same operations as `local_coordinates`, in place ([lanes, points, S] arrays)
+    tmp = ry * uys
+    tc += tmp
+    np.maximum(tc, lo, out=tc)
+    np.minimum(tc, hi, out=tc)
+    dx = np.subtract(rx, np.multiply(tc, uxs, out=tmp), out=None if lateral else rx)
+    dy = np.subtract(ry, np.multiply(tc, uys, out=tmp), out=tmp)
+    dx *= dx
+    dy *= dy
+    dx += dy
+    np.copyto(dx, np.inf, where=~real[:, None, :])
+    i = dx.argmin(axis=2)  # [lanes, points]: the nearest segment
+    g, p = np.arange(len(lanes))[:, None], np.arange(x.shape[1])[None, :]
+    s = cum[g, i] + tc[g, p, i]
+    return s, (ux[g, i] * ry[g, p, i] - uy[g, i] * rx[g, p, i]) if lateral else None

@@ -64,12 +64,12 @@ from .config import (MULTI, checks, defaults, multi_agent_defaults,
 from .control import TrafficControl
 from .core import ArrayVehicle
 from .junction_env import JunctionGridEnv, MapFileEnv
-from .kinematics_batch import batch_supported, observe_many
 from .map_env import EgoTask, MapEnv, check_action, check_options
-from .observation import TrafficControlObservation, make_observation
+from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
+from .sim.observe import kinematics
 from .sim.vehicle import VehicleModel, speed_control
 from .vehicles import SpeedGrid
 
@@ -632,21 +632,13 @@ class MultiAgentMapEnv(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     def _observe(self, names: list[str]) -> dict[str, Any]:
-        """The agents' observations: Kinematics of all of them in one array program where its
-        options allow (kinematics_batch: the values of the single env's fast path), else each
-        agent's observation type."""
+        """The agents' observations: Kinematics of all of them in one array program
+        (`sim.observe.kinematics`, the single env's values), else each agent's observation type."""
         if not names:
             return {}
-        core = self.world.road.core
-        core.sync()
-        first = self._views[names[0]].observation_type
-        if batch_supported(first, core):
-            vehicles = [self._views[a].vehicle for a in names]
-            rows = np.array([v._row for v in vehicles], dtype=np.int64)
-            out = observe_many(first, core, rows, [v.lane for v in vehicles], self.world.road.objects,
-                               self.world.PERCEPTION_DISTANCE)
-            return dict(zip(names, out))
-        return {a: self._views[a].observation_type.observe() for a in names}
+        types = [self._views[a].observation_type for a in names]
+        got = kinematics(types, self.world.road.core) if type(types[0]) is Kinematics else [None] * len(names)
+        return {a: t.observe() if o is None else o for a, t, o in zip(names, types, got)}
 
     def _noop(self):
         s = self.actions.space

@@ -22,12 +22,11 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
 from ..errors import Feat2MapError
-from . import core
 from .core import TrafficCore
-from .kinematics_batch import observe_egos
 from .map_env import (INFO_ORDER, MapEnv, action_array, check_action, check_options, held_feature_info, info_dict,
                       simulate)
-from .observation import TrafficControlObservation
+from .observation import Kinematics, TrafficControlObservation
+from .sim.observe import kinematics
 
 # config values a batch cannot hold: (key, value, why)
 UNSUPPORTED = (("new_map_each_reset", True, "the sub-envs of a batch share one map"),
@@ -192,13 +191,13 @@ class MapVectorEnv(VectorEnv):
 
     def observe(self, envs: list[MapEnv]) -> list:
         """The observations of `envs` where one array program over the batch makes them (the
-        Kinematics egos, `kinematics_batch.observe_egos`, also inside the traffic-control dict),
-        None for the others (each observes itself)."""
-        if len(envs) < core.BATCH_MIN_EGOS:  # too few for the array program to pay
-            return [None] * len(envs)
+        Kinematics egos, `sim.observe.kinematics`, also inside the traffic-control dict), None
+        for the others (each observes itself)."""
         types = [env.observation_type for env in envs]
-        wrapped = isinstance(types[0], TrafficControlObservation)
-        kin = observe_egos([t.inner if wrapped else t for t in types], self.core)
+        wrapped = bool(types) and isinstance(types[0], TrafficControlObservation)
+        types = [t.inner if wrapped else t for t in types]
+        kin = kinematics([t for t in types if type(t) is Kinematics], self.core)[::-1]
+        kin = [kin.pop() if type(t) is Kinematics else None for t in types]
         if not wrapped:
             return kin
         return [None if o is None else {"observation": o, "traffic_control": env.traffic_control_vector()}

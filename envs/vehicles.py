@@ -339,7 +339,15 @@ class EgoMDPVehicle(Ego, MDPVehicle):
 
     def act(self, action=None) -> None:
         """highway-env's meta-action, except that LANE_LEFT / LANE_RIGHT keep the lane unless the
-        line between the two lanes is dashed (`invariants.lane_changes`)."""
+        line between the two lanes is dashed (`invariants.lane_changes`). Between decisions
+        (`action` None, every frame) the command is ours: the route followed, lane keeping on
+        the target lane and the speed control towards the target speed (what highway-env's
+        `ControlledVehicle.act()` computes, without its generic overhead)."""
+        if action is None:
+            self.follow_road()
+            self.action = {"steering": self.steering_control(self.target_lane_index),
+                           "acceleration": speed_control(self.target_speed, self.speed)}
+            return
         before = self.target_lane_index
         super().act(action)
         old, new = self.net.id_of.get(before), self.net.id_of.get(self.target_lane_index)

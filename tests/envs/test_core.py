@@ -1,4 +1,4 @@
-"""The batched traffic core: its lane table agrees with the polyline lanes, its fast Kinematics
+"""The batched traffic core: its lane table agrees with the polyline lanes, its batched Kinematics
 observation gives highway-env's values exactly, its vehicles behave as highway-env objects for
 user code, and its trajectories on fixed seeds are the recorded reference's."""
 from __future__ import annotations
@@ -22,6 +22,7 @@ from feat2map.envs.core import ArrayVehicle, LaneTable
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
 from feat2map.envs.road import MapRoad
+from feat2map.envs.sim.observe import kinematics, supported
 from feat2map.envs.vehicles import TrafficVehicle
 
 J = feat2map.JunctionFeature.make
@@ -77,9 +78,9 @@ def test_fast_kinematics_is_highway_envs(busy_env, features, count, normalize, c
                    see_behind=see_behind, order="shuffled" if shuffled else "sorted", include_obstacles=obstacles,
                    features_range={k: list(v) for k, v in ranges.items()} or {"x": [-100, 100], "vx": [-20, 20]})
     obs = Kinematics(u, **options)
-    assert obs.fast_supported()
+    assert supported(obs)
     state = u.np_random.bit_generator.state
-    fast = obs.fast(core)
+    fast = kinematics([obs], core)[0]
     u.np_random.bit_generator.state = state
     ref = KinematicObservation.observe(obs)
     assert fast.dtype == ref.dtype and fast.shape == ref.shape

@@ -232,7 +232,7 @@ def test_batched_kinematics_equals_each_agents_own_observation():
         obs = env._observe(env.agents)  # (step's observations come before traffic respawns)
         pedestrians += bool(env.world.road.objects)
         for a in env.agents:
-            own = env.view(a).observation_type.observe()  # Kinematics.fast of the agent as the ego
+            own = env.view(a).observation_type.observe()  # the agent's observation alone (a batch of one)
             np.testing.assert_array_equal(obs[a], own)
             checked += 1
         env.step({a: int(rng.integers(env.action_space(a).n)) for a in env.agents})

@@ -148,7 +148,7 @@ def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
 
 @pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
 def test_array_programs_equal_the_scalar_code(config, monkeypatch):
-    """The batch's array programs (the rules' stop distances, `kinematics_batch.observe_egos`,
+    """The batch's array programs (the rules' stop distances, `sim.observe.kinematics`,
     `vehicles.step_egos`, the rewards and info columns of `MapVectorEnv.end_steps`,
     `TrafficCore.occupancies`) give bit
     for bit what the rules asked row by row, each ego stepped alone and each sub-env's own
