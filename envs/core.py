@@ -71,7 +71,8 @@ from .network import MapNetwork
 from .rules import (crossed_lanes, has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane,
                     room_to_wait, stop_gap, stops_at_amber)
 from .sim.vehicle import VehicleModel, integrate, keeping_steering
-from .vehicles import EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, route_upcoming, step_egos
+from .vehicles import (EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, command_egos, route_upcoming,
+                       step_egos)
 
 if TYPE_CHECKING:
     from .road import MapRoad
@@ -82,7 +83,7 @@ EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batche
 # ego), and the rows ask the rules one by one, the egos step one by one (the same values)
 BATCH_MIN_RULE_ROWS = 48
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
-BATCH_MIN_EGOS = 8
+BATCH_MIN_EGOS = 8  # (their commands and steps: `vehicles.command_egos`, `step_egos`)
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 NO_BICYCLE = {"wheelbase": 0.0, "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0}  # the bicycle arrays of a traffic row
 
@@ -170,7 +171,7 @@ class LaneTable:
             for cw, _, _ in crossings:
                 self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
         # stop lines by incoming lane: kind (0 none, 1 signal, 2 stop sign), signal (index into
-        # signal_ids), and how far before the lane's end the line lies (rules.stop_line_ahead's term)
+        # signal_ids), and how far before the lane's end the line lies (rules.line_setback)
         self.signal_ids = list(m.signals)
         sig = {sid: k for k, sid in enumerate(self.signal_ids)}
         self.line_kind = np.zeros(len(lanes), dtype=np.int8)
@@ -755,8 +756,16 @@ class TrafficCore:
             self.stepped[[r.slot for r in roads]] = True
             self.on = self.stepped[self.env]
         self._acting = [i for i in self._external if self.on[i]]  # external rows this frame (`step` too)
-        for i in self._acting:
-            self.objs[i].act()
+        objs = self.objs
+        meta = [objs[i] for i in self._acting if type(objs[i]) is EgoMDPVehicle]
+        if len(meta) >= BATCH_MIN_EGOS:  # the meta-action egos of all sub-envs together
+            command_egos(meta)
+            for i in self._acting:
+                if type(objs[i]) is not EgoMDPVehicle:
+                    objs[i].act()
+        else:
+            for i in self._acting:
+                objs[i].act()
         self.accelerations()
 
     def step(self, roads: list, dt: float) -> None:
@@ -928,7 +937,7 @@ class TrafficCore:
         no reservation to give up) or amber and it can stop; rows that hold their junction lane
         go; the others ask `may_enter` (reservations, stop-sign queues, conflicts), and rows
         outside that case `stop_distance`, in row order. The same floating-point operations as
-        `upcoming` and `stop_line_ahead` (tests/envs/test_core.py compares both)."""
+        `upcoming` and `TrafficRules.line_ahead` (tests/envs/test_core.py compares both)."""
         roads, env, objs = self.roads, self.env, self.objs
         R = np.array(rows, dtype=np.int64)
         if len(rows) < max(BATCH_MIN_RULE_ROWS, 1) or self.net.passages or self.W.shape[1] < 2:

@@ -47,7 +47,6 @@ single env's keys (`info.INFO_KEYS`; `violations` holds the two more) plus
 """
 from __future__ import annotations
 
-import math
 import operator
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -68,7 +67,7 @@ from .map_env import EgoTask, MapEnv, check_action, check_options
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
-from .rules import VIOLATIONS, EgoJudge, can_stop_before, enters_junction, has_stopped, line_setback
+from .rules import VIOLATIONS, EgoJudge, can_stop_before, has_stopped
 from .sim.observe import kinematics
 from .sim.vehicle import VehicleModel, speed_control
 from .vehicles import SpeedGrid
@@ -232,41 +231,6 @@ class AgentVehicle(SpeedGrid, ArrayVehicle):
     def action(self, value) -> None:
         pass
 
-    _line_at: tuple[int, int] = (-1, -1)
-    _line_plan: tuple = ()
-
-    def line_ahead(self, net) -> tuple:
-        """`rules.line_ahead(self)` (no range): the junction entry found once per route position
-        (`rules.stop_line_ahead` over `upcoming()`), its distance summed from the own position
-        in the same order as there, so the value is the same float."""
-        c, i = self._core, self._row
-        route, pos = c.route_ids[i], int(c.route_pos[i])
-        if self._line_at != (id(route), pos):
-            self._line_plan = _line_plan(net, route, pos)
-            self._line_at = (id(route), pos)
-        plan = self._line_plan
-        if plan[0] is None:
-            return None, None, None, math.inf
-        lengths, back, found = plan
-        d = net.lane_of[route[pos]].length - float(c.s[i])
-        for length in lengths:
-            d += length
-        return (*found, d - back)
-
-
-def _line_plan(net, route: list[str], pos: int) -> tuple:
-    """(lengths added after the own lane's rest, the line's `rules.line_setback`, the answer
-    without its distance) of `rules.stop_line_ahead` from route position `pos`, or (None,)."""
-    lanes, lane_of = net.hdmap.lanes, net.lane_of
-    lengths: list[float] = []
-    for k in range(pos + 1, len(route)):
-        lid = route[k]
-        if enters_junction(lanes, route[k - 1], lid):
-            in_lane = route[k - 1]
-            return tuple(lengths), line_setback(net, in_lane), (net.stop_lines.get(in_lane), in_lane, lid)
-        lengths.append(lane_of[lid].length)
-    return (None,)
-
 
 class AgentView(EgoTask):
     """One agent as the single env's ego (`map_env.EgoTask`: route completion, reward terms,
@@ -322,10 +286,6 @@ class AgentView(EgoTask):
         if self._completed_at != steps:
             self._completed_at, self._completed = steps, EgoTask.route_completed(self)
         return self._completed
-
-    def next_stop_line(self) -> tuple:
-        """EgoTask's, from the agent's route plan (`AgentVehicle.line_ahead`: the same values)."""
-        return self.vehicle.line_ahead(self.net)
 
     def junction_ahead(self) -> tuple[str | None, str | None]:
         """EgoTask's, computed again only when the agent's route or route position changes."""

@@ -14,7 +14,7 @@ and the baseline planner (scenarios/planner.py) all ask this module.
   passage holders and waiters, pedestrians) and inherits these questions; `env.unwrapped.rules` is that object;
 - `EgoJudge`: the ego's violations (red light, stop sign, pedestrian yield) and leaving the road.
 
-Stop lines are measured along the route: `stop_line_ahead` gives the distance from a vehicle's
+Stop lines are measured along the route: `TrafficRules.line_ahead` gives the distance from a vehicle's
 centre to the next stop line across lane boundaries, so a short last lane before the line (real
 maps have 0.01-2.4 m lanes there) changes neither where a vehicle stops nor whether its stop
 counts.
@@ -221,19 +221,20 @@ def line_setback(net: "MapNetwork", in_lane: str) -> float:
     return net.setbacks.get(in_lane, 0.0)
 
 
-def stop_line_ahead(net: "MapNetwork", upcoming: Sequence[tuple[int, str, float, Any]],
-                    route: Sequence[str]) -> tuple["StopLine | None", str | None, str | None, float]:
-    """(stop line or None, incoming lane, junction lane, distance along the route from the
-    vehicle centre to the line) of the next junction entry in `upcoming` (a route follower's
-    `upcoming()`); a bare entry's line is the junction lane's start. (None, None, None, inf)
-    when no junction entry is ahead."""
-    m = net.hdmap
-    lanes = m.lanes
-    for k, lid, d, s_own in upcoming:
-        if s_own is None and enters_junction(lanes, route[k - 1], lid):
+def line_plan(net: "MapNetwork", route: Sequence[str], pos: int) -> tuple:
+    """The next junction entry of `route` from route position `pos`: (the lengths of the lanes
+    between the current one and the entry, the entry's `line_setback`, (stop line or None,
+    incoming lane, junction lane)), or (None,) when no entry is ahead; a bare entry's line is
+    the junction lane's start. Found once per route position (`TrafficRules.line_ahead`)."""
+    lanes, lane_of = net.hdmap.lanes, net.lane_of
+    lengths: list[float] = []
+    for k in range(pos + 1, len(route)):
+        lid = route[k]
+        if enters_junction(lanes, route[k - 1], lid):
             in_lane = route[k - 1]
-            return net.stop_lines.get(in_lane), in_lane, lid, d - line_setback(net, in_lane)
-    return None, None, None, math.inf
+            return tuple(lengths), line_setback(net, in_lane), (net.stop_lines.get(in_lane), in_lane, lid)
+        lengths.append(lane_of[lid].length)
+    return (None,)
 
 
 def room_to_wait(room: float | np.ndarray, length: float | np.ndarray) -> bool | np.ndarray:
@@ -337,10 +338,24 @@ class TrafficRules:
 
     # ---- where a vehicle is --------------------------------------------------------------
     def line_ahead(self, vehicle, within: float = math.inf) -> tuple["StopLine | None", str | None, str | None, float]:
-        """`stop_line_ahead` of a route follower (looking `within` metres ahead: beyond, none)."""
-        horizon = within + self.net.max_line_setback if within < math.inf else within
-        sl, in_lane, j_lane, d = stop_line_ahead(self.net, vehicle.upcoming(horizon), vehicle.lane_route)
-        return (sl, in_lane, j_lane, d) if d <= within else (None, None, None, math.inf)
+        """(stop line or None, incoming lane, junction lane, distance along the route from the
+        vehicle's centre to the line) of a route follower's next junction entry, looking `within`
+        metres ahead (beyond, or none: (None, None, None, inf)). The entry is found once per
+        route position (`line_plan`, held on the vehicle); the distance is summed from the
+        vehicle's place lane by lane, in `upcoming`'s order."""
+        route, pos = vehicle.lane_route, vehicle.route_pos
+        held = vehicle.__dict__.get("_line_plan")
+        if held is None or held[0] is not route or held[1] != pos:
+            held = vehicle._line_plan = (route, pos, line_plan(self.net, route, pos))
+        plan = held[2]
+        if plan[0] is None:
+            return None, None, None, math.inf
+        lengths, back, found = plan
+        d = self.net.lane_of[route[pos]].length - vehicle.route_s()
+        for length in lengths:
+            d += length
+        d -= back
+        return (*found, d) if d <= within else (None, None, None, math.inf)
 
     def waiting_line(self, vehicle, lane_id: str | None) -> tuple["StopLine | None", str | None]:
         """(stop line, incoming lane) of the line a vehicle on `lane_id` stands before, its centre

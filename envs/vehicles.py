@@ -12,10 +12,10 @@ from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
 from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
+from ..config import FINISH_MARGIN_M, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from ..invariants import lane_changes
 from .network import MapNetwork
-from .sim.vehicle import VehicleModel, integrate, lane_keeping, speed_control, yaw_rate
+from .sim.vehicle import VehicleModel, integrate, keeping_steering, lane_keeping, speed_control, yaw_rate
 from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
 
 
@@ -338,22 +338,36 @@ class EgoMDPVehicle(Ego, MDPVehicle):
     """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
 
     def act(self, action=None) -> None:
-        """highway-env's meta-action, except that LANE_LEFT / LANE_RIGHT keep the lane unless the
-        line between the two lanes is dashed (`invariants.lane_changes`). Between decisions
-        (`action` None, every frame) the command is ours: the route followed, lane keeping on
-        the target lane and the speed control towards the target speed (what highway-env's
-        `ControlledVehicle.act()` computes, without its generic overhead)."""
-        if action is None:
-            self.follow_road()
-            self.action = {"steering": self.steering_control(self.target_lane_index),
-                           "acceleration": speed_control(self.target_speed, self.speed)}
-            return
-        before = self.target_lane_index
-        super().act(action)
-        old, new = self.net.id_of.get(before), self.net.id_of.get(self.target_lane_index)
-        if action in ("LANE_LEFT", "LANE_RIGHT") and old is not None and new != old and (
-                new not in lane_changes(self.net.hdmap.lanes[old])):
-            self.target_lane_index = before
+        """A meta-action as highway-env's MDPVehicle takes it (FASTER / SLOWER: the target speed
+        one step from the one nearest the speed; LANE_LEFT / LANE_RIGHT: the neighbour lane of
+        the target lane where it is reachable), except that a lane change needs a dashed line
+        between the two lanes (`invariants.lane_changes`); then this frame's command (`command`).
+        Our own code throughout: highway-env's controller chain is not run."""
+        self.follow_road()
+        if action in ("FASTER", "SLOWER"):
+            index = self.speed_to_index(self.speed) + (1 if action == "FASTER" else -1)
+            self.speed_index = int(min(max(index, 0), self.target_speeds.size - 1))
+            self.target_speed = self.index_to_speed(self.speed_index)
+        elif action in ("LANE_LEFT", "LANE_RIGHT"):
+            self.change_lane(-1 if action == "LANE_LEFT" else 1)
+        self.command()
+
+    def change_lane(self, side: int) -> None:
+        """Target the neighbour lane on `side` (-1 left, +1 right, highway-env's lane order on
+        the road edge) where it is reachable from here and the line to it is dashed."""
+        net = self.net
+        _from, _to, _id = self.target_lane_index
+        index = (_from, _to, int(min(max(_id + side, 0), len(net.graph[_from][_to]) - 1)))
+        old, new = net.id_of.get(self.target_lane_index), net.id_of.get(index)
+        if index != self.target_lane_index and net.get_lane(index).is_reachable_from(self.position) and (
+                old is None or new in lane_changes(net.hdmap.lanes[old])):
+            self.target_lane_index = index
+
+    def command(self) -> None:
+        """This frame's command: lane keeping on the target lane and the speed control towards
+        the target speed (what highway-env's `ControlledVehicle.act()` computes)."""
+        self.action = {"steering": self.steering_control(self.target_lane_index),
+                       "acceleration": speed_control(self.target_speed, self.speed)}
 
     def reversing(self) -> bool:
         return self.target_speed < 0
@@ -422,6 +436,32 @@ def bicycle_state(vehicle: Ego) -> tuple[float, float, float]:
     m = vehicle.model
     steering = min(max(float(action.get("steering", 0.0)), -m.max_steering), m.max_steering)
     return steering, yaw_rate(float(vehicle.speed), steering, m.wheelbase), float(action.get("acceleration", 0.0))
+
+
+def command_egos(egos: list["EgoMDPVehicle"]) -> None:
+    """`act()` between decisions of many meta-action egos at once: each follows its route, then
+    their lane keeping on the target lanes (`sim.vehicle.keeping_steering`) and speed control
+    as one array program. NumPy's functions give math's values bit for bit here, so each ego
+    gets `command`'s (tests/envs/test_vector_native.py runs both)."""
+    ahead, lat, heading, speed, wheelbase, limit, target = ([] for _ in range(7))
+    for v in egos:
+        v.follow_road()
+        net = v.net
+        tid = net.id_of[v.target_lane_index]
+        s, r = v.projection(tid)
+        ahead.append(net.lane_of[tid].heading_at(s + v.speed * LANE_KEEPING_TAU_S))
+        lat.append(r)
+        heading.append(v.heading)
+        speed.append(v.speed)
+        wheelbase.append(v.model.wheelbase)
+        limit.append(v.model.max_steering)
+        target.append(v.target_speed)
+    v_arr = np.array(speed, dtype=float)
+    steer = keeping_steering(np.array(ahead, dtype=float), np.array(lat, dtype=float), np.array(heading, dtype=float),
+                             v_arr, np.array(wheelbase), np.array(limit))
+    acc = speed_control(np.array(target, dtype=float), v_arr)
+    for v, st, a in zip(egos, steer.tolist(), acc.tolist()):
+        v.action = {"steering": st, "acceleration": a}
 
 
 def step_egos(egos: list, dt: float) -> None:

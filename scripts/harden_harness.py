@@ -922,9 +922,9 @@ signal.signal(signal.SIGTERM, signal.SIG_IGN); start(); drive(); time.sleep(600)
 ]
 
 
-def tagged_processes(tag: str) -> list[int]:
-    """Live processes whose environment holds HARNESS_TAG_VAR=`tag` (Linux /proc)."""
-    marker = f"{HARNESS_TAG_VAR}={tag}".encode()
+def tagged_processes(tag: str, var: str = HARNESS_TAG_VAR) -> list[int]:
+    """Live processes whose environment holds `var`=`tag` (Linux /proc)."""
+    marker = f"{var}={tag}".encode()
     found = []
     for name in os.listdir("/proc"):
         if not name.isdigit() or int(name) == os.getpid():

@@ -19,7 +19,7 @@ import feat2map
 from feat2map.config import CROSSING_CLEARANCE_M
 from feat2map.envs.core import LaneTable
 from feat2map.envs.network import MapNetwork
-from feat2map.envs.rules import line_setback, stop_line_ahead
+from feat2map.envs.rules import line_plan, line_setback
 
 
 def _redrawn(control: str):
@@ -65,10 +65,9 @@ def test_rules_and_traffic_core_read_one_wait_point():
     for lane in ("R0_1", "R3_1"):
         assert table.line_setback[table.index[lane]] == pytest.approx(line_setback(net, lane))
     j_lane = next(s for s in net.hdmap.lanes["R0_1"].successors)
-    upcoming = [(0, "R0_1", 0.0, 10.0), (1, j_lane, 15.0, None)]  # a car at s = 10 of R0_1, the entry 15 m on
-    sl, in_lane, lid, d = stop_line_ahead(net, upcoming, ["R0_1", j_lane])
-    assert (sl, in_lane, lid) == (None, "R0_1", j_lane)
-    assert d == pytest.approx(15.0 - net.setbacks["R0_1"]) and d < 15.0 - 1.0
+    lengths, back, found = line_plan(net, ["R0_1", j_lane], 0)  # a car on R0_1, the entry at its end
+    assert found == (None, "R0_1", j_lane) and lengths == ()
+    assert back == pytest.approx(net.setbacks["R0_1"]) and back > 1.0  # the line lies before the entry
 
 
 def test_road_lane_across_a_junction_lanes_last_metre_conflicts():

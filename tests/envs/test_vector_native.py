@@ -128,8 +128,13 @@ def scalar_code(monkeypatch) -> None:
         for v in egos:
             v.step(dt)
 
+    def command_egos(egos):
+        for v in egos:
+            v.act()
+
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
     monkeypatch.setattr(core, "step_egos", step_egos)
+    monkeypatch.setattr(core, "command_egos", command_egos)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
     monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's _end_step
     monkeypatch.setattr(core.TrafficCore, "occupancies", lambda self, roads: [None] * len(roads))  # each road's own
@@ -149,7 +154,7 @@ def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
 @pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
 def test_array_programs_equal_the_scalar_code(config, monkeypatch):
     """The batch's array programs (the rules' stop distances, `sim.observe.kinematics`,
-    `vehicles.step_egos`, the rewards and info columns of `MapVectorEnv.end_steps`,
+    `vehicles.command_egos` and `step_egos`, the rewards and info columns of `MapVectorEnv.end_steps`,
     `TrafficCore.occupancies`) give bit
     for bit what the rules asked row by row, each ego stepped alone and each sub-env's own
     observation, reward and info give (the equality with single envs above cannot see this: a

@@ -6,6 +6,7 @@ still writes its partial report."""
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import json
 import os
@@ -17,6 +18,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import REPO
+
+_spec = importlib.util.spec_from_file_location("harden_harness", REPO / "scripts" / "harden_harness.py")
+assert _spec is not None and _spec.loader is not None
+harness = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(harness)
 
 TAG_VAR = "FEAT2MAP_ORPHAN_TEST_TAG"  # in the rollout's environment: inherited by its workers and planners
 START_LIMIT_S = 90.0  # for both workers to start their planners (spawn and import on a loaded 2-core machine)
@@ -57,22 +64,8 @@ def suite_file(tmp_path_factory) -> Path:
 
 
 def tagged(tag: str) -> list[int]:
-    """Live processes whose environment holds TAG_VAR=`tag` (Linux /proc)."""
-    marker = f"{TAG_VAR}={tag}".encode()
-    found = []
-    for name in os.listdir("/proc"):
-        if not name.isdigit() or int(name) == os.getpid():
-            continue
-        try:
-            with open(f"/proc/{name}/stat", "rb") as f:
-                if f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X"):
-                    continue
-            with open(f"/proc/{name}/environ", "rb") as f:
-                if marker in f.read().split(b"\0"):
-                    found.append(int(name))
-        except (OSError, IndexError):
-            continue
-    return found
+    """Live processes whose environment holds TAG_VAR=`tag` (the harness's /proc scan)."""
+    return harness.tagged_processes(tag, TAG_VAR)
 
 
 @contextlib.contextmanager
