@@ -196,8 +196,10 @@ class MapVectorEnv(VectorEnv):
         types = [env.observation_type for env in envs]
         wrapped = bool(types) and isinstance(types[0], TrafficControlObservation)
         types = [t.inner if wrapped else t for t in types]
-        kin = kinematics([t for t in types if type(t) is Kinematics], self.core)[::-1]
-        kin = [kin.pop() if type(t) is Kinematics else None for t in types]
+        picks = [k for k, t in enumerate(types) if type(t) is Kinematics]
+        kin: list = [None] * len(types)
+        for k, o in zip(picks, kinematics([types[k] for k in picks], self.core)):
+            kin[k] = o
         if not wrapped:
             return kin
         return [None if o is None else {"observation": o, "traffic_control": env.traffic_control_vector()}
