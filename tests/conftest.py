@@ -158,6 +158,23 @@ def pytest_runtest_makereport(item, call):
         report.sections.append(("how to reproduce", f"{SEED_ENV}={seed} python -m pytest '{item.nodeid}'"))
 
 
+# the formats a map's features must survive: (format, the file or folder name it is written to)
+ROUND_TRIPS = [("native", "m.json"), ("apollo", "apollo"), ("opendrive", "m.xodr")]
+
+
+def round_trip(m, tmp_path: Path, fmt: str, name: str):
+    """`m` written as `fmt` to tmp_path/name and read back (the reader's repair warnings are not
+    these tests' subject)."""
+    import warnings
+
+    from feat2map.formats import read_map, write_map
+
+    write_map(m, tmp_path / name, fmt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_map(tmp_path / name)
+
+
 def example_map_file(tmp_path_factory, example: str) -> Path:
     """examples/<example>.yaml built at seed 0 and saved as native JSON in a fresh folder."""
     from feat2map.formats import native

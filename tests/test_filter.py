@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import json
 import math
-import warnings
 from pathlib import Path
 
 import pytest
-from conftest import export_problems, sha256_text
+from conftest import ROUND_TRIPS, export_problems, round_trip, sha256_text
 from shapely.geometry import LineString, Polygon
 
 from feat2map.cli import main
@@ -18,7 +17,7 @@ from feat2map.config import FILTER_DIVERGE_M
 from feat2map.errors import FeatureError
 from feat2map.extract import extract_filters, extract_junctions, map_feature
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace, JunctionFeature, Socket, with_filter
-from feat2map.formats import native, read_map, write_map
+from feat2map.formats import native, write_map
 from feat2map.generate import generate
 from feat2map.invariants import check_map, feature_mismatch
 from feat2map.model import HDMap
@@ -160,12 +159,9 @@ def test_a_filter_without_a_right_turn_is_named():
 
 # ------------------------------------------------------------------------------ exports
 
-@pytest.mark.parametrize("fmt, name", [("native", "m.json"), ("apollo", "apollo"), ("opendrive", "m.xodr")])
+@pytest.mark.parametrize("fmt, name", ROUND_TRIPS)
 def test_filter_lanes_survive_a_round_trip(tmp_path, spec_map, fmt, name):
-    write_map(spec_map, tmp_path / name, fmt)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        back = read_map(tmp_path / name)
+    back = round_trip(spec_map, tmp_path, fmt, name)
     found = sorted((f.control, f.island) for f in extract_filters(back))  # OpenDRIVE numbers the junctions
     assert found == [("signal", False), ("yield", True), ("yield", True)]
     assert len({f.junction for f in extract_filters(back)}) == 2

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import json
 import math
-import warnings
 from pathlib import Path
 
 import pytest
-from conftest import export_problems, read_shared_map, sha256_text
+from conftest import ROUND_TRIPS, export_problems, read_shared_map, round_trip, sha256_text
 from shapely.geometry import Polygon
 
 from feat2map.cli import main
@@ -17,7 +16,7 @@ from feat2map.config import CROSSWALK_WIDTH_M, MIDBLOCK_POSITION_RANGE
 from feat2map.errors import FeatureError
 from feat2map.extract import extract_junctions, extract_midblock, map_feature
 from feat2map.features import PAPER_SF_FEATURE_SPACE, FeatureSpace, MidblockFeature
-from feat2map.formats import native, read_map, write_map
+from feat2map.formats import native, write_map
 from feat2map.generate import generate
 from feat2map.invariants import check_map
 from feat2map.model import HDMap, midblock_controls
@@ -152,12 +151,9 @@ def positions(m: HDMap) -> list[float]:
             for v in (x - x0, y - y0)]
 
 
-@pytest.mark.parametrize("fmt, name", [("native", "m.json"), ("apollo", "apollo"), ("opendrive", "m.xodr")])
+@pytest.mark.parametrize("fmt, name", ROUND_TRIPS)
 def test_midblock_crosswalks_and_lights_survive_a_round_trip(tmp_path, sampled, fmt, name):
-    write_map(sampled, tmp_path / name, fmt)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        back = read_map(tmp_path / name)
+    back = round_trip(sampled, tmp_path, fmt, name)
     assert len(back.crosswalks) == len(sampled.crosswalks)
     assert positions(back) == pytest.approx(positions(sampled), abs=0.2)
     assert len(midblock_controls(back)) == 2

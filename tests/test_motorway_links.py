@@ -8,13 +8,12 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from conftest import export_problems
+from conftest import ROUND_TRIPS, export_problems, round_trip
 
 from feat2map.errors import FeatureError
 from feat2map.extract import extract_junctions, map_feature
 from feat2map.features import (PAPER_SF_FEATURE_SPACE, RAMP_VALUES, FeatureSpace, JunctionFeature, Socket,
                                ramp_carriageway, ramp_junction)
-from feat2map.formats import write_map
 from feat2map.generate import generate, generate_from_features
 from feat2map.invariants import check_map, feature_mismatch
 from feat2map.model import HDMap
@@ -167,16 +166,9 @@ def test_extraction_finds_links_and_records_them_in_the_feature(sampled, spec_ma
     assert got.ramp_value == "on" and not got.has_link
 
 
-@pytest.mark.parametrize("fmt, name", [("native", "m.json"), ("apollo", "apollo"), ("opendrive", "m.xodr")])
+@pytest.mark.parametrize("fmt, name", ROUND_TRIPS)
 def test_link_junctions_survive_a_round_trip(tmp_path, spec_map, fmt, name):
-    import warnings
-
-    from feat2map.formats import read_map
-
-    write_map(spec_map, tmp_path / name, fmt)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        back = read_map(tmp_path / name)
+    back = round_trip(spec_map, tmp_path, fmt, name)
     got = [j.feature for j in extract_junctions(back)]
     assert len(got) == len(spec_map.junctions)
     for want, j in zip(spec_map.junctions.values(), got):

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import corpus_map, export_problems, sha256_text
+from conftest import ROUND_TRIPS, corpus_map, export_problems, round_trip, sha256_text
 
 from feat2map.config import (JUNCTION_SPEED_LIMIT_MPS, MAX_MOTORWAY_LANES, MOTORWAY_SPEED_LIMIT_MPS, RAMP_ANGLE_RANGE_DEG,
                              RAMP_LANE_M, RAMP_SPEED_LIMIT_MPS, SPEED_LIMIT_MPS, GenerationConfig)
@@ -327,17 +327,11 @@ def test_exports_with_ramps_validate(tmp_path, request, fmt, which):
     assert problems == [], problems[:3]
 
 
-@pytest.mark.parametrize("fmt, name", [("native", "m.json"), ("apollo", "apollo"), ("opendrive", "m.xodr")])
+@pytest.mark.parametrize("fmt, name", ROUND_TRIPS)
 def test_ramp_junctions_survive_a_round_trip(tmp_path, spec_map, fmt, name):
-    import warnings
-
     from feat2map.extract_ramps import extract_ramps
-    from feat2map.formats import read_map
 
-    write_map(spec_map, tmp_path / name, fmt)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        back = read_map(tmp_path / name)
+    back = round_trip(spec_map, tmp_path, fmt, name)
     got = [j.feature for j in extract_junctions(back)]  # OpenDRIVE numbers the junctions
     for want, j in zip(spec_map.junctions.values(), got):
         assert feature_mismatch(j, want.feature) == []

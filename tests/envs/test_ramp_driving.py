@@ -30,11 +30,16 @@ def map_path(tmp_path_factory) -> Path:
     return example_map_file(tmp_path_factory, "ramps")
 
 
+def sampled_map_file(tmp_path_factory, folder: str, ramps: tuple[str, ...]) -> Path:
+    """The paper's SF space with ramp values `ramps`, generated at seed 0 and saved in a fresh folder."""
+    path = tmp_path_factory.mktemp(folder) / "map.json"
+    native.save(generate(replace(PAPER_SF_FEATURE_SPACE, ramp=ramps), seed=0), path)
+    return path
+
+
 @pytest.fixture(scope="module")
 def sampled_path(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("sampled_ramps") / "map.json"
-    native.save(generate(replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "on", "off", "both")), seed=0), path)
-    return path
+    return sampled_map_file(tmp_path_factory, "sampled_ramps", ("none", "on", "off", "both"))
 
 
 @pytest.fixture(scope="module")
@@ -44,10 +49,7 @@ def links_path(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def sampled_links_path(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("sampled_links") / "map.json"
-    native.save(generate(replace(PAPER_SF_FEATURE_SPACE, ramp=("none", "link-on", "link-off", "link-both")), seed=0),
-                path)
-    return path
+    return sampled_map_file(tmp_path_factory, "sampled_links", ("none", "link-on", "link-off", "link-both"))
 
 
 @pytest.fixture(scope="module")
