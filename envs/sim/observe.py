@@ -14,13 +14,13 @@ from typing import Any
 
 import numpy as np
 
+from ..core import DRIVEN
 from ..lanes import project_rows, segment_table
 
 FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d",
                       "long_off", "lat_off", "ang_off"})
 RELATIVE = ("x", "y", "vx", "vy")  # relative to the observer unless `absolute`
 OFFSETS = ("long_off", "lat_off", "ang_off")  # `Vehicle.lane_offset`, read from the chosen vehicles
-DRIVEN = 1  # core.TrafficCore's kind of a row it drives
 
 
 def supported(obs: Any) -> bool:
