@@ -183,8 +183,11 @@ class LaneTable:
             self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
         for lid, back in net.setbacks.items():  # stop lines and bare entries alike (rules.line_setback)
             self.line_setback[self.index[lid]] = back
-        # lane-pair tables (`pair`), concatenated: where a road user on lane b is seen from lane a
-        self._pairs: dict[tuple[int, int], tuple[int, int, float]] = {}  # (a, b) -> (start, samples, step)
+        # lane-pair tables (`seen_from`), concatenated; the pairs by key a * lanes + b, ascending
+        self.pair_key = np.zeros(0, dtype=np.int64)
+        self.pair_start = np.zeros(0, dtype=np.int64)
+        self.pair_count = np.zeros(0, dtype=np.int64)
+        self.pair_step = np.zeros(0)
         self.pair_sa = self.pair_ra = np.zeros(0)
 
     def near_pairs(self, lane_a: np.ndarray, lane_b: np.ndarray) -> np.ndarray:
@@ -200,12 +203,17 @@ class LaneTable:
 
     def seen_from(self, a: np.ndarray, b: np.ndarray, s_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(s along lane a, lateral offset from lane a) of the points at s_b on lanes b, from
-        tables that sample each lane pair every PAIR_SAMPLE_M (built on first use)."""
-        keys = list(zip(a.tolist(), b.tolist()))
-        for key in keys:
-            if key not in self._pairs:
-                self._add_pair(*key)
-        start, count, step = np.array([self._pairs[k] for k in keys]).T
+        tables that sample each lane pair every PAIR_SAMPLE_M (built on first use; a pair is
+        found by its key's place among the sorted keys, no lookup per pair)."""
+        keys = a * len(self.length) + b
+        at = self.pair_key.searchsorted(keys)
+        missing = at >= len(self.pair_key)
+        missing[~missing] = self.pair_key[at[~missing]] != keys[~missing]
+        if missing.any():
+            for key in np.unique(keys[missing]).tolist():
+                self._add_pair(key)
+            at = self.pair_key.searchsorted(keys)
+        start, count, step = self.pair_start[at], self.pair_count[at], self.pair_step[at]
         pos = np.minimum(np.maximum(s_b / step, 0.0), count - 1)
         i = np.minimum(np.floor(pos), count - 2)
         f = pos - i
@@ -213,12 +221,18 @@ class LaneTable:
         return (self.pair_sa[i] * (1 - f) + self.pair_sa[i + 1] * f,
                 self.pair_ra[i] * (1 - f) + self.pair_ra[i + 1] * f)
 
-    def _add_pair(self, a: int, b: int) -> None:
+    def _add_pair(self, key: int) -> None:
+        """Sample lane b (key a * lanes + b) from lane a every PAIR_SAMPLE_M, its key kept sorted."""
+        a, b = divmod(key, len(self.length))
         la, lb = self.net.lane_of[self.net.lane_ids[a]], self.net.lane_of[self.net.lane_ids[b]]
         count = max(2, int(math.ceil(lb.length / PAIR_SAMPLE_M)) + 1)
         sb = np.linspace(0.0, lb.length, count)
         proj = np.array([la.local_coordinates(lb.position(x, 0.0)) for x in sb])
-        self._pairs[(a, b)] = (len(self.pair_sa), count, lb.length / (count - 1))
+        k = int(self.pair_key.searchsorted(key))
+        self.pair_key = np.insert(self.pair_key, k, key)
+        self.pair_start = np.insert(self.pair_start, k, len(self.pair_sa))
+        self.pair_count = np.insert(self.pair_count, k, count)
+        self.pair_step = np.insert(self.pair_step, k, lb.length / (count - 1))
         self.pair_sa = np.concatenate([self.pair_sa, proj[:, 0]])
         self.pair_ra = np.concatenate([self.pair_ra, proj[:, 1]])
 

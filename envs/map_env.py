@@ -33,7 +33,7 @@ from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
-from .rules import VIOLATIONS, EgoJudge, braking_distance, manoeuvre_name
+from .rules import VIOLATIONS, EgoJudge, braking_distance, manoeuvre_name, route_memo
 from .sim.vehicle import VehicleModel
 from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
 
@@ -170,7 +170,11 @@ class EgoTask:
         return self.control.line_ahead(self.vehicle)
 
     def junction_ahead(self) -> tuple[str | None, str | None]:
-        """(junction id, manoeuvre) of the junction the ego is in or will enter next."""
+        """(junction id, manoeuvre) of the junction the ego is in or will enter next (a
+        `rules.route_memo`: every step's info asks)."""
+        return route_memo(self.vehicle, "junction ahead", self._junction_ahead)
+
+    def _junction_ahead(self) -> tuple[str | None, str | None]:
         ego, m = self.vehicle, self.net.hdmap
         for lid in ego.lane_route[ego.route_pos:]:
             ln = m.lanes[lid]

@@ -254,8 +254,6 @@ class AgentView(EgoTask):
         self.agent_collision = False
         self._completed_at = -1  # the world's frame of `route_completed`'s last answer
         self._completed = False
-        self._junction_at: tuple[int, int] = (-1, -1)  # the route and position of `junction_ahead`'s last answer
-        self._junction: tuple[str | None, str | None] = (None, None)
 
     def start(self, judge: AgentJudge, terms: Sequence[str], observation_type: Any) -> None:
         """The agent is on the road: its judge, reward terms and observation; its progress from here."""
@@ -286,14 +284,6 @@ class AgentView(EgoTask):
         if self._completed_at != steps:
             self._completed_at, self._completed = steps, EgoTask.route_completed(self)
         return self._completed
-
-    def junction_ahead(self) -> tuple[str | None, str | None]:
-        """EgoTask's, computed again only when the agent's route or route position changes."""
-        v = self.vehicle
-        at = (id(v.lane_route), v.route_pos)
-        if self._junction_at != at:
-            self._junction_at, self._junction = at, EgoTask.junction_ahead(self)
-        return self._junction
 
 
 class _World(MapEnv):

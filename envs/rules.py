@@ -237,6 +237,20 @@ def line_plan(net: "MapNetwork", route: Sequence[str], pos: int) -> tuple:
     return (None,)
 
 
+def route_memo(vehicle: Any, key: Any, make: Callable[[], Any]) -> Any:
+    """`make()`: a fact of `vehicle`'s route from its route position on (the next junction entry,
+    a junction lane's chain, ...), worked out once per route position: the facts are held on the
+    vehicle by `key` and forgotten when its route or position changes."""
+    route, pos = vehicle.lane_route, vehicle.route_pos
+    held = vehicle.__dict__.get("_route_memo")
+    if held is None or held[0] is not route or held[1] != pos:
+        held = vehicle._route_memo = (route, pos, {})
+    facts = held[2]
+    if key not in facts:
+        facts[key] = make()
+    return facts[key]
+
+
 def room_to_wait(room: float | np.ndarray, length: float | np.ndarray) -> bool | np.ndarray:
     """Whether `room` metres of road up to where a vehicle waits (the next junction's stop line, a
     narrow passage) hold one `length` long waiting there; else it would wait inside the junction
@@ -286,17 +300,21 @@ class TrafficRules:
     passage_rooms: dict  # (passage group, side) -> vehicles that took a place to wait before it
     signals_by_junction: dict  # junction id -> its signal ids
 
-    _states_at: tuple[float, dict[str, str]] = (math.nan, {})  # (clock, states asked at it): `signal_state`
+    # (clock, signal states asked at it, junction states asked at it): `signal_state`, `signal_states`
+    _states_at: tuple[float, dict[str, str], dict] = (math.nan, {}, {})
 
     # ---- signals ----------------------------------------------------------------------
+    def _states_now(self) -> tuple[float, dict[str, str], dict]:
+        """The states asked at the current clock (a new clock forgets them)."""
+        if self._states_at[0] != self.t:
+            self._states_at = (self.t, {}, {})
+        return self._states_at
+
     def signal_state(self, signal_id: str) -> str:
         """The state of a signal ("green" without a plan), worked out once per clock value: a
         plan's state is a function of `t` alone, and a frame's rule queries, judges and infos ask
         the same signals many times."""
-        t, states = self._states_at
-        if t != self.t:
-            states = {}
-            self._states_at = (self.t, states)
+        states = self._states_now()[1]
         state = states.get(signal_id)
         if state is None:
             plan = self.plans.get(signal_id)
@@ -304,9 +322,14 @@ class TrafficRules:
         return state
 
     def signal_states(self, junction_id: str | None = None) -> dict[str, str]:
-        """States of one junction's signals (all signals when `junction_id` is None)."""
-        ids = self.net.hdmap.signals if junction_id is None else self.signals_by_junction.get(junction_id, ())
-        return {sid: self.signal_state(sid) for sid in ids}
+        """States of one junction's signals (all signals when `junction_id` is None): a new dict,
+        worked out once per clock value."""
+        by_junction = self._states_now()[2]
+        states = by_junction.get(junction_id)
+        if states is None:
+            ids = self.net.hdmap.signals if junction_id is None else self.signals_by_junction.get(junction_id, ())
+            states = by_junction[junction_id] = {sid: self.signal_state(sid) for sid in ids}
+        return dict(states)
 
     def control_at(self, in_lane: str | None) -> "StopLine | None":
         """The stop line (signal or stop sign) on an incoming lane, None at a bare entry."""
@@ -341,13 +364,10 @@ class TrafficRules:
         """(stop line or None, incoming lane, junction lane, distance along the route from the
         vehicle's centre to the line) of a route follower's next junction entry, looking `within`
         metres ahead (beyond, or none: (None, None, None, inf)). The entry is found once per
-        route position (`line_plan`, held on the vehicle); the distance is summed from the
+        route position (`line_plan`, a `route_memo`); the distance is summed from the
         vehicle's place lane by lane, in `upcoming`'s order."""
         route, pos = vehicle.lane_route, vehicle.route_pos
-        held = vehicle.__dict__.get("_line_plan")
-        if held is None or held[0] is not route or held[1] != pos:
-            held = vehicle._line_plan = (route, pos, line_plan(self.net, route, pos))
-        plan = held[2]
+        plan = route_memo(vehicle, "line plan", lambda: line_plan(self.net, route, pos))
         if plan[0] is None:
             return None, None, None, math.inf
         lengths, back, found = plan
@@ -419,13 +439,20 @@ class TrafficRules:
         box: its lanes in every junction up to the first road with room to wait must be clear
         (Town04's 1249, 870 and 483, 3.6 m and 1.5 m apart: a car waiting inside 1249 for 483
         and one waiting inside 483 for 1249 locked up)."""
+        return all(self.junction_clear(x, vehicle) for x in
+                   route_memo(vehicle, ("box", junction_lane), lambda: self._box_lanes(vehicle, junction_lane)))
+
+    def _box_lanes(self, vehicle, junction_lane: str) -> tuple[str, ...]:
+        """`box_clear`'s lanes after `junction_lane` on the vehicle's route: the first one in
+        each junction up to the first road with room to wait."""
         net, lanes = self.net, self.net.hdmap.lanes
         route = vehicle.lane_route
         if junction_lane not in route[vehicle.route_pos:]:
-            return True
+            return ()
         k = route.index(junction_lane, vehicle.route_pos)
         jid = lanes[junction_lane].junction_id
         room = 0.0
+        box = []
         for i in range(k + 1, len(route)):
             lane = lanes[route[i]]
             if lane.junction_id is None:
@@ -433,11 +460,10 @@ class TrafficRules:
             elif lane.junction_id != jid:
                 room -= line_setback(net, route[i - 1])
                 if room_to_wait(room, vehicle.LENGTH):
-                    return True
-                if not self.junction_clear(route[i], vehicle):
-                    return False
+                    break
+                box.append(route[i])
                 jid, room = lane.junction_id, 0.0
-        return True
+        return tuple(box)
 
     def _held(self, approach: str) -> bool:
         """Traffic on an approach waits at its line: a stop sign or a red signal."""
@@ -587,16 +613,22 @@ class TrafficRules:
             vehicle.reserved = j_lane
         return True
 
-    def junction_chain(self, vehicle, j_lane: str) -> list[str]:
+    def junction_chain(self, vehicle, j_lane: str) -> tuple[str, ...]:
         """`j_lane` and the lanes that follow it on the vehicle's route in the same junction, or
         crossing one of its lanes (road lanes, `network.road_crossings`): a map may chain
         connecting lanes inside one junction (USA_Lanker's 26_0_-5 -> 53_0_-3 in junction 1) or
         let a junction lane run out across the road lane after another (41_0_-1 across 47_0_-1);
         entering the first is entering them all, so all must be clear and are reserved together
-        (the later lanes' conflicts went unchecked: cars crossed the ego's reserved path)."""
-        route = getattr(vehicle, "lane_route", None)
-        if not route or j_lane not in route[vehicle.route_pos:]:
-            return [j_lane]
+        (the later lanes' conflicts went unchecked: cars crossed the ego's reserved path). A
+        `route_memo` of the vehicle's."""
+        if not getattr(vehicle, "lane_route", None):
+            return (j_lane,)
+        return route_memo(vehicle, ("chain", j_lane), lambda: self._chain(vehicle, j_lane))
+
+    def _chain(self, vehicle, j_lane: str) -> tuple[str, ...]:
+        route = vehicle.lane_route
+        if j_lane not in route[vehicle.route_pos:]:
+            return (j_lane,)
         lanes, conflicts = self.net.hdmap.lanes, self.net.conflicts
         k = route.index(j_lane, vehicle.route_pos)
         jid = lanes[j_lane].junction_id
@@ -610,7 +642,7 @@ class TrafficRules:
             elif lanes[lid].junction_id != jid:
                 break
             chain.append(lid)
-        return chain
+        return tuple(chain)
 
     def crossing_held(self, vehicle, lane_id: str, d: float) -> bool:
         """Whether `vehicle`, `d` metres before the start of road lane `lane_id`, waits there:

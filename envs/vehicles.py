@@ -16,7 +16,7 @@ from ..config import FINISH_MARGIN_M, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_DET
 from ..invariants import lane_changes
 from .network import MapNetwork
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, lane_keeping, speed_control, yaw_rate
-from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe
+from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe, route_memo
 
 
 class Pedestrian(RoadObject):
@@ -52,7 +52,6 @@ class RouteFollower:
     route_pos: int
     _projected_at: tuple[float, float] | None = None
     _projections: dict = {}
-    _done_before: tuple | None = None  # (route, position, metres of the route's lanes before it)
     if TYPE_CHECKING:  # the highway-env vehicle it is mixed into has these
         road: Any
         position: np.ndarray
@@ -158,12 +157,8 @@ class RouteFollower:
         """Metres driven along the route: lanes behind plus the position on the current one."""
         net = self.net
         route, pos = self.lane_route, self.route_pos
-        held = self._done_before
-        if held is None or held[0] is not route or held[1] != pos:  # summed once per route position
-            held = self._done_before = (route, pos, sum(net.lane_of[l].length for l in route[:pos]))
-        done = held[2]
-        lane = net.lane_of[self.lane_route[self.route_pos]]
-        return done + min(max(self.route_s(), 0.0), lane.length)
+        done = route_memo(self, "done before", lambda: sum(net.lane_of[l].length for l in route[:pos]))
+        return done + min(max(self.route_s(), 0.0), net.lane_of[route[pos]].length)
 
     def route_length(self) -> float:
         return sum(self.net.lane_of[l].length for l in self.lane_route)
@@ -341,16 +336,18 @@ class EgoMDPVehicle(Ego, MDPVehicle):
         """A meta-action as highway-env's MDPVehicle takes it (FASTER / SLOWER: the target speed
         one step from the one nearest the speed; LANE_LEFT / LANE_RIGHT: the neighbour lane of
         the target lane where it is reachable), except that a lane change needs a dashed line
-        between the two lanes (`invariants.lane_changes`); then this frame's command (`command`).
-        Our own code throughout: highway-env's controller chain is not run."""
+        between the two lanes (`invariants.lane_changes`). Without an action, this frame's command
+        (`command`): the core asks for it after the decision (`TrafficCore.act`), so a decision
+        frame computes it once. Our own code throughout: highway-env's controller chain is not run."""
         self.follow_road()
-        if action in ("FASTER", "SLOWER"):
+        if action is None:
+            self.command()
+        elif action in ("FASTER", "SLOWER"):
             index = self.speed_to_index(self.speed) + (1 if action == "FASTER" else -1)
             self.speed_index = int(min(max(index, 0), self.target_speeds.size - 1))
             self.target_speed = self.index_to_speed(self.speed_index)
         elif action in ("LANE_LEFT", "LANE_RIGHT"):
             self.change_lane(-1 if action == "LANE_LEFT" else 1)
-        self.command()
 
     def change_lane(self, side: int) -> None:
         """Target the neighbour lane on `side` (-1 left, +1 right, highway-env's lane order on

@@ -618,7 +618,7 @@ def test_chained_junction_lanes_are_entered_together(chained):
     rules = TrafficRules()
     rules.net = net
     car = SimpleNamespace(lane_route=["R3_2", "J0_c22_0", "J0_c22_0b", "R2_1"], route_pos=0)
-    assert rules.junction_chain(car, "J0_c22_0") == ["J0_c22_0", "J0_c22_0b"]
+    assert rules.junction_chain(car, "J0_c22_0") == ("J0_c22_0", "J0_c22_0b")
 
 
 @pytest.mark.parametrize("t_spawn, back", [(1.5, 20.0), (1.5, 30.0), (2.0, 20.0), (2.5, 10.0), (3.0, 10.0)])
