@@ -7,10 +7,15 @@ and the ratio").
 
 The other revision is checked out into a temporary git worktree and imported from there (its
 `envs/` and `scenarios/` linked into its `feat2map/` as the installed package maps them); this
-checkout runs as installed. Each round runs one process per revision in turn, so load on a shared
-machine falls on both alike; the table gives the median of the rounds and after/before.
+checkout runs as installed. One worker process per revision (and one for MetaDrive with
+`--metadrive`) makes its envs once, warms them up, then measures short chunks on request; all
+workers run on one CPU and the chunks of the revisions alternate (ABBA), so that a change of the
+machine's speed, which on a shared machine moves a measurement by a quarter within seconds, and
+another process on a core fall on both alike. The table
+gives each revision's median rate and the median of the chunks' after/before ratios with its
+interquartile range.
 
-Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_against.py [--base main] [--rounds 5]
+Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_against.py [--base main] [--rounds 30]
      [--sizes 1,64,256] [--marl] [--metadrive]   (--sizes "" --marl: the multi-agent env alone;
      --metadrive: MetaDrive 0.4.3's single-agent env in each round, from /tmp/md-venv)
 """
@@ -26,83 +31,133 @@ import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "benchmarks"))
+from bench_marl import MD_PYTHON, MULTI  # noqa: E402  (benchmarks/ is the script's folder)
+
 CONFIG = {"simulation_frequency": 20, "policy_frequency": 10, "traffic_vehicles": 9, "duration": 1e9,
           "route_junctions": 3}
-ENV_STEPS = 600  # env-steps per measurement and setup
-BATCH_MIN_STEPS = 10  # batched steps per measurement at the least (N = 256: 2,560 env-steps)
+CHUNK_ENV_STEPS = 300  # env-steps per measured chunk (a batched chunk: at least one step)
+MARL_CHUNK_STEPS = 30  # multi-agent env steps per chunk (~20 agents each)
+MD_CHUNK_STEPS = 100  # MetaDrive env steps per chunk
+CPU = max(os.sched_getaffinity(0))  # every worker on this one CPU: they take turns on the same core and caches
+WARM_UP_STEPS = 20  # steps before the first chunk (lane and pair tables)
 IDLE = 1  # DiscreteMetaAction's IDLE
 MARL_HOLD = 3  # the agents' TargetSpeed index held in the multi-agent measurement (bench_marl.py's HOLD: 5 m/s)
 
-# one measurement in a fresh process: {size: env-steps per CPU second} (size 1: the single env),
-# and {"marl": agent-steps per CPU second} with a multi-agent config (bench_marl.py's scene)
-MEASURE = r"""
+# a worker: makes its envs, then answers each request line [key, steps] with the rate of that
+# chunk in CPU time (key 1: the single env's steps/s; N: the batched env's env-steps/s; "marl":
+# the multi-agent env's agent-steps/s)
+WORKER = r"""
 import json, sys, time
 import gymnasium as gym
 import numpy as np
 import feat2map
 
-config, steps, sizes, BATCH_MIN_STEPS, marl, hold = json.loads(sys.argv[1])
-out = {"feat2map": feat2map.__file__}
-if marl:
-    from feat2map.envs import parallel_env
-    env = parallel_env(marl)
-    env.reset(seed=0)
-    agent_steps = 0
-    for k in range(20 + steps):  # 20 steps of warm-up (lane and pair tables)
-        if k == 20:
-            agent_steps, t = 0, time.process_time()
-        if not env.agents:
-            env.reset()
-        agent_steps += len(env.agents)
-        env.step({a: hold for a in env.agents})
-    out["marl"] = agent_steps / (time.process_time() - t)
-    env.close()
+config, sizes, marl, hold, idle, warm = json.loads(sys.argv[1])
+envs = {}
 for n in sizes:
     if n == 1:
-        env = gym.make("feat2map/JunctionGrid-v0", config=config)
-        env.reset(seed=0)
-        t = time.process_time()
+        envs[n] = gym.make("feat2map/JunctionGrid-v0", config=config)
+    else:
+        envs[n] = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                               config=config)
+    envs[n].reset(seed=0)
+if marl:
+    from feat2map.envs import parallel_env
+    envs["marl"] = parallel_env(marl)
+    envs["marl"].reset(seed=0)
+
+
+def run(key, steps):
+    env = envs[key]
+    if key == "marl":
+        count = 0
         for _ in range(steps):
-            *_, term, trunc, _ = env.step(1)
+            if not env.agents:
+                env.reset()
+            count += len(env.agents)
+            env.step({a: hold for a in env.agents})
+        return count
+    if key == 1:
+        for _ in range(steps):
+            *_, term, trunc, _ = env.step(idle)
             if term or trunc:
                 env.reset()
-    else:
-        env = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode="vector_entry_point",
-                           config=config)
-        env.reset(seed=0)
-        action = np.full(n, 1)
-        t = time.process_time()
-        for _ in range(max(steps // n, BATCH_MIN_STEPS)):
-            env.step(action)
-    out[n] = (max(steps // n, BATCH_MIN_STEPS) * n if n > 1 else steps) / (time.process_time() - t)
-    env.close()
-print(json.dumps(out))
+        return steps
+    action = np.full(key, idle)
+    for _ in range(steps):
+        env.step(action)
+    return steps * key
+
+
+for key in envs:
+    run(key, warm)
+print(json.dumps({"feat2map": feat2map.__file__}), flush=True)
+for line in sys.stdin:
+    key, steps = json.loads(line)
+    t = time.process_time()
+    count = run(key, steps)
+    print(json.dumps(count / (time.process_time() - t)), flush=True)
 """
 
-
 # MetaDrive 0.4.3's single-agent env as ../shared/tools/metadrive_bench.py drives it (3 blocks, traffic
-# density 0.1, 10 Hz decisions, constant throttle), in CPU time of its process: env-steps/s
-MD_SINGLE = """
-import time
+# density 0.1, 10 Hz decisions, constant throttle): a worker answering [key, steps] with env-steps/s
+MD_WORKER = r"""
+import json, sys, time
 from metadrive.envs.metadrive_env import MetaDriveEnv
 env = MetaDriveEnv(dict(num_scenarios=10, start_seed=0, traffic_density=0.1, use_render=False, log_level=50, map=3))
 env.reset()
-t = time.process_time()
-for _ in range({steps}):
-    o, r, te, tr, i = env.step([0.0, 0.5])
-    if te or tr:
-        env.reset()
-print({steps} / (time.process_time() - t))
-env.close()
+for _ in range(int(sys.argv[1])):
+    env.step([0.0, 0.5])
+print(json.dumps({"metadrive": True}), flush=True)
+for line in sys.stdin:
+    _, steps = json.loads(line)
+    t = time.process_time()
+    for _ in range(steps):
+        o, r, te, tr, i = env.step([0.0, 0.5])
+        if te or tr:
+            env.reset()
+    print(json.dumps(steps / (time.process_time() - t)), flush=True)
 """
 
 
-def marl_config() -> dict:
-    """bench_marl.py's multi-agent config (its scene, made in this checkout)."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    from bench_marl import MULTI
+class Worker:
+    """A measuring process: `rate(key, steps)` asks it for one chunk."""
 
-    return MULTI
+    def __init__(self, argv: list[str], env: dict, label: str) -> None:
+        self.label = label
+        self.proc = subprocess.Popen(argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, cwd=tempfile.gettempdir(),
+                                     preexec_fn=lambda: os.sched_setaffinity(0, {CPU}))
+        self.hello = json.loads(self._line())
+
+    def _line(self) -> str:
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if not line:
+            err = self.proc.stderr.read() if self.proc.stderr is not None else ""
+            raise SystemExit(f"the {self.label} worker failed:\n{err[-2000:]}")
+        return line
+
+    def rate(self, key: int | str, steps: int) -> float:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(json.dumps([key, steps]) + "\n")
+        self.proc.stdin.flush()
+        return float(json.loads(self._line()))
+
+    def close(self) -> None:
+        if self.proc.stdin is not None:
+            self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+def feat2map_worker(pythonpath: Path | None, sizes: list[int], marl: dict | None, label: str) -> Worker:
+    env = dict(os.environ, SDL_VIDEODRIVER="offscreen")
+    env.pop("PYTHONPATH", None)
+    if pythonpath is not None:
+        env["PYTHONPATH"] = str(pythonpath)
+    args = [CONFIG, sizes, marl, MARL_HOLD, IDLE, WARM_UP_STEPS]
+    return Worker([sys.executable, "-c", WORKER, json.dumps(args)], env, label)
 
 
 def base_checkout(rev: str, where: Path) -> Path:
@@ -113,73 +168,73 @@ def base_checkout(rev: str, where: Path) -> Path:
     return where
 
 
-def measure(pythonpath: Path | None, sizes: list[int], marl: dict | None) -> dict:
-    env = dict(os.environ, SDL_VIDEODRIVER="offscreen")
-    env.pop("PYTHONPATH", None)
-    if pythonpath is not None:
-        env["PYTHONPATH"] = str(pythonpath)
-    args = [CONFIG, ENV_STEPS, sizes, BATCH_MIN_STEPS, marl, MARL_HOLD]
-    run = subprocess.run([sys.executable, "-c", MEASURE, json.dumps(args)], env=env,
-                         capture_output=True, text=True, cwd=tempfile.gettempdir())
-    if run.returncode != 0:
-        raise SystemExit(f"measurement failed ({'base' if pythonpath else 'this checkout'}):\n{run.stderr[-2000:]}")
-    return json.loads(run.stdout.strip().splitlines()[-1])
+def chunk_steps(key: int | str) -> int:
+    return MARL_CHUNK_STEPS if key == "marl" else CHUNK_ENV_STEPS if key == 1 else max(1, CHUNK_ENV_STEPS // int(key))
+
+
+def quartiles(xs: list[float]) -> tuple[float, float, float]:
+    q = statistics.quantiles(xs, n=4) if len(xs) > 1 else [xs[0]] * 3
+    return q[0], statistics.median(xs), q[2]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", default="main", help="the revision to compare with (default: main)")
-    ap.add_argument("--rounds", type=int, default=5, help="alternating rounds (default: 5)")
+    ap.add_argument("--rounds", type=int, default=30, help="alternating rounds of short chunks (default: 30)")
     ap.add_argument("--sizes", default="1,64,256", help="1: the single env; N > 1: the batched env (default: 1,64,256)")
     ap.add_argument("--marl", action="store_true", help="the multi-agent env's agent-steps/s too (bench_marl.py's scene)")
     ap.add_argument("--metadrive", action="store_true",
                     help="MetaDrive 0.4.3's single-agent env in each round too (/tmp/md-venv: "
                          "../shared/tools/metadrive-venv.sh), and the single env's ratio to it")
     args = ap.parse_args()
-    if args.metadrive:
-        sys.path.insert(0, str(REPO / "benchmarks"))
-        from bench_marl import metadrive_run
-        if 1 not in [int(s) for s in args.sizes.split(",") if s]:
-            ap.error("--metadrive compares the single env: --sizes must hold 1")
     sizes = [int(s) for s in args.sizes.split(",") if s]
-    marl = marl_config() if args.marl else None
+    if args.metadrive and 1 not in sizes:
+        ap.error("--metadrive compares the single env: --sizes must hold 1")
+    if args.metadrive and not MD_PYTHON.exists():
+        raise SystemExit("MetaDrive is not installed: make /tmp/md-venv with ../shared/tools/metadrive-venv.sh")
+    marl = MULTI if args.marl else None  # bench_marl.py's scene, made in this checkout
     keys: list[int | str] = [*sizes, *(["marl"] if marl else [])]
     rates: dict[str, dict[int | str, list[float]]] = {k: {n: [] for n in keys} for k in ("before", "after")}
     metadrive: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bench-against-") as tmp:
         base = base_checkout(args.base, Path(tmp) / "base")
+        workers: dict[str, Worker] = {}
         try:
+            workers["before"] = feat2map_worker(base, sizes, marl, "before")
+            workers["after"] = feat2map_worker(None, sizes, marl, "after")
+            for label in ("before", "after"):
+                where = Path(workers[label].hello["feat2map"]).parent
+                assert (where.resolve() == (base / "feat2map").resolve()) == (label == "before"), where
+            if args.metadrive:
+                workers["metadrive"] = Worker([str(MD_PYTHON), "-c", MD_WORKER, str(WARM_UP_STEPS)],
+                                              dict(os.environ), "MetaDrive")
             for r in range(args.rounds):
+                order = ("before", "after") if r % 2 == 0 else ("after", "before")
+                for n in keys:
+                    for label in order:
+                        rates[label][n].append(workers[label].rate(n, chunk_steps(n)))
                 if args.metadrive:
-                    got_md = metadrive_run(MD_SINGLE.format(steps=ENV_STEPS), 1)
-                    if got_md is None:
-                        raise SystemExit("MetaDrive did not run: make /tmp/md-venv with ../shared/tools/metadrive-venv.sh")
-                    metadrive.append(got_md[0])
-                for label, path in (("before", base), ("after", None)):
-                    got = measure(path, sizes, marl)
-                    if r == 0:
-                        where = Path(got["feat2map"]).parent
-                        assert (where.resolve() == (base / "feat2map").resolve()) == (path is not None), where
-                    for n in keys:
-                        rates[label][n].append(got[str(n)])
-                print(f"  round {r + 1} of {args.rounds}", file=sys.stderr, flush=True)
+                    metadrive.append(workers["metadrive"].rate(1, MD_CHUNK_STEPS))
+                if (r + 1) % 5 == 0 or r + 1 == args.rounds:
+                    print(f"  round {r + 1} of {args.rounds}", file=sys.stderr, flush=True)
         finally:
+            for w in workers.values():
+                w.close()
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(base)], check=False)
-    print(f"env-steps/s of CPU time, median of {args.rounds} alternating rounds (before: {args.base}; after: this "
+    print(f"env-steps/s of CPU time, {args.rounds} alternating chunks each (before: {args.base}; after: this "
           "checkout); 10 Hz, 10 vehicles per sub-env, default map" +
           ("; multi-agent: agent-steps/s, bench_marl.py's scene" if marl else ""))
-    print(f"{'setup':>12} {'before':>9} {'after':>9} {'after/before':>13}  rounds after/before")
+    print(f"{'setup':>12} {'before':>9} {'after':>9} {'after/before':>13}  (quartiles of the chunks' ratios)")
     for n in keys:
         b, a = statistics.median(rates["before"][n]), statistics.median(rates["after"][n])
-        each = " ".join(f"{x / y:.2f}" for x, y in zip(rates["after"][n], rates["before"][n]))
+        lo, mid, hi = quartiles([x / y for x, y in zip(rates["after"][n], rates["before"][n])])
         name = "multi-agent" if n == "marl" else "single" if n == 1 else f"N = {n}"
-        print(f"{name:>12} {b:>9.0f} {a:>9.0f} {a / b:>12.2f}x  {each}")
+        print(f"{name:>12} {b:>9.0f} {a:>9.0f} {mid:>12.2f}x  ({lo:.2f}-{hi:.2f})")
     if metadrive:
-        md = statistics.median(metadrive)
-        print(f"MetaDrive 0.4.3 single-agent env: {md:.0f} env-steps/s (rounds: {' '.join(f'{x:.0f}' for x in metadrive)}); "
-              + ", ".join(f"{label}: {statistics.median(rates[label][1]) / md:.2f}x MetaDrive "
-                          f"(rounds {' '.join(f'{x / y:.2f}' for x, y in zip(rates[label][1], metadrive))})"
-                          for label in ("before", "after")))
+        print(f"MetaDrive 0.4.3 single-agent env: {statistics.median(metadrive):.0f} env-steps/s")
+        for label in ("before", "after"):
+            lo, mid, hi = quartiles([x / y for x, y in zip(rates[label][1], metadrive)])
+            print(f"  {label}: {mid:.2f}x MetaDrive ({lo:.2f}-{hi:.2f}, the chunks' ratios in the same round)")
     for label in ("before", "after"):
         if 1 in sizes and len(sizes) > 1:
             single = statistics.median(rates[label][1])

@@ -106,7 +106,7 @@ class SingleRunner:
 
 def metadrive_run(code: str, values: int) -> tuple[float, ...] | None:
     """The last `values` numbers `code` prints, run by MetaDrive's venv (/tmp/md-venv), or None
-    when it is absent or the run fails (bench_against.py's single-agent round uses it too)."""
+    when it is absent or the run fails."""
     if not MD_PYTHON.exists():
         return None
     try:
