@@ -148,6 +148,10 @@ COMMONROAD_DT_S = 0.1  # CommonRoad export: time step of the scenario (light cyc
 COMMONROAD_CONTINUATION_M = 100.0  # CommonRoad export: straight lanelets past map exits / before entries
 COMMONROAD_HORIZON_S = 120.0  # CommonRoad export: its planning problem's goal time
 COMMONROAD_DATE = "2020-01-01"  # the date a CommonRoad file needs, when SOURCE_DATE_EPOCH is not set
+COMMONROAD_SHARED_BORDER_M = 1.5  # CommonRoad export: neighbours whose common border starts and ends at one point
+# and whose two drawings of it lie this close are adjacent, with one border (their mean); others are not
+COMMONROAD_VERTEX_STEP_M = 0.01  # CommonRoad export: a lanelet keeps its lane's vertices but for those this close
+# (along the lines) to one kept already (adjacent lanelets need one vertex count, so each takes all theirs)
 OPENDRIVE_JOINT_TANGENT_M = 0.01  # OpenDRIVE export: a polyline road starts (ends) with a chord this long along its
 # neighbour's end heading, so the lane borders of linked roads meet (ASAM's contact_point_no_horizontal_gaps)
 LANE_END_SNAP_M = 2.0  # Lanelet2/CommonRoad export: ends of linked lanes (per side) this close become one point

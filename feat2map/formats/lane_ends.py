@@ -11,6 +11,7 @@ is placed at its first member's position, in map order.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Sequence
 
 from ..config import ENDPOINT_TOLERANCE_M, LANE_END_SNAP_M
 from ..model import HDMap, Point
@@ -64,6 +65,21 @@ def lane_ends(m: HDMap, lanes=None) -> dict[End, Point]:
             join((lid, "left", "end"), (r, "left", "start"))
     return {(lid, side, at): _point(m, find((lid, side, at)))
             for lid in ids for side in ("left", "right") for at in ("start", "end")}
+
+
+def between(line: Sequence[Sequence[float]], start: tuple[float, float], end: tuple[float, float]) -> list:
+    """The inner points of a boundary `line` whose ends moved to `start` and `end` (`lane_ends`),
+    without those the moved ends passed: where a predecessor's end lies along a short inner
+    kerb beyond its first inner point, keeping that point would make the bound's first segment
+    run backwards (Lanelet2's loader, `geometry::align`, then inverts the bound and loses the
+    lanelet's links; a CommonRoad lanelet's border folds back on itself)."""
+    from shapely.geometry import LineString, Point
+
+    if len(line) < 3:
+        return []
+    own = LineString([(float(p[0]), float(p[1])) for p in line])
+    s0, s1 = own.project(Point(start)), own.project(Point(end))
+    return [p for p in line[1:-1] if s0 < own.project(Point(float(p[0]), float(p[1]))) < s1]
 
 
 def closed_seams(m: HDMap, tol: float = ENDPOINT_TOLERANCE_M) -> HDMap:

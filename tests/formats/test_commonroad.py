@@ -295,6 +295,84 @@ def test_a_planning_problem_starts_on_its_lanelet_as_written(tmp_path):
     assert report.problems == []
 
 
+def test_adjacent_lanelets_share_their_border_and_lanes_apart_are_not_adjacent(tmp_path):
+    """Apollo maps draw each lane's borders apart: cube_town's opposite lanes lie 3.3 m apart (a
+    median) yet name each other as neighbours, other neighbours' common border is drawn twice,
+    up to a metre apart. CommonRoad's road boundary (commonroad-drivability-checker) takes a lane
+    section's road from its outermost borders and the ends of the borders inside it, so such
+    lanelets written adjacent made a road that cut corners off the lanelets at their ends. Now
+    adjacent lanelets share one border (the mean of the two drawings) and lanes apart are not
+    adjacent; the checker flags a pair that does not share its border."""
+    import xml.etree.ElementTree as ET
+
+    from feat2map.model import HDMap, Lane, Road
+
+    def lane(lid, y_left, y_right, x0=0.0, x1=40.0, bow=0.0, **nb):
+        xs = np.linspace(x0, x1, 5)
+        arc = bow * np.sin(np.pi * (xs - x0) / (x1 - x0))  # a border drawn off the neighbour's mid-way
+        left = [(x, y_left + a) for x, a in zip(xs, arc)]
+        right = [(x, y_right) for x in xs]
+        centre = [(x, (y_left + y_right) / 2) for x in xs]
+        return Lane(lid, "r", tuple(centre), tuple(left), tuple(right), 3.5, 10.0, **nb)
+
+    def backwards(ln):
+        return Lane(ln.id, "r", ln.centerline[::-1], ln.right_boundary[::-1], ln.left_boundary[::-1], 3.5, 10.0,
+                    left_reverse_neighbors=ln.left_reverse_neighbors)
+
+    lanes = {"a": lane("a", 3.5, 0.0, bow=0.4, left_neighbors=("b",)),  # b's right border runs straight
+             "b": lane("b", 7.0, 3.5, right_neighbors=("a",), left_reverse_neighbors=("c",)),
+             "c": backwards(lane("c", 13.8, 10.3, left_reverse_neighbors=("b",)))}  # 3.3 m beyond b: a median
+    m = HDMap(lanes, {"r": Road("r", "chain", tuple(lanes))}, {})
+    path = tmp_path / "apart.xml"
+    write_commonroad(m, path)
+    report = check_commonroad(path)
+    assert [str(p) for p in report.problems] == []
+    lls, ids = lanelet_index(report.scenario.lanelet_network), lanelet_ids(m)
+    a, b, c = (lls[ids[x]] for x in "abc")
+    assert (a.adj_left, a.adj_left_same_direction, b.adj_right) == (b.lanelet_id, True, a.lanelet_id)
+    np.testing.assert_array_equal(a.left_vertices, b.right_vertices)  # one border, written once
+    assert 3.65 < a.left_vertices[2][1] < 3.85  # mid-way: the mean of 3.9 (a's drawing) and 3.5 (b's)
+    assert b.adj_left is None and c.adj_left is None  # not adjacent: they share no border
+
+    # a file whose adjacent lanelets keep two drawings of their border is flagged
+    tree = ET.parse(path)
+    for ll in tree.getroot().iter("lanelet"):
+        if ll.get("id") == str(a.lanelet_id):
+            ll.find("leftBound").findall("point")[2].find("y").text = "4.5"
+    tree.write(tmp_path / "bad.xml")
+    assert any("does not share its border" in str(p) for p in check_commonroad(tmp_path / "bad.xml").problems)
+
+
+def test_a_sparse_lanes_vertices_are_its_lanelets(tmp_path):
+    """Apollo's junction lanes have five points a border: resampled at equal steps, the bends
+    were cut up to 0.7 m (cube_town), a lanelet that was not the lane. Every vertex of a lane's
+    borders is now a vertex of its lanelet (within 1 cm: vertices closer are one), its
+    neighbour's too (one vertex count for both)."""
+    from feat2map.model import HDMap, Lane, Road
+
+    def arc(r, n, phase=0.0):  # a quarter turn, its points bunched at the start
+        t = (np.linspace(0, 1, n) ** 2 + phase * np.sin(np.linspace(0, np.pi, n))) * np.pi / 2
+        return [(r * np.sin(a), r - r * np.cos(a)) for a in t]
+
+    inner = Lane("in", "r", tuple(arc(12.0, 7)), tuple(arc(10.25, 5)), tuple(arc(13.75, 6, 0.1)), 3.5, 10.0,
+                 right_neighbors=("out",))
+    outer = Lane("out", "r", tuple(arc(15.5, 9)), tuple(arc(13.75, 6, 0.1)), tuple(arc(17.25, 4)), 3.5, 10.0,
+                 left_neighbors=("in",))
+    m = HDMap({"in": inner, "out": outer}, {"r": Road("r", "chain", ("in", "out"))}, {})
+    path = tmp_path / "sparse.xml"
+    write_commonroad(m, path)
+    report = check_commonroad(path)
+    assert [str(p) for p in report.problems] == []
+    lls, ids = lanelet_index(report.scenario.lanelet_network), lanelet_ids(m)
+    for lane, side in ((inner, "left"), (outer, "right")):  # the outer borders, as the lanes draw them
+        ll = lls[ids[lane.id]]
+        written = ll.left_vertices if side == "left" else ll.right_vertices
+        drawn = np.asarray(lane.left_boundary if side == "left" else lane.right_boundary)
+        assert max(np.hypot(*(written - p).T).min() for p in drawn) < 0.01  # COMMONROAD_VERTEX_STEP_M
+    assert lls[ids["in"]].adj_right == ids["out"]
+    np.testing.assert_array_equal(lls[ids["in"]].right_vertices, lls[ids["out"]].left_vertices)
+
+
 def test_a_junction_lane_leading_nowhere_is_no_manoeuvre(tmp_path):
     """Autonomous Stuff's junction 4 has three lanes that end at an arm without a road: listed as
     manoeuvres of their incomings, each was 'not reachable ... to a lanelet past it'. They are
@@ -348,10 +426,13 @@ def test_opposed_approaches_left_turns_are_permissive_however_skewed():
 
 @pytest.mark.real_maps
 @pytest.mark.parametrize("rel", shared_map_params("apollo/autonomous_stuff/base_map.bin", "apollo/gomentum/*",
-                                                  "apollo/san_francisco/base_map.bin"))
+                                                  "apollo/san_francisco/base_map.bin", "apollo/cube_town/base_map.bin",
+                                                  "apollo/borregas_ave/base_map.bin", "apollo/shalun/base_map.bin"))
 def test_real_apollo_maps_commonroad_exports_validate_clean(rel, tmp_path):
     """Autonomous Stuff's dead-end junction lanes, GoMentum's unlinked back-to-back junction
-    lanes, San Francisco's sparse bends and skewed opposed lights: each export validates clean."""
+    lanes, San Francisco's sparse bends and skewed opposed lights, cube_town's opposite lanes
+    across a median and every map's neighbours drawing their common border twice (adjacent
+    lanelets share one border): each export validates clean."""
     import warnings
 
     from feat2map.formats import read_map

@@ -4,7 +4,11 @@ needs from the lanelet network (each failure is a `Problem`):
   `XMLFileWriter.check_validity_of_commonroad_file`; the schema's messages name the lines);
 - commonroad-io reads it (`XMLFileReader`);
 - lanelets: predecessor/successor links go both ways and meet end to start (5 cm), adjacency is
-  mutual (same direction: left/right, opposite: left/left);
+  mutual (same direction: left/right, opposite: left/left) and adjacent lanelets share that
+  border (its vertices within 5 cm; run the other way for an opposite lanelet): CommonRoad's
+  tools take a lane section's road from its outermost borders and the ends of those inside it
+  (commonroad-drivability-checker's road boundary), so borders apart make a road that is not the
+  lanelets';
 - every intersection manoeuvre is reachable: from an incoming lanelet, through each junction
   lanelet of its right/straight/left sets, to a lanelet past the intersection, searching
   commonroad-io's successor lists; a junction lanelet that crosses the intersection alone turns
@@ -128,8 +132,20 @@ def _links(net, report: CommonRoadReport) -> None:
             back = None if other is None else (
                 (other.adj_right if side == "left" else other.adj_left) if same else
                 (other.adj_left if side == "left" else other.adj_right))
-            if back != ll.lanelet_id:
+            if other is None or back != ll.lanelet_id:
                 report.problems.append(Problem(where, f"adjacent {side} {adj} is not adjacent back"))
+                continue
+            mine = ll.left_vertices if side == "left" else ll.right_vertices
+            theirs = ((other.right_vertices if side == "left" else other.left_vertices) if same else
+                      (other.left_vertices if side == "left" else other.right_vertices)[::-1])
+            if len(mine) != len(theirs):
+                report.problems.append(Problem(where, f"adjacent {side} {adj} does not share its border "
+                                                      f"({len(mine)} and {len(theirs)} vertices)"))
+                continue
+            apart = float(np.hypot(*(np.asarray(mine) - np.asarray(theirs)).T).max())
+            if apart > LINK_TOLERANCE_M:
+                report.problems.append(Problem(where, f"adjacent {side} {adj} does not share its border "
+                                                      f"(up to {apart:.2f} m apart)"))
 
 
 def lanelet_index(net) -> dict[int, Any]:

@@ -1,16 +1,24 @@
 """Write an HDMap as a CommonRoad scenario (XML, format 2020a) with commonroad-io's own writer.
 
-The lanelet network: one lanelet per lane (left, centre and right vertices resampled to one
-count; junction lanes typed `intersection`), adjacency from the model's neighbours (opposite
-lanes as `opposite`), one crosswalk lanelet per crosswalk for pedestrians (mid-block ones
-too). Controls: a stop line on every lane a signal or stop sign governs (a CommonRoad light
-governs the end of its lanelet, so the lights of a mid-block crossing, which stand mid-lane
-before the junction's own control, are left out); stop signs as traffic signs (Zamunda/German
-206, yield signs 205, the catalogue CommonRoad's schema holds, in a ZAM scenario: CommonRoad's country code for
-synthetic maps); traffic lights with the fixed-time cycle of `feat2map.phases` (the env's
-default plan at offset 0: paired phases, green/amber/all-red from config). Intersections: per
-junction, one incoming per entry road, its junction lanelets split into right, straight and
-left (U-turns count as left).
+The lanelet network: one lanelet per lane (left, centre and right vertices taken at one set of
+arc-length fractions that keeps every vertex of the lane's lines, and of its adjacent lanes',
+which need the same count; junction lanes typed `intersection`), adjacency from the model's
+neighbours (opposite lanes as `opposite`) where the two lanes share their border: CommonRoad's
+adjacent lanelets have one common border, and its tools build the road from that
+(commonroad-drivability-checker's road boundary takes a lane section's outermost borders and
+only the end points of the borders inside it). Neighbours whose common border starts and ends
+at one point (`lane_ends`) and whose two drawings of it lie within `COMMONROAD_SHARED_BORDER_M`
+get one border, their mean (maps read from Apollo draw each lane's borders apart); neighbours
+apart (a median between opposite lanes) or starting or ending elsewhere are not adjacent. One
+crosswalk lanelet per crosswalk for pedestrians (mid-block ones too). Controls: a stop line on
+every lane a signal or stop sign governs (a CommonRoad light governs the end of its lanelet, so
+the lights of a mid-block crossing, which stand mid-lane before the junction's own control, are
+left out); stop signs as traffic signs (Zamunda/German 206, yield signs 205, the catalogue
+CommonRoad's schema holds, in a ZAM scenario: CommonRoad's country code for synthetic maps);
+traffic lights with the fixed-time cycle of `feat2map.phases` (the env's default plan at offset
+0: paired phases, green/amber/all-red from config). Intersections: per junction, one incoming
+per entry road, its junction lanelets split into right, straight and left (U-turns count as
+left).
 
 The location is the map's (0, 0) in WGS84, and its geoReference a transverse Mercator whose
 false origin makes the file's coordinates the map's local metres. commonroad-io stamps the
@@ -27,7 +35,7 @@ import math
 import tempfile
 import warnings
 from pathlib import Path
-from typing import Iterator, Mapping
+from typing import Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -35,13 +43,14 @@ from ... import __version__, atomic
 from ...angles import turn_name, wrap_angle
 from ...commonroad_io import install
 from ...config import (COMMONROAD_CONTINUATION_M, COMMONROAD_DATE, COMMONROAD_DT_S, COMMONROAD_HORIZON_S,
-                       STRAIGHT_TOLERANCE_DEG, UTM_ZONE, UTURN_THRESHOLD_DEG)
+                       COMMONROAD_SHARED_BORDER_M, COMMONROAD_VERTEX_STEP_M, STRAIGHT_TOLERANCE_DEG, UTM_ZONE,
+                       UTURN_THRESHOLD_DEG)
 from ...errors import Feat2MapError
 from ...model import HDMap, Lane, Polyline, incoming_lanes, midblock_controls
 from ...phases import junction_phases, timeline
 from ..base import header_date
 from ..geo import local_tmerc, utm_origin, utm_to_latlon
-from ..lane_ends import lane_ends
+from ..lane_ends import between, lane_ends
 
 COUNTRY = "ZAM"
 MAP_NAME = "Feat2map"
@@ -97,6 +106,35 @@ def mutual_adjacency(lanes: Mapping[str, Lane]) -> dict[str, dict[str, tuple[str
     return adj
 
 
+def _partner_side(side: str, same: bool) -> str:
+    """The side of a neighbour that faces my `side` (same direction: my left is its right;
+    opposite: my left is its left)."""
+    return ("right" if side == "left" else "left") if same else side
+
+
+def shared_borders(lanes: Mapping[str, Lane], adj: Mapping[str, Mapping[str, tuple[str, bool]]],
+                   ends: Mapping[tuple[str, str, str], tuple[float, float]],
+                   tol: float = COMMONROAD_SHARED_BORDER_M) -> dict[str, dict[str, tuple[str, bool]]]:
+    """The adjacency of `adj` (`mutual_adjacency`) that CommonRoad can state: pairs whose common
+    border starts and ends at one point (`ends`, `lane_ends`) and whose two drawings of it lie
+    within `tol` of each other. The others do not share a border (a median between them, or one
+    lane starting or ending elsewhere) and are left out, both ways."""
+    from shapely.geometry import LineString
+
+    out: dict[str, dict[str, tuple[str, bool]]] = {lid: {} for lid in adj}
+    for lid, sides in adj.items():
+        for side, (other, same) in sides.items():
+            oside = _partner_side(side, same)
+            o_at = {"start": "start", "end": "end"} if same else {"start": "end", "end": "start"}
+            if any(ends[(lid, side, at)] != ends[(other, oside, o_at[at])] for at in ("start", "end")):
+                continue
+            mine, theirs = (LineString(np.asarray(lanes[x].left_boundary if k == "left" else lanes[x].right_boundary,
+                                                  dtype=float)[:, :2]) for x, k in ((lid, side), (other, oside)))
+            if mine.hausdorff_distance(theirs) <= tol:  # GEOS: each line's vertices to the other line
+                out[lid][side] = (other, same)
+    return out
+
+
 def commonroad_io():
     """commonroad-io's scenario modules, or a clear error without the package. commonroad-io
     pins protobuf 3.20 (Apollo's maps need a newer one) and feat2map uses only its XML modules:
@@ -128,16 +166,41 @@ def quiet_commonroad() -> Iterator[None]:
         log.setLevel(level)
 
 
-def resample(line: Polyline, n: int) -> np.ndarray:
-    """`n` points along a polyline, equally spaced by arc length, ends exact."""
+def _arc(line: Polyline) -> tuple[np.ndarray, np.ndarray]:
+    """A polyline's points (x, y) and their arc length from its start."""
     pts = np.asarray(line, dtype=float)[:, :2]
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    return pts, np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+
+
+def resample_at(line: Polyline, fractions: np.ndarray) -> np.ndarray:
+    """The points of a polyline at `fractions` (0 to 1) of its arc length, ends exact."""
+    pts, s = _arc(line)
     if s[-1] <= 0:
-        return np.repeat(pts[:1], n, axis=0)
-    t = np.linspace(0.0, s[-1], n)
+        return np.repeat(pts[:1], len(fractions), axis=0)
+    t = np.asarray(fractions, dtype=float) * s[-1]
     out = np.column_stack([np.interp(t, s, pts[:, 0]), np.interp(t, s, pts[:, 1])])
     out[0], out[-1] = pts[0], pts[-1]
     return out
+
+
+def vertex_fractions(lines: Iterable[Polyline], min_step_m: float = COMMONROAD_VERTEX_STEP_M) -> np.ndarray:
+    """Where the vertices of `lines` lie, as fractions (0 to 1) of each one's arc length, merged:
+    the lines resampled at these keep every vertex of theirs (a sparse lane's borders at equal
+    steps cut its bends: up to 0.7 m off a junction lane's inner border in Apollo's cube_town), but
+    for those within `min_step_m` (along the longest line) of one kept before."""
+    fr, longest = [np.array([0.0, 1.0])], 0.0
+    for line in lines:
+        _, s = _arc(line)
+        if s[-1] > 0:
+            fr.append(s / s[-1])
+            longest = max(longest, float(s[-1]))
+    merged = np.unique(np.concatenate(fr))
+    step = min_step_m / longest if longest > 0 else 1.0
+    keep = [0.0]
+    for f in merged[1:-1]:
+        if f - keep[-1] >= step and 1.0 - f >= step:
+            keep.append(float(f))
+    return np.array(keep + [1.0])
 
 
 def lanelet_ids(m: HDMap) -> dict[str, int]:
@@ -201,13 +264,10 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
             controls.setdefault(lid, (set(), set()))[0].add(ids("sign", sid))
 
     ends = lane_ends(m, lanes)
-    adj = mutual_adjacency(lanes)
+    adj = shared_borders(lanes, mutual_adjacency(lanes), ends)
+    borders = _borders(lanes, adj, ends)
     for lid, ln in lanes.items():
-        n = max(len(ln.left_boundary), len(ln.right_boundary), len(ln.centerline), 2)
-        left, right, centre = resample(ln.left_boundary, n), resample(ln.right_boundary, n), resample(ln.centerline, n)
-        for k, at in ((0, "start"), (-1, "end")):  # linked lanelets meet exactly
-            left[k], right[k] = ends[(lid, "left", at)], ends[(lid, "right", at)]
-            centre[k] = (left[k] + right[k]) / 2
+        left, right, centre = (borders[(lid, k)] for k in ("left", "right", "centre"))
         (adj_left, same_left), (adj_right, same_right) = (
             (ids("lane", adj[lid][k][0]), adj[lid][k][1]) if k in adj[lid] else (None, None) for k in ("left", "right"))
         stop = None
@@ -268,11 +328,80 @@ def to_scenario(m: HDMap, *, zone: int = UTM_ZONE, origin: tuple[float, float] |
     return scenario, _planning_problems(m, lanes, ids, net)
 
 
+def _borders(lanes: Mapping[str, Lane], adj, ends) -> dict[tuple[str, str], np.ndarray]:
+    """{(lane, "left"/"right"/"centre"): the lanelet's vertices}: each line with its ends where
+    linked lanelets meet (`ends`; inner points the moved ends passed dropped, `between`), the
+    lines of a group of adjacent lanes taken at the same fractions of their arc length, every
+    vertex of theirs among them (`vertex_fractions`), and the border two adjacent lanes share
+    written once, the mean of the two drawings (the same vertices on both lanelets, reversed for
+    an opposite lane)."""
+    group = {lid: lid for lid in lanes}
+
+    def find(x: str) -> str:
+        while group[x] != x:
+            group[x] = group[group[x]]
+            x = group[x]
+        return x
+
+    for lid, sides in adj.items():
+        for other, _ in sides.values():
+            group[find(lid)] = find(other)
+    members: dict[str, list[str]] = {}
+    for lid in lanes:
+        members.setdefault(find(lid), []).append(lid)
+    lines: dict[tuple[str, str], Polyline] = {}  # each line with its ends where lanelets meet
+    for lid, ln in lanes.items():
+        for side, line in (("left", ln.left_boundary), ("right", ln.right_boundary)):
+            start, end = ends[(lid, side, "start")], ends[(lid, side, "end")]
+            lines[(lid, side)] = (start, *((float(p[0]), float(p[1])) for p in between(line, start, end)), end)
+        mid = {at: (float(ends[(lid, "left", at)][0] + ends[(lid, "right", at)][0]) / 2,
+                    float(ends[(lid, "left", at)][1] + ends[(lid, "right", at)][1]) / 2) for at in ("start", "end")}
+        lines[(lid, "centre")] = (mid["start"], *((float(p[0]), float(p[1])) for p in
+                                                  between(ln.centerline, mid["start"], mid["end"])), mid["end"])
+    fractions: dict[str, np.ndarray] = {}
+    for lids in members.values():
+        # an opposite lane runs the other way: its fractions count from the group's other end
+        flip = _flipped(lids, adj)
+        f = vertex_fractions([lines[(x, k)][::-1] if flip[x] else lines[(x, k)] for x in lids
+                              for k in ("left", "right", "centre")])
+        for x in lids:
+            fractions[x] = (1.0 - f[::-1]) if flip[x] else f
+    out: dict[tuple[str, str], np.ndarray] = {}
+    order = {lid: k for k, lid in enumerate(lanes)}
+    for lid in lanes:
+        for k in ("left", "right", "centre"):
+            out[(lid, k)] = resample_at(lines[(lid, k)], fractions[lid])
+    for lid, sides in adj.items():
+        for side, (other, same) in sides.items():
+            oside = _partner_side(side, same)
+            if order[lid] < order[other]:
+                theirs = out[(other, oside)] if same else out[(other, oside)][::-1]
+                mean = (out[(lid, side)] + theirs) / 2  # exact at the ends: both drawings end there
+                out[(lid, side)] = mean
+                out[(other, oside)] = mean.copy() if same else mean[::-1].copy()
+    return out
+
+
+def _flipped(lids: list[str], adj) -> dict[str, bool]:
+    """{lane: whether it runs against the first lane of its adjacency group} (crossing an opposite
+    neighbour flips the direction)."""
+    flip = {lids[0]: False}
+    stack = [lids[0]]
+    while stack:
+        x = stack.pop()
+        for other, same in adj[x].values():
+            if other not in flip:
+                flip[other] = flip[x] if same else not flip[x]
+                stack.append(other)
+    return flip
+
+
 def _continuations(m: HDMap, lanes, adj, ids: _Ids, net) -> None:
     """A straight lanelet of COMMONROAD_CONTINUATION_M past every map exit and before every map
     entry (no successor / predecessor), linked to it and adjacent like it: a planner's horizon
-    (several seconds at speed) then never ends in a dead end at the map's edge. Ids follow
-    every other element's."""
+    (several seconds at speed) then never ends in a dead end at the map's edge. Adjacent
+    continuations share their common border: the first written draws it, its neighbour takes it
+    (lanes whose end headings differ would else fan apart). Ids follow every other element's."""
     from commonroad.common.common_lanelet import LaneletType, LineMarking, RoadUser
     from commonroad.scenario.lanelet import Lanelet
 
@@ -282,6 +411,7 @@ def _continuations(m: HDMap, lanes, adj, ids: _Ids, net) -> None:
             ext[(lid, "end")] = ids("continuation", f"{lid}/end")
         if ln.junction_id is None and not any(x in lanes for x in ln.predecessors):
             ext[(lid, "start")] = ids("continuation", f"{lid}/start")
+    drawn: dict[int, dict[str, np.ndarray]] = {}
     for (lid, at), cid in ext.items():
         parent = net.find_lanelet_by_id(ids("lane", lid))
         k, k0 = (-1, -2) if at == "end" else (0, 1)
@@ -296,6 +426,13 @@ def _continuations(m: HDMap, lanes, adj, ids: _Ids, net) -> None:
             o_at = at if same else ("start" if at == "end" else "end")
             if (other, o_at) in ext:
                 sides[side] = (ext[(other, o_at)], same)
+        border = {"left": left, "right": right}
+        for side, (other, same) in sides.items():  # a neighbour drawn already: its border is mine
+            if other in drawn:
+                theirs = drawn[other][_partner_side(side, same)]
+                border[side] = theirs.copy() if same else theirs[::-1].copy()
+        left, right = border["left"], border["right"]
+        drawn[cid] = border
         lsides = sides.get("left", (None, None))
         rsides = sides.get("right", (None, None))
         net.add_lanelet(Lanelet(

@@ -35,7 +35,7 @@ from ...config import (APOLLO_SIGNAL_HEAD_SIZE_M, APOLLO_SIGNAL_HEIGHT_M, LANELE
 from ...errors import Feat2MapError
 from ...model import Crosswalk, HDMap, Lane, incoming_lanes
 from ..geo import utm_origin, utm_to_latlon
-from ..lane_ends import lane_ends
+from ..lane_ends import between, lane_ends
 
 PROJECTOR_INFO = "map_projector_info.yaml"  # Autoware reads it from the map folder
 TAG = "feat2map:"  # our own tags: lane, road, junction, from/to (a junction lane's entry/exit roads), crosswalk
@@ -149,21 +149,6 @@ class _Osm:
         return ids[0], ids[-1]
 
 
-def _between(line: Sequence[Sequence[float]], start: tuple[float, float], end: tuple[float, float]) -> list:
-    """The inner points of a boundary `line` whose ends moved to `start` and `end` (`lane_ends`),
-    without those the moved ends passed: where a predecessor's end lies along a short inner
-    kerb beyond its first inner point, keeping that point would make the bound's first segment
-    run backwards, and Lanelet2's loader (`geometry::align`, which judges each bound's direction
-    by the other's middle point) would then invert the bound and lose the lanelet's links."""
-    from shapely.geometry import LineString, Point
-
-    if len(line) < 3:
-        return []
-    own = LineString([(float(p[0]), float(p[1])) for p in line])
-    s0, s1 = own.project(Point(start)), own.project(Point(end))
-    return [p for p in line[1:-1] if s0 < own.project(Point(float(p[0]), float(p[1]))) < s1]
-
-
 class _Writer:
     def __init__(self, m: HDMap) -> None:
         self.m = m
@@ -204,7 +189,7 @@ class _Writer:
         """The way of a lane's boundary: its neighbour's across that boundary when the two lie on
         one line (same-direction neighbours share left/right, opposite lanes their left bounds)."""
         start, end = self.ends[(ln.id, side, "start")], self.ends[(ln.id, side, "end")]
-        pts = [start, *_between(ln.left_boundary if side == "left" else ln.right_boundary, start, end), end]
+        pts = [start, *between(ln.left_boundary if side == "left" else ln.right_boundary, start, end), end]
         if side == "left":
             partners = [(n, "right") for n in ln.left_neighbors] + [(n, "left") for n in ln.left_reverse_neighbors]
         else:
