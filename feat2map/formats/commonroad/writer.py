@@ -335,36 +335,19 @@ def _borders(lanes: Mapping[str, Lane], adj, ends) -> dict[tuple[str, str], np.n
     vertex of theirs among them (`vertex_fractions`), and the border two adjacent lanes share
     written once, the mean of the two drawings (the same vertices on both lanelets, reversed for
     an opposite lane)."""
-    group = {lid: lid for lid in lanes}
-
-    def find(x: str) -> str:
-        while group[x] != x:
-            group[x] = group[group[x]]
-            x = group[x]
-        return x
-
-    for lid, sides in adj.items():
-        for other, _ in sides.values():
-            group[find(lid)] = find(other)
-    members: dict[str, list[str]] = {}
-    for lid in lanes:
-        members.setdefault(find(lid), []).append(lid)
     lines: dict[tuple[str, str], Polyline] = {}  # each line with its ends where lanelets meet
     for lid, ln in lanes.items():
         for side, line in (("left", ln.left_boundary), ("right", ln.right_boundary)):
-            start, end = ends[(lid, side, "start")], ends[(lid, side, "end")]
-            lines[(lid, side)] = (start, *((float(p[0]), float(p[1])) for p in between(line, start, end)), end)
+            lines[(lid, side)] = _with_ends(line, ends[(lid, side, "start")], ends[(lid, side, "end")])
         mid = {at: (float(ends[(lid, "left", at)][0] + ends[(lid, "right", at)][0]) / 2,
                     float(ends[(lid, "left", at)][1] + ends[(lid, "right", at)][1]) / 2) for at in ("start", "end")}
-        lines[(lid, "centre")] = (mid["start"], *((float(p[0]), float(p[1])) for p in
-                                                  between(ln.centerline, mid["start"], mid["end"])), mid["end"])
+        lines[(lid, "centre")] = _with_ends(ln.centerline, mid["start"], mid["end"])
     fractions: dict[str, np.ndarray] = {}
-    for lids in members.values():
+    for flip in _adjacency_groups(lanes, adj):
         # an opposite lane runs the other way: its fractions count from the group's other end
-        flip = _flipped(lids, adj)
-        f = vertex_fractions([lines[(x, k)][::-1] if flip[x] else lines[(x, k)] for x in lids
+        f = vertex_fractions([lines[(x, k)][::-1] if flip[x] else lines[(x, k)] for x in flip
                               for k in ("left", "right", "centre")])
-        for x in lids:
+        for x in flip:
             fractions[x] = (1.0 - f[::-1]) if flip[x] else f
     out: dict[tuple[str, str], np.ndarray] = {}
     order = {lid: k for k, lid in enumerate(lanes)}
@@ -382,18 +365,31 @@ def _borders(lanes: Mapping[str, Lane], adj, ends) -> dict[tuple[str, str], np.n
     return out
 
 
-def _flipped(lids: list[str], adj) -> dict[str, bool]:
-    """{lane: whether it runs against the first lane of its adjacency group} (crossing an opposite
-    neighbour flips the direction)."""
-    flip = {lids[0]: False}
-    stack = [lids[0]]
-    while stack:
-        x = stack.pop()
-        for other, same in adj[x].values():
-            if other not in flip:
-                flip[other] = flip[x] if same else not flip[x]
-                stack.append(other)
-    return flip
+def _with_ends(line: Polyline, start: tuple[float, float], end: tuple[float, float]) -> Polyline:
+    """`line` from `start` to `end` (its ends where linked lanelets meet), without the inner
+    points those moved ends passed (`between`)."""
+    return (start, *((float(p[0]), float(p[1])) for p in between(line, start, end)), end)
+
+
+def _adjacency_groups(lanes: Mapping[str, Lane], adj) -> list[dict[str, bool]]:
+    """The lanes joined by adjacency, a group per set, each {lane: whether it runs against the
+    group's first lane in map order} (crossing an opposite neighbour flips the direction)."""
+    groups: list[dict[str, bool]] = []
+    seen: set[str] = set()
+    for lid in lanes:
+        if lid in seen:
+            continue
+        flip = {lid: False}
+        stack = [lid]
+        while stack:
+            x = stack.pop()
+            for other, same in adj[x].values():
+                if other not in flip:
+                    flip[other] = flip[x] if same else not flip[x]
+                    stack.append(other)
+        seen.update(flip)
+        groups.append(flip)
+    return groups
 
 
 def _continuations(m: HDMap, lanes, adj, ids: _Ids, net) -> None:
