@@ -126,8 +126,9 @@ class Worker:
 
     def __init__(self, argv: list[str], env: dict, label: str) -> None:
         self.label = label
+        self.err = tempfile.TemporaryFile(mode="w+")  # a file, not a pipe: warnings never fill it and block the worker
         self.proc = subprocess.Popen(argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, cwd=tempfile.gettempdir(),
+                                     stderr=self.err, text=True, cwd=tempfile.gettempdir(),
                                      preexec_fn=lambda: os.sched_setaffinity(0, {CPU}))
         self.hello = json.loads(self._line())
 
@@ -135,8 +136,9 @@ class Worker:
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()
         if not line:
-            err = self.proc.stderr.read() if self.proc.stderr is not None else ""
-            raise SystemExit(f"the {self.label} worker failed:\n{err[-2000:]}")
+            self.proc.wait(timeout=60)
+            self.err.seek(0)
+            raise SystemExit(f"the {self.label} worker failed:\n{self.err.read()[-2000:]}")
         return line
 
     def rate(self, key: int | str, steps: int) -> float:
@@ -149,6 +151,7 @@ class Worker:
         if self.proc.stdin is not None:
             self.proc.stdin.close()
         self.proc.wait(timeout=60)
+        self.err.close()
 
 
 def feat2map_worker(pythonpath: Path | None, sizes: list[int], marl: dict | None, label: str) -> Worker:
