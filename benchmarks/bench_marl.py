@@ -13,11 +13,16 @@ holding a 5 m/s target speed (TargetSpeed action; MetaDrive's bench: constant th
 Kinematics observations (10 vehicles x 7 features) for every agent. An episode ends when no
 agent is left (or after 60 s) and the next one starts; resets count in the time.
 
+With `--worlds W` (W > 1) a third runner steps the multi-agent env with W worlds of that scene in
+one simulation (`worlds` config key: one arrays core, the frame of all worlds in one call), as
+training does; its agent-steps/s count the agents of every world.
+
 Measured in one process, interleaved rounds (median), CPU time of this process (the machine is
 shared: other jobs' load stretches wall time, not CPU time), wall clock beside it; MetaDrive runs
 in a subprocess between the rounds and reports its own CPU and wall rates the same way.
 
 Run: SDL_VIDEODRIVER=offscreen nice -n 10 .venv/bin/python benchmarks/bench_marl.py [--rounds N] [--steps N]
+     [--worlds W]
 """
 from __future__ import annotations
 
@@ -62,8 +67,8 @@ env.close()
 
 
 class MultiRunner:
-    def __init__(self) -> None:
-        self.env = parallel_env(MULTI)
+    def __init__(self, worlds: int = 1) -> None:
+        self.env = parallel_env({**MULTI, "worlds": worlds})
         self.env.reset(seed=0)
         self.cpu: list[float] = []
         self.wall: list[float] = []
@@ -127,14 +132,20 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=300, help="env steps per round")
     ap.add_argument("--no-metadrive", action="store_true")
+    ap.add_argument("--worlds", type=int, default=1, help="also measure the env with this many worlds (> 1)")
     args = ap.parse_args(argv)
     load0 = os.getloadavg()[0]
     multi, single, md = MultiRunner(), SingleRunner(), []
-    multi.round(20)  # warm-up: lane tables, pair tables
-    multi.cpu.clear(), multi.wall.clear(), multi.per_step.clear()
+    many = MultiRunner(args.worlds) if args.worlds > 1 else None
+    for runner in (multi, many):
+        if runner is not None:
+            runner.round(20)  # warm-up: lane tables, pair tables
+            runner.cpu.clear(), runner.wall.clear(), runner.per_step.clear()
     for _ in range(args.rounds):
         multi.round(args.steps)
         single.round(args.steps)
+        if many is not None:
+            many.round(max(1, args.steps // args.worlds))
         if not args.no_metadrive:
             r = metadrive_round(args.steps)
             if r is not None:
@@ -149,11 +160,19 @@ def main(argv=None) -> int:
              f"1 agent/step",
              f"  multi-agent / single env:             {med(multi.cpu) / med(single.cpu):8.1f}x "
              f"({med(multi.wall) / med(single.wall):.1f}x wall)"]
+    if many is not None:
+        lines += [f"  feat2map multi-agent, {args.worlds} worlds:{'':>{max(0, 9 - len(str(args.worlds)))}}"
+                  f"{med(many.cpu):8.0f}  ({med(many.wall):8.0f} wall)  {med(many.per_step):.1f} agents/step",
+                  f"  {args.worlds} worlds / one world:{'':>{max(0, 13 - len(str(args.worlds)))}}"
+                  f"{med(many.cpu) / med(multi.cpu):8.1f}x ({med(many.wall) / med(multi.wall):.1f}x wall)"]
     if md:
         cpu, wall, per = med([r[0] for r in md]), med([r[1] for r in md]), med([r[2] for r in md])
         lines += [f"  MetaDrive MultiAgentIntersectionEnv:  {cpu:8.0f}  ({wall:8.0f} wall)  {per:.1f} agents/step",
                   f"  feat2map multi-agent / MetaDrive:     {med(multi.cpu) / cpu:8.1f}x "
                   f"({med(multi.wall) / wall:.1f}x wall)"]
+        if many is not None:
+            lines.append(f"  {args.worlds} worlds / MetaDrive:{'':>{max(0, 14 - len(str(args.worlds)))}}"
+                         f"{med(many.cpu) / cpu:8.1f}x ({med(many.wall) / wall:.1f}x wall)")
     else:
         lines.append("  MetaDrive: not measured (no /tmp/md-venv: run /work/shared/tools/metadrive-venv.sh)")
     print("\n".join(lines))

@@ -27,6 +27,7 @@ from .sim.vehicle import VehicleModel
 MAX_TRAFFIC_VEHICLES = 500  # a larger count is a typo, not a scene (raise it here if you mean it)
 MAX_FREQUENCY_HZ = 1000.0
 MAX_AGENTS = 500  # multi-agent env
+MAX_WORLDS = 1024  # multi-agent env: worlds in one simulation
 AGENT_ACTION_KEYS = {"TargetSpeed": {"target_speeds", "acceleration_range"},
                      "DiscreteMetaAction": {"target_speeds", "longitudinal", "lateral"},
                      "ContinuousAction": {"acceleration_range", "longitudinal", "lateral"}}
@@ -399,7 +400,10 @@ SETTINGS: tuple[Setting, ...] = (
             FILE),
     Setting("map", None, unchecked("MapFileEnv"), "an HDMap object (instead of map_file)", FILE),
     # the multi-agent env's own keys (the rest is MapEnv's, with the multi-agent defaults above)
-    Setting("agents", 8, number(1, MAX_AGENTS, integer=True), "possible agents: agent_0..agent_{n-1}", MULTI),
+    Setting("agents", 8, number(1, MAX_AGENTS, integer=True), "agents per world (possible agents: "
+            "agent_0..agent_{agents x worlds - 1})", MULTI),
+    Setting("worlds", 1, number(1, MAX_WORLDS, integer=True), "worlds of the map in one simulation (for "
+            "training): world w holds agent_{w*agents}..agent_{w*agents+agents-1}, resets with seed + w", MULTI),
     Setting("agent_routes", None, agent_routes, "None: sampled; \"coverage\": the map's route-coverage routes; "
             "or a list of routes", MULTI),
     Setting("agent_spacing", 12.0, number(0, lo_open=True), "[m] between agents queued on one approach at their "

@@ -15,7 +15,14 @@ stop queues, conflicts, reservations, crosswalks). Traffic respawns as in the si
 from agents. An agent's `AgentView` is the single env's ego task (`map_env.EgoTask`) over its
 vehicle, its judge and the shared world.
 
-Agents. `possible_agents` are "agent_0".."agent_{n-1}". Each gets a route (`agent_routes`:
+Worlds. With `worlds` = W > 1 the env holds W copies of the world on one map (for training:
+more agents per step for the same Python overhead): each world is a slot of one shared arrays
+core, whose frame advances the traffic and agents of every world in one call, and world w resets
+with seed + w (its agents then drive exactly as the one-world env's reset with that seed). The
+agents of world w are agent_{w*agents}..agent_{w*agents+agents-1}; a world whose agents are all
+gone stands still until the episode ends (when no world has an agent left).
+
+Agents. `possible_agents` are "agent_0".."agent_{n-1}" (n = agents x worlds). Each gets a route (`agent_routes`:
 None = sampled through `route_junctions` junctions, as the single env samples the ego's;
 "coverage" = the map's route-coverage routes, `feat2map.routes.coverage_routes`, dealt round
 from a random start; or a list of routes in the single env's `route` format, dealt round) and
@@ -61,9 +68,9 @@ from ..errors import Feat2MapError
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
 from .control import TrafficControl
-from .core import ArrayVehicle
+from .core import ArrayVehicle, TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
-from .map_env import EgoTask, MapEnv, check_action, check_options
+from .map_env import EgoTask, MapEnv, check_action, check_options, info_dict
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
@@ -111,6 +118,13 @@ def split_config(config: Mapping[str, Any] | None) -> tuple[dict, dict]:
             raise Feat2MapError(f"has no effect in the multi-agent env ({NOT_TAKEN[k]})", f"config.{k}")
         (ma if k in AGENT_DEFAULTS else world)[k] = v
     return ma, world
+
+
+def check_worlds(worlds: int, new_map_each_reset: bool) -> None:
+    """Several worlds share one map: a new map at each reset is refused."""
+    if worlds > 1 and new_map_each_reset:
+        raise Feat2MapError(f"the {worlds} worlds of one env share one map: make a new env for a new map",
+                            "config.new_map_each_reset")
 
 
 def merge_agent_config(base: dict, delta: Mapping[str, Any]) -> dict:
@@ -312,7 +326,8 @@ class _World(MapEnv):
         self.net = self._network()
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
-        self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"])
+        slot = {"slot": self.core_slot} if self.core_slot is not None else {}
+        self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"], **slot)
         self.model = VehicleModel.of(self.config["vehicle"])
         self.controlled_vehicles = []
         self._places: dict[tuple, list] = {}
@@ -377,8 +392,10 @@ class _World(MapEnv):
         core.sync()
         places = self.places(route, extend)
         xy = np.array([(x, y) for *_, x, y in places])
-        if len(core.x):
-            gap = np.hypot(core.x[None, :] - xy[:, :1], core.y[None, :] - xy[:, 1:]).min(axis=1)
+        mine = core.rows(self.road)  # road users of this world only
+        if len(mine):
+            x, y = core.x[mine], core.y[mine]
+            gap = np.hypot(x[None, :] - xy[:, :1], y[None, :] - xy[:, 1:]).min(axis=1)
             free = gap >= float(self.agent_config["agent_spacing"]) - 2.0
         else:
             free = np.ones(len(places), dtype=bool)
@@ -407,20 +424,43 @@ class _FileWorld(_World, MapFileEnv):
 
 # ---- the parallel env -------------------------------------------------------------------------
 class MultiAgentMapEnv(ParallelEnv):
-    """A PettingZoo ParallelEnv of many agents on one feat2map map (see the module docstring)."""
+    """A PettingZoo ParallelEnv of many agents on one feat2map map (see the module docstring),
+    in `worlds` copies of the world that share one arrays core."""
 
     metadata = {"name": "feat2map_parallel_v0", "render_modes": ["human", "rgb_array"], "is_parallelizable": True}
 
     def __init__(self, config: Mapping[str, Any] | None = None, render_mode: str | None = None) -> None:
         ma, world = split_config(config)
         self.agent_config = merge_agent_config(AGENT_DEFAULTS, ma)
-        cls = _FileWorld if ("map_file" in world or "map" in world) else _GridWorld
-        self.world = cls({**WORLD_DEFAULTS, **world}, self.agent_config, render_mode)
         self.render_mode = render_mode
-        self.possible_agents = [f"agent_{i}" for i in range(int(self.agent_config["agents"]))]
+        self._world_class = _FileWorld if ("map_file" in world or "map" in world) else _GridWorld
+        self._make_worlds({**WORLD_DEFAULTS, **world})
         self.agents: list[str] = []
         self._define_spaces()
         self._views: dict[str, AgentView] = {}
+
+    def _make_worlds(self, config: Mapping[str, Any]) -> None:
+        """The worlds (world 0 renders) and the agents' names; with more than one world, each is a
+        slot of one shared arrays core on the first world's map (as the vector env's sub-envs)."""
+        n = int(self.agent_config["worlds"])
+        first = self._world_class(dict(config), self.agent_config, self.render_mode)
+        self.worlds: list[_World] = [first]
+        if n > 1:
+            check_worlds(n, first.config["new_map_each_reset"])
+            net = first._network()
+            core = TrafficCore(net, n)
+            self.worlds += [self._world_class(dict(first.config), self.agent_config) for _ in range(n - 1)]
+            for k, w in enumerate(self.worlds):
+                w.core_slot = (core, k)
+                w._network = lambda net=net: net  # type: ignore[method-assign,misc]  # the map of every world
+        self.world = first
+        self._name_agents()
+
+    def _name_agents(self) -> None:
+        """possible_agents, world-major: agent_{w * agents + i} is agent i of world w."""
+        per = int(self.agent_config["agents"])
+        self.possible_agents = [f"agent_{i}" for i in range(len(self.worlds) * per)]
+        self._world_of = {a: i // per for i, a in enumerate(self.possible_agents)}
 
     def _define_spaces(self) -> None:
         w = self.world
@@ -439,13 +479,19 @@ class MultiAgentMapEnv(ParallelEnv):
         return self.actions.space
 
     def configure(self, config: Mapping[str, Any]) -> None:
-        """Merge `config` (multi-agent and MapEnv keys) into the current config; strict."""
+        """Merge `config` (multi-agent and MapEnv keys) into the current config; strict. With
+        more than one world (before or after), the worlds are made again."""
         ma, world = split_config(config)
         merged = merge_agent_config(self.agent_config, ma)
+        check_worlds(int(merged["worlds"]), world.get("new_map_each_reset", self.world.config["new_map_each_reset"]))
         self.world.configure(world)
+        several = len(self.worlds) > 1
         self.agent_config = merged
         self.world.agent_config = merged
-        self.possible_agents = [f"agent_{i}" for i in range(int(merged["agents"]))]
+        if several or int(merged["worlds"]) > 1:
+            self._make_worlds(self.world.config)
+        else:
+            self._name_agents()
         self._define_spaces()
 
     # ---- episode ---------------------------------------------------------------------------------
@@ -453,29 +499,32 @@ class MultiAgentMapEnv(ParallelEnv):
         check_options(options)
         if options and "config" in options:
             self.configure(options["config"])
-        w = self.world
-        routes = w.new_episode(seed)
         self.agents = []
         self._views = {}
         self._state: dict[str, dict] = {}
-        self._pending = list(zip(self.possible_agents, routes))
+        self._pending: list[tuple[str, tuple[list[str], bool]]] = []
         self._agent_ids: dict[int, str] = {}
         self._judged_lane: dict[str, int] = {}  # the lane each agent's judge last looked at it on
-        self._spawn_pending()
-        w.fill_traffic()
+        per = int(self.agent_config["agents"])
+        for k, w in enumerate(self.worlds):  # each world as the one-world env on its seed
+            routes = w.new_episode(None if seed is None else seed + k)
+            self._pending += list(zip(self.possible_agents[k * per:(k + 1) * per], routes))
+            self._spawn_pending({k})
+            w.fill_traffic()
         obs = self._observe(self.agents)
         infos = {a: self._info(a, obs[a], self._noop()) for a in self.agents}
         return obs, infos
 
-    def _spawn_pending(self) -> list[str]:
-        """Agents waiting to enter take their places where free (in agent order)."""
-        w = self.world
+    def _spawn_pending(self, worlds: set[int]) -> list[str]:
+        """Agents of `worlds` waiting to enter take their places where free (in agent order)."""
         new, waiting = [], []
-        blocked: set[str] = set()  # entries where an agent found no place: the ones after it wait too
+        blocked: set[tuple[int, str]] = set()  # entries where an agent found no place: the ones after it wait too
         for name, (route, extend) in self._pending:
-            v = None if route[0] in blocked else w.place(route, extend)
+            k = self._world_of[name]
+            w = self.worlds[k]
+            v = None if k not in worlds or (k, route[0]) in blocked else w.place(route, extend)
             if v is None:
-                blocked.add(route[0])
+                blocked.add((k, route[0]))
                 waiting.append((name, (route, extend)))
                 continue
             v.target_speeds = self.actions.speeds
@@ -486,8 +535,8 @@ class MultiAgentMapEnv(ParallelEnv):
             self._state[name] = self.actions.start(v.speed)
             self._agent_ids[id(v)] = name
             w.controlled_vehicles.append(v)
-            self.agents.append(name)
             new.append(name)
+        self.agents.extend(new)
         self._pending = waiting
         return new
 
@@ -496,7 +545,6 @@ class MultiAgentMapEnv(ParallelEnv):
         return (*EgoTask._reward_terms(), "not_yielding", "stop_order")
 
     def step(self, actions: Mapping[str, Any]):
-        w = self.world
         live = list(self.agents)
         alive = set(live)
         if not isinstance(actions, Mapping):
@@ -512,6 +560,12 @@ class MultiAgentMapEnv(ParallelEnv):
             self.actions.decide(a, self._views[name].vehicle.speed, self._state[name])
         for name in live:
             self._views[name].judge.new = []
+        # the worlds with agents on the road step (all of them when none has: the one-world env's
+        # step after its end); a world whose agents are all gone stands still
+        active = sorted({self._world_of[a] for a in live}) or list(range(len(self.worlds)))
+        worlds = [self.worlds[k] for k in active]
+        roads = [w.road for w in worlds]
+        w = self.world
         core = w.road.core
         frames = max(1, int(w.config["simulation_frequency"] // w.config["policy_frequency"]))
         dt = 1.0 / w.config["simulation_frequency"]
@@ -522,23 +576,22 @@ class MultiAgentMapEnv(ParallelEnv):
         table = core.table
         for _ in range(frames):
             core.sync()
+            if vehicles:
+                rows = np.array([v._row for v in vehicles], dtype=np.int64)
+                core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
+                # the rules' verdict is noted for agents near a junction entry (core.entry: where the
+                # next one starts, from the current lane's start; the line may lie before it)
+                core._refresh_windows()  # rows that moved to a new lane last frame
+                near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
+                for k in np.nonzero(near)[0].tolist():
+                    judges[k].note()
+                crashed = core.crashed[rows]
+            core.act(roads)
+            core.step(roads, dt)
+            for x in worlds:
+                x.steps += 1
             if not vehicles:
-                w.road.act()
-                w.road.step(dt)
-                w.steps += 1
                 continue
-            rows = np.array([v._row for v in vehicles], dtype=np.int64)
-            core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
-            # the rules' verdict is noted for agents near a junction entry (core.entry: where the
-            # next one starts, from the current lane's start; the line may lie before it)
-            core._refresh_windows()  # rows that moved to a new lane last frame
-            near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
-            for k in np.nonzero(near)[0].tolist():
-                judges[k].note()
-            crashed = core.crashed[rows]
-            w.road.act()
-            w.road.step(dt)
-            w.steps += 1
             # the judge looks at an agent whenever its check can change anything: a new lane, a
             # stop, a crosswalk on its lane, or near the end of its lane (off the road past a dead end)
             lane, speed, s_on = core.lane[rows], core.speed[rows], core.s[rows]
@@ -552,33 +605,39 @@ class MultiAgentMapEnv(ParallelEnv):
             for k in np.nonzero(core.crashed[rows] & ~crashed)[0].tolist():
                 self._collided(live[k])
         self._judged_lane.update(zip(live, judged.tolist()))
-        w.time += 1.0 / w.config["policy_frequency"]
+        truncated = set()
+        for k, x in zip(active, worlds):
+            x.time += 1.0 / x.config["policy_frequency"]
+            if x.time >= x.config["duration"]:
+                truncated.add(k)
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
-        truncated = w.time >= w.config["duration"]
         obs = self._observe(live)
         weights = self._weights()
         for a, action in ((a, actions.get(a)) for a in live):
             view = self._views[a]
-            rewards[a] = self._reward(view, action, weights)
-            terms[a] = bool(view.vehicle.crashed or view.route_completed())
-            truncs[a] = bool(truncated and not terms[a])
-            infos[a] = self._info(a, obs[a], action if action is not None else self._noop())
+            done, completed = view.vehicle.route_distance_done(), view.route_completed()  # asked once
+            rewards[a] = self._reward(view, done, completed, weights)
+            terms[a] = bool(view.vehicle.crashed or completed)
+            truncs[a] = bool(self._world_of[a] in truncated and not terms[a])
+            infos[a] = self._info(a, obs[a], action if action is not None else self._noop(), done, completed)
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}
-            w.road.vehicles = [v for v in w.road.vehicles if id(v) not in out]
-            w.controlled_vehicles = [v for v in w.controlled_vehicles if id(v) not in out]
+            for x in worlds:
+                x.road.vehicles = [v for v in x.road.vehicles if id(v) not in out]
+                x.controlled_vehicles = [v for v in x.controlled_vehicles if id(v) not in out]
             self.agents = [a for a in self.agents if a not in gone]
-        w.respawn_traffic(set(self._agent_ids))
-        if truncated:
-            self._pending = []
-        new = self._spawn_pending()
+        for x in worlds:
+            x.respawn_traffic(set(self._agent_ids))
+        self._pending = [p for p in self._pending if self._world_of[p[0]] not in truncated]
+        new = self._spawn_pending(set(active))
         obs.update(self._observe(new))
         for a in new:
             rewards[a], terms[a], truncs[a] = 0.0, False, False
             infos[a] = self._info(a, obs[a], self._noop())
-        if not self.agents and self._pending:  # nobody on the road: the waiting ones will never get in
-            self._pending = []
+        # a world with nobody on the road: its waiting agents will never get in
+        on_road = {self._world_of[a] for a in self.agents}
+        self._pending = [p for p in self._pending if self._world_of[p[0]] in on_road]
         return obs, rewards, terms, truncs, infos
 
     def _observe(self, names: list[str]) -> dict[str, Any]:
@@ -602,7 +661,7 @@ class MultiAgentMapEnv(ParallelEnv):
         i = self._views[agent].vehicle._row
         d = np.hypot(core.x - core.x[i], core.y - core.y[i])
         d[i] = np.inf
-        d[~core.crashed] = np.inf
+        d[~core.crashed | (core.env != core.env[i])] = np.inf  # crashed road users of its world
         j = int(np.argmin(d))
         if d[j] < np.hypot(core.length[i], core.width[i]) + np.hypot(core.length[j], core.width[j]):
             peer = self._agent_ids.get(id(core.objs[j]))
@@ -610,8 +669,11 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[agent].agent_collision = True
                 self._views[peer].agent_collision = True
 
-    def _reward(self, view: AgentView, action, weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
-        r = view._rewards(action)
+    def _reward(self, view: AgentView, done: float, completed: bool,
+                weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
+        """The weighted sum of the agent's reward terms, given its route metres `done` and
+        whether its route is `completed`."""
+        r = dict(zip(EgoTask._reward_terms(), view._reward_row(done, completed)))
         new = view.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         view._last_rewards = r
@@ -626,9 +688,10 @@ class MultiAgentMapEnv(ParallelEnv):
         kept = [(k, w) for k, w in weights.items() if w != 0]
         return tuple(k for k, _ in kept), tuple(w for _, w in kept)
 
-    def _info(self, agent: str, obs, action) -> dict:
+    def _info(self, agent: str, obs, action, done: float | None = None, completed: bool | None = None) -> dict:
+        """The single env's info of the agent (`done`, `completed` when already asked this step), and its own keys."""
         view = self._views[agent]
-        info = view._info(obs, action)
+        info = info_dict(EgoTask._info_values(view, action, done, completed), view.action_space)
         info["agent_collision"] = bool(view.agent_collision)
         info["wait_time"] = float(view.wait_time)
         return info
@@ -639,7 +702,8 @@ class MultiAgentMapEnv(ParallelEnv):
         return self._views[agent]
 
     def state(self) -> np.ndarray:
-        """Positions, headings and speeds of every road user ([n, 4], float32)."""
+        """Positions, headings and speeds of every road user of every world ([n, 4], float32;
+        world by world)."""
         core = self.world.road.core
         return np.stack([core.x, core.y, core.heading, core.speed], axis=1).astype(np.float32)
 
@@ -647,9 +711,10 @@ class MultiAgentMapEnv(ParallelEnv):
         w = self.world
         if self.render_mode is None:
             return None
-        if self.agents:
-            w.controlled_vehicles = [self._views[a].vehicle for a in self.agents]
+        if self.agents:  # world 0's
+            w.controlled_vehicles = [self._views[a].vehicle for a in self.agents if self._world_of[a] == 0]
         return MapEnv.render(w)
 
     def close(self) -> None:
-        self.world.close()
+        for w in self.worlds:
+            w.close()

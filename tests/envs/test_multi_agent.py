@@ -367,3 +367,59 @@ def test_reset_options_that_are_not_a_dict_are_a_clear_error(options, where):
     with pytest.raises(ValueError, match=f"^{where}: must be a dict"):
         env.reset(seed=0, options=options)
     assert env.reset(seed=0)[0]  # still usable
+
+
+def test_worlds_are_independent_copies_of_the_one_world_env():
+    """With `worlds` = 3 the agents of world w drive exactly as the one-world env reset with seed
+    + w under the same actions (world w's agents renamed), although all worlds share one arrays
+    core; PettingZoo's API and seed tests pass; a world whose agents are gone stands still."""
+    per = 4
+    cfg = {**map_config("generated"), **SMALL, "agents": per, "duration": 15.0}
+    env = parallel_env({**cfg, "worlds": 3})
+    assert env.possible_agents == [f"agent_{i}" for i in range(3 * per)]
+    ones = [parallel_env(cfg) for _ in range(3)]
+    outs = [env.reset(seed=5)] + [e.reset(seed=5 + w) for w, e in enumerate(ones)]
+    assert len({id(w.road.core) for w in env.worlds}) == 1
+
+    def world_part(out, w):  # the multi-world env's output for world w, named as the one-world env names it
+        return tuple({f"agent_{int(a[6:]) - w * per}": v for a, v in part.items() if int(a[6:]) // per == w}
+                     for part in out)
+
+    rng = np.random.default_rng(0)
+    steps = 0
+    while env.agents:
+        for w, e in enumerate(ones):
+            assert data_equivalence(world_part(outs[0], w), outs[1 + w]), (steps, w)
+            assert [a for a in env.agents if int(a[6:]) // per == w] == \
+                [f"agent_{int(a[6:]) + w * per}" for a in e.agents]
+        acts = {a: int(rng.integers(env.action_space(a).n)) for a in env.agents}
+        outs = [env.step(acts)]
+        for w, e in enumerate(ones):
+            if e.agents:
+                outs.append(e.step({f"agent_{int(a[6:]) - w * per}": x for a, x in acts.items()
+                                    if int(a[6:]) // per == w}))
+            else:  # its episode is over: the world stands still
+                outs.append(tuple({} for _ in range(5)))
+                assert env.worlds[w].time == e.world.time
+        steps += 1
+    assert steps >= 10 and not any(e.agents for e in ones)
+    parallel_api_test(parallel_env({**cfg, "worlds": 2}), num_cycles=30)
+    parallel_seed_test(lambda: parallel_env({**cfg, "worlds": 2}), num_cycles=20)
+
+
+def test_worlds_config():
+    """A new map at each reset cannot be shared by several worlds; `configure` may change the
+    number of worlds (and of agents), making the worlds again."""
+    with pytest.raises(Feat2MapError, match="new_map_each_reset"):
+        parallel_env({**map_config("generated"), "worlds": 2, "new_map_each_reset": True})
+    env = parallel_env({**map_config("generated"), **SMALL, "agents": 2})
+    with pytest.raises(Feat2MapError, match="new_map_each_reset"):
+        env.configure({"worlds": 2, "new_map_each_reset": True})
+    assert len(env.worlds) == 1 and not env.world.config["new_map_each_reset"]  # refused whole
+    env.reset(seed=0, options={"config": {"worlds": 3, "agents": 3}})
+    assert len(env.worlds) == 3 and len(env.possible_agents) == 9
+    assert {env.view(a).world for a in env.agents} <= set(env.worlds)
+    env.configure({"worlds": 1})
+    assert len(env.worlds) == 1 and env.possible_agents == ["agent_0", "agent_1", "agent_2"]
+    with pytest.raises(Feat2MapError, match="config.worlds"):
+        parallel_env({"worlds": 0})
