@@ -296,6 +296,11 @@ class ArrayVehicle(TrafficVehicle):
 
     # ---- state -------------------------------------------------------------------------------
     @property
+    def row(self) -> int:
+        """Its row in the core's arrays (rows move when road users come and go: read it anew)."""
+        return self._row
+
+    @property
     def position(self) -> np.ndarray:
         c, i = self._core, self._row
         return np.array([c.x[i], c.y[i]])
@@ -722,7 +727,7 @@ class TrafficCore:
         self.dirty.add(i)
 
     # ---- windows -----------------------------------------------------------------------------
-    def _refresh_windows(self) -> None:
+    def refresh_windows(self) -> None:
         """Rebuild the window rows whose route position or route changed."""
         if not self.dirty:
             return
@@ -818,7 +823,7 @@ class TrafficCore:
         if not driven.any():
             return
         self._mobil(driven)
-        self._refresh_windows()
+        self.refresh_windows()
         t = self.table
         v = np.maximum(self.speed, 0.0)
         free = idm_free(v, np.minimum(t.speed_limit[self.lane], self.curve_limit()))

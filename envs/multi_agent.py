@@ -577,11 +577,11 @@ class MultiAgentMapEnv(ParallelEnv):
         for _ in range(frames):
             core.sync()
             if vehicles:
-                rows = np.array([v._row for v in vehicles], dtype=np.int64)
+                rows = np.array([v.row for v in vehicles], dtype=np.int64)
                 core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
                 # the rules' verdict is noted for agents near a junction entry (core.entry: where the
                 # next one starts, from the current lane's start; the line may lie before it)
-                core._refresh_windows()  # rows that moved to a new lane last frame
+                core.refresh_windows()  # rows that moved to a new lane last frame
                 near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
                 for k in np.nonzero(near)[0].tolist():
                     judges[k].note()
@@ -658,7 +658,7 @@ class MultiAgentMapEnv(ParallelEnv):
         """An agent crashed this frame: whether the other vehicle (the nearest crashed one within
         reach) is an agent."""
         core = self.world.road.core
-        i = self._views[agent].vehicle._row
+        i = self._views[agent].vehicle.row
         d = np.hypot(core.x - core.x[i], core.y - core.y[i])
         d[i] = np.inf
         d[~core.crashed | (core.env != core.env[i])] = np.inf  # crashed road users of its world

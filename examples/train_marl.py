@@ -4,7 +4,9 @@ then evaluate it per junction type against every agent driven by the rule-follow
 - Worlds: one map per junction type (3- and 4-way; signal, stop sign, bare; with a crosswalk),
   each a single generated junction with `--agents` agents on the map's route-coverage routes
   (every manoeuvre, dealt round), a little IDM traffic and crosswalk pedestrians. Training steps
-  all worlds in turn in this process (a vector of parallel envs).
+  all worlds in turn in this process (a vector of parallel envs); with `--worlds W` each junction
+  type's env holds W copies of its world in one simulation (the env's `worlds` key: W times the
+  agents per step for much less than W times the time), evaluation one.
 - Agent: the DriverView observation, the TargetSpeed action (target speeds at 2 Hz), the env's
   reward terms (progress, arrival, collisions, violations incl. not yielding and stop order),
   -TIME_COST per decision and +STOP_BONUS once for the full stop at a stop sign (train_ppo.py pays its
@@ -139,7 +141,7 @@ def train(envs: list, minutes: float, rollout: int, seed: int, progress: bool) -
             for i, env in enumerate(envs):
                 if not env.agents:
                     episode[i] += 1
-                    obs[i] = env.reset(seed=seed + 100 * i + episode[i])[0]
+                    obs[i] = env.reset(seed=seed + 100 * i + episode[i] * len(env.worlds))[0]  # (world w: + w)
                     open_[i] = {}
                 choice = act_batch(policy, {a: obs[i][a] for a in env.agents})
                 for a, (act, lp, v) in choice.items():
@@ -248,6 +250,7 @@ def main(argv=None) -> int:
     ap.add_argument("--episodes", type=int, default=5, help="evaluation episodes per junction type")
     ap.add_argument("--rollout", type=int, default=64, help="env steps per world between updates")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--worlds", type=int, default=1, help="copies of each junction type's world in its training env")
     args = ap.parse_args(argv)
     try:
         import torch
@@ -256,7 +259,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     progress = os.isatty(1)
     configs = {t: world_config(*t, args.agents) for t in TYPES}
-    envs = [parallel_env(c) for c in configs.values()]
+    envs = [parallel_env({**c, "worlds": args.worlds}) for c in configs.values()]
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     policy, curve, steps = train(envs, args.train_minutes, args.rollout, args.seed, progress)
@@ -286,7 +289,8 @@ def main(argv=None) -> int:
     atomic.write_bytes(out / "policy.pt", pbuf.getvalue())
     last = curve[-500:]
     lines = [f"- training: {steps:,} agent-steps ({len(curve):,} agent episodes) in {train_s / 60:.1f} min, "
-             f"{len(envs)} worlds of {args.agents} agents stepped in one process; evaluation: {args.episodes} episodes "
+             f"{len(envs)} junction types x {args.worlds} world(s) of {args.agents} agents stepped in one process; "
+             f"evaluation: {args.episodes} episodes "
              f"per junction type for PPO and for the scripted driver, {eval_s / 60:.1f} min; 1-min load average "
              f"{load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2 cores)",
              f"- training success over the last {len(last)} agent episodes: "

@@ -82,7 +82,7 @@ def test_curve_limit_is_the_brute_force_minimum_over_the_window():
     checked = 0
     for _ in range(12):
         env.step(1)
-        core._refresh_windows()  # as `accelerations` does before it asks
+        core.refresh_windows()  # as `accelerations` does before it asks
         limit = core.curve_limit()
         for i in np.nonzero(core.driven)[0].tolist():
             assert limit[i] == pytest.approx(_brute_force_limit(core, i), rel=1e-9)
