@@ -68,8 +68,8 @@ from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import MapNetwork
-from .rules import (crossed_lanes, has_stopped, idm_behind, idm_clip, idm_free, in_the_way, may_change_lane,
-                    room_to_wait, stop_gap, stops_at_amber)
+from .rules import (crossed_lanes, has_stopped, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
+                    may_change_lane, room_to_wait, stop_gap)
 from .sim.vehicle import VehicleModel, integrate, keeping_steering
 from .vehicles import (EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, command_egos, route_upcoming,
                        step_egos)
@@ -1009,7 +1009,7 @@ class TrafficCore:
             controls = [r.control if r is not None else None for r in roads]
             times = np.array([c.t if c is not None else 0.0 for c in controls])
             state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
-        halt = reach & ((state == 2) | ((state == 1) & stops_at_amber(d_line, self.speed[R])))
+        halt = reach & held_at_signal(state == 2, state == 1, d_line, self.speed[R])
         ids = self.net.lane_ids
         stop = d_line - STOP_POINT_M
         dist = np.where(halt, stop, math.inf)  # held at the line, or free (beyond the scan)

@@ -150,6 +150,12 @@ def stops_at_amber(distance, speed):
     return distance > speed ** 2 / (2 * AMBER_BRAKE_MPS2) + AMBER_STOP_MARGIN_M
 
 
+def held_at_signal(red, amber, distance, speed):
+    """The signal rule at a line `distance` ahead: red holds a vehicle, amber holds one that can
+    stop (`stops_at_amber`); bools and floats, or arrays (elementwise: the batched core's rows)."""
+    return red | (amber & stops_at_amber(distance, speed))
+
+
 def amber_arrival_speed(distance, line_speed: float, amber_s: float):
     """The lowest speed at `distance` (float or array) before a signal's line from which a
     vehicle that goes at amber onset crosses the line before red: holding its speed, or slowing
@@ -590,11 +596,9 @@ class TrafficRules:
         sl = self.net.stop_lines.get(in_lane)
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
             state = state or self.signal_state(sl.control_id)
-            if state == "red":
-                if commit:
+            if held_at_signal(state == "red", state == "amber", d_line, vehicle.speed):
+                if commit and state == "red":  # on red it gives its reservation up
                     self.release(vehicle, j_lane)
-                return False
-            if state == "amber" and stops_at_amber(d_line, vehicle.speed):
                 return False
         if self.reservations.get(j_lane) is vehicle:
             return True
@@ -894,7 +898,7 @@ class TrafficRules:
             if d_line <= 0.0:
                 continue
             state = self.signal_state(sid)
-            if state == "red" or (state == "amber" and stops_at_amber(d_line, vehicle.speed)):
+            if held_at_signal(state == "red", state == "amber", d_line, vehicle.speed):
                 return d_line - STOP_POINT_M
         return math.inf
 
