@@ -50,11 +50,15 @@ STOP_MARGIN_M = 1.5
 FALLBACK_DECEL = 6.0
 ENGAGE_MPS = 1.0  # [m/s] the planner's initial speed when the ego is to move off from (near) standstill
 APPROACH_DECEL = 2.0  # [m/s^2] speed cap towards a stop point: it can stop there braking this hard
+CREEP_GAP_M = 2.0  # [m] the creep stops this far behind a road user ahead on the path
 CREEP_ROOM_M = 1.0  # [m] slower than ENGAGE_MPS further than this before its stop point, the ego creeps on
 STOPPING_RANGE_M = 10.0  # "stopping" mode (a target position) this far beyond the braking distance
 WINDOW_BACK_M = 20.0  # the reference path's window starts this far behind the ego
 WINDOW_AHEAD_M = 80.0  # and moves on when the ego comes this close to its end (the horizon: <= 45 m)
 WINDOW_THETA_MARGIN = 0.3  # [rad] kept off commonroad-clcs's [-2pi, 2pi] orientation bound
+SELF_GAP_M = 10.0  # [m] a window ends before its path comes back this close to an earlier part of it
+SELF_ARC_M = 30.0  # [m] ... that lies at least this far behind along the path (a loop, not a bend)
+STOP_REACH_MARGIN_M = 1.0  # [m] "stopping" only when the stop target lies within a smooth stop in the horizon
 ROAD_CONTEXT = "(road)"  # coverage context before the first junction (as feat2map's rollout)
 
 
@@ -123,11 +127,14 @@ class ReactiveAdapter:
         self.planner = ReactivePlanner(config)
         self.planner.set_reference_path(coordinate_system=self.co)
         _, self.boundary = create_road_boundary_obstacle(self.scenario, method="obb_rectangles")
-        # where each route lanelet ends along the reference path
+        # where each route lanelet ends along the reference path, in route order (a route that
+        # comes back onto its own lanes, a loop, passes a lanelet's end twice)
+        ends = [self.net.find_lanelet_by_id(lid).center_vertices[-1] for lid in self.lanelets]
         self.lane_end = []
-        for lid in self.lanelets:
-            end = self.net.find_lanelet_by_id(lid).center_vertices[-1]
-            self.lane_end.append(self._s_of(end))
+        for s_path in _ends_in_order(ends, self.full_ref, self.full_cum):
+            s_frame = self._s_of(ends[len(self.lane_end)]) if s_path < self.win_end else math.nan
+            # the frame's arc length where it agrees with the path's (it runs along the smoothed path)
+            self.lane_end.append(s_frame if abs(s_frame - s_path) < 2.0 else s_path)
         self.gate = None
         self.last_plan: tuple[float, list[float]] | None = None  # (t, steering angle per DT) of the last plan
         self.last_pts: list[dict] | None = None  # the last trajectory sent (the fallback follows its rest)
@@ -185,14 +192,22 @@ class ReactiveAdapter:
         adapter choice: a route that turns more than about a full circle, e.g. several lefts in
         a row, trips commonroad-clcs's assertion "Reference path orientations should be in
         [-2pi, 2pi]" at init, issue 22's error outcome). The window moves on when the ego comes
-        within WINDOW_AHEAD_M of its end; the whole route fits one window almost always."""
+        within WINDOW_AHEAD_M of its end; the whole route fits one window almost always.
+        A window also ends before its path comes back within SELF_GAP_M of an earlier part of it
+        (a route that loops back onto its own lanes: M2's m2-r000 starts on R0_1 and ends on it;
+        over the whole loop the frame projected the ego onto either pass, 360 m apart, so its
+        stop line, its speed and the planner's own start jumped between them)."""
         ref, cum = self.full_ref, self.full_cum
         i0 = max(0, int(np.searchsorted(cum, s_from - WINDOW_BACK_M)) - 1)
         seg = np.diff(ref[i0:], axis=0)
         theta = np.unwrap(np.arctan2(seg[:, 1], seg[:, 0]))
         bad = np.nonzero(np.abs(theta) > 2 * math.pi - WINDOW_THETA_MARGIN)[0]
         i1 = len(ref) if not len(bad) else i0 + int(bad[0])  # the window's points are ref[i0:i1]
+        back = _comes_back(ref[i0:i1], cum[i0:i1])
+        if back is not None:  # a loop: the window ends before the path comes back onto itself
+            i1 = i0 + back
         i1 = max(i1, min(i0 + 3, len(ref)))
+        self.win_i = (i0, i1)
         self.ref = ref[i0:i1]
         self.win_end = math.inf if i1 >= len(ref) else float(cum[i1 - 1])
         self.co = self._clcs(self.ref)
@@ -205,9 +220,10 @@ class ReactiveAdapter:
         """The route's arc length (over the whole reference path) nearest `p`."""
         try:
             return self.win_s0 + float(self.co.convert_to_curvilinear_coords(float(p[0]), float(p[1]))[0])
-        except Exception:  # noqa: BLE001 (outside the frame's domain)
-            d = np.hypot(*(self.full_ref - np.asarray(p)[:2]).T)
-            return float(self.full_cum[int(np.argmin(d))])
+        except Exception:  # noqa: BLE001 (outside the frame's domain): the nearest point of the window
+            i0, i1 = self.win_i
+            d = np.hypot(*(self.full_ref[i0:i1] - np.asarray(p)[:2]).T)
+            return float(self.full_cum[i0 + int(np.argmin(d))])
 
     # ---- step ---------------------------------------------------------------------------------
     def _switch(self, ctx: str) -> None:
@@ -265,7 +281,14 @@ class ReactiveAdapter:
             # halted short of its stop point (the fallback's braking): the planner's "stopping"
             # samples from here all broke its checks and the ego stood outside the full-stop
             # zone for good (issue 33): creep on to the point
-            return self._creep(msg, ego, f"CREEP_{why}", room)
+            return self._creep(msg, ego, f"CREEP_{why}", min(room, self._free_ahead(msg, s_centre)))
+        if mode == "stopping" and room > _stop_reach(v):
+            # the planner's "stopping" samples end at the target, at rest, within its horizon: one
+            # further than a smooth stop from v reaches first speeds up (M2's m2-r001 went from 9.5 to
+            # 10.4 m/s at an amber light 22 m ahead, then could not stop before it). Until the
+            # target is within reach: velocity keeping at the speed a constant deceleration to it
+            # has at the horizon's end
+            mode = "braking"
         v_plan = max(v, ENGAGE_MPS) if mode != "stopping" else v
         acc = float(ego.get("acceleration", 0.0)) if v > 0.1 else 0.0  # a stopped car does not decelerate
         init = InitialState(position=np.array([x, y]), orientation=h, velocity=v_plan, acceleration=acc,
@@ -285,6 +308,9 @@ class ReactiveAdapter:
             self.config.sampling.longitudinal_mode = "velocity_keeping"
             cap = math.sqrt(2 * APPROACH_DECEL * max(room - STOPPING_RANGE_M, 0.0)) + 1.0
             p.set_desired_velocity(min(self._desired_speed(s_centre), cap), current_speed=v_plan)
+        elif mode == "braking":
+            self.config.sampling.longitudinal_mode = "velocity_keeping"
+            p.set_desired_velocity(_braking_speed(room, v), current_speed=v_plan)
         elif mode == "stopping":
             self.config.sampling.longitudinal_mode = "stopping"
             p.set_desired_lon_position(max(stop - self.win_s0 - self.wb_rear, p.x_0_cl[0][0]))
@@ -344,6 +370,24 @@ class ReactiveAdapter:
         ref_s, ref_k = np.asarray(self.co.ref_pos) + self.win_s0, np.asarray(self.co.ref_curv)
         kappa = float(np.interp(self._s_of((x, y)), ref_s, ref_k))
         return float(np.clip(math.atan(self.config.vehicle.wheelbase * kappa), -delta_max, delta_max))
+
+    def _free_ahead(self, msg: dict, s_ego: float) -> float:
+        """Metres the ego's centre can move on along the reference path before it comes within
+        CREEP_GAP_M of a road user ahead on its path (inf when none): the creep is the adapter's
+        own trajectory, which the planner's collision check never sees (M2's m2-r000 crept into
+        the car queued at J1's red light)."""
+        free = math.inf
+        for kind in ("vehicles", "pedestrians"):
+            for o in msg.get(kind, []):
+                try:
+                    s, d = self.co.convert_to_curvilinear_coords(float(o["x"]), float(o["y"]))
+                except Exception:  # noqa: BLE001 (outside the frame's domain: not on the path)
+                    continue
+                s += self.win_s0
+                length, width = float(o.get("length", 0.8)), float(o.get("width", 0.8))
+                if s > s_ego and abs(d) < (self.ego_wid + width) / 2 + 0.5:
+                    free = min(free, s - s_ego - (self.ego_len + length) / 2 - CREEP_GAP_M)
+        return max(free, 0.0)
 
     def _desired_speed(self, s: float) -> float:
         i = int(np.searchsorted(self.lane_end, s))
@@ -467,6 +511,56 @@ def _rejected(p) -> str:
     """How many of the planner's samples its last plan() rejected, and why."""
     return (f"rejected {p.infeasible_count_kinematics} for kinematics {dict(p.infeasible_reason_dict)}, "
             f"{p.infeasible_count_collision} for collisions, of {p.total_count_samples}")
+
+
+def _stop_reach(v: float) -> float:
+    """How far ahead of the ego a stop target may lie for the planner's "stopping" mode: a smooth
+    (minimum-jerk) stop from `v` within the horizon covers v * horizon / 2; its samples end at
+    the target at rest within the horizon, so a target further away makes them speed up first."""
+    return v * HORIZON_STEPS * DT / 2 + STOP_REACH_MARGIN_M
+
+
+def _braking_speed(room: float, v: float) -> float:
+    """The speed at the horizon's end of a constant deceleration from `v` to rest `room` ahead."""
+    horizon = HORIZON_STEPS * DT
+    if room <= 0.0:
+        return 0.0
+    return max(v - v * v / (2 * room) * horizon, 0.0)
+
+
+def _comes_back(pts: np.ndarray, cum: np.ndarray) -> int | None:
+    """The index of the first point of the path `pts` (arc lengths `cum`) that lies within
+    SELF_GAP_M of a point at least SELF_ARC_M behind it along the path (the path loops back
+    onto itself), or None."""
+    pts, cum = np.asarray(pts, dtype=float), np.asarray(cum, dtype=float)
+    for k0 in range(0, len(pts), 256):  # in blocks: a long route's pairwise distances stay small
+        blk = slice(k0, min(k0 + 256, len(pts)))
+        d = np.hypot(*(pts[blk, None, :] - pts[None, :, :]).transpose(2, 0, 1))
+        close = (d < SELF_GAP_M) & (cum[blk, None] - cum[None, :] > SELF_ARC_M)
+        hit = np.nonzero(close.any(axis=1))[0]
+        if len(hit):
+            return k0 + int(hit[0])
+    return None
+
+
+def _ends_in_order(points, ref: np.ndarray, cum: np.ndarray) -> list[float]:
+    """The arc lengths along the polyline `ref` (arc lengths `cum`) nearest each of `points` in
+    turn, each at or after the one before (a route that passes a place twice, a loop, has its
+    lanes' ends in route order, not all at the pass that happens to be nearest)."""
+    ref, cum = np.asarray(ref, dtype=float), np.asarray(cum, dtype=float)
+    a, ab = ref[:-1], np.diff(ref, axis=0)
+    seg_len2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
+    out, s_min = [], 0.0
+    for p in points:
+        u = np.clip(((np.asarray(p, dtype=float)[:2] - a) * ab).sum(axis=1) / seg_len2, 0.0, 1.0)
+        foot = a + u[:, None] * ab
+        s = cum[:-1] + u * np.sqrt(seg_len2)
+        d = np.hypot(*(foot - np.asarray(p, dtype=float)[:2]).T)
+        d[s < s_min - 1e-6] = np.inf  # not behind the last one
+        k = int(np.nonzero(d <= d.min() + 0.5)[0][0])  # the first pass of the nearest (a loop's two tie)
+        out.append(float(s[k]))
+        s_min = out[-1]
+    return out
 
 
 def _aligned(path, max_turn: float = math.pi / 2) -> bool:

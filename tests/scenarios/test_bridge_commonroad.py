@@ -14,6 +14,7 @@ from pathlib import Path
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+import numpy as np
 import pytest
 
 import feat2map
@@ -143,3 +144,78 @@ def test_the_ego_has_room_in_every_turn_by_commonroads_own_road_boundary_check(c
     row = turn_room.check(tmp_path / "m.json")
     assert row["manoeuvres"] >= 18 and row["poses"] > 200
     assert row["touching"] == 0, row["manoeuvres_touching"]
+
+
+LOOP_CHECK = r"""
+import json, math, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import planner as P
+from commonroad_clcs.config import CLCSParams
+from commonroad_rp.polynomial_trajectory import QuinticTrajectory
+from commonroad_rp.utility.utils_coordinate_system import CoordinateSystem
+
+# a route round a block (150 m straights, two right-hand half circles of 30 m) that comes back
+# onto its first lane and goes on along it for 100 m (M2's m2-r000 starts on R0_1 and ends on
+# it), a point about every metre; its orientation stays within [-pi, pi]
+def line(a, b):
+    n = int(round(math.dist(a, b)))
+    return [(a[0] + (b[0] - a[0]) * k / n, a[1] + (b[1] - a[1]) * k / n) for k in range(n)]
+def half(c, f0):
+    return [(c[0] + 30 * math.cos(f), c[1] + 30 * math.sin(f)) for f in np.linspace(f0, f0 - math.pi, 95)[:-1]]
+pts = (line((0, 0), (-150, 0)) + half((-150, 30), -math.pi / 2) + line((-150, 60), (0, 60))
+       + half((0, 30), math.pi / 2) + line((0, 0), (-100, 0)) + [(-100, 0)])
+path = np.array(pts, dtype=float)
+a = P.ReactiveAdapter.__new__(P.ReactiveAdapter)
+a.full_ref = path
+a.full_cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+a._clcs = lambda p: CoordinateSystem(reference=p, preprocess_reference=True, clcs_params=CLCSParams())
+a.planner = None
+lap = 300 + 60 * math.pi
+out = {"lap": lap}
+a._set_window(0.0)
+out["first_end"] = a.win_end
+out["first_pass"] = a._s_of((-20.0, 0.0))  # the ego on its first lane, at the start
+a._set_window(lap - 20.0)
+out["second_pass"] = a._s_of((-20.0, 0.0))  # the same place, the route's second pass
+out["ends"] = P._ends_in_order([(-150, 0), (-150, 60), (0, 60), (0, 0), (-100, 0)], a.full_ref, a.full_cum)
+
+# the planner's "stopping" samples (commonroad_rp/sampling/base/base_sampling_space.py): a
+# quintic to the target at rest, 0.4 s to the 3 s horizon; a target beyond the adapter's reach
+# makes every one of them speed up first, one within it has one that does not
+horizon = P.HORIZON_STEPS * P.DT
+def peak(v, target):
+    best = math.inf
+    for t_end in np.arange(0.4, horizon + 1e-9, 0.1):
+        q = QuinticTrajectory(tau_0=0, delta_tau=float(t_end), x_0=np.array([0.0, v, 0.0]), x_d=np.array([target, 0.0, 0.0]))
+        tau = np.linspace(0.0, float(t_end), 50)
+        best = min(best, float(np.max(q.calc_velocity(tau, tau ** 2, tau ** 3, tau ** 4))))
+    return best
+out["stops"] = [(v, room, room > P._stop_reach(v), peak(v, room) > v + 0.05, P._braking_speed(room, v))
+                for v, room in [(9.54, 22.3), (5.48, 17.2), (6.0, 8.0), (3.0, 5.0)]]
+print(json.dumps(out))
+"""
+
+
+def test_the_adapter_keeps_a_route_that_loops_back_onto_its_lanes_unambiguous(crplanner, tmp_path):
+    """A route that comes back onto its own first lane (M2's m2-r000) made one reference path that
+    covers that lane twice: the curvilinear frame projected the ego onto either pass, 360 m apart,
+    and the first junction's stop line was placed at the second pass, so the planner was sent to
+    stop 380 m ahead within 3 s (every sample rejected for acceleration) and a later red light was
+    hidden behind it. Windows end before the path comes back onto itself, and the lanes' ends are
+    found in route order. The planner's "stopping" mode is kept to targets a smooth stop within
+    its horizon reaches (beyond, its samples speed up first: m2-r001 went through an amber light)."""
+    script = tmp_path / "loop.py"
+    script.write_text(LOOP_CHECK)
+    r = subprocess.run([str(CRPY), str(script), str(ADAPTER.parent)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    lap = out["lap"]
+    assert out["first_end"] < lap  # the first window stops short of the second pass
+    assert abs(out["first_pass"] - 20.0) < 1.0, out
+    assert abs(out["second_pass"] - (lap + 20.0)) < 1.0, out
+    assert np.allclose(out["ends"], [150, 150 + 30 * np.pi, 300 + 30 * np.pi, lap, lap + 100], atol=0.5), out["ends"]
+    for v, room, beyond, speeds_up, braking in out["stops"]:
+        assert beyond == speeds_up, (v, room)  # "stopping" only where its samples need not speed up
+        if beyond:  # meanwhile: the speed a constant deceleration to the target has after the horizon
+            assert 0.0 < braking < v
