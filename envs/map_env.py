@@ -93,9 +93,9 @@ class EgoTask:
         if ego.route_pos < len(ego.lane_route) - 1:
             return False
         lane = self.net.lane_of[ego.lane_route[-1]]
-        return ego.s_on(ego.lane_route[-1]) >= self._goal_s(lane)
+        return ego.s_on(ego.lane_route[-1]) >= self.goal_s(lane)
 
-    def _goal_s(self, lane) -> float:
+    def goal_s(self, lane) -> float:
         """The goal on the route's last lane: `goal_distance` into it, at most a metre before its
         end, and never past its first bend tighter than a car turns (`first_tight_bend`): no car
         follows the lane there. osm2xodr folds the lanes of a road at the map's edge into one
@@ -275,9 +275,9 @@ class MapEnv(EgoTask, AbstractEnv):
         self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
         self.violations = self.judge.violations
         self._progress = self.vehicle.route_distance_done()
-        self._bend_s: dict[str, float] = {}  # `_goal_s`'s lanes (this map's)
+        self._bend_s: dict[str, float] = {}  # `goal_s`'s lanes (this map's)
         last = self.net.lane_of[route[-1]]
-        self._route_len = self.vehicle.route_length() - last.length + self._goal_s(last)
+        self._route_len = self.vehicle.route_length() - last.length + self.goal_s(last)
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
 
     def _ego_route(self) -> tuple[list[str], bool]:

@@ -276,7 +276,7 @@ class AgentView(EgoTask):
         self.observation_type = observation_type
         self._progress = v.route_distance_done()
         last = self.net.lane_of[v.lane_route[-1]]
-        self._route_len = v.route_length() - last.length + self._goal_s(last)
+        self._route_len = v.route_length() - last.length + self.goal_s(last)
         self._last_rewards = dict.fromkeys(terms, 0.0)
 
     @property

@@ -694,7 +694,7 @@ class BridgePlanner:
         lanes = list(ego.lane_route)
         lane_ids = ids.get("lanes", {})
         last = e.net.lane_of[lanes[-1]]
-        goal_s = min(float(e.config["goal_distance"]), last.length)
+        goal_s = e.goal_s(last)  # where the env's route completes (not past the lane's first tight bend)
         gx, gy = last.position(goal_s, 0.0)
         sim_hz = float(e.config["simulation_frequency"])
         return {"type": "init", "protocol": self.hello["protocol"], "map": os.path.abspath(path), "map_format": fmt,

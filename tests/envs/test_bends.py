@@ -88,5 +88,5 @@ def test_the_goal_lies_before_the_last_lanes_first_tight_bend():
     straight = PolylineLane(np.array([(0.0, 0.0), (30.0, 0.0)]), 3.5, lane_id="straight")
     assert first_tight_bend(kinked.points) < 0.6 and first_tight_bend(straight.points) == np.inf
     env = SimpleNamespace(config={"goal_distance": 15.0})
-    assert MapEnv._goal_s(env, kinked) == pytest.approx(max(first_tight_bend(kinked.points), 0.0))
-    assert MapEnv._goal_s(env, straight) == 15.0
+    assert MapEnv.goal_s(env, kinked) == pytest.approx(max(first_tight_bend(kinked.points), 0.0))
+    assert MapEnv.goal_s(env, straight) == 15.0

@@ -63,7 +63,7 @@ def route_driven_m(env) -> float:
     u = env.unwrapped
     first, last = u.net.lane_of[u.route_lanes[0]], u.net.lane_of[u.route_lanes[-1]]
     middle = sum(u.net.lane_of[x].length for x in u.route_lanes[1:-1])
-    return min(u.config["ego_start_distance"], first.length) + middle + u._goal_s(last)
+    return min(u.config["ego_start_distance"], first.length) + middle + u.goal_s(last)
 
 
 def test_ring_sampled_lap_is_driven(ring):

@@ -104,7 +104,9 @@ def test_init_carries_the_vehicle_model_stop_lines_and_rules(scenario, tmp_path,
     route = init["route"]["lanes"]
     expect = [(lid, net.stop_lines[lid]) for lid in route if lid in net.stop_lines]
     rtor = env.unwrapped.control.right_turn_on_red()
+    goal_s = env.unwrapped.goal_s(net.lane_of[route[-1]])  # where the env completes the route
     env.close()
+    assert init["goal"]["lane"] == route[-1] and init["goal"]["s"] == pytest.approx(goal_s)
     lines = init["stop_lines"]
     assert [(x["junction"], x["kind"]) for x in lines] == [("J0", "signal"), ("J1", "stop")]
     lanes = {ln["id"]: ln for ln in json.loads(Path(scenario.map).read_text())["lanes"]}
