@@ -173,6 +173,8 @@ def main(argv=None) -> int:
         if many is not None:
             lines.append(f"  {args.worlds} worlds / MetaDrive:{'':>{max(0, 14 - len(str(args.worlds)))}}"
                          f"{med(many.cpu) / cpu:8.1f}x ({med(many.wall) / wall:.1f}x wall)")
+    elif args.no_metadrive:
+        lines.append("  MetaDrive: not measured (--no-metadrive)")
     else:
         lines.append("  MetaDrive: not measured (no /tmp/md-venv: run /work/shared/tools/metadrive-venv.sh)")
     print("\n".join(lines))

@@ -101,10 +101,8 @@ class EgoTask:
         follows the lane there. osm2xodr folds the lanes of a road at the map's edge into one
         point (digitaf's `w648817642_1_0_-1` turns 75 degrees 0.6 m after its start, radius
         2.7 m): the ego driving on to a goal beyond swung over the lane beside it (r214)."""
-        bends = self.__dict__.setdefault("_bend_s", {})  # lane -> its first tight bend, found once
-        if lane.lane_id not in bends:
-            bends[lane.lane_id] = max(first_tight_bend(lane.points), 0.0)
-        return min(float(self.config["goal_distance"]), lane.length - 1.0, bends[lane.lane_id])
+        bend = self.net.memo(("first tight bend", lane.lane_id), lambda: max(first_tight_bend(lane.points), 0.0))
+        return min(float(self.config["goal_distance"]), lane.length - 1.0, bend)
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:
@@ -275,7 +273,6 @@ class MapEnv(EgoTask, AbstractEnv):
         self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
         self.violations = self.judge.violations
         self._progress = self.vehicle.route_distance_done()
-        self._bend_s: dict[str, float] = {}  # `goal_s`'s lanes (this map's)
         last = self.net.lane_of[route[-1]]
         self._route_len = self.vehicle.route_length() - last.length + self.goal_s(last)
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)

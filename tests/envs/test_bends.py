@@ -87,6 +87,6 @@ def test_the_goal_lies_before_the_last_lanes_first_tight_bend():
     kinked = PolylineLane(np.array(_dense([(0.0, 0.0), (0.6, 0.0), (0.6 + 8 * np.cos(a), 8 * np.sin(a))])), 1.6, lane_id="kinked")
     straight = PolylineLane(np.array([(0.0, 0.0), (30.0, 0.0)]), 3.5, lane_id="straight")
     assert first_tight_bend(kinked.points) < 0.6 and first_tight_bend(straight.points) == np.inf
-    env = SimpleNamespace(config={"goal_distance": 15.0})
+    env = SimpleNamespace(config={"goal_distance": 15.0}, net=SimpleNamespace(memo=lambda key, build: build()))
     assert MapEnv.goal_s(env, kinked) == pytest.approx(max(first_tight_bend(kinked.points), 0.0))
     assert MapEnv.goal_s(env, straight) == 15.0
