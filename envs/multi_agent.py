@@ -443,7 +443,10 @@ class MultiAgentMapEnv(ParallelEnv):
         """The worlds (world 0 renders) and the agents' names; with more than one world, each is a
         slot of one shared arrays core on the first world's map (as the vector env's sub-envs)."""
         n = int(self.agent_config["worlds"])
+        old = getattr(self, "worlds", [])
         first = self._world_class(dict(config), self.agent_config, self.render_mode)
+        for w in old:  # (made again by `configure`: their viewers closed)
+            w.close()
         self.worlds: list[_World] = [first]
         if n > 1:
             check_worlds(n, first.config["new_map_each_reset"])
