@@ -59,6 +59,7 @@ WINDOW_THETA_MARGIN = 0.3  # [rad] kept off commonroad-clcs's [-2pi, 2pi] orient
 SELF_GAP_M = 10.0  # [m] a window ends before its path comes back this close to an earlier part of it
 SELF_ARC_M = 30.0  # [m] ... that lies at least this far behind along the path (a loop, not a bend)
 STOP_REACH_MARGIN_M = 1.0  # [m] "stopping" only when the stop target lies within a smooth stop in the horizon
+STOP_REACH_MIN_M = 10.0  # [m] ... or at least this close (at low speed the reach alone left it crawling up)
 ROAD_CONTEXT = "(road)"  # coverage context before the first junction (as feat2map's rollout)
 
 
@@ -516,8 +517,15 @@ def _rejected(p) -> str:
 def _stop_reach(v: float) -> float:
     """How far ahead of the ego a stop target may lie for the planner's "stopping" mode: a smooth
     (minimum-jerk) stop from `v` within the horizon covers v * horizon / 2; its samples end at
-    the target at rest within the horizon, so a target further away makes them speed up first."""
-    return v * HORIZON_STEPS * DT / 2 + STOP_REACH_MARGIN_M
+    the target at rest within the horizon, so a target further away makes them speed up first.
+    Never less than STOP_REACH_MIN_M: the "braking" mode's desired speed falls with the room
+    left, and at low speed the reach is a few metres, so with the reach alone the ego slowed to
+    about 1 m/s 7 m before a stop sign and crawled up to it, braking and creeping in turn (5-8 s
+    more per stop; M1's m1-r027 timed out; m1-r011 and m1-r024, at the line 5 s later, collided
+    in the junction with crossing traffic they had missed before). Speeding up first that close
+    to the target is slight (m1-r011: 2.1 to 3.8 m/s 8 m before the stop sign, then at rest on
+    its line)."""
+    return max(v * HORIZON_STEPS * DT / 2 + STOP_REACH_MARGIN_M, STOP_REACH_MIN_M)
 
 
 def _braking_speed(room: float, v: float) -> float:

@@ -192,7 +192,7 @@ def peak(v, target):
         best = min(best, float(np.max(q.calc_velocity(tau, tau ** 2, tau ** 3, tau ** 4))))
     return best
 out["stops"] = [(v, room, room > P._stop_reach(v), peak(v, room) > v + 0.05, P._braking_speed(room, v))
-                for v, room in [(9.54, 22.3), (5.48, 17.2), (6.0, 8.0), (3.0, 5.0)]]
+                for v, room in [(9.54, 22.3), (5.48, 17.2), (6.0, 8.0), (3.0, 5.0), (1.45, 7.3)]]
 print(json.dumps(out))
 """
 
@@ -204,7 +204,8 @@ def test_the_adapter_keeps_a_route_that_loops_back_onto_its_lanes_unambiguous(cr
     stop 380 m ahead within 3 s (every sample rejected for acceleration) and a later red light was
     hidden behind it. Windows end before the path comes back onto itself, and the lanes' ends are
     found in route order. The planner's "stopping" mode is kept to targets a smooth stop within
-    its horizon reaches (beyond, its samples speed up first: m2-r001 went through an amber light)."""
+    its horizon reaches (beyond, its samples speed up first: m2-r001 went through an amber light),
+    or within 10 m (slow, braking down to a target beyond that reach crawled: M1's m1-r027)."""
     script = tmp_path / "loop.py"
     script.write_text(LOOP_CHECK)
     r = subprocess.run([str(CRPY), str(script), str(ADAPTER.parent)], capture_output=True, text=True, timeout=300)
@@ -216,6 +217,9 @@ def test_the_adapter_keeps_a_route_that_loops_back_onto_its_lanes_unambiguous(cr
     assert abs(out["second_pass"] - (lap + 20.0)) < 1.0, out
     assert np.allclose(out["ends"], [150, 150 + 30 * np.pi, 300 + 30 * np.pi, lap, lap + 100], atol=0.5), out["ends"]
     for v, room, beyond, speeds_up, braking in out["stops"]:
+        if room <= 10.0:  # "stopping" always this close (slow, braking down to the target crawled)
+            assert not beyond, (v, room)
+            continue
         assert beyond == speeds_up, (v, room)  # "stopping" only where its samples need not speed up
         if beyond:  # meanwhile: the speed a constant deceleration to the target has after the horizon
             assert 0.0 < braking < v
