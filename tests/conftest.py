@@ -189,6 +189,16 @@ def sha256_text(text: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def numpy_avx512() -> bool:
+    """Whether NumPy runs its AVX-512 kernels here: on such a CPU its float64 sin, cos, arctan2...
+    (SVML) differ from the other kernels in the last bit now and then, so a map's bytes can differ
+    in a coordinate's 16th digit (a generated map is the same map to 1e-14 m either way).
+    `NPY_DISABLE_CPU_FEATURES="AVX512F AVX512_SKX ..."` turns them off."""
+    from numpy._core._multiarray_umath import __cpu_features__
+
+    return bool(__cpu_features__.get("AVX512_SKX", False))
+
+
 def straight_piece(road, rid: str, s0: float, length: float):
     """A copy of the OpenDRIVE `road` element (first geometry straight) as its straight piece of
     `length` from `s0`, with id `rid`: fixtures cut exported roads into CARLA-style pieces."""
