@@ -132,8 +132,8 @@ class ReactiveAdapter:
         # comes back onto its own lanes, a loop, passes a lanelet's end twice)
         ends = [self.net.find_lanelet_by_id(lid).center_vertices[-1] for lid in self.lanelets]
         self.lane_end = []
-        for s_path in _ends_in_order(ends, self.full_ref, self.full_cum):
-            s_frame = self._s_of(ends[len(self.lane_end)]) if s_path < self.win_end else math.nan
+        for end, s_path in zip(ends, _ends_in_order(ends, self.full_ref, self.full_cum)):
+            s_frame = self._s_of(end) if s_path < self.win_end else math.nan
             # the frame's arc length where it agrees with the path's (it runs along the smoothed path)
             self.lane_end.append(s_frame if abs(s_frame - s_path) < 2.0 else s_path)
         self.gate = None
@@ -304,20 +304,19 @@ class ReactiveAdapter:
             cc.add_collision_object(obs)
         p = self.planner
         p.reset(initial_state_cart=x0, collision_checker=cc, coordinate_system=self.co)
-        if mode == "approach":
-            # keep a speed from which it can still stop there comfortably
-            self.config.sampling.longitudinal_mode = "velocity_keeping"
-            cap = math.sqrt(2 * APPROACH_DECEL * max(room - STOPPING_RANGE_M, 0.0)) + 1.0
-            p.set_desired_velocity(min(self._desired_speed(s_centre), cap), current_speed=v_plan)
-        elif mode == "braking":
-            self.config.sampling.longitudinal_mode = "velocity_keeping"
-            p.set_desired_velocity(_braking_speed(room, v), current_speed=v_plan)
-        elif mode == "stopping":
+        if mode == "stopping":
             self.config.sampling.longitudinal_mode = "stopping"
             p.set_desired_lon_position(max(stop - self.win_s0 - self.wb_rear, p.x_0_cl[0][0]))
         else:
+            if mode == "approach":  # keep a speed from which it can still stop there comfortably
+                cap = math.sqrt(2 * APPROACH_DECEL * max(room - STOPPING_RANGE_M, 0.0)) + 1.0
+                desired = min(self._desired_speed(s_centre), cap)
+            elif mode == "braking":
+                desired = _braking_speed(room, v)
+            else:
+                desired = self._desired_speed(s_centre)
             self.config.sampling.longitudinal_mode = "velocity_keeping"
-            p.set_desired_velocity(self._desired_speed(s_centre), current_speed=v_plan)
+            p.set_desired_velocity(desired, current_speed=v_plan)
         result = p.plan()
         if os.environ.get("CR_ADAPTER_LOG"):
             ref_h = float(np.interp(p.x_0_cl[0][0], self.co.ref_pos, np.unwrap(self.co.ref_theta)))
