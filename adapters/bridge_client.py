@@ -24,6 +24,8 @@ STOP_MARGIN_M = 1.5  # the ego's front stops this far before a stop line
 FULL_STOP_S = 1.0  # a stop sign needs a full stop this long
 STOPPED_MPS = 0.3
 COMFORT_DECEL = 3.0  # [m/s^2] amber: stop only if the line can be reached braking at most this
+HOLD_MARGIN_M = 0.5  # [m] the front halts this far short of the point where the env's rules hold the ego
+YIELD_RULES = {"conflict", "pedestrian", "passage"}  # of step.ahead.hold.by: the gate stops where these hold the ego
 PATH_HALF_WIDTH_M = 1.8  # a road user this close to the route ahead is in the ego's way
 
 
@@ -157,8 +159,16 @@ class RuleGate:
         self.passed: set[str] = set()
 
     def stop_s(self, msg: dict, s_ego: float, speed: float) -> tuple[float, str]:
-        """(arc length where the ego's centre must stop, why) for this step; (inf, "") if nowhere."""
+        """(arc length where the ego's centre must stop, why) for this step; (inf, "") if nowhere.
+        Signals and stop signs from the step's `signals` and `stop_signs`; giving way (conflicting
+        traffic, pedestrians, narrow passages: "YIELD") where the step's `ahead.hold` says the
+        env's rules hold the ego, unless it can no longer stop braking at COMFORT_DECEL."""
         t = float(msg["t"])
+        hold = (msg.get("ahead") or {}).get("hold")  # protocol 2: the env's rules in the ego's place
+        yield_s = math.inf
+        if hold and set(hold.get("by", ())) & YIELD_RULES and \
+                float(hold["distance"]) - self.half >= speed * speed / (2 * COMFORT_DECEL):  # it can stop comfortably
+            yield_s = s_ego + float(hold["distance"]) - self.half - HOLD_MARGIN_M  # the front short of the point
         signals = {x["id"]: x for x in msg.get("signals", [])}
         stops = {x["id"]: x for x in msg.get("stop_signs", [])}
         for line_s, kind, cid in self.lines:
@@ -170,7 +180,7 @@ class RuleGate:
                 state = signals.get(cid, {}).get("state", "green")
                 dist = line_s - front
                 if state == "red" or (state == "amber" and dist > speed * speed / (2 * COMFORT_DECEL)):
-                    return target, "STOP_SIGNAL"
+                    return min(target, yield_s), "STOP_SIGNAL"
             else:
                 key = cid + str(line_s)
                 if speed < self.stopped_mps and line_s - s_ego < self.zone_m:  # the judge's full stop
@@ -180,8 +190,8 @@ class RuleGate:
                 if began is not None and t - began >= FULL_STOP_S and (not queue or queue[0] == "ego"):
                     self.passed.add(key)
                     continue
-                return target, "STOP_SIGN"
-        return math.inf, ""
+                return min(target, yield_s), "STOP_SIGN"
+        return (yield_s, "YIELD") if yield_s < math.inf else (math.inf, "")
 
     def obstacles_ahead(self, msg: dict, s_ego: float, horizon: float = 60.0) -> list[tuple[float, float, str]]:
         assert self.route is not None, "obstacles_ahead needs the Route"

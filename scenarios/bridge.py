@@ -76,6 +76,7 @@ MAX_TRAJECTORY_POINTS = 10_000
 NO_HELLO_HINT = "no reply line: does the planner flush stdout after each line? (python -u)"
 BRIDGE_NAME_PREFIX = "bridge: "  # a BridgePlanner's name (the suite's planner) starts with it
 WORLD_RADIUS_M = 150.0  # vehicles and pedestrians this close to the ego are sent
+HOLD_RULES = ("signal", "stop", "conflict", "pedestrian", "passage")  # step.ahead.hold.by names these
 BRIDGE_ACTION_CONFIG: dict[str, Any] = {"type": "ContinuousAction", "longitudinal": True, "lateral": True,
                         "acceleration_range": [-8.0, 4.0], "steering_range": [-math.pi / 3, math.pi / 3]}
 
@@ -745,6 +746,7 @@ class BridgePlanner:
         e = self.env
         t = float(e.control.t)
         ego = e.vehicle
+        self._claim()
         if t + 1e-9 >= self._next_plan:
             self._next_plan = t + (self.replan_s or 0.0)
             reply = self.proc.request(self.world(info), self.step_timeout, "step")
@@ -753,6 +755,14 @@ class BridgePlanner:
         if getattr(ego, "tracker", None) is not None:
             return np.zeros(2, dtype=np.float32)  # the tracker commands the ego every frame
         return self._control
+
+    def _claim(self) -> None:
+        """The ego reserves its junction lanes as a traffic car in its place would (within its
+        commit distance of the line and let go by every rule: `TrafficRules.stop_distance`
+        claiming), so that traffic gives way to it as to each other (docs/planners.md, *Right of
+        way*). Without it a planner that went on a green at the line lost the junction to a car
+        that reserved a conflicting lane a moment later (M2's m2-r005)."""
+        self.env.control.stop_distance(self.env.vehicle, commit=True)
 
     def _apply(self, reply: dict, t: float, info: dict) -> None:
         from feat2map.envs.tracking import Trajectory, TrajectoryTracker
@@ -875,6 +885,7 @@ class BridgePlanner:
                           "queue": ["ego" if v is ego else self._vid(v) for v in queue_]})
         d = float(info.get("distance_to_stop_line", math.inf))
         ttc = float(info.get("signal_time_to_change", math.inf))
+        hold = rule_hold(rules, ego)
         return {"type": "step", "t": float(rules.t),
                 "ego": {"x": ex, "y": ey, "heading": -float(ego.heading), "speed": float(ego.speed),
                         "acceleration": acc, "yaw_rate": -yaw_rate, "steering": -steering,
@@ -882,9 +893,23 @@ class BridgePlanner:
                 "ahead": {"junction": info.get("junction") or None, "control": info.get("control_ahead") or None,
                           "stop_line_distance": d if math.isfinite(d) else None,
                           "signal": info.get("signal_id") or None, "signal_state": info.get("signal_state") or None,
-                          "signal_time_to_change": ttc if math.isfinite(ttc) else None},
+                          "signal_time_to_change": ttc if math.isfinite(ttc) else None, "hold": hold},
                 "junction": info.get("junction") or None,
                 "vehicles": vehicles, "pedestrians": pedestrians, "signals": signals, "stop_signs": stops}
+
+
+def rule_hold(rules: Any, ego: Any) -> dict | None:
+    """Where the env's rules would stop its own traffic in the ego's place now, and which rules
+    (`HOLD_RULES`) each on its own would stop it there: `{"distance": metres from the ego's
+    centre to the point its front must not pass, "by": [...]}`, or
+    None when they let it go. Pure queries (`TrafficRules.stop_distance` without claiming), so
+    asking changes nothing (the ego's claims are `BridgePlanner._claim`'s)."""
+    stop = rules.stop_distance(ego, commit=False)
+    if not math.isfinite(stop):
+        return None
+    by = [r for r in HOLD_RULES
+          if rules.stop_distance(ego, commit=False, ignore=frozenset(HOLD_RULES) - {r}) <= stop + 0.5]
+    return {"distance": float(stop), "by": by}
 
 
 def _line_key(s: str) -> tuple[str, int]:

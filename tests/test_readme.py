@@ -86,6 +86,5 @@ def test_readme_command_block_runs_as_written(tmp_path):
     summary = json.loads((repo / "out" / "r3" / "summary.json").read_text())  # the bridge line, --fail-on none
     failed = [o["name"] for o in summary["outcomes"] if o["outcome"] != "completed"]
     assert all(o["outcome"] != "error" for o in summary["outcomes"]), summary["outcomes"]  # the planner drove
-    assert failed and sorted(summary["gifs"]) == sorted(failed), \
-        [(o["name"], o["outcome"], o["message"][:300]) for o in summary["outcomes"]]  # every failure gets its GIF
-    assert all((repo / "out" / "r3" / gif).is_file() for gif in summary["gifs"].values())
+    assert not failed and not summary["gifs"], \
+        [(o["name"], o["outcome"], o["message"][:300]) for o in summary["outcomes"]]  # as the README says: all three

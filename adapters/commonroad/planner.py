@@ -12,11 +12,13 @@ What it does (docs/planners.md):
   planner's curvilinear frame is built with CLCSParams() passed explicitly; its
   multiprocessing is off.
 - step: the ego's state becomes the planner's initial state (rear axle); every vehicle and
-  pedestrian near the ego, not behind it, becomes a dynamic obstacle with a constant-velocity
-  prediction over the horizon, next to the road boundary, in a fresh collision checker; the
-  traffic rules the step message states (red/amber signals, stop signs in queue order; the
-  reactive planner has none of its own) put it in "stopping" mode before the stop line,
-  else "velocity_keeping" at the lane's speed limit (curves slower). The optimal trajectory
+  pedestrian near the ego, not behind it, becomes a dynamic obstacle predicted at its speed
+  along its lane (straight on where it leaves its lane or the lanes branch) over the horizon,
+  next to the road boundary, in a fresh collision checker; the traffic rules the step message
+  states (red/amber signals, stop signs in queue order, the env's rules holding the ego:
+  `ahead.hold`; the reactive planner has none of its own) and a standing queue ahead put it
+  in "stopping" mode before the stop point, else "velocity_keeping" at the lane's speed limit
+  (curves slower). Its lateral samples stay within LATERAL_RANGE_M of the path. The optimal trajectory
   goes back with its states shifted to the vehicle centre. When it finds none (or raises), the
   adapter brakes along the reference path and says so in its stage (FALLBACK_...).
 - close: with coverage requested, the reactive planner's own lines (commonroad_rp) per
@@ -31,6 +33,7 @@ import math
 import os
 import sys
 import traceback
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +54,8 @@ FALLBACK_DECEL = 6.0
 ENGAGE_MPS = 1.0  # [m/s] the planner's initial speed when the ego is to move off from (near) standstill
 APPROACH_DECEL = 2.0  # [m/s^2] speed cap towards a stop point: it can stop there braking this hard
 CREEP_GAP_M = 2.0  # [m] the creep stops this far behind a road user ahead on the path
+BOUNDARY_REACH_M = 60.0  # [m] the road boundary is built from the lanelets this close to the reference path
+STALL_CREEP_M = 3.0  # [m] with no trajectory at standstill, the ego creeps on at most this far along the path
 CREEP_ROOM_M = 1.0  # [m] slower than ENGAGE_MPS further than this before its stop point, the ego creeps on
 STOPPING_RANGE_M = 10.0  # "stopping" mode (a target position) this far beyond the braking distance
 WINDOW_BACK_M = 20.0  # the reference path's window starts this far behind the ego
@@ -60,6 +65,11 @@ SELF_GAP_M = 10.0  # [m] a window ends before its path comes back this close to 
 SELF_ARC_M = 30.0  # [m] ... that lies at least this far behind along the path (a loop, not a bend)
 STOP_REACH_MARGIN_M = 1.0  # [m] "stopping" only when the stop target lies within a smooth stop in the horizon
 STOP_REACH_MIN_M = 10.0  # [m] ... or at least this close (at low speed the reach alone left it crawling up)
+LATERAL_RANGE_M = 1.0  # [m] lateral samples end at most this far beside the path (its default 3 m: the oncoming lane)
+PREDICT_LAT_M = 1.5  # [m] a road user this close to its lane's centreline ...
+PREDICT_HEADING_RAD = 0.6  # ... and heading this close to the lane's is predicted along its lane
+PREDICT_AHEAD_M = 60.0  # [m] the lane path reaches this far past its lane's end (the horizon at 20 m/s)
+QUEUE_MPS = 1.0  # [m/s] a vehicle ahead on the path this slow is a stop target (the back of a queue)
 ROAD_CONTEXT = "(road)"  # coverage context before the first junction (as feat2map's rollout)
 
 
@@ -98,6 +108,8 @@ class ReactiveAdapter:
         self.junction_of_lane = route["junction_of_lane"]
         self.limits = route["speed_limits"]
         self.ego_len, self.ego_wid = float(msg["ego"]["length"]), float(msg["ego"]["width"])
+        self.lanelet_of = {k: int(v) for k, v in (msg.get("ids") or {}).get("lanes", {}).items() if v is not None}
+        self.lane_paths: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # lanelet -> its path ahead (_lane_path)
         self.full_stop = msg.get("rules", {}).get("full_stop")  # protocol 2: what counts as a full stop
         config = ReactivePlannerConfiguration()
         config.debug.multiproc = False  # its worker pool dies and hangs the parent (issue 22)
@@ -107,6 +119,7 @@ class ReactiveAdapter:
         config.planning.time_steps_computation = HORIZON_STEPS
         config.planning.__post_init__()
         config.sampling.num_sampling_levels = SAMPLING_LEVELS
+        config.sampling.d_min, config.sampling.d_max = -LATERAL_RANGE_M, LATERAL_RANGE_M
         config.vehicle.length, config.vehicle.width = self.ego_len, self.ego_wid
         pp = next(iter(problems.planning_problem_dict.values()))  # any: the planner needs one to start
         config.update(scenario=self.scenario, planning_problem=pp)
@@ -125,9 +138,9 @@ class ReactiveAdapter:
         self._clcs = lambda path: CoordinateSystem(reference=path, preprocess_reference=True, clcs_params=CLCSParams())
         self.planner = None
         self._set_window(0.0)
-        self.planner = ReactivePlanner(config)
+        _, self.boundary = create_road_boundary_obstacle(self._near_route(), method="obb_rectangles")
+        self.planner = _planner_class(ReactivePlanner, self.boundary)(config)
         self.planner.set_reference_path(coordinate_system=self.co)
-        _, self.boundary = create_road_boundary_obstacle(self.scenario, method="obb_rectangles")
         # where each route lanelet ends along the reference path, in route order (a route that
         # comes back onto its own lanes, a loop, passes a lanelet's end twice)
         ends = [self.net.find_lanelet_by_id(lid).center_vertices[-1] for lid in self.lanelets]
@@ -137,6 +150,7 @@ class ReactiveAdapter:
             # the frame's arc length where it agrees with the path's (it runs along the smoothed path)
             self.lane_end.append(s_frame if abs(s_frame - s_path) < 2.0 else s_path)
         self.gate = None
+        self.stall_room = 0.0  # [m] how far the ego may creep on this step if the planner stalls (_fallback)
         self.last_plan: tuple[float, list[float]] | None = None  # (t, steering angle per DT) of the last plan
         self.last_pts: list[dict] | None = None  # the last trajectory sent (the fallback follows its rest)
         _debug(f"init {json.dumps(msg)}")
@@ -164,6 +178,23 @@ class ReactiveAdapter:
             keep = np.concatenate([[True], np.hypot(*np.diff(path, axis=0).T) > 1e-3])
             path = path[keep]
         return np.asarray(path, dtype=float)
+
+    def _near_route(self):
+        """A scenario of the lanelets within BOUNDARY_REACH_M of the reference path: its road
+        boundary is the whole map's wherever the planner's samples can reach (any edge the cut
+        makes lies beyond a lanelet that does not come that close), and building it costs
+        seconds rather than the 75-90 s the whole of SF's 1,618 lanelets took."""
+        from commonroad.scenario.lanelet import LaneletNetwork
+        from commonroad.scenario.scenario import Scenario
+        from shapely.geometry import LineString
+
+        area = LineString(self.full_ref).buffer(BOUNDARY_REACH_M)
+        near = [ll for ll in self.net.lanelets if ll.polygon.shapely_object.intersects(area)]
+        scenario = Scenario(dt=DT)
+        with warnings.catch_warnings():  # commonroad-io compares stop lines with None as it copies
+            warnings.simplefilter("ignore", UserWarning)
+            scenario.add_objects(LaneletNetwork.create_from_lanelet_list(near, cleanup_ids=True))
+        return scenario
 
     def _route_planner_path(self, own: list[int]):
         from commonroad.common.util import Interval
@@ -261,13 +292,18 @@ class ReactiveAdapter:
         from commonroad.scenario.state import InitialState
         from commonroad_rp.state import ReactivePlannerState
 
+        self.stall_room = 0.0
         x, y, h, v = float(ego["x"]), float(ego["y"]), float(ego["heading"]), max(float(ego["speed"]), 0.0)
         s_centre = self._s_of((x, y))
         if s_centre > self.win_end - WINDOW_AHEAD_M:
             self._set_window(s_centre)
             s_centre = self._s_of((x, y))
         stop, why = self.gate.stop_s(msg, s_centre, v)
+        queue = s_centre + self._free_ahead(msg, s_centre, slower_than=QUEUE_MPS)
+        if queue < stop:  # the back of a queue (M3's m3-r018 swerved past one waiting at a red light)
+            stop, why = queue, "QUEUE"
         room = stop - s_centre
+        self.stall_room = min(room, self._free_ahead(msg, s_centre), STALL_CREEP_M)  # _fallback's creep
         if math.isfinite(stop) and room > v * v / (2 * APPROACH_DECEL) + STOPPING_RANGE_M:
             mode, stage = "approach", f"APPROACH_{why}"  # far from the stop point
         elif math.isfinite(stop):
@@ -342,8 +378,15 @@ class ReactiveAdapter:
         while it reaches past the braking distance (an adapter choice: the last feasible plan's
         path, as a planner's own loop keeps it through a failed cycle; its speeds are not kept,
         since it was planned without the obstacles seen now), else along the reference path.
-        The stage says FALLBACK_<why> either way."""
+        The stage says FALLBACK_<why> either way. From (near) standstill, where nothing holds
+        the ego within STALL_CREEP_M, it creeps on instead (CREEP_STALLED)."""
         t, v = float(msg["t"]), max(float(ego["speed"]), 0.0)
+        if v < ENGAGE_MPS and self.stall_room > CREEP_ROOM_M:
+            # stalled: from (near) standstill with a heading error inside a tight turn every sample
+            # broke the planner's curvature-rate check (commonroad_rp/reactive_planner.py:1088-1094)
+            # and the ego stood there for good (M4's m4-r000, SF's sf-r000): creep on along the path
+            self.last_plan = self.last_pts = None
+            return self._creep(msg, ego, "CREEP_STALLED", self.stall_room)
         rest = [q for q in (self.last_pts or []) if q["t"] >= t - DT / 2]
         if len(rest) >= 3:
             path = np.array([[float(ego["x"]), float(ego["y"])]] + [[q["x"], q["y"]] for q in rest])
@@ -371,14 +414,17 @@ class ReactiveAdapter:
         kappa = float(np.interp(self._s_of((x, y)), ref_s, ref_k))
         return float(np.clip(math.atan(self.config.vehicle.wheelbase * kappa), -delta_max, delta_max))
 
-    def _free_ahead(self, msg: dict, s_ego: float) -> float:
+    def _free_ahead(self, msg: dict, s_ego: float, slower_than: float = math.inf) -> float:
         """Metres the ego's centre can move on along the reference path before it comes within
-        CREEP_GAP_M of a road user ahead on its path (inf when none): the creep is the adapter's
-        own trajectory, which the planner's collision check never sees (M2's m2-r000 crept into
-        the car queued at J1's red light)."""
+        CREEP_GAP_M of a road user ahead on its path (inf when none; vehicles only, and only
+        those slower than `slower_than` when given): the creep is the adapter's own trajectory,
+        which the planner's collision check never sees (M2's m2-r000 crept into the car queued
+        at J1's red light)."""
         free = math.inf
-        for kind in ("vehicles", "pedestrians"):
+        for kind in ("vehicles", "pedestrians") if slower_than == math.inf else ("vehicles",):
             for o in msg.get(kind, []):
+                if float(o["speed"]) >= slower_than:
+                    continue
                 try:
                     s, d = self.co.convert_to_curvilinear_coords(float(o["x"]), float(o["y"]))
                 except Exception:  # noqa: BLE001 (outside the frame's domain: not on the path)
@@ -423,9 +469,9 @@ class ReactiveAdapter:
                 length = float(o.get("length", 0.8))
                 width = float(o.get("width", 0.8))
                 h, v = float(o["heading"]), float(o["speed"])
-                vx, vy = v * math.cos(h), v * math.sin(h)
-                states = [CustomState(time_step=k, position=np.array([o["x"] + vx * k * DT, o["y"] + vy * k * DT]),
-                                      orientation=h, velocity=v) for k in range(1, HORIZON_STEPS + 2)]
+                poses = self._predict(o, h, v, HORIZON_STEPS + 2)
+                states = [CustomState(time_step=k, position=poses[k, :2], orientation=float(poses[k, 2]), velocity=v)
+                          for k in range(1, HORIZON_STEPS + 2)]
                 shape = Rectangle(length, width)
                 init = InitialState(position=np.array([o["x"], o["y"]]), orientation=h, velocity=v, time_step=0,
                                     acceleration=0.0, yaw_rate=0.0, slip_angle=0.0)
@@ -434,6 +480,47 @@ class ReactiveAdapter:
                                       TrajectoryPrediction(Trajectory(1, states), shape))
                 out.append(create_collision_object(dyn))
         return out
+
+    def _predict(self, o: dict, h: float, v: float, n: int) -> np.ndarray:
+        """(x, y, heading) of road user `o` at each of n steps of DT from now, at its speed: along
+        its lane and the lanes that follow it where they do not branch, when it drives along its
+        lane (within PREDICT_LAT_M of its centreline, heading within PREDICT_HEADING_RAD of it),
+        then straight on; otherwise straight along its heading. A car turning inside a junction
+        was predicted straight down the ego's lane (M3's m3-r000, m3-r011): every sample in the
+        lane collided with it and the planner swerved into the oncoming lane."""
+        p = np.array([float(o["x"]), float(o["y"])])
+        steps = np.arange(n) * DT * v
+        path = self._lane_path(self.lanelet_of.get(o.get("lane"))) if o.get("lane") is not None else None
+        if path is not None:
+            pts, cum = path
+            s0, lat, hl = _project(pts, cum, p)
+            if abs(lat) < PREDICT_LAT_M and abs(_wrap(h - hl)) < PREDICT_HEADING_RAD:
+                return _poses_along(pts, cum, s0 + steps)
+        return np.column_stack([p[0] + steps * math.cos(h), p[1] + steps * math.sin(h), np.full(n, h)])
+
+    def _lane_path(self, lanelet: int | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """The centreline of `lanelet` and of its successors while each has just one, up to
+        PREDICT_AHEAD_M past the lanelet's end (points, arc lengths); once per lanelet."""
+        if lanelet is None:
+            return None
+        if lanelet not in self.lane_paths:
+            try:
+                ll = self.net.find_lanelet_by_id(lanelet)
+            except Exception:  # noqa: BLE001 (an id the map does not have: predict straight)
+                ll = None
+            if ll is None:
+                return None
+            parts, ahead = [ll.center_vertices], 0.0
+            while len(ll.successor) == 1 and ahead < PREDICT_AHEAD_M:
+                ll = self.net.find_lanelet_by_id(ll.successor[0])
+                parts.append(ll.center_vertices[1:])
+                ahead += float(np.hypot(*np.diff(ll.center_vertices, axis=0).T).sum())
+            pts = np.concatenate(parts)
+            pts = pts[np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-3])]
+            if len(pts) < 2:
+                return None
+            self.lane_paths[lanelet] = (pts, np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]))
+        return self.lane_paths[lanelet]
 
     def _brake(self, msg: dict, ego: dict, stage: str, ref: np.ndarray, cum: np.ndarray) -> dict:
         """Brake at FALLBACK_DECEL along the polyline `ref` (arc lengths `cum`) from where the ego is."""
@@ -511,6 +598,46 @@ def _rejected(p) -> str:
     """How many of the planner's samples its last plan() rejected, and why."""
     return (f"rejected {p.infeasible_count_kinematics} for kinematics {dict(p.infeasible_reason_dict)}, "
             f"{p.infeasible_count_collision} for collisions, of {p.total_count_samples}")
+
+
+def _planner_class(base: type, boundary) -> type:
+    """The reactive planner with the adapter's road boundary: its constructor (and any reset
+    without a collision checker) builds its own from the whole scenario, never used since every
+    plan gets the adapter's checker; on SF's 1,618 lanelets that took 45 s of the start."""
+
+    class Planner(base):
+        def set_collision_checker(self, scenario=None, collision_checker=None, road_boundary_obstacle=None):
+            if collision_checker is None and road_boundary_obstacle is None:
+                road_boundary_obstacle = boundary
+            super().set_collision_checker(scenario, collision_checker, road_boundary_obstacle)
+
+    return Planner
+
+
+def _project(pts: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[float, float, float]:
+    """(arc length, signed lateral offset, heading) of the point of the polyline `pts` nearest `p`."""
+    a, ab = pts[:-1], np.diff(pts, axis=0)
+    seg2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
+    u = np.clip(((p - a) * ab).sum(axis=1) / seg2, 0.0, 1.0)
+    foot = a + u[:, None] * ab
+    k = int(np.argmin(np.hypot(*(foot - p).T)))
+    side = ab[k, 0] * (p[1] - a[k, 1]) - ab[k, 1] * (p[0] - a[k, 0])
+    lat = math.copysign(float(np.hypot(*(foot[k] - p))), side)
+    return float(cum[k] + u[k] * math.sqrt(seg2[k])), lat, math.atan2(ab[k, 1], ab[k, 0])
+
+
+def _poses_along(pts: np.ndarray, cum: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(x, y, heading) at arc lengths `s` along the polyline `pts`, straight on past its end."""
+    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(pts) - 2)
+    d = pts[k + 1] - pts[k]
+    seg = np.maximum(cum[k + 1] - cum[k], 1e-9)
+    u = (s - cum[k]) / seg
+    xy = pts[k] + u[:, None] * d
+    return np.column_stack([xy, np.arctan2(d[:, 1], d[:, 0])])
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _stop_reach(v: float) -> float:

@@ -48,7 +48,11 @@ def crplanner() -> str:
     return f"{CRPY} {ADAPTER}"
 
 
-def test_the_reactive_planner_drives_a_short_suite_through_the_bridge(crplanner, tmp_path):
+@pytest.fixture(scope="module")
+def short_run(crplanner, tmp_path_factory) -> tuple[dict, Path]:
+    """The reactive planner's rollout of three routes through a signalled T junction: its
+    summary and its recordings (`--record`)."""
+    tmp_path = tmp_path_factory.mktemp("cr")
     m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180], "signal", False)], seed=0)
     native.save(m, tmp_path / "t.json")
     assert cli.main(["suite", str(tmp_path / "t.json"), "--out", str(tmp_path / "full.yaml"), "--traffic", "2"]) == 0
@@ -57,9 +61,14 @@ def test_the_reactive_planner_drives_a_short_suite_through_the_bridge(crplanner,
     save_suite(Suite("t", kept, full.base_dir), tmp_path / "s.yaml")
     out = tmp_path / "cr"
     rc = cli.main(["rollout", str(tmp_path / "s.yaml"), "--planner-cmd", crplanner, "--planner-timeout", "60",
-                   "--out", str(out), "--quiet", "--no-gif", "--fail-on", "none", "--line-coverage"])
+                   "--out", str(out), "--quiet", "--no-gif", "--fail-on", "none", "--line-coverage",
+                   "--record", str(tmp_path / "rec")])
     assert rc == 0
-    summary = json.loads((out / "summary.json").read_text())
+    return json.loads((out / "summary.json").read_text()), tmp_path / "rec"
+
+
+def test_the_reactive_planner_drives_a_short_suite_through_the_bridge(short_run):
+    summary = short_run[0]
     assert summary["planner"].startswith("bridge: ") and len(summary["outcomes"]) == len(KEEP)
     for o in summary["outcomes"]:
         assert o["outcome"] != "error", o["message"]  # the bridge and the adapter hold
@@ -223,3 +232,138 @@ def test_the_adapter_keeps_a_route_that_loops_back_onto_its_lanes_unambiguous(cr
         assert beyond == speeds_up, (v, room)  # "stopping" only where its samples need not speed up
         if beyond:  # meanwhile: the speed a constant deceleration to the target has after the horizon
             assert 0.0 < braking < v
+
+
+PREDICT_CHECK = r"""
+import json, math, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import planner as P
+import commonroad_rp.reactive_planner as RP
+from commonroad.common.file_reader import CommonRoadFileReader
+from commonroad_dc.boundary.boundary import create_road_boundary_obstacle
+from commonroad_rp.utility.config import ReactivePlannerConfiguration
+
+scenario, problems = CommonRoadFileReader(sys.argv[2]).open()
+ids = json.loads(sys.argv[3])
+a = P.ReactiveAdapter.__new__(P.ReactiveAdapter)
+a.net, a.lanelet_of, a.lane_paths = scenario.lanelet_network, ids, {}
+out = {}
+# a car a third of the way round the junction's sharpest turn, heading along it, at 6 m/s
+turn, lid = max((abs(np.unwrap(np.arctan2(*np.diff(a.net.find_lanelet_by_id(v).center_vertices, axis=0).T[::-1]))[[0, -1]]
+                     @ [1, -1]), k) for k, v in ids.items())
+ll = a.net.find_lanelet_by_id(ids[lid])
+c = ll.center_vertices
+k = len(c) // 3
+h = math.atan2(*(c[k + 1] - c[k])[::-1])
+car = {"x": float(c[k][0]), "y": float(c[k][1]), "lane": lid}
+poses = a._predict(car, h, 6.0, P.HORIZON_STEPS + 2)
+path = np.concatenate([c] + [a.net.find_lanelet_by_id(s).center_vertices for s in ll.successor])
+out["turn"] = float(turn)
+cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+out["off_path"] = max(abs(P._project(path, cum, p[:2])[1]) for p in poses)
+out["travel"] = float(np.hypot(*np.diff(poses[:, :2], axis=0).T).sum())
+out["travel_expected"] = 6.0 * P.DT * (len(poses) - 1)
+out["turned"] = float(abs(P._wrap(poses[-1, 2] - h)))
+# the same car 3 m beside its lane: straight on along its heading
+side = {**car, "x": car["x"] - 3 * math.sin(h), "y": car["y"] + 3 * math.cos(h)}
+q = a._predict(side, h, 4.0, 5)
+out["straight"] = float(np.max(np.abs(q[:, 2] - h)))
+
+# the planner's constructor takes the adapter's road boundary: it builds none of its own
+calls = []
+real = RP.create_road_boundary_obstacle
+RP.create_road_boundary_obstacle = lambda *x, **kw: calls.append(1) or real(*x, **kw)
+config = ReactivePlannerConfiguration()
+config.debug.multiproc = False
+config.update(scenario=scenario, planning_problem=next(iter(problems.planning_problem_dict.values())))
+_, boundary = create_road_boundary_obstacle(scenario, method="obb_rectangles")
+planner = P._planner_class(RP.ReactivePlanner, boundary)(config)
+out["boundaries_built"] = len(calls)
+print(json.dumps(out))
+"""
+
+
+def test_the_adapter_predicts_a_turning_car_along_its_lane_and_builds_one_road_boundary(crplanner, tmp_path):
+    """A car inside a junction turn is predicted along its lane, not straight on down another
+    lane (M3's m3-r000 and m3-r011 swerved into the oncoming lane round such a prediction); one
+    that left its lane, straight on. The planner's constructor gets the adapter's road boundary
+    (it built a second one, never used: 45 s of SF's start, over the bridge's start limit)."""
+    from feat2map.formats import write_map
+    from feat2map.formats.commonroad import lanelet_ids
+
+    J = feat2map.JunctionFeature.make
+    m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", False)], seed=0)
+    write_map(m, tmp_path / "m.xml", "commonroad")
+    ids = {k: int(v) for k, v in lanelet_ids(m).items() if m.lanes[k].junction_id}
+    script = tmp_path / "predict.py"
+    script.write_text(PREDICT_CHECK)
+    r = subprocess.run([str(CRPY), str(script), str(ADAPTER.parent), str(tmp_path / "m.xml"), json.dumps(ids)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["turn"] > 1.2  # a left or right turn, about a quarter circle
+    assert out["off_path"] < 0.05, out  # every predicted position on the lane and the lane after it
+    assert abs(out["travel"] - out["travel_expected"]) < 0.5, out  # at its speed
+    assert out["turned"] > 0.5, out
+    assert out["straight"] < 1e-9, out
+    assert out["boundaries_built"] == 0, out
+
+
+BOUNDARY_CHECK = r"""
+import json, math, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import planner as P
+import commonroad_dc.pycrcc as pycrcc
+from commonroad_dc.boundary.boundary import create_road_boundary_obstacle
+
+a = P.ReactiveAdapter()
+a.init(json.loads(open(sys.argv[2]).read()))
+_, whole = create_road_boundary_obstacle(a.scenario, method="obb_rectangles")
+probes = differ = touching = 0
+for k in range(len(a.full_ref)):
+    d = a.full_ref[min(k + 1, len(a.full_ref) - 1)] - a.full_ref[max(k - 1, 0)]
+    h = math.atan2(d[1], d[0])
+    for off in np.linspace(-6.0, 6.0, 13):  # across the road, a car's half body each side of the path
+        c = a.full_ref[k] + off * np.array([-math.sin(h), math.cos(h)])
+        box = pycrcc.RectOBB(2.4, 0.95, h, float(c[0]), float(c[1]))
+        hit = bool(whole.collide(box))
+        probes += 1
+        touching += hit
+        differ += hit != bool(a.boundary.collide(box))
+print(json.dumps({"probes": probes, "touching": touching, "differ": differ,
+                  "near": len(a._near_route().lanelet_network.lanelets), "all": len(a.net.lanelets)}))
+"""
+
+
+def test_the_adapter_road_boundary_near_the_route_is_the_whole_maps(crplanner, tmp_path):
+    """The adapter builds the road boundary from the lanelets near the route only (SF's whole
+    map took 75-90 s, over the bridge's start limit): along a route through one junction of a
+    map of four, and across the road on both sides, every car-sized box touches it exactly where
+    it touches the whole map's."""
+    from feat2map.envs.sim.vehicle import VehicleModel
+    from feat2map.formats import write_map
+    from feat2map.formats.commonroad import lanelet_ids
+
+    J = feat2map.JunctionFeature.make
+    m = feat2map.generate_from_features([J([0, 90, 180, 270], "signal", False)] * 4, seed=0)
+    write_map(m, tmp_path / "m.xml", "commonroad")
+    ids = lanelet_ids(m)
+    j_lane = next(ln for ln in m.lanes.values() if ln.junction_id == "J0" and ln.predecessors and ln.successors)
+    route = [j_lane.predecessors[0], j_lane.id, j_lane.successors[0]]
+    init = {"map": str(tmp_path / "m.xml"), "coverage": False, "ego": {"length": 4.8, "width": 1.9},
+            "vehicle": VehicleModel.of().describe(), "rules": {},
+            "route": {"lanes": route, "lanes_in_format": [ids[x] for x in route],
+                      "junction_of_lane": [m.lanes[x].junction_id for x in route],
+                      "speed_limits": [m.lanes[x].speed_limit for x in route]}}
+    (tmp_path / "init.json").write_text(json.dumps(init))
+    script = tmp_path / "boundary.py"
+    script.write_text(BOUNDARY_CHECK)
+    r = subprocess.run([str(CRPY), str(script), str(ADAPTER.parent), str(tmp_path / "init.json")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["probes"] > 500 and out["touching"] > 50, out  # the probes reach the road's edges
+    assert out["differ"] == 0, out
+    assert out["near"] < out["all"], out  # the cut left lanelets out

@@ -1,9 +1,11 @@
 """Bridge protocol 2's planner-facing description of the env: `init` carries the ego's vehicle
 model, the route's stop lines and the compliance rules as numbers; each `step.ego` carries its
-steering, yaw rate and acceleration. Checked on a generated map with a signal (J0) and a stop
-sign (J1), for planners answering protocol 1 and 2."""
+steering, yaw rate and acceleration, and `step.ahead.hold` the env's rules in the ego's place.
+Checked on a generated map with a signal (J0) and a stop sign (J1), for planners answering
+protocol 1 and 2."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -154,6 +156,96 @@ def test_step_ego_carries_steering_yaw_rate_and_acceleration(scenario, tmp_path,
     a, b = steps[5], steps[6]
     turned = (b["heading"] - a["heading"]) / dt
     assert turned < 0 and turned == pytest.approx((a["yaw_rate"] + b["yaw_rate"]) / 2, rel=0.1)
+
+
+def test_step_ahead_hold_is_the_env_rules_answer_and_asking_changes_nothing(scenario):
+    """`step.ahead.hold`: where the env's rules would stop its own traffic in the ego's place, and
+    which rules each would; asking it every decision leaves the episode exactly as it was."""
+    from feat2map.scenarios.bridge import HOLD_RULES, rule_hold
+    from feat2map.scenarios.planner import BaselinePlanner
+
+    sc = dataclasses.replace(scenario, duration=40.0, traffic_vehicles=6)
+
+    def drive(ask: bool) -> tuple[list, dict]:
+        env = make_env(sc)
+        obs, info = env.reset(seed=sc.seed)
+        planner = BaselinePlanner()
+        planner.reset(env)
+        trace, holds = [], {}
+        for _ in range(400):
+            obs, _, term, trunc, info = env.step(planner.act(obs, info))
+            u = env.unwrapped
+            trace.append((*map(float, u.vehicle.position), float(u.vehicle.speed)))
+            if ask:
+                hold = rule_hold(u.control, u.vehicle)
+                stop = u.control.stop_distance(u.vehicle, commit=False)
+                assert (hold is None) == (stop == math.inf)
+                if hold is not None:
+                    assert hold["distance"] == stop and hold["by"] and set(hold["by"]) <= set(HOLD_RULES)
+                    for r in hold["by"]:  # each named rule on its own stops the ego there
+                        alone = u.control.stop_distance(u.vehicle, commit=False, ignore=frozenset(HOLD_RULES) - {r})
+                        assert alone <= stop + 0.5
+                    if info.get("signal_state") == "red":
+                        assert "signal" in hold["by"]
+                    holds.setdefault(tuple(hold["by"]), 0)
+                    holds[tuple(hold["by"])] += 1
+            if term or trunc:
+                break
+        env.close()
+        return trace, holds
+
+    asked, holds = drive(True)
+    assert drive(False)[0] == asked  # pure queries
+    named = {r for by in holds for r in by}
+    assert {"signal", "stop"} <= named, holds  # a red at J0, the stop sign at J1
+
+
+def test_the_bridged_ego_reserves_its_junction_lanes_as_traffic_in_its_place_would(scenario, monkeypatch):
+    """Every decision the bridge claims for the ego by the env's rule (`BridgePlanner._claim`):
+    before it drives onto J0's junction lane it holds it (traffic then gives way to it), and on
+    a red light, where the rule holds it, it holds nothing."""
+    sc = dataclasses.replace(scenario, duration=40.0, traffic_vehicles=4)
+    seen = []
+    act = BridgePlanner.act
+
+    def spy(self, obs, info):
+        u = self.env.unwrapped
+        out = act(self, obs, info)
+        held = {lid for lid, v in u.control.reservations.items() if v is u.vehicle}
+        seen.append((u.net.id_of.get(u.vehicle.lane_index), held, info.get("signal_state")))
+        return out
+
+    monkeypatch.setattr(BridgePlanner, "act", spy)
+    planner = BridgePlanner(REFERENCE.split())
+    outcome = run_scenario(sc, planner, record_failure_gif=False)
+    assert outcome.outcome == "completed", outcome.message
+    route = make_env(sc)
+    route.reset(seed=sc.seed)
+    j0 = next(x for x in route.unwrapped.vehicle.lane_route if x.startswith("J0"))
+    route.close()
+    first_on = next(k for k, (lane, _, _) in enumerate(seen) if lane == j0)
+    assert any(j0 in held for _, held, _ in seen[:first_on])  # reserved before driving onto it
+    assert all(j0 not in held for lane, held, state in seen[:first_on] if state == "red")
+
+
+def test_the_rule_gate_gives_way_where_the_env_rules_hold_the_ego_and_it_can_still_stop():
+    sys.path.insert(0, str(ROOT / "adapters"))
+    try:
+        from bridge_client import HOLD_MARGIN_M, RuleGate
+    finally:
+        sys.path.remove(str(ROOT / "adapters"))
+    gate = RuleGate({"signals": [], "stop_signs": []}, ["R0_1", "J0_c0_0", "R1_0"], [None, "J0", None],
+                    [50.0, 70.0, 120.0], ego_length=4.8)
+
+    def stop(by: list[str], speed: float, distance: float = 12.0) -> tuple[float, str]:
+        return gate.stop_s({"t": 0.0, "ahead": {"hold": {"distance": distance, "by": by}}}, 30.0, speed)
+
+    assert stop(["conflict"], 3.0) == (pytest.approx(30.0 + 12.0 - 2.4 - HOLD_MARGIN_M), "YIELD")
+    assert stop(["pedestrian"], 3.0)[1] == stop(["passage", "signal"], 3.0)[1] == "YIELD"
+    assert stop(["conflict"], 9.0) == (math.inf, "")  # 13.5 m to stop at 3 m/s^2: too late, it goes on
+    assert stop(["signal"], 3.0) == (math.inf, "")  # signals and stop signs: the gate's own lines
+    assert gate.stop_s({"t": 0.0, "ahead": {"hold": None}}, 30.0, 3.0) == (math.inf, "")
+    assert gate.stop_s({"t": 0.0}, 30.0, 3.0) == (math.inf, "")  # a version 1 step
 
 
 # ---- recording and replay ----------------------------------------------------------------------
