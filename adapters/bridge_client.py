@@ -103,9 +103,11 @@ class Route:
         `window` of `near` when given)."""
         best = (math.inf, 0.0, 0.0)
         pts, ss = self.pts, self.s
-        for k in range(len(pts) - 1):
-            if near is not None and (ss[k + 1] < near - window or ss[k] > near + window):
-                continue
+        lo, hi = 0, len(pts) - 1  # the segments k in [lo, hi) that reach into the window
+        if near is not None:
+            lo = max(bisect.bisect_left(ss, near - window) - 1, 0)
+            hi = min(bisect.bisect_right(ss, near + window), len(pts) - 1)
+        for k in range(lo, hi):
             (x0, y0), (x1, y1) = pts[k], pts[k + 1]
             dx, dy = x1 - x0, y1 - y0
             L2 = dx * dx + dy * dy or 1e-12

@@ -10,6 +10,7 @@ It shows the protocol, nothing more: use it as the skeleton of an adapter for yo
 """
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import sys
@@ -39,8 +40,7 @@ class ReferencePlanner:
         self.s = None
 
     def _limit(self, s: float) -> float:
-        i = max(0, min(len(self.route.lane_start) - 1,
-                       sum(1 for a in self.route.lane_start if a <= s) - 1))
+        i = max(0, min(len(self.route.lane_start) - 1, bisect.bisect_right(self.route.lane_start, s) - 1))
         return min(float(self.lanes[self.route.lanes[i]].get("speed_limit") or 13.4), self.route.curvature_speed(s))
 
     def step(self, msg: dict) -> dict:

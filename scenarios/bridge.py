@@ -433,10 +433,17 @@ class PlannerProcess:
 
     def _gone(self, when: str, running: str) -> str:
         """What the planner did: exited (with its code, awaited EXIT_GRACE_S) or `running`."""
-        stop = time.monotonic() + EXIT_GRACE_S
-        while (code := self.exit_code()) is None and time.monotonic() < stop:
-            time.sleep(0.01)
+        code = self.wait_exit(EXIT_GRACE_S)
         return f"the planner {_exit_text(code) if code is not None else running} {when}"
+
+    def wait_exit(self, seconds: float) -> int | None:
+        """The planner's exit code once it exits within `seconds` (None if it does not), polled
+        from 1 ms up to 10 ms apart (a planner exits a few ms after its bye), never reaped here."""
+        stop, pause = time.monotonic() + seconds, 0.001
+        while (code := self.exit_code()) is None and time.monotonic() < stop:
+            time.sleep(pause)
+            pause = min(2 * pause, 0.01)
+        return code
 
     # ---- the end ---------------------------------------------------------------------------
     def stderr_tail(self, n: int = STDERR_TAIL_CHARS) -> str:
@@ -500,9 +507,7 @@ class PlannerProcess:
         try:
             if self.exit_code() is None and not self._killed:
                 bye = self.request({"type": "close"}, timeout, "bye")
-                stop = time.monotonic() + BYE_EXIT_S
-                while self.exit_code() is None and time.monotonic() < stop:
-                    time.sleep(0.01)
+                self.wait_exit(BYE_EXIT_S)
         except BridgeError:
             bye = None
         finally:
