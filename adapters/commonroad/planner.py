@@ -511,7 +511,7 @@ class ReactiveAdapter:
             if ll is None:
                 return None
             parts, ahead = [ll.center_vertices], 0.0
-            while len(ll.successor) == 1 and ahead < PREDICT_AHEAD_M:
+            while len(ll.successor) == 1 and ahead < PREDICT_AHEAD_M and len(parts) < 64:  # (a ring of empty lanelets)
                 ll = self.net.find_lanelet_by_id(ll.successor[0])
                 parts.append(ll.center_vertices[1:])
                 ahead += float(np.hypot(*np.diff(ll.center_vertices, axis=0).T).sum())
