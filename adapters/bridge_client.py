@@ -5,8 +5,9 @@
 - `Route`: the ego's route as one polyline (the route lanes' centrelines from the native map
   the bridge wrote), with projection, poses by arc length and the route's stop lines;
 - `RuleGate`: where the traffic rules make the ego stop (red/amber signals, stop signs in
-  queue order, pedestrians on the path) from a step message, for planners that have no rules
-  of their own.
+  queue order, and giving way where the step's `ahead.hold` names conflicting traffic,
+  pedestrians or a narrow passage) from a step message, for planners that have no rules of
+  their own.
 
 A planner object has `hello() -> dict`, `init(msg) -> None`, `step(msg) -> dict` and optionally
 `close() -> dict` (extra fields of the bye, e.g. coverage).
