@@ -303,7 +303,8 @@ class ReactiveAdapter:
         if queue < stop:  # the back of a queue (M3's m3-r018 swerved past one waiting at a red light)
             stop, why = queue, "QUEUE"
         room = stop - s_centre
-        self.stall_room = min(room, self._free_ahead(msg, s_centre), STALL_CREEP_M)  # _fallback's creep
+        free = self._free_ahead(msg, s_centre)  # room behind any road user on the path (the creeps' limit)
+        self.stall_room = min(room, free, STALL_CREEP_M)  # _fallback's creep
         if math.isfinite(stop) and room > v * v / (2 * APPROACH_DECEL) + STOPPING_RANGE_M:
             mode, stage = "approach", f"APPROACH_{why}"  # far from the stop point
         elif math.isfinite(stop):
@@ -318,7 +319,7 @@ class ReactiveAdapter:
             # halted short of its stop point (the fallback's braking): the planner's "stopping"
             # samples from here all broke its checks and the ego stood outside the full-stop
             # zone for good (issue 33): creep on to the point
-            return self._creep(msg, ego, f"CREEP_{why}", min(room, self._free_ahead(msg, s_centre)))
+            return self._creep(msg, ego, f"CREEP_{why}", min(room, free))
         if mode == "stopping" and room > _stop_reach(v):
             # the planner's "stopping" samples end at the target, at rest, within its horizon: one
             # further than a smooth stop from v reaches first speeds up (M2's m2-r001 went from 9.5 to
@@ -614,16 +615,22 @@ def _planner_class(base: type, boundary) -> type:
     return Planner
 
 
-def _project(pts: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[float, float, float]:
-    """(arc length, signed lateral offset, heading) of the point of the polyline `pts` nearest `p`."""
+def _feet(pts: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(arc length, distance) of the point `p`'s foot on each segment of the polyline `pts`
+    (arc lengths `cum`)."""
     a, ab = pts[:-1], np.diff(pts, axis=0)
     seg2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
     u = np.clip(((p - a) * ab).sum(axis=1) / seg2, 0.0, 1.0)
-    foot = a + u[:, None] * ab
-    k = int(np.argmin(np.hypot(*(foot - p).T)))
-    side = ab[k, 0] * (p[1] - a[k, 1]) - ab[k, 1] * (p[0] - a[k, 0])
-    lat = math.copysign(float(np.hypot(*(foot[k] - p))), side)
-    return float(cum[k] + u[k] * math.sqrt(seg2[k])), lat, math.atan2(ab[k, 1], ab[k, 0])
+    return cum[:-1] + u * np.sqrt(seg2), np.hypot(*(a + u[:, None] * ab - p).T)
+
+
+def _project(pts: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[float, float, float]:
+    """(arc length, signed lateral offset, heading) of the point of the polyline `pts` nearest `p`."""
+    s, d = _feet(pts, cum, p)
+    k = int(np.argmin(d))
+    (x0, y0), (x1, y1) = pts[k], pts[k + 1]
+    side = (x1 - x0) * (p[1] - y0) - (y1 - y0) * (p[0] - x0)
+    return float(s[k]), math.copysign(float(d[k]), side), math.atan2(y1 - y0, x1 - x0)
 
 
 def _poses_along(pts: np.ndarray, cum: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -682,14 +689,9 @@ def _ends_in_order(points, ref: np.ndarray, cum: np.ndarray) -> list[float]:
     turn, each at or after the one before (a route that passes a place twice, a loop, has its
     lanes' ends in route order, not all at the pass that happens to be nearest)."""
     ref, cum = np.asarray(ref, dtype=float), np.asarray(cum, dtype=float)
-    a, ab = ref[:-1], np.diff(ref, axis=0)
-    seg_len2 = np.maximum((ab ** 2).sum(axis=1), 1e-12)
     out, s_min = [], 0.0
     for p in points:
-        u = np.clip(((np.asarray(p, dtype=float)[:2] - a) * ab).sum(axis=1) / seg_len2, 0.0, 1.0)
-        foot = a + u[:, None] * ab
-        s = cum[:-1] + u * np.sqrt(seg_len2)
-        d = np.hypot(*(foot - np.asarray(p, dtype=float)[:2]).T)
+        s, d = _feet(ref, cum, np.asarray(p, dtype=float)[:2])
         d[s < s_min - 1e-6] = np.inf  # not behind the last one
         k = int(np.nonzero(d <= d.min() + 0.5)[0][0])  # the first pass of the nearest (a loop's two tie)
         out.append(float(s[k]))
