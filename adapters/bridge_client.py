@@ -84,6 +84,7 @@ class Route:
         self.s = [0.0]
         for a, b in zip(pts, pts[1:]):
             self.s.append(self.s[-1] + math.dist(a, b))
+        self.h = [math.atan2(b[1] - a[1], b[0] - a[0]) for a, b in zip(pts, pts[1:])] or [0.0]  # each segment's
         self.length = self.s[-1]
         self.lanes = list(route)
 
@@ -92,12 +93,15 @@ class Route:
         pts, ss = self.pts, self.s
         if len(pts) < 2:
             return pts[0][0], pts[0][1], 0.0
-        k = max(0, min(bisect.bisect_right(ss, s) - 1, len(pts) - 2))
+        k = self._segment(s)
         (x0, y0), (x1, y1) = pts[k], pts[k + 1]
         seg = max(ss[k + 1] - ss[k], 1e-9)
         u = (s - ss[k]) / seg
-        h = math.atan2(y1 - y0, x1 - x0)
-        return x0 + u * (x1 - x0), y0 + u * (y1 - y0), h
+        return x0 + u * (x1 - x0), y0 + u * (y1 - y0), self.h[k]
+
+    def _segment(self, s: float) -> int:
+        """The index of the segment holding arc length `s` (the first or last beyond the ends)."""
+        return max(0, min(bisect.bisect_right(self.s, s) - 1, len(self.pts) - 2))
 
     def project(self, x: float, y: float, near: float | None = None, window: float = 60.0) -> tuple[float, float]:
         """(arc length, signed lateral offset, left positive) of the nearest route point (within
@@ -121,7 +125,7 @@ class Route:
         return best[1], best[2]
 
     def heading_at(self, s: float) -> float:
-        return self.pose(s)[2]
+        return self.h[self._segment(s)]
 
     def curvature_speed(self, s: float, lat_acc: float = 2.5, v_min: float = 3.0, window: float = 4.0) -> float:
         """The speed at which the route's curve at `s` keeps the lateral acceleration below `lat_acc`."""
@@ -197,11 +201,15 @@ class RuleGate:
         return (yield_s, "YIELD") if yield_s < math.inf else (math.inf, "")
 
     def obstacles_ahead(self, msg: dict, s_ego: float, horizon: float = 60.0) -> list[tuple[float, float, str]]:
-        assert self.route is not None, "obstacles_ahead needs the Route"
         """(arc length, speed along the route, kind) of road users on the route ahead."""
+        assert self.route is not None, "obstacles_ahead needs the Route"
+        ex, ey = float(msg["ego"]["x"]), float(msg["ego"]["y"])
+        reach = horizon + PATH_HALF_WIDTH_M + 5.0  # farther from the ego, a road user cannot be on the route ahead
         out = []
         for kind in ("vehicles", "pedestrians"):
             for v in msg.get(kind, []):
+                if abs(v["x"] - ex) > reach or abs(v["y"] - ey) > reach:
+                    continue
                 s, d = self.route.project(v["x"], v["y"], near=s_ego + horizon / 2, window=horizon / 2 + 5)
                 if not (s_ego < s <= s_ego + horizon) or abs(d) > PATH_HALF_WIDTH_M + (0.0 if kind == "vehicles" else 1.0):
                     continue

@@ -9,16 +9,14 @@ its command each frame, whatever the action type holds.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-import numpy as np
-
 from ..config import (TRACKING_ACCEL_RANGE, TRACKING_HOLD_WINDOW_S, TRACKING_LOOKAHEAD_MIN_M, TRACKING_LOOKAHEAD_TIME_S,
                       TRACKING_POSITION_GAIN, TRACKING_PREVIEW_S, TRACKING_SPEED_GAIN, TRACKING_STOP_SPEED_MPS)
 from .sim.vehicle import VehicleModel, pursuit_steering
-
 
 
 def tracking_model(model: VehicleModel) -> dict[str, Any]:
@@ -34,27 +32,42 @@ def tracking_model(model: VehicleModel) -> dict[str, Any]:
 @dataclass(frozen=True)
 class Trajectory:
     """Timestamped poses of the vehicle centre: time [s, simulation clock], x, y [m], heading
-    [rad], speed [m/s]; at least one point, times strictly increasing."""
+    [rad], speed [m/s]; at least one point, times strictly increasing. Tuples of floats: the
+    tracker reads a few of its ~20 points each frame, where NumPy's per-call cost would dominate."""
 
-    t: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    heading: np.ndarray
-    speed: np.ndarray
+    t: tuple[float, ...]
+    x: tuple[float, ...]
+    y: tuple[float, ...]
+    heading: tuple[float, ...]
+    speed: tuple[float, ...]
 
     @classmethod
     def of(cls, points: Sequence[Sequence[float]]) -> "Trajectory":
         """From rows (t, x, y, heading, speed); raises ValueError on a malformed one."""
-        a = np.asarray(points, dtype=float)
-        if a.ndim != 2 or a.shape[1] != 5 or len(a) < 1:
-            raise ValueError(f"a trajectory is a list of (t, x, y, heading, speed) rows, got shape {a.shape}")
-        if not np.all(np.isfinite(a)):
+        try:
+            rows = [tuple(float(v) for v in p) for p in points]
+        except TypeError:
+            rows = []
+        if not rows or any(len(r) != 5 for r in rows):
+            raise ValueError("a trajectory is a list of at least one (t, x, y, heading, speed) row")
+        if not all(math.isfinite(v) for r in rows for v in r):
             raise ValueError("a trajectory must hold finite numbers only")
-        if len(a) > 1 and np.any(np.diff(a[:, 0]) <= 0):
+        if any(b[0] <= a[0] for a, b in zip(rows, rows[1:])):
             raise ValueError("trajectory times must be strictly increasing")
-        if np.any(a[:, 4] < -0.5):
+        if any(r[4] < -0.5 for r in rows):
             raise ValueError("trajectory speeds must not be negative")
-        return cls(a[:, 0], a[:, 1], a[:, 2], a[:, 3], np.maximum(a[:, 4], 0.0))
+        t, x, y, h, v = zip(*rows)
+        return cls(t, x, y, h, tuple(max(s, 0.0) for s in v))
+
+
+def _interp(x: float, xs: Sequence[float], ys: Sequence[float]) -> float:
+    """`ys` at `x`, linear between the increasing `xs` and held beyond their ends (np.interp)."""
+    if x <= xs[0]:
+        return ys[0]
+    if x >= xs[-1]:
+        return ys[-1]
+    k = bisect.bisect_right(xs, x) - 1
+    return ys[k] + (ys[k + 1] - ys[k]) * (x - xs[k]) / (xs[k + 1] - xs[k])
 
 
 class TrajectoryTracker:
@@ -64,54 +77,55 @@ class TrajectoryTracker:
         self.traj = trajectory
         self.clock = clock
         self.model = model or VehicleModel.of()  # the bicycle it steers (pure pursuit of its rear axle)
-        pts = np.column_stack([trajectory.x, trajectory.y])
-        seg = np.hypot(*np.diff(pts, axis=0).T) if len(pts) > 1 else np.zeros(0)
-        self.s = np.concatenate([[0.0], np.cumsum(seg)])
-        self.pts = pts
+        tr = trajectory
+        # each segment k: start (x, y), direction (dx, dy), squared length
+        self._seg = [(x0, y0, x1 - x0, y1 - y0, max((x1 - x0) ** 2 + (y1 - y0) ** 2, 1e-12))
+                     for x0, y0, x1, y1 in zip(tr.x, tr.y, tr.x[1:], tr.y[1:])]
+        s = [0.0]
+        for x0, y0, x1, y1 in zip(tr.x, tr.y, tr.x[1:], tr.y[1:]):
+            s.append(s[-1] + math.hypot(x1 - x0, y1 - y0))
+        self.s = s  # arc length at each point
 
-    def _point_at(self, s: float) -> np.ndarray:
-        s = float(np.clip(s, 0.0, self.s[-1]))
-        return np.array([np.interp(s, self.s, self.pts[:, 0]), np.interp(s, self.s, self.pts[:, 1])])
+    def _point_at(self, s: float) -> tuple[float, float]:
+        s = min(max(s, 0.0), self.s[-1])
+        return _interp(s, self.s, self.traj.x), _interp(s, self.s, self.traj.y)
 
-    def _project(self, p: np.ndarray) -> float:
-        """Arc length of the trajectory point nearest `p`."""
-        if len(self.pts) == 1:
-            return 0.0
-        a, b = self.pts[:-1], self.pts[1:]
-        d = b - a
-        L2 = np.maximum((d * d).sum(axis=1), 1e-12)
-        u = np.clip(((p - a) * d).sum(axis=1) / L2, 0.0, 1.0)
-        q = a + d * u[:, None]
-        k = int(np.argmin(((q - p) ** 2).sum(axis=1)))
-        return float(self.s[k] + u[k] * math.sqrt(L2[k]))
+    def _project(self, px: float, py: float) -> float:
+        """Arc length of the trajectory point nearest (px, py) (the first of equals)."""
+        best, s_best = math.inf, 0.0
+        for k, (x0, y0, dx, dy, L2) in enumerate(self._seg):
+            u = min(max(((px - x0) * dx + (py - y0) * dy) / L2, 0.0), 1.0)
+            d2 = (x0 + dx * u - px) ** 2 + (y0 + dy * u - py) ** 2
+            if d2 < best:
+                best, s_best = d2, self.s[k] + u * math.sqrt(L2)
+        return s_best
 
     def command(self, position: Sequence[float], heading: float, speed: float) -> dict[str, float]:
         """{"acceleration", "steering"} for a vehicle at this pose and speed, now."""
         tr = self.traj
         t = self.clock()
-        v_ref = float(np.interp(t + TRACKING_PREVIEW_S, tr.t, tr.speed))
-        if len(tr.t) > 1:
-            k = int(np.clip(np.searchsorted(tr.t, t) - 1, 0, len(tr.t) - 2))
-            a_ff = float((tr.speed[k + 1] - tr.speed[k]) / (tr.t[k + 1] - tr.t[k])) if tr.t[0] <= t <= tr.t[-1] else 0.0
-        else:
-            a_ff = 0.0
-        p = np.asarray(position[:2], dtype=float)
-        s_ego = self._project(p)
-        s_ref = float(np.interp(t, tr.t, self.s))
-        ahead = (tr.t >= t) & (tr.t <= t + TRACKING_HOLD_WINDOW_S)
-        v_ahead = max(v_ref, float(tr.speed[ahead].max()) if ahead.any() else 0.0)
+        v_ref = _interp(t + TRACKING_PREVIEW_S, tr.t, tr.speed)
+        a_ff = 0.0
+        if len(tr.t) > 1 and tr.t[0] <= t <= tr.t[-1]:
+            k = min(max(bisect.bisect_left(tr.t, t) - 1, 0), len(tr.t) - 2)
+            a_ff = (tr.speed[k + 1] - tr.speed[k]) / (tr.t[k + 1] - tr.t[k])
+        px, py = float(position[0]), float(position[1])
+        s_ego = self._project(px, py)
+        s_ref = _interp(t, tr.t, self.s)
+        lo, hi = bisect.bisect_left(tr.t, t), bisect.bisect_right(tr.t, t + TRACKING_HOLD_WINDOW_S)
+        v_ahead = max(v_ref, max(tr.speed[lo:hi], default=0.0))
         if v_ahead < TRACKING_STOP_SPEED_MPS and (t >= tr.t[-1] or s_ego >= s_ref - 0.5):  # asked to stay
             acc = -TRACKING_SPEED_GAIN * max(speed, 0.0) - (2.0 if speed > 0.05 else 0.0)
         else:
             acc = a_ff + TRACKING_SPEED_GAIN * (v_ref - speed) + TRACKING_POSITION_GAIN * (s_ref - s_ego)
         lookahead = TRACKING_LOOKAHEAD_MIN_M + TRACKING_LOOKAHEAD_TIME_S * max(speed, 0.0)
         if self.s[-1] > 0:
-            target = self._point_at(s_ego + lookahead)
-            if s_ego + lookahead > self.s[-1]:  # beyond the end: continue along the last heading
-                extra = s_ego + lookahead - self.s[-1]
-                target = target + extra * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
+            tx, ty = self._point_at(s_ego + lookahead)
+            extra = s_ego + lookahead - self.s[-1]  # beyond the end: continue along the last heading
         else:
-            target = p + lookahead * np.array([math.cos(tr.heading[-1]), math.sin(tr.heading[-1])])
-        steering = pursuit_steering(float(p[0]), float(p[1]), heading, float(target[0]), float(target[1]), self.model)
-        return {"acceleration": float(np.clip(acc, *TRACKING_ACCEL_RANGE)),
-                "steering": steering}
+            (tx, ty), extra = (px, py), lookahead
+        if extra > 0:
+            tx, ty = tx + extra * math.cos(tr.heading[-1]), ty + extra * math.sin(tr.heading[-1])
+        steering = pursuit_steering(px, py, float(heading), tx, ty, self.model)
+        lo_acc, hi_acc = TRACKING_ACCEL_RANGE
+        return {"acceleration": min(max(acc, lo_acc), hi_acc), "steering": steering}

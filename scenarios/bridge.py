@@ -18,6 +18,8 @@ tracking controller (`feat2map.envs.tracking`: pure pursuit + speed P control); 
 deadline or replies garbage raises `BridgeError` (the rollout records an `error` outcome with
 its message and the tail of the planner's stderr) and every process of it is killed and the
 planner reaped: never a hang, never an aborted run, whatever the planner does (`PlannerProcess`).
+A planner whose hello allows it (`"prestart": true`) has its next scenario's process started
+while this one drives (`prestart_planner`); each scenario still gets a fresh process.
 
     BridgePlanner(".venv-crplanner/bin/python adapters/commonroad/planner.py")
 
@@ -26,6 +28,7 @@ is a `Policy` like any other (`run_suite(suite, BridgePlanner(cmd))`, or `feat2m
 """
 from __future__ import annotations
 
+import atexit
 import hashlib
 import itertools
 import json
@@ -256,16 +259,20 @@ class PlannerProcess:
                        (f"pipe:[{os.fstat(self.proc.stdout.fileno()).st_ino}]", os.O_WRONLY)}
         self.step = 0  # the step index of the next message (protocol 2): the step messages sent so far
         self.transcript: list[dict] | None = None  # when a list: every message and reply, for a recording
-        self.tail = ""  # the stderr tail, kept by `close`
+        self.tail = ""  # the stderr tail, kept by `end`
+        self.environ = dict(os.environ)  # the environment it started in (a spare is used only in the same)
         self.protocol: int | None = None  # the version the planner's hello answered
         self._cv = threading.Condition()
         self._lines: deque[bytes] = deque()
         self._asked = 0  # messages sent (each asks for one reply)
         self._received = 0  # non-blank lines read
-        self._end: str | None = None  # why reading stopped: "eof", "overlong", "flood", "killed"
+        self._read_end: str | None = None  # why reading stopped: "eof", "overlong", "flood", "killed"
         self._wake_r, self._wake_w = os.pipe()  # closing the write end ends the reader thread
         self._killed = False
         self.closed = False
+        self._end_lock = threading.Lock()
+        self._ended = False
+        self._ender: threading.Thread | None = None  # close(wait=False)'s
         self.reader = threading.Thread(target=self._read, daemon=True)
         self.reader.start()
 
@@ -279,7 +286,7 @@ class PlannerProcess:
             sel.register(self._wake_r, selectors.EVENT_READ)
             end = self._read_lines(out.fileno(), sel)
             with self._cv:  # why, before the pipe closes: a write that breaks after it finds the cause
-                self._end = end
+                self._read_end = end
                 self._cv.notify_all()
         finally:
             sel.close()
@@ -387,9 +394,9 @@ class PlannerProcess:
         """Why reading stopped when the planner's output was at fault (a flood of replies nobody
         asked for, an overlong line), else None."""
         with self._cv:
-            if self._end == "flood":
+            if self._read_end == "flood":
                 return f"the planner sent {self._received - self._asked} replies without being asked (at its {what} reply)"
-            if self._end == "overlong":
+            if self._read_end == "overlong":
                 return f"garbage {what} reply: a line over {MAX_LINE_BYTES} bytes"
         return None
 
@@ -397,12 +404,12 @@ class PlannerProcess:
         exited_at: float | None = None
         while True:
             with self._cv:
-                if self._end == "flood" or (self._end == "overlong" and not self._lines):
+                if self._read_end == "flood" or (self._read_end == "overlong" and not self._lines):
                     message = self._output_fault(what) or ""
                     break
                 if self._lines:
                     return self._lines.popleft()
-                if self._end is not None:  # end of output
+                if self._read_end is not None:  # end of output
                     message = self._gone(f"before its {what} reply", "closed its stdout while still running,")
                     break
                 now = time.monotonic()
@@ -498,8 +505,10 @@ class PlannerProcess:
                 break
             time.sleep(KILL_ROUND_PAUSE_S)
 
-    def close(self, timeout: float = CLOSE_TIMEOUT_S) -> dict | None:
-        """Send `close`, wait for `bye` (returned, None if it never came), then kill and reap."""
+    def close(self, timeout: float = CLOSE_TIMEOUT_S, wait: bool = True) -> dict | None:
+        """Send `close` and wait for `bye` (returned, None if it never came); then `end` the
+        planner: now, or (`wait` False) in a background thread while the caller goes on (a
+        planner takes a few ms to exit after its bye; `end` waits for that thread)."""
         if self.closed:
             return None
         self.closed = True
@@ -507,14 +516,94 @@ class PlannerProcess:
         try:
             if self.exit_code() is None and not self._killed:
                 bye = self.request({"type": "close"}, timeout, "bye")
-                self.wait_exit(BYE_EXIT_S)
         except BridgeError:
             bye = None
-        finally:
-            self.kill()
-            self.tail = self.stderr_tail()
-            self.stderr.close()
+        if wait:
+            self.end()
+        else:
+            _ENDING[id(self)] = self
+            self._ender = threading.Thread(target=self.end, name="feat2map-planner-end", daemon=True)
+            self._ender.start()
         return bye if bye and bye.get("type") == "bye" else None
+
+    def end(self) -> str:
+        """Give the planner BYE_EXIT_S to exit, kill and reap it (`kill`) and keep its stderr
+        tail (returned); once, whichever thread asks first (the others wait for it)."""
+        with self._end_lock:
+            if not self._ended:
+                try:
+                    if not self._killed:
+                        self.wait_exit(BYE_EXIT_S)
+                finally:
+                    self.kill()
+                    self.tail = self.stderr_tail()
+                    self.stderr.close()
+                    self._ended = True
+                    _ENDING.pop(id(self), None)
+        return self.tail
+
+    def discard(self) -> None:
+        """Kill the planner now, without a `close` (an unused spare; a replay that sent the
+        recorded one), and free its stderr file."""
+        self.closed = True
+        self.kill()
+        with self._end_lock:
+            if not self._ended:
+                self.stderr.close()
+                self._ended = True
+
+
+_SPARES: dict[tuple, PlannerProcess] = {}  # (argv, cwd) -> a started planner nobody has spoken to yet
+_ENDING: dict[int, PlannerProcess] = {}  # planners said bye, being ended in the background (by id)
+
+
+def _planner_key(cmd: str | list[str], cwd: str | None) -> tuple:
+    return tuple(shlex.split(cmd) if isinstance(cmd, str) else cmd), cwd
+
+
+def start_planner(cmd: str | list[str], cwd: str | None = None) -> PlannerProcess:
+    """A started planner process for one scenario: the spare `prestart_planner` started for this
+    command, if it is still running and this process's environment is the one it started with
+    (else it is discarded), or a new one."""
+    key = _planner_key(cmd, cwd)
+    spare = _SPARES.pop(key, None)
+    if spare is not None:
+        if spare.exit_code() is None and spare.environ == os.environ:
+            return spare
+        spare.discard()
+    return PlannerProcess(list(key[0]), cwd=cwd)
+
+
+def prestart_planner(cmd: str | list[str], cwd: str | None = None) -> None:
+    """Start the next scenario's planner now, while this one drives, so that its start-up (an
+    interpreter, its imports: 40 ms for the reference planner, seconds for heavy ones) runs on
+    another core instead of in the next reset; for a planner whose hello says `"prestart": true`
+    (two of its processes may run at once and an unused start harms nothing), one spare per
+    command. Every scenario still gets a fresh process; the spare left over is killed at the end
+    of a suite (`discard_spares`), at exit, or on a signal (`kill_planners`)."""
+    key = _planner_key(cmd, cwd)
+    if key in _SPARES:
+        return
+    try:
+        _SPARES[key] = PlannerProcess(list(key[0]), cwd=cwd)
+    except BridgeError:
+        pass  # the next reset starts it again and reports why it cannot
+
+
+def discard_spares() -> None:
+    """Kill the spares `prestart_planner` started (a suite that ran in this process is over)."""
+    while _SPARES:
+        _SPARES.popitem()[1].discard()
+
+
+def _end_planners() -> None:
+    """At exit: discard the spares and finish ending the planners that said bye."""
+    discard_spares()
+    for proc in tuple(_ENDING.values()):
+        proc.end()
+
+
+atexit.register(_end_planners)
 
 
 # ---- the map the planner asked for -------------------------------------------------------------
@@ -623,7 +712,7 @@ class BridgePlanner:
         self._stage: tuple[str, str] | None = None
         self._control = np.zeros(2, dtype=np.float32)
         self._map_path = ""  # the map file the planner got
-        self.stderr_tail = ""  # the planner's, once closed (the rollout reports it for a failed scenario)
+        self._closed: PlannerProcess | None = None  # the last planner closed (it ends in the background)
 
     def __getstate__(self) -> dict:
         return {k: self.__dict__[k] for k in ("cmd", "step_timeout", "start_timeout", "close_timeout", "replan_s", "cwd",
@@ -643,7 +732,7 @@ class BridgePlanner:
         self.close()
         self._reset_state()
         self.env = env.unwrapped
-        self.proc = PlannerProcess(self.cmd, cwd=self.cwd)
+        self.proc = start_planner(self.cmd, cwd=self.cwd)
         if self.record:
             self.proc.transcript = []
         hello = self.proc.request({"type": "hello", "protocol": PROTOCOL_VERSION}, self.start_timeout, "hello")
@@ -660,6 +749,8 @@ class BridgePlanner:
             raise BridgeError(self.proc.failure(f"garbage init reply: expected 'ready', got {_show(ready)}"))
         if self.replan_s is None and isinstance(hello.get("replan_s"), (int, float)) and hello["replan_s"] > 0:
             self.replan_s = float(hello["replan_s"])
+        if hello.get("prestart") is True:  # it may start while another scenario runs: the next one's spare
+            prestart_planner(self.cmd, cwd=self.cwd)
 
     def _export_inline(self, fmt: str) -> tuple[str, dict]:
         from feat2map.formats import native
@@ -829,8 +920,8 @@ class BridgePlanner:
             self.env.vehicle.tracker = None
         if proc is None:
             return
-        bye = proc.close(self.close_timeout)
-        self.stderr_tail = proc.tail
+        bye = proc.close(self.close_timeout, wait=False)
+        self._closed = proc
         if self.record and proc.transcript:
             from .bridge_record import recording_folder, save_recording
 
@@ -841,6 +932,12 @@ class BridgePlanner:
             self.junction_lines = {str(j): tuple(sorted({str(x) for x in v}, key=_line_key))
                                    for j, v in cov["lines"].items() if isinstance(v, list)}
             self.planner_digest = str(cov.get("digest", ""))[:64]
+
+    @property
+    def stderr_tail(self) -> str:
+        """The tail of the last planner's stderr once it ended (the rollout reports it for a
+        failed scenario); "" before any closed."""
+        return self._closed.end() if self._closed is not None else ""
 
     def __del__(self) -> None:
         proc = self.__dict__.get("proc")

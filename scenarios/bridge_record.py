@@ -148,7 +148,5 @@ def replay(folder: str | Path, cmd: str | list[str], *, tolerance: float = REPLA
             if diff:
                 diffs.append(f"{where}: {diff}")
     finally:
-        proc.closed = True  # the recording's close was replayed (or the planner failed): no second one
-        proc.kill()
-        proc.stderr.close()
+        proc.discard()  # the recording's close was replayed (or the planner failed): no second one
     return ReplayResult(sent, tuple(diffs))

@@ -750,6 +750,7 @@ def run_suite(suite: Any, planner: Any = "baseline", *, workers: int = 1, backen
         stopped.append(f"interrupted ({'SIGTERM' if isinstance(exc, Terminated) else 'KeyboardInterrupt'})")
     finally:
         bar.close()
+        _bridge_call("discard_spares")  # the suite is over: no planner waits for a next scenario here
     outcomes = tuple(results[i] for i in sorted(results))
     return SuiteResult(name=str(getattr(suite, "name", "suite")), planner=getattr(factory, "name", str(planner)),
                        outcomes=outcomes, coverage=coverage,
@@ -855,7 +856,7 @@ def _sigterm_interrupts() -> Iterator[None]:
         return
 
     def terminated(signum: int, frame: Any) -> None:
-        _kill_planners()
+        _bridge_call("kill_planners")
         raise Terminated
 
     signal.signal(signal.SIGTERM, terminated)
@@ -865,11 +866,12 @@ def _sigterm_interrupts() -> Iterator[None]:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def _kill_planners() -> None:
-    """The bridge's `kill_planners`, if this process loaded the bridge (else it started none)."""
+def _bridge_call(name: str) -> None:
+    """Call the bridge's function `name` (`kill_planners`, `discard_spares`), if this process
+    loaded the bridge (else it started no planner)."""
     bridge = sys.modules.get(f"{__package__}.bridge")
     if bridge is not None:
-        bridge.kill_planners()
+        getattr(bridge, name)()
 
 
 def _worker_init(parent: int) -> None:
@@ -895,7 +897,7 @@ def _end_worker() -> NoReturn:
     """Kill the planner processes this worker started and exit now. No unwinding: `finally`
     blocks would wait for a planner's bye (CLOSE_TIMEOUT_S) and re-render, and the pool's worker
     loop would catch the exception and take the next scenario."""
-    _kill_planners()
+    _bridge_call("kill_planners")
     os._exit(128 + signal.SIGTERM)
 
 

@@ -5,6 +5,7 @@ outcome with its stderr in the message, its process group killed and reaped, and
 goes on to write its report (never a hang, never exit 2)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -110,6 +111,79 @@ def test_a_failing_planner_is_an_error_outcome_with_its_stderr(suite_file, tmp_p
     for text in expect:
         assert text in o["message"], o["message"]
     assert "BridgeError" in (out / "report.md").read_text()
+
+
+NOTING = textwrap.dedent("""
+    import json, os, sys, time
+    log = open(sys.argv[1], "a")
+    def note(what):
+        log.write(f"{what} {os.getpid()} {time.monotonic()}\\n"); log.flush()
+    note("start")
+    for line in sys.stdin:
+        msg = json.loads(line)
+        note(msg["type"])
+        reply = {"hello": {"type": "hello", "protocol": 2, "map_format": "native", "output": "control",
+                           "prestart": sys.argv[2] == "1"},
+                 "init": {"type": "ready"}, "close": {"type": "bye"}}.get(msg["type"])
+        reply = {**(reply or {"type": "control", "acceleration": 0.0, "steering": 0.0}), "step": msg["step"]}
+        print(json.dumps(reply), flush=True)
+        if msg["type"] == "close":
+            break
+""")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+@pytest.mark.parametrize("prestart", [True, False])
+def test_a_planner_that_allows_it_is_started_ahead_yet_each_scenario_gets_a_fresh_one(suite_file, tmp_path,
+                                                                                      monkeypatch, prestart):
+    """A hello with "prestart": true lets the bridge start the next scenario's planner while this
+    one drives; each scenario still talks to a process of its own, and a suite leaves none
+    behind. Without it, none is started ahead."""
+    from feat2map.scenarios import bridge
+    from feat2map.scenarios.rollout import HASH_SEED, run_scenario
+
+    monkeypatch.setenv("PYTHONHASHSEED", HASH_SEED)  # run_suite drives in this process
+    log = tmp_path / "log"
+    cmd = f"{_script(tmp_path, 'noting', NOTING)} {log} {int(prestart)}"
+    first, second = [dataclasses.replace(s, duration=1.0) for s in load_suite(suite_file).scenarios[:2]]
+    run_scenario(first, BridgePlanner(cmd), record_failure_gif=False)
+    spare = bridge._SPARES.get(bridge._planner_key(cmd, None))
+    assert (spare is not None) == prestart
+    run_suite([second], BridgePlanner(cmd), progress=False, record_failure_gif=False)
+    notes = [line.split() for line in log.read_text().splitlines()]
+    served = [int(p) for what, p, _ in notes if what == "init"]
+    assert len(set(served)) == 2 and len([n for n in notes if n[0] == "close"]) == 2  # a process per scenario
+    if spare is not None:
+        assert served[1] == spare.proc.pid  # the second scenario took the spare started during the first
+    assert bridge._planner_key(cmd, None) not in bridge._SPARES  # the suite discarded the next spare
+    stop = time.monotonic() + 5
+    pids = {int(p) for _, p, _ in notes}
+    while (alive := [p for p in pids if _alive(p)]) and time.monotonic() < stop:
+        time.sleep(0.05)
+    assert not alive, f"planner processes outlived their scenarios: {alive}"
+
+
+def test_a_spare_planner_is_used_only_in_the_environment_it_started_in(tmp_path, monkeypatch):
+    from feat2map.scenarios import bridge
+
+    cmd = _script(tmp_path, "idle", "import sys\nfor line in sys.stdin:\n    pass\n")
+    bridge.prestart_planner(cmd)
+    spare = bridge._SPARES[bridge._planner_key(cmd, None)]
+    monkeypatch.setenv("FEAT2MAP_TEST_SPARE", "changed")
+    fresh = bridge.start_planner(cmd)
+    assert fresh is not spare and spare.proc.poll() is not None  # discarded: it would see the old environment
+    fresh.discard()
+    bridge.prestart_planner(cmd)
+    spare = bridge._SPARES[bridge._planner_key(cmd, None)]
+    assert bridge.start_planner(cmd) is spare and bridge._planner_key(cmd, None) not in bridge._SPARES
+    spare.discard()
 
 
 def test_a_killed_planner_leaves_no_process_behind(tmp_path):
