@@ -68,7 +68,7 @@ from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import MapNetwork
-from .rules import (crossed_lanes, has_stopped, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
+from .rules import (body_reach, crossed_lanes, has_stopped, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
                     may_change_lane, room_to_wait, stop_gap)
 from .sim.vehicle import VehicleModel, integrate, keeping_steering
 from .vehicles import (EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, command_egos, route_upcoming,
@@ -590,6 +590,7 @@ class TrafficCore:
     def _masks(self) -> None:
         """Masks that change only when rows come or go."""
         self.driven = self.kind == DRIVEN
+        self.max_reach = np.hypot(self.width, self.length) / 2 - self.width / 2  # `body_reach` at a corner's angle
         self.on = self.stepped[self.env]
         self._all_on = np.ones(len(self.env), dtype=bool)  # every row (all slots stepped); never written
         self._external = np.nonzero(self.kind == EXTERNAL)[0].tolist()
@@ -920,7 +921,14 @@ class TrafficCore:
             return fi, np.zeros(0), np.zeros(0)
         s_own = self.s[fi]
         L = self.length[fi]
-        ok = np.where(zips, ahead, in_the_way(so, ro, t.width[wl], t.length[wl], L) & ((k > 0) | ahead))
+        lw, ll = t.width[wl], t.length[wl]
+        way = in_the_way(so, ro, lw, ll, L)  # by the centre; then the bodies that may reach in at their angle
+        maybe = (~way & in_the_way(so, ro, lw, ll, L, self.max_reach[lj])).nonzero()[0]
+        if len(maybe):
+            m = lj[maybe]
+            reach = body_reach(self.width[m], self.length[m], self.heading[m] - t.heading_at(wl[maybe], so[maybe]))
+            way[maybe] = in_the_way(so[maybe], ro[maybe], lw[maybe], ll[maybe], L[maybe], reach)
+        ok = np.where(zips, ahead, way & ((k > 0) | ahead))
         gap = C[fi, k] - s_own + so - L
         return fi[ok], gap[ok], self.speed[lj[ok]]
 

@@ -107,11 +107,20 @@ def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = mat
     return idm_clip(acc)
 
 
-def in_the_way(s, lateral, lane_width, lane_length, length):
+def in_the_way(s, lateral, lane_width, lane_length, length, reach=0.0):
     """Whether a road user at (s, lateral) on a lane ahead is in the way of a vehicle `length`
-    long on it: within LEADER_LATERAL_M beyond the lane's half width, and not more than a vehicle
-    length off either end (scalars or arrays)."""
-    return (abs(lateral) <= lane_width / 2 + LEADER_LATERAL_M) & (s >= -length) & (s <= lane_length + length)
+    long on it: its centre, less `reach` (`body_reach`: how much farther its body sticks out
+    sideways than a body aligned with the lane), within LEADER_LATERAL_M beyond the lane's half
+    width, and not more than a vehicle length off either end (scalars or arrays)."""
+    return (abs(lateral) - reach <= lane_width / 2 + LEADER_LATERAL_M) & (s >= -length) & (s <= lane_length + length)
+
+
+def body_reach(width, length, angle):
+    """How much farther across a lane a `width` x `length` body reaches at `angle` to the lane
+    than aligned with it: its corners lie W/2 |cos a| + L/2 |sin a| from its centre across the
+    lane instead of W/2. 0 along the lane; a 4.8 x 1.9 m car reaches 0.6 m farther at 0.27 rad,
+    1.3 m at 0.66 rad (scalars or arrays)."""
+    return width / 2 * (np.abs(np.cos(angle)) - 1.0) + length / 2 * np.abs(np.sin(angle))
 
 
 def may_change_lane(in_junction, room, speed):

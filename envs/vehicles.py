@@ -16,7 +16,7 @@ from ..config import FINISH_MARGIN_M, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_DET
 from ..invariants import lane_changes
 from .network import MapNetwork
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, lane_keeping, speed_control, yaw_rate
-from .rules import enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe, route_memo
+from .rules import body_reach, enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe, route_memo
 
 
 class Pedestrian(RoadObject):
@@ -187,8 +187,10 @@ class RouteFollower:
                 if on != lid and m.lanes[lid].junction_id is None:  # converging road lanes: zip
                     if not net.zip_leader(lid, s_own, on, so, self.position, o.position, self.LENGTH):
                         continue
-                elif s_own is not None and so <= s_own or not in_the_way(so, ro, lane.width, lane.length,
-                                                                          self.LENGTH):
+                elif s_own is not None and so <= s_own or not in_the_way(
+                        so, ro, lane.width, lane.length, self.LENGTH,
+                        body_reach(getattr(o, "WIDTH", 0.0), getattr(o, "LENGTH", 0.0),
+                                   float(getattr(o, "heading", 0.0)) - lane.heading_at(so))):
                     continue
                 gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
         return gaps
