@@ -526,14 +526,14 @@ class PlannerProcess:
             self._ender.start()
         return bye if bye and bye.get("type") == "bye" else None
 
-    def end(self) -> str:
-        """Give the planner BYE_EXIT_S to exit, kill and reap it (`kill`) and keep its stderr
+    def end(self, grace: float = BYE_EXIT_S) -> str:
+        """Give the planner `grace` seconds to exit, kill and reap it (`kill`) and keep its stderr
         tail (returned); once, whichever thread asks first (the others wait for it)."""
         with self._end_lock:
             if not self._ended:
                 try:
-                    if not self._killed:
-                        self.wait_exit(BYE_EXIT_S)
+                    if not self._killed and grace > 0:
+                        self.wait_exit(grace)
                 finally:
                     self.kill()
                     self.tail = self.stderr_tail()
@@ -546,11 +546,7 @@ class PlannerProcess:
         """Kill the planner now, without a `close` (an unused spare; a replay that sent the
         recorded one), and free its stderr file."""
         self.closed = True
-        self.kill()
-        with self._end_lock:
-            if not self._ended:
-                self.stderr.close()
-                self._ended = True
+        self.end(grace=0.0)
 
 
 _SPARES: dict[tuple, PlannerProcess] = {}  # (argv, cwd) -> a started planner nobody has spoken to yet

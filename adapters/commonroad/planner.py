@@ -134,7 +134,7 @@ class ReactiveAdapter:
         self.config = config
         self.wb_rear = config.vehicle.wb_rear_axle
         self.full_ref = self._reference_path(pp)
-        self.full_cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(self.full_ref, axis=0).T))])
+        self.full_cum = _arc(self.full_ref)
         self._clcs = lambda path: CoordinateSystem(reference=path, preprocess_reference=True, clcs_params=CLCSParams())
         self.planner = None
         self._set_window(0.0)
@@ -174,9 +174,7 @@ class ReactiveAdapter:
             path = None
         if path is None:
             pts = [self.net.find_lanelet_by_id(x).center_vertices for x in own]
-            path = np.concatenate([pts[0]] + [p[1:] for p in pts[1:]])
-            keep = np.concatenate([[True], np.hypot(*np.diff(path, axis=0).T) > 1e-3])
-            path = path[keep]
+            path = _distinct(np.concatenate([pts[0]] + [p[1:] for p in pts[1:]]))
         return np.asarray(path, dtype=float)
 
     def _near_route(self):
@@ -390,9 +388,8 @@ class ReactiveAdapter:
             return self._creep(msg, ego, "CREEP_STALLED", self.stall_room)
         rest = [q for q in (self.last_pts or []) if q["t"] >= t - DT / 2]
         if len(rest) >= 3:
-            path = np.array([[float(ego["x"]), float(ego["y"])]] + [[q["x"], q["y"]] for q in rest])
-            path = path[np.concatenate([[True], np.hypot(*np.diff(path, axis=0).T) > 1e-3])]
-            cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+            path = _distinct(np.array([[float(ego["x"]), float(ego["y"])]] + [[q["x"], q["y"]] for q in rest]))
+            cum = _arc(path)
             if len(path) >= 2 and cum[-1] >= v * v / (2 * FALLBACK_DECEL) + 0.5:
                 return self._brake(msg, ego, stage, path, cum)
         self.last_plan = self.last_pts = None
@@ -516,11 +513,10 @@ class ReactiveAdapter:
                 ll = self.net.find_lanelet_by_id(ll.successor[0])
                 parts.append(ll.center_vertices[1:])
                 ahead += float(np.hypot(*np.diff(ll.center_vertices, axis=0).T).sum())
-            pts = np.concatenate(parts)
-            pts = pts[np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-3])]
+            pts = _distinct(np.concatenate(parts))
             if len(pts) < 2:
                 return None
-            self.lane_paths[lanelet] = (pts, np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))]))
+            self.lane_paths[lanelet] = (pts, _arc(pts))
         return self.lane_paths[lanelet]
 
     def _brake(self, msg: dict, ego: dict, stage: str, ref: np.ndarray, cum: np.ndarray) -> dict:
@@ -613,6 +609,16 @@ def _planner_class(base: type, boundary) -> type:
             super().set_collision_checker(scenario, collision_checker, road_boundary_obstacle)
 
     return Planner
+
+
+def _distinct(pts: np.ndarray) -> np.ndarray:
+    """The polyline `pts` without the points within 1 mm of the one before (zero-length segments)."""
+    return pts[np.concatenate([[True], np.hypot(*np.diff(pts, axis=0).T) > 1e-3])]
+
+
+def _arc(pts: np.ndarray) -> np.ndarray:
+    """The arc length at each point of the polyline `pts`."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
 
 
 def _feet(pts: np.ndarray, cum: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
