@@ -178,8 +178,13 @@ class TrafficControl(TrafficRules):
 
             for jid, queue in list(self.stop_queue.items()):
                 self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
+        # a stopped vehicle joins the queue of the stop sign it stands at; one queued already stands
+        # before the same junction's line (it leaves the queue on entering that junction, above)
+        queued = {id(v) for queue in self.stop_queue.values() for v in queue} if stopped else ()
         for k in stopped:
             v, lid = vehicles[k], lanes[k]
+            if id(v) in queued:
+                continue
             sl, _ = self.waiting_line(v, lid)
             if sl is None or sl.kind != "stop":
                 continue
@@ -250,7 +255,9 @@ class TrafficControl(TrafficRules):
         for cw in self.active_crosswalks:
             old = self.pedestrians.get(cw, ())
             peds = [p for p in old if not p.done] if old else []
-            changed = changed or len(peds) != len(old)
+            if len(peds) != len(old):
+                changed = True
+                road.core.drop_walkers([p for p in old if p.done])
             # rng.random() is rng.uniform() (the same draw, the same value), at a fifth of the cost
             if rate > 0 and self.rng.random() < rate * dt and len(peds) < self.cfg["pedestrians_per_crosswalk"]:
                 a, b, width = self.net.crosswalk_axes[cw]

@@ -6,9 +6,10 @@ Design
 State. One row per road user, in `road.vehicles` order: `lane` (an int, the index into
 `MapNetwork.lane_ids`), `s` (arc length along it), `lat` (lateral offset: 0 on the lane centre,
 non-zero only while a MOBIL lane change settles), `speed`, `acc`, `timer`, `crashed`, and the
-derived `x`, `y`, `heading`. Traffic rows are "driven" (the core moves them); the ego and any
-other highway-env vehicle user code adds are "external" rows: they act and step themselves and
-their state is read back into their row every frame. A traffic row's route is a list of lane
+derived `x`, `y`, `heading`. Traffic rows and controlled rows (the ego of the single and
+batched envs, the multi-agent env's agents: views in controlled.py) are "driven" (the core moves
+them); any other highway-env vehicle user code adds is an "external" row: it acts and steps
+itself and its state is read back into its row every frame. A driven row's route is a list of lane
 ints and a position in it; `W`/`C` (rows x K) hold its next K route lanes and the distance from
 the start of its current lane to the start of each, rebuilt for a row only when its route
 position changes.
@@ -20,7 +21,7 @@ heading an interpolation of vertex headings, for all rows at once; traffic is ne
 A frame (`MapRoad.act` + `MapRoad.step`):
 1. sync: `road.vehicles` is compared by identity with the rows; vehicles user code appended are
    taken in (a `TrafficVehicle` becomes a driven row), removed ones let go.
-2. external rows act (the ego takes the agent's action).
+2. external rows act (a controlled row's decision is already in its row: `ControlledRow.act`).
 3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
    of every row's lane against every row's window (on the same lane the leader's s is its row's
    s), plus rows on junction lanes that conflict with or diverge from a window lane, or on road
@@ -34,13 +35,15 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    MOBIL_PERIOD_S for rows `rules.may_change_lane` allows on lanes with same-direction
    neighbours (`TrafficVehicle.mobil_change`, on the view).
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
-   controlled rows (the multi-agent env's agents) drive the kinematic bicycle with lane keeping
-   (`sim.vehicle`), all at once, their (s, lat) projected on their route lanes; external rows
-   step themselves.
-5. positions of traffic rows from the lane table; pedestrians walk; `TrafficControl.update` does
-   the rules' bookkeeping; collisions: a vectorized centre-distance broad phase, separating
-   axes for pairs of traffic rows, and highway-env's own `handle_collisions` for the pairs that
-   overlap or involve the ego or a pedestrian (crash flags, impacts, hits).
+   controlled rows drive the kinematic bicycle (`sim.vehicle`), steered by lane keeping or their
+   held command, all at once, their (s, lat) projected on their route lanes and each located
+   (`locate`); external rows step themselves.
+5. positions of traffic rows from the lane table; pedestrians (walker rows) walk (`walk`);
+   `TrafficControl.update` does the rules' bookkeeping; collisions: a vectorized
+   centre-distance broad phase, separating
+   axes for pairs of driven rows, and highway-env's own `handle_collisions` for the pairs that
+   overlap or involve an external road user or a pedestrian (crash flags, hits; a driven row
+   takes no impact displacement).
 
 Objects. Every driven row has a view, `ArrayVehicle` (a `TrafficVehicle` whose state attributes
 are properties reading its row, positions computed on read), so that highway-env's observation
@@ -58,6 +61,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -67,25 +71,28 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
-from .network import MapNetwork
+from .network import MapNetwork, on_lane
 from .rules import (body_reach, crossed_lanes, has_stopped, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
                     may_change_lane, room_to_wait, stop_gap)
-from .sim.vehicle import VehicleModel, integrate, keeping_steering
-from .vehicles import (EgoMDPVehicle, EgoVehicle, Pedestrian, TrafficVehicle, command_egos, route_upcoming,
-                       step_egos)
+from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
+from .vehicles import TrafficVehicle, route_upcoming
 
 if TYPE_CHECKING:
     from .road import MapRoad
 
 EXTERNAL, DRIVEN = 0, 1
-EGOS = (EgoMDPVehicle, EgoVehicle)  # external road users whose steps are batched (vehicles.step_egos)
-# below these counts the array programs cost more than they save (a single env: ~7 rule rows, one
-# ego), and the rows ask the rules one by one, the egos step one by one (the same values)
+# below this count the array program costs more than it saves (a single env: ~7 rule rows), and
+# the rows ask the rules one by one (the same values)
 BATCH_MIN_RULE_ROWS = 48
+IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many values (more: np.isin sorts)
+BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
-BATCH_MIN_EGOS = 8  # (their commands and steps: `vehicles.command_egos`, `step_egos`)
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
-NO_BICYCLE = {"wheelbase": 0.0, "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0}  # the bicycle arrays of a traffic row
+# a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
+ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
+                "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
+                "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
+                "at_lat": 0.0}
 
 
 class LaneTable:
@@ -267,6 +274,43 @@ class LaneTable:
         jk = j[n, k]
         edge = ((k == 0) & (jk > first[:, 0])) | ((k == j.shape[1] - 1) & (jk < last[:, 0]))
         return (self.G[jk] - self.offset[lane] + tc[n, k], ux[n, k] * ry[n, k] - uy[n, k] * rx[n, k], ~edge)
+
+    # ---- the same programs for one row, with floats (a single env's ego: no array overhead; the
+    # same operations in the same order, so the same values bit for bit: tests/envs/test_core.py)
+    def segment_one(self, lane: int, s: float) -> int:
+        i = int(self.G.searchsorted(float(self.offset[lane]) + s, side="right")) - 1
+        return min(max(i, int(self.first[lane])), int(self.last_seg[lane]))
+
+    def project_one(self, lane: int, s: float, x: float, y: float) -> tuple[float, float, bool]:
+        """`project_near` of one point (over the window's distinct segments: the repeats of a
+        window clamped at a lane's end never come first)."""
+        i = self.segment_one(lane, s)
+        first, last = int(self.first[lane]), int(self.last_seg[lane])
+        lo, hi = max(i - PROJECT_SEGMENTS, first), min(i + PROJECT_SEGMENTS, last)
+        G = self.G[lo:hi + 2].tolist()
+        best: tuple = ()
+        for n, (ax, ay, u, v) in enumerate(zip(self.ax[lo:hi + 1].tolist(), self.ay[lo:hi + 1].tolist(),
+                                               self.ux[lo:hi + 1].tolist(), self.uy[lo:hi + 1].tolist())):
+            j = lo + n
+            rx, ry = x - ax, y - ay
+            t = rx * u + ry * v
+            tc = min(max(t, -math.inf if j == first else 0.0), math.inf if j == last else G[n + 1] - G[n])
+            dx, dy = rx - tc * u, ry - tc * v
+            d2 = dx * dx + dy * dy
+            if not best or d2 < best[0]:
+                best = (d2, j, tc, rx, ry, u, v)
+        _, j, tc, rx, ry, u, v = best
+        edge = (j == i - PROJECT_SEGMENTS and j > first) or (j == i + PROJECT_SEGMENTS and j < last)
+        return G[j - lo] - float(self.offset[lane]) + tc, u * ry - v * rx, not edge
+
+    def heading_one(self, lane: int, s: float) -> float:
+        """`heading_at` of one (lane, s)."""
+        sc = min(max(s, 0.0), float(self.length[lane]))
+        j = self.segment_one(lane, sc)
+        g0, g1 = float(self.G[j]), float(self.G[j + 1])
+        f = (float(self.offset[lane]) + sc - g0) / max(g1 - g0, 1e-12)
+        h0 = float(self.vh[j])
+        return h0 + f * (float(self.vh[j + 1]) - h0)
 
     def place(self, lane: np.ndarray, s: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, lane heading) of points at (lane, s, lat); beyond a lane's ends the first and
@@ -485,7 +529,7 @@ class TrafficCore:
         self.heading = np.zeros(0)
         self.length = np.zeros(0)
         self.width = np.zeros(0)
-        # the bicycle of controlled rows (`sim.vehicle`; NO_BICYCLE for the others): wheelbase, the
+        # the bicycle of controlled rows (`sim.vehicle`; 0 for the others): wheelbase, the
         # rear axle's distance behind the centre, the steering limit and the last steering
         self.wheelbase = np.zeros(0)
         self.rear_offset = np.zeros(0)
@@ -495,11 +539,28 @@ class TrafficCore:
         self.route_end = np.zeros(0, dtype=np.int64)  # index of the route's last lane
         self.entry = np.zeros(0)  # distance from the current lane's start to the next junction entry (inf: none in the window)
         self.driven = np.zeros(0, dtype=bool)
-        # controlled rows (the agents of envs/multi_agent.py): driven rows that take `command` as
-        # their acceleration (no IDM, no MOBIL, no rule stops) and drive the bicycle with lane
-        # keeping on their route lanes (`integrate`); their lane, s and lat are projections
+        # controlled rows (the egos, the agents): driven rows that take their command (no IDM, no
+        # MOBIL, no rule stops) and drive the bicycle (`drive`); their lane, s and lat are
+        # projections on their route lanes
         self.controlled = np.zeros(0, dtype=bool)
         self.command = np.zeros(0)
+        # a controlled row's command (`ControlledRow.act` writes it at a decision, a tracker every
+        # frame): `target` a speed to hold by speed control (NaN: `command` is the acceleration),
+        # `keeps` steering by lane keeping on the route lane (else `cmd_steer`, held)
+        self.target = np.zeros(0)
+        self.keeps = np.zeros(0, dtype=bool)
+        self.cmd_steer = np.zeros(0)
+        # where a controlled row is (`MapNetwork.locate` with its route lane as the hint: another
+        # lane where it steers off its route), what its judge and the rules' lane buckets read
+        self.at_lane = np.zeros(0, dtype=np.int64)
+        self.at_s = np.zeros(0)
+        self.at_lat = np.zeros(0)
+        # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
+        # walking direction, speed and metres left to the crosswalk's far end
+        self.p_env = np.zeros(0, dtype=np.int64)
+        self.p_x, self.p_y, self.p_ux, self.p_uy = np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
+        self.p_speed, self.p_left = np.zeros(0), np.zeros(0)
+        self.p_objs: list[Any] = []
         self.routes: list[list[int]] = []  # lane ints
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
         self.reserved: list[str | None] = []
@@ -510,7 +571,7 @@ class TrafficCore:
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
-               "entry", "controlled", "command")
+               "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -519,6 +580,7 @@ class TrafficCore:
         old = self.env == slot
         if old.any():
             self._select(np.nonzero(~old)[0].tolist())
+        self.drop_walkers([o for o, k in zip(self.p_objs, self.p_env.tolist()) if k == slot])
         self.roads[slot] = road
         self.seen[slot] = []
         road.slot = slot
@@ -536,21 +598,20 @@ class TrafficCore:
     def add_traffic(self, road: "MapRoad", lane_id: str, s: float, speed: float, route: list[str],
                     model: VehicleModel | None = None, view: type[ArrayVehicle] = ArrayVehicle) -> ArrayVehicle:
         """A new driven row (and its `view`) on `road` at s on `lane_id`, its route starting there;
-        with `model`, a controlled row (an agent's) with that body and bicycle, whose acceleration
-        is `command`."""
+        with `model`, a controlled row (the ego's, an agent's) with that body and bicycle (its view's
+        `model`), driven by its commands."""
         lane = self.table.index[lane_id]
         x, y, h = self.table.place(np.array([lane]), np.array([s]), np.zeros(1))
         v = view.__new__(view)
-        bicycle = NO_BICYCLE
+        bicycle = {}
         if model is not None:
-            v.LENGTH, v.WIDTH = model.length, model.width
+            v.model, v.LENGTH, v.WIDTH = model, model.length, model.width
             bicycle = {"wheelbase": model.wheelbase, "rear_offset": model.rear_offset,
-                       "max_steer": model.max_steering, "steer": 0.0}
+                       "max_steer": model.max_steering, "controlled": True, "at_lane": lane, "at_s": s}
         self._init_view(v, road)
-        row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=0.0, speed=speed, acc=0.0,
-                   timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, mobil_t=-1e9,
-                   crashed=False, x=x[0], y=y[0], heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0,
-                   route_end=len(route) - 1, entry=math.inf, controlled=model is not None, command=0.0, **bicycle)
+        row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, speed=speed,
+                   timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, x=x[0], y=y[0],
+                   heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0, route_end=len(route) - 1, **bicycle)
         self._append(v, row, [self.table.index[x] for x in route], None)
         road.vehicles.append(v)
         if self.seen[road.slot] == road.vehicles[:-1]:
@@ -567,7 +628,7 @@ class TrafficCore:
         v.log = []
         v.history = deque(maxlen=v.HISTORY_SIZE)
         v.prediction_type = "constant_steering"
-        v.target_speed = None
+        v.__dict__["target_speed"] = None  # (a meta-action row's is a property of its row)
         v.route = None
         v.enable_lane_change = False
         v.lane_changes = 0
@@ -575,6 +636,7 @@ class TrafficCore:
     def _append(self, obj, row: dict, route: list[int], reserved) -> None:
         i = len(self.objs)
         self.objs.append(obj)
+        row = {**ROW_DEFAULTS, **row}
         for name in self._ARRAYS:
             setattr(self, name, np.append(getattr(self, name), row[name]).astype(getattr(self, name).dtype))
         self.routes.append(route)
@@ -661,11 +723,10 @@ class TrafficCore:
             pos = int(obj.route_pos)
             lane = route[pos]
             s, lat = self.net.lane_of[obj.lane_route[pos]].local_coordinates(obj.position)
-            row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed), acc=0.0,
+            row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, lat=lat, speed=float(obj.speed),
                        timer=float(obj.timer), mobil_t=float(getattr(obj, "_mobil_t", -1e9)),
                        crashed=bool(obj.crashed), x=obj.position[0], y=obj.position[1], heading=obj.heading,
-                       length=obj.LENGTH, width=obj.WIDTH, route_pos=pos, route_end=len(route) - 1, entry=math.inf,
-                       controlled=False, command=0.0, **NO_BICYCLE)
+                       length=obj.LENGTH, width=obj.WIDTH, route_pos=pos, route_end=len(route) - 1)
             reserved = getattr(obj, "reserved", None)
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
@@ -674,9 +735,8 @@ class TrafficCore:
             self._append(obj, row, route, reserved)
             self._place_rows(np.array([len(self.objs) - 1]))
         else:
-            row = dict(env=road.slot, kind=EXTERNAL, lane=0, s=0.0, lat=0.0, speed=0.0, acc=0.0, timer=0.0, mobil_t=0.0,
-                       crashed=False, x=0.0, y=0.0, heading=0.0, length=obj.LENGTH, width=obj.WIDTH, route_pos=0,
-                       route_end=0, entry=math.inf, controlled=False, command=0.0, **NO_BICYCLE)
+            row = dict(env=road.slot, kind=EXTERNAL, lane=0, s=0.0, speed=0.0, mobil_t=0.0, x=0.0, y=0.0, heading=0.0,
+                       length=obj.LENGTH, width=obj.WIDTH, route_pos=0, route_end=0)
             self._append(obj, row, [], None)
             self._read_external(len(self.objs) - 1)
 
@@ -695,19 +755,27 @@ class TrafficCore:
             self.lane[i] = -1
 
     def relocate(self, i: int, position: np.ndarray) -> None:
-        """User code moved a driven row: locate it on its route (or the nearest lane)."""
+        """User code moved a driven row: locate it on its route (or the nearest lane). Traffic
+        off its route gets that lane as its route; a controlled row keeps its route (at the
+        lane's place in it, else projected on its route lane) and stands where it is put."""
         index, s, lat = self.net.locate(position, float(self.heading[i]), self.net._indices[self.lane[i]])
         lane = self.table.index[self.net.id_of[index]]
-        route = self.routes[i]
-        if lane in route[self.route_pos[i]:]:
-            self.route_pos[i] = route.index(lane, int(self.route_pos[i]))
-        elif lane != route[self.route_pos[i]]:
+        route, pos = self.routes[i], int(self.route_pos[i])
+        if lane in route[pos:]:
+            self.route_pos[i] = route.index(lane, pos)
+        elif self.controlled[i] and lane in route:
+            self.route_pos[i] = route.index(lane)
+        elif self.controlled[i]:
+            lane = route[pos]
+            s, lat = self.net._lanes[lane].local_coordinates(position)
+        elif lane != route[pos]:
             self.set_route(i, [self.net.lane_ids[lane]])
             self.route_pos[i] = 0
         self.lane[i], self.s[i], self.lat[i] = lane, s, lat
         self.dirty.add(i)
-        if self.controlled[i]:  # a bicycle stands where it is put
+        if self.controlled[i]:
             self.x[i], self.y[i] = position[0], position[1]
+            self.locate(np.array([i]))
         else:
             self._place_rows(np.array([i]))
 
@@ -716,6 +784,16 @@ class TrafficCore:
         self.routes[i] = [self.table.index[x] for x in lane_ids]
         self.route_end[i] = len(lane_ids) - 1
         self.dirty.add(i)
+
+    def reroute(self, i: int, lane_ids: list[str], pos: int) -> None:
+        """A controlled row's lane change: its route is now `lane_ids`, and it is on `lane_ids[pos]`
+        where it stands (lane keeping then steers it over)."""
+        self.set_route(i, lane_ids)
+        self.route_pos[i] = pos
+        lane = self.routes[i][pos]
+        self.s[i], self.lat[i] = self.net._lanes[lane].local_coordinates(np.array([self.x[i], self.y[i]]))
+        self.lane[i] = lane
+        self.locate(np.array([i]))
 
     def change_lane(self, i: int, lane: int) -> None:
         if lane == self.lane[i]:
@@ -726,6 +804,45 @@ class TrafficCore:
         if lane in route:
             self.route_pos[i] = route.index(lane)
         self.dirty.add(i)
+
+    # ---- walkers -----------------------------------------------------------------------------
+    _WALKER_ARRAYS = ("p_env", "p_x", "p_y", "p_ux", "p_uy", "p_speed", "p_left")
+
+    def add_walker(self, obj, slot: int, heading: float, speed: float, length: float) -> int:
+        """A new walker row of `slot` (its place is set by its view) heading `heading` with
+        `length` metres to walk; its row."""
+        # the direction as highway-env's `RoadObject.direction` computes it
+        row = {"p_env": slot, "p_x": 0.0, "p_y": 0.0, "p_ux": np.cos(heading), "p_uy": np.sin(heading),
+               "p_speed": speed, "p_left": length}
+        for name in self._WALKER_ARRAYS:
+            setattr(self, name, np.append(getattr(self, name), row[name]).astype(getattr(self, name).dtype))
+        self.p_objs.append(obj)
+        return len(self.p_objs) - 1
+
+    def drop_walkers(self, gone: list) -> None:
+        """Let the walkers of these views go (each view keeps its last place, in a row of its own)."""
+        if not gone:
+            return
+        for o in gone:
+            i = o._row
+            o._core = SimpleNamespace(p_x=self.p_x[i:i + 1], p_y=self.p_y[i:i + 1], p_left=self.p_left[i:i + 1])
+            o._row = 0
+        out = set(map(id, gone))
+        keep = [k for k, o in enumerate(self.p_objs) if id(o) not in out]
+        for name in self._WALKER_ARRAYS:
+            setattr(self, name, getattr(self, name)[keep])
+        self.p_objs = [self.p_objs[k] for k in keep]
+        for k, o in enumerate(self.p_objs):
+            o._row = k
+
+    def walk(self, dt: float) -> None:
+        """Every walker of the slots being stepped moves on at its speed, up to its crosswalk's far end."""
+        if not len(self.p_env):
+            return
+        move = np.minimum(self.p_speed * dt, self.p_left) * self.stepped[self.p_env]
+        self.p_x = self.p_x + move * self.p_ux
+        self.p_y = self.p_y + move * self.p_uy
+        self.p_left = self.p_left - move
 
     # ---- windows -----------------------------------------------------------------------------
     def refresh_windows(self) -> None:
@@ -776,41 +893,22 @@ class TrafficCore:
             self.stepped[[r.slot for r in roads]] = True
             self.on = self.stepped[self.env]
         self._acting = [i for i in self._external if self.on[i]]  # external rows this frame (`step` too)
-        objs = self.objs
-        meta = [objs[i] for i in self._acting if type(objs[i]) is EgoMDPVehicle]
-        if len(meta) >= BATCH_MIN_EGOS:  # the meta-action egos of all sub-envs together
-            command_egos(meta)
-            for i in self._acting:
-                if type(objs[i]) is not EgoMDPVehicle:
-                    objs[i].act()
-        else:
-            for i in self._acting:
-                objs[i].act()
+        for i in self._acting:
+            self.objs[i].act()
         self.accelerations()
 
     def step(self, roads: list, dt: float) -> None:
         """Second half of a frame for `roads`: external road users step, traffic integrates,
         pedestrians walk, the rules' bookkeeping, collisions."""
         external = self._acting
-        objs = self.objs
-        egos = [objs[i] for i in external if type(objs[i]) in EGOS and objs[i].impact is None]
-        if len(egos) >= BATCH_MIN_EGOS:  # the egos of all sub-envs together (fewer: one by one)
-            step_egos(egos, dt)
-            batched = set(map(id, egos))
-            for i in external:
-                if id(objs[i]) not in batched:
-                    objs[i].step(dt)
-        else:
-            for i in external:
-                objs[i].step(dt)
+        for i in external:
+            self.objs[i].step(dt)
         self.integrate(dt)
         for i in external:
             self._read_external(i)
         self.sync(roads)  # the core takes in vehicles added or removed by user code
+        self.walk(dt)
         for road, occupancy in zip(roads, self.occupancies(roads)):
-            for o in road.objects:
-                if isinstance(o, Pedestrian):
-                    o.step(dt)
             road.control.update(road, dt, occupancy)
         self.collisions(roads, dt)
         for road in roads:
@@ -819,18 +917,27 @@ class TrafficCore:
                     v.history.appendleft(TrafficVehicle.create_from(v))
 
     def accelerations(self) -> None:
-        """Acceleration of every driven row being stepped (see the module docstring, step 3)."""
+        """Acceleration of every driven row being stepped (see the module docstring, step 3):
+        traffic's by IDM behind its leaders and the rules' stops, a controlled row's its command."""
         driven = self.driven & self.on
         if not driven.any():
             return
-        self._mobil(driven)
+        traffic = driven & ~self.controlled
+        if traffic.any():
+            self._mobil(traffic)
         self.refresh_windows()
+        acc = self._idm(traffic) if traffic.any() else np.zeros(len(self.speed))
+        acc = np.where(self.controlled, self.commanded(), acc)
+        self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
+
+    def _idm(self, traffic: np.ndarray) -> np.ndarray:
+        """IDM's acceleration of the `traffic` rows behind their leaders and stop points."""
         t = self.table
         v = np.maximum(self.speed, 0.0)
         free = idm_free(v, np.minimum(t.speed_limit[self.lane], self.curve_limit()))
         acc = IDM_ACC * free
-        fi, gap, vl = self._leaders(driven & ~self.controlled)  # controlled rows take their command
-        si, sd = self._rule_stops(self._rule_rows(driven))
+        fi, gap, vl = self._leaders(traffic)
+        si, sd = self._rule_stops(self._rule_rows(traffic))
         stopping = sd < math.inf
         si, sd = si[stopping], sd[stopping]
         stops = len(si)
@@ -843,8 +950,15 @@ class TrafficCore:
             if stops:
                 s0[-stops:] = IDM_STOP_GAP_M
             np.minimum.at(acc, fi, idm_behind(free[fi], v[fi], vl, gap, s0))
-        acc = np.where(self.controlled, self.command, idm_clip(acc))
-        self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
+        return idm_clip(acc)
+
+    def commanded(self) -> np.ndarray:
+        """Per row, a controlled row's acceleration this frame: its command, or the speed control
+        towards its target speed (`sim.vehicle.speed_control`, as highway-env's MDPVehicle)."""
+        target = ~np.isnan(self.target)
+        if not target.any():
+            return self.command
+        return np.where(target, speed_control(np.where(target, self.target, 0.0), self.speed), self.command)
 
     def curve_limit(self) -> np.ndarray:
         """Per row, the highest speed from which it can brake at CURVE_BRAKE_MPS2 to every curve
@@ -932,8 +1046,8 @@ class TrafficCore:
         gap = C[fi, k] - s_own + so - L
         return fi[ok], gap[ok], self.speed[lj[ok]]
 
-    def _rule_rows(self, driven: np.ndarray) -> list[int]:
-        """Driven rows whose window holds a junction entry, a narrow passage, a mid-block
+    def _rule_rows(self, traffic: np.ndarray) -> list[int]:
+        """Traffic rows whose window holds a junction entry, a narrow passage, a mid-block
         crossing's light or a lane with a crosswalk that has people on it within LOOKAHEAD_M: the
         only ones the rules can stop (in row order)."""
         t = self.table
@@ -952,7 +1066,7 @@ class TrafficCore:
         if busy:
             key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
             flag |= (is_any(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        return (flag & driven & ~self.crashed & ~self.controlled).nonzero()[0].tolist()
+        return (flag & traffic & ~self.crashed).nonzero()[0].tolist()
 
     def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """(rows, `rules.TrafficRules.stop_distance` of their vehicles) for `rows`, in row order (the
@@ -1049,8 +1163,8 @@ class TrafficCore:
                                                                    for c in controls]))
         return held[1]
 
-    def _mobil(self, driven: np.ndarray) -> None:
-        due = driven & (self.timer - self.mobil_t >= MOBIL_PERIOD_S) & ~self.crashed & ~self.controlled
+    def _mobil(self, traffic: np.ndarray) -> None:
+        due = traffic & (self.timer - self.mobil_t >= MOBIL_PERIOD_S) & ~self.crashed
         if not due.any():
             return
         self.mobil_t = np.where(due, self.timer, self.mobil_t)
@@ -1070,10 +1184,11 @@ class TrafficCore:
         bicycles = (driven & self.controlled).nonzero()[0]
         if len(bicycles):
             self.drive(bicycles, dt)
-        # every other row being stepped moves; external rows are read back from their objects right after
-        if len(bicycles):
+            # every other row being stepped moves; external rows are read back from their objects right after
             on = on & ~self.controlled
             driven = driven & ~self.controlled
+            if not on.any():
+                return
         s = self.s + self.speed * dt
         speed = np.maximum(self.speed + self.acc * dt, 0.0)
         timer = self.timer + dt
@@ -1097,19 +1212,83 @@ class TrafficCore:
         self._place_rows(driven.nonzero()[0])
 
     def drive(self, rows: np.ndarray, dt: float) -> None:
-        """Controlled `rows` over dt, all at once: lane keeping on the route lane
-        (`sim.vehicle.keeping_steering`), the bicycle (`sim.vehicle.integrate`, never reversing),
-        then (s, lat) projected on the route lane, moving on to the next route lane past its end."""
+        """Controlled `rows` over dt, all at once: steering by lane keeping on the route lane
+        (`sim.vehicle.keeping_steering`) or the held `cmd_steer`, the bicycle (`sim.vehicle.
+        integrate`, never reversing), then (s, lat) projected on the route lane, moving on to the
+        next route lane past its end, and the row located (`locate`). Fewer than
+        BATCH_MIN_DRIVEN rows drive one by one with floats (`_drive_one`, the same values)."""
+        if len(rows) < BATCH_MIN_DRIVEN:
+            for i in rows.tolist():
+                self._drive_one(i, dt)
+            return
         t = self.table
         lane, speed, heading = self.lane[rows], self.speed[rows], self.heading[rows]
+        limit = self.max_steer[rows]
         steer = keeping_steering(t.heading_at(lane, self.s[rows] + speed * LANE_KEEPING_TAU_S), self.lat[rows],
-                                 heading, speed, self.wheelbase[rows], self.max_steer[rows])
+                                 heading, speed, self.wheelbase[rows], limit)
+        keeps = self.keeps[rows]
+        if not keeps.all():
+            steer = np.where(keeps, steer, np.clip(self.cmd_steer[rows], -limit, limit))
+        steer = np.where(self.crashed[rows], 0.0, steer)  # highway-env: a crashed vehicle steers no more
         x, y, heading, new_speed = integrate(self.x[rows], self.y[rows], heading, speed, steer, self.acc[rows], dt,
                                              self.wheelbase[rows], self.rear_offset[rows])
         self.x[rows], self.y[rows], self.heading[rows] = x, y, heading
         self.speed[rows], self.steer[rows] = np.maximum(new_speed, 0.0), steer
         self.timer[rows] += dt
         self._project(rows, self.s[rows] + speed * dt)
+        self.locate(rows)
+
+    def _drive_one(self, i: int, dt: float) -> None:
+        """`drive` of row i with floats."""
+        t = self.table
+        lane, s, speed, heading = int(self.lane[i]), float(self.s[i]), float(self.speed[i]), float(self.heading[i])
+        limit, wheelbase = float(self.max_steer[i]), float(self.wheelbase[i])
+        if self.crashed[i]:
+            steer = 0.0
+        elif self.keeps[i]:
+            steer = keeping_steering(t.heading_one(lane, s + speed * LANE_KEEPING_TAU_S), float(self.lat[i]), heading,
+                                     speed, wheelbase, limit, math)
+        else:
+            steer = min(max(float(self.cmd_steer[i]), -limit), limit)
+        x, y, heading, new_speed = integrate(float(self.x[i]), float(self.y[i]), heading, speed, steer,
+                                             float(self.acc[i]), dt, wheelbase, float(self.rear_offset[i]), math)
+        self.x[i], self.y[i], self.heading[i] = x, y, heading
+        self.speed[i], self.steer[i] = max(new_speed, 0.0), steer
+        self.timer[i] += dt
+        guess = s + speed * dt
+        while True:  # `_project`
+            s, lat, settled = t.project_one(lane, guess, x, y)
+            if s > t.length[lane] and self.route_pos[i] < self.route_end[i]:
+                guess = s - t.length[lane]
+                self.route_pos[i] += 1
+                lane = self.lane[i] = self.routes[i][self.route_pos[i]]
+                self.dirty.add(i)
+            elif settled:
+                break
+            else:
+                guess = s
+        self.s[i], self.lat[i] = s, lat
+        self.at_lane[i], self.at_s[i], self.at_lat[i] = lane, s, lat
+        if not on_lane(t.width[lane], t.length[lane], s, lat, t.heading_one(lane, s), heading):
+            self._locate_off(i)
+
+    def locate(self, rows: np.ndarray) -> None:
+        """`at_lane`, `at_s`, `at_lat` of controlled `rows`: where a row is on its route lane
+        (`network.on_lane`, the test `MapNetwork.locate` puts to its hint), that lane; off it (a
+        lane change under way, past its route's end, steering itself elsewhere) the lane
+        `MapNetwork.locate` finds with the route lane as the hint."""
+        t = self.table
+        lane, s, lat = self.lane[rows], self.s[rows], self.lat[rows]
+        self.at_lane[rows], self.at_s[rows], self.at_lat[rows] = lane, s, lat
+        on = on_lane(t.width[lane], t.length[lane], s, lat, t.heading_at(lane, s), self.heading[rows])
+        for i in rows[~on].tolist():
+            self._locate_off(i)
+
+    def _locate_off(self, i: int) -> None:
+        """`locate` of a row off its route lane."""
+        net = self.net
+        found, s, lat = net.locate(np.array([self.x[i], self.y[i]]), float(self.heading[i]), net._indices[self.lane[i]])
+        self.at_lane[i], self.at_s[i], self.at_lat[i] = self.table.index[net.id_of[found]], s, lat
 
     def _project(self, rows: np.ndarray, guess: np.ndarray) -> None:
         """(s, lat) of `rows` on their route lanes near arc length `guess` (`LaneTable.
@@ -1143,9 +1322,9 @@ class TrafficCore:
         """[slots] bool: whether a slot may hold traffic that finished its route or crashed (a
         driven row crashed or finished, or an external traffic vehicle), so that a respawn looks
         at its vehicles; False: none did."""
-        rows = self.crashed | ~self.driven
+        rows = (self.crashed & ~self.controlled) | ~self.driven
         rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in (~self.driven).nonzero()[0].tolist()]
-        last = (self.driven & ~rows & (self.route_pos >= self.route_end)).nonzero()[0]
+        last = (self.driven & ~self.controlled & ~rows & (self.route_pos >= self.route_end)).nonzero()[0]
         rows[last] = [self.objs[i].finished for i in last.tolist()]
         return np.bincount(self.env[rows], minlength=len(self.roads)) > 0
 
@@ -1159,7 +1338,7 @@ class TrafficCore:
         """(`occupancy`, places of the vehicles that have stopped) of each of `roads` (synced),
         from one pass over the arrays."""
         ids = self.net.lane_ids
-        lane, speed = self.lane.tolist(), self.speed.tolist()
+        lane, speed = self.where_lanes().tolist(), self.speed.tolist()
         stopped = has_stopped(self.speed).tolist()
         out = []
         for road in roads:
@@ -1171,7 +1350,11 @@ class TrafficCore:
     def occupancy(self, road) -> tuple[list[str | None], list[float]]:
         ids = self.net.lane_ids
         rows = self.rows(road)
-        return [ids[k] if k >= 0 else None for k in self.lane[rows].tolist()], self.speed[rows].tolist()
+        return [ids[k] if k >= 0 else None for k in self.where_lanes()[rows].tolist()], self.speed[rows].tolist()
+
+    def where_lanes(self) -> np.ndarray:
+        """Per row, the lane it is on: a controlled row's located lane (`locate`), another's its lane."""
+        return np.where(self.controlled, self.at_lane, self.lane)
 
     def _all_pairs(self, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
         """Every (i, j) with i < n, i < j < m, grouped by i (`np.triu_indices`), kept for the last (n, m)."""
@@ -1210,8 +1393,8 @@ class TrafficCore:
         order = np.lexsort((b, a))  # in the order of a (rows x rows) matrix
         a, b = a[order], b[order]
         # two driven rows (most close pairs: neighbours side by side, queues): their rectangles
-        # by separating axes; pairs with the ego, other external vehicles or pedestrians go
-        # straight to highway-env (impacts, hits)
+        # by separating axes; pairs with external road users or pedestrians go straight to
+        # highway-env (impacts, hits)
         both = (b < n)
         both[both] = self.driven[rows[a[both]]] & self.driven[rows[b[both]]]
         keep = ~both
@@ -1223,7 +1406,9 @@ class TrafficCore:
 
 
 def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
-    """`np.isin(keys, few)` for a short list `few` (a comparison per value: no sort)."""
+    """`np.isin(keys, few)`: for a short list `few` a comparison per value (no sort)."""
+    if len(few) > IS_ANY_COMPARISONS:
+        return np.isin(keys, few)
     hit = keys == few[0]
     for k in few[1:]:
         hit |= keys == k

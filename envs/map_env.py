@@ -29,13 +29,14 @@ from ..routes import first_tight_bend
 from ..semantics import assert_sound
 from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
+from .controlled import ControlledRow, MetaRow
 from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
 from .rules import VIOLATIONS, EgoJudge, braking_distance, manoeuvre_name, route_memo
 from .sim.vehicle import VehicleModel
-from .vehicles import EgoMDPVehicle, EgoVehicle, TrafficVehicle
+from .vehicles import TrafficVehicle
 
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
 _CACHE_SIZE = 8
@@ -289,19 +290,15 @@ class MapEnv(EgoTask, AbstractEnv):
         model = VehicleModel.of(c["vehicle"])
         route, s0, speed = start_place(self.net, route, extend, float(c["ego_start_distance"]),
                                        float(c["goal_distance"]), float(c["ego_initial_speed"]), model.length)
-        lane = self.net.lane_of[route[0]]
-        pos, heading = lane.position(s0, 0.0), lane.heading_at(s0)
-        if isinstance(self.action_type, DiscreteMetaAction):
-            ego = EgoMDPVehicle(self.road, pos, heading, speed, target_speeds=self.action_type.target_speeds)
-            ego.init_route(route)
+        meta = isinstance(self.action_type, DiscreteMetaAction)
+        ego = self.road.core.add_traffic(self.road, route[0], s0, speed, route, model=model,
+                                         view=MetaRow if meta else ControlledRow)
+        if meta:
+            ego.target_speeds = self.action_type.target_speeds
             ego.speed_index = ego.speed_to_index(speed)
             ego.target_speed = ego.index_to_speed(ego.speed_index)
         else:
-            ego = EgoVehicle(self.road, pos, heading, speed)
             ego.auto_steer = not getattr(self.action_type, "lateral", True)
-            ego.init_route(route)
-        ego.fit(model)
-        self.road.vehicles.append(ego)
         self.control.passage_start(ego)  # the first on the road: it holds the passages it starts in
         self.controlled_vehicles = [ego]
 
@@ -373,12 +370,12 @@ class MapEnv(EgoTask, AbstractEnv):
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def _respawn_traffic(self, maybe: bool = True, stay: frozenset[int] = frozenset()) -> None:
-        """Traffic that finished its route or crashed leaves (but the vehicles whose ids are in
-        `stay`: the multi-agent env's agents); as many new vehicles spawn (`maybe` False: the core
-        knows that none did)."""
+    def _respawn_traffic(self, maybe: bool = True) -> None:
+        """Traffic that finished its route or crashed leaves (never a controlled vehicle: the ego,
+        the multi-agent env's agents); as many new vehicles spawn (`maybe` False: the core knows
+        that none did)."""
         if self.config["traffic_respawn"] and maybe:
-            keep = [v for v in self.road.vehicles if id(v) in stay
+            keep = [v for v in self.road.vehicles if isinstance(v, ControlledRow)
                     or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
             self.road.vehicles = keep
@@ -430,6 +427,8 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
         for env, action in zip(envs, actions):
             if action is not None and not env.config["manual_control"] and env.steps % frames == 0:
                 env.action_type.act(action)
+            if env.vehicle.tracker is not None:  # an external planner's trajectory commands every frame
+                env.vehicle.track()
         for core, roads in groups.values():
             core.act(roads)
             core.step(roads, dt)

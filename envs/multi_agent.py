@@ -68,7 +68,8 @@ from ..errors import Feat2MapError
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
 from .control import TrafficControl
-from .core import ArrayVehicle, TrafficCore
+from .controlled import ControlledRow
+from .core import TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .map_env import EgoTask, MapEnv, check_action, check_options, info_dict
 from .observation import Kinematics, TrafficControlObservation, make_observation
@@ -77,7 +78,6 @@ from .routes import route_from_config, sample_config_route, start_place
 from .rules import VIOLATIONS, EgoJudge, can_stop_before, has_stopped
 from .sim.observe import kinematics
 from .sim.vehicle import VehicleModel, speed_control
-from .vehicles import SpeedGrid
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
@@ -226,26 +226,6 @@ class AgentJudge(EgoJudge):
             self._violate("not_yielding")
 
 
-class AgentVehicle(SpeedGrid, ArrayVehicle):
-    """An agent's vehicle: a controlled row of the arrays core (its view), the config's
-    `vehicle` (`model`: body, wheelbase, steering limit); its route progress is RouteFollower's
-    (the lanes behind it summed once per route position); TimeToCollision predicts for its
-    action's `target_speeds` (`SpeedGrid`)."""
-
-    color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
-    model: VehicleModel
-
-    @property
-    def action(self) -> dict:
-        """The last frame's command: the lane keeping's steering and the acceleration."""
-        c, i = self._core, self._row
-        return {"steering": float(c.steer[i]), "acceleration": float(c.acc[i])}
-
-    @action.setter
-    def action(self, value) -> None:
-        pass
-
-
 class AgentView(EgoTask):
     """One agent as the single env's ego (`map_env.EgoTask`: route completion, reward terms,
     infos, the scripted-driver API) over the shared world: its own vehicle, judge, spaces,
@@ -256,7 +236,7 @@ class AgentView(EgoTask):
     judge: AgentJudge
     observation_type: Any
 
-    def __init__(self, world: "_World", vehicle: AgentVehicle, action_type: AgentActions,
+    def __init__(self, world: "_World", vehicle: ControlledRow, action_type: AgentActions,
                  action_space: spaces.Space) -> None:
         self.world = world
         self.vehicle = vehicle
@@ -401,17 +381,12 @@ class _World(MapEnv):
             free = np.ones(len(places), dtype=bool)
         for k in np.nonzero(free)[0].tolist():
             r, s0, speed, _, _ = places[k]
-            v = core.add_traffic(self.road, r[0], s0, speed, list(r), model=self.model, view=AgentVehicle)
-            v.model = self.model
+            v = core.add_traffic(self.road, r[0], s0, speed, list(r), model=self.model, view=ControlledRow)
             if self.control.passage_start(v):
                 return v
             self.road.vehicles.remove(v)
             core.sync()
         return None
-
-    def respawn_traffic(self, agents: set[int]) -> None:
-        """MapEnv's respawn: finished and crashed traffic leaves, as many new vehicles spawn."""
-        self._respawn_traffic(stay=frozenset(agents))
 
 
 class _GridWorld(_World, JunctionGridEnv):
@@ -597,7 +572,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 continue
             # the judge looks at an agent whenever its check can change anything: a new lane, a
             # stop, a crosswalk on its lane, or near the end of its lane (off the road past a dead end)
-            lane, speed, s_on = core.lane[rows], core.speed[rows], core.s[rows]
+            lane, speed, s_on = core.at_lane[rows], core.speed[rows], core.at_s[rows]
             stopped = has_stopped(speed)
             due = (lane != judged) | stopped | table.crossing[lane] | (s_on > table.length[lane])
             for k in np.nonzero(due)[0].tolist():
@@ -631,7 +606,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 x.controlled_vehicles = [v for v in x.controlled_vehicles if id(v) not in out]
             self.agents = [a for a in self.agents if a not in gone]
         for x in worlds:
-            x.respawn_traffic(set(self._agent_ids))
+            x._respawn_traffic()
         self._pending = [p for p in self._pending if self._world_of[p[0]] not in truncated]
         new = self._spawn_pending(set(active))
         obs.update(self._observe(new))

@@ -331,6 +331,15 @@ class Passage:
     s1: float
 
 
+def on_lane(width, length, s, r, lane_heading, heading):
+    """Whether a road user at (s along, r beside) a lane of this width and length, heading
+    `heading` where the lane heads `lane_heading`, is on that lane: within its width, at most
+    0.5 m past either end, and no more than 60 degrees across it (no heading: any). Floats, or
+    arrays of rows (`TrafficCore.locate`). The test `locate` puts to its hint lane."""
+    on = (abs(r) <= width / 2) & (s >= -0.5) & (s <= length + 0.5)
+    return on if heading is None else on & (abs(wrap_angle(lane_heading - heading)) < math.pi / 3)
+
+
 @dataclass
 class MapNetwork(RoadNetwork):
     """A `RoadNetwork` built from an HDMap, with O(1) lane lookups and lane-level routing."""
@@ -504,8 +513,7 @@ class MapNetwork(RoadNetwork):
         if hint is not None:
             lane = self.get_lane(hint)
             s, r = lane.local_coordinates(position)
-            if abs(r) <= lane.width / 2 and -0.5 <= s <= lane.length + 0.5 and (
-                    heading is None or abs(wrap_angle(lane.heading_at(s) - heading)) < math.pi / 3):
+            if on_lane(lane.width, lane.length, s, r, lane.heading_at(s) if heading is not None else None, heading):
                 return hint, s, r
         key = (math.floor(x / GRID_CELL_M), math.floor(y / GRID_CELL_M))
         cell = self._cells.get(key)
@@ -540,8 +548,8 @@ class MapNetwork(RoadNetwork):
             s_all, r_all = project_rows(table, np.array([ks[g] for g in batch], dtype=np.int64), x, y)
             for g, s, r in zip(batch, s_all[:, 0].tolist(), r_all[:, 0].tolist()):
                 lane, heading = lanes[g], headings[g]
-                if lane is not None and abs(r) <= lane.width / 2 and -0.5 <= s <= lane.length + 0.5 and (
-                        heading is None or abs(wrap_angle(lane.heading_at(s) - heading)) < math.pi / 3):
+                if lane is not None and on_lane(lane.width, lane.length, s, r,
+                                                lane.heading_at(s) if heading is not None else None, heading):
                     out[g] = (hints[g], s, r)
         return [o if o is not None else self.locate(p, h, hint) for o, p, h, hint in zip(out, positions, headings, hints)]
 

@@ -4,8 +4,8 @@ simulation frame by a standard controller: pure pursuit for the steering and a P
 the speed (with the trajectory's acceleration as feed-forward and a gain on the along-track
 position error).
 
-Hooked into the ego by `EgoVehicle.tracker` (envs/vehicles.py): when set, the ego asks it for
-its command each frame, whatever the action type holds.
+Hooked into the ego by `ControlledRow.tracker` (envs/controlled.py): when set, the env asks it
+for the ego's command each frame (`ControlledRow.track`), whatever the action type holds.
 """
 from __future__ import annotations
 

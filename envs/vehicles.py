@@ -1,6 +1,6 @@
 """Road users: crosswalk pedestrians, and vehicles that follow explicit lane routes (highway-env
 vehicles: traffic, which the arrays core (core.py) drives by IDM and MOBIL through views of its
-rows, and the ego, driven by the agent's actions)."""
+rows; the controlled rows' views, the ego's and the agents', are in controlled.py)."""
 from __future__ import annotations
 
 import math
@@ -8,37 +8,49 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import ControlledVehicle, MDPVehicle
-from highway_env.vehicle.kinematics import Vehicle
 from highway_env.vehicle.objects import RoadObject
 
-from ..config import FINISH_MARGIN_M, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
+from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
 from ..invariants import lane_changes
 from .network import MapNetwork
-from .sim.vehicle import VehicleModel, integrate, keeping_steering, lane_keeping, speed_control, yaw_rate
+from .sim.vehicle import yaw_rate
 from .rules import body_reach, enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe, route_memo
 
 
 class Pedestrian(RoadObject):
-    """A person walking straight across a crosswalk at constant speed."""
+    """A person walking straight across a crosswalk at constant speed: a walker row of its road's
+    arrays core (`TrafficCore.walk` moves the walkers of every slot at once; `drop_walkers` lets
+    them go), of which this object is the view."""
 
     LENGTH = 0.8
     WIDTH = 0.8
 
     def __init__(self, road, start: np.ndarray, end: np.ndarray, speed: float, crosswalk_id: str) -> None:
         d = end - start
-        super().__init__(road, start.copy(), float(math.atan2(d[1], d[0])), speed)
+        heading = float(math.atan2(d[1], d[0]))
+        self._core = road.core
+        self._row = self._core.add_walker(self, road.slot, heading, float(speed), float(np.hypot(*d)))
+        super().__init__(road, start.copy(), heading, speed)
         self.end = end
         self.crosswalk_id = crosswalk_id
-        self.remaining = float(np.hypot(*d))
         self.collidable = True
         self.solid = False
         self.check_collisions = False
 
-    def step(self, dt: float) -> None:
-        move = min(self.speed * dt, self.remaining)
-        self.position: np.ndarray = self.position + move * self.direction
-        self.remaining -= move
+    @property
+    def position(self) -> np.ndarray:
+        c, i = self._core, self._row
+        return np.array([c.p_x[i], c.p_y[i]])
+
+    @position.setter
+    def position(self, value) -> None:
+        c, i = self._core, self._row
+        c.p_x[i], c.p_y[i] = float(value[0]), float(value[1])
+
+    @property
+    def remaining(self) -> float:
+        """Metres left to the crosswalk's far end."""
+        return float(self._core.p_left[self._row])
 
     @property
     def done(self) -> bool:
@@ -288,137 +300,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         return self.route_s() >= self.net.lane_of[self.lane_route[-1]].length - FINISH_MARGIN_M
 
 
-class Ego(RouteFollower):
-    """Mixin of the controlled egos: our kinematic bicycle (`sim.vehicle`) with the config's body
-    in place of highway-env's (wheelbase = length = 5 m, axles at +-length/2), and lane keeping
-    through it."""
-
-    model = VehicleModel.of()
-    if TYPE_CHECKING:
-        action: dict
-        impact: Any
-        crashed: bool
-        WIDTH: float
-        MAX_STEERING_ANGLE: float
-
-        def clip_actions(self) -> None: ...
-
-    def fit(self, model: VehicleModel) -> None:
-        """Take `model`'s body and steering limit (highway-env reads LENGTH, WIDTH, diagonal)."""
-        self.model = model
-        self.LENGTH, self.WIDTH, self.MAX_STEERING_ANGLE = model.length, model.width, model.max_steering
-        self.diagonal = math.hypot(model.length, model.width)
-
-    def steering_control(self, target_lane_index) -> float:
-        """Lane keeping on the target lane (`sim.vehicle.lane_keeping`)."""
-        net = self.road.network
-        s, r = self.projection(net.id_of[target_lane_index])
-        return lane_keeping(net.get_lane(target_lane_index), s, r, self.heading, self.speed, self.model)
-
-    def speed_control(self, target_speed: float) -> float:
-        """`sim.vehicle.speed_control` (highway-env's law, written once for the ego and the agents)."""
-        return speed_control(target_speed, self.speed)
-
-    def step(self, dt: float) -> None:
-        step_egos([self], dt)
-
-    def settle(self) -> None:
-        """After a step: no reversing while no reverse is asked for."""
-        if self.speed < 0 and not self.reversing():
-            self.speed = 0.0
-
-    def reversing(self) -> bool:
-        return False
-
-
-class EgoMDPVehicle(Ego, MDPVehicle):
-    """The ego under DiscreteMetaAction: MDPVehicle that follows the episode's lane route."""
-
-    def act(self, action=None) -> None:
-        """A meta-action as highway-env's MDPVehicle takes it (FASTER / SLOWER: the target speed
-        one step from the one nearest the speed; LANE_LEFT / LANE_RIGHT: the neighbour lane of
-        the target lane where it is reachable), except that a lane change needs a dashed line
-        between the two lanes (`invariants.lane_changes`). Without an action, this frame's command
-        (`command`): the core asks for it after the decision (`TrafficCore.act`), so a decision
-        frame computes it once. Our own code throughout: highway-env's controller chain is not run."""
-        self.follow_road()
-        if action is None:
-            self.command()
-        elif action in ("FASTER", "SLOWER"):
-            index = self.speed_to_index(self.speed) + (1 if action == "FASTER" else -1)
-            self.speed_index = int(min(max(index, 0), self.target_speeds.size - 1))
-            self.target_speed = self.index_to_speed(self.speed_index)
-        elif action in ("LANE_LEFT", "LANE_RIGHT"):
-            self.change_lane(-1 if action == "LANE_LEFT" else 1)
-
-    def change_lane(self, side: int) -> None:
-        """Target the neighbour lane on `side` (-1 left, +1 right, highway-env's lane order on
-        the road edge) where it is reachable from here and the line to it is dashed."""
-        net = self.net
-        _from, _to, _id = self.target_lane_index
-        index = (_from, _to, int(min(max(_id + side, 0), len(net.graph[_from][_to]) - 1)))
-        old, new = net.id_of.get(self.target_lane_index), net.id_of.get(index)
-        if index != self.target_lane_index and net.get_lane(index).is_reachable_from(self.position) and (
-                old is None or new in lane_changes(net.hdmap.lanes[old])):
-            self.target_lane_index = index
-
-    def command(self) -> None:
-        """This frame's command: lane keeping on the target lane and the speed control towards
-        the target speed (what highway-env's `ControlledVehicle.act()` computes)."""
-        self.action = {"steering": self.steering_control(self.target_lane_index),
-                       "acceleration": speed_control(self.target_speed, self.speed)}
-
-    def reversing(self) -> bool:
-        return self.target_speed < 0
-
-
-class SpeedGrid:
-    """Mixin of vehicles that have no discrete target speeds of their own (the continuous ego,
-    the multi-agent env's agents): the speeds highway-env's TimeToCollision observation
-    predicts for (`target_speeds`, `index_to_speed`), the current one the nearest to the speed."""
-
-    target_speeds = np.array([0.0, 4.5, 9.0])
-    if TYPE_CHECKING:
-        speed: float
-
-    def index_to_speed(self, index: int) -> float:
-        return float(self.target_speeds[index])
-
-    @property
-    def speed_index(self) -> int:
-        return int(np.argmin(np.abs(self.target_speeds - self.speed)))
-
-
-class EgoVehicle(SpeedGrid, Ego, ControlledVehicle):
-    """The ego under ContinuousAction: takes acceleration/steering; when the action type has no
-    lateral control, steering follows the route (a lane-keeping assist)."""
-
-    auto_steer = True
-    tracker = None  # an envs.tracking.TrajectoryTracker: when set, it commands the ego every frame
-
-    def act(self, action=None) -> None:
-        """A new command (a dict) at each decision; between decisions (`action` None) the
-        acceleration is held and, with `auto_steer`, the steering follows the route every frame
-        (a lane-keeping assist: steering held over a decision period drifts out of turns).
-        With a `tracker` (an external planner's trajectory) the tracker commands every frame."""
-        if self.tracker is not None:
-            self.follow_road()
-            Vehicle.act(self, self.tracker.command(self.position, self.heading, self.speed))
-            return
-        if action is None and self.auto_steer and isinstance(self.action, dict) and "acceleration" in self.action:
-            action = {"acceleration": self.action["acceleration"]}
-        if isinstance(action, dict):
-            action = dict(action)
-            self.follow_road()
-            if self.auto_steer:
-                action["steering"] = self.steering_control(self.target_lane_index)
-            Vehicle.act(self, action)
-
-    def reversing(self) -> bool:
-        return self.action.get("acceleration", 0) > 0
-
-
-def vehicle_model(vehicle: Ego, acceleration_range: Any, steering_range: Any) -> dict[str, Any]:
+def vehicle_model(vehicle: Any, acceleration_range: Any, steering_range: Any) -> dict[str, Any]:
     """The ego's motion model for a planner in another process (the planner bridge's init): its
     `sim.vehicle.VehicleModel`, the env's action limits (steering within the model's) and speeds."""
     m = vehicle.model
@@ -428,77 +310,10 @@ def vehicle_model(vehicle: Ego, acceleration_range: Any, steering_range: Any) ->
             "max_speed": float(getattr(vehicle, "MAX_SPEED", 40.0)), "min_speed": 0.0}
 
 
-def bicycle_state(vehicle: Ego) -> tuple[float, float, float]:
+def bicycle_state(vehicle: Any) -> tuple[float, float, float]:
     """(steering, yaw rate, acceleration) of `vehicle` in the env's frame: its last command
     (steering within the model's limit) and the yaw rate the bicycle gives it."""
     action = vehicle.action if isinstance(vehicle.action, dict) else {}
     m = vehicle.model
     steering = min(max(float(action.get("steering", 0.0)), -m.max_steering), m.max_steering)
     return steering, yaw_rate(float(vehicle.speed), steering, m.wheelbase), float(action.get("acceleration", 0.0))
-
-
-def command_egos(egos: list["EgoMDPVehicle"]) -> None:
-    """`act()` between decisions of many meta-action egos at once: each follows its route, then
-    their lane keeping on the target lanes (`sim.vehicle.keeping_steering`) and speed control
-    as one array program. NumPy's functions give math's values bit for bit here, so each ego
-    gets `command`'s (tests/envs/test_vector_native.py runs both)."""
-    ahead, lat, heading, speed, wheelbase, limit, target = ([] for _ in range(7))
-    for v in egos:
-        v.follow_road()
-        net = v.net
-        tid = net.id_of[v.target_lane_index]
-        s, r = v.projection(tid)
-        ahead.append(net.lane_of[tid].heading_at(s + v.speed * LANE_KEEPING_TAU_S))
-        lat.append(r)
-        heading.append(v.heading)
-        speed.append(v.speed)
-        wheelbase.append(v.model.wheelbase)
-        limit.append(v.model.max_steering)
-        target.append(v.target_speed)
-    v_arr = np.array(speed, dtype=float)
-    steer = keeping_steering(np.array(ahead, dtype=float), np.array(lat, dtype=float), np.array(heading, dtype=float),
-                             v_arr, np.array(wheelbase), np.array(limit))
-    acc = speed_control(np.array(target, dtype=float), v_arr)
-    for v, st, a in zip(egos, steer.tolist(), acc.tolist()):
-        v.action = {"steering": st, "acceleration": a}
-
-
-def step_egos(egos: list, dt: float) -> None:
-    """`step(dt)` of egos: the bicycle (`sim.vehicle.integrate`) over all of them at once (with
-    floats for one), a pending impact applied as highway-env does, then their lane locations
-    (`on_state_update`, with `MapNetwork.locate_many` for several) and `settle`."""
-    for v in egos:
-        v.clip_actions()
-    if len(egos) == 1:
-        v = egos[0]
-        m = v.model
-        steer = min(max(v.action["steering"], -m.max_steering), m.max_steering)
-        x, y, heading, speed = integrate(float(v.position[0]), float(v.position[1]), float(v.heading), float(v.speed),
-                                         steer, v.action["acceleration"], dt, m.wheelbase, m.rear_offset, math)
-        moved = [(x, y, heading, speed)]
-    else:
-        limit = np.array([v.model.max_steering for v in egos])
-        steer = np.clip([v.action["steering"] for v in egos], -limit, limit)
-        x, y, heading, speed = integrate(
-            np.array([v.position[0] for v in egos], dtype=float), np.array([v.position[1] for v in egos], dtype=float),
-            np.array([v.heading for v in egos], dtype=float), np.array([v.speed for v in egos], dtype=float), steer,
-            np.array([v.action["acceleration"] for v in egos], dtype=float), dt,
-            np.array([v.model.wheelbase for v in egos]), np.array([v.model.rear_offset for v in egos]))
-        moved = list(zip(x.tolist(), y.tolist(), heading.tolist(), speed.tolist()))
-    for v, (x, y, heading, speed) in zip(egos, moved):
-        p = v.position
-        p[0], p[1] = x, y
-        if v.impact is not None:
-            p += v.impact
-            v.crashed, v.impact = True, None
-        v.heading, v.speed = heading, speed
-    located = [v for v in egos if v.road]
-    if len(located) == 1:  # `locate` (locate_many's arrays cost more than they save for one)
-        located[0].on_state_update()
-    elif located:
-        hints = [v.location_hint() for v in located]
-        places = located[0].road.network.locate_many([v.position for v in located], [v.heading for v in located], hints)
-        for v, place, hint in zip(located, places, hints):
-            v.located(place, hint)
-    for v in egos:
-        v.settle()

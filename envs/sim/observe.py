@@ -45,38 +45,29 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
     core.sync(list({id(r): r for r in (observers[k].env.road for k in picks)}.values()))  # respawned traffic
     net = core.net
     lane_index = net.memo("lane object index", lambda: {id(ln): k for k, ln in enumerate(net._lanes)})
-    S = len(core.roads)
-    external = core.kind != DRIVEN
-    n_ext = np.bincount(core.env[external], minlength=S)
-    ext_row = np.full(S, -1, dtype=np.int64)
-    ext_row[core.env[external]] = external.nonzero()[0]  # (the one external row of a slot that has one)
+    # slots holding a road user the core does not drive (user code's own objects): highway-env's code
+    foreign = np.bincount(core.env[core.kind != DRIVEN], minlength=len(core.roads)) > 0
     keep_g, slots, own, lanes = [], [], [], []
     for k in picks:
         v = observers[k].observer_vehicle
         q = observers[k].env.road.slot
-        row = v._row if getattr(v, "_core", None) is core else int(ext_row[q])
         lk = lane_index.get(id(v.lane), -1)
-        if row < 0 or core.objs[row] is not v or n_ext[q] != int(external[row]) or lk < 0:
-            continue  # not a row of its slot, or other road users the core does not drive
+        if getattr(v, "_core", None) is not core or foreign[q] or lk < 0:
+            continue  # not a row of this core
         keep_g.append(k)
         slots.append(q)
-        own.append(row)
+        own.append(v._row)
         lanes.append(lk)
     if not keep_g:
         return out
     m = len(keep_g)
     V, kind, row_of, rank = _candidates(core, slots, [observers[k] for k in keep_g], opt.include_obstacles)
-    # the observer's own (x, y, heading, speed) first: a driven row's from its column, an
-    # external one's from its object (read back into its row only after a frame)
+    # the observer's own (x, y, heading, speed) first, from its column
     rows = np.array(own, dtype=np.int64)
     g = np.arange(m)[:, None]
-    self_col = np.where(core.kind[rows] == DRIVEN, 1 + rank[rows], 0)
+    self_col = 1 + rank[rows]
     V[:, 0] = V[g[:, 0], self_col]
     length = core.length[rows]
-    for n in (self_col == 0).nonzero()[0].tolist():
-        v = observers[keep_g[n]].observer_vehicle
-        V[n, 0] = (float(v.position[0]), float(v.position[1]), v.heading, v.speed)
-        length[n] = v.LENGTH
     real, vehicle = kind > 0, kind == ROW
     real[g[:, 0], rank[rows]] = False  # not itself
     X, Y = V[:, :, 0], V[:, :, 1]
@@ -122,7 +113,7 @@ def _along(net: Any, slots: list[int], lanes: list[int], V: np.ndarray, self_col
     """[observers, 1 + P]: arc length of each observer's candidates (column 0: itself) along its
     lane, projected once per (slot, lane): observers queued on one lane share the projection of
     their slot's candidates (`lanes.project_rows`, the same values as one by one); an observer's
-    own place is its own row's column where it has one (`self_col` > 0), else column 0."""
+    own place is its own row's column `self_col`."""
     table = net.memo("segment table", lambda: segment_table(net._lanes))
     pair: dict[tuple[int, int], int] = {}
     of = np.array([pair.setdefault(k, n) for n, k in enumerate(zip(slots, lanes))], dtype=np.int64)
@@ -133,10 +124,7 @@ def _along(net: Any, slots: list[int], lanes: list[int], V: np.ndarray, self_col
     shared = project_rows(table, lane_arr[first], V[first, :, 0], V[first, :, 1], lateral=False)[0]
     shared = shared[np.searchsorted(first, of)]  # each observer's pair's (first holds ascending observers)
     n = np.arange(len(of))
-    shared[:, 0] = np.where(self_col > 0, shared[n, self_col], shared[:, 0])
-    again = (self_col == 0) & (of != n)  # (an external observer sharing its slot and lane: none in practice)
-    if again.any():
-        shared[again] = project_rows(table, lane_arr[again], V[again, :, 0], V[again, :, 1], lateral=False)[0]
+    shared[:, 0] = shared[n, self_col]
     return shared
 
 

@@ -57,6 +57,82 @@ def test_lane_table_places_like_the_polyline_lanes(busy_env, data):
     assert h[0] == pytest.approx(lane.heading_at(s), abs=1e-9)
 
 
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_the_one_row_programs_are_the_array_programs(busy_env, data):
+    """`LaneTable.project_one` and `heading_one` (a single env's ego, floats) give bit for bit what
+    `project_near` and `heading_at` give for the same point in an array."""
+    net = busy_env.net
+    table = LaneTable.of(net)
+    k = data.draw(st.integers(0, len(net.lane_ids) - 1))
+    lane = net.lane_of[net.lane_ids[k]]
+    s = data.draw(st.floats(-3.0, lane.length + 3.0))
+    x, y = lane.position(data.draw(st.floats(-3.0, lane.length + 3.0)), data.draw(st.floats(-4.0, 4.0)))
+    arrays = table.project_near(np.array([k]), np.array([s]), np.array([x]), np.array([y]))
+    assert table.project_one(k, s, float(x), float(y)) == tuple(a[0] for a in arrays)
+    assert table.heading_one(k, s) == table.heading_at(np.array([k]), np.array([s]))[0]
+
+
+def test_pedestrians_are_walker_rows_and_keep_their_place_when_let_go():
+    """Pedestrians are views of the core's walker rows: they walk with the frames, and one let go
+    (`drop_walkers`) keeps its last place while the others keep theirs."""
+    env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS, "traffic_vehicles": 2,
+                                                       "pedestrian_rate": 60.0, "route_junctions": 2})
+    env.reset(seed=3)
+    u = env.unwrapped
+    assert u.control.active_crosswalks
+    for _ in range(40):
+        env.step(1)
+        walkers = [p for people in u.control.pedestrians.values() for p in people]
+        if len(walkers) >= 2:
+            break
+    assert len(walkers) >= 2
+    core = u.road.core
+    assert sorted(map(id, core.p_objs)) == sorted(map(id, walkers))  # the walker rows are the people on the road
+    first, rest = walkers[0], walkers[1:]
+    before = first.position.copy()
+    env.step(1)
+    assert first.done or not np.allclose(first.position, before)  # it walked
+    here, others = first.position.copy(), [p.position.copy() for p in rest]
+    core.drop_walkers([first])
+    assert first not in core.p_objs
+    np.testing.assert_array_equal(first.position, here)
+    for p, at in zip(rest, others):
+        np.testing.assert_array_equal(p.position, at)
+    env.close()
+
+
+@pytest.mark.parametrize("keeps", [True, False])
+def test_rows_driven_one_by_one_drive_as_a_batch(keeps):
+    """`TrafficCore.drive` of a few controlled rows (floats, one by one) and of many (arrays) move
+    them to the same places, bit for bit: lane keeping or held steering, route lanes passed,
+    located."""
+    from feat2map.envs import core
+
+    def run(batch_min: int) -> list:
+        envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=5, vectorization_mode="vector_entry_point",
+                            config={"features": FEATS, "traffic_vehicles": 3, "action": {
+                                "type": "ContinuousAction", "longitudinal": True, "lateral": not keeps}})
+        envs.reset(seed=7)
+        rng = np.random.default_rng(0)
+        c = envs.envs[0].road.core
+        old, core.BATCH_MIN_DRIVEN = core.BATCH_MIN_DRIVEN, batch_min
+        try:
+            out = []
+            for _ in range(25):
+                envs.step(rng.uniform(-0.3, 1.0, envs.action_space.shape).astype(np.float32))
+                rows = c.controlled.nonzero()[0]
+                out.append(np.stack([getattr(c, a)[rows].astype(float) for a in (
+                    "x", "y", "heading", "speed", "steer", "s", "lat", "lane", "route_pos", "at_lane", "at_s", "at_lat")]))
+        finally:
+            core.BATCH_MIN_DRIVEN = old
+            envs.close()
+        return out
+
+    for t, (a, b) in enumerate(zip(run(1), run(1000))):
+        np.testing.assert_array_equal(a, b, err_msg=f"step {t}")
+
+
 @settings(max_examples=40, deadline=None)
 @given(features=st.lists(st.sampled_from(ALL_FEATURES), min_size=1, max_size=8, unique=True),
        count=st.integers(2, 12), normalize=st.booleans(), clip=st.booleans(), absolute=st.booleans(),

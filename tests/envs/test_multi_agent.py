@@ -19,7 +19,7 @@ from feat2map.envs import parallel_env  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.map_env import EgoTask, MapEnv  # noqa: E402
 from feat2map.envs.control import PhasePlan  # noqa: E402
-from feat2map.envs.multi_agent import AGENT_VIOLATIONS, AgentVehicle, MultiAgentMapEnv  # noqa: E402
+from feat2map.envs.multi_agent import AGENT_VIOLATIONS, ControlledRow, MultiAgentMapEnv  # noqa: E402
 from feat2map.envs.multi_agent import env as aec_env  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.spec import build_spec, load_spec  # noqa: E402
@@ -346,7 +346,7 @@ def test_an_agents_view_is_the_ego_task_over_the_shared_world():
     for a in env.agents:
         view = env.view(a)
         assert isinstance(view, EgoTask) and not isinstance(view, MapEnv)
-        assert type(view.vehicle) is AgentVehicle and view.vehicle in w.road.vehicles
+        assert type(view.vehicle) is ControlledRow and view.vehicle in w.road.vehicles
         assert (view.road, view.net, view.control, view.config) == (w.road, w.net, w.control, w.config)
         assert view.time == w.time and view.rules is w.control and view.unwrapped is view
         assert not any(hasattr(view, k) for k in ("step", "reset", "_spawn_traffic", "steps", "viewer"))

@@ -116,7 +116,7 @@ KINEMATIC_BUSY = {**BUSY, "observation": {"type": "Kinematics", "vehicles_count"
 
 def scalar_code(monkeypatch) -> None:
     """The per-row and per-sub-env code the batch's array programs stand in for: the rules asked
-    row by row, each ego stepped and observing alone, each sub-env's reward and info dict, each
+    row by row, each ego observing alone, each sub-env's reward and info dict, each
     road's occupancy found by its rules' update."""
     from feat2map.envs import core, vector
 
@@ -124,17 +124,7 @@ def scalar_code(monkeypatch) -> None:
         stops = [self.roads[self.env[i]].control.stop_distance(self.objs[i]) for i in rows]
         return np.array(rows, dtype=np.int64), np.array(stops, dtype=float)
 
-    def step_egos(egos, dt):
-        for v in egos:
-            v.step(dt)
-
-    def command_egos(egos):
-        for v in egos:
-            v.act()
-
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
-    monkeypatch.setattr(core, "step_egos", step_egos)
-    monkeypatch.setattr(core, "command_egos", command_egos)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
     monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's _end_step
     monkeypatch.setattr(core.TrafficCore, "occupancies", lambda self, roads: [None] * len(roads))  # each road's own
@@ -153,16 +143,14 @@ def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
 
 @pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
 def test_array_programs_equal_the_scalar_code(config, monkeypatch):
-    """The batch's array programs (the rules' stop distances, `sim.observe.kinematics`,
-    `vehicles.command_egos` and `step_egos`, the rewards and info columns of `MapVectorEnv.end_steps`,
-    `TrafficCore.occupancies`) give bit
-    for bit what the rules asked row by row, each ego stepped alone and each sub-env's own
+    """The batch's array programs (the rules' stop distances, `sim.observe.kinematics`, the
+    rewards and info columns of `MapVectorEnv.end_steps`, `TrafficCore.occupancies`) give bit
+    for bit what the rules asked row by row and each sub-env's own
     observation, reward and info give (the equality with single envs above cannot see this: a
     single env is the same core with one slot)."""
     from feat2map.envs import core
 
     monkeypatch.setattr(core, "BATCH_MIN_RULE_ROWS", 1)  # the array programs however few the rows
-    monkeypatch.setattr(core, "BATCH_MIN_EGOS", 1)
     fast = trajectory(config, 3, 40, seed=5)
     scalar_code(monkeypatch)
     slow = trajectory(config, 3, 40, seed=5)

@@ -313,7 +313,9 @@ def test_coverage_suite_of_a_real_opendrive_map_drives_clean():
 @pytest.mark.parametrize("stop_first", [True, False])
 def test_flickering_across_a_stop_line_is_one_crossing(tmp_path_factory, stop_first):
     """The env locates the ego on the incoming lane or the junction lane near the line; moving
-    back and forth across it must neither forget the stop nor count the violation twice."""
+    back and forth across it must neither forget the stop nor count the violation twice. (Within
+    `locate`'s 0.5 m tolerance of the joint the ego stays on the lane it is on: the places here
+    are clear of it.)"""
     m, map_path = one_junction_map(tmp_path_factory, "stop", False)
     env = make_env(Scenario("f", str(map_path), (manoeuvre(m, "J0", "none"),)))
     env.reset(seed=0)
@@ -328,7 +330,7 @@ def test_flickering_across_a_stop_line_is_one_crossing(tmp_path_factory, stop_fi
         u.judge.check()  # what the env does after every frame
 
     put(a, net.stop_lines[in_lane].s - 2.0, 0.0 if stop_first else 3.0)
-    for lane, s in [(b, 2.0), (a, a.length - 1.0), (b, 2.5), (a, a.length - 0.5), (b, 3.0)]:
+    for lane, s in [(b, 2.0), (a, a.length - 1.0), (b, 2.5), (a, a.length - 0.75), (b, 3.0)]:
         put(lane, s, 2.0)
         assert net.id_of[ego.lane_index] == (j_lane if lane is b else in_lane)
     assert u.violations["stop_sign"] == (0 if stop_first else 1)
