@@ -31,7 +31,8 @@ class ControlledRow(ArrayVehicle):
     color = (50, 200, 0)  # drawn as highway-env draws its ego (traffic is blue)
     target_speeds = np.array([0.0, 4.5, 9.0])
     model: VehicleModel
-    tracker: "TrajectoryTracker | None" = None  # when set, it commands the row every frame (`track`)
+    _auto_steer = True
+    _tracker: "TrajectoryTracker | None" = None
 
     @property
     def MAX_STEERING_ANGLE(self) -> float:  # noqa: N802 (highway-env's name)
@@ -61,12 +62,27 @@ class ControlledRow(ArrayVehicle):
 
     @property
     def auto_steer(self) -> bool:
-        """Lane keeping steers it (else its held steering command)."""
-        return bool(self._core.keeps[self._row])
+        """Lane keeping steers it while no tracker does (else its held steering command)."""
+        return self._auto_steer
 
     @auto_steer.setter
     def auto_steer(self, value: bool) -> None:
-        self._core.keeps[self._row] = bool(value)
+        self._auto_steer = bool(value)
+        self._steering_source()
+
+    @property
+    def tracker(self) -> "TrajectoryTracker | None":
+        """An external planner's trajectory: while set, it commands the row every frame (`track`)."""
+        return self._tracker
+
+    @tracker.setter
+    def tracker(self, value: "TrajectoryTracker | None") -> None:
+        self._tracker = value
+        self._steering_source()
+
+    def _steering_source(self) -> None:
+        """The row's `keeps`: lane keeping steers it with `auto_steer` and no tracker."""
+        self._core.keeps[self._row] = self._auto_steer and self._tracker is None
 
     # ---- where it is: located, not only projected on its route lane ---------------------------
     def _ignore(self, value) -> None:  # (set by the core alone)
@@ -89,9 +105,9 @@ class ControlledRow(ArrayVehicle):
     def track(self) -> None:
         """This frame's command from the tracker (an external planner's trajectory)."""
         c, i = self._core, self._row
-        assert self.tracker is not None
-        a = self.tracker.command((c.x[i], c.y[i]), float(c.heading[i]), float(c.speed[i]))
-        c.command[i], c.cmd_steer[i], c.keeps[i] = a["acceleration"], a["steering"], False
+        assert self._tracker is not None
+        a = self._tracker.command((c.x[i], c.y[i]), float(c.heading[i]), float(c.speed[i]))
+        c.command[i], c.cmd_steer[i] = a["acceleration"], a["steering"]
 
     def index_to_speed(self, index: int) -> float:
         return float(self.target_speeds[index])

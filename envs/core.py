@@ -637,8 +637,7 @@ class TrafficCore:
         i = len(self.objs)
         self.objs.append(obj)
         row = {**ROW_DEFAULTS, **row}
-        for name in self._ARRAYS:
-            setattr(self, name, np.append(getattr(self, name), row[name]).astype(getattr(self, name).dtype))
+        self._append_rows(self._ARRAYS, row)
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
         self.reserved.append(reserved)
@@ -648,6 +647,17 @@ class TrafficCore:
             obj._core, obj._row = self, i
         self.dirty.add(i)
         self._masks()
+
+    def _append_rows(self, names: tuple[str, ...], row: dict) -> None:
+        """Append one row's values to the arrays `names` (each keeps its dtype)."""
+        for name in names:
+            a = getattr(self, name)
+            setattr(self, name, np.append(a, row[name]).astype(a.dtype))
+
+    def _keep_rows(self, names: tuple[str, ...], idx) -> None:
+        """Keep these rows of the arrays `names`, in this order."""
+        for name in names:
+            setattr(self, name, getattr(self, name)[idx])
 
     def _masks(self) -> None:
         """Masks that change only when rows come or go."""
@@ -700,8 +710,7 @@ class TrafficCore:
     def _select(self, rows: list[int]) -> None:
         """Keep these rows, in this order."""
         idx = np.array(rows, dtype=np.int64)
-        for name in self._ARRAYS:
-            setattr(self, name, getattr(self, name)[idx])
+        self._keep_rows(self._ARRAYS, idx)
         self.W, self.C = self.W[idx], self.C[idx]
         new_row = np.full(len(self.objs), -1, dtype=np.int64)
         new_row[idx] = np.arange(len(idx))
@@ -814,8 +823,7 @@ class TrafficCore:
         # the direction as highway-env's `RoadObject.direction` computes it
         row = {"p_env": slot, "p_x": 0.0, "p_y": 0.0, "p_ux": np.cos(heading), "p_uy": np.sin(heading),
                "p_speed": speed, "p_left": length}
-        for name in self._WALKER_ARRAYS:
-            setattr(self, name, np.append(getattr(self, name), row[name]).astype(getattr(self, name).dtype))
+        self._append_rows(self._WALKER_ARRAYS, row)
         self.p_objs.append(obj)
         return len(self.p_objs) - 1
 
@@ -829,8 +837,7 @@ class TrafficCore:
             o._row = 0
         out = set(map(id, gone))
         keep = [k for k, o in enumerate(self.p_objs) if id(o) not in out]
-        for name in self._WALKER_ARRAYS:
-            setattr(self, name, getattr(self, name)[keep])
+        self._keep_rows(self._WALKER_ARRAYS, keep)
         self.p_objs = [self.p_objs[k] for k in keep]
         for k, o in enumerate(self.p_objs):
             o._row = k

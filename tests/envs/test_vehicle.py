@@ -198,3 +198,28 @@ def test_an_agents_place_on_its_lane_is_the_lanes_own_projection():
             assert (core.s[i], core.lat[i]) == (pytest.approx(s, abs=1e-9), pytest.approx(r, abs=1e-9))
             checked += 1
     assert checked > 200
+
+
+def test_a_tracker_steers_while_set_and_lane_keeping_resumes_after():
+    """With a tracker the ego takes its steering every frame; once the tracker is taken away, an
+    ego whose action has no lateral part is steered by lane keeping again."""
+    from feat2map.envs.driver import DRIVER_ACTION_CONFIG
+
+    env = gym.make("feat2map/JunctionGrid-v0", config={"action": DRIVER_ACTION_CONFIG, "traffic_vehicles": 0})
+    env.reset(seed=0)
+    ego = env.unwrapped.vehicle
+    core, row = ego._core, ego._row
+    assert ego.auto_steer and core.keeps[row]
+
+    class Left:
+        def command(self, position, heading, speed):
+            return {"acceleration": 0.0, "steering": 0.2}
+
+    ego.tracker = Left()
+    env.step(np.array([0.0], dtype=np.float32))
+    assert not core.keeps[row] and ego.action["steering"] == pytest.approx(0.2)
+    ego.tracker = None
+    assert core.keeps[row]
+    env.step(np.array([0.0], dtype=np.float32))
+    assert ego.action["steering"] != pytest.approx(0.2)  # lane keeping steers, not the tracker's held 0.2
+    env.close()
