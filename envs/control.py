@@ -1,8 +1,9 @@
 """Traffic control devices and their state during an episode: fixed-time signal phase plans
-(phases grouped by the map library's `feat2map.phases`, shared with the exports),
-stop-sign arrival queues, junction reservations and crosswalk pedestrians. `TrafficControl`
-keeps that state up to date after every simulation frame and inherits the rules' questions
-(`rules.TrafficRules`) that traffic, the ego's judge and planners ask of it.
+(phases grouped by the map library's `feat2map.phases`, shared with the exports), junction
+reservations, narrow passages and crosswalk pedestrians (the stop-sign queues are row arrays of
+the core: `sim.stop_signs`). `TrafficControl` keeps that state up to date after every
+simulation frame and inherits the rules' questions (`rules.TrafficRules`) that traffic, the
+ego's judge and planners ask of it.
 """
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import numpy as np
 from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOP_POINT_M
 from ..phases import junction_phases
 from .network import MapNetwork
-from .rules import TrafficRules, commits, has_stopped
+from .rules import TrafficRules, commits
+from .sim import stop_signs
 from .vehicles import Pedestrian
 
 
@@ -103,7 +105,7 @@ def signal_tables(net: MapNetwork, paired: bool) -> tuple[dict, list]:
 
 
 class TrafficControl(TrafficRules):
-    """Signals, stop-sign queues, junction reservations and crosswalk pedestrians of one episode."""
+    """Signals, junction reservations, passages and crosswalk pedestrians of one episode."""
 
     _signal_arrays: tuple | None = None  # (signal ids, `signal_arrays` of them), made on first use
 
@@ -126,7 +128,7 @@ class TrafficControl(TrafficRules):
             for phase in phases:
                 for sid in phase:
                     self.plans[sid] = plan
-        self.stop_queue: dict[str | None, list] = {}
+        self.road: Any = None  # the road whose rows hold the stop-sign queues (`MapRoad` sets it)
         self.reservations: dict[str, Any] = {}  # junction lane -> the vehicle holding it
         self.pedestrians: dict[str, list[Pedestrian]] = {}
         self.active_crosswalks: list[str] = []
@@ -136,25 +138,23 @@ class TrafficControl(TrafficRules):
         self.passage_rooms: dict[tuple[int, int], set] = {}
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
-    def update(self, road, dt: float, occupancy: tuple[list, list, list[int]] | None = None) -> None:
+    def update(self, road, dt: float, lanes: list[str | None] | None = None) -> None:
         """Advance the clock by `dt` and bring the state up to date with the road's vehicles;
-        `occupancy`: (lanes, speeds, places of the stopped ones) when the caller synced the road
-        and found them (`TrafficCore.occupancies`, for all sub-envs at once)."""
+        `lanes`: the lane each vehicle is on, when the caller synced the road, found them and
+        brought the stop-sign queues up to date (`TrafficCore.step`, for all sub-envs at once)."""
         self.t += dt
-        if occupancy is None:
+        if lanes is None:
             road.sync()  # the core takes in vehicles added or removed by user code
-            lanes, speeds = road.occupancy()
-            stopped = [k for k, speed in enumerate(speeds) if has_stopped(speed)]
-        else:
-            lanes, speeds, stopped = occupancy
-        net = self.net
-        m = net.hdmap
-        vehicles = road.vehicles
+            core = road.core
+            (lanes,) = core.occupancies([road])
+            stop_signs.update(core, core.env == road.slot)
         buckets: dict[str, list] = {}
-        for v, lid in zip(vehicles, lanes):
+        for v, lid in zip(road.vehicles, lanes):
             if lid is not None:
                 buckets.setdefault(lid, []).append(v)
         self.buckets = buckets
+        net = self.net
+        vehicles = road.vehicles
         # release reservations of vehicles that left their junction lane (or the road)
         alive = set(map(id, vehicles)) if self.reservations or net.passages else set()
         for lid, v in list(self.reservations.items()):
@@ -168,30 +168,6 @@ class TrafficControl(TrafficRules):
 
         if net.passages:
             self._update_passages(buckets, alive)
-        # stop-sign queues: join after stopping at the line, leave on entering the junction
-        if any(self.stop_queue.values()):
-            lane_of = {id(v): lid for v, lid in zip(vehicles, lanes)}
-
-            def waiting(v, jid) -> bool:  # not yet on a lane of the junction (maybe on the one before)
-                lid = lane_of.get(id(v))
-                return lid is not None and lid in m.lanes and m.lanes[lid].junction_id != jid
-
-            for jid, queue in list(self.stop_queue.items()):
-                self.stop_queue[jid] = [v for v in queue if waiting(v, jid)]
-        # a stopped vehicle joins the queue of the stop sign it stands at; one queued already stands
-        # before the same junction's line (it leaves the queue on entering that junction, above)
-        queued = {id(v) for queue in self.stop_queue.values() for v in queue} if stopped else ()
-        for k in stopped:
-            v, lid = vehicles[k], lanes[k]
-            if id(v) in queued:
-                continue
-            sl, _ = self.waiting_line(v, lid)
-            if sl is None or sl.kind != "stop":
-                continue
-            q = self.stop_queue.setdefault(sl.junction_id, [])
-            if v not in q:
-                q.append(v)
-                v.stopped_at = sl.control_id
         self._update_pedestrians(road, vehicles, dt)
 
     def _update_passages(self, buckets: dict, alive: set) -> None:

@@ -39,7 +39,8 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    held command, all at once, their (s, lat) projected on their route lanes and each located
    (`locate`); external rows step themselves.
 5. positions of traffic rows from the lane table; pedestrians (walker rows) walk (`walk`);
-   `TrafficControl.update` does the rules' bookkeeping; collisions: a vectorized
+   every slot's stop-sign queues are brought up to date at once (`sim.stop_signs`), then
+   `TrafficControl.update` does the rest of the rules' bookkeeping; collisions: a vectorized
    centre-distance broad phase, separating
    axes for pairs of driven rows, and highway-env's own `handle_collisions` for the pairs that
    overlap or involve an external road user or a pedestrian (crash flags, hits; a driven row
@@ -71,9 +72,10 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
-from .network import MapNetwork, on_lane
-from .rules import (body_reach, crossed_lanes, has_stopped, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
+from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
+from .rules import (body_reach, crossed_lanes, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
                     may_change_lane, room_to_wait, stop_gap)
+from .sim import stop_signs
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
 
@@ -92,7 +94,7 @@ PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place th
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
-                "at_lat": 0.0}
+                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0}
 
 
 class LaneTable:
@@ -177,7 +179,7 @@ class LaneTable:
         for lid, crossings in net.crossings.items():
             for cw, _, _ in crossings:
                 self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
-        # stop lines by incoming lane: kind (0 none, 1 signal, 2 stop sign), signal (index into
+        # stop lines by incoming lane: kind (0 none, LINE_SIGNAL, LINE_STOP_SIGN), signal (index into
         # signal_ids), and how far before the lane's end the line lies (rules.line_setback)
         self.signal_ids = list(m.signals)
         sig = {sid: k for k, sid in enumerate(self.signal_ids)}
@@ -186,10 +188,17 @@ class LaneTable:
         self.line_setback = np.zeros(len(lanes))
         for lid, sl in net.stop_lines.items():
             k = self.index[lid]
-            self.line_kind[k] = 1 if sl.kind == "signal" else 2
+            self.line_kind[k] = LINE_SIGNAL if sl.kind == "signal" else LINE_STOP_SIGN
             self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
         for lid, back in net.setbacks.items():  # stop lines and bare entries alike (rules.line_setback)
             self.line_setback[self.index[lid]] = back
+        # junctions by number (0: None, road lanes' and a stop line's outside any junction) and
+        # each lane's (the stop-sign queues, `sim.stop_signs`)
+        named = {ln.junction_id for ln in m.lanes.values()} | {sl.junction_id for sl in net.stop_lines.values()}
+        self.junction_ids: list[str | None] = [None, *sorted(j for j in named if j is not None)]
+        self.junction_number = {j: k for k, j in enumerate(self.junction_ids)}
+        self.lane_junction = np.array([self.junction_number[m.lanes[lid].junction_id] for lid in net.lane_ids],
+                                      dtype=np.int64)
         # lane-pair tables (`seen_from`), concatenated; the pairs by key a * lanes + b, ascending
         self.pair_key = np.zeros(0, dtype=np.int64)
         self.pair_start = np.zeros(0, dtype=np.int64)
@@ -555,6 +564,15 @@ class TrafficCore:
         self.at_lane = np.zeros(0, dtype=np.int64)
         self.at_s = np.zeros(0)
         self.at_lat = np.zeros(0)
+        # stop-sign order (`sim.stop_signs`): the junction (`LaneTable.junction_ids`) whose stop
+        # sign's queue a row is in (-1 none) and its place (the order of joining: `stop_count`
+        # counts joins); a slot's `queue_version` changes with its queues, whose views
+        # (`queue_views`) are then made again
+        self.stop_junction = np.zeros(0, dtype=np.int64)
+        self.stop_seq = np.zeros(0, dtype=np.int64)
+        self.stop_count = 0
+        self.queue_version = np.zeros(slots, dtype=np.int64)
+        self.queue_views: dict[int, tuple[int, dict]] = {}
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
         # walking direction, speed and metres left to the crosswalk's far end
         self.p_env = np.zeros(0, dtype=np.int64)
@@ -571,7 +589,8 @@ class TrafficCore:
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
-               "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat")
+               "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
+               "stop_junction", "stop_seq")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -587,13 +606,17 @@ class TrafficCore:
         self.sync([road])
 
     def rows(self, road: "MapRoad") -> np.ndarray:
-        """The rows of `road`, in its vehicles' order (after a sync); the rows of every slot are
-        found at once, again only when rows come or go."""
+        """The rows of `road`, in its vehicles' order (after a sync)."""
+        return self.slot_rows(road.slot)
+
+    def slot_rows(self, slot: int) -> np.ndarray:
+        """The rows of `slot`; the rows of every slot are found at once, again only when rows come
+        or go."""
         if self._slot_rows is None:
             order = np.argsort(self.env, kind="stable")
             ends = np.cumsum(np.bincount(self.env, minlength=len(self.roads)))
             self._slot_rows = np.split(order, ends[:-1])
-        return self._slot_rows[road.slot]
+        return self._slot_rows[slot]
 
     def add_traffic(self, road: "MapRoad", lane_id: str, s: float, speed: float, route: list[str],
                     model: VehicleModel | None = None, view: type[ArrayVehicle] = ArrayVehicle) -> ArrayVehicle:
@@ -710,6 +733,9 @@ class TrafficCore:
     def _select(self, rows: list[int]) -> None:
         """Keep these rows, in this order."""
         idx = np.array(rows, dtype=np.int64)
+        gone = np.ones(len(self.objs), dtype=bool)
+        gone[idx] = False
+        self.queue_version[self.env[gone & (self.stop_junction >= 0)]] += 1  # a queued road user left
         self._keep_rows(self._ARRAYS, idx)
         self.W, self.C = self.W[idx], self.C[idx]
         new_row = np.full(len(self.objs), -1, dtype=np.int64)
@@ -915,8 +941,9 @@ class TrafficCore:
             self._read_external(i)
         self.sync(roads)  # the core takes in vehicles added or removed by user code
         self.walk(dt)
-        for road, occupancy in zip(roads, self.occupancies(roads)):
-            road.control.update(road, dt, occupancy)
+        stop_signs.update(self, self.on)
+        for road, lanes in zip(roads, self.occupancies(roads)):
+            road.control.update(road, dt, lanes)
         self.collisions(roads, dt)
         for road in roads:
             if road.record_history:
@@ -1341,23 +1368,16 @@ class TrafficCore:
     def views(self, road) -> list[ArrayVehicle]:
         return [self.objs[i] for i in self.rows(road).tolist() if self.kind[i] == DRIVEN]
 
-    def occupancies(self, roads: list) -> list[tuple[list[str | None], list[float], list[int]]]:
-        """(`occupancy`, places of the vehicles that have stopped) of each of `roads` (synced),
-        from one pass over the arrays."""
-        ids = self.net.lane_ids
-        lane, speed = self.where_lanes().tolist(), self.speed.tolist()
-        stopped = has_stopped(self.speed).tolist()
-        out = []
-        for road in roads:
-            rows = self.rows(road).tolist()
-            out.append(([ids[lane[i]] if lane[i] >= 0 else None for i in rows], [speed[i] for i in rows],
-                        [k for k, i in enumerate(rows) if stopped[i]]))
-        return out
+    def stop_queues(self, slot: int) -> dict[Any, list]:
+        """`sim.stop_signs.queues` of `slot` (what `TrafficRules.stop_queue` hands out)."""
+        return stop_signs.queues(self, slot)
 
-    def occupancy(self, road) -> tuple[list[str | None], list[float]]:
+    def occupancies(self, roads: list) -> list[list[str | None]]:
+        """Per road of `roads` (synced), the lane id each of its vehicles is on (None off the
+        map's lanes), from one pass over the arrays (what the rules' buckets are made of)."""
         ids = self.net.lane_ids
-        rows = self.rows(road)
-        return [ids[k] if k >= 0 else None for k in self.where_lanes()[rows].tolist()], self.speed[rows].tolist()
+        lane = self.where_lanes().tolist()
+        return [[ids[lane[i]] if lane[i] >= 0 else None for i in self.rows(road).tolist()] for road in roads]
 
     def where_lanes(self) -> np.ndarray:
         """Per row, the lane it is on: a controlled row's located lane (`locate`), another's its lane."""

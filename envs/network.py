@@ -306,6 +306,9 @@ def flip(points) -> np.ndarray:
     return p
 
 
+LINE_SIGNAL, LINE_STOP_SIGN = 1, 2  # a stop line's kind as a number (0: none; `core.LaneTable.line_kind`)
+
+
 @dataclass(frozen=True)
 class StopLine:
     """A controlled stop line on one lane: `s` along the lane (metres), kind signal/stop."""

@@ -19,6 +19,7 @@ class MapRoad(Road):
                  slot: tuple[TrafficCore, int] | None = None) -> None:
         super().__init__(network, [], [], np_random, record_history)
         self.control = control
+        control.road = self
         self.core, k = slot if slot is not None else (TrafficCore(network), 0)
         self.core.attach(self, k)
 
@@ -28,11 +29,6 @@ class MapRoad(Road):
     def spawn(self, lane_id: str, s: float, speed: float, route: list[str]) -> TrafficVehicle:
         """A traffic vehicle at s on `lane_id` (the start of `route`), added to the road."""
         return self.core.add_traffic(self, lane_id, s, speed, route)
-
-    def occupancy(self) -> tuple[list[str | None], list[float]]:
-        """Map lane id (None off the map's lanes) and speed of every vehicle, in road order."""
-        self.core.sync([self])
-        return self.core.occupancy(self)
 
     def act(self) -> None:
         self.core.act([self])

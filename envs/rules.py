@@ -10,8 +10,9 @@ and the baseline planner (scenarios/planner.py) all ask this module.
   whether a turn is protected, who is heading into a conflicting lane, who may drive into a
   narrow passage, where opposite lanes are too close to pass: one direction at a time, first
   come first served, a vehicle claiming passages that follow each other together).
-  `control.TrafficControl` holds that state (signal plans, reservations, stop-sign queues,
-  passage holders and waiters, pedestrians) and inherits these questions; `env.unwrapped.rules` is that object;
+  `control.TrafficControl` holds that state (signal plans, reservations, passage holders and
+  waiters, pedestrians; the stop-sign queues are row arrays of the core, `sim.stop_signs`, and
+  `stop_queue` their view) and inherits these questions; `env.unwrapped.rules` is that object;
 - `EgoJudge`: the ego's violations (red light, stop sign, pedestrian yield) and leaving the road.
 
 Stop lines are measured along the route: `TrafficRules.line_ahead` gives the distance from a vehicle's
@@ -300,14 +301,15 @@ def enters_next(vehicle, lane_id: str) -> bool:
 class TrafficRules:
     """The rules' questions, answered from the traffic control state of `control.TrafficControl`
     (which inherits them): signals (`plans`, `t`), junction reservations, stop-sign queues,
-    crosswalk pedestrians and the vehicles on each lane (`buckets`)."""
+    crosswalk pedestrians and the vehicles on each lane (`buckets`); `stop_queue` is a view of the
+    rows (`sim.stop_signs`)."""
 
     net: "MapNetwork"
     t: float
     cfg: dict
     plans: dict
+    road: Any  # the road whose rows hold the stop-sign queues (`MapRoad` sets it; None: none yet)
     reservations: dict
-    stop_queue: dict
     pedestrians: dict
     buckets: dict
     passage_holders: dict  # passage group -> (holders from side 0, from side 1)
@@ -317,6 +319,13 @@ class TrafficRules:
 
     # (clock, signal states asked at it, junction states asked at it): `signal_state`, `signal_states`
     _states_at: tuple[float, dict[str, str], dict] = (math.nan, {}, {})
+
+    @property
+    def stop_queue(self) -> dict:
+        """{junction id: the road users queued at its stop signs, first come first}: a view of the
+        rows of the road these rules control (`road`; `sim.stop_signs`), empty without one."""
+        road = self.road
+        return road.core.stop_queues(road.slot) if road is not None else {}
 
     # ---- signals ----------------------------------------------------------------------
     def _states_now(self) -> tuple[float, dict[str, str], dict]:

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import feat2map
-from feat2map.config import STOP_POINT_M
+from feat2map.config import STOP_POINT_M, STOP_ZONE_M
 from feat2map.envs.network import MapNetwork, merge_pairs, unregistered_merges
 from feat2map.formats import native
 from feat2map.scenarios.planner import BaselinePlanner
@@ -227,16 +227,16 @@ def tight_approach(tmp_path_factory) -> Path:
     return _short_approach_map(tmp_path_factory.mktemp("tight") / "tight_approach.json", 4.0)
 
 
-def _short_approach_map(path: Path, jx_length: float, jx: str = "JX") -> Path:
+def _short_approach_map(path: Path, jx_length: float, jx: str = "JX", control: str = "signal") -> Path:
     """The two-junction map of `short_approach` with the last `jx_length` metres of R's lanes
     towards J1 made a junction lane of junction `jx` (less 0.2 m; JX, a junction of its own, or
-    J1: one element drawn over both) and a 0.2 m road lane."""
+    J1: one element drawn over both) and a 0.2 m road lane; J1's `control` a signal or stop signs."""
     from shapely.geometry import LineString
 
     from feat2map.model import as_polyline
 
     m = feat2map.generate_from_features([feat2map.JunctionFeature.make([0, 90, 180, 270], "bare", False),
-                                         feat2map.JunctionFeature.make([0, 90, 180], "signal", False)], seed=0)
+                                         feat2map.JunctionFeature.make([0, 90, 180], control, False)], seed=0)
     (conn,) = [r for r in m.roads.values() if r.kind == "connection"]
     lanes = dict(m.lanes)
     shapes = []
@@ -342,6 +342,44 @@ def test_the_line_after_a_junction_and_a_short_lane_is_seen_from_before_the_junc
         assert not (term or trunc)
     assert info["violations"]["red_light"] == 0
     assert ego.speed < 0.5 and 0.0 <= u.control.line_distance(ego, j1) < 3.0 + ego.LENGTH  # waiting at J1's line
+    env.close()
+
+
+def test_the_stop_sign_queues_ask_the_rules_of_every_road_user_before_a_stop_sign_line(tmp_path):
+    """`sim.stop_signs.candidates` (whom the stop-sign queues' update asks `waiting_line`) holds
+    every road user that `TrafficRules.waiting_line` puts before a stop sign's line, wherever it
+    stands along a route to J1's stop sign: on its own lane's line, and from the lane before the
+    0.2 m last lane and inside JX before it (the line ahead along its route); stopped there, each
+    joins J1's queue in the order it stopped."""
+    from feat2map.envs.sim import stop_signs
+
+    sc = _through_jx_scenario(_short_approach_map(tmp_path / "stop.json", 4.0, control="stop"))
+    env = make_env(sc, config={"traffic_vehicles": 0})
+    env.reset(seed=0)
+    u = env.unwrapped
+    core, route = u.road.core, list(u.vehicle.lane_route)
+    m = u.net.hdmap
+    j1 = next(k for k, x in enumerate(route) if m.lanes[x].junction_id == "J1")
+    for k in range(j1 - 3, j1):
+        for s in np.linspace(0.0, u.net.lane_of[route[k]].length, 12):
+            u.road.spawn(route[k], float(s), 0.0, route[k:])
+    for lid, sl in u.net.stop_lines.items():  # and about each line of J1 (either end of the zone)
+        for s in np.clip(sl.s + np.linspace(-STOP_ZONE_M - 1.0, 1.0, 33), 0.0, u.net.lane_of[lid].length):
+            u.road.spawn(lid, float(s), 0.0, [lid, m.lanes[lid].successors[0]])
+    core.sync([u.road])
+    lane = core.where_lanes()
+    rows = core.rows(u.road)
+    waiting = []
+    for i in rows.tolist():
+        sl, _ = u.control.waiting_line(core.objs[i], u.net.lane_ids[lane[i]])
+        if sl is not None and sl.kind == "stop":
+            waiting.append(i)
+    asked = set(stop_signs.candidates(core, np.isin(np.arange(len(lane)), rows), lane).tolist())
+    assert set(waiting) <= asked
+    assert any(u.net.lane_ids[lane[i]] not in u.net.stop_lines for i in waiting)  # (a line ahead on the route)
+    u.control.update(u.road, 0.0)  # every spawned car stands: those before the line join J1's queue
+    queue = u.control.stop_queue["J1"]
+    assert sorted(v._row for v in queue) == sorted(waiting) and [v._row for v in queue] == sorted(waiting)
     env.close()
 
 

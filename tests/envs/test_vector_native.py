@@ -11,6 +11,8 @@ import re
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import gymnasium as gym
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from conftest import REPO, SKIP_RL
@@ -116,9 +118,10 @@ KINEMATIC_BUSY = {**BUSY, "observation": {"type": "Kinematics", "vehicles_count"
 
 def scalar_code(monkeypatch) -> None:
     """The per-row and per-sub-env code the batch's array programs stand in for: the rules asked
-    row by row, each ego observing alone, each sub-env's reward and info dict, each
-    road's occupancy found by its rules' update."""
+    row by row, each ego observing alone, each sub-env's reward and info dict, each road's
+    occupancy read from its vehicles and its stop-sign queues brought up to date on their own."""
     from feat2map.envs import core, vector
+    from feat2map.envs.sim import stop_signs
 
     def rule_stops(self, rows):
         stops = [self.roads[self.env[i]].control.stop_distance(self.objs[i]) for i in rows]
@@ -127,7 +130,11 @@ def scalar_code(monkeypatch) -> None:
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
     monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's _end_step
-    monkeypatch.setattr(core.TrafficCore, "occupancies", lambda self, roads: [None] * len(roads))  # each road's own
+    monkeypatch.setattr(core.TrafficCore, "occupancies",  # each vehicle's lane read from its view
+                        lambda self, roads: [[self.net.id_of.get(v.lane_index) for v in r.vehicles] for r in roads])
+    slot_by_slot = SimpleNamespace(queues=stop_signs.queues, update=lambda core_, rows: [  # each sub-env's on their own
+        stop_signs.update(core_, rows & (core_.env == k)) for k in np.unique(core_.env[rows]).tolist()])
+    monkeypatch.setattr(core, "stop_signs", slot_by_slot)
 
 
 def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
@@ -144,10 +151,10 @@ def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
 @pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
 def test_array_programs_equal_the_scalar_code(config, monkeypatch):
     """The batch's array programs (the rules' stop distances, `sim.observe.kinematics`, the
-    rewards and info columns of `MapVectorEnv.end_steps`, `TrafficCore.occupancies`) give bit
-    for bit what the rules asked row by row and each sub-env's own
-    observation, reward and info give (the equality with single envs above cannot see this: a
-    single env is the same core with one slot)."""
+    rewards and info columns of `MapVectorEnv.end_steps`, `TrafficCore.occupancies`, the
+    stop-sign queues of every slot at once) give bit for bit what the rules asked row by row and
+    each sub-env's own observation, reward and info give (the equality with single envs above
+    cannot see this: a single env is the same core with one slot)."""
     from feat2map.envs import core
 
     monkeypatch.setattr(core, "BATCH_MIN_RULE_ROWS", 1)  # the array programs however few the rows
