@@ -566,11 +566,12 @@ class TrafficCore:
         self.at_lat = np.zeros(0)
         # stop-sign order (`sim.stop_signs`): the junction (`LaneTable.junction_ids`) whose stop
         # sign's queue a row is in (-1 none) and its place (the order of joining: `stop_count`
-        # counts joins); a slot's `queue_version` changes with its queues, whose views
-        # (`queue_views`) are then made again
+        # counts joins, `queued` the rows in a queue); a slot's `queue_version` changes with its
+        # queues, whose views (`queue_views`) are then made again
         self.stop_junction = np.zeros(0, dtype=np.int64)
         self.stop_seq = np.zeros(0, dtype=np.int64)
         self.stop_count = 0
+        self.queued = 0
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
@@ -735,7 +736,9 @@ class TrafficCore:
         idx = np.array(rows, dtype=np.int64)
         gone = np.ones(len(self.objs), dtype=bool)
         gone[idx] = False
-        self.queue_version[self.env[gone & (self.stop_junction >= 0)]] += 1  # a queued road user left
+        left = gone & (self.stop_junction >= 0)  # a queued road user left
+        self.queue_version[self.env[left]] += 1
+        self.queued -= int(left.sum())
         self._keep_rows(self._ARRAYS, idx)
         self.W, self.C = self.W[idx], self.C[idx]
         new_row = np.full(len(self.objs), -1, dtype=np.int64)

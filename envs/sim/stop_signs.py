@@ -21,17 +21,21 @@ def update(core: "TrafficCore", rows: np.ndarray) -> None:
     to date after a frame: a queued one leaves on entering a lane of its junction; then one that
     has stopped (`rules.has_stopped`) before a stop sign's line (`TrafficRules.waiting_line`)
     and is in no queue joins that junction's queue, in row order (its road's vehicles' order)."""
+    stopped = rows & has_stopped(core.speed)
+    if not core.queued and not stopped.any():  # (nobody to leave or join)
+        return
     lane = core.where_lanes()
-    queued = (rows & (core.stop_junction >= 0)).nonzero()[0]
-    if len(queued):
+    if core.queued:
+        queued = (rows & (core.stop_junction >= 0)).nonzero()[0]
         on = lane[queued]
         left = queued[(on < 0) | (core.table.lane_junction[np.maximum(on, 0)] == core.stop_junction[queued])]
         if len(left):
             core.stop_junction[left] = -1
             core.queue_version[core.env[left]] += 1
+            core.queued -= len(left)
     joins = []
     number = core.table.junction_number
-    for i in candidates(core, rows & (core.stop_junction < 0) & has_stopped(core.speed) & (lane >= 0), lane).tolist():
+    for i in candidates(core, stopped & (core.stop_junction < 0) & (lane >= 0), lane).tolist():
         sl, _ = core.roads[core.env[i]].control.waiting_line(core.objs[i], core.net.lane_ids[lane[i]])
         if sl is not None and sl.kind == "stop":
             joins.append((i, number[sl.junction_id]))
@@ -40,6 +44,7 @@ def update(core: "TrafficCore", rows: np.ndarray) -> None:
         core.stop_junction[new] = junction
         core.stop_seq[new] = core.stop_count + np.arange(len(new))
         core.stop_count += len(new)
+        core.queued += len(new)
         core.queue_version[core.env[new]] += 1
 
 

@@ -380,6 +380,10 @@ def test_the_stop_sign_queues_ask_the_rules_of_every_road_user_before_a_stop_sig
     u.control.update(u.road, 0.0)  # every spawned car stands: those before the line join J1's queue
     queue = u.control.stop_queue["J1"]
     assert sorted(v._row for v in queue) == sorted(waiting) and [v._row for v in queue] == sorted(waiting)
+    assert core.queued == len(waiting) == (core.stop_junction >= 0).sum()
+    u.road.vehicles.remove(queue[0])  # one leaves the road: the queue and the count follow
+    u.control.update(u.road, 0.0)
+    assert u.control.stop_queue["J1"] == queue[1:] and core.queued == len(waiting) - 1
     env.close()
 
 
