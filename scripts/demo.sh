@@ -11,6 +11,6 @@ f2m=.venv/bin/feat2map
 out=out/demo
 $f2m generate --seed 1 --opendrive --out $out/m1            # map.json, features.json, map.png, junctions.png, map.xodr, apollo/
 $f2m validate $out/m1/apollo                               # Apollo's rules: 0 problems
-$f2m suite $out/m1/map.json --traffic 6 --pedestrian-rate 4 --name m1 --out $out/m1/suite.yaml   # every (junction, entry, exit) manoeuvre, few routes
-$f2m rollout $out/m1/suite.yaml --workers 2 --fail-on none --out $out/rollout   # report.md, report.html, junit.xml, summary.json, GIFs of failures (CI uses --fail-on any)
+$f2m suite $out/m1/map.json --traffic 6 --pedestrian-rate 4 --name m1 --out $out/suite.yaml   # every (junction, entry, exit) manoeuvre, few routes (beside m1/: a generated folder holds only what generate wrote, so the demo runs again)
+$f2m rollout $out/suite.yaml --workers 2 --fail-on none --out $out/rollout   # report.md, report.html, junit.xml, summary.json, GIFs of failures (CI uses --fail-on any)
 .venv/bin/python examples/demo.py --map $out/m1/map.json --out $out
