@@ -148,13 +148,13 @@ class TrafficControl(TrafficRules):
             core = road.core
             (lanes,) = core.occupancies([road])
             stop_signs.update(core, core.env == road.slot)
+        net = self.net
+        vehicles = road.vehicles
         buckets: dict[str, list] = {}
-        for v, lid in zip(road.vehicles, lanes):
+        for v, lid in zip(vehicles, lanes):
             if lid is not None:
                 buckets.setdefault(lid, []).append(v)
         self.buckets = buckets
-        net = self.net
-        vehicles = road.vehicles
         # release reservations of vehicles that left their junction lane (or the road)
         alive = set(map(id, vehicles)) if self.reservations or net.passages else set()
         for lid, v in list(self.reservations.items()):
