@@ -94,7 +94,7 @@ PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place th
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
-                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0}
+                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False}
 
 
 class LaneTable:
@@ -192,6 +192,7 @@ class LaneTable:
             self.line_signal[k] = sig.get(sl.control_id, -1) if sl.kind == "signal" else -1
         for lid, back in net.setbacks.items():  # stop lines and bare entries alike (rules.line_setback)
             self.line_setback[self.index[lid]] = back
+        self.stop_sign_lanes = frozenset(np.flatnonzero(self.line_kind == LINE_STOP_SIGN).tolist())
         # junctions by number (0: None, road lanes' and a stop line's outside any junction) and
         # each lane's (the stop-sign queues, `sim.stop_signs`)
         named = {ln.junction_id for ln in m.lanes.values()} | {sl.junction_id for sl in net.stop_lines.values()}
@@ -572,6 +573,7 @@ class TrafficCore:
         self.stop_seq = np.zeros(0, dtype=np.int64)
         self.stop_count = 0
         self.queued = 0
+        self.stop_ahead = np.zeros(0, dtype=bool)  # a stop sign's line on the row's window (`refresh_windows`)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
@@ -591,7 +593,7 @@ class TrafficCore:
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
-               "stop_junction", "stop_seq")
+               "stop_junction", "stop_seq", "stop_ahead")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -906,6 +908,7 @@ class TrafficCore:
             junction = self.table.junction
             self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
                                  math.inf)
+            self.stop_ahead[i] = not self.table.stop_sign_lanes.isdisjoint(lanes)
         if need > self.W.shape[1]:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])

@@ -35,7 +35,7 @@ def update(core: "TrafficCore", rows: np.ndarray) -> None:
             core.queued -= len(left)
     joins = []
     number = core.table.junction_number
-    for i in candidates(core, stopped & (core.stop_junction < 0) & (lane >= 0), lane).tolist():
+    for i in candidates(core, stopped & (core.stop_junction < 0), lane).tolist():
         sl, _ = core.roads[core.env[i]].control.waiting_line(core.objs[i], core.net.lane_ids[lane[i]])
         if sl is not None and sl.kind == "stop":
             joins.append((i, number[sl.junction_id]))
@@ -49,21 +49,18 @@ def update(core: "TrafficCore", rows: np.ndarray) -> None:
 
 
 def candidates(core: "TrafficCore", rows: np.ndarray, lane: np.ndarray) -> np.ndarray:
-    """The rows of `rows` (a mask) that may stand before a stop sign's line, for the rules to
-    ask (`waiting_line`): a stop sign's line on the lane a row is on (`lane`, per row) or on a
-    lane of a driven row's window (the lanes its route runs on for LOOKAHEAD_M), every row
-    whose window is to be rebuilt (its route position moved this frame: `TrafficCore.dirty`)
-    and every external road user. A superset: the rules decide."""
-    idx = rows.nonzero()[0]
-    if not len(idx):
-        return idx
-    kind = core.table.line_kind
-    W = core.W[idx]
-    ahead = ((kind[np.maximum(W, 0)] == LINE_STOP_SIGN) & (W >= 0)).any(axis=1)
-    ask = ahead | (kind[lane[idx]] == LINE_STOP_SIGN) | ~core.driven[idx]
+    """The rows of `rows` (a mask) on the map's lanes that may stand before a stop sign's line,
+    for the rules to ask (`waiting_line`): a stop sign's line on the lane a row is on (`lane`, per
+    row) or on a lane of a driven row's window (the lanes its route runs on for LOOKAHEAD_M:
+    `TrafficCore.stop_ahead`), every row whose window is to be rebuilt (its route position moved
+    this frame: `TrafficCore.dirty`) and every external road user. A superset: the rules decide."""
+    on = rows & (lane >= 0)
+    ask = on & (core.stop_ahead | (core.table.line_kind[lane] == LINE_STOP_SIGN) | ~core.driven)
     if core.dirty:
-        ask |= np.isin(idx, list(core.dirty))
-    return idx[ask]
+        dirty = np.zeros(len(rows), dtype=bool)
+        dirty[[i for i in core.dirty if i < len(rows)]] = True
+        ask |= on & dirty
+    return ask.nonzero()[0]
 
 
 def queues(core: "TrafficCore", slot: int) -> dict[Any, list]:

@@ -367,6 +367,7 @@ def test_the_stop_sign_queues_ask_the_rules_of_every_road_user_before_a_stop_sig
         for s in np.clip(sl.s + np.linspace(-STOP_ZONE_M - 1.0, 1.0, 33), 0.0, u.net.lane_of[lid].length):
             u.road.spawn(lid, float(s), 0.0, [lid, m.lanes[lid].successors[0]])
     core.sync([u.road])
+    core.refresh_windows()  # (a row whose window is stale is asked whatever it holds)
     lane = core.where_lanes()
     rows = core.rows(u.road)
     waiting = []
