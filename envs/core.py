@@ -24,11 +24,15 @@ A frame (`MapRoad.act` + `MapRoad.step`):
 2. external rows act (a controlled row's decision is already in its row: `ControlledRow.act`).
 3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
    of every row's lane against every row's window (on the same lane the leader's s is its row's
-   s), plus rows on junction lanes that conflict with or diverge from a window lane, or on road
+   s; a controlled row is on the lane it is located on, an external one at its exact place),
+   plus rows on junction lanes that conflict with or diverge from a window lane, or on road
    lanes converging with one (found through one boolean matrix per junction or group of
    converging lanes; their s and offset on the window lane from a table sampled once per lane
    pair; converging lanes zip: `MapNetwork.zip_leader`); IDM per (follower, leader) pair (a stop
-   point the rules impose is a standing leader) and the minimum per follower (the law: `rules.idm_behind`). The rules
+   point the rules impose is a standing leader) and the minimum per follower
+   (`rules.idm_accelerations`, which one vehicle's IDM, `rules.idm`, calls too). The same leader
+   search answers a controlled row's `leader_gaps` (its slot's rows only) and MOBIL's current
+   lane. The rules
    (`rules.TrafficRules.stop_distance`: signals, stop signs, reservations, pedestrians) are asked
    only for rows with a junction entry or a crosswalk with people on it within LOOKAHEAD_M in
    their window, in row order, so that reservations are claimed in road order. MOBIL runs every
@@ -67,14 +71,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_ACC, IDM_GAP_M, IDM_STOP_GAP_M,
+from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (body_reach, crossed_lanes, held_at_signal, idm_behind, idm_clip, idm_free, in_the_way,
-                    may_change_lane, room_to_wait, stop_gap)
+from .rules import (body_reach, crossed_lanes, held_at_signal, idm_accelerations, in_the_way, may_change_lane,
+                    room_to_wait, stop_gap)
 from .sim import stop_signs
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
@@ -482,6 +486,11 @@ class ArrayVehicle(TrafficVehicle):
         """RouteFollower's, read straight from the row (the rules ask it of every rule row every frame)."""
         c, i = self._core, self._row
         return route_upcoming(c.net.lane_of, c.route_ids[i], int(c.route_pos[i]), float(c.s[i]), horizon)
+
+    def leader_gaps(self) -> list[tuple[float, float]]:
+        """(bumper gap, speed) of every road user in its way ahead along its route
+        (`TrafficCore.leader_gaps`, traffic's leaders)."""
+        return self._core.leader_gaps(self._row)
 
     def s_on(self, lane_id: str) -> float:
         c, i = self._core, self._row
@@ -971,26 +980,20 @@ class TrafficCore:
         self.acc = np.where(self.crashed, -self.speed, acc)  # highway-env: a crashed vehicle brakes to a stop
 
     def _idm(self, traffic: np.ndarray) -> np.ndarray:
-        """IDM's acceleration of the `traffic` rows behind their leaders and stop points."""
-        t = self.table
-        v = np.maximum(self.speed, 0.0)
-        free = idm_free(v, np.minimum(t.speed_limit[self.lane], self.curve_limit()))
-        acc = IDM_ACC * free
-        fi, gap, vl = self._leaders(traffic)
+        """IDM's acceleration of the `traffic` rows behind their leaders and stop points
+        (`rules.idm_accelerations`; a stop point is a standing leader)."""
+        v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
+        fi, gap, vl = self._leaders(traffic.nonzero()[0])
+        jam = np.full(len(fi), IDM_GAP_M)
         si, sd = self._rule_stops(self._rule_rows(traffic))
         stopping = sd < math.inf
-        si, sd = si[stopping], sd[stopping]
-        stops = len(si)
-        if stops:  # a stop point is a standing leader
+        if stopping.any():
+            si, sd = si[stopping], sd[stopping]
             fi = np.concatenate([fi, si])
             gap = np.concatenate([gap, stop_gap(sd, self.length[si])])
             vl = np.concatenate([vl, np.zeros(len(si))])
-        if len(fi):  # rules.idm, vectorized over (follower, leader) pairs
-            s0 = np.full(len(fi), IDM_GAP_M)
-            if stops:
-                s0[-stops:] = IDM_STOP_GAP_M
-            np.minimum.at(acc, fi, idm_behind(free[fi], v[fi], vl, gap, s0))
-        return idm_clip(acc)
+            jam = np.concatenate([jam, np.full(len(si), IDM_STOP_GAP_M)])
+        return idm_accelerations(self.speed, v0, fi, gap, vl, jam)
 
     def commanded(self) -> np.ndarray:
         """Per row, a controlled row's acceleration this frame: its command, or the speed control
@@ -1019,72 +1022,98 @@ class TrafficCore:
             v2 = np.minimum(v2, (q + 2 * CURVE_BRAKE_MPS2 * ahead).min(axis=1))
         return np.sqrt(np.maximum(v2, CURVE_MIN_SPEED_MPS ** 2))
 
-    def _leaders(self, driven: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(follower row, bumper gap, leader speed) of every road user in a driven row's way
-        along its window (`RouteFollower.leader_gaps` for all rows at once)."""
+    def leader_gaps(self, i: int) -> list[tuple[float, float]]:
+        """(bumper gap, speed) of every road user in row `i`'s way along its route: `_leaders`
+        of that one row among the rows of its slot (what the ego's planner, DriverView and judge
+        read, the same program that gives traffic its leaders)."""
+        self.refresh_windows()
+        if not self.driven[i]:
+            return []
+        _, gap, speed = self._leaders(np.array([i]), self.slot_rows(int(self.env[i])))
+        return list(zip(gap.tolist(), speed.tolist()))
+
+    def _leaders(self, rows: np.ndarray, others: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(follower row, bumper gap, leader speed) of every road user in the way of driven
+        `rows` (row indices) along their windows: on a window lane, on a junction lane that
+        conflicts with or diverges from one, or on a road lane converging with one (zip:
+        `MapNetwork.zip_leader`), where it is in the way (`rules.in_the_way`, by its body:
+        `rules.body_reach`). The leaders' one rule, for every row at once; `others`: the rows of
+        one slot that may lead (default: every row, of the follower's slot). A road user is where
+        it is: a controlled row on its located lane, an external one at its exact place."""
         t = self.table
-        W, C = self.W, self.C
-        valid = (W >= 0) & driven[:, None] & ((C - self.s[:, None]) <= LOOKAHEAD_M)
+        W, C, s_f = self.W[rows], self.C[rows], self.s[rows]  # per follower
+        valid = (W >= 0) & ((C - s_f[:, None]) <= LOOKAHEAD_M)
         nl = len(t.length)
-        one = len(self.roads) == 1  # one slot: no slot in the keys, every pair for the conflicts
-        # same lane: every row (of the same slot) on a window lane
+        one = len(self.roads) == 1 or others is not None  # one slot: no slot in the keys, every pair for the conflicts
+        O = np.arange(len(self.objs)) if others is None else others
+        ctl = self.controlled[O]
+        at = np.where(ctl, self.at_lane[O], self.lane[O])  # where each candidate is
+        at_s = np.where(ctl, self.at_s[O], self.s[O])
+        at_lat = np.where(ctl, self.at_lat[O], self.lat[O])
+        env_f, env_o = self.env[rows], self.env[O]
+        # same lane: every candidate (of the same slot) on a window lane
         ef, ek = valid.nonzero()
-        on_map = (self.lane >= 0).nonzero()[0]
+        on_map = (at >= 0).nonzero()[0]
         if one:
-            a, b = same_key_pairs(W[ef, ek], self.lane[on_map])
+            a, b = same_key_pairs(W[ef, ek], at[on_map])
         else:
-            a, b = same_key_pairs(self.env[ef] * nl + W[ef, ek], self.env[on_map] * nl + self.lane[on_map])
-        fi, k, lj = ef[a], ek[a], on_map[b]
-        other = fi != lj
+            a, b = same_key_pairs(env_f[ef] * nl + W[ef, ek], env_o[on_map] * nl + at[on_map])
+        fi, k, lj = ef[a], ek[a], on_map[b]  # follower (into rows), window place, candidate (into O)
+        other = rows[fi] != O[lj]
         fi, k, lj = fi[other], k[other], lj[other]
-        so = self.s[lj]
-        ro = self.lat[lj]
-        ahead = so > self.s[fi]
-        zips = np.zeros(len(fi), dtype=bool)  # converging road lanes: `MapNetwork.zip_leader` decides
+        so, ro = at_s[lj], at_lat[lj]
         wl = W[fi, k]
-        # rows on junction lanes conflicting with or diverging from a window junction lane
-        occ = ((self.lane >= 0) & (t.jid[self.lane] >= 0)).nonzero()[0]
+        self._exactly(wl, O[lj], so, ro)
+        ahead = so > s_f[fi]
+        zips = np.zeros(len(fi), dtype=bool)  # converging road lanes: `MapNetwork.zip_leader` decides
+        # candidates on junction lanes conflicting with or diverging from a window junction lane
+        occ = ((at >= 0) & (t.jid[np.maximum(at, 0)] >= 0)).nonzero()[0]
         if len(occ):
             ef, ek = (valid & (t.jid[np.maximum(W, 0)] >= 0)).nonzero()
             if len(ef):
                 if one:
                     ei, oi = np.divmod(np.arange(len(ef) * len(occ)), len(occ))
                 else:
-                    ei, oi = same_key_pairs(self.env[ef], self.env[occ])
+                    ei, oi = same_key_pairs(env_f[ef], env_o[occ])
                 oj = occ[oi]
-                hit = t.near_pairs(W[ef[ei], ek[ei]], self.lane[oj]) & (ef[ei] != oj)
+                hit = t.near_pairs(W[ef[ei], ek[ei]], at[oj]) & (rows[ef[ei]] != O[oj])
                 pf, pk, pj = ef[ei[hit]], ek[ei[hit]], oj[hit]
                 if len(pj):
-                    a_l, b_l = W[pf, pk], self.lane[pj]
-                    so2, ro2 = t.seen_from(a_l, b_l, self.s[pj])
-                    for n_ in (~self.driven[pj]).nonzero()[0].tolist():  # external road users: their exact position
-                        so2[n_], ro2[n_] = self.net._lanes[a_l[n_]].local_coordinates(self.objs[pj[n_]].position)
-                    ahead2 = so2 > self.s[pf]
+                    a_l, b_l = W[pf, pk], at[pj]
+                    so2, ro2 = t.seen_from(a_l, b_l, at_s[pj])
+                    self._exactly(a_l, O[pj], so2, ro2)
+                    ahead2 = so2 > s_f[pf]
                     zips2 = ~t.junction[a_l] & (a_l != b_l)
                     ids = self.net.lane_ids
                     for n_ in zips2.nonzero()[0].tolist():
-                        f_ = int(pf[n_])
+                        f_ = int(rows[pf[n_]])
                         ahead2[n_] = self.net.zip_leader(
                             ids[a_l[n_]], float(self.s[f_]) if pk[n_] == 0 else None, ids[b_l[n_]], float(so2[n_]),
-                            self.objs[f_].position, self.objs[pj[n_]].position, float(self.length[f_]))
+                            self.objs[f_].position, self.objs[O[pj[n_]]].position, float(self.length[f_]))
                     fi, k, lj = np.concatenate([fi, pf]), np.concatenate([k, pk]), np.concatenate([lj, pj])
                     ahead, zips = np.concatenate([ahead, ahead2]), np.concatenate([zips, zips2])
                     so, ro = np.concatenate([so, so2]), np.concatenate([ro, ro2])
                     wl = W[fi, k]
         if not len(fi):
             return fi, np.zeros(0), np.zeros(0)
-        s_own = self.s[fi]
-        L = self.length[fi]
+        fr, lr = rows[fi], O[lj]  # follower and leader rows
+        L = self.length[fr]
         lw, ll = t.width[wl], t.length[wl]
         way = in_the_way(so, ro, lw, ll, L)  # by the centre; then the bodies that may reach in at their angle
-        maybe = (~way & in_the_way(so, ro, lw, ll, L, self.max_reach[lj])).nonzero()[0]
+        maybe = (~way & in_the_way(so, ro, lw, ll, L, self.max_reach[lr])).nonzero()[0]
         if len(maybe):
-            m = lj[maybe]
+            m = lr[maybe]
             reach = body_reach(self.width[m], self.length[m], self.heading[m] - t.heading_at(wl[maybe], so[maybe]))
             way[maybe] = in_the_way(so[maybe], ro[maybe], lw[maybe], ll[maybe], L[maybe], reach)
         ok = np.where(zips, ahead, way & ((k > 0) | ahead))
-        gap = C[fi, k] - s_own + so - L
-        return fi[ok], gap[ok], self.speed[lj[ok]]
+        gap = C[fi, k] - s_f[fi] + so - L
+        return fr[ok], gap[ok], self.speed[lr[ok]]
+
+    def _exactly(self, lanes: np.ndarray, rows: np.ndarray, s: np.ndarray, lat: np.ndarray) -> None:
+        """(s, lat) on `lanes` of the external ones of `rows` from their positions, in place
+        (their rows hold what highway-env's vehicle says of its own lane, if anything)."""
+        for n in (~self.driven[rows]).nonzero()[0].tolist():
+            s[n], lat[n] = self.net._lanes[lanes[n]].local_coordinates(self.objs[rows[n]].position)
 
     def _rule_rows(self, traffic: np.ndarray) -> list[int]:
         """Traffic rows whose window holds a junction entry, a narrow passage, a mid-block
@@ -1211,8 +1240,15 @@ class TrafficCore:
         t = self.table
         cand = due & t.neighbours[self.lane] & may_change_lane(t.junction[self.lane], t.length[self.lane] - self.s,
                                                                 self.speed)
+        if not cand.any():
+            return
+        self.refresh_windows()
+        fi, gap, speed = self._leaders(cand.nonzero()[0])
+        gaps: dict[int, list[tuple[float, float]]] = {}
+        for i, g, v in zip(fi.tolist(), gap.tolist(), speed.tolist()):
+            gaps.setdefault(i, []).append((g, v))
         for i in cand.nonzero()[0].tolist():
-            self.objs[i].mobil_change()
+            self.objs[i].mobil_change(gaps.get(i, []))
 
     def integrate(self, dt: float) -> None:
         """Advance driven rows being stepped by dt along their routes (step 4): controlled rows

@@ -90,22 +90,33 @@ def _larger(x, lo: float):
     return np.maximum(x, lo) if isinstance(x, np.ndarray) else max(x, lo)
 
 
-def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = math.inf,
-        stop_margin: float = IDM_STOP_MARGIN_M) -> float:
-    """IDM acceleration towards the lane speed limit, behind leaders ((bumper gap, speed) pairs)
-    and before a stop point (`stop_distance` from the vehicle centre; the front bumper halts
-    `stop_margin` short of it)."""
-    net = vehicle.net
-    v = max(vehicle.speed, 0.0)
-    v0 = max(net.lane_of[vehicle.lane_route[vehicle.route_pos]].speed_limit, 1.0)
+def idm_accelerations(v, v0, follower, gap, v_lead, jam_gap) -> np.ndarray:
+    """IDM's acceleration of each of a batch of vehicles (arrays: speed `v`, desired speed `v0`)
+    behind its leaders, given as pairs (`follower` index, bumper `gap`, leader speed `v_lead`,
+    `jam_gap`: IDM_GAP_M behind a road user, IDM_STOP_GAP_M before a stop point, a standing
+    leader at `stop_gap`): the least over its pairs, clipped. IDM's one composition: traffic's
+    rows (`TrafficCore._idm`) and one vehicle (`idm`, a batch of one)."""
+    v = np.maximum(v, 0.0)
     free = idm_free(v, v0)
     acc = IDM_ACC * free
-    items = [(g, vl, IDM_GAP_M) for g, vl in gaps]
-    if stop_distance < math.inf:
-        items.append((stop_gap(stop_distance, vehicle.LENGTH, stop_margin), 0.0, IDM_STOP_GAP_M))
-    for gap, vl, s0 in items:
-        acc = min(acc, idm_behind(free, v, vl, gap, s0))
+    if len(follower):
+        np.minimum.at(acc, follower, idm_behind(free[follower], v[follower], v_lead, gap, jam_gap))
     return idm_clip(acc)
+
+
+def idm(vehicle, gaps: Iterable[tuple[float, float]], stop_distance: float = math.inf,
+        stop_margin: float = IDM_STOP_MARGIN_M) -> float:
+    """IDM acceleration of one vehicle towards its lane's speed limit, behind leaders ((bumper
+    gap, speed) pairs) and before a stop point (`stop_distance` from the vehicle centre; the
+    front bumper halts `stop_margin` short of it): `idm_accelerations` for a batch of one."""
+    net = vehicle.net
+    v0 = max(net.lane_of[vehicle.lane_route[vehicle.route_pos]].speed_limit, 1.0)
+    pairs = [(g, vl, IDM_GAP_M) for g, vl in gaps]
+    if stop_distance < math.inf:
+        pairs.append((stop_gap(stop_distance, vehicle.LENGTH, stop_margin), 0.0, IDM_STOP_GAP_M))
+    gap, v_lead, jam = np.array(pairs, dtype=float).reshape(-1, 3).T
+    return float(idm_accelerations(np.array([float(vehicle.speed)]), np.array([v0]),
+                                   np.zeros(len(pairs), dtype=np.int64), gap, v_lead, jam)[0])
 
 
 def in_the_way(s, lateral, lane_width, lane_length, length, reach=0.0):

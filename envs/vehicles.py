@@ -14,7 +14,7 @@ from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP
 from ..invariants import lane_changes
 from .network import MapNetwork
 from .sim.vehicle import yaw_rate
-from .rules import body_reach, enters_junction, idm, in_the_way, may_change_lane, mobil_accepts, mobil_safe, route_memo
+from .rules import enters_junction, idm, may_change_lane, mobil_accepts, mobil_safe, route_memo
 
 
 class Pedestrian(RoadObject):
@@ -179,34 +179,6 @@ class RouteFollower:
         """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""
         return route_upcoming(self.net.lane_of, self.lane_route, self.route_pos, self.route_s(), horizon)
 
-    def leader_gaps(self) -> list[tuple[float, float]]:
-        """(bumper gap, speed) of every road user in the path ahead along the route: on the route's
-        lanes, on junction lanes that diverge from or cross them and on road lanes converging with
-        them (`MapNetwork.near_lanes`), where they are in the way."""
-        net = self.net
-        m = net.hdmap
-        buckets = self.road.control.buckets
-        gaps = []
-        for _k, lid, d, s_own in self.upcoming():
-            lane = net.lane_of[lid]
-            others = [(o, lid) for o in buckets.get(lid, ())]
-            for x in net.near_lanes(lid):
-                others += [(o, x) for o in buckets.get(x, ()) if all(o is not q for q, _ in others)]
-            for o, on in others:
-                if o is self:
-                    continue
-                so, ro = lane.local_coordinates(o.position)
-                if on != lid and m.lanes[lid].junction_id is None:  # converging road lanes: zip
-                    if not net.zip_leader(lid, s_own, on, so, self.position, o.position, self.LENGTH):
-                        continue
-                elif s_own is not None and so <= s_own or not in_the_way(
-                        so, ro, lane.width, lane.length, self.LENGTH,
-                        body_reach(getattr(o, "WIDTH", 0.0), getattr(o, "LENGTH", 0.0),
-                                   float(getattr(o, "heading", 0.0)) - lane.heading_at(so))):
-                    continue
-                gaps.append(((so - s_own if s_own is not None else d + so) - self.LENGTH, float(getattr(o, "speed", 0.0))))
-        return gaps
-
     def next_junction_lane(self) -> tuple[str | None, str | None, float]:
         """(incoming lane, junction lane, distance to the stop line) of the next junction entry."""
         m = self.net.hdmap
@@ -235,9 +207,10 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
     leaders and before the rules' stop points, MOBIL lane changes) through `core.ArrayVehicle`
     views; one user code appends to `road.vehicles` is taken in as a row at the next frame."""
 
-    def mobil_change(self) -> bool:
+    def mobil_change(self, gaps: list[tuple[float, float]]) -> bool:
         """MOBIL on multi-lane roads: move to a same-direction neighbour lane when it raises the
-        acceleration (with politeness) and the new follower stays safe; the route is re-planned
+        acceleration (with politeness) over IDM's behind its leaders `gaps` ((bumper gap, speed)
+        pairs, `TrafficCore._leaders`) and the new follower stays safe; the route is re-planned
         from that lane by Dijkstra and the change is taken only if it costs no detour."""
         net, m = self.net, self.net.hdmap
         lid = self.lane_route[self.route_pos]
@@ -249,7 +222,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         if not may_change_lane(ln.junction_id is not None, lane.length - s, self.speed):
             return False
         remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
-        a_cur = idm(self, self.leader_gaps())
+        a_cur = idm(self, gaps)
         buckets = self.road.control.buckets
         for n in lane_changes(ln):  # only across a dashed line
             if n not in m.lanes:

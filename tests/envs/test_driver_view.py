@@ -176,3 +176,36 @@ def test_leader_gap_and_speed():
     obs = u.observation_type.observe()
     assert obs[F["leader_gap"]] == pytest.approx((15.0 - ego.LENGTH) / dv.DRIVER_VIEW_LEADER_SCALE_M, abs=0.02)
     assert obs[F["leader_speed"]] == pytest.approx(3.0 / dv.DRIVER_VIEW_SPEED_SCALE_MPS, abs=0.01)
+
+
+def test_the_ego_and_traffic_read_their_leaders_from_one_program():
+    """The ego's leaders (what DriverView, the planner and the judge read) are the traffic's
+    (`TrafficCore._leaders` for the one row): a traffic car ahead and, behind it, a road user
+    user code added (a highway-env vehicle the core does not drive) at its exact place, seen by
+    the ego and the traffic car alike; the ego as a leader of a car behind it."""
+    from highway_env.vehicle.kinematics import Vehicle
+
+    env = make("bare", turn="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    ego = u.vehicle
+    lane = u.net.lane_of[ego.lane_route[0]]
+    s = ego.lane_s
+    car = TrafficVehicle(u.road, lane.position(s + 12.0, 0.0), lane.heading_at(s + 12.0), 3.0)
+    car.init_route(ego.lane_route)
+    other = Vehicle(u.road, lane.position(s + 30.0, 0.0), lane.heading_at(s + 30.0), 0.0)
+    u.road.vehicles += [car, other]
+    u.control.update(u.road, 0.0)
+    assert flat(sorted(ego.leader_gaps())) == pytest.approx([12.0 - ego.LENGTH, 3.0, 30.0 - ego.LENGTH, 0.0], abs=1e-6)
+    assert flat(car.leader_gaps()) == pytest.approx([18.0 - car.LENGTH, 0.0], abs=1e-6)
+    assert u.road.core.leader_gaps(u.road.vehicles.index(car)) == car.leader_gaps()
+    # the ego seen by a car behind it
+    back = TrafficVehicle(u.road, lane.position(s - 10.0, 0.0), lane.heading_at(s - 10.0), 3.0)
+    back.init_route(ego.lane_route)
+    u.road.vehicles.append(back)
+    u.control.update(u.road, 0.0)
+    assert flat([min(back.leader_gaps())]) == pytest.approx([10.0 - back.LENGTH, ego.speed], abs=1e-6)
+
+
+def flat(pairs: list) -> list[float]:
+    return [x for pair in pairs for x in pair]
