@@ -77,9 +77,9 @@ from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (body_reach, crossed_lanes, held_at_signal, idm_accelerations, in_the_way, may_change_lane,
-                    room_to_wait, stop_gap)
-from .sim import stop_signs
+from .rules import (CROSSED, ENTRY, body_reach, crossed_lanes, held_at_signal, idm_accelerations, in_the_way, may_change_lane,
+                    stop_gap)
+from .sim import rule_scan, stop_signs
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
 
@@ -87,12 +87,8 @@ if TYPE_CHECKING:
     from .road import MapRoad
 
 EXTERNAL, DRIVEN = 0, 1
-# below this count the array program costs more than it saves (a single env: ~7 rule rows), and
-# the rows ask the rules one by one (the same values)
-BATCH_MIN_RULE_ROWS = 48
 IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many values (more: np.isin sorts)
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
-SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 # a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
@@ -1129,96 +1125,65 @@ class TrafficCore:
                         (self.C[:, 1:] - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         if t.midblock.any():  # a mid-block crossing's light on the window (`rules.midblock_stop`)
             flag |= (t.midblock[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        nl = len(t.length)
-        busy = [road.slot * nl + k for road in self.roads if road is not None
-                for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
+        busy = rule_scan.busy_lanes(self)
         if busy:
-            key = np.where(W >= 0, self.env[:, None] * nl + W, -1)
+            key = np.where(W >= 0, self.env[:, None] * len(t.length) + W, -1)
             flag |= (is_any(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
         return (flag & traffic & ~self.crashed).nonzero()[0].tolist()
 
+    def rule_stops_of(self, vehicle) -> list[tuple[int, int, float, int]]:
+        """A road user's stops along its route (`sim.rule_scan`), what `TrafficRules._rule_stop`
+        walks when asked of one road user (the baseline planner, the judge, a bridge)."""
+        i = vehicle._row
+        if self.objs[i] is not vehicle or not self.driven[i]:
+            raise ValueError(f"{vehicle!r} is no road user the core drives: the rules' stops are asked of its rows")
+        self.refresh_windows()
+        return rule_scan.scan(self, np.array([i])).stops(0)
+
     def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """(rows, `rules.TrafficRules.stop_distance` of their vehicles) for `rows`, in row order (the
-        rules claim junction reservations in road order). Where the answer lies at the next
-        junction entry alone (no narrow passages on the map, no people on a crosswalk of the
-        row's window, the road after the entry in the window), the scan along the route, the
-        distance to the line and the signal's state are one array program over all rows of all
-        sub-envs, and a row stops without asking the rules when its signal is red (and it holds
-        no reservation to give up) or amber and it can stop; rows that hold their junction lane
-        go; the others ask `may_enter` (reservations, stop-sign queues, conflicts), and rows
-        outside that case `stop_distance`, in row order. The same floating-point operations as
-        `upcoming` and `TrafficRules.line_ahead` (tests/envs/test_core.py compares both)."""
+        rules claim junction reservations in road order), from one scan of all rows of all
+        sub-envs (`sim.rule_scan`): a row with nothing on its scan goes; a row whose first stop
+        is a junction entry under a signal that holds it (`rules.held_at_signal`: red, or amber
+        where it can stop) stops at the line without asking the rules (on red, a reservation it
+        holds there is given up: `may_enter`); the others ask `stop_distance` with their stops,
+        in row order."""
         roads, env, objs = self.roads, self.env, self.objs
         R = np.array(rows, dtype=np.int64)
-        if len(rows) < max(BATCH_MIN_RULE_ROWS, 1) or self.net.passages or self.W.shape[1] < 2:
-            return R, np.array([roads[env[i]].control.stop_distance(objs[i]) for i in rows], dtype=float)
-        W = self.W[R]
-        n, K = W.shape
+        dist = np.full(len(R), math.inf)
+        if not len(R):
+            return R, dist
+        sc = rule_scan.scan(self, R)
         t = self.table
-        s = self.s[R]
-        lanes = np.maximum(W, 0)
-        valid = W >= 0
-        # distance from the vehicle centre to each window lane's start, summed as upcoming() does
-        D = np.empty((n, K))
-        D[:, 0] = -s
-        d = t.length[lanes[:, 0]] - s
-        for k in range(1, K):
-            D[:, k] = d
-            d = d + t.length[lanes[:, k]]
-        junction = t.junction[lanes] & valid
-        entry = np.zeros((n, K), dtype=bool)
-        entry[:, 1:] = junction[:, 1:] & ~junction[:, :-1] & valid[:, :-1]
-        has = entry.any(axis=1)
-        ke = np.argmax(entry, axis=1)
-        after = np.minimum(ke + 1, K - 1)
-        first_junction = np.argmax(junction[:, 1:], axis=1) + 1  # a junction lane right after the current
-        road_after = lanes[np.arange(n), after]
-        simple = has & (first_junction == ke) & (ke + 1 < K) & valid[np.arange(n), after] & \
-            ~junction[np.arange(n), after] & \
-            room_to_wait(t.length[road_after] - t.line_setback[road_after], self.length[R])
-        # one (the first) junction lane after the current one is scanned, and the road after it
-        # has room to wait (else the scan goes on to the next junction's line: the rules decide);
-        # a road lane across a junction lane on the window: the rules decide (`crossing_held`)
-        simple &= ~(t.crossed[lanes[:, 1:]] & valid[:, 1:]).any(axis=1)
-        simple &= ~(t.midblock[lanes] & valid).any(axis=1)  # a mid-block light on the window: the rules decide
-        nl = len(t.length)
-        busy = [road.slot * nl + k for road in roads if road is not None
-                for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
-        if busy:
-            key = np.where(valid, env[R][:, None] * nl + W, -1)
-            simple &= ~is_any(key, busy).any(axis=1)
-        d_e = D[np.arange(n), ke]
-        in_lane = lanes[np.arange(n), ke - 1]
-        j_lane = lanes[np.arange(n), ke]
-        d_line = d_e - t.line_setback[in_lane]
-        reach = simple & (d_e <= LOOKAHEAD_M)  # else the scan ends before the entry: free
+        n = len(R)
+        at = sc.what != 0
+        ask = at.any(axis=1)
+        first = np.argmax(at, axis=1)
+        ar = np.arange(n)
+        entry = ask & (sc.what[ar, first] & (ENTRY | CROSSED) == ENTRY)
+        in_lane = sc.lanes[ar, np.maximum(first - 1, 0)]
+        signal = entry & (t.line_signal[in_lane] >= 0) & (not self.net.passages)  # (a narrow passage may hold it first)
         state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
-        signal = reach & (t.line_signal[in_lane] >= 0)  # a signal not in the map has no plan: green
         if signal.any():
             si = signal.nonzero()[0]
             slots = env[R[si]]
             controls = [r.control if r is not None else None for r in roads]
             times = np.array([c.t if c is not None else 0.0 for c in controls])
             state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
-        halt = reach & held_at_signal(state == 2, state == 1, d_line, self.speed[R])
+        d_line = sc.D[ar, first] - t.line_setback[in_lane]
+        halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed[R])
+        dist[halt] = (d_line - STOP_POINT_M)[halt]
         ids = self.net.lane_ids
-        stop = d_line - STOP_POINT_M
-        dist = np.where(halt, stop, math.inf)  # held at the line, or free (beyond the scan)
-        ask = ~simple | (reach & ~(halt & (state == 1)))  # the rules decide, in row order
-        for r in ask.nonzero()[0].tolist():
+        j_lane = sc.lanes[ar, first]
+        for r in (ask & ~(halt & (state == 1))).nonzero()[0].tolist():
             i = rows[r]
             control, v = roads[env[i]].control, objs[i]
-            if not simple[r]:
-                dist[r] = control.stop_distance(v)
+            if halt[r]:  # red: it gives a reservation of its lane up
+                jl = ids[j_lane[r]]
+                if control.reservations.get(jl) is v:
+                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state="red")
                 continue
-            jl = ids[j_lane[r]]
-            known = SIGNAL_STATES[state[r]] if signal[r] else None
-            if control.reservations.get(jl) is v:
-                if state[r] == 2:  # red: it gives its reservation up
-                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state=known)
-                continue  # (it goes: inf; red: already the stop)
-            if not halt[r] and not control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state=known):
-                dist[r] = stop[r]
+            dist[r] = control.stop_distance(v, stops=sc.stops(r))
         return R, dist
 
     def _signal_arrays(self, controls: list) -> np.ndarray:

@@ -278,6 +278,11 @@ def route_memo(vehicle: Any, key: Any, make: Callable[[], Any]) -> Any:
     return facts[key]
 
 
+# what can stop a road user on a lane of its route (`sim.rule_scan`, bits): a road lane across a
+# junction lane, a junction entry, a mid-block crossing's light, a crosswalk with people on it
+CROSSED, ENTRY, MIDBLOCK, PEOPLE = 1, 2, 4, 8
+
+
 def room_to_wait(room: float | np.ndarray, length: float | np.ndarray) -> bool | np.ndarray:
     """Whether `room` metres of road up to where a vehicle waits (the next junction's stop line, a
     narrow passage) hold one `length` long waiting there; else it would wait inside the junction
@@ -951,21 +956,23 @@ class TrafficRules:
                     best = stop_at if best is None else min(best, stop_at)
         return best
 
-    def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset()) -> float:
+    def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset(),
+                      stops: list | None = None) -> float:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
         STOP_POINT_M before a stop line it may not pass (measured along the route), before a
         pedestrian's crosswalk, or before a narrow passage the other direction holds. `ignore`
         names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage". A vehicle
         waiting for a passage reserves the junction lanes before that wait as it commits to them
         (unseen by the rules, it drove into a junction in which a car from the other side then
-        took a lane conflicting with its own: Testfeld_Karlsruhe r046), and none beyond it."""
+        took a lane conflicting with its own: Testfeld_Karlsruhe r046), and none beyond it.
+        `stops`: the vehicle's stops along its route when the caller scanned them (`_rule_stop`)."""
         passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
         if passage < math.inf:  # waiting for a passage: no junction lane beyond that wait is reserved meanwhile
             if commit:
                 self._unreserve_beyond(vehicle, passage)
-            stop = min(passage, self._rule_stop(vehicle, commit, ignore, passage))
+            stop = min(passage, self._rule_stop(vehicle, commit, ignore, passage, stops))
         else:
-            stop = self._rule_stop(vehicle, commit, ignore)
+            stop = self._rule_stop(vehicle, commit, ignore, stops=stops)
         return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
 
     def _unreserve_beyond(self, vehicle, wait: float) -> None:
@@ -1004,47 +1011,45 @@ class TrafficRules:
             return stop - back
         return stop
 
-    def _rule_stop(self, vehicle, commit: bool, ignore: frozenset, before: float = math.inf) -> float:
-        """`stop_distance` without narrow passages. The scan runs along the route up to the first
-        road after the next junction entry with room to wait on it (`room_to_wait`), however many
-        short road lanes lie before a line (CARLA's 1.5 m and 2.4 m roads) and however many
-        junctions follow each other with less road between them: a line right after a junction
-        is seen from before that junction (SUMO's 0.2 m approach lanes after a junction: the
-        line came into view 4 m ahead, too late to stop for its red). Junction lanes `beyond` the
-        stop point `before` (a passage's wait) are checked but never reserved."""
-        net = self.net
-        m = net.hdmap
-        entered = False  # the scan has reached the next junction entry
-        room = 0.0  # road since the last junction lane scanned
-        for k, lid, d, s_own in vehicle.upcoming():
-            lane_model = m.lanes[lid]
-            if s_own is not None:  # the current lane: a mid-block light's line and pedestrians ahead of us on it
-                stop = self.midblock_stop(vehicle, lid, -s_own, ignore) if lid in net.midblock_lines else math.inf
-                ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, s_own)
+    def _rule_stop(self, vehicle, commit: bool, ignore: frozenset, before: float = math.inf,
+                   stops: list | None = None) -> float:
+        """`stop_distance` without narrow passages: the vehicle's stops along its route in order
+        (`stops`, from `sim.rule_scan`: a road lane across a junction lane, a junction entry's
+        line, a mid-block crossing's light, a crosswalk with people on it; asked of its road's
+        core when not given), the first that holds it. The scan runs up to the first road after
+        the next junction entry with room to wait on it, however many short road lanes lie
+        before a line (CARLA's 1.5 m and 2.4 m roads) and however many junctions follow each
+        other with less road between them: a line right after a junction is seen from before
+        that junction (SUMO's 0.2 m approach lanes after a junction: the line came into view 4 m
+        ahead, too late to stop for its red). Junction lanes `beyond` the stop point `before` (a
+        passage's wait) are checked but never reserved."""
+        ids = self.net.lane_ids
+        if stops is None:
+            stops = self.road.core.rule_stops_of(vehicle)
+        for lane, prev, d, what in stops:
+            lid = ids[lane]
+            if prev < 0:  # the current lane: a mid-block light's line and pedestrians ahead of us on it
+                s_own = -d
+                stop = self.midblock_stop(vehicle, lid, d, ignore) if what & MIDBLOCK else math.inf
+                ped = None if "pedestrian" in ignore or not what & PEOPLE else self.pedestrian_blocking(lid, s_own)
                 if ped is not None:
                     stop = min(stop, ped - s_own)
                 if stop < math.inf:
                     return stop
                 continue
-            if "conflict" not in ignore and self.crossing_held(vehicle, lid, d):
+            if what & CROSSED and "conflict" not in ignore and self.crossing_held(vehicle, lid, d):
                 return d - STOP_POINT_M
-            if enters_junction(m.lanes, vehicle.lane_route[k - 1], lid):
-                in_lane = vehicle.lane_route[k - 1]
-                d_line = d - line_setback(net, in_lane)
+            if what & ENTRY:
+                in_lane = ids[prev]
+                d_line = d - line_setback(self.net, in_lane)
                 if not self.may_enter(vehicle, in_lane, lid, d_line, commit and not beyond(d, before), ignore):
                     return d_line - STOP_POINT_M
-            stop = self.midblock_stop(vehicle, lid, d, ignore) if lid in net.midblock_lines else math.inf
-            ped = None if "pedestrian" in ignore or lid not in net.crossings else self.pedestrian_blocking(lid, 0.0)
+            stop = self.midblock_stop(vehicle, lid, d, ignore) if what & MIDBLOCK else math.inf
+            ped = None if "pedestrian" in ignore or not what & PEOPLE else self.pedestrian_blocking(lid, 0.0)
             if ped is not None:
                 stop = min(stop, d + ped)
             if stop < math.inf:
                 return stop
-            if lane_model.junction_id is not None:
-                entered, room = True, 0.0
-            elif entered:  # on to the first road after a junction entry with room to wait on it
-                room += net.lane_of[lid].length
-                if room_to_wait(room - line_setback(net, lid), vehicle.LENGTH):
-                    break
         return math.inf
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -342,6 +343,83 @@ def test_the_line_after_a_junction_and_a_short_lane_is_seen_from_before_the_junc
         assert not (term or trunc)
     assert info["violations"]["red_light"] == 0
     assert ego.speed < 0.5 and 0.0 <= u.control.line_distance(ego, j1) < 3.0 + ego.LENGTH  # waiting at J1's line
+    env.close()
+
+
+def _walked_stops(u, v) -> list[tuple[str, str | None, float, int]]:
+    """What a walk along `v`'s route (`RouteFollower.upcoming`) finds can stop it, lane by lane,
+    up to the first road after a junction entry with room to wait: the test's own reading of the
+    rules' scan, against which `sim.rule_scan` is held."""
+    from feat2map.envs.rules import (CROSSED, ENTRY, MIDBLOCK, PEOPLE, crossed_lanes, enters_junction, line_setback,
+                                     room_to_wait)
+
+    net, m = u.net, u.net.hdmap
+    out = []
+    entered, room = False, 0.0
+    for k, lid, d, s_own in v.upcoming():
+        people = any(u.control.pedestrians.get(cw) for cw, _, _ in net.crossings.get(lid, ()))
+        what = (MIDBLOCK if lid in net.midblock_lines else 0) | (PEOPLE if people else 0)
+        if s_own is None:
+            what |= (CROSSED if crossed_lanes(net, lid) else 0) | \
+                (ENTRY if enters_junction(m.lanes, v.lane_route[k - 1], lid) else 0)
+        if what:
+            out.append((lid, None if s_own is not None else v.lane_route[k - 1], d, what))
+        if s_own is not None:
+            continue
+        if m.lanes[lid].junction_id is not None:
+            entered, room = True, 0.0
+        elif entered:
+            room += net.lane_of[lid].length
+            if room_to_wait(room - line_setback(net, lid), v.LENGTH):
+                break
+    return out
+
+
+@pytest.mark.parametrize("where", ["tight", "grid"])
+def test_the_rules_scan_finds_every_stop_along_the_route(where, tight_approach):
+    """`sim.rule_scan` (the one scan of the rules' stop distance) finds, for every road user at
+    once, what a walk along its route finds: junction entries (two in a row from before JX of
+    `tight_approach`: the 0.2 m road between JX and J1 holds no car), crosswalks with people on
+    them and nothing past the first road with room to wait (on a 64 m grid the next junction's
+    entry lies within LOOKAHEAD_M beyond it), however the road users stand."""
+    from feat2map.envs.rules import ENTRY
+
+    if where == "tight":
+        sc = _through_jx_scenario(tight_approach)
+        env = make_env(sc, config={"traffic_vehicles": 0})
+        env.reset(seed=0)
+        u = env.unwrapped
+        route = list(u.vehicle.lane_route)
+        for k in range(len(route) - 1):
+            for s in np.linspace(0.0, u.net.lane_of[route[k]].length, 7):
+                u.road.spawn(route[k], float(s), 0.0, route[k:])
+        u.control.update(u.road, 0.0)
+        frames = 1
+    else:
+        J = feat2map.JunctionFeature.make
+        feats = [J([0, 90, 180, 270], "signal", True), J([0, 90, 180, 270], "stop", True),
+                 J([0, 90, 180], "bare", True), J([0, 90, 180, 270], "bare", False)]
+        env = gym.make("feat2map/JunctionGrid-v0", config={  # junctions close enough to see two at once
+            "features": [f.to_dict() for f in feats], "traffic_vehicles": 30, "pedestrian_rate": 60.0,
+            "policy_frequency": 5, "generation": {"grid_gap": 64.0}})
+        env.reset(seed=3)
+        u = env.unwrapped
+        frames = 40
+    core, ids = u.road.core, u.net.lane_ids
+    seen = 0
+    for _ in range(frames):
+        for v in u.road.vehicles:
+            got = [(ids[lane], ids[prev] if prev >= 0 else None, d, what) for lane, prev, d, what in core.rule_stops_of(v)]
+            want = _walked_stops(u, v)
+            assert [g[:2] + g[3:] for g in got] == [w[:2] + w[3:] for w in want], v
+            assert [g[2] for g in got] == pytest.approx([w[2] for w in want], abs=1e-9)
+            seen += sum(1 for g in got if g[3] & ENTRY)
+        if frames > 1:
+            env.step(env.action_space.sample())
+    assert seen > 0
+    if where == "tight":  # from before JX, J1's entry is in the scan too
+        ego = u.vehicle
+        assert sum(1 for *_, what in core.rule_stops_of(ego) if what & ENTRY) == 2
     env.close()
 
 

@@ -155,9 +155,6 @@ def test_array_programs_equal_the_scalar_code(config, monkeypatch):
     stop-sign queues of every slot at once) give bit for bit what the rules asked row by row and
     each sub-env's own observation, reward and info give (the equality with single envs above
     cannot see this: a single env is the same core with one slot)."""
-    from feat2map.envs import core
-
-    monkeypatch.setattr(core, "BATCH_MIN_RULE_ROWS", 1)  # the array programs however few the rows
     fast = trajectory(config, 3, 40, seed=5)
     scalar_code(monkeypatch)
     slow = trajectory(config, 3, 40, seed=5)
