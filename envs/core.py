@@ -32,10 +32,12 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    point the rules impose is a standing leader) and the minimum per follower
    (`rules.idm_accelerations`, which one vehicle's IDM, `rules.idm`, calls too). The same leader
    search answers a controlled row's `leader_gaps` (its slot's rows only) and MOBIL's current
-   lane. The rules
-   (`rules.TrafficRules.stop_distance`: signals, stop signs, reservations, pedestrians) are asked
-   only for rows with a junction entry or a crosswalk with people on it within LOOKAHEAD_M in
-   their window, in row order, so that reservations are claimed in road order. MOBIL runs every
+   lane. Where the rules can stop each row is one scan of every row's window
+   (`sim.rule_scan`: junction entries, road lanes across junction lanes, mid-block lights,
+   crosswalks with people on them, up to the first road after the next entry with room to
+   wait); a row held at a signal stops there, and the rules (`rules.TrafficRules.stop_distance`:
+   signals, stop signs, reservations, pedestrians) are asked of the other rows with stops on
+   their scans, in row order, so that reservations are claimed in road order. MOBIL runs every
    MOBIL_PERIOD_S for rows `rules.may_change_lane` allows on lanes with same-direction
    neighbours (`TrafficVehicle.mobil_change`, on the view).
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
@@ -87,8 +89,12 @@ if TYPE_CHECKING:
     from .road import MapRoad
 
 EXTERNAL, DRIVEN = 0, 1
-IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many values (more: np.isin sorts)
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
+# rows the rules are asked of (`TrafficCore._rule_stops`) from which a signal's hold is settled in
+# arrays before the rules are asked row by row (fewer: each asks, and `may_enter` settles it; the
+# same values)
+SETTLE_MIN_ROWS = 24
+SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 # a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
@@ -593,6 +599,10 @@ class TrafficCore:
         self.dirty: set[int] = set()
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
+        # the rules' scan along the window (`sim.rule_scan`), what of it holds while the route
+        # position does: what can stop the row on each window lane up to where the scan ends
+        # (bits, `rules.ENTRY`...; a crosswalk's people are asked each frame)
+        self.scan_what = np.zeros((0, 1), dtype=np.int8)
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
@@ -674,6 +684,7 @@ class TrafficCore:
         self.reserved.append(reserved)
         self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
         self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
+        self.scan_what = np.vstack([self.scan_what, np.zeros((1, self.W.shape[1]), dtype=np.int8)])
         if isinstance(obj, ArrayVehicle):
             obj._core, obj._row = self, i
         self.dirty.add(i)
@@ -747,7 +758,7 @@ class TrafficCore:
         self.queue_version[self.env[left]] += 1
         self.queued -= int(left.sum())
         self._keep_rows(self._ARRAYS, idx)
-        self.W, self.C = self.W[idx], self.C[idx]
+        self.W, self.C, self.scan_what = self.W[idx], self.C[idx], self.scan_what[idx]
         new_row = np.full(len(self.objs), -1, dtype=np.int64)
         new_row[idx] = np.arange(len(idx))
         self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
@@ -908,7 +919,8 @@ class TrafficCore:
                 lanes.append(route[k])
                 cum.append(d)
                 d += length[route[k]]
-            rows[i] = (lanes, cum)
+            what = rule_scan.along(self.table, lanes, float(self.length[i]))
+            rows[i] = (lanes, cum, what)
             need = max(need, len(lanes))
             junction = self.table.junction
             self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
@@ -918,10 +930,13 @@ class TrafficCore:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])
             self.C = np.hstack([self.C, np.zeros((len(self.C), pad))])
-        for i, (lanes, cum) in rows.items():
+            self.scan_what = np.hstack([self.scan_what, np.zeros((len(self.W), pad), dtype=np.int8)])
+        for i, (lanes, cum, what) in rows.items():
             self.W[i] = -1
             self.W[i, :len(lanes)] = lanes
             self.C[i, :len(cum)] = cum
+            self.scan_what[i] = 0
+            self.scan_what[i, :len(what)] = what
         self.dirty.clear()
 
     # ---- a frame -----------------------------------------------------------------------------
@@ -981,7 +996,7 @@ class TrafficCore:
         v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
         fi, gap, vl = self._leaders(traffic.nonzero()[0])
         jam = np.full(len(fi), IDM_GAP_M)
-        si, sd = self._rule_stops(self._rule_rows(traffic))
+        si, sd = self._rule_stops(traffic)
         stopping = sd < math.inf
         if stopping.any():
             si, sd = si[stopping], sd[stopping]
@@ -1042,11 +1057,12 @@ class TrafficCore:
         nl = len(t.length)
         one = len(self.roads) == 1 or others is not None  # one slot: no slot in the keys, every pair for the conflicts
         O = np.arange(len(self.objs)) if others is None else others
-        ctl = self.controlled[O]
-        at = np.where(ctl, self.at_lane[O], self.lane[O])  # where each candidate is
-        at_s = np.where(ctl, self.at_s[O], self.s[O])
-        at_lat = np.where(ctl, self.at_lat[O], self.lat[O])
-        env_f, env_o = self.env[rows], self.env[O]
+        ctl = self.controlled if others is None else self.controlled[O]
+        pick = (lambda a: a) if others is None else (lambda a: a[O])  # noqa: E731
+        at = np.where(ctl, pick(self.at_lane), pick(self.lane))  # where each candidate is
+        at_s = np.where(ctl, pick(self.at_s), pick(self.s))
+        at_lat = np.where(ctl, pick(self.at_lat), pick(self.lat))
+        env_f, env_o = self.env[rows], pick(self.env)
         # same lane: every candidate (of the same slot) on a window lane
         ef, ek = valid.nonzero()
         on_map = (at >= 0).nonzero()[0]
@@ -1108,56 +1124,49 @@ class TrafficCore:
     def _exactly(self, lanes: np.ndarray, rows: np.ndarray, s: np.ndarray, lat: np.ndarray) -> None:
         """(s, lat) on `lanes` of the external ones of `rows` from their positions, in place
         (their rows hold what highway-env's vehicle says of its own lane, if anything)."""
+        if not self._external:
+            return
         for n in (~self.driven[rows]).nonzero()[0].tolist():
             s[n], lat[n] = self.net._lanes[lanes[n]].local_coordinates(self.objs[rows[n]].position)
 
-    def _rule_rows(self, traffic: np.ndarray) -> list[int]:
-        """Traffic rows whose window holds a junction entry, a narrow passage, a mid-block
-        crossing's light or a lane with a crosswalk that has people on it within LOOKAHEAD_M: the
-        only ones the rules can stop (in row order)."""
-        t = self.table
-        flag = self.entry - self.s <= LOOKAHEAD_M
-        W = self.W
-        if t.passage.any():  # narrow passages on the window
-            flag |= (t.passage[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        if t.crossed.any():  # road lanes across junction lanes ahead on the window (`rules.crossing_held`)
-            flag |= (t.crossed[np.maximum(W[:, 1:], 0)] & (W[:, 1:] >= 0) &
-                        (self.C[:, 1:] - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        if t.midblock.any():  # a mid-block crossing's light on the window (`rules.midblock_stop`)
-            flag |= (t.midblock[np.maximum(W, 0)] & (W >= 0) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        busy = rule_scan.busy_lanes(self)
-        if busy:
-            key = np.where(W >= 0, self.env[:, None] * len(t.length) + W, -1)
-            flag |= (is_any(key, busy) & (self.C - self.s[:, None] <= LOOKAHEAD_M)).any(axis=1)
-        return (flag & traffic & ~self.crashed).nonzero()[0].tolist()
-
-    def rule_stops_of(self, vehicle) -> list[tuple[int, int, float, int]]:
-        """A road user's stops along its route (`sim.rule_scan`), what `TrafficRules._rule_stop`
-        walks when asked of one road user (the baseline planner, the judge, a bridge)."""
+    def rule_scan_of(self, vehicle) -> rule_scan.Scan:
+        """A road user's scan along its route (`sim.rule_scan`, indexed), what
+        `TrafficRules._rule_stop` walks when asked of one road user (the baseline planner, the
+        judge, a bridge)."""
         i = vehicle._row
         if self.objs[i] is not vehicle or not self.driven[i]:
             raise ValueError(f"{vehicle!r} is no road user the core drives: the rules' stops are asked of its rows")
         self.refresh_windows()
-        return rule_scan.scan(self, np.array([i])).stops(0)
+        return rule_scan.scan(self, np.array([i])).index()
 
-    def _rule_stops(self, rows: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """(rows, `rules.TrafficRules.stop_distance` of their vehicles) for `rows`, in row order (the
-        rules claim junction reservations in road order), from one scan of all rows of all
-        sub-envs (`sim.rule_scan`): a row with nothing on its scan goes; a row whose first stop
+    def _rule_stops(self, traffic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, `rules.TrafficRules.stop_distance` of their vehicles) of every row (inf outside
+        the `traffic` mask and for crashed rows), the rules asked in row order (they claim
+        junction reservations in road order), from one scan of all rows, whatever their slots
+        (`sim.rule_scan`): a row with nothing on its scan and no narrow passage on its window
+        goes; a row whose first stop
         is a junction entry under a signal that holds it (`rules.held_at_signal`: red, or amber
         where it can stop) stops at the line without asking the rules (on red, a reservation it
-        holds there is given up: `may_enter`); the others ask `stop_distance` with their stops,
-        in row order."""
+        holds there is given up: `may_enter`; settled so from SETTLE_MIN_ROWS rows asked); the
+        others ask `stop_distance` with their stops, in row order."""
         roads, env, objs = self.roads, self.env, self.objs
-        R = np.array(rows, dtype=np.int64)
-        dist = np.full(len(R), math.inf)
-        if not len(R):
+        n = len(objs)
+        R = np.arange(n)
+        dist = np.full(n, math.inf)
+        on = traffic & ~self.crashed
+        if not on.any():
             return R, dist
-        sc = rule_scan.scan(self, R)
+        sc = rule_scan.scan(self)
         t = self.table
-        n = len(R)
         at = sc.what != 0
-        ask = at.any(axis=1)
+        ask = on & at.any(axis=1)
+        if t.passage.any():  # a narrow passage on the window (`passage_stop`)
+            ask |= on & (t.passage[np.maximum(sc.lanes, 0)] & (sc.lanes >= 0) & (sc.D <= LOOKAHEAD_M)).any(axis=1)
+        if ask.sum() < SETTLE_MIN_ROWS:  # too few for the arrays to pay: each asks the rules
+            sc.index(ask)
+            for i in ask.nonzero()[0].tolist():
+                dist[i] = roads[env[i]].control.stop_distance(objs[i], scan=(sc, i))
+            return R, dist
         first = np.argmax(at, axis=1)
         ar = np.arange(n)
         entry = ask & (sc.what[ar, first] & (ENTRY | CROSSED) == ENTRY)
@@ -1166,24 +1175,26 @@ class TrafficCore:
         state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
         if signal.any():
             si = signal.nonzero()[0]
-            slots = env[R[si]]
+            slots = env[si]
             controls = [r.control if r is not None else None for r in roads]
             times = np.array([c.t if c is not None else 0.0 for c in controls])
             state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
         d_line = sc.D[ar, first] - t.line_setback[in_lane]
-        halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed[R])
+        halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed)
         dist[halt] = (d_line - STOP_POINT_M)[halt]
         ids = self.net.lane_ids
         j_lane = sc.lanes[ar, first]
-        for r in (ask & ~(halt & (state == 1))).nonzero()[0].tolist():
-            i = rows[r]
+        sc.index(ask & ~halt)
+        for i in (ask & ~(halt & (state == 1))).nonzero()[0].tolist():
             control, v = roads[env[i]].control, objs[i]
-            if halt[r]:  # red: it gives a reservation of its lane up
-                jl = ids[j_lane[r]]
+            if halt[i]:  # red: it gives a reservation of its lane up
+                jl = ids[j_lane[i]]
                 if control.reservations.get(jl) is v:
-                    control.may_enter(v, ids[in_lane[r]], jl, float(d_line[r]), state="red")
+                    control.may_enter(v, ids[in_lane[i]], jl, float(d_line[i]), state="red")
                 continue
-            dist[r] = control.stop_distance(v, stops=sc.stops(r))
+            if signal[i]:  # the state at its first stop's line is known
+                sc.state[i] = SIGNAL_STATES[state[i]]
+            dist[i] = control.stop_distance(v, scan=(sc, i))
         return R, dist
 
     def _signal_arrays(self, controls: list) -> np.ndarray:
@@ -1437,16 +1448,6 @@ class TrafficCore:
         everyone = [self.objs[i] for i in rows.tolist()] + objects
         for i, j in zip(a[keep].tolist(), b[keep].tolist()):
             everyone[i].handle_collisions(everyone[j], dt)
-
-
-def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
-    """`np.isin(keys, few)`: for a short list `few` a comparison per value (no sort)."""
-    if len(few) > IS_ANY_COMPARISONS:
-        return np.isin(keys, few)
-    hit = keys == few[0]
-    for k in few[1:]:
-        hit |= keys == k
-    return hit
 
 
 def same_key_pairs(key_a: np.ndarray, key_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

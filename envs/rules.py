@@ -957,7 +957,7 @@ class TrafficRules:
         return best
 
     def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset(),
-                      stops: list | None = None) -> float:
+                      scan: tuple | None = None) -> float:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
         STOP_POINT_M before a stop line it may not pass (measured along the route), before a
         pedestrian's crosswalk, or before a narrow passage the other direction holds. `ignore`
@@ -965,14 +965,14 @@ class TrafficRules:
         waiting for a passage reserves the junction lanes before that wait as it commits to them
         (unseen by the rules, it drove into a junction in which a car from the other side then
         took a lane conflicting with its own: Testfeld_Karlsruhe r046), and none beyond it.
-        `stops`: the vehicle's stops along its route when the caller scanned them (`_rule_stop`)."""
+        `scan`: the vehicle's scan along its route when the caller made it (`_rule_stop`)."""
         passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
         if passage < math.inf:  # waiting for a passage: no junction lane beyond that wait is reserved meanwhile
             if commit:
                 self._unreserve_beyond(vehicle, passage)
-            stop = min(passage, self._rule_stop(vehicle, commit, ignore, passage, stops))
+            stop = min(passage, self._rule_stop(vehicle, commit, ignore, passage, scan))
         else:
-            stop = self._rule_stop(vehicle, commit, ignore, stops=stops)
+            stop = self._rule_stop(vehicle, commit, ignore, scan=scan)
         return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
 
     def _unreserve_beyond(self, vehicle, wait: float) -> None:
@@ -1012,21 +1012,25 @@ class TrafficRules:
         return stop
 
     def _rule_stop(self, vehicle, commit: bool, ignore: frozenset, before: float = math.inf,
-                   stops: list | None = None) -> float:
+                   scan: tuple | None = None) -> float:
         """`stop_distance` without narrow passages: the vehicle's stops along its route in order
-        (`stops`, from `sim.rule_scan`: a road lane across a junction lane, a junction entry's
-        line, a mid-block crossing's light, a crosswalk with people on it; asked of its road's
-        core when not given), the first that holds it. The scan runs up to the first road after
-        the next junction entry with room to wait on it, however many short road lanes lie
-        before a line (CARLA's 1.5 m and 2.4 m roads) and however many junctions follow each
-        other with less road between them: a line right after a junction is seen from before
-        that junction (SUMO's 0.2 m approach lanes after a junction: the line came into view 4 m
-        ahead, too late to stop for its red). Junction lanes `beyond` the stop point `before` (a
-        passage's wait) are checked but never reserved."""
+        (`sim.rule_scan`: a road lane across a junction lane, a junction entry's line, a
+        mid-block crossing's light, a crosswalk with people on it), the first that holds it.
+        `scan`: (an indexed `rule_scan.Scan`, the vehicle's place in it) when the caller scanned
+        it (the signal's state at its first stop's line may be known there), else its road's
+        core scans it. The scan runs up to the first road after the next junction entry with
+        room to wait on it, however many short road lanes lie before a line (CARLA's 1.5 m and
+        2.4 m roads) and however many junctions follow each other with less road between them:
+        a line right after a junction is seen from before that junction (SUMO's 0.2 m approach
+        lanes after a junction: the line came into view 4 m ahead, too late to stop for its
+        red). Junction lanes `beyond` the stop point `before` (a passage's wait) are checked but
+        never reserved."""
         ids = self.net.lane_ids
-        if stops is None:
-            stops = self.road.core.rule_stops_of(vehicle)
-        for lane, prev, d, what in stops:
+        sc, r = scan if scan is not None else (self.road.core.rule_scan_of(vehicle), 0)
+        lanes, prevs, dists, bits = sc.lane, sc.prev, sc.dist, sc.bits
+        for k in range(sc.first[r], sc.end[r]):
+            lane, prev, d, what = lanes[k], prevs[k], dists[k], bits[k]
+            state = sc.state[r] if k == sc.first[r] else None
             lid = ids[lane]
             if prev < 0:  # the current lane: a mid-block light's line and pedestrians ahead of us on it
                 s_own = -d
@@ -1042,7 +1046,7 @@ class TrafficRules:
             if what & ENTRY:
                 in_lane = ids[prev]
                 d_line = d - line_setback(self.net, in_lane)
-                if not self.may_enter(vehicle, in_lane, lid, d_line, commit and not beyond(d, before), ignore):
+                if not self.may_enter(vehicle, in_lane, lid, d_line, commit and not beyond(d, before), ignore, state):
                     return d_line - STOP_POINT_M
             stop = self.midblock_stop(vehicle, lid, d, ignore) if what & MIDBLOCK else math.inf
             ped = None if "pedestrian" in ignore or not what & PEOPLE else self.pedestrian_blocking(lid, 0.0)

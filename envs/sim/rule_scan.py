@@ -11,7 +11,7 @@ stop is a signal that holds them in arrays (`TrafficCore._rule_stops`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,64 +22,92 @@ from ..rules import CROSSED, ENTRY, MIDBLOCK, PEOPLE, room_to_wait
 if TYPE_CHECKING:
     from ..core import TrafficCore
 
-@dataclass(frozen=True)
+IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many values (more: np.isin sorts)
+
+
+@dataclass
 class Scan:
-    """The scan of `rows`: per row and window place, the lane (`lanes`), the distance from the
-    row's centre to its start (`D`: negative on the current lane, summed lane by lane as
-    `RouteFollower.upcoming` does) and what on it can stop the row (`what`: bits, 0 on lanes
-    holding nothing or not scanned)."""
+    """The scan of `rows`: per row and window place, the lane (`lanes`, -1 past the route's end),
+    the distance from the row's centre to its start (`D`: negative on the current lane) and what
+    on it can stop the row (`what`: bits, 0 on lanes holding nothing or not scanned). `index`
+    lists the stops for `TrafficRules._rule_stop` to walk."""
 
     rows: np.ndarray
     lanes: np.ndarray
     D: np.ndarray
     what: np.ndarray
+    # the stops of the rows indexed, flat in row and route order: the `r`-th row's are
+    # `first[r]` up to `end[r]`: lane, the lane before it (-1 for the current lane), distance,
+    # what; `state[r]`: the signal's state at its first stop's line where known (None: the
+    # rules look). Flat lists, so that no object is made per row.
+    lane: list = field(default_factory=list)
+    prev: list = field(default_factory=list)
+    dist: list = field(default_factory=list)
+    bits: list = field(default_factory=list)
+    first: list = field(default_factory=list)
+    end: list = field(default_factory=list)
+    state: list = field(default_factory=list)
+
+    def index(self, asked: np.ndarray | None = None) -> "Scan":
+        """List the stops of the rows `asked` (a mask over `rows`; default every row)."""
+        what = self.what if asked is None else np.where(asked[:, None], self.what, 0)
+        r_i, k_i = what.nonzero()  # row by row, in route order
+        self.lane = self.lanes[r_i, k_i].tolist()
+        self.prev = np.where(k_i > 0, self.lanes[r_i, np.maximum(k_i - 1, 0)], -1).tolist()
+        self.dist = self.D[r_i, k_i].tolist()
+        self.bits = what[r_i, k_i].tolist()
+        places = np.arange(len(self.rows))
+        self.first = np.searchsorted(r_i, places).tolist()
+        self.end = np.searchsorted(r_i, places, side="right").tolist()
+        self.state = [None] * len(self.rows)
+        return self
 
     def stops(self, r: int) -> list[tuple[int, int, float, int]]:
-        """(lane, the lane before it (-1 for the current lane), distance, what) of each place that
-        can stop the `r`-th row, in route order."""
-        ks = self.what[r].nonzero()[0]
-        before = np.where(ks > 0, self.lanes[r, np.maximum(ks - 1, 0)], -1)
-        return list(zip(self.lanes[r, ks].tolist(), before.tolist(), self.D[r, ks].tolist(), self.what[r, ks].tolist()))
+        """The `r`-th row's stops as (lane, lane before, distance, what) (indexed)."""
+        k = slice(self.first[r], self.end[r])
+        return list(zip(self.lane[k], self.prev[k], self.dist[k], self.bits[k]))
 
 
-def scan(core: "TrafficCore", rows: np.ndarray) -> Scan:
-    """The scan of driven `rows` (row indices; their windows up to date)."""
-    t = core.table
-    W = core.W[rows]
-    n, K = W.shape
-    lanes = np.maximum(W, 0)
-    valid = W >= 0
-    length = t.length[lanes]
-    s = core.s[rows]
-    D = np.empty((n, K))
-    D[:, 0] = -s
-    if K > 1:  # the current lane's rest, then each lane's length, added one by one
-        D[:, 1:] = np.cumsum(np.column_stack([length[:, 0] - s, length[:, 1:-1]]), axis=1)
-    live = valid & (D <= LOOKAHEAD_M)
-    live[:, 0] = valid[:, 0]
-    junction = t.junction[lanes] & live
-    # the scan ends after the first road lane after a junction lane whose road since that
-    # junction lane (this lane included), less its line's setback, holds the row waiting
-    entered = np.zeros((n, K), dtype=bool)
-    entered[:, 2:] = np.logical_or.accumulate(junction[:, 1:-1], axis=1)
-    road = np.where(junction, 0.0, length)
-    road[:, 0] = 0.0
-    since = np.cumsum(road, axis=1)
-    at_junction = np.maximum.accumulate(np.where(junction, np.arange(K), 0), axis=1)
-    room = since - since[np.arange(n)[:, None], at_junction]
-    end = live & ~junction & entered & room_to_wait(room - t.line_setback[lanes], core.length[rows][:, None])
-    end[:, 0] = False
-    scanned = live & (np.cumsum(end, axis=1) - end == 0)
-    what = np.zeros((n, K), dtype=np.int8)
-    what[:, 1:] |= np.where(t.crossed[lanes[:, 1:]], CROSSED, 0).astype(np.int8)
-    what[:, 1:] |= np.where(junction[:, 1:] & ~junction[:, :-1], ENTRY, 0).astype(np.int8)
-    what |= np.where(t.midblock[lanes], MIDBLOCK, 0).astype(np.int8)
+def along(table, lanes: list[int], length: float) -> list[int]:
+    """What of a window's scan holds while the route position does (`TrafficCore.
+    refresh_windows`, once per window): per window lane what can stop a road user `length` long
+    there (a crosswalk's people aside), up to the last lane the scan reaches, the first road lane
+    after a junction lane whose road since that junction lane (itself included), less its line's
+    setback, holds the road user waiting (`rules.room_to_wait`); nothing beyond."""
+    junction, crossed, midblock = table.junction, table.crossed, table.midblock
+    what = [MIDBLOCK if midblock[lanes[0]] else 0]
+    entered, room = False, 0.0  # past a junction lane; road since the last one
+    for k in range(1, len(lanes)):
+        lane = lanes[k]
+        j = junction[lane]
+        what.append((CROSSED if crossed[lane] else 0) | (ENTRY if j and not junction[lanes[k - 1]] else 0) |
+                    (MIDBLOCK if midblock[lane] else 0))
+        if j:
+            entered, room = True, 0.0
+        elif entered:
+            room += table.length[lane]
+            if room_to_wait(room - table.line_setback[lane], length):
+                break
+    return what
+
+
+def scan(core: "TrafficCore", rows: np.ndarray | None = None) -> Scan:
+    """The scan of driven `rows` (row indices, default every row; their windows up to date):
+    the window's stops (`along`) within LOOKAHEAD_M of each row, and the crosswalks with people
+    on them now."""
+    if rows is None:
+        W, C, s, env, what = core.W, core.C, core.s, core.env, core.scan_what
+        rows = np.arange(len(s))
+    else:
+        W, C, s, env, what = core.W[rows], core.C[rows], core.s[rows], core.env[rows], core.scan_what[rows]
+    D = C - s[:, None]
+    scanned = D <= LOOKAHEAD_M  # (the current lane, at D = -s, always)
+    what = what * scanned
     busy = busy_lanes(core)
     if busy:
-        key = core.env[rows][:, None] * len(t.length) + lanes
-        what |= np.where(np.isin(key, busy), PEOPLE, 0).astype(np.int8)
-    what[~scanned] = 0
-    return Scan(rows, lanes, D, what)
+        key = env[:, None] * len(core.table.length) + W
+        what |= np.where(scanned & (W >= 0) & is_any(key, busy), PEOPLE, 0).astype(np.int8)
+    return Scan(rows, W, D, what)
 
 
 def busy_lanes(core: "TrafficCore") -> list[int]:
@@ -89,3 +117,13 @@ def busy_lanes(core: "TrafficCore") -> list[int]:
     nl = len(t.length)
     return [road.slot * nl + k for road in core.roads if road is not None
             for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
+
+
+def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
+    """`np.isin(keys, few)`: for a short list `few` a comparison per value (no sort)."""
+    if len(few) > IS_ANY_COMPARISONS:
+        return np.isin(keys, few)
+    hit = keys == few[0]
+    for k in few[1:]:
+        hit |= keys == k
+    return hit

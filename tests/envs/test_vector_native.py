@@ -123,7 +123,8 @@ def scalar_code(monkeypatch) -> None:
     from feat2map.envs import core, vector
     from feat2map.envs.sim import stop_signs
 
-    def rule_stops(self, rows):
+    def rule_stops(self, traffic):
+        rows = (traffic & ~self.crashed).nonzero()[0].tolist()
         stops = [self.roads[self.env[i]].control.stop_distance(self.objs[i]) for i in rows]
         return np.array(rows, dtype=np.int64), np.array(stops, dtype=float)
 
