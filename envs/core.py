@@ -996,10 +996,10 @@ class TrafficCore:
         v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
         fi, gap, vl = self._leaders(traffic.nonzero()[0])
         jam = np.full(len(fi), IDM_GAP_M)
-        si, sd = self._rule_stops(traffic)
-        stopping = sd < math.inf
-        if stopping.any():
-            si, sd = si[stopping], sd[stopping]
+        sd = self._rule_stops(traffic)
+        si = (sd < math.inf).nonzero()[0]
+        if len(si):
+            sd = sd[si]
             fi = np.concatenate([fi, si])
             gap = np.concatenate([gap, stop_gap(sd, self.length[si])])
             vl = np.concatenate([vl, np.zeros(len(si))])
@@ -1059,7 +1059,7 @@ class TrafficCore:
         O = np.arange(len(self.objs)) if others is None else others
         ctl = self.controlled if others is None else self.controlled[O]
         pick = (lambda a: a) if others is None else (lambda a: a[O])  # noqa: E731
-        at = np.where(ctl, pick(self.at_lane), pick(self.lane))  # where each candidate is
+        at = self.where_lanes(others)  # where each candidate is
         at_s = np.where(ctl, pick(self.at_s), pick(self.s))
         at_lat = np.where(ctl, pick(self.at_lat), pick(self.lat))
         env_f, env_o = self.env[rows], pick(self.env)
@@ -1139,23 +1139,22 @@ class TrafficCore:
         self.refresh_windows()
         return rule_scan.scan(self, np.array([i])).index()
 
-    def _rule_stops(self, traffic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(rows, `rules.TrafficRules.stop_distance` of their vehicles) of every row (inf outside
-        the `traffic` mask and for crashed rows), the rules asked in row order (they claim
-        junction reservations in road order), from one scan of all rows, whatever their slots
+    def _rule_stops(self, traffic: np.ndarray) -> np.ndarray:
+        """Per row, `rules.TrafficRules.stop_distance` of its vehicle (inf outside the `traffic`
+        mask and for crashed rows), the rules asked in row order (they claim junction
+        reservations in road order), from one scan of all rows, whatever their slots
         (`sim.rule_scan`): a row with nothing on its scan and no narrow passage on its window
-        goes; a row whose first stop
-        is a junction entry under a signal that holds it (`rules.held_at_signal`: red, or amber
-        where it can stop) stops at the line without asking the rules (on red, a reservation it
-        holds there is given up: `may_enter`; settled so from SETTLE_MIN_ROWS rows asked); the
-        others ask `stop_distance` with their stops, in row order."""
+        goes; a row whose first stop is a junction entry under a signal that holds it
+        (`rules.held_at_signal`: red, or amber where it can stop) stops at the line without
+        asking the rules (on red, a reservation it holds there is given up: `may_enter`; settled
+        so from SETTLE_MIN_ROWS rows asked); the others ask `stop_distance` with their stops, in
+        row order."""
         roads, env, objs = self.roads, self.env, self.objs
         n = len(objs)
-        R = np.arange(n)
         dist = np.full(n, math.inf)
         on = traffic & ~self.crashed
         if not on.any():
-            return R, dist
+            return dist
         sc = rule_scan.scan(self)
         t = self.table
         at = sc.what != 0
@@ -1166,7 +1165,7 @@ class TrafficCore:
             sc.index(ask)
             for i in ask.nonzero()[0].tolist():
                 dist[i] = roads[env[i]].control.stop_distance(objs[i], scan=(sc, i))
-            return R, dist
+            return dist
         first = np.argmax(at, axis=1)
         ar = np.arange(n)
         entry = ask & (sc.what[ar, first] & (ENTRY | CROSSED) == ENTRY)
@@ -1195,7 +1194,7 @@ class TrafficCore:
             if signal[i]:  # the state at its first stop's line is known
                 sc.state[i] = SIGNAL_STATES[state[i]]
             dist[i] = control.stop_distance(v, scan=(sc, i))
-        return R, dist
+        return dist
 
     def _signal_arrays(self, controls: list) -> np.ndarray:
         """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only
@@ -1397,9 +1396,12 @@ class TrafficCore:
         lane = self.where_lanes().tolist()
         return [[ids[lane[i]] if lane[i] >= 0 else None for i in self.rows(road).tolist()] for road in roads]
 
-    def where_lanes(self) -> np.ndarray:
-        """Per row, the lane it is on: a controlled row's located lane (`locate`), another's its lane."""
-        return np.where(self.controlled, self.at_lane, self.lane)
+    def where_lanes(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """Per row (of `rows`, default every row), the lane it is on: a controlled row's located
+        lane (`locate`), another's its lane."""
+        if rows is None:
+            return np.where(self.controlled, self.at_lane, self.lane)
+        return np.where(self.controlled[rows], self.at_lane[rows], self.lane[rows])
 
     def _all_pairs(self, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
         """Every (i, j) with i < n, i < j < m, grouped by i (`np.triu_indices`), kept for the last (n, m)."""

@@ -27,12 +27,11 @@ IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many value
 
 @dataclass
 class Scan:
-    """The scan of `rows`: per row and window place, the lane (`lanes`, -1 past the route's end),
+    """A scan of rows: per row and window place, the lane (`lanes`, -1 past the route's end),
     the distance from the row's centre to its start (`D`: negative on the current lane) and what
     on it can stop the row (`what`: bits, 0 on lanes holding nothing or not scanned). `index`
     lists the stops for `TrafficRules._rule_stop` to walk."""
 
-    rows: np.ndarray
     lanes: np.ndarray
     D: np.ndarray
     what: np.ndarray
@@ -49,17 +48,17 @@ class Scan:
     state: list = field(default_factory=list)
 
     def index(self, asked: np.ndarray | None = None) -> "Scan":
-        """List the stops of the rows `asked` (a mask over `rows`; default every row)."""
+        """List the stops of the rows `asked` (a mask over the scan's rows; default every row)."""
         what = self.what if asked is None else np.where(asked[:, None], self.what, 0)
         r_i, k_i = what.nonzero()  # row by row, in route order
         self.lane = self.lanes[r_i, k_i].tolist()
         self.prev = np.where(k_i > 0, self.lanes[r_i, np.maximum(k_i - 1, 0)], -1).tolist()
         self.dist = self.D[r_i, k_i].tolist()
         self.bits = what[r_i, k_i].tolist()
-        places = np.arange(len(self.rows))
+        places = np.arange(len(self.what))
         self.first = np.searchsorted(r_i, places).tolist()
         self.end = np.searchsorted(r_i, places, side="right").tolist()
-        self.state = [None] * len(self.rows)
+        self.state = [None] * len(self.what)
         return self
 
     def stops(self, r: int) -> list[tuple[int, int, float, int]]:
@@ -97,7 +96,6 @@ def scan(core: "TrafficCore", rows: np.ndarray | None = None) -> Scan:
     on them now."""
     if rows is None:
         W, C, s, env, what = core.W, core.C, core.s, core.env, core.scan_what
-        rows = np.arange(len(s))
     else:
         W, C, s, env, what = core.W[rows], core.C[rows], core.s[rows], core.env[rows], core.scan_what[rows]
     D = C - s[:, None]
@@ -107,7 +105,7 @@ def scan(core: "TrafficCore", rows: np.ndarray | None = None) -> Scan:
     if busy:
         key = env[:, None] * len(core.table.length) + W
         what |= np.where(scanned & (W >= 0) & is_any(key, busy), PEOPLE, 0).astype(np.int8)
-    return Scan(rows, W, D, what)
+    return Scan(W, D, what)
 
 
 def busy_lanes(core: "TrafficCore") -> list[int]:

@@ -16,6 +16,7 @@ from ..rules import has_stopped
 if TYPE_CHECKING:
     from ..core import TrafficCore
 
+
 def update(core: "TrafficCore", rows: np.ndarray) -> None:
     """Bring the stop-sign queues of the road users in `rows` (a mask over the core's rows) up
     to date after a frame: a queued one leaves on entering a lane of its junction; then one that

@@ -124,9 +124,10 @@ def scalar_code(monkeypatch) -> None:
     from feat2map.envs.sim import stop_signs
 
     def rule_stops(self, traffic):
-        rows = (traffic & ~self.crashed).nonzero()[0].tolist()
-        stops = [self.roads[self.env[i]].control.stop_distance(self.objs[i]) for i in rows]
-        return np.array(rows, dtype=np.int64), np.array(stops, dtype=float)
+        dist = np.full(len(self.objs), np.inf)
+        for i in (traffic & ~self.crashed).nonzero()[0].tolist():
+            dist[i] = self.roads[self.env[i]].control.stop_distance(self.objs[i])
+        return dist
 
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
