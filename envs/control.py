@@ -7,6 +7,7 @@ ego's judge and planners ask of it.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -16,7 +17,7 @@ import numpy as np
 from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOP_POINT_M
 from ..phases import junction_phases
 from .network import MapNetwork
-from .rules import TrafficRules, commits
+from .rules import Claims, TrafficRules, beyond, commits, enters_next
 from .sim import stop_signs
 from .vehicles import Pedestrian
 
@@ -136,6 +137,121 @@ class TrafficControl(TrafficRules):
         self.passage_holders: dict[int, tuple[set, set]] = {}
         self.passage_waiters: dict[int, dict] = {}
         self.passage_rooms: dict[tuple[int, int], set] = {}
+        self._claims: Claims = []  # what the claim being made takes (`claim`)
+
+    # ---- claims: the one update of rule state -------------------------------------------
+    def claim(self, vehicle, ignore: frozenset = frozenset(), scan: tuple | None = None) -> float:
+        """The one update of rule state by one road user, from its place and speed (traffic at
+        every frame in row order, `core.TrafficCore._rule_stops`; a controlled row when its driver
+        claims, `map_env.EgoTask.claim`), in this order: its place at the narrow passages ahead
+        (`claim_passages`); while it waits for one, the junction lane beyond that wait it gives up
+        (`_unreserve_beyond`); then its walk along the route (`_rule_stop`): the junction lanes the
+        rules let it enter, reserved within commit distance of their line, and on red the one it
+        gives up. Returns its stop distance, as `stop_distance` (with `ignore` and `scan`) finds it
+        on the way. A vehicle waiting for a passage reserves the junction lanes before that wait
+        (unseen by the rules, it drove into a junction in which a car from the other side then
+        took a lane conflicting with its own: Testfeld_Karlsruhe r046), and none beyond it."""
+        passage = math.inf if "passage" in ignore else self.claim_passages(vehicle)
+        if passage < math.inf:
+            self._unreserve_beyond(vehicle, passage)
+        claims = self._claims  # (one list, used again: no object per claim for the cyclic GC to count)
+        stop = self._stop_within(vehicle, ignore, passage, scan, claims)
+        for op, j_lane, chain in claims:
+            if op == "reserve":
+                self._reserve(vehicle, j_lane, chain)
+            else:
+                self.release(vehicle, j_lane)
+        claims.clear()
+        return stop
+
+    def claim_passages(self, vehicle) -> float:
+        """`passage_stop`, and `vehicle` takes its place at the passages ahead (as a holder or a
+        waiter, `_enrol`) once within commit distance of its wait: first come first served."""
+        nxt = self.passage_way(vehicle) if self.net.passages else None
+        if nxt is None:
+            return math.inf
+        chain, wait, room = nxt
+        ok = self.passage_allows(vehicle, chain)
+        if commits(wait + STOP_POINT_M, vehicle.speed):
+            self._enrol(vehicle, chain, ok, room)
+        return math.inf if ok else wait
+
+    def _enrol(self, vehicle, chain: list[tuple[int, int]], ok: bool, room: tuple[int, int] | None) -> None:
+        """`vehicle` takes its place at the passages of `chain`: allowed (`ok`), among the holders
+        of all and the place to wait before passage `room` (`passage_way`'s third item); else
+        among the waiters of all, standing in the room before the first."""
+        for group, side in chain:
+            waiters = self.passage_waiters.setdefault(group, {})
+            if ok:
+                self.passage_holders.setdefault(group, (set(), set()))[side].add(vehicle)
+                waiters.pop(vehicle, None)
+            elif vehicle not in waiters:
+                waiters[vehicle] = (side, self.t)
+        taken = room if ok else chain[0]
+        if taken is not None:
+            self.passage_rooms.setdefault(taken, set()).add(vehicle)
+
+    def passage_start(self, vehicle) -> bool:
+        """Whether a vehicle just placed on the road (the ego at reset, traffic at a spawn) may
+        be there: the passages it starts in or is about to enter, with those chained after them,
+        are not held from the other direction; it then holds them."""
+        nxt = self.passage_way(vehicle, entered=True) if self.net.passages else None
+        if nxt is None or not commits(nxt[1] + STOP_POINT_M, vehicle.speed):
+            return True
+        ok = self.passage_allows(vehicle, nxt[0])
+        if ok:
+            self._enrol(vehicle, nxt[0], True, nxt[2])
+        return ok
+
+    def _unreserve_beyond(self, vehicle, wait: float) -> None:
+        """Give up `vehicle`'s reservation of a junction lane that begins beyond its wait for a
+        narrow passage (`wait` metres ahead): it will not enter that lane until the passage is its
+        own, and the reservation kept the passage's holder, whose way out crossed that lane, from
+        coming through (digitaf r025: a car reserved its lane into the passage while the passage
+        was free, then waited before it: the holder from the other side waited for the lane)."""
+        lane = getattr(vehicle, "reserved", None)
+        holder = self.reservations.get(lane) if lane is not None else None
+        if holder is None or holder is not vehicle:
+            return
+        for _k, lid, d, s_own in vehicle.upcoming(wait + vehicle.LENGTH):
+            if lid == lane:
+                if s_own is None and beyond(d, wait):
+                    self.release(vehicle, lane)
+                return
+
+    def release(self, vehicle, j_lane: str) -> None:
+        """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
+        junction (if it holds them): it will not enter now. (Asked every frame of every vehicle
+        at a red line: one that holds nothing skips the chain.)"""
+        if any(v is vehicle for v in self.reservations.values()):
+            for x in self.junction_chain(vehicle, j_lane):
+                if x in self.reservations and self.reservations[x] is vehicle:
+                    del self.reservations[x]
+        if vehicle.reserved == j_lane:
+            vehicle.reserved = None
+
+    def hand_over(self, j_lane: str) -> None:
+        """A reservation of junction lane `j_lane` was given up: the road user that followed its
+        holder past the line and can no longer stop before it takes it over (with its chain),
+        nearest the lane first. It found the lane reserved when it committed, so it claimed
+        nothing, and a lower-priority lane unreserved and not yet entered is invisible to cross
+        traffic's `junction_clear`: GoMentum's base_map r002, a car behind its leader into a
+        permissive left turn was hit by the ego going straight on the lane the leader's release
+        let it reserve."""
+        committed = []
+        for p in self.net.hdmap.lanes[j_lane].predecessors:
+            for v in self.buckets.get(p, ()):
+                if enters_next(v, j_lane) and not self.can_still_stop(v, j_lane):
+                    committed.append((self.line_distance(v, j_lane), v))
+        if committed:
+            _, v = min(committed, key=lambda dv: dv[0])
+            self._reserve(v, j_lane, self.junction_chain(v, j_lane))
+
+    def _reserve(self, vehicle, j_lane: str, chain: tuple[str, ...]) -> None:
+        """`vehicle` reserves junction lane `j_lane` and `chain` (the lanes it holds keep their holders)."""
+        for x in chain:
+            self.reservations.setdefault(x, vehicle)
+        vehicle.reserved = j_lane
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
     def update(self, road, dt: float, lanes: list[str | None] | None = None) -> None:
@@ -207,7 +323,7 @@ class TrafficControl(TrafficRules):
                 # (near its wait for the loop back into it, and nobody from the other side first)
                 nxt = self.passage_ahead(v, entered=True)
                 return nxt is not None and (group, side) in nxt[0] and \
-                    commits(nxt[1] + STOP_POINT_M, v.speed) and self.passage_allows(v, nxt[0], commit=False)
+                    commits(nxt[1] + STOP_POINT_M, v.speed) and self.passage_allows(v, nxt[0])
             for k, lid in enumerate(route[v.route_pos:]):
                 ps = net.passages.get(lid)
                 if ps is not None and ps.group == group and ps.side == side and \

@@ -35,9 +35,9 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    lane. Where the rules can stop each row is one scan of every row's window
    (`sim.rule_scan`: junction entries, road lanes across junction lanes, mid-block lights,
    crosswalks with people on them, up to the first road after the next entry with room to
-   wait); a row held at a signal stops there, and the rules (`rules.TrafficRules.stop_distance`:
-   signals, stop signs, reservations, pedestrians) are asked of the other rows with stops on
-   their scans, in row order, so that reservations are claimed in road order. MOBIL runs every
+   wait); a row held at a signal stops there, and the other rows with stops on their scans
+   claim (`control.TrafficControl.claim`: the rules' one update, signals, stop signs,
+   reservations, pedestrians) in row order, so that reservations are claimed in road order. MOBIL runs every
    MOBIL_PERIOD_S for rows `rules.may_change_lane` allows on lanes with same-direction
    neighbours (`TrafficVehicle.mobil_change`, on the view).
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
@@ -91,7 +91,7 @@ if TYPE_CHECKING:
 EXTERNAL, DRIVEN = 0, 1
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
 # rows the rules are asked of (`TrafficCore._rule_stops`) from which a signal's hold is settled in
-# arrays before the rules are asked row by row (fewer: each asks, and `may_enter` settles it; the
+# arrays before the rows claim one by one (fewer: each claims, and `may_enter` settles it; the
 # same values)
 SETTLE_MIN_ROWS = 24
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
@@ -1140,15 +1140,14 @@ class TrafficCore:
         return rule_scan.scan(self, np.array([i])).index()
 
     def _rule_stops(self, traffic: np.ndarray) -> np.ndarray:
-        """Per row, `rules.TrafficRules.stop_distance` of its vehicle (inf outside the `traffic`
-        mask and for crashed rows), the rules asked in row order (they claim junction
-        reservations in road order), from one scan of all rows, whatever their slots
+        """Per row, the stop distance of its vehicle (inf outside the `traffic` mask and for
+        crashed rows) as it claims (`control.TrafficControl.claim`, in row order: junction
+        reservations are claimed in road order), from one scan of all rows, whatever their slots
         (`sim.rule_scan`): a row with nothing on its scan and no narrow passage on its window
         goes; a row whose first stop is a junction entry under a signal that holds it
         (`rules.held_at_signal`: red, or amber where it can stop) stops at the line without
-        asking the rules (on red, a reservation it holds there is given up: `may_enter`; settled
-        so from SETTLE_MIN_ROWS rows asked); the others ask `stop_distance` with their stops, in
-        row order."""
+        claiming (on red, a reservation it holds there is given up, as its claim would; settled
+        so from SETTLE_MIN_ROWS rows asked); the others claim with their stops, in row order."""
         roads, env, objs = self.roads, self.env, self.objs
         n = len(objs)
         dist = np.full(n, math.inf)
@@ -1164,7 +1163,7 @@ class TrafficCore:
         if ask.sum() < SETTLE_MIN_ROWS:  # too few for the arrays to pay: each asks the rules
             sc.index(ask)
             for i in ask.nonzero()[0].tolist():
-                dist[i] = roads[env[i]].control.stop_distance(objs[i], scan=(sc, i))
+                dist[i] = roads[env[i]].control.claim(objs[i], scan=(sc, i))
             return dist
         first = np.argmax(at, axis=1)
         ar = np.arange(n)
@@ -1189,11 +1188,11 @@ class TrafficCore:
             if halt[i]:  # red: it gives a reservation of its lane up
                 jl = ids[j_lane[i]]
                 if control.reservations.get(jl) is v:
-                    control.may_enter(v, ids[in_lane[i]], jl, float(d_line[i]), state="red")
+                    control.release(v, jl)
                 continue
             if signal[i]:  # the state at its first stop's line is known
                 sc.state[i] = SIGNAL_STATES[state[i]]
-            dist[i] = control.stop_distance(v, scan=(sc, i))
+            dist[i] = control.claim(v, scan=(sc, i))
         return dist
 
     def _signal_arrays(self, controls: list) -> np.ndarray:

@@ -24,7 +24,7 @@ class ScriptedDriver:
 
     def acceleration(self) -> float:
         env = self.env
-        stop = env.rule_stop_distance(self.ignore)
+        stop = env.claim(self.ignore)
         return idm(env.vehicle, env.leader_gaps(), stop)
 
     def act(self) -> np.ndarray:

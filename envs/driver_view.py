@@ -106,7 +106,7 @@ def driver_view(env) -> list[float]:
             out["stop_made"] = float(env.judge.stopped_before(in_lane))
             out["queue_ahead"] = _scaled(_queue_ahead(rules, ego, j_lane), DRIVER_VIEW_QUEUE_SCALE)
         _conflicts(rules, ego, j_lane, out)
-    ped = rules.stop_distance(ego, commit=False, ignore=_IGNORE_BUT_PEDESTRIANS)
+    ped = rules.stop_distance(ego, ignore=_IGNORE_BUT_PEDESTRIANS)
     if ped < math.inf:
         out["pedestrian"] = _scaled(ped, DRIVER_VIEW_PEDESTRIAN_SCALE_M)
     gaps = ego.leader_gaps()

@@ -34,7 +34,7 @@ from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
-from .rules import VIOLATIONS, EgoJudge, braking_distance, manoeuvre_name, route_memo
+from .rules import VIOLATIONS, EgoJudge, TrafficRules, braking_distance, manoeuvre_name, route_memo
 from .sim.vehicle import VehicleModel
 from .vehicles import TrafficVehicle
 
@@ -75,9 +75,9 @@ class EgoTask:
     _last_rewards: dict[str, float]
 
     @property
-    def rules(self) -> TrafficControl:
-        """The episode's `TrafficControl` (`self.control`): it answers the rules' questions
-        (`rules.TrafficRules`, its base class) from this episode's signals and queues, for planners."""
+    def rules(self) -> TrafficRules:
+        """The rules' questions (`rules.TrafficRules`: pure queries), answered from this episode's
+        signals, queues and reservations, for planners; what the ego takes is `claim`'s."""
         return self.control
 
     @property
@@ -181,10 +181,28 @@ class EgoTask:
                 return ln.junction_id, manoeuvre_name(ln, self.net.ramp_moves)
         return None, None
 
-    def rule_stop_distance(self, ignore: Sequence[str] = (), commit: bool = True) -> float:
-        """Where the traffic rules make the ego stop (metres from its centre; inf if free).
-        `ignore` may name "signal", "stop", "pedestrian", "conflict" to break those rules."""
-        return self.control.stop_distance(self.vehicle, commit=commit, ignore=frozenset(ignore))
+    def rule_stop_distance(self, ignore: Sequence[str] = ()) -> float:
+        """Where the traffic rules make the ego stop (metres from its centre; inf if free), a pure
+        question. `ignore` may name "signal", "stop", "pedestrian", "conflict" to break those rules."""
+        return self.control.stop_distance(self.vehicle, ignore=frozenset(ignore))
+
+    # ---- the ego's claims: what its driver means to do at junctions and narrow passages ------
+    def claim(self, ignore: Sequence[str] = ()) -> float:
+        """The ego goes where the rules (less `ignore`) let it: it takes its place at the narrow
+        passages ahead and reserves its junction lanes within commit distance of their line, as a
+        traffic car in its place would (`control.TrafficControl.claim`, the same update);
+        returns `rule_stop_distance`'s answer as the claim finds it."""
+        return self.control.claim(self.vehicle, ignore=frozenset(ignore))
+
+    def claim_passages(self) -> float:
+        """The ego takes its place at the narrow passages ahead (first come first served) without
+        claiming junction lanes; returns where it waits for them (inf: free)."""
+        return self.control.claim_passages(self.vehicle)
+
+    def give_up(self, junction_lane: str) -> None:
+        """The ego will not enter `junction_lane` now: it gives up its reservation of the lane and
+        of the lanes chained after it, so that the traffic it waits for can go."""
+        self.control.release(self.vehicle, junction_lane)
 
     def leader_gaps(self) -> list[tuple[float, float]]:
         """(bumper gap [m], speed [m/s]) of road users ahead on the ego's route."""
@@ -199,7 +217,7 @@ class EgoTask:
         mid = rules.midblock_ahead(ego, d)
         if mid is not None:
             sl, state, d = None, rules.signal_state(mid[0]), mid[1]
-        ped = rules.stop_distance(ego, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
+        ped = rules.stop_distance(ego, ignore=frozenset({"signal", "stop", "conflict"}))
         return np.array([state == "green", state == "amber", state == "red",
                          sl is not None and sl.kind == "stop", min(d, STOP_LINE_RANGE_M) / STOP_LINE_RANGE_M,
                          ped < math.inf], dtype=np.float32)

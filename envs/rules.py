@@ -314,6 +314,13 @@ def enters_next(vehicle, lane_id: str) -> bool:
     return lane_id in route[pos:pos + 2]
 
 
+# What one road user's walk along its route takes and gives up, in route order
+# (`control.TrafficControl.claim` applies it once the walk is done): ("reserve", junction lane,
+# the lanes reserved with it) and ("release", junction lane, ()) on red. The walk's later stops
+# read what it takes from it (`TrafficRules._holds`), as they would once applied.
+Claims = list[tuple[str, str, tuple[str, ...]]]
+
+
 class TrafficRules:
     """The rules' questions, answered from the traffic control state of `control.TrafficControl`
     (which inherits them): signals (`plans`, `t`), junction reservations, stop-sign queues,
@@ -621,20 +628,36 @@ class TrafficRules:
                 return lid
         return None
 
-    def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, commit: bool = True,
-                  ignore: frozenset = frozenset(), state: str | None = None) -> bool:
-        """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now. A
-        reservation skips the other checks but not the signal: a vehicle held at the line (e.g. by
-        pedestrians) into amber stays there if it can stop, and on red gives its reservation up.
-        `state`: the signal's state when the caller knows it (the batched core)."""
+    def _holds(self, vehicle, lane_id: str, claims: Claims | None) -> bool:
+        """Whether `vehicle` holds the reservation of `lane_id`, or takes it in `claims` (a lane
+        someone else holds is not taken)."""
+        if self.reservations.get(lane_id) is vehicle:
+            return True
+        if not claims:
+            return False
+        return lane_id not in self.reservations and any(op == "reserve" and lane_id in chain for op, _, chain in claims)
+
+    def may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, ignore: frozenset = frozenset(),
+                  state: str | None = None) -> bool:
+        """Whether `vehicle` may drive past the stop line of `in_lane` into `j_lane` now (a pure
+        question). A reservation skips the other checks but not the signal: a vehicle held at the
+        line (e.g. by pedestrians) into amber stays there if it can stop. `state`: the signal's
+        state when the caller knows it (the batched core)."""
+        return self._may_enter(vehicle, in_lane, j_lane, d_line, ignore, state, None, False)
+
+    def _may_enter(self, vehicle, in_lane: str, j_lane: str, d_line: float, ignore: frozenset,
+                   state: str | None, claims: Claims | None, take: bool) -> bool:
+        """`may_enter` asked by a claim's walk (`claims`, what it took so far); with `take`, what the
+        answer takes is recorded there: within commit distance of the line it reserves `j_lane` with
+        its chain, and on red it gives its reservation up."""
         sl = self.net.stop_lines.get(in_lane)
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
             state = state or self.signal_state(sl.control_id)
             if held_at_signal(state == "red", state == "amber", d_line, vehicle.speed):
-                if commit and state == "red":  # on red it gives its reservation up
-                    self.release(vehicle, j_lane)
+                if take and claims is not None and state == "red":
+                    claims.append(("release", j_lane, ()))
                 return False
-        if self.reservations.get(j_lane) is vehicle:
+        if self._holds(vehicle, j_lane, claims):
             return True
         if sl is not None and sl.kind == "stop" and "stop" not in ignore:
             if not self.stop_queue_allows(vehicle, j_lane):
@@ -645,10 +668,8 @@ class TrafficRules:
         if "conflict" not in ignore and not (all(self.junction_clear(x, vehicle) for x in chain)
                                              and self.box_clear(vehicle, j_lane)):
             return False
-        if commit and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
-            for x in chain:
-                self.reservations.setdefault(x, vehicle)
-            vehicle.reserved = j_lane
+        if take and claims is not None and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
+            claims.append(("reserve", j_lane, chain))
         return True
 
     def junction_chain(self, vehicle, j_lane: str) -> tuple[str, ...]:
@@ -682,49 +703,20 @@ class TrafficRules:
             chain.append(lid)
         return tuple(chain)
 
-    def crossing_held(self, vehicle, lane_id: str, d: float) -> bool:
+    def crossing_held(self, vehicle, lane_id: str, d: float, claims: Claims | None = None) -> bool:
         """Whether `vehicle`, `d` metres before the start of road lane `lane_id`, waits there:
         the lane crosses a junction lane (`crossed_lanes`) that someone else occupies or has
         reserved, `vehicle` holds no reservation of `lane_id` (a vehicle entering through that
         junction claims the road lane with its junction lanes, `junction_chain`) and it can still
         stop comfortably before it. Nothing else gates such a road lane: no junction entry lies on
         it, so traffic on it drove through the reserved junction lane's path (scheck-in r077: v1 on
-        `w669252633_0_0_-1` at 9-12 m/s into the ego's rear leaving `c55`)."""
-        if self.reservations.get(lane_id) is vehicle:
+        `w669252633_0_0_-1` at 9-12 m/s into the ego's rear leaving `c55`). `claims`: what the
+        walk asking it has taken so far."""
+        if self._holds(vehicle, lane_id, claims):
             return False
         crossed = crossed_lanes(self.net, lane_id)
         return bool(crossed) and any(self.occupied(c, vehicle) for c in crossed) and \
             can_stop_before(d, vehicle.speed, vehicle.LENGTH)
-
-    def hand_over(self, j_lane: str) -> None:
-        """A reservation of junction lane `j_lane` was given up: the road user that followed its
-        holder past the line and can no longer stop before it takes it over (with its chain),
-        nearest the lane first. It found the lane reserved when it committed, so it claimed
-        nothing, and a lower-priority lane unreserved and not yet entered is invisible to cross
-        traffic's `junction_clear`: GoMentum's base_map r002, a car behind its leader into a
-        permissive left turn was hit by the ego going straight on the lane the leader's release
-        let it reserve."""
-        committed = []
-        for p in self.net.hdmap.lanes[j_lane].predecessors:
-            for v in self.buckets.get(p, ()):
-                if enters_next(v, j_lane) and not self.can_still_stop(v, j_lane):
-                    committed.append((self.line_distance(v, j_lane), v))
-        if committed:
-            _, v = min(committed, key=lambda dv: dv[0])
-            for x in self.junction_chain(v, j_lane):
-                self.reservations.setdefault(x, v)
-            v.reserved = j_lane
-
-    def release(self, vehicle, j_lane: str) -> None:
-        """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
-        junction (if it holds them): it will not enter now. (Asked every frame of every vehicle
-        at a red line: one that holds nothing skips the chain.)"""
-        if any(v is vehicle for v in self.reservations.values()):
-            for x in self.junction_chain(vehicle, j_lane):
-                if x in self.reservations and self.reservations[x] is vehicle:
-                    del self.reservations[x]
-        if vehicle.reserved == j_lane:
-            vehicle.reserved = None
 
     # ---- narrow passages -------------------------------------------------------------------
     def passage_ahead(self, vehicle, entered: bool = False) -> tuple[list[tuple[int, int]], float] | None:
@@ -817,13 +809,10 @@ class TrafficRules:
                 room = 0.0  # no car waits across a junction: the road beyond must hold it alone
         return (chain, wait, taken) if chain else None
 
-    def passage_allows(self, vehicle, chain: list[tuple[int, int]], commit: bool,
-                       room: tuple[int, int] | None = None) -> bool:
+    def passage_allows(self, vehicle, chain: list[tuple[int, int]]) -> bool:
         """One direction at a time, first come first served: `vehicle` may drive into the passages
         of `chain` ((group, side) pairs) while no one holds one of them from the other side or
-        waits there since before it; with `commit` it takes its place among the holders of all
-        and the place to wait before passage `room` (`passage_way`'s third item), or among the
-        waiters of all, standing in the room before the first."""
+        waits there since before it (a pure question; `_enrol` takes the place it gives)."""
         ok = True
         for group, side in chain:
             holders = self.passage_holders.get(group, ((), ()))
@@ -833,17 +822,6 @@ class TrafficRules:
                     any(s != side and t < mine and not self._held_against(w, group, side)
                         for w, (s, t) in waiters.items() if w is not vehicle):
                 ok = False
-        if commit:
-            for group, side in chain:
-                waiters = self.passage_waiters.setdefault(group, {})
-                if ok:
-                    self.passage_holders.setdefault(group, (set(), set()))[side].add(vehicle)
-                    waiters.pop(vehicle, None)
-                elif vehicle not in waiters:
-                    waiters[vehicle] = (side, self.t)
-            taken = room if ok else chain[0]
-            if taken is not None:
-                self.passage_rooms.setdefault(taken, set()).add(vehicle)
         return ok
 
     def _held_against(self, vehicle, group: int, side: int) -> bool:
@@ -887,26 +865,10 @@ class TrafficRules:
                 return True
         return False
 
-    def passage_start(self, vehicle) -> bool:
-        """Whether a vehicle just placed on the road (the ego at reset, traffic at a spawn) may
-        be there: the passages it starts in or is about to enter, with those chained after them,
-        are not held from the other direction; it then holds them."""
-        nxt = self.passage_way(vehicle, entered=True) if self.net.passages else None
-        if nxt is None or not commits(nxt[1] + STOP_POINT_M, vehicle.speed):
-            return True
-        ok = self.passage_allows(vehicle, nxt[0], commit=False)
-        if ok:
-            self.passage_allows(vehicle, nxt[0], commit=True, room=nxt[2])
-        return ok
-
-    def passage_stop(self, vehicle, commit: bool) -> float:
+    def passage_stop(self, vehicle) -> float:
         """Distance ahead of `vehicle` where it waits for the next narrow passage (inf: free)."""
         nxt = self.passage_way(vehicle) if self.net.passages else None
-        if nxt is None:
-            return math.inf
-        chain, wait, room = nxt
-        near = commits(wait + STOP_POINT_M, vehicle.speed)
-        return math.inf if self.passage_allows(vehicle, chain, commit and near, room) else wait
+        return math.inf if nxt is None or self.passage_allows(vehicle, nxt[0]) else nxt[1]
 
     def midblock_ahead(self, vehicle, within: float = math.inf) -> tuple[str, float] | None:
         """(light, distance along the route from the vehicle's centre) of the next mid-block
@@ -956,40 +918,23 @@ class TrafficRules:
                     best = stop_at if best is None else min(best, stop_at)
         return best
 
-    def stop_distance(self, vehicle, commit: bool = True, ignore: frozenset = frozenset(),
-                      scan: tuple | None = None) -> float:
+    def stop_distance(self, vehicle, ignore: frozenset = frozenset(), scan: tuple | None = None) -> float:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
         STOP_POINT_M before a stop line it may not pass (measured along the route), before a
-        pedestrian's crosswalk, or before a narrow passage the other direction holds. `ignore`
-        names rules to leave out: "signal", "stop", "conflict", "pedestrian", "passage". A vehicle
-        waiting for a passage reserves the junction lanes before that wait as it commits to them
-        (unseen by the rules, it drove into a junction in which a car from the other side then
-        took a lane conflicting with its own: Testfeld_Karlsruhe r046), and none beyond it.
-        `scan`: the vehicle's scan along its route when the caller made it (`_rule_stop`)."""
-        passage = math.inf if "passage" in ignore else self.passage_stop(vehicle, commit)
-        if passage < math.inf:  # waiting for a passage: no junction lane beyond that wait is reserved meanwhile
-            if commit:
-                self._unreserve_beyond(vehicle, passage)
-            stop = min(passage, self._rule_stop(vehicle, commit, ignore, passage, scan))
-        else:
-            stop = self._rule_stop(vehicle, commit, ignore, scan=scan)
-        return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
+        pedestrian's crosswalk, or before a narrow passage the other direction holds. A pure
+        question: what it would take is `claim`'s. `ignore` names rules to leave out: "signal",
+        "stop", "conflict", "pedestrian", "passage". `scan`: the vehicle's scan along its route
+        when the caller made it (`_rule_stop`)."""
+        passage = math.inf if "passage" in ignore else self.passage_stop(vehicle)
+        return self._stop_within(vehicle, ignore, passage, scan)
 
-    def _unreserve_beyond(self, vehicle, wait: float) -> None:
-        """Give up `vehicle`'s reservation of a junction lane that begins beyond its wait for a
-        narrow passage (`wait` metres ahead): it will not enter that lane until the passage is its
-        own, and the reservation kept the passage's holder, whose way out crossed that lane, from
-        coming through (digitaf r025: a car reserved its lane into the passage while the passage
-        was free, then waited before it: the holder from the other side waited for the lane)."""
-        lane = getattr(vehicle, "reserved", None)
-        holder = self.reservations.get(lane) if lane is not None else None
-        if holder is None or holder is not vehicle:
-            return
-        for _k, lid, d, s_own in vehicle.upcoming(wait + vehicle.LENGTH):
-            if lid == lane:
-                if s_own is None and beyond(d, wait):
-                    self.release(vehicle, lane)
-                return
+    def _stop_within(self, vehicle, ignore: frozenset, passage: float, scan: tuple | None,
+                     claims: Claims | None = None) -> float:
+        """The stop distance of `vehicle` whose wait for a narrow passage lies `passage` metres
+        ahead (inf: none): the first stop of its walk (`_rule_stop`) before that wait, out of the
+        swept paths (`clear_of_sweeps`); `claims` records what the walk takes."""
+        stop = min(passage, self._rule_stop(vehicle, ignore, passage, scan, claims))
+        return self.clear_of_sweeps(vehicle, stop) if self.net.swept and stop < math.inf else stop
 
     def clear_of_sweeps(self, vehicle, stop: float) -> float:
         """A stop point `stop` metres ahead of `vehicle`, moved back so that the vehicle waits
@@ -1011,8 +956,8 @@ class TrafficRules:
             return stop - back
         return stop
 
-    def _rule_stop(self, vehicle, commit: bool, ignore: frozenset, before: float = math.inf,
-                   scan: tuple | None = None) -> float:
+    def _rule_stop(self, vehicle, ignore: frozenset, before: float = math.inf, scan: tuple | None = None,
+                   claims: Claims | None = None) -> float:
         """`stop_distance` without narrow passages: the vehicle's stops along its route in order
         (`sim.rule_scan`: a road lane across a junction lane, a junction entry's line, a
         mid-block crossing's light, a crosswalk with people on it), the first that holds it.
@@ -1023,8 +968,8 @@ class TrafficRules:
         2.4 m roads) and however many junctions follow each other with less road between them:
         a line right after a junction is seen from before that junction (SUMO's 0.2 m approach
         lanes after a junction: the line came into view 4 m ahead, too late to stop for its
-        red). Junction lanes `beyond` the stop point `before` (a passage's wait) are checked but
-        never reserved."""
+        red). `claims` (`claim`'s) records what the walk takes; junction lanes `beyond` the stop
+        point `before` (a passage's wait) are checked but never reserved."""
         ids = self.net.lane_ids
         sc, r = scan if scan is not None else (self.road.core.rule_scan_of(vehicle), 0)
         lanes, prevs, dists, bits = sc.lane, sc.prev, sc.dist, sc.bits
@@ -1041,12 +986,12 @@ class TrafficRules:
                 if stop < math.inf:
                     return stop
                 continue
-            if what & CROSSED and "conflict" not in ignore and self.crossing_held(vehicle, lid, d):
+            if what & CROSSED and "conflict" not in ignore and self.crossing_held(vehicle, lid, d, claims):
                 return d - STOP_POINT_M
             if what & ENTRY:
                 in_lane = ids[prev]
                 d_line = d - line_setback(self.net, in_lane)
-                if not self.may_enter(vehicle, in_lane, lid, d_line, commit and not beyond(d, before), ignore, state):
+                if not self._may_enter(vehicle, in_lane, lid, d_line, ignore, state, claims, not beyond(d, before)):
                     return d_line - STOP_POINT_M
             stop = self.midblock_stop(vehicle, lid, d, ignore) if what & MIDBLOCK else math.inf
             ped = None if "pedestrian" in ignore or not what & PEOPLE else self.pedestrian_blocking(lid, 0.0)
@@ -1168,7 +1113,7 @@ class EgoJudge:
         if state in ("red", "amber"):
             return f"{state} signal"
         at_line = rules.waiting_line(ego, rules.net.id_of.get(ego.lane_index))[0] is not None
-        if rules.stop_distance(ego, commit=False, ignore=frozenset() if at_line else frozenset({"stop"})) <= near:
+        if rules.stop_distance(ego, ignore=frozenset() if at_line else frozenset({"stop"})) <= near:
             return "held by the rules"
         if any(gap <= near for gap, _ in ego.leader_gaps()):
             return "road user ahead"

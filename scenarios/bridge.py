@@ -850,11 +850,11 @@ class BridgePlanner:
 
     def _claim(self) -> None:
         """The ego reserves its junction lanes as a traffic car in its place would (within its
-        commit distance of the line and let go by every rule: `TrafficRules.stop_distance`
-        claiming), so that traffic gives way to it as to each other (docs/planners.md, *Right of
-        way*). Without it a planner that went on a green at the line lost the junction to a car
-        that reserved a conflicting lane a moment later (M2's m2-r005)."""
-        self.env.control.stop_distance(self.env.vehicle, commit=True)
+        commit distance of the line and let go by every rule: `EgoTask.claim`), so that traffic
+        gives way to it as to each other (docs/planners.md, *Right of way*). Without it a planner
+        that went on a green at the line lost the junction to a car that reserved a conflicting
+        lane a moment later (M2's m2-r005)."""
+        self.env.claim()
 
     def _apply(self, reply: dict, t: float, info: dict) -> None:
         from feat2map.envs.tracking import Trajectory, TrajectoryTracker
@@ -1002,11 +1002,11 @@ def rule_hold(rules: Any, ego: Any) -> dict | None:
     centre to the point its front must not pass, "by": [...]}`, or
     None when they let it go. Pure queries (`TrafficRules.stop_distance` without claiming), so
     asking changes nothing (the ego's claims are `BridgePlanner._claim`'s)."""
-    stop = rules.stop_distance(ego, commit=False)
+    stop = rules.stop_distance(ego)
     if not math.isfinite(stop):
         return None
     by = [r for r in HOLD_RULES
-          if rules.stop_distance(ego, commit=False, ignore=frozenset(HOLD_RULES) - {r}) <= stop + 0.5]
+          if rules.stop_distance(ego, ignore=frozenset(HOLD_RULES) - {r}) <= stop + 0.5]
     return {"distance": float(stop), "by": by}
 
 

@@ -31,7 +31,9 @@ follows the route (the env's lane keeping under a longitudinal-only ContinuousAc
 Every traffic rule the planner applies comes from the env's rules module (`env.unwrapped.rules`,
 feat2map.envs.rules): which control governs the next stop line and its state, whether a turn is
 protected, where the rules make the ego stop, who is heading into a conflicting lane, and what
-counts as a full stop (distances to stop lines are measured along the route).
+counts as a full stop (distances to stop lines are measured along the route). Those questions
+are pure; what the ego takes (its junction lanes, its place at narrow passages) it takes through
+the env's claims (`claim`, `claim_passages`, `give_up`), the update traffic's claims go through.
 """
 from __future__ import annotations
 
@@ -280,16 +282,16 @@ class BaselinePlanner:
 
     def _line_free(self) -> bool:
         """The rules let the ego past the stop line now (probe, without reserving)."""
-        stop = self.env.rule_stop_distance(self._rule_ignore(), commit=False)
+        stop = self.env.rule_stop_distance(self._rule_ignore())
         return stop > self._line_distance() + 0.5
 
     def _held_by_traffic(self) -> bool:
         """Conflicting traffic, not the signal or a pedestrian, holds the ego at the line."""
         env = self.env
-        stop = env.rule_stop_distance(self.ignore, commit=False)
+        stop = env.rule_stop_distance(self.ignore)
         if stop == math.inf:
             return False
-        return env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > stop + 0.5
+        return env.rule_stop_distance(self.ignore | {"conflict"}) > stop + 0.5
 
     def _cross_traffic_near(self) -> bool:
         """Vehicles about to enter a lane conflicting with ours (whatever their priority): a
@@ -362,10 +364,10 @@ class BaselinePlanner:
         across the oncoming traffic at the next green: four_way_crossing r009)."""
         ego = self.env.vehicle
         if not (self.go and not can_stop_before(d_line, ego.speed, ego.LENGTH)):
-            free = self.env.rule_stop_distance(self.ignore | {"conflict"}, commit=False) > d_line + 0.5
+            free = self.env.rule_stop_distance(self.ignore | {"conflict"}) > d_line + 0.5
             self.go = free and (self._gap_ok() or self._forces())
             if not self.go:  # a reservation made while it meant to go would hold up the traffic it now waits for
-                self.env.rules.release(ego, self.j_lane)
+                self.env.give_up(self.j_lane)
         return self.go
 
     def _forces(self) -> bool:
@@ -446,14 +448,14 @@ class BaselinePlanner:
             # past the conflict, is then overruled and the junction lane reserved); re-taken every
             # step until the ego can no longer stop before the line
             d_line = self._line_distance()
-            env.rules.passage_stop(ego, True)  # queue for the narrow passages ahead while deciding (first come first served)
+            env.claim_passages()  # queue for the narrow passages ahead while deciding (first come first served)
             if self._decide(d_line):
-                return idm(ego, env.leader_gaps(), env.rule_stop_distance(self.ignore | {"conflict"}, commit=True))
-            stop = min(env.rule_stop_distance(self.ignore, commit=False), d_line - STOP_POINT_M)
+                return idm(ego, env.leader_gaps(), env.claim(self.ignore | {"conflict"}))
+            stop = min(env.rule_stop_distance(self.ignore), d_line - STOP_POINT_M)
         elif stage in ("B_A", "M_G") and self._forces():
-            stop = env.rule_stop_distance(self.ignore | {"conflict"}, commit=True)  # reserves its lane
+            stop = env.claim(self.ignore | {"conflict"})  # reserves its lane
         else:
-            stop = env.rule_stop_distance(self._rule_ignore(), commit=True)
+            stop = env.claim(self._rule_ignore())
         a = idm(ego, env.leader_gaps(), stop)
         v = max(ego.speed, 0.0)
         if stage == "S_S" or (stage == "R_S" and self._in_stop_zone() and self._signal_state() != "green"):

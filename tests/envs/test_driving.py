@@ -147,7 +147,7 @@ def test_pedestrians_cross_and_are_yielded_to():
             if p.remaining < 0.5:
                 finished.add(id(p))
         for v in u.road.vehicles:
-            d = u.control.stop_distance(v, commit=False, ignore=frozenset({"signal", "stop", "conflict"}))
+            d = u.control.stop_distance(v, ignore=frozenset({"signal", "stop", "conflict"}))
             if d < 15 and v.speed < 2.0:
                 yielding += 1
         assert info["violations"]["pedestrian_yield"] == 0 and not info["collision"]

@@ -36,14 +36,14 @@ def test_a_yield_filter_lane_gives_way_to_merging_traffic(map_path, monkeypatch)
         env.reset(seed=0)
         rules, ego = env.unwrapped.control, env.unwrapped.vehicle
         assert not rules.yield_held(ego, "J1_f1_0")
-        assert rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, commit=False)
+        assert rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0)
         # a car 5 m before the exit road's lane that the core feeds, at 8 m/s
         car = SimpleNamespace(speed=8.0)
         monkeypatch.setattr(type(rules), "traffic_towards",
                             lambda self, lane, exclude=None: [(5.0, car)] if lane == "R5a_0" else [])
         assert rules.yield_held(ego, "J1_f1_0")
-        assert not rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, commit=False)
-        assert rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, commit=False, ignore=frozenset({"conflict"}))
+        assert not rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0)
+        assert rules.may_enter(ego, "R4_1", "J1_f1_0", 20.0, ignore=frozenset({"conflict"}))
     finally:
         env.close()
 

@@ -216,7 +216,7 @@ def test_driver_views_pedestrian_feature_is_not_a_passage_wait(bridge):
     waited = False
     for _ in range(40):
         obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
-        if u.control.passage_stop(u.vehicle, False) < math.inf:
+        if u.control.passage_stop(u.vehicle) < math.inf:
             waited = True
             assert obs[DRIVER_VIEW_FEATURES.index("pedestrian")] == 1.0  # 1: none within its scale
     env.close()
@@ -333,7 +333,7 @@ def test_passage_wait_after_back_to_back_junctions_is_before_the_first(tmp_path)
     chain, wait = u.control.passage_ahead(car)
     assert chain == [(u.net.passages["R4_0"].group, u.net.passages["R4_0"].side)]
     assert 0.0 < wait <= to_jx - car.s_on("R2_0_r") - 1.0 + 1e-6  # before JX, not inside it
-    assert u.control.passage_stop(car, False) == pytest.approx(wait)
+    assert u.control.passage_stop(car) == pytest.approx(wait)
     env.close()
 
 
@@ -465,7 +465,7 @@ def test_car_past_its_line_waits_for_a_passage_at_the_junctions_edge(tmp_path):
     chain, wait = ctl.passage_ahead(car)
     assert chain == [(ps.group, ps.side)]
     assert wait == pytest.approx(to_junction - STOP_POINT_M)  # at the junction's edge, not inside it
-    assert ctl.passage_stop(car, False) == pytest.approx(wait)
+    assert ctl.passage_stop(car) == pytest.approx(wait)
     env.close()
 
 
@@ -487,8 +487,8 @@ def test_reservation_beyond_a_passage_wait_is_given_up(two_narrow):
     assert ctl.passage_holders[ps.group][1 - ps.side]
     car = u.road.spawn("3_0_1", net.lane_of["3_0_1"].length - 8.0, 0.0, ["3_0_1", into, "2_0_-1"])
     ctl.reservations[into], car.reserved = car, into  # reserved while the passage was free
-    wait = ctl.stop_distance(car)  # what the traffic core asks every step (commit)
-    assert wait < math.inf and wait == pytest.approx(ctl.passage_stop(car, False))  # it waits for the passage, at the line
+    wait = ctl.claim(car)  # what the traffic core asks every step
+    assert wait < math.inf and wait == pytest.approx(ctl.passage_stop(car))  # it waits for the passage, at the line
     assert into not in ctl.reservations and car.reserved is None
     env.close()
 
@@ -526,8 +526,8 @@ def test_junction_before_a_far_passage_wait_is_reserved(bare_bridge):
     _parked(env)
     assert ctl.passage_holders[ps.group][1 - ps.side]
     car = u.road.spawn("1_0_1", net.lane_of["1_0_1"].length - 4.0, 5.0, ["1_0_1", into, "3_0_-1"])
-    wait = ctl.stop_distance(car)  # what the traffic core asks every step (commit)
-    assert wait == pytest.approx(ctl.passage_stop(car, False))
+    wait = ctl.claim(car)  # what the traffic core asks every step
+    assert wait == pytest.approx(ctl.passage_stop(car))
     assert net.lane_of["1_0_1"].length - car.s_on("1_0_1") + net.lane_of[into].length < wait < math.inf  # beyond junction 1
     assert ctl.reservations.get(into) is car and car.reserved == into
     env.close()

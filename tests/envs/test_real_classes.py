@@ -334,7 +334,7 @@ def test_the_line_after_a_junction_and_a_short_lane_is_seen_from_before_the_junc
     assert m.lanes[ego.lane_route[ego.route_pos]].junction_id is None and m.lanes[ego.lane_route[1]].junction_id == "JX"
     j1 = next(x for x in ego.lane_route if m.lanes[x].junction_id == "J1")
     d_j1 = u.control.line_distance(ego, j1)
-    stop = u.control.stop_distance(ego, commit=False)
+    stop = u.control.stop_distance(ego)
     assert stop == pytest.approx(d_j1 - STOP_POINT_M)  # J1's red line holds it, seen from before JX
     planner = BaselinePlanner()
     planner.reset(env)

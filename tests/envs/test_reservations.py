@@ -119,3 +119,44 @@ def test_a_follower_past_the_line_takes_over_its_leaders_reservation(signal_cros
     assert ctl.reservations.get(left) is near
     assert all(ctl.reservations.get(x) is not far for x in ctl.reservations)
     env.close()
+
+
+def test_the_rules_questions_take_nothing_and_a_claim_takes_what_they_allow(signal_cross):
+    """The rules' questions are pure: asking a car's stop distance, whether it may enter, or its
+    wait for a passage, in any order and with any rule ignored, leaves the reservations as they
+    were and gives the same answers again. Its claim (what traffic does every frame, and an ego
+    through `EgoTask.claim`) answers what the question answered and takes it: within commit
+    distance of its line on green it reserves its junction lane (with the lanes chained after it);
+    on red the question holds it at the line and keeps the reservation, the claim gives it up."""
+    env = make_env(Scenario("cross", str(signal_cross), (("J0", "R3", "R1"),), seed=0, duration=30.0),
+                   config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, ctl, m = u.net, u.control, u.net.hdmap
+    approach = next(lid for lid, sl in sorted(net.stop_lines.items())
+                    if sl.kind == "signal" and ctl.signal_at(lid) == "green" and not lid.startswith("R3"))
+    lane = next(s for s in sorted(m.lanes[approach].successors) if m.lanes[s].turn == "none")
+    line = net.lane_of[approach].length - net.setbacks.get(approach, 0.0)
+    car = u.road.spawn(approach, line - 6.0, 5.0, [approach, lane, m.lanes[lane].successors[0]])
+    ctl.update(u.road, 0.0)
+
+    def state():
+        return dict(ctl.reservations), car.reserved, repr(ctl.passage_holders), repr(ctl.passage_waiters)
+
+    before = state()
+    answers = [ctl.stop_distance(car, ignore=frozenset(ig)) for ig in ((), ("conflict",), ("signal", "stop"))]
+    assert ctl.may_enter(car, approach, lane, line - car.s_on(approach)) and ctl.passage_stop(car) == math.inf
+    assert answers == [math.inf] * 3 and state() == before and lane not in ctl.reservations
+    assert [ctl.stop_distance(car, ignore=frozenset(ig)) for ig in ((), ("conflict",), ("signal", "stop"))] == answers
+    assert ctl.claim(car) == answers[0]
+    assert ctl.reservations.get(lane) is car and car.reserved == lane
+    held = dict(ctl.reservations)
+    plan = ctl.plans[net.stop_lines[approach].control_id]
+    ctl.t = next(t for t in np.arange(0.0, plan.cycle, 0.5) if plan.state(net.stop_lines[approach].control_id, t) == "red")
+    d_line = line - car.s_on(approach)
+    assert not ctl.may_enter(car, approach, lane, d_line)
+    assert ctl.stop_distance(car) == pytest.approx(d_line - STOP_POINT_M)  # held at the line
+    assert dict(ctl.reservations) == held and car.reserved == lane  # ... and the question kept the reservation
+    assert ctl.claim(car) == pytest.approx(d_line - STOP_POINT_M)
+    assert lane not in ctl.reservations and car.reserved is None  # the claim gave it up
+    env.close()

@@ -115,7 +115,7 @@ def _waits_at(path: Path, with_sweeps: bool):
     try:
         if not with_sweeps:
             net.swept = {}  # the network is cached per map: put back below
-        stop = u.control.stop_distance(car, commit=False)
+        stop = u.control.stop_distance(car)
     finally:
         net.swept = swept
     env.close()

@@ -126,7 +126,7 @@ def scalar_code(monkeypatch) -> None:
     def rule_stops(self, traffic):
         dist = np.full(len(self.objs), np.inf)
         for i in (traffic & ~self.crashed).nonzero()[0].tolist():
-            dist[i] = self.roads[self.env[i]].control.stop_distance(self.objs[i])
+            dist[i] = self.roads[self.env[i]].control.claim(self.objs[i])
         return dist
 
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)

@@ -178,12 +178,12 @@ def test_step_ahead_hold_is_the_env_rules_answer_and_asking_changes_nothing(scen
             trace.append((*map(float, u.vehicle.position), float(u.vehicle.speed)))
             if ask:
                 hold = rule_hold(u.control, u.vehicle)
-                stop = u.control.stop_distance(u.vehicle, commit=False)
+                stop = u.control.stop_distance(u.vehicle)
                 assert (hold is None) == (stop == math.inf)
                 if hold is not None:
                     assert hold["distance"] == stop and hold["by"] and set(hold["by"]) <= set(HOLD_RULES)
                     for r in hold["by"]:  # each named rule on its own stops the ego there
-                        alone = u.control.stop_distance(u.vehicle, commit=False, ignore=frozenset(HOLD_RULES) - {r})
+                        alone = u.control.stop_distance(u.vehicle, ignore=frozenset(HOLD_RULES) - {r})
                         assert alone <= stop + 0.5
                     if info.get("signal_state") == "red":
                         assert "signal" in hold["by"]
