@@ -1,9 +1,10 @@
 """Traffic control devices and their state during an episode: fixed-time signal phase plans
 (phases grouped by the map library's `feat2map.phases`, shared with the exports), junction
 reservations, narrow passages and crosswalk pedestrians (the stop-sign queues are row arrays of
-the core: `sim.stop_signs`). `TrafficControl` keeps that state up to date after every
-simulation frame and inherits the rules' questions (`rules.TrafficRules`) that traffic, the
-ego's judge and planners ask of it.
+the core: `sim.stop_signs`). `TrafficControl` inherits the rules' questions
+(`rules.TrafficRules`, pure) that traffic, the ego's judge and planners ask of it, and is the one
+place that writes that state: what a road user takes (`claim`: its reservations and its place at
+narrow passages) and the bookkeeping after every simulation frame (`update`).
 """
 from __future__ import annotations
 

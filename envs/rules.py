@@ -10,9 +10,11 @@ and the baseline planner (scenarios/planner.py) all ask this module.
   whether a turn is protected, who is heading into a conflicting lane, who may drive into a
   narrow passage, where opposite lanes are too close to pass: one direction at a time, first
   come first served, a vehicle claiming passages that follow each other together).
-  `control.TrafficControl` holds that state (signal plans, reservations, passage holders and
-  waiters, pedestrians; the stop-sign queues are row arrays of the core, `sim.stop_signs`, and
-  `stop_queue` their view) and inherits these questions; `env.unwrapped.rules` is that object;
+  The questions are pure. `control.TrafficControl` holds that state (signal plans, reservations,
+  passage holders and waiters, pedestrians; the stop-sign queues are row arrays of the core,
+  `sim.stop_signs`, and `stop_queue` their view), inherits these questions and is the one place
+  that writes it (a road user's claims, `claim`; the bookkeeping after a frame, `update`);
+  `env.unwrapped.rules` is that object;
 - `EgoJudge`: the ego's violations (red light, stop sign, pedestrian yield) and leaving the road.
 
 Stop lines are measured along the route: `TrafficRules.line_ahead` gives the distance from a vehicle's

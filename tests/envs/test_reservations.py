@@ -160,3 +160,45 @@ def test_the_rules_questions_take_nothing_and_a_claim_takes_what_they_allow(sign
     assert ctl.claim(car) == pytest.approx(d_line - STOP_POINT_M)
     assert lane not in ctl.reservations and car.reserved is None  # the claim gave it up
     env.close()
+
+
+def test_asking_every_road_user_every_question_changes_nothing_in_busy_traffic(signal_cross):
+    """Over 60 steps of a signalized cross with traffic, every question asked of every road user
+    (its stop distance with each rule ignored in turn and all at once, may it enter its next junction lane, its
+    wait for a passage, what holds it there) leaves the rules' state as it was: reservations,
+    passage holders, waiters and rooms, and each road user's reserved lane; the frames between
+    the steps, where traffic claims, do change it (the check can tell)."""
+    from feat2map.envs.rules import RULES
+
+    env = make_env(Scenario("cross", str(signal_cross), (("J0", "R3", "R1"),), seed=0, duration=30.0),
+                   config={"traffic_vehicles": 10})
+    env.reset(seed=0)
+    u = env.unwrapped
+    ctl = u.control
+
+    def state():
+        return (dict(ctl.reservations), [getattr(v, "reserved", None) for v in u.road.vehicles],
+                repr(ctl.passage_holders), repr(ctl.passage_waiters), repr(ctl.passage_rooms))
+
+    asks = [(), *((r,) for r in RULES), RULES]  # each rule ignored, and all of them (a claim would take a lane now)
+    moved, last = 0, state()
+    for _ in range(60):
+        _, _, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        if terminated or truncated:
+            break
+        before = state()
+        moved += before != last
+        users = [v for v in u.road.vehicles if hasattr(v, "lane_route")]
+        for v in users:
+            answers = [ctl.stop_distance(v, ignore=frozenset(ig)) for ig in asks]
+            ctl.passage_stop(v)
+            _, in_lane, j_lane, d = ctl.line_ahead(v)
+            if j_lane is not None:
+                ctl.may_enter(v, in_lane, j_lane, d)
+                ctl.may_enter(v, in_lane, j_lane, d, ignore=frozenset(RULES))
+                ctl.junction_clear(j_lane, v)
+            assert [ctl.stop_distance(v, ignore=frozenset(ig)) for ig in asks] == answers
+        assert state() == before
+        last = before
+    assert moved > 0
+    env.close()
