@@ -267,11 +267,7 @@ class TrafficControl(TrafficRules):
             stop_signs.update(core, core.env == road.slot)
         net = self.net
         vehicles = road.vehicles
-        buckets: dict[str, list] = {}
-        for v, lid in zip(vehicles, lanes):
-            if lid is not None:
-                buckets.setdefault(lid, []).append(v)
-        self.buckets = buckets
+        buckets = self.fill_buckets(vehicles, lanes)
         # release reservations of vehicles that left their junction lane (or the road)
         alive = set(map(id, vehicles)) if self.reservations or net.passages else set()
         for lid, v in list(self.reservations.items()):
@@ -286,6 +282,16 @@ class TrafficControl(TrafficRules):
         if net.passages:
             self._update_passages(buckets, alive)
         self._update_pedestrians(road, vehicles, dt)
+
+    def fill_buckets(self, vehicles: list, lanes: list[str | None]) -> dict[str, list]:
+        """The road users on each lane (`buckets`, what the rules' occupancy questions read), from
+        `vehicles` and the lane each is on (None: off the map's lanes)."""
+        buckets: dict[str, list] = {}
+        for v, lid in zip(vehicles, lanes):
+            if lid is not None:
+                buckets.setdefault(lid, []).append(v)
+        self.buckets = buckets
+        return buckets
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
         """Road users within a narrow passage hold it from their side; holders and waiters that

@@ -35,11 +35,13 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    lane. Where the rules can stop each row is one scan of every row's window
    (`sim.rule_scan`: junction entries, road lanes across junction lanes, mid-block lights,
    crosswalks with people on them, up to the first road after the next entry with room to
-   wait); a row held at a signal stops there, and the other rows with stops on their scans
-   claim (`control.TrafficControl.claim`: the rules' one update, signals, stop signs,
-   reservations, pedestrians) in row order, so that reservations are claimed in road order. MOBIL runs every
-   MOBIL_PERIOD_S for rows `rules.may_change_lane` allows on lanes with same-direction
-   neighbours (`TrafficVehicle.mobil_change`, on the view).
+   wait); every row with a stop on its scan asks the rules (signals, stop signs, reservations,
+   pedestrians) against the state the frame began with, the arrays answering a row held at a
+   signal and a plain junction entry's conflicts (`sim.entries`), and the rows whose answer
+   takes something then claim (`control.TrafficControl.claim`, the rules' one update) in row
+   order, so that reservations are claimed in road order. MOBIL runs every MOBIL_PERIOD_S for
+   rows `rules.may_change_lane` allows on lanes with same-direction neighbours
+   (`TrafficVehicle.mobil_change`, on the view).
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
    controlled rows drive the kinematic bicycle (`sim.vehicle`), steered by lane keeping or their
    held command, all at once, their (s, lat) projected on their route lanes and each located
@@ -74,14 +76,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
-                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
+                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M,
+                      COMMIT_DISTANCE_M, COMMIT_TIME_S)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, body_reach, crossed_lanes, held_at_signal, idm_accelerations, in_the_way, may_change_lane,
                     stop_gap)
-from .sim import rule_scan, stop_signs
+from .sim import entries, rule_scan, stop_signs
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
 
@@ -90,8 +93,8 @@ if TYPE_CHECKING:
 
 EXTERNAL, DRIVEN = 0, 1
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
-# rows the rules are asked of (`TrafficCore._rule_stops`) from which a signal's hold is settled in
-# arrays before the rows claim one by one (fewer: each claims, and `may_enter` settles it; the
+# rows the rules are asked of (`TrafficCore._rule_stops`) from which the arrays answer a signal's
+# hold and a plain junction entry before the rows ask one by one (fewer: each asks the rules; the
 # same values)
 SETTLE_MIN_ROWS = 24
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
@@ -597,6 +600,7 @@ class TrafficCore:
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
         self.reserved: list[str | None] = []
         self.dirty: set[int] = set()
+        self.buckets_stale: set[int] = set()  # slots whose rows came or went since the rules' buckets were filled
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
         # the rules' scan along the window (`sim.rule_scan`), what of it holds while the route
@@ -682,6 +686,7 @@ class TrafficCore:
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
         self.reserved.append(reserved)
+        self.buckets_stale.add(int(row["env"]))
         self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
         self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
         self.scan_what = np.vstack([self.scan_what, np.zeros((1, self.W.shape[1]), dtype=np.int8)])
@@ -755,6 +760,7 @@ class TrafficCore:
         gone = np.ones(len(self.objs), dtype=bool)
         gone[idx] = False
         left = gone & (self.stop_junction >= 0)  # a queued road user left
+        self.buckets_stale.update(self.env[gone].tolist())
         self.queue_version[self.env[left]] += 1
         self.queued -= int(left.sum())
         self._keep_rows(self._ARRAYS, idx)
@@ -970,6 +976,7 @@ class TrafficCore:
         stop_signs.update(self, self.on)
         for road, lanes in zip(roads, self.occupancies(roads)):
             road.control.update(road, dt, lanes)
+        self.buckets_stale.difference_update(road.slot for road in roads)
         self.collisions(roads, dt)
         for road in roads:
             if road.record_history:
@@ -1141,59 +1148,176 @@ class TrafficCore:
 
     def _rule_stops(self, traffic: np.ndarray) -> np.ndarray:
         """Per row, the stop distance of its vehicle (inf outside the `traffic` mask and for
-        crashed rows) as it claims (`control.TrafficControl.claim`, in row order: junction
-        reservations are claimed in road order), from one scan of all rows, whatever their slots
-        (`sim.rule_scan`): a row with nothing on its scan and no narrow passage on its window
-        goes; a row whose first stop is a junction entry under a signal that holds it
-        (`rules.held_at_signal`: red, or amber where it can stop) stops at the line without
-        claiming (on red, a reservation it holds there is given up, as its claim would; settled
-        so from SETTLE_MIN_ROWS rows asked); the others claim with their stops, in row order."""
+        crashed rows) from one scan of all rows, whatever their slots (`sim.rule_scan`), in two
+        parts, the rules' questions and then their claims: every row with a stop on its scan asks
+        (`TrafficRules.ask`, pure) against the state the frame began with, and the rows whose
+        answer would take or give up something (a junction lane within commit distance of its
+        line, a reservation on red) then claim (`control.TrafficControl.claim`) in row order, each
+        claim seeing the claims before it (a later claimant of a lane conflicting with an earlier
+        one's is held at its line), and that is their answer. On a map with narrow passages every
+        row claims in row order. From SETTLE_MIN_ROWS rows asked, the arrays answer what they can:
+        a row whose first stop is a junction entry under a signal that holds it
+        (`rules.held_at_signal`: red, or amber where it can stop) stops at the line (on red, a
+        reservation it holds there is given up), and a row whose only stop is a junction entry the
+        arrays answer exactly (`_entry_answers`) is answered there."""
         roads, env, objs = self.roads, self.env, self.objs
         n = len(objs)
         dist = np.full(n, math.inf)
         on = traffic & ~self.crashed
         if not on.any():
             return dist
+        self._fresh_buckets()
         sc = rule_scan.scan(self)
         t = self.table
         at = sc.what != 0
         ask = on & at.any(axis=1)
-        if t.passage.any():  # a narrow passage on the window (`passage_stop`)
+        if self.net.passages:  # narrow passages: every row claims, in row order
             ask |= on & (t.passage[np.maximum(sc.lanes, 0)] & (sc.lanes >= 0) & (sc.D <= LOOKAHEAD_M)).any(axis=1)
-        if ask.sum() < SETTLE_MIN_ROWS:  # too few for the arrays to pay: each asks the rules
             sc.index(ask)
             for i in ask.nonzero()[0].tolist():
                 dist[i] = roads[env[i]].control.claim(objs[i], scan=(sc, i))
             return dist
+        claims: list = []  # (what the row asking records; emptied after each)
+        wants: list[int] = []  # the rows whose claim would take or give up something
+        if ask.sum() < SETTLE_MIN_ROWS:  # too few for the arrays to pay: each asks the rules
+            sc.index(ask)
+            for i in ask.nonzero()[0].tolist():
+                dist[i] = roads[env[i]].control.ask(objs[i], (sc, i), claims)
+                if claims:
+                    wants.append(i)
+                    claims.clear()
+            return self._claim(wants, sc, dist)
         first = np.argmax(at, axis=1)
         ar = np.arange(n)
         entry = ask & (sc.what[ar, first] & (ENTRY | CROSSED) == ENTRY)
         in_lane = sc.lanes[ar, np.maximum(first - 1, 0)]
-        signal = entry & (t.line_signal[in_lane] >= 0) & (not self.net.passages)  # (a narrow passage may hold it first)
+        signal = entry & (t.line_signal[in_lane] >= 0)
         state = np.zeros(n, dtype=np.int8)  # of the signal at the line (0: green or none)
         if signal.any():
             si = signal.nonzero()[0]
-            slots = env[si]
-            controls = [r.control if r is not None else None for r in roads]
-            times = np.array([c.t if c is not None else 0.0 for c in controls])
-            state[si] = states_at(times[slots], self._signal_arrays(controls)[slots, :, t.line_signal[in_lane[si]]].T)
+            state[si] = self._signal_states(env[si], t.line_signal[in_lane[si]])
         d_line = sc.D[ar, first] - t.line_setback[in_lane]
         halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed)
         dist[halt] = (d_line - STOP_POINT_M)[halt]
-        ids = self.net.lane_ids
         j_lane = sc.lanes[ar, first]
-        sc.index(ask & ~halt)
-        for i in (ask & ~(halt & (state == 1))).nonzero()[0].tolist():
-            control, v = roads[env[i]].control, objs[i]
-            if halt[i]:  # red: it gives a reservation of its lane up
-                jl = ids[j_lane[i]]
-                if control.reservations.get(jl) is v:
-                    control.release(v, jl)
-                continue
+        held_key, held_row = self._held_reservations()
+        answer, refused, takes = self._entry_answers(sc, ask & ~halt & entry, j_lane, in_lane, d_line, held_key, held_row)
+        dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
+        takes |= halt & (state == 2) & self._holders(held_row)  # red: it gives up a reservation it holds
+        rest = ask & ~halt & ~answer
+        sc.index(rest | takes)
+        for i in (rest | takes).nonzero()[0].tolist():
             if signal[i]:  # the state at its first stop's line is known
                 sc.state[i] = SIGNAL_STATES[state[i]]
-            dist[i] = control.claim(v, scan=(sc, i))
+            if rest[i]:
+                dist[i] = roads[env[i]].control.ask(objs[i], (sc, i), claims)
+                if claims:
+                    wants.append(i)
+                    claims.clear()
+        return self._claim(sorted(wants + takes.nonzero()[0].tolist()), sc, dist)
+
+    def _claim(self, rows: list[int], sc: rule_scan.Scan, dist: np.ndarray) -> np.ndarray:
+        """The claims of `rows` (row order; their scans indexed in `sc`): each row's stop distance
+        is its claim's answer (`control.TrafficControl.claim`)."""
+        for i in rows:
+            dist[i] = self.roads[self.env[i]].control.claim(self.objs[i], scan=(sc, i))
         return dist
+
+    def _holders(self, held_row: np.ndarray) -> np.ndarray:
+        """Per row, whether it may hold a junction reservation (a holder in `held_row`, or a
+        `reserved` lane): what a release can give up (`TrafficRules._holds_any`)."""
+        out = np.array([r is not None for r in self.reserved], dtype=bool)
+        out[held_row[held_row >= 0]] = True
+        return out
+
+    def _held_reservations(self) -> tuple[np.ndarray, np.ndarray]:
+        """(keys slot * lanes + lane of every stepped slot's junction reservations, sorted; the row
+        holding each, -2 for a road user that is no row now)."""
+        nl = len(self.table.length)
+        index = self.table.index
+        keys, rows = [], []
+        for road in self.roads:
+            if road is None or not road.control.reservations or not self.stepped[road.slot]:
+                continue
+            for lid, v in road.control.reservations.items():
+                r = getattr(v, "_row", -2)
+                keys.append(road.slot * nl + index[lid])
+                rows.append(r if 0 <= r < len(self.objs) and self.objs[r] is v else -2)
+        if not keys:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        key, row = np.array(keys, dtype=np.int64), np.array(rows, dtype=np.int64)
+        order = np.argsort(key)
+        return key[order], row[order]
+
+    def _entry_answers(self, sc: rule_scan.Scan, rows: np.ndarray, j_lane: np.ndarray, in_lane: np.ndarray,
+                       d_line: np.ndarray, held_key: np.ndarray,
+                       held_row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(answered, refused, takes), masks over the rows: the rows among `rows` whose question
+        the arrays answer (their only stop the entry into `j_lane` from `in_lane`, `d_line` ahead,
+        one `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
+        waits; their slot's road users placed; not in the queue of the entry's stop sign), those
+        the rules hold at the line (`TrafficRules.may_enter`: a reservation of the lane lets it go,
+        else a stop sign's queue it is not in holds it, else a conflict does,
+        `entries.junction_clear`), and those that would reserve the lane (let go, within commit
+        distance of the line, the lane reserved by nobody)."""
+        n = len(rows)
+        none = np.zeros(n, dtype=bool)
+        if self.net.swept or not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
+            return none, none, none
+        t = self.table
+        nl = len(t.length)
+        et = entries.entry_table(self.net, t)
+        one = ((sc.what != 0).sum(axis=1) == 1) & (sc.what.max(axis=1) == ENTRY)  # (no crosswalk with people, light)
+        stop = t.line_kind[in_lane] == LINE_STOP_SIGN
+        queued = stop & (self.stop_junction == t.lane_junction[j_lane])
+        answer = rows & one & et.simple[j_lane] & ~queued & entries.placed(self)[self.env]
+        r = answer.nonzero()[0]
+        if not len(r):
+            return answer, none, none
+        key = self.env[r] * nl + j_lane[r]
+        reserved = np.zeros(len(r), dtype=bool)  # the lane is reserved (by the row: `mine`)
+        mine = reserved.copy()
+        if len(held_key):
+            k = np.searchsorted(held_key, key).clip(max=len(held_key) - 1)
+            reserved = held_key[k] == key
+            mine = reserved & (held_row[k] == r)
+        no = stop[r] & ~mine
+        ask = ~mine & ~no
+        if ask.any():
+            no[ask] = ~entries.junction_clear(self, r[ask], j_lane[r[ask]], held_key, held_row, self._approach_held)
+        refused, takes = none.copy(), none.copy()
+        refused[r] = no
+        takes[r] = ~no & ~reserved & (d_line[r] < np.maximum(COMMIT_DISTANCE_M, COMMIT_TIME_S * self.speed[r]))
+        return answer, refused, takes
+
+    def _approach_held(self, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+        """Per (slot, lane) pair, `TrafficRules._held`: the lane's line holds its traffic (a stop
+        sign, or a signal showing red)."""
+        t = self.table
+        held = t.line_kind[lanes] == LINE_STOP_SIGN
+        sig = (t.line_kind[lanes] == LINE_SIGNAL) & (t.line_signal[lanes] >= 0)
+        if sig.any():
+            held[sig] = self._signal_states(slots[sig], t.line_signal[lanes[sig]]) == 2
+        return held
+
+    def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
+        """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
+        into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
+        controls = [r.control if r is not None else None for r in self.roads]
+        times = np.array([c.t if c is not None else 0.0 for c in controls])
+        return states_at(times[slots], self._signal_arrays(controls)[slots, :, signals].T)
+
+    def _fresh_buckets(self) -> None:
+        """Bring the rules' lane buckets of the stepped slots whose rows came or went since the
+        last frame's bookkeeping up to date (a respawn or a placement between decisions): the rules
+        ask about the road users there are."""
+        stale = [s for s in self.buckets_stale if self.stepped[s] and self.roads[s] is not None]
+        if not stale:
+            return
+        roads = [self.roads[s] for s in stale]
+        for road, lanes in zip(roads, self.occupancies(roads)):
+            road.control.fill_buckets(road.vehicles, lanes)
+        self.buckets_stale.difference_update(stale)
 
     def _signal_arrays(self, controls: list) -> np.ndarray:
         """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only

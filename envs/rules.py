@@ -630,6 +630,10 @@ class TrafficRules:
                 return lid
         return None
 
+    def _holds_any(self, vehicle) -> bool:
+        """Whether `vehicle` holds a junction reservation (what a release can give up)."""
+        return getattr(vehicle, "reserved", None) is not None or any(v is vehicle for v in self.reservations.values())
+
     def _holds(self, vehicle, lane_id: str, claims: Claims | None) -> bool:
         """Whether `vehicle` holds the reservation of `lane_id`, or takes it in `claims` (a lane
         someone else holds is not taken)."""
@@ -656,7 +660,7 @@ class TrafficRules:
         if sl is not None and sl.kind == "signal" and "signal" not in ignore:
             state = state or self.signal_state(sl.control_id)
             if held_at_signal(state == "red", state == "amber", d_line, vehicle.speed):
-                if take and claims is not None and state == "red":
+                if take and claims is not None and state == "red" and self._holds_any(vehicle):
                     claims.append(("release", j_lane, ()))
                 return False
         if self._holds(vehicle, j_lane, claims):
@@ -929,6 +933,13 @@ class TrafficRules:
         when the caller made it (`_rule_stop`)."""
         passage = math.inf if "passage" in ignore else self.passage_stop(vehicle)
         return self._stop_within(vehicle, ignore, passage, scan)
+
+    def ask(self, vehicle, scan: tuple, claims: Claims) -> float:
+        """`stop_distance` as the traffic core asks it of a row (with its `scan`), recording in
+        `claims` what the row's claim would take or give up at the junction entries on its way
+        (`control.TrafficControl.claim`: the core claims for the rows that would, after every row
+        has asked). Not on a map with narrow passages, where every row claims."""
+        return self._stop_within(vehicle, frozenset(), math.inf, scan, claims)
 
     def _stop_within(self, vehicle, ignore: frozenset, passage: float, scan: tuple | None,
                      claims: Claims | None = None) -> float:

@@ -118,14 +118,23 @@ KINEMATIC_BUSY = {**BUSY, "observation": {"type": "Kinematics", "vehicles_count"
 
 def scalar_code(monkeypatch) -> None:
     """The per-row and per-sub-env code the batch's array programs stand in for: the rules asked
-    row by row, each ego observing alone, each sub-env's reward and info dict, each road's
+    row by row (every row's question, then the claims of the rows whose answer takes something,
+    in row order), each ego observing alone, each sub-env's reward and info dict, each road's
     occupancy read from its vehicles and its stop-sign queues brought up to date on their own."""
     from feat2map.envs import core, vector
     from feat2map.envs.sim import stop_signs
 
     def rule_stops(self, traffic):
         dist = np.full(len(self.objs), np.inf)
+        self._fresh_buckets()
+        wants, claims = [], []
         for i in (traffic & ~self.crashed).nonzero()[0].tolist():
+            v = self.objs[i]
+            dist[i] = self.roads[self.env[i]].control.ask(v, (self.rule_scan_of(v), 0), claims)
+            if claims:
+                wants.append(i)
+                claims.clear()
+        for i in wants:
             dist[i] = self.roads[self.env[i]].control.claim(self.objs[i])
         return dist
 
