@@ -2,9 +2,10 @@
 line into its next junction lane now (`rules.TrafficRules.may_enter`'s conflict rule,
 `junction_clear`), answered for every row of every slot with a few array operations against the
 state the frame began with (the rules' questions are pure: `control.TrafficControl.claim` is
-where a road user takes a lane). `TrafficCore._rule_stops` asks it of the rows whose claim would
-take nothing; an entry the arrays cannot answer exactly (a yield sign, a junction lane chained to
-the next, a box to keep clear, a narrow passage) is asked of the rules one row at a time.
+where a road user takes a lane, after every row has asked). `TrafficCore._entry_answers` asks it
+of the rows whose only stop is a junction entry; an entry the arrays cannot answer exactly (a
+yield sign, a junction lane chained to the next, a box to keep clear, a stop sign's queue, a
+narrow passage) is asked of the rules one row at a time.
 
 A junction lane is clear for a road user while no lane conflicting with it is occupied (a road
 user located on it, or its reservation held by another) and no road user heading into a
