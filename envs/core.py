@@ -1201,7 +1201,7 @@ class TrafficCore:
         dist[halt] = (d_line - STOP_POINT_M)[halt]
         j_lane = sc.lanes[ar, first]
         held_key, held_row = self._held_reservations()
-        answer, refused, takes = self._entry_answers(sc, ask & ~halt & entry, j_lane, in_lane, d_line, held_key, held_row)
+        answer, refused, takes = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line, held_key, held_row)
         dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
         takes |= halt & (state == 2) & self._holders(held_row)  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
@@ -1252,14 +1252,16 @@ class TrafficCore:
     def _entry_answers(self, sc: rule_scan.Scan, rows: np.ndarray, j_lane: np.ndarray, in_lane: np.ndarray,
                        d_line: np.ndarray, held_key: np.ndarray,
                        held_row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(answered, refused, takes), masks over the rows: the rows among `rows` whose question
-        the arrays answer (their only stop the entry into `j_lane` from `in_lane`, `d_line` ahead,
-        one `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
-        waits; their slot's road users placed; not in the queue of the entry's stop sign), those
-        the rules hold at the line (`TrafficRules.may_enter`: a reservation of the lane lets it go,
-        else a stop sign's queue it is not in holds it, else a conflict does,
-        `entries.junction_clear`), and those that would reserve the lane (let go, within commit
-        distance of the line, the lane reserved by nobody)."""
+        """(answered, refused, takes), masks over the rows: the rows among `rows` (whose first stop
+        is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
+        (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
+        waits; their slot's road users placed; not in the queue of the entry's stop sign; held
+        there, or with nothing else to stop for: no crosswalk with people or light on that lane,
+        no stop after it), those the rules hold at the line
+        (`TrafficRules.may_enter`: a reservation of the lane lets it go, else a stop sign's queue it
+        is not in holds it, else a conflict does, `entries.junction_clear`), and those that would
+        reserve the lane (let go, within commit distance of the line, the lane reserved by
+        nobody)."""
         n = len(rows)
         none = np.zeros(n, dtype=bool)
         if self.net.swept or not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
@@ -1267,10 +1269,9 @@ class TrafficCore:
         t = self.table
         nl = len(t.length)
         et = entries.entry_table(self.net, t)
-        one = ((sc.what != 0).sum(axis=1) == 1) & (sc.what.max(axis=1) == ENTRY)  # (no crosswalk with people, light)
         stop = t.line_kind[in_lane] == LINE_STOP_SIGN
         queued = stop & (self.stop_junction == t.lane_junction[j_lane])
-        answer = rows & one & et.simple[j_lane] & ~queued & entries.placed(self)[self.env]
+        answer = rows & et.simple[j_lane] & ~queued & entries.placed(self)[self.env]
         r = answer.nonzero()[0]
         if not len(r):
             return answer, none, none
@@ -1285,9 +1286,12 @@ class TrafficCore:
         ask = ~mine & ~no
         if ask.any():
             no[ask] = ~entries.junction_clear(self, r[ask], j_lane[r[ask]], held_key, held_row, self._approach_held)
+        stops = sc.what[r] != 0
+        more = (stops.sum(axis=1) > 1) | (sc.what[r, np.argmax(stops, axis=1)] != ENTRY)  # let go, it walks on: the rules answer
+        answer[r[~no & more]] = False
         refused, takes = none.copy(), none.copy()
         refused[r] = no
-        takes[r] = ~no & ~reserved & (d_line[r] < np.maximum(COMMIT_DISTANCE_M, COMMIT_TIME_S * self.speed[r]))
+        takes[r] = ~no & ~more & ~reserved & (d_line[r] < np.maximum(COMMIT_DISTANCE_M, COMMIT_TIME_S * self.speed[r]))
         return answer, refused, takes
 
     def _approach_held(self, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:
