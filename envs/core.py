@@ -37,7 +37,7 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    crosswalks with people on them, up to the first road after the next entry with room to
    wait); every row with a stop on its scan asks the rules (signals, stop signs, reservations,
    pedestrians) against the state the frame began with, the arrays answering a row held at a
-   signal and a plain junction entry's conflicts (`sim.entries`), and the rows whose answer
+   signal and a junction entry's conflicts (`sim.entries`), and the rows whose answer
    takes something then claim (`control.TrafficControl.claim`, the rules' one update) in row
    order, so that reservations are claimed in road order. MOBIL runs every MOBIL_PERIOD_S for
    rows `rules.may_change_lane` allows on lanes with same-direction neighbours
@@ -94,7 +94,7 @@ if TYPE_CHECKING:
 EXTERNAL, DRIVEN = 0, 1
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
 # rows the rules are asked of (`TrafficCore._rule_stops`) from which the arrays answer a signal's
-# hold and a plain junction entry before the rows ask one by one (fewer: each asks the rules; the
+# hold and a junction entry before the rows ask one by one (fewer: each asks the rules; the
 # same values)
 SETTLE_MIN_ROWS = 24
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes

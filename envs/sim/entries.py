@@ -3,7 +3,7 @@ line into its next junction lane now (`rules.TrafficRules.may_enter`'s conflict 
 `junction_clear`), answered for every row of every slot with a few array operations against the
 state the frame began with (the rules' questions are pure: `control.TrafficControl.claim` is
 where a road user takes a lane, after every row has asked). `TrafficCore._entry_answers` asks it
-of the rows whose only stop is a junction entry; an entry the arrays cannot answer exactly (a
+of the rows whose first stop is a junction entry; an entry the arrays cannot answer exactly (a
 yield sign, a junction lane chained to the next, a box to keep clear, a stop sign's queue, a
 narrow passage) is asked of the rules one row at a time.
 
