@@ -142,9 +142,10 @@ class TrafficControl(TrafficRules):
 
     # ---- claims: the one update of rule state -------------------------------------------
     def claim(self, vehicle, ignore: frozenset = frozenset(), scan: tuple | None = None) -> float:
-        """The one update of rule state by one road user, from its place and speed (traffic at
-        every frame in row order, `core.TrafficCore._rule_stops`; a controlled row when its driver
-        claims, `map_env.EgoTask.claim`), in this order: its place at the narrow passages ahead
+        """The one update of rule state by one road user, from its place and speed (in a frame of
+        traffic, each row whose answer takes something, in row order after every row has asked:
+        `core.TrafficCore._rule_stops`; a controlled row when its driver claims,
+        `map_env.EgoTask.claim`), in this order: its place at the narrow passages ahead
         (`claim_passages`); while it waits for one, the junction lane beyond that wait it gives up
         (`_unreserve_beyond`); then its walk along the route (`_rule_stop`): the junction lanes the
         rules let it enter, reserved within commit distance of their line, and on red the one it
@@ -222,8 +223,8 @@ class TrafficControl(TrafficRules):
 
     def release(self, vehicle, j_lane: str) -> None:
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
-        junction (if it holds them): it will not enter now. (Asked every frame of every vehicle
-        at a red line: one that holds nothing skips the chain.)"""
+        junction (if it holds them): it will not enter now (one that holds nothing skips the
+        chain)."""
         if any(v is vehicle for v in self.reservations.values()):
             for x in self.junction_chain(vehicle, j_lane):
                 if x in self.reservations and self.reservations[x] is vehicle:
