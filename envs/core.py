@@ -76,14 +76,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
-                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M,
-                      COMMIT_DISTANCE_M, COMMIT_TIME_S)
+                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (CROSSED, ENTRY, body_reach, crossed_lanes, held_at_signal, idm_accelerations, in_the_way, may_change_lane,
-                    stop_gap)
+from .rules import (CROSSED, ENTRY, Claims, body_reach, commits, crossed_lanes, held_at_signal, idm_accelerations, in_the_way,
+                    may_change_lane, stop_gap)
 from .sim import entries, rule_scan, stop_signs
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
@@ -1158,10 +1157,10 @@ class TrafficCore:
         row claims in row order. From SETTLE_MIN_ROWS rows asked, the arrays answer what they can:
         a row whose first stop is a junction entry under a signal that holds it
         (`rules.held_at_signal`: red, or amber where it can stop) stops at the line (on red, a
-        reservation it holds there is given up), and a row whose only stop is a junction entry the
+        reservation it holds there is given up), and a row whose first stop is a junction entry the
         arrays answer exactly (`_entry_answers`) is answered there."""
-        roads, env, objs = self.roads, self.env, self.objs
-        n = len(objs)
+        env = self.env
+        n = len(self.objs)
         dist = np.full(n, math.inf)
         on = traffic & ~self.crashed
         if not on.any():
@@ -1174,19 +1173,10 @@ class TrafficCore:
         if self.net.passages:  # narrow passages: every row claims, in row order
             ask |= on & (t.passage[np.maximum(sc.lanes, 0)] & (sc.lanes >= 0) & (sc.D <= LOOKAHEAD_M)).any(axis=1)
             sc.index(ask)
-            for i in ask.nonzero()[0].tolist():
-                dist[i] = roads[env[i]].control.claim(objs[i], scan=(sc, i))
-            return dist
-        claims: list = []  # (what the row asking records; emptied after each)
-        wants: list[int] = []  # the rows whose claim would take or give up something
+            return self._claim(ask.nonzero()[0].tolist(), sc, dist)
         if ask.sum() < SETTLE_MIN_ROWS:  # too few for the arrays to pay: each asks the rules
             sc.index(ask)
-            for i in ask.nonzero()[0].tolist():
-                dist[i] = roads[env[i]].control.ask(objs[i], (sc, i), claims)
-                if claims:
-                    wants.append(i)
-                    claims.clear()
-            return self._claim(wants, sc, dist)
+            return self._claim(self._ask(ask, sc, dist), sc, dist)
         first = np.argmax(at, axis=1)
         ar = np.arange(n)
         entry = ask & (sc.what[ar, first] & (ENTRY | CROSSED) == ENTRY)
@@ -1206,15 +1196,22 @@ class TrafficCore:
         takes |= halt & (state == 2) & self._holders(held_row)  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
         sc.index(rest | takes)
-        for i in (rest | takes).nonzero()[0].tolist():
-            if signal[i]:  # the state at its first stop's line is known
-                sc.state[i] = SIGNAL_STATES[state[i]]
-            if rest[i]:
-                dist[i] = roads[env[i]].control.ask(objs[i], (sc, i), claims)
-                if claims:
-                    wants.append(i)
-                    claims.clear()
-        return self._claim(sorted(wants + takes.nonzero()[0].tolist()), sc, dist)
+        for i in (signal & (rest | takes)).nonzero()[0].tolist():  # the state at its first stop's line is known
+            sc.state[i] = SIGNAL_STATES[state[i]]
+        return self._claim(sorted(self._ask(rest, sc, dist) + takes.nonzero()[0].tolist()), sc, dist)
+
+    def _ask(self, rows: np.ndarray, sc: rule_scan.Scan, dist: np.ndarray) -> list[int]:
+        """Each of `rows` (a mask; their scans indexed in `sc`) asks the rules its question
+        (`TrafficRules.ask`), its answer into `dist`; the rows whose claim would take or give up
+        something, in row order."""
+        claims: Claims = []  # (what the row asking records; emptied after each)
+        wants = []
+        for i in rows.nonzero()[0].tolist():
+            dist[i] = self.roads[self.env[i]].control.ask(self.objs[i], (sc, i), claims)
+            if claims:
+                wants.append(i)
+                claims.clear()
+        return wants
 
     def _claim(self, rows: list[int], sc: rule_scan.Scan, dist: np.ndarray) -> np.ndarray:
         """The claims of `rows` (row order; their scans indexed in `sc`): each row's stop distance
@@ -1291,7 +1288,7 @@ class TrafficCore:
         answer[r[~no & more]] = False
         refused, takes = none.copy(), none.copy()
         refused[r] = no
-        takes[r] = ~no & ~more & ~reserved & (d_line[r] < np.maximum(COMMIT_DISTANCE_M, COMMIT_TIME_S * self.speed[r]))
+        takes[r] = ~no & ~more & ~reserved & commits(d_line[r], self.speed[r])
         return answer, refused, takes
 
     def _approach_held(self, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:

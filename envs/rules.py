@@ -210,9 +210,11 @@ def in_stop_zone(distance_to_line: float) -> bool:
     return 0.0 <= distance_to_line <= STOP_ZONE_M
 
 
-def commits(distance: float, speed: float) -> bool:
-    """A vehicle allowed into a junction reserves its lane this close to the line."""
-    return distance < max(COMMIT_DISTANCE_M, COMMIT_TIME_S * speed)
+def commits(distance, speed):
+    """A vehicle allowed into a junction reserves its lane this close to the line: within
+    COMMIT_DISTANCE_M, or COMMIT_TIME_S at its speed; floats, or arrays (elementwise: the batched
+    core's rows)."""
+    return (distance < COMMIT_DISTANCE_M) | (distance < COMMIT_TIME_S * speed)
 
 
 def braking_distance(speed: float, length: float) -> float:
