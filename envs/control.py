@@ -18,6 +18,7 @@ import numpy as np
 from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOP_POINT_M
 from ..phases import junction_phases
 from .network import MapNetwork
+from .reservations import LEFT_HOLDER
 from .rules import Claims, TrafficRules, beyond, commits, enters_next
 from .sim import stop_signs
 from .vehicles import Pedestrian
@@ -131,7 +132,6 @@ class TrafficControl(TrafficRules):
                 for sid in phase:
                     self.plans[sid] = plan
         self.road: Any = None  # the road whose rows hold the stop-sign queues (`MapRoad` sets it)
-        self.reservations: dict[str, Any] = {}  # junction lane -> the vehicle holding it
         self.pedestrians: dict[str, list[Pedestrian]] = {}
         self.active_crosswalks: list[str] = []
         self.buckets: dict[str, list] = {}
@@ -225,7 +225,7 @@ class TrafficControl(TrafficRules):
         """Give up `vehicle`'s reservation of `j_lane` and the lanes chained after it in its
         junction (if it holds them): it will not enter now (one that holds nothing skips the
         chain)."""
-        if any(v is vehicle for v in self.reservations.values()):
+        if self.reservations.held_by(vehicle):
             for x in self.junction_chain(vehicle, j_lane):
                 if x in self.reservations and self.reservations[x] is vehicle:
                     del self.reservations[x]
@@ -270,19 +270,23 @@ class TrafficControl(TrafficRules):
         vehicles = road.vehicles
         buckets = self.fill_buckets(vehicles, lanes)
         # release reservations of vehicles that left their junction lane (or the road)
-        alive = set(map(id, vehicles)) if self.reservations or net.passages else set()
-        for lid, v in list(self.reservations.items()):
-            on = lid in (net.id_of.get(v.lane_index), getattr(v, "lane_route", [None])[getattr(v, "route_pos", 0)])
-            passed = hasattr(v, "lane_route") and lid in v.lane_route[:v.route_pos]
-            if id(v) not in alive or (passed and not on):
+        for lid, v in list(self.reservations.items()) if self.reservations else ():
+            if v is LEFT_HOLDER or self._passed(v, lid):
                 del self.reservations[lid]
                 if getattr(v, "reserved", None) == lid:
                     v.reserved = None
                 self.hand_over(lid)
-
         if net.passages:
-            self._update_passages(buckets, alive)
+            self._update_passages(buckets, set(map(id, vehicles)))
         self._update_pedestrians(road, vehicles, dt)
+
+    def _passed(self, vehicle, lane: str) -> bool:
+        """Whether `vehicle` has driven through `lane` (on its route before its place) and is no
+        longer on it."""
+        net = self.net
+        on = lane in (net.id_of.get(vehicle.lane_index),
+                      getattr(vehicle, "lane_route", [None])[getattr(vehicle, "route_pos", 0)])
+        return hasattr(vehicle, "lane_route") and lane in vehicle.lane_route[:vehicle.route_pos] and not on
 
     def fill_buckets(self, vehicles: list, lanes: list[str | None]) -> dict[str, list]:
         """The road users on each lane (`buckets`, what the rules' occupancy questions read), from

@@ -84,6 +84,7 @@ from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, Claims, body_reach, commits, crossed_lanes, held_at_signal, idm_accelerations, in_the_way,
                     may_change_lane, stop_gap)
 from .sim import entries, rule_scan, stop_signs
+from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
 
@@ -102,7 +103,7 @@ PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place th
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
-                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False}
+                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE}
 
 
 class LaneTable:
@@ -476,11 +477,12 @@ class ArrayVehicle(TrafficVehicle):
 
     @property
     def reserved(self) -> str | None:
-        return self._core.reserved[self._row]
+        k = self._core.reserved[self._row]
+        return None if k < 0 else self._core.net.lane_ids[k]
 
     @reserved.setter
-    def reserved(self, value) -> None:
-        self._core.reserved[self._row] = value
+    def reserved(self, value: str | None) -> None:
+        self._core.reserved[self._row] = NONE if value is None else self._core.table.index[value]
 
     # ---- route queries from the row (no projection) ------------------------------------------
     def route_s(self) -> float:
@@ -597,7 +599,13 @@ class TrafficCore:
         self.p_objs: list[Any] = []
         self.routes: list[list[int]] = []  # lane ints
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
-        self.reserved: list[str | None] = []
+        # junction reservations (`reservations`: `res[slot, lane]` the holder's row, `res_seq` the
+        # order they were taken in; `Reservations` is a slot's view) and each row's `reserved`
+        # lane (the one it claimed, -1 none)
+        self.reserved = np.zeros(0, dtype=np.int64)
+        self.res = np.full((slots, len(self.table.length)), NONE, dtype=np.int32)
+        self.res_seq = np.zeros(self.res.shape, dtype=np.int64)
+        self._res_taken = 0
         self.dirty: set[int] = set()
         self.buckets_stale: set[int] = set()  # slots whose rows came or went since the rules' buckets were filled
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
@@ -611,7 +619,7 @@ class TrafficCore:
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
-               "stop_junction", "stop_seq", "stop_ahead")
+               "stop_junction", "stop_seq", "stop_ahead", "reserved")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -621,6 +629,7 @@ class TrafficCore:
         if old.any():
             self._select(np.nonzero(~old)[0].tolist())
         self.drop_walkers([o for o, k in zip(self.p_objs, self.p_env.tolist()) if k == slot])
+        self.res[slot] = NONE  # a new episode there: nothing reserved
         self.roads[slot] = road
         self.seen[slot] = []
         road.slot = slot
@@ -656,7 +665,7 @@ class TrafficCore:
         row = dict(env=road.slot, kind=DRIVEN, lane=lane, s=s, speed=speed,
                    timer=(float(x[0] + y[0]) * np.pi) % TrafficVehicle.LANE_CHANGE_DELAY, x=x[0], y=y[0],
                    heading=h[0], length=v.LENGTH, width=v.WIDTH, route_pos=0, route_end=len(route) - 1, **bicycle)
-        self._append(v, row, [self.table.index[x] for x in route], None)
+        self._append(v, row, [self.table.index[x] for x in route])
         road.vehicles.append(v)
         if self.seen[road.slot] == road.vehicles[:-1]:
             self.seen[road.slot].append(v)
@@ -677,14 +686,13 @@ class TrafficCore:
         v.enable_lane_change = False
         v.lane_changes = 0
 
-    def _append(self, obj, row: dict, route: list[int], reserved) -> None:
+    def _append(self, obj, row: dict, route: list[int]) -> None:
         i = len(self.objs)
         self.objs.append(obj)
         row = {**ROW_DEFAULTS, **row}
         self._append_rows(self._ARRAYS, row)
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
-        self.reserved.append(reserved)
         self.buckets_stale.add(int(row["env"]))
         self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
         self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
@@ -769,7 +777,11 @@ class TrafficCore:
         self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
         take = (lambda seq: list(map(seq.__getitem__, rows)))  # noqa: E731
         self.routes, self.route_ids = take(self.routes), take(self.route_ids)
-        self.reserved, self.objs = take(self.reserved), take(self.objs)
+        self.objs = take(self.objs)
+        held = np.nonzero(self.res >= 0)  # the holders' rows move with them; one that went has left
+        if len(held[0]):
+            moved = new_row[self.res[held]]
+            self.res[held] = np.where(moved >= 0, moved, LEFT)
         objs = self.objs
         for i in np.nonzero(idx != np.arange(len(idx)))[0].tolist():  # rows that moved
             if isinstance(objs[i], ArrayVehicle):
@@ -789,16 +801,17 @@ class TrafficCore:
                        crashed=bool(obj.crashed), x=obj.position[0], y=obj.position[1], heading=obj.heading,
                        length=obj.LENGTH, width=obj.WIDTH, route_pos=pos, route_end=len(route) - 1)
             reserved = getattr(obj, "reserved", None)
+            row["reserved"] = NONE if reserved is None else self.table.index[reserved]
             for name in ("position", "heading", "speed", "crashed", "timer", "lane_index", "lane", "lane_s",
                          "lane_lat", "lane_route", "route_pos", "target_lane_index", "reserved", "action"):
                 obj.__dict__.pop(name, None)
             obj.__class__ = ArrayVehicle
-            self._append(obj, row, route, reserved)
+            self._append(obj, row, route)
             self._place_rows(np.array([len(self.objs) - 1]))
         else:
             row = dict(env=road.slot, kind=EXTERNAL, lane=0, s=0.0, speed=0.0, mobil_t=0.0, x=0.0, y=0.0, heading=0.0,
                        length=obj.LENGTH, width=obj.WIDTH, route_pos=0, route_end=0)
-            self._append(obj, row, [], None)
+            self._append(obj, row, [])
             self._read_external(len(self.objs) - 1)
 
     def _read_external(self, i: int) -> None:
@@ -1190,7 +1203,7 @@ class TrafficCore:
         halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed)
         dist[halt] = (d_line - STOP_POINT_M)[halt]
         j_lane = sc.lanes[ar, first]
-        held_key, held_row = self._held_reservations()
+        held_key, held_row = self.held_reservations()
         answer, refused, takes = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line, held_key, held_row)
         dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
         takes |= halt & (state == 2) & self._holders(held_row)  # red: it gives up a reservation it holds
@@ -1223,28 +1236,32 @@ class TrafficCore:
     def _holders(self, held_row: np.ndarray) -> np.ndarray:
         """Per row, whether it may hold a junction reservation (a holder in `held_row`, or a
         `reserved` lane): what a release can give up (`TrafficRules._holds_any`)."""
-        out = np.array([r is not None for r in self.reserved], dtype=bool)
+        out = self.reserved >= 0
         out[held_row[held_row >= 0]] = True
         return out
 
-    def _held_reservations(self) -> tuple[np.ndarray, np.ndarray]:
+    # ---- reservations (`reservations.py`) ----------------------------------------------------
+    def reservations(self, slot: int) -> Reservations:
+        """Slot `slot`'s reservations as {lane id: holder} (a view of `res`)."""
+        return Reservations(self, slot)
+
+    def held_reservations(self) -> tuple[np.ndarray, np.ndarray]:
         """(keys slot * lanes + lane of every stepped slot's junction reservations, sorted; the row
-        holding each, -2 for a road user that is no row now)."""
-        nl = len(self.table.length)
-        index = self.table.index
-        keys, rows = [], []
-        for road in self.roads:
-            if road is None or not road.control.reservations or not self.stepped[road.slot]:
-                continue
-            for lid, v in road.control.reservations.items():
-                r = getattr(v, "_row", -2)
-                keys.append(road.slot * nl + index[lid])
-                rows.append(r if 0 <= r < len(self.objs) and self.objs[r] is v else -2)
-        if not keys:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        key, row = np.array(keys, dtype=np.int64), np.array(rows, dtype=np.int64)
-        order = np.argsort(key)
-        return key[order], row[order]
+        holding each, LEFT for a road user that is no row now): one read of `res`."""
+        slot, lane = np.nonzero(self.res != NONE)
+        on = self.stepped[slot]
+        slot, lane = slot[on], lane[on]
+        return slot * self.res.shape[1] + lane, self.res[slot, lane].astype(np.int64)
+
+    def row_of(self, obj: Any) -> int:
+        """The row of road user `obj` (LEFT: none; only rows hold reservations)."""
+        r = getattr(obj, "_row", LEFT) if getattr(obj, "_core", None) is self else LEFT
+        return r if 0 <= r < len(self.objs) and self.objs[r] is obj else LEFT
+
+    def next_reservation(self) -> int:
+        """The order of a reservation taken now (`res_seq`)."""
+        self._res_taken += 1
+        return self._res_taken
 
     def _entry_answers(self, sc: rule_scan.Scan, rows: np.ndarray, j_lane: np.ndarray, in_lane: np.ndarray,
                        d_line: np.ndarray, held_key: np.ndarray,

@@ -22,6 +22,7 @@ class MapRoad(Road):
         control.road = self
         self.core, k = slot if slot is not None else (TrafficCore(network), 0)
         self.core.attach(self, k)
+        control.reservations = self.core.reservations(k)
 
     def sync(self) -> None:
         self.core.sync([self])

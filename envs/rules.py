@@ -48,6 +48,7 @@ from .sweep import clear_stop, swept_head
 if TYPE_CHECKING:
     from ..model import Lane
     from .network import MapNetwork, StopLine
+    from .reservations import Reservations
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
@@ -336,7 +337,7 @@ class TrafficRules:
     cfg: dict
     plans: dict
     road: Any  # the road whose rows hold the stop-sign queues (`MapRoad` sets it; None: none yet)
-    reservations: dict
+    reservations: "Reservations"  # {junction lane: holder}, a view of the core's arrays (`MapRoad` sets it)
     pedestrians: dict
     buckets: dict
     passage_holders: dict  # passage group -> (holders from side 0, from side 1)
@@ -634,7 +635,7 @@ class TrafficRules:
 
     def _holds_any(self, vehicle) -> bool:
         """Whether `vehicle` holds a junction reservation (what a release can give up)."""
-        return getattr(vehicle, "reserved", None) is not None or any(v is vehicle for v in self.reservations.values())
+        return getattr(vehicle, "reserved", None) is not None or self.reservations.held_by(vehicle)
 
     def _holds(self, vehicle, lane_id: str, claims: Claims | None) -> bool:
         """Whether `vehicle` holds the reservation of `lane_id`, or takes it in `claims` (a lane

@@ -86,7 +86,7 @@ def test_junction_clear_in_arrays_is_the_rules_junction_clear_for_every_road_use
                         holder = [c.objs[r], gone, c.objs[rng.choice(c.slot_rows(int(c.env[r])))]][rng.integers(3)]
                         ctl.reservations[x] = holder
                         planted.append((ctl, x))
-        key, row = c._held_reservations()
+        key, row = c.held_reservations()
         got = entries.junction_clear(c, rows, j, key, row, c._approach_held)
         want = [c.roads[c.env[r]].control.junction_clear(ids[lane], c.objs[r]) for r, lane in zip(rows.tolist(), j.tolist())]
         assert got.tolist() == want, f"step {step}"
