@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from ..config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S, STOP_POINT_M
+from ..config import STOP_POINT_M
 from ..phases import junction_phases
 from .network import MapNetwork
 from .reservations import LEFT_HOLDER
 from .rules import Claims, TrafficRules, beyond, commits, enters_next
-from .sim import stop_signs
+from .sim import pedestrians, stop_signs
 from .vehicles import Pedestrian
 
 
@@ -107,6 +107,14 @@ def signal_tables(net: MapNetwork, paired: bool) -> tuple[dict, list]:
     return {j: sorted(x) for j, x in ids.items()}, [(jid, phases[jid]) for jid in sorted(phases, key=str)]
 
 
+def episode_key(rng: np.random.Generator) -> int:
+    """The key of an episode's counter-based draws (`sim.random`): read from `rng`'s state, so
+    that the episode's other draws (traffic) come out of `rng` as they would without it."""
+    state = rng.bit_generator.state["state"]
+    words = state.values() if isinstance(state, dict) else [state]
+    return int(np.random.SeedSequence([int(w) for w in words]).generate_state(1, np.uint64)[0])
+
+
 class TrafficControl(TrafficRules):
     """Signals, junction reservations, passages and crosswalk pedestrians of one episode."""
 
@@ -116,7 +124,6 @@ class TrafficControl(TrafficRules):
         self.net = net
         self.t = 0.0
         self.cfg = cfg
-        self.rng = rng
         self.plans: dict[str, PhasePlan] = {}
         self.signals_by_junction, grouped = net.memo(("phases", cfg["signal_phases"]),
                                                      lambda: signal_tables(net, cfg["signal_phases"] == "paired"))
@@ -132,13 +139,27 @@ class TrafficControl(TrafficRules):
                 for sid in phase:
                     self.plans[sid] = plan
         self.road: Any = None  # the road whose rows hold the stop-sign queues (`MapRoad` sets it)
-        self.pedestrians: dict[str, list[Pedestrian]] = {}
-        self.active_crosswalks: list[str] = []
+        self.pedestrians: dict[str, list[Pedestrian]] = {}  # by crosswalk, the walkers' views (`sim.pedestrians`)
+        self._active_crosswalks: list[str] = []
+        self.key = episode_key(rng)  # of the episode's counter-based draws (`sim.random`)
         self.buckets: dict[str, list] = {}
         self.passage_holders: dict[int, tuple[set, set]] = {}
         self.passage_waiters: dict[int, dict] = {}
         self.passage_rooms: dict[tuple[int, int], set] = {}
         self._claims: Claims = []  # what the claim being made takes (`claim`)
+
+    @property
+    def active_crosswalks(self) -> list[str]:
+        """The crosswalks pedestrians step out on (the route's junctions' and the mid-block ones
+        it crosses); setting them starts their spawning in the road's core (`sim.pedestrians`)."""
+        return self._active_crosswalks
+
+    @active_crosswalks.setter
+    def active_crosswalks(self, ids: list[str]) -> None:
+        self._active_crosswalks = list(ids)
+        cfg = self.cfg
+        self.road.core.set_crosswalks(self.road.slot, self._active_crosswalks, self.key, float(cfg["pedestrian_rate"]),
+                                      int(cfg["pedestrians_per_crosswalk"]))
 
     # ---- claims: the one update of rule state -------------------------------------------
     def claim(self, vehicle, ignore: frozenset = frozenset(), scan: tuple | None = None) -> float:
@@ -259,13 +280,15 @@ class TrafficControl(TrafficRules):
     def update(self, road, dt: float, lanes: list[str | None] | None = None) -> None:
         """Advance the clock by `dt` and bring the state up to date with the road's vehicles;
         `lanes`: the lane each vehicle is on, when the caller synced the road, found them and
-        brought the stop-sign queues up to date (`TrafficCore.step`, for all sub-envs at once)."""
+        brought the stop-sign queues and the pedestrians up to date (`TrafficCore.step`, for all
+        sub-envs at once)."""
         self.t += dt
         if lanes is None:
             road.sync()  # the core takes in vehicles added or removed by user code
             core = road.core
             (lanes,) = core.occupancies([road])
             stop_signs.update(core, core.env == road.slot)
+            pedestrians.update(core, dt, np.arange(len(core.roads)) == road.slot)
         net = self.net
         vehicles = road.vehicles
         buckets = self.fill_buckets(vehicles, lanes)
@@ -278,7 +301,6 @@ class TrafficControl(TrafficRules):
                 self.hand_over(lid)
         if net.passages:
             self._update_passages(buckets, set(map(id, vehicles)))
-        self._update_pedestrians(road, vehicles, dt)
 
     def _passed(self, vehicle, lane: str) -> bool:
         """Whether `vehicle` has driven through `lane` (on its route before its place) and is no
@@ -352,29 +374,3 @@ class TrafficControl(TrafficRules):
         for (g, side), users in self.passage_rooms.items():  # a place to wait is given up on entering
             held = self.passage_holders.get(g, ((), ()))[side]
             users.intersection_update([v for v in users if v not in held and ahead(v, g, side)])
-
-    def _update_pedestrians(self, road, vehicles, dt: float) -> None:
-        rate = self.cfg["pedestrian_rate"] / 60.0
-        changed = False
-        for cw in self.active_crosswalks:
-            old = self.pedestrians.get(cw, ())
-            peds = [p for p in old if not p.done] if old else []
-            if len(peds) != len(old):
-                changed = True
-                road.core.drop_walkers([p for p in old if p.done])
-            # rng.random() is rng.uniform() (the same draw, the same value), at a fifth of the cost
-            if rate > 0 and self.rng.random() < rate * dt and len(peds) < self.cfg["pedestrians_per_crosswalk"]:
-                a, b, width = self.net.crosswalk_axes[cw]
-                if self.rng.random() < 0.5:
-                    a, b = b, a
-                d = (b - a) / max(np.hypot(*(b - a)), 1e-9)
-                off = np.array([-d[1], d[0]]) * self.rng.uniform(-0.3, 0.3) * width
-                if not any(np.hypot(*(v.position - a - off))
-                           < PEDESTRIAN_CLEARANCE_M + PEDESTRIAN_SPAWN_HORIZON_S * max(v.speed, 0.0) for v in vehicles):
-                    speed = float(self.cfg["pedestrian_speed"] * self.rng.uniform(0.85, 1.15))
-                    peds.append(Pedestrian(road, a + off, b + off, speed, cw))
-                    changed = True
-            self.pedestrians[cw] = peds
-        if changed or any(not isinstance(o, Pedestrian) for o in road.objects):
-            road.objects = [o for o in road.objects if not isinstance(o, Pedestrian)] + \
-                [p for cw in self.active_crosswalks for p in self.pedestrians.get(cw, ())]

@@ -83,9 +83,9 @@ from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, Claims, body_reach, commits, crossed_lanes, held_at_signal, idm_accelerations, in_the_way,
                     may_change_lane, stop_gap)
-from .sim import entries, rule_scan, stop_signs
+from .sim import entries, pedestrians, rule_scan, stop_signs
 from .reservations import LEFT, NONE, Reservations
-from .sim.vehicle import VehicleModel, integrate, keeping_steering, speed_control
+from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
 
 if TYPE_CHECKING:
@@ -103,7 +103,8 @@ PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place th
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
-                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE}
+                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE,
+                "scan_len": 0}
 
 
 class LaneTable:
@@ -589,14 +590,25 @@ class TrafficCore:
         self.stop_count = 0
         self.queued = 0
         self.stop_ahead = np.zeros(0, dtype=bool)  # a stop sign's line on the row's window (`refresh_windows`)
+        self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
         # walking direction, speed and metres left to the crosswalk's far end
         self.p_env = np.zeros(0, dtype=np.int64)
+        self.p_cw = np.zeros(0, dtype=np.int64)  # the crosswalk (`crosswalks` index)
         self.p_x, self.p_y, self.p_ux, self.p_uy = np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
         self.p_speed, self.p_left = np.zeros(0), np.zeros(0)
         self.p_objs: list[Any] = []
+        # where they step out (`sim.pedestrians`): each slot's active crosswalks (`set_crosswalks`),
+        # its key and frame counter of draws (`sim.random`), its rate per minute and room per crosswalk
+        self.crosswalks = pedestrians.crosswalks(net)
+        self.cw_of = [np.zeros(0, dtype=np.int64) for _ in range(slots)]
+        self._cw_pairs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.ped_key = np.zeros(slots, dtype=np.uint64)
+        self.ped_frame = np.zeros(slots, dtype=np.int64)
+        self.ped_rate = np.zeros(slots)
+        self.ped_max = np.zeros(slots, dtype=np.int64)
         self.routes: list[list[int]] = []  # lane ints
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
         # junction reservations (`reservations`: `res[slot, lane]` the holder's row, `res_seq` the
@@ -612,14 +624,15 @@ class TrafficCore:
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
         # the rules' scan along the window (`sim.rule_scan`), what of it holds while the route
         # position does: what can stop the row on each window lane up to where the scan ends
-        # (bits, `rules.ENTRY`...; a crosswalk's people are asked each frame)
+        # (bits, `rules.ENTRY`...; a crosswalk's people are asked each frame), and how many window
+        # lanes the scan reaches (`scan_len`)
         self.scan_what = np.zeros((0, 1), dtype=np.int8)
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
-               "stop_junction", "stop_seq", "stop_ahead", "reserved")
+               "stop_junction", "stop_seq", "stop_ahead", "reserved", "scan_len")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -630,6 +643,7 @@ class TrafficCore:
             self._select(np.nonzero(~old)[0].tolist())
         self.drop_walkers([o for o, k in zip(self.p_objs, self.p_env.tolist()) if k == slot])
         self.res[slot] = NONE  # a new episode there: nothing reserved
+        self.set_crosswalks(slot, [], 0, 0.0, 0)  # ... and no crosswalk active
         self.roads[slot] = road
         self.seen[slot] = []
         road.slot = slot
@@ -880,17 +894,34 @@ class TrafficCore:
         self.dirty.add(i)
 
     # ---- walkers -----------------------------------------------------------------------------
-    _WALKER_ARRAYS = ("p_env", "p_x", "p_y", "p_ux", "p_uy", "p_speed", "p_left")
+    _WALKER_ARRAYS = ("p_env", "p_cw", "p_x", "p_y", "p_ux", "p_uy", "p_speed", "p_left")
 
-    def add_walker(self, obj, slot: int, heading: float, speed: float, length: float) -> int:
-        """A new walker row of `slot` (its place is set by its view) heading `heading` with
-        `length` metres to walk; its row."""
+    def add_walker(self, obj, slot: int, crosswalk: str, heading: float, speed: float, length: float) -> int:
+        """A new walker row of `slot` on `crosswalk` (its place is set by its view) heading
+        `heading` with `length` metres to walk; its row."""
         # the direction as highway-env's `RoadObject.direction` computes it
-        row = {"p_env": slot, "p_x": 0.0, "p_y": 0.0, "p_ux": np.cos(heading), "p_uy": np.sin(heading),
-               "p_speed": speed, "p_left": length}
+        row = {"p_env": slot, "p_cw": self.crosswalks.index[crosswalk], "p_x": 0.0, "p_y": 0.0,
+               "p_ux": np.cos(heading), "p_uy": np.sin(heading), "p_speed": speed, "p_left": length}
         self._append_rows(self._WALKER_ARRAYS, row)
         self.p_objs.append(obj)
         return len(self.p_objs) - 1
+
+    def set_crosswalks(self, slot: int, active: list[str], key: int, rate: float, most: int) -> None:
+        """Slot `slot`'s pedestrians step out on crosswalks `active`, `rate` per minute each, at
+        most `most` on one, drawn with `key` (`sim.pedestrians`); its frame counter starts again."""
+        self.cw_of[slot] = np.array([self.crosswalks.index[c] for c in active], dtype=np.int64)
+        self.ped_key[slot], self.ped_frame[slot] = key, 0
+        self.ped_rate[slot], self.ped_max[slot] = rate, most
+        self._cw_pairs = None
+
+    def crosswalk_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(slot, crosswalk, its place among the slot's) of every slot's active crosswalks."""
+        if self._cw_pairs is None:
+            counts = np.array([len(c) for c in self.cw_of])
+            slot = np.repeat(np.arange(len(self.cw_of)), counts)
+            place = np.arange(len(slot)) - np.repeat(np.cumsum(counts) - counts, counts)
+            self._cw_pairs = (slot, np.concatenate(self.cw_of), place)
+        return self._cw_pairs
 
     def drop_walkers(self, gone: list) -> None:
         """Let the walkers of these views go (each view keeps its last place, in a row of its own)."""
@@ -955,6 +986,7 @@ class TrafficCore:
             self.C[i, :len(cum)] = cum
             self.scan_what[i] = 0
             self.scan_what[i, :len(what)] = what
+            self.scan_len[i] = len(what)
         self.dirty.clear()
 
     # ---- a frame -----------------------------------------------------------------------------
@@ -986,6 +1018,7 @@ class TrafficCore:
         self.sync(roads)  # the core takes in vehicles added or removed by user code
         self.walk(dt)
         stop_signs.update(self, self.on)
+        pedestrians.update(self, dt, self.stepped)
         for road, lanes in zip(roads, self.occupancies(roads)):
             road.control.update(road, dt, lanes)
         self.buckets_stale.difference_update(road.slot for road in roads)
@@ -1246,11 +1279,9 @@ class TrafficCore:
         return Reservations(self, slot)
 
     def held_reservations(self) -> tuple[np.ndarray, np.ndarray]:
-        """(keys slot * lanes + lane of every stepped slot's junction reservations, sorted; the row
-        holding each, LEFT for a road user that is no row now): one read of `res`."""
+        """(keys slot * lanes + lane of every slot's junction reservations, sorted; the row holding
+        each, LEFT for a road user that is no row now): one read of `res`."""
         slot, lane = np.nonzero(self.res != NONE)
-        on = self.stepped[slot]
-        slot, lane = slot[on], lane[on]
         return slot * self.res.shape[1] + lane, self.res[slot, lane].astype(np.int64)
 
     def row_of(self, obj: Any) -> int:
@@ -1439,11 +1470,11 @@ class TrafficCore:
             steer = 0.0
         elif self.keeps[i]:
             steer = keeping_steering(t.heading_one(lane, s + speed * LANE_KEEPING_TAU_S), float(self.lat[i]), heading,
-                                     speed, wheelbase, limit, math)
+                                     speed, wheelbase, limit, FLOATS)
         else:
             steer = min(max(float(self.cmd_steer[i]), -limit), limit)
         x, y, heading, new_speed = integrate(float(self.x[i]), float(self.y[i]), heading, speed, steer,
-                                             float(self.acc[i]), dt, wheelbase, float(self.rear_offset[i]), math)
+                                             float(self.acc[i]), dt, wheelbase, float(self.rear_offset[i]), FLOATS)
         self.x[i], self.y[i], self.heading[i] = x, y, heading
         self.speed[i], self.steer[i] = max(new_speed, 0.0), steer
         self.timer[i] += dt

@@ -460,6 +460,8 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
         env.enable_auto_render = False
         core = getattr(env.road, "core", None)
         env._respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
+    for core, roads in groups.values():  # the respawns taken in (of every sub-env at once): what observations read
+        core.sync(roads)
 
 
 def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:

@@ -19,7 +19,6 @@ stretch, so nothing changes there.
 """
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,7 +29,7 @@ from ..config import (STOP_POINT_M, SWEEP_CLEARANCE_M, SWEEP_LEAD_M, SWEEP_SPEED
                       TIGHT_BEND_RADIUS_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..routes import sharpest_radius
 from .lanes import PolylineLane
-from .sim.vehicle import VehicleModel, integrate, lane_keeping
+from .sim.vehicle import FLOATS, VehicleModel, integrate, lane_keeping
 
 if TYPE_CHECKING:
     from .network import MapNetwork
@@ -62,7 +61,7 @@ def sweep(path: PolylineLane, speed: float, s_from: float = 0.0) -> list[tuple[f
         if s >= path.length - 1e-3:
             break
         steer = lane_keeping(path, s, r, h, speed, model)
-        x, y, h, _ = integrate(x, y, h, speed, steer, 0.0, SWEEP_STEP_S, model.wheelbase, model.rear_offset, math)
+        x, y, h, _ = integrate(x, y, h, speed, steer, 0.0, SWEEP_STEP_S, model.wheelbase, model.rear_offset, FLOATS)
         poses.append((x, y, h))
     return poses
 

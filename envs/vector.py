@@ -123,7 +123,6 @@ class MapVectorEnv(VectorEnv):
         for i, env in zip(stepping, envs):
             env._begin_step(acts[i])
         simulate(envs, [acts[i] for i in stepping])
-        self.core.sync()  # respawns of every sub-env taken in at once (not one observation at a time)
         observed = self.observe(envs)
         columns: dict[str, tuple[list[int], list]] = {}
         if self.batch_end(envs):

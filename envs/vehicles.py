@@ -29,7 +29,7 @@ class Pedestrian(RoadObject):
         d = end - start
         heading = float(math.atan2(d[1], d[0]))
         self._core = road.core
-        self._row = self._core.add_walker(self, road.slot, heading, float(speed), float(np.hypot(*d)))
+        self._row = self._core.add_walker(self, road.slot, crosswalk_id, heading, float(speed), float(np.hypot(*d)))
         super().__init__(road, start.copy(), heading, speed)
         self.end = end
         self.crosswalk_id = crosswalk_id

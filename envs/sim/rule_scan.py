@@ -95,11 +95,13 @@ def scan(core: "TrafficCore", rows: np.ndarray | None = None) -> Scan:
     the window's stops (`along`) within LOOKAHEAD_M of each row, and the crosswalks with people
     on them now."""
     if rows is None:
-        W, C, s, env, what = core.W, core.C, core.s, core.env, core.scan_what
+        W, C, s, env, what, reach = core.W, core.C, core.s, core.env, core.scan_what, core.scan_len
     else:
-        W, C, s, env, what = core.W[rows], core.C[rows], core.s[rows], core.env[rows], core.scan_what[rows]
+        W, C, s, env, what, reach = (core.W[rows], core.C[rows], core.s[rows], core.env[rows], core.scan_what[rows],
+                                     core.scan_len[rows])
     D = C - s[:, None]
-    scanned = D <= LOOKAHEAD_M  # (the current lane, at D = -s, always)
+    # within LOOKAHEAD_M (the current lane, at D = -s, always) and up to where `along` stops
+    scanned = (D <= LOOKAHEAD_M) & (np.arange(W.shape[1]) < reach[:, None])
     what = what * scanned
     busy = busy_lanes(core)
     if busy:

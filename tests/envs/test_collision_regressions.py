@@ -69,13 +69,15 @@ def test_sharp_turns_side_by_side_conflict(m1):
 
 
 def test_m1_r003_right_turn_on_red_no_collision(m1, tmp_path):
-    """Scenario m1-r003 (seed 3, 6 traffic vehicles, 4 pedestrians/min) driven by the baseline
-    planner through J0's right turn: it collided at t=51.6 s; now the ego clears J0 safely."""
+    """Scenario m1-r003 (6 traffic vehicles, 4 pedestrians/min) driven by the baseline planner
+    through J0's right turn on red: it collided at t=51.6 s; now the ego clears J0 safely. (Seed
+    3 was the suite's; since pedestrians draw from their own counter-based stream, seed 3 reaches
+    J0 on green, and seed 1 brings the ego there on red.)"""
     path = tmp_path / "m1.json"
     native.save(m1, path)
     sc = Scenario(name="m1-r003", map=str(path),
                   route=(("J1", "R4", "R1"), ("J0", "R1", "R2"), ("J6", "R2", "R7"), ("J2", "R7", "R5")),
-                  traffic_vehicles=6, pedestrian_rate=4.0, seed=3, duration=75.0)  # time to clear J0 whatever the traffic
+                  traffic_vehicles=6, pedestrian_rate=4.0, seed=1, duration=75.0)  # time to clear J0 whatever the traffic
     env = make_env(sc)
     try:
         obs, info = env.reset(seed=sc.seed)
