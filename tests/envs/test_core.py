@@ -172,6 +172,25 @@ def test_traffic_vehicles_are_views_of_the_core():
         env.unwrapped.configure({"traffic_core": "objects"})
 
 
+def test_after_a_step_the_rows_are_the_road_users_on_the_road():
+    """What a step's observation reads (the core's rows: Kinematics, leaders, DriverView) is the
+    road's vehicles after the step's respawns: a car taken off the road at the end of a step is
+    no row by then (the single env's DriverView saw one as a leader, where the batch did not)."""
+    env = gym.make("feat2map/JunctionGrid-v0", config={
+        "features": FEATS, "traffic_vehicles": 14, "duration": 1e9, "observation": {"type": "DriverView"},
+        "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "simulation_frequency": 10})
+    env.reset(seed=3)
+    u = env.unwrapped
+    respawns = 0
+    for _ in range(120):
+        before = set(map(id, u.road.vehicles))
+        env.step(np.zeros(1, dtype=np.float32))
+        respawns += bool(before - set(map(id, u.road.vehicles)))
+        assert sorted(map(id, u.road.core.objs)) == sorted(map(id, u.road.vehicles))
+    assert respawns > 0
+    env.close()
+
+
 def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
     env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS, "traffic_vehicles": 3,
                                                        "action": DRIVER_ACTION_CONFIG})

@@ -7,6 +7,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -202,3 +203,55 @@ def test_asking_every_road_user_every_question_changes_nothing_in_busy_traffic(s
         last = before
     assert moved > 0
     env.close()
+
+
+def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping():
+    """A slot's reservations (`TrafficControl.reservations`) are a view of the core's arrays:
+    a mapping in the order they were taken (taking a held lane again keeps its place), read at
+    once for every slot by `held_reservations`; rows going renumber the holders, one that left
+    the road holds as `LEFT` until its slot's next update releases it, and a slot's new episode
+    starts with nothing reserved while the other slots keep theirs."""
+    from feat2map.envs.reservations import LEFT, LEFT_HOLDER
+
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                        config={"traffic_vehicles": 6})
+    envs.reset(seed=1)
+    c = envs.unwrapped.core
+    junction_lanes = [lid for lid in c.net.lane_ids if c.net.hdmap.lanes[lid].junction_id is not None]
+    nl = len(c.net.lane_ids)
+    held = {}
+    for slot in range(3):
+        road, ctl = c.roads[slot], c.roads[slot].control
+        cars = road.vehicles[1:4]
+        lanes = junction_lanes[3 * slot:3 * slot + 3][::-1]  # taken out of lane order
+        for car, lane in zip(cars, lanes):
+            ctl.reservations[lane] = car
+        ctl.reservations[lanes[0]] = cars[2]  # taken again: a new holder, the same place in the order
+        assert ctl.reservations.setdefault(lanes[1], cars[0]) is cars[1]
+        assert list(ctl.reservations) == lanes and len(ctl.reservations) == 3
+        assert [ctl.reservations[x] for x in lanes] == [cars[2], cars[1], cars[2]]
+        assert lanes[0] in ctl.reservations and junction_lanes[-1] not in ctl.reservations
+        assert ctl.reservations.held_by(cars[2]) and not ctl.reservations.held_by(cars[0])
+        held[slot] = (lanes, cars)
+    key, row = c.held_reservations()
+    assert sorted(zip(key.tolist(), row.tolist())) == sorted(
+        (slot * nl + c.table.index[x], ctl_car._row) for slot, (lanes, cars) in held.items()
+        for x, ctl_car in zip(lanes, (cars[2], cars[1], cars[2])))
+    # slot 0's cars[2] leaves the road: slot 1's and 2's rows move down, their holders with them
+    lanes0, cars0 = held[0]
+    c.roads[0].vehicles.remove(cars0[2])
+    c.sync()
+    ctl0 = c.roads[0].control
+    assert ctl0.reservations[lanes0[0]] is LEFT_HOLDER and ctl0.reservations[lanes0[1]] is cars0[1]
+    for slot in (1, 2):
+        lanes, cars = held[slot]
+        assert [c.roads[slot].control.reservations[x] for x in lanes] == [cars[2], cars[1], cars[2]]
+    key, row = c.held_reservations()
+    assert dict(zip(key.tolist(), row.tolist()))[c.table.index[lanes0[0]]] == LEFT
+    ctl0.update(c.roads[0], 0.0)  # the holder that left lets go
+    assert list(ctl0.reservations) == [lanes0[1]]
+    envs.unwrapped.envs[1].reset(seed=5)  # slot 1's new episode
+    assert not c.roads[1].control.reservations
+    lanes, cars = held[2]
+    assert list(c.roads[2].control.reservations) == lanes
+    envs.close()
