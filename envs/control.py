@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -277,26 +277,30 @@ class TrafficControl(TrafficRules):
         vehicle.reserved = j_lane
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
-    def update(self, road, dt: float, lanes: list[str | None] | None = None) -> None:
+    def update(self, road, dt: float, lanes: list[str | None] | None = None, looks: Sequence[str] = ()) -> None:
         """Advance the clock by `dt` and bring the state up to date with the road's vehicles;
         `lanes`: the lane each vehicle is on, when the caller synced the road, found them and
-        brought the stop-sign queues and the pedestrians up to date (`TrafficCore.step`, for all
-        sub-envs at once)."""
+        brought the stop-sign queues and the pedestrians up to date, and `looks`: the
+        reservations to look at (`TrafficCore.step`, for all sub-envs at once)."""
         self.t += dt
         if lanes is None:
             road.sync()  # the core takes in vehicles added or removed by user code
             core = road.core
             (lanes,) = core.occupancies([road])
-            stop_signs.update(core, core.env == road.slot)
-            pedestrians.update(core, dt, np.arange(len(core.roads)) == road.slot)
+            mine = np.arange(len(core.roads)) == road.slot
+            stop_signs.update(core, mine[core.env])
+            pedestrians.update(core, dt, mine)
+            looks = core.release_looks(mine).get(road.slot, ())
         net = self.net
         vehicles = road.vehicles
         buckets = self.fill_buckets(vehicles, lanes)
         # release reservations of vehicles that left their junction lane (or the road)
-        for lid, v in list(self.reservations.items()) if self.reservations else ():
-            if v is LEFT_HOLDER or self._passed(v, lid):
+        for lid in looks:
+            v: Any = self.reservations.get(lid)
+            left = v is LEFT_HOLDER
+            if left or v is not None and self._passed(v, lid):
                 del self.reservations[lid]
-                if getattr(v, "reserved", None) == lid:
+                if not left and v.reserved == lid:
                     v.reserved = None
                 self.hand_over(lid)
         if net.passages:

@@ -104,7 +104,7 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
                 "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE,
-                "scan_len": 0}
+                "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1}
 
 
 class LaneTable:
@@ -618,6 +618,11 @@ class TrafficCore:
         self.res = np.full((slots, len(self.table.length)), NONE, dtype=np.int32)
         self.res_seq = np.zeros(self.res.shape, dtype=np.int64)
         self._res_taken = 0
+        # what the releases last looked at (`release_looks`): per slot the last reservation taken
+        # then, per row its route position, lane and route (`route_ver` counts its routes)
+        self.res_looked = np.zeros(slots, dtype=np.int64)
+        self.route_ver = np.zeros(0, dtype=np.int64)
+        self.seen_pos, self.seen_lane, self.seen_route = (np.zeros(0, dtype=np.int64) for _ in range(3))
         self.dirty: set[int] = set()
         self.buckets_stale: set[int] = set()  # slots whose rows came or went since the rules' buckets were filled
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
@@ -632,7 +637,8 @@ class TrafficCore:
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
-               "stop_junction", "stop_seq", "stop_ahead", "reserved", "scan_len")
+               "stop_junction", "stop_seq", "stop_ahead", "reserved", "scan_len", "route_ver", "seen_pos",
+               "seen_lane", "seen_route")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -871,6 +877,7 @@ class TrafficCore:
         self.route_ids[i] = lane_ids
         self.routes[i] = [self.table.index[x] for x in lane_ids]
         self.route_end[i] = len(lane_ids) - 1
+        self.route_ver[i] += 1
         self.dirty.add(i)
 
     def reroute(self, i: int, lane_ids: list[str], pos: int) -> None:
@@ -1019,8 +1026,9 @@ class TrafficCore:
         self.walk(dt)
         stop_signs.update(self, self.on)
         pedestrians.update(self, dt, self.stepped)
+        looks = self.release_looks(self.stepped)
         for road, lanes in zip(roads, self.occupancies(roads)):
-            road.control.update(road, dt, lanes)
+            road.control.update(road, dt, lanes, looks.get(road.slot, ()))
         self.buckets_stale.difference_update(road.slot for road in roads)
         self.collisions(roads, dt)
         for road in roads:
@@ -1288,6 +1296,29 @@ class TrafficCore:
         """The row of road user `obj` (LEFT: none; only rows hold reservations)."""
         r = getattr(obj, "_row", LEFT) if getattr(obj, "_core", None) is self else LEFT
         return r if 0 <= r < len(self.objs) and self.objs[r] is obj else LEFT
+
+    def release_looks(self, slots: np.ndarray) -> dict[int, list[str]]:
+        """Per slot of `slots` (a mask), the lanes whose reservation its bookkeeping must look at
+        (`TrafficControl.update`), in the order taken: held by a road user that left, taken since
+        the slot's last look, or held by a road user whose route, route position or lane changed
+        since (for the others the last look's answer stands: kept). One program for every slot."""
+        slot, lane = np.nonzero(self.res != NONE)
+        looks: dict[int, list[str]] = {}
+        if len(slot):
+            holder = self.res[slot, lane].astype(np.int64)
+            moved = (self.route_pos != self.seen_pos) | (self.where_lanes() != self.seen_lane) | \
+                (self.route_ver != self.seen_route)
+            new = self.res_seq[slot, lane] > self.res_looked[slot]
+            look = slots[slot] & ((holder < 0) | moved[np.maximum(holder, 0)] | new)
+            slot, lane = slot[look], lane[look]
+            ids = self.net.lane_ids
+            for k in np.lexsort((self.res_seq[slot, lane], slot)).tolist():
+                looks.setdefault(int(slot[k]), []).append(ids[lane[k]])
+        self.res_looked[slots] = self._res_taken
+        on = slots[self.env]
+        self.seen_pos[on], self.seen_lane[on], self.seen_route[on] = \
+            self.route_pos[on], self.where_lanes(on.nonzero()[0]), self.route_ver[on]
+        return looks
 
     def next_reservation(self) -> int:
         """The order of a reservation taken now (`res_seq`)."""

@@ -255,3 +255,36 @@ def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping
     lanes, cars = held[2]
     assert list(c.roads[2].control.reservations) == lanes
     envs.close()
+
+
+def test_looking_only_at_reservations_whose_holder_moved_releases_what_looking_at_all_does(monkeypatch):
+    """A frame's releases look only at the reservations taken since the last look, held by a road
+    user that left, or whose holder's route, route position or lane changed (`release_looks`):
+    in busy batched traffic every slot then holds, step by step, exactly what it holds when every
+    reservation is looked at every frame."""
+    from feat2map.envs.core import TrafficCore
+
+    looks = TrafficCore.release_looks
+
+    def run(look_at_all: bool) -> list:
+        if look_at_all:
+            def every(core, slots):
+                looks(core, slots)  # (its bookkeeping, as in the other run)
+                return {s: list(core.roads[s].control.reservations) for s in np.nonzero(slots)[0].tolist()}
+            monkeypatch.setattr(TrafficCore, "release_looks", every)
+        envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=8, vectorization_mode="vector_entry_point",
+                            config={"traffic_vehicles": 14, "policy_frequency": 5, "duration": 1e9})
+        envs.reset(seed=6)
+        c = envs.unwrapped.core
+        out = []
+        for _ in range(120):
+            envs.step(np.ones(8, dtype=np.int64))
+            out.append([sorted((lid, getattr(v, "_row", -2)) for lid, v in road.control.reservations.items())
+                        for road in c.roads])
+        envs.close()
+        monkeypatch.undo()
+        return out
+
+    looked, every = run(False), run(True)
+    assert sum(len(held) for step in every for held in step) > 500
+    assert looked == every
