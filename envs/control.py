@@ -158,7 +158,8 @@ class TrafficControl(TrafficRules):
     def active_crosswalks(self, ids: list[str]) -> None:
         self._active_crosswalks = list(ids)
         cfg = self.cfg
-        self.road.core.set_crosswalks(self.road.slot, self._active_crosswalks, self.key, float(cfg["pedestrian_rate"]),
+        chance = float(cfg["pedestrian_rate"]) / 60.0 / float(cfg["simulation_frequency"])  # per crosswalk and frame
+        self.road.core.set_crosswalks(self.road.slot, self._active_crosswalks, self.key, chance,
                                       int(cfg["pedestrians_per_crosswalk"]))
 
     # ---- claims: the one update of rule state -------------------------------------------

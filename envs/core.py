@@ -97,6 +97,9 @@ BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by
 # hold and a junction entry before the rows ask one by one (fewer: each asks the rules; the
 # same values)
 SETTLE_MIN_ROWS = 24
+# live reservations up to which a frame's releases look at every one (`release_looks`: the
+# filter costs more than a few looks; the same releases)
+LOOK_ALL_MAX = 12
 SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 # a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
@@ -600,14 +603,15 @@ class TrafficCore:
         self.p_x, self.p_y, self.p_ux, self.p_uy = np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
         self.p_speed, self.p_left = np.zeros(0), np.zeros(0)
         self.p_objs: list[Any] = []
-        # where they step out (`sim.pedestrians`): each slot's active crosswalks (`set_crosswalks`),
-        # its key and frame counter of draws (`sim.random`), its rate per minute and room per crosswalk
+        # where they step out (`sim.pedestrians`): each slot's active crosswalks (-1 padded) and the
+        # frame someone is due to step out on each, the slot's key and frame counter of draws
+        # (`sim.random`), the chance a frame that someone steps out on a crosswalk, its room
         self.crosswalks = pedestrians.crosswalks(net)
-        self.cw_of = [np.zeros(0, dtype=np.int64) for _ in range(slots)]
-        self._cw_pairs: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.cw_of = np.full((slots, 0), -1, dtype=np.int64)
+        self.ped_due = np.full((slots, 0), np.inf)
         self.ped_key = np.zeros(slots, dtype=np.uint64)
         self.ped_frame = np.zeros(slots, dtype=np.int64)
-        self.ped_rate = np.zeros(slots)
+        self.ped_chance = np.zeros(slots)
         self.ped_max = np.zeros(slots, dtype=np.int64)
         self.routes: list[list[int]] = []  # lane ints
         self.route_ids: list[list[str]] = []  # the same routes as lane ids (what views hand out)
@@ -621,6 +625,7 @@ class TrafficCore:
         # what the releases last looked at (`release_looks`): per slot the last reservation taken
         # then, per row its route position, lane and route (`route_ver` counts its routes)
         self.res_looked = np.zeros(slots, dtype=np.int64)
+        self.seen_stale = np.ones(slots, dtype=bool)  # a slot whose holders' places are not noted
         self.route_ver = np.zeros(0, dtype=np.int64)
         self.seen_pos, self.seen_lane, self.seen_route = (np.zeros(0, dtype=np.int64) for _ in range(3))
         self.dirty: set[int] = set()
@@ -913,22 +918,10 @@ class TrafficCore:
         self.p_objs.append(obj)
         return len(self.p_objs) - 1
 
-    def set_crosswalks(self, slot: int, active: list[str], key: int, rate: float, most: int) -> None:
-        """Slot `slot`'s pedestrians step out on crosswalks `active`, `rate` per minute each, at
-        most `most` on one, drawn with `key` (`sim.pedestrians`); its frame counter starts again."""
-        self.cw_of[slot] = np.array([self.crosswalks.index[c] for c in active], dtype=np.int64)
-        self.ped_key[slot], self.ped_frame[slot] = key, 0
-        self.ped_rate[slot], self.ped_max[slot] = rate, most
-        self._cw_pairs = None
-
-    def crosswalk_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(slot, crosswalk, its place among the slot's) of every slot's active crosswalks."""
-        if self._cw_pairs is None:
-            counts = np.array([len(c) for c in self.cw_of])
-            slot = np.repeat(np.arange(len(self.cw_of)), counts)
-            place = np.arange(len(slot)) - np.repeat(np.cumsum(counts) - counts, counts)
-            self._cw_pairs = (slot, np.concatenate(self.cw_of), place)
-        return self._cw_pairs
+    def set_crosswalks(self, slot: int, active: list[str], key: int, chance: float, most: int) -> None:
+        """Slot `slot`'s pedestrians step out on crosswalks `active`, with `chance` a frame on each,
+        at most `most` on one, drawn with `key` (`sim.pedestrians`); its frame counter starts again."""
+        pedestrians.start(self, slot, [self.crosswalks.index[c] for c in active], key, chance, most)
 
     def drop_walkers(self, gone: list) -> None:
         """Let the walkers of these views go (each view keeps its last place, in a row of its own)."""
@@ -1301,23 +1294,30 @@ class TrafficCore:
         """Per slot of `slots` (a mask), the lanes whose reservation its bookkeeping must look at
         (`TrafficControl.update`), in the order taken: held by a road user that left, taken since
         the slot's last look, or held by a road user whose route, route position or lane changed
-        since (for the others the last look's answer stands: kept). One program for every slot."""
+        since its last look (for the others the last look's answer stands: kept). One program for
+        every slot; a holder's place is noted at each look (`seen_*`). Up to LOOK_ALL_MAX
+        reservations, every one is looked at (their slots' notes then count as stale)."""
         slot, lane = np.nonzero(self.res != NONE)
-        looks: dict[int, list[str]] = {}
         if len(slot):
+            mine = slots[slot]
+            slot, lane = slot[mine], lane[mine]
+        if len(slot) > LOOK_ALL_MAX:
             holder = self.res[slot, lane].astype(np.int64)
-            moved = (self.route_pos != self.seen_pos) | (self.where_lanes() != self.seen_lane) | \
-                (self.route_ver != self.seen_route)
-            new = self.res_seq[slot, lane] > self.res_looked[slot]
-            look = slots[slot] & ((holder < 0) | moved[np.maximum(holder, 0)] | new)
+            row = holder[holder >= 0]
+            pos, at, ver = self.route_pos[row], self.where_lanes(row), self.route_ver[row]
+            moved = self.seen_stale[slot]  # (and one that left)
+            moved[holder >= 0] |= (pos != self.seen_pos[row]) | (at != self.seen_lane[row]) | (ver != self.seen_route[row])
+            look = moved | (holder < 0) | (self.res_seq[slot, lane] > self.res_looked[slot])
+            self.seen_pos[row], self.seen_lane[row], self.seen_route[row] = pos, at, ver
+            self.seen_stale[slots] = False
             slot, lane = slot[look], lane[look]
-            ids = self.net.lane_ids
-            for k in np.lexsort((self.res_seq[slot, lane], slot)).tolist():
-                looks.setdefault(int(slot[k]), []).append(ids[lane[k]])
+        else:
+            self.seen_stale[slots] = True
+        looks: dict[int, list[str]] = {}
+        ids = self.net.lane_ids
+        for k in np.lexsort((self.res_seq[slot, lane], slot)).tolist():
+            looks.setdefault(int(slot[k]), []).append(ids[lane[k]])
         self.res_looked[slots] = self._res_taken
-        on = slots[self.env]
-        self.seen_pos[on], self.seen_lane[on], self.seen_route[on] = \
-            self.route_pos[on], self.where_lanes(on.nonzero()[0]), self.route_ver[on]
         return looks
 
     def next_reservation(self) -> int:

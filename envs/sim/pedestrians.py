@@ -1,5 +1,6 @@
-"""Crosswalk pedestrians of every slot: who steps out (one program over the active crosswalks of
-the stepped slots, with counter-based draws) and who has got across (let go). Walking is
+"""Crosswalk pedestrians of every slot: who steps out (one test over the active crosswalks of the
+stepped slots for a step-out due, each drawn from a geometric wait with counter-based draws when
+the one before it is: no draw in a frame without one) and who has got across (let go). Walking is
 `TrafficCore.walk`; `vehicles.Pedestrian` is a walker row's view, which the rules
 (`TrafficControl.pedestrians`, per crosswalk) and highway-env (`road.objects`) read."""
 from __future__ import annotations
@@ -17,7 +18,7 @@ from . import random
 if TYPE_CHECKING:
     from ..core import TrafficCore
 
-SPAWN, SIDE, OFFSET, SPEED = range(4)  # the draw streams (`random.uniform`)
+WAIT, SIDE, OFFSET, SPEED = range(4)  # the draw streams (`random.uniform`)
 SIDE_OFFSET = 0.3  # a pedestrian steps out within this fraction of the crosswalk's width of its axis
 SPEED_SPREAD = 0.15  # ... at the configured speed times 1 +- this
 
@@ -42,12 +43,36 @@ def crosswalks(net: MapNetwork) -> Crosswalks:
     return net.memo("crosswalk table", build)
 
 
+def start(core: "TrafficCore", slot: int, active: list[int], key: int, chance: float, most: int) -> None:
+    """Slot `slot` starts an episode with crosswalks `active` (indices): with `chance` a frame
+    someone steps out on each (at most `most` on one), drawn from `key`; frame 0."""
+    if len(active) > core.cw_of.shape[1]:  # room for this many
+        grow = len(active) - core.cw_of.shape[1]
+        core.cw_of = np.hstack([core.cw_of, np.full((len(core.cw_of), grow), -1, dtype=np.int64)])
+        core.ped_due = np.hstack([core.ped_due, np.full((len(core.ped_due), grow), np.inf)])
+    core.cw_of[slot], core.ped_due[slot] = -1, np.inf
+    core.cw_of[slot, :len(active)] = active
+    core.ped_key[slot], core.ped_frame[slot], core.ped_chance[slot], core.ped_max[slot] = key, 0, chance, most
+    if active:
+        core.ped_due[slot, :len(active)] = _next(key, 0, np.arange(len(active)), chance)
+
+
+def _next(key, frame, k, chance: float) -> np.ndarray:
+    """The frame after `frame` on which someone next steps out on crosswalk `k` of a slot: a
+    geometric wait of success `chance` a frame (what a draw every frame would give, drawn once)."""
+    if chance <= 0:
+        return np.full(np.size(k), np.inf)
+    u = random.uniform(key, frame, WAIT, k)
+    return frame + 1 + np.floor(np.log1p(-u) / np.log1p(-min(chance, 1.0)))
+
+
 def update(core: "TrafficCore", dt: float, slots: np.ndarray) -> None:
     """One frame of the crosswalks of `slots` (a mask over slots): the pedestrians across let go;
-    at each active crosswalk with room (`pedestrians_per_crosswalk`) one steps out with probability
-    `pedestrian_rate` / 60 * dt, from a random end, up to `SIDE_OFFSET` of the width beside its
-    axis, unless a road user is within `PEDESTRIAN_CLEARANCE_M` plus `PEDESTRIAN_SPAWN_HORIZON_S`
-    of its own travel of that place; each slot's frame counter moves on."""
+    on each active crosswalk whose step-out is due (`start`, `_next`) one steps out if there is
+    room (`pedestrians_per_crosswalk`), from a random end, up to `SIDE_OFFSET` of the width beside
+    its axis, unless a road user is within `PEDESTRIAN_CLEARANCE_M` plus `PEDESTRIAN_SPAWN_HORIZON_S`
+    of its own travel of that place, and the next one is drawn; each slot's frame counter moves on.
+    A frame of `dt` 0 (a reset's bookkeeping) lets nobody out."""
     changed: dict[int, list] = {}
     across = (core.p_left <= 1e-6) & slots[core.p_env] if len(core.p_env) else np.zeros(0, dtype=bool)
     if across.any():
@@ -57,21 +82,16 @@ def update(core: "TrafficCore", dt: float, slots: np.ndarray) -> None:
             core.roads[core.p_env[i]].control.pedestrians[p.crosswalk_id].remove(p)
             changed.setdefault(int(core.p_env[i]), [])
         core.drop_walkers([core.p_objs[i] for i in gone])
-    slot, cw, k = core.crosswalk_pairs()
-    on = slots[slot]
-    if on.any():
-        slot, cw, k = slot[on], cw[on], k[on]
-        ncw = len(core.crosswalks.ids)
-        walking = np.sort(core.p_env * ncw + core.p_cw)
-        pair = slot * ncw + cw
-        room = np.searchsorted(walking, pair, side="right") - np.searchsorted(walking, pair) < core.ped_max[slot]
-        key, frame = core.ped_key[slot], core.ped_frame[slot]
-        steps = room & (random.uniform(key, frame, SPAWN, k) < core.ped_rate[slot] / 60.0 * dt)
-        for i in steps.nonzero()[0].tolist():
-            s = int(slot[i])
-            p = _step_out(core, s, int(cw[i]), *random.uniform(key[i], frame[i], np.array([SIDE, OFFSET, SPEED]), k[i]))
+    due_s, due_k = np.nonzero(core.ped_due <= core.ped_frame[:, None])
+    for s, k in zip(due_s.tolist(), due_k.tolist()):  # (a few: a step out is rare)
+        if not slots[s]:
+            continue
+        c, frame, key = int(core.cw_of[s, k]), int(core.ped_frame[s]), core.ped_key[s]
+        if dt > 0 and np.count_nonzero((core.p_env == s) & (core.p_cw == c)) < core.ped_max[s]:
+            p = _step_out(core, s, c, *random.uniform(key, frame, np.array([SIDE, OFFSET, SPEED]), k))
             if p is not None:
                 changed.setdefault(s, []).append(p)
+        core.ped_due[s, k] = _next(key, frame, k, float(core.ped_chance[s]))[0]
     core.ped_frame[slots] += 1
     for s, new in changed.items():
         control = core.roads[s].control

@@ -11,7 +11,7 @@ from numpy.typing import ArrayLike
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1, _M2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
-_S30, _S27, _S31, _S32, _S11 = (np.uint64(k) for k in (30, 27, 31, 32, 11))
+_S30, _S27, _S31, _S32, _S11, _ONE = (np.uint64(k) for k in (30, 27, 31, 32, 11, 1))
 
 
 def _mix(z: np.ndarray) -> np.ndarray:
@@ -24,9 +24,9 @@ def _mix(z: np.ndarray) -> np.ndarray:
 def uniform(key: ArrayLike, counter: ArrayLike, stream: ArrayLike, index: ArrayLike) -> np.ndarray:
     """Per element of the broadcast arrays, a draw in [0, 1) (53 bits) from (key, counter,
     stream, index); `key` uint64, the others non-negative ints (index < 2**32)."""
-    with np.errstate(over="ignore"):  # the words wrap by design
-        word = (np.asarray(stream, dtype=np.uint64) << _S32) | np.asarray(index, dtype=np.uint64)
-        z = _mix(np.atleast_1d(np.asarray(key, dtype=np.uint64)) + _GOLDEN)  # each input absorbed in turn
-        z = _mix(z + _GOLDEN * (np.asarray(counter, dtype=np.uint64) + np.uint64(1)))
-        z = _mix(z + _GOLDEN * (word + np.uint64(1)))
+    # (arrays of at least one dimension: their words wrap silently, as meant)
+    key, counter, stream, index = (np.atleast_1d(np.asarray(a, dtype=np.uint64)) for a in (key, counter, stream, index))
+    z = _mix(key + _GOLDEN)  # each input absorbed in turn
+    z = _mix(z + _GOLDEN * (counter + _ONE))
+    z = _mix(z + _GOLDEN * (((stream << _S32) | index) + _ONE))
     return (z >> _S11).astype(np.float64) * 2.0 ** -53

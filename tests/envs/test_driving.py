@@ -171,8 +171,10 @@ def test_render_junction_frame():
     env.reset(seed=2)
     u = env.unwrapped
     driver = ScriptedDriver(env)
-    for _ in range(15):
+    for k in range(80):  # 3 s at least, until someone walks (they step out where no car is near)
         env.step(driver.act())
+        if k >= 15 and any(isinstance(o, Pedestrian) for o in u.road.objects):
+            break
     frame = env.render()
     assert frame.shape == (520, 900, 3)
     colours = {tuple(c) for c in frame.reshape(-1, 3)[::7]}

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 import feat2map
 from feat2map.envs.lanes import PolylineLane
-from feat2map.envs.network import MapNetwork
+from feat2map.envs.network import GRID_CELL_M, MapNetwork
 
 J = feat2map.JunctionFeature.make
 FEATS = [J([0, 90, 180, 270], "signal", True), J([0, 90, 180, 270], "stop", False), J([0, 90, 180], "bare", True)]
@@ -71,6 +71,20 @@ def test_grid_index_agrees_with_brute_force(net):
 
         best = min(dist(ln) for ln in lanes)
         assert dist(net.get_lane(idx)) == pytest.approx(best, abs=1e-6)
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.floats(-2000, 2000), y=st.floats(-2000, 2000))
+def test_a_place_off_the_map_is_located_on_the_lane_with_the_nearest_box(net, x, y):
+    """Off every grid cell, `locate` finds the first lane whose bounding box is nearest (the sum
+    of the gaps along x and y), and its place on that lane."""
+    p = np.array([x, y])
+    if (math.floor(x / GRID_CELL_M), math.floor(y / GRID_CELL_M)) in net._cells:  # (on the map: the grid's answer)
+        return
+    index, s, r = net.locate(p)
+    gaps = [max(b[0] - x, 0.0, x - b[2]) + max(b[1] - y, 0.0, y - b[3]) for b in (ln.bbox for ln in net._lanes)]
+    assert net._lanes.index(net.get_lane(index)) == int(np.argmin(gaps))
+    assert (s, r) == net.get_lane(index).local_coordinates(p)
 
 
 def test_lookups_do_not_grow_with_the_map():
