@@ -37,6 +37,21 @@ def test_draws_are_a_pure_uniform_function_of_key_counter_stream_and_index():
         assert not np.array_equal(u, v)
 
 
+def test_the_wait_for_a_step_out_is_what_a_draw_every_frame_gives():
+    """A crosswalk's next step-out comes after a geometric wait (`pedestrians._next`): the number
+    of frames until a draw of `chance` a frame first succeeds, drawn once: mean 1 / chance, one
+    frame with probability `chance`; none at chance 0."""
+    from feat2map.envs.sim.pedestrians import _next
+
+    for chance in (1 / 15, 0.3):
+        waits = _next(np.uint64(9), 40, np.arange(40_000), chance) - 40
+        assert waits.min() >= 1 and np.all(waits == np.floor(waits))
+        assert abs(waits.mean() * chance - 1) < 0.03
+        assert abs(np.mean(waits == 1) - chance) < 0.01
+        assert abs(np.mean(waits > 10) - (1 - chance) ** 10) < 0.01  # memoryless: P(no success in 10 frames)
+    assert np.all(np.isinf(_next(np.uint64(9), 40, np.arange(3), 0.0)))
+
+
 def _people(env) -> list[tuple[str, float, float]]:
     u = env.unwrapped
     return sorted((p.crosswalk_id, *map(float, p.position)) for ps in u.control.pedestrians.values() for p in ps)
