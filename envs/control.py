@@ -142,7 +142,6 @@ class TrafficControl(TrafficRules):
         self.pedestrians: dict[str, list[Pedestrian]] = {}  # by crosswalk, the walkers' views (`sim.pedestrians`)
         self._active_crosswalks: list[str] = []
         self.key = episode_key(rng)  # of the episode's counter-based draws (`sim.random`)
-        self.buckets: dict[str, list] = {}
         self.passage_holders: dict[int, tuple[set, set]] = {}
         self.passage_waiters: dict[int, dict] = {}
         self.passage_rooms: dict[tuple[int, int], set] = {}
@@ -278,24 +277,25 @@ class TrafficControl(TrafficRules):
         vehicle.reserved = j_lane
 
     # ---- per-frame bookkeeping -------------------------------------------------------------
-    def update(self, road, dt: float, lanes: list[str | None] | None = None, looks: Sequence[str] = ()) -> None:
-        """Advance the clock by `dt` and bring the state up to date with the road's vehicles;
-        `lanes`: the lane each vehicle is on, when the caller synced the road, found them and
-        brought the stop-sign queues and the pedestrians up to date, and `looks`: the
-        reservations to look at (`TrafficCore.step`, for all sub-envs at once)."""
+    def update(self, road, dt: float) -> None:
+        """Advance the clock by `dt` and bring the state up to date with the road's vehicles, for
+        this road alone (a reset's bookkeeping; `TrafficCore.step` does the same for all roads of
+        a frame at once): take in what user code added or removed, the stop-sign queues, the
+        pedestrians, then `settle`."""
+        road.sync()
+        core = road.core
+        mine = np.arange(len(core.roads)) == road.slot
+        stop_signs.update(core, mine[core.env])
+        pedestrians.update(core, dt, mine)
+        self.settle(dt, core.release_looks(mine).get(road.slot, ()))
+
+    def settle(self, dt: float, looks: Sequence[str] = ()) -> None:
+        """The rules' bookkeeping after a frame of `dt`: the clock; the lane buckets made again
+        when next asked; the reservations of `looks` (`TrafficCore.release_looks`) released where
+        their holder left the road or drove through the lane, a committed follower taking over
+        (`hand_over`); the narrow passages' holders and waiters."""
         self.t += dt
-        if lanes is None:
-            road.sync()  # the core takes in vehicles added or removed by user code
-            core = road.core
-            (lanes,) = core.occupancies([road])
-            mine = np.arange(len(core.roads)) == road.slot
-            stop_signs.update(core, mine[core.env])
-            pedestrians.update(core, dt, mine)
-            looks = core.release_looks(mine).get(road.slot, ())
-        net = self.net
-        vehicles = road.vehicles
-        buckets = self.fill_buckets(vehicles, lanes)
-        # release reservations of vehicles that left their junction lane (or the road)
+        self.forget_buckets()
         for lid in looks:
             v: Any = self.reservations.get(lid)
             left = v is LEFT_HOLDER
@@ -304,8 +304,8 @@ class TrafficControl(TrafficRules):
                 if not left and v.reserved == lid:
                     v.reserved = None
                 self.hand_over(lid)
-        if net.passages:
-            self._update_passages(buckets, set(map(id, vehicles)))
+        if self.net.passages:
+            self._update_passages(self.buckets, set(map(id, self.road.vehicles)))
 
     def _passed(self, vehicle, lane: str) -> bool:
         """Whether `vehicle` has driven through `lane` (on its route before its place) and is no
@@ -315,15 +315,15 @@ class TrafficControl(TrafficRules):
                       getattr(vehicle, "lane_route", [None])[getattr(vehicle, "route_pos", 0)])
         return hasattr(vehicle, "lane_route") and lane in vehicle.lane_route[:vehicle.route_pos] and not on
 
-    def fill_buckets(self, vehicles: list, lanes: list[str | None]) -> dict[str, list]:
-        """The road users on each lane (`buckets`, what the rules' occupancy questions read), from
-        `vehicles` and the lane each is on (None: off the map's lanes)."""
-        buckets: dict[str, list] = {}
-        for v, lid in zip(vehicles, lanes):
-            if lid is not None:
-                buckets.setdefault(lid, []).append(v)
-        self.buckets = buckets
-        return buckets
+    @cached_property
+    def buckets(self) -> dict[str, list]:
+        """The road users on each lane (what the rules' occupancy questions read), made from the
+        road's rows when first asked after a frame or after road users came or went
+        (`forget_buckets`): most frames of a batch, most slots ask none."""
+        return self.road.core.buckets(self.road)
+
+    def forget_buckets(self) -> None:
+        self.__dict__.pop("buckets", None)
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
         """Road users within a narrow passage hold it from their side; holders and waiters that

@@ -629,7 +629,6 @@ class TrafficCore:
         self.route_ver = np.zeros(0, dtype=np.int64)
         self.seen_pos, self.seen_lane, self.seen_route = (np.zeros(0, dtype=np.int64) for _ in range(3))
         self.dirty: set[int] = set()
-        self.buckets_stale: set[int] = set()  # slots whose rows came or went since the rules' buckets were filled
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
         # the rules' scan along the window (`sim.rule_scan`), what of it holds while the route
@@ -718,7 +717,7 @@ class TrafficCore:
         self._append_rows(self._ARRAYS, row)
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
-        self.buckets_stale.add(int(row["env"]))
+        self._forget_buckets([int(row["env"])])
         self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
         self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
         self.scan_what = np.vstack([self.scan_what, np.zeros((1, self.W.shape[1]), dtype=np.int8)])
@@ -792,7 +791,7 @@ class TrafficCore:
         gone = np.ones(len(self.objs), dtype=bool)
         gone[idx] = False
         left = gone & (self.stop_junction >= 0)  # a queued road user left
-        self.buckets_stale.update(self.env[gone].tolist())
+        self._forget_buckets(set(self.env[gone].tolist()))
         self.queue_version[self.env[left]] += 1
         self.queued -= int(left.sum())
         self._keep_rows(self._ARRAYS, idx)
@@ -1020,9 +1019,8 @@ class TrafficCore:
         stop_signs.update(self, self.on)
         pedestrians.update(self, dt, self.stepped)
         looks = self.release_looks(self.stepped)
-        for road, lanes in zip(roads, self.occupancies(roads)):
-            road.control.update(road, dt, lanes, looks.get(road.slot, ()))
-        self.buckets_stale.difference_update(road.slot for road in roads)
+        for road in roads:
+            road.control.settle(dt, looks.get(road.slot, ()))
         self.collisions(roads, dt)
         for road in roads:
             if road.record_history:
@@ -1212,7 +1210,6 @@ class TrafficCore:
         on = traffic & ~self.crashed
         if not on.any():
             return dist
-        self._fresh_buckets()
         sc = rule_scan.scan(self)
         t = self.table
         at = sc.what != 0
@@ -1387,17 +1384,23 @@ class TrafficCore:
         times = np.array([c.t if c is not None else 0.0 for c in controls])
         return states_at(times[slots], self._signal_arrays(controls)[slots, :, signals].T)
 
-    def _fresh_buckets(self) -> None:
-        """Bring the rules' lane buckets of the stepped slots whose rows came or went since the
-        last frame's bookkeeping up to date (a respawn or a placement between decisions): the rules
-        ask about the road users there are."""
-        stale = [s for s in self.buckets_stale if self.stepped[s] and self.roads[s] is not None]
-        if not stale:
-            return
-        roads = [self.roads[s] for s in stale]
-        for road, lanes in zip(roads, self.occupancies(roads)):
-            road.control.fill_buckets(road.vehicles, lanes)
-        self.buckets_stale.difference_update(stale)
+    def buckets(self, road: "MapRoad") -> dict[str, list]:
+        """The road users of `road` on each lane id, in its vehicles' order (after a sync; a
+        controlled row on its located lane): `TrafficControl.buckets`."""
+        rows = self.rows(road)
+        ids, objs = self.net.lane_ids, self.objs
+        out: dict[str, list] = {}
+        for i, lane in zip(rows.tolist(), self.where_lanes(rows).tolist()):
+            if lane >= 0:
+                out.setdefault(ids[lane], []).append(objs[i])
+        return out
+
+    def _forget_buckets(self, slots) -> None:
+        """The rules' lane buckets of `slots` are made again when next asked (road users came or went)."""
+        for s in slots:
+            road = self.roads[s]
+            if road is not None:
+                road.control.forget_buckets()
 
     def _signal_arrays(self, controls: list) -> np.ndarray:
         """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only
@@ -1591,13 +1594,6 @@ class TrafficCore:
     def stop_queues(self, slot: int) -> dict[Any, list]:
         """`sim.stop_signs.queues` of `slot` (what `TrafficRules.stop_queue` hands out)."""
         return stop_signs.queues(self, slot)
-
-    def occupancies(self, roads: list) -> list[list[str | None]]:
-        """Per road of `roads` (synced), the lane id each of its vehicles is on (None off the
-        map's lanes), from one pass over the arrays (what the rules' buckets are made of)."""
-        ids = self.net.lane_ids
-        lane = self.where_lanes().tolist()
-        return [[ids[lane[i]] if lane[i] >= 0 else None for i in self.rows(road).tolist()] for road in roads]
 
     def where_lanes(self, rows: np.ndarray | None = None) -> np.ndarray:
         """Per row (of `rows`, default every row), the lane it is on: a controlled row's located

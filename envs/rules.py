@@ -339,7 +339,9 @@ class TrafficRules:
     road: Any  # the road whose rows hold the stop-sign queues (`MapRoad` sets it; None: none yet)
     reservations: "Reservations"  # {junction lane: holder}, a view of the core's arrays (`MapRoad` sets it)
     pedestrians: dict
-    buckets: dict
+    if TYPE_CHECKING:
+        @property
+        def buckets(self) -> dict[str, list]: ...  # the road users on each lane (`TrafficControl.buckets`)
     passage_holders: dict  # passage group -> (holders from side 0, from side 1)
     passage_waiters: dict  # passage group -> {vehicle: (side, time it began to wait)}
     passage_rooms: dict  # (passage group, side) -> vehicles that took a place to wait before it

@@ -70,7 +70,6 @@ def test_junction_clear_in_arrays_is_the_rules_junction_clear_for_every_road_use
     for step in range(60):
         envs.step(np.ones(12, dtype=np.int64))
         c.refresh_windows()
-        c._fresh_buckets()
         sc = rule_scan.scan(c)
         entry = (sc.what & ENTRY) != 0
         rows = (entry.any(axis=1) & c.driven & entries.placed(c)[c.env]).nonzero()[0]

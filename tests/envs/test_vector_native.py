@@ -120,13 +120,12 @@ def scalar_code(monkeypatch) -> None:
     """The per-row and per-sub-env code the batch's array programs stand in for: the rules asked
     row by row (every row's question, then the claims of the rows whose answer takes something,
     in row order), each ego observing alone, each sub-env's reward and info dict, each road's
-    occupancy read from its vehicles and its stop-sign queues brought up to date on their own."""
+    lane buckets read from its vehicles and its stop-sign queues brought up to date on their own."""
     from feat2map.envs import core, vector
     from feat2map.envs.sim import stop_signs
 
     def rule_stops(self, traffic):
         dist = np.full(len(self.objs), np.inf)
-        self._fresh_buckets()
         wants, claims = [], []
         for i in (traffic & ~self.crashed).nonzero()[0].tolist():
             v = self.objs[i]
@@ -141,8 +140,15 @@ def scalar_code(monkeypatch) -> None:
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
     monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's _end_step
-    monkeypatch.setattr(core.TrafficCore, "occupancies",  # each vehicle's lane read from its view
-                        lambda self, roads: [[self.net.id_of.get(v.lane_index) for v in r.vehicles] for r in roads])
+    def buckets(self, road):  # each vehicle's lane read from its view
+        out: dict = {}
+        for v in road.vehicles:
+            lane = self.net.id_of.get(v.lane_index)
+            if lane is not None:
+                out.setdefault(lane, []).append(v)
+        return out
+
+    monkeypatch.setattr(core.TrafficCore, "buckets", buckets)
     slot_by_slot = SimpleNamespace(queues=stop_signs.queues, update=lambda core_, rows: [  # each sub-env's on their own
         stop_signs.update(core_, rows & (core_.env == k)) for k in np.unique(core_.env[rows]).tolist()])
     monkeypatch.setattr(core, "stop_signs", slot_by_slot)
@@ -162,7 +168,7 @@ def trajectory(config: dict, n: int, steps: int, seed: int) -> list:
 @pytest.mark.parametrize("config", [SHORT, KINEMATIC_BUSY, DEFAULT_10HZ], ids=["short", "busy", "default"])
 def test_array_programs_equal_the_scalar_code(config, monkeypatch):
     """The batch's array programs (the rules' stop distances, `sim.observe.kinematics`, the
-    rewards and info columns of `MapVectorEnv.end_steps`, `TrafficCore.occupancies`, the
+    rewards and info columns of `MapVectorEnv.end_steps`, `TrafficCore.buckets`, the
     stop-sign queues of every slot at once) give bit for bit what the rules asked row by row and
     each sub-env's own observation, reward and info give (the equality with single envs above
     cannot see this: a single env is the same core with one slot)."""
