@@ -323,6 +323,7 @@ class TrafficControl(TrafficRules):
         return self.road.core.buckets(self.road)
 
     def forget_buckets(self) -> None:
+        """The buckets are made again when next asked (road users moved, came or went)."""
         self.__dict__.pop("buckets", None)
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
