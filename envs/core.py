@@ -1294,11 +1294,12 @@ class TrafficCore:
         since its last look (for the others the last look's answer stands: kept). One program for
         every slot; a holder's place is noted at each look (`seen_*`). Up to LOOK_ALL_MAX
         reservations, every one is looked at (their slots' notes then count as stale)."""
-        slot, lane = np.nonzero(self.res != NONE)
-        if len(slot):
-            mine = slots[slot]
-            slot, lane = slot[mine], lane[mine]
-        if len(slot) > LOOK_ALL_MAX:
+        every = bool(slots.all())
+        flat = np.flatnonzero(self.res != NONE)  # (slot, lane) as slot * lanes + lane
+        if len(flat) and not every:
+            flat = flat[slots[flat // self.res.shape[1]]]
+        if len(flat) > LOOK_ALL_MAX:
+            slot, lane = np.divmod(flat, self.res.shape[1])
             holder = self.res[slot, lane].astype(np.int64)
             row = holder[holder >= 0]
             pos, at, ver = self.route_pos[row], self.where_lanes(row), self.route_ver[row]
@@ -1307,14 +1308,18 @@ class TrafficCore:
             look = moved | (holder < 0) | (self.res_seq[slot, lane] > self.res_looked[slot])
             self.seen_pos[row], self.seen_lane[row], self.seen_route[row] = pos, at, ver
             self.seen_stale[slots] = False
-            slot, lane = slot[look], lane[look]
+            flat = flat[look]
         else:
             self.seen_stale[slots] = True
         looks: dict[int, list[str]] = {}
-        ids = self.net.lane_ids
-        for k in np.lexsort((self.res_seq[slot, lane], slot)).tolist():
-            looks.setdefault(int(slot[k]), []).append(ids[lane[k]])
-        self.res_looked[slots] = self._res_taken
+        if len(flat):
+            ids, nl = self.net.lane_ids, self.res.shape[1]
+            for k in flat[np.argsort(self.res_seq.ravel()[flat], kind="stable")].tolist():  # (in the order taken)
+                looks.setdefault(k // nl, []).append(ids[k % nl])
+        if every:
+            self.res_looked[:] = self._res_taken
+        else:
+            self.res_looked[slots] = self._res_taken
         return looks
 
     def next_reservation(self) -> int:
