@@ -107,7 +107,8 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
                 "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE,
-                "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1}
+                "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
+                "res_count": 0}
 
 
 class LaneTable:
@@ -619,6 +620,7 @@ class TrafficCore:
         # order they were taken in; `Reservations` is a slot's view) and each row's `reserved`
         # lane (the one it claimed, -1 none)
         self.reserved = np.zeros(0, dtype=np.int64)
+        self.res_count = np.zeros(0, dtype=np.int64)  # the reservations each row holds
         self.res = np.full((slots, len(self.table.length)), NONE, dtype=np.int32)
         self.res_seq = np.zeros(self.res.shape, dtype=np.int64)
         self._res_taken = 0
@@ -642,7 +644,7 @@ class TrafficCore:
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_ahead", "reserved", "scan_len", "route_ver", "seen_pos",
-               "seen_lane", "seen_route")
+               "seen_lane", "seen_route", "res_count")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -652,6 +654,8 @@ class TrafficCore:
         if old.any():
             self._select(np.nonzero(~old)[0].tolist())
         self.drop_walkers([o for o, k in zip(self.p_objs, self.p_env.tolist()) if k == slot])
+        held = self.res[slot][self.res[slot] >= 0]  # (holders still rows: none, their rows were dropped)
+        np.subtract.at(self.res_count, held, 1)
         self.res[slot] = NONE  # a new episode there: nothing reserved
         self.set_crosswalks(slot, [], 0, 0.0, 0)  # ... and no crosswalk active
         self.roads[slot] = road

@@ -3,10 +3,11 @@
 The state is two arrays of `TrafficCore` over (slot, lane): `res`, the row holding the lane's
 reservation (`NONE`: nobody; `LEFT`: a road user that is no row of the core now, released with
 a hand-over at its slot's next update), and `res_seq`, when it was taken (the order the update
-releases in). Only rows hold reservations; a lane is found by its index, so a question costs one
-array read whatever the map's size, and the arrays answer for every slot at once
-(`TrafficCore.held_reservations`, `sim.entries`). `Reservations` is one slot's view as
-{lane id: the road user holding it}, what the rules' scalar questions and tests read and write.
+releases in); a row column counts the reservations each row holds (`res_count`). Only rows hold
+reservations; a lane is found by its index, so a question costs one array read whatever the
+map's size, and the arrays answer for every slot at once (`TrafficCore.held_reservations`,
+`sim.entries`). `Reservations` is one slot's view as {lane id: the road user holding it}, what
+the rules' scalar questions and tests read and write.
 """
 from __future__ import annotations
 
@@ -50,35 +51,43 @@ class Reservations(MutableMapping):
 
     def get(self, lane: str, default: Any = None) -> Any:
         j = self._index.get(lane)
-        r = NONE if j is None else self._res[j]
+        r = NONE if j is None else self._res.item(j)
         return default if r == NONE else self._holder(r)
 
     def __getitem__(self, lane: str) -> Any:
-        r = self._res[self._index[lane]]
+        r = self._res.item(self._index[lane])
         if r == NONE:
             raise KeyError(lane)
         return self._holder(r)
 
     def __contains__(self, lane: object) -> bool:
         j = self._index.get(lane)  # type: ignore[call-overload]
-        return j is not None and self._res[j] != NONE
+        return j is not None and self._res.item(j) != NONE
 
     def __setitem__(self, lane: str, holder: Any) -> None:
         j = self._index[lane]
-        if self._res[j] == NONE:  # a new reservation comes last in the order (a dict's insertion order)
-            self._seq[j] = self._core.next_reservation()
-        self._res[j] = self._core.row_of(holder)
+        core, old = self._core, self._res.item(j)
+        if old == NONE:  # a new reservation comes last in the order (a dict's insertion order)
+            self._seq[j] = core.next_reservation()
+        elif old >= 0:
+            core.res_count[old] -= 1
+        r = self._res[j] = core.row_of(holder)
+        if r >= 0:
+            core.res_count[r] += 1
 
     def setdefault(self, lane: str, holder: Any = None) -> Any:
         j = self._index[lane]
-        if self._res[j] == NONE:
+        if self._res.item(j) == NONE:
             self[lane] = holder
-        return self._holder(self._res[j])
+        return self._holder(self._res.item(j))
 
     def __delitem__(self, lane: str) -> None:
         j = self._index[lane]
-        if self._res[j] == NONE:
+        old = self._res.item(j)
+        if old == NONE:
             raise KeyError(lane)
+        if old >= 0:
+            self._core.res_count[old] -= 1
         self._res[j] = NONE
 
     def __iter__(self) -> Iterator[str]:
@@ -89,6 +98,6 @@ class Reservations(MutableMapping):
         return int(np.count_nonzero(self._res != NONE))
 
     def held_by(self, vehicle: Any) -> bool:
-        """Whether `vehicle` holds any reservation (one array test, not a walk over the holders)."""
+        """Whether `vehicle` holds any reservation (its row's count, `TrafficCore.res_count`)."""
         r = self._core.row_of(vehicle)
-        return r >= 0 and bool((self._res == r).any())
+        return r >= 0 and self._core.res_count.item(r) > 0

@@ -245,7 +245,13 @@ def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping
     assert ctl0.reservations[lanes0[0]] is LEFT_HOLDER and ctl0.reservations[lanes0[1]] is cars0[1]
     for slot in (1, 2):
         lanes, cars = held[slot]
-        assert [c.roads[slot].control.reservations[x] for x in lanes] == [cars[2], cars[1], cars[2]]
+        res = c.roads[slot].control.reservations
+        assert [res[x] for x in lanes] == [cars[2], cars[1], cars[2]]
+        assert res.held_by(cars[2]) and res.held_by(cars[1]) and not res.held_by(cars[0])  # (counts moved along)
+    res2 = c.roads[2].control.reservations
+    del res2[held[2][0][1]]
+    assert not res2.held_by(held[2][1][1]) and res2.held_by(held[2][1][2])
+    res2[held[2][0][1]] = held[2][1][1]
     key, row = c.held_reservations()
     assert dict(zip(key.tolist(), row.tolist()))[c.table.index[lanes0[0]]] == LEFT
     ctl0.update(c.roads[0], 0.0)  # the holder that left lets go
@@ -253,7 +259,7 @@ def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping
     envs.unwrapped.envs[1].reset(seed=5)  # slot 1's new episode
     assert not c.roads[1].control.reservations
     lanes, cars = held[2]
-    assert list(c.roads[2].control.reservations) == lanes
+    assert list(c.roads[2].control.reservations) == [lanes[0], lanes[2], lanes[1]]  # (given up and taken again: last)
     envs.close()
 
 
