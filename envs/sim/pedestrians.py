@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S
+from ...config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SIDE_OFFSET, PEDESTRIAN_SPAWN_HORIZON_S, PEDESTRIAN_SPEED_SPREAD
 from ..network import MapNetwork
 from ..vehicles import Pedestrian
 from . import random
@@ -19,8 +19,6 @@ if TYPE_CHECKING:
     from ..core import TrafficCore
 
 WAIT, SIDE, OFFSET, SPEED = range(4)  # the draw streams (`random.uniform`)
-SIDE_OFFSET = 0.3  # a pedestrian steps out within this fraction of the crosswalk's width of its axis
-SPEED_SPREAD = 0.15  # ... at the configured speed times 1 +- this
 
 
 @dataclass(frozen=True)
@@ -69,9 +67,10 @@ def _next(key, frame, k, chance: float) -> np.ndarray:
 def update(core: "TrafficCore", dt: float, slots: np.ndarray) -> None:
     """One frame of the crosswalks of `slots` (a mask over slots): the pedestrians across let go;
     on each active crosswalk whose step-out is due (`start`, `_next`) one steps out if there is
-    room (`pedestrians_per_crosswalk`), from a random end, up to `SIDE_OFFSET` of the width beside
-    its axis, unless a road user is within `PEDESTRIAN_CLEARANCE_M` plus `PEDESTRIAN_SPAWN_HORIZON_S`
-    of its own travel of that place, and the next one is drawn; each slot's frame counter moves on.
+    room (`pedestrians_per_crosswalk`), from a random end, up to `PEDESTRIAN_SIDE_OFFSET` of the
+    width beside its axis, unless a road user is within `PEDESTRIAN_CLEARANCE_M` plus
+    `PEDESTRIAN_SPAWN_HORIZON_S` of its own travel of that place, and the next one is drawn; each
+    slot's frame counter moves on.
     A frame of `dt` 0 (a reset's bookkeeping) lets nobody out."""
     changed: dict[int, list] = {}
     across = (core.p_left <= 1e-6) & slots[core.p_env] if len(core.p_env) else np.zeros(0, dtype=bool)
@@ -108,12 +107,12 @@ def _step_out(core: "TrafficCore", slot: int, cw: int, side: float, offset: floa
     t = core.crosswalks
     a, b = (t.b[cw], t.a[cw]) if side < 0.5 else (t.a[cw], t.b[cw])
     d = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
-    off = np.array([-d[1], d[0]]) * (2 * offset - 1) * SIDE_OFFSET * t.width[cw]
+    off = np.array([-d[1], d[0]]) * (2 * offset - 1) * PEDESTRIAN_SIDE_OFFSET * t.width[cw]
     rows = core.slot_rows(slot)
     near = np.hypot(core.x[rows] - (a + off)[0], core.y[rows] - (a + off)[1]) \
         < PEDESTRIAN_CLEARANCE_M + PEDESTRIAN_SPAWN_HORIZON_S * np.maximum(core.speed[rows], 0.0)
     if near.any():
         return None
     road = core.roads[slot]
-    v = float(road.control.cfg["pedestrian_speed"]) * (1 + (2 * speed - 1) * SPEED_SPREAD)
+    v = float(road.control.cfg["pedestrian_speed"]) * (1 + (2 * speed - 1) * PEDESTRIAN_SPEED_SPREAD)
     return Pedestrian(road, a + off, b + off, v, t.ids[cw])
