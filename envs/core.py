@@ -47,9 +47,10 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    held command, all at once, their (s, lat) projected on their route lanes and each located
    (`locate`); external rows step themselves.
 5. positions of traffic rows from the lane table; pedestrians (walker rows) walk (`walk`);
-   every slot's stop-sign queues are brought up to date at once (`sim.stop_signs`), then
-   `TrafficControl.update` does the rest of the rules' bookkeeping; collisions: a vectorized
-   centre-distance broad phase, separating
+   every slot's stop-sign queues, pedestrians stepping out or letting go (`sim.pedestrians`)
+   and the reservations to look at (`release_looks`) are brought up to date at once, then each
+   road's `TrafficControl.settle` does the rest of the rules' bookkeeping; collisions: a
+   vectorized centre-distance broad phase, separating
    axes for pairs of driven rows, and highway-env's own `handle_collisions` for the pairs that
    overlap or involve an external road user or a pedestrian (crash flags, hits; a driven row
    takes no impact displacement).
@@ -1293,7 +1294,7 @@ class TrafficCore:
 
     def release_looks(self, slots: np.ndarray) -> dict[int, list[str]]:
         """Per slot of `slots` (a mask), the lanes whose reservation its bookkeeping must look at
-        (`TrafficControl.update`), in the order taken: held by a road user that left, taken since
+        (`TrafficControl.settle`), in the order taken: held by a road user that left, taken since
         the slot's last look, or held by a road user whose route, route position or lane changed
         since its last look (for the others the last look's answer stands: kept). One program for
         every slot; a holder's place is noted at each look (`seen_*`). Up to LOOK_ALL_MAX
