@@ -1242,7 +1242,7 @@ class TrafficCore:
         held_key, held_row = self.held_reservations()
         answer, refused, takes = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line, held_key, held_row)
         dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
-        takes |= halt & (state == 2) & self._holders(held_row)  # red: it gives up a reservation it holds
+        takes |= halt & (state == 2) & self._holders()  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
         sc.index(rest | takes)
         for i in (signal & (rest | takes)).nonzero()[0].tolist():  # the state at its first stop's line is known
@@ -1269,12 +1269,10 @@ class TrafficCore:
             dist[i] = self.roads[self.env[i]].control.claim(self.objs[i], scan=(sc, i))
         return dist
 
-    def _holders(self, held_row: np.ndarray) -> np.ndarray:
-        """Per row, whether it may hold a junction reservation (a holder in `held_row`, or a
-        `reserved` lane): what a release can give up (`TrafficRules._holds_any`)."""
-        out = self.reserved >= 0
-        out[held_row[held_row >= 0]] = True
-        return out
+    def _holders(self) -> np.ndarray:
+        """Per row, whether it may hold a junction reservation (a `reserved` lane, or a count of
+        holdings, `res_count`): what a release can give up (`TrafficRules._holds_any`)."""
+        return (self.reserved >= 0) | (self.res_count > 0)
 
     # ---- reservations (`reservations.py`) ----------------------------------------------------
     def reservations(self, slot: int) -> Reservations:
