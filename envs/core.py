@@ -77,13 +77,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
-                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, PAIR_SAMPLE_M, STOP_POINT_M)
+                      LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
+                      STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (CROSSED, ENTRY, Claims, body_reach, commits, crossed_lanes, held_at_signal, idm_accelerations, in_the_way,
-                    may_change_lane, stop_gap)
+from .rules import (CROSSED, ENTRY, Claims, body_reach, commits, crossed_lanes, has_stopped,
+                    held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
 from .sim import entries, pedestrians, rule_scan, stop_signs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
@@ -109,7 +110,7 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
                 "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE,
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
-                "res_count": 0}
+                "res_count": 0, "judged": -1}
 
 
 class LaneTable:
@@ -586,6 +587,7 @@ class TrafficCore:
         self.at_lane = np.zeros(0, dtype=np.int64)
         self.at_s = np.zeros(0)
         self.at_lat = np.zeros(0)
+        self.judged = np.zeros(0, dtype=np.int64)  # the lane its judge last looked at it on (`judge_due`; -1 not yet)
         # stop-sign order (`sim.stop_signs`): the junction (`LaneTable.junction_ids`) whose stop
         # sign's queue a row is in (-1 none) and its place (the order of joining: `stop_count`
         # counts joins, `queued` the rows in a queue); a slot's `queue_version` changes with its
@@ -645,7 +647,7 @@ class TrafficCore:
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_ahead", "reserved", "scan_len", "route_ver", "seen_pos",
-               "seen_lane", "seen_route", "res_count")
+               "seen_lane", "seen_route", "res_count", "judged")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -1616,6 +1618,20 @@ class TrafficCore:
         if held is None or held[0] != (n, m):
             held = self._pairs_held = ((n, m), np.triu_indices(n, 1, m))
         return held[1]
+
+    def judge_due(self, rows: np.ndarray) -> np.ndarray:
+        """Mask over controlled rows `rows`: those whose judge (`rules.EgoJudge.check`) can change
+        anything after this frame. Its check does something only on a lane other than the one it
+        last looked at the row on (entering a junction), at a stop, on a lane with a crosswalk or a
+        mid-block crossing's line, on the route's last lane (arrived), past the end of its lane or
+        wide of it (off the road); elsewhere it leaves the judge as it was, so the judges of the
+        other rows are not asked (the same verdicts). Notes the rows' lanes as looked at."""
+        t, lane = self.table, self.at_lane[rows]
+        due = (lane != self.judged[rows]) | has_stopped(self.speed[rows]) | t.crossing[lane] | t.midblock[lane] \
+            | (self.route_pos[rows] >= self.route_end[rows]) | (self.at_s[rows] > t.length[lane]) \
+            | (np.abs(self.at_lat[rows]) > t.width[lane] / 2 + OFF_ROAD_LATERAL_M)
+        self.judged[rows] = lane
+        return due
 
     def collisions(self, roads: list, dt: float) -> None:
         """Crash flags and hits on `roads`: a vectorized centre-distance broad phase over the

@@ -11,6 +11,7 @@ type, doc): envs/README.md's tables are made from them.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import numbers
 from collections import OrderedDict
@@ -436,9 +437,11 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     c = envs[0].config
     frames = int(c["simulation_frequency"] // c["policy_frequency"])
     dt = 1 / c["simulation_frequency"]
-    groups: dict[int, tuple[Any, list]] = {}  # roads by their core (one group: one batch)
+    groups: dict[int, tuple[Any, list, list]] = {}  # roads and envs by their core (one group: one batch)
     for env in envs:
-        groups.setdefault(id(env.road.core), (env.road.core, []))[1].append(env.road)
+        group = groups.setdefault(id(env.road.core), (env.road.core, [], []))
+        group[1].append(env.road)
+        group[2].append(env)
     for env in envs:
         env.judge.new = []
     for frame in range(frames):
@@ -447,20 +450,24 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
                 env.action_type.act(action)
             if env.vehicle.tracker is not None:  # an external planner's trajectory commands every frame
                 env.vehicle.track()
-        for core, roads in groups.values():
+        for core, roads, _ in groups.values():
             core.act(roads)
             core.step(roads, dt)
         for env in envs:
             env.steps += 1
-            env.judge.check()
-            if frame < frames - 1:
+        for core, _, group in groups.values():
+            due = core.judge_due(np.array([env.vehicle.row for env in group], dtype=np.int64))
+            for env in itertools.compress(group, due.tolist()):
+                env.judge.check()
+        if frame < frames - 1:
+            for env in envs:
                 env._automatic_rendering()
-    maybe = {id(core): core.may_leave() for core, _ in groups.values() if core is not None}
+    maybe = {id(core): core.may_leave() for core, _, _ in groups.values() if core is not None}
     for env in envs:
         env.enable_auto_render = False
         core = getattr(env.road, "core", None)
         env._respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
-    for core, roads in groups.values():  # the respawns taken in (of every sub-env at once): what observations read
+    for core, roads, _ in groups.values():  # the respawns taken in (of every sub-env at once): what observations read
         core.sync(roads)
 
 

@@ -482,7 +482,6 @@ class MultiAgentMapEnv(ParallelEnv):
         self._state: dict[str, dict] = {}
         self._pending: list[tuple[str, tuple[list[str], bool]]] = []
         self._agent_ids: dict[int, str] = {}
-        self._judged_lane: dict[str, int] = {}  # the lane each agent's judge last looked at it on
         per = int(self.agent_config["agents"])
         for k, w in enumerate(self.worlds):  # each world as the one-world env on its seed
             routes = w.new_episode(None if seed is None else seed + k)
@@ -508,7 +507,6 @@ class MultiAgentMapEnv(ParallelEnv):
             v.target_speeds = self.actions.speeds
             view = AgentView(w, v, self.actions, self.actions.space)
             view.start(AgentJudge(w.control, v), self._reward_terms(), self._make_observation(view))
-            self._judged_lane[name] = -1
             self._views[name] = view
             self._state[name] = self.actions.start(v.speed)
             self._agent_ids[id(v)] = name
@@ -550,8 +548,6 @@ class MultiAgentMapEnv(ParallelEnv):
         views = [self._views[a] for a in live]
         vehicles = [v.vehicle for v in views]
         judges = [v.judge for v in views]
-        judged = np.array([self._judged_lane[a] for a in live], dtype=np.int64)
-        table = core.table
         for _ in range(frames):
             core.sync()
             if vehicles:
@@ -570,19 +566,12 @@ class MultiAgentMapEnv(ParallelEnv):
                 x.steps += 1
             if not vehicles:
                 continue
-            # the judge looks at an agent whenever its check can change anything: a new lane, a
-            # stop, a crosswalk on its lane, or near the end of its lane (off the road past a dead end)
-            lane, speed, s_on = core.at_lane[rows], core.speed[rows], core.at_s[rows]
-            stopped = has_stopped(speed)
-            due = (lane != judged) | stopped | table.crossing[lane] | (s_on > table.length[lane])
-            for k in np.nonzero(due)[0].tolist():
+            for k in np.nonzero(core.judge_due(rows))[0].tolist():  # where its check can change anything
                 judges[k].check()
-            judged = lane
-            for k in np.nonzero(stopped)[0].tolist():
+            for k in np.nonzero(has_stopped(core.speed[rows]))[0].tolist():
                 views[k].wait_time += dt
             for k in np.nonzero(core.crashed[rows] & ~crashed)[0].tolist():
                 self._collided(live[k])
-        self._judged_lane.update(zip(live, judged.tolist()))
         truncated = set()
         for k, x in zip(active, worlds):
             x.time += 1.0 / x.config["policy_frequency"]

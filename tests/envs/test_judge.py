@@ -1,0 +1,114 @@
+"""The judge is asked only where its check can change anything (`TrafficCore.judge_due`): on
+drives that run red lights and stop signs, pass pedestrians and leave the road, its verdicts are
+those of a judge asked after every frame."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import example_map_file
+
+import feat2map  # noqa: F401  (registers the envs)
+from feat2map.config import OFF_ROAD_LATERAL_M
+from feat2map.formats import native
+
+CONTINUOUS = {"action": {"type": "ContinuousAction"}}
+
+
+def fastest(t: int):
+    return 2  # the top target speed: through every line on red or without a stop
+
+
+def stop_and_go(t: int):
+    return 0 if (t // 12) % 2 else 2  # slower to a stop, then faster: stops anywhere, some at a line
+
+
+def weaving(t: int):
+    return np.array([1.0, 0.6 * np.sin(t / 7.0)], dtype=np.float32)  # full throttle, steering off the lanes
+
+
+def judged(u) -> tuple:
+    """What a judge has found, and what it keeps to find more (not where it last looked)."""
+    j = u.judge
+    return (dict(j.violations), j.off_road, j.done, set(j._stopped), set(j._crossed), set(j._crossed_mid),
+            set(j._ped_flags))
+
+
+def every_frame(env) -> None:
+    """The env's judge looks after every frame."""
+    core = env.unwrapped.road.core
+    core.judge_due = lambda rows: np.ones(len(rows), dtype=bool)
+
+
+@pytest.mark.parametrize("case, policy, expect", [
+    ("grid", fastest, {"red_light", "stop_sign", "pedestrian_yield"}),
+    ("grid", stop_and_go, {"red_light", "stop_sign"}),
+    ("grid-continuous", weaving, {"red_light", "stop_sign", "off_road"}),
+    ("midblock", weaving, {"red_light", "off_road"}),
+])
+def test_the_judge_asked_where_due_finds_what_a_judge_asked_every_frame_does(case, policy, expect, tmp_path_factory):
+    if case == "midblock":
+        make = lambda: gym.make("feat2map/MapFile-v0", config={  # noqa: E731
+            "map": native.load(example_map_file(tmp_path_factory, "midblock")), "traffic_vehicles": 4, **CONTINUOUS})
+    else:
+        make = lambda: gym.make("feat2map/JunctionGrid-v0", config={  # noqa: E731
+            "traffic_vehicles": 6, **(CONTINUOUS if case == "grid-continuous" else {})})
+    due, every = make(), make()
+    asked = {"due": 0, "every": 0}
+    seen: set[str] = set()
+    c = due.unwrapped.config
+    per_step, frames, ended = c["simulation_frequency"] // c["policy_frequency"], 0, False
+    for t in range(500):
+        if t == 0 or ended:
+            for env in (due, every):
+                env.reset(seed=0 if t == 0 else None)
+            every_frame(every)
+            for name, env in (("due", due), ("every", every)):
+                check = env.unwrapped.judge.check
+
+                def counted(check=check, name=name):
+                    asked[name] += 1
+                    check()
+                env.unwrapped.judge.check = counted
+        a = due.step(policy(t))
+        b = every.step(policy(t))
+        frames += per_step
+        assert a[4]["new_violations"] == b[4]["new_violations"], (case, t)
+        assert judged(due.unwrapped) == judged(every.unwrapped), (case, t)
+        seen |= set(a[4]["new_violations"]) | ({"off_road"} if a[4]["off_road"] else set())
+        ended = a[2] or a[3]
+    assert expect <= seen  # the drives broke the rules the case is for
+    assert asked["every"] == frames and asked["due"] < frames  # ... on frames where the judge was not asked
+
+
+def test_each_reason_to_look_makes_a_row_due(monkeypatch):
+    env = gym.make("feat2map/JunctionGrid-v0", config={"traffic_vehicles": 0})
+    env.reset(seed=0)
+    u = env.unwrapped
+    core, row = u.road.core, np.array([u.vehicle.row])
+    t = core.table
+    lane = int(np.nonzero(~t.junction & ~t.crossing & ~t.midblock)[0][0])  # a plain road lane
+    core.at_lane[row], core.at_s[row], core.at_lat[row], core.speed[row] = lane, 1.0, 0.0, 5.0
+    core.route_pos[row], core.route_end[row] = 0, 3
+    core.judged[row] = -1
+    assert core.judge_due(row).tolist() == [True]  # a lane it was not looked at on
+    assert core.judge_due(row).tolist() == [False]  # ... looked at now: nothing to look at
+    reasons = {
+        "stopped": ("speed", 0.0),
+        "past the lane's end": ("at_s", t.length[lane] + 0.1),
+        "wide of the lane": ("at_lat", t.width[lane] / 2 + OFF_ROAD_LATERAL_M + 0.1),
+        "on the route's last lane": ("route_pos", 3),
+    }
+    for why, (column, value) in reasons.items():
+        old = getattr(core, column)[row].copy()
+        getattr(core, column)[row] = value
+        assert core.judge_due(row).tolist() == [True], why
+        getattr(core, column)[row] = old
+        assert core.judge_due(row).tolist() == [False], why
+    for flags in ("crossing", "midblock"):  # a crosswalk's people, a mid-block crossing's line
+        marked = getattr(t, flags).copy()
+        marked[lane] = True
+        with monkeypatch.context() as m:
+            m.setattr(t, flags, marked)
+            assert core.judge_due(row).tolist() == [True], flags
+        assert core.judge_due(row).tolist() == [False], flags
