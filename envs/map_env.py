@@ -439,9 +439,9 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     dt = 1 / c["simulation_frequency"]
     groups: dict[int, tuple[Any, list, list]] = {}  # roads and envs by their core (one group: one batch)
     for env in envs:
-        group = groups.setdefault(id(env.road.core), (env.road.core, [], []))
-        group[1].append(env.road)
-        group[2].append(env)
+        _, roads, members = groups.setdefault(id(env.road.core), (env.road.core, [], []))
+        roads.append(env.road)
+        members.append(env)
     for env in envs:
         env.judge.new = []
     for frame in range(frames):
@@ -455,9 +455,9 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             core.step(roads, dt)
         for env in envs:
             env.steps += 1
-        for core, _, group in groups.values():
-            due = core.judge_due(np.array([env.vehicle.row for env in group], dtype=np.int64))
-            for env in itertools.compress(group, due.tolist()):
+        for core, _, members in groups.values():
+            due = core.judge_due(np.array([env.vehicle.row for env in members], dtype=np.int64))
+            for env in itertools.compress(members, due.tolist()):
                 env.judge.check()
         if frame < frames - 1:
             for env in envs:
