@@ -268,7 +268,9 @@ class MapVectorEnv(VectorEnv):
         n = self.num_envs
         first = vals[0]
         if isinstance(first, dict) and key != "final_obs":
-            array: Any = self.stack_infos(list(zip(idx, vals)))
+            array: Any = self.stack_records(idx, vals)
+            if array is None:
+                array = self.stack_infos(list(zip(idx, vals)))
         elif key != "final_obs" and (type(first) in (int, float, bool) or issubclass(type(first), np.number)):
             array = np.zeros(n, dtype=type(first))
             array[idx] = vals
@@ -282,6 +284,26 @@ class MapVectorEnv(VectorEnv):
         mask = np.zeros(n, dtype=np.bool_)
         mask[idx] = True
         return array, mask
+
+    def stack_records(self, idx: list[int], vals: list[dict]) -> dict[str, Any] | None:
+        """`stack_infos` of dicts that all have the same keys in the same order and, in the
+        first, values of one scalar type (the violation counts, the reward terms): one table,
+        whose columns are the arrays (None for other dicts)."""
+        first = vals[0]
+        kinds = {type(v) for v in first.values()}
+        if len(kinds) != 1 or (kind := kinds.pop()) not in (int, float, bool):
+            return None
+        keys = tuple(first)
+        if any(tuple(d) != keys for d in vals):
+            return None
+        table = np.zeros((len(keys), self.num_envs), dtype=kind)
+        table[:, idx] = np.array([list(d.values()) for d in vals], dtype=kind).T
+        mask = np.zeros(self.num_envs, dtype=np.bool_)
+        mask[idx] = True
+        out: dict[str, Any] = {}
+        for key, column in zip(keys, table):
+            out[key], out[f"_{key}"] = column, mask.copy()
+        return out
 
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""
