@@ -367,9 +367,11 @@ class MapEnv(EgoTask, AbstractEnv):
         self._simulate(action)
         return self._end_step(action)
 
-    def _begin_step(self, action) -> None:
-        """What `AbstractEnv.step` does before simulating (with the action checked)."""
-        check_action(self.action_space, action)
+    def _begin_step(self, action, checked: bool = False) -> None:
+        """What `AbstractEnv.step` does before simulating, with the action checked (unless
+        `checked`: a batch checks every action first)."""
+        if not checked:
+            check_action(self.action_space, action)
         if self.road is None or self.vehicle is None:
             raise NotImplementedError("The road and vehicle must be initialized in the environment implementation")
         self.time += 1 / self.config["policy_frequency"]

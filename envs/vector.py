@@ -121,7 +121,7 @@ class MapVectorEnv(VectorEnv):
                 stepping.append(i)
         envs = [self.envs[i] for i in stepping]
         for i, env in zip(stepping, envs):
-            env._begin_step(acts[i])
+            env._begin_step(acts[i], checked=True)
         simulate(envs, [acts[i] for i in stepping])
         observed = self.observe(envs)
         columns: dict[str, tuple[list[int], list]] = {}
