@@ -1338,11 +1338,12 @@ class TrafficCore:
         """(answered, refused, takes), masks over the rows: the rows among `rows` (whose first stop
         is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
         (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
-        waits; their slot's road users placed; not in the queue of the entry's stop sign; held
-        there, or with nothing else to stop for: no crosswalk with people or light on that lane,
-        no stop after it), those the rules hold at the line
-        (`TrafficRules.may_enter`: a reservation of the lane lets it go, else a stop sign's queue it
-        is not in holds it, else a conflict does, `entries.junction_clear`), and those that would
+        waits; their slot's road users placed; in the queue of the entry's stop sign only where the
+        arrays know whose turn it is, `stop_signs.turns`; held there, or with nothing else to stop
+        for: no crosswalk with people or light on that lane, no stop after it), those the rules hold
+        at the line (`TrafficRules.may_enter`: a reservation of the lane lets it go, else a stop
+        sign holds it unless it is queued there and its turn has come, else a conflict does,
+        `entries.junction_clear`), and those that would
         reserve the lane (let go, within commit distance of the line, the lane reserved by
         nobody)."""
         n = len(rows)
@@ -1353,8 +1354,13 @@ class TrafficCore:
         nl = len(t.length)
         et = entries.entry_table(self.net, t)
         stop = t.line_kind[in_lane] == LINE_STOP_SIGN
-        queued = stop & (self.stop_junction == t.lane_junction[j_lane])
-        answer = rows & et.simple[j_lane] & ~queued & entries.placed(self)[self.env]
+        answer = rows & et.simple[j_lane] & entries.placed(self)[self.env]
+        turn = np.zeros(n, dtype=bool)  # queued at the entry's stop sign, and its turn
+        queued = (answer & stop & (self.stop_junction == t.lane_junction[j_lane])).nonzero()[0]
+        if len(queued):
+            allowed, known = stop_signs.turns(self, queued, j_lane[queued])
+            answer[queued[~known]] = False
+            turn[queued[allowed & known]] = True
         r = answer.nonzero()[0]
         if not len(r):
             return answer, none, none
@@ -1365,7 +1371,7 @@ class TrafficCore:
             k = np.searchsorted(held_key, key).clip(max=len(held_key) - 1)
             reserved = held_key[k] == key
             mine = reserved & (held_row[k] == r)
-        no = stop[r] & ~mine
+        no = stop[r] & ~mine & ~turn[r]
         ask = ~mine & ~no
         if ask.any():
             no[ask] = ~entries.junction_clear(self, r[ask], j_lane[r[ask]], held_key, held_row, self._approach_held)

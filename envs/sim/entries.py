@@ -43,6 +43,7 @@ class EntryTable:
     pred_ptr: np.ndarray
     pred_lane: np.ndarray
     simple: np.ndarray
+    conf_key: np.ndarray  # lane * lanes + conflicting lane of every conflict, sorted
 
 
 def entry_table(net: "MapNetwork", table: "LaneTable") -> EntryTable:
@@ -64,8 +65,9 @@ def _build(net: "MapNetwork", table: "LaneTable") -> EntryTable:
     simple = np.array([lanes[lid].junction_id is not None and lid not in net.yield_entries
                        and not _chains(net, lid) and not _boxed(net, lid) for lid in ids], dtype=bool)
     as_int = lambda a: np.array(a, dtype=np.int64)  # noqa: E731
+    owner = np.repeat(np.arange(len(ids)), np.diff(conf_ptr))
     return EntryTable(as_int(conf_ptr), as_int(conf_lane), np.array(conf_higher, dtype=bool), as_int(pred_ptr),
-                      as_int(pred_lane), simple)
+                      as_int(pred_lane), simple, np.sort(owner * len(ids) + as_int(conf_lane)))
 
 
 def _chains(net: "MapNetwork", lid: str) -> bool:
@@ -182,9 +184,21 @@ def _next_two(W: np.ndarray) -> np.ndarray:
 
 def _expand(ptr: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(owner, entry) of every CSR entry of the items `idx` (`ptr`'s rows), grouped by owner."""
-    cnt = ptr[idx + 1] - ptr[idx]
-    owner = np.repeat(np.arange(len(idx)), cnt)
-    return owner, np.repeat(ptr[idx] - (np.cumsum(cnt) - cnt), cnt) + np.arange(int(cnt.sum()))
+    return expand_ranges(ptr[idx], ptr[idx + 1])
+
+
+def expand_ranges(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, index) of every index in [start[k], end[k]) for each k, grouped by owner."""
+    cnt = end - start
+    owner = np.repeat(np.arange(len(start)), cnt)
+    return owner, np.repeat(start - (np.cumsum(cnt) - cnt), cnt) + np.arange(int(cnt.sum()))
+
+
+def conflicting(et: EntryTable, nl: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per pair, whether junction lane `b` conflicts with `a` (`MapNetwork.conflicts`; lane indices)."""
+    key = a * nl + b
+    k = np.searchsorted(et.conf_key, key).clip(max=max(len(et.conf_key) - 1, 0))
+    return (et.conf_key[k] == key) if len(et.conf_key) else np.zeros(len(key), dtype=bool)
 
 
 def _count(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..network import LINE_STOP_SIGN
 from ..rules import has_stopped
+from . import entries
 
 if TYPE_CHECKING:
     from ..core import TrafficCore
@@ -80,3 +81,41 @@ def queues(core: "TrafficCore", slot: int) -> dict[Any, list]:
         out.setdefault(ids[j], []).append(core.objs[i])
     core.queue_views[slot] = (version, out)
     return out
+
+
+def turns(core: "TrafficCore", rows: np.ndarray, j_lane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(allowed, known) per row of `rows` (each in the stop-sign queue of the junction of its
+    next junction lane `j_lane`): `TrafficRules.stop_queue_allows`, no road user earlier in that
+    queue drives into a lane conflicting with the row's (its lane in the junction: the first one
+    on its route from the lane before its route position on). `known` is False where the arrays
+    cannot say as the rules would (an earlier road user whose lane in the junction is beyond its
+    window, whose route ran through the junction just before, or whose conflicting lane has a box
+    to keep clear or a chain: `entries.EntryTable.simple`); the rules answer those. On a map
+    with no narrow passages (a road user waiting for one lets later ones go)."""
+    t = core.table
+    et = entries.entry_table(core.net, t)
+    nl, nj = len(t.length), len(t.junction_ids)
+    junction = t.lane_junction[j_lane]
+    key = core.env[rows] * nj + junction
+    queued = (core.stop_junction >= 0).nonzero()[0]
+    m = core.stop_count + 1  # (slot, junction, place in the queue) as one sortable number
+    place = (core.env[queued] * nj + core.stop_junction[queued]) * m + core.stop_seq[queued]
+    order = np.argsort(place)
+    queued, place = queued[order], place[order]
+    # (asking row, a road user earlier in its queue) pairs
+    p, e = entries.expand_ranges(np.searchsorted(place, key * m), np.searchsorted(place, key * m + core.stop_seq[rows]))
+    other = queued[e]
+    j = junction[p]
+    W = core.W[other]
+    in_j = (W >= 0) & (t.lane_junction[np.maximum(W, 0)] == j[:, None])
+    found = in_j.any(axis=1)
+    lane = W[np.arange(len(other)), np.argmax(in_j, axis=1)]
+    before = np.array([r[pos - 1] if pos > 0 else -1 for r, pos in
+                       zip((core.routes[o] for o in other.tolist()), core.route_pos[other].tolist())], dtype=np.int64)
+    came = (before >= 0) & (t.lane_junction[np.maximum(before, 0)] == j)
+    conflict = found & entries.conflicting(et, nl, j_lane[p], np.maximum(lane, 0))
+    unknown = ~found | came | (conflict & ~et.simple[np.maximum(lane, 0)])
+    allowed, known = np.ones(len(rows), dtype=bool), np.ones(len(rows), dtype=bool)
+    allowed[p[conflict]] = False
+    known[p[unknown]] = False
+    return allowed, known

@@ -95,3 +95,33 @@ def test_junction_clear_in_arrays_is_the_rules_junction_clear_for_every_road_use
             del ctl.reservations[x]
     envs.close()
     assert counts["held"] > 300 and counts["free"] > 300
+
+
+def test_stop_sign_turns_in_arrays_are_the_rules_for_every_queued_road_user():
+    """`stop_signs.turns` of every road user in a stop sign's queue, for its lane in that
+    junction, equals the rules' `stop_queue_allows` wherever the arrays say they know, in busy
+    batched traffic; they know nearly always, and both turns that have come and turns that have
+    not are among the answers."""
+    from feat2map.envs.sim import stop_signs
+
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=12, vectorization_mode="vector_entry_point",
+                        config=BUSY_BATCH)
+    envs.reset(seed=3)
+    c = envs.unwrapped.core
+    t, ids = c.table, c.net.lane_ids
+    counts = {"allowed": 0, "refused": 0, "unknown": 0}
+    for _ in range(60):
+        envs.step(np.ones(12, dtype=np.int64))
+        c.refresh_windows()
+        rows = (c.stop_junction >= 0).nonzero()[0]
+        in_j = (c.W[rows] >= 0) & (t.lane_junction[np.maximum(c.W[rows], 0)] == c.stop_junction[rows][:, None])
+        rows, col = rows[in_j.any(axis=1)], np.argmax(in_j, axis=1)[in_j.any(axis=1)]
+        j = c.W[rows, col]
+        allowed, known = stop_signs.turns(c, rows, j)
+        want = [c.roads[c.env[r]].control.stop_queue_allows(c.objs[r], ids[lane]) for r, lane in zip(rows.tolist(), j.tolist())]
+        assert allowed[known].tolist() == np.array(want, dtype=bool)[known].tolist()
+        counts["allowed"] += int((allowed & known).sum())
+        counts["refused"] += int((~allowed & known).sum())
+        counts["unknown"] += int((~known).sum())
+    envs.close()
+    assert counts["allowed"] > 300 and counts["refused"] > 50 and counts["unknown"] < counts["refused"] / 10, counts
