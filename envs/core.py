@@ -600,6 +600,7 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
+        self._signals_now: tuple[np.ndarray, np.ndarray] | None = None  # `_signals_at_clock` while a frame's rules ask
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
         # walking direction, speed and metres left to the crosswalk's far end
         self.p_env = np.zeros(0, dtype=np.int64)
@@ -1054,7 +1055,11 @@ class TrafficCore:
         v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
         fi, gap, vl = self._leaders(traffic.nonzero()[0])
         jam = np.full(len(fi), IDM_GAP_M)
-        sd = self._rule_stops(traffic)
+        self._signals_now = self._signals_at_clock()  # the frame's rule questions read the signals at one clock
+        try:
+            sd = self._rule_stops(traffic)
+        finally:
+            self._signals_now = None
         si = (sd < math.inf).nonzero()[0]
         if len(si):
             sd = sd[si]
@@ -1396,9 +1401,13 @@ class TrafficCore:
     def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
         """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
         into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
+        times, arrays = self._signals_now or self._signals_at_clock()
+        return states_at(times[slots], arrays[slots, :, signals].T)
+
+    def _signals_at_clock(self) -> tuple[np.ndarray, np.ndarray]:
+        """(every slot's clock, `_signal_arrays`): what `_signal_states` reads, now."""
         controls = [r.control if r is not None else None for r in self.roads]
-        times = np.array([c.t if c is not None else 0.0 for c in controls])
-        return states_at(times[slots], self._signal_arrays(controls)[slots, :, signals].T)
+        return np.array([c.t if c is not None else 0.0 for c in controls]), self._signal_arrays(controls)
 
     def buckets(self, road: "MapRoad") -> dict[str, list]:
         """The road users of `road` on each lane id, in its vehicles' order (after a sync; a
