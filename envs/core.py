@@ -600,7 +600,8 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
-        self._signals_now: tuple[np.ndarray, np.ndarray] | None = None  # `_signals_at_clock` while a frame's rules ask
+        # `_signals_at_clock` while a frame's rules ask (() until first asked), None between frames
+        self._signals_now: tuple | None = None
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
         # walking direction, speed and metres left to the crosswalk's far end
         self.p_env = np.zeros(0, dtype=np.int64)
@@ -1055,7 +1056,7 @@ class TrafficCore:
         v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
         fi, gap, vl = self._leaders(traffic.nonzero()[0])
         jam = np.full(len(fi), IDM_GAP_M)
-        self._signals_now = self._signals_at_clock()  # the frame's rule questions read the signals at one clock
+        self._signals_now = ()  # the frame's rule questions read the signals at one clock (made when first asked)
         try:
             sd = self._rule_stops(traffic)
         finally:
@@ -1401,6 +1402,8 @@ class TrafficCore:
     def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
         """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
         into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
+        if self._signals_now == ():
+            self._signals_now = self._signals_at_clock()
         times, arrays = self._signals_now or self._signals_at_clock()
         return states_at(times[slots], arrays[slots, :, signals].T)
 
