@@ -95,6 +95,7 @@ if TYPE_CHECKING:
 
 EXTERNAL, DRIVEN = 0, 1
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
+JUDGE_MIN_ROWS = 4  # controlled rows from which `judge_due` tests which judges to ask (fewer: all are asked)
 # rows the rules are asked of (`TrafficCore._rule_stops`) from which the arrays answer a signal's
 # hold and a junction entry before the rows ask one by one (fewer: each asks the rules; the
 # same values)
@@ -1643,8 +1644,12 @@ class TrafficCore:
         last looked at the row on (entering a junction), at a stop, on a lane with a crosswalk or a
         mid-block crossing's line, on the route's last lane (arrived), past the end of its lane or
         wide of it (off the road); elsewhere it leaves the judge as it was, so the judges of the
-        other rows are not asked (the same verdicts). Notes the rows' lanes as looked at."""
+        other rows are not asked (the same verdicts). Notes the rows' lanes as looked at. Under
+        JUDGE_MIN_ROWS rows every one is due: a check costs less than the test."""
         t, lane = self.table, self.at_lane[rows]
+        if len(rows) < JUDGE_MIN_ROWS:
+            self.judged[rows] = lane
+            return np.ones(len(rows), dtype=bool)
         due = (lane != self.judged[rows]) | has_stopped(self.speed[rows]) | t.crossing[lane] | t.midblock[lane] \
             | (self.route_pos[rows] >= self.route_end[rows]) | (self.at_s[rows] > t.length[lane]) \
             | (np.abs(self.at_lat[rows]) > t.width[lane] / 2 + OFF_ROAD_LATERAL_M)

@@ -10,6 +10,7 @@ from conftest import example_map_file
 
 import feat2map  # noqa: F401  (registers the envs)
 from feat2map.config import OFF_ROAD_LATERAL_M
+from feat2map.envs import core
 from feat2map.formats import native
 
 CONTINUOUS = {"action": {"type": "ContinuousAction"}}
@@ -36,8 +37,7 @@ def judged(u) -> tuple:
 
 def every_frame(env) -> None:
     """The env's judge looks after every frame."""
-    core = env.unwrapped.road.core
-    core.judge_due = lambda rows: np.ones(len(rows), dtype=bool)
+    env.unwrapped.road.core.judge_due = lambda rows: np.ones(len(rows), dtype=bool)
 
 
 @pytest.mark.parametrize("case, policy, expect", [
@@ -46,7 +46,9 @@ def every_frame(env) -> None:
     ("grid-continuous", weaving, {"red_light", "stop_sign", "off_road"}),
     ("midblock", weaving, {"red_light", "off_road"}),
 ])
-def test_the_judge_asked_where_due_finds_what_a_judge_asked_every_frame_does(case, policy, expect, tmp_path_factory):
+def test_the_judge_asked_where_due_finds_what_a_judge_asked_every_frame_does(case, policy, expect, tmp_path_factory,
+                                                                             monkeypatch):
+    monkeypatch.setattr(core, "JUDGE_MIN_ROWS", 1)  # the test for one ego too
     if case == "midblock":
         make = lambda: gym.make("feat2map/MapFile-v0", config={  # noqa: E731
             "map": native.load(example_map_file(tmp_path_factory, "midblock")), "traffic_vehicles": 4, **CONTINUOUS})
@@ -82,17 +84,18 @@ def test_the_judge_asked_where_due_finds_what_a_judge_asked_every_frame_does(cas
 
 
 def test_each_reason_to_look_makes_a_row_due(monkeypatch):
+    monkeypatch.setattr(core, "JUDGE_MIN_ROWS", 1)
     env = gym.make("feat2map/JunctionGrid-v0", config={"traffic_vehicles": 0})
     env.reset(seed=0)
     u = env.unwrapped
-    core, row = u.road.core, np.array([u.vehicle.row])
-    t = core.table
+    c, row = u.road.core, np.array([u.vehicle.row])
+    t = c.table
     lane = int(np.nonzero(~t.junction & ~t.crossing & ~t.midblock)[0][0])  # a plain road lane
-    core.at_lane[row], core.at_s[row], core.at_lat[row], core.speed[row] = lane, 1.0, 0.0, 5.0
-    core.route_pos[row], core.route_end[row] = 0, 3
-    core.judged[row] = -1
-    assert core.judge_due(row).tolist() == [True]  # a lane it was not looked at on
-    assert core.judge_due(row).tolist() == [False]  # ... looked at now: nothing to look at
+    c.at_lane[row], c.at_s[row], c.at_lat[row], c.speed[row] = lane, 1.0, 0.0, 5.0
+    c.route_pos[row], c.route_end[row] = 0, 3
+    c.judged[row] = -1
+    assert c.judge_due(row).tolist() == [True]  # a lane it was not looked at on
+    assert c.judge_due(row).tolist() == [False]  # ... looked at now: nothing to look at
     reasons = {
         "stopped": ("speed", 0.0),
         "past the lane's end": ("at_s", t.length[lane] + 0.1),
@@ -100,15 +103,15 @@ def test_each_reason_to_look_makes_a_row_due(monkeypatch):
         "on the route's last lane": ("route_pos", 3),
     }
     for why, (column, value) in reasons.items():
-        old = getattr(core, column)[row].copy()
-        getattr(core, column)[row] = value
-        assert core.judge_due(row).tolist() == [True], why
-        getattr(core, column)[row] = old
-        assert core.judge_due(row).tolist() == [False], why
+        old = getattr(c, column)[row].copy()
+        getattr(c, column)[row] = value
+        assert c.judge_due(row).tolist() == [True], why
+        getattr(c, column)[row] = old
+        assert c.judge_due(row).tolist() == [False], why
     for flags in ("crossing", "midblock"):  # a crosswalk's people, a mid-block crossing's line
         marked = getattr(t, flags).copy()
         marked[lane] = True
         with monkeypatch.context() as m:
             m.setattr(t, flags, marked)
-            assert core.judge_due(row).tolist() == [True], flags
-        assert core.judge_due(row).tolist() == [False], flags
+            assert c.judge_due(row).tolist() == [True], flags
+        assert c.judge_due(row).tolist() == [False], flags
