@@ -1667,8 +1667,9 @@ class TrafficCore:
         env = self.env[rows]
         n = len(x)
         if objects:
-            x = np.concatenate([x, [o.position[0] for o in objects]])
-            y = np.concatenate([y, [o.position[1] for o in objects]])
+            at = np.array([o.position for o in objects], dtype=float).reshape(-1, 2)
+            x = np.concatenate([x, at[:, 0]])
+            y = np.concatenate([y, at[:, 1]])
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
@@ -1693,9 +1694,10 @@ class TrafficCore:
         keep = ~both
         if both.any():
             keep[both] = rectangles_overlap(self, rows[a[both]], rows[b[both]])
-        everyone = [self.objs[i] for i in rows.tolist()] + objects
+        objs = self.objs
+        one = lambda k: objs[rows[k]] if k < n else objects[k - n]  # noqa: E731
         for i, j in zip(a[keep].tolist(), b[keep].tolist()):
-            everyone[i].handle_collisions(everyone[j], dt)
+            one(i).handle_collisions(one(j), dt)
 
 
 def same_key_pairs(key_a: np.ndarray, key_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
