@@ -115,3 +115,5 @@ def test_each_reason_to_look_makes_a_row_due(monkeypatch):
             m.setattr(t, flags, marked)
             assert c.judge_due(row).tolist() == [True], flags
         assert c.judge_due(row).tolist() == [False], flags
+    monkeypatch.setattr(core, "JUDGE_MIN_ROWS", 2)  # fewer rows than that: every judge is asked
+    assert c.judge_due(row).tolist() == [True]
