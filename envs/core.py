@@ -69,10 +69,11 @@ The traffic model, where it differs from highway-env's own vehicles:
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import deque
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
@@ -603,6 +604,7 @@ class TrafficCore:
         self.queue_views: dict[int, tuple[int, dict]] = {}
         # `_signals_at_clock` while a frame's rules ask (() until first asked), None between frames
         self._signals_now: tuple | None = None
+        self._observing: tuple | None = None  # (row places, scans, leader gaps) while envs observe (`observing`)
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
         # walking direction, speed and metres left to the crosswalk's far end
         self.p_env = np.zeros(0, dtype=np.int64)
@@ -1102,6 +1104,8 @@ class TrafficCore:
         """(bumper gap, speed) of every road user in row `i`'s way along its route: `_leaders`
         of that one row among the rows of its slot (what the ego's planner, DriverView and judge
         read, the same program that gives traffic its leaders)."""
+        if self._observing is not None and i in self._observing[2]:
+            return list(self._observing[2][i])
         self.refresh_windows()
         if not self.driven[i]:
             return []
@@ -1194,15 +1198,37 @@ class TrafficCore:
         for n in (~self.driven[rows]).nonzero()[0].tolist():
             s[n], lat[n] = self.net._lanes[lanes[n]].local_coordinates(self.objs[rows[n]].position)
 
-    def rule_scan_of(self, vehicle) -> rule_scan.Scan:
-        """A road user's scan along its route (`sim.rule_scan`, indexed), what
+    def rule_scan_of(self, vehicle) -> tuple[rule_scan.Scan, int]:
+        """(a scan along its route, `sim.rule_scan`, indexed; the road user's place in it): what
         `TrafficRules._rule_stop` walks when asked of one road user (the baseline planner, the
-        judge, a bridge)."""
+        judge, a bridge, an observation). While envs observe (`observing`), the scan made for
+        all their rows at once."""
         i = vehicle._row
         if self.objs[i] is not vehicle or not self.driven[i]:
             raise ValueError(f"{vehicle!r} is no road user the core drives: the rules' stops are asked of its rows")
+        if self._observing is not None and i in self._observing[0]:
+            return self._observing[1], self._observing[0][i]
         self.refresh_windows()
-        return rule_scan.scan(self, np.array([i])).index()
+        return rule_scan.scan(self, np.array([i])).index(), 0
+
+    @contextlib.contextmanager
+    def observing(self, rows: np.ndarray) -> Iterator[None]:
+        """While envs make their observations (nothing moves), the scans along the routes of
+        controlled `rows` (`rule_scan_of`) and their leader gaps (`leader_gaps`) are made for
+        all of them at once, by the programs that make one row's: an observation that asks the
+        rules of its ego (DriverView) then reads them, not one program per ego."""
+        self.refresh_windows()
+        rows = rows[self.driven[rows]]
+        place = {r: k for k, r in enumerate(rows.tolist())}
+        fr, gap, speed = self._leaders(rows)
+        gaps: dict[int, list[tuple[float, float]]] = {r: [] for r in place}
+        for f, g, v in zip(fr.tolist(), gap.tolist(), speed.tolist()):
+            gaps[f].append((g, v))
+        self._observing = (place, rule_scan.scan(self, rows).index(), gaps)
+        try:
+            yield
+        finally:
+            self._observing = None
 
     def _rule_stops(self, traffic: np.ndarray) -> np.ndarray:
         """Per row, the stop distance of its vehicle (inf outside the `traffic` mask and for

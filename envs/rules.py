@@ -989,7 +989,7 @@ class TrafficRules:
         red). `claims` (`claim`'s) records what the walk takes; junction lanes `beyond` the stop
         point `before` (a passage's wait) are checked but never reserved."""
         ids = self.net.lane_ids
-        sc, r = scan if scan is not None else (self.road.core.rule_scan_of(vehicle), 0)
+        sc, r = scan if scan is not None else self.road.core.rule_scan_of(vehicle)
         lanes, prevs, dists, bits = sc.lane, sc.prev, sc.dist, sc.bits
         for k in range(sc.first[r], sc.end[r]):
             lane, prev, d, what = lanes[k], prevs[k], dists[k], bits[k]

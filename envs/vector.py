@@ -14,6 +14,8 @@ autoreset next-step by default, `autoreset_mode` honoured, info as arrays with "
 """
 from __future__ import annotations
 
+import contextlib
+
 from copy import deepcopy
 from typing import Any
 
@@ -125,12 +127,14 @@ class MapVectorEnv(VectorEnv):
         simulate(envs, [acts[i] for i in stepping])
         observed = self.observe(envs)
         columns: dict[str, tuple[list[int], list]] = {}
-        if self.batch_end(envs):
-            columns = self.end_steps(stepping, envs, [acts[i] for i in stepping], observed)
-        else:
-            for i, env, obs in zip(stepping, envs, observed):
-                self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
-                    env._end_step(acts[i], obs)
+        own = np.array([env.vehicle.row for env, obs in zip(envs, observed) if obs is None], dtype=np.int64)
+        with self.core.observing(own) if len(own) else contextlib.nullcontext():  # who observes itself
+            if self.batch_end(envs):
+                columns = self.end_steps(stepping, envs, [acts[i] for i in stepping], observed)
+            else:
+                for i, env, obs in zip(stepping, envs, observed):
+                    self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
+                        env._end_step(acts[i], obs)
         finals = []
         ended = set()
         for i, env in enumerate(self.envs):

@@ -410,7 +410,7 @@ def test_the_rules_scan_finds_every_stop_along_the_route(where, tight_approach):
     for _ in range(frames):
         for v in u.road.vehicles:
             got = [(ids[lane], ids[prev] if prev >= 0 else None, d, what) for lane, prev, d, what in
-                   core.rule_scan_of(v).stops(0)]
+                   core.rule_scan_of(v)[0].stops(0)]
             want = _walked_stops(u, v)
             assert [g[:2] + g[3:] for g in got] == [w[:2] + w[3:] for w in want], v
             assert [g[2] for g in got] == pytest.approx([w[2] for w in want], abs=1e-9)
@@ -420,7 +420,7 @@ def test_the_rules_scan_finds_every_stop_along_the_route(where, tight_approach):
     assert seen > 0
     if where == "tight":  # from before JX, J1's entry is in the scan too
         ego = u.vehicle
-        assert sum(1 for *_, what in core.rule_scan_of(ego).stops(0) if what & ENTRY) == 2
+        assert sum(1 for *_, what in core.rule_scan_of(ego)[0].stops(0) if what & ENTRY) == 2
     env.close()
 
 

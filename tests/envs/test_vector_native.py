@@ -129,7 +129,7 @@ def scalar_code(monkeypatch) -> None:
         wants, claims = [], []
         for i in (traffic & ~self.crashed).nonzero()[0].tolist():
             v = self.objs[i]
-            dist[i] = self.roads[self.env[i]].control.ask(v, (self.rule_scan_of(v), 0), claims)
+            dist[i] = self.roads[self.env[i]].control.ask(v, self.rule_scan_of(v), claims)
             if claims:
                 wants.append(i)
                 claims.clear()
