@@ -1693,9 +1693,8 @@ class TrafficCore:
         env = self.env[rows]
         n = len(x)
         if objects:
-            at = np.array([o.position for o in objects], dtype=float).reshape(-1, 2)
-            x = np.concatenate([x, at[:, 0]])
-            y = np.concatenate([y, at[:, 1]])
+            x = np.concatenate([x, [o.position[0] for o in objects]])
+            y = np.concatenate([y, [o.position[1] for o in objects]])
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])

@@ -168,12 +168,10 @@ def _candidates(core: Any, slots: list[int], observers: list, obstacles: bool) -
             core.x[mine], core.y[mine], core.heading[mine], core.speed[mine]
         kind[um, cm] = ROW
         row_of[um, cm] = mine
-    placed = [(n, counts[n] + j, o) for n, items in enumerate(objs) for j, o in enumerate(items)]
-    if placed:  # road objects (crosswalk pedestrians, obstacles) after the rows, in their road's order
-        on, oc = (np.array(a, dtype=np.int64) for a in zip(*((n, c) for n, c, _ in placed)))
-        V[on, 1 + oc, :3] = np.array([(*o.position, o.heading) for _, _, o in placed], dtype=float).reshape(-1, 3)
-        V[on, 1 + oc, 3] = 0.0
-        kind[on, oc] = OBJECT
+    for n, items in enumerate(objs):
+        for j, o in enumerate(items):
+            V[n, 1 + counts[n] + j] = (o.position[0], o.position[1], o.heading, 0.0)
+            kind[n, counts[n] + j] = OBJECT
     if U != len(slots) or (u_of != np.arange(U)).any():
         V, kind, row_of = V[u_of], kind[u_of], row_of[u_of]  # one row per observer (several in a slot)
     return V, kind, row_of, rank
