@@ -1429,9 +1429,10 @@ class TrafficCore:
     def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
         """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
         into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
-        if self._signals_now == ():
-            self._signals_now = self._signals_at_clock()
-        times, arrays = self._signals_now or self._signals_at_clock()
+        now = self._signals_now or self._signals_at_clock()
+        if self._signals_now == ():  # the first question of a frame: kept for the others
+            self._signals_now = now
+        times, arrays = now
         return states_at(times[slots], arrays[slots, :, signals].T)
 
     def _signals_at_clock(self) -> tuple[np.ndarray, np.ndarray]:

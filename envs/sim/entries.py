@@ -196,9 +196,7 @@ def expand_ranges(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def conflicting(et: EntryTable, nl: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Per pair, whether junction lane `b` conflicts with `a` (`MapNetwork.conflicts`; lane indices)."""
-    key = a * nl + b
-    k = np.searchsorted(et.conf_key, key).clip(max=max(len(et.conf_key) - 1, 0))
-    return (et.conf_key[k] == key) if len(et.conf_key) else np.zeros(len(key), dtype=bool)
+    return _count(et.conf_key, a * nl + b) > 0
 
 
 def _count(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
