@@ -1371,11 +1371,11 @@ class TrafficCore:
         """(answered, refused, takes), masks over the rows: the rows among `rows` (whose first stop
         is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
         (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
-        waits; their slot's road users placed; in the queue of the entry's stop sign only where the
-        arrays know whose turn it is, `stop_signs.turns`; held there, or with nothing else to stop
+        waits; their slot's road users placed; at a stop sign, whose turn it is: `stop_signs.turns`;
+        held there, or with nothing else to stop
         for: no crosswalk with people or light on that lane, no stop after it), those the rules hold
         at the line (`TrafficRules.may_enter`: a reservation of the lane lets it go, else a stop
-        sign holds it unless it is queued there and its turn has come, else a conflict does,
+        sign holds it unless its turn has come there, else a conflict does,
         `entries.junction_clear`), and those that would
         reserve the lane (let go, within commit distance of the line, the lane reserved by
         nobody)."""
@@ -1388,12 +1388,10 @@ class TrafficCore:
         et = entries.entry_table(self.net, t)
         stop = t.line_kind[in_lane] == LINE_STOP_SIGN
         answer = rows & et.simple[j_lane] & entries.placed(self)[self.env]
-        turn = np.zeros(n, dtype=bool)  # queued at the entry's stop sign, and its turn
-        queued = (answer & stop & (self.stop_junction == t.lane_junction[j_lane])).nonzero()[0]
-        if len(queued):
-            allowed, known = stop_signs.turns(self, queued, j_lane[queued])
-            answer[queued[~known]] = False
-            turn[queued[allowed & known]] = True
+        turn = np.zeros(n, dtype=bool)  # at the entry's stop sign, and its turn
+        sign = (answer & stop).nonzero()[0]
+        if len(sign):
+            turn[sign] = stop_signs.turns(self, sign, j_lane[sign])
         r = answer.nonzero()[0]
         if not len(r):
             return answer, none, none
@@ -1650,6 +1648,10 @@ class TrafficCore:
     def stop_queues(self, slot: int) -> dict[Any, list]:
         """`sim.stop_signs.queues` of `slot` (what `TrafficRules.stop_queue` hands out)."""
         return stop_signs.queues(self, slot)
+
+    def stop_turns(self, rows: np.ndarray, j_lane: np.ndarray) -> np.ndarray:
+        """`sim.stop_signs.turns`: whose turn it is at a stop sign (what `TrafficRules.stop_queue_allows` asks)."""
+        return stop_signs.turns(self, rows, j_lane)
 
     def where_lanes(self, rows: np.ndarray | None = None) -> np.ndarray:
         """Per row (of `rows`, default every row), the lane it is on: a controlled row's located

@@ -26,6 +26,7 @@ from ..config import (DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS, DRIVER_VIEW_CONFLICT_DI
                       DRIVER_VIEW_PEDESTRIAN_SCALE_M, DRIVER_VIEW_QUEUE_SCALE, DRIVER_VIEW_SIGNAL_SCALE_S,
                       DRIVER_VIEW_SPEED_SCALE_MPS)
 from .rules import in_stop_zone, manoeuvre_name
+from .sim.stop_signs import lanes_in
 
 DRIVER_VIEW_FEATURES = (
     # (the scales x of "/ x" below are feat2map.config's DRIVER_VIEW_* constants)
@@ -119,15 +120,18 @@ def driver_view(env) -> list[float]:
 
 def _queue_ahead(rules, ego, j_lane: str) -> int:
     """Vehicles that stopped at the junction's stop signs before the ego (all of the queue while
-    the ego has not stopped) and want a junction lane in conflict with `j_lane`."""
-    queue = rules.stop_queue.get(rules.net.hdmap.lanes[j_lane].junction_id, [])
+    the ego has not stopped) and want a junction lane in conflict with `j_lane` (their lane in the
+    junction as the stop-sign order reads it, `sim.stop_signs.lanes_in`; none known counts)."""
+    jid = rules.net.hdmap.lanes[j_lane].junction_id
+    queue = rules.stop_queue.get(jid, [])
     ahead = queue[:queue.index(ego)] if ego in queue else queue
-    conflicts = rules.net.conflicts.get(j_lane, frozenset())
-    count = 0
-    for other in ahead:
-        lane = other.next_junction_lane()[1] if hasattr(other, "next_junction_lane") else None
-        count += lane is None or lane in conflicts
-    return count
+    if not ahead:
+        return 0
+    core = rules.road.core
+    rows = np.array([core.row_of(v) for v in ahead])
+    lanes = lanes_in(core, rows, np.full(len(rows), core.table.junction_number[jid]))
+    conflicts, ids = rules.net.conflicts.get(j_lane, frozenset()), rules.net.lane_ids
+    return sum(k < 0 or ids[k] in conflicts for k in lanes.tolist())
 
 
 def _conflicts(rules, ego, j_lane: str, out: dict) -> None:

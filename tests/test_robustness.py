@@ -292,14 +292,14 @@ def _shorten_road(src: Path, dst: Path, road: str, length: float) -> None:
     dst.write_bytes(etree.tostring(root))
 
 
-def test_a_chain_of_back_to_back_junctions_is_one_box(tmp_path):
-    """An OpenDRIVE map the test makes (three bare 4-way junctions in a row joined by 3 m and
-    1.5 m roads, as CARLA Town04's 1249, 870 and 483 are): a car enters the first junction only
-    while its lanes in the second and the third are clear, since it cannot wait between them (a
-    car waiting inside 1249 for 483 and one inside 483 for 1249 locked up: Town04 r034)."""
+def _chain(tmp_path: Path, control: str = "bare"):
+    """(map, its path, the route's lanes from junction 1 through 2 and 3, a function naming a
+    junction's lane from one road to another) of an OpenDRIVE map the test makes: three 4-way
+    junctions under `control` in a row, joined by 3 m and 1.5 m roads, as CARLA Town04's 1249, 870
+    and 483 are."""
     from feat2map.formats.opendrive.writer import write_opendrive
 
-    four = feat2map.JunctionFeature.make([0, 90, 180, 270])
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], control, False)
     write_opendrive(feat2map.generate_from_features([four, four, four], seed=0), tmp_path / "three.xodr")
     _shorten_road(tmp_path / "three.xodr", tmp_path / "two.xodr", "6", 1.5)
     _shorten_road(tmp_path / "two.xodr", tmp_path / "chain.xodr", "3", 3.0)
@@ -312,8 +312,16 @@ def test_a_chain_of_back_to_back_junctions_is_one_box(tmp_path):
 
     j1, j2, j3 = through("1", "1", "3"), through("2", "3", "6"), through("3", "6", "9")
     route = [j1, m.lanes[j1].successors[0], j2, m.lanes[j2].successors[0], j3, m.lanes[j3].successors[0]]
-    env = make_env(Scenario("chain", str(tmp_path / "chain.xodr"), (("1", "2", "4"),), seed=0),
-                   config={"traffic_respawn": False})
+    return m, tmp_path / "chain.xodr", route, through
+
+
+def test_a_chain_of_back_to_back_junctions_is_one_box(tmp_path):
+    """A car enters the first junction of a chain (`_chain`) only while its lanes in the second
+    and the third are clear, since it cannot wait between them (a car waiting inside 1249 for 483
+    and one inside 483 for 1249 locked up: Town04 r034)."""
+    m, path, route, _ = _chain(tmp_path)
+    j1, j2, j3 = route[0], route[2], route[4]
+    env = make_env(Scenario("chain", str(path), (("1", "2", "4"),), seed=0), config={"traffic_respawn": False})
     env.reset(seed=0)
     u = env.unwrapped
     car = u.road.spawn(route[0], 0.5, 0.0, route)
@@ -325,4 +333,39 @@ def test_a_chain_of_back_to_back_junctions_is_one_box(tmp_path):
     assert any(v is blocker for v in u.rules.buckets.get(other, ()))
     assert u.rules.junction_clear(j2, car)  # the second junction alone would let it in
     assert not u.rules.box_clear(car, j1)  # but it would wait inside the first for the third
+    env.close()
+
+
+def test_a_stop_sign_queue_lets_later_road_users_past_one_the_box_rule_holds(tmp_path):
+    """At the first junction of a chain under stop signs (`_chain`), a car that stopped first and
+    wants a lane conflicting with a later car's is held by the box rule (its lane in the third
+    junction is blocked): the later car's turn has come, as the rules ask it of one road user and
+    as the core asks it of every queued row (`sim.stop_signs.turns`)."""
+    from feat2map.envs.sim import stop_signs
+
+    m, path, route, through = _chain(tmp_path, "stop")
+    j1, j3 = route[0], route[4]
+    env = make_env(Scenario("chain", str(path), (("1", "2", "4"),), seed=0),
+                   config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    core = u.road.core
+    crossing = next(x for x in (through("1", "2", "4"), through("1", "4", "2")) if j1 in u.net.conflicts[x])
+    other = sorted(u.net.conflicts[j3])[0]
+    u.road.spawn(other, 2.0, 0.0, [other, m.lanes[other].successors[0]])  # blocks the first car's way
+
+    def stopped_at_line(junction_lane: str, rest: list[str]):
+        approach = m.lanes[junction_lane].predecessors[0]
+        line = u.net.stop_lines[approach].s
+        return u.road.spawn(approach, line - 1.0, 0.0, [approach, junction_lane, *rest])
+
+    first = stopped_at_line(j1, route[1:])
+    env.step(np.array([-1.0]))
+    later = stopped_at_line(crossing, [m.lanes[crossing].successors[0]])
+    env.step(np.array([-1.0]))
+    queue = u.rules.stop_queue[m.lanes[j1].junction_id]
+    assert queue.index(first) < queue.index(later)
+    assert not u.rules.box_clear(first, j1)
+    assert u.rules.stop_queue_allows(later, crossing)
+    assert stop_signs.turns(core, np.array([later.row]), np.array([core.table.index[crossing]])).tolist() == [True]
     env.close()

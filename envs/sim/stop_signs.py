@@ -2,7 +2,8 @@
 number of the junction whose stop sign it stopped at, -1 none) and its place in it (`stop_seq`,
 the order of joining). One program joins and leaves the queues of every slot after a frame
 (`update`); the rules read a slot's queues as lists of its vehicles, first come first served
-(`queues`, what `TrafficControl.stop_queue` hands out and `TrafficRules.stop_queue_allows` asks).
+(`queues`, what `TrafficControl.stop_queue` hands out); whose turn it is (`turns`) is one
+program for every queued road user asked, the rules' `stop_queue_allows` one of them.
 """
 from __future__ import annotations
 
@@ -83,39 +84,75 @@ def queues(core: "TrafficCore", slot: int) -> dict[Any, list]:
     return out
 
 
-def turns(core: "TrafficCore", rows: np.ndarray, j_lane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(allowed, known) per row of `rows` (each in the stop-sign queue of the junction of its
-    next junction lane `j_lane`): `TrafficRules.stop_queue_allows`, no road user earlier in that
-    queue drives into a lane conflicting with the row's (its lane in the junction: the first one
-    on its route from the lane before its route position on). `known` is False where the arrays
-    cannot say as the rules would (an earlier road user whose lane in the junction is beyond its
-    window, whose route ran through the junction just before, or whose conflicting lane has a box
-    to keep clear or a chain: `entries.EntryTable.simple`); the rules answer those. On a map
-    with no narrow passages (a road user waiting for one lets later ones go)."""
+def turns(core: "TrafficCore", rows: np.ndarray, j_lane: np.ndarray) -> np.ndarray:
+    """Per row of `rows`, whether its turn has come at the stop sign before its next junction
+    lane `j_lane` (lane indices), first come first served: it is in the queue of that lane's
+    junction, and no road user earlier in the queue drives into a lane conflicting with it and may
+    take it (one the box rule holds back, `TrafficRules.box_clear`, or one waiting for a narrow
+    passage lets later ones go; one whose lane in the junction is unknown holds them). Stop-sign
+    order's one place: the rules' `stop_queue_allows` asks it of one road user, the core
+    (`_entry_answers`) of every row at a stop sign's junction entry at once."""
     t = core.table
     et = entries.entry_table(core.net, t)
     nl, nj = len(t.length), len(t.junction_ids)
     junction = t.lane_junction[j_lane]
-    key = core.env[rows] * nj + junction
+    allowed = core.stop_junction[rows] == junction
+    ask = allowed.nonzero()[0]
+    key = core.env[rows[ask]] * nj + junction[ask]
     queued = (core.stop_junction >= 0).nonzero()[0]
     m = core.stop_count + 1  # (slot, junction, place in the queue) as one sortable number
     place = (core.env[queued] * nj + core.stop_junction[queued]) * m + core.stop_seq[queued]
     order = np.argsort(place)
     queued, place = queued[order], place[order]
     # (asking row, a road user earlier in its queue) pairs
-    p, e = entries.expand_ranges(np.searchsorted(place, key * m), np.searchsorted(place, key * m + core.stop_seq[rows]))
-    other = queued[e]
-    j = junction[p]
-    W = core.W[other]
-    in_j = (W >= 0) & (t.lane_junction[np.maximum(W, 0)] == j[:, None])
-    found = in_j.any(axis=1)
-    lane = W[np.arange(len(other)), np.argmax(in_j, axis=1)]
-    before = np.array([r[pos - 1] if pos > 0 else -1 for r, pos in
-                       zip((core.routes[o] for o in other.tolist()), core.route_pos[other].tolist())], dtype=np.int64)
-    came = (before >= 0) & (t.lane_junction[np.maximum(before, 0)] == j)
-    conflict = found & entries.conflicting(et, nl, j_lane[p], np.maximum(lane, 0))
-    unknown = ~found | came | (conflict & ~et.simple[np.maximum(lane, 0)])
-    allowed, known = np.ones(len(rows), dtype=bool), np.ones(len(rows), dtype=bool)
-    allowed[p[conflict]] = False
-    known[p[unknown]] = False
-    return allowed, known
+    q, e = entries.expand_ranges(np.searchsorted(place, key * m),
+                                 np.searchsorted(place, key * m + core.stop_seq[rows[ask]]))
+    p, other = ask[q], queued[e]
+    lane = lanes_in(core, other, junction[p])
+    takes = (lane < 0) | entries.conflicting(et, nl, j_lane[p], np.maximum(lane, 0))
+    k = (takes & (lane >= 0) & (~et.simple[np.maximum(lane, 0)]
+                                | (core.length[other] > entries.BOX_LENGTH_M))).nonzero()[0]
+    for x, o, lid in zip(k.tolist(), other[k].tolist(), lane[k].tolist()):  # a box to keep clear
+        takes[x] = core.roads[core.env[o]].control.box_clear(core.objs[o], core.net.lane_ids[lid])
+    if core.net.passages:
+        for x in takes.nonzero()[0].tolist():  # waiting for a narrow passage
+            o = int(other[x])
+            waiters = core.roads[core.env[o]].control.passage_waiters.values()
+            takes[x] = not any(core.objs[o] in w for w in waiters)
+    allowed[p[takes]] = False
+    return allowed
+
+
+def lanes_in(core: "TrafficCore", rows: np.ndarray, junction: np.ndarray) -> np.ndarray:
+    """Per row of `rows`, the lane of junction `junction` (numbers) it drives into next (lane
+    indices, -1 none): the first one on its route from the lane before its route position on,
+    since a route follower moves on in the last metre of its lane (Shalun's sim_map r008: a car
+    later in J_1's stop queue took a lane merging with the ego's as the ego crossed its line).
+    Read from the lane before and its window, else (beyond the window, a window to be rebuilt,
+    a road user that is no driven row) from its route."""
+    t = core.table
+    driven = core.driven[rows]
+    before = np.array([core.routes[o][k - 1] if d and k > 0 else -1 for o, k, d in
+                       zip(rows.tolist(), core.route_pos[rows].tolist(), driven.tolist())], dtype=np.int64)
+    W = np.hstack([before[:, None], core.W[rows]])
+    in_j = (W >= 0) & (t.lane_junction[np.maximum(W, 0)] == junction[:, None])
+    lane = np.where(in_j.any(axis=1), W[np.arange(len(rows)), np.argmax(in_j, axis=1)], -1)
+    look = ~driven | (lane < 0)
+    if core.dirty:
+        look |= np.isin(rows, list(core.dirty))
+    for x in look.nonzero()[0].tolist():
+        lane[x] = _lane_on_route(core, core.objs[int(rows[x])], int(junction[x]))
+    return lane
+
+
+def _lane_on_route(core: "TrafficCore", obj: Any, junction: int) -> int:
+    """`lanes_in` of one road user, read from its route (-1 none, or no route)."""
+    route = getattr(obj, "lane_route", None)
+    if route is None:
+        return -1
+    t = core.table
+    for lid in route[max(obj.route_pos - 1, 0):]:
+        k = t.index.get(lid, -1)
+        if k >= 0 and t.lane_junction[k] == junction:
+            return k
+    return -1

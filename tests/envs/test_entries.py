@@ -97,31 +97,56 @@ def test_junction_clear_in_arrays_is_the_rules_junction_clear_for_every_road_use
     assert counts["held"] > 300 and counts["free"] > 300
 
 
-def test_stop_sign_turns_in_arrays_are_the_rules_for_every_queued_road_user():
-    """`stop_signs.turns` of every road user in a stop sign's queue, for its lane in that
-    junction, equals the rules' `stop_queue_allows` wherever the arrays say they know, in busy
-    batched traffic; they know nearly always, and both turns that have come and turns that have
-    not are among the answers."""
+def _first_come_first_served(ctl, vehicle, j_lane: str) -> bool:
+    """Stop-sign order as the rules word it, for one road user, from the slot's queue as lists:
+    it is queued at the junction of `j_lane`, and no earlier road user in the queue (other than
+    one waiting for a narrow passage) drives into a lane conflicting with `j_lane` (its lane in
+    the junction: the first on its route from the lane before its route position on; unknown
+    holds) that the box rule lets it take."""
+    net = ctl.net
+    jid = net.hdmap.lanes[j_lane].junction_id
+    queue = ctl.stop_queue.get(jid, [])
+    if vehicle not in queue:
+        return False
+    for other in queue[:queue.index(vehicle)]:
+        if any(other in w for w in ctl.passage_waiters.values()):
+            continue
+        route = other.lane_route
+        lane = next((x for x in route[max(other.route_pos - 1, 0):] if net.hdmap.lanes[x].junction_id == jid), None)
+        if lane is None or lane in net.conflicts.get(j_lane, ()) and ctl.box_clear(other, lane):
+            return False
+    return True
+
+
+def test_stop_sign_turns_are_first_come_first_served_for_every_queued_road_user():
+    """`stop_signs.turns` (stop-sign order's one program) of every road user in a stop sign's
+    queue, for its lane in that junction and for another row's lane, is first come first served
+    as the rules word it, in busy batched traffic; the rules ask it of one road user
+    (`stop_queue_allows`) and get the same; turns that have come and turns that have not are both
+    among the answers."""
     from feat2map.envs.sim import stop_signs
 
     envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=12, vectorization_mode="vector_entry_point",
                         config=BUSY_BATCH)
     envs.reset(seed=3)
     c = envs.unwrapped.core
-    t, ids = c.table, c.net.lane_ids
-    counts = {"allowed": 0, "refused": 0, "unknown": 0}
+    ids = c.net.lane_ids
+    counts = {"allowed": 0, "refused": 0}
     for _ in range(60):
         envs.step(np.ones(12, dtype=np.int64))
-        c.refresh_windows()
         rows = (c.stop_junction >= 0).nonzero()[0]
-        in_j = (c.W[rows] >= 0) & (t.lane_junction[np.maximum(c.W[rows], 0)] == c.stop_junction[rows][:, None])
-        rows, col = rows[in_j.any(axis=1)], np.argmax(in_j, axis=1)[in_j.any(axis=1)]
-        j = c.W[rows, col]
-        allowed, known = stop_signs.turns(c, rows, j)
-        want = [c.roads[c.env[r]].control.stop_queue_allows(c.objs[r], ids[lane]) for r, lane in zip(rows.tolist(), j.tolist())]
-        assert allowed[known].tolist() == np.array(want, dtype=bool)[known].tolist()
-        counts["allowed"] += int((allowed & known).sum())
-        counts["refused"] += int((~allowed & known).sum())
-        counts["unknown"] += int((~known).sum())
+        if not len(rows):
+            continue
+        own = stop_signs.lanes_in(c, rows, c.stop_junction[rows])
+        for lanes in (own, np.roll(own, 1)):  # its own lane, and another row's (mostly another junction's)
+            ok = lanes >= 0
+            r, j = rows[ok], lanes[ok]
+            allowed = stop_signs.turns(c, r, j)
+            ctl = [c.roads[c.env[x]].control for x in r.tolist()]
+            want = [_first_come_first_served(k, c.objs[x], ids[lane]) for k, x, lane in zip(ctl, r.tolist(), j.tolist())]
+            asked = [k.stop_queue_allows(c.objs[x], ids[lane]) for k, x, lane in zip(ctl, r.tolist(), j.tolist())]
+            assert allowed.tolist() == want == asked
+            counts["allowed"] += int(allowed.sum())
+            counts["refused"] += int((~allowed).sum())
     envs.close()
-    assert counts["allowed"] > 300 and counts["refused"] > 50 and counts["unknown"] < counts["refused"] / 10, counts
+    assert counts["allowed"] > 300 and counts["refused"] > 50, counts

@@ -177,27 +177,41 @@ def test_entry_into_a_steady_stream_decides_instead_of_waiting_forever(overlappi
 
 # ---- stop-sign queue: a route position that moved on ------------------------------------------
 
-def test_queue_member_that_moved_on_still_wants_its_lane_in_this_junction():
+def test_queue_member_that_moved_on_still_wants_its_lane_in_this_junction(tmp_path):
     """A route follower moves its route position onto the junction lane in the last metre before
     it; the stop-sign queue still reads that lane as the one it wants in this junction (it read
     the next junction's: a car later in the queue took a lane merging with the ego's as the ego
-    crossed its line, Shalun's sim_map r008)."""
+    crossed its line, Shalun's sim_map r008). Read alike from a row's window, from its route while
+    its window is to be rebuilt, and for a road user that is no driven row."""
     from types import SimpleNamespace
 
-    from feat2map.envs.rules import TrafficRules
+    from feat2map.envs.sim.stop_signs import _lane_on_route, lanes_in
 
     four = feat2map.JunctionFeature.make([0, 90, 180, 270], "stop", False)
     m = feat2map.generate_from_features([four, four], seed=0)
-    rules = TrafficRules()
-    rules.net = MapNetwork.from_map(m)
     j0 = next(ln for ln in m.lanes.values() if ln.junction_id == "J0" and ln.successors[0] in m.roads["R2"].lane_ids)
     link = j0.successors[0]
     j1 = next(x for x in m.lanes[link].successors if m.lanes[x].junction_id == "J1")
     route = [j0.predecessors[0], j0.id, link, j1]
-    for pos in (0, 1):
-        v = SimpleNamespace(lane_route=route, route_pos=pos)
-        assert rules._lane_in(v, "J0") == j0.id
-    assert rules._lane_in(SimpleNamespace(lane_route=route, route_pos=3), "J0") is None
+    path = tmp_path / "two.json"
+    native.save(m, path)
+    env = make_env(Scenario("two", str(path), (("J0", "R0", "R2"),), seed=0, duration=10.0),
+                   config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    core = u.road.core
+    t = core.table
+    v = u.road.spawn(route[0], 1.0, 0.0, route)
+    J0 = np.array([t.junction_number["J0"]])
+    for pos, want in ((0, j0.id), (1, j0.id), (2, j0.id), (3, None)):
+        v.route_pos = pos
+        stale = lanes_in(core, np.array([v.row]), J0)  # its window to be rebuilt: read from its route
+        core.refresh_windows()
+        fresh = lanes_in(core, np.array([v.row]), J0)
+        assert [t.index.get(want, -1)] == stale.tolist() == fresh.tolist(), pos
+    other = SimpleNamespace(lane_route=route, route_pos=1)  # a road user user code drives
+    assert _lane_on_route(core, other, int(J0[0])) == t.index[j0.id]
+    env.close()
 
 
 # ---- an approach lane shorter than a car after another junction (netconvert) -------------------

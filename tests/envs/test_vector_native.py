@@ -149,8 +149,8 @@ def scalar_code(monkeypatch) -> None:
         return out
 
     monkeypatch.setattr(core.TrafficCore, "buckets", buckets)
-    slot_by_slot = SimpleNamespace(queues=stop_signs.queues, update=lambda core_, rows: [  # each sub-env's on their own
-        stop_signs.update(core_, rows & (core_.env == k)) for k in np.unique(core_.env[rows]).tolist()])
+    slot_by_slot = SimpleNamespace(queues=stop_signs.queues, turns=stop_signs.turns, update=lambda core_, rows: [
+        stop_signs.update(core_, rows & (core_.env == k)) for k in np.unique(core_.env[rows]).tolist()])  # each slot alone
     monkeypatch.setattr(core, "stop_signs", slot_by_slot)
 
 
