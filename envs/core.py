@@ -1372,13 +1372,11 @@ class TrafficCore:
         is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
         (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
         waits; their slot's road users placed; at a stop sign, whose turn it is: `stop_signs.turns`;
-        held there, or with nothing else to stop
-        for: no crosswalk with people or light on that lane, no stop after it), those the rules hold
-        at the line (`TrafficRules.may_enter`: a reservation of the lane lets it go, else a stop
-        sign holds it unless its turn has come there, else a conflict does,
-        `entries.junction_clear`), and those that would
-        reserve the lane (let go, within commit distance of the line, the lane reserved by
-        nobody)."""
+        held there, or with nothing else to stop for: no crosswalk with people or light on that
+        lane, no stop after it), those the rules hold at the line (`TrafficRules.may_enter`: a
+        reservation of the lane lets it go, else a stop sign holds it unless its turn has come
+        there, else a conflict does, `entries.junction_clear`), and those that would reserve the
+        lane (let go, within commit distance of the line, the lane reserved by nobody)."""
         n = len(rows)
         none = np.zeros(n, dtype=bool)
         if self.net.swept or not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
@@ -1696,8 +1694,9 @@ class TrafficCore:
         env = self.env[rows]
         n = len(x)
         if objects:
-            x = np.concatenate([x, [o.position[0] for o in objects]])
-            y = np.concatenate([y, [o.position[1] for o in objects]])
+            places = [o.position for o in objects]  # (a view's position is made on each read)
+            x = np.concatenate([x, [p[0] for p in places]])
+            y = np.concatenate([y, [p[1] for p in places]])
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])

@@ -606,8 +606,8 @@ class TrafficRules:
         """Arrival order: `vehicle` is in the queue of the junction of `junction_lane` and no
         earlier road user in it wants a conflicting lane and may take it: `sim.stop_signs.turns`
         (`TrafficCore.stop_turns`) asked of this one road user where one came before it (a road
-        user not in the queue, or first in it, is answered from the queue's view: the single
-        env asks about 3.5 times a step, nearly always so)."""
+        user not in the queue, or first in it, is answered from the queue's view: nearly every
+        call of the single env, which asks without the core's arrays)."""
         queue = self.stop_queue.get(self.net.hdmap.lanes[junction_lane].junction_id, ())
         if vehicle not in queue:
             return False

@@ -15,7 +15,6 @@ autoreset next-step by default, `autoreset_mode` honoured, info as arrays with "
 from __future__ import annotations
 
 import contextlib
-
 from copy import deepcopy
 from typing import Any
 
