@@ -73,13 +73,13 @@ import contextlib
 import math
 from collections import deque
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
-                      STOP_POINT_M)
+                      PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import signal_arrays, states_at
 from .lanes import curve_speeds
@@ -602,8 +602,9 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
-        # `_signals_at_clock` while a frame's rules ask (() until first asked), None between frames
-        self._signals_now: tuple | None = None
+        # what a frame's rule questions read while they ask (the rows stand still then; `asked`),
+        # made when first asked; None between frames
+        self._asking: dict | None = None
         self._observing: tuple | None = None  # (row places, scans, leader gaps) while envs observe (`observing`)
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
         # walking direction, speed and metres left to the crosswalk's far end
@@ -888,6 +889,7 @@ class TrafficCore:
             self.locate(np.array([i]))
         else:
             self._place_rows(np.array([i]))
+        self._forget_buckets([int(self.env[i])])  # (the rules' lane buckets show it where it is now)
 
     def set_route(self, i: int, lane_ids: list[str]) -> None:
         self.route_ids[i] = lane_ids
@@ -1059,11 +1061,11 @@ class TrafficCore:
         v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
         fi, gap, vl = self._leaders(traffic.nonzero()[0])
         jam = np.full(len(fi), IDM_GAP_M)
-        self._signals_now = ()  # the frame's rule questions read the signals at one clock (made when first asked)
+        self._asking = {}
         try:
             sd = self._rule_stops(traffic)
         finally:
-            self._signals_now = None
+            self._asking = None
         si = (sd < math.inf).nonzero()[0]
         if len(si):
             sd = sd[si]
@@ -1320,6 +1322,20 @@ class TrafficCore:
         slot, lane = np.nonzero(self.res != NONE)
         return slot * self.res.shape[1] + lane, self.res[slot, lane].astype(np.int64)
 
+    def lanes_clear(self, slot: int, vehicle: Any, lanes: Iterable[str], priority: bool = True,
+                    margin: float = PRIORITY_MARGIN_M) -> np.ndarray:
+        """`sim.entries.junction_clear` of each of junction lanes `lanes` (ids) for road user
+        `vehicle` of `slot` (None: nobody): what `TrafficRules.junction_clear` and
+        `cross_traffic_near` ask."""
+        j = np.array([self.table.index[x] for x in lanes], dtype=np.int64)
+        me = self.row_of(vehicle) if vehicle is not None else NONE
+        if me == LEFT:  # an external road user, or none of the rows
+            me = next((i for i in self._external if self.objs[i] is vehicle), NONE)
+        held = np.nonzero(self.res[slot] != NONE)[0]
+        return entries.junction_clear(self, np.full(len(j), slot), np.full(len(j), me), j,
+                                      slot * self.res.shape[1] + held, self.res[slot, held].astype(np.int64),
+                                      self._approach_held, priority=priority, margin=margin, one=slot)
+
     def row_of(self, obj: Any) -> int:
         """The row of road user `obj` (LEFT: none; only rows hold reservations)."""
         r = getattr(obj, "_row", LEFT) if getattr(obj, "_core", None) is self else LEFT
@@ -1371,7 +1387,7 @@ class TrafficCore:
         """(answered, refused, takes), masks over the rows: the rows among `rows` (whose first stop
         is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
         (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
-        waits; their slot's road users placed; at a stop sign, whose turn it is: `stop_signs.turns`;
+        waits; at a stop sign, whose turn it is: `stop_signs.turns`;
         held there, or with nothing else to stop for: no crosswalk with people or light on that
         lane, no stop after it), those the rules hold at the line (`TrafficRules.may_enter`: a
         reservation of the lane lets it go, else a stop sign holds it unless its turn has come
@@ -1385,7 +1401,7 @@ class TrafficCore:
         nl = len(t.length)
         et = entries.entry_table(self.net, t)
         stop = t.line_kind[in_lane] == LINE_STOP_SIGN
-        answer = rows & et.simple[j_lane] & entries.placed(self)[self.env]
+        answer = rows & et.simple[j_lane]
         turn = np.zeros(n, dtype=bool)  # at the entry's stop sign, and its turn
         sign = (answer & stop).nonzero()[0]
         if len(sign):
@@ -1403,7 +1419,8 @@ class TrafficCore:
         no = stop[r] & ~mine & ~turn[r]
         ask = ~mine & ~no
         if ask.any():
-            no[ask] = ~entries.junction_clear(self, r[ask], j_lane[r[ask]], held_key, held_row, self._approach_held)
+            a = r[ask]
+            no[ask] = ~entries.junction_clear(self, self.env[a], a, j_lane[a], held_key, held_row, self._approach_held)
         stops = sc.what[r] != 0
         more = (stops.sum(axis=1) > 1) | (sc.what[r, np.argmax(stops, axis=1)] != ENTRY)  # let go, it walks on: the rules answer
         answer[r[~no & more]] = False
@@ -1425,11 +1442,19 @@ class TrafficCore:
     def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
         """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
         into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
-        now = self._signals_now or self._signals_at_clock()
-        if self._signals_now == ():  # the first question of a frame: kept for the others
-            self._signals_now = now
-        times, arrays = now
+        times, arrays = self.asked(("signals",), self._signals_at_clock)  # (one clock for the frame's questions)
         return states_at(times[slots], arrays[slots, :, signals].T)
+
+    def asked(self, key: tuple, make: Callable[[], Any]) -> Any:
+        """`make()`, kept under `key` for the other questions of a frame's rules while they ask
+        (`_asking`: the rows stand still then, and only reservations change)."""
+        memo = self._asking
+        if memo is None:
+            return make()
+        out = memo.get(key)
+        if out is None:
+            out = memo[key] = make()
+        return out
 
     def _signals_at_clock(self) -> tuple[np.ndarray, np.ndarray]:
         """(every slot's clock, `_signal_arrays`): what `_signal_states` reads, now."""

@@ -470,19 +470,17 @@ class TrafficRules:
     def junction_clear(self, junction_lane: str, vehicle=None) -> bool:
         """No conflicting junction lane is occupied or reserved, and no vehicle with priority
         (straight/right over left turns) is about to enter one from an approach allowed to go."""
-        net = self.net
-        mine = net.lane_of[junction_lane].priority
-        for c in net.conflicts.get(junction_lane, ()):
-            if self.occupied(c, vehicle):
-                return False
-            if net.lane_of[c].priority <= mine:
-                continue
-            for p in net.hdmap.lanes[c].predecessors:
-                if self._held(p):
-                    continue
-                if self.about_to_enter(p, c, vehicle, margin=PRIORITY_MARGIN_M):
-                    return False
-        return True
+        return self.lanes_clear((junction_lane,), vehicle)
+
+    def lanes_clear(self, lanes: Sequence[str], vehicle=None, priority: bool = True,
+                    margin: float = PRIORITY_MARGIN_M) -> bool:
+        """`junction_clear` of every junction lane of `lanes` for `vehicle` (None: nobody): the one
+        program `sim.entries.junction_clear`, asked of one road user (`TrafficCore.lanes_clear`).
+        With `priority` False, `cross_traffic_near`'s test with `margin`."""
+        if not lanes:
+            return True
+        road = self.road
+        return bool(road.core.lanes_clear(road.slot, vehicle, lanes, priority, margin).all())
 
     def box_clear(self, vehicle, junction_lane: str) -> bool:
         """Don't block the box: a vehicle whose wait at the next junction's line would leave it
@@ -493,8 +491,11 @@ class TrafficRules:
         box: its lanes in every junction up to the first road with room to wait must be clear
         (Town04's 1249, 870 and 483, 3.6 m and 1.5 m apart: a car waiting inside 1249 for 483
         and one waiting inside 483 for 1249 locked up)."""
-        return all(self.junction_clear(x, vehicle) for x in
-                   route_memo(vehicle, ("box", junction_lane), lambda: self._box_lanes(vehicle, junction_lane)))
+        return self.lanes_clear(self.box_lanes(vehicle, junction_lane), vehicle)
+
+    def box_lanes(self, vehicle, junction_lane: str) -> tuple[str, ...]:
+        """`box_clear`'s lanes (a `route_memo` of the vehicle's)."""
+        return route_memo(vehicle, ("box", junction_lane), lambda: self._box_lanes(vehicle, junction_lane))
 
     def _box_lanes(self, vehicle, junction_lane: str) -> tuple[str, ...]:
         """`box_clear`'s lanes after `junction_lane` on the vehicle's route: the first one in
@@ -524,29 +525,10 @@ class TrafficRules:
         sl = self.net.stop_lines.get(approach)
         return sl is not None and (sl.kind == "stop" or self.signal_state(sl.control_id) == "red")
 
-    def about_to_enter(self, approach: str, lane_id: str, exclude=None, margin: float = PRIORITY_MARGIN_M) -> bool:
-        """A route follower on lane `approach` (other than `exclude`) drives into `lane_id` next
-        and reaches it within PRIORITY_HORIZON_S at its speed, plus `margin` metres."""
-        lane = self.net.lane_of.get(approach)
-        if lane is None:
-            return False
-        for v in self.buckets.get(approach, ()):
-            if v is not exclude and enters_next(v, lane_id) and not self.waits_for(v, exclude):
-                d = lane.length - v.s_on(approach)
-                if d < PRIORITY_HORIZON_S * max(v.speed, 0.0) + margin:
-                    return True
-        return False
-
     def cross_traffic_near(self, vehicle, junction_lane: str, margin: float) -> bool:
         """A conflicting lane is occupied or reserved, or a vehicle (whatever its priority) is
         about to enter one: a right turn on red yields to every approach that has green."""
-        net = self.net
-        for c in net.conflicts.get(junction_lane, ()):
-            if self.occupied(c, vehicle):
-                return True
-            if any(self.about_to_enter(p, c, vehicle, margin=margin) for p in net.hdmap.lanes[c].predecessors):
-                return True
-        return False
+        return not self.lanes_clear((junction_lane,), vehicle, priority=False, margin=margin)
 
     def yields_to_reservation(self, other, lane_id: str) -> bool:
         """Whether road user `other`, heading into junction lane `lane_id` from the road lane
@@ -657,8 +639,7 @@ class TrafficRules:
         if j_lane in self.net.yield_entries and "conflict" not in ignore and self.yield_held(vehicle, j_lane):
             return False
         chain = self.junction_chain(vehicle, j_lane)
-        if "conflict" not in ignore and not (all(self.junction_clear(x, vehicle) for x in chain)
-                                             and self.box_clear(vehicle, j_lane)):
+        if "conflict" not in ignore and not self.lanes_clear(chain + self.box_lanes(vehicle, j_lane), vehicle):
             return False
         if take and claims is not None and commits(d_line, vehicle.speed) and j_lane not in self.reservations:
             claims.append(("reserve", j_lane, chain))

@@ -1,17 +1,18 @@
-"""The junction-entry question for many road users at once: whether each may drive past its
-line into its next junction lane now (`rules.TrafficRules.may_enter`'s conflict rule,
-`junction_clear`), answered for every row of every slot with a few array operations against the
-state the frame began with (the rules' questions are pure: `control.TrafficControl.claim` is
-where a road user takes a lane, after every row has asked). `TrafficCore._entry_answers` asks it
-of the rows whose first stop is a junction entry; an entry the arrays cannot answer exactly (a
-yield sign, a junction lane chained to the next, a box to keep clear, a stop sign's queue, a
-narrow passage) is asked of the rules one row at a time.
+"""The conflict rule at a junction entry, one program for every question: whether junction lane
+`j` is clear for a road user (`rules.TrafficRules.junction_clear`, and with every conflicting
+lane and approach `cross_traffic_near`), for many questions of many slots at once or one road
+user's (`TrafficCore.lanes_clear`, what the rules ask), against the state as it is (a frame's
+questions see the state the frame began with: the rules' questions are pure,
+`control.TrafficControl.claim` is where a road user takes a lane, after every row has asked).
+`TrafficCore._entry_answers` asks it of the rows whose first stop is a junction entry; an entry
+whose other rules the arrays do not answer (a yield sign, a junction lane chained to the next, a
+box to keep clear, a narrow passage) is asked of the rules one row at a time, which ask it here.
 
 A junction lane is clear for a road user while no lane conflicting with it is occupied (a road
 user located on it, or its reservation held by another) and no road user heading into a
 conflicting lane of higher priority from an approach that may go (not held by a stop sign or a
-red signal) reaches the end of its approach lane within PRIORITY_HORIZON_S at its speed plus
-PRIORITY_MARGIN_M.
+red signal) reaches the end of the lane it is on within PRIORITY_HORIZON_S at its speed plus
+PRIORITY_MARGIN_M, unless it waits for a narrow passage the asking road user holds.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from ...config import PRIORITY_HORIZON_S, PRIORITY_MARGIN_M
+from ..reservations import NONE
 from ..rules import line_setback, room_to_wait
 
 if TYPE_CHECKING:
@@ -33,15 +35,19 @@ BOX_LENGTH_M = 30.0  # a body at most this long waits on a road with no box befo
 
 @dataclass(frozen=True)
 class EntryTable:
-    """Per lane (CSR over the network's lane indices): its conflicting lanes, whether each has
-    the higher priority, each lane's predecessors, and whether the arrays answer an entry into it
-    (`simple`)."""
+    """Per lane (CSR over the network's lane indices): its conflicting lanes; the (conflicting
+    lane, one of its approaches) pairs of the conflicting lanes of higher priority (`come`) and of
+    every conflicting lane (`cross`), where road users about to enter count; and whether the
+    arrays answer an entry into it (`simple`)."""
 
     conf_ptr: np.ndarray
     conf_lane: np.ndarray
-    conf_higher: np.ndarray
-    pred_ptr: np.ndarray
-    pred_lane: np.ndarray
+    come_ptr: np.ndarray
+    come_lane: np.ndarray
+    come_from: np.ndarray
+    cross_ptr: np.ndarray
+    cross_lane: np.ndarray
+    cross_from: np.ndarray
     simple: np.ndarray
     conf_key: np.ndarray  # lane * lanes + conflicting lane of every conflict, sorted
 
@@ -53,21 +59,30 @@ def entry_table(net: "MapNetwork", table: "LaneTable") -> EntryTable:
 
 def _build(net: "MapNetwork", table: "LaneTable") -> EntryTable:
     ids, index, lanes = net.lane_ids, table.index, net.hdmap.lanes
-    conf_ptr, conf_lane, conf_higher, pred_ptr, pred_lane = [0], [], [], [0], []
+    conf: list[list[int]] = []
+    come: list[list[tuple[int, int]]] = []
+    cross: list[list[tuple[int, int]]] = []
     for lid in ids:
         mine = net.lane_of[lid].priority
-        for c in net.conflicts.get(lid, ()):
-            conf_lane.append(index[c])
-            conf_higher.append(net.lane_of[c].priority > mine)
-        conf_ptr.append(len(conf_lane))
-        pred_lane += [index[p] for p in lanes[lid].predecessors if p in index]
-        pred_ptr.append(len(pred_lane))
+        conf.append([index[c] for c in net.conflicts.get(lid, ())])
+        cross.append([(index[c], index[p]) for c in net.conflicts.get(lid, ()) for p in lanes[c].predecessors
+                      if p in index])
+        come.append([(c, p) for c, p in cross[-1] if net.lane_of[ids[c]].priority > mine])
     simple = np.array([lanes[lid].junction_id is not None and lid not in net.yield_entries
                        and not _chains(net, lid) and not _boxed(net, lid) for lid in ids], dtype=bool)
-    as_int = lambda a: np.array(a, dtype=np.int64)  # noqa: E731
+    conf_ptr, conf_lane = _csr(conf)
+    come_ptr, come_pairs = _csr(come)
+    cross_ptr, cross_pairs = _csr(cross)
     owner = np.repeat(np.arange(len(ids)), np.diff(conf_ptr))
-    return EntryTable(as_int(conf_ptr), as_int(conf_lane), np.array(conf_higher, dtype=bool), as_int(pred_ptr),
-                      as_int(pred_lane), simple, np.sort(owner * len(ids) + as_int(conf_lane)))
+    pair = lambda a: a.reshape(-1, 2).T  # noqa: E731
+    return EntryTable(conf_ptr, conf_lane, come_ptr, *pair(come_pairs), cross_ptr, *pair(cross_pairs), simple,
+                      np.sort(owner * len(ids) + conf_lane))
+
+
+def _csr(rows: list[list]) -> tuple[np.ndarray, np.ndarray]:
+    """(row pointers, the items of every row one after another) of lists of lane indices (or pairs)."""
+    ptr = np.cumsum([0] + [len(r) for r in rows])
+    return ptr.astype(np.int64), np.array([x for r in rows for x in r], dtype=np.int64).ravel()
 
 
 def _chains(net: "MapNetwork", lid: str) -> bool:
@@ -110,71 +125,102 @@ def _boxed(net: "MapNetwork", lid: str) -> bool:
     return False
 
 
-def junction_clear(core, rows: np.ndarray, j: np.ndarray, held_key: np.ndarray, held_row: np.ndarray,
-                   held_at: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
-    """Per row of `rows`, `TrafficRules.junction_clear` of its junction lane `j` (lane indices)
-    with the rows of its slot as they are now (`TrafficCore.where_lanes`: the rules' buckets), the
-    reservations at keys `held_key` (slot * lanes + lane, sorted) held by rows `held_row` (-2: a
-    road user no longer a row) and `held_at(slots, lanes)`: whether an approach is held (a stop
-    sign, a red signal). The rows' slots hold no road user the arrays cannot place (`placed`)."""
+def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, held_key: np.ndarray,
+                   held_row: np.ndarray, held_at: Callable[[np.ndarray, np.ndarray], np.ndarray], *,
+                   priority: bool = True, margin: float = PRIORITY_MARGIN_M, one: int = NONE) -> np.ndarray:
+    """Per question k, whether junction lane `j[k]` (a lane index) is clear for road user `me[k]`
+    (a row; NONE: nobody) of slot `slots[k]`, with the road users of that slot as they are now
+    (`TrafficCore.where_lanes`: the rules' buckets), the reservations at keys `held_key` (slot *
+    lanes + lane, sorted) held by rows `held_row` (LEFT: a road user no longer a row) and
+    `held_at(slots, lanes)`: whether an approach is held (a stop sign, a red signal). With
+    `priority` False, `TrafficRules.cross_traffic_near`'s test: every conflicting lane counts,
+    from every approach, held or not. `one`: the slot of every question, where all are of one
+    (only its rows are read), else NONE."""
     et = entry_table(core.net, core.table)
     nl = len(core.table.length)
-    slot = core.env[rows]
-    at = core.where_lanes()
-    # (asking row, conflicting lane) pairs: a road user located on it, or its reservation held by another
+    clear = np.ones(len(j), dtype=bool)
+    if not len(j):
+        return clear
+    rows, at, located = core.asked(("located", one), lambda: _located(core, one, nl))
+    # (question, conflicting lane) pairs: a road user located on it, or its reservation held by another
     q, e = _expand(et.conf_ptr, j)
     c = et.conf_lane[e]
-    key = slot[q] * nl + c
-    located = (at >= 0).nonzero()[0]
-    blocked = _count(np.sort(core.env[located] * nl + at[located]), key) > (at[rows[q]] == c)
+    key = slots[q] * nl + c
+    mine = np.where(me >= 0, core.where_lanes(np.maximum(me, 0)), NONE)  # (the asker's own place)
+    blocked = _count(located, key) > (mine[q] == c)
     if len(held_key):
         k = np.searchsorted(held_key, key).clip(max=len(held_key) - 1)
-        blocked |= (held_key[k] == key) & (held_row[k] != rows[q])
-    # (asking row, higher-priority conflicting lane, its approach) triples: a road user about to enter
-    high = et.conf_higher[e].nonzero()[0]
-    h, f = _expand(et.pred_ptr, c[high])
-    hq, hc, p = q[high][h], c[high][h], et.pred_lane[f]
-    go = ~held_at(slot[hq], p)
-    if go.any():
-        hq, hc, p = hq[go], hc[go], p[go]
-        near, keys = _about(core, at, nl)
-        hk = (slot[hq] * nl + p) * nl + hc
-        me = rows[hq]
-        nxt = _next_two(core.W)
-        own = near[me] & (at[me] == p) & ((nxt[me, 0] == hc) | (nxt[me, 1] == hc))  # (it is no other)
-        clear_of = _count(keys, hk) <= own
-    else:
-        hq, clear_of = hq[:0], np.ones(0, dtype=bool)
-    clear = np.ones(len(rows), dtype=bool)
+        blocked |= (held_key[k] == key) & (held_row[k] != me[q])
     clear[q[blocked]] = False
-    clear[hq[~clear_of]] = False
+    # (question, conflicting lane, its approach) triples: a road user about to enter the lane
+    ptr, lane, approach = (et.come_ptr, et.come_lane, et.come_from) if priority else \
+        (et.cross_ptr, et.cross_lane, et.cross_from)
+    hq, f = _expand(ptr, j)
+    hc, p = lane[f], approach[f]
+    if priority:
+        go = ~held_at(slots[hq], p)
+        hq, hc, p = hq[go], hc[go], p[go]
+    if not len(hq):
+        return clear
+    keys, who = core.asked(("comers", one, margin), lambda: _comers(core, rows, at, nl, margin))
+    hk = (slots[hq] * nl + p) * nl + hc
+    t, m = expand_ranges(np.searchsorted(keys, hk, side="left"), np.searchsorted(keys, hk, side="right"))
+    asker, comer = me[hq[t]], who[m]
+    keep = comer != asker
+    if core.net.passages:  # one waiting for a narrow passage the asker holds comes no nearer
+        for x in (keep & (asker >= 0)).nonzero()[0].tolist():
+            keep[x] = not core.roads[core.env[comer[x]]].control.waits_for(core.objs[comer[x]], core.objs[asker[x]])
+    clear[hq[t[keep]]] = False
     return clear
 
 
-def placed(core) -> np.ndarray:
-    """Per slot, whether the arrays place every road user the rules would ask about: each driven
-    row on its route lane (a controlled row located off it is where the rules project it) and no
-    external road user that follows a route."""
-    ok = np.ones(len(core.roads), dtype=bool)
-    off = core.driven & (core.where_lanes() != core.lane)
-    ok[core.env[off]] = False
-    for i in core._external:
-        if getattr(core.objs[i], "lane_route", None) is not None:
-            ok[core.env[i]] = False
-    return ok
+def _located(core, slot: int, nl: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the rows of `slot` (NONE: every row), the lane each is on, the sorted keys slot * lanes +
+    lane of those on a lane)."""
+    rows = core.slot_rows(slot) if slot != NONE else np.arange(len(core.objs))
+    at = core.where_lanes(rows)
+    on = at >= 0
+    return rows, at, np.sort(core.env[rows[on]] * nl + at[on])
 
 
-def _about(core, at: np.ndarray, nl: int) -> tuple[np.ndarray, np.ndarray]:
-    """(per row: near the end of its lane, the sorted keys (slot, lane, next lane) of the driven
-    rows near the end of the lane they are on that drive into `next lane` next (either of their
-    next two route lanes, `rules.enters_next`): `TrafficRules.about_to_enter`'s road users."""
-    d = core.table.length[np.maximum(at, 0)] - core.s
-    near = core.driven & (at >= 0) & (d < PRIORITY_HORIZON_S * np.maximum(core.speed, 0.0) + PRIORITY_MARGIN_M)
-    r = near.nonzero()[0]
-    base = (core.env[r] * nl + at[r]) * nl
-    nxt = _next_two(core.W)[r]
-    keys = np.concatenate([base + nxt[:, 0], (base + nxt[:, 1])[nxt[:, 1] >= 0]])
-    return near, np.sort(keys)
+def _comers(core, rows: np.ndarray, at: np.ndarray, nl: int, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """(sorted keys (slot, lane, next lane), their rows) of the road users among `rows` (located on
+    lanes `at`) that follow a route, drive into `next lane` next (either of their next two route
+    lanes, `rules.enters_next`) and reach the end of the lane they are on within
+    PRIORITY_HORIZON_S at their speed plus `margin`: road users about to enter a lane. A driven
+    row is read from its row (a controlled one where it is located, `at_s`; a window to be
+    rebuilt from its route), an external road user from its object."""
+    ids = core.net.lane_ids
+    driven = core.driven[rows]
+    follows = driven & (at >= 0)
+    nxt = _next_two(core.W)[rows]
+    s, speed = np.where(core.controlled[rows], core.at_s[rows], core.s[rows]), core.speed[rows]
+    if core.dirty or core._external:
+        speed = speed.copy()
+        for x in (np.isin(rows, list(core.dirty)) & driven).nonzero()[0].tolist() if core.dirty else ():
+            i = int(rows[x])
+            nxt[x] = _two(core.routes[i][core.route_pos[i]:core.route_pos[i] + 2])
+        for x in (~driven & (at >= 0)).nonzero()[0].tolist():
+            o = core.objs[rows[x]]
+            route = getattr(o, "lane_route", None)
+            if route:
+                follows[x] = True
+                nxt[x] = _two([core.table.index.get(lid, -1) for lid in route[o.route_pos:o.route_pos + 2]])
+                s[x], speed[x] = o.s_on(ids[at[x]]), o.speed
+    d = core.table.length[np.maximum(at, 0)] - s
+    near = (follows & (d < PRIORITY_HORIZON_S * np.maximum(speed, 0.0) + margin)).nonzero()[0]
+    base = (core.env[rows[near]] * nl + at[near]) * nl
+    nxt = nxt[near]
+    real = (nxt >= 0).T.ravel()
+    keys = np.concatenate([base + nxt[:, 0], base + nxt[:, 1]])[real]
+    who = np.concatenate([rows[near], rows[near]])[real]
+    order = np.argsort(keys, kind="stable")
+    return keys[order], who[order]
+
+
+def _two(lanes: list[int]) -> list[int]:
+    """Route lanes as a row of `_next_two` (-1 padded)."""
+    return (list(lanes) + [-1, -1])[:2]
 
 
 def _next_two(W: np.ndarray) -> np.ndarray:
@@ -189,6 +235,9 @@ def _expand(ptr: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def expand_ranges(start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(owner, index) of every index in [start[k], end[k]) for each k, grouped by owner."""
+    if len(start) == 1:  # (one range: the same, in two operations)
+        idx = np.arange(start[0], end[0])
+        return np.zeros(len(idx), dtype=np.int64), idx
     cnt = end - start
     owner = np.repeat(np.arange(len(start)), cnt)
     return owner, np.repeat(start - (np.cumsum(cnt) - cnt), cnt) + np.arange(int(cnt.sum()))

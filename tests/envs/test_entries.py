@@ -1,16 +1,21 @@
 """The junction-entry question in arrays (`envs/sim/entries.py`): every answer the batch takes
 from the arrays is the rules' own answer (`TrafficRules.stop_distance`, asked of that road user
-at that moment), in busy batched traffic with signals, stop signs and pedestrians."""
+at that moment), in busy batched traffic with signals, stop signs and pedestrians; the conflict
+rule and stop-sign order, each one program, answer as the rules word them (rule_specs.py)."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from highway_env.vehicle.kinematics import Vehicle
 
 import feat2map  # noqa: F401  (registers the ids)
 from feat2map.envs import core
+from feat2map.envs.vehicles import RouteFollower
+from rule_specs import check_conflict_questions, first_come_first_served, junction_lanes_ahead
 
 BUSY_BATCH = {"simulation_frequency": 10, "policy_frequency": 5, "traffic_vehicles": 14, "route_junctions": 3,
               "pedestrian_rate": 20}
@@ -50,72 +55,80 @@ def test_the_arrays_answer_junction_entries_as_the_rules_do(monkeypatch):
     assert got == pytest.approx(want, abs=1e-9)
 
 
-def test_junction_clear_in_arrays_is_the_rules_junction_clear_for_every_road_user():
-    """`entries.junction_clear` of every road user's next junction lane on its scan, whatever its
-    distance to the line, equals the rules' `junction_clear` asked of it, in busy batched
-    traffic, and again with reservations planted on conflicting lanes (held by another road
-    user, by the road user itself, by one that left the road): each of occupancy, reservations
-    and road users about to enter a lane of higher priority decides some answers alone."""
-    from feat2map.envs.rules import ENTRY
-    from feat2map.envs.sim import entries, rule_scan
-
+def test_the_conflict_rule_is_as_worded_in_busy_batched_traffic():
+    """`TrafficCore.lanes_clear` (the conflict rule's one program, `entries.junction_clear`) of
+    every road user of every slot, and of nobody, for the junction lanes ahead on its route and
+    others, with priority and as cross traffic, is the rule as worded, in busy batched traffic,
+    and again with reservations planted on conflicting lanes (held by another road user, by the
+    road user itself, by one that left the road); every slot asked at once answers the same.
+    Each of occupancy, reservations and road users about to enter decides some answers."""
     envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=12, vectorization_mode="vector_entry_point",
                         config=BUSY_BATCH)
     envs.reset(seed=2)
     c = envs.unwrapped.core
-    net, rng = c.net, np.random.default_rng(0)
-    ids = net.lane_ids
+    net, rng, why = c.net, np.random.default_rng(0), Counter()
     gone = object()  # a holder that is no road user now
-    counts = {"held": 0, "free": 0}
-    for step in range(60):
+    for step in range(40):
         envs.step(np.ones(12, dtype=np.int64))
-        c.refresh_windows()
-        sc = rule_scan.scan(c)
-        entry = (sc.what & ENTRY) != 0
-        rows = (entry.any(axis=1) & c.driven & entries.placed(c)[c.env]).nonzero()[0]
-        j = sc.lanes[rows, np.argmax(entry[rows], axis=1)]
         planted = []
         if step % 3 == 0:  # reservations on lanes conflicting with some road users' lanes
-            for r, lane in zip(rows[::4].tolist(), j[::4].tolist()):
+            for r in c.driven.nonzero()[0][::5].tolist():
                 ctl = c.roads[c.env[r]].control
-                conflicts = sorted(net.conflicts.get(ids[lane], ()))
+                ahead = junction_lanes_ahead(net, c.objs[r])
+                conflicts = sorted(net.conflicts.get(ahead[0], ())) if ahead else []
                 if conflicts:
                     x = conflicts[rng.integers(len(conflicts))]
                     if x not in ctl.reservations:
                         holder = [c.objs[r], gone, c.objs[rng.choice(c.slot_rows(int(c.env[r])))]][rng.integers(3)]
                         ctl.reservations[x] = holder
                         planted.append((ctl, x))
-        key, row = c.held_reservations()
-        got = entries.junction_clear(c, rows, j, key, row, c._approach_held)
-        want = [c.roads[c.env[r]].control.junction_clear(ids[lane], c.objs[r]) for r, lane in zip(rows.tolist(), j.tolist())]
-        assert got.tolist() == want, f"step {step}"
-        counts["held"] += int((~got).sum())
-        counts["free"] += int(got.sum())
+        check_conflict_questions(c, rng, why)
         for ctl, x in planted:
             del ctl.reservations[x]
     envs.close()
-    assert counts["held"] > 300 and counts["free"] > 300
+    assert min(why["reserved"], why["occupied"], why["coming"]) > 100 and why["clear"] > 1000, why
 
 
-def _first_come_first_served(ctl, vehicle, j_lane: str) -> bool:
-    """Stop-sign order as the rules word it, for one road user, from the slot's queue as lists:
-    it is queued at the junction of `j_lane`, and no earlier road user in the queue (other than
-    one waiting for a narrow passage) drives into a lane conflicting with `j_lane` (its lane in
-    the junction: the first on its route from the lane before its route position on; unknown
-    holds) that the box rule lets it take."""
-    net = ctl.net
-    jid = net.hdmap.lanes[j_lane].junction_id
-    queue = ctl.stop_queue.get(jid, [])
-    if vehicle not in queue:
-        return False
-    for other in queue[:queue.index(vehicle)]:
-        if any(other in w for w in ctl.passage_waiters.values()):
-            continue
-        route = other.lane_route
-        lane = next((x for x in route[max(other.route_pos - 1, 0):] if net.hdmap.lanes[x].junction_id == jid), None)
-        if lane is None or lane in net.conflicts.get(j_lane, ()) and ctl.box_clear(other, lane):
-            return False
-    return True
+class _RouteCarrier(RouteFollower, Vehicle):
+    """A road user of user code's own class (a highway-env body driving straight on) that follows
+    a lane route: an external row, which the rules read from its object."""
+
+    def __init__(self, road, lane_id: str, s: float, speed: float, route: list[str]) -> None:
+        lane = road.network.lane_of[lane_id]
+        super().__init__(road, lane.position(s, 0.0), lane.heading_at(s), speed)
+        self.init_route(route)
+
+
+def test_the_conflict_rule_is_as_worded_for_a_steering_ego_and_road_users_user_code_adds():
+    """The same for the single env with an ego steered at random and now and then put by user
+    code near the end of another junction's approach (a controlled row located off its route
+    lane counts where it is), among traffic and road users of user code's own class that carry a
+    lane route, driving straight into a junction (external road users: read from their objects)."""
+    env = gym.make("feat2map/JunctionGrid-v0", config={
+        **BUSY_BATCH, "traffic_vehicles": 10, "action": {"type": "ContinuousAction"}})
+    env.reset(seed=4)
+    u = env.unwrapped
+    net, rng, why = u.net, np.random.default_rng(1), Counter()
+    straight = [x for x in net.lane_ids if net.hdmap.lanes[x].junction_id is not None and net.hdmap.lanes[x].turn == "none"]
+    for step in range(120):
+        if step % 4 == 0:
+            into = straight[rng.integers(len(straight))]
+            before = net.hdmap.lanes[into].predecessors[0]
+            u.road.vehicles.append(_RouteCarrier(u.road, before, net.lane_of[before].length - 12.0, 6.0, [before, into]))
+        if step % 4 == 2:  # the ego 3 m before the end of that approach, its route on into the junction
+            lane = net.lane_of[before]
+            u.vehicle.position = lane.position(lane.length - 3.0, 0.0)
+            u.vehicle.heading, u.vehicle.speed = lane.heading_at(lane.length - 3.0), 6.0
+            u.vehicle.on_state_update()
+            if step % 8 == 2:  # its route position already on the junction lane (located off it)
+                u.road.core.reroute(u.vehicle._row, [before, into], 1)
+            check_conflict_questions(u.road.core, rng, why)  # (where user code put it)
+        _, _, term, trunc, _ = env.step(rng.uniform(-1.0, 1.0, 2).astype(np.float32))
+        if term or trunc:
+            env.reset(seed=int(step))
+        check_conflict_questions(u.road.core, rng, why)
+    env.close()
+    assert why["off its route lane"] > 50 and why["coming, added by user code"] > 5 and why["coming"] > 200, why
 
 
 def test_stop_sign_turns_are_first_come_first_served_for_every_queued_road_user():
@@ -143,7 +156,7 @@ def test_stop_sign_turns_are_first_come_first_served_for_every_queued_road_user(
             r, j = rows[ok], lanes[ok]
             allowed = stop_signs.turns(c, r, j)
             ctl = [c.roads[c.env[x]].control for x in r.tolist()]
-            want = [_first_come_first_served(k, c.objs[x], ids[lane]) for k, x, lane in zip(ctl, r.tolist(), j.tolist())]
+            want = [first_come_first_served(k, c.objs[x], ids[lane]) for k, x, lane in zip(ctl, r.tolist(), j.tolist())]
             asked = [k.stop_queue_allows(c.objs[x], ids[lane]) for k, x, lane in zip(ctl, r.tolist(), j.tolist())]
             assert allowed.tolist() == want == asked
             counts["allowed"] += int(allowed.sum())

@@ -531,3 +531,29 @@ def test_junction_before_a_far_passage_wait_is_reserved(bare_bridge):
     assert net.lane_of["1_0_1"].length - car.s_on("1_0_1") + net.lane_of[into].length < wait < math.inf  # beyond junction 1
     assert ctl.reservations.get(into) is car and car.reserved == into
     env.close()
+
+
+def test_the_conflict_rule_passes_over_road_users_waiting_for_a_passage_the_asker_holds(bridge):
+    """The conflict rule (`TrafficCore.lanes_clear`) is as worded on the bridge map in busy
+    traffic: a road user near its line that waits for the bridge someone holds is no traffic
+    about to enter for that one (GoMentum r034)."""
+    from collections import Counter
+
+    from rule_specs import check_conflict_questions
+
+    sc = Scenario("bridge", str(bridge), (("1", "1", "3"), ("2", "3", "6")), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 12})
+    obs, info = env.reset(seed=0)
+    from feat2map.scenarios.planner import BaselinePlanner
+
+    planner = BaselinePlanner()
+    planner.reset(env)
+    rng, why = np.random.default_rng(0), Counter()
+    for _ in range(300):
+        obs, _, term, trunc, info = env.step(planner.act(obs, info))
+        check_conflict_questions(env.unwrapped.road.core, rng, why)
+        if term or trunc:
+            obs, info = env.reset(seed=int(rng.integers(100)))
+            planner.reset(env)
+    env.close()
+    assert why["passage waiter"] > 0 and why["coming"] > 20, why

@@ -1,0 +1,115 @@
+"""The traffic rules as the rules word them, for one road user, read from a slot's lane buckets
+and queue lists: the specifications the rules' one array program each is held to
+(tests/envs/test_entries.py, tests/envs/test_passages.py)."""
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from feat2map.config import PRIORITY_HORIZON_S, PRIORITY_MARGIN_M
+from feat2map.envs.rules import enters_next
+
+CROSS_MARGIN_M = 2.5  # a margin other than PRIORITY_MARGIN_M for the cross-traffic test
+
+
+def clear_as_worded(ctl, lane: str, vehicle, priority: bool = True, margin: float = PRIORITY_MARGIN_M,
+                    why: Counter | None = None) -> bool:
+    """The conflict rule: junction lane `lane` is clear for `vehicle` (None: nobody) while no
+    lane conflicting with it is occupied (a road user on it other than `vehicle`) or reserved by
+    another, and no road user other than `vehicle` heading into a conflicting lane of higher
+    priority next (its next two route lanes) from an approach that may go (no stop sign, no red)
+    reaches the end of its lane within PRIORITY_HORIZON_S at its speed plus `margin`, unless it
+    waits for a narrow passage `vehicle` holds. With `priority` False (`cross_traffic_near`),
+    every conflicting lane and every approach count. `why` counts what decided each refusal,
+    and the passage waiters passed over."""
+    net = ctl.net
+    why = Counter() if why is None else why
+    mine = net.lane_of[lane].priority
+    for c in net.conflicts.get(lane, ()):
+        holder = ctl.reservations.get(c)
+        if holder is not None and holder is not vehicle:
+            why["reserved"] += 1
+            return False
+        if any(v is not vehicle for v in ctl.buckets.get(c, ())):
+            why["occupied"] += 1
+            return False
+        if priority and net.lane_of[c].priority <= mine:
+            continue
+        for p in net.hdmap.lanes[c].predecessors:
+            approach = net.lane_of.get(p)
+            if approach is None or priority and ctl._held(p):
+                continue
+            for v in ctl.buckets.get(p, ()):
+                if v is vehicle or not enters_next(v, c):
+                    continue
+                if approach.length - v.s_on(p) >= PRIORITY_HORIZON_S * max(v.speed, 0.0) + margin:
+                    continue
+                if ctl.waits_for(v, vehicle):
+                    why["passage waiter"] += 1
+                    continue
+                why["coming"] += 1
+                why["coming, added by user code"] += getattr(v, "_core", None) is None
+                return False
+    return True
+
+
+def first_come_first_served(ctl, vehicle, j_lane: str) -> bool:
+    """Stop-sign order as the rules word it, for one road user, from the slot's queue as lists:
+    it is queued at the junction of `j_lane`, and no earlier road user in the queue (other than
+    one waiting for a narrow passage) drives into a lane conflicting with `j_lane` (its lane in
+    the junction: the first on its route from the lane before its route position on; unknown
+    holds) that the box rule lets it take."""
+    net = ctl.net
+    jid = net.hdmap.lanes[j_lane].junction_id
+    queue = ctl.stop_queue.get(jid, [])
+    if vehicle not in queue:
+        return False
+    for other in queue[:queue.index(vehicle)]:
+        if any(other in w for w in ctl.passage_waiters.values()):
+            continue
+        route = other.lane_route
+        lane = next((x for x in route[max(other.route_pos - 1, 0):] if net.hdmap.lanes[x].junction_id == jid), None)
+        if lane is None or lane in net.conflicts.get(j_lane, ()) and ctl.box_clear(other, lane):
+            return False
+    return True
+
+
+def junction_lanes_ahead(net, vehicle) -> list[str]:
+    """The junction lanes on a road user's route from the lane before its route position on."""
+    route = getattr(vehicle, "lane_route", None) or []
+    lanes = net.hdmap.lanes
+    return [x for x in route[max(vehicle.route_pos - 1, 0):] if x in lanes and lanes[x].junction_id is not None]
+
+
+def check_conflict_questions(core, rng: np.random.Generator, why: Counter) -> None:
+    """Every road user of every slot (and nobody), asked `TrafficCore.lanes_clear` about each
+    junction lane ahead on its route and two others, with priority and as cross traffic: the
+    answers are `clear_as_worded`'s; one question about several lanes is clear when each is, and
+    every slot's questions asked at once (`entries.junction_clear`) answer the same."""
+    from feat2map.envs.reservations import NONE
+    from feat2map.envs.sim import entries
+
+    net = core.net
+    every = [x for x in net.lane_ids if net.hdmap.lanes[x].junction_id is not None]
+    batch = []
+    for slot in range(len(core.roads)):
+        ctl = core.roads[slot].control
+        rows = core.slot_rows(slot).tolist()
+        for i, v in zip(rows + [NONE], [core.objs[i] for i in rows] + [None]):
+            lanes = (junction_lanes_ahead(net, v) if v is not None else []) + list(rng.choice(every, 2))
+            for lane in lanes:
+                for priority, margin in ((True, PRIORITY_MARGIN_M), (False, CROSS_MARGIN_M)):
+                    want = clear_as_worded(ctl, lane, v, priority, margin, why)
+                    got = bool(core.lanes_clear(slot, v, [lane], priority, margin)[0])
+                    assert got == want, (slot, lane, v, priority)
+                    why["clear" if want else "refused"] += 1
+                    if priority:
+                        batch.append((slot, i, core.table.index[lane], want))
+            if lanes:
+                assert bool(core.lanes_clear(slot, v, lanes).all()) == all(clear_as_worded(ctl, x, v) for x in lanes)
+    why["off its route lane"] += int((core.controlled & (core.where_lanes() != core.lane)).sum())
+    slots, me, j, want = (np.array(x) for x in zip(*batch))
+    key, row = core.held_reservations()
+    got = entries.junction_clear(core, slots, me, j, key, row, core._approach_held)
+    assert got.tolist() == want.tolist()
