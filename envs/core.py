@@ -1276,8 +1276,7 @@ class TrafficCore:
         halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed)
         dist[halt] = (d_line - STOP_POINT_M)[halt]
         j_lane = sc.lanes[ar, first]
-        held_key, held_row = self.held_reservations()
-        answer, refused, takes = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line, held_key, held_row)
+        answer, refused, takes = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line)
         dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
         takes |= halt & (state == 2) & self._holders()  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
@@ -1316,12 +1315,6 @@ class TrafficCore:
         """Slot `slot`'s reservations as {lane id: holder} (a view of `res`)."""
         return Reservations(self, slot)
 
-    def held_reservations(self) -> tuple[np.ndarray, np.ndarray]:
-        """(keys slot * lanes + lane of every slot's junction reservations, sorted; the row holding
-        each, LEFT for a road user that is no row now): one read of `res`."""
-        slot, lane = np.nonzero(self.res != NONE)
-        return slot * self.res.shape[1] + lane, self.res[slot, lane].astype(np.int64)
-
     def lanes_clear(self, slot: int, vehicle: Any, lanes: Iterable[str], priority: bool = True,
                     margin: float = PRIORITY_MARGIN_M) -> np.ndarray:
         """`sim.entries.junction_clear` of each of junction lanes `lanes` (ids) for road user
@@ -1331,10 +1324,8 @@ class TrafficCore:
         me = self.row_of(vehicle) if vehicle is not None else NONE
         if me == LEFT:  # an external road user, or none of the rows
             me = next((i for i in self._external if self.objs[i] is vehicle), NONE)
-        held = np.nonzero(self.res[slot] != NONE)[0]
-        return entries.junction_clear(self, np.full(len(j), slot), np.full(len(j), me), j,
-                                      slot * self.res.shape[1] + held, self.res[slot, held].astype(np.int64),
-                                      self._approach_held, priority=priority, margin=margin, one=slot)
+        return entries.junction_clear(self, np.full(len(j), slot), np.full(len(j), me), j, priority=priority,
+                                      margin=margin, one=slot)
 
     def row_of(self, obj: Any) -> int:
         """The row of road user `obj` (LEFT: none; only rows hold reservations)."""
@@ -1382,8 +1373,7 @@ class TrafficCore:
         return self._res_taken
 
     def _entry_answers(self, sc: rule_scan.Scan, rows: np.ndarray, j_lane: np.ndarray, in_lane: np.ndarray,
-                       d_line: np.ndarray, held_key: np.ndarray,
-                       held_row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       d_line: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(answered, refused, takes), masks over the rows: the rows among `rows` (whose first stop
         is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
         (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
@@ -1398,7 +1388,6 @@ class TrafficCore:
         if self.net.swept or not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
             return none, none, none
         t = self.table
-        nl = len(t.length)
         et = entries.entry_table(self.net, t)
         stop = t.line_kind[in_lane] == LINE_STOP_SIGN
         answer = rows & et.simple[j_lane]
@@ -1409,18 +1398,13 @@ class TrafficCore:
         r = answer.nonzero()[0]
         if not len(r):
             return answer, none, none
-        key = self.env[r] * nl + j_lane[r]
-        reserved = np.zeros(len(r), dtype=bool)  # the lane is reserved (by the row: `mine`)
-        mine = reserved.copy()
-        if len(held_key):
-            k = np.searchsorted(held_key, key).clip(max=len(held_key) - 1)
-            reserved = held_key[k] == key
-            mine = reserved & (held_row[k] == r)
+        holder = self.res[self.env[r], j_lane[r]]
+        reserved, mine = holder != NONE, holder == r  # the lane is reserved (by the row: `mine`)
         no = stop[r] & ~mine & ~turn[r]
         ask = ~mine & ~no
         if ask.any():
             a = r[ask]
-            no[ask] = ~entries.junction_clear(self, self.env[a], a, j_lane[a], held_key, held_row, self._approach_held)
+            no[ask] = ~entries.junction_clear(self, self.env[a], a, j_lane[a])
         stops = sc.what[r] != 0
         more = (stops.sum(axis=1) > 1) | (sc.what[r, np.argmax(stops, axis=1)] != ENTRY)  # let go, it walks on: the rules answer
         answer[r[~no & more]] = False
@@ -1429,7 +1413,7 @@ class TrafficCore:
         takes[r] = ~no & ~more & ~reserved & commits(d_line[r], self.speed[r])
         return answer, refused, takes
 
-    def _approach_held(self, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+    def approach_held(self, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:
         """Per (slot, lane) pair, `TrafficRules._held`: the lane's line holds its traffic (a stop
         sign, or a signal showing red)."""
         t = self.table

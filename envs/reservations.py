@@ -5,9 +5,9 @@ reservation (`NONE`: nobody; `LEFT`: a road user that is no row of the core now,
 a hand-over at its slot's next update), and `res_seq`, when it was taken (the order the update
 releases in); a row column counts the reservations each row holds (`res_count`). Only rows hold
 reservations; a lane is found by its index, so a question costs one array read whatever the
-map's size, and the arrays answer for every slot at once (`TrafficCore.held_reservations`,
-`sim.entries`). `Reservations` is one slot's view as {lane id: the road user holding it}, what
-the rules' scalar questions and tests read and write.
+map's size, and the arrays answer for every slot at once (`sim.entries`). `Reservations` is one
+slot's view as {lane id: the road user holding it}, what the rules' scalar questions and tests
+read and write.
 """
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -74,8 +74,9 @@ def _build(net: "MapNetwork", table: "LaneTable") -> EntryTable:
     come_ptr, come_pairs = _csr(come)
     cross_ptr, cross_pairs = _csr(cross)
     owner = np.repeat(np.arange(len(ids)), np.diff(conf_ptr))
-    pair = lambda a: a.reshape(-1, 2).T  # noqa: E731
-    return EntryTable(conf_ptr, conf_lane, come_ptr, *pair(come_pairs), cross_ptr, *pair(cross_pairs), simple,
+    come_lane, come_from = come_pairs.reshape(-1, 2).T
+    cross_lane, cross_from = cross_pairs.reshape(-1, 2).T
+    return EntryTable(conf_ptr, conf_lane, come_ptr, come_lane, come_from, cross_ptr, cross_lane, cross_from, simple,
                       np.sort(owner * len(ids) + conf_lane))
 
 
@@ -125,14 +126,12 @@ def _boxed(net: "MapNetwork", lid: str) -> bool:
     return False
 
 
-def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, held_key: np.ndarray,
-                   held_row: np.ndarray, held_at: Callable[[np.ndarray, np.ndarray], np.ndarray], *,
-                   priority: bool = True, margin: float = PRIORITY_MARGIN_M, one: int = NONE) -> np.ndarray:
+def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, *, priority: bool = True,
+                   margin: float = PRIORITY_MARGIN_M, one: int = NONE) -> np.ndarray:
     """Per question k, whether junction lane `j[k]` (a lane index) is clear for road user `me[k]`
     (a row; NONE: nobody) of slot `slots[k]`, with the road users of that slot as they are now
-    (`TrafficCore.where_lanes`: the rules' buckets), the reservations at keys `held_key` (slot *
-    lanes + lane, sorted) held by rows `held_row` (LEFT: a road user no longer a row) and
-    `held_at(slots, lanes)`: whether an approach is held (a stop sign, a red signal). With
+    (`TrafficCore.where_lanes`: the rules' buckets), its reservations (`TrafficCore.res`) and
+    whether an approach is held (a stop sign, a red signal: `TrafficCore.approach_held`). With
     `priority` False, `TrafficRules.cross_traffic_near`'s test: every conflicting lane counts,
     from every approach, held or not. `one`: the slot of every question, where all are of one
     (only its rows are read), else NONE."""
@@ -147,10 +146,8 @@ def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, held_
     c = et.conf_lane[e]
     key = slots[q] * nl + c
     mine = np.where(me >= 0, core.where_lanes(np.maximum(me, 0)), NONE)  # (the asker's own place)
-    blocked = _count(located, key) > (mine[q] == c)
-    if len(held_key):
-        k = np.searchsorted(held_key, key).clip(max=len(held_key) - 1)
-        blocked |= (held_key[k] == key) & (held_row[k] != me[q])
+    holder = core.res[slots[q], c]
+    blocked = (_count(located, key) > (mine[q] == c)) | ((holder != NONE) & (holder != me[q]))
     clear[q[blocked]] = False
     # (question, conflicting lane, its approach) triples: a road user about to enter the lane
     ptr, lane, approach = (et.come_ptr, et.come_lane, et.come_from) if priority else \
@@ -158,7 +155,7 @@ def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, held_
     hq, f = _expand(ptr, j)
     hc, p = lane[f], approach[f]
     if priority:
-        go = ~held_at(slots[hq], p)
+        go = ~core.approach_held(slots[hq], p)
         hq, hc, p = hq[go], hc[go], p[go]
     if not len(hq):
         return clear

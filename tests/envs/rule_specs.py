@@ -110,6 +110,5 @@ def check_conflict_questions(core, rng: np.random.Generator, why: Counter) -> No
                 assert bool(core.lanes_clear(slot, v, lanes).all()) == all(clear_as_worded(ctl, x, v) for x in lanes)
     why["off its route lane"] += int((core.controlled & (core.where_lanes() != core.lane)).sum())
     slots, me, j, want = (np.array(x) for x in zip(*batch))
-    key, row = core.held_reservations()
-    got = entries.junction_clear(core, slots, me, j, key, row, core._approach_held)
+    got = entries.junction_clear(core, slots, me, j)
     assert got.tolist() == want.tolist()

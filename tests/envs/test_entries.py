@@ -29,8 +29,8 @@ def test_the_arrays_answer_junction_entries_as_the_rules_do(monkeypatch):
     answers = []
     entry_answers, rule_stops = core.TrafficCore._entry_answers, core.TrafficCore._rule_stops
 
-    def asked(self, sc, rows, j_lane, in_lane, d_line, held_key, held_row):
-        answered, refused, takes = entry_answers(self, sc, rows, j_lane, in_lane, d_line, held_key, held_row)
+    def asked(self, sc, rows, j_lane, in_lane, d_line):
+        answered, refused, takes = entry_answers(self, sc, rows, j_lane, in_lane, d_line)
         self._want = {i: self.roads[self.env[i]].control.stop_distance(self.objs[i])
                       for i in (answered & ~takes).nonzero()[0]}  # (a row that takes a lane answers with its claim)
         return answered, refused, takes

@@ -207,11 +207,11 @@ def test_asking_every_road_user_every_question_changes_nothing_in_busy_traffic(s
 
 def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping():
     """A slot's reservations (`TrafficControl.reservations`) are a view of the core's arrays:
-    a mapping in the order they were taken (taking a held lane again keeps its place), read at
-    once for every slot by `held_reservations`; rows going renumber the holders, one that left
+    a mapping in the order they were taken (taking a held lane again keeps its place), the
+    holders' rows in `res[slot, lane]`; rows going renumber the holders, one that left
     the road holds as `LEFT` until its slot's next update releases it, and a slot's new episode
     starts with nothing reserved while the other slots keep theirs."""
-    from feat2map.envs.reservations import LEFT, LEFT_HOLDER
+    from feat2map.envs.reservations import LEFT, LEFT_HOLDER, NONE
 
     envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point",
                         config={"traffic_vehicles": 6})
@@ -233,8 +233,8 @@ def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping
         assert lanes[0] in ctl.reservations and junction_lanes[-1] not in ctl.reservations
         assert ctl.reservations.held_by(cars[2]) and not ctl.reservations.held_by(cars[0])
         held[slot] = (lanes, cars)
-    key, row = c.held_reservations()
-    assert sorted(zip(key.tolist(), row.tolist())) == sorted(
+    slot_of, lane_of = np.nonzero(c.res != NONE)
+    assert sorted(zip((slot_of * nl + lane_of).tolist(), c.res[slot_of, lane_of].tolist())) == sorted(
         (slot * nl + c.table.index[x], ctl_car._row) for slot, (lanes, cars) in held.items()
         for x, ctl_car in zip(lanes, (cars[2], cars[1], cars[2])))
     # slot 0's cars[2] leaves the road: slot 1's and 2's rows move down, their holders with them
@@ -252,8 +252,7 @@ def test_reservations_are_the_cores_arrays_and_each_slot_reads_them_as_a_mapping
     del res2[held[2][0][1]]
     assert not res2.held_by(held[2][1][1]) and res2.held_by(held[2][1][2])
     res2[held[2][0][1]] = held[2][1][1]
-    key, row = c.held_reservations()
-    assert dict(zip(key.tolist(), row.tolist()))[c.table.index[lanes0[0]]] == LEFT
+    assert c.res[0, c.table.index[lanes0[0]]] == LEFT
     ctl0.update(c.roads[0], 0.0)  # the holder that left lets go
     assert list(ctl0.reservations) == [lanes0[1]]
     envs.unwrapped.envs[1].reset(seed=5)  # slot 1's new episode
