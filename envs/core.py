@@ -602,8 +602,8 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
-        # what a frame's rule questions read while they ask (the rows stand still then; `asked`),
-        # made when first asked; None between frames
+        # what the rules read of the rows while they are `asking` (`asked`), made when first asked;
+        # None otherwise
         self._asking: dict | None = None
         self._observing: tuple | None = None  # (row places, scans, leader gaps) while envs observe (`observing`)
         # walkers (crosswalk pedestrians, `vehicles.Pedestrian` their views) of every slot: place,
@@ -1061,11 +1061,8 @@ class TrafficCore:
         v0 = np.minimum(self.table.speed_limit[self.lane], self.curve_limit())
         fi, gap, vl = self._leaders(traffic.nonzero()[0])
         jam = np.full(len(fi), IDM_GAP_M)
-        self._asking = {}
-        try:
+        with self.asking():
             sd = self._rule_stops(traffic)
-        finally:
-            self._asking = None
         si = (sd < math.inf).nonzero()[0]
         if len(si):
             sd = sd[si]
@@ -1429,9 +1426,20 @@ class TrafficCore:
         times, arrays = self.asked(("signals",), self._signals_at_clock)  # (one clock for the frame's questions)
         return states_at(times[slots], arrays[slots, :, signals].T)
 
+    @contextlib.contextmanager
+    def asking(self) -> Iterator[None]:
+        """A stretch in which the rules are asked about the rows as they stand (a frame's rules,
+        the agents' judges before a frame: nothing moves, only reservations may change): what they
+        read of the rows is made once for all of them (`asked`)."""
+        outer = self._asking
+        self._asking = {} if outer is None else outer
+        try:
+            yield
+        finally:
+            self._asking = outer
+
     def asked(self, key: tuple, make: Callable[[], Any]) -> Any:
-        """`make()`, kept under `key` for the other questions of a frame's rules while they ask
-        (`_asking`: the rows stand still then, and only reservations change)."""
+        """`make()`, kept under `key` for the other questions while the rules are `asking`."""
         memo = self._asking
         if memo is None:
             return make()

@@ -557,8 +557,9 @@ class MultiAgentMapEnv(ParallelEnv):
                 # next one starts, from the current lane's start; the line may lie before it)
                 core.refresh_windows()  # rows that moved to a new lane last frame
                 near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
-                for k in np.nonzero(near)[0].tolist():
-                    judges[k].note()
+                with core.asking():
+                    for k in np.nonzero(near)[0].tolist():
+                        judges[k].note()
                 crashed = core.crashed[rows]
             core.act(roads)
             core.step(roads, dt)
