@@ -140,25 +140,26 @@ def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, *, pr
     clear = np.ones(len(j), dtype=bool)
     if not len(j):
         return clear
-    rows, at, located = core.asked(("located", one), lambda: _located(core, one, nl))
+    rows, at, where, located = core.asked(("located", one), lambda: _located(core, one, nl))
     # (question, conflicting lane) pairs: a road user located on it, or its reservation held by another
     q, e = _expand(et.conf_ptr, j)
     c = et.conf_lane[e]
-    key = slots[q] * nl + c
-    mine = np.where(me >= 0, core.where_lanes(np.maximum(me, 0)), NONE)  # (the asker's own place)
+    asker = me[q]
     holder = core.res[slots[q], c]
-    blocked = (_count(located, key) > (mine[q] == c)) | ((holder != NONE) & (holder != me[q]))
+    mine = (asker >= 0) & (where[asker] == c)  # (the asker's own place)
+    blocked = (_on(located, one, nl, slots[q], c) > mine) | ((holder != NONE) & (holder != asker))
     clear[q[blocked]] = False
-    # (question, conflicting lane, its approach) triples: a road user about to enter the lane
+    # (question, conflicting lane, its approach) triples: a road user about to enter the lane, from
+    # an approach someone is on
     ptr, lane, approach = (et.come_ptr, et.come_lane, et.come_from) if priority else \
         (et.cross_ptr, et.cross_lane, et.cross_from)
     hq, f = _expand(ptr, j)
-    hc, p = lane[f], approach[f]
-    if priority:
-        go = ~core.approach_held(slots[hq], p)
-        hq, hc, p = hq[go], hc[go], p[go]
-    if not len(hq):
+    someone = (_on(located, one, nl, slots[hq], approach[f]) > 0).nonzero()[0]
+    if priority and len(someone):
+        someone = someone[~core.approach_held(slots[hq[someone]], approach[f[someone]])]
+    if not len(someone):
         return clear
+    hq, hc, p = hq[someone], lane[f[someone]], approach[f[someone]]
     keys, who = core.asked(("comers", one, margin), lambda: _comers(core, rows, at, nl, margin))
     hk = (slots[hq] * nl + p) * nl + hc
     t, m = expand_ranges(np.searchsorted(keys, hk, side="left"), np.searchsorted(keys, hk, side="right"))
@@ -171,13 +172,22 @@ def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, *, pr
     return clear
 
 
-def _located(core, slot: int, nl: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(the rows of `slot` (NONE: every row), the lane each is on, the sorted keys slot * lanes +
-    lane of those on a lane)."""
+def _located(core, slot: int, nl: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(the rows of `slot` (NONE: of every slot), the lane each of them is on, the lane every row
+    is on (`TrafficCore.where_lanes`), and where they are for `_on`: how many are on each lane
+    (one slot), else the sorted keys slot * lanes + lane of those on a lane)."""
+    where = core.where_lanes()
     rows = core.slot_rows(slot) if slot != NONE else np.arange(len(core.objs))
-    at = core.where_lanes(rows)
+    at = where[rows]
     on = at >= 0
-    return rows, at, np.sort(core.env[rows[on]] * nl + at[on])
+    if slot != NONE:
+        return rows, at, where, np.bincount(at[on], minlength=nl)
+    return rows, at, where, np.sort(core.env[rows[on]] * nl + at[on])
+
+
+def _on(located: np.ndarray, one: int, nl: int, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+    """How many road users are on each lane of `lanes` in slot `slots` (`_located`'s last item)."""
+    return located[lanes] if one != NONE else _count(located, slots * nl + lanes)
 
 
 def _comers(core, rows: np.ndarray, at: np.ndarray, nl: int, margin: float) -> tuple[np.ndarray, np.ndarray]:
