@@ -19,10 +19,9 @@ from ..config import STOP_POINT_M
 from ..phases import junction_phases
 from .network import MapNetwork
 from .reservations import LEFT_HOLDER
-from .rules import Claims, TrafficRules, beyond, commits, enters_next
+from .rules import SIGNAL_STATES, Claims, TrafficRules, beyond, commits, enters_next
 from .sim import pedestrians, stop_signs
 from .vehicles import Pedestrian
-
 
 
 @dataclass(frozen=True)
@@ -49,13 +48,14 @@ class PhasePlan:
         return self._phase[signal_id]
 
     def state(self, signal_id: str, t: float) -> str:
+        """The signal's state at time `t` (`states_at` of it alone)."""
+        return SIGNAL_STATES[int(states_at(np.array([t]), self.column(signal_id)[:, None])[0])]
+
+    def column(self, signal_id: str) -> np.ndarray:
+        """(offset, cycle, start of the signal's phase in the cycle, green, green + amber): the
+        signal's column of `signal_arrays`."""
         slot = self.green + self.amber + self.all_red
-        local = (t + self.offset) % self.cycle - self.phase_of(signal_id) * slot
-        if 0 <= local < self.green:
-            return "green"
-        if self.green <= local < self.green + self.amber:
-            return "amber"
-        return "red"
+        return np.array((self.offset, self.cycle, self.phase_of(signal_id) * slot, self.green, self.green + self.amber))
 
     def time_to_change(self, signal_id: str, t: float) -> float:
         slot = self.green + self.amber + self.all_red
@@ -73,27 +73,32 @@ def signal_arrays(control: "TrafficControl", signal_ids: list[str]) -> np.ndarra
     held = control._signal_arrays
     if held is not None and held[0] is signal_ids:
         return held[1]
-    out = np.zeros((5, len(signal_ids)))
-    out[1] = np.inf
-    out[3] = out[4] = np.inf  # no plan: green for ever
+    out = no_plans(len(signal_ids))
     for k, sid in enumerate(signal_ids):
         plan = control.plans.get(sid)
-        if plan is not None:  # the same float operations as PhasePlan.state
-            slot = plan.green + plan.amber + plan.all_red
-            out[:, k] = (plan.offset, plan.cycle, plan.phase_of(sid) * slot, plan.green, plan.green + plan.amber)
+        if plan is not None:
+            out[:, k] = plan.column(sid)
     control._signal_arrays = (signal_ids, out)
     return out
 
 
+def no_plans(n: int) -> np.ndarray:
+    """`signal_arrays` of `n` signals without a plan: green for ever (a cycle of 1 s, all of it
+    green)."""
+    out = np.zeros((5, n))
+    out[1] = 1.0
+    out[3] = out[4] = np.inf
+    return out
+
+
 def states_at(t: np.ndarray, arrays: np.ndarray) -> np.ndarray:
-    """`PhasePlan.state` of many signals at times `t` (columns of `signal_arrays`), elementwise,
-    with the same arithmetic: 0 green, 1 amber, 2 red."""
+    """The states of signals at times `t` (columns of `signal_arrays`: their plans; broadcast
+    together), as codes of SIGNAL_STATES (0 green, 1 amber, 2 red): the one program of a fixed-time plan, each
+    phase green in turn, then amber, then all-red."""
     offset, cycle, start, green, amber_end = arrays
-    plan = np.isfinite(cycle)
-    local = np.where(plan, (t + offset) % np.where(plan, cycle, 1.0) - start, 0.0)
-    state = np.full(len(t), 2, dtype=np.int8)
-    state[(local >= 0) & (local < green)] = 0
-    state[(green <= local) & (local < amber_end)] = 1
+    local = (t + offset) % cycle - start  # (time into the signal's phase)
+    state = (local >= green).astype(np.int8) + (local >= amber_end)
+    state[local < 0] = 2  # (another phase's turn)
     return state
 
 

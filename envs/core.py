@@ -81,10 +81,10 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
                       PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
-from .control import signal_arrays, states_at
+from .control import no_plans, signal_arrays, states_at
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (CROSSED, ENTRY, Claims, body_reach, commits, crossed_lanes, has_stopped,
+from .rules import (CROSSED, ENTRY, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
 from .sim import entries, pedestrians, rule_scan, stop_signs
 from .reservations import LEFT, NONE, Reservations
@@ -104,7 +104,6 @@ SETTLE_MIN_ROWS = 24
 # live reservations up to which a frame's releases look at every one (`release_looks`: the
 # filter costs more than a few looks; the same releases)
 LOOK_ALL_MAX = 12
-SIGNAL_STATES = ("green", "amber", "red")  # control.states_at's codes
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 # a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
@@ -200,7 +199,7 @@ class LaneTable:
         # stop lines by incoming lane: kind (0 none, LINE_SIGNAL, LINE_STOP_SIGN), signal (index into
         # signal_ids), and how far before the lane's end the line lies (rules.line_setback)
         self.signal_ids = list(m.signals)
-        sig = {sid: k for k, sid in enumerate(self.signal_ids)}
+        sig = self.signal_index = {sid: k for k, sid in enumerate(self.signal_ids)}
         self.line_kind = np.zeros(len(lanes), dtype=np.int8)
         self.line_signal = np.full(len(lanes), -1, dtype=np.int64)
         self.line_setback = np.zeros(len(lanes))
@@ -602,6 +601,7 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
+        self._codes_held: tuple | None = None  # (clocks, controls, `signal_codes`) at the last look
         # what the rules read of the rows while they are `asking` (`asked`), made when first asked;
         # None otherwise
         self._asking: dict | None = None
@@ -1423,8 +1423,22 @@ class TrafficCore:
     def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
         """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
         into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
-        times, arrays = self.asked(("signals",), self._signals_at_clock)  # (one clock for the frame's questions)
-        return states_at(times[slots], arrays[slots, :, signals].T)
+        return self.asked(("signals",), self.signal_codes)[slots, signals]  # (one clock for the frame's questions)
+
+    def signal_codes(self, slot: int | None = None) -> np.ndarray:
+        """The states (`control.states_at` codes) of every signal (`LaneTable.signal_ids`) of every
+        slot at its clock ([slots, signals]; of `slot` alone, [signals]): one program for every
+        slot's signals (what the arrays and the rules' `signal_state` read), made again only once a
+        clock has moved on or a slot has a new control."""
+        held = self._codes_held
+        if slot is not None and held is not None:
+            control = self.roads[slot].control
+            if held[1][slot] is control and held[0][slot] == control.t:
+                return held[2][slot]
+        times, arrays = self._signals_at_clock()
+        if slot is not None or held is None or held[1] is not self._signals_held[0] or not np.array_equal(held[0], times):
+            held = self._codes_held = (times, self._signals_held[0], states_at(times[:, None], arrays.transpose(1, 0, 2)))
+        return held[2] if slot is None else held[2][slot]
 
     @contextlib.contextmanager
     def asking(self) -> Iterator[None]:
@@ -1477,7 +1491,7 @@ class TrafficCore:
         held = getattr(self, "_signals_held", None)
         if held is None or len(held[0]) != len(controls) or any(a is not b for a, b in zip(held[0], controls)):
             ids = self.table.signal_ids
-            blank = np.zeros((5, len(ids)))
+            blank = no_plans(len(ids))  # (a slot with no road)
             held = self._signals_held = (list(controls), np.stack([signal_arrays(c, ids) if c is not None else blank
                                                                    for c in controls]))
         return held[1]

@@ -52,6 +52,7 @@ if TYPE_CHECKING:
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
+SIGNAL_STATES = ("green", "amber", "red")  # the codes of the signal states' one program (`control.states_at`)
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
 
@@ -349,6 +350,7 @@ class TrafficRules:
 
     # (clock, signal states asked at it, junction states asked at it): `signal_state`, `signal_states`
     _states_at: tuple[float, dict[str, str], dict] = (math.nan, {}, {})
+    _codes_at: tuple[float, Any] = (math.nan, None)  # (clock, every signal's state code at it)
 
     @property
     def stop_queue(self) -> dict:
@@ -365,14 +367,18 @@ class TrafficRules:
         return self._states_at
 
     def signal_state(self, signal_id: str) -> str:
-        """The state of a signal ("green" without a plan), worked out once per clock value: a
-        plan's state is a function of `t` alone, and a frame's rule queries, judges and infos ask
-        the same signals many times."""
+        """The state of a signal ("green" without a plan), read once per clock value from the
+        states of every signal (`TrafficCore.signal_codes`, the one program of the phase plans):
+        a plan's state is a function of `t` alone, and a frame's rule queries, judges and infos
+        ask the same signals many times."""
         states = self._states_now()[1]
         state = states.get(signal_id)
         if state is None:
-            plan = self.plans.get(signal_id)
-            state = states[signal_id] = plan.state(signal_id, self.t) if plan else "green"
+            road = self.road
+            k = road.core.table.signal_index.get(signal_id)
+            if k is not None and self._codes_at[0] != self.t:
+                self._codes_at = (self.t, road.core.signal_codes(road.slot))
+            state = states[signal_id] = "green" if k is None else SIGNAL_STATES[self._codes_at[1][k]]
         return state
 
     def signal_states(self, junction_id: str | None = None) -> dict[str, str]:

@@ -1002,11 +1002,12 @@ def rule_hold(rules: Any, ego: Any) -> dict | None:
     centre to the point its front must not pass, "by": [...]}`, or
     None when they let it go. Pure queries (`TrafficRules.stop_distance` without claiming), so
     asking changes nothing (the ego's claims are `BridgePlanner._claim`'s)."""
-    stop = rules.stop_distance(ego)
-    if not math.isfinite(stop):
-        return None
-    by = [r for r in HOLD_RULES
-          if rules.stop_distance(ego, ignore=frozenset(HOLD_RULES) - {r}) <= stop + 0.5]
+    with rules.road.core.asking():  # (the rules read the rows once for all these questions)
+        stop = rules.stop_distance(ego)
+        if not math.isfinite(stop):
+            return None
+        by = [r for r in HOLD_RULES
+              if rules.stop_distance(ego, ignore=frozenset(HOLD_RULES) - {r}) <= stop + 0.5]
     return {"distance": float(stop), "by": by}
 
 

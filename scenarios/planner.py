@@ -159,8 +159,9 @@ class BaselinePlanner:
     def act(self, obs: Any, info: dict) -> np.ndarray:
         if self.env is None:
             raise RuntimeError("BaselinePlanner.act before reset(env)")
-        self._update_stage()
-        a = self._acceleration()
+        with self.env.road.core.asking():  # (nothing moves while it decides: the rules read the rows once)
+            self._update_stage()
+            a = self._acceleration()
         self._steps += 1
         lo, hi = self.env.action_type.acceleration_range
         a = float(np.clip(a, lo, hi))

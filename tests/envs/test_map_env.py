@@ -250,3 +250,37 @@ def test_make_vec_async_with_spawned_workers():
     obs, rew, *_ = envs.step(envs.action_space.sample())
     assert obs.shape[0] == 2 and np.all(np.isfinite(rew))
     envs.close()
+
+
+@pytest.mark.parametrize("phases", ["paired", "single"])
+def test_each_phase_is_green_then_amber_then_red_in_turn(phases):
+    """The signals' states (`signal_state`, read from the phase plans' one program): over a cycle
+    each signal is green for `signal_green` seconds, then amber for `signal_amber`, then red; the
+    phases take turns, never two green together, each green beginning `signal_all_red` seconds
+    after the amber before it ends."""
+    g, a, r, dt = 7.0, 2.0, 1.5, 0.05
+    env = make({"features": SMALL[:1], "signal_phases": phases, "signal_green": g, "signal_amber": a,
+                "signal_all_red": r, "traffic_vehicles": 0})
+    env.reset(seed=3)
+    ctl = env.unwrapped.control
+    ids = sorted(ctl.plans)
+    n = len({ctl.plans[s].phase_of(s) for s in ids})
+    assert n == (2 if phases == "paired" else 4)
+    times = np.arange(0.0, 2 * n * (g + a + r), dt)
+    seen = []
+    for t in times:
+        ctl.t = float(t)
+        seen.append([ctl.signal_state(s) for s in ids])
+    seen = np.array(seen)
+    for k in range(len(ids)):
+        for state, seconds in (("green", g), ("amber", a), ("red", n * (g + a + r) - g - a)):
+            assert (seen[:, k] == state).sum() * dt == pytest.approx(2 * seconds, abs=2 * dt)
+        after = seen[1:, k][seen[:-1, k] != seen[1:, k]]  # the states it changes to
+        assert set(zip(after[:-1], after[1:])) <= {("amber", "red"), ("red", "green"), ("green", "amber")}
+    phase = np.array([ctl.plans[s].phase_of(s) for s in ids])
+    for row in seen:
+        assert len(set(phase[row != "red"])) <= 1  # one phase at a time
+    ends = times[1:][(seen[:-1] == "amber").any(axis=1) & ~(seen[1:] == "amber").any(axis=1)]
+    starts = times[1:][~(seen[:-1] == "green").any(axis=1) & (seen[1:] == "green").any(axis=1)]
+    gaps = [s - e for e in ends for s in starts if 0 <= s - e < g]
+    assert len(gaps) >= 2 * n - 1 and gaps == pytest.approx([r] * len(gaps), abs=2 * dt)
