@@ -48,8 +48,12 @@ class PhasePlan:
         return self._phase[signal_id]
 
     def state(self, signal_id: str, t: float) -> str:
-        """The signal's state at time `t` (`states_at` of it alone)."""
-        return SIGNAL_STATES[int(states_at(np.array([t]), self.column(signal_id)[:, None])[0])]
+        """The signal's state at time `t` (`signal_timing` of it alone)."""
+        return SIGNAL_STATES[int(signal_timing(np.array([t]), self.column(signal_id)[:, None])[0][0])]
+
+    def time_to_change(self, signal_id: str, t: float) -> float:
+        """Seconds from time `t` until the signal's state changes (`signal_timing` of it alone)."""
+        return float(signal_timing(np.array([t]), self.column(signal_id)[:, None])[1][0])
 
     def column(self, signal_id: str) -> np.ndarray:
         """(offset, cycle, start of the signal's phase in the cycle, green, green + amber): the
@@ -57,19 +61,11 @@ class PhasePlan:
         slot = self.green + self.amber + self.all_red
         return np.array((self.offset, self.cycle, self.phase_of(signal_id) * slot, self.green, self.green + self.amber))
 
-    def time_to_change(self, signal_id: str, t: float) -> float:
-        slot = self.green + self.amber + self.all_red
-        local = ((t + self.offset) % self.cycle - self.phase_of(signal_id) * slot) % self.cycle
-        for edge in (self.green, self.green + self.amber, self.cycle):
-            if local < edge:
-                return edge - local
-        return 0.0
-
 
 def signal_arrays(control: "TrafficControl", signal_ids: list[str]) -> np.ndarray:
     """[5, signals] (offset, cycle, start of the signal's phase in the cycle, green, green +
     amber) of `signal_ids` under `control`'s plans (a signal without a plan: always green), so
-    that `states_at` gives the states of many signals at once; built once per control (episode)."""
+    that `signal_timing` gives the states of many signals at once; built once per control (episode)."""
     held = control._signal_arrays
     if held is not None and held[0] is signal_ids:
         return held[1]
@@ -84,22 +80,22 @@ def signal_arrays(control: "TrafficControl", signal_ids: list[str]) -> np.ndarra
 
 def no_plans(n: int) -> np.ndarray:
     """`signal_arrays` of `n` signals without a plan: green for ever (a cycle of 1 s, all of it
-    green)."""
+    green, never changing)."""
     out = np.zeros((5, n))
     out[1] = 1.0
     out[3] = out[4] = np.inf
     return out
 
 
-def states_at(t: np.ndarray, arrays: np.ndarray) -> np.ndarray:
-    """The states of signals at times `t` (columns of `signal_arrays`: their plans; broadcast
-    together), as codes of SIGNAL_STATES (0 green, 1 amber, 2 red): the one program of a fixed-time plan, each
-    phase green in turn, then amber, then all-red."""
+def signal_timing(t: np.ndarray, arrays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the states as codes of SIGNAL_STATES: 0 green, 1 amber, 2 red; the seconds until each
+    changes) of signals at times `t` (columns of `signal_arrays`: their plans; broadcast
+    together): the one program of a fixed-time plan, each phase green in turn, then amber, then
+    all-red."""
     offset, cycle, start, green, amber_end = arrays
-    local = (t + offset) % cycle - start  # (time into the signal's phase)
-    state = (local >= green).astype(np.int8) + (local >= amber_end)
-    state[local < 0] = 2  # (another phase's turn)
-    return state
+    into = ((t + offset) % cycle - start) % cycle  # (time into the signal's own phase)
+    state = (into >= green).astype(np.int8) + (into >= amber_end)
+    return state, np.where(into < green, green, np.where(into < amber_end, amber_end, cycle)) - into
 
 
 def signal_tables(net: MapNetwork, paired: bool) -> tuple[dict, list]:

@@ -81,7 +81,7 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
                       PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
-from .control import no_plans, signal_arrays, states_at
+from .control import no_plans, signal_arrays, signal_timing
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
@@ -101,6 +101,9 @@ JUDGE_MIN_ROWS = 4  # controlled rows from which `judge_due` tests which judges 
 # hold and a junction entry before the rows ask one by one (fewer: each asks the rules; the
 # same values)
 SETTLE_MIN_ROWS = 24
+# how long before a signal's next change its states are worked out again (`signal_timing`: the
+# states held until then are those worked out anew, whatever the rounding)
+SIGNAL_EDGE_S = 1e-6
 # live reservations up to which a frame's releases look at every one (`release_looks`: the
 # filter costs more than a few looks; the same releases)
 LOOK_ALL_MAX = 12
@@ -601,7 +604,8 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
-        self._codes_held: tuple | None = None  # (clocks, controls, `signal_codes`) at the last look
+        self._signals_timed: tuple | None = None  # `signal_codes` at the last look
+        self._signal_waits: tuple | None = None  # `signal_waits` at the last look
         # what the rules read of the rows while they are `asking` (`asked`), made when first asked;
         # None otherwise
         self._asking: dict | None = None
@@ -1324,6 +1328,13 @@ class TrafficCore:
         return entries.junction_clear(self, np.full(len(j), slot), np.full(len(j), me), j, priority=priority,
                                       margin=margin, one=slot)
 
+    def rows_clear(self, rows: np.ndarray, lanes: list[str]) -> np.ndarray:
+        """`sim.entries.junction_clear` of junction lane `lanes[k]` for row `rows[k]`, each in its
+        slot: the conflict rule asked of many road users at once (the agents' judges)."""
+        j = np.array([self.table.index[x] for x in lanes], dtype=np.int64)
+        slots = self.env[rows]
+        return entries.junction_clear(self, slots, rows, j, one=int(slots[0]) if (slots == slots[0]).all() else NONE)
+
     def row_of(self, obj: Any) -> int:
         """The row of road user `obj` (LEFT: none; only rows hold reservations)."""
         r = getattr(obj, "_row", LEFT) if getattr(obj, "_core", None) is self else LEFT
@@ -1421,24 +1432,41 @@ class TrafficCore:
         return held
 
     def _signal_states(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
-        """The states (`control.states_at`: 0 green, 1 amber, 2 red) of signals `signals` (indices
-        into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
-        return self.asked(("signals",), self.signal_codes)[slots, signals]  # (one clock for the frame's questions)
+        """The states (`control.signal_timing` codes: 0 green, 1 amber, 2 red) of signals `signals`
+        (indices into `LaneTable.signal_ids`) in slots `slots`, at each slot's clock."""
+        return self.asked(("signals",), self.signal_codes)[slots, signals]  # (one look for the frame's questions)
 
     def signal_codes(self, slot: int | None = None) -> np.ndarray:
-        """The states (`control.states_at` codes) of every signal (`LaneTable.signal_ids`) of every
-        slot at its clock ([slots, signals]; of `slot` alone, [signals]): one program for every
-        slot's signals (what the arrays and the rules' `signal_state` read), made again only once a
-        clock has moved on or a slot has a new control."""
-        held = self._codes_held
+        """The states (`control.signal_timing` codes) of every signal (`LaneTable.signal_ids`) of
+        every slot at its clock ([slots, signals]; of `slot` alone, [signals]): one program for
+        every slot's signals (what the arrays and the rules' `signal_state` read), made again only
+        once a slot's clock has reached the next change of one of its signals (or gone back), or a
+        slot has a new control (a signal changes every few seconds: most frames read states
+        worked out frames before)."""
+        held = self._signals_timed  # (clocks, controls, codes, each slot's next change)
         if slot is not None and held is not None:
             control = self.roads[slot].control
-            if held[1][slot] is control and held[0][slot] == control.t:
+            if held[1][slot] is control and held[0][slot] <= control.t < held[3][slot]:
                 return held[2][slot]
         times, arrays = self._signals_at_clock()
-        if slot is not None or held is None or held[1] is not self._signals_held[0] or not np.array_equal(held[0], times):
-            held = self._codes_held = (times, self._signals_held[0], states_at(times[:, None], arrays.transpose(1, 0, 2)))
+        if slot is not None or held is None or held[1] is not self._signals_held[0] or \
+                not ((held[0] <= times) & (times < held[3])).all():
+            codes, wait = signal_timing(times[:, None], arrays.transpose(1, 0, 2))
+            held = self._signals_timed = (times, self._signals_held[0], codes,
+                                          times + wait.min(axis=1, initial=math.inf) - SIGNAL_EDGE_S)
         return held[2] if slot is None else held[2][slot]
+
+    def signal_waits(self, slot: int) -> np.ndarray:
+        """Seconds until each signal of `slot` changes, at its clock (`control.signal_timing`), worked
+        out for every slot at its clock at once, again once a clock has moved on (the infos of a
+        batch ask each slot in turn at one clock)."""
+        held = self._signal_waits  # (clocks, controls, waits)
+        control = self.roads[slot].control
+        if held is None or held[1][slot] is not control or held[0][slot] != control.t:
+            times, arrays = self._signals_at_clock()
+            held = self._signal_waits = (times, self._signals_held[0],
+                                         signal_timing(times[:, None], arrays.transpose(1, 0, 2))[1])
+        return held[2][slot]
 
     @contextlib.contextmanager
     def asking(self) -> Iterator[None]:

@@ -99,9 +99,8 @@ def driver_view(env) -> list[float]:
             out[turn] = 1.0
         if sl is not None and sl.kind == "signal":
             out[rules.signal_state(sl.control_id)] = 1.0
-            plan = rules.plans.get(sl.control_id)
-            if plan is not None:
-                out["signal_change"] = _scaled(plan.time_to_change(sl.control_id, rules.t), DRIVER_VIEW_SIGNAL_SCALE_S)
+            if sl.control_id in rules.plans:
+                out["signal_change"] = _scaled(rules.signal_change(sl.control_id), DRIVER_VIEW_SIGNAL_SCALE_S)
             out["protected"] = float(rules.protected(in_lane, j_lane))
         if sl is not None and sl.kind == "stop" and not in_junction:
             out["stop_made"] = float(env.judge.stopped_before(in_lane))

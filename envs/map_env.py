@@ -140,18 +140,17 @@ class EgoTask:
         control = "" if in_lane is None else (sl.kind if sl else "yield" if j_lane in net.yield_entries else "bare")
         sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
         sig_id = sl.control_id if sl is not None and sig_state else ""
-        plan = rules.plans.get(sl.control_id) if sl is not None else None
         states = rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {}
         mid = rules.midblock_ahead(ego, d)  # a mid-block crossing's light before that line: the next one
         if mid is not None:
             sig_id, d = mid
-            control, sig_state, plan = "signal", rules.signal_state(sig_id), rules.plans.get(sig_id)
+            control, sig_state = "signal", rules.signal_state(sig_id)
             states = rules.signal_states(None)
         feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
         done = ego.route_distance_done() if done is None else done
         return (
             float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
-            sig_id, sig_state, float(plan.time_to_change(sig_id, rules.t)) if sig_id and plan else math.inf,
+            sig_id, sig_state, rules.signal_change(sig_id) if sig_id else math.inf,
             states, float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
             float(min(done / max(self._route_len, 1e-6), 1.0)),
             bool(self.route_completed() if completed is None else completed),

@@ -191,21 +191,29 @@ class AgentJudge(EgoJudge):
         self.violations.update(not_yielding=0, stop_order=0)
         self._verdict: tuple[str | None, bool, bool] = (None, True, True)  # (junction lane, clear, order ok)
 
-    def note(self) -> None:
+    def note(self) -> str | None:
+        """Keep the verdict on the junction lane ahead; the lane whose conflict verdict
+        (`TrafficRules.junction_clear`) is to be kept too (`noted`, asked of every agent at once by
+        the env), else None."""
         rules, v = self.rules, self.ego
         sl, in_lane, j_lane, d = rules.line_ahead(v, AGENT_ENTRY_LOOK_M)
         if j_lane is None:
-            return
+            return None
         if self._verdict[0] == j_lane and not can_stop_before(d, v.speed, v.LENGTH):
-            return  # past the point where it could still stop: judged by the last verdict it could act on
+            return None  # past the point where it could still stop: judged by the last verdict it could act on
         if rules.reservations.get(j_lane) is v:  # a vehicle the rules let commit goes (TrafficRules.may_enter)
             self._verdict = (j_lane, True, True)
-            return
+            return None
         order = True
         if sl is not None and sl.kind == "stop":
             queue = rules.stop_queue.get(sl.junction_id, [])
             order = v not in queue or rules.stop_queue_allows(v, j_lane)  # not stopped at all: a stop_sign violation
-        self._verdict = (j_lane, rules.junction_clear(j_lane, v), order)
+        self._verdict = (j_lane, True, order)
+        return j_lane
+
+    def noted(self, clear: bool) -> None:
+        """Keep whether the junction lane `note` returned is clear for the agent."""
+        self._verdict = (self._verdict[0], clear, self._verdict[2])
 
     def check(self) -> None:
         prev = self._lane
@@ -558,8 +566,12 @@ class MultiAgentMapEnv(ParallelEnv):
                 core.refresh_windows()  # rows that moved to a new lane last frame
                 near = core.entry[rows] - core.s[rows] <= AGENT_ENTRY_LOOK_M + w.net.max_line_setback
                 with core.asking():
-                    for k in np.nonzero(near)[0].tolist():
-                        judges[k].note()
+                    asked = [(k, judges[k].note()) for k in np.nonzero(near)[0].tolist()]
+                    asked = [(k, j_lane) for k, j_lane in asked if j_lane is not None]
+                    if asked:  # (the conflict rule asked of every agent at once)
+                        clear = core.rows_clear(rows[[k for k, _ in asked]], [j_lane for _, j_lane in asked])
+                        for (k, _), ok in zip(asked, clear.tolist()):
+                            judges[k].noted(ok)
                 crashed = core.crashed[rows]
             core.act(roads)
             core.step(roads, dt)

@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
-SIGNAL_STATES = ("green", "amber", "red")  # the codes of the signal states' one program (`control.states_at`)
+SIGNAL_STATES = ("green", "amber", "red")  # the codes of the signal states' one program (`control.signal_timing`)
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
 
@@ -350,7 +350,8 @@ class TrafficRules:
 
     # (clock, signal states asked at it, junction states asked at it): `signal_state`, `signal_states`
     _states_at: tuple[float, dict[str, str], dict] = (math.nan, {}, {})
-    _codes_at: tuple[float, Any] = (math.nan, None)  # (clock, every signal's state code at it)
+    _codes: tuple[float, Any] = (math.nan, None)  # (clock, every signal's state code at it)
+    _waits: tuple[float, Any] = (math.nan, None)  # (clock, the seconds until each signal changes)
 
     @property
     def stop_queue(self) -> dict:
@@ -368,18 +369,27 @@ class TrafficRules:
 
     def signal_state(self, signal_id: str) -> str:
         """The state of a signal ("green" without a plan), read once per clock value from the
-        states of every signal (`TrafficCore.signal_codes`, the one program of the phase plans):
-        a plan's state is a function of `t` alone, and a frame's rule queries, judges and infos
-        ask the same signals many times."""
+        states of every signal (`TrafficCore.signal_codes`, the one program of the phase plans): a
+        plan's state is a function of `t` alone, and a frame's rule queries, judges and infos ask
+        the same signals many times."""
         states = self._states_now()[1]
         state = states.get(signal_id)
         if state is None:
             road = self.road
             k = road.core.table.signal_index.get(signal_id)
-            if k is not None and self._codes_at[0] != self.t:
-                self._codes_at = (self.t, road.core.signal_codes(road.slot))
-            state = states[signal_id] = "green" if k is None else SIGNAL_STATES[self._codes_at[1][k]]
+            if k is not None and self._codes[0] != self.t:
+                self._codes = (self.t, road.core.signal_codes(road.slot))
+            state = states[signal_id] = "green" if k is None else SIGNAL_STATES[self._codes[1][k]]
         return state
+
+    def signal_change(self, signal_id: str) -> float:
+        """Seconds until a signal's state changes (inf without a plan): `TrafficCore.signal_waits`,
+        once per clock value."""
+        road = self.road
+        k = road.core.table.signal_index.get(signal_id)
+        if k is not None and self._waits[0] != self.t:
+            self._waits = (self.t, road.core.signal_waits(road.slot))
+        return math.inf if k is None else float(self._waits[1][k])
 
     def signal_states(self, junction_id: str | None = None) -> dict[str, str]:
         """States of one junction's signals (all signals when `junction_id` is None): a new dict,

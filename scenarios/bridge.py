@@ -975,7 +975,7 @@ class BridgePlanner:
             plan = rules.plans.get(sid)
             signals.append({"id": sid, "junction": sig.junction_id, "lanes": list(sig.lane_ids),
                             "state": rules.signal_state(sid),
-                            "time_to_change": float(plan.time_to_change(sid, rules.t)) if plan else None})
+                            "time_to_change": rules.signal_change(sid) if plan else None})
         stops = []
         for sid, ss in m.stop_signs.items():
             queue_ = rules.stop_queue.get(ss.junction_id, [])

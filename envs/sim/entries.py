@@ -140,13 +140,13 @@ def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, *, pr
     clear = np.ones(len(j), dtype=bool)
     if not len(j):
         return clear
-    rows, at, where, located = core.asked(("located", one), lambda: _located(core, one, nl))
+    rows, at, located = core.asked(("located", one), lambda: _located(core, one, nl))
     # (question, conflicting lane) pairs: a road user located on it, or its reservation held by another
     q, e = _expand(et.conf_ptr, j)
     c = et.conf_lane[e]
     asker = me[q]
     holder = core.res[slots[q], c]
-    mine = (asker >= 0) & (where[asker] == c)  # (the asker's own place)
+    mine = (asker >= 0) & (core.where_lanes(np.maximum(asker, 0)) == c)  # (the asker's own place)
     blocked = (_on(located, one, nl, slots[q], c) > mine) | ((holder != NONE) & (holder != asker))
     clear[q[blocked]] = False
     # (question, conflicting lane, its approach) triples: a road user about to enter the lane, from
@@ -172,17 +172,16 @@ def junction_clear(core, slots: np.ndarray, me: np.ndarray, j: np.ndarray, *, pr
     return clear
 
 
-def _located(core, slot: int, nl: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(the rows of `slot` (NONE: of every slot), the lane each of them is on, the lane every row
-    is on (`TrafficCore.where_lanes`), and where they are for `_on`: how many are on each lane
-    (one slot), else the sorted keys slot * lanes + lane of those on a lane)."""
-    where = core.where_lanes()
+def _located(core, slot: int, nl: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the rows of `slot` (NONE: of every slot), the lane each is on (`TrafficCore.where_lanes`),
+    and where they are for `_on`: how many are on each lane (one slot), else the sorted keys
+    slot * lanes + lane of those on a lane)."""
     rows = core.slot_rows(slot) if slot != NONE else np.arange(len(core.objs))
-    at = where[rows]
+    at = core.where_lanes(rows)
     on = at >= 0
     if slot != NONE:
-        return rows, at, where, np.bincount(at[on], minlength=nl)
-    return rows, at, where, np.sort(core.env[rows[on]] * nl + at[on])
+        return rows, at, np.bincount(at[on], minlength=nl)
+    return rows, at, np.sort(core.env[rows[on]] * nl + at[on])
 
 
 def _on(located: np.ndarray, one: int, nl: int, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:

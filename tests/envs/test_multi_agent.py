@@ -203,6 +203,30 @@ def test_agents_crossing_against_the_rules_collide_and_are_told_so():
     assert crashed or any(i["violations"]["not_yielding"] for i in infos.values())
 
 
+
+def test_each_agents_conflict_verdict_is_the_rules_answer_to_it_alone(monkeypatch):
+    """The conflict verdicts the env takes for every agent near a junction entry at once
+    (`TrafficCore.rows_clear`, the conflict rule's one program) are the rules' `junction_clear`
+    asked of each agent alone at that moment; clear and not clear both come up."""
+    from feat2map.envs.multi_agent import AgentJudge
+
+    seen = []
+    noted = AgentJudge.noted
+
+    def checked(self, clear):
+        assert clear == self.rules.junction_clear(self._verdict[0], self.ego)
+        seen.append(clear)
+        noted(self, clear)
+
+    monkeypatch.setattr(AgentJudge, "noted", checked)
+    env = parallel_env({**map_config("generated"), "agents": 10, "traffic_vehicles": 6, "duration": 30.0})
+    env.reset(seed=1)
+    for _ in range(100):
+        if not env.agents:
+            env.reset(seed=2)
+        env.step({a: 3 for a in env.agents})
+    assert seen.count(True) > 20 and seen.count(False) > 5, (seen.count(True), seen.count(False))
+
 def test_config_is_strict():
     with pytest.raises(Feat2MapError, match="agent_spacing"):
         parallel_env({"agent_spacing": -1.0})
@@ -267,32 +291,43 @@ def test_info_shortcuts_equal_the_single_env_answers():
     assert seen["line"] > 100 and seen["stop_line"] > 20 and seen["completed"] > 0, seen
 
 
-def test_signal_states_are_worked_out_once_per_clock_value_without_swapping_methods(monkeypatch):
-    """The signals' states are worked out once per value of the traffic control's clock, every
-    signal at once (`TrafficCore.signal_codes`, the phase plans' one program `states_at`, which
-    the frames' rule queries and judges and the agents' infos read), and nothing replaces the
-    traffic control's methods while the infos are made."""
+def test_signal_states_are_worked_out_again_only_when_one_changes_without_swapping_methods(monkeypatch):
+    """The signals' states are worked out for every signal at once (`TrafficCore.signal_codes`:
+    the phase plans' one program `signal_timing`, which the frames' rule queries and judges and the agents' infos
+    read), again only once a signal's state is due to change, never twice at one clock value; at
+    every frame each reads as the plan's state at that time, and nothing replaces the traffic
+    control's methods while the infos are made."""
     from feat2map.envs import core
 
-    env = parallel_env({**map_config("generated"), **SMALL})
+    env = parallel_env({**map_config("generated"), **SMALL, "signal_green": 4.0, "signal_amber": 1.0,
+                        "signal_all_red": 0.5})
     env.reset(seed=0)
     asked: Counter = Counter()
     swapped: list[str] = []
-    states_at, info = core.states_at, MultiAgentMapEnv._info
+    codes, info = core.TrafficCore.signal_codes, MultiAgentMapEnv._info
 
-    def counted(t, arrays):
-        asked[tuple(np.unique(t))] += 1
-        return states_at(t, arrays)
+    def counted(self, *args):
+        before = self._signals_timed
+        out = codes(self, *args)
+        if self._signals_timed is not before:  # worked out again
+            asked[tuple(self._signals_timed[0])] += 1
+        return out
 
     def checked(self, *args):
         swapped.extend(set(vars(self.world.control)) & {"signal_state", "signal_states", "line_ahead"})
         return info(self, *args)
 
-    monkeypatch.setattr(core, "states_at", counted)
+    monkeypatch.setattr(core.TrafficCore, "signal_codes", counted)
     monkeypatch.setattr(MultiAgentMapEnv, "_info", checked)
-    for _ in range(10):
+    frames = 0
+    for _ in range(60):
         env.step({a: 3 for a in env.agents})
-    assert len(asked) >= 10 and max(asked.values()) == 1 and not swapped
+        ctl = env.world.control
+        frames += 1
+        for sid, plan in ctl.plans.items():
+            assert ctl.signal_state(sid) == plan.state(sid, ctl.t)
+            assert ctl.signal_change(sid) == pytest.approx(plan.time_to_change(sid, ctl.t), abs=1e-9)
+    assert 3 <= len(asked) < frames / 2 and max(asked.values()) == 1 and not swapped
 
 
 @pytest.mark.parametrize("angles,control", [(FOUR, "stop"), ([0, 90, 180], "bare"), (FOUR, "signal")])
