@@ -604,8 +604,7 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
-        self._signals_timed: tuple | None = None  # `signal_codes` at the last look
-        self._signal_waits: tuple | None = None  # `signal_waits` at the last look
+        self._signals_timed: tuple | None = None  # `_time_signals` at the last look
         # what the rules read of the rows while they are `asking` (`asked`), made when first asked;
         # None otherwise
         self._asking: dict | None = None
@@ -1438,35 +1437,41 @@ class TrafficCore:
 
     def signal_codes(self, slot: int | None = None) -> np.ndarray:
         """The states (`control.signal_timing` codes) of every signal (`LaneTable.signal_ids`) of
-        every slot at its clock ([slots, signals]; of `slot` alone, [signals]): one program for
-        every slot's signals (what the arrays and the rules' `signal_state` read), made again only
-        once a slot's clock has reached the next change of one of its signals (or gone back), or a
-        slot has a new control (a signal changes every few seconds: most frames read states
-        worked out frames before)."""
-        held = self._signals_timed  # (clocks, controls, codes, each slot's next change)
-        if slot is not None and held is not None:
+        every slot at its clock ([slots, signals]; of `slot` alone, [signals]): what the arrays
+        and the rules' `signal_state` read, worked out again (`_time_signals`) only once a slot's
+        clock has reached the next change of one of its signals (or gone back), or a slot has a
+        new control (a signal changes every few seconds: most frames read states worked out frames
+        before)."""
+        held = self._signals_timed
+        if slot is not None:
             control = self.roads[slot].control
-            if held[1][slot] is control and held[0][slot] <= control.t < held[3][slot]:
-                return held[2][slot]
-        times, arrays = self._signals_at_clock()
-        if slot is not None or held is None or held[1] is not self._signals_held[0] or \
-                not ((held[0] <= times) & (times < held[3])).all():
-            codes, wait = signal_timing(times[:, None], arrays.transpose(1, 0, 2))
-            held = self._signals_timed = (times, self._signals_held[0], codes,
-                                          times + wait.min(axis=1, initial=math.inf) - SIGNAL_EDGE_S)
-        return held[2] if slot is None else held[2][slot]
+            if held is None or held[1][slot] is not control or not held[0][slot] <= control.t < held[4][slot]:
+                held = self._time_signals()
+            return held[2][slot]
+        at = self._signals_at_clock()
+        if held is None or held[1] is not self._signals_held[0] or not ((held[0] <= at[0]) & (at[0] < held[4])).all():
+            held = self._time_signals(at)
+        return held[2]
 
     def signal_waits(self, slot: int) -> np.ndarray:
-        """Seconds until each signal of `slot` changes, at its clock (`control.signal_timing`), worked
-        out for every slot at its clock at once, again once a clock has moved on (the infos of a
-        batch ask each slot in turn at one clock)."""
-        held = self._signal_waits  # (clocks, controls, waits)
+        """Seconds until each signal of `slot` changes, at its clock: worked out again
+        (`_time_signals`) once that clock has moved on (the infos of a batch ask each slot in turn
+        at one clock)."""
+        held = self._signals_timed
         control = self.roads[slot].control
         if held is None or held[1][slot] is not control or held[0][slot] != control.t:
-            times, arrays = self._signals_at_clock()
-            held = self._signal_waits = (times, self._signals_held[0],
-                                         signal_timing(times[:, None], arrays.transpose(1, 0, 2))[1])
-        return held[2][slot]
+            held = self._time_signals()
+        return held[3][slot]
+
+    def _time_signals(self, at: tuple[np.ndarray, np.ndarray] | None = None) -> tuple:
+        """`control.signal_timing`, one program for every signal of every slot at its clock (`at`:
+        `_signals_at_clock`, when already read): (clocks, controls, codes, waits, each slot's
+        next change less SIGNAL_EDGE_S), kept for `signal_codes` and `signal_waits`."""
+        times, arrays = at or self._signals_at_clock()
+        codes, wait = signal_timing(times[:, None], arrays.transpose(1, 0, 2))
+        self._signals_timed = (times, self._signals_held[0], codes, wait,
+                               times + wait.min(axis=1, initial=math.inf) - SIGNAL_EDGE_S)
+        return self._signals_timed
 
     @contextlib.contextmanager
     def asking(self) -> Iterator[None]:
