@@ -84,9 +84,10 @@ from ..invariants import lane_changes
 from .control import no_plans, signal_arrays, signal_timing
 from .lanes import curve_speeds
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (CROSSED, ENTRY, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
+from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
-from .sim import entries, pedestrians, rule_scan, stop_signs
+from .sim import crossings, entries, pedestrians, rule_scan, stop_signs
+from .sim.join import same_key_pairs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
 from .vehicles import TrafficVehicle, route_upcoming
@@ -196,8 +197,8 @@ class LaneTable:
                 if b >= 0 and self.jid[b] == j:
                     self.near[self.joff[j] + self.jloc[k] * self.jsize[j] + self.jloc[b]] = True
         self.crosswalk_lanes: dict[str, list[int]] = {}  # crosswalk -> the lanes crossing it
-        for lid, crossings in net.crossings.items():
-            for cw, _, _ in crossings:
+        for lid, across in net.crossings.items():
+            for cw, _, _ in across:
                 self.crosswalk_lanes.setdefault(cw, []).append(self.index[lid])
         # stop lines by incoming lane: kind (0 none, LINE_SIGNAL, LINE_STOP_SIGN), signal (index into
         # signal_ids), and how far before the lane's end the line lies (rules.line_setback)
@@ -1244,8 +1245,10 @@ class TrafficCore:
         row claims in row order. From SETTLE_MIN_ROWS rows asked, the arrays answer what they can:
         a row whose first stop is a junction entry under a signal that holds it
         (`rules.held_at_signal`: red, or amber where it can stop) stops at the line (on red, a
-        reservation it holds there is given up), and a row whose first stop is a junction entry the
-        arrays answer exactly (`_entry_answers`) is answered there."""
+        reservation it holds there is given up), a row whose first stop is a junction entry the
+        arrays answer exactly (`_entry_answers`) is answered there, and one whose first stop is a
+        crosswalk with people on it, or that such an entry lets go onto one, is answered by the
+        yield rule's program (`_people_answers`) where it stops there or has no stop after it."""
         env = self.env
         n = len(self.objs)
         dist = np.full(n, math.inf)
@@ -1276,8 +1279,14 @@ class TrafficCore:
         halt = signal & held_at_signal(state == 2, state == 1, d_line, self.speed)
         dist[halt] = (d_line - STOP_POINT_M)[halt]
         j_lane = sc.lanes[ar, first]
-        answer, refused, takes = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line)
+        answer, refused, takes, crowd = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line)
         dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
+        crowd |= ask & ~entry & (sc.what[ar, first] == PEOPLE)  # a crosswalk with people its first stop
+        if crowd.any() and not self.net.swept:
+            seen, stop = self._people_answers(sc, crowd, first)
+            dist[seen] = stop[seen]
+            answer |= seen
+        takes &= answer
         takes |= halt & (state == 2) & self._holders()  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
         sc.index(rest | takes)
@@ -1314,6 +1323,20 @@ class TrafficCore:
     def reservations(self, slot: int) -> Reservations:
         """Slot `slot`'s reservations as {lane id: holder} (a view of `res`)."""
         return Reservations(self, slot)
+
+    def pedestrian_stop(self, slot: int, lane: str, s_from: float) -> float:
+        """`sim.crossings.blocking` of one question: the s on `lane` (an id) where a road user of
+        `slot` stops for pedestrians on a crosswalk beyond `s_from` (inf: none), what the rules'
+        `pedestrian_blocking` asks."""
+        return float(crossings.blocking(self, np.array([slot]), np.array([self.table.index[lane]]),
+                                        np.array([s_from]))[0])
+
+    def walkers_across(self, slot: int, lane: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The walkers of `slot` on the crosswalks across `lane` (an id) as `sim.crossings.walkers`
+        sees them: (which of the lane's crossings, `MapNetwork.crossings[lane]` order; s; lateral)."""
+        k = self.table.index[lane]
+        _, c, _, s, lat = crossings.walkers(self, np.array([slot]), np.array([k]))
+        return c - crossings.crossing_table(self.net).start[k], s, lat
 
     def lanes_clear(self, slot: int, vehicle: Any, lanes: Iterable[str], priority: bool = True,
                     margin: float = PRIORITY_MARGIN_M) -> np.ndarray:
@@ -1380,20 +1403,21 @@ class TrafficCore:
         return self._res_taken
 
     def _entry_answers(self, sc: rule_scan.Scan, rows: np.ndarray, j_lane: np.ndarray, in_lane: np.ndarray,
-                       d_line: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(answered, refused, takes), masks over the rows: the rows among `rows` (whose first stop
-        is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays answer
-        (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no swept
-        waits; at a stop sign, whose turn it is: `stop_signs.turns`;
-        held there, or with nothing else to stop for: no crosswalk with people or light on that
-        lane, no stop after it), those the rules hold at the line (`TrafficRules.may_enter`: a
-        reservation of the lane lets it go, else a stop sign holds it unless its turn has come
-        there, else a conflict does, `entries.junction_clear`), and those that would reserve the
-        lane (let go, within commit distance of the line, the lane reserved by nobody)."""
+                       d_line: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(answered, refused, takes, crowd), masks over the rows: the rows among `rows` (whose first
+        stop is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays
+        answer (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no
+        swept waits; at a stop sign, whose turn it is: `stop_signs.turns`; held there, or let go
+        with nothing else to stop for: no crosswalk with people or light on that lane, no stop
+        after it), those the rules hold at the line (`TrafficRules.may_enter`: a reservation of
+        the lane lets it go, else a stop sign holds it unless its turn has come there, else a
+        conflict does, `entries.junction_clear`), those that would reserve the lane if answered
+        (let go, within commit distance of the line, the lane reserved by nobody), and those let go
+        whose next stop is a crosswalk with people on that lane (`_people_answers`)."""
         n = len(rows)
         none = np.zeros(n, dtype=bool)
         if self.net.swept or not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
-            return none, none, none
+            return none, none, none, none
         t = self.table
         et = entries.entry_table(self.net, t)
         stop = t.line_kind[in_lane] == LINE_STOP_SIGN
@@ -1404,7 +1428,7 @@ class TrafficCore:
             turn[sign] = stop_signs.turns(self, sign, j_lane[sign])
         r = answer.nonzero()[0]
         if not len(r):
-            return answer, none, none
+            return answer, none, none, none
         holder = self.res[self.env[r], j_lane[r]]
         reserved, mine = holder != NONE, holder == r  # the lane is reserved (by the row: `mine`)
         no = stop[r] & ~mine & ~turn[r]
@@ -1413,12 +1437,30 @@ class TrafficCore:
             a = r[ask]
             no[ask] = ~entries.junction_clear(self, self.env[a], a, j_lane[a])
         stops = sc.what[r] != 0
-        more = (stops.sum(axis=1) > 1) | (sc.what[r, np.argmax(stops, axis=1)] != ENTRY)  # let go, it walks on: the rules answer
+        what = sc.what[r, np.argmax(stops, axis=1)]
+        people = what == ENTRY | PEOPLE
+        more = (stops.sum(axis=1) > 1) | (what != ENTRY)  # let go, it walks on: the rules answer, or the people
         answer[r[~no & more]] = False
-        refused, takes = none.copy(), none.copy()
+        refused, takes, crowd = none.copy(), none.copy(), none.copy()
         refused[r] = no
-        takes[r] = ~no & ~more & ~reserved & commits(d_line[r], self.speed[r])
-        return answer, refused, takes
+        takes[r] = ~no & ~reserved & commits(d_line[r], self.speed[r])
+        crowd[r] = ~no & people
+        return answer, refused, takes, crowd
+
+    def _people_answers(self, sc: rule_scan.Scan, rows: np.ndarray, first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(answered, stop distance) over the rows: of `rows` (a mask), whose first stop to look at
+        (window place `first`) is a crosswalk with people on it (`sim.crossings.blocking`, from
+        the row's place on its current lane, else from the lane's start), those held there (the
+        distance to where they stop) and those it lets go with no stop after it (inf)."""
+        r = rows.nonzero()[0]
+        k = first[r]
+        d = sc.D[r, k]
+        at = crossings.blocking(self, self.env[r], sc.lanes[r, k], np.where(k == 0, -d, 0.0))
+        seen = np.zeros(len(rows), dtype=bool)
+        seen[r] = (at < math.inf) | ((sc.what[r] != 0).sum(axis=1) == 1)
+        stop = np.full(len(rows), math.inf)
+        stop[r] = d + at
+        return seen, stop
 
     def approach_held(self, slots: np.ndarray, lanes: np.ndarray) -> np.ndarray:
         """Per (slot, lane) pair, `TrafficRules._held`: the lane's line holds its traffic (a stop
@@ -1789,18 +1831,6 @@ class TrafficCore:
         one = lambda k: objs[rows[k]] if k < n else objects[k - n]  # noqa: E731
         for i, j in zip(a[keep].tolist(), b[keep].tolist()):
             one(i).handle_collisions(one(j), dt)
-
-
-def same_key_pairs(key_a: np.ndarray, key_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every (i, j) with key_a[i] == key_b[j], grouped by i (an equality join by sorting: no
-    len(a) x len(b) matrix, so that rows of many sub-envs pair only within their own)."""
-    order = key_b.argsort(kind="stable")
-    sk = key_b[order]
-    lo = sk.searchsorted(key_a, side="left")
-    cnt = sk.searchsorted(key_a, side="right") - lo
-    i = np.arange(len(key_a)).repeat(cnt)
-    j = order[np.arange(int(cnt.sum())) - (cnt.cumsum() - cnt - lo).repeat(cnt)]
-    return i, j
 
 
 def rectangles_overlap(core: TrafficCore, a: np.ndarray, b: np.ndarray) -> np.ndarray:

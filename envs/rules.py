@@ -39,7 +39,7 @@ from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, AMBER_STOP_MARGIN_M,
                       COMMIT_TIME_S, IDM_ACC, IDM_BRAKE, IDM_DELTA, IDM_GAP_M, IDM_MIN_GAP_M, IDM_RANGE_MPS2,
                       IDM_STOP_GAP_M, IDM_STOP_MARGIN_M, IDM_TIME_GAP_S, LEADER_LATERAL_M, MOBIL_GAIN_MPS2,
                       MOBIL_MIN_ROOM_M, MOBIL_MIN_SPEED_MPS, MOBIL_POLITENESS, MOBIL_SAFE_BRAKE_MPS2, OFF_ROAD_END_M,
-                      OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M, PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_IN_PATH_M,
+                      OFF_ROAD_LATERAL_M, PASSAGE_HORIZON_M, PEDESTRIAN_IN_PATH_M,
                       PEDESTRIAN_YIELD_SPEED_MPS, PEDESTRIAN_YIELD_STRETCH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
                       SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
@@ -163,9 +163,9 @@ def has_stopped(speed):
     return speed <= STOPPED_SPEED_MPS
 
 
-def pedestrian_in_path(lateral: float, lane_width: float) -> bool:
+def pedestrian_in_path(lateral, lane_width):
     """A pedestrian `lateral` metres off a lane's centre is in the path of its vehicles (within
-    PEDESTRIAN_IN_PATH_M beyond the lane's half width)."""
+    PEDESTRIAN_IN_PATH_M beyond the lane's half width); floats or arrays (elementwise)."""
     return abs(lateral) < lane_width / 2 + PEDESTRIAN_IN_PATH_M
 
 
@@ -888,24 +888,11 @@ class TrafficRules:
         return math.inf
 
     def pedestrian_blocking(self, lane_id: str, s_from: float) -> float | None:
-        """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None."""
-        net = self.net
-        lane = net.lane_of[lane_id]
-        best = None
-        for cw, s0, s1 in net.crossings.get(lane_id, ()):
-            if s0 < s_from - 0.5:
-                continue
-            for p in self.pedestrians.get(cw, ()):
-                sp, rp = lane.local_coordinates(p.position)
-                if not s0 - 2.0 <= sp <= s1 + 2.0:
-                    continue
-                h = lane.heading_at(sp)
-                towards = rp * (p.direction[0] * -math.sin(h) + p.direction[1] * math.cos(h)) < 0
-                if pedestrian_in_path(rp, lane.width) or (
-                        towards and abs(rp) < lane.width / 2 + PEDESTRIAN_CORRIDOR_M):
-                    stop_at = s0 - 1.0
-                    best = stop_at if best is None else min(best, stop_at)
-        return best
+        """s on `lane_id` to stop at for a pedestrian in the lane's path beyond `s_from`, or None
+        (`sim.crossings.blocking`, the one program, asked through the road's core)."""
+        road = self.road
+        at = road.core.pedestrian_stop(road.slot, lane_id, s_from)
+        return None if at == math.inf else at
 
     def stop_distance(self, vehicle, ignore: frozenset = frozenset(), scan: tuple | None = None) -> float:
         """Distance ahead of `vehicle` where traffic rules make it stop (inf when free to go):
@@ -1082,16 +1069,16 @@ class EgoJudge:
                 self._violate("red_light")
         self._lane, self._lane_s = lid, ego.lane_s
         # pedestrians: the ego on a crosswalk with a person next to its path
-        for cw, s0, s1 in net.crossings.get(lid, ()):
-            if s0 - PEDESTRIAN_YIELD_STRETCH_M <= ego.lane_s <= s1 + PEDESTRIAN_YIELD_STRETCH_M \
-                    and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS and (lid, cw) not in self._ped_flags:
-                lane = net.lane_of[lid]
-                for p in rules.pedestrians.get(cw, ()):
-                    sp, rp = lane.local_coordinates(p.position)
-                    if pedestrian_in_path(rp, lane.width) and abs(sp - ego.lane_s) < ego.LENGTH:
-                        self._ped_flags.add((lid, cw))
-                        self._violate("pedestrian_yield")
-                        break
+        due = [k for k, (cw, s0, s1) in enumerate(net.crossings.get(lid, ()))
+               if s0 - PEDESTRIAN_YIELD_STRETCH_M <= ego.lane_s <= s1 + PEDESTRIAN_YIELD_STRETCH_M
+               and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS and (lid, cw) not in self._ped_flags]
+        if due:  # (the walkers on them as the yield rule sees them: `sim.crossings.walkers`)
+            which, sp, rp = rules.road.core.walkers_across(rules.road.slot, lid)
+            near = pedestrian_in_path(rp, net.lane_of[lid].width) & (np.abs(sp - ego.lane_s) < ego.LENGTH)
+            for k in due:
+                if (near & (which == k)).any():
+                    self._ped_flags.add((lid, net.crossings[lid][k][0]))
+                    self._violate("pedestrian_yield")
         lane = net.get_lane(ego.lane_index)
         self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
             ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors

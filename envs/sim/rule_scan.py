@@ -6,8 +6,9 @@ many junctions follow each other with less road between them. On each lane scann
 can stop the row there, in the order the rules ask it: a road lane across a junction lane
 (`TrafficRules.crossing_held`), a junction entry (its line: `may_enter`), a mid-block crossing's
 light (`midblock_stop`), a crosswalk with people on it (`pedestrian_blocking`). The rules walk a
-row's stops in order (`TrafficRules._rule_stop`); the batched core settles the rows whose first
-stop is a signal that holds them in arrays (`TrafficCore._rule_stops`).
+row's stops in order (`TrafficRules._rule_stop`); the batched core answers in arrays the rows
+whose first stop a program settles (`TrafficCore._rule_stops`: a signal that holds them, a
+junction entry, a crosswalk with people).
 """
 from __future__ import annotations
 

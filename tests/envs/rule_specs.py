@@ -1,14 +1,15 @@
 """The traffic rules as the rules word them, for one road user, read from a slot's lane buckets
 and queue lists: the specifications the rules' one array program each is held to
-(tests/envs/test_entries.py, tests/envs/test_passages.py)."""
+(tests/envs/test_entries.py, tests/envs/test_passages.py, tests/envs/test_pedestrians.py)."""
 from __future__ import annotations
 
+import math
 from collections import Counter
 
 import numpy as np
 
-from feat2map.config import PRIORITY_HORIZON_S, PRIORITY_MARGIN_M
-from feat2map.envs.rules import enters_next
+from feat2map.config import PEDESTRIAN_CORRIDOR_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M
+from feat2map.envs.rules import enters_next, pedestrian_in_path
 
 CROSS_MARGIN_M = 2.5  # a margin other than PRIORITY_MARGIN_M for the cross-traffic test
 
@@ -73,6 +74,27 @@ def first_come_first_served(ctl, vehicle, j_lane: str) -> bool:
         if lane is None or lane in net.conflicts.get(j_lane, ()) and ctl.box_clear(other, lane):
             return False
     return True
+
+
+def yield_as_worded(ctl, lane_id: str, s_from: float) -> float | None:
+    """The pedestrian yield rule: on `lane_id`, a road user stops a metre before a crosswalk
+    across it that begins beyond `s_from` (half a metre behind counts) where a pedestrian on it,
+    within 2 m of the crossing along the lane, is in the lane's path or walks towards the lane
+    within PEDESTRIAN_CORRIDOR_M of its edge (the nearest such crosswalk; None: none)."""
+    lane = ctl.net.lane_of[lane_id]
+    best = None
+    for cw, s0, s1 in ctl.net.crossings.get(lane_id, ()):
+        if s0 < s_from - 0.5:
+            continue
+        for p in ctl.pedestrians.get(cw, ()):
+            sp, rp = lane.local_coordinates(p.position)
+            if not s0 - 2.0 <= sp <= s1 + 2.0:
+                continue
+            h = lane.heading_at(sp)
+            towards = rp * (p.direction[0] * -math.sin(h) + p.direction[1] * math.cos(h)) < 0
+            if pedestrian_in_path(rp, lane.width) or (towards and abs(rp) < lane.width / 2 + PEDESTRIAN_CORRIDOR_M):
+                best = s0 - 1.0 if best is None else min(best, s0 - 1.0)
+    return best
 
 
 def junction_lanes_ahead(net, vehicle) -> list[str]:

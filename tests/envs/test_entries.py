@@ -21,27 +21,40 @@ BUSY_BATCH = {"simulation_frequency": 10, "policy_frequency": 5, "traffic_vehicl
               "pedestrian_rate": 20}
 
 
-def test_the_arrays_answer_junction_entries_as_the_rules_do(monkeypatch):
-    """Each answer of `TrafficCore._entry_answers` (held at the line, or free to go) equals the
-    stop distance the rules give the same road user asked alone right then, before any claim of
-    the frame; the arrays answer many entries, held ones and free ones (a conflict, a queue, a
-    reservation or an approach that may go left out of the arrays fails it)."""
-    answers = []
-    entry_answers, rule_stops = core.TrafficCore._entry_answers, core.TrafficCore._rule_stops
+def test_the_arrays_answer_junction_entries_and_crosswalks_as_the_rules_do(monkeypatch):
+    """Each answer of `TrafficCore._entry_answers` (held at the line, or free to go) and of
+    `_people_answers` (held before a crosswalk with people, or free to go) equals the stop
+    distance the rules give the same road user asked alone right then, before any claim of the
+    frame; the arrays answer many entries and crosswalks, held ones and free ones (a conflict, a
+    queue, a reservation, an approach that may go or a walker left out of the arrays fails it)."""
+    answers: dict[str, list] = {"entry": [], "people": []}
+    entry_answers, people_answers, rule_stops = (core.TrafficCore._entry_answers, core.TrafficCore._people_answers,
+                                                 core.TrafficCore._rule_stops)
+
+    def want(self, kind, rows):  # (a row that takes a lane answers with its claim)
+        self._want[kind] = {i: self.roads[self.env[i]].control.stop_distance(self.objs[i])
+                            for i in (rows & ~self._takes).nonzero()[0]}
 
     def asked(self, sc, rows, j_lane, in_lane, d_line):
-        answered, refused, takes = entry_answers(self, sc, rows, j_lane, in_lane, d_line)
-        self._want = {i: self.roads[self.env[i]].control.stop_distance(self.objs[i])
-                      for i in (answered & ~takes).nonzero()[0]}  # (a row that takes a lane answers with its claim)
-        return answered, refused, takes
+        answered, refused, takes, crowd = entry_answers(self, sc, rows, j_lane, in_lane, d_line)
+        self._takes = takes
+        want(self, "entry", answered)
+        return answered, refused, takes, crowd
+
+    def people(self, sc, rows, first):
+        seen, stop = people_answers(self, sc, rows, first)
+        want(self, "people", seen)
+        return seen, stop
 
     def stops(self, traffic):
-        self._want = {}
+        self._want, self._takes = {}, np.zeros(len(self.objs), dtype=bool)
         dist = rule_stops(self, traffic)
-        answers.extend((float(dist[i]), want) for i, want in self._want.items())
+        for kind, wanted in self._want.items():
+            answers[kind].extend((float(dist[i]), w) for i, w in wanted.items())
         return dist
 
     monkeypatch.setattr(core.TrafficCore, "_entry_answers", asked)
+    monkeypatch.setattr(core.TrafficCore, "_people_answers", people)
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", stops)
     envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=12, vectorization_mode="vector_entry_point",
                         config=BUSY_BATCH)
@@ -49,10 +62,10 @@ def test_the_arrays_answer_junction_entries_as_the_rules_do(monkeypatch):
     for _ in range(60):
         envs.step(np.ones(12, dtype=np.int64))
     envs.close()
-    got, want = np.array(answers).T
-    assert len(answers) > 2000
-    assert (want < math.inf).sum() > 200 and (want == math.inf).sum() > 200
-    assert got == pytest.approx(want, abs=1e-9)
+    for kind, least in (("entry", 200), ("people", 50)):
+        got, wanted = np.array(answers[kind]).T
+        assert (wanted < math.inf).sum() > least and (wanted == math.inf).sum() > least, kind
+        assert got == pytest.approx(wanted, abs=1e-9), kind
 
 
 def test_the_conflict_rule_is_as_worded_in_busy_batched_traffic():

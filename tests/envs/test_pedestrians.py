@@ -1,6 +1,7 @@
 """Crosswalk pedestrians (`sim/pedestrians.py`) and the counter-based draws they step out by
 (`sim/random.py`): each slot draws on its own, so a sub-env of a batch has the pedestrians of the
-single env on its seed; nobody steps out in front of a road user, nor beyond a crosswalk's room."""
+single env on its seed; nobody steps out in front of a road user, nor beyond a crosswalk's room;
+the yield rule (`sim/crossings.py`, one program) is the rule as worded (rule_specs.py)."""
 from __future__ import annotations
 
 import os
@@ -13,6 +14,7 @@ import numpy as np
 import feat2map
 from feat2map.config import PEDESTRIAN_CLEARANCE_M, PEDESTRIAN_SPAWN_HORIZON_S
 from feat2map.envs.sim import random
+from rule_specs import yield_as_worded
 
 J = feat2map.JunctionFeature.make
 CONFIG = {"features": [J([0, 90, 180, 270], "signal", True).to_dict(), J([0, 90, 180], "bare", True).to_dict()],
@@ -120,3 +122,35 @@ def test_pedestrians_step_out_clear_of_road_users_and_within_a_crosswalks_room(m
     assert len(out) > 10 and let_go > 3
     assert min(float(d.min()) for d in out) >= 0.0  # nobody stepped out within a road user's reach
     env.close()
+
+
+def test_the_yield_rule_is_as_worded_and_the_judge_sees_the_walkers_where_they_are():
+    """`pedestrian_blocking` (`sim.crossings.blocking`) of every lane across a crosswalk, from its
+    start and from a random place on it, is the yield rule as worded, in a batch with many
+    walkers; `walkers_across` (what the judge reads) gives each walker on a crosswalk across a
+    lane, at its place seen from the lane. Both held and free answers are many."""
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        config={**CONFIG, "pedestrians_per_crosswalk": 4})
+    envs.reset(seed=3)
+    core, rng = envs.unwrapped.core, np.random.default_rng(0)
+    lanes = [x for x in core.net.lane_ids if x in core.net.crossings]
+    held = free = seen = 0
+    for _ in range(80):
+        envs.step(np.ones(4, dtype=np.int64))
+        for road in core.roads:
+            ctl = road.control
+            if not any(ctl.pedestrians.values()):
+                continue
+            for lid in lanes:
+                for s_from in (0.0, float(rng.uniform(-5.0, 30.0))):
+                    want = yield_as_worded(ctl, lid, s_from)
+                    assert ctl.pedestrian_blocking(lid, s_from) == want, (lid, s_from)
+                    held, free = held + (want is not None), free + (want is None)
+                lane, across = core.net.lane_of[lid], core.net.crossings[lid]
+                which, s, lat = core.walkers_across(road.slot, lid)
+                expect = sorted((k, *lane.local_coordinates(p.position)) for k, (cw, _, _) in enumerate(across)
+                                for p in ctl.pedestrians.get(cw, ()))
+                assert sorted(zip(which.tolist(), s.tolist(), lat.tolist())) == expect
+                seen += len(expect)
+    envs.close()
+    assert held > 300 and free > 300 and seen > 1000, (held, free, seen)
