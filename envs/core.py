@@ -82,7 +82,7 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
                       PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import no_plans, signal_arrays, signal_timing
-from .lanes import curve_speeds
+from .lanes import _points, curve_speeds, project_rows, segment_table
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
@@ -248,8 +248,7 @@ class LaneTable:
         missing = at >= len(self.pair_key)
         missing[~missing] = self.pair_key[at[~missing]] != keys[~missing]
         if missing.any():
-            for key in np.unique(keys[missing]).tolist():
-                self._add_pair(key)
+            self._add_pairs(np.unique(keys[missing]))
             at = self.pair_key.searchsorted(keys)
         start, count, step = self.pair_start[at], self.pair_count[at], self.pair_step[at]
         pos = np.minimum(np.maximum(s_b / step, 0.0), count - 1)
@@ -259,20 +258,27 @@ class LaneTable:
         return (self.pair_sa[i] * (1 - f) + self.pair_sa[i + 1] * f,
                 self.pair_ra[i] * (1 - f) + self.pair_ra[i + 1] * f)
 
-    def _add_pair(self, key: int) -> None:
-        """Sample lane b (key a * lanes + b) from lane a every PAIR_SAMPLE_M, its key kept sorted."""
-        a, b = divmod(key, len(self.length))
-        la, lb = self.net.lane_of[self.net.lane_ids[a]], self.net.lane_of[self.net.lane_ids[b]]
-        count = max(2, int(math.ceil(lb.length / PAIR_SAMPLE_M)) + 1)
-        sb = np.linspace(0.0, lb.length, count)
-        proj = np.array([la.local_coordinates(lb.position(x, 0.0)) for x in sb])
-        k = int(self.pair_key.searchsorted(key))
-        self.pair_key = np.insert(self.pair_key, k, key)
-        self.pair_start = np.insert(self.pair_start, k, len(self.pair_sa))
-        self.pair_count = np.insert(self.pair_count, k, count)
-        self.pair_step = np.insert(self.pair_step, k, lb.length / (count - 1))
-        self.pair_sa = np.concatenate([self.pair_sa, proj[:, 0]])
-        self.pair_ra = np.concatenate([self.pair_ra, proj[:, 1]])
+    def _add_pairs(self, keys: np.ndarray) -> None:
+        """Sample lane b of each new key a * lanes + b from lane a every PAIR_SAMPLE_M (each point
+        `lb.position(x, 0)` seen by `la.local_coordinates`, in one program: `lanes.project_rows`),
+        the keys kept sorted."""
+        a, b = np.divmod(keys, len(self.length))
+        count = np.maximum(2, np.ceil(self.length[b] / PAIR_SAMPLE_M).astype(np.int64) + 1)
+        lanes = self.net._lanes
+        x = np.zeros((len(keys), int(count.max())))  # (the padding's results are dropped)
+        y = np.zeros_like(x)
+        for n, (lb, c) in enumerate(zip(b.tolist(), count.tolist())):
+            x[n, :c], y[n, :c] = _points(lanes[lb], np.linspace(0.0, self.length[lb], c)).T
+        table = self.net.memo("segment table", lambda: segment_table(lanes))
+        sa, ra = project_rows(table, a, x, y)
+        real = np.arange(x.shape[1])[None, :] < count[:, None]
+        order = np.argsort(np.concatenate([self.pair_key, keys]), kind="stable")
+        self.pair_key = np.concatenate([self.pair_key, keys])[order]
+        self.pair_start = np.concatenate([self.pair_start, len(self.pair_sa) + np.cumsum(count) - count])[order]
+        self.pair_count = np.concatenate([self.pair_count, count])[order]
+        self.pair_step = np.concatenate([self.pair_step, self.length[b] / (count - 1)])[order]
+        self.pair_sa = np.concatenate([self.pair_sa, sa[real]])
+        self.pair_ra = np.concatenate([self.pair_ra, ra[real]])
 
     @classmethod
     def of(cls, net: MapNetwork) -> "LaneTable":

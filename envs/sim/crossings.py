@@ -4,9 +4,9 @@ once: where a road user stops for them (the yield rule, `blocking`: the rules' o
 crosswalk with people) and who is in a road user's path (`walkers`, which the judge reads).
 
 A question is (slot, lane); the lane's crossings (`MapNetwork.crossings`: crosswalk, s0, s1) are a
-table by lane, built once per network (`CrossingTable`), and a slot's walkers on a crosswalk are
-its walker rows (`TrafficCore.p_*`), joined by key: nothing scans every lane or every walker of
-every slot per question.
+table by lane, built once per network (`CrossingTable`), and the walkers on a crosswalk are the
+walker rows (`TrafficCore.p_*`) of that (slot, crosswalk), joined by key (one sort of the walkers
+a call): no lane is scanned but the questions' own.
 """
 from __future__ import annotations
 

@@ -73,6 +73,34 @@ def test_the_one_row_programs_are_the_array_programs(busy_env, data):
     assert table.heading_one(k, s) == table.heading_at(np.array([k]), np.array([s]))[0]
 
 
+@settings(max_examples=30, deadline=None)
+@given(data=st.data())
+def test_lane_pair_tables_sample_each_lane_as_the_other_lane_sees_it(busy_env, data):
+    """The lane-pair tables (`LaneTable.seen_from`), built for several new pairs in one program,
+    hold each point of lane b every PAIR_SAMPLE_M (its ends included) as lane a's
+    `local_coordinates` sees it, bit for bit, and answer there and between by interpolation."""
+    from feat2map.config import PAIR_SAMPLE_M
+
+    net = busy_env.net
+    table = LaneTable(net)  # (its own: no pair built yet)
+    n = len(net.lane_ids)
+    ks = data.draw(st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), min_size=1, max_size=6))
+    a, b = np.array([x for x, _ in ks]), np.array([y for _, y in ks])
+    mid = np.array([data.draw(st.floats(0.0, net.lane_of[net.lane_ids[y]].length)) for y in b.tolist()])
+    table.seen_from(a, b, mid)
+    assert len(table.pair_key) == len(set(ks)) and np.all(np.diff(table.pair_key) > 0)
+    for x, y in ks:
+        la, lb = net.lane_of[net.lane_ids[x]], net.lane_of[net.lane_ids[y]]
+        count = max(2, int(np.ceil(lb.length / PAIR_SAMPLE_M)) + 1)
+        at = np.linspace(0.0, lb.length, count)
+        want = np.array([la.local_coordinates(lb.position(s, 0.0)) for s in at])
+        k = int(table.pair_key.searchsorted(x * n + y))
+        got = slice(table.pair_start[k], table.pair_start[k] + table.pair_count[k])
+        assert np.array_equal(table.pair_sa[got], want[:, 0]) and np.array_equal(table.pair_ra[got], want[:, 1])
+        sa, ra = table.seen_from(np.full(count, x), np.full(count, y), at)
+        np.testing.assert_allclose(np.stack([sa, ra], axis=1), want, atol=1e-9)
+
+
 def test_pedestrians_are_walker_rows_and_keep_their_place_when_let_go():
     """Pedestrians are views of the core's walker rows: they walk with the frames, and one let go
     (`drop_walkers`) keeps its last place while the others keep theirs."""
