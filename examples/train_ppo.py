@@ -24,7 +24,7 @@ road) / diverge (main road onto the off-ramp) at the ramp junction.
   process, the traffic of all sub-envs in one array program; `--subprocess` for copies in
   subprocesses instead, torch single-threaded in every process) for `--train-minutes` of wall
   time (or `--timesteps`, whichever ends first); each training episode draws its traffic count
-  from TRAIN_TRAFFIC.
+  from TRAIN_TRAFFIC and its pedestrian rate from TRAIN_PEDESTRIANS.
 - Evaluation: `--episodes-per-cell` episodes per (junction type, manoeuvre) cell from fixed seeds
   that training never draws (EVAL_SEED on), for PPO (deterministic) and the ScriptedDriver, in
   parallel processes.
@@ -101,6 +101,11 @@ TASK_CONFIG = {
     **{f"reward_{k}": FAILURE_PENALTY for k in ("collision", "red_light", "stop_sign", "pedestrian_yield", "off_road")},
 }
 TRAIN_TRAFFIC = (2, 8)  # training episodes draw their traffic count from this range (evaluation: 4)
+#: [per crosswalk and minute] training episodes draw their pedestrian rate from this range
+#: (evaluation: 3): crossings and the waits they make are met more often. With the evaluation's rate
+#: in training, seeds 2-4 left 4 / 2 / 2 cells below 0.9 (31 failures, 15 of them red lights run);
+#: with this range, 2 / 0 / 0 (14 failures, none a red light).
+TRAIN_PEDESTRIANS = (3.0, 12.0)
 STOP_BONUS = 0.3
 TIME_COST = 0.01
 LOAD_SAMPLE_S = 30.0  # the machine's load average is sampled this often during training
@@ -191,29 +196,43 @@ class TaskRewards(gym.Wrapper):
         return obs, r, term or bool(info["new_violations"]), trunc, info
 
 
-class TrafficRange(gym.Wrapper):
-    """Training only: each episode draws its traffic count from [lo, hi], so that the agent meets
-    conflicting traffic more often (and sparser scenes too) than at the evaluation's fixed count."""
+def episode_draw(rng: np.random.Generator, traffic: tuple[int, int] | None,
+                 pedestrians: tuple[float, float] | None = TRAIN_PEDESTRIANS) -> dict:
+    """One training episode's config draws: its traffic count from `traffic` and its pedestrian
+    rate from `pedestrians` (none without a range), so that the agent meets conflicting traffic
+    and crossings more often (and sparser scenes too) than at the evaluation's fixed values."""
+    out: dict = {}
+    if traffic is not None:
+        out["traffic_vehicles"] = int(rng.integers(traffic[0], traffic[1] + 1))
+    if pedestrians is not None:
+        out["pedestrian_rate"] = float(rng.uniform(*pedestrians))
+    return out
 
-    def __init__(self, env: gym.Env, lo: int, hi: int) -> None:
+
+class TrafficRange(gym.Wrapper):
+    """Training only: each episode draws its traffic count and pedestrian rate (`episode_draw`)."""
+
+    def __init__(self, env: gym.Env, traffic: tuple[int, int] | None,
+                 pedestrians: tuple[float, float] | None = TRAIN_PEDESTRIANS) -> None:
         super().__init__(env)
-        self.lo, self.hi = lo, hi
+        self.traffic, self.pedestrians = traffic, pedestrians
         self._rng = np.random.default_rng()
 
     def reset(self, *, seed=None, options=None):
         if seed is not None:
             self._rng = np.random.default_rng(seed + 1)
-        self.env.unwrapped.configure({"traffic_vehicles": int(self._rng.integers(self.lo, self.hi + 1))})
+        self.env.unwrapped.configure(episode_draw(self._rng, self.traffic, self.pedestrians))
         return self.env.reset(seed=seed, options=options)
 
 
 class BatchedTask(gym.vector.VectorWrapper):
     """The agent's task on the native batched vector env (same-step autoreset), as array
     operations over the sub-envs: TargetSpeed's action, TaskRewards' shaping and its end of an
-    episode on a violation (those sub-envs are reset through `reset_mask`), TrafficRange's
-    draw of each episode's traffic count (made when the episode before it starts)."""
+    episode on a violation (those sub-envs are reset through `reset_mask`), each episode's draws
+    (`episode_draw`, made when the episode before it starts)."""
 
-    def __init__(self, venv, traffic: tuple[int, int] | None = None, speeds: Sequence[float] = TARGET_SPEEDS) -> None:
+    def __init__(self, venv, traffic: tuple[int, int] | None = None, speeds: Sequence[float] = TARGET_SPEEDS,
+                 pedestrians: tuple[float, float] | None = None) -> None:
         super().__init__(venv)
         self.subs = venv.unwrapped.envs
         u = self.subs[0]
@@ -222,14 +241,14 @@ class BatchedTask(gym.vector.VectorWrapper):
         self.lo, self.hi = u.action_type.acceleration_range
         self.single_action_space = gym.spaces.Discrete(len(self.speeds))
         self.action_space = gym.spaces.MultiDiscrete([len(self.speeds)] * self.num_envs)
-        self.traffic = traffic
+        self.traffic, self.pedestrians = traffic, pedestrians
         self._rngs = [np.random.default_rng() for _ in self.subs]
         self._stopped = np.zeros(self.num_envs, dtype=bool)
 
     def _draw(self, which) -> None:
-        if self.traffic is not None:
+        if self.traffic is not None or self.pedestrians is not None:
             for i in np.nonzero(which)[0].tolist():
-                self.subs[i].configure({"traffic_vehicles": int(self._rngs[i].integers(self.traffic[0], self.traffic[1] + 1))})
+                self.subs[i].configure(episode_draw(self._rngs[i], self.traffic, self.pedestrians))
 
     def reset(self, *, seed=None, options=None):
         if seed is not None:
@@ -266,12 +285,14 @@ class BatchedTask(gym.vector.VectorWrapper):
         return obs, r, term, trunc, info
 
 
-def make_env(config: dict, agent: bool = True, traffic: tuple[int, int] | None = None) -> gym.Env:
+def make_env(config: dict, agent: bool = True, traffic: tuple[int, int] | None = None,
+             pedestrians: tuple[float, float] | None = None) -> gym.Env:
     """The env of `config`; with `agent`, wrapped into the agent's task (target speeds, rewards);
-    with `traffic` (training), a traffic count drawn per episode from that range."""
+    with `traffic` or `pedestrians` (training), a traffic count and a pedestrian rate drawn per
+    episode from those ranges (`episode_draw`)."""
     env = gym.make("feat2map/JunctionGrid-v0", config=config)
-    if traffic is not None:
-        env = TrafficRange(env, *traffic)
+    if traffic is not None or pedestrians is not None:
+        env = TrafficRange(env, traffic, pedestrians)
     return TaskRewards(TargetSpeed(env)) if agent else env
 
 
@@ -566,11 +587,12 @@ def build_model(config: dict, rc: "RunConfig"):
     torch.set_num_threads(1)
     if rc.subprocess:
         venv = make_vec_env(make_env, n_envs=rc.n_envs, seed=rc.seed,
-                            env_kwargs={"config": config, "traffic": rc.train_traffic},
+                            env_kwargs={"config": config, "traffic": rc.train_traffic,
+                                        "pedestrians": rc.train_pedestrians},
                             vec_env_cls=SubprocVecEnv, vec_env_kwargs={"start_method": "fork"})
     else:
         batch = MapVectorEnv(JunctionGridEnv, rc.n_envs, config=config, autoreset_mode=AutoresetMode.SAME_STEP)
-        venv = VecMonitor(sb3_vec_env(BatchedTask(batch, rc.train_traffic)))
+        venv = VecMonitor(sb3_vec_env(BatchedTask(batch, rc.train_traffic, pedestrians=rc.train_pedestrians)))
     n_steps = rc.n_steps or max(rc.rollout // rc.n_envs, 8)
     return PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=rc.batch_size, n_epochs=rc.n_epochs,
                gamma=rc.gamma, gae_lambda=0.95, learning_rate=rc.learning_rate, ent_coef=rc.ent_coef,
@@ -638,6 +660,7 @@ class RunConfig:
     timesteps: int = 2_000_000  # at most; training also ends after train_minutes
     train_minutes: float | None = 24.0
     train_traffic: tuple[int, int] | None = TRAIN_TRAFFIC
+    train_pedestrians: tuple[float, float] | None = TRAIN_PEDESTRIANS
     n_envs: int = 32
     subprocess: bool = False  # copies in subprocesses instead of the native batched env
     n_steps: int | None = None  # per env and rollout (None: rollout // n_envs)

@@ -202,6 +202,39 @@ def test_batched_task_pays_what_the_wrappers_pay(tp):
     assert np.allclose(rewards, brewards)
 
 
+def test_training_episodes_draw_their_traffic_and_pedestrians_the_same_in_both_paths(tp):
+    """Each training episode of the batched env (BatchedTask, which configures a sub-env's next
+    episode as the one before it starts) and of a wrapped single env (TrafficRange, at its reset)
+    draws its traffic count and pedestrian rate from the training ranges: the same draws from the
+    same seed, spread over the ranges."""
+    cfg = tp.env_config(tp.junction_features(ns=(3,), controls=("bare",), crosswalks=(True,)), duration=0.5)
+    single = tp.make_env(cfg, traffic=tp.TRAIN_TRAFFIC, pedestrians=tp.TRAIN_PEDESTRIANS)
+    batch = tp.BatchedTask(tp.MapVectorEnv(tp.JunctionGridEnv, 1, config=cfg, autoreset_mode=tp.AutoresetMode.SAME_STEP),
+                           tp.TRAIN_TRAFFIC, pedestrians=tp.TRAIN_PEDESTRIANS)
+    sub = batch.unwrapped.envs[0]
+
+    def drawn(env):
+        return env.config["traffic_vehicles"], env.config["pedestrian_rate"]
+
+    single.reset(seed=5)
+    batch.reset(seed=5)
+    singles, nexts = [drawn(single.unwrapped)], [drawn(sub)]
+    for _ in range(12):
+        done = False
+        while not done:
+            _, _, term, trunc, _ = single.step(0)
+            done = term or trunc
+            _, _, bterm, btrunc, _ = batch.step(np.array([0]))
+            assert (term, trunc) == (bool(bterm[0]), bool(btrunc[0]))
+        single.reset()
+        singles.append(drawn(single.unwrapped))
+        nexts.append(drawn(sub))
+    assert nexts[:-1] == singles[1:]  # the batch's next episode is the single env's next
+    traffic, rate = np.array(singles).T
+    assert traffic.min() >= tp.TRAIN_TRAFFIC[0] and traffic.max() <= tp.TRAIN_TRAFFIC[1] and len(set(traffic)) > 2
+    assert rate.min() >= tp.TRAIN_PEDESTRIANS[0] and rate.max() < tp.TRAIN_PEDESTRIANS[1] and rate.std() > 1.0
+
+
 def test_progress_is_a_line_a_minute_off_a_terminal(tp, capsys, monkeypatch):
     monkeypatch.setattr(tp, "PROGRESS_LINE_S", 0.0)  # a line at every update
     bar = tp.Progress(10, "training", "step", enabled=True, minutes=24)
