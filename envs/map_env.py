@@ -134,19 +134,16 @@ class EgoTask:
         junction's feature, the live violation counts, new violations, signal states and reward
         terms: `info_dict` converts them; envs/vector.py stacks them for a batch at once);
         `done` and `completed` when already asked this step."""
-        ego, net, m, rules = self.vehicle, self.net, self.net.hdmap, self.control
-        jid, turn = self.junction_ahead()
-        sl, in_lane, j_lane, d = self.next_stop_line()
-        control = "" if in_lane is None else (sl.kind if sl else "yield" if j_lane in net.yield_entries else "bare")
-        sig_state = rules.signal_state(sl.control_id) if sl is not None and sl.kind == "signal" else ""
-        sig_id = sl.control_id if sl is not None and sig_state else ""
-        states = rules.signal_states(m.lanes[j_lane].junction_id) if j_lane else {}
+        ego, net, rules = self.vehicle, self.net, self.control
+        jid, turn, feature, control, sig_id, states_of = route_memo(ego, "info", self._route_info)
+        d = self.next_stop_line()[3]
+        sig_state = rules.signal_state(sig_id) if sig_id else ""
+        states = rules.signal_states(states_of) if states_of is not False else {}
         mid = rules.midblock_ahead(ego, d)  # a mid-block crossing's light before that line: the next one
         if mid is not None:
             sig_id, d = mid
             control, sig_state = "signal", rules.signal_state(sig_id)
             states = rules.signal_states(None)
-        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
         done = ego.route_distance_done() if done is None else done
         return (
             float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
@@ -156,6 +153,18 @@ class EgoTask:
             bool(self.route_completed() if completed is None else completed),
             net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
         )
+
+    def _route_info(self) -> tuple:
+        """The info values that hold while the ego's route position does (a `route_memo`): the
+        junction ahead, the manoeuvre, its feature, the next stop line's control and signal, and
+        whose signals' states to give (False: none)."""
+        m, net = self.net.hdmap, self.net
+        jid, turn = self.junction_ahead()
+        sl, in_lane, j_lane, _ = self.next_stop_line()
+        control = "" if in_lane is None else (sl.kind if sl else "yield" if j_lane in net.yield_entries else "bare")
+        sig_id = sl.control_id if sl is not None and sl.kind == "signal" else ""
+        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
+        return jid, turn, feature, control, sig_id, m.lanes[j_lane].junction_id if j_lane else False
 
     # ---- scripted-driver API -----------------------------------------------------------------
     @property
