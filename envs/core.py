@@ -82,7 +82,7 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
                       PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import no_plans, signal_arrays, signal_timing
-from .lanes import _points, curve_speeds, project_rows, segment_table
+from .lanes import centre_points, curve_speeds, project_rows, segment_table
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
@@ -268,7 +268,7 @@ class LaneTable:
         x = np.zeros((len(keys), int(count.max())))  # (the padding's results are dropped)
         y = np.zeros_like(x)
         for n, (lb, c) in enumerate(zip(b.tolist(), count.tolist())):
-            x[n, :c], y[n, :c] = _points(lanes[lb], np.linspace(0.0, self.length[lb], c)).T
+            x[n, :c], y[n, :c] = centre_points(lanes[lb], np.linspace(0.0, self.length[lb], c)).T
         table = self.net.memo("segment table", lambda: segment_table(lanes))
         sa, ra = project_rows(table, a, x, y)
         real = np.arange(x.shape[1])[None, :] < count[:, None]

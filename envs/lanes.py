@@ -163,7 +163,7 @@ def curve_speeds(lane: PolylineLane) -> np.ndarray:
     s = lane.cum
     w = min(CURVE_WINDOW_M, float(s[-1]))
     mid = np.clip(s, w / 2, s[-1] - w / 2)
-    a, b, c = (_points(lane, xs) for xs in (mid - w / 2, mid, mid + w / 2))
+    a, b, c = (centre_points(lane, xs) for xs in (mid - w / 2, mid, mid + w / 2))
     h1 = np.arctan2(*(b - a).T[::-1])
     h2 = np.arctan2(*(c - b).T[::-1])
     turn = np.abs(wrap_angle(h2 - h1))
@@ -172,7 +172,7 @@ def curve_speeds(lane: PolylineLane) -> np.ndarray:
     return speed
 
 
-def _points(lane: PolylineLane, s: np.ndarray) -> np.ndarray:
+def centre_points(lane: PolylineLane, s: np.ndarray) -> np.ndarray:
     """[len(s), 2]: `lane.position(x, 0.0)` of each x in `s`, with the same arithmetic."""
     i = np.minimum(np.maximum(np.searchsorted(lane.cum, s, side="right") - 1, 0), lane._n - 1)
     ds = s - lane.cum[i]
