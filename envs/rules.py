@@ -1069,15 +1069,15 @@ class EgoJudge:
                 self._violate("red_light")
         self._lane, self._lane_s = lid, ego.lane_s
         # pedestrians: the ego on a crosswalk with a person next to its path
-        due = [k for k, (cw, s0, s1) in enumerate(net.crossings.get(lid, ()))
+        due = [(k, cw) for k, (cw, s0, s1) in enumerate(net.crossings.get(lid, ()))
                if s0 - PEDESTRIAN_YIELD_STRETCH_M <= ego.lane_s <= s1 + PEDESTRIAN_YIELD_STRETCH_M
                and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS and (lid, cw) not in self._ped_flags]
         if due:  # (the walkers on them as the yield rule sees them: `sim.crossings.walkers`)
             which, sp, rp = rules.road.core.walkers_across(rules.road.slot, lid)
             near = pedestrian_in_path(rp, net.lane_of[lid].width) & (np.abs(sp - ego.lane_s) < ego.LENGTH)
-            for k in due:
+            for k, cw in due:
                 if (near & (which == k)).any():
-                    self._ped_flags.add((lid, net.crossings[lid][k][0]))
+                    self._ped_flags.add((lid, cw))
                     self._violate("pedestrian_yield")
         lane = net.get_lane(ego.lane_index)
         self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \

@@ -972,10 +972,9 @@ class BridgePlanner:
                                         "speed": float(p.speed), "crosswalk": cw})
         signals = []
         for sid, sig in m.signals.items():
-            plan = rules.plans.get(sid)
             signals.append({"id": sid, "junction": sig.junction_id, "lanes": list(sig.lane_ids),
                             "state": rules.signal_state(sid),
-                            "time_to_change": rules.signal_change(sid) if plan else None})
+                            "time_to_change": rules.signal_change(sid) if sid in rules.plans else None})
         stops = []
         for sid, ss in m.stop_signs.items():
             queue_ = rules.stop_queue.get(ss.junction_id, [])

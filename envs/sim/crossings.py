@@ -34,15 +34,12 @@ BEHIND_M = 0.5  # a crossing whose start is this far behind where the question s
 class CrossingTable:
     """Per lane (`MapNetwork.lane_ids` order) its crossings `start[lane]` up to
     `start[lane] + count[lane]` in `cw` (the crosswalk, `pedestrians.crosswalks` index), `s0`,
-    `s1` (where the lane crosses it); each lane's vertex arc lengths (`cum`, from `vertex[lane]`)
-    for its heading."""
+    `s1` (where the lane crosses it)."""
     start: np.ndarray
     count: np.ndarray
     cw: np.ndarray
     s0: np.ndarray
     s1: np.ndarray
-    vertex: np.ndarray
-    cum: np.ndarray
 
 
 def crossing_table(net: MapNetwork) -> CrossingTable:
@@ -52,13 +49,10 @@ def crossing_table(net: MapNetwork) -> CrossingTable:
         rows = [net.crossings.get(lid, ()) for lid in net.lane_ids]
         count = np.array([len(r) for r in rows], dtype=np.int64)
         flat = [c for r in rows for c in r]
-        npts = np.array([len(ln.cum) for ln in net._lanes], dtype=np.int64)
         return CrossingTable(np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64), count,
                              np.array([index[cw] for cw, _, _ in flat], dtype=np.int64),
                              np.array([s0 for _, s0, _ in flat], dtype=float),
-                             np.array([s1 for _, _, s1 in flat], dtype=float),
-                             np.concatenate([[0], np.cumsum(npts)[:-1]]).astype(np.int64),
-                             np.concatenate([ln.cum for ln in net._lanes]))
+                             np.array([s1 for _, _, s1 in flat], dtype=float))
     return net.memo("crossing table", build)
 
 
@@ -100,20 +94,10 @@ def blocking(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s_from: 
     t = crossing_table(core.net)
     lane, s0, s1 = lanes[q], t.s0[c], t.s1[c]
     width = core.table.width[lane]
-    h = heading(core, t, lane, sp)
+    h = core.table.heading_at(lane, sp)  # (the lane's heading there: `LaneTable`'s)
     towards = rp * (core.p_ux[w] * -np.sin(h) + core.p_uy[w] * np.cos(h)) < 0
     hit = (s0 >= s_from[q] - BEHIND_M) & (s0 - NEAR_CROSSING_M <= sp) & (sp <= s1 + NEAR_CROSSING_M) & \
         (pedestrian_in_path(rp, width) | towards & (np.abs(rp) < width / 2 + PEDESTRIAN_CORRIDOR_M))
     np.minimum.at(out, q[hit], s0[hit] - STOP_BEFORE_M)
     return out
 
-
-def heading(core: "TrafficCore", t: CrossingTable, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """`PolylineLane.heading_at` of each (lane, s), with its arithmetic (vertex headings
-    interpolated over the lane's own arc lengths; the last vertex's at or past the end)."""
-    lt = core.table
-    sc = np.minimum(np.maximum(s, 0.0), lt.length[lane])
-    j = lt.segments(lane, sc)  # a point index (LaneTable's), the segment's first vertex
-    v = t.vertex[lane] + j - lt.first[lane]  # the same vertex in `cum`
-    f = (sc - t.cum[v]) / (t.cum[v + 1] - t.cum[v])
-    return np.where(sc >= lt.length[lane], lt.vh[lt.last_vertex[lane]], lt.vh[j] + f * (lt.vh[j + 1] - lt.vh[j]))
