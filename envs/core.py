@@ -79,7 +79,7 @@ import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
-                      PRIORITY_MARGIN_M, STOP_POINT_M)
+                      PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from .control import no_plans, signal_arrays, signal_timing
 from .lanes import centre_points, curve_speeds, project_rows, segment_table
@@ -1780,7 +1780,8 @@ class TrafficCore:
     def judge_due(self, rows: np.ndarray) -> np.ndarray:
         """Mask over controlled rows `rows`: those whose judge (`rules.EgoJudge.check`) can change
         anything after this frame. Its check does something only on a lane other than the one it
-        last looked at the row on (entering a junction), at a stop, on a lane with a crosswalk or a
+        last looked at the row on (entering a junction), at a stop, moving on a crosswalk's stretch of
+        its lane with people on that crosswalk (`sim.crossings.peopled_stretch`), on a lane with a
         mid-block crossing's line, on the route's last lane (arrived), past the end of its lane or
         wide of it (off the road); elsewhere it leaves the judge as it was, so the judges of the
         other rows are not asked (the same verdicts). Notes the rows' lanes as looked at. Under
@@ -1789,9 +1790,14 @@ class TrafficCore:
         if len(rows) < JUDGE_MIN_ROWS:
             self.judged[rows] = lane
             return np.ones(len(rows), dtype=bool)
-        due = (lane != self.judged[rows]) | has_stopped(self.speed[rows]) | t.crossing[lane] | t.midblock[lane] \
+        speed = self.speed[rows]
+        due = (lane != self.judged[rows]) | has_stopped(speed) | t.midblock[lane] \
             | (self.route_pos[rows] >= self.route_end[rows]) | (self.at_s[rows] > t.length[lane]) \
             | (np.abs(self.at_lat[rows]) > t.width[lane] / 2 + OFF_ROAD_LATERAL_M)
+        walk = ~due & t.crossing[lane] & (speed > PEDESTRIAN_YIELD_SPEED_MPS)
+        if walk.any():
+            k = walk.nonzero()[0]
+            due[k] = crossings.peopled_stretch(self, self.env[rows[k]], lane[k], self.at_s[rows[k]])
         self.judged[rows] = lane
         return due
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...config import PEDESTRIAN_CORRIDOR_M
+from ...config import PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_YIELD_STRETCH_M
 from ..lanes import project_rows, segment_table
 from ..network import MapNetwork
 from ..rules import pedestrian_in_path
@@ -56,15 +56,20 @@ def crossing_table(net: MapNetwork) -> CrossingTable:
     return net.memo("crossing table", build)
 
 
+def _crossings_of(t: CrossingTable, lanes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every (question, crossing into `t`) of questions on `lanes`."""
+    n = t.count[lanes]
+    q = np.arange(len(lanes)).repeat(n)
+    return q, t.start[lanes].repeat(n) + np.arange(int(n.sum())) - (np.cumsum(n) - n).repeat(n)
+
+
 def walkers(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray) -> tuple[np.ndarray, ...]:
     """Every (question, crossing, walker) of questions (slots[q], lanes[q]): a walker of the slot
     on a crosswalk across the lane, with its place seen from the lane (`PolylineLane.
     local_coordinates`' arithmetic): (q, crossing (into the table), walker row, s, lateral)."""
     net = core.net
     t = crossing_table(net)
-    n = t.count[lanes]
-    q = np.arange(len(lanes)).repeat(n)
-    c = t.start[lanes].repeat(n) + np.arange(int(n.sum())) - (np.cumsum(n) - n).repeat(n)
+    q, c = _crossings_of(t, lanes)
     if not len(q) or not len(core.p_env):
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, empty, np.zeros(0), np.zeros(0)
@@ -101,3 +106,19 @@ def blocking(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s_from: 
     np.minimum.at(out, q[hit], s0[hit] - STOP_BEFORE_M)
     return out
 
+
+
+def peopled_stretch(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Per question (slot, lane, s): whether s lies on a crossing's stretch of the lane widened by
+    `stretch` each way (`PEDESTRIAN_YIELD_STRETCH_M`) on a crosswalk with a walker of the slot:
+    the only places the judge's pedestrian check can find anything (`TrafficCore.judge_due`)."""
+    out = np.zeros(len(lanes), dtype=bool)
+    if not len(core.p_env):
+        return out
+    t = crossing_table(core.net)
+    q, c = _crossings_of(t, lanes)
+    ncw = len(crosswalks(core.net).ids)
+    on = (t.s0[c] - PEDESTRIAN_YIELD_STRETCH_M <= s[q]) & (s[q] <= t.s1[c] + PEDESTRIAN_YIELD_STRETCH_M) & \
+        np.isin(slots[q] * ncw + t.cw[c], core.p_env * ncw + core.p_cw)
+    out[q[on]] = True
+    return out

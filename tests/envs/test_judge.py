@@ -9,7 +9,7 @@ import pytest
 from conftest import example_map_file
 
 import feat2map  # noqa: F401  (registers the envs)
-from feat2map.config import OFF_ROAD_LATERAL_M
+from feat2map.config import OFF_ROAD_LATERAL_M, PEDESTRIAN_YIELD_SPEED_MPS, PEDESTRIAN_YIELD_STRETCH_M
 from feat2map.envs import core
 from feat2map.formats import native
 
@@ -108,12 +108,32 @@ def test_each_reason_to_look_makes_a_row_due(monkeypatch):
         assert c.judge_due(row).tolist() == [True], why
         getattr(c, column)[row] = old
         assert c.judge_due(row).tolist() == [False], why
-    for flags in ("crossing", "midblock"):  # a crosswalk's people, a mid-block crossing's line
-        marked = getattr(t, flags).copy()
-        marked[lane] = True
+    marked = t.midblock.copy()  # a mid-block crossing's line
+    marked[lane] = True
+    with monkeypatch.context() as m:
+        m.setattr(t, "midblock", marked)
+        assert c.judge_due(row).tolist() == [True], "midblock"
+    assert c.judge_due(row).tolist() == [False], "midblock"
+    # a crosswalk's stretch of its lane, moving, with a walker of its slot on that crosswalk
+    lid, (cw, s0, s1) = next((lid, cs[0]) for lid, cs in u.net.crossings.items())
+    cross = t.index[lid]
+    c.at_lane[row], c.at_s[row], c.judged[row] = cross, (s0 + s1) / 2, cross
+    assert c.judge_due(row).tolist() == [False], "nobody on the crosswalk"
+    slot, k = int(c.env[row[0]]), c.crosswalks.index[cw]
+    other = next(i for i in range(len(c.crosswalks.ids)) if i != k)
+    for p_env, p_cw, s, speed, expect in [
+        (slot, k, (s0 + s1) / 2, 5.0, True),
+        (slot, k, s0 - PEDESTRIAN_YIELD_STRETCH_M, 5.0, True), (slot, k, s1 + PEDESTRIAN_YIELD_STRETCH_M, 5.0, True),
+        (slot, k, s0 - PEDESTRIAN_YIELD_STRETCH_M - 0.01, 5.0, False),
+        (slot, k, s1 + PEDESTRIAN_YIELD_STRETCH_M + 0.01, 5.0, False),
+        (slot, k, (s0 + s1) / 2, PEDESTRIAN_YIELD_SPEED_MPS, False),  # not moving (nor stopped)
+        (slot + 1, k, (s0 + s1) / 2, 5.0, False),  # another slot's walker
+        (slot, other, (s0 + s1) / 2, 5.0, False),  # on another crosswalk
+    ]:
         with monkeypatch.context() as m:
-            m.setattr(t, flags, marked)
-            assert c.judge_due(row).tolist() == [True], flags
-        assert c.judge_due(row).tolist() == [False], flags
+            m.setattr(c, "p_env", np.array([p_env]))
+            m.setattr(c, "p_cw", np.array([p_cw]))
+            c.at_s[row], c.speed[row] = s, speed
+            assert c.judge_due(row).tolist() == [expect], (p_env, p_cw, s, speed)
     monkeypatch.setattr(core, "JUDGE_MIN_ROWS", 2)  # fewer rows than that: every judge is asked
     assert c.judge_due(row).tolist() == [True]
