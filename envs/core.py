@@ -113,7 +113,7 @@ PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place th
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
                 "rear_offset": 0.0, "max_steer": 0.0, "steer": 0.0, "entry": math.inf, "controlled": False,
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
-                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_ahead": False, "reserved": NONE,
+                "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_at": math.inf, "reserved": NONE,
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
                 "res_count": 0, "judged": -1}
 
@@ -607,7 +607,9 @@ class TrafficCore:
         self.stop_seq = np.zeros(0, dtype=np.int64)
         self.stop_count = 0
         self.queued = 0
-        self.stop_ahead = np.zeros(0, dtype=bool)  # a stop sign's line on the row's window (`refresh_windows`)
+        # where the first stop sign's line of the row's window lies, from its current lane's start
+        # (`refresh_windows`; inf: none)
+        self.stop_at = np.zeros(0)
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
@@ -662,7 +664,7 @@ class TrafficCore:
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
-               "stop_junction", "stop_seq", "stop_ahead", "reserved", "scan_len", "route_ver", "seen_pos",
+               "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged")
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
@@ -997,7 +999,9 @@ class TrafficCore:
             junction = self.table.junction
             self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
                                  math.inf)
-            self.stop_ahead[i] = not self.table.stop_sign_lanes.isdisjoint(lanes)
+            stops = self.table.stop_sign_lanes
+            self.stop_at[i] = next((cum[k] + length[x] - self.table.line_setback[x] for k, x in enumerate(lanes)
+                                    if x in stops), math.inf)
         if need > self.W.shape[1]:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])

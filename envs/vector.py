@@ -255,15 +255,16 @@ class MapVectorEnv(VectorEnv):
         """The batched info of (sub-env, info) pairs: what `VectorEnv._add_info` makes of them
         one by one (arrays per key, "_key" masks, nested dicts alike), a key at a time (but
         the keys in `skip`)."""
-        keys: dict[str, None] = {}
-        for _, d in items:
-            keys.update(dict.fromkeys(d))
+        columns: dict[str, tuple[list[int], list]] = {}  # one pass: each key's (sub-envs, values)
+        for i, d in items:
+            for key, value in d.items():
+                idx, vals = columns.setdefault(key, ([], []))
+                idx.append(i)
+                vals.append(value)
         out: dict[str, Any] = {}
-        for key in keys:
-            if key in skip:
-                continue
-            sub = [(i, d[key]) for i, d in items if key in d]
-            out[key], out[f"_{key}"] = self.stack_values(key, [i for i, _ in sub], [v for _, v in sub])
+        for key, (idx, vals) in columns.items():
+            if key not in skip:
+                out[key], out[f"_{key}"] = self.stack_values(key, idx, vals)
         return out
 
     def stack_values(self, key: str, idx: list[int], vals: list) -> tuple[Any, np.ndarray]:
@@ -282,28 +283,34 @@ class MapVectorEnv(VectorEnv):
             array[idx] = np.stack(vals)
         else:
             array = np.full(n, None, dtype=object)
-            for i, v in zip(idx, vals):
-                array[i] = list(v) if key == "new_violations" else v
+            if type(first) is str and all(type(v) is str for v in vals):  # (kept as they are)
+                array[idx] = vals
+            else:
+                for i, v in zip(idx, vals):
+                    array[i] = list(v) if key == "new_violations" else v
         mask = np.zeros(n, dtype=np.bool_)
         mask[idx] = True
         return array, mask
 
     def stack_records(self, idx: list[int], vals: list[dict]) -> dict[str, Any] | None:
-        """`stack_infos` of dicts that all have the same keys in the same order and, in the
-        first, values of one scalar type (the violation counts, the reward terms): one table,
-        whose columns are the arrays (None for other dicts)."""
+        """`stack_infos` of dicts that all have the same keys in the same order (None for other
+        dicts): values of one scalar type in the first (the violation counts, the reward terms)
+        as one table whose columns are the arrays, others (a junction's feature) a key at a time."""
         first = vals[0]
-        kinds = {type(v) for v in first.values()}
-        if len(kinds) != 1 or (kind := kinds.pop()) not in (int, float, bool):
-            return None
         keys = tuple(first)
         if any(tuple(d) != keys for d in vals):
             return None
+        kinds = {type(v) for v in first.values()}
+        if len(kinds) != 1 or (kind := kinds.pop()) not in (int, float, bool):
+            out: dict[str, Any] = {}
+            for key in keys:
+                out[key], out[f"_{key}"] = self.stack_values(key, idx, [d[key] for d in vals])
+            return out
         table = np.zeros((len(keys), self.num_envs), dtype=kind)
         table[:, idx] = np.array([list(d.values()) for d in vals], dtype=kind).T
         mask = np.zeros(self.num_envs, dtype=np.bool_)
         mask[idx] = True
-        out: dict[str, Any] = {}
+        out = {}
         for key, column in zip(keys, table):
             out[key], out[f"_{key}"] = column, mask.copy()
         return out

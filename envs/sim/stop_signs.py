@@ -11,12 +11,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ...config import STOP_ZONE_M
 from ..network import LINE_STOP_SIGN
 from ..rules import has_stopped
 from . import entries
 
 if TYPE_CHECKING:
     from ..core import TrafficCore
+
+ZONE_MARGIN_M = 1.0  # rows this much further from a stop sign's line than STOP_ZONE_M are asked too (a superset)
 
 
 def update(core: "TrafficCore", rows: np.ndarray) -> None:
@@ -53,12 +56,16 @@ def update(core: "TrafficCore", rows: np.ndarray) -> None:
 
 def candidates(core: "TrafficCore", rows: np.ndarray, lane: np.ndarray) -> np.ndarray:
     """The rows of `rows` (a mask) on the map's lanes that may stand before a stop sign's line,
-    for the rules to ask (`waiting_line`): a stop sign's line on the lane a row is on (`lane`, per
-    row) or on a lane of a driven row's window (the lanes its route runs on for LOOKAHEAD_M:
-    `TrafficCore.stop_ahead`), every row whose window is to be rebuilt (its route position moved
-    this frame: `TrafficCore.dirty`) and every external road user. A superset: the rules decide."""
+    for the rules to ask (`waiting_line`): a driven row whose window's first stop sign's line
+    (`TrafficCore.stop_at`: on the lanes its route runs on for LOOKAHEAD_M) lies at most
+    STOP_ZONE_M (and ZONE_MARGIN_M) ahead of it, or behind it; a row located off its route lane
+    (`lane`, per row) on a lane with a stop sign's line; every row whose window is to be rebuilt
+    (its route position moved this frame: `TrafficCore.dirty`) and every external road user. A
+    superset: the rules decide."""
     on = rows & (lane >= 0)
-    ask = on & (core.stop_ahead | (core.table.line_kind[lane] == LINE_STOP_SIGN) | ~core.driven)
+    near = core.stop_at - core.s <= STOP_ZONE_M + ZONE_MARGIN_M
+    off_route = (lane != core.lane) & (core.table.line_kind[lane] == LINE_STOP_SIGN)
+    ask = on & (near | off_route | ~core.driven)
     if core.dirty:
         dirty = np.zeros(len(rows), dtype=bool)
         dirty[[i for i in core.dirty if i < len(rows)]] = True

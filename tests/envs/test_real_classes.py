@@ -471,6 +471,9 @@ def test_the_stop_sign_queues_ask_the_rules_of_every_road_user_before_a_stop_sig
     asked = set(stop_signs.candidates(core, np.isin(np.arange(len(lane)), rows), lane).tolist())
     assert set(waiting) <= asked
     assert any(u.net.lane_ids[lane[i]] not in u.net.stop_lines for i in waiting)  # (a line ahead on the route)
+    far = [i for i in rows.tolist() if u.control.line_ahead(core.objs[i])[3] > STOP_ZONE_M + stop_signs.ZONE_MARGIN_M
+           + 0.1]  # ... but not those further from their next line than the zone and its margin
+    assert far and asked.isdisjoint(far)
     u.control.update(u.road, 0.0)  # every spawned car stands: those before the line join J1's queue
     queue = u.control.stop_queue["J1"]
     assert sorted(v._row for v in queue) == sorted(waiting) and [v._row for v in queue] == sorted(waiting)
