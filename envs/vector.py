@@ -19,6 +19,7 @@ from copy import deepcopy
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, SyncVectorEnv, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array, iterate
 
@@ -175,7 +176,10 @@ class MapVectorEnv(VectorEnv):
     def batch_actions(self, actions) -> list:
         """The sub-envs' actions of a batch action, one per sub-env, each checked
         (`map_env.check_action`); else a Feat2MapError naming the sub-env and its value, raised
-        before any sub-env is reset or stepped (a refused step leaves the batch as it was)."""
+        before any sub-env is reset or stepped (a refused step leaves the batch as it was). An
+        array of valid actions is checked at once (`valid_batch`)."""
+        if isinstance(actions, np.ndarray) and valid_batch(self.single_action_space, actions, self.num_envs):
+            return list(actions)  # (what `iterate` gives of it)
         try:
             acts = list(iterate(self.action_space, actions))
         except (TypeError, ValueError, AssertionError, IndexError):
@@ -318,6 +322,20 @@ class MapVectorEnv(VectorEnv):
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""
         return self.envs[self.render_env].render() if self.render_mode is not None else None
+
+
+def valid_batch(space: spaces.Space, actions: np.ndarray, n: int) -> bool:
+    """Whether array `actions` holds `n` actions that `map_env.check_action` passes, checked at
+    once: integers in range for a Discrete space, finite values of its shape for a Box; False for
+    anything else, which the checks action by action then name."""
+    if actions.shape[:1] != (n,):
+        return False
+    if type(space) is spaces.Discrete:
+        k = actions - int(space.start)
+        return actions.ndim == 1 and actions.dtype.kind in "iu" and bool(((k >= 0) & (k < space.n)).all())
+    if type(space) is spaces.Box:
+        return actions.shape[1:] == space.shape and actions.dtype.kind == "f" and bool(np.isfinite(actions).all())
+    return False
 
 
 def check_config(config: dict) -> None:

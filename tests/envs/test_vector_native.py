@@ -15,6 +15,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from conftest import REPO, SKIP_RL
 from gymnasium.utils.env_checker import data_equivalence
 from gymnasium.vector import AutoresetMode
@@ -379,3 +381,43 @@ def test_the_batch_is_a_vector_env_of_its_own_and_refuses_bad_seeds_and_masks():
             envs.reset(seed=seed, options=options)
     assert [e.time for e in base.envs] == clocks
     envs.close()
+
+
+@given(st.data())
+@settings(max_examples=200, deadline=None)
+def test_a_batch_checked_at_once_passes_exactly_what_each_action_check_passes(data):
+    """`valid_batch` (the batch's actions checked in one program) accepts an array exactly where
+    `check_action` accepts every action of it: valid batches, and batches with one action just
+    out of range, not finite, or of the wrong dtype or shape."""
+    from feat2map.envs.map_env import check_action
+    from feat2map.envs.vector import valid_batch
+
+    space = data.draw(st.sampled_from([gym.spaces.Discrete(5), gym.spaces.Discrete(3, start=2),
+                                       gym.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)]))
+    n = data.draw(st.integers(1, 6))
+    space.seed(data.draw(st.integers(0, 1000)))
+    actions = np.array([space.sample() for _ in range(n)])
+    bad = data.draw(st.sampled_from(["none", "value", "dtype", "shape"]))
+    k = data.draw(st.integers(0, n - 1))
+    if bad == "value":
+        if isinstance(space, gym.spaces.Discrete):
+            actions[k] = data.draw(st.sampled_from([int(space.start) - 1, int(space.start + space.n)]))
+        else:
+            actions[k, data.draw(st.integers(0, 1))] = data.draw(st.sampled_from([np.nan, np.inf, -np.inf]))
+    elif bad == "dtype":
+        actions = actions.astype(np.float64 if isinstance(space, gym.spaces.Discrete) else np.int64)
+    elif bad == "shape":
+        actions = data.draw(st.sampled_from([actions[:-1], np.concatenate([actions, actions[:1]]), actions[..., None]]))
+
+    def each_passes() -> bool:
+        if actions.shape[:1] != (n,):
+            return False
+        try:
+            for a in actions:
+                check_action(space, a)
+        except Feat2MapError:
+            return False
+        return True
+    ok = valid_batch(space, actions, n)
+    assert ok == (bad == "none") or (not ok and bad == "dtype" and each_passes())  # (ints are finite floats)
+    assert not ok or each_passes()
