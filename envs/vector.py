@@ -287,11 +287,8 @@ class MapVectorEnv(VectorEnv):
             array[idx] = np.stack(vals)
         else:
             array = np.full(n, None, dtype=object)
-            if type(first) is str and all(type(v) is str for v in vals):  # (kept as they are)
-                array[idx] = vals
-            else:
-                for i, v in zip(idx, vals):
-                    array[i] = list(v) if key == "new_violations" else v
+            for i, v in zip(idx, vals):
+                array[i] = list(v) if key == "new_violations" else v
         mask = np.zeros(n, dtype=np.bool_)
         mask[idx] = True
         return array, mask

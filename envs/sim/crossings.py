@@ -107,7 +107,6 @@ def blocking(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s_from: 
     return out
 
 
-
 def peopled_stretch(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Per question (slot, lane, s): whether s lies on a crossing's stretch of the lane widened by
     `stretch` each way (`PEDESTRIAN_YIELD_STRETCH_M`) on a crosswalk with a walker of the slot:
