@@ -108,9 +108,9 @@ def blocking(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s_from: 
 
 
 def peopled_stretch(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Per question (slot, lane, s): whether s lies on a crossing's stretch of the lane widened by
-    `stretch` each way (`PEDESTRIAN_YIELD_STRETCH_M`) on a crosswalk with a walker of the slot:
-    the only places the judge's pedestrian check can find anything (`TrafficCore.judge_due`)."""
+    """Per question (slot, lane, s): whether s lies on a crossing's stretch of the lane, widened by
+    PEDESTRIAN_YIELD_STRETCH_M each way, of a crosswalk with a walker of the slot on it: the only
+    places the judge's pedestrian check can find anything (`TrafficCore.judge_due`)."""
     out = np.zeros(len(lanes), dtype=bool)
     if not len(core.p_env):
         return out
