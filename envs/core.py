@@ -977,7 +977,8 @@ class TrafficCore:
         """Rebuild the window rows whose route position or route changed."""
         if not self.dirty:
             return
-        length = self.table.length
+        t = self.table
+        length, junction, stops = t.length, t.junction, t.stop_sign_lanes
         rows = {}
         need = self.W.shape[1]
         for i in self.dirty:
@@ -996,12 +997,10 @@ class TrafficCore:
             what = rule_scan.along(self.table, lanes, float(self.length[i]))
             rows[i] = (lanes, cum, what)
             need = max(need, len(lanes))
-            junction = self.table.junction
             self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
                                  math.inf)
-            stops = self.table.stop_sign_lanes
-            self.stop_at[i] = next((cum[k] + length[x] - self.table.line_setback[x] for k, x in enumerate(lanes)
-                                    if x in stops), math.inf)
+            self.stop_at[i] = next((cum[k] + length[x] - t.line_setback[x] for k, x in enumerate(lanes) if x in stops),
+                                   math.inf)
         if need > self.W.shape[1]:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])

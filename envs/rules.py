@@ -169,6 +169,13 @@ def pedestrian_in_path(lateral, lane_width):
     return abs(lateral) < lane_width / 2 + PEDESTRIAN_IN_PATH_M
 
 
+def on_yield_stretch(s, s0, s1):
+    """A road user at `s` along a lane is on the stretch s0..s1 where it crosses a crosswalk,
+    widened by PEDESTRIAN_YIELD_STRETCH_M each way (where the judge looks for a pedestrian not
+    yielded to); floats or arrays (elementwise)."""
+    return (s0 - PEDESTRIAN_YIELD_STRETCH_M <= s) & (s <= s1 + PEDESTRIAN_YIELD_STRETCH_M)
+
+
 def stops_at_amber(distance, speed):
     """At amber a vehicle stays when it can stop before the line (else it goes through); floats
     or arrays (elementwise)."""
@@ -1070,8 +1077,8 @@ class EgoJudge:
         self._lane, self._lane_s = lid, ego.lane_s
         # pedestrians: the ego on a crosswalk with a person next to its path
         due = [(k, cw) for k, (cw, s0, s1) in enumerate(net.crossings.get(lid, ()))
-               if s0 - PEDESTRIAN_YIELD_STRETCH_M <= ego.lane_s <= s1 + PEDESTRIAN_YIELD_STRETCH_M
-               and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS and (lid, cw) not in self._ped_flags]
+               if on_yield_stretch(ego.lane_s, s0, s1) and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS
+               and (lid, cw) not in self._ped_flags]
         if due:  # (the walkers on them as the yield rule sees them: `sim.crossings.walkers`)
             which, sp, rp = rules.road.core.walkers_across(rules.road.slot, lid)
             near = pedestrian_in_path(rp, net.lane_of[lid].width) & (np.abs(sp - ego.lane_s) < ego.LENGTH)

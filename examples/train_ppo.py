@@ -197,7 +197,7 @@ class TaskRewards(gym.Wrapper):
 
 
 def episode_draw(rng: np.random.Generator, traffic: tuple[int, int] | None,
-                 pedestrians: tuple[float, float] | None = TRAIN_PEDESTRIANS) -> dict:
+                 pedestrians: tuple[float, float] | None) -> dict:
     """One training episode's config draws: its traffic count from `traffic` and its pedestrian
     rate from `pedestrians` (none without a range), so that the agent meets conflicting traffic
     and crossings more often (and sparser scenes too) than at the evaluation's fixed values."""
@@ -212,8 +212,7 @@ def episode_draw(rng: np.random.Generator, traffic: tuple[int, int] | None,
 class TrafficRange(gym.Wrapper):
     """Training only: each episode draws its traffic count and pedestrian rate (`episode_draw`)."""
 
-    def __init__(self, env: gym.Env, traffic: tuple[int, int] | None,
-                 pedestrians: tuple[float, float] | None = TRAIN_PEDESTRIANS) -> None:
+    def __init__(self, env: gym.Env, traffic: tuple[int, int] | None, pedestrians: tuple[float, float] | None) -> None:
         super().__init__(env)
         self.traffic, self.pedestrians = traffic, pedestrians
         self._rng = np.random.default_rng()

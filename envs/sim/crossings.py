@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...config import PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_YIELD_STRETCH_M
+from ...config import PEDESTRIAN_CORRIDOR_M
 from ..lanes import project_rows, segment_table
 from ..network import MapNetwork
-from ..rules import pedestrian_in_path
+from ..rules import on_yield_stretch, pedestrian_in_path
 from .join import same_key_pairs
 from .pedestrians import crosswalks
 
@@ -63,6 +63,11 @@ def _crossings_of(t: CrossingTable, lanes: np.ndarray) -> tuple[np.ndarray, np.n
     return q, t.start[lanes].repeat(n) + np.arange(int(n.sum())) - (np.cumsum(n) - n).repeat(n)
 
 
+def _crosswalk_key(core: "TrafficCore", slots: np.ndarray, cws: np.ndarray) -> np.ndarray:
+    """One int per (slot, crosswalk) pair: how questions meet the walkers of their slot."""
+    return slots * len(core.crosswalks.ids) + cws
+
+
 def walkers(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray) -> tuple[np.ndarray, ...]:
     """Every (question, crossing, walker) of questions (slots[q], lanes[q]): a walker of the slot
     on a crosswalk across the lane, with its place seen from the lane (`PolylineLane.
@@ -73,8 +78,7 @@ def walkers(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray) -> tuple[
     if not len(q) or not len(core.p_env):
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, empty, np.zeros(0), np.zeros(0)
-    ncw = len(crosswalks(net).ids)
-    a, w = same_key_pairs(slots[q] * ncw + t.cw[c], core.p_env * ncw + core.p_cw)
+    a, w = same_key_pairs(_crosswalk_key(core, slots[q], t.cw[c]), _crosswalk_key(core, core.p_env, core.p_cw))
     q, c = q[a], c[a]
     if not len(q):
         return q, c, w, np.zeros(0), np.zeros(0)
@@ -116,8 +120,7 @@ def peopled_stretch(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s
         return out
     t = crossing_table(core.net)
     q, c = _crossings_of(t, lanes)
-    ncw = len(crosswalks(core.net).ids)
-    on = (t.s0[c] - PEDESTRIAN_YIELD_STRETCH_M <= s[q]) & (s[q] <= t.s1[c] + PEDESTRIAN_YIELD_STRETCH_M) & \
-        np.isin(slots[q] * ncw + t.cw[c], core.p_env * ncw + core.p_cw)
+    on = on_yield_stretch(s[q], t.s0[c], t.s1[c]) & \
+        np.isin(_crosswalk_key(core, slots[q], t.cw[c]), _crosswalk_key(core, core.p_env, core.p_cw))
     out[q[on]] = True
     return out
