@@ -108,6 +108,7 @@ SIGNAL_EDGE_S = 1e-6
 # live reservations up to which a frame's releases look at every one (`release_looks`: the
 # filter costs more than a few looks; the same releases)
 LOOK_ALL_MAX = 12
+ROW_SPARE = 1.5  # a row array's buffer holds this many times its rows when it grows (`_append_rows`)
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 # a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
@@ -652,6 +653,7 @@ class TrafficCore:
         self.route_ver = np.zeros(0, dtype=np.int64)
         self.seen_pos, self.seen_lane, self.seen_route = (np.zeros(0, dtype=np.int64) for _ in range(3))
         self.dirty: set[int] = set()
+        self._spare: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # row array -> (its buffer, the array): `_append_rows`
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
         # the rules' scan along the window (`sim.rule_scan`), what of it holds while the route
@@ -743,19 +745,32 @@ class TrafficCore:
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
         self._forget_buckets([int(row["env"])])
-        self.W = np.vstack([self.W, np.full((1, self.W.shape[1]), -1, dtype=np.int64)])
-        self.C = np.vstack([self.C, np.zeros((1, self.C.shape[1]))])
-        self.scan_what = np.vstack([self.scan_what, np.zeros((1, self.W.shape[1]), dtype=np.int8)])
+        self._append_rows(("W", "C", "scan_what"), {"W": -1, "C": 0.0, "scan_what": 0})
         if isinstance(obj, ArrayVehicle):
             obj._core, obj._row = self, i
         self.dirty.add(i)
         self._masks()
 
     def _append_rows(self, names: tuple[str, ...], row: dict) -> None:
-        """Append one row's values to the arrays `names` (each keeps its dtype)."""
+        """Append one row's values to the arrays `names` (each keeps its dtype; a 2-d array's row
+        is filled with the value). An array is the leading rows of a buffer with spare rows
+        (`_spare`), so that an append writes one row rather than copying every row of every
+        array (a sub-env's reset adds its traffic one vehicle at a time, among all the batch's
+        rows); an array replaced since (rows kept or reordered, a wider window) gets a new
+        buffer, ROW_SPARE times its rows."""
         for name in names:
             a = getattr(self, name)
-            setattr(self, name, np.append(a, row[name]).astype(a.dtype))
+            n = len(a)
+            held = self._spare.get(name)
+            if held is not None and held[1] is a and len(held[0]) > n:
+                buf = held[0]
+            else:
+                buf = np.empty((max(int(n * ROW_SPARE), n + 1), *a.shape[1:]), dtype=a.dtype)
+                buf[:n] = a
+            buf[n] = row[name]
+            view = buf[:n + 1]
+            setattr(self, name, view)
+            self._spare[name] = (buf, view)
 
     def _keep_rows(self, names: tuple[str, ...], idx) -> None:
         """Keep these rows of the arrays `names`, in this order."""

@@ -237,6 +237,7 @@ class MapEnv(EgoTask, AbstractEnv):
 
     metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
     core_slot: tuple[Any, int] | None = None  # (shared TrafficCore, slot) of a sub-env of a batch (vector.py)
+    shared_net: MapNetwork | None = None  # the batch's map, which every episode of a sub-env drives (`share`)
 
     def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
         self.metadata = dict(type(self).metadata)  # highway-env writes render_fps into it: one per env
@@ -263,6 +264,16 @@ class MapEnv(EgoTask, AbstractEnv):
     def _network(self) -> MapNetwork:
         raise NotImplementedError
 
+    def share(self, core: Any, slot: int, net: MapNetwork) -> None:
+        """Make this env slot `slot` of `core` (a `TrafficCore` of several envs: a batch's
+        sub-envs, the multi-agent env's worlds) driving `net`, the map of them all, from its next
+        reset on."""
+        self.core_slot, self.shared_net = (core, slot), net
+
+    def network(self) -> MapNetwork:
+        """The map of the next episode: the shared one (`share`), else the env's own (`_network`)."""
+        return self.shared_net if self.shared_net is not None else self._network()
+
     def define_spaces(self) -> None:
         self.observation_type = make_observation(self, self.config["observation"])
         self.action_type = action_factory(self, self.config["action"])
@@ -278,7 +289,7 @@ class MapEnv(EgoTask, AbstractEnv):
         return super().reset(seed=seed, options=options)
 
     def _reset(self) -> None:
-        self.net = self._network()
+        self.net = self.network()
         rng = self.np_random
         self.net.memo("semantics", lambda: assert_sound(self.net.hdmap))  # the map is safe to drive, once per map
         self.control = TrafficControl(self.net, rng, self.config)

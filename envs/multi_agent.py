@@ -311,7 +311,7 @@ class _World(MapEnv):
         gymnasium.Env.reset(self, seed=seed)  # seeds np_random
         self.time = self.steps = 0
         self.done = False
-        self.net = self._network()
+        self.net = self.network()
         rng = self.np_random
         self.control = TrafficControl(self.net, rng, self.config)
         slot = {"slot": self.core_slot} if self.core_slot is not None else {}
@@ -433,12 +433,11 @@ class MultiAgentMapEnv(ParallelEnv):
         self.worlds: list[_World] = [first]
         if n > 1:
             check_worlds(n, first.config["new_map_each_reset"])
-            net = first._network()
+            net = first.network()
             core = TrafficCore(net, n)
             self.worlds += [self._world_class(dict(first.config), self.agent_config) for _ in range(n - 1)]
             for k, w in enumerate(self.worlds):
-                w.core_slot = (core, k)
-                w._network = lambda net=net: net  # type: ignore[method-assign,misc]  # the map of every world
+                w.share(core, k, net)
         self.world = first
         self._name_agents()
 

@@ -72,8 +72,7 @@ class MapVectorEnv(VectorEnv):
         net = first.net
         self.core = TrafficCore(net, n)
         for k, env in enumerate(self.envs):
-            env.core_slot = (self.core, k)
-            env._network = lambda net=net: net  # the map of the batch, for every reset
+            env.share(self.core, k, net)
 
     def reset(self, *, seed=None, options: dict[str, Any] | None = None):
         """Reset the sub-envs (all, or those of `options["reset_mask"]`, a bool array of N) with

@@ -219,6 +219,57 @@ def test_after_a_step_the_rows_are_the_road_users_on_the_road():
     env.close()
 
 
+def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
+    """A row added (a reset's traffic, a respawn: one vehicle at a time) is written into spare
+    rows of the arrays' buffers, not into a copy of every row (`TrafficCore._append_rows`): the
+    rows before keep their values and dtypes, the new rows hold their vehicles' values, and the
+    arrays made anew when vehicles leave are what later rows are added to."""
+    env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS, "traffic_vehicles": 3})
+    env.reset(seed=2)
+    u = env.unwrapped
+    core = u.road.core
+    names = (*core._ARRAYS, "W", "C", "scan_what")
+
+    def arrays() -> dict:
+        return {k: getattr(core, k).copy() for k in names}
+
+    def add(count: int) -> tuple[list, int]:
+        """`count` vehicles 5 m apart on a spawn lane; how many went into the buffers of the arrays before."""
+        out, shared = [], 0
+        lid = u._spawn_lanes[0]
+        for k in range(count):
+            s = core.s
+            out.append(u.road.spawn(lid, 2.0 + 5.0 * k, 3.0, [lid]))
+            shared += np.shares_memory(core.s, s)
+        return out, shared
+
+    def same(now: dict, then: dict, rows: int) -> None:
+        for k in names:
+            a, b = now[k], then[k]
+            assert a.dtype == b.dtype and a.shape[1:] == b.shape[1:] and len(a) == len(core.objs), k
+            assert np.array_equal(a[:rows], b[:rows], equal_nan=a.dtype.kind == "f"), k
+
+    n0 = len(core.objs)
+    before = arrays()
+    added, shared = add(6)
+    assert shared >= 3  # most rows went into spare rows
+    same(arrays(), before, n0)
+    lid = core.table.index[u._spawn_lanes[0]]
+    for k, v in enumerate(added):
+        i = v.row
+        assert (core.env[i], core.lane[i], core.s[i], core.speed[i], core.route_pos[i], core.route_end[i]) == \
+            (u.road.slot, lid, 2.0 + 5.0 * k, 3.0, 0, 0)
+        assert (core.W[i] == -1).all() and (core.C[i] == 0.0).all() and (core.scan_what[i] == 0).all()
+        assert not core.crashed[i] and not core.controlled[i] and core.reserved[i] < 0
+    for v in added[:2]:  # two leave: the rows kept are new arrays ...
+        u.road.vehicles.remove(v)
+    core.sync()
+    kept = arrays()
+    add(3)  # ... to which the next rows are added
+    same(arrays(), kept, len(kept["s"]))
+    env.close()
+
+
 def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
     env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS, "traffic_vehicles": 3,
                                                        "action": DRIVER_ACTION_CONFIG})
