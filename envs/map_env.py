@@ -382,11 +382,11 @@ class MapEnv(EgoTask, AbstractEnv):
 
     # ---- stepping ------------------------------------------------------------------------
     def step(self, action):
-        self._begin_step(action)
+        self.begin_step(action)
         self._simulate(action)
-        return self._end_step(action)
+        return self.end_step(action)
 
-    def _begin_step(self, action, checked: bool = False) -> None:
+    def begin_step(self, action, checked: bool = False) -> None:
         """What `AbstractEnv.step` does before simulating, with the action checked (unless
         `checked`: a batch checks every action first)."""
         if not checked:
@@ -395,7 +395,7 @@ class MapEnv(EgoTask, AbstractEnv):
             raise NotImplementedError("The road and vehicle must be initialized in the environment implementation")
         self.time += 1 / self.config["policy_frequency"]
 
-    def _end_step(self, action, obs=None):
+    def end_step(self, action, obs=None):
         """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info);
         `obs` when already made (a batch observes all its sub-envs at once, envs/vector.py)."""
         obs = self.observation_type.observe() if obs is None else obs
@@ -407,10 +407,21 @@ class MapEnv(EgoTask, AbstractEnv):
             self.render()
         return obs, reward, terminated, truncated, info
 
+    def step_values(self, action, done: float, completed: bool) -> tuple[tuple[float, ...], tuple[float, ...], bool,
+                                                                         bool, tuple]:
+        """What `end_step` works out, as values for a batch to combine (`vector.MapVectorEnv.end_steps`):
+        (reward terms, their weights, terminated, truncated, info values), given the route
+        metres `done` and whether the route is `completed` (each asked once this step); the
+        reward terms become the info's "rewards"."""
+        row = self._reward_row(done, completed)
+        self._last_rewards = dict(zip(EgoTask._reward_terms(), row))
+        return (row, self._reward_weights(), self._is_terminated(completed), self._is_truncated(),
+                self._info_values(action, done, completed))
+
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def _respawn_traffic(self, maybe: bool = True) -> None:
+    def respawn_traffic(self, maybe: bool = True) -> None:
         """Traffic that finished its route or crashed leaves (never a controlled vehicle: the ego,
         the multi-agent env's agents); as many new vehicles spawn (`maybe` False: the core knows
         that none did)."""
@@ -487,7 +498,7 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     for env in envs:
         env.enable_auto_render = False
         core = getattr(env.road, "core", None)
-        env._respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
+        env.respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
     for core, roads, _ in groups.values():  # the respawns taken in (of every sub-env at once): what observations read
         core.sync(roads)
 

@@ -279,6 +279,15 @@ class AgentView(EgoTask):
     def unwrapped(self) -> "AgentView":
         return self
 
+    def reward_terms(self, done: float, completed: bool) -> dict[str, float]:
+        """This step's reward terms by name, given the route metres `done` and whether the route
+        is `completed`: the single env's and the two of the agents' judge (the info's "rewards")."""
+        r = dict(zip(EgoTask._reward_terms(), self._reward_row(done, completed)))
+        new = self.judge.new
+        r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
+        self._last_rewards = r
+        return r
+
     def route_completed(self) -> bool:
         """EgoTask's, computed once per simulation frame (it depends only on where the vehicles
         are; the reward, the termination and the info of a step all ask)."""
@@ -607,7 +616,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 x.controlled_vehicles = [v for v in x.controlled_vehicles if id(v) not in out]
             self.agents = [a for a in self.agents if a not in gone]
         for x in worlds:
-            x._respawn_traffic()
+            x.respawn_traffic()
         self._pending = [p for p in self._pending if self._world_of[p[0]] not in truncated]
         new = self._spawn_pending(set(active))
         obs.update(self._observe(new))
@@ -650,12 +659,9 @@ class MultiAgentMapEnv(ParallelEnv):
 
     def _reward(self, view: AgentView, done: float, completed: bool,
                 weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
-        """The weighted sum of the agent's reward terms, given its route metres `done` and
-        whether its route is `completed`."""
-        r = dict(zip(EgoTask._reward_terms(), view._reward_row(done, completed)))
-        new = view.judge.new
-        r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
-        view._last_rewards = r
+        """The weighted sum of the agent's reward terms (`AgentView.reward_terms`), given its
+        route metres `done` and whether its route is `completed`."""
+        r = view.reward_terms(done, completed)
         return float(sum(map(operator.mul, weights[1], map(r.__getitem__, weights[0]))))
 
     def _weights(self) -> tuple[tuple[str, ...], tuple[float, ...]]:

@@ -122,7 +122,7 @@ class MapVectorEnv(VectorEnv):
                 stepping.append(i)
         envs = [self.envs[i] for i in stepping]
         for i, env in zip(stepping, envs):
-            env._begin_step(acts[i], checked=True)
+            env.begin_step(acts[i], checked=True)
         simulate(envs, [acts[i] for i in stepping])
         observed = self.observe(envs)
         columns: dict[str, tuple[list[int], list]] = {}
@@ -133,7 +133,7 @@ class MapVectorEnv(VectorEnv):
             else:
                 for i, env, obs in zip(stepping, envs, observed):
                     self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
-                        env._end_step(acts[i], obs)
+                        env.end_step(acts[i], obs)
         finals = []
         ended = set()
         for i, env in enumerate(self.envs):
@@ -211,27 +211,24 @@ class MapVectorEnv(VectorEnv):
                 for env, o in zip(envs, kin)]
 
     def batch_end(self, envs: list[MapEnv]) -> bool:
-        """Whether `end_steps` stands in for the `_end_step`s of `envs` (their classes keep
+        """Whether `end_steps` stands in for the `end_step`s of `envs` (their classes keep
         MapEnv's reward, termination and info)."""
         return bool(envs) and all(type(env)._info is MapEnv._info and type(env)._rewards is MapEnv._rewards
                                   and type(env)._is_terminated is MapEnv._is_terminated for env in envs)
 
     def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
-        """What `MapEnv._end_step` does for each of `envs` (sub-envs `stepping`), their rewards
+        """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`), their rewards
         as one array program and their info as columns {key: ([sub-env], [value])} (the values
         of `MapEnv._info_values`, each asked once: `stack_columns` makes the arrays)."""
         rows, weights, values = [], [], []
         terms = MapEnv._reward_terms()
         for i, env, action, obs in zip(stepping, envs, actions, observed):
             self._env_obs[i] = env.observation_type.observe() if obs is None else obs
-            done, completed = env.vehicle.route_distance_done(), env.route_completed()
-            row = env._reward_row(done, completed)
-            env._last_rewards = dict(zip(terms, row))
+            row, weight, self._terminations[i], self._truncations[i], value = env.step_values(
+                action, env.vehicle.route_distance_done(), env.route_completed())
             rows.append(row)
-            weights.append(env._reward_weights())
-            self._terminations[i] = env._is_terminated(completed)
-            self._truncations[i] = env._is_truncated()
-            values.append(env._info_values(action, done, completed))
+            weights.append(weight)
+            values.append(value)
             if env.render_mode == "human":
                 env.render()
         r, w = np.array(rows, dtype=float), np.array(weights, dtype=float)

@@ -141,7 +141,7 @@ def scalar_code(monkeypatch) -> None:
 
     monkeypatch.setattr(core.TrafficCore, "_rule_stops", rule_stops)
     monkeypatch.setattr(vector.MapVectorEnv, "observe", lambda self, envs: [None] * len(envs))
-    monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's _end_step
+    monkeypatch.setattr(vector.MapVectorEnv, "batch_end", lambda self, envs: False)  # each sub-env's end_step
     def buckets(self, road):  # each vehicle's lane read from its view
         out: dict = {}
         for v in road.vehicles:
