@@ -56,6 +56,9 @@ def cached_network(key: Any, build) -> MapNetwork:
     return net
 
 
+REWARD_TERMS = ("progress", "arrived", "collision", "off_road", *VIOLATIONS)  # the ego's reward terms, in order
+
+
 class EgoTask:
     """The ego's task over explicit pieces: route completion, reward terms, infos and the
     scripted-driver API (what planners, `ScriptedDriver` and `DriverView` ask an env), read from
@@ -108,7 +111,7 @@ class EgoTask:
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:
-        return ("progress", "arrived", "collision", "off_road", *VIOLATIONS)
+        return REWARD_TERMS
 
     def _rewards(self, action) -> dict[str, float]:
         # the ego's own terms, by name (an agent's view adds its judge's two: multi_agent.py)
@@ -407,6 +410,13 @@ class MapEnv(EgoTask, AbstractEnv):
             self.render()
         return obs, reward, terminated, truncated, info
 
+    def keeps_step_hooks(self) -> bool:
+        """Whether this env's class keeps MapEnv's reward, termination and info hooks, so that a
+        batch may combine its step's end from `step_values` (`vector.MapVectorEnv.end_steps`)."""
+        cls = type(self)
+        return cls._info is MapEnv._info and cls._rewards is MapEnv._rewards and \
+            cls._is_terminated is MapEnv._is_terminated
+
     def step_values(self, action, done: float, completed: bool) -> tuple[tuple[float, ...], tuple[float, ...], bool,
                                                                          bool, tuple]:
         """What `end_step` works out, as values for a batch to combine (`vector.MapVectorEnv.end_steps`):
@@ -414,7 +424,7 @@ class MapEnv(EgoTask, AbstractEnv):
         metres `done` and whether the route is `completed` (each asked once this step); the
         reward terms become the info's "rewards"."""
         row = self._reward_row(done, completed)
-        self._last_rewards = dict(zip(EgoTask._reward_terms(), row))
+        self._last_rewards = dict(zip(REWARD_TERMS, row))
         return (row, self._reward_weights(), self._is_terminated(completed), self._is_truncated(),
                 self._info_values(action, done, completed))
 

@@ -71,7 +71,7 @@ from .control import TrafficControl
 from .controlled import ControlledRow
 from .core import TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
-from .map_env import EgoTask, MapEnv, check_action, check_options, info_dict
+from .map_env import REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, info_dict
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
@@ -282,11 +282,19 @@ class AgentView(EgoTask):
     def reward_terms(self, done: float, completed: bool) -> dict[str, float]:
         """This step's reward terms by name, given the route metres `done` and whether the route
         is `completed`: the single env's and the two of the agents' judge (the info's "rewards")."""
-        r = dict(zip(EgoTask._reward_terms(), self._reward_row(done, completed)))
+        r = dict(zip(REWARD_TERMS, self._reward_row(done, completed)))
         new = self.judge.new
         r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
         self._last_rewards = r
         return r
+
+    def info(self, action, done: float | None = None, completed: bool | None = None) -> dict:
+        """The single env's info of the agent (`done`, `completed` when already asked this step)
+        and its own keys (`info.INFO_KEYS`)."""
+        info = info_dict(self._info_values(action, done, completed), self.action_space)
+        info["agent_collision"] = bool(self.agent_collision)
+        info["wait_time"] = float(self.wait_time)
+        return info
 
     def route_completed(self) -> bool:
         """EgoTask's, computed once per simulation frame (it depends only on where the vehicles
@@ -534,7 +542,7 @@ class MultiAgentMapEnv(ParallelEnv):
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:
-        return (*EgoTask._reward_terms(), "not_yielding", "stop_order")
+        return (*REWARD_TERMS, "not_yielding", "stop_order")
 
     def step(self, actions: Mapping[str, Any]):
         live = list(self.agents)
@@ -668,18 +676,14 @@ class MultiAgentMapEnv(ParallelEnv):
         """(reward terms, their weights): the single env's `reward_*` and the two of the agents'
         judge, in that order, without the zero weights (adding their 0.0 products changes no sum)."""
         c, ac = self.world.config, self.agent_config
-        weights = {**{k: c[f"reward_{k}"] for k in EgoTask._reward_terms()},
+        weights = {**{k: c[f"reward_{k}"] for k in REWARD_TERMS},
                    "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
         kept = [(k, w) for k, w in weights.items() if w != 0]
         return tuple(k for k, _ in kept), tuple(w for _, w in kept)
 
     def _info(self, agent: str, obs, action, done: float | None = None, completed: bool | None = None) -> dict:
         """The single env's info of the agent (`done`, `completed` when already asked this step), and its own keys."""
-        view = self._views[agent]
-        info = info_dict(EgoTask._info_values(view, action, done, completed), view.action_space)
-        info["agent_collision"] = bool(view.agent_collision)
-        info["wait_time"] = float(view.wait_time)
-        return info
+        return self._views[agent].info(action, done, completed)
 
     # ---- helpers -------------------------------------------------------------------------------
     def view(self, agent: str) -> AgentView:

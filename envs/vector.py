@@ -213,15 +213,13 @@ class MapVectorEnv(VectorEnv):
     def batch_end(self, envs: list[MapEnv]) -> bool:
         """Whether `end_steps` stands in for the `end_step`s of `envs` (their classes keep
         MapEnv's reward, termination and info)."""
-        return bool(envs) and all(type(env)._info is MapEnv._info and type(env)._rewards is MapEnv._rewards
-                                  and type(env)._is_terminated is MapEnv._is_terminated for env in envs)
+        return bool(envs) and all(env.keeps_step_hooks() for env in envs)
 
     def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
         """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`), their rewards
         as one array program and their info as columns {key: ([sub-env], [value])} (the values
         of `MapEnv._info_values`, each asked once: `stack_columns` makes the arrays)."""
         rows, weights, values = [], [], []
-        terms = MapEnv._reward_terms()
         for i, env, action, obs in zip(stepping, envs, actions, observed):
             self._env_obs[i] = env.observation_type.observe() if obs is None else obs
             row, weight, self._terminations[i], self._truncations[i], value = env.step_values(
@@ -233,7 +231,7 @@ class MapVectorEnv(VectorEnv):
                 env.render()
         r, w = np.array(rows, dtype=float), np.array(weights, dtype=float)
         reward = np.zeros(len(envs))  # sum(weight * term) in `_reward`'s order: the same float operations
-        for k in range(len(terms)):
+        for k in range(r.shape[1]):
             reward = reward + w[:, k] * r[:, k]
         self._rewards[stepping] = reward
         columns = {key: (list(stepping), list(col)) for key, col in zip(INFO_ORDER, zip(*values))}

@@ -63,6 +63,32 @@ def test_the_import_scan_sees_relative_imports(tmp_path):
     assert "feat2map.routes.manoeuvre_lane" in names and "feat2map.config.DRIVE_DEFAULTS" in names
 
 
+# the env wing's adapters: the batched env and the multi-agent env step their envs through the
+# envs' public protocol (`MapEnv.begin_step`, `step_values`, `AgentView.reward_terms`, ...)
+ADAPTERS = ("envs/vector.py", "envs/multi_agent.py")
+
+
+def _private_reaches(source: str) -> list[str]:
+    """`x._name` of every object `x` other than `self` and `cls` in `source` (dunders aside)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__") \
+                and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+            found.append((node.lineno, node.col_offset, ast.unparse(node)))
+    return [f"{line}: {text}" for line, _, text in sorted(found)]
+
+
+def test_the_adapters_reach_no_private_member_of_another_object():
+    found = [f"{p}:{hit}" for p in ADAPTERS for hit in _private_reaches((REPO / p).read_text())]
+    assert found == []
+
+
+def test_the_private_member_scan_sees_methods_fields_and_class_attributes():
+    src = "env._end_step(a)\nview._last_rewards = r\ntype(env)._info is MapEnv._info\nself._own = self._views[a]._x\n"
+    assert _private_reaches(src) == ["1: env._end_step", "2: view._last_rewards", "3: type(env)._info",
+                                     "3: MapEnv._info", "4: self._views[a]._x"]
+
+
 def test_the_env_defaults_are_the_drive_defaults():
     """The OpenSCENARIO export and the scenario tools model the env's drive from DRIVE_DEFAULTS."""
     from feat2map.config import DRIVE_DEFAULTS
