@@ -513,7 +513,7 @@ class MultiAgentMapEnv(ParallelEnv):
             self._spawn_pending({k})
             w.fill_traffic()
         obs = self._observe(self.agents)
-        infos = {a: self._info(a, obs[a], self._noop()) for a in self.agents}
+        infos = {a: self._views[a].info(self._noop()) for a in self.agents}
         return obs, infos
 
     def _spawn_pending(self, worlds: set[int]) -> list[str]:
@@ -615,7 +615,7 @@ class MultiAgentMapEnv(ParallelEnv):
             rewards[a] = self._reward(view, done, completed, weights)
             terms[a] = bool(view.vehicle.crashed or completed)
             truncs[a] = bool(self._world_of[a] in truncated and not terms[a])
-            infos[a] = self._info(a, obs[a], action if action is not None else self._noop(), done, completed)
+            infos[a] = view.info(action if action is not None else self._noop(), done, completed)
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}
@@ -630,7 +630,7 @@ class MultiAgentMapEnv(ParallelEnv):
         obs.update(self._observe(new))
         for a in new:
             rewards[a], terms[a], truncs[a] = 0.0, False, False
-            infos[a] = self._info(a, obs[a], self._noop())
+            infos[a] = self._views[a].info(self._noop())
         # a world with nobody on the road: its waiting agents will never get in
         on_road = {self._world_of[a] for a in self.agents}
         self._pending = [p for p in self._pending if self._world_of[p[0]] in on_road]
@@ -680,10 +680,6 @@ class MultiAgentMapEnv(ParallelEnv):
                    "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
         kept = [(k, w) for k, w in weights.items() if w != 0]
         return tuple(k for k, _ in kept), tuple(w for _, w in kept)
-
-    def _info(self, agent: str, obs, action, done: float | None = None, completed: bool | None = None) -> dict:
-        """The single env's info of the agent (`done`, `completed` when already asked this step), and its own keys."""
-        return self._views[agent].info(action, done, completed)
 
     # ---- helpers -------------------------------------------------------------------------------
     def view(self, agent: str) -> AgentView:

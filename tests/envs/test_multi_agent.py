@@ -18,7 +18,7 @@ import feat2map  # noqa: E402
 from feat2map.envs import parallel_env  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.map_env import EgoTask, MapEnv  # noqa: E402
-from feat2map.envs.multi_agent import AGENT_VIOLATIONS, ControlledRow, MultiAgentMapEnv  # noqa: E402
+from feat2map.envs.multi_agent import AGENT_VIOLATIONS, AgentView, ControlledRow  # noqa: E402
 from feat2map.envs.multi_agent import env as aec_env  # noqa: E402
 from feat2map.errors import Feat2MapError  # noqa: E402
 from feat2map.spec import build_spec, load_spec  # noqa: E402
@@ -304,7 +304,7 @@ def test_signal_states_are_worked_out_again_only_when_one_changes_without_swappi
     env.reset(seed=0)
     asked: Counter = Counter()
     swapped: list[str] = []
-    codes, info = core.TrafficCore.signal_codes, MultiAgentMapEnv._info
+    codes, info = core.TrafficCore.signal_codes, AgentView.info
 
     def counted(self, *args):
         before = self._signals_timed
@@ -318,7 +318,7 @@ def test_signal_states_are_worked_out_again_only_when_one_changes_without_swappi
         return info(self, *args)
 
     monkeypatch.setattr(core.TrafficCore, "signal_codes", counted)
-    monkeypatch.setattr(MultiAgentMapEnv, "_info", checked)
+    monkeypatch.setattr(AgentView, "info", checked)
     frames = 0
     for _ in range(60):
         env.step({a: 3 for a in env.agents})
