@@ -1009,7 +1009,7 @@ class TrafficCore:
                 lanes.append(route[k])
                 cum.append(d)
                 d += length[route[k]]
-            what = rule_scan.along(self.table, lanes, float(self.length[i]))
+            what = rule_scan.along(t, lanes, float(self.length[i]))
             rows[i] = (lanes, cum, what)
             need = max(need, len(lanes))
             self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),

@@ -115,8 +115,8 @@ class EgoTask:
 
     def _rewards(self, action) -> dict[str, float]:
         # the ego's own terms, by name (an agent's view adds its judge's two: multi_agent.py)
-        return dict(zip(EgoTask._reward_terms(), EgoTask._reward_row(self, self.vehicle.route_distance_done(),
-                                                                     self.route_completed())))
+        return dict(zip(REWARD_TERMS, EgoTask._reward_row(self, self.vehicle.route_distance_done(),
+                                                          self.route_completed())))
 
     def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
         """This step's reward terms (`_reward_terms` order) given the route metres `done` and

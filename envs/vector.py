@@ -217,8 +217,8 @@ class MapVectorEnv(VectorEnv):
 
     def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
         """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`), their rewards
-        as one array program and their info as columns {key: ([sub-env], [value])} (the values
-        of `MapEnv._info_values`, each asked once: `stack_columns` makes the arrays)."""
+        as one array program and their info as columns {key: ([sub-env], [value])} (the info
+        values of `MapEnv.step_values`, each asked once: `stack_columns` makes the arrays)."""
         rows, weights, values = [], [], []
         for i, env, action, obs in zip(stepping, envs, actions, observed):
             self._env_obs[i] = env.observation_type.observe() if obs is None else obs
