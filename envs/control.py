@@ -1,10 +1,11 @@
 """Traffic control devices and their state during an episode: fixed-time signal phase plans
 (phases grouped by the map library's `feat2map.phases`, shared with the exports), junction
-reservations, narrow passages and crosswalk pedestrians (the stop-sign queues are row arrays of
-the core: `sim.stop_signs`). `TrafficControl` inherits the rules' questions
-(`rules.TrafficRules`, pure) that traffic, the ego's judge and planners ask of it, and is the one
-place that writes that state: what a road user takes (`claim`: its reservations and its place at
-narrow passages) and the bookkeeping after every simulation frame (`update`).
+reservations, narrow passages and crosswalk pedestrians (the stop-sign queues and the narrow
+passages' holders and waiters are row arrays of the core: `sim.stop_signs`, `sim.passages`).
+`TrafficControl` inherits the rules' questions (`rules.TrafficRules`, pure) that traffic, the
+ego's judge and planners ask of it, and is the one place that writes that state: what a road
+user takes (`claim`: its reservations and its place at narrow passages) and the bookkeeping
+after every simulation frame (`update`).
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from ..phases import junction_phases
 from .network import MapNetwork
 from .reservations import LEFT_HOLDER
 from .rules import SIGNAL_STATES, Claims, TrafficRules, beyond, commits, enters_next
-from .sim import pedestrians, stop_signs
+from .sim import passages, pedestrians, stop_signs
 from .vehicles import Pedestrian
 
 
@@ -143,9 +144,6 @@ class TrafficControl(TrafficRules):
         self.pedestrians: dict[str, list[Pedestrian]] = {}  # by crosswalk, the walkers' views (`sim.pedestrians`)
         self._active_crosswalks: list[str] = []
         self.key = episode_key(rng)  # of the episode's counter-based draws (`sim.random`)
-        self.passage_holders: dict[int, tuple[set, set]] = {}
-        self.passage_waiters: dict[int, dict] = {}
-        self.passage_rooms: dict[tuple[int, int], set] = {}
         self._claims: Claims = []  # what the claim being made takes (`claim`)
 
     @property
@@ -201,19 +199,15 @@ class TrafficControl(TrafficRules):
         return math.inf if ok else wait
 
     def _enrol(self, vehicle, chain: list[tuple[int, int]], ok: bool, room: tuple[int, int] | None) -> None:
-        """`vehicle` takes its place at the passages of `chain`: allowed (`ok`), among the holders
-        of all and the place to wait before passage `room` (`passage_way`'s third item); else
-        among the waiters of all, standing in the room before the first."""
-        for group, side in chain:
-            waiters = self.passage_waiters.setdefault(group, {})
-            if ok:
-                self.passage_holders.setdefault(group, (set(), set()))[side].add(vehicle)
-                waiters.pop(vehicle, None)
-            elif vehicle not in waiters:
-                waiters[vehicle] = (side, self.t)
-        taken = room if ok else chain[0]
-        if taken is not None:
-            self.passage_rooms.setdefault(taken, set()).add(vehicle)
+        """`vehicle` takes its place at the passages of `chain` (`sim.passages.enrol`): allowed
+        (`ok`), among the holders of all and the place to wait before passage `room`
+        (`passage_way`'s third item); else among the waiters of all, standing in the room before
+        the first."""
+        core = self.road.core
+        r = core.user_row(vehicle)
+        if r < 0:
+            raise ValueError(f"{vehicle!r} is no road user of this road's rows: it cannot take a place at a passage")
+        passages.enrol(core, r, chain, ok, room, self.t)
 
     def passage_start(self, vehicle) -> bool:
         """Whether a vehicle just placed on the road (the ego at reset, traffic at a spawn) may
@@ -328,17 +322,20 @@ class TrafficControl(TrafficRules):
         self.__dict__.pop("buckets", None)
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
-        """Road users within a narrow passage hold it from their side; holders and waiters that
-        left the road or whose route no longer leads into it let go, and so do holders whose rear
-        has passed the passage's end (one standing beyond it, at the junction after it, held it
-        against the car waiting to come the other way: digitaf r025), and those that drove through
-        it and out onto a road lane beyond it, where their route loops back into it, unless a new
-        claim would hold it now (a car circling a block held the passage from behind the cars
-        waiting for it: Testfeld_Karlsruhe r142; dropped as it came round again, its claim was
-        lost to a car from the other side: digitaf r022). A place to wait before a passage
-        (`passage_rooms`) is given up on holding that passage or leaving its way."""
+        """Road users within a narrow passage hold it from their side; holders and waiters whose
+        route no longer leads into it let go (one that left the road let go with its row), and so
+        do holders whose rear has passed the passage's end (one standing beyond it, at the
+        junction after it, held it against the car waiting to come the other way: digitaf r025),
+        and those that drove through it and out onto a road lane beyond it, where their route
+        loops back into it, unless a new claim would hold it now (a car circling a block held the
+        passage from behind the cars waiting for it: Testfeld_Karlsruhe r142; dropped as it came
+        round again, its claim was lost to a car from the other side: digitaf r022). A place to
+        wait before a passage (`sim.passages.places`) is given up on holding that passage or
+        leaving its way. `alive`: the ids of the road's road users (one removed since the rows
+        were last brought in line lets go too)."""
         net = self.net
         lanes = net.hdmap.lanes
+        core = self.road.core
         for lid, users in buckets.items():
             ps = net.passages.get(lid)
             if ps is None:
@@ -346,9 +343,10 @@ class TrafficControl(TrafficRules):
             for v in users:
                 s = v.s_on(lid)
                 if ps.s0 - v.LENGTH / 2 <= s <= ps.s1 + v.LENGTH / 2:
-                    self.passage_holders.setdefault(ps.group, (set(), set()))[ps.side].add(v)
+                    core.pass_hold[core.user_row(v), ps.group] |= 1 << ps.side
 
-        def ahead(v, group: int, side: int) -> bool:  # the passage is on the rest of its route
+        def ahead(r: int, group: int, side: int) -> bool:  # the passage is on the rest of its route
+            v = core.objs[r]
             if id(v) not in alive:
                 return False
             route = getattr(v, "lane_route", None)
@@ -372,12 +370,19 @@ class TrafficControl(TrafficRules):
                     return True  # not yet out of it: its rear has not passed the passage's end
             return False
 
-        for g, sides in self.passage_holders.items():
-            for side, holders in enumerate(sides):
-                holders.intersection_update([v for v in holders if ahead(v, g, side)])
-        for g, waiters in self.passage_waiters.items():
-            for v in [v for v, (side, _) in waiters.items() if not ahead(v, g, side)]:
-                del waiters[v]
-        for (g, side), users in self.passage_rooms.items():  # a place to wait is given up on entering
-            held = self.passage_holders.get(g, ((), ()))[side]
-            users.intersection_update([v for v in users if v not in held and ahead(v, g, side)])
+        users = passages.users(core, self.road.slot)
+        hold, wait, room = core.pass_hold, core.pass_wait, core.pass_room
+        for g in range(hold.shape[1]):
+            for side in (0, 1):
+                bit = 1 << side
+                for r in [r for r in users[hold[users, g] & bit != 0].tolist() if not ahead(r, g, side)]:
+                    hold[r, g] &= ~bit
+        for g in range(hold.shape[1]):
+            for r in [r for r in users[wait[users, g] >= 0].tolist() if not ahead(r, g, int(wait[r, g]))]:
+                wait[r, g] = -1
+        for g in range(hold.shape[1]):  # a place to wait is given up on holding or leaving the way
+            for side in (0, 1):
+                bit = 1 << side
+                for r in [r for r in users[room[users, g] & bit != 0].tolist()
+                          if hold[r, g] & bit or not ahead(r, g, side)]:
+                    room[r, g] &= ~bit

@@ -86,7 +86,7 @@ from .lanes import centre_points, curve_speeds, project_rows, segment_table
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
-from .sim import crossings, entries, pedestrians, rule_scan, stop_signs
+from .sim import crossings, entries, passages, pedestrians, rule_scan, stop_signs
 from .sim.join import same_key_pairs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
@@ -661,6 +661,14 @@ class TrafficCore:
         # (bits, `rules.ENTRY`...; a crosswalk's people are asked each frame), and how many window
         # lanes the scan reaches (`scan_len`)
         self.scan_what = np.zeros((0, 1), dtype=np.int8)
+        # the narrow passages' state (`sim.passages`), per row and passage group: the sides it
+        # holds (bits), the side it waits from (-1 none) and since when, the sides before which it
+        # took a place to wait (bits)
+        g = passages.groups(net)
+        self.pass_hold = np.zeros((0, g), dtype=np.int8)
+        self.pass_wait = np.full((0, g), -1, dtype=np.int8)
+        self.pass_since = np.full((0, g), np.inf)
+        self.pass_room = np.zeros((0, g), dtype=np.int8)
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
@@ -668,6 +676,8 @@ class TrafficCore:
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged")
+    # row arrays with a column per window lane or passage group, and a new row's value in each
+    _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0, **passages.ARRAYS}
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -745,7 +755,7 @@ class TrafficCore:
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
         self._forget_buckets([int(row["env"])])
-        self._append_rows(("W", "C", "scan_what"), {"W": -1, "C": 0.0, "scan_what": 0})
+        self._append_rows(tuple(self._WIDE_ARRAYS), self._WIDE_ARRAYS)
         if isinstance(obj, ArrayVehicle):
             obj._core, obj._row = self, i
         self.dirty.add(i)
@@ -835,7 +845,7 @@ class TrafficCore:
         self.queue_version[self.env[left]] += 1
         self.queued -= int(left.sum())
         self._keep_rows(self._ARRAYS, idx)
-        self.W, self.C, self.scan_what = self.W[idx], self.C[idx], self.scan_what[idx]
+        self._keep_rows(tuple(self._WIDE_ARRAYS), idx)
         new_row = np.full(len(self.objs), -1, dtype=np.int64)
         new_row[idx] = np.arange(len(idx))
         self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
@@ -1368,9 +1378,7 @@ class TrafficCore:
         `vehicle` of `slot` (None: nobody): what `TrafficRules.junction_clear` and
         `cross_traffic_near` ask."""
         j = np.array([self.table.index[x] for x in lanes], dtype=np.int64)
-        me = self.row_of(vehicle) if vehicle is not None else NONE
-        if me == LEFT:  # an external road user, or none of the rows
-            me = next((i for i in self._external if self.objs[i] is vehicle), NONE)
+        me = self.user_row(vehicle) if vehicle is not None else NONE
         return entries.junction_clear(self, np.full(len(j), slot), np.full(len(j), me), j, priority=priority,
                                       margin=margin, one=slot)
 
@@ -1385,6 +1393,11 @@ class TrafficCore:
         """The row of road user `obj` (LEFT: none; only rows hold reservations)."""
         r = getattr(obj, "_row", LEFT) if getattr(obj, "_core", None) is self else LEFT
         return r if 0 <= r < len(self.objs) and self.objs[r] is obj else LEFT
+
+    def user_row(self, obj: Any) -> int:
+        """The row of road user `obj`, an external one's included (NONE: none of the rows)."""
+        r = self.row_of(obj)
+        return r if r != LEFT else next((i for i in self._external if self.objs[i] is obj), NONE)
 
     def release_looks(self, slots: np.ndarray) -> dict[int, list[str]]:
         """Per slot of `slots` (a mask), the lanes whose reservation its bookkeeping must look at

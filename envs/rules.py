@@ -11,10 +11,10 @@ and the baseline planner (scenarios/planner.py) all ask this module.
   narrow passage, where opposite lanes are too close to pass: one direction at a time, first
   come first served, a vehicle claiming passages that follow each other together).
   The questions are pure. `control.TrafficControl` holds that state (signal plans, reservations,
-  passage holders and waiters, pedestrians; the stop-sign queues are row arrays of the core,
-  `sim.stop_signs`, and `stop_queue` their view), inherits these questions and is the one place
-  that writes it (a road user's claims, `claim`; the bookkeeping after a frame, `update`);
-  `env.unwrapped.rules` is that object;
+  pedestrians; the stop-sign queues and the passages' holders and waiters are row arrays of the
+  core, `sim.stop_signs` and `sim.passages`, `stop_queue` and `passage_state` their views),
+  inherits these questions and is the one place that writes it (a road user's claims, `claim`;
+  the bookkeeping after a frame, `update`); `env.unwrapped.rules` is that object;
 - `EgoJudge`: the ego's violations (red light, stop sign, pedestrian yield) and leaving the road.
 
 Stop lines are measured along the route: `TrafficRules.line_ahead` gives the distance from a vehicle's
@@ -43,6 +43,7 @@ from ..config import (AMBER_BRAKE_MPS2, AMBER_CAP_MARGIN_M, AMBER_STOP_MARGIN_M,
                       PEDESTRIAN_YIELD_SPEED_MPS, PEDESTRIAN_YIELD_STRETCH_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M,
                       SPAWN_BRAKE_MPS2, SPAWN_MARGIN_M, STOPPED_SPEED_MPS, STOP_POINT_M, STOP_ZONE_M)
 
+from .sim import passages
 from .sweep import clear_stop, swept_head
 
 if TYPE_CHECKING:
@@ -350,9 +351,6 @@ class TrafficRules:
     if TYPE_CHECKING:
         @property
         def buckets(self) -> dict[str, list]: ...  # the road users on each lane (`TrafficControl.buckets`)
-    passage_holders: dict  # passage group -> (holders from side 0, from side 1)
-    passage_waiters: dict  # passage group -> {vehicle: (side, time it began to wait)}
-    passage_rooms: dict  # (passage group, side) -> vehicles that took a place to wait before it
     signals_by_junction: dict  # junction id -> its signal ids
 
     # (clock, signal states asked at it, junction states asked at it): `signal_state`, `signal_states`
@@ -721,10 +719,22 @@ class TrafficRules:
         return None if way is None else (way[0], way[1])
 
     def room_taken(self, group: int, side: int, vehicle=None) -> int:
-        """How many vehicles other than `vehicle` took a place to wait before passage `group`
-        from `side` (`passage_rooms`)."""
-        users = self.passage_rooms.get((group, side), ())
-        return len(users) - (vehicle in users)
+        """How many road users other than `vehicle` took a place to wait before passage `group`
+        from `side` (`sim.passages.places`)."""
+        core = self.road.core
+        rows = passages.places(core, self.road.slot, group, side)
+        return len(rows) - int(vehicle is not None and core.user_row(vehicle) in rows)
+
+    def passage_state(self, group: int) -> tuple[tuple[list, list], dict, tuple[list, list]]:
+        """(holders from side 0 and from side 1, {waiter: (side, time it began to wait)}, the
+        road users that took a place to wait before it from side 0 and from side 1) of passage
+        `group`: a view of the rows (`sim.passages`) for readers."""
+        core, slot = self.road.core, self.road.slot
+        objs = core.objs
+        rows, sides, since = passages.waiters(core, slot, group)
+        return (tuple([objs[r] for r in passages.holders(core, slot, group, k).tolist()] for k in (0, 1)),  # type: ignore[return-value]
+                {objs[r]: (k, t) for r, k, t in zip(rows.tolist(), sides.tolist(), since.tolist())},
+                tuple([objs[r] for r in passages.places(core, slot, group, k).tolist()] for k in (0, 1)))
 
     def passage_way(self, vehicle, entered: bool = False) -> \
             tuple[list[tuple[int, int]], float, tuple[int, int] | None] | None:
@@ -755,7 +765,8 @@ class TrafficRules:
         net = self.net
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
-        holders = self.passage_holders
+        core = self.road.core
+        me = core.user_row(vehicle)
         skip: set[int] = set()
         chain: list[tuple[int, int]] = []
         taken: tuple[int, int] | None = None  # the passage whose room the chain ends before
@@ -781,7 +792,7 @@ class TrafficRules:
             if ps is not None and ps.group not in skip and (ps.group, ps.side) not in chain:
                 start = d + ps.s0 if s_own is None else ps.s0 - s_own
                 if not chain and not entered and (start - vehicle.LENGTH / 2 <= 0.0 or
-                                                  vehicle in holders.get(ps.group, ((), ()))[ps.side]):
+                                                  passages.holds(core, me, ps.group, ps.side)):
                     skip.add(ps.group)  # entered (or holding) it: the next passage counts
                     continue
                 if chain and room_to_wait(room + ps.s0, vehicle.LENGTH) and \
@@ -808,35 +819,36 @@ class TrafficRules:
     def passage_allows(self, vehicle, chain: list[tuple[int, int]]) -> bool:
         """One direction at a time, first come first served: `vehicle` may drive into the passages
         of `chain` ((group, side) pairs) while no one holds one of them from the other side or
-        waits there since before it (a pure question; `_enrol` takes the place it gives)."""
-        ok = True
+        waits there since before it (a pure question; `TrafficControl._enrol` takes the place it
+        gives)."""
+        core, slot = self.road.core, self.road.slot
+        me = core.user_row(vehicle)
         for group, side in chain:
-            holders = self.passage_holders.get(group, ((), ()))
-            waiters = self.passage_waiters.get(group, {})
-            mine = waiters.get(vehicle, (side, math.inf))[1]
-            if any(h is not vehicle for h in holders[1 - side]) or \
-                    any(s != side and t < mine and not self._held_against(w, group, side)
-                        for w, (s, t) in waiters.items() if w is not vehicle):
-                ok = False
-        return ok
+            if (passages.holders(core, slot, group, 1 - side) != me).any():
+                return False
+            rows, sides, since = passages.waiters(core, slot, group)
+            mine = core.pass_since[me, group] if me >= 0 and core.pass_wait[me, group] >= 0 else math.inf
+            first = rows[(sides != side) & (since < mine) & (rows != me)]
+            if any(not self._held_against(w, group, side) for w in first.tolist()):
+                return False
+        return True
 
-    def _held_against(self, vehicle, group: int, side: int) -> bool:
-        """Whether `vehicle` waits for another passage of its chain than `group` that a vehicle
-        holds from the other direction whose own way leads through `group` from `side`: `vehicle`
-        cannot go before that one has come through, so its earlier wait on `group` must not hold
-        back the cars coming through from `side` (a car waiting before passage A for A and the
-        passage B after A's full room kept the car waiting at A's far end from going, whose queue
-        held B: locked). Otherwise its wait holds, first come first served."""
-        net = self.net
-        for g, waiters in self.passage_waiters.items():
-            w = waiters.get(vehicle) if g != group else None
-            if w is None:
+    def _held_against(self, w: int, group: int, side: int) -> bool:
+        """Whether the road user of row `w` waits for another passage of its chain than `group`
+        that a road user holds from the other direction whose own way leads through `group` from
+        `side`: `w` cannot go before that one has come through, so its earlier wait on `group`
+        must not hold back the cars coming through from `side` (a car waiting before passage A
+        for A and the passage B after A's full room kept the car waiting at A's far end from
+        going, whose queue held B: locked). Otherwise its wait holds, first come first served."""
+        core, slot, net = self.road.core, self.road.slot, self.net
+        for g in (core.pass_wait[w] >= 0).nonzero()[0].tolist():
+            if g == group:
                 continue
-            for h in self.passage_holders.get(g, ((), ()))[1 - w[0]]:
-                route = getattr(h, "lane_route", None)
-                if h is vehicle or not route:
+            for h in passages.holders(core, slot, g, 1 - int(core.pass_wait[w, g])).tolist():
+                route = core.route_ids[h]
+                if h == w or not route:
                     continue
-                for lid in route[h.route_pos:]:
+                for lid in route[int(core.route_pos[h]):]:
                     ps = net.passages.get(lid)
                     if ps is not None and ps.group == group and ps.side == side:
                         return True
@@ -848,16 +860,22 @@ class TrafficRules:
         it stays where it is until `other` has left the passage (a car waiting at a junction at
         the far end of a one-lane road is no oncoming traffic for the one that holds the road:
         taking it for one locked both up, GoMentum r034)."""
-        if other is None or depth <= 0:
+        if other is None:
             return False
-        for group, waiters in self.passage_waiters.items():
-            w = waiters.get(vehicle)
-            if w is None:
-                continue
-            side, since = w
-            blockers = list(self.passage_holders.get(group, ((), ()))[1 - side])
-            blockers += [u for u, (s, t) in waiters.items() if s != side and t < since]
-            if other in blockers or any(self.waits_for(u, other, depth - 1) for u in blockers if u is not vehicle):
+        core = self.road.core
+        return self._waits_for(core.user_row(vehicle), core.user_row(other), depth)
+
+    def _waits_for(self, r: int, other: int, depth: int) -> bool:
+        """`waits_for` of rows (-1: none)."""
+        if r < 0 or other < 0 or depth <= 0:
+            return False
+        core, slot = self.road.core, self.road.slot
+        for g in (core.pass_wait[r] >= 0).nonzero()[0].tolist():
+            side, since = int(core.pass_wait[r, g]), core.pass_since[r, g]
+            rows, sides, t = passages.waiters(core, slot, g)
+            blockers = np.concatenate([passages.holders(core, slot, g, 1 - side), rows[(sides != side) & (t < since)]])
+            if (blockers == other).any() or \
+                    any(self._waits_for(u, other, depth - 1) for u in blockers.tolist() if u != r):
                 return True
         return False
 

@@ -121,11 +121,8 @@ def turns(core: "TrafficCore", rows: np.ndarray, j_lane: np.ndarray) -> np.ndarr
                                 | (core.length[other] > entries.BOX_LENGTH_M))).nonzero()[0]
     for x, o, lid in zip(k.tolist(), other[k].tolist(), lane[k].tolist()):  # a box to keep clear
         takes[x] = core.roads[core.env[o]].control.box_clear(core.objs[o], core.net.lane_ids[lid])
-    if core.net.passages:
-        for x in takes.nonzero()[0].tolist():  # waiting for a narrow passage
-            o = int(other[x])
-            waiters = core.roads[core.env[o]].control.passage_waiters.values()
-            takes[x] = not any(core.objs[o] in w for w in waiters)
+    if core.net.passages:  # one waiting for a narrow passage lets later ones go
+        takes &= ~(core.pass_wait[other] >= 0).any(axis=1)
     allowed[p[takes]] = False
     return allowed
 

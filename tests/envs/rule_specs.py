@@ -67,7 +67,7 @@ def first_come_first_served(ctl, vehicle, j_lane: str) -> bool:
     if vehicle not in queue:
         return False
     for other in queue[:queue.index(vehicle)]:
-        if any(other in w for w in ctl.passage_waiters.values()):
+        if any(other in ctl.passage_state(ps.group)[1] for ps in net.passages.values()):
             continue
         route = other.lane_route
         lane = next((x for x in route[max(other.route_pos - 1, 0):] if net.hdmap.lanes[x].junction_id == jid), None)

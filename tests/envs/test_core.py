@@ -228,7 +228,7 @@ def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
     env.reset(seed=2)
     u = env.unwrapped
     core = u.road.core
-    names = (*core._ARRAYS, "W", "C", "scan_what")
+    names = (*core._ARRAYS, *core._WIDE_ARRAYS)
 
     def arrays() -> dict:
         return {k: getattr(core, k).copy() for k in names}

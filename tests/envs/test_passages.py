@@ -264,7 +264,7 @@ def test_two_narrow_roads_at_a_junction_do_not_lock(two_narrow, car_speed):
              if ln.predecessors[0] == inbound["2"] and ln.successors[0] == outbound["1"])
     car = u.road.spawn(inbound["2"], 0.0, car_speed, [inbound["2"], j, outbound["1"]])
     for lid in (inbound["1"], outbound["2"]):  # the ego, placed before road 1, holds both ways
-        assert u.vehicle in u.control.passage_holders[net.passages[lid].group][net.passages[lid].side]
+        assert u.vehicle in u.control.passage_state(net.passages[lid].group)[0][net.passages[lid].side]
     from feat2map.scenarios.planner import BaselinePlanner
 
     planner = BaselinePlanner()
@@ -299,7 +299,7 @@ def test_holder_lets_go_once_its_rear_is_out(bridge):
             break
         s = car.s_on(east_west)
         inside = s - car.LENGTH / 2 <= ps.s1
-        assert (car in u.control.passage_holders[ps.group][ps.side]) == inside, (s, ps)
+        assert (car in u.control.passage_state(ps.group)[0][ps.side]) == inside, (s, ps)
         seen[inside] = True
     env.close()
     assert seen[True] and seen[False]
@@ -399,7 +399,7 @@ def test_room_before_a_passage_is_taken_with_the_passage_before_it(room_for_one)
     out_of_b = [u.road.spawn("2_0_1", s, 5.0, ["2_0_1", back, "1_0_-1"]) for s in (10.0, 2.0)]
     first = u.road.spawn("1_0_1", 21.0, 5.0, ["1_0_1", to_b, "2_0_-1"])
     assert all(ctl.passage_start(v) for v in [*out_of_b, first])
-    assert first in ctl.passage_rooms[(b_out.group, b_out.side)]
+    assert first in ctl.passage_state(b_out.group)[2][b_out.side]
     second = u.road.spawn("1_0_1", 15.0, 5.0, ["1_0_1", to_b, "2_0_-1"])
     chain, _, room = ctl.passage_way(second, entered=True)
     assert chain == [(a_in.group, a_in.side), (b_out.group, b_out.side)] and room is None
@@ -415,7 +415,7 @@ def test_room_before_a_passage_is_taken_with_the_passage_before_it(room_for_one)
         obs, _, term, trunc, info = env.step(planner.act(obs, info))
         assert not info["collision"], f"collision at t={info['time']:.1f} s"
         in_a = net.id_of.get(ego.lane_index) == "1_0_1" and ego.s_on("1_0_1") + ego.LENGTH / 2 > a_in.s0
-        if in_a and ctl.passage_holders.get(b_out.group, ((), ()))[1 - b_out.side]:
+        if in_a and ctl.passage_state(b_out.group)[0][1 - b_out.side]:
             entered_early.append(round(info["time"], 1))
         if term or trunc:
             break
@@ -460,7 +460,7 @@ def test_car_past_its_line_waits_for_a_passage_at_the_junctions_edge(tmp_path):
     to_junction = 2.0  # past the wait point, 2 m before the junction
     u.road.spawn("R2_1", 20.0, 0.0, ["R2_1"])  # holds the passage from the other side
     _parked(env)
-    assert ctl.passage_holders[ps.group][1 - ps.side]
+    assert ctl.passage_state(ps.group)[0][1 - ps.side]
     car = u.road.spawn("R0_1", net.lane_of["R0_1"].length - to_junction, 0.0, ["R0_1", into, "R2_0"])
     chain, wait = ctl.passage_ahead(car)
     assert chain == [(ps.group, ps.side)]
@@ -484,7 +484,7 @@ def test_reservation_beyond_a_passage_wait_is_given_up(two_narrow):
     ps = net.passages["2_0_-1"]
     u.road.spawn("2_0_1", 12.0, 0.0, ["2_0_1"])  # holds the passage from the other side
     _parked(env)
-    assert ctl.passage_holders[ps.group][1 - ps.side]
+    assert ctl.passage_state(ps.group)[0][1 - ps.side]
     car = u.road.spawn("3_0_1", net.lane_of["3_0_1"].length - 8.0, 0.0, ["3_0_1", into, "2_0_-1"])
     ctl.reservations[into], car.reserved = car, into  # reserved while the passage was free
     wait = ctl.claim(car)  # what the traffic core asks every step
@@ -524,7 +524,7 @@ def test_junction_before_a_far_passage_wait_is_reserved(bare_bridge):
     into = next(ln.id for ln in m.lanes_by_junction["1"] if ln.predecessors[0] == "1_0_1" and ln.successors[0] == "3_0_-1")
     u.road.spawn("3_0_1", 30.0, 0.0, ["3_0_1"])  # holds the passage from the other side
     _parked(env)
-    assert ctl.passage_holders[ps.group][1 - ps.side]
+    assert ctl.passage_state(ps.group)[0][1 - ps.side]
     car = u.road.spawn("1_0_1", net.lane_of["1_0_1"].length - 4.0, 5.0, ["1_0_1", into, "3_0_-1"])
     wait = ctl.claim(car)  # what the traffic core asks every step
     assert wait == pytest.approx(ctl.passage_stop(car))
@@ -557,3 +557,45 @@ def test_the_conflict_rule_passes_over_road_users_waiting_for_a_passage_the_aske
             planner.reset(env)
     env.close()
     assert why["passage waiter"] > 0 and why["coming"] > 20, why
+
+
+def test_passage_places_move_with_their_rows_and_go_with_a_road_user_that_leaves(bridge):
+    """The passages' state is row arrays of the core (`sim.passages`): a holder's and a waiter's
+    places stay theirs while rows before them leave and the rows move, and a road user that leaves
+    the road lets go with its row at once: the car waiting on the other side may drive in before
+    any frame's bookkeeping."""
+    m = read_map(bridge)
+    sc = Scenario("bridge", str(bridge), (("1", "1", "2"),), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, core, ctl = u.net, u.road.core, u.control
+    bridge_lanes = [ln.id for ln in m.lanes.values() if ln.road_id == "3"]
+    assert not set(bridge_lanes) & set(u.vehicle.lane_route)
+    west_east, east_west = bridge_lanes
+    ps = net.passages[west_east]
+    j = next(ln for ln in m.lanes.values() if ln.junction_id is not None and east_west in ln.successors)
+    fillers = [u.road.spawn(j.predecessors[0], 1.0 + 8.0 * k, 0.0, [j.predecessors[0]]) for k in range(2)]
+    holder = u.road.spawn(west_east, ps.s0 + 10.0, 0.0, [west_east])
+    line = net.lane_of[j.predecessors[0]].length
+    waiter = u.road.spawn(j.predecessors[0], line - 8.0, 0.0, [j.predecessors[0], j.id, east_west])
+    ctl.update(u.road, 0.0)
+    assert ctl.passage_stop(waiter) < math.inf  # held by the holder from the other side
+    ctl.claim(waiter)
+    holders, waiters, _ = ctl.passage_state(ps.group)
+    assert holders[ps.side] == [holder] and not holders[1 - ps.side]
+    assert list(waiters) == [waiter] and waiters[waiter] == (1 - ps.side, 0.0)
+    rows = (holder.row, waiter.row)
+    for v in fillers:  # rows before theirs leave: theirs move, their places with them
+        u.road.vehicles.remove(v)
+    core.sync()
+    assert (holder.row, waiter.row) == (rows[0] - 2, rows[1] - 2)
+    holders, waiters, _ = ctl.passage_state(ps.group)
+    assert holders[ps.side] == [holder] and list(waiters) == [waiter] and waiters[waiter] == (1 - ps.side, 0.0)
+    assert ctl.passage_stop(waiter) < math.inf
+    u.road.vehicles.remove(holder)  # the holder leaves the road
+    core.sync()
+    holders, waiters, _ = ctl.passage_state(ps.group)
+    assert not holders[0] and not holders[1] and list(waiters) == [waiter]
+    assert ctl.passage_stop(waiter) == math.inf
+    env.close()

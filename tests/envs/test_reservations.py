@@ -14,6 +14,7 @@ import pytest
 import feat2map
 from feat2map.config import STOP_POINT_M
 from feat2map.envs.core import LaneTable
+from feat2map.envs.sim import passages
 from feat2map.formats import native
 from feat2map.scenarios.scenario import Scenario, make_env
 
@@ -54,6 +55,11 @@ def _env(path: Path):
     env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
     env.reset(seed=0)
     return env
+
+
+def passage_arrays(core) -> tuple[bytes, ...]:
+    """The narrow passages' state of every row (`sim.passages`), to compare."""
+    return tuple(getattr(core, name).tobytes() for name in passages.ARRAYS)
 
 
 def _parked(env) -> None:
@@ -142,7 +148,7 @@ def test_the_rules_questions_take_nothing_and_a_claim_takes_what_they_allow(sign
     ctl.update(u.road, 0.0)
 
     def state():
-        return dict(ctl.reservations), car.reserved, repr(ctl.passage_holders), repr(ctl.passage_waiters)
+        return dict(ctl.reservations), car.reserved, passage_arrays(u.road.core)
 
     before = state()
     answers = [ctl.stop_distance(car, ignore=frozenset(ig)) for ig in ((), ("conflict",), ("signal", "stop"))]
@@ -179,7 +185,7 @@ def test_asking_every_road_user_every_question_changes_nothing_in_busy_traffic(s
 
     def state():
         return (dict(ctl.reservations), [getattr(v, "reserved", None) for v in u.road.vehicles],
-                repr(ctl.passage_holders), repr(ctl.passage_waiters), repr(ctl.passage_rooms))
+                passage_arrays(u.road.core))
 
     asks = [(), *((r,) for r in RULES), RULES]  # each rule ignored, and all of them (a claim would take a lane now)
     moved, last = 0, state()

@@ -110,7 +110,7 @@ def _waits_at(path: Path, with_sweeps: bool):
     car = u.road.spawn(INBOUND, 10.0, 0.0, [INBOUND, to_2, "2_0_-1"])
     u.control.update(u.road, 0.0)
     ps = net.passages[FAR]
-    assert holder in u.control.passage_holders[ps.group][ps.side]
+    assert holder in u.control.passage_state(ps.group)[0][ps.side]
     swept = net.swept
     try:
         if not with_sweeps:
@@ -176,7 +176,7 @@ def test_swept_room_after_the_junction_is_no_room(jogged):
     holder = u.road.spawn(INBOUND, 2.0, 0.0, [INBOUND])
     car = u.road.spawn(approach, 5.0, 0.0, [approach, from_3, OUTBOUND])
     u.control.update(u.road, 0.0)
-    assert holder in u.control.passage_holders[ps.group][1 - ps.side]
+    assert holder in u.control.passage_state(ps.group)[0][1 - ps.side]
     chain, wait = u.control.passage_ahead(car)
     line = u.control.line_distance(car, from_3)
     swept = net.swept
@@ -191,28 +191,6 @@ def test_swept_room_after_the_junction_is_no_room(jogged):
     assert wait_unswept > line + net.lane_of[from_3].length  # without the stretches: in the room after it
 
 
-class _Stub:
-    """A route follower as the passage rules see it: a route, a place on it, a length, a speed."""
-
-    LENGTH, speed = 5.0, 0.0
-
-    def __init__(self, net: MapNetwork, route: list[str], pos: int, s: float) -> None:
-        self.net, self.lane_route, self.route_pos, self._s = net, route, pos, s
-
-    def s_on(self, lane_id: str) -> float:
-        return self._s
-
-    def upcoming(self, horizon: float = np.inf):
-        out = [(self.route_pos, self.lane_route[self.route_pos], -self._s, self._s)]
-        d = self.net.lane_of[self.lane_route[self.route_pos]].length - self._s
-        for k in range(self.route_pos + 1, len(self.lane_route)):
-            if d > horizon:
-                break
-            out.append((k, self.lane_route[k], d, None))
-            d += self.net.lane_of[self.lane_route[k]].length
-        return out
-
-
 def test_holder_out_on_the_road_beyond_lets_go_though_its_route_loops_back(jogged):
     """A car that drove through road 2's passage and is out on a road beyond it lets go, though
     its route comes back into the passage later (a car circling a block held the passage from
@@ -220,30 +198,37 @@ def test_holder_out_on_the_road_beyond_lets_go_though_its_route_loops_back(jogge
     the loop back in as a new claim and nobody waits on the other side before it (dropped there,
     its claim was lost to a car from the other side: digitaf r022); in the junction right after
     the passage, and before it, a holder keeps holding."""
-    from feat2map.envs.control import TrafficControl
-    from feat2map.envs.map_env import MapEnv
-
     m = read_map(jogged)
-    net = MapNetwork.from_map(m)
+    sc = Scenario("jogged", str(jogged), (("1", "3", "1"),), seed=0, duration=60.0)
+    env = make_env(sc, config={"traffic_vehicles": 0, "traffic_respawn": False})
+    env.reset(seed=0)
+    u = env.unwrapped
+    net, core = u.net, u.road.core
     ps = net.passages[FAR]
     j = next(ln.id for ln in m.lanes_by_junction["1"]
              if ln.predecessors[0] == FAR and m.lanes[ln.successors[0]].road_id == "3")
     road = m.lanes[j].successors[0]
     back = next(ln.id for ln in m.lanes_by_junction["1"] if m.lanes[ln.predecessors[0]].road_id == "3")
-    loop = [FAR, j, road, back, FAR]  # its shape alone matters here (the stub drives nothing)
+    loop = [FAR, j, road, back, FAR]
+
+    def placed(route: list[str], pos: int, s: float):  # standing at s on the route's lane `pos`
+        v = core.add_traffic(u.road, route[pos], s, 0.0, route)
+        v.route_pos = pos
+        return v
+
     end = net.lane_of[road].length
-    far, near, inside, before = (_Stub(net, loop, 2, 1.0), _Stub(net, loop, 2, end - 1.0),
-                                 _Stub(net, loop, 1, 3.0), _Stub(net, loop, 0, 1.0))
+    far, near, inside, before = placed(loop, 2, 1.0), placed(loop, 2, end - 1.0), placed(loop, 1, 3.0), placed(loop, 0, 1.0)
     everyone = (far, near, inside, before)
-    control = TrafficControl(net, np.random.default_rng(0), MapEnv.default_config())
-    control.passage_holders[ps.group] = (set(), set())
-    control.passage_holders[ps.group][ps.side].update(everyone)
-    control._update_passages({}, {id(v) for v in everyone})
-    assert control.passage_holders[ps.group][ps.side] == {near, inside, before}
+    control = u.control
+    for v in everyone:
+        core.pass_hold[v.row, ps.group] |= 1 << ps.side
+    control._update_passages({}, {id(v) for v in u.road.vehicles})
+    assert set(control.passage_state(ps.group)[0][ps.side]) == {near, inside, before}
     to_2 = next(ln.id for ln in m.lanes_by_junction["1"]
                 if ln.predecessors[0] == INBOUND and ln.successors[0] == "2_0_-1")
-    waiter = _Stub(net, [INBOUND, to_2, "2_0_-1"], 0, 20.0)  # waits for the other side since t = 0
-    control.passage_waiters[ps.group] = {waiter: (1 - ps.side, 0.0)}
-    control._update_passages({}, {id(v) for v in (*everyone, waiter)})
-    assert control.passage_holders[ps.group][ps.side] == {inside, before}
-    assert waiter in control.passage_waiters[ps.group]
+    waiter = placed([INBOUND, to_2, "2_0_-1"], 0, 20.0)  # waits for the other side since t = 0
+    core.pass_wait[waiter.row, ps.group], core.pass_since[waiter.row, ps.group] = 1 - ps.side, 0.0
+    control._update_passages({}, {id(v) for v in u.road.vehicles})
+    assert set(control.passage_state(ps.group)[0][ps.side]) == {inside, before}
+    assert waiter in control.passage_state(ps.group)[1]
+    env.close()
