@@ -124,7 +124,8 @@ class TrafficControl(TrafficRules):
 
     def __init__(self, net: MapNetwork, rng: np.random.Generator, cfg: dict) -> None:
         self.net = net
-        self.t = 0.0
+        self._t = 0.0  # the clock until a road holds it (`t`)
+        self._buckets: tuple[int, dict[str, list]] | None = None  # (the slot's `moves` they were made at, buckets)
         self.cfg = cfg
         self.plans: dict[str, PhasePlan] = {}
         self.signals_by_junction, grouped = net.memo(("phases", cfg["signal_phases"]),
@@ -145,6 +146,21 @@ class TrafficControl(TrafficRules):
         self._active_crosswalks: list[str] = []
         self.key = episode_key(rng)  # of the episode's counter-based draws (`sim.random`)
         self._claims: Claims = []  # what the claim being made takes (`claim`)
+
+    @property
+    def t(self) -> float:
+        """The rules' clock, seconds into the episode: its road's slot's in the core
+        (`TrafficCore.clock`, which a frame advances for every slot at once)."""
+        road = self.road
+        return float(road.core.clock[road.slot]) if road is not None else self._t
+
+    @t.setter
+    def t(self, value: float) -> None:
+        road = self.road
+        if road is None:
+            self._t = float(value)
+        else:
+            road.core.clock[road.slot] = value
 
     @property
     def active_crosswalks(self) -> list[str]:
@@ -285,12 +301,18 @@ class TrafficControl(TrafficRules):
         self.settle(dt, core.release_looks(mine).get(road.slot, ()))
 
     def settle(self, dt: float, looks: Sequence[str] = ()) -> None:
-        """The rules' bookkeeping after a frame of `dt`: the clock; the lane buckets made again
-        when next asked; the reservations of `looks` (`TrafficCore.release_looks`) released where
+        """The rules' bookkeeping after a frame of `dt` of this road alone (`TrafficCore.step`
+        does the clocks of every road at once): the clock; the lane buckets made again when next
+        asked; then `bookkeeping`."""
+        core, slot = self.road.core, self.road.slot
+        core.clock[slot] += dt
+        core.moves[slot] += 1
+        self.bookkeeping(looks)
+
+    def bookkeeping(self, looks: Sequence[str] = ()) -> None:
+        """After a frame, the reservations of `looks` (`TrafficCore.release_looks`) released where
         their holder left the road or drove through the lane, a committed follower taking over
         (`hand_over`); the narrow passages' holders and waiters."""
-        self.t += dt
-        self.forget_buckets()
         for lid in looks:
             v: Any = self.reservations.get(lid)
             left = v is LEFT_HOLDER
@@ -310,16 +332,17 @@ class TrafficControl(TrafficRules):
                       getattr(vehicle, "lane_route", [None])[getattr(vehicle, "route_pos", 0)])
         return hasattr(vehicle, "lane_route") and lane in vehicle.lane_route[:vehicle.route_pos] and not on
 
-    @cached_property
+    @property
     def buckets(self) -> dict[str, list]:
         """The road users on each lane (what the rules' occupancy questions read), made from the
-        road's rows when first asked after a frame or after road users came or went
-        (`forget_buckets`): most frames of a batch, most slots ask none."""
-        return self.road.core.buckets(self.road)
-
-    def forget_buckets(self) -> None:
-        """The buckets are made again when next asked (road users moved, came or went)."""
-        self.__dict__.pop("buckets", None)
+        road's rows when first asked after its rows moved, came or went (`TrafficCore.moves`):
+        most frames of a batch, most slots ask none."""
+        road = self.road
+        at = int(road.core.moves[road.slot])
+        held = self._buckets
+        if held is None or held[0] != at:
+            held = self._buckets = (at, road.core.buckets(road))
+        return held[1]
 
     def _update_passages(self, buckets: dict, alive: set) -> None:
         """Road users within a narrow passage hold it from their side; holders and waiters whose

@@ -552,12 +552,18 @@ class TrafficCore:
         self.roads: list[Any] = [None] * slots  # the road of each slot (sub-env)
         self.seen: list[list[Any]] = [[] for _ in range(slots)]  # each road's vehicles at its last sync
         self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
+        # each slot's clocks: its rules' time (`TrafficControl.t`, seconds into its episode) and
+        # how often its rows moved, came or went (the rules' lane buckets are made again when it
+        # changed: `TrafficControl.buckets`)
+        self.clock = np.zeros(slots)
+        self.moves = np.zeros(slots, dtype=np.int64)
         self.on = np.zeros(0, dtype=bool)  # their rows
         self._all_on = self.on
         self._external: list[int] = []  # the external rows (`_masks`)
         self._acting: list[int] = []  # those being stepped this frame (`act`)
         self.objs: list[Any] = []
         self._slot_rows: list[np.ndarray] | None = None  # each slot's rows (`rows`), None: to be found again
+        self.layout = 0  # counts the changes of which road user each row is (rows came, went or moved)
         self.env = np.zeros(0, dtype=np.int64)  # the slot of each row
         self.kind = np.zeros(0, dtype=np.int8)
         self.lane = np.zeros(0, dtype=np.int64)
@@ -795,6 +801,7 @@ class TrafficCore:
         self._all_on = np.ones(len(self.env), dtype=bool)  # every row (all slots stepped); never written
         self._external = np.nonzero(self.kind == EXTERNAL)[0].tolist()
         self._slot_rows = None
+        self.layout += 1
 
     def sync(self, roads: list | None = None) -> None:
         """Bring the rows in line with the roads' `vehicles` (by identity): take in vehicles user
@@ -1071,8 +1078,12 @@ class TrafficCore:
         stop_signs.update(self, self.on)
         pedestrians.update(self, dt, self.stepped)
         looks = self.release_looks(self.stepped)
+        self.clock[self.stepped] += dt  # (`TrafficControl.settle` of every road at once)
+        self.moves[self.stepped] += 1
+        passages = bool(self.net.passages)
         for road in roads:
-            road.control.settle(dt, looks.get(road.slot, ()))
+            if passages or road.slot in looks:
+                road.control.bookkeeping(looks.get(road.slot, ()))
         self.collisions(roads, dt)
         for road in roads:
             if road.record_history:
@@ -1577,7 +1588,7 @@ class TrafficCore:
     def _signals_at_clock(self) -> tuple[np.ndarray, np.ndarray]:
         """(every slot's clock, `_signal_arrays`): what `_signal_states` reads, now."""
         controls = [r.control if r is not None else None for r in self.roads]
-        return np.array([c.t if c is not None else 0.0 for c in controls]), self._signal_arrays(controls)
+        return self.clock.copy(), self._signal_arrays(controls)
 
     def buckets(self, road: "MapRoad") -> dict[str, list]:
         """The road users of `road` on each lane id, in its vehicles' order (after a sync; a
@@ -1592,10 +1603,7 @@ class TrafficCore:
 
     def _forget_buckets(self, slots) -> None:
         """The rules' lane buckets of `slots` are made again when next asked (road users came or went)."""
-        for s in slots:
-            road = self.roads[s]
-            if road is not None:
-                road.control.forget_buckets()
+        self.moves[list(slots)] += 1
 
     def _signal_arrays(self, controls: list) -> np.ndarray:
         """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only

@@ -484,26 +484,33 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
         _, roads, members = groups.setdefault(id(env.road.core), (env.road.core, [], []))
         roads.append(env.road)
         members.append(env)
-    for env in envs:
+    acting: list[list[tuple[MapEnv, Any]]] = [[] for _ in range(frames)]  # who decides on each frame
+    for env, action in zip(envs, actions):
         env.judge.new = []
+        if action is not None and not env.config["manual_control"]:
+            acting[-env.steps % frames].append((env, action))
+    tracked = [env.vehicle for env in envs if env.vehicle.tracker is not None]  # an external planner's trajectory
+    viewed = [env for env in envs if env.viewer is not None]
+    egos: dict[int, tuple[int, np.ndarray]] = {}  # per core, (its `layout`, the members' egos' rows then)
     for frame in range(frames):
-        for env, action in zip(envs, actions):
-            if action is not None and not env.config["manual_control"] and env.steps % frames == 0:
-                env.action_type.act(action)
-            if env.vehicle.tracker is not None:  # an external planner's trajectory commands every frame
-                env.vehicle.track()
+        for env, action in acting[frame]:
+            env.action_type.act(action)
+        for ego in tracked:  # (commands every frame)
+            ego.track()
         for core, roads, _ in groups.values():
             core.act(roads)
             core.step(roads, dt)
-        for env in envs:
-            env.steps += 1
         for core, _, members in groups.values():
-            due = core.judge_due(np.array([env.vehicle.row for env in members], dtype=np.int64))
-            for env in itertools.compress(members, due.tolist()):
+            held = egos.get(id(core))
+            if held is None or held[0] != core.layout:
+                held = egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
+            for env in itertools.compress(members, core.judge_due(held[1]).tolist()):
                 env.judge.check()
         if frame < frames - 1:
-            for env in envs:
+            for env in viewed:
                 env._automatic_rendering()
+    for env in envs:
+        env.steps += frames
     maybe = {id(core): core.may_leave() for core, _, _ in groups.values() if core is not None}
     for env in envs:
         env.enable_auto_render = False

@@ -19,9 +19,10 @@ class MapRoad(Road):
                  slot: tuple[TrafficCore, int] | None = None) -> None:
         super().__init__(network, [], [], np_random, record_history)
         self.control = control
-        control.road = self
         self.core, k = slot if slot is not None else (TrafficCore(network), 0)
         self.core.attach(self, k)
+        self.core.clock[k] = control.t  # the episode's clock is its slot's from here on
+        control.road = self
         control.reservations = self.core.reservations(k)
 
     def sync(self) -> None:
