@@ -219,6 +219,38 @@ def test_after_a_step_the_rows_are_the_road_users_on_the_road():
     env.close()
 
 
+def test_each_slots_clock_is_the_cores_and_a_frame_advances_the_stepped_slots_alone():
+    """The rules' clock of each sub-env (`TrafficControl.t`) is its slot's in the core
+    (`TrafficCore.clock`): a policy step of some sub-envs advances their clocks by its frames at
+    once and leaves the others', and the lane buckets the rules read are made again for the
+    stepped slots (`TrafficCore.moves`), showing where their road users are now."""
+    from feat2map.envs.map_env import simulate
+
+    venv = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                        config={"features": FEATS, "traffic_vehicles": 4})
+    venv.reset(seed=1)
+    envs, core = venv.unwrapped.envs, venv.unwrapped.core
+    for _ in range(3):
+        venv.step(np.ones(3, dtype=np.int64))
+    c = envs[0].config
+    frames, dt = int(c["simulation_frequency"] // c["policy_frequency"]), 1 / c["simulation_frequency"]
+    before = core.clock.copy()
+    assert [e.control.t for e in envs] == before.tolist() and before[0] > 0.0
+    buckets = [e.control.buckets for e in envs]
+    simulate([envs[0], envs[2]], [1, 1])
+    after = before.copy()
+    for _ in range(frames):
+        after[[0, 2]] += dt
+    assert core.clock.tolist() == after.tolist() == [e.control.t for e in envs]
+    assert envs[1].control.buckets is buckets[1]  # slot 1 did not move
+    for k in (0, 2):
+        fresh = envs[k].control.buckets
+        assert fresh is not buckets[k]
+        assert {lid: [id(v) for v in vs] for lid, vs in fresh.items()} == \
+            {lid: [id(v) for v in vs] for lid, vs in core.buckets(envs[k].road).items()}
+    venv.close()
+
+
 def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
     """A row added (a reset's traffic, a respawn: one vehicle at a time) is written into spare
     rows of the arrays' buffers, not into a copy of every row (`TrafficCore._append_rows`): the
