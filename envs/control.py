@@ -394,16 +394,22 @@ class TrafficControl(TrafficRules):
             return False
 
         users = passages.users(core, self.road.slot)
+        if not len(users):
+            return
         hold, wait, room = core.pass_hold, core.pass_wait, core.pass_room
-        for g in range(hold.shape[1]):
+
+        def groups(taken: np.ndarray) -> list[int]:  # the groups in which some user has a place, in order
+            return taken.any(axis=0).nonzero()[0].tolist()
+
+        for g in groups(hold[users]):
             for side in (0, 1):
                 bit = 1 << side
                 for r in [r for r in users[hold[users, g] & bit != 0].tolist() if not ahead(r, g, side)]:
                     hold[r, g] &= ~bit
-        for g in range(hold.shape[1]):
+        for g in groups(wait[users] >= 0):
             for r in [r for r in users[wait[users, g] >= 0].tolist() if not ahead(r, g, int(wait[r, g]))]:
                 wait[r, g] = -1
-        for g in range(hold.shape[1]):  # a place to wait is given up on holding or leaving the way
+        for g in groups(room[users]):  # a place to wait is given up on holding or leaving the way
             for side in (0, 1):
                 bit = 1 << side
                 for r in [r for r in users[room[users, g] & bit != 0].tolist()

@@ -766,7 +766,6 @@ class TrafficRules:
         lanes = net.hdmap.lanes
         route = vehicle.lane_route
         core = self.road.core
-        me = core.user_row(vehicle)
         skip: set[int] = set()
         chain: list[tuple[int, int]] = []
         taken: tuple[int, int] | None = None  # the passage whose room the chain ends before
@@ -792,7 +791,7 @@ class TrafficRules:
             if ps is not None and ps.group not in skip and (ps.group, ps.side) not in chain:
                 start = d + ps.s0 if s_own is None else ps.s0 - s_own
                 if not chain and not entered and (start - vehicle.LENGTH / 2 <= 0.0 or
-                                                  passages.holds(core, me, ps.group, ps.side)):
+                                                  passages.holds(core, core.user_row(vehicle), ps.group, ps.side)):
                     skip.add(ps.group)  # entered (or holding) it: the next passage counts
                     continue
                 if chain and room_to_wait(room + ps.s0, vehicle.LENGTH) and \
@@ -822,8 +821,11 @@ class TrafficRules:
         waits there since before it (a pure question; `TrafficControl._enrol` takes the place it
         gives)."""
         core, slot = self.road.core, self.road.slot
-        me = core.user_row(vehicle)
+        me = -2  # (looked up once needed)
         for group, side in chain:
+            if not passages.taken(core, group):
+                continue
+            me = core.user_row(vehicle) if me == -2 else me
             if (passages.holders(core, slot, group, 1 - side) != me).any():
                 return False
             rows, sides, since = passages.waiters(core, slot, group)

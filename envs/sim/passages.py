@@ -67,7 +67,15 @@ def enrol(core: "TrafficCore", r: int, chain: list[tuple[int, int]], ok: bool, r
         core.pass_room[r, taken[0]] |= 1 << taken[1]
 
 
+def taken(core: "TrafficCore", group: int) -> bool:
+    """Whether a row of any slot holds or waits for passage `group` (most passages, most frames:
+    nobody)."""
+    return bool(core.pass_hold[:, group].any()) or int(core.pass_wait[:, group].max(initial=-1)) >= 0
+
+
 def users(core: "TrafficCore", slot: int) -> np.ndarray:
     """The rows of `slot` that hold, wait for or took a place before any passage."""
+    if not (core.pass_hold.any() or core.pass_room.any()) and int(core.pass_wait.max(initial=-1)) < 0:
+        return np.zeros(0, dtype=np.int64)
     rows = core.slot_rows(slot)
-    return rows[((core.pass_hold[rows] != 0) | (core.pass_wait[rows] >= 0) | (core.pass_room[rows] != 0)).any(axis=1)]
+    return rows[(core.pass_hold[rows] | core.pass_room[rows]).any(axis=1) | (core.pass_wait[rows] >= 0).any(axis=1)]
