@@ -48,8 +48,9 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    (`locate`); external rows step themselves.
 5. positions of traffic rows from the lane table; pedestrians (walker rows) walk (`walk`);
    every slot's stop-sign queues, pedestrians stepping out or letting go (`sim.pedestrians`)
-   and the reservations to look at (`release_looks`) are brought up to date at once, then each
-   road's `TrafficControl.settle` does the rest of the rules' bookkeeping; collisions: a
+   and the reservations to look at (`release_looks`) are brought up to date at once, and every
+   slot's clocks (`clock`, `moves`); then `TrafficControl.bookkeeping` does the rest of the
+   rules' bookkeeping where a road has releases to look at or the map has passages; collisions: a
    vectorized centre-distance broad phase, separating
    axes for pairs of driven rows, and highway-env's own `handle_collisions` for the pairs that
    overlap or involve an external road user or a pedestrian (crash flags, hits; a driven row
@@ -1078,11 +1079,11 @@ class TrafficCore:
         stop_signs.update(self, self.on)
         pedestrians.update(self, dt, self.stepped)
         looks = self.release_looks(self.stepped)
-        self.clock[self.stepped] += dt  # (`TrafficControl.settle` of every road at once)
+        self.clock[self.stepped] += dt  # (the clocks of `TrafficControl.settle`, every road's at once)
         self.moves[self.stepped] += 1
-        passages = bool(self.net.passages)
+        bookkeeping = bool(self.net.passages)  # (narrow passages: every road's holders looked at)
         for road in roads:
-            if passages or road.slot in looks:
+            if bookkeeping or road.slot in looks:
                 road.control.bookkeeping(looks.get(road.slot, ()))
         self.collisions(roads, dt)
         for road in roads:
@@ -1412,7 +1413,7 @@ class TrafficCore:
 
     def release_looks(self, slots: np.ndarray) -> dict[int, list[str]]:
         """Per slot of `slots` (a mask), the lanes whose reservation its bookkeeping must look at
-        (`TrafficControl.settle`), in the order taken: held by a road user that left, taken since
+        (`TrafficControl.bookkeeping`), in the order taken: held by a road user that left, taken since
         the slot's last look, or held by a road user whose route, route position or lane changed
         since its last look (for the others the last look's answer stands: kept). One program for
         every slot; a holder's place is noted at each look (`seen_*`). Up to LOOK_ALL_MAX
