@@ -366,7 +366,7 @@ class TrafficControl(TrafficRules):
             for v in users:
                 s = v.s_on(lid)
                 if ps.s0 - v.LENGTH / 2 <= s <= ps.s1 + v.LENGTH / 2:
-                    core.pass_hold[core.user_row(v), ps.group] |= 1 << ps.side
+                    passages.hold(core, core.user_row(v), ps.group, ps.side)
 
         def ahead(r: int, group: int, side: int) -> bool:  # the passage is on the rest of its route
             v = core.objs[r]
@@ -393,25 +393,23 @@ class TrafficControl(TrafficRules):
                     return True  # not yet out of it: its rear has not passed the passage's end
             return False
 
-        users = passages.users(core, self.road.slot)
-        if not len(users):
-            return
-        hold, wait, room = core.pass_hold, core.pass_wait, core.pass_room
-
-        def groups(taken: np.ndarray) -> list[int]:  # the groups in which some user has a place, in order
-            return taken.any(axis=0).nonzero()[0].tolist()
-
-        for g in groups(hold[users]):
+        slot = self.road.slot
+        gone = False  # whether anyone let go (the emptied places are dropped then)
+        for g in passages.in_use(core, slot, "pe_hold"):
             for side in (0, 1):
-                bit = 1 << side
-                for r in [r for r in users[hold[users, g] & bit != 0].tolist() if not ahead(r, g, side)]:
-                    hold[r, g] &= ~bit
-        for g in groups(wait[users] >= 0):
-            for r in [r for r in users[wait[users, g] >= 0].tolist() if not ahead(r, g, int(wait[r, g]))]:
-                wait[r, g] = -1
-        for g in groups(room[users]):  # a place to wait is given up on holding or leaving the way
+                for r in [r for r in passages.holders(core, slot, g, side).tolist() if not ahead(r, g, side)]:
+                    passages.let_go(core, r, g, "pe_hold", side)
+                    gone = True
+        for g in passages.in_use(core, slot, "pe_wait"):
+            rows, sides, _ = passages.waiters(core, slot, g)
+            for r in [r for r, side in zip(rows.tolist(), sides.tolist()) if not ahead(r, g, side)]:
+                passages.let_go(core, r, g, "pe_wait")
+                gone = True
+        for g in passages.in_use(core, slot, "pe_room"):  # a place to wait is given up on holding or leaving the way
             for side in (0, 1):
-                bit = 1 << side
-                for r in [r for r in users[room[users, g] & bit != 0].tolist()
-                          if hold[r, g] & bit or not ahead(r, g, side)]:
-                    room[r, g] &= ~bit
+                for r in [r for r in passages.places(core, slot, g, side).tolist()
+                          if passages.holds(core, r, g, side) or not ahead(r, g, side)]:
+                    passages.let_go(core, r, g, "pe_room", side)
+                    gone = True
+        if gone:
+            passages.prune(core)

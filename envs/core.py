@@ -668,14 +668,15 @@ class TrafficCore:
         # (bits, `rules.ENTRY`...; a crosswalk's people are asked each frame), and how many window
         # lanes the scan reaches (`scan_len`)
         self.scan_what = np.zeros((0, 1), dtype=np.int8)
-        # the narrow passages' state (`sim.passages`), per row and passage group: the sides it
-        # holds (bits), the side it waits from (-1 none) and since when, the sides before which it
-        # took a place to wait (bits)
-        g = passages.groups(net)
-        self.pass_hold = np.zeros((0, g), dtype=np.int8)
-        self.pass_wait = np.full((0, g), -1, dtype=np.int8)
-        self.pass_since = np.full((0, g), np.inf)
-        self.pass_room = np.zeros((0, g), dtype=np.int8)
+        # the narrow passages' places taken (`sim.passages`), an entry per (row, passage group) in
+        # use: the sides the row holds (bits), the side it waits from (-1 none) and since when,
+        # the sides before which it took a place to wait (bits)
+        self.pe_row = np.zeros(0, dtype=np.int64)
+        self.pe_group = np.zeros(0, dtype=np.int64)
+        self.pe_hold = np.zeros(0, dtype=np.int8)
+        self.pe_wait = np.zeros(0, dtype=np.int8)
+        self.pe_since = np.zeros(0)
+        self.pe_room = np.zeros(0, dtype=np.int8)
 
     # ---- rows --------------------------------------------------------------------------------
     _ARRAYS = ("env", "kind", "lane", "s", "lat", "speed", "acc", "timer", "mobil_t", "crashed", "x", "y", "heading",
@@ -683,8 +684,8 @@ class TrafficCore:
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged")
-    # row arrays with a column per window lane or passage group, and a new row's value in each
-    _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0, **passages.ARRAYS}
+    # row arrays with a column per window lane, and a new row's value in each
+    _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0}
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -856,6 +857,7 @@ class TrafficCore:
         self._keep_rows(tuple(self._WIDE_ARRAYS), idx)
         new_row = np.full(len(self.objs), -1, dtype=np.int64)
         new_row[idx] = np.arange(len(idx))
+        passages.keep_rows(self, new_row)
         self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
         take = (lambda seq: list(map(seq.__getitem__, rows)))  # noqa: E731
         self.routes, self.route_ids = take(self.routes), take(self.route_ids)

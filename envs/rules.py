@@ -829,7 +829,8 @@ class TrafficRules:
             if (passages.holders(core, slot, group, 1 - side) != me).any():
                 return False
             rows, sides, since = passages.waiters(core, slot, group)
-            mine = core.pass_since[me, group] if me >= 0 and core.pass_wait[me, group] >= 0 else math.inf
+            own = since[rows == me]
+            mine = own[0] if len(own) else math.inf
             first = rows[(sides != side) & (since < mine) & (rows != me)]
             if any(not self._held_against(w, group, side) for w in first.tolist()):
                 return False
@@ -843,10 +844,10 @@ class TrafficRules:
         for A and the passage B after A's full room kept the car waiting at A's far end from
         going, whose queue held B: locked). Otherwise its wait holds, first come first served."""
         core, slot, net = self.road.core, self.road.slot, self.net
-        for g in (core.pass_wait[w] >= 0).nonzero()[0].tolist():
+        for g, waits_from, _ in passages.waits(core, w):
             if g == group:
                 continue
-            for h in passages.holders(core, slot, g, 1 - int(core.pass_wait[w, g])).tolist():
+            for h in passages.holders(core, slot, g, 1 - waits_from).tolist():
                 route = core.route_ids[h]
                 if h == w or not route:
                     continue
@@ -872,8 +873,7 @@ class TrafficRules:
         if r < 0 or other < 0 or depth <= 0:
             return False
         core, slot = self.road.core, self.road.slot
-        for g in (core.pass_wait[r] >= 0).nonzero()[0].tolist():
-            side, since = int(core.pass_wait[r, g]), core.pass_since[r, g]
+        for g, side, since in passages.waits(core, r):
             rows, sides, t = passages.waiters(core, slot, g)
             blockers = np.concatenate([passages.holders(core, slot, g, 1 - side), rows[(sides != side) & (t < since)]])
             if (blockers == other).any() or \

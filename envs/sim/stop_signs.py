@@ -14,7 +14,7 @@ import numpy as np
 from ...config import STOP_ZONE_M
 from ..network import LINE_STOP_SIGN
 from ..rules import has_stopped
-from . import entries
+from . import entries, passages
 
 if TYPE_CHECKING:
     from ..core import TrafficCore
@@ -122,7 +122,7 @@ def turns(core: "TrafficCore", rows: np.ndarray, j_lane: np.ndarray) -> np.ndarr
     for x, o, lid in zip(k.tolist(), other[k].tolist(), lane[k].tolist()):  # a box to keep clear
         takes[x] = core.roads[core.env[o]].control.box_clear(core.objs[o], core.net.lane_ids[lid])
     if core.net.passages:  # one waiting for a narrow passage lets later ones go
-        takes &= ~(core.pass_wait[other] >= 0).any(axis=1)
+        takes &= ~np.isin(other, passages.waiting_rows(core))
     allowed[p[takes]] = False
     return allowed
 

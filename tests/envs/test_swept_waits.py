@@ -21,6 +21,7 @@ from conftest import as_another_tools
 
 from feat2map.config import IDM_STOP_GAP_M, IDM_STOP_MARGIN_M
 from feat2map.envs.network import MapNetwork
+from feat2map.envs.sim import passages
 from feat2map.envs.rules import room_to_wait
 from feat2map.envs.sweep import footprints
 from feat2map.formats import read_map
@@ -221,13 +222,13 @@ def test_holder_out_on_the_road_beyond_lets_go_though_its_route_loops_back(jogge
     everyone = (far, near, inside, before)
     control = u.control
     for v in everyone:
-        core.pass_hold[v.row, ps.group] |= 1 << ps.side
+        passages.hold(core, v.row, ps.group, ps.side)
     control._update_passages({}, {id(v) for v in u.road.vehicles})
     assert set(control.passage_state(ps.group)[0][ps.side]) == {near, inside, before}
     to_2 = next(ln.id for ln in m.lanes_by_junction["1"]
                 if ln.predecessors[0] == INBOUND and ln.successors[0] == "2_0_-1")
     waiter = placed([INBOUND, to_2, "2_0_-1"], 0, 20.0)  # waits for the other side since t = 0
-    core.pass_wait[waiter.row, ps.group], core.pass_since[waiter.row, ps.group] = 1 - ps.side, 0.0
+    passages.enrol(core, waiter.row, [(ps.group, 1 - ps.side)], False, None, 0.0)
     control._update_passages({}, {id(v) for v in u.road.vehicles})
     assert set(control.passage_state(ps.group)[0][ps.side]) == {inside, before}
     assert waiter in control.passage_state(ps.group)[1]
