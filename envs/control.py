@@ -1,7 +1,7 @@
 """Traffic control devices and their state during an episode: fixed-time signal phase plans
 (phases grouped by the map library's `feat2map.phases`, shared with the exports), junction
 reservations, narrow passages and crosswalk pedestrians (the stop-sign queues and the narrow
-passages' holders and waiters are row arrays of the core: `sim.stop_signs`, `sim.passages`).
+passages' holders and waiters are arrays of the core: `sim.stop_signs`, `sim.passages`).
 `TrafficControl` inherits the rules' questions (`rules.TrafficRules`, pure) that traffic, the
 ego's judge and planners ask of it, and is the one place that writes that state: what a road
 user takes (`claim`: its reservations and its place at narrow passages) and the bookkeeping

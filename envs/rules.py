@@ -11,7 +11,7 @@ and the baseline planner (scenarios/planner.py) all ask this module.
   narrow passage, where opposite lanes are too close to pass: one direction at a time, first
   come first served, a vehicle claiming passages that follow each other together).
   The questions are pure. `control.TrafficControl` holds that state (signal plans, reservations,
-  pedestrians; the stop-sign queues and the passages' holders and waiters are row arrays of the
+  pedestrians; the stop-sign queues and the passages' holders and waiters are arrays of the
   core, `sim.stop_signs` and `sim.passages`, `stop_queue` and `passage_state` their views),
   inherits these questions and is the one place that writes it (a road user's claims, `claim`;
   the bookkeeping after a frame, `update`); `env.unwrapped.rules` is that object;
@@ -728,7 +728,7 @@ class TrafficRules:
     def passage_state(self, group: int) -> tuple[tuple[list, list], dict, tuple[list, list]]:
         """(holders from side 0 and from side 1, {waiter: (side, time it began to wait)}, the
         road users that took a place to wait before it from side 0 and from side 1) of passage
-        `group`: a view of the rows (`sim.passages`) for readers."""
+        `group`: a view of the core's places taken (`sim.passages`) for readers."""
         core, slot = self.road.core, self.road.slot
         objs = core.objs
         rows, sides, since = passages.waiters(core, slot, group)
