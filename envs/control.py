@@ -292,21 +292,14 @@ class TrafficControl(TrafficRules):
         """Advance the clock by `dt` and bring the state up to date with the road's vehicles, for
         this road alone (a reset's bookkeeping; `TrafficCore.step` does the same for all roads of
         a frame at once): take in what user code added or removed, the stop-sign queues, the
-        pedestrians, then `settle`."""
+        pedestrians, the clock (`TrafficCore.tick`), then `bookkeeping`."""
         road.sync()
         core = road.core
         mine = np.arange(len(core.roads)) == road.slot
         stop_signs.update(core, mine[core.env])
         pedestrians.update(core, dt, mine)
-        self.settle(dt, core.release_looks(mine).get(road.slot, ()))
-
-    def settle(self, dt: float, looks: Sequence[str] = ()) -> None:
-        """The rules' bookkeeping after a frame of `dt` of this road alone (`TrafficCore.step`
-        does the clocks of every road at once): the clock; the lane buckets made again when next
-        asked; then `bookkeeping`."""
-        core, slot = self.road.core, self.road.slot
-        core.clock[slot] += dt
-        core.moves[slot] += 1
+        looks = core.release_looks(mine).get(road.slot, ())
+        core.tick(mine, dt)
         self.bookkeeping(looks)
 
     def bookkeeping(self, looks: Sequence[str] = ()) -> None:

@@ -1081,8 +1081,7 @@ class TrafficCore:
         stop_signs.update(self, self.on)
         pedestrians.update(self, dt, self.stepped)
         looks = self.release_looks(self.stepped)
-        self.clock[self.stepped] += dt  # (the clocks of `TrafficControl.settle`, every road's at once)
-        self.moves[self.stepped] += 1
+        self.tick(self.stepped, dt)
         bookkeeping = bool(self.net.passages)  # (narrow passages: every road's holders looked at)
         for road in roads:
             if bookkeeping or road.slot in looks:
@@ -1603,6 +1602,12 @@ class TrafficCore:
             if lane >= 0:
                 out.setdefault(ids[lane], []).append(objs[i])
         return out
+
+    def tick(self, slots: np.ndarray, dt: float) -> None:
+        """A frame of `dt` passed in `slots` (a mask): their clocks advance and their rules' lane
+        buckets are made again when next asked (their road users moved)."""
+        self.clock[slots] += dt
+        self.moves[slots] += 1
 
     def _forget_buckets(self, slots) -> None:
         """The rules' lane buckets of `slots` are made again when next asked (road users came or went)."""

@@ -572,10 +572,8 @@ def action_array(space: spaces.Space, action: Any) -> np.ndarray:
 
 
 @functools.cache
-@functools.lru_cache(maxsize=16)
 def weight_keys(terms: tuple[str, ...]) -> tuple[str, ...]:
-    """The config keys of reward terms' weights ("reward_<term>"; made once per terms: every
-    env asks every step)."""
+    """The config keys of reward terms' weights ("reward_<term>")."""
     return tuple(f"reward_{k}" for k in terms)
 
 

@@ -19,8 +19,6 @@ if TYPE_CHECKING:
 
 # the table's columns, and a new entry's value in each
 ARRAYS = {"pe_row": -1, "pe_group": -1, "pe_hold": 0, "pe_wait": -1, "pe_since": np.inf, "pe_room": 0}
-DTYPES = {"pe_row": np.int64, "pe_group": np.int64, "pe_hold": np.int8, "pe_wait": np.int8, "pe_since": np.float64,
-          "pe_room": np.int8}
 
 
 def _find(core: "TrafficCore", r: int, group: int) -> int:
@@ -35,7 +33,8 @@ def _entry(core: "TrafficCore", r: int, group: int) -> int:
     if k >= 0:
         return k
     for name, value in ARRAYS.items():
-        setattr(core, name, np.append(getattr(core, name), np.array([value], dtype=DTYPES[name])))
+        a = getattr(core, name)
+        setattr(core, name, np.append(a, np.array([value], dtype=a.dtype)))
     core.pe_row[-1], core.pe_group[-1] = r, group
     return len(core.pe_row) - 1
 
