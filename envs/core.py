@@ -82,6 +82,7 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
                       PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
+from . import task
 from .control import no_plans, signal_arrays, signal_timing
 from .lanes import centre_points, curve_speeds, project_rows, segment_table
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
@@ -117,7 +118,8 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "command": 0.0, "cmd_steer": 0.0, "keeps": True, "target": math.nan, "at_lane": -1, "at_s": 0.0,
                 "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_at": math.inf, "reserved": NONE,
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
-                "res_count": 0, "judged": -1}
+                "res_count": 0, "judged": -1, "progress": 0.0, "goal": 0.0, "goal_dist": 0.0, "behind": 0.0,
+                "goal_s": 0.0, "task_key": -1}
 
 
 class LaneTable:
@@ -508,6 +510,10 @@ class ArrayVehicle(TrafficVehicle):
     def route_s(self) -> float:
         return float(self._core.s[self._row])
 
+    def route_distance_done(self) -> float:
+        """Metres driven along the route (`task.route_done`, a batch of one)."""
+        return float(task.route_done(self._core, self._row))
+
     def upcoming(self, horizon: float = LOOKAHEAD_M):
         """RouteFollower's, read straight from the row (the rules ask it of every rule row every frame)."""
         c, i = self._core, self._row
@@ -552,6 +558,7 @@ class TrafficCore:
         self.table = LaneTable.of(self.net)
         self.roads: list[Any] = [None] * slots  # the road of each slot (sub-env)
         self.seen: list[list[Any]] = [[] for _ in range(slots)]  # each road's vehicles at its last sync
+        self.edited: set[int] = set()  # the slots whose road's vehicles changed since (`road.VehicleList`)
         self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
         # each slot's clocks: its rules' time (`TrafficControl.t`, seconds into its episode) and
         # how often its rows moved, came or went (the rules' lane buckets are made again when it
@@ -607,6 +614,12 @@ class TrafficCore:
         self.at_s = np.zeros(0)
         self.at_lat = np.zeros(0)
         self.judged = np.zeros(0, dtype=np.int64)  # the lane its judge last looked at it on (`judge_due`; -1 not yet)
+        # a controlled row's task (`task`): route metres at the last reward and to the goal, the
+        # config's goal distance; the route metres behind its route position and the goal's s on
+        # its last lane, as of `task_key` (its route version and position then)
+        self.progress, self.goal, self.goal_dist = np.zeros(0), np.zeros(0), np.zeros(0)
+        self.behind, self.goal_s = np.zeros(0), np.zeros(0)
+        self.task_key = np.zeros(0, dtype=np.int64)
         # stop-sign order (`sim.stop_signs`): the junction (`LaneTable.junction_ids`) whose stop
         # sign's queue a row is in (-1 none) and its place (the order of joining: `stop_count`
         # counts joins, `queued` the rows in a queue); a slot's `queue_version` changes with its
@@ -683,7 +696,8 @@ class TrafficCore:
                "length", "width", "wheelbase", "rear_offset", "max_steer", "steer", "route_pos", "route_end",
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
-               "seen_lane", "seen_route", "res_count", "judged")
+               "seen_lane", "seen_route", "res_count", "judged", "progress", "goal", "goal_dist", "behind",
+               "goal_s", "task_key")
     # row arrays with a column per window lane, and a new row's value in each
     _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0}
 
@@ -702,6 +716,7 @@ class TrafficCore:
         self.roads[slot] = road
         self.seen[slot] = []
         road.slot = slot
+        self.edited.add(slot)
         self.sync([road])
 
     def rows(self, road: "MapRoad") -> np.ndarray:
@@ -809,9 +824,12 @@ class TrafficCore:
         """Bring the rows in line with the roads' `vehicles` (by identity): take in vehicles user
         code appended, let go of removed ones (their views keep their last state), follow
         reordering. Rows are kept grouped by slot, each road's in its vehicles' order."""
+        if not self.edited:
+            return
         roads = [r for r in self.roads if r is not None] if roads is None else roads
         # element by element, by identity (vehicles define no __eq__)
-        changed = [r for r in roads if r.vehicles != self.seen[r.slot]]
+        changed = [r for r in roads if r.slot in self.edited and r.vehicles != self.seen[r.slot]]
+        self.edited.difference_update(r.slot for r in roads)
         if not changed:
             return
         pos: dict[int, int] = {}

@@ -15,7 +15,7 @@ import itertools
 import math
 import numbers
 from collections import OrderedDict
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -26,8 +26,8 @@ from highway_env.envs.common.action import DiscreteMetaAction, action_factory
 from ..config import (EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M, MAX_LEGS, STOP_LINE_RANGE_M, TRAFFIC_LANE_END_M,
                       TRAFFIC_SPAWN_GAP_M, TRAFFIC_SPAWN_TRIES)
 from ..errors import Feat2MapError
-from ..routes import first_tight_bend
 from ..semantics import assert_sound
+from . import task
 from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
 from .controlled import ControlledRow, MetaRow
@@ -35,8 +35,9 @@ from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
-from .rules import VIOLATIONS, EgoJudge, TrafficRules, braking_distance, manoeuvre_name, route_memo
+from .rules import EgoJudge, TrafficRules, braking_distance, manoeuvre_name, route_memo
 from .sim.vehicle import VehicleModel
+from .task import REWARD_TERMS
 from .vehicles import TrafficVehicle
 
 _NETWORK_CACHE: "OrderedDict[Any, MapNetwork]" = OrderedDict()
@@ -56,9 +57,6 @@ def cached_network(key: Any, build) -> MapNetwork:
     return net
 
 
-REWARD_TERMS = ("progress", "arrived", "collision", "off_road", *VIOLATIONS)  # the ego's reward terms, in order
-
-
 class EgoTask:
     """The ego's task over explicit pieces: route completion, reward terms, infos and the
     scripted-driver API (what planners, `ScriptedDriver` and `DriverView` ask an env), read from
@@ -67,6 +65,7 @@ class EgoTask:
     shared world)."""
 
     vehicle: Any
+    road: Any
     net: MapNetwork
     control: TrafficControl
     config: dict
@@ -74,8 +73,6 @@ class EgoTask:
     violations: dict[str, int]
     time: float
     action_space: spaces.Space
-    _progress: float  # route metres at the last reward
-    _route_len: float  # route metres to the goal
     _last_rewards: dict[str, float]
 
     @property
@@ -94,20 +91,16 @@ class EgoTask:
 
     # ---- task ----------------------------------------------------------------------------
     def route_completed(self) -> bool:
-        ego = self.vehicle
-        if ego.route_pos < len(ego.lane_route) - 1:
-            return False
-        lane = self.net.lane_of[ego.lane_route[-1]]
-        return ego.s_on(ego.lane_route[-1]) >= self.goal_s(lane)
+        """Whether the ego has reached its goal (`task.completed`, a batch of one)."""
+        return bool(task.completed(self.road.core, self.vehicle.row))
+
+    def start_task(self) -> None:
+        """The ego's task starts where it stands (`task.start`): its progress, its goal."""
+        task.start(self.road.core, self.vehicle.row, self.config["goal_distance"])
 
     def goal_s(self, lane) -> float:
-        """The goal on the route's last lane: `goal_distance` into it, at most a metre before its
-        end, and never past its first bend tighter than a car turns (`first_tight_bend`): no car
-        follows the lane there. osm2xodr folds the lanes of a road at the map's edge into one
-        point (digitaf's `w648817642_1_0_-1` turns 75 degrees 0.6 m after its start, radius
-        2.7 m): the ego driving on to a goal beyond swung over the lane beside it (r214)."""
-        bend = self.net.memo(("first tight bend", lane.lane_id), lambda: max(first_tight_bend(lane.points), 0.0))
-        return min(float(self.config["goal_distance"]), lane.length - 1.0, bend)
+        """The goal on the route's last lane (`task.goal_s`)."""
+        return task.goal_s(self.net, lane, self.config["goal_distance"])
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:
@@ -120,23 +113,21 @@ class EgoTask:
 
     def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
         """This step's reward terms (`_reward_terms` order) given the route metres `done` and
-        whether the route is completed (each asked once per step, envs/vector.py too)."""
-        delta = (done - self._progress) / max(self._route_len, 1e-6)
-        self._progress = done
-        new = self.judge.new
-        return (float(delta), float(completed), float(self.vehicle.crashed), float(self.off_road),
-                *((float(new.count(v)) for v in VIOLATIONS) if new else _NO_VIOLATIONS.values()))
+        whether the route is completed (`task.reward_terms`, a batch of one)."""
+        return tuple(task.reward_terms(self.road.core, np.array([self.vehicle.row]), np.array([done]),
+                                       np.array([completed]), np.array([self.off_road]), [self.judge.new])[0].tolist())
 
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
         instead), so that vector envs can stack them: `info.INFO_KEYS`."""
         return info_dict(EgoTask._info_values(self, action), self.action_space)
 
-    def _info_values(self, action, done: float | None = None, completed: bool | None = None) -> tuple:
+    def _info_values(self, action, done: float | None = None, completed: bool | None = None,
+                     progress: float | None = None) -> tuple:
         """The values of `_info`'s keys in INFO_ORDER, some as their sources (the action, the
         junction's feature, the live violation counts, new violations, signal states and reward
         terms: `info_dict` converts them; envs/vector.py stacks them for a batch at once);
-        `done` and `completed` when already asked this step."""
+        `done`, `completed` and the route's `progress` when already asked this step."""
         ego, net, rules = self.vehicle, self.net, self.control
         jid, turn, feature, control, sig_id, states_of = route_memo(ego, "info", self._route_info)
         d = self.next_stop_line()[3]
@@ -152,7 +143,7 @@ class EgoTask:
             float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
             sig_id, sig_state, rules.signal_change(sig_id) if sig_id else math.inf,
             states, float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
-            float(min(done / max(self._route_len, 1e-6), 1.0)),
+            float(task.route_progress(self.road.core, ego.row, done) if progress is None else progress),
             bool(self.route_completed() if completed is None else completed),
             net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
         )
@@ -314,9 +305,7 @@ class MapEnv(EgoTask, AbstractEnv):
         self.control.update(self.road, 0.0)
         self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
         self.violations = self.judge.violations
-        self._progress = self.vehicle.route_distance_done()
-        last = self.net.lane_of[route[-1]]
-        self._route_len = self.vehicle.route_length() - last.length + self.goal_s(last)
+        self.start_task()
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
 
     def _ego_route(self) -> tuple[list[str], bool]:
@@ -402,31 +391,23 @@ class MapEnv(EgoTask, AbstractEnv):
         """What `AbstractEnv.step` does after simulating: (obs, reward, terminated, truncated, info);
         `obs` when already made (a batch observes all its sub-envs at once, envs/vector.py)."""
         obs = self.observation_type.observe() if obs is None else obs
-        reward = self._reward(action)
-        terminated = self._is_terminated()
-        truncated = self._is_truncated()
-        info = self._info(obs, action)
+        if self.keeps_step_hooks():  # the task's arrays, a batch of one
+            rewards, ended, cut, values = step_ends([self], [action])
+            reward, terminated, truncated = float(rewards[0]), bool(ended[0]), bool(cut[0])
+            info = info_dict(values[0], self.action_space)
+        else:
+            reward = self._reward(action)
+            terminated = self._is_terminated()
+            truncated = self._is_truncated()
+            info = self._info(obs, action)
         if self.render_mode == "human":
             self.render()
         return obs, reward, terminated, truncated, info
 
     def keeps_step_hooks(self) -> bool:
-        """Whether this env's class keeps MapEnv's reward, termination and info hooks, so that a
-        batch may combine its step's end from `step_values` (`vector.MapVectorEnv.end_steps`)."""
-        cls = type(self)
-        return cls._info is MapEnv._info and cls._rewards is MapEnv._rewards and \
-            cls._is_terminated is MapEnv._is_terminated
-
-    def step_values(self, action, done: float, completed: bool) -> tuple[tuple[float, ...], tuple[float, ...], bool,
-                                                                         bool, tuple]:
-        """What `end_step` works out, as values for a batch to combine (`vector.MapVectorEnv.end_steps`):
-        (reward terms, their weights, terminated, truncated, info values), given the route
-        metres `done` and whether the route is `completed` (each asked once this step); the
-        reward terms become the info's "rewards"."""
-        row = self._reward_row(done, completed)
-        self._last_rewards = dict(zip(REWARD_TERMS, row))
-        return (row, self._reward_weights(), self._is_terminated(completed), self._is_truncated(),
-                self._info_values(action, done, completed))
+        """Whether this env's class keeps MapEnv's reward, termination and info hooks, so that its
+        step's end is `step_ends`' (with the other sub-envs of a batch: `vector.MapVectorEnv.end_steps`)."""
+        return keeps_hooks(type(self))
 
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
@@ -449,12 +430,12 @@ class MapEnv(EgoTask, AbstractEnv):
 
     def _reward(self, action) -> float:
         r = self._last_rewards = self._rewards(action)
-        c = self.config
-        return float(sum(c[f"reward_{k}"] * r[k] for k in self._reward_terms()))
+        terms = np.array([[r[k] for k in self._reward_terms()]])
+        return float(task.weighted(terms, np.array([self._reward_weights()]))[0])
 
     def _is_terminated(self, completed: bool | None = None) -> bool:
-        return bool(self.vehicle.crashed or (self.route_completed() if completed is None else completed)
-                    or (self.config["offroad_terminal"] and self.off_road))
+        return bool(task.ended(self.vehicle.crashed, self.route_completed() if completed is None else completed,
+                               self.off_road, bool(self.config["offroad_terminal"])))
 
     def _is_truncated(self) -> bool:
         return bool(self.time >= self.config["duration"])
@@ -587,6 +568,46 @@ INFO_ORDER = ("speed", "crashed", "action", "junction", "junction_feature", "man
     "action", "junction_feature", "violations", "new_violations", "rewards"))
 
 
+_KEEPS_HOOKS: dict[type, bool] = {}  # `keeps_hooks` of each class asked
+# the hooks whose MapEnv versions `step_ends` stands in for
+_STEP_HOOKS = ("_reward", "_rewards", "_reward_terms", "_reward_weights", "_is_terminated", "_is_truncated", "_info")
+
+
+def keeps_hooks(cls: type) -> bool:
+    """`MapEnv.keeps_step_hooks` of the envs of class `cls` (found once per class)."""
+    keeps = _KEEPS_HOOKS.get(cls)
+    if keeps is None:
+        keeps = _KEEPS_HOOKS[cls] = all(getattr(cls, name) is getattr(MapEnv, name) for name in _STEP_HOOKS)
+    return keeps
+
+
+def step_ends(envs: Sequence["MapEnv"], actions: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple]]:
+    """What `end_step` works out for each of `envs` (one core's, keeping MapEnv's hooks:
+    `keeps_step_hooks`), their tasks asked at once (`task`): (rewards, terminated, truncated,
+    each env's info values, `_info_values`); each env's reward terms become its info's "rewards"."""
+    core = envs[0].road.core
+    one = len(envs) == 1  # a single env: its row an int, its values numpy scalars (the same operations)
+
+    def each(value: Callable[[MapEnv], Any]) -> Any:
+        return value(envs[0]) if one else np.array([value(env) for env in envs])
+    rows = each(lambda env: env.vehicle.row)
+    done, completed = task.route_state(core, rows)
+    off_road = each(lambda env: bool(env.judge.off_road))
+    terms = task.reward_terms(core, rows, done, completed, off_road, [env.judge.new for env in envs])
+    terms = terms.reshape(len(envs), len(REWARD_TERMS))
+    rewards = task.weighted(terms, np.array([env._reward_weights() for env in envs]))
+    terminated = task.ended(core.crashed[rows], completed, off_road, each(lambda env: bool(env.config["offroad_terminal"])))
+    truncated = each(lambda env: env.time >= env.config["duration"])
+    progress = task.route_progress(core, rows, done)
+    done, completed, progress = ([x] if one else x.tolist() for x in (done, completed, progress))
+    values = []
+    for env, action, d, c, p, row in zip(envs, actions, done, completed, progress, terms.tolist()):
+        env._last_rewards = dict(zip(REWARD_TERMS, row))
+        values.append(env._info_values(action, d, c, p))
+    return (rewards, np.array([terminated]), np.array([truncated]), values) if one else \
+        (rewards, terminated, truncated, values)
+
+
 def info_dict(values: tuple, action_space: spaces.Space) -> dict[str, Any]:
     """`MapEnv._info`'s dict of `MapEnv._info_values`: new containers, the action as an array."""
     out = dict(zip(INFO_ORDER, values))
@@ -619,7 +640,6 @@ def held_feature_info(feature) -> tuple[Any, dict[str, Any], list[str]]:
     return held
 
 
-_NO_VIOLATIONS = dict.fromkeys(VIOLATIONS, 0.0)  # the violation reward terms of a step without one
 # id -> (feature, its info, the keys of its arrays): features are frozen
 _FEATURE_INFO: dict[int, tuple[Any, dict[str, Any], list[str]]] = {}
 

@@ -54,7 +54,6 @@ single env's keys (`info.INFO_KEYS`; `violations` holds the two more) plus
 """
 from __future__ import annotations
 
-import operator
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -65,6 +64,7 @@ from pettingzoo import ParallelEnv
 
 from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
 from ..errors import Feat2MapError
+from . import task
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
 from .control import TrafficControl
@@ -80,6 +80,7 @@ from .sim.observe import kinematics
 from .sim.vehicle import VehicleModel, speed_control
 
 AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
+AGENT_TERMS = (*REWARD_TERMS, "not_yielding", "stop_order")  # an agent's reward terms, in order
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
 AGENT_DEFAULTS: dict[str, Any] = defaults(MULTI)
 #: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
@@ -259,12 +260,9 @@ class AgentView(EgoTask):
 
     def start(self, judge: AgentJudge, terms: Sequence[str], observation_type: Any) -> None:
         """The agent is on the road: its judge, reward terms and observation; its progress from here."""
-        v = self.vehicle
         self.judge, self.violations = judge, judge.violations
         self.observation_type = observation_type
-        self._progress = v.route_distance_done()
-        last = self.net.lane_of[v.lane_route[-1]]
-        self._route_len = v.route_length() - last.length + self.goal_s(last)
+        self.start_task()
         self._last_rewards = dict.fromkeys(terms, 0.0)
 
     @property
@@ -279,19 +277,31 @@ class AgentView(EgoTask):
     def unwrapped(self) -> "AgentView":
         return self
 
-    def reward_terms(self, done: float, completed: bool) -> dict[str, float]:
-        """This step's reward terms by name, given the route metres `done` and whether the route
-        is `completed`: the single env's and the two of the agents' judge (the info's "rewards")."""
-        r = dict(zip(REWARD_TERMS, self._reward_row(done, completed)))
-        new = self.judge.new
-        r.update(not_yielding=float(new.count("not_yielding")), stop_order=float(new.count("stop_order")))
-        self._last_rewards = r
-        return r
+    def keep_rewards(self, terms: list[float]) -> None:
+        """This step's reward terms (`AGENT_TERMS` order: `reward_terms`) are the info's "rewards"."""
+        self._last_rewards = dict(zip(AGENT_TERMS, terms))
 
-    def info(self, action, done: float | None = None, completed: bool | None = None) -> dict:
-        """The single env's info of the agent (`done`, `completed` when already asked this step)
-        and its own keys (`info.INFO_KEYS`)."""
-        info = info_dict(self._info_values(action, done, completed), self.action_space)
+    @staticmethod
+    def reward_terms(views: list["AgentView"], core: Any, rows: np.ndarray, done: np.ndarray,
+                     completed: np.ndarray) -> np.ndarray:
+        """[agents, AGENT_TERMS]: this step's reward terms of the agents of `views` (their `rows`),
+        given their route metres `done` and whether their routes are `completed`: the single
+        env's (`task.reward_terms`) and the two of the agents' judge."""
+        judges = [v.judge for v in views]
+        news = [j.new for j in judges]
+        terms = np.zeros((len(views), len(AGENT_TERMS)))
+        terms[:, :len(REWARD_TERMS)] = task.reward_terms(core, rows, done, completed,
+                                                         np.array([j.off_road for j in judges], dtype=bool), news)
+        for k, new in enumerate(news):
+            if new:
+                terms[k, len(REWARD_TERMS):] = new.count("not_yielding"), new.count("stop_order")
+        return terms
+
+    def info(self, action, done: float | None = None, completed: bool | None = None,
+             progress: float | None = None) -> dict:
+        """The single env's info of the agent (`done`, `completed`, `progress` when already asked
+        this step) and its own keys (`info.INFO_KEYS`)."""
+        info = info_dict(self._info_values(action, done, completed, progress), self.action_space)
         info["agent_collision"] = bool(self.agent_collision)
         info["wait_time"] = float(self.wait_time)
         return info
@@ -542,7 +552,7 @@ class MultiAgentMapEnv(ParallelEnv):
 
     @staticmethod
     def _reward_terms() -> tuple[str, ...]:
-        return (*REWARD_TERMS, "not_yielding", "stop_order")
+        return AGENT_TERMS
 
     def step(self, actions: Mapping[str, Any]):
         live = list(self.agents)
@@ -608,14 +618,21 @@ class MultiAgentMapEnv(ParallelEnv):
                 truncated.add(k)
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         obs = self._observe(live)
-        weights = self._weights()
-        for a, action in ((a, actions.get(a)) for a in live):
-            view = self._views[a]
-            done, completed = view.vehicle.route_distance_done(), view.route_completed()  # asked once
-            rewards[a] = self._reward(view, done, completed, weights)
-            terms[a] = bool(view.vehicle.crashed or completed)
-            truncs[a] = bool(self._world_of[a] in truncated and not terms[a])
-            infos[a] = view.info(action if action is not None else self._noop(), done, completed)
+        if live:  # the agents' tasks at once (`task`)
+            rows = np.array([v.row for v in vehicles], dtype=np.int64)
+            done, completed = task.route_state(core, rows)
+            terms_of = AgentView.reward_terms(views, core, rows, done, completed)
+            columns, weights = self._weights()
+            reward = task.weighted(terms_of[:, columns], np.tile(weights, (len(live), 1)))
+            ended = core.crashed[rows] | completed
+            progress = task.route_progress(core, rows, done)
+            for k, (a, view) in enumerate(zip(live, views)):
+                view.keep_rewards(terms_of[k].tolist())
+                rewards[a], terms[a] = float(reward[k]), bool(ended[k])
+                truncs[a] = bool(self._world_of[a] in truncated and not terms[a])
+                action = actions.get(a)
+                infos[a] = view.info(action if action is not None else self._noop(), float(done[k]),
+                                     bool(completed[k]), float(progress[k]))
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}
@@ -665,21 +682,14 @@ class MultiAgentMapEnv(ParallelEnv):
                 self._views[agent].agent_collision = True
                 self._views[peer].agent_collision = True
 
-    def _reward(self, view: AgentView, done: float, completed: bool,
-                weights: tuple[tuple[str, ...], tuple[float, ...]]) -> float:
-        """The weighted sum of the agent's reward terms (`AgentView.reward_terms`), given its
-        route metres `done` and whether its route is `completed`."""
-        r = view.reward_terms(done, completed)
-        return float(sum(map(operator.mul, weights[1], map(r.__getitem__, weights[0]))))
-
-    def _weights(self) -> tuple[tuple[str, ...], tuple[float, ...]]:
-        """(reward terms, their weights): the single env's `reward_*` and the two of the agents'
-        judge, in that order, without the zero weights (adding their 0.0 products changes no sum)."""
+    def _weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """(columns of `AGENT_TERMS`, their weights): the single env's `reward_*` and the two of
+        the agents' judge, in that order, without the zero weights (adding their 0.0 products
+        changes no sum)."""
         c, ac = self.world.config, self.agent_config
-        weights = {**{k: c[f"reward_{k}"] for k in REWARD_TERMS},
-                   "not_yielding": ac["reward_not_yielding"], "stop_order": ac["reward_stop_order"]}
-        kept = [(k, w) for k, w in weights.items() if w != 0]
-        return tuple(k for k, _ in kept), tuple(w for _, w in kept)
+        weights = [*(c[f"reward_{k}"] for k in REWARD_TERMS), ac["reward_not_yielding"], ac["reward_stop_order"]]
+        kept = [k for k, w in enumerate(weights) if w != 0]
+        return np.array(kept, dtype=np.int64), np.array([weights[k] for k in kept], dtype=float)
 
     # ---- helpers -------------------------------------------------------------------------------
     def view(self, agent: str) -> AgentView:

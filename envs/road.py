@@ -10,6 +10,40 @@ from .network import MapNetwork
 from .vehicles import TrafficVehicle
 
 
+class VehicleList(list):
+    """A road's `vehicles`: a list that tells its road's core when it changes, so that a sync
+    looks only at the roads whose vehicles user code (or an env) changed since the last one
+    (`TrafficCore.edited`), not at every road of a batch each frame."""
+
+    __slots__ = ("road",)
+
+    def __init__(self, road: "MapRoad", items=()) -> None:
+        super().__init__(items)
+        self.road = road
+
+    def _edit(self) -> None:
+        core = getattr(self.road, "core", None)
+        if core is not None:
+            core.edited.add(self.road.slot)
+
+
+def _editing(name: str):
+    """List method `name` that tells the road's core of the change."""
+    method = getattr(list, name)
+
+    def edit(self, *args, **kwargs):
+        result = method(self, *args, **kwargs)
+        self._edit()
+        return self if name in ("__iadd__", "__imul__") else result
+    edit.__name__ = name
+    return edit
+
+
+for _name in ("append", "extend", "insert", "remove", "pop", "clear", "sort", "reverse", "__setitem__",
+              "__delitem__", "__iadd__", "__imul__"):
+    setattr(VehicleList, _name, _editing(_name))
+
+
 class MapRoad(Road):
     """A `Road` on a `MapNetwork` with traffic control; `vehicles` holds the ego, views of the
     traffic rows and anything user code adds (taken in at the next frame). With `slot` = (core, k)
@@ -24,6 +58,15 @@ class MapRoad(Road):
         self.core.clock[k] = control.t  # the episode's clock is its slot's from here on
         control.road = self
         control.reservations = self.core.reservations(k)
+
+    @property
+    def vehicles(self) -> VehicleList:
+        return self._vehicles
+
+    @vehicles.setter
+    def vehicles(self, value) -> None:
+        self._vehicles = VehicleList(self, value)
+        self._vehicles._edit()
 
     def sync(self) -> None:
         self.core.sync([self])

@@ -26,7 +26,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 from ..errors import Feat2MapError
 from .core import TrafficCore
 from .map_env import (INFO_ORDER, MapEnv, action_array, check_action, check_options, held_feature_info, info_dict,
-                      simulate)
+                      simulate, step_ends)
 from .observation import Kinematics, TrafficControlObservation
 from .sim.observe import kinematics
 
@@ -216,24 +216,16 @@ class MapVectorEnv(VectorEnv):
         return bool(envs) and all(env.keeps_step_hooks() for env in envs)
 
     def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
-        """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`), their rewards
-        as one array program and their info as columns {key: ([sub-env], [value])} (the info
-        values of `MapEnv.step_values`, each asked once: `stack_columns` makes the arrays)."""
-        rows, weights, values = [], [], []
-        for i, env, action, obs in zip(stepping, envs, actions, observed):
+        """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`): their rewards and
+        ends at once (`map_env.step_ends`) and their info as columns {key: ([sub-env], [value])}
+        (`stack_columns` makes the arrays)."""
+        for i, env, obs in zip(stepping, envs, observed):
             self._env_obs[i] = env.observation_type.observe() if obs is None else obs
-            row, weight, self._terminations[i], self._truncations[i], value = env.step_values(
-                action, env.vehicle.route_distance_done(), env.route_completed())
-            rows.append(row)
-            weights.append(weight)
-            values.append(value)
+        self._rewards[stepping], self._terminations[stepping], self._truncations[stepping], values = \
+            step_ends(envs, actions)
+        for env in envs:
             if env.render_mode == "human":
                 env.render()
-        r, w = np.array(rows, dtype=float), np.array(weights, dtype=float)
-        reward = np.zeros(len(envs))  # sum(weight * term) in `_reward`'s order: the same float operations
-        for k in range(r.shape[1]):
-            reward = reward + w[:, k] * r[:, k]
-        self._rewards[stepping] = reward
         columns = {key: (list(stepping), list(col)) for key, col in zip(INFO_ORDER, zip(*values))}
         space = self.single_action_space
         columns["action"] = (list(stepping), [action_array(space, a) for a in columns["action"][1]])

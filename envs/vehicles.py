@@ -14,7 +14,7 @@ from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP
 from ..invariants import lane_changes
 from .network import MapNetwork
 from .sim.vehicle import yaw_rate
-from .rules import enters_junction, idm, may_change_lane, mobil_accepts, mobil_safe, route_memo
+from .rules import enters_junction, idm, may_change_lane, mobil_accepts, mobil_safe
 
 
 class Pedestrian(RoadObject):
@@ -164,16 +164,6 @@ class RouteFollower:
                 self._projections = {net.id_of[hint]: (self.lane_s, self.lane_lat)}
             if self.road.record_history:
                 self.history.appendleft(self.create_from(self))
-
-    def route_distance_done(self) -> float:
-        """Metres driven along the route: lanes behind plus the position on the current one."""
-        net = self.net
-        route, pos = self.lane_route, self.route_pos
-        done = route_memo(self, "done before", lambda: sum(net.lane_of[l].length for l in route[:pos]))
-        return done + min(max(self.route_s(), 0.0), net.lane_of[route[pos]].length)
-
-    def route_length(self) -> float:
-        return sum(self.net.lane_of[l].length for l in self.lane_route)
 
     def upcoming(self, horizon: float = LOOKAHEAD_M):
         """(route index, lane id, distance from the vehicle to the lane start, own s on it) ahead."""

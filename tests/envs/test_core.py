@@ -335,6 +335,33 @@ def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
     assert len(core.objs) == len(u.road.vehicles)
 
 
+@pytest.mark.parametrize("change", ["assign", "setitem", "delitem", "insert", "reverse", "sort", "iadd", "clear"])
+def test_every_way_of_changing_a_roads_vehicles_is_followed_at_the_next_sync(change):
+    """The rows follow `road.vehicles` however user code changes the list (a sync looks only at
+    the roads whose list changed: `road.VehicleList`), and a sync with nothing changed moves no row."""
+    env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS, "traffic_vehicles": 4})
+    env.reset(seed=1)
+    road = env.unwrapped.road
+    core = road.core
+    layout = core.layout
+    core.sync()
+    assert core.layout == layout and not core.edited  # nothing changed: no row moved
+    vs = road.vehicles
+    ego, others = vs[0], list(vs[1:])
+    {"assign": lambda: setattr(road, "vehicles", [ego, *others[::-1]]),
+     "setitem": lambda: vs.__setitem__(slice(1, None), others[:2]),
+     "delitem": lambda: vs.__delitem__(2),
+     "insert": lambda: vs.insert(1, vs.pop()),
+     "reverse": vs.reverse,
+     "sort": lambda: vs.sort(key=lambda v: -v.position[0]),
+     "iadd": lambda: (gone := vs.pop(), core.sync(), vs.__iadd__([gone])),
+     "clear": vs.clear}[change]()
+    core.sync()
+    assert [core.objs[i] for i in core.rows(road).tolist()] == road.vehicles
+    assert core.layout != layout
+    env.close()
+
+
 # ---- recorded reference ------------------------------------------------------------------------
 # Trajectories of the arrays core on fixed seeds, recorded from the env (tests/envs/data/
 # traffic_reference.json): a change to a traffic rule, the IDM law, MOBIL, the rules' stops or
