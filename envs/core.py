@@ -19,8 +19,9 @@ a position is a `searchsorted` on the global cumulative arc length and one multi
 heading an interpolation of vertex headings, for all rows at once; traffic is never projected.
 
 A frame (`MapRoad.act` + `MapRoad.step`):
-1. sync: `road.vehicles` is compared by identity with the rows; vehicles user code appended are
-   taken in (a `TrafficVehicle` becomes a driven row), removed ones let go.
+1. sync: the vehicles of each road whose list changed since (`road.VehicleList` notes the
+   change) are compared by identity with the rows; vehicles user code appended are taken in (a
+   `TrafficVehicle` becomes a driven row), removed ones let go.
 2. external rows act (a controlled row's decision is already in its row: `ControlledRow.act`).
 3. traffic accelerations: IDM's free term for all rows; leaders from one (rows x K x rows) test
    of every row's lane against every row's window (on the same lane the leader's s is its row's

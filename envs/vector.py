@@ -270,7 +270,7 @@ class MapVectorEnv(VectorEnv):
             array[idx] = vals
         elif key != "final_obs" and isinstance(first, np.ndarray):
             array = np.zeros((n, *first.shape), dtype=first.dtype)
-            array[idx] = np.stack(vals)
+            array[idx] = stack_held(vals)
         else:
             array = np.full(n, None, dtype=object)
             for i, v in zip(idx, vals):
@@ -305,6 +305,16 @@ class MapVectorEnv(VectorEnv):
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""
         return self.envs[self.render_env].render() if self.render_mode is not None else None
+
+
+def stack_held(arrays: list[np.ndarray]) -> np.ndarray:
+    """`np.stack(arrays)`, each array object stacked once where many sub-envs hold the same one
+    (a junction feature's arrays are held per feature: a batch has few junctions)."""
+    of: dict[int, int] = {}
+    where = [of.setdefault(id(a), len(of)) for a in arrays]
+    if 2 * len(of) > len(arrays):
+        return np.stack(arrays)
+    return np.stack(list({id(a): a for a in arrays}.values()))[where]
 
 
 def valid_batch(space: spaces.Space, actions: np.ndarray, n: int) -> bool:
