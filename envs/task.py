@@ -64,7 +64,10 @@ def route_done(core: Any, rows: Any, fresh: bool = False) -> Any:
     known to be up to date."""
     if not fresh:
         _refresh(core, rows)
-    return core.behind[rows] + np.minimum(np.maximum(core.s[rows], 0.0), core.table.length[core.lane[rows]])
+    s, length = core.s[rows], core.table.length[core.lane[rows]]
+    if isinstance(rows, int):  # (numpy scalars: the builtins take the same values, without a ufunc's fixed cost)
+        return core.behind[rows] + min(max(s, 0.0), length)
+    return core.behind[rows] + np.minimum(np.maximum(s, 0.0), length)
 
 
 def completed(core: Any, rows: Any, fresh: bool = False) -> Any:
@@ -88,7 +91,8 @@ def reward_terms(core: Any, rows: Any, done: Any, arrived: Any, off_road: Any, n
     `rows`, given its route metres `done`, whether it `arrived`, left the road (`off_road`) and
     the violations `new` this step (a list per row); each row's progress moves on to `done`."""
     terms = np.zeros(len(REWARD_TERMS) if isinstance(rows, int) else (len(rows), len(REWARD_TERMS)))
-    terms[..., 0] = (done - core.progress[rows]) / np.maximum(core.goal[rows], 1e-6)
+    terms[..., 0] = (done - core.progress[rows]) / (max(core.goal[rows], 1e-6) if isinstance(rows, int)
+                                                     else np.maximum(core.goal[rows], 1e-6))
     terms[..., 1] = arrived
     terms[..., 2] = core.crashed[rows]
     terms[..., 3] = off_road
@@ -120,4 +124,6 @@ def ended(crashed: Any, completed: Any, off_road: Any, offroad_terminal: Any) ->
 def route_progress(core: Any, rows: Any, done: Any) -> Any:
     """The fraction of the route to the goal each of `rows` (an array, or one row: an int) has
     driven, given its route metres `done` (0..1)."""
+    if isinstance(rows, int):
+        return min(done / max(core.goal[rows], 1e-6), 1.0)
     return np.minimum(done / np.maximum(core.goal[rows], 1e-6), 1.0)
