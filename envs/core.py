@@ -1912,13 +1912,15 @@ class TrafficCore:
 
 
 def rectangles_overlap(core: TrafficCore, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether the footprints of rows a and b overlap (separating axes of two rectangles)."""
-    ca, sa, cb, sb = np.cos(core.heading[a]), np.sin(core.heading[a]), np.cos(core.heading[b]), np.sin(core.heading[b])
+    """Whether the footprints of rows a and b overlap (separating axes of two rectangles: the four
+    axes of each pair at once)."""
+    h = np.concatenate([core.heading[a], core.heading[b]])
+    c, s = np.cos(h), np.sin(h)
+    n = len(a)
+    ca, sa, cb, sb = c[:n], s[:n], c[n:], s[n:]
     dx, dy = core.x[b] - core.x[a], core.y[b] - core.y[a]
     la, wa, lb, wb = core.length[a] / 2, core.width[a] / 2, core.length[b] / 2, core.width[b] / 2
-    overlap = np.ones(len(a), dtype=bool)
-    for ux, uy in ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb)):
-        reach = la * np.abs(ca * ux + sa * uy) + wa * np.abs(-sa * ux + ca * uy) + \
-            lb * np.abs(cb * ux + sb * uy) + wb * np.abs(-sb * ux + cb * uy)
-        overlap &= np.abs(dx * ux + dy * uy) <= reach
-    return overlap
+    ux, uy = np.stack([ca, -sa, cb, -sb]), np.stack([sa, ca, sb, cb])  # [axes, pairs]
+    reach = la * np.abs(ca * ux + sa * uy) + wa * np.abs(-sa * ux + ca * uy) + \
+        lb * np.abs(cb * ux + sb * uy) + wb * np.abs(-sb * ux + cb * uy)
+    return (np.abs(dx * ux + dy * uy) <= reach).all(axis=0)
