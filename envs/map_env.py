@@ -431,7 +431,7 @@ class MapEnv(EgoTask, AbstractEnv):
     def _reward(self, action) -> float:
         r = self._last_rewards = self._rewards(action)
         terms = np.array([[r[k] for k in self._reward_terms()]])
-        return float(task.weighted(terms, np.array([self._reward_weights()]))[0])
+        return float(task.weighted(terms, [self._reward_weights()])[0])
 
     def _is_terminated(self, completed: bool | None = None) -> bool:
         return bool(task.ended(self.vehicle.crashed, self.route_completed() if completed is None else completed,
@@ -595,7 +595,7 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence) -> tuple[np.ndarray, 
     off_road = each(lambda env: bool(env.judge.off_road))
     terms = task.reward_terms(core, rows, done, completed, off_road, [env.judge.new for env in envs])
     terms = terms.reshape(len(envs), len(REWARD_TERMS))
-    rewards = task.weighted(terms, np.array([env._reward_weights() for env in envs]))
+    rewards = task.weighted(terms, [env._reward_weights() for env in envs])
     terminated = task.ended(core.crashed[rows], completed, off_road, each(lambda env: bool(env.config["offroad_terminal"])))
     truncated = each(lambda env: env.time >= env.config["duration"])
     progress = task.route_progress(core, rows, done)

@@ -623,7 +623,7 @@ class MultiAgentMapEnv(ParallelEnv):
             done, completed = task.route_state(core, rows)
             terms_of = AgentView.reward_terms(views, core, rows, done, completed)
             columns, weights = self._weights()
-            reward = task.weighted(terms_of[:, columns], np.tile(weights, (len(live), 1)))
+            reward = task.weighted(terms_of[:, columns], [weights.tolist()] * len(live))
             ended = core.crashed[rows] | completed
             progress = task.route_progress(core, rows, done)
             for k, (a, view) in enumerate(zip(live, views)):

@@ -103,12 +103,13 @@ def reward_terms(core: Any, rows: Any, done: Any, arrived: Any, off_road: Any, n
     return terms
 
 
-def weighted(terms: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def weighted(terms: np.ndarray, weights: Any) -> np.ndarray:
     """Per row, sum(weight * term) over the terms in their order (a sum term by term: the float
     operations of one row's sum; under WEIGHTED_ARRAY_ROWS rows as Python floats, the same
-    operations)."""
+    operations). `weights`: an array, or a row of weights per row of `terms`."""
     if len(terms) < WEIGHTED_ARRAY_ROWS:
-        return np.array([sum(map(operator.mul, w, t)) for w, t in zip(weights.tolist(), terms.tolist())], dtype=float)
+        return np.array([sum(map(operator.mul, w, t)) for w, t in zip(weights, terms.tolist())], dtype=float)
+    weights = np.asarray(weights, dtype=float)
     reward = np.zeros(len(terms))
     for k in range(terms.shape[1]):
         reward = reward + weights[:, k] * terms[:, k]
