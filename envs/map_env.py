@@ -114,8 +114,8 @@ class EgoTask:
     def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
         """This step's reward terms (`_reward_terms` order) given the route metres `done` and
         whether the route is completed (`task.reward_terms`, a batch of one)."""
-        return tuple(task.reward_terms(self.road.core, np.array([self.vehicle.row]), np.array([done]),
-                                       np.array([completed]), np.array([self.off_road]), [self.judge.new])[0].tolist())
+        return tuple(task.reward_terms(self.road.core, self.vehicle.row, done, completed, self.off_road,
+                                       [self.judge.new]).tolist())
 
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
