@@ -85,6 +85,7 @@ from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM
 from ..invariants import lane_changes
 from . import task
 from .control import no_plans, signal_arrays, signal_timing
+from .info_columns import RouteFacts
 from .lanes import centre_points, curve_speeds, project_rows, segment_table
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
@@ -120,7 +121,7 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_at": math.inf, "reserved": NONE,
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
                 "res_count": 0, "judged": -1, "progress": 0.0, "goal": 0.0, "goal_dist": 0.0, "behind": 0.0,
-                "goal_s": 0.0, "task_key": -1}
+                "goal_s": 0.0, "task_key": -1, "info_key": -1, "fact": -1}
 
 
 class LaneTable:
@@ -621,6 +622,11 @@ class TrafficCore:
         self.progress, self.goal, self.goal_dist = np.zeros(0), np.zeros(0), np.zeros(0)
         self.behind, self.goal_s = np.zeros(0), np.zeros(0)
         self.task_key = np.zeros(0, dtype=np.int64)
+        # its info's route facts (`info_columns`): the index of its fact as of `info_key`
+        self.info_key = np.zeros(0, dtype=np.int64)
+        self.fact = np.zeros(0, dtype=np.int64)
+        self.route_facts = RouteFacts(self)
+        self.lane_names = np.array(net.lane_ids, dtype=object)  # lane int -> map lane id
         # stop-sign order (`sim.stop_signs`): the junction (`LaneTable.junction_ids`) whose stop
         # sign's queue a row is in (-1 none) and its place (the order of joining: `stop_count`
         # counts joins, `queued` the rows in a queue); a slot's `queue_version` changes with its
@@ -698,7 +704,7 @@ class TrafficCore:
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged", "progress", "goal", "goal_dist", "behind",
-               "goal_s", "task_key")
+               "goal_s", "task_key", "info_key", "fact")
     # row arrays with a column per window lane, and a new row's value in each
     _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0}
 
@@ -1566,13 +1572,18 @@ class TrafficCore:
 
     def signal_waits(self, slot: int) -> np.ndarray:
         """Seconds until each signal of `slot` changes, at its clock: worked out again
-        (`_time_signals`) once that clock has moved on (the infos of a batch ask each slot in turn
-        at one clock)."""
+        (`_time_signals`) once that clock has moved on."""
         held = self._signals_timed
         control = self.roads[slot].control
         if held is None or held[1][slot] is not control or held[0][slot] != control.t:
             held = self._time_signals()
         return held[3][slot]
+
+    def signal_waits_of(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
+        """Seconds until signal `signals[k]` of slot `slots[k]` changes, at that slot's clock
+        (`signal_timing` of those pairs alone: the infos of a batch)."""
+        times, arrays = self._signals_at_clock()
+        return signal_timing(times[slots], arrays[slots, :, signals].T)[1]
 
     def _time_signals(self, at: tuple[np.ndarray, np.ndarray] | None = None) -> tuple:
         """`control.signal_timing`, one program for every signal of every slot at its clock (`at`:

@@ -27,7 +27,7 @@ from ..config import (EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M, MAX_LEGS, STOP_L
                       TRAFFIC_SPAWN_GAP_M, TRAFFIC_SPAWN_TRIES)
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
-from . import task
+from . import info_columns, task
 from .config import MAP_ENV, defaults, merge_config, validate_config
 from .control import TrafficControl
 from .controlled import ControlledRow, MetaRow
@@ -35,7 +35,7 @@ from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
-from .rules import EgoJudge, TrafficRules, braking_distance, manoeuvre_name, route_memo
+from .rules import EgoJudge, TrafficRules, braking_distance, route_memo
 from .sim.vehicle import VehicleModel
 from .task import REWARD_TERMS
 from .vehicles import TrafficVehicle
@@ -119,46 +119,9 @@ class EgoTask:
 
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
-        instead), so that vector envs can stack them: `info.INFO_KEYS`."""
-        return info_dict(EgoTask._info_values(self, action), self.action_space)
-
-    def _info_values(self, action, done: float | None = None, completed: bool | None = None,
-                     progress: float | None = None) -> tuple:
-        """The values of `_info`'s keys in INFO_ORDER, some as their sources (the action, the
-        junction's feature, the live violation counts, new violations, signal states and reward
-        terms: `info_dict` converts them; envs/vector.py stacks them for a batch at once);
-        `done`, `completed` and the route's `progress` when already asked this step."""
-        ego, net, rules = self.vehicle, self.net, self.control
-        jid, turn, feature, control, sig_id, states_of = route_memo(ego, "info", self._route_info)
-        d = self.next_stop_line()[3]
-        sig_state = rules.signal_state(sig_id) if sig_id else ""
-        states = rules.signal_states(states_of) if states_of is not False else {}
-        mid = rules.midblock_ahead(ego, d)  # a mid-block crossing's light before that line: the next one
-        if mid is not None:
-            sig_id, d = mid
-            control, sig_state = "signal", rules.signal_state(sig_id)
-            states = rules.signal_states(None)
-        done = ego.route_distance_done() if done is None else done
-        return (
-            float(ego.speed), bool(ego.crashed), action, jid or "", feature, turn or "", control,
-            sig_id, sig_state, rules.signal_change(sig_id) if sig_id else math.inf,
-            states, float(d), self.violations, self.judge.new, bool(ego.crashed), bool(self.off_road),
-            float(task.route_progress(self.road.core, ego.row, done) if progress is None else progress),
-            bool(self.route_completed() if completed is None else completed),
-            net.id_of.get(ego.lane_index) or "", float(self.time), self._last_rewards,
-        )
-
-    def _route_info(self) -> tuple:
-        """The info values that hold while the ego's route position does (a `route_memo`): the
-        junction ahead, the manoeuvre, its feature, the next stop line's control and signal, and
-        whose signals' states to give (False: none)."""
-        m, net = self.net.hdmap, self.net
-        jid, turn = self.junction_ahead()
-        sl, in_lane, j_lane, _ = self.next_stop_line()
-        control = "" if in_lane is None else (sl.kind if sl else "yield" if j_lane in net.yield_entries else "bare")
-        sig_id = sl.control_id if sl is not None and sl.kind == "signal" else ""
-        feature = m.junctions[jid].feature if jid is not None and jid in m.junctions else None
-        return jid, turn, feature, control, sig_id, m.lanes[j_lane].junction_id if j_lane else False
+        instead), so that vector envs can stack them: `info.INFO_KEYS`; its values are the ego's
+        row's (`info_columns.columns`, a batch of one)."""
+        return info_dict(info_columns.columns(self.road.core, self.vehicle.row, [self], [action]), self.action_space)
 
     # ---- scripted-driver API -----------------------------------------------------------------
     @property
@@ -177,12 +140,7 @@ class EgoTask:
         return route_memo(self.vehicle, "junction ahead", self._junction_ahead)
 
     def _junction_ahead(self) -> tuple[str | None, str | None]:
-        ego, m = self.vehicle, self.net.hdmap
-        for lid in ego.lane_route[ego.route_pos:]:
-            ln = m.lanes[lid]
-            if ln.junction_id is not None:
-                return ln.junction_id, manoeuvre_name(ln, self.net.ramp_moves)
-        return None, None
+        return info_columns.junction_ahead(self.net, self.vehicle.lane_route, self.vehicle.route_pos)
 
     def rule_stop_distance(self, ignore: Sequence[str] = ()) -> float:
         """Where the traffic rules make the ego stop (metres from its centre; inf if free), a pure
@@ -394,7 +352,7 @@ class MapEnv(EgoTask, AbstractEnv):
         if self.keeps_step_hooks():  # the task's arrays, a batch of one
             rewards, ended, cut, values = step_ends([self], [action])
             reward, terminated, truncated = float(rewards[0]), bool(ended[0]), bool(cut[0])
-            info = info_dict(values[0], self.action_space)
+            info = info_dict(values, self.action_space)
         else:
             reward = self._reward(action)
             terminated = self._is_terminated()
@@ -558,16 +516,6 @@ def weight_keys(terms: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(f"reward_{k}" for k in terms)
 
 
-# the keys of `MapEnv._info` in the order of `MapEnv._info_values`
-INFO_ORDER = ("speed", "crashed", "action", "junction", "junction_feature", "manoeuvre", "control_ahead", "signal_id",
-              "signal_state", "signal_time_to_change", "signal_states", "distance_to_stop_line", "violations",
-              "new_violations", "collision", "off_road", "route_progress", "route_completed", "lane_id", "time",
-              "rewards")
-# their places in the values
-(I_ACTION, I_FEATURE, I_VIOLATIONS, I_NEW, I_REWARDS) = (INFO_ORDER.index(k) for k in (
-    "action", "junction_feature", "violations", "new_violations", "rewards"))
-
-
 _KEEPS_HOOKS: dict[type, bool] = {}  # `keeps_hooks` of each class asked
 # the hooks whose MapEnv versions `step_ends` stands in for
 _STEP_HOOKS = ("_reward", "_rewards", "_reward_terms", "_reward_weights", "_is_terminated", "_is_truncated", "_info")
@@ -581,12 +529,14 @@ def keeps_hooks(cls: type) -> bool:
     return keeps
 
 
-def step_ends(envs: Sequence["MapEnv"], actions: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple]]:
+def step_ends(envs: Sequence["MapEnv"], actions: Sequence, batch: bool = False) -> tuple[np.ndarray, np.ndarray,
+                                                                                      np.ndarray, dict]:
     """What `end_step` works out for each of `envs` (one core's, keeping MapEnv's hooks:
-    `keeps_step_hooks`), their tasks asked at once (`task`): (rewards, terminated, truncated,
-    each env's info values, `_info_values`); each env's reward terms become its info's "rewards"."""
+    `keeps_step_hooks`), their tasks and infos asked at once (`task`, `info_columns`): (rewards,
+    terminated, truncated, the info columns; of one env, unless `batch`, its info values); each
+    env's reward terms become its info's "rewards"."""
     core = envs[0].road.core
-    one = len(envs) == 1  # a single env: its row an int, its values numpy scalars (the same operations)
+    one = len(envs) == 1 and not batch  # a single env: its row an int, its values numpy scalars (the same operations)
 
     def each(value: Callable[[MapEnv], Any]) -> Any:
         return value(envs[0]) if one else np.array([value(env) for env in envs])
@@ -599,23 +549,22 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence) -> tuple[np.ndarray, 
     terminated = task.ended(core.crashed[rows], completed, off_road, each(lambda env: bool(env.config["offroad_terminal"])))
     truncated = each(lambda env: env.time >= env.config["duration"])
     progress = task.route_progress(core, rows, done)
-    done, completed, progress = ([x] if one else x.tolist() for x in (done, completed, progress))
-    values = []
-    for env, action, d, c, p, row in zip(envs, actions, done, completed, progress, terms.tolist()):
+    for env, row in zip(envs, terms.tolist()):
         env._last_rewards = dict(zip(REWARD_TERMS, row))
-        values.append(env._info_values(action, d, c, p))
-    return (rewards, np.array([terminated]), np.array([truncated]), values) if one else \
-        (rewards, terminated, truncated, values)
+    info = info_columns.columns(core, rows, envs, actions, completed, progress, off_road)
+    return (rewards, np.array([terminated]), np.array([truncated]), info) if one else \
+        (rewards, terminated, truncated, info)
 
 
-def info_dict(values: tuple, action_space: spaces.Space) -> dict[str, Any]:
-    """`MapEnv._info`'s dict of `MapEnv._info_values`: new containers, the action as an array."""
-    out = dict(zip(INFO_ORDER, values))
-    out["action"] = action_array(action_space, values[I_ACTION])
-    out["junction_feature"] = feature_info(values[I_FEATURE])
-    out["violations"] = dict(values[I_VIOLATIONS])
-    out["new_violations"] = list(values[I_NEW])
-    out["rewards"] = dict(values[I_REWARDS])
+def info_dict(values: dict[str, Any], action_space: spaces.Space) -> dict[str, Any]:
+    """`MapEnv._info`'s dict of one row's info values (`info_columns.columns`): new containers,
+    the action as an array."""
+    out = dict(values)
+    out["action"] = action_array(action_space, values["action"])
+    out["junction_feature"] = feature_info(values["junction_feature"])
+    out["violations"] = dict(values["violations"])
+    out["new_violations"] = list(values["new_violations"])
+    out["rewards"] = dict(values["rewards"])
     return out
 
 

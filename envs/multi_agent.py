@@ -64,10 +64,11 @@ from pettingzoo import ParallelEnv
 
 from ..config import AGENT_ACCELERATION_RANGE, AGENT_ENTRY_LOOK_M, AGENT_TARGET_SPEEDS, IDM_RANGE_MPS2
 from ..errors import Feat2MapError
-from . import task
+from . import info_columns, task
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
 from .control import TrafficControl
+from .info_columns import row_values
 from .controlled import ControlledRow
 from .core import TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
@@ -297,11 +298,12 @@ class AgentView(EgoTask):
                 terms[k, len(REWARD_TERMS):] = new.count("not_yielding"), new.count("stop_order")
         return terms
 
-    def info(self, action, done: float | None = None, completed: bool | None = None,
-             progress: float | None = None) -> dict:
-        """The single env's info of the agent (`done`, `completed`, `progress` when already asked
-        this step) and its own keys (`info.INFO_KEYS`)."""
-        info = info_dict(self._info_values(action, done, completed, progress), self.action_space)
+    def info(self, values: dict[str, Any] | None = None, action: Any = None) -> dict:
+        """The single env's info of the agent (of its row's info `values` when already worked out
+        this step: `info_columns.columns`) and its own keys (`info.INFO_KEYS`)."""
+        if values is None:
+            values = info_columns.columns(self.road.core, self.vehicle.row, [self], [action])
+        info = info_dict(values, self.action_space)
         info["agent_collision"] = bool(self.agent_collision)
         info["wait_time"] = float(self.wait_time)
         return info
@@ -523,7 +525,7 @@ class MultiAgentMapEnv(ParallelEnv):
             self._spawn_pending({k})
             w.fill_traffic()
         obs = self._observe(self.agents)
-        infos = {a: self._views[a].info(self._noop()) for a in self.agents}
+        infos = {a: self._views[a].info(action=self._noop()) for a in self.agents}
         return obs, infos
 
     def _spawn_pending(self, worlds: set[int]) -> list[str]:
@@ -630,9 +632,11 @@ class MultiAgentMapEnv(ParallelEnv):
                 view.keep_rewards(terms_of[k].tolist())
                 rewards[a], terms[a] = float(reward[k]), bool(ended[k])
                 truncs[a] = bool(self._world_of[a] in truncated and not terms[a])
-                action = actions.get(a)
-                infos[a] = view.info(action if action is not None else self._noop(), float(done[k]),
-                                     bool(completed[k]), float(progress[k]))
+            acts = [actions.get(a) for a in live]
+            cols = info_columns.columns(core, rows, views, [self._noop() if x is None else x for x in acts],
+                                        completed, progress)
+            for a, view, values in zip(live, views, row_values(cols)):
+                infos[a] = view.info(values)
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}
@@ -647,7 +651,7 @@ class MultiAgentMapEnv(ParallelEnv):
         obs.update(self._observe(new))
         for a in new:
             rewards[a], terms[a], truncs[a] = 0.0, False, False
-            infos[a] = self._views[a].info(self._noop())
+            infos[a] = self._views[a].info(action=self._noop())
         # a world with nobody on the road: its waiting agents will never get in
         on_road = {self._world_of[a] for a in self.agents}
         self._pending = [p for p in self._pending if self._world_of[p[0]] in on_road]

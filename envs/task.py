@@ -44,10 +44,16 @@ def start(core: Any, row: int, goal_distance: float) -> None:
     core.goal[row] = sum(net.lane_of[x].length for x in route) - last.length + core.goal_s[row]
 
 
+def route_key(core: Any, rows: Any) -> Any:
+    """Each row's route version and route position as one int (what facts of the rest of its
+    route are kept by: `task_key`, `info_key`)."""
+    return core.route_ver[rows] * _ROUTE_POSITIONS + core.route_pos[rows]
+
+
 def _refresh(core: Any, rows: Any) -> None:
     """`behind` and `goal_s` of the rows (an array, or one row: an int) whose route or route
     position changed since they were found."""
-    key = core.route_ver[rows] * _ROUTE_POSITIONS + core.route_pos[rows]
+    key = route_key(core, rows)
     stale = key != core.task_key[rows]
     if stale if isinstance(rows, int) else stale.any():
         net = core.net

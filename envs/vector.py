@@ -25,8 +25,9 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from ..errors import Feat2MapError
 from .core import TrafficCore
-from .map_env import (INFO_ORDER, MapEnv, action_array, check_action, check_options, held_feature_info, info_dict,
-                      simulate, step_ends)
+from .info_columns import row_values
+from .map_env import (MapEnv, action_array, check_action, check_options, held_feature_info, info_dict, simulate,
+                      step_ends)
 from .observation import Kinematics, TrafficControlObservation
 from .sim.observe import kinematics
 
@@ -68,7 +69,7 @@ class MapVectorEnv(VectorEnv):
         self._terminations = np.zeros(n, dtype=np.bool_)
         self._truncations = np.zeros(n, dtype=np.bool_)
         self._ended = np.zeros(n, dtype=np.bool_)  # ended at the last step: next-step autoreset resets them
-        self._step_values: dict[int, tuple] = {}
+        self._step_values: tuple = ({}, {})  # the last step's info columns, the column of each sub-env
         net = first.net
         self.core = TrafficCore(net, n)
         for k, env in enumerate(self.envs):
@@ -125,37 +126,29 @@ class MapVectorEnv(VectorEnv):
             env.begin_step(acts[i], checked=True)
         simulate(envs, [acts[i] for i in stepping])
         observed = self.observe(envs)
-        columns: dict[str, tuple[list[int], list]] = {}
+        infos: dict[str, Any] = {}
         own = np.array([env.vehicle.row for env, obs in zip(envs, observed) if obs is None], dtype=np.int64)
         with self.core.observing(own) if len(own) else contextlib.nullcontext():  # who observes itself
             if self.batch_end(envs):
-                columns = self.end_steps(stepping, envs, [acts[i] for i in stepping], observed)
+                infos = self.end_steps(stepping, envs, [acts[i] for i in stepping], observed)
             else:
                 for i, env, obs in zip(stepping, envs, observed):
                     self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
                         env.end_step(acts[i], obs)
-        finals = []
-        ended = set()
+        finals, ended = [], []
         for i, env in enumerate(self.envs):
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
-                if i not in done_infos:  # its info is in the columns: out of them, as a dict
-                    done_infos[i] = info_dict(self._step_values[i], env.action_space)
-                    ended.add(i)
+                if i not in done_infos:  # its info is in the batch's columns
+                    cols, k = self._step_values
+                    done_infos[i] = info_dict(row_values(cols)[k[i]], env.action_space)
+                    ended.append(i)
                 finals.append((i, {"final_obs": self._env_obs[i], "final_info": done_infos[i]}))
                 self._env_obs[i], done_infos[i] = env.reset()
-        if ended:
-            for key, (idx, vals) in columns.items():
-                kept = [k for k, i in enumerate(idx) if i not in ended]
-                columns[key] = ([idx[k] for k in kept], [vals[k] for k in kept])
+        if ended:  # (their info is the new episode's)
+            infos = drop_envs(infos, ended)
         items = finals + sorted(done_infos.items())
-        for key, (idx, vals) in columns.items():
-            for i, d in items:
-                if key in d:
-                    idx.append(i)
-                    vals.append(d[key])
-        infos = self.stack_columns(columns) if columns else {}
-        if finals or any(key not in columns for _, d in items for key in d):
-            infos.update(self.stack_infos(items, skip=columns))
+        if items:  # (their values replace the columns' of the same sub-envs)
+            infos = merge_infos(infos, self.stack_infos(items))
         self._ended = self._terminations | self._truncations
         return self._batch_obs(), np.copy(self._rewards), np.copy(self._terminations), np.copy(self._truncations), infos
 
@@ -216,29 +209,36 @@ class MapVectorEnv(VectorEnv):
         return bool(envs) and all(env.keeps_step_hooks() for env in envs)
 
     def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
-        """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`): their rewards and
-        ends at once (`map_env.step_ends`) and their info as columns {key: ([sub-env], [value])}
-        (`stack_columns` makes the arrays)."""
+        """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`): their rewards,
+        ends and info columns at once (`map_env.step_ends`), the batched info of the columns."""
         for i, env, obs in zip(stepping, envs, observed):
             self._env_obs[i] = env.observation_type.observe() if obs is None else obs
-        self._rewards[stepping], self._terminations[stepping], self._truncations[stepping], values = \
-            step_ends(envs, actions)
+        self._rewards[stepping], self._terminations[stepping], self._truncations[stepping], cols = \
+            step_ends(envs, actions, batch=True)
         for env in envs:
             if env.render_mode == "human":
                 env.render()
-        columns = {key: (list(stepping), list(col)) for key, col in zip(INFO_ORDER, zip(*values))}
+        self._step_values = (cols, {i: k for k, i in enumerate(stepping)})  # for the final info of same-step autoresets
         space = self.single_action_space
-        columns["action"] = (list(stepping), [action_array(space, a) for a in columns["action"][1]])
-        columns["junction_feature"] = (list(stepping), [held_feature_info(f)[1] for f in columns["junction_feature"][1]])
-        self._step_values = dict(zip(stepping, values))  # for the final info of same-step autoresets
-        return columns
+        cols = dict(cols, action=[action_array(space, a) for a in cols["action"]],
+                    junction_feature=[held_feature_info(f)[1] for f in cols["junction_feature"].tolist()])
+        return self.stack_columns(stepping, cols)
 
-    def stack_columns(self, columns: dict[str, tuple[list[int], list]]) -> dict[str, Any]:
-        """The batched info of columns {key: ([sub-env], [value])}: what `stack_infos` makes of the
-        same values (held containers are copied into the arrays, never kept)."""
+    def stack_columns(self, idx: list[int], cols: dict[str, Any]) -> dict[str, Any]:
+        """The batched info of the info columns `cols` of sub-envs `idx` (`info_columns.columns`):
+        what `stack_infos` makes of the same values (held containers are copied into the arrays,
+        never kept)."""
+        n = self.num_envs
         out: dict[str, Any] = {}
-        for key, (idx, vals) in columns.items():
-            out[key], out[f"_{key}"] = self.stack_values(key, idx, vals)
+        mask = np.zeros(n, dtype=np.bool_)
+        mask[idx] = True
+        for key, col in cols.items():
+            if isinstance(col, np.ndarray):
+                array = np.zeros(n, dtype=col.dtype) if col.dtype != object else np.full(n, None, dtype=object)
+                array[idx] = col
+                out[key], out[f"_{key}"] = array, mask.copy()
+            else:
+                out[key], out[f"_{key}"] = self.stack_values(key, idx, col)
         return out
 
     def stack_infos(self, items: list[tuple[int, dict]], skip=()) -> dict[str, Any]:
@@ -305,6 +305,44 @@ class MapVectorEnv(VectorEnv):
     def render(self):
         """The frame of sub-env `render_env` (None without a render mode)."""
         return self.envs[self.render_env].render() if self.render_mode is not None else None
+
+
+def merge_infos(infos: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    """Batched infos `infos` with the sub-envs' values of batched infos `more` in them (where
+    `more`'s masks say; its keys and nested keys added), in place."""
+    for key, value in more.items():
+        if key.startswith("_") and key[1:] in more:
+            continue
+        mask = more[f"_{key}"]
+        if key not in infos:
+            infos[key], infos[f"_{key}"] = value, mask
+            continue
+        if isinstance(value, dict):
+            merge_infos(infos[key], value)
+        else:
+            infos[key][mask] = value[mask]
+        infos[f"_{key}"] = infos[f"_{key}"] | mask
+    return infos
+
+
+def drop_envs(infos: dict[str, Any], idx: list[int]) -> dict[str, Any]:
+    """Batched infos `infos` without the values of sub-envs `idx` (as if they had none: their
+    masks False, their values blank, a key that no sub-env is left with gone), a new dict."""
+    out: dict[str, Any] = {}
+    for key, value in infos.items():
+        if key.startswith("_") and key[1:] in infos:
+            continue
+        mask = infos[f"_{key}"].copy()
+        mask[idx] = False
+        if not mask.any():
+            continue
+        if isinstance(value, dict):
+            value = drop_envs(value, idx)
+        else:
+            value = value.copy()
+            value[idx] = None if value.dtype == object else 0
+        out[key], out[f"_{key}"] = value, mask
+    return out
 
 
 def stack_held(arrays: list[np.ndarray]) -> np.ndarray:

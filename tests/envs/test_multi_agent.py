@@ -313,10 +313,10 @@ def test_signal_states_are_worked_out_again_only_when_one_changes_without_swappi
             asked[tuple(self._signals_timed[0])] += 1
         return out
 
-    def checked(self, *args):
+    def checked(self, *args, **kwargs):
         asked["infos"] += 1
         swapped.extend(set(vars(self.world.control)) & {"signal_state", "signal_states", "line_ahead"})
-        return info(self, *args)
+        return info(self, *args, **kwargs)
 
     monkeypatch.setattr(core.TrafficCore, "signal_codes", counted)
     monkeypatch.setattr(AgentView, "info", checked)
