@@ -68,9 +68,9 @@ from . import info_columns, task
 from .config import (MULTI, checks, defaults, multi_agent_defaults,
                      multi_agent_not_taken)
 from .control import TrafficControl
-from .info_columns import row_values
 from .controlled import ControlledRow
 from .core import TrafficCore
+from .info_columns import row_values
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .map_env import REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, info_dict
 from .observation import Kinematics, TrafficControlObservation, make_observation

@@ -135,12 +135,13 @@ class MapVectorEnv(VectorEnv):
                 for i, env, obs in zip(stepping, envs, observed):
                     self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
                         env.end_step(acts[i], obs)
-        finals, ended = [], []
+        finals, ended, values = [], [], None
         for i, env in enumerate(self.envs):
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
                 if i not in done_infos:  # its info is in the batch's columns
-                    cols, k = self._step_values
-                    done_infos[i] = info_dict(row_values(cols)[k[i]], env.action_space)
+                    cols, column_of = self._step_values
+                    values = row_values(cols) if values is None else values
+                    done_infos[i] = info_dict(values[column_of[i]], env.action_space)
                     ended.append(i)
                 finals.append((i, {"final_obs": self._env_obs[i], "final_info": done_infos[i]}))
                 self._env_obs[i], done_infos[i] = env.reset()
@@ -241,10 +242,9 @@ class MapVectorEnv(VectorEnv):
                 out[key], out[f"_{key}"] = self.stack_values(key, idx, col)
         return out
 
-    def stack_infos(self, items: list[tuple[int, dict]], skip=()) -> dict[str, Any]:
+    def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:
         """The batched info of (sub-env, info) pairs: what `VectorEnv._add_info` makes of them
-        one by one (arrays per key, "_key" masks, nested dicts alike), a key at a time (but
-        the keys in `skip`)."""
+        one by one (arrays per key, "_key" masks, nested dicts alike), a key at a time."""
         columns: dict[str, tuple[list[int], list]] = {}  # one pass: each key's (sub-envs, values)
         for i, d in items:
             for key, value in d.items():
@@ -253,8 +253,7 @@ class MapVectorEnv(VectorEnv):
                 vals.append(value)
         out: dict[str, Any] = {}
         for key, (idx, vals) in columns.items():
-            if key not in skip:
-                out[key], out[f"_{key}"] = self.stack_values(key, idx, vals)
+            out[key], out[f"_{key}"] = self.stack_values(key, idx, vals)
         return out
 
     def stack_values(self, key: str, idx: list[int], vals: list) -> tuple[Any, np.ndarray]:
