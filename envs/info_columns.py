@@ -4,8 +4,9 @@ each column is that row's value, in the same operations.
 
 What holds while a row's route position does (the junction ahead, its manoeuvre and feature,
 the next stop line's control, signal and the lanes to it, whose signal states to give) is a
-route fact: worked out once per distinct rest of a route (`RouteFacts`), each row holding the
-index of its fact (`TrafficCore.fact`) as of its `info_key` (route version and position then).
+route fact: worked out once per stretch of route from a lane up to the next junction entry
+(`RouteFacts`), each row holding the index of its fact (`TrafficCore.fact`) as of its
+`info_key` (route version and position then).
 The rest are gathers from the core's arrays: speed, crash, place, the signals' states and times
 to their next change at each slot's clock (`TrafficCore.signal_codes`, `signal_waits_of`)."""
 from __future__ import annotations
