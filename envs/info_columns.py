@@ -203,8 +203,8 @@ def columns(core: Any, rows: Any, views: Sequence[Any], actions: Sequence[Any], 
     """The info values of controlled rows `rows` (an array; one row: an int, each value that
     row's) whose envs or agents are `views` (`EgoTask`s: their judges, clocks and last reward
     terms), given their `actions`; whether each `completed` its route, its route `progress` and
-    `off_road` when already asked this step. Keys in `info.INFO_KEYS` order (the multi-agent env's own keys apart);
-    containers are the views' own (`map_env.info_dict` copies them)."""
+    `off_road` when already asked this step. Keys in `info.INFO_KEYS` order (the multi-agent
+    env's own keys apart); containers are the views' own (`map_env.info_dict` copies them)."""
     if completed is None:
         done, completed = task.route_state(core, rows)
         progress = task.route_progress(core, rows, done)
@@ -236,7 +236,7 @@ def _row_values(core: Any, row: int, view: Any, action: Any, completed: Any, pro
         "new_violations": view.judge.new, "collision": bool(core.crashed[row]),
         "off_road": bool(view.judge.off_road if off_road is None else off_road),
         "route_progress": float(progress), "route_completed": bool(completed),
-        "lane_id": core.net.lane_ids[core.at_lane[row]], "time": float(view.time),
+        "lane_id": core.lane_names[core.at_lane[row]], "time": float(view.time),
         "rewards": view._last_rewards,
     }
 
