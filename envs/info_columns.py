@@ -183,8 +183,15 @@ def batch_states(core: Any, views: Sequence[Any], slots: np.ndarray, states_of: 
         else:
             by.setdefault((id(view.control.signals_by_junction), of), (view.control, []))[1].append(k)
     for (_, of), (control, ks) in by.items():
-        ids, idx = signal_group(core, control, of)
-        sub = np.where(idx >= 0, codes[slots[ks][:, None], idx], _GREEN)  # [rows, signals]
+        group = signal_group(core, control, of)
+        at = slots[ks]
+        if (at == at[0]).all():  # one slot (the multi-agent env's world): one combination
+            one = _states(codes[at[0]], group)
+            for k in ks:
+                out[k] = dict(one)
+            continue
+        ids, idx = group
+        sub = np.where(idx >= 0, codes[at[:, None], idx], _GREEN)  # [rows, signals]
         if len(ids) <= 31:  # (each row's codes as one int: base 4)
             uniq, inv = np.unique(sub @ (4 ** np.arange(len(ids), dtype=np.int64)), return_inverse=True)
             first = np.zeros(len(uniq), dtype=np.int64)
