@@ -118,13 +118,9 @@ class RouteFacts:
 def facts_of(core: Any, rows: Any) -> Any:
     """The route-fact index of each of `rows` (an array, or one row: an int), found again only
     for the rows whose route or route position changed since (`info_key`)."""
-    key = task.route_key(core, rows)
-    stale = key != core.info_key[rows]
-    if stale if isinstance(rows, int) else stale.any():
-        facts = core.route_facts
-        for i in np.atleast_1d(rows)[np.atleast_1d(stale)].tolist():
-            core.fact[i] = facts.of(core.route_ids[i], int(core.route_pos[i]))
-        core.info_key[rows] = key
+    facts = core.route_facts
+    for i in task.changed_rows(core, rows, core.info_key):
+        core.fact[i] = facts.of(core.route_ids[i], int(core.route_pos[i]))
     return core.fact[rows]
 
 

@@ -35,7 +35,7 @@ from .network import MapNetwork, StopLine, release_memory
 from .observation import TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import ego_route, first_line_distance, random_walk, start_place, traffic_traps
-from .rules import EgoJudge, TrafficRules, braking_distance, route_memo
+from .rules import EgoJudge, TrafficRules, braking_distance
 from .sim.vehicle import VehicleModel
 from .task import REWARD_TERMS
 from .vehicles import TrafficVehicle
@@ -135,12 +135,11 @@ class EgoTask:
         return self.control.line_ahead(self.vehicle)
 
     def junction_ahead(self) -> tuple[str | None, str | None]:
-        """(junction id, manoeuvre) of the junction the ego is in or will enter next (a
-        `rules.route_memo`: every step's info asks)."""
-        return route_memo(self.vehicle, "junction ahead", self._junction_ahead)
-
-    def _junction_ahead(self) -> tuple[str | None, str | None]:
-        return info_columns.junction_ahead(self.net, self.vehicle.lane_route, self.vehicle.route_pos)
+        """(junction id, manoeuvre) of the junction the ego is in or will enter next ((None, None)
+        without one): its row's route fact (`info_columns.RouteFacts`, what its info gives)."""
+        core = self.road.core
+        jid, turn = core.route_facts.facts[info_columns.facts_of(core, self.vehicle.row)][:2]
+        return jid or None, turn or None
 
     def rule_stop_distance(self, ignore: Sequence[str] = ()) -> float:
         """Where the traffic rules make the ego stop (metres from its centre; inf if free), a pure

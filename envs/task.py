@@ -44,24 +44,26 @@ def start(core: Any, row: int, goal_distance: float) -> None:
     core.goal[row] = sum(net.lane_of[x].length for x in route) - last.length + core.goal_s[row]
 
 
-def route_key(core: Any, rows: Any) -> Any:
-    """Each row's route version and route position as one int (what facts of the rest of its
-    route are kept by: `task_key`, `info_key`)."""
-    return core.route_ver[rows] * _ROUTE_POSITIONS + core.route_pos[rows]
+def changed_rows(core: Any, rows: Any, held: np.ndarray) -> list[int]:
+    """The rows of `rows` (an array, or one row: an int) whose route or route position changed
+    since `held` (a row array of route keys: `task_key`, `info_key`) noted them; noted now. A
+    route key is the row's route version and route position as one int."""
+    key = core.route_ver[rows] * _ROUTE_POSITIONS + core.route_pos[rows]
+    stale = key != held[rows]
+    if not (stale if isinstance(rows, int) else stale.any()):
+        return []
+    held[rows] = key
+    return np.atleast_1d(rows)[np.atleast_1d(stale)].tolist()
 
 
 def _refresh(core: Any, rows: Any) -> None:
     """`behind` and `goal_s` of the rows (an array, or one row: an int) whose route or route
     position changed since they were found."""
-    key = route_key(core, rows)
-    stale = key != core.task_key[rows]
-    if stale if isinstance(rows, int) else stale.any():
-        net = core.net
-        for i in np.atleast_1d(rows)[np.atleast_1d(stale)].tolist():
-            route, pos = core.route_ids[i], int(core.route_pos[i])
-            core.behind[i] = sum(net.lane_of[x].length for x in route[:pos])
-            core.goal_s[i] = goal_s(net, net.lane_of[route[-1]], core.goal_dist[i])
-        core.task_key[rows] = key
+    net = core.net
+    for i in changed_rows(core, rows, core.task_key):
+        route, pos = core.route_ids[i], int(core.route_pos[i])
+        core.behind[i] = sum(net.lane_of[x].length for x in route[:pos])
+        core.goal_s[i] = goal_s(net, net.lane_of[route[-1]], core.goal_dist[i])
 
 
 def route_done(core: Any, rows: Any, fresh: bool = False) -> Any:

@@ -32,8 +32,8 @@ def midblock(tmp_path_factory) -> dict:
 
 
 def rules_values(env) -> dict:
-    """What the rules answer the ego one by one: the keys of the info that come from its route
-    and the signals."""
+    """What the rules answer the ego one by one (and its route, walked lane by lane): the keys
+    of the info that come from its route and the signals."""
     ego, rules, m = env.vehicle, env.control, env.net.hdmap
     sl, _, j_lane, d = rules.line_ahead(ego)
     sig = sl.control_id if sl is not None and sl.kind == "signal" else ""
@@ -42,7 +42,8 @@ def rules_values(env) -> dict:
     if mid is not None:
         sig, d = mid
         states = rules.signal_states(None)
-    jid, turn = env.junction_ahead()
+    jid, turn = info_columns.junction_ahead(env.net, ego.lane_route, ego.route_pos)  # (the route walked)
+    assert env.junction_ahead() == (jid, turn)
     return {"junction": jid or "", "manoeuvre": turn or "", "signal_id": sig, "distance_to_stop_line": d,
             "signal_state": rules.signal_state(sig) if sig else "",
             "signal_time_to_change": rules.signal_change(sig) if sig else math.inf, "signal_states": states,
