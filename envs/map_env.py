@@ -426,6 +426,8 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     for env, action in zip(envs, actions):
         env.judge.new = []
         if action is not None and not env.config["manual_control"]:
+            if type(action) is np.ndarray and action.shape == (1,) and isinstance(env.action_space, spaces.Discrete):
+                action = action.reshape(())  # (`check_action` lets one in; highway-env's types take int() of it)
             acting[-env.steps % frames].append((env, action))
     tracked = [env.vehicle for env in envs if env.vehicle.tracker is not None]  # an external planner's trajectory
     viewed = [env for env in envs if env.viewer is not None]
@@ -565,6 +567,19 @@ def info_dict(values: dict[str, Any], action_space: spaces.Space) -> dict[str, A
     out["new_violations"] = list(values["new_violations"])
     out["rewards"] = dict(values["rewards"])
     return out
+
+
+def info_dicts(cols: dict[str, Any], action_space: spaces.Space) -> list[dict[str, Any]]:
+    """`info_dict` of each row of a batch's `columns`, in one pass: the containers converted
+    column by column, then one dict per row."""
+    out = {k: col.tolist() if isinstance(col, np.ndarray) else col for k, col in cols.items()}
+    dtype = action_space.dtype
+    out["action"] = [np.array(a, dtype=dtype, copy=True) for a in out["action"]]
+    out["junction_feature"] = [feature_info(f) for f in out["junction_feature"]]
+    out["violations"] = [dict(v) for v in out["violations"]]
+    out["new_violations"] = [list(v) for v in out["new_violations"]]
+    out["rewards"] = [dict(r) for r in out["rewards"]]
+    return [dict(zip(out, values)) for values in zip(*out.values())]
 
 
 def feature_info(feature) -> dict[str, Any]:

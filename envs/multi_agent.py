@@ -70,9 +70,9 @@ from .config import (MULTI, checks, defaults, multi_agent_defaults,
 from .control import TrafficControl
 from .controlled import ControlledRow
 from .core import TrafficCore
-from .info_columns import row_values
 from .junction_env import JunctionGridEnv, MapFileEnv
-from .map_env import REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, info_dict
+from .map_env import (REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, info_dict,
+                      info_dicts)
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
@@ -157,27 +157,38 @@ class AgentActions:
         else:
             self.space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
 
-    def decide(self, action, speed: float, state: dict) -> None:
-        """A new decision for one agent: its held acceleration, or its target speed index."""
+    def clear(self, agents: int) -> None:
+        """No decisions yet for any of `agents` agents (numbered as `possible_agents`)."""
+        self.acc = np.zeros(agents)  # each agent's held acceleration
+        self.index = np.zeros(agents, dtype=np.int64)  # ... or its target speed's index
+
+    def start(self, k: int, speed: float) -> None:
+        """Agent k is new on the road: it holds its speed (its target speed index the nearest)."""
+        self.acc[k], self.index[k] = 0.0, int(np.argmin(np.abs(self.speeds - speed)))
+
+    def decide(self, ks: list[int], actions: list, speeds: np.ndarray) -> None:
+        """New decisions of agents `ks` (checked `actions`, their vehicles' `speeds`): their held
+        accelerations, or their target speed indices."""
         lo, hi = self.acceleration_range
-        if self.kind == "TargetSpeed":
-            state["acc"] = min(max((float(self.speeds[int(action)]) - speed) / self.period, lo), hi)
-        elif self.kind == "DiscreteMetaAction":
-            state["index"] = min(max(state.get("index", 0) + int(action) - 1, 0), len(self.speeds) - 1)
-        else:
-            a = min(max(float(np.asarray(action, dtype=float).reshape(-1)[0]), -1.0), 1.0)
-            state["acc"] = lo + (a + 1.0) / 2.0 * (hi - lo)
-
-    def start(self, speed: float) -> dict:
-        """The state of a new agent: hold its speed (its target speed index the nearest)."""
-        return {"acc": 0.0, "index": int(np.argmin(np.abs(self.speeds - speed)))}
-
-    def accelerations(self, states: Sequence[dict], speeds: np.ndarray) -> np.ndarray:
-        """Accelerations of the agents this frame (DiscreteMetaAction tracks its target speed every frame)."""
         if self.kind == "DiscreteMetaAction":
-            target = self.speeds[[s["index"] for s in states]]
-            return np.clip(speed_control(target, speeds), *IDM_RANGE_MPS2)
-        return np.array([s["acc"] for s in states], dtype=float)
+            self.index[ks] = np.clip(self.index[ks] + _indices(actions) - 1, 0, len(self.speeds) - 1)
+        elif self.kind == "TargetSpeed":
+            self.acc[ks] = np.minimum(np.maximum((self.speeds[_indices(actions)] - speeds)
+                                                 / self.period, lo), hi)
+        else:
+            a = np.array([np.asarray(x, dtype=float).reshape(-1)[0] for x in actions], dtype=float)
+            self.acc[ks] = lo + (np.minimum(np.maximum(a, -1.0), 1.0) + 1.0) / 2.0 * (hi - lo)
+
+    def accelerations(self, ks: list[int], speeds: np.ndarray) -> np.ndarray:
+        """Accelerations of agents `ks` this frame (DiscreteMetaAction tracks its target speed every frame)."""
+        if self.kind == "DiscreteMetaAction":
+            return np.clip(speed_control(self.speeds[self.index[ks]], speeds), *IDM_RANGE_MPS2)
+        return self.acc[ks]
+
+
+def _indices(actions: list) -> np.ndarray:
+    """Checked discrete actions (ints, or arrays of one int) as an index array."""
+    return np.array([x if type(x) is int else int(np.asarray(x).reshape(-1)[0]) for x in actions], dtype=np.int64)
 
 
 # ---- the world --------------------------------------------------------------------------------
@@ -298,12 +309,14 @@ class AgentView(EgoTask):
                 terms[k, len(REWARD_TERMS):] = new.count("not_yielding"), new.count("stop_order")
         return terms
 
-    def info(self, values: dict[str, Any] | None = None, action: Any = None) -> dict:
-        """The single env's info of the agent (of its row's info `values` when already worked out
-        this step: `info_columns.columns`) and its own keys (`info.INFO_KEYS`)."""
-        if values is None:
-            values = info_columns.columns(self.road.core, self.vehicle.row, [self], [action])
-        info = info_dict(values, self.action_space)
+    def info(self, action: Any = None) -> dict:
+        """The single env's info of the agent (`info_columns.columns` of its row) and its own
+        keys (`info.INFO_KEYS`)."""
+        values = info_columns.columns(self.road.core, self.vehicle.row, [self], [action])
+        return self.own_info(info_dict(values, self.action_space))
+
+    def own_info(self, info: dict) -> dict:
+        """`info` (the single env's, `map_env.info_dict`) with the agent's own keys."""
         info["agent_collision"] = bool(self.agent_collision)
         info["wait_time"] = float(self.wait_time)
         return info
@@ -475,6 +488,7 @@ class MultiAgentMapEnv(ParallelEnv):
         per = int(self.agent_config["agents"])
         self.possible_agents = [f"agent_{i}" for i in range(len(self.worlds) * per)]
         self._world_of = {a: i // per for i, a in enumerate(self.possible_agents)}
+        self._number = {a: i for i, a in enumerate(self.possible_agents)}
 
     def _define_spaces(self) -> None:
         w = self.world
@@ -515,7 +529,7 @@ class MultiAgentMapEnv(ParallelEnv):
             self.configure(options["config"])
         self.agents = []
         self._views = {}
-        self._state: dict[str, dict] = {}
+        self.actions.clear(len(self.possible_agents))
         self._pending: list[tuple[str, tuple[list[str], bool]]] = []
         self._agent_ids: dict[int, str] = {}
         per = int(self.agent_config["agents"])
@@ -544,7 +558,7 @@ class MultiAgentMapEnv(ParallelEnv):
             view = AgentView(w, v, self.actions, self.actions.space)
             view.start(AgentJudge(w.control, v), self._reward_terms(), self._make_observation(view))
             self._views[name] = view
-            self._state[name] = self.actions.start(v.speed)
+            self.actions.start(self._number[name], v.speed)
             self._agent_ids[id(v)] = name
             w.controlled_vehicles.append(v)
             new.append(name)
@@ -568,8 +582,10 @@ class MultiAgentMapEnv(ParallelEnv):
                 check_action(self.actions.space, a)
             except Feat2MapError as exc:
                 raise Feat2MapError(exc.message, f"actions[{name!r}]") from None
-        for name, a in actions.items():
-            self.actions.decide(a, self._views[name].vehicle.speed, self._state[name])
+        if actions:
+            core = self.world.road.core
+            self.actions.decide([self._number[a] for a in actions], list(actions.values()),
+                                core.speed[[self._views[a].vehicle.row for a in actions]])
         for name in live:
             self._views[name].judge.new = []
         # the worlds with agents on the road step (all of them when none has: the one-world env's
@@ -584,11 +600,12 @@ class MultiAgentMapEnv(ParallelEnv):
         views = [self._views[a] for a in live]
         vehicles = [v.vehicle for v in views]
         judges = [v.judge for v in views]
+        numbers = [self._number[a] for a in live]
         for _ in range(frames):
             core.sync()
             if vehicles:
                 rows = np.array([v.row for v in vehicles], dtype=np.int64)
-                core.command[rows] = self.actions.accelerations([self._state[a] for a in live], core.speed[rows])
+                core.command[rows] = self.actions.accelerations(numbers, core.speed[rows])
                 # the rules' verdict is noted for agents near a junction entry (core.entry: where the
                 # next one starts, from the current lane's start; the line may lie before it)
                 core.refresh_windows()  # rows that moved to a new lane last frame
@@ -635,8 +652,8 @@ class MultiAgentMapEnv(ParallelEnv):
             acts = [actions.get(a) for a in live]
             cols = info_columns.columns(core, rows, views, [self._noop() if x is None else x for x in acts],
                                         completed, progress)
-            for a, view, values in zip(live, views, row_values(cols)):
-                infos[a] = view.info(values)
+            for a, view, info in zip(live, views, info_dicts(cols, self.actions.space)):
+                infos[a] = view.own_info(info)
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
             out = {id(self._views[a].vehicle) for a in gone}

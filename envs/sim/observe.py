@@ -36,34 +36,41 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
     config other than the first's, a road user in its slot that the core does not drive): that
     one observes through highway-env's code."""
     out: list[np.ndarray | None] = [None] * len(observers)
-    picks = [k for k, o in enumerate(observers) if supported(o) and o.env.road.core is core]
+    first: tuple | None = None
+    picks, roads = [], {}
+    for k, o in enumerate(observers):  # one config: the first's
+        opt_k = _options(o)
+        if not opt_k[0] or o.observer_vehicle is not o.env.vehicle or o.env.road.core is not core:
+            continue
+        if first is None:
+            first = opt_k
+        elif opt_k is not first and opt_k != first:
+            continue
+        picks.append(k)
+        roads[o.env.road.slot] = o.env.road
     if not picks:
         return out
-    first = _options(observers[picks[0]])
-    picks = [k for k in picks if _options(observers[k]) is first or _options(observers[k]) == first]  # one config
     opt = observers[picks[0]]
-    core.sync(list({id(r): r for r in (observers[k].env.road for k in picks)}.values()))  # respawned traffic
+    core.sync(list(roads.values()))  # respawned traffic
     net = core.net
-    lane_index = net.memo("lane object index", lambda: {id(ln): k for k, ln in enumerate(net._lanes)})
     # slots holding a road user the core does not drive (user code's own objects): highway-env's code
     foreign = np.bincount(core.env[core.kind != DRIVEN], minlength=len(core.roads)) > 0
-    keep_g, slots, own, lanes = [], [], [], []
+    keep_g, slots, own = [], [], []
     for k in picks:
-        v = observers[k].observer_vehicle
-        q = observers[k].env.road.slot
-        lk = lane_index.get(id(v.lane), -1)
-        if getattr(v, "_core", None) is not core or foreign[q] or lk < 0:
+        o = observers[k]
+        v, q = o.observer_vehicle, o.env.road.slot
+        if getattr(v, "_core", None) is not core or foreign[q]:
             continue  # not a row of this core
         keep_g.append(k)
         slots.append(q)
         own.append(v._row)
-        lanes.append(lk)
     if not keep_g:
         return out
     m = len(keep_g)
-    V, kind, row_of, rank = _candidates(core, slots, [observers[k] for k in keep_g], opt.include_obstacles)
+    V, kind, row_of, rank = _candidates(core, slots, roads, opt.include_obstacles)
     # the observer's own (x, y, heading, speed) first, from its column
     rows = np.array(own, dtype=np.int64)
+    lanes = core.lane[rows].tolist()  # (indices of the network's lanes)
     g = np.arange(m)[:, None]
     self_col = 1 + rank[rows]
     V[:, 0] = V[g[:, 0], self_col]
@@ -128,7 +135,7 @@ def _along(net: Any, slots: list[int], lanes: list[int], V: np.ndarray, self_col
     return shared
 
 
-def _candidates(core: Any, slots: list[int], observers: list, obstacles: bool) -> tuple[np.ndarray, ...]:
+def _candidates(core: Any, slots: list[int], roads: dict[int, Any], obstacles: bool) -> tuple[np.ndarray, ...]:
     """Each observer's row of candidates, column 0 left for the observer: its slot's rows in row
     order, then its road's objects (with `obstacles`): (V [observers, 1 + P, 4] of x, y,
     heading, speed; kind [observers, P]; their rows [observers, P], -1 for objects; each row's
@@ -146,7 +153,6 @@ def _candidates(core: Any, slots: list[int], observers: list, obstacles: bool) -
         rank = np.empty(len(order), dtype=np.int64)
         rank[order] = np.arange(len(order)) - np.searchsorted(senv, senv, side="left")
         counts = np.bincount(core.env, minlength=S)[used_arr].tolist()
-    roads = {o.env.road.slot: o.env.road for o in observers}
     objs = [roads[q].objects if obstacles else [] for q in used]
     P = max(n + len(x) for n, x in zip(counts, objs))
     U = len(used)

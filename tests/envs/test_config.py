@@ -94,6 +94,18 @@ def test_bad_actions_are_clear_errors(action_config, action, text):
     env.close()
 
 
+@pytest.mark.parametrize("action_config", [{"type": "DiscreteMetaAction"}, {"type": "DiscreteAction"}])
+def test_a_discrete_action_given_as_an_array_of_one_value_is_that_value(action_config):
+    """`check_action` lets np.array([k]) through for a Discrete space: the env drives it as k."""
+    runs = []
+    for wrap in (int, lambda k: np.array([k])):
+        env = make({"action": action_config})
+        env.reset(seed=0)
+        runs.append([(o.tolist(), r, te, tr) for o, r, te, tr, _ in (env.step(wrap(k)) for k in (2, 2, 0, 1, 2))])
+        env.close()
+    assert runs[0] == runs[1]
+
+
 @pytest.mark.parametrize("config", [
     {},
     {"action": DRIVER_ACTION_CONFIG, "observe_traffic_control": True},

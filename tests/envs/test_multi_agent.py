@@ -94,6 +94,22 @@ def test_actions_observations_and_infos(action, observation):
             assert isinstance(rew[a], float)
 
 
+@pytest.mark.parametrize("action", ["TargetSpeed", "DiscreteMetaAction"])
+def test_an_agents_discrete_action_given_as_an_array_of_one_value_is_that_value(action):
+    cfg = {**map_config("generated"), **SMALL, "action": {"type": action}}
+    runs = []
+    for wrap in (int, lambda k: np.array([k]), np.int64):
+        env = parallel_env(cfg)
+        env.reset(seed=0)
+        run = []
+        for t in range(12):
+            obs, rew, *_ = env.step({a: wrap((t + n) % 3) for n, a in enumerate(env.agents)})
+            run.append((rew, {a: o.tolist() for a, o in obs.items()}))
+        runs.append(run)
+        env.close()
+    assert runs[0] == runs[1] == runs[2]
+
+
 def test_time_to_collision_predicts_for_each_agents_action_speeds():
     """TimeToCollision, which highway-env computes for the observer's target speeds, is each
     agent's grid over its action's speeds, centred on the one nearest its speed, and sees the
