@@ -360,7 +360,7 @@ class _World(MapEnv):
         self.road = MapRoad(self.net, self.control, rng, record_history=self.config["show_trajectories"], **slot)
         self.model = VehicleModel.of(self.config["vehicle"])
         self.controlled_vehicles = []
-        self._places: dict[tuple, list] = {}
+        self._places: dict[tuple, tuple] = {}
         routes = self._agent_routes(int(self.agent_config["agents"]))
         m = self.net.hdmap
         lanes = [l for r, _ in routes for l in r]
@@ -397,12 +397,13 @@ class _World(MapEnv):
             return out
         return [sample_config_route(net, rng, c) for _ in range(n)]
 
-    def places(self, route: list[str], extend: bool) -> list[tuple[list[str], float, float, float, float]]:
-        """(route, s on its first lane, speed, x, y) of each place of an agent's entry, nearest
-        the junction first (`agent_queue` at most; fewer where the road before the entry ends)."""
+    def places(self, route: list[str], extend: bool) -> tuple[list[tuple[list[str], float, float]], np.ndarray]:
+        """((route, s on its first lane, speed) of each place of an agent's entry, nearest the
+        junction first (`agent_queue` at most; fewer where the road before the entry ends), their
+        [places, 2] centres)."""
         key = (tuple(route), extend)
-        out = self._places.get(key)
-        if out is None:
+        held = self._places.get(key)
+        if held is None:
             c, ac = self.config, self.agent_config
             out = []
             for k in range(int(ac["agent_queue"])):
@@ -411,17 +412,16 @@ class _World(MapEnv):
                                            float(c["ego_initial_speed"]), self.model.length)
                 if k and s0 <= 0.0:
                     break  # the road before the entry is full
-                x, y = self.net.lane_of[r[0]].position(s0, 0.0)
-                out.append((r, s0, speed, float(x), float(y)))
-            self._places[key] = out
-        return out
+                out.append((r, s0, speed))
+            xy = np.array([self.net.lane_of[r[0]].position(s0, 0.0) for r, s0, _ in out], dtype=float)
+            held = self._places[key] = (out, xy)
+        return held
 
     def place(self, route: list[str], extend: bool):
         """An agent's vehicle at the first free place of its entry (None while all are taken)."""
         core = self.road.core
         core.sync()
-        places = self.places(route, extend)
-        xy = np.array([(x, y) for *_, x, y in places])
+        places, xy = self.places(route, extend)
         mine = core.rows(self.road)  # road users of this world only
         if len(mine):
             x, y = core.x[mine], core.y[mine]
@@ -430,7 +430,7 @@ class _World(MapEnv):
         else:
             free = np.ones(len(places), dtype=bool)
         for k in np.nonzero(free)[0].tolist():
-            r, s0, speed, _, _ = places[k]
+            r, s0, speed = places[k]
             v = core.add_traffic(self.road, r[0], s0, speed, list(r), model=self.model, view=ControlledRow)
             if self.control.passage_start(v):
                 return v
@@ -645,10 +645,10 @@ class MultiAgentMapEnv(ParallelEnv):
             reward = task.weighted(terms_of[:, columns], [weights.tolist()] * len(live))
             ended = core.crashed[rows] | completed
             progress = task.route_progress(core, rows, done)
-            for k, (a, view) in enumerate(zip(live, views)):
-                view.keep_rewards(terms_of[k].tolist())
-                rewards[a], terms[a] = float(reward[k]), bool(ended[k])
-                truncs[a] = bool(self._world_of[a] in truncated and not terms[a])
+            for a, view, row, r, e in zip(live, views, terms_of.tolist(), reward.tolist(), ended.tolist()):
+                view.keep_rewards(row)
+                rewards[a], terms[a] = r, e
+                truncs[a] = self._world_of[a] in truncated and not e
             acts = [actions.get(a) for a in live]
             cols = info_columns.columns(core, rows, views, [self._noop() if x is None else x for x in acts],
                                         completed, progress)
