@@ -320,7 +320,7 @@ def test_signal_states_are_worked_out_again_only_when_one_changes_without_swappi
     env.reset(seed=0)
     asked: Counter = Counter()
     swapped: list[str] = []
-    codes, info = core.TrafficCore.signal_codes, AgentView.info
+    codes, info = core.TrafficCore.signal_codes, AgentView.own_info
 
     def counted(self, *args):
         before = self._signals_timed
@@ -335,7 +335,7 @@ def test_signal_states_are_worked_out_again_only_when_one_changes_without_swappi
         return info(self, *args, **kwargs)
 
     monkeypatch.setattr(core.TrafficCore, "signal_codes", counted)
-    monkeypatch.setattr(AgentView, "info", checked)
+    monkeypatch.setattr(AgentView, "own_info", checked)
     frames = 0
     for _ in range(60):
         env.step({a: 3 for a in env.agents})
