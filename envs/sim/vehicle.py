@@ -103,7 +103,7 @@ def yaw_rate(speed: float, steering: float, wheelbase: float) -> float:
 
 
 def _clip(value, lo, hi, lib: Any):
-    return np.clip(value, lo, hi) if lib is np else min(max(value, lo), hi)
+    return np.minimum(np.maximum(value, lo), hi) if lib is np else min(max(value, lo), hi)  # (np.clip's values, sooner)
 
 
 def keeping_steering(heading_ahead, r, heading, speed, wheelbase, max_steering, lib: Any = np):
