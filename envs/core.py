@@ -86,7 +86,7 @@ from ..invariants import lane_changes
 from . import task
 from .control import no_plans, signal_arrays, signal_timing
 from .info_columns import RouteFacts
-from .lanes import centre_points, curve_speeds, project_rows, segment_table
+from .lanes import centre_points, curve_speeds, project_rows
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
@@ -275,7 +275,7 @@ class LaneTable:
         y = np.zeros_like(x)
         for n, (lb, c) in enumerate(zip(b.tolist(), count.tolist())):
             x[n, :c], y[n, :c] = centre_points(lanes[lb], np.linspace(0.0, self.length[lb], c)).T
-        table = self.net.memo("segment table", lambda: segment_table(lanes))
+        table = self.net.segment_table()
         sa, ra = project_rows(table, a, x, y)
         real = np.arange(x.shape[1])[None, :] < count[:, None]
         order = np.argsort(np.concatenate([self.pair_key, keys]), kind="stable")

@@ -405,6 +405,11 @@ class MapNetwork(RoadNetwork):
             self._memo[key] = build()
         return self._memo[key]
 
+    def segment_table(self) -> tuple[np.ndarray, ...]:
+        """The projection arrays of every lane (`lanes.segment_table`, what `lanes.project_rows`
+        reads), built once."""
+        return self.memo("segment table", lambda: segment_table(self._lanes))
+
     def __post_init__(self) -> None:
         self.graph: dict[str, dict[str, list]] = {}
 
@@ -547,7 +552,7 @@ class MapNetwork(RoadNetwork):
         if batch:
             x = np.array([[float(positions[g][0])] for g in batch])
             y = np.array([[float(positions[g][1])] for g in batch])
-            table = self.memo("segment table", lambda: segment_table(self._lanes))
+            table = self.segment_table()
             s_all, r_all = project_rows(table, np.array([ks[g] for g in batch], dtype=np.int64), x, y)
             for g, s, r in zip(batch, s_all[:, 0].tolist(), r_all[:, 0].tolist()):
                 lane, heading = lanes[g], headings[g]

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...config import PEDESTRIAN_CORRIDOR_M
-from ..lanes import project_rows, segment_table
+from ..lanes import project_rows
 from ..network import MapNetwork
 from ..rules import on_yield_stretch, pedestrian_in_path
 from .join import same_key_pairs
@@ -82,7 +82,7 @@ def walkers(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray) -> tuple[
     q, c = q[a], c[a]
     if not len(q):
         return q, c, w, np.zeros(0), np.zeros(0)
-    table = net.memo("segment table", lambda: segment_table(net._lanes))
+    table = net.segment_table()
     if len(lanes) == 1:  # one lane: its walkers are the points of one projection
         s, lat = project_rows(table, lanes, core.p_x[w][None, :], core.p_y[w][None, :])
         return q, c, w, s[0], lat[0]

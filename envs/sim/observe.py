@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core import DRIVEN
-from ..lanes import project_rows, segment_table
+from ..lanes import project_rows
 
 FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d",
                       "long_off", "lat_off", "ang_off"})
@@ -121,7 +121,7 @@ def _along(net: Any, slots: list[int], lanes: list[int], V: np.ndarray, self_col
     lane, projected once per (slot, lane): observers queued on one lane share the projection of
     their slot's candidates (`lanes.project_rows`, the same values as one by one); an observer's
     own place is its own row's column `self_col`."""
-    table = net.memo("segment table", lambda: segment_table(net._lanes))
+    table = net.segment_table()
     pair: dict[tuple[int, int], int] = {}
     of = np.array([pair.setdefault(k, n) for n, k in enumerate(zip(slots, lanes))], dtype=np.int64)
     first = np.array(list(pair.values()), dtype=np.int64)
