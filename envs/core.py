@@ -1931,11 +1931,11 @@ def rectangles_overlap(core: TrafficCore, a: np.ndarray, b: np.ndarray) -> np.nd
     ca, sa, cb, sb = c[:n], s[:n], c[n:], s[n:]
     dx, dy = core.x[b] - core.x[a], core.y[b] - core.y[a]
     la, wa, lb, wb = core.length[a] / 2, core.width[a] / 2, core.length[b] / 2, core.width[b] / 2
-    ux, uy = np.empty((2, 2, n)), np.empty((2, 2, n))  # [axes, pairs]: (ca, -sa, cb, -sb), (sa, ca, sb, cb)
+    axes_x, axes_y = np.empty((2, 2, n)), np.empty((2, 2, n))  # (ca, -sa, cb, -sb), (sa, ca, sb, cb)
     c2, s2 = c.reshape(2, n), s.reshape(2, n)
-    ux[:, 0], uy[:, 0], uy[:, 1] = c2, s2, c2
-    np.negative(s2, out=ux[:, 1])
-    ux, uy = ux.reshape(4, n), uy.reshape(4, n)
+    axes_x[:, 0], axes_y[:, 0], axes_y[:, 1] = c2, s2, c2
+    np.negative(s2, out=axes_x[:, 1])
+    ux, uy = axes_x.reshape(4, n), axes_y.reshape(4, n)  # [axes, pairs]
     reach = la * np.abs(ca * ux + sa * uy) + wa * np.abs(-sa * ux + ca * uy) + \
         lb * np.abs(cb * ux + sb * uy) + wb * np.abs(-sb * ux + cb * uy)
     return (np.abs(dx * ux + dy * uy) <= reach).all(axis=0)
