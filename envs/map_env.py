@@ -569,9 +569,11 @@ def info_dict(values: dict[str, Any], action_space: spaces.Space) -> dict[str, A
     return out
 
 
-def info_dicts(cols: dict[str, Any], action_space: spaces.Space) -> list[dict[str, Any]]:
-    """`info_dict` of each row of a batch's `columns`, in one pass: the containers converted
-    column by column, then one dict per row."""
+def info_dicts(cols: dict[str, Any], action_space: spaces.Space, at: list[int] | None = None) -> list[dict[str, Any]]:
+    """`info_dict` of each row of a batch's `columns` (of the rows `at` only, when given), in one
+    pass: the containers converted column by column, then one dict per row."""
+    if at is not None:
+        cols = {k: col[at] if isinstance(col, np.ndarray) else [col[i] for i in at] for k, col in cols.items()}
     out = {k: col.tolist() if isinstance(col, np.ndarray) else col for k, col in cols.items()}
     dtype = action_space.dtype
     out["action"] = [np.array(a, dtype=dtype, copy=True) for a in out["action"]]

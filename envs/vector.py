@@ -25,8 +25,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from ..errors import Feat2MapError
 from .core import TrafficCore
-from .info_columns import row_values
-from .map_env import (MapEnv, action_array, check_action, check_options, held_feature_info, info_dict, simulate,
+from .map_env import (MapEnv, action_array, check_action, check_options, held_feature_info, info_dicts, simulate,
                       step_ends)
 from .observation import Kinematics, TrafficControlObservation
 from .sim.observe import kinematics
@@ -135,13 +134,12 @@ class MapVectorEnv(VectorEnv):
                 for i, env, obs in zip(stepping, envs, observed):
                     self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
                         env.end_step(acts[i], obs)
-        finals, ended, values = [], [], None
+        finals, ended = [], []
         for i, env in enumerate(self.envs):
             if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
                 if i not in done_infos:  # its info is in the batch's columns
                     cols, column_of = self._step_values
-                    values = row_values(cols) if values is None else values
-                    done_infos[i] = info_dict(values[column_of[i]], env.action_space)
+                    done_infos[i] = info_dicts(cols, env.action_space, [column_of[i]])[0]
                     ended.append(i)
                 finals.append((i, {"final_obs": self._env_obs[i], "final_info": done_infos[i]}))
                 self._env_obs[i], done_infos[i] = env.reset()
