@@ -354,7 +354,7 @@ class MapNetwork(RoadNetwork):
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
     setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane -> how far before its end vehicles wait (> 0)
-    conflicts: dict[str, frozenset[str]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
+    conflicts: dict[str, tuple[str, ...]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings), sorted
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     midblock_lines: dict[str, list[tuple[str, float]]] = field(default_factory=dict)  # road lane -> (light, s of its line)
@@ -686,7 +686,7 @@ class MapNetwork(RoadNetwork):
         for a, b in road_crossings(jl, lines, road_lanes, m.lanes):
             conf[a].add(b)
             conf.setdefault(b, set()).add(a)
-        self.conflicts = {k: frozenset(v) for k, v in conf.items()}
+        self.conflicts = {k: tuple(sorted(v)) for k, v in conf.items()}  # (sorted: no hash order)
         # crosswalk crossings: junction lanes across any crosswalk, road lanes across those outside
         # junctions (mid-block crossings; a junction's crosswalks reach onto its approaches' ends)
         cws = list(m.crosswalks.values())

@@ -1,8 +1,12 @@
 """Same seed, same bytes: every file `generate`, `export` (every format in the FORMATS table) and
 `suite` write is byte-identical across two runs, whatever the wall clock says; header dates
-come from SOURCE_DATE_EPOCH (the reproducible-builds convention) or are left out."""
+come from SOURCE_DATE_EPOCH (the reproducible-builds convention) or are left out. An env steps
+the same in every process, whatever its string hashes (the order a set of lane ids iterates in)."""
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -86,3 +90,29 @@ def test_source_date_epoch_must_be_seconds(monkeypatch):
         header_date()
     monkeypatch.setenv("SOURCE_DATE_EPOCH", "0")
     assert header_date() == "1970-01-01T00:00:00"
+
+
+# a batch of DriverView egos among traffic at the default grid's junctions: the digest of its
+# observations and rewards over 120 random steps (ties between conflicting vehicles included)
+_STEPS = """
+import hashlib, numpy as np, gymnasium as gym, feat2map
+env = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=8, vectorization_mode="vector_entry_point",
+                   config={"observation": {"type": "DriverView"}, "traffic_vehicles": 12, "duration": 20.0})
+obs, _ = env.reset(seed=0)
+h, rng = hashlib.sha256(obs.tobytes()), np.random.default_rng(0)
+for _ in range(120):
+    obs, reward, *_ = env.step(rng.integers(0, 3, 8))
+    h.update(obs.tobytes())
+    h.update(reward.tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_an_env_steps_the_same_whatever_the_processs_string_hashes():
+    digests = set()
+    for hash_seed in ("1", "2", "3"):
+        env = {**os.environ, "PYTHONHASHSEED": hash_seed, "SDL_VIDEODRIVER": "offscreen"}
+        out = subprocess.run([sys.executable, "-c", _STEPS], env=env, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        digests.add(out.stdout.strip())
+    assert len(digests) == 1, digests
