@@ -354,7 +354,7 @@ class MapNetwork(RoadNetwork):
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
     setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane -> how far before its end vehicles wait (> 0)
-    conflicts: dict[str, tuple[str, ...]] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings), sorted
+    conflicts: dict[str, tuple[str, ...]] = field(default_factory=dict)  # junction lane -> conflicting, sorted (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     midblock_lines: dict[str, list[tuple[str, float]]] = field(default_factory=dict)  # road lane -> (light, s of its line)
