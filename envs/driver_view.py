@@ -129,7 +129,7 @@ def _queue_ahead(rules, ego, j_lane: str) -> int:
     core = rules.road.core
     rows = np.array([core.row_of(v) for v in ahead])
     lanes = lanes_in(core, rows, np.full(len(rows), core.table.junction_number[jid]))
-    conflicts, ids = rules.net.conflicts.get(j_lane, ()), rules.net.lane_ids
+    conflicts, ids = rules.net.conflicts.get(j_lane, frozenset()), rules.net.lane_ids
     return sum(k < 0 or ids[k] in conflicts for k in lanes.tolist())
 
 

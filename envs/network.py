@@ -14,7 +14,7 @@ import gc
 import heapq
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping
+from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 from highway_env.road.lane import LineType
@@ -309,6 +309,22 @@ def flip(points) -> np.ndarray:
 LINE_SIGNAL, LINE_STOP_SIGN = 1, 2  # a stop line's kind as a number (0: none; `core.LaneTable.line_kind`)
 
 
+class LaneSet(frozenset):
+    """A frozenset of lane ids that iterates in their sorted order: a walk over it (the rules', an
+    observation's) takes equals in the same order in every process, whatever its string hashes."""
+
+    __slots__ = ("_order",)
+    _order: tuple[str, ...]
+
+    def __new__(cls, items: Iterable[str] = ()) -> "LaneSet":
+        self = super().__new__(cls, items)
+        self._order = tuple(sorted(frozenset.__iter__(self)))
+        return self
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._order)
+
+
 @dataclass(frozen=True)
 class StopLine:
     """A controlled stop line on one lane: `s` along the lane (metres), kind signal/stop."""
@@ -354,7 +370,7 @@ class MapNetwork(RoadNetwork):
     lane_of: dict[str, PolylineLane] = field(default_factory=dict)
     stop_lines: dict[str, StopLine] = field(default_factory=dict)  # incoming lane id -> stop line
     setbacks: dict[str, float] = field(default_factory=dict)  # incoming lane -> how far before its end vehicles wait (> 0)
-    conflicts: dict[str, tuple[str, ...]] = field(default_factory=dict)  # junction lane -> conflicting, sorted (+ road_crossings)
+    conflicts: dict[str, LaneSet] = field(default_factory=dict)  # junction lane -> conflicting ones (+ road_crossings)
     crossings: dict[str, list[tuple[str, float, float]]] = field(default_factory=dict)  # lane -> (crosswalk, s0, s1)
     crosswalk_axes: dict[str, tuple[np.ndarray, np.ndarray, float]] = field(default_factory=dict)
     midblock_lines: dict[str, list[tuple[str, float]]] = field(default_factory=dict)  # road lane -> (light, s of its line)
@@ -686,7 +702,7 @@ class MapNetwork(RoadNetwork):
         for a, b in road_crossings(jl, lines, road_lanes, m.lanes):
             conf[a].add(b)
             conf.setdefault(b, set()).add(a)
-        self.conflicts = {k: tuple(sorted(v)) for k, v in conf.items()}  # (sorted: no hash order)
+        self.conflicts = {k: LaneSet(v) for k, v in conf.items()}
         # crosswalk crossings: junction lanes across any crosswalk, road lanes across those outside
         # junctions (mid-block crossings; a junction's crosswalks reach onto its approaches' ends)
         cws = list(m.crosswalks.values())
