@@ -492,7 +492,12 @@ class MultiAgentMapEnv(ParallelEnv):
 
     def _define_spaces(self) -> None:
         w = self.world
+        held = getattr(self, "actions", None)
         self.actions = AgentActions(self.agent_config["action"], float(w.config["policy_frequency"]))
+        self.actions.clear(len(self.possible_agents))
+        if held is not None:  # configured mid-episode: the agents on the road keep their decisions
+            n = min(len(held.acc), len(self.actions.acc))
+            self.actions.acc[:n], self.actions.index[:n] = held.acc[:n], held.index[:n]
         self._obs_space = self._make_observation(w).space()  # (an observation type's space needs no ego)
 
     def _make_observation(self, env: "AgentView | _World"):

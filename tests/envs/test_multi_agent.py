@@ -110,6 +110,23 @@ def test_an_agents_discrete_action_given_as_an_array_of_one_value_is_that_value(
     assert runs[0] == runs[1] == runs[2]
 
 
+def test_a_configure_mid_episode_keeps_the_agents_and_their_decisions():
+    """A config change between steps (here one that only moves the episode's end) leaves the
+    agents on the road holding what they decided: they step on as without it."""
+    cfg = {**map_config("generated"), **SMALL}
+    runs = []
+    for configure in (False, True):
+        env = parallel_env(cfg)
+        env.reset(seed=0)
+        run = [env.step({a: 4 for a in env.agents})[1]]
+        if configure:
+            env.configure({"duration": 25.0})
+        run += [env.step({})[1] for _ in range(5)]  # no new decisions: each holds its last
+        runs.append(run)
+        env.close()
+    assert runs[0] == runs[1] and any(r for r in runs[0][1:])
+
+
 def test_time_to_collision_predicts_for_each_agents_action_speeds():
     """TimeToCollision, which highway-env computes for the observer's target speeds, is each
     agent's grid over its action's speeds, centred on the one nearest its speed, and sees the
