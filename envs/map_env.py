@@ -426,8 +426,8 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     for env, action in zip(envs, actions):
         env.judge.new = []
         if action is not None and not env.config["manual_control"]:
-            if type(action) is np.ndarray and action.shape == (1,) and isinstance(env.action_space, spaces.Discrete):
-                action = action.reshape(())  # (`check_action` lets one in; highway-env's types take int() of it)
+            if isinstance(env.action_space, spaces.Discrete):
+                action = discrete_index(action)  # (highway-env's action types take int() of it)
             acting[-env.steps % frames].append((env, action))
     tracked = [env.vehicle for env in envs if env.vehicle.tracker is not None]  # an external planner's trajectory
     viewed = [env for env in envs if env.viewer is not None]
@@ -506,6 +506,12 @@ def check_action(space: spaces.Space, action: Any) -> None:
             raise Feat2MapError(f"must be finite, got {a.tolist()}", "action")
 
 
+def discrete_index(action: Any) -> int:
+    """A checked discrete action (an int, or an array or numpy integer of one value) as an int
+    (`check_action` lets all of them in)."""
+    return action if type(action) is int else int(np.asarray(action).reshape(-1)[0])
+
+
 def action_array(space: spaces.Space, action: Any) -> np.ndarray:
     """A copy of the action in the action space's dtype (a 0-d array for discrete actions)."""
     return np.array(action, dtype=space.dtype if space.dtype is not None else None, copy=True)
@@ -562,10 +568,8 @@ def info_dict(values: dict[str, Any], action_space: spaces.Space) -> dict[str, A
     the action as an array."""
     out = dict(values)
     out["action"] = action_array(action_space, values["action"])
-    out["junction_feature"] = feature_info(values["junction_feature"])
-    out["violations"] = dict(values["violations"])
-    out["new_violations"] = list(values["new_violations"])
-    out["rewards"] = dict(values["rewards"])
+    for key, copy in _INFO_COPIES.items():
+        out[key] = copy(values[key])
     return out
 
 
@@ -575,12 +579,9 @@ def info_dicts(cols: dict[str, Any], action_space: spaces.Space, at: list[int] |
     if at is not None:
         cols = {k: col[at] if isinstance(col, np.ndarray) else [col[i] for i in at] for k, col in cols.items()}
     out = {k: col.tolist() if isinstance(col, np.ndarray) else col for k, col in cols.items()}
-    dtype = action_space.dtype
-    out["action"] = [np.array(a, dtype=dtype, copy=True) for a in out["action"]]
-    out["junction_feature"] = [feature_info(f) for f in out["junction_feature"]]
-    out["violations"] = [dict(v) for v in out["violations"]]
-    out["new_violations"] = [list(v) for v in out["new_violations"]]
-    out["rewards"] = [dict(r) for r in out["rewards"]]
+    out["action"] = [action_array(action_space, a) for a in out["action"]]
+    for key, copy in _INFO_COPIES.items():
+        out[key] = [copy(v) for v in out[key]]
     return [dict(zip(out, values)) for values in zip(*out.values())]
 
 
@@ -592,6 +593,11 @@ def feature_info(feature) -> dict[str, Any]:
     for k in held[2]:
         out[k] = out[k].copy()
     return out
+
+
+# the info values that are containers a view holds (or a feature): each info gets its own copy
+_INFO_COPIES: dict[str, Callable[[Any], Any]] = {"junction_feature": feature_info, "violations": dict,
+                                                 "new_violations": list, "rewards": dict}
 
 
 def held_feature_info(feature) -> tuple[Any, dict[str, Any], list[str]]:

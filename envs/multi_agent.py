@@ -71,7 +71,7 @@ from .control import TrafficControl
 from .controlled import ControlledRow
 from .core import TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
-from .map_env import (REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, info_dict,
+from .map_env import (REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, discrete_index, info_dict,
                       info_dicts)
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
@@ -187,8 +187,8 @@ class AgentActions:
 
 
 def _indices(actions: list) -> np.ndarray:
-    """Checked discrete actions (ints, or arrays of one int) as an index array."""
-    return np.array([x if type(x) is int else int(np.asarray(x).reshape(-1)[0]) for x in actions], dtype=np.int64)
+    """Checked discrete actions as an index array."""
+    return np.array([discrete_index(x) for x in actions], dtype=np.int64)
 
 
 # ---- the world --------------------------------------------------------------------------------
@@ -534,7 +534,6 @@ class MultiAgentMapEnv(ParallelEnv):
             self.configure(options["config"])
         self.agents = []
         self._views = {}
-        self.actions.clear(len(self.possible_agents))
         self._pending: list[tuple[str, tuple[list[str], bool]]] = []
         self._agent_ids: dict[int, str] = {}
         per = int(self.agent_config["agents"])

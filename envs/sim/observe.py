@@ -39,9 +39,9 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
     first: tuple | None = None
     picks, roads = [], {}
     for k, o in enumerate(observers):  # one config: the first's
-        opt_k = _options(o)
-        if not opt_k[0] or o.observer_vehicle is not o.env.vehicle or o.env.road.core is not core:
+        if not supported(o) or o.env.road.core is not core:
             continue
+        opt_k = _options(o)
         if first is None:
             first = opt_k
         elif opt_k is not first and opt_k != first:
