@@ -118,24 +118,35 @@ def cmdline(pid: int) -> bytes:
         return b""
 
 
-def describe(pids: list[int]) -> list[str]:
-    return [f"{p}: {cmdline(p)[:120]!r}" for p in pids]
+def describe(pids: list[int], parent: subprocess.Popen) -> str:
+    """The processes left (state and parent from /proc/PID/stat, command line) and what the run
+    wrote to stderr so far (its workers' too: they inherit it), for a failure to explain itself."""
+    def stat(pid: int) -> str:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_bytes().rsplit(b")", 1)[1].split()
+            return f"state {fields[0].decode()}, parent {int(fields[1])}"
+        except (OSError, IndexError):
+            return "gone"
+    assert parent.stderr is not None
+    os.set_blocking(parent.stderr.fileno(), False)
+    err = (parent.stderr.read() or b"").decode(errors="replace")[-3000:]
+    return "; ".join(f"{p} ({stat(p)}): {cmdline(p)[:120]!r}" for p in pids) + f"\nthe run's stderr:\n{err}"
 
 
 def test_a_sigkilled_rollout_parent_leaves_no_worker_or_planner(suite_file, tmp_path):
     with rollout(suite_file, tmp_path) as (parent, tag, _):
         parent.kill()
         alive = wait_gone(tag)
-        assert not alive, f"survived the parent's SIGKILL: {describe(alive)}"
+        assert not alive, f"survived the parent's SIGKILL: {describe(alive, parent)}"
 
 
 def test_a_sigtermed_rollout_ends_with_its_workers_and_planners_and_writes_the_report_so_far(suite_file, tmp_path):
     with rollout(suite_file, tmp_path) as (parent, tag, _):
         parent.terminate()
         alive = wait_gone(tag, parent.pid)
-        assert not alive, f"survived the parent's SIGTERM: {describe(alive)}"
+        assert not alive, f"survived the parent's SIGTERM: {describe(alive, parent)}"
         assert parent.wait(timeout=REPORT_LIMIT_S) == 1
         alive = wait_gone(tag)
-        assert not alive, f"survived the parent: {describe(alive)}"
+        assert not alive, f"survived the parent: {describe(alive, parent)}"
         summary = json.loads((tmp_path / "out" / "summary.json").read_text())
         assert summary["stopped"] == "interrupted (SIGTERM)" and summary["scenarios"] == SCENARIOS
