@@ -88,7 +88,7 @@ from .control import no_plans, signal_arrays, signal_timing
 from .info_columns import RouteFacts
 from .lanes import centre_points, curve_speeds, project_rows
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
-from .rules import (CROSSED, ENTRY, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
+from .rules import (CROSSED, ENTRY, JUDGED, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
 from .sim import crossings, entries, passages, pedestrians, rule_scan, stop_signs
 from .sim.join import same_key_pairs
@@ -121,7 +121,8 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "at_lat": 0.0, "stop_junction": -1, "stop_seq": 0, "stop_at": math.inf, "reserved": NONE,
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
                 "res_count": 0, "judged": -1, "progress": 0.0, "goal": 0.0, "goal_dist": 0.0, "behind": 0.0,
-                "goal_s": 0.0, "task_key": -1, "info_key": -1, "fact": -1}
+                "goal_s": 0.0, "task_key": -1, "info_key": -1, "fact": -1, "violations": 0,
+                "new_violations": 0, "off_road": False}
 
 
 class LaneTable:
@@ -616,6 +617,11 @@ class TrafficCore:
         self.at_s = np.zeros(0)
         self.at_lat = np.zeros(0)
         self.judged = np.zeros(0, dtype=np.int64)  # the lane its judge last looked at it on (`judge_due`; -1 not yet)
+        # its judge's verdicts (`rules.EgoJudge`): counts of each kind of `rules.JUDGED` this
+        # episode and this policy step, and whether it left the road
+        self.violations = np.zeros((0, len(JUDGED)), dtype=np.int64)
+        self.new_violations = np.zeros((0, len(JUDGED)), dtype=np.int64)
+        self.off_road = np.zeros(0, dtype=bool)
         # a controlled row's task (`task`): route metres at the last reward and to the goal, the
         # config's goal distance; the route metres behind its route position and the goal's s on
         # its last lane, as of `task_key` (its route version and position then)
@@ -704,7 +710,7 @@ class TrafficCore:
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged", "progress", "goal", "goal_dist", "behind",
-               "goal_s", "task_key", "info_key", "fact")
+               "goal_s", "task_key", "info_key", "fact", "violations", "new_violations", "off_road")
     # row arrays with a column per window lane, and a new row's value in each
     _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0}
 

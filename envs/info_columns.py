@@ -12,14 +12,29 @@ to their next change at each slot's clock (`TrafficCore.signal_codes`, `signal_w
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
 from . import task
-from .rules import SIGNAL_STATES, enters_junction, line_plan, manoeuvre_name
+from .rules import JUDGED, SIGNAL_STATES, enters_junction, line_plan, manoeuvre_name
 
 _STATE_NAMES = np.array(SIGNAL_STATES, dtype=object)
+
+
+class Records(NamedTuple):
+    """A column whose value in each row is a dict with the same keys (the violation counts): the
+    values as one [rows, keys] array; `dicts` makes the rows' dicts, the batched env stacks the
+    array's columns."""
+
+    keys: tuple[str, ...]
+    values: np.ndarray
+
+    def dicts(self) -> list[dict[str, Any]]:
+        return [dict(zip(self.keys, row)) for row in self.values.tolist()]
+
+    def at(self, idx: Any) -> "Records":
+        return Records(self.keys, self.values[idx])
 
 
 def junction_ahead(net: Any, route: Sequence[str], pos: int) -> tuple[str | None, str | None]:
@@ -271,22 +286,32 @@ def _batch_columns(core: Any, rows: np.ndarray, views: Sequence[Any], actions: S
     if known.any():
         to_change[known] = core.signal_waits_of(slots[known], sig[known])
     crashed = core.crashed[rows]
+    kinds = views[0].judge.KINDS  # (the views of a batch are of one kind: the egos, or the agents)
     return {
         "speed": core.speed[rows], "crashed": crashed, "action": list(actions), "junction": a["jid"][f],
         "junction_feature": a["feature"][f], "manoeuvre": a["turn"][f], "control_ahead": control, "signal_id": sig_id,
         "signal_state": state, "signal_time_to_change": to_change, "signal_states": states,
-        "distance_to_stop_line": d, "violations": [v.violations for v in views],
-        "new_violations": [v.judge.new for v in views], "collision": crashed.copy(),
-        "off_road": np.array([v.judge.off_road for v in views], dtype=bool) if off_road is None
-        else np.asarray(off_road, dtype=bool),
+        "distance_to_stop_line": d, "violations": Records(kinds, core.violations[rows, :len(kinds)]),
+        "new_violations": _names(core.new_violations[rows]), "collision": crashed.copy(),
+        "off_road": core.off_road[rows] if off_road is None else np.asarray(off_road, dtype=bool),
         "route_progress": np.asarray(progress, dtype=float), "route_completed": np.asarray(completed, dtype=bool),
         "lane_id": core.lane_names[core.at_lane[rows]], "time": np.array([v.time for v in views], dtype=float),
         "rewards": [v._last_rewards for v in views],
     }
 
 
+def _names(counts: np.ndarray) -> list[list[str]]:
+    """Each row's violations of the step as `EgoJudge.new` names them, given its counts of each
+    kind of JUDGED (a list per row)."""
+    out: list[list[str]] = [[] for _ in range(len(counts))]
+    for k in counts.any(axis=1).nonzero()[0].tolist():
+        out[k] = [kind for kind, n in zip(JUDGED, counts[k].tolist()) for _ in range(n)]
+    return out
+
+
 def row_values(cols: dict[str, Any]) -> list[dict[str, Any]]:
     """Each row's values of a batch's `columns`, as Python values (what `columns` gives of one
     row)."""
-    lists = [col.tolist() if isinstance(col, np.ndarray) else col for col in cols.values()]
+    lists = [col.tolist() if isinstance(col, np.ndarray) else col.dicts() if isinstance(col, Records) else col
+             for col in cols.values()]
     return [dict(zip(cols, values)) for values in zip(*lists)]

@@ -70,7 +70,6 @@ class EgoTask:
     control: TrafficControl
     config: dict
     judge: EgoJudge
-    violations: dict[str, int]
     time: float
     action_space: spaces.Space
     _last_rewards: dict[str, float]
@@ -80,6 +79,11 @@ class EgoTask:
         """The rules' questions (`rules.TrafficRules`: pure queries), answered from this episode's
         signals, queues and reservations, for planners; what the ego takes is `claim`'s."""
         return self.control
+
+    @property
+    def violations(self) -> dict[str, int]:
+        """{kind: count} of the episode's violations (the judge's)."""
+        return self.judge.violations
 
     @property
     def new_violations(self) -> list[str]:
@@ -114,8 +118,7 @@ class EgoTask:
     def _reward_row(self, done: float, completed: bool) -> tuple[float, ...]:
         """This step's reward terms (`_reward_terms` order) given the route metres `done` and
         whether the route is completed (`task.reward_terms`, a batch of one)."""
-        return tuple(task.reward_terms(self.road.core, self.vehicle.row, done, completed, self.off_road,
-                                       [self.judge.new]).tolist())
+        return tuple(task.reward_terms(self.road.core, self.vehicle.row, done, completed, self.off_road).tolist())
 
     def _info(self, obs, action=None) -> dict:
         """A new dict every step whose keys keep their types (no None: "", NaN, -1 or empty
@@ -261,7 +264,6 @@ class MapEnv(EgoTask, AbstractEnv):
             self._spawn_traffic()
         self.control.update(self.road, 0.0)
         self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
-        self.violations = self.judge.violations
         self.start_task()
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
 
@@ -423,8 +425,9 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
         roads.append(env.road)
         members.append(env)
     acting: list[list[tuple[MapEnv, Any]]] = [[] for _ in range(frames)]  # who decides on each frame
+    for core, _, members in groups.values():  # (this step's violations)
+        core.new_violations[[env.vehicle.row for env in members]] = 0
     for env, action in zip(envs, actions):
-        env.judge.new = []
         if action is not None and not env.config["manual_control"]:
             if isinstance(env.action_space, spaces.Discrete):
                 action = discrete_index(action)  # (highway-env's action types take int() of it)
@@ -549,8 +552,8 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence, batch: bool = False) 
         return value(envs[0]) if one else np.array([value(env) for env in envs])
     rows = each(lambda env: env.vehicle.row)
     done, completed = task.route_state(core, rows)
-    off_road = each(lambda env: bool(env.judge.off_road))
-    terms = task.reward_terms(core, rows, done, completed, off_road, [env.judge.new for env in envs])
+    off_road = core.off_road[rows]
+    terms = task.reward_terms(core, rows, done, completed, off_road)
     terms = terms.reshape(len(envs), len(REWARD_TERMS))
     rewards = task.weighted(terms, [env._reward_weights() for env in envs])
     terminated = task.ended(core.crashed[rows], completed, off_road, each(lambda env: bool(env.config["offroad_terminal"])))
@@ -577,11 +580,14 @@ def info_dicts(cols: dict[str, Any], action_space: spaces.Space, at: list[int] |
     """`info_dict` of each row of a batch's `columns` (of the rows `at` only, when given), in one
     pass: the containers converted column by column, then one dict per row."""
     if at is not None:
-        cols = {k: col[at] if isinstance(col, np.ndarray) else [col[i] for i in at] for k, col in cols.items()}
-    out = {k: col.tolist() if isinstance(col, np.ndarray) else col for k, col in cols.items()}
+        cols = {k: col[at] if isinstance(col, np.ndarray) else col.at(at) if isinstance(col, info_columns.Records)
+                else [col[i] for i in at] for k, col in cols.items()}
+    out = {k: col.tolist() if isinstance(col, np.ndarray) else col.dicts() if isinstance(col, info_columns.Records)
+           else col for k, col in cols.items()}
     out["action"] = [action_array(action_space, a) for a in out["action"]]
     for key, copy in _INFO_COPIES.items():
-        out[key] = [copy(v) for v in out[key]]
+        if not isinstance(cols[key], info_columns.Records):  # (its dicts are new)
+            out[key] = [copy(v) for v in out[key]]
     return [dict(zip(out, values)) for values in zip(*out.values())]
 
 

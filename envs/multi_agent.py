@@ -76,12 +76,14 @@ from .map_env import (REWARD_TERMS, EgoTask, MapEnv, check_action, check_options
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
-from .rules import VIOLATIONS, EgoJudge, can_stop_before, has_stopped
+from .rules import JUDGED, EgoJudge, can_stop_before, has_stopped
 from .sim.observe import kinematics
 from .sim.vehicle import VehicleModel, speed_control
 
-AGENT_VIOLATIONS = (*VIOLATIONS, "not_yielding", "stop_order")
+AGENT_VIOLATIONS = JUDGED  # an agent's violation kinds, in order
 AGENT_TERMS = (*REWARD_TERMS, "not_yielding", "stop_order")  # an agent's reward terms, in order
+_RED = JUDGED.index("red_light")
+_AGENT_ONLY = [JUDGED.index(k) for k in AGENT_TERMS[len(REWARD_TERMS):]]  # the terms of the agents' judge
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
 AGENT_DEFAULTS: dict[str, Any] = defaults(MULTI)
 #: MapEnv defaults the multi-agent env changes (decisions at 2 Hz, one junction per route)
@@ -199,9 +201,10 @@ class AgentJudge(EgoJudge):
     can_stop_before`: past that point a conflict that turns up is not its fault, as at amber);
     `check` counts a violation when it enters against the verdict."""
 
+    KINDS = JUDGED
+
     def __init__(self, rules, vehicle) -> None:
         super().__init__(rules, vehicle)
-        self.violations.update(not_yielding=0, stop_order=0)
         self._verdict: tuple[str | None, bool, bool] = (None, True, True)  # (junction lane, clear, order ok)
 
     def note(self) -> str | None:
@@ -230,7 +233,7 @@ class AgentJudge(EgoJudge):
 
     def check(self) -> None:
         prev = self._lane
-        before = len(self.new)
+        reds = self._core.new_violations[self.ego.row, _RED]
         super().check()
         lid, m = self._lane, self.rules.net.hdmap
         if lid is None or lid == prev or lid not in m.lanes or m.lanes[lid].junction_id is None:
@@ -239,7 +242,7 @@ class AgentJudge(EgoJudge):
             return  # from one junction lane to the next
         j_lane, clear, order = self._verdict
         self._verdict = (None, True, True)
-        if j_lane != lid or "red_light" in self.new[before:]:
+        if j_lane != lid or self._core.new_violations[self.ego.row, _RED] > reds:
             return
         if not order:
             self._violate("stop_order")
@@ -272,7 +275,7 @@ class AgentView(EgoTask):
 
     def start(self, judge: AgentJudge, terms: Sequence[str], observation_type: Any) -> None:
         """The agent is on the road: its judge, reward terms and observation; its progress from here."""
-        self.judge, self.violations = judge, judge.violations
+        self.judge = judge
         self.observation_type = observation_type
         self.start_task()
         self._last_rewards = dict.fromkeys(terms, 0.0)
@@ -299,14 +302,9 @@ class AgentView(EgoTask):
         """[agents, AGENT_TERMS]: this step's reward terms of the agents of `views` (their `rows`),
         given their route metres `done` and whether their routes are `completed`: the single
         env's (`task.reward_terms`) and the two of the agents' judge."""
-        judges = [v.judge for v in views]
-        news = [j.new for j in judges]
         terms = np.zeros((len(views), len(AGENT_TERMS)))
-        terms[:, :len(REWARD_TERMS)] = task.reward_terms(core, rows, done, completed,
-                                                         np.array([j.off_road for j in judges], dtype=bool), news)
-        for k, new in enumerate(news):
-            if new:
-                terms[k, len(REWARD_TERMS):] = new.count("not_yielding"), new.count("stop_order")
+        terms[:, :len(REWARD_TERMS)] = task.reward_terms(core, rows, done, completed, core.off_road[rows])
+        terms[:, len(REWARD_TERMS):] = core.new_violations[rows][:, _AGENT_ONLY]
         return terms
 
     def info(self, action: Any = None) -> dict:
@@ -590,8 +588,8 @@ class MultiAgentMapEnv(ParallelEnv):
             core = self.world.road.core
             self.actions.decide([self._number[a] for a in actions], list(actions.values()),
                                 core.speed[[self._views[a].vehicle.row for a in actions]])
-        for name in live:
-            self._views[name].judge.new = []
+        if live:  # (this step's violations)
+            self.world.road.core.new_violations[[self._views[a].vehicle.row for a in live]] = 0
         # the worlds with agents on the road step (all of them when none has: the one-world env's
         # step after its end); a world whose agents are all gone stands still
         active = sorted({self._world_of[a] for a in live}) or list(range(len(self.worlds)))
@@ -660,6 +658,8 @@ class MultiAgentMapEnv(ParallelEnv):
                 infos[a] = view.own_info(info)
         gone = [a for a in live if terms[a] or truncs[a]]
         if gone:
+            for a in gone:
+                self._views[a].judge.let_go()
             out = {id(self._views[a].vehicle) for a in gone}
             for x in worlds:
                 x.road.vehicles = [v for v in x.road.vehicles if id(v) not in out]

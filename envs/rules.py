@@ -53,6 +53,9 @@ if TYPE_CHECKING:
 
 RULES = ("signal", "stop", "pedestrian", "conflict")  # what planners may ignore on purpose
 VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
+# every kind a judge counts: the ego's VIOLATIONS, then the two only agents are judged on
+# (`multi_agent.AgentJudge`); the columns of `TrafficCore.violations` and `new_violations`
+JUDGED = (*VIOLATIONS, "not_yielding", "stop_order")
 SIGNAL_STATES = ("green", "amber", "red")  # the codes of the signal states' one program (`control.signal_timing`)
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
@@ -1038,14 +1041,15 @@ class EgoJudge:
     entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
     route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
 
+    KINDS: tuple[str, ...] = VIOLATIONS  # the kinds it counts (`violations`' keys)
+
     def __init__(self, rules: TrafficRules, ego, arrived: Callable[[], bool] | None = None) -> None:
         self.rules = rules
         self.ego = ego
         self.arrived = arrived  # whether the ego has reached its goal: the drive ends there
         self.done = False
-        self.violations = {k: 0 for k in VIOLATIONS}
-        self.new: list[str] = []
-        self.off_road = False
+        self._core = rules.road.core
+        self._held: tuple[list[int], list[int], bool] | None = None  # its verdicts once its row is gone (`let_go`)
         self._lane = rules.net.id_of.get(ego.lane_index)
         self._stopped: set[str] = set()  # incoming lanes whose line the ego has stopped at
         self._crossed: set[str] = set()
@@ -1107,8 +1111,9 @@ class EgoJudge:
                     self._ped_flags.add((lid, cw))
                     self._violate("pedestrian_yield")
         lane = net.get_lane(ego.lane_index)
-        self.off_road = self.off_road or abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
-            ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors
+        if abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
+                ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors:
+            self._core.off_road[ego.row] = True
 
     def wait_reason(self, near: float = BLOCKED_NEAR_M) -> str:
         """What justifies the ego's standing where it stands, in words ("" when nothing does): a red
@@ -1152,6 +1157,31 @@ class EgoJudge:
         k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
         return self.rules.net.hdmap.lanes[route[k]].turn if k < len(route) else None
 
+    # ---- its verdicts: the row's columns of the core (`violations`, `new_violations`, `off_road`)
+    @property
+    def violations(self) -> dict[str, int]:
+        """{kind: count} of this episode's violations (a new dict)."""
+        counts = self._held[0] if self._held else self._core.violations[self.ego.row, :len(self.KINDS)].tolist()
+        return dict(zip(self.KINDS, counts))
+
+    @property
+    def new(self) -> list[str]:
+        """The violations of this policy step (kinds in JUDGED order, repeated by count)."""
+        counts = self._held[1] if self._held else self._core.new_violations[self.ego.row].tolist()
+        return [kind for kind, n in zip(JUDGED, counts) for _ in range(n)]
+
+    @property
+    def off_road(self) -> bool:
+        """Whether it has left the road this episode."""
+        return self._held[2] if self._held else bool(self._core.off_road[self.ego.row])
+
+    def let_go(self) -> None:
+        """Keep the verdicts here: the road user's row is about to leave the core."""
+        i = self.ego.row
+        self._held = (self._core.violations[i, :len(self.KINDS)].tolist(), self._core.new_violations[i].tolist(),
+                      bool(self._core.off_road[i]))
+
     def _violate(self, kind: str) -> None:
-        self.violations[kind] += 1
-        self.new.append(kind)
+        k = JUDGED.index(kind)
+        self._core.violations[self.ego.row, k] += 1
+        self._core.new_violations[self.ego.row, k] += 1

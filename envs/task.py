@@ -94,19 +94,18 @@ def route_state(core: Any, rows: Any) -> tuple[Any, Any]:
     return route_done(core, rows, fresh=True), completed(core, rows, fresh=True)
 
 
-def reward_terms(core: Any, rows: Any, done: Any, arrived: Any, off_road: Any, new: list[list[str]]) -> np.ndarray:
+def reward_terms(core: Any, rows: Any, done: Any, arrived: Any, off_road: Any) -> np.ndarray:
     """[rows, REWARD_TERMS] (one row, an int: [REWARD_TERMS]): this step's reward terms of each of
-    `rows`, given its route metres `done`, whether it `arrived`, left the road (`off_road`) and
-    the violations `new` this step (a list per row); each row's progress moves on to `done`."""
+    `rows`, given its route metres `done`, whether it `arrived` and left the road (`off_road`),
+    with its judge's violations this step (`TrafficCore.new_violations`); each row's progress
+    moves on to `done`."""
     terms = np.zeros(len(REWARD_TERMS) if isinstance(rows, int) else (len(rows), len(REWARD_TERMS)))
     terms[..., 0] = (done - core.progress[rows]) / (max(core.goal[rows], 1e-6) if isinstance(rows, int)
                                                      else np.maximum(core.goal[rows], 1e-6))
     terms[..., 1] = arrived
     terms[..., 2] = core.crashed[rows]
     terms[..., 3] = off_road
-    for k, kinds in enumerate(new):
-        if kinds:
-            terms.reshape(-1, len(REWARD_TERMS))[k, 4:] = [kinds.count(v) for v in VIOLATIONS]
+    terms[..., 4:] = core.new_violations[rows, :len(VIOLATIONS)]
     core.progress[rows] = done
     return terms
 

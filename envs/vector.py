@@ -25,6 +25,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from ..errors import Feat2MapError
 from .core import TrafficCore
+from .info_columns import Records
 from .map_env import (MapEnv, action_array, check_action, check_options, held_feature_info, info_dicts, simulate,
                       step_ends)
 from .observation import Kinematics, TrafficControlObservation
@@ -236,6 +237,8 @@ class MapVectorEnv(VectorEnv):
                 array = np.zeros(n, dtype=col.dtype) if col.dtype != object else np.full(n, None, dtype=object)
                 array[idx] = col
                 out[key], out[f"_{key}"] = array, mask.copy()
+            elif isinstance(col, Records):
+                out[key], out[f"_{key}"] = self.stack_table(idx, col.keys, col.values), mask.copy()
             else:
                 out[key], out[f"_{key}"] = self.stack_values(key, idx, col)
         return out
@@ -290,11 +293,15 @@ class MapVectorEnv(VectorEnv):
             for key in keys:
                 out[key], out[f"_{key}"] = self.stack_values(key, idx, [d[key] for d in vals])
             return out
-        table = np.zeros((len(keys), self.num_envs), dtype=kind)
-        table[:, idx] = np.array([list(d.values()) for d in vals], dtype=kind).T
+        return self.stack_table(idx, keys, np.array([list(d.values()) for d in vals], dtype=kind))
+
+    def stack_table(self, idx: list[int], keys: tuple[str, ...], values: np.ndarray) -> dict[str, Any]:
+        """`stack_records` of dicts given as a [len(idx), keys] table of their values."""
+        table = np.zeros((len(keys), self.num_envs), dtype=values.dtype)
+        table[:, idx] = values.T
         mask = np.zeros(self.num_envs, dtype=np.bool_)
         mask[idx] = True
-        out = {}
+        out: dict[str, Any] = {}
         for key, column in zip(keys, table):
             out[key], out[f"_{key}"] = column, mask.copy()
         return out

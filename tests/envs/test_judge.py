@@ -137,3 +137,57 @@ def test_each_reason_to_look_makes_a_row_due(monkeypatch):
             assert c.judge_due(row).tolist() == [expect], (p_env, p_cw, s, speed)
     monkeypatch.setattr(core, "JUDGE_MIN_ROWS", 2)  # fewer rows than that: every judge is asked
     assert c.judge_due(row).tolist() == [True]
+
+
+def test_the_verdicts_are_the_rows_and_move_with_them_in_a_batch():
+    """A judge's verdicts are its row's columns of the core (`violations`, `new_violations`,
+    `off_road`): while respawns and resets move every sub-env's rows, each info's episode counts
+    stay the sum of the step's new violations it reported, and its `off_road` stays set."""
+    env = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=6, vectorization_mode="vector_entry_point",
+                       config={"traffic_vehicles": 8, **CONTINUOUS})
+    env.reset(seed=2)
+    kinds = ("red_light", "stop_sign", "pedestrian_yield")
+    sums = np.zeros((6, len(kinds)), dtype=np.int64)
+    left = np.zeros(6, dtype=bool)
+    moved = seen = 0
+    layout = env.unwrapped.core.layout
+    for t in range(240):
+        # sub-envs drive at full throttle, half of them weaving off the lanes
+        actions = np.array([weaving(t) if i % 2 else np.array([1.0, 0.0], dtype=np.float32) for i in range(6)])
+        _, _, term, trunc, info = env.step(actions)
+        moved += env.unwrapped.core.layout != layout
+        layout = env.unwrapped.core.layout
+        for i in range(6):
+            if not info["_violations"][i]:
+                continue  # (a sub-env's reset step)
+            sums[i] += [info["new_violations"][i].count(k) for k in kinds]
+            assert [info["violations"][k][i] for k in kinds] == sums[i].tolist()
+            assert not left[i] or info["off_road"][i]
+            left[i] = info["off_road"][i]
+            seen += len(info["new_violations"][i])
+            if term[i] or trunc[i]:
+                sums[i], left[i] = 0, False
+    assert seen > 5 and moved > 20
+
+
+def test_an_agent_that_left_keeps_its_verdicts():
+    """An agent's judge keeps its verdicts once its row has left the core (`EgoJudge.let_go`):
+    what `view(agent).violations` says after the agent is gone is its last info's count, whatever
+    row another road user now has."""
+    from feat2map.envs.multi_agent import MultiAgentMapEnv
+
+    env = MultiAgentMapEnv(config={"action": {"type": "TargetSpeed"}, "agents": 6})
+    env.reset(seed=0)
+    last: dict[str, dict] = {}
+    gone: dict[str, dict] = {}
+    for _ in range(400):
+        if not env.agents:
+            break
+        _, _, term, trunc, infos = env.step({a: 2 for a in env.agents})  # the top speed: through lines on red
+        for a, info in infos.items():
+            last[a] = info
+            if term.get(a) or trunc.get(a):
+                gone[a] = info["violations"]
+    assert sum(sum(v.values()) for v in gone.values()) > 0
+    for a, counts in gone.items():
+        assert env.view(a).violations == counts and env.view(a).off_road == last[a]["off_road"]
