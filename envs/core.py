@@ -81,7 +81,7 @@ import numpy as np
 
 from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
-                      PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_MARGIN_M, STOP_POINT_M)
+                      PASSAGE_HORIZON_M, PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
 from . import task
 from .control import no_plans, signal_arrays, signal_timing
@@ -122,7 +122,7 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
                 "res_count": 0, "judged": -1, "progress": 0.0, "goal": 0.0, "goal_dist": 0.0, "behind": 0.0,
                 "goal_s": 0.0, "task_key": -1, "info_key": -1, "fact": -1, "violations": 0,
-                "new_violations": 0, "off_road": False}
+                "new_violations": 0, "off_road": False, "passage_d": math.inf, "passage_key": -1}
 
 
 class LaneTable:
@@ -628,6 +628,10 @@ class TrafficCore:
         self.progress, self.goal, self.goal_dist = np.zeros(0), np.zeros(0), np.zeros(0)
         self.behind, self.goal_s = np.zeros(0), np.zeros(0)
         self.task_key = np.zeros(0, dtype=np.int64)
+        # route metres from its route lane's start to the first narrow passage on its route (inf:
+        # none within PASSAGE_HORIZON_M), as of `passage_key` (`_passages_ahead`)
+        self.passage_d = np.zeros(0)
+        self.passage_key = np.zeros(0, dtype=np.int64)
         # its info's route facts (`info_columns`): the index of its fact as of `info_key`
         self.info_key = np.zeros(0, dtype=np.int64)
         self.fact = np.zeros(0, dtype=np.int64)
@@ -710,7 +714,8 @@ class TrafficCore:
                "entry", "controlled", "command", "target", "keeps", "cmd_steer", "at_lane", "at_s", "at_lat",
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged", "progress", "goal", "goal_dist", "behind",
-               "goal_s", "task_key", "info_key", "fact", "violations", "new_violations", "off_road")
+               "goal_s", "task_key", "info_key", "fact", "violations", "new_violations", "off_road", "passage_d",
+               "passage_key")
     # row arrays with a column per window lane, and a new row's value in each
     _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0}
 
@@ -1319,10 +1324,14 @@ class TrafficCore:
         answer would take or give up something (a junction lane within commit distance of its
         line, a reservation on red) then claim (`control.TrafficControl.claim`) in row order, each
         claim seeing the claims before it (a later claimant of a lane conflicting with an earlier
-        one's is held at its line), and that is their answer. On a map with narrow passages every
-        row claims in row order. From SETTLE_MIN_ROWS rows asked, the arrays answer what they can:
-        a row whose first stop is a junction entry under a signal that holds it
-        (`rules.held_at_signal`: red, or amber where it can stop) stops at the line (on red, a
+        one's is held at its line), and that is their answer. A row with a narrow passage on its
+        route within PASSAGE_HORIZON_M (`_passages_ahead`) claims, whatever it would take: its
+        place at the passages is part of its claim, and the swept stretches out of which the
+        rules move a stop point (`TrafficRules.clear_of_sweeps`) lie on passage lanes
+        (`sweep.stretches`), so no other row reaches one. From SETTLE_MIN_ROWS rows asked, the
+        arrays answer what they can of the others: a row whose first stop is a junction entry
+        under a signal that holds it (`rules.held_at_signal`: red, or amber where it can stop)
+        stops at the line (on red, a
         reservation it holds there is given up), a row whose first stop is a junction entry the
         arrays answer exactly (`_entry_answers`) is answered there, and one whose first stop is a
         crosswalk with people on it, or that such an entry lets go onto one, is answered by the
@@ -1337,13 +1346,12 @@ class TrafficCore:
         t = self.table
         at = sc.what != 0
         ask = on & at.any(axis=1)
-        if self.net.passages:  # narrow passages: every row claims, in row order
-            ask |= on & (t.passage[np.maximum(sc.lanes, 0)] & (sc.lanes >= 0) & (sc.D <= LOOKAHEAD_M)).any(axis=1)
-            sc.index(ask)
-            return self._claim(ask.nonzero()[0].tolist(), sc, dist)
+        walk = self._passages_ahead(on) if self.net.passages else np.zeros(n, dtype=bool)
+        ask &= ~walk
+        walks = walk.nonzero()[0].tolist()
         if ask.sum() < SETTLE_MIN_ROWS:  # too few for the arrays to pay: each asks the rules
-            sc.index(ask)
-            return self._claim(self._ask(ask, sc, dist), sc, dist)
+            sc.index(ask | walk)
+            return self._claim(sorted(self._ask(ask, sc, dist) + walks), sc, dist)
         first = np.argmax(at, axis=1)
         ar = np.arange(n)
         entry = ask & (sc.what[ar, first] & (ENTRY | CROSSED) == ENTRY)
@@ -1360,17 +1368,39 @@ class TrafficCore:
         answer, refused, takes, crowd = self._entry_answers(sc, entry & ~halt, j_lane, in_lane, d_line)
         dist[answer] = np.where(refused, d_line - STOP_POINT_M, math.inf)[answer]
         crowd |= ask & ~entry & (sc.what[ar, first] == PEOPLE)  # a crosswalk with people its first stop
-        if crowd.any() and not self.net.swept:
+        if crowd.any():
             seen, stop = self._people_answers(sc, crowd, first)
             dist[seen] = stop[seen]
             answer |= seen
         takes &= answer
         takes |= halt & (state == 2) & self._holders()  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
-        sc.index(rest | takes)
+        sc.index(rest | takes | walk)
         for i in (signal & (rest | takes)).nonzero()[0].tolist():  # the state at its first stop's line is known
             sc.state[i] = SIGNAL_STATES[state[i]]
-        return self._claim(sorted(self._ask(rest, sc, dist) + takes.nonzero()[0].tolist()), sc, dist)
+        return self._claim(sorted(self._ask(rest, sc, dist) + takes.nonzero()[0].tolist() + walks), sc, dist)
+
+    def _passages_ahead(self, rows: np.ndarray) -> np.ndarray:
+        """Mask over the rows: those of `rows` (a mask) whose route has a narrow passage starting
+        within PASSAGE_HORIZON_M ahead, or that are on one (`TrafficRules.passage_way` looks no
+        farther). Each row's distance to its first passage is found again only when its route or
+        route position changed (`passage_key`)."""
+        idx = rows.nonzero()[0]
+        lane_of, passages = self.net.lane_of, self.net.passages
+        for i in task.changed_rows(self, idx, self.passage_key):
+            route, pos = self.route_ids[i], int(self.route_pos[i])
+            d, found, limit = 0.0, math.inf, lane_of[route[pos]].length + PASSAGE_HORIZON_M
+            for lid in route[pos:]:
+                if lid in passages:
+                    found = d
+                    break
+                d += lane_of[lid].length
+                if d > limit:
+                    break
+            self.passage_d[i] = found
+        out = np.zeros(len(rows), dtype=bool)
+        out[idx] = self.passage_d[idx] - self.s[idx] <= PASSAGE_HORIZON_M
+        return out
 
     def _ask(self, rows: np.ndarray, sc: rule_scan.Scan, dist: np.ndarray) -> list[int]:
         """Each of `rows` (a mask; their scans indexed in `sc`) asks the rules its question
@@ -1487,17 +1517,18 @@ class TrafficCore:
                        d_line: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(answered, refused, takes, crowd), masks over the rows: the rows among `rows` (whose first
         stop is the entry into `j_lane` from `in_lane`, `d_line` ahead) whose question the arrays
-        answer (an entry `sim.entries` answers: not chained, no box, no yield sign, on a map with no
-        swept waits; at a stop sign, whose turn it is: `stop_signs.turns`; held there, or let go
-        with nothing else to stop for: no crosswalk with people or light on that lane, no stop
-        after it), those the rules hold at the line (`TrafficRules.may_enter`: a reservation of
-        the lane lets it go, else a stop sign holds it unless its turn has come there, else a
-        conflict does, `entries.junction_clear`), those that would reserve the lane if answered
-        (let go, within commit distance of the line, the lane reserved by nobody), and those let go
-        whose next stop is a crosswalk with people on that lane (`_people_answers`)."""
+        answer (an entry `sim.entries` answers: not chained, no box, no yield sign; at a stop
+        sign, whose turn it is: `stop_signs.turns`; held there, or let go with nothing else to
+        stop for: no crosswalk with people or light on that lane, no stop after it; `rows` have
+        no narrow passage ahead, and so no swept stretch, `_rule_stops`), those the rules hold at
+        the line (`TrafficRules.may_enter`: a reservation of the lane lets it go, else a stop sign
+        holds it unless its turn has come there, else a conflict does, `entries.junction_clear`),
+        those that would reserve the lane if answered (let go, within commit distance of the line,
+        the lane reserved by nobody), and those let go whose next stop is a crosswalk with people
+        on that lane (`_people_answers`)."""
         n = len(rows)
         none = np.zeros(n, dtype=bool)
-        if self.net.swept or not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
+        if not rows.any() or self.length.max() > entries.BOX_LENGTH_M:
             return none, none, none, none
         t = self.table
         et = entries.entry_table(self.net, t)

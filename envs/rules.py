@@ -938,7 +938,8 @@ class TrafficRules:
         """`stop_distance` as the traffic core asks it of a row (with its `scan`), recording in
         `claims` what the row's claim would take or give up at the junction entries on its way
         (`control.TrafficControl.claim`: the core claims for the rows that would, after every row
-        has asked). Not on a map with narrow passages, where every row claims."""
+        has asked). Not of a row with a narrow passage ahead, which claims (its place at the
+        passage is part of its claim: `TrafficCore._passages_ahead`)."""
         return self._stop_within(vehicle, frozenset(), math.inf, scan, claims)
 
     def _stop_within(self, vehicle, ignore: frozenset, passage: float, scan: tuple | None,

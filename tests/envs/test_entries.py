@@ -176,3 +176,66 @@ def test_stop_sign_turns_are_first_come_first_served_for_every_queued_road_user(
             counts["refused"] += int((~allowed).sum())
     envs.close()
     assert counts["allowed"] > 300 and counts["refused"] > 50, counts
+
+
+@pytest.fixture(scope="module")
+def signal_bridge(tmp_path_factory):
+    """Two 4-way signal junctions with crosswalks joined by road 3, narrowed to a one-lane bridge
+    (test_passages.py's bridge): a map with a narrow passage and swept stretches whose traffic
+    also meets signals, conflicts and crosswalks with people."""
+    from test_passages import BRIDGE_WIDTH_M, TAPER_M, _narrow
+
+    from feat2map.formats.opendrive.writer import write_opendrive
+
+    d = tmp_path_factory.mktemp("signal_bridge")
+    four = feat2map.JunctionFeature.make([0, 90, 180, 270], "signal", True)
+    write_opendrive(feat2map.generate_from_features([four, four], seed=0), d / "twin.xodr")
+    _narrow(d / "twin.xodr", d / "signal_bridge.xodr", "3", BRIDGE_WIDTH_M, TAPER_M)
+    return d / "signal_bridge.xodr"
+
+
+@pytest.mark.parametrize("where", ["grid", "bridge"])
+def test_every_row_that_does_not_claim_is_answered_as_the_rules_answer_it(where, signal_bridge, monkeypatch):
+    """Each traffic row whose stop distance a frame does not take from a claim (held at a signal's
+    line, answered by the arrays at a junction entry or a crosswalk with people, or by its own
+    question to the rules) gets the stop distance the rules give that road user asked alone
+    before the frame's claims: narrow passages and swept stretches included. On the bridge map a
+    row with the passage ahead claims (its place at the passage is part of its claim), and a
+    row with a swept stretch in reach asks the rules (they move its stop point out of the
+    sweeps): left to the arrays, either would get another answer."""
+    claimed: set[int] = set()
+    counts: Counter = Counter()
+    rule_stops, claim = core.TrafficCore._rule_stops, core.TrafficCore._claim
+
+    def claims(self, rows, sc, dist):
+        claimed.update(rows)
+        return claim(self, rows, sc, dist)
+
+    def stops(self, traffic):
+        claimed.clear()
+        rows = (traffic & ~self.crashed).nonzero()[0].tolist()
+        wanted = {i: self.roads[self.env[i]].control.stop_distance(self.objs[i]) for i in rows}
+        dist = rule_stops(self, traffic)
+        for i, w in wanted.items():
+            if i in claimed:
+                counts["claimed"] += 1
+                continue
+            assert dist[i] == pytest.approx(w, abs=1e-9), (i, self.objs[i].lane_index)
+            counts["held" if w < math.inf else "free"] += 1
+        return dist
+
+    monkeypatch.setattr(core.TrafficCore, "_claim", claims)
+    monkeypatch.setattr(core.TrafficCore, "_rule_stops", stops)
+    if where == "grid":
+        envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=8, vectorization_mode="vector_entry_point",
+                            config=BUSY_BATCH)
+    else:
+        envs = gym.make_vec("feat2map/MapFile-v0", num_envs=8, vectorization_mode="vector_entry_point",
+                            config={**BUSY_BATCH, "map_file": str(signal_bridge), "traffic_vehicles": 10})
+        net = envs.unwrapped.core.net
+        assert net.passages and net.swept
+    envs.reset(seed=1)
+    for _ in range(40):
+        envs.step(np.ones(8, dtype=np.int64))
+    envs.close()
+    assert counts["held"] > 200 and counts["free"] > 200 and counts["claimed"] > 20, counts
