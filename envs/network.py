@@ -26,7 +26,8 @@ from shapely.geometry import LineString, Point, Polygon
 
 from ..angles import wrap_angle
 from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEARANCE_M, CURVE_CHORD_M,
-                      FOOTPRINT_STEP_M, MERGE_REACH_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M, TRACKING_MARGIN_M,
+                      FOOTPRINT_STEP_M, LANE_ROUTES_KEPT, MERGE_REACH_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M,
+                      TRACKING_MARGIN_M,
                       VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
 from ..extract_ramps import ramp_moves
@@ -820,7 +821,19 @@ class MapNetwork(RoadNetwork):
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:
-        """Length-weighted Dijkstra over lane successors; [] when `goal` is unreachable."""
+        """Length-weighted Dijkstra over lane successors; [] when `goal` is unreachable. Found
+        once per (start, goal) and kept (up to LANE_ROUTES_KEPT of them; a new list each call):
+        traffic's lane changes ask it every MOBIL period, a search over the map each."""
+        routes = self.memo("lane routes", dict)
+        key = (start, goal)
+        found = routes.get(key)
+        if found is None:
+            if len(routes) >= LANE_ROUTES_KEPT:
+                routes.clear()
+            found = routes[key] = tuple(self._lane_route(start, goal))
+        return list(found)
+
+    def _lane_route(self, start: str, goal: str) -> list[str]:
         m = self.hdmap
         if start == goal:
             return [start]

@@ -123,6 +123,29 @@ def test_routing_is_dijkstra_over_lanes(net):
     assert net.shortest_path("no-such-node", "n0") == []
 
 
+def test_a_lane_route_is_searched_once_and_handed_out_as_a_new_list(net, monkeypatch):
+    """`lane_route` keeps the routes it found (MOBIL asks the same ones every period): the same
+    route, searched once, a new list each call (a caller that changes its list changes no other
+    caller's), and at most LANE_ROUTES_KEPT kept."""
+    from feat2map.envs import network
+
+    m = net.hdmap
+    start = next(l for l in m.lanes.values() if l.junction_id is None and l.successors)
+    goals = [l for l in m.lanes if net.lane_route(start.id, l)][:6]
+    searched = []
+    search = network.MapNetwork._lane_route
+    monkeypatch.setattr(network.MapNetwork, "_lane_route", lambda self, a, b: searched.append(b) or search(self, a, b))
+    first = net.lane_route(start.id, goals[-1])
+    first.append("changed")
+    assert net.lane_route(start.id, goals[-1]) == first[:-1] == search(net, start.id, goals[-1])
+    assert searched == []  # (found before)
+    monkeypatch.setattr(network, "LANE_ROUTES_KEPT", 3)
+    net.memo("lane routes", dict).clear()
+    for g in goals:
+        net.lane_route(start.id, g)
+    assert searched == goals and len(net.memo("lane routes", dict)) <= 3
+
+
 def test_conflicts_and_stop_lines(net):
     m = net.hdmap
     for jl, others in net.conflicts.items():
