@@ -824,14 +824,19 @@ class MapNetwork(RoadNetwork):
         """Length-weighted Dijkstra over lane successors; [] when `goal` is unreachable. Found
         once per (start, goal) and kept (up to LANE_ROUTES_KEPT of them; a new list each call):
         traffic's lane changes ask it every MOBIL period, a search over the map each."""
+        return list(self.lane_route_length(start, goal)[0])
+
+    def lane_route_length(self, start: str, goal: str) -> tuple[tuple[str, ...], float]:
+        """(`lane_route` as a tuple, the sum of its lanes' lengths in route order), kept."""
         routes = self.memo("lane routes", dict)
         key = (start, goal)
         found = routes.get(key)
         if found is None:
             if len(routes) >= LANE_ROUTES_KEPT:
                 routes.clear()
-            found = routes[key] = tuple(self._lane_route(start, goal))
-        return list(found)
+            path = tuple(self._lane_route(start, goal))
+            found = routes[key] = (path, sum(self.lane_of[x].length for x in path))
+        return found
 
     def _lane_route(self, start: str, goal: str) -> list[str]:
         m = self.hdmap

@@ -218,12 +218,12 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
             if n not in m.lanes:
                 continue
             goal = m.lanes[self.lane_route[-1]]
-            paths = [net.lane_route(n, g) for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
+            found = [net.lane_route_length(n, g) for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
                      if g in m.lanes]  # any lane of the destination road will do
-            paths = [p for p in paths if p and sum(net.lane_of[l].length for l in p) <= remaining + MOBIL_DETOUR_M]
+            paths = [p for p, length in found if p and length <= remaining + MOBIL_DETOUR_M]
             if not paths:
                 continue
-            path = min(paths, key=len)
+            shortest = min(paths, key=len)  # (the fewest lanes)
             nl = net.lane_of[n]
             sn, _ = nl.local_coordinates(self.position)
             if not 0.0 <= sn <= nl.length:  # no change onto a neighbour where it does not run beside us yet
@@ -249,7 +249,7 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
                     continue
                 follower_loss = max(0.0, idm(f, []) - a_f)
             if mobil_accepts(a_cur, a_new, follower_loss):
-                self.lane_route = self.lane_route[:self.route_pos] + path
+                self.lane_route = self.lane_route[:self.route_pos] + list(shortest)
                 self.target_lane_index = net.index_of[n]
                 self.lane_changes = getattr(self, "lane_changes", 0) + 1
                 return True
