@@ -27,7 +27,7 @@ from shapely.geometry import LineString, Point, Polygon
 from ..angles import wrap_angle
 from ..config import (CONFLICT_DISTANCE_M, CONVERGE_MAX_ANGLE_DEG, CROSSING_CLEARANCE_M, CURVE_CHORD_M,
                       FOOTPRINT_STEP_M, LANE_ROUTES_KEPT, MERGE_REACH_M, PASSAGE_DISTANCE_M, PASSAGE_STEP_M,
-                      TRACKING_MARGIN_M,
+                      ROUTE_SEARCH_SLACK_M, TRACKING_MARGIN_M,
                       VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
 from ..errors import Feat2MapError
 from ..extract_ramps import ramp_moves
@@ -821,24 +821,32 @@ class MapNetwork(RoadNetwork):
 
     # ---- routing ------------------------------------------------------------------------
     def lane_route(self, start: str, goal: str) -> list[str]:
-        """Length-weighted Dijkstra over lane successors; [] when `goal` is unreachable. Found
-        once per (start, goal) and kept (up to LANE_ROUTES_KEPT of them; a new list each call):
-        traffic's lane changes ask it every MOBIL period, a search over the map each."""
-        return list(self.lane_route_length(start, goal)[0])
+        """Length-weighted Dijkstra over lane successors; [] when `goal` is unreachable (a new
+        list each call; kept: `lane_route_within`)."""
+        found = self.lane_route_within(start, goal, math.inf)
+        return list(found[0]) if found else []
 
-    def lane_route_length(self, start: str, goal: str) -> tuple[tuple[str, ...], float]:
-        """(`lane_route` as a tuple, the sum of its lanes' lengths in route order), kept."""
+    def lane_route_within(self, start: str, goal: str, limit: float) -> tuple[tuple[str, ...], float] | None:
+        """(`lane_route`, the sum of its lanes' lengths in route order, `start` included) where
+        that sum is at most `limit`, else None; the search goes no farther than the limit (a lane
+        change asks for a route no longer than the one it has: a search over a whole big map per
+        candidate each MOBIL period is what this bound saves). Kept per (start, goal), up to
+        LANE_ROUTES_KEPT of them: a route found is the shortest whatever the limit; none found
+        is searched again under a higher limit."""
         routes = self.memo("lane routes", dict)
         key = (start, goal)
-        found = routes.get(key)
-        if found is None:
+        held = routes.get(key)  # (path, its length, the limit searched under)
+        if held is None or (not held[0] and held[2] < limit):
             if len(routes) >= LANE_ROUTES_KEPT:
                 routes.clear()
-            path = tuple(self._lane_route(start, goal))
-            found = routes[key] = (path, sum(self.lane_of[x].length for x in path))
-        return found
+            reach = limit - self.lane_of[start].length + ROUTE_SEARCH_SLACK_M  # (from the start lane's end)
+            path = tuple(self._lane_route(start, goal, reach))
+            held = routes[key] = (path, sum(self.lane_of[x].length for x in path) if path else math.inf, limit)
+        return (held[0], held[1]) if held[0] and held[1] <= limit else None
 
-    def _lane_route(self, start: str, goal: str) -> list[str]:
+    def _lane_route(self, start: str, goal: str, reach: float = math.inf) -> list[str]:
+        """`lane_route`, searching only lanes that end within `reach` of the start lane's end (the
+        same route where it ends within it: lanes farther never lead nearer)."""
         m = self.hdmap
         if start == goal:
             return [start]
@@ -858,7 +866,7 @@ class MapNetwork(RoadNetwork):
                 if nxt not in m.lanes:
                     continue
                 nd = d + m.lanes[nxt].length
-                if nd < dist.get(nxt, math.inf):
+                if nd <= reach and nd < dist.get(nxt, math.inf):
                     dist[nxt] = nd
                     prev[nxt] = lid
                     heapq.heappush(heap, (nd, nxt))

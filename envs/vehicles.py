@@ -218,9 +218,9 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
             if n not in m.lanes:
                 continue
             goal = m.lanes[self.lane_route[-1]]
-            found = [net.lane_route_length(n, g) for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
-                     if g in m.lanes]  # any lane of the destination road will do
-            paths = [p for p, length in found if p and length <= remaining + MOBIL_DETOUR_M]
+            limit = remaining + MOBIL_DETOUR_M
+            paths = [found[0] for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors  # any lane of the
+                     if g in m.lanes and (found := net.lane_route_within(n, g, limit))]  # destination road will do
             if not paths:
                 continue
             shortest = min(paths, key=len)  # (the fewest lanes)

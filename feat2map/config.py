@@ -445,6 +445,7 @@ MOBIL_MIN_SPEED_MPS = 1.0  # ... or slower than this
 MOBIL_MIN_GAP_M = 2.0  # bumper gap to the new leader and the new follower at least
 MOBIL_DETOUR_M = 5.0  # the route from the new lane may be at most this much longer
 LANE_ROUTES_KEPT = 65536  # lane routes (start, goal) a network keeps found (`MapNetwork.lane_route`)
+ROUTE_SEARCH_SLACK_M = 1.0  # a route search with a length limit goes this much farther (rounding)
 # the traffic core (envs/core.py)
 LANE_CHANGE_TAU_S = 1.0  # a lane change's lateral offset decays with this time constant
 PAIR_SAMPLE_M = 0.5  # lane-pair tables sample the other lane this often

@@ -126,7 +126,9 @@ def test_routing_is_dijkstra_over_lanes(net):
 def test_a_lane_route_is_searched_once_and_handed_out_as_a_new_list(net, monkeypatch):
     """`lane_route` keeps the routes it found (MOBIL asks the same ones every period): the same
     route, searched once, a new list each call (a caller that changes its list changes no other
-    caller's), and at most LANE_ROUTES_KEPT kept."""
+    caller's), and at most LANE_ROUTES_KEPT kept. Under a length limit (`lane_route_within`) a
+    route is the unlimited one where it is that short, none where it is longer, and one not
+    found under a low limit is searched again under a higher one."""
     from feat2map.envs import network
 
     m = net.hdmap
@@ -134,7 +136,8 @@ def test_a_lane_route_is_searched_once_and_handed_out_as_a_new_list(net, monkeyp
     goals = [l for l in m.lanes if net.lane_route(start.id, l)][:6]
     searched = []
     search = network.MapNetwork._lane_route
-    monkeypatch.setattr(network.MapNetwork, "_lane_route", lambda self, a, b: searched.append(b) or search(self, a, b))
+    monkeypatch.setattr(network.MapNetwork, "_lane_route",
+                        lambda self, a, b, reach=math.inf: searched.append(b) or search(self, a, b, reach))
     first = net.lane_route(start.id, goals[-1])
     first.append("changed")
     assert net.lane_route(start.id, goals[-1]) == first[:-1] == search(net, start.id, goals[-1])
@@ -144,6 +147,13 @@ def test_a_lane_route_is_searched_once_and_handed_out_as_a_new_list(net, monkeyp
     for g in goals:
         net.lane_route(start.id, g)
     assert searched == goals and len(net.memo("lane routes", dict)) <= 3
+    net.memo("lane routes", dict).clear()
+    far = max(goals, key=lambda g: len(search(net, start.id, g)))
+    route = search(net, start.id, far)
+    length = sum(m.lanes[x].length for x in route)
+    assert len(route) > 1 and net.lane_route_within(start.id, far, length - 1.0) is None
+    assert net.lane_route_within(start.id, far, length) == (tuple(route), length)  # (searched again)
+    assert net.lane_route_within(start.id, far, length - 1.0) is None  # (kept: the route is longer)
 
 
 def test_conflicts_and_stop_lines(net):
