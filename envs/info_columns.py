@@ -179,56 +179,104 @@ def _states(codes: np.ndarray, group: tuple[tuple[str, ...], np.ndarray]) -> dic
     return {s: SIGNAL_STATES[codes[k]] if k >= 0 else "green" for s, k in zip(ids, idx.tolist())}
 
 
-_GREEN = len(SIGNAL_STATES)  # `batch_states`' code of a signal without a plan
-_STATE_CODES = SIGNAL_STATES + ("green",)
+_GREEN = len(SIGNAL_STATES)  # `SignalStates`' code of a signal without a plan
+_CODE_NAMES = np.array(SIGNAL_STATES + ("green",), dtype=object)
 
 
-def batch_states(core: Any, views: Sequence[Any], slots: np.ndarray, states_of: list, codes: np.ndarray) -> list[dict]:
-    """`_states` of each row (of `states_of`'s junction under its view's phases; False: {}),
-    each distinct combination of a group's states named once."""
-    out: list[dict] = [None] * len(states_of)  # type: ignore[list-item]
-    by: dict[tuple, tuple[Any, list[int]]] = {}
-    for k, (view, of) in enumerate(zip(views, states_of)):
-        if of is False:
-            out[k] = {}
-        else:
-            by.setdefault((id(view.control.signals_by_junction), of), (view.control, []))[1].append(k)
-    for (_, of), (control, ks) in by.items():
-        group = signal_group(core, control, of)
-        at = slots[ks]
-        if (at == at[0]).all():  # one slot (the multi-agent env's world): one combination
-            one = _states(codes[at[0]], group)
-            for k in ks:
-                out[k] = dict(one)
-            continue
-        ids, idx = group
-        sub = np.where(idx >= 0, codes[at[:, None], idx], _GREEN)  # [rows, signals]
-        if len(ids) <= 31:  # (each row's codes as one int: base 4)
-            uniq, inv = np.unique(sub @ (4 ** np.arange(len(ids), dtype=np.int64)), return_inverse=True)
-            first = np.zeros(len(uniq), dtype=np.int64)
-            first[inv[::-1]] = np.arange(len(ks))[::-1]
-            uniq = sub[first]
-        else:
-            uniq, inv = np.unique(sub, axis=0, return_inverse=True)
-        named = [dict(zip(ids, [_STATE_CODES[c] for c in row])) for row in uniq.tolist()]
-        for k, u in zip(ks, inv.ravel().tolist()):
-            out[k] = dict(named[u])
-    return out
+class SignalStates(NamedTuple):
+    """The "signal_states" column of a batch: each row's dict of {signal id: state} as arrays (the
+    distinct signal groups `groups`, (ids, core signal indices, -1 for one without a plan); each
+    row's group `of`, -1 for {}; its slot; the slots' signal codes). `dicts` makes the rows'
+    dicts (each distinct combination of a group's states named once); the batched env stacks it
+    a signal at a time (`stacked`), as Gymnasium stacks the dicts."""
+
+    groups: list[tuple[tuple[str, ...], np.ndarray]]
+    of: np.ndarray
+    slots: np.ndarray
+    codes: np.ndarray
+
+    def at(self, idx: Any) -> "SignalStates":
+        return SignalStates(self.groups, self.of[idx], self.slots[idx], self.codes)
+
+    def _codes(self, g: int, rows: np.ndarray) -> np.ndarray:
+        """[rows, group g's signals]: the state codes of group g's signals at `rows` (`_GREEN` without a plan)."""
+        idx = self.groups[g][1]
+        return np.where(idx >= 0, self.codes[self.slots[rows][:, None], np.maximum(idx, 0)], _GREEN)
+
+    def dicts(self) -> list[dict[str, str]]:
+        out: list[dict] = [{} for _ in range(len(self.of))]
+        for g in np.unique(self.of[self.of >= 0]).tolist():
+            ids = self.groups[g][0]
+            rows = (self.of == g).nonzero()[0]
+            at = self.slots[rows]
+            sub = self._codes(g, rows[:1] if (at == at[0]).all() else rows)  # one slot (a world): one combination
+            if len(sub) == 1:
+                uniq, inv = sub, np.zeros(len(rows), dtype=np.int64)
+            elif len(ids) <= 31:  # (each row's codes as one int: base 4)
+                _, first, inv = np.unique(sub @ (4 ** np.arange(len(ids), dtype=np.int64)), return_index=True,
+                                          return_inverse=True)
+                uniq = sub[first]
+            else:
+                uniq, inv = np.unique(sub, axis=0, return_inverse=True)
+            named = [dict(zip(ids, _CODE_NAMES[u].tolist())) for u in uniq]
+            for k, u in zip(rows.tolist(), inv.ravel().tolist()):
+                out[k] = dict(named[u])
+        return out
+
+    def stacked(self, n: int, idx: list[int]) -> dict[str, Any]:
+        """The batched env's "signal_states" of these rows (sub-envs `idx`): per signal id, in the
+        order the rows' dicts first name them, an object array of states over the n sub-envs and
+        its mask (what `MapVectorEnv.stack_infos` makes of the dicts)."""
+        at = np.asarray(idx, dtype=np.int64)
+        present = self.of >= 0
+        gs, first = np.unique(self.of[present], return_index=True)
+        cols: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        for g in gs[np.argsort(first)].tolist():
+            rows = (self.of == g).nonzero()[0]
+            names = _CODE_NAMES[self._codes(g, rows)]
+            for j, sid in enumerate(self.groups[g][0]):
+                if sid not in cols:
+                    cols[sid] = (np.full(n, None, dtype=object), np.zeros(n, dtype=np.bool_))
+                array, mask = cols[sid]
+                array[at[rows]] = names[:, j]
+                mask[at[rows]] = True
+        out: dict[str, Any] = {}
+        for sid, (array, mask) in cols.items():
+            out[sid], out[f"_{sid}"] = array, mask
+        return out
+
+
+def signal_states(core: Any, views: Sequence[Any], slots: np.ndarray, states_of: list, codes: np.ndarray) -> SignalStates:
+    """The `SignalStates` of rows whose views are `views` (of `states_of`'s junction under each
+    view's phases; None: every signal; False: {})."""
+    groups: list = []
+    where: dict[tuple, int] = {}
+    of = np.full(len(states_of), -1, dtype=np.int64)
+    for k, (view, x) in enumerate(zip(views, states_of)):
+        if x is not False:
+            key = (id(view.control.signals_by_junction), x)
+            g = where.get(key)
+            if g is None:
+                g = where[key] = len(groups)
+                groups.append(signal_group(core, view.control, x))
+            of[k] = g
+    return SignalStates(groups, of, slots, codes)
 
 
 def columns(core: Any, rows: Any, views: Sequence[Any], actions: Sequence[Any], completed: Any = None,
-            progress: Any = None, off_road: Any = None) -> dict[str, Any]:
+            progress: Any = None, off_road: Any = None, rewards: Records | None = None) -> dict[str, Any]:
     """The info values of controlled rows `rows` (an array; one row: an int, each value that
     row's) whose envs or agents are `views` (`EgoTask`s: their judges, clocks and last reward
     terms), given their `actions`; whether each `completed` its route, its route `progress` and
-    `off_road` when already asked this step. Keys in `info.INFO_KEYS` order (the multi-agent
-    env's own keys apart); containers are the views' own (`map_env.info_dict` copies them)."""
+    `off_road` when already asked this step, and their reward terms as one table (`rewards`; else
+    each view's last). Keys in `info.INFO_KEYS` order (the multi-agent env's own keys apart);
+    containers are the views' own (`map_env.info_dict` copies them)."""
     if completed is None:
         done, completed = task.route_state(core, rows)
         progress = task.route_progress(core, rows, done)
     if isinstance(rows, int):
         return _row_values(core, rows, views[0], actions[0], completed, progress, off_road)
-    return _batch_columns(core, rows, views, actions, completed, progress, off_road)
+    return _batch_columns(core, rows, views, actions, completed, progress, off_road, rewards)
 
 
 def _row_values(core: Any, row: int, view: Any, action: Any, completed: Any, progress: Any, off_road: Any) -> dict:
@@ -260,7 +308,7 @@ def _row_values(core: Any, row: int, view: Any, action: Any, completed: Any, pro
 
 
 def _batch_columns(core: Any, rows: np.ndarray, views: Sequence[Any], actions: Sequence[Any], completed: Any,
-                   progress: Any, off_road: Any) -> dict[str, Any]:
+                   progress: Any, off_road: Any, rewards: Records | None) -> dict[str, Any]:
     """`columns` of an array of rows: a column per key."""
     f = facts_of(core, rows)
     a = core.route_facts.arrays()
@@ -268,7 +316,7 @@ def _batch_columns(core: Any, rows: np.ndarray, views: Sequence[Any], actions: S
     control, sig_id, sig, states_of = a["control"][f], a["sig_id"][f], a["sig"][f], a["states_of"][f]
     slots = core.env[rows]
     codes = core.signal_codes()
-    states = batch_states(core, views, slots, states_of.tolist(), codes)
+    states_of = states_of.tolist()
     mids = np.nonzero(a["has_mid"][f])[0]
     if len(mids):
         control, sig_id, sig = control.copy(), sig_id.copy(), sig.copy()
@@ -277,7 +325,8 @@ def _batch_columns(core: Any, rows: np.ndarray, views: Sequence[Any], actions: S
             if mid is not None:
                 sig_id[k], d[k] = mid
                 sig[k], control[k] = core.table.signal_index.get(mid[0], -1), "signal"
-                states[k] = _states(codes[slots[k]], signal_group(core, views[k].control, None))
+                states_of[k] = None  # (every signal's state)
+    states = signal_states(core, views, slots, states_of, codes)
     has_sig = sig_id != ""
     known = sig >= 0
     state = np.where(has_sig, "green", "").astype(object)
@@ -296,8 +345,11 @@ def _batch_columns(core: Any, rows: np.ndarray, views: Sequence[Any], actions: S
         "off_road": core.off_road[rows] if off_road is None else np.asarray(off_road, dtype=bool),
         "route_progress": np.asarray(progress, dtype=float), "route_completed": np.asarray(completed, dtype=bool),
         "lane_id": core.lane_names[core.at_lane[rows]], "time": np.array([v.time for v in views], dtype=float),
-        "rewards": [v._last_rewards for v in views],
+        "rewards": [v._last_rewards for v in views] if rewards is None else rewards,
     }
+
+
+DICT_COLUMNS = (Records, SignalStates)  # columns whose rows' values are dicts made by `dicts` (`at`: some rows)
 
 
 def _names(counts: np.ndarray) -> list[list[str]]:
@@ -312,6 +364,6 @@ def _names(counts: np.ndarray) -> list[list[str]]:
 def row_values(cols: dict[str, Any]) -> list[dict[str, Any]]:
     """Each row's values of a batch's `columns`, as Python values (what `columns` gives of one
     row)."""
-    lists = [col.tolist() if isinstance(col, np.ndarray) else col.dicts() if isinstance(col, Records) else col
+    lists = [col.tolist() if isinstance(col, np.ndarray) else col.dicts() if isinstance(col, DICT_COLUMNS) else col
              for col in cols.values()]
     return [dict(zip(cols, values)) for values in zip(*lists)]

@@ -543,8 +543,8 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence, batch: bool = False) 
                                                                                       np.ndarray, dict]:
     """What `end_step` works out for each of `envs` (one core's, keeping MapEnv's hooks:
     `keeps_step_hooks`), their tasks and infos asked at once (`task`, `info_columns`): (rewards,
-    terminated, truncated, the info columns; of one env, unless `batch`, its info values); each
-    env's reward terms become its info's "rewards"."""
+    terminated, truncated, the info columns; of one env, unless `batch`, its info values); the
+    reward terms are the info's "rewards" (a batch's one table, `info_columns.Records`)."""
     core = envs[0].road.core
     one = len(envs) == 1 and not batch  # a single env: its row an int, its values numpy scalars (the same operations)
 
@@ -559,9 +559,10 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence, batch: bool = False) 
     terminated = task.ended(core.crashed[rows], completed, off_road, each(lambda env: bool(env.config["offroad_terminal"])))
     truncated = each(lambda env: env.time >= env.config["duration"])
     progress = task.route_progress(core, rows, done)
-    for env, row in zip(envs, terms.tolist()):
-        env._last_rewards = dict(zip(REWARD_TERMS, row))
-    info = info_columns.columns(core, rows, envs, actions, completed, progress, off_road)
+    if one:
+        envs[0]._last_rewards = dict(zip(REWARD_TERMS, terms[0].tolist()))
+    info = info_columns.columns(core, rows, envs, actions, completed, progress, off_road,
+                                None if one else info_columns.Records(REWARD_TERMS, terms))
     return (rewards, np.array([terminated]), np.array([truncated]), info) if one else \
         (rewards, terminated, truncated, info)
 
@@ -579,14 +580,15 @@ def info_dict(values: dict[str, Any], action_space: spaces.Space) -> dict[str, A
 def info_dicts(cols: dict[str, Any], action_space: spaces.Space, at: list[int] | None = None) -> list[dict[str, Any]]:
     """`info_dict` of each row of a batch's `columns` (of the rows `at` only, when given), in one
     pass: the containers converted column by column, then one dict per row."""
+    made = info_columns.DICT_COLUMNS  # (columns whose `dicts` are new dicts)
     if at is not None:
-        cols = {k: col[at] if isinstance(col, np.ndarray) else col.at(at) if isinstance(col, info_columns.Records)
+        cols = {k: col[at] if isinstance(col, np.ndarray) else col.at(at) if isinstance(col, made)
                 else [col[i] for i in at] for k, col in cols.items()}
-    out = {k: col.tolist() if isinstance(col, np.ndarray) else col.dicts() if isinstance(col, info_columns.Records)
+    out = {k: col.tolist() if isinstance(col, np.ndarray) else col.dicts() if isinstance(col, made)
            else col for k, col in cols.items()}
     out["action"] = [action_array(action_space, a) for a in out["action"]]
     for key, copy in _INFO_COPIES.items():
-        if not isinstance(cols[key], info_columns.Records):  # (its dicts are new)
+        if not isinstance(cols[key], made):
             out[key] = [copy(v) for v in out[key]]
     return [dict(zip(out, values)) for values in zip(*out.values())]
 

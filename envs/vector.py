@@ -25,7 +25,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from ..errors import Feat2MapError
 from .core import TrafficCore
-from .info_columns import Records
+from .info_columns import Records, SignalStates
 from .map_env import (MapEnv, action_array, check_action, check_options, held_feature_info, info_dicts, simulate,
                       step_ends)
 from .observation import Kinematics, TrafficControlObservation
@@ -239,6 +239,8 @@ class MapVectorEnv(VectorEnv):
                 out[key], out[f"_{key}"] = array, mask.copy()
             elif isinstance(col, Records):
                 out[key], out[f"_{key}"] = self.stack_table(idx, col.keys, col.values), mask.copy()
+            elif isinstance(col, SignalStates):
+                out[key], out[f"_{key}"] = col.stacked(n, idx), mask.copy()
             else:
                 out[key], out[f"_{key}"] = self.stack_values(key, idx, col)
         return out

@@ -41,10 +41,10 @@ DEFAULT_10HZ = {"policy_frequency": 10, "simulation_frequency": 20, "traffic_veh
 
 
 def assert_same(a, b, path="") -> None:
-    """Equal values (arrays bit for bit, NaN equal to NaN), recursively; `action` of a reset's
-    info is a random sample of the action space and is left out."""
+    """Equal values (arrays bit for bit, NaN equal to NaN, dicts' keys in the same order),
+    recursively; `action` of a reset's info is a random sample of the action space and is left out."""
     if isinstance(a, dict):
-        assert set(a) == set(b), (path, set(a) ^ set(b))
+        assert list(a) == list(b), (path, list(a), list(b))
         for k in a:
             if k not in ("action", "_action"):
                 assert_same(a[k], b[k], f"{path}.{k}")
