@@ -16,8 +16,9 @@ gives each revision's median rate and the median of the chunks' after/before rat
 interquartile range.
 
 Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_against.py [--base main] [--rounds 30]
-     [--sizes 1,64,256] [--marl] [--metadrive]   (--sizes "" --marl: the multi-agent env alone;
-     --metadrive: MetaDrive 0.4.3's single-agent env in each round, from /tmp/md-venv)
+     [--sizes 1,64,256] [--marl] [--metadrive] [--map FILE]   (--sizes "" --marl: the multi-agent env
+     alone; --metadrive: MetaDrive 0.4.3's single-agent env in each round, from /tmp/md-venv;
+     --map: the single and batched envs on that map file, `feat2map/MapFile-v0`)
 """
 from __future__ import annotations
 
@@ -55,12 +56,12 @@ import feat2map
 
 config, sizes, marl, hold, idle, warm = json.loads(sys.argv[1])
 envs = {}
+env_id = "feat2map/MapFile-v0" if "map_file" in config else "feat2map/JunctionGrid-v0"
 for n in sizes:
     if n == 1:
-        envs[n] = gym.make("feat2map/JunctionGrid-v0", config=config)
+        envs[n] = gym.make(env_id, config=config)
     else:
-        envs[n] = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, vectorization_mode="vector_entry_point",
-                               config=config)
+        envs[n] = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", config=config)
     envs[n].reset(seed=0)
 if marl:
     from feat2map.envs import parallel_env
@@ -154,12 +155,13 @@ class Worker:
         self.err.close()
 
 
-def feat2map_worker(pythonpath: Path | None, sizes: list[int], marl: dict | None, label: str) -> Worker:
+def feat2map_worker(pythonpath: Path | None, sizes: list[int], marl: dict | None, label: str,
+                    config: dict) -> Worker:
     env = dict(os.environ, SDL_VIDEODRIVER="offscreen")
     env.pop("PYTHONPATH", None)
     if pythonpath is not None:
         env["PYTHONPATH"] = str(pythonpath)
-    args = [CONFIG, sizes, marl, MARL_HOLD, IDLE, WARM_UP_STEPS]
+    args = [config, sizes, marl, MARL_HOLD, IDLE, WARM_UP_STEPS]
     return Worker([sys.executable, "-c", WORKER, json.dumps(args)], env, label)
 
 
@@ -189,7 +191,9 @@ def main() -> None:
     ap.add_argument("--metadrive", action="store_true",
                     help="MetaDrive 0.4.3's single-agent env in each round too (/tmp/md-venv: "
                          "../shared/tools/metadrive-venv.sh), and the single env's ratio to it")
+    ap.add_argument("--map", help="a map file the single and batched envs drive (default: the generated default map)")
     args = ap.parse_args()
+    config = {**CONFIG, "map_file": str(Path(args.map).resolve())} if args.map else CONFIG
     sizes = [int(s) for s in args.sizes.split(",") if s]
     if args.metadrive and 1 not in sizes:
         ap.error("--metadrive compares the single env: --sizes must hold 1")
@@ -203,8 +207,8 @@ def main() -> None:
         base = base_checkout(args.base, Path(tmp) / "base")
         workers: dict[str, Worker] = {}
         try:
-            workers["before"] = feat2map_worker(base, sizes, marl, "before")
-            workers["after"] = feat2map_worker(None, sizes, marl, "after")
+            workers["before"] = feat2map_worker(base, sizes, marl, "before", config)
+            workers["after"] = feat2map_worker(None, sizes, marl, "after", config)
             for label in ("before", "after"):
                 where = Path(workers[label].hello["feat2map"]).parent
                 assert (where.resolve() == (base / "feat2map").resolve()) == (label == "before"), where
@@ -225,7 +229,7 @@ def main() -> None:
                 w.close()
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(base)], check=False)
     print(f"env-steps/s of CPU time, {args.rounds} alternating chunks each (before: {args.base}; after: this "
-          "checkout); 10 Hz, 10 vehicles per sub-env, default map" +
+          f"checkout); 10 Hz, 10 vehicles per sub-env, {args.map or 'default map'}" +
           ("; multi-agent: agent-steps/s, bench_marl.py's scene" if marl else ""))
     print(f"{'setup':>12} {'before':>9} {'after':>9} {'after/before':>13}  (quartiles of the chunks' ratios)")
     for n in keys:
