@@ -41,8 +41,8 @@ A frame (`MapRoad.act` + `MapRoad.step`):
    signal and a junction entry's conflicts (`sim.entries`), and the rows whose answer
    takes something then claim (`control.TrafficControl.claim`, the rules' one update) in row
    order, so that reservations are claimed in road order. MOBIL runs every MOBIL_PERIOD_S for
-   rows `rules.may_change_lane` allows on lanes with same-direction neighbours
-   (`TrafficVehicle.mobil_change`, on the view).
+   rows `rules.may_change_lane` allows on lanes with same-direction neighbours, all at once
+   (`sim/mobil.py`), the changes then taken in row order.
 4. integration: s += v dt, v += a dt (never below 0), route lanes advance as s passes their ends;
    controlled rows drive the kinematic bicycle (`sim.vehicle`), steered by lane keeping or their
    held command, all at once, their (s, lat) projected on their route lanes and each located
@@ -90,7 +90,7 @@ from .lanes import centre_points, curve_speeds, project_rows
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, JUDGED, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
-from .sim import crossings, entries, passages, pedestrians, rule_scan, stop_signs
+from .sim import crossings, entries, mobil, passages, pedestrians, rule_scan, stop_signs
 from .sim.join import same_key_pairs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
@@ -1702,12 +1702,13 @@ class TrafficCore:
         if not cand.any():
             return
         self.refresh_windows()
-        fi, gap, speed = self._leaders(cand.nonzero()[0])
-        gaps: dict[int, list[tuple[float, float]]] = {}
-        for i, g, v in zip(fi.tolist(), gap.tolist(), speed.tolist()):
-            gaps.setdefault(i, []).append((g, v))
-        for i in cand.nonzero()[0].tolist():
-            self.objs[i].mobil_change(gaps.get(i, []))
+        rows = cand.nonzero()[0]
+        ids = self.net.lane_ids
+        for i, n, path in mobil.decide(self, rows, *self._leaders(rows)):  # (asked at once, then taken in row order)
+            car = self.objs[i]
+            car.lane_route = car.lane_route[:car.route_pos] + list(path)
+            car.target_lane_index = self.net.index_of[ids[n]]
+            car.lane_changes = getattr(car, "lane_changes", 0) + 1
 
     def integrate(self, dt: float) -> None:
         """Advance driven rows being stepped by dt along their routes (step 4): controlled rows

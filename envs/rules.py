@@ -150,14 +150,15 @@ def may_change_lane(in_junction, room, speed):
     return np.logical_not(in_junction) & (room >= MOBIL_MIN_ROOM_M) & (speed >= MOBIL_MIN_SPEED_MPS)
 
 
-def mobil_safe(a_follower: float) -> bool:
-    """MOBIL's safety criterion: the new follower need not brake harder than MOBIL_SAFE_BRAKE_MPS2."""
+def mobil_safe(a_follower: Any) -> Any:
+    """MOBIL's safety criterion: the new follower need not brake harder than MOBIL_SAFE_BRAKE_MPS2
+    (floats or arrays)."""
     return a_follower >= -MOBIL_SAFE_BRAKE_MPS2
 
 
-def mobil_accepts(a_current: float, a_new: float, follower_loss: float) -> bool:
+def mobil_accepts(a_current: Any, a_new: Any, follower_loss: Any) -> Any:
     """MOBIL's incentive criterion: the own acceleration gain, less MOBIL_POLITENESS times the
-    new follower's loss, exceeds MOBIL_GAIN_MPS2."""
+    new follower's loss, exceeds MOBIL_GAIN_MPS2 (floats or arrays)."""
     return a_new - a_current - MOBIL_POLITENESS * follower_loss > MOBIL_GAIN_MPS2
 
 

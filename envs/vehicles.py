@@ -10,11 +10,10 @@ import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.objects import RoadObject
 
-from ..config import FINISH_MARGIN_M, LOOKAHEAD_M, MOBIL_DETOUR_M, MOBIL_MIN_GAP_M
-from ..invariants import lane_changes
+from ..config import FINISH_MARGIN_M, LOOKAHEAD_M
 from .network import MapNetwork
 from .sim.vehicle import yaw_rate
-from .rules import enters_junction, idm, may_change_lane, mobil_accepts, mobil_safe
+from .rules import enters_junction
 
 
 class Pedestrian(RoadObject):
@@ -196,64 +195,6 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
     """A traffic vehicle on its own lane route. The arrays core (core.py) drives it (IDM behind
     leaders and before the rules' stop points, MOBIL lane changes) through `core.ArrayVehicle`
     views; one user code appends to `road.vehicles` is taken in as a row at the next frame."""
-
-    def mobil_change(self, gaps: list[tuple[float, float]]) -> bool:
-        """MOBIL on multi-lane roads: move to a same-direction neighbour lane when it raises the
-        acceleration (with politeness) over IDM's behind its leaders `gaps` ((bumper gap, speed)
-        pairs, `TrafficCore._leaders`) and the new follower stays safe; the route is re-planned
-        from that lane by Dijkstra and the change is taken only if it costs no detour."""
-        net, m = self.net, self.net.hdmap
-        lid = self.lane_route[self.route_pos]
-        if lid != net.id_of.get(self.target_lane_index):
-            return False
-        ln = m.lanes[lid]
-        lane = net.lane_of[lid]
-        s, _ = lane.local_coordinates(self.position)
-        if not may_change_lane(ln.junction_id is not None, lane.length - s, self.speed):
-            return False
-        remaining = sum(net.lane_of[l].length for l in self.lane_route[self.route_pos:])
-        a_cur = idm(self, gaps)
-        buckets = self.road.control.buckets
-        for n in lane_changes(ln):  # only across a dashed line
-            if n not in m.lanes:
-                continue
-            goal = m.lanes[self.lane_route[-1]]
-            limit = remaining + MOBIL_DETOUR_M
-            paths = [found[0] for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors  # any lane of the
-                     if g in m.lanes and (found := net.lane_route_within(n, g, limit))]  # destination road will do
-            if not paths:
-                continue
-            shortest = min(paths, key=len)  # (the fewest lanes)
-            nl = net.lane_of[n]
-            sn, _ = nl.local_coordinates(self.position)
-            if not 0.0 <= sn <= nl.length:  # no change onto a neighbour where it does not run beside us yet
-                continue  # (a lane that opens along the road: it would drive its lane's extension, blind)
-            ahead, behind = [], None
-            for o in buckets.get(n, ()):
-                so, _ = nl.local_coordinates(o.position)
-                if so >= sn:
-                    ahead.append((so - sn - self.LENGTH, float(o.speed)))
-                elif behind is None or so > behind[0]:
-                    behind = (so, o)
-            if any(g < MOBIL_MIN_GAP_M for g, _ in ahead):
-                continue
-            a_new = idm(self, ahead)
-            follower_loss = 0.0
-            if behind is not None:
-                so, f = behind
-                gap = sn - so - self.LENGTH
-                if gap < MOBIL_MIN_GAP_M or not isinstance(f, RouteFollower):
-                    continue
-                a_f = idm(f, [(gap, self.speed)])
-                if not mobil_safe(a_f):
-                    continue
-                follower_loss = max(0.0, idm(f, []) - a_f)
-            if mobil_accepts(a_cur, a_new, follower_loss):
-                self.lane_route = self.lane_route[:self.route_pos] + list(shortest)
-                self.target_lane_index = net.index_of[n]
-                self.lane_changes = getattr(self, "lane_changes", 0) + 1
-                return True
-        return False
 
     @property
     def finished(self) -> bool:

@@ -435,7 +435,7 @@ IDM_STOP_GAP_M = 0.3  # jam distance to a stop point (vs IDM_GAP_M to a leader)
 IDM_STOP_MARGIN_M = 0.5  # the front bumper halts this short of a stop point
 IDM_MIN_GAP_M = 0.05  # gaps below this count as this (no division by zero)
 IDM_RANGE_MPS2 = (-8.0, 6.0)  # an IDM acceleration is clipped to these
-# MOBIL lane changes of traffic (envs/vehicles.py TrafficVehicle.mobil_change, rules.may_change_lane)
+# MOBIL lane changes of traffic (envs/sim/mobil.py, rules.may_change_lane)
 MOBIL_PERIOD_S = 1.0  # traffic considers a lane change this often
 MOBIL_GAIN_MPS2 = 0.3  # own acceleration gain that makes a lane change worth it
 MOBIL_SAFE_BRAKE_MPS2 = 3.0  # the new follower must not need to brake harder

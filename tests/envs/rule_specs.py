@@ -1,6 +1,7 @@
 """The traffic rules as the rules word them, for one road user, read from a slot's lane buckets
 and queue lists: the specifications the rules' one array program each is held to
-(tests/envs/test_entries.py, tests/envs/test_passages.py, tests/envs/test_pedestrians.py)."""
+(tests/envs/test_entries.py, tests/envs/test_passages.py, tests/envs/test_pedestrians.py,
+tests/envs/test_mobil.py)."""
 from __future__ import annotations
 
 import math
@@ -8,8 +9,11 @@ from collections import Counter
 
 import numpy as np
 
-from feat2map.config import PEDESTRIAN_CORRIDOR_M, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M
-from feat2map.envs.rules import enters_next, pedestrian_in_path
+from feat2map.config import (MOBIL_DETOUR_M, MOBIL_MIN_GAP_M, PEDESTRIAN_CORRIDOR_M, PRIORITY_HORIZON_S,
+                             PRIORITY_MARGIN_M)
+from feat2map.envs.rules import enters_next, idm, may_change_lane, mobil_accepts, mobil_safe, pedestrian_in_path
+from feat2map.envs.vehicles import RouteFollower
+from feat2map.invariants import lane_changes
 
 CROSS_MARGIN_M = 2.5  # a margin other than PRIORITY_MARGIN_M for the cross-traffic test
 
@@ -134,3 +138,54 @@ def check_conflict_questions(core, rng: np.random.Generator, why: Counter) -> No
     slots, me, j, want = (np.array(x) for x in zip(*batch))
     got = entries.junction_clear(core, slots, me, j)
     assert got.tolist() == want.tolist()
+
+
+def mobil_as_worded(ctl, car, gaps: list[tuple[float, float]]) -> tuple[str, tuple[str, ...]] | None:
+    """MOBIL for one car, from its road's lane buckets: the first same-direction neighbour across
+    a dashed line (in `lane_changes` order) that runs beside it and has a route to the
+    destination road at most MOBIL_DETOUR_M longer than its own, where its IDM acceleration behind
+    every road user ahead on it (none closer than MOBIL_MIN_GAP_M) beats that behind its own
+    leaders `gaps` ((bumper gap, speed) pairs) by MOBIL_GAIN_MPS2 plus MOBIL_POLITENESS times the
+    new follower's loss, the new follower (the nearest behind, MOBIL_MIN_GAP_M away, a route
+    follower) braking no harder than MOBIL_SAFE_BRAKE_MPS2: (that lane, its route), else None;
+    nothing when the car may not change lanes here (in a junction, near its lane's end, slow)."""
+    net, m = ctl.net, ctl.net.hdmap
+    lid = car.lane_route[car.route_pos]
+    ln, lane = m.lanes[lid], net.lane_of[lid]
+    s, _ = lane.local_coordinates(car.position)
+    if not may_change_lane(ln.junction_id is not None, lane.length - s, car.speed):
+        return None
+    limit = sum(net.lane_of[x].length for x in car.lane_route[car.route_pos:]) + MOBIL_DETOUR_M
+    a_cur = idm(car, gaps)
+    goal = m.lanes[car.lane_route[-1]]
+    for n in lane_changes(ln):
+        if n not in m.lanes:
+            continue
+        paths = [f[0] for g in (goal.id,) + goal.left_neighbors + goal.right_neighbors
+                 if g in m.lanes and (f := net.lane_route_within(n, g, limit))]
+        nl = net.lane_of[n]
+        sn, _ = nl.local_coordinates(car.position)
+        if not paths or not 0.0 <= sn <= nl.length:
+            continue
+        ahead, behind = [], None
+        for o in ctl.buckets.get(n, ()):
+            so, _ = nl.local_coordinates(o.position)
+            if so >= sn:
+                ahead.append((so - sn - car.LENGTH, float(o.speed)))
+            elif behind is None or so > behind[0]:
+                behind = (so, o)
+        if any(g < MOBIL_MIN_GAP_M for g, _ in ahead):
+            continue
+        loss = 0.0
+        if behind is not None:
+            so, f = behind
+            gap = sn - so - car.LENGTH
+            if gap < MOBIL_MIN_GAP_M or not isinstance(f, RouteFollower):
+                continue
+            a_f = idm(f, [(gap, car.speed)])
+            if not mobil_safe(a_f):
+                continue
+            loss = max(0.0, idm(f, []) - a_f)
+        if mobil_accepts(a_cur, idm(car, ahead), loss):
+            return n, min(paths, key=len)
+    return None
