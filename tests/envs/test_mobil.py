@@ -44,16 +44,24 @@ def test_every_car_due_takes_the_lane_change_mobil_gives_it_alone(monkeypatch):
     assert seen["changes"] > 10 and seen["asked"] > 10 * seen["changes"], seen
 
 
-def test_a_car_changes_onto_the_free_lane_beside_a_slow_leader():
-    """A car behind a slow car on the two-lane road between the junctions moves to the free lane
-    beside it, where its route goes on; the slow car keeps its lane."""
+@pytest.fixture
+def road():
+    """(the env, its map network, a road lane of the two-lane road between the junctions, the
+    lane beside it across a dashed line), with no traffic."""
     env = gym.make("feat2map/JunctionGrid-v0", config={**TWO_LANES, "traffic_vehicles": 0, "pedestrian_rate": 0.0})
     env.reset(seed=0)
     u = env.unwrapped
     net, m = u.net, u.net.hdmap
     lane = next(ln for ln in m.lanes.values() if ln.junction_id is None and lane_changes(ln) and ln.successors
                 and net.lane_of[ln.id].length > 60)
-    other = lane_changes(lane)[0]
+    yield u, net, lane, lane_changes(lane)[0]
+    env.close()
+
+
+def test_a_car_changes_onto_the_free_lane_beside_a_slow_leader(road):
+    """A car behind a slow car on the two-lane road between the junctions moves to the free lane
+    beside it, where its route goes on; the slow car keeps its lane."""
+    u, net, lane, other = road
     slow = u.road.spawn(lane.id, 30.0, 2.0, [lane.id])
     car = u.road.spawn(lane.id, 5.0, 10.0, [lane.id])
     for _ in range(20):
@@ -61,45 +69,30 @@ def test_a_car_changes_onto_the_free_lane_beside_a_slow_leader():
         u.road.step(0.1)
     assert net.id_of[car.lane_index] == other and getattr(car, "lane_changes", 0) == 1
     assert net.id_of[slow.lane_index] == lane.id and not getattr(slow, "lane_changes", 0)
-    env.close()
 
 
 @pytest.mark.parametrize("behind", ["near", "far"])
-def test_a_car_stays_where_its_new_follower_would_brake_hard(behind):
+def test_a_car_stays_where_its_new_follower_would_brake_hard(road, behind):
     """The same car with two cars coming up behind on the free lane, one at its speed, one faster:
     where the faster one is the nearer behind (close, it would brake harder than
     MOBIL_SAFE_BRAKE_MPS2 behind the car) the car stays; where it is farther back than the other,
     the other is the new follower and the car changes (the new follower is the nearest behind)."""
-    env = gym.make("feat2map/JunctionGrid-v0", config={**TWO_LANES, "traffic_vehicles": 0, "pedestrian_rate": 0.0})
-    env.reset(seed=0)
-    u = env.unwrapped
-    net, m = u.net, u.net.hdmap
-    lane = next(ln for ln in m.lanes.values() if ln.junction_id is None and lane_changes(ln) and ln.successors
-                and net.lane_of[ln.id].length > 60)
-    other = lane_changes(lane)[0]
+    u, net, lane, other = road
     u.road.spawn(lane.id, 40.0, 2.0, [lane.id])
     car = u.road.spawn(lane.id, 20.0, 8.0, [lane.id])
     u.road.spawn(other, 3.0, 8.0, [other])
     u.road.spawn(other, 12.0 if behind == "near" else 0.0, 13.0, [other])
     u.road.act()
     assert (net.id_of[car.lane_index] == lane.id) == (behind == "near")
-    env.close()
 
 
-def test_a_car_stays_where_its_gain_is_less_than_its_new_followers_loss_times_politeness():
+def test_a_car_stays_where_its_gain_is_less_than_its_new_followers_loss_times_politeness(road):
     """A car 20 m behind a car at 6 m/s gains 1.6 m/s^2 on the free lane, but its new follower,
     9 m behind it there at its speed, would go from accelerating to braking at 2.8 m/s^2 (safe,
     but a loss of 5.4 m/s^2, of which MOBIL_POLITENESS counts): the car stays."""
-    env = gym.make("feat2map/JunctionGrid-v0", config={**TWO_LANES, "traffic_vehicles": 0, "pedestrian_rate": 0.0})
-    env.reset(seed=0)
-    u = env.unwrapped
-    net, m = u.net, u.net.hdmap
-    lane = next(ln for ln in m.lanes.values() if ln.junction_id is None and lane_changes(ln) and ln.successors
-                and net.lane_of[ln.id].length > 60)
-    other = lane_changes(lane)[0]
+    u, net, lane, other = road
     car = u.road.spawn(lane.id, 15.0, 8.0, [lane.id])
     u.road.spawn(lane.id, 15.0 + 20.0 + car.LENGTH, 6.0, [lane.id])
     u.road.spawn(other, 15.0 - 9.0 - car.LENGTH, 8.0, [other])
     u.road.act()
     assert net.id_of[car.lane_index] == lane.id
-    env.close()
