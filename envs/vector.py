@@ -26,7 +26,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 from ..errors import Feat2MapError
 from .core import TrafficCore
 from .info_columns import Records, SignalStates
-from .map_env import (MapEnv, action_array, check_action, check_options, held_feature_info, info_dicts, simulate,
+from .map_env import (MapEnv, check_action, check_options, held_feature_info, info_dicts, simulate,
                       step_ends)
 from .observation import Kinematics, TrafficControlObservation
 from .sim.observe import kinematics
@@ -219,9 +219,6 @@ class MapVectorEnv(VectorEnv):
             if env.render_mode == "human":
                 env.render()
         self._step_values = (cols, {i: k for k, i in enumerate(stepping)})  # for the final info of same-step autoresets
-        space = self.single_action_space
-        cols = dict(cols, action=[action_array(space, a) for a in cols["action"]],
-                    junction_feature=[held_feature_info(f)[1] for f in cols["junction_feature"].tolist()])
         return self.stack_columns(stepping, cols)
 
     def stack_columns(self, idx: list[int], cols: dict[str, Any]) -> dict[str, Any]:
@@ -232,8 +229,15 @@ class MapVectorEnv(VectorEnv):
         out: dict[str, Any] = {}
         mask = np.zeros(n, dtype=np.bool_)
         mask[idx] = True
+        space = self.single_action_space
         for key, col in cols.items():
-            if isinstance(col, np.ndarray):
+            if key == "action":  # (the actions given, as the action space's arrays)
+                array = np.zeros((n, *(space.shape or ())), dtype=space.dtype)
+                array[idx] = np.array(col, dtype=space.dtype)
+                out[key], out[f"_{key}"] = array, mask.copy()
+            elif key == "junction_feature":  # (the features ahead: their info dicts, `map_env.feature_info`)
+                out[key], out[f"_{key}"] = self.stack_features(idx, col), mask.copy()
+            elif isinstance(col, np.ndarray):
                 array = np.zeros(n, dtype=col.dtype) if col.dtype != object else np.full(n, None, dtype=object)
                 array[idx] = col
                 out[key], out[f"_{key}"] = array, mask.copy()
@@ -243,6 +247,30 @@ class MapVectorEnv(VectorEnv):
                 out[key], out[f"_{key}"] = col.stacked(n, idx), mask.copy()
             else:
                 out[key], out[f"_{key}"] = self.stack_values(key, idx, col)
+        return out
+
+    def stack_features(self, idx: list[int], features: np.ndarray) -> dict[str, Any]:
+        """`stack_infos` of the info dicts (`map_env.held_feature_info`) of sub-envs `idx`' junction
+        features (`features`, an object array), a key at a time over the few distinct features."""
+        n = self.num_envs
+        of: dict[int, int] = {}
+        where = np.array([of.setdefault(id(f), len(of)) for f in features.tolist()], dtype=np.int64)
+        infos = [held_feature_info(f)[1] for f in {id(f): f for f in features.tolist()}.values()]
+        mask = np.zeros(n, dtype=np.bool_)
+        mask[idx] = True
+        out: dict[str, Any] = {}
+        for key, first in infos[0].items():  # (every feature's dict has these keys, of these types)
+            values = [info[key] for info in infos]
+            if isinstance(first, np.ndarray):
+                array = np.zeros((n, *first.shape), dtype=first.dtype)
+                array[idx] = np.stack(values)[where]
+            elif type(first) in (int, float, bool):
+                array = np.zeros(n, dtype=type(first))
+                array[idx] = np.array(values)[where]
+            else:
+                array = np.full(n, None, dtype=object)
+                array[idx] = np.array(values, dtype=object)[where]
+            out[key], out[f"_{key}"] = array, mask.copy()
         return out
 
     def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:

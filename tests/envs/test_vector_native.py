@@ -424,3 +424,23 @@ def test_a_batch_checked_at_once_passes_exactly_what_each_action_check_passes(da
     ok = valid_batch(space, actions, n)
     assert ok == (bad == "none") or (not ok and bad == "dtype" and each_passes())  # (ints are finite floats)
     assert not ok or each_passes()
+
+
+@pytest.mark.parametrize("action", [{"type": "DiscreteMetaAction"}, {"type": "ContinuousAction"}])
+def test_a_steps_info_gives_each_sub_envs_action_in_the_action_spaces_dtype(action):
+    """info["action"] of a step: the actions the batch was given, one row per sub-env, in the
+    single action space's dtype and shape (as Gymnasium stacks the single envs' 0-d or 1-d arrays)."""
+    env = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                       config={"action": action, "traffic_vehicles": 2})
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    single = env.unwrapped.single_action_space
+    reset = np.zeros(4, dtype=bool)  # (a sub-env reset this step gives its reset's info)
+    for _ in range(4):
+        actions = env.action_space.sample()
+        _, _, terminated, truncated, info = env.step(actions)
+        assert info["action"].dtype == single.dtype and info["action"].shape == (4, *single.shape)
+        np.testing.assert_array_equal(info["action"][~reset], actions[~reset])
+        assert info["_action"].all()
+        reset = terminated | truncated
+    env.close()
