@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core import DRIVEN
 from ..lanes import project_rows
+from ..vehicles import Pedestrian
 
 FEATURES = frozenset({"presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h", "cos_d", "sin_d",
                       "long_off", "lat_off", "ang_off"})
@@ -174,10 +175,25 @@ def _candidates(core: Any, slots: list[int], roads: dict[int, Any], obstacles: b
             core.x[mine], core.y[mine], core.heading[mine], core.speed[mine]
         kind[um, cm] = ROW
         row_of[um, cm] = mine
+    at_n, at_j, walkers, heading, others = [], [], [], [], []  # (a walker row's place read from the core's arrays)
     for n, items in enumerate(objs):
-        for j, o in enumerate(items):
-            V[n, 1 + counts[n] + j] = (o.position[0], o.position[1], o.heading, 0.0)
-            kind[n, counts[n] + j] = OBJECT
+        for j, o in enumerate(items, counts[n]):
+            at_n.append(n)
+            at_j.append(j)
+            heading.append(o.heading)
+            if type(o) is Pedestrian and o._core is core:
+                walkers.append(o._row)
+            else:
+                walkers.append(-1)
+                others.append((len(walkers) - 1, o.position))
+    if at_n:
+        n_, j_, w = np.array(at_n), np.array(at_j), np.array(walkers, dtype=np.int64)
+        on = w >= 0
+        V[n_[on], j_[on] + 1, 0], V[n_[on], j_[on] + 1, 1] = core.p_x[w[on]], core.p_y[w[on]]
+        for k, pos in others:
+            V[at_n[k], at_j[k] + 1, :2] = pos
+        V[n_, j_ + 1, 2] = heading
+        kind[n_, j_] = OBJECT
     if U != len(slots) or (u_of != np.arange(U)).any():
         V, kind, row_of = V[u_of], kind[u_of], row_of[u_of]  # one row per observer (several in a slot)
     return V, kind, row_of, rank

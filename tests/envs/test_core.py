@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from highway_env.envs.common.observation import KinematicObservation
+from highway_env.vehicle.objects import Obstacle
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -167,11 +168,14 @@ def test_rows_driven_one_by_one_drive_as_a_batch(keeps):
        see_behind=st.booleans(), shuffled=st.booleans(), obstacles=st.booleans(),
        ranges=st.dictionaries(st.sampled_from(["x", "y", "vx", "vy", "heading"]),
                               st.tuples(st.floats(-200, -1), st.floats(1, 200)), max_size=4),
-       steps=st.integers(0, 3), nudge=st.lists(st.floats(-5.0, 5.0), min_size=20, max_size=20))
+       steps=st.integers(0, 3), nudge=st.lists(st.floats(-5.0, 5.0), min_size=20, max_size=20),
+       obstacle=st.one_of(st.none(), st.tuples(st.floats(2.0, 30.0), st.floats(-2.0, 2.0))))
 def test_fast_kinematics_is_highway_envs(busy_env, features, count, normalize, clip, absolute, see_behind,
-                                        shuffled, obstacles, ranges, steps, nudge):
+                                        shuffled, obstacles, ranges, steps, nudge, obstacle):
     """The arrays core's Kinematics observation equals highway-env's KinematicObservation
-    (pandas, per-vehicle projections) bit for bit on random states and options."""
+    (pandas, per-vehicle projections) bit for bit on random states and options, with the road's
+    objects the crosswalks' walkers and (`obstacle`) one of highway-env's obstacles ahead of the ego
+    ((metres along its lane, metres beside it))."""
     u = busy_env
     for _ in range(steps):
         u.step(1)
@@ -183,10 +187,16 @@ def test_fast_kinematics_is_highway_envs(busy_env, features, count, normalize, c
                    features_range={k: list(v) for k, v in ranges.items()} or {"x": [-100, 100], "vx": [-20, 20]})
     obs = Kinematics(u, **options)
     assert supported(obs)
+    lane = u.net.get_lane(u.vehicle.lane_index)
+    placed = Obstacle(u.road, lane.position(u.vehicle.lane_s + obstacle[0], obstacle[1]), 0.3) if obstacle else None
+    if placed is not None:
+        u.road.objects.append(placed)
     state = u.np_random.bit_generator.state
     fast = kinematics([obs], core)[0]
     u.np_random.bit_generator.state = state
     ref = KinematicObservation.observe(obs)
+    if placed is not None:
+        u.road.objects.remove(placed)
     assert fast.dtype == ref.dtype and fast.shape == ref.shape
     np.testing.assert_array_equal(fast, ref)  # NaN where highway-env's objects lack a feature, in both
 
