@@ -205,14 +205,21 @@ class SignalStates(NamedTuple):
 
     def dicts(self) -> list[dict[str, str]]:
         out: list[dict] = [{} for _ in range(len(self.of))]
+        slots = self.slots.tolist()
+        if len(set(slots)) == 1:  # one slot (the multi-agent env's world): one combination per group
+            named_g: dict[int, dict] = {}
+            for k, g in enumerate(self.of.tolist()):
+                if g >= 0:
+                    one = named_g.get(g)
+                    if one is None:
+                        one = named_g[g] = _states(self.codes[slots[0]], self.groups[g])
+                    out[k] = dict(one)
+            return out
         for g in np.unique(self.of[self.of >= 0]).tolist():
             ids = self.groups[g][0]
             rows = (self.of == g).nonzero()[0]
-            at = self.slots[rows]
-            sub = self._codes(g, rows[:1] if (at == at[0]).all() else rows)  # one slot (a world): one combination
-            if len(sub) == 1:
-                uniq, inv = sub, np.zeros(len(rows), dtype=np.int64)
-            elif len(ids) <= 31:  # (each row's codes as one int: base 4)
+            sub = self._codes(g, rows)
+            if len(ids) <= 31:  # (each row's codes as one int: base 4)
                 _, first, inv = np.unique(sub @ (4 ** np.arange(len(ids), dtype=np.int64)), return_index=True,
                                           return_inverse=True)
                 uniq = sub[first]
@@ -251,16 +258,19 @@ def signal_states(core: Any, views: Sequence[Any], slots: np.ndarray, states_of:
     view's phases; None: every signal; False: {})."""
     groups: list = []
     where: dict[tuple, int] = {}
-    of = np.full(len(states_of), -1, dtype=np.int64)
-    for k, (view, x) in enumerate(zip(views, states_of)):
-        if x is not False:
-            key = (id(view.control.signals_by_junction), x)
-            g = where.get(key)
-            if g is None:
-                g = where[key] = len(groups)
-                groups.append(signal_group(core, view.control, x))
-            of[k] = g
-    return SignalStates(groups, of, slots, codes)
+    of = []
+    for view, x in zip(views, states_of):
+        if x is False:
+            of.append(-1)
+            continue
+        control = view.control
+        key = (id(control.signals_by_junction), x)
+        g = where.get(key)
+        if g is None:
+            g = where[key] = len(groups)
+            groups.append(signal_group(core, control, x))
+        of.append(g)
+    return SignalStates(groups, np.array(of, dtype=np.int64), slots, codes)
 
 
 def columns(core: Any, rows: Any, views: Sequence[Any], actions: Sequence[Any], completed: Any = None,
