@@ -17,9 +17,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from . import task
-from .rules import JUDGED, SIGNAL_STATES, enters_junction, line_plan, manoeuvre_name
-
-_STATE_NAMES = np.array(SIGNAL_STATES, dtype=object)
+from .rules import SIGNAL_STATES, enters_junction, line_plan, manoeuvre_name, violation_names
 
 
 class Records(NamedTuple):
@@ -180,7 +178,7 @@ def _states(codes: np.ndarray, group: tuple[tuple[str, ...], np.ndarray]) -> dic
 
 
 _GREEN = len(SIGNAL_STATES)  # `SignalStates`' code of a signal without a plan
-_CODE_NAMES = np.array(SIGNAL_STATES + ("green",), dtype=object)
+_CODE_NAMES = np.array(SIGNAL_STATES + ("green",), dtype=object)  # a state code's name
 
 
 class SignalStates(NamedTuple):
@@ -340,7 +338,7 @@ def _batch_columns(core: Any, rows: np.ndarray, views: Sequence[Any], actions: S
     has_sig = sig_id != ""
     known = sig >= 0
     state = np.where(has_sig, "green", "").astype(object)
-    state[known] = _STATE_NAMES[codes[slots[known], sig[known]]]
+    state[known] = _CODE_NAMES[codes[slots[known], sig[known]]]
     to_change = np.full(len(rows), math.inf)
     if known.any():
         to_change[known] = core.signal_waits_of(slots[known], sig[known])
@@ -363,11 +361,10 @@ DICT_COLUMNS = (Records, SignalStates)  # columns whose rows' values are dicts m
 
 
 def _names(counts: np.ndarray) -> list[list[str]]:
-    """Each row's violations of the step as `EgoJudge.new` names them, given its counts of each
-    kind of JUDGED (a list per row)."""
+    """Each row's violations of the step (`rules.violation_names` of its counts; a list per row)."""
     out: list[list[str]] = [[] for _ in range(len(counts))]
     for k in counts.any(axis=1).nonzero()[0].tolist():
-        out[k] = [kind for kind, n in zip(JUDGED, counts[k].tolist()) for _ in range(n)]
+        out[k] = violation_names(counts[k].tolist())
     return out
 
 

@@ -56,6 +56,12 @@ VIOLATIONS = ("red_light", "stop_sign", "pedestrian_yield")
 # every kind a judge counts: the ego's VIOLATIONS, then the two only agents are judged on
 # (`multi_agent.AgentJudge`); the columns of `TrafficCore.violations` and `new_violations`
 JUDGED = (*VIOLATIONS, "not_yielding", "stop_order")
+
+
+def violation_names(counts: Sequence[int]) -> list[str]:
+    """Violations named from their counts of each kind of JUDGED: the kinds in JUDGED order, each
+    repeated by its count (what a judge's `new` and an info's "new_violations" give)."""
+    return [kind for kind, n in zip(JUDGED, counts) for _ in range(n)]
 SIGNAL_STATES = ("green", "amber", "red")  # the codes of the signal states' one program (`control.signal_timing`)
 TURN_NAMES = {"none": "straight", "left": "left", "right": "right", "uturn": "uturn"}
 
@@ -1168,9 +1174,8 @@ class EgoJudge:
 
     @property
     def new(self) -> list[str]:
-        """The violations of this policy step (kinds in JUDGED order, repeated by count)."""
-        counts = self._held[1] if self._held else self._core.new_violations[self.ego.row].tolist()
-        return [kind for kind, n in zip(JUDGED, counts) for _ in range(n)]
+        """The violations of this policy step (`violation_names`)."""
+        return violation_names(self._held[1] if self._held else self._core.new_violations[self.ego.row].tolist())
 
     @property
     def off_road(self) -> bool:

@@ -251,26 +251,15 @@ class MapVectorEnv(VectorEnv):
 
     def stack_features(self, idx: list[int], features: np.ndarray) -> dict[str, Any]:
         """`stack_infos` of the info dicts (`map_env.held_feature_info`) of sub-envs `idx`' junction
-        features (`features`, an object array), a key at a time over the few distinct features."""
-        n = self.num_envs
+        features (`features`, an object array): a key at a time (`stack_values`), each value taken
+        from the few distinct features' dicts."""
         of: dict[int, int] = {}
-        where = np.array([of.setdefault(id(f), len(of)) for f in features.tolist()], dtype=np.int64)
+        where = [of.setdefault(id(f), len(of)) for f in features.tolist()]
         infos = [held_feature_info(f)[1] for f in {id(f): f for f in features.tolist()}.values()]
-        mask = np.zeros(n, dtype=np.bool_)
-        mask[idx] = True
         out: dict[str, Any] = {}
-        for key, first in infos[0].items():  # (every feature's dict has these keys, of these types)
+        for key in infos[0]:  # (every feature's dict has these keys, of these types)
             values = [info[key] for info in infos]
-            if isinstance(first, np.ndarray):
-                array = np.zeros((n, *first.shape), dtype=first.dtype)
-                array[idx] = np.stack(values)[where]
-            elif type(first) in (int, float, bool):
-                array = np.zeros(n, dtype=type(first))
-                array[idx] = np.array(values)[where]
-            else:
-                array = np.full(n, None, dtype=object)
-                array[idx] = np.array(values, dtype=object)[where]
-            out[key], out[f"_{key}"] = array, mask.copy()
+            out[key], out[f"_{key}"] = self.stack_values(key, idx, [values[w] for w in where])
         return out
 
     def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:

@@ -87,8 +87,8 @@ def decide(core: "TrafficCore", rows: np.ndarray, fi: np.ndarray, gap: np.ndarra
     loss = np.zeros(len(pr))
     bh = (~ahead).nonzero()[0]
     if len(bh):
-        order = np.lexsort((o[bh], -so[bh], a[bh]))  # by pair, the nearest behind first, then row order
-        first = bh[order][np.r_[True, a[bh][order][1:] != a[bh][order][:-1]]]
+        by = bh[np.lexsort((o[bh], -so[bh], a[bh]))]  # by pair, the nearest behind first, then row order
+        first = by[np.r_[True, a[by][1:] != a[by][:-1]]]
         p, f = a[first], o[first]
         g_f = sn[p] - so[first] - length[p]
         follows = np.array([isinstance(core.objs[x], RouteFollower) for x in f.tolist()], dtype=bool)
