@@ -552,6 +552,32 @@ class ArrayVehicle(TrafficVehicle):
         self.action = {"steering": 0.0, "acceleration": 0.0}
 
 
+def reorder(items: list, order: np.ndarray, settled: int) -> list:
+    """`[items[i] for i in order]`, made in place where the indices below `settled` keep their
+    order in `order` (rows appended since a sync, put in their slots' places, and rows gone): runs
+    deleted and inserted move pointers, where a copy of a long list touches every object in it
+    (2.5% of a batched step at N = 256); a new list otherwise."""
+    low = order < settled
+    head = order[low]
+    if (head[1:] <= head[:-1]).any():
+        return [items[i] for i in order.tolist()]
+    tail = items[settled:]
+    del items[settled:]
+    gone = np.ones(settled, dtype=bool)
+    gone[head] = False
+    for a, b in reversed(_runs(gone)):
+        del items[a:b]
+    for a, b in _runs(~low):  # (ascending: each run's place is final once the ones before it are)
+        items[a:a] = [tail[k - settled] for k in order[a:b].tolist()]
+    return items
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[(start, end)] of the runs of True in `mask`."""
+    edge = np.diff(mask.astype(np.int8), prepend=0, append=0)
+    return list(zip(np.flatnonzero(edge == 1).tolist(), np.flatnonzero(edge == -1).tolist()))
+
+
 class TrafficCore:
     """The rows of the road users of one or more roads (one per sub-env of a batch, `slots` of
     them, all on one map) and the batched frame (see the module docstring)."""
@@ -573,7 +599,9 @@ class TrafficCore:
         self._external: list[int] = []  # the external rows (`_masks`)
         self._acting: list[int] = []  # those being stepped this frame (`act`)
         self.objs: list[Any] = []
-        self._slot_rows: list[np.ndarray] | None = None  # each slot's rows (`rows`), None: to be found again
+        self._settled = 0  # the rows before this one are in the order the last sync left (`reorder`)
+        # the rows by slot and where each slot's end among them (`slot_rows`), None: to be found again
+        self._slot_rows: tuple[np.ndarray, np.ndarray] | None = None
         self.layout = 0  # counts the changes of which road user each row is (rows came, went or moved)
         self.env = np.zeros(0, dtype=np.int64)  # the slot of each row
         self.kind = np.zeros(0, dtype=np.int8)
@@ -742,13 +770,16 @@ class TrafficCore:
         return self.slot_rows(road.slot)
 
     def slot_rows(self, slot: int) -> np.ndarray:
-        """The rows of `slot`; the rows of every slot are found at once, again only when rows come
-        or go."""
+        """The rows of `slot` (a view: not to be written); the rows of every slot are found at
+        once, again only when rows come or go (grouped by slot, as a sync leaves them, a slot's
+        rows are a range)."""
         if self._slot_rows is None:
-            order = np.argsort(self.env, kind="stable")
-            ends = np.cumsum(np.bincount(self.env, minlength=len(self.roads)))
-            self._slot_rows = np.split(order, ends[:-1])
-        return self._slot_rows[slot]
+            env = self.env
+            grouped = bool((env[1:] >= env[:-1]).all())
+            order = np.arange(len(env)) if grouped else np.argsort(env, kind="stable")
+            self._slot_rows = (order, np.cumsum(np.bincount(env, minlength=len(self.roads))))
+        order, ends = self._slot_rows
+        return order[ends[slot - 1] if slot else 0:ends[slot]]
 
     def add_traffic(self, road: "MapRoad", lane_id: str, s: float, speed: float, route: list[str],
                     model: VehicleModel | None = None, view: type[ArrayVehicle] = ArrayVehicle) -> ArrayVehicle:
@@ -876,6 +907,8 @@ class TrafficCore:
         order = order[np.lexsort((within[order], self.env[order]))]
         if len(order) != n or (order != np.arange(n)).any():
             self._select(order.tolist())
+        else:
+            self._settled = n
         self.dirty.update(np.nonzero(np.isin(self.env, slots))[0].tolist())
         for road in changed:
             self.seen[road.slot] = list(road.vehicles)
@@ -895,9 +928,9 @@ class TrafficCore:
         new_row[idx] = np.arange(len(idx))
         passages.keep_rows(self, new_row)
         self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
-        take = (lambda seq: list(map(seq.__getitem__, rows)))  # noqa: E731
-        self.routes, self.route_ids = take(self.routes), take(self.route_ids)
-        self.objs = take(self.objs)
+        for name in ("routes", "route_ids", "objs"):
+            setattr(self, name, reorder(getattr(self, name), idx, self._settled))
+        self._settled = len(idx)
         held = np.nonzero(self.res >= 0)  # the holders' rows move with them; one that went has left
         if len(held[0]):
             moved = new_row[self.res[held]]

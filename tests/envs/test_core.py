@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 import feat2map
 from feat2map.errors import Feat2MapError
-from feat2map.envs.core import ArrayVehicle, LaneTable, rectangles_overlap
+from feat2map.envs.core import ArrayVehicle, LaneTable, rectangles_overlap, reorder
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
 from feat2map.envs.road import MapRoad
@@ -259,6 +259,30 @@ def test_each_slots_clock_is_the_cores_and_a_frame_advances_the_stepped_slots_al
         assert {lid: [id(v) for v in vs] for lid, vs in fresh.items()} == \
             {lid: [id(v) for v in vs] for lid, vs in core.buckets(envs[k].road).items()}
     venv.close()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data())
+def test_reorder_gives_the_list_in_the_new_order_and_keeps_it_in_place_when_it_can(data):
+    """`reorder` equals the list taken in the new order, for any order of any kept rows: the
+    rows before `settled` in their order (what a sync leaves) change the list in place, others
+    make a new one."""
+    n = data.draw(st.integers(0, 25))
+    settled = data.draw(st.integers(0, n))
+    kept = data.draw(st.lists(st.booleans(), min_size=n, max_size=n))
+    head = [i for i in range(settled) if kept[i]]
+    tail = [i for i in range(settled, n) if kept[i]]
+    order = list(head)
+    for i in data.draw(st.permutations(tail)):
+        order.insert(data.draw(st.integers(0, len(order))), i)
+    if data.draw(st.booleans()):
+        order = data.draw(st.permutations(order))
+    items = [object() for _ in range(n)]
+    want = [items[i] for i in order]
+    got = reorder(items, np.array(order, dtype=np.int64), settled)
+    assert len(got) == len(want) and all(a is b for a, b in zip(got, want))
+    in_order = all(a < b for a, b in zip([i for i in order if i < settled], [i for i in order if i < settled][1:]))
+    assert (got is items) == in_order
 
 
 def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():

@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import feat2map
-from feat2map.envs.lanes import PolylineLane
+from feat2map.envs import lanes as lanes_mod
+from feat2map.envs.lanes import PolylineLane, project_rows
 from feat2map.envs.network import GRID_CELL_M, MapNetwork
 
 J = feat2map.JunctionFeature.make
@@ -20,6 +21,21 @@ FEATS = [J([0, 90, 180, 270], "signal", True), J([0, 90, 180, 270], "stop", Fals
 @pytest.fixture(scope="module")
 def net() -> MapNetwork:
     return MapNetwork.from_map(feat2map.generate_from_features(FEATS, seed=0))
+
+
+@pytest.mark.parametrize("block", [lanes_mod.PROJECT_BLOCK, 50])
+def test_projecting_many_lanes_at_once_equals_each_lane_bit_for_bit(net, monkeypatch, block):
+    """`project_rows` of points on many lanes (lanes of very different lengths: grouped, padded
+    and, with a small PROJECT_BLOCK, cut into blocks) gives each lane's `local_coordinates`."""
+    monkeypatch.setattr(lanes_mod, "PROJECT_BLOCK", block)
+    rng = np.random.default_rng(4)
+    lanes = rng.integers(0, len(net._lanes), 300)
+    x, y = rng.uniform(-50, 450, (300, 5)), rng.uniform(-450, 50, (300, 5))
+    s, lat = project_rows(net.segment_table(), lanes, x, y)
+    want = np.array([[net._lanes[k].local_coordinates(np.array([a, b])) for a, b in zip(xr, yr)]
+                     for k, xr, yr in zip(lanes.tolist(), x, y)])
+    assert np.array_equal(s, want[:, :, 0]) and np.array_equal(lat, want[:, :, 1])
+    assert np.array_equal(project_rows(net.segment_table(), lanes, x, y, lateral=False)[0], s)
 
 
 @settings(max_examples=60, deadline=None)
