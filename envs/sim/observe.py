@@ -38,9 +38,10 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
     one observes through highway-env's code."""
     out: list[np.ndarray | None] = [None] * len(observers)
     first: tuple | None = None
-    picks, roads = [], {}
-    for k, o in enumerate(observers):  # one config: the first's
-        if not supported(o) or o.env.road.core is not core:
+    picks, roads, views, at = [], {}, [], []
+    for k, o in enumerate(observers):  # one config (the first's), of a row of this core
+        road, v = o.env.road, o.observer_vehicle
+        if not supported(o) or road.core is not core or getattr(v, "_core", None) is not core:
             continue
         opt_k = _options(o)
         if first is None:
@@ -48,23 +49,20 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
         elif opt_k is not first and opt_k != first:
             continue
         picks.append(k)
-        roads[o.env.road.slot] = o.env.road
+        views.append(v)
+        at.append(road.slot)
+        roads[road.slot] = road
     if not picks:
         return out
     opt = observers[picks[0]]
     core.sync(list(roads.values()))  # respawned traffic
     net = core.net
     # slots holding a road user the core does not drive (user code's own objects): highway-env's code
-    foreign = np.bincount(core.env[core.kind != DRIVEN], minlength=len(core.roads)) > 0
-    keep_g, slots, own = [], [], []
-    for k in picks:
-        o = observers[k]
-        v, q = o.observer_vehicle, o.env.road.slot
-        if getattr(v, "_core", None) is not core or foreign[q]:
-            continue  # not a row of this core
-        keep_g.append(k)
-        slots.append(q)
-        own.append(v._row)
+    foreign = (np.bincount(core.env[core.kind != DRIVEN], minlength=len(core.roads)) > 0)[at]
+    if foreign.any():
+        keep = (~foreign).nonzero()[0].tolist()
+        picks, views, at = [picks[n] for n in keep], [views[n] for n in keep], [at[n] for n in keep]
+    keep_g, slots, own = picks, at, [v._row for v in views]  # (rows after the sync)
     if not keep_g:
         return out
     m = len(keep_g)

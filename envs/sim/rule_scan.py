@@ -113,11 +113,13 @@ def scan(core: "TrafficCore", rows: np.ndarray | None = None) -> Scan:
 
 def busy_lanes(core: "TrafficCore") -> list[int]:
     """Keys (slot * lanes + lane) of the lanes across a crosswalk that has people on it, in any
-    slot."""
-    t = core.table
+    slot: the (slot, crosswalk) pairs of the walker rows (`TrafficCore.add_walker`)."""
+    if not len(core.p_env):
+        return []
+    t, ids = core.table, core.crosswalks.ids
     nl = len(t.length)
-    return [road.slot * nl + k for road in core.roads if road is not None
-            for cw, people in road.control.pedestrians.items() if people for k in t.crosswalk_lanes.get(cw, ())]
+    slot, cw = np.divmod(np.unique(core.p_env * len(ids) + core.p_cw), len(ids))
+    return [q * nl + k for q, c in zip(slot.tolist(), cw.tolist()) for k in t.crosswalk_lanes.get(ids[c], ())]
 
 
 def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
