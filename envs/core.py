@@ -90,7 +90,7 @@ from .lanes import centre_points, curve_speeds, project_rows
 from .network import LINE_SIGNAL, LINE_STOP_SIGN, MapNetwork, on_lane
 from .rules import (CROSSED, ENTRY, JUDGED, PEOPLE, SIGNAL_STATES, Claims, body_reach, commits, crossed_lanes, has_stopped,
                     held_at_signal, idm_accelerations, in_the_way, may_change_lane, stop_gap)
-from .sim import crossings, entries, mobil, passages, pedestrians, rule_scan, stop_signs
+from .sim import crossings, entries, judge, mobil, passages, pedestrians, rule_scan, stop_signs
 from .sim.join import same_key_pairs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
@@ -101,7 +101,6 @@ if TYPE_CHECKING:
 
 EXTERNAL, DRIVEN = 0, 1
 BATCH_MIN_DRIVEN = 4  # controlled rows (`TrafficCore.drive`: fewer drive one by one with floats)
-JUDGE_MIN_ROWS = 4  # controlled rows from which `judge_due` tests which judges to ask (fewer: all are asked)
 # rows the rules are asked of (`TrafficCore._rule_stops`) from which the arrays answer a signal's
 # hold and a junction entry before the rows ask one by one (fewer: each asks the rules; the
 # same values)
@@ -122,7 +121,9 @@ ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed"
                 "scan_len": 0, "route_ver": 0, "seen_pos": -1, "seen_lane": -2, "seen_route": -1,
                 "res_count": 0, "judged": -1, "progress": 0.0, "goal": 0.0, "goal_dist": 0.0, "behind": 0.0,
                 "goal_s": 0.0, "task_key": -1, "info_key": -1, "fact": -1, "violations": 0,
-                "new_violations": 0, "off_road": False, "passage_d": math.inf, "passage_key": -1}
+                "new_violations": 0, "off_road": False, "passage_d": math.inf, "passage_key": -1, "j_done": True,
+                "j_arrives": False, "j_agent": False, "j_lane": -1, "j_s": 0.0, "v_lane": -1, "v_clear": True,
+                "v_order": True}
 
 
 class LaneTable:
@@ -650,6 +651,15 @@ class TrafficCore:
         self.violations = np.zeros((0, len(JUDGED)), dtype=np.int64)
         self.new_violations = np.zeros((0, len(JUDGED)), dtype=np.int64)
         self.off_road = np.zeros(0, dtype=bool)
+        # what its judge keeps to find more (`sim.judge`): whether it is done (a row without a
+        # judge is), stops at the route's end, judges an agent's violations too; the lane and s it
+        # last looked at the row on; its sets (`judge.SETS`, -1: empty); an agent's verdict on the
+        # junction lane ahead (`multi_agent.AgentJudge.note`: the lane, -1 none; clear; in order)
+        self.j_done, self.j_arrives, self.j_agent = (np.zeros(0, dtype=bool) for _ in range(3))
+        self.j_lane, self.j_s = np.zeros(0, dtype=np.int64), np.zeros(0)
+        self.j_stop, self.j_cross, self.j_mid, self.j_ped = (np.zeros((0, 2), dtype=np.int64) for _ in range(4))
+        self.v_lane, self.v_clear, self.v_order = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool)
+        self.rtor = np.zeros(slots, dtype=bool)  # each slot's config allows a right turn on red after a full stop
         # a controlled row's task (`task`): route metres at the last reward and to the goal, the
         # config's goal distance; the route metres behind its route position and the goal's s on
         # its last lane, as of `task_key` (its route version and position then)
@@ -743,9 +753,9 @@ class TrafficCore:
                "stop_junction", "stop_seq", "stop_at", "reserved", "scan_len", "route_ver", "seen_pos",
                "seen_lane", "seen_route", "res_count", "judged", "progress", "goal", "goal_dist", "behind",
                "goal_s", "task_key", "info_key", "fact", "violations", "new_violations", "off_road", "passage_d",
-               "passage_key")
-    # row arrays with a column per window lane, and a new row's value in each
-    _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0}
+               "passage_key", "j_done", "j_arrives", "j_agent", "j_lane", "j_s", "v_lane", "v_clear", "v_order")
+    # row arrays with a column per window lane or set member (a judge's sets), and a new row's value in each
+    _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0, "j_stop": -1, "j_cross": -1, "j_mid": -1, "j_ped": -1}
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -760,6 +770,7 @@ class TrafficCore:
         self.res[slot] = NONE  # a new episode there: nothing reserved
         self.set_crosswalks(slot, [], 0, 0.0, 0)  # ... and no crosswalk active
         self.roads[slot] = road
+        self.rtor[slot] = road.control.right_turn_on_red()
         self.seen[slot] = []
         road.slot = slot
         self.edited.add(slot)
@@ -1925,6 +1936,14 @@ class TrafficCore:
             held = self._pairs_held = ((n, m), np.triu_indices(n, 1, m))
         return held[1]
 
+    def judge_start(self, row: int, arrives: bool, agent: bool) -> None:
+        """A judge for controlled row `row` (`sim.judge.start`)."""
+        judge.start(self, row, arrives, agent)
+
+    def judge(self, rows: np.ndarray) -> None:
+        """Judge controlled `rows` after a frame (`sim.judge.check`: every env's judge)."""
+        judge.check(self, rows)
+
     def judge_due(self, rows: np.ndarray) -> np.ndarray:
         """Mask over controlled rows `rows`: those whose judge (`rules.EgoJudge.check`) can change
         anything after this frame. Its check does something only on a lane other than the one it
@@ -1932,12 +1951,8 @@ class TrafficCore:
         its lane with people on that crosswalk (`sim.crossings.peopled_stretch`), on a lane with a
         mid-block crossing's line, on the route's last lane (arrived), past the end of its lane or
         wide of it (off the road); elsewhere it leaves the judge as it was, so the judges of the
-        other rows are not asked (the same verdicts). Notes the rows' lanes as looked at. Under
-        JUDGE_MIN_ROWS rows every one is due: a check costs less than the test."""
+        other rows are not asked (the same verdicts). Notes the rows' lanes as looked at."""
         t, lane = self.table, self.at_lane[rows]
-        if len(rows) < JUDGE_MIN_ROWS:
-            self.judged[rows] = lane
-            return np.ones(len(rows), dtype=bool)
         speed = self.speed[rows]
         due = (lane != self.judged[rows]) | has_stopped(speed) | t.midblock[lane] \
             | (self.route_pos[rows] >= self.route_end[rows]) | (self.at_s[rows] > t.length[lane]) \

@@ -53,10 +53,12 @@ class RouteFacts:
     next stop line's control and signal (id, index in the core's signals or -1), the junction
     whose signal states the info gives (None: all, False: none), the line's setback, whether a
     line is ahead, whether a mid-block crossing's line may be before it (then
-    `TrafficRules.midblock_ahead` is asked), and the lengths of the lanes between the current
-    one and the line's lane (`rules.line_plan`; "lengths", 0-padded)."""
+    `TrafficRules.midblock_ahead` is asked), the entry's incoming lane (a lane index, -1; the
+    judge's), and the lengths of the lanes between the current one and the line's lane
+    (`rules.line_plan`; "lengths", 0-padded)."""
 
-    _COLUMNS = ("jid", "turn", "feature", "control", "sig_id", "sig", "states_of", "back", "has_line", "has_mid")
+    _COLUMNS = ("jid", "turn", "feature", "control", "sig_id", "sig", "states_of", "back", "has_line", "has_mid",
+                "in_lane")
     _OBJECTS = ("jid", "turn", "feature", "control", "sig_id", "states_of")
 
     def __init__(self, core: Any) -> None:
@@ -98,8 +100,9 @@ class RouteFacts:
         if has_mid is None:  # (the lanes up to the line's junction lane)
             has_mid = bool(net.midblock_lines) and any(lid in net.midblock_lines for lid in rest)
         sig = self.core.table.signal_index.get(sig_id, -1) if sig_id else -1
+        in_lane = self.core.table.index[in_lane] if in_lane is not None else -1
         return (jid or "", turn or "", feature, control, sig_id, sig, states_of, float(back), plan[0] is not None,
-                has_mid, tuple(lengths))
+                has_mid, in_lane, tuple(lengths))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The facts as columns over their indices (new facts written in, the columns grown by
@@ -146,7 +149,7 @@ def line_distance(core: Any, rows: Any, f: Any, fact: tuple = ()) -> Any:
         if not fact[8]:
             return math.inf
         d = float(lane_left)
-        for length in fact[10]:
+        for length in fact[-1]:
             d += length
         return d - fact[7]
     a = core.route_facts.arrays()

@@ -11,7 +11,6 @@ type, doc): envs/README.md's tables are made from them.
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 import numbers
 from collections import OrderedDict
@@ -263,7 +262,7 @@ class MapEnv(EgoTask, AbstractEnv):
         for _ in range(int(self.config["traffic_vehicles"])):
             self._spawn_traffic()
         self.control.update(self.road, 0.0)
-        self.judge = EgoJudge(self.control, self.vehicle, arrived=self.route_completed)
+        self.judge = EgoJudge(self.control, self.vehicle, arrives=True)
         self.start_task()
         self._last_rewards = dict.fromkeys(self._reward_terms(), 0.0)
 
@@ -447,8 +446,7 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             held = egos.get(id(core))
             if held is None or held[0] != core.layout:
                 held = egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
-            for env in itertools.compress(members, core.judge_due(held[1]).tolist()):
-                env.judge.check()
+            core.judge(held[1][core.judge_due(held[1])])
         if frame < frames - 1:
             for env in viewed:
                 env._automatic_rendering()

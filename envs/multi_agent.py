@@ -82,7 +82,6 @@ from .sim.vehicle import VehicleModel, speed_control
 
 AGENT_VIOLATIONS = JUDGED  # an agent's violation kinds, in order
 AGENT_TERMS = (*REWARD_TERMS, "not_yielding", "stop_order")  # an agent's reward terms, in order
-_RED = JUDGED.index("red_light")
 _AGENT_ONLY = [JUDGED.index(k) for k in AGENT_TERMS[len(REWARD_TERMS):]]  # the terms of the agents' judge
 #: the multi-agent env's own keys (the rest is MapEnv's config, checked by it): `config.SETTINGS`' rows of MULTI
 AGENT_DEFAULTS: dict[str, Any] = defaults(MULTI)
@@ -202,52 +201,33 @@ class AgentJudge(EgoJudge):
     `check` counts a violation when it enters against the verdict."""
 
     KINDS = JUDGED
-
-    def __init__(self, rules, vehicle) -> None:
-        super().__init__(rules, vehicle)
-        self._verdict: tuple[str | None, bool, bool] = (None, True, True)  # (junction lane, clear, order ok)
+    AGENT = True
 
     def note(self) -> str | None:
-        """Keep the verdict on the junction lane ahead; the lane whose conflict verdict
-        (`TrafficRules.junction_clear`) is to be kept too (`noted`, asked of every agent at once by
-        the env), else None."""
-        rules, v = self.rules, self.ego
+        """Keep the verdict on the junction lane ahead (the row's `v_lane`, `v_clear`, `v_order`,
+        which the judge reads when the agent enters that lane: `sim.judge`); the lane whose
+        conflict verdict (`TrafficRules.junction_clear`) is to be kept too (`noted`, asked of every
+        agent at once by the env), else None."""
+        rules, v, core = self.rules, self.ego, self._core
         sl, in_lane, j_lane, d = rules.line_ahead(v, AGENT_ENTRY_LOOK_M)
         if j_lane is None:
             return None
-        if self._verdict[0] == j_lane and not can_stop_before(d, v.speed, v.LENGTH):
+        i, k = v.row, core.table.index[j_lane]
+        if core.v_lane[i] == k and not can_stop_before(d, v.speed, v.LENGTH):
             return None  # past the point where it could still stop: judged by the last verdict it could act on
-        if rules.reservations.get(j_lane) is v:  # a vehicle the rules let commit goes (TrafficRules.may_enter)
-            self._verdict = (j_lane, True, True)
-            return None
         order = True
+        if rules.reservations.get(j_lane) is v:  # a vehicle the rules let commit goes (TrafficRules.may_enter)
+            core.v_lane[i], core.v_clear[i], core.v_order[i] = k, True, True
+            return None
         if sl is not None and sl.kind == "stop":
             queue = rules.stop_queue.get(sl.junction_id, [])
             order = v not in queue or rules.stop_queue_allows(v, j_lane)  # not stopped at all: a stop_sign violation
-        self._verdict = (j_lane, True, order)
+        core.v_lane[i], core.v_clear[i], core.v_order[i] = k, True, order
         return j_lane
 
     def noted(self, clear: bool) -> None:
         """Keep whether the junction lane `note` returned is clear for the agent."""
-        self._verdict = (self._verdict[0], clear, self._verdict[2])
-
-    def check(self) -> None:
-        prev = self._lane
-        reds = self._core.new_violations[self.ego.row, _RED]
-        super().check()
-        lid, m = self._lane, self.rules.net.hdmap
-        if lid is None or lid == prev or lid not in m.lanes or m.lanes[lid].junction_id is None:
-            return
-        if prev is not None and prev in m.lanes and m.lanes[prev].junction_id is not None:
-            return  # from one junction lane to the next
-        j_lane, clear, order = self._verdict
-        self._verdict = (None, True, True)
-        if j_lane != lid or self._core.new_violations[self.ego.row, _RED] > reds:
-            return
-        if not order:
-            self._violate("stop_order")
-        elif not clear:
-            self._violate("not_yielding")
+        self._core.v_clear[self.ego.row] = clear
 
 
 class AgentView(EgoTask):
@@ -626,8 +606,7 @@ class MultiAgentMapEnv(ParallelEnv):
                 x.steps += 1
             if not vehicles:
                 continue
-            for k in np.nonzero(core.judge_due(rows))[0].tolist():  # where its check can change anything
-                judges[k].check()
+            core.judge(rows[core.judge_due(rows)])  # where its check can change anything
             for k in np.nonzero(has_stopped(core.speed[rows]))[0].tolist():
                 views[k].wait_time += dt
             for k in np.nonzero(core.crashed[rows] & ~crashed)[0].tolist():

@@ -225,9 +225,10 @@ def amber_speed_cap(distance, speed: float, line_speed: float, amber_s: float):
     return np.where((room > 0) & (speed < amber_arrival_speed(d, line_speed, amber_s)), stop, math.inf)
 
 
-def in_stop_zone(distance_to_line: float) -> bool:
-    """Where a stop at a line counts (centre before the line, within STOP_ZONE_M)."""
-    return 0.0 <= distance_to_line <= STOP_ZONE_M
+def in_stop_zone(distance_to_line):
+    """Where a stop at a line counts (centre before the line, within STOP_ZONE_M); a float, or an
+    array elementwise."""
+    return (0.0 <= distance_to_line) & (distance_to_line <= STOP_ZONE_M)
 
 
 def commits(distance, speed):
@@ -1041,87 +1042,35 @@ def compliance_rules(right_turn_on_red: bool, blocked_after: float) -> dict[str,
 
 
 class EgoJudge:
-    """The ego's violations and leaving the road, judged after every simulation frame.
+    """A controlled row's judge (`sim.judge`, the one program every env's judge is): its verdicts
+    and what it keeps are the row's columns of the core; `check` judges the row alone (the envs
+    judge every due row at once).
 
     red_light: the ego crossed a signal's stop line into the junction while red (amber is
     allowed; with `right_turn_on_red`, a right turn after a full stop is too), or a mid-block
     crossing's line on red; stop_sign: it
     entered without a stop (speed <= STOPPED_SPEED_MPS within STOP_ZONE_M of the line, along its
-    route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path."""
+    route); pedestrian_yield: it moved on a crosswalk with a pedestrian in its path. With
+    `arrives`, the drive ends at the goal: the judge stops there."""
 
     KINDS: tuple[str, ...] = VIOLATIONS  # the kinds it counts (`violations`' keys)
+    AGENT = False  # whether it judges the agents' two violations too (`multi_agent.AgentJudge`)
 
-    def __init__(self, rules: TrafficRules, ego, arrived: Callable[[], bool] | None = None) -> None:
+    def __init__(self, rules: TrafficRules, ego, arrives: bool = False) -> None:
         self.rules = rules
         self.ego = ego
-        self.arrived = arrived  # whether the ego has reached its goal: the drive ends there
-        self.done = False
         self._core = rules.road.core
         self._held: tuple[list[int], list[int], bool] | None = None  # its verdicts once its row is gone (`let_go`)
-        self._lane = rules.net.id_of.get(ego.lane_index)
-        self._stopped: set[str] = set()  # incoming lanes whose line the ego has stopped at
-        self._crossed: set[str] = set()
-        self._crossed_mid: set[tuple[str, str]] = set()  # (light, lane) of mid-block lines crossed on red
-        self._lane_s = getattr(ego, "lane_s", 0.0)
-        self._ped_flags: set[tuple[str, str]] = set()
+        self._core.judge_start(ego.row, arrives, self.AGENT)
 
     def check(self) -> None:
-        if self.done or (self.arrived is not None and self.arrived()):
-            # the drive ended at the goal: frames after it within the same policy step are no
-            # part of it (a goal on a 4.9 m road 1 m before a red line, osm2xodr's karl-wilhelm
-            # r027: at 12 m/s the ego passed both within one step, and the line was judged)
-            self.done = True
-            return
-        rules, ego = self.rules, self.ego
-        net, m = rules.net, rules.net.hdmap
-        lid = net.id_of[ego.lane_index]  # every lane of the network has its map id
-        prev = self._lane
-        on_road = lid in m.lanes and m.lanes[lid].junction_id is None
-        rtor = rules.right_turn_on_red()
-        if has_stopped(ego.speed):
-            sl, in_lane = rules.waiting_line(ego, lid)
-            if sl is not None and in_lane is not None and (sl.kind == "stop" or rtor):
-                self._stopped.add(in_lane)
-        if on_road:
-            # stops and line crossings count until the ego is on another road lane (a stop made
-            # before a short last lane counts until the ego passes that lane's line)
-            if self._stopped - {lid}:
-                self._stopped &= {lid, rules.line_ahead(ego)[1]}
-            self._crossed &= {lid}
-        if lid != prev and prev is not None and lid in m.lanes and m.lanes[lid].junction_id is not None:
-            entry = self._entry_lane(prev, lid)
-            if entry not in self._crossed:  # flickering across the line is one crossing
-                if m.lanes.get(entry) is not None and m.lanes[entry].junction_id is None:
-                    self._crossed.add(entry)
-                psl = net.stop_lines.get(entry)
-                if psl is not None and psl.kind == "signal" and rules.signal_state(psl.control_id) == "red" \
-                        and not (rtor and entry in self._stopped and self._turn_after(entry) == "right"):
-                    self._violate("red_light")
-                if psl is not None and psl.kind == "stop" and entry not in self._stopped:
-                    self._violate("stop_sign")
-        # a mid-block crossing's light: its line crossed on red (on the lane, or at the lane change onto it)
-        s_before = self._lane_s if lid == prev else -math.inf
-        for sid, s_line in net.midblock_lines.get(lid, ()):
-            if s_before < s_line <= ego.lane_s and (sid, lid) not in self._crossed_mid \
-                    and rules.signal_state(sid) == "red":
-                self._crossed_mid.add((sid, lid))
-                self._violate("red_light")
-        self._lane, self._lane_s = lid, ego.lane_s
-        # pedestrians: the ego on a crosswalk with a person next to its path
-        due = [(k, cw) for k, (cw, s0, s1) in enumerate(net.crossings.get(lid, ()))
-               if on_yield_stretch(ego.lane_s, s0, s1) and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS
-               and (lid, cw) not in self._ped_flags]
-        if due:  # (the walkers on them as the yield rule sees them: `sim.crossings.walkers`)
-            which, sp, rp = rules.road.core.walkers_across(rules.road.slot, lid)
-            near = pedestrian_in_path(rp, net.lane_of[lid].width) & (np.abs(sp - ego.lane_s) < ego.LENGTH)
-            for k, cw in due:
-                if (near & (which == k)).any():
-                    self._ped_flags.add((lid, cw))
-                    self._violate("pedestrian_yield")
-        lane = net.get_lane(ego.lane_index)
-        if abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
-                ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors:
-            self._core.off_road[ego.row] = True
+        """Judge the row after a frame (`TrafficCore.judge`, a batch of one)."""
+        self._core.judge(np.array([self.ego.row], dtype=np.int64))
+
+    @property
+    def done(self) -> bool:
+        """Whether it no longer judges: the route is completed (with `arrives`)."""
+        return bool(self._core.j_done[self.ego.row])
 
     def wait_reason(self, near: float = BLOCKED_NEAR_M) -> str:
         """What justifies the ego's standing where it stands, in words ("" when nothing does): a red
@@ -1145,25 +1094,8 @@ class EgoJudge:
     def stopped_before(self, in_lane: str | None) -> bool:
         """Whether the ego has made its full stop at the line of `in_lane` (it counts until the
         ego is on another road lane)."""
-        return in_lane in self._stopped
-
-    def _entry_lane(self, prev: str, junction_lane: str) -> str:
-        """The road lane the ego entered `junction_lane` from: its route lane before it (a lane
-        short enough to be driven over within a frame is never located), else `prev`."""
-        route, pos = self.ego.lane_route, self.ego.route_pos
-        m = self.rules.net.hdmap
-        for k in range(min(pos + 1, len(route) - 1), 0, -1):
-            if route[k] == junction_lane:
-                before = route[k - 1]
-                return before if m.lanes[before].junction_id is None else prev
-        return prev
-
-    def _turn_after(self, lane_id: str) -> str | None:
-        """The turn of the ego's route lane after `lane_id` (None when not on the route)."""
-        route, pos = self.ego.lane_route, self.ego.route_pos
-        # the latest occurrence at or before the ego (routes round a ring repeat lanes)
-        k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
-        return self.rules.net.hdmap.lanes[route[k]].turn if k < len(route) else None
+        k = self._core.table.index.get(in_lane, -1) if in_lane is not None else -1
+        return k >= 0 and bool((self._core.j_stop[self.ego.row] == k).any())
 
     # ---- its verdicts: the row's columns of the core (`violations`, `new_violations`, `off_road`)
     @property
@@ -1188,7 +1120,3 @@ class EgoJudge:
         self._held = (self._core.violations[i, :len(self.KINDS)].tolist(), self._core.new_violations[i].tolist(),
                       bool(self._core.off_road[i]))
 
-    def _violate(self, kind: str) -> None:
-        k = JUDGED.index(kind)
-        self._core.violations[self.ego.row, k] += 1
-        self._core.new_violations[self.ego.row, k] += 1

@@ -1,7 +1,7 @@
 """The traffic rules as the rules word them, for one road user, read from a slot's lane buckets
 and queue lists: the specifications the rules' one array program each is held to
 (tests/envs/test_entries.py, tests/envs/test_passages.py, tests/envs/test_pedestrians.py,
-tests/envs/test_mobil.py)."""
+tests/envs/test_mobil.py, tests/envs/test_judge.py)."""
 from __future__ import annotations
 
 import math
@@ -9,9 +9,11 @@ from collections import Counter
 
 import numpy as np
 
-from feat2map.config import (MOBIL_DETOUR_M, MOBIL_MIN_GAP_M, PEDESTRIAN_CORRIDOR_M, PRIORITY_HORIZON_S,
-                             PRIORITY_MARGIN_M)
-from feat2map.envs.rules import enters_next, idm, may_change_lane, mobil_accepts, mobil_safe, pedestrian_in_path
+from feat2map.config import (MOBIL_DETOUR_M, MOBIL_MIN_GAP_M, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M,
+                             PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M)
+from feat2map.envs import task
+from feat2map.envs.rules import (enters_next, has_stopped, idm, may_change_lane, mobil_accepts, mobil_safe,
+                                 on_yield_stretch, pedestrian_in_path)
 from feat2map.envs.vehicles import RouteFollower
 from feat2map.invariants import lane_changes
 
@@ -189,3 +191,105 @@ def mobil_as_worded(ctl, car, gaps: list[tuple[float, float]]) -> tuple[str, tup
         if mobil_accepts(a_cur, idm(car, ahead), loss):
             return n, min(paths, key=len)
     return None
+
+
+class JudgeAsWorded:
+    """A controlled road user's judge as the judge words it, checked after every frame, its
+    verdicts and what it keeps in Python (`counts`, `off_road`, and sets of lane ids): the
+    specification `sim.judge` is held to (tests/envs/test_judge.py). red_light: a signal's line
+    crossed into the junction on red (a right turn on red after a full stop allowed where the
+    config allows it) or a mid-block crossing's line crossed on red; stop_sign: entered without a
+    full stop within the stop zone; pedestrian_yield: moving on a crosswalk's stretch with a
+    pedestrian in its path; with `agent`, entering the junction lane the verdict noted before
+    it (`multi_agent.AgentJudge.note`: the core's `v_*` of its row, read before the env's judge
+    uses them) against that verdict."""
+
+    def __init__(self, rules, ego, arrives: bool = False, agent: bool = False) -> None:
+        self.rules, self.ego, self.arrives, self.agent = rules, ego, arrives, agent
+        self.done = False
+        self.counts: Counter = Counter()
+        self.off_road = False
+        self.lane = rules.net.id_of.get(ego.lane_index)
+        self.lane_s = ego.lane_s
+        self.stopped: set[str] = set()  # incoming lanes whose line it has stopped at
+        self.crossed: set[str] = set()
+        self.crossed_mid: set[tuple[str, str]] = set()  # (light, lane) of mid-block lines crossed on red
+        self.ped_flags: set[tuple[str, str]] = set()
+
+    def check(self) -> None:
+        core = self.rules.road.core
+        if self.done or (self.arrives and bool(task.completed(core, self.ego.row))):
+            self.done = True
+            return
+        rules, ego = self.rules, self.ego
+        net, m = rules.net, rules.net.hdmap
+        lid = net.id_of[ego.lane_index]
+        prev = self.lane
+        reds = self.counts["red_light"]
+        on_road = lid in m.lanes and m.lanes[lid].junction_id is None
+        rtor = rules.right_turn_on_red()
+        if has_stopped(ego.speed):
+            sl, in_lane = rules.waiting_line(ego, lid)
+            if sl is not None and in_lane is not None and (sl.kind == "stop" or rtor):
+                self.stopped.add(in_lane)
+        if on_road:  # stops and line crossings count until it is on another road lane
+            if self.stopped - {lid}:
+                self.stopped &= {lid, rules.line_ahead(ego)[1]}
+            self.crossed &= {lid}
+        if lid != prev and prev is not None and m.lanes[lid].junction_id is not None:
+            entry = self._entry_lane(prev, lid)
+            if entry not in self.crossed:  # flickering across the line is one crossing
+                if m.lanes[entry].junction_id is None:
+                    self.crossed.add(entry)
+                psl = net.stop_lines.get(entry)
+                if psl is not None and psl.kind == "signal" and rules.signal_state(psl.control_id) == "red" \
+                        and not (rtor and entry in self.stopped and self._turn_after(entry) == "right"):
+                    self.counts["red_light"] += 1
+                if psl is not None and psl.kind == "stop" and entry not in self.stopped:
+                    self.counts["stop_sign"] += 1
+        s_before = self.lane_s if lid == prev else -math.inf
+        for sid, s_line in net.midblock_lines.get(lid, ()):
+            if s_before < s_line <= ego.lane_s and (sid, lid) not in self.crossed_mid \
+                    and rules.signal_state(sid) == "red":
+                self.crossed_mid.add((sid, lid))
+                self.counts["red_light"] += 1
+        self.lane, self.lane_s = lid, ego.lane_s
+        due = [(k, cw) for k, (cw, s0, s1) in enumerate(net.crossings.get(lid, ()))
+               if on_yield_stretch(ego.lane_s, s0, s1) and ego.speed > PEDESTRIAN_YIELD_SPEED_MPS
+               and (lid, cw) not in self.ped_flags]
+        if due:
+            which, sp, rp = core.walkers_across(rules.road.slot, lid)
+            near = pedestrian_in_path(rp, net.lane_of[lid].width) & (np.abs(sp - ego.lane_s) < ego.LENGTH)
+            for k, cw in due:
+                if (near & (which == k)).any():
+                    self.ped_flags.add((lid, cw))
+                    self.counts["pedestrian_yield"] += 1
+        lane = net.get_lane(ego.lane_index)
+        if abs(ego.lane_lat) > lane.width / 2 + OFF_ROAD_LATERAL_M or \
+                ego.lane_s > lane.length + OFF_ROAD_END_M and not m.lanes[lid].successors:
+            self.off_road = True
+        if self.agent and lid != prev and m.lanes[lid].junction_id is not None and \
+                (prev is None or m.lanes[prev].junction_id is None):
+            i = ego.row  # the verdict noted for the lane it enters now, from a road lane
+            noted = core.v_lane[i] >= 0 and net.lane_ids[core.v_lane[i]] == lid
+            if noted and self.counts["red_light"] == reds:
+                if not core.v_order[i]:
+                    self.counts["stop_order"] += 1
+                elif not core.v_clear[i]:
+                    self.counts["not_yielding"] += 1
+
+    def _entry_lane(self, prev: str, junction_lane: str) -> str:
+        """The road lane it entered `junction_lane` from: its route lane before it, else `prev`."""
+        route, pos = self.ego.lane_route, self.ego.route_pos
+        m = self.rules.net.hdmap
+        for k in range(min(pos + 1, len(route) - 1), 0, -1):
+            if route[k] == junction_lane:
+                before = route[k - 1]
+                return before if m.lanes[before].junction_id is None else prev
+        return prev
+
+    def _turn_after(self, lane_id: str) -> str | None:
+        """The turn of its route lane after `lane_id`: the latest occurrence at or before it."""
+        route, pos = self.ego.lane_route, self.ego.route_pos
+        k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
+        return self.rules.net.hdmap.lanes[route[k]].turn if k < len(route) else None

@@ -247,7 +247,8 @@ def test_each_agents_conflict_verdict_is_the_rules_answer_to_it_alone(monkeypatc
     noted = AgentJudge.noted
 
     def checked(self, clear):
-        assert clear == self.rules.junction_clear(self._verdict[0], self.ego)
+        lane = self.rules.net.lane_ids[self._core.v_lane[self.ego.row]]  # (the lane `note` kept the verdict for)
+        assert clear == self.rules.junction_clear(lane, self.ego)
         seen.append(clear)
         noted(self, clear)
 
