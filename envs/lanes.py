@@ -202,9 +202,12 @@ def project_rows(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray
     each [lanes, points] (lateral None unless `lateral`). One program, the segments padded to the
     longest lane's (padding never wins); where that would more than PADDING_LIMIT-fold the work,
     one program per group of lanes of similar segment counts (within SIMILAR_SEGMENTS)."""
+    if len(lanes) == 1:
+        return _project_block(table, lanes, x, y, lateral)
     count = table[1][lanes]
-    if len(lanes) == 1 or len(lanes) * count.max() <= PADDING_LIMIT * count.sum():
-        return _project_group(table, lanes, x, y, lateral)
+    longest = int(count.max())
+    if len(lanes) * longest <= PADDING_LIMIT * count.sum():
+        return _project_group(table, lanes, x, y, lateral, longest)
     s_out, r_out = np.empty(x.shape), np.empty(x.shape)
     order = np.argsort(count, kind="stable")
     c = count[order]
@@ -212,7 +215,7 @@ def project_rows(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray
     while start < len(order):
         end = int(np.searchsorted(c, SIMILAR_SEGMENTS * c[start], side="right"))
         g = order[start:end]
-        s_g, r_g = _project_group(table, lanes[g], x[g], y[g], lateral)
+        s_g, r_g = _project_group(table, lanes[g], x[g], y[g], lateral, int(c[end - 1]))
         s_out[g] = s_g
         if lateral:
             r_out[g] = r_g
@@ -221,12 +224,12 @@ def project_rows(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray
 
 
 def _project_group(table: tuple[np.ndarray, ...], lanes: np.ndarray, x: np.ndarray,
-                   y: np.ndarray, lateral: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """`project_rows` of one group of lanes: one program per block of lanes whose padded
-    [lanes, points, segments] arrays hold at most PROJECT_BLOCK elements (big temporaries leave
-    the cache: 256 observers' 16 points on lanes of 35 segments ran 2.8x faster in blocks)."""
-    per_lane = x.shape[1] * int(table[1][lanes].max())
-    step = max(1, PROJECT_BLOCK // max(per_lane, 1))
+                   y: np.ndarray, lateral: bool, longest: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """`project_rows` of one group of lanes (the longest has `longest` segments): one program
+    per block of lanes whose padded [lanes, points, segments] arrays hold at most PROJECT_BLOCK
+    elements (big temporaries leave the cache: 256 observers' 16 points on lanes of 35 segments
+    ran 2.8x faster in blocks)."""
+    step = max(1, PROJECT_BLOCK // max(x.shape[1] * longest, 1))
     if len(lanes) <= step:
         return _project_block(table, lanes, x, y, lateral)
     s_out, r_out = np.empty(x.shape), np.empty(x.shape) if lateral else None

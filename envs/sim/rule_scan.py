@@ -117,9 +117,9 @@ def busy_lanes(core: "TrafficCore") -> list[int]:
     if not len(core.p_env):
         return []
     t, ids = core.table, core.crosswalks.ids
-    nl = len(t.length)
-    slot, cw = np.divmod(np.unique(core.p_env * len(ids) + core.p_cw), len(ids))
-    return [q * nl + k for q, c in zip(slot.tolist(), cw.tolist()) for k in t.crosswalk_lanes.get(ids[c], ())]
+    nl, ncw = len(t.length), len(ids)
+    pairs = set((core.p_env * ncw + core.p_cw).tolist())  # (a few walkers a slot: no sort)
+    return [q * nl + k for q, c in map(lambda p: divmod(p, ncw), pairs) for k in t.crosswalk_lanes.get(ids[c], ())]
 
 
 def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
