@@ -558,18 +558,32 @@ def reorder(items: list, order: np.ndarray, settled: int) -> list:
     order in `order` (rows appended since a sync, put in their slots' places, and rows gone): runs
     deleted and inserted move pointers, where a copy of a long list touches every object in it
     (2.5% of a batched step at N = 256); a new list otherwise."""
+    runs = reorder_runs(order, settled)
+    return [items[i] for i in order.tolist()] if runs is None else reorder_in_place(items, runs)
+
+
+def reorder_runs(order: np.ndarray, settled: int) -> tuple | None:
+    """What `reorder` of any list by `order` does in place: (settled, the runs of the indices below
+    `settled` that go, and each run of `order` that comes from above it with its indices); None
+    where those below `settled` do not keep their order (a new list is made)."""
     low = order < settled
     head = order[low]
     if (head[1:] <= head[:-1]).any():
-        return [items[i] for i in order.tolist()]
-    tail = items[settled:]
-    del items[settled:]
+        return None
     gone = np.ones(settled, dtype=bool)
     gone[head] = False
-    for a, b in reversed(_runs(gone)):
+    return settled, _runs(gone), [(a, order[a:b].tolist()) for a, b in _runs(~low)]
+
+
+def reorder_in_place(items: list, runs: tuple) -> list:
+    """`reorder` of `items` by `reorder_runs`' runs."""
+    settled, gone, come = runs
+    tail = items[settled:]
+    del items[settled:]
+    for a, b in reversed(gone):
         del items[a:b]
-    for a, b in _runs(~low):  # (ascending: each run's place is final once the ones before it are)
-        items[a:a] = [tail[k - settled] for k in order[a:b].tolist()]
+    for a, idx in come:  # (ascending: each run's place is final once the ones before it are)
+        items[a:a] = [tail[k - settled] for k in idx]
     return items
 
 
@@ -629,6 +643,7 @@ class TrafficCore:
         self.route_end = np.zeros(0, dtype=np.int64)  # index of the route's last lane
         self.entry = np.zeros(0)  # distance from the current lane's start to the next junction entry (inf: none in the window)
         self.driven = np.zeros(0, dtype=bool)
+        self.max_reach = np.zeros(0)  # (`_masks`)
         # controlled rows (the egos, the agents): driven rows that take their command (no IDM, no
         # MOBIL, no rule stops) and drive the bicycle (`drive`); their lane, s and lat are
         # projections on their route lanes
@@ -689,7 +704,15 @@ class TrafficCore:
         self.scan_len = np.zeros(0, dtype=np.int64)
         self.queue_version = np.zeros(slots, dtype=np.int64)
         self.queue_views: dict[int, tuple[int, dict]] = {}
-        self._signals_timed: tuple | None = None  # `_time_signals` at the last look
+        # the signals (`LaneTable.signal_ids`): each slot's phase plans (`control.signal_arrays` of
+        # its road's control, written when a road is attached) and their states as last worked
+        # out (`_time_signals`: each slot's clock then, codes, seconds to each change, the slot's
+        # next change less SIGNAL_EDGE_S); a slot attached since is worked out at its next look
+        signals = len(self.table.signal_ids)
+        self._plans = np.repeat(no_plans(signals)[None], slots, axis=0)
+        self._plans_new = np.ones(slots, dtype=bool)
+        self._signals_timed = (np.zeros(slots), np.zeros((slots, signals), dtype=np.int8), np.zeros((slots, signals)),
+                               np.full(slots, -math.inf))
         # what the rules read of the rows while they are `asking` (`asked`), made when first asked;
         # None otherwise
         self._asking: dict | None = None
@@ -756,6 +779,8 @@ class TrafficCore:
                "passage_key", "j_done", "j_arrives", "j_agent", "j_lane", "j_s", "v_lane", "v_clear", "v_order")
     # row arrays with a column per window lane or set member (a judge's sets), and a new row's value in each
     _WIDE_ARRAYS = {"W": -1, "C": 0.0, "scan_what": 0, "j_stop": -1, "j_cross": -1, "j_mid": -1, "j_ped": -1}
+    _WIDE_NAMES = tuple(_WIDE_ARRAYS)
+    _MASKS = ("driven", "max_reach", "on", "_all_on")  # row arrays `_masks` makes from the others
 
     def attach(self, road: "MapRoad", slot: int = 0) -> None:
         """Make `road` the road of `slot`: the rows of the road there before are dropped."""
@@ -763,7 +788,7 @@ class TrafficCore:
             raise ValueError("the roads of one traffic core must share its map")
         old = self.env == slot
         if old.any():
-            self._select(np.nonzero(~old)[0].tolist())
+            self._select(np.flatnonzero(~old))
         self.drop_walkers([o for o, k in zip(self.p_objs, self.p_env.tolist()) if k == slot])
         held = self.res[slot][self.res[slot] >= 0]  # (holders still rows: none, their rows were dropped)
         np.subtract.at(self.res_count, held, 1)
@@ -771,6 +796,8 @@ class TrafficCore:
         self.set_crosswalks(slot, [], 0, 0.0, 0)  # ... and no crosswalk active
         self.roads[slot] = road
         self.rtor[slot] = road.control.right_turn_on_red()
+        self._plans[slot] = signal_arrays(road.control, self.table.signal_ids)
+        self._plans_new[slot] = True
         self.seen[slot] = []
         road.slot = slot
         self.edited.add(slot)
@@ -782,8 +809,8 @@ class TrafficCore:
 
     def slot_rows(self, slot: int) -> np.ndarray:
         """The rows of `slot` (a view: not to be written); the rows of every slot are found at
-        once, again only when rows come or go (grouped by slot, as a sync leaves them, a slot's
-        rows are a range)."""
+        once, again only when rows come or go (where the rows are grouped by slot, a slot's rows
+        are a range)."""
         if self._slot_rows is None:
             env = self.env
             grouped = bool((env[1:] >= env[:-1]).all())
@@ -834,15 +861,23 @@ class TrafficCore:
         i = len(self.objs)
         self.objs.append(obj)
         row = {**ROW_DEFAULTS, **row}
-        self._append_rows(self._ARRAYS, row)
+        # the masks `_masks` makes, for the new row alone
+        row["driven"] = row["kind"] == DRIVEN
+        row["max_reach"] = np.hypot(row["width"], row["length"]) / 2 - row["width"] / 2
+        row["on"] = self.stepped[row["env"]]
+        row["_all_on"] = True
+        self._append_rows(self._ARRAYS + self._MASKS, row)
+        self._append_rows(self._WIDE_NAMES, self._WIDE_ARRAYS)
         self.routes.append(route)
         self.route_ids.append([self.net.lane_ids[k] for k in route])
         self._forget_buckets([int(row["env"])])
-        self._append_rows(tuple(self._WIDE_ARRAYS), self._WIDE_ARRAYS)
         if isinstance(obj, ArrayVehicle):
             obj._core, obj._row = self, i
+        if row["kind"] == EXTERNAL:
+            self._external.append(i)
         self.dirty.add(i)
-        self._masks()
+        self._slot_rows = None
+        self.layout += 1
 
     def _append_rows(self, names: tuple[str, ...], row: dict) -> None:
         """Append one row's values to the arrays `names` (each keeps its dtype; a 2-d array's row
@@ -851,24 +886,37 @@ class TrafficCore:
         array (a sub-env's reset adds its traffic one vehicle at a time, among all the batch's
         rows); an array replaced since (rows kept or reordered, a wider window) gets a new
         buffer, ROW_SPARE times its rows."""
+        arrays, spare = self.__dict__, self._spare
         for name in names:
-            a = getattr(self, name)
+            a = arrays[name]
             n = len(a)
-            held = self._spare.get(name)
+            held = spare.get(name)
             if held is not None and held[1] is a and len(held[0]) > n:
                 buf = held[0]
             else:
                 buf = np.empty((max(int(n * ROW_SPARE), n + 1), *a.shape[1:]), dtype=a.dtype)
                 buf[:n] = a
             buf[n] = row[name]
-            view = buf[:n + 1]
-            setattr(self, name, view)
-            self._spare[name] = (buf, view)
+            arrays[name] = view = buf[:n + 1]
+            spare[name] = (buf, view)
 
-    def _keep_rows(self, names: tuple[str, ...], idx) -> None:
-        """Keep these rows of the arrays `names`, in this order."""
+    def _keep_rows(self, names: tuple[str, ...], idx: np.ndarray, first: int = 0) -> None:
+        """Keep rows `idx` of the arrays `names`, in this order; the rows before `first` keep
+        their places (`idx[:first]` is their range), so an array in a buffer of `_append_rows`
+        has only the rows from `first` on written, in place."""
+        arrays, spare = self.__dict__, self._spare
+        m = len(idx)
+        tail = idx[first:]
         for name in names:
-            setattr(self, name, getattr(self, name)[idx])
+            a = arrays[name]
+            held = spare.get(name)
+            if first and held is not None and held[1] is a:
+                buf = held[0]
+                buf[first:m] = a[tail]
+                arrays[name] = view = buf[:m]
+                spare[name] = (buf, view)
+            else:
+                arrays[name] = a[idx]
 
     def _masks(self) -> None:
         """Masks that change only when rows come or go."""
@@ -883,7 +931,9 @@ class TrafficCore:
     def sync(self, roads: list | None = None) -> None:
         """Bring the rows in line with the roads' `vehicles` (by identity): take in vehicles user
         code appended, let go of removed ones (their views keep their last state), follow
-        reordering. Rows are kept grouped by slot, each road's in its vehicles' order."""
+        reordering. Each road's rows are in its vehicles' order; rows of different slots need none
+        among them, so rows that come stay at the end and rows that go leave the others in place
+        (a road whose vehicles were reordered groups every row by slot again)."""
         if not self.edited:
             return
         roads = [r for r in self.roads if r is not None] if roads is None else roads
@@ -915,42 +965,48 @@ class TrafficCore:
             else:
                 within[i] = k
         order = np.nonzero(keep)[0]
-        order = order[np.lexsort((within[order], self.env[order]))]
+        by_slot = np.argsort(self.env[order], kind="stable")
+        grouped = np.lexsort((within[order], self.env[order]))
+        if (by_slot != grouped).any():  # a road's vehicles were reordered: regroup every row
+            order = order[grouped]
         if len(order) != n or (order != np.arange(n)).any():
-            self._select(order.tolist())
+            self._select(order)
         else:
             self._settled = n
         self.dirty.update(np.nonzero(np.isin(self.env, slots))[0].tolist())
         for road in changed:
             self.seen[road.slot] = list(road.vehicles)
 
-    def _select(self, rows: list[int]) -> None:
-        """Keep these rows, in this order."""
-        idx = np.array(rows, dtype=np.int64)
-        gone = np.ones(len(self.objs), dtype=bool)
+    def _select(self, idx: np.ndarray) -> None:
+        """Keep these rows, in this order (`idx`, an int array)."""
+        n = len(self.objs)
+        gone = np.ones(n, dtype=bool)
         gone[idx] = False
         left = gone & (self.stop_junction >= 0)  # a queued road user left
         self._forget_buckets(set(self.env[gone].tolist()))
         self.queue_version[self.env[left]] += 1
         self.queued -= int(left.sum())
-        self._keep_rows(self._ARRAYS, idx)
-        self._keep_rows(tuple(self._WIDE_ARRAYS), idx)
-        new_row = np.full(len(self.objs), -1, dtype=np.int64)
+        moved = np.flatnonzero(idx != np.arange(len(idx)))
+        first = int(moved[0]) if len(moved) else len(idx)  # the rows before it stay where they are
+        self._keep_rows(self._ARRAYS + self._WIDE_NAMES, idx, first)
+        new_row = np.full(n, -1, dtype=np.int64)
         new_row[idx] = np.arange(len(idx))
         passages.keep_rows(self, new_row)
-        self.dirty = {int(new_row[d]) for d in self.dirty if d < len(new_row) and new_row[d] >= 0}
+        self.dirty = {int(new_row[d]) for d in self.dirty if d < n and new_row[d] >= 0}
+        runs = reorder_runs(idx, self._settled)
         for name in ("routes", "route_ids", "objs"):
-            setattr(self, name, reorder(getattr(self, name), idx, self._settled))
+            items = getattr(self, name)
+            setattr(self, name, [items[i] for i in idx.tolist()] if runs is None else reorder_in_place(items, runs))
         self._settled = len(idx)
         held = np.nonzero(self.res >= 0)  # the holders' rows move with them; one that went has left
         if len(held[0]):
-            moved = new_row[self.res[held]]
-            self.res[held] = np.where(moved >= 0, moved, LEFT)
-        objs = self.objs
-        for i in np.nonzero(idx != np.arange(len(idx)))[0].tolist():  # rows that moved
-            if isinstance(objs[i], ArrayVehicle):
-                objs[i]._row = i
+            at = new_row[self.res[held]]
+            self.res[held] = np.where(at >= 0, at, LEFT)
         self._masks()
+        external = bool(self._external)
+        for i, o in enumerate(self.objs[first:], first):  # the rows that moved: their views' rows
+            if not external or isinstance(o, ArrayVehicle):
+                o._row = i
 
     def _take_in(self, obj, road) -> None:
         """A road user user code added to `road`: a TrafficVehicle on a lane route becomes a
@@ -1073,7 +1129,7 @@ class TrafficCore:
             o._row = 0
         out = set(map(id, gone))
         keep = [k for k, o in enumerate(self.p_objs) if id(o) not in out]
-        self._keep_rows(self._WALKER_ARRAYS, keep)
+        self._keep_rows(self._WALKER_ARRAYS, np.array(keep, dtype=np.int64))
         self.p_objs = [self.p_objs[k] for k in keep]
         for k, o in enumerate(self.p_objs):
             o._row = k
@@ -1636,44 +1692,42 @@ class TrafficCore:
     def signal_codes(self, slot: int | None = None) -> np.ndarray:
         """The states (`control.signal_timing` codes) of every signal (`LaneTable.signal_ids`) of
         every slot at its clock ([slots, signals]; of `slot` alone, [signals]): what the arrays
-        and the rules' `signal_state` read, worked out again (`_time_signals`) only once a slot's
-        clock has reached the next change of one of its signals (or gone back), or a slot has a
-        new control (a signal changes every few seconds: most frames read states worked out frames
-        before)."""
-        held = self._signals_timed
+        and the rules' `signal_state` read, worked out again (`_time_signals`) only for the slots
+        whose clock has reached the next change of one of their signals (or gone back), or that
+        have a new road (a signal changes every few seconds: most frames read states worked out
+        frames before)."""
+        times, codes, _, next_change = self._signals_timed
+        clock = self.clock
         if slot is not None:
-            control = self.roads[slot].control
-            if held is None or held[1][slot] is not control or not held[0][slot] <= control.t < held[4][slot]:
-                held = self._time_signals()
-            return held[2][slot]
-        at = self._signals_at_clock()
-        if held is None or held[1] is not self._signals_held[0] or not ((held[0] <= at[0]) & (at[0] < held[4])).all():
-            held = self._time_signals(at)
-        return held[2]
+            if self._plans_new[slot] or not times[slot] <= clock[slot] < next_change[slot]:
+                codes = self._time_signals(np.array([slot]))[1]
+            return codes[slot]
+        due = self._plans_new | (clock < times) | (clock >= next_change)
+        return self._time_signals(due.nonzero()[0])[1] if due.any() else codes
 
     def signal_waits(self, slot: int) -> np.ndarray:
         """Seconds until each signal of `slot` changes, at its clock: worked out again
         (`_time_signals`) once that clock has moved on."""
-        held = self._signals_timed
-        control = self.roads[slot].control
-        if held is None or held[1][slot] is not control or held[0][slot] != control.t:
-            held = self._time_signals()
-        return held[3][slot]
+        times, _, waits, _ = self._signals_timed
+        if self._plans_new[slot] or times[slot] != self.clock[slot]:
+            waits = self._time_signals(np.array([slot]))[2]
+        return waits[slot]
 
     def signal_waits_of(self, slots: np.ndarray, signals: np.ndarray) -> np.ndarray:
         """Seconds until signal `signals[k]` of slot `slots[k]` changes, at that slot's clock
         (`signal_timing` of those pairs alone: the infos of a batch)."""
-        times, arrays = self._signals_at_clock()
-        return signal_timing(times[slots], arrays[slots, :, signals].T)[1]
+        return signal_timing(self.clock[slots], self._plans[slots, :, signals].T)[1]
 
-    def _time_signals(self, at: tuple[np.ndarray, np.ndarray] | None = None) -> tuple:
-        """`control.signal_timing`, one program for every signal of every slot at its clock (`at`:
-        `_signals_at_clock`, when already read): (clocks, controls, codes, waits, each slot's
-        next change less SIGNAL_EDGE_S), kept for `signal_codes` and `signal_waits`."""
-        times, arrays = at or self._signals_at_clock()
-        codes, wait = signal_timing(times[:, None], arrays.transpose(1, 0, 2))
-        self._signals_timed = (times, self._signals_held[0], codes, wait,
-                               times + wait.min(axis=1, initial=math.inf) - SIGNAL_EDGE_S)
+    def _time_signals(self, slots: np.ndarray) -> tuple:
+        """`control.signal_timing`, one program for every signal of `slots` at each one's clock,
+        into a new copy of what `signal_codes` and `signal_waits` keep."""
+        times, codes, waits, next_change = (a.copy() for a in self._signals_timed)
+        t = self.clock[slots]
+        codes[slots], waits[slots] = signal_timing(t[:, None], self._plans[slots].transpose(1, 0, 2))
+        times[slots] = t
+        next_change[slots] = t + waits[slots].min(axis=1, initial=math.inf) - SIGNAL_EDGE_S
+        self._plans_new[slots] = False
+        self._signals_timed = (times, codes, waits, next_change)
         return self._signals_timed
 
     @contextlib.contextmanager
@@ -1698,11 +1752,6 @@ class TrafficCore:
             out = memo[key] = make()
         return out
 
-    def _signals_at_clock(self) -> tuple[np.ndarray, np.ndarray]:
-        """(every slot's clock, `_signal_arrays`): what `_signal_states` reads, now."""
-        controls = [r.control if r is not None else None for r in self.roads]
-        return self.clock.copy(), self._signal_arrays(controls)
-
     def buckets(self, road: "MapRoad") -> dict[str, list]:
         """The road users of `road` on each lane id, in its vehicles' order (after a sync; a
         controlled row on its located lane): `TrafficControl.buckets`."""
@@ -1723,17 +1772,6 @@ class TrafficCore:
     def _forget_buckets(self, slots) -> None:
         """The rules' lane buckets of `slots` are made again when next asked (road users came or went)."""
         self.moves[list(slots)] += 1
-
-    def _signal_arrays(self, controls: list) -> np.ndarray:
-        """[slots, 5, signals]: `control.signal_arrays` of every slot's control, stacked again only
-        when a control changed (a reset)."""
-        held = getattr(self, "_signals_held", None)
-        if held is None or len(held[0]) != len(controls) or any(a is not b for a, b in zip(held[0], controls)):
-            ids = self.table.signal_ids
-            blank = no_plans(len(ids))  # (a slot with no road)
-            held = self._signals_held = (list(controls), np.stack([signal_arrays(c, ids) if c is not None else blank
-                                                                   for c in controls]))
-        return held[1]
 
     def _mobil(self, traffic: np.ndarray) -> None:
         due = traffic & (self.timer - self.mobil_t >= MOBIL_PERIOD_S) & ~self.crashed

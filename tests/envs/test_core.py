@@ -336,6 +336,81 @@ def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
     env.close()
 
 
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["step", "reset", "remove", "spawn", "reverse"]), st.integers(0, 2)),
+                min_size=1, max_size=8))
+def test_rows_that_come_stay_at_the_end_and_rows_that_go_leave_the_others_in_order(ops):
+    """In a batch, each road's rows are its vehicles in their order, every view knows its row,
+    and rows of different slots need no order among them: a sub-env's reset, a vehicle removed
+    or spawned leave every other row where it was in row order (appended rows stay at the end),
+    and only a road whose vehicles were reordered groups every row by slot again."""
+    venv = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                        config={"features": FEATS, "traffic_vehicles": 4})
+    venv.reset(seed=4)
+    envs, core = venv.unwrapped.envs, venv.unwrapped.core
+    for op, k in ops:
+        env, road = envs[k], envs[k].road
+        before = list(core.objs)
+        if op == "step":
+            venv.step(np.ones(3, dtype=np.int64))
+        elif op == "reset":
+            env.reset()
+        elif op == "remove" and len(road.vehicles) > 1:
+            road.vehicles.remove(road.vehicles[-1 if len(road.vehicles) % 2 else 1])
+        elif op == "spawn":
+            env._spawn_traffic()
+        elif op == "reverse":
+            road.vehicles[1:] = road.vehicles[:0:-1]
+        core.sync()
+        road = env.road  # (a reset's new road)
+        assert all(len(getattr(core, name)) == len(core.objs) for name in (*core._ARRAYS, *core._WIDE_ARRAYS))
+        for e in envs:
+            assert [core.objs[i] for i in core.rows(e.road).tolist()] == e.road.vehicles
+        assert all(core.objs[v.row] is v for v in core.objs)
+        if op != "step" and op != "reverse":  # the rows of the other slots kept their order, the new ones last
+            others = [o for o in before if o in core.objs and o not in road.vehicles]
+            assert [o for o in core.objs if o not in road.vehicles] == others
+            new = [o for o in road.vehicles if o not in before]
+            assert core.objs[len(core.objs) - len(new):] == new
+    venv.close()
+
+
+def test_the_signals_of_a_slot_are_worked_out_again_alone_and_read_as_their_plans_at_its_clock():
+    """The signal states of every slot are the phase plans' program at that slot's clock
+    (`control.signal_timing`), and a sub-env's reset (a new control in its slot) or a slot's
+    clock reaching a change works out the states of that slot alone."""
+    from feat2map.envs.control import signal_arrays, signal_timing
+
+    venv = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                        config={"features": FEATS, "traffic_vehicles": 2, "signal_green": 3.0})
+    venv.reset(seed=5)
+    envs, core = venv.unwrapped.envs, venv.unwrapped.core
+    ids = core.table.signal_ids
+
+    def expected() -> np.ndarray:
+        return np.stack([signal_timing(np.array([e.control.t])[:, None], signal_arrays(e.control, ids)[:, None, :]
+                                       .transpose(0, 1, 2))[0][0] for e in envs])
+
+    reset = False
+    for step in range(40):
+        venv.step(np.ones(3, dtype=np.int64))
+        assert np.array_equal(core.signal_codes(), expected())
+        assert all(np.array_equal(core.signal_codes(k), expected()[k]) for k in range(3))
+        times = core._signals_timed[0].copy()
+        if step >= 10 and not reset and (times < core.clock).all():  # (worked out at an earlier clock)
+            envs[1].reset()
+            core.signal_codes()
+            now = core._signals_timed[0]
+            assert now[1] == 0.0 and now[[0, 2]].tolist() == times[[0, 2]].tolist()
+            envs[1].control.t = 100.0  # its clock moved on: its states are due, the others' not
+            core.signal_codes()
+            now = core._signals_timed[0]
+            assert now[1] == 100.0 and now[[0, 2]].tolist() == times[[0, 2]].tolist()
+            reset = True
+    assert reset
+    venv.close()
+
+
 def test_views_read_and_write_their_rows_and_user_vehicles_are_taken_in():
     env = gym.make("feat2map/JunctionGrid-v0", config={"features": FEATS, "traffic_vehicles": 3,
                                                        "action": DRIVER_ACTION_CONFIG})
