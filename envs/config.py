@@ -480,11 +480,32 @@ def merge_config(base: dict, delta: Mapping | None) -> dict:
     return base
 
 
-def validate_config(config: Mapping[str, Any]) -> None:
-    """Check every value of a merged config against SCHEMA (the SETTINGS of the single envs)."""
+def checked_copy(config: Mapping[str, Any]) -> dict[str, Any]:
+    """What `validate_config` compares a later config with: the values, dicts as deep copies
+    (user code may change a nested value in place)."""
+    return {k: copy.deepcopy(v) if isinstance(v, dict) else v for k, v in config.items()}
+
+
+def _unchanged(before: Any, value: Any) -> bool:
+    """Whether `value` is what was checked: the same object, or an equal dict."""
+    if before is value:
+        return True
+    if not isinstance(value, dict):
+        return False
+    try:
+        return bool(before == value)
+    except (TypeError, ValueError):  # (arrays inside)
+        return False
+
+
+def validate_config(config: Mapping[str, Any], before: Mapping[str, Any] | None = None) -> None:
+    """Check every value of a merged config against SCHEMA (the SETTINGS of the single envs);
+    with `before` (`checked_copy` of the config as last checked), only the values that changed
+    since (a training script's draws change a key or two per episode; the action's and the
+    observation's checks are the costly ones)."""
     for key, value in config.items():
         check = SCHEMA.get(key)
-        if check is not None:
+        if check is not None and (before is None or not _unchanged(before.get(key, check), value)):
             check(value, f"config.{key}")
     sim, policy = config.get("simulation_frequency"), config.get("policy_frequency")
     if sim is not None and policy is not None and policy > sim:

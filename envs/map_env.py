@@ -27,7 +27,7 @@ from ..config import (EGO_CLEARANCE_M, EGO_RESPAWN_CLEARANCE_M, MAX_LEGS, STOP_L
 from ..errors import Feat2MapError
 from ..semantics import assert_sound
 from . import info_columns, task
-from .config import MAP_ENV, defaults, merge_config, validate_config
+from .config import MAP_ENV, checked_copy, defaults, merge_config, validate_config
 from .control import TrafficControl
 from .controlled import ControlledRow, MetaRow
 from .network import MapNetwork, StopLine, release_memory
@@ -191,6 +191,7 @@ class MapEnv(EgoTask, AbstractEnv):
     metadata = {"render_modes": ["human", "rgb_array"], "autoreset_mode": AutoresetMode.NEXT_STEP}
     core_slot: tuple[Any, int] | None = None  # (shared TrafficCore, slot) of a sub-env of a batch (vector.py)
     shared_net: MapNetwork | None = None  # the batch's map, which every episode of a sub-env drives (`share`)
+    _checked: dict | None = None  # the config as last checked (`configure` checks the values changed since)
 
     def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
         self.metadata = dict(type(self).metadata)  # highway-env writes render_fps into it: one per env
@@ -207,11 +208,12 @@ class MapEnv(EgoTask, AbstractEnv):
     def configure(self, config: dict) -> None:
         """Merge `config` into the current config; unknown keys and bad values are errors."""
         merged = merge_config(dict(self.config), config)
-        validate_config(merged)
+        validate_config(merged, self._checked)
         self.config.clear()
         self.config.update(merged)
         if self.config["offscreen_rendering"] is None:
             self.config["offscreen_rendering"] = self.render_mode != "human"
+        self._checked = checked_copy(self.config)
 
     # ---- map -----------------------------------------------------------------------------
     def _network(self) -> MapNetwork:

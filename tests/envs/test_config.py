@@ -75,6 +75,29 @@ def test_map_file_env_checks_its_values_and_configure_is_strict(tmp_path):
     assert env.unwrapped.config["duration"] == 5.0
 
 
+def test_configure_checks_the_values_changed_since_the_last_check(monkeypatch):
+    """`configure` checks the values it changes and any that user code changed in `config` since
+    the last check (replaced, or a nested value changed in place), not the others (a training
+    script's draws change a key or two per episode; the action's and the observation's checks
+    are the costly ones)."""
+    env = make()
+    u = env.unwrapped
+    checked: list[str] = []
+    schema = dict(config.SCHEMA)
+    for key, check in schema.items():
+        monkeypatch.setitem(config.SCHEMA, key, lambda v, where, c=check: (checked.append(where), c(v, where)))
+    u.configure({"traffic_vehicles": 3})
+    assert checked == ["config.traffic_vehicles"]
+    u.config["duration"] = -1.0  # replaced behind configure's back: checked at the next one
+    with pytest.raises(Feat2MapError, match="config.duration"):
+        u.configure({"traffic_vehicles": 2})
+    u.config["duration"] = 60.0
+    u.config["observation"]["vehicle_count"] = 5  # changed in place
+    with pytest.raises(Feat2MapError, match="config.observation"):
+        u.configure({})
+    env.close()
+
+
 @pytest.mark.parametrize("action_config, action, text", [
     (DRIVER_ACTION_CONFIG, np.array([math.nan], dtype=np.float32), "must be finite"),
     (DRIVER_ACTION_CONFIG, np.array([0.1, 0.2], dtype=np.float32), "shape (1,)"),
