@@ -94,7 +94,7 @@ from .sim import crossings, entries, judge, mobil, passages, pedestrians, rule_s
 from .sim.join import same_key_pairs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
-from .vehicles import TrafficVehicle, route_upcoming
+from .vehicles import Pedestrian, TrafficVehicle, route_upcoming
 
 if TYPE_CHECKING:
     from .road import MapRoad
@@ -2013,9 +2013,15 @@ class TrafficCore:
         env = self.env[rows]
         n = len(x)
         if objects:
-            places = [o.position for o in objects]  # (a view's position is made on each read)
-            x = np.concatenate([x, [p[0] for p in places]])
-            y = np.concatenate([y, [p[1] for p in places]])
+            # a walker's place is read from the core's walker arrays, another object's from it
+            walker = [o._row if type(o) is Pedestrian and o._core is self else -1 for o in objects]
+            w = np.array(walker, dtype=np.int64)
+            ox, oy = np.zeros(len(w)), np.zeros(len(w))
+            real = w >= 0
+            ox[real], oy[real] = self.p_x[w[real]], self.p_y[w[real]]
+            for k in (~real).nonzero()[0].tolist():
+                ox[k], oy[k] = objects[k].position
+            x, y = np.concatenate([x, ox]), np.concatenate([y, oy])
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
