@@ -110,34 +110,37 @@ class MapVectorEnv(VectorEnv):
         instead), all stepping ones together (`map_env.simulate`). A bad batch action is refused
         before any sub-env changes (`batch_actions`)."""
         acts = self.batch_actions(actions)
-        stepping, done_infos = [], {}
-        for i, env in enumerate(self.envs):
-            if self.autoreset_mode == AutoresetMode.NEXT_STEP and self._ended[i]:
-                self._env_obs[i], done_infos[i] = env.reset()
-                self._rewards[i] = 0.0
-                self._terminations[i] = self._truncations[i] = False
-            elif self.autoreset_mode == AutoresetMode.DISABLED and self._ended[i]:
-                raise Feat2MapError(f"sub-env {i} ended: with autoreset_mode disabled, reset it (options reset_mask) "
-                                    "before stepping it again", "step")
-            else:
-                stepping.append(i)
+        done_infos: dict[int, dict] = {}
+        ended = np.flatnonzero(self._ended).tolist()
+        stepping = list(range(self.num_envs))
+        if ended and self.autoreset_mode == AutoresetMode.DISABLED:
+            raise Feat2MapError(f"sub-env {ended[0]} ended: with autoreset_mode disabled, reset it (options "
+                                "reset_mask) before stepping it again", "step")
+        if ended and self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            for i in ended:
+                self._env_obs[i], done_infos[i] = self.envs[i].reset()
+            self._rewards[ended] = 0.0
+            self._terminations[ended] = self._truncations[ended] = False
+            stepping = np.flatnonzero(~self._ended).tolist()
         envs = [self.envs[i] for i in stepping]
-        for i, env in zip(stepping, envs):
-            env.begin_step(acts[i], checked=True)
-        simulate(envs, [acts[i] for i in stepping])
+        acts = acts if len(stepping) == self.num_envs else [acts[i] for i in stepping]
+        for env, act in zip(envs, acts):
+            env.begin_step(act, checked=True)
+        simulate(envs, acts)
         observed = self.observe(envs)
         infos: dict[str, Any] = {}
         own = np.array([env.vehicle.row for env, obs in zip(envs, observed) if obs is None], dtype=np.int64)
         with self.core.observing(own) if len(own) else contextlib.nullcontext():  # who observes itself
             if self.batch_end(envs):
-                infos = self.end_steps(stepping, envs, [acts[i] for i in stepping], observed)
+                infos = self.end_steps(stepping, envs, acts, observed)
             else:
-                for i, env, obs in zip(stepping, envs, observed):
+                for i, env, act, obs in zip(stepping, envs, acts, observed):
                     self._env_obs[i], self._rewards[i], self._terminations[i], self._truncations[i], done_infos[i] = \
-                        env.end_step(acts[i], obs)
+                        env.end_step(act, obs)
         finals, ended = [], []
-        for i, env in enumerate(self.envs):
-            if self.autoreset_mode == AutoresetMode.SAME_STEP and (self._terminations[i] or self._truncations[i]):
+        if self.autoreset_mode == AutoresetMode.SAME_STEP:
+            for i in np.flatnonzero(self._terminations | self._truncations).tolist():
+                env = self.envs[i]
                 if i not in done_infos:  # its info is in the batch's columns
                     cols, column_of = self._step_values
                     done_infos[i] = info_dicts(cols, env.action_space, [column_of[i]])[0]
@@ -205,8 +208,8 @@ class MapVectorEnv(VectorEnv):
 
     def batch_end(self, envs: list[MapEnv]) -> bool:
         """Whether `end_steps` stands in for the `end_step`s of `envs` (their classes keep
-        MapEnv's reward, termination and info)."""
-        return bool(envs) and all(env.keeps_step_hooks() for env in envs)
+        MapEnv's reward, termination and info: asked of one env of each class)."""
+        return bool(envs) and all(env.keeps_step_hooks() for env in {type(env): env for env in envs}.values())
 
     def end_steps(self, stepping: list[int], envs: list[MapEnv], actions: list, observed: list) -> dict:
         """What `MapEnv.end_step` does for each of `envs` (sub-envs `stepping`): their rewards,
