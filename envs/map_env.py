@@ -426,8 +426,10 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
         roads.append(env.road)
         members.append(env)
     acting: list[list[tuple[MapEnv, Any]]] = [[] for _ in range(frames)]  # who decides on each frame
-    for core, _, members in groups.values():  # (this step's violations)
-        core.new_violations[[env.vehicle.row for env in members]] = 0
+    egos: dict[int, tuple[int, np.ndarray]] = {}  # per core, (its `layout`, the members' egos' rows then)
+    for core, _, members in groups.values():
+        egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
+        core.new_violations[egos[id(core)][1]] = 0  # (this step's violations)
     for env, action in zip(envs, actions):
         if action is not None and not env.config["manual_control"]:
             if isinstance(env.action_space, spaces.Discrete):
@@ -435,7 +437,6 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             acting[-env.steps % frames].append((env, action))
     tracked = [env.vehicle for env in envs if env.vehicle.tracker is not None]  # an external planner's trajectory
     viewed = [env for env in envs if env.viewer is not None]
-    egos: dict[int, tuple[int, np.ndarray]] = {}  # per core, (its `layout`, the members' egos' rows then)
     for frame in range(frames):
         for env, action in acting[frame]:
             env.action_type.act(action)
@@ -445,10 +446,10 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
             core.act(roads)
             core.step(roads, dt)
         for core, _, members in groups.values():
-            held = egos.get(id(core))
-            if held is None or held[0] != core.layout:
-                held = egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
-            core.judge(held[1][core.judge_due(held[1])])
+            if egos[id(core)][0] != core.layout:  # (rows came or went)
+                egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
+            rows = egos[id(core)][1]
+            core.judge(rows[core.judge_due(rows)])
         if frame < frames - 1:
             for env in viewed:
                 env._automatic_rendering()
@@ -547,17 +548,23 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence, batch: bool = False) 
     reward terms are the info's "rewards" (a batch's one table, `info_columns.Records`)."""
     core = envs[0].road.core
     one = len(envs) == 1 and not batch  # a single env: its row an int, its values numpy scalars (the same operations)
-
-    def each(value: Callable[[MapEnv], Any]) -> Any:
-        return value(envs[0]) if one else np.array([value(env) for env in envs])
-    rows = each(lambda env: env.vehicle.row)
+    keys = weight_keys(REWARD_TERMS)  # (the envs keep MapEnv's `_reward_weights`: `keeps_hooks`)
+    row, weights, offroad_terminal, cut = [], [], [], []  # of each env, in one pass
+    for env in envs:
+        c = env.config
+        row.append(env.vehicle.row)
+        weights.append(tuple(map(c.__getitem__, keys)))
+        offroad_terminal.append(bool(c["offroad_terminal"]))
+        cut.append(env.time >= c["duration"])
+    rows = row[0] if one else np.array(row)
     done, completed = task.route_state(core, rows)
     off_road = core.off_road[rows]
     terms = task.reward_terms(core, rows, done, completed, off_road)
     terms = terms.reshape(len(envs), len(REWARD_TERMS))
-    rewards = task.weighted(terms, [env._reward_weights() for env in envs])
-    terminated = task.ended(core.crashed[rows], completed, off_road, each(lambda env: bool(env.config["offroad_terminal"])))
-    truncated = each(lambda env: env.time >= env.config["duration"])
+    rewards = task.weighted(terms, weights)
+    terminated = task.ended(core.crashed[rows], completed, off_road,
+                            offroad_terminal[0] if one else np.array(offroad_terminal))
+    truncated = cut[0] if one else np.array(cut)
     progress = task.route_progress(core, rows, done)
     if one:
         envs[0]._last_rewards = dict(zip(REWARD_TERMS, terms[0].tolist()))
