@@ -339,11 +339,11 @@ def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from(["step", "reset", "remove", "spawn", "reverse"]), st.integers(0, 2)),
                 min_size=1, max_size=8))
-def test_rows_that_come_stay_at_the_end_and_rows_that_go_leave_the_others_in_order(ops):
-    """In a batch, each road's rows are its vehicles in their order, every view knows its row,
-    and rows of different slots need no order among them: a sub-env's reset, a vehicle removed
-    or spawned leave every other row where it was in row order (appended rows stay at the end),
-    and only a road whose vehicles were reordered groups every row by slot again."""
+def test_a_sync_keeps_every_roads_rows_in_its_vehicles_order_and_every_row_its_values(ops):
+    """In a batch, after any sub-env's reset, vehicle removed, spawned or reordered, each road's
+    rows are its vehicles in their order, every view knows its row and every row kept keeps its
+    values (`TrafficCore._select` moves the rows from the first that changed on, in their
+    buffers)."""
     venv = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=3, vectorization_mode="vector_entry_point",
                         config={"features": FEATS, "traffic_vehicles": 4})
     venv.reset(seed=4)
@@ -351,6 +351,7 @@ def test_rows_that_come_stay_at_the_end_and_rows_that_go_leave_the_others_in_ord
     for op, k in ops:
         env, road = envs[k], envs[k].road
         before = list(core.objs)
+        values = {name: getattr(core, name).copy() for name in ("s", "lane", "speed", "route_pos")}
         if op == "step":
             venv.step(np.ones(3, dtype=np.int64))
         elif op == "reset":
@@ -363,15 +364,14 @@ def test_rows_that_come_stay_at_the_end_and_rows_that_go_leave_the_others_in_ord
             road.vehicles[1:] = road.vehicles[:0:-1]
         core.sync()
         road = env.road  # (a reset's new road)
+        kept = [o for o in before if o in core.objs] if op != "step" else []
+        kept_at = [before.index(o) for o in kept]
         assert all(len(getattr(core, name)) == len(core.objs) for name in (*core._ARRAYS, *core._WIDE_ARRAYS))
         for e in envs:
             assert [core.objs[i] for i in core.rows(e.road).tolist()] == e.road.vehicles
         assert all(core.objs[v.row] is v for v in core.objs)
-        if op != "step" and op != "reverse":  # the rows of the other slots kept their order, the new ones last
-            others = [o for o in before if o in core.objs and o not in road.vehicles]
-            assert [o for o in core.objs if o not in road.vehicles] == others
-            new = [o for o in road.vehicles if o not in before]
-            assert core.objs[len(core.objs) - len(new):] == new
+        assert all(np.array_equal(getattr(core, name)[[core.objs.index(o) for o in kept]], values[name][kept_at])
+                   for name in ("s", "lane", "speed", "route_pos"))  # each kept row's values went with it
     venv.close()
 
 
