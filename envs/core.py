@@ -900,19 +900,20 @@ class TrafficCore:
             arrays[name] = view = buf[:n + 1]
             spare[name] = (buf, view)
 
-    def _keep_rows(self, names: tuple[str, ...], idx: np.ndarray, first: int = 0) -> None:
-        """Keep rows `idx` of the arrays `names`, in this order; the rows before `first` keep
-        their places (`idx[:first]` is their range), so an array in a buffer of `_append_rows`
-        has only the rows from `first` on written, in place."""
+    def _keep_rows(self, names: tuple[str, ...], idx: np.ndarray, moved: np.ndarray | None = None) -> None:
+        """Keep rows `idx` of the arrays `names`, in this order; with `moved` (the places whose
+        row changes, `idx[k] != k`: every other place keeps its row), an array in a buffer of
+        `_append_rows` has only those places written, in place (a respawn's sync moves the rows
+        of one slot)."""
         arrays, spare = self.__dict__, self._spare
         m = len(idx)
-        tail = idx[first:]
+        source = idx[moved] if moved is not None else idx
         for name in names:
             a = arrays[name]
             held = spare.get(name)
-            if first and held is not None and held[1] is a:
+            if moved is not None and held is not None and held[1] is a:
                 buf = held[0]
-                buf[first:m] = a[tail]
+                buf[moved] = a[source]
                 arrays[name] = view = buf[:m]
                 spare[name] = (buf, view)
             else:
@@ -983,9 +984,8 @@ class TrafficCore:
         self._forget_buckets(set(self.env[gone].tolist()))
         self.queue_version[self.env[left]] += 1
         self.queued -= int(left.sum())
-        moved = np.flatnonzero(idx != np.arange(len(idx)))
-        first = int(moved[0]) if len(moved) else len(idx)  # the rows before it stay where they are
-        self._keep_rows(self._ARRAYS + self._WIDE_NAMES, idx, first)
+        moved = np.flatnonzero(idx != np.arange(len(idx)))  # the places whose row changes
+        self._keep_rows(self._ARRAYS + self._WIDE_NAMES, idx, moved)
         new_row = np.full(n, -1, dtype=np.int64)
         new_row[idx] = np.arange(len(idx))
         passages.keep_rows(self, new_row)
@@ -1000,8 +1000,9 @@ class TrafficCore:
             at = new_row[self.res[held]]
             self.res[held] = np.where(at >= 0, at, LEFT)
         self._masks()
-        external = bool(self._external)
-        for i, o in enumerate(self.objs[first:], first):  # the rows that moved: their views' rows
+        objs, external = self.objs, bool(self._external)
+        for i in moved.tolist():  # the rows that moved: their views' rows
+            o = objs[i]
             if not external or isinstance(o, ArrayVehicle):
                 o._row = i
 
