@@ -553,19 +553,13 @@ class ArrayVehicle(TrafficVehicle):
         self.action = {"steering": 0.0, "acceleration": 0.0}
 
 
-def reorder(items: list, order: np.ndarray, settled: int) -> list:
-    """`[items[i] for i in order]`, made in place where the indices below `settled` keep their
-    order in `order` (rows appended since a sync, put in their slots' places, and rows gone): runs
-    deleted and inserted move pointers, where a copy of a long list touches every object in it
-    (2.5% of a batched step at N = 256); a new list otherwise."""
-    runs = reorder_runs(order, settled)
-    return [items[i] for i in order.tolist()] if runs is None else reorder_in_place(items, runs)
-
-
 def reorder_runs(order: np.ndarray, settled: int) -> tuple | None:
-    """What `reorder` of any list by `order` does in place: (settled, the runs of the indices below
-    `settled` that go, and each run of `order` that comes from above it with its indices); None
-    where those below `settled` do not keep their order (a new list is made)."""
+    """How to make `[items[i] for i in order]` of a list in place, where the indices below
+    `settled` keep their order in `order` (rows appended since a sync, put in their slots'
+    places, and rows gone): (settled, the runs of the indices below `settled` that go, and each
+    run of `order` that comes from above it, with its indices), for `reorder_in_place`; None
+    otherwise (a new list is to be made). Runs deleted and inserted move pointers, where a copy
+    of a long list touches every object in it (2.5% of a batched step at N = 256)."""
     low = order < settled
     head = order[low]
     if (head[1:] <= head[:-1]).any():
@@ -576,7 +570,7 @@ def reorder_runs(order: np.ndarray, settled: int) -> tuple | None:
 
 
 def reorder_in_place(items: list, runs: tuple) -> list:
-    """`reorder` of `items` by `reorder_runs`' runs."""
+    """`items` in the new order of `reorder_runs`' runs, changed in place."""
     settled, gone, come = runs
     tail = items[settled:]
     del items[settled:]
@@ -614,7 +608,7 @@ class TrafficCore:
         self._external: list[int] = []  # the external rows (`_masks`)
         self._acting: list[int] = []  # those being stepped this frame (`act`)
         self.objs: list[Any] = []
-        self._settled = 0  # the rows before this one are in the order the last sync left (`reorder`)
+        self._settled = 0  # the rows before this one are in the order the last sync left (`reorder_runs`)
         # the rows by slot and where each slot's end among them (`slot_rows`), None: to be found again
         self._slot_rows: tuple[np.ndarray, np.ndarray] | None = None
         self.layout = 0  # counts the changes of which road user each row is (rows came, went or moved)
