@@ -505,7 +505,7 @@ def validate_config(config: Mapping[str, Any], before: Mapping[str, Any] | None 
     observation's checks are the costly ones)."""
     for key, value in config.items():
         check = SCHEMA.get(key)
-        if check is not None and (before is None or not _unchanged(before.get(key, check), value)):
+        if check is not None and (before is None or key not in before or not _unchanged(before[key], value)):
             check(value, f"config.{key}")
     sim, policy = config.get("simulation_frequency"), config.get("policy_frequency")
     if sim is not None and policy is not None and policy > sim:

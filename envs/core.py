@@ -856,9 +856,7 @@ class TrafficCore:
         self.objs.append(obj)
         row = {**ROW_DEFAULTS, **row}
         # the masks `_masks` makes, for the new row alone
-        row["driven"] = row["kind"] == DRIVEN
-        row["max_reach"] = np.hypot(row["width"], row["length"]) / 2 - row["width"] / 2
-        row["on"] = self.stepped[row["env"]]
+        row["driven"], row["max_reach"], row["on"] = self._row_masks(row["kind"], row["width"], row["length"], row["env"])
         row["_all_on"] = True
         self._append_rows(self._ARRAYS + self._MASKS, row)
         self._append_rows(self._WIDE_NAMES, self._WIDE_ARRAYS)
@@ -913,11 +911,15 @@ class TrafficCore:
             else:
                 arrays[name] = a[idx]
 
+    def _row_masks(self, kind, width, length, env) -> tuple:
+        """(driven, the body's reach across a lane at a corner's angle beyond its half width
+        (`rules.body_reach` at its most), being stepped) of rows of these values (arrays, or one
+        row's scalars)."""
+        return kind == DRIVEN, np.hypot(width, length) / 2 - width / 2, self.stepped[env]
+
     def _masks(self) -> None:
         """Masks that change only when rows come or go."""
-        self.driven = self.kind == DRIVEN
-        self.max_reach = np.hypot(self.width, self.length) / 2 - self.width / 2  # `body_reach` at a corner's angle
-        self.on = self.stepped[self.env]
+        self.driven, self.max_reach, self.on = self._row_masks(self.kind, self.width, self.length, self.env)
         self._all_on = np.ones(len(self.env), dtype=bool)  # every row (all slots stepped); never written
         self._external = np.nonzero(self.kind == EXTERNAL)[0].tolist()
         self._slot_rows = None
