@@ -169,26 +169,9 @@ class MapVectorEnv(VectorEnv):
             env.close()
 
     def batch_actions(self, actions) -> list:
-        """The sub-envs' actions of a batch action, one per sub-env, each checked
-        (`map_env.check_action`); else a Feat2MapError naming the sub-env and its value, raised
-        before any sub-env is reset or stepped (a refused step leaves the batch as it was). An
-        array of valid actions is checked at once (`valid_batch`)."""
-        if isinstance(actions, np.ndarray) and valid_batch(self.single_action_space, actions, self.num_envs):
-            return list(actions)  # (what `iterate` gives of it)
-        try:
-            acts = list(iterate(self.action_space, actions))
-        except (TypeError, ValueError, AssertionError, IndexError):
-            raise Feat2MapError(f"must be one action per sub-env ({self.num_envs}), got {type(actions).__name__} "
-                                f"{np.shape(actions) if isinstance(actions, np.ndarray) else ''}".rstrip(),
-                                "actions") from None
-        if len(acts) != self.num_envs:
-            raise Feat2MapError(f"must be one action per sub-env: {self.num_envs}, got {len(acts)}", "actions")
-        for i, a in enumerate(acts):
-            try:
-                check_action(self.single_action_space, a)
-            except Feat2MapError as exc:
-                raise Feat2MapError(exc.message, f"actions[{i}] (sub-env {i})") from None
-        return acts
+        """The sub-envs' actions of a batch action (`batch_actions`), refused before any sub-env
+        is reset or stepped (a refused step leaves the batch as it was)."""
+        return batch_actions(self.single_action_space, self.action_space, actions, self.num_envs)
 
     def observe(self, envs: list[MapEnv]) -> list:
         """The observations of `envs` where one array program over the batch makes them (the
@@ -381,6 +364,28 @@ def stack_held(arrays: list[np.ndarray]) -> np.ndarray:
     return np.stack(list({id(a): a for a in arrays}.values()))[where]
 
 
+def batch_actions(single: spaces.Space, batched: spaces.Space, actions: Any, n: int) -> list:
+    """The `n` sub-envs' actions of batch action `actions` (of space `batched`, `n` actions of
+    space `single`), each checked (`map_env.check_action`); else a Feat2MapError naming the
+    sub-env and its value. An array of valid actions is checked at once (`valid_batch`)."""
+    if isinstance(actions, np.ndarray) and valid_batch(single, actions, n):
+        return list(actions)  # (what `iterate` gives of it)
+    try:
+        acts = list(iterate(batched, actions))
+    except (TypeError, ValueError, AssertionError, IndexError):
+        raise Feat2MapError(f"must be one action per sub-env ({n}), got {type(actions).__name__} "
+                            f"{np.shape(actions) if isinstance(actions, np.ndarray) else ''}".rstrip(),
+                            "actions") from None
+    if len(acts) != n:
+        raise Feat2MapError(f"must be one action per sub-env: {n}, got {len(acts)}", "actions")
+    for i, a in enumerate(acts):
+        try:
+            check_action(single, a)
+        except Feat2MapError as exc:
+            raise Feat2MapError(exc.message, f"actions[{i}] (sub-env {i})") from None
+    return acts
+
+
 def valid_batch(space: spaces.Space, actions: np.ndarray, n: int) -> bool:
     """Whether array `actions` holds `n` actions that `map_env.check_action` passes, checked at
     once: integers in range for a Discrete space, finite values of its shape for a Box; False for
@@ -442,60 +447,3 @@ def same_step(venv) -> None:
                             + SAME_STEP_HOWTO, "autoreset_mode")
     base.autoreset_mode = AutoresetMode.SAME_STEP
     base.metadata["autoreset_mode"] = AutoresetMode.SAME_STEP  # in place: vector wrappers share this dict
-
-
-def sb3_vec_env(venv) -> Any:
-    """A Stable-Baselines3 `VecEnv` over a Gymnasium vector env: SB3's conventions (done =
-    terminated or truncated, the final observation in info["terminal_observation"],
-    info["TimeLimit.truncated"]); infos are built only for the sub-envs whose episode ended.
-    SB3 needs same-step autoreset: a `gym.make_vec` env of the default mode (next-step) is
-    switched to it (`same_step`; the adapter resets it first); an async one must be made so."""
-    from stable_baselines3.common.vec_env import VecEnv
-
-    class GymnasiumVecEnv(VecEnv):
-        def __init__(self, venv) -> None:
-            same_step(venv)
-            self.venv = venv
-            self._actions: np.ndarray | None = None
-            super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
-
-        def reset(self):
-            seeds = None if all(s is None for s in self._seeds) else list(self._seeds)
-            obs, _ = self.venv.reset(seed=seeds)
-            self._reset_seeds()
-            return obs
-
-        def step_async(self, actions: np.ndarray) -> None:
-            self._actions = actions
-
-        def step_wait(self):
-            obs, rew, term, trunc, info = self.venv.step(self._actions)
-            done = term | trunc
-            infos: list[dict] = [{} for _ in range(self.num_envs)]
-            for i in np.nonzero(done)[0].tolist():
-                infos[i] = info_of(info["final_info"], i)
-                infos[i]["terminal_observation"] = info["final_obs"][i]
-                infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
-            return obs, rew.astype(np.float32), done, infos
-
-        def close(self) -> None:
-            self.venv.close()
-
-        def _subs(self, indices) -> list:
-            subs = self.venv.unwrapped.envs
-            return [subs[i] for i in self._get_indices(indices)]
-
-        def get_attr(self, attr_name: str, indices=None) -> list:
-            return [getattr(e, attr_name) for e in self._subs(indices)]
-
-        def set_attr(self, attr_name: str, value, indices=None) -> None:
-            for e in self._subs(indices):
-                setattr(e, attr_name, value)
-
-        def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list:
-            return [getattr(e, method_name)(*args, **kwargs) for e in self._subs(indices)]
-
-        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-            return [False for _ in self._subs(indices)]
-
-    return GymnasiumVecEnv(venv)

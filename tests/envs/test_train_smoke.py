@@ -1,5 +1,6 @@
 """Smoke version of examples/train_ppo.py: a tiny PPO training and the per-cell evaluation through
-the same code path (`run`) on a two-junction map, and the task's wrappers (target speeds, rewards)."""
+the same code path (`run`) on a two-junction map, its batch split over two worker processes
+(`sb3.sb3_workers`), and the task's wrappers (target speeds, rewards)."""
 from __future__ import annotations
 
 import csv
@@ -36,7 +37,7 @@ def tp():
 def tiny(tp):
     feats = (*tp.junction_features(ns=(4,), controls=("signal",), crosswalks=(True,)),
              *tp.junction_features(ns=(3,), controls=("stop",), crosswalks=(False,)))
-    return replace(tp.RunConfig(), features=feats, timesteps=256, n_envs=2, subprocess=False, n_steps=64,
+    return replace(tp.RunConfig(), features=feats, timesteps=256, n_envs=2, workers=2, subprocess=False, n_steps=64,
                    batch_size=64, n_epochs=2, episodes_per_cell=1, eval_workers=1, progress=False)
 
 

@@ -228,7 +228,7 @@ def test_sb3_adapter_steps_through_episode_ends():
     pytest.importorskip("stable_baselines3", reason=SKIP_RL)
     from stable_baselines3.common.vec_env import VecMonitor
 
-    from feat2map.envs.vector import sb3_vec_env
+    from feat2map.envs.sb3 import sb3_vec_env
 
     batch = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=2, config=SHORT)  # as a user writes it: next-step
     assert batch.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
@@ -264,7 +264,7 @@ def test_a_reset_cannot_change_the_batchs_map():
 
 def test_sb3_adapter_takes_either_autoreset_mode_with_the_same_steps():
     pytest.importorskip("stable_baselines3", reason=SKIP_RL)
-    from feat2map.envs.vector import sb3_vec_env
+    from feat2map.envs.sb3 import sb3_vec_env
 
     runs = []
     for kwargs in ({}, {"autoreset_mode": AutoresetMode.SAME_STEP}):  # the default, and the keyword that makes it
@@ -279,6 +279,55 @@ def test_sb3_adapter_takes_either_autoreset_mode_with_the_same_steps():
     assert len(runs[0]) == len(runs[1])
     for a, b in zip(*runs):
         assert data_equivalence(a, b)
+
+
+def _busy_batch(n: int):
+    return gym.make_vec("feat2map/JunctionGrid-v0", num_envs=n, config={**BUSY, "duration": 3.0},
+                        autoreset_mode=AutoresetMode.SAME_STEP)
+
+
+def test_sb3_workers_step_their_shares_as_one_batch_steps_them_all():
+    """Three sub-envs split over two worker processes (two and one) give what one batch of the
+    three gives from the same seeds and actions, through episode ends; attributes and methods
+    reach the sub-env asked; a bad action is refused naming the sub-env before any worker steps,
+    and an error in a worker reaches the caller naming it."""
+    pytest.importorskip("stable_baselines3", reason=SKIP_RL)
+    from feat2map.envs.sb3 import sb3_vec_env, sb3_workers
+
+    whole, split = sb3_vec_env(_busy_batch(3)), sb3_workers(_busy_batch, 3, workers=2)
+    try:
+        assert split.observation_space == whole.observation_space and split.action_space == whole.action_space
+        runs = []
+        for venv in (whole, split):
+            venv.seed(7)
+            steps = [venv.reset()]
+            rng = np.random.default_rng(0)
+            for _ in range(30):
+                obs, rew, done, infos = venv.step(rng.uniform(-1, 1, (3, 1)).astype(np.float32))
+                steps += [obs, rew, done, [sorted(i.items()) for i in infos]]
+            runs.append(steps)
+        assert sum(d.sum() for d in runs[0][3::4]) >= 2  # episodes ended and were reset in both
+        for a, b in zip(*runs):
+            assert data_equivalence(a, b)
+        assert split.get_attr("time") == whole.get_attr("time")
+        split.set_attr("probe", 5, indices=[2])
+        assert split.get_attr("probe", indices=2) == [5] and split.env_method("_is_truncated", indices=[0, 2]) == \
+            whole.env_method("_is_truncated", indices=[0, 2])
+        before = split.get_attr("time")
+        bad = np.zeros((3, 1), dtype=np.float32)
+        bad[2, 0] = np.nan
+        with pytest.raises(Feat2MapError, match=re.escape("actions[2] (sub-env 2)")):
+            split.step(bad)
+        assert split.get_attr("time") == before  # no worker stepped
+        with pytest.raises(RuntimeError, match="worker 1 failed"):
+            split.env_method("no_such_method", indices=[2])
+        split.step(np.zeros((3, 1), dtype=np.float32))  # the workers go on
+        assert split.get_attr("time") != before
+    finally:
+        whole.close()
+        split.close()
+    with pytest.raises(Feat2MapError, match="workers"):
+        sb3_workers(_busy_batch, 2, workers=3)
 
 
 def test_gymnasiums_vector_kwargs_is_refused_and_the_adapter_says_what_to_write():
