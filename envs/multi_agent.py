@@ -73,6 +73,7 @@ from .core import TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .map_env import (REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, discrete_index, info_dict,
                       info_dicts)
+from .driver_view import DriverViewObservation, driver_views
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
 from .routes import route_from_config, sample_config_route, start_place
@@ -658,12 +659,14 @@ class MultiAgentMapEnv(ParallelEnv):
         return obs, rewards, terms, truncs, infos
 
     def _observe(self, names: list[str]) -> dict[str, Any]:
-        """The agents' observations: Kinematics of all of them in one array program
-        (`sim.observe.kinematics`, the single env's values), else each agent's observation type."""
+        """The agents' observations: Kinematics or DriverView of all of them in one program
+        (`sim.observe.kinematics`, `driver_view.driver_views`: the single env's values), else each
+        agent's observation type."""
         if not names:
             return {}
         types = [self._views[a].observation_type for a in names]
-        got = kinematics(types, self.world.road.core) if type(types[0]) is Kinematics else [None] * len(names)
+        got = kinematics(types, self.world.road.core) if type(types[0]) is Kinematics else \
+            driver_views([t.env for t in types]) if type(types[0]) is DriverViewObservation else [None] * len(names)
         return {a: t.observe() if o is None else o for a, t, o in zip(names, types, got)}
 
     def _noop(self):

@@ -25,6 +25,7 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array,
 
 from ..errors import Feat2MapError
 from .core import TrafficCore
+from .driver_view import DriverViewObservation, driver_views
 from .info_columns import Records, SignalStates
 from .map_env import (MapEnv, check_action, check_options, held_feature_info, info_dicts, simulate,
                       step_ends)
@@ -174,15 +175,18 @@ class MapVectorEnv(VectorEnv):
         return batch_actions(self.single_action_space, self.action_space, actions, self.num_envs)
 
     def observe(self, envs: list[MapEnv]) -> list:
-        """The observations of `envs` where one array program over the batch makes them (the
-        Kinematics egos, `sim.observe.kinematics`, also inside the traffic-control dict), None
-        for the others (each observes itself)."""
+        """The observations of `envs` where one program over the batch makes them (the Kinematics
+        egos, `sim.observe.kinematics`; the DriverView egos, `driver_view.driver_views`; also
+        inside the traffic-control dict), None for the others (each observes itself)."""
         types = [env.observation_type for env in envs]
         wrapped = bool(types) and isinstance(types[0], TrafficControlObservation)
         types = [t.inner if wrapped else t for t in types]
         picks = [k for k, t in enumerate(types) if type(t) is Kinematics]
         kin: list = [None] * len(types)
         for k, o in zip(picks, kinematics([types[k] for k in picks], self.core)):
+            kin[k] = o
+        views = [k for k, t in enumerate(types) if type(t) is DriverViewObservation]
+        for k, o in zip(views, driver_views([envs[k] for k in views]) if views else ()):
             kin[k] = o
         if not wrapped:
             return kin

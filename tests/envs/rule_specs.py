@@ -1,7 +1,8 @@
 """The traffic rules as the rules word them, for one road user, read from a slot's lane buckets
 and queue lists: the specifications the rules' one array program each is held to
 (tests/envs/test_entries.py, tests/envs/test_passages.py, tests/envs/test_pedestrians.py,
-tests/envs/test_mobil.py, tests/envs/test_judge.py)."""
+tests/envs/test_mobil.py, tests/envs/test_judge.py), and the DriverView observation as it words
+its features (tests/envs/test_driver_view.py)."""
 from __future__ import annotations
 
 import math
@@ -9,11 +10,15 @@ from collections import Counter
 
 import numpy as np
 
-from feat2map.config import (MOBIL_DETOUR_M, MOBIL_MIN_GAP_M, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M,
+from feat2map.config import (DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS, DRIVER_VIEW_CONFLICT_TIME_S, DRIVER_VIEW_LEADER_SCALE_M,
+                             DRIVER_VIEW_LINE_FAR_M, DRIVER_VIEW_LINE_NEAR_M, DRIVER_VIEW_PEDESTRIAN_SCALE_M,
+                             DRIVER_VIEW_QUEUE_SCALE, DRIVER_VIEW_SIGNAL_SCALE_S, DRIVER_VIEW_SPEED_SCALE_MPS, MOBIL_DETOUR_M,
+                             MOBIL_MIN_GAP_M, OFF_ROAD_END_M, OFF_ROAD_LATERAL_M,
                              PEDESTRIAN_CORRIDOR_M, PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_HORIZON_S, PRIORITY_MARGIN_M)
 from feat2map.envs import task
-from feat2map.envs.rules import (enters_next, has_stopped, idm, may_change_lane, mobil_accepts, mobil_safe,
-                                 on_yield_stretch, pedestrian_in_path)
+from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES, _queue_ahead, conflicts_asked
+from feat2map.envs.rules import (enters_next, has_stopped, idm, in_stop_zone, manoeuvre_name, may_change_lane,
+                                 mobil_accepts, mobil_safe, on_yield_stretch, pedestrian_in_path)
 from feat2map.envs.vehicles import RouteFollower
 from feat2map.invariants import lane_changes
 
@@ -293,3 +298,71 @@ class JudgeAsWorded:
         route, pos = self.ego.lane_route, self.ego.route_pos
         k = next((i + 1 for i in range(min(pos, len(route) - 1), -1, -1) if route[i] == lane_id), len(route))
         return self.rules.net.hdmap.lanes[route[k]].turn if k < len(route) else None
+
+
+# ---- the DriverView observation ---------------------------------------------------------------
+_IGNORE_BUT_PEDESTRIANS = frozenset({"signal", "stop", "conflict", "passage"})
+CONFLICT_FEATURES = ("conflict_occupied", "priority_time", "priority_distance", "priority_speed", "other_time",
+                     "other_distance", "other_speed")
+
+
+def _scaled_as_worded(value: float, scale: float) -> float:
+    return min(max(value / scale, 0.0), 1.0)
+
+
+def _next_junction_lane(ego) -> tuple[int, str | None]:
+    """(route index, lane id) of the junction lane the ego is on or will enter next ((-1, None)
+    past the route's last junction)."""
+    lanes = ego.net.hdmap.lanes
+    for k in range(ego.route_pos, len(ego.lane_route)):
+        if lanes[ego.lane_route[k]].junction_id is not None:
+            return k, ego.lane_route[k]
+    return -1, None
+
+
+def driver_view_as_worded(env) -> np.ndarray:
+    """DRIVER_VIEW_FEATURES of `env`'s ego (a MapEnv, unwrapped, or an agent's view) as the
+    observation words them, asked of the rules one question at a time (`driver_view.driver_views`
+    is held to it)."""
+    ego, rules = env.vehicle, env.rules
+    net = rules.net
+    m = net.hdmap
+    out = dict.fromkeys(DRIVER_VIEW_FEATURES, 0.0)
+    out["speed"] = _scaled_as_worded(ego.speed, DRIVER_VIEW_SPEED_SCALE_MPS)
+    for key in ("line_near", "line_far", "line_time", "priority_time", "priority_distance", "other_time", "other_distance",
+                "pedestrian", "leader_gap"):
+        out[key] = 1.0
+    k, j_lane = _next_junction_lane(ego)
+    if j_lane is not None:
+        in_junction = k == ego.route_pos
+        in_lane = ego.lane_route[k - 1] if k > 0 else None
+        sl = rules.control_at(in_lane)
+        d = 0.0 if in_junction else max(rules.line_distance(ego, j_lane), 0.0)
+        out.update(line_near=_scaled_as_worded(d, DRIVER_VIEW_LINE_NEAR_M), line_far=_scaled_as_worded(d, DRIVER_VIEW_LINE_FAR_M),
+                   line_time=_scaled_as_worded(d / max(ego.speed, DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS),
+                                               DRIVER_VIEW_CONFLICT_TIME_S),
+                   in_stop_zone=float(not in_junction and in_stop_zone(d)), in_junction=float(in_junction))
+        out["signal" if sl is not None and sl.kind == "signal" else "stop" if sl is not None else "bare"] = 1.0
+        turn = manoeuvre_name(m.lanes[j_lane], net.ramp_moves)
+        if turn in out:  # a U-turn has no feature of its own
+            out[turn] = 1.0
+        if sl is not None and sl.kind == "signal":
+            out[rules.signal_state(sl.control_id)] = 1.0
+            if sl.control_id in rules.plans:
+                out["signal_change"] = _scaled_as_worded(rules.signal_change(sl.control_id), DRIVER_VIEW_SIGNAL_SCALE_S)
+            out["protected"] = float(rules.protected(in_lane, j_lane))
+        if sl is not None and sl.kind == "stop" and not in_junction:
+            out["stop_made"] = float(env.judge.stopped_before(in_lane))
+            out["queue_ahead"] = _scaled_as_worded(_queue_ahead(rules, ego, j_lane), DRIVER_VIEW_QUEUE_SCALE)
+        row = np.array([out[f] for f in DRIVER_VIEW_FEATURES])
+        conflicts_asked(rules, ego, j_lane, row)  # (the rules' occupancy and traffic towards each lane)
+        out.update({f: float(x) for f, x in zip(DRIVER_VIEW_FEATURES, row) if f in CONFLICT_FEATURES})
+    ped = rules.stop_distance(ego, ignore=_IGNORE_BUT_PEDESTRIANS)
+    if ped < math.inf:
+        out["pedestrian"] = _scaled_as_worded(ped, DRIVER_VIEW_PEDESTRIAN_SCALE_M)
+    gaps = ego.leader_gaps()
+    if gaps:
+        gap, speed = min(gaps)
+        out.update(leader_gap=_scaled_as_worded(gap, DRIVER_VIEW_LEADER_SCALE_M),
+                   leader_speed=_scaled_as_worded(speed, DRIVER_VIEW_SPEED_SCALE_MPS))
+    return np.asarray([out[f] for f in DRIVER_VIEW_FEATURES], dtype=np.float32)

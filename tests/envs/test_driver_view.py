@@ -8,14 +8,19 @@ import os
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import gymnasium as gym
+import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
 import feat2map
 from feat2map.envs import driver_view as dv
+from feat2map.envs import parallel_env
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.rules import STOP_ZONE_M
-from feat2map.envs.vehicles import TrafficVehicle
+from feat2map.envs.vehicles import Pedestrian, TrafficVehicle
+from conftest import REPO
+from feat2map.spec import build_spec, load_spec
+from rule_specs import driver_view_as_worded
 
 J = feat2map.JunctionFeature.make
 FOUR = [0, 90, 180, 270]
@@ -209,3 +214,94 @@ def test_the_ego_and_traffic_read_their_leaders_from_one_program():
 
 def flat(pairs: list) -> list[float]:
     return [x for pair in pairs for x in pair]
+
+
+# busy junctions: a signal and a stop sign, both with crosswalks, queues, traffic in conflict
+BUSY = {"features": [J(FOUR, "signal", True).to_dict(), J(FOUR, "stop", True).to_dict()], "traffic_vehicles": 14,
+        "pedestrian_rate": 40.0, "route_junctions": 2, "duration": 12.0, "policy_frequency": 5,
+        "simulation_frequency": 10, "observation": {"type": "DriverView"}, "action": DRIVER_ACTION_CONFIG}
+FELT = ("priority_time", "other_time", "conflict_occupied", "pedestrian", "leader_gap", "queue_ahead", "stop_made",
+        "signal_change", "protected", "in_stop_zone", "in_junction", "line_near")
+
+
+def same_as_worded(pairs, seen: set) -> None:
+    """Each (env, observation) pair's observation is DriverView as worded (`rule_specs`), bit for
+    bit; `seen` collects the features that were away from their empty value."""
+    for env, obs in pairs:
+        want = driver_view_as_worded(env)
+        assert obs.dtype == np.float32 and np.array_equal(obs, want), \
+            {f: (a, b) for f, a, b in zip(dv.DRIVER_VIEW_FEATURES, obs.tolist(), want.tolist()) if a != b}
+        seen.update(f for f in FELT if obs[F[f]] != (1.0 if f in ("priority_time", "other_time", "pedestrian",
+                                                                    "leader_gap", "line_near") else 0.0))
+
+
+def test_the_single_batched_and_multi_agent_envs_observe_driver_view_as_worded():
+    """DriverView is one program over every ego asked (`driver_views`: a batch of one in the single
+    env, the sub-envs of a batch, the agents of the multi-agent env); its features equal the
+    rules' answers asked one question at a time, through busy drives with episode ends, and the
+    drives reach every feature."""
+    rng = np.random.default_rng(0)
+    seen: set = set()
+    env = gym.make("feat2map/JunctionGrid-v0", config={**BUSY, "duration": 40.0})
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        driver = ScriptedDriver(env) if seed != 1 else None
+        for _ in range(200):
+            same_as_worded([(env.unwrapped, obs)], seen)
+            action = driver.act() if driver else rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
+            obs, _, term, trunc, _ = env.step(action)
+            if term or trunc:
+                break
+    midblock = {**{k: v for k, v in BUSY.items() if k != "features"}, "route_junctions": 3, "duration": 30.0,
+                "map": build_spec(load_spec(REPO / "examples" / "midblock.yaml"))}  # crosswalks one after another
+    for env_id, config in (("feat2map/JunctionGrid-v0", BUSY), ("feat2map/MapFile-v0", midblock)):
+        batch = gym.make_vec(env_id, num_envs=4, config=config)
+        obs, _ = batch.reset(seed=3)
+        for _ in range(80):
+            same_as_worded(zip(batch.unwrapped.envs, obs), seen)
+            obs, *_ = batch.step(rng.uniform(-1, 1, batch.action_space.shape).astype(np.float32))
+    marl = parallel_env({**BUSY, "agents": 6, "traffic_vehicles": 4, "duration": 20.0, "action": {"type": "TargetSpeed"},
+                         "signal_phases": "single"})  # (every signalled movement protected)
+    obs, _ = marl.reset(seed=0)
+    for _ in range(100):
+        same_as_worded([(marl.unwrapped._views[a], o) for a, o in obs.items()], seen)
+        if not marl.agents:
+            break
+        obs, *_ = marl.step({a: marl.action_space(a).sample() for a in marl.agents})
+    assert seen == set(FELT)
+
+
+def test_the_pedestrian_feature_is_the_first_crosswalk_ahead_that_holds_the_ego(tmp_path):
+    """With people standing on two crosswalks along the ego's route (a mid-block one on its road
+    and one on the next junction's lane), DriverView's pedestrian distance is the first's; with
+    people on the second alone, the second's: each as worded."""
+    (tmp_path / "two.yaml").write_text(
+        "junctions:\n"
+        "  - {cell: [0, 0], crosswalk: true, sockets: [{angle: 0, midblock: {control: bare, position: 0.85}}, 90, 180, 270]}\n"
+        "  - {cell: [1, 0], crosswalk: true, sockets: [0, 90, 180, 270]}\n")
+    env = gym.make("feat2map/MapFile-v0", config={
+        "map": build_spec(load_spec(tmp_path / "two.yaml")), "route_junctions": 2, "observation": {"type": "DriverView"},
+        "traffic_vehicles": 0, "pedestrian_rate": 0.0, "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5})
+    env.reset(seed=1)  # a route east over the mid-block crosswalk into the second junction
+    u = env.unwrapped
+    driver = ScriptedDriver(env)
+    for _ in range(200):
+        if u.vehicle.lane_route[u.vehicle.route_pos] == "R0_0" and u.vehicle.lane_s > 30.0:
+            break
+        env.step(driver.act())
+    route, pos = u.vehicle.lane_route, u.vehicle.route_pos
+    (lane_a, cw_a, s_a), (lane_b, cw_b, s_b) = [(lid, cw, (s0 + s1) / 2) for lid in route[pos:pos + 2]
+                                                for cw, s0, s1 in u.net.crossings.get(lid, ())][:2]
+    assert cw_a == "R0_cw" and u.net.hdmap.crosswalks[cw_b].junction_id is not None
+
+    def stand(lid: str, cw: str, s: float) -> None:
+        lane = u.net.lane_of[lid]
+        Pedestrian(u.road, lane.position(s, 0.0), lane.position(s, 2.0), 0.0, cw)  # in the lane's middle
+
+    stand(lane_b, cw_b, s_b)
+    second = u.observation_type.observe()
+    assert np.array_equal(second, driver_view_as_worded(u))
+    stand(lane_a, cw_a, s_a)
+    both = u.observation_type.observe()
+    assert np.array_equal(both, driver_view_as_worded(u))
+    assert both[F["pedestrian"]] < second[F["pedestrian"]] < 1.0

@@ -599,3 +599,40 @@ def test_passage_places_move_with_their_rows_and_go_with_a_road_user_that_leaves
     assert not holders[0] and not holders[1] and list(waiters) == [waiter]
     assert ctl.passage_stop(waiter) == math.inf
     env.close()
+
+
+def test_driver_view_on_the_bridge_is_as_worded(bare_bridge, monkeypatch):
+    """DriverView of a batch on a map with a narrow passage between bare junctions (its conflicting
+    traffic asked whether it waits for a passage the ego holds) equals the rules' answers asked
+    one question at a time (`rule_specs`)."""
+    import gymnasium as gym
+    from rule_specs import driver_view_as_worded
+
+    from feat2map.envs.driver import DRIVER_ACTION_CONFIG
+    from feat2map.envs.driver_view import driver_views
+    from feat2map.envs.rules import TrafficRules
+
+    answers: list[bool] = []
+    waits_for = TrafficRules.waits_for
+
+    def counted(self, v, other, depth=4) -> bool:
+        answers.append(waits_for(self, v, other, depth))
+        return answers[-1]
+
+    monkeypatch.setattr(TrafficRules, "waits_for", counted)
+    batch = gym.make_vec("feat2map/MapFile-v0", num_envs=3, config={
+        "map_file": str(bare_bridge), "traffic_vehicles": 8, "observation": {"type": "DriverView"},
+        "action": DRIVER_ACTION_CONFIG, "policy_frequency": 5, "duration": 30.0})
+    obs, _ = batch.reset(seed=0)
+    rng = np.random.default_rng(0)
+    asked = False  # whether the program asked if road users heading into a conflict wait for a passage
+    for _ in range(100):
+        envs = batch.unwrapped.envs
+        n = len(answers)
+        again = driver_views(envs)
+        asked |= len(answers) > n
+        for env, o, o2 in zip(envs, obs, again):
+            assert np.array_equal(o, o2) and np.array_equal(o, driver_view_as_worded(env))
+        obs, *_ = batch.step(rng.uniform(-1, 1, batch.action_space.shape).astype(np.float32))
+    batch.close()
+    assert asked
