@@ -1292,6 +1292,12 @@ class TrafficCore:
         _, gap, speed = self._leaders(np.array([i]), self.slot_rows(int(self.env[i])))
         return list(zip(gap.tolist(), speed.tolist()))
 
+    def leaders_of(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(follower row, bumper gap, leader speed) of every road user in the way of driven `rows`
+        (`_leaders`, their windows brought up to date first): `leader_gaps` of many rows at once."""
+        self.refresh_windows()
+        return self._leaders(rows)
+
     def _leaders(self, rows: np.ndarray, others: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(follower row, bumper gap, leader speed) of every road user in the way of driven
         `rows` (row indices) along their windows: on a window lane, on a junction lane that

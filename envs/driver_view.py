@@ -92,8 +92,7 @@ class _LaneFacts:
 def _lane_facts(net: Any, core: Any) -> _LaneFacts:
     def build() -> _LaneFacts:
         et, ids, m = entry_table(net, core.table), net.lane_ids, net.hdmap
-        column = {f: k for k, f in enumerate(DRIVER_VIEW_FEATURES)}
-        turn = [column.get(manoeuvre_name(m.lanes[lid], net.ramp_moves), -1) if m.lanes[lid].junction_id else -1
+        turn = [_F.get(manoeuvre_name(m.lanes[lid], net.ramp_moves), -1) if m.lanes[lid].junction_id else -1
                 for lid in ids]
         owner = np.repeat(np.arange(len(ids)), np.diff(et.conf_ptr))
         key = owner * len(ids) + et.conf_lane
@@ -350,7 +349,7 @@ def _leaders(core, rows: np.ndarray, out: np.ndarray) -> None:
     driven = core.driven[rows]
     if not driven.any():
         return
-    fr, gap, speed = core._leaders(rows[driven])
+    fr, gap, speed = core.leaders_of(rows[driven])
     nearest: dict[int, tuple[float, float]] = {}
     for f, pair in zip(fr.tolist(), zip(gap.tolist(), speed.tolist())):
         if f not in nearest or pair < nearest[f]:

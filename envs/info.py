@@ -28,7 +28,8 @@ class InfoKey:
 INFO_KEYS: tuple[InfoKey, ...] = (
     InfoKey("speed", float, "[m/s] the ego's speed"),
     InfoKey("crashed", bool, "the ego has crashed (highway-env's key)"),
-    InfoKey("action", np.ndarray, "a copy of the action taken, in the action space's dtype (a sample after reset)"),
+    InfoKey("action", np.ndarray, "a copy of the action taken, in the action space's dtype (after reset, none was "
+            "taken: the no-op, a meta-action's IDLE or the space's first value)"),
     InfoKey("junction", str, "id of the junction the ego is in, else the next one on its route (\"\")"),
     InfoKey("junction_feature", dict, "that junction's feature (the keys below)"),
     InfoKey("junction_feature.n_roads", int, "roads of the junction (-1 without one)"),

@@ -239,9 +239,12 @@ class MapEnv(EgoTask, AbstractEnv):
 
     # ---- episode -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        """highway-env's reset, with `options` checked first (`check_options`)."""
+        """highway-env's reset, with `options` checked first (`check_options`); the info's action
+        is the no-op (`noop_action`: no action was taken), not highway-env's unseeded sample."""
         check_options(options)
-        return super().reset(seed=seed, options=options)
+        obs, info = super().reset(seed=seed, options=options)
+        info["action"] = action_array(self.action_space, noop_action(self.action_type, self.action_space))
+        return obs, info
 
     def _reset(self) -> None:
         self.net = self.network()
@@ -514,6 +517,19 @@ def discrete_index(action: Any) -> int:
     """A checked discrete action (an int, or an array or numpy integer of one value) as an int
     (`check_action` lets all of them in)."""
     return action if type(action) is int else int(np.asarray(action).reshape(-1)[0])
+
+
+def noop_action(action_type: Any, space: spaces.Space) -> Any:
+    """The action that asks for nothing new: a meta-action's IDLE, else the space's first value
+    (a Discrete space's start; zeros, within a Box's bounds)."""
+    indexes = getattr(action_type, "actions_indexes", None)
+    if indexes and "IDLE" in indexes:
+        return indexes["IDLE"]
+    if isinstance(space, spaces.Discrete):
+        return int(space.start)
+    if isinstance(space, spaces.Box):
+        return np.clip(np.zeros(space.shape), space.low, space.high).astype(space.dtype)
+    return space.sample()  # (no first value: highway-env's)
 
 
 def action_array(space: spaces.Space, action: Any) -> np.ndarray:

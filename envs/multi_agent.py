@@ -72,7 +72,7 @@ from .controlled import ControlledRow
 from .core import TrafficCore
 from .junction_env import JunctionGridEnv, MapFileEnv
 from .map_env import (REWARD_TERMS, EgoTask, MapEnv, check_action, check_options, discrete_index, info_dict,
-                      info_dicts)
+                      info_dicts, noop_action)
 from .driver_view import DriverViewObservation, driver_views
 from .observation import Kinematics, TrafficControlObservation, make_observation
 from .road import MapRoad
@@ -670,9 +670,8 @@ class MultiAgentMapEnv(ParallelEnv):
         return {a: t.observe() if o is None else o for a, t, o in zip(names, types, got)}
 
     def _noop(self):
-        s = self.actions.space
-        return 1 if self.actions.kind == "DiscreteMetaAction" else (0 if isinstance(s, spaces.Discrete)
-                                                                     else np.zeros(s.shape, dtype=s.dtype))
+        """The agents' no-op (`map_env.noop_action`; their meta-actions' IDLE is 1: SLOWER, IDLE, FASTER)."""
+        return 1 if self.actions.kind == "DiscreteMetaAction" else noop_action(None, self.actions.space)
 
     def _collided(self, agent: str) -> None:
         """An agent crashed this frame: whether the other vehicle (the nearest crashed one within

@@ -12,7 +12,7 @@ os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 import gymnasium as gym
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
+from gymnasium.utils.env_checker import check_env, data_equivalence
 
 import feat2map
 from feat2map.formats import native
@@ -284,3 +284,19 @@ def test_each_phase_is_green_then_amber_then_red_in_turn(phases):
     starts = times[1:][~(seen[:-1] == "green").any(axis=1) & (seen[1:] == "green").any(axis=1)]
     gaps = [s - e for e in ends for s in starts if 0 <= s - e < g]
     assert len(gaps) >= 2 * n - 1 and gaps == pytest.approx([r] * len(gaps), abs=2 * dt)
+
+
+@pytest.mark.parametrize("action", [{"type": "DiscreteMetaAction"}, DRIVER_ACTION_CONFIG, {"type": "DiscreteAction"}])
+def test_a_resets_info_is_the_same_from_the_same_seed_its_action_the_no_op(action):
+    """No action is taken at a reset: the info's action is the no-op (a meta-action's IDLE, the
+    space's first value), so two envs reset from one seed give the same info, key by key."""
+    envs = [make({"traffic_vehicles": 3, "action": action}) for _ in range(2)]
+    infos = [env.reset(seed=4)[1] for env in envs]
+    assert infos[0].keys() == infos[1].keys()
+    for key in infos[0]:
+        assert data_equivalence(infos[0][key], infos[1][key]), key
+    u = envs[0].unwrapped
+    kind = action["type"]
+    want = u.action_type.actions_indexes["IDLE"] if kind == "DiscreteMetaAction" else 0 if kind == "DiscreteAction" \
+        else np.zeros(u.action_space.shape)
+    np.testing.assert_array_equal(infos[0]["action"], want)
