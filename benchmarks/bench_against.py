@@ -16,9 +16,10 @@ gives each revision's median rate and the median of the chunks' after/before rat
 interquartile range.
 
 Run: SDL_VIDEODRIVER=offscreen .venv/bin/python benchmarks/bench_against.py [--base main] [--rounds 30]
-     [--sizes 1,64,256] [--marl] [--metadrive] [--map FILE]   (--sizes "" --marl: the multi-agent env
-     alone; --metadrive: MetaDrive 0.4.3's single-agent env in each round, from /tmp/md-venv;
-     --map: the single and batched envs on that map file, `feat2map/MapFile-v0`)
+     [--sizes 1,64,256] [--marl] [--metadrive] [--map FILE] [--observation DriverView]   (--sizes ""
+     --marl: the multi-agent env alone; --metadrive: MetaDrive 0.4.3's single-agent env in each
+     round, from /tmp/md-venv; --map: the single and batched envs on that map file,
+     `feat2map/MapFile-v0`; --observation: every env with that observation type)
 """
 from __future__ import annotations
 
@@ -192,14 +193,20 @@ def main() -> None:
                     help="MetaDrive 0.4.3's single-agent env in each round too (/tmp/md-venv: "
                          "../shared/tools/metadrive-venv.sh), and the single env's ratio to it")
     ap.add_argument("--map", help="a map file the single and batched envs drive (default: the generated default map)")
+    ap.add_argument("--observation", default="Kinematics",
+                    help="the observation type of every env measured (default: Kinematics; DriverView: the "
+                         "observation PPO and the multi-agent example train on)")
     args = ap.parse_args()
-    config = {**CONFIG, "map_file": str(Path(args.map).resolve())} if args.map else CONFIG
+    config = {**CONFIG, "map_file": str(Path(args.map).resolve())} if args.map else dict(CONFIG)
+    if args.observation != "Kinematics":
+        config["observation"] = {"type": args.observation}
     sizes = [int(s) for s in args.sizes.split(",") if s]
     if args.metadrive and 1 not in sizes:
         ap.error("--metadrive compares the single env: --sizes must hold 1")
     if args.metadrive and not MD_PYTHON.exists():
         raise SystemExit("MetaDrive is not installed: make /tmp/md-venv with ../shared/tools/metadrive-venv.sh")
-    marl = MULTI if args.marl else None  # bench_marl.py's scene, made in this checkout
+    marl = ({**MULTI, "observation": config["observation"]} if "observation" in config else MULTI) if args.marl \
+        else None  # bench_marl.py's scene, made in this checkout
     keys: list[int | str] = [*sizes, *(["marl"] if marl else [])]
     rates: dict[str, dict[int | str, list[float]]] = {k: {n: [] for n in keys} for k in ("before", "after")}
     metadrive: list[float] = []
@@ -229,7 +236,7 @@ def main() -> None:
                 w.close()
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(base)], check=False)
     print(f"env-steps/s of CPU time, {args.rounds} alternating chunks each (before: {args.base}; after: this "
-          f"checkout); 10 Hz, 10 vehicles per sub-env, {args.map or 'default map'}" +
+          f"checkout); 10 Hz, 10 vehicles per sub-env, {args.map or 'default map'}, {args.observation} observation" +
           ("; multi-agent: agent-steps/s, bench_marl.py's scene" if marl else ""))
     print(f"{'setup':>12} {'before':>9} {'after':>9} {'after/before':>13}  (quartiles of the chunks' ratios)")
     for n in keys:
