@@ -19,7 +19,7 @@ from ...config import PEDESTRIAN_CORRIDOR_M
 from ..lanes import project_rows
 from ..network import MapNetwork
 from ..rules import on_yield_stretch, pedestrian_in_path
-from .join import same_key_pairs
+from .join import member, same_key_pairs
 from .pedestrians import crosswalks
 
 if TYPE_CHECKING:
@@ -121,6 +121,6 @@ def peopled_stretch(core: "TrafficCore", slots: np.ndarray, lanes: np.ndarray, s
     t = crossing_table(core.net)
     q, c = _crossings_of(t, lanes)
     on = on_yield_stretch(s[q], t.s0[c], t.s1[c]) & \
-        np.isin(_crosswalk_key(core, slots[q], t.cw[c]), _crosswalk_key(core, core.p_env, core.p_cw))
+        member(_crosswalk_key(core, slots[q], t.cw[c]), _crosswalk_key(core, core.p_env, core.p_cw))
     out[q[on]] = True
     return out

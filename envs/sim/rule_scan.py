@@ -19,11 +19,12 @@ import numpy as np
 
 from ...config import LOOKAHEAD_M
 from ..rules import CROSSED, ENTRY, MIDBLOCK, PEOPLE, room_to_wait
+from .join import member
 
 if TYPE_CHECKING:
     from ..core import TrafficCore
 
-IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many values (more: np.isin sorts)
+IS_ANY_COMPARISONS = 8  # `is_any` compares value by value up to this many values (more: a binary search)
 
 
 @dataclass
@@ -123,9 +124,10 @@ def busy_lanes(core: "TrafficCore") -> list[int]:
 
 
 def is_any(keys: np.ndarray, few: list[int]) -> np.ndarray:
-    """`np.isin(keys, few)`: for a short list `few` a comparison per value (no sort)."""
+    """`np.isin(keys, few)`: for a short list `few` a comparison per value, else a binary search
+    in them (`join.member`)."""
     if len(few) > IS_ANY_COMPARISONS:
-        return np.isin(keys, few)
+        return member(keys, few)
     hit = keys == few[0]
     for k in few[1:]:
         hit |= keys == k

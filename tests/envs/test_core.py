@@ -23,6 +23,7 @@ from feat2map.envs.core import ArrayVehicle, LaneTable, rectangles_overlap, reor
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
 from feat2map.envs.road import MapRoad
+from feat2map.envs.sim.join import member
 from feat2map.envs.sim.observe import kinematics, supported
 from feat2map.envs.vehicles import TrafficVehicle
 
@@ -285,6 +286,15 @@ def test_a_reorder_gives_the_list_in_the_new_order_and_changes_it_in_place_when_
     if runs is not None:
         got = reorder_in_place(items, runs)
         assert got is items and len(got) == len(want) and all(a is b for a, b in zip(got, want))
+
+
+@given(st.lists(st.integers(-50, 50), max_size=30), st.lists(st.integers(-50, 50), max_size=12),
+       st.integers(1, 3))
+def test_member_is_numpys_isin_of_integer_keys(keys, values, rows):
+    """`sim.join.member`, the binary search the scans and the crosswalk tests ask, gives what
+    np.isin gives, for keys of any shape and values with repeats or none."""
+    a = np.array(keys * rows, dtype=np.int64).reshape(rows, -1)
+    np.testing.assert_array_equal(member(a, values), np.isin(a, values))
 
 
 def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
