@@ -205,8 +205,8 @@ def main() -> None:
         ap.error("--metadrive compares the single env: --sizes must hold 1")
     if args.metadrive and not MD_PYTHON.exists():
         raise SystemExit("MetaDrive is not installed: make /tmp/md-venv with ../shared/tools/metadrive-venv.sh")
-    marl = ({**MULTI, "observation": config["observation"]} if "observation" in config else MULTI) if args.marl \
-        else None  # bench_marl.py's scene, made in this checkout
+    # bench_marl.py's scene, made in this checkout, with the observation asked
+    marl = {**MULTI, **{k: v for k, v in config.items() if k == "observation"}} if args.marl else None
     keys: list[int | str] = [*sizes, *(["marl"] if marl else [])]
     rates: dict[str, dict[int | str, list[float]]] = {k: {n: [] for n in keys} for k in ("before", "after")}
     metadrive: list[float] = []

@@ -28,9 +28,9 @@ from ..config import (DRIVER_VIEW_ARRIVAL_MIN_SPEED_MPS, DRIVER_VIEW_CONFLICT_DI
                       DRIVER_VIEW_PEDESTRIAN_SCALE_M, DRIVER_VIEW_QUEUE_SCALE, DRIVER_VIEW_SIGNAL_SCALE_S,
                       DRIVER_VIEW_SPEED_SCALE_MPS)
 from .reservations import NONE
-from .rules import PEOPLE, SIGNAL_STATES, enters_next, in_stop_zone, line_setback, manoeuvre_name
+from .rules import PEOPLE, SIGNAL_STATES, enters_next, in_stop_zone, manoeuvre_name
 from .sim import crossings, rule_scan
-from .sim.entries import entry_table, expand_ranges
+from .sim.entries import entry_table, expand_ranges, next_two
 from .sim.stop_signs import lanes_in
 
 DRIVER_VIEW_FEATURES = (
@@ -123,7 +123,7 @@ def driver_views(envs: Sequence[Any]) -> list[np.ndarray]:
     # per ego, its route's next junction lane, the line before it and its control (a few list reads an ego)
     j = np.full(n, -1, dtype=np.int64)
     sig_k, sig_q, plan_q = [], [], []
-    junction, length, s = table.junction, table.length, core.s
+    junction = table.junction
     for q, (env, r, v) in enumerate(zip(envs, rows.tolist(), core.speed[rows].tolist())):
         row = out[q]
         row[_F["speed"]] = _unit(v / DRIVER_VIEW_SPEED_SCALE_MPS)
@@ -134,11 +134,8 @@ def driver_views(envs: Sequence[Any]) -> list[np.ndarray]:
         j[q] = route[k]
         in_lane = ids[route[k - 1]] if k > 0 else None
         d = 0.0
-        if k != pos:  # the distance to the line, as `TrafficRules.line_distance` sums it along the route
-            dist = float(length[route[pos]]) - float(s[r])
-            for x in range(pos + 1, k):
-                dist += float(length[route[x]])
-            d = max(dist - line_setback(net, ids[route[k - 1]]), 0.0)
+        if k != pos:
+            d = max(env.rules.line_distance(egos[q], ids[route[k]]), 0.0)
             row[_F["in_stop_zone"]] = float(in_stop_zone(d))
         else:
             row[_F["in_junction"]] = 1.0
@@ -308,8 +305,7 @@ def _comer_places(core, cand_c, cand_row, cand_lane, approach):
     ids, length = core.net.lane_ids, core.table.length
     s = core.s[cand_row].copy()
     speed = core.speed[cand_row].copy()
-    nxt = core.W[cand_row, :2] if core.W.shape[1] >= 2 else np.hstack(
-        [core.W[cand_row], np.full((len(cand_row), 1), -1, dtype=core.W.dtype)])
+    nxt = next_two(core.W[cand_row])
     driven = core.driven[cand_row]
     enters = (nxt == cand_c[:, None]).any(axis=1) & driven
     for x in ((core.lane[cand_row] != cand_lane) | ~driven).nonzero()[0].tolist():

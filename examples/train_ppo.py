@@ -588,9 +588,8 @@ def batched_task(config: dict, rc: "RunConfig", n: int) -> BatchedTask:
 
 def build_model(config: dict, rc: "RunConfig"):
     """An untrained PPO on `rc.n_envs` monitored sub-envs of the native batched vector env (each
-    its own seed stream), split over `rc.workers` processes (one batch each, stepping at once:
-    both cores of a 2-core machine), or copies of the agent's env in subprocesses when
-    `rc.subprocess`."""
+    its own seed stream), in this process or split over `rc.workers` processes (one batch each,
+    stepping at once), or copies of the agent's env in subprocesses when `rc.subprocess`."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env

@@ -199,7 +199,7 @@ def _comers(core, rows: np.ndarray, at: np.ndarray, nl: int, margin: float) -> t
     ids = core.net.lane_ids
     driven = core.driven[rows]
     follows = driven & (at >= 0)
-    nxt = _next_two(core.W)[rows]
+    nxt = next_two(core.W)[rows]
     s, speed = np.where(core.controlled[rows], core.at_s[rows], core.s[rows]), core.speed[rows]
     if core.dirty or core._external:
         speed = speed.copy()
@@ -225,11 +225,11 @@ def _comers(core, rows: np.ndarray, at: np.ndarray, nl: int, margin: float) -> t
 
 
 def _two(lanes: list[int]) -> list[int]:
-    """Route lanes as a row of `_next_two` (-1 padded)."""
+    """Route lanes as a row of `next_two` (-1 padded)."""
     return (list(lanes) + [-1, -1])[:2]
 
 
-def _next_two(W: np.ndarray) -> np.ndarray:
+def next_two(W: np.ndarray) -> np.ndarray:
     """The first two columns of window lanes `W` (route position and the next; -1 none)."""
     return W[:, :2] if W.shape[1] >= 2 else np.hstack([W, np.full((len(W), 1), -1, dtype=W.dtype)])
 
