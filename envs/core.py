@@ -597,6 +597,7 @@ class TrafficCore:
         self.roads: list[Any] = [None] * slots  # the road of each slot (sub-env)
         self.seen: list[list[Any]] = [[] for _ in range(slots)]  # each road's vehicles at its last sync
         self.edited: set[int] = set()  # the slots whose road's vehicles changed since (`road.VehicleList`)
+        self.recording = False  # whether a road attached records its vehicles' history (highway-env's trajectories)
         self.stepped = np.ones(slots, dtype=bool)  # the slots being stepped (this frame)
         # each slot's clocks: its rules' time (`TrafficControl.t`, seconds into its episode) and
         # how often its rows moved, came or went (the rules' lane buckets are made again when it
@@ -789,6 +790,7 @@ class TrafficCore:
         self.res[slot] = NONE  # a new episode there: nothing reserved
         self.set_crosswalks(slot, [], 0, 0.0, 0)  # ... and no crosswalk active
         self.roads[slot] = road
+        self.recording |= bool(road.record_history)
         self.rtor[slot] = road.control.right_turn_on_red()
         self._plans[slot] = signal_arrays(road.control, self.table.signal_ids)
         self._plans_new[slot] = True
@@ -933,10 +935,12 @@ class TrafficCore:
         respawns made a batched step slower within a few hundred steps)."""
         if not self.edited:
             return
-        roads = [r for r in self.roads if r is not None] if roads is None else roads
+        # the edited slots among the roads' (all of them: no loop over the roads), in slot order
+        edited = sorted(self.edited if roads is None or len(roads) == len(self.roads)
+                        else self.edited.intersection(r.slot for r in roads))
+        self.edited.difference_update(edited)
         # element by element, by identity (vehicles define no __eq__)
-        changed = [r for r in roads if r.slot in self.edited and r.vehicles != self.seen[r.slot]]
-        self.edited.difference_update(r.slot for r in roads)
+        changed = [r for r in map(self.roads.__getitem__, edited) if r.vehicles != self.seen[r.slot]]
         if not changed:
             return
         pos: dict[int, int] = {}
@@ -1212,12 +1216,14 @@ class TrafficCore:
         pedestrians.update(self, dt, self.stepped)
         looks = self.release_looks(self.stepped)
         self.tick(self.stepped, dt)
-        bookkeeping = bool(self.net.passages)  # (narrow passages: every road's holders looked at)
-        for road in roads:
-            if bookkeeping or road.slot in looks:
+        if self.net.passages:  # (narrow passages: every road's holders looked at)
+            for road in roads:
                 road.control.bookkeeping(looks.get(road.slot, ()))
+        else:
+            for slot in sorted(looks):  # (stepped slots alone)
+                self.roads[slot].control.bookkeeping(looks[slot])
         self.collisions(roads, dt)
-        for road in roads:
+        for road in roads if self.recording else ():
             if road.record_history:
                 for v in self.views(road):
                     v.history.appendleft(TrafficVehicle.create_from(v))

@@ -317,14 +317,14 @@ class MapEnv(EgoTask, AbstractEnv):
             return None
         rng = self.np_random
         speed = float(self.config["traffic_initial_speed"])
+        controlled, others = (np.array([v.position for v in vs], dtype=float).reshape(-1, 2)
+                              for vs in (self.controlled_vehicles, self.road.vehicles))
         for _ in range(TRAFFIC_SPAWN_TRIES):
             lid = self._spawn_lanes[int(rng.integers(len(self._spawn_lanes)))]
             lane = self.net.lane_of[lid]
             s = float(rng.uniform(0.0, max(lane.length - TRAFFIC_LANE_END_M, 0.1)))
             pos = lane.position(s, 0.0)
-            if any(np.hypot(*(pos - v.position)) < min_ego_distance for v in self.controlled_vehicles):
-                continue
-            if any(np.hypot(*(pos - v.position)) < TRAFFIC_SPAWN_GAP_M for v in self.road.vehicles):
+            if too_near(pos, controlled, min_ego_distance) or too_near(pos, others, TRAFFIC_SPAWN_GAP_M):
                 continue
             route = random_walk(self.net, rng, lid, 3)
             if first_line_distance(self.net, route, s) < braking_distance(speed, TrafficVehicle.LENGTH):
@@ -375,11 +375,11 @@ class MapEnv(EgoTask, AbstractEnv):
     def _simulate(self, action=None) -> None:
         simulate([self], [action])
 
-    def respawn_traffic(self, maybe: bool = True) -> None:
+    def respawn_traffic(self) -> None:
         """Traffic that finished its route or crashed leaves (never a controlled vehicle: the ego,
-        the multi-agent env's agents); as many new vehicles spawn (`maybe` False: the core knows
-        that none did)."""
-        if self.config["traffic_respawn"] and maybe:
+        the multi-agent env's agents); as many new vehicles spawn. A frame asks it only of the
+        envs whose slot may hold such traffic (`TrafficCore.may_leave`)."""
+        if self.config["traffic_respawn"]:
             keep = [v for v in self.road.vehicles if isinstance(v, ControlledRow)
                     or not (isinstance(v, TrafficVehicle) and (v.finished or v.crashed))]
             removed = len(self.road.vehicles) - len(keep)
@@ -423,32 +423,36 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     c = envs[0].config
     frames = int(c["simulation_frequency"] // c["policy_frequency"])
     dt = 1 / c["simulation_frequency"]
-    groups: dict[int, tuple[Any, list, list]] = {}  # roads and envs by their core (one group: one batch)
-    for env in envs:
-        _, roads, members = groups.setdefault(id(env.road.core), (env.road.core, [], []))
-        roads.append(env.road)
-        members.append(env)
+    groups: dict[int, tuple[Any, list, list, list]] = {}  # roads, envs, egos' rows by their core (one group: one batch)
     acting: list[list[tuple[MapEnv, Any]]] = [[] for _ in range(frames)]  # who decides on each frame
-    egos: dict[int, tuple[int, np.ndarray]] = {}  # per core, (its `layout`, the members' egos' rows then)
-    for core, _, members in groups.values():
-        egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
-        core.new_violations[egos[id(core)][1]] = 0  # (this step's violations)
-    for env, action in zip(envs, actions):
+    tracked, viewed = [], []  # egos following an external planner's trajectory; envs with a viewer
+    for env, action in zip(envs, actions):  # (one pass over the envs)
+        road, ego = env.road, env.vehicle
+        _, roads, members, ego_rows = groups.setdefault(id(road.core), (road.core, [], [], []))
+        roads.append(road)
+        members.append(env)
+        ego_rows.append(ego.row)
         if action is not None and not env.config["manual_control"]:
             if isinstance(env.action_space, spaces.Discrete):
                 action = discrete_index(action)  # (highway-env's action types take int() of it)
             acting[-env.steps % frames].append((env, action))
-    tracked = [env.vehicle for env in envs if env.vehicle.tracker is not None]  # an external planner's trajectory
-    viewed = [env for env in envs if env.viewer is not None]
+        if ego.tracker is not None:
+            tracked.append(ego)
+        if env.viewer is not None:
+            viewed.append(env)
+    egos: dict[int, tuple[int, np.ndarray]] = {}  # per core, (its `layout`, the members' egos' rows then)
+    for core, _, _, ego_rows in groups.values():
+        egos[id(core)] = (core.layout, np.array(ego_rows, dtype=np.int64))
+        core.new_violations[egos[id(core)][1]] = 0  # (this step's violations)
     for frame in range(frames):
         for env, action in acting[frame]:
             env.action_type.act(action)
         for ego in tracked:  # (commands every frame)
             ego.track()
-        for core, roads, _ in groups.values():
+        for core, roads, _, _ in groups.values():
             core.act(roads)
             core.step(roads, dt)
-        for core, _, members in groups.values():
+        for core, _, members, _ in groups.values():
             if egos[id(core)][0] != core.layout:  # (rows came or went)
                 egos[id(core)] = (core.layout, np.array([env.vehicle.row for env in members], dtype=np.int64))
             rows = egos[id(core)][1]
@@ -458,13 +462,19 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
                 env._automatic_rendering()
     for env in envs:
         env.steps += frames
-    maybe = {id(core): core.may_leave() for core, _, _ in groups.values() if core is not None}
-    for env in envs:
+    for env in viewed:
         env.enable_auto_render = False
-        core = getattr(env.road, "core", None)
-        env.respawn_traffic(bool(maybe[id(core)][env.road.slot]) if core is not None else True)
-    for core, roads, _ in groups.values():  # the respawns taken in (of every sub-env at once): what observations read
-        core.sync(roads)
+    for core, roads, members, _ in groups.values():  # respawns where traffic may have left (`TrafficCore.may_leave`)
+        maybe = core.may_leave()[[road.slot for road in roads]]
+        for k in maybe.nonzero()[0].tolist():
+            members[k].respawn_traffic()
+        core.sync(roads)  # the respawns taken in (of every sub-env at once): what observations read
+
+
+def too_near(pos: np.ndarray, places: np.ndarray, gap: float) -> bool:
+    """Whether any of `places` ([k, 2]) lies within `gap` of `pos`."""
+    d = pos - places
+    return bool((np.hypot(d[:, 0], d[:, 1]) < gap).any())
 
 
 def group_by(items, attribute: str) -> tuple[dict[Any, list[str]], dict[str, int]]:

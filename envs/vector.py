@@ -241,15 +241,31 @@ class MapVectorEnv(VectorEnv):
 
     def stack_features(self, idx: list[int], features: np.ndarray) -> dict[str, Any]:
         """`stack_infos` of the info dicts (`map_env.held_feature_info`) of sub-envs `idx`' junction
-        features (`features`, an object array): a key at a time (`stack_values`), each value taken
-        from the few distinct features' dicts."""
-        of: dict[int, int] = {}
-        where = [of.setdefault(id(f), len(of)) for f in features.tolist()]
-        infos = [held_feature_info(f)[1] for f in {id(f): f for f in features.tolist()}.values()]
+        features (`features`, an object array): each key's few distinct values (a batch has few
+        junctions) stacked once, then spread to the sub-envs by one index."""
+        feats = features.tolist()
+        ids = np.fromiter(map(id, feats), dtype=np.uint64, count=len(feats))
+        _, first, where = np.unique(ids, return_index=True, return_inverse=True)
+        infos = [held_feature_info(feats[k])[1] for k in first.tolist()]
+        n = self.num_envs
+        mask = np.zeros(n, dtype=np.bool_)
+        mask[idx] = True
         out: dict[str, Any] = {}
-        for key in infos[0]:  # (every feature's dict has these keys, of these types)
+        for key in infos[0]:  # (every feature's dict has these keys, of these types: `stack_values`' cases)
             values = [info[key] for info in infos]
-            out[key], out[f"_{key}"] = self.stack_values(key, idx, [values[w] for w in where])
+            first = values[0]
+            if isinstance(first, np.ndarray):
+                array = np.zeros((n, *first.shape), dtype=first.dtype)
+                array[idx] = np.stack(values)[where]
+            elif type(first) in (int, float, bool):
+                array = np.zeros(n, dtype=type(first))
+                array[idx] = np.array(values, dtype=type(first))[where]
+            else:
+                array = np.full(n, None, dtype=object)
+                distinct = np.empty(len(values), dtype=object)
+                distinct[:] = values
+                array[idx] = distinct[where]
+            out[key], out[f"_{key}"] = array, mask.copy()
         return out
 
     def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:
@@ -373,7 +389,7 @@ def batch_actions(single: spaces.Space, batched: spaces.Space, actions: Any, n: 
     space `single`), each checked (`map_env.check_action`); else a Feat2MapError naming the
     sub-env and its value. An array of valid actions is checked at once (`valid_batch`)."""
     if isinstance(actions, np.ndarray) and valid_batch(single, actions, n):
-        return list(actions)  # (what `iterate` gives of it)
+        return actions.tolist() if type(single) is spaces.Discrete else list(actions)  # (ints; else what `iterate` gives)
     try:
         acts = list(iterate(batched, actions))
     except (TypeError, ValueError, AssertionError, IndexError):
