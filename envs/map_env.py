@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 import math
 import numbers
+import operator
 from collections import OrderedDict
 from typing import Any, Callable, Mapping, Sequence
 
@@ -553,6 +554,9 @@ def weight_keys(terms: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(f"reward_{k}" for k in terms)
 
 
+# what `step_ends` reads of each env's config: the reward weights (`REWARD_TERMS` order), then
+# offroad_terminal and duration
+_STEP_END_CONFIG = operator.itemgetter(*weight_keys(REWARD_TERMS), "offroad_terminal", "duration")
 _KEEPS_HOOKS: dict[type, bool] = {}  # `keeps_hooks` of each class asked
 # the hooks whose MapEnv versions `step_ends` stands in for
 _STEP_HOOKS = ("_reward", "_rewards", "_reward_terms", "_reward_weights", "_is_terminated", "_is_truncated", "_info")
@@ -574,14 +578,13 @@ def step_ends(envs: Sequence["MapEnv"], actions: Sequence, batch: bool = False) 
     reward terms are the info's "rewards" (a batch's one table, `info_columns.Records`)."""
     core = envs[0].road.core
     one = len(envs) == 1 and not batch  # a single env: its row an int, its values numpy scalars (the same operations)
-    keys = weight_keys(REWARD_TERMS)  # (the envs keep MapEnv's `_reward_weights`: `keeps_hooks`)
     row, weights, offroad_terminal, cut = [], [], [], []  # of each env, in one pass
     for env in envs:
-        c = env.config
+        values = _STEP_END_CONFIG(env.config)  # (the envs keep MapEnv's `_reward_weights`: `keeps_hooks`)
         row.append(env.vehicle.row)
-        weights.append(tuple(map(c.__getitem__, keys)))
-        offroad_terminal.append(bool(c["offroad_terminal"]))
-        cut.append(env.time >= c["duration"])
+        weights.append(values[:-2])
+        offroad_terminal.append(bool(values[-2]))
+        cut.append(env.time >= values[-1])
     rows = row[0] if one else np.array(row)
     done, completed = task.route_state(core, rows)
     off_road = core.off_road[rows]

@@ -205,9 +205,9 @@ class MapVectorEnv(VectorEnv):
             self._env_obs[i] = env.observation_type.observe() if obs is None else obs
         self._rewards[stepping], self._terminations[stepping], self._truncations[stepping], cols = \
             step_ends(envs, actions, batch=True)
-        for env in envs:
-            if env.render_mode == "human":
-                env.render()
+        shown = self.envs[self.render_env]  # (the one sub-env with a render mode)
+        if shown.render_mode == "human" and shown in envs:
+            shown.render()
         self._step_values = (cols, {i: k for k, i in enumerate(stepping)})  # for the final info of same-step autoresets
         return self.stack_columns(stepping, cols)
 
