@@ -242,30 +242,14 @@ class MapVectorEnv(VectorEnv):
     def stack_features(self, idx: list[int], features: np.ndarray) -> dict[str, Any]:
         """`stack_infos` of the info dicts (`map_env.held_feature_info`) of sub-envs `idx`' junction
         features (`features`, an object array): each key's few distinct values (a batch has few
-        junctions) stacked once, then spread to the sub-envs by one index."""
+        junctions) stacked once, then spread to the sub-envs by one index (`stack_values`)."""
         feats = features.tolist()
         ids = np.fromiter(map(id, feats), dtype=np.uint64, count=len(feats))
         _, first, where = np.unique(ids, return_index=True, return_inverse=True)
         infos = [held_feature_info(feats[k])[1] for k in first.tolist()]
-        n = self.num_envs
-        mask = np.zeros(n, dtype=np.bool_)
-        mask[idx] = True
         out: dict[str, Any] = {}
-        for key in infos[0]:  # (every feature's dict has these keys, of these types: `stack_values`' cases)
-            values = [info[key] for info in infos]
-            first = values[0]
-            if isinstance(first, np.ndarray):
-                array = np.zeros((n, *first.shape), dtype=first.dtype)
-                array[idx] = np.stack(values)[where]
-            elif type(first) in (int, float, bool):
-                array = np.zeros(n, dtype=type(first))
-                array[idx] = np.array(values, dtype=type(first))[where]
-            else:
-                array = np.full(n, None, dtype=object)
-                distinct = np.empty(len(values), dtype=object)
-                distinct[:] = values
-                array[idx] = distinct[where]
-            out[key], out[f"_{key}"] = array, mask.copy()
+        for key in infos[0]:  # (every feature's dict has these keys, of these types)
+            out[key], out[f"_{key}"] = self.stack_values(key, idx, [info[key] for info in infos], where)
         return out
 
     def stack_infos(self, items: list[tuple[int, dict]]) -> dict[str, Any]:
@@ -282,20 +266,24 @@ class MapVectorEnv(VectorEnv):
             out[key], out[f"_{key}"] = self.stack_values(key, idx, vals)
         return out
 
-    def stack_values(self, key: str, idx: list[int], vals: list) -> tuple[Any, np.ndarray]:
-        """(array, mask) of one info key's values of sub-envs `idx` (`stack_infos`)."""
+    def stack_values(self, key: str, idx: list[int], vals: list, where: np.ndarray | None = None) -> tuple[Any, np.ndarray]:
+        """(array, mask) of one info key's values of sub-envs `idx` (`stack_infos`): `vals` one per
+        sub-env, or with `where` the distinct values, sub-env `idx[k]`'s being `vals[where[k]]`."""
         n = self.num_envs
         first = vals[0]
+        scalar = type(first) in (int, float, bool) or issubclass(type(first), np.number)
+        if where is not None and not (key != "final_obs" and (scalar or isinstance(first, np.ndarray))):
+            vals, where = [vals[w] for w in where.tolist()], None  # (one value per sub-env: the cases below)
         if isinstance(first, dict) and key != "final_obs":
             array: Any = self.stack_records(idx, vals)
             if array is None:
                 array = self.stack_infos(list(zip(idx, vals)))
-        elif key != "final_obs" and (type(first) in (int, float, bool) or issubclass(type(first), np.number)):
+        elif key != "final_obs" and scalar:
             array = np.zeros(n, dtype=type(first))
-            array[idx] = vals
+            array[idx] = vals if where is None else np.array(vals, dtype=type(first))[where]
         elif key != "final_obs" and isinstance(first, np.ndarray):
             array = np.zeros((n, *first.shape), dtype=first.dtype)
-            array[idx] = stack_held(vals)
+            array[idx] = stack_held(vals) if where is None else np.stack(vals)[where]
         else:
             array = np.full(n, None, dtype=object)
             for i, v in zip(idx, vals):
