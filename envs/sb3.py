@@ -38,6 +38,11 @@ def sb3_vec_env(venv) -> Any:
             self._reset_seeds()
             return obs
 
+        def reset_with(self, seeds: list) -> np.ndarray:
+            """`reset` with one seed (or None) per sub-env: what a worker of `sb3_workers` is sent."""
+            self._seeds = list(seeds)
+            return self.reset()
+
         def step_async(self, actions: np.ndarray) -> None:
             self._actions = actions
 
@@ -211,8 +216,7 @@ def _worker(pipe: Connection, parent: Connection, make: Callable[[int], Any], n:
                 venv.step_async(data)
                 out: Any = venv.step_wait()
             elif cmd == "reset":
-                venv._seeds = list(data)
-                out = venv.reset()
+                out = venv.reset_with(data)
             elif cmd == "spaces":
                 out = (venv.observation_space, venv.action_space)
             elif cmd == "get_attr":
