@@ -23,7 +23,7 @@ from feat2map.envs.core import ArrayVehicle, LaneTable, rectangles_overlap, reor
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
 from feat2map.envs.road import MapRoad
-from feat2map.envs.sim.join import member
+from feat2map.envs.sim.join import SMALL_JOIN, member, same_key_pairs
 from feat2map.envs.sim.observe import kinematics, supported
 from feat2map.envs.vehicles import TrafficVehicle
 
@@ -295,6 +295,27 @@ def test_member_is_numpys_isin_of_integer_keys(keys, values, rows):
     np.isin gives, for keys of any shape and values with repeats or none."""
     a = np.array(keys * rows, dtype=np.int64).reshape(rows, -1)
     np.testing.assert_array_equal(member(a, values), np.isin(a, values))
+
+
+@given(st.lists(st.integers(0, 40), max_size=200), st.lists(st.integers(0, 40), max_size=200))
+def test_same_key_pairs_are_every_equal_pair_grouped_by_the_first_key(a, b):
+    """`sim.join.same_key_pairs` gives every (i, j) with a[i] == b[j], i ascending and each i's j
+    ascending, whether it joins by the matrix (few keys) or by sorting (many: SMALL_JOIN)."""
+    want = [(i, j) for i, x in enumerate(a) for j, y in enumerate(b) if x == y]
+    i, j = same_key_pairs(np.array(a, dtype=np.int64), np.array(b, dtype=np.int64))
+    assert list(zip(i.tolist(), j.tolist())) == want
+    assert i.dtype == j.dtype == np.intp
+
+
+def test_same_key_pairs_join_many_keys_by_sorting():
+    """Keys beyond SMALL_JOIN pairs join by sorting, with the matrix's pairs in its order."""
+    rng = np.random.default_rng(0)
+    a, b = rng.integers(0, 500, 3000), rng.integers(0, 500, 2000)
+    assert len(a) * len(b) > SMALL_JOIN
+    i, j = same_key_pairs(a, b)
+    want_i, want_j = np.equal.outer(a, b).nonzero()
+    np.testing.assert_array_equal(i, want_i)
+    np.testing.assert_array_equal(j, want_j)
 
 
 def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
