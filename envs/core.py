@@ -112,6 +112,7 @@ SIGNAL_EDGE_S = 1e-6
 # filter costs more than a few looks; the same releases)
 LOOK_ALL_MAX = 12
 ROW_SPARE = 1.5  # a row array's buffer holds this many times its rows when it grows (`_append_rows`)
+WINDOWS_HELD = 65536  # windows kept by lane sequence and body length (`TrafficCore._window`; more: begun anew)
 PROJECT_SEGMENTS = 3  # segments either side of a controlled row's last place that it is projected on
 # a row's values where its kind leaves them unset: a traffic row has no bicycle and no commands
 ROW_DEFAULTS = {"lat": 0.0, "acc": 0.0, "timer": 0.0, "mobil_t": -1e9, "crashed": False, "wheelbase": 0.0,
@@ -746,6 +747,7 @@ class TrafficCore:
         self.route_ver = np.zeros(0, dtype=np.int64)
         self.seen_pos, self.seen_lane, self.seen_route = (np.zeros(0, dtype=np.int64) for _ in range(3))
         self.dirty: set[int] = set()
+        self._windows: dict[tuple, tuple] = {}  # `_window`'s, by (lanes, body length)
         self._spare: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # row array -> (its buffer, the array): `_append_rows`
         self.W = np.full((0, 1), -1, dtype=np.int64)  # window lanes
         self.C = np.zeros((0, 1))  # distance from the current lane's start to each window lane's start
@@ -1143,46 +1145,75 @@ class TrafficCore:
 
     # ---- windows -----------------------------------------------------------------------------
     def refresh_windows(self) -> None:
-        """Rebuild the window rows whose route position or route changed."""
+        """Rebuild the window rows whose route position or route changed: each one's lanes from
+        its route, what holds along them (`_window`, kept per lane sequence and body length: the
+        rows of a map drive few distinct windows), written into the rows at once."""
         if not self.dirty:
             return
-        t = self.table
-        length, junction, stops = t.length, t.junction, t.stop_sign_lanes
-        rows = {}
-        need = self.W.shape[1]
+        length = self.table.length
+        rows, wins = [], []
         for i in self.dirty:
             if i >= len(self.objs) or self.kind[i] != DRIVEN:
                 continue
             route, pos = self.routes[i], int(self.route_pos[i])
-            lanes, cum = [route[pos]], [0.0]
+            lanes = [route[pos]]
             limit = LOOKAHEAD_M + length[route[pos]]
             d = length[route[pos]]
             for k in range(pos + 1, len(route)):
                 if d > limit:
                     break
                 lanes.append(route[k])
-                cum.append(d)
                 d += length[route[k]]
-            what = rule_scan.along(t, lanes, float(self.length[i]))
-            rows[i] = (lanes, cum, what)
-            need = max(need, len(lanes))
-            self.entry[i] = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
-                                 math.inf)
-            self.stop_at[i] = next((cum[k] + length[x] - t.line_setback[x] for k, x in enumerate(lanes) if x in stops),
-                                   math.inf)
+            rows.append(i)
+            wins.append(self._window(tuple(lanes), float(self.length[i])))
+        self.dirty.clear()
+        if not rows:
+            return
+        need = max(len(w[0]) for w in wins)
         if need > self.W.shape[1]:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])
             self.C = np.hstack([self.C, np.zeros((len(self.C), pad))])
             self.scan_what = np.hstack([self.scan_what, np.zeros((len(self.W), pad), dtype=np.int8)])
-        for i, (lanes, cum, what) in rows.items():
-            self.W[i] = -1
-            self.W[i, :len(lanes)] = lanes
-            self.C[i, :len(cum)] = cum
-            self.scan_what[i] = 0
-            self.scan_what[i, :len(what)] = what
-            self.scan_len[i] = len(what)
-        self.dirty.clear()
+        idx = np.array(rows, dtype=np.int64)
+        ws, cum, what, entry, stop_at = zip(*wins)
+        zero = np.zeros(len(idx), dtype=np.int64)
+        owner, col = entries.expand_ranges(zero, np.array([len(x) for x in ws], dtype=np.int64))
+        self.W[idx] = -1
+        self.W[idx[owner], col] = np.concatenate(ws)
+        self.C[idx[owner], col] = np.concatenate(cum)
+        reach = np.array([len(x) for x in what], dtype=np.int64)
+        owner, col = entries.expand_ranges(zero, reach)
+        self.scan_what[idx] = 0
+        self.scan_what[idx[owner], col] = np.concatenate(what)
+        self.scan_len[idx] = reach
+        self.entry[idx] = entry
+        self.stop_at[idx] = stop_at
+
+    def _window(self, lanes: tuple[int, ...], length: float) -> tuple:
+        """(lanes, their start distances from the first's start, what of the scan holds along
+        them for a road user `length` long: `rule_scan.along`, the distance to the next junction
+        entry and to the first stop sign's line, inf where none) of a window of `lanes`, made
+        once per (lanes, length)."""
+        key = (lanes, length)
+        held = self._windows.get(key)
+        if held is None:
+            t = self.table
+            junction, stops, lane_length = t.junction, t.stop_sign_lanes, t.length
+            cum, d = [0.0], lane_length[lanes[0]]
+            for x in lanes[1:]:
+                cum.append(d)
+                d += lane_length[x]
+            entry = next((cum[k] for k in range(1, len(lanes)) if junction[lanes[k]] and not junction[lanes[k - 1]]),
+                         math.inf)
+            stop_at = next((cum[k] + lane_length[x] - t.line_setback[x] for k, x in enumerate(lanes) if x in stops),
+                           math.inf)
+            if len(self._windows) >= WINDOWS_HELD:
+                self._windows.clear()
+            held = self._windows[key] = (np.array(lanes, dtype=np.int64), np.array(cum, dtype=float),
+                                         np.array(rule_scan.along(t, list(lanes), length), dtype=np.int8),
+                                         entry, stop_at)
+        return held
 
     # ---- a frame -----------------------------------------------------------------------------
     def act(self, roads: list) -> None:

@@ -429,10 +429,12 @@ def simulate(envs: Sequence[MapEnv], actions: Sequence[Any]) -> None:
     tracked, viewed = [], []  # egos following an external planner's trajectory; envs with a viewer
     for env, action in zip(envs, actions):  # (one pass over the envs)
         road, ego = env.road, env.vehicle
-        _, roads, members, ego_rows = groups.setdefault(id(road.core), (road.core, [], [], []))
-        roads.append(road)
-        members.append(env)
-        ego_rows.append(ego.row)
+        group = groups.get(id(road.core))
+        if group is None:
+            group = groups[id(road.core)] = (road.core, [], [], [])
+        group[1].append(road)
+        group[2].append(env)
+        group[3].append(ego.row)
         if action is not None and not env.config["manual_control"]:
             if isinstance(env.action_space, spaces.Discrete):
                 action = discrete_index(action)  # (highway-env's action types take int() of it)

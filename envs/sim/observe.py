@@ -39,11 +39,13 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
     out: list[np.ndarray | None] = [None] * len(observers)
     first: tuple | None = None
     picks, roads, views, at = [], {}, [], []
-    for k, o in enumerate(observers):  # one config (the first's), of a row of this core
-        road, v = o.env.road, o.observer_vehicle
-        if not supported(o) or road.core is not core or getattr(v, "_core", None) is not core:
-            continue
+    for k, o in enumerate(observers):  # one config (the first's), of a row of this core (`supported`)
         opt_k = _options(o)
+        env = o.env
+        v = o.observer_vehicle
+        road = env.road
+        if not opt_k[0] or v is not env.vehicle or road.core is not core or getattr(v, "_core", None) is not core:
+            continue
         if first is None:
             first = opt_k
         elif opt_k is not first and opt_k != first:

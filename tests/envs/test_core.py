@@ -4,6 +4,7 @@ user code, and its trajectories on fixed seeds are the recorded reference's."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -18,11 +19,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import feat2map
+from feat2map.config import LOOKAHEAD_M
 from feat2map.errors import Feat2MapError
-from feat2map.envs.core import ArrayVehicle, LaneTable, rectangles_overlap, reorder_in_place, reorder_runs
+from feat2map.envs.core import DRIVEN, ArrayVehicle, LaneTable, rectangles_overlap, reorder_in_place, reorder_runs
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
 from feat2map.envs.road import MapRoad
+from feat2map.envs.sim import rule_scan
 from feat2map.envs.sim.join import SMALL_JOIN, member, same_key_pairs
 from feat2map.envs.sim.observe import kinematics, supported
 from feat2map.envs.vehicles import TrafficVehicle
@@ -209,6 +212,49 @@ def test_traffic_vehicles_are_views_of_the_core():
     assert all(isinstance(v, ArrayVehicle) for v in env.unwrapped.road.vehicles[1:])
     with pytest.raises(Feat2MapError, match="traffic_core"):  # the object core is gone
         env.unwrapped.configure({"traffic_core": "objects"})
+
+
+def test_windows_kept_per_lane_sequence_are_each_rows_own():
+    """Every driven row's window, taken from the windows kept by lane sequence and body length
+    (`TrafficCore._window`) as rows drive on and come and go in a batch, is the one its route and
+    body give: the route's lanes from its place within LOOKAHEAD_M, their start distances, what the
+    scan finds along them for its length (`rule_scan.along`), the next junction entry and the first
+    stop sign's line; also for rows whose body changed to one no window was kept for."""
+    envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=6, vectorization_mode="vector_entry_point",
+                        config={"features": FEATS, "traffic_vehicles": 12, "route_junctions": 3})
+    envs.reset(seed=2)
+    core = envs.unwrapped.core
+    t = core.table
+    for step in range(41):
+        envs.step(np.ones(6, dtype=np.int64))
+        if step % 10:
+            continue
+        if step == 40:  # bodies of another length: their windows go farther past a junction
+            core.length[core.env == 0] = 80.0
+            core.dirty.update(range(len(core.objs)))
+        core.refresh_windows()
+        for i in np.flatnonzero(core.kind == DRIVEN).tolist():
+            route, pos = core.routes[i], int(core.route_pos[i])
+            lanes, cum = [route[pos]], [0.0]
+            for x in route[pos + 1:]:
+                if cum[-1] + t.length[lanes[-1]] > LOOKAHEAD_M + t.length[route[pos]]:
+                    break
+                cum.append(cum[-1] + t.length[lanes[-1]])
+                lanes.append(x)
+            n = len(lanes)
+            assert core.W[i, :n].tolist() == lanes and (core.W[i, n:] == -1).all()
+            np.testing.assert_allclose(core.C[i, :n], cum, rtol=1e-12)
+            what = rule_scan.along(t, lanes, float(core.length[i]))
+            assert core.scan_len[i] == len(what) and core.scan_what[i, :len(what)].tolist() == what
+            entry = [c for k, c in enumerate(cum) if k and t.junction[lanes[k]] and not t.junction[lanes[k - 1]]]
+            assert core.entry[i] == pytest.approx(entry[0] if entry else math.inf)
+            stop = [c + t.length[x] - t.line_setback[x] for c, x in zip(cum, lanes) if x in t.stop_sign_lanes]
+            assert core.stop_at[i] == pytest.approx(stop[0] if stop else math.inf)
+    assert len(core._windows) > 20
+    lanes = tuple(max(core.routes, key=len))  # (through junctions with road between them)
+    short, long = (core._window(lanes, length)[2].tolist() for length in (5.0, 1000.0))
+    assert short == rule_scan.along(t, list(lanes), 5.0) != long == rule_scan.along(t, list(lanes), 1000.0)
+    envs.close()
 
 
 def test_after_a_step_the_rows_are_the_road_users_on_the_road():
