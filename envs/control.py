@@ -194,13 +194,17 @@ class TrafficControl(TrafficRules):
             self._unreserve_beyond(vehicle, passage)
         claims = self._claims  # (one list, used again: no object per claim for the cyclic GC to count)
         stop = self._stop_within(vehicle, ignore, passage, scan, claims)
+        self.apply(vehicle, claims)
+        claims.clear()
+        return stop
+
+    def apply(self, vehicle, claims: Claims) -> None:
+        """What a claim's walk recorded (`claims`, in its order), taken: reserve, or give up."""
         for op, j_lane, chain in claims:
             if op == "reserve":
                 self._reserve(vehicle, j_lane, chain)
             else:
                 self.release(vehicle, j_lane)
-        claims.clear()
-        return stop
 
     def claim_passages(self, vehicle) -> float:
         """`passage_stop`, and `vehicle` takes its place at the passages ahead (as a holder or a

@@ -1510,12 +1510,13 @@ class TrafficCore:
             dist[seen] = stop[seen]
             answer |= seen
         takes &= answer
+        enters = {i: int(j_lane[i]) for i in takes.nonzero()[0].tolist()}  # (each reserves its entry's lane)
         takes |= halt & (state == 2) & self._holders()  # red: it gives up a reservation it holds
         rest = ask & ~halt & ~answer
         sc.index(rest | takes | walk)
         for i in (signal & (rest | takes)).nonzero()[0].tolist():  # the state at its first stop's line is known
             sc.state[i] = SIGNAL_STATES[state[i]]
-        return self._claim(sorted(self._ask(rest, sc, dist) + takes.nonzero()[0].tolist() + walks), sc, dist)
+        return self._claim(sorted(self._ask(rest, sc, dist) + takes.nonzero()[0].tolist() + walks), sc, dist, enters)
 
     def _passages_ahead(self, rows: np.ndarray) -> np.ndarray:
         """Mask over the rows: those of `rows` (a mask) whose route has a narrow passage starting
@@ -1552,11 +1553,26 @@ class TrafficCore:
                 claims.clear()
         return wants
 
-    def _claim(self, rows: list[int], sc: rule_scan.Scan, dist: np.ndarray) -> np.ndarray:
+    def _claim(self, rows: list[int], sc: rule_scan.Scan, dist: np.ndarray,
+               enters: dict[int, int] | None = None) -> np.ndarray:
         """The claims of `rows` (row order; their scans indexed in `sc`): each row's stop distance
-        is its claim's answer (`control.TrafficControl.claim`)."""
+        is its claim's answer (`control.TrafficControl.claim`). A row the arrays let go into the
+        lane of its entry (`enters`: the lane), within commit distance and the lane reserved by
+        nobody, claims that lane with its chain (what its walk records, `TrafficRules._may_enter`)
+        and keeps its answer when it is the first to claim in its slot: a claim writes its own
+        slot's rule state alone, so that state is the one its answer came from."""
+        enters = enters or {}
+        ids = self.net.lane_ids
+        claimed = set()  # (the slots claimed in)
         for i in rows:
-            dist[i] = self.roads[self.env[i]].control.claim(self.objs[i], scan=(sc, i))
+            slot = int(self.env[i])
+            control, v = self.roads[slot].control, self.objs[i]
+            if i in enters and slot not in claimed:
+                lane = ids[enters[i]]
+                control.apply(v, [("reserve", lane, control.junction_chain(v, lane))])
+            else:
+                dist[i] = control.claim(v, scan=(sc, i))
+            claimed.add(slot)
         return dist
 
     def _holders(self) -> np.ndarray:

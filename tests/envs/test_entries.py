@@ -239,3 +239,38 @@ def test_every_row_that_does_not_claim_is_answered_as_the_rules_answer_it(where,
         envs.step(np.ones(8, dtype=np.int64))
     envs.close()
     assert counts["held"] > 200 and counts["free"] > 200 and counts["claimed"] > 20, counts
+
+
+def test_a_claim_the_arrays_answered_equals_the_claims_walk(monkeypatch):
+    """A row the arrays let go into its entry's lane, first to claim in its slot, reserves that lane
+    with its chain without walking its route again (`TrafficCore._claim`): step for step, every
+    output and every slot's reservations equal those of claiming by the walk; both happen many
+    times, and rows after another claimant of their slot walk (a row taking its lane without
+    the walk after an earlier claim of its slot fails it)."""
+    claim = core.TrafficCore._claim
+    kinds: Counter = Counter()
+
+    def counted(self, rows, sc, dist, enters=None):
+        slots = [int(self.env[i]) for i in rows]
+        for k, (i, s) in enumerate(zip(rows, slots)):
+            kinds["taken" if enters and i in enters and s not in slots[:k] else "later" if enters and i in enters
+                  else "walked"] += 1
+        return claim(self, rows, sc, dist, enters)
+
+    def run(walk: bool) -> list:
+        monkeypatch.setattr(core.TrafficCore, "_claim", (lambda self, rows, sc, dist, enters=None:
+                                                         claim(self, rows, sc, dist)) if walk else counted)
+        envs = gym.make_vec("feat2map/JunctionGrid-v0", num_envs=8, vectorization_mode="vector_entry_point",
+                            config=BUSY_BATCH)
+        out, rng = [envs.reset(seed=4)[0]], np.random.default_rng(0)
+        for _ in range(100):
+            out += [*envs.step(rng.integers(envs.single_action_space.n, size=8))[:4], envs.unwrapped.core.res.copy()]
+        envs.close()
+        return out
+
+    walked = run(walk=True)
+    taken = run(walk=False)
+    assert len(taken) == len(walked)
+    for a, b in zip(taken, walked):
+        np.testing.assert_array_equal(a, b)
+    assert kinds["taken"] > 50 and kinds["later"] > 0, kinds
