@@ -2078,12 +2078,10 @@ class TrafficCore:
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
-        if len(self.roads) == 1:  # one slot: every pair (what the join below finds, in its order)
+        if len(self.roads) == 1:  # one slot: every pair
             a, b = self._all_pairs(n, len(env))
-        else:
-            a, b = same_key_pairs(env[:n], env)  # pedestrians never collide with each other
-            later = a < b
-            a, b = a[later], b[later]
+        else:  # the pairs of a slot near each other along x
+            a, b = near_in_x(x, env, n, float(diag.max() + speed.max() * dt))
         reach = (diag[a] + diag[b]) / 2 + speed[a] * dt
         close = (np.abs(x[a] - x[b]) <= reach) & (np.abs(y[a] - y[b]) <= reach)
         a, b = a[close], b[close]
@@ -2103,6 +2101,22 @@ class TrafficCore:
         one = lambda k: objs[rows[k]] if k < n else objects[k - n]  # noqa: E731
         for i, j in zip(a[keep].tolist(), b[keep].tolist()):
             one(i).handle_collisions(one(j), dt)
+
+
+def near_in_x(x: np.ndarray, slot: np.ndarray, n: int, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every (i, j), i < j, i < n (the first n are road users, the others objects, which never
+    meet each other), of one slot with |x[i] - x[j]| <= reach: a sweep along x within each slot
+    (sorted by slot, then x), not every pair of a slot."""
+    low = x.min()
+    key = slot * (float(x.max() - low) + 2 * reach + 1.0) + (x - low)  # (slots apart by more than the reach)
+    order = key.argsort()
+    key = key[order]
+    end = key.searchsorted(key + reach * (1 + 1e-9) + 1e-6, side="right")  # (a margin: the filter is exact after)
+    p, q = entries.expand_ranges(np.arange(1, len(key) + 1), np.maximum(end, np.arange(1, len(key) + 1)))
+    i, j = order[p], order[q]
+    a, b = np.minimum(i, j), np.maximum(i, j)
+    keep = a < n
+    return a[keep], b[keep]
 
 
 def rectangles_overlap(core: TrafficCore, a: np.ndarray, b: np.ndarray) -> np.ndarray:

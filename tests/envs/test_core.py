@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 import feat2map
 from feat2map.config import LOOKAHEAD_M
 from feat2map.errors import Feat2MapError
-from feat2map.envs.core import DRIVEN, ArrayVehicle, LaneTable, rectangles_overlap, reorder_in_place, reorder_runs
+from feat2map.envs.core import DRIVEN, ArrayVehicle, LaneTable, near_in_x, rectangles_overlap, reorder_in_place, reorder_runs
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver
 from feat2map.envs.observation import Kinematics
 from feat2map.envs.road import MapRoad
@@ -362,6 +362,23 @@ def test_same_key_pairs_join_many_keys_by_sorting():
     want_i, want_j = np.equal.outer(a, b).nonzero()
     np.testing.assert_array_equal(i, want_i)
     np.testing.assert_array_equal(j, want_j)
+
+
+@given(st.lists(st.tuples(st.floats(-500, 500), st.integers(0, 4)), min_size=1, max_size=60),
+       st.integers(0, 60), st.floats(0.0, 30.0))
+def test_near_in_x_is_every_pair_of_a_slot_within_reach_along_x(points, n, reach):
+    """`core.near_in_x`, the collisions' broad phase between slots' road users (the first n) and
+    objects, gives every pair (i < j, i < n) of one slot whose x lie within `reach`, and more only
+    within a hair of it (the exact test follows)."""
+    x = np.array([p[0] for p in points])
+    slot = np.array([p[1] for p in points], dtype=np.int64)
+    n = min(n, len(x))
+    a, b = near_in_x(x, slot, n, reach)
+    got = set(zip(a.tolist(), b.tolist()))
+    assert len(got) == len(a) and all(i < j and i < n and slot[i] == slot[j] for i, j in got)
+    want = {(i, j) for i in range(n) for j in range(i + 1, len(x)) if slot[i] == slot[j] and abs(x[i] - x[j]) <= reach}
+    assert want <= got
+    assert all(abs(x[i] - x[j]) <= reach + 1e-5 for i, j in got - want)
 
 
 def test_rows_added_one_at_a_time_write_one_row_and_keep_the_others():
