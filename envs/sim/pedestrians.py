@@ -55,13 +55,15 @@ def start(core: "TrafficCore", slot: int, active: list[int], key: int, chance: f
         core.ped_due[slot, :len(active)] = _next(key, 0, np.arange(len(active)), chance)
 
 
-def _next(key, frame, k, chance: float) -> np.ndarray:
+def _next(key, frame, k, chance) -> np.ndarray:
     """The frame after `frame` on which someone next steps out on crosswalk `k` of a slot: a
-    geometric wait of success `chance` a frame (what a draw every frame would give, drawn once)."""
-    if chance <= 0:
-        return np.full(np.size(k), np.inf)
+    geometric wait of success `chance` a frame (what a draw every frame would give, drawn once;
+    never where `chance` is 0). Arrays, elementwise."""
     u = random.uniform(key, frame, WAIT, k)
-    return frame + 1 + np.floor(np.log1p(-u) / np.log1p(-min(chance, 1.0)))
+    chance = np.minimum(chance, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wait = np.floor(np.log1p(-u) / np.log1p(-chance))
+    return np.where(chance > 0, frame + 1 + wait, np.inf)
 
 
 def update(core: "TrafficCore", dt: float, slots: np.ndarray) -> None:
@@ -82,15 +84,18 @@ def update(core: "TrafficCore", dt: float, slots: np.ndarray) -> None:
             changed.setdefault(int(core.p_env[i]), [])
         core.drop_walkers([core.p_objs[i] for i in gone])
     due_s, due_k = np.nonzero(core.ped_due <= core.ped_frame[:, None])
-    for s, k in zip(due_s.tolist(), due_k.tolist()):  # (a few: a step out is rare)
-        if not slots[s]:
-            continue
-        c, frame, key = int(core.cw_of[s, k]), int(core.ped_frame[s]), core.ped_key[s]
-        if dt > 0 and np.count_nonzero((core.p_env == s) & (core.p_cw == c)) < core.ped_max[s]:
-            p = _step_out(core, s, c, *random.uniform(key, frame, np.array([SIDE, OFFSET, SPEED]), k))
-            if p is not None:
-                changed.setdefault(s, []).append(p)
-        core.ped_due[s, k] = _next(key, frame, k, float(core.ped_chance[s]))[0]
+    on = slots[due_s]
+    due_s, due_k = due_s[on], due_k[on]
+    if len(due_s):  # (a few: a step out is rare) their draws at once, then each steps out in turn
+        frame, key = core.ped_frame[due_s], core.ped_key[due_s]
+        draws = random.uniform(key[:, None], frame[:, None], np.array([[SIDE, OFFSET, SPEED]]), due_k[:, None])
+        for s, k, drawn in zip(due_s.tolist(), due_k.tolist(), draws.tolist()):
+            c = int(core.cw_of[s, k])
+            if dt > 0 and np.count_nonzero((core.p_env == s) & (core.p_cw == c)) < core.ped_max[s]:
+                p = _step_out(core, s, c, *drawn)
+                if p is not None:
+                    changed.setdefault(s, []).append(p)
+        core.ped_due[due_s, due_k] = _next(key, frame, due_k, core.ped_chance[due_s])
     core.ped_frame[slots] += 1
     for s, new in changed.items():
         control = core.roads[s].control
