@@ -207,9 +207,9 @@ def test_every_row_that_does_not_claim_is_answered_as_the_rules_answer_it(where,
     counts: Counter = Counter()
     rule_stops, claim = core.TrafficCore._rule_stops, core.TrafficCore._claim
 
-    def claims(self, rows, sc, dist):
+    def claims(self, rows, sc, dist, enters=None):
         claimed.update(rows)
-        return claim(self, rows, sc, dist)
+        return claim(self, rows, sc, dist, enters)
 
     def stops(self, traffic):
         claimed.clear()
