@@ -2060,6 +2060,8 @@ class TrafficCore:
         vehicles and pedestrians of each road, highway-env's `handle_collisions` (polygons) for
         the close pairs."""
         rows = self.on.nonzero()[0]
+        if not len(rows):  # (objects never meet each other)
+            return
         objects = [o for road in roads for o in road.objects]
         x, y, speed = self.x[rows], self.y[rows], np.abs(self.speed[rows])
         diag = np.hypot(self.length[rows], self.width[rows])

@@ -28,7 +28,13 @@ def supported(obs: Any) -> bool:
     """Options the program reproduces (others, and the first normalized observation without a
     features_range, which highway-env derives from the lanes, go to highway-env's code), for
     the env's own vehicle."""
-    return _options(obs)[0] and obs.observer_vehicle is obs.env.vehicle
+    return _observer(obs) is not None
+
+
+def _observer(obs: Any) -> tuple[tuple, Any] | None:
+    """(its options, its vehicle) of an observation the program reproduces (`supported`), else None."""
+    opt, v = _options(obs), obs.observer_vehicle
+    return (opt, v) if opt[0] and v is obs.env.vehicle else None
 
 
 def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
@@ -39,12 +45,13 @@ def kinematics(observers: list, core: Any) -> list[np.ndarray | None]:
     out: list[np.ndarray | None] = [None] * len(observers)
     first: tuple | None = None
     picks, roads, views, at = [], {}, [], []
-    for k, o in enumerate(observers):  # one config (the first's), of a row of this core (`supported`)
-        opt_k = _options(o)
-        env = o.env
-        v = o.observer_vehicle
-        road = env.road
-        if not opt_k[0] or v is not env.vehicle or road.core is not core or getattr(v, "_core", None) is not core:
+    for k, o in enumerate(observers):  # one config (the first's), of a row of this core
+        got = _observer(o)
+        if got is None:
+            continue
+        opt_k, v = got
+        road = o.env.road
+        if road.core is not core or getattr(v, "_core", None) is not core:
             continue
         if first is None:
             first = opt_k

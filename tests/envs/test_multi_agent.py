@@ -480,6 +480,19 @@ def test_worlds_are_independent_copies_of_the_one_world_env():
     parallel_seed_test(lambda: parallel_env({**cfg, "worlds": 2}), num_cycles=20)
 
 
+def test_worlds_with_nobody_on_the_road_step_on():
+    """Once every agent of every world has gone (no traffic, no pedestrians), a step moves worlds
+    that hold no road user at all: nothing to report, their clocks on."""
+    env = parallel_env({**map_config("generated"), "agents": 2, "worlds": 2, "traffic_vehicles": 0,
+                        "pedestrian_rate": 0.0, "duration": 5.0})
+    env.reset(seed=0)
+    while env.agents:
+        env.step({a: 1 for a in env.agents})
+    before = [w.time for w in env.worlds]
+    assert env.step({}) == ({}, {}, {}, {}, {})
+    assert all(w.time > t for w, t in zip(env.worlds, before))
+
+
 def test_worlds_config():
     """A new map at each reset cannot be shared by several worlds; `configure` may change the
     number of worlds (and of agents), making the worlds again."""
