@@ -2062,7 +2062,12 @@ class TrafficCore:
         rows = self.on.nonzero()[0]
         if not len(rows):  # (objects never meet each other)
             return
-        objects = [o for road in roads for o in road.objects]
+        objects: list = []
+        where: list[int] = []  # (each object's slot)
+        for road in roads:  # (each road once: a batch's roads are many, their objects few)
+            if road.objects:
+                objects += road.objects
+                where += [road.slot] * len(road.objects)
         x, y, speed = self.x[rows], self.y[rows], np.abs(self.speed[rows])
         diag = np.hypot(self.length[rows], self.width[rows])
         env = self.env[rows]
@@ -2079,7 +2084,7 @@ class TrafficCore:
             x, y = np.concatenate([x, ox]), np.concatenate([y, oy])
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
-            env = np.concatenate([env, [road.slot for road in roads for _ in road.objects]])
+            env = np.concatenate([env, where])
         if len(self.roads) == 1:  # one slot: every pair
             a, b = self._all_pairs(n, len(env))
         else:  # the pairs of a slot near each other along x
