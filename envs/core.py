@@ -2119,7 +2119,7 @@ def near_in_x(x: np.ndarray, slot: np.ndarray, n: int, reach: float) -> tuple[np
     order = key.argsort()
     key = key[order]
     end = key.searchsorted(key + reach * (1 + 1e-9) + 1e-6, side="right")  # (a margin: the filter is exact after)
-    p, q = entries.expand_ranges(np.arange(1, len(key) + 1), np.maximum(end, np.arange(1, len(key) + 1)))
+    p, q = entries.expand_ranges(np.arange(1, len(key) + 1), end)  # (each end is past its own place)
     i, j = order[p], order[q]
     a, b = np.minimum(i, j), np.maximum(i, j)
     keep = a < n
