@@ -79,7 +79,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
+from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, FINISH_MARGIN_M, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
                       PASSAGE_HORIZON_M, PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
@@ -159,6 +159,16 @@ class LaneTable:
         self.ax, self.ay = pts[:, 0].copy(), pts[:, 1].copy()
         self.ux, self.uy = u[:, 0].copy(), u[:, 1].copy()
         self.vh = np.concatenate([ln.vertex_heading for ln in lanes])
+        # each segment's length, what a projection clamps along it to (beyond the lane's ends on
+        # its first and last segments: `PolylineLane`'s `_lo`, `_hi`), and what `heading_at`
+        # interpolates over
+        seg_len = self.G[1:] - self.G[:-1]
+        self.seg_lo = np.zeros(len(seg_len))
+        self.seg_lo[self.first] = -math.inf
+        self.seg_hi = seg_len.copy()
+        self.seg_hi[self.last_seg] = math.inf
+        self.seg_div = np.maximum(seg_len, 1e-12)
+        self.vh_step = self.vh[1:] - self.vh[:-1]
         # curves: at each vertex the least of v_c^2 + 2 b s over it and the lane's later vertices
         # (v_c its `curve_speeds`, s its arc length on its lane, b CURVE_BRAKE_MPS2), so that the
         # speed a vehicle at s may have to brake to every curve ahead on the lane is
@@ -312,8 +322,7 @@ class LaneTable:
         rx, ry = x[:, None] - self.ax[j], y[:, None] - self.ay[j]
         ux, uy = self.ux[j], self.uy[j]
         t = rx * ux + ry * uy
-        tc = np.minimum(np.maximum(t, np.where(j == first, -math.inf, 0.0)),
-                        np.where(j == last, math.inf, self.G[j + 1] - self.G[j]))
+        tc = np.minimum(np.maximum(t, self.seg_lo[j]), self.seg_hi[j])
         dx, dy = rx - tc * ux, ry - tc * uy
         k = (dx * dx + dy * dy).argmin(axis=1)
         n = np.arange(len(k))
@@ -371,10 +380,9 @@ class LaneTable:
     def heading_at(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
         """`PolylineLane.heading_at` of each (lane, s): vertex headings interpolated, s within the lane."""
         sc = np.minimum(np.maximum(s, 0.0), self.length[lane])
-        j = self.segments(lane, sc)
-        seg = self.G[j + 1] - self.G[j]
-        f = (self.offset[lane] + sc - self.G[j]) / np.maximum(seg, 1e-12)
-        return self.vh[j] + f * (self.vh[j + 1] - self.vh[j])
+        key = self.offset[lane] + sc
+        j = np.minimum(np.maximum(self.G.searchsorted(key, side="right") - 1, self.first[lane]), self.last_seg[lane])
+        return self.vh[j] + (key - self.G[j]) / self.seg_div[j] * self.vh_step[j]
 
 class ArrayVehicle(TrafficVehicle):
     """A traffic vehicle of the arrays core: a `TrafficVehicle` whose state (position, heading,
@@ -1996,7 +2004,9 @@ class TrafficCore:
         rows = (self.crashed & ~self.controlled) | ~self.driven
         rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in (~self.driven).nonzero()[0].tolist()]
         last = (self.driven & ~self.controlled & ~rows & (self.route_pos >= self.route_end)).nonzero()[0]
-        rows[last] = [self.objs[i].finished for i in last.tolist()]
+        if len(last):  # `TrafficVehicle.finished` of each: within FINISH_MARGIN_M of its route's end
+            ends = np.array([self.routes[i][-1] for i in last.tolist()], dtype=np.int64)
+            rows[last] = self.s[last] >= self.table.length[ends] - FINISH_MARGIN_M
         return np.bincount(self.env[rows], minlength=len(self.roads)) > 0
 
     def externals(self, road) -> list[Any]:
