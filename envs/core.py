@@ -2095,7 +2095,8 @@ class TrafficCore:
             diag = np.concatenate([diag, [o.diagonal for o in objects]])
             speed = np.concatenate([speed, np.zeros(len(objects))])
             env = np.concatenate([env, where])
-        if len(self.roads) == 1:  # one slot: every pair
+        single = len(self.roads) == 1
+        if single:  # one slot: every pair (in the order of a rows x rows matrix)
             a, b = self._all_pairs(n, len(env))
         else:  # the pairs of a slot near each other along x
             a, b = near_in_x(x, env, n, float(diag.max() + speed.max() * dt))
@@ -2104,8 +2105,9 @@ class TrafficCore:
         a, b = a[close], b[close]
         if not len(a):
             return
-        order = np.lexsort((b, a))  # in the order of a (rows x rows) matrix
-        a, b = a[order], b[order]
+        if not single:
+            order = np.lexsort((b, a))  # in the order of a (rows x rows) matrix
+            a, b = a[order], b[order]
         # two driven rows (most close pairs: neighbours side by side, queues): their rectangles
         # by separating axes; pairs with external road users or pedestrians go straight to
         # highway-env (impacts, hits)

@@ -74,6 +74,9 @@ def update(core: "TrafficCore", dt: float, slots: np.ndarray) -> None:
     `PEDESTRIAN_SPAWN_HORIZON_S` of its own travel of that place, and the next one is drawn; each
     slot's frame counter moves on.
     A frame of `dt` 0 (a reset's bookkeeping) lets nobody out."""
+    if not len(core.p_env) and not core.ped_due.shape[1]:  # no walker, no crosswalk ever active
+        core.ped_frame[slots] += 1
+        return
     changed: dict[int, list] = {}
     across = (core.p_left <= 1e-6) & slots[core.p_env] if len(core.p_env) else np.zeros(0, dtype=bool)
     if across.any():
