@@ -584,10 +584,12 @@ class MultiAgentMapEnv(ParallelEnv):
         vehicles = [v.vehicle for v in views]
         judges = [v.judge for v in views]
         numbers = [self._number[a] for a in live]
+        layout = -1  # (the core's when the agents' rows were read: rows move only when it changes)
         for _ in range(frames):
             core.sync()
             if vehicles:
-                rows = np.array([v.row for v in vehicles], dtype=np.int64)
+                if layout != core.layout:
+                    rows, layout = np.array([v.row for v in vehicles], dtype=np.int64), core.layout
                 core.command[rows] = self.actions.accelerations(numbers, core.speed[rows])
                 # the rules' verdict is noted for agents near a junction entry (core.entry: where the
                 # next one starts, from the current lane's start; the line may lie before it)
