@@ -181,7 +181,7 @@ def centre_points(lane: PolylineLane, s: np.ndarray) -> np.ndarray:
 
 
 SIMILAR_SEGMENTS = 1.5  # lanes whose segment counts are within this factor are projected in one program
-PADDING_LIMIT = 2.0  # ... unless padding all of them to the longest costs at most this factor of the work
+PADDING_LIMIT = 1.3  # ... unless padding all of them to the longest costs at most this factor of the work
 PROJECT_BLOCK = 40_000  # (lane, point, segment) elements a program's temporaries hold at once: they stay in cache
 
 
