@@ -304,7 +304,11 @@ class LaneTable:
         return net.memo("lane table", lambda: cls(net))
 
     def segments(self, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
-        key = self.offset[lane] + s
+        return self.segment_at(lane, self.offset[lane] + s)
+
+    def segment_at(self, lane: np.ndarray, key: np.ndarray) -> np.ndarray:
+        """The segment of each `lane` holding global arc length `key` (its offset + s), clamped
+        to the lane's segments."""
         i = self.G.searchsorted(key, side="right") - 1
         return np.minimum(np.maximum(i, self.first[lane]), self.last_seg[lane])
 
@@ -342,14 +346,14 @@ class LaneTable:
         i = self.segment_one(lane, s)
         first, last = int(self.first[lane]), int(self.last_seg[lane])
         lo, hi = max(i - PROJECT_SEGMENTS, first), min(i + PROJECT_SEGMENTS, last)
-        G = self.G[lo:hi + 2].tolist()
+        G = self.G[lo:hi + 1].tolist()
         best: tuple = ()
-        for n, (ax, ay, u, v) in enumerate(zip(self.ax[lo:hi + 1].tolist(), self.ay[lo:hi + 1].tolist(),
-                                               self.ux[lo:hi + 1].tolist(), self.uy[lo:hi + 1].tolist())):
+        for n, (ax, ay, u, v, t_lo, t_hi) in enumerate(zip(*(a[lo:hi + 1].tolist() for a in (
+                self.ax, self.ay, self.ux, self.uy, self.seg_lo, self.seg_hi)))):
             j = lo + n
             rx, ry = x - ax, y - ay
             t = rx * u + ry * v
-            tc = min(max(t, -math.inf if j == first else 0.0), math.inf if j == last else G[n + 1] - G[n])
+            tc = min(max(t, t_lo), t_hi)
             dx, dy = rx - tc * u, ry - tc * v
             d2 = dx * dx + dy * dy
             if not best or d2 < best[0]:
@@ -362,10 +366,8 @@ class LaneTable:
         """`heading_at` of one (lane, s)."""
         sc = min(max(s, 0.0), float(self.length[lane]))
         j = self.segment_one(lane, sc)
-        g0, g1 = float(self.G[j]), float(self.G[j + 1])
-        f = (float(self.offset[lane]) + sc - g0) / max(g1 - g0, 1e-12)
-        h0 = float(self.vh[j])
-        return h0 + f * (float(self.vh[j + 1]) - h0)
+        return float(self.vh[j]) + (float(self.offset[lane]) + sc - float(self.G[j])) / float(self.seg_div[j]) * \
+            float(self.vh_step[j])
 
     def place(self, lane: np.ndarray, s: np.ndarray, lat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, lane heading) of points at (lane, s, lat); beyond a lane's ends the first and
@@ -381,7 +383,7 @@ class LaneTable:
         """`PolylineLane.heading_at` of each (lane, s): vertex headings interpolated, s within the lane."""
         sc = np.minimum(np.maximum(s, 0.0), self.length[lane])
         key = self.offset[lane] + sc
-        j = np.minimum(np.maximum(self.G.searchsorted(key, side="right") - 1, self.first[lane]), self.last_seg[lane])
+        j = self.segment_at(lane, key)
         return self.vh[j] + (key - self.G[j]) / self.seg_div[j] * self.vh_step[j]
 
 class ArrayVehicle(TrafficVehicle):
