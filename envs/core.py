@@ -1179,16 +1179,17 @@ class TrafficCore:
         self.dirty.clear()
         if not rows:
             return
-        need = max(len(w[0]) for w in wins)
+        ws, cum, what, entry, stop_at = zip(*wins)
+        width = np.array([len(x) for x in ws], dtype=np.int64)
+        need = int(width.max())
         if need > self.W.shape[1]:
             pad = need - self.W.shape[1]
             self.W = np.hstack([self.W, np.full((len(self.W), pad), -1, dtype=np.int64)])
             self.C = np.hstack([self.C, np.zeros((len(self.C), pad))])
             self.scan_what = np.hstack([self.scan_what, np.zeros((len(self.W), pad), dtype=np.int8)])
         idx = np.array(rows, dtype=np.int64)
-        ws, cum, what, entry, stop_at = zip(*wins)
         zero = np.zeros(len(idx), dtype=np.int64)
-        owner, col = entries.expand_ranges(zero, np.array([len(x) for x in ws], dtype=np.int64))
+        owner, col = entries.expand_ranges(zero, width)
         self.W[idx] = -1
         self.W[idx[owner], col] = np.concatenate(ws)
         self.C[idx[owner], col] = np.concatenate(cum)
