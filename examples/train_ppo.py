@@ -99,7 +99,10 @@ AGENT_CONFIG = {"observation": {"type": "DriverView"}, "action": DRIVER_ACTION_C
                 "policy_frequency": DECISION_HZ, "simulation_frequency": 10}
 #: The task: one junction per route, traffic and pedestrians; the env's reward terms (the
 #: wrapper ends the episode on a violation, as it ends a success).
-FAILURE_PENALTY = -5.0
+#: A failure's reward. Five seeds' models re-evaluated on 40 episodes a cell (7,600 episodes each
+#: way) failed 1.97% of them with -5 (16 red lights run, 95 collisions) and 1.54% with this (2 red
+#: lights, 88 collisions).
+FAILURE_PENALTY = -10.0
 TASK_CONFIG = {
     "route_junctions": 1, "duration": 60.0, "traffic_vehicles": 4, "pedestrian_rate": 3.0,
     "reward_progress": 1.0, "reward_arrived": 1.0,
