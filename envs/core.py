@@ -79,7 +79,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, FINISH_MARGIN_M, IDM_GAP_M, IDM_STOP_GAP_M,
+from ..config import (CURVE_BEHIND_M, CURVE_BRAKE_MPS2, CURVE_MIN_SPEED_MPS, IDM_GAP_M, IDM_STOP_GAP_M,
                       LANE_CHANGE_TAU_S, LANE_KEEPING_TAU_S, LOOKAHEAD_M, MOBIL_PERIOD_S, OFF_ROAD_LATERAL_M, PAIR_SAMPLE_M,
                       PASSAGE_HORIZON_M, PEDESTRIAN_YIELD_SPEED_MPS, PRIORITY_MARGIN_M, STOP_POINT_M)
 from ..invariants import lane_changes
@@ -94,7 +94,7 @@ from .sim import crossings, entries, judge, mobil, passages, pedestrians, rule_s
 from .sim.join import same_key_pairs
 from .reservations import LEFT, NONE, Reservations
 from .sim.vehicle import FLOATS, VehicleModel, integrate, keeping_steering, speed_control
-from .vehicles import Pedestrian, TrafficVehicle, route_upcoming
+from .vehicles import Pedestrian, TrafficVehicle, route_finished, route_upcoming
 
 if TYPE_CHECKING:
     from .road import MapRoad
@@ -2007,9 +2007,9 @@ class TrafficCore:
         rows = (self.crashed & ~self.controlled) | ~self.driven
         rows[~self.driven] = [isinstance(self.objs[i], TrafficVehicle) for i in (~self.driven).nonzero()[0].tolist()]
         last = (self.driven & ~self.controlled & ~rows & (self.route_pos >= self.route_end)).nonzero()[0]
-        if len(last):  # `TrafficVehicle.finished` of each: within FINISH_MARGIN_M of its route's end
+        if len(last):  # `TrafficVehicle.finished` of each
             ends = np.array([self.routes[i][-1] for i in last.tolist()], dtype=np.int64)
-            rows[last] = self.s[last] >= self.table.length[ends] - FINISH_MARGIN_M
+            rows[last] = route_finished(self.s[last], self.table.length[ends])
         return np.bincount(self.env[rows], minlength=len(self.roads)) > 0
 
     def externals(self, road) -> list[Any]:

@@ -622,7 +622,8 @@ class MultiAgentMapEnv(ParallelEnv):
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         obs = self._observe(live)
         if live:  # the agents' tasks at once (`task`)
-            rows = np.array([v.row for v in vehicles], dtype=np.int64)
+            if layout != core.layout:
+                rows = np.array([v.row for v in vehicles], dtype=np.int64)
             done, completed = task.route_state(core, rows)
             terms_of = AgentView.reward_terms(views, core, rows, done, completed)
             columns, weights = self._weights()

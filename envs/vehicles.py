@@ -201,7 +201,13 @@ class TrafficVehicle(RouteFollower, IDMVehicle):
         """On the last lane of its route, within FINISH_MARGIN_M of its end."""
         if self.route_pos < len(self.lane_route) - 1:
             return False
-        return self.route_s() >= self.net.lane_of[self.lane_route[-1]].length - FINISH_MARGIN_M
+        return bool(route_finished(self.route_s(), self.net.lane_of[self.lane_route[-1]].length))
+
+
+def route_finished(s: Any, last_length: Any) -> Any:
+    """Whether a road user at `s` on its route's last lane (of `last_length`) has finished the
+    route: within FINISH_MARGIN_M of that lane's end (floats, or arrays of rows)."""
+    return s >= last_length - FINISH_MARGIN_M
 
 
 def vehicle_model(vehicle: Any, acceleration_range: Any, steering_range: Any) -> dict[str, Any]:
