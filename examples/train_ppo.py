@@ -19,7 +19,9 @@ road) / diverge (main road onto the off-ramp) at the ramp junction.
   they end a success); +STOP_BONUS once when the ego drives on into the junction after its full
   stop at a stop sign (not for the stop itself: see `shaped_reward`); -TIME_COST per decision,
   so that waiting is never free and standing at the line until the time limit pays less than
-  nothing.
+  nothing; near misses (`near_miss_cost`): -ENTRY_COST for entering the junction while the
+  decision before saw a conflicting lane taken, and a charge for speed a pedestrian's stop point
+  ahead leaves no comfortable room to brake from.
 - Training: PPO on `--n-envs` sub-envs of the native batched vector env (envs/vector.py: the
   traffic of a process's sub-envs in one array program), in the training process or split over
   `--workers` processes that step at once (envs/sb3.py; on the project's 2-core machine two
@@ -69,7 +71,8 @@ import numpy as np  # noqa: E402
 
 import feat2map  # noqa: E402  (registers the feat2map/ environment ids)
 from feat2map import atomic  # noqa: E402
-from feat2map.config import AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS, RAMP_MANOEUVRES  # noqa: E402
+from feat2map.config import (AGENT_ACCELERATION_RANGE, AGENT_TARGET_SPEEDS, DRIVER_VIEW_PEDESTRIAN_SCALE_M,  # noqa: E402
+                             DRIVER_VIEW_SPEED_SCALE_MPS, RAMP_MANOEUVRES)
 from feat2map.extract_ramps import ramp_moves  # noqa: E402
 from feat2map.envs.driver import DRIVER_ACTION_CONFIG, ScriptedDriver  # noqa: E402
 from feat2map.envs.driver_view import DRIVER_VIEW_FEATURES  # noqa: E402
@@ -116,10 +119,21 @@ TRAIN_TRAFFIC = (2, 8)  # training episodes draw their traffic count from this r
 TRAIN_PEDESTRIANS = (3.0, 12.0)
 STOP_BONUS = 0.3
 TIME_COST = 0.01
+#: Near misses the task pays for (`near_miss_cost`): entering a junction while the decision before
+#: saw a conflicting lane occupied or reserved (DriverView's conflict_occupied), and each decision
+#: that ends faster than the speed from which BRAKE_MPS2 stops the ego at a pedestrian's stop point.
+#: Five seeds' models evaluated on 40 episodes a cell failed 1.09% of them with these against 1.54%
+#: without (collisions 45 against 88); with ENTRY_COST 1.0 one seed's policy learned to stand at
+#: clear bare junctions until the time limit.
+ENTRY_COST = 0.5
+LATE_BRAKE_COST = 1.0
+BRAKE_MPS2 = 3.0
 LOAD_SAMPLE_S = 30.0  # the machine's load average is sampled this often during training
 PROGRESS_LINE_S = 60.0  # off a terminal (a log, CI), a progress line this often; on one, a bar
 EVAL_SEED = 10_000  # first seed of the evaluation episodes (training envs are seeded below it)
 STOP_MADE = DRIVER_VIEW_FEATURES.index("stop_made")
+IN_JUNCTION, OCCUPIED, PEDESTRIAN, SPEED = (DRIVER_VIEW_FEATURES.index(k) for k in
+                                            ("in_junction", "conflict_occupied", "pedestrian", "speed"))
 
 Policy = Callable[[object, gym.Env], object]  # (observation, env) -> action
 
@@ -185,22 +199,39 @@ def shaped_reward(r, stopped, was_stopped, failed=False):
     return r + STOP_BONUS * np.logical_and(entered, np.logical_not(failed)) - TIME_COST
 
 
+def near_miss_cost(before, after):
+    """What the task charges for a decision from DriverView `before` to `after` (one observation
+    or a batch of rows) that ended in no failure, or in one: ENTRY_COST for entering the junction
+    while `before` saw a conflicting lane occupied or reserved (the conflict rule holds a driver
+    there), and LATE_BRAKE_COST per DRIVER_VIEW_SPEED_SCALE_MPS of speed over the speed from which
+    BRAKE_MPS2 stops the ego at the stop point a pedestrian makes (`after`). Both are what a
+    collision or a pedestrian not yielded to follows from, met far more often than those are."""
+    before, after = np.asarray(before), np.asarray(after)
+    entry = (before[..., IN_JUNCTION] < 0.5) & (after[..., IN_JUNCTION] > 0.5) & (before[..., OCCUPIED] > 0.5)
+    near = after[..., PEDESTRIAN] < 1.0
+    stop_m = np.maximum(after[..., PEDESTRIAN], 0.0) * DRIVER_VIEW_PEDESTRIAN_SCALE_M
+    over = after[..., SPEED] * DRIVER_VIEW_SPEED_SCALE_MPS - np.sqrt(2.0 * BRAKE_MPS2 * stop_m)
+    late = np.where(near, np.maximum(over, 0.0) / DRIVER_VIEW_SPEED_SCALE_MPS, 0.0)
+    return ENTRY_COST * entry + LATE_BRAKE_COST * late
+
+
 class TaskRewards(gym.Wrapper):
     """The task's shaping on top of the env's reward (`shaped_reward`: +STOP_BONUS on driving
-    on after the full stop at a stop sign, -TIME_COST per decision); a violation ends the
-    episode (it already ends a success)."""
+    on after the full stop at a stop sign, -TIME_COST per decision; `near_miss_cost`); a
+    violation ends the episode (it already ends a success)."""
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
         self._stopped = obs[STOP_MADE] > 0.5
+        self._obs = obs
         return obs, info
 
     def step(self, action):
         obs, r, term, trunc, info = self.env.step(action)
         stopped = obs[STOP_MADE] > 0.5
         failed = bool(info["new_violations"]) or bool(info["collision"])
-        r = shaped_reward(r, stopped, self._stopped, failed)
-        self._stopped = stopped
+        r = shaped_reward(r, stopped, self._stopped, failed) - float(near_miss_cost(self._obs, obs))
+        self._stopped, self._obs = stopped, obs
         return obs, r, term or bool(info["new_violations"]), trunc, info
 
 
@@ -251,6 +282,7 @@ class BatchedTask(gym.vector.VectorWrapper):
         self.traffic, self.pedestrians = traffic, pedestrians
         self._rngs = [np.random.default_rng() for _ in self.subs]
         self._stopped = np.zeros(self.num_envs, dtype=bool)
+        self._obs: np.ndarray | None = None
 
     def _draw(self, which) -> None:
         if self.traffic is not None or self.pedestrians is not None:
@@ -266,6 +298,7 @@ class BatchedTask(gym.vector.VectorWrapper):
         obs, info = self.env.reset(seed=seed, options=options)
         self._draw(everyone)  # the next episode's count
         self._stopped = obs[:, STOP_MADE] > 0.5
+        self._obs = obs
         return obs, info
 
     def step(self, actions):
@@ -281,6 +314,7 @@ class BatchedTask(gym.vector.VectorWrapper):
         hit = [info["final_info"]["collision"][i] if done[i] else info["collision"][i] for i in range(self.num_envs)]
         stopped = last[:, STOP_MADE] > 0.5
         r = shaped_reward(r, stopped, self._stopped, np.array([bool(v) or bool(h) for v, h in zip(new, hit)]))
+        r = r - near_miss_cost(self._obs, last)
         ended = np.array([bool(v) for v in new]) & ~done  # a violation ends the task's episode
         if ended.any():
             for i in np.nonzero(ended)[0].tolist():
@@ -289,6 +323,7 @@ class BatchedTask(gym.vector.VectorWrapper):
             term = term | ended
         self._draw(done | ended)
         self._stopped = obs[:, STOP_MADE] > 0.5
+        self._obs = obs
         return obs, r, term, trunc, info
 
 

@@ -22,6 +22,7 @@ pytest.importorskip("torch", reason=SKIP_RL)
 pytest.importorskip("stable_baselines3", reason=SKIP_RL)
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "train_ppo.py"
+NEAR_MISS_SEEDS = 3
 
 
 @pytest.fixture(scope="module")
@@ -159,6 +160,28 @@ def test_stop_bonus_once_and_a_violation_ends_the_episode(tp):
     assert not o.success and o.failure == "stop_sign"
 
 
+def test_near_misses_cost_what_they_are_named_for(tp):
+    """Entering the junction while the decision before saw a conflicting lane taken costs
+    ENTRY_COST, a clear entry nothing; moving faster than the speed that stops the ego at a
+    pedestrian's stop point with BRAKE_MPS2 costs in proportion to the excess, slower nothing."""
+    F = tp.DRIVER_VIEW_FEATURES
+    before, after = np.zeros((4, len(F))), np.zeros((4, len(F)))
+    before[:, tp.PEDESTRIAN] = after[:, tp.PEDESTRIAN] = 1.0  # (1: nobody in the path)
+    before[:2, tp.OCCUPIED] = 1.0
+    after[[0, 2], tp.IN_JUNCTION] = 1.0  # rows 0 and 2 enter; row 0 with a conflicting lane taken
+    cost = tp.near_miss_cost(before, after)
+    assert cost.tolist() == [tp.ENTRY_COST, 0.0, 0.0, 0.0]
+    stop_m, speed = 6.0, 9.0  # 6 m to the stop point at 9 m/s: stopping there takes 6.75 m/s2
+    after = np.zeros(len(F))
+    after[tp.PEDESTRIAN] = stop_m / tp.DRIVER_VIEW_PEDESTRIAN_SCALE_M
+    after[tp.SPEED] = speed / tp.DRIVER_VIEW_SPEED_SCALE_MPS
+    safe = (2 * tp.BRAKE_MPS2 * stop_m) ** 0.5
+    expected = tp.LATE_BRAKE_COST * (speed - safe) / tp.DRIVER_VIEW_SPEED_SCALE_MPS
+    assert float(tp.near_miss_cost(np.zeros(len(F)), after)) == pytest.approx(expected)
+    after[tp.SPEED] = 0.9 * safe / tp.DRIVER_VIEW_SPEED_SCALE_MPS
+    assert float(tp.near_miss_cost(np.zeros(len(F)), after)) == 0.0
+
+
 def test_outcome_counts_only_clean_completions(tp):
     env = _single(tp, "bare")
     o = tp.run_episode(env, lambda obs, env: 0, seed=3)  # target speed 0: never arrives
@@ -201,6 +224,29 @@ def test_batched_task_pays_what_the_wrappers_pay(tp):
             break
     assert info["route_completed"] and sum(r > tp.STOP_BONUS / 2 for r in rewards[:-1]) == 1
     assert np.allclose(rewards, brewards)
+
+
+def test_batched_task_charges_the_near_misses_the_wrappers_charge(tp):
+    """Through a busy bare junction with a crosswalk at full speed, BatchedTask's rewards are
+    TaskRewards' step for step, near misses (`near_miss_cost`) among them."""
+    cfg = tp.env_config(tp.junction_features(ns=(4,), controls=("bare",), crosswalks=(True,)),
+                        traffic_vehicles=10, pedestrian_rate=20.0)
+    single = tp.make_env(cfg)
+    batch = tp.BatchedTask(tp.MapVectorEnv(tp.JunctionGridEnv, 1, config=cfg, autoreset_mode=tp.AutoresetMode.SAME_STEP))
+    full = len(tp.TARGET_SPEEDS) - 1
+    charged = 0.0
+    for seed in range(NEAR_MISS_SEEDS):
+        obs, _ = single.reset(seed=seed)
+        batch.reset(seed=seed)
+        while True:
+            last = obs
+            obs, r, term, trunc, _ = single.step(full)
+            _, br, bterm, btrunc, _ = batch.step(np.array([full]))
+            assert r == pytest.approx(float(br[0])) and (term, trunc) == (bool(bterm[0]), bool(btrunc[0]))
+            charged += float(tp.near_miss_cost(last, obs))
+            if term or trunc:
+                break
+    assert charged > 0.0  # (the seeds meet near misses: the comparison covers them)
 
 
 def test_training_episodes_draw_their_traffic_and_pedestrians_the_same_in_both_paths(tp):
