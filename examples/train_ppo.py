@@ -201,7 +201,7 @@ def shaped_reward(r, stopped, was_stopped, failed=False):
 
 def near_miss_cost(before, after):
     """What the task charges for a decision from DriverView `before` to `after` (one observation
-    or a batch of rows) that ended in no failure, or in one: ENTRY_COST for entering the junction
+    or a batch of rows), whatever it ended in: ENTRY_COST for entering the junction
     while `before` saw a conflicting lane occupied or reserved (the conflict rule holds a driver
     there), and LATE_BRAKE_COST per DRIVER_VIEW_SPEED_SCALE_MPS of speed over the speed from which
     BRAKE_MPS2 stops the ego at the stop point a pedestrian makes (`after`). Both are what a
@@ -222,7 +222,6 @@ class TaskRewards(gym.Wrapper):
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)
-        self._stopped = obs[STOP_MADE] > 0.5
         self._obs = obs
         return obs, info
 
@@ -230,8 +229,8 @@ class TaskRewards(gym.Wrapper):
         obs, r, term, trunc, info = self.env.step(action)
         stopped = obs[STOP_MADE] > 0.5
         failed = bool(info["new_violations"]) or bool(info["collision"])
-        r = shaped_reward(r, stopped, self._stopped, failed) - float(near_miss_cost(self._obs, obs))
-        self._stopped, self._obs = stopped, obs
+        r = shaped_reward(r, stopped, self._obs[STOP_MADE] > 0.5, failed) - float(near_miss_cost(self._obs, obs))
+        self._obs = obs
         return obs, r, term or bool(info["new_violations"]), trunc, info
 
 
@@ -281,8 +280,7 @@ class BatchedTask(gym.vector.VectorWrapper):
         self.action_space = gym.spaces.MultiDiscrete([len(self.speeds)] * self.num_envs)
         self.traffic, self.pedestrians = traffic, pedestrians
         self._rngs = [np.random.default_rng() for _ in self.subs]
-        self._stopped = np.zeros(self.num_envs, dtype=bool)
-        self._obs: np.ndarray | None = None
+        self._obs = np.zeros((self.num_envs, *self.single_observation_space.shape))  # (the last observations)
 
     def _draw(self, which) -> None:
         if self.traffic is not None or self.pedestrians is not None:
@@ -297,7 +295,6 @@ class BatchedTask(gym.vector.VectorWrapper):
         self._draw(everyone)
         obs, info = self.env.reset(seed=seed, options=options)
         self._draw(everyone)  # the next episode's count
-        self._stopped = obs[:, STOP_MADE] > 0.5
         self._obs = obs
         return obs, info
 
@@ -313,7 +310,7 @@ class BatchedTask(gym.vector.VectorWrapper):
                for i in range(self.num_envs)]
         hit = [info["final_info"]["collision"][i] if done[i] else info["collision"][i] for i in range(self.num_envs)]
         stopped = last[:, STOP_MADE] > 0.5
-        r = shaped_reward(r, stopped, self._stopped, np.array([bool(v) or bool(h) for v, h in zip(new, hit)]))
+        r = shaped_reward(r, stopped, self._obs[:, STOP_MADE] > 0.5, np.array([bool(v) or bool(h) for v, h in zip(new, hit)]))
         r = r - near_miss_cost(self._obs, last)
         ended = np.array([bool(v) for v in new]) & ~done  # a violation ends the task's episode
         if ended.any():
@@ -322,7 +319,6 @@ class BatchedTask(gym.vector.VectorWrapper):
             obs, _ = self.env.reset(options={"reset_mask": ended})
             term = term | ended
         self._draw(done | ended)
-        self._stopped = obs[:, STOP_MADE] > 0.5
         self._obs = obs
         return obs, r, term, trunc, info
 
